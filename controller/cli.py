@@ -1,0 +1,173 @@
+"""The ``cheope`` command line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+import can
+
+from controller.config import Config, ConfigError, load_config, parse_override
+from drivers.bus import BusSpec, BusSpecError, parse_bus_spec
+from drivers.bus_load import BusLoadError
+from drivers.node_setup import NodeSetupError
+
+
+def _common(ap: argparse.ArgumentParser, bus: bool = True) -> None:
+    ap.add_argument("--config", help="TOML configuration (default: the shipped controller/configs/cheope.toml)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a configuration key, e.g. --set loop.rate_hz=1000 (repeatable)")
+    ap.add_argument("--rate", type=float, help="loop rate [Hz] (same as --set loop.rate_hz=...)")
+    if bus:
+        ap.add_argument("--can", help="INTERFACE[:CHANNEL]: socketcan:vcan0, udp_multicast, virtual:x "
+                                      "(default: the config's bus.can)")
+        ap.add_argument("--udp-port", type=int, help="UDP port of the udp_multicast bus")
+        ap.add_argument("--fd", action="store_true", help="use CAN FD frames")
+
+
+def _overrides(args: argparse.Namespace) -> list[str]:
+    sets = list(args.set)
+    if args.rate is not None:
+        sets.append(f"loop.rate_hz={args.rate}")
+    return sets
+
+
+def _config(args: argparse.Namespace) -> Config:
+    return load_config(args.config, dict(parse_override(s) for s in _overrides(args)))
+
+
+def _spec(args: argparse.Namespace, cfg: Config, default_port: int | None = None) -> BusSpec:
+    port = args.udp_port or default_port or cfg.bus.udp_port
+    return parse_bus_spec(args.can or cfg.bus.can, fd=args.fd or cfg.bus.fd, udp_port=port)
+
+
+def _stop_on_signals() -> threading.Event:
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    return stop
+
+
+def _print_summary(summary: dict[str, Any], as_json: bool) -> None:
+    if as_json:
+        print(json.dumps(summary))
+        return
+    pe, te = summary["period_error_us"], summary["tracking_error_m"]
+    lines = [
+        f"final mode          {summary['final_mode']}" + (f" ({summary['fault_reason']})" if summary["fault_reason"] else ""),
+        f"bus                 {summary['bus']}, planned load {summary['bus_load_percent']:.1f} %",
+        f"loop rate           {summary['achieved_rate_hz']:.2f} Hz achieved of {summary['nominal_rate_hz']:.0f} Hz, "
+        f"{summary['cycles']} cycles",
+        f"period error        p50 {pe['p50']:.0f} us, p99 {pe['p99']:.0f} us, max {pe['max']:.0f} us",
+        f"late cycles         {summary['late_cycles']} (overruns {summary['overruns']})",
+        f"missing frames      drives {summary['missing_frames']['drive']}, sensor {summary['missing_frames']['sensor']}",
+    ]
+    if te["rms"] is not None:
+        lines.append(f"tracking error      RMS {te['rms'] * 1e6:.1f} um, max {te['max'] * 1e6:.1f} um "
+                     f"({te['samples']} samples)")
+    print("\n".join(lines))
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from controller.demo import random_udp_port, run_demo
+
+    cfg = _config(args)
+    spec = _spec(args, cfg, default_port=random_udp_port())
+    summary = run_demo(cfg, spec, args.config, _overrides(args), args.max_duration, _stop_on_signals())
+    _print_summary(summary, args.json)
+    return 0 if summary["final_mode"] == "DONE" else 1
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from controller.service import run_controller
+
+    cfg = _config(args)
+    summary = run_controller(cfg, _spec(args, cfg), args.max_duration, _stop_on_signals())
+    _print_summary(summary, args.json)
+    return 0 if summary["final_mode"] == "DONE" else 1
+
+
+def cmd_sim(args: argparse.Namespace) -> int:
+    from sim_backend.process import serve
+
+    cfg = _config(args)
+    serve(cfg, _spec(args, cfg), _stop_on_signals(), lambda line: print(line, flush=True))
+    return 0
+
+
+def cmd_bus_load(args: argparse.Namespace) -> int:
+    from controller.service import planned_bus_load
+
+    cfg = _config(args)
+    load = planned_bus_load(cfg)
+    ok = load.percent <= cfg.bus.max_load_percent
+    if args.json:
+        print(json.dumps({"load_percent": load.percent, "limit_percent": cfg.bus.max_load_percent, "ok": ok,
+                          "frames_per_second": load.frames_per_second, "fd": cfg.bus.fd,
+                          "frames": [f.__dict__ for f in load.frames]}))
+    else:
+        kind = f"CAN FD {cfg.bus.bitrate_bit_s / 1e6:g}/{cfg.bus.data_bitrate_bit_s / 1e6:g} Mbit/s" if cfg.bus.fd \
+            else f"classical CAN {cfg.bus.bitrate_bit_s / 1e6:g} Mbit/s"
+        print(f"{kind} at {cfg.loop.rate_hz:g} Hz, worst-case bit stuffing")
+        for f in load.frames:
+            print(f"  {f.name:<16} {f.n_bytes:>2} bytes  {f.rate_hz:>8.1f} frames/s")
+        print(f"load {load.percent:.1f} % (limit {cfg.bus.max_load_percent:g} %): {'OK' if ok else 'REFUSED'}")
+    return 0 if ok else 1
+
+
+def cmd_analyze(args: argparse.Namespace) -> int:
+    from controller.analysis.cheope_plots import analyze_cheope
+
+    cfg = _config(args)
+    report = analyze_cheope(cfg, Path(args.out))
+    print(json.dumps(report) if args.json else "\n".join(f"{k}: {v}" for k, v in report.items()))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="cheope", description="Controller service for parallel-kinematic robots")
+    ap.add_argument("-v", "--verbose", action="store_true", help="log to stderr")
+    sub = ap.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("demo", help="simulator process + controller + the configured task, then a summary")
+    _common(p)
+    p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    p.add_argument("--max-duration", type=float, default=600.0, help="stop after this many seconds")
+    p.set_defaults(func=cmd_demo)
+    p = sub.add_parser("run", help="only the controller, against whatever devices are on the bus")
+    _common(p)
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--max-duration", type=float, default=600.0)
+    p.set_defaults(func=cmd_run)
+    p = sub.add_parser("sim", help="only the simulated hardware")
+    _common(p)
+    p.set_defaults(func=cmd_sim)
+    p = sub.add_parser("bus-load", help="bus load of the configured cycle")
+    _common(p, bus=False)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_bus_load)
+    p = sub.add_parser("analyze", help="workspace, singularity margins and ellipsoids; writes PNG plots")
+    _common(p, bus=False)
+    p.add_argument("--out", default="analysis", help="directory for the PNG plots")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_analyze)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    try:
+        return args.func(args)
+    except (ConfigError, BusSpecError, BusLoadError, NodeSetupError, can.CanError, OSError) as err:
+        print(f"cheope {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except ValueError as err:  # WorkspaceError and friends: a task we refuse to run
+        print(f"cheope {args.command}: refused: {err}", file=sys.stderr)
+        return 2

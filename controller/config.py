@@ -1,0 +1,309 @@
+"""Configuration: TOML files mapped onto frozen dataclasses, validated once at start.
+
+Every value has its unit in its name. A value outside its allowed range, of the wrong type,
+or an unknown key is rejected with a ``ConfigError`` naming the key, the value and the
+reason. ``controller/configs/cheope.toml`` holds the defaults and documents every key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+CONFIG_DIR = Path(__file__).parent / "configs"
+DEFAULT_CONFIG = CONFIG_DIR / "cheope.toml"
+
+
+class ConfigError(ValueError):
+    """Invalid configuration; the message names the key, the value and what is allowed."""
+
+
+def _r(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False) -> dict[str, Any]:
+    return {"range": (lo, hi, lo_open)}
+
+
+@dataclass(frozen=True)
+class CheopeSection:
+    rod_length_m: float = field(default=0.50, metadata=_r(0.0, 10.0, lo_open=True))
+    axis_tilt_deg: float = field(default=60.0, metadata=_r(1.0, 89.0))
+    axis_azimuths_deg: tuple[float, float, float] = (0.0, 90.0, 180.0)
+    platform_radius_m: float = field(default=0.05, metadata=_r(0.0, 1.0))
+    platform_azimuths_deg: tuple[float, float, float] = (0.0, 90.0, 180.0)
+    joint_neutral_tcp_m: tuple[float, float, float] = (0.0, 0.0, 0.50)
+    joint_swing_limit_deg: float = field(default=22.0, metadata=_r(0.0, 90.0, lo_open=True))
+    stroke_min_m: float = field(default=0.30, metadata=_r(-10.0, 10.0))
+    stroke_max_m: float = field(default=0.90, metadata=_r(-10.0, 10.0))
+
+
+@dataclass(frozen=True)
+class MarginsSection:
+    """Minimum distances from the singularity classes of seed 001 §5.1 and a conditioning bound."""
+
+    min_direct_measure: float = field(default=0.20, metadata=_r(0.0, 1.0))
+    min_inverse_measure: float = field(default=0.20, metadata=_r(0.0, 1.0))
+    min_structural_measure: float = field(default=0.20, metadata=_r(0.0, 1.0))
+    max_condition_number: float = field(default=10.0, metadata=_r(1.0, 1e6))
+
+
+@dataclass(frozen=True)
+class MassSection:
+    platform_kg: float = field(default=2.0, metadata=_r(0.0, 1000.0))
+    slider_kg: float = field(default=1.5, metadata=_r(0.0, 1000.0))
+    rod_pair_kg: float = field(default=0.4, metadata=_r(0.0, 1000.0))
+    actuator_stiffness_n_m: float = field(default=2.0e6, metadata=_r(0.0, 1e12, lo_open=True))
+
+
+@dataclass(frozen=True)
+class RobotSection:
+    kind: str = field(default="cheope", metadata={"choices": ("cheope",)})
+    cheope: CheopeSection = CheopeSection()
+    margins: MarginsSection = MarginsSection()
+    mass: MassSection = MassSection()
+
+
+@dataclass(frozen=True)
+class ActuatorsSection:
+    node_ids: tuple[int, int, int] = (1, 2, 3)
+    counts_per_m: float = field(default=1.0e7, metadata=_r(1.0, 1e12))
+    max_velocity_m_s: float = field(default=1.0, metadata=_r(0.0, 100.0, lo_open=True))
+    max_acceleration_m_s2: float = field(default=10.0, metadata=_r(0.0, 1e4, lo_open=True))
+    max_jerk_m_s3: float = field(default=500.0, metadata=_r(0.0, 1e7, lo_open=True))
+    vendor_id: int = field(default=0x00000CE0, metadata=_r(0, 2**32 - 1))
+    product_code: int = field(default=0x00000402, metadata=_r(0, 2**32 - 1))
+
+
+@dataclass(frozen=True)
+class SensorSection:
+    enabled: bool = True
+    node_id: int = field(default=16, metadata=_r(1, 127))
+    product_code: int = field(default=0x00000F75, metadata=_r(0, 2**32 - 1))
+
+
+@dataclass(frozen=True)
+class BusSection:
+    can: str = "udp_multicast"
+    udp_port: int = field(default=43113, metadata=_r(1, 65535))
+    fd: bool = False
+    bitrate_bit_s: float = field(default=1.0e6, metadata=_r(1e4, 1e6))
+    data_bitrate_bit_s: float = field(default=5.0e6, metadata=_r(1e5, 1.2e7))
+    max_load_percent: float = field(default=70.0, metadata=_r(1.0, 100.0))
+
+
+@dataclass(frozen=True)
+class LoopSection:
+    rate_hz: float = field(default=400.0, metadata=_r(1.0, 4000.0))
+    collect_fraction: float = field(default=0.6, metadata=_r(0.05, 0.95))
+    spin_us: float = field(default=300.0, metadata=_r(0.0, 5000.0))
+    max_missing_cycles: int = field(default=3, metadata=_r(1, 1000))
+    heartbeat_period_s: float = field(default=0.1, metadata=_r(0.01, 10.0))
+    heartbeat_consumer_s: float = field(default=0.5, metadata=_r(0.02, 60.0))
+    controller_node_id: int = field(default=100, metadata=_r(1, 127))
+    enable_timeout_s: float = field(default=2.0, metadata=_r(0.01, 60.0))
+    hold_before_task_s: float = field(default=0.2, metadata=_r(0.0, 60.0))
+    settle_tolerance_m: float = field(default=2.0e-5, metadata=_r(0.0, 1.0, lo_open=True))
+
+
+@dataclass(frozen=True)
+class PathSection:
+    """A circle in a plane parallel to XY: the first task of issue 2."""
+
+    center_m: tuple[float, float, float] = (0.0, 0.0, 0.50)
+    radius_m: float = field(default=0.08, metadata=_r(0.0, 1.0, lo_open=True))
+    speed_m_s: float = field(default=0.10, metadata=_r(0.0, 10.0, lo_open=True))
+    laps: float = field(default=1.0, metadata=_r(0.0, 1000.0, lo_open=True))
+    ramp_s: float = field(default=0.5, metadata=_r(0.0, 60.0))
+    check_samples: int = field(default=720, metadata=_r(8, 1_000_000))
+
+
+@dataclass(frozen=True)
+class TaskSection:
+    kind: str = field(default="path", metadata={"choices": ("path",)})
+    path: PathSection = PathSection()
+
+
+@dataclass(frozen=True)
+class SimDriveSection:
+    """Simulated CiA 402 drive: a second-order position loop with drive-side limits."""
+
+    bandwidth_hz: float = field(default=60.0, metadata=_r(0.1, 10000.0))
+    damping_ratio: float = field(default=0.9, metadata=_r(0.05, 5.0))
+    velocity_feedforward: float = field(default=1.0, metadata=_r(0.0, 1.0))
+    max_velocity_m_s: float = field(default=2.0, metadata=_r(0.0, 100.0, lo_open=True))
+    max_acceleration_m_s2: float = field(default=40.0, metadata=_r(0.0, 1e5, lo_open=True))
+    quick_stop_deceleration_m_s2: float = field(default=5.0, metadata=_r(0.0, 1e5, lo_open=True))
+    sync_timeout_s: float = field(default=0.05, metadata=_r(0.001, 60.0))
+    substep_s: float = field(default=2.5e-4, metadata=_r(1e-6, 0.01))
+    initial_positions_m: tuple[float, float, float] = (0.55, 0.55, 0.55)
+
+
+@dataclass(frozen=True)
+class SimSensorSection:
+    noise_std_n: float = field(default=0.05, metadata=_r(0.0, 100.0))
+    bias_n: tuple[float, float, float] = (0.10, -0.05, 0.02)
+    range_n: float = field(default=300.0, metadata=_r(0.0, 327.0, lo_open=True))
+    seed: int = 1
+
+
+@dataclass(frozen=True)
+class SimSection:
+    drive: SimDriveSection = SimDriveSection()
+    sensor: SimSensorSection = SimSensorSection()
+
+
+@dataclass(frozen=True)
+class Config:
+    robot: RobotSection = RobotSection()
+    actuators: ActuatorsSection = ActuatorsSection()
+    sensor: SensorSection = SensorSection()
+    bus: BusSection = BusSection()
+    loop: LoopSection = LoopSection()
+    task: TaskSection = TaskSection()
+    sim: SimSection = SimSection()
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.loop.rate_hz
+
+
+def _check_number(key: str, value: Any, meta: dict[str, Any], integer: bool) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (integer and not isinstance(value, int)):
+        raise ConfigError(f"{key} = {value!r}: expected {'an integer' if integer else 'a number'}")
+    if not math.isfinite(value):
+        raise ConfigError(f"{key} = {value!r}: must be finite")
+    lo, hi, lo_open = meta.get("range", (None, None, False))
+    if lo is not None and (value < lo or (lo_open and value == lo)):
+        raise ConfigError(f"{key} = {value!r}: must be {'>' if lo_open else '>='} {lo}" +
+                          (f" and <= {hi}" if hi is not None else ""))
+    if hi is not None and value > hi:
+        raise ConfigError(f"{key} = {value!r}: must be <= {hi}" + (f" and >= {lo}" if lo is not None else ""))
+
+
+def _convert(key: str, tp: Any, value: Any, meta: dict[str, Any]) -> Any:
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise ConfigError(f"[{key}] must be a table, got {value!r}")
+        return _build(tp, value, key)
+    origin = typing.get_origin(tp)
+    if origin is tuple:
+        args = typing.get_args(tp)
+        if not isinstance(value, (list, tuple)) or len(value) != len(args):
+            raise ConfigError(f"{key} = {value!r}: expected a list of {len(args)} values")
+        return tuple(_convert(f"{key}[{i}]", a, v, meta) for i, (a, v) in enumerate(zip(args, value)))
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{key} = {value!r}: expected true or false")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{key} = {value!r}: expected a string")
+        choices = meta.get("choices")
+        if choices and value not in choices:
+            raise ConfigError(f"{key} = {value!r}: must be one of {', '.join(choices)}")
+        return value
+    if tp is int:
+        _check_number(key, value, meta, integer=True)
+        return value
+    if tp is float:
+        _check_number(key, value, meta, integer=False)
+        return float(value)
+    raise TypeError(f"unsupported config type {tp} for {key}")  # a bug in this module, not input
+
+
+def _build(cls: type, table: dict[str, Any], prefix: str) -> Any:
+    hints = typing.get_type_hints(cls)
+    names = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(table) - set(names))
+    if unknown:
+        where = f"[{prefix}]" if prefix else "the top level"
+        raise ConfigError(f"unknown key(s) {', '.join(unknown)} in {where}; known: {', '.join(sorted(names))}")
+    kwargs = {}
+    for name, value in table.items():
+        key = f"{prefix}.{name}" if prefix else name
+        kwargs[name] = _convert(key, hints[name], value, dict(names[name].metadata))
+    return cls(**kwargs)
+
+
+def _cross_checks(cfg: Config) -> None:
+    c = cfg.robot.cheope
+    if c.stroke_min_m >= c.stroke_max_m:
+        raise ConfigError(
+            f"robot.cheope.stroke_min_m = {c.stroke_min_m} must be < robot.cheope.stroke_max_m = {c.stroke_max_m}"
+        )
+    ids = list(cfg.actuators.node_ids) + ([cfg.sensor.node_id] if cfg.sensor.enabled else []) + [
+        cfg.loop.controller_node_id]
+    for i in cfg.actuators.node_ids:
+        if not 1 <= i <= 127:
+            raise ConfigError(f"actuators.node_ids = {list(cfg.actuators.node_ids)}: node ids must be in 1..127")
+    if len(set(ids)) != len(ids):
+        raise ConfigError(
+            f"node ids must be distinct: actuators.node_ids = {list(cfg.actuators.node_ids)}, "
+            f"sensor.node_id = {cfg.sensor.node_id}, loop.controller_node_id = {cfg.loop.controller_node_id}"
+        )
+    if cfg.loop.heartbeat_consumer_s <= cfg.loop.heartbeat_period_s:
+        raise ConfigError(
+            f"loop.heartbeat_consumer_s = {cfg.loop.heartbeat_consumer_s} must exceed "
+            f"loop.heartbeat_period_s = {cfg.loop.heartbeat_period_s}"
+        )
+    if cfg.bus.fd and cfg.bus.data_bitrate_bit_s < cfg.bus.bitrate_bit_s:
+        raise ConfigError(
+            f"bus.data_bitrate_bit_s = {cfg.bus.data_bitrate_bit_s} must be >= bus.bitrate_bit_s = "
+            f"{cfg.bus.bitrate_bit_s}"
+        )
+
+
+def config_from_dict(table: dict[str, Any]) -> Config:
+    cfg = _build(Config, table, "")
+    _cross_checks(cfg)
+    return cfg
+
+
+def load_config(path: Path | str | None = None, overrides: dict[str, Any] | None = None) -> Config:
+    """Load ``path`` (default: the shipped cheope.toml) and apply dotted-key ``overrides``."""
+    p = Path(path) if path is not None else DEFAULT_CONFIG
+    try:
+        with p.open("rb") as fh:
+            table = tomllib.load(fh)
+    except FileNotFoundError as err:
+        raise ConfigError(f"configuration file {p} does not exist") from err
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"configuration file {p} is not valid TOML: {err}") from err
+    for dotted, value in (overrides or {}).items():
+        set_dotted(table, dotted, value)
+    return config_from_dict(table)
+
+
+def set_dotted(table: dict[str, Any], dotted: str, value: Any) -> None:
+    *parents, leaf = dotted.split(".")
+    node = table
+    for part in parents:
+        node = node.setdefault(part, {})
+        if not isinstance(node, dict):
+            raise ConfigError(f"cannot set {dotted}: {part} is not a table")
+    node[leaf] = value
+
+
+def config_to_dict(cfg: Any) -> dict[str, Any]:
+    """Plain nested dict (for metadata, status answers and JSON)."""
+    return dataclasses.asdict(cfg)
+
+
+__all__ = [
+    "Config", "ConfigError", "load_config", "config_from_dict", "config_to_dict", "set_dotted", "DEFAULT_CONFIG",
+]
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """``key.sub=value`` with a TOML value (``loop.rate_hz=1000``, ``bus.can="socketcan:vcan0"``)."""
+    key, sep, raw = text.partition("=")
+    if not sep or not key.strip():
+        raise ConfigError(f"--set {text!r}: expected KEY=VALUE, e.g. loop.rate_hz=1000")
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw  # a bare word is taken as a string
+    return key.strip(), value

@@ -1,0 +1,253 @@
+"""The pure control step: ``step(state, inputs, t) -> (state, outputs, events)``.
+
+One call per cycle. ``t`` is the cycle's nominal time [s] (cycle index times period), never
+a clock reading, so a recorded session replays bit for bit. The setpoint computed at ``t``
+is sent at the next deadline, latched by the drives on that cycle's SYNC, and reached by
+the drives' interpolators one period later: it is the setpoint for ``t + 2 * period``
+(``PIPELINE_PERIODS``).
+
+Supervisor modes (see ``Mode``)::
+
+    CONFIGURING -> ENABLING -> HOLDING -> RUNNING -> STOPPING -> DONE
+          \\______________\\__________\\__________\\__________\\--> FAULT
+
+CONFIGURING waits for every drive's first TPDO (the loop shell has done NMT and SDO set-up
+before the first cycle), ENABLING walks each drive's CiA 402 power state machine to
+OPERATION ENABLED while commanding its measured position (no jump at enable), HOLDING keeps
+the position for ``hold_before_task_s``, RUNNING streams the task through Ruckig, STOPPING
+brakes within the limits and then shuts the drives down, FAULT quick-stops them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from enum import IntEnum
+from typing import Protocol
+
+import numpy as np
+
+from controller.cycle_data import CycleInputs, CycleOutputs, Event, Severity
+from controller.robots.cheope import PoseStatus
+from controller.robots.errors import NoSolutionError
+from controller.setpoint_smoothing import RuckigSmoother, Setpoint
+from controller.tasks.path_task import JointReference
+from drivers.cia402 import PowerState, controlword_towards, decode_statusword
+
+
+PIPELINE_PERIODS = 2
+
+
+class Mode(IntEnum):
+    CONFIGURING = 0
+    ENABLING = 1
+    HOLDING = 2
+    RUNNING = 3
+    STOPPING = 4
+    DONE = 5
+    FAULT = 6
+
+
+class Robot(Protocol):
+    n_actuators: int
+
+    def direct_kinematics(self, q: np.ndarray) -> np.ndarray: ...
+
+    def check_pose(self, tcp_m: np.ndarray) -> PoseStatus: ...
+
+
+class Task(Protocol):
+    name: str
+
+    def start(self) -> object: ...
+
+    def reference(self, state: object, t_cmd_s: float, setpoint: Setpoint) -> tuple[object, JointReference, bool]: ...
+
+
+@dataclass(frozen=True)
+class LawConfig:
+    period_s: float
+    enable_timeout_s: float
+    hold_before_task_s: float
+    max_missing_cycles: int
+    settle_tolerance: float  # [actuator unit] and [unit/s]: "at rest" for the stop
+
+
+@dataclass(frozen=True, slots=True)
+class ControllerState:
+    mode: Mode
+    cycle: int
+    mode_entered_s: float
+    setpoint: Setpoint
+    controlwords: tuple[int, ...]
+    missing_streak: tuple[int, ...]
+    task_state: object
+    tcp_reference_m: tuple[float, float, float] | None  # path point for the next SYNC; None off the path
+    tcp_measured_m: tuple[float, float, float] | None  # direct kinematics of the measured positions
+    fault_reason: str = ""
+
+
+class ControlLaw:
+    """Composes supervisor, CiA 402 power management, task and smoothing into ``step``."""
+
+    def __init__(self, robot: Robot, task: Task, smoother: RuckigSmoother, config: LawConfig) -> None:
+        self.robot = robot
+        self.task = task
+        self.smoother = smoother
+        self.config = config
+        self.n = robot.n_actuators
+
+    def initial_state(self) -> ControllerState:
+        zeros = (0.0,) * self.n
+        return ControllerState(
+            mode=Mode.CONFIGURING, cycle=0, mode_entered_s=0.0, setpoint=Setpoint.at_rest(zeros),
+            controlwords=(0,) * self.n, missing_streak=(0,) * self.n, task_state=None,
+            tcp_reference_m=None, tcp_measured_m=None,
+        )
+
+    # -- the step -------------------------------------------------------------------------
+
+    def step(self, state: ControllerState, inputs: CycleInputs, t: float
+             ) -> tuple[ControllerState, CycleOutputs, tuple[Event, ...]]:
+        events: list[Event] = []
+        measured = tuple(d.position for d in inputs.drives)
+        powers = tuple(decode_statusword(d.statusword) for d in inputs.drives)
+        streak = tuple(0 if d.fresh else s + 1 for d, s in zip(inputs.drives, state.missing_streak))
+        state = replace(state, cycle=state.cycle + 1, missing_streak=streak,
+                        tcp_measured_m=self._measured_tcp(state, inputs, measured))
+
+        if state.mode not in (Mode.FAULT, Mode.CONFIGURING):
+            reason = self._fault_reason(state, inputs, powers)
+            if reason:
+                state = self._enter(state, Mode.FAULT, t, events, Severity.FAULT, reason)
+                state = replace(state, fault_reason=reason, setpoint=Setpoint.at_rest(measured))
+        if inputs.stop_requested and state.mode in (Mode.ENABLING, Mode.HOLDING, Mode.RUNNING):
+            state = self._enter(state, Mode.STOPPING, t, events, Severity.INFO, "stop requested")
+
+        handler = {
+            Mode.CONFIGURING: self._configuring, Mode.ENABLING: self._enabling, Mode.HOLDING: self._holding,
+            Mode.RUNNING: self._running, Mode.STOPPING: self._stopping, Mode.DONE: self._done,
+            Mode.FAULT: self._fault,
+        }[state.mode]
+        state = handler(state, inputs, powers, measured, t, events)
+        outputs = CycleOutputs(controlwords=state.controlwords, targets=state.setpoint.position)
+        return state, outputs, tuple(events)
+
+    # -- checks ---------------------------------------------------------------------------
+
+    def _measured_tcp(self, state: ControllerState, inputs: CycleInputs, measured: tuple[float, ...]
+                      ) -> tuple[float, float, float] | None:
+        if not all(d.fresh for d in inputs.drives):
+            return state.tcp_measured_m
+        try:
+            return tuple(self.robot.direct_kinematics(np.asarray(measured)).tolist())  # type: ignore[return-value]
+        except NoSolutionError:
+            return None
+
+    def _fault_reason(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...]) -> str:
+        for j, (p, streak) in enumerate(zip(powers, state.missing_streak)):
+            if p in (PowerState.FAULT, PowerState.FAULT_REACTION_ACTIVE):
+                return f"drive {j + 1} reports {p.name} (statusword 0x{inputs.drives[j].statusword:04X})"
+            if streak >= self.config.max_missing_cycles:
+                return f"drive {j + 1}: no TPDO for {streak} cycles"
+        for e in inputs.emcy:
+            if e.error_code != 0:
+                return f"EMCY from node {e.node_id}: error code 0x{e.error_code:04X}, register 0x{e.error_register:02X}"
+        if state.mode in (Mode.HOLDING, Mode.RUNNING) or (
+                state.mode == Mode.STOPPING and not self._shutting_down(state)):
+            for j, p in enumerate(powers):
+                if p != PowerState.OPERATION_ENABLED:
+                    return f"drive {j + 1} left OPERATION ENABLED (now {p.name})"
+        for j, x in enumerate(inputs.drives):
+            if not math.isfinite(x.position):
+                return f"drive {j + 1} position is not a number"
+        return ""
+
+    def _shutting_down(self, state: ControllerState) -> bool:
+        return any(cw != controlword_towards(PowerState.OPERATION_ENABLED, PowerState.OPERATION_ENABLED)
+                   for cw in state.controlwords)
+
+    # -- mode handlers ----------------------------------------------------------------------
+
+    def _enter(self, state: ControllerState, mode: Mode, t: float, events: list[Event],
+               severity: Severity = Severity.INFO, why: str = "") -> ControllerState:
+        text = f"{state.mode.name} -> {mode.name}" + (f": {why}" if why else "")
+        events.append(Event("mode", severity, text))
+        return replace(state, mode=mode, mode_entered_s=t)
+
+    def _configuring(self, state, inputs, powers, measured, t, events) -> ControllerState:
+        if all(d.fresh for d in inputs.drives):
+            state = replace(state, setpoint=Setpoint.at_rest(measured))
+            return self._enter(state, Mode.ENABLING, t, events, why="all drives answer")
+        return state
+
+    def _enabling(self, state, inputs, powers, measured, t, events) -> ControllerState:
+        # Command the measured position while the drives are not enabled: no jump at enable.
+        cws = tuple(controlword_towards(p, PowerState.OPERATION_ENABLED, cw)
+                    for p, cw in zip(powers, state.controlwords))
+        state = replace(state, controlwords=cws, setpoint=Setpoint.at_rest(measured))
+        if all(p == PowerState.OPERATION_ENABLED for p in powers):
+            return self._enter(state, Mode.HOLDING, t, events, why="all drives in OPERATION ENABLED")
+        if t - state.mode_entered_s > self.config.enable_timeout_s:
+            states = ", ".join(f"{j + 1}: {p.name}" for j, p in enumerate(powers))
+            why = f"drives not enabled within {self.config.enable_timeout_s} s ({states})"
+            return replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, why), fault_reason=why)
+        return state
+
+    def _holding(self, state, inputs, powers, measured, t, events) -> ControllerState:
+        state = self._smooth_to_rest(state, t, events)
+        if t - state.mode_entered_s >= self.config.hold_before_task_s and state.mode == Mode.HOLDING:
+            state = replace(state, task_state=self.task.start())
+            return self._enter(state, Mode.RUNNING, t, events, why=f"task {self.task.name} starts")
+        return state
+
+    def _running(self, state, inputs, powers, measured, t, events) -> ControllerState:
+        t_cmd = t + PIPELINE_PERIODS * self.config.period_s
+        task_state, ref, finished = self.task.reference(state.task_state, t_cmd, state.setpoint)
+        pose = self.robot.check_pose(np.asarray(ref.tcp_m))
+        if not pose.ok:
+            why = f"task reference leaves the safe workspace: {pose.reason}"
+            return replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, why), fault_reason=why,
+                           setpoint=Setpoint.at_rest(measured))
+        result = self.smoother.step(state.setpoint, ref.position, ref.velocity, ref.acceleration)
+        if not result.ok:
+            return replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, result.message),
+                           fault_reason=result.message, setpoint=Setpoint.at_rest(measured))
+        state = replace(state, task_state=task_state, setpoint=result.setpoint,
+                        tcp_reference_m=ref.tcp_m if ref.on_path else None)
+        if finished:
+            return self._enter(state, Mode.STOPPING, t, events, why=f"task {self.task.name} finished")
+        return state
+
+    def _stopping(self, state, inputs, powers, measured, t, events) -> ControllerState:
+        state = replace(state, tcp_reference_m=None)
+        if not self._shutting_down(state):
+            state = self._smooth_to_rest(state, t, events)
+            if state.mode != Mode.STOPPING:
+                return state
+            tol = self.config.settle_tolerance
+            if all(abs(v) <= tol for v in state.setpoint.velocity):
+                state = replace(state, setpoint=Setpoint.at_rest(state.setpoint.position))
+            else:
+                return state
+        cws = tuple(controlword_towards(p, PowerState.READY_TO_SWITCH_ON, cw)
+                    for p, cw in zip(powers, state.controlwords))
+        state = replace(state, controlwords=cws)
+        if all(p in (PowerState.READY_TO_SWITCH_ON, PowerState.SWITCH_ON_DISABLED) for p in powers):
+            return self._enter(state, Mode.DONE, t, events, why="drives shut down")
+        return state
+
+    def _done(self, state, inputs, powers, measured, t, events) -> ControllerState:
+        return state
+
+    def _fault(self, state, inputs, powers, measured, t, events) -> ControllerState:
+        cws = tuple(controlword_towards(p, PowerState.QUICK_STOP_ACTIVE, cw)
+                    for p, cw in zip(powers, state.controlwords))
+        return replace(state, controlwords=cws, setpoint=Setpoint.at_rest(measured))
+
+    def _smooth_to_rest(self, state: ControllerState, t: float, events: list[Event]) -> ControllerState:
+        result = self.smoother.brake(state.setpoint)
+        if not result.ok:
+            return replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, result.message),
+                           fault_reason=result.message)
+        return replace(state, setpoint=result.setpoint)

@@ -1,0 +1,88 @@
+"""``cheope demo``: the simulator as a child process, the controller in this one, one task.
+
+The simulator gets the same configuration file and overrides as the controller and a
+fresh UDP port, so concurrent demos do not hear each other. It is stopped (SIGTERM, then
+SIGKILL) whatever happens to the controller.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import selectors
+import signal
+import subprocess
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from typing import Iterator
+
+from controller.config import Config
+from controller.service import run_controller
+from drivers.bus import BusSpec
+from sim_backend.process import READY_LINE
+
+
+class SimulatorStartError(RuntimeError):
+    pass
+
+
+def random_udp_port() -> int:
+    return random.SystemRandom().randint(43200, 44999)
+
+
+@contextmanager
+def simulator_process(spec: BusSpec, config_path: str | None, overrides: list[str],
+                      ready_timeout_s: float = 30.0) -> Iterator[subprocess.Popen[str]]:
+    cmd = [sys.executable, "-m", "sim_backend", "--can", f"{spec.interface}:{spec.channel}",
+           "--udp-port", str(spec.udp_port)]
+    if spec.fd:
+        cmd.append("--fd")
+    if config_path:
+        cmd += ["--config", config_path]
+    for s in overrides:
+        cmd += ["--set", s]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        _wait_ready(proc, ready_timeout_s)
+        yield proc
+    finally:
+        stop_process(proc)
+
+
+def _wait_ready(proc: subprocess.Popen[str], timeout_s: float) -> None:
+    assert proc.stdout is not None
+    sel = selectors.DefaultSelector()
+    sel.register(proc.stdout, selectors.EVENT_READ)
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if not sel.select(timeout=max(0.0, deadline - time.monotonic())):
+            break
+        line = proc.stdout.readline()
+        if not line:
+            err = proc.stderr.read() if proc.stderr else ""
+            raise SimulatorStartError(f"simulator exited with code {proc.wait()}: {err.strip()[-2000:]}")
+        if line.startswith(READY_LINE):
+            return
+    raise SimulatorStartError(f"simulator not ready within {timeout_s} s")
+
+
+def stop_process(proc: subprocess.Popen[str], timeout_s: float = 5.0) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    for stream in (proc.stdout, proc.stderr):
+        if stream is not None:
+            stream.close()
+
+
+def run_demo(cfg: Config, spec: BusSpec, config_path: str | None, overrides: list[str],
+             max_duration_s: float = 600.0, stop_event: threading.Event | None = None) -> dict[str, object]:
+    with simulator_process(spec, config_path, overrides):
+        return run_controller(cfg, spec, max_duration_s=max_duration_s, stop_event=stop_event)

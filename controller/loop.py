@@ -1,0 +1,159 @@
+"""The thin loop shell around the pure step: sleep to the deadline, exchange, step, hand off.
+
+Per cycle k, with deadline d_k = d_0 + k * period on a monotonic clock:
+  1. sleep until d_k (``Sleeper``: coarse sleep, then a short spin);
+  2. send the RPDOs computed in cycle k-1, then SYNC (the exchange);
+  3. collect this cycle's TPDOs until d_k + collect_fraction * period;
+  4. ``law.step(state, inputs, k * period)``;
+  5. hand copies to the observers (recorder, publisher, statistics): they must not block.
+If the loop falls more than one period behind, it skips the missed deadlines (counted as
+overruns) rather than running a burst of late cycles, as ros2_control's loop does.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Protocol
+
+import numpy as np
+
+from controller.control_law import ControlLaw, ControllerState, Mode
+from controller.cycle_data import CycleInputs, CycleOutputs, Event
+
+
+class Sleeper(Protocol):
+    def sleep_until(self, deadline_s: float) -> None: ...
+
+
+class DeadlineSleeper:
+    """``time.sleep`` until ``spin_s`` before the deadline, then spin on the clock."""
+
+    def __init__(self, spin_s: float, clock: Callable[[], float] = time.monotonic) -> None:
+        self.spin_s = spin_s
+        self.clock = clock
+
+    def sleep_until(self, deadline_s: float) -> None:
+        coarse = deadline_s - self.clock() - self.spin_s
+        if coarse > 0.0:
+            time.sleep(coarse)
+        while self.clock() < deadline_s:
+            pass
+
+
+class Exchange(Protocol):
+    def send(self, outputs: CycleOutputs | None) -> None: ...
+
+    def collect(self, deadline_s: float, stop_requested: bool = False) -> CycleInputs: ...
+
+
+class CycleObserver(Protocol):
+    def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
+                 outputs: CycleOutputs, events: tuple[Event, ...]) -> None: ...
+
+
+@dataclass
+class LoopStats:
+    """Timing of the run; arrays hold one entry per executed cycle."""
+
+    period_s: float
+    capacity: int
+    wake_error_s: np.ndarray = field(init=False)  # actual wake-up minus deadline
+    step_s: np.ndarray = field(init=False)  # compute time of law.step
+    cycles: int = 0
+    overruns: int = 0  # deadlines skipped because the loop fell behind
+    started_s: float = 0.0
+    finished_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        self.wake_error_s = np.zeros(self.capacity)
+        self.step_s = np.zeros(self.capacity)
+
+    def record(self, wake_error_s: float, step_s: float) -> None:
+        if self.cycles < self.capacity:
+            self.wake_error_s[self.cycles] = wake_error_s
+            self.step_s[self.cycles] = step_s
+        self.cycles += 1
+
+    @property
+    def achieved_rate_hz(self) -> float:
+        elapsed = self.finished_s - self.started_s
+        return (self.cycles - 1) / elapsed if elapsed > 0 and self.cycles > 1 else 0.0
+
+    def late_cycles(self, tolerance_fraction: float = 0.1) -> int:
+        """Cycles that woke more than ``tolerance_fraction`` of a period after their deadline."""
+        n = min(self.cycles, self.capacity)
+        return int(np.count_nonzero(self.wake_error_s[:n] > tolerance_fraction * self.period_s)) + self.overruns
+
+    def period_error_us(self) -> np.ndarray:
+        """|actual period - nominal period| between consecutive wake-ups [us]."""
+        n = min(self.cycles, self.capacity)
+        if n < 2:
+            return np.zeros(0)
+        return np.abs(np.diff(self.wake_error_s[:n])) * 1e6
+
+
+class CycleLoop:
+    def __init__(self, law: ControlLaw, exchange: Exchange, period_s: float, collect_fraction: float,
+                 sleeper: Sleeper, clock: Callable[[], float] = time.monotonic,
+                 observers: tuple[CycleObserver, ...] = (), stop_event: threading.Event | None = None) -> None:
+        self.law = law
+        self.exchange = exchange
+        self.period_s = period_s
+        self.collect_s = collect_fraction * period_s
+        self.sleeper = sleeper
+        self.clock = clock
+        self.observers = observers
+        self.stop_event = stop_event or threading.Event()
+
+    def run(self, state: ControllerState, max_duration_s: float, linger_after_end_s: float = 0.1
+            ) -> tuple[ControllerState, LoopStats]:
+        """Run until the law reaches DONE or FAULT (plus ``linger_after_end_s``) or the time is up."""
+        period = self.period_s
+        max_cycles = int(max_duration_s / period) + 1
+        stats = LoopStats(period_s=period, capacity=max_cycles)
+        clock = self.clock
+        outputs: CycleOutputs | None = None
+        first_deadline = clock() + period
+        stats.started_s = first_deadline
+        k = 0
+        end_cycle: int | None = None
+        linger = max(1, int(linger_after_end_s / period))
+        while k < max_cycles:
+            deadline = first_deadline + k * period
+            self.sleeper.sleep_until(deadline)
+            woke = clock()
+            self.exchange.send(outputs)
+            inputs = self.exchange.collect(deadline + self.collect_s, self.stop_event.is_set())
+            t = k * period
+            c0 = clock()
+            state, outputs, events = self.law.step(state, inputs, t)
+            stats.record(woke - deadline, clock() - c0)
+            for obs in self.observers:
+                obs.on_cycle(k, t, inputs, state, outputs, events)
+            if end_cycle is None and state.mode in (Mode.DONE, Mode.FAULT):
+                end_cycle = k  # keep cycling a little so the last commands reach the drives
+            if end_cycle is not None and k - end_cycle >= linger:
+                break
+            k += 1
+            behind = clock() - (first_deadline + k * period)
+            if behind > period:
+                skipped = int(behind / period)
+                stats.overruns += skipped
+                k += skipped
+        stats.finished_s = clock()
+        return state, stats
+
+
+class SimulatedTime:
+    """Clock and sleeper for runs in simulated time (tests, replay): sleeping jumps the clock."""
+
+    def __init__(self, start_s: float = 0.0) -> None:
+        self.now_s = start_s
+
+    def clock(self) -> float:
+        return self.now_s
+
+    def sleep_until(self, deadline_s: float) -> None:
+        self.now_s = max(self.now_s, deadline_s)

@@ -1,0 +1,291 @@
+"""Cheope, 3-dof translational configuration (three P[SS]2 legs), seed 001.
+
+Notation follows seed 001 §3: base frame {0} with the origin at the intersection of the
+prismatic axes, Z0 along the chassis axis pointing towards the workspace, X0 along the
+projection of prismatic axis 1. For leg j:
+
+- ``n_j``  unit vector of the prismatic axis, the slider sits at ``q_j n_j``;
+- ``a_j``  platform vector from the TCP to the mid point of the leg's two platform joints;
+- ``w_j``  unit vector of the rod pair, from slider to platform;
+- ``l``    rod length.
+
+Loop closure (seed 001, eq. (1)):  s + a_j - l w_j - q_j n_j = 0.
+
+Everything here is pure numpy on 3-vectors; nothing reads a clock or does I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from controller.robots.errors import NoSolutionError
+
+_AXES = 3
+
+
+@dataclass(frozen=True)
+class CheopeGeometry:
+    """Geometry of the 3-dof configuration.
+
+    The prismatic axes lie on a cone: axis j points along azimuth ``axis_azimuths_rad[j]``
+    (counter-clockwise from X0) and is tilted ``axis_tilt_rad`` from +Z0. The platform
+    vectors ``a_j`` have radius ``platform_radius_m`` at ``platform_azimuths_rad``.
+    """
+
+    rod_length_m: float = 0.50
+    axis_tilt_rad: float = math.radians(60.0)
+    axis_azimuths_rad: tuple[float, float, float] = (0.0, math.pi / 2, math.pi)
+    platform_radius_m: float = 0.05
+    platform_azimuths_rad: tuple[float, float, float] = (0.0, math.pi / 2, math.pi)
+    # Where each spherical joint sits in its neutral (centred) orientation: the rod direction
+    # when the TCP is at this point. Seed 001 §5.2: the joints swing about +-22 deg from it.
+    joint_neutral_tcp_m: tuple[float, float, float] = (0.0, 0.0, 0.50)
+    axes: np.ndarray = field(init=False, repr=False, compare=False)
+    platform_vectors: np.ndarray = field(init=False, repr=False, compare=False)
+    neutral_rod_directions: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if not self.rod_length_m > 0:
+            raise ValueError(f"rod_length_m must be > 0, got {self.rod_length_m}")
+        if not 0.0 < self.axis_tilt_rad < math.pi:
+            raise ValueError(f"axis_tilt_rad must be in (0, pi), got {self.axis_tilt_rad}")
+        if self.platform_radius_m < 0:
+            raise ValueError(f"platform_radius_m must be >= 0, got {self.platform_radius_m}")
+        st, ct = math.sin(self.axis_tilt_rad), math.cos(self.axis_tilt_rad)
+        axes = np.array([[st * math.cos(az), st * math.sin(az), ct] for az in self.axis_azimuths_rad])
+        plat = np.array(
+            [[self.platform_radius_m * math.cos(az), self.platform_radius_m * math.sin(az), 0.0]
+             for az in self.platform_azimuths_rad]
+        )
+        axes.setflags(write=False)
+        plat.setflags(write=False)
+        object.__setattr__(self, "axes", axes)
+        object.__setattr__(self, "platform_vectors", plat)
+        # The neutral directions need the inverse kinematics of this very geometry.
+        q0 = _inverse(axes, plat, self.rod_length_m, np.asarray(self.joint_neutral_tcp_m, dtype=float))
+        neutral = rod_directions_from(axes, plat, self.rod_length_m, np.asarray(self.joint_neutral_tcp_m), q0)
+        neutral.setflags(write=False)
+        object.__setattr__(self, "neutral_rod_directions", neutral)
+
+
+def _inverse(axes: np.ndarray, plat: np.ndarray, rod_length_m: float, tcp_m: np.ndarray) -> np.ndarray:
+    # seed 001, eq. (5): q_j = n_j.r_j + sqrt((n_j.r_j)^2 - r_j.r_j + l^2), r_j = s + a_j.
+    # The '+' branch is the one the paper selects (slider beyond the rod's foot point).
+    r = tcp_m[None, :] + plat
+    nr = np.einsum("ij,ij->i", axes, r)
+    disc = nr * nr - np.einsum("ij,ij->i", r, r) + rod_length_m**2
+    if np.any(disc < 0.0):
+        j = int(np.argmin(disc))
+        raise NoSolutionError(
+            f"TCP {tcp_m.tolist()} m is out of reach of leg {j + 1}: "
+            f"discriminant of seed 001 eq. (5) is {disc[j]:.3e} m^2 < 0"
+        )
+    return nr + np.sqrt(disc)
+
+
+def inverse_kinematics(geom: CheopeGeometry, tcp_m: np.ndarray) -> np.ndarray:
+    """Actuator positions q [m] for a TCP position s [m] (seed 001, eq. (5), '+' branch)."""
+    return _inverse(geom.axes, geom.platform_vectors, geom.rod_length_m, np.asarray(tcp_m, dtype=float))
+
+
+def rod_directions_from(
+    axes: np.ndarray, plat: np.ndarray, rod_length_m: float, tcp_m: np.ndarray, q_m: np.ndarray
+) -> np.ndarray:
+    """Rod unit vectors w_j (rows) from eq. (1): w_j = (s + a_j - q_j n_j) / l."""
+    return (tcp_m[None, :] + plat - q_m[:, None] * axes) / rod_length_m
+
+
+def rod_directions(geom: CheopeGeometry, tcp_m: np.ndarray, q_m: np.ndarray) -> np.ndarray:
+    return rod_directions_from(geom.axes, geom.platform_vectors, geom.rod_length_m,
+                               np.asarray(tcp_m, float), np.asarray(q_m, float))
+
+
+def direct_kinematics(geom: CheopeGeometry, q_m: np.ndarray) -> np.ndarray:
+    """TCP position s [m] from actuator positions q [m]: intersection of three spheres.
+
+    seed 001, eq. (2)-(4): sphere j has centre c_j = q_j n_j - a_j and radius l. In the
+    auxiliary frame {a} (origin c_1, X_a through c_2, c_3 in the X_a Y_a plane)
+    x_a = x_c2 / 2, y_a = (x_c3^2 + y_c3^2 - x_c2 x_c3) / (2 y_c3), z_a = +-sqrt(l^2 - x_a^2 - y_a^2).
+    Of the two solutions we keep the one on the paper's assembly branch (the one the
+    inverse kinematics' '+' sign describes, w_j . n_j <= 0 for every leg); the other one
+    lies inside the base (seed 001 §4.1).
+    """
+    q = np.asarray(q_m, dtype=float)
+    centres = q[:, None] * geom.axes - geom.platform_vectors
+    ex = centres[1] - centres[0]
+    x_c2 = float(np.linalg.norm(ex))
+    if x_c2 < 1e-12:
+        raise NoSolutionError(f"sphere centres 1 and 2 coincide for q={q.tolist()} m")
+    ex = ex / x_c2
+    v3 = centres[2] - centres[0]
+    x_c3 = float(ex @ v3)
+    ey = v3 - x_c3 * ex
+    y_c3 = float(np.linalg.norm(ey))
+    if y_c3 < 1e-12:
+        raise NoSolutionError(f"sphere centres are collinear for q={q.tolist()} m")
+    ey = ey / y_c3
+    ez = np.cross(ex, ey)
+    l = geom.rod_length_m
+    x_a = x_c2 / 2.0
+    y_a = (x_c3 * x_c3 + y_c3 * y_c3 - x_c2 * x_c3) / (2.0 * y_c3)
+    z2 = l * l - x_a * x_a - y_a * y_a
+    if z2 < 0.0:
+        raise NoSolutionError(
+            f"no assembly for q={q.tolist()} m: the three rod spheres do not intersect "
+            f"(l^2 - x_a^2 - y_a^2 = {z2:.3e} m^2)"
+        )
+    z_a = math.sqrt(z2)
+    base = centres[0] + x_a * ex + y_a * ey  # eq. (3): {a} -> {0}
+    candidates = [base + z_a * ez, base - z_a * ez]
+    on_branch = [s for s in candidates if _on_paper_branch(geom, s, q)]
+    if not on_branch:
+        raise NoSolutionError(
+            f"no assembly on the working branch for q={q.tolist()} m "
+            "(every solution has a rod pointing along its prismatic axis)"
+        )
+    return max(on_branch, key=lambda s: float(s[2]))
+
+
+def _on_paper_branch(geom: CheopeGeometry, tcp_m: np.ndarray, q_m: np.ndarray) -> bool:
+    w = rod_directions(geom, tcp_m, q_m)
+    return bool(np.all(np.einsum("ij,ij->i", w, geom.axes) <= 1e-9))
+
+
+def jacobian(geom: CheopeGeometry, tcp_m: np.ndarray, q_m: np.ndarray | None = None) -> np.ndarray:
+    """J with q_dot = J s_dot (seed 001, eq. (6)-(7)): J = K3^-1 W3^T.
+
+    Derivation (eq. (1) differentiated and projected on w_j): w_j^T s_dot = (w_j^T n_j) q_dot_j.
+    Raises NoSolutionError at an inverse singularity (some w_j . n_j = 0).
+    """
+    s = np.asarray(tcp_m, dtype=float)
+    q = inverse_kinematics(geom, s) if q_m is None else np.asarray(q_m, float)
+    w = rod_directions(geom, s, q)
+    k = np.einsum("ij,ij->i", w, geom.axes)
+    if np.any(np.abs(k) < 1e-12):
+        raise NoSolutionError(f"inverse singularity at TCP {s.tolist()} m: w_j . n_j = {k.tolist()}")
+    return w / k[:, None]
+
+
+@dataclass(frozen=True)
+class SingularityMeasures:
+    """Distances from the singularity classes of seed 001 §5.1 (all 0 at the singularity).
+
+    - ``direct``: |det W3|, the volume spanned by the unit rod vectors (rods coplanar -> 0);
+    - ``inverse``: min_j |w_j . n_j| (a rod orthogonal to its prismatic axis -> 0);
+    - ``structural``: min over rod pairs of |w_i x w_j| (two rods parallel -> 0).
+    """
+
+    direct: float
+    inverse: float
+    structural: float
+
+
+def singularity_measures(geom: CheopeGeometry, tcp_m: np.ndarray, q_m: np.ndarray | None = None) -> SingularityMeasures:
+    s = np.asarray(tcp_m, dtype=float)
+    q = inverse_kinematics(geom, s) if q_m is None else np.asarray(q_m, float)
+    w = rod_directions(geom, s, q)
+    direct = abs(float(np.linalg.det(w)))
+    inverse = float(np.min(np.abs(np.einsum("ij,ij->i", w, geom.axes))))
+    pairs = ((0, 1), (0, 2), (1, 2))
+    structural = min(float(np.linalg.norm(np.cross(w[i], w[j]))) for i, j in pairs)
+    return SingularityMeasures(direct=direct, inverse=inverse, structural=structural)
+
+
+def joint_swing_rad(geom: CheopeGeometry, tcp_m: np.ndarray, q_m: np.ndarray | None = None) -> np.ndarray:
+    """Swing of each leg's spherical joints from their neutral direction [rad] (seed 001 §5.2).
+
+    The platform only translates and the slider only slides, so both joint housings keep
+    their orientation and both joints of a leg swing by the angle between w_j and its
+    neutral direction.
+    """
+    s = np.asarray(tcp_m, dtype=float)
+    q = inverse_kinematics(geom, s) if q_m is None else np.asarray(q_m, float)
+    w = rod_directions(geom, s, q)
+    c = np.clip(np.einsum("ij,ij->i", w, geom.neutral_rod_directions), -1.0, 1.0)
+    return np.arccos(c)
+
+
+@dataclass(frozen=True)
+class PoseStatus:
+    """Result of a per-cycle pose check: ``ok`` or the reason it is not."""
+
+    ok: bool
+    reason: str = ""
+
+
+POSE_OK = PoseStatus(True)
+
+
+class WorkspaceError(ValueError):
+    """A pose or path violates the workspace, the joint limits or the singularity margins."""
+
+
+@dataclass(frozen=True)
+class CheopeLimits:
+    stroke_min_m: float
+    stroke_max_m: float
+    joint_swing_limit_rad: float
+    min_direct_measure: float
+    min_inverse_measure: float
+    min_structural_measure: float
+    max_condition_number: float
+
+
+@dataclass(frozen=True)
+class CheopeRobot:
+    """The Cheope model with its limits: what the controller and the simulator use."""
+
+    geometry: CheopeGeometry
+    limits: CheopeLimits
+    name: str = "cheope"
+    n_actuators: int = _AXES
+
+    def inverse_kinematics(self, tcp_m: np.ndarray) -> np.ndarray:
+        return inverse_kinematics(self.geometry, tcp_m)
+
+    def direct_kinematics(self, q_m: np.ndarray) -> np.ndarray:
+        return direct_kinematics(self.geometry, q_m)
+
+    def jacobian(self, tcp_m: np.ndarray) -> np.ndarray:
+        return jacobian(self.geometry, tcp_m)
+
+    def check_pose(self, tcp_m: np.ndarray) -> PoseStatus:
+        """Stroke, spherical-joint swing and singularity margins at ``tcp_m`` (no exception)."""
+        s = np.asarray(tcp_m, dtype=float)
+        lim = self.limits
+        try:
+            q = inverse_kinematics(self.geometry, s)
+        except NoSolutionError as err:
+            return PoseStatus(False, str(err))
+        for j in range(_AXES):
+            if not lim.stroke_min_m <= q[j] <= lim.stroke_max_m:
+                return PoseStatus(False, f"actuator {j + 1} at {q[j]:.4f} m is outside its stroke "
+                                         f"[{lim.stroke_min_m}, {lim.stroke_max_m}] m")
+        swing = joint_swing_rad(self.geometry, s, q)
+        j = int(np.argmax(swing))
+        if swing[j] > lim.joint_swing_limit_rad:
+            return PoseStatus(False, f"spherical joints of leg {j + 1} swing {math.degrees(swing[j]):.1f} deg, "
+                                     f"limit {math.degrees(lim.joint_swing_limit_rad):.1f} deg")
+        m = singularity_measures(self.geometry, s, q)
+        for name, value, low in (("direct", m.direct, lim.min_direct_measure),
+                                 ("inverse", m.inverse, lim.min_inverse_measure),
+                                 ("structural", m.structural, lim.min_structural_measure)):
+            if value < low:
+                return PoseStatus(False, f"within the {name}-singularity margin: measure {value:.3f} < {low}")
+        w = rod_directions(self.geometry, s, q)
+        jac = w / np.einsum("ij,ij->i", w, self.geometry.axes)[:, None]
+        sv = np.linalg.svd(jac, compute_uv=False)
+        cond = float(sv[0] / sv[-1])
+        if cond > lim.max_condition_number:
+            return PoseStatus(False, f"condition number {cond:.2f} above {lim.max_condition_number}")
+        return POSE_OK
+
+    def check_path(self, points_m: np.ndarray) -> None:
+        """Raise WorkspaceError naming the first sample of the path that fails ``check_pose``."""
+        for i, p in enumerate(np.asarray(points_m, dtype=float)):
+            status = self.check_pose(p)
+            if not status.ok:
+                raise WorkspaceError(f"path sample {i} at {np.round(p, 4).tolist()} m: {status.reason}")

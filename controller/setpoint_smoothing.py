@@ -1,0 +1,101 @@
+"""Online smoothing of actuator setpoints with Ruckig (Community features only).
+
+Every cycle computes a fresh time-optimal trajectory from the last setpoint to the task's
+reference and samples it one period ahead. ``Ruckig.calculate`` is used instead of
+``update`` on purpose: ``update`` keeps the previous trajectory inside the Ruckig object
+and skips the calculation when the input is unchanged, which would make the output depend
+on hidden history. With ``calculate`` the next setpoint is a function of the arguments
+only, so replaying the recorded inputs reproduces the outputs bit for bit. The Ruckig
+objects are preallocated scratch space, not state. Intermediate waypoints are never set
+(the PyPI build sends those to a remote service).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ruckig import ControlInterface, InputParameter, Result, Ruckig, Trajectory
+
+
+@dataclass(frozen=True, slots=True)
+class Setpoint:
+    position: tuple[float, ...]
+    velocity: tuple[float, ...]
+    acceleration: tuple[float, ...]
+
+    @staticmethod
+    def at_rest(position: tuple[float, ...]) -> "Setpoint":
+        zeros = tuple(0.0 for _ in position)
+        return Setpoint(tuple(position), zeros, zeros)
+
+
+@dataclass(frozen=True)
+class AxisLimits:
+    max_velocity: tuple[float, ...]  # [unit/s]
+    max_acceleration: tuple[float, ...]  # [unit/s^2]
+    max_jerk: tuple[float, ...]  # [unit/s^3]
+
+
+@dataclass(frozen=True, slots=True)
+class SmoothingResult:
+    setpoint: Setpoint
+    ok: bool
+    message: str  # why Ruckig refused, empty when ok
+
+
+class RuckigSmoother:
+    def __init__(self, limits: AxisLimits, period_s: float) -> None:
+        dofs = len(limits.max_velocity)
+        self._period_s = period_s
+        self._otg = Ruckig(dofs)
+        self._inp = InputParameter(dofs)
+        self._traj = Trajectory(dofs)
+        self._inp.max_velocity = list(limits.max_velocity)
+        self._inp.max_acceleration = list(limits.max_acceleration)
+        self._inp.max_jerk = list(limits.max_jerk)
+        # Braking uses the velocity interface: come to rest wherever that happens.
+        self._brake = InputParameter(dofs)
+        self._brake.control_interface = ControlInterface.Velocity
+        self._brake.max_velocity = list(limits.max_velocity)
+        self._brake.max_acceleration = list(limits.max_acceleration)
+        self._brake.max_jerk = list(limits.max_jerk)
+        self._zeros = [0.0] * dofs
+
+    def step(
+        self,
+        current: Setpoint,
+        target_position: tuple[float, ...],
+        target_velocity: tuple[float, ...],
+        target_acceleration: tuple[float, ...],
+    ) -> SmoothingResult:
+        """The setpoint one period after ``current`` on the way to the target state."""
+        inp = self._inp
+        inp.current_position = current.position
+        inp.current_velocity = current.velocity
+        inp.current_acceleration = current.acceleration
+        inp.target_position = target_position
+        inp.target_velocity = target_velocity
+        inp.target_acceleration = target_acceleration
+        return self._calculate(inp, current)
+
+    def brake(self, current: Setpoint) -> SmoothingResult:
+        """The setpoint one period later on the fastest jerk-limited way to zero velocity."""
+        inp = self._brake
+        inp.current_position = current.position
+        inp.current_velocity = current.velocity
+        inp.current_acceleration = current.acceleration
+        inp.target_velocity = self._zeros
+        inp.target_acceleration = self._zeros
+        return self._calculate(inp, current)
+
+    def _calculate(self, inp: InputParameter, current: Setpoint) -> SmoothingResult:
+        try:
+            result = self._otg.calculate(inp, self._traj)
+        except RuntimeError as err:  # the binding raises on invalid input (NaN, limits)
+            return SmoothingResult(current, False, f"Ruckig refused the input: {err}")
+        if result not in (Result.Working, Result.Finished):
+            return SmoothingResult(current, False, f"Ruckig refused the input: {result.name}")
+        # Past its duration Ruckig extrapolates; the target state is what we want then.
+        t = min(self._period_s, self._traj.duration)
+        pos, vel, acc = self._traj.at_time(t)
+        return SmoothingResult(Setpoint(tuple(pos), tuple(vel), tuple(acc)), True, "")

@@ -1,0 +1,94 @@
+"""Streaming a Cartesian path to the actuators: move to its start, then follow it.
+
+The joint reference is the inverse kinematics of the path; its velocity and acceleration
+are central differences of the inverse kinematics in time (step ``fd_step_s``), which works
+for any robot model with an ``inverse_kinematics`` and is accurate to O(h^2).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Protocol
+
+import numpy as np
+
+from controller.setpoint_smoothing import Setpoint
+
+
+class CartesianTrajectory(Protocol):
+    @property
+    def duration_s(self) -> float: ...
+
+    def sample(self, tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+
+class InverseKinematics(Protocol):
+    def inverse_kinematics(self, tcp_m: np.ndarray) -> np.ndarray: ...
+
+
+class PathPhase(IntEnum):
+    MOVE_TO_START = 0
+    TRACKING = 1
+    FINISHED = 2
+
+
+@dataclass(frozen=True, slots=True)
+class PathTaskState:
+    phase: PathPhase = PathPhase.MOVE_TO_START
+    tracking_start_s: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class JointReference:
+    position: tuple[float, ...]
+    velocity: tuple[float, ...]
+    acceleration: tuple[float, ...]
+    tcp_m: tuple[float, float, float]
+    on_path: bool  # False while moving to the path's start
+
+
+class PathTask:
+    name = "path"
+
+    def __init__(self, robot: InverseKinematics, path: CartesianTrajectory, settle_tolerance: float,
+                 fd_step_s: float = 1e-3) -> None:
+        self.robot = robot
+        self.path = path
+        self.settle_tolerance = settle_tolerance
+        self.fd_step_s = fd_step_s
+        p0, _, _ = path.sample(0.0)
+        self._start = JointReference(tuple(robot.inverse_kinematics(p0).tolist()), (0.0,) * 3, (0.0,) * 3,
+                                     tuple(p0.tolist()), False)  # type: ignore[arg-type]
+
+    def start(self) -> PathTaskState:
+        return PathTaskState()
+
+    def _joint_reference(self, tau: float) -> JointReference:
+        h = self.fd_step_s
+        ik = self.robot.inverse_kinematics
+        p, _, _ = self.path.sample(tau)
+        q = ik(p)
+        qp = ik(self.path.sample(tau + h)[0])
+        qm = ik(self.path.sample(tau - h)[0])
+        qd = (qp - qm) / (2.0 * h)
+        qdd = (qp - 2.0 * q + qm) / (h * h)
+        return JointReference(tuple(q.tolist()), tuple(qd.tolist()), tuple(qdd.tolist()),
+                              tuple(p.tolist()), True)  # type: ignore[arg-type]
+
+    def reference(self, state: PathTaskState, t_cmd_s: float, setpoint: Setpoint
+                  ) -> tuple[PathTaskState, JointReference, bool]:
+        """Reference for the setpoint the drives latch at ``t_cmd_s``; True once finished."""
+        if state.phase == PathPhase.MOVE_TO_START:
+            start = self._start
+            settled = all(abs(a - b) <= self.settle_tolerance for a, b in zip(setpoint.position, start.position)) \
+                and all(abs(v) <= self.settle_tolerance for v in setpoint.velocity)
+            if not settled:
+                return state, start, False
+            state = PathTaskState(PathPhase.TRACKING, t_cmd_s)
+        if state.phase == PathPhase.TRACKING:
+            tau = t_cmd_s - state.tracking_start_s
+            if tau < self.path.duration_s:
+                return state, self._joint_reference(tau), False
+            state = PathTaskState(PathPhase.FINISHED, state.tracking_start_s)
+        return state, self._joint_reference(self.path.duration_s), True

@@ -1,0 +1,76 @@
+"""Opening the CAN bus through python-can from an ``INTERFACE:CHANNEL`` specification."""
+
+from __future__ import annotations
+
+import socket
+from dataclasses import dataclass
+
+import can
+
+# Interface-local IPv6 multicast group (DESIGN.md): never leaves this machine.
+LOCAL_MULTICAST_GROUP = "ff11:7079:7468:6f6e:6465:6d6f:6d63:6173"
+DEFAULT_UDP_PORT = 43113
+SUPPORTED_INTERFACES = ("socketcan", "udp_multicast", "virtual")
+
+
+class BusSpecError(ValueError):
+    """A ``--can`` specification is malformed or names something we refuse to use."""
+
+
+@dataclass(frozen=True)
+class BusSpec:
+    interface: str
+    channel: str
+    fd: bool = False
+    udp_port: int = DEFAULT_UDP_PORT
+
+    def __str__(self) -> str:
+        return f"{self.interface}:{self.channel}" + (" (CAN FD)" if self.fd else "")
+
+
+def parse_bus_spec(text: str, fd: bool = False, udp_port: int = DEFAULT_UDP_PORT) -> BusSpec:
+    """Parse ``socketcan:vcan0``, ``udp_multicast`` (the local group), ``virtual:name``."""
+    interface, _, channel = text.partition(":")
+    if interface not in SUPPORTED_INTERFACES:
+        raise BusSpecError(
+            f"--can {text!r}: interface {interface!r} is not one of {', '.join(SUPPORTED_INTERFACES)}"
+        )
+    if interface == "udp_multicast":
+        channel = channel or LOCAL_MULTICAST_GROUP
+        if channel != LOCAL_MULTICAST_GROUP:
+            # ff15:/239. groups reach the network; this product only uses the local group.
+            raise BusSpecError(
+                f"--can {text!r}: udp_multicast is only allowed on the interface-local group "
+                f"{LOCAL_MULTICAST_GROUP}"
+            )
+    elif not channel:
+        raise BusSpecError(f"--can {text!r}: missing channel, expected {interface}:CHANNEL")
+    if not 1 <= udp_port <= 65535:
+        raise BusSpecError(f"udp_port must be in 1..65535, got {udp_port}")
+    return BusSpec(interface=interface, channel=channel, fd=fd, udp_port=udp_port)
+
+
+def socketcan_available() -> bool:
+    """Whether this kernel has SocketCAN at all (CONFIG_CAN)."""
+    try:
+        socket.socket(socket.AF_CAN, socket.SOCK_RAW, socket.CAN_RAW).close()
+    except (OSError, AttributeError):
+        return False
+    return True
+
+
+def open_bus(spec: BusSpec) -> can.BusABC:
+    """Open the bus; raises can.CanInitializationError with the spec in the message."""
+    kwargs: dict[str, object] = {"interface": spec.interface, "channel": spec.channel, "fd": spec.fd}
+    if spec.interface == "udp_multicast":
+        kwargs["port"] = spec.udp_port
+        kwargs["hop_limit"] = 1
+    if spec.interface == "virtual":
+        kwargs["receive_own_messages"] = True  # like the other two: every bus sees its own frames
+    try:
+        return can.Bus(**kwargs)
+    except (OSError, can.CanError) as err:
+        hint = ""
+        if spec.interface == "socketcan" and not socketcan_available():
+            hint = " (this kernel has no SocketCAN; use udp_multicast or tests/vcan/run)"
+        raise can.CanInitializationError(f"cannot open {spec}: {err}{hint}") from err

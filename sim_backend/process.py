@@ -1,0 +1,18 @@
+"""Running the simulator until told to stop (the body of ``cheope sim``)."""
+
+from __future__ import annotations
+
+import threading
+
+from controller.config import Config
+from drivers.bus import BusSpec, open_bus
+from sim_backend.server import Simulator
+
+READY_LINE = "cheope-sim ready"
+
+
+def serve(cfg: Config, spec: BusSpec, stop_event: threading.Event, announce: "callable[[str], None]") -> None:
+    with open_bus(spec) as bus, Simulator(cfg, bus):
+        announce(f"{READY_LINE} on {spec}: drives {list(cfg.actuators.node_ids)}"
+                 + (f", sensor {cfg.sensor.node_id}" if cfg.sensor.enabled else ""))
+        stop_event.wait()
