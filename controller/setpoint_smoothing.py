@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ruckig import ControlInterface, InputParameter, Result, Ruckig, Trajectory
+from ruckig import ControlInterface, InputParameter, Result, Ruckig, RuckigError, Trajectory
 
 
 @dataclass(frozen=True, slots=True)
@@ -91,7 +91,7 @@ class RuckigSmoother:
     def _calculate(self, inp: InputParameter, current: Setpoint) -> SmoothingResult:
         try:
             result = self._otg.calculate(inp, self._traj)
-        except RuntimeError as err:  # the binding raises on invalid input (NaN, limits)
+        except RuckigError as err:  # the binding raises on invalid input (NaN, limits)
             return SmoothingResult(current, False, f"Ruckig refused the input: {err}")
         if result not in (Result.Working, Result.Finished):
             return SmoothingResult(current, False, f"Ruckig refused the input: {result.name}")

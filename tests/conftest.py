@@ -1,0 +1,55 @@
+"""Shared fixtures. Every test is checked for leaked child processes and non-daemon threads."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from controller.config import Config, load_config
+
+
+def _children() -> set[int]:
+    me = str(os.getpid())
+    kids = set()
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit():
+            continue
+        try:
+            with open(f"/proc/{pid}/stat") as fh:
+                fields = fh.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if fields[1] == me and fields[0] != "Z":
+            kids.add(int(pid))
+    return kids
+
+
+@pytest.fixture(autouse=True)
+def no_leaks():
+    """Fail a test that leaves a child process or a thread running (STYLE.md principle 8)."""
+    threads_before = set(threading.enumerate())
+    kids_before = _children()
+    yield
+    deadline = time.monotonic() + 3.0
+    while time.monotonic() < deadline:
+        threads = [t for t in threading.enumerate() if t not in threads_before and t.is_alive()]
+        kids = _children() - kids_before
+        if not threads and not kids:
+            return
+        time.sleep(0.05)
+    assert not kids, f"test left child processes running: {sorted(kids)}"
+    assert not threads, f"test left threads running: {[t.name for t in threads]}"
+
+
+@pytest.fixture
+def cfg() -> Config:
+    return load_config()
+
+
+@pytest.fixture
+def repo_root() -> Path:
+    return Path(__file__).resolve().parent.parent

@@ -1,0 +1,51 @@
+"""Configuration validation: every error names the key, the value and the reason."""
+
+from __future__ import annotations
+
+import pytest
+
+from controller.config import ConfigError, load_config, parse_override
+
+
+def test_shipped_defaults_load(cfg):
+    assert cfg.loop.rate_hz == 400.0
+    assert cfg.robot.cheope.rod_length_m == 0.5
+    assert cfg.period_s == pytest.approx(0.0025)
+
+
+@pytest.mark.parametrize("overrides,message", [
+    ({"loop.rate_hz": -5}, r"loop.rate_hz = -5: must be >= 1.0"),
+    ({"robot.cheope.rod_length_m": -1.0}, r"robot.cheope.rod_length_m = -1.0: must be > 0.0"),
+    ({"robot.cheope.rod_length_m": "long"}, r"robot.cheope.rod_length_m = 'long': expected a number"),
+    ({"loop.unknown_key": 1}, r"unknown key\(s\) unknown_key in \[loop\]"),
+    ({"actuators.node_ids": [1, 1, 2]}, r"node ids must be distinct"),
+    ({"actuators.node_ids": [1, 2]}, r"actuators.node_ids = \[1, 2\]: expected a list of 3 values"),
+    ({"robot.cheope.stroke_min_m": 0.9, "robot.cheope.stroke_max_m": 0.3}, r"stroke_min_m = 0.9 must be <"),
+    ({"loop.max_missing_cycles": 2.5}, r"loop.max_missing_cycles = 2.5: expected an integer"),
+    ({"robot.kind": "hexapod"}, r"robot.kind = 'hexapod': must be one of"),
+    ({"loop.rate_hz": float("nan")}, r"loop.rate_hz = nan: must be finite"),
+])
+def test_invalid_values_are_named(overrides, message):
+    with pytest.raises(ConfigError, match=message):
+        load_config(overrides=overrides)
+
+
+def test_missing_file_is_named(tmp_path):
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_config(tmp_path / "nope.toml")
+
+
+def test_broken_toml_is_named(tmp_path):
+    p = tmp_path / "bad.toml"
+    p.write_text("[loop\nrate_hz = 3")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_config(p)
+
+
+def test_parse_override():
+    assert parse_override("loop.rate_hz=1000") == ("loop.rate_hz", 1000)
+    assert parse_override('bus.can="socketcan:vcan0"') == ("bus.can", "socketcan:vcan0")
+    assert parse_override("bus.can=udp_multicast") == ("bus.can", "udp_multicast")
+    assert parse_override("task.path.center_m=[0, 0, 0.45]") == ("task.path.center_m", [0, 0, 0.45])
+    with pytest.raises(ConfigError, match="expected KEY=VALUE"):
+        parse_override("loop.rate_hz")

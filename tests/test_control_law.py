@@ -1,0 +1,173 @@
+"""The pure step in closed loop with the simulated drives, in simulated time (no bus, no clock)."""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+
+from controller.config import Config, load_config
+from controller.control_law import Mode
+from controller.cycle_data import CycleOutputs
+from controller.loop import CycleLoop, SimulatedTime
+from controller.robots.cheope import WorkspaceError
+from controller.run_summary import RunRecorder
+from controller.service import build_law
+from controller.setpoint_smoothing import AxisLimits, RuckigSmoother, Setpoint
+from drivers.cia402 import CW_QUICK_STOP, PowerState, decode_statusword
+from sim_backend.drive import EMCY_FORCED_FAULT
+from sim_backend.loopback import LoopbackExchange
+
+
+@dataclass
+class Trace:
+    outputs: list[CycleOutputs] = field(default_factory=list)
+    setpoints: list[Setpoint] = field(default_factory=list)
+    modes: list[Mode] = field(default_factory=list)
+    measured: list[tuple[float, ...]] = field(default_factory=list)
+    hook: object = None
+
+    def on_cycle(self, cycle, t, inputs, state, outputs, events):
+        self.outputs.append(outputs)
+        self.setpoints.append(state.setpoint)
+        self.modes.append(state.mode)
+        self.measured.append(tuple(d.position for d in inputs.drives))
+        if self.hook is not None:
+            self.hook(cycle, t, state)
+
+
+def run(cfg: Config, max_s: float = 30.0, hook=None, stop: threading.Event | None = None):
+    clock = SimulatedTime()
+    law = build_law(cfg)
+    exchange = LoopbackExchange(cfg, clock.clock)
+    trace, recorder = Trace(hook=hook), RunRecorder()
+    loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
+                     observers=(trace, recorder), stop_event=stop)
+    final, stats = loop.run(law.initial_state(), max_s)
+    return final, stats, trace, recorder, exchange
+
+
+SHORT = {"task.path.laps": 0.5}
+
+
+def test_path_task_completes_and_tracks_the_circle():
+    final, stats, trace, rec, _ = run(load_config(overrides=SHORT))
+    assert final.mode == Mode.DONE, final.fault_reason
+    err = np.array(rec.tracking_error_m)
+    assert err.size > 800
+    assert np.sqrt(np.mean(err**2)) < 50e-6
+    assert err.max() < 80e-6
+    kinds = [e.message.split(":")[0] for _, e in rec.events]
+    assert kinds == ["CONFIGURING -> ENABLING", "ENABLING -> HOLDING", "HOLDING -> RUNNING",
+                     "RUNNING -> STOPPING", "STOPPING -> DONE"]
+
+
+def test_setpoints_respect_velocity_acceleration_and_jerk_limits():
+    cfg = load_config(overrides={**SHORT, "actuators.max_jerk_m_s3": 50.0, "actuators.max_acceleration_m_s2": 2.0})
+    final, _, trace, _, _ = run(cfg)
+    assert final.mode == Mode.DONE
+    dt = cfg.period_s
+    sp = trace.setpoints
+    vel = np.array([s.velocity for s in sp])
+    acc = np.array([s.acceleration for s in sp])
+    assert np.abs(vel).max() <= cfg.actuators.max_velocity_m_s * (1 + 1e-9)
+    assert np.abs(acc).max() <= 2.0 * (1 + 1e-9)
+    jerk = np.diff(acc, axis=0) / dt
+    assert np.abs(jerk).max() <= 50.0 * (1 + 1e-6)
+    # and the positions are consistent with the velocities (no jumps)
+    pos = np.array([s.position for s in sp])
+    assert np.abs(np.diff(pos, axis=0)).max() <= cfg.actuators.max_velocity_m_s * dt * (1 + 1e-9)
+
+
+def test_enabling_commands_the_measured_position_no_jump():
+    final, _, trace, _, _ = run(load_config(overrides=SHORT))
+    first_hold = trace.modes.index(Mode.HOLDING)
+    for k in range(first_hold + 1):
+        assert np.allclose(trace.outputs[k].targets, trace.measured[k], atol=1e-7)
+
+
+def test_replaying_the_same_inputs_gives_the_same_outputs_bit_for_bit():
+    cfg = load_config(overrides=SHORT)
+    _, _, a, _, _ = run(cfg)
+    _, _, b, _, _ = run(cfg)
+    assert a.outputs == b.outputs
+
+
+def test_a_silent_drive_faults_after_max_missing_cycles_and_quick_stops_the_others():
+    cfg = load_config(overrides={**SHORT, "loop.max_missing_cycles": 4})
+
+    holder = {}
+
+    def hook(cycle, t, state):
+        if t >= 1.0:
+            holder["ex"].drop.add(1)
+
+    clock = SimulatedTime()
+    law = build_law(cfg)
+    ex = LoopbackExchange(cfg, clock.clock)
+    holder["ex"] = ex
+    trace = Trace(hook=hook)
+    loop = CycleLoop(law, ex, cfg.period_s, 0.6, clock, clock.clock, observers=(trace,))
+    final, _ = loop.run(law.initial_state(), 10.0)
+    assert final.mode == Mode.FAULT
+    assert final.fault_reason == "drive 2: no TPDO for 4 cycles"
+    fault_at = trace.modes.index(Mode.FAULT)
+    first_drop = next(k for k, m in enumerate(trace.measured) if k * cfg.period_s >= 1.0) + 1
+    assert fault_at - first_drop == 3  # the 4th silent cycle
+    assert trace.outputs[fault_at].controlwords[0] == CW_QUICK_STOP
+    assert decode_statusword(ex.drives[0].statusword()) == PowerState.QUICK_STOP_ACTIVE
+
+
+def test_a_drive_fault_is_seen_and_answered_with_quick_stop():
+    cfg = load_config(overrides=SHORT)
+    holder = {}
+
+    def hook(cycle, t, state):
+        if abs(t - 1.5) < 1e-9:
+            holder["ex"].drives[2].force_fault(EMCY_FORCED_FAULT)
+
+    clock = SimulatedTime()
+    law = build_law(cfg)
+    ex = LoopbackExchange(cfg, clock.clock)
+    holder["ex"] = ex
+    loop = CycleLoop(law, ex, cfg.period_s, 0.6, clock, clock.clock, observers=(Trace(hook=hook),))
+    final, _ = loop.run(law.initial_state(), 10.0)
+    assert final.mode == Mode.FAULT
+    assert "drive 3 reports FAULT" in final.fault_reason or "EMCY from node 3: error code 0x5000" in final.fault_reason
+    for d in ex.drives[:2]:
+        assert decode_statusword(d.statusword()) == PowerState.QUICK_STOP_ACTIVE
+        assert d.velocity == 0.0
+
+
+def test_stop_request_brakes_within_limits_and_shuts_down():
+    cfg = load_config(overrides={"task.path.laps": 2.0})
+    stop = threading.Event()
+
+    def hook(cycle, t, state):
+        if t >= 2.0:
+            stop.set()
+
+    final, _, trace, rec, _ = run(cfg, hook=hook, stop=stop)
+    assert final.mode == Mode.DONE
+    assert any("stop requested" in e.message for _, e in rec.events)
+    acc = np.array([s.acceleration for s in trace.setpoints])
+    assert np.abs(acc).max() <= cfg.actuators.max_acceleration_m_s2 * (1 + 1e-9)
+    stopped_at = trace.modes.index(Mode.STOPPING)
+    assert stopped_at * cfg.period_s < 2.1  # it did not finish the two laps first
+
+
+def test_a_path_outside_the_workspace_is_refused_before_anything_moves():
+    cfg = load_config(overrides={"task.path.radius_m": 0.2})
+    with pytest.raises(WorkspaceError, match=r"path sample 0 at \[0.2, 0.0, 0.5\] m"):
+        build_law(cfg)
+
+
+def test_ruckig_refusal_is_a_status_not_an_exception():
+    sm = RuckigSmoother(AxisLimits((1.0,) * 3, (10.0,) * 3, (100.0,) * 3), 0.0025)
+    result = sm.step(Setpoint.at_rest((0.5, 0.5, 0.5)), (math.nan, 0.5, 0.5), (0.0,) * 3, (0.0,) * 3)
+    assert not result.ok and "Ruckig refused" in result.message
+    result = sm.step(Setpoint.at_rest((0.5, 0.5, 0.5)), (0.6, 0.5, 0.5), (5.0, 0, 0), (0.0,) * 3)
+    assert not result.ok  # target velocity above the limit
