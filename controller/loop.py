@@ -3,7 +3,8 @@
 Per cycle k, with deadline d_k = d_0 + k * period on a monotonic clock:
   1. sleep until d_k (``Sleeper``: coarse sleep, then a short spin);
   2. send the RPDOs computed in cycle k-1, then SYNC (the exchange);
-  3. collect this cycle's TPDOs until d_k + collect_fraction * period;
+  3. collect this cycle's TPDOs for collect_fraction * period after the SYNC went out (from
+     the actual send time: a late wake-up must not shrink the drives' time to answer);
   4. ``law.step(state, inputs, k * period)``;
   5. hand copies to the observers (recorder, publisher, statistics): they must not block.
 If the loop falls more than one period behind, it skips the missed deadlines (counted as
@@ -125,7 +126,7 @@ class CycleLoop:
             self.sleeper.sleep_until(deadline)
             woke = clock()
             self.exchange.send(outputs)
-            inputs = self.exchange.collect(deadline + self.collect_s, self.stop_event.is_set())
+            inputs = self.exchange.collect(clock() + self.collect_s, self.stop_event.is_set())
             t = k * period
             c0 = clock()
             state, outputs, events = self.law.step(state, inputs, t)

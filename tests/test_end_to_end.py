@@ -1,0 +1,88 @@
+"""The product as a user runs it: separate processes on the udp_multicast bus, via the CLI."""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from controller.demo import simulator_process
+from drivers.bus import parse_bus_spec
+
+pytestmark = pytest.mark.integration
+CHEOPE = [sys.executable, "-m", "controller"]
+
+
+def _port() -> int:
+    return random.SystemRandom().randint(45000, 47999)
+
+
+def _cheope(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*CHEOPE, *args], capture_output=True, text=True, timeout=timeout,
+                          env={**os.environ, "PYTHONUNBUFFERED": "1"})
+
+
+def test_demo_runs_the_path_task_end_to_end():
+    r = _cheope("demo", "--json", "--set", "task.path.laps=0.5", "--udp-port", str(_port()))
+    assert r.returncode == 0, r.stderr + r.stdout
+    s = json.loads(r.stdout)
+    assert s["final_mode"] == "DONE"
+    for key in ("achieved_rate_hz", "period_error_us", "late_cycles", "missing_frames", "bus_load_percent",
+                "tracking_error_m"):
+        assert key in s
+    assert 380.0 < s["achieved_rate_hz"] < 420.0
+    assert s["bus_load_percent"] == pytest.approx(40.925, abs=0.01)
+    assert s["tracking_error_m"]["samples"] > 500
+    assert s["tracking_error_m"]["rms"] < 1e-4  # 0.1 mm: the loop is timing-sensitive on a busy machine
+    assert set(s["period_error_us"]) == {"p50", "p99", "max"}
+
+
+def test_run_against_a_separately_started_simulator():
+    spec = parse_bus_spec("udp_multicast", udp_port=_port())
+    with simulator_process(spec, None, ["task.path.laps=0.25"]):
+        r = _cheope("run", "--json", "--udp-port", str(spec.udp_port), "--set", "task.path.laps=0.25")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["final_mode"] == "DONE"
+
+
+def test_human_summary_names_the_figures():
+    r = _cheope("demo", "--set", "task.path.laps=0.25", "--udp-port", str(_port()))
+    assert r.returncode == 0, r.stderr
+    for label in ("loop rate", "period error", "late cycles", "missing frames", "tracking error"):
+        assert label in r.stdout
+
+
+def test_over_budget_bus_is_refused_before_the_simulator_starts():
+    r = _cheope("demo", "--rate", "1000", "--udp-port", str(_port()))
+    assert r.returncode == 2
+    assert r.stderr.strip().count("\n") == 0, r.stderr  # one clear line
+    assert "bus load 101.8 % exceeds the limit of 70.0 %" in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["run", "--can", "kvaser:0"], "interface 'kvaser' is not one of"),
+    (["run", "--can", "udp_multicast:239.0.0.1"], "only allowed on the interface-local group"),
+    (["demo", "--config", "/nonexistent.toml"], "/nonexistent.toml does not exist"),
+    (["demo", "--set", "loop.rate_hz=-3"], "loop.rate_hz = -3: must be >= 1.0"),
+    (["demo", "--set", "task.path.radius_m=0.3"], "path sample 0"),
+])
+def test_bad_input_gets_one_clear_line(args, needle):
+    r = _cheope(*args)
+    assert r.returncode == 2
+    assert needle in r.stderr
+    assert "Traceback" not in r.stderr and r.stderr.strip().count("\n") == 0
+
+
+def test_bus_load_command(repo_root: Path):
+    r = _cheope("bus-load", "--json")
+    assert r.returncode == 0
+    d = json.loads(r.stdout)
+    assert d["load_percent"] == pytest.approx(40.925) and d["ok"]
+    r = _cheope("bus-load", "--rate", "1000", "--set", "bus.fd=true")
+    assert r.returncode == 0 and "CAN FD" in r.stdout and "OK" in r.stdout
