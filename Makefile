@@ -1,0 +1,27 @@
+# One command each: `make demo` (set up, then the demo on simulated hardware) and `make test`.
+# Setup creates .venv at the repository root and installs the project with its test tools.
+PYTHON ?= python3
+VENV := .venv
+STAMP := $(VENV)/.installed-stamp
+
+.PHONY: setup demo test test-vcan bench clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/pip install --quiet --upgrade pip
+	$(VENV)/bin/pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+demo: setup
+	$(VENV)/bin/cheope demo
+
+test: setup
+	$(VENV)/bin/pytest -q
+
+test-vcan: setup
+	tests/vcan/run
+
+clean:
+	rm -rf $(VENV) *.egg-info .pytest_cache .hypothesis
