@@ -165,7 +165,7 @@ class SimulatedDrive:
         h = self.params.substep_s
         while self.time_s < now_s:
             dt = min(h, now_s - self.time_s)
-            self._substep(self.time_s + dt, dt)
+            self._substep(self.time_s, dt)  # reference at the start of the sub-step
             self.time_s += dt
 
     def _substep(self, t: float, dt: float) -> None:
