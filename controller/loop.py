@@ -49,9 +49,17 @@ class Exchange(Protocol):
     def collect(self, deadline_s: float, stop_requested: bool = False) -> CycleInputs: ...
 
 
+@dataclass(frozen=True, slots=True)
+class CycleTiming:
+    wake_error_s: float  # actual wake-up minus the deadline
+    step_s: float  # compute time of law.step
+
+
 class CycleObserver(Protocol):
+    """Receives every cycle. Runs on the loop's thread: it must hand off and return in microseconds."""
+
     def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
-                 outputs: CycleOutputs, events: tuple[Event, ...]) -> None: ...
+                 outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None: ...
 
 
 @dataclass
@@ -130,9 +138,10 @@ class CycleLoop:
             t = k * period
             c0 = clock()
             state, outputs, events = self.law.step(state, inputs, t)
-            stats.record(woke - deadline, clock() - c0)
+            timing = CycleTiming(woke - deadline, clock() - c0)
+            stats.record(timing.wake_error_s, timing.step_s)
             for obs in self.observers:
-                obs.on_cycle(k, t, inputs, state, outputs, events)
+                obs.on_cycle(k, t, inputs, state, outputs, events, timing)
             if end_cycle is None and state.mode in (Mode.DONE, Mode.FAULT):
                 end_cycle = k  # keep cycling a little so the last commands reach the drives
             if end_cycle is not None and k - end_cycle >= linger:

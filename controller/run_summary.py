@@ -17,7 +17,7 @@ from collections import deque
 
 from controller.control_law import PIPELINE_PERIODS, ControllerState
 from controller.cycle_data import CycleInputs, CycleOutputs, Event, Severity
-from controller.loop import LoopStats
+from controller.loop import CycleTiming, LoopStats
 
 
 @dataclass
@@ -30,7 +30,7 @@ class RunRecorder:
         default_factory=lambda: deque([None] * PIPELINE_PERIODS, maxlen=PIPELINE_PERIODS))
 
     def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
-                 outputs: CycleOutputs, events: tuple[Event, ...]) -> None:
+                 outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None:
         ref = self._references[0]
         if ref is not None and state.tcp_measured_m is not None and all(d.fresh for d in inputs.drives):
             m = state.tcp_measured_m

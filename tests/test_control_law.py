@@ -30,7 +30,7 @@ class Trace:
     measured: list[tuple[float, ...]] = field(default_factory=list)
     hook: object = None
 
-    def on_cycle(self, cycle, t, inputs, state, outputs, events):
+    def on_cycle(self, cycle, t, inputs, state, outputs, events, timing):
         self.outputs.append(outputs)
         self.setpoints.append(state.setpoint)
         self.modes.append(state.mode)

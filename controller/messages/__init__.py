@@ -1,0 +1,1 @@
+"""Protobuf messages shared by the MCAP recording and the Zenoh payloads (see cheope.proto)."""
