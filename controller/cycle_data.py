@@ -40,6 +40,8 @@ class CycleInputs:
     sensor: SensorFeedback | None = None
     emcy: tuple[EmcyReport, ...] = ()
     stop_requested: bool = False
+    command: str = ""  # a remote command accepted this cycle ("pause", "resume", "set_force"), else ""
+    command_value: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Protocol
 
 import numpy as np
@@ -103,10 +103,14 @@ class LoopStats:
         return np.abs(np.diff(self.wake_error_s[:n])) * 1e6
 
 
+CommandSource = Callable[[], "tuple[str, float] | None"]  # one pending remote command, or None
+
+
 class CycleLoop:
     def __init__(self, law: ControlLaw, exchange: Exchange, period_s: float, collect_fraction: float,
                  sleeper: Sleeper, clock: Callable[[], float] = time.monotonic,
-                 observers: tuple[CycleObserver, ...] = (), stop_event: threading.Event | None = None) -> None:
+                 observers: tuple[CycleObserver, ...] = (), stop_event: threading.Event | None = None,
+                 commands: CommandSource | None = None) -> None:
         self.law = law
         self.exchange = exchange
         self.period_s = period_s
@@ -115,6 +119,7 @@ class CycleLoop:
         self.clock = clock
         self.observers = observers
         self.stop_event = stop_event or threading.Event()
+        self.commands = commands
 
     def run(self, state: ControllerState, max_duration_s: float, linger_after_end_s: float = 0.1
             ) -> tuple[ControllerState, LoopStats]:
@@ -135,6 +140,10 @@ class CycleLoop:
             woke = clock()
             self.exchange.send(outputs)
             inputs = self.exchange.collect(clock() + self.collect_s, self.stop_event.is_set())
+            if self.commands is not None:
+                pending = self.commands()
+                if pending is not None:
+                    inputs = replace(inputs, command=pending[0], command_value=pending[1])
             t = k * period
             c0 = clock()
             state, outputs, events = self.law.step(state, inputs, t)
