@@ -147,12 +147,15 @@ class SimSensorSection:
     bias_n: tuple[float, float, float] = (0.10, -0.05, 0.02)
     range_n: float = field(default=300.0, metadata=_r(0.0, 327.0, lo_open=True))
     seed: int = 1
+    sample_rate_hz: float = field(default=1000.0, metadata=_r(1.0, 100000.0))
+    bandwidth_hz: float = field(default=200.0, metadata=_r(0.1, 100000.0))
 
 
 @dataclass(frozen=True)
 class SimSection:
     drive: SimDriveSection = SimDriveSection()
     sensor: SimSensorSection = SimSensorSection()
+    structure_damping_ratio: float = field(default=0.2, metadata=_r(0.0, 10.0))
 
 
 @dataclass(frozen=True)

@@ -8,14 +8,20 @@ the drives' interpolators one period later: it is the setpoint for ``t + 2 * per
 
 Supervisor modes (see ``Mode``)::
 
-    CONFIGURING -> ENABLING -> HOLDING -> RUNNING -> STOPPING -> DONE
-          \\______________\\__________\\__________\\__________\\--> FAULT
+    CONFIGURING -> ENABLING -> HOLDING -> RUNNING <-> PAUSED
+                                             |          |
+                                             v          v
+                                            STOPPING -> DONE          (any mode) -> FAULT
 
 CONFIGURING waits for every drive's first TPDO (the loop shell has done NMT and SDO set-up
 before the first cycle), ENABLING walks each drive's CiA 402 power state machine to
 OPERATION ENABLED while commanding its measured position (no jump at enable), HOLDING keeps
-the position for ``hold_before_task_s``, RUNNING streams the task through Ruckig, STOPPING
-brakes within the limits and then shuts the drives down, FAULT quick-stops them.
+the position for ``hold_before_task_s``, RUNNING streams the task through Ruckig, PAUSED
+brakes and holds with the task clock stopped (remote ``pause``/``resume``), STOPPING brakes
+within the limits and then shuts the drives down, FAULT quick-stops them.
+
+The task runs on its own clock, ``task_time_s``, which advances one period per RUNNING
+cycle: a pause does not make a path jump ahead when it resumes.
 """
 
 from __future__ import annotations
@@ -31,7 +37,7 @@ from controller.cycle_data import CycleInputs, CycleOutputs, Event, Severity
 from controller.robots.cheope import PoseStatus
 from controller.robots.errors import NoSolutionError
 from controller.setpoint_smoothing import RuckigSmoother, Setpoint
-from controller.tasks.path_task import JointReference
+from controller.tasks.task import Task, TaskContext
 from drivers.cia402 import PowerState, controlword_towards, decode_statusword
 
 
@@ -43,9 +49,10 @@ class Mode(IntEnum):
     ENABLING = 1
     HOLDING = 2
     RUNNING = 3
-    STOPPING = 4
-    DONE = 5
-    FAULT = 6
+    PAUSED = 4
+    STOPPING = 5
+    DONE = 6
+    FAULT = 7
 
 
 class Robot(Protocol):
@@ -54,14 +61,6 @@ class Robot(Protocol):
     def direct_kinematics(self, q: np.ndarray) -> np.ndarray: ...
 
     def check_pose(self, tcp_m: np.ndarray) -> PoseStatus: ...
-
-
-class Task(Protocol):
-    name: str
-
-    def start(self) -> object: ...
-
-    def reference(self, state: object, t_cmd_s: float, setpoint: Setpoint) -> tuple[object, JointReference, bool]: ...
 
 
 @dataclass(frozen=True)
@@ -84,6 +83,7 @@ class ControllerState:
     task_state: object
     tcp_reference_m: tuple[float, float, float] | None  # path point for the next SYNC; None off the path
     tcp_measured_m: tuple[float, float, float] | None  # direct kinematics of the measured positions
+    task_time_s: float = 0.0
     fault_reason: str = ""
 
 
@@ -121,12 +121,17 @@ class ControlLaw:
             if reason:
                 state = self._enter(state, Mode.FAULT, t, events, Severity.FAULT, reason)
                 state = replace(state, fault_reason=reason, setpoint=Setpoint.at_rest(measured))
-        if inputs.stop_requested and state.mode in (Mode.ENABLING, Mode.HOLDING, Mode.RUNNING):
+        if inputs.stop_requested and state.mode in (Mode.ENABLING, Mode.HOLDING, Mode.RUNNING, Mode.PAUSED):
             state = self._enter(state, Mode.STOPPING, t, events, Severity.INFO, "stop requested")
+        elif inputs.command == "pause" and state.mode == Mode.RUNNING:
+            state = self._enter(state, Mode.PAUSED, t, events, why="remote pause")
+        elif inputs.command == "resume" and state.mode == Mode.PAUSED:
+            state = self._enter(state, Mode.RUNNING, t, events, why="remote resume")
 
         handler = {
             Mode.CONFIGURING: self._configuring, Mode.ENABLING: self._enabling, Mode.HOLDING: self._holding,
-            Mode.RUNNING: self._running, Mode.STOPPING: self._stopping, Mode.DONE: self._done,
+            Mode.RUNNING: self._running, Mode.PAUSED: self._paused, Mode.STOPPING: self._stopping,
+            Mode.DONE: self._done,
             Mode.FAULT: self._fault,
         }[state.mode]
         state = handler(state, inputs, powers, measured, t, events)
@@ -153,7 +158,7 @@ class ControlLaw:
         for e in inputs.emcy:
             if e.error_code != 0:
                 return f"EMCY from node {e.node_id}: error code 0x{e.error_code:04X}, register 0x{e.error_register:02X}"
-        if state.mode in (Mode.HOLDING, Mode.RUNNING) or (
+        if state.mode in (Mode.HOLDING, Mode.RUNNING, Mode.PAUSED) or (
                 state.mode == Mode.STOPPING and not self._shutting_down(state)):
             for j, p in enumerate(powers):
                 if p != PowerState.OPERATION_ENABLED:
@@ -202,8 +207,16 @@ class ControlLaw:
         return state
 
     def _running(self, state, inputs, powers, measured, t, events) -> ControllerState:
-        t_cmd = t + PIPELINE_PERIODS * self.config.period_s
-        task_state, ref, finished = self.task.reference(state.task_state, t_cmd, state.setpoint)
+        period = self.config.period_s
+        task_time = state.task_time_s + period
+        ctx = TaskContext(t_s=task_time + PIPELINE_PERIODS * period, period_s=period, setpoint=state.setpoint,
+                          inputs=inputs, tcp_measured_m=state.tcp_measured_m)
+        out = self.task.step(state.task_state, ctx)
+        events.extend(out.events)
+        task_state, ref, finished = out.state, out.reference, out.finished
+        if out.fault:
+            return replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, out.fault), fault_reason=out.fault,
+                           task_state=task_state, setpoint=Setpoint.at_rest(measured))
         pose = self.robot.check_pose(np.asarray(ref.tcp_m))
         if not pose.ok:
             why = f"task reference leaves the safe workspace: {pose.reason}"
@@ -213,11 +226,14 @@ class ControlLaw:
         if not result.ok:
             return replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, result.message),
                            fault_reason=result.message, setpoint=Setpoint.at_rest(measured))
-        state = replace(state, task_state=task_state, setpoint=result.setpoint,
+        state = replace(state, task_state=task_state, setpoint=result.setpoint, task_time_s=task_time,
                         tcp_reference_m=ref.tcp_m if ref.on_path else None)
         if finished:
             return self._enter(state, Mode.STOPPING, t, events, why=f"task {self.task.name} finished")
         return state
+
+    def _paused(self, state, inputs, powers, measured, t, events) -> ControllerState:
+        return replace(self._smooth_to_rest(state, t, events), tcp_reference_m=None)
 
     def _stopping(self, state, inputs, powers, measured, t, events) -> ControllerState:
         state = replace(state, tcp_reference_m=None)

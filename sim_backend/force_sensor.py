@@ -1,13 +1,15 @@
 """A simulated 6-axis force/torque sensor answering SYNC with two TPDOs.
 
-It measures the wrench the environment applies, plus a constant bias and Gaussian noise,
-quantises it to the PDO's fixed point, saturates at its range (and flags it in the status
-byte), and counts its samples in a rolling 8-bit counter so the controller can detect
-stale data.
+It sees the wrench the environment applies through a first-order anti-aliasing filter
+(``bandwidth_hz``), samples it at its own rate (``sample_rate_hz``), adds a constant bias
+and Gaussian noise per sample, quantises to the PDO's fixed point, saturates at its range
+(and flags it in the status byte), and counts its transmitted samples in a rolling 8-bit
+counter so the controller can detect stale data.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,6 +28,8 @@ class SensorParams:
     bias_n: tuple[float, float, float]
     range_n: float
     seed: int
+    sample_rate_hz: float = 1000.0
+    bandwidth_hz: float = 200.0
 
 
 @dataclass
@@ -34,19 +38,42 @@ class SimulatedForceSensor:
     counter: int = 0
     status_flags: int = 0  # extra status bits forced by fault injection
     rng: np.random.Generator = field(init=False)
+    _filtered: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    _torque: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    _sample: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    _next_sample_s: float | None = None
 
     def __post_init__(self) -> None:
         self.rng = np.random.default_rng(self.params.seed)
+        self._sample = np.asarray(self.params.bias_n, dtype=float).copy()
 
-    def sample(self, force_n: np.ndarray, torque_nm: np.ndarray) -> tuple[bytes, bytes]:
+    def observe(self, t_s: float, dt: float, force_n: np.ndarray, torque_nm: np.ndarray) -> None:
+        """Filter the true wrench over ``dt`` and take a sample when one is due."""
         p = self.params
-        measured = np.asarray(force_n, dtype=float) + np.asarray(p.bias_n) + self.rng.normal(0.0, p.noise_std_n, 3)
+        alpha = 1.0 - math.exp(-2.0 * math.pi * p.bandwidth_hz * dt)
+        self._filtered += alpha * (np.asarray(force_n, dtype=float) - self._filtered)
+        self._torque = np.asarray(torque_nm, dtype=float)
+        if self._next_sample_s is None or t_s >= self._next_sample_s:
+            self._sample = self._filtered + np.asarray(p.bias_n) + self.rng.normal(0.0, p.noise_std_n, 3)
+            self._next_sample_s = (self._next_sample_s or t_s) + 1.0 / p.sample_rate_hz
+
+    def frames(self) -> tuple[bytes, bytes]:
+        """The two TPDOs answering a SYNC: the latest sample."""
+        p = self.params
+        measured = self._sample
         status = self.status_flags
         if np.any(np.abs(measured) > p.range_n):
             status |= SENSOR_FORCE_SATURATED
             measured = np.clip(measured, -p.range_n, p.range_n)
         self.counter = (self.counter + 1) & 0xFF
         f = encode_sensor_frame(tuple(measured.tolist()), FORCE_N_PER_COUNT, status, self.counter)  # type: ignore[arg-type]
-        t = encode_sensor_frame(tuple(np.asarray(torque_nm, float).tolist()), TORQUE_NM_PER_COUNT, status,
+        t = encode_sensor_frame(tuple(self._torque.tolist()), TORQUE_NM_PER_COUNT, status,
                                 self.counter)  # type: ignore[arg-type]
         return f, t
+
+    def sample(self, force_n: np.ndarray, torque_nm: np.ndarray) -> tuple[bytes, bytes]:
+        """Observe a constant wrench long enough for the filter to settle, then answer a SYNC."""
+        self._filtered = np.asarray(force_n, dtype=float).copy()
+        self._next_sample_s = None
+        self.observe(0.0, 0.0, force_n, torque_nm)
+        return self.frames()

@@ -18,16 +18,13 @@ from typing import Callable
 
 import can
 import canopen
-import numpy as np
 
 from controller.config import Config
-from controller.robots.errors import NoSolutionError
-from controller.robots.registry import cheope_from_config
 from drivers import cob_ids
-from drivers.pdo_codec import PositionScale, decode_drive_rpdo, encode_drive_tpdo, FrameError
-from sim_backend.drive import DriveParams, SimulatedDrive
-from sim_backend.environment import Environment, FreeSpace
-from sim_backend.force_sensor import SensorParams, SimulatedForceSensor
+from drivers.pdo_codec import FrameError, decode_drive_rpdo
+from sim_backend.drive import SimulatedDrive
+from sim_backend.environment import Environment
+from sim_backend.plant import RobotPlant
 
 log = logging.getLogger(__name__)
 
@@ -38,18 +35,6 @@ NMT_OPERATIONAL = 5
 WATCHDOG_PERIOD_S = 0.005
 
 
-def drive_params_from_config(cfg: Config) -> DriveParams:
-    d = cfg.sim.drive
-    c = cfg.robot.cheope
-    return DriveParams(
-        bandwidth_hz=d.bandwidth_hz, damping_ratio=d.damping_ratio, max_velocity=d.max_velocity_m_s,
-        max_acceleration=d.max_acceleration_m_s2, quick_stop_deceleration=d.quick_stop_deceleration_m_s2,
-        velocity_feedforward=d.velocity_feedforward,
-        stroke_min=c.stroke_min_m, stroke_max=c.stroke_max_m, counts_per_unit=cfg.actuators.counts_per_m,
-        sync_timeout_s=d.sync_timeout_s, substep_s=d.substep_s,
-    )
-
-
 class Simulator:
     """Simulated hardware on one bus. Use as a context manager."""
 
@@ -57,23 +42,18 @@ class Simulator:
                  clock: Callable[[], float] = time.monotonic) -> None:
         self.cfg = cfg
         self.bus = bus
-        self.environment = environment or FreeSpace()
         self.clock = clock
-        self.robot = cheope_from_config(cfg)
+        self.plant = RobotPlant(cfg, environment)
+        self.drives = self.plant.drives
+        self.sensor = self.plant.sensor
         self.lock = threading.RLock()
-        params = drive_params_from_config(cfg)
         self.drive_ids = tuple(cfg.actuators.node_ids)
-        self.drives = [SimulatedDrive(params, position=x) for x in cfg.sim.drive.initial_positions_m]
-        s = cfg.sim.sensor
-        self.sensor = SimulatedForceSensor(SensorParams(s.noise_std_n, s.bias_n, s.range_n, s.seed)) \
-            if cfg.sensor.enabled else None
         self.network = canopen.Network(bus)
         self.nodes: dict[int, canopen.LocalNode] = {}
         self.sync_count = 0
         self.rejected_frames = 0
         self._stop = threading.Event()
         self._watchdog: threading.Thread | None = None
-        self.tcp_m = np.zeros(3)
 
     # -- life cycle -------------------------------------------------------------------------
 
@@ -101,8 +81,6 @@ class Simulator:
         self.network.subscribe(cob_ids.NMT, self._on_nmt)
         for node in self.nodes.values():
             self._boot(node)
-        with self.lock:
-            self._update_mechanics()
         self._watchdog = threading.Thread(target=self._watchdog_loop, name="sim-watchdog", daemon=True)
         self._watchdog.start()
 
@@ -124,7 +102,7 @@ class Simulator:
     def _wire_drive(self, node: canopen.LocalNode, drive: SimulatedDrive) -> None:
         def on_read(index: int, subindex: int, od: object) -> int | None:
             with self.lock:
-                drive.advance(self.clock())
+                self.plant.advance(self.clock())
                 return {
                     0x6041: drive.statusword, 0x6064: drive.position_counts,
                     0x6061: lambda: drive.mode_of_operation, 0x603F: lambda: drive.error_code,
@@ -163,7 +141,7 @@ class Simulator:
                 self.rejected_frames += 1
                 return
             with self.lock:
-                self.drives[j].advance(self.clock())
+                self.plant.advance(self.clock())
                 self.drives[j].on_rpdo(controlword, target)
                 self._flush_emcy()
 
@@ -174,27 +152,16 @@ class Simulator:
         frames: list[tuple[int, bytes]] = []
         with self.lock:
             self.sync_count += 1
-            for j, node_id in enumerate(self.drive_ids):
-                d = self.drives[j]
-                d.on_sync(now)
+            drive_payloads, sensor_frames = self.plant.sync(now)
+            for node_id, payload in zip(self.drive_ids, drive_payloads):
                 if self._operational(node_id):
-                    frames.append((cob_ids.tpdo1(node_id), encode_drive_tpdo(d.statusword(), d.position_counts())))
-            self._update_mechanics()
-            if self.sensor is not None and self._operational(self.cfg.sensor.node_id):
-                force, torque = self.environment.contact_wrench(self.tcp_m, np.zeros(3))
-                f, t = self.sensor.sample(force, torque)
-                frames.append((cob_ids.tpdo1(self.cfg.sensor.node_id), f))
-                frames.append((cob_ids.tpdo2(self.cfg.sensor.node_id), t))
+                    frames.append((cob_ids.tpdo1(node_id), payload))
+            if sensor_frames is not None and self._operational(self.cfg.sensor.node_id):
+                frames.append((cob_ids.tpdo1(self.cfg.sensor.node_id), sensor_frames[0]))
+                frames.append((cob_ids.tpdo2(self.cfg.sensor.node_id), sensor_frames[1]))
             self._flush_emcy()
         for cob_id, payload in frames:
             self.network.send_message(cob_id, payload)
-
-    def _update_mechanics(self) -> None:
-        q = np.array([d.position for d in self.drives])
-        try:
-            self.tcp_m = self.robot.direct_kinematics(q)
-        except NoSolutionError:
-            log.warning("simulated actuators at %s m have no assembly", q.tolist())
 
     def _on_controller_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
         now = self.clock()
@@ -220,7 +187,5 @@ class Simulator:
     def _watchdog_loop(self) -> None:
         while not self._stop.wait(WATCHDOG_PERIOD_S):
             with self.lock:
-                now = self.clock()
-                for d in self.drives:
-                    d.advance(now)
+                self.plant.advance(self.clock())
                 self._flush_emcy()

@@ -17,7 +17,7 @@ from drivers.cia402 import (
 from drivers.pdo_codec import FORCE_N_PER_COUNT, SENSOR_FORCE_SATURATED, decode_sensor_frame
 from sim_backend.drive import EMCY_HEARTBEAT_LOST, EMCY_POSITION_RANGE, EMCY_SYNC_LOST, SimulatedDrive
 from sim_backend.force_sensor import SensorParams, SimulatedForceSensor
-from sim_backend.server import drive_params_from_config
+from sim_backend.plant import drive_params_from_config
 
 PERIOD = 0.0025
 COUNTS = 1e7

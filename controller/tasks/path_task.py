@@ -14,6 +14,7 @@ from typing import Protocol
 import numpy as np
 
 from controller.setpoint_smoothing import Setpoint
+from controller.tasks.task import JointReference, TaskContext, TaskStep
 
 
 class CartesianTrajectory(Protocol):
@@ -37,15 +38,6 @@ class PathPhase(IntEnum):
 class PathTaskState:
     phase: PathPhase = PathPhase.MOVE_TO_START
     tracking_start_s: float = 0.0
-
-
-@dataclass(frozen=True, slots=True)
-class JointReference:
-    position: tuple[float, ...]
-    velocity: tuple[float, ...]
-    acceleration: tuple[float, ...]
-    tcp_m: tuple[float, float, float]
-    on_path: bool  # False while moving to the path's start
 
 
 class PathTask:
@@ -76,9 +68,16 @@ class PathTask:
         return JointReference(tuple(q.tolist()), tuple(qd.tolist()), tuple(qdd.tolist()),
                               tuple(p.tolist()), True)  # type: ignore[arg-type]
 
+    def phase_name(self, state: PathTaskState) -> str:
+        return state.phase.name
+
+    def step(self, state: PathTaskState, ctx: TaskContext) -> TaskStep:
+        state, ref, finished = self.reference(state, ctx.t_s, ctx.setpoint)
+        return TaskStep(state, ref, finished)
+
     def reference(self, state: PathTaskState, t_cmd_s: float, setpoint: Setpoint
                   ) -> tuple[PathTaskState, JointReference, bool]:
-        """Reference for the setpoint the drives latch at ``t_cmd_s``; True once finished."""
+        """Reference for the setpoint the drives reach at task time ``t_cmd_s``; True once finished."""
         if state.phase == PathPhase.MOVE_TO_START:
             start = self._start
             settled = all(abs(a - b) <= self.settle_tolerance for a, b in zip(setpoint.position, start.position)) \

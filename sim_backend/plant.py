@@ -1,0 +1,118 @@
+"""The simulated robot as one plant: drives, structure, environment and force sensor.
+
+Both the simulator process (``server.py``) and the in-process loopback (``loopback.py``)
+drive this object, so they simulate the same physics. Time is an argument: ``advance``
+integrates everything up to ``now_s`` in sub-steps of ``substep_s``; ``sync`` answers a SYNC.
+In free space the structure carries no load, so the mechanics reduce to the direct
+kinematics evaluated at the SYNC.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from controller.config import Config
+from controller.robots.errors import NoSolutionError
+from controller.robots.performance import MassModel
+from controller.robots.registry import cheope_from_config
+from drivers.pdo_codec import encode_drive_tpdo
+from sim_backend.drive import DriveParams, SimulatedDrive
+from sim_backend.environment import Environment, FreeSpace, ZERO3
+from sim_backend.force_sensor import SensorParams, SimulatedForceSensor
+from sim_backend.mechanics import ComplianceParams, CompliantTool
+
+log = logging.getLogger(__name__)
+
+
+def drive_params_from_config(cfg: Config) -> DriveParams:
+    d = cfg.sim.drive
+    c = cfg.robot.cheope
+    return DriveParams(
+        bandwidth_hz=d.bandwidth_hz, damping_ratio=d.damping_ratio, max_velocity=d.max_velocity_m_s,
+        max_acceleration=d.max_acceleration_m_s2, quick_stop_deceleration=d.quick_stop_deceleration_m_s2,
+        velocity_feedforward=d.velocity_feedforward,
+        stroke_min=c.stroke_min_m, stroke_max=c.stroke_max_m, counts_per_unit=cfg.actuators.counts_per_m,
+        sync_timeout_s=d.sync_timeout_s, substep_s=d.substep_s,
+    )
+
+
+class RobotPlant:
+    def __init__(self, cfg: Config, environment: Environment | None = None) -> None:
+        self.robot = cheope_from_config(cfg)
+        params = drive_params_from_config(cfg)
+        self.drives = [SimulatedDrive(params, position=x) for x in cfg.sim.drive.initial_positions_m]
+        s = cfg.sim.sensor
+        self.sensor = SimulatedForceSensor(SensorParams(s.noise_std_n, s.bias_n, s.range_n, s.seed,
+                                                        s.sample_rate_hz, s.bandwidth_hz)) \
+            if cfg.sensor.enabled else None
+        self.environment = environment or FreeSpace()
+        self.loaded = not isinstance(self.environment, FreeSpace)
+        m = cfg.robot.mass
+        self.tool = CompliantTool(ComplianceParams(m.actuator_stiffness_n_m, cfg.sim.structure_damping_ratio,
+                                                   MassModel(m.platform_kg, m.slider_kg, m.rod_pair_kg)))
+        self.substep_s = cfg.sim.drive.substep_s
+        self.time_s: float | None = None
+        self.tcp_kinematic_m = np.zeros(3)
+        self.force_n = ZERO3
+        self._update_kinematics()
+
+    @property
+    def tcp_m(self) -> np.ndarray:
+        """Where the tool really is: the kinematic TCP plus the structure's deflection."""
+        return self.tcp_kinematic_m + self.tool.deflection_m
+
+    def _update_kinematics(self) -> np.ndarray | None:
+        q = np.array([d.position for d in self.drives])
+        try:
+            self.tcp_kinematic_m = self.robot.direct_kinematics(q)
+        except NoSolutionError:
+            log.warning("simulated actuators at %s m have no assembly", q.tolist())
+            return None
+        return q
+
+    def advance(self, now_s: float) -> None:
+        if self.time_s is None:
+            self.time_s = now_s
+            for d in self.drives:
+                d.advance(now_s)
+            return
+        if not self.loaded:
+            for d in self.drives:
+                d.advance(now_s)
+            self.time_s = max(self.time_s, now_s)
+            return
+        while self.time_s < now_s:
+            dt = min(self.substep_s, now_s - self.time_s)
+            t1 = self.time_s + dt
+            for d in self.drives:
+                d.advance(t1)
+            self._mechanics(t1, dt)
+            self.time_s = t1
+
+    def _mechanics(self, t_s: float, dt: float) -> None:
+        if self._update_kinematics() is None:
+            return
+        jac = self.robot.jacobian(self.tcp_kinematic_m)
+        qd = np.array([d.velocity for d in self.drives])
+        v_kin = np.linalg.solve(jac, qd)
+        force, torque = self.environment.contact_wrench(self.tcp_m, v_kin + self.tool.velocity_m_s)
+        self.force_n = force
+        self.tool.step(jac, force, dt)
+        if self.sensor is not None:
+            self.sensor.observe(t_s, dt, force, torque)
+
+    def sync(self, now_s: float) -> tuple[list[bytes], tuple[bytes, bytes] | None]:
+        """Latch the drives' targets, sample everything at ``now_s``: the TPDO payloads."""
+        self.advance(now_s)
+        for d in self.drives:
+            d.on_sync(now_s)
+        if not self.loaded:
+            self._update_kinematics()
+            if self.sensor is not None:
+                force, torque = self.environment.contact_wrench(self.tcp_m, np.zeros(3))
+                self.sensor.observe(now_s, 1.0, force, torque)
+        drives = [encode_drive_tpdo(d.statusword(), d.position_counts()) for d in self.drives]
+        sensor = self.sensor.frames() if self.sensor is not None else None
+        return drives, sensor
