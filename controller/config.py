@@ -55,7 +55,7 @@ class MassSection:
     platform_kg: float = field(default=2.0, metadata=_r(0.0, 1000.0))
     slider_kg: float = field(default=1.5, metadata=_r(0.0, 1000.0))
     rod_pair_kg: float = field(default=0.4, metadata=_r(0.0, 1000.0))
-    actuator_stiffness_n_m: float = field(default=2.0e6, metadata=_r(0.0, 1e12, lo_open=True))
+    actuator_stiffness_n_m: float = field(default=2.0e5, metadata=_r(0.0, 1e12, lo_open=True))
 
 
 @dataclass(frozen=True)
@@ -121,9 +121,41 @@ class PathSection:
 
 
 @dataclass(frozen=True)
+class ContourSection:
+    """Hybrid force/velocity contour tracking (seed 001 §7); see controller/tasks/contour_tracking.py."""
+
+    expected_centre_m: tuple[float, float] = (0.0, 0.0)
+    height_m: float = field(default=0.50, metadata=_r(-10.0, 10.0))
+    expected_radius_m: float = field(default=0.07, metadata=_r(0.0, 1.0, lo_open=True))
+    approach_direction_deg: float = field(default=0.0, metadata=_r(-360.0, 360.0))
+    approach_clearance_m: float = field(default=0.005, metadata=_r(0.0, 1.0, lo_open=True))
+    approach_speed_m_s: float = field(default=0.002, metadata=_r(0.0, 1.0, lo_open=True))
+    max_approach_distance_m: float = field(default=0.02, metadata=_r(0.0, 1.0, lo_open=True))
+    contact_force_n: float = field(default=1.0, metadata=_r(0.0, 1000.0, lo_open=True))
+    force_setpoint_n: float = field(default=10.0, metadata=_r(0.0, 1000.0, lo_open=True))
+    lap_speeds_m_s: tuple[float, float, float, float, float] = (0.02, 0.04, 0.06, 0.06, 0.06)
+    tangential_acceleration_m_s2: float = field(default=0.05, metadata=_r(0.0, 100.0, lo_open=True))
+    force_kp_m_s_per_n: float = field(default=3.5e-4, metadata=_r(0.0, 1.0))
+    force_ki_m_s2_per_n: float = field(default=3.5e-3, metadata=_r(0.0, 10.0))
+    max_normal_speed_m_s: float = field(default=0.02, metadata=_r(0.0, 10.0, lo_open=True))
+    force_filter_hz: float = field(default=40.0, metadata=_r(0.1, 10000.0))
+    normal_min_force_n: float = field(default=2.0, metadata=_r(0.0, 1000.0))
+    max_force_n: float = field(default=40.0, metadata=_r(0.0, 1000.0, lo_open=True))
+    contact_lost_force_n: float = field(default=1.0, metadata=_r(0.0, 1000.0))
+    contact_lost_cycles: int = field(default=40, metadata=_r(1, 100000))
+    on_contact_loss: str = field(default="reapproach", metadata={"choices": ("reapproach", "stop")})
+    retract_distance_m: float = field(default=0.01, metadata=_r(0.0, 1.0, lo_open=True))
+    retract_speed_m_s: float = field(default=0.02, metadata=_r(0.0, 1.0, lo_open=True))
+    tare_s: float = field(default=0.1, metadata=_r(0.0, 60.0, lo_open=True))
+    friction_estimate: float = field(default=0.1, metadata=_r(0.0, 2.0))
+    direction: int = field(default=1, metadata={"range": (-1, 1, False)})
+
+
+@dataclass(frozen=True)
 class TaskSection:
-    kind: str = field(default="path", metadata={"choices": ("path",)})
+    kind: str = field(default="path", metadata={"choices": ("path", "contour")})
     path: PathSection = PathSection()
+    contour: ContourSection = ContourSection()
 
 
 @dataclass(frozen=True)
@@ -152,10 +184,38 @@ class SimSensorSection:
 
 
 @dataclass(frozen=True)
+class SimDiskSection:
+    """The workpiece of the contour task; known to the simulator only (sim_backend/contact_disk.py)."""
+
+    centre_m: tuple[float, float] = (0.0, 0.0)
+    height_m: float = field(default=0.50, metadata=_r(-10.0, 10.0))
+    radius_m: float = field(default=0.07, metadata=_r(0.0, 1.0, lo_open=True))
+    thickness_m: float = field(default=0.01, metadata=_r(0.0, 1.0, lo_open=True))
+    tool_radius_m: float = field(default=0.0, metadata=_r(0.0, 0.1))
+    contact_stiffness_n_m: float = field(default=1.0e6, metadata=_r(0.0, 1e12, lo_open=True))
+    sensor_stiffness_n_m: float = field(default=3.0e5, metadata=_r(0.0, 1e12, lo_open=True))
+    contact_damping_n_s_m: float = field(default=200.0, metadata=_r(0.0, 1e9))
+    friction_coefficient: float = field(default=0.15, metadata=_r(0.0, 2.0))
+
+
+@dataclass(frozen=True)
 class SimSection:
     drive: SimDriveSection = SimDriveSection()
     sensor: SimSensorSection = SimSensorSection()
     structure_damping_ratio: float = field(default=0.2, metadata=_r(0.0, 10.0))
+    environment: str = field(default="auto", metadata={"choices": ("auto", "free", "disk")})
+    disk: SimDiskSection = SimDiskSection()
+
+
+@dataclass(frozen=True)
+class RecordingSection:
+    """The session recording (logs/recorder.py): one MCAP file per run of the controller."""
+
+    enabled: bool = True
+    directory: str = ""  # "" = $XDG_DATA_HOME/cheope/sessions (~/.local/share/cheope/sessions)
+    queue_size: int = field(default=16384, metadata=_r(16, 10_000_000))  # items between loop and writer
+    chunk_size_bytes: int = field(default=65536, metadata=_r(1024, 64 * 1024 * 1024))  # uncompressed
+    flush_interval_s: float = field(default=0.5, metadata=_r(0.01, 60.0))  # close a chunk at least this often
 
 
 @dataclass(frozen=True)
@@ -167,6 +227,7 @@ class Config:
     loop: LoopSection = LoopSection()
     task: TaskSection = TaskSection()
     sim: SimSection = SimSection()
+    recording: RecordingSection = RecordingSection()
 
     @property
     def period_s(self) -> float:
@@ -252,6 +313,8 @@ def _cross_checks(cfg: Config) -> None:
             f"loop.heartbeat_consumer_s = {cfg.loop.heartbeat_consumer_s} must exceed "
             f"loop.heartbeat_period_s = {cfg.loop.heartbeat_period_s}"
         )
+    if cfg.task.contour.direction not in (-1, 1):
+        raise ConfigError(f"task.contour.direction = {cfg.task.contour.direction}: must be 1 or -1")
     if cfg.bus.fd and cfg.bus.data_bitrate_bit_s < cfg.bus.bitrate_bit_s:
         raise ConfigError(
             f"bus.data_bitrate_bit_s = {cfg.bus.data_bitrate_bit_s} must be >= bus.bitrate_bit_s = "

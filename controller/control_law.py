@@ -42,6 +42,8 @@ from drivers.cia402 import PowerState, controlword_towards, decode_statusword
 
 
 PIPELINE_PERIODS = 2
+# A reactive reference's position error decays with a time constant of 1/0.25 = 4 periods.
+REACTIVE_CORRECTION_PERIODS = 0.25
 
 
 class Mode(IntEnum):
@@ -222,7 +224,11 @@ class ControlLaw:
             why = f"task reference leaves the safe workspace: {pose.reason}"
             return replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, why), fault_reason=why,
                            setpoint=Setpoint.at_rest(measured))
-        result = self.smoother.step(state.setpoint, ref.position, ref.velocity, ref.acceleration)
+        if ref.reactive:
+            result = self.smoother.track_velocity(state.setpoint, ref.position, ref.velocity,
+                                                  REACTIVE_CORRECTION_PERIODS / period)
+        else:
+            result = self.smoother.step(state.setpoint, ref.position, ref.velocity, ref.acceleration)
         if not result.ok:
             return replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, result.message),
                            fault_reason=result.message, setpoint=Setpoint.at_rest(measured))

@@ -9,9 +9,12 @@ loop. Nothing moves before every check has passed.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from dataclasses import dataclass
+
+import numpy as np
 
 from controller.config import Config, ConfigError
 from controller.control_law import ControlLaw, LawConfig
@@ -21,7 +24,9 @@ from controller.robots.registry import cheope_from_config
 from controller.run_summary import RunRecorder, summarize
 from controller.setpoint_smoothing import AxisLimits, RuckigSmoother
 from controller.tasks.circle_path import CirclePath
+from controller.tasks.contour_tracking import ContourParams, ContourTrackingTask
 from controller.tasks.path_task import PathTask
+from controller.tasks.task import Task
 from drivers.bus import BusSpec, open_bus
 from drivers.bus_load import BusLoad, check_bus_load, compute_bus_load, cyclic_frames
 from drivers.cyclic_exchange import CyclicExchange, FrameSink
@@ -45,7 +50,9 @@ def build_robot(cfg: Config) -> CheopeRobot:
         raise ConfigError(f"[robot.cheope] geometry is inconsistent: {err}") from err
 
 
-def build_task(cfg: Config, robot: CheopeRobot) -> PathTask:
+def build_task(cfg: Config, robot: CheopeRobot) -> Task:
+    if cfg.task.kind == "contour":
+        return build_contour_task(cfg, robot)
     p = cfg.task.path
     try:
         path = CirclePath(center_m=p.center_m, radius_m=p.radius_m, speed_m_s=p.speed_m_s, laps=p.laps,
@@ -54,6 +61,30 @@ def build_task(cfg: Config, robot: CheopeRobot) -> PathTask:
         raise ConfigError(f"[task.path]: {err}") from err
     robot.check_path(path.points(p.check_samples))  # WorkspaceError names the sample
     return PathTask(robot, path, settle_tolerance=cfg.loop.settle_tolerance_m)
+
+
+def build_contour_task(cfg: Config, robot: CheopeRobot) -> ContourTrackingTask:
+    c = cfg.task.contour
+    params = ContourParams(
+        expected_centre_m=c.expected_centre_m, height_m=c.height_m, expected_radius_m=c.expected_radius_m,
+        approach_direction_rad=math.radians(c.approach_direction_deg), approach_clearance_m=c.approach_clearance_m,
+        approach_speed_m_s=c.approach_speed_m_s, max_approach_distance_m=c.max_approach_distance_m,
+        contact_force_n=c.contact_force_n, force_setpoint_n=c.force_setpoint_n, lap_speeds_m_s=c.lap_speeds_m_s,
+        tangential_acceleration_m_s2=c.tangential_acceleration_m_s2, force_kp_m_s_per_n=c.force_kp_m_s_per_n,
+        force_ki_m_s2_per_n=c.force_ki_m_s2_per_n, max_normal_speed_m_s=c.max_normal_speed_m_s,
+        force_filter_hz=c.force_filter_hz, normal_min_force_n=c.normal_min_force_n, max_force_n=c.max_force_n,
+        contact_lost_force_n=c.contact_lost_force_n, contact_lost_cycles=c.contact_lost_cycles,
+        reapproach_on_contact_loss=c.on_contact_loss == "reapproach", retract_distance_m=c.retract_distance_m,
+        retract_speed_m_s=c.retract_speed_m_s, tare_s=c.tare_s, settle_tolerance_m=cfg.loop.settle_tolerance_m,
+        friction_estimate=c.friction_estimate, direction=c.direction,
+    )
+    # The whole neighbourhood the task may visit: the expected contour, widened by the approach.
+    ring = []
+    for r in (c.expected_radius_m - c.max_approach_distance_m, c.expected_radius_m + c.approach_clearance_m):
+        for th in np.linspace(0.0, 2.0 * np.pi, 73):
+            ring.append((c.expected_centre_m[0] + r * np.cos(th), c.expected_centre_m[1] + r * np.sin(th), c.height_m))
+    robot.check_path(np.array(ring))
+    return ContourTrackingTask(robot, params)
 
 
 def build_law(cfg: Config, robot: CheopeRobot | None = None) -> ControlLaw:

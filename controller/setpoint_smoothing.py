@@ -53,13 +53,14 @@ class RuckigSmoother:
         self._inp.max_velocity = list(limits.max_velocity)
         self._inp.max_acceleration = list(limits.max_acceleration)
         self._inp.max_jerk = list(limits.max_jerk)
-        # Braking uses the velocity interface: come to rest wherever that happens.
+        # The velocity interface: braking (come to rest wherever that happens) and reactive tracking.
         self._brake = InputParameter(dofs)
         self._brake.control_interface = ControlInterface.Velocity
         self._brake.max_velocity = list(limits.max_velocity)
         self._brake.max_acceleration = list(limits.max_acceleration)
         self._brake.max_jerk = list(limits.max_jerk)
         self._zeros = [0.0] * dofs
+        self._limits = limits
 
     def step(
         self,
@@ -68,7 +69,15 @@ class RuckigSmoother:
         target_velocity: tuple[float, ...],
         target_acceleration: tuple[float, ...],
     ) -> SmoothingResult:
-        """The setpoint one period after ``current`` on the way to the target state."""
+        """The setpoint one period after ``current`` on the way to the target state.
+
+        A target velocity or acceleration beyond the limits cannot be reached anyway: it is
+        clipped to them (Ruckig would refuse the whole input), so a task's abrupt change of
+        plan becomes the fastest allowed transition instead of a fault.
+        """
+        lim = self._limits
+        target_velocity = tuple(min(max(v, -m), m) for v, m in zip(target_velocity, lim.max_velocity))
+        target_acceleration = tuple(min(max(a, -m), m) for a, m in zip(target_acceleration, lim.max_acceleration))
         inp = self._inp
         inp.current_position = current.position
         inp.current_velocity = current.velocity
@@ -76,6 +85,34 @@ class RuckigSmoother:
         inp.target_position = target_position
         inp.target_velocity = target_velocity
         inp.target_acceleration = target_acceleration
+        return self._calculate(inp, current)
+
+    def track_velocity(
+        self,
+        current: Setpoint,
+        target_position: tuple[float, ...],
+        target_velocity: tuple[float, ...],
+        correction_per_s: float,
+    ) -> SmoothingResult:
+        """The setpoint one period later when following a reactive reference by its velocity.
+
+        For references that are recomputed from measurements every cycle (force control),
+        the position interface is fragile: once the setpoint lags an accelerating target,
+        the time-optimal profile to it changes family from one cycle to the next (brake,
+        then catch up) and the setpoints stall. Here Ruckig's velocity interface goes to
+        v* = v_ref + correction_per_s (q_ref - q) within the limits: the position error
+        decays with time constant 1 / correction_per_s, and every setpoint keeps the
+        velocity, acceleration and jerk limits.
+        """
+        lim = self._limits
+        inp = self._brake
+        inp.current_position = current.position
+        inp.current_velocity = current.velocity
+        inp.current_acceleration = current.acceleration
+        inp.target_velocity = [min(max(v + correction_per_s * (q_ref - q), -m), m)
+                               for v, q_ref, q, m in zip(target_velocity, target_position, current.position,
+                                                         lim.max_velocity)]
+        inp.target_acceleration = self._zeros
         return self._calculate(inp, current)
 
     def brake(self, current: Setpoint) -> SmoothingResult:

@@ -19,6 +19,7 @@ from controller.robots.performance import MassModel
 from controller.robots.registry import cheope_from_config
 from drivers.pdo_codec import encode_drive_tpdo
 from sim_backend.drive import DriveParams, SimulatedDrive
+from sim_backend.contact_disk import DiskEnvironment, DiskParams
 from sim_backend.environment import Environment, FreeSpace, ZERO3
 from sim_backend.force_sensor import SensorParams, SimulatedForceSensor
 from sim_backend.mechanics import ComplianceParams, CompliantTool
@@ -38,6 +39,20 @@ def drive_params_from_config(cfg: Config) -> DriveParams:
     )
 
 
+def environment_from_config(cfg: Config) -> Environment:
+    kind = cfg.sim.environment
+    if kind == "auto":
+        kind = "disk" if cfg.task.kind == "contour" else "free"
+    if kind == "free":
+        return FreeSpace()
+    d = cfg.sim.disk
+    return DiskEnvironment(DiskParams(
+        centre_m=d.centre_m, height_m=d.height_m, radius_m=d.radius_m, thickness_m=d.thickness_m,
+        tool_radius_m=d.tool_radius_m, contact_stiffness_n_m=d.contact_stiffness_n_m,
+        sensor_stiffness_n_m=d.sensor_stiffness_n_m, contact_damping_n_s_m=d.contact_damping_n_s_m,
+        friction_coefficient=d.friction_coefficient))
+
+
 class RobotPlant:
     def __init__(self, cfg: Config, environment: Environment | None = None) -> None:
         self.robot = cheope_from_config(cfg)
@@ -47,7 +62,7 @@ class RobotPlant:
         self.sensor = SimulatedForceSensor(SensorParams(s.noise_std_n, s.bias_n, s.range_n, s.seed,
                                                         s.sample_rate_hz, s.bandwidth_hz)) \
             if cfg.sensor.enabled else None
-        self.environment = environment or FreeSpace()
+        self.environment = environment or environment_from_config(cfg)
         self.loaded = not isinstance(self.environment, FreeSpace)
         m = cfg.robot.mass
         self.tool = CompliantTool(ComplianceParams(m.actuator_stiffness_n_m, cfg.sim.structure_damping_ratio,

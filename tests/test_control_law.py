@@ -169,5 +169,6 @@ def test_ruckig_refusal_is_a_status_not_an_exception():
     sm = RuckigSmoother(AxisLimits((1.0,) * 3, (10.0,) * 3, (100.0,) * 3), 0.0025)
     result = sm.step(Setpoint.at_rest((0.5, 0.5, 0.5)), (math.nan, 0.5, 0.5), (0.0,) * 3, (0.0,) * 3)
     assert not result.ok and "Ruckig refused" in result.message
-    result = sm.step(Setpoint.at_rest((0.5, 0.5, 0.5)), (0.6, 0.5, 0.5), (5.0, 0, 0), (0.0,) * 3)
-    assert not result.ok  # target velocity above the limit
+    result = sm.step(Setpoint.at_rest((0.5, 0.5, 0.5)), (0.6, 0.5, 0.5), (5.0, 0, 0), (50.0, 0, 0))
+    assert result.ok  # a target state beyond the limits is clipped to them, not refused
+    assert result.setpoint.acceleration[0] <= 10.0

@@ -21,6 +21,8 @@ class JointReference:
     acceleration: tuple[float, ...]
     tcp_m: tuple[float, float, float]
     on_path: bool  # False while moving to the task's start (not counted in tracking error)
+    reactive: bool = False  # recomputed from measurements each cycle: smoothed by velocity (see
+    #                         RuckigSmoother.track_velocity), else by position
 
 
 @dataclass(frozen=True, slots=True)

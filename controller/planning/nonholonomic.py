@@ -1,0 +1,637 @@
+"""Non-holonomic motion planner for the 3-nSPU robot (seed 004, Tchon, Jakubiak, Grosch, Thomas).
+
+Pipeline (seed 004 section 3-4):
+* driftless system: u = l_dot, (p_dot, omega) = [[G, K], [S, J]]^-1 (u, 0)       seed 004 eq. (3)-(4)
+* feedback u = G S^-1 (J - S G^-1 K) v = (G S^-1 J - K) v                          seed 004 eq. (6)
+  turns it into  p_dot = S^-1 J v,  R_dot = -[v] R  (omega = -v)                   seed 004 eq. (7)
+  Derivation: with omega = -v the constraint rows S p_dot + J omega = 0 give p_dot = S^-1 J v, and
+  the actuator rows give u = G p_dot + K omega = (G S^-1 J - K) v.  Only S must be invertible for
+  (6)-(7); G invertibility is only used for eq. (5).
+* controls v = P(t) Lambda, truncated Fourier series with h harmonics            seed 004 eq. (15)
+* error e = (p_T - p_d, log(R_T R_d^T))                                           seed 004 eq. (8), (13)
+  (the printed "log(R_T) R_d^T" of eq. (8) is garbled; eq. (13) has log(R_T R_d^T), used here)
+* Jacobian-inverse iteration Lambda <- Lambda - gamma J^# e                      seed 004 eq. (16)-(17)
+
+Implementation choices (documented deviations / interpretations):
+* The Jacobian of the end-point map d e / d Lambda (the paper integrates the variational system
+  eq. (11)-(12)) is computed here by central differences of the *discrete* end-point map (all
+  2(6h+3)+1 rollouts integrated as one numpy batch).  It is the exact derivative of the map the
+  iteration drives to zero, up to O(delta^2).
+* Integration: fixed-step Runge-Kutta-Munthe-Kaas of order 4 on R^3 x SO(3) (see
+  controller.robots.nspu.rkmk4_step); R stays on SO(3).
+* gamma is not printed in seed 004.  `PlannerConfig.gamma` (default 1, i.e. Newton) with an optional
+  backtracking safeguard (`line_search`): a step is accepted only if the error decreases,
+  otherwise gamma is halved.  With line_search=False the iteration is exactly eq. (17).
+* Error norm: E = sqrt(|(p_T - p_d)/position_scale_m|^2 + |r_T|^2) (seed 004 section 4, the paper's
+  total error in its own length unit); position_scale_m defaults to the geometry's length unit
+  (1 aul = 1 cm for the paper example), so the paper's stopping threshold 1e-3 applies unchanged.
+  The Newton step itself does not depend on this weighting (full-row-rank pseudo-inverse).
+
+Singularities (beyond the paper, which only assumes S invertible):
+* start/goal checks: |det S| and |normalised det M| (seed 000 eq. (26)) above limits, legs in stroke;
+  if det S or det M has opposite signs at start and goal, every path crosses a singularity and the
+  planner reports SINGULARITY at once.  This is the case for the seed 004 example on the seed 000
+  geometry (normalised det M = -0.077 at the start, +0.104 at the goal): with
+  `check_type2=False` (the paper's own assumptions) it converges in 6 iterations, E = 9.3e-4, but
+  its plan crosses det M = 0 five times (the paper's initial guess already crosses it once).
+* along the plan: after the error is below tolerance, if det S or det M come closer than the
+  margins, null-space steps (I - J^# J) descend a penalty of the margins while -J^# e keeps the
+  end point; a plan is CONVERGED only if the signed measures stay above their limits everywhere.
+
+Failure reporting: `plan_motion` never raises for an expected planning outcome; it returns a
+`PlanResult` whose `status` (`PlanStatus`) says CONVERGED or why not (budget exhausted, stalled,
+singularity met, stroke exceeded, singular start/goal) with a message naming the value.
+Only a CONVERGED result carries a valid plan; `PlanResult.raise_for_status()` raises `PlanningError`
+otherwise.  Invalid arguments (bad config, non-finite poses) raise `PlanningError` directly.
+
+Units: SI (m, s, rad).  The plan's time axis runs over [0, T] with T = `PlannerConfig.horizon_s`
+(seed 004 uses T = 1); time scaling for the actuators is left to the caller: for t' = c t the leg
+lengths are legs(t'/c) and the rates divide by c.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from controller.robots.nspu import (
+    NspuGeometry,
+    Pose,
+    SingularityError,
+    io_blocks,
+    leg_lengths_batch,
+    rkmk4_step,
+    so3_log,
+)
+
+Array = NDArray[np.float64]
+
+
+class PlanningError(ValueError):
+    """Invalid planner input, or `raise_for_status` on a failed plan."""
+
+
+class PlanStatus(enum.Enum):
+    """Outcome of `plan_motion`."""
+
+    CONVERGED = "converged"
+    MAX_ITERATIONS = "max_iterations"  # error still above tolerance after the iteration budget
+    STALLED = "stalled"  # no step (even damped) decreased the error
+    SINGULARITY = "singularity"  # the planned trajectory meets det S ~ 0 or a type-II singularity
+    LEG_STROKE = "leg_stroke"  # the planned leg lengths leave [leg_min_m, leg_max_m]
+    SINGULAR_START = "singular_start"  # the start or goal pose itself is singular or out of stroke
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Parameters of the seed 004 planner."""
+
+    horizon_s: float = 1.0  # T [s], seed 004 section 4
+    harmonics: int = 2  # h, seed 004 eq. (15)
+    gamma: float = 1.0  # step of eq. (17) [-]
+    tolerance: float = 1e-3  # stop when E < tolerance, seed 004 section 4
+    max_iterations: int = 100  # iteration budget
+    n_steps: int = 200  # RKMK4 steps over [0, T]
+    line_search: bool = True  # backtracking on gamma (False: plain eq. (17))
+    max_halvings: int = 12  # backtracking depth
+    max_step_norm: float = 2.0  # cap on |delta Lambda| per iteration [rad/s]; inf disables
+    position_scale_m: float | None = None  # position unit of the error norm; None: geometry unit
+    fd_step: float = 1e-6  # central-difference step on Lambda
+    min_abs_det_s: float = 1e-2  # |det S| = |s1 . s2 x s3| below this: system (7) singular (eq. (27))
+    check_type2: bool = True  # reject plans crossing/approaching the type-II locus det M = 0 (eq. (26))
+    min_type2_measure: float = 5e-3  # lower bound of sigma0 * normalised det M along the plan
+    avoid_singularities: bool = True  # null-space descent away from det M = 0 and det S = 0
+    avoidance_margin: float = 0.02  # penalty active when the signed measures fall below this
+    repair_error_bound: float = 100.0  # while repairing, error may grow up to this x tolerance
+    restarts: int = 0  # extra attempts from perturbed initial coefficients after a failure
+    restart_scale: float = 0.5  # std of the perturbation of Lambda per restart [rad/s]
+    restart_seed: int = 0  # seed of the restart perturbations (deterministic)
+
+    def __post_init__(self) -> None:
+        checks = {
+            "horizon_s": self.horizon_s > 0,
+            "harmonics": self.harmonics >= 0,
+            "gamma": 0 < self.gamma <= 1.0,
+            "tolerance": self.tolerance > 0,
+            "max_iterations": self.max_iterations >= 0,
+            "n_steps": self.n_steps >= 4,
+            "fd_step": self.fd_step > 0,
+            "max_step_norm": self.max_step_norm > 0,
+        }
+        for key, ok in checks.items():
+            if not ok:
+                raise PlanningError(f"PlannerConfig.{key} out of range: {getattr(self, key)!r}")
+
+    @property
+    def n_params(self) -> int:
+        return 3 * (2 * self.harmonics + 1)
+
+
+@dataclass(frozen=True, eq=False)
+class PlanResult:
+    """Result of `plan_motion`.  Arrays are sampled at t_s (n_steps + 1 samples over [0, T])."""
+
+    status: PlanStatus
+    message: str
+    iterations: int
+    error_history: Array  # E after each iteration (index 0: initial guess)
+    lambdas: Array  # control coefficients Lambda, (6h+3,)
+    config: PlannerConfig
+    geometry: NspuGeometry
+    start: Pose
+    goal: Pose
+    t_s: Array  # (N,) [s]
+    v_rad_s: Array  # (N, 3) controls v of eq. (7) [rad/s]; omega = -v
+    p_m: Array  # (N, 3) platform positions [m]
+    R: Array  # (N, 3, 3) platform rotations
+    legs_m: Array  # (N, 3) leg lengths [m]
+    leg_rates_m_s: Array  # (N, 3) leg-length rates u of eq. (6) [m/s]
+    det_s: Array = field(repr=False)  # (N,) det S along the trajectory
+    type2_measure: Array = field(repr=False)  # (N,) normalised det M along the trajectory (eq. (26))
+
+    @property
+    def ok(self) -> bool:
+        return self.status is PlanStatus.CONVERGED
+
+    @property
+    def final_error(self) -> float:
+        return float(self.error_history[-1])
+
+    @property
+    def position_error_m(self) -> Array:
+        """e_p(t) = p(t) - p_d (seed 004 Fig. 3)."""
+        return self.p_m - self.goal.p_m
+
+    @property
+    def rotation_error(self) -> Array:
+        """r(t) with [r(t)] = log(R(t) R_d^T) (seed 004 Fig. 3)."""
+        return so3_log(self.R @ self.goal.R.T)
+
+    def legs_in(self, length_unit_m: float) -> Array:
+        """Leg lengths in another length unit (e.g. the paper's aul: legs_in(geometry.length_unit_m))."""
+        return self.legs_m / length_unit_m
+
+    def raise_for_status(self) -> PlanResult:
+        if not self.ok:
+            raise PlanningError(f"motion planning failed ({self.status.value}): {self.message}")
+        return self
+
+
+# --------------------------------------------------------------------------------------------
+# Controls and system (7)
+# --------------------------------------------------------------------------------------------
+
+
+def fourier_basis(t_s: Array, horizon_s: float, harmonics: int) -> Array:
+    """Row of basis functions (1, sin w t, cos w t, ..., sin h w t, cos h w t), shape (..., 2h+1).
+
+    seed 004 eq. (15) with w = 2 pi / T.
+    """
+    t = np.asarray(t_s, dtype=float)
+    cols = [np.ones_like(t)]
+    for k in range(1, harmonics + 1):
+        arg = 2.0 * np.pi * k * t / horizon_s
+        cols += [np.sin(arg), np.cos(arg)]
+    return np.stack(cols, axis=-1)
+
+
+def controls(lambdas: Array, t_s: Array, horizon_s: float, harmonics: int) -> Array:
+    """v(t) = P(t) Lambda, Lambda ordered (lambda_{1,0..2h}, lambda_{2,..}, lambda_{3,..}); (..., N, 3)."""
+    lam = np.asarray(lambdas, dtype=float)
+    lam = lam.reshape(lam.shape[:-1] + (3, 2 * harmonics + 1))
+    basis = fourier_basis(t_s, horizon_s, harmonics)  # (N, 2h+1)
+    return np.einsum("nk,...ik->...ni", basis, lam)
+
+
+def paper_initial_lambdas(harmonics: int = 2) -> Array:
+    """Seed 004 section 4: all zero except lambda_11 = lambda_21 = lambda_32 = 0.5, lambda_30 = 1."""
+    lam = np.zeros((3, 2 * harmonics + 1))
+    lam[0, 1] = 0.5
+    lam[1, 1] = 0.5
+    lam[2, 2] = 0.5
+    lam[2, 0] = 1.0
+    return lam.reshape(-1)
+
+
+def system7_field(geometry: NspuGeometry, p: Array, R: Array, v: Array) -> tuple[Array, Array]:
+    """(p_dot, omega) = (S^-1 J v, -v), seed 004 eq. (7); batched.  SingularityError if S is singular."""
+    blk = io_blocks(geometry, p, R)
+    try:
+        pdot = np.linalg.solve(blk.S, np.einsum("...ij,...j->...i", blk.J, v)[..., None])[..., 0]
+    except np.linalg.LinAlgError as err:
+        raise SingularityError("det S = 0 met while integrating system (7) (seed 004 eq. (7))") from err
+    return pdot, -v
+
+
+def feedback_leg_rates(geometry: NspuGeometry, p: Array, R: Array, v: Array) -> Array:
+    """u = (G S^-1 J - K) v, seed 004 eq. (6) (= G S^-1 (J - S G^-1 K) v); batched."""
+    blk = io_blocks(geometry, p, R)
+    s_inv_j = np.linalg.solve(blk.S, blk.J)
+    return np.einsum("...ij,...j->...i", blk.G @ s_inv_j - blk.K, v)
+
+
+def rollout(
+    geometry: NspuGeometry, start: Pose, lambdas: Array, config: PlannerConfig
+) -> tuple[Array, Array, Array]:
+    """Integrate system (7) for coefficient batch lambdas (B, n) or (n,).
+
+    Returns t (N,), p (B?, N, 3), R (B?, N, 3, 3) with N = n_steps + 1.
+    """
+    lam = np.asarray(lambdas, dtype=float)
+    single = lam.ndim == 1
+    lam2 = lam[None] if single else lam
+    nb = lam2.shape[0]
+    T, n = config.horizon_s, config.n_steps
+    dt = T / n
+    t = np.linspace(0.0, T, n + 1)
+    t_half = t[:-1] + 0.5 * dt
+    v_nodes = controls(lam2, t, T, config.harmonics)  # (B, N, 3)
+    v_half = controls(lam2, t_half, T, config.harmonics)  # (B, N-1, 3)
+    p = np.broadcast_to(start.p_m, (nb, 3)).copy()
+    R = np.broadcast_to(start.R, (nb, 3, 3)).copy()
+    ps = np.empty((nb, n + 1, 3))
+    Rs = np.empty((nb, n + 1, 3, 3))
+    ps[:, 0], Rs[:, 0] = p, R
+    with np.errstate(all="ignore"):
+        for k in range(n):
+            stage_v = iter((v_nodes[:, k], v_half[:, k], v_half[:, k], v_nodes[:, k + 1]))
+
+            def field_fn(pp: Array, RR: Array, _stages=stage_v) -> tuple[Array, Array]:
+                return system7_field(geometry, pp, RR, next(_stages))
+
+            p, R = rkmk4_step(field_fn, p, R, dt)
+            ps[:, k + 1], Rs[:, k + 1] = p, R
+    if single:
+        return t, ps[0], Rs[0]
+    return t, ps, Rs
+
+
+def pose_error(p_T: Array, R_T: Array, goal: Pose, position_scale_m: float) -> Array:
+    """e = ((p_T - p_d)/scale, r_T) with [r_T] = log(R_T R_d^T), seed 004 eq. (8)/(13); batched."""
+    ep = (np.asarray(p_T) - goal.p_m) / position_scale_m
+    er = so3_log(np.asarray(R_T) @ goal.R.T)
+    return np.concatenate([ep, er], axis=-1)
+
+
+@dataclass(frozen=True, eq=False)
+class _Eval:
+    """Error, its Jacobian, and the singularity penalty with its gradient at one Lambda."""
+
+    e: Array
+    jac: Array
+    penalty: float
+    grad_penalty: Array
+    feasible: bool  # trajectory passes the final singularity checks
+
+
+def _evaluate(
+    geometry: NspuGeometry,
+    start: Pose,
+    goal: Pose,
+    lam: Array,
+    config: PlannerConfig,
+    scale: float,
+    signs: tuple[float, float],
+) -> _Eval:
+    """End-point error and Jacobian by central differences (one batched rollout of 2n+1 members)."""
+    n = lam.size
+    d = config.fd_step
+    batch = np.concatenate([lam[None], lam[None] + d * np.eye(n), lam[None] - d * np.eye(n)], axis=0)
+    _, ps, Rs = rollout(geometry, start, batch, config)
+    if not (np.all(np.isfinite(ps)) and np.all(np.isfinite(Rs))):
+        raise SingularityError("rollout diverged (non-finite state): the controls cross a singularity of S")
+    e = pose_error(ps[:, -1], Rs[:, -1], goal, scale)
+    jac = (e[1 : n + 1] - e[n + 1 :]).T / (2 * d)  # (6, n)
+    with np.errstate(all="ignore"):
+        det_s, tm = singularity_measures(geometry, ps, Rs)
+    feasible = _feasible(det_s[0], tm[0], signs, config)
+    if config.avoid_singularities:
+        pen = _penalty(det_s, tm, signs[0], signs[1], config)
+        grad = (pen[1 : n + 1] - pen[n + 1 :]) / (2 * d)
+        pen0 = float(pen[0])
+    else:
+        grad, pen0 = np.zeros(n), 0.0
+    return _Eval(e=e[0], jac=jac, penalty=pen0, grad_penalty=np.nan_to_num(grad), feasible=feasible)
+
+
+def _feasible(det_s: Array, tm: Array, signs: tuple[float, float], config: PlannerConfig) -> bool:
+    """True if det S and (check_type2) normalised det M keep their start sign with margin along the plan."""
+    ok = bool(np.all(signs[0] * det_s >= config.min_abs_det_s))
+    if config.check_type2:
+        ok = ok and bool(np.all(signs[1] * tm >= config.min_type2_measure))
+    return ok
+
+
+def _try_candidate(
+    geometry: NspuGeometry,
+    start: Pose,
+    goal: Pose,
+    lam: Array,
+    config: PlannerConfig,
+    scale: float,
+    signs: tuple[float, float],
+) -> tuple[float, float, bool] | None:
+    """(error norm, penalty, feasible) of a candidate, or None if its rollout fails."""
+    try:
+        _, ps, Rs = rollout(geometry, start, lam, config)
+    except SingularityError:
+        return None
+    if not (np.all(np.isfinite(ps)) and np.all(np.isfinite(Rs))):
+        return None
+    err = float(np.linalg.norm(pose_error(ps[-1], Rs[-1], goal, scale)))
+    with np.errstate(all="ignore"):
+        det_s, tm = singularity_measures(geometry, ps, Rs)
+    pen = float(_penalty(det_s, tm, signs[0], signs[1], config)) if config.avoid_singularities else 0.0
+    return err, pen, _feasible(det_s, tm, signs, config)
+
+
+# --------------------------------------------------------------------------------------------
+# Singularity / stroke checks
+# --------------------------------------------------------------------------------------------
+
+
+def type2_measure(geometry: NspuGeometry, p: Array, R: Array) -> Array:
+    """Normalised det M (seed 000 eq. (26)) in [-1, 1]; batched.
+
+    M's angular columns are divided by the mean platform radius (so all entries are lengths or
+    dimensionless) and the determinant is divided by the product of the row norms (Hadamard
+    ratio).  It vanishes exactly on the type-II singularity locus and is unit-independent.
+    """
+    M = io_blocks(geometry, p, R).M.copy()
+    M[..., 3:] /= float(np.mean(np.linalg.norm(geometry.b_platform_m, axis=1)))
+    return np.linalg.det(M) / np.prod(np.linalg.norm(M, axis=-1), axis=-1)
+
+
+def singularity_measures(geometry: NspuGeometry, p: Array, R: Array) -> tuple[Array, Array]:
+    """(det S, normalised det M) at poses (..., 3), (..., 3, 3); seed 000 eq. (26)-(27)."""
+    det_s = np.linalg.det(io_blocks(geometry, p, R).S)  # seed 000: det S = s1 . s2 x s3
+    return det_s, type2_measure(geometry, p, R)
+
+
+def _penalty(det_s: Array, tm: Array, sign_s: float, sign_m: float, config: PlannerConfig) -> Array:
+    """Barrier-like penalty of trajectories (..., N) approaching det S = 0 or det M = 0."""
+    m = config.avoidance_margin
+    pen = np.mean(np.maximum(0.0, m - sign_s * det_s) ** 2, axis=-1)
+    if config.check_type2:
+        pen = pen + np.mean(np.maximum(0.0, m - sign_m * tm) ** 2, axis=-1)
+    return np.nan_to_num(pen, nan=np.inf) / (m * m)
+
+
+def _check_pose(geometry: NspuGeometry, pose: Pose, config: PlannerConfig, label: str) -> str | None:
+    try:
+        det_s, tm = singularity_measures(geometry, pose.p_m, pose.R)
+    except SingularityError as err:
+        return f"{label} pose p={pose.p_m}: {err}"
+    if abs(det_s) < config.min_abs_det_s:
+        return f"{label} pose p={pose.p_m}: |det S| = {abs(det_s):.3e} < {config.min_abs_det_s} (seed 000 eq. (27))"
+    if config.check_type2 and abs(tm) < config.min_type2_measure:
+        return (
+            f"{label} pose p={pose.p_m}: normalised det M = {tm:.3e}, |.| < {config.min_type2_measure} "
+            "(type-II singularity, seed 000 eq. (26))"
+        )
+    legs = leg_lengths_batch(geometry, pose.p_m, pose.R)
+    if np.any(legs < geometry.leg_min_m) or np.any(legs > geometry.leg_max_m):
+        return f"{label} pose p={pose.p_m}: leg lengths {legs} m outside [{geometry.leg_min_m}, {geometry.leg_max_m}]"
+    return None
+
+
+# --------------------------------------------------------------------------------------------
+# Planner
+# --------------------------------------------------------------------------------------------
+
+
+def plan_motion(
+    geometry: NspuGeometry,
+    start: Pose,
+    goal: Pose,
+    config: PlannerConfig = PlannerConfig(),
+    initial_lambdas: Array | None = None,
+) -> PlanResult:
+    """Plan controls steering the 3-nSPU from `start` to `goal` in T (seed 004 eq. (15)-(17)).
+
+    initial_lambdas defaults to the seed 004 example's initial guess (`paper_initial_lambdas`).
+    If an attempt fails (budget, stall, singularity) and config.restarts > 0, the planner retries
+    from initial_lambdas + N(0, restart_scale^2) perturbations drawn from a generator seeded with
+    config.restart_seed (deterministic).  Returns a PlanResult; check `.ok` / `.status` or call
+    `.raise_for_status()`.
+    """
+    lam = paper_initial_lambdas(config.harmonics) if initial_lambdas is None else np.array(initial_lambdas, float)
+    if lam.shape != (config.n_params,) or not np.all(np.isfinite(lam)):
+        raise PlanningError(f"initial_lambdas must be finite with shape ({config.n_params},), got {lam.shape}")
+    scale = geometry.length_unit_m if config.position_scale_m is None else config.position_scale_m
+    if not scale > 0:
+        raise PlanningError(f"position_scale_m must be positive, got {scale}")
+
+    def fail(status: PlanStatus, message: str) -> PlanResult:
+        return _build_result(geometry, start, goal, config, lam, status, message, [float("nan")], 0)
+
+    for label, pose in (("start", start), ("goal", goal)):
+        msg = _check_pose(geometry, pose, config, label)
+        if msg is not None:
+            return fail(PlanStatus.SINGULAR_START, msg)
+    det_s0, tm0 = singularity_measures(geometry, start.p_m, start.R)
+    det_s1, tm1 = singularity_measures(geometry, goal.p_m, goal.R)
+    if np.sign(det_s0) != np.sign(det_s1):
+        return fail(
+            PlanStatus.SINGULARITY,
+            f"start and goal are separated by det S = 0 (det S = {det_s0:.3e} vs {det_s1:.3e}): "
+            "system (7) cannot connect them without becoming singular",
+        )
+    if config.check_type2 and np.sign(tm0) != np.sign(tm1):
+        return fail(
+            PlanStatus.SINGULARITY,
+            f"start and goal lie on opposite sides of the type-II singularity locus det M = 0 "
+            f"(seed 000 eq. (26); normalised det M = {tm0:.3e} vs {tm1:.3e}): every path crosses it",
+        )
+    signs = (float(np.sign(det_s0)), float(np.sign(tm0)))
+    rng = np.random.default_rng(config.restart_seed)
+    attempts: list[str] = []
+    res = _plan_once(geometry, start, goal, config, lam, scale, signs)
+    for k in range(config.restarts):
+        if res.ok or res.status is PlanStatus.LEG_STROKE:
+            break
+        attempts.append(f"attempt {k + 1}: {res.status.value}: {res.message}")
+        lam_k = lam + rng.normal(0.0, config.restart_scale, lam.shape)
+        res = _plan_once(geometry, start, goal, config, lam_k, scale, signs)
+    if attempts:
+        res = dataclasses.replace(res, message=res.message + " | earlier " + "; ".join(attempts))
+    return res
+
+
+def _plan_once(
+    geometry: NspuGeometry,
+    start: Pose,
+    goal: Pose,
+    config: PlannerConfig,
+    lam: Array,
+    scale: float,
+    signs: tuple[float, float],
+) -> PlanResult:
+    """One run of the iteration from initial coefficients `lam`."""
+
+    def result(status: PlanStatus, message: str, lam_: Array, errs: list[float], it: int) -> PlanResult:
+        return _build_result(geometry, start, goal, config, lam_, status, message, errs, it)
+
+    errs: list[float] = []
+    it = 0
+    try:
+        ev = _evaluate(geometry, start, goal, lam, config, scale, signs)
+    except SingularityError as err:
+        return result(PlanStatus.SINGULARITY, f"initial controls: {err}", lam, [float("nan")], 0)
+    err_norm = float(np.linalg.norm(ev.e))
+    errs.append(err_norm)
+    # Phase 1: Newton-type iteration of seed 004 eq. (17) on the error alone.
+    # Phase 2 (avoid_singularities, when the trajectory approaches det S = 0 or det M = 0):
+    #   steps -J^# e plus null-space descent of the singularity penalty, accepted when the penalty
+    #   decreases while the error stays below `repair_error_bound` x tolerance; then the error is
+    #   polished again with steps that may not raise the penalty.
+    phase = 1
+    while True:
+        done = err_norm < config.tolerance
+        if done and (not config.avoid_singularities or ev.feasible):
+            break
+        if done and phase == 1:
+            phase = 2
+        if it >= config.max_iterations:
+            if err_norm < config.tolerance:
+                return result(
+                    PlanStatus.SINGULARITY,
+                    f"error {err_norm:.3e} reached but the trajectory still approaches a singularity "
+                    f"(penalty {ev.penalty:.3e}) after {it} iterations",
+                    lam, errs, it,
+                )
+            return result(
+                PlanStatus.MAX_ITERATIONS,
+                f"error {err_norm:.3e} >= tolerance {config.tolerance} after {it} iterations",
+                lam, errs, it,
+            )
+        pinv = np.linalg.pinv(ev.jac)
+        newton = -pinv @ ev.e  # seed 004 eq. (16)-(17): -J^# e
+        repairing = phase == 2 and not ev.feasible and ev.penalty > 0.0
+        if repairing:
+            ns = -(ev.grad_penalty - pinv @ (ev.jac @ ev.grad_penalty))  # projected onto ker J
+            nn2 = float(ns @ ns)
+            if nn2 == 0.0:
+                return result(
+                    PlanStatus.SINGULARITY,
+                    f"singularity penalty {ev.penalty:.3e} cannot be reduced in the null space (iteration {it})",
+                    lam, errs, it,
+                )
+            step = newton + ns * (ev.penalty / nn2)  # Gauss-Newton length along the projected gradient
+        else:
+            step = newton
+        norm = float(np.linalg.norm(step))
+        if norm > config.max_step_norm:
+            step *= config.max_step_norm / norm
+        g = config.gamma
+        accepted = False
+        for _ in range(config.max_halvings + 1):
+            cand = lam + g * step
+            if not config.line_search:
+                accepted = True
+                break
+            trial = _try_candidate(geometry, start, goal, cand, config, scale, signs)
+            if trial is not None:
+                if phase == 1:
+                    accepted = trial[0] < err_norm
+                elif repairing:
+                    accepted = trial[1] < ev.penalty and trial[0] < config.repair_error_bound * config.tolerance
+                else:
+                    accepted = trial[0] < err_norm and (trial[2] or trial[1] <= ev.penalty)
+            if accepted:
+                break
+            g *= 0.5
+        if not accepted:
+            status = PlanStatus.SINGULARITY if phase == 2 else PlanStatus.STALLED
+            return result(
+                status,
+                f"no step decreased the {'singularity penalty' if repairing else 'error'} (error {err_norm:.3e}, "
+                f"penalty {ev.penalty:.3e}; gamma down to {g:.2e}) at iteration {it}",
+                lam, errs, it,
+            )
+        lam = cand
+        it += 1
+        try:
+            ev = _evaluate(geometry, start, goal, lam, config, scale, signs)
+        except SingularityError as err:
+            return result(PlanStatus.SINGULARITY, f"iteration {it}: {err}", lam, errs, it)
+        err_norm = float(np.linalg.norm(ev.e))
+        errs.append(err_norm)
+    return result(PlanStatus.CONVERGED, f"error {err_norm:.3e} < {config.tolerance} after {it} iterations", lam, errs, it)
+
+
+def _build_result(
+    geometry: NspuGeometry,
+    start: Pose,
+    goal: Pose,
+    config: PlannerConfig,
+    lam: Array,
+    status: PlanStatus,
+    message: str,
+    errs: list[float],
+    it: int,
+) -> PlanResult:
+    n = config.n_steps + 1
+    t = np.linspace(0.0, config.horizon_s, n)
+    v = controls(lam, t, config.horizon_s, config.harmonics)
+    try:
+        t, ps, Rs = rollout(geometry, start, lam, config)
+        legs = leg_lengths_batch(geometry, ps, Rs)
+        with np.errstate(all="ignore"):
+            rates = feedback_leg_rates(geometry, ps, Rs, v)
+            det_s, tm = singularity_measures(geometry, ps, Rs)
+    except (SingularityError, np.linalg.LinAlgError) as err:
+        nan3 = np.full((n, 3), np.nan)
+        ps, Rs, legs, rates = nan3, np.full((n, 3, 3), np.nan), nan3, nan3
+        det_s, tm = np.full(n, np.nan), np.full(n, np.nan)
+        if status is PlanStatus.CONVERGED:
+            status, message = PlanStatus.SINGULARITY, f"final trajectory: {err}"
+    if status is PlanStatus.CONVERGED:
+        bad = ~np.isfinite(det_s) | (np.sign(det_s) != np.sign(det_s[0])) | (np.abs(det_s) < config.min_abs_det_s)
+        if config.check_type2:
+            bad |= (np.sign(tm) != np.sign(tm[0])) | (np.abs(tm) < config.min_type2_measure)
+        if np.any(bad) or not np.all(np.isfinite(ps)):
+            k = int(np.argmax(bad)) if np.any(bad) else 0
+            status = PlanStatus.SINGULARITY
+            message = (
+                f"planned trajectory meets a singularity at t = {t[k]:.3f} s: det S = {det_s[k]:.3e}, "
+                f"normalised det M = {tm[k]:.3e} (limits {config.min_abs_det_s}, {config.min_type2_measure})"
+            )
+        elif np.any(legs < geometry.leg_min_m) or np.any(legs > geometry.leg_max_m):
+            status = PlanStatus.LEG_STROKE
+            message = (
+                f"planned leg lengths span [{legs.min():.4f}, {legs.max():.4f}] m, stroke is "
+                f"[{geometry.leg_min_m}, {geometry.leg_max_m}] m"
+            )
+    return PlanResult(
+        status=status,
+        message=message,
+        iterations=it,
+        error_history=np.asarray(errs, dtype=float),
+        lambdas=np.asarray(lam, dtype=float),
+        config=config,
+        geometry=geometry,
+        start=start,
+        goal=goal,
+        t_s=t,
+        v_rad_s=v,
+        p_m=ps,
+        R=Rs,
+        legs_m=legs,
+        leg_rates_m_s=rates,
+        det_s=det_s,
+        type2_measure=tm,
+    )
+
+
+def paper_example_poses(length_unit_m: float = 0.01) -> tuple[Pose, Pose]:
+    """Start and goal of seed 004 section 4 (positions in aul converted with length_unit_m)."""
+    from controller.robots.nspu import rpy
+
+    start = Pose(np.array([0.0, 0.0, 25.0]) * length_unit_m, rpy(0.0, 0.0, -np.pi / 6))
+    goal = Pose(np.array([-0.4, -0.2, 35.0]) * length_unit_m, rpy(0.0, 0.0, -np.pi / 2))
+    return start, goal
