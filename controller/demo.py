@@ -16,6 +16,7 @@ import sys
 import threading
 import time
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Iterator
 
 from controller.config import Config
@@ -83,6 +84,11 @@ def stop_process(proc: subprocess.Popen[str], timeout_s: float = 5.0) -> None:
 
 
 def run_demo(cfg: Config, spec: BusSpec, config_path: str | None, overrides: list[str],
-             max_duration_s: float = 600.0, stop_event: threading.Event | None = None) -> dict[str, object]:
+             max_duration_s: float = 600.0, stop_event: threading.Event | None = None,
+             plot_dir: Path | None = None) -> dict[str, object]:
     with simulator_process(spec, config_path, overrides):
+        if cfg.task.kind == "contour":
+            from controller.contour_experiment import run_contour_experiment
+
+            return run_contour_experiment(cfg, spec, plot_dir, max_duration_s, stop_event)
         return run_controller(cfg, spec, max_duration_s=max_duration_s, stop_event=stop_event)

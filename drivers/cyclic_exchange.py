@@ -138,9 +138,9 @@ class CyclicExchange:
         self._collecting = True
         clock = self.clock
         while not self._complete():
-            remaining = deadline_s - clock()
-            if remaining <= 0.0:
-                break
+            # Past the deadline, still take what has already arrived: if this process was
+            # descheduled, the answers may be waiting in the socket, and they are on time.
+            remaining = max(0.0, deadline_s - clock())
             msg = self.bus.recv(timeout=remaining)
             if msg is None:
                 break

@@ -19,8 +19,6 @@ import numpy as np
 
 from sim_backend.environment import ZERO3
 
-EZ = np.array([0.0, 0.0, 1.0])
-
 
 @dataclass(frozen=True)
 class DiskParams:
@@ -43,27 +41,25 @@ class DiskParams:
 class DiskEnvironment:
     def __init__(self, params: DiskParams) -> None:
         self.params = params
-        self._centre = np.array([params.centre_m[0], params.centre_m[1], 0.0])
 
     def contact_wrench(self, tcp_m: np.ndarray, tcp_velocity_m_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        # plain floats: this runs every sub-step of the simulator
         p = self.params
-        if abs(tcp_m[2] - p.height_m) > p.thickness_m / 2 + p.tool_radius_m:
+        if abs(float(tcp_m[2]) - p.height_m) > p.thickness_m / 2 + p.tool_radius_m:
             return ZERO3, ZERO3
-        radial = tcp_m - self._centre
-        radial[2] = 0.0
-        dist = math.hypot(radial[0], radial[1])
+        rx, ry = float(tcp_m[0]) - p.centre_m[0], float(tcp_m[1]) - p.centre_m[1]
+        dist = math.hypot(rx, ry)
         penetration = p.radius_m + p.tool_radius_m - dist
         if penetration <= 0.0 or dist < 1e-9:
             return ZERO3, ZERO3
-        n = radial / dist
-        vn = float(tcp_velocity_m_s @ n)
-        fn = p.series_stiffness_n_m * penetration - p.contact_damping_n_s_m * vn
+        nx, ny = rx / dist, ry / dist
+        vx, vy = float(tcp_velocity_m_s[0]), float(tcp_velocity_m_s[1])
+        fn = p.series_stiffness_n_m * penetration - p.contact_damping_n_s_m * (vx * nx + vy * ny)
         if fn <= 0.0:
             return ZERO3, ZERO3
-        t = np.cross(EZ, n)
-        vt = float(tcp_velocity_m_s @ t)
-        friction = -p.friction_coefficient * fn * math.tanh(vt / p.friction_velocity_m_s)
-        return fn * n + friction * t, ZERO3
+        tx, ty = -ny, nx  # z x n
+        friction = -p.friction_coefficient * fn * math.tanh((vx * tx + vy * ty) / p.friction_velocity_m_s)
+        return np.array([fn * nx + friction * tx, fn * ny + friction * ty, 0.0]), ZERO3
 
     def contour_points(self, n: int = 180) -> np.ndarray:
         """The disk's rim (for plots and viewers)."""

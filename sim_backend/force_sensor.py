@@ -42,6 +42,8 @@ class SimulatedForceSensor:
     _torque: np.ndarray = field(default_factory=lambda: np.zeros(3))
     _sample: np.ndarray = field(default_factory=lambda: np.zeros(3))
     _next_sample_s: float | None = None
+    _alpha: float = 1.0
+    _alpha_dt: float = -1.0
 
     def __post_init__(self) -> None:
         self.rng = np.random.default_rng(self.params.seed)
@@ -50,11 +52,18 @@ class SimulatedForceSensor:
     def observe(self, t_s: float, dt: float, force_n: np.ndarray, torque_nm: np.ndarray) -> None:
         """Filter the true wrench over ``dt`` and take a sample when one is due."""
         p = self.params
-        alpha = 1.0 - math.exp(-2.0 * math.pi * p.bandwidth_hz * dt)
-        self._filtered += alpha * (np.asarray(force_n, dtype=float) - self._filtered)
-        self._torque = np.asarray(torque_nm, dtype=float)
+        if dt != self._alpha_dt:  # the plant's sub-step is constant: compute the factor once
+            self._alpha = 1.0 - math.exp(-2.0 * math.pi * p.bandwidth_hz * dt)
+            self._alpha_dt = dt
+        a = self._alpha
+        f = self._filtered
+        f[0] += a * (force_n[0] - f[0])
+        f[1] += a * (force_n[1] - f[1])
+        f[2] += a * (force_n[2] - f[2])
+        self._torque = torque_nm
         if self._next_sample_s is None or t_s >= self._next_sample_s:
             self._sample = self._filtered + np.asarray(p.bias_n) + self.rng.normal(0.0, p.noise_std_n, 3)
+            self._torque = np.asarray(torque_nm, dtype=float)
             self._next_sample_s = (self._next_sample_s or t_s) + 1.0 / p.sample_rate_hz
 
     def frames(self) -> tuple[bytes, bytes]:
@@ -75,5 +84,6 @@ class SimulatedForceSensor:
         """Observe a constant wrench long enough for the filter to settle, then answer a SYNC."""
         self._filtered = np.asarray(force_n, dtype=float).copy()
         self._next_sample_s = None
+        self._alpha_dt = -1.0
         self.observe(0.0, 0.0, force_n, torque_nm)
         return self.frames()

@@ -34,18 +34,49 @@ class ComplianceParams:
         return 2.0 * self.damping_ratio * math.sqrt(self.actuator_stiffness_n_m * self.masses.per_actuator_kg)
 
 
+Matrix3 = tuple[tuple[float, float, float], ...]
+Vector3 = tuple[float, float, float]
+
+
+def _matvec(m: Matrix3, v: Vector3) -> Vector3:
+    return (m[0][0] * v[0] + m[0][1] * v[1] + m[0][2] * v[2],
+            m[1][0] * v[0] + m[1][1] * v[1] + m[1][2] * v[2],
+            m[2][0] * v[0] + m[2][1] * v[1] + m[2][2] * v[2])
+
+
+def _as_rows(m: np.ndarray) -> Matrix3:
+    return tuple(tuple(float(x) for x in row) for row in m)  # type: ignore[return-value]
+
+
 @dataclass
 class CompliantTool:
-    params: ComplianceParams
-    deflection_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    velocity_m_s: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """Deflection state of the structure. ``set_structure`` when the pose has moved, ``step`` often.
 
-    def step(self, jac: np.ndarray, force_n: np.ndarray, dt: float) -> None:
+    The matrices depend on the pose through J; the plant refreshes them every millisecond or
+    so (the TCP moves micrometres in that time) and steps in plain floats in between, which
+    keeps the simulator's cost per SYNC low enough to answer within the cycle.
+    """
+
+    params: ComplianceParams
+    deflection_m: Vector3 = (0.0, 0.0, 0.0)
+    velocity_m_s: Vector3 = (0.0, 0.0, 0.0)
+    _inv_mass_stiffness: Matrix3 = ((0.0,) * 3,) * 3
+    _inv_mass_damping: Matrix3 = ((0.0,) * 3,) * 3
+    _inv_mass: Matrix3 = ((0.0,) * 3,) * 3
+
+    def set_structure(self, jac: np.ndarray) -> None:
         jtj = jac.T @ jac
         p = self.params
-        stiffness = p.actuator_stiffness_n_m * jtj
-        damping = p.actuator_damping_n_s_m * jtj
-        mass = cartesian_mass_matrix(jac, p.masses)
-        acc = np.linalg.solve(mass, force_n - stiffness @ self.deflection_m - damping @ self.velocity_m_s)
-        self.velocity_m_s = self.velocity_m_s + acc * dt
-        self.deflection_m = self.deflection_m + self.velocity_m_s * dt
+        inv_mass = np.linalg.inv(cartesian_mass_matrix(jac, p.masses))
+        self._inv_mass = _as_rows(inv_mass)
+        self._inv_mass_stiffness = _as_rows(inv_mass @ (p.actuator_stiffness_n_m * jtj))
+        self._inv_mass_damping = _as_rows(inv_mass @ (p.actuator_damping_n_s_m * jtj))
+
+    def step(self, force_n: Vector3, dt: float) -> None:
+        """Semi-implicit Euler: x'' = M^-1 (F - K x - D x')."""
+        a_f = _matvec(self._inv_mass, force_n)
+        a_k = _matvec(self._inv_mass_stiffness, self.deflection_m)
+        a_d = _matvec(self._inv_mass_damping, self.velocity_m_s)
+        v = tuple(self.velocity_m_s[i] + (a_f[i] - a_k[i] - a_d[i]) * dt for i in range(3))
+        self.velocity_m_s = v  # type: ignore[assignment]
+        self.deflection_m = tuple(self.deflection_m[i] + v[i] * dt for i in range(3))  # type: ignore[assignment]

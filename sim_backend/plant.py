@@ -68,7 +68,11 @@ class RobotPlant:
         self.tool = CompliantTool(ComplianceParams(m.actuator_stiffness_n_m, cfg.sim.structure_damping_ratio,
                                                    MassModel(m.platform_kg, m.slider_kg, m.rod_pair_kg)))
         self.substep_s = cfg.sim.drive.substep_s
+        self.structure_refresh_s = 1e-3
+        self._structure_time_s = -1.0
+        self._v_kin = np.zeros(3)
         self.time_s: float | None = None
+        self.last_sync_s: float | None = None
         self.tcp_kinematic_m = np.zeros(3)
         self.force_n = ZERO3
         self._update_kinematics()
@@ -76,7 +80,7 @@ class RobotPlant:
     @property
     def tcp_m(self) -> np.ndarray:
         """Where the tool really is: the kinematic TCP plus the structure's deflection."""
-        return self.tcp_kinematic_m + self.tool.deflection_m
+        return self.tcp_kinematic_m + np.asarray(self.tool.deflection_m)
 
     def _update_kinematics(self) -> np.ndarray | None:
         q = np.array([d.position for d in self.drives])
@@ -107,20 +111,26 @@ class RobotPlant:
             self.time_s = t1
 
     def _mechanics(self, t_s: float, dt: float) -> None:
-        if self._update_kinematics() is None:
-            return
-        jac = self.robot.jacobian(self.tcp_kinematic_m)
-        qd = np.array([d.velocity for d in self.drives])
-        v_kin = np.linalg.solve(jac, qd)
-        force, torque = self.environment.contact_wrench(self.tcp_m, v_kin + self.tool.velocity_m_s)
+        if t_s - self._structure_time_s >= self.structure_refresh_s:
+            # every millisecond: kinematics and the structure's matrices at the current pose
+            if self._update_kinematics() is None:
+                return
+            jac = self.robot.jacobian(self.tcp_kinematic_m)
+            self._v_kin = np.linalg.solve(jac, np.array([d.velocity for d in self.drives]))
+            self.tool.set_structure(jac)
+            self._structure_time_s = t_s
+        else:  # in between, the kinematic TCP moves on with its velocity
+            self.tcp_kinematic_m = self.tcp_kinematic_m + self._v_kin * dt
+        force, torque = self.environment.contact_wrench(self.tcp_m, self._v_kin + np.asarray(self.tool.velocity_m_s))
         self.force_n = force
-        self.tool.step(jac, force, dt)
+        self.tool.step((float(force[0]), float(force[1]), float(force[2])), dt)
         if self.sensor is not None:
             self.sensor.observe(t_s, dt, force, torque)
 
     def sync(self, now_s: float) -> tuple[list[bytes], tuple[bytes, bytes] | None]:
         """Latch the drives' targets, sample everything at ``now_s``: the TPDO payloads."""
         self.advance(now_s)
+        self.last_sync_s = now_s
         for d in self.drives:
             d.on_sync(now_s)
         if not self.loaded:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 import threading
 
 from controller.config import Config
@@ -12,6 +13,8 @@ READY_LINE = "cheope-sim ready"
 
 
 def serve(cfg: Config, spec: BusSpec, stop_event: threading.Event, announce: "callable[[str], None]") -> None:
+    # the SYNC handler competes with heartbeat and watchdog threads for the GIL
+    sys.setswitchinterval(cfg.loop.gil_switch_interval_us * 1e-6)
     with open_bus(spec) as bus, Simulator(cfg, bus):
         announce(f"{READY_LINE} on {spec}: drives {list(cfg.actuators.node_ids)}"
                  + (f", sensor {cfg.sensor.node_id}" if cfg.sensor.enabled else ""))

@@ -185,7 +185,14 @@ class Simulator:
                 self.nodes[node_id].emcy.send(code, 0x01 if code else 0x00)
 
     def _watchdog_loop(self) -> None:
+        # While SYNC arrives, the SYNC handler keeps the plant integrated; this thread only
+        # steps in when it is overdue (controller gone), so the drives' SYNC watchdogs fire.
+        # Taking the lock every time would delay the SYNC answers it competes with.
+        timeout = self.cfg.sim.drive.sync_timeout_s
         while not self._stop.wait(WATCHDOG_PERIOD_S):
+            last = self.plant.last_sync_s
+            if last is not None and self.clock() - last < 0.5 * timeout:
+                continue
             with self.lock:
                 self.plant.advance(self.clock())
                 self._flush_emcy()

@@ -145,3 +145,24 @@ def test_structural_measure_vanishes_when_two_rods_are_parallel():
 def test_joint_swing_is_zero_at_the_neutral_point_and_grows_away_from_it():
     assert np.allclose(joint_swing_rad(GEOM, np.array([0, 0, 0.5])), 0.0, atol=1e-7)
     assert joint_swing_rad(GEOM, np.array([0.08, 0, 0.5])).max() > math.radians(5)
+
+
+@settings(max_examples=150, deadline=None)
+@given(coord, coord, height)
+def test_fast_pose_check_agrees_with_the_reference_measures(x, y, z):
+    """check_pose (plain floats, every cycle) against the numpy measures it duplicates for speed."""
+    s = np.array([x, y, z])
+    try:
+        q = inverse_kinematics(GEOM, s)
+    except NoSolutionError:
+        assert not ROBOT.check_pose(s).ok
+        return
+    lim = ROBOT.limits
+    m = singularity_measures(GEOM, s, q)
+    sv = np.linalg.svd(jacobian(GEOM, s, q), compute_uv=False)
+    expected = (all(lim.stroke_min_m <= v <= lim.stroke_max_m for v in q)
+                and joint_swing_rad(GEOM, s, q).max() <= lim.joint_swing_limit_rad
+                and m.direct >= lim.min_direct_measure and m.inverse >= lim.min_inverse_measure
+                and m.structural >= lim.min_structural_measure
+                and sv[0] / sv[-1] <= lim.max_condition_number)
+    assert ROBOT.check_pose(s).ok == expected

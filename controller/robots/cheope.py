@@ -46,6 +46,9 @@ class CheopeGeometry:
     axes: np.ndarray = field(init=False, repr=False, compare=False)
     platform_vectors: np.ndarray = field(init=False, repr=False, compare=False)
     neutral_rod_directions: np.ndarray = field(init=False, repr=False, compare=False)
+    # The same vectors as tuples of floats, for the per-cycle functions.
+    rows_axes: tuple[tuple[float, float, float], ...] = field(init=False, repr=False, compare=False)
+    rows_platform: tuple[tuple[float, float, float], ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if not self.rod_length_m > 0:
@@ -64,8 +67,11 @@ class CheopeGeometry:
         plat.setflags(write=False)
         object.__setattr__(self, "axes", axes)
         object.__setattr__(self, "platform_vectors", plat)
+        object.__setattr__(self, "rows_axes", tuple(tuple(float(x) for x in r) for r in axes))
+        object.__setattr__(self, "rows_platform", tuple(tuple(float(x) for x in r) for r in plat))
         # The neutral directions need the inverse kinematics of this very geometry.
-        q0 = _inverse(axes, plat, self.rod_length_m, np.asarray(self.joint_neutral_tcp_m, dtype=float))
+        q0 = _inverse(self.rows_axes, self.rows_platform, self.rod_length_m,
+                      np.asarray(self.joint_neutral_tcp_m, dtype=float))
         neutral = rod_directions_from(axes, plat, self.rod_length_m, np.asarray(self.joint_neutral_tcp_m), q0)
         neutral.setflags(write=False)
         object.__setattr__(self, "neutral_rod_directions", neutral)
@@ -74,21 +80,27 @@ class CheopeGeometry:
 def _inverse(axes: np.ndarray, plat: np.ndarray, rod_length_m: float, tcp_m: np.ndarray) -> np.ndarray:
     # seed 001, eq. (5): q_j = n_j.r_j + sqrt((n_j.r_j)^2 - r_j.r_j + l^2), r_j = s + a_j.
     # The '+' branch is the one the paper selects (slider beyond the rod's foot point).
-    r = tcp_m[None, :] + plat
-    nr = np.einsum("ij,ij->i", axes, r)
-    disc = nr * nr - np.einsum("ij,ij->i", r, r) + rod_length_m**2
-    if np.any(disc < 0.0):
-        j = int(np.argmin(disc))
-        raise NoSolutionError(
-            f"TCP {tcp_m.tolist()} m is out of reach of leg {j + 1}: "
-            f"discriminant of seed 001 eq. (5) is {disc[j]:.3e} m^2 < 0"
-        )
-    return nr + np.sqrt(disc)
+    # Plain floats: for 3-vectors numpy's per-call overhead is larger than the arithmetic.
+    sx, sy, sz = float(tcp_m[0]), float(tcp_m[1]), float(tcp_m[2])
+    l2 = rod_length_m * rod_length_m
+    q = []
+    for j in range(_AXES):
+        n, a = axes[j], plat[j]
+        rx, ry, rz = sx + a[0], sy + a[1], sz + a[2]
+        nr = n[0] * rx + n[1] * ry + n[2] * rz
+        disc = nr * nr - (rx * rx + ry * ry + rz * rz) + l2
+        if disc < 0.0:
+            raise NoSolutionError(
+                f"TCP {[sx, sy, sz]} m is out of reach of leg {j + 1}: "
+                f"discriminant of seed 001 eq. (5) is {disc:.3e} m^2 < 0"
+            )
+        q.append(nr + math.sqrt(disc))
+    return np.array(q)
 
 
 def inverse_kinematics(geom: CheopeGeometry, tcp_m: np.ndarray) -> np.ndarray:
     """Actuator positions q [m] for a TCP position s [m] (seed 001, eq. (5), '+' branch)."""
-    return _inverse(geom.axes, geom.platform_vectors, geom.rod_length_m, np.asarray(tcp_m, dtype=float))
+    return _inverse(geom.rows_axes, geom.rows_platform, geom.rod_length_m, tcp_m)
 
 
 def rod_directions_from(
@@ -103,6 +115,18 @@ def rod_directions(geom: CheopeGeometry, tcp_m: np.ndarray, q_m: np.ndarray) -> 
                                np.asarray(tcp_m, float), np.asarray(q_m, float))
 
 
+def _sub(a, b):  # noqa: ANN001, ANN202 - 3-tuples of floats
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+def _dot(a, b):  # noqa: ANN001, ANN202
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _cross(a, b):  # noqa: ANN001, ANN202
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
 def direct_kinematics(geom: CheopeGeometry, q_m: np.ndarray) -> np.ndarray:
     """TCP position s [m] from actuator positions q [m]: intersection of three spheres.
 
@@ -113,45 +137,47 @@ def direct_kinematics(geom: CheopeGeometry, q_m: np.ndarray) -> np.ndarray:
     inverse kinematics' '+' sign describes, w_j . n_j <= 0 for every leg); the other one
     lies inside the base (seed 001 §4.1).
     """
-    q = np.asarray(q_m, dtype=float)
-    centres = q[:, None] * geom.axes - geom.platform_vectors
-    ex = centres[1] - centres[0]
-    x_c2 = float(np.linalg.norm(ex))
+    q = [float(q_m[0]), float(q_m[1]), float(q_m[2])]
+    axes, plat = geom.rows_axes, geom.rows_platform
+    c = [(q[j] * axes[j][0] - plat[j][0], q[j] * axes[j][1] - plat[j][1], q[j] * axes[j][2] - plat[j][2])
+         for j in range(_AXES)]
+    d12 = _sub(c[1], c[0])
+    x_c2 = math.sqrt(_dot(d12, d12))
     if x_c2 < 1e-12:
-        raise NoSolutionError(f"sphere centres 1 and 2 coincide for q={q.tolist()} m")
-    ex = ex / x_c2
-    v3 = centres[2] - centres[0]
-    x_c3 = float(ex @ v3)
-    ey = v3 - x_c3 * ex
-    y_c3 = float(np.linalg.norm(ey))
+        raise NoSolutionError(f"sphere centres 1 and 2 coincide for q={q} m")
+    ex = (d12[0] / x_c2, d12[1] / x_c2, d12[2] / x_c2)
+    v3 = _sub(c[2], c[0])
+    x_c3 = _dot(ex, v3)
+    ey = (v3[0] - x_c3 * ex[0], v3[1] - x_c3 * ex[1], v3[2] - x_c3 * ex[2])
+    y_c3 = math.sqrt(_dot(ey, ey))
     if y_c3 < 1e-12:
-        raise NoSolutionError(f"sphere centres are collinear for q={q.tolist()} m")
-    ey = ey / y_c3
-    ez = np.cross(ex, ey)
+        raise NoSolutionError(f"sphere centres are collinear for q={q} m")
+    ey = (ey[0] / y_c3, ey[1] / y_c3, ey[2] / y_c3)
+    ez = (ex[1] * ey[2] - ex[2] * ey[1], ex[2] * ey[0] - ex[0] * ey[2], ex[0] * ey[1] - ex[1] * ey[0])
     l = geom.rod_length_m
     x_a = x_c2 / 2.0
     y_a = (x_c3 * x_c3 + y_c3 * y_c3 - x_c2 * x_c3) / (2.0 * y_c3)
     z2 = l * l - x_a * x_a - y_a * y_a
     if z2 < 0.0:
         raise NoSolutionError(
-            f"no assembly for q={q.tolist()} m: the three rod spheres do not intersect "
+            f"no assembly for q={q} m: the three rod spheres do not intersect "
             f"(l^2 - x_a^2 - y_a^2 = {z2:.3e} m^2)"
         )
     z_a = math.sqrt(z2)
-    base = centres[0] + x_a * ex + y_a * ey  # eq. (3): {a} -> {0}
-    candidates = [base + z_a * ez, base - z_a * ez]
-    on_branch = [s for s in candidates if _on_paper_branch(geom, s, q)]
-    if not on_branch:
+    base = tuple(c[0][i] + x_a * ex[i] + y_a * ey[i] for i in range(3))  # eq. (3): {a} -> {0}
+    best = None
+    for sign in (1.0, -1.0):
+        s = (base[0] + sign * z_a * ez[0], base[1] + sign * z_a * ez[1], base[2] + sign * z_a * ez[2])
+        # on the branch: w_j . n_j = (s - c_j) . n_j / l <= 0 for every leg
+        if all(_dot(_sub(s, c[j]), axes[j]) <= 1e-9 * l for j in range(_AXES)):
+            if best is None or s[2] > best[2]:
+                best = s
+    if best is None:
         raise NoSolutionError(
-            f"no assembly on the working branch for q={q.tolist()} m "
+            f"no assembly on the working branch for q={q} m "
             "(every solution has a rod pointing along its prismatic axis)"
         )
-    return max(on_branch, key=lambda s: float(s[2]))
-
-
-def _on_paper_branch(geom: CheopeGeometry, tcp_m: np.ndarray, q_m: np.ndarray) -> bool:
-    w = rod_directions(geom, tcp_m, q_m)
-    return bool(np.all(np.einsum("ij,ij->i", w, geom.axes) <= 1e-9))
+    return np.array(best)
 
 
 def jacobian(geom: CheopeGeometry, tcp_m: np.ndarray, q_m: np.ndarray | None = None) -> np.ndarray:
@@ -160,13 +186,19 @@ def jacobian(geom: CheopeGeometry, tcp_m: np.ndarray, q_m: np.ndarray | None = N
     Derivation (eq. (1) differentiated and projected on w_j): w_j^T s_dot = (w_j^T n_j) q_dot_j.
     Raises NoSolutionError at an inverse singularity (some w_j . n_j = 0).
     """
-    s = np.asarray(tcp_m, dtype=float)
-    q = inverse_kinematics(geom, s) if q_m is None else np.asarray(q_m, float)
-    w = rod_directions(geom, s, q)
-    k = np.einsum("ij,ij->i", w, geom.axes)
-    if np.any(np.abs(k) < 1e-12):
-        raise NoSolutionError(f"inverse singularity at TCP {s.tolist()} m: w_j . n_j = {k.tolist()}")
-    return w / k[:, None]
+    q = inverse_kinematics(geom, tcp_m) if q_m is None else q_m
+    s = (float(tcp_m[0]), float(tcp_m[1]), float(tcp_m[2]))
+    axes, plat = geom.rows_axes, geom.rows_platform
+    rows = []
+    for j in range(_AXES):
+        # w_j scaled by l; the scale cancels in w_j / (w_j . n_j)
+        w = (s[0] + plat[j][0] - q[j] * axes[j][0], s[1] + plat[j][1] - q[j] * axes[j][1],
+             s[2] + plat[j][2] - q[j] * axes[j][2])
+        k = _dot(w, axes[j])
+        if abs(k) < 1e-12 * geom.rod_length_m:
+            raise NoSolutionError(f"inverse singularity at TCP {list(s)} m: w_{j + 1} . n_{j + 1} = 0")
+        rows.append((w[0] / k, w[1] / k, w[2] / k))
+    return np.array(rows)
 
 
 @dataclass(frozen=True)
@@ -253,32 +285,45 @@ class CheopeRobot:
         return jacobian(self.geometry, tcp_m)
 
     def check_pose(self, tcp_m: np.ndarray) -> PoseStatus:
-        """Stroke, spherical-joint swing and singularity margins at ``tcp_m`` (no exception)."""
-        s = np.asarray(tcp_m, dtype=float)
-        lim = self.limits
+        """Stroke, spherical-joint swing and singularity margins at ``tcp_m`` (no exception).
+
+        Runs every cycle, so it works on plain floats; the measures are those of
+        ``singularity_measures``, ``joint_swing_rad`` and cond(J) (tests check they agree).
+        """
+        g, lim = self.geometry, self.limits
         try:
-            q = inverse_kinematics(self.geometry, s)
+            q = inverse_kinematics(g, tcp_m)
         except NoSolutionError as err:
             return PoseStatus(False, str(err))
+        s = (float(tcp_m[0]), float(tcp_m[1]), float(tcp_m[2]))
+        inv_l = 1.0 / g.rod_length_m
+        w, k = [], []
         for j in range(_AXES):
             if not lim.stroke_min_m <= q[j] <= lim.stroke_max_m:
                 return PoseStatus(False, f"actuator {j + 1} at {q[j]:.4f} m is outside its stroke "
                                          f"[{lim.stroke_min_m}, {lim.stroke_max_m}] m")
-        swing = joint_swing_rad(self.geometry, s, q)
-        j = int(np.argmax(swing))
-        if swing[j] > lim.joint_swing_limit_rad:
-            return PoseStatus(False, f"spherical joints of leg {j + 1} swing {math.degrees(swing[j]):.1f} deg, "
-                                     f"limit {math.degrees(lim.joint_swing_limit_rad):.1f} deg")
-        m = singularity_measures(self.geometry, s, q)
-        for name, value, low in (("direct", m.direct, lim.min_direct_measure),
-                                 ("inverse", m.inverse, lim.min_inverse_measure),
-                                 ("structural", m.structural, lim.min_structural_measure)):
+            n, a = g.rows_axes[j], g.rows_platform[j]
+            wj = ((s[0] + a[0] - q[j] * n[0]) * inv_l, (s[1] + a[1] - q[j] * n[1]) * inv_l,
+                  (s[2] + a[2] - q[j] * n[2]) * inv_l)
+            nu = g.neutral_rod_directions[j]
+            swing = math.acos(max(-1.0, min(1.0, _dot(wj, (float(nu[0]), float(nu[1]), float(nu[2]))))))
+            if swing > lim.joint_swing_limit_rad:
+                return PoseStatus(False, f"spherical joints of leg {j + 1} swing {math.degrees(swing):.1f} deg, "
+                                         f"limit {math.degrees(lim.joint_swing_limit_rad):.1f} deg")
+            w.append(wj)
+            k.append(_dot(wj, n))
+        direct = abs(_dot(w[0], _cross(w[1], w[2])))  # |det W3|
+        inverse = min(abs(x) for x in k)
+        structural = min(math.sqrt(_dot(c, c)) for c in (_cross(w[0], w[1]), _cross(w[0], w[2]),
+                                                        _cross(w[1], w[2])))
+        for name, value, low in (("direct", direct, lim.min_direct_measure),
+                                 ("inverse", inverse, lim.min_inverse_measure),
+                                 ("structural", structural, lim.min_structural_measure)):
             if value < low:
                 return PoseStatus(False, f"within the {name}-singularity margin: measure {value:.3f} < {low}")
-        w = rod_directions(self.geometry, s, q)
-        jac = w / np.einsum("ij,ij->i", w, self.geometry.axes)[:, None]
-        sv = np.linalg.svd(jac, compute_uv=False)
-        cond = float(sv[0] / sv[-1])
+        jac = np.array([[wj[0] / kj, wj[1] / kj, wj[2] / kj] for wj, kj in zip(w, k)])
+        eig = np.linalg.eigvalsh(jac.T @ jac)
+        cond = math.sqrt(eig[-1] / eig[0])
         if cond > lim.max_condition_number:
             return PoseStatus(False, f"condition number {cond:.2f} above {lim.max_condition_number}")
         return POSE_OK

@@ -73,8 +73,8 @@ class MassModel:
     M = m_0 I + m_q J^T J.
     """
 
-    platform_kg: float = 2.0
-    slider_kg: float = 1.5
+    platform_kg: float = 8.0
+    slider_kg: float = 1.0
     rod_pair_kg: float = 0.4
 
     @property

@@ -1,0 +1,204 @@
+"""What the contour-tracking experiment shows (seed 001 §7, Fig. 8-9): per-lap figures and plots.
+
+``ContourObserver`` collects, while the tool tracks the contour, the normal force, its error,
+the commanded tangential speed, the measured TCP and the estimated normal. The summary gives
+per lap the commanded and achieved tangential speed, the normal-force error (RMS, max) and
+the contact losses, and over the constant-speed laps the correlation between the force error
+and the robot's stiffness along the contour normal, k_n = k n^T J^T J n (seed 001 §6): the
+paper reports a worse force error where the normal lies along the minor axis of the
+stiffness ellipsoid, i.e. a negative correlation.
+
+The same observer measures a position-controlled run (the comparison): there the normal
+force is the in-plane magnitude of the measured force and the lap is the angle swept
+around the nominal centre.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from controller.control_law import ControllerState, Mode  # noqa: E402
+from controller.cycle_data import CycleInputs, CycleOutputs, Event  # noqa: E402
+from controller.loop import CycleTiming  # noqa: E402
+from controller.robots.cheope import CheopeRobot  # noqa: E402
+from controller.robots.performance import MassModel, mass_ellipsoid, stiffness_ellipsoid  # noqa: E402
+from controller.tasks.contour_tracking import ContourPhase, ContourState  # noqa: E402
+
+
+@dataclass
+class ContourObserver:
+    """Samples of the tracking phase (or, for a position-controlled run, of the whole path)."""
+
+    force_setpoint_n: float
+    centre_m: tuple[float, float]
+    laps: int
+    t: list[float] = field(default_factory=list)
+    lap: list[int] = field(default_factory=list)
+    fn: list[float] = field(default_factory=list)
+    speed_cmd: list[float] = field(default_factory=list)
+    xy: list[tuple[float, float]] = field(default_factory=list)
+    normal: list[tuple[float, float]] = field(default_factory=list)
+    contact_losses: tuple[int, ...] = ()
+    _swept: float = 0.0
+    _last_angle: float | None = None
+
+    def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
+                 outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None:
+        ts = state.task_state
+        tcp = state.tcp_measured_m
+        if tcp is None or state.mode != Mode.RUNNING:
+            return
+        if isinstance(ts, ContourState):
+            self.contact_losses = ts.contact_losses
+            if ts.phase != ContourPhase.TRACKING:
+                return
+            self._append(t, ts.lap, ts.normal_force_n, ts.speed_m_s, tcp, ts.normal)
+            return
+        if state.tcp_reference_m is None or inputs.sensor is None:
+            return  # a position-controlled comparison run, off its path
+        f = inputs.sensor.force_n
+        angle = math.atan2(tcp[1] - self.centre_m[1], tcp[0] - self.centre_m[0])
+        if self._last_angle is not None:
+            self._swept += (angle - self._last_angle + math.pi) % (2 * math.pi) - math.pi
+        self._last_angle = angle
+        lap = min(int(abs(self._swept) // (2 * math.pi)), self.laps - 1)
+        n = (math.cos(angle), math.sin(angle))
+        self._append(t, lap, math.hypot(f[0], f[1]), float("nan"), tcp, n)  # no commanded tangential speed
+
+    def _append(self, t: float, lap: int, fn: float, speed: float, tcp: tuple[float, float, float],
+                normal: tuple[float, float]) -> None:
+        self.t.append(t)
+        self.lap.append(lap)
+        self.fn.append(fn)
+        self.speed_cmd.append(speed)
+        self.xy.append((tcp[0], tcp[1]))
+        self.normal.append(normal)
+
+
+def _normal_stiffness(robot: CheopeRobot, stiffness_n_m: float, xy: np.ndarray, height_m: float,
+                      normals: np.ndarray) -> np.ndarray:
+    out = np.empty(len(xy))
+    for i, ((x, y), (nx, ny)) in enumerate(zip(xy, normals)):
+        jac = robot.jacobian(np.array([x, y, height_m]))
+        jn = jac @ np.array([nx, ny, 0.0])
+        out[i] = stiffness_n_m * float(jn @ jn)
+    return out
+
+
+def contour_summary(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: float, height_m: float,
+                    lap_speeds_m_s: tuple[float, ...] | None) -> dict[str, object]:
+    if not obs.t:
+        return {"samples": 0, "laps": [], "force_error_vs_normal_stiffness_correlation": None,
+                "normal_stiffness_range_n_m": None}
+    t = np.array(obs.t)
+    lap = np.array(obs.lap)
+    err = obs.force_setpoint_n - np.array(obs.fn)
+    xy = np.array(obs.xy)
+    laps = []
+    for k in range(obs.laps):
+        m = lap == k
+        if np.count_nonzero(m) < 3:
+            continue
+        dist = np.sum(np.hypot(*np.diff(xy[m], axis=0).T))
+        dur = t[m][-1] - t[m][0]
+        laps.append({
+            "lap": k + 1,
+            "speed_commanded_m_s": lap_speeds_m_s[k] if lap_speeds_m_s else None,
+            "speed_achieved_m_s": round(float(dist / dur), 5) if dur > 0 else None,
+            "force_error_rms_n": round(float(np.sqrt(np.mean(err[m] ** 2))), 4),
+            "force_error_max_n": round(float(np.abs(err[m]).max()), 4),
+            "contact_losses": int(obs.contact_losses[k]) if k < len(obs.contact_losses)
+            else int(np.count_nonzero(np.diff((np.array(obs.fn)[m] < 0.5).astype(int)) == 1)),
+        })
+    # correlation over the constant-speed laps (the last ones), binned by 10 deg of contour angle
+    last_speed = lap_speeds_m_s[-1] if lap_speeds_m_s else None
+    const = [k for k in range(obs.laps) if lap_speeds_m_s is None or lap_speeds_m_s[k] == last_speed]
+    m = np.isin(lap, const)
+    kn = _normal_stiffness(robot, stiffness_n_m, xy[m], height_m, np.array(obs.normal)[m])
+    angle = np.degrees(np.arctan2(xy[m, 1] - obs.centre_m[1], xy[m, 0] - obs.centre_m[0]))
+    bins = np.floor((angle + 180.0) / 10.0).astype(int)
+    bin_err, bin_k = [], []
+    for b in np.unique(bins):
+        sel = bins == b
+        if np.count_nonzero(sel) >= 5:
+            bin_err.append(float(np.sqrt(np.mean(err[m][sel] ** 2))))
+            bin_k.append(float(np.mean(kn[sel])))
+    corr = float(np.corrcoef(bin_k, bin_err)[0, 1]) if len(bin_k) > 3 else None
+    return {
+        "samples": int(t.size),
+        "laps": laps,
+        "force_error_vs_normal_stiffness_correlation": None if corr is None else round(corr, 3),
+        "normal_stiffness_range_n_m": [round(float(kn.min()), 0), round(float(kn.max()), 0)] if kn.size else None,
+    }
+
+
+def plot_contour(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: float, masses: MassModel,
+                 height_m: float, out: Path, title: str = "force control") -> list[Path]:
+    """Fig. 9: force and speed against time with the laps; Fig. 8: the contour and the error."""
+    if len(obs.t) < 3:
+        return []  # nothing was tracked (the run faulted before contact): no plot to draw
+    out.mkdir(parents=True, exist_ok=True)
+    t = np.array(obs.t)
+    fn = np.array(obs.fn)
+    xy = np.array(obs.xy)
+    lap = np.array(obs.lap)
+    speed = np.r_[np.nan, np.hypot(*np.diff(xy, axis=0).T) / np.maximum(np.diff(t), 1e-9)]
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
+    a1.plot(t, fn, lw=0.7, label="normal force")
+    a1.axhline(obs.force_setpoint_n, color="k", ls="--", lw=0.8, label="setpoint")
+    a1.set_ylabel("force [N]")
+    a1.legend(loc="upper right", fontsize=8)
+    k = max(1, int(0.02 / max(np.median(np.diff(t)), 1e-6))) if t.size > 2 else 1
+    a2.plot(t, np.convolve(np.nan_to_num(speed), np.ones(k) / k, mode="same") * 1000, lw=0.8, label="achieved")
+    cmd = np.array(obs.speed_cmd) * 1000
+    if np.isfinite(cmd).any():
+        a2.plot(t, cmd, lw=0.8, ls="--", label="commanded")
+    a2.set_ylabel("tangential speed [mm/s]")
+    a2.set_xlabel("time [s]")
+    a2.legend(loc="lower right", fontsize=8)
+    for ax in (a1, a2):
+        for b in np.flatnonzero(np.diff(lap)) + 1:
+            ax.axvline(t[b], color="grey", lw=0.6)
+    a1.set_title(f"Contour tracking ({title}): force and speed, laps marked (cf. seed 001 Fig. 9)")
+    fig.tight_layout()
+    p1 = out / f"contour_force_speed_{title.replace(' ', '_')}.png"
+    fig.savefig(p1, dpi=110)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(7.5, 7))
+    err = np.abs(obs.force_setpoint_n - fn)
+    sc = ax.scatter(xy[:, 0] * 1000, xy[:, 1] * 1000, c=err, s=3, cmap="inferno_r")
+    fig.colorbar(sc, ax=ax, label="|normal-force error| [N]")
+    # stiffness and mass ellipses (XY sections) at 8 points of the contour
+    c = np.array(obs.centre_m)
+    r = float(np.median(np.hypot(*(xy - c).T))) if xy.size else 0.07
+    for th in np.linspace(0, 2 * np.pi, 8, endpoint=False):
+        p = np.array([c[0] + r * np.cos(th), c[1] + r * np.sin(th), height_m])
+        jac = robot.jacobian(p)
+        for ell, colour, scale in ((stiffness_ellipsoid(jac, stiffness_n_m), "tab:blue", 12.0),
+                                   (mass_ellipsoid(jac, masses), "tab:green", 12.0)):
+            dirs = np.linspace(0, 2 * np.pi, 60)
+            reach = np.array([ell.reach(np.array([np.cos(d), np.sin(d), 0.0])) for d in dirs])
+            reach = reach / reach.max() * scale
+            ax.plot((p[0] + 0.0) * 1000 + reach * np.cos(dirs) + 28 * np.cos(th),
+                    p[1] * 1000 + reach * np.sin(dirs) + 28 * np.sin(th), color=colour, lw=1)
+    ax.plot([], [], color="tab:blue", label="stiffness ellipse (XY section)")
+    ax.plot([], [], color="tab:green", label="mass ellipse (XY section)")
+    ax.legend(loc="lower left", fontsize=8)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("y [mm]")
+    ax.set_title(f"Contour ({title}) and force error, with stiffness and mass ellipses (cf. Fig. 8)", fontsize=9)
+    fig.tight_layout()
+    p2 = out / f"contour_error_map_{title.replace(' ', '_')}.png"
+    fig.savefig(p2, dpi=110)
+    plt.close(fig)
+    return [p1, p2]
