@@ -14,6 +14,8 @@ from typing import Any
 import can
 
 from controller.config import Config, ConfigError, load_config, parse_override
+from controller.monitoring.cli_commands import add_controller_options, monitoring_overrides
+from controller.monitoring.cli_commands import add_subcommands as add_monitoring_subcommands
 from drivers.bus import BusSpec, BusSpecError, parse_bus_spec
 from drivers.bus_load import BusLoadError
 from drivers.node_setup import NodeSetupError
@@ -35,7 +37,9 @@ def _overrides(args: argparse.Namespace) -> list[str]:
     sets = list(args.set)
     if args.rate is not None:
         sets.append(f"loop.rate_hz={args.rate}")
-    return sets
+    if getattr(args, "task", None):
+        sets.insert(0, f'task.kind="{args.task}"')
+    return sets + monitoring_overrides(args)
 
 
 def _config(args: argparse.Namespace) -> Config:
@@ -71,6 +75,24 @@ def _print_summary(summary: dict[str, Any], as_json: bool) -> None:
     if te["rms"] is not None:
         lines.append(f"tracking error      RMS {te['rms'] * 1e6:.1f} um, max {te['max'] * 1e6:.1f} um "
                      f"({te['samples']} samples)")
+    contour = summary.get("contour")
+    if contour:
+        lines.append("contour tracking    lap  speed cmd/achieved [mm/s]  force error RMS/max [N]  contact losses")
+        for lap in contour["laps"]:
+            cmd = lap["speed_commanded_m_s"]
+            lines.append(f"                    {lap['lap']:>3}  {cmd * 1000 if cmd else float('nan'):>8.1f} / "
+                         f"{lap['speed_achieved_m_s'] * 1000:<8.1f}        {lap['force_error_rms_n']:>6.2f} / "
+                         f"{lap['force_error_max_n']:<6.2f}          {lap['contact_losses']}")
+        lines.append(f"force error vs normal stiffness: correlation "
+                     f"{contour['force_error_vs_normal_stiffness_correlation']}")
+    cmp = summary.get("position_control_comparison")
+    if cmp and cmp.get("laps"):
+        lap = cmp["laps"][0]
+        lines.append(f"position control    same contour at {cmp['speed_m_s'] * 1000:.0f} mm/s: force error RMS "
+                     f"{lap['force_error_rms_n']:.2f} N, max {lap['force_error_max_n']:.2f} N, "
+                     f"contact losses {lap['contact_losses']} ({cmp['final_mode']})")
+    for p in summary.get("plots", []):
+        lines.append(f"plot                {p}")
     print("\n".join(lines))
 
 
@@ -79,7 +101,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     cfg = _config(args)
     spec = _spec(args, cfg, default_port=random_udp_port())
-    summary = run_demo(cfg, spec, args.config, _overrides(args), args.max_duration, _stop_on_signals())
+    summary = run_demo(cfg, spec, args.config, _overrides(args), args.max_duration, _stop_on_signals(),
+                       Path(args.plot) if args.plot else None)
     _print_summary(summary, args.json)
     return 0 if summary["final_mode"] == "DONE" else 1
 
@@ -136,11 +159,16 @@ def build_parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", required=True)
     p = sub.add_parser("demo", help="simulator process + controller + the configured task, then a summary")
     _common(p)
+    add_controller_options(p)
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--max-duration", type=float, default=600.0, help="stop after this many seconds")
+    p.add_argument("--task", choices=("path", "contour"),
+                   help="path: a circle in free space; contour: the paper's force-controlled contour tracking")
+    p.add_argument("--plot", metavar="DIR", help="write the contour experiment's PNG plots here")
     p.set_defaults(func=cmd_demo)
     p = sub.add_parser("run", help="only the controller, against whatever devices are on the bus")
     _common(p)
+    add_controller_options(p)
     p.add_argument("--json", action="store_true")
     p.add_argument("--max-duration", type=float, default=600.0)
     p.set_defaults(func=cmd_run)
@@ -156,6 +184,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="analysis", help="directory for the PNG plots")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_analyze)
+    add_monitoring_subcommands(sub)
+    from logs.cli import add_commands as add_log_commands  # cheope logs info|recover, cheope replay
+
+    add_log_commands(sub)
     return ap
 
 

@@ -52,8 +52,8 @@ class MarginsSection:
 
 @dataclass(frozen=True)
 class MassSection:
-    platform_kg: float = field(default=2.0, metadata=_r(0.0, 1000.0))
-    slider_kg: float = field(default=1.5, metadata=_r(0.0, 1000.0))
+    platform_kg: float = field(default=8.0, metadata=_r(0.0, 1000.0))
+    slider_kg: float = field(default=1.0, metadata=_r(0.0, 1000.0))
     rod_pair_kg: float = field(default=0.4, metadata=_r(0.0, 1000.0))
     actuator_stiffness_n_m: float = field(default=2.0e5, metadata=_r(0.0, 1e12, lo_open=True))
 
@@ -97,8 +97,9 @@ class BusSection:
 @dataclass(frozen=True)
 class LoopSection:
     rate_hz: float = field(default=400.0, metadata=_r(1.0, 4000.0))
-    collect_fraction: float = field(default=0.6, metadata=_r(0.05, 0.95))
+    collect_fraction: float = field(default=0.8, metadata=_r(0.05, 0.95))
     spin_us: float = field(default=300.0, metadata=_r(0.0, 5000.0))
+    gil_switch_interval_us: float = field(default=200.0, metadata=_r(1.0, 100000.0))
     max_missing_cycles: int = field(default=3, metadata=_r(1, 1000))
     heartbeat_period_s: float = field(default=0.1, metadata=_r(0.01, 10.0))
     heartbeat_consumer_s: float = field(default=0.5, metadata=_r(0.02, 60.0))
@@ -133,7 +134,7 @@ class ContourSection:
     max_approach_distance_m: float = field(default=0.02, metadata=_r(0.0, 1.0, lo_open=True))
     contact_force_n: float = field(default=1.0, metadata=_r(0.0, 1000.0, lo_open=True))
     force_setpoint_n: float = field(default=10.0, metadata=_r(0.0, 1000.0, lo_open=True))
-    lap_speeds_m_s: tuple[float, float, float, float, float] = (0.02, 0.04, 0.06, 0.06, 0.06)
+    lap_speeds_m_s: tuple[float, ...] = field(default=(0.02, 0.04, 0.06, 0.06, 0.06), metadata=_r(0.0, 1.0, lo_open=True))
     tangential_acceleration_m_s2: float = field(default=0.05, metadata=_r(0.0, 100.0, lo_open=True))
     force_kp_m_s_per_n: float = field(default=3.5e-4, metadata=_r(0.0, 1.0))
     force_ki_m_s2_per_n: float = field(default=3.5e-3, metadata=_r(0.0, 10.0))
@@ -148,6 +149,7 @@ class ContourSection:
     retract_speed_m_s: float = field(default=0.02, metadata=_r(0.0, 1.0, lo_open=True))
     tare_s: float = field(default=0.1, metadata=_r(0.0, 60.0, lo_open=True))
     friction_estimate: float = field(default=0.1, metadata=_r(0.0, 2.0))
+    comparison_press_m: float = field(default=6.0e-5, metadata=_r(0.0, 0.01))
     direction: int = field(default=1, metadata={"range": (-1, 1, False)})
 
 
@@ -169,7 +171,7 @@ class SimDriveSection:
     max_acceleration_m_s2: float = field(default=40.0, metadata=_r(0.0, 1e5, lo_open=True))
     quick_stop_deceleration_m_s2: float = field(default=5.0, metadata=_r(0.0, 1e5, lo_open=True))
     sync_timeout_s: float = field(default=0.05, metadata=_r(0.001, 60.0))
-    substep_s: float = field(default=2.5e-4, metadata=_r(1e-6, 0.01))
+    substep_s: float = field(default=5.0e-4, metadata=_r(1e-6, 0.01))
     initial_positions_m: tuple[float, float, float] = (0.55, 0.55, 0.55)
 
 
@@ -187,7 +189,7 @@ class SimSensorSection:
 class SimDiskSection:
     """The workpiece of the contour task; known to the simulator only (sim_backend/contact_disk.py)."""
 
-    centre_m: tuple[float, float] = (0.0, 0.0)
+    centre_m: tuple[float, float] = (0.002, -0.001)
     height_m: float = field(default=0.50, metadata=_r(-10.0, 10.0))
     radius_m: float = field(default=0.07, metadata=_r(0.0, 1.0, lo_open=True))
     thickness_m: float = field(default=0.01, metadata=_r(0.0, 1.0, lo_open=True))
@@ -219,6 +221,23 @@ class RecordingSection:
 
 
 @dataclass(frozen=True)
+class MonitoringSection:
+    """Remote monitoring over Zenoh (controller/monitoring/): keys under ``<key_prefix>/<robot_id>/``."""
+
+    enabled: bool = True
+    robot_id: str = "cheope-1"
+    key_prefix: str = "cheope"
+    publish_rate_hz: float = field(default=50.0, metadata=_r(0.0, 4000.0, lo_open=True))  # >= loop rate: every cycle
+    mode: str = field(default="peer", metadata={"choices": ("peer", "client")})
+    listen: str = "tcp/127.0.0.1:7448"  # comma-separated Zenoh endpoints; "" listens nowhere
+    on_listen_busy: str = field(default="free_port", metadata={"choices": ("free_port", "fail")})
+    connect: str = ""  # comma-separated endpoints of routers or peers, e.g. "tcp/10.0.0.5:7447"
+    config_file: str = ""  # a Zenoh JSON5 configuration file; keys it leaves unset get the loopback defaults
+    allow_remote_commands: bool = False  # pause, resume, set_force; a remote stop is always accepted
+    queue_size: int = field(default=64, metadata=_r(2, 100000))  # hand-off queue; full: the sample is dropped
+
+
+@dataclass(frozen=True)
 class Config:
     robot: RobotSection = RobotSection()
     actuators: ActuatorsSection = ActuatorsSection()
@@ -228,6 +247,7 @@ class Config:
     task: TaskSection = TaskSection()
     sim: SimSection = SimSection()
     recording: RecordingSection = RecordingSection()
+    monitoring: MonitoringSection = MonitoringSection()
 
     @property
     def period_s(self) -> float:
@@ -255,6 +275,10 @@ def _convert(key: str, tp: Any, value: Any, meta: dict[str, Any]) -> Any:
     origin = typing.get_origin(tp)
     if origin is tuple:
         args = typing.get_args(tp)
+        if len(args) == 2 and args[1] is Ellipsis:  # tuple[float, ...]: any length but empty
+            if not isinstance(value, (list, tuple)) or not value:
+                raise ConfigError(f"{key} = {value!r}: expected a non-empty list")
+            return tuple(_convert(f"{key}[{i}]", args[0], v, meta) for i, v in enumerate(value))
         if not isinstance(value, (list, tuple)) or len(value) != len(args):
             raise ConfigError(f"{key} = {value!r}: expected a list of {len(args)} values")
         return tuple(_convert(f"{key}[{i}]", a, v, meta) for i, (a, v) in enumerate(zip(args, value)))

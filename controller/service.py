@@ -8,6 +8,7 @@ loop. Nothing moves before every check has passed.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import threading
@@ -19,8 +20,10 @@ import numpy as np
 from controller.config import Config, ConfigError
 from controller.control_law import ControlLaw, LawConfig
 from controller.loop import CycleLoop, CycleObserver, DeadlineSleeper
+from controller.monitoring.publisher import monitoring_context
 from controller.robots.cheope import CheopeRobot
 from controller.robots.registry import cheope_from_config
+from controller.realtime import set_gil_switch_interval
 from controller.run_summary import RunRecorder, summarize
 from controller.setpoint_smoothing import AxisLimits, RuckigSmoother
 from controller.tasks.circle_path import CirclePath
@@ -128,8 +131,15 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float = 600.0,
                    frame_sink: FrameSink | None = None) -> dict[str, object]:
     """Run the configured task on the bus; returns the summary (see controller/run_summary.py)."""
     prepared = prepare(cfg)
+    set_gil_switch_interval(cfg.loop.gil_switch_interval_us * 1e-6)
     recorder = RunRecorder()
-    with open_bus(spec) as bus:
+    session = _session_recorder(cfg, prepared.law, spec)  # the MCAP recording (logs/recorder.py)
+    if session is not None:
+        observers = (*observers, session)
+        frame_sink = session.on_frame if frame_sink is None else _both_sinks(frame_sink, session.on_frame)
+    stop_event = stop_event or threading.Event()  # a remote stop (controller/monitoring) sets it too
+    with session or contextlib.nullcontext(), monitoring_context(
+            cfg, stop_event, prepared.law.task) as publisher, open_bus(spec) as bus:
         setup = configure_nodes(bus, node_setup_plan(cfg))
         exchange = CyclicExchange(
             bus, tuple(cfg.actuators.node_ids), PositionScale(cfg.actuators.counts_per_m),
@@ -137,9 +147,35 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float = 600.0,
             heartbeat_every=max(1, round(cfg.loop.heartbeat_period_s * cfg.loop.rate_hz)), fd=spec.fd,
             frame_sink=frame_sink,
         )
+        if publisher is not None:
+            publisher.exchange_counters = exchange.counters
         loop = CycleLoop(prepared.law, exchange, cfg.period_s, cfg.loop.collect_fraction,
                          DeadlineSleeper(cfg.loop.spin_us * 1e-6), time.monotonic,
-                         observers=(recorder, *observers), stop_event=stop_event)
+                         observers=(recorder, *observers, *((publisher,) if publisher is not None else ())),
+                         stop_event=stop_event, commands=publisher.commands if publisher is not None else None)
         final, stats = loop.run(prepared.law.initial_state(), max_duration_s)
     return summarize(stats, recorder, final, exchange.counters, prepared.bus_load.percent,
-                     extra={"bus": str(spec), "node_setup_s": round(setup.duration_s, 3)})
+                     extra={"bus": str(spec), "node_setup_s": round(setup.duration_s, 3),
+                            "recording": _recording_summary(session)})
+
+
+def _session_recorder(cfg: Config, law: ControlLaw, spec: BusSpec):  # -> logs.recorder.SessionRecorder | None
+    if not cfg.recording.enabled:
+        return None
+    from logs.recorder import SessionRecorder
+
+    return SessionRecorder.for_config(cfg, phase_name=law.task.phase_name, extra_metadata={"bus": str(spec)})
+
+
+def _both_sinks(a: FrameSink, b: FrameSink) -> FrameSink:
+    def sink(outgoing: bool, monotonic_s: float, msg) -> None:
+        a(outgoing, monotonic_s, msg)
+        b(outgoing, monotonic_s, msg)
+    return sink
+
+
+def _recording_summary(session) -> dict[str, object] | None:
+    if session is None:
+        return None
+    return {"path": str(session.path), "dropped": session.dropped, "written": session.written,
+            "error": session.error}

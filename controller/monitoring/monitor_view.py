@@ -1,0 +1,242 @@
+"""``cheope monitor``: subscribe to a controller's state, events and liveliness; show or print them.
+
+``MonitorClient`` receives on Zenoh's threads (callbacks with ``indirect=False`` that only
+stamp the arrival time and put the sample on a queue) and hands decoded updates to the
+caller's thread through ``next_update``. The live view is a rich ``Live`` refreshed in place
+by the caller's thread; ``--json`` prints one JSON object per line instead.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Self, TextIO
+
+import zenoh
+from google.protobuf.json_format import MessageToDict
+from google.protobuf.message import DecodeError
+
+from controller.messages import cheope_pb2 as pb
+from controller.monitoring.zenoh_session import MonitorKeys, SessionSettings, open_session
+
+
+@dataclass(frozen=True)
+class StateUpdate:
+    key: str
+    msg: pb.MonitorState
+    received_monotonic_s: float
+
+
+@dataclass(frozen=True)
+class EventUpdate:
+    key: str
+    msg: pb.Event
+    received_monotonic_s: float
+
+
+@dataclass(frozen=True)
+class AliveUpdate:
+    key: str
+    alive: bool  # False: the controller's liveliness token went away (stopped, crashed, unreachable)
+    received_monotonic_s: float
+
+
+@dataclass(frozen=True)
+class UndecodableUpdate:
+    key: str
+    reason: str
+    received_monotonic_s: float
+
+
+Update = StateUpdate | EventUpdate | AliveUpdate | UndecodableUpdate
+
+
+class MonitorClient:
+    """Context manager: a Zenoh session subscribed to ``keys``' state, events and liveliness."""
+
+    def __init__(self, settings: SessionSettings, keys: MonitorKeys, clock: Callable[[], float] = time.monotonic
+                 ) -> None:
+        self.settings = settings
+        self.keys = keys
+        self.clock = clock
+        self._q: queue.SimpleQueue[tuple[int, str, object, float]] = queue.SimpleQueue()
+        self._session: zenoh.Session | None = None
+        self._entities: list = []
+
+    def __enter__(self) -> Self:
+        self._session, _ = open_session(self.settings)
+        z, k = self._session, self.keys
+        try:
+            self._entities = [
+                z.liveliness().declare_subscriber(k.alive, zenoh.handlers.Callback(self._on_alive, indirect=False),
+                                                  history=True),
+                z.declare_subscriber(k.state, zenoh.handlers.Callback(self._on_state, indirect=False)),
+                z.declare_subscriber(k.events, zenoh.handlers.Callback(self._on_event, indirect=False)),
+            ]
+        except zenoh.ZError:
+            self._session.close()
+            raise
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for e in reversed(self._entities):
+            e.undeclare()
+        self._entities = []
+        if self._session is not None:
+            self._session.close()
+            self._session = None
+
+    # Zenoh's threads: stamp and enqueue, nothing else.
+    def _on_state(self, s: zenoh.Sample) -> None:
+        self._q.put((0, str(s.key_expr), s.payload.to_bytes(), self.clock()))
+
+    def _on_event(self, s: zenoh.Sample) -> None:
+        self._q.put((1, str(s.key_expr), s.payload.to_bytes(), self.clock()))
+
+    def _on_alive(self, s: zenoh.Sample) -> None:
+        self._q.put((2, str(s.key_expr), s.kind == zenoh.SampleKind.PUT, self.clock()))
+
+    def next_update(self, timeout_s: float) -> Update | None:
+        """The next update, or None when nothing arrived within ``timeout_s``."""
+        try:
+            kind, key, data, at = self._q.get(timeout=max(0.0, timeout_s))
+        except queue.Empty:
+            return None
+        if kind == 2:
+            return AliveUpdate(key, bool(data), at)
+        try:
+            if kind == 0:
+                return StateUpdate(key, pb.MonitorState.FromString(data), at)
+            return EventUpdate(key, pb.Event.FromString(data), at)
+        except DecodeError as err:
+            return UndecodableUpdate(key, f"not a cheope.v1 message: {err}", at)
+
+
+def update_to_json(u: Update) -> str:
+    """One line for ``cheope monitor --json``: a ``type`` field, the key, the arrival time and the message."""
+    out: dict[str, object] = {"type": {StateUpdate: "state", EventUpdate: "event", AliveUpdate: "liveliness",
+                                       UndecodableUpdate: "undecodable"}[type(u)],
+                              "key": u.key, "received_monotonic_s": u.received_monotonic_s}
+    if isinstance(u, (StateUpdate, EventUpdate)):
+        out.update(MessageToDict(u.msg, preserving_proto_field_name=True, always_print_fields_with_no_presence=True,
+                               unquote_int64_if_possible=True))
+    elif isinstance(u, AliveUpdate):
+        out["alive"] = u.alive
+    else:
+        out["reason"] = u.reason
+    return json.dumps(out)
+
+
+@dataclass
+class ViewModel:
+    """What the live view shows, updated from the stream of updates (pure, testable)."""
+
+    prefix: str
+    alive: bool | None = None  # None: not heard of yet
+    last_state: pb.MonitorState | None = None
+    last_state_at_s: float = 0.0
+    arrivals: deque[float] = field(default_factory=lambda: deque(maxlen=512))
+    events: deque[str] = field(default_factory=lambda: deque(maxlen=8))
+    changes: int = 0  # liveliness transitions seen
+
+    def apply(self, u: Update) -> None:
+        if isinstance(u, StateUpdate):
+            self.last_state, self.last_state_at_s = u.msg, u.received_monotonic_s
+            self.arrivals.append(u.received_monotonic_s)
+            if self.alive is None:
+                self.alive = True
+        elif isinstance(u, EventUpdate):
+            sev = pb.Severity.Name(u.msg.severity)
+            self.events.append(f"{u.msg.t_s:9.3f}s {sev:<7} {u.msg.message}")
+        elif isinstance(u, AliveUpdate):
+            if self.alive is not None and self.alive != u.alive:
+                self.changes += 1
+            self.alive = u.alive
+            self.events.append(f"{'controller up' if u.alive else 'controller gone'} ({u.key})")
+
+    def sample_rate_hz(self, now_s: float, window_s: float = 1.0) -> float:
+        recent = [a for a in self.arrivals if now_s - a <= window_s]
+        return len(recent) / window_s
+
+
+def render(view: ViewModel, now_s: float):  # -> rich renderable
+    from rich.console import Group
+    from rich.panel import Panel
+    from rich.table import Table
+
+    status = {None: "[yellow]waiting for the controller[/]", True: "[green]alive[/]",
+              False: "[red]gone (liveliness token lost)[/]"}[view.alive]
+    head = Table.grid(padding=(0, 2))
+    head.add_column(style="bold")
+    head.add_column()
+    head.add_row("controller", f"{view.prefix}  {status}")
+    s = view.last_state
+    head.add_row("samples", f"{view.sample_rate_hz(now_s):.1f} /s received"
+                 + (f", last {now_s - view.last_state_at_s:.1f} s ago" if s is not None else ""))
+    parts: list = [head]
+    if s is not None:
+        head.add_row("loop", f"{s.loop.achieved_rate_hz:.1f} Hz, period error p50 {s.loop.period_error_p50_us:.0f} us "
+                     f"p99 {s.loop.period_error_p99_us:.0f} us, late {s.loop.late_cycles}, missing frames "
+                     f"{s.loop.missing_drive_frames}/{s.loop.missing_sensor_frames}")
+        head.add_row("mode", f"{s.mode}   task {s.task or '-'}   phase {s.task_phase or '-'}")
+        head.add_row("cycle", f"{s.cycle}   t {s.t_s:.3f} s")
+        head.add_row("TCP", _vec(s.tcp_m, 1e3, "mm"))
+        head.add_row("force", _vec(s.force_n, 1.0, "N"))
+        axes = Table(title="actuators", expand=False)
+        for col in ("axis", "target [mm]", "position [mm]", "error [um]"):
+            axes.add_column(col, justify="right")
+        for j, (tg, ps) in enumerate(zip(s.targets, s.positions)):
+            axes.add_row(str(j + 1), f"{tg * 1e3:.3f}", f"{ps * 1e3:.3f}", f"{(tg - ps) * 1e6:.1f}")
+        parts.append(axes)
+        parts.append(Panel("\n".join(s.alarms) if s.alarms else "none", title="alarms",
+                           style="red" if s.alarms else "green"))
+    parts.append(Panel("\n".join(view.events) or "-", title="events"))
+    return Group(*parts)
+
+
+def _vec(v, scale: float, unit: str) -> str:
+    return "  ".join(f"{x * scale:+.3f}" for x in v) + f" {unit}" if len(v) else "-"
+
+
+def run_monitor(settings: SessionSettings, keys: MonitorKeys, as_json: bool, out: TextIO,
+                duration_s: float | None = None, count: int | None = None, refresh_hz: float = 10.0) -> int:
+    """Run until ``duration_s`` elapses, ``count`` state samples arrived, or Ctrl-C; returns samples seen."""
+    seen = 0
+    deadline = time.monotonic() + duration_s if duration_s is not None else None
+    with MonitorClient(settings, keys) as client:
+        if as_json:
+            while count is None or seen < count:
+                left = 0.5 if deadline is None else deadline - time.monotonic()
+                if left <= 0:
+                    break
+                u = client.next_update(min(left, 0.5))
+                if u is None:
+                    continue
+                seen += isinstance(u, StateUpdate)
+                out.write(update_to_json(u) + "\n")
+                out.flush()
+            return seen
+        from rich.console import Console
+        from rich.live import Live
+
+        view = ViewModel(keys.prefix)
+        period = 1.0 / refresh_hz
+        with Live(render(view, time.monotonic()), console=Console(file=out), auto_refresh=False,
+                  transient=False) as live:
+            next_draw = time.monotonic()
+            while count is None or seen < count:
+                now = time.monotonic()
+                if deadline is not None and now >= deadline:
+                    break
+                u = client.next_update(max(0.0, next_draw - now))
+                if u is not None:
+                    view.apply(u)
+                    seen += isinstance(u, StateUpdate)
+                if time.monotonic() >= next_draw:
+                    live.update(render(view, time.monotonic()), refresh=True)
+                    next_draw = time.monotonic() + period
+    return seen

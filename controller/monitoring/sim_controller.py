@@ -1,0 +1,69 @@
+"""A controller with its Zenoh publisher on the in-process simulated devices, in real time.
+
+For the monitoring tests and the latency benchmark: the loop shell, the control law and the
+publisher are the production ones; the devices are ``sim_backend.loopback`` (no bus, no
+simulator process), run on the monotonic clock so samples flow at the configured rate.
+
+    python -m controller.monitoring.sim_controller --set monitoring.listen='"tcp/127.0.0.1:7600"'
+
+prints ``READY <listen endpoints>`` once the publisher is up and, at the end, one JSON line
+with the final mode and the events. SIGTERM or SIGINT request a controlled stop.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+import time
+
+from controller.config import Config, load_config, parse_override
+from controller.loop import CycleLoop, DeadlineSleeper
+from controller.monitoring.publisher import monitoring_publisher
+from controller.service import build_law
+
+READY = "READY"
+
+
+def run_simulated(cfg: Config, stop_event: threading.Event, max_duration_s: float,
+                  on_ready=lambda endpoints: None) -> dict[str, object]:
+    from sim_backend.loopback import LoopbackExchange
+
+    law = build_law(cfg)
+    exchange = LoopbackExchange(cfg, time.monotonic)
+    events: list[str] = []
+
+    class _Events:
+        def on_cycle(self, cycle, t, inputs, state, outputs, evs, timing) -> None:
+            events.extend(f"{e.severity.name}: {e.message}" for e in evs)
+
+    with monitoring_publisher(cfg, stop_event, law.task) as pub:
+        on_ready(pub.listen_endpoints)
+        loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction,
+                         DeadlineSleeper(cfg.loop.spin_us * 1e-6), time.monotonic, observers=(_Events(), pub),
+                         stop_event=stop_event, commands=pub.commands)
+        final, stats = loop.run(law.initial_state(), max_duration_s)
+        counters = pub.counters()
+    return {"final_mode": final.mode.name, "fault_reason": final.fault_reason, "events": events,
+            "cycles": stats.cycles, "publisher": counters}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m controller.monitoring.sim_controller")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    ap.add_argument("--max-duration", type=float, default=60.0)
+    args = ap.parse_args(argv)
+    cfg = load_config(overrides=dict(parse_override(s) for s in args.set))
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    result = run_simulated(cfg, stop, args.max_duration,
+                           lambda eps: print(f"{READY} {' '.join(eps)}", flush=True))
+    print(json.dumps(result), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

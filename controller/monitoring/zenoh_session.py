@@ -1,0 +1,223 @@
+"""Zenoh sessions of the controller and of its monitors: key names, configuration, opening.
+
+Defaults keep everything on this machine: the controller's session listens on a loopback
+endpoint (``tcp/127.0.0.1:7448``; 7447 is left to a local ``zenohd`` router), multicast and
+gossip scouting are off, and nothing is connected unless configured (``--zenoh-connect`` or
+a Zenoh JSON5 file with ``--zenoh-config``). A configuration file is the base; the keys it
+leaves unset (mode, listen endpoints, scouting) get the loopback defaults, and
+``--zenoh-connect`` endpoints are added to the ones it lists.
+
+Key expressions, under ``<key_prefix>/<robot_id>/`` (``cheope/cheope-1/`` by default):
+``state`` (MonitorState), ``events`` (Event), ``alive`` (liveliness token), ``status``
+(queryable answering Status), ``command`` (queryable taking Command, answering CommandReply).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+import socket
+from dataclasses import dataclass, replace
+
+import zenoh
+
+from controller.config import ConfigError
+
+log = logging.getLogger(__name__)
+
+DEFAULT_LISTEN = "tcp/127.0.0.1:7448"
+DEFAULT_CONNECT = DEFAULT_LISTEN  # where monitors look for a controller on this machine
+PROTO_PACKAGE = "cheope.v1"
+_CHUNK = re.compile(r"^[A-Za-z0-9_.\-]+$")
+_ENDPOINT = re.compile(r"^(?P<proto>[a-z0-9\-]+)/(?P<addr>[^#?]+)(?P<rest>[#?].*)?$")
+_IP_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws")
+_LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "[::1]")
+
+
+class MonitoringConnectionError(ConnectionError):
+    """A Zenoh session could not be opened or nothing answered; the message says where."""
+
+
+def encoding_for(message_name: str) -> zenoh.Encoding:
+    """``application/protobuf;cheope.v1.<Message>``: the payload type, for any Zenoh client."""
+    return zenoh.Encoding.APPLICATION_PROTOBUF.with_schema(f"{PROTO_PACKAGE}.{message_name}")
+
+
+@dataclass(frozen=True)
+class MonitorKeys:
+    """The key expressions of one robot (``robot_id="*"`` on the monitor side: every robot)."""
+
+    prefix: str
+
+    @classmethod
+    def for_robot(cls, key_prefix: str, robot_id: str, allow_wildcard: bool = False) -> MonitorKeys:
+        chunks = key_prefix.split("/")
+        if not key_prefix or not all(_CHUNK.match(c) for c in chunks):
+            raise ConfigError(f"monitoring.key_prefix = {key_prefix!r}: use chunks of letters, digits, "
+                              "'-', '_', '.' separated by '/'")
+        if not (_CHUNK.match(robot_id) or (allow_wildcard and robot_id == "*")):
+            raise ConfigError(f"monitoring.robot_id = {robot_id!r}: use letters, digits, '-', '_', '.'")
+        return cls(f"{key_prefix}/{robot_id}")
+
+    @property
+    def state(self) -> str:
+        return f"{self.prefix}/state"
+
+    @property
+    def events(self) -> str:
+        return f"{self.prefix}/events"
+
+    @property
+    def alive(self) -> str:
+        return f"{self.prefix}/alive"
+
+    @property
+    def status(self) -> str:
+        return f"{self.prefix}/status"
+
+    @property
+    def command(self) -> str:
+        return f"{self.prefix}/command"
+
+
+def split_endpoints(text: str, key: str) -> tuple[str, ...]:
+    """``"tcp/a:1, tcp/b:2"`` -> validated endpoints; ``key`` names the setting in errors."""
+    eps = tuple(e.strip() for e in text.split(",") if e.strip())
+    for e in eps:
+        check_endpoint(e, key)
+    return eps
+
+
+def check_endpoint(endpoint: str, key: str) -> None:
+    m = _ENDPOINT.match(endpoint)
+    if m is None:
+        raise ConfigError(f"{key} = {endpoint!r}: expected a Zenoh endpoint PROTOCOL/ADDRESS, "
+                          "e.g. tcp/127.0.0.1:7448")
+    if m["proto"] in _IP_PROTOCOLS:
+        host, sep, port = m["addr"].rpartition(":")
+        if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+            raise ConfigError(f"{key} = {endpoint!r}: expected {m['proto']}/HOST:PORT with a port in 0..65535")
+
+
+def is_loopback(endpoint: str) -> bool:
+    m = _ENDPOINT.match(endpoint)
+    if m is None:
+        return False
+    if m["proto"] in ("unixsock-stream", "unixpipe"):
+        return True
+    host = m["addr"].rpartition(":")[0]
+    return host in _LOOPBACK_HOSTS or host.startswith("127.")
+
+
+def free_loopback_port() -> int:
+    """A TCP port the kernel reports free on 127.0.0.1 (closed again: a tiny race, retried by callers)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@dataclass(frozen=True)
+class SessionSettings:
+    mode: str = "peer"  # "peer" or "client"
+    listen: tuple[str, ...] = ()
+    connect: tuple[str, ...] = ()
+    config_file: str = ""
+    on_listen_busy: str = "fail"  # "free_port": replace busy loopback TCP listen ports by free ones
+    connect_retry_ms: tuple[int, int] = (200, 1000)  # first and longest retry period of connect endpoints
+    connect_timeout_ms: int = -1  # per-attempt timeout at open; -1: do not wait (peers keep retrying)
+
+
+def build_zenoh_config(settings: SessionSettings) -> zenoh.Config:
+    """The Zenoh configuration: the file (if any), then the loopback defaults for what it leaves unset."""
+    if settings.config_file:
+        try:
+            conf = zenoh.Config.from_file(settings.config_file)
+        except zenoh.ZError as err:
+            raise ConfigError(f"monitoring.config_file = {settings.config_file!r}: {err}") from err
+        default_listen = _get(zenoh.Config(), "listen/endpoints")
+        set_mode = _get(conf, "mode") is None
+        set_listen = _get(conf, "listen/endpoints") == default_listen
+        connect = [*(_get(conf, "connect/endpoints") or []), *settings.connect]
+    else:
+        conf = zenoh.Config()
+        set_mode = set_listen = True
+        connect = list(settings.connect)
+    if set_mode:
+        conf.insert_json5("mode", json.dumps(settings.mode))
+    if set_listen:
+        conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
+    conf.insert_json5("connect/endpoints", json.dumps(connect))
+    for key in ("scouting/multicast/enabled", "scouting/gossip/enabled"):
+        if _get(conf, key) is None:
+            conf.insert_json5(key, "false")
+    if _get(conf, "connect/retry") is None:
+        lo, hi = settings.connect_retry_ms
+        conf.insert_json5("connect/retry", json.dumps(
+            {"period_init_ms": lo, "period_max_ms": hi, "period_increase_factor": 2}))
+    if settings.mode == "peer" and _get(conf, "connect/timeout_ms") is None:
+        conf.insert_json5("connect/timeout_ms", json.dumps(settings.connect_timeout_ms))
+    if settings.mode == "peer" and _get(conf, "connect/exit_on_failure") is None:
+        conf.insert_json5("connect/exit_on_failure", "false")
+    return conf
+
+
+def _get(conf: zenoh.Config, key: str) -> object:
+    return json.loads(conf.get_json(key))  # get_json returns JSON text ("null" when unset)
+
+
+def _with_free_ports(listen: tuple[str, ...]) -> tuple[str, ...]:
+    out = []
+    for e in listen:
+        if e.startswith("tcp/") and is_loopback(e):
+            host = e[4:].rpartition(":")[0]
+            e = f"tcp/{host}:{free_loopback_port()}"
+        out.append(e)
+    return tuple(out)
+
+
+def open_session(settings: SessionSettings) -> tuple[zenoh.Session, tuple[str, ...]]:
+    """Open a session; returns it and the endpoints it listens on.
+
+    With ``on_listen_busy="free_port"`` a loopback TCP listen port already in use (another
+    controller on this machine, a concurrent test run) is replaced by a free one, with a warning.
+    """
+    try:
+        return zenoh.open(build_zenoh_config(settings)), settings.listen
+    except zenoh.ZError as err:
+        busy = "Address already in use" in str(err)
+        if not (busy and settings.on_listen_busy == "free_port"):
+            raise MonitoringConnectionError(_describe(settings, err)) from err
+    for _ in range(3):
+        listen = _with_free_ports(settings.listen)
+        try:
+            session = zenoh.open(build_zenoh_config(replace(settings, listen=listen)))
+        except zenoh.ZError as err:
+            if "Address already in use" in str(err):
+                continue
+            raise MonitoringConnectionError(_describe(settings, err)) from err
+        log.warning("monitoring: %s is in use; listening on %s instead", ", ".join(settings.listen),
+                    ", ".join(listen))
+        return session, listen
+    raise MonitoringConnectionError(f"cannot listen on {', '.join(settings.listen)}: address in use")
+
+
+def _describe(settings: SessionSettings, err: Exception) -> str:
+    first = str(err).split(" at /", 1)[0]  # zenoh appends Rust source locations
+    where = ", ".join(f"{k} {', '.join(v)}" for k, v in (("listen", settings.listen), ("connect", settings.connect))
+                      if v) or "no endpoints"
+    hint = " (is the controller running, and listening there? see monitoring.listen)" \
+        if settings.mode == "client" and "connect" in first.lower() else ""
+    return f"cannot open a Zenoh session ({settings.mode}; {where}): {first.strip().rstrip('!')}{hint}"
+
+
+def client_settings(connect: tuple[str, ...] = (), config_file: str = "", timeout_s: float = 2.0) -> SessionSettings:
+    """Settings of ``cheope status``/``stop``: a client of the controller (or of a router)."""
+    return SessionSettings(mode="client", listen=(), connect=connect or (DEFAULT_CONNECT,),
+                           config_file=config_file, connect_timeout_ms=int(timeout_s * 1000))
+
+
+def monitor_settings(connect: tuple[str, ...] = (), config_file: str = "") -> SessionSettings:
+    """Settings of ``cheope monitor``: a peer that listens nowhere and keeps retrying its connect endpoints."""
+    return SessionSettings(mode="peer", listen=(), connect=connect or (DEFAULT_CONNECT,), config_file=config_file,
+                           connect_retry_ms=(200, 1000))

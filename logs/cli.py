@@ -1,0 +1,167 @@
+"""Bodies of ``cheope logs info|recover`` and ``cheope replay``; ``add_commands`` wires them in.
+
+Errors end as one line on stderr with exit code 2; ``--verify`` exits 1 on a divergence.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+LARGE_FILE_BYTES = 4 * 1024 * 1024  # a progress bar above this size (on a terminal)
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("logs", help="inspect and repair session recordings (MCAP)")
+    logs_sub = p.add_subparsers(dest="logs_command", required=True)
+    q = logs_sub.add_parser("info", help="duration, channels, message counts, metadata, damage")
+    q.add_argument("file")
+    q.add_argument("--json", action="store_true", help="print one JSON object")
+    q.set_defaults(func=cmd_logs_info)
+    q = logs_sub.add_parser("recover", help="write a complete, indexed file from a truncated or damaged one")
+    q.add_argument("file")
+    q.add_argument("-o", "--output", help="output file (default: FILE.recovered.mcap beside it)")
+    q.set_defaults(func=cmd_logs_recover)
+
+    p = sub.add_parser("replay", help="replay a recording: to Rerun, onto a CAN bus, or through the step (--verify)")
+    p.add_argument("file")
+    what = p.add_mutually_exclusive_group(required=True)
+    what.add_argument("--rerun", nargs="?", const="", metavar="OUT.rrd",
+                      help="convert to Rerun; without OUT spawn the viewer (or write FILE.rrd when none can start)")
+    what.add_argument("--bus", metavar="INTERFACE[:CHANNEL]", help="send the recorded frames with their timing")
+    what.add_argument("--verify", action="store_true",
+                      help="run the recorded inputs through the step and compare the outputs bit for bit")
+    p.add_argument("--speed", type=float, default=1.0, help="--bus: time scale (2 = twice as fast)")
+    p.add_argument("--udp-port", type=int, help="--bus: UDP port of the udp_multicast bus")
+    p.add_argument("--fd", action="store_true", help="--bus: open the bus for CAN FD")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="--verify: change the recorded configuration (does the change alter the outputs?)")
+    p.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    p.set_defaults(func=cmd_replay)
+
+
+def _fail(args: argparse.Namespace, err: Exception) -> int:
+    print(f"cheope {args.command}: error: {err}", file=sys.stderr)
+    return 2
+
+
+@contextmanager
+def _progress(path: Path, label: str) -> Iterator[Callable[[int], None] | None]:
+    """A rich progress bar over the file's bytes, for large files on a terminal; else nothing."""
+    try:
+        size = path.stat().st_size
+    except OSError:
+        size = 0
+    if size < LARGE_FILE_BYTES or not sys.stderr.isatty():
+        yield None
+        return
+    from rich.console import Console
+    from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TimeRemainingColumn
+
+    with Progress(TextColumn(label), BarColumn(), DownloadColumn(), TimeRemainingColumn(),
+                  console=Console(stderr=True), transient=True) as bar:
+        task = bar.add_task(label, total=size)
+        yield lambda done: bar.update(task, completed=done)
+
+
+def cmd_logs_info(args: argparse.Namespace) -> int:
+    from logs.reader import LogFileError, format_info, info_dict, read_info
+
+    try:
+        report = read_info(args.file)
+    except LogFileError as err:
+        return _fail(args, err)
+    print(json.dumps(info_dict(report)) if args.json else format_info(report))
+    return 0
+
+
+def cmd_logs_recover(args: argparse.Namespace) -> int:
+    from logs.reader import LogFileError
+    from logs.recovery import recover
+
+    try:
+        r = recover(args.file, args.output)
+    except LogFileError as err:
+        return _fail(args, err)
+    lost = "; ".join(r.report.problems) or "nothing was damaged"
+    print(f"recovered {r.messages_saved} messages from {r.report.chunks} chunk(s) into {r.output} ({lost})")
+    return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from logs.reader import LogFileError
+
+    try:
+        if args.verify:
+            return _verify(args)
+        if args.bus is not None:
+            return _bus(args)
+        return _rerun(args)
+    except LogFileError as err:
+        return _fail(args, err)
+
+
+def _verify(args: argparse.Namespace) -> int:
+    from controller.config import parse_override
+    from logs.replay_verify import verify
+
+    overrides = dict(parse_override(s) for s in args.set)
+    path = Path(args.file)
+    with _progress(path, "verifying") as progress:
+        result = verify(path, overrides, progress)
+    if args.json:
+        d = result.divergence
+        print(json.dumps({"ok": result.ok, "cycles_checked": result.cycles_checked, "problems": result.problems,
+                          "divergence": None if d is None else {"cycle": d.cycle, "t_s": d.t_s, "field": d.field,
+                                                                "recorded": d.recorded, "recomputed": d.recomputed}}))
+    else:
+        print(result.summary())
+    return 0 if result.ok else 1
+
+
+def _bus(args: argparse.Namespace) -> int:
+    import threading
+
+    from controller.cli import _stop_on_signals
+    from drivers.bus import DEFAULT_UDP_PORT, parse_bus_spec
+    from logs.replay_bus import replay_to_bus
+
+    spec = parse_bus_spec(args.bus, fd=args.fd, udp_port=args.udp_port or DEFAULT_UDP_PORT)
+    stop: threading.Event = _stop_on_signals()
+    path = Path(args.file)
+    with _progress(path, "replaying") as progress:
+        r = replay_to_bus(path, spec, args.speed, stop, progress)
+    problems = "; ".join(r.report.problems)
+    if args.json:
+        print(json.dumps({"frames_sent": r.frames_sent, "echoes_skipped": r.echoes_skipped,
+                          "send_errors": r.send_errors, "duration_s": r.duration_s, "problems": r.report.problems}))
+    else:
+        print(f"sent {r.frames_sent} frames onto {spec} in {r.duration_s:.2f} s (speed {args.speed:g}; "
+              f"{r.echoes_skipped} echoes of the controller's own frames skipped, {r.send_errors} send errors)"
+              + (f"; {problems}" if problems else ""))
+    return 0
+
+
+def _rerun(args: argparse.Namespace) -> int:
+    from logs.rerun_export import export
+
+    path = Path(args.file)
+    out = args.rerun or None
+    with _progress(path, "converting") as progress:
+        r = export(path, out, spawn=out is None, progress=progress)
+    problems = "; ".join(r.report.problems)
+    if r.spawned:
+        text = f"sent {r.cycles} cycles to a new Rerun viewer"
+    else:
+        text = f"wrote {r.output} ({r.cycles} cycles)" + (f"; no viewer: {r.note}; open it with: rerun {r.output}"
+                                                           if r.note else "")
+    if args.json:
+        print(json.dumps({"output": str(r.output) if r.output else None, "spawned": r.spawned, "cycles": r.cycles,
+                          "entities": list(r.entities), "note": r.note, "problems": r.report.problems}))
+    else:
+        print(text + (f" (input: {problems})" if problems else ""))
+    return 0

@@ -1,0 +1,178 @@
+"""Topics of a session recording and the conversions between the step's dataclasses and Protobuf.
+
+The recording's channels (all Protobuf, schemas embedded):
+
+| topic | schema | what |
+| --- | --- | --- |
+| ``/can`` | ``cheope.v1.CanFrame`` | every frame in and out, with its send/receive time |
+| ``/cycle`` | ``cheope.v1.Cycle`` | per cycle: the step's inputs, outputs, state sample and timing |
+| ``/events`` | ``cheope.v1.Event`` | the step's events, and the recorder's own drop reports |
+| ``/log`` | ``foxglove.Log`` | the same events as log lines, for viewers |
+| ``/tcp`` | ``foxglove.FrameTransform`` | ``base`` -> ``tcp``: the measured TCP (direct kinematics) |
+| ``/tcp_reference`` | ``foxglove.PoseInFrame`` | the path point the last setpoint aims at, in ``base`` |
+
+MCAP ``log_time``/``publish_time`` are Unix nanoseconds: the controller's monotonic reading
+plus the offset between the wall clock and the monotonic clock taken when the recording
+started (``cheope.session`` metadata, ``clock_offset_ns``). The ``/cycle`` messages carry the
+on_cycle call index as their MCAP ``sequence``: a gap in it is a cycle the recorder dropped,
+not one the loop skipped (skipped cycles show as gaps in ``Cycle.cycle`` only).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import struct
+from collections.abc import Callable
+
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.Log_pb2 import Log
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+
+from controller.cycle_data import (
+    CycleInputs,
+    CycleOutputs,
+    DriveFeedback,
+    EmcyReport,
+    Event,
+    SensorFeedback,
+    Severity,
+)
+from controller.messages import cheope_pb2 as pb
+
+TOPIC_CAN = "/can"
+TOPIC_CYCLE = "/cycle"
+TOPIC_EVENTS = "/events"
+TOPIC_LOG = "/log"
+TOPIC_TCP = "/tcp"
+TOPIC_TCP_REFERENCE = "/tcp_reference"
+
+BASE_FRAME = "base"
+TCP_FRAME = "tcp"
+
+META_CONFIG = "cheope.config"  # {"json": config_to_dict(cfg) as JSON}
+META_GEOMETRY = "cheope.geometry"  # {"robot_kind", "json": the [robot] section as JSON}
+META_VERSIONS = "cheope.versions"  # {"package": "version", ...}
+META_SESSION = "cheope.session"  # {"started_utc", "clock_offset_ns", "period_s", ...}
+META_RECORDING = "cheope.recording"  # written at close: {"dropped", "written", "complete"}
+
+_DOUBLE = struct.Struct("<d")
+_LOG_LEVEL = {Severity.INFO: Log.Level.INFO, Severity.WARNING: Log.Level.WARNING, Severity.FAULT: Log.Level.ERROR}
+
+
+def _set_time(stamp, unix_ns: int) -> None:
+    stamp.seconds, stamp.nanos = divmod(unix_ns, 1_000_000_000)
+
+
+def can_frame(monotonic_s: float, outgoing: bool, arbitration_id: int, data: bytes, is_fd: bool,
+              bitrate_switch: bool, is_error_frame: bool) -> pb.CanFrame:
+    return pb.CanFrame(monotonic_s=monotonic_s, outgoing=outgoing, arbitration_id=arbitration_id, data=data,
+                       is_fd=is_fd, bitrate_switch=bitrate_switch, is_error_frame=is_error_frame)
+
+
+def inputs_to_pb(inputs: CycleInputs, out: pb.CycleInputs) -> None:
+    for d in inputs.drives:
+        out.drives.add(statusword=d.statusword, position=d.position, fresh=d.fresh)
+    s = inputs.sensor
+    if s is not None:
+        out.sensor.force_n.extend(s.force_n)
+        out.sensor.torque_nm.extend(s.torque_nm)
+        out.sensor.status, out.sensor.counter, out.sensor.fresh = s.status, s.counter, s.fresh
+    for e in inputs.emcy:
+        out.emcy.add(node_id=e.node_id, error_code=e.error_code, error_register=e.error_register)
+    out.stop_requested = inputs.stop_requested
+    out.command = inputs.command
+    out.command_value = inputs.command_value
+
+
+def inputs_from_pb(msg: pb.CycleInputs) -> CycleInputs:
+    """The exact ``CycleInputs`` the step received (doubles round-trip bit for bit)."""
+    sensor = None
+    if msg.HasField("sensor"):
+        s = msg.sensor
+        sensor = SensorFeedback(tuple(s.force_n), tuple(s.torque_nm), s.status, s.counter, s.fresh)  # type: ignore[arg-type]
+    return CycleInputs(
+        drives=tuple(DriveFeedback(d.statusword, d.position, d.fresh) for d in msg.drives),
+        sensor=sensor,
+        emcy=tuple(EmcyReport(e.node_id, e.error_code, e.error_register) for e in msg.emcy),
+        stop_requested=msg.stop_requested, command=msg.command, command_value=msg.command_value,
+    )
+
+
+def outputs_from_pb(msg: pb.CycleOutputs) -> CycleOutputs:
+    return CycleOutputs(controlwords=tuple(msg.controlwords), targets=tuple(msg.targets))
+
+
+def task_values(task_state: object) -> dict[str, float]:
+    """The scalar fields of a task state dataclass (numbers, and numeric tuples of up to 4 as name.i)."""
+    if task_state is None or not dataclasses.is_dataclass(task_state):
+        return {}
+    out: dict[str, float] = {}
+    for f in dataclasses.fields(task_state):
+        v = getattr(task_state, f.name)
+        if isinstance(v, (int, float)):
+            out[f.name] = float(v)
+        elif isinstance(v, tuple) and 0 < len(v) <= 4 and all(isinstance(x, (int, float)) for x in v):
+            for i, x in enumerate(v):
+                out[f"{f.name}.{i}"] = float(x)
+    return out
+
+
+def cycle_to_pb(cycle: int, t: float, inputs: CycleInputs, state, outputs: CycleOutputs, timing,
+                phase_name: Callable[[object], str] | None = None) -> pb.Cycle:
+    msg = pb.Cycle(cycle=cycle, t_s=t)
+    inputs_to_pb(inputs, msg.inputs)
+    msg.outputs.controlwords.extend(outputs.controlwords)
+    msg.outputs.targets.extend(outputs.targets)
+    st = msg.state
+    st.mode = state.mode.name
+    st.setpoint_position.extend(state.setpoint.position)
+    st.setpoint_velocity.extend(state.setpoint.velocity)
+    st.setpoint_acceleration.extend(state.setpoint.acceleration)
+    if state.tcp_reference_m is not None:
+        st.tcp_reference_m.extend(state.tcp_reference_m)
+    if state.tcp_measured_m is not None:
+        st.tcp_measured_m.extend(state.tcp_measured_m)
+    st.fault_reason = state.fault_reason
+    if state.task_state is not None:
+        if phase_name is not None:
+            try:
+                st.task_phase = phase_name(state.task_state)
+            except Exception:  # noqa: BLE001 - a task's display helper must never stop the recording
+                st.task_phase = "?"
+        for k, v in task_values(state.task_state).items():
+            st.task_values[k] = v
+    msg.timing.wake_error_s = timing.wake_error_s
+    msg.timing.step_s = timing.step_s
+    return msg
+
+
+def event_to_pb(cycle: int, t: float, event: Event) -> pb.Event:
+    return pb.Event(cycle=cycle, t_s=t, kind=event.kind, severity=int(event.severity), message=event.message)
+
+
+def event_to_log(unix_ns: int, event: Event) -> Log:
+    msg = Log(level=_LOG_LEVEL.get(event.severity, Log.Level.UNKNOWN), message=event.message,
+              name=f"cheope.{event.kind}")
+    _set_time(msg.timestamp, unix_ns)
+    return msg
+
+
+def tcp_transform(unix_ns: int, tcp_m: tuple[float, float, float]) -> FrameTransform:
+    msg = FrameTransform(parent_frame_id=BASE_FRAME, child_frame_id=TCP_FRAME)
+    _set_time(msg.timestamp, unix_ns)
+    msg.translation.x, msg.translation.y, msg.translation.z = tcp_m
+    msg.rotation.w = 1.0  # the platform of a translational robot does not rotate
+    return msg
+
+
+def tcp_pose(unix_ns: int, tcp_m: tuple[float, float, float]) -> PoseInFrame:
+    msg = PoseInFrame(frame_id=BASE_FRAME)
+    _set_time(msg.timestamp, unix_ns)
+    msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = tcp_m
+    msg.pose.orientation.w = 1.0
+    return msg
+
+
+def same_double(a: float, b: float) -> bool:
+    """Bit-for-bit equality of two doubles (so -0.0 != 0.0 and a NaN equals only the same NaN)."""
+    return _DOUBLE.pack(a) == _DOUBLE.pack(b)

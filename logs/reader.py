@@ -1,0 +1,326 @@
+"""Reading a session recording, whole, truncated or damaged, without ever raising mid-way.
+
+``iter_messages`` walks the file record by record (it does not trust the summary at the end,
+which a killed controller never wrote). Every record's length is known before its body is
+parsed, so a damaged chunk (bad compression, CRC mismatch) is skipped and counted, and the
+walk goes on with the next record. A damaged record header (an impossible length or opcode)
+makes the walk search forward for the next chunk that decodes and passes its CRC. A file
+that simply stops (SIGKILL, full disk) ends the walk at the last complete record. Whatever
+happened is in the ``ReadReport``: never a traceback.
+
+Only a file that is not MCAP at all (or cannot be opened) raises ``LogFileError``.
+"""
+
+from __future__ import annotations
+
+import io
+import mmap
+import os
+import struct
+from collections import Counter
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
+from mcap.records import (
+    Channel,
+    Chunk,
+    DataEnd,
+    Footer,
+    Header,
+    Message,
+    Metadata,
+    Schema,
+)
+from mcap.stream_reader import breakup_chunk
+
+from controller.messages import cheope_pb2 as pb
+from logs import messages as m
+
+MAGIC = b"\x89MCAP0\r\n"
+_HEAD = struct.Struct("<BQ")
+_KNOWN_OPCODES = {int(o) for o in Opcode}
+
+# Our own topics decode with the generated classes (fast, no descriptor pool).
+_CLASSES: dict[str, Any] = {
+    "cheope.v1.CanFrame": pb.CanFrame, "cheope.v1.Cycle": pb.Cycle, "cheope.v1.Event": pb.Event,
+    "foxglove.Log": m.Log, "foxglove.FrameTransform": m.FrameTransform, "foxglove.PoseInFrame": m.PoseInFrame,
+}
+
+
+class LogFileError(ValueError):
+    """The file cannot be read as an MCAP recording at all (missing, unreadable, not MCAP)."""
+
+
+@dataclass
+class ReadReport:
+    """What a walk through a recording found; filled in while iterating."""
+
+    path: Path
+    size_bytes: int = 0
+    profile: str = ""
+    library: str = ""
+    complete: bool = False  # the footer was reached: the recorder finished the file
+    chunks: int = 0  # chunks read intact
+    damaged_chunks: int = 0  # chunks skipped (bad compression or CRC)
+    skipped_bytes: int = 0  # bytes passed over while searching for the next chunk after damage
+    end_offset: int = 0  # where the last intact record ended
+    problems: list[str] = field(default_factory=list)
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    message_counts: Counter = field(default_factory=Counter)  # by topic
+    orphan_messages: int = 0  # messages whose channel record was lost
+    first_log_time_ns: int | None = None
+    last_log_time_ns: int | None = None
+
+    @property
+    def messages(self) -> int:
+        return sum(self.message_counts.values())
+
+    @property
+    def duration_s(self) -> float:
+        if self.first_log_time_ns is None or self.last_log_time_ns is None:
+            return 0.0
+        return (self.last_log_time_ns - self.first_log_time_ns) * 1e-9
+
+    @property
+    def damaged(self) -> bool:
+        return bool(self.problems)
+
+    def status(self) -> str:
+        if not self.problems:
+            return "complete"
+        return "; ".join(self.problems)
+
+
+def _parse(opcode: int, body: bytes) -> Any:
+    s = ReadDataStream(io.BytesIO(body))
+    if opcode == Opcode.CHUNK:
+        return Chunk.read(s)
+    if opcode == Opcode.MESSAGE:
+        return Message.read(s, len(body))
+    if opcode == Opcode.CHANNEL:
+        return Channel.read(s)
+    if opcode == Opcode.SCHEMA:
+        return Schema.read(s)
+    if opcode == Opcode.METADATA:
+        return Metadata.read(s)
+    if opcode == Opcode.HEADER:
+        return Header.read(s)
+    if opcode == Opcode.FOOTER:
+        return Footer.read(s)
+    if opcode == Opcode.DATA_END:
+        return DataEnd.read(s)
+    return None  # indexes, statistics, attachments: rebuilt or not needed
+
+
+def _chunk_records(chunk: Chunk) -> list[Any]:
+    if len(chunk.data) == 0 and chunk.uncompressed_size:
+        raise ValueError("empty chunk data")
+    return breakup_chunk(chunk, validate_crc=True)
+
+
+def _resync(raw: bytes | mmap.mmap, start: int) -> int | None:
+    """The offset of the next chunk record at or after ``start`` that parses and passes its CRC."""
+    n = len(raw)
+    pos = raw.find(b"\x06", start)
+    while 0 <= pos and pos + 9 <= n:
+        _, length = _HEAD.unpack_from(raw, pos)
+        if 0 < length <= n - pos - 9:
+            try:
+                _chunk_records(_parse(Opcode.CHUNK, raw[pos + 9: pos + 9 + length]))
+                return pos
+            except Exception:  # noqa: BLE001 - any failure means "not a chunk here"
+                pass
+        pos = raw.find(b"\x06", pos + 1)
+    return None
+
+
+def iter_messages(path: str | Path, report: ReadReport | None = None) -> Iterator[tuple[Channel, Message]]:
+    """Yield ``(channel, message)`` in file order from every intact part of the file."""
+    report = report if report is not None else ReadReport(Path(path))
+    p = Path(path)
+    try:
+        with open(p, "rb") as fh:
+            size = os.fstat(fh.fileno()).st_size
+            raw = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) if size else b""
+    except OSError as err:
+        raise LogFileError(f"cannot read {p}: {err.strerror or err}") from err
+    report.size_bytes = len(raw)
+    if raw[:8] != MAGIC:
+        if isinstance(raw, mmap.mmap):
+            raw.close()
+        raise LogFileError(f"{p} is not an MCAP file (it does not start with the MCAP magic bytes)")
+    try:
+        yield from _walk(raw, report)
+    finally:
+        if isinstance(raw, mmap.mmap):
+            raw.close()
+
+
+def _walk(raw: bytes | mmap.mmap, report: ReadReport) -> Iterator[tuple[Channel, Message]]:
+    pos = 8
+    report.end_offset = pos
+    n = len(raw)
+
+    def emit(records: Iterable[Any]) -> Iterator[tuple[Channel, Message]]:
+        for r in records:
+            if isinstance(r, Message):
+                ch = report.channels.get(r.channel_id)
+                if ch is None:
+                    report.orphan_messages += 1
+                    continue
+                report.message_counts[ch.topic] += 1
+                if report.first_log_time_ns is None or r.log_time < report.first_log_time_ns:
+                    report.first_log_time_ns = r.log_time
+                if report.last_log_time_ns is None or r.log_time > report.last_log_time_ns:
+                    report.last_log_time_ns = r.log_time
+                yield ch, r
+            elif isinstance(r, Channel):
+                report.channels[r.id] = r
+            elif isinstance(r, Schema):
+                report.schemas[r.id] = r
+
+    while pos < n:
+        if pos + 9 > n:
+            report.problems.append(f"truncated: {n - pos} stray byte(s) at offset {pos} after the last record")
+            break
+        opcode, length = _HEAD.unpack_from(raw, pos)
+        if opcode not in _KNOWN_OPCODES or length > n - pos - 9:
+            nxt = _resync(raw, pos + 1)
+            if nxt is None:
+                if opcode in _KNOWN_OPCODES:
+                    report.problems.append(f"truncated: the {Opcode(opcode).name} record at offset {pos} needs "
+                                           f"{length} bytes, the file has {n - pos - 9} after its header")
+                else:
+                    report.problems.append(f"damaged record header at offset {pos}; nothing readable after it")
+                break
+            report.problems.append(f"damaged record header at offset {pos}; resumed at offset {nxt}")
+            report.skipped_bytes += nxt - pos
+            pos = nxt
+            continue
+        body = raw[pos + 9: pos + 9 + length]
+        start, pos = pos, pos + 9 + length
+        try:
+            record = _parse(opcode, body)
+        except Exception as err:  # noqa: BLE001 - damaged input: report it, go on with the next record
+            report.problems.append(f"damaged {Opcode(opcode).name} record at offset {start}: {err or type(err).__name__}")
+            continue
+        if isinstance(record, Chunk):
+            try:
+                records = _chunk_records(record)
+            except Exception as err:  # noqa: BLE001
+                report.damaged_chunks += 1
+                report.problems.append(f"damaged chunk at offset {start} skipped: {err or type(err).__name__}")
+                continue
+            report.chunks += 1
+            report.end_offset = pos
+            yield from emit(records)
+            continue
+        report.end_offset = pos
+        if isinstance(record, Header):
+            report.profile, report.library = record.profile, record.library
+        elif isinstance(record, Metadata):
+            report.metadata[record.name] = dict(record.metadata)
+        elif isinstance(record, (Message, Channel, Schema)):
+            yield from emit([record])
+        elif isinstance(record, Footer):
+            report.complete = True
+            if raw[pos:pos + 8] != MAGIC:
+                report.problems.append("the footer is not followed by the closing magic bytes")
+            break
+    if not report.complete and not any(p.startswith("truncated") for p in report.problems):
+        report.problems.append(f"truncated: the file ends at byte {n} without its summary and footer")
+    if report.orphan_messages:
+        report.problems.append(f"{report.orphan_messages} message(s) whose channel definition was lost")
+
+
+def decoder_for(schema: Schema | None) -> Callable[[bytes], Any] | None:
+    if schema is None or schema.encoding != "protobuf":
+        return None
+    cls = _CLASSES.get(schema.name)
+    if cls is not None:
+        return cls.FromString
+    from mcap_protobuf.decoder import DecoderFactory
+
+    try:
+        return DecoderFactory().decoder_for("protobuf", schema)
+    except Exception:  # noqa: BLE001 - an unknown or broken schema: the channel stays raw
+        return None
+
+
+@dataclass(frozen=True)
+class Decoded:
+    topic: str
+    log_time_ns: int
+    sequence: int
+    message: Any
+
+
+def iter_decoded(path: str | Path, topics: Iterable[str] | None = None, report: ReadReport | None = None
+                 ) -> Iterator[Decoded]:
+    """Decoded Protobuf messages of ``topics`` (all when None); undecodable ones are counted as problems."""
+    report = report if report is not None else ReadReport(Path(path))
+    wanted = set(topics) if topics is not None else None
+    decoders: dict[int, Callable[[bytes], Any] | None] = {}
+    bad = Counter()
+    for ch, msg in iter_messages(path, report):
+        if wanted is not None and ch.topic not in wanted:
+            continue
+        if ch.id not in decoders:
+            decoders[ch.id] = decoder_for(report.schemas.get(ch.schema_id))
+        dec = decoders[ch.id]
+        if dec is None:
+            bad[ch.topic] += 1
+            continue
+        try:
+            value = dec(msg.data)
+        except Exception:  # noqa: BLE001 - a damaged message inside an intact chunk: count, go on
+            bad[ch.topic] += 1
+            continue
+        yield Decoded(ch.topic, msg.log_time, msg.sequence, value)
+    for topic, k in bad.items():
+        report.problems.append(f"{k} message(s) on {topic} could not be decoded")
+
+
+def read_info(path: str | Path) -> ReadReport:
+    """Walk the whole file: channels, counts, metadata, duration, damage."""
+    report = ReadReport(Path(path))
+    for _ in iter_messages(path, report):
+        pass
+    return report
+
+
+def format_info(r: ReadReport) -> str:
+    lines = [
+        f"file       {r.path} ({r.size_bytes} bytes)",
+        f"status     {r.status()}",
+        f"duration   {r.duration_s:.3f} s, {r.messages} messages, {r.chunks} chunks"
+        + (f", {r.damaged_chunks} damaged" if r.damaged_chunks else ""),
+        "channels",
+    ]
+    for ch in sorted(r.channels.values(), key=lambda c: c.id):
+        schema = r.schemas.get(ch.schema_id)
+        lines.append(f"  {ch.topic:<16} {r.message_counts.get(ch.topic, 0):>9}  "
+                     f"{schema.name if schema else '(no schema)'} [{ch.message_encoding}]")
+    lines.append("metadata")
+    for name, data in r.metadata.items():
+        for k, v in data.items():
+            text = v if len(v) <= 100 else v[:97] + "..."
+            lines.append(f"  {name}.{k} = {text}")
+    return "\n".join(lines)
+
+
+def info_dict(r: ReadReport) -> dict[str, Any]:
+    return {
+        "path": str(r.path), "size_bytes": r.size_bytes, "complete": r.complete, "problems": list(r.problems),
+        "duration_s": r.duration_s, "messages": r.messages, "chunks": r.chunks, "damaged_chunks": r.damaged_chunks,
+        "channels": {ch.topic: {"count": r.message_counts.get(ch.topic, 0),
+                                "schema": r.schemas[ch.schema_id].name if ch.schema_id in r.schemas else None,
+                                "encoding": ch.message_encoding} for ch in r.channels.values()},
+        "metadata": r.metadata,
+    }

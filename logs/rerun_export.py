@@ -1,0 +1,300 @@
+"""``cheope replay FILE --rerun [OUT.rrd]``: a session as a Rerun recording with a ready layout.
+
+One streaming pass over the MCAP file gathers the per-cycle signals into arrays, which are
+then sent with ``send_columns`` (one Arrow chunk per entity, not one log call per cycle), on
+two timelines: ``time`` (the cycle's nominal time ``t`` [s], a duration) and ``cycle``.
+
+Entities:
+- ``/world``: the robot in the base frame {0} (Z up, metres): ``axes`` (the prismatic axes
+  over the stroke, static), ``sliders`` (q_j n_j), ``rods`` (slider to platform joint
+  s + a_j), ``platform`` (the triangle of joints), ``tcp`` (measured, direct kinematics),
+  ``tcp_trail`` (the whole measured TCP path, static), ``reference_path`` (the path points
+  the setpoints aimed at, static), ``force`` (the sensor's force as an arrow at the TCP,
+  ``FORCE_ARROW_M_PER_N`` metres per newton), ``workpiece`` (the simulated disk's rim and
+  the expected contour, when the task is the contour task);
+- ``/plots``: ``actuators/target_j`` and ``actuators/position_j`` [m], ``force/fx|fy|fz`` [N],
+  ``normal_force_error`` [N] (the contour task's F_d - F_n, from the recorded task values),
+  ``loop/period_ms`` (between consecutive cycles on the controller's clock),
+  ``loop/wake_error_us``, ``loop/step_us``;
+- ``/events``: the step's events as log lines.
+
+The blueprint puts the 3D view and the event log on the left and the time series on the
+right. The geometry comes from the recorded configuration (``cheope.config`` metadata).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from logs import messages as m
+from logs.reader import LogFileError, ReadReport, iter_decoded, read_info
+
+FORCE_ARROW_M_PER_N = 0.002
+APP_ID = "cheope_replay"
+
+
+@dataclass
+class _Series:
+    t: list[float] = field(default_factory=list)
+    cycle: list[int] = field(default_factory=list)
+    log_ns: list[int] = field(default_factory=list)
+    targets: list[tuple[float, ...]] = field(default_factory=list)
+    positions: list[tuple[float, ...]] = field(default_factory=list)
+    tcp: list[tuple[float, float, float]] = field(default_factory=list)  # NaN when unknown
+    ref: list[tuple[float, float, float]] = field(default_factory=list)
+    force: list[tuple[float, float, float]] = field(default_factory=list)
+    force_error: list[float] = field(default_factory=list)
+    wake_us: list[float] = field(default_factory=list)
+    step_us: list[float] = field(default_factory=list)
+    events: list[tuple[float, int, int, str]] = field(default_factory=list)  # t, cycle, severity, text
+
+
+@dataclass(frozen=True)
+class ExportResult:
+    output: Path | None  # the .rrd written, or None when streamed to a spawned viewer
+    spawned: bool
+    cycles: int
+    entities: tuple[str, ...]
+    report: ReadReport
+    note: str = ""  # why no viewer was spawned, when one was asked for
+
+
+_NAN3 = (math.nan, math.nan, math.nan)
+
+
+def _gather(path: Path, report: ReadReport, progress: Callable[[int], None] | None) -> _Series:
+    s = _Series()
+    k = 0
+    for d in iter_decoded(path, (m.TOPIC_CYCLE, m.TOPIC_EVENTS), report):
+        if d.topic == m.TOPIC_EVENTS:
+            e = d.message
+            s.events.append((e.t_s, e.cycle, int(e.severity), f"[{e.kind}] {e.message}"))
+            continue
+        c = d.message
+        s.t.append(c.t_s)
+        s.cycle.append(c.cycle)
+        s.log_ns.append(d.log_time_ns)
+        s.targets.append(tuple(c.outputs.targets))
+        s.positions.append(tuple(x.position for x in c.inputs.drives))
+        st = c.state
+        s.tcp.append(tuple(st.tcp_measured_m) if len(st.tcp_measured_m) == 3 else _NAN3)
+        s.ref.append(tuple(st.tcp_reference_m) if len(st.tcp_reference_m) == 3 else _NAN3)
+        s.force.append(tuple(c.inputs.sensor.force_n) if c.inputs.HasField("sensor") else _NAN3)
+        s.force_error.append(st.task_values.get("force_error_n", math.nan))
+        s.wake_us.append(c.timing.wake_error_s * 1e6)
+        s.step_us.append(c.timing.step_s * 1e6)
+        k += 1
+        if progress is not None and k % 2000 == 0:
+            progress(report.end_offset)
+    return s
+
+
+def _circle(cx: float, cy: float, z: float, r: float, n: int = 180) -> np.ndarray:
+    th = np.linspace(0.0, 2.0 * np.pi, n + 1)
+    return np.column_stack([cx + r * np.cos(th), cy + r * np.sin(th), np.full_like(th, z)])
+
+
+def blueprint(has_force: bool, has_force_error: bool) -> Any:
+    import rerun.blueprint as rrb
+
+    plots = [rrb.TimeSeriesView(origin="/plots/actuators", name="actuators: target vs position [m]")]
+    if has_force:
+        plots.append(rrb.TimeSeriesView(origin="/plots/force", name="force [N]"))
+    if has_force_error:
+        plots.append(rrb.TimeSeriesView(origin="/plots/normal_force_error", name="normal-force error [N]"))
+    plots.append(rrb.TimeSeriesView(origin="/plots/loop", name="loop timing"))
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(rrb.Spatial3DView(origin="/world", name="robot"),
+                         rrb.TextLogView(origin="/events", name="events"), row_shares=[3, 1]),
+            rrb.Vertical(*plots),
+            column_shares=[3, 2],
+        ),
+        collapse_panels=True,
+    )
+
+
+def can_spawn_viewer() -> tuple[bool, str]:
+    """Whether a viewer window can open here; the reason when not."""
+    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        return False, "no display (neither DISPLAY nor WAYLAND_DISPLAY is set)"
+    return True, ""
+
+
+def export(path: str | Path, out: str | Path | None = None, spawn: bool = False,
+           progress: Callable[[int], None] | None = None) -> ExportResult:
+    """Convert ``path`` to Rerun: into ``out`` (.rrd), or to a spawned viewer when ``spawn``.
+
+    With ``spawn`` and no display (or a viewer that fails to start), the recording goes to
+    ``out`` or, without one, to ``FILE.rrd`` beside the MCAP file; ``ExportResult.note`` says why.
+    """
+    import rerun as rr
+
+    path = Path(path)
+    report = ReadReport(path)
+    s = _gather(path, report, progress)
+    if m.META_CONFIG not in report.metadata:
+        report.metadata.update(read_info(path).metadata)
+    if not s.t:
+        raise LogFileError(f"{path} holds no readable control cycles ({report.status()})")
+    cfg = _config(report)
+    force = np.array(s.force, dtype=float)
+    has_force = bool(np.isfinite(force).any())
+    force_err = np.array(s.force_error, dtype=float)
+    has_force_error = bool(np.isfinite(force_err).any())
+    bp = blueprint(has_force, has_force_error)
+
+    rec = rr.RecordingStream(APP_ID, recording_id=f"{path.stem}")
+    spawned, note, output = False, "", None
+    if spawn:
+        ok, note = can_spawn_viewer()
+        if ok:
+            try:
+                rec.spawn(default_blueprint=bp)
+                spawned = True
+            except Exception as err:  # noqa: BLE001 - any failure to start the viewer: fall back to a file
+                note = f"the viewer did not start: {err}"
+    if not spawned:
+        output = Path(out) if out is not None else path.with_suffix(".rrd")
+        rec.save(output, default_blueprint=bp)
+    entities = _send(rec, s, cfg, force, force_err, has_force, has_force_error)
+    rec.flush()
+    rec.disconnect()
+    return ExportResult(output, spawned, len(s.t), tuple(entities), report, note)
+
+
+def _config(report: ReadReport) -> Any:
+    from controller.config import ConfigError, config_from_dict
+
+    meta = report.metadata.get(m.META_CONFIG)
+    if meta is None:
+        return None
+    try:
+        return config_from_dict(json.loads(meta["json"]))
+    except (ConfigError, ValueError, KeyError):
+        return None  # an older configuration: the plots still work, the 3D geometry is left out
+
+
+def _send(rec: Any, s: _Series, cfg: Any, force: np.ndarray, force_err: np.ndarray, has_force: bool,
+          has_force_error: bool) -> list[str]:
+    import rerun as rr
+
+    t = np.asarray(s.t, dtype=float)
+    cyc = np.asarray(s.cycle, dtype=np.int64)
+    entities: list[str] = []
+
+    def idx(mask: np.ndarray | None = None) -> list[Any]:
+        tt, cc = (t, cyc) if mask is None else (t[mask], cyc[mask])
+        return [rr.TimeColumn("time", duration=tt), rr.TimeColumn("cycle", sequence=cc)]
+
+    def scalars(entity: str, values: np.ndarray) -> None:
+        mask = np.isfinite(values)
+        if mask.any():
+            rec.send_columns(entity, indexes=idx(mask), columns=rr.Scalars.columns(scalars=values[mask]))
+            entities.append(entity)
+
+    targets = np.array(s.targets, dtype=float)
+    positions = np.array(s.positions, dtype=float)
+    for j in range(targets.shape[1]):
+        scalars(f"/plots/actuators/target_{j + 1}", targets[:, j])
+        scalars(f"/plots/actuators/position_{j + 1}", positions[:, j])
+    if has_force:
+        for j, name in enumerate(("fx", "fy", "fz")):
+            scalars(f"/plots/force/{name}", force[:, j])
+    if has_force_error:
+        scalars("/plots/normal_force_error", force_err)
+    log_ns = np.asarray(s.log_ns, dtype=np.int64)
+    if len(log_ns) > 1:
+        period = np.concatenate([[math.nan], np.diff(log_ns) * 1e-6])
+        scalars("/plots/loop/period_ms", period)
+    scalars("/plots/loop/wake_error_us", np.asarray(s.wake_us))
+    scalars("/plots/loop/step_us", np.asarray(s.step_us))
+
+    rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    tcp = np.array(s.tcp, dtype=float)
+    known = np.isfinite(tcp).all(axis=1)
+    if known.any():
+        rec.send_columns("/world/tcp", indexes=idx(known),
+                         columns=rr.Points3D.columns(positions=tcp[known], radii=np.full(int(known.sum()), 0.004)))
+        rec.log("/world/tcp_trail", rr.LineStrips3D([tcp[known]], radii=0.0008, colors=[[80, 160, 255]]),
+                static=True)
+        entities += ["/world/tcp", "/world/tcp_trail"]
+    ref = np.array(s.ref, dtype=float)
+    on_path = np.isfinite(ref).all(axis=1)
+    if on_path.any():
+        rec.log("/world/reference_path", rr.Points3D(ref[on_path][:: max(1, int(on_path.sum()) // 2000)],
+                                                     radii=0.0006, colors=[[255, 200, 0]]), static=True)
+        entities.append("/world/reference_path")
+    if has_force and known.any():
+        ok = known & np.isfinite(force).all(axis=1)
+        rec.send_columns("/world/force", indexes=idx(ok),
+                         columns=rr.Arrows3D.columns(origins=tcp[ok], vectors=force[ok] * FORCE_ARROW_M_PER_N))
+        entities.append("/world/force")
+    if cfg is not None and cfg.robot.kind == "cheope":
+        entities += _send_cheope(rec, cfg, idx, positions, tcp, known)
+    if s.events:
+        colors = {0: [200, 200, 200], 1: [255, 200, 0], 2: [255, 80, 80]}
+        levels = {0: "INFO", 1: "WARN", 2: "ERROR"}
+        for te, ce, sev, text in s.events:
+            rec.set_time("time", duration=te)
+            rec.set_time("cycle", sequence=ce)
+            rec.log("/events", rr.TextLog(text, level=levels.get(sev, "INFO"), color=colors.get(sev)))
+        rec.reset_time()
+        entities.append("/events")
+    return entities
+
+
+def _send_cheope(rec: Any, cfg: Any, idx: Callable[..., list[Any]], q: np.ndarray, tcp: np.ndarray,
+                 known: np.ndarray) -> list[str]:
+    import rerun as rr
+
+    from controller.robots.registry import cheope_from_config
+
+    robot = cheope_from_config(cfg)
+    g = robot.geometry
+    c = cfg.robot.cheope
+    axes, plat = np.asarray(g.axes), np.asarray(g.platform_vectors)
+    strips = [np.array([c.stroke_min_m * n, c.stroke_max_m * n]) for n in axes]
+    rec.log("/world/axes", rr.LineStrips3D(strips, radii=0.002, colors=[[150, 150, 150]],
+                                           labels=[f"axis {j + 1}" for j in range(len(axes))]), static=True)
+    rec.log("/world/base", rr.Points3D([[0.0, 0.0, 0.0]], radii=0.006, colors=[[120, 120, 120]], labels=["{0}"]),
+            static=True)
+    out = ["/world/axes", "/world/base"]
+    n_ax = len(axes)
+    ok = known & np.isfinite(q).all(axis=1)
+    rows = int(ok.sum())
+    if rows:
+        sliders = q[ok][:, :, None] * axes[None, :, :]  # rows x axes x 3
+        joints = tcp[ok][:, None, :] + plat[None, :, :]
+        rec.send_columns("/world/sliders", indexes=idx(ok),
+                         columns=rr.Points3D.columns(positions=sliders.reshape(-1, 3)).partition([n_ax] * rows))
+        rods = np.stack([sliders, joints], axis=2).reshape(-1, 2, 3)  # (rows*axes) strips of 2 points
+        rec.send_columns("/world/rods", indexes=idx(ok),
+                         columns=rr.LineStrips3D.columns(strips=list(rods)).partition([n_ax] * rows))
+        ring = np.concatenate([joints, joints[:, :1, :]], axis=1)  # closed polygon per row
+        rec.send_columns("/world/platform", indexes=idx(ok),
+                         columns=rr.LineStrips3D.columns(strips=list(ring)))
+        out += ["/world/sliders", "/world/rods", "/world/platform"]
+    env = cfg.sim.environment
+    if env == "disk" or (env == "auto" and cfg.task.kind == "contour"):
+        d = cfg.sim.disk
+        rec.log("/world/workpiece/rim", rr.LineStrips3D([_circle(d.centre_m[0], d.centre_m[1], d.height_m,
+                                                                 d.radius_m)], radii=0.001, colors=[[200, 120, 60]]),
+                static=True)
+        out.append("/world/workpiece/rim")
+    if cfg.task.kind == "contour":
+        e = cfg.task.contour
+        rec.log("/world/workpiece/expected", rr.LineStrips3D(
+            [_circle(e.expected_centre_m[0], e.expected_centre_m[1], e.height_m, e.expected_radius_m)],
+            radii=0.0004, colors=[[120, 200, 120]]), static=True)
+        out.append("/world/workpiece/expected")
+    return out

@@ -1,0 +1,307 @@
+"""Session recording (logs/recorder.py), reading damaged files (logs/reader.py) and recovery."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import can
+import pytest
+
+from controller.cli import main
+from controller.config import config_from_dict, load_config
+from controller.control_law import Mode
+from controller.loop import CycleLoop, SimulatedTime
+from controller.service import build_law
+from logs import messages as m
+from logs.reader import LogFileError, iter_decoded, read_info
+from logs.recorder import SessionRecorder, open_session_file, session_metadata
+from logs.recovery import recover
+from sim_backend.loopback import LoopbackExchange
+
+REPO = Path(__file__).resolve().parent.parent
+SHORT = {"task.path.laps": 0.1, "task.path.ramp_s": 0.1}
+
+
+@dataclass
+class Trace:
+    rows: list = field(default_factory=list)
+
+    def on_cycle(self, cycle, t, inputs, state, outputs, events, timing):
+        self.rows.append((cycle, t, inputs, state, outputs, events))
+
+
+def record_session(path: Path, overrides=SHORT, max_s: float = 10.0, frames: bool = True, **kw):
+    """A deterministic simulated session; with ``frames`` a fake frame stream through the sink too."""
+    cfg = load_config(overrides=overrides)
+    clock = SimulatedTime()
+    law = build_law(cfg)
+    ex = LoopbackExchange(cfg, clock.clock)
+    trace = Trace()
+    sent: list[tuple[bool, float, int, bytes]] = []
+    with SessionRecorder(path, session_metadata(cfg), clock=clock.clock, phase_name=law.task.phase_name,
+                         **kw) as rec:
+        out_msg = can.Message(arbitration_id=0x201, data=bytearray(8), is_extended_id=False)
+
+        class Sink:  # rewrites one preallocated outgoing message, as drivers/cyclic_exchange.py does
+            def on_cycle(self, cycle, t, inputs, state, outputs, events, timing):
+                if not frames:
+                    return
+                out_msg.data[0:4] = cycle.to_bytes(4, "little")
+                rec.on_frame(True, clock.now_s, out_msg)
+                sent.append((True, clock.now_s, 0x201, bytes(out_msg.data)))
+                rx = can.Message(arbitration_id=0x181, data=bytes([cycle & 0xFF, 1, 2]), is_extended_id=False)
+                rec.on_frame(False, clock.now_s + 1e-4, rx)
+                sent.append((False, clock.now_s + 1e-4, 0x181, bytes(rx.data)))
+
+        loop = CycleLoop(law, ex, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
+                         observers=(trace, rec, Sink()))
+        final, stats = loop.run(law.initial_state(), max_s)
+    return cfg, final, stats, trace, sent, rec
+
+
+def test_round_trip_counts_and_contents_match(tmp_path):
+    path = tmp_path / "s.mcap"
+    cfg, final, stats, trace, sent, rec = record_session(path)
+    assert final.mode == Mode.DONE
+    assert rec.dropped == 0 and rec.error == ""
+    report = read_info(path)
+    assert report.complete and not report.problems
+    assert report.message_counts[m.TOPIC_CYCLE] == stats.cycles == len(trace.rows)
+    assert report.message_counts[m.TOPIC_CAN] == len(sent)
+    n_events = sum(len(r[5]) for r in trace.rows)
+    assert report.message_counts[m.TOPIC_EVENTS] == report.message_counts[m.TOPIC_LOG] == n_events == 5
+    assert report.message_counts[m.TOPIC_TCP] == sum(1 for r in trace.rows if r[3].tcp_measured_m is not None)
+
+    cycles = [d for d in iter_decoded(path, [m.TOPIC_CYCLE])]
+    for d, (cycle, t, inputs, state, outputs, _) in zip(cycles, trace.rows, strict=True):
+        c = d.message
+        assert (c.cycle, c.t_s) == (cycle, t)
+        assert m.inputs_from_pb(c.inputs) == inputs  # exact doubles
+        assert tuple(c.outputs.targets) == outputs.targets and tuple(c.outputs.controlwords) == outputs.controlwords
+        assert c.state.mode == state.mode.name
+        assert tuple(c.state.setpoint_velocity) == state.setpoint.velocity
+    assert [d.sequence for d in cycles] == list(range(len(cycles)))
+    frames = [(f.message.outgoing, f.message.monotonic_s, f.message.arbitration_id, f.message.data)
+              for f in iter_decoded(path, [m.TOPIC_CAN])]
+    assert frames == sent  # the preallocated outgoing message was copied, not referenced
+    events = [d.message for d in iter_decoded(path, [m.TOPIC_EVENTS])]
+    assert [e.message for e in events] == [e.message for r in trace.rows for e in r[5]]
+    # the configuration in the metadata rebuilds the same Config
+    assert config_from_dict(json.loads(report.metadata[m.META_CONFIG]["json"])) == cfg
+    assert report.metadata[m.META_VERSIONS]["mcap"]
+    assert report.metadata[m.META_RECORDING]["dropped"] == "0"
+    assert 0.1 < report.duration_s < 10.0
+
+
+def test_log_time_is_the_controller_clock_on_the_wall_clock(tmp_path):
+    path = tmp_path / "s.mcap"
+    record_session(path, max_s=0.3)
+    offset = int(read_info(path).metadata[m.META_SESSION]["clock_offset_ns"])
+    for d in iter_decoded(path, [m.TOPIC_CAN]):
+        assert d.log_time_ns == int(d.message.monotonic_s * 1e9) + offset
+    assert abs(offset - time.time_ns()) < 60e9  # simulated clock starts at 0: offset ~ now
+
+
+def test_a_full_queue_drops_counts_and_records_the_drop_without_blocking(tmp_path):
+    path = tmp_path / "d.mcap"
+    cfg = load_config()
+    rec = SessionRecorder(path, session_metadata(cfg), queue_size=16)
+    _, _, _, trace, _, _ = record_session(tmp_path / "ref.mcap", max_s=0.5, frames=False)
+    with rec:
+        t0 = time.perf_counter()
+        for _ in range(20):
+            for row in trace.rows:
+                rec.on_cycle(*row, timing=m.pb.CycleTiming())  # timing values are irrelevant here
+        elapsed = time.perf_counter() - t0
+    calls = 20 * len(trace.rows)
+    assert rec.dropped > 0 and rec.queued + rec.dropped == calls
+    assert elapsed / calls < 50e-6  # never waited for the writer
+    report = read_info(path)
+    assert report.metadata[m.META_RECORDING]["dropped"] == str(rec.dropped)
+    drops = [d.message for d in iter_decoded(path, [m.TOPIC_EVENTS]) if d.message.kind == "recorder_drop"]
+    assert drops and "dropped" in drops[0].message
+    totals = [int(e.message.split("(")[-1].split()[0]) for e in drops]
+    assert totals[-1] == rec.dropped
+
+
+_KILLED_WRITER = textwrap.dedent("""
+    import sys, time
+    sys.path.insert(0, {repo!r})
+    from controller.config import load_config
+    from controller.loop import CycleLoop, DeadlineSleeper
+    from controller.service import build_law
+    from sim_backend.loopback import LoopbackExchange
+    from logs.recorder import SessionRecorder, session_metadata
+    cfg = load_config(overrides={{"task.path.laps": 5.0}})
+    law = build_law(cfg)
+    ex = LoopbackExchange(cfg, time.monotonic)
+    rec = SessionRecorder({path!r}, session_metadata(cfg), chunk_size_bytes=8192, flush_interval_s=0.1)
+    rec.start()
+    loop = CycleLoop(law, ex, cfg.period_s, 0.6, DeadlineSleeper(3e-4), time.monotonic, observers=(rec,))
+    loop.run(law.initial_state(), 60.0)
+""")
+
+
+def test_sigkill_leaves_a_readable_file_and_recover_completes_it(tmp_path, capsys):
+    path = tmp_path / "killed.mcap"
+    proc = subprocess.Popen([sys.executable, "-c", _KILLED_WRITER.format(repo=str(REPO), path=str(path))])
+    try:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and (not path.exists() or path.stat().st_size < 60_000):
+            time.sleep(0.05)
+        assert path.exists() and path.stat().st_size >= 60_000, "the recorder wrote nothing in 30 s"
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    report = read_info(path)
+    assert not report.complete
+    assert any(p.startswith("truncated") for p in report.problems)
+    assert report.chunks >= 2 and report.message_counts[m.TOPIC_CYCLE] > 100
+    assert m.META_CONFIG in report.metadata  # written first, so it survives
+    result = recover(path)
+    assert result.output == tmp_path / "killed.recovered.mcap"
+    assert result.messages_saved == report.messages
+    fixed = read_info(result.output)
+    assert fixed.complete and not fixed.problems
+    assert fixed.message_counts == report.message_counts
+    assert fixed.metadata[m.META_CONFIG] == report.metadata[m.META_CONFIG]
+    # the mcap library's own indexed reader accepts the recovered file
+    from mcap.reader import make_reader
+
+    with open(result.output, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None and summary.statistics.message_count == result.messages_saved
+    # and the CLI says how many it saved
+    assert main(["logs", "recover", str(path), "-o", str(tmp_path / "cli.mcap")]) == 0
+    assert f"recovered {result.messages_saved} messages" in capsys.readouterr().out
+
+
+@pytest.fixture(scope="module")
+def session_bytes(tmp_path_factory) -> bytes:
+    path = tmp_path_factory.mktemp("s") / "s.mcap"
+    record_session(path, chunk_size_bytes=4096)
+    return path.read_bytes()
+
+
+@pytest.mark.parametrize("fraction", [0.0, 0.001, 0.3, 0.5, 0.77, 0.999])
+def test_a_truncated_file_reads_what_is_there_without_raising(tmp_path, session_bytes, fraction):
+    path = tmp_path / "t.mcap"
+    path.write_bytes(session_bytes[: 8 + int(fraction * (len(session_bytes) - 8))])
+    report = read_info(path)
+    assert not report.complete and report.problems
+    full = read_info_bytes(tmp_path, session_bytes)
+    assert report.messages <= full.messages
+    if fraction >= 0.5:
+        assert report.message_counts[m.TOPIC_CYCLE] > 0.3 * full.message_counts[m.TOPIC_CYCLE]
+
+
+def read_info_bytes(tmp_path: Path, data: bytes):
+    p = tmp_path / "full.mcap"
+    p.write_bytes(data)
+    return read_info(p)
+
+
+def test_a_corrupted_chunk_is_skipped_and_the_rest_is_read(tmp_path, session_bytes):
+    full = read_info_bytes(tmp_path, session_bytes)
+    data = bytearray(session_bytes)
+    mid = len(data) // 2
+    data[mid: mid + 64] = bytes(b ^ 0xA5 for b in data[mid: mid + 64])  # inside a chunk's compressed data
+    path = tmp_path / "c.mcap"
+    path.write_bytes(data)
+    report = read_info(path)
+    assert report.damaged_chunks == 1
+    assert report.complete  # the rest, up to the footer, was read
+    assert 0.8 * full.messages < report.messages < full.messages
+    assert any("damaged chunk" in p for p in report.problems)
+
+
+def test_a_damaged_record_header_resumes_at_the_next_chunk(tmp_path, session_bytes):
+    full = read_info_bytes(tmp_path, session_bytes)
+    data = bytearray(session_bytes)
+    # find a chunk record (opcode 0x06) past the first third, and destroy its header
+    offsets = []
+    pos = 8
+    import struct
+    while pos < len(data):
+        op, length = struct.unpack_from("<BQ", data, pos)
+        if op == 0x06 and pos > len(data) // 3:
+            offsets.append(pos)
+            break
+        pos += 9 + length
+    data[offsets[0]: offsets[0] + 9] = b"\xff" * 9
+    path = tmp_path / "h.mcap"
+    path.write_bytes(data)
+    report = read_info(path)
+    assert any("damaged record header" in p and "resumed" in p for p in report.problems)
+    assert 0.7 * full.messages < report.messages < full.messages
+
+
+def test_not_an_mcap_file_is_one_clear_error(tmp_path, capsys):
+    path = tmp_path / "x.mcap"
+    path.write_text("hello")
+    with pytest.raises(LogFileError, match="not an MCAP file"):
+        read_info(path)
+    assert main(["logs", "info", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "not an MCAP file" in err
+    assert main(["logs", "info", str(tmp_path / "missing.mcap")]) == 2
+    assert "cannot read" in capsys.readouterr().err
+
+
+def test_logs_info_cli_lists_channels_counts_and_metadata(tmp_path, session_bytes, capsys):
+    path = tmp_path / "i.mcap"
+    path.write_bytes(session_bytes[: len(session_bytes) // 2])
+    assert main(["logs", "info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "truncated" in out and "/cycle" in out and "cheope.v1.Cycle" in out and "cheope.config.json" in out
+    assert main(["logs", "info", "--json", str(path)]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["complete"] is False and info["channels"]["/cycle"]["count"] > 0
+
+
+def test_session_files_get_timestamped_unique_names(tmp_path):
+    p1, f1 = open_session_file(tmp_path / "a" / "b")
+    p2, f2 = open_session_file(tmp_path / "a" / "b")
+    f1.close(), f2.close()
+    assert p1 != p2 and p1.parent == tmp_path / "a" / "b" and p1.name.startswith("cheope-")
+    assert p1.suffix == p2.suffix == ".mcap"
+
+
+def test_rerun_reads_the_mcap_file_directly_and_decodes_the_protobuf_channels(tmp_path):
+    from rerun.chunk import McapReader
+
+    path = tmp_path / "r.mcap"
+    record_session(path, max_s=0.5)
+    store = McapReader(path).stream().collect()
+    summary = store.summary()
+    assert "cheope.v1.Cycle:message" in summary  # our schema, decoded by reflection
+    assert "cheope.v1.CanFrame:message" in summary
+    assert "Transform3D:translation" in summary  # foxglove.FrameTransform -> Transform3D
+    assert "TextLog:text" in summary  # foxglove.Log -> TextLog
+    assert "cheope.config" in summary  # the metadata
+
+
+def test_on_cycle_costs_microseconds(tmp_path):
+    _, _, _, trace, _, _ = record_session(tmp_path / "ref.mcap", max_s=0.5, frames=False)
+    rec = SessionRecorder(tmp_path / "p.mcap", session_metadata(load_config()), queue_size=100_000)
+    timing = m.pb.CycleTiming()
+    msg = can.Message(arbitration_id=0x201, data=bytearray(8), is_extended_id=False)
+    with rec:
+        per_call = []
+        for row in trace.rows * 3:
+            t0 = time.perf_counter_ns()
+            rec.on_cycle(*row, timing=timing)
+            rec.on_frame(True, 0.0, msg)
+            per_call.append(time.perf_counter_ns() - t0)
+    per_call.sort()
+    median_us = per_call[len(per_call) // 2] / 1000
+    assert median_us < 40, f"on_cycle + on_frame median {median_us:.1f} us"
+    assert rec.dropped == 0
+
