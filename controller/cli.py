@@ -26,11 +26,31 @@ def _common(ap: argparse.ArgumentParser, bus: bool = True) -> None:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override a configuration key, e.g. --set loop.rate_hz=1000 (repeatable)")
     ap.add_argument("--rate", type=float, help="loop rate [Hz] (same as --set loop.rate_hz=...)")
+    ap.add_argument("--robot", choices=("cheope", "uru", "nspu"),
+                    help="the robot: loads controller/configs/ROBOT.toml unless --config is given "
+                         "(then sets robot.kind)")
     if bus:
         ap.add_argument("--can", help="INTERFACE[:CHANNEL]: socketcan:vcan0, udp_multicast, virtual:x "
                                       "(default: the config's bus.can)")
         ap.add_argument("--udp-port", type=int, help="UDP port of the udp_multicast bus")
         ap.add_argument("--fd", action="store_true", help="use CAN FD frames")
+        ap.add_argument("--inject", action="append", metavar="FAULT",
+                        help="simulator fault, KIND[:NODE][=VALUE]@START[+DURATION], e.g. drop:2@3+0.5 "
+                             "(repeatable; see sim_backend/fault_injection.py)")
+
+
+def _rt_options(ap: argparse.ArgumentParser) -> None:
+    g = ap.add_argument_group("real-time options (Linux; refused with a message when not permitted)")
+    g.add_argument("--rt-priority", type=int, metavar="N", help="SCHED_FIFO priority 1..99 for the loop")
+    g.add_argument("--cpu", metavar="CPUS", help="CPU affinity, e.g. 1 or 0,1")
+    g.add_argument("--lock-memory", action="store_true", help="mlockall: no page faults on the hot path")
+
+
+def _realtime(args: argparse.Namespace):  # -> controller.realtime.RealtimeOptions
+    from controller.realtime import RealtimeOptions, parse_cpus
+
+    return RealtimeOptions(priority=args.rt_priority, cpus=parse_cpus(args.cpu) if args.cpu else (),
+                           lock_memory=args.lock_memory)
 
 
 def _overrides(args: argparse.Namespace) -> list[str]:
@@ -39,11 +59,24 @@ def _overrides(args: argparse.Namespace) -> list[str]:
         sets.append(f"loop.rate_hz={args.rate}")
     if getattr(args, "task", None):
         sets.insert(0, f'task.kind="{args.task}"')
+    if getattr(args, "robot", None):
+        sets.insert(0, f'robot.kind="{args.robot}"')
+    if getattr(args, "inject", None):
+        sets.append("sim.faults=[" + ", ".join(f'"{f}"' for f in args.inject) + "]")
     return sets + monitoring_overrides(args)
 
 
+def _config_path(args: argparse.Namespace) -> str | None:
+    """--config, else the shipped configuration of --robot (None: the default cheope.toml)."""
+    if args.config or not getattr(args, "robot", None):
+        return args.config
+    from controller.config import CONFIG_DIR
+
+    return str(CONFIG_DIR / f"{args.robot}.toml")
+
+
 def _config(args: argparse.Namespace) -> Config:
-    return load_config(args.config, dict(parse_override(s) for s in _overrides(args)))
+    return load_config(_config_path(args), dict(parse_override(s) for s in _overrides(args)))
 
 
 def _spec(args: argparse.Namespace, cfg: Config, default_port: int | None = None) -> BusSpec:
@@ -91,6 +124,19 @@ def _print_summary(summary: dict[str, Any], as_json: bool) -> None:
         lines.append(f"position control    same contour at {cmp['speed_m_s'] * 1000:.0f} mm/s: force error RMS "
                      f"{lap['force_error_rms_n']:.2f} N, max {lap['force_error_max_n']:.2f} N, "
                      f"contact losses {lap['contact_losses']} ({cmp['final_mode']})")
+    if "position_error_m" in summary:  # the 3-nSPU: the reached pose against the goal
+        plan, lte = summary["plan"], summary["leg_tracking_error_m"]
+        lines.append(f"plan                {plan['status']}, {plan['iterations']} iterations, error "
+                     f"{plan['final_error']:.2e}, {plan['planning_time_s']} s; streamed in "
+                     f"{plan['streamed_duration_s']:.3f} s")
+        if lte["rms"] is not None:
+            lines.append(f"leg tracking error  RMS {lte['rms'] * 1e6:.1f} um, max {lte['max'] * 1e6:.1f} um")
+        if summary["position_error_m"] is not None:
+            lines.append(f"reached vs goal     position {summary['position_error_m'] * 1e6:.1f} um, angle "
+                         f"{summary['angle_error_rad'] * 1e3:.3f} mrad (plan's own end error "
+                         f"{summary['plan_end_position_error_m'] * 1e6:.1f} um, "
+                         f"{summary['plan_end_angle_error_rad'] * 1e3:.3f} mrad)")
+        lines.append(f"why                 {summary['explanation']}")
     for p in summary.get("plots", []):
         lines.append(f"plot                {p}")
     print("\n".join(lines))
@@ -101,7 +147,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     cfg = _config(args)
     spec = _spec(args, cfg, default_port=random_udp_port())
-    summary = run_demo(cfg, spec, args.config, _overrides(args), args.max_duration, _stop_on_signals(),
+    summary = run_demo(cfg, spec, _config_path(args), _overrides(args), args.max_duration, _stop_on_signals(),
                        Path(args.plot) if args.plot else None)
     _print_summary(summary, args.json)
     return 0 if summary["final_mode"] == "DONE" else 1
@@ -111,7 +157,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from controller.service import run_controller
 
     cfg = _config(args)
-    summary = run_controller(cfg, _spec(args, cfg), args.max_duration, _stop_on_signals())
+    summary = run_controller(cfg, _spec(args, cfg), args.max_duration, _stop_on_signals(), realtime=_realtime(args))
     _print_summary(summary, args.json)
     return 0 if summary["final_mode"] == "DONE" else 1
 
@@ -120,7 +166,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     from sim_backend.process import serve
 
     cfg = _config(args)
-    serve(cfg, _spec(args, cfg), _stop_on_signals(), lambda line: print(line, flush=True))
+    serve(cfg, _spec(args, cfg), _stop_on_signals(), lambda line: print(line, flush=True), _realtime(args))
     return 0
 
 
@@ -144,13 +190,67 @@ def cmd_bus_load(args: argparse.Namespace) -> int:
     return 0 if ok else 1
 
 
+def cmd_bench(args: argparse.Namespace) -> int:
+    from controller.bench import run_bench_command
+
+    return run_bench_command(args, _realtime(args))
+
+
 def cmd_analyze(args: argparse.Namespace) -> int:
     from controller.analysis.cheope_plots import analyze_cheope
+    from controller.analysis.robot_analysis import analyze_nspu, analyze_uru
 
     cfg = _config(args)
-    report = analyze_cheope(cfg, Path(args.out))
+    analyze = {"cheope": analyze_cheope, "uru": analyze_uru, "nspu": analyze_nspu}[cfg.robot.kind]
+    report = analyze(cfg, Path(args.out))
     print(json.dumps(report) if args.json else "\n".join(f"{k}: {v}" for k, v in report.items()))
     return 0
+
+
+def _pose_arg(text: str, what: str):  # -> controller.robots.nspu.Pose
+    import numpy as np
+
+    from controller.robots.nspu import Pose, rpy
+
+    try:
+        vals = [float(x) for x in text.split(",")]
+    except ValueError as err:
+        raise ConfigError(f"--{what} {text!r}: expected 6 numbers X,Y,Z,ROLL,PITCH,YAW [m, rad]") from err
+    if len(vals) != 6 or not all(np.isfinite(vals)):
+        raise ConfigError(f"--{what} {text!r}: expected 6 finite numbers X,Y,Z,ROLL,PITCH,YAW [m, rad]")
+    return Pose(np.array(vals[:3]), rpy(*vals[3:]))
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    from controller.analysis.robot_analysis import plan_nspu
+    from controller.planning.nonholonomic import paper_example_poses
+    from controller.robots.registry import nspu_poses_from_config
+
+    if not args.robot and not args.config:
+        args.robot = "nspu"
+    cfg = _config(args)
+    if cfg.robot.kind != "nspu":
+        raise ConfigError(f"cheope plan plans the 3-nSPU's motion; robot.kind is {cfg.robot.kind!r}")
+    start, goal = paper_example_poses(cfg.robot.nspu.length_unit_m) if args.paper_example \
+        else nspu_poses_from_config(cfg)
+    if args.start:
+        start = _pose_arg(args.start, "from")
+    if args.goal:
+        goal = _pose_arg(args.goal, "to")
+    if args.no_type2_check:
+        print("cheope plan: warning: the type-II singularity check is off; the plan may cross det M = 0",
+              file=sys.stderr)
+    report = plan_nspu(cfg, start, goal, not args.no_type2_check, Path(args.plot) if args.plot else None)
+    print(json.dumps(report) if args.json else "\n".join(f"{k}: {v}" for k, v in report.items()))
+    return 0 if report["ok"] else 1
+
+
+def cmd_faults(args: argparse.Namespace) -> int:
+    from controller.fault_scenarios import format_table, run_all
+
+    rows = run_all(_config(args), Path(args.keep) if args.keep else None, tuple(args.only or ()))
+    print(json.dumps(rows) if args.json else format_table(rows))
+    return 0 if all(r["as_expected"] and r["recording_complete"] for r in rows) else 1
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -171,10 +271,18 @@ def build_parser() -> argparse.ArgumentParser:
     add_controller_options(p)
     p.add_argument("--json", action="store_true")
     p.add_argument("--max-duration", type=float, default=600.0)
+    _rt_options(p)
     p.set_defaults(func=cmd_run)
     p = sub.add_parser("sim", help="only the simulated hardware")
     _common(p)
+    _rt_options(p)
     p.set_defaults(func=cmd_sim)
+    p = sub.add_parser("faults", help="inject every handled fault into the simulated devices; table of reactions")
+    _common(p, bus=False)
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--only", action="append", metavar="SCENARIO", help="run only this scenario (repeatable)")
+    p.add_argument("--keep", metavar="DIR", help="keep the scenarios' recordings in DIR")
+    p.set_defaults(func=cmd_faults)
     p = sub.add_parser("bus-load", help="bus load of the configured cycle")
     _common(p, bus=False)
     p.add_argument("--json", action="store_true")
@@ -184,6 +292,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="analysis", help="directory for the PNG plots")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_analyze)
+    p = sub.add_parser("plan", help="3-nSPU: plan a non-holonomic motion (seed 004) and report it")
+    _common(p, bus=False)
+    p.add_argument("--from", dest="start", metavar="X,Y,Z,ROLL,PITCH,YAW",
+                   help="start pose [m, rad] (default: the config's robot.nspu.start_*)")
+    p.add_argument("--to", dest="goal", metavar="X,Y,Z,ROLL,PITCH,YAW",
+                   help="goal pose [m, rad] (default: the config's robot.nspu.goal_*)")
+    p.add_argument("--paper-example", action="store_true",
+                   help="seed 004 section 4: (0,0,25) aul RPY(0,0,-pi/6) -> (-0.4,-0.2,35) aul RPY(0,0,-pi/2)")
+    p.add_argument("--no-type2-check", action="store_true",
+                   help="allow plans crossing the type-II singularity det M = 0 (the paper's assumptions; warns)")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--plot", metavar="DIR", help="write the plan's PNG plots here")
+    p.set_defaults(func=cmd_plan)
+    p = sub.add_parser("bench", help="timing benchmark with the simulator: 400 Hz and 1 kHz, table, JSON, PNG")
+    from controller.bench import add_bench_arguments
+
+    add_bench_arguments(p)
+    _rt_options(p)
+    p.set_defaults(func=cmd_bench)
     add_monitoring_subcommands(sub)
     from logs.cli import add_commands as add_log_commands  # cheope logs info|recover, cheope replay
 

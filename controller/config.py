@@ -59,9 +59,56 @@ class MassSection:
 
 
 @dataclass(frozen=True)
+class UruSection:
+    """LaMaViP 3-URU (seed 003); see controller/robots/uru.py and controller/robots/uru_robot.py."""
+
+    base_offset_m: float = field(default=0.10, metadata=_r(0.0, 10.0))
+    platform_offset_m: float = field(default=0.10, metadata=_r(0.0, 10.0))
+    proximal_lengths_m: tuple[float, float, float] = field(default=(0.20, 0.20, 0.20), metadata=_r(0.0, 10.0, lo_open=True))
+    distal_lengths_m: tuple[float, float, float] = field(default=(0.20, 0.20, 0.20), metadata=_r(0.0, 10.0, lo_open=True))
+    gear_ratios: tuple[float, float, float] = field(default=(1.0, 1.0, 1.0), metadata=_r(-1000.0, 1000.0))
+    motor_offsets_rad: tuple[float, float, float] = field(default=(0.0, 0.0, 0.0), metadata=_r(-100.0, 100.0))
+    knee_sign: int = field(default=1, metadata=_r(-1, 1))
+    home_position_m: tuple[float, float, float] = (0.12, 0.12, 0.12)  # the simulator starts here
+    motor_min_rad: float = field(default=-3.2, metadata=_r(-1000.0, 1000.0))  # motor-shaft range (drive stroke)
+    motor_max_rad: float = field(default=4.8, metadata=_r(-1000.0, 1000.0))
+    min_plane_distance_m: float = field(default=0.02, metadata=_r(0.0, 10.0))  # rotation loci eq. (17)
+    min_det_v: float = field(default=0.05, metadata=_r(0.0, 1.0))  # translation eq. (20)
+    min_det_s: float = field(default=0.05, metadata=_r(0.0, 1e6))  # actuation eq. (35)
+    min_det_a: float = field(default=0.05, metadata=_r(0.0, 1e6))  # combined eq. (36)
+    min_sin_th3: float = field(default=0.10, metadata=_r(0.0, 1.0))  # serial eq. (27)
+    min_workspace_margin_m: float = field(default=0.02, metadata=_r(0.0, 10.0))  # boundary eq. (29)
+
+
+@dataclass(frozen=True)
+class NspuSection:
+    """3-nSPU (seeds 000, 004): seed 000 §3.5 geometry, start and goal poses, planner, streaming."""
+
+    length_unit_m: float = field(default=0.01, metadata=_r(0.0, 10.0, lo_open=True))  # the papers' aul
+    r3_variant: str = field(default="symmetric", metadata={"choices": ("symmetric", "printed")})
+    leg_min_m: float = field(default=0.20, metadata=_r(0.0, 10.0))
+    leg_max_m: float = field(default=0.70, metadata=_r(0.0, 10.0))
+    start_position_m: tuple[float, float, float] = (0.0, 0.0, 0.25)
+    start_rpy_rad: tuple[float, float, float] = (0.0, 0.0, -0.5236)
+    goal_position_m: tuple[float, float, float] = (-0.0185, -0.0251, 0.2713)
+    goal_rpy_rad: tuple[float, float, float] = (0.075, 0.31, -0.532)
+    horizon_s: float = field(default=1.0, metadata=_r(0.0, 1000.0, lo_open=True))  # plan time T
+    harmonics: int = field(default=2, metadata=_r(0, 10))
+    tolerance: float = field(default=1e-3, metadata=_r(0.0, 1.0, lo_open=True))
+    max_iterations: int = field(default=50, metadata=_r(0, 10000))
+    n_steps: int = field(default=200, metadata=_r(4, 100000))
+    check_type2: bool = True  # refuse plans that cross the type-II locus (seed 000 eq. (26))
+    restarts: int = field(default=0, metadata=_r(0, 100))
+    stream_steps: int = field(default=1000, metadata=_r(10, 1000000))  # resolution of the streamed plan
+    limit_fraction: float = field(default=0.5, metadata=_r(0.0, 1.0, lo_open=True))  # of the actuator limits
+
+
+@dataclass(frozen=True)
 class RobotSection:
-    kind: str = field(default="cheope", metadata={"choices": ("cheope",)})
+    kind: str = field(default="cheope", metadata={"choices": ("cheope", "uru", "nspu")})
     cheope: CheopeSection = CheopeSection()
+    uru: UruSection = UruSection()
+    nspu: NspuSection = NspuSection()
     margins: MarginsSection = MarginsSection()
     mass: MassSection = MassSection()
 
@@ -70,6 +117,11 @@ class RobotSection:
 class ActuatorsSection:
     node_ids: tuple[int, int, int] = (1, 2, 3)
     counts_per_m: float = field(default=1.0e7, metadata=_r(1.0, 1e12))
+    # Rotary actuators (robot.kind = "uru": motor-shaft angles) use these instead of the _m keys.
+    counts_per_rad: float = field(default=166886.05, metadata=_r(1.0, 1e12))  # 2^20 counts per turn
+    max_velocity_rad_s: float = field(default=6.0, metadata=_r(0.0, 1e4, lo_open=True))
+    max_acceleration_rad_s2: float = field(default=60.0, metadata=_r(0.0, 1e6, lo_open=True))
+    max_jerk_rad_s3: float = field(default=3000.0, metadata=_r(0.0, 1e9, lo_open=True))
     max_velocity_m_s: float = field(default=1.0, metadata=_r(0.0, 100.0, lo_open=True))
     max_acceleration_m_s2: float = field(default=10.0, metadata=_r(0.0, 1e4, lo_open=True))
     max_jerk_m_s3: float = field(default=500.0, metadata=_r(0.0, 1e7, lo_open=True))
@@ -105,8 +157,34 @@ class LoopSection:
     heartbeat_consumer_s: float = field(default=0.5, metadata=_r(0.02, 60.0))
     controller_node_id: int = field(default=100, metadata=_r(1, 127))
     enable_timeout_s: float = field(default=2.0, metadata=_r(0.01, 60.0))
+    sdo_timeout_s: float = field(default=1.0, metadata=_r(0.01, 60.0))
+    stay_in_fault: bool = False  # keep cycling in FAULT (quick stop held) until a remote reset or a stop
     hold_before_task_s: float = field(default=0.2, metadata=_r(0.0, 60.0))
     settle_tolerance_m: float = field(default=2.0e-5, metadata=_r(0.0, 1.0, lo_open=True))
+
+
+_REACTIONS = {"choices": ("fault", "warn", "ignore")}
+
+
+@dataclass(frozen=True)
+class SafetySection:
+    """What the law does about each abnormal input (see controller/control_law.py, ``_safety``).
+
+    "fault": quick stop through the controlword and stay in FAULT until a reset;
+    "warn": record a warning event once per episode and go on; "ignore": nothing.
+    Drive faults, EMCY, missing TPDOs (loop.max_missing_cycles), a bus-off, an actuator
+    outside its stroke and a task reference outside the safe workspace always fault.
+    """
+
+    max_contact_force_n: float = field(default=60.0, metadata=_r(0.0, 10000.0, lo_open=True))
+    sensor_stale_cycles: int = field(default=5, metadata=_r(1, 100000))
+    on_sensor_stale: str = field(default="fault", metadata=_REACTIONS)
+    on_sensor_saturated: str = field(default="fault", metadata=_REACTIONS)
+    on_heartbeat_lost: str = field(default="fault", metadata=_REACTIONS)
+    on_error_frames: str = field(default="warn", metadata=_REACTIONS)
+    max_consecutive_late_cycles: int = field(default=50, metadata=_r(1, 1000000))
+    on_late_cycles: str = field(default="fault", metadata=_REACTIONS)
+    late_tolerance_fraction: float = field(default=0.5, metadata=_r(0.01, 10.0))
 
 
 @dataclass(frozen=True)
@@ -119,6 +197,7 @@ class PathSection:
     laps: float = field(default=1.0, metadata=_r(0.0, 1000.0, lo_open=True))
     ramp_s: float = field(default=0.5, metadata=_r(0.0, 60.0))
     check_samples: int = field(default=720, metadata=_r(8, 1_000_000))
+    normal: tuple[float, float, float] = (0.0, 0.0, 1.0)  # the circle's plane normal (not normalised)
 
 
 @dataclass(frozen=True)
@@ -172,7 +251,10 @@ class SimDriveSection:
     quick_stop_deceleration_m_s2: float = field(default=5.0, metadata=_r(0.0, 1e5, lo_open=True))
     sync_timeout_s: float = field(default=0.05, metadata=_r(0.001, 60.0))
     substep_s: float = field(default=5.0e-4, metadata=_r(1e-6, 0.01))
-    initial_positions_m: tuple[float, float, float] = (0.55, 0.55, 0.55)
+    max_velocity_rad_s: float = field(default=12.0, metadata=_r(0.0, 1e4, lo_open=True))  # rotary drives
+    max_acceleration_rad_s2: float = field(default=240.0, metadata=_r(0.0, 1e6, lo_open=True))
+    quick_stop_deceleration_rad_s2: float = field(default=30.0, metadata=_r(0.0, 1e6, lo_open=True))
+    initial_positions_m: tuple[float, float, float] = (0.71508, 0.56794, 0.42697)  # TCP at (0.09, 0, 0.5) m
 
 
 @dataclass(frozen=True)
@@ -207,6 +289,7 @@ class SimSection:
     structure_damping_ratio: float = field(default=0.2, metadata=_r(0.0, 10.0))
     environment: str = field(default="auto", metadata={"choices": ("auto", "free", "disk")})
     disk: SimDiskSection = SimDiskSection()
+    faults: tuple[str, ...] = ()  # fault injection, sim_backend/fault_injection.py: "drop:2@3.0+0.5", ...
 
 
 @dataclass(frozen=True)
@@ -244,6 +327,7 @@ class Config:
     sensor: SensorSection = SensorSection()
     bus: BusSection = BusSection()
     loop: LoopSection = LoopSection()
+    safety: SafetySection = SafetySection()
     task: TaskSection = TaskSection()
     sim: SimSection = SimSection()
     recording: RecordingSection = RecordingSection()
@@ -275,9 +359,9 @@ def _convert(key: str, tp: Any, value: Any, meta: dict[str, Any]) -> Any:
     origin = typing.get_origin(tp)
     if origin is tuple:
         args = typing.get_args(tp)
-        if len(args) == 2 and args[1] is Ellipsis:  # tuple[float, ...]: any length but empty
-            if not isinstance(value, (list, tuple)) or not value:
-                raise ConfigError(f"{key} = {value!r}: expected a non-empty list")
+        if len(args) == 2 and args[1] is Ellipsis:  # tuple[X, ...]: a list of any length
+            if not isinstance(value, (list, tuple)):
+                raise ConfigError(f"{key} = {value!r}: expected a list")
             return tuple(_convert(f"{key}[{i}]", args[0], v, meta) for i, v in enumerate(value))
         if not isinstance(value, (list, tuple)) or len(value) != len(args):
             raise ConfigError(f"{key} = {value!r}: expected a list of {len(args)} values")
@@ -337,6 +421,16 @@ def _cross_checks(cfg: Config) -> None:
             f"loop.heartbeat_consumer_s = {cfg.loop.heartbeat_consumer_s} must exceed "
             f"loop.heartbeat_period_s = {cfg.loop.heartbeat_period_s}"
         )
+    _robot_cross_checks(cfg)
+    from sim_backend.fault_injection import FaultSpecError, parse_fault  # pure parsing, no I/O
+
+    for i, text in enumerate(cfg.sim.faults):
+        try:
+            parse_fault(text)
+        except FaultSpecError as err:
+            raise ConfigError(f"sim.faults[{i}]: {err}") from err
+    if not cfg.task.contour.lap_speeds_m_s:
+        raise ConfigError("task.contour.lap_speeds_m_s = []: needs at least one lap")
     if cfg.task.contour.direction not in (-1, 1):
         raise ConfigError(f"task.contour.direction = {cfg.task.contour.direction}: must be 1 or -1")
     if cfg.bus.fd and cfg.bus.data_bitrate_bit_s < cfg.bus.bitrate_bit_s:
@@ -344,6 +438,23 @@ def _cross_checks(cfg: Config) -> None:
             f"bus.data_bitrate_bit_s = {cfg.bus.data_bitrate_bit_s} must be >= bus.bitrate_bit_s = "
             f"{cfg.bus.bitrate_bit_s}"
         )
+
+
+def _robot_cross_checks(cfg: Config) -> None:
+    u, n = cfg.robot.uru, cfg.robot.nspu
+    if u.knee_sign not in (-1, 1):
+        raise ConfigError(f"robot.uru.knee_sign = {u.knee_sign}: must be 1 or -1")
+    if any(k == 0 for k in u.gear_ratios):
+        raise ConfigError(f"robot.uru.gear_ratios = {list(u.gear_ratios)}: must be non-zero")
+    if u.motor_min_rad >= u.motor_max_rad:
+        raise ConfigError(f"robot.uru.motor_min_rad = {u.motor_min_rad} must be < robot.uru.motor_max_rad = "
+                          f"{u.motor_max_rad}")
+    if n.leg_min_m >= n.leg_max_m:
+        raise ConfigError(f"robot.nspu.leg_min_m = {n.leg_min_m} must be < robot.nspu.leg_max_m = {n.leg_max_m}")
+    if sum(x * x for x in cfg.task.path.normal) < 1e-12:
+        raise ConfigError(f"task.path.normal = {list(cfg.task.path.normal)}: must be a non-zero vector")
+    if cfg.robot.kind != "cheope" and cfg.task.kind == "contour":
+        raise ConfigError(f'task.kind = "contour" needs robot.kind = "cheope" (got {cfg.robot.kind!r})')
 
 
 def config_from_dict(table: dict[str, Any]) -> Config:

@@ -39,6 +39,7 @@ from controller.robots.errors import NoSolutionError
 from controller.setpoint_smoothing import RuckigSmoother, Setpoint
 from controller.tasks.task import Task, TaskContext
 from drivers.cia402 import PowerState, controlword_towards, decode_statusword
+from drivers.pdo_codec import SENSOR_FORCE_SATURATED
 
 
 PIPELINE_PERIODS = 2
@@ -66,12 +67,27 @@ class Robot(Protocol):
 
 
 @dataclass(frozen=True)
+class SafetyConfig:
+    """Reactions to abnormal inputs ("fault", "warn" or "ignore"); see config.SafetySection."""
+
+    max_contact_force_n: float = 60.0
+    sensor_stale_cycles: int = 5
+    on_sensor_stale: str = "fault"
+    on_sensor_saturated: str = "fault"
+    on_heartbeat_lost: str = "fault"
+    on_error_frames: str = "warn"
+    max_consecutive_late_cycles: int = 50
+    on_late_cycles: str = "fault"
+
+
+@dataclass(frozen=True)
 class LawConfig:
     period_s: float
     enable_timeout_s: float
     hold_before_task_s: float
     max_missing_cycles: int
     settle_tolerance: float  # [actuator unit] and [unit/s]: "at rest" for the stop
+    safety: SafetyConfig = SafetyConfig()
 
 
 @dataclass(frozen=True, slots=True)
@@ -87,6 +103,10 @@ class ControllerState:
     tcp_measured_m: tuple[float, float, float] | None  # direct kinematics of the measured positions
     task_time_s: float = 0.0
     fault_reason: str = ""
+    sensor_counter: int = -1  # last sensor counter seen, for staleness
+    sensor_stale: int = 0  # cycles the counter has not advanced
+    late_streak: int = 0  # consecutive late cycles
+    warned: frozenset[str] = frozenset()  # warnings already raised in the current episode
 
 
 class ControlLaw:
@@ -98,6 +118,8 @@ class ControlLaw:
         self.smoother = smoother
         self.config = config
         self.n = robot.n_actuators
+        # Robots that know their actuators' strokes check the measured positions every cycle.
+        self._check_actuators = getattr(robot, "check_actuators", None)
 
     def initial_state(self) -> ControllerState:
         zeros = (0.0,) * self.n
@@ -119,10 +141,17 @@ class ControlLaw:
                         tcp_measured_m=self._measured_tcp(state, inputs, measured))
 
         if state.mode not in (Mode.FAULT, Mode.CONFIGURING):
-            reason = self._fault_reason(state, inputs, powers)
+            state, reason = self._safety(state, inputs, events)
+            reason = reason or self._fault_reason(state, inputs, powers)
             if reason:
                 state = self._enter(state, Mode.FAULT, t, events, Severity.FAULT, reason)
                 state = replace(state, fault_reason=reason, setpoint=Setpoint.at_rest(measured))
+        elif state.mode == Mode.FAULT and inputs.command == "reset":
+            # Recovery without a jump: ENABLING resets the drives' faults and commands the
+            # measured positions; HOLDING restarts Ruckig from rest there; the task starts again.
+            state = replace(self._enter(state, Mode.ENABLING, t, events, why="reset"), fault_reason="",
+                            setpoint=Setpoint.at_rest(measured), task_time_s=0.0, sensor_stale=0, late_streak=0,
+                            warned=frozenset())
         if inputs.stop_requested and state.mode in (Mode.ENABLING, Mode.HOLDING, Mode.RUNNING, Mode.PAUSED):
             state = self._enter(state, Mode.STOPPING, t, events, Severity.INFO, "stop requested")
         elif inputs.command == "pause" and state.mode == Mode.RUNNING:
@@ -150,6 +179,65 @@ class ControlLaw:
             return tuple(self.robot.direct_kinematics(np.asarray(measured)).tolist())  # type: ignore[return-value]
         except NoSolutionError:
             return None
+
+    def _react(self, state: ControllerState, reaction: str, key: str, why: str, events: list[Event]
+               ) -> tuple[ControllerState, str]:
+        """Apply a configured reaction to an abnormal condition ``key``."""
+        if reaction == "fault":
+            return state, why
+        if reaction == "warn" and key not in state.warned:
+            events.append(Event(key, Severity.WARNING, why))
+            return replace(state, warned=state.warned | {key}), ""
+        return state, ""
+
+    def _safety(self, state: ControllerState, inputs: CycleInputs, events: list[Event]
+                ) -> tuple[ControllerState, str]:
+        """Configurable checks of the inputs; returns the updated state and a fault reason or ""."""
+        sc = self.config.safety
+        sensor = inputs.sensor
+        stale = 0
+        if sensor is not None and sensor.fresh:
+            stale = state.sensor_stale + 1 if sensor.counter == state.sensor_counter else 0
+            state = replace(state, sensor_counter=sensor.counter, sensor_stale=stale)
+            f = sensor.force_n
+            magnitude = math.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2])
+            if magnitude > sc.max_contact_force_n:
+                return state, f"contact force {magnitude:.1f} N above the limit of {sc.max_contact_force_n} N"
+            if sensor.status & SENSOR_FORCE_SATURATED:
+                state, why = self._react(state, sc.on_sensor_saturated, "sensor_saturated",
+                                         f"force sensor saturated (status 0x{sensor.status:02X})", events)
+                if why:
+                    return state, why
+        if stale >= sc.sensor_stale_cycles:
+            state, why = self._react(state, sc.on_sensor_stale, "sensor_stale",
+                                     f"force sensor stale: counter stuck at {sensor.counter} for {stale} cycles",
+                                     events)
+            if why:
+                return state, why
+        if inputs.lost_heartbeats:
+            state, why = self._react(state, sc.on_heartbeat_lost, "heartbeat_lost",
+                                     f"heartbeat lost from node(s) {list(inputs.lost_heartbeats)}", events)
+            if why:
+                return state, why
+        if inputs.bus_off:
+            return state, "CAN bus-off reported by an error frame"
+        if inputs.error_frames:
+            state, why = self._react(state, sc.on_error_frames, "error_frames",
+                                     f"{inputs.error_frames} CAN error frame(s) received", events)
+            if why:
+                return state, why
+        late = state.late_streak + 1 if inputs.late else 0
+        state = replace(state, late_streak=late)
+        if late >= sc.max_consecutive_late_cycles:
+            state, why = self._react(state, sc.on_late_cycles, "late_cycles",
+                                     f"the loop woke late {late} cycles in a row", events)
+            if why:
+                return state, why
+        if self._check_actuators is not None:
+            status = self._check_actuators(tuple(d.position for d in inputs.drives))
+            if not status.ok:
+                return state, status.reason
+        return state, ""
 
     def _fault_reason(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...]) -> str:
         for j, (p, streak) in enumerate(zip(powers, state.missing_streak)):

@@ -40,8 +40,12 @@ class CycleInputs:
     sensor: SensorFeedback | None = None
     emcy: tuple[EmcyReport, ...] = ()
     stop_requested: bool = False
-    command: str = ""  # a remote command accepted this cycle ("pause", "resume", "set_force"), else ""
+    command: str = ""  # a remote command accepted this cycle ("pause", "resume", "set_force", "reset"), else ""
     command_value: float = 0.0
+    lost_heartbeats: tuple[int, ...] = ()  # node ids whose heartbeat is overdue
+    error_frames: int = 0  # CAN error frames received this cycle
+    bus_off: bool = False  # an error frame reported bus-off
+    late: bool = False  # the loop woke more than the configured tolerance after its deadline
 
 
 @dataclass(frozen=True, slots=True)

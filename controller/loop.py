@@ -110,7 +110,7 @@ class CycleLoop:
     def __init__(self, law: ControlLaw, exchange: Exchange, period_s: float, collect_fraction: float,
                  sleeper: Sleeper, clock: Callable[[], float] = time.monotonic,
                  observers: tuple[CycleObserver, ...] = (), stop_event: threading.Event | None = None,
-                 commands: CommandSource | None = None) -> None:
+                 commands: CommandSource | None = None, late_tolerance_s: float = float("inf")) -> None:
         self.law = law
         self.exchange = exchange
         self.period_s = period_s
@@ -120,10 +120,15 @@ class CycleLoop:
         self.observers = observers
         self.stop_event = stop_event or threading.Event()
         self.commands = commands
+        self.late_tolerance_s = late_tolerance_s
 
-    def run(self, state: ControllerState, max_duration_s: float, linger_after_end_s: float = 0.1
-            ) -> tuple[ControllerState, LoopStats]:
-        """Run until the law reaches DONE or FAULT (plus ``linger_after_end_s``) or the time is up."""
+    def run(self, state: ControllerState, max_duration_s: float, linger_after_end_s: float = 0.1,
+            exit_on_fault: bool = True) -> tuple[ControllerState, LoopStats]:
+        """Run until the law reaches DONE or FAULT (plus ``linger_after_end_s``) or the time is up.
+
+        With ``exit_on_fault=False`` the loop keeps cycling in FAULT (quick stop held) so that a
+        remote ``reset`` can recover, until the stop event is set.
+        """
         period = self.period_s
         max_cycles = int(max_duration_s / period) + 1
         stats = LoopStats(period_s=period, capacity=max_cycles)
@@ -144,6 +149,8 @@ class CycleLoop:
                 pending = self.commands()
                 if pending is not None:
                     inputs = replace(inputs, command=pending[0], command_value=pending[1])
+            if woke - deadline > self.late_tolerance_s:
+                inputs = replace(inputs, late=True)
             t = k * period
             c0 = clock()
             state, outputs, events = self.law.step(state, inputs, t)
@@ -151,8 +158,12 @@ class CycleLoop:
             stats.record(timing.wake_error_s, timing.step_s)
             for obs in self.observers:
                 obs.on_cycle(k, t, inputs, state, outputs, events, timing)
-            if end_cycle is None and state.mode in (Mode.DONE, Mode.FAULT):
+            ending = state.mode == Mode.DONE or (
+                state.mode == Mode.FAULT and (exit_on_fault or self.stop_event.is_set()))
+            if end_cycle is None and ending:
                 end_cycle = k  # keep cycling a little so the last commands reach the drives
+            elif end_cycle is not None and not ending:
+                end_cycle = None  # recovered (a reset) before the end
             if end_cycle is not None and k - end_cycle >= linger:
                 break
             k += 1

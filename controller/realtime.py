@@ -1,15 +1,46 @@
-"""Process settings for low latency in CPython.
+"""Process settings for low latency in CPython, and the Linux real-time options.
 
 The loop thread shares the interpreter with the recorder's and the publisher's threads.
 CPython hands the GIL over only every ``sys.getswitchinterval()`` seconds (5 ms by
 default): a loop thread woken by an arriving frame can wait that long while a background
 thread converts messages. Shortening the interval bounds that wait at a small cost in
 throughput of the background threads.
+
+Real-time options (Linux), each asked for explicitly and refused with a message that says
+how to get the permission, never silently skipped:
+- ``SCHED_FIFO`` priority (1..99): the calling *thread* preempts every normal (CFS) task on
+  its CPU as soon as it is runnable. Threads created afterwards inherit the policy, so the
+  controller applies it to the loop thread only, after its helper threads have started.
+  The kernel's RT throttling (``/proc/sys/kernel/sched_rt_runtime_us``, 95 % by default)
+  still leaves other tasks 5 % of each CPU, so a runaway loop cannot lock the machine.
+- CPU affinity: keeps the loop on one CPU (its caches, no migrations); on a 2-core machine
+  put the simulator on the other CPU.
+- ``mlockall(MCL_CURRENT | MCL_FUTURE)``: no page faults from swapped-out or lazily mapped
+  pages on the hot path. Process-wide.
 """
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+import errno
+import os
 import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+
+MCL_CURRENT = 1
+MCL_FUTURE = 2
+
+_PRIORITY_HINT = ("run as root, give the interpreter CAP_SYS_NICE (sudo setcap cap_sys_nice+ep <python>), "
+                  "or allow it in /etc/security/limits.conf (@group - rtprio 90); inside a container "
+                  "start it with --cap-add SYS_NICE")
+_LOCK_HINT = ("run as root, give the interpreter CAP_IPC_LOCK, or raise the limit (ulimit -l unlimited, "
+              "or @group - memlock unlimited in /etc/security/limits.conf)")
+
+
+class RealtimeError(ValueError):
+    """A real-time option was asked for and cannot be applied; the message says why and what to do."""
 
 
 def set_gil_switch_interval(interval_s: float) -> float:
@@ -19,3 +50,139 @@ def set_gil_switch_interval(interval_s: float) -> float:
     previous = sys.getswitchinterval()
     sys.setswitchinterval(interval_s)
     return previous
+
+
+@dataclass(frozen=True)
+class RealtimeOptions:
+    """What to ask of the kernel; the defaults ask for nothing."""
+
+    priority: int | None = None  # SCHED_FIFO priority 1..99, None: stay SCHED_OTHER
+    cpus: tuple[int, ...] = ()  # CPUs to run on, () : leave the affinity alone
+    lock_memory: bool = False  # mlockall(MCL_CURRENT | MCL_FUTURE)
+
+    def __post_init__(self) -> None:
+        if self.priority is not None and not 1 <= self.priority <= 99:
+            raise RealtimeError(f"--rt-priority {self.priority}: SCHED_FIFO priorities are 1..99")
+        for cpu in self.cpus:
+            if cpu < 0:
+                raise RealtimeError(f"--cpu {cpu}: CPU numbers start at 0")
+
+    @property
+    def any(self) -> bool:
+        return self.priority is not None or bool(self.cpus) or self.lock_memory
+
+    def describe(self) -> str:
+        parts = []
+        if self.priority is not None:
+            parts.append(f"SCHED_FIFO {self.priority}")
+        if self.cpus:
+            parts.append("CPU " + ",".join(str(c) for c in self.cpus))
+        if self.lock_memory:
+            parts.append("memory locked")
+        return ", ".join(parts) or "none"
+
+
+def set_fifo_priority(priority: int) -> None:
+    """SCHED_FIFO at ``priority`` for the calling thread (Linux)."""
+    if not hasattr(os, "sched_setscheduler"):
+        raise RealtimeError(f"--rt-priority {priority}: SCHED_FIFO is not available on {sys.platform}")
+    lo, hi = os.sched_get_priority_min(os.SCHED_FIFO), os.sched_get_priority_max(os.SCHED_FIFO)
+    if not lo <= priority <= hi:
+        raise RealtimeError(f"--rt-priority {priority}: SCHED_FIFO priorities on this system are {lo}..{hi}")
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except PermissionError as err:
+        raise RealtimeError(f"--rt-priority {priority}: SCHED_FIFO not permitted ({err.strerror}); "
+                            f"{_PRIORITY_HINT}") from err
+    except OSError as err:
+        raise RealtimeError(f"--rt-priority {priority}: SCHED_FIFO refused by the kernel: {err}") from err
+
+
+def reset_scheduler() -> None:
+    """Back to SCHED_OTHER for the calling thread (used after a permission probe)."""
+    if hasattr(os, "sched_setscheduler"):
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+
+
+def set_cpu_affinity(cpus: tuple[int, ...]) -> None:
+    """Run the calling thread on ``cpus`` only (threads created later inherit it)."""
+    label = ",".join(str(c) for c in cpus)
+    if not hasattr(os, "sched_setaffinity"):
+        raise RealtimeError(f"--cpu {label}: CPU affinity is not available on {sys.platform}")
+    allowed = os.sched_getaffinity(0)
+    outside = sorted(set(cpus) - allowed)
+    if outside:
+        raise RealtimeError(f"--cpu {label}: CPU {outside[0]} is not one this process may use "
+                            f"(allowed: {','.join(str(c) for c in sorted(allowed))})")
+    try:
+        os.sched_setaffinity(0, set(cpus))
+    except OSError as err:
+        raise RealtimeError(f"--cpu {label}: the kernel refused the affinity: {err}") from err
+
+
+def _libc() -> ctypes.CDLL:
+    return ctypes.CDLL(ctypes.util.find_library("c") or None, use_errno=True)
+
+
+def lock_memory(libc: ctypes.CDLL | None = None) -> None:
+    """mlockall(MCL_CURRENT | MCL_FUTURE) for the whole process."""
+    if not sys.platform.startswith("linux"):
+        raise RealtimeError(f"--lock-memory: mlockall is only supported on Linux, not {sys.platform}")
+    libc = libc or _libc()
+    if libc.mlockall(MCL_CURRENT | MCL_FUTURE) != 0:
+        code = ctypes.get_errno()
+        if code in (errno.EPERM, errno.ENOMEM):
+            raise RealtimeError(f"--lock-memory: mlockall not permitted ({os.strerror(code)}); {_LOCK_HINT}")
+        raise RealtimeError(f"--lock-memory: mlockall failed: {os.strerror(code)}")
+
+
+def check_realtime(options: RealtimeOptions) -> None:
+    """Refuse early, before anything is opened, when the kernel will not grant ``options``.
+
+    The priority is tried and reset at once; the memory lock, process-wide, stays.
+    """
+    if options.priority is not None:
+        set_fifo_priority(options.priority)
+        reset_scheduler()
+    if options.cpus:
+        before = os.sched_getaffinity(0)
+        set_cpu_affinity(options.cpus)
+        os.sched_setaffinity(0, before)
+    if options.lock_memory:
+        lock_memory()
+
+
+def apply_realtime(options: RealtimeOptions) -> Callable[[], None]:
+    """Apply ``options`` to the calling thread (priority, affinity) and the process (memory lock).
+
+    Returns a function that puts the thread's priority and affinity back (the lock stays).
+    """
+    before = os.sched_getaffinity(0) if options.cpus else None
+    if options.lock_memory:
+        lock_memory()
+    if options.cpus:
+        set_cpu_affinity(options.cpus)
+    if options.priority is not None:
+        set_fifo_priority(options.priority)
+
+    def restore() -> None:
+        if options.priority is not None:
+            reset_scheduler()
+        if before is not None:
+            os.sched_setaffinity(0, before)
+
+    return restore
+
+
+def parse_cpus(text: str) -> tuple[int, ...]:
+    """``"1"`` or ``"0,1"`` or ``"2-3"`` -> CPU numbers."""
+    cpus: list[int] = []
+    try:
+        for part in text.split(","):
+            lo, _, hi = part.strip().partition("-")
+            cpus.extend(range(int(lo), int(hi or lo) + 1))
+    except ValueError as err:
+        raise RealtimeError(f"--cpu {text!r}: expected CPU numbers like 1, 0,1 or 2-3") from err
+    if not cpus:
+        raise RealtimeError(f"--cpu {text!r}: no CPU given")
+    return tuple(cpus)

@@ -69,7 +69,8 @@ def summarize(stats: LoopStats, recorder: RunRecorder, final: ControllerState, c
         "missing_frames": {"drive": getattr(c, "missing_drive_frames", 0),
                            "sensor": getattr(c, "missing_sensor_frames", 0)},
         "rejected_frames": getattr(c, "rejected_frames", 0),
-        "send_errors": getattr(c, "send_errors", 0),
+        "send_errors": getattr(c, "send_errors", 0),  # e.g. ENOBUFS: a full transmit queue
+        "error_frames": getattr(c, "error_frames", 0),
         "bus_load_percent": round(bus_load_percent, 2),
         "tracking_error_m": {"rms": float(np.sqrt(np.mean(err**2))) if err.size else None,
                              "max": float(err.max()) if err.size else None, "samples": int(err.size)},

@@ -18,12 +18,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.config import Config, ConfigError
-from controller.control_law import ControlLaw, LawConfig
+from controller.control_law import ControlLaw, LawConfig, SafetyConfig
 from controller.loop import CycleLoop, CycleObserver, DeadlineSleeper
 from controller.monitoring.publisher import monitoring_context
 from controller.robots.cheope import CheopeRobot
-from controller.robots.registry import cheope_from_config
-from controller.realtime import set_gil_switch_interval
+from controller.robots.registry import actuator_units, robot_from_config
+from controller.realtime import RealtimeOptions, apply_realtime, check_realtime, set_gil_switch_interval
 from controller.run_summary import RunRecorder, summarize
 from controller.setpoint_smoothing import AxisLimits, RuckigSmoother
 from controller.tasks.circle_path import CirclePath
@@ -46,22 +46,30 @@ def planned_bus_load(cfg: Config) -> BusLoad:
                             data_bit_s=cfg.bus.data_bitrate_bit_s if cfg.bus.fd else None)
 
 
-def build_robot(cfg: Config) -> CheopeRobot:
+def build_robot(cfg: Config) -> CheopeRobot:  # or UruRobot, NspuRobot (robot.kind)
     try:
-        return cheope_from_config(cfg)
+        return robot_from_config(cfg)
     except ValueError as err:
-        raise ConfigError(f"[robot.cheope] geometry is inconsistent: {err}") from err
+        raise ConfigError(f"[robot.{cfg.robot.kind}] geometry is inconsistent: {err}") from err
 
 
 def build_task(cfg: Config, robot: CheopeRobot) -> Task:
     if cfg.task.kind == "contour":
         return build_contour_task(cfg, robot)
+    if cfg.robot.kind == "nspu":  # the planned non-holonomic motion (controller/tasks/planned_legs.py)
+        from controller.tasks.planned_legs import build_planned_legs_task
+
+        return build_planned_legs_task(cfg, robot)
     p = cfg.task.path
     try:
         path = CirclePath(center_m=p.center_m, radius_m=p.radius_m, speed_m_s=p.speed_m_s, laps=p.laps,
                           ramp_s=p.ramp_s)
     except ValueError as err:
         raise ConfigError(f"[task.path]: {err}") from err
+    if tuple(p.normal[:2]) != (0.0, 0.0):  # a circle in a tilted plane
+        from controller.robots.uru_robot import TiltedCirclePath
+
+        path = TiltedCirclePath(path, p.normal)
     robot.check_path(path.points(p.check_samples))  # WorkspaceError names the sample
     return PathTask(robot, path, settle_tolerance=cfg.loop.settle_tolerance_m)
 
@@ -90,15 +98,24 @@ def build_contour_task(cfg: Config, robot: CheopeRobot) -> ContourTrackingTask:
     return ContourTrackingTask(robot, params)
 
 
+def safety_config(cfg: Config) -> SafetyConfig:
+    s = cfg.safety
+    return SafetyConfig(
+        max_contact_force_n=s.max_contact_force_n, sensor_stale_cycles=s.sensor_stale_cycles,
+        on_sensor_stale=s.on_sensor_stale, on_sensor_saturated=s.on_sensor_saturated,
+        on_heartbeat_lost=s.on_heartbeat_lost, on_error_frames=s.on_error_frames,
+        max_consecutive_late_cycles=s.max_consecutive_late_cycles, on_late_cycles=s.on_late_cycles)
+
+
 def build_law(cfg: Config, robot: CheopeRobot | None = None) -> ControlLaw:
     robot = robot or build_robot(cfg)
-    a = cfg.actuators
+    a = actuator_units(cfg)  # m or rad
     n = robot.n_actuators
-    limits = AxisLimits((a.max_velocity_m_s,) * n, (a.max_acceleration_m_s2,) * n, (a.max_jerk_m_s3,) * n)
+    limits = AxisLimits((a.max_velocity,) * n, (a.max_acceleration,) * n, (a.max_jerk,) * n)
     law_cfg = LawConfig(period_s=cfg.period_s, enable_timeout_s=cfg.loop.enable_timeout_s,
                         hold_before_task_s=cfg.loop.hold_before_task_s,
                         max_missing_cycles=cfg.loop.max_missing_cycles,
-                        settle_tolerance=cfg.loop.settle_tolerance_m)
+                        settle_tolerance=cfg.loop.settle_tolerance_m, safety=safety_config(cfg))
     return ControlLaw(robot, build_task(cfg, robot), RuckigSmoother(limits, cfg.period_s), law_cfg)
 
 
@@ -123,16 +140,27 @@ def node_setup_plan(cfg: Config) -> NodeSetupPlan:
         vendor_id=cfg.actuators.vendor_id, drive_product_code=cfg.actuators.product_code,
         sensor_product_code=cfg.sensor.product_code, controller_id=cfg.loop.controller_node_id,
         heartbeat_period_s=cfg.loop.heartbeat_period_s, heartbeat_consumer_s=cfg.loop.heartbeat_consumer_s,
+        sdo_timeout_s=cfg.loop.sdo_timeout_s,
     )
 
 
 def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float = 600.0,
                    stop_event: threading.Event | None = None, observers: tuple[CycleObserver, ...] = (),
-                   frame_sink: FrameSink | None = None) -> dict[str, object]:
-    """Run the configured task on the bus; returns the summary (see controller/run_summary.py)."""
+                   frame_sink: FrameSink | None = None, realtime: RealtimeOptions | None = None
+                   ) -> dict[str, object]:
+    """Run the configured task on the bus; returns the summary (see controller/run_summary.py).
+
+    ``realtime`` (controller/realtime.py) is checked before anything opens, and applied to
+    this thread just before the loop starts, so helper threads started earlier keep SCHED_OTHER.
+    """
     prepared = prepare(cfg)
+    realtime = realtime or RealtimeOptions()
+    check_realtime(realtime)  # RealtimeError names the option and how to get the permission
     set_gil_switch_interval(cfg.loop.gil_switch_interval_us * 1e-6)
     recorder = RunRecorder()
+    report = getattr(prepared.law.task, "execution_report", None)  # nSPU: reached pose vs goal
+    if report is not None:
+        observers = (*observers, report)
     session = _session_recorder(cfg, prepared.law, spec)  # the MCAP recording (logs/recorder.py)
     if session is not None:
         observers = (*observers, session)
@@ -142,21 +170,28 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float = 600.0,
             cfg, stop_event, prepared.law.task) as publisher, open_bus(spec) as bus:
         setup = configure_nodes(bus, node_setup_plan(cfg))
         exchange = CyclicExchange(
-            bus, tuple(cfg.actuators.node_ids), PositionScale(cfg.actuators.counts_per_m),
+            bus, tuple(cfg.actuators.node_ids), PositionScale(actuator_units(cfg).counts_per_unit),
             cfg.sensor.node_id if cfg.sensor.enabled else None, cfg.loop.controller_node_id,
             heartbeat_every=max(1, round(cfg.loop.heartbeat_period_s * cfg.loop.rate_hz)), fd=spec.fd,
-            frame_sink=frame_sink,
+            frame_sink=frame_sink, heartbeat_timeout_s=cfg.loop.heartbeat_consumer_s,
         )
         if publisher is not None:
             publisher.exchange_counters = exchange.counters
         loop = CycleLoop(prepared.law, exchange, cfg.period_s, cfg.loop.collect_fraction,
                          DeadlineSleeper(cfg.loop.spin_us * 1e-6), time.monotonic,
+                         late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s,
                          observers=(recorder, *observers, *((publisher,) if publisher is not None else ())),
                          stop_event=stop_event, commands=publisher.commands if publisher is not None else None)
-        final, stats = loop.run(prepared.law.initial_state(), max_duration_s)
+        restore = apply_realtime(realtime)
+        try:
+            final, stats = loop.run(prepared.law.initial_state(), max_duration_s,
+                                    exit_on_fault=not cfg.loop.stay_in_fault)
+        finally:
+            restore()
     return summarize(stats, recorder, final, exchange.counters, prepared.bus_load.percent,
                      extra={"bus": str(spec), "node_setup_s": round(setup.duration_s, 3),
-                            "recording": _recording_summary(session)})
+                            "recording": _recording_summary(session), "realtime": realtime.describe(),
+                            **(report.summary() if report is not None else {})})
 
 
 def _session_recorder(cfg: Config, law: ControlLaw, spec: BusSpec):  # -> logs.recorder.SessionRecorder | None

@@ -30,6 +30,7 @@ from drivers.pdo_codec import (
 FrameSink = Callable[[bool, float, can.Message], None]  # (outgoing, monotonic time [s], frame)
 
 _DRIVE, _SENSOR_FORCE, _SENSOR_TORQUE, _EMCY, _HEARTBEAT = range(5)
+CAN_ERR_BUSOFF = 0x040  # error class bit of a SocketCAN error frame (linux/can/error.h)
 
 
 @dataclass
@@ -47,7 +48,8 @@ class ExchangeCounters:
 class CyclicExchange:
     def __init__(self, bus: can.BusABC, drive_ids: tuple[int, ...], scale: PositionScale,
                  sensor_id: int | None, controller_id: int, heartbeat_every: int, fd: bool = False,
-                 clock: Callable[[], float] = time.monotonic, frame_sink: FrameSink | None = None) -> None:
+                 clock: Callable[[], float] = time.monotonic, frame_sink: FrameSink | None = None,
+                 heartbeat_timeout_s: float = 0.5) -> None:
         self.bus = bus
         self.n = len(drive_ids)
         self.scale = scale
@@ -83,7 +85,12 @@ class CyclicExchange:
         self._sensor_fresh = False
         self._emcy: list[EmcyReport] = []
         self._collecting = False
+        self.drive_ids = tuple(drive_ids)
+        self.heartbeat_timeout_s = heartbeat_timeout_s
         self.last_heartbeat_s = [math.nan] * self.n
+        self.started_s = clock()
+        self._error_frames = 0
+        self._bus_off = False
         self.cycles = 0
         self.last_frame_in_s = 0.0  # arrival of the last frame that completed a cycle's inputs
         self.sent_s = 0.0  # when this cycle's RPDOs went out
@@ -119,6 +126,8 @@ class CyclicExchange:
         self._sensor_fresh = False
         self._force_counter = self._torque_counter = -1
         self._emcy = []
+        self._error_frames = 0
+        self._bus_off = False
 
     # -- in ---------------------------------------------------------------------------------
 
@@ -153,7 +162,11 @@ class CyclicExchange:
         drives = tuple(DriveFeedback(sw, x, f) for sw, x, f in zip(self._statusword, self._position, self._fresh))
         sensor = SensorFeedback(self._force, self._torque, self._sensor_status, max(self._force_counter, 0),
                                 self._sensor_fresh) if self.has_sensor else None
-        return CycleInputs(drives=drives, sensor=sensor, emcy=tuple(self._emcy), stop_requested=stop_requested)
+        now = clock()
+        lost = tuple(node for node, last in zip(self.drive_ids, self.last_heartbeat_s)
+                     if now - (self.started_s if math.isnan(last) else last) > self.heartbeat_timeout_s)
+        return CycleInputs(drives=drives, sensor=sensor, emcy=tuple(self._emcy), stop_requested=stop_requested,
+                           lost_heartbeats=lost, error_frames=self._error_frames, bus_off=self._bus_off)
 
     def _notify(self, msg: can.Message) -> None:
         now = self.clock()
@@ -163,6 +176,9 @@ class CyclicExchange:
             self.frame_sink(False, now, msg)
         if msg.is_error_frame:
             c.error_frames += 1
+            self._error_frames += 1
+            if msg.arbitration_id & CAN_ERR_BUSOFF:
+                self._bus_off = True
             return
         route = self._dispatch.get(msg.arbitration_id)
         if route is None:

@@ -37,7 +37,8 @@ class NodeSetupPlan:
     controller_id: int
     heartbeat_period_s: float
     heartbeat_consumer_s: float
-    answer_timeout_s: float = 5.0
+    answer_timeout_s: float = 5.0  # how long a node may take to answer at all (it may still be booting)
+    sdo_timeout_s: float = 1.0  # each SDO response; canopen's 0.3 s default is short for slow machines
 
 
 @dataclass(frozen=True)
@@ -94,6 +95,7 @@ def configure_nodes(bus: can.BusABC, plan: NodeSetupPlan) -> NodeSetupReport:
         consumer = (plan.controller_id << 16) | round(plan.heartbeat_consumer_s * 1000)
         for node_id in plan.drive_ids:
             node = canopen.RemoteNode(node_id, str(DRIVE_EDS))
+            node.sdo.RESPONSE_TIMEOUT = plan.sdo_timeout_s
             network.add_node(node)
             _wait_until_answering(node, plan.answer_timeout_s)
             identities.append(_identity(node, plan.vendor_id, plan.drive_product_code))
@@ -106,6 +108,7 @@ def configure_nodes(bus: can.BusABC, plan: NodeSetupPlan) -> NodeSetupReport:
             positions.append(node.sdo[0x6064].raw)
         if plan.sensor_id is not None:
             node = canopen.RemoteNode(plan.sensor_id, str(SENSOR_EDS))
+            node.sdo.RESPONSE_TIMEOUT = plan.sdo_timeout_s
             network.add_node(node)
             _wait_until_answering(node, plan.answer_timeout_s)
             identities.append(_identity(node, plan.vendor_id, plan.sensor_product_code))

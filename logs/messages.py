@@ -82,6 +82,10 @@ def inputs_to_pb(inputs: CycleInputs, out: pb.CycleInputs) -> None:
     out.stop_requested = inputs.stop_requested
     out.command = inputs.command
     out.command_value = inputs.command_value
+    out.lost_heartbeats.extend(inputs.lost_heartbeats)
+    out.error_frames = inputs.error_frames
+    out.bus_off = inputs.bus_off
+    out.late = inputs.late
 
 
 def inputs_from_pb(msg: pb.CycleInputs) -> CycleInputs:
@@ -95,6 +99,8 @@ def inputs_from_pb(msg: pb.CycleInputs) -> CycleInputs:
         sensor=sensor,
         emcy=tuple(EmcyReport(e.node_id, e.error_code, e.error_register) for e in msg.emcy),
         stop_requested=msg.stop_requested, command=msg.command, command_value=msg.command_value,
+        lost_heartbeats=tuple(msg.lost_heartbeats), error_frames=msg.error_frames, bus_off=msg.bus_off,
+        late=msg.late,
     )
 
 

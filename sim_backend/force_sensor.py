@@ -37,6 +37,8 @@ class SimulatedForceSensor:
     params: SensorParams
     counter: int = 0
     status_flags: int = 0  # extra status bits forced by fault injection
+    freeze_counter: bool = False  # fault injection: the counter stops advancing
+    extra_force_n: tuple[float, float, float] = (0.0, 0.0, 0.0)  # fault injection: an unexpected force
     rng: np.random.Generator = field(init=False)
     _filtered: np.ndarray = field(default_factory=lambda: np.zeros(3))
     _torque: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -69,12 +71,13 @@ class SimulatedForceSensor:
     def frames(self) -> tuple[bytes, bytes]:
         """The two TPDOs answering a SYNC: the latest sample."""
         p = self.params
-        measured = self._sample
+        measured = self._sample + np.asarray(self.extra_force_n)
         status = self.status_flags
         if np.any(np.abs(measured) > p.range_n):
             status |= SENSOR_FORCE_SATURATED
             measured = np.clip(measured, -p.range_n, p.range_n)
-        self.counter = (self.counter + 1) & 0xFF
+        if not self.freeze_counter:
+            self.counter = (self.counter + 1) & 0xFF
         f = encode_sensor_frame(tuple(measured.tolist()), FORCE_N_PER_COUNT, status, self.counter)  # type: ignore[arg-type]
         t = encode_sensor_frame(tuple(self._torque.tolist()), TORQUE_NM_PER_COUNT, status,
                                 self.counter)  # type: ignore[arg-type]

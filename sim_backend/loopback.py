@@ -11,6 +11,7 @@ from __future__ import annotations
 from typing import Callable
 
 from controller.config import Config
+from controller.robots.registry import actuator_units
 from controller.cycle_data import CycleInputs, CycleOutputs, DriveFeedback, EmcyReport, SensorFeedback
 from drivers.pdo_codec import (
     FORCE_N_PER_COUNT,
@@ -21,31 +22,47 @@ from drivers.pdo_codec import (
     decode_sensor_frame,
     encode_drive_rpdo,
 )
+from drivers.pdo_codec import FrameError
 from sim_backend.environment import Environment
+from sim_backend.fault_injection import FaultSchedule, apply_device_faults, tpdo_payload
 from sim_backend.plant import RobotPlant
 
 
 class LoopbackExchange:
     def __init__(self, cfg: Config, clock: Callable[[], float], environment: Environment | None = None) -> None:
         self.clock = clock
-        self.scale = PositionScale(cfg.actuators.counts_per_m)
+        self.scale = PositionScale(actuator_units(cfg).counts_per_unit)  # m or rad
         self.plant = RobotPlant(cfg, environment)
         self.drives = self.plant.drives
         for d in self.drives:
             d.mode_of_operation = 8  # what node set-up does over SDO on the real path
         self.drive_ids = tuple(cfg.actuators.node_ids)
         self.drop: set[int] = set()  # indices of drives whose TPDOs are dropped (fault injection)
+        self.faults = FaultSchedule.from_strings(tuple(cfg.sim.faults))
+        self.rejected_frames = 0
+        self.send_errors = 0
         self._frames: list[tuple[int, int, bytes]] = []
         self._emcy: list[EmcyReport] = []
 
     def send(self, outputs: CycleOutputs | None) -> None:
         now = self.clock()
         self.plant.advance(now)
+        self.faults.start(now)
+        if self.faults.active("tx_full", now) is not None:
+            # nothing reaches the bus: no RPDO, no SYNC, so no device answers
+            self.send_errors += 5
+            self._frames = []
+            return
         if outputs is not None:
             for d, cw, x in zip(self.drives, outputs.controlwords, outputs.targets):
                 d.on_rpdo(*decode_drive_rpdo(encode_drive_rpdo(cw, self.scale.to_counts(x))))
+        apply_device_faults(self.faults, self.plant, self.drive_ids, now)
         drive_payloads, sensor_frames = self.plant.sync(now)
-        self._frames = [(0, j, data) for j, data in enumerate(drive_payloads) if j not in self.drop]
+        self._frames = []
+        for j, data in enumerate(drive_payloads):
+            payload = tpdo_payload(self.faults, self.drive_ids[j], data, now)
+            if payload is not None and j not in self.drop and self.faults.active("delay", now, self.drive_ids[j]) is None:
+                self._frames.append((0, j, payload))
         if sensor_frames is not None:
             self._frames += [(1, 0, sensor_frames[0]), (2, 0, sensor_frames[1])]
         for j, d in enumerate(self.drives):
@@ -58,7 +75,11 @@ class LoopbackExchange:
         force = torque = None
         for kind, j, data in self._frames:
             if kind == 0:
-                sw, counts = decode_drive_tpdo(data)
+                try:
+                    sw, counts = decode_drive_tpdo(data)
+                except FrameError:
+                    self.rejected_frames += 1
+                    continue
                 drives[j] = DriveFeedback(sw, self.scale.to_unit(counts), True)
             elif kind == 1:
                 force = decode_sensor_frame(data, FORCE_N_PER_COUNT)
@@ -70,4 +91,9 @@ class LoopbackExchange:
         if force is not None and torque is not None:
             sensor = SensorFeedback(force[:3], torque[:3], force[3], force[4], True)
         emcy, self._emcy = tuple(self._emcy), []
-        return CycleInputs(drives=feedback, sensor=sensor, emcy=emcy, stop_requested=stop_requested)
+        now = self.clock()
+        lost = tuple(n for n in self.drive_ids if self.faults.active("heartbeat", now, n) is not None)
+        errors = 3 if self.faults.active("error_frames", now) is not None else 0
+        bus_off = self.faults.active("bus_off", now) is not None
+        return CycleInputs(drives=feedback, sensor=sensor, emcy=emcy, stop_requested=stop_requested,
+                           lost_heartbeats=lost, error_frames=errors + bus_off, bus_off=bus_off)

@@ -5,6 +5,17 @@ drive this object, so they simulate the same physics. Time is an argument: ``adv
 integrates everything up to ``now_s`` in sub-steps of ``substep_s``; ``sync`` answers a SYNC.
 In free space the structure carries no load, so the mechanics reduce to the direct
 kinematics evaluated at the SYNC.
+
+The mechanics depend on ``robot.kind`` (``_update_kinematics``):
+- Cheope: the closed-form direct kinematics of the slider positions [m];
+- 3-URU: the direct kinematics from the motor-shaft angles [rad] (the drives are rotary),
+  Newton from the previous pose (the assembly the platform is in);
+- 3-nSPU: the pose (p, R) is integrated from the drives' actual leg lengths at every SYNC
+  (``nspu.advance_pose_to_leg_lengths``, one RKMK4 step over the SYNC interval): the pose of a
+  non-holonomic robot depends on the whole leg motion. ``tcp_m`` is the platform point P.
+The drives start where the robot's start pose puts them (the URU's home position, the
+nSPU's planned start pose); ``sim.drive.initial_positions_m`` is Cheope's. Only Cheope has
+the compliant structure and the contact environment.
 """
 
 from __future__ import annotations
@@ -16,7 +27,7 @@ import numpy as np
 from controller.config import Config
 from controller.robots.errors import NoSolutionError
 from controller.robots.performance import MassModel
-from controller.robots.registry import cheope_from_config
+from controller.robots.registry import actuator_units, robot_from_config
 from drivers.pdo_codec import encode_drive_tpdo
 from sim_backend.drive import DriveParams, SimulatedDrive
 from sim_backend.contact_disk import DiskEnvironment, DiskParams
@@ -29,14 +40,23 @@ log = logging.getLogger(__name__)
 
 def drive_params_from_config(cfg: Config) -> DriveParams:
     d = cfg.sim.drive
-    c = cfg.robot.cheope
+    u = actuator_units(cfg)  # m, or rad for the URU's motors; the stroke of the configured robot
     return DriveParams(
-        bandwidth_hz=d.bandwidth_hz, damping_ratio=d.damping_ratio, max_velocity=d.max_velocity_m_s,
-        max_acceleration=d.max_acceleration_m_s2, quick_stop_deceleration=d.quick_stop_deceleration_m_s2,
+        bandwidth_hz=d.bandwidth_hz, damping_ratio=d.damping_ratio, max_velocity=u.sim_max_velocity,
+        max_acceleration=u.sim_max_acceleration, quick_stop_deceleration=u.sim_quick_stop_deceleration,
         velocity_feedforward=d.velocity_feedforward,
-        stroke_min=c.stroke_min_m, stroke_max=c.stroke_max_m, counts_per_unit=cfg.actuators.counts_per_m,
+        stroke_min=u.stroke_min, stroke_max=u.stroke_max, counts_per_unit=u.counts_per_unit,
         sync_timeout_s=d.sync_timeout_s, substep_s=d.substep_s,
     )
+
+
+def initial_actuator_positions(cfg: Config, robot) -> tuple[float, ...]:  # noqa: ANN001
+    """Where the simulated drives start: Cheope's configured positions, else the robot's start pose."""
+    if cfg.robot.kind == "uru":
+        return tuple(robot.inverse_kinematics(np.asarray(cfg.robot.uru.home_position_m)).tolist())
+    if cfg.robot.kind == "nspu":
+        return tuple(robot.start_leg_lengths_m().tolist())
+    return tuple(cfg.sim.drive.initial_positions_m)
 
 
 def environment_from_config(cfg: Config) -> Environment:
@@ -55,9 +75,12 @@ def environment_from_config(cfg: Config) -> Environment:
 
 class RobotPlant:
     def __init__(self, cfg: Config, environment: Environment | None = None) -> None:
-        self.robot = cheope_from_config(cfg)
+        self.kind = cfg.robot.kind
+        self.robot = robot_from_config(cfg)
         params = drive_params_from_config(cfg)
-        self.drives = [SimulatedDrive(params, position=x) for x in cfg.sim.drive.initial_positions_m]
+        self.drives = [SimulatedDrive(params, position=x) for x in initial_actuator_positions(cfg, self.robot)]
+        self.pose = self.robot.start if self.kind == "nspu" else None  # nSPU: the integrated pose
+        self._pose_time_s: float | None = None
         s = cfg.sim.sensor
         self.sensor = SimulatedForceSensor(SensorParams(s.noise_std_n, s.bias_n, s.range_n, s.seed,
                                                         s.sample_rate_hz, s.bandwidth_hz)) \
@@ -85,11 +108,28 @@ class RobotPlant:
     def _update_kinematics(self) -> np.ndarray | None:
         q = np.array([d.position for d in self.drives])
         try:
-            self.tcp_kinematic_m = self.robot.direct_kinematics(q)
+            if self.kind == "cheope":
+                self.tcp_kinematic_m = self.robot.direct_kinematics(q)
+            elif self.kind == "uru":  # Newton from the previous pose: the assembly the platform is in
+                guess = self.tcp_kinematic_m if np.any(self.tcp_kinematic_m) else None
+                self.tcp_kinematic_m = self.robot.direct_kinematics(q, guess)
+            else:
+                self._integrate_pose(q)
         except NoSolutionError:
             log.warning("simulated actuators at %s m have no assembly", q.tolist())
             return None
         return q
+
+    def _integrate_pose(self, q_m: np.ndarray) -> None:
+        """nSPU: advance the pose so that its legs reach the drives' actual lengths (seed 000 eq. (11))."""
+        from controller.robots.nspu import advance_pose_to_leg_lengths, leg_lengths
+
+        t = self.time_s
+        if self._pose_time_s is not None and t is not None and t > self._pose_time_s:
+            if np.any(np.abs(q_m - leg_lengths(self.robot.geometry, self.pose)) > 1e-12):
+                self.pose = advance_pose_to_leg_lengths(self.robot.geometry, self.pose, q_m, t - self._pose_time_s)
+        self._pose_time_s = t
+        self.tcp_kinematic_m = np.array(self.pose.p_m)
 
     def advance(self, now_s: float) -> None:
         if self.time_s is None:

@@ -6,13 +6,19 @@ import sys
 import threading
 
 from controller.config import Config
+from controller.realtime import RealtimeOptions, apply_realtime
 from drivers.bus import BusSpec, open_bus
 from sim_backend.server import Simulator
 
 READY_LINE = "cheope-sim ready"
 
 
-def serve(cfg: Config, spec: BusSpec, stop_event: threading.Event, announce: "callable[[str], None]") -> None:
+def serve(cfg: Config, spec: BusSpec, stop_event: threading.Event, announce: "callable[[str], None]",
+          realtime: RealtimeOptions | None = None) -> None:
+    # Before any thread starts: canopen's notifier, the heartbeat producers and the watchdog
+    # inherit the priority and the affinity (the simulated hardware is real time as a whole).
+    if realtime is not None:
+        apply_realtime(realtime)
     # the SYNC handler competes with heartbeat and watchdog threads for the GIL
     sys.setswitchinterval(cfg.loop.gil_switch_interval_us * 1e-6)
     with open_bus(spec) as bus, Simulator(cfg, bus):

@@ -24,6 +24,7 @@ from drivers import cob_ids
 from drivers.pdo_codec import FrameError, decode_drive_rpdo
 from sim_backend.drive import SimulatedDrive
 from sim_backend.environment import Environment
+from sim_backend.fault_injection import FaultSchedule, apply_device_faults, tpdo_payload
 from sim_backend.plant import RobotPlant
 
 log = logging.getLogger(__name__)
@@ -48,6 +49,8 @@ class Simulator:
         self.sensor = self.plant.sensor
         self.lock = threading.RLock()
         self.drive_ids = tuple(cfg.actuators.node_ids)
+        self.faults = FaultSchedule.from_strings(tuple(cfg.sim.faults))
+        self._silenced: set[int] = set()
         self.network = canopen.Network(bus)
         self.nodes: dict[int, canopen.LocalNode] = {}
         self.sync_count = 0
@@ -150,18 +153,38 @@ class Simulator:
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         now = self.clock()
         frames: list[tuple[int, bytes]] = []
+        delayed: list[tuple[float, int, bytes]] = []
         with self.lock:
             self.sync_count += 1
+            apply_device_faults(self.faults, self.plant, self.drive_ids, now)
             drive_payloads, sensor_frames = self.plant.sync(now)
             for node_id, payload in zip(self.drive_ids, drive_payloads):
-                if self._operational(node_id):
-                    frames.append((cob_ids.tpdo1(node_id), payload))
+                out = tpdo_payload(self.faults, node_id, payload, now)
+                if out is None or not self._operational(node_id):
+                    continue
+                delay = self.faults.active("delay", now, node_id)
+                if delay is not None:
+                    delayed.append((delay.value, cob_ids.tpdo1(node_id), out))
+                else:
+                    frames.append((cob_ids.tpdo1(node_id), out))
+                if self.faults.active("heartbeat", now, node_id) is not None and node_id not in self._silenced:
+                    self.nodes[node_id].nmt.stop_heartbeat()
+                    self._silenced.add(node_id)
             if sensor_frames is not None and self._operational(self.cfg.sensor.node_id):
                 frames.append((cob_ids.tpdo1(self.cfg.sensor.node_id), sensor_frames[0]))
                 frames.append((cob_ids.tpdo2(self.cfg.sensor.node_id), sensor_frames[1]))
             self._flush_emcy()
         for cob_id, payload in frames:
             self.network.send_message(cob_id, payload)
+        for delay_s, cob_id, payload in delayed:
+            timer = threading.Timer(delay_s, self.network.send_message, (cob_id, payload))
+            timer.daemon = True
+            timer.start()
+        bus_off = self.faults.active("bus_off", now) is not None
+        if bus_off or self.faults.active("error_frames", now) is not None:
+            # error class bits of a SocketCAN error frame: 0x040 bus-off, 0x004 controller problems
+            self.bus.send(can.Message(arbitration_id=0x040 if bus_off else 0x004, is_error_frame=True,
+                                      data=bytes(8), is_extended_id=False))
 
     def _on_controller_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
         now = self.clock()

@@ -28,6 +28,18 @@ def _children() -> set[int]:
     return kids
 
 
+@pytest.fixture(autouse=True, scope="session")
+def recordings_in_a_temporary_directory(tmp_path_factory):
+    """Sessions recorded by the tests (and their subprocesses) go to a temporary XDG data home."""
+    old = os.environ.get("XDG_DATA_HOME")
+    os.environ["XDG_DATA_HOME"] = str(tmp_path_factory.mktemp("xdg-data"))
+    yield
+    if old is None:
+        os.environ.pop("XDG_DATA_HOME", None)
+    else:
+        os.environ["XDG_DATA_HOME"] = old
+
+
 @pytest.fixture(autouse=True)
 def no_leaks():
     """Fail a test that leaves a child process or a thread running (STYLE.md principle 8)."""

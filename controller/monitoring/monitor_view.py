@@ -187,7 +187,7 @@ def render(view: ViewModel, now_s: float):  # -> rich renderable
         head.add_row("TCP", _vec(s.tcp_m, 1e3, "mm"))
         head.add_row("force", _vec(s.force_n, 1.0, "N"))
         axes = Table(title="actuators", expand=False)
-        for col in ("axis", "target [mm]", "position [mm]", "error [um]"):
+        for col in ("axis", "target [mm]", "position [mm]", "target - position [um]"):
             axes.add_column(col, justify="right")
         for j, (tg, ps) in enumerate(zip(s.targets, s.positions)):
             axes.add_row(str(j + 1), f"{tg * 1e3:.3f}", f"{ps * 1e3:.3f}", f"{(tg - ps) * 1e6:.1f}")

@@ -52,7 +52,7 @@ from controller.monitoring.zenoh_session import (
 log = logging.getLogger(__name__)
 
 ALWAYS_ACCEPTED = ("stop",)
-GATED_COMMANDS = ("pause", "resume", "set_force")
+GATED_COMMANDS = ("pause", "resume", "set_force", "reset")  # reset: leave FAULT (control_law)
 _SAMPLE, _EVENTS, _NOTE = range(3)
 _RING = 1024  # cycles of wake-up times kept for the loop statistics (power of two)
 _STATS_EVERY_S = 0.25  # recompute the loop's timing statistics at most this often [s]

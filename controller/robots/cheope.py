@@ -328,6 +328,15 @@ class CheopeRobot:
             return PoseStatus(False, f"condition number {cond:.2f} above {lim.max_condition_number}")
         return POSE_OK
 
+    def check_actuators(self, q_m: tuple[float, ...]) -> PoseStatus:
+        """Measured actuator positions inside their strokes (and numbers at all)."""
+        lim = self.limits
+        for j, x in enumerate(q_m):
+            if not lim.stroke_min_m <= x <= lim.stroke_max_m:  # also False for NaN
+                return PoseStatus(False, f"actuator {j + 1} measured at {x:.4f} m, outside its stroke "
+                                         f"[{lim.stroke_min_m}, {lim.stroke_max_m}] m")
+        return POSE_OK
+
     def check_path(self, points_m: np.ndarray) -> None:
         """Raise WorkspaceError naming the first sample of the path that fails ``check_pose``."""
         for i, p in enumerate(np.asarray(points_m, dtype=float)):

@@ -1,0 +1,820 @@
+"""``cheope bench``: how fast and how regular the loop is, with the simulator beside it.
+
+One command measures everything the timing issue asks for and writes a table (stdout), one
+JSON file and PNG plots of the period-error distribution:
+
+1. the cyclic PDO path: this project's ``CyclicExchange`` against the ``canopen`` package's
+   own PDO objects doing the same cycle (3 RPDOs + SYNC out, 3 drive + 2 sensor TPDOs in,
+   decoded to SI units), CPU time per cycle, on python-can's in-process virtual bus;
+2. the step's cost in Python against Ruckig's own reported calculation time, in process on
+   simulated time (``sim_backend.loopback``), with a cProfile of the hottest functions;
+3. for each configured rate (400 Hz on classical CAN, 1 kHz on CAN FD by default):
+   a. the loop shell's sleeper against a naive ``time.sleep(period)`` loop doing the same
+      busy work (the step's measured median), in alternating blocks so machine noise hits
+      both arms alike: drift and jitter;
+   b. the real service (``run_controller``) against the simulator as its own process:
+      achieved rate, period error p50/p99/p99.9/max, late cycles per 10 000, step compute
+      time, last TPDO in -> outputs ready and -> RPDOs out, CPU use of controller (process
+      and loop thread) and simulator, computed and measured bus load.
+
+Definitions (also in the JSON):
+- period error: |(wake_k - wake_{k-1}) - period|, wake-ups on the monotonic clock;
+- late cycle: woke more than ``late_fraction`` of a period after its deadline, or a deadline
+  skipped because the loop fell a whole period behind (an overrun);
+- measured bus load: every frame seen on the bus (the udp_multicast bus echoes our own) times
+  its duration by ``drivers.bus_load`` with its own FD/BRS flags, worst-case stuffing, per
+  second of the run; it counts classical frames where a device answers with classical frames.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import io
+import json
+import math
+import os
+import pstats
+import selectors
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from controller.realtime import RealtimeOptions
+
+DRIVE_TPDO_BYTES = 6
+
+
+# -- statistics (pure) ------------------------------------------------------------------------
+
+def percentiles_us(values_us: np.ndarray) -> dict[str, float]:
+    """p50, p99, p99.9 and max of ``values_us``, rounded to 0.1 us (zeros when empty)."""
+    v = np.asarray(values_us, dtype=float)
+    if v.size == 0:
+        return {"p50": 0.0, "p99": 0.0, "p99_9": 0.0, "max": 0.0}
+    p50, p99, p999 = np.percentile(v, [50.0, 99.0, 99.9])
+    return {"p50": round(float(p50), 1), "p99": round(float(p99), 1), "p99_9": round(float(p999), 1),
+            "max": round(float(v.max()), 1)}
+
+
+def period_error_us(wake_s: np.ndarray, period_s: float) -> np.ndarray:
+    """|actual - nominal period| between consecutive wake-ups [us]; works on wake times or on
+    wake errors relative to the deadlines (the nominal period cancels in the latter)."""
+    w = np.asarray(wake_s, dtype=float)
+    if w.size < 2:
+        return np.zeros(0)
+    return np.abs(np.diff(w) - period_s) * 1e6
+
+
+def late_per_10k(wake_error_s: np.ndarray, period_s: float, late_fraction: float, overruns: int = 0) -> float:
+    """Late cycles per 10 000 deadlines (executed + skipped)."""
+    e = np.asarray(wake_error_s, dtype=float)
+    deadlines = e.size + overruns
+    if deadlines == 0:
+        return 0.0
+    late = int(np.count_nonzero(e > late_fraction * period_s)) + overruns
+    return 1e4 * late / deadlines
+
+
+def schedule_stats(wake_s: np.ndarray, period_s: float, late_fraction: float = 0.1) -> dict[str, object]:
+    """Timing of a loop whose k-th wake-up was meant for ``wake_s[0] + k * period_s``."""
+    w = np.asarray(wake_s, dtype=float)
+    if w.size < 2:
+        raise ValueError(f"schedule_stats needs at least 2 wake-ups, got {w.size}")
+    nominal = w[0] + period_s * np.arange(w.size)
+    error = w - nominal
+    return {
+        "cycles": int(w.size),
+        "achieved_rate_hz": round((w.size - 1) / (w[-1] - w[0]), 3),
+        "drift_ms": round(float(error[-1]) * 1e3, 3),  # behind the nominal schedule at the end
+        "period_error_us": percentiles_us(period_error_us(w, period_s)),
+        "late_per_10k": round(late_per_10k(error[1:], period_s, late_fraction), 2),
+    }
+
+
+# -- the two sleepers, side by side -----------------------------------------------------------
+
+def busy_work(duration_s: float, clock: Callable[[], float] = time.perf_counter) -> None:
+    """Spin for ``duration_s``: a stand-in for the step's compute time."""
+    end = clock() + duration_s
+    while clock() < end:
+        pass
+
+
+def naive_loop(period_s: float, cycles: int, work_s: float) -> np.ndarray:
+    """The loop DESIGN.md warns against: work, then ``time.sleep(period)``. Returns wake times [s]."""
+    wake = np.empty(cycles)
+    clock = time.monotonic
+    for k in range(cycles):
+        wake[k] = clock()
+        busy_work(work_s)
+        time.sleep(period_s)
+    return wake
+
+
+def deadline_loop(period_s: float, cycles: int, work_s: float, spin_s: float) -> np.ndarray:
+    """The loop shell's sleeper (``DeadlineSleeper``) on absolute deadlines. Returns wake times [s]."""
+    from controller.loop import DeadlineSleeper
+
+    sleeper = DeadlineSleeper(spin_s)
+    clock = time.monotonic
+    wake = np.empty(cycles)
+    first = clock() + period_s
+    for k in range(cycles):
+        sleeper.sleep_until(first + k * period_s)
+        wake[k] = clock()
+        busy_work(work_s)
+    return wake
+
+
+def compare_sleepers(period_s: float, duration_s: float, work_s: float, spin_s: float,
+                     blocks: int = 4, late_fraction: float = 0.1) -> dict[str, object]:
+    """Alternate blocks of both loops (A B A B ...) for ``duration_s`` in all; stats per loop."""
+    per_block = max(2, int(duration_s / (2 * blocks) / period_s))
+    arms: dict[str, list[np.ndarray]] = {"deadline": [], "naive": []}
+    for _ in range(blocks):
+        arms["deadline"].append(deadline_loop(period_s, per_block, work_s, spin_s))
+        arms["naive"].append(naive_loop(period_s, per_block, work_s))
+    out: dict[str, object] = {"work_us": round(work_s * 1e6, 1), "blocks": blocks, "cycles_per_block": per_block}
+    for name, runs in arms.items():
+        stats = [schedule_stats(w, period_s, late_fraction) for w in runs]
+        errors = np.concatenate([period_error_us(w, period_s) for w in runs])
+        out[name] = {
+            "achieved_rate_hz": round(float(np.mean([s["achieved_rate_hz"] for s in stats])), 3),
+            "drift_ms_per_s": round(float(np.mean([s["drift_ms"] for s in stats])) / (per_block * period_s), 3),
+            "period_error_us": percentiles_us(errors),
+            "late_per_10k": round(float(np.mean([s["late_per_10k"] for s in stats])), 2),
+            "_errors_us": errors,
+        }
+    return out
+
+
+# -- probes on the real loop ------------------------------------------------------------------
+
+class LoopProbe:
+    """Observer and frame sink of one ``run_controller`` run; preallocated, a few hundred ns a call.
+
+    Per cycle k it keeps: the wake error and step time (from the loop's ``CycleTiming``), the
+    arrival of the last TPDO of the cycle, and when the outputs were ready (end of the
+    observers' turn); from the frame sink, when the first RPDO of cycle k + 1 went out. It
+    also counts every frame on the bus by COB-ID for the measured bus load, and samples CPU
+    times once a second (the loop thread's own, the process's, the simulator's).
+    """
+
+    def __init__(self, capacity: int, tpdo_ids: frozenset[int], first_rpdo_id: int, sim_pid: int | None,
+                 sample_every: int) -> None:
+        self.capacity = capacity
+        self.wake_error_s = np.zeros(capacity)
+        self.step_s = np.zeros(capacity)
+        self.ready_after_tpdo_s = np.full(capacity, np.nan)
+        self.rpdo_after_tpdo_s = np.full(capacity, np.nan)
+        self.n = 0
+        self._tpdo_ids = tpdo_ids
+        self._first_rpdo_id = first_rpdo_id
+        self._last_tpdo_s = math.nan
+        self._prev_last_tpdo_s = math.nan
+        self._rpdo_index = 0
+        self.frames: dict[int, int] = {}  # COB-ID -> frames seen
+        self.frame_shape: dict[int, tuple[int, bool, bool]] = {}  # COB-ID -> (bytes, is_fd, brs)
+        self.outgoing = 0
+        self.sim_pid = sim_pid
+        self.sample_every = sample_every
+        self.samples: list[tuple[float, float, float, float]] = []  # (monotonic, thread, process, sim) [s]
+
+    def sink(self, outgoing: bool, t: float, msg) -> None:
+        cid = msg.arbitration_id
+        if outgoing:
+            self.outgoing += 1
+            if cid == self._first_rpdo_id:
+                i = self._rpdo_index
+                if i < self.capacity:
+                    self.rpdo_after_tpdo_s[i] = t - self._prev_last_tpdo_s
+                self._rpdo_index = i + 1
+            return
+        n = self.frames.get(cid)
+        if n is None:
+            self.frame_shape[cid] = (len(msg.data), bool(msg.is_fd), bool(msg.bitrate_switch))
+            n = 0
+        self.frames[cid] = n + 1
+        if cid in self._tpdo_ids:
+            self._last_tpdo_s = t
+
+    def on_cycle(self, cycle, t, inputs, state, outputs, events, timing) -> None:
+        now = time.monotonic()
+        i = self.n
+        if i < self.capacity:
+            self.wake_error_s[i] = timing.wake_error_s
+            self.step_s[i] = timing.step_s
+            self.ready_after_tpdo_s[i] = now - self._last_tpdo_s
+        self.n = i + 1
+        # the first RPDO of the next cycle pairs with this cycle's last TPDO
+        self._prev_last_tpdo_s = self._last_tpdo_s
+        self._rpdo_index = i + 1
+        if i % self.sample_every == 0:
+            self.samples.append((now, time.thread_time(), time.process_time(), process_cpu_s(self.sim_pid)))
+
+
+def process_cpu_s(pid: int | None) -> float:
+    """user + system CPU time of ``pid`` from /proc [s] (nan when unknown)."""
+    if pid is None:
+        return math.nan
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            fields = f.read().rsplit(b")", 1)[1].split()
+    except OSError:
+        return math.nan
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime
+
+
+def cpu_use_percent(samples: list[tuple[float, float, float, float]]) -> dict[str, float | None]:
+    """CPU use between the first and the last sample, in % of one CPU."""
+    if len(samples) < 2:
+        return {"loop_thread": None, "controller_process": None, "simulator_process": None}
+    (t0, th0, p0, s0), (t1, th1, p1, s1) = samples[0], samples[-1]
+    dt = t1 - t0
+
+    def pct(a: float, b: float) -> float | None:
+        return None if math.isnan(a) or math.isnan(b) else round(100.0 * (b - a) / dt, 1)
+
+    return {"loop_thread": pct(th0, th1), "controller_process": pct(p0, p1), "simulator_process": pct(s0, s1)}
+
+
+def measured_bus_load(frames: dict[int, int], shapes: dict[int, tuple[int, bool, bool]], seconds: float,
+                      nominal_bit_s: float, data_bit_s: float) -> dict[str, object]:
+    """Bus time of the frames seen, each by its own length and FD/BRS flags, per second."""
+    from drivers.bus_load import classical_frame_bits, fd_frame_time_s
+
+    busy = 0.0
+    classical_on_fd = 0
+    for cid, count in frames.items():
+        n_bytes, is_fd, brs = shapes[cid]
+        if is_fd:
+            busy += count * fd_frame_time_s(n_bytes, nominal_bit_s, data_bit_s, bitrate_switch=brs)
+        else:
+            busy += count * classical_frame_bits(min(n_bytes, 8)) / nominal_bit_s
+            classical_on_fd += count
+    return {"percent": round(100.0 * busy / seconds, 1) if seconds > 0 else 0.0,
+            "frames_per_second": round(sum(frames.values()) / seconds, 1) if seconds > 0 else 0.0,
+            "classical_frames_per_second": round(classical_on_fd / seconds, 1) if seconds > 0 else 0.0}
+
+
+# -- the simulator process --------------------------------------------------------------------
+
+@contextmanager
+def simulator(spec, overrides: list[str], config_path: str | None, rt: RealtimeOptions,
+              ready_timeout_s: float = 30.0) -> Iterator[subprocess.Popen[str]]:
+    """``cheope sim`` as a child process with its own real-time options."""
+    from controller.demo import stop_process
+    from sim_backend.process import READY_LINE
+
+    cmd = [sys.executable, "-m", "controller", "sim", "--can", f"{spec.interface}:{spec.channel}",
+           "--udp-port", str(spec.udp_port)]
+    if spec.fd:
+        cmd.append("--fd")
+    if config_path:
+        cmd += ["--config", config_path]
+    for s in overrides:
+        cmd += ["--set", s]
+    if rt.priority is not None:
+        cmd += ["--rt-priority", str(rt.priority)]
+    if rt.cpus:
+        cmd += ["--cpu", ",".join(str(c) for c in rt.cpus)]
+    if rt.lock_memory:
+        cmd.append("--lock-memory")
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        assert proc.stdout is not None
+        sel = selectors.DefaultSelector()
+        sel.register(proc.stdout, selectors.EVENT_READ)
+        deadline = time.monotonic() + ready_timeout_s
+        while True:
+            if time.monotonic() > deadline or not sel.select(timeout=max(0.0, deadline - time.monotonic())):
+                raise RuntimeError(f"simulator not ready within {ready_timeout_s} s")
+            line = proc.stdout.readline()
+            if not line:
+                err = proc.stderr.read() if proc.stderr else ""
+                raise RuntimeError(f"simulator exited with code {proc.wait()}: {err.strip()[-500:]}")
+            if line.startswith(READY_LINE):
+                break
+        sel.close()
+        yield proc
+    finally:
+        stop_process(proc)
+
+
+# -- one configuration against the simulator --------------------------------------------------
+
+@dataclass(frozen=True)
+class BenchCase:
+    rate_hz: float
+    fd: bool
+
+    @property
+    def name(self) -> str:
+        return f"{self.rate_hz:g} Hz " + ("CAN FD" if self.fd else "classical CAN")
+
+
+def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], config_path: str | None,
+             rt: RealtimeOptions, sim_rt: RealtimeOptions, late_fraction: float) -> dict[str, object]:
+    from controller.config import load_config, parse_override
+    from controller.demo import random_udp_port
+    from controller.service import planned_bus_load, run_controller
+    from drivers import cob_ids
+    from drivers.bus import parse_bus_spec
+
+    overrides = [*base_overrides, f"loop.rate_hz={case.rate_hz}", f"bus.fd={'true' if case.fd else 'false'}"]
+    cfg = load_config(config_path, dict(parse_override(s) for s in overrides))
+    if cfg.task.kind == "path":  # enough laps to keep moving for the whole run
+        p = cfg.task.path
+        laps = math.ceil(duration_s * p.speed_m_s / (2 * math.pi * p.radius_m)) + 1
+        overrides.append(f"task.path.laps={float(laps)}")
+        cfg = load_config(config_path, dict(parse_override(s) for s in overrides))
+    spec = parse_bus_spec(cfg.bus.can, fd=cfg.bus.fd, udp_port=random_udp_port())
+    period = cfg.period_s
+    capacity = int(duration_s / period) + 16
+    ids = tuple(cfg.actuators.node_ids)
+    tpdo_ids = {cob_ids.tpdo1(i) for i in ids}
+    if cfg.sensor.enabled:
+        tpdo_ids |= {cob_ids.tpdo1(cfg.sensor.node_id), cob_ids.tpdo2(cfg.sensor.node_id)}
+    with simulator(spec, overrides, config_path, sim_rt) as proc:
+        probe = LoopProbe(capacity, frozenset(tpdo_ids), cob_ids.rpdo1(ids[0]), proc.pid,
+                          sample_every=max(1, round(cfg.loop.rate_hz)))
+        summary = run_controller(cfg, spec, max_duration_s=duration_s, observers=(probe,),
+                                 frame_sink=probe.sink, realtime=rt)
+    n = min(probe.n, capacity)
+    skip = min(n // 10, round(cfg.loop.rate_hz))  # the first second: node set-up done, caches cold
+    wake = probe.wake_error_s[skip:n]
+    overruns = int(summary.get("overruns", 0))
+    samples = probe.samples
+    seconds = samples[-1][0] - samples[0][0] if len(samples) > 1 else 0.0
+    echo = cob_ids.SYNC in probe.frames  # the bus hands us our own frames too
+    frames = dict(probe.frames)
+    shapes = dict(probe.frame_shape)
+    if not echo:
+        shapes[-1] = (DRIVE_TPDO_BYTES, case.fd, case.fd)
+        frames[-1] = probe.outgoing
+    per_err = period_error_us(wake, 0.0)
+    result: dict[str, object] = {
+        "case": case.name,
+        "rate_hz": case.rate_hz,
+        "fd": case.fd,
+        "bus": str(spec),
+        "realtime": rt.describe(),
+        "simulator_realtime": sim_rt.describe(),
+        "final_mode": summary["final_mode"],
+        "fault_reason": summary.get("fault_reason"),
+        "cycles": int(summary["cycles"]),
+        "achieved_rate_hz": summary["achieved_rate_hz"],
+        "period_error_us": percentiles_us(per_err),
+        "wake_latency_us": percentiles_us(wake * 1e6),
+        "late_per_10k": round(late_per_10k(wake, period, late_fraction, overruns), 2),
+        "late_fraction_of_period": late_fraction,
+        "overruns": overruns,
+        "step_us": percentiles_us(probe.step_s[skip:n] * 1e6),
+        "tpdo_to_ready_us": percentiles_us(_finite(probe.ready_after_tpdo_s[skip:n]) * 1e6),
+        "tpdo_to_rpdo_us": percentiles_us(_finite(probe.rpdo_after_tpdo_s[skip + 1:n]) * 1e6),
+        "cpu_percent_of_one_core": cpu_use_percent(samples),
+        "bus_load_percent": {
+            "computed": round(planned_bus_load(cfg).percent, 1),
+            "measured": measured_bus_load(frames, shapes, seconds, cfg.bus.bitrate_bit_s,
+                                          cfg.bus.data_bitrate_bit_s),
+        },
+        "missing_frames": summary.get("missing_frames"),
+        "_period_errors_us": per_err,
+    }
+    return result
+
+
+def _finite(a: np.ndarray) -> np.ndarray:
+    return a[np.isfinite(a)]
+
+
+# -- the step in Python against Ruckig's own calculation time ---------------------------------
+
+def step_breakdown(config_path: str | None, overrides: list[str], rate_hz: float, cycles: int,
+                   profile_top: int = 12) -> dict[str, object]:
+    """Run the law on the in-process loopback plant (simulated time): step time vs Ruckig's.
+
+    Ruckig's reported time is ``OutputParameter.calculation_duration`` of a second Ruckig
+    object fed the same input with ``update`` (``calculate``, which the law uses, reports none).
+    """
+    from ruckig import OutputParameter, Ruckig, RuckigError
+
+    from controller.config import load_config, parse_override
+    from controller.loop import SimulatedTime
+    from controller.service import build_law
+    from sim_backend.loopback import LoopbackExchange
+
+    cfg = load_config(config_path, dict(parse_override(s) for s in [*overrides, f"loop.rate_hz={rate_hz}"]))
+    law = build_law(cfg)
+    smoother = law.smoother
+    dofs = len(cfg.actuators.node_ids)
+    twin, out = Ruckig(dofs), OutputParameter(dofs)
+    reported_us: list[float] = []
+    wrapper_s: list[float] = []
+    inner = smoother._calculate
+
+    def timed_calculate(inp, current):
+        t0 = time.perf_counter()
+        result = inner(inp, current)
+        wrapper_s.append(time.perf_counter() - t0)
+        try:
+            twin.update(inp, out)
+            reported_us.append(out.calculation_duration)
+        except RuckigError:
+            pass
+        return result
+
+    smoother._calculate = timed_calculate  # instance attribute: this law object only
+    sim = SimulatedTime()
+    exchange = LoopbackExchange(cfg, sim.clock)
+    state = law.initial_state()
+    outputs = None
+    period = cfg.period_s
+    step_s = np.empty(cycles)
+    profiler = cProfile.Profile()
+    for k in range(cycles):
+        sim.sleep_until(k * period)
+        exchange.send(outputs)
+        inputs = exchange.collect(k * period + period)
+        t0 = time.perf_counter()
+        state, outputs, _ = law.step(state, inputs, k * period)
+        step_s[k] = time.perf_counter() - t0
+    # a second pass of the same cycles under cProfile (the timed pass above is unprofiled)
+    sim2 = SimulatedTime()
+    law2 = build_law(cfg)
+    exchange2 = LoopbackExchange(cfg, sim2.clock)
+    state2, outputs2 = law2.initial_state(), None
+    profiler.enable()
+    for k in range(cycles):
+        sim2.sleep_until(k * period)
+        exchange2.send(outputs2)
+        inputs2 = exchange2.collect(k * period + period)
+        state2, outputs2, _ = law2.step(state2, inputs2, k * period)
+    profiler.disable()
+    buf = io.StringIO()
+    pstats.Stats(profiler, stream=buf).sort_stats("tottime").print_stats(profile_top)
+    step_us = step_s * 1e6
+    reported = np.asarray(reported_us)
+    wrapped = np.asarray(wrapper_s) * 1e6
+    return {
+        "rate_hz": rate_hz,
+        "cycles": cycles,
+        "final_mode": state.mode.name,
+        "step_us": percentiles_us(step_us),
+        "ruckig_calls_per_cycle": round(len(wrapper_s) / cycles, 2),
+        "ruckig_reported_calculation_us": percentiles_us(reported),
+        "ruckig_call_in_python_us": percentiles_us(wrapped),
+        "ruckig_share_of_step_percent": round(100.0 * float(np.sum(reported)) / float(np.sum(step_us)), 1)
+        if step_us.sum() > 0 else 0.0,
+        "profile_top_tottime": _profile_lines(buf.getvalue()),
+    }
+
+
+def _profile_lines(text: str) -> list[str]:
+    lines = text.splitlines()
+    start = next((i for i, line in enumerate(lines) if line.lstrip().startswith("ncalls")), None)
+    return [] if start is None else [line.rstrip() for line in lines[start:] if line.strip()]
+
+
+# -- the cyclic PDO path against canopen's PDO objects ----------------------------------------
+
+def stub_bus():  # -> can.BusABC with a ``queue`` of frames to receive
+    """A python-can bus that costs (almost) nothing: sends are counted, frames to receive are
+    queued by the caller. Lets the PDO comparison measure the PDO path, not a transport
+    (python-can's virtual bus deep-copies every frame for every receiver, ~10 us each)."""
+    import queue
+
+    import can
+
+    class StubBus(can.BusABC):
+        def __init__(self) -> None:
+            self.queue: queue.SimpleQueue = queue.SimpleQueue()
+            self.sent = 0
+            super().__init__(channel="stub")
+
+        def send(self, msg, timeout=None) -> None:
+            self.sent += 1
+
+        def _recv_internal(self, timeout):
+            try:
+                return self.queue.get(timeout=timeout) if timeout else self.queue.get_nowait(), False
+            except queue.Empty:
+                return None, False
+
+    return StubBus()
+
+
+def compare_pdo_paths(cycles: int, config_path: str | None = None, overrides: list[str] | None = None
+                      ) -> dict[str, object]:
+    """CPU time per cycle of the cyclic PDO path: this project's exchange vs canopen's PDO objects.
+
+    Both run the same cycle on a stub bus (``stub_bus``): 3 RPDOs and SYNC out, then the 3 drive
+    TPDOs and 2 sensor TPDOs (prebuilt frames, queued by the "device") received, decoded and
+    turned into SI values. canopen's arm uses ``RemoteNode`` PDO maps read from the shipped EDS
+    files: it sets the mapped variables and calls ``transmit`` per RPDO and ``sync.transmit``,
+    then waits until its notifier thread has dispatched all five TPDOs (a semaphore released
+    by PDO callbacks) and reads the mapped values. CPU time is the process's (both threads).
+    """
+    import can
+    import canopen
+
+    from controller.config import load_config, parse_override
+    from controller.cycle_data import CycleOutputs
+    from drivers import cob_ids
+    from drivers.cyclic_exchange import CyclicExchange
+    from drivers.pdo_codec import FORCE_N_PER_COUNT, TORQUE_NM_PER_COUNT, PositionScale, encode_drive_tpdo
+    from sim_backend.server import DRIVE_EDS, SENSOR_EDS
+
+    cfg = load_config(config_path, dict(parse_override(s) for s in (overrides or [])))
+    ids = tuple(cfg.actuators.node_ids)
+    sid = cfg.sensor.node_id
+    scale = PositionScale(cfg.actuators.counts_per_m)
+    tpdos = [can.Message(arbitration_id=cob_ids.tpdo1(i), data=encode_drive_tpdo(0x1237, 5_000_000 + i),
+                         is_extended_id=False) for i in ids]
+    tpdos += [can.Message(arbitration_id=cob_ids.tpdo1(sid), data=bytes([1, 0, 2, 0, 3, 0, 0, 7]),
+                          is_extended_id=False),
+              can.Message(arbitration_id=cob_ids.tpdo2(sid), data=bytes([4, 0, 5, 0, 6, 0, 0, 7]),
+                          is_extended_id=False)]
+    outputs = CycleOutputs(controlwords=(0x0F,) * len(ids), targets=(0.5,) * len(ids))
+
+    def measure(cycle: Callable[[], None]) -> tuple[float, float]:
+        for _ in range(min(500, cycles)):
+            cycle()
+        c0, w0 = time.process_time(), time.perf_counter()
+        for _ in range(cycles):
+            cycle()
+        return (time.process_time() - c0) / cycles * 1e6, (time.perf_counter() - w0) / cycles * 1e6
+
+    results: dict[str, object] = {"cycles": cycles, "frames_per_cycle": {"out": len(ids) + 1, "in": len(tpdos)}}
+    bus = stub_bus()
+    ex = CyclicExchange(bus, ids, scale, sid, cfg.loop.controller_node_id, heartbeat_every=10**9)
+
+    def project_cycle() -> None:
+        ex.send(outputs)
+        for m in tpdos:
+            bus.queue.put(m)
+        inputs = ex.collect(time.monotonic() + 0.01)
+        if not inputs.sensor.fresh:
+            raise RuntimeError("project arm: sensor frames missing")
+
+    results["project_cpu_us"], results["project_wall_us"] = (round(x, 2) for x in measure(project_cycle))
+    bus.shutdown()
+    bus = stub_bus()
+    net = canopen.Network(bus)
+    net.connect()
+    try:
+        nodes = [net.add_node(i, str(DRIVE_EDS)) for i in ids]
+        sensor = net.add_node(sid, str(SENSOR_EDS))
+        arrived = threading.Semaphore(0)
+        for node in nodes:
+            node.rpdo.read(from_od=True)
+            node.tpdo.read(from_od=True)
+            node.tpdo[1].add_callback(lambda _m: arrived.release())
+        sensor.tpdo.read(from_od=True)
+        sensor.tpdo[1].add_callback(lambda _m: arrived.release())
+        sensor.tpdo[2].add_callback(lambda _m: arrived.release())
+        rpdos = [n.rpdo[1] for n in nodes]
+        rvars = [(m["Controlword"], m["Target position"]) for m in rpdos]
+        tvars = [(n.tpdo[1]["Statusword"], n.tpdo[1]["Position actual value"]) for n in nodes]
+        fvars, tqvars = list(sensor.tpdo[1])[:3], list(sensor.tpdo[2])[:3]
+
+        def canopen_cycle() -> None:
+            for m, (cw, tp), c, x in zip(rpdos, rvars, outputs.controlwords, outputs.targets):
+                cw.raw = c
+                tp.raw = scale.to_counts(x)
+                m.transmit()
+            net.sync.transmit()
+            for m in tpdos:
+                bus.queue.put(m)
+            for _ in range(len(tpdos)):
+                if not arrived.acquire(timeout=1.0):
+                    raise RuntimeError("canopen arm: a TPDO did not arrive")
+            _ = [(sw.raw, scale.to_unit(pos.raw)) for sw, pos in tvars]
+            _ = [v.raw * FORCE_N_PER_COUNT for v in fvars] + [v.raw * TORQUE_NM_PER_COUNT for v in tqvars]
+
+        results["canopen_cpu_us"], results["canopen_wall_us"] = (round(x, 2) for x in measure(canopen_cycle))
+    finally:
+        net.disconnect()
+    results["canopen_over_project"] = round(results["canopen_cpu_us"] / results["project_cpu_us"], 2)
+    return results
+
+
+# -- the whole benchmark ----------------------------------------------------------------------
+
+# A timing benchmark must run its whole length: a burst of late or missing frames on a loaded
+# machine is counted, not turned into a quick stop (``--strict`` keeps the configured reactions).
+TOLERANT_SAFETY = ("loop.max_missing_cycles=1000", 'safety.on_late_cycles="warn"',
+                   'safety.on_sensor_stale="warn"', 'safety.on_heartbeat_lost="warn"')
+
+
+def run_bench(rates_hz: tuple[float, ...], duration_s: float, compare_s: float, out_dir: Path,
+              config_path: str | None, overrides: list[str], rt: RealtimeOptions, sim_rt: RealtimeOptions,
+              late_fraction: float = 0.1, fd_from_hz: float = 500.0, progress: Callable[[str], None] = lambda s: None
+              ) -> dict[str, object]:
+    from controller.config import load_config, parse_override
+    from controller.realtime import apply_realtime
+    from controller.service import planned_bus_load
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    cfg = load_config(config_path, dict(parse_override(s) for s in overrides))
+    report: dict[str, object] = {
+        "machine": {"cpus": os.cpu_count(), "python": sys.version.split()[0],
+                    "load_average_at_start": [round(x, 2) for x in os.getloadavg()]},
+        "duration_s": duration_s, "compare_s": compare_s,
+        "definitions": {"period_error": "|(wake_k - wake_k-1) - period|",
+                        "late": f"woke > {late_fraction:g} x period after the deadline, or a skipped deadline",
+                        "cpu_percent": "% of one CPU over the run"},
+    }
+    progress("cyclic PDO path: project vs canopen ...")
+    report["pdo_path"] = compare_pdo_paths(20000 if duration_s >= 60 else 5000, config_path, overrides)
+    cases: list[dict[str, object]] = []
+    breakdowns: list[dict[str, object]] = []
+    sleepers: list[dict[str, object]] = []
+    for rate in rates_hz:
+        case = BenchCase(rate, fd=rate >= fd_from_hz)
+        progress(f"{case.name}: step cost and Ruckig ...")
+        bd = step_breakdown(config_path, [*overrides, "task.path.laps=10.0"], rate,
+                            cycles=int(min(10.0, duration_s) * rate))
+        breakdowns.append(bd)
+        progress(f"{case.name}: loop shell vs naive sleep ...")
+        restore = apply_realtime(rt)  # the same priority and CPU as the service's loop thread
+        try:
+            cmp = compare_sleepers(1.0 / rate, compare_s, bd["step_us"]["p50"] * 1e-6, cfg.loop.spin_us * 1e-6,
+                                   late_fraction=late_fraction)
+        finally:
+            restore()
+        cmp["rate_hz"] = rate
+        sleepers.append(cmp)
+        progress(f"{case.name}: controller + simulator for {duration_s:g} s ...")
+        cases.append(run_case(case, duration_s, overrides, config_path, rt, sim_rt, late_fraction))
+    classical_1k = load_config(config_path, dict(parse_override(s) for s in
+                                                 [*overrides, "loop.rate_hz=1000", "bus.fd=false"]))
+    report["classical_can_1khz_computed_load_percent"] = round(planned_bus_load(classical_1k).percent, 1)
+    report["step_breakdown"] = breakdowns
+    report["sleepers"] = sleepers
+    report["cases"] = cases
+    report["plots"] = plot_distributions(cases, sleepers, out_dir)
+    report["machine"]["load_average_at_end"] = [round(x, 2) for x in os.getloadavg()]
+    clean = _strip_private(report)
+    (out_dir / "bench.json").write_text(json.dumps(clean, indent=2))
+    return clean
+
+
+def _strip_private(obj):
+    if isinstance(obj, dict):
+        return {k: _strip_private(v) for k, v in obj.items() if not k.startswith("_")}
+    if isinstance(obj, list):
+        return [_strip_private(v) for v in obj]
+    return obj
+
+
+def plot_distributions(cases: list[dict[str, object]], sleepers: list[dict[str, object]], out_dir: Path) -> list[str]:
+    """Period-error histograms and exceedance curves (PNG); returns the file paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    for case in cases:
+        err = case["_period_errors_us"]
+        if err.size == 0:
+            continue
+        fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
+        bins = np.logspace(np.log10(max(0.1, err.min() + 0.1)), np.log10(err.max() + 1.0), 80)
+        ax1.hist(err + 0.1, bins=bins, color="tab:blue")
+        ax1.set_xscale("log")
+        ax1.set_yscale("log")
+        ax1.set_xlabel("period error + 0.1 [us] (offset for the log axis)")
+        ax1.set_ylabel("cycles")
+        pe = case["period_error_us"]
+        for q, style in (("p50", ":"), ("p99", "--"), ("p99_9", "-.")):
+            ax1.axvline(pe[q] + 0.1, color="k", linestyle=style, label=f"{q.replace('_', '.')} {pe[q]:.0f} us")
+        ax1.legend()
+        ax1.set_title(f"{case['case']}: period error, {case['cycles']} cycles")
+        _exceedance(ax2, err, f"service loop ({case['case']})")
+        for s in sleepers:
+            if s["rate_hz"] == case["rate_hz"]:
+                _exceedance(ax2, s["deadline"]["_errors_us"], "loop shell sleeper, busy work only")
+                _exceedance(ax2, s["naive"]["_errors_us"], "naive time.sleep(period)")
+        period_us = 1e6 / case["rate_hz"]
+        ax2.axvline(0.1 * period_us, color="r", linestyle="--", label="10 % of period")
+        ax2.set_title("fraction of cycles with period error > x")
+        ax2.legend(fontsize=8)
+        fig.tight_layout()
+        path = out_dir / f"period_error_{case['rate_hz']:g}hz.png"
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        paths.append(str(path))
+    return paths
+
+
+def _exceedance(ax, err_us: np.ndarray, label: str) -> None:
+    if err_us.size == 0:
+        return
+    x = np.sort(err_us)
+    frac = 1.0 - np.arange(x.size) / x.size
+    ax.step(x + 0.1, frac, where="post", label=label)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_ylim(max(1e-6, 0.5 / x.size), 1.1)
+    ax.set_xlabel("period error + 0.1 [us]")
+    ax.set_ylabel("fraction of cycles above")
+    ax.grid(True, which="both", alpha=0.3)
+
+
+# -- output -----------------------------------------------------------------------------------
+
+def format_table(report: dict[str, object]) -> str:
+    lines = []
+    cases = report["cases"]
+    header = f"{'':34}" + "".join(f"{c['case']:>24}" for c in cases)
+    lines.append(header)
+
+    def row(label: str, fn: Callable[[dict], str]) -> None:
+        lines.append(f"{label:34}" + "".join(f"{fn(c):>24}" for c in cases))
+
+    def q(d: dict, keys=("p50", "p99", "p99_9", "max")) -> str:
+        return "/".join(f"{d[k]:.0f}" for k in keys)
+
+    row("achieved rate [Hz]", lambda c: f"{c['achieved_rate_hz']:.2f}")
+    row("period error p50/p99/p99.9/max us", lambda c: q(c["period_error_us"]))
+    row("wake latency p50/p99/p99.9/max us", lambda c: q(c["wake_latency_us"]))
+    row("late cycles per 10 000", lambda c: f"{c['late_per_10k']:.1f} ({c['overruns']} skipped)")
+    row("step compute p50/p99 us", lambda c: q(c["step_us"], ("p50", "p99")))
+    row("last TPDO -> outputs ready p50/p99", lambda c: q(c["tpdo_to_ready_us"], ("p50", "p99")))
+    row("last TPDO -> RPDOs out p50/p99 us", lambda c: q(c["tpdo_to_rpdo_us"], ("p50", "p99")))
+    row("CPU loop thread / process [%]", lambda c: "{} / {}".format(
+        c["cpu_percent_of_one_core"]["loop_thread"], c["cpu_percent_of_one_core"]["controller_process"]))
+    row("CPU simulator [%]", lambda c: f"{c['cpu_percent_of_one_core']['simulator_process']}")
+    row("bus load computed / measured [%]", lambda c: "{:.1f} / {:.1f}".format(
+        c["bus_load_percent"]["computed"], c["bus_load_percent"]["measured"]["percent"]))
+    row("missing frames drive/sensor", lambda c: "{}/{}".format(
+        (c["missing_frames"] or {}).get("drive"), (c["missing_frames"] or {}).get("sensor")))
+    row("final mode", lambda c: c["final_mode"])
+    for c in cases:
+        if c.get("fault_reason"):
+            lines.append(f"  {c['case']}: fault: {c['fault_reason']}")
+    lines.append("")
+    lines.append("loop shell vs naive time.sleep(period), same busy work, alternating blocks:")
+    for s in report["sleepers"]:
+        for arm in ("deadline", "naive"):
+            a = s[arm]
+            lines.append(f"  {s['rate_hz']:>6g} Hz {arm:8} rate {a['achieved_rate_hz']:>9.2f} Hz  drift "
+                         f"{a['drift_ms_per_s']:>8.3f} ms/s  period error p50/p99/p99.9/max "
+                         f"{q(a['period_error_us'])} us  late/10k {a['late_per_10k']:.1f}")
+    p = report["pdo_path"]
+    lines.append("")
+    lines.append(f"cyclic PDO path, CPU per cycle (stub bus, 4 frames out, 5 in): project {p['project_cpu_us']} us, "
+                 f"canopen PDO objects {p['canopen_cpu_us']} us (x{p['canopen_over_project']}); wall "
+                 f"{p['project_wall_us']} / {p['canopen_wall_us']} us")
+    for b in report["step_breakdown"]:
+        lines.append(f"step at {b['rate_hz']:g} Hz (in process): p50/p99 {q(b['step_us'], ('p50', 'p99'))} us; "
+                     f"Ruckig reported {q(b['ruckig_reported_calculation_us'], ('p50', 'p99'))} us, "
+                     f"Ruckig call in Python {q(b['ruckig_call_in_python_us'], ('p50', 'p99'))} us, "
+                     f"{b['ruckig_calls_per_cycle']} calls/cycle: Ruckig {b['ruckig_share_of_step_percent']} % of step")
+    lines.append(f"classical CAN 1 Mbit/s at 1 kHz: computed load {report['classical_can_1khz_computed_load_percent']} %"
+                 " (over the limit: refused)")
+    for path in report["plots"]:
+        lines.append(f"plot {path}")
+    return "\n".join(lines)
+
+
+def add_bench_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--config", help="TOML configuration (default: the shipped one)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a configuration key")
+    ap.add_argument("--rates", default="400,1000", help="loop rates to measure [Hz], comma-separated")
+    ap.add_argument("--duration", type=float, default=300.0, help="seconds per rate with the simulator (issue: 300)")
+    ap.add_argument("--compare", type=float, default=20.0, help="seconds per rate of loop shell vs naive sleep")
+    ap.add_argument("--fd-from", type=float, default=500.0, help="rates from this one up run on CAN FD [Hz]")
+    ap.add_argument("--late-fraction", type=float, default=0.1, help="late: woke this part of a period after")
+    ap.add_argument("--sim-rt-priority", type=int, metavar="N", help="SCHED_FIFO priority of the simulator")
+    ap.add_argument("--sim-cpu", metavar="CPUS", help="CPU affinity of the simulator")
+    ap.add_argument("--out", default="bench", help="directory for bench.json and the PNG plots")
+    ap.add_argument("--json", action="store_true", help="print the JSON instead of the table")
+    ap.add_argument("--strict", action="store_true",
+                    help="keep the configured safety reactions (default: late/missing frames only warn)")
+
+
+def run_bench_command(args: argparse.Namespace, rt: RealtimeOptions) -> int:
+    from controller.realtime import parse_cpus
+
+    sim_rt = RealtimeOptions(priority=args.sim_rt_priority,
+                             cpus=parse_cpus(args.sim_cpu) if args.sim_cpu else (), lock_memory=rt.lock_memory)
+    rates = tuple(float(r) for r in args.rates.split(","))
+    overrides = list(args.set) if args.strict else [*TOLERANT_SAFETY, *args.set]
+    report = run_bench(rates, args.duration, args.compare, Path(args.out), args.config, overrides, rt, sim_rt,
+                       late_fraction=args.late_fraction, fd_from_hz=args.fd_from,
+                       progress=lambda s: print(s, file=sys.stderr, flush=True))
+    print(json.dumps(report, indent=2) if args.json else format_table(report))
+    print(f"JSON: {Path(args.out) / 'bench.json'}", file=sys.stderr)
+    return 0

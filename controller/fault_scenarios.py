@@ -1,0 +1,158 @@
+"""``cheope faults``: every fault the controller handles, injected into the simulated devices.
+
+Each scenario runs the path task against the simulated drives and sensor in simulated time
+(``sim_backend.loopback``, the same device models as the simulator process, with the fault
+schedule of ``sim_backend.fault_injection``), records the session to MCAP, and reports the
+reaction expected and observed, the time from the fault to the safe state, and whether the
+recording is complete. Simulated time makes the table reproducible; the separate-process
+path is covered by the tests (tests/test_faults.py) and by ``cheope demo --inject ...``.
+
+Safe state: every drive at rest (zero velocity) and out of OPERATION ENABLED (quick stop
+active, switched off, or faulted), or, for a warning, the task finishing normally.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from controller.config import Config, load_config
+from controller.control_law import Mode
+from controller.cycle_data import Severity
+from controller.loop import CycleLoop, SimulatedTime
+from controller.service import build_law
+from drivers.cia402 import PowerState
+from sim_backend.fault_injection import FaultSchedule
+from sim_backend.loopback import LoopbackExchange
+
+FAULT_AT_S = 2.0  # the task is running then (it starts at about 0.2 s)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    fault: str  # sim_backend/fault_injection.py syntax
+    expected: str  # "fault", "warn" (event, task goes on) or "ignore" (counted, task goes on)
+    reaction: str  # what a user should see, in words
+
+
+SCENARIOS: tuple[Scenario, ...] = (
+    Scenario("drive TPDO missing", f"drop:2@{FAULT_AT_S}", "fault", "fault after loop.max_missing_cycles; quick stop"),
+    Scenario("drive TPDO late", f"delay:2=0.01@{FAULT_AT_S}", "fault", "late = missing: fault, quick stop"),
+    Scenario("malformed TPDO, one", f"malformed:2@{FAULT_AT_S}+0.002", "ignore",
+             "frame rejected and counted; one missing cycle is ignored, the task goes on"),
+    Scenario("sensor counter frozen", f"freeze@{FAULT_AT_S}", "fault", "stale after safety.sensor_stale_cycles; quick stop"),
+    Scenario("sensor saturated", f"saturate@{FAULT_AT_S}", "fault", "safety.on_sensor_saturated = fault; quick stop"),
+    Scenario("drive fault + EMCY", f"drive_fault:3@{FAULT_AT_S}", "fault", "fault at once; quick stop of the others"),
+    Scenario("drive heartbeat lost", f"heartbeat:1@{FAULT_AT_S}", "fault", "safety.on_heartbeat_lost = fault"),
+    Scenario("CAN error frames", f"error_frames@{FAULT_AT_S}+0.05", "warn", "warning event once; the task goes on"),
+    Scenario("CAN bus-off", f"bus_off@{FAULT_AT_S}", "fault", "fault at once; quick stop"),
+    Scenario("transmit queue full", f"tx_full@{FAULT_AT_S}+0.5", "fault",
+             "send errors counted, drives silent: fault; drives quick-stop on their SYNC watchdog"),
+    Scenario("contact force above limit", f"force=100@{FAULT_AT_S}", "fault", "safety.max_contact_force_n: fault"),
+    Scenario("loop overrunning", f"stall=0.0015@{FAULT_AT_S}", "fault",
+             "fault after safety.max_consecutive_late_cycles late cycles"),
+)
+
+
+class StallingSleeper:
+    """Simulated time whose wake-ups come ``stall=S`` late while that fault is active."""
+
+    def __init__(self, time: SimulatedTime, schedule: FaultSchedule) -> None:
+        self.time = time
+        self.schedule = schedule
+
+    def sleep_until(self, deadline_s: float) -> None:
+        stall = self.schedule.active("stall", deadline_s)
+        self.time.sleep_until(deadline_s + (stall.value if stall is not None else 0.0))
+
+
+@dataclass
+class _Watch:
+    """Observer: when the reaction came and when the drives reached the safe state."""
+
+    exchange: LoopbackExchange
+    fault_at_s: float
+    reaction_s: float | None = None
+    reaction: str = ""
+    safe_s: float | None = None
+
+    def on_cycle(self, cycle, t, inputs, state, outputs, events, timing) -> None:  # noqa: ANN001
+        if t < self.fault_at_s:
+            return
+        for e in events:
+            if self.reaction_s is None and e.severity >= Severity.WARNING:
+                self.reaction_s, self.reaction = t, e.message
+        if self.safe_s is None and state.mode in (Mode.FAULT, Mode.DONE):
+            drives = self.exchange.drives
+            if all(d.velocity == 0.0 and d.power != PowerState.OPERATION_ENABLED for d in drives):
+                self.safe_s = t
+
+
+def run_scenario(base: Config, sc: Scenario, directory: Path) -> dict[str, object]:
+    from logs.reader import read_info
+    from logs.recorder import SessionRecorder
+
+    cfg = dataclasses.replace(
+        base, sim=dataclasses.replace(base.sim, faults=(sc.fault,)),
+        recording=dataclasses.replace(base.recording, enabled=True, directory=str(directory)))
+    clock = SimulatedTime()
+    law = build_law(cfg)
+    exchange = LoopbackExchange(cfg, clock.clock)
+    watch = _Watch(exchange, FAULT_AT_S)
+    sleeper = StallingSleeper(clock, exchange.faults)
+    with SessionRecorder.for_config(cfg, clock=clock.clock, phase_name=law.task.phase_name,
+                                    extra_metadata={"fault_scenario": sc.name}) as recorder:
+        loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, sleeper, clock.clock,
+                         observers=(watch, recorder), late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s)
+        final, stats = loop.run(law.initial_state(), 60.0)
+    report = read_info(recorder.path)
+    if final.mode == Mode.FAULT:
+        observed = "fault"
+    elif final.mode == Mode.DONE:
+        observed = "warn" if watch.reaction else ("ignore" if exchange.rejected_frames else "none")
+    else:
+        observed = final.mode.name.lower()
+    cycles_recorded = report.message_counts.get("/cycle", 0)
+    return {
+        "scenario": sc.name,
+        "fault": sc.fault,
+        "reaction_expected": f"{sc.expected}: {sc.reaction}",
+        "reaction_observed": f"{observed}: {final.fault_reason or watch.reaction or 'none'}",
+        "as_expected": observed == sc.expected,
+        "final_mode": final.mode.name,
+        "time_to_reaction_s": None if watch.reaction_s is None else round(watch.reaction_s - FAULT_AT_S, 4),
+        "time_to_safe_state_s": None if watch.safe_s is None or sc.expected != "fault"
+        else round(watch.safe_s - FAULT_AT_S, 4),
+        "recording_complete": bool(report.complete and not report.damaged_chunks and recorder.dropped == 0
+                                   and cycles_recorded == stats.cycles),
+        "recording": {"cycles": cycles_recorded, "loop_cycles": stats.cycles, "dropped": recorder.dropped},
+        "rejected_frames": exchange.rejected_frames,
+        "send_errors": exchange.send_errors,
+    }
+
+
+def run_all(base: Config | None = None, directory: Path | None = None,
+            only: tuple[str, ...] = ()) -> list[dict[str, object]]:
+    base = base or load_config()
+    # The path task, one lap: long enough for every reaction, short enough for a table.
+    base = dataclasses.replace(base, task=dataclasses.replace(base.task, kind="path"))
+    with tempfile.TemporaryDirectory(prefix="cheope-faults-") as tmp:
+        out = Path(directory or tmp)
+        return [run_scenario(base, sc, out) for sc in SCENARIOS if not only or sc.name in only]
+
+
+def format_table(rows: list[dict[str, object]]) -> str:
+    head = "| scenario | injected | reaction expected | reaction observed | fault to safe state [s] | recording complete |"
+    lines = [head, "| --- | --- | --- | --- | --- | --- |"]
+    for r in rows:
+        safe = r["time_to_safe_state_s"]
+        safe_text = "n/a (task goes on)" if safe is None and r["final_mode"] == "DONE" else (
+            "-" if safe is None else f"{safe:.4f}")
+        mark = "" if r["as_expected"] else " **(unexpected)**"
+        lines.append(f"| {r['scenario']} | `{r['fault']}` | {r['reaction_expected']} | "
+                     f"{r['reaction_observed']}{mark} | {safe_text} | {'yes' if r['recording_complete'] else 'NO'} |")
+    return "\n".join(lines)
+

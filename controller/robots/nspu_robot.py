@@ -1,0 +1,91 @@
+"""The under-actuated 3-nSPU (seeds 000, 004) as the controller and the simulator see it.
+
+The actuator positions are the three leg lengths [m]. The platform has six DOFs and three
+actuators with non-holonomic spherical pairs: the pose is **not** a function of the leg
+lengths (it depends on how the legs moved), so ``direct_kinematics`` raises
+``NoSolutionError`` and the control law reports no measured TCP. The pose is obtained by
+integrating the leg motion from a known start pose (``controller/robots/nspu.py``,
+``advance_pose_to_leg_lengths``): the simulator does it from the drives' actual positions,
+and the controller does it from the encoder readings it receives (``pose_odometry``).
+
+``check_actuators`` checks the leg stroke every cycle, ``check_pose`` only that the
+reference point is a finite position above the frame (the planned trajectory was checked
+against the type-II and det S singularities and the stroke when it was planned; see
+``controller/planning/nonholonomic.py``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from controller.robots.cheope import POSE_OK, PoseStatus, WorkspaceError
+from controller.robots.errors import NoSolutionError
+from controller.robots.nspu import NspuGeometry, Pose, advance_pose_to_leg_lengths, leg_lengths, so3_log
+
+
+@dataclass(frozen=True, eq=False)
+class NspuRobot:
+    geometry: NspuGeometry
+    start: Pose  # where the platform is when the drives are at leg_lengths(start)
+    goal: Pose
+    name: str = "nspu"
+    n_actuators: int = 3
+    actuator_unit: str = "m"
+
+    def start_leg_lengths_m(self) -> np.ndarray:
+        return leg_lengths(self.geometry, self.start)
+
+    def inverse_kinematics(self, tcp_m: np.ndarray) -> np.ndarray:
+        raise NoSolutionError("the 3-nSPU has no inverse kinematics from a position alone: its pose has 6 DOFs "
+                              "and 3 actuators; stream a planned motion (controller/tasks/planned_legs.py)")
+
+    def direct_kinematics(self, q_m: np.ndarray) -> np.ndarray:
+        raise NoSolutionError(f"the 3-nSPU pose is not a function of the leg lengths {np.asarray(q_m).tolist()} m "
+                              "(non-holonomic joints): integrate it along the leg motion instead")
+
+    def check_actuators(self, q_m: tuple[float, ...]) -> PoseStatus:
+        g = self.geometry
+        for j, x in enumerate(q_m):
+            if not g.leg_min_m <= x <= g.leg_max_m:  # also False for NaN
+                return PoseStatus(False, f"leg {j + 1} measured at {x:.4f} m, outside its stroke "
+                                         f"[{g.leg_min_m}, {g.leg_max_m}] m")
+        return POSE_OK
+
+    def check_pose(self, tcp_m: np.ndarray) -> PoseStatus:
+        p = [float(x) for x in tcp_m]
+        if not all(math.isfinite(x) for x in p):
+            return PoseStatus(False, f"platform reference {p} m is not finite")
+        if p[2] <= 0.0:
+            return PoseStatus(False, f"platform reference {p} m is not above the frame plane z = 0")
+        return POSE_OK
+
+    def check_path(self, points_m: np.ndarray) -> None:
+        for i, p in enumerate(np.asarray(points_m, float)):
+            status = self.check_pose(p)
+            if not status.ok:
+                raise WorkspaceError(f"path sample {i}: {status.reason}")
+
+
+def pose_odometry(geometry: NspuGeometry, start: Pose, t_s: np.ndarray, legs_m: np.ndarray) -> Pose:
+    """The pose reached by moving the legs through the samples ``legs_m`` (N, 3) at ``t_s`` (N,).
+
+    The same integration as the simulator's (one RKMK4 step per sample interval from the
+    leg lengths at the two ends, ``advance_pose_to_leg_lengths``).
+    """
+    pose = start
+    t = np.asarray(t_s, float)
+    legs = np.asarray(legs_m, float)
+    for k in range(1, t.size):
+        dt = float(t[k] - t[k - 1])
+        if dt > 0.0:
+            pose = advance_pose_to_leg_lengths(geometry, pose, legs[k], dt)
+    return pose
+
+
+def pose_errors(reached: Pose, goal: Pose) -> tuple[float, float]:
+    """(|p - p_goal| [m], |log(R R_goal^T)| [rad])."""
+    return (float(np.linalg.norm(reached.p_m - goal.p_m)),
+            float(np.linalg.norm(so3_log(reached.R @ goal.R.T))))

@@ -1,0 +1,130 @@
+"""Faults the simulated hardware can be told to produce, on a schedule.
+
+A fault is written ``KIND[:NODE][=VALUE]@START[+DURATION]``: START seconds after the first
+SYNC, for DURATION seconds (default: to the end). NODE is a CANopen node id where the kind
+needs one. Kinds:
+
+- ``drop:N``       node N sends no TPDO (a dead or unplugged drive)
+- ``delay:N=S``    node N's TPDOs leave S seconds late (simulator process only)
+- ``malformed:N``  node N's TPDO has the wrong length (counted and rejected by the controller)
+- ``drive_fault:N``  drive N goes to FAULT and sends EMCY 0x5000
+- ``heartbeat:N``  node N stops its heartbeat
+- ``freeze``       the force sensor's counter stops advancing (stale data)
+- ``saturate``     the force sensor reports saturation
+- ``force=F``      the force sensor sees an extra F newtons along X (an unexpected contact)
+- ``error_frames`` CAN error frames on the bus; ``bus_off`` an error frame reporting bus-off
+- ``tx_full``      the controller's frames do not reach the bus (a full transmit queue)
+- ``stall=S``      the controller's loop wakes S seconds late every cycle (in-process runs only)
+
+Examples: ``drop:2@3.0+0.5``, ``force=100@2``, ``freeze@1.5``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+
+KINDS_WITH_NODE = ("drop", "delay", "malformed", "drive_fault", "heartbeat")
+KINDS = KINDS_WITH_NODE + ("freeze", "saturate", "force", "error_frames", "bus_off", "tx_full", "stall")
+_NUMBER = r"[0-9]+(?:\.[0-9]*)?(?:[eE][-+]?[0-9]+)?"
+_PATTERN = re.compile(rf"^(?P<kind>[a-z_]+)(:(?P<node>\d+))?(=(?P<value>-?{_NUMBER}))?@(?P<start>{_NUMBER})"
+                      rf"(\+(?P<duration>{_NUMBER}))?$")
+
+
+class FaultSpecError(ValueError):
+    """A fault description that does not parse; the message shows the expected form."""
+
+
+@dataclass(frozen=True)
+class Fault:
+    kind: str
+    start_s: float
+    duration_s: float = math.inf
+    node: int = 0
+    value: float = 0.0
+
+    def active(self, t_s: float) -> bool:
+        return self.start_s <= t_s < self.start_s + self.duration_s
+
+
+def parse_fault(text: str) -> Fault:
+    m = _PATTERN.match(text.strip())
+    if not m:
+        raise FaultSpecError(f"fault {text!r}: expected KIND[:NODE][=VALUE]@START[+DURATION], e.g. drop:2@3.0+0.5")
+    kind = m["kind"]
+    if kind not in KINDS:
+        raise FaultSpecError(f"fault {text!r}: unknown kind {kind!r}; known: {', '.join(KINDS)}")
+    if kind in KINDS_WITH_NODE and m["node"] is None:
+        raise FaultSpecError(f"fault {text!r}: {kind} needs a node id, e.g. {kind}:2@1.0")
+    return Fault(kind=kind, start_s=float(m["start"]),
+                 duration_s=float(m["duration"]) if m["duration"] else math.inf,
+                 node=int(m["node"]) if m["node"] else 0, value=float(m["value"]) if m["value"] else 0.0)
+
+
+class FaultSchedule:
+    """Which faults are active at a time measured from the first SYNC."""
+
+    def __init__(self, faults: tuple[Fault, ...]) -> None:
+        self.faults = faults
+        self.t0_s: float | None = None
+        self._fired: set[int] = set()
+
+    @classmethod
+    def from_strings(cls, texts: tuple[str, ...]) -> "FaultSchedule":
+        return cls(tuple(parse_fault(t) for t in texts))
+
+    def start(self, now_s: float) -> None:
+        if self.t0_s is None:
+            self.t0_s = now_s
+
+    def elapsed(self, now_s: float) -> float:
+        return -math.inf if self.t0_s is None else now_s - self.t0_s
+
+    def active(self, kind: str, now_s: float, node: int = 0) -> Fault | None:
+        t = self.elapsed(now_s)
+        for f in self.faults:
+            if f.kind == kind and (node == 0 or f.node == node) and f.active(t):
+                return f
+        return None
+
+    def first_time(self, kind: str, now_s: float, node: int = 0) -> bool:
+        """True once, the first time ``kind`` is active (for one-shot faults such as drive_fault)."""
+        for i, f in enumerate(self.faults):
+            if f.kind == kind and (node == 0 or f.node == node) and f.active(self.elapsed(now_s)) \
+                    and i not in self._fired:
+                self._fired.add(i)
+                return True
+        return False
+
+    @property
+    def first_start_s(self) -> float | None:
+        return min((f.start_s for f in self.faults), default=None)
+
+
+def apply_device_faults(schedule: FaultSchedule, plant: object, drive_ids: tuple[int, ...], now_s: float) -> None:
+    """The faults that change the devices themselves, applied at a SYNC (simulator and loopback)."""
+    from drivers.pdo_codec import SENSOR_FORCE_SATURATED
+    from sim_backend.drive import EMCY_FORCED_FAULT
+
+    schedule.start(now_s)
+    for node, drive in zip(drive_ids, plant.drives):  # type: ignore[attr-defined]
+        if schedule.first_time("drive_fault", now_s, node):
+            drive.force_fault(EMCY_FORCED_FAULT)
+    sensor = plant.sensor  # type: ignore[attr-defined]
+    if sensor is not None:
+        sensor.freeze_counter = schedule.active("freeze", now_s) is not None
+        sat = schedule.active("saturate", now_s) is not None
+        sensor.status_flags = (sensor.status_flags | SENSOR_FORCE_SATURATED) if sat \
+            else (sensor.status_flags & ~SENSOR_FORCE_SATURATED)
+        force = schedule.active("force", now_s)
+        sensor.extra_force_n = (force.value, 0.0, 0.0) if force is not None else (0.0, 0.0, 0.0)
+
+
+def tpdo_payload(schedule: FaultSchedule, node: int, payload: bytes, now_s: float) -> bytes | None:
+    """The payload a drive sends this SYNC: None when dropped, cut short when malformed."""
+    if schedule.active("drop", now_s, node) is not None:
+        return None
+    if schedule.active("malformed", now_s, node) is not None:
+        return payload[:3]
+    return payload

@@ -1,0 +1,143 @@
+"""Faults, bad input and safe stops (the fault issue): every scenario, recovery, a killed controller."""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import can
+import canopen
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from controller.config import load_config
+from controller.control_law import Mode
+from controller.fault_scenarios import SCENARIOS, run_all
+from controller.loop import CycleLoop, SimulatedTime
+from controller.service import build_law
+from controller.demo import simulator_process, stop_process
+from drivers.bus import parse_bus_spec
+from drivers.cia402 import PowerState, decode_statusword
+from drivers.cyclic_exchange import CyclicExchange
+from drivers.node_setup import DRIVE_EDS
+from drivers.pdo_codec import PositionScale
+from sim_backend.loopback import LoopbackExchange
+
+
+def test_every_fault_scenario_gets_its_reaction_and_a_complete_recording(tmp_path):
+    rows = run_all(directory=tmp_path)
+    assert [r["scenario"] for r in rows] == [s.name for s in SCENARIOS]
+    for r in rows:
+        assert r["as_expected"], r
+        assert r["recording_complete"], r
+        if r["reaction_expected"].startswith("fault"):
+            assert 0.0 < r["time_to_safe_state_s"] < 0.25, r  # quick stop within a quarter second
+    malformed = next(r for r in rows if r["scenario"].startswith("malformed"))
+    assert malformed["rejected_frames"] == 1 and malformed["final_mode"] == "DONE"
+
+
+def test_recovery_after_a_reset_starts_from_the_measured_positions_within_the_jerk_limit():
+    cfg = load_config(overrides={"task.path.laps": 0.5, "sim.faults": ["drive_fault:3@1.0"]})
+    clock = SimulatedTime()
+    law = build_law(cfg)
+    ex = LoopbackExchange(cfg, clock.clock)
+    sent = {"reset": False}
+    setpoints, modes, measured = [], [], []
+
+    def commands():
+        if modes and modes[-1] == Mode.FAULT and clock.now_s > 1.5 and not sent["reset"]:
+            sent["reset"] = True
+            return ("reset", 0.0)
+        return None
+
+    class Trace:
+        def on_cycle(self, cycle, t, inputs, state, outputs, events, timing):
+            setpoints.append(state.setpoint)
+            modes.append(state.mode)
+            measured.append(tuple(d.position for d in inputs.drives))
+
+    final, _ = CycleLoop(law, ex, cfg.period_s, 0.8, clock, clock.clock, observers=(Trace(),),
+                         commands=commands).run(law.initial_state(), 30.0, exit_on_fault=False)
+    assert sent["reset"] and Mode.FAULT in modes
+    assert final.mode == Mode.DONE, final.fault_reason
+    k = modes.index(Mode.ENABLING, modes.index(Mode.FAULT))  # the first cycle after the reset
+    assert np.allclose(setpoints[k].position, measured[k], atol=1e-7)  # re-synchronised: no jump
+    acc = np.array([s.acceleration for s in setpoints[k:]])
+    jerk = np.abs(np.diff(acc, axis=0)) / cfg.period_s
+    assert jerk.max() <= cfg.actuators.max_jerk_m_s3 * (1 + 1e-6)
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.integers(0, 0x7FF), st.binary(min_size=0, max_size=64), st.booleans(), st.booleans())
+def test_decoders_never_raise_and_count_what_they_reject(cob_id, data, fd, error_frame):
+    bus = can.Bus(interface="virtual", channel=f"fuzz-{os.getpid()}")
+    try:
+        ex = CyclicExchange(bus, (1, 2, 3), PositionScale(1e7), 16, 100, heartbeat_every=40)
+        ex._collecting = True
+        before = ex.counters.rejected_frames
+        ex._notify(can.Message(arbitration_id=cob_id, data=data, is_fd=fd, is_error_frame=error_frame,
+                               is_extended_id=False))
+        routed = cob_id in (0x181, 0x182, 0x183, 0x190, 0x290, 0x81, 0x82, 0x83, 0x90)
+        expected_len = {0x181: 6, 0x182: 6, 0x183: 6, 0x190: 8, 0x290: 8}.get(cob_id, 8)
+        if routed and not error_frame and len(data) != expected_len:
+            assert ex.counters.rejected_frames == before + 1
+        else:
+            assert ex.counters.rejected_frames == before
+    finally:
+        bus.shutdown()
+
+
+@pytest.mark.integration
+def test_a_killed_controller_leaves_the_simulated_robot_stopped(tmp_path):
+    """SIGKILL the controller mid-task: the drives' SYNC watchdog quick-stops them."""
+    port = random.SystemRandom().randint(48000, 49999)
+    spec = parse_bus_spec("udp_multicast", udp_port=port)
+    cfg = load_config()
+    # tolerant of a busy machine (see test_end_to_end.py): the point is what happens after the kill
+    sets = ["--set", "task.path.laps=3", "--set", f'recording.directory="{tmp_path}"', "--set", "monitoring.enabled=false",
+            "--set", "loop.max_missing_cycles=10", "--set", 'safety.on_late_cycles="warn"']
+    with simulator_process(spec, None, ["task.path.laps=3"]):
+        ctrl = subprocess.Popen([sys.executable, "-m", "controller", "run", "--udp-port", str(port), *sets],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            time.sleep(4.0)  # well into the first lap
+            assert ctrl.poll() is None, ctrl.communicate()
+            ctrl.send_signal(signal.SIGKILL)
+            ctrl.wait()
+            killed_at = time.monotonic()
+            time.sleep(cfg.sim.drive.sync_timeout_s + 0.3)  # watchdog + a 5 m/s^2 stop from ~0.1 m/s
+            with can.Bus(interface="udp_multicast", channel=spec.channel, port=port) as bus:
+                network = canopen.Network(bus)
+                network.connect()
+                try:
+                    positions, states = [], []
+                    for node_id in cfg.actuators.node_ids:
+                        node = canopen.RemoteNode(node_id, str(DRIVE_EDS))
+                        node.sdo.RESPONSE_TIMEOUT = 2.0
+                        network.add_node(node)
+                        states.append(decode_statusword(node.sdo[0x6041].raw))
+                        positions.append(node.sdo[0x6064].raw)
+                    time.sleep(0.2)
+                    later = [network[n].sdo[0x6064].raw for n in cfg.actuators.node_ids]
+                finally:
+                    network.notifier.stop(1.0)
+                    network.bus = None
+            assert states == [PowerState.QUICK_STOP_ACTIVE] * 3, states
+            assert later == positions  # not moving any more
+            assert time.monotonic() - killed_at < 5.0
+        finally:
+            stop_process(ctrl)
+
+
+def test_bad_fault_spec_is_one_clear_line():
+    r = subprocess.run([sys.executable, "-m", "controller", "demo", "--inject", "explode@1"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2
+    assert "unknown kind 'explode'" in r.stderr and "Traceback" not in r.stderr

@@ -1,0 +1,373 @@
+"""Remote monitoring over Zenoh (controller/monitoring/), hermetic on loopback.
+
+Every session listens and connects on tcp/127.0.0.1 with a free port per test; multicast and
+gossip scouting are off (zenoh_session.build_zenoh_config, checked below). The controller
+runs as a separate process (controller.monitoring.sim_controller: loop, law and publisher on
+the in-process simulated devices; ``cheope demo`` for the service wiring of the stop).
+"""
+
+from __future__ import annotations
+
+import io
+import itertools
+import json
+import os
+import selectors
+import signal
+import subprocess
+import sys
+import threading
+import time
+from contextlib import contextmanager
+
+import pytest
+
+from controller.config import ConfigError, load_config
+from controller.cycle_data import CycleInputs, CycleOutputs, DriveFeedback
+from controller.loop import CycleTiming
+from controller.messages import cheope_pb2 as pb
+from controller.monitoring.commands import query_status, send_command
+from controller.monitoring.monitor_view import (
+    AliveUpdate,
+    EventUpdate,
+    MonitorClient,
+    StateUpdate,
+    ViewModel,
+    render,
+    update_to_json,
+)
+from controller.monitoring.publisher import MonitorPublisher, decide_command, publisher_settings
+from controller.monitoring.zenoh_session import (
+    MonitoringConnectionError,
+    MonitorKeys,
+    SessionSettings,
+    build_zenoh_config,
+    client_settings,
+    free_loopback_port,
+    monitor_settings,
+    split_endpoints,
+)
+
+KEYS = MonitorKeys.for_robot("cheope", "test-bot")
+ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
+
+
+def _endpoint() -> str:
+    return f"tcp/127.0.0.1:{free_loopback_port()}"
+
+
+def _controller_cmd(endpoint: str, *sets: str, max_duration_s: float = 30.0) -> list[str]:
+    cmd = [sys.executable, "-m", "controller.monitoring.sim_controller", "--max-duration", str(max_duration_s),
+           "--set", f'monitoring.listen="{endpoint}"', "--set", 'monitoring.robot_id="test-bot"',
+           "--set", 'monitoring.on_listen_busy="fail"', "--set", "task.path.laps=20"]
+    for s in sets:
+        cmd += ["--set", s]
+    return cmd
+
+
+def _readline(proc: subprocess.Popen[str], timeout_s: float) -> str:
+    sel = selectors.DefaultSelector()
+    sel.register(proc.stdout, selectors.EVENT_READ)
+    try:
+        if not sel.select(timeout=timeout_s):
+            raise AssertionError(f"no output from the controller within {timeout_s} s")
+        return proc.stdout.readline()
+    finally:
+        sel.close()
+
+
+def _stop(proc: subprocess.Popen[str]) -> str:
+    """SIGTERM (a controlled stop), then the rest of its stdout."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+    try:
+        out, _ = proc.communicate(timeout=15)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, _ = proc.communicate()
+    return out
+
+
+@contextmanager
+def controller(endpoint: str, *sets: str, max_duration_s: float = 30.0):
+    proc = subprocess.Popen(_controller_cmd(endpoint, *sets, max_duration_s=max_duration_s),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
+    try:
+        line = _readline(proc, 30.0)
+        assert line.startswith("READY"), f"{line!r} {proc.stderr.read() if proc.poll() is not None else ''}"
+        yield proc
+    finally:
+        _stop(proc)
+
+
+def _final(out: str) -> dict:
+    return json.loads([line for line in out.splitlines() if line.startswith("{")][-1])
+
+
+def _states(client: MonitorClient, n: int, timeout_s: float = 10.0) -> list[StateUpdate]:
+    got: list[StateUpdate] = []
+    deadline = time.monotonic() + timeout_s
+    while len(got) < n and time.monotonic() < deadline:
+        u = client.next_update(0.2)
+        if isinstance(u, StateUpdate):
+            got.append(u)
+    assert len(got) == n, f"received {len(got)} of {n} state samples in {timeout_s} s"
+    return got
+
+
+def _wait_alive(client: MonitorClient, alive: bool, timeout_s: float = 10.0) -> AliveUpdate:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        u = client.next_update(0.2)
+        if isinstance(u, AliveUpdate) and u.alive == alive:
+            return u
+    raise AssertionError(f"no liveliness {'PUT' if alive else 'DELETE'} within {timeout_s} s")
+
+
+# -- configuration: loopback, no scouting ---------------------------------------------------
+
+def test_default_sessions_stay_on_loopback_with_scouting_off(cfg):
+    s = publisher_settings(cfg).session
+    assert s.listen == ("tcp/127.0.0.1:7448",) and s.connect == ()
+    for settings in (s, monitor_settings(), client_settings()):
+        conf = build_zenoh_config(settings)
+        assert json.loads(conf.get_json("scouting/multicast/enabled")) is False
+        assert json.loads(conf.get_json("scouting/gossip/enabled")) is False
+        assert all("127.0.0.1" in e for e in json.loads(conf.get_json("listen/endpoints")))
+        assert all("127.0.0.1" in e for e in json.loads(conf.get_json("connect/endpoints")))
+
+
+def test_a_zenoh_file_keeps_its_settings_and_gets_the_defaults_for_the_rest(tmp_path):
+    f = tmp_path / "z.json5"
+    f.write_text('{ mode: "peer", connect: { endpoints: ["tcp/127.0.0.1:9001"] }, '
+                 'scouting: { multicast: { enabled: false }, gossip: { enabled: true } } }')
+    conf = build_zenoh_config(SessionSettings(listen=("tcp/127.0.0.1:9000",), connect=("tcp/127.0.0.1:9002",),
+                                              config_file=str(f)))
+    assert json.loads(conf.get_json("connect/endpoints")) == ["tcp/127.0.0.1:9001", "tcp/127.0.0.1:9002"]
+    assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/127.0.0.1:9000"]  # unset in the file
+    assert json.loads(conf.get_json("scouting/gossip/enabled")) is True  # the file's explicit choice
+    with pytest.raises(ConfigError, match="config_file"):
+        build_zenoh_config(SessionSettings(config_file=str(tmp_path / "missing.json5")))
+
+
+@pytest.mark.parametrize("key, value, match", [
+    ("monitoring.robot_id", "a/b", "robot_id"),
+    ("monitoring.key_prefix", "", "key_prefix"),
+    ("monitoring.listen", "127.0.0.1:7448", "monitoring.listen"),
+    ("monitoring.connect", "tcp/host:99999", "monitoring.connect"),
+])
+def test_bad_monitoring_settings_name_the_key(key, value, match):
+    with pytest.raises(ConfigError, match=match):
+        publisher_settings(load_config(overrides={key: value}))
+
+
+def test_endpoints_split_on_commas():
+    assert split_endpoints(" tcp/127.0.0.1:1, tcp/[::1]:2 ,", "k") == ("tcp/127.0.0.1:1", "tcp/[::1]:2")
+
+
+# -- the command gate ------------------------------------------------------------------------
+
+def test_stop_is_always_accepted_and_other_commands_only_when_enabled():
+    assert decide_command("stop", 0.0, False).accepted
+    for name in ("pause", "resume", "set_force"):
+        refused = decide_command(name, 5.0, False)
+        assert not refused.accepted and "--allow-remote-commands" in refused.message
+        assert decide_command(name, 5.0, True).forward
+    assert not decide_command("set_force", float("nan"), True).accepted
+    assert not decide_command("set_force", -1.0, True).accepted
+    assert not decide_command("reboot", 0.0, True).accepted
+
+
+# -- the loop's side: never waits --------------------------------------------------------------
+
+def _cycle_args(k: int):
+    inputs = CycleInputs(drives=(DriveFeedback(0x1237, 0.55, True),) * 3)
+    outputs = CycleOutputs((0x0F,) * 3, (0.55,) * 3)
+    return k, k * 0.0025, inputs, outputs, CycleTiming(1e-5, 1e-4)
+
+
+def test_on_cycle_decimates_and_drops_when_the_queue_is_full(cfg):
+    cfg = load_config(overrides={"monitoring.publish_rate_hz": 100.0, "monitoring.queue_size": 8})
+    pub = MonitorPublisher(publisher_settings(cfg), threading.Event())  # not entered: nobody drains
+    state = None
+    from controller.service import build_law
+
+    state = build_law(cfg).initial_state()
+    for k in range(400):
+        cycle, t, inputs, outputs, timing = _cycle_args(k)
+        pub.on_cycle(cycle, t, inputs, state, outputs, (), timing)
+    assert pub._q.qsize() == 8  # every 4th of 400 cycles offered (400 Hz -> 100 Hz): 8 queued, 92 dropped
+    assert pub.dropped_samples == 100 - 8
+    assert pub.commands() is None
+
+
+# -- across processes ------------------------------------------------------------------------
+
+def test_monitor_receives_decimated_state_and_events_from_another_process():
+    ep = _endpoint()
+    with MonitorClient(monitor_settings((ep,)), KEYS) as client, controller(ep, "monitoring.publish_rate_hz=100.0"):
+        assert _wait_alive(client, True).key == KEYS.alive
+        states = _states(client, 30)
+    cycles = [s.msg.cycle for s in states]
+    steps = [b - a for a, b in itertools.pairwise(cycles)]
+    # 400 Hz decimated to 100 Hz: every 4th cycle (5 or more only where the loop skipped a late deadline)
+    assert min(steps) == 4 and steps.count(4) >= 0.8 * len(steps), steps
+    last = states[-1].msg
+    assert last.robot_id == "test-bot" and len(last.positions) == 3 and len(last.targets) == 3
+    assert last.task == "path" and last.mode in ("HOLDING", "RUNNING")
+    assert 300.0 < last.loop.achieved_rate_hz < 420.0
+    latency = [s.received_monotonic_s - s.msg.cycle_monotonic_s for s in states]
+    assert 0.0 < min(latency) and max(latency) < 0.5
+
+
+def test_every_cycle_is_published_when_the_rate_allows_it():
+    ep = _endpoint()
+    rates = ("monitoring.publish_rate_hz=400.0", "loop.rate_hz=200.0")
+    with MonitorClient(monitor_settings((ep,)), KEYS) as client, controller(ep, *rates):
+        _wait_alive(client, True)
+        cycles = [s.msg.cycle for s in _states(client, 40)]
+    assert max(b - a for a, b in itertools.pairwise(cycles)) <= 2  # 1, or 2 when the loop skipped a deadline
+    assert sum(b - a == 1 for a, b in itertools.pairwise(cycles)) >= 30
+
+
+def test_liveliness_goes_away_and_comes_back():
+    ep = _endpoint()
+    with MonitorClient(monitor_settings((ep,)), KEYS) as client:
+        view = ViewModel(KEYS.prefix)
+        with controller(ep):
+            view.apply(_wait_alive(client, True))
+            _states(client, 2)
+        view.apply(_wait_alive(client, False))
+        assert view.alive is False
+        with controller(ep):  # the same endpoint: the monitor's session reconnects by itself
+            view.apply(_wait_alive(client, True))
+            _states(client, 2)
+    assert view.alive is True and view.changes == 2
+
+
+def test_status_queryable_answers_configuration_versions_counters_and_uptime():
+    ep = _endpoint()
+    with controller(ep):
+        time.sleep(0.3)
+        st = query_status(client_settings((ep,)), KEYS, timeout_s=5.0)
+    assert st.robot_id == "test-bot" and not st.commands_enabled
+    assert list(st.listen_endpoints) == [ep]
+    assert st.counters["cycles"] > 0 and st.uptime_s > 0.0
+    assert json.loads(st.config_json)["monitoring"]["robot_id"] == "test-bot"
+    assert any(v.startswith("eclipse-zenoh==") for v in st.versions)
+    assert st.mode in ("CONFIGURING", "ENABLING", "HOLDING", "RUNNING", "STARTING")
+
+
+def test_a_command_other_than_stop_is_refused_when_commands_are_disabled():
+    ep = _endpoint()
+    with controller(ep) as proc:
+        reply = send_command(client_settings((ep,)), KEYS, "pause", timeout_s=5.0)
+        assert not reply.accepted and "--allow-remote-commands" in reply.message
+        out = _stop(proc)
+    assert not any("remote pause" in e for e in _final(out)["events"])
+    assert _final(out)["publisher"]["commands_refused"] == 1
+
+
+def test_pause_and_resume_reach_the_law_when_enabled():
+    ep = _endpoint()
+    with MonitorClient(monitor_settings((ep,)), KEYS) as client, controller(ep, "monitoring.allow_remote_commands=true") as proc:
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and _states(client, 1)[0].msg.mode != "RUNNING":
+            pass
+        assert send_command(client_settings((ep,)), KEYS, "pause", timeout_s=5.0).accepted
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and _states(client, 1)[0].msg.mode != "PAUSED":
+            pass
+        assert send_command(client_settings((ep,)), KEYS, "resume", timeout_s=5.0).accepted
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and _states(client, 1)[0].msg.mode != "RUNNING":
+            pass
+        out = _stop(proc)
+    events = _final(out)["events"]
+    assert any("remote pause" in e for e in events) and any("remote resume" in e for e in events)
+
+
+def test_remote_stop_brings_a_running_task_to_a_controlled_stop():
+    ep = _endpoint()
+    with MonitorClient(monitor_settings((ep,)), KEYS) as client, controller(ep) as proc:
+        while _states(client, 1)[0].msg.mode != "RUNNING":
+            pass
+        reply = send_command(client_settings((ep,)), KEYS, "stop", timeout_s=5.0)
+        assert reply.accepted
+        proc.wait(timeout=10)  # it ends by itself: the stop, not our SIGTERM
+        final = _final(_stop(proc))
+        kinds = [u for u in iter(lambda: client.next_update(0.5), None) if isinstance(u, EventUpdate)]
+    assert final["final_mode"] == "DONE"
+    assert "INFO: RUNNING -> STOPPING: stop requested" in final["events"]
+    assert any("STOPPING" in e.msg.message for e in kinds)  # the events went out over Zenoh too
+
+
+@pytest.mark.integration
+def test_cheope_stop_stops_cheope_demo_through_the_service():
+    ep = _endpoint()
+    demo = subprocess.Popen(
+        [sys.executable, "-m", "controller", "demo", "--json", "--set", "task.path.laps=20",
+         "--set", f'monitoring.listen="{ep}"', "--set", 'monitoring.on_listen_busy="fail"'],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
+    try:
+        cli = [sys.executable, "-m", "controller"]
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            st = subprocess.run(cli + ["status", "--json", "--zenoh-connect", ep], check=False, capture_output=True, text=True,
+                                env=ENV, timeout=30)
+            if st.returncode == 0 and json.loads(st.stdout)["mode"] == "RUNNING":
+                break
+            time.sleep(0.3)
+            if demo.poll() is not None:
+                out_, err_ = demo.communicate()
+                pytest.fail(f"the demo exited {demo.returncode}: {out_[-1500:]} {err_[-1500:]}")
+        else:
+            pytest.fail(f"the demo never reported RUNNING: {st.stderr}")
+        mon = subprocess.run(cli + ["monitor", "--json", "--count", "3", "--duration", "10", "--zenoh-connect", ep],
+                             check=False, capture_output=True, text=True, env=ENV, timeout=30)
+        lines = [json.loads(line) for line in mon.stdout.splitlines()]
+        assert sum(d["type"] == "state" for d in lines) == 3
+        assert any(d["type"] == "liveliness" and d["alive"] for d in lines)
+        stop = subprocess.run(cli + ["stop", "--zenoh-connect", ep], check=False, capture_output=True, text=True, env=ENV,
+                              timeout=30)
+        assert stop.returncode == 0 and stop.stdout.startswith("accepted"), stop.stderr
+        out, err = demo.communicate(timeout=30)
+    finally:
+        if demo.poll() is None:
+            demo.kill()
+            demo.communicate()
+    summary = json.loads(out)
+    assert summary["final_mode"] == "DONE", err
+    assert any("stop requested" in e for e in summary["events"])
+
+
+def test_status_without_a_controller_ends_with_one_clear_line():
+    ep = _endpoint()
+    r = subprocess.run([sys.executable, "-m", "controller", "status", "--zenoh-connect", ep, "--timeout", "1"],
+                       check=False, capture_output=True, text=True, env=ENV, timeout=30)
+    assert r.returncode == 2
+    assert r.stderr.count("\n") == 1 and ep in r.stderr and r.stderr.startswith("cheope status: error:")
+    with pytest.raises(MonitoringConnectionError, match="127.0.0.1"):
+        query_status(client_settings((ep,)), KEYS, timeout_s=1.0)
+
+
+# -- the view --------------------------------------------------------------------------------
+
+def test_view_renders_state_alarms_events_and_liveliness():
+    msg = pb.MonitorState(robot_id="r", cycle=12, t_s=0.03, mode="RUNNING", task="path", task_phase="TRACKING",
+                          targets=[0.5, 0.6, 0.7], positions=[0.5001, 0.6, 0.7], tcp_m=[0.0, 0.01, 0.5],
+                          force_n=[0.1, 0.2, 9.5], alarms=["drive 2: no TPDO for 1 cycle(s)"])
+    view = ViewModel("cheope/r")
+    view.apply(AliveUpdate("cheope/r/alive", True, 1.0))
+    view.apply(StateUpdate("cheope/r/state", msg, 1.1))
+    view.apply(EventUpdate("cheope/r/events", pb.Event(t_s=0.02, severity=pb.WARNING, message="late"), 1.1))
+    view.apply(AliveUpdate("cheope/r/alive", False, 1.2))
+    from rich.console import Console
+
+    buf = io.StringIO()
+    Console(file=buf, width=120).print(render(view, 1.5))
+    text = buf.getvalue()
+    for expected in ("RUNNING", "TRACKING", "drive 2: no TPDO", "+9.500 N", "controller gone", "WARNING", "gone"):
+        assert expected in text, expected
+    line = json.loads(update_to_json(StateUpdate("cheope/r/state", msg, 1.1)))
+    assert line["type"] == "state" and line["cycle"] == 12 and line["force_n"] == [0.1, 0.2, 9.5]
