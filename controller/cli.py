@@ -57,8 +57,11 @@ def _overrides(args: argparse.Namespace) -> list[str]:
     sets = list(args.set)
     if args.rate is not None:
         sets.append(f"loop.rate_hz={args.rate}")
-    if getattr(args, "task", None):
-        sets.insert(0, f'task.kind="{args.task}"')
+    task = getattr(args, "task", None)
+    if task is None and args.command == "demo" and not args.config and getattr(args, "robot", None) in (None, "cheope"):
+        task = "contour"  # the paper's experiment is Cheope's demo
+    if task:
+        sets.insert(0, f'task.kind="{task}"')
     if getattr(args, "robot", None):
         sets.insert(0, f'robot.kind="{args.robot}"')
     if getattr(args, "inject", None):
@@ -263,7 +266,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--max-duration", type=float, default=600.0, help="stop after this many seconds")
     p.add_argument("--task", choices=("path", "contour"),
-                   help="path: a circle in free space; contour: the paper's force-controlled contour tracking")
+                   help="Cheope's task: contour (the demo's default: the paper's force-controlled contour "
+                        "tracking, then the same contour under position control) or path (a circle in free space); "
+                        "the other robots run their own configured task")
     p.add_argument("--plot", metavar="DIR", help="write the contour experiment's PNG plots here")
     p.set_defaults(func=cmd_demo)
     p = sub.add_parser("run", help="only the controller, against whatever devices are on the bus")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import socket
 from dataclasses import dataclass
+from pathlib import Path
 
 import can
 
@@ -11,6 +12,7 @@ import can
 LOCAL_MULTICAST_GROUP = "ff11:7079:7468:6f6e:6465:6d6f:6d63:6173"
 DEFAULT_UDP_PORT = 43113
 SUPPORTED_INTERFACES = ("socketcan", "udp_multicast", "virtual")
+CANFD_MTU = 72  # a SocketCAN interface carries FD frames only with this MTU (linux/can.h)
 
 
 class BusSpecError(ValueError):
@@ -67,6 +69,12 @@ def open_bus(spec: BusSpec) -> can.BusABC:
         kwargs["hop_limit"] = 1
     if spec.interface == "virtual":
         kwargs["receive_own_messages"] = True  # like the other two: every bus sees its own frames
+    if spec.fd and spec.interface == "socketcan":
+        mtu_file = Path("/sys/class/net") / spec.channel / "mtu"
+        if mtu_file.exists() and int(mtu_file.read_text()) < CANFD_MTU:
+            raise can.CanInitializationError(
+                f"cannot open {spec}: {spec.channel} cannot carry CAN FD frames (MTU {mtu_file.read_text().strip()}; "
+                f"ip link set {spec.channel} down && ip link set {spec.channel} mtu {CANFD_MTU} up)")
     try:
         return can.Bus(**kwargs)
     except (OSError, can.CanError) as err:

@@ -50,6 +50,7 @@ class Simulator:
         self.lock = threading.RLock()
         self.drive_ids = tuple(cfg.actuators.node_ids)
         self.faults = FaultSchedule.from_strings(tuple(cfg.sim.faults))
+        self._fd = getattr(bus, "protocol", None) == can.CanProtocol.CAN_FD
         self._silenced: set[int] = set()
         self.network = canopen.Network(bus)
         self.nodes: dict[int, canopen.LocalNode] = {}
@@ -175,9 +176,9 @@ class Simulator:
                 frames.append((cob_ids.tpdo2(self.cfg.sensor.node_id), sensor_frames[1]))
             self._flush_emcy()
         for cob_id, payload in frames:
-            self.network.send_message(cob_id, payload)
+            self._send_pdo(cob_id, payload)
         for delay_s, cob_id, payload in delayed:
-            timer = threading.Timer(delay_s, self.network.send_message, (cob_id, payload))
+            timer = threading.Timer(delay_s, self._send_pdo, (cob_id, payload))
             timer.daemon = True
             timer.start()
         bus_off = self.faults.active("bus_off", now) is not None
@@ -185,6 +186,12 @@ class Simulator:
             # error class bits of a SocketCAN error frame: 0x040 bus-off, 0x004 controller problems
             self.bus.send(can.Message(arbitration_id=0x040 if bus_off else 0x004, is_error_frame=True,
                                       data=bytes(8), is_extended_id=False))
+
+    def _send_pdo(self, cob_id: int, payload: bytes) -> None:
+        # On an FD bus the PDOs go as FD frames with bit-rate switch, as the controller's do;
+        # canopen's send_message would send classical frames, all at the nominal rate.
+        self.bus.send(can.Message(arbitration_id=cob_id, data=payload, is_extended_id=False,
+                                  is_fd=self._fd, bitrate_switch=self._fd))
 
     def _on_controller_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
         now = self.clock()

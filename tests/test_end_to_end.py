@@ -33,7 +33,7 @@ def _cheope(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[s
 
 
 def test_demo_runs_the_path_task_end_to_end():
-    r = _cheope("demo", "--json", "--set", "task.path.laps=0.5", "--udp-port", str(_port()), *TOLERANT)
+    r = _cheope("demo", "--task", "path", "--json", "--set", "task.path.laps=0.5", "--udp-port", str(_port()), *TOLERANT)
     assert r.returncode == 0, r.stderr + r.stdout
     s = json.loads(r.stdout)
     assert s["final_mode"] == "DONE"
@@ -58,14 +58,14 @@ def test_run_against_a_separately_started_simulator():
 
 
 def test_human_summary_names_the_figures():
-    r = _cheope("demo", "--set", "task.path.laps=0.25", "--udp-port", str(_port()), *TOLERANT)
+    r = _cheope("demo", "--task", "path", "--set", "task.path.laps=0.25", "--udp-port", str(_port()), *TOLERANT)
     assert r.returncode == 0, r.stderr
     for label in ("loop rate", "period error", "late cycles", "missing frames", "tracking error"):
         assert label in r.stdout
 
 
 def test_over_budget_bus_is_refused_before_the_simulator_starts():
-    r = _cheope("demo", "--rate", "1000", "--udp-port", str(_port()))
+    r = _cheope("demo", "--task", "path", "--rate", "1000", "--udp-port", str(_port()))
     assert r.returncode == 2
     assert r.stderr.strip().count("\n") == 0, r.stderr  # one clear line
     assert "bus load 101.8 % exceeds the limit of 70.0 %" in r.stderr
@@ -77,7 +77,8 @@ def test_over_budget_bus_is_refused_before_the_simulator_starts():
     (["run", "--can", "udp_multicast:239.0.0.1"], "only allowed on the interface-local group"),
     (["demo", "--config", "/nonexistent.toml"], "/nonexistent.toml does not exist"),
     (["demo", "--set", "loop.rate_hz=-3"], "loop.rate_hz = -3: must be >= 1.0"),
-    (["demo", "--set", "task.path.radius_m=0.3"], "path sample 0"),
+    (["demo", "--task", "path", "--set", "task.path.radius_m=0.3"], "path sample 0"),
+    (["demo", "--set", "task.contour.expected_radius_m=0.3"], "path sample 0"),
 ])
 def test_bad_input_gets_one_clear_line(args, needle):
     r = _cheope(*args)

@@ -306,7 +306,7 @@ def test_remote_stop_brings_a_running_task_to_a_controlled_stop():
 def test_cheope_stop_stops_cheope_demo_through_the_service():
     ep = _endpoint()
     demo = subprocess.Popen(
-        [sys.executable, "-m", "controller", "demo", "--json", "--set", "task.path.laps=20",
+        [sys.executable, "-m", "controller", "demo", "--task", "path", "--json", "--set", "task.path.laps=20",
          "--set", f'monitoring.listen="{ep}"', "--set", 'monitoring.on_listen_busy="fail"'],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
     try:

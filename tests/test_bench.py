@@ -1,0 +1,167 @@
+"""Fast tests of the benchmark's pieces and the real-time options (the bench itself: -m bench)."""
+
+from __future__ import annotations
+
+import ctypes
+import errno
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from controller import realtime
+from controller.bench import (
+    compare_pdo_paths,
+    compare_sleepers,
+    cpu_use_percent,
+    late_per_10k,
+    measured_bus_load,
+    naive_loop,
+    percentiles_us,
+    period_error_us,
+    schedule_stats,
+)
+from controller.realtime import RealtimeError, RealtimeOptions, parse_cpus
+from drivers.bus_load import classical_frame_bits, fd_frame_time_s
+
+
+def test_percentiles_of_known_values():
+    v = np.arange(1, 1001, dtype=float)  # 1..1000 us
+    p = percentiles_us(v)
+    assert p["p50"] == pytest.approx(500.5, abs=0.1)
+    assert p["p99"] == pytest.approx(990.01, abs=0.1)
+    assert p["p99_9"] == pytest.approx(999.0, abs=0.1)
+    assert p["max"] == 1000.0
+    assert percentiles_us(np.zeros(0)) == {"p50": 0.0, "p99": 0.0, "p99_9": 0.0, "max": 0.0}
+
+
+def test_period_error_from_wake_times_and_from_wake_errors_agree():
+    period = 1e-3
+    errors = np.array([0.0, 20e-6, -10e-6, 5e-6])
+    wake = np.arange(4) * period + errors
+    assert np.allclose(period_error_us(wake, period), [20.0, 30.0, 15.0])
+    assert np.allclose(period_error_us(errors, 0.0), [20.0, 30.0, 15.0])
+
+
+def test_late_cycles_count_threshold_and_overruns():
+    period = 1e-3
+    wake_error = np.array([0.0, 50e-6, 101e-6, 2e-3] + [0.0] * 96)
+    assert late_per_10k(wake_error, period, 0.1) == pytest.approx(1e4 * 2 / 100)
+    assert late_per_10k(wake_error, period, 0.1, overruns=4) == pytest.approx(1e4 * 6 / 104)
+
+
+def test_schedule_stats_sees_drift_of_a_slow_loop():
+    period = 1e-3
+    wake = np.arange(1001) * 1.05e-3  # every period 50 us too long
+    s = schedule_stats(wake, period)
+    assert s["achieved_rate_hz"] == pytest.approx(1000 / 1.05, rel=1e-6)
+    assert s["drift_ms"] == pytest.approx(50.0, rel=1e-6)
+    assert s["period_error_us"]["p50"] == pytest.approx(50.0, abs=0.1)
+    # cycle k is k * 50 us late: late (> 100 us) from cycle 3 on
+    assert s["late_per_10k"] == pytest.approx(1e4 * 998 / 1000)
+    with pytest.raises(ValueError, match="at least 2"):
+        schedule_stats(np.zeros(1), period)
+
+
+def test_naive_loop_drifts_behind_its_schedule():
+    period, work = 2e-3, 0.5e-3
+    wake = naive_loop(period, 60, work)
+    s = schedule_stats(wake, period)
+    # work + sleep(period) + oversleep: each period at least ``work`` too long
+    assert s["achieved_rate_hz"] < 1.0 / (period + work) * 1.01
+    assert s["drift_ms"] > 59 * work * 1e3 * 0.9
+
+
+def test_deadline_loop_keeps_the_rate_where_the_naive_one_drifts():
+    r = compare_sleepers(2e-3, 0.6, 0.3e-3, 0.3e-3, blocks=2)
+    assert abs(r["deadline"]["drift_ms_per_s"]) < abs(r["naive"]["drift_ms_per_s"])
+    assert r["naive"]["achieved_rate_hz"] < 0.9 * 500
+    assert r["deadline"]["achieved_rate_hz"] == pytest.approx(500, rel=0.02)
+
+
+def test_cpu_use_from_samples():
+    samples = [(10.0, 1.0, 2.0, 3.0), (12.0, 1.5, 3.0, float("nan"))]
+    assert cpu_use_percent(samples) == {"loop_thread": 25.0, "controller_process": 50.0, "simulator_process": None}
+    assert cpu_use_percent(samples[:1])["loop_thread"] is None
+
+
+def test_measured_bus_load_uses_each_frames_own_flags():
+    # 1000 classical 6-byte frames and 1000 FD 6-byte frames with BRS in one second
+    frames = {0x181: 1000, 0x182: 1000}
+    shapes = {0x181: (6, False, False), 0x182: (6, True, True)}
+    m = measured_bus_load(frames, shapes, 1.0, 1e6, 5e6)
+    expected = 1000 * classical_frame_bits(6) / 1e6 + 1000 * fd_frame_time_s(6, 1e6, 5e6)
+    assert m["percent"] == pytest.approx(100 * expected, abs=0.05)
+    assert m["classical_frames_per_second"] == 1000.0
+
+
+def test_project_pdo_path_is_cheaper_than_canopens_pdo_objects():
+    r = compare_pdo_paths(300)
+    assert r["project_cpu_us"] > 0 and r["canopen_cpu_us"] > 0
+    assert r["canopen_over_project"] > 1.0
+
+
+# -- real-time options ------------------------------------------------------------------------
+
+def test_options_validate_their_values():
+    with pytest.raises(RealtimeError, match="--rt-priority 0: SCHED_FIFO priorities are 1..99"):
+        RealtimeOptions(priority=0)
+    with pytest.raises(RealtimeError, match="--cpu -1"):
+        RealtimeOptions(cpus=(-1,))
+    assert RealtimeOptions().describe() == "none" and not RealtimeOptions().any
+    assert RealtimeOptions(priority=80, cpus=(1,), lock_memory=True).describe() == \
+        "SCHED_FIFO 80, CPU 1, memory locked"
+
+
+def test_parse_cpus():
+    assert parse_cpus("1") == (1,)
+    assert parse_cpus("0,2-3") == (0, 2, 3)
+    with pytest.raises(RealtimeError, match="expected CPU numbers"):
+        parse_cpus("one")
+
+
+def test_priority_not_permitted_says_how_to_get_it(monkeypatch):
+    def refuse(pid, policy, param):
+        raise PermissionError(errno.EPERM, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    with pytest.raises(RealtimeError, match=r"--rt-priority 50: SCHED_FIFO not permitted .*CAP_SYS_NICE.*rtprio"):
+        realtime.set_fifo_priority(50)
+
+
+def test_cpu_outside_the_allowed_set_is_named(monkeypatch):
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
+    with pytest.raises(RealtimeError, match=r"--cpu 7: CPU 7 is not one this process may use \(allowed: 0,1\)"):
+        realtime.set_cpu_affinity((7,))
+
+
+def test_mlockall_not_permitted_says_how_to_get_it(monkeypatch):
+    class FakeLibc:
+        def mlockall(self, flags):
+            assert flags == realtime.MCL_CURRENT | realtime.MCL_FUTURE
+            ctypes.set_errno(errno.EPERM)
+            return -1
+
+    monkeypatch.setattr(sys, "platform", "linux")
+    with pytest.raises(RealtimeError, match=r"--lock-memory: mlockall not permitted .*CAP_IPC_LOCK.*memlock"):
+        realtime.lock_memory(FakeLibc())
+
+
+def test_affinity_applies_to_this_thread_and_restores():
+    before = os.sched_getaffinity(0)
+    cpu = min(before)
+    restore = realtime.apply_realtime(RealtimeOptions(cpus=(cpu,)))
+    try:
+        assert os.sched_getaffinity(0) == {cpu}
+    finally:
+        restore()
+    assert os.sched_getaffinity(0) == before
+
+
+def test_cli_refuses_a_bad_rt_option_with_one_line():
+    r = subprocess.run([sys.executable, "-m", "controller", "run", "--rt-priority", "120", "--max-duration", "1"],
+                       check=False, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines()[-1].endswith("--rt-priority 120: SCHED_FIFO priorities are 1..99")
