@@ -35,13 +35,10 @@ import json
 import math
 import os
 import pstats
-import selectors
-import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -267,47 +264,19 @@ def measured_bus_load(frames: dict[int, int], shapes: dict[int, tuple[int, bool,
 
 # -- the simulator process --------------------------------------------------------------------
 
-@contextmanager
 def simulator(spec, overrides: list[str], config_path: str | None, rt: RealtimeOptions,
-              ready_timeout_s: float = 30.0) -> Iterator[subprocess.Popen[str]]:
+              ready_timeout_s: float = 30.0):  # -> context manager of subprocess.Popen
     """``cheope sim`` as a child process with its own real-time options."""
-    from controller.demo import stop_process
-    from sim_backend.process import READY_LINE
+    from controller.demo import simulator_process
 
-    cmd = [sys.executable, "-m", "controller", "sim", "--can", f"{spec.interface}:{spec.channel}",
-           "--udp-port", str(spec.udp_port)]
-    if spec.fd:
-        cmd.append("--fd")
-    if config_path:
-        cmd += ["--config", config_path]
-    for s in overrides:
-        cmd += ["--set", s]
+    extra: list[str] = []
     if rt.priority is not None:
-        cmd += ["--rt-priority", str(rt.priority)]
+        extra += ["--rt-priority", str(rt.priority)]
     if rt.cpus:
-        cmd += ["--cpu", ",".join(str(c) for c in rt.cpus)]
+        extra += ["--cpu", ",".join(str(c) for c in rt.cpus)]
     if rt.lock_memory:
-        cmd.append("--lock-memory")
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    try:
-        assert proc.stdout is not None
-        sel = selectors.DefaultSelector()
-        sel.register(proc.stdout, selectors.EVENT_READ)
-        deadline = time.monotonic() + ready_timeout_s
-        while True:
-            if time.monotonic() > deadline or not sel.select(timeout=max(0.0, deadline - time.monotonic())):
-                raise RuntimeError(f"simulator not ready within {ready_timeout_s} s")
-            line = proc.stdout.readline()
-            if not line:
-                err = proc.stderr.read() if proc.stderr else ""
-                raise RuntimeError(f"simulator exited with code {proc.wait()}: {err.strip()[-500:]}")
-            if line.startswith(READY_LINE):
-                break
-        sel.close()
-        yield proc
-    finally:
-        stop_process(proc)
+        extra.append("--lock-memory")
+    return simulator_process(spec, config_path, overrides, ready_timeout_s, extra_args=extra)
 
 
 # -- one configuration against the simulator --------------------------------------------------

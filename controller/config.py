@@ -494,7 +494,13 @@ def config_to_dict(cfg: Any) -> dict[str, Any]:
 
 
 __all__ = [
-    "Config", "ConfigError", "load_config", "config_from_dict", "config_to_dict", "set_dotted", "DEFAULT_CONFIG",
+    "DEFAULT_CONFIG",
+    "Config",
+    "ConfigError",
+    "config_from_dict",
+    "config_to_dict",
+    "load_config",
+    "set_dotted",
 ]
 
 

@@ -41,7 +41,6 @@ from controller.tasks.task import Task, TaskContext
 from drivers.cia402 import PowerState, controlword_towards, decode_statusword
 from drivers.pdo_codec import SENSOR_FORCE_SATURATED
 
-
 PIPELINE_PERIODS = 2
 # A reactive reference's position error decays with a time constant of 1/0.25 = 4 periods.
 REACTIVE_CORRECTION_PERIODS = 0.25

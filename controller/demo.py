@@ -15,9 +15,9 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
 from controller.config import Config
 from controller.service import run_controller
@@ -35,9 +35,11 @@ def random_udp_port() -> int:
 
 @contextmanager
 def simulator_process(spec: BusSpec, config_path: str | None, overrides: list[str],
-                      ready_timeout_s: float = 30.0) -> Iterator[subprocess.Popen[str]]:
-    cmd = [sys.executable, "-m", "sim_backend", "--can", f"{spec.interface}:{spec.channel}",
-           "--udp-port", str(spec.udp_port)]
+                      ready_timeout_s: float = 30.0, extra_args: list[str] | tuple[str, ...] = ()
+                      ) -> Iterator[subprocess.Popen[str]]:
+    """``cheope sim`` as a child process; ``extra_args`` go to its command line (real-time options)."""
+    cmd = [sys.executable, "-m", "controller", "sim", "--can", f"{spec.interface}:{spec.channel}",
+           "--udp-port", str(spec.udp_port), *extra_args]
     if spec.fd:
         cmd.append("--fd")
     if config_path:

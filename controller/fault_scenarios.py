@@ -79,7 +79,7 @@ class _Watch:
     reaction: str = ""
     safe_s: float | None = None
 
-    def on_cycle(self, cycle, t, inputs, state, outputs, events, timing) -> None:  # noqa: ANN001
+    def on_cycle(self, cycle, t, inputs, state, outputs, events, timing) -> None:
         if t < self.fault_at_s:
             return
         for e in events:

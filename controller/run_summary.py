@@ -9,11 +9,10 @@ with it, so the error includes the drives' following error, as a user of the rob
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
-
-from collections import deque
 
 from controller.control_law import PIPELINE_PERIODS, ControllerState
 from controller.cycle_data import CycleInputs, CycleOutputs, Event, Severity

@@ -21,9 +21,9 @@ from controller.config import Config, ConfigError
 from controller.control_law import ControlLaw, LawConfig, SafetyConfig
 from controller.loop import CycleLoop, CycleObserver, DeadlineSleeper
 from controller.monitoring.publisher import monitoring_context
+from controller.realtime import RealtimeOptions, apply_realtime, check_realtime, set_gil_switch_interval
 from controller.robots.cheope import CheopeRobot
 from controller.robots.registry import actuator_units, robot_from_config
-from controller.realtime import RealtimeOptions, apply_realtime, check_realtime, set_gil_switch_interval
 from controller.run_summary import RunRecorder, summarize
 from controller.setpoint_smoothing import AxisLimits, RuckigSmoother
 from controller.tasks.circle_path import CirclePath
@@ -140,7 +140,7 @@ def node_setup_plan(cfg: Config) -> NodeSetupPlan:
         vendor_id=cfg.actuators.vendor_id, drive_product_code=cfg.actuators.product_code,
         sensor_product_code=cfg.sensor.product_code, controller_id=cfg.loop.controller_node_id,
         heartbeat_period_s=cfg.loop.heartbeat_period_s, heartbeat_consumer_s=cfg.loop.heartbeat_consumer_s,
-        sdo_timeout_s=cfg.loop.sdo_timeout_s,
+        sdo_timeout_s=cfg.loop.sdo_timeout_s, answer_timeout_s=max(5.0, 3.0 * cfg.loop.sdo_timeout_s),
     )
 
 

@@ -24,7 +24,7 @@ class Setpoint:
     acceleration: tuple[float, ...]
 
     @staticmethod
-    def at_rest(position: tuple[float, ...]) -> "Setpoint":
+    def at_rest(position: tuple[float, ...]) -> Setpoint:
         zeros = tuple(0.0 for _ in position)
         return Setpoint(tuple(position), zeros, zeros)
 

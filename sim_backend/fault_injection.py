@@ -71,7 +71,7 @@ class FaultSchedule:
         self._fired: set[int] = set()
 
     @classmethod
-    def from_strings(cls, texts: tuple[str, ...]) -> "FaultSchedule":
+    def from_strings(cls, texts: tuple[str, ...]) -> FaultSchedule:
         return cls(tuple(parse_fault(t) for t in texts))
 
     def start(self, now_s: float) -> None:

@@ -8,21 +8,21 @@ run takes milliseconds and is deterministic: the harness of the unit and propert
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 from controller.config import Config
-from controller.robots.registry import actuator_units
 from controller.cycle_data import CycleInputs, CycleOutputs, DriveFeedback, EmcyReport, SensorFeedback
+from controller.robots.registry import actuator_units
 from drivers.pdo_codec import (
     FORCE_N_PER_COUNT,
     TORQUE_NM_PER_COUNT,
+    FrameError,
     PositionScale,
     decode_drive_rpdo,
     decode_drive_tpdo,
     decode_sensor_frame,
     encode_drive_rpdo,
 )
-from drivers.pdo_codec import FrameError
 from sim_backend.environment import Environment
 from sim_backend.fault_injection import FaultSchedule, apply_device_faults, tpdo_payload
 from sim_backend.plant import RobotPlant

@@ -16,7 +16,7 @@ semi-implicit Euler in the plant's sub-steps.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 

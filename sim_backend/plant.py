@@ -29,9 +29,9 @@ from controller.robots.errors import NoSolutionError
 from controller.robots.performance import MassModel
 from controller.robots.registry import actuator_units, robot_from_config
 from drivers.pdo_codec import encode_drive_tpdo
-from sim_backend.drive import DriveParams, SimulatedDrive
 from sim_backend.contact_disk import DiskEnvironment, DiskParams
-from sim_backend.environment import Environment, FreeSpace, ZERO3
+from sim_backend.drive import DriveParams, SimulatedDrive
+from sim_backend.environment import ZERO3, Environment, FreeSpace
 from sim_backend.force_sensor import SensorParams, SimulatedForceSensor
 from sim_backend.mechanics import ComplianceParams, CompliantTool
 
@@ -50,7 +50,7 @@ def drive_params_from_config(cfg: Config) -> DriveParams:
     )
 
 
-def initial_actuator_positions(cfg: Config, robot) -> tuple[float, ...]:  # noqa: ANN001
+def initial_actuator_positions(cfg: Config, robot) -> tuple[float, ...]:
     """Where the simulated drives start: Cheope's configured positions, else the robot's start pose."""
     if cfg.robot.kind == "uru":
         return tuple(robot.inverse_kinematics(np.asarray(cfg.robot.uru.home_position_m)).tolist())

@@ -13,7 +13,7 @@ from sim_backend.server import Simulator
 READY_LINE = "cheope-sim ready"
 
 
-def serve(cfg: Config, spec: BusSpec, stop_event: threading.Event, announce: "callable[[str], None]",
+def serve(cfg: Config, spec: BusSpec, stop_event: threading.Event, announce: callable[[str], None],
           realtime: RealtimeOptions | None = None) -> None:
     # Before any thread starts: canopen's notifier, the heartbeat producers and the watchdog
     # inherit the priority and the affinity (the simulated hardware is real time as a whole).

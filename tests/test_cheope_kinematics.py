@@ -9,6 +9,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+from controller.config import load_config
 from controller.robots.cheope import (
     CheopeGeometry,
     direct_kinematics,
@@ -18,7 +19,6 @@ from controller.robots.cheope import (
     rod_directions,
     singularity_measures,
 )
-from controller.config import load_config
 from controller.robots.errors import NoSolutionError
 from controller.robots.registry import cheope_from_config
 

@@ -18,12 +18,12 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from controller.config import Config  # noqa: E402
-from controller.robots.cheope import CheopeRobot, jacobian, joint_swing_rad, singularity_measures  # noqa: E402
-from controller.robots.performance import (  # noqa: E402
+from controller.config import Config
+from controller.robots.cheope import CheopeRobot, jacobian, joint_swing_rad, singularity_measures
+from controller.robots.performance import (
     Ellipsoid,
     MassModel,
     force_ellipsoid,
@@ -32,8 +32,8 @@ from controller.robots.performance import (  # noqa: E402
     stiffness_ellipsoid,
     velocity_ellipsoid,
 )
-from controller.robots.registry import cheope_from_config  # noqa: E402
-from controller.tasks.circle_path import CirclePath  # noqa: E402
+from controller.robots.registry import cheope_from_config
+from controller.tasks.circle_path import CirclePath
 
 
 def _cond(robot: CheopeRobot, p: np.ndarray) -> float:

@@ -22,15 +22,15 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from controller.control_law import ControllerState, Mode  # noqa: E402
-from controller.cycle_data import CycleInputs, CycleOutputs, Event  # noqa: E402
-from controller.loop import CycleTiming  # noqa: E402
-from controller.robots.cheope import CheopeRobot  # noqa: E402
-from controller.robots.performance import MassModel, mass_ellipsoid, stiffness_ellipsoid  # noqa: E402
-from controller.tasks.contour_tracking import ContourPhase, ContourState  # noqa: E402
+from controller.control_law import ControllerState, Mode
+from controller.cycle_data import CycleInputs, CycleOutputs, Event
+from controller.loop import CycleTiming
+from controller.robots.cheope import CheopeRobot
+from controller.robots.performance import MassModel, mass_ellipsoid, stiffness_ellipsoid
+from controller.tasks.contour_tracking import ContourPhase, ContourState
 
 
 @dataclass

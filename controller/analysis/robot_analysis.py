@@ -27,8 +27,8 @@ def analyze_uru(cfg: Config, out_dir: Path) -> dict[str, object]:
     robot = uru_from_config(cfg)
     files = plot_workspace_and_singularities(robot.geometry, out_dir)
     p = cfg.task.path
-    from controller.tasks.circle_path import CirclePath
     from controller.robots.uru_robot import TiltedCirclePath
+    from controller.tasks.circle_path import CirclePath
 
     path = TiltedCirclePath(CirclePath(p.center_m, p.radius_m, p.speed_m_s, p.laps, p.ramp_s), p.normal)
     pts = path.points(p.check_samples)
@@ -76,7 +76,7 @@ def analyze_nspu(cfg: Config, out_dir: Path, euler_xzx_rad: tuple[float, float, 
     }
 
 
-def plan_nspu(cfg: Config, start, goal, check_type2: bool, plot_dir: Path | None) -> dict[str, object]:  # noqa: ANN001
+def plan_nspu(cfg: Config, start, goal, check_type2: bool, plot_dir: Path | None) -> dict[str, object]:
     """Plan start -> goal (Pose) with the configured planner; the report says CONVERGED or why not."""
     from controller.planning.nonholonomic import plan_motion
     from controller.robots.nspu import so3_log

@@ -115,15 +115,15 @@ def rod_directions(geom: CheopeGeometry, tcp_m: np.ndarray, q_m: np.ndarray) -> 
                                np.asarray(tcp_m, float), np.asarray(q_m, float))
 
 
-def _sub(a, b):  # noqa: ANN001, ANN202 - 3-tuples of floats
+def _sub(a, b):
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
 
 
-def _dot(a, b):  # noqa: ANN001, ANN202
+def _dot(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-def _cross(a, b):  # noqa: ANN001, ANN202
+def _cross(a, b):
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 

@@ -34,7 +34,7 @@ def cheope_from_config(cfg: Config) -> CheopeRobot:
     return CheopeRobot(geometry=geometry, limits=limits)
 
 
-def uru_from_config(cfg: Config) -> "UruRobot":
+def uru_from_config(cfg: Config) -> UruRobot:
     from controller.robots.uru import UruGeometry, UruPathMargins
     from controller.robots.uru_robot import UruLimits, UruRobot
 
@@ -49,7 +49,7 @@ def uru_from_config(cfg: Config) -> "UruRobot":
     return UruRobot(geometry, UruLimits(u.motor_min_rad, u.motor_max_rad, margins))
 
 
-def nspu_geometry_from_config(cfg: Config) -> "NspuGeometry":
+def nspu_geometry_from_config(cfg: Config) -> NspuGeometry:
     from controller.robots.nspu import NspuGeometry
 
     n = cfg.robot.nspu
@@ -58,7 +58,7 @@ def nspu_geometry_from_config(cfg: Config) -> "NspuGeometry":
                         length_unit_m=n.length_unit_m, name=g.name)
 
 
-def nspu_poses_from_config(cfg: Config) -> tuple["Pose", "Pose"]:
+def nspu_poses_from_config(cfg: Config) -> tuple[Pose, Pose]:
     """Start and goal of the configured motion; orientations as RPY = Rz(yaw) Ry(pitch) Rx(roll)."""
     from controller.robots.nspu import Pose, rpy
 
@@ -67,7 +67,7 @@ def nspu_poses_from_config(cfg: Config) -> tuple["Pose", "Pose"]:
             Pose(np.array(n.goal_position_m), rpy(*n.goal_rpy_rad)))
 
 
-def nspu_from_config(cfg: Config) -> "NspuRobot":
+def nspu_from_config(cfg: Config) -> NspuRobot:
     from controller.robots.nspu_robot import NspuRobot
 
     start, goal = nspu_poses_from_config(cfg)

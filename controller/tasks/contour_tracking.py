@@ -49,7 +49,6 @@ from typing import Protocol
 import numpy as np
 
 from controller.cycle_data import Event, Severity
-from controller.setpoint_smoothing import Setpoint
 from controller.tasks.task import JointReference, TaskContext, TaskStep
 
 

@@ -135,7 +135,7 @@ class PlannedLegsTask:
 
     name = "planned_legs"
 
-    def __init__(self, streamed: StreamedPlan, start_tolerance_m: float, robot=None) -> None:  # noqa: ANN001
+    def __init__(self, streamed: StreamedPlan, start_tolerance_m: float, robot=None) -> None:
         self.streamed = streamed
         self.start_tolerance_m = start_tolerance_m
         self.robot = robot  # with check_actuators: the reference is checked against the stroke
@@ -193,7 +193,7 @@ class PlanExecutionReport:
     simulator's mechanics, which integrate the drives' actual positions at every SYNC.
     """
 
-    def __init__(self, robot, plan: PlanResult, streamed: StreamedPlan, planning_time_s: float) -> None:  # noqa: ANN001
+    def __init__(self, robot, plan: PlanResult, streamed: StreamedPlan, planning_time_s: float) -> None:
         self.robot = robot
         self.plan = plan
         self.streamed = streamed
@@ -203,7 +203,7 @@ class PlanExecutionReport:
         self._refs: list[tuple[float, ...] | None] = [None, None]
         self.leg_errors_m: list[float] = []
 
-    def on_cycle(self, cycle, t, inputs, state, outputs, events, timing) -> None:  # noqa: ANN001
+    def on_cycle(self, cycle, t, inputs, state, outputs, events, timing) -> None:
         ref = self._refs[-2]  # the setpoint the drives were to reach at this SYNC (sent two cycles ago)
         self._refs.append(state.setpoint.position if state.tcp_reference_m is not None else None)
         del self._refs[0]
@@ -246,7 +246,7 @@ class PlanExecutionReport:
         return out
 
 
-def build_planned_legs_task(cfg, robot) -> PlannedLegsTask:  # noqa: ANN001 - Config, NspuRobot
+def build_planned_legs_task(cfg, robot) -> PlannedLegsTask:
     """Plan the configured motion (seed 004), time-scale it and wrap it in a task with its report.
 
     Raises ``PlanningError`` (a ValueError) naming the planner's status when the plan fails.
@@ -268,7 +268,7 @@ def build_planned_legs_task(cfg, robot) -> PlannedLegsTask:  # noqa: ANN001 - Co
     return task
 
 
-def planner_config(cfg, check_type2: bool | None = None):  # noqa: ANN001, ANN201 - Config -> PlannerConfig
+def planner_config(cfg, check_type2: bool | None = None):
     from controller.planning.nonholonomic import PlannerConfig
 
     n = cfg.robot.nspu

@@ -1,9 +1,10 @@
 """The product on SocketCAN: simulator and controller as separate processes on vcan0.
 
 Run by ``tests/vcan/run``, often inside a VM that emulates the CPU (no KVM): Python runs
-several times slower there, so these runs use 100 Hz and tolerate 20 silent cycles. They
-prove the SocketCAN path (classical and FD frames, error frames, a full transmit queue),
-not real-time behaviour, which the benchmarks measure natively.
+several times slower there (measured: 100 Hz runs achieved 40 Hz with a 5 ms median wake
+latency), so these runs use 25 Hz, a 0.5 s SYNC watchdog in the drives and tolerate 20
+silent cycles. They prove the SocketCAN path (classical and FD frames, error frames, a full
+transmit queue), not real-time behaviour, which the benchmarks measure natively.
 """
 
 from __future__ import annotations
@@ -17,7 +18,6 @@ import time
 from pathlib import Path
 
 import can
-import pytest
 
 from controller.demo import simulator_process
 from drivers.bus import parse_bus_spec
@@ -26,7 +26,8 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def _slow(tmp_path: Path) -> list[str]:
-    return ["--rate", "100", "--set", "loop.max_missing_cycles=20", "--set", "loop.sdo_timeout_s=5.0",
+    return ["--rate", "25", "--set", "loop.max_missing_cycles=20", "--set", "loop.sdo_timeout_s=5.0",
+            "--set", "sim.drive.sync_timeout_s=0.5", "--set", 'task.kind="path"',
             "--set", "loop.enable_timeout_s=10.0", "--set", "loop.heartbeat_consumer_s=2.0",
             "--set", "safety.on_late_cycles=\"warn\"", "--set", "task.path.laps=0.25",
             "--set", "task.path.speed_m_s=0.05", "--set", f'recording.directory="{tmp_path}"',
@@ -36,6 +37,17 @@ def _slow(tmp_path: Path) -> list[str]:
 def _cheope(*args: str, timeout: float = 300.0) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "controller", *args], capture_output=True, text=True,
                           timeout=timeout, cwd=ROOT, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+
+
+def _wait_until_enabled(channel: str, timeout_s: float = 180.0) -> None:
+    """Block until the controller sends 'enable operation' to drive 1 (the task is about to run)."""
+    deadline = time.monotonic() + timeout_s
+    with can.Bus(interface="socketcan", channel=channel) as bus:
+        while time.monotonic() < deadline:
+            msg = bus.recv(0.5)
+            if msg is not None and msg.arbitration_id == 0x201 and msg.data[0] == 0x0F:
+                return
+    raise AssertionError(f"the controller did not enable the drives within {timeout_s} s")
 
 
 def _popen(*args: str) -> subprocess.Popen[str]:
@@ -85,13 +97,15 @@ def test_can_fd_run_sends_fd_frames(vcan_fd_channel: str, tmp_path: Path) -> Non
 
 
 def test_error_frames_are_counted_and_the_run_goes_on(vcan_channel: str, tmp_path: Path) -> None:
-    proc = _popen("demo", "--json", "--can", f"socketcan:{vcan_channel}", *_slow(tmp_path))
+    proc = _popen("demo", "--json", "--can", f"socketcan:{vcan_channel}", *_slow(tmp_path),
+                  "--set", "task.path.laps=1.0")
     try:
-        time.sleep(20.0)  # the processes start slowly under emulation: inject while the loop runs
+        _wait_until_enabled(vcan_channel)
+        time.sleep(1.0)  # inject while the task runs
         with can.Bus(interface="socketcan", channel=vcan_channel) as bus:
             for _ in range(5):
-                bus.send(can.Message(arbitration_id=0x040, is_error_frame=True, data=bytes(8),
-                                     is_extended_id=False))  # CAN_ERR_BUSOFF class bit
+                bus.send(can.Message(arbitration_id=0x004, is_error_frame=True, data=bytes(8),
+                                     is_extended_id=False))  # CAN_ERR_CRTL class: not bus-off
                 time.sleep(0.05)
         out, err = proc.communicate(timeout=300)
     finally:
@@ -100,15 +114,17 @@ def test_error_frames_are_counted_and_the_run_goes_on(vcan_channel: str, tmp_pat
             proc.communicate()
     s = json.loads(out)
     assert "Traceback" not in err
-    assert s["error_frames"] > 0 or s["final_mode"] == "DONE"
-    assert s["final_mode"] in ("DONE", "FAULT")
+    assert s["error_frames"] == 5  # counted; safety.on_error_frames = "warn": the task goes on
+    assert s["final_mode"] == "DONE"
+    assert any("CAN error frame" in e for e in s["events"])
 
 
 def test_full_transmit_queue_is_counted_and_ends_in_a_safe_stop(vcan_channel: str, tmp_path: Path) -> None:
     proc = _popen("demo", "--json", "--can", f"socketcan:{vcan_channel}", *_slow(tmp_path),
                   "--set", "task.path.laps=2.0")
     try:
-        time.sleep(25.0)
+        _wait_until_enabled(vcan_channel)
+        time.sleep(1.0)
         subprocess.run(["tc", "qdisc", "replace", "dev", vcan_channel, "root", "tbf", "rate", "10kbit",
                         "burst", "160", "limit", "64"], check=True)
         out, err = proc.communicate(timeout=300)
