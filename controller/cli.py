@@ -58,8 +58,6 @@ def _overrides(args: argparse.Namespace) -> list[str]:
     if args.rate is not None:
         sets.append(f"loop.rate_hz={args.rate}")
     task = getattr(args, "task", None)
-    if task is None and args.command == "demo" and not args.config and getattr(args, "robot", None) in (None, "cheope"):
-        task = "contour"  # the paper's experiment is Cheope's demo
     if task:
         sets.insert(0, f'task.kind="{task}"')
     if getattr(args, "robot", None):
@@ -149,9 +147,17 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from controller.demo import random_udp_port, run_demo
 
     cfg = _config(args)
+    if args.simulated_time:
+        from controller.contour_experiment import run_simulated_time
+
+        if cfg.task.kind != "contour":
+            raise ConfigError("--simulated-time runs the contour experiment: use it with --task contour")
+        summary = run_simulated_time(cfg, args.max_duration)
+        print(json.dumps(summary) if args.json else json.dumps(summary, indent=1))
+        return 0 if summary["final_mode"] == "DONE" else 1
     spec = _spec(args, cfg, default_port=random_udp_port())
     summary = run_demo(cfg, spec, _config_path(args), _overrides(args), args.max_duration, _stop_on_signals(),
-                       Path(args.plot) if args.plot else None)
+                       Path(args.plot) if args.plot else None, _realtime(args))
     _print_summary(summary, args.json)
     return 0 if summary["final_mode"] == "DONE" else 1
 
@@ -266,10 +272,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--max-duration", type=float, default=600.0, help="stop after this many seconds")
     p.add_argument("--task", choices=("path", "contour"),
-                   help="Cheope's task: contour (the demo's default: the paper's force-controlled contour "
-                        "tracking, then the same contour under position control) or path (a circle in free space); "
-                        "the other robots run their own configured task")
+                   help="Cheope's task (default: the configured one, the circle path): contour runs the paper's "
+                        "force-controlled contour tracking, then the same contour under position control")
     p.add_argument("--plot", metavar="DIR", help="write the contour experiment's PNG plots here")
+    p.add_argument("--simulated-time", action="store_true",
+                   help="with --task contour: run the laps against the in-process devices in simulated time "
+                        "(deterministic, no bus, no simulator process)")
+    _rt_options(p)  # the simulator gets the priority minus 10 and the same memory locking
     p.set_defaults(func=cmd_demo)
     p = sub.add_parser("run", help="only the controller, against whatever devices are on the bus")
     _common(p)

@@ -20,6 +20,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from controller.config import Config
+from controller.realtime import RealtimeOptions
 from controller.service import run_controller
 from drivers.bus import BusSpec
 from sim_backend.process import READY_LINE
@@ -87,10 +88,15 @@ def stop_process(proc: subprocess.Popen[str], timeout_s: float = 5.0) -> None:
 
 def run_demo(cfg: Config, spec: BusSpec, config_path: str | None, overrides: list[str],
              max_duration_s: float = 600.0, stop_event: threading.Event | None = None,
-             plot_dir: Path | None = None) -> dict[str, object]:
-    with simulator_process(spec, config_path, overrides):
+             plot_dir: Path | None = None, realtime: RealtimeOptions | None = None) -> dict[str, object]:
+    sim_args: list[str] = []
+    if realtime is not None and realtime.priority is not None:
+        sim_args += ["--rt-priority", str(max(1, realtime.priority - 10))]
+    if realtime is not None and realtime.lock_memory:
+        sim_args.append("--lock-memory")
+    with simulator_process(spec, config_path, overrides, extra_args=sim_args):
         if cfg.task.kind == "contour":
             from controller.contour_experiment import run_contour_experiment
 
-            return run_contour_experiment(cfg, spec, plot_dir, max_duration_s, stop_event)
-        return run_controller(cfg, spec, max_duration_s=max_duration_s, stop_event=stop_event)
+            return run_contour_experiment(cfg, spec, plot_dir, max_duration_s, stop_event, realtime)
+        return run_controller(cfg, spec, max_duration_s=max_duration_s, stop_event=stop_event, realtime=realtime)

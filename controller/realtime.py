@@ -25,6 +25,7 @@ import ctypes
 import ctypes.util
 import errno
 import os
+import gc
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -186,3 +187,15 @@ def parse_cpus(text: str) -> tuple[int, ...]:
     if not cpus:
         raise RealtimeError(f"--cpu {text!r}: no CPU given")
     return tuple(cpus)
+
+
+def freeze_garbage_collector() -> None:
+    """Collect once, then move every object alive now out of the collector's view.
+
+    The loop allocates small objects every cycle, so CPython's collector runs often; a full
+    (generation 2) collection walks every object of the process, including everything the
+    imports created (numpy, canopen, zenoh, protobuf), and took tens of milliseconds: a
+    65.8 ms stall in a 1 kHz run (``cheope bench``). Frozen objects are never walked again.
+    """
+    gc.collect()
+    gc.freeze()

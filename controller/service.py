@@ -21,7 +21,7 @@ from controller.config import Config, ConfigError
 from controller.control_law import ControlLaw, LawConfig, SafetyConfig
 from controller.loop import CycleLoop, CycleObserver, DeadlineSleeper
 from controller.monitoring.publisher import monitoring_context
-from controller.realtime import RealtimeOptions, apply_realtime, check_realtime, set_gil_switch_interval
+from controller.realtime import freeze_garbage_collector, RealtimeOptions, apply_realtime, check_realtime, set_gil_switch_interval
 from controller.robots.cheope import CheopeRobot
 from controller.robots.registry import actuator_units, robot_from_config
 from controller.run_summary import RunRecorder, summarize
@@ -184,6 +184,8 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float = 600.0,
                          stop_event=stop_event, commands=publisher.commands if publisher is not None else None)
         restore = apply_realtime(realtime)
         try:
+            if cfg.loop.freeze_gc:
+                freeze_garbage_collector()
             final, stats = loop.run(prepared.law.initial_state(), max_duration_s,
                                     exit_on_fault=not cfg.loop.stay_in_fault)
         finally:

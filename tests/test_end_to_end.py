@@ -78,7 +78,7 @@ def test_over_budget_bus_is_refused_before_the_simulator_starts():
     (["demo", "--config", "/nonexistent.toml"], "/nonexistent.toml does not exist"),
     (["demo", "--set", "loop.rate_hz=-3"], "loop.rate_hz = -3: must be >= 1.0"),
     (["demo", "--task", "path", "--set", "task.path.radius_m=0.3"], "path sample 0"),
-    (["demo", "--set", "task.contour.expected_radius_m=0.3"], "path sample 0"),
+    (["demo", "--task", "contour", "--set", "task.contour.expected_radius_m=0.3"], "path sample 0"),
 ])
 def test_bad_input_gets_one_clear_line(args, needle):
     r = _cheope(*args)
