@@ -9,7 +9,7 @@ import signal
 import sys
 import threading
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import can
 
@@ -262,8 +262,15 @@ def cmd_faults(args: argparse.Namespace) -> int:
     return 0 if all(r["as_expected"] and r["recording_complete"] for r in rows) else 1
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """Wrong options get one line naming the problem (argparse's default prints the usage block)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="cheope", description="Controller service for parallel-kinematic robots")
+    ap = OneLineParser(prog="cheope", description="Controller service for parallel-kinematic robots")
     ap.add_argument("-v", "--verbose", action="store_true", help="log to stderr")
     sub = ap.add_subparsers(dest="command", required=True)
     p = sub.add_parser("demo", help="simulator process + controller + the configured task, then a summary")

@@ -11,7 +11,7 @@ import pytest
 
 from controller.config import Config, load_config
 from controller.control_law import Mode
-from controller.cycle_data import CycleOutputs
+from controller.cycle_data import CycleInputs, CycleOutputs, DriveFeedback
 from controller.loop import CycleLoop, SimulatedTime
 from controller.robots.cheope import WorkspaceError
 from controller.run_summary import RunRecorder
@@ -172,3 +172,15 @@ def test_ruckig_refusal_is_a_status_not_an_exception():
     result = sm.step(Setpoint.at_rest((0.5, 0.5, 0.5)), (0.6, 0.5, 0.5), (5.0, 0, 0), (50.0, 0, 0))
     assert result.ok  # a target state beyond the limits is clipped to them, not refused
     assert result.setpoint.acceleration[0] <= 10.0
+
+
+def test_a_nan_position_faults_at_once():
+    cfg = load_config(overrides=SHORT)
+    law = build_law(cfg)
+    state = law.initial_state()
+    good = CycleInputs(tuple(DriveFeedback(0x1637, 0.55, True) for _ in range(3)))
+    state, _, _ = law.step(state, good, 0.0)  # CONFIGURING -> ENABLING
+    bad = CycleInputs((DriveFeedback(0x1637, math.nan, True),) + good.drives[1:])
+    state, out, events = law.step(state, bad, cfg.period_s)
+    assert state.mode == Mode.FAULT
+    assert "actuator 1 measured at nan m" in state.fault_reason
