@@ -97,10 +97,6 @@ class FaultSchedule:
                 return True
         return False
 
-    @property
-    def first_start_s(self) -> float | None:
-        return min((f.start_s for f in self.faults), default=None)
-
 
 def apply_device_faults(schedule: FaultSchedule, plant: object, drive_ids: tuple[int, ...], now_s: float) -> None:
     """The faults that change the devices themselves, applied at a SYNC (simulator and loopback)."""

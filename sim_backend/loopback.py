@@ -37,7 +37,6 @@ class LoopbackExchange:
         for d in self.drives:
             d.mode_of_operation = 8  # what node set-up does over SDO on the real path
         self.drive_ids = tuple(cfg.actuators.node_ids)
-        self.drop: set[int] = set()  # indices of drives whose TPDOs are dropped (fault injection)
         self.faults = FaultSchedule.from_strings(tuple(cfg.sim.faults))
         self.rejected_frames = 0
         self.send_errors = 0
@@ -61,7 +60,7 @@ class LoopbackExchange:
         self._frames = []
         for j, data in enumerate(drive_payloads):
             payload = tpdo_payload(self.faults, self.drive_ids[j], data, now)
-            if payload is not None and j not in self.drop and self.faults.active("delay", now, self.drive_ids[j]) is None:
+            if payload is not None and self.faults.active("delay", now, self.drive_ids[j]) is None:
                 self._frames.append((0, j, payload))
         if sensor_frames is not None:
             self._frames += [(1, 0, sensor_frames[0]), (2, 0, sensor_frames[1])]
