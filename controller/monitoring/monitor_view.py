@@ -21,7 +21,7 @@ from google.protobuf.json_format import MessageToDict
 from google.protobuf.message import DecodeError
 
 from controller.messages import cheope_pb2 as pb
-from controller.monitoring.zenoh_session import MonitorKeys, SessionSettings, open_session
+from controller.monitoring.zenoh_session import MonitorKeys, SessionSettings, close_session, open_session
 
 
 @dataclass(frozen=True)
@@ -83,12 +83,9 @@ class MonitorClient:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        for e in reversed(self._entities):
-            e.undeclare()
+        close_session(self._session, self._entities)
         self._entities = []
-        if self._session is not None:
-            self._session.close()
-            self._session = None
+        self._session = None
 
     # Zenoh's threads: stamp and enqueue, nothing else.
     def _on_state(self, s: zenoh.Sample) -> None:

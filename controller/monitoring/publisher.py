@@ -44,6 +44,7 @@ from controller.messages import cheope_pb2 as pb
 from controller.monitoring.zenoh_session import (
     MonitorKeys,
     SessionSettings,
+    close_session,
     encoding_for,
     open_session,
     split_endpoints,
@@ -192,12 +193,9 @@ class MonitorPublisher:
             self._q.put(None)
             self._thread.join(timeout=5.0)
             self._thread = None
-        for e in reversed(self._entities):
-            e.undeclare()
+        close_session(self._session, self._entities)
         self._entities = []
-        if self._session is not None:
-            self._session.close()
-            self._session = None
+        self._session = None
 
     # -- the loop's side: must return in microseconds ----------------------------------------
 

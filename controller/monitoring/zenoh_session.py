@@ -221,3 +221,11 @@ def monitor_settings(connect: tuple[str, ...] = (), config_file: str = "") -> Se
     """Settings of ``cheope monitor``: a peer that listens nowhere and keeps retrying its connect endpoints."""
     return SessionSettings(mode="peer", listen=(), connect=connect or (DEFAULT_CONNECT,), config_file=config_file,
                            connect_retry_ms=(200, 1000))
+
+
+def close_session(session: zenoh.Session | None, entities: list) -> None:
+    """Undeclare ``entities`` (newest first), then close ``session``: the order Zenoh needs."""
+    for e in reversed(entities):
+        e.undeclare()
+    if session is not None:
+        session.close()
