@@ -328,8 +328,9 @@ def test_cheope_stop_stops_cheope_demo_through_the_service():
         mon = subprocess.run(cli + ["monitor", "--json", "--count", "3", "--duration", "10", "--zenoh-connect", ep],
                              check=False, capture_output=True, text=True, env=ENV, timeout=30)
         lines = [json.loads(line) for line in mon.stdout.splitlines()]
-        assert sum(d["type"] == "state" for d in lines) == 3
-        assert any(d["type"] == "liveliness" and d["alive"] for d in lines)
+        seen = f"monitor stdout {mon.stdout[-1500:]!r} stderr {mon.stderr[-1500:]!r}, demo running: {demo.poll() is None}"
+        assert sum(d["type"] == "state" for d in lines) == 3, seen
+        assert any(d["type"] == "liveliness" and d["alive"] for d in lines), seen
         stop = subprocess.run(cli + ["stop", "--zenoh-connect", ep], check=False, capture_output=True, text=True, env=ENV,
                               timeout=30)
         assert stop.returncode == 0 and stop.stdout.startswith("accepted"), stop.stderr
