@@ -299,7 +299,7 @@ class RecordingSection:
 
     enabled: bool = True
     directory: str = ""  # "" = $XDG_DATA_HOME/cheope/sessions (~/.local/share/cheope/sessions)
-    queue_size: int = field(default=16384, metadata=_r(16, 10_000_000))  # items between loop and writer
+    buffer_bytes: int = field(default=4 << 20, metadata=_r(4096, 1 << 30))  # loop -> writer process; full: dropped
     chunk_size_bytes: int = field(default=65536, metadata=_r(1024, 64 * 1024 * 1024))  # uncompressed
     flush_interval_s: float = field(default=0.5, metadata=_r(0.01, 60.0))  # close a chunk at least this often
 
@@ -318,7 +318,6 @@ class MonitoringSection:
     connect: str = ""  # comma-separated endpoints of routers or peers, e.g. "tcp/10.0.0.5:7447"
     config_file: str = ""  # a Zenoh JSON5 configuration file; keys it leaves unset get the loopback defaults
     allow_remote_commands: bool = False  # pause, resume, set_force; a remote stop is always accepted
-    queue_size: int = field(default=64, metadata=_r(2, 100000))  # hand-off queue; full: the sample is dropped
 
 
 @dataclass(frozen=True)
@@ -456,6 +455,21 @@ def _robot_cross_checks(cfg: Config) -> None:
         raise ConfigError(f"task.path.normal = {list(cfg.task.path.normal)}: must be a non-zero vector")
     if cfg.robot.kind != "cheope" and cfg.task.kind == "contour":
         raise ConfigError(f'task.kind = "contour" needs robot.kind = "cheope" (got {cfg.robot.kind!r})')
+
+
+# Keys an earlier version wrote into recordings (``cheope.config``) and this one no longer has.
+# They configured the recorder's and publisher's hand-off threads, which are gone; reading an
+# old recording drops them instead of refusing the file.
+RETIRED_KEYS = ("recording.queue_size", "monitoring.queue_size")
+
+
+def recorded_config_from_dict(table: dict[str, Any]) -> Config:
+    """The Config of a recording, written by this or an earlier version (``RETIRED_KEYS`` dropped)."""
+    for dotted in RETIRED_KEYS:
+        section, _, key = dotted.partition(".")
+        if isinstance(table.get(section), dict):
+            table[section].pop(key, None)
+    return config_from_dict(table)
 
 
 def config_from_dict(table: dict[str, Any]) -> Config:

@@ -1,13 +1,19 @@
-"""The session recorder: one MCAP file per session, written on its own thread.
+"""The session recorder: one MCAP file per session, written by its own process.
 
-The loop thread only hands over references (``on_cycle``) or a copy of a frame's id, bytes
-and flags (``on_frame``, the exchange's ``FrameSink``) with ``queue.Queue.put_nowait``: a few
-microseconds, never a wait. A full queue drops the item and counts it; the writer thread
-reports every new drop as a ``recorder_drop`` event on ``/events`` and the total in the
-``cheope.recording`` metadata written at close. The writer thread converts to Protobuf,
-writes, and every ``chunk_size_bytes`` of messages or ``flush_interval_s`` closes the MCAP
-chunk and flushes the file to the operating system: a controller killed with SIGKILL leaves a
-file whose every flushed chunk is readable (``logs.recovery`` makes it a complete file).
+The loop thread turns a cycle into bytes (the ``cheope.v1.Cycle`` Protobuf and a pickled tuple
+of the cycle's CAN frames, events and TCP points, about 15 µs) and writes them to a pipe with
+one non-blocking ``write``; it never waits. What the pipe cannot take waits in a bounded
+backlog; beyond ``buffer_bytes`` the item is dropped and counted. The writer process
+(logs/session_writer.py, ``python -m logs.session_writer``) builds the other messages, writes
+the MCAP file and every ``chunk_size_bytes`` of messages or ``flush_interval_s`` closes the
+chunk and flushes the file to the operating system. It reports every new drop as a
+``recorder_drop`` event on ``/events`` and the totals in the ``cheope.recording`` metadata
+written at close. A controller killed with SIGKILL closes the pipe and the writer still
+finishes the file; a killed writer leaves a file whose every flushed chunk is readable
+(``logs.recovery`` makes it complete).
+
+``lossless=True`` (simulated time, tests) makes the write wait instead of dropping: there is
+no deadline to keep, and a deterministic run must record every cycle.
 
 Usage::
 
@@ -19,12 +25,14 @@ Usage::
 from __future__ import annotations
 
 import datetime as _dt
+import fcntl
 import json
 import logging
 import os
 import platform
-import queue
-import threading
+import select
+import subprocess
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -33,27 +41,23 @@ from pathlib import Path
 from typing import IO, Any
 
 import can
-from mcap.well_known import MessageEncoding
-from mcap.writer import CompressionType, Writer
-from mcap_protobuf.schema import register_schema
 
 from controller.config import Config, config_to_dict
-from controller.cycle_data import CycleInputs, CycleOutputs, Event, Severity
-from controller.messages import cheope_pb2 as pb
 from logs import messages as m
+from logs.session_writer import CYCLE, END, FRAMES, SETUP, pack_record
 
 log = logging.getLogger(__name__)
 
-DEFAULT_QUEUE_SIZE = 16384
+DEFAULT_BUFFER_BYTES = 4 << 20  # about 4 s of a 1 kHz session in the backlog, as much again in the pipe
 DEFAULT_CHUNK_SIZE_BYTES = 64 * 1024
 DEFAULT_FLUSH_INTERVAL_S = 0.5
-_WRITER_CHUNK_LIMIT = 1 << 40  # chunks are closed by this module, never by mcap's own size rule
+WRITER_START_TIMEOUT_S = 20.0
+WRITER_FINISH_TIMEOUT_S = 120.0
+_MAX_FRAMES_PER_RECORD = 256  # frames with no cycle after them (node set-up, shutdown) go out in batches
+_REPO = str(Path(__file__).resolve().parents[1])  # the writer process imports the same code as this one
 
 VERSIONED_PACKAGES = ("cheope-controller", "python-can", "canopen", "ruckig", "numpy", "protobuf", "mcap",
                       "mcap-protobuf-support", "foxglove-schemas-protobuf")
-
-_FRAME, _CYCLE = 0, 1
-_STOP = None
 
 
 class RecordingError(OSError):
@@ -115,76 +119,136 @@ class RecorderCounters:
     chunks: int  # flushes that closed a chunk
 
 
+
 class SessionRecorder:
     """Loop observer and frame sink that records the session to ``path`` (see the module doc)."""
 
     def __init__(self, path: str | Path, metadata: dict[str, dict[str, str]] | None = None, *,
-                 queue_size: int = DEFAULT_QUEUE_SIZE, chunk_size_bytes: int = DEFAULT_CHUNK_SIZE_BYTES,
+                 buffer_bytes: int = DEFAULT_BUFFER_BYTES, chunk_size_bytes: int = DEFAULT_CHUNK_SIZE_BYTES,
                  flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S, clock: Callable[[], float] = time.monotonic,
                  phase_name: Callable[[object], str] | None = None, compression: str = "zstd",
-                 stream: IO[bytes] | None = None) -> None:
-        if queue_size < 1:
-            raise ValueError(f"queue_size = {queue_size}: must be >= 1")
+                 lossless: bool = False) -> None:
+        if buffer_bytes < 4096:
+            raise ValueError(f"buffer_bytes = {buffer_bytes}: must be >= 4096")
         if chunk_size_bytes < 1024:
             raise ValueError(f"chunk_size_bytes = {chunk_size_bytes}: must be >= 1024")
+        if compression not in ("zstd", "lz4", "none"):
+            raise ValueError(f"compression = {compression!r}: must be zstd, lz4 or none")
         self.path = Path(path)
         self.metadata = dict(metadata or {})
+        self.buffer_bytes = buffer_bytes
         self.chunk_size_bytes = chunk_size_bytes
         self.flush_interval_s = flush_interval_s
         self.clock = clock
         self.phase_name = phase_name
-        self.compression = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
-                            "none": CompressionType.NONE}[compression]
-        self._stream = stream
-        self._queue: queue.Queue[tuple | None] = queue.Queue(maxsize=queue_size)
-        self._put = self._queue.put_nowait
-        self._full = queue.Full
+        self.compression = compression
+        self.lossless = lossless
         self.queued = 0
         self.dropped = 0
-        self._cycle_calls = 0
-        self.written = 0
+        self.written = 0  # known when the writer has finished (close)
         self.chunks = 0
         self.error: str = ""
-        self._thread: threading.Thread | None = None
-        self._writer: Writer | None = None
-        self._channels: dict[str, int] = {}
-        self._offset_ns = 0
-        self._last_cycle = (0, 0.0)
-        self._reported_drops = 0
+        self._cycle_calls = 0
+        self._frames: list[tuple] = []
+        self._backlog = bytearray()
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._fd = -1
 
     @classmethod
     def for_config(cls, cfg: Config, clock: Callable[[], float] = time.monotonic,
                    phase_name: Callable[[object], str] | None = None,
                    extra_metadata: dict[str, str] | None = None) -> SessionRecorder:
-        """A recorder for ``cfg.recording`` (directory, queue, chunks) with the session's metadata."""
+        """A recorder for ``cfg.recording`` (directory, buffer, chunks) with the session's metadata."""
         r = cfg.recording
-        path, stream = open_session_file(r.directory)
-        return cls(path, session_metadata(cfg, extra_metadata), queue_size=r.queue_size,
+        path, stream = open_session_file(r.directory)  # exclusive: the name is ours
+        stream.close()
+        return cls(path, session_metadata(cfg, extra_metadata), buffer_bytes=r.buffer_bytes,
                    chunk_size_bytes=r.chunk_size_bytes, flush_interval_s=r.flush_interval_s, clock=clock,
-                   phase_name=phase_name, stream=stream)
+                   phase_name=phase_name)
 
     # -- the loop thread's side: hand over, never wait ----------------------------------------
 
-    def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: Any, outputs: CycleOutputs,
-                 events: tuple[Event, ...], timing: Any) -> None:
+    def on_cycle(self, cycle: int, t: float, inputs: Any, state: Any, outputs: Any,
+                 events: tuple[Any, ...], timing: Any) -> None:
         seq = self._cycle_calls
         self._cycle_calls = seq + 1
-        try:
-            self._put((_CYCLE, cycle, t, inputs, state, outputs, events, timing, self.clock(), seq))
-            self.queued += 1
-        except self._full:
-            self.dropped += 1
+        frames = self._frames
+        self._frames = []
+        body = m.cycle_to_pb(cycle, t, inputs, state, outputs, timing, self.phase_name).SerializeToString()
+        self._send(pack_record((CYCLE, self.dropped, frames, cycle, t, self.clock(), seq, body, events,
+                                state.tcp_measured_m, state.tcp_reference_m)), 1 + len(frames))
 
     def on_frame(self, outgoing: bool, monotonic_s: float, msg: can.Message) -> None:
         """``FrameSink``: copies the frame now (the exchange rewrites its outgoing messages)."""
-        try:
-            self._put((_FRAME, outgoing, monotonic_s, msg.arbitration_id, bytes(msg.data), msg.is_fd,
-                       msg.bitrate_switch, msg.is_error_frame))
-            self.queued += 1
-        except self._full:
-            self.dropped += 1
+        self._frames.append((outgoing, monotonic_s, msg.arbitration_id, bytes(msg.data), msg.is_fd,
+                             msg.bitrate_switch, msg.is_error_frame))
+        if len(self._frames) >= _MAX_FRAMES_PER_RECORD:
+            self._send_frames()
 
     __call__ = on_frame
+
+    def _send_frames(self) -> None:
+        frames = self._frames
+        self._frames = []
+        self._send(pack_record((FRAMES, self.dropped, frames)), len(frames))
+
+    def _send(self, record: bytes, items: int) -> None:
+        """Into the pipe, or the backlog behind it, or dropped when the backlog is full."""
+        if self._fd < 0:
+            self.dropped += items  # not started, or closed: nothing to write to
+            return
+        if self.lossless:
+            self._write_all(record)
+            self.queued += items
+            return
+        backlog = self._backlog
+        if backlog:
+            if len(backlog) + len(record) > self.buffer_bytes:
+                self.dropped += items
+                record = b""
+            else:
+                backlog += record
+            self._write_backlog()
+            if record:
+                self.queued += items
+            return
+        try:
+            n = os.write(self._fd, record)
+        except BlockingIOError:
+            n = 0
+        except OSError as err:  # the writer died: keep the loop going, say so at close
+            self._writer_gone(err)
+            self.dropped += items
+            return
+        if n < len(record):  # only a record larger than the pipe's atomic size is cut
+            backlog += record[n:]
+        self.queued += items
+
+    def _write_backlog(self) -> None:
+        try:
+            n = os.write(self._fd, self._backlog)
+        except BlockingIOError:
+            return
+        except OSError as err:
+            self._writer_gone(err)
+            return
+        del self._backlog[:n]
+
+    def _write_all(self, data: bytes | bytearray) -> None:
+        view = memoryview(data)
+        while view:
+            try:
+                view = view[os.write(self._fd, view):]
+            except BlockingIOError:
+                select.select([], [self._fd], [], 1.0)
+            except OSError as err:
+                self._writer_gone(err)
+                return
+
+    def _writer_gone(self, err: OSError) -> None:
+        self.error = self.error or f"the writer process of {self.path} stopped reading: {err.strerror or err}"
+        self._backlog.clear()
+        self._fd = -1
 
     @property
     def counters(self) -> RecorderCounters:
@@ -200,125 +264,91 @@ class SessionRecorder:
         self.close()
 
     def start(self) -> None:
-        try:
-            stream = self._stream if self._stream is not None else open(self.path, "wb")
-        except OSError as err:
-            raise RecordingError(f"cannot create the recording {self.path}: {err.strerror or err}") from err
-        self._stream = stream
-        self._offset_ns = time.time_ns() - int(self.clock() * 1e9)
-        w = Writer(stream, chunk_size=_WRITER_CHUNK_LIMIT, compression=self.compression)
-        w.start(profile="", library="cheope logs.recorder")
-        for topic, cls in ((m.TOPIC_CAN, pb.CanFrame), (m.TOPIC_CYCLE, pb.Cycle), (m.TOPIC_EVENTS, pb.Event),
-                           (m.TOPIC_LOG, m.Log), (m.TOPIC_TCP, m.FrameTransform),
-                           (m.TOPIC_TCP_REFERENCE, m.PoseInFrame)):
-            sid = register_schema(w, cls)
-            self._channels[topic] = w.register_channel(topic=topic, message_encoding=MessageEncoding.Protobuf,
-                                                       schema_id=sid)
+        """Start the writer process and wait until it has written the header and the metadata."""
+        offset_ns = time.time_ns() - int(self.clock() * 1e9)
         session = dict(self.metadata.get(m.META_SESSION, {}))
         session.update(started_utc=_dt.datetime.now(_dt.UTC).isoformat(timespec="microseconds"),
-                       clock_offset_ns=str(self._offset_ns), hostname=platform.node())
+                       clock_offset_ns=str(offset_ns), hostname=platform.node())
         self.metadata[m.META_SESSION] = session
-        for name, data in self.metadata.items():
-            w.add_metadata(name, data)
-        stream.flush()
-        self._writer = w
-        self._thread = threading.Thread(target=self._run, name="mcap-recorder", daemon=True)
-        self._thread.start()
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (_REPO, os.environ.get("PYTHONPATH")) if p)}
+        try:
+            proc = subprocess.Popen([sys.executable, "-m", "logs.session_writer"], stdin=subprocess.PIPE,
+                                    stdout=subprocess.PIPE, env=env)
+        except OSError as err:
+            raise RecordingError(f"cannot start the recording's writer process: {err}") from err
+        self._proc = proc
+        self._fd = proc.stdin.fileno()  # type: ignore[union-attr]
+        try:
+            fcntl.fcntl(self._fd, fcntl.F_SETPIPE_SZ, self.buffer_bytes)
+        except OSError:  # above /proc/sys/fs/pipe-max-size: the largest allowed is tried next
+            try:
+                fcntl.fcntl(self._fd, fcntl.F_SETPIPE_SZ, int(Path("/proc/sys/fs/pipe-max-size").read_text()))
+            except (OSError, ValueError):
+                pass
+        self._write_all(pack_record((SETUP, {
+            "path": str(self.path), "metadata": self.metadata, "clock_offset_ns": offset_ns,
+            "chunk_size_bytes": self.chunk_size_bytes, "flush_interval_s": self.flush_interval_s,
+            "compression": self.compression})))
+        reply = self._read_reply(WRITER_START_TIMEOUT_S)
+        if "ready" not in reply:
+            self._stop_process()
+            raise RecordingError(reply.get("error") or f"the recording's writer process did not start: {reply}")
+        if not self.lossless:
+            os.set_blocking(self._fd, False)
 
     def close(self) -> None:
-        """Drain the queue, write the drop count, the index and the footer; close the file."""
-        t = self._thread
-        if t is None:
+        """Hand over what is left, then wait for the writer to write the index and the footer."""
+        proc = self._proc
+        if proc is None:
             return
-        while t.is_alive():
-            try:
-                self._queue.put(_STOP, timeout=0.1)
-                break
-            except queue.Full:
-                continue
-        t.join()
-        self._thread = None
-        w = self._writer
-        try:
-            if w is not None and not self.error:
-                w.add_metadata(m.META_RECORDING, {"queued": str(self.queued), "dropped": str(self.dropped),
-                                                  "written": str(self.written), "complete": "true"})
-                w.finish()
-        except (OSError, ValueError) as err:
-            self.error = self.error or f"cannot finish {self.path}: {err}"
-        finally:
-            try:
-                if self._stream is not None:
-                    self._stream.close()
-            except OSError as err:
-                self.error = self.error or f"cannot close {self.path}: {err}"
+        if self._frames:
+            self._send_frames()
+        if self._fd >= 0:
+            os.set_blocking(self._fd, True)
+            if self._backlog:
+                self._write_all(self._backlog)
+                self._backlog.clear()
+            if self._fd >= 0:
+                self._write_all(pack_record((END, self.queued, self.dropped)))
+        reply = self._read_reply(WRITER_FINISH_TIMEOUT_S, closing=True)
+        self.written = int(reply.get("written", 0))
+        self.chunks = int(reply.get("chunks", 0))
+        self.error = self.error or str(reply.get("error") or "")
+        self._stop_process()
         if self.error:
             log.warning("recording %s: %s", self.path, self.error)
 
-    # -- the writer thread --------------------------------------------------------------------
+    def _read_reply(self, timeout_s: float, closing: bool = False) -> dict[str, Any]:
+        proc = self._proc
+        assert proc is not None and proc.stdout is not None
+        if closing and proc.stdin is not None:
+            proc.stdin.close()  # end of input: the writer finishes even if END did not get through
+            self._fd = -1
+        ready, _, _ = select.select([proc.stdout], [], [], timeout_s)
+        line = proc.stdout.readline() if ready else b""
+        if not line:
+            status = proc.poll()
+            why = "timed out" if status is None else f"exited with status {status}"
+            return {"error": f"the recording's writer process {why} (see its message above)"}
+        try:
+            return json.loads(line)
+        except ValueError:
+            return {"error": f"the recording's writer process said {line[:200]!r}"}
 
-    def _run(self) -> None:
-        get = self._queue.get
-        pending = 0
-        last_flush = time.monotonic()
-        while True:
-            timeout = max(0.0, last_flush + self.flush_interval_s - time.monotonic())
-            try:
-                item = get(timeout=timeout) if pending else get()
-            except queue.Empty:
-                item = ()
-            if item is _STOP:
-                break
-            if self.error:
-                continue  # keep draining: the loop must never find the queue full because the disk failed
-            try:
-                if item:
-                    pending += self._write_item(item)
-                if self.dropped != self._reported_drops:
-                    pending += self._report_drops()
-                if pending and (pending >= self.chunk_size_bytes
-                                or time.monotonic() - last_flush >= self.flush_interval_s):
-                    self._writer.flush()  # type: ignore[union-attr]
-                    self.chunks += 1
-                    pending = 0
-                    last_flush = time.monotonic()
-            except (OSError, ValueError) as err:
-                self.error = f"writing {self.path} failed: {err}"
-                log.error("recording stopped: %s", self.error)
-        if self.dropped != self._reported_drops and not self.error:
-            self._report_drops()
-
-    def _add(self, topic: str, msg: Any, unix_ns: int, sequence: int = 0) -> int:
-        data = msg.SerializeToString()
-        self._writer.add_message(self._channels[topic], unix_ns, data, unix_ns, sequence)  # type: ignore[union-attr]
-        self.written += 1
-        return len(data) + 31  # record overhead in the chunk
-
-    def _write_item(self, item: tuple) -> int:
-        if item[0] == _FRAME:
-            _, outgoing, mono_s, arb, data, fd, brs, err = item
-            msg = m.can_frame(mono_s, outgoing, arb, data, fd, brs, err)
-            return self._add(m.TOPIC_CAN, msg, int(mono_s * 1e9) + self._offset_ns)
-        _, cycle, t, inputs, state, outputs, events, timing, mono_s, seq = item
-        ns = int(mono_s * 1e9) + self._offset_ns
-        self._last_cycle = (cycle, t)
-        n = self._add(m.TOPIC_CYCLE, m.cycle_to_pb(cycle, t, inputs, state, outputs, timing, self.phase_name),
-                      ns, seq)
-        for e in events:
-            n += self._add(m.TOPIC_EVENTS, m.event_to_pb(cycle, t, e), ns)
-            n += self._add(m.TOPIC_LOG, m.event_to_log(ns, e), ns)
-        if state.tcp_measured_m is not None:
-            n += self._add(m.TOPIC_TCP, m.tcp_transform(ns, state.tcp_measured_m), ns)
-        if state.tcp_reference_m is not None:
-            n += self._add(m.TOPIC_TCP_REFERENCE, m.tcp_pose(ns, state.tcp_reference_m), ns)
-        return n
-
-    def _report_drops(self) -> int:
-        dropped = self.dropped
-        new = dropped - self._reported_drops
-        self._reported_drops = dropped
-        cycle, t = self._last_cycle
-        e = Event("recorder_drop", Severity.WARNING,
-                  f"recorder queue full: {new} item(s) dropped after cycle {cycle} ({dropped} in total)")
-        ns = int(self.clock() * 1e9) + self._offset_ns
-        return self._add(m.TOPIC_EVENTS, m.event_to_pb(cycle, t, e), ns) + self._add(m.TOPIC_LOG, m.event_to_log(ns, e), ns)
+    def _stop_process(self) -> None:
+        proc = self._proc
+        if proc is None:
+            return
+        self._proc = None
+        self._fd = -1
+        for stream in (proc.stdin, proc.stdout):
+            if stream is not None:
+                try:
+                    stream.close()
+                except OSError:
+                    pass
+        try:
+            proc.wait(timeout=10.0)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()

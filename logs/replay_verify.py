@@ -2,7 +2,7 @@
 
 The control law is pure (``step(state, inputs, t)``), so a session is fully determined by
 its configuration and the inputs of each cycle. The law is rebuilt with
-``build_law(config_from_dict(<cheope.config metadata>))`` (``--set`` overrides apply on top,
+``build_law(recorded_config_from_dict(<cheope.config metadata>))`` (``--set`` overrides apply on top,
 to see what a change would do), started from ``law.initial_state()``, and fed every recorded
 ``CycleInputs`` with the recorded ``t`` (the loop may skip cycles: ``t`` is what it passed).
 Each cycle's outputs, state sample and events must equal the recorded ones exactly (doubles
@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from controller.config import ConfigError, config_from_dict, set_dotted
+from controller.config import ConfigError, recorded_config_from_dict, set_dotted
 from controller.messages import cheope_pb2 as pb
 from logs import messages as m
 from logs.reader import LogFileError, ReadReport, iter_decoded, read_info
@@ -120,7 +120,7 @@ def _law_from(report: ReadReport, overrides: dict[str, Any]) -> Any:
     for key, value in overrides.items():
         set_dotted(table, key, value)
     try:
-        return build_law(config_from_dict(table))
+        return build_law(recorded_config_from_dict(table))
     except ConfigError as err:
         raise LogFileError(f"the configuration recorded in {report.path} does not load any more: {err}") from err
 

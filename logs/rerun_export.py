@@ -173,13 +173,13 @@ def export(path: str | Path, out: str | Path | None = None, spawn: bool = False,
 
 
 def _config(report: ReadReport) -> Any:
-    from controller.config import ConfigError, config_from_dict
+    from controller.config import ConfigError, recorded_config_from_dict
 
     meta = report.metadata.get(m.META_CONFIG)
     if meta is None:
         return None
     try:
-        return config_from_dict(json.loads(meta["json"]))
+        return recorded_config_from_dict(json.loads(meta["json"]))
     except (ConfigError, ValueError, KeyError):
         return None  # an older configuration: the plots still work, the 3D geometry is left out
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -38,7 +39,11 @@ class Trace:
 
 
 def record_session(path: Path, overrides=SHORT, max_s: float = 10.0, frames: bool = True, **kw):
-    """A deterministic simulated session; with ``frames`` a fake frame stream through the sink too."""
+    """A deterministic simulated session; with ``frames`` a fake frame stream through the sink too.
+
+    Lossless: simulated time runs far faster than the writer, and no deadline is at stake.
+    """
+    kw.setdefault("lossless", True)
     cfg = load_config(overrides=overrides)
     clock = SimulatedTime()
     law = build_law(cfg)
@@ -112,7 +117,7 @@ def test_log_time_is_the_controller_clock_on_the_wall_clock(tmp_path):
 def test_a_full_queue_drops_counts_and_records_the_drop_without_blocking(tmp_path):
     path = tmp_path / "d.mcap"
     cfg = load_config()
-    rec = SessionRecorder(path, session_metadata(cfg), queue_size=16)
+    rec = SessionRecorder(path, session_metadata(cfg), buffer_bytes=4096)
     _, _, _, trace, _, _ = record_session(tmp_path / "ref.mcap", max_s=0.5, frames=False)
     with rec:
         t0 = time.perf_counter()
@@ -131,7 +136,7 @@ def test_a_full_queue_drops_counts_and_records_the_drop_without_blocking(tmp_pat
     assert totals[-1] == rec.dropped
 
 
-_KILLED_WRITER = textwrap.dedent("""
+_RECORDING_CONTROLLER = textwrap.dedent("""
     import sys, time
     sys.path.insert(0, {repo!r})
     from controller.config import load_config
@@ -144,22 +149,62 @@ _KILLED_WRITER = textwrap.dedent("""
     ex = LoopbackExchange(cfg, time.monotonic)
     rec = SessionRecorder({path!r}, session_metadata(cfg), chunk_size_bytes=8192, flush_interval_s=0.1)
     rec.start()
+    print(rec._proc.pid, flush=True)  # the writer process
     loop = CycleLoop(law, ex, cfg.period_s, 0.6, DeadlineSleeper(3e-4), time.monotonic, observers=(rec,))
     loop.run(law.initial_state(), 60.0)
 """)
 
 
-def test_sigkill_leaves_a_readable_file_and_recover_completes_it(tmp_path, capsys):
-    path = tmp_path / "killed.mcap"
-    proc = subprocess.Popen([sys.executable, "-c", _KILLED_WRITER.format(repo=str(REPO), path=str(path))])
-    try:
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline and (not path.exists() or path.stat().st_size < 60_000):
-            time.sleep(0.05)
-        assert path.exists() and path.stat().st_size >= 60_000, "the recorder wrote nothing in 30 s"
-    finally:
-        proc.send_signal(signal.SIGKILL)
+def _start_recording_controller(path: Path) -> tuple[subprocess.Popen, int]:
+    """A controller recording in real time, once its file has grown past 60 kB; and its writer's pid."""
+    proc = subprocess.Popen([sys.executable, "-c", _RECORDING_CONTROLLER.format(repo=str(REPO), path=str(path))],
+                            stdout=subprocess.PIPE, text=True)
+    writer_pid = int(proc.stdout.readline())
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline and (not path.exists() or path.stat().st_size < 60_000):
+        time.sleep(0.05)
+    if not (path.exists() and path.stat().st_size >= 60_000):
+        proc.kill()
         proc.wait()
+        pytest.fail("the recorder wrote nothing in 30 s")
+    return proc, writer_pid
+
+
+def _gone(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    return False
+
+
+def test_sigkill_of_the_controller_still_leaves_a_complete_file(tmp_path):
+    path = tmp_path / "killed.mcap"
+    proc, writer_pid = _start_recording_controller(path)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    proc.stdout.close()
+    deadline = time.monotonic() + 20
+    while not _gone(writer_pid) and time.monotonic() < deadline:  # the writer sees the end of its input
+        time.sleep(0.05)
+    assert _gone(writer_pid), "the writer process outlived its controller by 20 s"
+    report = read_info(path)
+    assert report.complete and not report.problems
+    assert report.message_counts[m.TOPIC_CYCLE] > 100
+    assert "without END" in report.metadata[m.META_RECORDING]["ended"]
+
+
+def test_sigkill_of_the_writer_leaves_a_readable_file_and_recover_completes_it(tmp_path, capsys):
+    path = tmp_path / "killed.mcap"
+    proc, writer_pid = _start_recording_controller(path)
+    try:
+        os.kill(writer_pid, signal.SIGKILL)
+        time.sleep(0.3)
+        assert proc.poll() is None, "the controller must go on without its writer"
+    finally:
+        proc.kill()
+        proc.wait()
+        proc.stdout.close()
     report = read_info(path)
     assert not report.complete
     assert any(p.startswith("truncated") for p in report.problems)
@@ -290,7 +335,7 @@ def test_rerun_reads_the_mcap_file_directly_and_decodes_the_protobuf_channels(tm
 
 def test_on_cycle_costs_microseconds(tmp_path):
     _, _, _, trace, _, _ = record_session(tmp_path / "ref.mcap", max_s=0.5, frames=False)
-    rec = SessionRecorder(tmp_path / "p.mcap", session_metadata(load_config()), queue_size=100_000)
+    rec = SessionRecorder(tmp_path / "p.mcap", session_metadata(load_config()), buffer_bytes=64 << 20)
     timing = m.pb.CycleTiming()
     msg = can.Message(arbitration_id=0x201, data=bytearray(8), is_extended_id=False)
     with rec:

@@ -38,7 +38,7 @@ def record(path: Path, overrides: dict, max_s: float) -> int:
     exchange = LoopbackExchange(cfg, clock.clock)
     path.unlink(missing_ok=True)
     with SessionRecorder(path, session_metadata(cfg, {"generator": "tests/data/regenerate.py"}), clock=clock.clock,
-                         phase_name=law.task.phase_name) as rec:
+                         phase_name=law.task.phase_name, lossless=True) as rec:
         loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(rec,))
         _, stats = loop.run(law.initial_state(), max_s)
     return stats.cycles

@@ -1,0 +1,268 @@
+"""The recorder's writer process: records from a pipe in, one MCAP file out.
+
+Why a process and not a thread: the MCAP writer, the Protobuf messages of every CAN frame and
+the compression are pure-Python work of about 150 µs per 1 kHz cycle. On a thread it holds the
+GIL the loop thread needs the moment it wakes; at 1 kHz that alone took the period error p99
+from 37 µs to 634 µs (README, "Speed"). In its own process it has its own GIL and the loop only
+pays for turning a cycle into bytes and one ``write`` to a pipe (logs/recorder.py).
+
+The wire format, loop -> writer, on the writer's standard input: records of a 4-byte
+little-endian length and a pickle of a tuple whose first item is the kind:
+
+    (SETUP, settings dict)                                     first, once
+    (CYCLE, dropped, frames, cycle, t, mono_s, seq, cycle_pb, events, tcp_measured, tcp_reference)
+    (FRAMES, dropped, frames)                                  frames without a cycle after them
+    (END, queued, dropped)                                     the recorder's close
+
+``frames`` is a list of (outgoing, monotonic_s, arbitration_id, data, is_fd, brs, is_error),
+``cycle_pb`` the serialised ``cheope.v1.Cycle`` and ``dropped`` the loop's running count of
+items it could not hand over. Writer -> loop, on standard output, JSON lines: ``{"ready": ...}``
+or ``{"error": ...}`` after SETUP, and ``{"written": n, "chunks": n, "error": ""}`` at the end.
+
+The writer ends at END or at the end of its input. A controller killed with SIGKILL closes the
+pipe, so the writer still writes the index and footer: the file is complete up to the last
+record the controller handed over. SIGINT is ignored (a Ctrl-C in the terminal reaches the
+whole process group; the controller stops the run and closes the pipe), SIGTERM finishes the
+file and exits. Only a killed writer leaves a truncated file (``cheope logs recover``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import select
+import signal
+import struct
+import sys
+import time
+from typing import Any, BinaryIO, TextIO
+
+SETUP, CYCLE, FRAMES, END = range(4)
+_LENGTH = struct.Struct("<I")
+_WRITER_CHUNK_LIMIT = 1 << 40  # chunks are closed by this module, never by mcap's own size rule
+
+
+def pack_record(record: tuple) -> bytes:
+    body = pickle.dumps(record, pickle.HIGHEST_PROTOCOL)
+    return _LENGTH.pack(len(body)) + body
+
+
+class RecordReader:
+    """Whole records from a file descriptor; ``next(timeout)`` returns None on timeout, raises EOFError at the end."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+        self._buf = bytearray()
+
+    def _take(self) -> tuple | None:
+        if len(self._buf) < 4:
+            return None
+        (n,) = _LENGTH.unpack_from(self._buf)
+        if len(self._buf) < 4 + n:
+            return None
+        body = bytes(self._buf[4:4 + n])
+        del self._buf[:4 + n]
+        return pickle.loads(body)
+
+    def next(self, timeout_s: float | None) -> tuple | None:
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while True:
+            record = self._take()
+            if record is not None:
+                return record
+            wait = None if deadline is None else max(0.0, deadline - time.monotonic())
+            ready, _, _ = select.select([self.fd], [], [], wait)
+            if not ready:
+                return None
+            data = os.read(self.fd, 1 << 20)
+            if not data:
+                if self._buf:
+                    raise EOFError(f"input ended inside a record ({len(self._buf)} bytes left)")
+                raise EOFError("end of input")
+            self._buf += data
+
+
+class SessionWriter:
+    """The MCAP side: channels, metadata, chunking; ``write(record)`` for each CYCLE/FRAMES record."""
+
+    def __init__(self, settings: dict[str, Any]) -> None:
+        from mcap.well_known import MessageEncoding
+        from mcap.writer import CompressionType, Writer
+        from mcap_protobuf.schema import register_schema
+
+        from controller.messages import cheope_pb2 as pb
+        from logs import messages as m
+
+        self.m = m
+        self.path = settings["path"]
+        self.offset_ns: int = settings["clock_offset_ns"]
+        self.chunk_size_bytes: int = settings["chunk_size_bytes"]
+        self.flush_interval_s: float = settings["flush_interval_s"]
+        self.written = 0
+        self.chunks = 0
+        self.error = ""
+        self.reported_drops = 0
+        self.last_cycle: tuple[int, float] = (0, 0.0)
+        self.last_mono_s = 0.0
+        self.pending = 0  # bytes in the open chunk
+        self.last_flush = time.monotonic()
+        compression = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
+                       "none": CompressionType.NONE}[settings["compression"]]
+        self.stream: BinaryIO = open(self.path, "wb")
+        w = Writer(self.stream, chunk_size=_WRITER_CHUNK_LIMIT, compression=compression)
+        w.start(profile="", library="cheope logs.recorder")
+        self.channels: dict[str, int] = {}
+        for topic, cls in ((m.TOPIC_CAN, pb.CanFrame), (m.TOPIC_CYCLE, pb.Cycle), (m.TOPIC_EVENTS, pb.Event),
+                           (m.TOPIC_LOG, m.Log), (m.TOPIC_TCP, m.FrameTransform),
+                           (m.TOPIC_TCP_REFERENCE, m.PoseInFrame)):
+            sid = register_schema(w, cls)
+            self.channels[topic] = w.register_channel(topic=topic, message_encoding=MessageEncoding.Protobuf,
+                                                      schema_id=sid)
+        for name, data in settings["metadata"].items():
+            w.add_metadata(name, data)
+        self.stream.flush()  # the configuration first: it survives anything that follows
+        self.writer = w
+
+    # -- records -----------------------------------------------------------------------------
+
+    def write(self, record: tuple) -> None:
+        if self.error:
+            return  # keep reading: the loop must never find the pipe full because the disk failed
+        try:
+            if record[0] == CYCLE:
+                self.pending += self._frames(record[2]) + self._cycle(*record[3:])
+            elif record[0] == FRAMES:
+                self.pending += self._frames(record[2])
+            if record[1] != self.reported_drops:
+                self.pending += self._report_drops(record[1])
+            self.maybe_flush()
+        except (OSError, ValueError) as err:
+            self._fail(f"writing {self.path} failed: {err}")
+
+    def maybe_flush(self) -> None:
+        if self.error or not self.pending:
+            return
+        if self.pending >= self.chunk_size_bytes or time.monotonic() - self.last_flush >= self.flush_interval_s:
+            try:
+                self.writer.flush()
+            except (OSError, ValueError) as err:
+                self._fail(f"writing {self.path} failed: {err}")
+                return
+            self.chunks += 1
+            self.pending = 0
+            self.last_flush = time.monotonic()
+
+    def finish(self, queued: int | None, dropped: int) -> None:
+        """The drop count, ``cheope.recording``, the index and the footer; closes the file."""
+        try:
+            if not self.error:
+                if dropped != self.reported_drops:
+                    self._report_drops(dropped)
+                self.writer.add_metadata(self.m.META_RECORDING, {
+                    "queued": "unknown" if queued is None else str(queued), "dropped": str(dropped),
+                    "written": str(self.written), "complete": "true",
+                    **({} if queued is not None else {"ended": "the controller closed the pipe without END"})})
+                self.writer.finish()
+        except (OSError, ValueError) as err:
+            self._fail(f"cannot finish {self.path}: {err}")
+        finally:
+            try:
+                self.stream.close()
+            except OSError as err:
+                self.error = self.error or f"cannot close {self.path}: {err}"
+
+    # -- conversions -------------------------------------------------------------------------
+
+    def _fail(self, message: str) -> None:
+        self.error = message
+        print(f"recording stopped: {message}", file=sys.stderr, flush=True)
+
+    def _add(self, topic: str, data: bytes, unix_ns: int, sequence: int = 0) -> int:
+        self.writer.add_message(self.channels[topic], unix_ns, data, unix_ns, sequence)
+        self.written += 1
+        return len(data) + 31  # record overhead in the chunk
+
+    def _frames(self, frames: list[tuple]) -> int:
+        n = 0
+        for outgoing, mono_s, arb, data, fd, brs, err in frames:
+            msg = self.m.can_frame(mono_s, outgoing, arb, data, fd, brs, err)
+            n += self._add(self.m.TOPIC_CAN, msg.SerializeToString(), int(mono_s * 1e9) + self.offset_ns)
+            self.last_mono_s = mono_s
+        return n
+
+    def _cycle(self, cycle: int, t: float, mono_s: float, seq: int, cycle_pb: bytes, events: tuple,
+               tcp_measured: tuple | None, tcp_reference: tuple | None) -> int:
+        m = self.m
+        ns = int(mono_s * 1e9) + self.offset_ns
+        self.last_cycle = (cycle, t)
+        self.last_mono_s = mono_s
+        n = self._add(m.TOPIC_CYCLE, cycle_pb, ns, seq)
+        for e in events:
+            n += self._add(m.TOPIC_EVENTS, m.event_to_pb(cycle, t, e).SerializeToString(), ns)
+            n += self._add(m.TOPIC_LOG, m.event_to_log(ns, e).SerializeToString(), ns)
+        if tcp_measured is not None:
+            n += self._add(m.TOPIC_TCP, m.tcp_transform(ns, tcp_measured).SerializeToString(), ns)
+        if tcp_reference is not None:
+            n += self._add(m.TOPIC_TCP_REFERENCE, m.tcp_pose(ns, tcp_reference).SerializeToString(), ns)
+        return n
+
+    def _report_drops(self, dropped: int) -> int:
+        from controller.cycle_data import Event, Severity
+
+        new = dropped - self.reported_drops
+        self.reported_drops = dropped
+        cycle, t = self.last_cycle
+        e = Event("recorder_drop", Severity.WARNING,
+                  f"recorder queue full: {new} item(s) dropped after cycle {cycle} ({dropped} in total)")
+        ns = int(self.last_mono_s * 1e9) + self.offset_ns
+        return (self._add(self.m.TOPIC_EVENTS, self.m.event_to_pb(cycle, t, e).SerializeToString(), ns)
+                + self._add(self.m.TOPIC_LOG, self.m.event_to_log(ns, e).SerializeToString(), ns))
+
+
+def _reply(out: TextIO, **fields: object) -> None:
+    out.write(json.dumps(fields) + "\n")
+    out.flush()
+
+
+def serve(fd: int, out: TextIO) -> int:
+    """Read SETUP, write the file until END or the end of input; returns the exit status."""
+    terminated = []
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, lambda *_: terminated.append(True))
+    reader = RecordReader(fd)
+    try:
+        setup = reader.next(None)
+    except EOFError:
+        return 1
+    if setup is None or setup[0] != SETUP:
+        _reply(out, error=f"the first record must be SETUP, got {setup!r:.80}")
+        return 1
+    try:
+        writer = SessionWriter(setup[1])
+    except OSError as err:
+        _reply(out, error=f"cannot create the recording {setup[1].get('path')}: {err.strerror or err}")
+        return 1
+    _reply(out, ready=str(writer.path))
+    queued: int | None = None
+    dropped = 0
+    while not terminated:
+        try:
+            record = reader.next(writer.flush_interval_s / 2)
+        except EOFError:  # the controller is gone; a record it was cut off in is lost
+            break
+        if record is None:
+            writer.maybe_flush()  # a quiet loop still gets its last messages on disk in time
+            continue
+        if record[0] == END:
+            queued, dropped = record[1], record[2]
+            break
+        dropped = record[1]
+        writer.write(record)
+    writer.finish(queued, dropped)
+    _reply(out, written=writer.written, chunks=writer.chunks, error=writer.error)
+    return 0 if not writer.error else 2
+
+
+if __name__ == "__main__":
+    sys.exit(serve(sys.stdin.buffer.fileno(), sys.stdout))
