@@ -186,19 +186,20 @@ def _cycle_args(k: int):
     return k, k * 0.0025, inputs, outputs, CycleTiming(1e-5, 1e-4)
 
 
-def test_on_cycle_decimates_and_drops_when_the_queue_is_full(cfg):
-    cfg = load_config(overrides={"monitoring.publish_rate_hz": 100.0, "monitoring.queue_size": 8})
-    pub = MonitorPublisher(publisher_settings(cfg), threading.Event())  # not entered: nobody drains
-    state = None
+def test_on_cycle_publishes_every_nth_cycle_on_the_loops_thread(cfg):
+    cfg = load_config(overrides={"monitoring.publish_rate_hz": 100.0, "monitoring.listen": _endpoint()})
     from controller.service import build_law
 
     state = build_law(cfg).initial_state()
-    for k in range(400):
-        cycle, t, inputs, outputs, timing = _cycle_args(k)
-        pub.on_cycle(cycle, t, inputs, state, outputs, (), timing)
-    assert pub._q.qsize() == 8  # every 4th of 400 cycles offered (400 Hz -> 100 Hz): 8 queued, 92 dropped
-    assert pub.dropped_samples == 100 - 8
-    assert pub.commands() is None
+    threads_before = {t.name for t in threading.enumerate()}
+    with MonitorPublisher(publisher_settings(cfg), threading.Event()) as pub:
+        assert {t.name for t in threading.enumerate()} == threads_before  # no publisher thread of its own
+        for k in range(400):
+            cycle, t, inputs, outputs, timing = _cycle_args(k)
+            pub.on_cycle(cycle, t, inputs, state, outputs, (), timing)
+        assert pub.published_samples == 100  # every 4th of 400 cycles (400 Hz -> 100 Hz)
+        assert pub.publish_errors == 0
+        assert pub.commands() is None
 
 
 # -- across processes ------------------------------------------------------------------------
