@@ -350,3 +350,22 @@ def test_on_cycle_costs_microseconds(tmp_path):
     assert median_us < 40, f"on_cycle + on_frame median {median_us:.1f} us"
     assert rec.dropped == 0
 
+
+
+def test_a_recording_that_cannot_be_created_is_one_clear_error_before_the_run(tmp_path):
+    from logs.recorder import RecordingError
+
+    path = tmp_path / "no-such-dir" / "s.mcap"
+    rec = SessionRecorder(path, session_metadata(load_config()))
+    with pytest.raises(RecordingError, match=r"cannot create the recording .*no-such-dir/s\.mcap: No such file"):
+        rec.start()
+    assert rec._proc is None  # the writer process is gone
+
+
+def test_the_writer_process_ends_with_its_recorder(tmp_path):
+    rec = SessionRecorder(tmp_path / "s.mcap", session_metadata(load_config()))
+    rec.start()
+    proc = rec._proc
+    rec.close()
+    assert proc.poll() == 0 and rec.error == "" and rec.written == 0
+    assert read_info(tmp_path / "s.mcap").complete
