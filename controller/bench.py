@@ -577,6 +577,44 @@ def compare_pdo_paths(cycles: int, config_path: str | None = None, overrides: li
     return results
 
 
+def bus_frame_cost(spec_text: str, fd: bool, frames: int = 2000) -> dict[str, object]:
+    """Wall time of python-can's ``send`` and ``recv`` per frame on the configured bus.
+
+    Two buses on the same channel, one frame at a time (send, a 200 µs pause, receive), so
+    each ``recv`` finds its frame waiting: the cost of the interface itself (on udp_multicast:
+    msgpack and a datagram per frame), not of waiting. Also counts how many of the sender's
+    own frames come back to it: every one is a receive the loop pays for and discards.
+    """
+    import can
+
+    from controller.demo import random_udp_port
+    from drivers.bus import open_bus, parse_bus_spec
+
+    spec = parse_bus_spec(spec_text, fd=fd, udp_port=random_udp_port())
+    tx, rx = open_bus(spec), open_bus(spec)
+    msg = can.Message(arbitration_id=0x201, data=bytes(8), is_extended_id=False, is_fd=fd, bitrate_switch=fd)
+    send_us, recv_us = np.empty(frames), np.empty(frames)
+    own = 0
+    try:
+        for k in range(frames):
+            t0 = time.perf_counter()
+            tx.send(msg)
+            t1 = time.perf_counter()
+            time.sleep(2e-4)
+            t2 = time.perf_counter()
+            got = rx.recv(timeout=0.1)
+            t3 = time.perf_counter()
+            if got is None:
+                raise RuntimeError(f"bus_frame_cost: frame {k} did not arrive on {spec}")
+            send_us[k], recv_us[k] = (t1 - t0) * 1e6, (t3 - t2) * 1e6
+            own += tx.recv(timeout=0.0) is not None
+    finally:
+        tx.shutdown()
+        rx.shutdown()
+    return {"bus": str(spec), "frames": frames, "send_us": percentiles_us(send_us),
+            "recv_us": percentiles_us(recv_us), "own_frames_received_back": own}
+
+
 # -- the whole benchmark ----------------------------------------------------------------------
 
 # A timing benchmark must run its whole length: a burst of late or missing frames on a loaded
@@ -605,6 +643,8 @@ def run_bench(rates_hz: tuple[float, ...], duration_s: float, compare_s: float, 
     }
     progress("cyclic PDO path: project vs canopen ...")
     report["pdo_path"] = compare_pdo_paths(20000 if duration_s >= 60 else 5000, config_path, overrides)
+    progress("python-can send/recv per frame on the configured bus ...")
+    report["bus_frame_cost"] = bus_frame_cost(cfg.bus.can, fd=any(r >= fd_from_hz for r in rates_hz))
     cases: list[dict[str, object]] = []
     breakdowns: list[dict[str, object]] = []
     sleepers: list[dict[str, object]] = []
@@ -746,6 +786,10 @@ def format_table(report: dict[str, object]) -> str:
     lines.append(f"cyclic PDO path, CPU per cycle (stub bus, 4 frames out, 5 in): project {p['project_cpu_us']} us, "
                  f"canopen PDO objects {p['canopen_cpu_us']} us (x{p['canopen_over_project']}); wall "
                  f"{p['project_wall_us']} / {p['canopen_wall_us']} us")
+    f = report["bus_frame_cost"]
+    lines.append(f"python-can per frame on {f['bus']}: send p50/p99 {q(f['send_us'], ('p50', 'p99'))} us, "
+                 f"recv p50/p99 {q(f['recv_us'], ('p50', 'p99'))} us; own frames received back "
+                 f"{f['own_frames_received_back']} of {f['frames']}")
     for b in report["step_breakdown"]:
         lines.append(f"step at {b['rate_hz']:g} Hz (in process): p50/p99 {q(b['step_us'], ('p50', 'p99'))} us; "
                      f"Ruckig reported {q(b['ruckig_reported_calculation_us'], ('p50', 'p99'))} us, "

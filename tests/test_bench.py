@@ -165,3 +165,13 @@ def test_cli_refuses_a_bad_rt_option_with_one_line():
                        check=False, capture_output=True, text=True, timeout=60)
     assert r.returncode == 2
     assert r.stderr.strip().splitlines()[-1].endswith("--rt-priority 120: SCHED_FIFO priorities are 1..99")
+
+
+def test_bus_frame_cost_measures_both_sides_of_the_udp_bus():
+    from controller.bench import bus_frame_cost
+
+    r = bus_frame_cost("udp_multicast", fd=False, frames=200)
+    assert r["frames"] == 200 and r["bus"].startswith("udp_multicast")
+    for side in ("send_us", "recv_us"):
+        assert 0.0 < r[side]["p50"] <= r[side]["p99"] < 100_000.0
+    assert 0 <= r["own_frames_received_back"] <= 200
