@@ -219,7 +219,7 @@ class ContourSection:
     force_kp_m_s_per_n: float = field(default=3.5e-4, metadata=_r(0.0, 1.0))
     force_ki_m_s2_per_n: float = field(default=3.5e-3, metadata=_r(0.0, 10.0))
     max_normal_speed_m_s: float = field(default=0.02, metadata=_r(0.0, 10.0, lo_open=True))
-    force_filter_hz: float = field(default=40.0, metadata=_r(0.1, 10000.0))
+    force_filter_hz: float = field(default=10.0, metadata=_r(0.1, 10000.0))
     normal_min_force_n: float = field(default=2.0, metadata=_r(0.0, 1000.0))
     max_force_n: float = field(default=40.0, metadata=_r(0.0, 1000.0, lo_open=True))
     contact_lost_force_n: float = field(default=1.0, metadata=_r(0.0, 1000.0))
@@ -256,6 +256,11 @@ class SimDriveSection:
     max_acceleration_rad_s2: float = field(default=240.0, metadata=_r(0.0, 1e6, lo_open=True))
     quick_stop_deceleration_rad_s2: float = field(default=30.0, metadata=_r(0.0, 1e6, lo_open=True))
     initial_positions_m: tuple[float, float, float] = (0.71508, 0.56794, 0.42697)  # TCP at (0.09, 0, 0.5) m
+    # Cheope's linear motors: a cogging force A sin(2 pi q / period + phase) on each carriage, acting
+    # through the structure's actuator stiffness (sim_backend/plant.py); 0 N disables it
+    cogging_force_n: float = field(default=0.0, metadata=_r(0.0, 1e4))
+    cogging_period_m: float = field(default=0.024, metadata=_r(0.0, 1.0, lo_open=True))
+    cogging_phases_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -287,7 +292,8 @@ class SimDiskSection:
 class SimSection:
     drive: SimDriveSection = SimDriveSection()
     sensor: SimSensorSection = SimSensorSection()
-    structure_damping_ratio: float = field(default=0.2, metadata=_r(0.0, 10.0))
+    structure_damping_ratio: float = field(default=0.5, metadata=_r(0.0, 10.0))
+    structure_inertial_load: bool = True  # the structure also carries M times the drives' acceleration (plant.py)
     environment: str = field(default="auto", metadata={"choices": ("auto", "free", "disk")})
     disk: SimDiskSection = SimDiskSection()
     faults: tuple[str, ...] = ()  # fault injection, sim_backend/fault_injection.py: "drop:2@3.0+0.5", ...

@@ -63,6 +63,7 @@ class SimulatedDrive:
     params: DriveParams
     position: float
     velocity: float = 0.0
+    acceleration: float = 0.0  # of the last sub-step, for the structure's inertial load (plant.py)
     power: PowerState = PowerState.SWITCH_ON_DISABLED
     mode_of_operation: int = 0
     last_controlword: int = 0
@@ -185,11 +186,15 @@ class SimulatedDrive:
         else:
             # Not enabled, or enabled in a mode this drive does not run: the brake holds.
             self.velocity = 0.0
+            self.acceleration = 0.0
             return
         # Semi-implicit Euler: stable for wn * dt << 1 (60 Hz, 0.25 ms: 0.09).
+        v0 = self.velocity
         self.velocity = max(-p.max_velocity, min(p.max_velocity, self.velocity + acc * dt))
+        self.acceleration = (self.velocity - v0) / dt if dt > 0 else 0.0
         self.position += self.velocity * dt
         if not p.stroke_min <= self.position <= p.stroke_max:
             self.position = min(max(self.position, p.stroke_min), p.stroke_max)
             self.velocity = 0.0
+            self.acceleration = 0.0
             self.force_fault(EMCY_POSITION_RANGE)

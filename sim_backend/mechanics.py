@@ -72,11 +72,16 @@ class CompliantTool:
         self._inv_mass_stiffness = _as_rows(inv_mass @ (p.actuator_stiffness_n_m * jtj))
         self._inv_mass_damping = _as_rows(inv_mass @ (p.actuator_damping_n_s_m * jtj))
 
-    def step(self, force_n: Vector3, dt: float) -> None:
-        """Semi-implicit Euler: x'' = M^-1 (F - K x - D x')."""
+    def step(self, force_n: Vector3, dt: float, base_acceleration_m_s2: Vector3 = (0.0, 0.0, 0.0)) -> None:
+        """Semi-implicit Euler: x'' = M^-1 (F - K x - D x') - a_base.
+
+        ``a_base`` is the kinematic TCP's acceleration: the tool's mass moves with it, so the
+        structure carries M a_base (zero unless the plant's ``structure_inertial_load`` is on).
+        """
         a_f = _matvec(self._inv_mass, force_n)
         a_k = _matvec(self._inv_mass_stiffness, self.deflection_m)
         a_d = _matvec(self._inv_mass_damping, self.velocity_m_s)
-        v = tuple(self.velocity_m_s[i] + (a_f[i] - a_k[i] - a_d[i]) * dt for i in range(3))
+        a_b = base_acceleration_m_s2
+        v = tuple(self.velocity_m_s[i] + (a_f[i] - a_k[i] - a_d[i] - a_b[i]) * dt for i in range(3))
         self.velocity_m_s = v  # type: ignore[assignment]
         self.deflection_m = tuple(self.deflection_m[i] + v[i] * dt for i in range(3))  # type: ignore[assignment]

@@ -16,11 +16,30 @@ The mechanics depend on ``robot.kind`` (``_update_kinematics``):
 The drives start where the robot's start pose puts them (the URU's home position, the
 nSPU's planned start pose); ``sim.drive.initial_positions_m`` is Cheope's. Only Cheope has
 the compliant structure and the contact environment.
+
+Two loads on Cheope's compliant structure (``sim_backend/mechanics.py``): the cogging force
+(off by default) and the inertial load (on by default; the contour task's force filter and the
+structure's damping in cheope.toml are set for it):
+
+- ``sim.drive.cogging_force_n``: the cogging (detent) force of an iron-core linear motor,
+  F_j = A sin(2 pi q_j / period + phase_j) on carriage j, a periodic joint-space disturbance
+  with the magnet pitch as its period. It acts at the carriages, so on the structure as the
+  Cartesian force J^T F; through the lumped stiffness k J^T J it moves the tool by
+  J^-1 F / k, largest along the minor axis of J^T J (seed 001 §6: the velocity ellipsoid
+  "indicates also the effects on repeatability ... due to uncertainty of joint motion").
+  Typical values: 1-2 % of the rated force for iron-core motors (ironless ones have none but a
+  smaller force ripple), magnet pitches of a few centimetres; Cheope's motors are not
+  documented in seed 001, so none is assumed by default.
+- ``sim.structure_inertial_load``: the deflection is measured from the kinematic TCP, which
+  accelerates with the drives, so M (s_kin'' + x'') = F - K x - D x'; s_kin'' = J^-1 q''
+  (the J' s' term, about v^2 / rod length, is left out). Off, the tool follows the kinematic
+  TCP without inertia, as the model did before.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 
 import numpy as np
 
@@ -94,6 +113,13 @@ class RobotPlant:
         self.structure_refresh_s = 1e-3
         self._structure_time_s = -1.0
         self._v_kin = np.zeros(3)
+        d = cfg.sim.drive
+        self._cogging_n = d.cogging_force_n if self.kind == "cheope" else 0.0
+        self._cogging_k = 2.0 * math.pi / d.cogging_period_m
+        self._cogging_phase = tuple(math.radians(a) for a in d.cogging_phases_deg)
+        self._jt: tuple[tuple[float, ...], ...] = ((0.0,) * 3,) * 3
+        self._jinv: tuple[tuple[float, ...], ...] = ((0.0,) * 3,) * 3
+        self._inertial = cfg.sim.structure_inertial_load
         self.time_s: float | None = None
         self.last_sync_s: float | None = None
         self.tcp_kinematic_m = np.zeros(3)
@@ -158,12 +184,30 @@ class RobotPlant:
             jac = self.robot.jacobian(self.tcp_kinematic_m)
             self._v_kin = np.linalg.solve(jac, np.array([d.velocity for d in self.drives]))
             self.tool.set_structure(jac)
+            self._jt = tuple(tuple(float(x) for x in row) for row in jac.T)
+            self._jinv = tuple(tuple(float(x) for x in row) for row in np.linalg.inv(jac))
             self._structure_time_s = t_s
         else:  # in between, the kinematic TCP moves on with its velocity
             self.tcp_kinematic_m = self.tcp_kinematic_m + self._v_kin * dt
         force, torque = self.environment.contact_wrench(self.tcp_m, self._v_kin + np.asarray(self.tool.velocity_m_s))
         self.force_n = force
-        self.tool.step((float(force[0]), float(force[1]), float(force[2])), dt)
+        fx, fy, fz = float(force[0]), float(force[1]), float(force[2])
+        if self._cogging_n:  # the carriages' cogging forces, on the structure as J^T f
+            f = [self._cogging_n * math.sin(self._cogging_k * d.position + ph)
+                 for d, ph in zip(self.drives, self._cogging_phase)]
+            jt = self._jt
+            fx += jt[0][0] * f[0] + jt[0][1] * f[1] + jt[0][2] * f[2]
+            fy += jt[1][0] * f[0] + jt[1][1] * f[1] + jt[1][2] * f[2]
+            fz += jt[2][0] * f[0] + jt[2][1] * f[1] + jt[2][2] * f[2]
+        if self._inertial:  # the kinematic TCP's acceleration J^-1 q'' loads the structure
+            qa = [d.acceleration for d in self.drives]
+            ji = self._jinv
+            ab = (ji[0][0] * qa[0] + ji[0][1] * qa[1] + ji[0][2] * qa[2],
+                  ji[1][0] * qa[0] + ji[1][1] * qa[1] + ji[1][2] * qa[2],
+                  ji[2][0] * qa[0] + ji[2][1] * qa[1] + ji[2][2] * qa[2])
+            self.tool.step((fx, fy, fz), dt, ab)
+        else:
+            self.tool.step((fx, fy, fz), dt)
         if self.sensor is not None:
             self.sensor.observe(t_s, dt, force, torque)
 

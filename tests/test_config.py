@@ -24,6 +24,9 @@ def test_shipped_defaults_load(cfg):
     ({"loop.max_missing_cycles": 2.5}, r"loop.max_missing_cycles = 2.5: expected an integer"),
     ({"robot.kind": "hexapod"}, r"robot.kind = 'hexapod': must be one of"),
     ({"loop.rate_hz": float("nan")}, r"loop.rate_hz = nan: must be finite"),
+    ({"sim.drive.cogging_period_m": 0.0}, r"sim.drive.cogging_period_m = 0.0: must be > 0.0"),
+    ({"sim.drive.cogging_force_n": -1.0}, r"sim.drive.cogging_force_n = -1.0: must be >= 0.0"),
+    ({"sim.structure_inertial_load": 1}, r"sim.structure_inertial_load = 1: expected true or false"),
 ])
 def test_invalid_values_are_named(overrides, message):
     with pytest.raises(ConfigError, match=message):

@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from controller.config import load_config
+from controller.robots.performance import MassModel, cartesian_mass_matrix
+from controller.service import build_robot
 from drivers.cia402 import (
     CW_ENABLE_OPERATION,
     CW_SHUTDOWN,
@@ -17,7 +19,8 @@ from drivers.cia402 import (
 from drivers.pdo_codec import FORCE_N_PER_COUNT, SENSOR_FORCE_SATURATED, decode_sensor_frame
 from sim_backend.drive import EMCY_HEARTBEAT_LOST, EMCY_POSITION_RANGE, EMCY_SYNC_LOST, SimulatedDrive
 from sim_backend.force_sensor import SensorParams, SimulatedForceSensor
-from sim_backend.plant import drive_params_from_config
+from sim_backend.mechanics import ComplianceParams, CompliantTool
+from sim_backend.plant import RobotPlant, drive_params_from_config
 
 PERIOD = 0.0025
 COUNTS = 1e7
@@ -115,3 +118,55 @@ def test_force_sensor_bias_noise_saturation_and_counter():
     f, _ = s.sample(np.array([150.0, 0.0, 0.0]), np.zeros(3))
     x, _, _, status, _ = decode_sensor_frame(f, FORCE_N_PER_COUNT)
     assert status & SENSOR_FORCE_SATURATED and x == pytest.approx(100.0)
+
+
+def test_cogging_moves_the_tool_by_the_inverse_jacobian_of_the_carriage_displacement():
+    """A carriage force f through the lumped stiffness k J^T J: the tool moves by J^-1 f / k."""
+    amplitude, period, phases = 4.0, 0.024, (0.0, 120.0, 240.0)
+    cfg = load_config(overrides={"task.kind": "contour", "sim.drive.cogging_force_n": amplitude,
+                                 "sim.drive.cogging_period_m": period, "sim.drive.cogging_phases_deg": list(phases)})
+    plant = RobotPlant(cfg)  # drives disabled, brakes holding; the TCP is clear of the disk
+    plant.advance(0.0)
+    plant.advance(3.0)  # the structure's modes have settled
+    assert plant.force_n is not None and not np.any(plant.force_n)  # no contact
+    q = np.array([d.position for d in plant.drives])
+    f = amplitude * np.sin(2.0 * np.pi * q / period + np.radians(phases))
+    jac = plant.robot.jacobian(plant.tcp_kinematic_m)
+    expected = np.linalg.solve(jac, f) / cfg.robot.mass.actuator_stiffness_n_m
+    assert np.max(np.abs(expected)) > 1e-6  # a visible test: micrometres
+    assert np.asarray(plant.tool.deflection_m) == pytest.approx(expected, rel=1e-3, abs=1e-10)
+
+
+def test_without_cogging_the_unloaded_structure_stays_put():
+    plant = RobotPlant(load_config(overrides={"task.kind": "contour"}))
+    plant.advance(0.0)
+    plant.advance(0.5)
+    assert plant.tool.deflection_m == (0.0, 0.0, 0.0)
+
+
+def test_inertial_load_deflects_the_structure_by_its_mass_times_the_base_acceleration():
+    cfg = load_config()
+    jac = build_robot(cfg).jacobian(np.array([0.03, -0.02, 0.5]))
+    masses = MassModel(cfg.robot.mass.platform_kg, cfg.robot.mass.slider_kg, cfg.robot.mass.rod_pair_kg)
+    k = cfg.robot.mass.actuator_stiffness_n_m
+    tool = CompliantTool(ComplianceParams(k, 0.2, masses))
+    tool.set_structure(jac)
+    a = (0.3, -0.2, 0.1)
+    for _ in range(10000):  # 5 s: settled
+        tool.step((0.0, 0.0, 0.0), 5e-4, a)
+    expected = -np.linalg.solve(k * jac.T @ jac, cartesian_mass_matrix(jac, masses) @ np.array(a))
+    assert np.asarray(tool.deflection_m) == pytest.approx(expected, rel=1e-3)
+
+
+def test_drive_reports_the_acceleration_of_its_last_substep():
+    d, t = enabled_drive()
+    t = cycle(d, t, 0.55)
+    t = cycle(d, t, 0.55 + 0.1 * PERIOD)  # start a 0.1 m/s ramp: the carriage accelerates
+    h = d.params.substep_s
+    v0 = d.velocity
+    d.advance(d.time_s + h)
+    assert d.acceleration > 1.0
+    assert d.acceleration == pytest.approx((d.velocity - v0) / h)
+    for k in range(2, 400):
+        t = cycle(d, t, 0.55 + 0.1 * PERIOD)  # hold: it settles
+    assert abs(d.acceleration) < 1e-3
