@@ -235,18 +235,23 @@ class SessionRecorder:
             return
         del self._backlog[:n]
 
-    def _write_all(self, data: bytes | bytearray) -> None:
+    def _write_all(self, data: bytes | bytearray, timeout_s: float | None = None) -> None:
+        """All of ``data``, waiting for the writer; with ``timeout_s`` on a non-blocking pipe, at most that long."""
         view = memoryview(data)
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
         while view:
             try:
                 view = view[os.write(self._fd, view):]
             except BlockingIOError:
+                if deadline is not None and time.monotonic() > deadline:
+                    self._writer_gone(TimeoutError(f"the writer took no data for {timeout_s:g} s"))
+                    return
                 select.select([], [self._fd], [], 1.0)
             except OSError as err:
                 self._writer_gone(err)
                 return
 
-    def _writer_gone(self, err: OSError) -> None:
+    def _writer_gone(self, err: OSError | TimeoutError) -> None:
         self.error = self.error or f"the writer process of {self.path} stopped reading: {err.strerror or err}"
         self._backlog.clear()
         self._fd = -1
@@ -304,13 +309,14 @@ class SessionRecorder:
             return
         if self._frames:
             self._send_frames()
-        if self._fd >= 0:
-            os.set_blocking(self._fd, True)
+        if self._fd >= 0:  # a writer that stopped reading must not hang the controller's exit
+            os.set_blocking(self._fd, False)
             if self._backlog:
-                self._write_all(self._backlog)
+                backlog = bytes(self._backlog)
                 self._backlog.clear()
+                self._write_all(backlog, WRITER_FINISH_TIMEOUT_S)
             if self._fd >= 0:
-                self._write_all(pack_record((END, self.queued, self.dropped)))
+                self._write_all(pack_record((END, self.queued, self.dropped)), WRITER_FINISH_TIMEOUT_S)
         reply = self._read_reply(WRITER_FINISH_TIMEOUT_S, closing=True)
         self.written = int(reply.get("written", 0))
         self.chunks = int(reply.get("chunks", 0))
@@ -349,7 +355,7 @@ class SessionRecorder:
                 except OSError:
                     pass
         try:
-            proc.wait(timeout=10.0)
+            proc.wait(timeout=2.0)  # it has answered, or it never will
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()

@@ -371,3 +371,33 @@ def test_the_writer_process_ends_with_its_recorder(tmp_path):
     rec.close()
     assert proc.poll() == 0 and rec.error == "" and rec.written == 0
     assert read_info(tmp_path / "s.mcap").complete
+
+
+def test_a_writer_that_stops_reading_blocks_neither_the_loop_nor_the_exit(tmp_path, monkeypatch):
+    import logs.recorder as recorder
+
+    monkeypatch.setattr(recorder, "WRITER_FINISH_TIMEOUT_S", 1.0)
+    _, _, _, trace, _, _ = record_session(tmp_path / "ref.mcap", max_s=0.5, frames=False)
+    rec = SessionRecorder(tmp_path / "s.mcap", session_metadata(load_config()), buffer_bytes=4096)
+    rec.start()
+    pid = rec._proc.pid
+    os.kill(pid, signal.SIGSTOP)  # a writer stuck on a dead disk
+    try:
+        t0 = time.perf_counter()
+        calls = 0
+        for _ in range(5):
+            for row in trace.rows:
+                rec.on_cycle(*row, timing=m.pb.CycleTiming())
+                calls += 1
+        assert (time.perf_counter() - t0) / calls < 50e-6  # never waited
+        assert rec.dropped > 0
+        t0 = time.monotonic()
+        rec.close()
+        assert time.monotonic() - t0 < 6.0
+    finally:
+        try:
+            os.kill(pid, signal.SIGCONT)
+        except ProcessLookupError:
+            pass
+    assert "took no data" in rec.error or "timed out" in rec.error
+    assert rec._proc is None
