@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from controller.realtime import RealtimeOptions
+from drivers import cob_ids
 
 DRIVE_TPDO_BYTES = 6
 
@@ -160,7 +161,8 @@ class LoopProbe:
 
     Per cycle k it keeps: the wake error and step time (from the loop's ``CycleTiming``), the
     arrival of the last TPDO of the cycle, and when the outputs were ready (end of the
-    observers' turn); from the frame sink, when the first RPDO of cycle k + 1 went out. It
+    observers' turn); from the frame sink, when the first RPDO of cycle k + 1 went out, and
+    how long after this cycle's SYNC went out its last TPDO arrived (the devices' answer). It
     also counts every frame on the bus by COB-ID for the measured bus load, and samples CPU
     times once a second (the loop thread's own, the process's, the simulator's).
     """
@@ -172,6 +174,8 @@ class LoopProbe:
         self.step_s = np.zeros(capacity)
         self.ready_after_tpdo_s = np.full(capacity, np.nan)
         self.rpdo_after_tpdo_s = np.full(capacity, np.nan)
+        self.answer_s = np.full(capacity, np.nan)  # SYNC out -> last TPDO in
+        self._sync_s = math.nan
         self.n = 0
         self._tpdo_ids = tpdo_ids
         self._first_rpdo_id = first_rpdo_id
@@ -189,7 +193,9 @@ class LoopProbe:
         cid = msg.arbitration_id
         if outgoing:
             self.outgoing += 1
-            if cid == self._first_rpdo_id:
+            if cid == cob_ids.SYNC:
+                self._sync_s = t
+            elif cid == self._first_rpdo_id:
                 i = self._rpdo_index
                 if i < self.capacity:
                     self.rpdo_after_tpdo_s[i] = t - self._prev_last_tpdo_s
@@ -210,6 +216,7 @@ class LoopProbe:
             self.wake_error_s[i] = timing.wake_error_s
             self.step_s[i] = timing.step_s
             self.ready_after_tpdo_s[i] = now - self._last_tpdo_s
+            self.answer_s[i] = self._last_tpdo_s - self._sync_s
         self.n = i + 1
         # the first RPDO of the next cycle pairs with this cycle's last TPDO
         self._prev_last_tpdo_s = self._last_tpdo_s
@@ -296,7 +303,6 @@ def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], conf
     from controller.config import load_config, parse_override
     from controller.demo import random_udp_port
     from controller.service import planned_bus_load, run_controller
-    from drivers import cob_ids
     from drivers.bus import parse_bus_spec
 
     overrides = [*base_overrides, f"loop.rate_hz={case.rate_hz}", f"bus.fd={'true' if case.fd else 'false'}"]
@@ -349,6 +355,7 @@ def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], conf
         "overruns": overruns,
         "step_us": percentiles_us(probe.step_s[skip:n] * 1e6),
         "tpdo_to_ready_us": percentiles_us(_finite(probe.ready_after_tpdo_s[skip:n]) * 1e6),
+        "sync_to_last_tpdo_us": percentiles_us(_finite(probe.answer_s[skip:n]) * 1e6),
         "tpdo_to_rpdo_us": percentiles_us(_finite(probe.rpdo_after_tpdo_s[skip + 1:n]) * 1e6),
         "cpu_percent_of_one_core": cpu_use_percent(samples),
         "bus_load_percent": {
@@ -498,7 +505,6 @@ def compare_pdo_paths(cycles: int, config_path: str | None = None, overrides: li
 
     from controller.config import load_config, parse_override
     from controller.cycle_data import CycleOutputs
-    from drivers import cob_ids
     from drivers.cyclic_exchange import CyclicExchange
     from drivers.pdo_codec import FORCE_N_PER_COUNT, TORQUE_NM_PER_COUNT, PositionScale, encode_drive_tpdo
     from sim_backend.server import DRIVE_EDS, SENSOR_EDS
@@ -760,6 +766,7 @@ def format_table(report: dict[str, object]) -> str:
     row("wake latency p50/p99/p99.9/max us", lambda c: q(c["wake_latency_us"]))
     row("late cycles per 10 000", lambda c: f"{c['late_per_10k']:.1f} ({c['overruns']} skipped)")
     row("step compute p50/p99 us", lambda c: q(c["step_us"], ("p50", "p99")))
+    row("SYNC out -> last TPDO in p50/p99 us", lambda c: q(c["sync_to_last_tpdo_us"], ("p50", "p99")))
     row("last TPDO -> outputs ready p50/p99", lambda c: q(c["tpdo_to_ready_us"], ("p50", "p99")))
     row("last TPDO -> RPDOs out p50/p99 us", lambda c: q(c["tpdo_to_rpdo_us"], ("p50", "p99")))
     row("CPU loop thread / process [%]", lambda c: "{} / {}".format(

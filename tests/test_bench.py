@@ -175,3 +175,20 @@ def test_bus_frame_cost_measures_both_sides_of_the_udp_bus():
     for side in ("send_us", "recv_us"):
         assert 0.0 < r[side]["p50"] <= r[side]["p99"] < 100_000.0
     assert 0 <= r["own_frames_received_back"] <= 200
+
+
+def test_loop_probe_times_the_devices_answer_from_sync_to_the_last_tpdo():
+    import can
+
+    from controller.bench import LoopProbe
+    from controller.loop import CycleTiming
+    from drivers import cob_ids
+
+    probe = LoopProbe(4, frozenset({0x181, 0x182}), 0x201, None, sample_every=1000)
+    for k, (first, last) in enumerate(((3e-4, 4e-4), (2e-4, 6e-4))):
+        t0 = k * 1e-3
+        probe.sink(True, t0, can.Message(arbitration_id=cob_ids.SYNC, data=b"", is_extended_id=False))
+        probe.sink(False, t0 + first, can.Message(arbitration_id=0x181, data=bytes(6), is_extended_id=False))
+        probe.sink(False, t0 + last, can.Message(arbitration_id=0x182, data=bytes(6), is_extended_id=False))
+        probe.on_cycle(k, t0, None, None, None, (), CycleTiming(0.0, 1e-4))
+    assert probe.answer_s[:2] == pytest.approx([4e-4, 6e-4])
