@@ -109,7 +109,7 @@ class SessionWriter:
         self.last_flush = time.monotonic()
         compression = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                        "none": CompressionType.NONE}[settings["compression"]]
-        self.stream: BinaryIO = open(self.path, "wb")
+        self.stream: BinaryIO = open(self.path, "wb")  # noqa: SIM115 - lives until finish() closes it
         w = Writer(self.stream, chunk_size=_WRITER_CHUNK_LIMIT, compression=compression)
         w.start(profile="", library="cheope logs.recorder")
         self.channels: dict[str, int] = {}

@@ -374,7 +374,7 @@ def test_the_writer_process_ends_with_its_recorder(tmp_path):
 
 
 def test_a_writer_that_stops_reading_blocks_neither_the_loop_nor_the_exit(tmp_path, monkeypatch):
-    import logs.recorder as recorder
+    from logs import recorder
 
     monkeypatch.setattr(recorder, "WRITER_FINISH_TIMEOUT_S", 1.0)
     _, _, _, trace, _, _ = record_session(tmp_path / "ref.mcap", max_s=0.5, frames=False)
