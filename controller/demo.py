@@ -86,14 +86,29 @@ def stop_process(proc: subprocess.Popen[str], timeout_s: float = 5.0) -> None:
             stream.close()
 
 
+def simulator_realtime_args(realtime: RealtimeOptions | None) -> list[str]:
+    """The demo's simulator gets the loop's options, one priority step below, on the other CPUs.
+
+    The simulator stands in for drives that answer on their own hardware: it must not queue
+    behind the controller's loop, nor the loop behind it.
+    """
+    if realtime is None:
+        return []
+    args: list[str] = []
+    if realtime.priority is not None:
+        args += ["--rt-priority", str(max(1, realtime.priority - 10))]
+    others = sorted(os.sched_getaffinity(0) - set(realtime.cpus)) if realtime.cpus else []
+    if others:
+        args += ["--cpu", ",".join(str(c) for c in others)]
+    if realtime.lock_memory:
+        args.append("--lock-memory")
+    return args
+
+
 def run_demo(cfg: Config, spec: BusSpec, config_path: str | None, overrides: list[str],
              max_duration_s: float = 600.0, stop_event: threading.Event | None = None,
              plot_dir: Path | None = None, realtime: RealtimeOptions | None = None) -> dict[str, object]:
-    sim_args: list[str] = []
-    if realtime is not None and realtime.priority is not None:
-        sim_args += ["--rt-priority", str(max(1, realtime.priority - 10))]
-    if realtime is not None and realtime.lock_memory:
-        sim_args.append("--lock-memory")
+    sim_args = simulator_realtime_args(realtime)
     with simulator_process(spec, config_path, overrides, extra_args=sim_args):
         if cfg.task.kind == "contour":
             from controller.contour_experiment import run_contour_experiment

@@ -192,3 +192,18 @@ def test_loop_probe_times_the_devices_answer_from_sync_to_the_last_tpdo():
         probe.sink(False, t0 + last, can.Message(arbitration_id=0x182, data=bytes(6), is_extended_id=False))
         probe.on_cycle(k, t0, None, None, None, (), CycleTiming(0.0, 1e-4))
     assert probe.answer_s[:2] == pytest.approx([4e-4, 6e-4])
+
+
+def test_demo_gives_the_simulator_the_other_cpus_one_priority_step_below():
+    import os
+
+    from controller.demo import simulator_realtime_args
+
+    assert simulator_realtime_args(None) == []
+    assert simulator_realtime_args(RealtimeOptions(priority=80, lock_memory=True)) == [
+        "--rt-priority", "70", "--lock-memory"]
+    allowed = sorted(os.sched_getaffinity(0))
+    args = simulator_realtime_args(RealtimeOptions(priority=5, cpus=(allowed[-1],)))
+    assert args[:2] == ["--rt-priority", "1"]
+    others = [c for c in allowed if c != allowed[-1]]
+    assert (args[2:] == ["--cpu", ",".join(map(str, others))]) if others else args[2:] == []
