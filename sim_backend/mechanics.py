@@ -36,15 +36,16 @@ class ComplianceParams:
 
 Matrix3 = tuple[tuple[float, float, float], ...]
 Vector3 = tuple[float, float, float]
+NO_ACCELERATION: Vector3 = (0.0, 0.0, 0.0)
 
 
-def _matvec(m: Matrix3, v: Vector3) -> Vector3:
+def matvec(m: Matrix3, v: Vector3) -> Vector3:
     return (m[0][0] * v[0] + m[0][1] * v[1] + m[0][2] * v[2],
             m[1][0] * v[0] + m[1][1] * v[1] + m[1][2] * v[2],
             m[2][0] * v[0] + m[2][1] * v[1] + m[2][2] * v[2])
 
 
-def _as_rows(m: np.ndarray) -> Matrix3:
+def as_rows(m: np.ndarray) -> Matrix3:
     return tuple(tuple(float(x) for x in row) for row in m)  # type: ignore[return-value]
 
 
@@ -68,19 +69,19 @@ class CompliantTool:
         jtj = jac.T @ jac
         p = self.params
         inv_mass = np.linalg.inv(cartesian_mass_matrix(jac, p.masses))
-        self._inv_mass = _as_rows(inv_mass)
-        self._inv_mass_stiffness = _as_rows(inv_mass @ (p.actuator_stiffness_n_m * jtj))
-        self._inv_mass_damping = _as_rows(inv_mass @ (p.actuator_damping_n_s_m * jtj))
+        self._inv_mass = as_rows(inv_mass)
+        self._inv_mass_stiffness = as_rows(inv_mass @ (p.actuator_stiffness_n_m * jtj))
+        self._inv_mass_damping = as_rows(inv_mass @ (p.actuator_damping_n_s_m * jtj))
 
-    def step(self, force_n: Vector3, dt: float, base_acceleration_m_s2: Vector3 = (0.0, 0.0, 0.0)) -> None:
+    def step(self, force_n: Vector3, dt: float, base_acceleration_m_s2: Vector3 = NO_ACCELERATION) -> None:
         """Semi-implicit Euler: x'' = M^-1 (F - K x - D x') - a_base.
 
         ``a_base`` is the kinematic TCP's acceleration: the tool's mass moves with it, so the
         structure carries M a_base (zero unless the plant's ``structure_inertial_load`` is on).
         """
-        a_f = _matvec(self._inv_mass, force_n)
-        a_k = _matvec(self._inv_mass_stiffness, self.deflection_m)
-        a_d = _matvec(self._inv_mass_damping, self.velocity_m_s)
+        a_f = matvec(self._inv_mass, force_n)
+        a_k = matvec(self._inv_mass_stiffness, self.deflection_m)
+        a_d = matvec(self._inv_mass_damping, self.velocity_m_s)
         a_b = base_acceleration_m_s2
         v = tuple(self.velocity_m_s[i] + (a_f[i] - a_k[i] - a_d[i] - a_b[i]) * dt for i in range(3))
         self.velocity_m_s = v  # type: ignore[assignment]

@@ -52,7 +52,7 @@ from sim_backend.contact_disk import DiskEnvironment, DiskParams
 from sim_backend.drive import DriveParams, SimulatedDrive
 from sim_backend.environment import ZERO3, Environment, FreeSpace
 from sim_backend.force_sensor import SensorParams, SimulatedForceSensor
-from sim_backend.mechanics import ComplianceParams, CompliantTool
+from sim_backend.mechanics import ComplianceParams, CompliantTool, Matrix3, NO_ACCELERATION, as_rows, matvec
 
 log = logging.getLogger(__name__)
 
@@ -117,8 +117,8 @@ class RobotPlant:
         self._cogging_n = d.cogging_force_n if self.kind == "cheope" else 0.0
         self._cogging_k = 2.0 * math.pi / d.cogging_period_m
         self._cogging_phase = tuple(math.radians(a) for a in d.cogging_phases_deg)
-        self._jt: tuple[tuple[float, ...], ...] = ((0.0,) * 3,) * 3
-        self._jinv: tuple[tuple[float, ...], ...] = ((0.0,) * 3,) * 3
+        self._jt: Matrix3 = ((0.0,) * 3,) * 3
+        self._jinv: Matrix3 = ((0.0,) * 3,) * 3
         self._inertial = cfg.sim.structure_inertial_load
         self.time_s: float | None = None
         self.last_sync_s: float | None = None
@@ -184,8 +184,8 @@ class RobotPlant:
             jac = self.robot.jacobian(self.tcp_kinematic_m)
             self._v_kin = np.linalg.solve(jac, np.array([d.velocity for d in self.drives]))
             self.tool.set_structure(jac)
-            self._jt = tuple(tuple(float(x) for x in row) for row in jac.T)
-            self._jinv = tuple(tuple(float(x) for x in row) for row in np.linalg.inv(jac))
+            self._jt = as_rows(jac.T)
+            self._jinv = as_rows(np.linalg.inv(jac))
             self._structure_time_s = t_s
         else:  # in between, the kinematic TCP moves on with its velocity
             self.tcp_kinematic_m = self.tcp_kinematic_m + self._v_kin * dt
@@ -193,21 +193,13 @@ class RobotPlant:
         self.force_n = force
         fx, fy, fz = float(force[0]), float(force[1]), float(force[2])
         if self._cogging_n:  # the carriages' cogging forces, on the structure as J^T f
-            f = [self._cogging_n * math.sin(self._cogging_k * d.position + ph)
-                 for d, ph in zip(self.drives, self._cogging_phase)]
-            jt = self._jt
-            fx += jt[0][0] * f[0] + jt[0][1] * f[1] + jt[0][2] * f[2]
-            fy += jt[1][0] * f[0] + jt[1][1] * f[1] + jt[1][2] * f[2]
-            fz += jt[2][0] * f[0] + jt[2][1] * f[1] + jt[2][2] * f[2]
-        if self._inertial:  # the kinematic TCP's acceleration J^-1 q'' loads the structure
-            qa = [d.acceleration for d in self.drives]
-            ji = self._jinv
-            ab = (ji[0][0] * qa[0] + ji[0][1] * qa[1] + ji[0][2] * qa[2],
-                  ji[1][0] * qa[0] + ji[1][1] * qa[1] + ji[1][2] * qa[2],
-                  ji[2][0] * qa[0] + ji[2][1] * qa[1] + ji[2][2] * qa[2])
-            self.tool.step((fx, fy, fz), dt, ab)
-        else:
-            self.tool.step((fx, fy, fz), dt)
+            f = tuple(self._cogging_n * math.sin(self._cogging_k * d.position + ph)
+                      for d, ph in zip(self.drives, self._cogging_phase))
+            jf = matvec(self._jt, f)
+            fx, fy, fz = fx + jf[0], fy + jf[1], fz + jf[2]
+        # the kinematic TCP's acceleration J^-1 q'' loads the structure
+        ab = matvec(self._jinv, tuple(d.acceleration for d in self.drives)) if self._inertial else NO_ACCELERATION
+        self.tool.step((fx, fy, fz), dt, ab)
         if self.sensor is not None:
             self.sensor.observe(t_s, dt, force, torque)
 
