@@ -276,14 +276,7 @@ def simulator(spec, overrides: list[str], config_path: str | None, rt: RealtimeO
     """``cheope sim`` as a child process with its own real-time options."""
     from controller.demo import simulator_process
 
-    extra: list[str] = []
-    if rt.priority is not None:
-        extra += ["--rt-priority", str(rt.priority)]
-    if rt.cpus:
-        extra += ["--cpu", ",".join(str(c) for c in rt.cpus)]
-    if rt.lock_memory:
-        extra.append("--lock-memory")
-    return simulator_process(spec, config_path, overrides, ready_timeout_s, extra_args=extra)
+    return simulator_process(spec, config_path, overrides, ready_timeout_s, extra_args=rt.cli_args())
 
 
 # -- one configuration against the simulator --------------------------------------------------

@@ -94,15 +94,9 @@ def simulator_realtime_args(realtime: RealtimeOptions | None) -> list[str]:
     """
     if realtime is None:
         return []
-    args: list[str] = []
-    if realtime.priority is not None:
-        args += ["--rt-priority", str(max(1, realtime.priority - 10))]
     others = sorted(os.sched_getaffinity(0) - set(realtime.cpus)) if realtime.cpus else []
-    if others:
-        args += ["--cpu", ",".join(str(c) for c in others)]
-    if realtime.lock_memory:
-        args.append("--lock-memory")
-    return args
+    return RealtimeOptions(priority=None if realtime.priority is None else max(1, realtime.priority - 10),
+                           cpus=tuple(others), lock_memory=realtime.lock_memory).cli_args()
 
 
 def run_demo(cfg: Config, spec: BusSpec, config_path: str | None, overrides: list[str],

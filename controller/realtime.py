@@ -72,6 +72,17 @@ class RealtimeOptions:
     def any(self) -> bool:
         return self.priority is not None or bool(self.cpus) or self.lock_memory
 
+    def cli_args(self) -> list[str]:
+        """The same request as options of ``cheope sim``/``run``: how a child process gets it."""
+        args: list[str] = []
+        if self.priority is not None:
+            args += ["--rt-priority", str(self.priority)]
+        if self.cpus:
+            args += ["--cpu", ",".join(str(c) for c in self.cpus)]
+        if self.lock_memory:
+            args.append("--lock-memory")
+        return args
+
     def describe(self) -> str:
         parts = []
         if self.priority is not None:

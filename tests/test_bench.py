@@ -207,3 +207,9 @@ def test_demo_gives_the_simulator_the_other_cpus_one_priority_step_below():
     assert args[:2] == ["--rt-priority", "1"]
     others = [c for c in allowed if c != allowed[-1]]
     assert (args[2:] == ["--cpu", ",".join(map(str, others))]) if others else args[2:] == []
+
+
+def test_realtime_options_as_a_child_process_options():
+    assert RealtimeOptions().cli_args() == []
+    assert RealtimeOptions(priority=70, cpus=(0, 1), lock_memory=True).cli_args() == [
+        "--rt-priority", "70", "--cpu", "0,1", "--lock-memory"]
