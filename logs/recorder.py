@@ -317,7 +317,10 @@ class SessionRecorder:
                 self._write_all(backlog, WRITER_FINISH_TIMEOUT_S)
             if self._fd >= 0:
                 self._write_all(pack_record((END, self.queued, self.dropped)), WRITER_FINISH_TIMEOUT_S)
-        reply = self._read_reply(WRITER_FINISH_TIMEOUT_S, closing=True)
+        if proc.stdin is not None:
+            proc.stdin.close()  # end of input: the writer finishes even if END did not get through
+        self._fd = -1
+        reply = self._read_reply(WRITER_FINISH_TIMEOUT_S)
         self.written = int(reply.get("written", 0))
         self.chunks = int(reply.get("chunks", 0))
         self.error = self.error or str(reply.get("error") or "")
@@ -325,12 +328,10 @@ class SessionRecorder:
         if self.error:
             log.warning("recording %s: %s", self.path, self.error)
 
-    def _read_reply(self, timeout_s: float, closing: bool = False) -> dict[str, Any]:
+    def _read_reply(self, timeout_s: float) -> dict[str, Any]:
+        """The writer's next JSON line, or an error naming why there is none."""
         proc = self._proc
         assert proc is not None and proc.stdout is not None
-        if closing and proc.stdin is not None:
-            proc.stdin.close()  # end of input: the writer finishes even if END did not get through
-            self._fd = -1
         ready, _, _ = select.select([proc.stdout], [], [], timeout_s)
         line = proc.stdout.readline() if ready else b""
         if not line:
