@@ -157,22 +157,23 @@ class RobotPlant:
         self._pose_time_s = t
         self.tcp_kinematic_m = np.array(self.pose.p_m)
 
-    def advance(self, now_s: float) -> None:
+    def advance(self, now_s: float, check_sync_timeout: bool = True) -> None:
+        """Integrate drives and structure up to ``now_s``; see ``SimulatedDrive._watchdog`` for the flag."""
         if self.time_s is None:
             self.time_s = now_s
             for d in self.drives:
-                d.advance(now_s)
+                d.advance(now_s, check_sync_timeout)
             return
         if not self.loaded:
             for d in self.drives:
-                d.advance(now_s)
+                d.advance(now_s, check_sync_timeout)
             self.time_s = max(self.time_s, now_s)
             return
         while self.time_s < now_s:
             dt = min(self.substep_s, now_s - self.time_s)
             t1 = self.time_s + dt
             for d in self.drives:
-                d.advance(t1)
+                d.advance(t1, check_sync_timeout)
             self._mechanics(t1, dt)
             self.time_s = t1
 
@@ -205,7 +206,7 @@ class RobotPlant:
 
     def sync(self, now_s: float) -> tuple[list[bytes], tuple[bytes, bytes] | None]:
         """Latch the drives' targets, sample everything at ``now_s``: the TPDO payloads."""
-        self.advance(now_s)
+        self.advance(now_s, check_sync_timeout=False)
         self.last_sync_s = now_s
         for d in self.drives:
             d.on_sync(now_s)

@@ -34,6 +34,20 @@ DRIVE_EDS = EDS_DIR / "cheope_drive.eds"
 SENSOR_EDS = EDS_DIR / "force_sensor.eds"
 NMT_OPERATIONAL = 5
 WATCHDOG_PERIOD_S = 0.005
+# A watchdog tick this late means the simulator's process was not running: SYNC frames may be
+# waiting unread in its socket, so this tick does not judge them lost (see _watchdog_loop).
+STARVED_TICK_S = 4 * WATCHDOG_PERIOD_S
+
+
+def watchdog_due(now_s: float, previous_tick_s: float, last_sync_s: float | None, sync_timeout_s: float) -> bool:
+    """Whether the watchdog thread advances the drives itself on this tick.
+
+    Only when SYNC is overdue by half the drives' timeout, and not on the first tick after a
+    stall of the simulator's process, when unread SYNC frames may be waiting in its socket.
+    """
+    if now_s - previous_tick_s > STARVED_TICK_S:
+        return False
+    return last_sync_s is None or now_s - last_sync_s >= 0.5 * sync_timeout_s
 
 
 class Simulator:
@@ -106,7 +120,7 @@ class Simulator:
     def _wire_drive(self, node: canopen.LocalNode, drive: SimulatedDrive) -> None:
         def on_read(index: int, subindex: int, od: object) -> int | None:
             with self.lock:
-                self.plant.advance(self.clock())
+                self.plant.advance(self.clock(), check_sync_timeout=False)
                 return {
                     0x6041: drive.statusword, 0x6064: drive.position_counts,
                     0x6061: lambda: drive.mode_of_operation, 0x603F: lambda: drive.error_code,
@@ -145,7 +159,7 @@ class Simulator:
                 self.rejected_frames += 1
                 return
             with self.lock:
-                self.plant.advance(self.clock())
+                self.plant.advance(self.clock(), check_sync_timeout=False)
                 self.drives[j].on_rpdo(controlword, target)
                 self._flush_emcy()
 
@@ -218,10 +232,15 @@ class Simulator:
         # While SYNC arrives, the SYNC handler keeps the plant integrated; this thread only
         # steps in when it is overdue (controller gone), so the drives' SYNC watchdogs fire.
         # Taking the lock every time would delay the SYNC answers it competes with.
+        # After a stall of the whole process the next tick is skipped, so the SYNC handler gets
+        # to the frames that arrived meanwhile before anyone decides they never came.
         timeout = self.cfg.sim.drive.sync_timeout_s
+        previous_tick_s = self.clock()
         while not self._stop.wait(WATCHDOG_PERIOD_S):
-            last = self.plant.last_sync_s
-            if last is not None and self.clock() - last < 0.5 * timeout:
+            now = self.clock()
+            due = watchdog_due(now, previous_tick_s, self.plant.last_sync_s, timeout)
+            previous_tick_s = now
+            if not due:
                 continue
             with self.lock:
                 self.plant.advance(self.clock())

@@ -10,17 +10,14 @@ import sys
 from pathlib import Path
 
 import pytest
+from busy_machine import TOLERANT
 
 from controller.demo import simulator_process
 from drivers.bus import parse_bus_spec
 
 pytestmark = pytest.mark.integration
 CHEOPE = [sys.executable, "-m", "controller"]
-# These tests check the plumbing between processes, not real-time behaviour: on a 2-core
-# machine that is busy with other work a process can be descheduled for milliseconds, so
-# they tolerate 10 silent cycles instead of 3 (missing-frame faults have their own,
-# deterministic tests in test_control_law.py).
-TOLERANT = ["--set", "loop.max_missing_cycles=10", "--set", 'safety.on_late_cycles="warn"']
+# Missing-frame faults have their own, deterministic tests in test_control_law.py.
 
 
 def _port() -> int:

@@ -21,6 +21,7 @@ from sim_backend.drive import EMCY_HEARTBEAT_LOST, EMCY_POSITION_RANGE, EMCY_SYN
 from sim_backend.force_sensor import SensorParams, SimulatedForceSensor
 from sim_backend.mechanics import ComplianceParams, CompliantTool
 from sim_backend.plant import RobotPlant, drive_params_from_config
+from sim_backend.server import STARVED_TICK_S, WATCHDOG_PERIOD_S, watchdog_due
 
 PERIOD = 0.0025
 COUNTS = 1e7
@@ -72,6 +73,26 @@ def test_quick_stops_when_sync_stops():
     assert EMCY_SYNC_LOST in d.pending_emcy
     d.advance(t + 0.2)  # 0.2 m/s at 5 m/s^2 stops within 40 ms
     assert d.velocity == 0.0
+
+
+def test_a_sync_handled_late_is_not_a_lost_sync():
+    # The simulator's process was not scheduled for 60 ms; the SYNC waited in its socket.
+    d, t = enabled_drive()
+    t = cycle(d, t, 0.55)
+    d.on_rpdo(CW_ENABLE_OPERATION, round(0.55 * COUNTS))
+    d.on_sync(t + 0.06)
+    assert d.power == PowerState.OPERATION_ENABLED
+    assert EMCY_SYNC_LOST not in d.pending_emcy
+
+
+def test_the_watchdog_thread_skips_the_tick_after_a_stall_of_its_process():
+    timeout = 0.05
+    on_time = 10.0 - WATCHDOG_PERIOD_S
+    assert not watchdog_due(10.0, on_time, last_sync_s=9.99, sync_timeout_s=timeout)  # SYNC recent
+    assert watchdog_due(10.0, on_time, last_sync_s=9.97, sync_timeout_s=timeout)  # overdue by half
+    assert watchdog_due(10.0, on_time, last_sync_s=None, sync_timeout_s=timeout)  # never had one
+    stalled = 10.0 - STARVED_TICK_S - 0.001
+    assert not watchdog_due(10.0, stalled, last_sync_s=9.9, sync_timeout_s=timeout)
 
 
 def test_quick_stops_when_the_controller_heartbeat_stops():
