@@ -179,3 +179,21 @@ def test_a_nan_position_faults_at_once():
     state, out, events = law.step(state, bad, cfg.period_s)
     assert state.mode == Mode.FAULT
     assert "actuator 1 measured at nan m" in state.fault_reason
+
+
+def test_velocity_tracking_follows_a_steady_reference_without_lag_or_chatter():
+    # A reactive reference moving at 0.05 m/s: once on it, the setpoint must advance by v T
+    # each cycle. Sampling the velocity profile at its end instead of a period ahead lost
+    # (T - duration) of travel per cycle, and the correction made the acceleration chatter.
+    period, v, c = 0.0025, 0.05, 0.25 / 0.0025
+    smoother = RuckigSmoother(AxisLimits((1.0,), (10.0,), (400.0,)), period)
+    sp = Setpoint((0.0,), (v,), (0.0,))
+    accelerations = []
+    for k in range(1, 401):
+        result = smoother.track_velocity(sp, (v * k * period,), (v,), c)
+        assert result.ok
+        sp = result.setpoint
+        accelerations.append(sp.acceleration[0])
+    assert sp.position[0] == pytest.approx(v * 400 * period, abs=1e-9)
+    assert sp.velocity[0] == pytest.approx(v, abs=1e-9)
+    assert max(abs(a) for a in accelerations) < 1e-6
