@@ -7,7 +7,7 @@ from dataclasses import replace
 
 import pytest
 
-from controller.analysis.contour_report import ContourObserver, contour_summary
+from controller.analysis.contour_report import ContourObserver, constant_speed_laps, contour_summary
 from controller.config import load_config
 from controller.control_law import Mode
 from controller.cycle_data import CycleInputs, DriveFeedback, SensorFeedback
@@ -178,3 +178,12 @@ def test_closed_loop_tracks_with_linear_motor_cogging_on():
     for lap in summary["laps"]:
         assert lap["force_error_rms_n"] < 1.5
         assert lap["contact_losses"] == 0
+
+
+def test_the_stiffness_correlation_uses_the_laps_after_the_last_speed_change():
+    # the paper's laps IV and V: lap III starts by accelerating from lap II's speed
+    assert constant_speed_laps((0.02, 0.04, 0.06, 0.06, 0.06), 5) == [3, 4]
+    assert constant_speed_laps((0.02, 0.04, 0.06, 0.06, 0.06), 4) == [3]  # a run that ended early
+    assert constant_speed_laps((0.05, 0.05), 2) == [1]
+    assert constant_speed_laps((0.05, 0.08), 2) == [1]  # no lap at constant speed: the last one
+    assert constant_speed_laps(None, 1) == [0]  # the position-controlled comparison

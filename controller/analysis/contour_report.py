@@ -3,7 +3,7 @@
 ``ContourObserver`` collects, while the tool tracks the contour, the normal force, its error,
 the commanded tangential speed, the measured TCP and the estimated normal. The summary gives
 per lap the commanded and achieved tangential speed, the normal-force error (RMS, max) and
-the contact losses, and over the constant-speed laps the correlation between the force error
+the contact losses, and over the constant-speed laps (IV and V) the correlation between the force error
 and the robot's stiffness along the contour normal, k_n = k n^T J^T J n (seed 001 §6): the
 paper reports a worse force error where the normal lies along the minor axis of the
 stiffness ellipsoid, i.e. a negative correlation.
@@ -93,6 +93,21 @@ def _normal_stiffness(robot: CheopeRobot, stiffness_n_m: float, xy: np.ndarray, 
     return out
 
 
+def constant_speed_laps(lap_speeds_m_s: tuple[float, ...] | None, laps: int) -> list[int]:
+    """The laps (0-based) run at the speed of the lap before: the paper's laps IV and V.
+
+    A lap at a new speed starts with the change of speed (laps I-III), a transient that
+    would otherwise land in the contour-angle bins where the laps start. Without lap speeds
+    (the position-controlled comparison, one lap) every lap counts; when every lap changes
+    speed, the last lap does.
+    """
+    if not lap_speeds_m_s:
+        return list(range(laps))
+    n = min(laps, len(lap_speeds_m_s))
+    const = [k for k in range(1, n) if lap_speeds_m_s[k] == lap_speeds_m_s[k - 1]]
+    return const or ([n - 1] if n > 0 else [])
+
+
 def contour_summary(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: float, height_m: float,
                     lap_speeds_m_s: tuple[float, ...] | None) -> dict[str, object]:
     if not obs.t:
@@ -118,9 +133,8 @@ def contour_summary(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: flo
             "contact_losses": int(obs.contact_losses[k]) if k < len(obs.contact_losses)
             else int(np.count_nonzero(np.diff((np.array(obs.fn)[m] < 0.5).astype(int)) == 1)),
         })
-    # correlation over the constant-speed laps (the last ones), binned by 10 deg of contour angle
-    last_speed = lap_speeds_m_s[-1] if lap_speeds_m_s else None
-    const = [k for k in range(obs.laps) if lap_speeds_m_s is None or lap_speeds_m_s[k] == last_speed]
+    # correlation over the constant-speed laps, binned by 10 deg of contour angle
+    const = constant_speed_laps(lap_speeds_m_s, obs.laps)
     m = np.isin(lap, const)
     kn = _normal_stiffness(robot, stiffness_n_m, xy[m], height_m, np.array(obs.normal)[m])
     angle = np.degrees(np.arctan2(xy[m, 1] - obs.centre_m[1], xy[m, 0] - obs.centre_m[0]))
