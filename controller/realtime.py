@@ -24,8 +24,8 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import errno
-import os
 import gc
+import os
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass

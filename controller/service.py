@@ -21,7 +21,13 @@ from controller.config import Config, ConfigError
 from controller.control_law import ControlLaw, LawConfig, SafetyConfig
 from controller.loop import CycleLoop, CycleObserver, DeadlineSleeper
 from controller.monitoring.publisher import monitoring_context
-from controller.realtime import freeze_garbage_collector, RealtimeOptions, apply_realtime, check_realtime, set_gil_switch_interval
+from controller.realtime import (
+    RealtimeOptions,
+    apply_realtime,
+    check_realtime,
+    freeze_garbage_collector,
+    set_gil_switch_interval,
+)
 from controller.robots.cheope import CheopeRobot
 from controller.robots.registry import actuator_units, robot_from_config
 from controller.run_summary import RunRecorder, summarize

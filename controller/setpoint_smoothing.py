@@ -109,13 +109,15 @@ class RuckigSmoother:
         inp.current_position = current.position
         inp.current_velocity = current.velocity
         inp.current_acceleration = current.acceleration
-        # The reference is for the sample one period ahead: compare it with where the setpoint
-        # would be then, or the setpoint settles a period's travel ahead of its reference.
         h = self._period_s
-        inp.target_velocity = [min(max(v + correction_per_s * (q_ref - (q + h * qd + 0.5 * h * h * qdd)), -m), m)
-                               for v, q_ref, q, qd, qdd, m in zip(target_velocity, target_position, current.position,
-                                                                  current.velocity, current.acceleration,
-                                                                  lim.max_velocity)]
+        targets = []
+        for v, q_ref, q, qd, qdd, m in zip(target_velocity, target_position, current.position, current.velocity,
+                                           current.acceleration, lim.max_velocity):
+            # The reference is for the sample one period ahead: compare it with where the setpoint
+            # would be then, or the setpoint settles a period's travel ahead of its reference.
+            q_then = q + h * qd + 0.5 * h * h * qdd
+            targets.append(min(max(v + correction_per_s * (q_ref - q_then), -m), m))
+        inp.target_velocity = targets
         inp.target_acceleration = self._zeros
         return self._calculate(inp, current)
 

@@ -52,7 +52,7 @@ from sim_backend.contact_disk import DiskEnvironment, DiskParams
 from sim_backend.drive import DriveParams, SimulatedDrive
 from sim_backend.environment import ZERO3, Environment, FreeSpace
 from sim_backend.force_sensor import SensorParams, SimulatedForceSensor
-from sim_backend.mechanics import ComplianceParams, CompliantTool, Matrix3, NO_ACCELERATION, as_rows, matvec
+from sim_backend.mechanics import NO_ACCELERATION, ComplianceParams, CompliantTool, Matrix3, as_rows, matvec
 
 log = logging.getLogger(__name__)
 
