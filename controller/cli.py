@@ -118,7 +118,8 @@ def _print_summary(summary: dict[str, Any], as_json: bool) -> None:
                          f"{lap['speed_achieved_m_s'] * 1000:<8.1f}        {lap['force_error_rms_n']:>6.2f} / "
                          f"{lap['force_error_max_n']:<6.2f}          {lap['contact_losses']}")
         lines.append(f"force error vs normal stiffness: correlation "
-                     f"{contour['force_error_vs_normal_stiffness_correlation']}")
+                     f"{contour['force_error_vs_normal_stiffness_correlation']}, RMS soft half / stiff half "
+                     f"{contour['force_error_rms_soft_over_stiff']}")
     cmp = summary.get("position_control_comparison")
     if cmp and cmp.get("laps"):
         lap = cmp["laps"][0]

@@ -229,6 +229,7 @@ class ContourSection:
     retract_speed_m_s: float = field(default=0.02, metadata=_r(0.0, 1.0, lo_open=True))
     tare_s: float = field(default=0.1, metadata=_r(0.0, 60.0, lo_open=True))
     friction_estimate: float = field(default=0.1, metadata=_r(0.0, 2.0))
+    normal_tracker_hz: float = field(default=1.5, metadata=_r(0.01, 50.0))
     comparison_press_m: float = field(default=6.0e-5, metadata=_r(0.0, 0.01))
     direction: int = field(default=1, metadata={"range": (-1, 1, False)})
 
@@ -258,9 +259,9 @@ class SimDriveSection:
     initial_positions_m: tuple[float, float, float] = (0.71508, 0.56794, 0.42697)  # TCP at (0.09, 0, 0.5) m
     # Cheope's linear motors: a cogging force A sin(2 pi q / period + phase) on each carriage, acting
     # through the structure's actuator stiffness (sim_backend/plant.py); 0 N disables it
-    cogging_force_n: float = field(default=0.0, metadata=_r(0.0, 1e4))
+    cogging_force_n: float = field(default=2.0, metadata=_r(0.0, 1e4))
     cogging_period_m: float = field(default=0.024, metadata=_r(0.0, 1.0, lo_open=True))
-    cogging_phases_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    cogging_phases_deg: tuple[float, float, float] = (0.0, 120.0, 240.0)
 
 
 @dataclass(frozen=True)

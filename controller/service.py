@@ -94,6 +94,7 @@ def build_contour_task(cfg: Config, robot: CheopeRobot) -> ContourTrackingTask:
         reapproach_on_contact_loss=c.on_contact_loss == "reapproach", retract_distance_m=c.retract_distance_m,
         retract_speed_m_s=c.retract_speed_m_s, tare_s=c.tare_s, settle_tolerance_m=cfg.loop.settle_tolerance_m,
         friction_estimate=c.friction_estimate, direction=c.direction,
+        normal_tracker_hz=c.normal_tracker_hz,
     )
     # The whole neighbourhood the task may visit: the expected contour, widened by the approach.
     ring = []

@@ -18,7 +18,7 @@ nSPU's planned start pose); ``sim.drive.initial_positions_m`` is Cheope's. Only 
 the compliant structure and the contact environment.
 
 Two loads on Cheope's compliant structure (``sim_backend/mechanics.py``): the cogging force
-(off by default) and the inertial load (on by default; the contour task's force filter and the
+(2 N by default) and the inertial load (on by default; the contour task's force filter and the
 structure's damping in cheope.toml are set for it):
 
 - ``sim.drive.cogging_force_n``: the cogging (detent) force of an iron-core linear motor,
@@ -28,8 +28,10 @@ structure's damping in cheope.toml are set for it):
   J^-1 F / k, largest along the minor axis of J^T J (seed 001 §6: the velocity ellipsoid
   "indicates also the effects on repeatability ... due to uncertainty of joint motion").
   Typical values: 1-2 % of the rated force for iron-core motors (ironless ones have none but a
-  smaller force ripple), magnet pitches of a few centimetres; Cheope's motors are not
-  documented in seed 001, so none is assumed by default.
+  smaller force ripple), magnet pitches of a few centimetres. Cheope's motors are not
+  documented in seed 001; the default, 2 N (about 1 % of a 200 N motor) with the three magnet
+  tracks mounted 120 deg apart, is the force-type disturbance through which the structure's
+  compliance shows in the contour's force error (README, "Contour tracking").
 - ``sim.structure_inertial_load``: the deflection is measured from the kinematic TCP, which
   accelerates with the drives, so M (s_kin'' + x'') = F - K x - D x'; s_kin'' = J^-1 q''
   (the J' s' term, about v^2 / rod length, is left out). Off, the tool follows the kinematic

@@ -93,6 +93,22 @@ def _normal_stiffness(robot: CheopeRobot, stiffness_n_m: float, xy: np.ndarray, 
     return out
 
 
+def _soft_over_stiff(err: np.ndarray, kn: np.ndarray) -> float | None:
+    """RMS force error where k_n is below its median over the RMS where it is above.
+
+    A second, blunter reading of the same relation: the angle-binned correlation mixes in
+    whatever else varies around the contour (the cogging's phase, the carriages' speeds);
+    the two halves average over it. Above 1: worse along the minor axis, as in the paper.
+    """
+    if kn.size < 10:
+        return None
+    soft = kn < np.median(kn)
+    stiff_rms = float(np.sqrt(np.mean(err[~soft] ** 2)))
+    if not soft.any() or stiff_rms == 0.0:
+        return None
+    return round(float(np.sqrt(np.mean(err[soft] ** 2))) / stiff_rms, 3)
+
+
 def constant_speed_laps(lap_speeds_m_s: tuple[float, ...] | None, laps: int) -> list[int]:
     """The laps (0-based) run at the speed of the lap before: the paper's laps IV and V.
 
@@ -112,6 +128,7 @@ def contour_summary(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: flo
                     lap_speeds_m_s: tuple[float, ...] | None) -> dict[str, object]:
     if not obs.t:
         return {"samples": 0, "laps": [], "force_error_vs_normal_stiffness_correlation": None,
+                "force_error_rms_soft_over_stiff": None,
                 "normal_stiffness_range_n_m": None}
     t = np.array(obs.t)
     lap = np.array(obs.lap)
@@ -150,6 +167,7 @@ def contour_summary(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: flo
         "samples": int(t.size),
         "laps": laps,
         "force_error_vs_normal_stiffness_correlation": None if corr is None else round(corr, 3),
+        "force_error_rms_soft_over_stiff": _soft_over_stiff(err[m], kn),
         "normal_stiffness_range_n_m": [round(float(kn.min()), 0), round(float(kn.max()), 0)] if kn.size else None,
     }
 

@@ -95,6 +95,7 @@ class ContourParams:
     settle_tolerance_m: float
     friction_estimate: float = 0.0
     direction: int = 1
+    normal_tracker_hz: float = 1.5
 
 
 @dataclass(frozen=True, slots=True)
@@ -103,6 +104,7 @@ class ContourState:
     p_cmd: tuple[float, float, float] = (0.0, 0.0, 0.0)
     speed_m_s: float = 0.0  # tangential speed command
     normal: tuple[float, float] = (1.0, 0.0)  # outward contour normal estimate (XY)
+    normal_rate_rad_s: float = 0.0  # how fast the normal turns (the tracker's second state)
     force_f: tuple[float, float, float] = (0.0, 0.0, 0.0)  # filtered, offset removed [N]
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor offset found by the tare [N]
     tare_sum: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # sum fx, fy, fz, count
@@ -130,6 +132,20 @@ def _unit2(x: float, y: float) -> tuple[float, float] | None:
 
 def _wrap(a: float) -> float:
     return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def track_normal(angle_rad: float, rate_rad_s: float, measured_rad: float, dt: float, natural_hz: float
+                 ) -> tuple[float, float]:
+    """One step of a second-order (type-2) tracker of the normal's angle: (angle, turn rate).
+
+    theta' = omega + 2 zeta w_n (theta_m - theta), omega' = w_n^2 (theta_m - theta), zeta = 1/sqrt(2):
+    it follows a normal turning at a constant rate (a circle at constant speed, v / R) without lag,
+    and passes the force direction's noise only up to about ``natural_hz``.
+    """
+    wn = 2.0 * math.pi * natural_hz
+    predicted = angle_rad + rate_rad_s * dt
+    innovation = _wrap(measured_rad - predicted)
+    return _wrap(predicted + math.sqrt(2.0) * wn * dt * innovation), rate_rad_s + wn * wn * dt * innovation
 
 
 def _fit_add(fit: tuple[float, ...], x: float, y: float) -> tuple[float, ...]:
@@ -242,7 +258,7 @@ class ContourTrackingTask:
         if f_xy >= p.contact_force_n:
             n = _unit2(s.force_f[0], s.force_f[1]) or s.normal
             event = Event("contact", Severity.INFO, f"contact at {f_xy:.2f} N after {s.travel_m * 1000:.1f} mm")
-            s = replace(s, phase=ContourPhase.TRACKING, normal=n, integral=0.0, low_force_cycles=0,
+            s = replace(s, phase=ContourPhase.TRACKING, normal=n, normal_rate_rad_s=0.0, integral=0.0, low_force_cycles=0,
                         phase_start_s=ctx.t_s)
             return self._tracking(s, ctx, (event,))
         limit = p.approach_clearance_m + p.max_approach_distance_m
@@ -260,12 +276,14 @@ class ContourTrackingTask:
         dt = ctx.period_s
         fx, fy = s.force_f[0], s.force_f[1]
         f_xy = math.hypot(fx, fy)
-        normal = s.normal
+        normal, rate = s.normal, s.normal_rate_rad_s
         if f_xy >= p.normal_min_force_n:
             mu = p.friction_estimate if s.speed_m_s > 0.0 else 0.0
             t_prev = (-normal[1] * p.direction, normal[0] * p.direction)
             k = mu * f_xy / math.sqrt(1.0 + mu * mu)  # friction force magnitude mu F_n
-            normal = _unit2(fx + k * t_prev[0], fy + k * t_prev[1]) or normal
+            measured = math.atan2(fy + k * t_prev[1], fx + k * t_prev[0])
+            angle, rate = track_normal(math.atan2(normal[1], normal[0]), rate, measured, dt, p.normal_tracker_hz)
+            normal = (math.cos(angle), math.sin(angle))
         fn = fx * normal[0] + fy * normal[1]  # normal force pressing the tool out of the object
         if fn > p.max_force_n:
             why = f"contact force {fn:.1f} N above the limit of {p.max_force_n} N"
@@ -310,7 +328,7 @@ class ContourTrackingTask:
         ev_list = list(events)
         if lap > s.lap:
             ev_list.append(Event("lap", Severity.INFO, f"lap {s.lap + 1} of {self.laps} done"))
-        s = replace(s, p_cmd=self._move(s, v, dt), speed_m_s=speed, normal=normal, integral=integral,
+        s = replace(s, p_cmd=self._move(s, v, dt), speed_m_s=speed, normal=normal, normal_rate_rad_s=rate, integral=integral,
                     normal_force_n=fn, force_error_n=err, swept_rad=swept, last_angle=angle, lap=lap, fit=fit,
                     centre=centre, low_force_cycles=low)
         if lap >= self.laps:
