@@ -61,14 +61,15 @@ def run_contour_experiment(cfg: Config, spec: BusSpec, plot_dir: Path | None, ma
     else:
         pos_obs = None
     if plot_dir is not None:
-        plots = plot_contour(force_obs, robot, stiffness, masses, c.height_m, plot_dir, "force control")
+        plots = plot_contour(force_obs, robot, stiffness, masses, c.height_m, plot_dir, "force control",
+                             c.lap_speeds_m_s)
         if pos_obs is not None and pos_obs.t:
             plots += plot_contour(pos_obs, robot, stiffness, masses, c.height_m, plot_dir, "position control")
         summary["plots"] = [str(p) for p in plots]
     return summary
 
 
-def run_simulated_time(cfg: Config, max_duration_s: float = 600.0) -> dict[str, object]:
+def run_simulated_time(cfg: Config, max_duration_s: float = 600.0, plot_dir: Path | None = None) -> dict[str, object]:
     """The force-controlled laps against the in-process devices in simulated time.
 
     Deterministic and free of the machine's timing: the reference to compare a run over a
@@ -85,7 +86,14 @@ def run_simulated_time(cfg: Config, max_duration_s: float = 600.0) -> dict[str, 
     obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s))
     final, stats = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
                              observers=(obs,)).run(law.initial_state(), max_duration_s)
-    return {"final_mode": final.mode.name, "fault_reason": final.fault_reason, "cycles": stats.cycles,
-            "simulated_time": True,
-            "contour": contour_summary(obs, build_robot(cfg), cfg.robot.mass.actuator_stiffness_n_m, c.height_m,
-                                       c.lap_speeds_m_s)}
+    robot = build_robot(cfg)
+    stiffness = cfg.robot.mass.actuator_stiffness_n_m
+    summary: dict[str, object] = {
+        "final_mode": final.mode.name, "fault_reason": final.fault_reason, "cycles": stats.cycles,
+        "simulated_time": True, "contour": contour_summary(obs, robot, stiffness, c.height_m, c.lap_speeds_m_s)}
+    if plot_dir is not None:
+        m = cfg.robot.mass
+        plots = plot_contour(obs, robot, stiffness, MassModel(m.platform_kg, m.slider_kg, m.rod_pair_kg), c.height_m,
+                             plot_dir, "force control", c.lap_speeds_m_s)
+        summary["plots"] = [str(p) for p in plots]
+    return summary

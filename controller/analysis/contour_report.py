@@ -124,6 +124,38 @@ def constant_speed_laps(lap_speeds_m_s: tuple[float, ...] | None, laps: int) -> 
     return const or ([n - 1] if n > 0 else [])
 
 
+@dataclass(frozen=True)
+class DirectionStatistics:
+    """The force error against the stiffness along the normal, over the constant-speed laps."""
+
+    error_n: np.ndarray  # per sample
+    normal_stiffness_n_m: np.ndarray  # per sample, k n^T J^T J n
+    bin_angle_deg: np.ndarray  # centres of the 10 deg bins of contour angle
+    bin_error_rms_n: np.ndarray
+    bin_stiffness_n_m: np.ndarray
+    correlation: float | None
+
+
+def direction_statistics(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: float, height_m: float,
+                         lap_speeds_m_s: tuple[float, ...] | None) -> DirectionStatistics:
+    lap = np.array(obs.lap)
+    xy = np.array(obs.xy)
+    m = np.isin(lap, constant_speed_laps(lap_speeds_m_s, obs.laps))
+    err = (obs.force_setpoint_n - np.array(obs.fn))[m]
+    kn = _normal_stiffness(robot, stiffness_n_m, xy[m], height_m, np.array(obs.normal)[m])
+    angle = np.degrees(np.arctan2(xy[m, 1] - obs.centre_m[1], xy[m, 0] - obs.centre_m[0]))
+    bins = np.floor((angle + 180.0) / 10.0).astype(int)
+    centres, bin_err, bin_k = [], [], []
+    for b in np.unique(bins):
+        sel = bins == b
+        if np.count_nonzero(sel) >= 5:
+            centres.append(-175.0 + 10.0 * b)
+            bin_err.append(float(np.sqrt(np.mean(err[sel] ** 2))))
+            bin_k.append(float(np.mean(kn[sel])))
+    corr = float(np.corrcoef(bin_k, bin_err)[0, 1]) if len(bin_k) > 3 else None
+    return DirectionStatistics(err, kn, np.array(centres), np.array(bin_err), np.array(bin_k), corr)
+
+
 def contour_summary(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: float, height_m: float,
                     lap_speeds_m_s: tuple[float, ...] | None) -> dict[str, object]:
     if not obs.t:
@@ -150,31 +182,28 @@ def contour_summary(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: flo
             "contact_losses": int(obs.contact_losses[k]) if k < len(obs.contact_losses)
             else int(np.count_nonzero(np.diff((np.array(obs.fn)[m] < 0.5).astype(int)) == 1)),
         })
-    # correlation over the constant-speed laps, binned by 10 deg of contour angle
-    const = constant_speed_laps(lap_speeds_m_s, obs.laps)
-    m = np.isin(lap, const)
-    kn = _normal_stiffness(robot, stiffness_n_m, xy[m], height_m, np.array(obs.normal)[m])
-    angle = np.degrees(np.arctan2(xy[m, 1] - obs.centre_m[1], xy[m, 0] - obs.centre_m[0]))
-    bins = np.floor((angle + 180.0) / 10.0).astype(int)
-    bin_err, bin_k = [], []
-    for b in np.unique(bins):
-        sel = bins == b
-        if np.count_nonzero(sel) >= 5:
-            bin_err.append(float(np.sqrt(np.mean(err[m][sel] ** 2))))
-            bin_k.append(float(np.mean(kn[sel])))
-    corr = float(np.corrcoef(bin_k, bin_err)[0, 1]) if len(bin_k) > 3 else None
+    d = direction_statistics(obs, robot, stiffness_n_m, height_m, lap_speeds_m_s)
+    corr = d.correlation
     return {
         "samples": int(t.size),
         "laps": laps,
         "force_error_vs_normal_stiffness_correlation": None if corr is None else round(corr, 3),
-        "force_error_rms_soft_over_stiff": _soft_over_stiff(err[m], kn),
-        "normal_stiffness_range_n_m": [round(float(kn.min()), 0), round(float(kn.max()), 0)] if kn.size else None,
+        "force_error_rms_soft_over_stiff": _soft_over_stiff(d.error_n, d.normal_stiffness_n_m),
+        "normal_stiffness_range_n_m": [round(float(d.normal_stiffness_n_m.min()), 0),
+                                       round(float(d.normal_stiffness_n_m.max()), 0)]
+        if d.normal_stiffness_n_m.size else None,
     }
 
 
 def plot_contour(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: float, masses: MassModel,
-                 height_m: float, out: Path, title: str = "force control") -> list[Path]:
-    """Fig. 9: force and speed against time with the laps; Fig. 8: the contour and the error."""
+                 height_m: float, out: Path, title: str = "force control",
+                 lap_speeds_m_s: tuple[float, ...] | None = None) -> list[Path]:
+    """Fig. 9: force and speed against time with the laps; Fig. 8: the contour and the error.
+
+    The Fig. 8 panel shows the constant-speed laps (``constant_speed_laps``), with the colour
+    scale clipped at their 99th percentile so that a single spike does not wash the map out,
+    and beside it the error and the stiffness along the normal per 10 deg of contour angle.
+    """
     if len(obs.t) < 3:
         return []  # nothing was tracked (the run faulted before contact): no plot to draw
     out.mkdir(parents=True, exist_ok=True)
@@ -205,10 +234,13 @@ def plot_contour(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: float,
     fig.savefig(p1, dpi=110)
     plt.close(fig)
 
-    fig, ax = plt.subplots(figsize=(7.5, 7))
-    err = np.abs(obs.force_setpoint_n - fn)
-    sc = ax.scatter(xy[:, 0] * 1000, xy[:, 1] * 1000, c=err, s=3, cmap="inferno_r")
-    fig.colorbar(sc, ax=ax, label="|normal-force error| [N]")
+    fig, (ax, ab) = plt.subplots(1, 2, figsize=(14, 6.5), gridspec_kw={"width_ratios": [1.1, 1.0]})
+    const = np.isin(lap, constant_speed_laps(lap_speeds_m_s, obs.laps))
+    err = np.abs(obs.force_setpoint_n - fn[const])
+    sc = ax.scatter(xy[const, 0] * 1000, xy[const, 1] * 1000, c=err, s=3, cmap="inferno_r",
+                    vmin=0.0, vmax=float(np.percentile(err, 99)) if err.size else None)
+    laps_shown = ", ".join(str(k + 1) for k in constant_speed_laps(lap_speeds_m_s, obs.laps))
+    fig.colorbar(sc, ax=ax, label=f"|normal-force error| [N], laps {laps_shown} (99th percentile clipped)")
     # stiffness and mass ellipses (XY sections) at 8 points of the contour
     c = np.array(obs.centre_m)
     r = float(np.median(np.hypot(*(xy - c).T))) if xy.size else 0.07
@@ -229,6 +261,18 @@ def plot_contour(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: float,
     ax.set_xlabel("x [mm]")
     ax.set_ylabel("y [mm]")
     ax.set_title(f"Contour ({title}) and force error, with stiffness and mass ellipses (cf. Fig. 8)", fontsize=9)
+    d = direction_statistics(obs, robot, stiffness_n_m, height_m, lap_speeds_m_s)
+    ab.plot(d.bin_angle_deg, d.bin_error_rms_n, "o-", color="tab:red", ms=3, label="force error RMS per 10 deg")
+    ab.set_xlabel("contour angle around the centre [deg]")
+    ab.set_ylabel("normal-force error RMS [N]", color="tab:red")
+    ab.set_xlim(-180, 180)
+    ak = ab.twinx()
+    ak.plot(d.bin_angle_deg, d.bin_stiffness_n_m / 1e6, "s--", color="tab:blue", ms=3, label="k n^T J^T J n")
+    ak.set_ylabel("robot stiffness along the normal [N/um]", color="tab:blue")
+    ratio = _soft_over_stiff(d.error_n, d.normal_stiffness_n_m)
+    corr = "n/a" if d.correlation is None else f"{d.correlation:+.2f}"
+    ab.set_title(f"error and stiffness along the normal: correlation {corr}, RMS soft half / stiff half {ratio}",
+                 fontsize=9)
     fig.tight_layout()
     p2 = out / f"contour_error_map_{title.replace(' ', '_')}.png"
     fig.savefig(p2, dpi=110)
