@@ -144,16 +144,24 @@ def _print_summary(summary: dict[str, Any], as_json: bool) -> None:
     print("\n".join(lines))
 
 
+def demo_defaults(args: argparse.Namespace) -> argparse.Namespace:
+    """Cheope's demo is the paper's experiment: without --task, the contour (a --config file keeps its own)."""
+    if args.task is None and args.config is None and args.robot in (None, "cheope"):
+        return argparse.Namespace(**{**vars(args), "task": "contour"})
+    return args
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     from controller.demo import random_udp_port, run_demo
 
+    args = demo_defaults(args)  # also for the simulator's overrides: the disk is there for the contour
     cfg = _config(args)
     if args.simulated_time:
         from controller.contour_experiment import run_simulated_time
 
         if cfg.task.kind != "contour":
             raise ConfigError("--simulated-time runs the contour experiment: use it with --task contour")
-        summary = run_simulated_time(cfg, args.max_duration)
+        summary = run_simulated_time(cfg, args.max_duration, Path(args.plot) if args.plot else None)
         print(json.dumps(summary) if args.json else json.dumps(summary, indent=1))
         return 0 if summary["final_mode"] == "DONE" else 1
     spec = _spec(args, cfg, default_port=random_udp_port())
@@ -280,8 +288,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--max-duration", type=float, default=600.0, help="stop after this many seconds")
     p.add_argument("--task", choices=("path", "contour"),
-                   help="Cheope's task (default: the configured one, the circle path): contour runs the paper's "
-                        "force-controlled contour tracking, then the same contour under position control")
+                   help="Cheope's task (default: contour, or the task of the --config file): contour runs the "
+                        "paper's force-controlled contour tracking, then the same contour under position control; "
+                        "path: once around the configured circle")
     p.add_argument("--plot", metavar="DIR", help="write the contour experiment's PNG plots here")
     p.add_argument("--simulated-time", action="store_true",
                    help="with --task contour: run the laps against the in-process devices in simulated time "

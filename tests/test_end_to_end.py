@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 from busy_machine import TOLERANT
 
+from controller import cli
 from controller.demo import simulator_process
 from drivers.bus import parse_bus_spec
 
@@ -44,6 +45,34 @@ def test_demo_runs_the_path_task_end_to_end():
     # SYNC period moves the drives' interpolators: allow 0.3 mm on a busy machine
     assert s["tracking_error_m"]["rms"] < 3e-4
     assert set(s["period_error_us"]) == {"p50", "p99", "max"}
+
+
+def test_demo_runs_the_contour_experiment_over_the_bus_by_default():
+    """The demo's default on Cheope: approach, the laps (one here), retract, then the comparison."""
+    r = _cheope("demo", "--json", "--set", "task.contour.lap_speeds_m_s=[0.06]", "--udp-port", str(_port()),
+                *TOLERANT, timeout=240.0)
+    assert r.returncode == 0, r.stderr + r.stdout
+    s = json.loads(r.stdout)
+    assert s["final_mode"] == "DONE", s["fault_reason"]
+    (lap,) = s["contour"]["laps"]
+    assert lap["speed_achieved_m_s"] == pytest.approx(0.06, rel=0.1)  # includes the ramp from rest
+    assert lap["contact_losses"] == 0 and lap["force_error_rms_n"] < 2.0  # 0.7 N in simulated time
+    cmp = s["position_control_comparison"]
+    assert cmp["final_mode"] == "DONE" and cmp["laps"][0]["force_error_max_n"] > 100.0  # the disk is 2.2 mm off
+
+
+def test_demo_task_defaults(tmp_path):
+    def task_of(*argv: str) -> str:
+        return cli._config(cli.demo_defaults(cli.build_parser().parse_args(["demo", *argv]))).task.kind
+
+    assert task_of() == "contour"
+    assert task_of("--task", "path") == "path"
+    assert task_of("--set", 'task.kind="path"') == "path"  # --set wins over the default, as over --task
+    own = tmp_path / "mine.toml"
+    own.write_text('[task]\nkind = "path"\n')
+    assert task_of("--config", str(own)) == "path"  # a configuration file keeps its task
+    # the simulator process gets the same task, so it puts the disk there
+    assert 'task.kind="contour"' in cli._overrides(cli.demo_defaults(cli.build_parser().parse_args(["demo"])))
 
 
 def test_run_against_a_separately_started_simulator():

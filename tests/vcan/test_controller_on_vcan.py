@@ -56,7 +56,7 @@ def _popen(*args: str) -> subprocess.Popen[str]:
 
 
 def test_demo_runs_end_to_end_on_vcan(vcan_channel: str, tmp_path: Path) -> None:
-    r = _cheope("demo", "--json", "--can", f"socketcan:{vcan_channel}", *_slow(tmp_path))
+    r = _cheope("demo", "--task", "path", "--json", "--can", f"socketcan:{vcan_channel}", *_slow(tmp_path))
     assert r.returncode == 0, r.stderr + r.stdout
     s = json.loads(r.stdout)
     assert s["final_mode"] == "DONE"
@@ -87,7 +87,7 @@ def test_can_fd_run_sends_fd_frames(vcan_fd_channel: str, tmp_path: Path) -> Non
     t = threading.Thread(target=sniff)
     t.start()
     try:
-        r = _cheope("demo", "--json", "--fd", "--can", f"socketcan:{vcan_fd_channel}", *_slow(tmp_path))
+        r = _cheope("demo", "--task", "path", "--json", "--fd", "--can", f"socketcan:{vcan_fd_channel}", *_slow(tmp_path))
     finally:
         stop.set()
         t.join()
@@ -97,7 +97,7 @@ def test_can_fd_run_sends_fd_frames(vcan_fd_channel: str, tmp_path: Path) -> Non
 
 
 def test_error_frames_are_counted_and_the_run_goes_on(vcan_channel: str, tmp_path: Path) -> None:
-    proc = _popen("demo", "--json", "--can", f"socketcan:{vcan_channel}", *_slow(tmp_path),
+    proc = _popen("demo", "--task", "path", "--json", "--can", f"socketcan:{vcan_channel}", *_slow(tmp_path),
                   "--set", "task.path.laps=1.0")
     try:
         _wait_until_enabled(vcan_channel)
@@ -120,7 +120,7 @@ def test_error_frames_are_counted_and_the_run_goes_on(vcan_channel: str, tmp_pat
 
 
 def test_full_transmit_queue_is_counted_and_ends_in_a_safe_stop(vcan_channel: str, tmp_path: Path) -> None:
-    proc = _popen("demo", "--json", "--can", f"socketcan:{vcan_channel}", *_slow(tmp_path),
+    proc = _popen("demo", "--task", "path", "--json", "--can", f"socketcan:{vcan_channel}", *_slow(tmp_path),
                   "--set", "task.path.laps=2.0")
     try:
         _wait_until_enabled(vcan_channel)
