@@ -24,7 +24,7 @@ DATA = Path(__file__).resolve().parent / "data"
 REPO = DATA.parent.parent
 
 
-@pytest.mark.parametrize("name", ["path_quarter_lap.mcap", "contour_start.mcap"])
+@pytest.mark.parametrize("name", ["path_quarter_lap.mcap", "contour_contact.mcap"])
 def test_the_committed_sessions_still_replay_bit_for_bit(name):
     """The regression test of the control law (regenerate with tests/data/regenerate.py)."""
     result = verify(DATA / name)

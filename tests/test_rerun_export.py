@@ -38,7 +38,7 @@ def test_the_rrd_holds_the_robot_the_plots_and_the_events(tmp_path):
 
 def test_the_contour_session_adds_the_workpiece_and_the_normal_force_error(tmp_path):
     out = tmp_path / "contour.rrd"
-    export(DATA / "contour_start.mcap", out)
+    export(DATA / "contour_contact.mcap", out)
     entities = _entities(out)
     assert {"/world/workpiece/rim", "/world/workpiece/expected", "/plots/normal_force_error"} <= entities
 
