@@ -44,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
+from controller.loop import period_error_us
 from controller.realtime import RealtimeOptions
 from drivers import cob_ids
 
@@ -60,15 +61,6 @@ def percentiles_us(values_us: np.ndarray) -> dict[str, float]:
     p50, p99, p999 = np.percentile(v, [50.0, 99.0, 99.9])
     return {"p50": round(float(p50), 1), "p99": round(float(p99), 1), "p99_9": round(float(p999), 1),
             "max": round(float(v.max()), 1)}
-
-
-def period_error_us(wake_s: np.ndarray, period_s: float) -> np.ndarray:
-    """|actual - nominal period| between consecutive wake-ups [us]; works on wake times or on
-    wake errors relative to the deadlines (the nominal period cancels in the latter)."""
-    w = np.asarray(wake_s, dtype=float)
-    if w.size < 2:
-        return np.zeros(0)
-    return np.abs(np.diff(w) - period_s) * 1e6
 
 
 def late_per_10k(wake_error_s: np.ndarray, period_s: float, late_fraction: float, overruns: int = 0) -> float:
@@ -172,6 +164,7 @@ class LoopProbe:
         self.capacity = capacity
         self.wake_error_s = np.zeros(capacity)
         self.step_s = np.zeros(capacity)
+        self.deadline_index = np.zeros(capacity, dtype=np.int64)
         self.ready_after_tpdo_s = np.full(capacity, np.nan)
         self.rpdo_after_tpdo_s = np.full(capacity, np.nan)
         self.answer_s = np.full(capacity, np.nan)  # SYNC out -> last TPDO in
@@ -215,6 +208,7 @@ class LoopProbe:
         if i < self.capacity:
             self.wake_error_s[i] = timing.wake_error_s
             self.step_s[i] = timing.step_s
+            self.deadline_index[i] = cycle
             self.ready_after_tpdo_s[i] = now - self._last_tpdo_s
             self.answer_s[i] = self._last_tpdo_s - self._sync_s
         self.n = i + 1
@@ -329,7 +323,7 @@ def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], conf
     if not echo:
         shapes[-1] = (DRIVE_TPDO_BYTES, case.fd, case.fd)
         frames[-1] = probe.outgoing
-    per_err = period_error_us(wake, 0.0)
+    per_err = period_error_us(probe.deadline_index[skip:n] * period + wake, period)  # across skipped deadlines
     result: dict[str, object] = {
         "case": case.name,
         "rate_hz": case.rate_hz,

@@ -100,9 +100,11 @@ def _print_summary(summary: dict[str, Any], as_json: bool) -> None:
     lines = [
         f"final mode          {summary['final_mode']}" + (f" ({summary['fault_reason']})" if summary["fault_reason"] else ""),
         f"bus                 {summary['bus']}, planned load {summary['bus_load_percent']:.1f} %",
-        f"loop rate           {summary['achieved_rate_hz']:.2f} Hz achieved of {summary['nominal_rate_hz']:.0f} Hz, "
-        f"{summary['cycles']} cycles",
+        (f"loop rate           {summary['achieved_rate_hz']:.2f} Hz achieved of {summary['nominal_rate_hz']:.0f} Hz, "
+         f"{summary['cycles']} cycles"),
         f"period error        p50 {pe['p50']:.0f} us, p99 {pe['p99']:.0f} us, max {pe['max']:.0f} us",
+        f"observers           p99 {summary['observers_us']['p99']:.0f} us, max {summary['observers_us']['max']:.0f} us "
+        "(recorder, publisher: they must only hand off)",
         f"late cycles         {summary['late_cycles']} (overruns {summary['overruns']})",
         f"missing frames      drives {summary['missing_frames']['drive']}, sensor {summary['missing_frames']['sensor']}",
     ]

@@ -50,6 +50,7 @@ def summarize(stats: LoopStats, recorder: RunRecorder, final: ControllerState, c
     n = min(stats.cycles, stats.capacity)
     wake = stats.wake_error_s[:n] * 1e6
     step = stats.step_s[:n] * 1e6
+    observers = stats.observers_s[:n] * 1e6
     err = np.asarray(recorder.tracking_error_m)
     c = counters
     out: dict[str, object] = {
@@ -63,6 +64,9 @@ def summarize(stats: LoopStats, recorder: RunRecorder, final: ControllerState, c
         "wake_latency_us": {"p50": _percentile_us(wake, 50), "p99": _percentile_us(wake, 99),
                             "max": float(wake.max()) if wake.size else 0.0},
         "step_compute_us": {"p50": _percentile_us(step, 50), "p99": _percentile_us(step, 99)},
+        # the recorder, publisher and statistics on the loop's thread: they must only hand off
+        "observers_us": {"p50": _percentile_us(observers, 50), "p99": _percentile_us(observers, 99),
+                         "max": float(observers.max()) if observers.size else 0.0},
         "late_cycles": stats.late_cycles(),
         "overruns": stats.overruns,
         "missing_frames": {"drive": getattr(c, "missing_drive_frames", 0),

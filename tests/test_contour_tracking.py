@@ -88,13 +88,13 @@ def test_force_below_the_setpoint_moves_the_tool_into_the_contour():
 
 
 def test_small_forces_do_not_turn_the_normal():
-    task, cfg = _task()
+    task, _ = _task()
     s = _tracking(task, normal=(1.0, 0.0), force_f=(0.1, 0.5, 0.0))  # below normal_min_force_n
     assert task.step(s, _ctx((0.1, 0.5, 0.0))).state.normal == (1.0, 0.0)
 
 
 def test_laps_are_counted_around_the_fitted_centre_and_the_task_retracts_after_the_last():
-    task, cfg = _task()
+    task, _ = _task()
     centre = (0.003, -0.002)  # the contour is not where it was expected
     r = 0.07
     s = _tracking(task, normal=(1.0, 0.0))
@@ -187,7 +187,7 @@ def test_closed_loop_follows_an_off_centre_disk_of_another_radius(centre, radius
 
 
 def test_closed_loop_faults_when_there_is_nothing_to_touch():
-    final, summary, _ = _closed_loop(**{"sim.disk.radius_m": 0.04})
+    final, _, _ = _closed_loop(**{"sim.disk.radius_m": 0.04})
     assert final.mode == Mode.FAULT and "no contact within" in final.fault_reason
 
 

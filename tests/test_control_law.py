@@ -56,7 +56,7 @@ SHORT = {"task.path.laps": 0.5}
 
 
 def test_path_task_completes_and_tracks_the_circle():
-    final, stats, trace, rec, _ = run(load_config(overrides=SHORT))
+    final, _, _, rec, _ = run(load_config(overrides=SHORT))
     assert final.mode == Mode.DONE, final.fault_reason
     err = np.array(rec.tracking_error_m)
     assert err.size > 800
@@ -85,7 +85,7 @@ def test_setpoints_respect_velocity_acceleration_and_jerk_limits():
 
 
 def test_enabling_commands_the_measured_position_no_jump():
-    final, _, trace, _, _ = run(load_config(overrides=SHORT))
+    _, _, trace, _, _ = run(load_config(overrides=SHORT))
     first_hold = trace.modes.index(Mode.HOLDING)
     for k in range(first_hold + 1):
         assert np.allclose(trace.outputs[k].targets, trace.measured[k], atol=1e-7)
@@ -114,6 +114,30 @@ def test_a_silent_drive_faults_after_max_missing_cycles_and_quick_stops_the_othe
     assert fault_at - first_drop == 3  # the 4th silent cycle
     assert trace.outputs[fault_at].controlwords[0] == CW_QUICK_STOP
     assert decode_statusword(ex.drives[0].statusword()) == PowerState.QUICK_STOP_ACTIVE
+
+
+def test_a_stalled_cycle_shows_in_the_period_error_and_the_observer_time():
+    """A 51 ms stall after the step (found over the bus: the SYNC stream stopped for 52 ms while
+    every wake-up was on time) is 19 skipped deadlines and a 48.5 ms period error, not a 1 ms one."""
+    cfg = load_config(overrides=SHORT)
+    clock = SimulatedTime()
+    law = build_law(cfg)
+
+    class Stall:
+        def on_cycle(self, cycle, t, inputs, state, outputs, events, timing):
+            if cycle == 200:
+                clock.now_s += 0.051
+
+    loop = CycleLoop(law, LoopbackExchange(cfg, clock.clock), cfg.period_s, 0.8, clock, clock.clock,
+                     observers=(Stall(),))
+    _, stats = loop.run(law.initial_state(), 1.0)
+    assert stats.overruns == 19  # the loop goes on at the 20th deadline after, 1 ms late
+    errors = stats.period_error_us()
+    # 51 ms between the wake-ups around the stall, then 1.5 ms back onto the schedule; no others
+    assert sorted(errors[errors > 1.0]) == [pytest.approx(1000.0, abs=1.0), pytest.approx(48500.0, abs=1.0)]
+    n = min(stats.cycles, stats.capacity)
+    assert stats.observers_s[:n].max() == pytest.approx(0.051)
+    assert stats.late_cycles() == 20  # the 19 skipped and the one that woke 1 ms late
 
 
 def test_a_drive_fault_is_seen_and_answered_with_quick_stop():
@@ -176,7 +200,7 @@ def test_a_nan_position_faults_at_once():
     good = CycleInputs(tuple(DriveFeedback(0x1637, 0.55, True) for _ in range(3)))
     state, _, _ = law.step(state, good, 0.0)  # CONFIGURING -> ENABLING
     bad = CycleInputs((DriveFeedback(0x1637, math.nan, True),) + good.drives[1:])
-    state, out, events = law.step(state, bad, cfg.period_s)
+    state, _, _ = law.step(state, bad, cfg.period_s)
     assert state.mode == Mode.FAULT
     assert "actuator 1 measured at nan m" in state.fault_reason
 

@@ -26,7 +26,7 @@ def _port() -> int:
 
 
 def _cheope(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*CHEOPE, *args], capture_output=True, text=True, timeout=timeout,
+    return subprocess.run([*CHEOPE, *args], capture_output=True, text=True, timeout=timeout, check=False,
                           env={**os.environ, "PYTHONUNBUFFERED": "1"})
 
 

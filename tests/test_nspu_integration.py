@@ -99,7 +99,7 @@ def test_demo_end_to_end(tmp_path):
     cmd = [sys.executable, "-m", "controller", "demo", "--robot", "nspu", "--json", "--max-duration", "60",
            *TOLERANT, "--set", f'recording.directory="{tmp_path}"',
            "--set", "monitoring.enabled=false"]
-    out = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
     assert out.returncode == 0, out.stderr[-2000:]
     s = json.loads(out.stdout)
     assert s["final_mode"] == "DONE"

@@ -105,7 +105,7 @@ def test_demo_end_to_end(tmp_path):
     cmd = [sys.executable, "-m", "controller", "demo", "--robot", "uru", "--json", "--max-duration", "60",
            *TOLERANT, "--set", f'recording.directory="{tmp_path}"',
            "--set", "monitoring.enabled=false"] + [a for k, v in SHORT.items() for a in ("--set", f"{k}={v}")]
-    out = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
     assert out.returncode == 0, out.stderr[-2000:]
     summary = json.loads(out.stdout)
     assert summary["final_mode"] == "DONE"

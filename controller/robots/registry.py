@@ -4,11 +4,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from controller.config import Config
 from controller.robots.cheope import CheopeGeometry, CheopeLimits, CheopeRobot
+
+if TYPE_CHECKING:  # the URU and nSPU modules load on demand, when their robot is configured
+    from controller.robots.nspu import NspuGeometry, Pose
+    from controller.robots.nspu_robot import NspuRobot
+    from controller.robots.uru_robot import UruRobot
 
 
 def cheope_from_config(cfg: Config) -> CheopeRobot:

@@ -246,7 +246,7 @@ def _measures(geom: uru.UruGeometry, p: tuple[float, float, float]) -> dict:
     v, a, sin3, motor = [], [], [], []
     margin = math.inf
     for i in range(3):
-        th1, th2, beta, g, h, alpha = _limb(geom, i, p)
+        th1, th2, beta, g, h, _alpha = _limb(geom, i, p)
         f, r, k = float(geom.f[i]), float(geom.r[i]), float(geom.k[i])
         w = [p[0], p[1], p[2]]
         w[i] += geom.offset_m  # b_i - a_i
