@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
+import resource
 import threading
 import time
 from dataclasses import dataclass
@@ -193,12 +194,17 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float = 600.0,
         try:
             if cfg.loop.freeze_gc:
                 freeze_garbage_collector()
+            faults_before = resource.getrusage(resource.RUSAGE_SELF).ru_majflt
             final, stats = loop.run(prepared.law.initial_state(), max_duration_s,
                                     exit_on_fault=not cfg.loop.stay_in_fault)
+            # a page the kernel dropped (memory pressure, proactive reclaim) is read back from disk
+            # when touched: milliseconds each, inside a cycle (--lock-memory prevents it)
+            major_faults = resource.getrusage(resource.RUSAGE_SELF).ru_majflt - faults_before
         finally:
             restore()
     return summarize(stats, recorder, final, exchange.counters, prepared.bus_load.percent,
                      extra={"bus": str(spec), "node_setup_s": round(setup.duration_s, 3),
+                            "major_page_faults": major_faults,
                             "recording": _recording_summary(session), "realtime": realtime.describe(),
                             **(report.summary() if report is not None else {})})
 

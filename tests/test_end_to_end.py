@@ -36,7 +36,7 @@ def test_demo_runs_the_path_task_end_to_end():
     s = json.loads(r.stdout)
     assert s["final_mode"] == "DONE"
     for key in ("achieved_rate_hz", "period_error_us", "late_cycles", "missing_frames", "bus_load_percent",
-                "tracking_error_m"):
+                "tracking_error_m", "observers_us", "major_page_faults"):
         assert key in s
     assert 380.0 < s["achieved_rate_hz"] < 420.0
     assert s["bus_load_percent"] == pytest.approx(40.925, abs=0.01)
