@@ -120,14 +120,17 @@ def test_a_full_queue_drops_counts_and_records_the_drop_without_blocking(tmp_pat
     rec = SessionRecorder(path, session_metadata(cfg), buffer_bytes=4096)
     _, _, _, trace, _, _ = record_session(tmp_path / "ref.mcap", max_s=0.5, frames=False)
     with rec:
-        t0 = time.perf_counter()
-        for _ in range(20):
-            for row in trace.rows:
-                rec.on_cycle(*row, timing=m.pb.CycleTiming())  # timing values are irrelevant here
-        elapsed = time.perf_counter() - t0
+        # the writer stops reading altogether: a write that waited for it would never return
+        # (a mean time per call, asserted before, flaked on a busy machine: 61 us against 50)
+        os.kill(rec._proc.pid, signal.SIGSTOP)
+        try:
+            for _ in range(20):
+                for row in trace.rows:
+                    rec.on_cycle(*row, timing=m.pb.CycleTiming())  # timing values are irrelevant here
+        finally:
+            os.kill(rec._proc.pid, signal.SIGCONT)
     calls = 20 * len(trace.rows)
     assert rec.dropped > 0 and rec.queued + rec.dropped == calls
-    assert elapsed / calls < 50e-6  # never waited for the writer
     report = read_info(path)
     assert report.metadata[m.META_RECORDING]["dropped"] == str(rec.dropped)
     drops = [d.message for d in iter_decoded(path, [m.TOPIC_EVENTS]) if d.message.kind == "recorder_drop"]
@@ -333,7 +336,9 @@ def test_rerun_reads_the_mcap_file_directly_and_decodes_the_protobuf_channels(tm
     assert "cheope.config" in summary  # the metadata
 
 
-def test_on_cycle_costs_microseconds(tmp_path):
+def test_a_large_buffer_queues_every_cycle_and_frame(tmp_path):
+    """Nothing dropped while the writer keeps up. The cost per call is printed, not asserted:
+    timing belongs in `cheope bench` (observers_us), not in a test on a shared 2-core machine."""
     _, _, _, trace, _, _ = record_session(tmp_path / "ref.mcap", max_s=0.5, frames=False)
     rec = SessionRecorder(tmp_path / "p.mcap", session_metadata(load_config()), buffer_bytes=64 << 20)
     timing = m.pb.CycleTiming()
@@ -349,8 +354,7 @@ def test_on_cycle_costs_microseconds(tmp_path):
     median_us = per_call[len(per_call) // 2] / 1000
     print(f"recorder on_cycle + on_frame: median {median_us:.1f} us, p99 "
           f"{per_call[int(0.99 * len(per_call))] / 1000:.1f} us over {len(per_call)} calls")
-    assert median_us < 40, f"on_cycle + on_frame median {median_us:.1f} us"
-    assert rec.dropped == 0
+    assert rec.dropped == 0 and rec.queued == len(per_call) * 2  # a cycle and a frame per call
 
 
 
@@ -383,13 +387,9 @@ def test_a_writer_that_stops_reading_blocks_neither_the_loop_nor_the_exit(tmp_pa
     pid = rec._proc.pid
     os.kill(pid, signal.SIGSTOP)  # a writer stuck on a dead disk
     try:
-        t0 = time.perf_counter()
-        calls = 0
-        for _ in range(5):
+        for _ in range(5):  # returns at all: a write that waited for the stopped writer never would
             for row in trace.rows:
                 rec.on_cycle(*row, timing=m.pb.CycleTiming())
-                calls += 1
-        assert (time.perf_counter() - t0) / calls < 50e-6  # never waited
         assert rec.dropped > 0
         t0 = time.monotonic()
         rec.close()
