@@ -103,8 +103,8 @@ def _print_summary(summary: dict[str, Any], as_json: bool) -> None:
         (f"loop rate           {summary['achieved_rate_hz']:.2f} Hz achieved of {summary['nominal_rate_hz']:.0f} Hz, "
          f"{summary['cycles']} cycles"),
         f"period error        p50 {pe['p50']:.0f} us, p99 {pe['p99']:.0f} us, max {pe['max']:.0f} us",
-        f"observers           p99 {summary['observers_us']['p99']:.0f} us, max {summary['observers_us']['max']:.0f} us "
-        "(recorder, publisher: they must only hand off)",
+        (f"observers           p99 {summary['observers_us']['p99']:.0f} us, "
+         f"max {summary['observers_us']['max']:.0f} us (recorder, publisher: they must only hand off)"),
         f"late cycles         {summary['late_cycles']} (overruns {summary['overruns']})",
         f"missing frames      drives {summary['missing_frames']['drive']}, sensor {summary['missing_frames']['sensor']}",
     ]

@@ -21,7 +21,7 @@ from pathlib import Path
 from controller.analysis.contour_report import ContourObserver, contour_summary, plot_contour
 from controller.config import Config, PathSection
 from controller.realtime import RealtimeOptions
-from controller.robots.performance import MassModel
+from controller.robots.registry import mass_model_from_config
 from controller.service import build_robot, run_controller
 from drivers.bus import BusSpec
 
@@ -42,8 +42,6 @@ def run_contour_experiment(cfg: Config, spec: BusSpec, plot_dir: Path | None, ma
     c = cfg.task.contour
     robot = build_robot(cfg)
     stiffness = cfg.robot.mass.actuator_stiffness_n_m
-    m = cfg.robot.mass
-    masses = MassModel(m.platform_kg, m.slider_kg, m.rod_pair_kg)
 
     force_obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s))
     summary = run_controller(cfg, spec, max_duration_s, stop_event, observers=(force_obs,), realtime=realtime)
@@ -61,12 +59,22 @@ def run_contour_experiment(cfg: Config, spec: BusSpec, plot_dir: Path | None, ma
     else:
         pos_obs = None
     if plot_dir is not None:
-        plots = plot_contour(force_obs, robot, stiffness, masses, c.height_m, plot_dir, "force control",
-                             c.lap_speeds_m_s)
-        if pos_obs is not None and pos_obs.t:
-            plots += plot_contour(pos_obs, robot, stiffness, masses, c.height_m, plot_dir, "position control")
-        summary["plots"] = [str(p) for p in plots]
+        summary["plots"] = _plot(cfg, plot_dir, force_obs, pos_obs)
     return summary
+
+
+def _plot(cfg: Config, plot_dir: Path, force_obs: ContourObserver, pos_obs: ContourObserver | None = None
+          ) -> list[str]:
+    """Fig. 8-9 of the force-controlled run and, when there is one, of the comparison."""
+    c = cfg.task.contour
+    robot = build_robot(cfg)
+    stiffness = cfg.robot.mass.actuator_stiffness_n_m
+    masses = mass_model_from_config(cfg)
+    plots = plot_contour(force_obs, robot, stiffness, masses, c.height_m, plot_dir, "force control",
+                         c.lap_speeds_m_s)
+    if pos_obs is not None and pos_obs.t:
+        plots += plot_contour(pos_obs, robot, stiffness, masses, c.height_m, plot_dir, "position control")
+    return [str(p) for p in plots]
 
 
 def run_simulated_time(cfg: Config, max_duration_s: float = 600.0, plot_dir: Path | None = None) -> dict[str, object]:
@@ -86,14 +94,11 @@ def run_simulated_time(cfg: Config, max_duration_s: float = 600.0, plot_dir: Pat
     obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s))
     final, stats = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
                              observers=(obs,)).run(law.initial_state(), max_duration_s)
-    robot = build_robot(cfg)
-    stiffness = cfg.robot.mass.actuator_stiffness_n_m
     summary: dict[str, object] = {
         "final_mode": final.mode.name, "fault_reason": final.fault_reason, "cycles": stats.cycles,
-        "simulated_time": True, "contour": contour_summary(obs, robot, stiffness, c.height_m, c.lap_speeds_m_s)}
+        "simulated_time": True,
+        "contour": contour_summary(obs, build_robot(cfg), cfg.robot.mass.actuator_stiffness_n_m, c.height_m,
+                                   c.lap_speeds_m_s)}
     if plot_dir is not None:
-        m = cfg.robot.mass
-        plots = plot_contour(obs, robot, stiffness, MassModel(m.platform_kg, m.slider_kg, m.rod_pair_kg), c.height_m,
-                             plot_dir, "force control", c.lap_speeds_m_s)
-        summary["plots"] = [str(p) for p in plots]
+        summary["plots"] = _plot(cfg, plot_dir, obs)
     return summary

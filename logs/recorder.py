@@ -2,7 +2,7 @@
 
 The loop thread turns a cycle into bytes (the ``cheope.v1.Cycle`` Protobuf and a pickled tuple
 of the cycle's CAN frames, events and TCP points: 17-19 µs median with one frame,
-``pytest tests/test_recording.py -k costs_microseconds -s``) and writes them to a pipe with
+``pytest tests/test_recording.py -k large_buffer -s``) and writes them to a pipe with
 one non-blocking ``write``; it never waits. What the pipe cannot take waits in a bounded
 backlog; beyond ``buffer_bytes`` the item is dropped and counted. The writer process
 (logs/session_writer.py, ``python -m logs.session_writer``) builds the other messages, writes

@@ -47,8 +47,7 @@ import numpy as np
 
 from controller.config import Config
 from controller.robots.errors import NoSolutionError
-from controller.robots.performance import MassModel
-from controller.robots.registry import actuator_units, robot_from_config
+from controller.robots.registry import actuator_units, mass_model_from_config, robot_from_config
 from drivers.pdo_codec import encode_drive_tpdo
 from sim_backend.contact_disk import DiskEnvironment, DiskParams
 from sim_backend.drive import DriveParams, SimulatedDrive
@@ -108,9 +107,8 @@ class RobotPlant:
             if cfg.sensor.enabled else None
         self.environment = environment or environment_from_config(cfg)
         self.loaded = not isinstance(self.environment, FreeSpace)
-        m = cfg.robot.mass
-        self.tool = CompliantTool(ComplianceParams(m.actuator_stiffness_n_m, cfg.sim.structure_damping_ratio,
-                                                   MassModel(m.platform_kg, m.slider_kg, m.rod_pair_kg)))
+        self.tool = CompliantTool(ComplianceParams(cfg.robot.mass.actuator_stiffness_n_m,
+                                                   cfg.sim.structure_damping_ratio, mass_model_from_config(cfg)))
         self.substep_s = cfg.sim.drive.substep_s
         self.structure_refresh_s = 1e-3
         self._structure_time_s = -1.0

@@ -31,7 +31,8 @@ def _cheope(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[s
 
 
 def test_demo_runs_the_path_task_end_to_end():
-    r = _cheope("demo", "--task", "path", "--json", "--set", "task.path.laps=0.5", "--udp-port", str(_port()), *TOLERANT)
+    r = _cheope("demo", "--task", "path", "--json", "--set", "task.path.laps=0.5", "--udp-port", str(_port()),
+                *TOLERANT)
     assert r.returncode == 0, r.stderr + r.stdout
     s = json.loads(r.stdout)
     assert s["final_mode"] == "DONE"

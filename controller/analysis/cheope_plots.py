@@ -32,7 +32,7 @@ from controller.robots.performance import (
     stiffness_ellipsoid,
     velocity_ellipsoid,
 )
-from controller.robots.registry import cheope_from_config
+from controller.robots.registry import cheope_from_config, mass_model_from_config
 from controller.tasks.circle_path import CirclePath
 
 
@@ -143,8 +143,7 @@ def path_margins(robot: CheopeRobot, path: CirclePath, out: Path, n: int = 361) 
 def analyze_cheope(cfg: Config, out: Path) -> dict[str, object]:
     out.mkdir(parents=True, exist_ok=True)
     robot = cheope_from_config(cfg)
-    m = cfg.robot.mass
-    masses = MassModel(m.platform_kg, m.slider_kg, m.rod_pair_kg)
+    masses = mass_model_from_config(cfg)
     p = cfg.task.path
     path = CirclePath(p.center_m, p.radius_m, p.speed_m_s, p.laps, p.ramp_s)
     centre = np.asarray(p.center_m, dtype=float)
@@ -164,6 +163,6 @@ def analyze_cheope(cfg: Config, out: Path) -> dict[str, object]:
     }
     report.update(path_margins(robot, path, out))
     report.update(workspace_sections(robot, out))
-    ellipse_sections(robot, masses, m.actuator_stiffness_n_m, out)
+    ellipse_sections(robot, masses, cfg.robot.mass.actuator_stiffness_n_m, out)
     report["plots"] = sorted(str(f) for f in out.glob("cheope_*.png"))
     return report

@@ -235,11 +235,13 @@ def plot_contour(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: float,
     plt.close(fig)
 
     fig, (ax, ab) = plt.subplots(1, 2, figsize=(14, 6.5), gridspec_kw={"width_ratios": [1.1, 1.0]})
-    const = np.isin(lap, constant_speed_laps(lap_speeds_m_s, obs.laps))
-    err = np.abs(obs.force_setpoint_n - fn[const])
+    shown = constant_speed_laps(lap_speeds_m_s, obs.laps)
+    d = direction_statistics(obs, robot, stiffness_n_m, height_m, lap_speeds_m_s)  # over the same laps
+    const = np.isin(lap, shown)
+    err = np.abs(d.error_n)
     sc = ax.scatter(xy[const, 0] * 1000, xy[const, 1] * 1000, c=err, s=3, cmap="inferno_r",
                     vmin=0.0, vmax=float(np.percentile(err, 99)) if err.size else None)
-    laps_shown = ", ".join(str(k + 1) for k in constant_speed_laps(lap_speeds_m_s, obs.laps))
+    laps_shown = ", ".join(str(k + 1) for k in shown)
     fig.colorbar(sc, ax=ax, label=f"|normal-force error| [N], laps {laps_shown} (99th percentile clipped)")
     # stiffness and mass ellipses (XY sections) at 8 points of the contour
     c = np.array(obs.centre_m)
@@ -261,7 +263,6 @@ def plot_contour(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: float,
     ax.set_xlabel("x [mm]")
     ax.set_ylabel("y [mm]")
     ax.set_title(f"Contour ({title}) and force error, with stiffness and mass ellipses (cf. Fig. 8)", fontsize=9)
-    d = direction_statistics(obs, robot, stiffness_n_m, height_m, lap_speeds_m_s)
     ab.plot(d.bin_angle_deg, d.bin_error_rms_n, "o-", color="tab:red", ms=3, label="force error RMS per 10 deg")
     ab.set_xlabel("contour angle around the centre [deg]")
     ab.set_ylabel("normal-force error RMS [N]", color="tab:red")

@@ -10,11 +10,18 @@ import numpy as np
 
 from controller.config import Config
 from controller.robots.cheope import CheopeGeometry, CheopeLimits, CheopeRobot
+from controller.robots.performance import MassModel
 
 if TYPE_CHECKING:  # the URU and nSPU modules load on demand, when their robot is configured
     from controller.robots.nspu import NspuGeometry, Pose
     from controller.robots.nspu_robot import NspuRobot
     from controller.robots.uru_robot import UruRobot
+
+
+def mass_model_from_config(cfg: Config) -> MassModel:
+    """Cheope's lumped masses (``[robot.mass]``): the mass ellipsoid's and the simulated structure's."""
+    m = cfg.robot.mass
+    return MassModel(m.platform_kg, m.slider_kg, m.rod_pair_kg)
 
 
 def cheope_from_config(cfg: Config) -> CheopeRobot:

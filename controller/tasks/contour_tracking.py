@@ -3,10 +3,13 @@
 The tool keeps contact with the rim of an object lying in a plane z = const and travels
 along it. Every cycle, in the task frame {n, t, z}:
 
-- n, the outward contour normal, is the direction of the measured contact force in the XY
-  plane (the contact pushes the tool out of the object). The force is low-pass filtered
-  (``force_filter_hz``) and the normal is only updated while the in-plane force exceeds
-  ``normal_min_force_n``: below it the direction of a small, noisy force means nothing.
+- n, the outward contour normal, follows the direction of the measured contact force in the
+  XY plane (the contact pushes the tool out of the object). The force is low-pass filtered
+  (``force_filter_hz``), and a second-order tracker of the normal's angle
+  (``track_normal``, ``normal_tracker_hz``) smooths its direction: the direction's noise,
+  times the tangential speed, would be a velocity into the contour. The normal is only
+  updated while the in-plane force exceeds ``normal_min_force_n``: below it the direction of
+  a small, noisy force means nothing.
 - t = z x n is the tangent (counter-clockwise seen from +Z, or the opposite with
   ``direction = -1``): the tool moves along t at the lap's speed, with the speed changes
   limited to ``tangential_acceleration_m_s2``.
@@ -258,8 +261,8 @@ class ContourTrackingTask:
         if f_xy >= p.contact_force_n:
             n = _unit2(s.force_f[0], s.force_f[1]) or s.normal
             event = Event("contact", Severity.INFO, f"contact at {f_xy:.2f} N after {s.travel_m * 1000:.1f} mm")
-            s = replace(s, phase=ContourPhase.TRACKING, normal=n, normal_rate_rad_s=0.0, integral=0.0, low_force_cycles=0,
-                        phase_start_s=ctx.t_s)
+            s = replace(s, phase=ContourPhase.TRACKING, normal=n, normal_rate_rad_s=0.0, integral=0.0,
+                        low_force_cycles=0, phase_start_s=ctx.t_s)
             return self._tracking(s, ctx, (event,))
         limit = p.approach_clearance_m + p.max_approach_distance_m
         if s.travel_m > limit:
@@ -282,8 +285,9 @@ class ContourTrackingTask:
             t_prev = (-normal[1] * p.direction, normal[0] * p.direction)
             k = mu * f_xy / math.sqrt(1.0 + mu * mu)  # friction force magnitude mu F_n
             measured = math.atan2(fy + k * t_prev[1], fx + k * t_prev[0])
-            angle, rate = track_normal(math.atan2(normal[1], normal[0]), rate, measured, dt, p.normal_tracker_hz)
-            normal = (math.cos(angle), math.sin(angle))
+            normal_angle, rate = track_normal(math.atan2(normal[1], normal[0]), rate, measured, dt,
+                                              p.normal_tracker_hz)
+            normal = (math.cos(normal_angle), math.sin(normal_angle))
         fn = fx * normal[0] + fy * normal[1]  # normal force pressing the tool out of the object
         if fn > p.max_force_n:
             why = f"contact force {fn:.1f} N above the limit of {p.max_force_n} N"
@@ -328,9 +332,9 @@ class ContourTrackingTask:
         ev_list = list(events)
         if lap > s.lap:
             ev_list.append(Event("lap", Severity.INFO, f"lap {s.lap + 1} of {self.laps} done"))
-        s = replace(s, p_cmd=self._move(s, v, dt), speed_m_s=speed, normal=normal, normal_rate_rad_s=rate, integral=integral,
-                    normal_force_n=fn, force_error_n=err, swept_rad=swept, last_angle=angle, lap=lap, fit=fit,
-                    centre=centre, low_force_cycles=low)
+        s = replace(s, p_cmd=self._move(s, v, dt), speed_m_s=speed, normal=normal, normal_rate_rad_s=rate,
+                    integral=integral, normal_force_n=fn, force_error_n=err, swept_rad=swept, last_angle=angle,
+                    lap=lap, fit=fit, centre=centre, low_force_cycles=low)
         if lap >= self.laps:
             ev_list.append(Event("contour", Severity.INFO, "all laps done; retracting"))
             s = replace(s, phase=ContourPhase.RETRACT, travel_m=0.0)

@@ -87,7 +87,8 @@ def test_can_fd_run_sends_fd_frames(vcan_fd_channel: str, tmp_path: Path) -> Non
     t = threading.Thread(target=sniff)
     t.start()
     try:
-        r = _cheope("demo", "--task", "path", "--json", "--fd", "--can", f"socketcan:{vcan_fd_channel}", *_slow(tmp_path))
+        r = _cheope("demo", "--task", "path", "--json", "--fd", "--can", f"socketcan:{vcan_fd_channel}",
+                    *_slow(tmp_path))
     finally:
         stop.set()
         t.join()
