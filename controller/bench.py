@@ -180,7 +180,8 @@ class LoopProbe:
         self.outgoing = 0
         self.sim_pid = sim_pid
         self.sample_every = sample_every
-        self.samples: list[tuple[float, float, float, float]] = []  # (monotonic, thread, process, sim) [s]
+        self.samples: list[tuple[float, ...]] = []  # (monotonic, thread, process, sim, writer) [s]
+        self.writer_pid: int | None = None  # the MCAP writer process, found among our children
 
     def sink(self, outgoing: bool, t: float, msg) -> None:
         cid = msg.arbitration_id
@@ -216,7 +217,10 @@ class LoopProbe:
         self._prev_last_tpdo_s = self._last_tpdo_s
         self._rpdo_index = i + 1
         if i % self.sample_every == 0:
-            self.samples.append((now, time.thread_time(), time.process_time(), process_cpu_s(self.sim_pid)))
+            if self.writer_pid is None:
+                self.writer_pid = child_pid("logs.session_writer")
+            self.samples.append((now, time.thread_time(), time.process_time(), process_cpu_s(self.sim_pid),
+                                 process_cpu_s(self.writer_pid)))
 
 
 def process_cpu_s(pid: int | None) -> float:
@@ -231,17 +235,43 @@ def process_cpu_s(pid: int | None) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime
 
 
-def cpu_use_percent(samples: list[tuple[float, float, float, float]]) -> dict[str, float | None]:
+def child_pid(command_fragment: str) -> int | None:
+    """The pid of a child of this process whose command line contains ``command_fragment``."""
+    me = os.getpid()
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat", "rb") as f:
+                ppid = int(f.read().rsplit(b")", 1)[1].split()[1])
+            if ppid != me:
+                continue
+            with open(f"/proc/{entry}/cmdline", "rb") as f:
+                if command_fragment.encode() in f.read():
+                    return int(entry)
+        except (OSError, ValueError, IndexError):
+            continue
+    return None
+
+
+def cpu_use_percent(samples: list[tuple[float, ...]]) -> dict[str, float | None]:
     """CPU use between the first and the last sample, in % of one CPU."""
+    keys = ("loop_thread", "controller_process", "simulator_process", "writer_process")
     if len(samples) < 2:
-        return {"loop_thread": None, "controller_process": None, "simulator_process": None}
-    (t0, th0, p0, s0), (t1, th1, p1, s1) = samples[0], samples[-1]
-    dt = t1 - t0
+        return dict.fromkeys(keys)
+    first, last = samples[0], samples[-1]
+    dt = last[0] - first[0]
 
     def pct(a: float, b: float) -> float | None:
         return None if math.isnan(a) or math.isnan(b) else round(100.0 * (b - a) / dt, 1)
 
-    return {"loop_thread": pct(th0, th1), "controller_process": pct(p0, p1), "simulator_process": pct(s0, s1)}
+    # the writer starts after the first sample: take its first known value
+    writer0 = next((x[4] for x in samples if not math.isnan(x[4])), math.nan)
+    writer_dt = next((last[0] - x[0] for x in samples if not math.isnan(x[4])), dt)
+    writer = None if math.isnan(writer0) or math.isnan(last[4]) or writer_dt <= 0 else \
+        round(100.0 * (last[4] - writer0) / writer_dt, 1)
+    return {"loop_thread": pct(first[1], last[1]), "controller_process": pct(first[2], last[2]),
+            "simulator_process": pct(first[3], last[3]), "writer_process": writer}
 
 
 def measured_bus_load(frames: dict[int, int], shapes: dict[int, tuple[int, bool, bool]], seconds: float,
@@ -279,14 +309,16 @@ def simulator(spec, overrides: list[str], config_path: str | None, rt: RealtimeO
 class BenchCase:
     rate_hz: float
     fd: bool
+    realtime: bool = True  # the loop (and simulator) with the bench's real-time options, else SCHED_OTHER
 
     @property
     def name(self) -> str:
-        return f"{self.rate_hz:g} Hz " + ("CAN FD" if self.fd else "classical CAN")
+        return f"{self.rate_hz:g} Hz " + ("FD" if self.fd else "classic") + (" RT" if self.realtime else " normal")
 
 
 def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], config_path: str | None,
-             rt: RealtimeOptions, sim_rt: RealtimeOptions, late_fraction: float) -> dict[str, object]:
+             rt: RealtimeOptions, sim_rt: RealtimeOptions, late_fraction: float,
+             cyclictest_s: float = 0.0) -> dict[str, object]:
     from controller.config import load_config, parse_override
     from controller.demo import random_udp_port
     from controller.service import planned_bus_load, run_controller
@@ -326,6 +358,8 @@ def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], conf
     per_err = period_error_us(probe.deadline_index[skip:n] * period + wake, period)  # across skipped deadlines
     result: dict[str, object] = {
         "case": case.name,
+        "scheduler": "realtime" if case.realtime else "normal",
+        "task": cfg.task.kind,
         "rate_hz": case.rate_hz,
         "fd": case.fd,
         "bus": str(spec),
@@ -351,9 +385,39 @@ def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], conf
                                           cfg.bus.data_bitrate_bit_s),
         },
         "missing_frames": summary.get("missing_frames"),
+        "frames_per_cycle": {"in": round(sum(probe.frames.values()) / max(1, probe.n), 2),
+                             "out": round(probe.outgoing / max(1, probe.n), 2)},
+        "contour_laps": _contour_laps(summary),
         "_period_errors_us": per_err,
     }
+    if cyclictest_s > 0:
+        result["cyclictest"] = machine_floor(case.rate_hz, cyclictest_s, rt, late_fraction / case.rate_hz * 1e6,
+                                             result)
     return result
+
+
+def _contour_laps(summary: dict[str, object]) -> list[dict[str, object]] | None:
+    contour = summary.get("contour")
+    return contour.get("laps") if isinstance(contour, dict) else None
+
+
+def machine_floor(rate_hz: float, duration_s: float, rt: RealtimeOptions, late_us: float,
+                  case: dict[str, object]) -> dict[str, object]:
+    """cyclictest at the case's rate, priority, CPU and memory locking, and the case's figures over it."""
+    from controller.cyclictest import CyclictestError, run_cyclictest
+
+    try:
+        floor = run_cyclictest(rate_hz, duration_s, rt.priority, rt.cpus[0] if rt.cpus else None, rt.lock_memory,
+                               (late_us, 100.0, 250.0))
+    except CyclictestError as err:
+        return {"error": str(err)}
+    above = floor["per_10k_above_us"][f"{late_us:g}"]
+    wake = case["wake_latency_us"]
+    floor["late_us"] = late_us
+    floor["late_ratio"] = round(case["late_per_10k"] / above, 2) if above > 0 else None
+    floor["wake_p99_ratio"] = round(wake["p99"] / floor["latency_us"]["p99"], 2) \
+        if floor["latency_us"]["p99"] > 0 else None
+    return floor
 
 
 def _finite(a: np.ndarray) -> np.ndarray:
@@ -618,7 +682,8 @@ TOLERANT_SAFETY = ("loop.max_missing_cycles=1000", 'safety.on_late_cycles="warn"
 
 def run_bench(rates_hz: tuple[float, ...], duration_s: float, compare_s: float, out_dir: Path,
               config_path: str | None, overrides: list[str], rt: RealtimeOptions, sim_rt: RealtimeOptions,
-              late_fraction: float = 0.1, fd_from_hz: float = 500.0, progress: Callable[[str], None] = lambda s: None
+              late_fraction: float = 0.1, fd_from_hz: float = 500.0, progress: Callable[[str], None] = lambda s: None,
+              schedulers: tuple[str, ...] = ("realtime",), cyclictest_s: float = 30.0
               ) -> dict[str, object]:
     from controller.config import load_config, parse_override
     from controller.realtime import apply_realtime
@@ -634,6 +699,10 @@ def run_bench(rates_hz: tuple[float, ...], duration_s: float, compare_s: float, 
                         "late": f"woke > {late_fraction:g} x period after the deadline, or a skipped deadline",
                         "cpu_percent": "% of one CPU over the run"},
     }
+    from controller.cyclictest import INSTALL_HINT, cyclictest_path
+
+    if cyclictest_s > 0 and cyclictest_path() is None:
+        progress(INSTALL_HINT)
     progress("cyclic PDO path: project vs canopen ...")
     report["pdo_path"] = compare_pdo_paths(20000 if duration_s >= 60 else 5000, config_path, overrides)
     progress("python-can send/recv per frame on the configured bus ...")
@@ -641,11 +710,13 @@ def run_bench(rates_hz: tuple[float, ...], duration_s: float, compare_s: float, 
     cases: list[dict[str, object]] = []
     breakdowns: list[dict[str, object]] = []
     sleepers: list[dict[str, object]] = []
+    contour = cfg.task.kind == "contour"
     for rate in rates_hz:
         case = BenchCase(rate, fd=rate >= fd_from_hz)
-        progress(f"{case.name}: step cost and Ruckig ...")
+        progress(f"{rate:g} Hz: step cost and Ruckig in process ...")
+        # the contour experiment in process as over the bus (its tracking laps are what it costs)
         bd = step_breakdown(config_path, [*overrides, "task.path.laps=10.0"], rate,
-                            cycles=int(min(10.0, duration_s) * rate))
+                            cycles=int((duration_s if contour else min(10.0, duration_s)) * rate))
         breakdowns.append(bd)
         progress(f"{case.name}: loop shell vs naive sleep ...")
         restore = apply_realtime(rt)  # the same priority and CPU as the service's loop thread
@@ -656,8 +727,13 @@ def run_bench(rates_hz: tuple[float, ...], duration_s: float, compare_s: float, 
             restore()
         cmp["rate_hz"] = rate
         sleepers.append(cmp)
-        progress(f"{case.name}: controller + simulator for {duration_s:g} s ...")
-        cases.append(run_case(case, duration_s, overrides, config_path, rt, sim_rt, late_fraction))
+        for scheduler in schedulers:
+            case = BenchCase(rate, fd=rate >= fd_from_hz, realtime=scheduler == "realtime")
+            case_rt, case_sim_rt = (rt, sim_rt) if case.realtime else (RealtimeOptions(), RealtimeOptions())
+            progress(f"{case.name}: controller + simulator for up to {duration_s:g} s, then cyclictest "
+                     f"for {cyclictest_s:g} s ...")
+            cases.append(run_case(case, duration_s, overrides, config_path, case_rt, case_sim_rt, late_fraction,
+                                  cyclictest_s))
     classical_1k = load_config(config_path, dict(parse_override(s) for s in
                                                  [*overrides, "loop.rate_hz=1000", "bus.fd=false"]))
     report["classical_can_1khz_computed_load_percent"] = round(planned_bus_load(classical_1k).percent, 1)
@@ -713,7 +789,7 @@ def plot_distributions(cases: list[dict[str, object]], sleepers: list[dict[str, 
         ax2.set_title("fraction of cycles with period error > x")
         ax2.legend(fontsize=8)
         fig.tight_layout()
-        path = out_dir / f"period_error_{case['rate_hz']:g}hz.png"
+        path = out_dir / f"period_error_{case['rate_hz']:g}hz_{case['scheduler']}.png"
         fig.savefig(path, dpi=100)
         plt.close(fig)
         paths.append(str(path))
@@ -761,12 +837,30 @@ def format_table(report: dict[str, object]) -> str:
     row("CPU simulator [%]", lambda c: f"{c['cpu_percent_of_one_core']['simulator_process']}")
     row("bus load computed / measured [%]", lambda c: "{:.1f} / {:.1f}".format(
         c["bus_load_percent"]["computed"], c["bus_load_percent"]["measured"]["percent"]))
+    row("CPU MCAP writer [%]", lambda c: f"{c['cpu_percent_of_one_core'].get('writer_process')}")
+    f = report["bus_frame_cost"]
+    row("python-can floor ctrl / sim [%]", lambda c: "{} / {}".format(*python_can_floor_percent(c, f)))
     row("missing frames drive/sensor", lambda c: "{}/{}".format(
         (c["missing_frames"] or {}).get("drive"), (c["missing_frames"] or {}).get("sensor")))
+    row("laps 4-5 force error RMS [N]", lambda c: "/".join(
+        f"{lap['force_error_rms_n']:.2f}" for lap in (c.get("contour_laps") or [])[3:5]) or "-")
+    row("cyclictest p50/p99/p99.9/max us", lambda c: q(c["cyclictest"]["latency_us"])
+        if "latency_us" in c.get("cyclictest", {}) else "-")
+    row("cyclictest late per 10 000", lambda c: "{}".format(
+        c["cyclictest"]["per_10k_above_us"][f"{c['cyclictest']['late_us']:g}"])
+        if "latency_us" in c.get("cyclictest", {}) else "-")
+    row("late ratio loop / cyclictest", lambda c: f"{c['cyclictest'].get('late_ratio')}"
+        if "latency_us" in c.get("cyclictest", {}) else "-")
+    row("wake p99 ratio loop / cyclictest", lambda c: f"{c['cyclictest'].get('wake_p99_ratio')}"
+        if "latency_us" in c.get("cyclictest", {}) else "-")
     row("final mode", lambda c: c["final_mode"])
     for c in cases:
         if c.get("fault_reason"):
             lines.append(f"  {c['case']}: fault: {c['fault_reason']}")
+        if "error" in c.get("cyclictest", {}):
+            lines.append(f"  {c['case']}: {c['cyclictest']['error']}")
+        elif "command" in c.get("cyclictest", {}):
+            lines.append(f"  {c['case']}: floor by `{c['cyclictest']['command']}`")
     lines.append("")
     lines.append("loop shell vs naive time.sleep(period), same busy work, alternating blocks:")
     for s in report["sleepers"]:
@@ -796,6 +890,21 @@ def format_table(report: dict[str, object]) -> str:
     return "\n".join(lines)
 
 
+def python_can_floor_percent(case: dict[str, object], cost: dict[str, object]) -> tuple[float, float]:
+    """python-can's own cost per process at the case's rate, from the per-frame costs [% of a core].
+
+    Every frame on the udp_multicast bus reaches every process, its own included: both the
+    controller and the simulator receive all of them; each sends its own.
+    """
+    per_cycle = case["frames_per_cycle"]
+    send, recv = cost["send_us"]["p50"], cost["recv_us"]["p50"]
+    rate = case["rate_hz"]
+    seen, ours = per_cycle["in"], per_cycle["out"]
+    controller = rate * (ours * send + seen * recv) * 1e-4
+    simulator = rate * (max(0.0, seen - ours) * send + seen * recv) * 1e-4
+    return round(controller, 1), round(simulator, 1)
+
+
 def add_bench_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--config", help="TOML configuration (default: the shipped one)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a configuration key")
@@ -807,6 +916,12 @@ def add_bench_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--sim-rt-priority", type=int, metavar="N", help="SCHED_FIFO priority of the simulator")
     ap.add_argument("--sim-cpu", metavar="CPUS", help="CPU affinity of the simulator")
     ap.add_argument("--out", default="bench", help="directory for bench.json and the PNG plots")
+    ap.add_argument("--task", choices=("path", "contour"), default="path",
+                    help="the task over the bus: the circle (default) or the contour experiment (its own length)")
+    ap.add_argument("--schedulers", default="realtime,normal",
+                    help="run each rate with the real-time options (realtime) and/or without (normal)")
+    ap.add_argument("--cyclictest", type=float, default=30.0, metavar="S",
+                    help="seconds of cyclictest beside each case (0: none)")
     ap.add_argument("--json", action="store_true", help="print the JSON instead of the table")
     ap.add_argument("--strict", action="store_true",
                     help="keep the configured safety reactions (default: late/missing frames only warn)")
@@ -815,13 +930,23 @@ def add_bench_arguments(ap: argparse.ArgumentParser) -> None:
 def run_bench_command(args: argparse.Namespace, rt: RealtimeOptions) -> int:
     from controller.realtime import parse_cpus
 
-    sim_rt = RealtimeOptions(priority=args.sim_rt_priority,
-                             cpus=parse_cpus(args.sim_cpu) if args.sim_cpu else (), lock_memory=rt.lock_memory)
+    if args.sim_rt_priority is None and not args.sim_cpu:
+        sim_rt = rt.for_simulator()  # as the demo gives it: one step below the loop, on the other CPUs
+    else:
+        sim_rt = RealtimeOptions(priority=args.sim_rt_priority, cpus=parse_cpus(args.sim_cpu) if args.sim_cpu else (),
+                                 lock_memory=rt.lock_memory, required=rt.required)
     rates = tuple(float(r) for r in args.rates.split(","))
     overrides = list(args.set) if args.strict else [*TOLERANT_SAFETY, *args.set]
+    if args.task == "contour":
+        overrides.insert(0, 'task.kind="contour"')
+    schedulers = tuple(x.strip() for x in args.schedulers.split(",") if x.strip())
+    unknown = [x for x in schedulers if x not in ("realtime", "normal")]
+    if unknown or not schedulers:
+        raise ValueError(f"--schedulers {args.schedulers!r}: expected realtime, normal or both")
     report = run_bench(rates, args.duration, args.compare, Path(args.out), args.config, overrides, rt, sim_rt,
                        late_fraction=args.late_fraction, fd_from_hz=args.fd_from,
-                       progress=lambda s: print(s, file=sys.stderr, flush=True))
+                       progress=lambda s: print(s, file=sys.stderr, flush=True), schedulers=schedulers,
+                       cyclictest_s=args.cyclictest)
     print(json.dumps(report, indent=2) if args.json else format_table(report))
     print(f"JSON: {Path(args.out) / 'bench.json'}", file=sys.stderr)
     return 0

@@ -40,17 +40,31 @@ def _common(ap: argparse.ArgumentParser, bus: bool = True) -> None:
 
 
 def _rt_options(ap: argparse.ArgumentParser) -> None:
-    g = ap.add_argument_group("real-time options (Linux; refused with a message when not permitted)")
+    g = ap.add_argument_group(
+        "real-time options (Linux). Without any of them the loop asks for SCHED_FIFO 80 on the last CPU "
+        "with locked memory (the simulator: SCHED_FIFO 70 on the others) and runs on with one line of "
+        "warning where refused; given explicitly they are required")
     g.add_argument("--rt-priority", type=int, metavar="N", help="SCHED_FIFO priority 1..99 for the loop")
     g.add_argument("--cpu", metavar="CPUS", help="CPU affinity, e.g. 1 or 0,1")
     g.add_argument("--lock-memory", action="store_true", help="mlockall: no page faults on the hot path")
+    g.add_argument("--no-realtime", action="store_true", help="ask for none of them: the normal scheduler")
+    g.add_argument("--rt-best-effort", action="store_true",
+                   help="apply the options given where permitted, warn and run on where not")
 
 
-def _realtime(args: argparse.Namespace):  # -> controller.realtime.RealtimeOptions
-    from controller.realtime import RealtimeOptions, parse_cpus
+def _realtime(args: argparse.Namespace, simulator: bool = False):  # -> controller.realtime.RealtimeOptions
+    from controller.realtime import RealtimeError, RealtimeOptions, parse_cpus
 
+    explicit = args.rt_priority is not None or args.cpu or args.lock_memory
+    if args.no_realtime:
+        if explicit:
+            raise RealtimeError("--no-realtime cannot be combined with --rt-priority, --cpu or --lock-memory")
+        return RealtimeOptions()
+    if not explicit:
+        default = RealtimeOptions.default()
+        return default.for_simulator() if simulator else default
     return RealtimeOptions(priority=args.rt_priority, cpus=parse_cpus(args.cpu) if args.cpu else (),
-                           lock_memory=args.lock_memory)
+                           lock_memory=args.lock_memory, required=not args.rt_best_effort)
 
 
 def _overrides(args: argparse.Namespace) -> list[str]:
@@ -186,7 +200,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
     from sim_backend.process import serve
 
     cfg = _config(args)
-    serve(cfg, _spec(args, cfg), _stop_on_signals(), lambda line: print(line, flush=True), _realtime(args))
+    serve(cfg, _spec(args, cfg), _stop_on_signals(), lambda line: print(line, flush=True),
+          _realtime(args, simulator=True))
     return 0
 
 

@@ -92,11 +92,7 @@ def simulator_realtime_args(realtime: RealtimeOptions | None) -> list[str]:
     The simulator stands in for drives that answer on their own hardware: it must not queue
     behind the controller's loop, nor the loop behind it.
     """
-    if realtime is None:
-        return []
-    others = sorted(os.sched_getaffinity(0) - set(realtime.cpus)) if realtime.cpus else []
-    return RealtimeOptions(priority=None if realtime.priority is None else max(1, realtime.priority - 10),
-                           cpus=tuple(others), lock_memory=realtime.lock_memory).cli_args()
+    return [] if realtime is None else realtime.for_simulator().cli_args()
 
 
 def run_demo(cfg: Config, spec: BusSpec, config_path: str | None, overrides: list[str],

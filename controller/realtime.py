@@ -6,8 +6,11 @@ default): a loop thread woken by an arriving frame can wait that long while a ba
 thread converts messages. Shortening the interval bounds that wait at a small cost in
 throughput of the background threads.
 
-Real-time options (Linux), each asked for explicitly and refused with a message that says
-how to get the permission, never silently skipped:
+Real-time options (Linux). By default (``RealtimeOptions.default``, as ros2_control's node
+does) the controller asks for all three and, where the system refuses, prints one line naming
+what was refused and how to permit it, and runs on without it; ``--no-realtime`` asks for
+nothing. Options given explicitly on the command line are required: a refusal ends the start
+with that message.
 - ``SCHED_FIFO`` priority (1..99): the calling *thread* preempts every normal (CFS) task on
   its CPU as soon as it is runnable. Threads created afterwards inherit the policy, so the
   controller applies it to the loop thread only, after its helper threads have started.
@@ -25,13 +28,18 @@ import ctypes
 import ctypes.util
 import errno
 import gc
+import logging
 import os
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 
+log = logging.getLogger(__name__)
+
 MCL_CURRENT = 1
 MCL_FUTURE = 2
+DEFAULT_LOOP_PRIORITY = 80  # above the kernel's threaded IRQs (50) on PREEMPT_RT, below its watchdogs (99)
+SIMULATOR_PRIORITY_STEP = 10  # the simulated hardware runs this far below the loop
 
 _PRIORITY_HINT = ("run as root, give the interpreter CAP_SYS_NICE (sudo setcap cap_sys_nice+ep <python>), "
                   "or allow it in /etc/security/limits.conf (@group - rtprio 90); inside a container "
@@ -60,6 +68,24 @@ class RealtimeOptions:
     priority: int | None = None  # SCHED_FIFO priority 1..99, None: stay SCHED_OTHER
     cpus: tuple[int, ...] = ()  # CPUs to run on, () : leave the affinity alone
     lock_memory: bool = False  # mlockall(MCL_CURRENT | MCL_FUTURE)
+    required: bool = True  # False: where refused, warn in one line and run on without it
+
+    @classmethod
+    def default(cls, priority: int = DEFAULT_LOOP_PRIORITY) -> RealtimeOptions:
+        """What the controller asks for unless told otherwise: SCHED_FIFO, the last CPU, locked memory.
+
+        On a machine with more than one CPU the loop takes the last one and leaves the others
+        to the rest of the system (and to the simulator, ``for_simulator``).
+        """
+        allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+        return cls(priority=priority, cpus=(allowed[-1],) if len(allowed) > 1 else (), lock_memory=True,
+                   required=False)
+
+    def for_simulator(self) -> RealtimeOptions:
+        """The simulated hardware's options beside a loop with these: one step below, on the other CPUs."""
+        others = tuple(sorted(os.sched_getaffinity(0) - set(self.cpus))) if self.cpus else ()
+        priority = None if self.priority is None else max(1, self.priority - SIMULATOR_PRIORITY_STEP)
+        return RealtimeOptions(priority=priority, cpus=others, lock_memory=self.lock_memory, required=self.required)
 
     def __post_init__(self) -> None:
         if self.priority is not None and not 1 <= self.priority <= 99:
@@ -81,6 +107,8 @@ class RealtimeOptions:
             args += ["--cpu", ",".join(str(c) for c in self.cpus)]
         if self.lock_memory:
             args.append("--lock-memory")
+        if args and not self.required:
+            args.append("--rt-best-effort")
         return args
 
     def describe(self) -> str:
@@ -149,10 +177,13 @@ def lock_memory(libc: ctypes.CDLL | None = None) -> None:
 
 
 def check_realtime(options: RealtimeOptions) -> None:
-    """Refuse early, before anything is opened, when the kernel will not grant ``options``.
+    """Refuse early, before anything is opened, when the kernel will not grant required ``options``.
 
-    The priority is tried and reset at once; the memory lock, process-wide, stays.
+    The priority is tried and reset at once; the memory lock, process-wide, stays. Options
+    that are not required are not checked here: ``apply_realtime`` warns about them.
     """
+    if not options.required:
+        return
     if options.priority is not None:
         set_fifo_priority(options.priority)
         reset_scheduler()
@@ -167,23 +198,45 @@ def check_realtime(options: RealtimeOptions) -> None:
 def apply_realtime(options: RealtimeOptions) -> Callable[[], None]:
     """Apply ``options`` to the calling thread (priority, affinity) and the process (memory lock).
 
+    Required options raise ``RealtimeError`` when refused; the others are applied where the
+    system permits, and what it refused is logged in one line (``refused_realtime``).
     Returns a function that puts the thread's priority and affinity back (the lock stays).
     """
     before = os.sched_getaffinity(0) if options.cpus else None
-    if options.lock_memory:
-        lock_memory()
-    if options.cpus:
-        set_cpu_affinity(options.cpus)
-    if options.priority is not None:
-        set_fifo_priority(options.priority)
+    applied_priority = False
+    refused: list[str] = []
+    steps: list[tuple[bool, Callable[[], None]]] = [
+        (options.lock_memory, lock_memory),
+        (bool(options.cpus), lambda: set_cpu_affinity(options.cpus)),
+        (options.priority is not None, lambda: set_fifo_priority(options.priority or 0)),
+    ]
+    for wanted, apply in steps:
+        if not wanted:
+            continue
+        try:
+            apply()
+        except RealtimeError as err:
+            if options.required:
+                raise
+            refused.append(str(err))
+        else:
+            applied_priority = applied_priority or apply is steps[2][1]
+    if refused:
+        log.warning("%s", refused_realtime(refused))
 
     def restore() -> None:
-        if options.priority is not None:
+        if applied_priority:
             reset_scheduler()
         if before is not None:
             os.sched_setaffinity(0, before)
 
     return restore
+
+
+def refused_realtime(reasons: list[str]) -> str:
+    """The one line printed when default real-time options are refused."""
+    return ("real-time options refused, running without them (--no-realtime silences this): "
+            + "; ".join(reasons))
 
 
 def parse_cpus(text: str) -> tuple[int, ...]:

@@ -148,6 +148,7 @@ def node_setup_plan(cfg: Config) -> NodeSetupPlan:
         vendor_id=cfg.actuators.vendor_id, drive_product_code=cfg.actuators.product_code,
         sensor_product_code=cfg.sensor.product_code, controller_id=cfg.loop.controller_node_id,
         heartbeat_period_s=cfg.loop.heartbeat_period_s, heartbeat_consumer_s=cfg.loop.heartbeat_consumer_s,
+        cycle_period_s=cfg.period_s,
         sdo_timeout_s=cfg.loop.sdo_timeout_s, answer_timeout_s=max(5.0, 3.0 * cfg.loop.sdo_timeout_s),
     )
 

@@ -37,6 +37,7 @@ class NodeSetupPlan:
     controller_id: int
     heartbeat_period_s: float
     heartbeat_consumer_s: float
+    cycle_period_s: float = 0.0  # the SYNC period, written as the drives' interpolation time period (0: not written)
     answer_timeout_s: float = 5.0  # how long a node may take to answer at all (it may still be booting)
     sdo_timeout_s: float = 1.0  # each SDO response; canopen's 0.3 s default is short for slow machines
 
@@ -57,6 +58,27 @@ class NodeSetupReport:
     duration_s: float
 
 
+def interpolation_time_period(period_s: float) -> tuple[int, int]:
+    """Object 0x60C2 for ``period_s``: (value, index) with value x 10^index s, value an UNSIGNED8.
+
+    CiA 402 gives the interpolation time period as an UNSIGNED8 mantissa and an INTEGER8 power
+    of ten; 2.5 ms is (25, -4), 1 ms (1, -3). The coarsest exact form is chosen; a period with
+    no exact form (1/300 s) gets the finest one that fits in 8 bits (33 x 10^-4 s).
+    """
+    finest: tuple[int, int] | None = None
+    for index in range(-1, -10, -1):
+        value = period_s / 10.0 ** index
+        if round(value) > 255:
+            break
+        if round(value) > 0:
+            finest = (round(value), index)
+            if abs(value - round(value)) < 1e-6 * value:
+                return finest
+    if finest is None:
+        raise ValueError(f"interpolation time period {period_s} s cannot be written as an 8-bit value x 10^index s")
+    return finest
+
+
 def _wait_until_answering(node: canopen.RemoteNode, timeout_s: float) -> None:
     deadline = time.monotonic() + timeout_s
     last: Exception | None = None
@@ -67,6 +89,17 @@ def _wait_until_answering(node: canopen.RemoteNode, timeout_s: float) -> None:
         except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as err:
             last = err
     raise NodeSetupError(f"node {node.id} did not answer SDO requests within {timeout_s} s ({last})")
+
+
+def _write_interpolation_period(node: canopen.RemoteNode, period_s: float) -> None:
+    """0x60C2: the drive interpolates each target over this time (index first: no transient 2.5 s)."""
+    value, index = interpolation_time_period(period_s)
+    node.sdo[0x60C2][2].raw = index
+    node.sdo[0x60C2][1].raw = value
+    back = (node.sdo[0x60C2][1].raw, node.sdo[0x60C2][2].raw)
+    if back != (value, index):
+        raise NodeSetupError(f"node {node.id} interpolation time period 0x60C2 reads back {back}, "
+                             f"wrote {(value, index)}")
 
 
 def _identity(node: canopen.RemoteNode, expected_vendor: int, expected_product: int) -> NodeIdentity:
@@ -105,6 +138,8 @@ def configure_nodes(bus: can.BusABC, plan: NodeSetupPlan) -> NodeSetupReport:
                 raise NodeSetupError(f"node {node_id} reports mode of operation {mode}, expected 8 (CSP)")
             node.sdo[0x1017].raw = hb_ms
             node.sdo[0x1016][1].raw = consumer
+            if plan.cycle_period_s > 0:
+                _write_interpolation_period(node, plan.cycle_period_s)
             positions.append(node.sdo[0x6064].raw)
         if plan.sensor_id is not None:
             node = canopen.RemoteNode(plan.sensor_id, str(SENSOR_EDS))

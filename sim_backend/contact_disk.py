@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim_backend.environment import ZERO3
+from sim_backend.environment import NO_FORCE, Vector3
 
 
 @dataclass(frozen=True)
@@ -41,25 +41,24 @@ class DiskParams:
 class DiskEnvironment:
     def __init__(self, params: DiskParams) -> None:
         self.params = params
+        self._k_series = params.series_stiffness_n_m
 
-    def contact_wrench(self, tcp_m: np.ndarray, tcp_velocity_m_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        # plain floats: this runs every sub-step of the simulator
+    def contact_force(self, x_m: float, y_m: float, z_m: float, vx_m_s: float, vy_m_s: float) -> Vector3:
         p = self.params
-        if abs(float(tcp_m[2]) - p.height_m) > p.thickness_m / 2 + p.tool_radius_m:
-            return ZERO3, ZERO3
-        rx, ry = float(tcp_m[0]) - p.centre_m[0], float(tcp_m[1]) - p.centre_m[1]
+        if abs(z_m - p.height_m) > p.thickness_m / 2 + p.tool_radius_m:
+            return NO_FORCE
+        rx, ry = x_m - p.centre_m[0], y_m - p.centre_m[1]
         dist = math.hypot(rx, ry)
         penetration = p.radius_m + p.tool_radius_m - dist
         if penetration <= 0.0 or dist < 1e-9:
-            return ZERO3, ZERO3
+            return NO_FORCE
         nx, ny = rx / dist, ry / dist
-        vx, vy = float(tcp_velocity_m_s[0]), float(tcp_velocity_m_s[1])
-        fn = p.series_stiffness_n_m * penetration - p.contact_damping_n_s_m * (vx * nx + vy * ny)
+        fn = self._k_series * penetration - p.contact_damping_n_s_m * (vx_m_s * nx + vy_m_s * ny)
         if fn <= 0.0:
-            return ZERO3, ZERO3
+            return NO_FORCE
         tx, ty = -ny, nx  # z x n
-        friction = -p.friction_coefficient * fn * math.tanh((vx * tx + vy * ty) / p.friction_velocity_m_s)
-        return np.array([fn * nx + friction * tx, fn * ny + friction * ty, 0.0]), ZERO3
+        friction = -p.friction_coefficient * fn * math.tanh((vx_m_s * tx + vy_m_s * ty) / p.friction_velocity_m_s)
+        return (fn * nx + friction * tx, fn * ny + friction * ty, 0.0)
 
     def contour_points(self, n: int = 180) -> np.ndarray:
         """The disk's rim (for plots and viewers)."""

@@ -4,7 +4,15 @@ Behaviour, as a real CSP drive:
 - the power state machine of CiA 402 driven by the controlword (``drivers.cia402``);
 - on SYNC it latches the last received target and reports the position sampled at the
   SYNC; between SYNCs its position reference is interpolated linearly from the previous to
-  the new target over one SYNC period (the drive's interpolator);
+  the new target over the interpolation time period (object 0x60C2, written by the master at
+  set-up; the measured SYNC interval while it is 0), the drive's interpolator;
+- a late or missing setpoint costs nothing visible (CiA 402 leaves this to the manufacturer;
+  this drive models the common choice of a bounded linear extrapolation): when the next SYNC
+  is late, the reference goes on past the new target at the last segment's speed for up to
+  one more interpolation period, then holds; when a SYNC comes without a new target since the
+  last one, the drive latches the last target plus the last step, for up to
+  ``max_extrapolated_targets`` SYNCs in a row, then holds the last target. A drive whose
+  master is really silent still stops on its SYNC watchdog;
 - a second-order position loop (natural frequency ``bandwidth_hz``, damping ratio) with
   velocity feed-forward from the interpolator (a fraction ``velocity_feedforward``, 1.0 as
   CSP drives are usually tuned) and velocity and acceleration saturation, integrated in
@@ -54,6 +62,14 @@ class DriveParams:
     counts_per_unit: float
     sync_timeout_s: float
     substep_s: float
+    max_extrapolated_targets: int = 1  # SYNCs in a row without a new target that extrapolate it
+
+
+# How far past the end of its interpolation segment the reference goes on at the segment's speed
+# when the next SYNC is late, in interpolation periods. One: a controller that skips one deadline
+# sends a target one step further on, which the reference has then just reached; more would make
+# the carriage run ahead and come back.
+EXTRAPOLATION_PERIODS = 1.0
 
 
 @dataclass
@@ -71,7 +87,11 @@ class SimulatedDrive:
     latched_target: float = field(init=False)
     previous_target: float = field(init=False)
     interp_start_s: float = 0.0
-    sync_period_s: float = 0.0025
+    sync_period_s: float = 0.0025  # measured between SYNCs; the interpolation period while 0x60C2 is 0
+    interpolation_period_s: float = 0.0  # object 0x60C2 (value x 10^index s); 0: not configured
+    target_received: bool = False  # an RPDO came since the last SYNC
+    target_step: float = 0.0  # the last latched target minus the one before [unit]
+    extrapolated_targets: int = 0  # SYNCs in a row that latched an extrapolated target
     last_sync_s: float | None = None
     last_heartbeat_s: float | None = None
     time_s: float | None = None
@@ -88,6 +108,7 @@ class SimulatedDrive:
 
     def on_rpdo(self, controlword: int, target_counts: int) -> None:
         self.received_target = target_counts / self.params.counts_per_unit
+        self.target_received = True
         self.on_controlword(controlword)
 
     def on_controlword(self, controlword: int) -> None:
@@ -100,6 +121,7 @@ class SimulatedDrive:
                 # Enabling starts from where the carriage is: no jump.
                 self.latched_target = self.previous_target = self.received_target = self.position
                 self.velocity = 0.0
+                self.target_step = 0.0
             self.power = new
         self.last_controlword = controlword
 
@@ -111,7 +133,18 @@ class SimulatedDrive:
                 self.sync_period_s = dt
         self.last_sync_s = now_s
         self.previous_target = self._reference(now_s)
-        self.latched_target = self.received_target
+        if self.target_received or self.power != PowerState.OPERATION_ENABLED:
+            self.target_step = self.received_target - self.latched_target
+            self.latched_target = self.received_target
+            self.extrapolated_targets = 0
+        elif self.extrapolated_targets < self.params.max_extrapolated_targets:
+            # no setpoint for this SYNC: go on as the last one did (the next one is taken as it comes)
+            self.latched_target += self.target_step
+            self.received_target = self.latched_target
+            self.extrapolated_targets += 1
+        else:
+            self.target_step = 0.0  # silent longer: hold the last target
+        self.target_received = False
         self.interp_start_s = now_s
 
     def on_controller_heartbeat(self, now_s: float) -> None:
@@ -138,9 +171,15 @@ class SimulatedDrive:
 
     # -- dynamics ---------------------------------------------------------------------------
 
+    @property
+    def segment_period_s(self) -> float:
+        """The interpolation period: 0x60C2 when the master set it, else the measured SYNC interval."""
+        return self.interpolation_period_s or self.sync_period_s
+
     def _reference(self, now_s: float) -> float:
-        x = (now_s - self.interp_start_s) / self.sync_period_s if self.sync_period_s > 0 else 1.0
-        x = min(max(x, 0.0), 1.0)
+        period = self.segment_period_s
+        x = (now_s - self.interp_start_s) / period if period > 0 else 1.0
+        x = min(max(x, 0.0), 1.0 + EXTRAPOLATION_PERIODS)
         return self.previous_target + x * (self.latched_target - self.previous_target)
 
     def _watchdog(self, now_s: float, check_sync_timeout: bool) -> None:
@@ -161,44 +200,72 @@ class SimulatedDrive:
         self.power = PowerState.QUICK_STOP_ACTIVE
         self.pending_emcy.append(error_code)
 
-    def advance(self, now_s: float, check_sync_timeout: bool = True) -> None:
-        """Integrate the carriage up to ``now_s`` in sub-steps, checking the watchdogs first."""
+    def advance(self, now_s: float, check_sync_timeout: bool = True, substeps: int = 0,
+                trace: list[float] | None = None) -> None:
+        """Integrate the carriage up to ``now_s`` in equal sub-steps, checking the watchdogs first.
+
+        ``substeps`` (0: as many as ``params.substep_s`` needs) lets the plant step drives and
+        structure on one grid; ``trace`` receives position and acceleration after each sub-step.
+        """
         if self.time_s is None:
             self.time_s = now_s
             return
         self._watchdog(now_s, check_sync_timeout)
-        h = self.params.substep_s
-        while self.time_s < now_s:
-            dt = min(h, now_s - self.time_s)
-            self._substep(self.time_s, dt)  # reference at the start of the sub-step
-            self.time_s += dt
-
-    def _substep(self, t: float, dt: float) -> None:
-        p = self.params
-        if self.power == PowerState.OPERATION_ENABLED and self.mode_of_operation == MODE_CYCLIC_SYNC_POSITION:
-            wn = 2.0 * math.pi * p.bandwidth_hz
-            ref = self._reference(t)
-            v_ref = p.velocity_feedforward * (self.latched_target - self.previous_target) / self.sync_period_s
-            acc = wn * wn * (ref - self.position) + 2.0 * p.damping_ratio * wn * (v_ref - self.velocity)
-            acc = max(-p.max_acceleration, min(p.max_acceleration, acc))
-        elif self.power in (PowerState.QUICK_STOP_ACTIVE, PowerState.FAULT_REACTION_ACTIVE, PowerState.FAULT):
-            if abs(self.velocity) <= p.quick_stop_deceleration * dt:
-                self.velocity = 0.0
-                acc = 0.0
-            else:
-                acc = -math.copysign(p.quick_stop_deceleration, self.velocity)
-        else:
-            # Not enabled, or enabled in a mode this drive does not run: the brake holds.
-            self.velocity = 0.0
-            self.acceleration = 0.0
+        span = now_s - self.time_s
+        if span <= 0.0:
             return
-        # Semi-implicit Euler: stable for wn * dt << 1 (60 Hz, 0.25 ms: 0.09).
-        v0 = self.velocity
-        self.velocity = max(-p.max_velocity, min(p.max_velocity, self.velocity + acc * dt))
-        self.acceleration = (self.velocity - v0) / dt if dt > 0 else 0.0
-        self.position += self.velocity * dt
-        if not p.stroke_min <= self.position <= p.stroke_max:
-            self.position = min(max(self.position, p.stroke_min), p.stroke_max)
-            self.velocity = 0.0
-            self.acceleration = 0.0
-            self.force_fault(EMCY_POSITION_RANGE)
+        p = self.params
+        n = substeps or max(1, math.ceil(span / p.substep_s - 1e-9))
+        h = span / n
+        t = self.time_s
+        x, v, a = self.position, self.velocity, self.acceleration
+        vmax = p.max_velocity
+        enabled = self.power == PowerState.OPERATION_ENABLED and self.mode_of_operation == MODE_CYCLIC_SYNC_POSITION
+        stopping = self.power in (PowerState.QUICK_STOP_ACTIVE, PowerState.FAULT_REACTION_ACTIVE, PowerState.FAULT)
+        if enabled:
+            wn = 2.0 * math.pi * p.bandwidth_hz
+            wn2, c = wn * wn, 2.0 * p.damping_ratio * wn
+            amax = p.max_acceleration
+            period = self.segment_period_s
+            x0, dx = self.previous_target, self.latched_target - self.previous_target
+            v_ff = p.velocity_feedforward * dx / period if period > 0 else 0.0
+            t0, x_end = self.interp_start_s, 1.0 + EXTRAPOLATION_PERIODS
+        for _ in range(n):
+            if enabled:
+                # the reference at the start of the sub-step (``_reference``, inlined: this is
+                # the simulator's inner loop)
+                r = (t - t0) / period if period > 0 else 1.0
+                ref = x0 + (r if 0.0 <= r <= x_end else (0.0 if r < 0.0 else x_end)) * dx
+                acc = wn2 * (ref - x) + c * (v_ff - v)
+                acc = amax if acc > amax else (-amax if acc < -amax else acc)  # noqa: FURB136 (no call: inner loop)
+            elif stopping:
+                if abs(v) <= p.quick_stop_deceleration * h:
+                    v, acc = 0.0, 0.0
+                else:
+                    acc = -math.copysign(p.quick_stop_deceleration, v)
+            else:
+                # Not enabled, or enabled in a mode this drive does not run: the brake holds.
+                v = a = 0.0
+                t += h
+                if trace is not None:
+                    trace.append(x)
+                    trace.append(0.0)
+                continue
+            # Semi-implicit Euler: stable for wn * h << 1 (60 Hz, 0.5 ms: 0.19).
+            v0 = v
+            v = v + acc * h
+            v = vmax if v > vmax else (-vmax if v < -vmax else v)  # noqa: FURB136 (no call: inner loop)
+            a = (v - v0) / h
+            x += v * h
+            t += h
+            if not p.stroke_min <= x <= p.stroke_max:
+                x = min(max(x, p.stroke_min), p.stroke_max)
+                v = a = 0.0
+                self.position, self.velocity, self.acceleration = x, v, a
+                self.force_fault(EMCY_POSITION_RANGE)
+                enabled, stopping = False, True
+            if trace is not None:
+                trace.append(x)
+                trace.append(a)
+        self.position, self.velocity, self.acceleration = x, v, a
+        self.time_s = now_s

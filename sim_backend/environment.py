@@ -1,24 +1,25 @@
 """The environment the simulated robot touches: the seam for contact models.
 
-An environment maps the TCP's position and velocity to the wrench it receives. Free space
-gives none; the contact-tracking issue adds a rigid disk with a contact model here.
+An environment maps the TCP's position and velocity to the force it receives. Free space
+gives none; ``contact_disk.py`` is the workpiece of the contour experiment. Plain floats: the
+plant calls it every sub-step. The contact is a point at the TCP, where the sensor's frame is
+centred, so it puts no torque on the sensor.
 """
 
 from __future__ import annotations
 
 from typing import Protocol
 
-import numpy as np
-
-ZERO3 = np.zeros(3)
+Vector3 = tuple[float, float, float]
+NO_FORCE: Vector3 = (0.0, 0.0, 0.0)
 
 
 class Environment(Protocol):
-    def contact_wrench(self, tcp_m: np.ndarray, tcp_velocity_m_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Force [N] and torque [N m] on the tool, in the base frame."""
+    def contact_force(self, x_m: float, y_m: float, z_m: float, vx_m_s: float, vy_m_s: float) -> Vector3:
+        """Force [N] on the tool at TCP (x, y, z) moving at (vx, vy) in XY, in the base frame."""
         ...
 
 
 class FreeSpace:
-    def contact_wrench(self, tcp_m: np.ndarray, tcp_velocity_m_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return ZERO3, ZERO3
+    def contact_force(self, x_m: float, y_m: float, z_m: float, vx_m_s: float, vy_m_s: float) -> Vector3:
+        return NO_FORCE

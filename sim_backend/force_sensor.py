@@ -40,7 +40,7 @@ class SimulatedForceSensor:
     freeze_counter: bool = False  # fault injection: the counter stops advancing
     extra_force_n: tuple[float, float, float] = (0.0, 0.0, 0.0)  # fault injection: an unexpected force
     rng: np.random.Generator = field(init=False)
-    _filtered: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    _filtered_xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
     _torque: np.ndarray = field(default_factory=lambda: np.zeros(3))
     _sample: np.ndarray = field(default_factory=lambda: np.zeros(3))
     _next_sample_s: float | None = None
@@ -51,21 +51,18 @@ class SimulatedForceSensor:
         self.rng = np.random.default_rng(self.params.seed)
         self._sample = np.asarray(self.params.bias_n, dtype=float).copy()
 
-    def observe(self, t_s: float, dt: float, force_n: np.ndarray, torque_nm: np.ndarray) -> None:
-        """Filter the true wrench over ``dt`` and take a sample when one is due."""
-        p = self.params
+    def observe(self, t_s: float, dt: float, fx_n: float, fy_n: float, fz_n: float) -> None:
+        """Filter the true force over ``dt`` and take a sample when one is due (plain floats: every sub-step)."""
         if dt != self._alpha_dt:  # the plant's sub-step is constant: compute the factor once
-            self._alpha = 1.0 - math.exp(-2.0 * math.pi * p.bandwidth_hz * dt)
+            self._alpha = 1.0 - math.exp(-2.0 * math.pi * self.params.bandwidth_hz * dt)
             self._alpha_dt = dt
         a = self._alpha
-        f = self._filtered
-        f[0] += a * (force_n[0] - f[0])
-        f[1] += a * (force_n[1] - f[1])
-        f[2] += a * (force_n[2] - f[2])
-        self._torque = torque_nm
+        f = self._filtered_xyz
+        f0, f1, f2 = f[0] + a * (fx_n - f[0]), f[1] + a * (fy_n - f[1]), f[2] + a * (fz_n - f[2])
+        self._filtered_xyz = (f0, f1, f2)
         if self._next_sample_s is None or t_s >= self._next_sample_s:
-            self._sample = self._filtered + np.asarray(p.bias_n) + self.rng.normal(0.0, p.noise_std_n, 3)
-            self._torque = np.asarray(torque_nm, dtype=float)
+            p = self.params
+            self._sample = np.array((f0, f1, f2)) + np.asarray(p.bias_n) + self.rng.normal(0.0, p.noise_std_n, 3)
             self._next_sample_s = (self._next_sample_s or t_s) + 1.0 / p.sample_rate_hz
 
     def frames(self) -> tuple[bytes, bytes]:
@@ -85,8 +82,10 @@ class SimulatedForceSensor:
 
     def sample(self, force_n: np.ndarray, torque_nm: np.ndarray) -> tuple[bytes, bytes]:
         """Observe a constant wrench long enough for the filter to settle, then answer a SYNC."""
-        self._filtered = np.asarray(force_n, dtype=float).copy()
+        fx, fy, fz = (float(v) for v in force_n)
+        self._filtered_xyz = (fx, fy, fz)
         self._next_sample_s = None
         self._alpha_dt = -1.0
-        self.observe(0.0, 0.0, force_n, torque_nm)
+        self._torque = np.asarray(torque_nm, dtype=float)
+        self.observe(0.0, 0.0, fx, fy, fz)
         return self.frames()

@@ -35,7 +35,8 @@ class LoopbackExchange:
         self.plant = RobotPlant(cfg, environment)
         self.drives = self.plant.drives
         for d in self.drives:
-            d.mode_of_operation = 8  # what node set-up does over SDO on the real path
+            d.mode_of_operation = 8  # what node set-up does over SDO on the real path: CSP,
+            d.interpolation_period_s = cfg.period_s  # and 0x60C2
         self.drive_ids = tuple(cfg.actuators.node_ids)
         self.faults = FaultSchedule.from_strings(tuple(cfg.sim.faults))
         self.rejected_frames = 0
@@ -57,6 +58,9 @@ class LoopbackExchange:
                 d.on_rpdo(*decode_drive_rpdo(encode_drive_rpdo(cw, self.scale.to_counts(x))))
         apply_device_faults(self.faults, self.plant, self.drive_ids, now)
         drive_payloads, sensor_frames = self.plant.sync(now)
+        sample = self.plant.kinematics_sample()
+        if sample is not None:
+            self.plant.update_kinematics(*sample)
         self._frames = []
         for j, data in enumerate(drive_payloads):
             payload = tpdo_payload(self.faults, self.drive_ids[j], data, now)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.robots.performance import MassModel, cartesian_mass_matrix
+from controller.robots.performance import MassModel
 
 
 @dataclass(frozen=True)
@@ -49,6 +49,32 @@ def as_rows(m: np.ndarray) -> Matrix3:
     return tuple(tuple(float(x) for x in row) for row in m)  # type: ignore[return-value]
 
 
+def transpose3(m: Matrix3) -> Matrix3:
+    return ((m[0][0], m[1][0], m[2][0]), (m[0][1], m[1][1], m[2][1]), (m[0][2], m[1][2], m[2][2]))
+
+
+def matmul3(a: Matrix3, b: Matrix3) -> Matrix3:
+    bt = transpose3(b)
+    return tuple(tuple(r[0] * c[0] + r[1] * c[1] + r[2] * c[2] for c in bt) for r in a)  # type: ignore[return-value]
+
+
+def scaled3(m: Matrix3, k: float) -> Matrix3:
+    return tuple(tuple(k * x for x in row) for row in m)  # type: ignore[return-value]
+
+
+def inverse3(m: Matrix3) -> Matrix3:
+    """The inverse by cofactors; plain floats (numpy's call overhead is most of its cost for 3x3)."""
+    (a, b, c), (d, e, f), (g, h, i) = m
+    co_a, co_b, co_c = e * i - f * h, f * g - d * i, d * h - e * g
+    det = a * co_a + b * co_b + c * co_c
+    if det == 0.0:
+        raise np.linalg.LinAlgError("singular 3x3 matrix")
+    r = 1.0 / det
+    return ((co_a * r, (c * h - b * i) * r, (b * f - c * e) * r),
+            (co_b * r, (a * i - c * g) * r, (c * d - a * f) * r),
+            (co_c * r, (b * g - a * h) * r, (a * e - b * d) * r))
+
+
 @dataclass
 class CompliantTool:
     """Deflection state of the structure. ``set_structure`` when the pose has moved, ``step`` often.
@@ -65,13 +91,16 @@ class CompliantTool:
     _inv_mass_damping: Matrix3 = ((0.0,) * 3,) * 3
     _inv_mass: Matrix3 = ((0.0,) * 3,) * 3
 
-    def set_structure(self, jac: np.ndarray) -> None:
-        jtj = jac.T @ jac
+    def set_structure(self, jac: np.ndarray | Matrix3) -> None:
+        j = as_rows(np.asarray(jac)) if isinstance(jac, np.ndarray) else jac
+        jtj = matmul3(transpose3(j), j)
         p = self.params
-        inv_mass = np.linalg.inv(cartesian_mass_matrix(jac, p.masses))
-        self._inv_mass = as_rows(inv_mass)
-        self._inv_mass_stiffness = as_rows(inv_mass @ (p.actuator_stiffness_n_m * jtj))
-        self._inv_mass_damping = as_rows(inv_mass @ (p.actuator_damping_n_s_m * jtj))
+        m0, mq = p.masses.translating_kg, p.masses.per_actuator_kg  # M = m_0 I + m_q J^T J (cartesian_mass_matrix)
+        mass = tuple(tuple(mq * jtj[r][c] + (m0 if r == c else 0.0) for c in range(3)) for r in range(3))
+        inv_mass = inverse3(mass)  # type: ignore[arg-type]
+        self._inv_mass = inv_mass
+        self._inv_mass_stiffness = matmul3(inv_mass, scaled3(jtj, p.actuator_stiffness_n_m))
+        self._inv_mass_damping = matmul3(inv_mass, scaled3(jtj, p.actuator_damping_n_s_m))
 
     def step(self, force_n: Vector3, dt: float, base_acceleration_m_s2: Vector3 = NO_ACCELERATION) -> None:
         """Semi-implicit Euler: x'' = M^-1 (F - K x - D x') - a_base.
@@ -83,6 +112,10 @@ class CompliantTool:
         a_k = matvec(self._inv_mass_stiffness, self.deflection_m)
         a_d = matvec(self._inv_mass_damping, self.velocity_m_s)
         a_b = base_acceleration_m_s2
-        v = tuple(self.velocity_m_s[i] + (a_f[i] - a_k[i] - a_d[i] - a_b[i]) * dt for i in range(3))
-        self.velocity_m_s = v  # type: ignore[assignment]
-        self.deflection_m = tuple(self.deflection_m[i] + v[i] * dt for i in range(3))  # type: ignore[assignment]
+        v0, v1, v2 = self.velocity_m_s
+        v0 += (a_f[0] - a_k[0] - a_d[0] - a_b[0]) * dt
+        v1 += (a_f[1] - a_k[1] - a_d[1] - a_b[1]) * dt
+        v2 += (a_f[2] - a_k[2] - a_d[2] - a_b[2]) * dt
+        x = self.deflection_m
+        self.velocity_m_s = (v0, v1, v2)
+        self.deflection_m = (x[0] + v0 * dt, x[1] + v1 * dt, x[2] + v2 * dt)

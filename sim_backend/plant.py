@@ -2,9 +2,17 @@
 
 Both the simulator process (``server.py``) and the in-process loopback (``loopback.py``)
 drive this object, so they simulate the same physics. Time is an argument: ``advance``
-integrates everything up to ``now_s`` in sub-steps of ``substep_s``; ``sync`` answers a SYNC.
-In free space the structure carries no load, so the mechanics reduce to the direct
-kinematics evaluated at the SYNC.
+integrates everything up to ``now_s`` on one grid of equal sub-steps of at most
+``substep_s``; ``sync`` answers a SYNC. In free space the structure carries no load, so the
+mechanics reduce to the direct kinematics evaluated at the SYNC.
+
+Cost, because a simulator that answers late looks like a late drive: the whole interval
+between two SYNCs is integrated in one call, in plain floats. The drives go first, leaving a
+trace of their positions and accelerations; the structure follows on the same grid, with the
+kinematic TCP interpolated linearly between its values at the two ends (at 60 mm/s around a
+70 mm radius that is 0.2 um off the arc over 2.5 ms) and the pose-dependent matrices (J, the
+structure's M^-1 K, M^-1 D) evaluated once per interval, at its start (the TCP moves 0.15 mm in
+2.5 ms; J changes by a part in a thousand).
 
 The mechanics depend on ``robot.kind`` (``_update_kinematics``):
 - Cheope: the closed-form direct kinematics of the slider positions [m];
@@ -51,9 +59,18 @@ from controller.robots.registry import actuator_units, mass_model_from_config, r
 from drivers.pdo_codec import encode_drive_tpdo
 from sim_backend.contact_disk import DiskEnvironment, DiskParams
 from sim_backend.drive import DriveParams, SimulatedDrive
-from sim_backend.environment import ZERO3, Environment, FreeSpace
+from sim_backend.environment import Environment, FreeSpace
 from sim_backend.force_sensor import SensorParams, SimulatedForceSensor
-from sim_backend.mechanics import NO_ACCELERATION, ComplianceParams, CompliantTool, Matrix3, as_rows, matvec
+from sim_backend.mechanics import (
+    NO_ACCELERATION,
+    ComplianceParams,
+    CompliantTool,
+    Matrix3,
+    as_rows,
+    inverse3,
+    matvec,
+    transpose3,
+)
 
 log = logging.getLogger(__name__)
 
@@ -110,9 +127,6 @@ class RobotPlant:
         self.tool = CompliantTool(ComplianceParams(cfg.robot.mass.actuator_stiffness_n_m,
                                                    cfg.sim.structure_damping_ratio, mass_model_from_config(cfg)))
         self.substep_s = cfg.sim.drive.substep_s
-        self.structure_refresh_s = 1e-3
-        self._structure_time_s = -1.0
-        self._v_kin = np.zeros(3)
         d = cfg.sim.drive
         self._cogging_n = d.cogging_force_n if self.kind == "cheope" else 0.0
         self._cogging_k = 2.0 * math.pi / d.cogging_period_m
@@ -123,7 +137,7 @@ class RobotPlant:
         self.time_s: float | None = None
         self.last_sync_s: float | None = None
         self.tcp_kinematic_m = np.zeros(3)
-        self.force_n = ZERO3
+        self.force_n = np.zeros(3)
         self._update_kinematics()
 
     @property
@@ -133,25 +147,16 @@ class RobotPlant:
 
     def _update_kinematics(self) -> np.ndarray | None:
         q = np.array([d.position for d in self.drives])
-        try:
-            if self.kind == "cheope":
-                self.tcp_kinematic_m = self.robot.direct_kinematics(q)
-            elif self.kind == "uru":  # Newton from the previous pose: the assembly the platform is in
-                guess = self.tcp_kinematic_m if np.any(self.tcp_kinematic_m) else None
-                self.tcp_kinematic_m = self.robot.direct_kinematics(q, guess)
-            else:
-                self._integrate_pose(q)
-        except NoSolutionError:
-            log.warning("simulated actuators at %s m have no assembly", q.tolist())
-            return None
-        return q
+        return q if self.update_kinematics(self.time_s, q) else None
 
-    def _integrate_pose(self, q_m: np.ndarray) -> None:
+    def _integrate_pose(self, q_m: np.ndarray, t: float | None) -> None:
         """nSPU: advance the pose so that its legs reach the drives' actual lengths (seed 000 eq. (11))."""
         from controller.robots.nspu import advance_pose_to_leg_lengths, leg_lengths
+        from controller.robots.nspu_robot import ODOMETRY_INTERVAL_S
 
-        t = self.time_s
         if self._pose_time_s is not None and t is not None and t > self._pose_time_s:
+            if t - self._pose_time_s < ODOMETRY_INTERVAL_S - 1e-9:
+                return  # not yet: the legs' motion over the next SYNCs goes into one step (nspu_robot.py)
             if np.any(np.abs(q_m - leg_lengths(self.robot.geometry, self.pose)) > 1e-12):
                 self.pose = advance_pose_to_leg_lengths(self.robot.geometry, self.pose, q_m, t - self._pose_time_s)
         self._pose_time_s = t
@@ -163,46 +168,71 @@ class RobotPlant:
             self.time_s = now_s
             for d in self.drives:
                 d.advance(now_s, check_sync_timeout)
+            if self.loaded:
+                self._refresh_structure()
+            return
+        span = now_s - self.time_s
+        if span <= 0.0:
             return
         if not self.loaded:
             for d in self.drives:
                 d.advance(now_s, check_sync_timeout)
-            self.time_s = max(self.time_s, now_s)
+            self.time_s = now_s
             return
-        while self.time_s < now_s:
-            dt = min(self.substep_s, now_s - self.time_s)
-            t1 = self.time_s + dt
-            for d in self.drives:
-                d.advance(t1, check_sync_timeout)
-            self._mechanics(t1, dt)
-            self.time_s = t1
+        n = max(1, math.ceil(span / self.substep_s - 1e-9))
+        traces: list[list[float]] = [[] for _ in self.drives]
+        for d, trace in zip(self.drives, traces):
+            d.advance(now_s, check_sync_timeout, n, trace)
+        self._structure(self.time_s, span, n, traces)
+        self.time_s = now_s
+        self._refresh_structure(kinematics_done=True)
 
-    def _mechanics(self, t_s: float, dt: float) -> None:
-        if t_s - self._structure_time_s >= self.structure_refresh_s:
-            # every millisecond: kinematics and the structure's matrices at the current pose
-            if self._update_kinematics() is None:
-                return
-            jac = self.robot.jacobian(self.tcp_kinematic_m)
-            self._v_kin = np.linalg.solve(jac, np.array([d.velocity for d in self.drives]))
-            self.tool.set_structure(jac)
-            self._jt = as_rows(jac.T)
-            self._jinv = as_rows(np.linalg.inv(jac))
-            self._structure_time_s = t_s
-        else:  # in between, the kinematic TCP moves on with its velocity
-            self.tcp_kinematic_m = self.tcp_kinematic_m + self._v_kin * dt
-        force, torque = self.environment.contact_wrench(self.tcp_m, self._v_kin + np.asarray(self.tool.velocity_m_s))
-        self.force_n = force
-        fx, fy, fz = float(force[0]), float(force[1]), float(force[2])
-        if self._cogging_n:  # the carriages' cogging forces, on the structure as J^T f
-            f = tuple(self._cogging_n * math.sin(self._cogging_k * d.position + ph)
-                      for d, ph in zip(self.drives, self._cogging_phase))
-            jf = matvec(self._jt, f)
-            fx, fy, fz = fx + jf[0], fy + jf[1], fz + jf[2]
-        # the kinematic TCP's acceleration J^-1 q'' loads the structure
-        ab = matvec(self._jinv, tuple(d.acceleration for d in self.drives)) if self._inertial else NO_ACCELERATION
-        self.tool.step((fx, fy, fz), dt, ab)
-        if self.sensor is not None:
-            self.sensor.observe(t_s, dt, force, torque)
+    def _refresh_structure(self, kinematics_done: bool = False) -> None:
+        """The kinematic TCP and the pose-dependent matrices at the drives' current positions."""
+        if not kinematics_done and self._update_kinematics() is None:
+            return
+        jac = as_rows(self.robot.jacobian(self.tcp_kinematic_m))
+        self.tool.set_structure(jac)
+        self._jt = transpose3(jac)
+        self._jinv = inverse3(jac)
+
+    def _structure(self, t0_s: float, span_s: float, n: int, traces: list[list[float]]) -> None:
+        """The structure's deflection, the contact force and the sensor over one interval."""
+        k0 = self.tcp_kinematic_m
+        q1 = np.array([d.position for d in self.drives])
+        try:
+            k1 = self.robot.direct_kinematics(q1) if self.kind == "cheope" else k0
+        except NoSolutionError:
+            log.warning("simulated actuators at %s m have no assembly", q1.tolist())
+            k1 = k0
+        self.tcp_kinematic_m = k1
+        k0x, k0y, k0z = float(k0[0]), float(k0[1]), float(k0[2])
+        vkx, vky, vkz = (float(k1[0]) - k0x) / span_s, (float(k1[1]) - k0y) / span_s, (float(k1[2]) - k0z) / span_s
+        h = span_s / n
+        tool, env, sensor = self.tool, self.environment, self.sensor
+        cogging, ck, phases = self._cogging_n, self._cogging_k, self._cogging_phase
+        jt, jinv, inertial = self._jt, self._jinv, self._inertial
+        sin = math.sin
+        force: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        for i in range(n):
+            tau = (i + 1) * h
+            dx, dy, dz = tool.deflection_m
+            tvx, tvy, _ = tool.velocity_m_s
+            force = env.contact_force(k0x + vkx * tau + dx, k0y + vky * tau + dy, k0z + vkz * tau + dz,
+                                      vkx + tvx, vky + tvy)
+            fx, fy, fz = force
+            j = 2 * i
+            if cogging:  # the carriages' cogging forces, on the structure as J^T f
+                jf = matvec(jt, tuple(cogging * sin(ck * tr[j] + ph)  # type: ignore[arg-type]
+                                      for tr, ph in zip(traces, phases)))
+                fx, fy, fz = fx + jf[0], fy + jf[1], fz + jf[2]
+            # the kinematic TCP's acceleration J^-1 q'' loads the structure
+            ab = matvec(jinv, (traces[0][j + 1], traces[1][j + 1], traces[2][j + 1])) if inertial \
+                else NO_ACCELERATION
+            tool.step((fx, fy, fz), h, ab)
+            if sensor is not None:
+                sensor.observe(t0_s + tau, h, force[0], force[1], force[2])
+        self.force_n = np.array(force)
 
     def sync(self, now_s: float) -> tuple[list[bytes], tuple[bytes, bytes] | None]:
         """Latch the drives' targets, sample everything at ``now_s``: the TPDO payloads."""
@@ -210,11 +240,35 @@ class RobotPlant:
         self.last_sync_s = now_s
         for d in self.drives:
             d.on_sync(now_s)
-        if not self.loaded:
-            self._update_kinematics()
-            if self.sensor is not None:
-                force, torque = self.environment.contact_wrench(self.tcp_m, np.zeros(3))
-                self.sensor.observe(now_s, 1.0, force, torque)
+        if not self.loaded and self.sensor is not None:
+            self.sensor.observe(now_s, 1.0, 0.0, 0.0, 0.0)  # free space: nothing touches the tool
         drives = [encode_drive_tpdo(d.statusword(), d.position_counts()) for d in self.drives]
         sensor = self.sensor.frames() if self.sensor is not None else None
         return drives, sensor
+
+    def kinematics_sample(self) -> tuple[float, np.ndarray] | None:
+        """After a SYNC in free space: (time, drive positions) for ``update_kinematics``, else None.
+
+        In free space the TPDOs carry only the drives' positions; the pose (the direct
+        kinematics, or the 3-nSPU's integration of its whole leg motion, 1.7 ms a step in numpy)
+        is the simulator's own view and must not delay them: the simulator process hands the
+        sample to a thread of its own, the in-process loopback updates at once.
+        """
+        if self.loaded or self.time_s is None:
+            return None
+        return self.time_s, np.array([d.position for d in self.drives])
+
+    def update_kinematics(self, t_s: float | None, q: np.ndarray) -> bool:
+        """The pose at ``t_s`` from the drives' positions ``q``; False where they have no assembly."""
+        try:
+            if self.kind == "cheope":
+                self.tcp_kinematic_m = self.robot.direct_kinematics(q)
+            elif self.kind == "uru":  # Newton from the previous pose: the assembly the platform is in
+                guess = self.tcp_kinematic_m if np.any(self.tcp_kinematic_m) else None
+                self.tcp_kinematic_m = self.robot.direct_kinematics(q, guess)
+            else:
+                self._integrate_pose(q, t_s)
+        except NoSolutionError:
+            log.warning("simulated actuators at %s m have no assembly", q.tolist())
+            return False
+        return True

@@ -82,8 +82,11 @@ def test_deadline_loop_keeps_the_rate_where_the_naive_one_drifts():
 
 
 def test_cpu_use_from_samples():
-    samples = [(10.0, 1.0, 2.0, 3.0), (12.0, 1.5, 3.0, float("nan"))]
-    assert cpu_use_percent(samples) == {"loop_thread": 25.0, "controller_process": 50.0, "simulator_process": None}
+    nan = float("nan")
+    # (monotonic, loop thread, controller, simulator, writer) [s]; the writer is found after the first sample
+    samples = [(10.0, 1.0, 2.0, 3.0, nan), (11.0, 1.2, 2.5, 3.2, 0.5), (12.0, 1.5, 3.0, nan, 0.6)]
+    assert cpu_use_percent(samples) == {"loop_thread": 25.0, "controller_process": 50.0, "simulator_process": None,
+                                        "writer_process": 10.0}
     assert cpu_use_percent(samples[:1])["loop_thread"] is None
 
 

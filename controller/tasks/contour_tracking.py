@@ -281,12 +281,15 @@ class ContourTrackingTask:
         f_xy = math.hypot(fx, fy)
         normal, rate = s.normal, s.normal_rate_rad_s
         if f_xy >= p.normal_min_force_n:
-            mu = p.friction_estimate if s.speed_m_s > 0.0 else 0.0
-            t_prev = (-normal[1] * p.direction, normal[0] * p.direction)
-            k = mu * f_xy / math.sqrt(1.0 + mu * mu)  # friction force magnitude mu F_n
-            measured = math.atan2(fy + k * t_prev[1], fx + k * t_prev[0])
-            normal_angle, rate = track_normal(math.atan2(normal[1], normal[0]), rate, measured, dt,
-                                              p.normal_tracker_hz)
+            angle = math.atan2(normal[1], normal[0])
+            if fresh_sample(ctx):
+                mu = p.friction_estimate if s.speed_m_s > 0.0 else 0.0
+                t_prev = (-normal[1] * p.direction, normal[0] * p.direction)
+                k = mu * f_xy / math.sqrt(1.0 + mu * mu)  # friction force magnitude mu F_n
+                measured = math.atan2(fy + k * t_prev[1], fx + k * t_prev[0])
+            else:  # a repeated sample is no new direction: the tracker only predicts
+                measured = angle + rate * dt
+            normal_angle, rate = track_normal(angle, rate, measured, dt, p.normal_tracker_hz)
             normal = (math.cos(normal_angle), math.sin(normal_angle))
         fn = fx * normal[0] + fy * normal[1]  # normal force pressing the tool out of the object
         if fn > p.max_force_n:
@@ -294,7 +297,7 @@ class ContourTrackingTask:
             ev = Event("over_force", Severity.FAULT, why + "; retracting")
             s = replace(s, phase=ContourPhase.RETRACT, fault=why, travel_m=0.0, normal=normal, normal_force_n=fn)
             return self._retract(s, ctx, events + (ev,))
-        low = s.low_force_cycles + 1 if fn < p.contact_lost_force_n else 0
+        low = s.low_force_cycles + (1 if fresh_sample(ctx) else 0) if fn < p.contact_lost_force_n else 0
         if low >= p.contact_lost_cycles:
             losses = list(s.contact_losses)
             losses[min(s.lap, len(losses) - 1)] += 1
@@ -308,9 +311,12 @@ class ContourTrackingTask:
             ev = Event("contact_lost", Severity.WARNING, f"contact lost in lap {s.lap + 1}; stopping")
             s = replace(s, phase=ContourPhase.RETRACT, travel_m=0.0, normal=normal)
             return self._retract(s, ctx, events + (ev,))
-        # PI admittance along the normal: positive error -> push further in (along -n)
+        # PI admittance along the normal: positive error -> push further in (along -n). A cycle
+        # without a new force sample (``sensor.fresh`` false: a late or lost frame) uses the last
+        # filtered force but adds nothing to the integral: the same error integrated twice
+        # would be a force spike made by the bus, not by the contact.
         err = s.force_setpoint_n - fn
-        integral = s.integral + err * dt
+        integral = s.integral + err * dt if fresh_sample(ctx) else s.integral
         vn = p.force_kp_m_s_per_n * err + p.force_ki_m_s2_per_n * integral
         if abs(vn) > p.max_normal_speed_m_s:  # clamp and stop integrating (anti-windup)
             vn = math.copysign(p.max_normal_speed_m_s, vn)
@@ -356,3 +362,8 @@ class ContourTrackingTask:
     def _finished(self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...] = ()) -> TaskStep:
         s, ref = self._reference(s, (0.0, 0.0, 0.0), False, ctx.period_s)
         return TaskStep(s, ref, finished=True, fault=s.fault, events=events)
+
+
+def fresh_sample(ctx: TaskContext) -> bool:
+    """Whether this cycle brought a new force sample (else the task runs on the last good one)."""
+    return ctx.inputs.sensor is not None and ctx.inputs.sensor.fresh

@@ -1,0 +1,127 @@
+"""The machine's own timing floor: ``cyclictest`` (Debian ``rt-tests``) at the loop's rate and class.
+
+A C program that does nothing but sleep to absolute deadlines is late as often as the kernel,
+the hypervisor and the other tasks make it; a Python loop cannot do better. ``cheope bench``
+runs this beside each of its cases (same interval, priority, CPU and memory locking) and
+reports the loop's figures as ratios to it.
+
+cyclictest writes a histogram of wake-up latencies in whole microseconds (``--histfile``),
+one ``latency count`` line per bin up to ``-h`` microseconds, and the samples beyond it as
+overflows; percentiles and counts above a threshold are read from it.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+INSTALL_HINT = "cyclictest not found: apt-get install rt-tests (Debian) for the machine's floor"
+
+
+class CyclictestError(RuntimeError):
+    """cyclictest did not run, or wrote no histogram we can read."""
+
+
+@dataclass(frozen=True)
+class Histogram:
+    counts: np.ndarray  # counts[i]: samples with latency i microseconds
+    overflows: int  # samples beyond the last bin
+    max_us: float  # the largest latency cyclictest saw (also among the overflows)
+
+    @property
+    def samples(self) -> int:
+        return int(self.counts.sum()) + self.overflows
+
+    def percentile_us(self, q: float) -> float:
+        """The latency below which a fraction ``q`` (0..1) of the samples lie (a bin's value)."""
+        n = self.samples
+        if n == 0:
+            return float("nan")
+        rank = q * n
+        cum = np.cumsum(self.counts)
+        i = int(np.searchsorted(cum, rank, side="left"))
+        return float(i) if i < self.counts.size else self.max_us
+
+    def per_10k_above(self, threshold_us: float) -> float:
+        """Samples with latency above ``threshold_us``, per 10 000."""
+        n = self.samples
+        if n == 0:
+            return float("nan")
+        first = int(np.floor(threshold_us)) + 1
+        above = int(self.counts[first:].sum()) + self.overflows
+        return 1e4 * above / n
+
+
+def parse_histogram(text: str) -> Histogram:
+    counts: dict[int, int] = {}
+    overflows = 0
+    max_us = float("nan")
+    for line in text.splitlines():
+        line = line.strip()
+        if not line:
+            continue
+        if line.startswith("#"):
+            key, _, value = line[1:].partition(":")
+            value = value.strip()
+            if key.strip() == "Histogram Overflows" and value:
+                overflows = int(value.split()[0])
+            elif key.strip() == "Max Latencies" and value:
+                max_us = float(value.split()[0])
+            continue
+        parts = line.split()
+        if len(parts) >= 2 and parts[0].isdigit():
+            counts[int(parts[0])] = int(parts[1])
+    if not counts:
+        raise CyclictestError("cyclictest wrote no histogram lines")
+    arr = np.zeros(max(counts) + 1, dtype=np.int64)
+    for k, v in counts.items():
+        arr[k] = v
+    return Histogram(arr, overflows, max_us)
+
+
+def cyclictest_path() -> str | None:
+    return shutil.which("cyclictest")
+
+
+def cyclictest_command(binary: str, interval_us: int, loops: int, histogram_us: int, histfile: Path,
+                       priority: int | None, cpu: int | None, lock_memory: bool) -> list[str]:
+    cmd = [binary, "-t1", "-q", f"-i{interval_us}", f"-l{loops}", f"-h{histogram_us}", f"--histfile={histfile}"]
+    cmd += [f"-p{priority}"] if priority is not None else ["--policy=other"]
+    if cpu is not None:
+        cmd.append(f"-a{cpu}")
+    if lock_memory:
+        cmd.append("-m")
+    return cmd
+
+
+def run_cyclictest(rate_hz: float, duration_s: float, priority: int | None, cpu: int | None,
+                   lock_memory: bool, thresholds_us: tuple[float, ...]) -> dict[str, object]:
+    """One cyclictest thread at ``rate_hz`` for ``duration_s``: latency percentiles and rates above thresholds."""
+    binary = cyclictest_path()
+    if binary is None:
+        raise CyclictestError(INSTALL_HINT)
+    interval_us = round(1e6 / rate_hz)
+    loops = max(1, round(duration_s * rate_hz))
+    histogram_us = max(2 * interval_us, 10_000)
+    with tempfile.TemporaryDirectory(prefix="cheope-cyclictest-") as tmp:
+        histfile = Path(tmp) / "histogram.txt"
+        cmd = cyclictest_command(binary, interval_us, loops, histogram_us, histfile, priority, cpu, lock_memory)
+        try:
+            done = subprocess.run(cmd, capture_output=True, text=True, timeout=duration_s * 3 + 30, check=False)
+        except subprocess.TimeoutExpired as err:
+            raise CyclictestError(f"cyclictest did not finish within {err.timeout:.0f} s") from err
+        if done.returncode != 0 or not histfile.exists():
+            raise CyclictestError(f"cyclictest exited with {done.returncode}: {done.stderr.strip()[-300:]}")
+        hist = parse_histogram(histfile.read_text())
+    return {
+        "command": " ".join(cmd[:1] + [c for c in cmd[1:] if not c.startswith("--histfile")]),
+        "samples": hist.samples,
+        "latency_us": {"p50": hist.percentile_us(0.5), "p99": hist.percentile_us(0.99),
+                       "p99_9": hist.percentile_us(0.999), "max": hist.max_us},
+        "per_10k_above_us": {f"{t:g}": round(hist.per_10k_above(t), 2) for t in thresholds_us},
+    }
