@@ -119,6 +119,11 @@ class ControlLaw:
         self.n = robot.n_actuators
         # Robots that know their actuators' strokes check the measured positions every cycle.
         self._check_actuators = getattr(robot, "check_actuators", None)
+        self._handlers = {
+            Mode.CONFIGURING: self._configuring, Mode.ENABLING: self._enabling, Mode.HOLDING: self._holding,
+            Mode.RUNNING: self._running, Mode.PAUSED: self._paused, Mode.STOPPING: self._stopping,
+            Mode.DONE: self._done, Mode.FAULT: self._fault,
+        }
 
     def initial_state(self) -> ControllerState:
         zeros = (0.0,) * self.n
@@ -158,13 +163,7 @@ class ControlLaw:
         elif inputs.command == "resume" and state.mode == Mode.PAUSED:
             state = self._enter(state, Mode.RUNNING, t, events, why="remote resume")
 
-        handler = {
-            Mode.CONFIGURING: self._configuring, Mode.ENABLING: self._enabling, Mode.HOLDING: self._holding,
-            Mode.RUNNING: self._running, Mode.PAUSED: self._paused, Mode.STOPPING: self._stopping,
-            Mode.DONE: self._done,
-            Mode.FAULT: self._fault,
-        }[state.mode]
-        state = handler(state, inputs, powers, measured, t, events)
+        state = self._handlers[state.mode](state, inputs, powers, measured, t, events)
         outputs = CycleOutputs(controlwords=state.controlwords, targets=state.setpoint.position)
         return state, outputs, tuple(events)
 
@@ -226,7 +225,8 @@ class ControlLaw:
             if why:
                 return state, why
         late = state.late_streak + 1 if inputs.late else 0
-        state = replace(state, late_streak=late)
+        if late != state.late_streak:
+            state = replace(state, late_streak=late)
         if late >= sc.max_consecutive_late_cycles:
             state, why = self._react(state, sc.on_late_cycles, "late_cycles",
                                      f"the loop woke late {late} cycles in a row", events)

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from controller.linalg3 import Matrix3, Vector3, as_rows, inverse3, matmul3, matvec, scaled3, transpose3
 from controller.robots.performance import MassModel
 
 
@@ -34,45 +35,7 @@ class ComplianceParams:
         return 2.0 * self.damping_ratio * math.sqrt(self.actuator_stiffness_n_m * self.masses.per_actuator_kg)
 
 
-Matrix3 = tuple[tuple[float, float, float], ...]
-Vector3 = tuple[float, float, float]
 NO_ACCELERATION: Vector3 = (0.0, 0.0, 0.0)
-
-
-def matvec(m: Matrix3, v: Vector3) -> Vector3:
-    return (m[0][0] * v[0] + m[0][1] * v[1] + m[0][2] * v[2],
-            m[1][0] * v[0] + m[1][1] * v[1] + m[1][2] * v[2],
-            m[2][0] * v[0] + m[2][1] * v[1] + m[2][2] * v[2])
-
-
-def as_rows(m: np.ndarray) -> Matrix3:
-    return tuple(tuple(float(x) for x in row) for row in m)  # type: ignore[return-value]
-
-
-def transpose3(m: Matrix3) -> Matrix3:
-    return ((m[0][0], m[1][0], m[2][0]), (m[0][1], m[1][1], m[2][1]), (m[0][2], m[1][2], m[2][2]))
-
-
-def matmul3(a: Matrix3, b: Matrix3) -> Matrix3:
-    bt = transpose3(b)
-    return tuple(tuple(r[0] * c[0] + r[1] * c[1] + r[2] * c[2] for c in bt) for r in a)  # type: ignore[return-value]
-
-
-def scaled3(m: Matrix3, k: float) -> Matrix3:
-    return tuple(tuple(k * x for x in row) for row in m)  # type: ignore[return-value]
-
-
-def inverse3(m: Matrix3) -> Matrix3:
-    """The inverse by cofactors; plain floats (numpy's call overhead is most of its cost for 3x3)."""
-    (a, b, c), (d, e, f), (g, h, i) = m
-    co_a, co_b, co_c = e * i - f * h, f * g - d * i, d * h - e * g
-    det = a * co_a + b * co_b + c * co_c
-    if det == 0.0:
-        raise np.linalg.LinAlgError("singular 3x3 matrix")
-    r = 1.0 / det
-    return ((co_a * r, (c * h - b * i) * r, (b * f - c * e) * r),
-            (co_b * r, (a * i - c * g) * r, (c * d - a * f) * r),
-            (co_c * r, (b * g - a * h) * r, (a * e - b * d) * r))
 
 
 @dataclass

@@ -54,6 +54,7 @@ import math
 import numpy as np
 
 from controller.config import Config
+from controller.linalg3 import Matrix3, as_rows, inverse3, matvec, transpose3
 from controller.robots.errors import NoSolutionError
 from controller.robots.registry import actuator_units, mass_model_from_config, robot_from_config
 from drivers.pdo_codec import encode_drive_tpdo
@@ -61,16 +62,7 @@ from sim_backend.contact_disk import DiskEnvironment, DiskParams
 from sim_backend.drive import DriveParams, SimulatedDrive
 from sim_backend.environment import Environment, FreeSpace
 from sim_backend.force_sensor import SensorParams, SimulatedForceSensor
-from sim_backend.mechanics import (
-    NO_ACCELERATION,
-    ComplianceParams,
-    CompliantTool,
-    Matrix3,
-    as_rows,
-    inverse3,
-    matvec,
-    transpose3,
-)
+from sim_backend.mechanics import NO_ACCELERATION, ComplianceParams, CompliantTool
 
 log = logging.getLogger(__name__)
 

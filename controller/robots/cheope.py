@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from controller.linalg3 import Matrix3, matmul3, symmetric_eigenvalues3, transpose3
 from controller.robots.errors import NoSolutionError
 
 _AXES = 3
@@ -49,6 +50,7 @@ class CheopeGeometry:
     # The same vectors as tuples of floats, for the per-cycle functions.
     rows_axes: tuple[tuple[float, float, float], ...] = field(init=False, repr=False, compare=False)
     rows_platform: tuple[tuple[float, float, float], ...] = field(init=False, repr=False, compare=False)
+    rows_neutral: tuple[tuple[float, float, float], ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if not self.rod_length_m > 0:
@@ -75,9 +77,14 @@ class CheopeGeometry:
         neutral = rod_directions_from(axes, plat, self.rod_length_m, np.asarray(self.joint_neutral_tcp_m), q0)
         neutral.setflags(write=False)
         object.__setattr__(self, "neutral_rod_directions", neutral)
+        object.__setattr__(self, "rows_neutral", tuple(tuple(float(x) for x in r) for r in neutral))
 
 
 def _inverse(axes: np.ndarray, plat: np.ndarray, rod_length_m: float, tcp_m: np.ndarray) -> np.ndarray:
+    return np.array(_inverse_floats(axes, plat, rod_length_m, tcp_m))
+
+
+def _inverse_floats(axes, plat, rod_length_m: float, tcp_m) -> list[float]:
     # seed 001, eq. (5): q_j = n_j.r_j + sqrt((n_j.r_j)^2 - r_j.r_j + l^2), r_j = s + a_j.
     # The '+' branch is the one the paper selects (slider beyond the rod's foot point).
     # Plain floats: for 3-vectors numpy's per-call overhead is larger than the arithmetic.
@@ -95,7 +102,7 @@ def _inverse(axes: np.ndarray, plat: np.ndarray, rod_length_m: float, tcp_m: np.
                 f"discriminant of seed 001 eq. (5) is {disc:.3e} m^2 < 0"
             )
         q.append(nr + math.sqrt(disc))
-    return np.array(q)
+    return q
 
 
 def inverse_kinematics(geom: CheopeGeometry, tcp_m: np.ndarray) -> np.ndarray:
@@ -181,6 +188,10 @@ def direct_kinematics(geom: CheopeGeometry, q_m: np.ndarray) -> np.ndarray:
 
 
 def jacobian(geom: CheopeGeometry, tcp_m: np.ndarray, q_m: np.ndarray | None = None) -> np.ndarray:
+    return np.array(_jacobian_rows(geom, tcp_m, q_m))
+
+
+def _jacobian_rows(geom: CheopeGeometry, tcp_m, q_m=None) -> list[tuple[float, float, float]]:
     """J with q_dot = J s_dot (seed 001, eq. (6)-(7)): J = K3^-1 W3^T.
 
     Derivation (eq. (1) differentiated and projected on w_j): w_j^T s_dot = (w_j^T n_j) q_dot_j.
@@ -198,7 +209,7 @@ def jacobian(geom: CheopeGeometry, tcp_m: np.ndarray, q_m: np.ndarray | None = N
         if abs(k) < 1e-12 * geom.rod_length_m:
             raise NoSolutionError(f"inverse singularity at TCP {list(s)} m: w_{j + 1} . n_{j + 1} = 0")
         rows.append((w[0] / k, w[1] / k, w[2] / k))
-    return np.array(rows)
+    return rows
 
 
 @dataclass(frozen=True)
@@ -284,6 +295,15 @@ class CheopeRobot:
     def jacobian(self, tcp_m: np.ndarray) -> np.ndarray:
         return jacobian(self.geometry, tcp_m)
 
+    def joint_motion(self, tcp_m: tuple[float, float, float], velocity_m_s: tuple[float, float, float]
+                     ) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """(q, q_dot = J v) at ``tcp_m`` in plain floats: a task's reference every cycle."""
+        g = self.geometry
+        q = _inverse_floats(g.rows_axes, g.rows_platform, g.rod_length_m, tcp_m)
+        jac = _jacobian_rows(g, tcp_m, q)
+        v = velocity_m_s
+        return tuple(q), tuple(r[0] * v[0] + r[1] * v[1] + r[2] * v[2] for r in jac)
+
     def check_pose(self, tcp_m: np.ndarray) -> PoseStatus:
         """Stroke, spherical-joint swing and singularity margins at ``tcp_m`` (no exception).
 
@@ -292,7 +312,7 @@ class CheopeRobot:
         """
         g, lim = self.geometry, self.limits
         try:
-            q = inverse_kinematics(g, tcp_m)
+            q = _inverse_floats(g.rows_axes, g.rows_platform, g.rod_length_m, tcp_m)
         except NoSolutionError as err:
             return PoseStatus(False, str(err))
         s = (float(tcp_m[0]), float(tcp_m[1]), float(tcp_m[2]))
@@ -305,8 +325,7 @@ class CheopeRobot:
             n, a = g.rows_axes[j], g.rows_platform[j]
             wj = ((s[0] + a[0] - q[j] * n[0]) * inv_l, (s[1] + a[1] - q[j] * n[1]) * inv_l,
                   (s[2] + a[2] - q[j] * n[2]) * inv_l)
-            nu = g.neutral_rod_directions[j]
-            swing = math.acos(max(-1.0, min(1.0, _dot(wj, (float(nu[0]), float(nu[1]), float(nu[2]))))))
+            swing = math.acos(max(-1.0, min(1.0, _dot(wj, g.rows_neutral[j]))))
             if swing > lim.joint_swing_limit_rad:
                 return PoseStatus(False, f"spherical joints of leg {j + 1} swing {math.degrees(swing):.1f} deg, "
                                          f"limit {math.degrees(lim.joint_swing_limit_rad):.1f} deg")
@@ -321,9 +340,9 @@ class CheopeRobot:
                                  ("structural", structural, lim.min_structural_measure)):
             if value < low:
                 return PoseStatus(False, f"within the {name}-singularity margin: measure {value:.3f} < {low}")
-        jac = np.array([[wj[0] / kj, wj[1] / kj, wj[2] / kj] for wj, kj in zip(w, k)])
-        eig = np.linalg.eigvalsh(jac.T @ jac)
-        cond = math.sqrt(eig[-1] / eig[0])
+        jac: Matrix3 = tuple((wj[0] / kj, wj[1] / kj, wj[2] / kj) for wj, kj in zip(w, k))  # type: ignore[assignment]
+        eig = symmetric_eigenvalues3(matmul3(transpose3(jac), jac))
+        cond = math.sqrt(eig[2] / eig[0])
         if cond > lim.max_condition_number:
             return PoseStatus(False, f"condition number {cond:.2f} above {lim.max_condition_number}")
         return POSE_OK

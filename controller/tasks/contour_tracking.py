@@ -52,13 +52,15 @@ from typing import Protocol
 import numpy as np
 
 from controller.cycle_data import Event, Severity
+from controller.linalg3 import solve3
 from controller.tasks.task import JointReference, TaskContext, TaskStep
 
 
 class Kinematics(Protocol):
     def inverse_kinematics(self, tcp_m: np.ndarray) -> np.ndarray: ...
 
-    def jacobian(self, tcp_m: np.ndarray) -> np.ndarray: ...
+    def joint_motion(self, tcp_m: tuple[float, float, float], velocity_m_s: tuple[float, float, float]
+                     ) -> tuple[tuple[float, ...], tuple[float, ...]]: ...
 
 
 class ContourPhase(IntEnum):
@@ -162,11 +164,10 @@ def _fit_centre(fit: tuple[float, ...]) -> tuple[float, float] | None:
     n, sx, sy, sxx, syy, sxy, sr2, sxr2, syr2 = fit
     if n < 10:
         return None
-    a = np.array([[sxx, sxy, sx], [sxy, syy, sy], [sx, sy, n]])
-    b = -np.array([sxr2, syr2, sr2])
-    if abs(np.linalg.det(a)) < 1e-18:
+    a = ((sxx, sxy, sx), (sxy, syy, sy), (sx, sy, n))
+    if abs(sxx * (syy * n - sy * sy) - sxy * (sxy * n - sy * sx) + sx * (sxy * sy - syy * sx)) < 1e-18:
         return None
-    d, e, _ = np.linalg.solve(a, b)
+    d, e, _ = solve3(a, (-sxr2, -syr2, -sr2))
     return (-d / 2.0, -e / 2.0)
 
 
@@ -198,11 +199,9 @@ class ContourTrackingTask:
 
     def _reference(self, s: ContourState, v: tuple[float, float, float], on_path: bool, dt: float
                    ) -> tuple[ContourState, JointReference]:
-        p = np.array(s.p_cmd)
-        q = self.robot.inverse_kinematics(p)
-        qd = tuple((self.robot.jacobian(p) @ np.array(v)).tolist())
+        q, qd = self.robot.joint_motion(s.p_cmd, v)
         qdd = tuple((a - b) / dt for a, b in zip(qd, s.qd_ref)) if s.qd_ref else (0.0,) * len(qd)
-        return replace(s, qd_ref=qd), JointReference(tuple(q.tolist()), qd, qdd, s.p_cmd, on_path, reactive=True)
+        return replace(s, qd_ref=qd), JointReference(q, qd, qdd, s.p_cmd, on_path, reactive=True)
 
     def _filter_force(self, s: ContourState, ctx: TaskContext) -> ContourState:
         sensor = ctx.inputs.sensor

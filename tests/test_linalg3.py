@@ -1,0 +1,62 @@
+"""controller/linalg3.py against numpy."""
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from controller.linalg3 import (
+    as_rows,
+    inverse3,
+    matmul3,
+    matvec,
+    scaled3,
+    solve3,
+    symmetric_eigenvalues3,
+    transpose3,
+)
+
+finite = st.floats(-10.0, 10.0, allow_nan=False, allow_infinity=False)
+matrices = arrays(np.float64, (3, 3), elements=finite)
+vectors = arrays(np.float64, (3,), elements=finite)
+
+
+@settings(max_examples=300)
+@given(matrices, matrices, vectors, finite)
+def test_products_match_numpy(a, b, v, k):
+    assert np.allclose(matvec(as_rows(a), tuple(v)), a @ v, rtol=1e-12, atol=1e-12)
+    assert np.allclose(matmul3(as_rows(a), as_rows(b)), a @ b, rtol=1e-12, atol=1e-12)
+    assert np.array_equal(transpose3(as_rows(a)), a.T)
+    assert np.allclose(scaled3(as_rows(a), k), k * a)
+
+
+@settings(max_examples=300)
+@given(matrices, vectors)
+def test_inverse_and_solve_match_numpy_where_well_conditioned(a, v):
+    if np.linalg.cond(a) > 1e6:
+        return
+    assert np.allclose(inverse3(as_rows(a)), np.linalg.inv(a), rtol=1e-6, atol=1e-9)
+    assert np.allclose(solve3(as_rows(a), tuple(v)), np.linalg.solve(a, v), rtol=1e-6, atol=1e-9)
+
+
+def test_inverse_of_a_singular_matrix_raises_as_numpy_does():
+    import pytest
+
+    with pytest.raises(np.linalg.LinAlgError):
+        inverse3(((1.0, 2.0, 3.0), (2.0, 4.0, 6.0), (0.0, 1.0, 1.0)))
+
+
+@settings(max_examples=500)
+@given(matrices)
+def test_symmetric_eigenvalues_match_eigvalsh(a):
+    s = a @ a.T + np.diag([1e-3, 2e-3, 3e-3])  # a Gram matrix, as J^T J
+    expected = np.linalg.eigvalsh(s)
+    got = symmetric_eigenvalues3(as_rows(s))
+    assert list(got) == sorted(got)
+    assert np.allclose(got, expected, rtol=1e-7, atol=1e-9 * max(1.0, expected[-1]))
+
+
+def test_symmetric_eigenvalues_of_a_diagonal_and_a_repeated_case():
+    assert symmetric_eigenvalues3(((3.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 2.0))) == (1.0, 2.0, 3.0)
+    s = np.full((3, 3), 1.0) + np.eye(3)  # eigenvalues 1, 1, 4
+    assert np.allclose(symmetric_eigenvalues3(as_rows(s)), (1.0, 1.0, 4.0))
