@@ -5,6 +5,7 @@ from __future__ import annotations
 import ctypes
 import errno
 import os
+import shutil
 import subprocess
 import sys
 
@@ -216,3 +217,109 @@ def test_realtime_options_as_a_child_process_options():
     assert RealtimeOptions().cli_args() == []
     assert RealtimeOptions(priority=70, cpus=(0, 1), lock_memory=True).cli_args() == [
         "--rt-priority", "70", "--cpu", "0,1", "--lock-memory"]
+
+
+# -- real-time scheduling by default, where permitted ------------------------------------------
+
+def test_default_realtime_asks_for_fifo_the_last_cpu_and_locked_memory():
+    rt = RealtimeOptions.default()
+    allowed = sorted(os.sched_getaffinity(0))
+    assert rt.priority == 80 and rt.lock_memory and not rt.required
+    assert rt.cpus == ((allowed[-1],) if len(allowed) > 1 else ())
+    sim = rt.for_simulator()
+    assert sim.priority == 70 and not sim.required and set(sim.cpus).isdisjoint(rt.cpus)
+    assert rt.cli_args()[-1] == "--rt-best-effort"  # the child warns and runs on as the parent does
+
+
+def test_refused_default_realtime_warns_in_one_line_and_runs_on(monkeypatch, caplog):
+    def refuse(pid, policy, param):
+        raise PermissionError(errno.EPERM, "Operation not permitted")
+
+    class NoLock:
+        def mlockall(self, flags):
+            ctypes.set_errno(errno.ENOMEM)
+            return -1
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    monkeypatch.setattr(realtime, "_libc", lambda: NoLock())
+    monkeypatch.setattr(sys, "platform", "linux")
+    before = os.sched_getaffinity(0)
+    with caplog.at_level("WARNING", logger="controller.realtime"):
+        restore = realtime.apply_realtime(RealtimeOptions(priority=80, lock_memory=True, required=False))
+    restore()
+    assert os.sched_getaffinity(0) == before
+    (record,) = caplog.records
+    line = record.getMessage()
+    assert "\n" not in line and line.startswith("real-time options refused, running without them")
+    assert "SCHED_FIFO not permitted" in line and "CAP_SYS_NICE" in line and "mlockall not permitted" in line
+    # the same refusal of an option given explicitly ends the start
+    with pytest.raises(RealtimeError, match="SCHED_FIFO not permitted"):
+        realtime.apply_realtime(RealtimeOptions(priority=80))
+
+
+def test_cli_realtime_defaults_and_opt_out():
+    from controller.cli import _realtime, build_parser
+
+    def parse(*argv):
+        return build_parser().parse_args(["run", *argv])
+
+    assert _realtime(parse()) == RealtimeOptions.default()
+    assert _realtime(parse(), simulator=True) == RealtimeOptions.default().for_simulator()
+    assert _realtime(parse("--no-realtime")) == RealtimeOptions()
+    explicit = _realtime(parse("--rt-priority", "50"))
+    assert explicit.priority == 50 and explicit.required and not explicit.lock_memory
+    assert not _realtime(parse("--rt-priority", "50", "--rt-best-effort")).required
+    with pytest.raises(RealtimeError, match="--no-realtime cannot be combined"):
+        _realtime(parse("--no-realtime", "--cpu", "0"))
+
+
+# -- the machine's floor: cyclictest -----------------------------------------------------------
+
+HISTOGRAM = """# /dev/cpu_dma_latency set to 0us
+# Histogram
+000000 000000
+000001 000010
+000002 000080
+000003 000005
+000004 000003
+# Total: 000000100
+# Min Latencies: 00001
+# Avg Latencies: 00002
+# Max Latencies: 00950
+# Histogram Overflows: 00002
+# Histogram Overflow at cycle number:
+# Thread 0: 00017 00051
+"""
+
+
+def test_cyclictest_histogram_percentiles_and_rate_above_a_threshold():
+    from controller.cyclictest import parse_histogram
+
+    h = parse_histogram(HISTOGRAM)
+    assert h.samples == 100 and h.overflows == 2 and h.max_us == 950.0
+    assert h.percentile_us(0.5) == 2.0
+    assert h.percentile_us(0.95) == 3.0
+    assert h.percentile_us(0.99) == 950.0  # among the overflows: the maximum
+    assert h.per_10k_above(2.0) == pytest.approx(1e4 * (5 + 3 + 2) / 100)
+    assert h.per_10k_above(3.0) == pytest.approx(1e4 * (3 + 2) / 100)
+
+
+def test_cyclictest_command_per_scheduling_class():
+    from pathlib import Path
+
+    from controller.cyclictest import cyclictest_command
+
+    rt = cyclictest_command("cyclictest", 2500, 400, 10000, Path("/tmp/h"), 80, 1, True)
+    assert rt[:4] == ["cyclictest", "-t1", "-q", "-i2500"] and "-p80" in rt and "-a1" in rt and "-m" in rt
+    normal = cyclictest_command("cyclictest", 1000, 10, 10000, Path("/tmp/h"), None, None, False)
+    assert "--policy=other" in normal and not any(a.startswith(("-p", "-a")) for a in normal)
+
+
+@pytest.mark.skipif(shutil.which("cyclictest") is None, reason="cyclictest (rt-tests) not installed")
+def test_cyclictest_runs_under_the_normal_scheduler():
+    from controller.cyclictest import run_cyclictest
+
+    r = run_cyclictest(1000.0, 0.2, None, None, False, (100.0,))
+    assert r["samples"] == 200
+    assert 0.0 <= r["latency_us"]["p50"] <= r["latency_us"]["max"]
+    assert 0.0 <= r["per_10k_above_us"]["100"] <= 1e4

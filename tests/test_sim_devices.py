@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -191,3 +193,80 @@ def test_drive_reports_the_acceleration_of_its_last_substep():
     for k in range(2, 400):
         t = cycle(d, t, 0.55 + 0.1 * PERIOD)  # hold: it settles
     assert abs(d.acceleration) < 1e-3
+
+
+# -- a late or missing setpoint (a CSP drive's interpolator, sim_backend/drive.py) ------------
+
+def moving_drive(speed_m_s: float = 0.1, cycles: int = 200) -> tuple[SimulatedDrive, float, float]:
+    """A drive following a ramp with 0x60C2 set to the period; returns it, the time and the last target."""
+    d, t = enabled_drive()
+    d.interpolation_period_s = PERIOD
+    target = 0.55
+    for _ in range(cycles):
+        target += speed_m_s * PERIOD
+        t = cycle(d, t, target)
+    return d, t, target
+
+
+def test_a_sync_without_a_new_target_extrapolates_the_last_step_once_then_holds():
+    d, t, target = moving_drive()
+    step = 0.1 * PERIOD
+    d.on_sync(t)  # no RPDO since the last SYNC
+    assert d.latched_target == pytest.approx(target + step, abs=1e-12)
+    d.advance(t + PERIOD)
+    assert d.velocity == pytest.approx(0.1, rel=0.02)  # the carriage did not stop
+    d.on_sync(t + PERIOD)  # silent again: hold (max_extrapolated_targets = 1)
+    assert d.latched_target == pytest.approx(target + step, abs=1e-12)
+    d.advance(t + 15 * PERIOD, check_sync_timeout=False)  # (37.5 ms: within the SYNC watchdog anyway)
+    assert d.position == pytest.approx(target + step, abs=2e-6) and abs(d.velocity) < 1e-3
+    # the next target is taken as it comes
+    t2 = cycle(d, t + 15 * PERIOD, target + 2 * step)
+    assert d.latched_target == pytest.approx(target + 2 * step, abs=1e-12)
+    assert t2 > t
+
+
+def test_a_held_target_stops_the_carriage_without_extrapolation():
+    # the same drive configured not to extrapolate: a missing setpoint costs a stop and a restart
+    d, t, target = moving_drive()
+    object.__setattr__(d, "params", replace(d.params, max_extrapolated_targets=0))
+    d.on_sync(t)
+    assert d.latched_target == pytest.approx(target, abs=1e-12)
+    d.advance(t + PERIOD)
+    assert d.velocity < 0.09  # braking towards the held target
+
+
+def test_a_late_sync_lets_the_reference_run_on_for_one_period_at_the_segment_speed():
+    d, t, target = moving_drive()
+    step = 0.1 * PERIOD
+    # the next SYNC comes 1.5 periods late: the reference went on past the target at 0.1 m/s
+    assert d._reference(t - PERIOD + PERIOD) == pytest.approx(target, abs=1e-12)  # end of the segment
+    assert d._reference(t + 0.5 * PERIOD) == pytest.approx(target + 0.5 * step, abs=1e-12)
+    assert d._reference(t + 5 * PERIOD) == pytest.approx(target + step, abs=1e-12)  # then it holds
+    d.advance(t + 0.5 * PERIOD)
+    assert d.velocity == pytest.approx(0.1, rel=0.02)
+    # with the next target (one step on) it goes on without turning back
+    cycle(d, t + 0.5 * PERIOD, target + step)
+    x = d.position
+    d.advance(t + 1.5 * PERIOD)
+    assert d.position > x and d.velocity > 0.0
+
+
+def test_the_interpolation_period_is_0x60C2_not_the_measured_sync_interval():
+    d, t, target = moving_drive()
+    # a SYNC 1 ms early: with 0x60C2 the drive still interpolates over 2.5 ms
+    t_early = t - 0.001
+    d.on_rpdo(CW_ENABLE_OPERATION, round((target + 0.1 * PERIOD) * COUNTS))
+    d.on_sync(t_early)
+    assert d.segment_period_s == PERIOD
+    d.interpolation_period_s = 0.0  # not configured: the measured SYNC interval
+    assert d.segment_period_s == pytest.approx(PERIOD - 0.001)
+
+
+def test_interpolation_time_period_as_written_by_the_set_up():
+    from drivers.node_setup import interpolation_time_period
+
+    assert interpolation_time_period(0.0025) == (25, -4)
+    assert interpolation_time_period(0.001) == (1, -3)
+    assert interpolation_time_period(0.00025) == (25, -5)
+    value, index = interpolation_time_period(1 / 300)  # no exact form: the finest that fits 8 bits
+    assert value <= 255 and value * 10.0 ** index == pytest.approx(1 / 300, rel=0.02)

@@ -1,0 +1,162 @@
+"""The simulator's cyclic thread on a scripted bus: the exact frames it answers with.
+
+The bus is a ``can.BusABC`` whose received frames the test scripts and whose sent frames it
+records; the test waits on the frames it expects (a condition variable), never on a sleep.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+from collections.abc import Callable, Iterator
+
+import can
+import pytest
+
+from controller.config import load_config
+from drivers import cob_ids
+from drivers.cia402 import CW_ENABLE_OPERATION, CW_SHUTDOWN, CW_SWITCH_ON, PowerState, decode_statusword
+from drivers.pdo_codec import (
+    FORCE_N_PER_COUNT,
+    decode_drive_tpdo,
+    decode_sensor_frame,
+    encode_drive_rpdo,
+    encode_drive_tpdo,
+)
+from sim_backend.server import Simulator
+
+WAIT_S = 20.0  # generous: only a broken simulator takes this long
+COUNTS_PER_M = 1e7
+
+
+class ScriptedBus(can.BusABC):
+    """Frames to receive are queued by the test; frames sent are recorded and announced."""
+
+    def __init__(self) -> None:
+        self.inbox: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
+        self.sent: list[can.Message] = []
+        self._changed = threading.Condition()
+        super().__init__(channel="scripted")
+        self.channel_info = "scripted bus"
+
+    def push(self, *msgs: can.Message) -> None:
+        for m in msgs:
+            self.inbox.put(m)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        copy = can.Message(arbitration_id=msg.arbitration_id, data=bytes(msg.data), is_extended_id=False,
+                           is_error_frame=msg.is_error_frame, is_fd=msg.is_fd)
+        with self._changed:
+            self.sent.append(copy)
+            self._changed.notify_all()
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        try:
+            return self.inbox.get(timeout=timeout), False
+        except queue.Empty:
+            return None, False
+
+    def wait_for(self, done: Callable[[list[can.Message]], bool]) -> list[can.Message]:
+        with self._changed:
+            if not self._changed.wait_for(lambda: done(self.sent), timeout=WAIT_S):
+                raise AssertionError(f"expected frames not sent; sent: {[hex(m.arbitration_id) for m in self.sent]}")
+            return list(self.sent)
+
+
+def frame(cob_id: int, data: bytes = b"") -> can.Message:
+    return can.Message(arbitration_id=cob_id, data=data, is_extended_id=False)
+
+
+def after(sent: list[can.Message], start: int, cob_id: int) -> list[can.Message]:
+    return [m for m in sent[start:] if m.arbitration_id == cob_id]
+
+
+@pytest.fixture
+def sim() -> Iterator[tuple[Simulator, ScriptedBus]]:
+    cfg = load_config()
+    bus = ScriptedBus()
+    simulator = Simulator(cfg, bus)
+    simulator.start()
+    try:
+        nodes = (*cfg.actuators.node_ids, cfg.sensor.node_id)
+        bus.wait_for(lambda sent: all(any(m.arbitration_id == cob_ids.heartbeat(n) and bytes(m.data) == b"\x00"
+                                          for m in sent) for n in nodes))  # boot-up messages
+        bus.push(frame(cob_ids.NMT, bytes([0x01, 0x00])))  # NMT start, all nodes
+        yield simulator, bus
+    finally:
+        simulator.stop()
+        bus.shutdown()
+
+
+def sync_and_wait(bus: ScriptedBus, *before: can.Message, tpdos: int = 5) -> list[can.Message]:
+    """Push the frames and a SYNC; wait for its ``tpdos`` answers; return the frames sent after the SYNC."""
+    start = len(bus.sent)
+    bus.push(*before, frame(cob_ids.SYNC))
+    tpdo_ids = {cob_ids.tpdo1(n) for n in (1, 2, 3)} | {cob_ids.tpdo1(16), cob_ids.tpdo2(16)}
+    sent = bus.wait_for(lambda s: sum(m.arbitration_id in tpdo_ids for m in s[start:]) >= tpdos)
+    return sent[start:]
+
+
+def rpdos(controlword: int, targets_m: tuple[float, ...]) -> list[can.Message]:
+    return [frame(cob_ids.rpdo1(n), encode_drive_rpdo(controlword, round(x * COUNTS_PER_M)))
+            for n, x in zip((1, 2, 3), targets_m)]
+
+
+def test_sync_is_answered_with_the_exact_tpdos_of_every_device(sim):
+    simulator, bus = sim
+    out = sync_and_wait(bus)
+    for j, node in enumerate((1, 2, 3)):
+        (tpdo,) = after(out, 0, cob_ids.tpdo1(node))
+        d = simulator.drives[j]
+        assert bytes(tpdo.data) == encode_drive_tpdo(d.statusword(), d.position_counts())
+        assert decode_statusword(decode_drive_tpdo(tpdo.data)[0]) == PowerState.SWITCH_ON_DISABLED
+    (force,) = after(out, 0, cob_ids.tpdo1(16))
+    (torque,) = after(out, 0, cob_ids.tpdo2(16))
+    fx, fy, fz, status, counter = decode_sensor_frame(force.data, FORCE_N_PER_COUNT)
+    assert counter == decode_sensor_frame(torque.data, 0.001)[4] == 1 and status == 0
+    bias = load_config().sim.sensor.bias_n  # free space: bias and noise only
+    assert (fx, fy, fz) == pytest.approx(bias, abs=0.5)
+
+
+def test_rpdo_targets_wait_for_the_next_sync_and_a_batch_is_drained_in_order(sim):
+    simulator, bus = sim
+    start = tuple(d.position for d in simulator.drives)
+    for cw in (CW_SHUTDOWN, CW_SWITCH_ON, CW_ENABLE_OPERATION):
+        sync_and_wait(bus, *rpdos(cw, start))
+    assert all(d.power == PowerState.OPERATION_ENABLED for d in simulator.drives)
+    for d in simulator.drives:
+        d.mode_of_operation = 8  # CSP (what the set-up writes over SDO)
+    # three cycles queued at once, as a stalled simulator finds them: each RPDO before its SYNC
+    step = 1e-4
+    batch = []
+    for k in (1, 2, 3):
+        batch += [*rpdos(CW_ENABLE_OPERATION, tuple(x + k * step for x in start)), frame(cob_ids.SYNC)]
+    first = len(bus.sent)
+    bus.push(*batch)
+    bus.wait_for(lambda s: len(after(s, first, cob_ids.tpdo1(3))) >= 3)
+    for d, x in zip(simulator.drives, start):
+        assert d.latched_target == pytest.approx(x + 3 * step, abs=1e-9)  # the last SYNC latched the last target
+    assert simulator.sync_count == 3 + 3
+
+
+def test_echoed_own_frames_and_unknown_ids_change_nothing(sim):
+    simulator, bus = sim
+    before = [(d.power, d.received_target) for d in simulator.drives]
+    bus.push(frame(cob_ids.tpdo1(1), bytes(6)), frame(0x123, bytes(8)), frame(cob_ids.emcy(2), bytes(8)))
+    sync_and_wait(bus)  # processed in order: everything before the SYNC was handled
+    assert [(d.power, d.received_target) for d in simulator.drives] == before
+    assert simulator.rejected_frames == 0
+
+
+def test_sdo_reaches_canopens_node_through_the_cyclic_thread(sim):
+    simulator, bus = sim
+    sdo_rx, sdo_tx = 0x600 + 2, 0x580 + 2
+    # expedited downloads of one byte (command 0x2F): 0x60C2 sub 2 = -4, sub 1 = 25 -> 2.5 ms
+    for sub, value in ((2, 0xFC), (1, 25)):
+        start = len(bus.sent)
+        bus.push(frame(sdo_rx, bytes([0x2F, 0xC2, 0x60, sub, value, 0, 0, 0])))
+        sent = bus.wait_for(lambda s, start=start: bool(after(s, start, sdo_tx)))
+        reply = after(sent, start, sdo_tx)[0]
+        assert bytes(reply.data)[:4] == bytes([0x60, 0xC2, 0x60, sub])  # download confirmed
+    assert simulator.drives[1].interpolation_period_s == pytest.approx(0.0025)
+    assert simulator.drives[0].interpolation_period_s == 0.0
