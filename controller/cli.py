@@ -120,6 +120,7 @@ def _print_summary(summary: dict[str, Any], as_json: bool) -> None:
         (f"observers           p99 {summary['observers_us']['p99']:.0f} us, "
          f"max {summary['observers_us']['max']:.0f} us (recorder, publisher: they must only hand off)"),
         f"late cycles         {summary['late_cycles']} (overruns {summary['overruns']})",
+        f"real-time           {summary.get('realtime', 'none')}",
         f"missing frames      drives {summary['missing_frames']['drive']}, sensor {summary['missing_frames']['sensor']}",
     ]
     if te["rms"] is not None:

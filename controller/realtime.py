@@ -233,6 +233,29 @@ def apply_realtime(options: RealtimeOptions) -> Callable[[], None]:
     return restore
 
 
+def granted_realtime() -> str:
+    """What the calling thread runs with now, as ``describe`` words: the options as granted."""
+    parts = []
+    if hasattr(os, "sched_getscheduler"):
+        policy = os.sched_getscheduler(0)
+        if policy == os.SCHED_FIFO:
+            parts.append(f"SCHED_FIFO {os.sched_getparam(0).sched_priority}")
+        elif policy == getattr(os, "SCHED_RR", -1):
+            parts.append(f"SCHED_RR {os.sched_getparam(0).sched_priority}")
+        else:
+            parts.append("normal scheduler")
+    if hasattr(os, "sched_getaffinity"):
+        cpus = sorted(os.sched_getaffinity(0))
+        parts.append(("CPU " if len(cpus) == 1 else "CPUs ") + ",".join(str(c) for c in cpus))
+    try:
+        with open("/proc/self/status") as f:
+            locked_kb = next((int(line.split()[1]) for line in f if line.startswith("VmLck:")), 0)
+        parts.append("memory locked" if locked_kb > 0 else "memory not locked")
+    except OSError:
+        pass
+    return ", ".join(parts)
+
+
 def refused_realtime(reasons: list[str]) -> str:
     """The one line printed when default real-time options are refused."""
     return ("real-time options refused, running without them (--no-realtime silences this): "

@@ -26,6 +26,7 @@ from controller.realtime import (
     RealtimeOptions,
     apply_realtime,
     check_realtime,
+    granted_realtime,
     freeze_garbage_collector,
     set_gil_switch_interval,
 )
@@ -192,6 +193,7 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float = 600.0,
                          observers=(recorder, *observers, *((publisher,) if publisher is not None else ())),
                          stop_event=stop_event, commands=publisher.commands if publisher is not None else None)
         restore = apply_realtime(realtime)
+        granted = granted_realtime()
         try:
             if cfg.loop.freeze_gc:
                 freeze_garbage_collector()
@@ -206,7 +208,7 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float = 600.0,
     return summarize(stats, recorder, final, exchange.counters, prepared.bus_load.percent,
                      extra={"bus": str(spec), "node_setup_s": round(setup.duration_s, 3),
                             "major_page_faults": major_faults,
-                            "recording": _recording_summary(session), "realtime": realtime.describe(),
+                            "recording": _recording_summary(session), "realtime": granted,
                             **(report.summary() if report is not None else {})})
 
 

@@ -323,3 +323,15 @@ def test_cyclictest_runs_under_the_normal_scheduler():
     assert r["samples"] == 200
     assert 0.0 <= r["latency_us"]["p50"] <= r["latency_us"]["max"]
     assert 0.0 <= r["per_10k_above_us"]["100"] <= 1e4
+
+
+def test_the_summary_says_what_was_granted_not_what_was_asked():
+    cpu = min(os.sched_getaffinity(0))
+    restore = realtime.apply_realtime(RealtimeOptions(cpus=(cpu,)))
+    try:
+        granted = realtime.granted_realtime()
+    finally:
+        restore()
+    assert f"CPU {cpu}" in granted
+    if os.sched_getscheduler(0) == os.SCHED_OTHER:
+        assert granted.startswith("normal scheduler")
