@@ -286,3 +286,13 @@ def freeze_garbage_collector() -> None:
     """
     gc.collect()
     gc.freeze()
+
+
+def unfreeze_garbage_collector() -> None:
+    """Give the frozen objects back to the collector once the loop is over.
+
+    Frozen objects are never collected, not even at exit: cycles holding Ruckig's objects then
+    outlive the interpreter, and nanobind (Ruckig's binding) prints a screen of "leaked
+    instance" warnings after every run.
+    """
+    gc.unfreeze()

@@ -26,9 +26,10 @@ from controller.realtime import (
     RealtimeOptions,
     apply_realtime,
     check_realtime,
-    granted_realtime,
     freeze_garbage_collector,
+    granted_realtime,
     set_gil_switch_interval,
+    unfreeze_garbage_collector,
 )
 from controller.robots.cheope import CheopeRobot
 from controller.robots.registry import actuator_units, robot_from_config
@@ -205,6 +206,8 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float = 600.0,
             major_faults = resource.getrusage(resource.RUSAGE_SELF).ru_majflt - faults_before
         finally:
             restore()
+            if cfg.loop.freeze_gc:
+                unfreeze_garbage_collector()
     return summarize(stats, recorder, final, exchange.counters, prepared.bus_load.percent,
                      extra={"bus": str(spec), "node_setup_s": round(setup.duration_s, 3),
                             "major_page_faults": major_faults,

@@ -6,7 +6,12 @@ import sys
 import threading
 
 from controller.config import Config
-from controller.realtime import RealtimeOptions, apply_realtime, freeze_garbage_collector
+from controller.realtime import (
+    RealtimeOptions,
+    apply_realtime,
+    freeze_garbage_collector,
+    unfreeze_garbage_collector,
+)
 from drivers.bus import BusSpec, open_bus
 from sim_backend.server import Simulator
 
@@ -29,3 +34,5 @@ def serve(cfg: Config, spec: BusSpec, stop_event: threading.Event, announce: cal
         announce(f"{READY_LINE} on {spec}: drives {list(cfg.actuators.node_ids)}"
                  + (f", sensor {cfg.sensor.node_id}" if cfg.sensor.enabled else ""))
         stop_event.wait()
+    if cfg.loop.freeze_gc:
+        unfreeze_garbage_collector()
