@@ -226,7 +226,7 @@ def test_the_stiffness_correlation_uses_the_laps_after_the_last_speed_change():
 # -- a late or missing force sample: the law runs on the last good one ------------------------
 
 def test_a_cycle_without_a_new_force_sample_adds_nothing_to_the_integral_or_the_loss_count():
-    task, cfg = _task()
+    task, _ = _task()
     s = _tracking(task, normal=(1.0, 0.0), integral=0.01, low_force_cycles=2, force_f=(0.5, 0.0, 0.0))
     stale = replace(_ctx((0.5, 0.0, 0.0)), inputs=replace(_ctx((0.5, 0.0, 0.0)).inputs,
                                                           sensor=SensorFeedback((0.5, 0.0, 0.0), (0.0,) * 3, 0, 1, False)))
