@@ -23,5 +23,12 @@ test: setup
 test-vcan: setup
 	tests/vcan/run
 
+# The bench runs cyclictest (Debian rt-tests) beside each case for the machine's floor: installed
+# here when missing and this is root, as tests/vcan/run installs its tools; else the bench says so.
+bench: setup
+	@command -v cyclictest >/dev/null || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && \
+		{ apt-get update -qq && apt-get install -y -qq --no-install-recommends rt-tests; } >/dev/null 2>&1; } || true
+	$(VENV)/bin/cheope bench $(BENCH_ARGS)
+
 clean:
 	rm -rf $(VENV) *.egg-info .pytest_cache .hypothesis
