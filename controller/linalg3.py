@@ -62,8 +62,9 @@ def symmetric_eigenvalues3(m: Matrix3) -> Vector3:
     Smith, "Eigenvalues of a symmetric 3x3 matrix", Comm. ACM 4(4), 1961: with
     q = tr(m)/3 and B = (m - q I)/p, p^2 = tr((m - q I)^2)/6, the eigenvalues are
     q + 2 p cos(phi + 2 pi k / 3), cos(3 phi) = det(B)/2. Accurate to about 1e-8 of the
-    largest eigenvalue (5.7e-9 at worst in 200 000 random Gram matrices, rank one among them): where two eigenvalues nearly coincide, acos near +-1 keeps half the
-    digits. Enough for a condition number (J^T J of Cheope: cond(J) below 10 in the workspace).
+    largest eigenvalue (``tests/test_linalg3.py`` holds it to 1e-7): where two eigenvalues
+    nearly coincide, acos near +-1 keeps only half the digits. Enough for a condition number
+    checked against its limit (``robot.margins.max_condition_number``, 10).
     """
     a00, a01, a02 = m[0]
     a11, a12 = m[1][1], m[1][2]
