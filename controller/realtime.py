@@ -203,24 +203,23 @@ def apply_realtime(options: RealtimeOptions) -> Callable[[], None]:
     Returns a function that puts the thread's priority and affinity back (the lock stays).
     """
     before = os.sched_getaffinity(0) if options.cpus else None
-    applied_priority = False
     refused: list[str] = []
-    steps: list[tuple[bool, Callable[[], None]]] = [
-        (options.lock_memory, lock_memory),
-        (bool(options.cpus), lambda: set_cpu_affinity(options.cpus)),
-        (options.priority is not None, lambda: set_fifo_priority(options.priority or 0)),
-    ]
-    for wanted, apply in steps:
-        if not wanted:
-            continue
+
+    def attempt(apply: Callable[[], None]) -> bool:
         try:
             apply()
         except RealtimeError as err:
             if options.required:
                 raise
             refused.append(str(err))
-        else:
-            applied_priority = applied_priority or apply is steps[2][1]
+            return False
+        return True
+
+    if options.lock_memory:
+        attempt(lock_memory)
+    if options.cpus:
+        attempt(lambda: set_cpu_affinity(options.cpus))
+    applied_priority = options.priority is not None and attempt(lambda: set_fifo_priority(options.priority or 0))
     if refused:
         log.warning("%s", refused_realtime(refused))
 
