@@ -52,8 +52,8 @@ def _rt_options(ap: argparse.ArgumentParser) -> None:
                    help="apply the options given where permitted, warn and run on where not")
 
 
-def _realtime(args: argparse.Namespace, simulator: bool = False):  # -> controller.realtime.RealtimeOptions
-    from controller.realtime import RealtimeError, RealtimeOptions, parse_cpus
+def _realtime(args: argparse.Namespace, simulator: bool = False):  # -> controller.shell.realtime.RealtimeOptions
+    from controller.shell.realtime import RealtimeError, RealtimeOptions, parse_cpus
 
     explicit = args.rt_priority is not None or args.cpu or args.lock_memory
     if args.no_realtime:
@@ -174,7 +174,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     args = demo_defaults(args)  # also for the simulator's overrides: the disk is there for the contour
     cfg = _config(args)
     if args.simulated_time:
-        from controller.contour_experiment import run_simulated_time
+        from controller.tools.contour_experiment import run_simulated_time
 
         if cfg.task.kind != "contour":
             raise ConfigError("--simulated-time runs the contour experiment: use it with --task contour")
@@ -189,7 +189,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from controller.service import run_controller
+    from controller.shell.service import run_controller
 
     cfg = _config(args)
     summary = run_controller(cfg, _spec(args, cfg), args.max_duration, _stop_on_signals(), realtime=_realtime(args))
@@ -207,7 +207,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 def cmd_bus_load(args: argparse.Namespace) -> int:
-    from controller.service import planned_bus_load
+    from controller.shell.service import planned_bus_load
 
     cfg = _config(args)
     load = planned_bus_load(cfg)
@@ -227,14 +227,14 @@ def cmd_bus_load(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from controller.bench import run_bench_command
+    from controller.tools.bench import run_bench_command
 
     return run_bench_command(args, _realtime(args))
 
 
 def cmd_analyze(args: argparse.Namespace) -> int:
-    from controller.analysis.cheope_plots import analyze_cheope
-    from controller.analysis.robot_analysis import analyze_nspu, analyze_uru
+    from controller.tools.analysis.cheope_plots import analyze_cheope
+    from controller.tools.analysis.robot_analysis import analyze_nspu, analyze_uru
 
     cfg = _config(args)
     analyze = {"cheope": analyze_cheope, "uru": analyze_uru, "nspu": analyze_nspu}[cfg.robot.kind]
@@ -258,9 +258,9 @@ def _pose_arg(text: str, what: str):  # -> controller.robots.nspu.Pose
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from controller.analysis.robot_analysis import plan_nspu
     from controller.planning.nonholonomic import paper_example_poses
     from controller.robots.registry import nspu_poses_from_config
+    from controller.tools.analysis.robot_analysis import plan_nspu
 
     if not args.robot and not args.config:
         args.robot = "nspu"
@@ -282,7 +282,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 
 def cmd_faults(args: argparse.Namespace) -> int:
-    from controller.fault_scenarios import format_table, run_all
+    from controller.tools.fault_scenarios import format_table, run_all
 
     rows = run_all(_config(args), Path(args.keep) if args.keep else None, tuple(args.only or ()))
     print(json.dumps(rows) if args.json else format_table(rows))
@@ -355,7 +355,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", metavar="DIR", help="write the plan's PNG plots here")
     p.set_defaults(func=cmd_plan)
     p = sub.add_parser("bench", help="timing benchmark with the simulator: 400 Hz and 1 kHz, table, JSON, PNG")
-    from controller.bench import add_bench_arguments
+    from controller.tools.bench import add_bench_arguments
 
     add_bench_arguments(p)
     _rt_options(p)
@@ -363,7 +363,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_monitoring_subcommands(sub)
     from logs.cli import add_commands as add_log_commands  # cheope logs info|recover, cheope replay
 
-    add_log_commands(sub)
+    add_log_commands(sub, _stop_on_signals)
     return ap
 
 

@@ -152,7 +152,7 @@ class LoopSection:
     collect_fraction: float = field(default=0.8, metadata=_r(0.05, 0.95))
     spin_us: float = field(default=300.0, metadata=_r(0.0, 5000.0))
     gil_switch_interval_us: float = field(default=200.0, metadata=_r(1.0, 100000.0))
-    freeze_gc: bool = True  # gc.freeze() the start-up heap before the loop (controller/realtime.py)
+    freeze_gc: bool = True  # gc.freeze() the start-up heap before the loop (controller/shell/realtime.py)
     max_missing_cycles: int = field(default=5, metadata=_r(1, 1000))
     heartbeat_period_s: float = field(default=0.1, metadata=_r(0.01, 10.0))
     heartbeat_consumer_s: float = field(default=0.5, metadata=_r(0.02, 60.0))
@@ -169,7 +169,7 @@ _REACTIONS = {"choices": ("fault", "warn", "ignore")}
 
 @dataclass(frozen=True)
 class SafetySection:
-    """What the law does about each abnormal input (see controller/control_law.py, ``_safety``).
+    """What the law does about each abnormal input (see controller/core/control_law.py, ``_safety``).
 
     "fault": quick stop through the controlword and stay in FAULT until a reset;
     "warn": record a warning event once per episode and go on; "ignore": nothing.

@@ -20,8 +20,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from controller.config import Config
-from controller.realtime import RealtimeOptions
-from controller.service import run_controller
+from controller.shell.realtime import RealtimeOptions
+from controller.shell.service import run_controller
 from drivers.bus import BusSpec
 from sim_backend.process import READY_LINE
 
@@ -101,7 +101,7 @@ def run_demo(cfg: Config, spec: BusSpec, config_path: str | None, overrides: lis
     sim_args = simulator_realtime_args(realtime)
     with simulator_process(spec, config_path, overrides, extra_args=sim_args):
         if cfg.task.kind == "contour":
-            from controller.contour_experiment import run_contour_experiment
+            from controller.tools.contour_experiment import run_contour_experiment
 
             return run_contour_experiment(cfg, spec, plot_dir, max_duration_s, stop_event, realtime)
         return run_controller(cfg, spec, max_duration_s=max_duration_s, stop_event=stop_event, realtime=realtime)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import can
 
-from controller.cycle_data import CycleInputs, CycleOutputs, DriveFeedback, EmcyReport, SensorFeedback
+from controller.core.cycle_data import CycleInputs, CycleOutputs, DriveFeedback, EmcyReport, SensorFeedback
 from drivers import cob_ids
 from drivers.pdo_codec import (
     DRIVE_RPDO,

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -15,7 +16,9 @@ from pathlib import Path
 LARGE_FILE_BYTES = 4 * 1024 * 1024  # a progress bar above this size (on a terminal)
 
 
-def add_commands(sub: argparse._SubParsersAction) -> None:
+def add_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser],
+                 stop_on_signals: Callable[[], threading.Event]) -> None:
+    """``cheope logs`` and ``cheope replay``; ``stop_on_signals`` is the caller's (SIGINT/SIGTERM)."""
     p = sub.add_parser("logs", help="inspect and repair session recordings (MCAP)")
     logs_sub = p.add_subparsers(dest="logs_command", required=True)
     q = logs_sub.add_parser("info", help="duration, channels, message counts, metadata, damage")
@@ -41,7 +44,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="--verify: change the recorded configuration (does the change alter the outputs?)")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
-    p.set_defaults(func=cmd_replay)
+    p.set_defaults(func=cmd_replay, stop_on_signals=stop_on_signals)
 
 
 def _fail(args: argparse.Namespace, err: Exception) -> int:
@@ -124,14 +127,11 @@ def _verify(args: argparse.Namespace) -> int:
 
 
 def _bus(args: argparse.Namespace) -> int:
-    import threading
-
-    from controller.cli import _stop_on_signals
     from drivers.bus import DEFAULT_UDP_PORT, parse_bus_spec
     from logs.replay_bus import replay_to_bus
 
     spec = parse_bus_spec(args.bus, fd=args.fd, udp_port=args.udp_port or DEFAULT_UDP_PORT)
-    stop: threading.Event = _stop_on_signals()
+    stop: threading.Event = args.stop_on_signals()
     path = Path(args.file)
     with _progress(path, "replaying") as progress:
         r = replay_to_bus(path, spec, args.speed, stop, progress)

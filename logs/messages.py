@@ -28,7 +28,7 @@ from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
-from controller.cycle_data import (
+from controller.core.cycle_data import (
     CycleInputs,
     CycleOutputs,
     DriveFeedback,

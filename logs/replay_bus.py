@@ -17,8 +17,8 @@ from pathlib import Path
 
 import can
 
-from controller.loop import DeadlineSleeper
 from drivers.bus import BusSpec, open_bus
+from drivers.pacing import DeadlineSleeper
 from logs import messages as m
 from logs.reader import ReadReport, iter_decoded
 

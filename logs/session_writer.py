@@ -222,7 +222,7 @@ class SessionWriter:
         return n
 
     def _report_drops(self, dropped: int) -> int:
-        from controller.cycle_data import Event, Severity
+        from controller.core.cycle_data import Event, Severity
 
         new = dropped - self.reported_drops
         self.reported_drops = dropped

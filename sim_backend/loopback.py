@@ -2,7 +2,7 @@
 
 An ``Exchange`` for the loop shell (``send`` / ``collect``) that encodes the RPDOs and
 decodes the TPDOs with the production codecs but hands the bytes straight to the
-simulated devices, on the caller's clock. With ``controller.loop.SimulatedTime`` a whole
+simulated devices, on the caller's clock. With ``controller.shell.loop.SimulatedTime`` a whole
 run takes milliseconds and is deterministic: the harness of the unit and property tests.
 """
 
@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from controller.config import Config
-from controller.cycle_data import CycleInputs, CycleOutputs, DriveFeedback, EmcyReport, SensorFeedback
+from controller.core.cycle_data import CycleInputs, CycleOutputs, DriveFeedback, EmcyReport, SensorFeedback
 from controller.robots.registry import actuator_units
 from drivers.pdo_codec import (
     FORCE_N_PER_COUNT,

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.linalg3 import Matrix3, Vector3, as_rows, inverse3, matmul3, matvec, scaled3, transpose3
+from controller.core.linalg3 import Matrix3, Vector3, as_rows, inverse3, matmul3, matvec, scaled3, transpose3
 from controller.robots.performance import MassModel
 
 

@@ -54,7 +54,7 @@ import math
 import numpy as np
 
 from controller.config import Config
-from controller.linalg3 import Matrix3, as_rows, inverse3, matvec, transpose3
+from controller.core.linalg3 import Matrix3, as_rows, inverse3, matvec, transpose3
 from controller.robots.errors import NoSolutionError
 from controller.robots.registry import actuator_units, mass_model_from_config, robot_from_config
 from drivers.pdo_codec import encode_drive_tpdo

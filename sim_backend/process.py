@@ -6,7 +6,7 @@ import sys
 import threading
 
 from controller.config import Config
-from controller.realtime import (
+from controller.shell.realtime import (
     RealtimeOptions,
     apply_realtime,
     freeze_garbage_collector,

@@ -30,7 +30,7 @@ import canopen
 import numpy as np
 
 from controller.config import Config
-from controller.realtime import reset_scheduler
+from controller.shell.realtime import reset_scheduler
 from drivers import cob_ids
 from drivers.pdo_codec import FrameError, decode_drive_rpdo
 from sim_backend.drive import SimulatedDrive

@@ -8,7 +8,7 @@
    a real run), for a decimated rate (50 Hz at 400 Hz) and for publishing every cycle.
 2. End-to-end latency from the cycle that produced a sample (``cycle_monotonic_s``, taken in
    ``on_cycle``) to the monitor receiving it (in its Zenoh callback), with the controller in
-   another process (controller.monitoring.sim_controller) on loopback. Both processes read
+   another process (controller.tools.sim_controller) on loopback. Both processes read
    CLOCK_MONOTONIC, which is system-wide on Linux.
 """
 
@@ -26,12 +26,13 @@ import numpy as np
 import pytest
 
 from controller.config import load_config
-from controller.cycle_data import CycleInputs, CycleOutputs, DriveFeedback, SensorFeedback
-from controller.loop import CycleTiming, DeadlineSleeper
+from controller.core.cycle_data import CycleInputs, CycleOutputs, DriveFeedback, SensorFeedback
 from controller.monitoring.monitor_view import MonitorClient, StateUpdate
 from controller.monitoring.publisher import MonitorPublisher, publisher_settings
 from controller.monitoring.zenoh_session import MonitorKeys, free_loopback_port, monitor_settings
-from controller.service import build_law
+from controller.shell.loop import CycleTiming
+from controller.shell.service import build_law
+from drivers.pacing import DeadlineSleeper
 
 
 def on_cycle_cost_us(publish_rate_hz: float, calls: int = 8000) -> tuple[np.ndarray, int]:
@@ -64,7 +65,7 @@ def on_cycle_cost_us(publish_rate_hz: float, calls: int = 8000) -> tuple[np.ndar
 
 def end_to_end_latency_s(samples: int = 4000, publish_rate_hz: float = 400.0) -> dict[str, np.ndarray]:
     ep = f"tcp/127.0.0.1:{free_loopback_port()}"
-    cmd = [sys.executable, "-m", "controller.monitoring.sim_controller", "--max-duration", "60",
+    cmd = [sys.executable, "-m", "controller.tools.sim_controller", "--max-duration", "60",
            "--set", f'monitoring.listen="{ep}"', "--set", 'monitoring.on_listen_busy="fail"',
            "--set", f"monitoring.publish_rate_hz={publish_rate_hz}", "--set", "task.path.laps=50"]
     cycle, publish, received = [], [], []

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from controller.analysis.cheope_plots import analyze_cheope
+from controller.tools.analysis.cheope_plots import analyze_cheope
 
 
 def test_analyze_writes_the_plots_and_reports_the_indices(cfg, tmp_path):

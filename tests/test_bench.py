@@ -12,8 +12,9 @@ import sys
 import numpy as np
 import pytest
 
-from controller import realtime
-from controller.bench import (
+from controller.shell import realtime
+from controller.shell.realtime import RealtimeError, RealtimeOptions, parse_cpus
+from controller.tools.bench import (
     compare_pdo_paths,
     compare_sleepers,
     cpu_use_percent,
@@ -24,7 +25,6 @@ from controller.bench import (
     period_error_us,
     schedule_stats,
 )
-from controller.realtime import RealtimeError, RealtimeOptions, parse_cpus
 from drivers.bus_load import classical_frame_bits, fd_frame_time_s
 
 
@@ -172,7 +172,7 @@ def test_cli_refuses_a_bad_rt_option_with_one_line():
 
 
 def test_bus_frame_cost_measures_both_sides_of_the_udp_bus():
-    from controller.bench import bus_frame_cost
+    from controller.tools.bench import bus_frame_cost
 
     r = bus_frame_cost("udp_multicast", fd=False, frames=200)
     assert r["frames"] == 200 and r["bus"].startswith("udp_multicast")
@@ -184,8 +184,8 @@ def test_bus_frame_cost_measures_both_sides_of_the_udp_bus():
 def test_loop_probe_times_the_devices_answer_from_sync_to_the_last_tpdo():
     import can
 
-    from controller.bench import LoopProbe
-    from controller.loop import CycleTiming
+    from controller.shell.loop import CycleTiming
+    from controller.tools.bench import LoopProbe
     from drivers import cob_ids
 
     probe = LoopProbe(4, frozenset({0x181, 0x182}), 0x201, None, sample_every=1000)
@@ -244,7 +244,7 @@ def test_refused_default_realtime_warns_in_one_line_and_runs_on(monkeypatch, cap
     monkeypatch.setattr(realtime, "_libc", lambda: NoLock())
     monkeypatch.setattr(sys, "platform", "linux")
     before = os.sched_getaffinity(0)
-    with caplog.at_level("WARNING", logger="controller.realtime"):
+    with caplog.at_level("WARNING", logger="controller.shell.realtime"):
         restore = realtime.apply_realtime(RealtimeOptions(priority=80, lock_memory=True, required=False))
     restore()
     assert os.sched_getaffinity(0) == before
@@ -293,7 +293,7 @@ HISTOGRAM = """# /dev/cpu_dma_latency set to 0us
 
 
 def test_cyclictest_histogram_percentiles_and_rate_above_a_threshold():
-    from controller.cyclictest import parse_histogram
+    from controller.tools.cyclictest import parse_histogram
 
     h = parse_histogram(HISTOGRAM)
     assert h.samples == 100 and h.overflows == 2 and h.max_us == 950.0
@@ -307,7 +307,7 @@ def test_cyclictest_histogram_percentiles_and_rate_above_a_threshold():
 def test_cyclictest_command_per_scheduling_class():
     from pathlib import Path
 
-    from controller.cyclictest import cyclictest_command
+    from controller.tools.cyclictest import cyclictest_command
 
     rt = cyclictest_command("cyclictest", 2500, 400, 10000, Path("/tmp/h"), 80, 1, True)
     assert rt[:4] == ["cyclictest", "-t1", "-q", "-i2500"] and "-p80" in rt and "-a1" in rt and "-m" in rt
@@ -317,7 +317,7 @@ def test_cyclictest_command_per_scheduling_class():
 
 @pytest.mark.skipif(shutil.which("cyclictest") is None, reason="cyclictest (rt-tests) not installed")
 def test_cyclictest_runs_under_the_normal_scheduler():
-    from controller.cyclictest import run_cyclictest
+    from controller.tools.cyclictest import run_cyclictest
 
     r = run_cyclictest(1000.0, 0.2, None, None, False, (100.0,))
     assert r["samples"] == 200

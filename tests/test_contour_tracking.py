@@ -8,15 +8,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from controller.analysis.contour_report import ContourObserver, constant_speed_laps, contour_summary
 from controller.config import load_config
-from controller.control_law import Mode
-from controller.cycle_data import CycleInputs, DriveFeedback, SensorFeedback
-from controller.loop import CycleLoop, SimulatedTime
-from controller.service import build_contour_task, build_law, build_robot
-from controller.setpoint_smoothing import Setpoint
+from controller.core.control_law import Mode
+from controller.core.cycle_data import CycleInputs, DriveFeedback, SensorFeedback
+from controller.core.setpoint_smoothing import Setpoint
+from controller.shell.loop import CycleLoop, SimulatedTime
+from controller.shell.service import build_contour_task, build_law, build_robot
 from controller.tasks.contour_tracking import ContourPhase, ContourState, _wrap, track_normal
 from controller.tasks.task import TaskContext
+from controller.tools.analysis.contour_report import ContourObserver, constant_speed_laps, contour_summary
 from sim_backend.loopback import LoopbackExchange
 
 FAST = {"task.kind": "contour", "task.contour.lap_speeds_m_s": [0.05, 0.08]}

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from controller.config import Config, load_config
-from controller.control_law import Mode
-from controller.cycle_data import CycleInputs, CycleOutputs, DriveFeedback
-from controller.loop import CycleLoop, SimulatedTime
+from controller.core.control_law import Mode
+from controller.core.cycle_data import CycleInputs, CycleOutputs, DriveFeedback
+from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother, Setpoint
 from controller.robots.cheope import WorkspaceError
-from controller.run_summary import RunRecorder
-from controller.service import build_law
-from controller.setpoint_smoothing import AxisLimits, RuckigSmoother, Setpoint
+from controller.shell.loop import CycleLoop, SimulatedTime
+from controller.shell.run_summary import RunRecorder
+from controller.shell.service import build_law
 from drivers.cia402 import CW_QUICK_STOP, PowerState, decode_statusword
 from sim_backend.drive import EMCY_FORCED_FAULT
 from sim_backend.loopback import LoopbackExchange

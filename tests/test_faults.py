@@ -18,11 +18,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from controller.config import load_config
-from controller.control_law import Mode
+from controller.core.control_law import Mode
 from controller.demo import simulator_process, stop_process
-from controller.fault_scenarios import SCENARIOS, run_all
-from controller.loop import CycleLoop, SimulatedTime
-from controller.service import build_law
+from controller.shell.loop import CycleLoop, SimulatedTime
+from controller.shell.service import build_law
+from controller.tools.fault_scenarios import SCENARIOS, run_all
 from drivers.bus import parse_bus_spec
 from drivers.cia402 import PowerState, decode_statusword
 from drivers.cyclic_exchange import CyclicExchange

@@ -1,4 +1,4 @@
-"""controller/linalg3.py against numpy."""
+"""controller/core/linalg3.py against numpy."""
 
 import numpy as np
 import pytest
@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from controller.linalg3 import (
+from controller.core.linalg3 import (
     as_rows,
     inverse3,
     matmul3,

@@ -2,7 +2,7 @@
 
 Every session listens and connects on tcp/127.0.0.1 with a free port per test; multicast and
 gossip scouting are off (zenoh_session.build_zenoh_config, checked below). The controller
-runs as a separate process (controller.monitoring.sim_controller: loop, law and publisher on
+runs as a separate process (controller.tools.sim_controller: loop, law and publisher on
 the in-process simulated devices; ``cheope demo`` for the service wiring of the stop).
 """
 
@@ -24,8 +24,7 @@ import pytest
 from busy_machine import TOLERANT
 
 from controller.config import ConfigError, load_config
-from controller.cycle_data import CycleInputs, CycleOutputs, DriveFeedback
-from controller.loop import CycleTiming
+from controller.core.cycle_data import CycleInputs, CycleOutputs, DriveFeedback
 from controller.messages import cheope_pb2 as pb
 from controller.monitoring.commands import query_status, send_command
 from controller.monitoring.monitor_view import (
@@ -48,6 +47,7 @@ from controller.monitoring.zenoh_session import (
     monitor_settings,
     split_endpoints,
 )
+from controller.shell.loop import CycleTiming
 
 KEYS = MonitorKeys.for_robot("cheope", "test-bot")
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
@@ -58,7 +58,7 @@ def _endpoint() -> str:
 
 
 def _controller_cmd(endpoint: str, *sets: str, max_duration_s: float = 30.0) -> list[str]:
-    cmd = [sys.executable, "-m", "controller.monitoring.sim_controller", "--max-duration", str(max_duration_s),
+    cmd = [sys.executable, "-m", "controller.tools.sim_controller", "--max-duration", str(max_duration_s),
            "--set", f'monitoring.listen="{endpoint}"', "--set", 'monitoring.robot_id="test-bot"',
            "--set", 'monitoring.on_listen_busy="fail"', "--set", "task.path.laps=20"]
     for s in sets:
@@ -189,7 +189,7 @@ def _cycle_args(k: int):
 
 def test_on_cycle_publishes_every_nth_cycle_on_the_loops_thread(cfg):
     cfg = load_config(overrides={"monitoring.publish_rate_hz": 100.0, "monitoring.listen": _endpoint()})
-    from controller.service import build_law
+    from controller.shell.service import build_law
 
     state = build_law(cfg).initial_state()
     threads_before = {t.name for t in threading.enumerate()}

@@ -11,13 +11,13 @@ import pytest
 from busy_machine import TOLERANT
 
 from controller.config import CONFIG_DIR, load_config
-from controller.control_law import Mode
-from controller.loop import CycleLoop, SimulatedTime
+from controller.core.control_law import Mode
 from controller.planning.nonholonomic import PlanningError
 from controller.robots.nspu import leg_lengths_batch
 from controller.robots.nspu_robot import pose_errors
-from controller.run_summary import RunRecorder
-from controller.service import build_law
+from controller.shell.loop import CycleLoop, SimulatedTime
+from controller.shell.run_summary import RunRecorder
+from controller.shell.service import build_law
 from sim_backend.loopback import LoopbackExchange
 
 NSPU_TOML = CONFIG_DIR / "nspu.toml"

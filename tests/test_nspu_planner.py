@@ -191,7 +191,7 @@ def test_invalid_inputs_raise() -> None:
 
 
 def test_plots_written(tmp_path: Path, near_plans) -> None:
-    from controller.analysis.nspu_plots import plot_plan, plot_singularity_loci
+    from controller.tools.analysis.nspu_plots import plot_plan, plot_singularity_loci
 
     paths = plot_plan(near_plans["near_a"], tmp_path)
     paths += plot_singularity_loci(GEOM, tmp_path, n_xy=21, n_z=2)

@@ -17,9 +17,9 @@ import pytest
 
 from controller.cli import main
 from controller.config import config_from_dict, load_config
-from controller.control_law import Mode
-from controller.loop import CycleLoop, SimulatedTime
-from controller.service import build_law
+from controller.core.control_law import Mode
+from controller.shell.loop import CycleLoop, SimulatedTime
+from controller.shell.service import build_law
 from logs import messages as m
 from logs.reader import LogFileError, iter_decoded, read_info
 from logs.recorder import SessionRecorder, open_session_file, session_metadata
@@ -143,8 +143,9 @@ _RECORDING_CONTROLLER = textwrap.dedent("""
     import sys, time
     sys.path.insert(0, {repo!r})
     from controller.config import load_config
-    from controller.loop import CycleLoop, DeadlineSleeper
-    from controller.service import build_law
+    from controller.shell.loop import CycleLoop
+    from drivers.pacing import DeadlineSleeper
+    from controller.shell.service import build_law
     from sim_backend.loopback import LoopbackExchange
     from logs.recorder import SessionRecorder, session_metadata
     cfg = load_config(overrides={{"task.path.laps": 5.0}})

@@ -11,13 +11,13 @@ import pytest
 from busy_machine import TOLERANT
 
 from controller.config import CONFIG_DIR, ConfigError, load_config
-from controller.control_law import Mode
-from controller.loop import CycleLoop, SimulatedTime
+from controller.core.control_law import Mode
 from controller.robots import uru
 from controller.robots.registry import actuator_units, uru_from_config
 from controller.robots.uru_robot import UruWorkspaceError
-from controller.run_summary import RunRecorder
-from controller.service import build_law
+from controller.shell.loop import CycleLoop, SimulatedTime
+from controller.shell.run_summary import RunRecorder
+from controller.shell.service import build_law
 from sim_backend.loopback import LoopbackExchange
 
 URU_TOML = CONFIG_DIR / "uru.toml"

@@ -419,7 +419,7 @@ def test_path_through_actuation_singularity_is_refused() -> None:
 
 
 def test_plots_are_written(tmp_path) -> None:
-    from controller.analysis.uru_plots import plot_workspace_and_singularities
+    from controller.tools.analysis.uru_plots import plot_workspace_and_singularities
 
     files = plot_workspace_and_singularities(GEOM, tmp_path / "png", grid_points=61)
     assert [f.name for f in files] == ["uru_workspace_3d.png", "uru_sections_z.png", "uru_section_diagonal.png"]

@@ -39,9 +39,8 @@ import zenoh
 from google.protobuf.message import DecodeError
 
 from controller.config import Config, config_to_dict
-from controller.control_law import ControllerState
-from controller.cycle_data import CycleInputs, CycleOutputs, Event, Severity
-from controller.loop import CycleTiming
+from controller.core.control_law import ControllerState
+from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severity
 from controller.messages import cheope_pb2 as pb
 from controller.monitoring.zenoh_session import (
     MonitorKeys,
@@ -51,6 +50,7 @@ from controller.monitoring.zenoh_session import (
     open_session,
     split_endpoints,
 )
+from controller.shell.loop import CycleTiming
 
 log = logging.getLogger(__name__)
 

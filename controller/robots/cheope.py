@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from controller.linalg3 import Matrix3, matmul3, symmetric_eigenvalues3, transpose3
+from controller.core.linalg3 import Matrix3, matmul3, symmetric_eigenvalues3, transpose3
 from controller.robots.errors import NoSolutionError
 
 _AXES = 3

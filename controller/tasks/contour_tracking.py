@@ -51,8 +51,8 @@ from typing import Protocol
 
 import numpy as np
 
-from controller.cycle_data import Event, Severity
-from controller.linalg3 import solve3
+from controller.core.cycle_data import Event, Severity
+from controller.core.linalg3 import solve3
 from controller.tasks.task import JointReference, TaskContext, TaskStep
 
 

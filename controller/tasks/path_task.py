@@ -13,7 +13,7 @@ from typing import Protocol
 
 import numpy as np
 
-from controller.setpoint_smoothing import Setpoint
+from controller.core.setpoint_smoothing import Setpoint
 from controller.tasks.task import JointReference, TaskContext, TaskStep
 
 

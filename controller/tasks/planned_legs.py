@@ -29,7 +29,7 @@ from enum import IntEnum
 
 import numpy as np
 
-from controller.cycle_data import Event, Severity
+from controller.core.cycle_data import Event, Severity
 from controller.planning.nonholonomic import PlanResult, controls, feedback_leg_rates, rollout
 from controller.robots.nspu import leg_lengths_batch
 from controller.tasks.task import JointReference, TaskContext, TaskStep

@@ -10,8 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Protocol
 
-from controller.cycle_data import CycleInputs, Event
-from controller.setpoint_smoothing import Setpoint
+from controller.core.cycle_data import CycleInputs, Event
+from controller.core.setpoint_smoothing import Setpoint
 
 
 @dataclass(frozen=True, slots=True)

@@ -25,11 +25,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from controller.control_law import ControllerState, Mode
-from controller.cycle_data import CycleInputs, CycleOutputs, Event
-from controller.loop import CycleTiming
+from controller.core.control_law import ControllerState, Mode
+from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
 from controller.robots.cheope import CheopeRobot
 from controller.robots.performance import MassModel, mass_ellipsoid, stiffness_ellipsoid
+from controller.shell.loop import CycleTiming
 from controller.tasks.contour_tracking import ContourPhase, ContourState
 
 

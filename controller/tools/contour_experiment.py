@@ -18,11 +18,11 @@ import dataclasses
 import threading
 from pathlib import Path
 
-from controller.analysis.contour_report import ContourObserver, contour_summary, plot_contour
 from controller.config import Config, PathSection
-from controller.realtime import RealtimeOptions
 from controller.robots.registry import mass_model_from_config
-from controller.service import build_robot, run_controller
+from controller.shell.realtime import RealtimeOptions
+from controller.shell.service import build_robot, run_controller
+from controller.tools.analysis.contour_report import ContourObserver, contour_summary, plot_contour
 from drivers.bus import BusSpec
 
 
@@ -83,8 +83,8 @@ def run_simulated_time(cfg: Config, max_duration_s: float = 600.0, plot_dir: Pat
     Deterministic and free of the machine's timing: the reference to compare a run over a
     bus with (``cheope demo --task contour --simulated-time``).
     """
-    from controller.loop import CycleLoop, SimulatedTime
-    from controller.service import build_law
+    from controller.shell.loop import CycleLoop, SimulatedTime
+    from controller.shell.service import build_law
     from sim_backend.loopback import LoopbackExchange
 
     c = cfg.task.contour

@@ -4,7 +4,7 @@ For the monitoring tests and the latency benchmark: the loop shell, the control 
 publisher are the production ones; the devices are ``sim_backend.loopback`` (no bus, no
 simulator process), run on the monotonic clock so samples flow at the configured rate.
 
-    python -m controller.monitoring.sim_controller --set monitoring.listen='"tcp/127.0.0.1:7600"'
+    python -m controller.tools.sim_controller --set monitoring.listen='"tcp/127.0.0.1:7600"'
 
 prints ``READY <listen endpoints>`` once the publisher is up and, at the end, one JSON line
 with the final mode and the events. SIGTERM or SIGINT request a controlled stop.
@@ -20,9 +20,10 @@ import threading
 import time
 
 from controller.config import Config, load_config, parse_override
-from controller.loop import CycleLoop, DeadlineSleeper
 from controller.monitoring.publisher import monitoring_publisher
-from controller.service import build_law
+from controller.shell.loop import CycleLoop
+from controller.shell.service import build_law
+from drivers.pacing import DeadlineSleeper
 
 READY = "READY"
 
@@ -51,7 +52,7 @@ def run_simulated(cfg: Config, stop_event: threading.Event, max_duration_s: floa
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m controller.monitoring.sim_controller")
+    ap = argparse.ArgumentParser(prog="python -m controller.tools.sim_controller")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--max-duration", type=float, default=60.0)
     args = ap.parse_args(argv)

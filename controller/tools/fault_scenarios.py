@@ -19,10 +19,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from controller.config import Config, load_config
-from controller.control_law import Mode
-from controller.cycle_data import Severity
-from controller.loop import CycleLoop, SimulatedTime
-from controller.service import build_law
+from controller.core.control_law import Mode
+from controller.core.cycle_data import Severity
+from controller.shell.loop import CycleLoop, SimulatedTime
+from controller.shell.service import build_law
 from drivers.cia402 import PowerState
 from sim_backend.fault_injection import FaultSchedule
 from sim_backend.loopback import LoopbackExchange

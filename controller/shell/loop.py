@@ -21,27 +21,12 @@ from typing import Protocol
 
 import numpy as np
 
-from controller.control_law import ControlLaw, ControllerState, Mode
-from controller.cycle_data import CycleInputs, CycleOutputs, Event
+from controller.core.control_law import ControlLaw, ControllerState, Mode
+from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
 
 
 class Sleeper(Protocol):
     def sleep_until(self, deadline_s: float) -> None: ...
-
-
-class DeadlineSleeper:
-    """``time.sleep`` until ``spin_s`` before the deadline, then spin on the clock."""
-
-    def __init__(self, spin_s: float, clock: Callable[[], float] = time.monotonic) -> None:
-        self.spin_s = spin_s
-        self.clock = clock
-
-    def sleep_until(self, deadline_s: float) -> None:
-        coarse = deadline_s - self.clock() - self.spin_s
-        if coarse > 0.0:
-            time.sleep(coarse)
-        while self.clock() < deadline_s:
-            pass
 
 
 class Exchange(Protocol):

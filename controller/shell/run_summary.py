@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from controller.control_law import PIPELINE_PERIODS, ControllerState
-from controller.cycle_data import CycleInputs, CycleOutputs, Event, Severity
-from controller.loop import CycleTiming, LoopStats
+from controller.core.control_law import PIPELINE_PERIODS, ControllerState
+from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severity
+from controller.shell.loop import CycleTiming, LoopStats
 
 
 @dataclass

@@ -19,10 +19,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.config import Config, ConfigError
-from controller.control_law import ControlLaw, LawConfig, SafetyConfig
-from controller.loop import CycleLoop, CycleObserver, DeadlineSleeper
+from controller.core.control_law import ControlLaw, LawConfig, SafetyConfig
+from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother
 from controller.monitoring.publisher import monitoring_context
-from controller.realtime import (
+from controller.robots.cheope import CheopeRobot
+from controller.robots.registry import actuator_units, robot_from_config
+from controller.shell.loop import CycleLoop, CycleObserver
+from controller.shell.realtime import (
     RealtimeOptions,
     apply_realtime,
     check_realtime,
@@ -31,10 +34,7 @@ from controller.realtime import (
     set_gil_switch_interval,
     unfreeze_garbage_collector,
 )
-from controller.robots.cheope import CheopeRobot
-from controller.robots.registry import actuator_units, robot_from_config
-from controller.run_summary import RunRecorder, summarize
-from controller.setpoint_smoothing import AxisLimits, RuckigSmoother
+from controller.shell.run_summary import RunRecorder, summarize
 from controller.tasks.circle_path import CirclePath
 from controller.tasks.contour_tracking import ContourParams, ContourTrackingTask
 from controller.tasks.path_task import PathTask
@@ -43,6 +43,7 @@ from drivers.bus import BusSpec, open_bus
 from drivers.bus_load import BusLoad, check_bus_load, compute_bus_load, cyclic_frames
 from drivers.cyclic_exchange import CyclicExchange, FrameSink
 from drivers.node_setup import NodeSetupPlan, configure_nodes
+from drivers.pacing import DeadlineSleeper
 from drivers.pdo_codec import PositionScale
 
 log = logging.getLogger(__name__)
@@ -159,9 +160,9 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float = 600.0,
                    stop_event: threading.Event | None = None, observers: tuple[CycleObserver, ...] = (),
                    frame_sink: FrameSink | None = None, realtime: RealtimeOptions | None = None
                    ) -> dict[str, object]:
-    """Run the configured task on the bus; returns the summary (see controller/run_summary.py).
+    """Run the configured task on the bus; returns the summary (see controller/shell/run_summary.py).
 
-    ``realtime`` (controller/realtime.py) is checked before anything opens, and applied to
+    ``realtime`` (controller/shell/realtime.py) is checked before anything opens, and applied to
     this thread just before the loop starts, so helper threads started earlier keep SCHED_OTHER.
     """
     prepared = prepare(cfg)

@@ -44,8 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.loop import period_error_us
-from controller.realtime import RealtimeOptions
+from controller.shell.loop import period_error_us
+from controller.shell.realtime import RealtimeOptions
 from drivers import cob_ids
 
 DRIVE_TPDO_BYTES = 6
@@ -111,7 +111,7 @@ def naive_loop(period_s: float, cycles: int, work_s: float) -> np.ndarray:
 
 def deadline_loop(period_s: float, cycles: int, work_s: float, spin_s: float) -> np.ndarray:
     """The loop shell's sleeper (``DeadlineSleeper``) on absolute deadlines. Returns wake times [s]."""
-    from controller.loop import DeadlineSleeper
+    from drivers.pacing import DeadlineSleeper
 
     sleeper = DeadlineSleeper(spin_s)
     clock = time.monotonic
@@ -321,7 +321,7 @@ def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], conf
              cyclictest_s: float = 0.0) -> dict[str, object]:
     from controller.config import load_config, parse_override
     from controller.demo import random_udp_port
-    from controller.service import planned_bus_load, run_controller
+    from controller.shell.service import planned_bus_load, run_controller
     from drivers.bus import parse_bus_spec
 
     overrides = [*base_overrides, f"loop.rate_hz={case.rate_hz}", f"bus.fd={'true' if case.fd else 'false'}"]
@@ -340,7 +340,7 @@ def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], conf
         tpdo_ids |= {cob_ids.tpdo1(cfg.sensor.node_id), cob_ids.tpdo2(cfg.sensor.node_id)}
     contour = None
     if cfg.task.kind == "contour":  # the force error of the laps, as the demo reports it
-        from controller.analysis.contour_report import ContourObserver
+        from controller.tools.analysis.contour_report import ContourObserver
 
         c = cfg.task.contour
         contour = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s))
@@ -351,8 +351,8 @@ def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], conf
                                  observers=(probe,) if contour is None else (probe, contour),
                                  frame_sink=probe.sink, realtime=rt)
     if contour is not None:
-        from controller.analysis.contour_report import contour_summary
-        from controller.service import build_robot
+        from controller.shell.service import build_robot
+        from controller.tools.analysis.contour_report import contour_summary
 
         c = cfg.task.contour
         summary["contour"] = contour_summary(contour, build_robot(cfg), cfg.robot.mass.actuator_stiffness_n_m,
@@ -418,7 +418,7 @@ def _contour_laps(summary: dict[str, object]) -> list[dict[str, object]] | None:
 def machine_floor(rate_hz: float, duration_s: float, rt: RealtimeOptions, late_us: float,
                   case: dict[str, object]) -> dict[str, object]:
     """cyclictest at the case's rate, priority, CPU and memory locking, and the case's figures over it."""
-    from controller.cyclictest import CyclictestError, run_cyclictest
+    from controller.tools.cyclictest import CyclictestError, run_cyclictest
 
     try:
         floor = run_cyclictest(rate_hz, duration_s, rt.priority, rt.cpus[0] if rt.cpus else None, rt.lock_memory,
@@ -450,8 +450,8 @@ def step_breakdown(config_path: str | None, overrides: list[str], rate_hz: float
     from ruckig import OutputParameter, Ruckig, RuckigError
 
     from controller.config import load_config, parse_override
-    from controller.loop import SimulatedTime
-    from controller.service import build_law
+    from controller.shell.loop import SimulatedTime
+    from controller.shell.service import build_law
     from sim_backend.loopback import LoopbackExchange
 
     cfg = load_config(config_path, dict(parse_override(s) for s in [*overrides, f"loop.rate_hz={rate_hz}"]))
@@ -569,7 +569,7 @@ def compare_pdo_paths(cycles: int, config_path: str | None = None, overrides: li
     import canopen
 
     from controller.config import load_config, parse_override
-    from controller.cycle_data import CycleOutputs
+    from controller.core.cycle_data import CycleOutputs
     from drivers.cyclic_exchange import CyclicExchange
     from drivers.pdo_codec import FORCE_N_PER_COUNT, TORQUE_NM_PER_COUNT, PositionScale, encode_drive_tpdo
     from sim_backend.server import DRIVE_EDS, SENSOR_EDS
@@ -700,8 +700,8 @@ def run_bench(rates_hz: tuple[float, ...], duration_s: float, compare_s: float, 
               schedulers: tuple[str, ...] = ("realtime",), cyclictest_s: float = 30.0
               ) -> dict[str, object]:
     from controller.config import load_config, parse_override
-    from controller.realtime import apply_realtime
-    from controller.service import planned_bus_load
+    from controller.shell.realtime import apply_realtime
+    from controller.shell.service import planned_bus_load
 
     out_dir.mkdir(parents=True, exist_ok=True)
     cfg = load_config(config_path, dict(parse_override(s) for s in overrides))
@@ -713,7 +713,7 @@ def run_bench(rates_hz: tuple[float, ...], duration_s: float, compare_s: float, 
                         "late": f"woke > {late_fraction:g} x period after the deadline, or a skipped deadline",
                         "cpu_percent": "% of one CPU over the run"},
     }
-    from controller.cyclictest import INSTALL_HINT, cyclictest_path
+    from controller.tools.cyclictest import INSTALL_HINT, cyclictest_path
 
     if cyclictest_s > 0 and cyclictest_path() is None:
         progress(INSTALL_HINT)
@@ -942,7 +942,7 @@ def add_bench_arguments(ap: argparse.ArgumentParser) -> None:
 
 
 def run_bench_command(args: argparse.Namespace, rt: RealtimeOptions) -> int:
-    from controller.realtime import parse_cpus
+    from controller.shell.realtime import parse_cpus
 
     if args.sim_rt_priority is None and not args.sim_cpu:
         sim_rt = rt.for_simulator()  # as the demo gives it: one step below the loop, on the other CPUs

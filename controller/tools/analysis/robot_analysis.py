@@ -19,10 +19,10 @@ from controller.config import Config
 
 
 def analyze_uru(cfg: Config, out_dir: Path) -> dict[str, object]:
-    from controller.analysis.uru_plots import plot_workspace_and_singularities
     from controller.robots import uru
     from controller.robots.registry import uru_from_config
     from controller.robots.uru_robot import UruWorkspaceError
+    from controller.tools.analysis.uru_plots import plot_workspace_and_singularities
 
     robot = uru_from_config(cfg)
     files = plot_workspace_and_singularities(robot.geometry, out_dir)
@@ -60,9 +60,9 @@ def analyze_uru(cfg: Config, out_dir: Path) -> dict[str, object]:
 
 def analyze_nspu(cfg: Config, out_dir: Path, euler_xzx_rad: tuple[float, float, float] = (0.0, 1.0, 0.0)
                  ) -> dict[str, object]:
-    from controller.analysis.nspu_plots import plot_singularity_loci
     from controller.planning.nonholonomic import type2_measure
     from controller.robots.registry import nspu_from_config
+    from controller.tools.analysis.nspu_plots import plot_singularity_loci
 
     robot = nspu_from_config(cfg)
     files = plot_singularity_loci(robot.geometry, out_dir, euler_xzx_rad=euler_xzx_rad)
@@ -107,7 +107,7 @@ def plan_nspu(cfg: Config, start, goal, check_type2: bool, plot_dir: Path | None
             "end_angle_error_rad": float(np.linalg.norm(so3_log(res.R[-1] @ goal.R.T))),
         })
     if plot_dir is not None and res.ok:
-        from controller.analysis.nspu_plots import plot_plan
+        from controller.tools.analysis.nspu_plots import plot_plan
 
         out["plots"] = [str(p) for p in plot_plan(res, plot_dir)]
     return out

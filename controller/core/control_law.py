@@ -33,10 +33,10 @@ from typing import Protocol
 
 import numpy as np
 
-from controller.cycle_data import CycleInputs, CycleOutputs, Event, Severity
+from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severity
+from controller.core.setpoint_smoothing import RuckigSmoother, Setpoint
 from controller.robots.cheope import PoseStatus
 from controller.robots.errors import NoSolutionError
-from controller.setpoint_smoothing import RuckigSmoother, Setpoint
 from controller.tasks.task import Task, TaskContext
 from drivers.cia402 import PowerState, controlword_towards, decode_statusword
 from drivers.pdo_codec import SENSOR_FORCE_SATURATED

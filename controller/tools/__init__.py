@@ -1,0 +1,1 @@
+"""Tools beside the runtime: bench, experiments, fault scenarios, analysis and plots (matplotlib)."""

@@ -1,0 +1,25 @@
+"""Pacing to deadlines on the monotonic clock: the loop shell's cycle and a replay onto a bus.
+
+``time.sleep`` alone wakes up to a scheduler tick late; the last ``spin_s`` before the
+deadline is spent reading the clock instead, which costs CPU but lands within microseconds.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+
+class DeadlineSleeper:
+    """``time.sleep`` until ``spin_s`` before the deadline, then spin on the clock."""
+
+    def __init__(self, spin_s: float, clock: Callable[[], float] = time.monotonic) -> None:
+        self.spin_s = spin_s
+        self.clock = clock
+
+    def sleep_until(self, deadline_s: float) -> None:
+        coarse = deadline_s - self.clock() - self.spin_s
+        if coarse > 0.0:
+            time.sleep(coarse)
+        while self.clock() < deadline_s:
+            pass
