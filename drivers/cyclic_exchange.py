@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import can
 
-from controller.core.cycle_data import CycleInputs, CycleOutputs, DriveFeedback, EmcyReport, SensorFeedback
+from controller.core.cycle_data import BusFeedback, CycleOutputs, DriveFeedback, EmcyReport, SensorFeedback
 from drivers import cob_ids
 from drivers.pdo_codec import (
     DRIVE_RPDO,
@@ -142,7 +142,7 @@ class CyclicExchange:
     def _complete(self) -> bool:
         return all(self._fresh) and (self._sensor_fresh or not self.has_sensor)
 
-    def collect(self, deadline_s: float, stop_requested: bool = False) -> CycleInputs:
+    def collect(self, deadline_s: float) -> BusFeedback:
         """Receive until every TPDO of this cycle arrived or ``deadline_s`` (monotonic) passed."""
         self._collecting = True
         clock = self.clock
@@ -165,8 +165,8 @@ class CyclicExchange:
         now = clock()
         lost = tuple(node for node, last in zip(self.drive_ids, self.last_heartbeat_s)
                      if now - (self.started_s if math.isnan(last) else last) > self.heartbeat_timeout_s)
-        return CycleInputs(drives=drives, sensor=sensor, emcy=tuple(self._emcy), stop_requested=stop_requested,
-                           lost_heartbeats=lost, error_frames=self._error_frames, bus_off=self._bus_off)
+        return BusFeedback(drives=drives, sensor=sensor, emcy=tuple(self._emcy), lost_heartbeats=lost,
+                            error_frames=self._error_frames, bus_off=self._bus_off)
 
     def _notify(self, msg: can.Message) -> None:
         now = self.clock()

@@ -29,6 +29,7 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
 from controller.core.cycle_data import (
+    Command,
     CycleInputs,
     CycleOutputs,
     DriveFeedback,
@@ -98,7 +99,7 @@ def inputs_from_pb(msg: pb.CycleInputs) -> CycleInputs:
         drives=tuple(DriveFeedback(d.statusword, d.position, d.fresh) for d in msg.drives),
         sensor=sensor,
         emcy=tuple(EmcyReport(e.node_id, e.error_code, e.error_register) for e in msg.emcy),
-        stop_requested=msg.stop_requested, command=msg.command, command_value=msg.command_value,
+        stop_requested=msg.stop_requested, command=Command(msg.command), command_value=msg.command_value,
         lost_heartbeats=tuple(msg.lost_heartbeats), error_frames=msg.error_frames, bus_off=msg.bus_off,
         late=msg.late,
     )

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from controller.config import Config
-from controller.core.cycle_data import CycleInputs, CycleOutputs, DriveFeedback, EmcyReport, SensorFeedback
+from controller.core.cycle_data import BusFeedback, CycleOutputs, DriveFeedback, EmcyReport, SensorFeedback
 from controller.robots.registry import actuator_units
 from drivers.pdo_codec import (
     FORCE_N_PER_COUNT,
@@ -73,7 +73,7 @@ class LoopbackExchange:
                 code = d.pending_emcy.pop(0)
                 self._emcy.append(EmcyReport(self.drive_ids[j], code, 0x01 if code else 0))
 
-    def collect(self, deadline_s: float, stop_requested: bool = False) -> CycleInputs:
+    def collect(self, deadline_s: float) -> BusFeedback:
         drives: list[DriveFeedback | None] = [None] * len(self.drives)
         force = torque = None
         for kind, j, data in self._frames:
@@ -98,5 +98,5 @@ class LoopbackExchange:
         lost = tuple(n for n in self.drive_ids if self.faults.active("heartbeat", now, n) is not None)
         errors = 3 if self.faults.active("error_frames", now) is not None else 0
         bus_off = self.faults.active("bus_off", now) is not None
-        return CycleInputs(drives=feedback, sensor=sensor, emcy=emcy, stop_requested=stop_requested,
-                           lost_heartbeats=lost, error_frames=errors + bus_off, bus_off=bus_off)
+        return BusFeedback(drives=feedback, sensor=sensor, emcy=emcy, lost_heartbeats=lost,
+                            error_frames=errors + bus_off, bus_off=bus_off)

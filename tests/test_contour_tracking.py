@@ -247,8 +247,8 @@ class LossyExchange:
     def send(self, outputs):
         self.inner.send(outputs)
 
-    def collect(self, deadline_s, stop_requested=False):
-        inputs = self.inner.collect(deadline_s, stop_requested)
+    def collect(self, deadline_s):
+        inputs = self.inner.collect(deadline_s)
         self.k += 1
         if self.k in self.lost and self.last is not None:
             last = self.last

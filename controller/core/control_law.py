@@ -33,7 +33,7 @@ from typing import Protocol
 
 import numpy as np
 
-from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severity
+from controller.core.cycle_data import Command, CycleInputs, CycleOutputs, Event, Reaction, Severity
 from controller.core.setpoint_smoothing import RuckigSmoother, Setpoint
 from controller.robots.cheope import PoseStatus
 from controller.robots.errors import NoSolutionError
@@ -71,12 +71,12 @@ class SafetyConfig:
 
     max_contact_force_n: float = 60.0
     sensor_stale_cycles: int = 5
-    on_sensor_stale: str = "fault"
-    on_sensor_saturated: str = "fault"
-    on_heartbeat_lost: str = "fault"
-    on_error_frames: str = "warn"
+    on_sensor_stale: Reaction = Reaction.FAULT
+    on_sensor_saturated: Reaction = Reaction.FAULT
+    on_heartbeat_lost: Reaction = Reaction.FAULT
+    on_error_frames: Reaction = Reaction.WARN
     max_consecutive_late_cycles: int = 50
-    on_late_cycles: str = "fault"
+    on_late_cycles: Reaction = Reaction.FAULT
 
 
 @dataclass(frozen=True)
@@ -150,7 +150,7 @@ class ControlLaw:
             if reason:
                 state = self._enter(state, Mode.FAULT, t, events, Severity.FAULT, reason)
                 state = replace(state, fault_reason=reason, setpoint=Setpoint.at_rest(measured))
-        elif state.mode == Mode.FAULT and inputs.command == "reset":
+        elif state.mode == Mode.FAULT and inputs.command == Command.RESET:
             # Recovery without a jump: ENABLING resets the drives' faults and commands the
             # measured positions; HOLDING restarts Ruckig from rest there; the task starts again.
             state = replace(self._enter(state, Mode.ENABLING, t, events, why="reset"), fault_reason="",
@@ -158,9 +158,9 @@ class ControlLaw:
                             warned=frozenset())
         if inputs.stop_requested and state.mode in (Mode.ENABLING, Mode.HOLDING, Mode.RUNNING, Mode.PAUSED):
             state = self._enter(state, Mode.STOPPING, t, events, Severity.INFO, "stop requested")
-        elif inputs.command == "pause" and state.mode == Mode.RUNNING:
+        elif inputs.command == Command.PAUSE and state.mode == Mode.RUNNING:
             state = self._enter(state, Mode.PAUSED, t, events, why="remote pause")
-        elif inputs.command == "resume" and state.mode == Mode.PAUSED:
+        elif inputs.command == Command.RESUME and state.mode == Mode.PAUSED:
             state = self._enter(state, Mode.RUNNING, t, events, why="remote resume")
 
         state = self._handlers[state.mode](state, inputs, powers, measured, t, events)
@@ -178,12 +178,12 @@ class ControlLaw:
         except NoSolutionError:
             return None
 
-    def _react(self, state: ControllerState, reaction: str, key: str, why: str, events: list[Event]
+    def _react(self, state: ControllerState, reaction: Reaction, key: str, why: str, events: list[Event]
                ) -> tuple[ControllerState, str]:
         """Apply a configured reaction to an abnormal condition ``key``."""
-        if reaction == "fault":
+        if reaction == Reaction.FAULT:
             return state, why
-        if reaction == "warn" and key not in state.warned:
+        if reaction == Reaction.WARN and key not in state.warned:
             events.append(Event(key, Severity.WARNING, why))
             return replace(state, warned=state.warned | {key}), ""
         return state, ""

@@ -16,13 +16,13 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
 
 from controller.core.control_law import ControlLaw, ControllerState, Mode
-from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
+from controller.core.cycle_data import BusFeedback, Command, CycleInputs, CycleOutputs, Event, cycle_inputs
 
 
 class Sleeper(Protocol):
@@ -32,7 +32,7 @@ class Sleeper(Protocol):
 class Exchange(Protocol):
     def send(self, outputs: CycleOutputs | None) -> None: ...
 
-    def collect(self, deadline_s: float, stop_requested: bool = False) -> CycleInputs: ...
+    def collect(self, deadline_s: float) -> BusFeedback: ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -150,13 +150,11 @@ class CycleLoop:
             self.sleeper.sleep_until(deadline)
             woke = clock()
             self.exchange.send(outputs)
-            inputs = self.exchange.collect(clock() + self.collect_s, self.stop_event.is_set())
-            if self.commands is not None:
-                pending = self.commands()
-                if pending is not None:
-                    inputs = replace(inputs, command=pending[0], command_value=pending[1])
-            if woke - deadline > self.late_tolerance_s:
-                inputs = replace(inputs, late=True)
+            feedback = self.exchange.collect(clock() + self.collect_s)
+            pending = self.commands() if self.commands is not None else None
+            command, value = (Command(pending[0]), pending[1]) if pending is not None else (Command.NONE, 0.0)
+            inputs = cycle_inputs(feedback, self.stop_event.is_set(), command, value,
+                                  late=woke - deadline > self.late_tolerance_s)
             t = k * period
             c0 = clock()
             state, outputs, events = self.law.step(state, inputs, t)

@@ -51,7 +51,7 @@ from typing import Protocol
 
 import numpy as np
 
-from controller.core.cycle_data import Event, Severity
+from controller.core.cycle_data import Command, Event, Severity
 from controller.core.linalg3 import solve3
 from controller.tasks.task import JointReference, TaskContext, TaskStep
 
@@ -218,7 +218,7 @@ class ContourTrackingTask:
 
     def step(self, state: ContourState, ctx: TaskContext) -> TaskStep:
         s = self._filter_force(state, ctx)
-        if ctx.inputs.command == "set_force" and ctx.inputs.command_value > 0:
+        if ctx.inputs.command == Command.SET_FORCE and ctx.inputs.command_value > 0:
             s = replace(s, force_setpoint_n=ctx.inputs.command_value)
         handler = {
             ContourPhase.MOVE_TO_START: self._move_to_start, ContourPhase.TARE: self._tare,

@@ -449,6 +449,7 @@ def step_breakdown(config_path: str | None, overrides: list[str], rate_hz: float
     """
     from ruckig import OutputParameter, Ruckig, RuckigError
 
+    from controller.core.cycle_data import cycle_inputs
     from controller.config import load_config, parse_override
     from controller.shell.loop import SimulatedTime
     from controller.shell.service import build_law
@@ -485,7 +486,7 @@ def step_breakdown(config_path: str | None, overrides: list[str], rate_hz: float
     for k in range(cycles):
         sim.sleep_until(k * period)
         exchange.send(outputs)
-        inputs = exchange.collect(k * period + period)
+        inputs = cycle_inputs(exchange.collect(k * period + period))
         t0 = time.perf_counter()
         state, outputs, _ = law.step(state, inputs, k * period)
         step_s[k] = time.perf_counter() - t0
@@ -498,7 +499,7 @@ def step_breakdown(config_path: str | None, overrides: list[str], rate_hz: float
     for k in range(cycles):
         sim2.sleep_until(k * period)
         exchange2.send(outputs2)
-        inputs2 = exchange2.collect(k * period + period)
+        inputs2 = cycle_inputs(exchange2.collect(k * period + period))
         state2, outputs2, _ = law2.step(state2, inputs2, k * period)
     profiler.disable()
     buf = io.StringIO()
