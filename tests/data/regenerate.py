@@ -1,4 +1,4 @@
-"""Regenerate the short recorded sessions that ``tests/test_replay.py`` verifies bit for bit.
+"""Regenerate the short recorded sessions that ``tests/integration/test_replay.py`` verifies bit for bit.
 
     .venv/bin/python tests/data/regenerate.py
 

@@ -1,7 +1,7 @@
 """Benchmarks of the Zenoh monitoring (not part of the default run: marker ``bench``).
 
-    .venv/bin/pytest tests/bench_monitoring_latency.py -m bench -s -q
-    .venv/bin/python tests/bench_monitoring_latency.py
+    .venv/bin/pytest tests/tools/bench_monitoring_latency.py -m bench -s -q
+    .venv/bin/python tests/tools/bench_monitoring_latency.py
 
 1. What ``MonitorPublisher.on_cycle`` costs the loop's thread: per-call time over thousands
    of calls paced at 400 Hz like the loop (sleep, then spin), with the publisher thread running (so the GIL is contended as in

@@ -7,7 +7,7 @@ from pathlib import Path
 from controller.cli import main
 from logs.rerun_export import export
 
-DATA = Path(__file__).resolve().parent / "data"
+DATA = Path(__file__).resolve().parents[1] / "data"
 
 ROBOT = {"/world/axes", "/world/base", "/world/sliders", "/world/rods", "/world/platform", "/world/tcp",
          "/world/tcp_trail", "/world/force"}

@@ -20,7 +20,7 @@ from logs.recorder import SessionRecorder, session_metadata
 from logs.replay_bus import replay_to_bus
 from logs.replay_verify import verify
 
-DATA = Path(__file__).resolve().parent / "data"
+DATA = Path(__file__).resolve().parents[1] / "data"
 REPO = DATA.parent.parent
 
 

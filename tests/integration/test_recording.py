@@ -26,7 +26,7 @@ from logs.recorder import SessionRecorder, open_session_file, session_metadata
 from logs.recovery import recover
 from sim_backend.loopback import LoopbackExchange
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 SHORT = {"task.path.laps": 0.1, "task.path.ramp_s": 0.1}
 
 
