@@ -16,6 +16,8 @@ import can
 from controller.config import Config, ConfigError, load_config, parse_override
 from controller.monitoring.cli_commands import add_controller_options, monitoring_overrides
 from controller.monitoring.cli_commands import add_subcommands as add_monitoring_subcommands
+from controller.robots.registry import load_reference, robot_entry, robot_kinds
+from controller.tasks.registry import task_kinds
 from drivers.bus import BusSpec, BusSpecError, parse_bus_spec
 from drivers.bus_load import BusLoadError
 from drivers.node_setup import NodeSetupError
@@ -26,7 +28,7 @@ def _common(ap: argparse.ArgumentParser, bus: bool = True) -> None:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override a configuration key, e.g. --set loop.rate_hz=1000 (repeatable)")
     ap.add_argument("--rate", type=float, help="loop rate [Hz] (same as --set loop.rate_hz=...)")
-    ap.add_argument("--robot", choices=("cheope", "uru", "nspu"),
+    ap.add_argument("--robot", choices=robot_kinds(),
                     help="the robot: loads controller/configs/ROBOT.toml unless --config is given "
                          "(then sets robot.kind)")
     if bus:
@@ -85,9 +87,8 @@ def _config_path(args: argparse.Namespace) -> str | None:
     """--config, else the shipped configuration of --robot (None: the default cheope.toml)."""
     if args.config or not getattr(args, "robot", None):
         return args.config
-    from controller.config import CONFIG_DIR
-
-    return str(CONFIG_DIR / f"{args.robot}.toml")
+    shipped = robot_entry(args.robot).config_file
+    return str(shipped) if shipped is not None else None
 
 
 def _config(args: argparse.Namespace) -> Config:
@@ -162,14 +163,15 @@ def _print_summary(summary: dict[str, Any], as_json: bool) -> None:
 
 
 def demo_defaults(args: argparse.Namespace) -> argparse.Namespace:
-    """Cheope's demo is the paper's experiment: without --task, the contour (a --config file keeps its own)."""
-    if args.task is None and args.config is None and args.robot in (None, "cheope"):
-        return argparse.Namespace(**{**vars(args), "task": "contour"})
+    """Without --task, a robot's demo runs its first task (Cheope's: the paper's contour experiment);
+    a --config file keeps its own."""
+    if args.task is None and args.config is None:
+        return argparse.Namespace(**{**vars(args), "task": robot_entry(args.robot or "cheope").tasks[0]})
     return args
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from controller.demo import random_udp_port, run_demo
+    from controller.tools.demo import random_udp_port, run_demo
 
     args = demo_defaults(args)  # also for the simulator's overrides: the disk is there for the contour
     cfg = _config(args)
@@ -233,11 +235,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_analyze(args: argparse.Namespace) -> int:
-    from controller.tools.analysis.cheope_plots import analyze_cheope
-    from controller.tools.analysis.robot_analysis import analyze_nspu, analyze_uru
-
     cfg = _config(args)
-    analyze = {"cheope": analyze_cheope, "uru": analyze_uru, "nspu": analyze_nspu}[cfg.robot.kind]
+    entry = robot_entry(cfg.robot.kind)
+    if not entry.analyze:
+        raise ConfigError(f"robot.kind = {cfg.robot.kind!r} has no analysis plots")
+    analyze = load_reference(entry.analyze)
     report = analyze(cfg, Path(args.out))
     print(json.dumps(report) if args.json else "\n".join(f"{k}: {v}" for k, v in report.items()))
     return 0
@@ -259,7 +261,7 @@ def _pose_arg(text: str, what: str):  # -> controller.robots.nspu.Pose
 
 def cmd_plan(args: argparse.Namespace) -> int:
     from controller.planning.nonholonomic import paper_example_poses
-    from controller.robots.registry import nspu_poses_from_config
+    from controller.robots.builtin import nspu_poses_from_config
     from controller.tools.analysis.robot_analysis import plan_nspu
 
     if not args.robot and not args.config:
@@ -267,7 +269,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     cfg = _config(args)
     if cfg.robot.kind != "nspu":
         raise ConfigError(f"cheope plan plans the 3-nSPU's motion; robot.kind is {cfg.robot.kind!r}")
-    start, goal = paper_example_poses(cfg.robot.nspu.length_unit_m) if args.paper_example \
+    start, goal = paper_example_poses(cfg.robot.model("nspu").length_unit_m) if args.paper_example \
         else nspu_poses_from_config(cfg)
     if args.start:
         start = _pose_arg(args.start, "from")
@@ -305,10 +307,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_controller_options(p)
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--max-duration", type=float, default=600.0, help="stop after this many seconds")
-    p.add_argument("--task", choices=("path", "contour"),
-                   help="Cheope's task (default: contour, or the task of the --config file): contour runs the "
+    p.add_argument("--task", choices=task_kinds(),
+                   help="the task (default: the robot's first, Cheope's contour, or the --config file's): contour runs the "
                         "paper's force-controlled contour tracking, then the same contour under position control; "
-                        "path: once around the configured circle")
+                        "path: once around the configured circle; planned: the 3-nSPU's planned motion")
     p.add_argument("--plot", metavar="DIR", help="write the contour experiment's PNG plots here")
     p.add_argument("--simulated-time", action="store_true",
                    help="with --task contour: run the laps against the in-process devices in simulated time "

@@ -11,6 +11,7 @@ import dataclasses
 import math
 import tomllib
 import typing
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,21 +24,27 @@ class ConfigError(ValueError):
     """Invalid configuration; the message names the key, the value and what is allowed."""
 
 
-def _r(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False) -> dict[str, Any]:
+def value_range(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False) -> dict[str, Any]:
+    """Field metadata: the allowed range of a number (``lo_open``: ``lo`` itself excluded)."""
     return {"range": (lo, hi, lo_open)}
 
 
-@dataclass(frozen=True)
-class CheopeSection:
-    rod_length_m: float = field(default=0.50, metadata=_r(0.0, 10.0, lo_open=True))
-    axis_tilt_deg: float = field(default=60.0, metadata=_r(1.0, 89.0))
-    axis_azimuths_deg: tuple[float, float, float] = (0.0, 90.0, 180.0)
-    platform_radius_m: float = field(default=0.05, metadata=_r(0.0, 1.0))
-    platform_azimuths_deg: tuple[float, float, float] = (0.0, 90.0, 180.0)
-    joint_neutral_tcp_m: tuple[float, float, float] = (0.0, 0.0, 0.50)
-    joint_swing_limit_deg: float = field(default=22.0, metadata=_r(0.0, 90.0, lo_open=True))
-    stroke_min_m: float = field(default=0.30, metadata=_r(-10.0, 10.0))
-    stroke_max_m: float = field(default=0.90, metadata=_r(-10.0, 10.0))
+_r = value_range
+
+
+def _registered_sections(group: str) -> dict[str, type | None]:
+    """``kind -> section type`` of the registered robots or tasks (imported here: they import this module)."""
+    if group == "robot":
+        from controller.robots.registry import robot_sections
+
+        return dict(robot_sections())
+    from controller.tasks.registry import task_sections
+
+    return task_sections()
+
+
+def _default_models(group: str) -> dict[str, Any]:
+    return {kind: section() for kind, section in _registered_sections(group).items() if section is not None}
 
 
 @dataclass(frozen=True)
@@ -59,58 +66,21 @@ class MassSection:
 
 
 @dataclass(frozen=True)
-class UruSection:
-    """LaMaViP 3-URU (seed 003); see controller/robots/uru.py and controller/robots/uru_robot.py."""
-
-    base_offset_m: float = field(default=0.10, metadata=_r(0.0, 10.0))
-    platform_offset_m: float = field(default=0.10, metadata=_r(0.0, 10.0))
-    proximal_lengths_m: tuple[float, float, float] = field(default=(0.20, 0.20, 0.20), metadata=_r(0.0, 10.0, lo_open=True))
-    distal_lengths_m: tuple[float, float, float] = field(default=(0.20, 0.20, 0.20), metadata=_r(0.0, 10.0, lo_open=True))
-    gear_ratios: tuple[float, float, float] = field(default=(1.0, 1.0, 1.0), metadata=_r(-1000.0, 1000.0))
-    motor_offsets_rad: tuple[float, float, float] = field(default=(0.0, 0.0, 0.0), metadata=_r(-100.0, 100.0))
-    knee_sign: int = field(default=1, metadata=_r(-1, 1))
-    home_position_m: tuple[float, float, float] = (0.12, 0.12, 0.12)  # the simulator starts here
-    motor_min_rad: float = field(default=-3.2, metadata=_r(-1000.0, 1000.0))  # motor-shaft range (drive stroke)
-    motor_max_rad: float = field(default=4.8, metadata=_r(-1000.0, 1000.0))
-    min_plane_distance_m: float = field(default=0.02, metadata=_r(0.0, 10.0))  # rotation loci eq. (17)
-    min_det_v: float = field(default=0.05, metadata=_r(0.0, 1.0))  # translation eq. (20)
-    min_det_s: float = field(default=0.05, metadata=_r(0.0, 1e6))  # actuation eq. (35)
-    min_det_a: float = field(default=0.05, metadata=_r(0.0, 1e6))  # combined eq. (36)
-    min_sin_th3: float = field(default=0.10, metadata=_r(0.0, 1.0))  # serial eq. (27)
-    min_workspace_margin_m: float = field(default=0.02, metadata=_r(0.0, 10.0))  # boundary eq. (29)
-
-
-@dataclass(frozen=True)
-class NspuSection:
-    """3-nSPU (seeds 000, 004): seed 000 §3.5 geometry, start and goal poses, planner, streaming."""
-
-    length_unit_m: float = field(default=0.01, metadata=_r(0.0, 10.0, lo_open=True))  # the papers' aul
-    r3_variant: str = field(default="symmetric", metadata={"choices": ("symmetric", "printed")})
-    leg_min_m: float = field(default=0.20, metadata=_r(0.0, 10.0))
-    leg_max_m: float = field(default=0.70, metadata=_r(0.0, 10.0))
-    start_position_m: tuple[float, float, float] = (0.0, 0.0, 0.25)
-    start_rpy_rad: tuple[float, float, float] = (0.0, 0.0, -0.5236)
-    goal_position_m: tuple[float, float, float] = (-0.0185, -0.0251, 0.2713)
-    goal_rpy_rad: tuple[float, float, float] = (0.075, 0.31, -0.532)
-    horizon_s: float = field(default=1.0, metadata=_r(0.0, 1000.0, lo_open=True))  # plan time T
-    harmonics: int = field(default=2, metadata=_r(0, 10))
-    tolerance: float = field(default=1e-3, metadata=_r(0.0, 1.0, lo_open=True))
-    max_iterations: int = field(default=50, metadata=_r(0, 10000))
-    n_steps: int = field(default=200, metadata=_r(4, 100000))
-    check_type2: bool = True  # refuse plans that cross the type-II locus (seed 000 eq. (26))
-    restarts: int = field(default=0, metadata=_r(0, 100))
-    stream_steps: int = field(default=1000, metadata=_r(10, 1000000))  # resolution of the streamed plan
-    limit_fraction: float = field(default=0.5, metadata=_r(0.0, 1.0, lo_open=True))  # of the actuator limits
-
-
-@dataclass(frozen=True)
 class RobotSection:
-    kind: str = field(default="cheope", metadata={"choices": ("cheope", "uru", "nspu")})
-    cheope: CheopeSection = CheopeSection()
-    uru: UruSection = UruSection()
-    nspu: NspuSection = NspuSection()
+    """``kind`` selects a registered robot (controller/robots/registry.py); ``[robot.<kind>]`` is its section.
+
+    Every registered robot's section is parsed and kept (``models``), so a recording's
+    configuration names all of them, as the shipped files do; ``model()`` is the selected one's.
+    """
+
+    kind: str = "cheope"
     margins: MarginsSection = MarginsSection()
     mass: MassSection = MassSection()
+    models: Mapping[str, Any] = field(default_factory=lambda: _default_models("robot"), compare=False)
+
+    def model(self, kind: str | None = None) -> Any:
+        """The ``[robot.<kind>]`` section (default: the configured robot's)."""
+        return self.models[kind or self.kind]
 
 
 @dataclass(frozen=True)
@@ -189,56 +159,15 @@ class SafetySection:
 
 
 @dataclass(frozen=True)
-class PathSection:
-    """A circle in a plane parallel to XY: the first task of issue 2."""
-
-    center_m: tuple[float, float, float] = (0.0, 0.0, 0.50)
-    radius_m: float = field(default=0.08, metadata=_r(0.0, 1.0, lo_open=True))
-    speed_m_s: float = field(default=0.10, metadata=_r(0.0, 10.0, lo_open=True))
-    laps: float = field(default=1.0, metadata=_r(0.0, 1000.0, lo_open=True))
-    ramp_s: float = field(default=0.5, metadata=_r(0.0, 60.0))
-    check_samples: int = field(default=720, metadata=_r(8, 1_000_000))
-    normal: tuple[float, float, float] = (0.0, 0.0, 1.0)  # the circle's plane normal (not normalised)
-
-
-@dataclass(frozen=True)
-class ContourSection:
-    """Hybrid force/velocity contour tracking (seed 001 §7); see controller/tasks/contour_tracking.py."""
-
-    expected_centre_m: tuple[float, float] = (0.0, 0.0)
-    height_m: float = field(default=0.50, metadata=_r(-10.0, 10.0))
-    expected_radius_m: float = field(default=0.07, metadata=_r(0.0, 1.0, lo_open=True))
-    approach_direction_deg: float = field(default=0.0, metadata=_r(-360.0, 360.0))
-    approach_clearance_m: float = field(default=0.005, metadata=_r(0.0, 1.0, lo_open=True))
-    approach_speed_m_s: float = field(default=0.002, metadata=_r(0.0, 1.0, lo_open=True))
-    max_approach_distance_m: float = field(default=0.02, metadata=_r(0.0, 1.0, lo_open=True))
-    contact_force_n: float = field(default=1.0, metadata=_r(0.0, 1000.0, lo_open=True))
-    force_setpoint_n: float = field(default=10.0, metadata=_r(0.0, 1000.0, lo_open=True))
-    lap_speeds_m_s: tuple[float, ...] = field(default=(0.02, 0.04, 0.06, 0.06, 0.06), metadata=_r(0.0, 1.0, lo_open=True))
-    tangential_acceleration_m_s2: float = field(default=0.05, metadata=_r(0.0, 100.0, lo_open=True))
-    force_kp_m_s_per_n: float = field(default=3.5e-4, metadata=_r(0.0, 1.0))
-    force_ki_m_s2_per_n: float = field(default=3.5e-3, metadata=_r(0.0, 10.0))
-    max_normal_speed_m_s: float = field(default=0.02, metadata=_r(0.0, 10.0, lo_open=True))
-    force_filter_hz: float = field(default=10.0, metadata=_r(0.1, 10000.0))
-    normal_min_force_n: float = field(default=2.0, metadata=_r(0.0, 1000.0))
-    max_force_n: float = field(default=40.0, metadata=_r(0.0, 1000.0, lo_open=True))
-    contact_lost_force_n: float = field(default=1.0, metadata=_r(0.0, 1000.0))
-    contact_lost_cycles: int = field(default=40, metadata=_r(1, 100000))
-    on_contact_loss: str = field(default="reapproach", metadata={"choices": ("reapproach", "stop")})
-    retract_distance_m: float = field(default=0.01, metadata=_r(0.0, 1.0, lo_open=True))
-    retract_speed_m_s: float = field(default=0.02, metadata=_r(0.0, 1.0, lo_open=True))
-    tare_s: float = field(default=0.1, metadata=_r(0.0, 60.0, lo_open=True))
-    friction_estimate: float = field(default=0.1, metadata=_r(0.0, 2.0))
-    normal_tracker_hz: float = field(default=1.5, metadata=_r(0.01, 50.0))
-    comparison_press_m: float = field(default=6.0e-5, metadata=_r(0.0, 0.01))
-    direction: int = field(default=1, metadata={"range": (-1, 1, False)})
-
-
-@dataclass(frozen=True)
 class TaskSection:
-    kind: str = field(default="path", metadata={"choices": ("path", "contour")})
-    path: PathSection = PathSection()
-    contour: ContourSection = ContourSection()
+    """``kind`` selects a registered task (controller/tasks/registry.py); ``[task.<kind>]`` is its section."""
+
+    kind: str = "path"
+    models: Mapping[str, Any] = field(default_factory=lambda: _default_models("task"), compare=False)
+
+    def model(self, kind: str | None = None) -> Any:
+        """The ``[task.<kind>]`` section (default: the configured task's); None for a task without one."""
+        return self.models.get(kind or self.kind)
 
 
 @dataclass(frozen=True)
@@ -329,13 +258,13 @@ class MonitoringSection:
 
 @dataclass(frozen=True)
 class Config:
-    robot: RobotSection = RobotSection()
+    robot: RobotSection = field(default_factory=RobotSection)
     actuators: ActuatorsSection = ActuatorsSection()
     sensor: SensorSection = SensorSection()
     bus: BusSection = BusSection()
     loop: LoopSection = LoopSection()
     safety: SafetySection = SafetySection()
-    task: TaskSection = TaskSection()
+    task: TaskSection = field(default_factory=TaskSection)
     sim: SimSection = SimSection()
     recording: RecordingSection = RecordingSection()
     monitoring: MonitoringSection = MonitoringSection()
@@ -394,8 +323,10 @@ def _convert(key: str, tp: Any, value: Any, meta: dict[str, Any]) -> Any:
 
 
 def _build(cls: type, table: dict[str, Any], prefix: str) -> Any:
+    if cls in _GROUPS:
+        return _build_group(cls, table, prefix)
     hints = typing.get_type_hints(cls)
-    names = {f.name: f for f in dataclasses.fields(cls)}
+    names = {f.name: f for f in dataclasses.fields(cls) if f.name != "models"}
     unknown = sorted(set(table) - set(names))
     if unknown:
         where = f"[{prefix}]" if prefix else "the top level"
@@ -407,12 +338,49 @@ def _build(cls: type, table: dict[str, Any], prefix: str) -> Any:
     return cls(**kwargs)
 
 
+def _build_group(cls: type, table: dict[str, Any], prefix: str) -> Any:
+    """``[robot]`` / ``[task]``: the fixed keys, then one section per registered kind (``[robot.<kind>]``)."""
+    sections = _registered_sections(_GROUPS[cls])
+    kinds = ", ".join(sections)
+    kind = table.get("kind", _default_kind(cls))
+    if kind not in sections:
+        raise ConfigError(f"{prefix}.kind = {kind!r}: must be one of {kinds}")
+    fixed = {k: v for k, v in table.items() if k not in sections}
+    models: dict[str, Any] = {}
+    for name, section in sections.items():
+        if section is None:
+            if name in table:
+                raise ConfigError(f"[{prefix}.{name}]: the {name} {prefix} has no settings here")
+            continue
+        sub = table.get(name, {})
+        if not isinstance(sub, dict):
+            raise ConfigError(f"[{prefix}.{name}] must be a table, got {sub!r}")
+        models[name] = _build(section, sub, f"{prefix}.{name}")
+    fields = {f.name for f in dataclasses.fields(cls) if f.name != "models"}
+    unknown = sorted(set(fixed) - fields)
+    if unknown:
+        raise ConfigError(f"unknown key(s) {', '.join(unknown)} in [{prefix}]; known: "
+                          f"{', '.join(sorted(fields | set(sections)))}")
+    built = _build_fixed(cls, fixed, prefix)
+    return dataclasses.replace(built, models=models)
+
+
+def _default_kind(cls: type) -> str:
+    return str(next(f.default for f in dataclasses.fields(cls) if f.name == "kind"))
+
+
+def _build_fixed(cls: type, table: dict[str, Any], prefix: str) -> Any:
+    hints = typing.get_type_hints(cls)
+    names = {f.name: f for f in dataclasses.fields(cls)}
+    kwargs = {name: _convert(f"{prefix}.{name}", hints[name], value, dict(names[name].metadata))
+              for name, value in table.items()}
+    return cls(**kwargs, models={})
+
+
+_GROUPS: dict[type, str] = {RobotSection: "robot", TaskSection: "task"}
+
+
 def _cross_checks(cfg: Config) -> None:
-    c = cfg.robot.cheope
-    if c.stroke_min_m >= c.stroke_max_m:
-        raise ConfigError(
-            f"robot.cheope.stroke_min_m = {c.stroke_min_m} must be < robot.cheope.stroke_max_m = {c.stroke_max_m}"
-        )
     ids = list(cfg.actuators.node_ids) + ([cfg.sensor.node_id] if cfg.sensor.enabled else []) + [
         cfg.loop.controller_node_id]
     for i in cfg.actuators.node_ids:
@@ -428,7 +396,7 @@ def _cross_checks(cfg: Config) -> None:
             f"loop.heartbeat_consumer_s = {cfg.loop.heartbeat_consumer_s} must exceed "
             f"loop.heartbeat_period_s = {cfg.loop.heartbeat_period_s}"
         )
-    _robot_cross_checks(cfg)
+    _registered_cross_checks(cfg)
     from sim_backend.fault_injection import FaultSpecError, parse_fault  # pure parsing, no I/O
 
     for i, text in enumerate(cfg.sim.faults):
@@ -436,10 +404,6 @@ def _cross_checks(cfg: Config) -> None:
             parse_fault(text)
         except FaultSpecError as err:
             raise ConfigError(f"sim.faults[{i}]: {err}") from err
-    if not cfg.task.contour.lap_speeds_m_s:
-        raise ConfigError("task.contour.lap_speeds_m_s = []: needs at least one lap")
-    if cfg.task.contour.direction not in (-1, 1):
-        raise ConfigError(f"task.contour.direction = {cfg.task.contour.direction}: must be 1 or -1")
     if cfg.bus.fd and cfg.bus.data_bitrate_bit_s < cfg.bus.bitrate_bit_s:
         raise ConfigError(
             f"bus.data_bitrate_bit_s = {cfg.bus.data_bitrate_bit_s} must be >= bus.bitrate_bit_s = "
@@ -447,21 +411,23 @@ def _cross_checks(cfg: Config) -> None:
         )
 
 
-def _robot_cross_checks(cfg: Config) -> None:
-    u, n = cfg.robot.uru, cfg.robot.nspu
-    if u.knee_sign not in (-1, 1):
-        raise ConfigError(f"robot.uru.knee_sign = {u.knee_sign}: must be 1 or -1")
-    if any(k == 0 for k in u.gear_ratios):
-        raise ConfigError(f"robot.uru.gear_ratios = {list(u.gear_ratios)}: must be non-zero")
-    if u.motor_min_rad >= u.motor_max_rad:
-        raise ConfigError(f"robot.uru.motor_min_rad = {u.motor_min_rad} must be < robot.uru.motor_max_rad = "
-                          f"{u.motor_max_rad}")
-    if n.leg_min_m >= n.leg_max_m:
-        raise ConfigError(f"robot.nspu.leg_min_m = {n.leg_min_m} must be < robot.nspu.leg_max_m = {n.leg_max_m}")
-    if sum(x * x for x in cfg.task.path.normal) < 1e-12:
-        raise ConfigError(f"task.path.normal = {list(cfg.task.path.normal)}: must be a non-zero vector")
-    if cfg.robot.kind != "cheope" and cfg.task.kind == "contour":
-        raise ConfigError(f'task.kind = "contour" needs robot.kind = "cheope" (got {cfg.robot.kind!r})')
+def _registered_cross_checks(cfg: Config) -> None:
+    """Each registered robot's and task's own checks, and whether the robot can run the task."""
+    from controller.robots.registry import robot_entry
+    from controller.tasks.registry import task_entry
+
+    for kind, section in cfg.robot.models.items():
+        check = robot_entry(kind).check
+        if check is not None:
+            check(section)
+    for kind, section in cfg.task.models.items():
+        check = task_entry(kind).check
+        if check is not None:
+            check(section)
+    tasks = robot_entry(cfg.robot.kind).tasks
+    if cfg.task.kind not in tasks:
+        raise ConfigError(f"task.kind = {cfg.task.kind!r}: robot.kind = {cfg.robot.kind!r} runs "
+                          f"{', '.join(repr(t) for t in tasks)}")
 
 
 # Keys an earlier version wrote into recordings (``cheope.config``) and this one no longer has.
@@ -476,6 +442,10 @@ def recorded_config_from_dict(table: dict[str, Any]) -> Config:
         section, _, key = dotted.partition(".")
         if isinstance(table.get(section), dict):
             table[section].pop(key, None)
+    robot, task = table.get("robot"), table.get("task")
+    if isinstance(robot, dict) and isinstance(task, dict) and robot.get("kind") == "nspu" \
+            and task.get("kind", "path") == "path":
+        task["kind"] = "planned"  # earlier versions chose the 3-nSPU's planned task by robot.kind
     return config_from_dict(table)
 
 
@@ -511,8 +481,17 @@ def set_dotted(table: dict[str, Any], dotted: str, value: Any) -> None:
 
 
 def config_to_dict(cfg: Any) -> dict[str, Any]:
-    """Plain nested dict (for metadata, status answers and JSON)."""
-    return dataclasses.asdict(cfg)
+    """Plain nested dict in the files' shape (for metadata, status answers and JSON)."""
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(cfg):
+        value = getattr(cfg, f.name)
+        if f.name == "models":
+            out.update({kind: config_to_dict(section) for kind, section in value.items()})
+        elif dataclasses.is_dataclass(value):
+            out[f.name] = config_to_dict(value)
+        else:
+            out[f.name] = value
+    return out
 
 
 __all__ = [

@@ -111,7 +111,7 @@ def _compare_events(c: _Compare, rec: list[pb.Event], new: tuple) -> None:
 
 
 def _law_from(report: ReadReport, overrides: dict[str, Any]) -> Any:
-    from controller.shell.service import build_law
+    from controller.assembly import build_law
 
     meta = report.metadata.get(m.META_CONFIG)
     if meta is None or "json" not in meta:

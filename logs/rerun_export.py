@@ -257,11 +257,11 @@ def _send_cheope(rec: Any, cfg: Any, idx: Callable[..., list[Any]], q: np.ndarra
                  known: np.ndarray) -> list[str]:
     import rerun as rr
 
-    from controller.robots.registry import cheope_from_config
+    from controller.robots.builtin import cheope_from_config
 
     robot = cheope_from_config(cfg)
     g = robot.geometry
-    c = cfg.robot.cheope
+    c = cfg.robot.model("cheope")
     axes, plat = np.asarray(g.axes), np.asarray(g.platform_vectors)
     strips = [np.array([c.stroke_min_m * n, c.stroke_max_m * n]) for n in axes]
     rec.log("/world/axes", rr.LineStrips3D(strips, radii=0.002, colors=[[150, 150, 150]],
@@ -292,7 +292,7 @@ def _send_cheope(rec: Any, cfg: Any, idx: Callable[..., list[Any]], q: np.ndarra
                 static=True)
         out.append("/world/workpiece/rim")
     if cfg.task.kind == "contour":
-        e = cfg.task.contour
+        e = cfg.task.model("contour")
         rec.log("/world/workpiece/expected", rr.LineStrips3D(
             [_circle(e.expected_centre_m[0], e.expected_centre_m[1], e.height_m, e.expected_radius_m)],
             radii=0.0004, colors=[[120, 200, 120]]), static=True)

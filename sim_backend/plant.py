@@ -14,7 +14,7 @@ kinematic TCP interpolated linearly between its values at the two ends (at 60 mm
 structure's M^-1 K, M^-1 D) evaluated once per interval, at its start (the TCP moves 0.15 mm in
 2.5 ms; J changes by a part in a thousand).
 
-The mechanics depend on ``robot.kind`` (``_update_kinematics``):
+The kinematics are the robot's simulator hook (``sim_backend/plant_kinematics.py``):
 - Cheope: the closed-form direct kinematics of the slider positions [m];
 - 3-URU: the direct kinematics from the motor-shaft angles [rad] (the drives are rotary),
   Newton from the previous pose (the assembly the platform is in);
@@ -55,14 +55,18 @@ import numpy as np
 
 from controller.config import Config
 from controller.core.linalg3 import Matrix3, as_rows, inverse3, matvec, transpose3
+from controller.robots.builtin import mass_model_from_config
 from controller.robots.errors import NoSolutionError
-from controller.robots.registry import actuator_units, mass_model_from_config, robot_from_config
+from controller.robots.registry import actuator_units, robot_from_config
+from controller.robots.robot import ActuatorUnit
+from controller.tasks.registry import task_entry
 from drivers.pdo_codec import encode_drive_tpdo
 from sim_backend.contact_disk import DiskEnvironment, DiskParams
 from sim_backend.drive import DriveParams, SimulatedDrive
 from sim_backend.environment import Environment, FreeSpace
 from sim_backend.force_sensor import SensorParams, SimulatedForceSensor
 from sim_backend.mechanics import NO_ACCELERATION, ComplianceParams, CompliantTool
+from sim_backend.plant_kinematics import plant_kinematics
 
 log = logging.getLogger(__name__)
 
@@ -70,28 +74,22 @@ log = logging.getLogger(__name__)
 def drive_params_from_config(cfg: Config) -> DriveParams:
     d = cfg.sim.drive
     u = actuator_units(cfg)  # m, or rad for the URU's motors; the stroke of the configured robot
+    rotary = u.unit == ActuatorUnit.RADIAN  # the drive-side limits in the actuators' unit
     return DriveParams(
-        bandwidth_hz=d.bandwidth_hz, damping_ratio=d.damping_ratio, max_velocity=u.sim_max_velocity,
-        max_acceleration=u.sim_max_acceleration, quick_stop_deceleration=u.sim_quick_stop_deceleration,
+        bandwidth_hz=d.bandwidth_hz, damping_ratio=d.damping_ratio,
+        max_velocity=d.max_velocity_rad_s if rotary else d.max_velocity_m_s,
+        max_acceleration=d.max_acceleration_rad_s2 if rotary else d.max_acceleration_m_s2,
+        quick_stop_deceleration=d.quick_stop_deceleration_rad_s2 if rotary else d.quick_stop_deceleration_m_s2,
         velocity_feedforward=d.velocity_feedforward,
         stroke_min=u.stroke_min, stroke_max=u.stroke_max, counts_per_unit=u.counts_per_unit,
         sync_timeout_s=d.sync_timeout_s, substep_s=d.substep_s,
     )
 
 
-def initial_actuator_positions(cfg: Config, robot) -> tuple[float, ...]:
-    """Where the simulated drives start: Cheope's configured positions, else the robot's start pose."""
-    if cfg.robot.kind == "uru":
-        return tuple(robot.inverse_kinematics(np.asarray(cfg.robot.uru.home_position_m)).tolist())
-    if cfg.robot.kind == "nspu":
-        return tuple(robot.start_leg_lengths_m().tolist())
-    return tuple(cfg.sim.drive.initial_positions_m)
-
-
 def environment_from_config(cfg: Config) -> Environment:
     kind = cfg.sim.environment
-    if kind == "auto":
-        kind = "disk" if cfg.task.kind == "contour" else "free"
+    if kind == "auto":  # what the task expects: the contour task's workpiece (controller/tasks/builtin.py)
+        kind = task_entry(cfg.task.kind).sim_environment
     if kind == "free":
         return FreeSpace()
     d = cfg.sim.disk
@@ -104,12 +102,10 @@ def environment_from_config(cfg: Config) -> Environment:
 
 class RobotPlant:
     def __init__(self, cfg: Config, environment: Environment | None = None) -> None:
-        self.kind = cfg.robot.kind
         self.robot = robot_from_config(cfg)
+        self.kinematics = plant_kinematics(cfg, self.robot)  # the robot's simulator hook
         params = drive_params_from_config(cfg)
-        self.drives = [SimulatedDrive(params, position=x) for x in initial_actuator_positions(cfg, self.robot)]
-        self.pose = self.robot.start if self.kind == "nspu" else None  # nSPU: the integrated pose
-        self._pose_time_s: float | None = None
+        self.drives = [SimulatedDrive(params, position=x) for x in self.kinematics.initial_positions()]
         s = cfg.sim.sensor
         self.sensor = SimulatedForceSensor(SensorParams(s.noise_std_n, s.bias_n, s.range_n, s.seed,
                                                         s.sample_rate_hz, s.bandwidth_hz)) \
@@ -120,7 +116,7 @@ class RobotPlant:
                                                    cfg.sim.structure_damping_ratio, mass_model_from_config(cfg)))
         self.substep_s = cfg.sim.drive.substep_s
         d = cfg.sim.drive
-        self._cogging_n = d.cogging_force_n if self.kind == "cheope" else 0.0
+        self._cogging_n = d.cogging_force_n if self.kinematics.cogging else 0.0
         self._cogging_k = 2.0 * math.pi / d.cogging_period_m
         self._cogging_phase = tuple(math.radians(a) for a in d.cogging_phases_deg)
         self._jt: Matrix3 = ((0.0,) * 3,) * 3
@@ -140,19 +136,6 @@ class RobotPlant:
     def _update_kinematics(self) -> np.ndarray | None:
         q = np.array([d.position for d in self.drives])
         return q if self.update_kinematics(self.time_s, q) else None
-
-    def _integrate_pose(self, q_m: np.ndarray, t: float | None) -> None:
-        """nSPU: advance the pose so that its legs reach the drives' actual lengths (seed 000 eq. (11))."""
-        from controller.robots.nspu import advance_pose_to_leg_lengths, leg_lengths
-        from controller.robots.nspu_robot import ODOMETRY_INTERVAL_S
-
-        if self._pose_time_s is not None and t is not None and t > self._pose_time_s:
-            if t - self._pose_time_s < ODOMETRY_INTERVAL_S - 1e-9:
-                return  # not yet: the legs' motion over the next SYNCs goes into one step (nspu_robot.py)
-            if np.any(np.abs(q_m - leg_lengths(self.robot.geometry, self.pose)) > 1e-12):
-                self.pose = advance_pose_to_leg_lengths(self.robot.geometry, self.pose, q_m, t - self._pose_time_s)
-        self._pose_time_s = t
-        self.tcp_kinematic_m = np.array(self.pose.p_m)
 
     def advance(self, now_s: float, check_sync_timeout: bool = True) -> None:
         """Integrate drives and structure up to ``now_s``; see ``SimulatedDrive._watchdog`` for the flag."""
@@ -193,7 +176,7 @@ class RobotPlant:
         k0 = self.tcp_kinematic_m
         q1 = np.array([d.position for d in self.drives])
         try:
-            k1 = self.robot.direct_kinematics(q1) if self.kind == "cheope" else k0
+            k1 = self.kinematics.tcp_m(self.time_s, q1, k0)
         except NoSolutionError:
             log.warning("simulated actuators at %s m have no assembly", q1.tolist())
             k1 = k0
@@ -253,13 +236,7 @@ class RobotPlant:
     def update_kinematics(self, t_s: float | None, q: np.ndarray) -> bool:
         """The pose at ``t_s`` from the drives' positions ``q``; False where they have no assembly."""
         try:
-            if self.kind == "cheope":
-                self.tcp_kinematic_m = self.robot.direct_kinematics(q)
-            elif self.kind == "uru":  # Newton from the previous pose: the assembly the platform is in
-                guess = self.tcp_kinematic_m if np.any(self.tcp_kinematic_m) else None
-                self.tcp_kinematic_m = self.robot.direct_kinematics(q, guess)
-            else:
-                self._integrate_pose(q, t_s)
+            self.tcp_kinematic_m = self.kinematics.tcp_m(t_s, q, self.tcp_kinematic_m)
         except NoSolutionError:
             log.warning("simulated actuators at %s m have no assembly", q.tolist())
             return False

@@ -10,21 +10,16 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import math
 import resource
 import threading
 import time
 from dataclasses import dataclass
 
-import numpy as np
-
-from controller.config import Config, ConfigError
-from controller.core.control_law import ControlLaw, LawConfig, SafetyConfig
-from controller.core.cycle_data import Reaction
-from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother
+from controller.assembly import assemble
+from controller.config import Config
+from controller.core.control_law import ControlLaw
 from controller.monitoring.publisher import monitoring_context
-from controller.robots.cheope import CheopeRobot
-from controller.robots.registry import actuator_units, robot_from_config
+from controller.robots.registry import actuator_units
 from controller.shell.loop import CycleLoop, CycleObserver
 from controller.shell.realtime import (
     RealtimeOptions,
@@ -36,10 +31,7 @@ from controller.shell.realtime import (
     unfreeze_garbage_collector,
 )
 from controller.shell.run_summary import RunRecorder, summarize
-from controller.tasks.circle_path import CirclePath
-from controller.tasks.contour_tracking import ContourParams, ContourTrackingTask
-from controller.tasks.path_task import PathTask
-from controller.tasks.task import Task
+from controller.tasks.registry import RunReport
 from drivers.bus import BusSpec, open_bus
 from drivers.bus_load import BusLoad, check_bus_load, compute_bus_load, cyclic_frames
 from drivers.cyclic_exchange import CyclicExchange, FrameSink
@@ -57,92 +49,20 @@ def planned_bus_load(cfg: Config) -> BusLoad:
                             data_bit_s=cfg.bus.data_bitrate_bit_s if cfg.bus.fd else None)
 
 
-def build_robot(cfg: Config) -> CheopeRobot:  # or UruRobot, NspuRobot (robot.kind)
-    try:
-        return robot_from_config(cfg)
-    except ValueError as err:
-        raise ConfigError(f"[robot.{cfg.robot.kind}] geometry is inconsistent: {err}") from err
-
-
-def build_task(cfg: Config, robot: CheopeRobot) -> Task:
-    if cfg.task.kind == "contour":
-        return build_contour_task(cfg, robot)
-    if cfg.robot.kind == "nspu":  # the planned non-holonomic motion (controller/tasks/planned_legs.py)
-        from controller.tasks.planned_legs import build_planned_legs_task
-
-        return build_planned_legs_task(cfg, robot)
-    p = cfg.task.path
-    try:
-        path = CirclePath(center_m=p.center_m, radius_m=p.radius_m, speed_m_s=p.speed_m_s, laps=p.laps,
-                          ramp_s=p.ramp_s)
-    except ValueError as err:
-        raise ConfigError(f"[task.path]: {err}") from err
-    if tuple(p.normal[:2]) != (0.0, 0.0):  # a circle in a tilted plane
-        from controller.robots.uru_robot import TiltedCirclePath
-
-        path = TiltedCirclePath(path, p.normal)
-    robot.check_path(path.points(p.check_samples))  # WorkspaceError names the sample
-    return PathTask(robot, path, settle_tolerance=cfg.loop.settle_tolerance_m)
-
-
-def build_contour_task(cfg: Config, robot: CheopeRobot) -> ContourTrackingTask:
-    c = cfg.task.contour
-    params = ContourParams(
-        expected_centre_m=c.expected_centre_m, height_m=c.height_m, expected_radius_m=c.expected_radius_m,
-        approach_direction_rad=math.radians(c.approach_direction_deg), approach_clearance_m=c.approach_clearance_m,
-        approach_speed_m_s=c.approach_speed_m_s, max_approach_distance_m=c.max_approach_distance_m,
-        contact_force_n=c.contact_force_n, force_setpoint_n=c.force_setpoint_n, lap_speeds_m_s=c.lap_speeds_m_s,
-        tangential_acceleration_m_s2=c.tangential_acceleration_m_s2, force_kp_m_s_per_n=c.force_kp_m_s_per_n,
-        force_ki_m_s2_per_n=c.force_ki_m_s2_per_n, max_normal_speed_m_s=c.max_normal_speed_m_s,
-        force_filter_hz=c.force_filter_hz, normal_min_force_n=c.normal_min_force_n, max_force_n=c.max_force_n,
-        contact_lost_force_n=c.contact_lost_force_n, contact_lost_cycles=c.contact_lost_cycles,
-        reapproach_on_contact_loss=c.on_contact_loss == "reapproach", retract_distance_m=c.retract_distance_m,
-        retract_speed_m_s=c.retract_speed_m_s, tare_s=c.tare_s, settle_tolerance_m=cfg.loop.settle_tolerance_m,
-        friction_estimate=c.friction_estimate, direction=c.direction,
-        normal_tracker_hz=c.normal_tracker_hz,
-    )
-    # The whole neighbourhood the task may visit: the expected contour, widened by the approach.
-    ring = []
-    for r in (c.expected_radius_m - c.max_approach_distance_m, c.expected_radius_m + c.approach_clearance_m):
-        for th in np.linspace(0.0, 2.0 * np.pi, 73):
-            ring.append((c.expected_centre_m[0] + r * np.cos(th), c.expected_centre_m[1] + r * np.sin(th), c.height_m))
-    robot.check_path(np.array(ring))
-    return ContourTrackingTask(robot, params)
-
-
-def safety_config(cfg: Config) -> SafetyConfig:
-    s = cfg.safety
-    return SafetyConfig(
-        max_contact_force_n=s.max_contact_force_n, sensor_stale_cycles=s.sensor_stale_cycles,
-        on_sensor_stale=Reaction(s.on_sensor_stale), on_sensor_saturated=Reaction(s.on_sensor_saturated),
-        on_heartbeat_lost=Reaction(s.on_heartbeat_lost), on_error_frames=Reaction(s.on_error_frames),
-        max_consecutive_late_cycles=s.max_consecutive_late_cycles, on_late_cycles=Reaction(s.on_late_cycles))
-
-
-def build_law(cfg: Config, robot: CheopeRobot | None = None) -> ControlLaw:
-    robot = robot or build_robot(cfg)
-    a = actuator_units(cfg)  # m or rad
-    n = robot.n_actuators
-    limits = AxisLimits((a.max_velocity,) * n, (a.max_acceleration,) * n, (a.max_jerk,) * n)
-    law_cfg = LawConfig(period_s=cfg.period_s, enable_timeout_s=cfg.loop.enable_timeout_s,
-                        hold_before_task_s=cfg.loop.hold_before_task_s,
-                        max_missing_cycles=cfg.loop.max_missing_cycles,
-                        settle_tolerance=cfg.loop.settle_tolerance_m, safety=safety_config(cfg))
-    return ControlLaw(robot, build_task(cfg, robot), RuckigSmoother(limits, cfg.period_s), law_cfg)
-
-
 @dataclass(frozen=True)
 class PreparedRun:
     """Everything checked before anything is opened or moved."""
 
     law: ControlLaw
+    reports: tuple[RunReport, ...]  # the task's own (the 3-nSPU's reached pose against its goal)
     bus_load: BusLoad
 
 
 def prepare(cfg: Config) -> PreparedRun:
     load = planned_bus_load(cfg)
     check_bus_load(load, cfg.bus.max_load_percent)
-    return PreparedRun(law=build_law(cfg), bus_load=load)
+    assembly = assemble(cfg)
+    return PreparedRun(law=assembly.law, reports=assembly.reports, bus_load=load)
 
 
 def node_setup_plan(cfg: Config) -> NodeSetupPlan:
@@ -171,9 +91,7 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float = 600.0,
     check_realtime(realtime)  # RealtimeError names the option and how to get the permission
     set_gil_switch_interval(cfg.loop.gil_switch_interval_us * 1e-6)
     recorder = RunRecorder()
-    report = getattr(prepared.law.task, "execution_report", None)  # nSPU: reached pose vs goal
-    if report is not None:
-        observers = (*observers, report)
+    observers = (*observers, *prepared.reports)
     session = _session_recorder(cfg, prepared.law, spec)  # the MCAP recording (logs/recorder.py)
     if session is not None:
         observers = (*observers, session)
@@ -214,7 +132,7 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float = 600.0,
                      extra={"bus": str(spec), "node_setup_s": round(setup.duration_s, 3),
                             "major_page_faults": major_faults,
                             "recording": _recording_summary(session), "realtime": granted,
-                            **(report.summary() if report is not None else {})})
+                            **{k: v for r in prepared.reports for k, v in r.summary().items()}})
 
 
 def _session_recorder(cfg: Config, law: ControlLaw, spec: BusSpec):  # -> logs.recorder.SessionRecorder | None

@@ -246,7 +246,7 @@ class PlanExecutionReport:
         return out
 
 
-def build_planned_legs_task(cfg, robot) -> PlannedLegsTask:
+def build_planned_legs_task(cfg, robot) -> tuple[PlannedLegsTask, PlanExecutionReport]:
     """Plan the configured motion (seed 004), time-scale it and wrap it in a task with its report.
 
     Raises ``PlanningError`` (a ValueError) naming the planner's status when the plan fails.
@@ -256,7 +256,7 @@ def build_planned_legs_task(cfg, robot) -> PlannedLegsTask:
     from controller.planning.nonholonomic import plan_motion
     from controller.robots.registry import actuator_units
 
-    n = cfg.robot.nspu
+    n = cfg.robot.model("nspu")
     t0 = time.perf_counter()
     plan = plan_motion(robot.geometry, robot.start, robot.goal, planner_config(cfg)).raise_for_status()
     planning_time = time.perf_counter() - t0
@@ -264,14 +264,13 @@ def build_planned_legs_task(cfg, robot) -> PlannedLegsTask:
     streamed = time_scale_plan(plan, units.max_velocity, units.max_acceleration, units.max_jerk,
                                n.limit_fraction, n.stream_steps)
     task = PlannedLegsTask(streamed, start_tolerance_m=max(cfg.loop.settle_tolerance_m, 1e-5), robot=robot)
-    task.execution_report = PlanExecutionReport(robot, plan, streamed, planning_time)
-    return task
+    return task, PlanExecutionReport(robot, plan, streamed, planning_time)
 
 
 def planner_config(cfg, check_type2: bool | None = None):
     from controller.planning.nonholonomic import PlannerConfig
 
-    n = cfg.robot.nspu
+    n = cfg.robot.model("nspu")
     return PlannerConfig(horizon_s=n.horizon_s, harmonics=n.harmonics, tolerance=n.tolerance,
                          max_iterations=n.max_iterations, n_steps=n.n_steps,
                          check_type2=n.check_type2 if check_type2 is None else check_type2, restarts=n.restarts)

@@ -298,7 +298,7 @@ def measured_bus_load(frames: dict[int, int], shapes: dict[int, tuple[int, bool,
 def simulator(spec, overrides: list[str], config_path: str | None, rt: RealtimeOptions,
               ready_timeout_s: float = 30.0):  # -> context manager of subprocess.Popen
     """``cheope sim`` as a child process with its own real-time options."""
-    from controller.demo import simulator_process
+    from controller.tools.demo import simulator_process
 
     return simulator_process(spec, config_path, overrides, ready_timeout_s, extra_args=rt.cli_args())
 
@@ -320,14 +320,14 @@ def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], conf
              rt: RealtimeOptions, sim_rt: RealtimeOptions, late_fraction: float,
              cyclictest_s: float = 0.0) -> dict[str, object]:
     from controller.config import load_config, parse_override
-    from controller.demo import random_udp_port
     from controller.shell.service import planned_bus_load, run_controller
+    from controller.tools.demo import random_udp_port
     from drivers.bus import parse_bus_spec
 
     overrides = [*base_overrides, f"loop.rate_hz={case.rate_hz}", f"bus.fd={'true' if case.fd else 'false'}"]
     cfg = load_config(config_path, dict(parse_override(s) for s in overrides))
     if cfg.task.kind == "path":  # enough laps to keep moving for the whole run
-        p = cfg.task.path
+        p = cfg.task.model("path")
         laps = math.ceil(duration_s * p.speed_m_s / (2 * math.pi * p.radius_m)) + 1
         overrides.append(f"task.path.laps={float(laps)}")
         cfg = load_config(config_path, dict(parse_override(s) for s in overrides))
@@ -342,7 +342,7 @@ def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], conf
     if cfg.task.kind == "contour":  # the force error of the laps, as the demo reports it
         from controller.tools.analysis.contour_report import ContourObserver
 
-        c = cfg.task.contour
+        c = cfg.task.model("contour")
         contour = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s))
     with simulator(spec, overrides, config_path, sim_rt) as proc:
         probe = LoopProbe(capacity, frozenset(tpdo_ids), cob_ids.rpdo1(ids[0]), proc.pid,
@@ -351,10 +351,10 @@ def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], conf
                                  observers=(probe,) if contour is None else (probe, contour),
                                  frame_sink=probe.sink, realtime=rt)
     if contour is not None:
-        from controller.shell.service import build_robot
+        from controller.assembly import build_robot
         from controller.tools.analysis.contour_report import contour_summary
 
-        c = cfg.task.contour
+        c = cfg.task.model("contour")
         summary["contour"] = contour_summary(contour, build_robot(cfg), cfg.robot.mass.actuator_stiffness_n_m,
                                              c.height_m, c.lap_speeds_m_s)
     n = min(probe.n, capacity)
@@ -449,10 +449,10 @@ def step_breakdown(config_path: str | None, overrides: list[str], rate_hz: float
     """
     from ruckig import OutputParameter, Ruckig, RuckigError
 
-    from controller.core.cycle_data import cycle_inputs
+    from controller.assembly import build_law
     from controller.config import load_config, parse_override
+    from controller.core.cycle_data import cycle_inputs
     from controller.shell.loop import SimulatedTime
-    from controller.shell.service import build_law
     from sim_backend.loopback import LoopbackExchange
 
     cfg = load_config(config_path, dict(parse_override(s) for s in [*overrides, f"loop.rate_hz={rate_hz}"]))
@@ -659,7 +659,7 @@ def bus_frame_cost(spec_text: str, fd: bool, frames: int = 2000) -> dict[str, ob
     """
     import can
 
-    from controller.demo import random_udp_port
+    from controller.tools.demo import random_udp_port
     from drivers.bus import open_bus, parse_bus_spec
 
     spec = parse_bus_spec(spec_text, fd=fd, udp_port=random_udp_port())

@@ -18,28 +18,30 @@ import dataclasses
 import threading
 from pathlib import Path
 
-from controller.config import Config, PathSection
-from controller.robots.registry import mass_model_from_config
+from controller.assembly import build_robot
+from controller.config import Config
+from controller.robots.builtin import mass_model_from_config
 from controller.shell.realtime import RealtimeOptions
-from controller.shell.service import build_robot, run_controller
+from controller.shell.service import run_controller
+from controller.tasks.builtin import PathSection
 from controller.tools.analysis.contour_report import ContourObserver, contour_summary, plot_contour
 from drivers.bus import BusSpec
 
 
 def comparison_config(cfg: Config) -> Config:
-    c = cfg.task.contour
+    c = cfg.task.model("contour")
     path = PathSection(center_m=(c.expected_centre_m[0], c.expected_centre_m[1], c.height_m),
                        radius_m=c.expected_radius_m - c.comparison_press_m, speed_m_s=c.lap_speeds_m_s[-1],
-                       laps=1.0, ramp_s=0.5, check_samples=cfg.task.path.check_samples)
+                       laps=1.0, ramp_s=0.5, check_samples=cfg.task.model("path").check_samples)
     safety = dataclasses.replace(cfg.safety, on_sensor_saturated="warn",
                                  max_contact_force_n=1.0e4)  # simulated hardware only: see above
-    return dataclasses.replace(cfg, task=dataclasses.replace(cfg.task, kind="path", path=path), safety=safety)
+    return dataclasses.replace(cfg, task=dataclasses.replace(cfg.task, kind="path", models={**cfg.task.models, "path": path}), safety=safety)
 
 
 def run_contour_experiment(cfg: Config, spec: BusSpec, plot_dir: Path | None, max_duration_s: float = 600.0,
                            stop_event: threading.Event | None = None,
                            realtime: RealtimeOptions | None = None) -> dict[str, object]:
-    c = cfg.task.contour
+    c = cfg.task.model("contour")
     robot = build_robot(cfg)
     stiffness = cfg.robot.mass.actuator_stiffness_n_m
 
@@ -53,7 +55,7 @@ def run_contour_experiment(cfg: Config, spec: BusSpec, plot_dir: Path | None, ma
         cmp = run_controller(cmp_cfg, spec, max_duration_s, stop_event, observers=(pos_obs,), realtime=realtime)
         summary["position_control_comparison"] = {
             "final_mode": cmp["final_mode"], "fault_reason": cmp["fault_reason"],
-            "radius_m": cmp_cfg.task.path.radius_m, "speed_m_s": cmp_cfg.task.path.speed_m_s,
+            "radius_m": cmp_cfg.task.model("path").radius_m, "speed_m_s": cmp_cfg.task.model("path").speed_m_s,
             **contour_summary(pos_obs, robot, stiffness, c.height_m, None),
         }
     else:
@@ -66,7 +68,7 @@ def run_contour_experiment(cfg: Config, spec: BusSpec, plot_dir: Path | None, ma
 def _plot(cfg: Config, plot_dir: Path, force_obs: ContourObserver, pos_obs: ContourObserver | None = None
           ) -> list[str]:
     """Fig. 8-9 of the force-controlled run and, when there is one, of the comparison."""
-    c = cfg.task.contour
+    c = cfg.task.model("contour")
     robot = build_robot(cfg)
     stiffness = cfg.robot.mass.actuator_stiffness_n_m
     masses = mass_model_from_config(cfg)
@@ -83,11 +85,11 @@ def run_simulated_time(cfg: Config, max_duration_s: float = 600.0, plot_dir: Pat
     Deterministic and free of the machine's timing: the reference to compare a run over a
     bus with (``cheope demo --task contour --simulated-time``).
     """
+    from controller.assembly import build_law
     from controller.shell.loop import CycleLoop, SimulatedTime
-    from controller.shell.service import build_law
     from sim_backend.loopback import LoopbackExchange
 
-    c = cfg.task.contour
+    c = cfg.task.model("contour")
     clock = SimulatedTime()
     law = build_law(cfg)
     exchange = LoopbackExchange(cfg, clock.clock)

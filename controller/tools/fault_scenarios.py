@@ -18,11 +18,11 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from controller.assembly import build_law
 from controller.config import Config, load_config
 from controller.core.control_law import Mode
 from controller.core.cycle_data import Severity
 from controller.shell.loop import CycleLoop, SimulatedTime
-from controller.shell.service import build_law
 from drivers.cia402 import PowerState
 from sim_backend.fault_injection import FaultSchedule
 from sim_backend.loopback import LoopbackExchange

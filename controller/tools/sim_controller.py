@@ -19,10 +19,10 @@ import sys
 import threading
 import time
 
+from controller.assembly import build_law
 from controller.config import Config, load_config, parse_override
 from controller.monitoring.publisher import monitoring_publisher
 from controller.shell.loop import CycleLoop
-from controller.shell.service import build_law
 from drivers.pacing import DeadlineSleeper
 
 READY = "READY"

@@ -17,9 +17,9 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent.parent))
 
+from controller.assembly import build_law
 from controller.config import load_config
 from controller.shell.loop import CycleLoop, SimulatedTime
-from controller.shell.service import build_law
 from logs.recorder import SessionRecorder, session_metadata
 from sim_backend.loopback import LoopbackExchange
 

@@ -13,7 +13,7 @@ import pytest
 from busy_machine import TOLERANT
 
 from controller import cli
-from controller.demo import simulator_process
+from controller.tools.demo import simulator_process
 from drivers.bus import parse_bus_spec
 
 pytestmark = pytest.mark.integration

@@ -17,11 +17,11 @@ from busy_machine import TOLERANT
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from controller.assembly import build_law
 from controller.config import load_config
 from controller.core.control_law import Mode
-from controller.demo import simulator_process, stop_process
 from controller.shell.loop import CycleLoop, SimulatedTime
-from controller.shell.service import build_law
+from controller.tools.demo import simulator_process, stop_process
 from controller.tools.fault_scenarios import SCENARIOS, run_all
 from drivers.bus import parse_bus_spec
 from drivers.cia402 import PowerState, decode_statusword

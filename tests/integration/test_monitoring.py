@@ -189,7 +189,7 @@ def _cycle_args(k: int):
 
 def test_on_cycle_publishes_every_nth_cycle_on_the_loops_thread(cfg):
     cfg = load_config(overrides={"monitoring.publish_rate_hz": 100.0, "monitoring.listen": _endpoint()})
-    from controller.shell.service import build_law
+    from controller.assembly import build_law
 
     state = build_law(cfg).initial_state()
     threads_before = {t.name for t in threading.enumerate()}

@@ -15,11 +15,11 @@ from pathlib import Path
 import can
 import pytest
 
+from controller.assembly import build_law
 from controller.cli import main
 from controller.config import config_from_dict, load_config
 from controller.core.control_law import Mode
 from controller.shell.loop import CycleLoop, SimulatedTime
-from controller.shell.service import build_law
 from logs import messages as m
 from logs.reader import LogFileError, iter_decoded, read_info
 from logs.recorder import SessionRecorder, open_session_file, session_metadata
@@ -145,7 +145,7 @@ _RECORDING_CONTROLLER = textwrap.dedent("""
     from controller.config import load_config
     from controller.shell.loop import CycleLoop
     from drivers.pacing import DeadlineSleeper
-    from controller.shell.service import build_law
+    from controller.assembly import build_law
     from sim_backend.loopback import LoopbackExchange
     from logs.recorder import SessionRecorder, session_metadata
     cfg = load_config(overrides={{"task.path.laps": 5.0}})

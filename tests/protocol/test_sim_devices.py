@@ -7,9 +7,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from controller.assembly import build_robot
 from controller.config import load_config
 from controller.robots.performance import MassModel, cartesian_mass_matrix
-from controller.shell.service import build_robot
 from drivers.cia402 import (
     CW_ENABLE_OPERATION,
     CW_SHUTDOWN,

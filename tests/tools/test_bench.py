@@ -201,7 +201,7 @@ def test_loop_probe_times_the_devices_answer_from_sync_to_the_last_tpdo():
 def test_demo_gives_the_simulator_the_other_cpus_one_priority_step_below():
     import os
 
-    from controller.demo import simulator_realtime_args
+    from controller.tools.demo import simulator_realtime_args
 
     assert simulator_realtime_args(None) == []
     assert simulator_realtime_args(RealtimeOptions(priority=80, lock_memory=True)) == [

@@ -10,6 +10,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from controller.config import load_config
+from controller.robots.builtin import cheope_from_config
 from controller.robots.cheope import (
     CheopeGeometry,
     direct_kinematics,
@@ -20,7 +21,6 @@ from controller.robots.cheope import (
     singularity_measures,
 )
 from controller.robots.errors import NoSolutionError
-from controller.robots.registry import cheope_from_config
 
 GEOM = CheopeGeometry()
 ROBOT = cheope_from_config(load_config())

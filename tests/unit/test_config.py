@@ -9,7 +9,7 @@ from controller.config import ConfigError, load_config, parse_override
 
 def test_shipped_defaults_load(cfg):
     assert cfg.loop.rate_hz == 400.0
-    assert cfg.robot.cheope.rod_length_m == 0.5
+    assert cfg.robot.model("cheope").rod_length_m == 0.5
     assert cfg.period_s == pytest.approx(0.0025)
 
 

@@ -8,12 +8,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from controller.assembly import build_law, build_robot
 from controller.config import load_config
 from controller.core.control_law import Mode
 from controller.core.cycle_data import CycleInputs, DriveFeedback, SensorFeedback
 from controller.core.setpoint_smoothing import Setpoint
 from controller.shell.loop import CycleLoop, SimulatedTime
-from controller.shell.service import build_contour_task, build_law, build_robot
+from controller.tasks.builtin import build_contour_task
 from controller.tasks.contour_tracking import ContourPhase, ContourState, _wrap, track_normal
 from controller.tasks.task import TaskContext
 from controller.tools.analysis.contour_report import ContourObserver, constant_speed_laps, contour_summary
@@ -25,7 +26,7 @@ DT = 0.0025
 
 def _task(**overrides):
     cfg = load_config(overrides={**FAST, **overrides})
-    return build_contour_task(cfg, build_robot(cfg)), cfg
+    return build_contour_task(cfg, build_robot(cfg)).task, cfg
 
 
 def _ctx(force, tcp=(0.07, 0.0, 0.5), t=1.0) -> TaskContext:
@@ -82,7 +83,7 @@ def test_force_below_the_setpoint_moves_the_tool_into_the_contour():
     out = task.step(s, _ctx((4.0, 0.0, 0.0)))
     dx = out.state.p_cmd[0] - s.p_cmd[0]
     assert dx < 0.0  # inward, along -n
-    assert out.state.force_error_n == pytest.approx(cfg.task.contour.force_setpoint_n - 4.0, abs=0.2)
+    assert out.state.force_error_n == pytest.approx(cfg.task.model("contour").force_setpoint_n - 4.0, abs=0.2)
     s = _tracking(task, normal=(1.0, 0.0), force_f=(16.0, 0.0, 0.0), speed_m_s=0.0)
     assert task.step(s, _ctx((16.0, 0.0, 0.0))).state.p_cmd[0] > s.p_cmd[0]  # too hard: back off
 
@@ -117,7 +118,7 @@ def test_laps_are_counted_around_the_fitted_centre_and_the_task_retracts_after_t
 def test_over_force_retracts_and_then_faults():
     task, cfg = _task()
     s = _tracking(task, normal=(1.0, 0.0))
-    f = (cfg.task.contour.max_force_n + 5.0, 0.0, 0.0)
+    f = (cfg.task.model("contour").max_force_n + 5.0, 0.0, 0.0)
     out = task.step(replace(s, force_f=f), _ctx(f))
     assert out.state.phase == ContourPhase.RETRACT and not out.fault
     assert any(e.kind == "over_force" for e in out.events)
@@ -128,14 +129,14 @@ def test_over_force_retracts_and_then_faults():
         if out.finished:
             break
     assert out.finished and "above the limit" in out.fault
-    assert s.p_cmd[0] > 0.07 + 0.9 * cfg.task.contour.retract_distance_m  # moved out along the normal
+    assert s.p_cmd[0] > 0.07 + 0.9 * cfg.task.model("contour").retract_distance_m  # moved out along the normal
 
 
 @pytest.mark.parametrize("policy,phase", [("reapproach", ContourPhase.APPROACH), ("stop", ContourPhase.RETRACT)])
 def test_contact_loss_is_counted_and_handled_as_configured(policy, phase):
     task, cfg = _task(**{"task.contour.on_contact_loss": policy})
     s = _tracking(task, normal=(1.0, 0.0))
-    for _ in range(cfg.task.contour.contact_lost_cycles):
+    for _ in range(cfg.task.model("contour").contact_lost_cycles):
         out = task.step(replace(s, force_f=(0.0, 0.0, 0.0)), _ctx((0.0, 0.0, 0.0)))
         s = out.state
     assert s.phase == phase
@@ -146,7 +147,7 @@ def test_contact_loss_is_counted_and_handled_as_configured(policy, phase):
 def test_approach_without_contact_faults_after_the_configured_distance():
     task, cfg = _task()
     s = replace(task.start(), phase=ContourPhase.APPROACH)
-    c = cfg.task.contour
+    c = cfg.task.model("contour")
     for k in range(100000):
         out = task.step(s, _ctx((0.0, 0.0, 0.0)))
         s = out.state
@@ -158,7 +159,7 @@ def test_approach_without_contact_faults_after_the_configured_distance():
 
 def _closed_loop(**overrides):
     cfg = load_config(overrides={**FAST, **overrides})
-    c = cfg.task.contour
+    c = cfg.task.model("contour")
     clock = SimulatedTime()
     law = build_law(cfg)
     ex = LoopbackExchange(cfg, clock.clock)
@@ -261,7 +262,7 @@ class LossyExchange:
 def test_lost_frames_in_the_force_loop_cost_nothing_visible():
     """1 cycle in 25 and three bursts of 3 without frames during tracking: the same laps, no fault."""
     cfg = load_config(overrides=FAST)
-    c = cfg.task.contour
+    c = cfg.task.model("contour")
 
     def run(lost: set[int]):
         clock = SimulatedTime()

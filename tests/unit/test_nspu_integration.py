@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from busy_machine import TOLERANT
 
+from controller.assembly import assemble, build_law
 from controller.config import CONFIG_DIR, load_config
 from controller.core.control_law import Mode
 from controller.planning.nonholonomic import PlanningError
@@ -17,7 +18,6 @@ from controller.robots.nspu import leg_lengths_batch
 from controller.robots.nspu_robot import pose_errors
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.shell.run_summary import RunRecorder
-from controller.shell.service import build_law
 from sim_backend.loopback import LoopbackExchange
 
 NSPU_TOML = CONFIG_DIR / "nspu.toml"
@@ -32,27 +32,27 @@ def cfg():
 def streamed_run(cfg):
     """One plan (about 2 s), streamed through Ruckig to the simulated drives and mechanics."""
     clock = SimulatedTime()
-    law = build_law(cfg)
+    assembly = assemble(cfg)
+    law, (report,) = assembly.law, assembly.reports
     exchange = LoopbackExchange(cfg, clock.clock)
-    report = law.task.execution_report
     loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
                      observers=(RunRecorder(), report))
     final, _ = loop.run(law.initial_state(), 20.0)
-    return law, exchange, final, report.summary()
+    return law, exchange, final, report.summary(), report
 
 
 def test_time_scaling_keeps_the_limits_and_the_path(streamed_run, cfg):
     law = streamed_run[0]
     s = law.task.streamed
     a = cfg.actuators
-    f = cfg.robot.nspu.limit_fraction
+    f = cfg.robot.model("nspu").limit_fraction
     v, acc, j = s.peaks
     assert v <= f * a.max_velocity_m_s * 1.001 and acc <= f * a.max_acceleration_m_s2 * 1.001
     assert j <= f * a.max_jerk_m_s3 * 1.001
     assert max(v / (f * a.max_velocity_m_s), acc / (f * a.max_acceleration_m_s2), j / (f * a.max_jerk_m_s3)) > 0.99
     # zero velocity at both ends, start/end legs are the plan's
     assert np.allclose(s.rates_m_s[[0, -1]], 0.0, atol=1e-12)
-    plan = law.task.execution_report.plan
+    plan = streamed_run[4].plan
     assert np.allclose(s.legs_m[0], plan.legs_m[0], atol=1e-9)
     assert np.allclose(s.legs_m[-1], plan.legs_m[-1], atol=1e-6)
     # velocities are the derivative of the positions
@@ -63,11 +63,11 @@ def test_time_scaling_keeps_the_limits_and_the_path(streamed_run, cfg):
 
 
 def test_streamed_execution_reaches_the_goal(streamed_run):
-    law, exchange, final, summary = streamed_run
+    law, exchange, final, summary, _ = streamed_run
     assert final.mode == Mode.DONE, final.fault_reason
     assert summary["plan"]["status"] == "converged"
     # the simulated platform's own pose (integrated from the drives' actual positions)
-    pe, ae = pose_errors(exchange.plant.pose, law.robot.goal)
+    pe, ae = pose_errors(exchange.plant.kinematics.pose, law.robot.goal)
     assert pe < 1e-4 and ae < 1e-3
     # the controller's figure (integrated from the encoder readings) agrees with the simulator
     assert summary["position_error_m"] == pytest.approx(pe, abs=1e-6)

@@ -10,14 +10,15 @@ import numpy as np
 import pytest
 from busy_machine import TOLERANT
 
+from controller.assembly import build_law
 from controller.config import CONFIG_DIR, ConfigError, load_config
 from controller.core.control_law import Mode
 from controller.robots import uru
-from controller.robots.registry import actuator_units, uru_from_config
+from controller.robots.builtin import uru_from_config
+from controller.robots.registry import actuator_units
 from controller.robots.uru_robot import UruWorkspaceError
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.shell.run_summary import RunRecorder
-from controller.shell.service import build_law
 from sim_backend.loopback import LoopbackExchange
 
 URU_TOML = CONFIG_DIR / "uru.toml"

@@ -22,6 +22,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from controller.config import Config
+from controller.robots.builtin import cheope_from_config, mass_model_from_config
 from controller.robots.cheope import CheopeRobot, jacobian, joint_swing_rad, singularity_measures
 from controller.robots.performance import (
     Ellipsoid,
@@ -32,7 +33,6 @@ from controller.robots.performance import (
     stiffness_ellipsoid,
     velocity_ellipsoid,
 )
-from controller.robots.registry import cheope_from_config, mass_model_from_config
 from controller.tasks.circle_path import CirclePath
 
 
@@ -144,7 +144,7 @@ def analyze_cheope(cfg: Config, out: Path) -> dict[str, object]:
     out.mkdir(parents=True, exist_ok=True)
     robot = cheope_from_config(cfg)
     masses = mass_model_from_config(cfg)
-    p = cfg.task.path
+    p = cfg.task.model("path")
     path = CirclePath(p.center_m, p.radius_m, p.speed_m_s, p.laps, p.ramp_s)
     centre = np.asarray(p.center_m, dtype=float)
     jac = jacobian(robot.geometry, centre)

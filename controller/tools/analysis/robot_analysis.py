@@ -20,13 +20,13 @@ from controller.config import Config
 
 def analyze_uru(cfg: Config, out_dir: Path) -> dict[str, object]:
     from controller.robots import uru
-    from controller.robots.registry import uru_from_config
+    from controller.robots.builtin import uru_from_config
     from controller.robots.uru_robot import UruWorkspaceError
     from controller.tools.analysis.uru_plots import plot_workspace_and_singularities
 
     robot = uru_from_config(cfg)
     files = plot_workspace_and_singularities(robot.geometry, out_dir)
-    p = cfg.task.path
+    p = cfg.task.model("path")
     from controller.robots.uru_robot import TiltedCirclePath
     from controller.tasks.circle_path import CirclePath
 
@@ -61,7 +61,7 @@ def analyze_uru(cfg: Config, out_dir: Path) -> dict[str, object]:
 def analyze_nspu(cfg: Config, out_dir: Path, euler_xzx_rad: tuple[float, float, float] = (0.0, 1.0, 0.0)
                  ) -> dict[str, object]:
     from controller.planning.nonholonomic import type2_measure
-    from controller.robots.registry import nspu_from_config
+    from controller.robots.builtin import nspu_from_config
     from controller.tools.analysis.nspu_plots import plot_singularity_loci
 
     robot = nspu_from_config(cfg)
@@ -79,8 +79,8 @@ def analyze_nspu(cfg: Config, out_dir: Path, euler_xzx_rad: tuple[float, float, 
 def plan_nspu(cfg: Config, start, goal, check_type2: bool, plot_dir: Path | None) -> dict[str, object]:
     """Plan start -> goal (Pose) with the configured planner; the report says CONVERGED or why not."""
     from controller.planning.nonholonomic import plan_motion
+    from controller.robots.builtin import nspu_geometry_from_config
     from controller.robots.nspu import so3_log
-    from controller.robots.registry import nspu_geometry_from_config
     from controller.tasks.planned_legs import planner_config
 
     geometry = nspu_geometry_from_config(cfg)

@@ -1,0 +1,60 @@
+"""The pure control law built from a configuration: robot and task from their registries,
+Ruckig's limits in the actuators' unit, the safety reactions. No I/O: the service, the replay's
+verification and the tools build the same law from the same configuration here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from controller.config import Config, ConfigError
+from controller.core.control_law import ControlLaw, LawConfig, SafetyConfig
+from controller.core.cycle_data import Reaction
+from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother
+from controller.robots.registry import actuator_units, robot_from_config
+from controller.robots.robot import Robot
+from controller.tasks.registry import BuiltTask, RunReport, task_from_config
+
+
+def build_robot(cfg: Config) -> Robot:
+    try:
+        return robot_from_config(cfg)
+    except ValueError as err:
+        raise ConfigError(f"[robot.{cfg.robot.kind}] geometry is inconsistent: {err}") from err
+
+
+def build_task(cfg: Config, robot: Robot) -> BuiltTask:
+    """The configured task for ``robot``; WorkspaceError / PlanningError when it cannot be run."""
+    return task_from_config(cfg, robot)
+
+
+def safety_config(cfg: Config) -> SafetyConfig:
+    s = cfg.safety
+    return SafetyConfig(
+        max_contact_force_n=s.max_contact_force_n, sensor_stale_cycles=s.sensor_stale_cycles,
+        on_sensor_stale=Reaction(s.on_sensor_stale), on_sensor_saturated=Reaction(s.on_sensor_saturated),
+        on_heartbeat_lost=Reaction(s.on_heartbeat_lost), on_error_frames=Reaction(s.on_error_frames),
+        max_consecutive_late_cycles=s.max_consecutive_late_cycles, on_late_cycles=Reaction(s.on_late_cycles))
+
+
+@dataclass(frozen=True)
+class Assembly:
+    law: ControlLaw
+    reports: tuple[RunReport, ...]  # the task's own run reports (observers with a summary)
+
+
+def assemble(cfg: Config, robot: Robot | None = None) -> Assembly:
+    robot = robot or build_robot(cfg)
+    built = build_task(cfg, robot)
+    a = actuator_units(cfg)  # m or rad
+    n = robot.n_actuators
+    limits = AxisLimits((a.max_velocity,) * n, (a.max_acceleration,) * n, (a.max_jerk,) * n)
+    law_cfg = LawConfig(period_s=cfg.period_s, enable_timeout_s=cfg.loop.enable_timeout_s,
+                        hold_before_task_s=cfg.loop.hold_before_task_s,
+                        max_missing_cycles=cfg.loop.max_missing_cycles,
+                        settle_tolerance=cfg.loop.settle_tolerance_m, safety=safety_config(cfg))
+    return Assembly(ControlLaw(robot, built.task, RuckigSmoother(limits, cfg.period_s), law_cfg), built.reports)
+
+
+def build_law(cfg: Config, robot: Robot | None = None) -> ControlLaw:
+    return assemble(cfg, robot).law

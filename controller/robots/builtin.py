@@ -1,0 +1,217 @@
+"""The papers' three robots, registered: Cheope (seed 001), the 3-URU (seed 003), the 3-nSPU (seeds 000, 004).
+
+Each robot here is its configuration section (``[robot.<kind>]``, every key with its unit in
+its name and its allowed range), the factory that turns the section into the model, and one
+``RobotEntry``. The models themselves live in their own modules and know nothing of the
+configuration.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from controller.config import CONFIG_DIR, Config, ConfigError, value_range
+from controller.robots.cheope import CheopeGeometry, CheopeLimits, CheopeRobot
+from controller.robots.performance import MassModel
+from controller.robots.registry import RobotEntry, register_robot
+from controller.robots.robot import ActuatorUnit
+
+if TYPE_CHECKING:  # the URU and nSPU modules load on demand, when their robot is configured
+    from controller.robots.nspu import NspuGeometry, Pose
+    from controller.robots.nspu_robot import NspuRobot
+    from controller.robots.uru_robot import UruRobot
+
+
+# -- Cheope (seed 001) --------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class CheopeSection:
+    rod_length_m: float = field(default=0.50, metadata=value_range(0.0, 10.0, lo_open=True))
+    axis_tilt_deg: float = field(default=60.0, metadata=value_range(1.0, 89.0))
+    axis_azimuths_deg: tuple[float, float, float] = (0.0, 90.0, 180.0)
+    platform_radius_m: float = field(default=0.05, metadata=value_range(0.0, 1.0))
+    platform_azimuths_deg: tuple[float, float, float] = (0.0, 90.0, 180.0)
+    joint_neutral_tcp_m: tuple[float, float, float] = (0.0, 0.0, 0.50)
+    joint_swing_limit_deg: float = field(default=22.0, metadata=value_range(0.0, 90.0, lo_open=True))
+    stroke_min_m: float = field(default=0.30, metadata=value_range(-10.0, 10.0))
+    stroke_max_m: float = field(default=0.90, metadata=value_range(-10.0, 10.0))
+
+
+def _check_cheope(c: CheopeSection) -> None:
+    if c.stroke_min_m >= c.stroke_max_m:
+        raise ConfigError(
+            f"robot.cheope.stroke_min_m = {c.stroke_min_m} must be < robot.cheope.stroke_max_m = {c.stroke_max_m}"
+        )
+
+
+def mass_model_from_config(cfg: Config) -> MassModel:
+    """Cheope's lumped masses (``[robot.mass]``): the mass ellipsoid's and the simulated structure's."""
+    m = cfg.robot.mass
+    return MassModel(m.platform_kg, m.slider_kg, m.rod_pair_kg)
+
+
+def cheope_from_config(cfg: Config) -> CheopeRobot:
+    c: CheopeSection = cfg.robot.model("cheope")
+    m = cfg.robot.margins
+    geometry = CheopeGeometry(
+        rod_length_m=c.rod_length_m,
+        axis_tilt_rad=math.radians(c.axis_tilt_deg),
+        axis_azimuths_rad=_three(math.radians(a) for a in c.axis_azimuths_deg),
+        platform_radius_m=c.platform_radius_m,
+        platform_azimuths_rad=_three(math.radians(a) for a in c.platform_azimuths_deg),
+        joint_neutral_tcp_m=c.joint_neutral_tcp_m,
+    )
+    limits = CheopeLimits(
+        stroke_min_m=c.stroke_min_m,
+        stroke_max_m=c.stroke_max_m,
+        joint_swing_limit_rad=math.radians(c.joint_swing_limit_deg),
+        min_direct_measure=m.min_direct_measure,
+        min_inverse_measure=m.min_inverse_measure,
+        min_structural_measure=m.min_structural_measure,
+        max_condition_number=m.max_condition_number,
+    )
+    return CheopeRobot(geometry=geometry, limits=limits)
+
+
+def _three(values: object) -> tuple[float, float, float]:
+    a, b, c = tuple(values)  # type: ignore[call-overload]  # a generator of three floats
+    return (float(a), float(b), float(c))
+
+
+# -- 3-URU (seed 003) ---------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class UruSection:
+    """LaMaViP 3-URU (seed 003); see controller/robots/uru.py and controller/robots/uru_robot.py."""
+
+    base_offset_m: float = field(default=0.10, metadata=value_range(0.0, 10.0))
+    platform_offset_m: float = field(default=0.10, metadata=value_range(0.0, 10.0))
+    proximal_lengths_m: tuple[float, float, float] = field(default=(0.20, 0.20, 0.20),
+                                                           metadata=value_range(0.0, 10.0, lo_open=True))
+    distal_lengths_m: tuple[float, float, float] = field(default=(0.20, 0.20, 0.20),
+                                                         metadata=value_range(0.0, 10.0, lo_open=True))
+    gear_ratios: tuple[float, float, float] = field(default=(1.0, 1.0, 1.0), metadata=value_range(-1000.0, 1000.0))
+    motor_offsets_rad: tuple[float, float, float] = field(default=(0.0, 0.0, 0.0),
+                                                          metadata=value_range(-100.0, 100.0))
+    knee_sign: int = field(default=1, metadata=value_range(-1, 1))
+    home_position_m: tuple[float, float, float] = (0.12, 0.12, 0.12)  # the simulator starts here
+    motor_min_rad: float = field(default=-3.2, metadata=value_range(-1000.0, 1000.0))  # motor-shaft range
+    motor_max_rad: float = field(default=4.8, metadata=value_range(-1000.0, 1000.0))
+    min_plane_distance_m: float = field(default=0.02, metadata=value_range(0.0, 10.0))  # rotation loci eq. (17)
+    min_det_v: float = field(default=0.05, metadata=value_range(0.0, 1.0))  # translation eq. (20)
+    min_det_s: float = field(default=0.05, metadata=value_range(0.0, 1e6))  # actuation eq. (35)
+    min_det_a: float = field(default=0.05, metadata=value_range(0.0, 1e6))  # combined eq. (36)
+    min_sin_th3: float = field(default=0.10, metadata=value_range(0.0, 1.0))  # serial eq. (27)
+    min_workspace_margin_m: float = field(default=0.02, metadata=value_range(0.0, 10.0))  # boundary eq. (29)
+
+
+def _check_uru(u: UruSection) -> None:
+    if u.knee_sign not in (-1, 1):
+        raise ConfigError(f"robot.uru.knee_sign = {u.knee_sign}: must be 1 or -1")
+    if any(k == 0 for k in u.gear_ratios):
+        raise ConfigError(f"robot.uru.gear_ratios = {list(u.gear_ratios)}: must be non-zero")
+    if u.motor_min_rad >= u.motor_max_rad:
+        raise ConfigError(f"robot.uru.motor_min_rad = {u.motor_min_rad} must be < robot.uru.motor_max_rad = "
+                          f"{u.motor_max_rad}")
+
+
+def uru_from_config(cfg: Config) -> UruRobot:
+    from controller.robots.uru import UruGeometry, UruPathMargins
+    from controller.robots.uru_robot import UruLimits, UruRobot
+
+    u: UruSection = cfg.robot.model("uru")
+    geometry = UruGeometry(
+        base_offset_m=u.base_offset_m, platform_offset_m=u.platform_offset_m,
+        proximal_lengths_m=u.proximal_lengths_m, distal_lengths_m=u.distal_lengths_m, gear_ratios=u.gear_ratios,
+        motor_offsets_rad=u.motor_offsets_rad, knee_sign=u.knee_sign, home_position_m=u.home_position_m,
+    )
+    margins = UruPathMargins(plane_distance_m=u.min_plane_distance_m, det_v=u.min_det_v, det_s=u.min_det_s,
+                             det_a=u.min_det_a, sin_th3=u.min_sin_th3, workspace_m=u.min_workspace_margin_m)
+    return UruRobot(geometry, UruLimits(u.motor_min_rad, u.motor_max_rad, margins))
+
+
+# -- 3-nSPU (seeds 000, 004) --------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class NspuSection:
+    """3-nSPU (seeds 000, 004): seed 000 §3.5 geometry, start and goal poses, planner, streaming."""
+
+    length_unit_m: float = field(default=0.01, metadata=value_range(0.0, 10.0, lo_open=True))  # the papers' aul
+    r3_variant: str = field(default="symmetric", metadata={"choices": ("symmetric", "printed")})
+    leg_min_m: float = field(default=0.20, metadata=value_range(0.0, 10.0))
+    leg_max_m: float = field(default=0.70, metadata=value_range(0.0, 10.0))
+    start_position_m: tuple[float, float, float] = (0.0, 0.0, 0.25)
+    start_rpy_rad: tuple[float, float, float] = (0.0, 0.0, -0.5236)
+    goal_position_m: tuple[float, float, float] = (-0.0185, -0.0251, 0.2713)
+    goal_rpy_rad: tuple[float, float, float] = (0.075, 0.31, -0.532)
+    horizon_s: float = field(default=1.0, metadata=value_range(0.0, 1000.0, lo_open=True))  # plan time T
+    harmonics: int = field(default=2, metadata=value_range(0, 10))
+    tolerance: float = field(default=1e-3, metadata=value_range(0.0, 1.0, lo_open=True))
+    max_iterations: int = field(default=50, metadata=value_range(0, 10000))
+    n_steps: int = field(default=200, metadata=value_range(4, 100000))
+    check_type2: bool = True  # refuse plans that cross the type-II locus (seed 000 eq. (26))
+    restarts: int = field(default=0, metadata=value_range(0, 100))
+    stream_steps: int = field(default=1000, metadata=value_range(10, 1000000))  # resolution of the streamed plan
+    limit_fraction: float = field(default=0.5, metadata=value_range(0.0, 1.0, lo_open=True))  # of the limits
+
+
+def _check_nspu(n: NspuSection) -> None:
+    if n.leg_min_m >= n.leg_max_m:
+        raise ConfigError(f"robot.nspu.leg_min_m = {n.leg_min_m} must be < robot.nspu.leg_max_m = {n.leg_max_m}")
+
+
+def nspu_geometry_from_config(cfg: Config) -> NspuGeometry:
+    from controller.robots.nspu import NspuGeometry
+
+    n: NspuSection = cfg.robot.model("nspu")
+    g = NspuGeometry.paper_example(length_unit_m=n.length_unit_m, r3_variant=n.r3_variant)  # type: ignore[arg-type]
+    return NspuGeometry(g.a_m, g.r, g.b_platform_m, g.w4_platform, leg_min_m=n.leg_min_m, leg_max_m=n.leg_max_m,
+                        length_unit_m=n.length_unit_m, name=g.name)
+
+
+def nspu_poses_from_config(cfg: Config) -> tuple[Pose, Pose]:
+    """Start and goal of the configured motion; orientations as RPY = Rz(yaw) Ry(pitch) Rx(roll)."""
+    from controller.robots.nspu import Pose, rpy
+
+    n: NspuSection = cfg.robot.model("nspu")
+    return (Pose(np.array(n.start_position_m), rpy(*n.start_rpy_rad)),
+            Pose(np.array(n.goal_position_m), rpy(*n.goal_rpy_rad)))
+
+
+def nspu_from_config(cfg: Config) -> NspuRobot:
+    from controller.robots.nspu_robot import NspuRobot
+
+    start, goal = nspu_poses_from_config(cfg)
+    return NspuRobot(nspu_geometry_from_config(cfg), start, goal)
+
+
+# -- the entries --------------------------------------------------------------------------------
+
+CHEOPE = RobotEntry(
+    kind="cheope", section=CheopeSection, build=cheope_from_config, unit=ActuatorUnit.METRE,
+    stroke=lambda c: (c.stroke_min_m, c.stroke_max_m), tasks=("contour", "path"),
+    config_file=CONFIG_DIR / "cheope.toml", check=_check_cheope,
+    sim_hook="sim_backend.plant_kinematics:cheope_kinematics",
+    analyze="controller.tools.analysis.cheope_plots:analyze_cheope",
+)
+URU = RobotEntry(
+    kind="uru", section=UruSection, build=uru_from_config, unit=ActuatorUnit.RADIAN,
+    stroke=lambda u: (u.motor_min_rad, u.motor_max_rad), tasks=("path",),
+    config_file=CONFIG_DIR / "uru.toml", check=_check_uru,
+    sim_hook="sim_backend.plant_kinematics:uru_kinematics",
+    analyze="controller.tools.analysis.robot_analysis:analyze_uru",
+)
+NSPU = RobotEntry(
+    kind="nspu", section=NspuSection, build=nspu_from_config, unit=ActuatorUnit.METRE,
+    stroke=lambda n: (n.leg_min_m, n.leg_max_m), tasks=("planned",),
+    config_file=CONFIG_DIR / "nspu.toml", check=_check_nspu,
+    sim_hook="sim_backend.plant_kinematics:nspu_kinematics",
+    analyze="controller.tools.analysis.robot_analysis:analyze_nspu",
+)
+
+for _entry in (CHEOPE, URU, NSPU):
+    register_robot(_entry)

@@ -1,0 +1,139 @@
+"""The built-in tasks, registered: the circle path, contour tracking (seed 001 §7), the planned legs (seed 004).
+
+Each task here is its configuration section (``[task.<kind>]``), its checks and the factory
+that builds it for the configured robot.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from controller.config import Config, ConfigError, value_range
+from controller.robots.robot import Robot
+from controller.tasks.circle_path import CirclePath
+from controller.tasks.contour_tracking import ContourParams, ContourTrackingTask
+from controller.tasks.path_task import CartesianTrajectory, PathTask
+from controller.tasks.registry import BuiltTask, TaskEntry, register_task
+
+# -- the circle path ----------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class PathSection:
+    """A circle in a plane parallel to XY: the first task of issue 2."""
+
+    center_m: tuple[float, float, float] = (0.0, 0.0, 0.50)
+    radius_m: float = field(default=0.08, metadata=value_range(0.0, 1.0, lo_open=True))
+    speed_m_s: float = field(default=0.10, metadata=value_range(0.0, 10.0, lo_open=True))
+    laps: float = field(default=1.0, metadata=value_range(0.0, 1000.0, lo_open=True))
+    ramp_s: float = field(default=0.5, metadata=value_range(0.0, 60.0))
+    check_samples: int = field(default=720, metadata=value_range(8, 1_000_000))
+    normal: tuple[float, float, float] = (0.0, 0.0, 1.0)  # the circle's plane normal (not normalised)
+
+
+
+
+def _check_path(p: PathSection) -> None:
+    if sum(x * x for x in p.normal) < 1e-12:
+        raise ConfigError(f"task.path.normal = {list(p.normal)}: must be a non-zero vector")
+
+
+def build_path_task(cfg: Config, robot: Robot) -> BuiltTask:
+    p: PathSection = cfg.task.model("path")
+    try:
+        path = CirclePath(center_m=p.center_m, radius_m=p.radius_m, speed_m_s=p.speed_m_s, laps=p.laps,
+                          ramp_s=p.ramp_s)
+    except ValueError as err:
+        raise ConfigError(f"[task.path]: {err}") from err
+    trajectory: CartesianTrajectory = path
+    if tuple(p.normal[:2]) != (0.0, 0.0):  # a circle in a tilted plane
+        from controller.robots.uru_robot import TiltedCirclePath
+
+        trajectory = TiltedCirclePath(path, p.normal)
+    robot.check_path(trajectory.points(p.check_samples))  # WorkspaceError names the sample
+    return BuiltTask(PathTask(robot, trajectory, settle_tolerance=cfg.loop.settle_tolerance_m))
+
+
+# -- contour tracking (seed 001 §7) -------------------------------------------------------------
+
+@dataclass(frozen=True)
+class ContourSection:
+    """Hybrid force/velocity contour tracking (seed 001 §7); see controller/tasks/contour_tracking.py."""
+
+    expected_centre_m: tuple[float, float] = (0.0, 0.0)
+    height_m: float = field(default=0.50, metadata=value_range(-10.0, 10.0))
+    expected_radius_m: float = field(default=0.07, metadata=value_range(0.0, 1.0, lo_open=True))
+    approach_direction_deg: float = field(default=0.0, metadata=value_range(-360.0, 360.0))
+    approach_clearance_m: float = field(default=0.005, metadata=value_range(0.0, 1.0, lo_open=True))
+    approach_speed_m_s: float = field(default=0.002, metadata=value_range(0.0, 1.0, lo_open=True))
+    max_approach_distance_m: float = field(default=0.02, metadata=value_range(0.0, 1.0, lo_open=True))
+    contact_force_n: float = field(default=1.0, metadata=value_range(0.0, 1000.0, lo_open=True))
+    force_setpoint_n: float = field(default=10.0, metadata=value_range(0.0, 1000.0, lo_open=True))
+    lap_speeds_m_s: tuple[float, ...] = field(default=(0.02, 0.04, 0.06, 0.06, 0.06),
+                                              metadata=value_range(0.0, 1.0, lo_open=True))
+    tangential_acceleration_m_s2: float = field(default=0.05, metadata=value_range(0.0, 100.0, lo_open=True))
+    force_kp_m_s_per_n: float = field(default=3.5e-4, metadata=value_range(0.0, 1.0))
+    force_ki_m_s2_per_n: float = field(default=3.5e-3, metadata=value_range(0.0, 10.0))
+    max_normal_speed_m_s: float = field(default=0.02, metadata=value_range(0.0, 10.0, lo_open=True))
+    force_filter_hz: float = field(default=10.0, metadata=value_range(0.1, 10000.0))
+    normal_min_force_n: float = field(default=2.0, metadata=value_range(0.0, 1000.0))
+    max_force_n: float = field(default=40.0, metadata=value_range(0.0, 1000.0, lo_open=True))
+    contact_lost_force_n: float = field(default=1.0, metadata=value_range(0.0, 1000.0))
+    contact_lost_cycles: int = field(default=40, metadata=value_range(1, 100000))
+    on_contact_loss: str = field(default="reapproach", metadata={"choices": ("reapproach", "stop")})
+    retract_distance_m: float = field(default=0.01, metadata=value_range(0.0, 1.0, lo_open=True))
+    retract_speed_m_s: float = field(default=0.02, metadata=value_range(0.0, 1.0, lo_open=True))
+    tare_s: float = field(default=0.1, metadata=value_range(0.0, 60.0, lo_open=True))
+    friction_estimate: float = field(default=0.1, metadata=value_range(0.0, 2.0))
+    normal_tracker_hz: float = field(default=1.5, metadata=value_range(0.01, 50.0))
+    comparison_press_m: float = field(default=6.0e-5, metadata=value_range(0.0, 0.01))
+    direction: int = field(default=1, metadata={"range": (-1, 1, False)})
+
+
+def _check_contour(c: ContourSection) -> None:
+    if not c.lap_speeds_m_s:
+        raise ConfigError("task.contour.lap_speeds_m_s = []: needs at least one lap")
+    if c.direction not in (-1, 1):
+        raise ConfigError(f"task.contour.direction = {c.direction}: must be 1 or -1")
+
+
+def contour_params(c: ContourSection, settle_tolerance_m: float) -> ContourParams:
+    """The task's parameters: the section's keys of the same name, and the three that differ."""
+    same = {f.name: getattr(c, f.name) for f in dataclasses.fields(ContourParams) if hasattr(c, f.name)}
+    return ContourParams(**same, approach_direction_rad=math.radians(c.approach_direction_deg),
+                         reapproach_on_contact_loss=c.on_contact_loss == "reapproach",
+                         settle_tolerance_m=settle_tolerance_m)
+
+
+def build_contour_task(cfg: Config, robot: Robot) -> BuiltTask:
+    c: ContourSection = cfg.task.model("contour")
+    # The whole neighbourhood the task may visit: the expected contour, widened by the approach.
+    ring = []
+    for r in (c.expected_radius_m - c.max_approach_distance_m, c.expected_radius_m + c.approach_clearance_m):
+        for th in np.linspace(0.0, 2.0 * np.pi, 73):
+            ring.append((c.expected_centre_m[0] + r * np.cos(th), c.expected_centre_m[1] + r * np.sin(th), c.height_m))
+    robot.check_path(np.array(ring))
+    return BuiltTask(ContourTrackingTask(robot, contour_params(c, cfg.loop.settle_tolerance_m)))  # type: ignore[arg-type]
+
+
+# -- the planned legs (seed 004): the 3-nSPU's settings are in [robot.nspu] ----------------------
+
+def build_planned_task(cfg: Config, robot: Robot) -> BuiltTask:
+    from controller.tasks.planned_legs import build_planned_legs_task
+
+    task, report = build_planned_legs_task(cfg, robot)
+    return BuiltTask(task, (report,))
+
+
+# -- the entries --------------------------------------------------------------------------------
+
+PATH = TaskEntry(kind="path", section=PathSection, build=build_path_task, check=_check_path)
+CONTOUR = TaskEntry(kind="contour", section=ContourSection, build=build_contour_task, check=_check_contour,
+                    sim_environment="disk")
+PLANNED = TaskEntry(kind="planned", section=None, build=build_planned_task)
+
+for _entry in (PATH, CONTOUR, PLANNED):
+    register_task(_entry)

@@ -1,0 +1,130 @@
+"""The layers the README's table describes, checked on the code's own imports (ast, no import).
+
+- no import cycle among the modules' top-level imports;
+- the pure core (controller/core) does no I/O: it imports neither the shell, the tools, the
+  monitoring, the simulator, the recordings, nor an I/O library;
+- the runtime never imports the tools (controller/tools: bench, experiments, plots), not even
+  lazily; only the command line (controller/cli.py) reaches them;
+- logs/ does not import the loop shell or the command line; sim_backend/ not the loop or the service;
+- matplotlib only in the tools.
+"""
+
+from __future__ import annotations
+
+import ast
+from functools import cache
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+PACKAGES = ("controller", "drivers", "sim_backend", "logs")
+IO_LIBRARIES = ("can", "canopen", "zenoh", "mcap", "mcap_protobuf", "rerun", "matplotlib", "socket", "subprocess")
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(REPO).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+@cache
+def _modules() -> dict[str, Path]:
+    return {_module_name(p): p for pkg in PACKAGES for p in (REPO / pkg).rglob("*.py")}
+
+
+def _imported_names(node: ast.Import | ast.ImportFrom) -> list[str]:
+    if isinstance(node, ast.Import):
+        return [a.name for a in node.names]
+    base = node.module or ""
+    return [base, *(f"{base}.{a.name}" for a in node.names)]
+
+
+@cache
+def _imports(module: str, top_level_only: bool) -> frozenset[str]:
+    """Modules (ours and third-party top-level names) that ``module`` imports."""
+    found: set[str] = set()
+
+    def visit(nodes: list[ast.stmt]) -> None:
+        for n in nodes:
+            if isinstance(n, (ast.Import, ast.ImportFrom)):
+                found.update(_imported_names(n))
+            elif isinstance(n, ast.If) and "TYPE_CHECKING" in ast.unparse(n.test):
+                continue  # annotations only
+            elif isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                if not top_level_only:
+                    visit(n.body)
+            else:
+                for name in ("body", "orelse", "finalbody"):
+                    visit(getattr(n, name, []))
+                for h in getattr(n, "handlers", []):
+                    visit(h.body)
+
+    visit(ast.parse(_modules()[module].read_text()).body)
+    return frozenset(found)
+
+
+def _ours(names: frozenset[str]) -> set[str]:
+    out = set()
+    for name in names:
+        while name not in _modules() and "." in name:
+            name = name.rsplit(".", 1)[0]
+        if name in _modules():
+            out.add(name)
+    return out
+
+
+def _in(module: str, *prefixes: str) -> bool:
+    return any(module == p or module.startswith(p + ".") for p in prefixes)
+
+
+def test_no_import_cycles():
+    graph = {m: _ours(_imports(m, True)) - {m} for m in _modules()}
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def walk(m: str) -> None:
+        state[m] = 1
+        stack.append(m)
+        for n in sorted(graph[m]):
+            if state.get(n) == 1:
+                raise AssertionError("import cycle: " + " -> ".join(stack[stack.index(n):] + [n]))
+            if n not in state:
+                walk(n)
+        stack.pop()
+        state[m] = 2
+
+    for m in sorted(graph):
+        if m not in state:
+            walk(m)
+
+
+def test_the_core_does_no_io():
+    for m in _modules():
+        if not _in(m, "controller.core"):
+            continue
+        names = _imports(m, False)
+        bad = [n for n in _ours(names) if _in(n, "controller.shell", "controller.tools", "controller.monitoring",
+                                               "sim_backend", "logs", "drivers.bus", "drivers.cyclic_exchange")]
+        bad += [n for n in names if n.split(".")[0] in IO_LIBRARIES]
+        assert not bad, f"{m} imports {bad}"
+
+
+def test_only_the_command_line_reaches_the_tools():
+    for m in _modules():
+        if _in(m, "controller.tools") or m == "controller.cli":
+            continue
+        bad = [n for n in _ours(_imports(m, False)) if _in(n, "controller.tools")]
+        assert not bad, f"{m} (runtime) imports the tools {bad}"
+
+
+def test_recordings_and_simulator_stay_off_the_loop_shell():
+    for m in _modules():
+        names = _ours(_imports(m, False))
+        if _in(m, "logs"):
+            assert not [n for n in names if _in(n, "controller.shell", "controller.cli")], m
+        if _in(m, "sim_backend"):
+            assert not [n for n in names if _in(n, "controller.shell.loop", "controller.shell.service")], m
+
+
+def test_matplotlib_only_in_the_tools():
+    for m in _modules():
+        if "matplotlib" in {n.split(".")[0] for n in _imports(m, False)}:
+            assert _in(m, "controller.tools"), f"{m} imports matplotlib"
