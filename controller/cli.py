@@ -14,13 +14,12 @@ from typing import Any, NoReturn
 import can
 
 from controller.config import Config, ConfigError, load_config, parse_override
+from controller.errors import CheopeError, RefusedError
 from controller.monitoring.cli_commands import add_controller_options, monitoring_overrides
 from controller.monitoring.cli_commands import add_subcommands as add_monitoring_subcommands
 from controller.robots.registry import load_reference, robot_entry, robot_kinds
 from controller.tasks.registry import task_kinds
-from drivers.bus import BusSpec, BusSpecError, parse_bus_spec
-from drivers.bus_load import BusLoadError
-from drivers.node_setup import NodeSetupError
+from drivers.bus import BusSpec, parse_bus_spec
 
 
 def _common(ap: argparse.ArgumentParser, bus: bool = True) -> None:
@@ -375,9 +374,12 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     try:
         return args.func(args)
-    except (ConfigError, BusSpecError, BusLoadError, NodeSetupError, can.CanError, OSError) as err:
+    except RefusedError as err:  # WorkspaceError, PlanningError, ...: a task we refuse to run
+        print(f"cheope {args.command}: refused: {err}", file=sys.stderr)
+        return 2
+    except (CheopeError, can.CanError, OSError) as err:  # InputError, DeviceError (controller/errors.py)
         print(f"cheope {args.command}: error: {err}", file=sys.stderr)
         return 2
-    except ValueError as err:  # WorkspaceError and friends: a task we refuse to run
-        print(f"cheope {args.command}: refused: {err}", file=sys.stderr)
+    except ValueError as err:  # a model's own argument check on a value the configuration let through
+        print(f"cheope {args.command}: error: {err}", file=sys.stderr)
         return 2

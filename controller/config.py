@@ -16,11 +16,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from controller.errors import InputError
+
 CONFIG_DIR = Path(__file__).parent / "configs"
 DEFAULT_CONFIG = CONFIG_DIR / "cheope.toml"
 
 
-class ConfigError(ValueError):
+class ConfigError(InputError):
     """Invalid configuration; the message names the key, the value and what is allowed."""
 
 

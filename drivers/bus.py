@@ -8,6 +8,8 @@ from pathlib import Path
 
 import can
 
+from controller.errors import InputError
+
 # Interface-local IPv6 multicast group (DESIGN.md): never leaves this machine.
 LOCAL_MULTICAST_GROUP = "ff11:7079:7468:6f6e:6465:6d6f:6d63:6173"
 DEFAULT_UDP_PORT = 43113
@@ -15,7 +17,7 @@ SUPPORTED_INTERFACES = ("socketcan", "udp_multicast", "virtual")
 CANFD_MTU = 72  # a SocketCAN interface carries FD frames only with this MTU (linux/can.h)
 
 
-class BusSpecError(ValueError):
+class BusSpecError(InputError):
     """A ``--can`` specification is malformed or names something we refuse to use."""
 
 

@@ -21,10 +21,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from controller.errors import InputError
+
 FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 
 
-class BusLoadError(ValueError):
+class BusLoadError(InputError):
     """The configured traffic does not fit the bus within the allowed load."""
 
 

@@ -14,6 +14,7 @@ from pathlib import Path
 import can
 import canopen
 
+from controller.errors import DeviceError
 from drivers.cia402 import MODE_CYCLIC_SYNC_POSITION
 
 log = logging.getLogger(__name__)
@@ -23,7 +24,7 @@ DRIVE_EDS = EDS_DIR / "cheope_drive.eds"
 SENSOR_EDS = EDS_DIR / "force_sensor.eds"
 
 
-class NodeSetupError(RuntimeError):
+class NodeSetupError(DeviceError, RuntimeError):
     """A device did not answer, or answered with the wrong identity or configuration."""
 
 

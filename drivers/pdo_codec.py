@@ -18,8 +18,10 @@ import math
 import struct
 from dataclasses import dataclass
 
+from controller.errors import InputError
 
-class FrameError(ValueError):
+
+class FrameError(InputError):
     """A received frame does not decode; the message names the frame and the problem."""
 
 

@@ -37,6 +37,7 @@ from mcap.records import (
 )
 from mcap.stream_reader import breakup_chunk
 
+from controller.errors import InputError
 from controller.messages import cheope_pb2 as pb
 from logs import messages as m
 
@@ -51,7 +52,7 @@ _CLASSES: dict[str, Any] = {
 }
 
 
-class LogFileError(ValueError):
+class LogFileError(InputError):
     """The file cannot be read as an MCAP recording at all (missing, unreadable, not MCAP)."""
 
 

@@ -44,6 +44,7 @@ from typing import IO, Any
 import can
 
 from controller.config import Config, config_to_dict
+from controller.errors import DeviceError
 from logs import messages as m
 from logs.session_writer import CYCLE, END, FRAMES, SETUP, pack_record
 
@@ -61,7 +62,7 @@ VERSIONED_PACKAGES = ("cheope-controller", "python-can", "canopen", "ruckig", "n
                       "mcap-protobuf-support", "foxglove-schemas-protobuf")
 
 
-class RecordingError(OSError):
+class RecordingError(DeviceError, OSError):
     """The recording file cannot be created or written."""
 
 

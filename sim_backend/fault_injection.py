@@ -25,6 +25,8 @@ import math
 import re
 from dataclasses import dataclass
 
+from controller.errors import InputError
+
 KINDS_WITH_NODE = ("drop", "delay", "malformed", "drive_fault", "heartbeat")
 KINDS = KINDS_WITH_NODE + ("freeze", "saturate", "force", "error_frames", "bus_off", "tx_full", "stall")
 _NUMBER = r"[0-9]+(?:\.[0-9]*)?(?:[eE][-+]?[0-9]+)?"
@@ -32,7 +34,7 @@ _PATTERN = re.compile(rf"^(?P<kind>[a-z_]+)(:(?P<node>\d+))?(=(?P<value>-?{_NUMB
                       rf"(\+(?P<duration>{_NUMBER}))?$")
 
 
-class FaultSpecError(ValueError):
+class FaultSpecError(InputError):
     """A fault description that does not parse; the message shows the expected form."""
 
 

@@ -23,6 +23,7 @@ from dataclasses import dataclass, replace
 import zenoh
 
 from controller.config import ConfigError
+from controller.errors import DeviceError
 
 log = logging.getLogger(__name__)
 
@@ -35,7 +36,7 @@ _IP_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws")
 _LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "[::1]")
 
 
-class MonitoringConnectionError(ConnectionError):
+class MonitoringConnectionError(DeviceError, ConnectionError):
     """A Zenoh session could not be opened or nothing answered; the message says where."""
 
 

@@ -58,6 +58,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from controller.errors import RefusedError
 from controller.robots.nspu import (
     NspuGeometry,
     Pose,
@@ -71,7 +72,7 @@ from controller.robots.nspu import (
 Array = NDArray[np.float64]
 
 
-class PlanningError(ValueError):
+class PlanningError(RefusedError):
     """Invalid planner input, or `raise_for_status` on a failed plan."""
 
 

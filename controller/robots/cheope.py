@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from controller.core.linalg3 import Matrix3, matmul3, symmetric_eigenvalues3, transpose3
+from controller.errors import RefusedError
 from controller.robots.errors import NoSolutionError
 
 _AXES = 3
@@ -262,7 +263,7 @@ class PoseStatus:
 POSE_OK = PoseStatus(True)
 
 
-class WorkspaceError(ValueError):
+class WorkspaceError(RefusedError):
     """A pose or path violates the workspace, the joint limits or the singularity margins."""
 
 

@@ -1,5 +1,7 @@
 """Exceptions shared by the robot models."""
 
+from controller.errors import RefusedError
 
-class NoSolutionError(ValueError):
+
+class NoSolutionError(RefusedError):
     """A kinematic problem has no solution on the configured branch; the message says why."""

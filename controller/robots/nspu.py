@@ -56,10 +56,12 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from controller.errors import RefusedError
+
 Array = NDArray[np.float64]
 
 
-class NspuModelError(ValueError):
+class NspuModelError(RefusedError):
     """Base error of the 3-nSPU model."""
 
 

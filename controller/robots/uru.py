@@ -59,6 +59,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from controller.errors import RefusedError
 from controller.robots.errors import NoSolutionError
 
 _E = np.eye(3)
@@ -69,7 +70,7 @@ class UruNoSolutionError(NoSolutionError):
     """A 3-URU position problem has no solution (on the configured branch); the message says why."""
 
 
-class UruPathRefusedError(ValueError):
+class UruPathRefusedError(RefusedError):
     """A Cartesian path comes too close to (or crosses) a singularity locus or the workspace boundary."""
 
     def __init__(self, locus: str, sample_index: int, value: float, limit: float, position_m: np.ndarray):

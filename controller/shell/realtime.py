@@ -34,6 +34,8 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from controller.errors import InputError
+
 log = logging.getLogger(__name__)
 
 MCL_CURRENT = 1
@@ -48,7 +50,7 @@ _LOCK_HINT = ("run as root, give the interpreter CAP_IPC_LOCK, or raise the limi
               "or @group - memlock unlimited in /etc/security/limits.conf)")
 
 
-class RealtimeError(ValueError):
+class RealtimeError(InputError):
     """A real-time option was asked for and cannot be applied; the message says why and what to do."""
 
 

@@ -44,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
+from controller.errors import InputError
 from controller.shell.loop import period_error_us
 from controller.shell.realtime import RealtimeOptions
 from drivers import cob_ids
@@ -957,7 +958,7 @@ def run_bench_command(args: argparse.Namespace, rt: RealtimeOptions) -> int:
     schedulers = tuple(x.strip() for x in args.schedulers.split(",") if x.strip())
     unknown = [x for x in schedulers if x not in ("realtime", "normal")]
     if unknown or not schedulers:
-        raise ValueError(f"--schedulers {args.schedulers!r}: expected realtime, normal or both")
+        raise InputError(f"--schedulers {args.schedulers!r}: expected realtime, normal or both")
     report = run_bench(rates, args.duration, args.compare, Path(args.out), args.config, overrides, rt, sim_rt,
                        late_fraction=args.late_fraction, fd_from_hz=args.fd_from,
                        progress=lambda s: print(s, file=sys.stderr, flush=True), schedulers=schedulers,

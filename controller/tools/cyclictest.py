@@ -20,10 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
+from controller.errors import DeviceError
+
 INSTALL_HINT = "cyclictest not found: apt-get install rt-tests (Debian) for the machine's floor"
 
 
-class CyclictestError(RuntimeError):
+class CyclictestError(DeviceError, RuntimeError):
     """cyclictest did not run, or wrote no histogram we can read."""
 
 

@@ -20,13 +20,14 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from controller.config import Config
+from controller.errors import DeviceError
 from controller.shell.realtime import RealtimeOptions
 from controller.shell.service import run_controller
 from drivers.bus import BusSpec
 from sim_backend.process import READY_LINE
 
 
-class SimulatorStartError(RuntimeError):
+class SimulatorStartError(DeviceError, RuntimeError):
     pass
 
 
