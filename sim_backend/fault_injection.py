@@ -5,7 +5,7 @@ SYNC, for DURATION seconds (default: to the end). NODE is a CANopen node id wher
 needs one. Kinds:
 
 - ``drop:N``       node N sends no TPDO (a dead or unplugged drive)
-- ``delay:N=S``    node N's TPDOs leave S seconds late (simulator process only)
+- ``delay:N=S``    node N's TPDOs leave S seconds late (in-process: they miss their cycle)
 - ``malformed:N``  node N's TPDO has the wrong length (counted and rejected by the controller)
 - ``drive_fault:N``  drive N goes to FAULT and sends EMCY 0x5000
 - ``heartbeat:N``  node N stops its heartbeat
@@ -13,7 +13,7 @@ needs one. Kinds:
 - ``saturate``     the force sensor reports saturation
 - ``force=F``      the force sensor sees an extra F newtons along X (an unexpected contact)
 - ``error_frames`` CAN error frames on the bus; ``bus_off`` an error frame reporting bus-off
-- ``tx_full``      the controller's frames do not reach the bus (a full transmit queue)
+- ``tx_full``      the controller's frames do not reach the devices (a full transmit queue)
 - ``stall=S``      the controller's loop wakes S seconds late every cycle (in-process runs only)
 
 Examples: ``drop:2@3.0+0.5``, ``force=100@2``, ``freeze@1.5``.
@@ -26,6 +26,7 @@ import re
 from dataclasses import dataclass
 
 from controller.errors import InputError
+from drivers.cyclic_exchange import CAN_ERR_BUSOFF
 
 KINDS_WITH_NODE = ("drop", "delay", "malformed", "drive_fault", "heartbeat")
 KINDS = KINDS_WITH_NODE + ("freeze", "saturate", "force", "error_frames", "bus_off", "tx_full", "stall")
@@ -126,3 +127,44 @@ def tpdo_payload(schedule: FaultSchedule, node: int, payload: bytes, now_s: floa
     if schedule.active("malformed", now_s, node) is not None:
         return payload[:3]
     return payload
+
+
+# SocketCAN error classes (linux/can/error.h) of the error frames the simulated bus reports
+ERROR_CLASS_CONTROLLER = 0x004
+ERROR_CLASS_BUS_OFF = CAN_ERR_BUSOFF  # what the exchange reads as bus-off
+
+
+@dataclass(frozen=True)
+class BusFaults:
+    """What the active faults do to the bus at one SYNC.
+
+    The one decision both simulators render: the simulator process with real frames (no
+    heartbeat, an error frame, a late timer), the in-process loopback as the feedback those
+    frames would have produced (sim_backend/loopback.py).
+    """
+
+    controller_frames_lost: bool = False  # tx_full: the SYNC and RPDOs never reach the devices
+    silent_heartbeats: tuple[int, ...] = ()  # nodes whose heartbeat producer stopped
+    error_class: int = 0  # 0: none; else the class bits of one error frame sent this SYNC
+    delays_s: tuple[tuple[int, float], ...] = ()  # (node, seconds) its TPDO leaves late
+
+
+NO_BUS_FAULTS = BusFaults()
+
+
+def bus_faults(schedule: FaultSchedule, now_s: float, node_ids: tuple[int, ...]) -> BusFaults:
+    if not schedule.faults:
+        return NO_BUS_FAULTS
+    bus_off = schedule.active("bus_off", now_s) is not None
+    errors = bus_off or schedule.active("error_frames", now_s) is not None
+    delays = []
+    for n in node_ids:
+        d = schedule.active("delay", now_s, n)
+        if d is not None:
+            delays.append((n, d.value))
+    return BusFaults(
+        controller_frames_lost=schedule.active("tx_full", now_s) is not None,
+        silent_heartbeats=tuple(n for n in node_ids if schedule.active("heartbeat", now_s, n) is not None),
+        error_class=(ERROR_CLASS_BUS_OFF if bus_off else ERROR_CLASS_CONTROLLER) if errors else 0,
+        delays_s=tuple(delays),
+    )

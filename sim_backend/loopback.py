@@ -24,7 +24,14 @@ from drivers.pdo_codec import (
     encode_drive_rpdo,
 )
 from sim_backend.environment import Environment
-from sim_backend.fault_injection import FaultSchedule, apply_device_faults, tpdo_payload
+from sim_backend.fault_injection import (
+    ERROR_CLASS_BUS_OFF,
+    NO_BUS_FAULTS,
+    FaultSchedule,
+    apply_device_faults,
+    bus_faults,
+    tpdo_payload,
+)
 from sim_backend.plant import RobotPlant
 
 
@@ -43,13 +50,15 @@ class LoopbackExchange:
         self.send_errors = 0
         self._frames: list[tuple[int, int, bytes]] = []
         self._emcy: list[EmcyReport] = []
+        self._bus_faults = NO_BUS_FAULTS
 
     def send(self, outputs: CycleOutputs | None) -> None:
         now = self.clock()
         self.plant.advance(now)
         self.faults.start(now)
-        if self.faults.active("tx_full", now) is not None:
-            # nothing reaches the bus: no RPDO, no SYNC, so no device answers
+        self._bus_faults = bus_faults(self.faults, now, self.drive_ids)
+        if self._bus_faults.controller_frames_lost:
+            # nothing reaches the devices: no RPDO, no SYNC, so no device answers
             self.send_errors += 5
             self._frames = []
             return
@@ -64,7 +73,8 @@ class LoopbackExchange:
         self._frames = []
         for j, data in enumerate(drive_payloads):
             payload = tpdo_payload(self.faults, self.drive_ids[j], data, now)
-            if payload is not None and self.faults.active("delay", now, self.drive_ids[j]) is None:
+            late = any(n == self.drive_ids[j] for n, _ in self._bus_faults.delays_s)  # misses its cycle
+            if payload is not None and not late:
                 self._frames.append((0, j, payload))
         if sensor_frames is not None:
             self._frames += [(1, 0, sensor_frames[0]), (2, 0, sensor_frames[1])]
@@ -94,9 +104,7 @@ class LoopbackExchange:
         if force is not None and torque is not None:
             sensor = SensorFeedback(force[:3], torque[:3], force[3], force[4], True)
         emcy, self._emcy = tuple(self._emcy), []
-        now = self.clock()
-        lost = tuple(n for n in self.drive_ids if self.faults.active("heartbeat", now, n) is not None)
-        errors = 3 if self.faults.active("error_frames", now) is not None else 0
-        bus_off = self.faults.active("bus_off", now) is not None
-        return BusFeedback(drives=feedback, sensor=sensor, emcy=emcy, lost_heartbeats=lost,
-                            error_frames=errors + bus_off, bus_off=bus_off)
+        bus = self._bus_faults  # as the exchange would decode the simulator process's frames
+        return BusFeedback(drives=feedback, sensor=sensor, emcy=emcy, lost_heartbeats=bus.silent_heartbeats,
+                           error_frames=1 if bus.error_class else 0,
+                           bus_off=bus.error_class == ERROR_CLASS_BUS_OFF)

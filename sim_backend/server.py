@@ -35,7 +35,7 @@ from drivers import cob_ids
 from drivers.pdo_codec import FrameError, decode_drive_rpdo
 from sim_backend.drive import SimulatedDrive
 from sim_backend.environment import Environment
-from sim_backend.fault_injection import FaultSchedule, apply_device_faults, tpdo_payload
+from sim_backend.fault_injection import FaultSchedule, apply_device_faults, bus_faults, tpdo_payload
 from sim_backend.plant import RobotPlant
 
 log = logging.getLogger(__name__)
@@ -75,6 +75,7 @@ class Simulator:
         self.lock = threading.RLock()  # the cyclic thread against SDO callbacks and tests reading state
         self.drive_ids = tuple(cfg.actuators.node_ids)
         self.faults = FaultSchedule.from_strings(tuple(cfg.sim.faults))
+        self._lost_until_next_sync = False  # tx_full: the controller's frames do not arrive
         self._fd = getattr(bus, "protocol", None) == can.CanProtocol.CAN_FD
         self._silenced: set[int] = set()
         # canopen without its notifier: the cyclic thread feeds it the frames it subscribed to
@@ -228,7 +229,7 @@ class Simulator:
 
         def on_rpdo(data: bytearray, now_s: float) -> None:
             # The target waits for the next SYNC, as in a real CSP drive: no integration here.
-            if not self._operational(node_id):
+            if not self._operational(node_id) or self._lost_until_next_sync:
                 return
             try:
                 controlword, target = decode_drive_rpdo(data)
@@ -244,6 +245,13 @@ class Simulator:
     def _on_sync(self, data: bytearray, now: float) -> None:
         frames: list[tuple[int, bytes]] = []
         delayed: list[tuple[float, int, bytes]] = []
+        self.faults.start(now)
+        bus = bus_faults(self.faults, now, self.drive_ids)
+        if bus.controller_frames_lost:
+            self._lost_until_next_sync = True  # and this cycle's RPDOs with it (_rpdo_handler)
+            return
+        self._lost_until_next_sync = False
+        delays = dict(bus.delays_s)
         with self.lock:
             self.sync_count += 1
             apply_device_faults(self.faults, self.plant, self.drive_ids, now)
@@ -253,12 +261,11 @@ class Simulator:
                 out = tpdo_payload(self.faults, node_id, payload, now)
                 if out is None or not self._operational(node_id):
                     continue
-                delay = self.faults.active("delay", now, node_id)
-                if delay is not None:
-                    delayed.append((delay.value, cob_ids.tpdo1(node_id), out))
+                if node_id in delays:
+                    delayed.append((delays[node_id], cob_ids.tpdo1(node_id), out))
                 else:
                     frames.append((cob_ids.tpdo1(node_id), out))
-                if self.faults.active("heartbeat", now, node_id) is not None and node_id not in self._silenced:
+                if node_id in bus.silent_heartbeats and node_id not in self._silenced:
                     self.nodes[node_id].nmt.stop_heartbeat()
                     self._silenced.add(node_id)
             if sensor_frames is not None and self._operational(self.cfg.sensor.node_id):
@@ -273,10 +280,8 @@ class Simulator:
             timer = threading.Timer(delay_s, self._send_pdo, (cob_id, payload, False))
             timer.daemon = True
             timer.start()
-        bus_off = self.faults.active("bus_off", now) is not None
-        if bus_off or self.faults.active("error_frames", now) is not None:
-            # error class bits of a SocketCAN error frame: 0x040 bus-off, 0x004 controller problems
-            self.bus.send(can.Message(arbitration_id=0x040 if bus_off else 0x004, is_error_frame=True,
+        if bus.error_class:  # the class bits of a SocketCAN error frame
+            self.bus.send(can.Message(arbitration_id=bus.error_class, is_error_frame=True,
                                       data=bytes(8), is_extended_id=False))
 
     def _send_pdo(self, cob_id: int, payload: bytes, reuse: bool = True) -> None:

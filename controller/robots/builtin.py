@@ -9,12 +9,12 @@ configuration.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import numpy as np
 
-from controller.config import CONFIG_DIR, Config, ConfigError, value_range
+from controller.config import CONFIG_DIR, Config
+from controller.config_schema import ConfigError, Section, rng
 from controller.robots.cheope import CheopeGeometry, CheopeLimits, CheopeRobot
 from controller.robots.performance import MassModel
 from controller.robots.registry import RobotEntry, register_robot
@@ -28,17 +28,16 @@ if TYPE_CHECKING:  # the URU and nSPU modules load on demand, when their robot i
 
 # -- Cheope (seed 001) --------------------------------------------------------------------------
 
-@dataclass(frozen=True)
-class CheopeSection:
-    rod_length_m: float = field(default=0.50, metadata=value_range(0.0, 10.0, lo_open=True))
-    axis_tilt_deg: float = field(default=60.0, metadata=value_range(1.0, 89.0))
+class CheopeSection(Section):
+    rod_length_m: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.50
+    axis_tilt_deg: Annotated[float, rng(1.0, 89.0)] = 60.0
     axis_azimuths_deg: tuple[float, float, float] = (0.0, 90.0, 180.0)
-    platform_radius_m: float = field(default=0.05, metadata=value_range(0.0, 1.0))
+    platform_radius_m: Annotated[float, rng(0.0, 1.0)] = 0.05
     platform_azimuths_deg: tuple[float, float, float] = (0.0, 90.0, 180.0)
     joint_neutral_tcp_m: tuple[float, float, float] = (0.0, 0.0, 0.50)
-    joint_swing_limit_deg: float = field(default=22.0, metadata=value_range(0.0, 90.0, lo_open=True))
-    stroke_min_m: float = field(default=0.30, metadata=value_range(-10.0, 10.0))
-    stroke_max_m: float = field(default=0.90, metadata=value_range(-10.0, 10.0))
+    joint_swing_limit_deg: Annotated[float, rng(0.0, 90.0, lo_open=True)] = 22.0
+    stroke_min_m: Annotated[float, rng(-10.0, 10.0)] = 0.30
+    stroke_max_m: Annotated[float, rng(-10.0, 10.0)] = 0.90
 
 
 def _check_cheope(c: CheopeSection) -> None:
@@ -84,34 +83,33 @@ def _three(values: object) -> tuple[float, float, float]:
 
 # -- 3-URU (seed 003) ---------------------------------------------------------------------------
 
-@dataclass(frozen=True)
-class UruSection:
+_Link = Annotated[float, rng(0.0, 10.0, lo_open=True)]  # a link length [m]
+_Gear = Annotated[float, rng(-1000.0, 1000.0)]
+_Offset = Annotated[float, rng(-100.0, 100.0)]  # [rad]
+
+
+class UruSection(Section):
     """LaMaViP 3-URU (seed 003); see controller/robots/uru.py and controller/robots/uru_robot.py."""
 
-    base_offset_m: float = field(default=0.10, metadata=value_range(0.0, 10.0))
-    platform_offset_m: float = field(default=0.10, metadata=value_range(0.0, 10.0))
-    proximal_lengths_m: tuple[float, float, float] = field(default=(0.20, 0.20, 0.20),
-                                                           metadata=value_range(0.0, 10.0, lo_open=True))
-    distal_lengths_m: tuple[float, float, float] = field(default=(0.20, 0.20, 0.20),
-                                                         metadata=value_range(0.0, 10.0, lo_open=True))
-    gear_ratios: tuple[float, float, float] = field(default=(1.0, 1.0, 1.0), metadata=value_range(-1000.0, 1000.0))
-    motor_offsets_rad: tuple[float, float, float] = field(default=(0.0, 0.0, 0.0),
-                                                          metadata=value_range(-100.0, 100.0))
-    knee_sign: int = field(default=1, metadata=value_range(-1, 1))
+    base_offset_m: Annotated[float, rng(0.0, 10.0)] = 0.10
+    platform_offset_m: Annotated[float, rng(0.0, 10.0)] = 0.10
+    proximal_lengths_m: tuple[_Link, _Link, _Link] = (0.20, 0.20, 0.20)
+    distal_lengths_m: tuple[_Link, _Link, _Link] = (0.20, 0.20, 0.20)
+    gear_ratios: tuple[_Gear, _Gear, _Gear] = (1.0, 1.0, 1.0)
+    motor_offsets_rad: tuple[_Offset, _Offset, _Offset] = (0.0, 0.0, 0.0)
+    knee_sign: Literal[-1, 1] = 1
     home_position_m: tuple[float, float, float] = (0.12, 0.12, 0.12)  # the simulator starts here
-    motor_min_rad: float = field(default=-3.2, metadata=value_range(-1000.0, 1000.0))  # motor-shaft range
-    motor_max_rad: float = field(default=4.8, metadata=value_range(-1000.0, 1000.0))
-    min_plane_distance_m: float = field(default=0.02, metadata=value_range(0.0, 10.0))  # rotation loci eq. (17)
-    min_det_v: float = field(default=0.05, metadata=value_range(0.0, 1.0))  # translation eq. (20)
-    min_det_s: float = field(default=0.05, metadata=value_range(0.0, 1e6))  # actuation eq. (35)
-    min_det_a: float = field(default=0.05, metadata=value_range(0.0, 1e6))  # combined eq. (36)
-    min_sin_th3: float = field(default=0.10, metadata=value_range(0.0, 1.0))  # serial eq. (27)
-    min_workspace_margin_m: float = field(default=0.02, metadata=value_range(0.0, 10.0))  # boundary eq. (29)
+    motor_min_rad: Annotated[float, rng(-1000.0, 1000.0)] = -3.2  # motor-shaft range
+    motor_max_rad: Annotated[float, rng(-1000.0, 1000.0)] = 4.8
+    min_plane_distance_m: Annotated[float, rng(0.0, 10.0)] = 0.02  # rotation loci eq. (17)
+    min_det_v: Annotated[float, rng(0.0, 1.0)] = 0.05  # translation eq. (20)
+    min_det_s: Annotated[float, rng(0.0, 1e6)] = 0.05  # actuation eq. (35)
+    min_det_a: Annotated[float, rng(0.0, 1e6)] = 0.05  # combined eq. (36)
+    min_sin_th3: Annotated[float, rng(0.0, 1.0)] = 0.10  # serial eq. (27)
+    min_workspace_margin_m: Annotated[float, rng(0.0, 10.0)] = 0.02  # boundary eq. (29)
 
 
 def _check_uru(u: UruSection) -> None:
-    if u.knee_sign not in (-1, 1):
-        raise ConfigError(f"robot.uru.knee_sign = {u.knee_sign}: must be 1 or -1")
     if any(k == 0 for k in u.gear_ratios):
         raise ConfigError(f"robot.uru.gear_ratios = {list(u.gear_ratios)}: must be non-zero")
     if u.motor_min_rad >= u.motor_max_rad:
@@ -136,27 +134,26 @@ def uru_from_config(cfg: Config) -> UruRobot:
 
 # -- 3-nSPU (seeds 000, 004) --------------------------------------------------------------------
 
-@dataclass(frozen=True)
-class NspuSection:
+class NspuSection(Section):
     """3-nSPU (seeds 000, 004): seed 000 §3.5 geometry, start and goal poses, planner, streaming."""
 
-    length_unit_m: float = field(default=0.01, metadata=value_range(0.0, 10.0, lo_open=True))  # the papers' aul
-    r3_variant: str = field(default="symmetric", metadata={"choices": ("symmetric", "printed")})
-    leg_min_m: float = field(default=0.20, metadata=value_range(0.0, 10.0))
-    leg_max_m: float = field(default=0.70, metadata=value_range(0.0, 10.0))
+    length_unit_m: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.01  # the papers' aul
+    r3_variant: Literal["symmetric", "printed"] = "symmetric"
+    leg_min_m: Annotated[float, rng(0.0, 10.0)] = 0.20
+    leg_max_m: Annotated[float, rng(0.0, 10.0)] = 0.70
     start_position_m: tuple[float, float, float] = (0.0, 0.0, 0.25)
     start_rpy_rad: tuple[float, float, float] = (0.0, 0.0, -0.5236)
     goal_position_m: tuple[float, float, float] = (-0.0185, -0.0251, 0.2713)
     goal_rpy_rad: tuple[float, float, float] = (0.075, 0.31, -0.532)
-    horizon_s: float = field(default=1.0, metadata=value_range(0.0, 1000.0, lo_open=True))  # plan time T
-    harmonics: int = field(default=2, metadata=value_range(0, 10))
-    tolerance: float = field(default=1e-3, metadata=value_range(0.0, 1.0, lo_open=True))
-    max_iterations: int = field(default=50, metadata=value_range(0, 10000))
-    n_steps: int = field(default=200, metadata=value_range(4, 100000))
+    horizon_s: Annotated[float, rng(0.0, 1000.0, lo_open=True)] = 1.0  # plan time T
+    harmonics: Annotated[int, rng(0, 10)] = 2
+    tolerance: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 1e-3
+    max_iterations: Annotated[int, rng(0, 10000)] = 50
+    n_steps: Annotated[int, rng(4, 100000)] = 200
     check_type2: bool = True  # refuse plans that cross the type-II locus (seed 000 eq. (26))
-    restarts: int = field(default=0, metadata=value_range(0, 100))
-    stream_steps: int = field(default=1000, metadata=value_range(10, 1000000))  # resolution of the streamed plan
-    limit_fraction: float = field(default=0.5, metadata=value_range(0.0, 1.0, lo_open=True))  # of the limits
+    restarts: Annotated[int, rng(0, 100)] = 0
+    stream_steps: Annotated[int, rng(10, 1000000)] = 1000  # resolution of the streamed plan
+    limit_fraction: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.5  # of the limits
 
 
 def _check_nspu(n: NspuSection) -> None:

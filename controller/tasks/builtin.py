@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass, field
+from typing import Annotated, Literal
 
 import numpy as np
 
-from controller.config import Config, ConfigError, value_range
+from controller.config import Config
+from controller.config_schema import ConfigError, Section, rng
 from controller.robots.robot import Robot
 from controller.tasks.circle_path import CirclePath
 from controller.tasks.contour_tracking import ContourParams, ContourTrackingTask
@@ -21,16 +22,15 @@ from controller.tasks.registry import BuiltTask, TaskEntry, register_task
 
 # -- the circle path ----------------------------------------------------------------------------
 
-@dataclass(frozen=True)
-class PathSection:
+class PathSection(Section):
     """A circle in a plane parallel to XY: the first task of issue 2."""
 
     center_m: tuple[float, float, float] = (0.0, 0.0, 0.50)
-    radius_m: float = field(default=0.08, metadata=value_range(0.0, 1.0, lo_open=True))
-    speed_m_s: float = field(default=0.10, metadata=value_range(0.0, 10.0, lo_open=True))
-    laps: float = field(default=1.0, metadata=value_range(0.0, 1000.0, lo_open=True))
-    ramp_s: float = field(default=0.5, metadata=value_range(0.0, 60.0))
-    check_samples: int = field(default=720, metadata=value_range(8, 1_000_000))
+    radius_m: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.08
+    speed_m_s: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.10
+    laps: Annotated[float, rng(0.0, 1000.0, lo_open=True)] = 1.0
+    ramp_s: Annotated[float, rng(0.0, 60.0)] = 0.5
+    check_samples: Annotated[int, rng(8, 1_000_000)] = 720
     normal: tuple[float, float, float] = (0.0, 0.0, 1.0)  # the circle's plane normal (not normalised)
 
 
@@ -59,45 +59,41 @@ def build_path_task(cfg: Config, robot: Robot) -> BuiltTask:
 
 # -- contour tracking (seed 001 §7) -------------------------------------------------------------
 
-@dataclass(frozen=True)
-class ContourSection:
+class ContourSection(Section):
     """Hybrid force/velocity contour tracking (seed 001 §7); see controller/tasks/contour_tracking.py."""
 
     expected_centre_m: tuple[float, float] = (0.0, 0.0)
-    height_m: float = field(default=0.50, metadata=value_range(-10.0, 10.0))
-    expected_radius_m: float = field(default=0.07, metadata=value_range(0.0, 1.0, lo_open=True))
-    approach_direction_deg: float = field(default=0.0, metadata=value_range(-360.0, 360.0))
-    approach_clearance_m: float = field(default=0.005, metadata=value_range(0.0, 1.0, lo_open=True))
-    approach_speed_m_s: float = field(default=0.002, metadata=value_range(0.0, 1.0, lo_open=True))
-    max_approach_distance_m: float = field(default=0.02, metadata=value_range(0.0, 1.0, lo_open=True))
-    contact_force_n: float = field(default=1.0, metadata=value_range(0.0, 1000.0, lo_open=True))
-    force_setpoint_n: float = field(default=10.0, metadata=value_range(0.0, 1000.0, lo_open=True))
-    lap_speeds_m_s: tuple[float, ...] = field(default=(0.02, 0.04, 0.06, 0.06, 0.06),
-                                              metadata=value_range(0.0, 1.0, lo_open=True))
-    tangential_acceleration_m_s2: float = field(default=0.05, metadata=value_range(0.0, 100.0, lo_open=True))
-    force_kp_m_s_per_n: float = field(default=3.5e-4, metadata=value_range(0.0, 1.0))
-    force_ki_m_s2_per_n: float = field(default=3.5e-3, metadata=value_range(0.0, 10.0))
-    max_normal_speed_m_s: float = field(default=0.02, metadata=value_range(0.0, 10.0, lo_open=True))
-    force_filter_hz: float = field(default=10.0, metadata=value_range(0.1, 10000.0))
-    normal_min_force_n: float = field(default=2.0, metadata=value_range(0.0, 1000.0))
-    max_force_n: float = field(default=40.0, metadata=value_range(0.0, 1000.0, lo_open=True))
-    contact_lost_force_n: float = field(default=1.0, metadata=value_range(0.0, 1000.0))
-    contact_lost_cycles: int = field(default=40, metadata=value_range(1, 100000))
-    on_contact_loss: str = field(default="reapproach", metadata={"choices": ("reapproach", "stop")})
-    retract_distance_m: float = field(default=0.01, metadata=value_range(0.0, 1.0, lo_open=True))
-    retract_speed_m_s: float = field(default=0.02, metadata=value_range(0.0, 1.0, lo_open=True))
-    tare_s: float = field(default=0.1, metadata=value_range(0.0, 60.0, lo_open=True))
-    friction_estimate: float = field(default=0.1, metadata=value_range(0.0, 2.0))
-    normal_tracker_hz: float = field(default=1.5, metadata=value_range(0.01, 50.0))
-    comparison_press_m: float = field(default=6.0e-5, metadata=value_range(0.0, 0.01))
-    direction: int = field(default=1, metadata={"range": (-1, 1, False)})
+    height_m: Annotated[float, rng(-10.0, 10.0)] = 0.50
+    expected_radius_m: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.07
+    approach_direction_deg: Annotated[float, rng(-360.0, 360.0)] = 0.0
+    approach_clearance_m: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.005
+    approach_speed_m_s: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.002
+    max_approach_distance_m: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.02
+    contact_force_n: Annotated[float, rng(0.0, 1000.0, lo_open=True)] = 1.0
+    force_setpoint_n: Annotated[float, rng(0.0, 1000.0, lo_open=True)] = 10.0
+    lap_speeds_m_s: tuple[Annotated[float, rng(0.0, 1.0, lo_open=True)], ...] = (0.02, 0.04, 0.06, 0.06, 0.06)
+    tangential_acceleration_m_s2: Annotated[float, rng(0.0, 100.0, lo_open=True)] = 0.05
+    force_kp_m_s_per_n: Annotated[float, rng(0.0, 1.0)] = 3.5e-4
+    force_ki_m_s2_per_n: Annotated[float, rng(0.0, 10.0)] = 3.5e-3
+    max_normal_speed_m_s: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.02
+    force_filter_hz: Annotated[float, rng(0.1, 10000.0)] = 10.0
+    normal_min_force_n: Annotated[float, rng(0.0, 1000.0)] = 2.0
+    max_force_n: Annotated[float, rng(0.0, 1000.0, lo_open=True)] = 40.0
+    contact_lost_force_n: Annotated[float, rng(0.0, 1000.0)] = 1.0
+    contact_lost_cycles: Annotated[int, rng(1, 100000)] = 40
+    on_contact_loss: Literal["reapproach", "stop"] = "reapproach"
+    retract_distance_m: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.01
+    retract_speed_m_s: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.02
+    tare_s: Annotated[float, rng(0.0, 60.0, lo_open=True)] = 0.1
+    friction_estimate: Annotated[float, rng(0.0, 2.0)] = 0.1
+    normal_tracker_hz: Annotated[float, rng(0.01, 50.0)] = 1.5
+    comparison_press_m: Annotated[float, rng(0.0, 0.01)] = 6.0e-5
+    direction: Literal[1, -1] = 1  # 1: counter-clockwise seen from +z
 
 
 def _check_contour(c: ContourSection) -> None:
     if not c.lap_speeds_m_s:
         raise ConfigError("task.contour.lap_speeds_m_s = []: needs at least one lap")
-    if c.direction not in (-1, 1):
-        raise ConfigError(f"task.contour.direction = {c.direction}: must be 1 or -1")
 
 
 def contour_params(c: ContourSection, settle_tolerance_m: float) -> ContourParams:

@@ -14,9 +14,10 @@ stopped at once, as the displaced disk is pressed millimetres deep at the start.
 
 from __future__ import annotations
 
-import dataclasses
 import threading
 from pathlib import Path
+
+import msgspec
 
 from controller.assembly import build_robot
 from controller.config import Config
@@ -33,9 +34,9 @@ def comparison_config(cfg: Config) -> Config:
     path = PathSection(center_m=(c.expected_centre_m[0], c.expected_centre_m[1], c.height_m),
                        radius_m=c.expected_radius_m - c.comparison_press_m, speed_m_s=c.lap_speeds_m_s[-1],
                        laps=1.0, ramp_s=0.5, check_samples=cfg.task.model("path").check_samples)
-    safety = dataclasses.replace(cfg.safety, on_sensor_saturated="warn",
+    safety = msgspec.structs.replace(cfg.safety, on_sensor_saturated="warn",
                                  max_contact_force_n=1.0e4)  # simulated hardware only: see above
-    return dataclasses.replace(cfg, task=dataclasses.replace(cfg.task, kind="path", models={**cfg.task.models, "path": path}), safety=safety)
+    return msgspec.structs.replace(cfg, task=msgspec.structs.replace(cfg.task, kind="path", models={**cfg.task.models, "path": path}), safety=safety)
 
 
 def run_contour_experiment(cfg: Config, spec: BusSpec, plot_dir: Path | None, max_duration_s: float = 600.0,

@@ -13,10 +13,11 @@ active, switched off, or faulted), or, for a warning, the task finishing normall
 
 from __future__ import annotations
 
-import dataclasses
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+
+import msgspec
 
 from controller.assembly import build_law
 from controller.config import Config, load_config
@@ -95,9 +96,9 @@ def run_scenario(base: Config, sc: Scenario, directory: Path) -> dict[str, objec
     from logs.reader import read_info
     from logs.recorder import SessionRecorder
 
-    cfg = dataclasses.replace(
-        base, sim=dataclasses.replace(base.sim, faults=(sc.fault,)),
-        recording=dataclasses.replace(base.recording, enabled=True, directory=str(directory)))
+    cfg = msgspec.structs.replace(
+        base, sim=msgspec.structs.replace(base.sim, faults=(sc.fault,)),
+        recording=msgspec.structs.replace(base.recording, enabled=True, directory=str(directory)))
     clock = SimulatedTime()
     law = build_law(cfg)
     exchange = LoopbackExchange(cfg, clock.clock)
@@ -138,7 +139,7 @@ def run_all(base: Config | None = None, directory: Path | None = None,
             only: tuple[str, ...] = ()) -> list[dict[str, object]]:
     base = base or load_config()
     # The path task, one lap: long enough for every reaction, short enough for a table.
-    base = dataclasses.replace(base, task=dataclasses.replace(base.task, kind="path"))
+    base = msgspec.structs.replace(base, task=msgspec.structs.replace(base.task, kind="path"))
     with tempfile.TemporaryDirectory(prefix="cheope-faults-") as tmp:
         out = Path(directory or tmp)
         return [run_scenario(base, sc, out) for sc in SCENARIOS if not only or sc.name in only]

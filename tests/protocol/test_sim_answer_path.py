@@ -160,3 +160,49 @@ def test_sdo_reaches_canopens_node_through_the_cyclic_thread(sim):
         assert bytes(reply.data)[:4] == bytes([0x60, 0xC2, 0x60, sub])  # download confirmed
     assert simulator.drives[1].interpolation_period_s == pytest.approx(0.0025)
     assert simulator.drives[0].interpolation_period_s == 0.0
+
+
+@pytest.fixture
+def faulty_sim(request) -> Iterator[tuple[Simulator, ScriptedBus]]:
+    cfg = load_config(overrides={"sim.faults": [request.param]})
+    bus = ScriptedBus()
+    simulator = Simulator(cfg, bus)
+    simulator.start()
+    try:
+        bus.wait_for(lambda sent: any(m.arbitration_id == cob_ids.heartbeat(16) for m in sent))
+        bus.push(frame(cob_ids.NMT, bytes([0x01, 0x00])))
+        yield simulator, bus
+    finally:
+        simulator.stop()
+        bus.shutdown()
+
+
+@pytest.mark.parametrize("faulty_sim,bus_off", [("error_frames@0", False), ("bus_off@0", True)],
+                         indirect=["faulty_sim"])
+def test_a_bus_fault_is_one_decision_sent_as_a_frame_and_fed_back_in_process(faulty_sim, bus_off):
+    """The simulator process sends the error frame the in-process loopback reports as feedback
+    (sim_backend/fault_injection.py ``bus_faults``), and the exchange reads it the same way."""
+    from drivers.cyclic_exchange import CAN_ERR_BUSOFF
+    from sim_backend.loopback import LoopbackExchange
+
+    simulator, bus = faulty_sim
+    start = len(bus.sent)
+    bus.push(frame(cob_ids.SYNC))
+    sent = bus.wait_for(lambda s: any(m.is_error_frame for m in s[start:]))
+    (error,) = [m for m in sent[start:] if m.is_error_frame]
+    assert bool(error.arbitration_id & CAN_ERR_BUSOFF) == bus_off  # how drivers/cyclic_exchange.py reads it
+    loopback = LoopbackExchange(simulator.cfg, lambda: 0.0)
+    loopback.send(None)
+    feedback = loopback.collect(0.0)
+    assert (feedback.error_frames, feedback.bus_off) == (1, bus_off)
+
+
+@pytest.mark.parametrize("faulty_sim", ["tx_full@0+0.000001"], indirect=True)
+def test_a_full_transmit_queue_leaves_the_sync_unanswered_in_the_simulator_process_too(faulty_sim):
+    simulator, bus = faulty_sim
+    start = len(bus.sent)
+    bus.push(frame(cob_ids.SYNC), *rpdos(CW_SHUTDOWN, (0.5, 0.5, 0.5)))  # lost: tx_full is active
+    out = sync_and_wait(bus)  # after the fault's microsecond: answered
+    assert simulator.sync_count == 1
+    assert len(after(bus.sent, start, cob_ids.tpdo1(1))) == 1 == len(after(out, 0, cob_ids.tpdo1(1)))
+    assert all(d.received_target != 0.5 for d in simulator.drives)

@@ -10,14 +10,15 @@ from __future__ import annotations
 
 import inspect
 import sys
-from dataclasses import dataclass, field
+from typing import Annotated
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from controller.assembly import build_law
-from controller.config import ConfigError, config_from_dict, config_to_dict, value_range
+from controller.config import ConfigError, config_from_dict, config_to_dict
+from controller.config_schema import Section, rng
 from controller.core.control_law import Mode
 from controller.robots.cheope import POSE_OK, PoseStatus, WorkspaceError
 from controller.robots.registry import RobotEntry, register_robot, robot_entry, unregister_robot
@@ -32,11 +33,10 @@ REPO = Path(__file__).resolve().parents[2]
 
 # -- the robot: section, model, simulator hook, entry -------------------------------------------
 
-@dataclass(frozen=True)
-class GantrySection:
+class GantrySection(Section):
     offset_m: tuple[float, float, float] = (0.0, 0.0, 0.2)  # TCP when every axis is at 0
-    stroke_min_m: float = field(default=-0.3, metadata=value_range(-10.0, 10.0))
-    stroke_max_m: float = field(default=0.3, metadata=value_range(-10.0, 10.0))
+    stroke_min_m: Annotated[float, rng(-10.0, 10.0)] = -0.3
+    stroke_max_m: Annotated[float, rng(-10.0, 10.0)] = 0.3
     home_m: tuple[float, float, float] = (0.1, 0.0, 0.3)  # where the simulated axes start
 
 

@@ -1,0 +1,120 @@
+"""How a configuration section is declared and validated: msgspec Structs with their constraints.
+
+A section is a frozen ``Section`` (a msgspec Struct that refuses unknown keys); each value's
+type carries its allowed range (``Annotated[float, rng(0.0, 10.0)]``), choices are ``Literal``
+or a ``StrEnum``. ``convert_section`` turns a TOML table into the section, or raises a
+``ConfigError`` that names the dotted key, the value and what is allowed. msgspec does the type
+and range checks (README, "Design decisions": why msgspec, and its start-up cost).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import re
+import typing
+from typing import Any, TypeVar
+
+import msgspec
+
+from controller.errors import InputError
+
+S = TypeVar("S")
+
+
+class ConfigError(InputError):
+    """Invalid configuration; the message names the key, the value and what is allowed."""
+
+
+class Section(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """A configuration section: immutable, every key optional (its default), unknown keys refused."""
+
+
+def rng(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False) -> msgspec.Meta:
+    """A number's allowed range, ``lo`` excluded with ``lo_open``."""
+    if lo is None:
+        return msgspec.Meta(le=hi)
+    return msgspec.Meta(gt=lo, le=hi) if lo_open else msgspec.Meta(ge=lo, le=hi)
+
+
+_WHERE = re.compile(r"^(?P<what>.*?)(?: - at `\$(?P<path>[^`]*)`)?$")
+
+
+def convert_section(table: dict[str, Any], cls: type[S], prefix: str) -> S:
+    """``table`` as a ``cls`` section; ``prefix`` is its dotted name (``loop``, ``robot.cheope``)."""
+    try:
+        return msgspec.convert(table, cls, strict=True)
+    except msgspec.ValidationError as err:
+        raise _named(err, table, cls, prefix) from None
+
+
+def _named(err: msgspec.ValidationError, table: dict[str, Any], cls: type, prefix: str) -> ConfigError:
+    m = _WHERE.match(str(err))
+    what, path = (m.group("what"), m.group("path") or "") if m else (str(err), "")
+    key = (prefix + path) if prefix else path.lstrip(".")
+    unknown = re.match(r"Object contains unknown field `(.*)`", what)
+    if unknown:
+        where = f"[{key}]" if key else "the top level"
+        known = ", ".join(sorted(_fields_at(cls, path)))
+        return ConfigError(f"unknown key(s) {unknown.group(1)} in {where}; known: {known}")
+    value = _value_at(table, path)
+    if isinstance(value, dict):
+        return ConfigError(f"[{key}]: {_plain(what, ())}")
+    if isinstance(value, float) and not math.isfinite(value):
+        return ConfigError(f"{key} = {value!r}: must be finite")
+    return ConfigError(f"{key} = {value!r}: {_plain(what, _choices_at(cls, path))}")
+
+
+_TYPE_NAMES = {"float": "a number", "int": "an integer", "bool": "true or false", "str": "a string",
+               "array": "a list", "object": "a table", "null": "nothing"}
+
+
+def _plain(what: str, choices: tuple[object, ...]) -> str:
+    """msgspec's message in the words of a TOML file (a number, a list, true or false)."""
+    m = re.match(r"Expected `(?:float|int)` (>=|>|<=|<) (.*)$", what)
+    if m:
+        return f"must be {m.group(1)} {m.group(2)}"
+    m = re.match(r"Expected `array` of length (\d+), got (\d+)$", what)
+    if m:
+        return f"expected a list of {m.group(1)} values, got {m.group(2)}"
+    m = re.match(r"Expected `(\w+)`, got `(\w+)`$", what)
+    if m:
+        return f"expected {_TYPE_NAMES.get(m.group(1), m.group(1))}, got {_TYPE_NAMES.get(m.group(2), m.group(2))}"
+    if what.startswith("Invalid enum value") and choices:
+        return "must be one of " + ", ".join(str(c) for c in choices)
+    return what[:1].lower() + what[1:]
+
+
+def _choices_at(cls: type, path: str) -> tuple[object, ...]:
+    """The allowed values of a Literal or enum field at ``path`` (else empty)."""
+    tp: Any = cls
+    for name in re.findall(r"\.(\w+)", path):
+        fields = {f.name: f.type for f in msgspec.structs.fields(tp)} if isinstance(tp, type) and \
+            issubclass(tp, msgspec.Struct) else {}
+        if name not in fields:
+            return ()
+        tp = fields[name]
+    if typing.get_origin(tp) is typing.Literal:
+        return typing.get_args(tp)
+    if isinstance(tp, type) and issubclass(tp, enum.Enum):
+        return tuple(e.value for e in tp)
+    return ()
+
+
+def _value_at(table: Any, path: str) -> Any:
+    for part in re.findall(r"\.(\w+)|\[(\d+)\]", path):
+        name, index = part
+        try:
+            table = table[name] if name else table[int(index)]
+        except (KeyError, IndexError, TypeError):
+            return None
+    return table
+
+
+def _fields_at(cls: type, path: str) -> tuple[str, ...]:
+    for name in re.findall(r"\.(\w+)", path):
+        field = next((f for f in msgspec.structs.fields(cls) if f.name == name), None)
+        if field is None or not isinstance(field.type, type):
+            break
+        cls = field.type
+    return tuple(f.name for f in msgspec.structs.fields(cls))
