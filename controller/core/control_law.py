@@ -59,7 +59,8 @@ class Mode(IntEnum):
 
 
 class Robot(Protocol):
-    n_actuators: int
+    @property
+    def n_actuators(self) -> int: ...  # read-only: the robots are frozen dataclasses
 
     def direct_kinematics(self, q: np.ndarray) -> np.ndarray: ...
 

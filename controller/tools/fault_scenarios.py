@@ -19,9 +19,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from controller.config import Config, load_config
-from controller.core.control_law import Mode
-from controller.core.cycle_data import Severity
-from controller.shell.loop import CycleLoop, SimulatedTime
+from controller.core.control_law import ControllerState, Mode
+from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severity
+from controller.shell.loop import CycleLoop, CycleTiming, SimulatedTime
 from controller.shell.service import build_law
 from drivers.cia402 import PowerState
 from sim_backend.fault_injection import FaultSchedule
@@ -79,7 +79,8 @@ class _Watch:
     reaction: str = ""
     safe_s: float | None = None
 
-    def on_cycle(self, cycle, t, inputs, state, outputs, events, timing) -> None:
+    def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState, outputs: CycleOutputs,
+                 events: tuple[Event, ...], timing: CycleTiming) -> None:
         if t < self.fault_at_s:
             return
         for e in events:
