@@ -217,8 +217,8 @@ class SessionWriter:
             self.last_mono_s = mono_s
         return n
 
-    def _cycle(self, cycle: int, t: float, mono_s: float, seq: int, cycle_pb: bytes, events: tuple[Event, ...],
-               tcp_measured: Vector3 | None, tcp_reference: Vector3 | None) -> int:
+    def _cycle(self, cycle: int, t: float, mono_s: float, seq: int, cycle_pb: bytes,
+               events: tuple[Event, ...], tcp_measured: Vector3 | None, tcp_reference: Vector3 | None) -> int:
         m = self.m
         ns = int(mono_s * 1e9) + self.offset_ns
         self.last_cycle = (cycle, t)

@@ -119,7 +119,9 @@ class ControllerState:
 
 # One handler per mode: (state, inputs, power states, measured positions, t, events) -> state.
 ModeHandler = Callable[
-    [ControllerState, CycleInputs, tuple[PowerState, ...], tuple[float, ...], float, list[Event]], ControllerState]
+    [ControllerState, CycleInputs, tuple[PowerState, ...], tuple[float, ...], float, list[Event]],
+    ControllerState,
+]
 
 
 class ControlLaw:

@@ -18,8 +18,10 @@ def _one_reply(settings: SessionSettings, key: str, timeout_s: float, payload: b
                encoding: zenoh.Encoding | None = None) -> bytes:
     session, _ = open_session(settings)
     try:
-        replies = (session.get(key, timeout=timeout_s, payload=payload, encoding=encoding) if payload is not None
-                   else session.get(key, timeout=timeout_s))
+        if payload is not None:
+            replies = session.get(key, timeout=timeout_s, payload=payload, encoding=encoding)
+        else:
+            replies = session.get(key, timeout=timeout_s)
         for reply in replies:
             if reply.ok is not None:
                 return reply.ok.payload.to_bytes()

@@ -357,7 +357,8 @@ def _version(name: str) -> str:
 def monitoring_publisher(cfg: Config, stop_event: threading.Event, task: Task | None = None
                          ) -> MonitorPublisher:
     """The publisher of ``cfg.monitoring`` (not yet open: use it as a context manager)."""
-    return MonitorPublisher(publisher_settings(cfg), stop_event, task_name=task.name if task is not None else "",
+    return MonitorPublisher(publisher_settings(cfg), stop_event,
+                            task_name=task.name if task is not None else "",
                             task_phase=task.phase_name if task is not None else None)
 
 

@@ -44,8 +44,9 @@ def _percentile_us(values_us: np.ndarray, q: float) -> float:
     return float(np.percentile(values_us, q)) if values_us.size else 0.0
 
 
-def summarize(stats: LoopStats, recorder: RunRecorder, final: ControllerState, counters: ExchangeCounters | None,
-              bus_load_percent: float, extra: dict[str, object] | None = None) -> dict[str, object]:
+def summarize(stats: LoopStats, recorder: RunRecorder, final: ControllerState,
+              counters: ExchangeCounters | None, bus_load_percent: float,
+              extra: dict[str, object] | None = None) -> dict[str, object]:
     """The demo's summary as one JSON-ready dict (SI units and microseconds in the names)."""
     per = stats.period_error_us()
     n = min(stats.cycles, stats.capacity)

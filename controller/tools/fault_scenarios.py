@@ -79,8 +79,8 @@ class _Watch:
     reaction: str = ""
     safe_s: float | None = None
 
-    def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState, outputs: CycleOutputs,
-                 events: tuple[Event, ...], timing: CycleTiming) -> None:
+    def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
+                 outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None:
         if t < self.fault_at_s:
             return
         for e in events:
