@@ -4,7 +4,7 @@ PYTHON ?= python3
 VENV := .venv
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: setup demo test test-vcan bench clean
+.PHONY: setup demo test test-vcan lint bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -22,6 +22,11 @@ test: setup
 
 test-vcan: setup
 	tests/vcan/run
+
+# Static checks: ruff on the whole tree, mypy with the profile in pyproject.toml ([tool.mypy]).
+lint: setup
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/mypy
 
 # The bench runs cyclictest (Debian rt-tests) beside each case for the machine's floor: installed
 # here when missing and this is root, as tests/vcan/run installs its tools; else the bench says so.

@@ -208,7 +208,7 @@ def _build_config(table: dict[str, Any]) -> Config:
     return msgspec.structs.replace(cfg, **groups) if groups else cfg
 
 
-def _build_group(cls: type[RobotSection] | type[TaskSection], table: Any, prefix: str) -> Any:
+def _build_group(cls: type[RobotSection | TaskSection], table: Any, prefix: str) -> Any:
     """``[robot]`` / ``[task]``: its own keys, then one section per registered kind (``[robot.<kind>]``)."""
     if not isinstance(table, dict):
         raise ConfigError(f"[{prefix}] must be a table, got {table!r}")
@@ -232,7 +232,7 @@ def _build_group(cls: type[RobotSection] | type[TaskSection], table: Any, prefix
     return msgspec.structs.replace(convert_section(own, cls, prefix), models=models)
 
 
-_GROUPS: dict[str, type[RobotSection] | type[TaskSection]] = {"robot": RobotSection, "task": TaskSection}
+_GROUPS: dict[str, type[RobotSection | TaskSection]] = {"robot": RobotSection, "task": TaskSection}
 
 
 def _cross_checks(cfg: Config) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import socket
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import can
 
@@ -65,7 +66,8 @@ def socketcan_available() -> bool:
 
 def open_bus(spec: BusSpec) -> can.BusABC:
     """Open the bus; raises can.CanInitializationError with the spec in the message."""
-    kwargs: dict[str, object] = {"interface": spec.interface, "channel": spec.channel, "fd": spec.fd}
+    # python-can passes the interface's own options through ``**kwargs: Any``.
+    kwargs: dict[str, Any] = {"interface": spec.interface, "channel": spec.channel, "fd": spec.fd}
     if spec.interface == "udp_multicast":
         kwargs["port"] = spec.udp_port
         kwargs["hop_limit"] = 1

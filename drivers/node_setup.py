@@ -103,14 +103,16 @@ def _write_interpolation_period(node: canopen.RemoteNode, period_s: float) -> No
                              f"wrote {(value, index)}")
 
 
-def _identity(node: canopen.RemoteNode, expected_vendor: int, expected_product: int) -> NodeIdentity:
+def _identity(node: canopen.RemoteNode, node_id: int, expected_vendor: int, expected_product: int
+              ) -> NodeIdentity:
+    """``node_id`` is the id ``node`` was made with (canopen types ``node.id`` as possibly None)."""
     def u32(sub: int) -> int:
         return int.from_bytes(node.sdo.upload(0x1018, sub), "little")
 
-    ident = NodeIdentity(node.id, u32(1), u32(2), u32(3), u32(4))
+    ident = NodeIdentity(node_id, u32(1), u32(2), u32(3), u32(4))
     if (ident.vendor_id, ident.product_code) != (expected_vendor, expected_product):
         raise NodeSetupError(
-            f"node {node.id} identity vendor 0x{ident.vendor_id:08X} product 0x{ident.product_code:08X}, "
+            f"node {node_id} identity vendor 0x{ident.vendor_id:08X} product 0x{ident.product_code:08X}, "
             f"expected vendor 0x{expected_vendor:08X} product 0x{expected_product:08X}"
         )
     return ident
@@ -132,7 +134,7 @@ def configure_nodes(bus: can.BusABC, plan: NodeSetupPlan) -> NodeSetupReport:
             node.sdo.RESPONSE_TIMEOUT = plan.sdo_timeout_s
             network.add_node(node)
             _wait_until_answering(node, plan.answer_timeout_s)
-            identities.append(_identity(node, plan.vendor_id, plan.drive_product_code))
+            identities.append(_identity(node, node_id, plan.vendor_id, plan.drive_product_code))
             node.sdo[0x6060].raw = MODE_CYCLIC_SYNC_POSITION
             mode = node.sdo[0x6061].raw
             if mode != MODE_CYCLIC_SYNC_POSITION:
@@ -147,7 +149,7 @@ def configure_nodes(bus: can.BusABC, plan: NodeSetupPlan) -> NodeSetupReport:
             node.sdo.RESPONSE_TIMEOUT = plan.sdo_timeout_s
             network.add_node(node)
             _wait_until_answering(node, plan.answer_timeout_s)
-            identities.append(_identity(node, plan.vendor_id, plan.sensor_product_code))
+            identities.append(_identity(node, plan.sensor_id, plan.vendor_id, plan.sensor_product_code))
             node.sdo[0x1017].raw = hb_ms
         network.nmt.state = "OPERATIONAL"  # broadcast start
         return NodeSetupReport(tuple(identities), tuple(positions), time.monotonic() - t0)

@@ -67,7 +67,7 @@ def encode_drive_rpdo(controlword: int, target_counts: int) -> bytes:
 def decode_drive_rpdo(data: bytes | bytearray) -> tuple[int, int]:
     if len(data) != DRIVE_RPDO.size:
         raise FrameError(f"drive RPDO1 must have {DRIVE_RPDO.size} data bytes, got {len(data)}")
-    return DRIVE_RPDO.unpack(data)  # type: ignore[return-value]
+    return DRIVE_RPDO.unpack(data)
 
 
 def encode_drive_tpdo(statusword: int, position_counts: int) -> bytes:
@@ -77,7 +77,7 @@ def encode_drive_tpdo(statusword: int, position_counts: int) -> bytes:
 def decode_drive_tpdo(data: bytes | bytearray) -> tuple[int, int]:
     if len(data) != DRIVE_TPDO.size:
         raise FrameError(f"drive TPDO1 must have {DRIVE_TPDO.size} data bytes, got {len(data)}")
-    return DRIVE_TPDO.unpack(data)  # type: ignore[return-value]
+    return DRIVE_TPDO.unpack(data)
 
 
 def _saturating_i16(value: float, per_count: float) -> tuple[int, bool]:

@@ -12,11 +12,15 @@ import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TypeVar
+
+# The caller's parser class (cheope's own ArgumentParser subclass): _SubParsersAction is invariant in it.
+ParserT = TypeVar("ParserT", bound=argparse.ArgumentParser)
 
 LARGE_FILE_BYTES = 4 * 1024 * 1024  # a progress bar above this size (on a terminal)
 
 
-def add_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser],
+def add_commands(sub: argparse._SubParsersAction[ParserT],
                  stop_on_signals: Callable[[], threading.Event]) -> None:
     """``cheope logs`` and ``cheope replay``; ``stop_on_signals`` is the caller's (SIGINT/SIGTERM)."""
     p = sub.add_parser("logs", help="inspect and repair session recordings (MCAP)")

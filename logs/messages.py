@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import struct
 from collections.abc import Callable
+from typing import TYPE_CHECKING, Protocol
 
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.Log_pb2 import Log
@@ -39,6 +40,9 @@ from controller.core.cycle_data import (
     Severity,
 )
 from controller.messages import cheope_pb2 as pb
+
+if TYPE_CHECKING:
+    from controller.core.control_law import ControllerState
 
 TOPIC_CAN = "/can"
 TOPIC_CYCLE = "/cycle"
@@ -60,7 +64,24 @@ _DOUBLE = struct.Struct("<d")
 _LOG_LEVEL = {Severity.INFO: Log.Level.INFO, Severity.WARNING: Log.Level.WARNING, Severity.FAULT: Log.Level.ERROR}
 
 
-def _set_time(stamp, unix_ns: int) -> None:
+class _Timestamp(Protocol):
+    """google.protobuf.Timestamp (the protobuf package has no type information here)."""
+
+    seconds: int
+    nanos: int
+
+
+class CycleTimingLike(Protocol):
+    """controller.shell.loop.CycleTiming, without importing the shell."""
+
+    @property
+    def wake_error_s(self) -> float: ...
+
+    @property
+    def step_s(self) -> float: ...
+
+
+def _set_time(stamp: _Timestamp, unix_ns: int) -> None:
     stamp.seconds, stamp.nanos = divmod(unix_ns, 1_000_000_000)
 
 
@@ -94,7 +115,7 @@ def inputs_from_pb(msg: pb.CycleInputs) -> CycleInputs:
     sensor = None
     if msg.HasField("sensor"):
         s = msg.sensor
-        sensor = SensorFeedback(tuple(s.force_n), tuple(s.torque_nm), s.status, s.counter, s.fresh)  # type: ignore[arg-type]
+        sensor = SensorFeedback(tuple(s.force_n), tuple(s.torque_nm), s.status, s.counter, s.fresh)
     return CycleInputs(
         drives=tuple(DriveFeedback(d.statusword, d.position, d.fresh) for d in msg.drives),
         sensor=sensor,
@@ -124,8 +145,8 @@ def task_values(task_state: object) -> dict[str, float]:
     return out
 
 
-def cycle_to_pb(cycle: int, t: float, inputs: CycleInputs, state, outputs: CycleOutputs, timing,
-                phase_name: Callable[[object], str] | None = None) -> pb.Cycle:
+def cycle_to_pb(cycle: int, t: float, inputs: CycleInputs, state: ControllerState, outputs: CycleOutputs,
+                timing: CycleTimingLike, phase_name: Callable[[object], str] | None = None) -> pb.Cycle:
     msg = pb.Cycle(cycle=cycle, t_s=t)
     inputs_to_pb(inputs, msg.inputs)
     msg.outputs.controlwords.extend(outputs.controlwords)

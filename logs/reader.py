@@ -23,6 +23,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.Log_pb2 import Log
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import (
@@ -39,7 +42,6 @@ from mcap.stream_reader import breakup_chunk
 
 from controller.errors import InputError
 from controller.messages import cheope_pb2 as pb
-from logs import messages as m
 
 MAGIC = b"\x89MCAP0\r\n"
 _HEAD = struct.Struct("<BQ")
@@ -48,7 +50,7 @@ _KNOWN_OPCODES = {int(o) for o in Opcode}
 # Our own topics decode with the generated classes (fast, no descriptor pool).
 _CLASSES: dict[str, Any] = {
     "cheope.v1.CanFrame": pb.CanFrame, "cheope.v1.Cycle": pb.Cycle, "cheope.v1.Event": pb.Event,
-    "foxglove.Log": m.Log, "foxglove.FrameTransform": m.FrameTransform, "foxglove.PoseInFrame": m.PoseInFrame,
+    "foxglove.Log": Log, "foxglove.FrameTransform": FrameTransform, "foxglove.PoseInFrame": PoseInFrame,
 }
 
 
@@ -73,7 +75,7 @@ class ReadReport:
     schemas: dict[int, Schema] = field(default_factory=dict)
     channels: dict[int, Channel] = field(default_factory=dict)
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
-    message_counts: Counter = field(default_factory=Counter)  # by topic
+    message_counts: Counter[str] = field(default_factory=Counter)  # by topic
     orphan_messages: int = 0  # messages whose channel record was lost
     first_log_time_ns: int | None = None
     last_log_time_ns: int | None = None
@@ -135,7 +137,7 @@ def _resync(raw: bytes | mmap.mmap, start: int) -> int | None:
             try:
                 _chunk_records(_parse(Opcode.CHUNK, raw[pos + 9: pos + 9 + length]))
                 return pos
-            except Exception:  # noqa: BLE001 - any failure means "not a chunk here"
+            except Exception:  # noqa: BLE001, S110 - any failure means "not a chunk here"
                 pass
         pos = raw.find(b"\x06", pos + 1)
     return None
@@ -245,7 +247,8 @@ def decoder_for(schema: Schema | None) -> Callable[[bytes], Any] | None:
         return None
     cls = _CLASSES.get(schema.name)
     if cls is not None:
-        return cls.FromString
+        decode: Callable[[bytes], Any] = cls.FromString  # a generated Protobuf class (untyped)
+        return decode
     from mcap_protobuf.decoder import DecoderFactory
 
     try:
@@ -268,7 +271,7 @@ def iter_decoded(path: str | Path, topics: Iterable[str] | None = None, report: 
     report = report if report is not None else ReadReport(Path(path))
     wanted = set(topics) if topics is not None else None
     decoders: dict[int, Callable[[bytes], Any] | None] = {}
-    bad = Counter()
+    bad: Counter[str] = Counter()
     for ch, msg in iter_messages(path, report):
         if wanted is not None and ch.topic not in wanted:
             continue

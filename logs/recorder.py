@@ -39,14 +39,14 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import metadata as _importlib_metadata
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Self
 
 import can
 
 from controller.config import Config, config_to_dict
 from controller.errors import DeviceError
 from logs import messages as m
-from logs.session_writer import CYCLE, END, FRAMES, SETUP, pack_record
+from logs.session_writer import CYCLE, END, FRAMES, SETUP, FrameRecord, pack_record
 
 log = logging.getLogger(__name__)
 
@@ -151,7 +151,7 @@ class SessionRecorder:
         self.chunks = 0
         self.error: str = ""
         self._cycle_calls = 0
-        self._frames: list[tuple] = []
+        self._frames: list[FrameRecord] = []
         self._backlog = bytearray()
         self._proc: subprocess.Popen[bytes] | None = None
         self._fd = -1
@@ -263,7 +263,7 @@ class SessionRecorder:
 
     # -- lifecycle ---------------------------------------------------------------------------
 
-    def __enter__(self) -> SessionRecorder:
+    def __enter__(self) -> Self:
         self.start()
         return self
 
@@ -284,7 +284,8 @@ class SessionRecorder:
         except OSError as err:
             raise RecordingError(f"cannot start the recording's writer process: {err}") from err
         self._proc = proc
-        self._fd = proc.stdin.fileno()  # type: ignore[union-attr]
+        assert proc.stdin is not None  # stdin=PIPE
+        self._fd = proc.stdin.fileno()
         try:
             fcntl.fcntl(self._fd, fcntl.F_SETPIPE_SZ, self.buffer_bytes)
         except OSError:  # above /proc/sys/fs/pipe-max-size: the largest allowed is tried next
@@ -340,7 +341,8 @@ class SessionRecorder:
             why = "timed out" if status is None else f"exited with status {status}"
             return {"error": f"the recording's writer process {why} (see its message above)"}
         try:
-            return json.loads(line)
+            reply: dict[str, Any] = json.loads(line)  # the writer's replies are JSON objects
+            return reply
         except ValueError:
             return {"error": f"the recording's writer process said {line[:200]!r}"}
 

@@ -36,7 +36,8 @@ def recover(src: str | Path, out: str | Path | None = None) -> RecoveryResult:
         raise LogFileError(f"recover {src}: the output must be a new file, not the damaged one")
     report = ReadReport(src)
     try:
-        fh = open(dst, "xb")
+        # opened apart from the `with fh` below: its errors are told from the writer's
+        fh = open(dst, "xb")  # noqa: SIM115
     except FileExistsError as err:
         raise LogFileError(f"recover {src}: {dst} already exists; pass another output file") from err
     except OSError as err:

@@ -36,14 +36,22 @@ import signal
 import struct
 import sys
 import time
-from typing import Any, BinaryIO, TextIO
+from typing import TYPE_CHECKING, Any, BinaryIO, TextIO
+
+if TYPE_CHECKING:
+    from controller.core.cycle_data import Event
+    from controller.core.linalg3 import Vector3
 
 SETUP, CYCLE, FRAMES, END = range(4)
 _LENGTH = struct.Struct("<I")
 _WRITER_CHUNK_LIMIT = 1 << 40  # chunks are closed by this module, never by mcap's own size rule
 
+Record = tuple[Any, ...]  # (kind, ...): the records listed in the module doc
+# (outgoing, monotonic_s, arbitration_id, data, is_fd, brs, is_error)
+FrameRecord = tuple[bool, float, int, bytes, bool, bool, bool]
 
-def pack_record(record: tuple) -> bytes:
+
+def pack_record(record: Record) -> bytes:
     body = pickle.dumps(record, pickle.HIGHEST_PROTOCOL)
     return _LENGTH.pack(len(body)) + body
 
@@ -64,7 +72,7 @@ class RecordReader:
         self.batch_s = batch_s
         self._last_read_s = -1.0
 
-    def _take(self) -> tuple | None:
+    def _take(self) -> Record | None:
         if len(self._buf) < 4:
             return None
         (n,) = _LENGTH.unpack_from(self._buf)
@@ -72,9 +80,10 @@ class RecordReader:
             return None
         body = bytes(self._buf[4:4 + n])
         del self._buf[:4 + n]
-        return pickle.loads(body)
+        record: Record = pickle.loads(body)
+        return record
 
-    def next(self, timeout_s: float | None) -> tuple | None:
+    def next(self, timeout_s: float | None) -> Record | None:
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         while True:
             record = self._take()
@@ -101,6 +110,9 @@ class SessionWriter:
     """The MCAP side: channels, metadata, chunking; ``write(record)`` for each CYCLE/FRAMES record."""
 
     def __init__(self, settings: dict[str, Any]) -> None:
+        from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+        from foxglove_schemas_protobuf.Log_pb2 import Log
+        from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
         from mcap.well_known import MessageEncoding
         from mcap.writer import CompressionType, Writer
         from mcap_protobuf.schema import register_schema
@@ -128,8 +140,8 @@ class SessionWriter:
         w.start(profile="", library="cheope logs.recorder")
         self.channels: dict[str, int] = {}
         for topic, cls in ((m.TOPIC_CAN, pb.CanFrame), (m.TOPIC_CYCLE, pb.Cycle), (m.TOPIC_EVENTS, pb.Event),
-                           (m.TOPIC_LOG, m.Log), (m.TOPIC_TCP, m.FrameTransform),
-                           (m.TOPIC_TCP_REFERENCE, m.PoseInFrame)):
+                           (m.TOPIC_LOG, Log), (m.TOPIC_TCP, FrameTransform),
+                           (m.TOPIC_TCP_REFERENCE, PoseInFrame)):
             sid = register_schema(w, cls)
             self.channels[topic] = w.register_channel(topic=topic, message_encoding=MessageEncoding.Protobuf,
                                                       schema_id=sid)
@@ -140,7 +152,7 @@ class SessionWriter:
 
     # -- records -----------------------------------------------------------------------------
 
-    def write(self, record: tuple) -> None:
+    def write(self, record: Record) -> None:
         if self.error:
             return  # keep reading: the loop must never find the pipe full because the disk failed
         try:
@@ -197,7 +209,7 @@ class SessionWriter:
         self.written += 1
         return len(data) + 31  # record overhead in the chunk
 
-    def _frames(self, frames: list[tuple]) -> int:
+    def _frames(self, frames: list[FrameRecord]) -> int:
         n = 0
         for outgoing, mono_s, arb, data, fd, brs, err in frames:
             msg = self.m.can_frame(mono_s, outgoing, arb, data, fd, brs, err)
@@ -205,8 +217,8 @@ class SessionWriter:
             self.last_mono_s = mono_s
         return n
 
-    def _cycle(self, cycle: int, t: float, mono_s: float, seq: int, cycle_pb: bytes, events: tuple,
-               tcp_measured: tuple | None, tcp_reference: tuple | None) -> int:
+    def _cycle(self, cycle: int, t: float, mono_s: float, seq: int, cycle_pb: bytes,
+               events: tuple[Event, ...], tcp_measured: Vector3 | None, tcp_reference: Vector3 | None) -> int:
         m = self.m
         ns = int(mono_s * 1e9) + self.offset_ns
         self.last_cycle = (cycle, t)

@@ -23,7 +23,13 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol
+
+if TYPE_CHECKING:
+    from sim_backend.drive import SimulatedDrive
+    from sim_backend.force_sensor import SimulatedForceSensor
 
 from controller.errors import InputError
 from drivers.cyclic_exchange import CAN_ERR_BUSOFF
@@ -101,16 +107,27 @@ class FaultSchedule:
         return False
 
 
-def apply_device_faults(schedule: FaultSchedule, plant: object, drive_ids: tuple[int, ...], now_s: float) -> None:
+class FaultableDevices(Protocol):
+    """What ``apply_device_faults`` changes: the plant's simulated drives and force sensor."""
+
+    @property
+    def drives(self) -> Sequence[SimulatedDrive]: ...
+
+    @property
+    def sensor(self) -> SimulatedForceSensor | None: ...
+
+
+def apply_device_faults(schedule: FaultSchedule, plant: FaultableDevices, drive_ids: tuple[int, ...],
+                        now_s: float) -> None:
     """The faults that change the devices themselves, applied at a SYNC (simulator and loopback)."""
     from drivers.pdo_codec import SENSOR_FORCE_SATURATED
     from sim_backend.drive import EMCY_FORCED_FAULT
 
     schedule.start(now_s)
-    for node, drive in zip(drive_ids, plant.drives):  # type: ignore[attr-defined]
+    for node, drive in zip(drive_ids, plant.drives):
         if schedule.first_time("drive_fault", now_s, node):
             drive.force_fault(EMCY_FORCED_FAULT)
-    sensor = plant.sensor  # type: ignore[attr-defined]
+    sensor = plant.sensor
     if sensor is not None:
         sensor.freeze_counter = schedule.active("freeze", now_s) is not None
         sat = schedule.active("saturate", now_s) is not None

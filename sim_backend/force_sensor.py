@@ -75,9 +75,8 @@ class SimulatedForceSensor:
             measured = np.clip(measured, -p.range_n, p.range_n)
         if not self.freeze_counter:
             self.counter = (self.counter + 1) & 0xFF
-        f = encode_sensor_frame(tuple(measured.tolist()), FORCE_N_PER_COUNT, status, self.counter)  # type: ignore[arg-type]
-        t = encode_sensor_frame(tuple(self._torque.tolist()), TORQUE_NM_PER_COUNT, status,
-                                self.counter)  # type: ignore[arg-type]
+        f = encode_sensor_frame(tuple(measured.tolist()), FORCE_N_PER_COUNT, status, self.counter)
+        t = encode_sensor_frame(tuple(self._torque.tolist()), TORQUE_NM_PER_COUNT, status, self.counter)
         return f, t
 
     def sample(self, force_n: np.ndarray, torque_nm: np.ndarray) -> tuple[bytes, bytes]:

@@ -59,8 +59,12 @@ class CompliantTool:
         jtj = matmul3(transpose3(j), j)
         p = self.params
         m0, mq = p.masses.translating_kg, p.masses.per_actuator_kg  # M = m_0 I + m_q J^T J (cartesian_mass_matrix)
-        mass = tuple(tuple(mq * jtj[r][c] + (m0 if r == c else 0.0) for c in range(3)) for r in range(3))
-        inv_mass = inverse3(mass)  # type: ignore[arg-type]
+
+        def mass_row(r: int) -> Vector3:
+            return (mq * jtj[r][0] + (m0 if r == 0 else 0.0), mq * jtj[r][1] + (m0 if r == 1 else 0.0),
+                    mq * jtj[r][2] + (m0 if r == 2 else 0.0))
+
+        inv_mass = inverse3((mass_row(0), mass_row(1), mass_row(2)))
         self._inv_mass = inv_mass
         self._inv_mass_stiffness = matmul3(inv_mass, scaled3(jtj, p.actuator_stiffness_n_m))
         self._inv_mass_damping = matmul3(inv_mass, scaled3(jtj, p.actuator_damping_n_s_m))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 import threading
+from collections.abc import Callable
 
 from controller.config import Config
 from controller.shell.realtime import (
@@ -18,7 +19,7 @@ from sim_backend.server import Simulator
 READY_LINE = "cheope-sim ready"
 
 
-def serve(cfg: Config, spec: BusSpec, stop_event: threading.Event, announce: callable[[str], None],
+def serve(cfg: Config, spec: BusSpec, stop_event: threading.Event, announce: Callable[[str], None],
           realtime: RealtimeOptions | None = None) -> None:
     # Before any thread starts: canopen's notifier, the heartbeat producers and the watchdog
     # inherit the priority and the affinity (the simulated hardware is real time as a whole).

@@ -23,6 +23,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable
+from typing import Self
 from pathlib import Path
 
 import can
@@ -92,7 +93,7 @@ class Simulator:
 
     # -- life cycle -------------------------------------------------------------------------
 
-    def __enter__(self) -> Simulator:
+    def __enter__(self) -> Self:
         self.start()
         return self
 

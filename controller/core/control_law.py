@@ -27,9 +27,10 @@ cycle: a pause does not make a path jump ahead when it resumes.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from enum import IntEnum
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -58,11 +59,19 @@ class Mode(IntEnum):
 
 
 class Robot(Protocol):
-    n_actuators: int
+    @property
+    def n_actuators(self) -> int: ...  # read-only: the robots are frozen dataclasses
 
     def direct_kinematics(self, q: np.ndarray) -> np.ndarray: ...
 
     def check_pose(self, tcp_m: np.ndarray) -> PoseStatus: ...
+
+
+@runtime_checkable
+class ChecksActuators(Protocol):
+    """A robot that knows its actuators' strokes (all three robots in controller/robots)."""
+
+    def check_actuators(self, q: tuple[float, ...]) -> PoseStatus: ...
 
 
 @dataclass(frozen=True)
@@ -108,6 +117,13 @@ class ControllerState:
     warned: frozenset[str] = frozenset()  # warnings already raised in the current episode
 
 
+# One handler per mode: (state, inputs, power states, measured positions, t, events) -> state.
+ModeHandler = Callable[
+    [ControllerState, CycleInputs, tuple[PowerState, ...], tuple[float, ...], float, list[Event]],
+    ControllerState,
+]
+
+
 class ControlLaw:
     """Composes supervisor, CiA 402 power management, task and smoothing into ``step``."""
 
@@ -118,8 +134,8 @@ class ControlLaw:
         self.config = config
         self.n = robot.n_actuators
         # Robots that know their actuators' strokes check the measured positions every cycle.
-        self._check_actuators = getattr(robot, "check_actuators", None)
-        self._handlers = {
+        self._check_actuators = robot.check_actuators if isinstance(robot, ChecksActuators) else None
+        self._handlers: dict[Mode, ModeHandler] = {
             Mode.CONFIGURING: self._configuring, Mode.ENABLING: self._enabling, Mode.HOLDING: self._holding,
             Mode.RUNNING: self._running, Mode.PAUSED: self._paused, Mode.STOPPING: self._stopping,
             Mode.DONE: self._done, Mode.FAULT: self._fault,
@@ -174,7 +190,7 @@ class ControlLaw:
         if not all(d.fresh for d in inputs.drives):
             return state.tcp_measured_m
         try:
-            return tuple(self.robot.direct_kinematics(np.asarray(measured)).tolist())  # type: ignore[return-value]
+            return tuple(self.robot.direct_kinematics(np.asarray(measured)).tolist())
         except NoSolutionError:
             return None
 
@@ -206,7 +222,7 @@ class ControlLaw:
                                          f"force sensor saturated (status 0x{sensor.status:02X})", events)
                 if why:
                     return state, why
-        if stale >= sc.sensor_stale_cycles:
+        if sensor is not None and stale >= sc.sensor_stale_cycles:  # stale > 0 only with a sensor
             state, why = self._react(state, sc.on_sensor_stale, "sensor_stale",
                                      f"force sensor stale: counter stuck at {sensor.counter} for {stale} cycles",
                                      events)
@@ -269,13 +285,15 @@ class ControlLaw:
         events.append(Event("mode", severity, text))
         return replace(state, mode=mode, mode_entered_s=t)
 
-    def _configuring(self, state, inputs, powers, measured, t, events) -> ControllerState:
+    def _configuring(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...],
+                     measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
         if all(d.fresh for d in inputs.drives):
             state = replace(state, setpoint=Setpoint.at_rest(measured))
             return self._enter(state, Mode.ENABLING, t, events, why="all drives answer")
         return state
 
-    def _enabling(self, state, inputs, powers, measured, t, events) -> ControllerState:
+    def _enabling(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...],
+                  measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
         # Command the measured position while the drives are not enabled: no jump at enable.
         cws = tuple(controlword_towards(p, PowerState.OPERATION_ENABLED, cw)
                     for p, cw in zip(powers, state.controlwords))
@@ -288,14 +306,16 @@ class ControlLaw:
             return replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, why), fault_reason=why)
         return state
 
-    def _holding(self, state, inputs, powers, measured, t, events) -> ControllerState:
+    def _holding(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...],
+                 measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
         state = self._smooth_to_rest(state, t, events)
         if t - state.mode_entered_s >= self.config.hold_before_task_s and state.mode == Mode.HOLDING:
             state = replace(state, task_state=self.task.start())
             return self._enter(state, Mode.RUNNING, t, events, why=f"task {self.task.name} starts")
         return state
 
-    def _running(self, state, inputs, powers, measured, t, events) -> ControllerState:
+    def _running(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...],
+                 measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
         period = self.config.period_s
         task_time = state.task_time_s + period
         ctx = TaskContext(t_s=task_time + PIPELINE_PERIODS * period, period_s=period, setpoint=state.setpoint,
@@ -325,10 +345,12 @@ class ControlLaw:
             return self._enter(state, Mode.STOPPING, t, events, why=f"task {self.task.name} finished")
         return state
 
-    def _paused(self, state, inputs, powers, measured, t, events) -> ControllerState:
+    def _paused(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...],
+                measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
         return replace(self._smooth_to_rest(state, t, events), tcp_reference_m=None)
 
-    def _stopping(self, state, inputs, powers, measured, t, events) -> ControllerState:
+    def _stopping(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...],
+                  measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
         state = replace(state, tcp_reference_m=None)
         if not self._shutting_down(state):
             state = self._smooth_to_rest(state, t, events)
@@ -346,10 +368,12 @@ class ControlLaw:
             return self._enter(state, Mode.DONE, t, events, why="drives shut down")
         return state
 
-    def _done(self, state, inputs, powers, measured, t, events) -> ControllerState:
+    def _done(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...],
+              measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
         return state
 
-    def _fault(self, state, inputs, powers, measured, t, events) -> ControllerState:
+    def _fault(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...],
+               measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
         cws = tuple(controlword_towards(p, PowerState.QUICK_STOP_ACTIVE, cw)
                     for p, cw in zip(powers, state.controlwords))
         return replace(state, controlwords=cws, setpoint=Setpoint.at_rest(measured))

@@ -22,6 +22,7 @@ def matvec(m: Matrix3, v: Vector3) -> Vector3:
 
 
 def as_rows(m: np.ndarray) -> Matrix3:
+    # 3x3 is the caller's promise (a 3x3 array), not checked here: tuple() is tuple[..., ...] to mypy.
     return tuple(tuple(float(x) for x in row) for row in m)  # type: ignore[return-value]
 
 
@@ -29,13 +30,20 @@ def transpose3(m: Matrix3) -> Matrix3:
     return ((m[0][0], m[1][0], m[2][0]), (m[0][1], m[1][1], m[2][1]), (m[0][2], m[1][2], m[2][2]))
 
 
+def _dot3(r: Vector3, c: Vector3) -> float:
+    return r[0] * c[0] + r[1] * c[1] + r[2] * c[2]
+
+
 def matmul3(a: Matrix3, b: Matrix3) -> Matrix3:
-    bt = transpose3(b)
-    return tuple(tuple(r[0] * c[0] + r[1] * c[1] + r[2] * c[2] for c in bt) for r in a)  # type: ignore[return-value]
+    c0, c1, c2 = transpose3(b)
+    return ((_dot3(a[0], c0), _dot3(a[0], c1), _dot3(a[0], c2)),
+            (_dot3(a[1], c0), _dot3(a[1], c1), _dot3(a[1], c2)),
+            (_dot3(a[2], c0), _dot3(a[2], c1), _dot3(a[2], c2)))
 
 
 def scaled3(m: Matrix3, k: float) -> Matrix3:
-    return tuple(tuple(k * x for x in row) for row in m)  # type: ignore[return-value]
+    (a, b, c), (d, e, f), (g, h, i) = m
+    return ((k * a, k * b, k * c), (k * d, k * e, k * f), (k * g, k * h, k * i))
 
 
 def inverse3(m: Matrix3) -> Matrix3:
@@ -72,11 +80,13 @@ def symmetric_eigenvalues3(m: Matrix3) -> Vector3:
     off = a01 * a01 + a02 * a02 + a12 * a12
     q = (a00 + a11 + a22) / 3.0
     if off == 0.0:
-        return tuple(sorted((a00, a11, a22)))  # type: ignore[return-value]
+        lo, mid, hi = sorted((a00, a11, a22))
+        return lo, mid, hi
     b00, b11, b22 = a00 - q, a11 - q, a22 - q
     p = math.sqrt((b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * off) / 6.0)
     det = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02)) / p ** 3
     phi = math.acos(max(-1.0, min(1.0, det / 2.0))) / 3.0
     largest = q + 2.0 * p * math.cos(phi)
     smallest = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
-    return tuple(sorted((smallest, 3.0 * q - largest - smallest, largest)))  # type: ignore[return-value]
+    lo, mid, hi = sorted((smallest, 3.0 * q - largest - smallest, largest))
+    return lo, mid, hi

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from typing import TypeVar
 
 from controller.monitoring.zenoh_session import (
     DEFAULT_CONNECT,
@@ -19,6 +20,9 @@ from controller.monitoring.zenoh_session import (
     client_settings,
     monitor_settings,
 )
+
+# The caller's parser class (cheope's own ArgumentParser subclass): _SubParsersAction is invariant in it.
+ParserT = TypeVar("ParserT", bound=argparse.ArgumentParser)
 
 
 def add_controller_options(p: argparse.ArgumentParser) -> None:
@@ -117,7 +121,7 @@ def cmd_command(args: argparse.Namespace) -> int:
     return _command(args, args.name, args.value)
 
 
-def add_subcommands(sub: argparse._SubParsersAction) -> None:
+def add_subcommands(sub: argparse._SubParsersAction[ParserT]) -> None:
     p = sub.add_parser("monitor", help="live view of a running controller over Zenoh")
     _client_options(p, timeout=False)
     p.add_argument("--json", action="store_true", help="one JSON object per line (state, event, liveliness)")

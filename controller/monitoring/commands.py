@@ -18,11 +18,16 @@ def _one_reply(settings: SessionSettings, key: str, timeout_s: float, payload: b
                encoding: zenoh.Encoding | None = None) -> bytes:
     session, _ = open_session(settings)
     try:
-        kwargs = {"payload": payload, "encoding": encoding} if payload is not None else {}
-        for reply in session.get(key, timeout=timeout_s, **kwargs):
+        if payload is not None:
+            replies = session.get(key, timeout=timeout_s, payload=payload, encoding=encoding)
+        else:
+            replies = session.get(key, timeout=timeout_s)
+        for reply in replies:
             if reply.ok is not None:
                 return reply.ok.payload.to_bytes()
-            raise MonitoringConnectionError(f"{key} answered with an error: {reply.err.payload.to_bytes()!r}")
+            err = reply.err  # not None when ok is None
+            detail = err.payload.to_bytes() if err is not None else b""
+            raise MonitoringConnectionError(f"{key} answered with an error: {detail!r}")
     finally:
         session.close()
     where = ", ".join(settings.connect) or "the configured endpoints"

@@ -12,16 +12,25 @@ import json
 import queue
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Self, TextIO
+from typing import TYPE_CHECKING, Self, TextIO
 
 import zenoh
 from google.protobuf.json_format import MessageToDict
 from google.protobuf.message import DecodeError
 
 from controller.messages import cheope_pb2 as pb
-from controller.monitoring.zenoh_session import MonitorKeys, SessionSettings, close_session, open_session
+from controller.monitoring.zenoh_session import (
+    MonitorKeys,
+    SessionSettings,
+    ZenohEntity,
+    close_session,
+    open_session,
+)
+
+if TYPE_CHECKING:
+    from rich.console import Group, RenderableType
 
 
 @dataclass(frozen=True)
@@ -65,7 +74,7 @@ class MonitorClient:
         self.clock = clock
         self._q: queue.SimpleQueue[tuple[int, str, object, float]] = queue.SimpleQueue()
         self._session: zenoh.Session | None = None
-        self._entities: list = []
+        self._entities: list[ZenohEntity] = []
 
     def __enter__(self) -> Self:
         self._session, _ = open_session(self.settings)
@@ -160,7 +169,7 @@ class ViewModel:
         return len(recent) / window_s
 
 
-def render(view: ViewModel, now_s: float):  # -> rich renderable
+def render(view: ViewModel, now_s: float) -> Group:
     from rich.console import Group
     from rich.panel import Panel
     from rich.table import Table
@@ -174,7 +183,7 @@ def render(view: ViewModel, now_s: float):  # -> rich renderable
     s = view.last_state
     head.add_row("samples", f"{view.sample_rate_hz(now_s):.1f} /s received"
                  + (f", last {now_s - view.last_state_at_s:.1f} s ago" if s is not None else ""))
-    parts: list = [head]
+    parts: list[RenderableType] = [head]
     if s is not None:
         head.add_row("loop", f"{s.loop.achieved_rate_hz:.1f} Hz, period error p50 {s.loop.period_error_p50_us:.0f} us "
                      f"p99 {s.loop.period_error_p99_us:.0f} us, late {s.loop.late_cycles}, missing frames "
@@ -195,7 +204,7 @@ def render(view: ViewModel, now_s: float):  # -> rich renderable
     return Group(*parts)
 
 
-def _vec(v, scale: float, unit: str) -> str:
+def _vec(v: Sequence[float], scale: float, unit: str) -> str:
     return "  ".join(f"{x * scale:+.3f}" for x in v) + f" {unit}" if len(v) else "-"
 
 

@@ -45,12 +45,15 @@ from controller.messages import cheope_pb2 as pb
 from controller.monitoring.zenoh_session import (
     MonitorKeys,
     SessionSettings,
+    ZenohEntity,
     close_session,
     encoding_for,
     open_session,
     split_endpoints,
 )
 from controller.shell.loop import CycleTiming
+from controller.tasks.task import Task
+from drivers.cyclic_exchange import ExchangeCounters
 
 log = logging.getLogger(__name__)
 
@@ -131,7 +134,7 @@ class MonitorPublisher:
         self.task_phase = task_phase
         self.clock = clock
         self.listen_endpoints: tuple[str, ...] = ()
-        self.exchange_counters: object | None = None  # drivers.cyclic_exchange.ExchangeCounters, read only
+        self.exchange_counters: ExchangeCounters | None = None  # the exchange's, read only
         self._next_cycle = 0
         self._ring = array.array("d", bytes(8 * _RING))
         # numpy builds np.percentile's code path on its first call: 17 ms, inside a cycle a
@@ -156,7 +159,7 @@ class MonitorPublisher:
         self._timing_stats = (0.0, 0.0, 0.0, 0.0)
         self._versions = _versions()
         self._session: zenoh.Session | None = None
-        self._entities: list = []
+        self._entities: list[ZenohEntity] = []
 
     # -- lifecycle --------------------------------------------------------------------------
 
@@ -276,9 +279,12 @@ class MonitorPublisher:
             rate, p50, p99, pmax
         out.late_cycles = self.late_cycles
         c = self.exchange_counters
-        out.missing_drive_frames = getattr(c, "missing_drive_frames", 0)
-        out.missing_sensor_frames = getattr(c, "missing_sensor_frames", 0)
-        out.rejected_frames = getattr(c, "rejected_frames", 0)
+        if c is not None:
+            out.missing_drive_frames = c.missing_drive_frames
+            out.missing_sensor_frames = c.missing_sensor_frames
+            out.rejected_frames = c.rejected_frames
+        else:
+            out.missing_drive_frames = out.missing_sensor_frames = out.rejected_frames = 0
 
     def _timing_statistics(self) -> tuple[float, float, float, float]:
         n = self._n
@@ -302,10 +308,10 @@ class MonitorPublisher:
             "publish_errors": self.publish_errors, "status_queries": self.status_queries,
             "commands_accepted": self.commands_accepted, "commands_refused": self.commands_refused,
         }
-        for name in ("frames_in", "frames_out", "rejected_frames", "late_frames", "missing_drive_frames",
-                     "missing_sensor_frames", "send_errors"):
-            if c is not None and hasattr(c, name):
-                out[name] = int(getattr(c, name))
+        if c is not None:
+            out.update(frames_in=c.frames_in, frames_out=c.frames_out, rejected_frames=c.rejected_frames,
+                       late_frames=c.late_frames, missing_drive_frames=c.missing_drive_frames,
+                       missing_sensor_frames=c.missing_sensor_frames, send_errors=c.send_errors)
         return out
 
     def status(self) -> pb.Status:
@@ -348,14 +354,15 @@ def _version(name: str) -> str:
         return "unknown"
 
 
-def monitoring_publisher(cfg: Config, stop_event: threading.Event, task: object | None = None
+def monitoring_publisher(cfg: Config, stop_event: threading.Event, task: Task | None = None
                          ) -> MonitorPublisher:
     """The publisher of ``cfg.monitoring`` (not yet open: use it as a context manager)."""
-    return MonitorPublisher(publisher_settings(cfg), stop_event, task_name=getattr(task, "name", ""),
-                            task_phase=getattr(task, "phase_name", None))
+    return MonitorPublisher(publisher_settings(cfg), stop_event,
+                            task_name=task.name if task is not None else "",
+                            task_phase=task.phase_name if task is not None else None)
 
 
-def monitoring_context(cfg: Config, stop_event: threading.Event, task: object | None = None
+def monitoring_context(cfg: Config, stop_event: threading.Event, task: Task | None = None
                        ) -> AbstractContextManager[MonitorPublisher | None]:
     """The open-able publisher when ``monitoring.enabled``, else a context yielding None."""
     return monitoring_publisher(cfg, stop_event, task) if cfg.monitoring.enabled else nullcontext(None)

@@ -18,7 +18,9 @@ import json
 import logging
 import re
 import socket
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from typing import Protocol
 
 import zenoh
 
@@ -139,7 +141,8 @@ def build_zenoh_config(settings: SessionSettings) -> zenoh.Config:
         default_listen = _get(zenoh.Config(), "listen/endpoints")
         set_mode = _get(conf, "mode") is None
         set_listen = _get(conf, "listen/endpoints") == default_listen
-        connect = [*(_get(conf, "connect/endpoints") or []), *settings.connect]
+        file_connect = _get(conf, "connect/endpoints")  # a list, or None when unset
+        connect = [*(file_connect if isinstance(file_connect, list) else []), *settings.connect]
     else:
         conf = zenoh.Config()
         set_mode = set_listen = True
@@ -224,7 +227,13 @@ def monitor_settings(connect: tuple[str, ...] = (), config_file: str = "") -> Se
                            connect_retry_ms=(200, 1000))
 
 
-def close_session(session: zenoh.Session | None, entities: list) -> None:
+class ZenohEntity(Protocol):
+    """A declared publisher, subscriber, queryable or liveliness token."""
+
+    def undeclare(self) -> None: ...
+
+
+def close_session(session: zenoh.Session | None, entities: Sequence[ZenohEntity]) -> None:
     """Undeclare ``entities`` (newest first), then close ``session``: the order Zenoh needs."""
     for e in reversed(entities):
         e.undeclare()

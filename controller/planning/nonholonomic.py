@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -261,7 +262,7 @@ def rollout(
         for k in range(n):
             stage_v = iter((v_nodes[:, k], v_half[:, k], v_half[:, k], v_nodes[:, k + 1]))
 
-            def field_fn(pp: Array, RR: Array, _stages=stage_v) -> tuple[Array, Array]:
+            def field_fn(pp: Array, RR: Array, _stages: Iterator[Array] = stage_v) -> tuple[Array, Array]:
                 return system7_field(geometry, pp, RR, next(_stages))
 
             p, R = rkmk4_step(field_fn, p, R, dt)

@@ -17,15 +17,19 @@ Everything here is pure numpy on 3-vectors; nothing reads a clock or does I/O.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from controller.core.linalg3 import Matrix3, matmul3, symmetric_eigenvalues3, transpose3
+from controller.core.linalg3 import Matrix3, Vector3, matmul3, symmetric_eigenvalues3, transpose3
 from controller.errors import RefusedError
 from controller.robots.errors import NoSolutionError
 
 _AXES = 3
+
+Rows3 = tuple[Vector3, ...]  # one 3-vector per leg, plain floats
+Point3 = np.ndarray | Sequence[float]  # a TCP position or actuator positions: an array or floats
 
 
 @dataclass(frozen=True)
@@ -49,9 +53,9 @@ class CheopeGeometry:
     platform_vectors: np.ndarray = field(init=False, repr=False, compare=False)
     neutral_rod_directions: np.ndarray = field(init=False, repr=False, compare=False)
     # The same vectors as tuples of floats, for the per-cycle functions.
-    rows_axes: tuple[tuple[float, float, float], ...] = field(init=False, repr=False, compare=False)
-    rows_platform: tuple[tuple[float, float, float], ...] = field(init=False, repr=False, compare=False)
-    rows_neutral: tuple[tuple[float, float, float], ...] = field(init=False, repr=False, compare=False)
+    rows_axes: Rows3 = field(init=False, repr=False, compare=False)
+    rows_platform: Rows3 = field(init=False, repr=False, compare=False)
+    rows_neutral: Rows3 = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if not self.rod_length_m > 0:
@@ -81,11 +85,11 @@ class CheopeGeometry:
         object.__setattr__(self, "rows_neutral", tuple(tuple(float(x) for x in r) for r in neutral))
 
 
-def _inverse(axes: np.ndarray, plat: np.ndarray, rod_length_m: float, tcp_m: np.ndarray) -> np.ndarray:
+def _inverse(axes: Rows3, plat: Rows3, rod_length_m: float, tcp_m: Point3) -> np.ndarray:
     return np.array(_inverse_floats(axes, plat, rod_length_m, tcp_m))
 
 
-def _inverse_floats(axes, plat, rod_length_m: float, tcp_m) -> list[float]:
+def _inverse_floats(axes: Rows3, plat: Rows3, rod_length_m: float, tcp_m: Point3) -> list[float]:
     # seed 001, eq. (5): q_j = n_j.r_j + sqrt((n_j.r_j)^2 - r_j.r_j + l^2), r_j = s + a_j.
     # The '+' branch is the one the paper selects (slider beyond the rod's foot point).
     # Plain floats: for 3-vectors numpy's per-call overhead is larger than the arithmetic.
@@ -106,7 +110,7 @@ def _inverse_floats(axes, plat, rod_length_m: float, tcp_m) -> list[float]:
     return q
 
 
-def inverse_kinematics(geom: CheopeGeometry, tcp_m: np.ndarray) -> np.ndarray:
+def inverse_kinematics(geom: CheopeGeometry, tcp_m: Point3) -> np.ndarray:
     """Actuator positions q [m] for a TCP position s [m] (seed 001, eq. (5), '+' branch)."""
     return _inverse(geom.rows_axes, geom.rows_platform, geom.rod_length_m, tcp_m)
 
@@ -123,16 +127,20 @@ def rod_directions(geom: CheopeGeometry, tcp_m: np.ndarray, q_m: np.ndarray) -> 
                                np.asarray(tcp_m, float), np.asarray(q_m, float))
 
 
-def _sub(a, b):
+def _sub(a: Vector3, b: Vector3) -> Vector3:
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
 
 
-def _dot(a, b):
+def _dot(a: Vector3, b: Vector3) -> float:
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-def _cross(a, b):
+def _cross(a: Vector3, b: Vector3) -> Vector3:
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _over(v: Vector3, k: float) -> Vector3:
+    return (v[0] / k, v[1] / k, v[2] / k)
 
 
 def direct_kinematics(geom: CheopeGeometry, q_m: np.ndarray) -> np.ndarray:
@@ -177,9 +185,9 @@ def direct_kinematics(geom: CheopeGeometry, q_m: np.ndarray) -> np.ndarray:
     for sign in (1.0, -1.0):
         s = (base[0] + sign * z_a * ez[0], base[1] + sign * z_a * ez[1], base[2] + sign * z_a * ez[2])
         # on the branch: w_j . n_j = (s - c_j) . n_j / l <= 0 for every leg
-        if all(_dot(_sub(s, c[j]), axes[j]) <= 1e-9 * l for j in range(_AXES)):
-            if best is None or s[2] > best[2]:
-                best = s
+        on_branch = all(_dot(_sub(s, c[j]), axes[j]) <= 1e-9 * l for j in range(_AXES))
+        if on_branch and (best is None or s[2] > best[2]):
+            best = s
     if best is None:
         raise NoSolutionError(
             f"no assembly on the working branch for q={q} m "
@@ -192,7 +200,7 @@ def jacobian(geom: CheopeGeometry, tcp_m: np.ndarray, q_m: np.ndarray | None = N
     return np.array(_jacobian_rows(geom, tcp_m, q_m))
 
 
-def _jacobian_rows(geom: CheopeGeometry, tcp_m, q_m=None) -> list[tuple[float, float, float]]:
+def _jacobian_rows(geom: CheopeGeometry, tcp_m: Point3, q_m: Point3 | None = None) -> list[Vector3]:
     """J with q_dot = J s_dot (seed 001, eq. (6)-(7)): J = K3^-1 W3^T.
 
     Derivation (eq. (1) differentiated and projected on w_j): w_j^T s_dot = (w_j^T n_j) q_dot_j.
@@ -318,7 +326,8 @@ class CheopeRobot:
             return PoseStatus(False, str(err))
         s = (float(tcp_m[0]), float(tcp_m[1]), float(tcp_m[2]))
         inv_l = 1.0 / g.rod_length_m
-        w, k = [], []
+        w: list[Vector3] = []
+        k: list[float] = []
         for j in range(_AXES):
             if not lim.stroke_min_m <= q[j] <= lim.stroke_max_m:
                 return PoseStatus(False, f"actuator {j + 1} at {q[j]:.4f} m is outside its stroke "
@@ -341,7 +350,7 @@ class CheopeRobot:
                                  ("structural", structural, lim.min_structural_measure)):
             if value < low:
                 return PoseStatus(False, f"within the {name}-singularity margin: measure {value:.3f} < {low}")
-        jac: Matrix3 = tuple((wj[0] / kj, wj[1] / kj, wj[2] / kj) for wj, kj in zip(w, k))  # type: ignore[assignment]
+        jac: Matrix3 = (_over(w[0], k[0]), _over(w[1], k[1]), _over(w[2], k[2]))
         eig = symmetric_eigenvalues3(matmul3(transpose3(jac), jac))
         cond = math.sqrt(eig[2] / eig[0])
         if cond > lim.max_condition_number:

@@ -50,6 +50,7 @@ factor is an argument of `NspuGeometry.paper_example` (`length_unit_m`).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -552,7 +553,7 @@ def _dexpinv(u: Array, w: Array) -> Array:
 
 
 def rkmk4_step(
-    field_fn, p: Array, R: Array, dt: float
+    field_fn: Callable[[Array, Array], tuple[Array, Array]], p: Array, R: Array, dt: float
 ) -> tuple[Array, Array]:
     """One Runge-Kutta-Munthe-Kaas (order 4) step of p_dot = f_p, R_dot = [f_w] R.
 

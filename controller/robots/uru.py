@@ -394,14 +394,16 @@ def _newton(
     )
 
 
-def _closure_residual(geom: UruGeometry, p: np.ndarray, th2: np.ndarray) -> tuple[np.ndarray, dict]:
+def _closure_residual(geom: UruGeometry, p: np.ndarray, th2: np.ndarray
+                      ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """R_i = |b_i - c_i|^2 - r_i^2 for given th_i2 (seed 003, eq. (A1) is R_i = 0)."""
     cfg = _configurations(p[None, :], geom, th2[None, :])
     d = cfg["d"][0]
     return np.einsum("ij,ij->i", d, d) - geom.r**2, cfg
 
 
-def _branch_check(geom: UruGeometry, p: np.ndarray, target: np.ndarray, to_target, what: str) -> np.ndarray:
+def _branch_check(geom: UruGeometry, p: np.ndarray, target: np.ndarray,
+                  to_target: Callable[[np.ndarray], np.ndarray], what: str) -> np.ndarray:
     try:
         got = to_target(p)
     except UruNoSolutionError as err:

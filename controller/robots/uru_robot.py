@@ -31,10 +31,12 @@ or det A between samples (``uru.check_path``); its error names the locus.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Protocol, TypedDict
 
 import numpy as np
 
+from controller.core.linalg3 import Vector3
 from controller.robots import uru
 from controller.robots.cheope import POSE_OK, PoseStatus, WorkspaceError
 from controller.robots.errors import NoSolutionError
@@ -143,7 +145,7 @@ class UruRobot:
 # Plain-float kinematics (same equations as controller/robots/uru.py)
 
 
-def _limb(geom: uru.UruGeometry, i: int, p: tuple[float, float, float]) -> tuple[float, ...]:
+def _limb(geom: uru.UruGeometry, i: int, p: Vector3) -> tuple[float, float, float, Vector3, Vector3, float]:
     """(th_i1, th_i2, beta_i, g_i (3), h_i (3), alpha_i) for limb i at p (seed 003, eq. (15)-(16), (A1)-(A2))."""
     perp = [p[0], p[1], p[2]]
     perp[i] = 0.0
@@ -241,9 +243,21 @@ def _newton_motor(geom: uru.UruGeometry, target: tuple[float, float, float],
                           f"{_NEWTON_MAX_ITER} iterations")
 
 
-def _measures(geom: uru.UruGeometry, p: tuple[float, float, float]) -> dict:
+class _Measures(TypedDict):
+    workspace_m: float
+    sin_th3: float
+    det_v: float
+    det_a: float
+    det_s: float
+    motor_rad: tuple[float, ...]
+
+
+def _measures(geom: uru.UruGeometry, p: Vector3) -> _Measures:
     """Singularity measures and motor angles at p on plain floats (same as uru.singularity_measures)."""
-    v, a, sin3, motor = [], [], [], []
+    v: list[Vector3] = []
+    a: list[Vector3] = []
+    sin3: list[float] = []
+    motor: list[float] = []
     margin = math.inf
     for i in range(3):
         th1, th2, beta, g, h, _alpha = _limb(geom, i, p)
@@ -264,7 +278,7 @@ def _measures(geom: uru.UruGeometry, p: tuple[float, float, float]) -> dict:
         sin3.append(abs(s3))
         motor.append(th1 + th2 / k + float(geom.c[i]))
 
-    def triple(m: list) -> float:
+    def triple(m: list[Vector3]) -> float:
         x, y, z = m
         return (x[0] * (y[1] * z[2] - y[2] * z[1]) - x[1] * (y[0] * z[2] - y[2] * z[0])
                 + x[2] * (y[0] * z[1] - y[1] * z[0]))
@@ -279,6 +293,18 @@ def _measures(geom: uru.UruGeometry, p: tuple[float, float, float]) -> dict:
 # A circle in any plane, with CirclePath's timing
 
 
+class PlanarPath(Protocol):
+    """A path in a plane parallel to XY around ``center_m`` (``CirclePath``)."""
+
+    @property
+    def center_m(self) -> tuple[float, float, float]: ...
+
+    @property
+    def duration_s(self) -> float: ...
+
+    def sample(self, tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+
 @dataclass(frozen=True)
 class TiltedCirclePath:
     """``CirclePath`` (a circle parallel to XY) rotated into the plane normal to ``normal``.
@@ -288,8 +314,9 @@ class TiltedCirclePath:
     ``start_angle_rad = 0`` the samples coincide with ``uru.default_path``.
     """
 
-    base: object  # controller.tasks.circle_path.CirclePath
+    base: PlanarPath  # controller.tasks.circle_path.CirclePath
     normal: tuple[float, float, float]
+    _rot: np.ndarray = field(init=False, repr=False, compare=False)  # in-plane axes and normal, columns
 
     def __post_init__(self) -> None:
         n = np.asarray(self.normal, float)
@@ -305,12 +332,12 @@ class TiltedCirclePath:
 
     @property
     def duration_s(self) -> float:
-        return self.base.duration_s  # type: ignore[attr-defined]
+        return self.base.duration_s
 
     def sample(self, tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        pos, vel, acc = self.base.sample(tau)  # type: ignore[attr-defined]
-        c = np.asarray(self.base.center_m, float)  # type: ignore[attr-defined]
-        rot = self._rot  # type: ignore[attr-defined]
+        pos, vel, acc = self.base.sample(tau)
+        c = np.asarray(self.base.center_m, float)
+        rot = self._rot
         return c + rot @ (pos - c), rot @ vel, rot @ acc
 
     def points(self, n: int) -> np.ndarray:

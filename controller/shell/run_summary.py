@@ -17,6 +17,7 @@ import numpy as np
 from controller.core.control_law import PIPELINE_PERIODS, ControllerState
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severity
 from controller.shell.loop import CycleTiming, LoopStats
+from drivers.cyclic_exchange import ExchangeCounters
 
 
 @dataclass
@@ -43,8 +44,9 @@ def _percentile_us(values_us: np.ndarray, q: float) -> float:
     return float(np.percentile(values_us, q)) if values_us.size else 0.0
 
 
-def summarize(stats: LoopStats, recorder: RunRecorder, final: ControllerState, counters: object,
-              bus_load_percent: float, extra: dict[str, object] | None = None) -> dict[str, object]:
+def summarize(stats: LoopStats, recorder: RunRecorder, final: ControllerState,
+              counters: ExchangeCounters | None, bus_load_percent: float,
+              extra: dict[str, object] | None = None) -> dict[str, object]:
     """The demo's summary as one JSON-ready dict (SI units and microseconds in the names)."""
     per = stats.period_error_us()
     n = min(stats.cycles, stats.capacity)
@@ -52,7 +54,7 @@ def summarize(stats: LoopStats, recorder: RunRecorder, final: ControllerState, c
     step = stats.step_s[:n] * 1e6
     observers = stats.observers_s[:n] * 1e6
     err = np.asarray(recorder.tracking_error_m)
-    c = counters
+    c = counters if counters is not None else ExchangeCounters()  # None: all zero
     out: dict[str, object] = {
         "final_mode": final.mode.name,
         "fault_reason": final.fault_reason,
@@ -69,11 +71,10 @@ def summarize(stats: LoopStats, recorder: RunRecorder, final: ControllerState, c
                          "max": float(observers.max()) if observers.size else 0.0},
         "late_cycles": stats.late_cycles(),
         "overruns": stats.overruns,
-        "missing_frames": {"drive": getattr(c, "missing_drive_frames", 0),
-                           "sensor": getattr(c, "missing_sensor_frames", 0)},
-        "rejected_frames": getattr(c, "rejected_frames", 0),
-        "send_errors": getattr(c, "send_errors", 0),  # e.g. ENOBUFS: a full transmit queue
-        "error_frames": getattr(c, "error_frames", 0),
+        "missing_frames": {"drive": c.missing_drive_frames, "sensor": c.missing_sensor_frames},
+        "rejected_frames": c.rejected_frames,
+        "send_errors": c.send_errors,  # e.g. ENOBUFS: a full transmit queue
+        "error_frames": c.error_frames,
         "bus_load_percent": round(bus_load_percent, 2),
         "tracking_error_m": {"rms": float(np.sqrt(np.mean(err**2))) if err.size else None,
                              "max": float(err.max()) if err.size else None, "samples": int(err.size)},

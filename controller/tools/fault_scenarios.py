@@ -21,9 +21,9 @@ import msgspec
 
 from controller.assembly import build_law
 from controller.config import Config, load_config
-from controller.core.control_law import Mode
-from controller.core.cycle_data import Severity
-from controller.shell.loop import CycleLoop, SimulatedTime
+from controller.core.control_law import ControllerState, Mode
+from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severity
+from controller.shell.loop import CycleLoop, CycleTiming, SimulatedTime
 from drivers.cia402 import PowerState
 from sim_backend.fault_injection import FaultSchedule
 from sim_backend.loopback import LoopbackExchange
@@ -80,7 +80,8 @@ class _Watch:
     reaction: str = ""
     safe_s: float | None = None
 
-    def on_cycle(self, cycle, t, inputs, state, outputs, events, timing) -> None:
+    def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
+                 outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None:
         if t < self.fault_at_s:
             return
         for e in events:

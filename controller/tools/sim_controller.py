@@ -18,18 +18,21 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Callable
 
 from controller.assembly import build_law
 from controller.config import Config, load_config, parse_override
+from controller.core.control_law import ControllerState
+from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
 from controller.monitoring.publisher import monitoring_publisher
-from controller.shell.loop import CycleLoop
+from controller.shell.loop import CycleLoop, CycleTiming
 from drivers.pacing import DeadlineSleeper
 
 READY = "READY"
 
 
 def run_simulated(cfg: Config, stop_event: threading.Event, max_duration_s: float,
-                  on_ready=lambda endpoints: None) -> dict[str, object]:
+                  on_ready: Callable[[tuple[str, ...]], None] = lambda endpoints: None) -> dict[str, object]:
     from sim_backend.loopback import LoopbackExchange
 
     law = build_law(cfg)
@@ -37,7 +40,8 @@ def run_simulated(cfg: Config, stop_event: threading.Event, max_duration_s: floa
     events: list[str] = []
 
     class _Events:
-        def on_cycle(self, cycle, t, inputs, state, outputs, evs, timing) -> None:
+        def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
+                     outputs: CycleOutputs, evs: tuple[Event, ...], timing: CycleTiming) -> None:
             events.extend(f"{e.severity.name}: {e.message}" for e in evs)
 
     with monitoring_publisher(cfg, stop_event, law.task) as pub:

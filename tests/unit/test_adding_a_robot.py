@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import inspect
 import sys
-from typing import Annotated
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 import pytest

@@ -13,6 +13,7 @@ Writes three PNG files and returns the figures as a dict:
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 import matplotlib
@@ -40,7 +41,8 @@ def _cond(robot: CheopeRobot, p: np.ndarray) -> float:
     return jacobian_indices(jacobian(robot.geometry, p)).condition_number
 
 
-def workspace_sections(robot: CheopeRobot, out: Path, xs_m=(-0.08, 0.0, 0.08), n: int = 81) -> dict[str, float]:
+def workspace_sections(robot: CheopeRobot, out: Path, xs_m: tuple[float, ...] = (-0.08, 0.0, 0.08),
+                       n: int = 81) -> dict[str, float]:
     ys = np.linspace(-0.20, 0.20, n)
     zs = np.linspace(0.30, 0.70, n)
     fig, axes = plt.subplots(1, len(xs_m), figsize=(5 * len(xs_m), 4.6), sharey=True)
@@ -75,10 +77,11 @@ def _ellipse_xy(ell: Ellipsoid, n: int = 72) -> np.ndarray:
 
 
 def ellipse_sections(robot: CheopeRobot, masses: MassModel, stiffness_n_m: float, out: Path,
-                     zs_m=(0.45, 0.50, 0.55)) -> None:
-    kinds = (("force", lambda j: force_ellipsoid(j)), ("velocity", lambda j: velocity_ellipsoid(j)),
-             ("stiffness", lambda j: stiffness_ellipsoid(j, stiffness_n_m)),
-             ("mass", lambda j: mass_ellipsoid(j, masses)))
+                     zs_m: tuple[float, ...] = (0.45, 0.50, 0.55)) -> None:
+    kinds: tuple[tuple[str, Callable[[np.ndarray], Ellipsoid]], ...] = (
+        ("force", lambda j: force_ellipsoid(j)), ("velocity", lambda j: velocity_ellipsoid(j)),
+        ("stiffness", lambda j: stiffness_ellipsoid(j, stiffness_n_m)),
+        ("mass", lambda j: mass_ellipsoid(j, masses)))
     fig, axes = plt.subplots(len(zs_m), len(kinds), figsize=(14, 3.6 * len(zs_m)))
     centres = [(x, y) for x in (-0.06, 0.0, 0.06) for y in (-0.06, 0.0, 0.06)]
     for r, z in enumerate(zs_m):

@@ -12,10 +12,14 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from controller.config import Config
+
+if TYPE_CHECKING:
+    from controller.robots.nspu import Pose
 
 
 def analyze_uru(cfg: Config, out_dir: Path) -> dict[str, object]:
@@ -76,7 +80,8 @@ def analyze_nspu(cfg: Config, out_dir: Path, euler_xzx_rad: tuple[float, float, 
     }
 
 
-def plan_nspu(cfg: Config, start, goal, check_type2: bool, plot_dir: Path | None) -> dict[str, object]:
+def plan_nspu(cfg: Config, start: Pose, goal: Pose, check_type2: bool, plot_dir: Path | None
+              ) -> dict[str, object]:
     """Plan start -> goal (Pose) with the configured planner; the report says CONVERGED or why not."""
     from controller.planning.nonholonomic import plan_motion
     from controller.robots.builtin import nspu_geometry_from_config

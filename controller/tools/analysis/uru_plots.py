@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import matplotlib
 
@@ -28,6 +29,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.collections import QuadMesh
+
+if TYPE_CHECKING:
+    from matplotlib.lines import Line2D
 
 from controller.robots.uru import (
     UruGeometry,
@@ -140,7 +144,7 @@ def _section(ax: Axes, u: np.ndarray, w: np.ndarray, fields: dict[str, np.ndarra
     return mesh
 
 
-def _legend_handles() -> list:
+def _legend_handles() -> list[Line2D]:
     from matplotlib.lines import Line2D
 
     return [
