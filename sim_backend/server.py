@@ -23,8 +23,8 @@ import queue
 import threading
 import time
 from collections.abc import Callable
-from typing import Self
 from pathlib import Path
+from typing import Self
 
 import can
 import canopen
