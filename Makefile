@@ -4,7 +4,7 @@ PYTHON ?= python3
 VENV := .venv
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: setup demo test test-vcan lint bench clean
+.PHONY: setup demo test test-all test-vcan lint bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -17,7 +17,12 @@ setup: $(STAMP)
 demo: setup
 	$(VENV)/bin/cheope demo
 
-test: setup
+# make test: the static checks and the fast layers (tests/unit, tests/protocol without the slow
+# tier), about a minute. make test-all: the static checks and every layer but vcan (what CI runs).
+test: lint
+	$(VENV)/bin/pytest -q tests/unit tests/protocol -m "not slow and not vcan and not bench"
+
+test-all: lint
 	$(VENV)/bin/pytest -q
 
 test-vcan: setup

@@ -9,7 +9,7 @@ import signal
 import sys
 import threading
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import can
 
@@ -20,6 +20,10 @@ from controller.monitoring.cli_commands import add_subcommands as add_monitoring
 from controller.robots.registry import load_reference, robot_entry, robot_kinds
 from controller.tasks.registry import task_kinds
 from drivers.bus import BusSpec, parse_bus_spec
+
+if TYPE_CHECKING:
+    from controller.robots.nspu import Pose
+    from controller.shell.realtime import RealtimeOptions
 
 
 def _common(ap: argparse.ArgumentParser, bus: bool = True) -> None:
@@ -53,7 +57,7 @@ def _rt_options(ap: argparse.ArgumentParser) -> None:
                    help="apply the options given where permitted, warn and run on where not")
 
 
-def _realtime(args: argparse.Namespace, simulator: bool = False):  # -> controller.shell.realtime.RealtimeOptions
+def _realtime(args: argparse.Namespace, simulator: bool = False) -> RealtimeOptions:
     from controller.shell.realtime import RealtimeError, RealtimeOptions, parse_cpus
 
     explicit = args.rt_priority is not None or args.cpu or args.lock_memory
@@ -85,7 +89,8 @@ def _overrides(args: argparse.Namespace) -> list[str]:
 def _config_path(args: argparse.Namespace) -> str | None:
     """--config, else the shipped configuration of --robot (None: the default cheope.toml)."""
     if args.config or not getattr(args, "robot", None):
-        return args.config
+        config: str | None = args.config
+        return config
     shipped = robot_entry(args.robot).config_file
     return str(shipped) if shipped is not None else None
 
@@ -244,7 +249,7 @@ def cmd_analyze(args: argparse.Namespace) -> int:
     return 0
 
 
-def _pose_arg(text: str, what: str):  # -> controller.robots.nspu.Pose
+def _pose_arg(text: str, what: str) -> Pose:
     import numpy as np
 
     from controller.robots.nspu import Pose, rpy
@@ -373,7 +378,8 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     try:
-        return args.func(args)
+        code: int = args.func(args)
+        return code
     except RefusedError as err:  # WorkspaceError, PlanningError, ...: a task we refuse to run
         print(f"cheope {args.command}: refused: {err}", file=sys.stderr)
         return 2

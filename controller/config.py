@@ -43,7 +43,7 @@ def _default_models(group: str) -> dict[str, Any]:
     return {kind: section() for kind, section in _registered_sections(group).items() if section is not None}
 
 
-class MarginsSection(Section):
+class MarginsSection(Section, frozen=True):
     """Minimum distances from the singularity classes of seed 001 §5.1 and a conditioning bound."""
 
     min_direct_measure: Annotated[float, rng(0.0, 1.0)] = 0.20
@@ -52,14 +52,14 @@ class MarginsSection(Section):
     max_condition_number: Annotated[float, rng(1.0, 1e6)] = 10.0
 
 
-class MassSection(Section):
+class MassSection(Section, frozen=True):
     platform_kg: Annotated[float, rng(0.0, 1000.0)] = 8.0
     slider_kg: Annotated[float, rng(0.0, 1000.0)] = 1.0
     rod_pair_kg: Annotated[float, rng(0.0, 1000.0)] = 0.4
     actuator_stiffness_n_m: Annotated[float, rng(0.0, 1e12, lo_open=True)] = 2.0e5
 
 
-class RobotSection(Section):
+class RobotSection(Section, frozen=True):
     """``kind`` selects a registered robot (controller/robots/registry.py); ``[robot.<kind>]`` is its section.
 
     Every registered robot's section is parsed and kept (``models``), so a recording's
@@ -76,7 +76,7 @@ class RobotSection(Section):
         return self.models[kind or self.kind]
 
 
-class ActuatorsSection(Section):
+class ActuatorsSection(Section, frozen=True):
     node_ids: tuple[int, int, int] = (1, 2, 3)
     counts_per_m: Annotated[float, rng(1.0, 1e12)] = 1.0e7
     # Rotary actuators (robot.kind = "uru": motor-shaft angles) use these instead of the _m keys.
@@ -91,13 +91,13 @@ class ActuatorsSection(Section):
     product_code: Annotated[int, rng(0, 2**32 - 1)] = 0x00000402
 
 
-class SensorSection(Section):
+class SensorSection(Section, frozen=True):
     enabled: bool = True
     node_id: Annotated[int, rng(1, 127)] = 16
     product_code: Annotated[int, rng(0, 2**32 - 1)] = 0x00000F75
 
 
-class BusSection(Section):
+class BusSection(Section, frozen=True):
     can: str = "udp_multicast"
     udp_port: Annotated[int, rng(1, 65535)] = 43113
     fd: bool = False
@@ -106,7 +106,7 @@ class BusSection(Section):
     max_load_percent: Annotated[float, rng(1.0, 100.0)] = 70.0
 
 
-class LoopSection(Section):
+class LoopSection(Section, frozen=True):
     rate_hz: Annotated[float, rng(1.0, 4000.0)] = 400.0
     collect_fraction: Annotated[float, rng(0.05, 0.95)] = 0.8
     spin_us: Annotated[float, rng(0.0, 5000.0)] = 300.0
@@ -125,7 +125,7 @@ class LoopSection(Section):
 
 
 
-class SafetySection(Section):
+class SafetySection(Section, frozen=True):
     """What the law does about each abnormal input (see controller/core/control_law.py, ``_safety``).
 
     "fault": quick stop through the controlword and stay in FAULT until a reset;
@@ -145,7 +145,7 @@ class SafetySection(Section):
     late_tolerance_fraction: Annotated[float, rng(0.01, 10.0)] = 0.5
 
 
-class TaskSection(Section):
+class TaskSection(Section, frozen=True):
     """``kind`` selects a registered task (controller/tasks/registry.py); ``[task.<kind>]`` is its section."""
 
     kind: str = "path"
@@ -156,7 +156,7 @@ class TaskSection(Section):
         return self.models.get(kind or self.kind)
 
 
-class RecordingSection(Section):
+class RecordingSection(Section, frozen=True):
     """The session recording (logs/recorder.py): one MCAP file per run of the controller."""
 
     enabled: bool = True
@@ -166,7 +166,7 @@ class RecordingSection(Section):
     flush_interval_s: Annotated[float, rng(0.01, 60.0)] = 0.5  # close a chunk at least this often
 
 
-class MonitoringSection(Section):
+class MonitoringSection(Section, frozen=True):
     """Remote monitoring over Zenoh (controller/monitoring/): keys under ``<key_prefix>/<robot_id>/``."""
 
     enabled: bool = True
@@ -181,7 +181,7 @@ class MonitoringSection(Section):
     allow_remote_commands: bool = False  # pause, resume, set_force; a remote stop is always accepted
 
 
-class Config(Section):
+class Config(Section, frozen=True):
     robot: RobotSection = msgspec.field(default_factory=RobotSection)
     actuators: ActuatorsSection = msgspec.field(default_factory=ActuatorsSection)
     sensor: SensorSection = msgspec.field(default_factory=SensorSection)

@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import logging
 import math
+from typing import Protocol
 
 import numpy as np
 
@@ -86,8 +87,14 @@ def drive_params_from_config(cfg: Config) -> DriveParams:
     )
 
 
+class CompliantRobot(Protocol):
+    """A robot whose structure the plant loads (Cheope: the contour's disk presses on it)."""
+
+    def jacobian(self, tcp_m: np.ndarray, /) -> np.ndarray: ...
+
+
 def environment_from_config(cfg: Config) -> Environment:
-    kind = cfg.sim.environment
+    kind: str = cfg.sim.environment
     if kind == "auto":  # what the task expects: the contour task's workpiece (controller/tasks/builtin.py)
         kind = task_entry(cfg.task.kind).sim_environment
     if kind == "free":
@@ -131,7 +138,8 @@ class RobotPlant:
     @property
     def tcp_m(self) -> np.ndarray:
         """Where the tool really is: the kinematic TCP plus the structure's deflection."""
-        return self.tcp_kinematic_m + np.asarray(self.tool.deflection_m)
+        tcp: np.ndarray = self.tcp_kinematic_m + np.asarray(self.tool.deflection_m)
+        return tcp
 
     def _update_kinematics(self) -> np.ndarray | None:
         q = np.array([d.position for d in self.drives])
@@ -166,7 +174,8 @@ class RobotPlant:
         """The kinematic TCP and the pose-dependent matrices at the drives' current positions."""
         if not kinematics_done and self._update_kinematics() is None:
             return
-        jac = as_rows(self.robot.jacobian(self.tcp_kinematic_m))
+        robot: CompliantRobot = self.robot  # type: ignore[assignment]  # loaded: Cheope's structure only
+        jac = as_rows(robot.jacobian(self.tcp_kinematic_m))
         self.tool.set_structure(jac)
         self._jt = transpose3(jac)
         self._jinv = inverse3(jac)

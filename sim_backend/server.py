@@ -200,7 +200,10 @@ class Simulator:
                 }.get(index, lambda: None)()
 
         def on_write(index: int, subindex: int, od: canopen.objectdictionary.ODVariable, data: bytes) -> None:
-            value = od.decode_raw(data)
+            raw = od.decode_raw(data)
+            if not isinstance(raw, int):  # every object written here is an integer in the EDS
+                return
+            value = raw
             with self.lock:
                 if index == 0x6060:
                     drive.mode_of_operation = value

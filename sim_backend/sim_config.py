@@ -14,7 +14,7 @@ import msgspec
 from controller.config_schema import ConfigError, Section, rng
 
 
-class SimDriveSection(Section):
+class SimDriveSection(Section, frozen=True):
     """Simulated CiA 402 drive: a second-order position loop with drive-side limits."""
 
     bandwidth_hz: Annotated[float, rng(0.1, 10000.0)] = 60.0
@@ -36,7 +36,7 @@ class SimDriveSection(Section):
     cogging_phases_deg: tuple[float, float, float] = (0.0, 120.0, 240.0)
 
 
-class SimSensorSection(Section):
+class SimSensorSection(Section, frozen=True):
     noise_std_n: Annotated[float, rng(0.0, 100.0)] = 0.05
     bias_n: tuple[float, float, float] = (0.10, -0.05, 0.02)
     range_n: Annotated[float, rng(0.0, 327.0, lo_open=True)] = 300.0
@@ -45,7 +45,7 @@ class SimSensorSection(Section):
     bandwidth_hz: Annotated[float, rng(0.1, 100000.0)] = 200.0
 
 
-class SimDiskSection(Section):
+class SimDiskSection(Section, frozen=True):
     """The workpiece of the contour task; known to the simulator only (sim_backend/contact_disk.py)."""
 
     centre_m: tuple[float, float] = (0.002, -0.001)
@@ -59,7 +59,7 @@ class SimDiskSection(Section):
     friction_coefficient: Annotated[float, rng(0.0, 2.0)] = 0.15
 
 
-class SimSection(Section):
+class SimSection(Section, frozen=True):
     drive: SimDriveSection = msgspec.field(default_factory=SimDriveSection)
     sensor: SimSensorSection = msgspec.field(default_factory=SimSensorSection)
     structure_damping_ratio: Annotated[float, rng(0.0, 10.0)] = 0.5

@@ -30,7 +30,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from enum import IntEnum
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -38,6 +38,7 @@ from controller.core.cycle_data import Command, CycleInputs, CycleOutputs, Event
 from controller.core.setpoint_smoothing import RuckigSmoother, Setpoint
 from controller.robots.cheope import PoseStatus
 from controller.robots.errors import NoSolutionError
+from controller.robots.robot import Robot
 from controller.tasks.task import Task, TaskContext
 from drivers.cia402 import PowerState, controlword_towards, decode_statusword
 from drivers.pdo_codec import SENSOR_FORCE_SATURATED
@@ -56,15 +57,6 @@ class Mode(IntEnum):
     STOPPING = 5
     DONE = 6
     FAULT = 7
-
-
-class Robot(Protocol):
-    @property
-    def n_actuators(self) -> int: ...  # read-only: the robots are frozen dataclasses
-
-    def direct_kinematics(self, q: np.ndarray) -> np.ndarray: ...
-
-    def check_pose(self, tcp_m: np.ndarray) -> PoseStatus: ...
 
 
 @runtime_checkable
@@ -127,7 +119,7 @@ ModeHandler = Callable[
 class ControlLaw:
     """Composes supervisor, CiA 402 power management, task and smoothing into ``step``."""
 
-    def __init__(self, robot: Robot, task: Task, smoother: RuckigSmoother, config: LawConfig) -> None:
+    def __init__(self, robot: Robot, task: Task[Any], smoother: RuckigSmoother, config: LawConfig) -> None:
         self.robot = robot
         self.task = task
         self.smoother = smoother

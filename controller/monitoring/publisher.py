@@ -32,7 +32,7 @@ from collections.abc import Callable
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 from importlib import metadata
-from typing import Self
+from typing import Any, Self
 
 import numpy as np
 import zenoh
@@ -354,7 +354,7 @@ def _version(name: str) -> str:
         return "unknown"
 
 
-def monitoring_publisher(cfg: Config, stop_event: threading.Event, task: Task | None = None
+def monitoring_publisher(cfg: Config, stop_event: threading.Event, task: Task[Any] | None = None
                          ) -> MonitorPublisher:
     """The publisher of ``cfg.monitoring`` (not yet open: use it as a context manager)."""
     return MonitorPublisher(publisher_settings(cfg), stop_event,
@@ -362,7 +362,7 @@ def monitoring_publisher(cfg: Config, stop_event: threading.Event, task: Task | 
                             task_phase=task.phase_name if task is not None else None)
 
 
-def monitoring_context(cfg: Config, stop_event: threading.Event, task: Task | None = None
+def monitoring_context(cfg: Config, stop_event: threading.Event, task: Task[Any] | None = None
                        ) -> AbstractContextManager[MonitorPublisher | None]:
     """The open-able publisher when ``monitoring.enabled``, else a context yielding None."""
     return monitoring_publisher(cfg, stop_event, task) if cfg.monitoring.enabled else nullcontext(None)

@@ -9,6 +9,7 @@ configuration.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from typing import TYPE_CHECKING, Annotated, Literal
 
 import numpy as np
@@ -28,7 +29,7 @@ if TYPE_CHECKING:  # the URU and nSPU modules load on demand, when their robot i
 
 # -- Cheope (seed 001) --------------------------------------------------------------------------
 
-class CheopeSection(Section):
+class CheopeSection(Section, frozen=True):
     rod_length_m: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.50
     axis_tilt_deg: Annotated[float, rng(1.0, 89.0)] = 60.0
     axis_azimuths_deg: tuple[float, float, float] = (0.0, 90.0, 180.0)
@@ -76,9 +77,9 @@ def cheope_from_config(cfg: Config) -> CheopeRobot:
     return CheopeRobot(geometry=geometry, limits=limits)
 
 
-def _three(values: object) -> tuple[float, float, float]:
-    a, b, c = tuple(values)  # type: ignore[call-overload]  # a generator of three floats
-    return (float(a), float(b), float(c))
+def _three(values: Iterable[float]) -> tuple[float, float, float]:
+    a, b, c = values
+    return (a, b, c)
 
 
 # -- 3-URU (seed 003) ---------------------------------------------------------------------------
@@ -88,7 +89,7 @@ _Gear = Annotated[float, rng(-1000.0, 1000.0)]
 _Offset = Annotated[float, rng(-100.0, 100.0)]  # [rad]
 
 
-class UruSection(Section):
+class UruSection(Section, frozen=True):
     """LaMaViP 3-URU (seed 003); see controller/robots/uru.py and controller/robots/uru_robot.py."""
 
     base_offset_m: Annotated[float, rng(0.0, 10.0)] = 0.10
@@ -134,7 +135,7 @@ def uru_from_config(cfg: Config) -> UruRobot:
 
 # -- 3-nSPU (seeds 000, 004) --------------------------------------------------------------------
 
-class NspuSection(Section):
+class NspuSection(Section, frozen=True):
     """3-nSPU (seeds 000, 004): seed 000 §3.5 geometry, start and goal poses, planner, streaming."""
 
     length_unit_m: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.01  # the papers' aul
@@ -165,7 +166,7 @@ def nspu_geometry_from_config(cfg: Config) -> NspuGeometry:
     from controller.robots.nspu import NspuGeometry
 
     n: NspuSection = cfg.robot.model("nspu")
-    g = NspuGeometry.paper_example(length_unit_m=n.length_unit_m, r3_variant=n.r3_variant)  # type: ignore[arg-type]
+    g = NspuGeometry.paper_example(length_unit_m=n.length_unit_m, r3_variant=n.r3_variant)
     return NspuGeometry(g.a_m, g.r, g.b_platform_m, g.w4_platform, leg_min_m=n.leg_min_m, leg_max_m=n.leg_max_m,
                         length_unit_m=n.length_unit_m, name=g.name)
 

@@ -24,20 +24,21 @@ class ActuatorUnit(StrEnum):
 class Robot(Protocol):
     """A parallel robot's model: kinematics and the checks the law and the service make."""
 
-    n_actuators: int
+    @property
+    def n_actuators(self) -> int: ...  # read-only: the models are frozen dataclasses
 
-    def inverse_kinematics(self, tcp_m: np.ndarray) -> np.ndarray:
+    def inverse_kinematics(self, tcp_m: np.ndarray, /) -> np.ndarray:
         """Actuator positions for a TCP position; raises NoSolutionError outside the workspace."""
         ...
 
-    def direct_kinematics(self, q: np.ndarray) -> np.ndarray:
+    def direct_kinematics(self, q: np.ndarray, /) -> np.ndarray:
         """The TCP position for actuator positions; raises NoSolutionError where there is none."""
         ...
 
-    def check_pose(self, tcp_m: np.ndarray) -> PoseStatus:
+    def check_pose(self, tcp_m: np.ndarray, /) -> PoseStatus:
         """Every cycle, on the task's reference: inside the safe workspace and margins?"""
         ...
 
-    def check_path(self, points_m: np.ndarray) -> None:
+    def check_path(self, points_m: np.ndarray, /) -> None:
         """Before a run, on a whole path: raises WorkspaceError naming the first bad sample."""
         ...

@@ -14,6 +14,9 @@ import resource
 import threading
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import can
 
 from controller.assembly import assemble
 from controller.config import Config
@@ -38,6 +41,9 @@ from drivers.cyclic_exchange import CyclicExchange, FrameSink
 from drivers.node_setup import NodeSetupPlan, configure_nodes
 from drivers.pacing import DeadlineSleeper
 from drivers.pdo_codec import PositionScale
+
+if TYPE_CHECKING:
+    from logs.recorder import SessionRecorder
 
 log = logging.getLogger(__name__)
 
@@ -135,7 +141,7 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float = 600.0,
                             **{k: v for r in prepared.reports for k, v in r.summary().items()}})
 
 
-def _session_recorder(cfg: Config, law: ControlLaw, spec: BusSpec):  # -> logs.recorder.SessionRecorder | None
+def _session_recorder(cfg: Config, law: ControlLaw, spec: BusSpec) -> SessionRecorder | None:
     if not cfg.recording.enabled:
         return None
     from logs.recorder import SessionRecorder
@@ -144,13 +150,13 @@ def _session_recorder(cfg: Config, law: ControlLaw, spec: BusSpec):  # -> logs.r
 
 
 def _both_sinks(a: FrameSink, b: FrameSink) -> FrameSink:
-    def sink(outgoing: bool, monotonic_s: float, msg) -> None:
+    def sink(outgoing: bool, monotonic_s: float, msg: can.Message) -> None:
         a(outgoing, monotonic_s, msg)
         b(outgoing, monotonic_s, msg)
     return sink
 
 
-def _recording_summary(session) -> dict[str, object] | None:
+def _recording_summary(session: SessionRecorder | None) -> dict[str, object] | None:
     if session is None:
         return None
     return {"path": str(session.path), "dropped": session.dropped, "written": session.written,

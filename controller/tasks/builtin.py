@@ -22,7 +22,7 @@ from controller.tasks.registry import BuiltTask, TaskEntry, register_task
 
 # -- the circle path ----------------------------------------------------------------------------
 
-class PathSection(Section):
+class PathSection(Section, frozen=True):
     """A circle in a plane parallel to XY: the first task of issue 2."""
 
     center_m: tuple[float, float, float] = (0.0, 0.0, 0.50)
@@ -59,7 +59,7 @@ def build_path_task(cfg: Config, robot: Robot) -> BuiltTask:
 
 # -- contour tracking (seed 001 §7) -------------------------------------------------------------
 
-class ContourSection(Section):
+class ContourSection(Section, frozen=True):
     """Hybrid force/velocity contour tracking (seed 001 §7); see controller/tasks/contour_tracking.py."""
 
     expected_centre_m: tuple[float, float] = (0.0, 0.0)

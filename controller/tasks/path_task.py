@@ -23,6 +23,8 @@ class CartesianTrajectory(Protocol):
 
     def sample(self, tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
 
+    def points(self, n: int) -> np.ndarray: ...  # n samples along the whole path, for the workspace check
+
 
 class InverseKinematics(Protocol):
     def inverse_kinematics(self, tcp_m: np.ndarray) -> np.ndarray: ...

@@ -31,7 +31,7 @@ class RunReport(Protocol):
 
 @dataclass(frozen=True)
 class BuiltTask:
-    task: Task
+    task: Task[Any]
     reports: tuple[RunReport, ...] = field(default=())
 
 

@@ -8,10 +8,12 @@ frozen state, and may finish, raise events, or ask for a fault.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, TypeVar
 
 from controller.core.cycle_data import CycleInputs, Event
 from controller.core.setpoint_smoothing import Setpoint
+
+S = TypeVar("S")  # a task's state
 
 
 @dataclass(frozen=True, slots=True)
@@ -43,11 +45,13 @@ class TaskStep:
     events: tuple[Event, ...] = ()
 
 
-class Task(Protocol):
+class Task(Protocol[S]):
+    """A task, generic in its own frozen state ``S`` (the law keeps it in ``ControllerState.task_state``)."""
+
     name: str
 
-    def start(self) -> object: ...
+    def start(self) -> S: ...
 
-    def step(self, state: object, ctx: TaskContext) -> TaskStep: ...
+    def step(self, state: S, ctx: TaskContext) -> TaskStep: ...
 
-    def phase_name(self, state: object) -> str: ...
+    def phase_name(self, state: S) -> str: ...

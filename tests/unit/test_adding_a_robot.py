@@ -33,7 +33,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 # -- the robot: section, model, simulator hook, entry -------------------------------------------
 
-class GantrySection(Section):
+class GantrySection(Section, frozen=True):
     offset_m: tuple[float, float, float] = (0.0, 0.0, 0.2)  # TCP when every axis is at 0
     stroke_min_m: Annotated[float, rng(-10.0, 10.0)] = -0.3
     stroke_max_m: Annotated[float, rng(-10.0, 10.0)] = 0.3

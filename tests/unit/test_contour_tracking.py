@@ -171,6 +171,7 @@ def _closed_loop(**overrides):
     return final, summary, ex
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("centre,radius", [((0.003, -0.002), 0.07), ((-0.002, 0.001), 0.066),
                                            ((0.0, 0.003), 0.073)])
 def test_closed_loop_follows_an_off_centre_disk_of_another_radius(centre, radius):
@@ -187,11 +188,13 @@ def test_closed_loop_follows_an_off_centre_disk_of_another_radius(centre, radius
     assert math.hypot(tcp[0] - centre[0], tcp[1] - centre[1]) > radius
 
 
+@pytest.mark.slow
 def test_closed_loop_faults_when_there_is_nothing_to_touch():
     final, _, _ = _closed_loop(**{"sim.disk.radius_m": 0.04})
     assert final.mode == Mode.FAULT and "no contact within" in final.fault_reason
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("placement", [{}, {"sim.sensor.seed": 3, "sim.disk.centre_m": [0.0, 0.003],
                                               "sim.disk.radius_m": 0.073}])
 def test_force_error_is_worse_along_the_minor_axis_of_the_stiffness_as_in_the_paper(placement):
@@ -259,6 +262,7 @@ class LossyExchange:
         return inputs
 
 
+@pytest.mark.slow
 def test_lost_frames_in_the_force_loop_cost_nothing_visible():
     """1 cycle in 25 and three bursts of 3 without frames during tracking: the same laps, no fault."""
     cfg = load_config(overrides=FAST)

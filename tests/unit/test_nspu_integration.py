@@ -20,6 +20,9 @@ from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.shell.run_summary import RunRecorder
 from sim_backend.loopback import LoopbackExchange
 
+# a planned 2 s motion streamed in simulated time, and a demo over the bus: the slow tier (make test-all)
+pytestmark = pytest.mark.slow
+
 NSPU_TOML = CONFIG_DIR / "nspu.toml"
 
 

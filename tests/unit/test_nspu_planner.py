@@ -94,6 +94,7 @@ def test_paper_example_is_rejected_by_default() -> None:
         res.raise_for_status()
 
 
+@pytest.mark.slow
 def test_paper_example_converges_with_paper_assumptions(paper_plan) -> None:
     res = paper_plan
     assert res.status is PlanStatus.CONVERGED, res.message
@@ -110,6 +111,7 @@ def test_paper_example_converges_with_paper_assumptions(paper_plan) -> None:
     assert np.any(np.diff(np.sign(res.type2_measure)) != 0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(PAIRS))
 def test_further_pose_pairs_converge_without_singularity(near_plans, name: str) -> None:
     res = near_plans[name]
@@ -170,6 +172,7 @@ def test_singular_goal_pose_is_reported() -> None:
     assert "type-II" in res.message
 
 
+@pytest.mark.slow
 def test_leg_stroke_violation_is_reported(paper_plan) -> None:
     legs = paper_plan.legs_m
     lo = min(leg_lengths_batch(GEOM, START.p_m, START.R).min(), leg_lengths_batch(GEOM, GOAL.p_m, GOAL.R).min())

@@ -102,6 +102,7 @@ def test_closed_loop_in_simulated_time_tracks_the_octant_circle():
     assert np.linalg.norm(exchange.plant.tcp_m - end) < 1e-4
 
 
+@pytest.mark.slow
 def test_demo_end_to_end(tmp_path):
     cmd = [sys.executable, "-m", "controller", "demo", "--robot", "uru", "--json", "--max-duration", "60",
            *TOLERANT, "--set", f'recording.directory="{tmp_path}"',

@@ -418,6 +418,7 @@ def test_path_through_actuation_singularity_is_refused() -> None:
         check_path(GEOM, path, UruPathMargins(plane_distance_m=0.01))
 
 
+@pytest.mark.slow
 def test_plots_are_written(tmp_path) -> None:
     from controller.tools.analysis.uru_plots import plot_workspace_and_singularities
 
