@@ -32,7 +32,6 @@ if TYPE_CHECKING:
     from sim_backend.force_sensor import SimulatedForceSensor
 
 from controller.errors import InputError
-from drivers.cyclic_exchange import CAN_ERR_BUSOFF
 
 KINDS_WITH_NODE = ("drop", "delay", "malformed", "drive_fault", "heartbeat")
 KINDS = KINDS_WITH_NODE + ("freeze", "saturate", "force", "error_frames", "bus_off", "tx_full", "stall")
@@ -148,7 +147,7 @@ def tpdo_payload(schedule: FaultSchedule, node: int, payload: bytes, now_s: floa
 
 # SocketCAN error classes (linux/can/error.h) of the error frames the simulated bus reports
 ERROR_CLASS_CONTROLLER = 0x004
-ERROR_CLASS_BUS_OFF = CAN_ERR_BUSOFF  # what the exchange reads as bus-off
+ERROR_CLASS_BUS_OFF = 0x040  # drivers/cyclic_exchange.py CAN_ERR_BUSOFF (a test holds them equal)
 
 
 @dataclass(frozen=True)
