@@ -18,12 +18,15 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from controller.config import ConfigError, recorded_config_from_dict, set_dotted
 from controller.messages import cheope_pb2 as pb
 from logs import messages as m
 from logs.reader import LogFileError, ReadReport, iter_decoded, read_info
+
+if TYPE_CHECKING:
+    from controller.core.cycle_data import Event
 
 
 @dataclass(frozen=True)
@@ -103,7 +106,7 @@ def _compare_cycle(c: _Compare, rec: pb.Cycle, state: Any, outputs: Any) -> None
     c.value("state.fault_reason", st.fault_reason, state.fault_reason)
 
 
-def _compare_events(c: _Compare, rec: list[pb.Event], new: tuple) -> None:
+def _compare_events(c: _Compare, rec: list[pb.Event], new: tuple[Event, ...]) -> None:
     c.value("events", [e.message for e in rec], [e.message for e in new])
     for i, (a, b) in enumerate(zip(rec, new)):
         c.value(f"events[{i}].kind", a.kind, b.kind)
@@ -133,7 +136,7 @@ def verify(path: str | Path, overrides: dict[str, Any] | None = None,
     report = ReadReport(path)
     result.report = report
     law = state = None
-    pending: tuple[pb.Cycle, tuple] | None = None  # the last cycle, waiting for its recorded events
+    pending: tuple[pb.Cycle, tuple[Event, ...]] | None = None  # the last cycle, waiting for its recorded events
     rec_events: list[pb.Event] = []
     next_seq = 0
 

@@ -53,7 +53,7 @@ class PathTask:
         self.fd_step_s = fd_step_s
         p0, _, _ = path.sample(0.0)
         self._start = JointReference(tuple(robot.inverse_kinematics(p0).tolist()), (0.0,) * 3, (0.0,) * 3,
-                                     tuple(p0.tolist()), False)  # type: ignore[arg-type]
+                                     tuple(p0.tolist()), False)
 
     def start(self) -> PathTaskState:
         return PathTaskState()
@@ -68,7 +68,7 @@ class PathTask:
         qd = (qp - qm) / (2.0 * h)
         qdd = (qp - 2.0 * q + qm) / (h * h)
         return JointReference(tuple(q.tolist()), tuple(qd.tolist()), tuple(qdd.tolist()),
-                              tuple(p.tolist()), True)  # type: ignore[arg-type]
+                              tuple(p.tolist()), True)
 
     def phase_name(self, state: PathTaskState) -> str:
         return state.phase.name

@@ -26,6 +26,7 @@ import dataclasses
 import math
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -33,6 +34,19 @@ from controller.core.cycle_data import Event, Severity
 from controller.planning.nonholonomic import PlanResult, controls, feedback_leg_rates, rollout
 from controller.robots.nspu import leg_lengths_batch
 from controller.tasks.task import JointReference, TaskContext, TaskStep
+
+if TYPE_CHECKING:
+    from controller.config import Config
+    from controller.core.control_law import ControllerState
+    from controller.core.cycle_data import CycleInputs, CycleOutputs
+    from controller.planning.nonholonomic import PlannerConfig
+    from controller.robots.cheope import PoseStatus
+    from controller.robots.nspu_robot import NspuRobot
+    from controller.robots.robot import Robot
+    from controller.shell.loop import CycleTiming
+
+# A sample of the streamed plan: leg positions, velocities, accelerations, planned platform position.
+LegsSample = tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...], tuple[float, float, float]]
 
 
 def _smoothstep(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -66,7 +80,7 @@ class StreamedPlan:
     scale: float  # D / T
     peaks: tuple[float, float, float]  # max |velocity|, |acceleration|, |jerk| of the legs at duration_s
 
-    def sample(self, tau: float) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
+    def sample(self, tau: float) -> LegsSample:
         """Leg positions, velocities, accelerations and the planned platform position at task time tau."""
         t = self.t_s
         tau = min(max(tau, 0.0), self.duration_s)
@@ -130,17 +144,24 @@ class LegsTaskState:
     start_s: float = 0.0
 
 
+class ActuatorCheck(Protocol):
+    """A robot that checks actuator positions (the leg stroke), as ``NspuRobot`` does."""
+
+    def check_actuators(self, q_m: tuple[float, ...]) -> PoseStatus: ...
+
+
 class PlannedLegsTask:
     """Streams a ``StreamedPlan``: checks the legs are at its start, then plays it back."""
 
     name = "planned_legs"
 
-    def __init__(self, streamed: StreamedPlan, start_tolerance_m: float, robot=None) -> None:
+    def __init__(self, streamed: StreamedPlan, start_tolerance_m: float,
+                 robot: ActuatorCheck | None = None) -> None:
         self.streamed = streamed
         self.start_tolerance_m = start_tolerance_m
         self.robot = robot  # with check_actuators: the reference is checked against the stroke
         first = streamed.sample(0.0)
-        self._start = JointReference(first[0], (0.0,) * 3, (0.0,) * 3, first[3], False)  # type: ignore[arg-type]
+        self._start = JointReference(first[0], (0.0,) * 3, (0.0,) * 3, first[3], False)
 
     def start(self) -> LegsTaskState:
         return LegsTaskState()
@@ -158,8 +179,9 @@ class PlannedLegsTask:
                        "restart the simulator (or re-home the robot) at the planned start pose")
                 return TaskStep(state, self._start, fault=why)
             state = LegsTaskState(LegsPhase.STREAMING, ctx.t_s)
-            ev = (Event("task", Severity.INFO, f"streaming the plan: {self.streamed.duration_s:.3f} s "
-                                               f"(time scale {self.streamed.scale:.3f})"),)
+            msg = (f"streaming the plan: {self.streamed.duration_s:.3f} s "
+                   f"(time scale {self.streamed.scale:.3f})")
+            ev: tuple[Event, ...] = (Event("task", Severity.INFO, msg),)
         else:
             ev = ()
         tau = ctx.t_s - state.start_s
@@ -171,7 +193,7 @@ class PlannedLegsTask:
             status = self.robot.check_actuators(pos)
             if not status.ok:
                 return TaskStep(state, self._start, fault=f"planned leg reference: {status.reason}")
-        ref = JointReference(pos, vel, acc, plat, not finished)  # type: ignore[arg-type]
+        ref = JointReference(pos, vel, acc, plat, not finished)
         return TaskStep(state, ref, finished, events=ev)
 
 
@@ -193,7 +215,8 @@ class PlanExecutionReport:
     simulator's mechanics, which integrate the drives' actual positions at every SYNC.
     """
 
-    def __init__(self, robot, plan: PlanResult, streamed: StreamedPlan, planning_time_s: float) -> None:
+    def __init__(self, robot: NspuRobot, plan: PlanResult, streamed: StreamedPlan,
+                 planning_time_s: float) -> None:
         self.robot = robot
         self.plan = plan
         self.streamed = streamed
@@ -203,7 +226,8 @@ class PlanExecutionReport:
         self._refs: list[tuple[float, ...] | None] = [None, None]
         self.leg_errors_m: list[float] = []
 
-    def on_cycle(self, cycle, t, inputs, state, outputs, events, timing) -> None:
+    def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
+                 outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None:
         ref = self._refs[-2]  # the setpoint the drives were to reach at this SYNC (sent two cycles ago)
         self._refs.append(state.setpoint.position if state.tcp_reference_m is not None else None)
         del self._refs[0]
@@ -246,7 +270,7 @@ class PlanExecutionReport:
         return out
 
 
-def build_planned_legs_task(cfg, robot) -> tuple[PlannedLegsTask, PlanExecutionReport]:
+def build_planned_legs_task(cfg: Config, robot: Robot) -> tuple[PlannedLegsTask, PlanExecutionReport]:
     """Plan the configured motion (seed 004), time-scale it and wrap it in a task with its report.
 
     Raises ``PlanningError`` (a ValueError) naming the planner's status when the plan fails.
@@ -254,8 +278,11 @@ def build_planned_legs_task(cfg, robot) -> tuple[PlannedLegsTask, PlanExecutionR
     import time
 
     from controller.planning.nonholonomic import plan_motion
+    from controller.robots.nspu_robot import NspuRobot
     from controller.robots.registry import actuator_units
 
+    if not isinstance(robot, NspuRobot):  # the registry pairs this task with the 3-nSPU only
+        raise TypeError(f"the planned task needs the 3-nSPU robot model, got {type(robot).__name__}")
     n = cfg.robot.model("nspu")
     t0 = time.perf_counter()
     plan = plan_motion(robot.geometry, robot.start, robot.goal, planner_config(cfg)).raise_for_status()
@@ -267,7 +294,7 @@ def build_planned_legs_task(cfg, robot) -> tuple[PlannedLegsTask, PlanExecutionR
     return task, PlanExecutionReport(robot, plan, streamed, planning_time)
 
 
-def planner_config(cfg, check_type2: bool | None = None):
+def planner_config(cfg: Config, check_type2: bool | None = None) -> PlannerConfig:
     from controller.planning.nonholonomic import PlannerConfig
 
     n = cfg.robot.model("nspu")

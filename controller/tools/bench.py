@@ -39,8 +39,10 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol, SupportsInt, cast
 
 import numpy as np
 
@@ -48,6 +50,32 @@ from controller.errors import InputError
 from controller.shell.loop import period_error_us
 from controller.shell.realtime import RealtimeOptions
 from drivers import cob_ids
+
+if TYPE_CHECKING:
+    import subprocess
+    from queue import SimpleQueue
+
+    import can
+    from matplotlib.axes import Axes
+    from ruckig import InputParameter
+
+    from controller.core.control_law import ControllerState
+    from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
+    from controller.core.setpoint_smoothing import Setpoint, SmoothingResult
+    from controller.shell.loop import CycleTiming
+    from drivers.bus import BusSpec
+
+    class StubBus(can.BusABC):
+        """The bus ``stub_bus`` returns, declared for the type checker: the class itself is made
+        there, so that python-can is imported only when the PDO comparison runs."""
+
+        queue: SimpleQueue[can.Message]
+        sent: int
+
+# The benchmark's results are JSON-shaped (bench.json): nested dicts of numbers, strings and lists,
+# their keys set where they are built. The code that reads them back (the cyclictest ratios, the
+# plots, the table) reads them as Json rather than through one TypedDict per table.
+Json = dict[str, Any]
 
 DRIVE_TPDO_BYTES = 6
 
@@ -184,7 +212,7 @@ class LoopProbe:
         self.samples: list[tuple[float, ...]] = []  # (monotonic, thread, process, sim, writer) [s]
         self.writer_pid: int | None = None  # the MCAP writer process, found among our children
 
-    def sink(self, outgoing: bool, t: float, msg) -> None:
+    def sink(self, outgoing: bool, t: float, msg: can.Message) -> None:
         cid = msg.arbitration_id
         if outgoing:
             self.outgoing += 1
@@ -204,7 +232,8 @@ class LoopProbe:
         if cid in self._tpdo_ids:
             self._last_tpdo_s = t
 
-    def on_cycle(self, cycle, t, inputs, state, outputs, events, timing) -> None:
+    def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
+                 outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None:
         now = time.monotonic()
         i = self.n
         if i < self.capacity:
@@ -296,8 +325,8 @@ def measured_bus_load(frames: dict[int, int], shapes: dict[int, tuple[int, bool,
 
 # -- the simulator process --------------------------------------------------------------------
 
-def simulator(spec, overrides: list[str], config_path: str | None, rt: RealtimeOptions,
-              ready_timeout_s: float = 30.0):  # -> context manager of subprocess.Popen
+def simulator(spec: BusSpec, overrides: list[str], config_path: str | None, rt: RealtimeOptions,
+              ready_timeout_s: float = 30.0) -> AbstractContextManager[subprocess.Popen[str]]:
     """``cheope sim`` as a child process with its own real-time options."""
     from controller.tools.demo import simulator_process
 
@@ -352,16 +381,17 @@ def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], conf
                                  observers=(probe,) if contour is None else (probe, contour),
                                  frame_sink=probe.sink, realtime=rt)
     if contour is not None:
-        from controller.assembly import build_robot
         from controller.tools.analysis.contour_report import contour_summary
+        from controller.tools.contour_experiment import cheope_robot
 
         c = cfg.task.model("contour")
-        summary["contour"] = contour_summary(contour, build_robot(cfg), cfg.robot.mass.actuator_stiffness_n_m,
-                                             c.height_m, c.lap_speeds_m_s)
+        stiffness = cfg.robot.mass.actuator_stiffness_n_m
+        summary["contour"] = contour_summary(contour, cheope_robot(cfg), stiffness, c.height_m,
+                                             c.lap_speeds_m_s)
     n = min(probe.n, capacity)
     skip = min(n // 10, round(cfg.loop.rate_hz))  # the first second: node set-up done, caches cold
     wake = probe.wake_error_s[skip:n]
-    overruns = int(summary.get("overruns", 0))
+    overruns = _count(summary.get("overruns", 0))
     samples = probe.samples
     seconds = samples[-1][0] - samples[0][0] if len(samples) > 1 else 0.0
     echo = cob_ids.SYNC in probe.frames  # the bus hands us our own frames too
@@ -382,7 +412,7 @@ def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], conf
         "simulator_realtime": sim_rt.describe(),  # as asked of the simulator
         "final_mode": summary["final_mode"],
         "fault_reason": summary.get("fault_reason"),
-        "cycles": int(summary["cycles"]),
+        "cycles": _count(summary["cycles"]),
         "achieved_rate_hz": summary["achieved_rate_hz"],
         "period_error_us": percentiles_us(per_err),
         "wake_latency_us": percentiles_us(wake * 1e6),
@@ -411,19 +441,26 @@ def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], conf
     return result
 
 
+def _count(value: object) -> int:
+    """A count from ``run_controller``'s summary (its values are typed ``object``)."""
+    if not isinstance(value, SupportsInt):
+        raise TypeError(f"expected a count in the run summary, got {value!r}")
+    return int(value)
+
+
 def _contour_laps(summary: dict[str, object]) -> list[dict[str, object]] | None:
     contour = summary.get("contour")
     return contour.get("laps") if isinstance(contour, dict) else None
 
 
 def machine_floor(rate_hz: float, duration_s: float, rt: RealtimeOptions, late_us: float,
-                  case: dict[str, object]) -> dict[str, object]:
+                  case: Json) -> dict[str, object]:
     """cyclictest at the case's rate, priority, CPU and memory locking, and the case's figures over it."""
     from controller.tools.cyclictest import CyclictestError, run_cyclictest
 
     try:
-        floor = run_cyclictest(rate_hz, duration_s, rt.priority, rt.cpus[0] if rt.cpus else None, rt.lock_memory,
-                               (late_us, 100.0, 250.0))
+        floor: Json = run_cyclictest(rate_hz, duration_s, rt.priority, rt.cpus[0] if rt.cpus else None,
+                                     rt.lock_memory, (late_us, 100.0, 250.0))
     except CyclictestError as err:
         return {"error": str(err)}
     above = floor["per_10k_above_us"][f"{late_us:g}"]
@@ -436,7 +473,8 @@ def machine_floor(rate_hz: float, duration_s: float, rt: RealtimeOptions, late_u
 
 
 def _finite(a: np.ndarray) -> np.ndarray:
-    return a[np.isfinite(a)]
+    finite: np.ndarray = a[np.isfinite(a)]
+    return finite
 
 
 # -- the step in Python against Ruckig's own calculation time ---------------------------------
@@ -465,7 +503,7 @@ def step_breakdown(config_path: str | None, overrides: list[str], rate_hz: float
     wrapper_s: list[float] = []
     inner = smoother._calculate
 
-    def timed_calculate(inp, current):
+    def timed_calculate(inp: InputParameter, current: Setpoint) -> SmoothingResult:
         t0 = time.perf_counter()
         result = inner(inp, current)
         wrapper_s.append(time.perf_counter() - t0)
@@ -476,7 +514,8 @@ def step_breakdown(config_path: str | None, overrides: list[str], rate_hz: float
             pass
         return result
 
-    smoother._calculate = timed_calculate  # instance attribute: this law object only
+    # an instance attribute wrapping the bound method: this law object only
+    smoother._calculate = timed_calculate  # type: ignore[method-assign]  # deliberate, see above
     sim = SimulatedTime()
     exchange = LoopbackExchange(cfg, sim.clock)
     state = law.initial_state()
@@ -530,7 +569,7 @@ def _profile_lines(text: str) -> list[str]:
 
 # -- the cyclic PDO path against canopen's PDO objects ----------------------------------------
 
-def stub_bus():  # -> can.BusABC with a ``queue`` of frames to receive
+def stub_bus() -> StubBus:
     """A python-can bus that costs (almost) nothing: sends are counted, frames to receive are
     queued by the caller. Lets the PDO comparison measure the PDO path, not a transport
     (python-can's virtual bus deep-copies every frame for every receiver, ~10 us each)."""
@@ -538,22 +577,22 @@ def stub_bus():  # -> can.BusABC with a ``queue`` of frames to receive
 
     import can
 
-    class StubBus(can.BusABC):
+    class _StubBus(can.BusABC):
         def __init__(self) -> None:
-            self.queue: queue.SimpleQueue = queue.SimpleQueue()
+            self.queue: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
             self.sent = 0
             super().__init__(channel="stub")
 
-        def send(self, msg, timeout=None) -> None:
+        def send(self, msg: can.Message, timeout: float | None = None) -> None:
             self.sent += 1
 
-        def _recv_internal(self, timeout):
+        def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
             try:
                 return self.queue.get(timeout=timeout) if timeout else self.queue.get_nowait(), False
             except queue.Empty:
                 return None, False
 
-    return StubBus()
+    return cast("StubBus", _StubBus())  # the same attributes as StubBus, declared above
 
 
 def compare_pdo_paths(cycles: int, config_path: str | None = None, overrides: list[str] | None = None
@@ -605,10 +644,11 @@ def compare_pdo_paths(cycles: int, config_path: str | None = None, overrides: li
         for m in tpdos:
             bus.queue.put(m)
         inputs = ex.collect(time.monotonic() + 0.01)
-        if not inputs.sensor.fresh:
+        if inputs.sensor is None or not inputs.sensor.fresh:
             raise RuntimeError("project arm: sensor frames missing")
 
-    results["project_cpu_us"], results["project_wall_us"] = (round(x, 2) for x in measure(project_cycle))
+    project_cpu_us, project_wall_us = (round(x, 2) for x in measure(project_cycle))
+    results["project_cpu_us"], results["project_wall_us"] = project_cpu_us, project_wall_us
     bus.shutdown()
     bus = stub_bus()
     net = canopen.Network(bus)
@@ -618,10 +658,10 @@ def compare_pdo_paths(cycles: int, config_path: str | None = None, overrides: li
         sensor = net.add_node(sid, str(SENSOR_EDS))
         arrived = threading.Semaphore(0)
         for node in nodes:
-            node.rpdo.read(from_od=True)
-            node.tpdo.read(from_od=True)
+            _read_from_od(node.rpdo)
+            _read_from_od(node.tpdo)
             node.tpdo[1].add_callback(lambda _m: arrived.release())
-        sensor.tpdo.read(from_od=True)
+        _read_from_od(sensor.tpdo)
         sensor.tpdo[1].add_callback(lambda _m: arrived.release())
         sensor.tpdo[2].add_callback(lambda _m: arrived.release())
         rpdos = [n.rpdo[1] for n in nodes]
@@ -643,11 +683,23 @@ def compare_pdo_paths(cycles: int, config_path: str | None = None, overrides: li
             _ = [(sw.raw, scale.to_unit(pos.raw)) for sw, pos in tvars]
             _ = [v.raw * FORCE_N_PER_COUNT for v in fvars] + [v.raw * TORQUE_NM_PER_COUNT for v in tqvars]
 
-        results["canopen_cpu_us"], results["canopen_wall_us"] = (round(x, 2) for x in measure(canopen_cycle))
+        canopen_cpu_us, canopen_wall_us = (round(x, 2) for x in measure(canopen_cycle))
+        results["canopen_cpu_us"], results["canopen_wall_us"] = canopen_cpu_us, canopen_wall_us
     finally:
         net.disconnect()
-    results["canopen_over_project"] = round(results["canopen_cpu_us"] / results["project_cpu_us"], 2)
+    results["canopen_over_project"] = round(canopen_cpu_us / project_cpu_us, 2)
     return results
+
+
+class _PdoMaps(Protocol):
+    """canopen's ``RPDO``/``TPDO`` map collections (``PdoBase``), whose ``read`` is unannotated."""
+
+    def read(self, from_od: bool = False) -> None: ...
+
+
+def _read_from_od(maps: _PdoMaps) -> None:
+    """Set up the PDO maps from the object dictionary (the EDS), not over SDO."""
+    maps.read(from_od=True)
 
 
 def bus_frame_cost(spec_text: str, fd: bool, frames: int = 2000) -> dict[str, object]:
@@ -707,7 +759,7 @@ def run_bench(rates_hz: tuple[float, ...], duration_s: float, compare_s: float, 
 
     out_dir.mkdir(parents=True, exist_ok=True)
     cfg = load_config(config_path, dict(parse_override(s) for s in overrides))
-    report: dict[str, object] = {
+    report: Json = {
         "machine": {"cpus": os.cpu_count(), "python": sys.version.split()[0],
                     "load_average_at_start": [round(x, 2) for x in os.getloadavg()]},
         "duration_s": duration_s, "compare_s": compare_s,
@@ -731,7 +783,7 @@ def run_bench(rates_hz: tuple[float, ...], duration_s: float, compare_s: float, 
         case = BenchCase(rate, fd=rate >= fd_from_hz)
         progress(f"{rate:g} Hz: step cost and Ruckig in process ...")
         # the contour experiment in process as over the bus (its tracking laps are what it costs)
-        bd = step_breakdown(config_path, [*overrides, "task.path.laps=10.0"], rate,
+        bd: Json = step_breakdown(config_path, [*overrides, "task.path.laps=10.0"], rate,
                             cycles=int((duration_s if contour else min(10.0, duration_s)) * rate))
         breakdowns.append(bd)
         progress(f"{case.name}: loop shell vs naive sleep ...")
@@ -763,15 +815,20 @@ def run_bench(rates_hz: tuple[float, ...], duration_s: float, compare_s: float, 
     return clean
 
 
-def _strip_private(obj):
+def _strip_private(report: Json) -> Json:
+    """``report`` without the keys starting with "_" (the raw samples for the plots), at any depth."""
+    return {k: _strip_private_value(v) for k, v in report.items() if not k.startswith("_")}
+
+
+def _strip_private_value(obj: object) -> object:
     if isinstance(obj, dict):
-        return {k: _strip_private(v) for k, v in obj.items() if not k.startswith("_")}
+        return _strip_private(obj)
     if isinstance(obj, list):
-        return [_strip_private(v) for v in obj]
+        return [_strip_private_value(v) for v in obj]
     return obj
 
 
-def plot_distributions(cases: list[dict[str, object]], sleepers: list[dict[str, object]], out_dir: Path) -> list[str]:
+def plot_distributions(cases: list[Json], sleepers: list[Json], out_dir: Path) -> list[str]:
     """Period-error histograms and exceedance curves (PNG); returns the file paths."""
     import matplotlib
 
@@ -812,7 +869,7 @@ def plot_distributions(cases: list[dict[str, object]], sleepers: list[dict[str, 
     return paths
 
 
-def _exceedance(ax, err_us: np.ndarray, label: str) -> None:
+def _exceedance(ax: Axes, err_us: np.ndarray, label: str) -> None:
     if err_us.size == 0:
         return
     x = np.sort(err_us)
@@ -828,16 +885,16 @@ def _exceedance(ax, err_us: np.ndarray, label: str) -> None:
 
 # -- output -----------------------------------------------------------------------------------
 
-def format_table(report: dict[str, object]) -> str:
+def format_table(report: Json) -> str:
     lines = []
     cases = report["cases"]
     header = f"{'':34}" + "".join(f"{c['case']:>24}" for c in cases)
     lines.append(header)
 
-    def row(label: str, fn: Callable[[dict], str]) -> None:
+    def row(label: str, fn: Callable[[Json], str]) -> None:
         lines.append(f"{label:34}" + "".join(f"{fn(c):>24}" for c in cases))
 
-    def q(d: dict, keys=("p50", "p99", "p99_9", "max")) -> str:
+    def q(d: Json, keys: tuple[str, ...] = ("p50", "p99", "p99_9", "max")) -> str:
         return "/".join(f"{d[k]:.0f}" for k in keys)
 
     row("achieved rate [Hz]", lambda c: f"{c['achieved_rate_hz']:.2f}")
@@ -906,7 +963,7 @@ def format_table(report: dict[str, object]) -> str:
     return "\n".join(lines)
 
 
-def python_can_floor_percent(case: dict[str, object], cost: dict[str, object]) -> tuple[float, float]:
+def python_can_floor_percent(case: Json, cost: Json) -> tuple[float, float]:
     """python-can's own cost per process at the case's rate, from the per-frame costs [% of a core].
 
     Every frame on the udp_multicast bus reaches every process, its own included: both the

@@ -22,11 +22,20 @@ import msgspec
 from controller.assembly import build_robot
 from controller.config import Config
 from controller.robots.builtin import mass_model_from_config
+from controller.robots.cheope import CheopeRobot
 from controller.shell.realtime import RealtimeOptions
 from controller.shell.service import run_controller
 from controller.tasks.builtin import PathSection
 from controller.tools.analysis.contour_report import ContourObserver, contour_summary, plot_contour
 from drivers.bus import BusSpec
+
+
+def cheope_robot(cfg: Config) -> CheopeRobot:
+    """The configured robot, which for the contour task is Cheope (its robot entry's tasks)."""
+    robot = build_robot(cfg)
+    if not isinstance(robot, CheopeRobot):
+        raise TypeError(f"the contour experiment needs the Cheope robot model, got {type(robot).__name__}")
+    return robot
 
 
 def comparison_config(cfg: Config) -> Config:
@@ -43,7 +52,7 @@ def run_contour_experiment(cfg: Config, spec: BusSpec, plot_dir: Path | None, ma
                            stop_event: threading.Event | None = None,
                            realtime: RealtimeOptions | None = None) -> dict[str, object]:
     c = cfg.task.model("contour")
-    robot = build_robot(cfg)
+    robot = cheope_robot(cfg)
     stiffness = cfg.robot.mass.actuator_stiffness_n_m
 
     force_obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s))
@@ -70,7 +79,7 @@ def _plot(cfg: Config, plot_dir: Path, force_obs: ContourObserver, pos_obs: Cont
           ) -> list[str]:
     """Fig. 8-9 of the force-controlled run and, when there is one, of the comparison."""
     c = cfg.task.model("contour")
-    robot = build_robot(cfg)
+    robot = cheope_robot(cfg)
     stiffness = cfg.robot.mass.actuator_stiffness_n_m
     masses = mass_model_from_config(cfg)
     plots = plot_contour(force_obs, robot, stiffness, masses, c.height_m, plot_dir, "force control",
@@ -100,7 +109,7 @@ def run_simulated_time(cfg: Config, max_duration_s: float = 600.0, plot_dir: Pat
     summary: dict[str, object] = {
         "final_mode": final.mode.name, "fault_reason": final.fault_reason, "cycles": stats.cycles,
         "simulated_time": True,
-        "contour": contour_summary(obs, build_robot(cfg), cfg.robot.mass.actuator_stiffness_n_m, c.height_m,
+        "contour": contour_summary(obs, cheope_robot(cfg), cfg.robot.mass.actuator_stiffness_n_m, c.height_m,
                                    c.lap_speeds_m_s)}
     if plot_dir is not None:
         summary["plots"] = _plot(cfg, plot_dir, obs)
