@@ -14,6 +14,7 @@ import numpy as np
 
 from controller.config import Config
 from controller.config_schema import ConfigError, Section, rng
+from controller.robots.registry import actuator_units
 from controller.robots.robot import Robot
 from controller.tasks.circle_path import CirclePath
 from controller.tasks.contour_tracking import ContourParams, ContourTrackingTask
@@ -120,7 +121,8 @@ def build_contour_task(cfg: Config, robot: Robot) -> BuiltTask:
 def build_planned_task(cfg: Config, robot: Robot) -> BuiltTask:
     from controller.tasks.planned_legs import build_planned_legs_task
 
-    task, report = build_planned_legs_task(cfg, robot)
+    task, report = build_planned_legs_task(cfg.robot.model("nspu"), actuator_units(cfg), cfg.loop.settle_tolerance_m,
+                                           robot)
     return BuiltTask(task, (report,))
 
 

@@ -36,12 +36,13 @@ from controller.robots.nspu import leg_lengths_batch
 from controller.tasks.task import JointReference, TaskContext, TaskStep
 
 if TYPE_CHECKING:
-    from controller.config import Config
     from controller.core.control_law import ControllerState
     from controller.core.cycle_data import CycleInputs, CycleOutputs
     from controller.planning.nonholonomic import PlannerConfig
+    from controller.robots.builtin import NspuSection
     from controller.robots.cheope import PoseStatus
     from controller.robots.nspu_robot import NspuRobot
+    from controller.robots.registry import ActuatorUnits
     from controller.robots.robot import Robot
     from controller.shell.loop import CycleTiming
 
@@ -270,34 +271,32 @@ class PlanExecutionReport:
         return out
 
 
-def build_planned_legs_task(cfg: Config, robot: Robot) -> tuple[PlannedLegsTask, PlanExecutionReport]:
-    """Plan the configured motion (seed 004), time-scale it and wrap it in a task with its report.
+def build_planned_legs_task(section: NspuSection, limits: ActuatorUnits, settle_tolerance_m: float,
+                            robot: Robot) -> tuple[PlannedLegsTask, PlanExecutionReport]:
+    """Plan the configured motion (seed 004), time-scale it to ``section.limit_fraction`` of the
+    actuators' limits and wrap it in a task with its report.
 
-    Raises ``PlanningError`` (a ValueError) naming the planner's status when the plan fails.
+    Raises ``PlanningError`` (a RefusedError) naming the planner's status when the plan fails.
     """
     import time
 
     from controller.planning.nonholonomic import plan_motion
     from controller.robots.nspu_robot import NspuRobot
-    from controller.robots.registry import actuator_units
 
     if not isinstance(robot, NspuRobot):  # the registry pairs this task with the 3-nSPU only
         raise TypeError(f"the planned task needs the 3-nSPU robot model, got {type(robot).__name__}")
-    n = cfg.robot.model("nspu")
     t0 = time.perf_counter()
-    plan = plan_motion(robot.geometry, robot.start, robot.goal, planner_config(cfg)).raise_for_status()
+    plan = plan_motion(robot.geometry, robot.start, robot.goal, planner_config(section)).raise_for_status()
     planning_time = time.perf_counter() - t0
-    units = actuator_units(cfg)
-    streamed = time_scale_plan(plan, units.max_velocity, units.max_acceleration, units.max_jerk,
-                               n.limit_fraction, n.stream_steps)
-    task = PlannedLegsTask(streamed, start_tolerance_m=max(cfg.loop.settle_tolerance_m, 1e-5), robot=robot)
+    streamed = time_scale_plan(plan, limits.max_velocity, limits.max_acceleration, limits.max_jerk,
+                               section.limit_fraction, section.stream_steps)
+    task = PlannedLegsTask(streamed, start_tolerance_m=max(settle_tolerance_m, 1e-5), robot=robot)
     return task, PlanExecutionReport(robot, plan, streamed, planning_time)
 
 
-def planner_config(cfg: Config, check_type2: bool | None = None) -> PlannerConfig:
+def planner_config(n: NspuSection, check_type2: bool | None = None) -> PlannerConfig:
     from controller.planning.nonholonomic import PlannerConfig
 
-    n = cfg.robot.model("nspu")
     return PlannerConfig(horizon_s=n.horizon_s, harmonics=n.harmonics, tolerance=n.tolerance,
                          max_iterations=n.max_iterations, n_steps=n.n_steps,
                          check_type2=n.check_type2 if check_type2 is None else check_type2, restarts=n.restarts)

@@ -89,7 +89,7 @@ def plan_nspu(cfg: Config, start: Pose, goal: Pose, check_type2: bool, plot_dir:
     from controller.tasks.planned_legs import planner_config
 
     geometry = nspu_geometry_from_config(cfg)
-    pcfg = planner_config(cfg, check_type2=check_type2)
+    pcfg = planner_config(cfg.robot.model("nspu"), check_type2=check_type2)
     t0 = time.perf_counter()
     res = plan_motion(geometry, start, goal, pcfg)
     elapsed = time.perf_counter() - t0
