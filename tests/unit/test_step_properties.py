@@ -317,3 +317,67 @@ def test_a_target_before_the_first_tpdo_is_within_the_stroke():
     assert rec.state.mode == Mode.CONFIGURING
     lo, hi = cfg.robot.cheope.stroke_min_m, cfg.robot.cheope.stroke_max_m
     assert all(lo <= q <= hi for q in rec.outputs.targets), rec.outputs
+
+
+# -- b. no jump at enable ----------------------------------------------------------------------
+
+START_STATES = [PowerState.SWITCH_ON_DISABLED, PowerState.READY_TO_SWITCH_ON, PowerState.SWITCHED_ON,
+                PowerState.OPERATION_ENABLED, PowerState.QUICK_STOP_ACTIVE, PowerState.FAULT]
+
+
+@PROPERTY_SETTINGS
+@given(data=st.data(),
+       rate=st.sampled_from([200.0, 400.0, 1000.0]),
+       start=st.lists(st.floats(0.0, 1.0), min_size=3, max_size=3),
+       powers=st.lists(st.sampled_from(START_STATES), min_size=3, max_size=3),
+       reset_after=st.integers(1, 20))
+def test_no_jump_at_enable_the_target_is_where_the_drive_is(data, rate, start, powers, reset_after):
+    base = load_config()
+    lo, hi = base.robot.cheope.stroke_min_m, base.robot.cheope.stroke_max_m
+    initial = [min(hi, lo + u * (hi - lo)) for u in start]  # anywhere in the stroke, end stops included
+    cfg, law = build_or_reject({"loop.rate_hz": rate, "loop.hold_before_task_s": 0.05,
+                                "sim.drive.initial_positions_m": initial})
+    loop = ClosedLoop(cfg, law)
+    for d, power in zip(loop.ex.drives, powers):
+        d.power = power  # a drive left in any state by whatever ran before
+    cycles = int(0.15 * rate) + 40
+    # TPDOs missing now and then from the second cycle on (cycle 0: see the CONFIGURING xfail above)
+    missing = frozenset(data.draw(st.lists(st.tuples(st.integers(1, cycles - 1), st.integers(0, 2)), max_size=12)))
+    p = Perturbation(missing=frozenset((c, j) for c, j in missing if (c - 1, j) not in missing))
+    scale = loop.ex.scale
+    faults = []
+    for _ in range(cycles):
+        rec = loop.cycle(p)
+        if rec.state.mode == Mode.FAULT and not faults:
+            faults.append(rec.state.fault_reason)  # a drive that started in FAULT: the operator resets it once
+            p.commands[rec.k + reset_after] = Command.RESET
+        if rec.state.mode == Mode.RUNNING:
+            break
+    modes = [r.state.mode for r in loop.records]
+    note(f"modes: {[m.name for m in modes]}")
+
+    # The step's view: while ENABLING and HOLDING, every target is the position measured, to the count.
+    enabled_at = None
+    for r in loop.records:
+        if r.state.mode not in (Mode.ENABLING, Mode.HOLDING):
+            continue
+        if r.state.mode == Mode.HOLDING and enabled_at is None:
+            enabled_at = r.measured  # all drives report OPERATION ENABLED in this very cycle
+        reference = r.measured if r.state.mode == Mode.ENABLING else enabled_at
+        for j, (x, m) in enumerate(zip(r.outputs.targets, reference)):
+            assert scale.to_counts(x) == scale.to_counts(m), \
+                f"cycle {r.k} ({r.state.mode.name}): target {x} m for drive {j + 1} measured at {m} m"
+
+    # The drives' view: every RPDO that leaves or keeps a drive enabled, until the task starts, carries
+    # the position the drive is at when it arrives; and no drive has moved.
+    first_running = modes.index(Mode.RUNNING)
+    for c, j, cw, target, position in loop.rpdos:
+        if c - 1 >= first_running:
+            break
+        if cw & 0x8F == 0x0F or loop.records[c - 1].powers[j] == PowerState.OPERATION_ENABLED:
+            assert target == position, f"cycle {c}: drive {j + 1} at {position} counts was sent {target} (cw 0x{cw:04X})"
+    for j, (d, x0) in enumerate(zip(loop.ex.drives, initial)):
+        assert d.position_counts() == round(x0 * scale.counts_per_unit), f"drive {j + 1} moved before the task"
+    # and the run got there: the only fault is the one of a drive that started in FAULT, reset once
+    assert all("reports FAULT" in f for f in faults) and (PowerState.FAULT in powers) == bool(faults), faults
+    assert Mode.HOLDING in modes and Mode.RUNNING in modes, loop.state.fault_reason
