@@ -26,6 +26,7 @@ import pytest
 from hypothesis import HealthCheck, event, given, note, reject, settings
 from hypothesis import strategies as st
 
+from controller.assembly import build_law
 from controller.config import Config, ConfigError, load_config
 from controller.core.control_law import ControlLaw, ControllerState, Mode
 from controller.core.cycle_data import (
@@ -33,22 +34,15 @@ from controller.core.cycle_data import (
     Command,
     CycleOutputs,
     DriveFeedback,
-    EmcyReport,
     cycle_inputs,
 )
 from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother, Setpoint
 from controller.robots.cheope import WorkspaceError
 from controller.shell.loop import SimulatedTime
-from controller.shell.service import build_law  # may move: import it from its new home then
 from drivers.cia402 import (
-    CW_DISABLE_VOLTAGE,
-    CW_FAULT_RESET,
-    CW_QUICK_STOP,
     PowerState,
     decode_statusword,
-    device_transition,
 )
-from sim_backend.drive import EMCY_FORCED_FAULT
 from sim_backend.loopback import LoopbackExchange
 
 PROPERTY_SETTINGS = settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -104,6 +98,9 @@ class Perturbation:
     stop_from: int | None = None  # stop requested from this cycle on
 
 
+NO_PERTURBATION = Perturbation()
+
+
 class ClosedLoop:
     """The law, the loopback drives and simulated time, one ``cycle()`` per period."""
 
@@ -131,7 +128,7 @@ class ClosedLoop:
 
         return on_rpdo
 
-    def cycle(self, perturbation: Perturbation = Perturbation(),
+    def cycle(self, perturbation: Perturbation = NO_PERTURBATION,
               extra: Callable[[int, BusFeedback], BusFeedback] | None = None) -> CycleRecord:
         k, p = self.k, perturbation
         self.time.sleep_until((k + 1) * self.period)
@@ -255,7 +252,7 @@ def test_targets_never_exceed_the_actuator_limits_or_leave_the_stroke(task, data
 
     a = cfg.actuators
     vmax, amax = a.max_velocity_m_s, a.max_acceleration_m_s2
-    lo, hi = cfg.robot.cheope.stroke_min_m, cfg.robot.cheope.stroke_max_m
+    lo, hi = cfg.robot.model("cheope").stroke_min_m, cfg.robot.model("cheope").stroke_max_m
     T = cfg.period_s
     # From the first step that has heard every drive (before it, see the strict xfail below).
     started = next(i for i, m in enumerate(modes) if m != Mode.CONFIGURING)
@@ -315,7 +312,7 @@ def test_a_target_before_the_first_tpdo_is_within_the_stroke():
     loop = ClosedLoop(cfg)
     rec = loop.cycle(Perturbation(missing=frozenset({(0, 0)})))  # drive 1's first TPDO is missing
     assert rec.state.mode == Mode.CONFIGURING
-    lo, hi = cfg.robot.cheope.stroke_min_m, cfg.robot.cheope.stroke_max_m
+    lo, hi = cfg.robot.model("cheope").stroke_min_m, cfg.robot.model("cheope").stroke_max_m
     assert all(lo <= q <= hi for q in rec.outputs.targets), rec.outputs
 
 
@@ -333,7 +330,7 @@ START_STATES = [PowerState.SWITCH_ON_DISABLED, PowerState.READY_TO_SWITCH_ON, Po
        reset_after=st.integers(1, 20))
 def test_no_jump_at_enable_the_target_is_where_the_drive_is(data, rate, start, powers, reset_after):
     base = load_config()
-    lo, hi = base.robot.cheope.stroke_min_m, base.robot.cheope.stroke_max_m
+    lo, hi = base.robot.model("cheope").stroke_min_m, base.robot.model("cheope").stroke_max_m
     initial = [min(hi, lo + u * (hi - lo)) for u in start]  # anywhere in the stroke, end stops included
     cfg, law = build_or_reject({"loop.rate_hz": rate, "loop.hold_before_task_s": 0.05,
                                 "sim.drive.initial_positions_m": initial})
