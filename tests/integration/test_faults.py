@@ -5,9 +5,9 @@ from __future__ import annotations
 import os
 import random
 import signal
+import struct
 import subprocess
 import sys
-import time
 
 import can
 import canopen
@@ -16,6 +16,7 @@ import pytest
 from busy_machine import TOLERANT
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from waiting import wait_until
 
 from controller.assembly import build_law
 from controller.config import load_config
@@ -103,37 +104,60 @@ def test_a_killed_controller_leaves_the_simulated_robot_stopped(tmp_path):
     # tolerant of a busy machine: the point is what happens after the kill
     sets = ["--set", "task.path.laps=3", "--set", f'recording.directory="{tmp_path}"', "--set", "monitoring.enabled=false",
             *TOLERANT]
-    with simulator_process(spec, None, ["task.path.laps=3"]):
+    ids = tuple(cfg.actuators.node_ids)
+    with simulator_process(spec, None, ["task.path.laps=3"]), \
+            can.Bus(interface="udp_multicast", channel=spec.channel, port=port) as bus:
         ctrl = subprocess.Popen([sys.executable, "-m", "controller", "run", "--udp-port", str(port), *sets],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
-            time.sleep(4.0)  # well into the first lap
-            assert ctrl.poll() is None, ctrl.communicate()
+            _wait_until_drive_1_moves_under_the_controller(bus, ctrl)  # well into the task, not a guessed 4 s
             ctrl.send_signal(signal.SIGKILL)
             ctrl.wait()
-            killed_at = time.monotonic()
-            time.sleep(cfg.sim.drive.sync_timeout_s + 0.3)  # watchdog + a 5 m/s^2 stop from ~0.1 m/s
-            with can.Bus(interface="udp_multicast", channel=spec.channel, port=port) as bus:
-                network = canopen.Network(bus)
-                network.connect()
-                try:
-                    positions, states = [], []
-                    for node_id in cfg.actuators.node_ids:
-                        node = canopen.RemoteNode(node_id, str(DRIVE_EDS))
-                        node.sdo.RESPONSE_TIMEOUT = 2.0
-                        network.add_node(node)
-                        states.append(decode_statusword(node.sdo[0x6041].raw))
-                        positions.append(node.sdo[0x6064].raw)
-                    time.sleep(0.2)
-                    later = [network[n].sdo[0x6064].raw for n in cfg.actuators.node_ids]
-                finally:
-                    network.notifier.stop(1.0)
-                    network.bus = None
-            assert states == [PowerState.QUICK_STOP_ACTIVE] * 3, states
-            assert later == positions  # not moving any more
-            assert time.monotonic() - killed_at < 5.0
+            network = canopen.Network(bus)
+            network.connect()
+            try:
+                for node_id in ids:
+                    node = canopen.RemoteNode(node_id, str(DRIVE_EDS))
+                    node.sdo.RESPONSE_TIMEOUT = 2.0
+                    network.add_node(node)
+                previous: list[list[int]] = []
+
+                def quick_stopped_and_still():
+                    # the watchdog's quick stop, then the same positions in two polls in a row
+                    states = [decode_statusword(network[n].sdo[0x6041].raw) for n in ids]
+                    positions = [network[n].sdo[0x6064].raw for n in ids]
+                    still = bool(previous) and positions == previous[-1]
+                    previous.append(positions)
+                    return states == [PowerState.QUICK_STOP_ACTIVE] * 3 and still
+
+                wait_until(quick_stopped_and_still, "every drive quick-stopped by its SYNC watchdog and standing still",
+                           poll_s=0.05)
+            finally:
+                network.notifier.stop(1.0)
+                network.bus = None
         finally:
             stop_process(ctrl)
+
+
+def _wait_until_drive_1_moves_under_the_controller(bus: can.BusABC, ctrl: subprocess.Popen) -> None:
+    """Drive 1's TPDOs: OPERATION ENABLED, 2 mm from where it was enabled, and still moving."""
+    start: int | None = None
+    last: int | None = None
+
+    def moving() -> bool:
+        nonlocal start, last
+        assert ctrl.poll() is None, ctrl.communicate()
+        msg = bus.recv(timeout=0.1)
+        if msg is None or msg.arbitration_id != 0x181 or len(msg.data) != 6:
+            return False
+        statusword, counts = struct.unpack("<Hi", msg.data)
+        if decode_statusword(statusword) != PowerState.OPERATION_ENABLED:
+            return False
+        start = counts if start is None else start
+        step, last = (abs(counts - last) if last is not None else 0), counts
+        return abs(counts - start) > 20_000 and step > 10  # 2 mm travelled (1e7 counts/m), > 1 um per cycle
+
+    wait_until(moving, "drive 1 moving under the controller", poll_s=0.0)
 
 
 def test_bad_fault_spec_is_one_clear_line():

@@ -22,6 +22,7 @@ from contextlib import contextmanager
 
 import pytest
 from busy_machine import TOLERANT
+from waiting import GENEROUS_S
 
 from controller.config import ConfigError, load_config
 from controller.core.cycle_data import CycleInputs, CycleOutputs, DriveFeedback
@@ -114,6 +115,20 @@ def _states(client: MonitorClient, n: int, timeout_s: float = 10.0) -> list[Stat
             got.append(u)
     assert len(got) == n, f"received {len(got)} of {n} state samples in {timeout_s} s"
     return got
+
+
+def _wait_mode(client: MonitorClient, mode: str, timeout_s: float = GENEROUS_S) -> StateUpdate:
+    """The first published state sample in ``mode``; fails at the deadline (the loops it replaces went on
+    silently, or had no deadline at all)."""
+    deadline = time.monotonic() + timeout_s
+    seen = []
+    while time.monotonic() < deadline:
+        u = client.next_update(0.2)
+        if isinstance(u, StateUpdate):
+            if u.msg.mode == mode:
+                return u
+            seen = [*seen[-4:], u.msg.mode]
+    raise AssertionError(f"no state sample in {mode} within {timeout_s} s; the last ones: {seen}")
 
 
 def _wait_alive(client: MonitorClient, alive: bool, timeout_s: float = 10.0) -> AliveUpdate:
@@ -249,8 +264,8 @@ def test_liveliness_goes_away_and_comes_back():
 
 def test_status_queryable_answers_configuration_versions_counters_and_uptime():
     ep = _endpoint()
-    with controller(ep):
-        time.sleep(0.3)
+    with MonitorClient(monitor_settings((ep,)), KEYS) as client, controller(ep):
+        _states(client, 1)  # it has cycled and published: an event, not a guessed 0.3 s
         st = query_status(client_settings((ep,)), KEYS, timeout_s=5.0)
     assert st.robot_id == "test-bot" and not st.commands_enabled
     assert list(st.listen_endpoints) == [ep]
@@ -273,17 +288,11 @@ def test_a_command_other_than_stop_is_refused_when_commands_are_disabled():
 def test_pause_and_resume_reach_the_law_when_enabled():
     ep = _endpoint()
     with MonitorClient(monitor_settings((ep,)), KEYS) as client, controller(ep, "monitoring.allow_remote_commands=true") as proc:
-        deadline = time.monotonic() + 10
-        while time.monotonic() < deadline and _states(client, 1)[0].msg.mode != "RUNNING":
-            pass
+        _wait_mode(client, "RUNNING")
         assert send_command(client_settings((ep,)), KEYS, "pause", timeout_s=5.0).accepted
-        deadline = time.monotonic() + 5
-        while time.monotonic() < deadline and _states(client, 1)[0].msg.mode != "PAUSED":
-            pass
+        _wait_mode(client, "PAUSED")
         assert send_command(client_settings((ep,)), KEYS, "resume", timeout_s=5.0).accepted
-        deadline = time.monotonic() + 5
-        while time.monotonic() < deadline and _states(client, 1)[0].msg.mode != "RUNNING":
-            pass
+        _wait_mode(client, "RUNNING")
         out = _stop(proc)
     events = _final(out)["events"]
     assert any("remote pause" in e for e in events) and any("remote resume" in e for e in events)
@@ -292,8 +301,7 @@ def test_pause_and_resume_reach_the_law_when_enabled():
 def test_remote_stop_brings_a_running_task_to_a_controlled_stop():
     ep = _endpoint()
     with MonitorClient(monitor_settings((ep,)), KEYS) as client, controller(ep) as proc:
-        while _states(client, 1)[0].msg.mode != "RUNNING":
-            pass
+        _wait_mode(client, "RUNNING")
         reply = send_command(client_settings((ep,)), KEYS, "stop", timeout_s=5.0)
         assert reply.accepted
         proc.wait(timeout=10)  # it ends by itself: the stop, not our SIGTERM

@@ -8,12 +8,14 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import can
 import pytest
+from waiting import GENEROUS_S, ProcessLines, wait_for_exit
 
 from controller.assembly import build_law
 from controller.cli import main
@@ -140,7 +142,7 @@ def test_a_full_queue_drops_counts_and_records_the_drop_without_blocking(tmp_pat
 
 
 _RECORDING_CONTROLLER = textwrap.dedent("""
-    import sys, time
+    import os, sys, time
     sys.path.insert(0, {repo!r})
     from controller.config import load_config
     from controller.shell.loop import CycleLoop
@@ -153,45 +155,52 @@ _RECORDING_CONTROLLER = textwrap.dedent("""
     ex = LoopbackExchange(cfg, time.monotonic)
     rec = SessionRecorder({path!r}, session_metadata(cfg), chunk_size_bytes=8192, flush_interval_s=0.1)
     rec.start()
-    print(rec._proc.pid, flush=True)  # the writer process
-    loop = CycleLoop(law, ex, cfg.period_s, 0.6, DeadlineSleeper(3e-4), time.monotonic, observers=(rec,))
+    writer = rec._proc
+    print("WRITER", writer.pid, flush=True)
+
+    class Progress:  # tells the test what it waits for, instead of the test guessing with sleeps
+        calls, grown, writer_gone_at = 0, False, None
+        def on_cycle(self, cycle, t, inputs, state, outputs, events, timing):
+            self.calls += 1  # cycles run (the cycle index skips missed deadlines)
+            if self.calls % 20:
+                return
+            if not self.grown and os.path.exists({path!r}) and os.path.getsize({path!r}) >= 60_000:
+                self.grown = True
+                print("GROWN", cycle, flush=True)
+            if self.writer_gone_at is None and writer.poll() is not None:
+                self.writer_gone_at = self.calls
+                print("WRITER_GONE", cycle, flush=True)
+            elif self.writer_gone_at is not None and self.calls == self.writer_gone_at + 100:
+                print("STILL_CYCLING", cycle, flush=True)
+
+    loop = CycleLoop(law, ex, cfg.period_s, 0.6, DeadlineSleeper(3e-4), time.monotonic, observers=(rec, Progress()))
     loop.run(law.initial_state(), 60.0)
 """)
 
 
-def _start_recording_controller(path: Path) -> tuple[subprocess.Popen, int]:
-    """A controller recording in real time, once its file has grown past 60 kB; and its writer's pid."""
+def _start_recording_controller(path: Path) -> tuple[subprocess.Popen, int, ProcessLines]:
+    """A controller recording in real time, once its file has grown past 60 kB; its writer's pid; its output."""
     proc = subprocess.Popen([sys.executable, "-c", _RECORDING_CONTROLLER.format(repo=str(REPO), path=str(path))],
                             stdout=subprocess.PIPE, text=True)
-    writer_pid = int(proc.stdout.readline())
-    deadline = time.monotonic() + 30
-    while time.monotonic() < deadline and (not path.exists() or path.stat().st_size < 60_000):
-        time.sleep(0.05)
-    if not (path.exists() and path.stat().st_size >= 60_000):
+    lines = ProcessLines(proc)
+    try:
+        writer_pid = int(lines.next_matching(lambda line: line.startswith("WRITER "), "the writer's pid").split()[1])
+        lines.next_matching(lambda line: line.startswith("GROWN "), "the recording growing past 60 kB")
+    except AssertionError:
         proc.kill()
         proc.wait()
-        pytest.fail("the recorder wrote nothing in 30 s")
-    return proc, writer_pid
-
-
-def _gone(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    return False
+        proc.stdout.close()
+        raise
+    return proc, writer_pid, lines
 
 
 def test_sigkill_of_the_controller_still_leaves_a_complete_file(tmp_path):
     path = tmp_path / "killed.mcap"
-    proc, writer_pid = _start_recording_controller(path)
+    proc, writer_pid, _ = _start_recording_controller(path)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     proc.stdout.close()
-    deadline = time.monotonic() + 20
-    while not _gone(writer_pid) and time.monotonic() < deadline:  # the writer sees the end of its input
-        time.sleep(0.05)
-    assert _gone(writer_pid), "the writer process outlived its controller by 20 s"
+    wait_for_exit(writer_pid, "the writer process ending after its controller")  # it sees the end of its input
     report = read_info(path)
     assert report.complete and not report.problems
     assert report.message_counts[m.TOPIC_CYCLE] > 100
@@ -200,10 +209,11 @@ def test_sigkill_of_the_controller_still_leaves_a_complete_file(tmp_path):
 
 def test_sigkill_of_the_writer_leaves_a_readable_file_and_recover_completes_it(tmp_path, capsys):
     path = tmp_path / "killed.mcap"
-    proc, writer_pid = _start_recording_controller(path)
+    proc, writer_pid, lines = _start_recording_controller(path)
     try:
         os.kill(writer_pid, signal.SIGKILL)
-        time.sleep(0.3)
+        lines.next_matching(lambda line: line.startswith("WRITER_GONE "), "the controller noticing its writer gone")
+        lines.next_matching(lambda line: line.startswith("STILL_CYCLING "), "100 more cycles without the writer")
         assert proc.poll() is None, "the controller must go on without its writer"
     finally:
         proc.kill()
@@ -392,9 +402,10 @@ def test_a_writer_that_stops_reading_blocks_neither_the_loop_nor_the_exit(tmp_pa
             for row in trace.rows:
                 rec.on_cycle(*row, timing=m.pb.CycleTiming())
         assert rec.dropped > 0
-        t0 = time.monotonic()
-        rec.close()
-        assert time.monotonic() - t0 < 6.0
+        closing = threading.Thread(target=rec.close, name="close-with-a-stopped-writer", daemon=True)
+        closing.start()
+        closing.join(GENEROUS_S)  # returns at all: a close that waited for the stopped writer never would
+        assert not closing.is_alive(), f"close() still waiting for a stopped writer after {GENEROUS_S} s"
     finally:
         try:
             os.kill(pid, signal.SIGCONT)

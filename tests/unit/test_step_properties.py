@@ -19,11 +19,12 @@ Properties:
 from __future__ import annotations
 
 import math
+import random
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import pytest
-from hypothesis import HealthCheck, event, given, note, reject, settings
+from hypothesis import HealthCheck, Phase, event, given, note, reject, settings
 from hypothesis import strategies as st
 
 from controller.assembly import build_law
@@ -34,18 +35,27 @@ from controller.core.cycle_data import (
     Command,
     CycleOutputs,
     DriveFeedback,
+    EmcyReport,
     cycle_inputs,
 )
 from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother, Setpoint
 from controller.robots.cheope import WorkspaceError
 from controller.shell.loop import SimulatedTime
 from drivers.cia402 import (
+    CW_DISABLE_VOLTAGE,
+    CW_FAULT_RESET,
+    CW_QUICK_STOP,
     PowerState,
     decode_statusword,
+    device_transition,
 )
+from sim_backend.drive import EMCY_FORCED_FAULT
 from sim_backend.loopback import LoopbackExchange
 
-PROPERTY_SETTINGS = settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+# No explain phase: it re-runs a failing example hundreds of times (minutes with these closed-loop
+# runs) to annotate lines; the shrunk example and its note() say enough.
+PROPERTY_SETTINGS = settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow],
+                             phases=[Phase.explicit, Phase.reuse, Phase.generate, Phase.target, Phase.shrink])
 
 # The tolerance of the limit checks. Ruckig (include/ruckig/profile.hpp) accepts a profile
 # whose velocity or acceleration passes its limit by v_eps = a_eps = 1e-12 (absolute). Every
@@ -82,9 +92,11 @@ class CycleRecord:
     k: int
     inputs_fresh: tuple[bool, ...]
     measured: tuple[float, ...]
-    powers: tuple[PowerState, ...]
+    powers: tuple[PowerState, ...]  # as the step saw them (stale for a missing TPDO)
     state: ControllerState
     outputs: CycleOutputs
+    mode_before: Mode  # the mode the step started from
+    device_powers: tuple[PowerState, ...]  # the simulated drives' own states after the cycle's SYNC
 
 
 @dataclass
@@ -96,9 +108,6 @@ class Perturbation:
     late: frozenset[int] = frozenset()  # the loop woke late
     commands: dict[int, Command] = field(default_factory=dict)
     stop_from: int | None = None  # stop requested from this cycle on
-
-
-NO_PERTURBATION = Perturbation()
 
 
 class ClosedLoop:
@@ -128,9 +137,9 @@ class ClosedLoop:
 
         return on_rpdo
 
-    def cycle(self, perturbation: Perturbation = NO_PERTURBATION,
+    def cycle(self, perturbation: Perturbation | None = None,
               extra: Callable[[int, BusFeedback], BusFeedback] | None = None) -> CycleRecord:
-        k, p = self.k, perturbation
+        k, p = self.k, perturbation or Perturbation()
         self.time.sleep_until((k + 1) * self.period)
         self.ex.send(self.outputs)
         fb = self.ex.collect(self.time.clock() + 0.8 * self.period)
@@ -150,9 +159,11 @@ class ClosedLoop:
             fb = extra(k, fb)
         stop = p.stop_from is not None and k >= p.stop_from
         inputs = cycle_inputs(fb, stop_requested=stop, command=p.commands.get(k, Command.NONE), late=k in p.late)
+        mode_before = self.state.mode
         self.state, self.outputs, _ = self.law.step(self.state, inputs, k * self.period)
         rec = CycleRecord(k, tuple(d.fresh for d in inputs.drives), tuple(d.position for d in inputs.drives),
-                          tuple(decode_statusword(d.statusword) for d in inputs.drives), self.state, self.outputs)
+                          tuple(decode_statusword(d.statusword) for d in inputs.drives), self.state, self.outputs,
+                          mode_before, tuple(d.power for d in self.ex.drives))
         self.records.append(rec)
         self.k += 1
         return rec
@@ -331,7 +342,11 @@ START_STATES = [PowerState.SWITCH_ON_DISABLED, PowerState.READY_TO_SWITCH_ON, Po
 def test_no_jump_at_enable_the_target_is_where_the_drive_is(data, rate, start, powers, reset_after):
     base = load_config()
     lo, hi = base.robot.model("cheope").stroke_min_m, base.robot.model("cheope").stroke_max_m
-    initial = [min(hi, lo + u * (hi - lo)) for u in start]  # anywhere in the stroke, end stops included
+    count = 1.0 / base.actuators.counts_per_m
+    # Anywhere in the stroke; within a count of an end stop, on it. (The simulated drive faults at
+    # an end stop passed by any amount: a carriage 0.4 count inside it, commanded to the measured
+    # count, i.e. onto the stop, overshoots it by ~1e-11 m in its 0.9-damped position loop.)
+    initial = [lo if x - lo < count else hi if hi - x < count else x for x in (lo + u * (hi - lo) for u in start)]
     cfg, law = build_or_reject({"loop.rate_hz": rate, "loop.hold_before_task_s": 0.05,
                                 "sim.drive.initial_positions_m": initial})
     loop = ClosedLoop(cfg, law)
@@ -345,8 +360,10 @@ def test_no_jump_at_enable_the_target_is_where_the_drive_is(data, rate, start, p
     faults = []
     for _ in range(cycles):
         rec = loop.cycle(p)
-        if rec.state.mode == Mode.FAULT and not faults:
-            faults.append(rec.state.fault_reason)  # a drive that started in FAULT: the operator resets it once
+        if rec.state.mode == Mode.FAULT and (rec.mode_before != Mode.FAULT) and len(faults) < 3:
+            # a drive that started in FAULT: the operator resets it (again if a missing TPDO right
+            # after the reset made the law fault on the stale statusword: see the xfail below)
+            faults.append(rec.state.fault_reason)
             p.commands[rec.k + reset_after] = Command.RESET
         if rec.state.mode == Mode.RUNNING:
             break
@@ -375,6 +392,203 @@ def test_no_jump_at_enable_the_target_is_where_the_drive_is(data, rate, start, p
             assert target == position, f"cycle {c}: drive {j + 1} at {position} counts was sent {target} (cw 0x{cw:04X})"
     for j, (d, x0) in enumerate(zip(loop.ex.drives, initial)):
         assert d.position_counts() == round(x0 * scale.counts_per_unit), f"drive {j + 1} moved before the task"
-    # and the run got there: the only fault is the one of a drive that started in FAULT, reset once
+    # and the run got there: the only faults are those of a drive that started in FAULT
     assert all("reports FAULT" in f for f in faults) and (PowerState.FAULT in powers) == bool(faults), faults
     assert Mode.HOLDING in modes and Mode.RUNNING in modes, loop.state.fault_reason
+
+
+# -- c. a fault always ends in quick stop -------------------------------------------------------
+
+FAULT_CAUSES = ("drive_fault", "emcy", "silent", "bus_off", "heartbeat_lost")
+# How many cycles each mode usually lasts in these runs, to place the injection inside it.
+MODE_SPAN = {Mode.ENABLING: 3, Mode.HOLDING: 8, Mode.RUNNING: 60, Mode.PAUSED: 30, Mode.STOPPING: 4, Mode.DONE: 30}
+
+
+@dataclass
+class FaultInjection:
+    cause: str
+    drive: int  # index of the drive concerned
+    sustained: bool  # bus-off: every cycle from the injection on, else one error frame
+    emcy_code: int
+    at: int | None = None  # the cycle the cause first shows in the inputs
+
+    def before_send(self, loop: ClosedLoop, k: int) -> None:
+        if self.cause == "drive_fault" and k == self.at:
+            d = loop.ex.drives[self.drive]
+            d.force_fault(EMCY_FORCED_FAULT)
+            d.pending_emcy.clear()  # the statusword alone: the EMCY is a cause of its own
+
+    def missing(self, k: int) -> frozenset[tuple[int, int]]:
+        silent = self.cause == "silent" and self.at is not None and k >= self.at
+        return frozenset({(k, self.drive)}) if silent else frozenset()
+
+    def feedback(self, loop: ClosedLoop, k: int, fb: BusFeedback) -> BusFeedback:
+        if self.at is None or k < self.at:
+            return fb
+        node = loop.ex.drive_ids[self.drive]
+        if self.cause == "emcy" and k == self.at:
+            return replace(fb, emcy=(*fb.emcy, EmcyReport(node, self.emcy_code, 0x01)))
+        if self.cause == "bus_off" and (self.sustained or k == self.at):
+            return replace(fb, bus_off=True, error_frames=fb.error_frames + 1)
+        if self.cause == "heartbeat_lost":
+            return replace(fb, lost_heartbeats=(node,))
+        return fb
+
+    def bound(self, cfg: Config) -> int:
+        """Cycles after the injection by which the law must be in FAULT."""
+        return cfg.loop.max_missing_cycles - 1 if self.cause == "silent" else 0
+
+
+def is_stop_command(cw: int) -> bool:
+    """CiA 402-2 device control commands: quick stop (xxxx x01x) or disable voltage (xxxx xx0x), no fault reset."""
+    return cw & CW_FAULT_RESET == 0 and (cw & 0x06 == 0x02 or cw & 0x02 == 0x00)
+
+
+def fault_scenario(cfg: Config, law: ControlLaw, fault: FaultInjection, mode: Mode, delay: int, after: int,
+                   pick: Callable[[list], object]) -> ClosedLoop:
+    """Run to ``mode`` (pausing or stopping the task to get there), inject ``fault`` ``delay`` cycles
+    into it, and go on ``after`` cycles past its bound with anything but a reset (``pick`` chooses)."""
+    loop = ClosedLoop(cfg, law)
+    in_mode, running, stop_from, limit = 0, 0, None, int(4 * cfg.loop.rate_hz)
+    while len(loop.records) < limit:
+        k = loop.k
+        current = loop.state.mode
+        if fault.at is None:
+            if current == mode:
+                in_mode += 1
+            if in_mode > delay or (in_mode and current != mode):
+                fault.at = k  # ``delay`` cycles into the mode, or at once if it ended sooner
+        commands: dict[int, Command] = {}
+        running += current == Mode.RUNNING
+        if fault.at is None and current == Mode.RUNNING and running > 20:  # under way: braking takes a while
+            if mode == Mode.PAUSED:
+                commands[k] = Command.PAUSE
+            elif mode in (Mode.STOPPING, Mode.DONE) and stop_from is None:
+                stop_from = k
+        elif fault.at is not None:
+            commands[k] = pick([Command.NONE, Command.PAUSE, Command.RESUME, Command.SET_FORCE])
+            if stop_from is None and pick([False, True]):
+                stop_from = k
+        fault.before_send(loop, k)
+        loop.cycle(Perturbation(missing=fault.missing(k), commands=commands, stop_from=stop_from),
+                   extra=lambda k, fb: fault.feedback(loop, k, fb))
+        if fault.at is not None and loop.k >= fault.at + fault.bound(cfg) + after:
+            break
+    assert fault.at is not None, f"the run never reached {mode.name}"
+    return loop
+
+
+def assert_quick_stop_from_the_fault_on(loop: ClosedLoop, fault: FaultInjection) -> None:
+    cfg = loop.cfg
+    injected_in = loop.records[fault.at].mode_before
+    modes = [r.state.mode for r in loop.records]
+    assert Mode.FAULT not in modes[:fault.at], "a fault before the injection"
+    first = modes.index(Mode.FAULT) if Mode.FAULT in modes else None
+    assert first is not None and first <= fault.at + fault.bound(cfg), \
+        f"{fault.cause} at cycle {fault.at} ({injected_in.name}): FAULT at {first}, bound {fault.bound(cfg)} cycles"
+    for r in loop.records[first:]:
+        assert r.state.mode == Mode.FAULT, f"cycle {r.k}: left FAULT for {r.state.mode.name}"
+        for j, (cw, power) in enumerate(zip(r.outputs.controlwords, r.powers)):
+            assert cw in (CW_QUICK_STOP, CW_DISABLE_VOLTAGE) and is_stop_command(cw), \
+                f"cycle {r.k}: drive {j + 1} sent controlword 0x{cw:04X}"
+            # what it does to a drive: an enabled one stops on its quick-stop ramp, none is (re-)enabled
+            if power == PowerState.OPERATION_ENABLED:
+                assert cw == CW_QUICK_STOP, f"cycle {r.k}: drive {j + 1} is enabled and gets 0x{cw:04X}"
+            for now in (PowerState.OPERATION_ENABLED, PowerState.QUICK_STOP_ACTIVE, PowerState.SWITCHED_ON):
+                assert device_transition(now, cw, cw) in (PowerState.QUICK_STOP_ACTIVE, PowerState.SWITCH_ON_DISABLED)
+    # and the drives themselves: from the SYNC after the fault's first controlwords, none is enabled
+    for r in loop.records[first + 1:]:
+        assert PowerState.OPERATION_ENABLED not in r.device_powers, f"cycle {r.k}: {r.device_powers}"
+
+
+FAULT_TASK = {"loop.hold_before_task_s": 0.02, "task.path.laps": 0.1, "task.path.ramp_s": 0.05,
+              "task.path.speed_m_s": 0.2}
+
+
+@PROPERTY_SETTINGS
+@given(data=st.data(),
+       rate=st.sampled_from([200.0, 400.0, 1000.0]),
+       mode=st.sampled_from(list(MODE_SPAN)),
+       cause=st.sampled_from(FAULT_CAUSES),
+       drive=st.integers(0, 2),
+       sustained=st.booleans(),
+       emcy_code=st.integers(0x1000, 0xFFFF))
+def test_every_fault_cause_ends_in_quick_stop_and_stays_there(data, rate, mode, cause, drive, sustained, emcy_code):
+    cfg, law = build_or_reject({**FAULT_TASK, "loop.rate_hz": rate})
+    fault = FaultInjection(cause, drive, sustained, emcy_code)
+    delay = data.draw(st.integers(0, MODE_SPAN[mode] - 1), label="cycles into the mode")
+    after = data.draw(st.integers(20, 60), label="cycles after the fault")
+    loop = fault_scenario(cfg, law, fault, mode, delay, after, lambda options: data.draw(st.sampled_from(options)))
+    event(f"{cause} in {loop.records[fault.at].mode_before.name}")
+    note(f"{cause} at cycle {fault.at} in {loop.records[fault.at].mode_before.name}: {loop.state.fault_reason}")
+    assert_quick_stop_from_the_fault_on(loop, fault)
+
+
+@pytest.mark.parametrize("mode", list(MODE_SPAN), ids=lambda m: m.name)
+@pytest.mark.parametrize("cause", FAULT_CAUSES)
+def test_every_fault_cause_in_every_mode(cause, mode):
+    """The same property on every (cause, mode) pair once, at 400 Hz, one-shot bus-off, drive 2."""
+    cfg, law = build_or_reject({**FAULT_TASK, "loop.rate_hz": 400.0})
+    fault = FaultInjection(cause, 1, False, 0x2310)
+    rng = random.Random(f"{cause}-{mode.name}")
+    loop = fault_scenario(cfg, law, fault, mode, MODE_SPAN[mode] // 2, 40, rng.choice)
+    assert loop.records[fault.at].mode_before == mode
+    assert_quick_stop_from_the_fault_on(loop, fault)
+
+
+# CONFIGURING (until every drive has answered once) runs no safety check: its controlwords are
+# already 0x0000, disable voltage, and a lasting cause faults on the first supervised cycle.
+
+@pytest.mark.parametrize("cause", ["drive_fault", "heartbeat_lost", "bus_off"])
+def test_a_lasting_fault_cause_during_configuring_faults_on_the_first_supervised_cycle(cause):
+    cfg = load_config()
+    loop = ClosedLoop(cfg)
+    unheard = 3  # no drive answers the first three SYNCs
+    fault = FaultInjection(cause, 1, True, 0x2310, at=unheard - 1)
+    for k in range(unheard + 30):
+        fault.before_send(loop, k)
+        missing = frozenset((k, j) for j in range(3)) if k < unheard else frozenset()
+        loop.cycle(Perturbation(missing=missing), extra=lambda k, fb: fault.feedback(loop, k, fb))
+    modes = [r.state.mode for r in loop.records]
+    supervised = next(r.k for r in loop.records if r.mode_before != Mode.CONFIGURING)
+    assert modes[:unheard + 1] == [Mode.CONFIGURING] * unheard + [Mode.ENABLING]
+    assert modes[supervised:] == [Mode.FAULT] * (len(modes) - supervised)
+    assert all(cw == CW_DISABLE_VOLTAGE for r in loop.records for cw in r.outputs.controlwords)
+
+
+@pytest.mark.xfail(strict=True, reason="finding: CONFIGURING runs no safety check and nothing is remembered, so an "
+                                       "EMCY or a bus-off that arrives before every drive has answered is forgotten")
+@pytest.mark.parametrize("cause", ["emcy", "bus_off"])
+def test_a_one_shot_fault_cause_during_configuring_is_not_forgotten(cause):
+    cfg = load_config()
+    loop = ClosedLoop(cfg)
+    fault = FaultInjection(cause, 1, False, 0x2310, at=0)  # with the very first TPDOs
+    for k in range(10):
+        loop.cycle(extra=lambda k, fb: fault.feedback(loop, k, fb))
+    assert loop.records[0].mode_before == Mode.CONFIGURING
+    assert loop.state.mode == Mode.FAULT, [r.state.mode.name for r in loop.records]
+
+
+@pytest.mark.xfail(strict=True, reason="finding: a drive silent from the first SYNC keeps the law in CONFIGURING "
+                                       "(controlword 0) for ever: no fault, no event, no timeout")
+def test_a_drive_silent_from_the_start_faults_after_max_missing_cycles():
+    cfg = load_config()
+    loop = ClosedLoop(cfg)
+    n = cfg.loop.max_missing_cycles
+    for k in range(n + 20):
+        loop.cycle(Perturbation(missing=frozenset({(k, 1)})))
+    assert all(cw == CW_DISABLE_VOLTAGE for r in loop.records for cw in r.outputs.controlwords)  # safe meanwhile
+    assert loop.state.mode == Mode.FAULT, loop.state.mode.name
+
+
+@pytest.mark.xfail(strict=True, reason="finding: a TPDO missing in the cycle after a reset leaves the stale FAULT "
+                                       "statusword in the inputs, and the law faults again on it")
+def test_a_missing_tpdo_right_after_a_reset_does_not_fault_again():
+    loop = ClosedLoop(load_config())
+    loop.ex.drives[0].power = PowerState.FAULT
+    loop.cycle()  # CONFIGURING -> ENABLING
+    assert loop.cycle().state.mode == Mode.FAULT  # drive 1 reports FAULT
+    assert loop.cycle(Perturbation(commands={2: Command.RESET})).state.mode == Mode.ENABLING  # sends the fault reset
+    rec = loop.cycle(Perturbation(missing=frozenset({(3, 0)})))  # drive 1 (now SWITCH ON DISABLED) is not heard
+    assert loop.ex.drives[0].power == PowerState.SWITCH_ON_DISABLED
+    assert rec.state.mode == Mode.ENABLING, rec.state.fault_reason
