@@ -12,18 +12,16 @@ import math
 from collections.abc import Iterable
 from typing import TYPE_CHECKING, Annotated, Literal
 
-import numpy as np
-
 from controller.config import CONFIG_DIR, Config
 from controller.config_schema import ConfigError, Section, rng
-from controller.robots.cheope import CheopeGeometry, CheopeLimits, CheopeRobot
-from controller.robots.performance import MassModel
 from controller.robots.registry import RobotEntry, register_robot
 from controller.robots.robot import ActuatorUnit
 
-if TYPE_CHECKING:  # the URU and nSPU modules load on demand, when their robot is configured
+if TYPE_CHECKING:  # the models load on demand, when a robot is built: the configuration loads without them
+    from controller.robots.cheope import CheopeRobot
     from controller.robots.nspu import NspuGeometry, Pose
     from controller.robots.nspu_robot import NspuRobot
+    from controller.robots.performance import MassModel
     from controller.robots.uru_robot import UruRobot
 
 
@@ -50,11 +48,15 @@ def _check_cheope(c: CheopeSection) -> None:
 
 def mass_model_from_config(cfg: Config) -> MassModel:
     """Cheope's lumped masses (``[robot.mass]``): the mass ellipsoid's and the simulated structure's."""
+    from controller.robots.performance import MassModel
+
     m = cfg.robot.mass
     return MassModel(m.platform_kg, m.slider_kg, m.rod_pair_kg)
 
 
 def cheope_from_config(cfg: Config) -> CheopeRobot:
+    from controller.robots.cheope import CheopeGeometry, CheopeLimits, CheopeRobot
+
     c: CheopeSection = cfg.robot.model("cheope")
     m = cfg.robot.margins
     geometry = CheopeGeometry(
@@ -173,6 +175,8 @@ def nspu_geometry_from_config(cfg: Config) -> NspuGeometry:
 
 def nspu_poses_from_config(cfg: Config) -> tuple[Pose, Pose]:
     """Start and goal of the configured motion; orientations as RPY = Rz(yaw) Ry(pitch) Rx(roll)."""
+    import numpy as np
+
     from controller.robots.nspu import Pose, rpy
 
     n: NspuSection = cfg.robot.model("nspu")

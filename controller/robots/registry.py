@@ -16,10 +16,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from controller.robots.robot import ActuatorUnit, Robot
+from controller.robots.robot import ActuatorUnit
 
 if TYPE_CHECKING:
     from controller.config import Config
+    from controller.robots.robot import Robot
 
 
 @dataclass(frozen=True)

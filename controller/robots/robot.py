@@ -7,11 +7,12 @@ Positions ``q`` are in actuator units (m for linear, rad for rotary actuators, s
 from __future__ import annotations
 
 from enum import StrEnum
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
-import numpy as np
+if TYPE_CHECKING:  # annotations only: the registry and the configuration load without numpy
+    import numpy as np
 
-from controller.robots.cheope import PoseStatus
+    from controller.robots.cheope import PoseStatus
 
 
 class ActuatorUnit(StrEnum):

@@ -8,18 +8,17 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Annotated, Literal
-
-import numpy as np
+from typing import TYPE_CHECKING, Annotated, Literal
 
 from controller.config import Config
 from controller.config_schema import ConfigError, Section, rng
 from controller.robots.registry import actuator_units
-from controller.robots.robot import Robot
-from controller.tasks.circle_path import CirclePath
-from controller.tasks.contour_tracking import ContourParams, ContourTrackingTask
-from controller.tasks.path_task import CartesianTrajectory, PathTask
 from controller.tasks.registry import BuiltTask, TaskEntry, register_task
+
+if TYPE_CHECKING:  # the tasks load on demand, when one is built: the configuration loads without them
+    from controller.robots.robot import Robot
+    from controller.tasks.contour_tracking import ContourParams
+    from controller.tasks.path_task import CartesianTrajectory
 
 # -- the circle path ----------------------------------------------------------------------------
 
@@ -43,6 +42,9 @@ def _check_path(p: PathSection) -> None:
 
 
 def build_path_task(cfg: Config, robot: Robot) -> BuiltTask:
+    from controller.tasks.circle_path import CirclePath
+    from controller.tasks.path_task import PathTask
+
     p: PathSection = cfg.task.model("path")
     try:
         path = CirclePath(center_m=p.center_m, radius_m=p.radius_m, speed_m_s=p.speed_m_s, laps=p.laps,
@@ -99,6 +101,8 @@ def _check_contour(c: ContourSection) -> None:
 
 def contour_params(c: ContourSection, settle_tolerance_m: float) -> ContourParams:
     """The task's parameters: the section's keys of the same name, and the three that differ."""
+    from controller.tasks.contour_tracking import ContourParams
+
     same = {f.name: getattr(c, f.name) for f in dataclasses.fields(ContourParams) if hasattr(c, f.name)}
     return ContourParams(**same, approach_direction_rad=math.radians(c.approach_direction_deg),
                          reapproach_on_contact_loss=c.on_contact_loss == "reapproach",
@@ -106,6 +110,10 @@ def contour_params(c: ContourSection, settle_tolerance_m: float) -> ContourParam
 
 
 def build_contour_task(cfg: Config, robot: Robot) -> BuiltTask:
+    import numpy as np
+
+    from controller.tasks.contour_tracking import ContourTrackingTask
+
     c: ContourSection = cfg.task.model("contour")
     # The whole neighbourhood the task may visit: the expected contour, widened by the approach.
     ring = []

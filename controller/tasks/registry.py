@@ -12,11 +12,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
-from controller.tasks.task import Task
-
 if TYPE_CHECKING:
     from controller.config import Config
     from controller.robots.robot import Robot
+    from controller.tasks.task import Task
 
 
 class RunReport(Protocol):
