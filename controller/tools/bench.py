@@ -326,7 +326,7 @@ def measured_bus_load(frames: dict[int, int], shapes: dict[int, tuple[int, bool,
 # -- the simulator process --------------------------------------------------------------------
 
 def simulator(spec: BusSpec, overrides: list[str], config_path: str | None, rt: RealtimeOptions,
-              ready_timeout_s: float = 30.0) -> AbstractContextManager[subprocess.Popen[str]]:
+              ready_timeout_s: float = 120.0) -> AbstractContextManager[subprocess.Popen[str]]:
     """``cheope sim`` as a child process with its own real-time options."""
     from controller.tools.demo import simulator_process
 

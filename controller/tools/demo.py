@@ -35,9 +35,14 @@ def random_udp_port() -> int:
     return random.SystemRandom().randint(43200, 44999)
 
 
+# The wait ends on the simulator's READY line; the bound only decides when to give up. In the
+# vcan VM without KVM (tests/vcan/run) importing the simulator took more than 30 s once.
+SIMULATOR_READY_TIMEOUT_S = 120.0
+
+
 @contextmanager
 def simulator_process(spec: BusSpec, config_path: str | None, overrides: list[str],
-                      ready_timeout_s: float = 30.0, extra_args: list[str] | tuple[str, ...] = ()
+                      ready_timeout_s: float = SIMULATOR_READY_TIMEOUT_S, extra_args: list[str] | tuple[str, ...] = ()
                       ) -> Iterator[subprocess.Popen[str]]:
     """``cheope sim`` as a child process; ``extra_args`` go to its command line (real-time options)."""
     cmd = [sys.executable, "-m", "controller", "sim", "--can", f"{spec.interface}:{spec.channel}",
