@@ -9,7 +9,6 @@ from dataclasses import dataclass
 
 from controller.config import Config, ConfigError
 from controller.core.control_law import ControlLaw, LawConfig, SafetyConfig
-from controller.core.cycle_data import Reaction
 from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother
 from controller.robots.registry import actuator_units, robot_from_config
 from controller.robots.robot import Robot
@@ -32,9 +31,9 @@ def safety_config(cfg: Config) -> SafetyConfig:
     s = cfg.safety
     return SafetyConfig(
         max_contact_force_n=s.max_contact_force_n, sensor_stale_cycles=s.sensor_stale_cycles,
-        on_sensor_stale=Reaction(s.on_sensor_stale), on_sensor_saturated=Reaction(s.on_sensor_saturated),
-        on_heartbeat_lost=Reaction(s.on_heartbeat_lost), on_error_frames=Reaction(s.on_error_frames),
-        max_consecutive_late_cycles=s.max_consecutive_late_cycles, on_late_cycles=Reaction(s.on_late_cycles))
+        on_sensor_stale=s.on_sensor_stale, on_sensor_saturated=s.on_sensor_saturated,
+        on_heartbeat_lost=s.on_heartbeat_lost, on_error_frames=s.on_error_frames,
+        max_consecutive_late_cycles=s.max_consecutive_late_cycles, on_late_cycles=s.on_late_cycles)
 
 
 @dataclass(frozen=True)
