@@ -51,7 +51,7 @@ def parse_bus_spec(text: str, fd: bool = False, udp_port: int = DEFAULT_UDP_PORT
     elif not channel:
         raise BusSpecError(f"--can {text!r}: missing channel, expected {interface}:CHANNEL")
     if not 1 <= udp_port <= 65535:
-        raise BusSpecError(f"udp_port must be in 1..65535, got {udp_port}")
+        raise BusSpecError(f"UDP port {udp_port} (--udp-port, bus.udp_port): must be in 1..65535")
     return BusSpec(interface=interface, channel=channel, fd=fd, udp_port=udp_port)
 
 

@@ -107,7 +107,7 @@ def compute_bus_load(
 
 def cyclic_frames(
     cycle_hz: float, n_drives: int, sensor: bool, heartbeat_hz: float, drive_pdo_bytes: int = 6,
-    sensor_pdo_bytes: int = 8,
+    sensor_pdo_bytes: int = 8, tracker_hz: float = 0.0,
 ) -> tuple[FrameSpec, ...]:
     """The frames of one configuration of this project (see drivers/pdo_codec.py)."""
     frames = [
@@ -119,8 +119,30 @@ def cyclic_frames(
     if sensor:
         frames.append(FrameSpec("sensor TPDO1+2", sensor_pdo_bytes, 2 * cycle_hz))
         n_nodes += 1
+    if tracker_hz > 0.0:  # the pose tracker's two TPDOs a sample, at its own rate (no heartbeat)
+        frames.append(FrameSpec("tracker TPDO1+2", 8, 2 * tracker_hz))
     frames.append(FrameSpec("heartbeats", 1, heartbeat_hz * n_nodes))
     return tuple(frames)
+
+
+def measured_bus_load(frames: dict[int, int], shapes: dict[int, tuple[int, bool, bool]], seconds: float,
+                      nominal_bit_s: float, data_bit_s: float) -> dict[str, float]:
+    """Bus time of frames seen on a bus over ``seconds``, each by its own length and FD/BRS flags.
+
+    ``frames`` counts them by COB-ID, ``shapes`` gives each COB-ID's (data bytes, is_fd, brs).
+    """
+    busy = 0.0
+    classical_on_fd = 0
+    for cid, count in frames.items():
+        n_bytes, is_fd, brs = shapes[cid]
+        if is_fd:
+            busy += count * fd_frame_time_s(n_bytes, nominal_bit_s, data_bit_s, bitrate_switch=brs)
+        else:
+            busy += count * classical_frame_bits(min(n_bytes, 8)) / nominal_bit_s
+            classical_on_fd += count
+    return {"percent": round(100.0 * busy / seconds, 1) if seconds > 0 else 0.0,
+            "frames_per_second": round(sum(frames.values()) / seconds, 1) if seconds > 0 else 0.0,
+            "classical_frames_per_second": round(classical_on_fd / seconds, 1) if seconds > 0 else 0.0}
 
 
 def check_bus_load(load: BusLoad, max_load_percent: float) -> None:

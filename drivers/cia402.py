@@ -43,6 +43,8 @@ SW_TARGET_REACHED = 1 << 10
 SW_INTERNAL_LIMIT = 1 << 11
 SW_FOLLOWING_COMMAND = 1 << 12  # CSP: the drive follows the target position
 SW_FOLLOWING_ERROR = 1 << 13
+SW_HOMING_ATTAINED = 1 << 12  # homing mode (6): the same bit as SW_FOLLOWING_COMMAND in CSP
+SW_HOMING_ERROR = 1 << 13
 
 # Controlword commands (CiA 402-2, table "device control commands").
 CW_DISABLE_VOLTAGE = 0x0000
@@ -53,6 +55,8 @@ CW_ENABLE_OPERATION = 0x000F
 CW_FAULT_RESET = 0x0080
 
 MODE_CYCLIC_SYNC_POSITION = 8
+MODE_HOMING = 6
+CW_HOMING_START = 1 << 4  # homing mode: a rising edge of bit 4 starts the homing method (0x6098)
 
 
 def decode_statusword(statusword: int) -> PowerState:

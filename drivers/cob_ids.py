@@ -36,3 +36,17 @@ def validate_node_id(node_id: int) -> int:
     if not 1 <= node_id <= 127:
         raise ValueError(f"CANopen node id must be in 1..127, got {node_id}")
     return node_id
+
+
+def function_name(cob_id: int) -> str:
+    """The CiA 301 predefined connection set's name of an 11-bit COB-ID's function."""
+    if cob_id == NMT:
+        return "NMT"
+    if cob_id == SYNC:
+        return "SYNC"
+    code, node = cob_id >> 7, cob_id & 0x7F
+    names = {1: "EMCY", 3: "TPDO1", 4: "RPDO1", 5: "TPDO2", 6: "RPDO2", 7: "TPDO3", 8: "RPDO3", 9: "TPDO4",
+             10: "RPDO4", 11: "SDO response", 12: "SDO request", 14: "heartbeat"}
+    if cob_id > 0x7FF or code not in names or node == 0:
+        return "other"
+    return names[code]

@@ -2,8 +2,15 @@
 
 Lean on purpose (DESIGN.md): COB-IDs, struct layouts and ``can.Message`` objects are built
 once; a cycle only rewrites payload bytes. Every received frame enters through ``_notify``
-and is dispatched by COB-ID; frames the bus echoes back (our own RPDOs, SYNC, heartbeat)
-fall through the table. Decoding errors never leave this module: they are counted.
+and is dispatched by COB-ID. Decoding errors never leave this module: they are counted.
+
+The exchange also watches the whole bus, because one wrong node can steer the robot. Its bus
+hands it only other nodes' frames (drivers/frame_tap.py drops the bus's echoes of our own,
+exactly), so a SYNC, NMT command, RPDO, SDO request or controller heartbeat that arrives is
+someone else's (a second SYNC producer, a second master); frames from COB-IDs no configured node uses,
+EMCY and heartbeats of unknown nodes, two TPDOs of one node in one cycle and a flood of
+foreign frames become ``BusAnomaly`` reports; heartbeats of configured nodes that do not say
+OPERATIONAL become ``NmtReport`` s. What to do about them is the law's decision ([safety]).
 """
 
 from __future__ import annotations
@@ -15,22 +22,44 @@ from dataclasses import dataclass
 
 import can
 
-from controller.core.cycle_data import BusFeedback, CycleOutputs, DriveFeedback, EmcyReport, SensorFeedback
+from controller.core.cycle_data import (
+    Anomaly,
+    BusAnomaly,
+    BusFeedback,
+    CycleOutputs,
+    DriveFeedback,
+    EmcyReport,
+    NmtReport,
+    SensorFeedback,
+    TrackerFeedback,
+)
 from drivers import cob_ids
+from drivers.node_setup import description_drive_codec, description_sensor_codecs
 from drivers.pdo_codec import (
-    DRIVE_RPDO,
-    FORCE_N_PER_COUNT,
-    TORQUE_NM_PER_COUNT,
+    TRACKER_M_PER_COUNT,
+    TRACKER_RAD_PER_COUNT,
+    DriveCodec,
     FrameError,
     PositionScale,
-    decode_drive_tpdo,
-    decode_sensor_frame,
+    SensorFrameCodec,
+    decode_tracker_frame,
 )
 
 FrameSink = Callable[[bool, float, can.Message], None]  # (outgoing, monotonic time [s], frame)
 
-_DRIVE, _SENSOR_FORCE, _SENSOR_TORQUE, _EMCY, _HEARTBEAT = range(5)
+_DRIVE, _SENSOR_FORCE, _SENSOR_TORQUE, _EMCY, _HEARTBEAT, _OWN, _IGNORED, _TRACKER_P, _TRACKER_R = range(9)
 CAN_ERR_BUSOFF = 0x040  # error class bit of a SocketCAN error frame (linux/can/error.h)
+NMT_OPERATIONAL, NMT_BOOT_UP = 5, 0  # CiA 301 heartbeat state byte
+DEFAULT_FLOOD_FRAMES = 16  # foreign frames in one cycle that make a flood (config safety.max_foreign_frames_per_cycle)
+
+
+def _unknown_kind(cob_id: int) -> Anomaly:
+    """What a frame of a COB-ID that no configured node uses is (CiA 301 predefined connection set)."""
+    if 0x081 <= cob_id <= 0x0FF:
+        return Anomaly.UNKNOWN_EMCY
+    if 0x701 <= cob_id <= 0x77F:
+        return Anomaly.UNKNOWN_HEARTBEAT
+    return Anomaly.UNKNOWN_FRAME
 
 
 @dataclass
@@ -43,14 +72,20 @@ class ExchangeCounters:
     missing_sensor_frames: int = 0
     error_frames: int = 0
     send_errors: int = 0
+    foreign_frames: int = 0  # frames reported as a BusAnomaly (unknown, foreign, duplicate)
 
 
 class CyclicExchange:
     def __init__(self, bus: can.BusABC, drive_ids: tuple[int, ...], scale: PositionScale,
                  sensor_id: int | None, controller_id: int, heartbeat_every: int, fd: bool = False,
                  clock: Callable[[], float] = time.monotonic, frame_sink: FrameSink | None = None,
-                 heartbeat_timeout_s: float = 0.5) -> None:
+                 heartbeat_timeout_s: float = 0.5, drive_codecs: tuple[DriveCodec, ...] | None = None,
+                 sensor_codecs: tuple[SensorFrameCodec, SensorFrameCodec] | None = None,
+                 send_sync: bool = True, flood_frames_per_cycle: int = DEFAULT_FLOOD_FRAMES,
+                 tracker_id: int | None = None) -> None:
         self.bus = bus
+        self.fd = fd
+        self.send_sync = send_sync  # False: the kernel's broadcast manager sends SYNC (drivers/kernel_sync.py)
         self.n = len(drive_ids)
         self.scale = scale
         self.has_sensor = sensor_id is not None
@@ -58,8 +93,12 @@ class CyclicExchange:
         self.clock = clock
         self.frame_sink = frame_sink
         self.counters = ExchangeCounters()
-        self._rpdos = [can.Message(arbitration_id=cob_ids.rpdo1(i), data=bytearray(DRIVE_RPDO.size),
-                                   is_extended_id=False, is_fd=fd, bitrate_switch=fd) for i in drive_ids]
+        # The layouts as mapped at set-up (drivers/node_setup.py); without one, the shipped EDS's.
+        self._codecs = drive_codecs or tuple(description_drive_codec(i) for i in drive_ids)
+        if len(self._codecs) != self.n:
+            raise ValueError(f"{len(self._codecs)} drive codecs for {self.n} drives")
+        self._rpdos = [can.Message(arbitration_id=codec.rpdo_cob_id, data=bytearray(codec.rpdo.size),
+                                   is_extended_id=False, is_fd=fd, bitrate_switch=fd) for codec in self._codecs]
         self._sync = can.Message(arbitration_id=cob_ids.SYNC, data=b"", is_extended_id=False, is_fd=fd,
                                  bitrate_switch=fd)
         # Heartbeat of the controller, NMT state 5 (operational): the drives consume it.
@@ -67,13 +106,39 @@ class CyclicExchange:
                                       is_extended_id=False)
         self._dispatch: dict[int, tuple[int, int]] = {}
         for j, i in enumerate(drive_ids):
-            self._dispatch[cob_ids.tpdo1(i)] = (_DRIVE, j)
+            self._dispatch[self._codecs[j].tpdo_cob_id] = (_DRIVE, j)
             self._dispatch[cob_ids.emcy(i)] = (_EMCY, i)
             self._dispatch[cob_ids.heartbeat(i)] = (_HEARTBEAT, j)
         if sensor_id is not None:
-            self._dispatch[cob_ids.tpdo1(sensor_id)] = (_SENSOR_FORCE, 0)
-            self._dispatch[cob_ids.tpdo2(sensor_id)] = (_SENSOR_TORQUE, 0)
+            self._force_codec, self._torque_codec = sensor_codecs or description_sensor_codecs(sensor_id)
+            self._dispatch[self._force_codec.cob_id] = (_SENSOR_FORCE, 0)
+            self._dispatch[self._torque_codec.cob_id] = (_SENSOR_TORQUE, 0)
             self._dispatch[cob_ids.emcy(sensor_id)] = (_EMCY, sensor_id)
+            self._dispatch[cob_ids.heartbeat(sensor_id)] = (_HEARTBEAT, -1)
+        # The pose tracker samples at its own rate, not at every SYNC: its frames update the last
+        # sample and never hold up a cycle (a cycle is complete with the drives and the sensor).
+        self.has_tracker = tracker_id is not None
+        if tracker_id is not None:
+            self._dispatch[cob_ids.tpdo1(tracker_id)] = (_TRACKER_P, 0)
+            self._dispatch[cob_ids.tpdo2(tracker_id)] = (_TRACKER_R, 0)
+            self._dispatch[cob_ids.emcy(tracker_id)] = (_EMCY, tracker_id)
+            self._dispatch[cob_ids.heartbeat(tracker_id)] = (_HEARTBEAT, -1)
+        configured = (*drive_ids, *(() if sensor_id is None else (sensor_id,)),
+                      *(() if tracker_id is None else (tracker_id,)))
+        self._configured_nodes = frozenset(configured)
+        for node in configured:  # SDO answers of the set-up that come late; not cyclic traffic
+            self._dispatch[cob_ids.sdo_response(node)] = (_IGNORED, node)
+        # COB-IDs only the controller sends: whatever arrives there is someone else's.
+        for cob in (cob_ids.SYNC, cob_ids.NMT, cob_ids.heartbeat(controller_id),
+                    *(codec.rpdo_cob_id for codec in self._codecs), *(cob_ids.sdo_request(i) for i in configured)):
+            self._dispatch[cob] = (_OWN, cob)
+        self.flood_frames_per_cycle = flood_frames_per_cycle
+        self._anomalies: dict[tuple[Anomaly, int], int] = {}
+        self._foreign_in_cycle = 0
+        self._nmt: dict[int, int] = {}  # node -> last non-operational heartbeat state this cycle
+        self._operational_nodes: set[int] = set()  # configured nodes heard OPERATIONAL
+        self._sensor_ambiguous = False
+        self._judging = False  # frames before the first SYNC (set-up echoes, boot-ups) are not judged
         self._statusword = [0] * self.n
         self._position = [math.nan] * self.n
         self._fresh = [False] * self.n
@@ -83,6 +148,11 @@ class CyclicExchange:
         self._force_counter = -1
         self._torque_counter = -1
         self._sensor_fresh = False
+        self._tracker_p: tuple[float, float, float] = (math.nan,) * 3
+        self._tracker_r: tuple[float, float, float] = (math.nan,) * 3
+        self._tracker_counters = [-1, -1]  # of the last position and rotation frames
+        self._tracker_status = 0
+        self._tracker_fresh = False  # a complete new sample since the last collect
         self._emcy: list[EmcyReport] = []
         self._collecting = False
         self.drive_ids = tuple(drive_ids)
@@ -112,26 +182,26 @@ class CyclicExchange:
     def send(self, outputs: CycleOutputs | None) -> None:
         """RPDOs of ``outputs`` (none before the first step), then SYNC; every Nth cycle a heartbeat."""
         self._drain_late()
+        self._judging = True
+        self._fresh = [False] * self.n
+        self._sensor_fresh = self._sensor_ambiguous = False
+        self._force_counter = self._torque_counter = -1
         self.sent_s = self.clock()
         if outputs is not None:
             to_counts = self.scale.to_counts
-            for msg, cw, target in zip(self._rpdos, outputs.controlwords, outputs.targets):
-                DRIVE_RPDO.pack_into(msg.data, 0, cw, to_counts(target))
+            for msg, codec, cw, target in zip(self._rpdos, self._codecs, outputs.controlwords, outputs.targets):
+                codec.pack_rpdo_into(msg.data, cw, to_counts(target))
                 self._send(msg)
-        self._send(self._sync)
+        if self.send_sync:
+            self._send(self._sync)
         if self.cycles % self.heartbeat_every == 0:
             self._send(self._heartbeat)
         self.cycles += 1
-        self._fresh = [False] * self.n
-        self._sensor_fresh = False
-        self._force_counter = self._torque_counter = -1
-        self._emcy = []
-        self._error_frames = 0
-        self._bus_off = False
 
     # -- in ---------------------------------------------------------------------------------
 
     def _drain_late(self) -> None:
+        """What arrived since the last collect: late TPDOs, echoes, reports for the next cycle."""
         self._collecting = False
         while True:
             msg = self.bus.recv(timeout=0.0)
@@ -161,12 +231,42 @@ class CyclicExchange:
             c.missing_sensor_frames += 1
         drives = tuple(DriveFeedback(sw, x, f) for sw, x, f in zip(self._statusword, self._position, self._fresh))
         sensor = SensorFeedback(self._force, self._torque, self._sensor_status, max(self._force_counter, 0),
-                                self._sensor_fresh) if self.has_sensor else None
+                                self._sensor_fresh and not self._sensor_ambiguous) if self.has_sensor else None
+        tracker = TrackerFeedback(self._tracker_p, self._tracker_r, self._tracker_status,
+                                  max(self._tracker_counters[0], 0), self._tracker_fresh) if self.has_tracker else None
+        self._tracker_fresh = False
         now = clock()
         lost = tuple(node for node, last in zip(self.drive_ids, self.last_heartbeat_s)
                      if now - (self.started_s if math.isnan(last) else last) > self.heartbeat_timeout_s)
-        return BusFeedback(drives=drives, sensor=sensor, emcy=tuple(self._emcy), lost_heartbeats=lost,
-                            error_frames=self._error_frames, bus_off=self._bus_off)
+        feedback = BusFeedback(drives=drives, sensor=sensor, emcy=tuple(self._emcy), lost_heartbeats=lost,
+                               error_frames=self._error_frames, bus_off=self._bus_off,
+                               anomalies=self._anomaly_reports() if self._anomalies else (),
+                               nmt_reports=tuple(NmtReport(n, st) for n, st in self._nmt.items()) if self._nmt else (),
+                               tracker=tracker)
+        # The reports start again here, not at the next send: what arrives after this cycle's last
+        # TPDO (an EMCY, a bus-off) is read by the next send's drain and belongs to the next cycle.
+        self._emcy = []
+        self._error_frames = 0
+        self._bus_off = False
+        self._anomalies = {}
+        self._foreign_in_cycle = 0
+        self._nmt = {}
+        return feedback
+
+    def _anomaly_reports(self) -> tuple[BusAnomaly, ...]:
+        reports = tuple(BusAnomaly(kind, cob, n) for (kind, cob), n in self._anomalies.items())
+        if self._foreign_in_cycle > self.flood_frames_per_cycle:
+            busiest = max(self._anomalies.items(), key=lambda item: item[1])[0][1]
+            reports += (BusAnomaly(Anomaly.FRAME_FLOOD, busiest, self._foreign_in_cycle),)
+        return reports
+
+    def _report(self, kind: Anomaly, cob_id: int) -> None:
+        if not self._judging:
+            return
+        key = (kind, cob_id)
+        self._anomalies[key] = self._anomalies.get(key, 0) + 1
+        self._foreign_in_cycle += 1
+        self.counters.foreign_frames += 1
 
     def _notify(self, msg: can.Message) -> None:
         now = self.clock()
@@ -182,11 +282,14 @@ class CyclicExchange:
             return
         route = self._dispatch.get(msg.arbitration_id)
         if route is None:
+            self._report(_unknown_kind(msg.arbitration_id), msg.arbitration_id)
             return
         kind, index = route
         try:
             if kind == _DRIVE:
-                sw, counts = decode_drive_tpdo(msg.data)
+                sw, counts = self._codecs[index].decode_tpdo(msg.data)
+                if self._collecting and self._fresh[index]:
+                    self._report(Anomaly.DUPLICATE_FRAME, msg.arbitration_id)  # the last one wins, reported
                 self._statusword[index] = sw
                 self._position[index] = self.scale.to_unit(counts)
                 if self._collecting:
@@ -195,24 +298,76 @@ class CyclicExchange:
                 else:
                     c.late_frames += 1
             elif kind in (_SENSOR_FORCE, _SENSOR_TORQUE):
-                per_count = FORCE_N_PER_COUNT if kind == _SENSOR_FORCE else TORQUE_NM_PER_COUNT
-                x, y, z, status, counter = decode_sensor_frame(msg.data, per_count)
-                if kind == _SENSOR_FORCE:
-                    self._force, self._force_counter = (x, y, z), counter
-                else:
-                    self._torque, self._torque_counter = (x, y, z), counter
-                self._sensor_status = status
-                if self._collecting and self._force_counter == self._torque_counter:
-                    self._sensor_fresh = True
-                    self.last_frame_in_s = now
-                elif not self._collecting:
-                    c.late_frames += 1
+                self._on_sensor(kind, msg, now)
+            elif kind in (_TRACKER_P, _TRACKER_R):
+                self._on_tracker(kind, msg)
             elif kind == _EMCY:
                 if len(msg.data) != 8:
                     raise FrameError(f"EMCY from node {index} must have 8 data bytes, got {len(msg.data)}")
                 code = int.from_bytes(msg.data[0:2], "little")
                 self._emcy.append(EmcyReport(index, code, msg.data[2]))
             elif kind == _HEARTBEAT:
-                self.last_heartbeat_s[index] = now
+                self._on_heartbeat(index, msg)
+                if index >= 0:
+                    self.last_heartbeat_s[index] = now
+            elif kind == _OWN:
+                self._on_own_cob_id(msg)
         except FrameError:
             c.rejected_frames += 1
+
+    def _on_sensor(self, kind: int, msg: can.Message, now: float) -> None:
+        codec = self._force_codec if kind == _SENSOR_FORCE else self._torque_codec
+        x, y, z, status, counter = codec.decode(msg.data)
+        previous = self._force_counter if kind == _SENSOR_FORCE else self._torque_counter
+        if self._collecting and previous >= 0 and counter != (previous + 1) % 256:
+            # A second frame in one cycle that is not simply the newer sample after a late one:
+            # two senders on the sensor's COB-ID. Nobody can tell which is true: no fresh sample.
+            self._report(Anomaly.DUPLICATE_FRAME, msg.arbitration_id)
+            self._sensor_ambiguous = True
+        if kind == _SENSOR_FORCE:
+            self._force, self._force_counter = (x, y, z), counter
+        else:
+            self._torque, self._torque_counter = (x, y, z), counter
+        self._sensor_status = status
+        if self._collecting and self._force_counter == self._torque_counter:
+            self._sensor_fresh = True
+            self.last_frame_in_s = now
+        elif not self._collecting:
+            self.counters.late_frames += 1
+
+    def _on_tracker(self, kind: int, msg: can.Message) -> None:
+        """A tracker frame, whenever it comes (drained or collected): the pair with one counter is a sample."""
+        i = 0 if kind == _TRACKER_P else 1
+        x, y, z, status, counter = decode_tracker_frame(msg.data, TRACKER_M_PER_COUNT if i == 0 else TRACKER_RAD_PER_COUNT)
+        if i == 0:
+            self._tracker_p = (x, y, z)
+        else:
+            self._tracker_r = (x, y, z)
+        self._tracker_counters[i] = counter
+        self._tracker_status = status
+        if self._tracker_counters[0] == self._tracker_counters[1]:
+            self._tracker_fresh = True
+
+    def _on_heartbeat(self, index: int, msg: can.Message) -> None:
+        if len(msg.data) != 1:
+            raise FrameError(f"heartbeat 0x{msg.arbitration_id:03X} must have 1 data byte, got {len(msg.data)}")
+        state = msg.data[0] & 0x7F  # bit 7 is the toggle bit of node guarding
+        node = msg.arbitration_id - 0x700
+        if state == NMT_OPERATIONAL:
+            self._operational_nodes.add(node)
+        elif self._judging and (state == NMT_BOOT_UP or node in self._operational_nodes):
+            # A node that left OPERATIONAL, or restarted. One still coming up after the NMT start (its
+            # PRE-OPERATIONAL heartbeat crossing the start command on a slow bus) is not judged.
+            self._nmt[node] = state
+
+    def _on_own_cob_id(self, msg: can.Message) -> None:
+        """A frame on a COB-ID only the controller sends, from someone else (the bus drops our echoes)."""
+        cob = msg.arbitration_id
+        if cob == cob_ids.SYNC:
+            self._report(Anomaly.FOREIGN_SYNC, cob)
+        elif cob == cob_ids.NMT:
+            target = msg.data[1] if len(msg.data) == 2 else 0
+            concerns_us = target == 0 or target in self._configured_nodes
+            self._report(Anomaly.FOREIGN_NMT if concerns_us else Anomaly.UNKNOWN_FRAME, cob)
+        else:
+            self._report(Anomaly.FOREIGN_COMMAND, cob)

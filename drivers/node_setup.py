@@ -13,9 +13,23 @@ from pathlib import Path
 
 import can
 import canopen
+from canopen.objectdictionary import ODVariable
 
 from controller.errors import DeviceError
 from drivers.cia402 import MODE_CYCLIC_SYNC_POSITION
+from drivers.cob_ids import SYNC
+from drivers.homing import HomingFailed, HomingPlan, home_drive
+from drivers.pdo_codec import DriveCodec, SensorFrameCodec
+from drivers.pdo_mapping import (
+    COB_ID_INVALID,
+    PdoConfig,
+    PdoDirection,
+    PdoMappingError,
+    find_variable,
+    layout,
+    load_device_description,
+    planned_pdo,
+)
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +52,15 @@ class NodeSetupPlan:
     controller_id: int
     heartbeat_period_s: float
     heartbeat_consumer_s: float
-    cycle_period_s: float = 0.0  # the SYNC period, written as the drives' interpolation time period (0: not written)
+    cycle_period_s: float = 0.0  # the SYNC period: 0x1006 and the drives' interpolation time period (0: not written)
+    drive_eds: Path = DRIVE_EDS
+    sensor_eds: Path = SENSOR_EDS
+    sensor_vendor_id: int | None = None  # None: vendor_id
+    drive_rpdo_objects: tuple[str, ...] = ()  # "0x607A", "0x2000:1"; empty: the EDS's default mapping
+    drive_tpdo_objects: tuple[str, ...] = ()
+    homing: tuple[HomingPlan, ...] | None = None  # each drive's CiA 402 homing, before the PDOs start
+    following_error_window_counts: int = 0  # 0x6065 (0: not written; the EDS must have it)
+    following_error_time_ms: int = 0  # 0x6066
     answer_timeout_s: float = 5.0  # how long a node may take to answer at all (it may still be booting)
     sdo_timeout_s: float = 1.0  # each SDO response; canopen's 0.3 s default is short for slow machines
 
@@ -57,6 +79,8 @@ class NodeSetupReport:
     identities: tuple[NodeIdentity, ...]
     initial_positions_counts: tuple[int, ...]
     duration_s: float
+    drive_codecs: tuple[DriveCodec, ...] = ()  # from each drive's mapping as read back
+    sensor_codecs: tuple[SensorFrameCodec, SensorFrameCodec] | None = None
 
 
 def interpolation_time_period(period_s: float) -> tuple[int, int]:
@@ -92,15 +116,96 @@ def _wait_until_answering(node: canopen.RemoteNode, timeout_s: float) -> None:
     raise NodeSetupError(f"node {node.id} did not answer SDO requests within {timeout_s} s ({last})")
 
 
-def _write_interpolation_period(node: canopen.RemoteNode, period_s: float) -> None:
+def _variable(node: canopen.RemoteNode, node_id: int, index: int, subindex: int) -> ODVariable:
+    var = find_variable(node.object_dictionary, index, subindex)
+    if var is None:
+        raise NodeSetupError(f"node {node_id}: 0x{index:04X}sub{subindex} is not in its device description")
+    return var
+
+
+def _write(node: canopen.RemoteNode, node_id: int, index: int, subindex: int, value: int) -> None:
+    """One SDO download; an abort names the node, the object, the value and the abort."""
+    var = _variable(node, node_id, index, subindex)
+    try:
+        node.sdo.download(index, subindex, var.encode_raw(value))
+    except canopen.SdoAbortedError as err:
+        raise NodeSetupError(f"node {node_id}: writing 0x{index:04X}sub{subindex} = 0x{value & 0xFFFFFFFF:X} "
+                             f"refused: {err}") from err
+
+
+def _read(node: canopen.RemoteNode, node_id: int, index: int, subindex: int) -> int:
+    var = _variable(node, node_id, index, subindex)
+    try:
+        value = var.decode_raw(node.sdo.upload(index, subindex))
+    except canopen.SdoAbortedError as err:
+        raise NodeSetupError(f"node {node_id}: reading 0x{index:04X}sub{subindex} refused: {err}") from err
+    if not isinstance(value, int):
+        raise NodeSetupError(f"node {node_id}: 0x{index:04X}sub{subindex} is not an integer ({value!r})")
+    return value
+
+
+def _write_verified(node: canopen.RemoteNode, node_id: int, index: int, subindex: int, value: int) -> None:
+    _write(node, node_id, index, subindex, value)
+    _check_reads(node, node_id, index, subindex, value)
+
+
+def _check_reads(node: canopen.RemoteNode, node_id: int, index: int, subindex: int, value: int) -> None:
+    back = _read(node, node_id, index, subindex)
+    if back != value:
+        raise NodeSetupError(f"node {node_id}: 0x{index:04X}sub{subindex} reads back 0x{back & 0xFFFFFFFF:X}, "
+                             f"wrote 0x{value & 0xFFFFFFFF:X}")
+
+
+def _write_interpolation_period(node: canopen.RemoteNode, node_id: int, period_s: float) -> None:
     """0x60C2: the drive interpolates each target over this time (index first: no transient 2.5 s)."""
     value, index = interpolation_time_period(period_s)
-    node.sdo[0x60C2][2].raw = index
-    node.sdo[0x60C2][1].raw = value
-    back = (node.sdo[0x60C2][1].raw, node.sdo[0x60C2][2].raw)
-    if back != (value, index):
-        raise NodeSetupError(f"node {node.id} interpolation time period 0x60C2 reads back {back}, "
-                             f"wrote {(value, index)}")
+    _write_verified(node, node_id, 0x60C2, 2, index)
+    _write_verified(node, node_id, 0x60C2, 1, value)
+
+
+def _write_sync_timing(node: canopen.RemoteNode, node_id: int, period_s: float) -> None:
+    """0x1005 (the device consumes SYNC on 0x080) and 0x1006 (the cycle in µs), where the EDS has them."""
+    od = node.object_dictionary
+    if find_variable(od, 0x1005, 0) is not None:
+        _write_verified(node, node_id, 0x1005, 0, SYNC)
+    if find_variable(od, 0x1006, 0) is not None:
+        _write_verified(node, node_id, 0x1006, 0, round(period_s * 1e6))
+
+
+def _write_following_error(node: canopen.RemoteNode, node_id: int, plan: NodeSetupPlan) -> None:
+    """0x6065/0x6066: the drive's own following-error monitor (CiA 402: beyond the window for longer
+    than the time -> fault, EMCY 0x8611), where configured and the EDS has the objects."""
+    if plan.following_error_window_counts <= 0:
+        return
+    od = node.object_dictionary
+    if find_variable(od, 0x6065, 0) is None or find_variable(od, 0x6066, 0) is None:
+        log.warning("node %d: its EDS has no following-error objects 0x6065/0x6066; only the controller's "
+                    "window (safety.following_window_m) watches it", node_id)
+        return
+    _write_verified(node, node_id, 0x6065, 0, plan.following_error_window_counts)
+    _write_verified(node, node_id, 0x6066, 0, plan.following_error_time_ms)
+
+
+def configure_pdo(node: canopen.RemoteNode, node_id: int, config: PdoConfig) -> PdoConfig:
+    """Write one PDO by CiA 301's remap procedure, then read every parameter back and compare.
+
+    Invalid (COB-ID bit 31), transmission type, count 0, entries, count, valid again. Returns
+    what the device reports, which is what the codecs are built from.
+    """
+    comm, mapping = config.communication_index, config.mapping_index
+    _write(node, node_id, comm, 1, config.cob_id | COB_ID_INVALID)
+    _write(node, node_id, comm, 2, config.transmission_type)
+    _write(node, node_id, mapping, 0, 0)
+    for k, obj in enumerate(config.objects, start=1):
+        _write(node, node_id, mapping, k, obj.entry)
+    _write(node, node_id, mapping, 0, len(config.objects))
+    _write(node, node_id, comm, 1, config.cob_id)
+    _check_reads(node, node_id, comm, 1, config.cob_id)
+    _check_reads(node, node_id, comm, 2, config.transmission_type)
+    _check_reads(node, node_id, mapping, 0, len(config.objects))
+    for k, obj in enumerate(config.objects, start=1):
+        _check_reads(node, node_id, mapping, k, obj.entry)
+    return config
 
 
 def _identity(node: canopen.RemoteNode, node_id: int, expected_vendor: int, expected_product: int
@@ -112,47 +217,105 @@ def _identity(node: canopen.RemoteNode, node_id: int, expected_vendor: int, expe
     ident = NodeIdentity(node_id, u32(1), u32(2), u32(3), u32(4))
     if (ident.vendor_id, ident.product_code) != (expected_vendor, expected_product):
         raise NodeSetupError(
-            f"node {node_id} identity vendor 0x{ident.vendor_id:08X} product 0x{ident.product_code:08X}, "
-            f"expected vendor 0x{expected_vendor:08X} product 0x{expected_product:08X}"
+            f"node {node_id}: identity 0x1018 reads vendor 0x{ident.vendor_id:08X} product "
+            f"0x{ident.product_code:08X}, expected vendor 0x{expected_vendor:08X} product 0x{expected_product:08X}"
         )
     return ident
 
 
+def _remote_node(network: canopen.Network, node_id: int, eds: Path, plan: NodeSetupPlan) -> canopen.RemoteNode:
+    try:
+        node = canopen.RemoteNode(node_id, load_device_description(eds, node_id))
+    except PdoMappingError as err:
+        raise NodeSetupError(f"node {node_id}: {err}") from err
+    node.sdo.RESPONSE_TIMEOUT = plan.sdo_timeout_s
+    network.add_node(node)
+    _wait_until_answering(node, plan.answer_timeout_s)
+    return node
+
+
+def _home(node: canopen.RemoteNode, node_id: int, plan: HomingPlan) -> None:
+    try:
+        home_drive(node_id, plan, lambda index, sub, value: _write(node, node_id, index, sub, value),
+                   lambda index, sub: _read(node, node_id, index, sub))
+    except HomingFailed as err:
+        raise NodeSetupError(str(err)) from err
+
+
+def _configure_drive_pdos(node: canopen.RemoteNode, node_id: int, plan: NodeSetupPlan) -> DriveCodec:
+    od = node.object_dictionary
+    try:
+        rpdo = planned_pdo(od, PdoDirection.RECEIVE, 1, node_id, plan.drive_rpdo_objects)
+        tpdo = planned_pdo(od, PdoDirection.TRANSMIT, 1, node_id, plan.drive_tpdo_objects)
+        rpdo, tpdo = configure_pdo(node, node_id, rpdo), configure_pdo(node, node_id, tpdo)
+        where = f"node {node_id}"
+        return DriveCodec(layout(rpdo.objects, od, where), layout(tpdo.objects, od, where), where,
+                          rpdo.cob_id, tpdo.cob_id)
+    except PdoMappingError as err:
+        raise NodeSetupError(str(err)) from err
+
+
+def _configure_sensor_pdos(node: canopen.RemoteNode, node_id: int) -> tuple[SensorFrameCodec, SensorFrameCodec]:
+    od = node.object_dictionary
+    codecs = []
+    try:
+        for number in (1, 2):
+            tpdo = configure_pdo(node, node_id, planned_pdo(od, PdoDirection.TRANSMIT, number, node_id, ()))
+            where = f"node {node_id} {tpdo.name}"
+            codecs.append(SensorFrameCodec(layout(tpdo.objects, od, where), where, tpdo.cob_id))
+    except PdoMappingError as err:
+        raise NodeSetupError(str(err)) from err
+    force, torque = codecs
+    if not force.is_force or torque.is_force:
+        raise NodeSetupError(f"node {node_id}: TPDO1 must carry the force 0x2000 and TPDO2 the torque 0x2001")
+    return force, torque
+
+
 def configure_nodes(bus: can.BusABC, plan: NodeSetupPlan) -> NodeSetupReport:
-    """NMT pre-operational, SDO set-up and identity checks, NMT start of every node."""
+    """NMT pre-operational; per node: identity, mode, heartbeats, SYNC timing, PDOs; NMT start.
+
+    Every value written is read back; the PDO codecs are built from what the devices report.
+    """
     t0 = time.monotonic()
     network = canopen.Network(bus)
     network.connect()
     try:
         identities = []
         positions = []
+        drive_codecs = []
+        sensor_codecs = None
         network.nmt.state = "PRE-OPERATIONAL"  # broadcast
         hb_ms = round(plan.heartbeat_period_s * 1000)
         consumer = (plan.controller_id << 16) | round(plan.heartbeat_consumer_s * 1000)
-        for node_id in plan.drive_ids:
-            node = canopen.RemoteNode(node_id, str(DRIVE_EDS))
-            node.sdo.RESPONSE_TIMEOUT = plan.sdo_timeout_s
-            network.add_node(node)
-            _wait_until_answering(node, plan.answer_timeout_s)
+        for j, node_id in enumerate(plan.drive_ids):
+            node = _remote_node(network, node_id, plan.drive_eds, plan)
             identities.append(_identity(node, node_id, plan.vendor_id, plan.drive_product_code))
-            node.sdo[0x6060].raw = MODE_CYCLIC_SYNC_POSITION
-            mode = node.sdo[0x6061].raw
+            if plan.homing is not None:
+                _home(node, node_id, plan.homing[j])
+            _write(node, node_id, 0x6060, 0, MODE_CYCLIC_SYNC_POSITION)
+            mode = _read(node, node_id, 0x6061, 0)
             if mode != MODE_CYCLIC_SYNC_POSITION:
-                raise NodeSetupError(f"node {node_id} reports mode of operation {mode}, expected 8 (CSP)")
-            node.sdo[0x1017].raw = hb_ms
-            node.sdo[0x1016][1].raw = consumer
+                raise NodeSetupError(f"node {node_id}: mode of operation display 0x6061 reads {mode}, "
+                                     f"expected 8 (CSP)")
+            _write_verified(node, node_id, 0x1017, 0, hb_ms)
+            _write_verified(node, node_id, 0x1016, 1, consumer)
             if plan.cycle_period_s > 0:
-                _write_interpolation_period(node, plan.cycle_period_s)
-            positions.append(node.sdo[0x6064].raw)
+                _write_sync_timing(node, node_id, plan.cycle_period_s)
+                _write_interpolation_period(node, node_id, plan.cycle_period_s)
+            _write_following_error(node, node_id, plan)
+            drive_codecs.append(_configure_drive_pdos(node, node_id, plan))
+            positions.append(_read(node, node_id, 0x6064, 0))
         if plan.sensor_id is not None:
-            node = canopen.RemoteNode(plan.sensor_id, str(SENSOR_EDS))
-            node.sdo.RESPONSE_TIMEOUT = plan.sdo_timeout_s
-            network.add_node(node)
-            _wait_until_answering(node, plan.answer_timeout_s)
-            identities.append(_identity(node, plan.sensor_id, plan.vendor_id, plan.sensor_product_code))
-            node.sdo[0x1017].raw = hb_ms
+            node = _remote_node(network, plan.sensor_id, plan.sensor_eds, plan)
+            vendor = plan.vendor_id if plan.sensor_vendor_id is None else plan.sensor_vendor_id
+            identities.append(_identity(node, plan.sensor_id, vendor, plan.sensor_product_code))
+            _write_verified(node, plan.sensor_id, 0x1017, 0, hb_ms)
+            if plan.cycle_period_s > 0:
+                _write_sync_timing(node, plan.sensor_id, plan.cycle_period_s)
+            sensor_codecs = _configure_sensor_pdos(node, plan.sensor_id)
         network.nmt.state = "OPERATIONAL"  # broadcast start
-        return NodeSetupReport(tuple(identities), tuple(positions), time.monotonic() - t0)
+        return NodeSetupReport(tuple(identities), tuple(positions), time.monotonic() - t0,
+                               tuple(drive_codecs), sensor_codecs)
     except canopen.SdoAbortedError as err:
         raise NodeSetupError(f"SDO aborted during set-up: {err}") from err
     except canopen.SdoCommunicationError as err:
@@ -161,3 +324,30 @@ def configure_nodes(bus: can.BusABC, plan: NodeSetupPlan) -> NodeSetupReport:
         if network.notifier is not None:
             network.notifier.stop(1.0)
         network.bus = None  # the bus stays open for the cyclic loop; canopen must not close it
+
+
+def description_drive_codec(node_id: int, eds: Path = DRIVE_EDS, rpdo_objects: tuple[str, ...] = (),
+                            tpdo_objects: tuple[str, ...] = ()) -> DriveCodec:
+    """The codec of a drive mapped as ``eds`` and the configuration say, without asking the drive
+    (what ``configure_nodes`` writes; for exchanges built without a set-up: tests, bench)."""
+    od = load_device_description(eds, node_id)
+    rpdo = planned_pdo(od, PdoDirection.RECEIVE, 1, node_id, rpdo_objects)
+    tpdo = planned_pdo(od, PdoDirection.TRANSMIT, 1, node_id, tpdo_objects)
+    where = f"node {node_id}"
+    return DriveCodec(layout(rpdo.objects, od, where), layout(tpdo.objects, od, where), where,
+                      rpdo.cob_id, tpdo.cob_id)
+
+
+def description_sensor_codecs(node_id: int, eds: Path = SENSOR_EDS) -> tuple[SensorFrameCodec, SensorFrameCodec]:
+    od = load_device_description(eds, node_id)
+    codecs = []
+    for number in (1, 2):
+        tpdo = planned_pdo(od, PdoDirection.TRANSMIT, number, node_id, ())
+        codecs.append(SensorFrameCodec(layout(tpdo.objects, od, f"node {node_id} {tpdo.name}"),
+                                       f"node {node_id} {tpdo.name}", tpdo.cob_id))
+    return codecs[0], codecs[1]
+
+
+def device_description_path(configured: str, default: Path) -> Path:
+    """A configured EDS path ("" is the shipped one); relative paths are taken from the working directory."""
+    return Path(configured).resolve() if configured else default

@@ -10,6 +10,11 @@ Drive (CiA 402, cyclic synchronous position):
 Force/torque sensor:
   TPDO1 (0x180 + node): Fx, Fy, Fz (i16, FORCE_N_PER_COUNT), status (u8), counter (u8)
   TPDO2 (0x280 + node): Tx, Ty, Tz (i16, TORQUE_NM_PER_COUNT), status (u8), counter (u8)
+Pose tracker (the 3-nSPU's platform, optional; same 8-byte layout as the sensor's):
+  TPDO1 (0x180 + node): x, y, z of the platform point P in {0} (i16, TRACKER_M_PER_COUNT), status (u8), counter (u8)
+  TPDO2 (0x280 + node): rotation vector r of R = exp([r]x) (i16, TRACKER_RAD_PER_COUNT), status (u8), counter (u8)
+  One sample is the pair with the same counter. 20 um and 0.1 mrad a count (ranges +-0.65 m, +-3.27 rad):
+  a tenth of the execution's tolerances (1 mm, 10 mrad) and below a tracker's noise.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import struct
 from dataclasses import dataclass
 
 from controller.errors import InputError
+from drivers.pdo_mapping import PdoLayout, PdoMappingError
 
 
 class FrameError(InputError):
@@ -33,6 +39,10 @@ FORCE_N_PER_COUNT = 0.01
 TORQUE_NM_PER_COUNT = 0.001
 INT16_MAX = 32767
 INT32_MAX = 2**31 - 1
+
+TRACKER_M_PER_COUNT = 2.0e-5
+TRACKER_RAD_PER_COUNT = 1.0e-4
+TRACKER_SATURATED = 0x01  # a coordinate beyond the i16 range (the frame carries the clipped value)
 
 # Sensor status bits.
 SENSOR_FORCE_SATURATED = 0x01
@@ -80,7 +90,7 @@ def decode_drive_tpdo(data: bytes | bytearray) -> tuple[int, int]:
     return DRIVE_TPDO.unpack(data)
 
 
-def _saturating_i16(value: float, per_count: float) -> tuple[int, bool]:
+def saturating_i16(value: float, per_count: float) -> tuple[int, bool]:
     counts = round(value / per_count)
     if counts > INT16_MAX:
         return INT16_MAX, True
@@ -91,9 +101,9 @@ def _saturating_i16(value: float, per_count: float) -> tuple[int, bool]:
 
 def encode_sensor_frame(values: tuple[float, float, float], per_count: float, status: int, counter: int) -> bytes:
     """One sensor TPDO; values beyond the i16 range saturate and set the status bit."""
-    c0, s0 = _saturating_i16(values[0], per_count)
-    c1, s1 = _saturating_i16(values[1], per_count)
-    c2, s2 = _saturating_i16(values[2], per_count)
+    c0, s0 = saturating_i16(values[0], per_count)
+    c1, s1 = saturating_i16(values[1], per_count)
+    c2, s2 = saturating_i16(values[2], per_count)
     if s0 or s1 or s2:
         status |= SENSOR_FORCE_SATURATED if per_count == FORCE_N_PER_COUNT else SENSOR_TORQUE_SATURATED
     return SENSOR_TPDO.pack(c0, c1, c2, status & 0xFF, counter & 0xFF)
@@ -102,5 +112,105 @@ def encode_sensor_frame(values: tuple[float, float, float], per_count: float, st
 def decode_sensor_frame(data: bytes | bytearray, per_count: float) -> tuple[float, float, float, int, int]:
     if len(data) != SENSOR_TPDO.size:
         raise FrameError(f"sensor TPDO must have {SENSOR_TPDO.size} data bytes, got {len(data)}")
+    x, y, z, status, counter = SENSOR_TPDO.unpack(data)
+    return x * per_count, y * per_count, z * per_count, status, counter
+
+
+# -- codecs built from a device's PDO mapping (drivers/pdo_mapping.py) -----------------------
+
+CONTROLWORD = (0x6040, 0)
+TARGET_POSITION = (0x607A, 0)
+STATUSWORD = (0x6041, 0)
+POSITION_ACTUAL = (0x6064, 0)
+SENSOR_FORCE_OBJECT = 0x2000  # sub 1..3: Fx, Fy, Fz (drivers/eds/force_sensor.eds)
+SENSOR_TORQUE_OBJECT = 0x2001  # sub 1..3: Tx, Ty, Tz
+SENSOR_STATUS_OBJECT = (0x2002, 0)
+SENSOR_COUNTER_OBJECT = (0x2003, 0)
+
+
+class DriveCodec:
+    """A drive's RPDO and TPDO as mapped at set-up: struct layouts and slots computed once.
+
+    The RPDO must carry the controlword and the target position, the TPDO the statusword and
+    the position actual value, in any order; the TPDO may carry more (decoded, not used). An
+    RPDO with other objects is refused: the controller would have nothing to write into them.
+    """
+
+    def __init__(self, rpdo: PdoLayout, tpdo: PdoLayout, where: str, rpdo_cob_id: int = 0,
+                 tpdo_cob_id: int = 0) -> None:
+        self.rpdo, self.tpdo = rpdo, tpdo
+        self.rpdo_cob_id, self.tpdo_cob_id = rpdo_cob_id, tpdo_cob_id
+        self._cw, self._target = rpdo.slot(*CONTROLWORD), rpdo.slot(*TARGET_POSITION)
+        self._sw, self._position = tpdo.slot(*STATUSWORD), tpdo.slot(*POSITION_ACTUAL)
+        if self._cw < 0 or self._target < 0 or len(rpdo.objects) != 2:
+            raise PdoMappingError(f"{where} RPDO mapping {', '.join(map(str, rpdo.objects)) or 'empty'}: must "
+                                  f"map exactly the controlword 0x6040 and the target position 0x607A")
+        if self._sw < 0 or self._position < 0:
+            raise PdoMappingError(f"{where} TPDO mapping {', '.join(map(str, tpdo.objects)) or 'empty'}: must "
+                                  f"map the statusword 0x6041 and the position actual value 0x6064")
+        self._rpdo_first_is_cw = self._cw == 0
+        self._rpdo_packer = rpdo.packer
+        self._tpdo_packer = tpdo.packer
+
+    def pack_rpdo_into(self, buffer: bytearray, controlword: int, target_counts: int) -> None:
+        if self._rpdo_first_is_cw:
+            self._rpdo_packer.pack_into(buffer, 0, controlword, target_counts)
+        else:
+            self._rpdo_packer.pack_into(buffer, 0, target_counts, controlword)
+
+    def decode_tpdo(self, data: bytes | bytearray) -> tuple[int, int]:
+        """(statusword, position counts)."""
+        if len(data) != self._tpdo_packer.size:
+            raise FrameError(f"drive TPDO must have {self._tpdo_packer.size} data bytes, got {len(data)}")
+        values = self._tpdo_packer.unpack(data)
+        return values[self._sw], values[self._position]
+
+
+class SensorFrameCodec:
+    """One force/torque sensor TPDO as mapped at set-up: three axes of one object, status, counter."""
+
+    def __init__(self, tpdo: PdoLayout, where: str, cob_id: int = 0) -> None:
+        self.layout = tpdo
+        self.cob_id = cob_id
+        indices = {obj.index for obj in tpdo.objects if obj.index in (SENSOR_FORCE_OBJECT, SENSOR_TORQUE_OBJECT)}
+        if len(indices) != 1:
+            raise PdoMappingError(f"{where} mapping {', '.join(map(str, tpdo.objects)) or 'empty'}: must map the "
+                                  f"three axes of either 0x2000 (force) or 0x2001 (torque)")
+        axis_object = indices.pop()
+        self.is_force = axis_object == SENSOR_FORCE_OBJECT
+        self.per_count = FORCE_N_PER_COUNT if self.is_force else TORQUE_NM_PER_COUNT
+        self._axes = tuple(tpdo.slot(axis_object, k) for k in (1, 2, 3))
+        self._status, self._counter = tpdo.slot(*SENSOR_STATUS_OBJECT), tpdo.slot(*SENSOR_COUNTER_OBJECT)
+        if min(self._axes) < 0 or self._status < 0 or self._counter < 0:
+            raise PdoMappingError(f"{where} mapping {', '.join(map(str, tpdo.objects))}: must map "
+                                  f"0x{axis_object:04X}sub1..3, the status 0x2002 and the counter 0x2003")
+        self._packer = tpdo.packer
+
+    def decode(self, data: bytes | bytearray) -> tuple[float, float, float, int, int]:
+        if len(data) != self._packer.size:
+            raise FrameError(f"sensor TPDO must have {self._packer.size} data bytes, got {len(data)}")
+        v = self._packer.unpack(data)
+        k = self.per_count
+        ax, ay, az = self._axes
+        return v[ax] * k, v[ay] * k, v[az] * k, v[self._status], v[self._counter]
+
+
+def encode_tracker_frames(position_m: tuple[float, float, float], rotation_vector_rad: tuple[float, float, float],
+                          status: int, counter: int) -> tuple[bytes, bytes]:
+    """The tracker's two TPDOs for one sample; a coordinate beyond the i16 range saturates and sets the status bit."""
+    frames = []
+    for values, per_count in ((position_m, TRACKER_M_PER_COUNT), (rotation_vector_rad, TRACKER_RAD_PER_COUNT)):
+        counts = [saturating_i16(v, per_count) for v in values]
+        if any(sat for _, sat in counts):
+            status |= TRACKER_SATURATED
+        frames.append(counts)
+    return tuple(SENSOR_TPDO.pack(*(c for c, _ in f), status & 0xFF, counter & 0xFF)  # type: ignore[return-value]
+                 for f in frames)
+
+
+def decode_tracker_frame(data: bytes | bytearray, per_count: float) -> tuple[float, float, float, int, int]:
+    """One tracker TPDO: three coordinates in SI units, status, counter."""
+    if len(data) != SENSOR_TPDO.size:
+        raise FrameError(f"pose tracker TPDO must have {SENSOR_TPDO.size} data bytes, got {len(data)}")
     x, y, z, status, counter = SENSOR_TPDO.unpack(data)
     return x * per_count, y * per_count, z * per_count, status, counter

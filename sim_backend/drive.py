@@ -20,6 +20,9 @@ Behaviour, as a real CSP drive:
 - end stops at the stroke limits (the carriage stops there and the drive faults, 0x7320
   "position sensor / range" EMCY);
 - quick stop on the quick-stop deceleration, then stays in QUICK STOP ACTIVE (option 6);
+- a following-error monitor (0x6065 window, 0x6066 time, written by the master): the position
+  reference and the carriage further apart than the window for longer than the time -> FAULT
+  and EMCY 0x8611;
 - a watchdog: no SYNC for ``sync_timeout_s`` or no controller heartbeat for the consumer
   time while enabled -> quick stop and an EMCY (0x8130 heartbeat / 0x8240 sync lost).
 
@@ -32,8 +35,12 @@ import math
 from dataclasses import dataclass, field
 
 from drivers.cia402 import (
+    CW_HOMING_START,
     MODE_CYCLIC_SYNC_POSITION,
+    MODE_HOMING,
     SW_FOLLOWING_COMMAND,
+    SW_HOMING_ATTAINED,
+    SW_HOMING_ERROR,
     SW_REMOTE,
     SW_TARGET_REACHED,
     SW_VOLTAGE_ENABLED,
@@ -41,12 +48,24 @@ from drivers.cia402 import (
     device_transition,
     statusword_bits,
 )
+from sim_backend.homing import HomingPhase, HomingRun, HomingSettings
 
 EMCY_NO_ERROR = 0x0000
 EMCY_POSITION_RANGE = 0x7320
 EMCY_HEARTBEAT_LOST = 0x8130
 EMCY_SYNC_LOST = 0x8240
 EMCY_FORCED_FAULT = 0x5000  # device hardware, used by fault injection
+EMCY_FOLLOWING_ERROR = 0x8611  # CiA 402: following error (window 0x6065 exceeded for longer than 0x6066)
+EMCY_SYNC_PERIOD = 0x8700  # CiA 402 "sync controller": the SYNC interval is not the configured period
+
+# The SYNC period check: the median of this many SYNC intervals (robust to a descheduled master
+# or simulator) against the configured cycle, off by this factor or more either way. It catches a
+# master running another period than it configured (a rate, 0x1006 or 0x60C2 that does not
+# match), not timing quality, which the controller measures itself: without real-time scheduling
+# on the busy 2-core development machine the loop achieved 321 and 232 of 400 Hz (cheope demo
+# --no-realtime, two runs; it skips the deadlines it missed), and that must not fault the drives.
+SYNC_PERIOD_WINDOW = 64
+SYNC_PERIOD_MISMATCH_FACTOR = 2.0
 
 
 @dataclass(frozen=True)
@@ -63,6 +82,8 @@ class DriveParams:
     sync_timeout_s: float
     substep_s: float
     max_extrapolated_targets: int = 1  # SYNCs in a row without a new target that extrapolate it
+    negative_limit_switch: float = -math.inf  # homing switches, true coordinates [unit]
+    positive_limit_switch: float = math.inf
 
 
 # How far past the end of its interpolation segment the reference goes on at the segment's speed
@@ -96,8 +117,21 @@ class SimulatedDrive:
     last_heartbeat_s: float | None = None
     time_s: float | None = None
     heartbeat_consumer_s: float = 0.0  # object 0x1016; 0 disables the heartbeat watchdog
+    communication_cycle_period_s: float = 0.0  # object 0x1006; 0: not configured
+    sync_intervals_s: list[float] = field(default_factory=list)  # the last SYNC_PERIOD_WINDOW intervals
+    sync_period_mismatch: bool = False  # reported once by EMCY_SYNC_PERIOD until the period matches again
     pending_emcy: list[int] = field(default_factory=list)
     error_code: int = EMCY_NO_ERROR
+    # An incremental encoder: it reports the true position plus this offset, unknown to the master
+    # until homing (sim_backend/homing.py) sets it so that home reads as the home offset 0x607C.
+    encoder_offset: float = 0.0
+    homing_settings: HomingSettings = field(default_factory=HomingSettings)
+    homing: HomingRun | None = None
+    reported_position_error: float = 0.0  # fault injection: the position it reports is off by this [unit]
+    blocked: bool = False  # fault injection: the carriage is mechanically stuck
+    following_error_window: float = 0.0  # 0x6065 [unit]; 0: no monitoring
+    following_error_time_s: float = 0.0  # 0x6066
+    _following_error_since_s: float | None = None
 
     def __post_init__(self) -> None:
         self.received_target = self.position
@@ -107,11 +141,40 @@ class SimulatedDrive:
     # -- protocol ---------------------------------------------------------------------------
 
     def on_rpdo(self, controlword: int, target_counts: int) -> None:
-        self.received_target = target_counts / self.params.counts_per_unit
+        self.received_target = self.from_counts(target_counts)
         self.target_received = True
         self.on_controlword(controlword)
 
+    def from_counts(self, counts: int) -> float:
+        """A position the master sent, in the drive's true coordinates."""
+        return counts / self.params.counts_per_unit - self.encoder_offset
+
+    def set_mode(self, mode: int) -> None:
+        """0x6060; leaving homing mode forgets an unfinished homing run."""
+        if mode != self.mode_of_operation:
+            self.homing = None
+        self.mode_of_operation = mode
+
     def on_controlword(self, controlword: int) -> None:
+        previous = self.last_controlword
+        self._on_power_controlword(controlword)
+        if (self.mode_of_operation == MODE_HOMING and self.power == PowerState.OPERATION_ENABLED
+                and controlword & CW_HOMING_START and not previous & CW_HOMING_START):
+            p = self.params
+            self.homing = HomingRun(self.homing_settings, p.negative_limit_switch, p.positive_limit_switch,
+                                    p.stroke_min, p.stroke_max)
+            self.homing.start(self.position)
+            self._homing_result()
+
+    def _homing_result(self) -> None:
+        run = self.homing
+        if run is not None and run.phase == HomingPhase.ATTAINED and not math.isnan(run.home_position):
+            # home reads as the home offset from now on: the unknown encoder offset is gone
+            self.encoder_offset = self.homing_settings.home_offset - run.home_position
+            run.home_position = math.nan  # applied once
+            self.latched_target = self.previous_target = self.received_target = self.position
+
+    def _on_power_controlword(self, controlword: int) -> None:
         new = device_transition(self.power, controlword, self.last_controlword)
         if new != self.power:
             if self.power == PowerState.FAULT:
@@ -131,6 +194,7 @@ class SimulatedDrive:
             dt = now_s - self.last_sync_s
             if 0.0 < dt < 1.0:
                 self.sync_period_s = dt
+                self._check_sync_period(dt)
         self.last_sync_s = now_s
         self.previous_target = self._reference(now_s)
         if self.target_received or self.power != PowerState.OPERATION_ENABLED:
@@ -147,6 +211,23 @@ class SimulatedDrive:
         self.target_received = False
         self.interp_start_s = now_s
 
+    def _check_sync_period(self, interval_s: float) -> None:
+        """EMCY 0x8700 once when the SYNC intervals' median is SYNC_PERIOD_MISMATCH_FACTOR times the
+        configured period (0x1006, else 0x60C2) or more, or as many times less."""
+        expected = self.communication_cycle_period_s or self.interpolation_period_s
+        intervals = self.sync_intervals_s
+        intervals.append(interval_s)
+        if len(intervals) > SYNC_PERIOD_WINDOW:
+            del intervals[0]
+        if expected <= 0.0 or len(intervals) < SYNC_PERIOD_WINDOW:
+            return
+        median = sorted(intervals)[SYNC_PERIOD_WINDOW // 2]
+        ratio = median / expected
+        off = ratio >= SYNC_PERIOD_MISMATCH_FACTOR or ratio <= 1.0 / SYNC_PERIOD_MISMATCH_FACTOR
+        if off and not self.sync_period_mismatch:
+            self.pending_emcy.append(EMCY_SYNC_PERIOD)
+        self.sync_period_mismatch = off
+
     def on_controller_heartbeat(self, now_s: float) -> None:
         self.last_heartbeat_s = now_s
 
@@ -154,14 +235,39 @@ class SimulatedDrive:
         sw = statusword_bits(self.power) | SW_REMOTE
         if self.power in (PowerState.SWITCHED_ON, PowerState.OPERATION_ENABLED, PowerState.QUICK_STOP_ACTIVE):
             sw |= SW_VOLTAGE_ENABLED
-        if self.power == PowerState.OPERATION_ENABLED:
+        if self.power == PowerState.OPERATION_ENABLED and self.mode_of_operation == MODE_HOMING:
+            # CiA 402 homing: 10 reached (or interrupted), 12 attained, 13 error; none while moving
+            run = self.homing
+            phase = run.phase if run is not None else HomingPhase.IDLE
+            if phase == HomingPhase.ATTAINED:
+                sw |= SW_TARGET_REACHED | SW_HOMING_ATTAINED
+            elif phase == HomingPhase.ERROR:
+                sw |= SW_HOMING_ERROR
+            elif phase == HomingPhase.IDLE:
+                sw |= SW_TARGET_REACHED
+        elif self.power == PowerState.OPERATION_ENABLED:
             sw |= SW_FOLLOWING_COMMAND
             if abs(self.position - self.latched_target) * self.params.counts_per_unit < 10:
                 sw |= SW_TARGET_REACHED
         return sw
 
     def position_counts(self) -> int:
-        return round(self.position * self.params.counts_per_unit)  # encoder quantisation
+        # quantised; the fault injection's error on top of the incremental encoder's offset
+        return round((self.position + self.encoder_offset + self.reported_position_error) * self.params.counts_per_unit)
+
+    def on_nmt_stopped(self) -> None:
+        """NMT left OPERATIONAL while enabled: the abort-connection reaction (0x6007 = 3, quick stop)."""
+        if self.power == PowerState.OPERATION_ENABLED:
+            self.power = PowerState.QUICK_STOP_ACTIVE
+
+    def reboot(self) -> None:
+        """Power cycle of the drive's electronics: the power state machine starts again, the carriage stays."""
+        self.power = PowerState.SWITCH_ON_DISABLED
+        self.velocity = 0.0
+        self.last_controlword = 0
+        self.latched_target = self.previous_target = self.received_target = self.position
+        self.target_step = 0.0
+        self.error_code = EMCY_NO_ERROR
 
     def force_fault(self, error_code: int) -> None:
         if self.power != PowerState.FAULT:
@@ -200,6 +306,21 @@ class SimulatedDrive:
         self.power = PowerState.QUICK_STOP_ACTIVE
         self.pending_emcy.append(error_code)
 
+    def _advance_homing(self, run: HomingRun, n: int, h: float, trace: list[float] | None) -> None:
+        x, v, a = self.position, self.velocity, 0.0
+        for _ in range(n):
+            if run.moving:
+                v0 = v
+                x, v = run.step(x, v, h)
+                a = (v - v0) / h
+            else:
+                v = a = 0.0  # attained or failed: the drive holds where it stopped
+            if trace is not None:
+                trace.append(x)
+                trace.append(a)
+        self.position, self.velocity, self.acceleration = x, v, a
+        self._homing_result()
+
     def advance(self, now_s: float, check_sync_timeout: bool = True, substeps: int = 0,
                 trace: list[float] | None = None) -> None:
         """Integrate the carriage up to ``now_s`` in equal sub-steps, checking the watchdogs first.
@@ -220,6 +341,10 @@ class SimulatedDrive:
         t = self.time_s
         x, v, a = self.position, self.velocity, self.acceleration
         vmax = p.max_velocity
+        if self.power == PowerState.OPERATION_ENABLED and self.homing is not None and self.homing.moving:
+            self._advance_homing(self.homing, n, h, trace)
+            self.time_s = now_s
+            return
         enabled = self.power == PowerState.OPERATION_ENABLED and self.mode_of_operation == MODE_CYCLIC_SYNC_POSITION
         stopping = self.power in (PowerState.QUICK_STOP_ACTIVE, PowerState.FAULT_REACTION_ACTIVE, PowerState.FAULT)
         if enabled:
@@ -230,21 +355,22 @@ class SimulatedDrive:
             x0, dx = self.previous_target, self.latched_target - self.previous_target
             v_ff = p.velocity_feedforward * dx / period if period > 0 else 0.0
             t0, x_end = self.interp_start_s, 1.0 + EXTRAPOLATION_PERIODS
+        moving = not self.blocked  # a stuck carriage (fault injection) holds whatever the drive does
         for _ in range(n):
-            if enabled:
+            if enabled and moving:
                 # the reference at the start of the sub-step (``_reference``, inlined: this is
                 # the simulator's inner loop)
                 r = (t - t0) / period if period > 0 else 1.0
                 ref = x0 + (r if 0.0 <= r <= x_end else (0.0 if r < 0.0 else x_end)) * dx
                 acc = wn2 * (ref - x) + c * (v_ff - v)
                 acc = amax if acc > amax else (-amax if acc < -amax else acc)  # noqa: FURB136 (no call: inner loop)
-            elif stopping:
+            elif stopping and moving:
                 if abs(v) <= p.quick_stop_deceleration * h:
                     v, acc = 0.0, 0.0
                 else:
                     acc = -math.copysign(p.quick_stop_deceleration, v)
             else:
-                # Not enabled, or enabled in a mode this drive does not run: the brake holds.
+                # Not enabled, enabled in a mode this drive does not run (the brake holds), or stuck.
                 v = a = 0.0
                 t += h
                 if trace is not None:
@@ -268,4 +394,16 @@ class SimulatedDrive:
                 trace.append(x)
                 trace.append(a)
         self.position, self.velocity, self.acceleration = x, v, a
+        if enabled:
+            self._monitor_following_error(now_s, abs(self._reference(now_s) - x))
+
+    def _monitor_following_error(self, now_s: float, error: float) -> None:
+        """CiA 402 following error: beyond the window (0x6065) for longer than the time (0x6066)."""
+        if self.following_error_window <= 0.0 or error <= self.following_error_window:
+            self._following_error_since_s = None
+        elif self._following_error_since_s is None:
+            self._following_error_since_s = now_s
+        elif now_s - self._following_error_since_s >= self.following_error_time_s:
+            self._following_error_since_s = None
+            self.force_fault(EMCY_FOLLOWING_ERROR)
         self.time_s = now_s

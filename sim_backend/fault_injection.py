@@ -16,6 +16,17 @@ needs one. Kinds:
 - ``tx_full``      the controller's frames do not reach the devices (a full transmit queue)
 - ``stall=S``      the controller's loop wakes S seconds late every cycle (in-process runs only)
 
+Someone else on the bus (issue "a bus that cannot lie"):
+
+- ``block:N``      drive N's carriage is mechanically stuck (a following error)
+- ``jump:N=D``     drive N's encoder reports D (m or rad) more than the carriage is at
+- ``reboot:N``     node N restarts: boot-up message, PRE-OPERATIONAL, power state machine from the start
+- ``nmt_stop:N``   another master sends NMT "stop" to node N (it goes STOPPED and falls silent)
+- ``foreign_sync`` a second SYNC producer: one more SYNC with every SYNC
+- ``unknown_node:N``  an unconfigured node N sends heartbeats and TPDOs
+- ``flood``        a babbling node floods the bus with frames of COB-ID 0x001
+- ``spoof_sensor=F``  a second force frame with F newtons along X and a counter out of step
+
 Examples: ``drop:2@3.0+0.5``, ``force=100@2``, ``freeze@1.5``.
 """
 
@@ -33,8 +44,15 @@ if TYPE_CHECKING:
 
 from controller.errors import InputError
 
-KINDS_WITH_NODE = ("drop", "delay", "malformed", "drive_fault", "heartbeat")
-KINDS = KINDS_WITH_NODE + ("freeze", "saturate", "force", "error_frames", "bus_off", "tx_full", "stall")
+KINDS_WITH_NODE = ("drop", "delay", "malformed", "drive_fault", "heartbeat", "block", "jump", "reboot",
+                   "nmt_stop", "unknown_node")
+KINDS = KINDS_WITH_NODE + ("freeze", "saturate", "force", "error_frames", "bus_off", "tx_full", "stall",
+                           "foreign_sync", "flood", "spoof_sensor")
+DRIVE_ONLY_KINDS = ("drive_fault", "block", "jump", "reboot")
+FLOOD_COB_ID = 0x001
+FLOOD_FRAMES_PER_SYNC = 32  # more than a 1 Mbit/s bus carries in 2.5 ms besides the cycle's own frames
+NMT_STOP = 0x02  # CiA 301 NMT command specifiers
+SPOOF_COUNTER_OFFSET = 128  # the spoofed sample's counter: as far from the true one as a u8 goes
 _NUMBER = r"[0-9]+(?:\.[0-9]*)?(?:[eE][-+]?[0-9]+)?"
 _PATTERN = re.compile(rf"^(?P<kind>[a-z_]+)(:(?P<node>\d+))?(=(?P<value>-?{_NUMBER}))?@(?P<start>{_NUMBER})"
                       rf"(\+(?P<duration>{_NUMBER}))?$")
@@ -68,6 +86,36 @@ def parse_fault(text: str) -> Fault:
     return Fault(kind=kind, start_s=float(m["start"]),
                  duration_s=float(m["duration"]) if m["duration"] else math.inf,
                  node=int(m["node"]) if m["node"] else 0, value=float(m["value"]) if m["value"] else 0.0)
+
+
+# A late frame or a late wake-up longer than this is no longer "late": it is a silent node
+# (``drop:N``) or a dead controller, and a value like 1e9 s is a typo, not a scenario.
+MAX_LATENESS_S = 1.0
+MAX_EXTRA_FORCE_N = 10_000.0
+
+
+def check_fault(text: str, drive_nodes: Sequence[int], sensor_node: int | None) -> Fault:
+    """``parse_fault`` plus what only the configuration knows: the node exists, values are sane."""
+    f = parse_fault(text)
+    if not math.isfinite(f.start_s):
+        raise FaultSpecError(f"fault {text!r}: START must be a finite number of seconds")
+    devices = (*drive_nodes, *((sensor_node,) if sensor_node is not None else ()))
+    if f.kind == "unknown_node" and (f.node in devices or not 1 <= f.node <= 127):
+        raise FaultSpecError(f"fault {text!r}: unknown_node takes a node id in 1..127 that is not configured "
+                             f"(the bus has {', '.join(map(str, devices))})")
+    if f.kind in KINDS_WITH_NODE and f.kind != "unknown_node":
+        allowed = tuple(drive_nodes) if f.kind in DRIVE_ONLY_KINDS else devices
+        if f.node not in allowed:
+            known = f"drives {', '.join(map(str, drive_nodes))}" + (
+                f" and the sensor {sensor_node}" if sensor_node is not None and f.kind not in DRIVE_ONLY_KINDS else "")
+            what = "a drive" if f.node in devices else "on the bus"
+            raise FaultSpecError(f"fault {text!r}: node {f.node} is not {what}; {f.kind} takes {known}")
+    if f.kind in ("delay", "stall") and not 0.0 < f.value <= MAX_LATENESS_S:
+        raise FaultSpecError(f"fault {text!r}: {f.kind} of {f.value:g} s must be in (0, {MAX_LATENESS_S:g}] s; "
+                             f"a longer silence is drop:N (a node) or a dead controller")
+    if f.kind == "force" and not abs(f.value) <= MAX_EXTRA_FORCE_N:
+        raise FaultSpecError(f"fault {text!r}: force={f.value:g} N is beyond +-{MAX_EXTRA_FORCE_N:g} N")
+    return f
 
 
 class FaultSchedule:
@@ -126,6 +174,9 @@ def apply_device_faults(schedule: FaultSchedule, plant: FaultableDevices, drive_
     for node, drive in zip(drive_ids, plant.drives):
         if schedule.first_time("drive_fault", now_s, node):
             drive.force_fault(EMCY_FORCED_FAULT)
+        jump = schedule.active("jump", now_s, node)
+        drive.reported_position_error = jump.value if jump is not None else 0.0
+        drive.blocked = schedule.active("block", now_s, node) is not None
     sensor = plant.sensor
     if sensor is not None:
         sensor.freeze_counter = schedule.active("freeze", now_s) is not None
@@ -163,6 +214,9 @@ class BusFaults:
     silent_heartbeats: tuple[int, ...] = ()  # nodes whose heartbeat producer stopped
     error_class: int = 0  # 0: none; else the class bits of one error frame sent this SYNC
     delays_s: tuple[tuple[int, float], ...] = ()  # (node, seconds) its TPDO leaves late
+    foreign_frames: tuple[tuple[int, bytes], ...] = ()  # (COB-ID, data) someone else sends with this SYNC
+    reboots: tuple[int, ...] = ()  # nodes that restart at this SYNC (once)
+    spoofed_force_n: float | None = None  # a second force frame with this Fx, counter out of step
 
 
 NO_BUS_FAULTS = BusFaults()
@@ -178,9 +232,44 @@ def bus_faults(schedule: FaultSchedule, now_s: float, node_ids: tuple[int, ...])
         d = schedule.active("delay", now_s, n)
         if d is not None:
             delays.append((n, d.value))
+    spoof = schedule.active("spoof_sensor", now_s)
     return BusFaults(
         controller_frames_lost=schedule.active("tx_full", now_s) is not None,
         silent_heartbeats=tuple(n for n in node_ids if schedule.active("heartbeat", now_s, n) is not None),
         error_class=(ERROR_CLASS_BUS_OFF if bus_off else ERROR_CLASS_CONTROLLER) if errors else 0,
         delays_s=tuple(delays),
+        foreign_frames=_foreign_frames(schedule, now_s),
+        reboots=tuple(n for n in node_ids if schedule.first_time("reboot", now_s, n)),
+        spoofed_force_n=spoof.value if spoof is not None else None,
     )
+
+
+def _foreign_frames(schedule: FaultSchedule, now_s: float) -> tuple[tuple[int, bytes], ...]:
+    frames: list[tuple[int, bytes]] = []
+    if schedule.active("foreign_sync", now_s) is not None:
+        frames.append((0x080, b""))
+    stop = schedule.active("nmt_stop", now_s)
+    if stop is not None:
+        frames.append((0x000, bytes((NMT_STOP, stop.node))))
+    stranger = schedule.active("unknown_node", now_s)
+    if stranger is not None:
+        frames += [(0x700 + stranger.node, b"\x05"), (0x180 + stranger.node, bytes(6))]
+    if schedule.active("flood", now_s) is not None:
+        frames += [(FLOOD_COB_ID, b"")] * FLOOD_FRAMES_PER_SYNC
+    return tuple(frames)
+
+
+def spoofed_sensor_frame(force_payload: bytes, force_x_n: float) -> bytes:
+    """Someone else's sample on the sensor's force COB-ID: Fx replaced, its counter out of step.
+
+    Written in the default layout (drivers/pdo_codec.py), which is what the spoofer knows.
+    """
+    from drivers.pdo_codec import FORCE_N_PER_COUNT, decode_sensor_frame, encode_sensor_frame
+
+    _, y, z, status, counter = decode_sensor_frame(force_payload, FORCE_N_PER_COUNT)
+    return encode_sensor_frame((force_x_n, y, z), FORCE_N_PER_COUNT, status, (counter + SPOOF_COUNTER_OFFSET) % 256)
+
+
+def nmt_commands(frames: tuple[tuple[int, bytes], ...]) -> list[tuple[int, int]]:
+    """(command specifier, node: 0 = all) of the NMT commands among ``frames``."""
+    return [(data[0], data[1]) for cob, data in frames if cob == 0x000 and len(data) == 2]

@@ -17,8 +17,10 @@ import numpy as np
 from drivers.pdo_codec import (
     FORCE_N_PER_COUNT,
     SENSOR_FORCE_SATURATED,
+    SENSOR_TORQUE_SATURATED,
+    SENSOR_TPDO,
     TORQUE_NM_PER_COUNT,
-    encode_sensor_frame,
+    saturating_i16,
 )
 
 
@@ -46,6 +48,7 @@ class SimulatedForceSensor:
     _next_sample_s: float | None = None
     _alpha: float = 1.0
     _alpha_dt: float = -1.0
+    object_values: dict[tuple[int, int], int] = field(default_factory=dict)  # latched at each SYNC
 
     def __post_init__(self) -> None:
         self.rng = np.random.default_rng(self.params.seed)
@@ -65,8 +68,12 @@ class SimulatedForceSensor:
             self._sample = np.array((f0, f1, f2)) + np.asarray(p.bias_n) + self.rng.normal(0.0, p.noise_std_n, 3)
             self._next_sample_s = (self._next_sample_s or t_s) + 1.0 / p.sample_rate_hz
 
-    def frames(self) -> tuple[bytes, bytes]:
-        """The two TPDOs answering a SYNC: the latest sample."""
+    def latch(self) -> dict[tuple[int, int], int]:
+        """Answer a SYNC: the latest sample as the values of the objects a TPDO maps, in counts.
+
+        Objects 0x2000sub1..3 (force, FORCE_N_PER_COUNT), 0x2001sub1..3 (torque), 0x2002 (status),
+        0x2003 (counter) of drivers/eds/force_sensor.eds; the TPDOs pack them as mapped.
+        """
         p = self.params
         measured = self._sample + np.asarray(self.extra_force_n)
         status = self.status_flags
@@ -75,8 +82,22 @@ class SimulatedForceSensor:
             measured = np.clip(measured, -p.range_n, p.range_n)
         if not self.freeze_counter:
             self.counter = (self.counter + 1) & 0xFF
-        f = encode_sensor_frame(tuple(measured.tolist()), FORCE_N_PER_COUNT, status, self.counter)
-        t = encode_sensor_frame(tuple(self._torque.tolist()), TORQUE_NM_PER_COUNT, status, self.counter)
+        values = self.object_values
+        for k, (f, t) in enumerate(zip(measured.tolist(), self._torque.tolist()), start=1):
+            cf, sf = saturating_i16(f, FORCE_N_PER_COUNT)
+            ct, st = saturating_i16(t, TORQUE_NM_PER_COUNT)
+            status |= (SENSOR_FORCE_SATURATED if sf else 0) | (SENSOR_TORQUE_SATURATED if st else 0)
+            values[(0x2000, k)], values[(0x2001, k)] = cf, ct
+        values[(0x2002, 0)] = status & 0xFF
+        values[(0x2003, 0)] = self.counter
+        return values
+
+    def frames(self) -> tuple[bytes, bytes]:
+        """The two TPDOs answering a SYNC in the EDS's default mapping: the latest sample."""
+        v = self.latch()
+        status, counter = v[(0x2002, 0)], v[(0x2003, 0)]
+        f = SENSOR_TPDO.pack(v[(0x2000, 1)], v[(0x2000, 2)], v[(0x2000, 3)], status, counter)
+        t = SENSOR_TPDO.pack(v[(0x2001, 1)], v[(0x2001, 2)], v[(0x2001, 3)], status, counter)
         return f, t
 
     def sample(self, force_n: np.ndarray, torque_nm: np.ndarray) -> tuple[bytes, bytes]:

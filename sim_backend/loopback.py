@@ -1,38 +1,93 @@
-"""The simulated drives and sensor in-process, behind the same codecs, without a bus.
+"""The simulated drives and sensor in-process, behind the production exchange, without a bus.
 
-An ``Exchange`` for the loop shell (``send`` / ``collect``) that encodes the RPDOs and
-decodes the TPDOs with the production codecs but hands the bytes straight to the
-simulated devices, on the caller's clock. With ``controller.shell.loop.SimulatedTime`` a whole
-run takes milliseconds and is deterministic: the harness of the unit and property tests.
+An ``Exchange`` for the loop shell (``send`` / ``collect``): the production
+``drivers.cyclic_exchange.CyclicExchange`` over an in-memory python-can bus (``DeviceBus``)
+whose other end is the simulated devices, on the caller's clock. The controller's frames are
+decoded by the devices as they are sent; a SYNC makes the devices answer, and their frames
+(TPDOs, EMCY, heartbeats, error frames, and whatever the fault schedule has someone else send)
+wait in the bus for the exchange to read, in the order the simulator process would send them.
+With ``controller.shell.loop.SimulatedTime`` a whole run takes milliseconds and is deterministic:
+the harness of the unit and property tests and of ``cheope faults``.
+
+Differences from the simulator process, on purpose: the controller's frames never get lost on
+the way unless a fault says so, and every frame arrives within its cycle unless delayed by one.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable
 
+import can
+import numpy as np
+
 from controller.config import Config
-from controller.core.cycle_data import BusFeedback, CycleOutputs, DriveFeedback, EmcyReport, SensorFeedback
+from controller.core.cycle_data import BusFeedback, CycleOutputs
 from controller.robots.registry import actuator_units
-from drivers.pdo_codec import (
-    FORCE_N_PER_COUNT,
-    TORQUE_NM_PER_COUNT,
-    FrameError,
-    PositionScale,
-    decode_drive_rpdo,
-    decode_drive_tpdo,
-    decode_sensor_frame,
-    encode_drive_rpdo,
+from drivers import cob_ids
+from drivers.cia402 import (
+    CW_DISABLE_VOLTAGE,
+    CW_ENABLE_OPERATION,
+    CW_HOMING_START,
+    CW_SHUTDOWN,
+    CW_SWITCH_ON,
+    MODE_HOMING,
+    SW_HOMING_ATTAINED,
 )
+from drivers.cyclic_exchange import CyclicExchange, ExchangeCounters
+from drivers.homing import HomingFailed
+from drivers.node_setup import (
+    DRIVE_EDS,
+    SENSOR_EDS,
+    description_drive_codec,
+    description_sensor_codecs,
+    device_description_path,
+)
+from drivers.pdo_codec import PositionScale
+from sim_backend.device_pdos import SimulatedPdos
 from sim_backend.environment import Environment
 from sim_backend.fault_injection import (
-    ERROR_CLASS_BUS_OFF,
+    NMT_STOP,
     NO_BUS_FAULTS,
+    BusFaults,
     FaultSchedule,
     apply_device_faults,
     bus_faults,
+    nmt_commands,
+    spoofed_sensor_frame,
     tpdo_payload,
 )
+from sim_backend.homing import HomingSettings
 from sim_backend.plant import RobotPlant
+
+NMT_OPERATIONAL, NMT_STOPPED, NMT_PRE_OPERATIONAL, NMT_BOOT_UP = 5, 4, 127, 0
+
+
+def _frame(cob_id: int, data: bytes, error: bool = False) -> can.Message:
+    return can.Message(arbitration_id=cob_id, data=data, is_extended_id=False, is_error_frame=error)
+
+
+class DeviceBus(can.BusABC):
+    """An in-memory bus: what the controller sends goes to ``on_send``; ``inbox`` is what it reads."""
+
+    def __init__(self, on_send: Callable[[can.Message], None]) -> None:
+        super().__init__(channel="loopback")
+        self.on_send = on_send
+        self.inbox: deque[can.Message] = deque()
+        self.full = False  # a full transmit queue: send raises as python-can's do (ENOBUFS)
+        self._is_shutdown = True  # nothing to release: python-can's "not properly shut down" does not apply
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self.full:
+            raise can.CanOperationError("Transmit buffer full (ENOBUFS): fault injection tx_full")
+        self.on_send(msg)
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        # Simulated time: everything the devices answered is already here, nothing to wait for.
+        return self.inbox.popleft() if self.inbox else None
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        return self.recv(), False
 
 
 class LoopbackExchange:
@@ -41,70 +96,165 @@ class LoopbackExchange:
         self.scale = PositionScale(actuator_units(cfg).counts_per_unit)  # m or rad
         self.plant = RobotPlant(cfg, environment)
         self.drives = self.plant.drives
-        for d in self.drives:
-            d.mode_of_operation = 8  # what node set-up does over SDO on the real path: CSP,
-            d.interpolation_period_s = cfg.period_s  # and 0x60C2
+        if cfg.actuators.homing_method:
+            self._home(cfg)
+        units = actuator_units(cfg)
+        rotary = units.unit.value == "rad"
+        for d in self.drives:  # what node set-up does over SDO on the real path: CSP, 0x60C2, 0x6065/0x6066
+            d.mode_of_operation = 8
+            d.interpolation_period_s = cfg.period_s
+            d.following_error_window = (cfg.actuators.following_error_window_rad if rotary
+                                        else cfg.actuators.following_error_window_m)
+            d.following_error_time_s = cfg.actuators.following_error_time_s
         self.drive_ids = tuple(cfg.actuators.node_ids)
+        self.sensor_id = cfg.sensor.node_id if self.plant.sensor is not None else None
+        # both sides mapped as the configuration and the EDS say, as set-up would write and read back
+        self.pdos = SimulatedPdos(cfg, self.drives, self.plant.sensor)
+        self.pdos.apply_configured_mapping(cfg)
+        eds = device_description_path(cfg.actuators.eds_file, DRIVE_EDS)
+        self.codecs = tuple(description_drive_codec(n, eds, cfg.actuators.rpdo_objects, cfg.actuators.tpdo_objects)
+                            for n in self.drive_ids)
+        self.sensor_codecs = description_sensor_codecs(
+            cfg.sensor.node_id, device_description_path(cfg.sensor.eds_file, SENSOR_EDS)) \
+            if cfg.sensor.enabled else None
         self.faults = FaultSchedule.from_strings(tuple(cfg.sim.faults))
-        self.rejected_frames = 0
-        self.send_errors = 0
-        self._frames: list[tuple[int, int, bytes]] = []
-        self._emcy: list[EmcyReport] = []
+        self.heartbeat_period_s = cfg.loop.heartbeat_period_s
+        self._last_heartbeat_s: dict[int, float] = {}
+        self.tracker_id = cfg.tracker.node_id if self.plant.tracker is not None else None
+        # the tracker has no NMT slave or heartbeat, as in the simulator process: it sends by itself
+        nodes = (*self.drive_ids, *(() if self.sensor_id is None else (self.sensor_id,)))
+        self.nmt_state = {n: NMT_OPERATIONAL for n in nodes}  # node set-up has started them all
+        self.bus = DeviceBus(self._on_controller_frame)
+        self.exchange = CyclicExchange(
+            self.bus, self.drive_ids, self.scale, self.sensor_id, cfg.loop.controller_node_id,
+            heartbeat_every=max(1, round(cfg.loop.heartbeat_period_s * cfg.loop.rate_hz)), clock=clock,
+            heartbeat_timeout_s=cfg.loop.heartbeat_consumer_s, drive_codecs=self.codecs,
+            sensor_codecs=self.sensor_codecs, flood_frames_per_cycle=cfg.safety.max_foreign_frames_per_cycle,
+            tracker_id=self.tracker_id)
+        self._rpdo_drive = {c.rpdo_cob_id: j for j, c in enumerate(self.codecs)}
+        self._delayed: list[can.Message] = []
         self._bus_faults = NO_BUS_FAULTS
+        self._silenced: set[int] = set()
+
+    def _home(self, cfg: Config) -> None:
+        """What set-up does before the first cycle (drivers/homing.py), on each drive's own time.
+
+        The homing motion takes simulated seconds before the loop's time 0: each drive runs it
+        from t = 0, then forgets its time, so the loop's first cycle starts where homing ended.
+        """
+        a = cfg.actuators
+        step_s = cfg.sim.drive.substep_s * 10
+        for j, d in enumerate(self.drives):
+            d.homing_settings = HomingSettings(
+                method=a.homing_method, home_offset=a.home_offsets_m[j], switch_speed=a.homing_switch_speed_m_s,
+                zero_speed=a.homing_zero_speed_m_s, acceleration=a.homing_acceleration_m_s2)
+            d.set_mode(MODE_HOMING)
+            for cw in (CW_SHUTDOWN, CW_SWITCH_ON, CW_ENABLE_OPERATION, CW_ENABLE_OPERATION | CW_HOMING_START):
+                d.on_controlword(cw)
+            t = 0.0
+            d.advance(t)
+            while d.homing is not None and d.homing.moving and t < a.homing_timeout_s:
+                t += step_s
+                d.advance(t)
+            if not d.statusword() & SW_HOMING_ATTAINED:
+                raise HomingFailed(f"node {cfg.actuators.node_ids[j]}: "
+                                   f"homing method {a.homing_method} failed: statusword 0x{d.statusword():04X}")
+            d.on_controlword(CW_DISABLE_VOLTAGE)
+            d.time_s = None  # the loop's clock starts at its own 0
+        self.plant.update_kinematics(None, np.array([d.position for d in self.drives]))
+
+    @property
+    def counters(self) -> ExchangeCounters:
+        return self.exchange.counters
+
+    @property
+    def rejected_frames(self) -> int:
+        return self.exchange.counters.rejected_frames
+
+    @property
+    def send_errors(self) -> int:
+        return self.exchange.counters.send_errors
+
+    # -- the loop shell's side ----------------------------------------------------------------
 
     def send(self, outputs: CycleOutputs | None) -> None:
         now = self.clock()
         self.plant.advance(now)
         self.faults.start(now)
         self._bus_faults = bus_faults(self.faults, now, self.drive_ids)
-        if self._bus_faults.controller_frames_lost:
-            # nothing reaches the devices: no RPDO, no SYNC, so no device answers
-            self.send_errors += 5
-            self._frames = []
-            return
-        if outputs is not None:
-            for d, cw, x in zip(self.drives, outputs.controlwords, outputs.targets):
-                d.on_rpdo(*decode_drive_rpdo(encode_drive_rpdo(cw, self.scale.to_counts(x))))
+        self.bus.full = self._bus_faults.controller_frames_lost
+        self.bus.inbox.extend(self._delayed)  # last cycle's late TPDOs: read before this SYNC, as late
+        self._delayed = []
+        self.exchange.send(outputs)
+
+    def collect(self, deadline_s: float) -> BusFeedback:
+        return self.exchange.collect(deadline_s)
+
+    # -- the devices' side --------------------------------------------------------------------
+
+    def _on_controller_frame(self, msg: can.Message) -> None:
+        cob = msg.arbitration_id
+        j = self._rpdo_drive.get(cob)
+        if j is not None:
+            if self.nmt_state[self.drive_ids[j]] != NMT_OPERATIONAL:
+                return  # a PDO is only processed in OPERATIONAL (CiA 301)
+            self.pdos.receive_rpdo(j, msg.data)  # as the drive's mapping says; a wrong one is dropped
+        elif cob == cob_ids.SYNC:
+            self._on_sync(self.clock())
+
+    def _on_sync(self, now: float) -> None:
+        faults: BusFaults = self._bus_faults
+        inbox = self.bus.inbox
+        if faults.error_class:  # the bus's trouble shows while this cycle's frames are on it
+            inbox.append(_frame(faults.error_class, bytes(8), error=True))
+        for cob, data in faults.foreign_frames:  # someone else's, sent with the SYNC
+            inbox.append(_frame(cob, data))
+        for command, node in nmt_commands(faults.foreign_frames):
+            if command == NMT_STOP:
+                for n in self.nmt_state:
+                    if node in (0, n):
+                        self.nmt_state[n] = NMT_STOPPED
+                        if n in self.drive_ids:
+                            self.drives[self.drive_ids.index(n)].on_nmt_stopped()
+        for node in faults.reboots:
+            self.nmt_state[node] = NMT_PRE_OPERATIONAL
+            self.drives[self.drive_ids.index(node)].reboot()
+            inbox.append(_frame(cob_ids.heartbeat(node), bytes((NMT_BOOT_UP,))))
         apply_device_faults(self.faults, self.plant, self.drive_ids, now)
-        drive_payloads, sensor_frames = self.plant.sync(now)
+        self.plant.sync(now)
         sample = self.plant.kinematics_sample()
         if sample is not None:
             self.plant.update_kinematics(*sample)
-        self._frames = []
-        for j, data in enumerate(drive_payloads):
-            payload = tpdo_payload(self.faults, self.drive_ids[j], data, now)
-            late = any(n == self.drive_ids[j] for n, _ in self._bus_faults.delays_s)  # misses its cycle
-            if payload is not None and not late:
-                self._frames.append((0, j, payload))
-        if sensor_frames is not None:
-            self._frames += [(1, 0, sensor_frames[0]), (2, 0, sensor_frames[1])]
-        for j, d in enumerate(self.drives):
+        delays = dict(faults.delays_s)
+        for node, tpdo in zip(self.drive_ids, self.pdos.drive_tpdos()):  # as each drive's mapping says
+            if tpdo is None or self.nmt_state[node] != NMT_OPERATIONAL:
+                continue
+            cob, data = tpdo
+            payload = tpdo_payload(self.faults, node, data, now)
+            if payload is not None:
+                (self._delayed if node in delays else inbox).append(_frame(cob, payload))
+        sensor_frames = self.pdos.sensor_tpdos()
+        if sensor_frames and self.sensor_id is not None and self.nmt_state[self.sensor_id] == NMT_OPERATIONAL:
+            for k, (cob, data) in enumerate(sensor_frames):
+                inbox.append(_frame(cob, data))
+                if k == 0 and faults.spoofed_force_n is not None:
+                    inbox.append(_frame(cob, spoofed_sensor_frame(data, faults.spoofed_force_n)))
+        tracker_frames = self.plant.tracker_frames(now)  # after the pose was advanced to this SYNC
+        if tracker_frames is not None and self.tracker_id is not None:
+            inbox.append(_frame(cob_ids.tpdo1(self.tracker_id), tracker_frames[0]))
+            inbox.append(_frame(cob_ids.tpdo2(self.tracker_id), tracker_frames[1]))
+        for node, d in zip(self.drive_ids, self.drives):
             while d.pending_emcy:
                 code = d.pending_emcy.pop(0)
-                self._emcy.append(EmcyReport(self.drive_ids[j], code, 0x01 if code else 0))
+                data = code.to_bytes(2, "little") + bytes((0x01 if code else 0x00,)) + bytes(5)
+                inbox.append(_frame(cob_ids.emcy(node), data))
+        self._heartbeats(now, faults)
 
-    def collect(self, deadline_s: float) -> BusFeedback:
-        drives: list[DriveFeedback | None] = [None] * len(self.drives)
-        force = torque = None
-        for kind, j, data in self._frames:
-            if kind == 0:
-                try:
-                    sw, counts = decode_drive_tpdo(data)
-                except FrameError:
-                    self.rejected_frames += 1
-                    continue
-                drives[j] = DriveFeedback(sw, self.scale.to_unit(counts), True)
-            elif kind == 1:
-                force = decode_sensor_frame(data, FORCE_N_PER_COUNT)
-            else:
-                torque = decode_sensor_frame(data, TORQUE_NM_PER_COUNT)
-        feedback = tuple(fb if fb is not None else DriveFeedback(d.statusword(), d.position, False)
-                         for fb, d in zip(drives, self.drives))
-        sensor = None
-        if force is not None and torque is not None:
-            sensor = SensorFeedback(force[:3], torque[:3], force[3], force[4], True)
-        emcy, self._emcy = tuple(self._emcy), []
-        bus = self._bus_faults  # as the exchange would decode the simulator process's frames
-        return BusFeedback(drives=feedback, sensor=sensor, emcy=emcy, lost_heartbeats=bus.silent_heartbeats,
-                           error_frames=1 if bus.error_class else 0,
-                           bus_off=bus.error_class == ERROR_CLASS_BUS_OFF)
+    def _heartbeats(self, now: float, faults: BusFaults) -> None:
+        """Each node's heartbeat producer (0x1017), checked at the SYNCs: its NMT state, every period."""
+        for node, state in self.nmt_state.items():
+            if node in faults.silent_heartbeats:
+                continue
+            if now - self._last_heartbeat_s.get(node, -1e9) >= self.heartbeat_period_s:
+                self._last_heartbeat_s[node] = now
+                self.bus.inbox.append(_frame(cob_ids.heartbeat(node), bytes((state,))))

@@ -61,13 +61,13 @@ from controller.robots.errors import NoSolutionError
 from controller.robots.registry import actuator_units, robot_from_config
 from controller.robots.robot import ActuatorUnit
 from controller.tasks.registry import task_entry
-from drivers.pdo_codec import encode_drive_tpdo
 from sim_backend.contact_disk import DiskEnvironment, DiskParams
 from sim_backend.drive import DriveParams, SimulatedDrive
 from sim_backend.environment import Environment, FreeSpace
 from sim_backend.force_sensor import SensorParams, SimulatedForceSensor
 from sim_backend.mechanics import NO_ACCELERATION, ComplianceParams, CompliantTool
 from sim_backend.plant_kinematics import plant_kinematics
+from sim_backend.pose_tracker import SimulatedPoseTracker, TrackerParams
 
 log = logging.getLogger(__name__)
 
@@ -84,6 +84,7 @@ def drive_params_from_config(cfg: Config) -> DriveParams:
         velocity_feedforward=d.velocity_feedforward,
         stroke_min=u.stroke_min, stroke_max=u.stroke_max, counts_per_unit=u.counts_per_unit,
         sync_timeout_s=d.sync_timeout_s, substep_s=d.substep_s,
+        negative_limit_switch=d.limit_switches_m[0], positive_limit_switch=d.limit_switches_m[1],
     )
 
 
@@ -112,11 +113,19 @@ class RobotPlant:
         self.robot = robot_from_config(cfg)
         self.kinematics = plant_kinematics(cfg, self.robot)  # the robot's simulator hook
         params = drive_params_from_config(cfg)
-        self.drives = [SimulatedDrive(params, position=x) for x in self.kinematics.initial_positions()]
+        self.drives = [SimulatedDrive(params, position=x, encoder_offset=offset) for x, offset in
+                       zip(self.kinematics.initial_positions(), cfg.sim.drive.encoder_offsets_m)]
         s = cfg.sim.sensor
         self.sensor = SimulatedForceSensor(SensorParams(s.noise_std_n, s.bias_n, s.range_n, s.seed,
                                                         s.sample_rate_hz, s.bandwidth_hz)) \
             if cfg.sensor.enabled else None
+        self.tracker: SimulatedPoseTracker | None = None
+        if cfg.tracker.enabled:  # the platform's pose: only a hook that integrates one has it (the 3-nSPU's)
+            if not hasattr(self.kinematics, "pose"):
+                raise ValueError(f"tracker.enabled: the simulated {cfg.robot.kind} has no platform pose to track "
+                                 "(only the 3-nSPU's simulator integrates one)")
+            t = cfg.sim.tracker
+            self.tracker = SimulatedPoseTracker(TrackerParams(t.rate_hz, t.position_noise_m, t.angle_noise_rad, t.seed))
         self.environment = environment or environment_from_config(cfg)
         self.loaded = not isinstance(self.environment, FreeSpace)
         self.tool = CompliantTool(ComplianceParams(cfg.robot.mass.actuator_stiffness_n_m,
@@ -218,17 +227,21 @@ class RobotPlant:
                 sensor.observe(t0_s + tau, h, force[0], force[1], force[2])
         self.force_n = np.array(force)
 
-    def sync(self, now_s: float) -> tuple[list[bytes], tuple[bytes, bytes] | None]:
-        """Latch the drives' targets, sample everything at ``now_s``: the TPDO payloads."""
+    def sync(self, now_s: float) -> None:
+        """Latch the drives' targets at ``now_s`` (the TPDOs are packed by ``device_pdos.py``)."""
         self.advance(now_s, check_sync_timeout=False)
         self.last_sync_s = now_s
         for d in self.drives:
             d.on_sync(now_s)
         if not self.loaded and self.sensor is not None:
             self.sensor.observe(now_s, 1.0, 0.0, 0.0, 0.0)  # free space: nothing touches the tool
-        drives = [encode_drive_tpdo(d.statusword(), d.position_counts()) for d in self.drives]
-        sensor = self.sensor.frames() if self.sensor is not None else None
-        return drives, sensor
+
+    def tracker_frames(self, now_s: float) -> tuple[bytes, bytes] | None:
+        """The pose tracker's two TPDOs at this SYNC if a sample is due (of the pose as the simulator has it)."""
+        if self.tracker is None:
+            return None
+        pose = self.kinematics.pose  # type: ignore[attr-defined]  # checked at construction
+        return self.tracker.frames(now_s, pose.p_m, pose.R)
 
     def kinematics_sample(self) -> tuple[float, np.ndarray] | None:
         """After a SYNC in free space: (time, drive positions) for ``update_kinematics``, else None.

@@ -23,7 +23,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable
-from pathlib import Path
+from dataclasses import replace
 from typing import Self
 
 import can
@@ -33,18 +33,27 @@ import numpy as np
 from controller.config import Config
 from controller.shell.realtime import reset_scheduler
 from drivers import cob_ids
-from drivers.pdo_codec import FrameError, decode_drive_rpdo
+from drivers.node_setup import DRIVE_EDS as SHIPPED_DRIVE_EDS
+from drivers.node_setup import SENSOR_EDS as SHIPPED_SENSOR_EDS
+from sim_backend.device_pdos import SimulatedPdos
 from sim_backend.drive import SimulatedDrive
 from sim_backend.environment import Environment
-from sim_backend.fault_injection import FaultSchedule, apply_device_faults, bus_faults, tpdo_payload
+from sim_backend.fault_injection import (
+    FaultSchedule,
+    apply_device_faults,
+    bus_faults,
+    nmt_commands,
+    spoofed_sensor_frame,
+    tpdo_payload,
+)
+from sim_backend.pdo_parameters import DevicePdos
 from sim_backend.plant import RobotPlant
 
 log = logging.getLogger(__name__)
 
-EDS_DIR = Path(__file__).resolve().parent.parent / "drivers" / "eds"
-DRIVE_EDS = EDS_DIR / "cheope_drive.eds"
-SENSOR_EDS = EDS_DIR / "force_sensor.eds"
+DRIVE_EDS, SENSOR_EDS = SHIPPED_DRIVE_EDS, SHIPPED_SENSOR_EDS  # the tools' names for the shipped files
 NMT_OPERATIONAL = 5
+NMT_STOPPED = 4
 WATCHDOG_PERIOD_S = 0.005
 # A watchdog tick this late means the simulator's process was not running: SYNC frames may be
 # waiting unread in its socket, so this tick does not judge them lost (see _watchdog_loop).
@@ -89,7 +98,9 @@ class Simulator:
         self._kinematics: queue.SimpleQueue[tuple[float, np.ndarray] | None] = queue.SimpleQueue()
         self._pose_thread: threading.Thread | None = None
         self._fast: dict[int, Callable[[bytearray, float], None]] = {}
+        self._rpdo_routes: list[int] = []
         self._tx: dict[int, can.Message] = {}
+        self.pdos = SimulatedPdos(cfg, self.drives, self.sensor)  # the mappings as written over SDO
 
     # -- life cycle -------------------------------------------------------------------------
 
@@ -102,17 +113,19 @@ class Simulator:
 
     def start(self) -> None:
         for j, node_id in enumerate(self.drive_ids):
-            node = canopen.LocalNode(node_id, str(DRIVE_EDS))
+            node = canopen.LocalNode(node_id, self.pdos.drive_pdos[j].od)
             self.network.add_node(node)
-            self._wire_drive(node, self.drives[j])
+            self._wire_drive(node, self.drives[j], self.pdos.drive_pdos[j])
             self.nodes[node_id] = node
-            self._fast[cob_ids.rpdo1(node_id)] = self._rpdo_handler(j)
-            self._tx[cob_ids.tpdo1(node_id)] = self._message(cob_ids.tpdo1(node_id))
-        if self.sensor is not None:
-            node = canopen.LocalNode(self.cfg.sensor.node_id, str(SENSOR_EDS))
+        if self.sensor is not None and self.pdos.sensor_pdos is not None:
+            node = canopen.LocalNode(self.cfg.sensor.node_id, self.pdos.sensor_pdos.od)
             self.network.add_node(node)
+            self._wire_sensor(node, self.pdos.sensor_pdos)
             self.nodes[self.cfg.sensor.node_id] = node
-            for cob in (cob_ids.tpdo1(self.cfg.sensor.node_id), cob_ids.tpdo2(self.cfg.sensor.node_id)):
+        self._route_rpdos()
+        self.pdos.on_cob_ids_changed = self._route_rpdos
+        if self.plant.tracker is not None:  # no CANopen object dictionary: it starts sending by itself
+            for cob in (cob_ids.tpdo1(self.cfg.tracker.node_id), cob_ids.tpdo2(self.cfg.tracker.node_id)):
                 self._tx[cob] = self._message(cob)
         self._fast[cob_ids.SYNC] = self._on_sync
         self._fast[cob_ids.heartbeat(self.cfg.loop.controller_node_id)] = self._on_controller_heartbeat
@@ -188,7 +201,24 @@ class Simulator:
 
     # -- object dictionary callbacks --------------------------------------------------------
 
-    def _wire_drive(self, node: canopen.LocalNode, drive: SimulatedDrive) -> None:
+    def _route_rpdos(self) -> None:
+        """The RPDO COB-IDs as mapped now (a master may have moved one while the PDO was invalid)."""
+        for cob in self._rpdo_routes:
+            self._fast.pop(cob, None)
+        self._rpdo_routes = self.pdos.rpdo_cob_ids()
+        for j, cob in enumerate(self._rpdo_routes):
+            self._fast[cob] = self._rpdo_handler(j)
+
+    def _wire_sensor(self, node: canopen.LocalNode, pdos: DevicePdos) -> None:
+        def on_write(index: int, subindex: int, od: canopen.objectdictionary.ODVariable, data: bytes) -> None:
+            raw = od.decode_raw(data)
+            if isinstance(raw, int):
+                with self.lock:
+                    pdos.write(index, subindex, raw)  # SdoAbortedError refuses an invalid mapping
+
+        node.add_write_callback(on_write)
+
+    def _wire_drive(self, node: canopen.LocalNode, drive: SimulatedDrive, pdos: DevicePdos) -> None:
         interpolation = {1: 0, 2: -3}  # 0x60C2 sub 1 value, sub 2 exponent (the EDS defaults)
 
         def on_read(index: int, subindex: int, od: object) -> int | None:
@@ -205,12 +235,30 @@ class Simulator:
                 return
             value = raw
             with self.lock:
-                if index == 0x6060:
-                    drive.mode_of_operation = value
+                pdos.write(index, subindex, value)  # SdoAbortedError refuses an invalid mapping
+                counts = drive.params.counts_per_unit
+                if index == 0x1006:
+                    drive.communication_cycle_period_s = value * 1e-6
+                elif index == 0x6060:
+                    drive.set_mode(value)
                 elif index == 0x6040:
                     drive.on_controlword(value)
                 elif index == 0x607A:
-                    drive.received_target = value / drive.params.counts_per_unit
+                    drive.received_target = drive.from_counts(value)
+                elif index == 0x6098:  # the homing objects (CiA 402), positions in counts
+                    drive.homing_settings = replace(drive.homing_settings, method=value)
+                elif index == 0x607C:
+                    drive.homing_settings = replace(drive.homing_settings, home_offset=value / counts)
+                elif index == 0x6099 and subindex == 1:
+                    drive.homing_settings = replace(drive.homing_settings, switch_speed=value / counts)
+                elif index == 0x6099 and subindex == 2:
+                    drive.homing_settings = replace(drive.homing_settings, zero_speed=value / counts)
+                elif index == 0x609A:
+                    drive.homing_settings = replace(drive.homing_settings, acceleration=value / counts)
+                elif index == 0x6065:  # following error window [counts]; 0xFFFFFFFF: off (CiA 402)
+                    drive.following_error_window = 0.0 if value == 0xFFFFFFFF else value / counts
+                elif index == 0x6066:  # following error time out [ms]
+                    drive.following_error_time_s = value / 1000.0
                 elif index == 0x1016 and subindex == 1:
                     # CiA 301: bits 16..23 node id, bits 0..15 consumer time [ms]
                     drive.heartbeat_consumer_s = (value & 0xFFFF) / 1000.0
@@ -235,13 +283,10 @@ class Simulator:
             # The target waits for the next SYNC, as in a real CSP drive: no integration here.
             if not self._operational(node_id) or self._lost_until_next_sync:
                 return
-            try:
-                controlword, target = decode_drive_rpdo(data)
-            except FrameError:
-                self.rejected_frames += 1
-                return
             with self.lock:
-                self.drives[j].on_rpdo(controlword, target)
+                if not self.pdos.receive_rpdo(j, data):
+                    self.rejected_frames += 1
+                    return
                 self._flush_emcy()
 
         return on_rpdo
@@ -256,25 +301,44 @@ class Simulator:
             return
         self._lost_until_next_sync = False
         delays = dict(bus.delays_s)
+        for cob_id, payload in bus.foreign_frames:  # someone else's frames, sent with this SYNC
+            self.bus.send(can.Message(arbitration_id=cob_id, data=payload, is_extended_id=False))
+        if nmt_commands(bus.foreign_frames):  # and the nodes obey them, echoed back or not
+            with self.lock:
+                for cob_id, payload in bus.foreign_frames:
+                    if cob_id == cob_ids.NMT:
+                        self.network.notify(cob_id, bytearray(payload), now)
+                self._after_nmt()
+        with self.lock:
+            for node_id in bus.reboots:
+                self.drives[self.drive_ids.index(node_id)].reboot()
+                self._boot(self.nodes[node_id])
         with self.lock:
             self.sync_count += 1
             apply_device_faults(self.faults, self.plant, self.drive_ids, now)
-            drive_payloads, sensor_frames = self.plant.sync(now)
+            self.plant.sync(now)
             sample = self.plant.kinematics_sample()
-            for node_id, payload in zip(self.drive_ids, drive_payloads):
-                out = tpdo_payload(self.faults, node_id, payload, now)
-                if out is None or not self._operational(node_id):
+            for node_id, tpdo in zip(self.drive_ids, self.pdos.drive_tpdos()):
+                out = tpdo_payload(self.faults, node_id, tpdo[1], now) if tpdo is not None else None
+                if tpdo is None or out is None or not self._operational(node_id):
                     continue
                 if node_id in delays:
-                    delayed.append((delays[node_id], cob_ids.tpdo1(node_id), out))
+                    delayed.append((delays[node_id], tpdo[0], out))
                 else:
-                    frames.append((cob_ids.tpdo1(node_id), out))
+                    frames.append((tpdo[0], out))
                 if node_id in bus.silent_heartbeats and node_id not in self._silenced:
                     self.nodes[node_id].nmt.stop_heartbeat()
                     self._silenced.add(node_id)
-            if sensor_frames is not None and self._operational(self.cfg.sensor.node_id):
-                frames.append((cob_ids.tpdo1(self.cfg.sensor.node_id), sensor_frames[0]))
-                frames.append((cob_ids.tpdo2(self.cfg.sensor.node_id), sensor_frames[1]))
+            sensor_frames = self.pdos.sensor_tpdos()
+            if sensor_frames and self._operational(self.cfg.sensor.node_id):
+                for k, (cob, payload) in enumerate(sensor_frames):
+                    frames.append((cob, payload))
+                    if k == 0 and bus.spoofed_force_n is not None:  # a second sender on the force COB-ID
+                        frames.append((cob, spoofed_sensor_frame(payload, bus.spoofed_force_n)))
+            tracker_frames = self.plant.tracker_frames(now)  # the pose as the pose thread last had it
+            if tracker_frames is not None:
+                frames.append((cob_ids.tpdo1(self.cfg.tracker.node_id), tracker_frames[0]))
+                frames.append((cob_ids.tpdo2(self.cfg.tracker.node_id), tracker_frames[1]))
             self._flush_emcy()
         for cob_id, payload in frames:
             self._send_pdo(cob_id, payload)
@@ -292,6 +356,8 @@ class Simulator:
         msg = self._tx.get(cob_id) if reuse else None
         if msg is None:  # frames sent from another thread (delayed) get their own object
             msg = self._message(cob_id)
+            if reuse:
+                self._tx[cob_id] = msg
         msg.data = bytearray(payload)
         msg.dlc = len(payload)
         self.bus.send(msg)
@@ -306,9 +372,15 @@ class Simulator:
         if len(data) != 2:
             self.rejected_frames += 1
             return
-        for node in self.nodes.values():
+        self._after_nmt()
+
+    def _after_nmt(self) -> None:
+        """What the devices do after an NMT command: a reset reboots, a stop aborts the connection."""
+        for node_id, node in self.nodes.items():
             if node.nmt._state == 0:
                 self._boot(node)
+            elif node.nmt._state == NMT_STOPPED and node_id in self.drive_ids:
+                self.drives[self.drive_ids.index(node_id)].on_nmt_stopped()
 
     def _flush_emcy(self) -> None:
         for node_id, d in zip(self.drive_ids, self.drives):

@@ -29,6 +29,10 @@ class SimDriveSection(Section, frozen=True):
     max_acceleration_rad_s2: Annotated[float, rng(0.0, 1e6, lo_open=True)] = 240.0
     quick_stop_deceleration_rad_s2: Annotated[float, rng(0.0, 1e6, lo_open=True)] = 30.0
     initial_positions_m: tuple[float, float, float] = (0.71508, 0.56794, 0.42697)  # TCP at (0.09, 0, 0.5) m
+    # Incremental encoders: each drive reports its true position plus this offset until homed (rad
+    # for rotary drives); the homing limit switches close below / above these true positions.
+    encoder_offsets_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    limit_switches_m: tuple[float, float] = (0.32, 0.88)
     # Cheope's linear motors: a cogging force A sin(2 pi q / period + phase) on each carriage, acting
     # through the structure's actuator stiffness (sim_backend/plant.py); 0 N disables it
     cogging_force_n: Annotated[float, rng(0.0, 1e4)] = 2.0
@@ -59,6 +63,29 @@ class SimDiskSection(Section, frozen=True):
     friction_coefficient: Annotated[float, rng(0.0, 2.0)] = 0.15
 
 
+class SimNspuSection(Section, frozen=True):
+    """The simulated 3-nSPU's difference from the controller's model (issue 20: model mismatch).
+
+    The simulator integrates the platform with this geometry; the controller plans and streams
+    with its own (``[robot.nspu]``).  All zero: the two are the same.
+    """
+
+    leg_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # physical leg length minus encoder reading
+    w4_axis_error_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)  # platform U-joint axis w4i turned about z x w4i
+    r_axis_error_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)  # nS-plane normal r_i turned about z x r_i
+    # the platform starts this far from the plan's start position (orientation kept); the drives read its legs
+    start_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+class SimTrackerSection(Section, frozen=True):
+    """The simulated pose tracker on the 3-nSPU's platform ([tracker] enabled): sim_backend/pose_tracker.py."""
+
+    rate_hz: Annotated[float, rng(0.1, 10000.0)] = 100.0  # samples a second (at most one per SYNC)
+    position_noise_m: Annotated[float, rng(0.0, 0.01)] = 5.0e-5  # standard deviation of each coordinate
+    angle_noise_rad: Annotated[float, rng(0.0, 0.1)] = 2.0e-4  # of each rotation-vector component
+    seed: int = 2
+
+
 class SimSection(Section, frozen=True):
     drive: SimDriveSection = msgspec.field(default_factory=SimDriveSection)
     sensor: SimSensorSection = msgspec.field(default_factory=SimSensorSection)
@@ -66,14 +93,23 @@ class SimSection(Section, frozen=True):
     structure_inertial_load: bool = True  # the structure also carries M times the drives' acceleration (plant.py)
     environment: Literal["auto", "free", "disk"] = "auto"
     disk: SimDiskSection = msgspec.field(default_factory=SimDiskSection)
+    nspu: SimNspuSection = msgspec.field(default_factory=SimNspuSection)
+    tracker: SimTrackerSection = msgspec.field(default_factory=SimTrackerSection)
     faults: tuple[str, ...] = ()  # fault injection, sim_backend/fault_injection.py: "drop:2@3.0+0.5", ...
 
 
-def check_sim_section(sim: SimSection) -> None:
-    from sim_backend.fault_injection import FaultSpecError, parse_fault  # pure parsing, no I/O
+def check_sim_section(sim: SimSection, drive_nodes: tuple[int, ...], sensor_node: int | None) -> None:
+    """The faults parse, name nodes on the configured bus and have sane values (--inject); the
+    3-nSPU's model mismatch stays a mismatch."""
+    for key in ("leg_offset_m", "w4_axis_error_rad", "r_axis_error_rad", "start_offset_m"):
+        vals = getattr(sim.nspu, key)
+        limit = 0.01 if key.endswith("_m") else 0.1
+        if not all(abs(v) <= limit for v in vals):
+            raise ConfigError(f"sim.nspu.{key} = {list(vals)}: each must be within +-{limit} (a mismatch, not a new robot)")
+    from sim_backend.fault_injection import FaultSpecError, check_fault  # pure parsing, no I/O
 
     for i, text in enumerate(sim.faults):
         try:
-            parse_fault(text)
+            check_fault(text, drive_nodes, sensor_node)
         except FaultSpecError as err:
             raise ConfigError(f"sim.faults[{i}]: {err}") from err

@@ -18,7 +18,7 @@ from collections.abc import Callable
 import can
 import pytest
 
-from controller.core.cycle_data import CycleOutputs, EmcyReport
+from controller.core.cycle_data import Anomaly, CycleOutputs, EmcyReport, NmtReport
 from drivers.cyclic_exchange import CAN_ERR_BUSOFF, CyclicExchange
 from drivers.pdo_codec import PositionScale
 
@@ -270,9 +270,6 @@ def test_error_frames_are_counted_and_a_bus_off_is_flagged(bus, clock):
     assert ex.counters.error_frames == 3
 
 
-@pytest.mark.xfail(strict=True, reason="finding: collect() returns once every TPDO is in; an EMCY or error frame "
-                                       "that comes later is read by the next send()'s drain and then cleared with "
-                                       "the cycle's other per-cycle fields, so no BusFeedback ever reports it")
 @pytest.mark.parametrize("late_frame", ["emcy", "bus_off"])
 def test_an_emcy_or_bus_off_after_the_cycles_tpdos_reaches_the_next_feedback(bus, clock, late_frame):
     ex = make_exchange(bus, clock)
@@ -401,3 +398,124 @@ def test_every_frame_goes_to_the_sink_once_with_its_direction(bus, clock):
     assert out == [(s[0], s[1]) for s in bus.sent]
     assert inn == [0x181, 0x182, 0x183, 0x190, 0x290]
     assert {t for _, t, _, _ in log} == {100.0}  # stamped with the exchange's clock
+
+
+# -- the whole bus: frames nobody configured should send ------------------------------------------
+
+def anomalies(fb) -> dict[tuple[Anomaly, int], int]:
+    return {(a.kind, a.cob_id): a.count for a in fb.anomalies}
+
+
+def test_a_cycle_of_the_configured_devices_has_no_anomalies(clock):
+    bus = ScriptedBus()  # own echoes never reach the exchange: drivers/frame_tap.py (test_frame_tap.py)
+    try:
+        ex = make_exchange(bus, clock)
+        outputs = CycleOutputs((0x0F,) * 3, (0.5, 0.6, 0.7))
+        for k in range(3 * HEARTBEAT_EVERY):  # RPDOs, SYNCs and heartbeats out, every device's answers in
+            bus.answers[k] = all_answers(k)
+            fb = one_cycle(ex, clock, outputs)
+            assert fb.anomalies == () and fb.nmt_reports == (), (k, fb.anomalies)
+        assert ex.counters.foreign_frames == 0
+    finally:
+        bus.shutdown()
+
+
+def test_a_second_sync_producer_is_a_foreign_sync(clock):
+    bus = ScriptedBus()
+    try:
+        ex = make_exchange(bus, clock)
+        bus.answers[0] = all_answers(0)
+        assert one_cycle(ex, clock, None).anomalies == ()
+        answers = all_answers(1)
+        bus.answers[1] = [frame(SYNC_ID, b""), *answers[:-1], frame(SYNC_ID, b""), answers[-1]]  # someone else's
+        assert anomalies(one_cycle(ex, clock, None)) == {(Anomaly.FOREIGN_SYNC, SYNC_ID): 2}
+        # one that comes after the cycle's last TPDO is read before the next SYNC and reported with it
+        bus.answers[2] = [*all_answers(2), frame(SYNC_ID, b"")]
+        assert one_cycle(ex, clock, None).anomalies == ()
+        bus.answers[3] = all_answers(3)
+        assert anomalies(one_cycle(ex, clock, None)) == {(Anomaly.FOREIGN_SYNC, SYNC_ID): 1}
+    finally:
+        bus.shutdown()
+
+
+def test_frames_on_cob_ids_only_the_controller_sends_are_foreign(bus, clock):
+    ex = make_exchange(bus, clock)
+    bus.answers[0] = [
+        frame(0x000, b"\x02\x02"),  # NMT stop of drive 2: not ours
+        frame(0x000, b"\x81\x00"),  # NMT reset of every node
+        frame(0x000, b"\x02\x33"),  # NMT stop of node 0x33, which is nobody we know
+        frame(rpdo1(2), drive_pdo(0x000F, 9_000_000)),  # a second master commanding drive 2
+        frame(0x600 + 3, bytes(8)),  # an SDO request to drive 3
+        *all_answers(0)]
+    assert anomalies(one_cycle(ex, clock, None)) == {
+        (Anomaly.FOREIGN_NMT, 0x000): 2, (Anomaly.UNKNOWN_FRAME, 0x000): 1,
+        (Anomaly.FOREIGN_COMMAND, rpdo1(2)): 1, (Anomaly.FOREIGN_COMMAND, 0x603): 1}
+
+
+def test_unknown_nodes_are_reported_by_what_they_send(bus, clock):
+    ex = make_exchange(bus, clock)
+    bus.answers[0] = [frame(emcy_id(0x20), emcy_frame(0x8130, 0x11)), frame(heartbeat_id(0x21), b"\x05"),
+                      frame(0x123, b"\x01"), frame(0x123, b"\x02"), *all_answers(0)]
+    fb = one_cycle(ex, clock, None)
+    assert anomalies(fb) == {(Anomaly.UNKNOWN_EMCY, 0x0A0): 1, (Anomaly.UNKNOWN_HEARTBEAT, 0x721): 1,
+                             (Anomaly.UNKNOWN_FRAME, 0x123): 2}
+    assert fb.emcy == ()  # an unknown node's EMCY is not one of ours
+    assert all(d.fresh for d in fb.drives) and fb.sensor.fresh
+
+
+def test_a_flood_is_diagnosed_with_its_busiest_cob_id(bus, clock):
+    ex = CyclicExchange(bus, DRIVES, PositionScale(COUNTS_PER_M), SENSOR, CONTROLLER, heartbeat_every=HEARTBEAT_EVERY,
+                        clock=clock, flood_frames_per_cycle=10)
+    bus.answers[0] = [*(frame(0x001, b"") for _ in range(30)), frame(0x123, b""), *all_answers(0)]
+    found = anomalies(one_cycle(ex, clock, None))
+    assert found[(Anomaly.FRAME_FLOOD, 0x001)] == 31 and found[(Anomaly.UNKNOWN_FRAME, 0x001)] == 30
+    bus.answers[1] = [*(frame(0x001, b"") for _ in range(10)), *all_answers(1)]  # at the limit: no flood
+    assert anomalies(one_cycle(ex, clock, None)) == {(Anomaly.UNKNOWN_FRAME, 0x001): 10}
+
+
+def test_two_tpdos_of_one_drive_in_one_cycle_are_reported_and_the_last_wins(bus, clock):
+    ex = make_exchange(bus, clock)
+    answers = all_answers(0)
+    bus.answers[0] = [*answers[:2], frame(tpdo1(2), drive_pdo(0x1637, 5_500_000)), *answers[2:]]  # a spoofed jump
+    fb = one_cycle(ex, clock, None)
+    assert anomalies(fb) == {(Anomaly.DUPLICATE_FRAME, tpdo1(2)): 1}
+    assert fb.drives[1].position == pytest.approx(0.55)
+
+
+def test_a_second_sensor_sample_that_does_not_follow_makes_the_cycle_s_sample_not_fresh(bus, clock):
+    ex = make_exchange(bus, clock)
+    spoofed = frame(tpdo1(SENSOR), sensor_pdo(3000, 0, 0, 0, 7))  # 30 N with a counter out of sequence
+    answers = all_answers(0, counter=41)
+    bus.answers[0] = [*answers[:3], answers[3], spoofed, answers[4]]
+    fb = one_cycle(ex, clock, None)
+    assert not fb.sensor.fresh and anomalies(fb) == {(Anomaly.DUPLICATE_FRAME, tpdo1(SENSOR)): 1}
+    # a late answer of the last cycle followed by this cycle's: the newer sample, no anomaly
+    late, now = all_answers(1, counter=42), all_answers(1, counter=43)
+    bus.answers[1] = [late[3], *now]  # the late force frame, then this cycle's
+    fb = one_cycle(ex, clock, None)
+    assert fb.sensor.fresh and fb.sensor.counter == 43 and fb.anomalies == ()
+
+
+def test_heartbeats_are_judged_by_their_nmt_state(bus, clock):
+    ex = make_exchange(bus, clock)
+    bus.inbox.append(frame(heartbeat_id(2), b"\x7f"))  # before the first SYNC: set-up time, not judged
+    # still coming up after the NMT start: a PRE-OPERATIONAL heartbeat before any OPERATIONAL one is not judged
+    bus.answers[0] = [frame(heartbeat_id(1), b"\x05"), frame(heartbeat_id(SENSOR), b"\x7f"), *all_answers(0)]
+    assert one_cycle(ex, clock, None).nmt_reports == ()
+    bus.answers[1] = [frame(heartbeat_id(n), b"\x05") for n in (*DRIVES, SENSOR)] + all_answers(1)
+    assert one_cycle(ex, clock, None).nmt_reports == ()
+    bus.answers[2] = [frame(heartbeat_id(2), b"\x00"), frame(heartbeat_id(SENSOR), b"\x7f"),
+                      frame(heartbeat_id(3), b"\x84"), *all_answers(2)]
+    fb = one_cycle(ex, clock, None)
+    assert fb.nmt_reports == (NmtReport(2, 0), NmtReport(SENSOR, 127), NmtReport(3, 4))  # 0x84: toggle bit + 4
+    assert fb.anomalies == ()
+    bus.answers[3] = [frame(heartbeat_id(2), b"\x05"), *all_answers(3)]
+    assert one_cycle(ex, clock, None).nmt_reports == ()
+
+
+def test_a_boot_up_is_judged_even_from_a_node_never_heard_operational(bus, clock):
+    ex = make_exchange(bus, clock)
+    bus.answers[0] = all_answers(0)
+    one_cycle(ex, clock, None)
+    bus.answers[1] = [frame(heartbeat_id(2), b"\x00"), *all_answers(1)]
+    assert one_cycle(ex, clock, None).nmt_reports == (NmtReport(2, 0),)

@@ -206,3 +206,30 @@ def test_a_full_transmit_queue_leaves_the_sync_unanswered_in_the_simulator_proce
     assert simulator.sync_count == 1
     assert len(after(bus.sent, start, cob_ids.tpdo1(1))) == 1 == len(after(out, 0, cob_ids.tpdo1(1)))
     assert all(d.received_target != 0.5 for d in simulator.drives)
+
+
+def test_the_simulated_tracker_answers_a_sync_with_the_pose_in_two_frames():
+    from controller.config import CONFIG_DIR
+    from controller.robots.nspu import so3_log
+    from drivers.pdo_codec import TRACKER_M_PER_COUNT, TRACKER_RAD_PER_COUNT, decode_tracker_frame
+
+    cfg = load_config(CONFIG_DIR / "nspu.toml", {"tracker.enabled": True, "sim.tracker.position_noise_m": 0.0,
+                                                 "sim.tracker.angle_noise_rad": 0.0})
+    bus = ScriptedBus()
+    simulator = Simulator(cfg, bus)
+    simulator.start()
+    try:
+        node = cfg.tracker.node_id
+        bus.push(frame(cob_ids.NMT, bytes([0x01, 0x00])), frame(cob_ids.SYNC))
+        sent = bus.wait_for(lambda s: any(m.arbitration_id == cob_ids.tpdo2(node) for m in s))
+        (p_frame,) = after(sent, 0, cob_ids.tpdo1(node))
+        (r_frame,) = after(sent, 0, cob_ids.tpdo2(node))
+        p = decode_tracker_frame(p_frame.data, TRACKER_M_PER_COUNT)
+        r = decode_tracker_frame(r_frame.data, TRACKER_RAD_PER_COUNT)
+        pose = simulator.plant.kinematics.pose  # type: ignore[attr-defined]
+        assert p[:3] == pytest.approx(tuple(pose.p_m), abs=TRACKER_M_PER_COUNT / 2)
+        assert r[:3] == pytest.approx(tuple(so3_log(pose.R)), abs=TRACKER_RAD_PER_COUNT / 2)
+        assert p[3:] == r[3:] == (0, 1)  # status, counter: one sample
+    finally:
+        simulator.stop()
+        bus.shutdown()

@@ -19,7 +19,13 @@ from drivers.cia402 import (
     decode_statusword,
 )
 from drivers.pdo_codec import FORCE_N_PER_COUNT, SENSOR_FORCE_SATURATED, decode_sensor_frame
-from sim_backend.drive import EMCY_HEARTBEAT_LOST, EMCY_POSITION_RANGE, EMCY_SYNC_LOST, SimulatedDrive
+from sim_backend.drive import (
+    EMCY_HEARTBEAT_LOST,
+    EMCY_POSITION_RANGE,
+    EMCY_SYNC_LOST,
+    EMCY_SYNC_PERIOD,
+    SimulatedDrive,
+)
 from sim_backend.force_sensor import SensorParams, SimulatedForceSensor
 from sim_backend.mechanics import ComplianceParams, CompliantTool
 from sim_backend.plant import RobotPlant, drive_params_from_config
@@ -270,3 +276,35 @@ def test_interpolation_time_period_as_written_by_the_set_up():
     assert interpolation_time_period(0.00025) == (25, -5)
     value, index = interpolation_time_period(1 / 300)  # no exact form: the finest that fits 8 bits
     assert value <= 255 and value * 10.0 ** index == pytest.approx(1 / 300, rel=0.02)
+
+
+def _syncs(d: SimulatedDrive, t: float, intervals_s: list[float]) -> float:
+    for dt in intervals_s:
+        t += dt
+        d.on_rpdo(CW_ENABLE_OPERATION, d.position_counts())
+        d.on_sync(t)
+    return t
+
+
+def test_a_sync_period_other_than_the_configured_one_is_reported_once_by_emcy():
+    d, t = enabled_drive()
+    d.communication_cycle_period_s = PERIOD  # 0x1006 as set-up writes it
+    t = _syncs(d, t, [PERIOD] * 128 + [1.7 * PERIOD] * 128)  # a loaded machine's loop: no mismatch
+    assert EMCY_SYNC_PERIOD not in d.pending_emcy
+    t = _syncs(d, t, [4 * PERIOD] * 128)  # the master runs at a quarter of the rate it configured
+    assert d.pending_emcy.count(EMCY_SYNC_PERIOD) == 1
+    assert d.sync_period_mismatch
+    t = _syncs(d, t, [PERIOD] * 128)
+    assert not d.sync_period_mismatch and d.pending_emcy.count(EMCY_SYNC_PERIOD) == 1
+    _syncs(d, t, [0.4 * PERIOD] * 128)  # 2.5 times the rate
+    assert d.pending_emcy.count(EMCY_SYNC_PERIOD) == 2
+
+
+def test_single_late_syncs_are_not_a_period_mismatch():
+    d, t = enabled_drive()
+    d.interpolation_period_s = PERIOD  # 0x60C2 only: it is the expected period then
+    intervals = [PERIOD] * 200
+    for k in range(0, 200, 5):  # every fifth interval 4 ms (160 %) longer (a descheduled master)
+        intervals[k] += 0.004
+    _syncs(d, t, intervals)
+    assert EMCY_SYNC_PERIOD not in d.pending_emcy

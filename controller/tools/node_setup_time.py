@@ -1,0 +1,41 @@
+"""How long the controller's device set-up takes against the in-process simulator (virtual bus).
+
+``python -m controller.tools.node_setup_time [RUNS]`` prints each run's ``configure_nodes``
+duration and the median, with the shipped configuration (three drives and the sensor).
+"""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import time
+
+import can
+
+from controller.config import load_config
+from controller.shell.service import node_setup_plan
+from drivers.node_setup import configure_nodes
+from sim_backend.server import Simulator
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    runs = int(args[0]) if args else 7
+    cfg = load_config()
+    durations_ms = []
+    for _ in range(runs):
+        channel = f"setup-time-{time.monotonic_ns()}"
+        sim_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=True)
+        bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=True)
+        try:
+            with Simulator(cfg, sim_bus):
+                durations_ms.append(configure_nodes(bus, node_setup_plan(cfg)).duration_s * 1000.0)
+        finally:
+            sim_bus.shutdown()
+            bus.shutdown()
+    print(f"configure_nodes ms: {[round(d) for d in durations_ms]}, median {statistics.median(durations_ms):.0f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

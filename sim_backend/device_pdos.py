@@ -1,0 +1,133 @@
+"""The simulated devices' PDOs: what each drive and the sensor send and accept, as mapped over SDO.
+
+One ``SimulatedPdos`` per simulator (process or in-process loopback) holds every device's
+``DevicePdos`` (``pdo_parameters.py``), built from the configured EDS files. At a SYNC it packs
+each device's valid TPDOs from the device's current values, with a packer rebuilt only when a
+master enables a new mapping; an RPDO is unpacked with the mapping in force and its mapped
+objects applied to the drive (controlword 0x6040, target position 0x607A).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from controller.config import Config
+from drivers.node_setup import DRIVE_EDS, SENSOR_EDS, device_description_path
+from drivers.pdo_codec import CONTROLWORD, TARGET_POSITION
+from drivers.pdo_mapping import PdoDirection, load_device_description, planned_pdo
+from sim_backend.drive import SimulatedDrive
+from sim_backend.force_sensor import SimulatedForceSensor
+from sim_backend.pdo_parameters import DevicePdo, DevicePdos, value_packer
+
+
+@dataclass
+class _Tpdo:
+    pdo: DevicePdo
+    pack: Callable[[], bytes] | None
+
+
+def _drive_objects(drive: SimulatedDrive) -> dict[tuple[int, int], Callable[[], int]]:
+    """The drive's mappable objects a TPDO reads (drivers/eds/cheope_drive.eds)."""
+    counts = drive.params.counts_per_unit
+    return {
+        (0x6041, 0): drive.statusword, (0x6064, 0): drive.position_counts,
+        (0x606C, 0): lambda: round(drive.velocity * counts), (0x6061, 0): lambda: drive.mode_of_operation,
+        (0x603F, 0): lambda: drive.error_code,
+        (0x607A, 0): lambda: round((drive.received_target + drive.encoder_offset) * counts),
+        (0x6040, 0): lambda: drive.last_controlword,
+    }
+
+
+def _reader(values: dict[tuple[int, int], int], key: tuple[int, int]) -> Callable[[], int]:
+    return lambda: values.get(key, 0)
+
+
+class SimulatedPdos:
+    def __init__(self, cfg: Config, drives: list[SimulatedDrive], sensor: SimulatedForceSensor | None) -> None:
+        self.drive_ids = tuple(cfg.actuators.node_ids)
+        self.sensor_id = cfg.sensor.node_id if sensor is not None else None
+        drive_eds = device_description_path(cfg.actuators.eds_file, DRIVE_EDS)
+        self.drive_eds = drive_eds
+        self.drives = drives
+        self.sensor = sensor
+        self.drive_pdos = [DevicePdos.from_description(load_device_description(drive_eds, n), n)
+                           for n in self.drive_ids]
+        self.sensor_pdos = None
+        if self.sensor_id is not None:
+            sensor_eds = device_description_path(cfg.sensor.eds_file, SENSOR_EDS)
+            self.sensor_pdos = DevicePdos.from_description(load_device_description(sensor_eds, self.sensor_id),
+                                                           self.sensor_id)
+        self.on_cob_ids_changed: Callable[[], None] | None = None  # the server re-reads its COB-ID tables
+        self._drive_tpdos: list[_Tpdo] = []
+        self._sensor_tpdos: list[_Tpdo] = []
+        self._rpdo_slots: list[tuple[int, int]] = []
+        for device in (*self.drive_pdos, *((self.sensor_pdos,) if self.sensor_pdos else ())):
+            device.on_change = self._rebuild
+        self._rebuild()
+
+    def apply_configured_mapping(self, cfg: Config) -> None:
+        """What the controller's set-up writes over SDO (the loopback has no SDO): config + EDS mapping."""
+        for node_id, device in zip(self.drive_ids, self.drive_pdos):
+            device.apply(planned_pdo(device.od, PdoDirection.RECEIVE, 1, node_id, cfg.actuators.rpdo_objects))
+            device.apply(planned_pdo(device.od, PdoDirection.TRANSMIT, 1, node_id, cfg.actuators.tpdo_objects))
+        if self.sensor_pdos is not None and self.sensor_id is not None:
+            for number in (1, 2):
+                self.sensor_pdos.apply(planned_pdo(self.sensor_pdos.od, PdoDirection.TRANSMIT, number,
+                                                   self.sensor_id, ()))
+
+    def _rebuild(self) -> None:
+        self._drive_tpdos = []
+        self._rpdo_slots = []
+        for device, drive in zip(self.drive_pdos, self.drives):
+            tpdo = device.pdo(PdoDirection.TRANSMIT, 1)
+            self._drive_tpdos.append(_Tpdo(tpdo, value_packer(tpdo, _drive_objects(drive))))
+            rpdo = device.pdo(PdoDirection.RECEIVE, 1)
+            lay = rpdo.layout
+            self._rpdo_slots.append((lay.slot(*CONTROLWORD), lay.slot(*TARGET_POSITION)) if lay else (-1, -1))
+        self._sensor_tpdos = []
+        if self.sensor_pdos is not None and self.sensor is not None:
+            values = self.sensor.object_values
+            getters = {key: _reader(values, key) for key in
+                       [(0x2000, k) for k in (1, 2, 3)] + [(0x2001, k) for k in (1, 2, 3)] + [(0x2002, 0), (0x2003, 0)]}
+            for number in (1, 2):
+                tpdo = self.sensor_pdos.pdo(PdoDirection.TRANSMIT, number)
+                self._sensor_tpdos.append(_Tpdo(tpdo, value_packer(tpdo, getters)))
+        if self.on_cob_ids_changed is not None:
+            self.on_cob_ids_changed()
+
+    # -- cyclic -----------------------------------------------------------------------------
+
+    def rpdo_cob_ids(self) -> list[int]:
+        return [device.pdo(PdoDirection.RECEIVE, 1).config.cob_id for device in self.drive_pdos]
+
+    def receive_rpdo(self, j: int, data: bytes | bytearray) -> bool:
+        """Apply drive ``j``'s RPDO; False when it is invalid or does not match the mapping (dropped)."""
+        rpdo = self.drive_pdos[j].pdo(PdoDirection.RECEIVE, 1)
+        lay = rpdo.layout
+        if not rpdo.valid or lay is None or len(data) != lay.size:
+            return False
+        values = lay.packer.unpack(data)
+        cw_slot, target_slot = self._rpdo_slots[j]
+        drive = self.drives[j]
+        if target_slot >= 0:
+            drive.received_target = drive.from_counts(values[target_slot])
+            drive.target_received = True
+        if cw_slot >= 0:
+            drive.on_controlword(values[cw_slot])
+        return True
+
+    def drive_tpdos(self) -> list[tuple[int, bytes] | None]:
+        """At a SYNC, after the drives latched: each drive's (COB-ID, TPDO1) or None when it sends none."""
+        out: list[tuple[int, bytes] | None] = []
+        for t in self._drive_tpdos:
+            out.append((t.pdo.config.cob_id, t.pack()) if t.pack is not None and t.pdo.due_on_sync() else None)
+        return out
+
+    def sensor_tpdos(self) -> list[tuple[int, bytes]]:
+        """At a SYNC: the sensor latches a sample; its valid TPDOs as mapped."""
+        if self.sensor is None:
+            return []
+        self.sensor.latch()
+        return [(t.pdo.config.cob_id, t.pack()) for t in self._sensor_tpdos
+                if t.pack is not None and t.pdo.due_on_sync()]

@@ -1,0 +1,89 @@
+"""The bus tap (drivers/frame_tap.py): every frame once with its direction, own echoes dropped exactly.
+
+"Exactly" means by who sent the frame, not by its COB-ID or bytes: another node's frame identical
+to one of ours (a foreign SYNC, the same heartbeat) is still received and recorded.
+"""
+
+from __future__ import annotations
+
+import random
+
+import can
+import canopen
+import pytest
+
+from drivers.bus import open_bus, parse_bus_spec
+from drivers.frame_tap import FrameTap
+
+SYNC = can.Message(arbitration_id=0x080, data=b"", is_extended_id=False)
+END = can.Message(arbitration_id=0x181, data=b"\x01\x02", is_extended_id=False)
+
+
+def _spec(interface: str):
+    if interface == "udp_multicast":
+        return parse_bus_spec("udp_multicast", udp_port=random.SystemRandom().randint(48000, 50999))
+    return parse_bus_spec(f"virtual:tap-{random.SystemRandom().randint(0, 1 << 30)}")
+
+
+@pytest.mark.parametrize("interface", ["udp_multicast", "virtual"])
+def test_own_frames_are_seen_once_as_sent_and_an_identical_foreign_frame_once_as_received(interface):
+    spec = _spec(interface)
+    seen: list[tuple[bool, int, bytes]] = []
+    with FrameTap(open_bus(spec), lambda out, t, msg: seen.append((out, msg.arbitration_id, bytes(msg.data)))) \
+            as tap, open_bus(spec) as other:
+        for _ in range(3):
+            tap.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))
+        other.send(SYNC)  # the same COB-ID and bytes as ours, from another node
+        other.send(END)
+        got = []
+        while (msg := tap.recv(timeout=30.0)) is not None:
+            got.append(msg.arbitration_id)
+            if msg.arbitration_id == END.arbitration_id:
+                break
+        # the other node sees our three SYNCs and not its own (it has no tap: it sees them too
+        # on udp_multicast; on virtual it asked for own messages as open_bus does)
+        other_saw = []
+        while (msg := other.recv(timeout=30.0)) is not None:
+            other_saw.append(msg.arbitration_id)
+            if len(other_saw) == 5:
+                break
+    assert got == [0x080, 0x181]
+    assert seen == [(True, 0x080, b"")] * 3 + [(False, 0x080, b""), (False, 0x181, b"\x01\x02")]
+    assert (tap.sent, tap.received, tap.own_echoes) == (3, 2, 3)
+    assert other_saw.count(0x080) == 4  # the raw bus: three of ours, its own echo
+
+
+def test_recv_waits_past_dropped_echoes_for_the_rest_of_its_timeout():
+    spec = _spec("virtual")
+    with FrameTap(open_bus(spec)) as tap:
+        tap.send(SYNC)
+        assert tap.recv(timeout=0.05) is None  # the echo is not returned, and nothing else came
+        assert tap.own_echoes == 1
+
+
+def test_canopen_set_up_through_the_tap_is_recorded_both_ways():
+    """SDO requests out, responses in, through canopen's notifier thread reading the tap."""
+    spec = _spec("virtual")
+    seen: list[tuple[bool, int]] = []
+    network = canopen.Network(FrameTap(open_bus(spec), lambda out, t, msg: seen.append((out, msg.arbitration_id))))
+    server_net = canopen.Network(open_bus(spec))
+    try:
+        network.connect()
+        server_net.connect()
+        from drivers.node_setup import DRIVE_EDS
+
+        server = canopen.LocalNode(5, str(DRIVE_EDS))
+        server_net.add_node(server)
+        client = canopen.RemoteNode(5, str(DRIVE_EDS))
+        network.add_node(client)
+        network.nmt.state = "PRE-OPERATIONAL"
+        device_type = client.sdo.upload(0x1000, 0)
+    finally:
+        network.disconnect()
+        server_net.disconnect()
+    assert len(device_type) == 4
+    assert (True, 0x000) in seen  # the NMT command
+    requests = [x for x in seen if x == (True, 0x605)]
+    responses = [x for x in seen if x == (False, 0x585)]
+    assert len(requests) == len(responses) == 1
+    assert not [x for x in seen if x[0] is False and x[1] in (0x000, 0x605)]  # no echo of ours as received

@@ -1,0 +1,73 @@
+"""The pose tracker's frames: codec, the simulated tracker's rate and noise, the exchange's decoding."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from controller.config import CONFIG_DIR, load_config
+from controller.robots.nspu import so3_log
+from controller.shell.loop import SimulatedTime
+from drivers.pdo_codec import (
+    TRACKER_M_PER_COUNT,
+    TRACKER_RAD_PER_COUNT,
+    TRACKER_SATURATED,
+    FrameError,
+    decode_tracker_frame,
+    encode_tracker_frames,
+)
+from sim_backend.loopback import LoopbackExchange
+
+NSPU_TOML = CONFIG_DIR / "nspu.toml"
+
+
+def test_tracker_frames_round_trip_to_a_count():
+    p, r = (0.0123, -0.0456, 0.3210), (0.075, -0.31, -0.532)
+    fp, fr = encode_tracker_frames(p, r, 0, 7)
+    xp = decode_tracker_frame(fp, TRACKER_M_PER_COUNT)
+    xr = decode_tracker_frame(fr, TRACKER_RAD_PER_COUNT)
+    assert np.allclose(xp[:3], p, atol=TRACKER_M_PER_COUNT / 2) and np.allclose(xr[:3], r, atol=TRACKER_RAD_PER_COUNT / 2)
+    assert xp[3:] == (0, 7) and xr[3:] == (0, 7)
+
+
+def test_tracker_position_beyond_the_range_saturates_and_says_so():
+    fp, fr = encode_tracker_frames((0.0, 0.0, 0.9), (0.0, 0.0, 0.0), 0, 1)
+    assert decode_tracker_frame(fp, TRACKER_M_PER_COUNT)[3] & TRACKER_SATURATED
+    assert decode_tracker_frame(fr, TRACKER_RAD_PER_COUNT)[3] & TRACKER_SATURATED
+    with pytest.raises(FrameError, match="pose tracker TPDO must have 8 data bytes"):
+        decode_tracker_frame(fp[:6], TRACKER_M_PER_COUNT)
+
+
+def _run(overrides: dict[str, object], cycles: int) -> tuple[LoopbackExchange, list]:
+    cfg = load_config(NSPU_TOML, {"recording.enabled": False, "monitoring.enabled": False, "tracker.enabled": True,
+                                  **overrides})
+    clock = SimulatedTime()
+    ex = LoopbackExchange(cfg, clock.clock)
+    out = []
+    for k in range(cycles):
+        clock.sleep_until(k * cfg.period_s)
+        ex.send(None)
+        out.append(ex.collect(clock.clock() + cfg.period_s).tracker)
+    return ex, out
+
+
+def test_the_exchange_decodes_the_simulated_pose_at_the_tracker_rate():
+    ex, samples = _run({"sim.tracker.position_noise_m": 0.0, "sim.tracker.angle_noise_rad": 0.0,
+                        "sim.tracker.rate_hz": 100.0}, 40)
+    fresh = [k for k, s in enumerate(samples) if s is not None and s.fresh]
+    assert np.all(np.diff(fresh) == 4)  # 100 Hz on a 400 Hz loop: every fourth SYNC
+    assert len(fresh) == 10
+    last = samples[fresh[-1]]
+    pose = ex.plant.kinematics.pose
+    assert np.allclose(last.position_m, pose.p_m, atol=TRACKER_M_PER_COUNT / 2)
+    assert np.allclose(last.rotation_vector_rad, so3_log(pose.R), atol=TRACKER_RAD_PER_COUNT / 2)
+
+
+def test_the_simulated_tracker_noise_has_the_configured_spread():
+    ex, samples = _run({"sim.tracker.position_noise_m": 1e-3, "sim.tracker.angle_noise_rad": 2e-3,
+                        "sim.tracker.rate_hz": 400.0}, 400)
+    p = np.array([s.position_m for s in samples if s.fresh])
+    truth = ex.plant.kinematics.pose.p_m  # the platform stands still (no targets sent)
+    assert p.shape[0] > 350
+    assert np.std(p - truth, axis=0) == pytest.approx([1e-3] * 3, rel=0.2)
+    assert np.abs(np.mean(p - truth, axis=0)).max() < 3e-4
