@@ -1,8 +1,9 @@
 """The monitoring part of the ``cheope`` command line (called from controller/cli.py).
 
 Controller side (``demo``, ``run``): ``--zenoh-connect``, ``--zenoh-config``,
-``--allow-remote-commands`` become ``--set monitoring.*`` overrides. Client side: ``monitor``,
-``status``, ``stop`` and ``command``.
+``--allow-remote-commands``, ``--robot-id`` become ``--set monitoring.*`` overrides. Client side:
+``list``, ``monitor``, ``status``, ``stop`` and ``command``; and ``router``, a Zenoh router
+for many controllers on one machine or network.
 """
 
 from __future__ import annotations
@@ -10,16 +11,22 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from typing import TypeVar
+from dataclasses import asdict
+from typing import TYPE_CHECKING, TypeVar
 
+from controller.monitoring.command_gate import ALWAYS_ACCEPTED, GATED_COMMANDS
 from controller.monitoring.zenoh_session import (
     DEFAULT_CONNECT,
+    DEFAULT_ROUTER_LISTEN,
+    MonitoringConnectionError,
     MonitorKeys,
-    SessionSettings,
     check_endpoint,
     client_settings,
     monitor_settings,
 )
+
+if TYPE_CHECKING:
+    from controller.monitoring.commands import RobotSelector
 
 # The caller's parser class (cheope's own ArgumentParser subclass): _SubParsersAction is invariant in it.
 ParserT = TypeVar("ParserT", bound=argparse.ArgumentParser)
@@ -31,7 +38,9 @@ def add_controller_options(p: argparse.ArgumentParser) -> None:
                    help="also connect to this Zenoh router or peer, e.g. tcp/192.168.1.10:7447 (repeatable)")
     g.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 configuration file (TLS, access control)")
     g.add_argument("--allow-remote-commands", action="store_true",
-                   help="accept remote pause, resume and set_force (a remote stop is always accepted)")
+                   help="accept remote pause, resume, reset and set_force (a remote stop is always accepted)")
+    g.add_argument("--robot-id", help="this controller's id under cheope/ (default: <host>-<4 hex digits>); "
+                                      "refused at start when a live controller reachable holds it")
 
 
 def monitoring_overrides(args: argparse.Namespace) -> list[str]:
@@ -46,11 +55,16 @@ def monitoring_overrides(args: argparse.Namespace) -> list[str]:
         sets.append(f"monitoring.config_file={json.dumps(args.zenoh_config)}")
     if getattr(args, "allow_remote_commands", False):
         sets.append("monitoring.allow_remote_commands=true")
+    if getattr(args, "robot_id", None):
+        sets.append(f"monitoring.robot_id={json.dumps(args.robot_id)}")
     return sets
 
 
-def _client_options(p: argparse.ArgumentParser, timeout: bool = True) -> None:
-    p.add_argument("--robot-id", default="cheope-1", help="the controller's monitoring.robot_id (default cheope-1)")
+def _client_options(p: argparse.ArgumentParser, timeout: bool = True, robot_id: str | None = None,
+                    robot_help: str = "the controller's robot id (default: the only controller reachable; "
+                                      "`cheope list` shows them)") -> None:
+    if robot_id != "":
+        p.add_argument("--robot-id", default=robot_id, help=robot_help)
     p.add_argument("--key-prefix", default="cheope", help="the controller's monitoring.key_prefix (default cheope)")
     p.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT",
                    help=f"where the controller (or a router) listens (default {DEFAULT_CONNECT}; repeatable)")
@@ -65,9 +79,33 @@ def _endpoints(args: argparse.Namespace) -> tuple[str, ...]:
     return tuple(args.zenoh_connect)
 
 
-def _one_shot(args: argparse.Namespace) -> tuple[SessionSettings, MonitorKeys]:
-    return (client_settings(_endpoints(args), args.zenoh_config or "", args.timeout),
-            MonitorKeys.for_robot(args.key_prefix, args.robot_id))
+def _target(args: argparse.Namespace) -> RobotSelector:
+    from controller.monitoring.commands import RobotSelector
+
+    return RobotSelector(args.key_prefix, args.robot_id)
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    from controller.monitoring.commands import list_controllers
+
+    settings = client_settings(_endpoints(args), args.zenoh_config or "", args.timeout)
+    try:
+        found = list_controllers(settings, args.key_prefix, args.timeout)
+    except MonitoringConnectionError as err:  # nothing listens at any endpoint given
+        print(f"cheope list: no controller found: {err}", file=sys.stderr)
+        return 1
+    if not found:
+        print(f"cheope list: no controller found under {args.key_prefix}/*/ (connected to "
+              f"{', '.join(settings.connect)})", file=sys.stderr)
+        return 1
+    if args.json:
+        print(json.dumps([{**asdict(c), "listen_endpoints": list(c.listen_endpoints)} for c in found]))
+        return 0
+    print(f"{'robot id':<24} {'mode':<12} {'task':<10} {'up [s]':>9}  listening on")
+    for c in found:
+        up = f"{c.uptime_s:9.1f}" if c.uptime_s is not None else f"{'-':>9}"
+        print(f"{c.robot_id:<24} {c.mode or '?':<12} {c.task or '-':<10} {up}  {', '.join(c.listen_endpoints) or '-'}")
+    return 0
 
 
 def cmd_monitor(args: argparse.Namespace) -> int:
@@ -76,7 +114,8 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     settings = monitor_settings(_endpoints(args), args.zenoh_config or "")
     keys = MonitorKeys.for_robot(args.key_prefix, args.robot_id, allow_wildcard=True)
     try:
-        run_monitor(settings, keys, args.json, sys.stdout, args.duration, args.count)
+        run_monitor(settings, keys, args.json, sys.stdout, args.duration, args.count,
+                    notice=lambda line: print(f"cheope monitor: {line}", file=sys.stderr, flush=True))
     except KeyboardInterrupt:
         pass
     return 0
@@ -87,7 +126,8 @@ def cmd_status(args: argparse.Namespace) -> int:
 
     from controller.monitoring.commands import query_status
 
-    status = query_status(*_one_shot(args), timeout_s=args.timeout)
+    status = query_status(client_settings(_endpoints(args), args.zenoh_config or "", args.timeout), _target(args),
+                          timeout_s=args.timeout)
     d = MessageToDict(status, preserving_proto_field_name=True, always_print_fields_with_no_presence=True,
                       unquote_int64_if_possible=True)
     d["config"] = json.loads(d.pop("config_json") or "{}")
@@ -107,8 +147,9 @@ def cmd_status(args: argparse.Namespace) -> int:
 def _command(args: argparse.Namespace, name: str, value: float) -> int:
     from controller.monitoring.commands import send_command
 
-    reply = send_command(*_one_shot(args), name=name, value=value, timeout_s=args.timeout)
-    print(("accepted: " if reply.accepted else "refused: ") + reply.message,
+    robot_id, reply = send_command(client_settings(_endpoints(args), args.zenoh_config or "", args.timeout), _target(args),
+                                   name=name, value=value, timeout_s=args.timeout)
+    print(("accepted by " if reply.accepted else "refused by ") + f"{robot_id}: {reply.message}",
           file=sys.stdout if reply.accepted else sys.stderr)
     return 0 if reply.accepted else 1
 
@@ -121,9 +162,23 @@ def cmd_command(args: argparse.Namespace) -> int:
     return _command(args, args.name, args.value)
 
 
+def cmd_router(args: argparse.Namespace) -> int:
+    from controller.monitoring.router import run_router
+
+    listen = tuple(args.listen) or (DEFAULT_ROUTER_LISTEN,)
+    for e in listen:
+        check_endpoint(e, "--listen")
+    return run_router(listen, args.zenoh_config or "", lambda line: print(line, flush=True))
+
+
 def add_subcommands(sub: argparse._SubParsersAction[ParserT]) -> None:
-    p = sub.add_parser("monitor", help="live view of a running controller over Zenoh")
-    _client_options(p, timeout=False)
+    p = sub.add_parser("list", help="every live controller reachable: robot id, mode, task, uptime, endpoints")
+    _client_options(p, robot_id="")
+    p.add_argument("--json", action="store_true", help="one JSON array")
+    p.set_defaults(func=cmd_list)
+    p = sub.add_parser("monitor", help="live view of the running controllers over Zenoh")
+    _client_options(p, timeout=False, robot_id="*", robot_help="the robot to watch (default *: every controller "
+                                                               "reachable)")
     p.add_argument("--json", action="store_true", help="one JSON object per line (state, event, liveliness)")
     p.add_argument("--duration", type=float, help="exit after this many seconds")
     p.add_argument("--count", type=int, help="exit after this many state samples")
@@ -135,9 +190,16 @@ def add_subcommands(sub: argparse._SubParsersAction[ParserT]) -> None:
     p = sub.add_parser("stop", help="bring a running controller's robot to a controlled stop")
     _client_options(p)
     p.set_defaults(func=cmd_stop)
-    p = sub.add_parser("command", help="send pause, resume or set_force (refused unless the controller "
-                                       "was started with --allow-remote-commands)")
+    p = sub.add_parser("command", help="send pause, resume, reset or set_force (refused unless the controller "
+                                       "was started with --allow-remote-commands), or stop")
     _client_options(p)
-    p.add_argument("name", choices=("pause", "resume", "set_force", "stop"))
+    # the publisher's gate is the one list of commands: the CLI cannot drift from it again
+    p.add_argument("name", choices=(*GATED_COMMANDS, *ALWAYS_ACCEPTED))
     p.add_argument("value", type=float, nargs="?", default=0.0, help="set_force: the force setpoint [N]")
     p.set_defaults(func=cmd_command)
+    p = sub.add_parser("router", help="a Zenoh router (router-mode session) that many controllers and the tools "
+                                      "connect to, as zenohd would")
+    p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                   help=f"where it listens (default {DEFAULT_ROUTER_LISTEN}; repeatable)")
+    p.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 configuration file (TLS, access control)")
+    p.set_defaults(func=cmd_router)

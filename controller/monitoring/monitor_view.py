@@ -1,5 +1,9 @@
 """``cheope monitor``: subscribe to a controller's state, events and liveliness; show or print them.
 
+``cheope monitor`` watches every controller reachable (``--robot-id '*'``, the default) or
+one. With several, the live view is a table of robots (``FleetView``); with one, its whole
+state. Finding no controller, it says so in one line on stderr and waits for one.
+
 ``MonitorClient`` receives on Zenoh's threads (callbacks with ``indirect=False`` that only
 stamp the arrival time and put the sample on a queue) and hands decoded updates to the
 caller's thread through ``next_update``. The live view is a rich ``Live`` refreshed in place
@@ -21,11 +25,13 @@ from google.protobuf.json_format import MessageToDict
 from google.protobuf.message import DecodeError
 
 from controller.messages import cheope_pb2 as pb
+from controller.monitoring.robot_identity import live_robot_ids
 from controller.monitoring.zenoh_session import (
     MonitorKeys,
     SessionSettings,
     ZenohEntity,
     close_session,
+    connected,
     open_session,
 )
 
@@ -106,6 +112,18 @@ class MonitorClient:
     def _on_alive(self, s: zenoh.Sample) -> None:
         self._q.put((2, str(s.key_expr), s.kind == zenoh.SampleKind.PUT, self.clock()))
 
+    def reachable(self) -> str:
+        """Empty when a controller is there; else one line saying what was not found."""
+        assert self._session is not None, "use MonitorClient as a context manager"
+        where = ", ".join(self.settings.connect) or "the configured endpoints"
+        if self.settings.connect and connected(self._session) == 0:
+            return f"nothing answers at {where} yet; waiting for a controller there (Ctrl-C to stop)"
+        key_prefix, robot_id = self.keys.prefix.rsplit("/", 1)
+        if not live_robot_ids(self._session, key_prefix, robot_id):
+            return f"no controller found under {self.keys.prefix}/ (connected to {where}); waiting for one " \
+                   "(Ctrl-C to stop)"
+        return ""
+
     def next_update(self, timeout_s: float) -> Update | None:
         """The next update, or None when nothing arrived within ``timeout_s``."""
         try:
@@ -169,6 +187,48 @@ class ViewModel:
         return len(recent) / window_s
 
 
+def robot_of(key: str) -> str:
+    """``<prefix>/<robot_id>/<leaf>`` -> ``robot_id``."""
+    return key.rsplit("/", 2)[-2]
+
+
+@dataclass
+class FleetView:
+    """One ViewModel per robot seen, by robot id (pure, testable)."""
+
+    key_prefix: str
+    robots: dict[str, ViewModel] = field(default_factory=dict)
+
+    def apply(self, u: Update) -> None:
+        rid = robot_of(u.key)
+        if rid not in self.robots:
+            self.robots[rid] = ViewModel(f"{self.key_prefix}/{rid}")
+        self.robots[rid].apply(u)
+
+
+def render_fleet(fleet: FleetView, now_s: float) -> RenderableType:
+    """The one robot's whole view, or a table with a row per robot."""
+    from rich.table import Table
+
+    if len(fleet.robots) == 1:
+        return render(next(iter(fleet.robots.values())), now_s)
+    table = Table(title=f"controllers under {fleet.key_prefix}/ ({len(fleet.robots)})")
+    for col in ("robot id", "alive", "mode", "task / phase", "cycle", "rate [Hz]", "late", "samples/s", "alarms"):
+        table.add_column(col)
+    if not fleet.robots:
+        table.add_row("[yellow]waiting for a controller[/]", *([""] * 8))
+    for rid, view in sorted(fleet.robots.items()):
+        s = view.last_state
+        alive = {None: "?", True: "[green]yes[/]", False: "[red]gone[/]"}[view.alive]
+        if s is None:
+            table.add_row(rid, alive, *([""] * 7))
+            continue
+        table.add_row(rid, alive, s.mode, f"{s.task or '-'} / {s.task_phase or '-'}", str(s.cycle),
+                      f"{s.loop.achieved_rate_hz:.1f}", str(s.loop.late_cycles), f"{view.sample_rate_hz(now_s):.1f}",
+                      "; ".join(s.alarms) or "none")
+    return table
+
+
 def render(view: ViewModel, now_s: float) -> Group:
     from rich.console import Group
     from rich.panel import Panel
@@ -209,11 +269,17 @@ def _vec(v: Sequence[float], scale: float, unit: str) -> str:
 
 
 def run_monitor(settings: SessionSettings, keys: MonitorKeys, as_json: bool, out: TextIO,
-                duration_s: float | None = None, count: int | None = None, refresh_hz: float = 10.0) -> int:
-    """Run until ``duration_s`` elapses, ``count`` state samples arrived, or Ctrl-C; returns samples seen."""
+                duration_s: float | None = None, count: int | None = None, refresh_hz: float = 10.0,
+                notice: Callable[[str], None] | None = None) -> int:
+    """Run until ``duration_s`` elapses, ``count`` state samples arrived, or Ctrl-C; returns samples seen.
+
+    ``notice`` gets one line when no controller is found at the start (the monitor then waits)."""
     seen = 0
     deadline = time.monotonic() + duration_s if duration_s is not None else None
     with MonitorClient(settings, keys) as client:
+        missing = client.reachable()
+        if missing and notice is not None:
+            notice(missing)
         if as_json:
             while count is None or seen < count:
                 left = 0.5 if deadline is None else deadline - time.monotonic()
@@ -229,9 +295,9 @@ def run_monitor(settings: SessionSettings, keys: MonitorKeys, as_json: bool, out
         from rich.console import Console
         from rich.live import Live
 
-        view = ViewModel(keys.prefix)
+        view = FleetView(keys.prefix.rsplit("/", 1)[0])
         period = 1.0 / refresh_hz
-        with Live(render(view, time.monotonic()), console=Console(file=out), auto_refresh=False,
+        with Live(render_fleet(view, time.monotonic()), console=Console(file=out), auto_refresh=False,
                   transient=False) as live:
             next_draw = time.monotonic()
             while count is None or seen < count:
@@ -243,6 +309,6 @@ def run_monitor(settings: SessionSettings, keys: MonitorKeys, as_json: bool, out
                     view.apply(u)
                     seen += isinstance(u, StateUpdate)
                 if time.monotonic() >= next_draw:
-                    live.update(render(view, time.monotonic()), refresh=True)
+                    live.update(render_fleet(view, time.monotonic()), refresh=True)
                     next_draw = time.monotonic() + period
     return seen

@@ -4,19 +4,24 @@
 ``publish_rate_hz``) or a cycle with events, builds the Protobuf message and puts it with
 congestion control DROP: a slow network drops samples instead of blocking. From the cycle's
 end to the put that costs 38 µs p50, 169 µs p99 with a monitor in another process
-(``pytest tests/bench_monitoring_latency.py -m bench -s``), on the published cycles only (one
+(``pytest tests/tools/bench_monitoring_latency.py -m bench -s``), on the published cycles only (one
 in 20 at 1 kHz), after the RPDOs have gone out. It used to be a publisher thread fed by a
 queue: that thread, waking for each sample, took the GIL the loop needed when its deadline
 came (README, "Speed"). Zenoh's own threads are Rust and need no GIL.
 
 Zenoh entities under ``<key_prefix>/<robot_id>/`` (see zenoh_session.py): ``state``,
 ``events``, the liveliness token ``alive``, and two queryables. ``status`` answers a Status;
-``command`` takes a Command and answers a CommandReply: ``stop`` is always accepted and sets
-the loop's stop event (a controlled stop); ``pause``, ``resume`` and ``set_force`` are
-accepted only with ``allow_remote_commands`` and reach the step as ``CycleInputs.command``
-through ``commands()``, the loop's command source. Queryable callbacks run on Zenoh's own
-threads (``indirect=False``): they only read counters, set the event and append to a deque;
-they never log (logging would register a Python thread for the foreign thread).
+``command`` takes a Command and answers a CommandReply (the gate: command_gate.py): ``stop``
+sets the loop's stop event (a controlled stop); the gated commands reach the step as
+``CycleInputs.command`` through ``commands()``, the loop's command source, one per cycle.
+The queryables are served by query_server.py: a Rust ring of a few queries and one
+rate-limited thread each that sleeps in Rust, so that no number of queries can take the GIL
+from the loop more than a few times a second, and none runs on the loop's thread.
+
+The robot id: ``monitoring.robot_id`` or, when empty (the default), ``<host>-<4 hex digits>``
+(robot_identity.py). Before its liveliness token is declared, the publisher asks who already
+holds ``<prefix>/<id>/alive`` among the sessions it reaches: a configured id that is taken
+refuses the start (RobotIdTakenError, exit code 2); a default one draws another suffix.
 """
 
 from __future__ import annotations
@@ -24,13 +29,12 @@ from __future__ import annotations
 import array
 import json
 import logging
-import math
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
 from contextlib import AbstractContextManager, nullcontext
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from importlib import metadata
 from typing import Any, Self
 
@@ -42,6 +46,9 @@ from controller.config import Config, config_to_dict
 from controller.core.control_law import ControllerState
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severity
 from controller.messages import cheope_pb2 as pb
+from controller.monitoring.command_gate import CommandDecision, decide_command
+from controller.monitoring.query_server import QueryLimits, QueryServer
+from controller.monitoring.robot_identity import claim_robot_id, resolve_robot_id
 from controller.monitoring.zenoh_session import (
     MonitorKeys,
     SessionSettings,
@@ -57,8 +64,8 @@ from drivers.cyclic_exchange import ExchangeCounters
 
 log = logging.getLogger(__name__)
 
-ALWAYS_ACCEPTED = ("stop",)
-GATED_COMMANDS = ("pause", "resume", "set_force", "reset")  # reset: leave FAULT (control_law)
+_STATUS_LIMITS = QueryLimits(capacity=8, rate_hz=20.0, burst=5)
+_COMMAND_LIMITS = QueryLimits(capacity=8, rate_hz=20.0, burst=5)
 _RING = 1024  # cycles of wake-up times kept for the loop statistics (power of two)
 _STATS_EVERY_S = 0.25  # recompute the loop's timing statistics at most this often [s]
 _ALARM_HOLD_S = 2.0  # a WARNING or FAULT event stays in the alarms this long [s, loop time]
@@ -66,49 +73,38 @@ _VERSIONED = ("cheope-controller", "eclipse-zenoh", "protobuf", "python-can", "c
 
 
 @dataclass(frozen=True)
-class CommandDecision:
-    accepted: bool
-    message: str
-    forward: bool = False  # hand it to the control law as CycleInputs.command
-
-
-def decide_command(name: str, value: float, commands_enabled: bool) -> CommandDecision:
-    """The gate: stop always; pause/resume/set_force only when enabled; anything else refused."""
-    if name == "stop":
-        return CommandDecision(True, "stop accepted: the controller brings the robot to a controlled stop")
-    if name not in GATED_COMMANDS:
-        return CommandDecision(False, f"unknown command {name!r}; known: stop, {', '.join(GATED_COMMANDS)}")
-    if not commands_enabled:
-        return CommandDecision(False, f"command {name!r} refused: remote commands other than stop are disabled "
-                                      "(start the controller with --allow-remote-commands)")
-    if name == "set_force" and not (math.isfinite(value) and value > 0.0):
-        return CommandDecision(False, f"set_force value {value!r} N refused: must be finite and > 0")
-    return CommandDecision(True, f"{name} accepted: applied at the next cycle", forward=True)
-
-
-@dataclass(frozen=True)
 class PublisherSettings:
     session: SessionSettings
     keys: MonitorKeys
     robot_id: str
+    key_prefix: str
+    robot_id_is_default: bool  # drawn here (``<host>-<suffix>``): another suffix if taken, not a refusal
     period_s: float  # the loop's period
     decimation: int  # publish every n-th cycle
     allow_remote_commands: bool = False
     config_json: str = "{}"
 
+    def with_robot_id(self, robot_id: str) -> PublisherSettings:
+        config = json.loads(self.config_json)
+        config["monitoring"]["robot_id"] = robot_id
+        return replace(self, robot_id=robot_id, keys=MonitorKeys.for_robot(self.key_prefix, robot_id),
+                       config_json=json.dumps(config))
+
 
 def publisher_settings(cfg: Config) -> PublisherSettings:
     """Validated settings from ``[monitoring]`` (ConfigError names a bad key)."""
     m = cfg.monitoring
-    keys = MonitorKeys.for_robot(m.key_prefix, m.robot_id)
+    robot_id = resolve_robot_id(m.robot_id)
+    keys = MonitorKeys.for_robot(m.key_prefix, robot_id)
     session = SessionSettings(mode=m.mode, listen=split_endpoints(m.listen, "monitoring.listen"),
                               connect=split_endpoints(m.connect, "monitoring.connect"), config_file=m.config_file,
                               on_listen_busy=m.on_listen_busy)
+    config = config_to_dict(cfg)
+    config["monitoring"]["robot_id"] = robot_id  # the id in use, also when drawn
     return PublisherSettings(
-        session=session, keys=keys, robot_id=m.robot_id, period_s=cfg.period_s,
-        decimation=max(1, round(cfg.loop.rate_hz / m.publish_rate_hz)),
-        allow_remote_commands=m.allow_remote_commands,
-        config_json=json.dumps(config_to_dict(cfg)),
+        session=session, keys=keys, robot_id=robot_id, key_prefix=m.key_prefix, robot_id_is_default=not m.robot_id,
+        period_s=cfg.period_s, decimation=max(1, round(cfg.loop.rate_hz / m.publish_rate_hz)),
+        allow_remote_commands=m.allow_remote_commands, config_json=json.dumps(config),
     )
 
 
@@ -147,11 +143,10 @@ class MonitorPublisher:
         self.published_samples = 0
         self.published_events = 0
         self.publish_errors = 0
-        self.status_queries = 0
+        self.status_queries = 0  # these three: written by the query servers' threads only
         self.commands_accepted = 0
         self.commands_refused = 0
-        self._pending: deque[tuple[str, float]] = deque(maxlen=16)
-        self._notes: deque[str] = deque(maxlen=16)  # Zenoh's threads -> the log, from the loop's thread
+        self._pending: deque[tuple[str, float]] = deque(maxlen=16)  # accepted commands -> the loop, one a cycle
         self._mode = "STARTING"
         self._alarms: deque[tuple[float, str]] = deque(maxlen=32)
         self._started_s = 0.0
@@ -160,27 +155,34 @@ class MonitorPublisher:
         self._versions = _versions()
         self._session: zenoh.Session | None = None
         self._entities: list[ZenohEntity] = []
+        self._servers: list[QueryServer] = []
+        self._static_status = b""  # the Status fields fixed for the run, serialised once
 
     # -- lifecycle --------------------------------------------------------------------------
 
     def __enter__(self) -> Self:
-        s, k = self.settings, self.settings.keys
-        self._session, self.listen_endpoints = open_session(s.session)
+        self._session, self.listen_endpoints = open_session(self.settings.session)
         try:
-            z = self._session
+            claimed = claim_robot_id(self._session, self.settings.key_prefix, self.settings.robot_id,
+                                     drawn=self.settings.robot_id_is_default)
+            if claimed != self.settings.robot_id:
+                self.settings = self.settings.with_robot_id(claimed)
+            s, k, z = self.settings, self.settings.keys, self._session
             drop = zenoh.CongestionControl.DROP
             self._state_pub = z.declare_publisher(k.state, encoding=encoding_for("MonitorState"),
                                                   congestion_control=drop, express=True)
             self._event_pub = z.declare_publisher(k.events, encoding=encoding_for("Event"), congestion_control=drop,
                                                   priority=zenoh.Priority.DATA_HIGH)
-            self._entities = [
-                self._state_pub, self._event_pub,
-                z.declare_queryable(k.status, zenoh.handlers.Callback(self._on_status, indirect=False)),
-                z.declare_queryable(k.command, zenoh.handlers.Callback(self._on_command, indirect=False)),
-                z.liveliness().declare_token(k.alive),
-            ]
-        except zenoh.ZError:
-            self._session.close()
+            self._entities = [self._state_pub, self._event_pub]
+            self._static_status = pb.Status(
+                robot_id=s.robot_id, software_version=_version("cheope-controller"), config_json=s.config_json,
+                versions=self._versions, commands_enabled=s.allow_remote_commands,
+                listen_endpoints=self.listen_endpoints).SerializeToString()
+            self._servers = [QueryServer(z, k.status, self._on_status, _STATUS_LIMITS, "cheope-query-status"),
+                             QueryServer(z, k.command, self._on_command, _COMMAND_LIMITS, "cheope-query-command")]
+            self._entities.append(z.liveliness().declare_token(k.alive))
+        except BaseException:
+            self.close()
             raise
         self._started_s = self.clock()
         log.info("monitoring: publishing under %s/ (listen %s)", k.prefix, ", ".join(self.listen_endpoints) or "-")
@@ -190,7 +192,9 @@ class MonitorPublisher:
         self.close()
 
     def close(self) -> None:
-        self._log_notes()
+        for server in self._servers:
+            server.close()
+        self._servers = []
         close_session(self._session, self._entities)
         self._entities = []
         self._session = None
@@ -205,8 +209,6 @@ class MonitorPublisher:
             self.late_cycles += 1
         if events:
             self._guarded(self._publish_events, cycle, t, events)
-        if self._notes:
-            self._log_notes()
         if cycle < self._next_cycle:
             return
         self._next_cycle = cycle + self.settings.decimation
@@ -225,10 +227,6 @@ class MonitorPublisher:
         except zenoh.ZError as err:
             self.publish_errors += 1
             log.warning("monitoring: publish failed: %s", err)
-
-    def _log_notes(self) -> None:
-        while self._notes:
-            log.info("monitoring: %s", self._notes.popleft())
 
     def _publish_state(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
                        outputs: CycleOutputs, cycle_s: float) -> None:
@@ -298,7 +296,7 @@ class MonitorPublisher:
         p50, p99 = np.percentile(per_err_us, (50, 99))
         return (m - 1) / span if span > 0 else 0.0, float(p50), float(p99), float(per_err_us.max())
 
-    # -- queryables (Zenoh's threads: no logging here) --------------------------------------
+    # -- queryables (the query servers' threads, rate-limited: query_server.py) -------------
 
     def counters(self) -> dict[str, int]:
         c = self.exchange_counters
@@ -315,19 +313,21 @@ class MonitorPublisher:
         return out
 
     def status(self) -> pb.Status:
-        s = self.settings
-        return pb.Status(
-            robot_id=s.robot_id, software_version=_version("cheope-controller"),
-            uptime_s=self.clock() - self._started_s, config_json=s.config_json, counters=self.counters(),
-            versions=self._versions, mode=self._mode, commands_enabled=s.allow_remote_commands,
-            listen_endpoints=self.listen_endpoints,
-        )
+        return pb.Status.FromString(self.status_bytes())
 
-    def _on_status(self, query: zenoh.Query) -> None:
+    def status_bytes(self) -> bytes:
+        """The serialised Status: the fixed part, then what changes. Protobuf merges concatenated
+        messages field by field, and the two parts set different fields: one Status."""
+        changing = pb.Status(uptime_s=self.clock() - self._started_s, counters=self.counters(), mode=self._mode)
+        tail: bytes = changing.SerializeToString()
+        return self._static_status + tail
+
+    def _on_status(self, query: zenoh.Query) -> bool:
         self.status_queries += 1
-        query.reply(self.settings.keys.status, self.status().SerializeToString(), encoding=encoding_for("Status"))
+        query.reply(self.settings.keys.status, self.status_bytes(), encoding=encoding_for("Status"))
+        return True
 
-    def _on_command(self, query: zenoh.Query) -> None:
+    def _on_command(self, query: zenoh.Query) -> bool:
         try:
             cmd = pb.Command.FromString(query.payload.to_bytes() if query.payload is not None else b"")
             decision = decide_command(cmd.name, cmd.value, self.settings.allow_remote_commands) if cmd.name else \
@@ -340,11 +340,12 @@ class MonitorPublisher:
                 self.stop_event.set()
             elif decision.forward:
                 self._pending.append((cmd.name, cmd.value))
+            log.info("monitoring: remote command %r: %s", cmd.name, decision.message)  # rate-limited: see the server
         else:
             self.commands_refused += 1
-        self._notes.append(f"remote command {cmd.name!r}: {decision.message}")
         reply = pb.CommandReply(accepted=decision.accepted, message=decision.message)
         query.reply(self.settings.keys.command, reply.SerializeToString(), encoding=encoding_for("CommandReply"))
+        return decision.accepted
 
 
 def _version(name: str) -> str:

@@ -7,7 +7,7 @@ a Zenoh JSON5 file with ``--zenoh-config``). A configuration file is the base; t
 leaves unset (mode, listen endpoints, scouting) get the loopback defaults, and
 ``--zenoh-connect`` endpoints are added to the ones it lists.
 
-Key expressions, under ``<key_prefix>/<robot_id>/`` (``cheope/cheope-1/`` by default):
+Key expressions, under ``<key_prefix>/<robot_id>/`` (``cheope/<host>-<suffix>/`` by default, robot_identity.py):
 ``state`` (MonitorState), ``events`` (Event), ``alive`` (liveliness token), ``status``
 (queryable answering Status), ``command`` (queryable taking Command, answering CommandReply).
 """
@@ -18,6 +18,7 @@ import json
 import logging
 import re
 import socket
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Protocol
@@ -31,6 +32,7 @@ log = logging.getLogger(__name__)
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7448"
 DEFAULT_CONNECT = DEFAULT_LISTEN  # where monitors look for a controller on this machine
+DEFAULT_ROUTER_LISTEN = "tcp/127.0.0.1:7447"  # zenohd's port: `cheope router` or a zenohd on this machine
 PROTO_PACKAGE = "cheope.v1"
 _CHUNK = re.compile(r"^[A-Za-z0-9_.\-]+$")
 _ENDPOINT = re.compile(r"^(?P<proto>[a-z0-9\-]+)/(?P<addr>[^#?]+)(?P<rest>[#?].*)?$")
@@ -122,7 +124,7 @@ def free_loopback_port() -> int:
 
 @dataclass(frozen=True)
 class SessionSettings:
-    mode: str = "peer"  # "peer" or "client"
+    mode: str = "peer"  # "peer", "client" or "router" (cheope router)
     listen: tuple[str, ...] = ()
     connect: tuple[str, ...] = ()
     config_file: str = ""
@@ -215,10 +217,40 @@ def _describe(settings: SessionSettings, err: Exception) -> str:
     return f"cannot open a Zenoh session ({settings.mode}; {where}): {first.strip().rstrip('!')}{hint}"
 
 
-def client_settings(connect: tuple[str, ...] = (), config_file: str = "", timeout_s: float = 2.0) -> SessionSettings:
-    """Settings of ``cheope status``/``stop``: a client of the controller (or of a router)."""
-    return SessionSettings(mode="client", listen=(), connect=connect or (DEFAULT_CONNECT,),
+def client_settings(connect: tuple[str, ...] = (), config_file: str = "", timeout_s: float = 2.0
+                    ) -> SessionSettings:
+    """Settings of the one-shot tools (``cheope list``, ``status``, ``stop``, ``command``): a peer that
+    listens nowhere and connects to every endpoint given (controllers, routers), not only the first as
+    a Zenoh client would; the open waits up to ``timeout_s`` for all of them, then goes on with those
+    that answered."""
+    endpoints = connect or (DEFAULT_CONNECT,)
+    # one endpoint: a client (a Zenoh router answers a peer's liveliness queries only for its clients,
+    # measured with eclipse-zenoh 1.10); several: a peer, which connects to each of them
+    return SessionSettings(mode="client" if len(endpoints) == 1 else "peer", listen=(), connect=endpoints,
                            config_file=config_file, connect_timeout_ms=int(timeout_s * 1000))
+
+
+def connected(session: zenoh.Session) -> int:
+    """How many peers and routers the session is connected to."""
+    info = session.info
+    return len(info.peers_zid()) + len(info.routers_zid())
+
+
+def open_tool_session(settings: SessionSettings, poll_s: float = 0.02) -> zenoh.Session:
+    """A one-shot tool's session, connected to at least one of its endpoints (else the error names them).
+
+    Zenoh's open returns after its scouting delay (0.5 s) whether the connections are up or not
+    (on a loaded machine a connection took longer); so wait for them here, up to the connect timeout.
+    """
+    session, _ = open_session(settings)
+    deadline = time.monotonic() + max(0.0, settings.connect_timeout_ms / 1000)
+    while connected(session) < len(set(settings.connect)) and time.monotonic() < deadline:
+        time.sleep(poll_s)  # nothing signals a new connection in zenoh's Python API
+    if settings.connect and connected(session) == 0:
+        session.close()
+        raise MonitoringConnectionError(f"nothing answers at {', '.join(settings.connect)}: no controller or router "
+                                        "listens there (see monitoring.listen, --zenoh-connect)")
+    return session
 
 
 def monitor_settings(connect: tuple[str, ...] = (), config_file: str = "") -> SessionSettings:

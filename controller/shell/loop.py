@@ -23,6 +23,7 @@ import numpy as np
 
 from controller.core.control_law import ControlLaw, ControllerState, Mode
 from controller.core.cycle_data import BusFeedback, Command, CycleInputs, CycleOutputs, Event, cycle_inputs
+from controller.shell.streaming_stats import LogHistogram
 
 
 class Sleeper(Protocol):
@@ -48,57 +49,97 @@ class CycleObserver(Protocol):
                  outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None: ...
 
 
+DEFAULT_RING_CYCLES = 4096  # about 10 s at 400 Hz of per-cycle timing kept as it was measured
+
+
 @dataclass
 class LoopStats:
-    """Timing of the run; arrays hold one entry per executed cycle."""
+    """Timing of the run in bounded memory: the last ``ring_cycles`` cycles as measured, and
+    histograms of the whole run (controller/shell/streaming_stats.py) into which the ring is
+    folded whenever it is full, so a run of days costs no more memory than one of seconds.
+
+    Percentiles are known to 1 % of their value or 0.1 µs, whichever is larger (``LogHistogram``).
+    """
 
     period_s: float
-    capacity: int
-    wake_error_s: np.ndarray = field(init=False)  # actual wake-up minus deadline
-    step_s: np.ndarray = field(init=False)  # compute time of law.step
-    observers_s: np.ndarray = field(init=False)  # time spent handing the cycle to the observers
-    deadline_index: np.ndarray = field(init=False)  # k of each executed cycle (skipped deadlines leave gaps)
+    ring_cycles: int = DEFAULT_RING_CYCLES
+    late_fraction: float = 0.1  # a cycle is late when it wakes more than this fraction of a period late
+    wake_error_s: np.ndarray = field(init=False)  # ring: actual wake-up minus deadline
+    step_s: np.ndarray = field(init=False)  # ring: compute time of law.step
+    observers_s: np.ndarray = field(init=False)  # ring: time spent handing the cycle to the observers
+    deadline_index: np.ndarray = field(init=False)  # ring: k of each executed cycle (skipped deadlines leave gaps)
+    wake_hist_us: LogHistogram = field(init=False)
+    step_hist_us: LogHistogram = field(init=False)
+    observers_hist_us: LogHistogram = field(init=False)
+    period_error_hist_us: LogHistogram = field(init=False)  # |actual - nominal period| between wake-ups
     cycles: int = 0
     overruns: int = 0  # deadlines skipped because the loop fell behind
     started_s: float = 0.0
     finished_s: float = 0.0
+    _folded: int = field(init=False, default=0)  # cycles already in the histograms
+    _late: int = field(init=False, default=0)  # late cycles among the folded ones
+    _last_wake_s: float | None = field(init=False, default=None)  # wake time of the last folded cycle
 
     def __post_init__(self) -> None:
-        self.wake_error_s = np.zeros(self.capacity)
-        self.step_s = np.zeros(self.capacity)
-        self.observers_s = np.zeros(self.capacity)
-        self.deadline_index = np.zeros(self.capacity, dtype=np.int64)
+        if self.ring_cycles < 2:
+            raise ValueError(f"LoopStats: ring_cycles = {self.ring_cycles}: must be >= 2")
+        self.wake_error_s = np.zeros(self.ring_cycles)
+        self.step_s = np.zeros(self.ring_cycles)
+        self.observers_s = np.zeros(self.ring_cycles)
+        self.deadline_index = np.zeros(self.ring_cycles, dtype=np.int64)
+        self.wake_hist_us, self.step_hist_us, self.observers_hist_us, self.period_error_hist_us = (
+            LogHistogram(0.1, 1e8) for _ in range(4))  # 0.1 µs .. 100 s
 
     def record(self, wake_error_s: float, step_s: float, deadline_index: int) -> None:
-        if self.cycles < self.capacity:
-            self.wake_error_s[self.cycles] = wake_error_s
-            self.step_s[self.cycles] = step_s
-            self.deadline_index[self.cycles] = deadline_index
+        if self.cycles - self._folded == self.ring_cycles:
+            self.fold()  # once per ring_cycles cycles: microseconds of numpy
+        i = self.cycles % self.ring_cycles
+        self.wake_error_s[i] = wake_error_s
+        self.step_s[i] = step_s
+        self.deadline_index[i] = deadline_index
+        self.observers_s[i] = 0.0
         self.cycles += 1
 
     def record_observers(self, observers_s: float) -> None:
         """Time of the observers of the cycle recorded last."""
-        if 0 < self.cycles <= self.capacity:
-            self.observers_s[self.cycles - 1] = observers_s
+        if self.cycles > self._folded:
+            self.observers_s[(self.cycles - 1) % self.ring_cycles] = observers_s
+
+    def fold(self) -> None:
+        """Move the cycles not yet counted into the histograms (the ring keeps them as the last cycles)."""
+        if self.cycles == self._folded:
+            return
+        idx = np.arange(self._folded, self.cycles) % self.ring_cycles
+        wake = self.wake_error_s[idx]
+        self.wake_hist_us.add(wake * 1e6)
+        self.step_hist_us.add(self.step_s[idx] * 1e6)
+        self.observers_hist_us.add(self.observers_s[idx] * 1e6)
+        self._late += int(np.count_nonzero(wake > self.late_fraction * self.period_s))
+        # across skipped deadlines too: a cycle that stalled for 50 ms shows as a 47.5 ms error at
+        # 400 Hz, not as the small wake errors on either side of the gap
+        wake_times = self.deadline_index[idx] * self.period_s + wake
+        if self._last_wake_s is not None:
+            wake_times = np.concatenate(([self._last_wake_s], wake_times))
+        self.period_error_hist_us.add(period_error_us(wake_times, self.period_s))
+        self._last_wake_s = float(wake_times[-1])
+        self._folded = self.cycles
+
+    def last_cycles(self) -> dict[str, np.ndarray]:
+        """The last ``min(cycles, ring_cycles)`` cycles as measured, oldest first."""
+        n = min(self.cycles, self.ring_cycles)
+        idx = np.arange(self.cycles - n, self.cycles) % self.ring_cycles
+        return {"wake_error_s": self.wake_error_s[idx], "step_s": self.step_s[idx],
+                "observers_s": self.observers_s[idx], "deadline_index": self.deadline_index[idx]}
 
     @property
     def achieved_rate_hz(self) -> float:
         elapsed = self.finished_s - self.started_s
         return (self.cycles - 1) / elapsed if elapsed > 0 and self.cycles > 1 else 0.0
 
-    def late_cycles(self, tolerance_fraction: float = 0.1) -> int:
-        """Cycles that woke more than ``tolerance_fraction`` of a period after their deadline."""
-        n = min(self.cycles, self.capacity)
-        return int(np.count_nonzero(self.wake_error_s[:n] > tolerance_fraction * self.period_s)) + self.overruns
-
-    def period_error_us(self) -> np.ndarray:
-        """|actual period - nominal period| between consecutive wake-ups [us].
-
-        Across skipped deadlines too: a cycle that stalled for 50 ms shows as a 47.5 ms error
-        at 400 Hz, not as the small wake errors on either side of the gap.
-        """
-        n = min(self.cycles, self.capacity)
-        return period_error_us(self.deadline_index[:n] * self.period_s + self.wake_error_s[:n], self.period_s)
+    def late_cycles(self) -> int:
+        """Cycles that woke more than ``late_fraction`` of a period after their deadline, plus skipped ones."""
+        self.fold()
+        return self._late + self.overruns
 
 
 def period_error_us(wake_s: np.ndarray, period_s: float) -> np.ndarray:
@@ -112,11 +153,28 @@ def period_error_us(wake_s: np.ndarray, period_s: float) -> np.ndarray:
 CommandSource = Callable[[], "tuple[str, float] | None"]  # one pending remote command, or None
 
 
+DEFAULT_STOP_TIMEOUT_S = 10.0
+
+
 class CycleLoop:
+    """Runs the law at a fixed rate until it ends; see ``run`` for how a run ends.
+
+    ``stop_event`` (a first SIGTERM/SIGINT, ``cheope stop``, a recording lost under
+    ``recording.on_failure = "stop"``) asks the law to stop: STOPPING brakes within the limits
+    and disables the drives, then DONE. ``quick_stop_event`` (a second signal) makes the law
+    quick-stop the drives (FAULT). A stop that has not ended the run within ``stop_timeout_s``
+    becomes a quick stop, so the loop ends in bounded time whatever the drives do.
+    """
+
     def __init__(self, law: ControlLaw, exchange: Exchange, period_s: float, collect_fraction: float,
                  sleeper: Sleeper, clock: Callable[[], float] = time.monotonic,
                  observers: tuple[CycleObserver, ...] = (), stop_event: threading.Event | None = None,
-                 commands: CommandSource | None = None, late_tolerance_s: float = float("inf")) -> None:
+                 commands: CommandSource | None = None, late_tolerance_s: float = float("inf"),
+                 quick_stop_event: threading.Event | None = None,
+                 stop_timeout_s: float = DEFAULT_STOP_TIMEOUT_S,
+                 plans_ready: Callable[[], int] | None = None) -> None:
+        if not stop_timeout_s > 0:
+            raise ValueError(f"stop_timeout_s = {stop_timeout_s}: must be > 0")
         self.law = law
         self.exchange = exchange
         self.period_s = period_s
@@ -125,27 +183,37 @@ class CycleLoop:
         self.clock = clock
         self.observers = observers
         self.stop_event = stop_event or threading.Event()
+        self.quick_stop_event = quick_stop_event or threading.Event()
         self.commands = commands
+        self.plans_ready = plans_ready  # an off-loop planner's progress (plan_worker.py), an input of the step
         self.late_tolerance_s = late_tolerance_s
+        self.stop_timeout_s = stop_timeout_s
 
-    def run(self, state: ControllerState, max_duration_s: float, linger_after_end_s: float = 0.1,
+    def run(self, state: ControllerState, max_duration_s: float | None = None, linger_after_end_s: float = 0.1,
             exit_on_fault: bool = True) -> tuple[ControllerState, LoopStats]:
-        """Run until the law reaches DONE or FAULT (plus ``linger_after_end_s``) or the time is up.
+        """Run until the law reaches DONE or FAULT, plus ``linger_after_end_s`` so that the last
+        controlwords reach the drives.
 
+        ``max_duration_s`` (None: no limit) is a stop like any other: when it is up the law is
+        asked to stop and the run ends through STOPPING, never with the drives left enabled.
         With ``exit_on_fault=False`` the loop keeps cycling in FAULT (quick stop held) so that a
-        remote ``reset`` can recover, until the stop event is set.
+        remote ``reset`` can recover, until a stop is requested.
         """
+        if max_duration_s is not None and not max_duration_s > 0:
+            raise ValueError(f"max_duration_s = {max_duration_s}: must be > 0 (or None: until stopped)")
         period = self.period_s
-        max_cycles = int(max_duration_s / period) + 1
-        stats = LoopStats(period_s=period, capacity=max_cycles)
+        time_up_cycle = int(max_duration_s / period) + 1 if max_duration_s is not None else None
+        stop_timeout_cycles = max(1, int(self.stop_timeout_s / period))
+        stats = LoopStats(period_s=period)
         clock = self.clock
         outputs: CycleOutputs | None = None
         first_deadline = clock() + period
         stats.started_s = first_deadline
         k = 0
         end_cycle: int | None = None
+        stop_cycle: int | None = None  # the cycle a stop was first asked for
         linger = max(1, int(linger_after_end_s / period))
-        while k < max_cycles:
+        while True:
             deadline = first_deadline + k * period
             self.sleeper.sleep_until(deadline)
             woke = clock()
@@ -153,8 +221,13 @@ class CycleLoop:
             feedback = self.exchange.collect(clock() + self.collect_s)
             pending = self.commands() if self.commands is not None else None
             command, value = (Command(pending[0]), pending[1]) if pending is not None else (Command.NONE, 0.0)
-            inputs = cycle_inputs(feedback, self.stop_event.is_set(), command, value,
-                                  late=woke - deadline > self.late_tolerance_s)
+            stop = self.stop_event.is_set() or (time_up_cycle is not None and k >= time_up_cycle)
+            if stop and stop_cycle is None:
+                stop_cycle = k
+            if self.quick_stop_event.is_set() or (stop_cycle is not None and k - stop_cycle > stop_timeout_cycles):
+                command, value = Command.QUICK_STOP, 0.0
+            inputs = cycle_inputs(feedback, stop, command, value, late=woke - deadline > self.late_tolerance_s,
+                                  plans_ready=self.plans_ready() if self.plans_ready is not None else 0)
             t = k * period
             c0 = clock()
             state, outputs, events = self.law.step(state, inputs, t)
@@ -164,8 +237,7 @@ class CycleLoop:
             for obs in self.observers:
                 obs.on_cycle(k, t, inputs, state, outputs, events, timing)
             stats.record_observers(clock() - o0)
-            ending = state.mode == Mode.DONE or (
-                state.mode == Mode.FAULT and (exit_on_fault or self.stop_event.is_set()))
+            ending = state.mode == Mode.DONE or (state.mode == Mode.FAULT and (exit_on_fault or stop))
             if end_cycle is None and ending:
                 end_cycle = k  # keep cycling a little so the last commands reach the drives
             elif end_cycle is not None and not ending:
@@ -179,6 +251,7 @@ class CycleLoop:
                 stats.overruns += skipped
                 k += skipped
         stats.finished_s = clock()
+        stats.fold()
         return state, stats
 
 

@@ -17,15 +17,22 @@ import numpy as np
 from controller.core.control_law import PIPELINE_PERIODS, ControllerState
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severity
 from controller.shell.loop import CycleTiming, LoopStats
+from controller.shell.streaming_stats import FloatRing, LogHistogram, RunningMoments
 from drivers.cyclic_exchange import ExchangeCounters
+
+TRACKING_RING = 65536  # the last tracking errors kept as measured (tests, plots), about 160 s at 400 Hz
+EVENT_RING = 1000  # the last events kept for the summary; older ones are counted, not kept
 
 
 @dataclass
 class RunRecorder:
-    """Collects the per-cycle figures a summary needs (the loop's observer)."""
+    """Collects the per-cycle figures a summary needs (the loop's observer), in bounded memory:
+    running moments and a ring of the last tracking errors, the last ``EVENT_RING`` events."""
 
-    tracking_error_m: list[float] = field(default_factory=list)
-    events: list[tuple[float, Event]] = field(default_factory=list)
+    tracking: RunningMoments = field(default_factory=RunningMoments)
+    tracking_ring: FloatRing = field(default_factory=lambda: FloatRing(TRACKING_RING))
+    events: deque[tuple[float, Event]] = field(default_factory=lambda: deque(maxlen=EVENT_RING))
+    events_seen: int = 0
     _references: deque[tuple[float, float, float] | None] = field(
         default_factory=lambda: deque([None] * PIPELINE_PERIODS, maxlen=PIPELINE_PERIODS))
 
@@ -33,27 +40,37 @@ class RunRecorder:
                  outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None:
         ref = self._references[0]
         if ref is not None and state.tcp_measured_m is not None and all(d.fresh for d in inputs.drives):
-            m = state.tcp_measured_m
-            self.tracking_error_m.append(math.dist(ref, m))
+            error_m = math.dist(ref, state.tcp_measured_m)
+            self.tracking.add(error_m)
+            self.tracking_ring.append(error_m)
         self._references.append(state.tcp_reference_m)
         for e in events:
             self.events.append((t, e))
+        self.events_seen += len(events)
+
+    @property
+    def tracking_error_m(self) -> np.ndarray:
+        """The last ``TRACKING_RING`` tracking errors [m], oldest first (the whole run when shorter)."""
+        return self.tracking_ring.values()
 
 
-def _percentile_us(values_us: np.ndarray, q: float) -> float:
-    return float(np.percentile(values_us, q)) if values_us.size else 0.0
+def _hist_us(h: LogHistogram, *qs: float, with_max: bool = True) -> dict[str, float]:
+    out = {f"p{q:g}": h.percentile(q) for q in qs}
+    if with_max:
+        out["max"] = h.max if h.count else 0.0
+    return out
 
 
 def summarize(stats: LoopStats, recorder: RunRecorder, final: ControllerState,
               counters: ExchangeCounters | None, bus_load_percent: float,
               extra: dict[str, object] | None = None) -> dict[str, object]:
-    """The demo's summary as one JSON-ready dict (SI units and microseconds in the names)."""
-    per = stats.period_error_us()
-    n = min(stats.cycles, stats.capacity)
-    wake = stats.wake_error_s[:n] * 1e6
-    step = stats.step_s[:n] * 1e6
-    observers = stats.observers_s[:n] * 1e6
-    err = np.asarray(recorder.tracking_error_m)
+    """The demo's summary as one JSON-ready dict (SI units and microseconds in the names).
+
+    Timing percentiles come from the loop's fixed-size histograms: each is the upper edge of its
+    bin, at most 1 % (or 0.1 µs) above the true value (``statistics_resolution``).
+    """
+    stats.fold()
+    te = recorder.tracking
     c = counters if counters is not None else ExchangeCounters()  # None: all zero
     out: dict[str, object] = {
         "final_mode": final.mode.name,
@@ -61,25 +78,24 @@ def summarize(stats: LoopStats, recorder: RunRecorder, final: ControllerState,
         "cycles": stats.cycles,
         "nominal_rate_hz": 1.0 / stats.period_s,
         "achieved_rate_hz": round(stats.achieved_rate_hz, 3),
-        "period_error_us": {"p50": _percentile_us(per, 50), "p99": _percentile_us(per, 99),
-                            "max": float(per.max()) if per.size else 0.0},
-        "wake_latency_us": {"p50": _percentile_us(wake, 50), "p99": _percentile_us(wake, 99),
-                            "max": float(wake.max()) if wake.size else 0.0},
-        "step_compute_us": {"p50": _percentile_us(step, 50), "p99": _percentile_us(step, 99)},
+        "period_error_us": _hist_us(stats.period_error_hist_us, 50, 99),
+        "wake_latency_us": _hist_us(stats.wake_hist_us, 50, 99),
+        "step_compute_us": _hist_us(stats.step_hist_us, 50, 99, with_max=False),
         # the recorder, publisher and statistics on the loop's thread: they must only hand off
-        "observers_us": {"p50": _percentile_us(observers, 50), "p99": _percentile_us(observers, 99),
-                         "max": float(observers.max()) if observers.size else 0.0},
+        "observers_us": _hist_us(stats.observers_hist_us, 50, 99),
+        "statistics_resolution": "percentiles: upper edge of 1 % bins (at most 1 % or 0.1 us above)",
         "late_cycles": stats.late_cycles(),
         "overruns": stats.overruns,
         "missing_frames": {"drive": c.missing_drive_frames, "sensor": c.missing_sensor_frames},
         "rejected_frames": c.rejected_frames,
+        "foreign_frames": c.foreign_frames,
         "send_errors": c.send_errors,  # e.g. ENOBUFS: a full transmit queue
         "error_frames": c.error_frames,
         "bus_load_percent": round(bus_load_percent, 2),
-        "tracking_error_m": {"rms": float(np.sqrt(np.mean(err**2))) if err.size else None,
-                             "max": float(err.max()) if err.size else None, "samples": int(err.size)},
+        "tracking_error_m": {"rms": te.rms, "max": te.maximum, "samples": te.count},
         "events": [f"{t:.4f}s {e.severity.name}: {e.message}" for t, e in recorder.events
                    if e.severity >= Severity.INFO],
+        "events_not_kept": recorder.events_seen - len(recorder.events),
     }
     if extra:
         out.update(extra)

@@ -13,12 +13,13 @@ import logging
 import resource
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import can
 
-from controller.assembly import assemble
+from controller.assembly import assemble, planned_bus_load
 from controller.config import Config
 from controller.core.control_law import ControlLaw
 from controller.monitoring.publisher import monitoring_context
@@ -34,25 +35,29 @@ from controller.shell.realtime import (
     unfreeze_garbage_collector,
 )
 from controller.shell.run_summary import RunRecorder, summarize
+from controller.shell.systemd_notify import notify
 from controller.tasks.registry import RunReport
 from drivers.bus import BusSpec, open_bus
-from drivers.bus_load import BusLoad, check_bus_load, compute_bus_load, cyclic_frames
+from drivers.bus_load import BusLoad, check_bus_load
 from drivers.cyclic_exchange import CyclicExchange, FrameSink
-from drivers.node_setup import NodeSetupPlan, configure_nodes
+from drivers.frame_tap import FrameTap
+from drivers.homing import HomingPlan
+from drivers.kernel_sync import KernelSyncExchange, check_kernel_sync
+from drivers.node_setup import (
+    DRIVE_EDS,
+    SENSOR_EDS,
+    NodeSetupPlan,
+    configure_nodes,
+    device_description_path,
+)
 from drivers.pacing import DeadlineSleeper
 from drivers.pdo_codec import PositionScale
 
 if TYPE_CHECKING:
+    from controller.shell.plan_worker import PlanWorker
     from logs.recorder import SessionRecorder
 
 log = logging.getLogger(__name__)
-
-
-def planned_bus_load(cfg: Config) -> BusLoad:
-    frames = cyclic_frames(cfg.loop.rate_hz, len(cfg.actuators.node_ids), cfg.sensor.enabled,
-                           1.0 / cfg.loop.heartbeat_period_s)
-    return compute_bus_load(frames, cfg.bus.bitrate_bit_s, fd=cfg.bus.fd,
-                            data_bit_s=cfg.bus.data_bitrate_bit_s if cfg.bus.fd else None)
 
 
 @dataclass(frozen=True)
@@ -71,6 +76,28 @@ def prepare(cfg: Config) -> PreparedRun:
     return PreparedRun(law=assembly.law, reports=assembly.reports, bus_load=load)
 
 
+def homing_plans(cfg: Config) -> tuple[HomingPlan, ...] | None:
+    """Each drive's homing (drivers/homing.py) in counts, or None when the configuration has none."""
+    a = cfg.actuators
+    if a.homing_method == 0:
+        return None
+    per_unit = actuator_units(cfg).counts_per_unit
+    return tuple(HomingPlan(method=a.homing_method, home_offset_counts=round(offset * per_unit),
+                            switch_speed_counts_s=round(a.homing_switch_speed_m_s * per_unit),
+                            zero_speed_counts_s=round(a.homing_zero_speed_m_s * per_unit),
+                            acceleration_counts_s2=round(a.homing_acceleration_m_s2 * per_unit),
+                            timeout_s=a.homing_timeout_s) for offset in a.home_offsets_m)
+
+
+def _following_error_objects(cfg: Config) -> dict[str, int]:
+    """0x6065 in encoder counts and 0x6066 in ms from ``[actuators]`` (the _rad keys for rotary drives)."""
+    units = actuator_units(cfg)
+    a = cfg.actuators
+    window = a.following_error_window_rad if units.unit.value == "rad" else a.following_error_window_m
+    return {"following_error_window_counts": round(window * units.counts_per_unit),
+            "following_error_time_ms": round(a.following_error_time_s * 1000)}
+
+
 def node_setup_plan(cfg: Config) -> NodeSetupPlan:
     return NodeSetupPlan(
         drive_ids=tuple(cfg.actuators.node_ids),
@@ -79,74 +106,127 @@ def node_setup_plan(cfg: Config) -> NodeSetupPlan:
         sensor_product_code=cfg.sensor.product_code, controller_id=cfg.loop.controller_node_id,
         heartbeat_period_s=cfg.loop.heartbeat_period_s, heartbeat_consumer_s=cfg.loop.heartbeat_consumer_s,
         cycle_period_s=cfg.period_s,
+        drive_eds=device_description_path(cfg.actuators.eds_file, DRIVE_EDS),
+        sensor_eds=device_description_path(cfg.sensor.eds_file, SENSOR_EDS), sensor_vendor_id=cfg.sensor.vendor_id,
+        drive_rpdo_objects=cfg.actuators.rpdo_objects, drive_tpdo_objects=cfg.actuators.tpdo_objects,
+        homing=homing_plans(cfg), **_following_error_objects(cfg),
         sdo_timeout_s=cfg.loop.sdo_timeout_s, answer_timeout_s=max(5.0, 3.0 * cfg.loop.sdo_timeout_s),
     )
 
 
-def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float = 600.0,
+def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float | None = None,
                    stop_event: threading.Event | None = None, observers: tuple[CycleObserver, ...] = (),
-                   frame_sink: FrameSink | None = None, realtime: RealtimeOptions | None = None
-                   ) -> dict[str, object]:
-    """Run the configured task on the bus; returns the summary (see controller/shell/run_summary.py).
+                   frame_sink: FrameSink | None = None, realtime: RealtimeOptions | None = None,
+                   quick_stop_event: threading.Event | None = None) -> dict[str, object]:
+    """Run the configured task on the bus until it ends or is stopped; returns the summary (see
+    controller/shell/run_summary.py).
 
+    Every stop goes through STOPPING (brake, disable the drives, DONE): ``stop_event`` (signals,
+    ``cheope stop``), the end of ``max_duration_s`` (None: no limit), and a lost recording under
+    ``recording.on_failure = "stop"``. ``quick_stop_event`` quick-stops the drives instead.
     ``realtime`` (controller/shell/realtime.py) is checked before anything opens, and applied to
     this thread just before the loop starts, so helper threads started earlier keep SCHED_OTHER.
     """
     prepared = prepare(cfg)
+    if cfg.bus.sync_producer == "kernel":
+        check_kernel_sync(spec.interface)  # before anything opens
     realtime = realtime or RealtimeOptions()
     check_realtime(realtime)  # RealtimeError names the option and how to get the permission
     set_gil_switch_interval(cfg.loop.gil_switch_interval_us * 1e-6)
     recorder = RunRecorder()
     observers = (*observers, *prepared.reports)
-    session = _session_recorder(cfg, prepared.law, spec)  # the MCAP recording (logs/recorder.py)
+    stop_event = stop_event or threading.Event()  # a remote stop (controller/monitoring) sets it too
+    session = _session_recorder(cfg, prepared.law, spec, stop_event)  # the MCAP recording (logs/recorder.py)
     if session is not None:
         observers = (*observers, session)
         frame_sink = session.on_frame if frame_sink is None else _both_sinks(frame_sink, session.on_frame)
-    stop_event = stop_event or threading.Event()  # a remote stop (controller/monitoring) sets it too
-    with session or contextlib.nullcontext(), monitoring_context(
-            cfg, stop_event, prepared.law.task) as publisher, open_bus(spec) as bus:
+    worker = _plan_worker(prepared.law.task)  # the 3-nSPU's correcting plans, off the loop
+    if worker is not None:
+        observers = (*observers, worker)
+    with session or contextlib.nullcontext(), worker or contextlib.nullcontext(), monitoring_context(
+            cfg, stop_event, prepared.law.task) as publisher, FrameTap(open_bus(spec), frame_sink) as bus:
+        # every frame of the session through one tap: set-up included, own echoes dropped
         setup = configure_nodes(bus, node_setup_plan(cfg))
         exchange = CyclicExchange(
             bus, tuple(cfg.actuators.node_ids), PositionScale(actuator_units(cfg).counts_per_unit),
             cfg.sensor.node_id if cfg.sensor.enabled else None, cfg.loop.controller_node_id,
             heartbeat_every=max(1, round(cfg.loop.heartbeat_period_s * cfg.loop.rate_hz)), fd=spec.fd,
-            frame_sink=frame_sink, heartbeat_timeout_s=cfg.loop.heartbeat_consumer_s,
+            heartbeat_timeout_s=cfg.loop.heartbeat_consumer_s,
+            drive_codecs=setup.drive_codecs, sensor_codecs=setup.sensor_codecs,
+            send_sync=cfg.bus.sync_producer == "loop", flood_frames_per_cycle=cfg.safety.max_foreign_frames_per_cycle,
+            tracker_id=cfg.tracker.node_id if cfg.tracker.enabled else None,
         )
+        kernel_sync = KernelSyncExchange(exchange, cfg.period_s, cfg.bus.sync_lead_fraction * cfg.period_s) \
+            if cfg.bus.sync_producer == "kernel" else None
         if publisher is not None:
             publisher.exchange_counters = exchange.counters
-        loop = CycleLoop(prepared.law, exchange, cfg.period_s, cfg.loop.collect_fraction,
+        loop = CycleLoop(prepared.law, kernel_sync or exchange, cfg.period_s, cfg.loop.collect_fraction,
                          DeadlineSleeper(cfg.loop.spin_us * 1e-6), time.monotonic,
                          late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s,
                          observers=(recorder, *observers, *((publisher,) if publisher is not None else ())),
-                         stop_event=stop_event, commands=publisher.commands if publisher is not None else None)
+                         stop_event=stop_event, commands=publisher.commands if publisher is not None else None,
+                         quick_stop_event=quick_stop_event, stop_timeout_s=cfg.loop.stop_timeout_s,
+                         plans_ready=worker.ready if worker is not None else None)
         restore = apply_realtime(realtime)
         granted = granted_realtime()
         try:
             if cfg.loop.freeze_gc:
                 freeze_garbage_collector()
             faults_before = resource.getrusage(resource.RUSAGE_SELF).ru_majflt
+            notify("READY=1")  # systemd Type=notify: the devices are configured, the loop starts
             final, stats = loop.run(prepared.law.initial_state(), max_duration_s,
                                     exit_on_fault=not cfg.loop.stay_in_fault)
+            notify("STOPPING=1")
             # a page the kernel dropped (memory pressure, proactive reclaim) is read back from disk
             # when touched: milliseconds each, inside a cycle (--lock-memory prevents it)
             major_faults = resource.getrusage(resource.RUSAGE_SELF).ru_majflt - faults_before
         finally:
+            if kernel_sync is not None:
+                kernel_sync.stop()
             restore()
             if cfg.loop.freeze_gc:
                 unfreeze_garbage_collector()
     return summarize(stats, recorder, final, exchange.counters, prepared.bus_load.percent,
-                     extra={"bus": str(spec), "node_setup_s": round(setup.duration_s, 3),
+                     extra={"bus": str(spec), "sync_producer": cfg.bus.sync_producer,
+                            "node_setup_s": round(setup.duration_s, 3),
                             "major_page_faults": major_faults,
-                            "recording": _recording_summary(session), "realtime": granted,
+                            "frames": {"sent": bus.sent, "received": bus.received,
+                                       "own_echoes_dropped": bus.own_echoes},
+                            "recording": _recording_summary(session, cfg), "realtime": granted,
                             **{k: v for r in prepared.reports for k, v in r.summary().items()}})
 
 
-def _session_recorder(cfg: Config, law: ControlLaw, spec: BusSpec) -> SessionRecorder | None:
+def _plan_worker(task: object) -> PlanWorker | None:
+    """A worker thread for a task that plans off the loop (the 3-nSPU's corrections, not in_step)."""
+    planner = getattr(task, "correction_planner", None)
+    correction = getattr(task, "correction", None)
+    if planner is None or correction is None or correction.in_step:
+        return None
+    from controller.shell.plan_worker import PlanWorker
+
+    return PlanWorker(planner)
+
+
+def _session_recorder(cfg: Config, law: ControlLaw, spec: BusSpec, stop_event: threading.Event
+                      ) -> SessionRecorder | None:
     if not cfg.recording.enabled:
         return None
     from logs.recorder import SessionRecorder
 
-    return SessionRecorder.for_config(cfg, phase_name=law.task.phase_name, extra_metadata={"bus": str(spec)})
+    recorder = SessionRecorder.for_config(cfg, phase_name=law.task.phase_name, extra_metadata={"bus": str(spec)})
+    recorder.on_failure = _on_recording_failure(cfg.recording.on_failure, stop_event)
+    return recorder
+
+
+def _on_recording_failure(policy: str, stop_event: threading.Event) -> Callable[[str], None]:
+    """recording.on_failure: "stop" ends the run through STOPPING, "warn" runs on unrecorded."""
+    def stop(why: str) -> None:
+        log.warning("recording lost (%s): stopping the run (recording.on_failure = \"stop\")", why)
+        stop_event.set()
+
+    def warn(why: str) -> None:
+        log.warning("recording lost (%s): running on unrecorded (recording.on_failure = \"warn\")", why)
+    return stop if policy == "stop" else warn
 
 
 def _both_sinks(a: FrameSink, b: FrameSink) -> FrameSink:
@@ -156,8 +236,13 @@ def _both_sinks(a: FrameSink, b: FrameSink) -> FrameSink:
     return sink
 
 
-def _recording_summary(session: SessionRecorder | None) -> dict[str, object] | None:
+def _recording_summary(session: SessionRecorder | None, cfg: Config) -> dict[str, object] | None:
     if session is None:
         return None
+    lost = ""
+    if session.first_lost_cycle is not None:
+        cycle, t = session.first_lost_cycle
+        what = "every cycle and frame" if session.error else f"{session.dropped} item(s) (cycles, frame batches)"
+        lost = f"{what} from cycle {cycle} (t = {t:.3f} s) on" + (f" ({session.dropped} items)" if session.error else "")
     return {"path": str(session.path), "dropped": session.dropped, "written": session.written,
-            "error": session.error}
+            "error": session.error, "lost": lost, "on_failure": cfg.recording.on_failure}

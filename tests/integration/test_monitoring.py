@@ -8,25 +8,30 @@ the in-process simulated devices; ``cheope demo`` for the service wiring of the 
 
 from __future__ import annotations
 
+import contextlib
 import io
 import itertools
 import json
 import os
+import re
 import selectors
 import signal
+import socket
 import subprocess
 import sys
 import threading
 import time
 from contextlib import contextmanager
+from dataclasses import replace
 
 import pytest
 from busy_machine import TOLERANT
-from waiting import GENEROUS_S
+from waiting import GENEROUS_S, wait_for_exit
 
 from controller.config import ConfigError, load_config
 from controller.core.cycle_data import CycleInputs, CycleOutputs, DriveFeedback
 from controller.messages import cheope_pb2 as pb
+from controller.monitoring.command_gate import decide_command
 from controller.monitoring.commands import query_status, send_command
 from controller.monitoring.monitor_view import (
     AliveUpdate,
@@ -37,7 +42,8 @@ from controller.monitoring.monitor_view import (
     render,
     update_to_json,
 )
-from controller.monitoring.publisher import MonitorPublisher, decide_command, publisher_settings
+from controller.monitoring.publisher import MonitorPublisher, publisher_settings
+from controller.monitoring.query_server import QueryLimits, TokenBucket
 from controller.monitoring.zenoh_session import (
     MonitoringConnectionError,
     MonitorKeys,
@@ -61,7 +67,9 @@ def _endpoint() -> str:
 def _controller_cmd(endpoint: str, *sets: str, max_duration_s: float = 30.0) -> list[str]:
     cmd = [sys.executable, "-m", "controller.tools.sim_controller", "--max-duration", str(max_duration_s),
            "--set", f'monitoring.listen="{endpoint}"', "--set", 'monitoring.robot_id="test-bot"',
-           "--set", 'monitoring.on_listen_busy="fail"', "--set", "task.path.laps=20"]
+           "--set", 'monitoring.on_listen_busy="fail"', "--set", "task.path.laps=20",
+           # these tests check monitoring, not timing: a loaded machine must not fault the run (SYNC watchdog, late cycles)
+           *TOLERANT, "--set", "sim.drive.sync_timeout_s=0.5"]
     for s in sets:
         cmd += ["--set", s]
     return cmd
@@ -209,13 +217,16 @@ def test_on_cycle_publishes_every_nth_cycle_on_the_loops_thread(cfg):
     state = build_law(cfg).initial_state()
     threads_before = {t.name for t in threading.enumerate()}
     with MonitorPublisher(publisher_settings(cfg), threading.Event()) as pub:
-        assert {t.name for t in threading.enumerate()} == threads_before  # no publisher thread of its own
+        # no publisher thread: only the two query servers, which sleep in Rust (query_server.py)
+        added = {t.name for t in threading.enumerate()} - threads_before
+        assert added == {"cheope-query-status", "cheope-query-command"}
         for k in range(400):
             cycle, t, inputs, outputs, timing = _cycle_args(k)
             pub.on_cycle(cycle, t, inputs, state, outputs, (), timing)
         assert pub.published_samples == 100  # every 4th of 400 cycles (400 Hz -> 100 Hz)
         assert pub.publish_errors == 0
         assert pub.commands() is None
+    assert {t.name for t in threading.enumerate()} == threads_before  # the query servers ended with it
 
 
 # -- across processes ------------------------------------------------------------------------
@@ -243,8 +254,8 @@ def test_every_cycle_is_published_when_the_rate_allows_it():
     with MonitorClient(monitor_settings((ep,)), KEYS) as client, controller(ep, *rates):
         _wait_alive(client, True)
         cycles = [s.msg.cycle for s in _states(client, 40)]
-    assert max(b - a for a, b in itertools.pairwise(cycles)) <= 2  # 1, or 2 when the loop skipped a deadline
-    assert sum(b - a == 1 for a, b in itertools.pairwise(cycles)) >= 30
+    # 1, or more where the loop skipped late deadlines (a busy machine skips several in a row)
+    assert sum(b - a == 1 for a, b in itertools.pairwise(cycles)) >= 30, cycles
 
 
 def test_liveliness_goes_away_and_comes_back():
@@ -278,7 +289,7 @@ def test_status_queryable_answers_configuration_versions_counters_and_uptime():
 def test_a_command_other_than_stop_is_refused_when_commands_are_disabled():
     ep = _endpoint()
     with controller(ep) as proc:
-        reply = send_command(client_settings((ep,)), KEYS, "pause", timeout_s=5.0)
+        reply = send_command(client_settings((ep,)), KEYS, "pause", timeout_s=5.0)[1]
         assert not reply.accepted and "--allow-remote-commands" in reply.message
         out = _stop(proc)
     assert not any("remote pause" in e for e in _final(out)["events"])
@@ -289,9 +300,9 @@ def test_pause_and_resume_reach_the_law_when_enabled():
     ep = _endpoint()
     with MonitorClient(monitor_settings((ep,)), KEYS) as client, controller(ep, "monitoring.allow_remote_commands=true") as proc:
         _wait_mode(client, "RUNNING")
-        assert send_command(client_settings((ep,)), KEYS, "pause", timeout_s=5.0).accepted
+        assert send_command(client_settings((ep,)), KEYS, "pause", timeout_s=5.0)[1].accepted
         _wait_mode(client, "PAUSED")
-        assert send_command(client_settings((ep,)), KEYS, "resume", timeout_s=5.0).accepted
+        assert send_command(client_settings((ep,)), KEYS, "resume", timeout_s=5.0)[1].accepted
         _wait_mode(client, "RUNNING")
         out = _stop(proc)
     events = _final(out)["events"]
@@ -302,7 +313,7 @@ def test_remote_stop_brings_a_running_task_to_a_controlled_stop():
     ep = _endpoint()
     with MonitorClient(monitor_settings((ep,)), KEYS) as client, controller(ep) as proc:
         _wait_mode(client, "RUNNING")
-        reply = send_command(client_settings((ep,)), KEYS, "stop", timeout_s=5.0)
+        reply = send_command(client_settings((ep,)), KEYS, "stop", timeout_s=5.0)[1]
         assert reply.accepted
         proc.wait(timeout=10)  # it ends by itself: the stop, not our SIGTERM
         final = _final(_stop(proc))
@@ -385,3 +396,150 @@ def test_view_renders_state_alarms_events_and_liveliness():
         assert expected in text, expected
     line = json.loads(update_to_json(StateUpdate("cheope/r/state", msg, 1.1)))
     assert line["type"] == "state" and line["cycle"] == 12 and line["force_n"] == [0.1, 0.2, 9.5]
+
+
+# -- many robots: ids, cheope list, a router -------------------------------------------------
+
+def _cheope(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "controller", *args], check=False, capture_output=True, text=True,
+                          env=ENV, timeout=60)
+
+
+def _json(r: subprocess.CompletedProcess[str]):
+    assert r.returncode == 0 and r.stdout, f"exit {r.returncode}: {r.stderr}"
+    return json.loads(r.stdout)
+
+
+def _connect(*endpoints: str) -> list[str]:
+    return [a for e in endpoints for a in ("--zenoh-connect", e)]
+
+
+def test_a_default_robot_id_is_the_host_and_a_suffix_and_differs_between_controllers():
+    a, b = (publisher_settings(load_config()) for _ in range(2))
+    host = socket.gethostname().split(".")[0]
+    assert a.robot_id_is_default and a.robot_id.rsplit("-", 1)[0] == re.sub(r"[^A-Za-z0-9_.\-]+", "-", host)
+    assert re.fullmatch(r"[0-9a-f]{4}", a.robot_id.rsplit("-", 1)[1])
+    assert a.keys.prefix == f"cheope/{a.robot_id}" and json.loads(a.config_json)["monitoring"]["robot_id"] == a.robot_id
+    assert a.robot_id != b.robot_id or a.robot_id != publisher_settings(load_config()).robot_id
+    assert not publisher_settings(load_config(overrides={"monitoring.robot_id": "r1"})).robot_id_is_default
+
+
+def test_a_robot_id_already_live_refuses_the_start():
+    ep_a, ep_b = _endpoint(), _endpoint()
+    with controller(ep_a, 'monitoring.robot_id="dup"'):
+        second = subprocess.run(_controller_cmd(ep_b, 'monitoring.robot_id="dup"', f'monitoring.connect="{ep_a}"',
+                                                max_duration_s=10.0),
+                                check=False, capture_output=True, text=True, env=ENV, timeout=60)
+        assert second.returncode == 2, second.stdout + second.stderr
+        assert "monitoring.robot_id = 'dup' is taken" in second.stderr and second.stderr.count("\n") == 1
+        assert not second.stdout.startswith("READY")
+        listed = _json(_cheope("list", "--json", *_connect(ep_a)))
+    assert [c["robot_id"] for c in listed] == ["dup"]  # the first one went on
+
+
+def test_a_drawn_robot_id_that_is_taken_is_drawn_again():
+    ep = _endpoint()
+    with controller(ep, 'monitoring.robot_id="bot-a"'):
+        settings = publisher_settings(load_config(overrides={"monitoring.listen": _endpoint(),
+                                                             "monitoring.connect": ep}))
+        taken = replace(settings, robot_id="bot-a", keys=MonitorKeys.for_robot("cheope", "bot-a"))
+        with MonitorPublisher(taken, threading.Event()) as pub:
+            assert pub.settings.robot_id != "bot-a" and pub.settings.keys.prefix == f"cheope/{pub.settings.robot_id}"
+            both = _connect(ep, *pub.listen_endpoints)  # peers do not route for each other: ask both
+            ids = [c["robot_id"] for c in _json(_cheope("list", "--json", *both))]
+        assert sorted(ids) == sorted(["bot-a", pub.settings.robot_id])
+
+
+def test_cheope_list_shows_two_controllers_and_the_tools_address_them_by_id():
+    ep_a, ep_b = _endpoint(), _endpoint()
+    with controller(ep_a, 'monitoring.robot_id="bot-a"', max_duration_s=120.0), \
+            controller(ep_b, 'monitoring.robot_id="bot-b"', max_duration_s=120.0) as proc_b:
+        listed = _cheope("list", "--json", *_connect(ep_a, ep_b))
+        assert listed.returncode == 0, listed.stderr
+        rows = {c["robot_id"]: c for c in json.loads(listed.stdout)}
+        assert sorted(rows) == ["bot-a", "bot-b"]
+        assert rows["bot-a"]["listen_endpoints"] == [ep_a] and rows["bot-b"]["listen_endpoints"] == [ep_b]
+        assert all(r["task"] == "path" and r["mode"] and r["uptime_s"] > 0 for r in rows.values())
+        table = _cheope("list", *_connect(ep_a, ep_b)).stdout.splitlines()
+        assert table[0].startswith("robot id") and [line.split()[0] for line in table[1:]] == ["bot-a", "bot-b"]
+        ambiguous = _cheope("status", *_connect(ep_a, ep_b))
+        assert ambiguous.returncode == 2 and ambiguous.stderr.count("\n") == 1
+        assert "2 controllers reachable (bot-a, bot-b)" in ambiguous.stderr and "--robot-id" in ambiguous.stderr
+        st = _json(_cheope("status", "--json", "--robot-id", "bot-b", *_connect(ep_a, ep_b)))
+        assert st["robot_id"] == "bot-b"
+        stop = _cheope("stop", "--robot-id", "bot-b", *_connect(ep_a, ep_b))
+        assert stop.returncode == 0 and stop.stdout.startswith("accepted by bot-b:"), stop.stderr
+        wait_for_exit(proc_b.pid, "bot-b's controller after cheope stop")
+        only_a = _json(_cheope("list", "--json", *_connect(ep_a, ep_b)))
+        assert [c["robot_id"] for c in only_a] == ["bot-a"]  # bot-a was not stopped
+        one = _json(_cheope("status", "--json", *_connect(ep_a, ep_b)))  # the only one: no id needed
+        assert one["robot_id"] == "bot-a"
+
+
+def test_tools_that_find_nothing_say_so_in_one_line():
+    ep = _endpoint()
+    listed = _cheope("list", *_connect(ep))
+    assert listed.returncode == 1 and listed.stdout == ""
+    assert listed.stderr.count("\n") == 1 and listed.stderr.startswith("cheope list: no controller found")
+    assert ep in listed.stderr
+    mon = _cheope("monitor", "--json", "--duration", "1", *_connect(ep))
+    assert mon.returncode == 0 and mon.stdout == ""
+    assert mon.stderr.count("\n") == 1 and mon.stderr.startswith("cheope monitor: ") and ep in mon.stderr
+    stop = _cheope("stop", *_connect(ep))
+    assert stop.returncode == 2 and stop.stderr.count("\n") == 1 and ep in stop.stderr
+
+
+def test_three_controllers_monitored_from_one_place_through_a_router():
+    router_ep = _endpoint()
+    router = subprocess.Popen([sys.executable, "-m", "controller", "router", "--listen", router_ep],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
+    try:
+        assert _readline(router, 30.0).startswith(f"READY {router_ep}")
+        ids = ("bot-1", "bot-2", "bot-3")
+        with contextlib.ExitStack() as stack:
+            for rid in ids:  # each listens nowhere and connects only to the router
+                stack.enter_context(controller("", f'monitoring.robot_id="{rid}"', f'monitoring.connect="{router_ep}"',
+                                               'monitoring.mode="client"', "loop.rate_hz=100.0",
+                                               "monitoring.publish_rate_hz=10.0", max_duration_s=120.0))
+            listed = _cheope("list", "--json", *_connect(router_ep))
+            assert sorted(c["robot_id"] for c in _json(listed)) == list(ids)
+            mon = _cheope("monitor", "--json", "--count", "30", "--duration", "30", *_connect(router_ep))
+            states = [d for d in map(json.loads, mon.stdout.splitlines()) if d["type"] == "state"]
+            assert {d["robot_id"] for d in states} == set(ids), mon.stderr
+    finally:
+        router.send_signal(signal.SIGTERM)
+        router.communicate(timeout=30)
+    assert router.returncode == 0
+
+
+def test_cheope_command_reset_brings_a_controller_out_of_fault():
+    ep = _endpoint()
+    sets = ("monitoring.allow_remote_commands=true", "loop.stay_in_fault=true", 'sim.faults=["drive_fault:2@0.5+0.2"]')
+    with MonitorClient(monitor_settings((ep,)), KEYS) as client, controller(ep, *sets):
+        _wait_mode(client, "FAULT")
+        reset = _cheope("command", "reset", "--robot-id", "test-bot", *_connect(ep))
+        assert reset.returncode == 0 and reset.stdout.startswith("accepted by test-bot: reset accepted"), reset.stderr
+        _wait_mode(client, "ENABLING")
+
+
+def test_a_token_bucket_answers_its_burst_then_at_its_rate():
+    now = [0.0]
+    slept: list[float] = []
+
+    def sleep(s: float) -> None:
+        slept.append(s)
+        now[0] += s
+
+    bucket = TokenBucket(rate_hz=20.0, burst=5, clock=lambda: now[0], sleep=sleep)
+    for _ in range(5):
+        bucket.wait()
+    assert slept == []  # the burst goes back to back
+    for _ in range(20):
+        bucket.wait()
+    assert len(slept) == 20 and now[0] == pytest.approx(1.0)  # then one every 1/20 s
+    now[0] += 10.0  # a long pause refills to the burst, not beyond
+    for _ in range(6):
+        bucket.wait()
+    assert len(slept) == 21
+    with pytest.raises(ValueError, match="rate_hz"):
+        QueryLimits(rate_hz=0.0)

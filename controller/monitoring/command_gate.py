@@ -1,0 +1,37 @@
+"""Which remote commands a controller accepts: the one list the publisher and the CLI share.
+
+A remote ``stop`` is always accepted (a controlled stop, as Ctrl-C); ``pause``, ``resume``,
+``set_force`` and ``reset`` (leave FAULT, controller/core/control_law.py) only when the
+controller was started with ``--allow-remote-commands`` (DESIGN.md: monitoring is read-only,
+any other remote command is off unless explicitly enabled). Imports nothing heavy: the
+command line's parser uses it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+ALWAYS_ACCEPTED = ("stop",)
+GATED_COMMANDS = ("pause", "resume", "set_force", "reset")
+
+
+@dataclass(frozen=True)
+class CommandDecision:
+    accepted: bool
+    message: str
+    forward: bool = False  # hand it to the control law as CycleInputs.command
+
+
+def decide_command(name: str, value: float, commands_enabled: bool) -> CommandDecision:
+    """The gate: stop always; the gated commands only when enabled; anything else refused."""
+    if name == "stop":
+        return CommandDecision(True, "stop accepted: the controller brings the robot to a controlled stop")
+    if name not in GATED_COMMANDS:
+        return CommandDecision(False, f"unknown command {name!r}; known: stop, {', '.join(GATED_COMMANDS)}")
+    if not commands_enabled:
+        return CommandDecision(False, f"command {name!r} refused: remote commands other than stop are disabled "
+                                      "(start the controller with --allow-remote-commands)")
+    if name == "set_force" and not (math.isfinite(value) and value > 0.0):
+        return CommandDecision(False, f"set_force value {value!r} N refused: must be finite and > 0")
+    return CommandDecision(True, f"{name} accepted: applied at the next cycle", forward=True)

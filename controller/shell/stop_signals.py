@@ -1,0 +1,33 @@
+"""SIGTERM and SIGINT as stop requests: the first stops under control, the second quick-stops.
+
+A service manager (systemd: ``KillSignal=SIGTERM``, then SIGKILL after ``TimeoutStopSec``)
+and a user at the terminal (Ctrl-C) both send one signal and expect an orderly end: the loop
+brakes within the limits, disables the drives and exits 0. A second signal means "now": the
+drives get a quick stop through the controlword (CiA 402) and the process ends in FAULT.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from dataclasses import dataclass, field
+from types import FrameType
+
+
+@dataclass
+class StopSignals:
+    stop: threading.Event = field(default_factory=threading.Event)
+    quick_stop: threading.Event = field(default_factory=threading.Event)
+
+    def on_signal(self, signum: int, frame: FrameType | None) -> None:
+        if self.stop.is_set():
+            self.quick_stop.set()
+        self.stop.set()
+
+
+def install_stop_signals(signals: tuple[signal.Signals, ...] = (signal.SIGINT, signal.SIGTERM)) -> StopSignals:
+    """Route ``signals`` to a new ``StopSignals`` (call from the main thread)."""
+    handler = StopSignals()
+    for sig in signals:
+        signal.signal(sig, handler.on_signal)
+    return handler

@@ -1,0 +1,143 @@
+"""``cheope soak``: does a long run stay flat? The controller's memory and lateness over time.
+
+Starts ``cheope sim`` and ``cheope run`` (the service as a user starts it, with its recording
+and monitoring) on a private udp_multicast port, with a path task far longer than the soak,
+samples the controller's resident set (``VmRSS`` in /proc) every ``--sample-s`` seconds, then
+stops it with SIGTERM (the service's orderly stop) and reads its JSON summary. Prints:
+- the RSS slope after the warm-up [kB/min], a least-squares line through the samples taken
+  after ``--warmup-s`` (start-up imports, Zenoh, first allocations and the first fold of the
+  loop's ring are not a leak), with the RSS at the warm-up's end and at the end;
+- late cycles per 10 000 (the summary's ``late_cycles`` over its ``cycles``), final mode and
+  exit status (SIGTERM must end in DONE, exit 0).
+A benchmark, not a test: its figures depend on the machine (see README, "Soak").
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from controller.errors import InputError
+from controller.tools.demo import random_udp_port, simulator_process
+from drivers.bus import parse_bus_spec
+
+
+def rss_kb(pid: int) -> int | None:
+    """The resident set of ``pid`` [kB], None once it is gone."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1])
+    except (OSError, ValueError):
+        return None
+    return None
+
+
+def rss_slope_kb_per_min(times_s: np.ndarray, rss: np.ndarray) -> float:
+    """Least-squares slope of RSS [kB] against time [s], in kB per minute."""
+    if times_s.size < 2 or np.ptp(times_s) == 0:
+        raise InputError(f"an RSS slope needs samples at two times or more, got {times_s.size}")
+    return float(np.polyfit(times_s, rss, 1)[0] * 60.0)
+
+
+@dataclass(frozen=True)
+class SoakResult:
+    duration_s: float
+    warmup_s: float
+    samples: int
+    rss_warm_kb: int
+    rss_end_kb: int
+    rss_slope_kb_per_min: float
+    cycles: int
+    late_cycles: int
+    late_per_10k: float
+    final_mode: str
+    fault_reason: str
+    exit_code: int
+    recording: dict[str, object] | None
+
+    def table(self) -> str:
+        return "\n".join([
+            f"soak                {self.duration_s:.0f} s, warm-up {self.warmup_s:.0f} s, {self.samples} RSS samples",
+            (f"controller RSS      {self.rss_warm_kb / 1024:.1f} MB after warm-up, {self.rss_end_kb / 1024:.1f} MB "
+             f"at the end, slope {self.rss_slope_kb_per_min:+.2f} kB/min"),
+            f"late cycles         {self.late_cycles} of {self.cycles}: {self.late_per_10k:.1f} per 10 000",
+            (f"end                 {self.final_mode}{f' ({self.fault_reason})' if self.fault_reason else ''}, "
+             f"exit {self.exit_code} (SIGTERM)"),
+        ])
+
+
+def run_soak(duration_s: float, warmup_s: float, sample_s: float, rate_hz: float, realtime_args: list[str],
+             recording_dir: Path, extra_sets: list[str]) -> SoakResult:
+    if not duration_s > warmup_s + 2 * sample_s:
+        raise InputError(f"--duration {duration_s:g} s: must exceed --warmup-s {warmup_s:g} s by two samples")
+    port = random_udp_port()
+    spec = parse_bus_spec("udp_multicast", fd=False, udp_port=port)
+    sets = [f"loop.rate_hz={rate_hz}", 'task.kind="path"', "task.path.laps=1000.0",
+            f'recording.directory="{recording_dir}"', f'monitoring.robot_id="soak-{os.getpid()}"',
+            *extra_sets]
+    set_args = [a for s in sets for a in ("--set", s)]
+    with simulator_process(spec, None, sets, extra_args=realtime_args):
+        cmd = [sys.executable, "-m", "controller", "run", "--json", "--can", "udp_multicast",
+               "--udp-port", str(port), *realtime_args, *set_args]
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        times: list[float] = []
+        rss: list[int] = []
+        try:
+            start = time.monotonic()
+            while (now := time.monotonic() - start) < duration_s and proc.poll() is None:
+                kb = rss_kb(proc.pid)
+                if kb is not None:
+                    times.append(now)
+                    rss.append(kb)
+                time.sleep(sample_s)  # a sampling period, not a wait for an event
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+            out, err = proc.communicate(timeout=120)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    if proc.returncode not in (0, 1, 3) or not out.strip() or sum(t >= warmup_s for t in times) < 2:
+        raise InputError(f"cheope run ended with status {proc.returncode} after {times[-1] if times else 0:.0f} s: "
+                         f"{err.strip()[-2000:]} {out.strip()[-2000:]}")
+    summary = json.loads(out)
+    t, r = np.asarray(times), np.asarray(rss, dtype=float)
+    warm = t >= warmup_s
+    cycles, late = int(summary["cycles"]), int(summary["late_cycles"])
+    return SoakResult(
+        duration_s=float(t[-1]) if t.size else 0.0, warmup_s=warmup_s, samples=int(warm.sum()),
+        rss_warm_kb=int(r[warm][0]), rss_end_kb=int(r[-1]),
+        rss_slope_kb_per_min=rss_slope_kb_per_min(t[warm], r[warm]), cycles=cycles, late_cycles=late,
+        late_per_10k=1e4 * late / cycles if cycles else 0.0, final_mode=str(summary["final_mode"]),
+        fault_reason=str(summary["fault_reason"]),
+        exit_code=proc.returncode, recording=summary.get("recording"))
+
+
+def add_soak_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--duration", type=float, default=1800.0, help="seconds of running (default 1800)")
+    ap.add_argument("--warmup-s", type=float, default=120.0, help="seconds left out of the slope (default 120)")
+    ap.add_argument("--sample-s", type=float, default=5.0, help="seconds between RSS samples (default 5)")
+    ap.add_argument("--rate", type=float, default=400.0, help="loop rate [Hz] (default 400)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="more configuration overrides for both processes (repeatable)")
+    ap.add_argument("--keep", metavar="DIR", help="keep the session recording in DIR (default: a deleted temp dir)")
+    ap.add_argument("--json", action="store_true", help="print the figures as one JSON object")
+
+
+def run_soak_command(args: argparse.Namespace, realtime_args: list[str]) -> int:
+    with tempfile.TemporaryDirectory(prefix="cheope-soak-") as tmp:
+        result = run_soak(args.duration, args.warmup_s, args.sample_s, args.rate, realtime_args,
+                          Path(args.keep) if args.keep else Path(tmp), list(args.set))
+    print(json.dumps(result.__dict__) if args.json else result.table())
+    return 0 if result.final_mode == "DONE" and result.exit_code == 0 else 1

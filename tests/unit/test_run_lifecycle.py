@@ -1,0 +1,122 @@
+"""How a run ends, in simulated time: every stop goes through STOPPING to DONE with the drives
+disabled; a second signal, or a stop that does not end in time, quick-stops them."""
+
+from __future__ import annotations
+
+import signal
+import threading
+
+import numpy as np
+import pytest
+
+from controller.assembly import build_law
+from controller.config import Config, load_config
+from controller.core.control_law import ControllerState, Mode
+from controller.shell.loop import CycleLoop, SimulatedTime
+from controller.shell.run_summary import RunRecorder
+from controller.shell.stop_signals import StopSignals
+from drivers.cia402 import PowerState, decode_statusword
+from sim_backend.loopback import LoopbackExchange
+
+LONG = {"task.path.laps": 20.0}  # far longer than any test lets it run
+
+
+def _run(cfg: Config, max_s: float | None, stop_at_s: float | None = None, quick_at_s: float | None = None,
+         stop_timeout_s: float = 10.0, stop: threading.Event | None = None
+         ) -> tuple[ControllerState, LoopbackExchange, list[Mode], RunRecorder]:
+    clock = SimulatedTime()
+    law = build_law(cfg)
+    exchange = LoopbackExchange(cfg, clock.clock)
+    stop = stop or threading.Event()
+    quick = threading.Event()
+    modes: list[Mode] = []
+
+    class Hook:
+        def on_cycle(self, cycle, t, inputs, state, outputs, events, timing):
+            modes.append(state.mode)
+            if stop_at_s is not None and t >= stop_at_s:
+                stop.set()
+            if quick_at_s is not None and t >= quick_at_s:
+                quick.set()
+
+    rec = RunRecorder()
+    loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
+                     observers=(Hook(), rec), stop_event=stop, quick_stop_event=quick, stop_timeout_s=stop_timeout_s)
+    final, _ = loop.run(law.initial_state(), max_s)
+    return final, exchange, modes, rec
+
+
+def _powers(exchange: LoopbackExchange) -> set[PowerState]:
+    return {decode_statusword(d.statusword()) for d in exchange.drives}
+
+
+def test_the_end_of_max_duration_stops_through_stopping_with_the_drives_disabled():
+    cfg = load_config(overrides=LONG)
+    final, exchange, modes, rec = _run(cfg, max_s=1.5)
+    assert final.mode == Mode.DONE, final.fault_reason
+    assert Mode.RUNNING in modes and Mode.STOPPING in modes
+    assert _powers(exchange) <= {PowerState.READY_TO_SWITCH_ON, PowerState.SWITCH_ON_DISABLED}
+    assert all(d.velocity == 0.0 for d in exchange.drives)
+    assert any("stop requested" in e.message for _, e in rec.events)
+    assert not any("quick stop" in e.message for _, e in rec.events)
+
+
+def test_a_second_request_quick_stops_the_drives():
+    cfg = load_config(overrides=LONG)
+    final, exchange, modes, _ = _run(cfg, max_s=None, stop_at_s=1.0, quick_at_s=1.0 + 2 * cfg.period_s)
+    assert final.mode == Mode.FAULT
+    assert Mode.STOPPING in modes  # the first request was braking when the second came
+    assert final.fault_reason == "quick stop requested"
+    assert _powers(exchange) == {PowerState.QUICK_STOP_ACTIVE}
+
+
+def test_a_stop_that_does_not_reach_done_in_time_becomes_a_quick_stop():
+    cfg = load_config(overrides=LONG)
+    # 10 ms cannot brake carriages moving along the path: the loop must not wait for ever
+    final, exchange, _, _ = _run(cfg, max_s=None, stop_at_s=1.0, stop_timeout_s=0.01)
+    assert final.mode == Mode.FAULT and final.fault_reason == "quick stop requested"
+    assert _powers(exchange) == {PowerState.QUICK_STOP_ACTIVE}
+
+
+def test_a_stop_before_anything_is_enabled_ends_at_once_in_done():
+    cfg = load_config(overrides=LONG)
+    stop = threading.Event()
+    stop.set()
+    final, exchange, modes, _ = _run(cfg, max_s=None, stop=stop)
+    assert final.mode == Mode.DONE
+    assert Mode.ENABLING not in modes and Mode.RUNNING not in modes
+    assert PowerState.OPERATION_ENABLED not in _powers(exchange)
+
+
+def test_without_max_duration_the_run_goes_on_until_the_task_ends():
+    cfg = load_config(overrides={"task.path.laps": 0.25})
+    final, _, modes, _ = _run(cfg, max_s=None)
+    assert final.mode == Mode.DONE
+    assert modes.count(Mode.RUNNING) * cfg.period_s > 1.0  # the quarter lap, not a default limit
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan")])
+def test_a_max_duration_that_is_not_positive_is_refused(bad):
+    cfg = load_config()
+    clock = SimulatedTime()
+    law = build_law(cfg)
+    loop = CycleLoop(law, LoopbackExchange(cfg, clock.clock), cfg.period_s, 0.8, clock, clock.clock)
+    with pytest.raises(ValueError, match="max_duration_s"):
+        loop.run(law.initial_state(), bad)
+
+
+def test_stop_signals_first_stops_then_quick_stops():
+    s = StopSignals()
+    s.on_signal(signal.SIGTERM, None)
+    assert s.stop.is_set() and not s.quick_stop.is_set()
+    s.on_signal(signal.SIGINT, None)
+    assert s.quick_stop.is_set()
+
+
+def test_the_run_recorder_keeps_bounded_figures():
+    cfg = load_config(overrides={"task.path.laps": 0.25})
+    _, _, _, rec = _run(cfg, max_s=None)
+    err = rec.tracking_error_m
+    assert rec.tracking.count == err.size > 300
+    assert rec.tracking.rms == pytest.approx(float(np.sqrt(np.mean(err**2))))
+    assert rec.tracking.maximum == err.max()
