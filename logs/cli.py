@@ -1,6 +1,7 @@
 """Bodies of ``cheope logs info|recover`` and ``cheope replay``; ``add_commands`` wires them in.
 
-Errors end as one line on stderr with exit code 2; ``--verify`` exits 1 on a divergence.
+Errors end as one line on stderr with exit code 2; ``--verify`` exits 1 on a divergence, ``logs
+info`` on a damaged file and ``logs recover`` when it recovered nothing exit 1.
 """
 
 from __future__ import annotations
@@ -25,9 +26,12 @@ def add_commands(sub: argparse._SubParsersAction[ParserT],
     """``cheope logs`` and ``cheope replay``; ``stop_on_signals`` is the caller's (SIGINT/SIGTERM)."""
     p = sub.add_parser("logs", help="inspect and repair session recordings (MCAP)")
     logs_sub = p.add_subparsers(dest="logs_command", required=True)
-    q = logs_sub.add_parser("info", help="duration, channels, message counts, metadata, damage")
+    q = logs_sub.add_parser("info", help="duration, channels, message counts, metadata, damage, CAN traffic and bus load")
     q.add_argument("file")
     q.add_argument("--json", action="store_true", help="print one JSON object")
+    q.add_argument("--check", action="store_true",
+                   help="read every chunk, check its CRC and count the recorded CAN traffic (default: the summary at the end of a finished "
+                        "file; a file without one is always read whole)")
     q.set_defaults(func=cmd_logs_info)
     q = logs_sub.add_parser("recover", help="write a complete, indexed file from a truncated or damaged one")
     q.add_argument("file")
@@ -76,14 +80,28 @@ def _progress(path: Path, label: str) -> Iterator[Callable[[int], None] | None]:
 
 
 def cmd_logs_info(args: argparse.Namespace) -> int:
-    from logs.reader import LogFileError, format_info, info_dict, read_info
+    """Exit 0 for an intact file, 1 for a damaged or truncated one (it says what), 2 for no MCAP at all.
+
+    A finished file answers from its MCAP summary (milliseconds); ``--check`` walks every chunk and
+    adds the recorded CAN traffic (frames and bus load by direction, logs/bus_traffic.py).
+    """
+    from logs import messages as m
+    from logs.bus_traffic import recorded_traffic
+    from logs.reader import LogFileError, format_info, info_dict, read_info, read_info_from_summary
 
     try:
-        report = read_info(args.file)
+        report = None if args.check else read_info_from_summary(args.file)
+        traffic = None
+        if report is None:
+            report = read_info(args.file)
+            traffic = recorded_traffic(args.file) if report.message_counts.get(m.TOPIC_CAN) else None
     except LogFileError as err:
         return _fail(args, err)
-    print(json.dumps(info_dict(report)) if args.json else format_info(report))
-    return 0
+    if args.json:
+        print(json.dumps({**info_dict(report), **({"can": traffic.as_dict()} if traffic is not None else {})}))
+    else:
+        print(format_info(report) + ("\n" + traffic.format() if traffic is not None else ""))
+    return 1 if report.damaged else 0
 
 
 def cmd_logs_recover(args: argparse.Namespace) -> int:
@@ -95,6 +113,11 @@ def cmd_logs_recover(args: argparse.Namespace) -> int:
     except LogFileError as err:
         return _fail(args, err)
     lost = "; ".join(r.report.problems) or "nothing was damaged"
+    if r.messages_saved == 0:
+        r.output.unlink(missing_ok=True)  # a file with no message in it would only look like a recovery
+        print(f"cheope logs recover: nothing recovered from {args.file}: no readable message ({lost})",
+              file=sys.stderr)
+        return 1
     print(f"recovered {r.messages_saved} messages from {r.report.chunks} chunk(s) into {r.output} ({lost})")
     return 0
 
@@ -134,18 +157,18 @@ def _bus(args: argparse.Namespace) -> int:
     from drivers.bus import DEFAULT_UDP_PORT, parse_bus_spec
     from logs.replay_bus import replay_to_bus
 
-    spec = parse_bus_spec(args.bus, fd=args.fd, udp_port=args.udp_port or DEFAULT_UDP_PORT)
+    spec = parse_bus_spec(args.bus, fd=args.fd, udp_port=DEFAULT_UDP_PORT if args.udp_port is None else args.udp_port)
     stop: threading.Event = args.stop_on_signals()
     path = Path(args.file)
     with _progress(path, "replaying") as progress:
         r = replay_to_bus(path, spec, args.speed, stop, progress)
     problems = "; ".join(r.report.problems)
     if args.json:
-        print(json.dumps({"frames_sent": r.frames_sent, "echoes_skipped": r.echoes_skipped,
+        print(json.dumps({"frames_sent": r.frames_sent,
                           "send_errors": r.send_errors, "duration_s": r.duration_s, "problems": r.report.problems}))
     else:
-        print(f"sent {r.frames_sent} frames onto {spec} in {r.duration_s:.2f} s (speed {args.speed:g}; "
-              f"{r.echoes_skipped} echoes of the controller's own frames skipped, {r.send_errors} send errors)"
+        print(f"sent {r.frames_sent} frames onto {spec} in {r.duration_s:.2f} s (speed {args.speed:g}, "
+              f"{r.send_errors} send errors)"
               + (f"; {problems}" if problems else ""))
     return 0
 

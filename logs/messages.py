@@ -10,6 +10,7 @@ The recording's channels (all Protobuf, schemas embedded):
 | ``/log`` | ``foxglove.Log`` | the same events as log lines, for viewers |
 | ``/tcp`` | ``foxglove.FrameTransform`` | ``base`` -> ``tcp``: the measured TCP (direct kinematics) |
 | ``/tcp_reference`` | ``foxglove.PoseInFrame`` | the path point the last setpoint aims at, in ``base`` |
+| ``/scene`` | ``foxglove.SceneUpdate`` | the robot in 3D (logs/robot_drawing.py): the fixed parts once, the moving ones at 20 Hz |
 
 MCAP ``log_time``/``publish_time`` are Unix nanoseconds: the controller's monotonic reading
 plus the offset between the wall clock and the monotonic clock taken when the recording
@@ -30,14 +31,18 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
 from controller.core.cycle_data import (
+    Anomaly,
+    BusAnomaly,
     Command,
     CycleInputs,
     CycleOutputs,
     DriveFeedback,
     EmcyReport,
     Event,
+    NmtReport,
     SensorFeedback,
     Severity,
+    TrackerFeedback,
 )
 from controller.messages import cheope_pb2 as pb
 
@@ -50,6 +55,7 @@ TOPIC_EVENTS = "/events"
 TOPIC_LOG = "/log"
 TOPIC_TCP = "/tcp"
 TOPIC_TCP_REFERENCE = "/tcp_reference"
+TOPIC_SCENE = "/scene"
 
 BASE_FRAME = "base"
 TCP_FRAME = "tcp"
@@ -108,6 +114,16 @@ def inputs_to_pb(inputs: CycleInputs, out: pb.CycleInputs) -> None:
     out.error_frames = inputs.error_frames
     out.bus_off = inputs.bus_off
     out.late = inputs.late
+    for a in inputs.anomalies:
+        out.anomalies.add(kind=a.kind.value, cob_id=a.cob_id, count=a.count)
+    for r in inputs.nmt_reports:
+        out.nmt_reports.add(node_id=r.node_id, state=r.state)
+    out.plans_ready = inputs.plans_ready
+    k = inputs.tracker
+    if k is not None:
+        out.tracker.position_m.extend(k.position_m)
+        out.tracker.rotation_vector_rad.extend(k.rotation_vector_rad)
+        out.tracker.status, out.tracker.counter, out.tracker.fresh = k.status, k.counter, k.fresh
 
 
 def inputs_from_pb(msg: pb.CycleInputs) -> CycleInputs:
@@ -116,6 +132,11 @@ def inputs_from_pb(msg: pb.CycleInputs) -> CycleInputs:
     if msg.HasField("sensor"):
         s = msg.sensor
         sensor = SensorFeedback(tuple(s.force_n), tuple(s.torque_nm), s.status, s.counter, s.fresh)
+    tracker = None
+    if msg.HasField("tracker"):
+        k = msg.tracker
+        tracker = TrackerFeedback(tuple(k.position_m), tuple(k.rotation_vector_rad),
+                                  k.status, k.counter, k.fresh)
     return CycleInputs(
         drives=tuple(DriveFeedback(d.statusword, d.position, d.fresh) for d in msg.drives),
         sensor=sensor,
@@ -123,6 +144,9 @@ def inputs_from_pb(msg: pb.CycleInputs) -> CycleInputs:
         stop_requested=msg.stop_requested, command=Command(msg.command), command_value=msg.command_value,
         lost_heartbeats=tuple(msg.lost_heartbeats), error_frames=msg.error_frames, bus_off=msg.bus_off,
         late=msg.late,
+        anomalies=tuple(BusAnomaly(Anomaly(a.kind), a.cob_id, a.count) for a in msg.anomalies),
+        nmt_reports=tuple(NmtReport(r.node_id, r.state) for r in msg.nmt_reports),
+        tracker=tracker, plans_ready=msg.plans_ready,
     )
 
 

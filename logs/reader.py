@@ -299,6 +299,58 @@ def read_info(path: str | Path) -> ReadReport:
     return report
 
 
+def read_info_from_summary(path: str | Path) -> ReadReport | None:
+    """Channels, counts, metadata and duration from the summary section at the end of the file,
+    reading the header, the footer, the summary and the metadata records only (milliseconds
+    for any size, where ``read_info`` walks every chunk). None when the file has no usable
+    summary (a killed writer never wrote one; a damaged end): then ``read_info`` is the answer.
+
+    It trusts the summary: a chunk damaged in the middle of a finished file shows only in
+    ``read_info`` (``cheope logs info --check``).
+    """
+    from mcap.exceptions import McapError
+    from mcap.reader import SeekingReader
+
+    p = Path(path)
+    report = ReadReport(p)
+    try:
+        with open(p, "rb") as fh:
+            size = os.fstat(fh.fileno()).st_size
+            if size < 16 or fh.read(8) != MAGIC:
+                return None
+            fh.seek(-8, os.SEEK_END)
+            if fh.read(8) != MAGIC:
+                return None
+            fh.seek(0)
+            reader = SeekingReader(fh)
+            header = reader.get_header()
+            summary = reader.get_summary()
+            if summary is None or summary.statistics is None:
+                return None
+            if any(ci.chunk_start_offset + ci.chunk_length > size for ci in summary.chunk_indexes):
+                return None
+            report.metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+    except OSError as err:
+        raise LogFileError(f"cannot read {p}: {err.strerror or err}") from err
+    except (McapError, ValueError, struct.error, StopIteration):  # EndOfFile is an McapError
+        return None  # a damaged summary: walk the file instead
+    stats = summary.statistics
+    report.size_bytes = size
+    report.profile, report.library = header.profile, header.library
+    report.complete = True
+    report.chunks = len(summary.chunk_indexes)
+    report.end_offset = size
+    report.schemas = dict(summary.schemas)
+    report.channels = dict(summary.channels)
+    for cid, count in stats.channel_message_counts.items():
+        ch = summary.channels.get(cid)
+        if ch is not None:
+            report.message_counts[ch.topic] += count
+    if stats.message_count:
+        report.first_log_time_ns, report.last_log_time_ns = stats.message_start_time, stats.message_end_time
+    return report
+
+
 def format_info(r: ReadReport) -> str:
     lines = [
         f"file       {r.path} ({r.size_bytes} bytes)",

@@ -53,7 +53,9 @@ log = logging.getLogger(__name__)
 DEFAULT_BUFFER_BYTES = 4 << 20  # about 4 s of a 1 kHz session in the backlog, as much again in the pipe
 DEFAULT_CHUNK_SIZE_BYTES = 64 * 1024
 DEFAULT_FLUSH_INTERVAL_S = 0.5
-WRITER_START_TIMEOUT_S = 20.0
+# The wait ends on the writer's reply; the bound is for an emulated CPU (the vcan VM), where the
+# writer's imports (the scene drawing, the schemas) took longer than 20 s.
+WRITER_START_TIMEOUT_S = 120.0
 WRITER_FINISH_TIMEOUT_S = 120.0
 _MAX_FRAMES_PER_RECORD = 256  # frames with no cycle after them (node set-up, shutdown) go out in batches
 _REPO = str(Path(__file__).resolve().parents[1])  # the writer process imports the same code as this one
@@ -129,7 +131,7 @@ class SessionRecorder:
                  buffer_bytes: int = DEFAULT_BUFFER_BYTES, chunk_size_bytes: int = DEFAULT_CHUNK_SIZE_BYTES,
                  flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S, clock: Callable[[], float] = time.monotonic,
                  phase_name: Callable[[object], str] | None = None, compression: str = "zstd",
-                 lossless: bool = False) -> None:
+                 lossless: bool = False, on_failure: Callable[[str], None] | None = None) -> None:
         if buffer_bytes < 4096:
             raise ValueError(f"buffer_bytes = {buffer_bytes}: must be >= 4096")
         if chunk_size_bytes < 1024:
@@ -150,6 +152,10 @@ class SessionRecorder:
         self.written = 0  # known when the writer has finished (close)
         self.chunks = 0
         self.error: str = ""
+        # called once, on the loop's thread, when the writer is gone (the service's recording.on_failure)
+        self.on_failure = on_failure
+        self.first_lost_cycle: tuple[int, float] | None = None  # (cycle, t) of the first cycle not recorded
+        self._last_cycle: tuple[int, float] = (0, 0.0)
         self._cycle_calls = 0
         self._frames: list[FrameRecord] = []
         self._backlog = bytearray()
@@ -174,6 +180,7 @@ class SessionRecorder:
                  events: tuple[Any, ...], timing: Any) -> None:
         seq = self._cycle_calls
         self._cycle_calls = seq + 1
+        self._last_cycle = (cycle, t)
         frames = self._frames
         self._frames = []
         body = m.cycle_to_pb(cycle, t, inputs, state, outputs, timing, self.phase_name).SerializeToString()
@@ -197,7 +204,7 @@ class SessionRecorder:
     def _send(self, record: bytes, items: int) -> None:
         """Into the pipe, or the backlog behind it, or dropped when the backlog is full."""
         if self._fd < 0:
-            self.dropped += items  # not started, or closed: nothing to write to
+            self._lost(items)  # not started, closed, or the writer is gone: nothing to write to
             return
         if self.lossless:
             self._write_all(record)
@@ -206,7 +213,7 @@ class SessionRecorder:
         backlog = self._backlog
         if backlog:
             if len(backlog) + len(record) > self.buffer_bytes:
-                self.dropped += items
+                self._lost(items)
                 record = b""
             else:
                 backlog += record
@@ -218,9 +225,9 @@ class SessionRecorder:
             n = os.write(self._fd, record)
         except BlockingIOError:
             n = 0
-        except OSError as err:  # the writer died: keep the loop going, say so at close
+        except OSError as err:  # the writer died: the service's policy decides (recording.on_failure)
             self._writer_gone(err)
-            self.dropped += items
+            self._lost(items)
             return
         if n < len(record):  # only a record larger than the pipe's atomic size is cut
             backlog += record[n:]
@@ -252,10 +259,18 @@ class SessionRecorder:
                 self._writer_gone(err)
                 return
 
+    def _lost(self, items: int) -> None:
+        self.dropped += items
+        if self.first_lost_cycle is None:
+            self.first_lost_cycle = self._last_cycle
+
     def _writer_gone(self, err: OSError | TimeoutError) -> None:
+        first = not self.error
         self.error = self.error or f"the writer process of {self.path} stopped reading: {err.strerror or err}"
         self._backlog.clear()
         self._fd = -1
+        if first and self.on_failure is not None:
+            self.on_failure(self.error)
 
     @property
     def counters(self) -> RecorderCounters:

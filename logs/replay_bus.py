@@ -2,9 +2,9 @@
 
 Like can-utils' ``canplayer``: every frame goes out at its recorded time relative to the
 first one, divided by ``speed`` (absolute deadlines, so the timing does not drift). The
-recording holds the frames the controller sent and every frame it received, and every bus
-echoes a node's own transmissions back to it; an incoming frame whose COB-ID the controller
-itself sends is that echo (a CANopen COB-ID has one producer) and is not sent twice.
+recording holds every frame of the session once, in both directions: the controller's bus tap
+(drivers/frame_tap.py) drops the bus's echoes of its own frames, so every recorded frame is
+sent once, whatever its direction.
 """
 
 from __future__ import annotations
@@ -26,7 +26,6 @@ from logs.reader import ReadReport, iter_decoded
 @dataclass(frozen=True)
 class BusReplayResult:
     frames_sent: int
-    echoes_skipped: int
     send_errors: int
     duration_s: float  # wall time of the replay
     report: ReadReport
@@ -41,8 +40,7 @@ def replay_to_bus(path: str | Path, spec: BusSpec, speed: float = 1.0, stop_even
     report = ReadReport(path)
     stop = stop_event or threading.Event()
     sleeper = DeadlineSleeper(spin_s=2e-4)
-    sent = echoes = errors = 0
-    outgoing_ids: set[int] = set()
+    sent = errors = 0
     owns_bus = bus is None
     bus = bus if bus is not None else open_bus(spec)
     t_start = time.monotonic()
@@ -50,11 +48,6 @@ def replay_to_bus(path: str | Path, spec: BusSpec, speed: float = 1.0, stop_even
         first: float | None = None
         for d in iter_decoded(path, (m.TOPIC_CAN,), report):
             f = d.message
-            if f.outgoing:
-                outgoing_ids.add(f.arbitration_id)
-            elif f.arbitration_id in outgoing_ids:
-                echoes += 1
-                continue
             if first is None:
                 first, t_start = f.monotonic_s, time.monotonic()
             sleeper.sleep_until(t_start + (f.monotonic_s - first) / speed)
@@ -72,4 +65,4 @@ def replay_to_bus(path: str | Path, spec: BusSpec, speed: float = 1.0, stop_even
     finally:
         if owns_bus:
             bus.shutdown()
-    return BusReplayResult(sent, echoes, errors, time.monotonic() - t_start, report)
+    return BusReplayResult(sent, errors, time.monotonic() - t_start, report)

@@ -37,8 +37,10 @@ import numpy as np
 
 from logs import messages as m
 from logs.reader import LogFileError, ReadReport, iter_decoded, read_info
+from logs.robot_drawing import FORCE_ARROW_M_PER_N
+from logs.scene_sampler import SceneFrame, SceneSampler
 
-FORCE_ARROW_M_PER_N = 0.002
+SCENE_RATE_HZ = 30.0  # the robot's moving parts in a replay: smooth when scrubbing, 1/13 of 400 Hz
 APP_ID = "cheope_replay"
 
 
@@ -56,6 +58,7 @@ class _Series:
     wake_us: list[float] = field(default_factory=list)
     step_us: list[float] = field(default_factory=list)
     events: list[tuple[float, int, int, str]] = field(default_factory=list)  # t, cycle, severity, text
+    scene: list[SceneFrame] = field(default_factory=list)  # the robot's moving parts, decimated
 
 
 @dataclass(frozen=True)
@@ -71,7 +74,8 @@ class ExportResult:
 _NAN3 = (math.nan, math.nan, math.nan)
 
 
-def _gather(path: Path, report: ReadReport, progress: Callable[[int], None] | None) -> _Series:
+def _gather(path: Path, report: ReadReport, progress: Callable[[int], None] | None,
+            sampler: SceneSampler | None = None) -> _Series:
     s = _Series()
     k = 0
     for d in iter_decoded(path, (m.TOPIC_CYCLE, m.TOPIC_EVENTS), report):
@@ -92,6 +96,10 @@ def _gather(path: Path, report: ReadReport, progress: Callable[[int], None] | No
         s.force_error.append(st.task_values.get("force_error_n", math.nan))
         s.wake_us.append(c.timing.wake_error_s * 1e6)
         s.step_us.append(c.timing.step_s * 1e6)
+        if sampler is not None:
+            frame = sampler.sample_parsed(c)
+            if frame is not None:
+                s.scene.append(frame)
         k += 1
         if progress is not None and k % 2000 == 0:
             progress(report.end_offset)
@@ -141,12 +149,13 @@ def export(path: str | Path, out: str | Path | None = None, spawn: bool = False,
 
     path = Path(path)
     report = ReadReport(path)
-    s = _gather(path, report, progress)
+    cfg = _config(_leading_metadata(path))
+    sampler = None if cfg is None else SceneSampler.for_config(cfg, SCENE_RATE_HZ)
+    s = _gather(path, report, progress, sampler)
     if m.META_CONFIG not in report.metadata:
         report.metadata.update(read_info(path).metadata)
     if not s.t:
         raise LogFileError(f"{path} holds no readable control cycles ({report.status()})")
-    cfg = _config(report)
     force = np.array(s.force, dtype=float)
     has_force = bool(np.isfinite(force).any())
     force_err = np.array(s.force_error, dtype=float)
@@ -166,10 +175,20 @@ def export(path: str | Path, out: str | Path | None = None, spawn: bool = False,
     if not spawned:
         output = Path(out) if out is not None else path.with_suffix(".rrd")
         rec.save(output, default_blueprint=bp)
-    entities = _send(rec, s, cfg, force, force_err, has_force, has_force_error)
+    entities = _send(rec, s, sampler, force, force_err, has_force, has_force_error)
     rec.flush()
     rec.disconnect()
     return ExportResult(output, spawned, len(s.t), tuple(entities), report, note)
+
+
+def _leading_metadata(path: Path) -> ReadReport:
+    """The metadata the recorder writes before any message (the configuration), without reading on."""
+    from logs.reader import iter_messages
+
+    report = ReadReport(path)
+    for _ in iter_messages(path, report):
+        break
+    return report
 
 
 def _config(report: ReadReport) -> Any:
@@ -184,7 +203,7 @@ def _config(report: ReadReport) -> Any:
         return None  # an older configuration: the plots still work, the 3D geometry is left out
 
 
-def _send(rec: Any, s: _Series, cfg: Any, force: np.ndarray, force_err: np.ndarray, has_force: bool,
+def _send(rec: Any, s: _Series, sampler: SceneSampler | None, force: np.ndarray, force_err: np.ndarray, has_force: bool,
           has_force_error: bool) -> list[str]:
     import rerun as rr
 
@@ -219,7 +238,6 @@ def _send(rec: Any, s: _Series, cfg: Any, force: np.ndarray, force_err: np.ndarr
     scalars("/plots/loop/wake_error_us", np.asarray(s.wake_us))
     scalars("/plots/loop/step_us", np.asarray(s.step_us))
 
-    rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     tcp = np.array(s.tcp, dtype=float)
     known = np.isfinite(tcp).all(axis=1)
     if known.any():
@@ -239,8 +257,8 @@ def _send(rec: Any, s: _Series, cfg: Any, force: np.ndarray, force_err: np.ndarr
         rec.send_columns("/world/force", indexes=idx(ok),
                          columns=rr.Arrows3D.columns(origins=tcp[ok], vectors=force[ok] * FORCE_ARROW_M_PER_N))
         entities.append("/world/force")
-    if cfg is not None and cfg.robot.kind == "cheope":
-        entities += _send_cheope(rec, cfg, idx, positions, tcp, known)
+    if sampler is not None:
+        entities += _send_scene(rec, sampler, s.scene)
     if s.events:
         colors = {0: [200, 200, 200], 1: [255, 200, 0], 2: [255, 80, 80]}
         levels = {0: "INFO", 1: "WARN", 2: "ERROR"}
@@ -253,48 +271,23 @@ def _send(rec: Any, s: _Series, cfg: Any, force: np.ndarray, force_err: np.ndarr
     return entities
 
 
-def _send_cheope(rec: Any, cfg: Any, idx: Callable[..., list[Any]], q: np.ndarray, tcp: np.ndarray,
-                 known: np.ndarray) -> list[str]:
+# Drawn at the full cycle rate by _send (from the recorded arrays), not by the decimated drawing.
+_FULL_RATE_ENTITIES = ("force", "reference_path")
+
+
+def _send_scene(rec: Any, sampler: SceneSampler, frames: list[SceneFrame]) -> list[str]:
+    """The robot as solid primitives (logs/robot_drawing.py): the fixed parts static, the moving per frame."""
     import rerun as rr
 
-    from controller.robots.builtin import cheope_from_config
+    from logs.rerun_scene import RerunScene
 
-    robot = cheope_from_config(cfg)
-    g = robot.geometry
-    c = cfg.robot.model("cheope")
-    axes, plat = np.asarray(g.axes), np.asarray(g.platform_vectors)
-    strips = [np.array([c.stroke_min_m * n, c.stroke_max_m * n]) for n in axes]
-    rec.log("/world/axes", rr.LineStrips3D(strips, radii=0.002, colors=[[150, 150, 150]],
-                                           labels=[f"axis {j + 1}" for j in range(len(axes))]), static=True)
-    rec.log("/world/base", rr.Points3D([[0.0, 0.0, 0.0]], radii=0.006, colors=[[120, 120, 120]], labels=["{0}"]),
-            static=True)
-    out = ["/world/axes", "/world/base"]
-    n_ax = len(axes)
-    ok = known & np.isfinite(q).all(axis=1)
-    rows = int(ok.sum())
-    if rows:
-        sliders = q[ok][:, :, None] * axes[None, :, :]  # rows x axes x 3
-        joints = tcp[ok][:, None, :] + plat[None, :, :]
-        rec.send_columns("/world/sliders", indexes=idx(ok),
-                         columns=rr.Points3D.columns(positions=sliders.reshape(-1, 3)).partition([n_ax] * rows))
-        rods = np.stack([sliders, joints], axis=2).reshape(-1, 2, 3)  # (rows*axes) strips of 2 points
-        rec.send_columns("/world/rods", indexes=idx(ok),
-                         columns=rr.LineStrips3D.columns(strips=list(rods)).partition([n_ax] * rows))
-        ring = np.concatenate([joints, joints[:, :1, :]], axis=1)  # closed polygon per row
-        rec.send_columns("/world/platform", indexes=idx(ok),
-                         columns=rr.LineStrips3D.columns(strips=list(ring)))
-        out += ["/world/sliders", "/world/rods", "/world/platform"]
-    env = cfg.sim.environment
-    if env == "disk" or (env == "auto" and cfg.task.kind == "contour"):
-        d = cfg.sim.disk
-        rec.log("/world/workpiece/rim", rr.LineStrips3D([_circle(d.centre_m[0], d.centre_m[1], d.height_m,
-                                                                 d.radius_m)], radii=0.001, colors=[[200, 120, 60]]),
-                static=True)
-        out.append("/world/workpiece/rim")
-    if cfg.task.kind == "contour":
-        e = cfg.task.model("contour")
-        rec.log("/world/workpiece/expected", rr.LineStrips3D(
-            [_circle(e.expected_centre_m[0], e.expected_centre_m[1], e.height_m, e.expected_radius_m)],
-            radii=0.0004, colors=[[120, 200, 120]]), static=True)
-        out.append("/world/workpiece/expected")
-    return out
+    scene = RerunScene(rec)
+    drawn = set(scene.log_fixed(sampler.drawing.fixed()))
+    for f in frames:
+        rec.set_time("time", duration=f.t_s)
+        rec.set_time("cycle", sequence=f.cycle)
+        drawn.update(scene.log_moving([p for p in f.moving if p.entity not in _FULL_RATE_ENTITIES]))
+    rec.reset_time()
+    if not drawn:
+        rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    return sorted(drawn)

@@ -39,8 +39,10 @@ import time
 from typing import TYPE_CHECKING, Any, BinaryIO, TextIO
 
 if TYPE_CHECKING:
+    from controller.config import Config
     from controller.core.cycle_data import Event
     from controller.core.linalg3 import Vector3
+    from logs.scene_sampler import SceneSampler
 
 SETUP, CYCLE, FRAMES, END = range(4)
 _LENGTH = struct.Struct("<I")
@@ -113,6 +115,7 @@ class SessionWriter:
         from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
         from foxglove_schemas_protobuf.Log_pb2 import Log
         from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+        from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
         from mcap.well_known import MessageEncoding
         from mcap.writer import CompressionType, Writer
         from mcap_protobuf.schema import register_schema
@@ -141,7 +144,7 @@ class SessionWriter:
         self.channels: dict[str, int] = {}
         for topic, cls in ((m.TOPIC_CAN, pb.CanFrame), (m.TOPIC_CYCLE, pb.Cycle), (m.TOPIC_EVENTS, pb.Event),
                            (m.TOPIC_LOG, Log), (m.TOPIC_TCP, FrameTransform),
-                           (m.TOPIC_TCP_REFERENCE, PoseInFrame)):
+                           (m.TOPIC_TCP_REFERENCE, PoseInFrame), (m.TOPIC_SCENE, SceneUpdate)):
             sid = register_schema(w, cls)
             self.channels[topic] = w.register_channel(topic=topic, message_encoding=MessageEncoding.Protobuf,
                                                       schema_id=sid)
@@ -149,6 +152,14 @@ class SessionWriter:
             w.add_metadata(name, data)
         self.stream.flush()  # the configuration first: it survives anything that follows
         self.writer = w
+        cfg = _recorded_config(settings)
+        self.scene = None if cfg is None else _scene_sampler(cfg)
+        self.live = None
+        if cfg is not None and (cfg.recording.live_rerun or cfg.recording.live_foxglove):
+            from logs.live_views import LiveViews
+
+            live = LiveViews(cfg)
+            self.live = live if live.active else None
 
     # -- records -----------------------------------------------------------------------------
 
@@ -226,11 +237,41 @@ class SessionWriter:
         n = self._add(m.TOPIC_CYCLE, cycle_pb, ns, seq)
         for e in events:
             n += self._add(m.TOPIC_EVENTS, m.event_to_pb(cycle, t, e).SerializeToString(), ns)
-            n += self._add(m.TOPIC_LOG, m.event_to_log(ns, e).SerializeToString(), ns)
+            log_pb = m.event_to_log(ns, e).SerializeToString()
+            n += self._add(m.TOPIC_LOG, log_pb, ns)
+            if self.live is not None:
+                self.live.event(t, cycle, int(e.severity), f"[{e.kind}] {e.message}", log_pb, ns)
+        tcp_pb = None
         if tcp_measured is not None:
-            n += self._add(m.TOPIC_TCP, m.tcp_transform(ns, tcp_measured).SerializeToString(), ns)
+            tcp_pb = m.tcp_transform(ns, tcp_measured).SerializeToString()
+            n += self._add(m.TOPIC_TCP, tcp_pb, ns)
         if tcp_reference is not None:
             n += self._add(m.TOPIC_TCP_REFERENCE, m.tcp_pose(ns, tcp_reference).SerializeToString(), ns)
+        if self.scene is not None:
+            n += self._scene(cycle_pb, t, ns, tcp_pb)
+        return n
+
+    def _scene(self, cycle_pb: bytes, t: float, ns: int, tcp_pb: bytes | None) -> int:
+        """The robot for Foxglove: the fixed parts once, the moving ones when the sampler says (decimated).
+
+        The live views get the same drawing and the cycle it came from (logs/live_views.py).
+        """
+        from logs.foxglove_scene import scene_update
+
+        assert self.scene is not None
+        n = 0
+        fixed = self.scene.fixed_once()
+        if fixed is not None:
+            data = scene_update(fixed, ns).SerializeToString()
+            n += self._add(self.m.TOPIC_SCENE, data, ns)
+            if self.live is not None:
+                self.live.fixed(fixed, data, ns)
+        frame = self.scene.sample(cycle_pb, t)
+        if frame is not None:
+            data = scene_update(frame.moving, ns, tuple(sorted(self.scene.moving_entities))).SerializeToString()
+            n += self._add(self.m.TOPIC_SCENE, data, ns)
+            if self.live is not None:
+                self.live.frame(frame, frame.message, cycle_pb, data, tcp_pb, ns)
         return n
 
     def _report_drops(self, dropped: int) -> int:
@@ -246,9 +287,43 @@ class SessionWriter:
                 + self._add(self.m.TOPIC_LOG, self.m.event_to_log(ns, e).SerializeToString(), ns))
 
 
+def _recorded_config(settings: dict[str, Any]) -> Config | None:
+    """The session's configuration from the metadata; None without one (then no 3D scene)."""
+    from controller.config import ConfigError, recorded_config_from_dict
+    from logs import messages as m
+
+    meta = settings["metadata"].get(m.META_CONFIG)
+    if meta is None:
+        return None
+    try:
+        return recorded_config_from_dict(json.loads(meta["json"]))
+    except (ConfigError, ValueError, KeyError) as err:
+        print(f"recording without the 3D scene: {err}", file=sys.stderr, flush=True)
+        return None
+
+
+def _scene_sampler(cfg: Config) -> SceneSampler | None:
+    """The drawing of the recorded robot; None for a robot without one."""
+    from logs.scene_sampler import SceneSampler
+
+    try:
+        return SceneSampler.for_config(cfg, cfg.recording.scene_rate_hz)
+    except ValueError as err:
+        print(f"recording without the 3D scene: {err}", file=sys.stderr, flush=True)
+        return None
+
+
 def _reply(out: TextIO, **fields: object) -> None:
-    out.write(json.dumps(fields) + "\n")
-    out.flush()
+    """One JSON line to the controller; nothing when it is gone (killed: the file is finished all the same)."""
+    try:
+        out.write(json.dumps(fields) + "\n")
+        out.flush()
+    except BrokenPipeError:
+        # no reader: point stdout at /dev/null so that the interpreter's own flush at exit does
+        # not print a BrokenPipeError traceback either
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, out.fileno())
+        os.close(devnull)
 
 
 def serve(fd: int, out: TextIO) -> int:
@@ -279,13 +354,21 @@ def serve(fd: int, out: TextIO) -> int:
             break
         if record is None:
             writer.maybe_flush()  # a quiet loop still gets its last messages on disk in time
+            if writer.error:
+                break
             continue
         if record[0] == END:
             queued, dropped = record[1], record[2]
             break
         dropped = record[1]
         writer.write(record)
+        if writer.error:
+            # stop reading: the controller's next write fails (EPIPE) and its recording.on_failure
+            # policy decides, instead of the loop running on with a recording that only looks alive
+            break
     writer.finish(queued, dropped)
+    if writer.live is not None:
+        writer.live.close()
     _reply(out, written=writer.written, chunks=writer.chunks, error=writer.error)
     return 0 if not writer.error else 2
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import can
 import pytest
-from waiting import GENEROUS_S, ProcessLines, wait_for_exit
+from waiting import GENEROUS_S, ProcessLines, wait_for_exit, wait_until
 
 from controller.assembly import build_law
 from controller.cli import main
@@ -23,7 +23,7 @@ from controller.config import config_from_dict, load_config
 from controller.core.control_law import Mode
 from controller.shell.loop import CycleLoop, SimulatedTime
 from logs import messages as m
-from logs.reader import LogFileError, iter_decoded, read_info
+from logs.reader import LogFileError, info_dict, iter_decoded, read_info
 from logs.recorder import SessionRecorder, open_session_file, session_metadata
 from logs.recovery import recover
 from sim_backend.loopback import LoopbackExchange
@@ -180,8 +180,9 @@ _RECORDING_CONTROLLER = textwrap.dedent("""
 
 def _start_recording_controller(path: Path) -> tuple[subprocess.Popen, int, ProcessLines]:
     """A controller recording in real time, once its file has grown past 60 kB; its writer's pid; its output."""
+    # stderr is shared with the writer process (it inherits it): the tests read what both said
     proc = subprocess.Popen([sys.executable, "-c", _RECORDING_CONTROLLER.format(repo=str(REPO), path=str(path))],
-                            stdout=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     lines = ProcessLines(proc)
     try:
         writer_pid = int(lines.next_matching(lambda line: line.startswith("WRITER "), "the writer's pid").split()[1])
@@ -190,6 +191,7 @@ def _start_recording_controller(path: Path) -> tuple[subprocess.Popen, int, Proc
         proc.kill()
         proc.wait()
         proc.stdout.close()
+        proc.stderr.close()
         raise
     return proc, writer_pid, lines
 
@@ -201,6 +203,9 @@ def test_sigkill_of_the_controller_still_leaves_a_complete_file(tmp_path):
     proc.wait()
     proc.stdout.close()
     wait_for_exit(writer_pid, "the writer process ending after its controller")  # it sees the end of its input
+    said = proc.stderr.read()  # the writer's end of the pipe is closed now: this returns
+    proc.stderr.close()
+    assert "Traceback" not in said and "BrokenPipeError" not in said, said  # its reply had no reader
     report = read_info(path)
     assert report.complete and not report.problems
     assert report.message_counts[m.TOPIC_CYCLE] > 100
@@ -219,6 +224,7 @@ def test_sigkill_of_the_writer_leaves_a_readable_file_and_recover_completes_it(t
         proc.kill()
         proc.wait()
         proc.stdout.close()
+        proc.stderr.close()
     report = read_info(path)
     assert not report.complete
     assert any(p.startswith("truncated") for p in report.problems)
@@ -315,14 +321,54 @@ def test_not_an_mcap_file_is_one_clear_error(tmp_path, capsys):
 
 
 def test_logs_info_cli_lists_channels_counts_and_metadata(tmp_path, session_bytes, capsys):
+    """A truncated file: what is there, what is wrong, and exit 1 (a damaged file is not a success)."""
     path = tmp_path / "i.mcap"
     path.write_bytes(session_bytes[: len(session_bytes) // 2])
-    assert main(["logs", "info", str(path)]) == 0
+    assert main(["logs", "info", str(path)]) == 1
     out = capsys.readouterr().out
     assert "truncated" in out and "/cycle" in out and "cheope.v1.Cycle" in out and "cheope.config.json" in out
-    assert main(["logs", "info", "--json", str(path)]) == 0
+    assert main(["logs", "info", "--json", str(path)]) == 1
     info = json.loads(capsys.readouterr().out)
     assert info["complete"] is False and info["channels"]["/cycle"]["count"] > 0
+
+
+def test_logs_info_reads_a_finished_file_from_its_summary_alone(tmp_path, session_bytes, capsys, monkeypatch):
+    """The same report as the walk through every chunk, without reading a chunk (the walk is
+    made to fail); --check walks it and finds a chunk damaged under an intact summary."""
+    import logs.reader
+
+    path = tmp_path / "s.mcap"
+    path.write_bytes(session_bytes)
+    walked = info_dict(read_info(path))
+    from logs.reader import read_info_from_summary
+
+    assert info_dict(read_info_from_summary(path)) == walked
+
+    def no_walk(*_a, **_k):
+        raise AssertionError("logs info walked the chunks of a file with a summary")
+
+    with monkeypatch.context() as mp:
+        mp.setattr(logs.reader, "iter_messages", no_walk)
+        assert main(["logs", "info", "--json", str(path)]) == 0
+    assert json.loads(capsys.readouterr().out) == walked
+    data = bytearray(session_bytes)
+    mid = len(data) // 2
+    data[mid: mid + 64] = bytes(b ^ 0xA5 for b in data[mid: mid + 64])
+    path.write_bytes(data)
+    assert main(["logs", "info", str(path)]) == 0  # the summary is intact: nothing is read to doubt it
+    capsys.readouterr()
+    assert main(["logs", "info", "--check", str(path)]) == 1
+    assert "damaged chunk" in capsys.readouterr().out
+
+
+def test_a_recover_that_recovers_nothing_fails_and_leaves_no_file(tmp_path, session_bytes, capsys):
+    path = tmp_path / "empty.mcap"
+    path.write_bytes(session_bytes[:8] + b"\xff" * 100)  # the magic bytes, then nothing readable
+    out = tmp_path / "out.mcap"
+    assert main(["logs", "recover", str(path), "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "nothing recovered" in err and err.count("\n") == 1
+    assert not out.exists()
 
 
 def test_session_files_get_timestamped_unique_names(tmp_path):
@@ -413,3 +459,81 @@ def test_a_writer_that_stops_reading_blocks_neither_the_loop_nor_the_exit(tmp_pa
             pass
     assert "took no data" in rec.error or "timed out" in rec.error
     assert rec._proc is None
+
+
+def _writer_of(controller_pid: int) -> int | None:
+    """The controller's ``logs.session_writer`` child process, once it runs."""
+    try:
+        children = Path(f"/proc/{controller_pid}/task/{controller_pid}/children").read_text().split()
+    except OSError:
+        return None
+    for pid in children:
+        try:
+            if b"logs.session_writer" in Path(f"/proc/{pid}/cmdline").read_bytes():
+                return int(pid)
+        except OSError:
+            continue
+    return None
+
+
+def _drive_1_position_changes(bus: can.BusABC, proc: subprocess.Popen) -> bool:
+    """Drive 1's TPDO reports a new position: the controller is still driving the robot."""
+    first: int | None = None
+
+    def changed() -> bool:
+        nonlocal first
+        assert proc.poll() is None, "the controller ended"
+        msg = bus.recv(timeout=0.1)
+        if msg is None or msg.arbitration_id != 0x181 or len(msg.data) != 6:
+            return False
+        counts = int.from_bytes(msg.data[2:6], "little", signed=True)
+        first = counts if first is None else first
+        return abs(counts - first) > 100  # 10 um (1e7 counts/m)
+
+    return wait_until(changed, "drive 1 moving under the controller", poll_s=0.0)
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize("policy", ["stop", "warn"])
+def test_a_killed_writer_ends_the_run_by_the_recording_policy(tmp_path, policy):
+    """recording.on_failure: "stop" ends the run through STOPPING (DONE, exit 3: the recording was
+    lost), "warn" drives on unrecorded until told to stop (then DONE, exit 3); the summary names
+    what was lost."""
+    import random
+
+    from busy_machine import TOLERANT
+
+    from controller.tools.demo import simulator_process, stop_process
+    from drivers.bus import parse_bus_spec
+
+    spec = parse_bus_spec("udp_multicast", udp_port=random.SystemRandom().randint(48000, 49999))
+    sets = ["--set", "task.path.laps=3", "--set", f'recording.directory="{tmp_path}"', "--set",
+            "monitoring.enabled=false", "--set", f'recording.on_failure="{policy}"', *TOLERANT,
+            "--set", "loop.max_missing_cycles=100", "--set", "safety.sensor_stale_cycles=100"]
+    with simulator_process(spec, None, ["task.path.laps=3"]), \
+            can.Bus(interface="udp_multicast", channel=spec.channel, port=spec.udp_port) as bus:
+        proc = subprocess.Popen([sys.executable, "-m", "controller", "run", "--json", "--no-realtime",
+                                 "--udp-port", str(spec.udp_port), *sets],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        lines = ProcessLines(proc)
+        try:
+            writer = wait_until(lambda: _writer_of(proc.pid), "the recording's writer process")
+            _drive_1_position_changes(bus, proc)
+            os.kill(writer, signal.SIGKILL)
+            lines.next_matching(lambda line: "recording lost" in line and policy in line, "the policy's warning")
+            if policy == "warn":
+                _drive_1_position_changes(bus, proc)  # still driving, unrecorded
+                proc.send_signal(signal.SIGTERM)
+            wait_for_exit(proc.pid, "the controller ending")
+            proc.wait()
+            with pytest.raises(AssertionError, match="ended its output"):
+                lines.next_matching(lambda line: False, "the rest of the output")
+        finally:
+            stop_process(proc)
+    assert proc.returncode == 3, lines.lines[-20:]
+    summary = json.loads(next(line for line in lines.lines if line.startswith("{")))
+    assert summary["final_mode"] == "DONE", summary["fault_reason"]
+    rec = summary["recording"]
+    assert rec["on_failure"] == policy and "stopped reading" in rec["error"]
+    assert rec["lost"].startswith("every cycle and frame from cycle ") and rec["dropped"] > 0
+    assert not any("Traceback" in line for line in lines.lines)

@@ -109,7 +109,7 @@ _RECEIVER = textwrap.dedent("""
 def test_replay_onto_a_bus_is_received_by_another_process_with_the_timing(tmp_path, capsys):
     path = tmp_path / "s.mcap"
     _, _, _, _, sent, _ = record_session(path, max_s=0.6)
-    # the recording: per cycle one outgoing 0x201 and one incoming 0x181 frame; add an echo of 0x201
+    # the recording: per cycle one outgoing 0x201 and one incoming 0x181 frame, each sent once
     expected = [(arb, data.hex()) for _, _, arb, data in sent]
     port = random.randint(20000, 60000)
     proc = subprocess.Popen([sys.executable, "-c", _RECEIVER.format(repo=str(REPO), port=port)],
@@ -131,27 +131,29 @@ def test_replay_onto_a_bus_is_received_by_another_process_with_the_timing(tmp_pa
     assert received_span == pytest.approx(recorded_span / 2.0, rel=0.15)
 
 
-def test_replay_skips_the_echoes_of_the_controllers_own_frames(tmp_path):
+def test_replay_sends_every_recorded_frame_once_whatever_its_direction(tmp_path):
+    """The recording holds each frame once (drivers/frame_tap.py): nothing is guessed away, not even
+    an incoming frame with the COB-ID of one the controller sends (a foreign SYNC)."""
     path = tmp_path / "e.mcap"
     with SessionRecorder(path, session_metadata(load_config()), clock=lambda: 0.0) as rec:
         tx = can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)
         rx = can.Message(arbitration_id=0x181, data=b"\x01", is_extended_id=False)
         for k in range(5):
             rec.on_frame(True, k * 1e-3, tx)
-            rec.on_frame(False, k * 1e-3 + 1e-5, tx)  # the bus echoes our SYNC back
             rec.on_frame(False, k * 1e-3 + 2e-4, rx)
-    bus = can.Bus(interface="virtual", channel="replay-echo", receive_own_messages=False)
-    listener = can.Bus(interface="virtual", channel="replay-echo")
+        rec.on_frame(False, 5e-3, tx)  # another node's SYNC
+    bus = can.Bus(interface="virtual", channel="replay-once", receive_own_messages=False)
+    listener = can.Bus(interface="virtual", channel="replay-once")
     try:
-        result = replay_to_bus(path, parse_bus_spec("virtual:replay-echo"), speed=10.0, bus=bus)
+        result = replay_to_bus(path, parse_bus_spec("virtual:replay-once"), speed=10.0, bus=bus)
         got = []
         while (msg := listener.recv(timeout=0.2)) is not None:
             got.append(msg.arbitration_id)
     finally:
         bus.shutdown()
         listener.shutdown()
-    assert result.echoes_skipped == 5 and result.frames_sent == 10
-    assert got == [0x80, 0x181] * 5
+    assert result.frames_sent == 11
+    assert got == [0x80, 0x181] * 5 + [0x80]
 
 
 def test_replay_cli_errors_are_one_line(tmp_path, capsys):

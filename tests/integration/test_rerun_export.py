@@ -9,8 +9,12 @@ from logs.rerun_export import export
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
-ROBOT = {"/world/axes", "/world/base", "/world/sliders", "/world/rods", "/world/platform", "/world/tcp",
-         "/world/tcp_trail", "/world/force"}
+# Cheope as solid primitives (logs/robot_drawing.py -> logs/rerun_scene.py): entity -> archetype
+CHEOPE_SOLIDS = {"/world/base/cylinders": "Cylinders3D", "/world/guides/capsules": "Capsules3D",
+                 "/world/sliders/boxes": "Boxes3D", "/world/rods/capsules": "Capsules3D",
+                 "/world/platform/cylinders": "Cylinders3D", "/world/platform/spheres": "Ellipsoids3D",
+                 "/world/tool/cylinders": "Cylinders3D"}
+ROBOT = set(CHEOPE_SOLIDS) | {"/world/tcp", "/world/tcp_trail", "/world/force"}
 PLOTS = {f"/plots/actuators/{k}_{j}" for k in ("target", "position") for j in (1, 2, 3)} | {
     "/plots/force/fx", "/plots/force/fy", "/plots/force/fz", "/plots/loop/period_ms", "/plots/loop/wake_error_us",
     "/plots/loop/step_us"}
@@ -22,6 +26,41 @@ def _entities(rrd: Path) -> set[str]:
     reader = RrdReader(rrd)
     assert reader.blueprints(), "the .rrd carries no blueprint"
     return set(reader.stream().collect().schema().entity_paths())
+
+
+def _archetypes(rrd: Path) -> dict[str, set[str]]:
+    """Entity path -> the archetypes logged to it, read back with Rerun's own reader."""
+    from rerun.chunk import RrdReader
+
+    out: dict[str, set[str]] = {}
+    for c in RrdReader(rrd).stream().collect().schema().component_columns():
+        out.setdefault(c.entity_path, set()).add(str(c.archetype).rsplit(".", 1)[-1])
+    return out
+
+
+def _blueprint_views(rrd: Path) -> list[str]:
+    """The class of every view in the .rrd's blueprint ('3D', 'TimeSeries', 'TextLog')."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(rrd)
+    views = []
+    for chunk in reader.stream(store=reader.blueprints()[0]).to_chunks():
+        batch = chunk.to_record_batch()
+        if "ViewBlueprint:class_identifier" in batch.schema.names:
+            views += [v[0] for v in batch.column("ViewBlueprint:class_identifier").to_pylist()]
+    return views
+
+
+def test_the_robot_is_drawn_with_solid_primitives_and_the_blueprint_has_a_3d_view(tmp_path):
+    out = tmp_path / "path.rrd"
+    export(DATA / "path_quarter_lap.mcap", out)
+    arch = _archetypes(out)
+    for entity, archetype in CHEOPE_SOLIDS.items():
+        assert archetype in arch.get(entity, set()), (entity, arch.get(entity))
+    assert not any("LineStrips3D" in arch.get(e, set()) for e in ("/world/rods", "/world/rods/capsules")), \
+        "the rods are still drawn as lines"
+    views = _blueprint_views(out)
+    assert views.count("3D") == 1 and "TextLog" in views and views.count("TimeSeries") >= 3, views
 
 
 def test_the_rrd_holds_the_robot_the_plots_and_the_events(tmp_path):
@@ -40,7 +79,8 @@ def test_the_contour_session_adds_the_workpiece_and_the_normal_force_error(tmp_p
     out = tmp_path / "contour.rrd"
     export(DATA / "contour_contact.mcap", out)
     entities = _entities(out)
-    assert {"/world/workpiece/rim", "/world/workpiece/expected", "/plots/normal_force_error"} <= entities
+    assert {"/world/workpiece/disk/cylinders", "/world/workpiece/expected_contour/lines",
+            "/plots/normal_force_error"} <= entities
 
 
 def test_without_a_display_the_viewer_is_not_spawned_and_the_file_is_written_beside(tmp_path, monkeypatch, capsys):
@@ -61,7 +101,7 @@ def test_a_truncated_recording_converts_what_is_readable(tmp_path, capsys):
     assert main(["replay", str(src), "--rerun", str(tmp_path / "t.rrd")]) == 0
     out = capsys.readouterr().out
     assert "wrote" in out and "truncated" in out
-    assert "/world/rods" in _entities(tmp_path / "t.rrd")
+    assert "/world/rods/capsules" in _entities(tmp_path / "t.rrd")
 
 
 def test_a_file_without_cycles_is_one_clear_error(tmp_path, capsys):

@@ -1,0 +1,118 @@
+"""The CAN traffic of a recording: frames by function and direction, and the bus load they made.
+
+A recording holds every frame of the session once with its direction (drivers/frame_tap.py), so
+its frames are what the bus carried while the controller listened: their bus time, each frame by
+its own length and flags (drivers/bus_load.py, worst-case stuffing as the budget), over the
+cyclic phase (first to last SYNC the controller sent) is the measured load, comparable to the
+budget the controller computed from its configuration before it started. The budget is for the
+configured rate; a loop that skipped deadlines (a busy machine without real-time scheduling) sent
+fewer cycles, so the comparison is at the SYNC rate achieved: ``planned_at_sync_rate_percent``.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from controller.config import Config, ConfigError, recorded_config_from_dict
+from drivers import cob_ids
+from drivers.bus_load import measured_bus_load
+from logs import messages as m
+from logs.reader import ReadReport, iter_decoded
+
+
+@dataclass(frozen=True)
+class RecordedTraffic:
+    frames_out: int
+    frames_in: int
+    by_function: dict[str, tuple[int, int]]  # CiA 301 function ("SYNC", "SDO request", ...) -> (out, in)
+    cyclic_span_s: float  # first to last SYNC sent
+    sync_rate_hz: float  # SYNCs sent per second inside the cyclic span
+    load_percent: float  # of the frames inside the cyclic span
+    frames_per_second: float  # inside the cyclic span
+    planned_load_percent: float | None  # the budget computed from the recorded configuration
+    nominal_rate_hz: float | None  # the configured cycle rate the budget is for
+
+    @property
+    def planned_at_sync_rate_percent(self) -> float | None:
+        """The budget scaled to the SYNC rate achieved (its heartbeats, 0.1 % of it, scale too)."""
+        if self.planned_load_percent is None or not self.nominal_rate_hz:
+            return None
+        return round(self.planned_load_percent * self.sync_rate_hz / self.nominal_rate_hz, 1)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"frames_out": self.frames_out, "frames_in": self.frames_in,
+                "by_function": {k: {"out": o, "in": i} for k, (o, i) in self.by_function.items()},
+                "cyclic_span_s": self.cyclic_span_s, "sync_rate_hz": self.sync_rate_hz,
+                "load_percent": self.load_percent, "frames_per_second": self.frames_per_second,
+                "planned_load_percent": self.planned_load_percent, "nominal_rate_hz": self.nominal_rate_hz,
+                "planned_at_sync_rate_percent": self.planned_at_sync_rate_percent}
+
+    def format(self) -> str:
+        lines = [f"CAN frames {self.frames_out} sent, {self.frames_in} received"]
+        for name, (out, inc) in sorted(self.by_function.items()):
+            lines.append(f"  {name:<16} {out:>9} out {inc:>9} in")
+        planned = "" if self.planned_load_percent is None else (
+            f"; planned {self.planned_load_percent:.1f} % at {self.nominal_rate_hz:g} Hz, "
+            f"{self.planned_at_sync_rate_percent:.1f} % at the SYNC rate achieved")
+        lines.append(f"bus load   {self.load_percent:.1f} %, {self.frames_per_second:.0f} frames/s, SYNC at "
+                     f"{self.sync_rate_hz:.1f} Hz over the cyclic phase of {self.cyclic_span_s:.3f} s{planned}")
+        return "\n".join(lines)
+
+
+def recorded_traffic(path: str | Path, report: ReadReport | None = None) -> RecordedTraffic:
+    """Walk the ``/can`` channel of ``path`` (damaged parts are skipped and noted in ``report``)."""
+    report = report if report is not None else ReadReport(Path(path))
+    counts: Counter[tuple[str, bool]] = Counter()
+    frames: list[tuple[float, int, int, bool, bool]] = []  # (t, cob_id, bytes, is_fd, brs)
+    first_sync = last_sync = None
+    for d in iter_decoded(path, (m.TOPIC_CAN,), report):
+        f = d.message
+        counts[(cob_ids.function_name(f.arbitration_id), f.outgoing)] += 1
+        if f.is_error_frame:
+            continue
+        frames.append((f.monotonic_s, f.arbitration_id, len(f.data), f.is_fd, f.bitrate_switch))
+        if f.outgoing and f.arbitration_id == cob_ids.SYNC:
+            first_sync = f.monotonic_s if first_sync is None else first_sync
+            last_sync = f.monotonic_s
+    cfg = _recorded_config(report)
+    nominal = cfg.bus.bitrate_bit_s if cfg is not None else 1e6
+    data_rate = cfg.bus.data_bitrate_bit_s if cfg is not None else nominal
+    span = 0.0 if first_sync is None or last_sync is None else last_sync - first_sync
+    syncs = 0
+    by_id: Counter[int] = Counter()
+    shapes: dict[int, tuple[int, bool, bool]] = {}
+    if first_sync is not None and last_sync is not None:
+        # the frames of whole cycles: from the first SYNC up to (not including) the last one
+        for t, cid, n, fd, brs in frames:
+            if first_sync <= t < last_sync:
+                by_id[cid] += 1
+                shapes.setdefault(cid, (n, fd, brs))
+        syncs = by_id[cob_ids.SYNC]
+    load = measured_bus_load(dict(by_id), shapes, span, nominal, data_rate)
+    names = sorted({name for name, _ in counts})
+    planned = None
+    if cfg is not None:
+        from controller.assembly import planned_bus_load
+
+        planned = round(planned_bus_load(cfg).percent, 1)
+    return RecordedTraffic(
+        frames_out=sum(k for (_, out), k in counts.items() if out),
+        frames_in=sum(k for (_, out), k in counts.items() if not out),
+        by_function={n: (counts[(n, True)], counts[(n, False)]) for n in names},
+        cyclic_span_s=span, sync_rate_hz=round(syncs / span, 2) if span > 0 else 0.0,
+        load_percent=load["percent"], frames_per_second=load["frames_per_second"],
+        planned_load_percent=planned, nominal_rate_hz=cfg.loop.rate_hz if cfg is not None else None)
+
+
+def _recorded_config(report: ReadReport) -> Config | None:
+    meta = report.metadata.get(m.META_CONFIG)
+    if meta is None or "json" not in meta:
+        return None
+    try:
+        return recorded_config_from_dict(json.loads(meta["json"]))
+    except (ConfigError, ValueError):
+        return None

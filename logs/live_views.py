@@ -1,0 +1,227 @@
+"""Live views of a running session: a Rerun stream and a Foxglove WebSocket server, fed by the writer process.
+
+Why in the recorder's writer process: every cycle already reaches it through the pipe
+(logs/recorder.py), off the loop thread and in another process with its own GIL, so a live view
+costs the loop nothing more than the recording does. The writer hands this module what it
+draws for ``/scene`` anyway (logs/scene_sampler.py, ``recording.scene_rate_hz``, 20 Hz): the
+robot's moving parts and the cycle they come from. Nothing here may stop the recording: a
+viewer that cannot start is reported once on stderr and left out.
+
+- Rerun (``recording.live_rerun``, ``cheope run|demo --rerun [WHERE]``): ``spawn`` starts a native
+  viewer (``RecordingStream.spawn``), ``serve`` hosts a gRPC server and the web viewer for a
+  browser (``serve_grpc`` + ``serve_web_viewer``), a ``rerun+http://HOST:PORT/proxy`` URL connects to
+  a running viewer or server (``connect_grpc``). ``serve`` listens on all interfaces: the SDK's
+  ``serve_grpc`` and ``serve_web_viewer`` take no bind address (rerun-sdk 0.41). The same entities and blueprint as
+  ``cheope replay --rerun``: the robot as solids under ``/world``, the plots under ``/plots``.
+- Foxglove (``recording.live_foxglove = "HOST:PORT"``, ``--foxglove [HOST:PORT]``, default
+  ``127.0.0.1:8765``): foxglove-sdk's WebSocket server with the recording's own channels and
+  schemas: ``/scene``, ``/cycle`` (at the scene rate), ``/tcp``, ``/log``; open it in Foxglove with
+  "Open connection" -> ``ws://HOST:PORT`` and the shipped layout (logs/foxglove_layout.json).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from logs.robot_drawing import Primitive
+
+if TYPE_CHECKING:
+    from controller.config import Config
+    from logs.scene_sampler import SceneFrame
+
+DEFAULT_FOXGLOVE_PORT = 8765
+PLOT_BATCH_FRAMES = 5  # Rerun's plots go out in batches of this many frames: 0.25 s behind at 20 Hz
+
+
+class LiveViewError(ValueError):
+    """A live-view setting that cannot be used (named in the message)."""
+
+
+def parse_host_port(spec: str, default_port: int = DEFAULT_FOXGLOVE_PORT) -> tuple[str, int]:
+    """``HOST:PORT``, ``HOST`` or ``:PORT`` -> (host, port); the host defaults to loopback."""
+    host, _, port = spec.rpartition(":") if ":" in spec else (spec, "", "")
+    host = host.strip("[]") or "127.0.0.1"
+    try:
+        p = int(port) if port else default_port
+    except ValueError:
+        raise LiveViewError(f"recording.live_foxglove = {spec!r}: the port {port!r} is not a number") from None
+    if not 0 <= p <= 65535:
+        raise LiveViewError(f"recording.live_foxglove = {spec!r}: the port must be 0..65535")
+    return host, p
+
+
+def _warn(what: str, err: BaseException) -> None:
+    print(f"live view left out: {what}: {err}", file=sys.stderr, flush=True)
+
+
+class RerunLive:
+    def __init__(self, where: str, cfg: Config, has_force_error: bool) -> None:
+        import rerun as rr
+
+        from logs.rerun_export import blueprint
+        from logs.rerun_scene import RerunScene
+
+        self.rec = rr.RecordingStream("cheope_live")
+        bp = blueprint(has_force=True, has_force_error=has_force_error)
+        self.where = where
+        if where == "spawn":
+            from logs.rerun_export import can_spawn_viewer
+
+            ok, why = can_spawn_viewer()
+            if not ok:
+                raise LiveViewError(f"cannot spawn a Rerun viewer: {why}; --rerun serve hosts a web viewer instead")
+            # the viewer executable is installed beside this interpreter (the venv's bin), which
+            # need not be on PATH when cheope was started by its full path
+            os.environ["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"
+            self.rec.spawn(default_blueprint=bp)
+        elif where == "serve":
+            url = self.rec.serve_grpc(default_blueprint=bp)
+            rr.serve_web_viewer(open_browser=False, connect_to=url)
+            print(f"live Rerun: gRPC {url}; web viewer on http://127.0.0.1:9090", file=sys.stderr, flush=True)
+        elif where.startswith("rerun+http"):
+            self.rec.connect_grpc(where, default_blueprint=bp)
+        else:
+            raise LiveViewError(f"recording.live_rerun = {where!r}: use spawn, serve or a rerun+http://HOST:PORT/proxy URL")
+        self.scene = RerunScene(self.rec)
+        self.rr = rr
+        self._plot_rows: list[tuple[float, int, dict[str, float]]] = []
+
+    def fixed(self, primitives: list[Primitive]) -> None:
+        self.scene.log_fixed(primitives)
+
+    def frame(self, f: SceneFrame, cycle: Any) -> None:
+        rec = self.rec
+        rec.set_time("time", duration=f.t_s)
+        rec.set_time("cycle", sequence=f.cycle)
+        self.scene.log_moving(f.moving)
+        values: dict[str, float] = {}
+        for j, d in enumerate(cycle.inputs.drives):
+            values[f"/plots/actuators/position_{j + 1}"] = d.position
+        for j, x in enumerate(cycle.outputs.targets):
+            values[f"/plots/actuators/target_{j + 1}"] = x
+        if cycle.inputs.HasField("sensor"):
+            for name, v in zip(("fx", "fy", "fz"), cycle.inputs.sensor.force_n):
+                values[f"/plots/force/{name}"] = v
+        fe = cycle.state.task_values.get("force_error_n")
+        if fe is not None and math.isfinite(fe):
+            values["/plots/normal_force_error"] = fe
+        values["/plots/loop/step_us"] = cycle.timing.step_s * 1e6
+        values["/plots/loop/wake_error_us"] = cycle.timing.wake_error_s * 1e6
+        self._plot_rows.append((f.t_s, f.cycle, values))
+        if len(self._plot_rows) >= PLOT_BATCH_FRAMES:
+            self._send_plots()
+
+    def _send_plots(self) -> None:
+        """The buffered plot values, one ``send_columns`` per series: a log call per value per frame cost
+        most of the live stream's time (tests/tools/bench_live_views.py)."""
+        rr = self.rr
+        series: dict[str, tuple[list[float], list[int], list[float]]] = {}
+        for t, c, values in self._plot_rows:
+            for path, v in values.items():
+                ts, cs, vs = series.setdefault(path, ([], [], []))
+                ts.append(t)
+                cs.append(c)
+                vs.append(v)
+        for path, (ts, cs, vs) in series.items():
+            self.rec.send_columns(path, indexes=[rr.TimeColumn("time", duration=ts), rr.TimeColumn("cycle", sequence=cs)],
+                                  columns=rr.Scalars.columns(scalars=vs))
+        self._plot_rows.clear()
+
+    def event(self, t_s: float, cycle: int, severity: int, text: str) -> None:
+        self.rec.set_time("time", duration=t_s)
+        self.rec.set_time("cycle", sequence=cycle)
+        self.rec.log("/events", self.rr.TextLog(text, level={0: "INFO", 1: "WARN"}.get(severity, "ERROR")))
+
+    def close(self) -> None:
+        self._send_plots()
+        self.rec.flush()
+        self.rec.disconnect()
+
+
+class FoxgloveLive:
+    """foxglove-sdk's WebSocket server; messages are the recording's own Protobuf bytes."""
+
+    TOPICS = ("/scene", "/cycle", "/tcp", "/log")
+
+    def __init__(self, spec: str) -> None:
+        import foxglove
+        from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+        from foxglove_schemas_protobuf.Log_pb2 import Log
+        from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+        from mcap_protobuf.schema import build_file_descriptor_set
+
+        from controller.messages import cheope_pb2 as pb
+
+        host, port = parse_host_port(spec)
+        self.context = foxglove.Context()
+        self.channels: dict[str, Any] = {}
+        for topic, cls in zip(self.TOPICS, (SceneUpdate, pb.Cycle, FrameTransform, Log)):
+            schema = foxglove.Schema(name=cls.DESCRIPTOR.full_name, encoding="protobuf",
+                                     data=build_file_descriptor_set(cls).SerializeToString())
+            self.channels[topic] = foxglove.Channel(topic, schema=schema, message_encoding="protobuf",
+                                                    context=self.context)
+        self.server = foxglove.start_server(name="cheope", host=host, port=port, context=self.context)
+        print(f"live Foxglove: ws://{host}:{self.server.port}", file=sys.stderr, flush=True)
+
+    def log(self, topic: str, data: bytes, unix_ns: int) -> None:
+        self.channels[topic].log(data, log_time=unix_ns)
+
+    def close(self) -> None:
+        self.server.stop()
+
+
+class LiveViews:
+    """The configured live views; each call reaches every view that started."""
+
+    def __init__(self, cfg: Config) -> None:
+        r = cfg.recording
+        self.rerun: RerunLive | None = None
+        self.foxglove: FoxgloveLive | None = None
+        if r.live_rerun:
+            try:
+                self.rerun = RerunLive(r.live_rerun, cfg, cfg.task.kind == "contour")
+            except Exception as err:  # noqa: BLE001 - a viewer that cannot start never stops the recording
+                _warn(f"Rerun ({r.live_rerun})", err)
+        if r.live_foxglove:
+            try:
+                self.foxglove = FoxgloveLive(r.live_foxglove)
+            except Exception as err:  # noqa: BLE001 - as above
+                _warn(f"Foxglove ({r.live_foxglove})", err)
+
+    @property
+    def active(self) -> bool:
+        return self.rerun is not None or self.foxglove is not None
+
+    def fixed(self, primitives: list[Primitive], scene_pb: bytes, unix_ns: int) -> None:
+        if self.rerun is not None:
+            self.rerun.fixed(primitives)
+        if self.foxglove is not None:
+            self.foxglove.log("/scene", scene_pb, unix_ns)
+
+    def frame(self, f: SceneFrame, cycle: Any, cycle_pb: bytes, scene_pb: bytes, tcp_pb: bytes | None,
+              unix_ns: int) -> None:
+        if self.rerun is not None:
+            self.rerun.frame(f, cycle)
+        if self.foxglove is not None:
+            self.foxglove.log("/scene", scene_pb, unix_ns)
+            self.foxglove.log("/cycle", cycle_pb, unix_ns)
+            if tcp_pb is not None:
+                self.foxglove.log("/tcp", tcp_pb, unix_ns)
+
+    def event(self, t_s: float, cycle: int, severity: int, text: str, log_pb: bytes, unix_ns: int) -> None:
+        if self.rerun is not None:
+            self.rerun.event(t_s, cycle, severity, text)
+        if self.foxglove is not None:
+            self.foxglove.log("/log", log_pb, unix_ns)
+
+    def close(self) -> None:
+        for view in (self.rerun, self.foxglove):
+            if view is not None:
+                try:
+                    view.close()
+                except Exception as err:  # noqa: BLE001 - closing a viewer never fails the recording
+                    _warn("closing", err)
