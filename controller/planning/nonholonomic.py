@@ -13,12 +13,16 @@ Pipeline (seed 004 section 3-4):
 * Jacobian-inverse iteration Lambda <- Lambda - gamma J^# e                      seed 004 eq. (16)-(17)
 
 Implementation choices (documented deviations / interpretations):
-* The Jacobian of the end-point map d e / d Lambda (the paper integrates the variational system
-  eq. (11)-(12)) is computed here by central differences of the *discrete* end-point map (all
-  2(6h+3)+1 rollouts integrated as one numpy batch).  It is the exact derivative of the map the
-  iteration drives to zero, up to O(delta^2).
-* Integration: fixed-step Runge-Kutta-Munthe-Kaas of order 4 on R^3 x SO(3) (see
-  controller.robots.nspu.rkmk4_step); R stays on SO(3).
+* The Jacobian of the end-point map d e / d Lambda comes from the variational equations of
+  seed 004 eq. (10)-(12), integrated with the motion in one pass (`controller.planning.endpoint_map`):
+  d p_T / d Lambda and the spatial rotation sensitivity, then d e / d Lambda through
+  (1/scale, J_l^-1(r_T)) with J_l^-1 the inverse left Jacobian of the rotation log.
+* Integration: fixed-step Runge-Kutta-Munthe-Kaas of order 4 on R^3 x SO(3) (R stays on SO(3)),
+  `plan_steps` steps (default 32) while iterating.  Error control: a converged plan is integrated
+  again with `n_steps` (default 100) steps; if the two end points differ by more than
+  `integration_tolerance` x tolerance, or the fine end error is not below the tolerance, the
+  iteration goes on with twice the steps (up to n_steps).  The reported `verified_error` is
+  the fine integration's; CONVERGED means it is below the tolerance.
 * gamma is not printed in seed 004.  `PlannerConfig.gamma` (default 1, i.e. Newton) with an optional
   backtracking safeguard (`line_search`): a step is accepted only if the error decreases,
   otherwise gamma is halved.  With line_search=False the iteration is exactly eq. (17).
@@ -36,7 +40,23 @@ Singularities (beyond the paper, which only assumes S invertible):
   its plan crosses det M = 0 five times (the paper's initial guess already crosses it once).
 * along the plan: after the error is below tolerance, if det S or det M come closer than the
   margins, null-space steps (I - J^# J) descend a penalty of the margins while -J^# e keeps the
-  end point; a plan is CONVERGED only if the signed measures stay above their limits everywhere.
+  end point (at most `max_repair_iterations`, default 10); a plan is CONVERGED only if the signed
+  measures stay above their limits everywhere.  The penalty's gradient chains the measures'
+  pose gradients (complex steps) with the variational sensitivities at every sample.
+
+Robustness (measured with `cheope plan-bench`, 100 seeded pairs; figures in README.md):
+* the dominant failure of the direct iteration on random pairs was not convergence but the
+  motion it converged to: it reached the goal while crossing det M = 0 (6 of the first 36
+  pairs), and the null-space repair could not undo the crossing.  Different initial controls
+  converge to different motions, so a failed attempt goes on from the next of
+  `initial_guesses` (default 8) initial controls: the paper's, then variants with the signs of
+  its four non-zero coefficients flipped (on those 6 pairs one of the first five variants gave
+  a motion clear of det M = 0 without any repair).
+* an attempt that stalls or runs out of iterations continues by homotopy from an easier goal
+  (`continuation`): the goal moves from the end pose of the initial controls to the real goal,
+  each intermediate goal reached by a few damped Newton steps from the previous solution;
+* every Newton step is damped by backtracking (`line_search`) and capped (`max_step_norm`);
+* `restarts` > 0 adds attempts from random perturbations of the first initial controls.
 
 Failure reporting: `plan_motion` never raises for an expected planning outcome; it returns a
 `PlanResult` whose `status` (`PlanStatus`) says CONVERGED or why not (budget exhausted, stalled,
@@ -60,13 +80,24 @@ import numpy as np
 from numpy.typing import NDArray
 
 from controller.errors import RefusedError
+from controller.planning.endpoint_map import (
+    Motion,
+    Sensitivity,
+    integrate_motion,
+    integrate_motion_with_stages,
+    integrate_with_sensitivity,
+    sensitivity,
+    so3_log_left_jacobian_inverse,
+)
 from controller.robots.nspu import (
     NspuGeometry,
     Pose,
     SingularityError,
+    hat,
     io_blocks,
     leg_lengths_batch,
     rkmk4_step,
+    so3_exp,
     so3_log,
 )
 
@@ -96,19 +127,27 @@ class PlannerConfig:
     harmonics: int = 2  # h, seed 004 eq. (15)
     gamma: float = 1.0  # step of eq. (17) [-]
     tolerance: float = 1e-3  # stop when E < tolerance, seed 004 section 4
-    max_iterations: int = 100  # iteration budget
-    n_steps: int = 200  # RKMK4 steps over [0, T]
+    max_iterations: int = 100  # iteration budget of each attempt (initial controls, homotopy)
+    n_steps: int = 100  # RKMK4 steps over [0, T] of the result's samples and of the verification
+    plan_steps: int = 32  # RKMK4 steps over [0, T] while iterating (doubled when the verification disagrees)
+    integration_tolerance: float = 0.1  # allowed |e(plan_steps) - e(n_steps)| as a fraction of tolerance
     line_search: bool = True  # backtracking on gamma (False: plain eq. (17))
     max_halvings: int = 12  # backtracking depth
     max_step_norm: float = 2.0  # cap on |delta Lambda| per iteration [rad/s]; inf disables
     position_scale_m: float | None = None  # position unit of the error norm; None: geometry unit
-    fd_step: float = 1e-6  # central-difference step on Lambda
     min_abs_det_s: float = 1e-2  # |det S| = |s1 . s2 x s3| below this: system (7) singular (eq. (27))
     check_type2: bool = True  # reject plans crossing/approaching the type-II locus det M = 0 (eq. (26))
     min_type2_measure: float = 5e-3  # lower bound of sigma0 * normalised det M along the plan
     avoid_singularities: bool = True  # null-space descent away from det M = 0 and det S = 0
     avoidance_margin: float = 0.02  # penalty active when the signed measures fall below this
     repair_error_bound: float = 100.0  # while repairing, error may grow up to this x tolerance
+    max_repair_iterations: int = 10  # null-space steps away from a singularity before the attempt fails
+    initial_guesses: int = 8  # initial controls tried in turn: the paper's, then its sign variants
+    continuation: bool = True  # after a stalled or exhausted direct iteration, the homotopy from an easier goal
+    continuation_first_step: float = 0.25  # first step of the homotopy parameter in (0, 1]
+    continuation_min_step: float = 1.0 / 64  # give up the homotopy below this step
+    continuation_iterations: int = 8  # Newton steps per intermediate goal
+    continuation_tolerance: float = 1e-2  # error at which an intermediate goal counts as reached
     restarts: int = 0  # extra attempts from perturbed initial coefficients after a failure
     restart_scale: float = 0.5  # std of the perturbation of Lambda per restart [rad/s]
     restart_seed: int = 0  # seed of the restart perturbations (deterministic)
@@ -121,12 +160,20 @@ class PlannerConfig:
             "tolerance": self.tolerance > 0,
             "max_iterations": self.max_iterations >= 0,
             "n_steps": self.n_steps >= 4,
-            "fd_step": self.fd_step > 0,
+            "plan_steps": 4 <= self.plan_steps <= self.n_steps,
+            "integration_tolerance": 0 < self.integration_tolerance <= 1.0,
+            "max_repair_iterations": self.max_repair_iterations >= 0,
+            "initial_guesses": 1 <= self.initial_guesses <= 16,
+            "continuation_first_step": 0 < self.continuation_first_step <= 1.0,
+            "continuation_min_step": 0 < self.continuation_min_step <= self.continuation_first_step,
+            "continuation_iterations": self.continuation_iterations >= 1,
+            "continuation_tolerance": self.continuation_tolerance > 0,
             "max_step_norm": self.max_step_norm > 0,
         }
         for key, ok in checks.items():
             if not ok:
-                raise PlanningError(f"PlannerConfig.{key} out of range: {getattr(self, key)!r}")
+                hint = f" (allowed 4 ... n_steps = {self.n_steps})" if key == "plan_steps" else ""
+                raise PlanningError(f"PlannerConfig.{key} out of range: {getattr(self, key)!r}{hint}")
 
     @property
     def n_params(self) -> int:
@@ -154,6 +201,8 @@ class PlanResult:
     leg_rates_m_s: Array  # (N, 3) leg-length rates u of eq. (6) [m/s]
     det_s: Array = field(repr=False)  # (N,) det S along the trajectory
     type2_measure: Array = field(repr=False)  # (N,) normalised det M along the trajectory (eq. (26))
+    verified_error: float = float("nan")  # E of the n_steps integration of the final controls
+    plan_steps: int = 0  # integration steps the iteration ended with
 
     @property
     def ok(self) -> bool:
@@ -245,7 +294,10 @@ def rollout(
     """
     lam = np.asarray(lambdas, dtype=float)
     single = lam.ndim == 1
-    lam2 = lam[None] if single else lam
+    if single:  # one trajectory: the fast single-pose stepping of endpoint_map (same scheme)
+        t1, p1, r1, _, _ = integrate_motion(geometry, start, lam, config.horizon_s, config.harmonics, config.n_steps)
+        return t1, p1, r1
+    lam2 = lam
     nb = lam2.shape[0]
     T, n = config.horizon_s, config.n_steps
     dt = T / n
@@ -259,7 +311,7 @@ def rollout(
     Rs = np.empty((nb, n + 1, 3, 3))
     ps[:, 0], Rs[:, 0] = p, R
     with np.errstate(all="ignore"):
-        for k in range(n):
+        for k in range(n):  # batches: the model's vectorised rkmk4_step
             stage_v = iter((v_nodes[:, k], v_half[:, k], v_half[:, k], v_nodes[:, k + 1]))
 
             def field_fn(pp: Array, RR: Array, _stages: Iterator[Array] = stage_v) -> tuple[Array, Array]:
@@ -267,8 +319,6 @@ def rollout(
 
             p, R = rkmk4_step(field_fn, p, R, dt)
             ps[:, k + 1], Rs[:, k + 1] = p, R
-    if single:
-        return t, ps[0], Rs[0]
     return t, ps, Rs
 
 
@@ -279,15 +329,40 @@ def pose_error(p_T: Array, R_T: Array, goal: Pose, position_scale_m: float) -> A
     return np.concatenate([ep, er], axis=-1)
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(eq=False)
 class _Eval:
-    """Error, its Jacobian, and the singularity penalty with its gradient at one Lambda."""
+    """Error and singularity penalty at one Lambda; its Jacobian and the penalty's gradient on demand
+    (`differentiate`), so that rejected line-search candidates cost only the motion."""
 
+    lam: Array
+    motion: Motion
     e: Array
-    jac: Array
+    det_s: Array
+    tm: Array
     penalty: float
-    grad_penalty: Array
     feasible: bool  # trajectory passes the final singularity checks
+    jac: Array = field(default_factory=lambda: np.zeros((6, 0)))
+    grad_penalty: Array = field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def norm(self) -> float:
+        return float(np.linalg.norm(self.e))
+
+    def differentiate(self, geometry: NspuGeometry, goal: Pose, config: PlannerConfig, scale: float,
+                      signs: tuple[float, float]) -> _Eval:
+        """Fill jac (6, n) and grad_penalty (n,) from the variational equations; returns self."""
+        if self.jac.shape[1] == self.lam.size:
+            return self
+        with np.errstate(all="ignore"):
+            d_pose = sensitivity(geometry, self.motion, self.lam, config.horizon_s, config.harmonics)
+        sen = Sensitivity(self.motion.t_s, self.motion.p_m, self.motion.R, d_pose)
+        _, self.jac = _error_and_jacobian(sen, goal, scale)
+        self.jac = np.nan_to_num(self.jac)
+        if config.avoid_singularities and self.penalty > 0.0:
+            self.grad_penalty = _penalty_gradient(geometry, sen.p_m, sen.R, d_pose, self.det_s, self.tm, signs, config)
+        else:
+            self.grad_penalty = np.zeros(self.lam.size)
+        return self
 
 
 def _evaluate(
@@ -298,26 +373,71 @@ def _evaluate(
     config: PlannerConfig,
     scale: float,
     signs: tuple[float, float],
-) -> _Eval:
-    """End-point error and Jacobian by central differences (one batched rollout of 2n+1 members)."""
-    n = lam.size
-    d = config.fd_step
-    batch = np.concatenate([lam[None], lam[None] + d * np.eye(n), lam[None] - d * np.eye(n)], axis=0)
-    _, ps, Rs = rollout(geometry, start, batch, config)
-    if not (np.all(np.isfinite(ps)) and np.all(np.isfinite(Rs))):
-        raise SingularityError("rollout diverged (non-finite state): the controls cross a singularity of S")
-    e = pose_error(ps[:, -1], Rs[:, -1], goal, scale)
-    jac = (e[1 : n + 1] - e[n + 1 :]).T / (2 * d)  # (6, n)
+    steps: int,
+) -> _Eval | None:
+    """End-point error and singularity measures of one motion; None if S turns singular on the way."""
+    try:
+        with np.errstate(all="ignore"):
+            motion = integrate_motion_with_stages(geometry, start, lam, config.horizon_s, config.harmonics, steps)
+    except (np.linalg.LinAlgError, SingularityError):
+        return None
+    if not (np.all(np.isfinite(motion.p_m)) and np.all(np.isfinite(motion.R))):
+        return None
+    e = pose_error(motion.p_m[-1], motion.R[-1], goal, scale)
     with np.errstate(all="ignore"):
-        det_s, tm = singularity_measures(geometry, ps, Rs)
-    feasible = _feasible(det_s[0], tm[0], signs, config)
-    if config.avoid_singularities:
-        pen = _penalty(det_s, tm, signs[0], signs[1], config)
-        grad = (pen[1 : n + 1] - pen[n + 1 :]) / (2 * d)
-        pen0 = float(pen[0])
-    else:
-        grad, pen0 = np.zeros(n), 0.0
-    return _Eval(e=e[0], jac=jac, penalty=pen0, grad_penalty=np.nan_to_num(grad), feasible=feasible)
+        det_s, tm = singularity_measures(geometry, motion.p_m, motion.R)
+    feasible = _feasible(det_s, tm, signs, config)
+    pen = float(_penalty(det_s, tm, signs[0], signs[1], config)) if config.avoid_singularities else 0.0
+    return _Eval(lam=lam, motion=motion, e=e, det_s=det_s, tm=tm, penalty=pen if np.isfinite(pen) else float("inf"),
+                 feasible=feasible)
+
+
+def _error_and_jacobian(sen: Sensitivity, goal: Pose, scale: float) -> tuple[Array, Array]:
+    """e of eq. (8)/(13) at T and d e / d Lambda (6, n) from the sensitivities at T."""
+    e = pose_error(sen.p_m[-1], sen.R[-1], goal, scale)
+    d_end = sen.d_pose[-1]
+    return e, np.vstack([d_end[:3] / scale, so3_log_left_jacobian_inverse(e[3:]) @ d_end[3:]])
+
+
+def error_jacobian(
+    geometry: NspuGeometry, start: Pose, goal: Pose, lambdas: Array, config: PlannerConfig, steps: int | None = None
+) -> tuple[Array, Array]:
+    """End-point error e (6,) and its Jacobian d e / d Lambda (6, n) (seed 004 eq. (12)-(13)).
+
+    From the variational equations integrated with `steps` (default config.plan_steps) RKMK4 steps;
+    the position rows in the error's position unit (config.position_scale_m or the geometry's).
+    """
+    scale = geometry.length_unit_m if config.position_scale_m is None else config.position_scale_m
+    sen = integrate_with_sensitivity(geometry, start, np.asarray(lambdas, dtype=float), config.horizon_s,
+                                     config.harmonics, config.plan_steps if steps is None else steps)
+    return _error_and_jacobian(sen, goal, scale)
+
+
+def _penalty_gradient(
+    geometry: NspuGeometry, p: Array, R: Array, d_pose: Array, det_s: Array, tm: Array,
+    signs: tuple[float, float], config: PlannerConfig,
+) -> Array:
+    """Gradient of `_penalty` of a trajectory with respect to Lambda.
+
+    The measures' gradients with respect to the pose at each sample come from complex steps along
+    the six tangent directions; chained with the sensitivities d_pose (N, 6, n) of the variational
+    equations they give d(measure)/d Lambda at every sample.
+    """
+    h = 1e-20
+    eye = np.eye(3)
+    dp = np.zeros((6, 3), dtype=complex)
+    dp[:3] = 1j * h * eye
+    drot = np.zeros((6, 3, 3), dtype=complex)
+    drot[3:] = 1j * h * hat(eye)
+    with np.errstate(all="ignore"):
+        ds_c, tm_c = singularity_measures(geometry, p[:, None] + dp, R[:, None] + drot @ R[:, None])
+    g_s = np.einsum("nk,nkj->nj", np.imag(ds_c) / h, d_pose)  # (N, n): d det S / d Lambda per sample
+    g_m = np.einsum("nk,nkj->nj", np.imag(tm_c) / h, d_pose)
+    m = config.avoidance_margin
+    grad = np.mean(-2.0 * np.maximum(0.0, m - signs[0] * det_s)[:, None] * signs[0] * g_s, axis=0)
+    if config.check_type2:
+        grad = grad + np.mean(-2.0 * np.maximum(0.0, m - signs[1] * tm)[:, None] * signs[1] * g_m, axis=0)
+    return np.nan_to_num(grad / (m * m))
 
 
 def _feasible(det_s: Array, tm: Array, signs: tuple[float, float], config: PlannerConfig) -> bool:
@@ -326,29 +446,6 @@ def _feasible(det_s: Array, tm: Array, signs: tuple[float, float], config: Plann
     if config.check_type2:
         ok = ok and bool(np.all(signs[1] * tm >= config.min_type2_measure))
     return ok
-
-
-def _try_candidate(
-    geometry: NspuGeometry,
-    start: Pose,
-    goal: Pose,
-    lam: Array,
-    config: PlannerConfig,
-    scale: float,
-    signs: tuple[float, float],
-) -> tuple[float, float, bool] | None:
-    """(error norm, penalty, feasible) of a candidate, or None if its rollout fails."""
-    try:
-        _, ps, Rs = rollout(geometry, start, lam, config)
-    except SingularityError:
-        return None
-    if not (np.all(np.isfinite(ps)) and np.all(np.isfinite(Rs))):
-        return None
-    err = float(np.linalg.norm(pose_error(ps[-1], Rs[-1], goal, scale)))
-    with np.errstate(all="ignore"):
-        det_s, tm = singularity_measures(geometry, ps, Rs)
-    pen = float(_penalty(det_s, tm, signs[0], signs[1], config)) if config.avoid_singularities else 0.0
-    return err, pen, _feasible(det_s, tm, signs, config)
 
 
 # --------------------------------------------------------------------------------------------
@@ -365,7 +462,8 @@ def type2_measure(geometry: NspuGeometry, p: Array, R: Array) -> Array:
     """
     M = io_blocks(geometry, p, R).M.copy()
     M[..., 3:] /= float(np.mean(np.linalg.norm(geometry.b_platform_m, axis=1)))
-    return np.linalg.det(M) / np.prod(np.linalg.norm(M, axis=-1), axis=-1)
+    row_norms = np.sqrt(np.sum(M * M, axis=-1))  # not np.linalg.norm: complex-step safe
+    return np.linalg.det(M) / np.prod(row_norms, axis=-1)
 
 
 def singularity_measures(geometry: NspuGeometry, p: Array, R: Array) -> tuple[Array, Array]:
@@ -383,7 +481,8 @@ def _penalty(det_s: Array, tm: Array, sign_s: float, sign_m: float, config: Plan
     return np.nan_to_num(pen, nan=np.inf) / (m * m)
 
 
-def _check_pose(geometry: NspuGeometry, pose: Pose, config: PlannerConfig, label: str) -> str | None:
+def check_pose(geometry: NspuGeometry, pose: Pose, config: PlannerConfig, label: str) -> str | None:
+    """Why `pose` cannot be a start or goal (singular, too close to det M = 0, legs out of stroke), or None."""
     try:
         det_s, tm = singularity_measures(geometry, pose.p_m, pose.R)
     except SingularityError as err:
@@ -415,10 +514,12 @@ def plan_motion(
 ) -> PlanResult:
     """Plan controls steering the 3-nSPU from `start` to `goal` in T (seed 004 eq. (15)-(17)).
 
-    initial_lambdas defaults to the seed 004 example's initial guess (`paper_initial_lambdas`).
-    If an attempt fails (budget, stall, singularity) and config.restarts > 0, the planner retries
-    from initial_lambdas + N(0, restart_scale^2) perturbations drawn from a generator seeded with
-    config.restart_seed (deterministic).  Returns a PlanResult; check `.ok` / `.status` or call
+    initial_lambdas defaults to the seed 004 example's initial guess (`paper_initial_lambdas`) and its
+    sign variants, tried in turn (`config.initial_guesses`; given initial_lambdas are the only
+    guess); an attempt that stalls or runs out of iterations continues by homotopy
+    (`config.continuation`); if all fail and config.restarts > 0, the planner retries from the
+    first guess + N(0, restart_scale^2) perturbations drawn from a generator seeded with
+    config.restart_seed (deterministic).  `iterations` counts the iterations of all attempts.  Returns a PlanResult; check `.ok` / `.status` or call
     `.raise_for_status()`.
     """
     lam = paper_initial_lambdas(config.harmonics) if initial_lambdas is None else np.array(initial_lambdas, float)
@@ -429,10 +530,11 @@ def plan_motion(
         raise PlanningError(f"position_scale_m must be positive, got {scale}")
 
     def fail(status: PlanStatus, message: str) -> PlanResult:
-        return _build_result(geometry, start, goal, config, lam, status, message, [float("nan")], 0)
+        return _build_result(geometry, start, goal, config, lam, status, message, [float("nan")], 0, None,
+                             config.plan_steps)
 
     for label, pose in (("start", start), ("goal", goal)):
-        msg = _check_pose(geometry, pose, config, label)
+        msg = check_pose(geometry, pose, config, label)
         if msg is not None:
             return fail(PlanStatus.SINGULAR_START, msg)
     det_s0, tm0 = singularity_measures(geometry, start.p_m, start.R)
@@ -452,16 +554,124 @@ def plan_motion(
     signs = (float(np.sign(det_s0)), float(np.sign(tm0)))
     rng = np.random.default_rng(config.restart_seed)
     attempts: list[str] = []
-    res = _plan_once(geometry, start, goal, config, lam, scale, signs)
+    guesses = [lam] if initial_lambdas is not None else _initial_guesses(config.harmonics, config.initial_guesses)
+    iterations = 0
+    res = fail(PlanStatus.MAX_ITERATIONS, "no attempt")
+    for k, guess in enumerate(guesses):
+        res = _plan_once(geometry, start, goal, config, guess, scale, signs)
+        if not res.ok and config.continuation and res.status in (PlanStatus.STALLED, PlanStatus.MAX_ITERATIONS):
+            attempts.append(f"guess {k} direct: {res.status.value}: {res.message}")
+            res = _plan_by_continuation(geometry, start, goal, config, guess, scale, signs, res.iterations)
+        iterations += res.iterations
+        if res.ok or res.status is PlanStatus.LEG_STROKE:
+            break
+        attempts.append(f"guess {k}: {res.status.value}: {res.message}")
     for k in range(config.restarts):
         if res.ok or res.status is PlanStatus.LEG_STROKE:
             break
-        attempts.append(f"attempt {k + 1}: {res.status.value}: {res.message}")
-        lam_k = lam + rng.normal(0.0, config.restart_scale, lam.shape)
+        lam_k = guesses[0] + rng.normal(0.0, config.restart_scale, lam.shape)
         res = _plan_once(geometry, start, goal, config, lam_k, scale, signs)
+        iterations += res.iterations
+        if not res.ok:
+            attempts.append(f"restart {k + 1}: {res.status.value}: {res.message}")
     if attempts:
-        res = dataclasses.replace(res, message=res.message + " | earlier " + "; ".join(attempts))
-    return res
+        res = dataclasses.replace(res, message=res.message + f" | {len(attempts)} earlier: " + "; ".join(attempts))
+    return dataclasses.replace(res, iterations=iterations)
+
+
+def _initial_guesses(harmonics: int, count: int) -> list[Array]:
+    """The seed 004 example's initial controls, then variants with the signs of its four non-zero
+    coefficients flipped (the order: flips that most often gave a plan clear of det M = 0 on
+    `cheope plan-bench` pairs first).  Different initial controls converge to different motions:
+    where the first crosses det M = 0 a variant often stays on the start's side."""
+    order = [(1, 1, 1, 1), (-1, -1, 1, 1), (1, -1, 1, -1), (-1, 1, 1, 1), (1, -1, -1, -1), (-1, 1, -1, 1),
+             (-1, -1, -1, 1), (1, 1, -1, -1), (1, 1, 1, -1), (-1, -1, 1, -1), (1, -1, 1, 1), (-1, 1, 1, -1),
+             (1, 1, -1, 1), (-1, -1, -1, -1), (1, -1, -1, 1), (-1, 1, -1, -1)]
+    base = paper_initial_lambdas(harmonics).reshape(3, 2 * harmonics + 1)
+    out = []
+    for s11, s21, s32, s30 in order[: max(1, count)]:
+        lam = base.copy()
+        if harmonics >= 1:
+            lam[0, 1] *= s11
+            lam[1, 1] *= s21
+        if harmonics >= 1:
+            lam[2, 2] *= s32
+        lam[2, 0] *= s30
+        out.append(lam.reshape(-1))
+    return out
+
+
+def _newton(
+    geometry: NspuGeometry, start: Pose, goal: Pose, lam: Array, config: PlannerConfig, scale: float,
+    tolerance: float, max_iterations: int,
+) -> tuple[Array, int, bool]:
+    """Damped Newton iteration of eq. (17) on the end error alone (line search, step cap), for the
+    intermediate goals of the continuation: (coefficients, iterations, error below `tolerance`)."""
+    plain = dataclasses.replace(config, avoid_singularities=False, check_type2=False)
+    ev = _evaluate(geometry, start, goal, lam, plain, scale, (1.0, 1.0), config.plan_steps)
+    if ev is None:
+        return lam, 0, False
+    for it in range(max_iterations):
+        if ev.norm < tolerance:
+            return lam, it, True
+        step = -np.linalg.pinv(ev.differentiate(geometry, goal, plain, scale, (1.0, 1.0)).jac) @ ev.e
+        norm = float(np.linalg.norm(step))
+        if norm > config.max_step_norm:
+            step *= config.max_step_norm / norm
+        g = config.gamma
+        for _ in range(config.max_halvings + 1):
+            trial = _evaluate(geometry, start, goal, lam + g * step, plain, scale, (1.0, 1.0), config.plan_steps)
+            if trial is not None and trial.norm < ev.norm:
+                lam, ev = lam + g * step, trial
+                break
+            g *= 0.5
+        else:
+            return lam, it + 1, False
+    return lam, max_iterations, ev.norm < tolerance
+
+
+def _plan_by_continuation(
+    geometry: NspuGeometry,
+    start: Pose,
+    goal: Pose,
+    config: PlannerConfig,
+    lam: Array,
+    scale: float,
+    signs: tuple[float, float],
+    iterations_so_far: int,
+) -> PlanResult:
+    """Homotopy from an easier goal: the end pose of the initial controls is reached already; the goal
+    moves from there towards the real goal along the straight line in position and the geodesic in
+    rotation, each intermediate goal solved by a few Newton steps from the previous solution; a step
+    of the homotopy that fails is halved, one that succeeds grows.  The last stage is the full
+    iteration (`_plan_once`: singularity repair, verification)."""
+    try:
+        _, ps, Rs, _, _ = integrate_motion(geometry, start, lam, config.horizon_s, config.harmonics, config.plan_steps)
+    except np.linalg.LinAlgError:
+        return _plan_once(geometry, start, goal, config, lam, scale, signs)
+    p_from, r_from = ps[-1], Rs[-1]
+    turn = so3_log(goal.R @ r_from.T)
+    s, ds, used = 0.0, config.continuation_first_step, iterations_so_far
+    while s < 1.0:
+        s_try = min(1.0, s + ds)
+        if s_try >= 1.0:
+            break
+        sub_goal = Pose(p_from + s_try * (goal.p_m - p_from), so3_exp(s_try * turn) @ r_from)
+        budget = max(1, min(config.continuation_iterations, config.max_iterations + iterations_so_far - used))
+        lam_try, its, ok = _newton(geometry, start, sub_goal, lam, config, scale,
+                                   config.continuation_tolerance, budget)
+        used += its
+        if ok:
+            lam, s, ds = lam_try, s_try, min(1.0, 1.5 * ds)
+        else:
+            ds *= 0.5
+            if ds < config.continuation_min_step:
+                break
+        if used >= config.max_iterations + iterations_so_far:
+            break
+    res = _plan_once(geometry, start, goal, config, lam, scale, signs)
+    note = f" (continuation reached {s:.2f} of the way from the initial end pose before the final iteration)"
+    return dataclasses.replace(res, message=res.message + note, iterations=res.iterations + used)
 
 
 def _plan_once(
@@ -474,30 +684,58 @@ def _plan_once(
     signs: tuple[float, float],
 ) -> PlanResult:
     """One run of the iteration from initial coefficients `lam`."""
+    steps = config.plan_steps
 
-    def result(status: PlanStatus, message: str, lam_: Array, errs: list[float], it: int) -> PlanResult:
-        return _build_result(geometry, start, goal, config, lam_, status, message, errs, it)
+    def result(status: PlanStatus, message: str, lam_: Array, errs: list[float], it: int,
+               fine: tuple[Array, Array, Array] | None = None) -> PlanResult:
+        return _build_result(geometry, start, goal, config, lam_, status, message, errs, it, fine, steps)
 
     errs: list[float] = []
     it = 0
-    try:
-        ev = _evaluate(geometry, start, goal, lam, config, scale, signs)
-    except SingularityError as err:
-        return result(PlanStatus.SINGULARITY, f"initial controls: {err}", lam, [float("nan")], 0)
-    err_norm = float(np.linalg.norm(ev.e))
-    errs.append(err_norm)
+    ev = _evaluate(geometry, start, goal, lam, config, scale, signs, steps)
+    if ev is None:
+        return result(PlanStatus.SINGULARITY, "initial controls: det S = 0 met while integrating system (7) "
+                      "(seed 004 eq. (7))", lam, [float("nan")], 0)
+    errs.append(ev.norm)
     # Phase 1: Newton-type iteration of seed 004 eq. (17) on the error alone.
     # Phase 2 (avoid_singularities, when the trajectory approaches det S = 0 or det M = 0):
     #   steps -J^# e plus null-space descent of the singularity penalty, accepted when the penalty
     #   decreases while the error stays below `repair_error_bound` x tolerance; then the error is
     #   polished again with steps that may not raise the penalty.
-    phase = 1
+    phase, repair_start = 1, 0
     while True:
+        err_norm = ev.norm
         done = err_norm < config.tolerance
         if done and (not config.avoid_singularities or ev.feasible):
-            break
+            fine = _fine_rollout(geometry, start, lam, config)
+            if fine is not None:
+                e_fine = pose_error(fine[1][-1], fine[2][-1], goal, scale)
+                agree = float(np.linalg.norm(e_fine - ev.e)) <= config.integration_tolerance * config.tolerance
+                if agree and float(np.linalg.norm(e_fine)) < config.tolerance:
+                    break
+            if steps >= config.n_steps:
+                return result(PlanStatus.SINGULARITY, f"error {err_norm:.3e} reached with {steps} steps but the "
+                              f"verification integration failed (det S = 0 or non-finite)", lam, errs, it)
+            steps = min(2 * steps, config.n_steps)  # error control: refine and go on iterating
+            ev_ref = _evaluate(geometry, start, goal, lam, config, scale, signs, steps)
+            if ev_ref is None:
+                return result(PlanStatus.SINGULARITY, f"iteration {it}: det S = 0 met with {steps} steps",
+                              lam, errs, it)
+            ev = ev_ref
+            errs[-1] = ev.norm  # the same iteration, integrated more accurately
+            continue
         if done and phase == 1:
-            phase = 2
+            phase, repair_start = 2, it
+        if phase == 2 and it - repair_start >= config.max_repair_iterations:
+            k = int(np.argmin(signs[1] * ev.tm)) if config.check_type2 else int(np.argmin(signs[0] * ev.det_s))
+            return result(
+                PlanStatus.SINGULARITY,
+                f"the controls reached the goal (E < {config.tolerance}) on a motion too close to a singularity, "
+                f"and {config.max_repair_iterations} null-space steps did not give a clear one: now E = {err_norm:.3e}, "
+                f"closest normalised det M = {ev.tm[k]:.3e}, det S = {ev.det_s[k]:.3e} at t = {ev.motion.t_s[k]:.3f} s "
+                f"(limits {config.min_type2_measure}, {config.min_abs_det_s})",
+                lam, errs, it,
+            )
         if it >= config.max_iterations:
             if err_norm < config.tolerance:
                 return result(
@@ -511,6 +749,7 @@ def _plan_once(
                 f"error {err_norm:.3e} >= tolerance {config.tolerance} after {it} iterations",
                 lam, errs, it,
             )
+        ev.differentiate(geometry, goal, config, scale, signs)
         pinv = np.linalg.pinv(ev.jac)
         newton = -pinv @ ev.e  # seed 004 eq. (16)-(17): -J^# e
         repairing = phase == 2 and not ev.feasible and ev.penalty > 0.0
@@ -530,24 +769,28 @@ def _plan_once(
         if norm > config.max_step_norm:
             step *= config.max_step_norm / norm
         g = config.gamma
-        accepted = False
+        accepted: _Eval | None = None
         for _ in range(config.max_halvings + 1):
             cand = lam + g * step
+            trial = _evaluate(geometry, start, goal, cand, config, scale, signs, steps)
             if not config.line_search:
-                accepted = True
+                accepted = trial
                 break
-            trial = _try_candidate(geometry, start, goal, cand, config, scale, signs)
             if trial is not None:
                 if phase == 1:
-                    accepted = trial[0] < err_norm
+                    ok = trial.norm < err_norm
                 elif repairing:
-                    accepted = trial[1] < ev.penalty and trial[0] < config.repair_error_bound * config.tolerance
+                    ok = trial.penalty < ev.penalty and trial.norm < config.repair_error_bound * config.tolerance
                 else:
-                    accepted = trial[0] < err_norm and (trial[2] or trial[1] <= ev.penalty)
-            if accepted:
-                break
+                    ok = trial.norm < err_norm and (trial.feasible or trial.penalty <= ev.penalty)
+                if ok:
+                    accepted = trial
+                    break
             g *= 0.5
-        if not accepted:
+        if accepted is None:
+            if not config.line_search:
+                return result(PlanStatus.SINGULARITY, f"iteration {it + 1}: det S = 0 met while integrating "
+                              "system (7)", cand, errs, it + 1)
             status = PlanStatus.SINGULARITY if phase == 2 else PlanStatus.STALLED
             return result(
                 status,
@@ -555,15 +798,25 @@ def _plan_once(
                 f"penalty {ev.penalty:.3e}; gamma down to {g:.2e}) at iteration {it}",
                 lam, errs, it,
             )
-        lam = cand
+        lam, ev = cand, accepted
         it += 1
-        try:
-            ev = _evaluate(geometry, start, goal, lam, config, scale, signs)
-        except SingularityError as err:
-            return result(PlanStatus.SINGULARITY, f"iteration {it}: {err}", lam, errs, it)
-        err_norm = float(np.linalg.norm(ev.e))
-        errs.append(err_norm)
-    return result(PlanStatus.CONVERGED, f"error {err_norm:.3e} < {config.tolerance} after {it} iterations", lam, errs, it)
+        errs.append(ev.norm)
+    return result(PlanStatus.CONVERGED, f"error {ev.norm:.3e} < {config.tolerance} after {it} iterations", lam,
+                  errs, it, fine)
+
+
+def _fine_rollout(
+    geometry: NspuGeometry, start: Pose, lam: Array, config: PlannerConfig
+) -> tuple[Array, Array, Array] | None:
+    """The n_steps integration of the controls (the result's samples and the verification), or None."""
+    try:
+        with np.errstate(all="ignore"):
+            t, ps, Rs = rollout(geometry, start, lam, config)
+    except (np.linalg.LinAlgError, SingularityError):
+        return None
+    if not (np.all(np.isfinite(ps)) and np.all(np.isfinite(Rs))):
+        return None
+    return t, ps, Rs
 
 
 def _build_result(
@@ -576,22 +829,29 @@ def _build_result(
     message: str,
     errs: list[float],
     it: int,
+    fine: tuple[Array, Array, Array] | None = None,
+    plan_steps: int = 0,
 ) -> PlanResult:
     n = config.n_steps + 1
     t = np.linspace(0.0, config.horizon_s, n)
     v = controls(lam, t, config.horizon_s, config.harmonics)
-    try:
-        t, ps, Rs = rollout(geometry, start, lam, config)
+    if fine is None:
+        fine = _fine_rollout(geometry, start, lam, config)
+    verified = float("nan")
+    if fine is not None:
+        t, ps, Rs = fine
         legs = leg_lengths_batch(geometry, ps, Rs)
+        scale = geometry.length_unit_m if config.position_scale_m is None else config.position_scale_m
+        verified = float(np.linalg.norm(pose_error(ps[-1], Rs[-1], goal, scale)))
         with np.errstate(all="ignore"):
             rates = feedback_leg_rates(geometry, ps, Rs, v)
             det_s, tm = singularity_measures(geometry, ps, Rs)
-    except (SingularityError, np.linalg.LinAlgError) as err:
+    else:
         nan3 = np.full((n, 3), np.nan)
         ps, Rs, legs, rates = nan3, np.full((n, 3, 3), np.nan), nan3, nan3
         det_s, tm = np.full(n, np.nan), np.full(n, np.nan)
         if status is PlanStatus.CONVERGED:
-            status, message = PlanStatus.SINGULARITY, f"final trajectory: {err}"
+            status, message = PlanStatus.SINGULARITY, "final trajectory: det S = 0 met while integrating system (7)"
     if status is PlanStatus.CONVERGED:
         bad = ~np.isfinite(det_s) | (np.sign(det_s) != np.sign(det_s[0])) | (np.abs(det_s) < config.min_abs_det_s)
         if config.check_type2:
@@ -627,6 +887,8 @@ def _build_result(
         leg_rates_m_s=rates,
         det_s=det_s,
         type2_measure=tm,
+        verified_error=verified,
+        plan_steps=plan_steps,
     )
 
 

@@ -152,11 +152,18 @@ class NspuSection(Section, frozen=True):
     harmonics: Annotated[int, rng(0, 10)] = 2
     tolerance: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 1e-3
     max_iterations: Annotated[int, rng(0, 10000)] = 50
-    n_steps: Annotated[int, rng(4, 100000)] = 200
+    n_steps: Annotated[int, rng(4, 100000)] = 100
     check_type2: bool = True  # refuse plans that cross the type-II locus (seed 000 eq. (26))
     restarts: Annotated[int, rng(0, 100)] = 0
     stream_steps: Annotated[int, rng(10, 1000000)] = 1000  # resolution of the streamed plan
     limit_fraction: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.5  # of the limits
+    # closed-loop execution with a pose tracker ([tracker] enabled; controller/tasks/planned_legs.py)
+    correction_tolerance_m: Annotated[float, rng(0.0, 0.1, lo_open=True)] = 2.0e-4  # accepted distance to the goal
+    correction_tolerance_rad: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 1.0e-3  # accepted angle to the goal
+    max_corrections: Annotated[int, rng(0, 100)] = 3  # correcting plans after the first
+    tracker_samples: Annotated[int, rng(1, 10000)] = 10  # tracker samples averaged into one measurement
+    settle_s: Annotated[float, rng(0.0, 10.0)] = 0.1  # after a motion, before measuring
+    correction_planning: Literal["worker", "in_step"] = "worker"  # off the loop (a bus), or inside the step
 
 
 def _check_nspu(n: NspuSection) -> None:

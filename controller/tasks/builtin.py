@@ -130,7 +130,7 @@ def build_planned_task(cfg: Config, robot: Robot) -> BuiltTask:
     from controller.tasks.planned_legs import build_planned_legs_task
 
     task, report = build_planned_legs_task(cfg.robot.model("nspu"), actuator_units(cfg), cfg.loop.settle_tolerance_m,
-                                           robot)
+                                           robot, tracker=cfg.tracker.enabled)
     return BuiltTask(task, (report,))
 
 

@@ -16,15 +16,19 @@ time [0, T]; the legs follow l(t). This module plays l back on the actuators' cl
   at sigma(tau) on a uniform tau grid; the acceleration is the central difference of the
   velocity. At run time positions are cubic Hermite, velocity and acceleration linear
   between the samples.
-- **Start.** The legs must be at the plan's start lengths when the task starts (the pose of a
-  non-holonomic robot cannot be restored by moving the legs back): otherwise the task faults.
+- **Start.** Open loop, the legs must be at the plan's start lengths when the task starts (the
+  pose of a non-holonomic robot cannot be restored by moving the legs back): otherwise the task
+  faults.
+- **Closed loop** (a pose tracker, ``[tracker]``): the task measures the platform before and after
+  each motion and replans from the measured pose (``PlannedLegsTask``; the plans from
+  ``plan_correction.py``, off the loop in ``controller/shell/plan_worker.py``).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import IntEnum
 from typing import TYPE_CHECKING, Protocol
 
@@ -41,10 +45,12 @@ if TYPE_CHECKING:
     from controller.planning.nonholonomic import PlannerConfig
     from controller.robots.builtin import NspuSection
     from controller.robots.cheope import PoseStatus
+    from controller.robots.nspu import Pose
     from controller.robots.nspu_robot import NspuRobot
     from controller.robots.registry import ActuatorUnits
     from controller.robots.robot import Robot
     from controller.shell.loop import CycleTiming
+    from controller.tasks.plan_correction import CorrectionPlanner
 
 # A sample of the streamed plan: leg positions, velocities, accelerations, planned platform position.
 LegsSample = tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...], tuple[float, float, float]]
@@ -137,12 +143,37 @@ class LegsPhase(IntEnum):
     CHECK_START = 0
     STREAMING = 1
     FINISHED = 2
+    MEASURING = 3  # holding the legs, averaging the tracker's samples
+    PLANNING = 4  # holding the legs until the correcting plan is ready
+
+
+@dataclass(frozen=True)
+class CorrectionSettings:
+    """Closed-loop execution (``[robot.nspu]`` correction_*): see ``PlannedLegsTask``."""
+
+    tolerance_m: float  # the measured pose is accepted within this distance of the goal ...
+    tolerance_rad: float  # ... and this angle
+    max_corrections: int  # correcting plans after the first one; 0: measure and report only
+    tracker_samples: int  # fresh tracker samples averaged into one measurement
+    settle_s: float  # wait after a stream ends before measuring (the drives' lag)
+    in_step: bool  # plan inside the step (simulated time); else wait for the off-loop worker's plans_ready
 
 
 @dataclass(frozen=True, slots=True)
 class LegsTaskState:
     phase: LegsPhase = LegsPhase.CHECK_START
     start_s: float = 0.0
+    # legs the streamed plan's increments are added to (None: the plan's own absolute lengths)
+    leg_origin_m: tuple[float, ...] | None = None
+    streamed: StreamedPlan | None = None  # the plan being streamed (None: the task's first plan)
+    corrections: int = 0  # correcting plans streamed so far
+    moved: bool = False  # a plan has been streamed
+    samples: int = 0  # tracker samples in the running sums
+    sum_pose: tuple[float, ...] = (0.0,) * 6  # P [m] and rotation vector [rad], summed
+    request_id: int = 0  # the last correcting plan asked for (PlanWorker: CycleInputs.plans_ready)
+    request: tuple[float, ...] = ()  # its start: the measured pose (P, rotation vector)
+    measured_position_error_m: float = math.nan  # last measurement against the goal
+    measured_angle_error_rad: float = math.nan
 
 
 class ActuatorCheck(Protocol):
@@ -152,15 +183,44 @@ class ActuatorCheck(Protocol):
 
 
 class PlannedLegsTask:
-    """Streams a ``StreamedPlan``: checks the legs are at its start, then plays it back."""
+    """Streams a ``StreamedPlan``; with a pose tracker, measures and corrects (closed loop).
+
+    Without a tracker (``correction`` None): checks the legs are at the plan's start, plays it
+    back, finishes (open loop: the odometry integrates the same model the plan used, so it
+    cannot see a model mismatch; it is reported by ``PlanExecutionReport``).
+
+    With a tracker the execution is corrected by *replanning from the measured pose*, between
+    motions, not during them:
+      1. hold the legs, average ``tracker_samples`` fresh samples (the start pose);
+      2. if it is within the tolerance of the plan's start, stream the first plan, else plan
+         from the measured pose to the goal and stream that;
+      3. at the end of a stream, wait ``settle_s``, measure again; within the tolerance of the
+         goal: finished; else plan from the measured pose to the goal and stream it, up to
+         ``max_corrections`` times.
+    A plan is streamed as leg *increments* from where the legs stand (l_ref = l_now + l(t) - l(0)):
+    system (7) of seed 004 moves the platform with the leg rates, and with a model mismatch the
+    plan's absolute start lengths are not those of the measured pose on the real robot.
+    Why replanning and not tracking with feedback along the motion: the 3-nSPU has 3 inputs for
+    6 coordinates; a correction of a pose error is itself a non-holonomic motion (Lie brackets of
+    the leg fields), which the planner computes and a linear feedback on the plan cannot; the
+    model errors act along the whole motion, so a full replan from the measured pose at the end
+    of each motion removes what they accumulated, and each correction is a small motion whose
+    own error is small (the error shrinks geometrically with the corrections).
+    """
 
     name = "planned_legs"
 
     def __init__(self, streamed: StreamedPlan, start_tolerance_m: float,
-                 robot: ActuatorCheck | None = None) -> None:
+                 robot: ActuatorCheck | None = None, correction: CorrectionSettings | None = None,
+                 planner: CorrectionPlanner | None = None, goal: Pose | None = None) -> None:
         self.streamed = streamed
         self.start_tolerance_m = start_tolerance_m
         self.robot = robot  # with check_actuators: the reference is checked against the stroke
+        if correction is not None and (planner is None or goal is None):
+            raise ValueError("a corrected execution needs the correction planner and the goal")
+        self.correction = correction
+        self.correction_planner = planner  # the shell's PlanWorker fills its memo off the loop
+        self.goal = goal
         first = streamed.sample(0.0)
         self._start = JointReference(first[0], (0.0,) * 3, (0.0,) * 3, first[3], False)
 
@@ -170,8 +230,14 @@ class PlannedLegsTask:
     def phase_name(self, state: LegsTaskState) -> str:
         return state.phase.name
 
+    def _hold(self, ctx: TaskContext, plan: StreamedPlan) -> JointReference:
+        return JointReference(ctx.setpoint.position, (0.0,) * 3, (0.0,) * 3, plan.sample(plan.duration_s)[3], False)
+
     def step(self, state: LegsTaskState, ctx: TaskContext) -> TaskStep:
         if state.phase == LegsPhase.CHECK_START:
+            if self.correction is not None:  # measure where the platform is before moving
+                return TaskStep(replace(state, phase=LegsPhase.MEASURING, start_s=ctx.t_s),
+                                self._hold(ctx, self.streamed))
             off = max(abs(a - b) for a, b in zip(ctx.setpoint.position, self._start.position))
             if off > self.start_tolerance_m:
                 why = (f"the legs {list(np.round(ctx.setpoint.position, 6))} m are not at the plan's start "
@@ -179,23 +245,100 @@ class PlannedLegsTask:
                        "a non-holonomic platform cannot be brought back to its start pose by moving the legs; "
                        "restart the simulator (or re-home the robot) at the planned start pose")
                 return TaskStep(state, self._start, fault=why)
-            state = LegsTaskState(LegsPhase.STREAMING, ctx.t_s)
-            msg = (f"streaming the plan: {self.streamed.duration_s:.3f} s "
-                   f"(time scale {self.streamed.scale:.3f})")
-            ev: tuple[Event, ...] = (Event("task", Severity.INFO, msg),)
-        else:
-            ev = ()
+            return self._begin_stream(state, ctx, self.streamed, None, "streaming the plan")
+        if state.phase == LegsPhase.MEASURING:
+            return self._measure(state, ctx)
+        if state.phase == LegsPhase.PLANNING:
+            return self._await_plan(state, ctx)
+        plan = state.streamed or self.streamed
         tau = ctx.t_s - state.start_s
-        finished = tau >= self.streamed.duration_s
-        if finished:
-            state = LegsTaskState(LegsPhase.FINISHED, state.start_s)
-        pos, vel, acc, plat = self.streamed.sample(tau)
+        ended = tau >= plan.duration_s
+        pos, vel, acc, plat = plan.sample(tau)
+        if state.leg_origin_m is not None:  # increments from where the legs stood
+            l0 = plan.legs_m[0]
+            pos = tuple(o + p - float(z) for o, p, z in zip(state.leg_origin_m, pos, l0))
         if self.robot is not None:
             status = self.robot.check_actuators(pos)
             if not status.ok:
                 return TaskStep(state, self._start, fault=f"planned leg reference: {status.reason}")
-        ref = JointReference(pos, vel, acc, plat, not finished)
-        return TaskStep(state, ref, finished, events=ev)
+        if ended and state.phase == LegsPhase.STREAMING:
+            if self.correction is None:
+                state = replace(state, phase=LegsPhase.FINISHED)
+            else:  # settle, then measure against the goal
+                state = replace(state, phase=LegsPhase.MEASURING, start_s=ctx.t_s, samples=0, sum_pose=(0.0,) * 6)
+                return TaskStep(state, JointReference(pos, (0.0,) * 3, (0.0,) * 3, plat, False))
+        finished = state.phase == LegsPhase.FINISHED
+        return TaskStep(state, JointReference(pos, vel, acc, plat, not finished), finished)
+
+    def _begin_stream(self, state: LegsTaskState, ctx: TaskContext, plan: StreamedPlan,
+                      origin: tuple[float, ...] | None, what: str) -> TaskStep:
+        state = replace(state, phase=LegsPhase.STREAMING, start_s=ctx.t_s, streamed=plan, leg_origin_m=origin,
+                        moved=True)
+        msg = f"{what}: {plan.duration_s:.3f} s (time scale {plan.scale:.3f})"
+        pos, vel, acc, plat = plan.sample(0.0)
+        if origin is not None:
+            pos = origin
+        return TaskStep(state, JointReference(pos, vel, acc, plat, True), events=(Event("task", Severity.INFO, msg),))
+
+    def _measure(self, state: LegsTaskState, ctx: TaskContext) -> TaskStep:
+        """Hold the legs; after settle_s, average the fresh tracker samples; then decide."""
+        c = self.correction
+        assert c is not None and self.goal is not None
+        hold = self._hold(ctx, state.streamed or self.streamed)
+        k = ctx.inputs.tracker
+        if ctx.t_s - state.start_s < c.settle_s or k is None or not k.fresh:
+            return TaskStep(state, hold)
+        sums = tuple(a + b for a, b in zip(state.sum_pose, (*k.position_m, *k.rotation_vector_rad)))
+        n = state.samples + 1
+        if n < c.tracker_samples:
+            return TaskStep(replace(state, samples=n, sum_pose=sums), hold)
+        from controller.robots.nspu_robot import pose_errors
+        from controller.tasks.plan_correction import pose_from_request
+
+        request = tuple(v / n for v in sums)
+        measured = pose_from_request(request)  # type: ignore[arg-type]
+        if not state.moved:  # before any motion: against the plan's start
+            from controller.robots.nspu_robot import NspuRobot
+
+            start = self.robot.start if isinstance(self.robot, NspuRobot) else self.goal
+            pe, ae = pose_errors(measured, start)
+            if pe <= c.tolerance_m and ae <= c.tolerance_rad:
+                return self._begin_stream(replace(state, samples=0, sum_pose=(0.0,) * 6), ctx, self.streamed,
+                                          ctx.setpoint.position, f"at the plan's start ({pe * 1e3:.3f} mm, "
+                                          f"{ae * 1e3:.2f} mrad off): streaming the plan")
+            what = f"the platform is {pe * 1e3:.3f} mm, {ae * 1e3:.2f} mrad from the plan's start"
+        else:
+            pe, ae = pose_errors(measured, self.goal)
+            state = replace(state, measured_position_error_m=pe, measured_angle_error_rad=ae)
+            if pe <= c.tolerance_m and ae <= c.tolerance_rad:
+                msg = f"measured {pe * 1e3:.3f} mm, {ae * 1e3:.2f} mrad from the goal: within the tolerance"
+                return TaskStep(replace(state, phase=LegsPhase.FINISHED), hold, True,
+                                events=(Event("task", Severity.INFO, msg),))
+            if state.corrections >= c.max_corrections:
+                msg = (f"measured {pe * 1e3:.3f} mm, {ae * 1e3:.2f} mrad from the goal after {state.corrections} "
+                       f"corrections (tolerance {c.tolerance_m * 1e3:.3f} mm, {c.tolerance_rad * 1e3:.2f} mrad)")
+                return TaskStep(replace(state, phase=LegsPhase.FINISHED), hold, True,
+                                events=(Event("task", Severity.WARNING, msg),))
+            what = f"measured {pe * 1e3:.3f} mm, {ae * 1e3:.2f} mrad from the goal"
+        state = replace(state, phase=LegsPhase.PLANNING, samples=0, sum_pose=(0.0,) * 6,
+                        request_id=state.request_id + 1, request=request)
+        ev = Event("task", Severity.INFO, f"{what}: replanning from the measured pose (plan request {state.request_id})")
+        step = self._await_plan(state, ctx)
+        return replace(step, events=(ev, *step.events))
+
+    def _await_plan(self, state: LegsTaskState, ctx: TaskContext) -> TaskStep:
+        c, planner = self.correction, self.correction_planner
+        assert c is not None and planner is not None
+        hold = self._hold(ctx, state.streamed or self.streamed)
+        if not c.in_step and ctx.inputs.plans_ready < state.request_id:
+            return TaskStep(state, hold)  # the off-loop worker has not finished it yet
+        result = planner.plan(state.request)  # type: ignore[arg-type]  # memo hit, or computed here (replay)
+        if result.streamed is None:
+            return TaskStep(state, hold, fault=f"correction {state.request_id}: {result.failure}")
+        corrections = state.corrections + (1 if state.moved else 0)
+        return self._begin_stream(replace(state, corrections=corrections), ctx, result.streamed,
+                                  ctx.setpoint.position, f"streaming the plan from the measured pose (request {state.request_id}, "
+                                  f"{result.iterations} iterations)")
 
 
 EXPLANATION = (
@@ -226,9 +369,11 @@ class PlanExecutionReport:
         self._legs: list[tuple[float, ...]] = []
         self._refs: list[tuple[float, ...] | None] = [None, None]
         self.leg_errors_m: list[float] = []
+        self._task_state: object = None  # the last one: the closed loop's measurements and corrections
 
     def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
                  outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None:
+        self._task_state = state.task_state
         ref = self._refs[-2]  # the setpoint the drives were to reach at this SYNC (sent two cycles ago)
         self._refs.append(state.setpoint.position if state.tcp_reference_m is not None else None)
         del self._refs[0]
@@ -257,6 +402,15 @@ class PlanExecutionReport:
             "goal_pose": {"position_m": goal.p_m.tolist(), "rotation_vector_rad": so3_log(goal.R).tolist()},
             "explanation": EXPLANATION,
         }
+        ts = self._task_state
+        if isinstance(ts, LegsTaskState) and (ts.request_id > 0 or not math.isnan(ts.measured_position_error_m)):
+            # the tracker's view (averaged samples) at the last measurement against the goal
+            out["closed_loop"] = {"plans_from_measured_pose": ts.request_id, "corrections": ts.corrections,
+                                  "measured_position_error_m": ts.measured_position_error_m,
+                                  "measured_angle_error_rad": ts.measured_angle_error_rad,
+                                  "note": "position_error_m and angle_error_rad are the odometry's, integrated with "
+                                          "the model from the plan's start pose: they cannot see a model mismatch "
+                                          "or an off start; these are the tracker's"}
         err = np.asarray(self.leg_errors_m)
         out["leg_tracking_error_m"] = {"rms": float(np.sqrt(np.mean(err**2))) if err.size else None,
                                        "max": float(err.max()) if err.size else None, "samples": int(err.size)}
@@ -272,7 +426,7 @@ class PlanExecutionReport:
 
 
 def build_planned_legs_task(section: NspuSection, limits: ActuatorUnits, settle_tolerance_m: float,
-                            robot: Robot) -> tuple[PlannedLegsTask, PlanExecutionReport]:
+                            robot: Robot, tracker: bool = False) -> tuple[PlannedLegsTask, PlanExecutionReport]:
     """Plan the configured motion (seed 004), time-scale it to ``section.limit_fraction`` of the
     actuators' limits and wrap it in a task with its report.
 
@@ -290,7 +444,19 @@ def build_planned_legs_task(section: NspuSection, limits: ActuatorUnits, settle_
     planning_time = time.perf_counter() - t0
     streamed = time_scale_plan(plan, limits.max_velocity, limits.max_acceleration, limits.max_jerk,
                                section.limit_fraction, section.stream_steps)
-    task = PlannedLegsTask(streamed, start_tolerance_m=max(settle_tolerance_m, 1e-5), robot=robot)
+    correction, planner = None, None
+    if tracker:  # closed loop: measure with the tracker, replan from the measured pose (PlannedLegsTask)
+        from controller.tasks.plan_correction import CorrectionPlanner, CorrectionProblem
+
+        correction = CorrectionSettings(section.correction_tolerance_m, section.correction_tolerance_rad,
+                                        section.max_corrections, section.tracker_samples, section.settle_s,
+                                        in_step=section.correction_planning == "in_step")
+        planner = CorrectionPlanner(CorrectionProblem(
+            robot.geometry, robot.goal, planner_config(section),
+            (limits.max_velocity, limits.max_acceleration, limits.max_jerk), section.limit_fraction,
+            section.stream_steps))
+    task = PlannedLegsTask(streamed, start_tolerance_m=max(settle_tolerance_m, 1e-5), robot=robot,
+                           correction=correction, planner=planner, goal=robot.goal)
     return task, PlanExecutionReport(robot, plan, streamed, planning_time)
 
 
@@ -299,4 +465,5 @@ def planner_config(n: NspuSection, check_type2: bool | None = None) -> PlannerCo
 
     return PlannerConfig(horizon_s=n.horizon_s, harmonics=n.harmonics, tolerance=n.tolerance,
                          max_iterations=n.max_iterations, n_steps=n.n_steps,
+                         plan_steps=min(PlannerConfig.plan_steps, n.n_steps),  # the iteration's steps: at most n_steps
                          check_type2=n.check_type2 if check_type2 is None else check_type2, restarts=n.restarts)

@@ -15,6 +15,7 @@ around the nominal centre.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -225,10 +226,15 @@ def plot_contour(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: float,
     a2.set_ylabel("tangential speed [mm/s]")
     a2.set_xlabel("time [s]")
     a2.legend(loc="lower right", fontsize=8)
+    bounds = np.r_[0, np.flatnonzero(np.diff(lap)) + 1, t.size - 1]
     for ax in (a1, a2):
-        for b in np.flatnonzero(np.diff(lap)) + 1:
+        for b in bounds[1:-1]:
             ax.axvline(t[b], color="grey", lw=0.6)
-    a1.set_title(f"Contour tracking ({title}): force and speed, laps marked (cf. seed 001 Fig. 9)")
+    for lo, hi in itertools.pairwise(bounds):  # each lap named between its grey boundaries
+        if lap[lo] >= 0 and hi > lo:
+            a1.text((t[lo] + t[hi]) / 2, 1.0, f"lap {int(lap[lo]) + 1}", transform=a1.get_xaxis_transform(),
+                    ha="center", va="bottom", fontsize=8, color="grey")
+    a1.set_title(f"Contour tracking ({title}): force and speed, laps marked (cf. seed 001 Fig. 9)", pad=16)
     fig.tight_layout()
     p1 = out / f"contour_force_speed_{title.replace(' ', '_')}.png"
     fig.savefig(p1, dpi=110)
@@ -256,9 +262,9 @@ def plot_contour(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: float,
             reach = reach / reach.max() * scale
             ax.plot((p[0] + 0.0) * 1000 + reach * np.cos(dirs) + 28 * np.cos(th),
                     p[1] * 1000 + reach * np.sin(dirs) + 28 * np.sin(th), color=colour, lw=1)
-    ax.plot([], [], color="tab:blue", label="stiffness ellipse (XY section)")
-    ax.plot([], [], color="tab:green", label="mass ellipse (XY section)")
-    ax.legend(loc="lower left", fontsize=8)
+    ax.plot([], [], color="tab:blue", label="stiffness {K d : |d| <= 1}\n(XY section, shape only)")
+    ax.plot([], [], color="tab:green", label="mass {M a : |a| <= 1}\n(XY section, shape only)")
+    ax.legend(loc="center", fontsize=8)  # inside the contour, where nothing is drawn
     ax.set_aspect("equal")
     ax.set_xlabel("x [mm]")
     ax.set_ylabel("y [mm]")
@@ -268,11 +274,15 @@ def plot_contour(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: float,
     ab.set_ylabel("normal-force error RMS [N]", color="tab:red")
     ab.set_xlim(-180, 180)
     ak = ab.twinx()
-    ak.plot(d.bin_angle_deg, d.bin_stiffness_n_m / 1e6, "s--", color="tab:blue", ms=3, label="k n^T J^T J n")
-    ak.set_ylabel("robot stiffness along the normal [N/um]", color="tab:blue")
+    ak.plot(d.bin_angle_deg, d.bin_stiffness_n_m / 1e6, "s--", color="tab:blue", ms=3,
+            label="directional stiffness n^T K n, K = k J^T J")
+    ak.set_ylabel("directional stiffness along the normal n^T K n [N/µm]", color="tab:blue")
+    handles = ab.get_legend_handles_labels()[0] + ak.get_legend_handles_labels()[0]
+    ab.legend(handles, [str(h.get_label()) for h in handles], loc="upper right", fontsize=8)
     ratio = _soft_over_stiff(d.error_n, d.normal_stiffness_n_m)
     corr = "n/a" if d.correlation is None else f"{d.correlation:+.2f}"
-    ab.set_title(f"error and stiffness along the normal: correlation {corr}, RMS soft half / stiff half {ratio}",
+    ab.set_title(f"error and directional stiffness along the normal, per 10 deg\n"
+                 f"correlation {corr}, RMS soft half / stiff half {ratio}",
                  fontsize=9)
     fig.tight_layout()
     p2 = out / f"contour_error_map_{title.replace(' ', '_')}.png"

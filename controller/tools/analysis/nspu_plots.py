@@ -14,66 +14,100 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.figure import Figure
 
 from controller.planning.nonholonomic import PlanResult, type2_measure
-from controller.robots.nspu import NspuGeometry, controllability_det, euler_xzx
+from controller.robots.nspu import NspuGeometry, controllability_det, euler_xzx, so3_log
 
 
 def plot_plan(result: PlanResult, out_dir: str | Path, prefix: str = "nspu_plan") -> list[Path]:
-    """Write controls v(t), leg lengths l(t), and relative position/orientation trajectories (PNG)."""
+    """Write the plan as PNG: pose against time, leg lengths and rates, the singularity distance along
+    the motion, and the controls with the relative pose (seed 004 Fig. 2-3).  Any status: a failed
+    plan's last iterate is drawn with its status in the titles, so the plots show why it failed."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    unit = result.geometry.length_unit_m
     t = result.t_s
-    labels = ("1", "2", "3")
+    cfg = result.config
+    title = (f"{result.status.value}: {result.iterations} iterations, E = {result.final_error:.2e} "
+             f"(plan time T = {cfg.horizon_s:g} s; streaming rescales time)")
     paths: list[Path] = []
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))  # seed 004 Fig. 2
-    for i in range(3):
-        axes[0].plot(t, result.v_rad_s[:, i], label=f"v{labels[i]}")
-        axes[1].plot(t, result.legs_m[:, i] / unit, label=f"l{labels[i]}")
-    axes[0].set(xlabel="t [s]", ylabel="v [rad/s]", title="controls v(t)")
-    axes[1].set(xlabel="t [s]", ylabel="leg length [aul]", title=f"leg lengths l(t) (1 aul = {unit} m)")
+    def save(fig: Figure, name: str) -> None:
+        fig.suptitle(title, fontsize=10)
+        fig.tight_layout()
+        paths.append(out / f"{prefix}_{name}.png")
+        fig.savefig(paths[-1], dpi=110)
+        plt.close(fig)
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    rv = so3_log(result.R)
+    goal_rv = so3_log(result.goal.R)
+    for i, (c, col) in enumerate(zip("xyz", ("C0", "C1", "C2"))):
+        axes[0].plot(t, result.p_m[:, i] * 1e3, color=col, label=f"{c}")
+        axes[0].axhline(result.goal.p_m[i] * 1e3, color=col, ls="--", lw=0.8)
+        axes[1].plot(t, rv[:, i], color=col, label=f"r{c}")
+        axes[1].axhline(goal_rv[i], color=col, ls="--", lw=0.8)
+    axes[0].set(xlabel="plan time t [s]", ylabel="platform position [mm]", title="position p(t) (dashed: goal)")
+    axes[1].set(xlabel="plan time t [s]", ylabel="rotation vector [rad]",
+                title="orientation r(t), [r] = log R(t) (dashed: goal)")
     for ax in axes:
         ax.grid(True)
-        ax.legend()
-    fig.suptitle(f"{result.status.value}: {result.iterations} iterations, E = {result.final_error:.2e}")
-    fig.tight_layout()
-    paths.append(out / f"{prefix}_controls_legs.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+        ax.legend(loc="best", fontsize=8)
+    save(fig, "pose")
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))  # seed 004 Fig. 3
-    ep = result.position_error_m / unit
-    rr = result.rotation_error
-    for i, c in enumerate("xyz"):
-        axes[0].plot(t, ep[:, i], label=f"e_p{c}")
-        axes[1].plot(t, rr[:, i], label=f"r{c}")
-    axes[0].set(xlabel="t [s]", ylabel="p(t) - p_d [aul]", title="relative position e_p(t)")
-    axes[1].set(xlabel="t [s]", ylabel="[rad]", title="relative orientation r(t) = log(R R_d^T)")
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    g = result.geometry
+    for i in range(3):
+        axes[0].plot(t, result.legs_m[:, i] * 1e3, label=f"leg {i + 1}")
+        axes[1].plot(t, result.leg_rates_m_s[:, i] * 1e3, label=f"leg {i + 1}")
+    lo, hi = float(np.nanmin(result.legs_m)), float(np.nanmax(result.legs_m))
+    for limit, name in ((g.leg_min_m, "stroke min"), (g.leg_max_m, "stroke max")):
+        if lo - 0.02 <= limit <= hi + 0.02:  # draw a stroke limit only when it is near the motion
+            axes[0].axhline(limit * 1e3, color="r", ls="--", lw=0.8, label=name)
+    axes[0].set(xlabel="plan time t [s]", ylabel="leg length [mm]", title="leg lengths l(t)")
+    axes[1].set(xlabel="plan time t [s]", ylabel="leg rate [mm/s]", title="leg rates u(t), seed 004 eq. (6), at T")
     for ax in axes:
         ax.grid(True)
-        ax.legend()
-    fig.tight_layout()
-    paths.append(out / f"{prefix}_relative_pose.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+        ax.legend(loc="best", fontsize=8)
+    save(fig, "legs")
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for i in range(3):
-        axes[0].plot(t, result.leg_rates_m_s[:, i] / unit, label=f"u{labels[i]}")
-    axes[0].set(xlabel="t [s]", ylabel="leg rate [aul/s]", title="leg-length rates u(t), seed 004 eq. (6)")
-    axes[1].plot(t, result.type2_measure, label="normalised det M (eq. 26)")
-    axes[1].plot(t, result.det_s, label="det S (eq. 27)")
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    tm = result.type2_measure
+    sign = float(np.sign(tm[0])) if np.isfinite(tm[0]) and tm[0] != 0 else 1.0
+    axes[0].plot(t, sign * tm, label="normalised det M x sign at start")
+    axes[0].axhline(cfg.min_type2_measure, color="r", ls="--", lw=0.8, label=f"refusal limit {cfg.min_type2_measure:g}")
+    axes[0].axhline(cfg.avoidance_margin, color="orange", ls=":", lw=0.8,
+                    label=f"avoidance margin {cfg.avoidance_margin:g}")
+    axes[0].axhline(0.0, color="k", lw=0.8)
+    axes[0].set(xlabel="plan time t [s]", ylabel="[-] (0: type-II singular)",
+                title="distance from det M = 0 (seed 000 eq. 26)")
+    ds = result.det_s
+    sgn_s = float(np.sign(ds[0])) if np.isfinite(ds[0]) and ds[0] != 0 else 1.0
+    axes[1].plot(t, sgn_s * ds, label="det S x sign at start")
+    axes[1].axhline(cfg.min_abs_det_s, color="r", ls="--", lw=0.8, label=f"limit {cfg.min_abs_det_s:g}")
     axes[1].axhline(0.0, color="k", lw=0.8)
-    axes[1].set(xlabel="t [s]", title="singularity measures along the plan")
+    axes[1].set(xlabel="plan time t [s]", ylabel="[-] (0: system (7) singular)",
+                title="det S along the motion (seed 000 eq. 27)")
     for ax in axes:
         ax.grid(True)
-        ax.legend()
-    fig.tight_layout()
-    paths.append(out / f"{prefix}_rates_singularity.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+        ax.legend(loc="best", fontsize=8)
+    save(fig, "singularity")
+
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.2))  # seed 004 Fig. 2 (controls) and Fig. 3 (relative pose)
+    ep = result.position_error_m * 1e3
+    rr = result.rotation_error
+    for i in range(3):
+        axes[0].plot(t, result.v_rad_s[:, i], label=f"v{i + 1}")
+    for i, c in enumerate("xyz"):
+        axes[1].plot(t, ep[:, i], label=f"e_p{c}")
+        axes[2].plot(t, rr[:, i], label=f"r{c}")
+    axes[0].set(xlabel="plan time t [s]", ylabel="v [rad/s]", title="controls v(t), seed 004 eq. (15)")
+    axes[1].set(xlabel="plan time t [s]", ylabel="[mm]", title="relative position e_p = p - p_d")
+    axes[2].set(xlabel="plan time t [s]", ylabel="[rad]", title="relative orientation [r] = log(R R_d^T)")
+    for ax in axes:
+        ax.grid(True)
+        ax.legend(loc="best", fontsize=8)
+    save(fig, "controls")
     return paths
 
 
@@ -137,7 +171,7 @@ def plot_singularity_loci(
                     continue
                 ax3.plot(seg[:, 0], seg[:, 1], np.full(len(seg), z / unit), color=color, lw=1.2)
                 ax2.plot(seg[:, 0], seg[:, 1], color=color, lw=1.2)
-            ax2.plot([], [], color=color, label=f"z = {z / unit:.0f}")
+            ax2.plot([], [], color=color, label=f"z = {z / unit:.0f} aul")
         a = geometry.a_m / unit
         tri = np.vstack([a, a[:1]])
         ax2.plot(tri[:, 0], tri[:, 1], "k--", lw=0.8, label="frame triangle A_i")
@@ -145,10 +179,72 @@ def plot_singularity_loci(
         ax3.set(xlabel="x [aul]", ylabel="y [aul]", zlabel="z [aul]", title="3D view (zero contours per slice)")
         ax2.set(xlabel="x [aul]", ylabel="y [aul]", title="top view")
         ax2.set_aspect("equal")
-        ax2.legend(fontsize=7, loc="upper right")
-        fig.suptitle(f"{title}, XZX Euler angles {tuple(float(e) for e in eta)} rad")
+        ax2.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), title="slice height")
+        fig.suptitle(f"{title}, XZX Euler angles {tuple(float(e) for e in eta)} rad; "
+                     f"lengths in the papers' unit, 1 aul = {unit:g} m")
         fig.tight_layout()
         paths.append(out / fname)
-        fig.savefig(paths[-1], dpi=110)
+        fig.savefig(paths[-1], dpi=110, bbox_inches="tight")  # the legend beside the top view stays in
         plt.close(fig)
     return paths
+
+
+def plot_execution(recording: str | Path, out_dir: str | Path, name: str = "nspu_execution.png") -> Path:
+    """The executed against the planned motion of a 3-nSPU run from its MCAP recording.
+
+    Planned: the platform point P of the plan being streamed (the recorded ``tcp_reference_m``; each
+    plan from a measured pose starts where the platform was measured). Executed: the pose tracker's
+    samples (``inputs.tracker``, fresh ones only; needs ``tracker.enabled``). Position in mm, the
+    rotation vector in mrad, against the run's time; the task's phase changes are marked.
+    """
+    from logs.reader import iter_decoded
+
+    t_ref, ref, t_trk, pos, rot, t_phase, phases = [], [], [], [], [], [], []
+    last_phase = ""
+    for d in iter_decoded(recording, topics=("/cycle",)):
+        c = d.message
+        if len(c.state.tcp_reference_m) == 3:
+            t_ref.append(c.t_s)
+            ref.append(tuple(c.state.tcp_reference_m))
+        if c.inputs.HasField("tracker") and c.inputs.tracker.fresh:
+            t_trk.append(c.t_s)
+            pos.append(tuple(c.inputs.tracker.position_m))
+            rot.append(tuple(c.inputs.tracker.rotation_vector_rad))
+        if c.state.task_phase != last_phase:
+            last_phase = c.state.task_phase
+            t_phase.append(c.t_s)
+            phases.append(last_phase)
+    if not t_trk:
+        raise ValueError(f"{recording}: no pose tracker samples (run with --set tracker.enabled=true)")
+    ref_mm, pos_mm, rot_mrad = np.array(ref) * 1e3, np.array(pos) * 1e3, np.array(rot) * 1e3
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
+    for i, (ax, label) in enumerate(zip(axes.flat[:3], ("x", "y", "z"))):
+        ax.plot(t_trk, pos_mm[:, i], ".", ms=2, color="tab:orange", label="executed (tracker)")
+        if len(ref):
+            ax.plot(t_ref, ref_mm[:, i], ".", ms=1, color="tab:blue", label="planned (streamed plan)")
+        ax.set_ylabel(f"P {label} [mm]")
+    ax = axes.flat[3]
+    for i, label in enumerate(("r_x", "r_y", "r_z")):
+        ax.plot(t_trk, rot_mrad[:, i], ".", ms=2, label=f"{label} (tracker)")
+    ax.set_ylabel("rotation vector [mrad]")
+    for ax in axes.flat:
+        for tp, ph in zip(t_phase, phases):
+            ax.axvline(tp, color="0.8", lw=0.8)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8, loc="best")
+    for ax in axes[1]:
+        ax.set_xlabel("run time t [s]")
+    fig.suptitle("3-nSPU: executed against planned motion (phases: "
+                 + " -> ".join(dict.fromkeys(phases)) + ")", fontsize=10)
+    fig.tight_layout()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out / name, dpi=110)
+    plt.close(fig)
+    return out / name
+
+
+if __name__ == "__main__":
+    import sys
+
+    print(plot_execution(sys.argv[1], sys.argv[2] if len(sys.argv) > 2 else "."))

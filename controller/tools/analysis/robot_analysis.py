@@ -90,12 +90,13 @@ def plan_nspu(cfg: Config, start: Pose, goal: Pose, check_type2: bool, plot_dir:
 
     geometry = nspu_geometry_from_config(cfg)
     pcfg = planner_config(cfg.robot.model("nspu"), check_type2=check_type2)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     res = plan_motion(geometry, start, goal, pcfg)
-    elapsed = time.perf_counter() - t0
+    elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
     out: dict[str, object] = {
         "status": res.status.value, "ok": res.ok, "message": res.message, "iterations": res.iterations,
-        "final_error": res.final_error, "planning_time_s": round(elapsed, 3),
+        "final_error": res.final_error, "verified_error": res.verified_error, "plan_steps": res.plan_steps,
+        "planning_time_s": round(elapsed, 3), "planning_cpu_s": round(cpu, 3),
         "error_history": [float(e) for e in res.error_history],
         "type2_check": check_type2,
     }
@@ -111,7 +112,7 @@ def plan_nspu(cfg: Config, start: Pose, goal: Pose, check_type2: bool, plot_dir:
             "end_position_error_m": float(np.linalg.norm(res.p_m[-1] - goal.p_m)),
             "end_angle_error_rad": float(np.linalg.norm(so3_log(res.R[-1] @ goal.R.T))),
         })
-    if plot_dir is not None and res.ok:
+    if plot_dir is not None and np.all(np.isfinite(res.p_m)):  # a failed plan's plots show why
         from controller.tools.analysis.nspu_plots import plot_plan
 
         out["plots"] = [str(p) for p in plot_plan(res, plot_dir)]
