@@ -18,11 +18,13 @@ from controller.errors import CheopeError, RefusedError
 from controller.monitoring.cli_commands import add_controller_options, monitoring_overrides
 from controller.monitoring.cli_commands import add_subcommands as add_monitoring_subcommands
 from controller.robots.registry import load_reference, robot_entry, robot_kinds
+from controller.shell.status_line import StatusDisplay, live_status, status_wanted
 from controller.tasks.registry import task_kinds
 from drivers.bus import BusSpec, parse_bus_spec
 
 if TYPE_CHECKING:
     from controller.robots.nspu import Pose
+    from controller.shell.loop import CycleObserver
     from controller.shell.realtime import RealtimeOptions
 
 
@@ -57,6 +59,24 @@ def _rt_options(ap: argparse.ArgumentParser) -> None:
                    help="apply the options given where permitted, warn and run on where not")
 
 
+def _live_options(ap: argparse.ArgumentParser) -> None:
+    g = ap.add_argument_group("live views, fed by the recording's writer process (logs/live_views.py)")
+    g.add_argument("--rerun", nargs="?", const="spawn", metavar="WHERE",
+                   help="stream the session to Rerun: spawn (a viewer, the default), serve (gRPC + web viewer "
+                        "for a browser) or a rerun+http://HOST:PORT/proxy URL")
+    g.add_argument("--foxglove", nargs="?", const="127.0.0.1:8765", metavar="HOST:PORT",
+                   help="serve the session over the Foxglove WebSocket protocol (default 127.0.0.1:8765)")
+
+
+def _live_overrides(args: argparse.Namespace) -> list[str]:
+    sets = []
+    if getattr(args, "rerun", None):
+        sets.append(f"recording.live_rerun={json.dumps(args.rerun)}")
+    if getattr(args, "foxglove", None):
+        sets.append(f"recording.live_foxglove={json.dumps(args.foxglove)}")
+    return sets
+
+
 def _realtime(args: argparse.Namespace, simulator: bool = False) -> RealtimeOptions:
     from controller.shell.realtime import RealtimeError, RealtimeOptions, parse_cpus
 
@@ -83,7 +103,7 @@ def _overrides(args: argparse.Namespace) -> list[str]:
         sets.insert(0, f'robot.kind="{args.robot}"')
     if getattr(args, "inject", None):
         sets.append("sim.faults=[" + ", ".join(f'"{f}"' for f in args.inject) + "]")
-    return sets + monitoring_overrides(args)
+    return sets + monitoring_overrides(args) + _live_overrides(args)
 
 
 def _config_path(args: argparse.Namespace) -> str | None:
@@ -100,11 +120,13 @@ def _config(args: argparse.Namespace) -> Config:
 
 
 def _spec(args: argparse.Namespace, cfg: Config, default_port: int | None = None) -> BusSpec:
-    port = args.udp_port or default_port or cfg.bus.udp_port
+    # 0 is a value (refused by parse_bus_spec), not "not given"
+    port = next(p for p in (args.udp_port, default_port, cfg.bus.udp_port) if p is not None)
     return parse_bus_spec(args.can or cfg.bus.can, fd=args.fd or cfg.bus.fd, udp_port=port)
 
 
 def _stop_on_signals() -> threading.Event:
+    """SIGINT/SIGTERM set the returned event (tools without drives to stop: sim, replay)."""
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
@@ -174,6 +196,14 @@ def demo_defaults(args: argparse.Namespace) -> argparse.Namespace:
     return args
 
 
+def _status_observers(status: StatusDisplay | None, cfg: Config) -> tuple[CycleObserver, ...]:
+    """The live status line's loop observer, when there is a terminal to show it on."""
+    if status is None:
+        return ()
+    laps = len(cfg.task.model("contour").lap_speeds_m_s) if cfg.task.kind == "contour" else None
+    return (status.observer(cfg.period_s, laps),)
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     from controller.tools.demo import random_udp_port, run_demo
 
@@ -188,19 +218,44 @@ def cmd_demo(args: argparse.Namespace) -> int:
         print(json.dumps(summary) if args.json else json.dumps(summary, indent=1))
         return 0 if summary["final_mode"] == "DONE" else 1
     spec = _spec(args, cfg, default_port=random_udp_port())
-    summary = run_demo(cfg, spec, _config_path(args), _overrides(args), args.max_duration, _stop_on_signals(),
-                       Path(args.plot) if args.plot else None, _realtime(args))
+    with live_status(status_wanted(args.json, sys.stdout)) as status:
+        summary = run_demo(cfg, spec, _config_path(args), _overrides(args), args.max_duration, _stop_on_signals(),
+                           Path(args.plot) if args.plot else None, _realtime(args), _status_observers(status, cfg))
     _print_summary(summary, args.json)
     return 0 if summary["final_mode"] == "DONE" else 1
 
 
 def cmd_run(args: argparse.Namespace) -> int:
     from controller.shell.service import run_controller
+    from controller.shell.stop_signals import install_stop_signals
 
+    if args.max_duration is not None and not args.max_duration > 0:
+        raise ConfigError(f"--max-duration {args.max_duration:g}: must be > 0 (leave it out to run until stopped)")
     cfg = _config(args)
-    summary = run_controller(cfg, _spec(args, cfg), args.max_duration, _stop_on_signals(), realtime=_realtime(args))
+    signals = install_stop_signals()
+    with live_status(status_wanted(args.json, sys.stdout)) as status:
+        summary = run_controller(cfg, _spec(args, cfg), args.max_duration, signals.stop, realtime=_realtime(args),
+                                 quick_stop_event=signals.quick_stop, observers=_status_observers(status, cfg))
     _print_summary(summary, args.json)
-    return 0 if summary["final_mode"] == "DONE" else 1
+    return run_exit_code(summary)
+
+
+EXIT_DONE, EXIT_FAULT, EXIT_REFUSED, EXIT_RECORDING_LOST = 0, 1, 2, 3
+RUN_EXIT_CODES = """exit status: 0 the run ended in DONE (task finished, or stopped by SIGTERM/SIGINT, cheope stop or
+--max-duration: braked, drives disabled); 1 it ended in FAULT (a fault, a quick stop after a second
+signal, or a stop that did not reach DONE within loop.stop_timeout_s); 2 refused at start (usage,
+configuration, bus load, workspace, real-time permissions, the bus or the devices); 3 DONE, but the
+recording was lost (see recording.on_failure)"""
+
+
+def run_exit_code(summary: dict[str, Any]) -> int:
+    """``RUN_EXIT_CODES`` for a finished run's summary."""
+    if summary["final_mode"] != "DONE":
+        return EXIT_FAULT
+    recording = summary.get("recording")
+    if isinstance(recording, dict) and recording.get("error"):
+        return EXIT_RECORDING_LOST
+    return EXIT_DONE
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
@@ -213,7 +268,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 def cmd_bus_load(args: argparse.Namespace) -> int:
-    from controller.shell.service import planned_bus_load
+    from controller.assembly import planned_bus_load
 
     cfg = _config(args)
     load = planned_bus_load(cfg)
@@ -236,6 +291,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from controller.tools.bench import run_bench_command
 
     return run_bench_command(args, _realtime(args))
+
+
+def cmd_soak(args: argparse.Namespace) -> int:
+    from controller.tools.soak import run_soak_command
+
+    return run_soak_command(args, ["--no-realtime"] if args.no_realtime else [])
 
 
 def cmd_analyze(args: argparse.Namespace) -> int:
@@ -287,6 +348,21 @@ def cmd_plan(args: argparse.Namespace) -> int:
     return 0 if report["ok"] else 1
 
 
+def cmd_plan_bench(args: argparse.Namespace) -> int:
+    from controller.tools.planner_benchmark import format_report, run_benchmark
+
+    if not args.robot and not args.config:
+        args.robot = "nspu"
+    cfg = _config(args)
+    if cfg.robot.kind != "nspu":
+        raise ConfigError(f"cheope plan-bench benchmarks the 3-nSPU's planner; robot.kind is {cfg.robot.kind!r}")
+    if args.pairs < 1:
+        raise ConfigError(f"--pairs {args.pairs}: must be >= 1")
+    report = run_benchmark(cfg, args.pairs, args.seed, lambda line: print(line, file=sys.stderr, flush=True))
+    print(json.dumps(report) if args.json else format_report(report))
+    return 0
+
+
 def cmd_faults(args: argparse.Namespace) -> int:
     from controller.tools.fault_scenarios import format_table, run_all
 
@@ -319,13 +395,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--simulated-time", action="store_true",
                    help="with --task contour: run the laps against the in-process devices in simulated time "
                         "(deterministic, no bus, no simulator process)")
+    _live_options(p)
     _rt_options(p)  # the simulator gets the priority minus 10 and the same memory locking
     p.set_defaults(func=cmd_demo)
-    p = sub.add_parser("run", help="only the controller, against whatever devices are on the bus")
+    p = sub.add_parser("run", help="only the controller, against whatever devices are on the bus",
+                       description="Run the controller until its task ends or it is told to stop (SIGTERM, "
+                                   "SIGINT, cheope stop, --max-duration); a second signal quick-stops the drives.",
+                       epilog=RUN_EXIT_CODES)
     _common(p)
     add_controller_options(p)
     p.add_argument("--json", action="store_true")
-    p.add_argument("--max-duration", type=float, default=600.0)
+    p.add_argument("--max-duration", type=float, default=None, metavar="SECONDS",
+                   help="stop (through STOPPING: brake, disable the drives) after this long; default: run until stopped")
+    _live_options(p)
     _rt_options(p)
     p.set_defaults(func=cmd_run)
     p = sub.add_parser("sim", help="only the simulated hardware")
@@ -360,12 +442,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.add_argument("--plot", metavar="DIR", help="write the plan's PNG plots here")
     p.set_defaults(func=cmd_plan)
+    p = sub.add_parser("plan-bench", help="3-nSPU: the planner over random seeded pose pairs; success, time, error")
+    _common(p, bus=False)
+    p.add_argument("--pairs", type=int, default=100, help="number of pose pairs (default 100)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the pairs (default 0)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_plan_bench)
     p = sub.add_parser("bench", help="timing benchmark with the simulator: 400 Hz and 1 kHz, table, JSON, PNG")
     from controller.tools.bench import add_bench_arguments
 
     add_bench_arguments(p)
     _rt_options(p)
     p.set_defaults(func=cmd_bench)
+    p = sub.add_parser("soak", help="a long run of cheope sim + cheope run: controller RSS slope, late cycles per 10 000")
+    from controller.tools.soak import add_soak_arguments
+
+    add_soak_arguments(p)
+    p.add_argument("--no-realtime", action="store_true", help="both processes under the normal scheduler")
+    p.set_defaults(func=cmd_soak)
     add_monitoring_subcommands(sub)
     from logs.cli import add_commands as add_log_commands  # cheope logs info|recover, cheope replay
 

@@ -87,14 +87,44 @@ class ActuatorsSection(Section, frozen=True):
     max_velocity_m_s: Annotated[float, rng(0.0, 100.0, lo_open=True)] = 1.0
     max_acceleration_m_s2: Annotated[float, rng(0.0, 1e4, lo_open=True)] = 10.0
     max_jerk_m_s3: Annotated[float, rng(0.0, 1e7, lo_open=True)] = 500.0
+    # The drives' own following-error monitor (CiA 402 0x6065 window, 0x6066 time), set at start.
+    following_error_window_m: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.005
+    following_error_window_rad: Annotated[float, rng(0.0, 100.0, lo_open=True)] = 0.05
+    following_error_time_s: Annotated[float, rng(0.0, 65.535)] = 0.01
     vendor_id: Annotated[int, rng(0, 2**32 - 1)] = 0x00000CE0
     product_code: Annotated[int, rng(0, 2**32 - 1)] = 0x00000402
+    # The drives' device description (EDS); "" is drivers/eds/cheope_drive.eds. The PDO mapping
+    # written at start is the EDS's default unless listed here ("0x607A", "0x2000:1").
+    eds_file: str = ""
+    rpdo_objects: tuple[str, ...] = ()
+    tpdo_objects: tuple[str, ...] = ()
+    # CiA 402 homing before the first cycle (drivers/homing.py): 0 none, 17/18 negative/positive limit
+    # switch, 35/37 current position. Positions and speeds in the actuators' unit (rad for rotary ones).
+    homing_method: Literal[0, 17, 18, 35, 37] = 0
+    home_offsets_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # each drive's position at home (0x607C)
+    homing_switch_speed_m_s: Annotated[float, rng(0.0, 100.0, lo_open=True)] = 0.1
+    homing_zero_speed_m_s: Annotated[float, rng(0.0, 100.0, lo_open=True)] = 0.005
+    homing_acceleration_m_s2: Annotated[float, rng(0.0, 1e4, lo_open=True)] = 1.0
+    homing_timeout_s: Annotated[float, rng(0.1, 600.0)] = 30.0
 
 
 class SensorSection(Section, frozen=True):
     enabled: bool = True
     node_id: Annotated[int, rng(1, 127)] = 16
     product_code: Annotated[int, rng(0, 2**32 - 1)] = 0x00000F75
+    vendor_id: Annotated[int, rng(0, 2**32 - 1)] = 0x00000CE0
+    eds_file: str = ""  # "" is drivers/eds/force_sensor.eds; its TPDO1/TPDO2 mapping is written at start
+
+
+class TrackerSection(Section, frozen=True):
+    """An optional pose tracker on the platform (drivers/pdo_codec.py: two TPDOs), read by the exchange.
+
+    The 3-nSPU's planned task corrects its execution from it (controller/tasks/planned_legs.py).
+    """
+
+    enabled: bool = False
+    node_id: Annotated[int, rng(1, 127)] = 20
+    rate_hz: Annotated[float, rng(0.1, 10000.0)] = 100.0  # its samples a second: the bus-load budget
 
 
 class BusSection(Section, frozen=True):
@@ -104,6 +134,10 @@ class BusSection(Section, frozen=True):
     bitrate_bit_s: Annotated[float, rng(1e4, 1e6)] = 1.0e6
     data_bitrate_bit_s: Annotated[float, rng(1e5, 1.2e7)] = 5.0e6
     max_load_percent: Annotated[float, rng(1.0, 100.0)] = 70.0
+    # Who sends SYNC: "loop" (the cycle sends RPDOs then SYNC) or "kernel" (SocketCAN only: the
+    # kernel's broadcast manager sends SYNC every period; the loop sends the RPDOs ahead of it).
+    sync_producer: Literal["loop", "kernel"] = "loop"
+    sync_lead_fraction: Annotated[float, rng(0.05, 0.9)] = 0.2  # kernel: RPDOs this part of a period before SYNC
 
 
 class LoopSection(Section, frozen=True):
@@ -119,6 +153,9 @@ class LoopSection(Section, frozen=True):
     enable_timeout_s: Annotated[float, rng(0.01, 60.0)] = 2.0
     sdo_timeout_s: Annotated[float, rng(0.01, 60.0)] = 1.0
     stay_in_fault: bool = False  # keep cycling in FAULT (quick stop held) until a remote reset or a stop
+    # a stop (signal, cheope stop, --max-duration, a lost recording) that has not reached DONE by then
+    # quick-stops the drives: the process ends in bounded time whatever the drives answer
+    stop_timeout_s: Annotated[float, rng(0.01, 600.0)] = 10.0
     hold_before_task_s: Annotated[float, rng(0.0, 60.0)] = 0.2
     settle_tolerance_m: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 2.0e-5
 
@@ -143,6 +180,21 @@ class SafetySection(Section, frozen=True):
     max_consecutive_late_cycles: Annotated[int, rng(1, 1000000)] = 50
     on_late_cycles: Reaction = Reaction("fault")
     late_tolerance_fraction: Annotated[float, rng(0.01, 10.0)] = 0.5
+    # Position plausibility (always a fault): a measured position further from the drive's last one
+    # than actuators.max_velocity allows plus this is a jump; further than the window from the
+    # commanded one while enabled is a following error. _rad: rotary actuators.
+    max_position_jump_m: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.005
+    max_position_jump_rad: Annotated[float, rng(0.0, 100.0, lo_open=True)] = 0.05
+    following_window_m: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.01
+    following_window_rad: Annotated[float, rng(0.0, 100.0, lo_open=True)] = 0.1
+    # The whole bus (drivers/cyclic_exchange.py): frames nobody configured should send.
+    on_unknown_node: Reaction = Reaction("warn")  # frames, EMCY or heartbeats of unconfigured nodes
+    on_foreign_sync: Reaction = Reaction("fault")  # a second SYNC producer
+    on_foreign_nmt: Reaction = Reaction("fault")  # someone else's NMT command to our nodes
+    on_foreign_command: Reaction = Reaction("fault")  # someone else's RPDO or SDO to our drives
+    on_duplicate_frames: Reaction = Reaction("warn")  # a node's TPDO twice in one cycle
+    on_frame_flood: Reaction = Reaction("fault")
+    max_foreign_frames_per_cycle: Annotated[int, rng(1, 100000)] = 16
 
 
 class TaskSection(Section, frozen=True):
@@ -164,13 +216,21 @@ class RecordingSection(Section, frozen=True):
     buffer_bytes: Annotated[int, rng(4096, 1 << 30)] = 4 << 20  # loop -> writer process; full: dropped
     chunk_size_bytes: Annotated[int, rng(1024, 64 * 1024 * 1024)] = 65536  # uncompressed
     flush_interval_s: Annotated[float, rng(0.01, 60.0)] = 0.5  # close a chunk at least this often
+    # the writer process gone (killed, disk full, file size limit): "stop" ends the run through
+    # STOPPING (a session that must be recorded is not worth running blind), "warn" runs on unrecorded
+    on_failure: Literal["stop", "warn"] = "stop"
+    # the robot in 3D (/scene, live views): moving parts drawn at this rate [Hz], by the writer process
+    scene_rate_hz: Annotated[float, rng(0.1, 1000.0)] = 20.0
+    # live views, fed by the writer process (logs/live_views.py); they need the recording enabled
+    live_rerun: str = ""  # "" off, "spawn" (a viewer), "serve" (gRPC + web viewer), or a rerun+http:// URL
+    live_foxglove: str = ""  # "" off, or "HOST:PORT" of a Foxglove WebSocket server (foxglove-sdk)
 
 
 class MonitoringSection(Section, frozen=True):
     """Remote monitoring over Zenoh (controller/monitoring/): keys under ``<key_prefix>/<robot_id>/``."""
 
     enabled: bool = True
-    robot_id: str = "cheope-1"
+    robot_id: str = ""  # "": <host>-<4 hex digits>, unique (controller/monitoring/robot_identity.py)
     key_prefix: str = "cheope"
     publish_rate_hz: Annotated[float, rng(0.0, 4000.0, lo_open=True)] = 50.0  # >= loop rate: every cycle
     mode: Literal["peer", "client"] = "peer"
@@ -185,6 +245,7 @@ class Config(Section, frozen=True):
     robot: RobotSection = msgspec.field(default_factory=RobotSection)
     actuators: ActuatorsSection = msgspec.field(default_factory=ActuatorsSection)
     sensor: SensorSection = msgspec.field(default_factory=SensorSection)
+    tracker: TrackerSection = msgspec.field(default_factory=TrackerSection)
     bus: BusSection = msgspec.field(default_factory=BusSection)
     loop: LoopSection = msgspec.field(default_factory=LoopSection)
     safety: SafetySection = msgspec.field(default_factory=SafetySection)
@@ -235,9 +296,23 @@ def _build_group(cls: type[RobotSection | TaskSection], table: Any, prefix: str)
 _GROUPS: dict[str, type[RobotSection | TaskSection]] = {"robot": RobotSection, "task": TaskSection}
 
 
+def _check_live_views(r: RecordingSection) -> None:
+    """The live-view settings are refused at start, not when the writer process tries them."""
+    if r.live_rerun and r.live_rerun not in ("spawn", "serve") and not r.live_rerun.startswith(
+            ("rerun+http://", "rerun+https://")):
+        raise ConfigError(f"recording.live_rerun = {r.live_rerun!r}: must be \"\" (off), \"spawn\", \"serve\" "
+                          "or a rerun+http://HOST:PORT/proxy URL")
+    if r.live_foxglove:
+        _, sep, port = r.live_foxglove.rpartition(":")
+        if not sep or not port.isdigit() or int(port) > 65535:
+            raise ConfigError(f"recording.live_foxglove = {r.live_foxglove!r}: must be HOST:PORT with a port in "
+                              "0..65535 (0: a free port)")
+
+
 def _cross_checks(cfg: Config) -> None:
+    _check_live_views(cfg.recording)
     ids = list(cfg.actuators.node_ids) + ([cfg.sensor.node_id] if cfg.sensor.enabled else []) + [
-        cfg.loop.controller_node_id]
+        cfg.loop.controller_node_id] + ([cfg.tracker.node_id] if cfg.tracker.enabled else [])
     for i in cfg.actuators.node_ids:
         if not 1 <= i <= 127:
             raise ConfigError(f"actuators.node_ids = {list(cfg.actuators.node_ids)}: node ids must be in 1..127")
@@ -245,6 +320,7 @@ def _cross_checks(cfg: Config) -> None:
         raise ConfigError(
             f"node ids must be distinct: actuators.node_ids = {list(cfg.actuators.node_ids)}, "
             f"sensor.node_id = {cfg.sensor.node_id}, loop.controller_node_id = {cfg.loop.controller_node_id}"
+            + (f", tracker.node_id = {cfg.tracker.node_id}" if cfg.tracker.enabled else "")
         )
     if cfg.loop.heartbeat_consumer_s <= cfg.loop.heartbeat_period_s:
         raise ConfigError(
@@ -252,7 +328,7 @@ def _cross_checks(cfg: Config) -> None:
             f"loop.heartbeat_period_s = {cfg.loop.heartbeat_period_s}"
         )
     _registered_cross_checks(cfg)
-    check_sim_section(cfg.sim)
+    check_sim_section(cfg.sim, tuple(cfg.actuators.node_ids), cfg.sensor.node_id if cfg.sensor.enabled else None)
     if cfg.bus.fd and cfg.bus.data_bitrate_bit_s < cfg.bus.bitrate_bit_s:
         raise ConfigError(
             f"bus.data_bitrate_bit_s = {cfg.bus.data_bitrate_bit_s} must be >= bus.bitrate_bit_s = "

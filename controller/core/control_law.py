@@ -14,7 +14,8 @@ Supervisor modes (see ``Mode``)::
                                             STOPPING -> DONE          (any mode) -> FAULT
 
 CONFIGURING waits for every drive's first TPDO (the loop shell has done NMT and SDO set-up
-before the first cycle), ENABLING walks each drive's CiA 402 power state machine to
+before the first cycle; an EMCY, a bus-off or a drive not heard within ``enable_timeout_s``
+faults here too), ENABLING walks each drive's CiA 402 power state machine to
 OPERATION ENABLED while commanding its measured position (no jump at enable), HOLDING keeps
 the position for ``hold_before_task_s``, RUNNING streams the task through Ruckig, PAUSED
 brakes and holds with the task clock stopped (remote ``pause``/``resume``), STOPPING brakes
@@ -34,7 +35,15 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from controller.core.cycle_data import Command, CycleInputs, CycleOutputs, Event, Reaction, Severity
+from controller.core.cycle_data import (
+    Anomaly,
+    Command,
+    CycleInputs,
+    CycleOutputs,
+    Event,
+    Reaction,
+    Severity,
+)
 from controller.core.setpoint_smoothing import RuckigSmoother, Setpoint
 from controller.robots.cheope import PoseStatus
 from controller.robots.errors import NoSolutionError
@@ -78,6 +87,37 @@ class SafetyConfig:
     on_error_frames: Reaction = Reaction.WARN
     max_consecutive_late_cycles: int = 50
     on_late_cycles: Reaction = Reaction.FAULT
+    # Position plausibility [actuator unit]: a measured step beyond what the speed limit allows plus
+    # this is a jump; a measured position this far from the commanded one is a following error.
+    max_position_jump: float = math.inf
+    following_window: float = math.inf
+    on_unknown_node: Reaction = Reaction.WARN
+    on_foreign_sync: Reaction = Reaction.FAULT
+    on_foreign_nmt: Reaction = Reaction.FAULT
+    on_foreign_command: Reaction = Reaction.FAULT
+    on_duplicate_frames: Reaction = Reaction.WARN
+    on_frame_flood: Reaction = Reaction.FAULT
+
+    def reaction_to(self, anomaly: Anomaly) -> Reaction:
+        return {
+            Anomaly.UNKNOWN_FRAME: self.on_unknown_node, Anomaly.UNKNOWN_EMCY: self.on_unknown_node,
+            Anomaly.UNKNOWN_HEARTBEAT: self.on_unknown_node, Anomaly.FOREIGN_SYNC: self.on_foreign_sync,
+            Anomaly.FOREIGN_NMT: self.on_foreign_nmt, Anomaly.FOREIGN_COMMAND: self.on_foreign_command,
+            Anomaly.DUPLICATE_FRAME: self.on_duplicate_frames, Anomaly.FRAME_FLOOD: self.on_frame_flood,
+        }[anomaly]
+
+
+ANOMALY_TEXT = {
+    Anomaly.UNKNOWN_FRAME: "frame(s) from a COB-ID no configured node uses",
+    Anomaly.UNKNOWN_EMCY: "EMCY from a node that is not configured",
+    Anomaly.UNKNOWN_HEARTBEAT: "heartbeat from a node that is not configured",
+    Anomaly.FOREIGN_SYNC: "SYNC the controller did not send (a second SYNC producer)",
+    Anomaly.FOREIGN_NMT: "NMT command the controller did not send",
+    Anomaly.FOREIGN_COMMAND: "frame on a COB-ID only the controller sends (a second master)",
+    Anomaly.DUPLICATE_FRAME: "TPDO(s) twice in one cycle",
+    Anomaly.FRAME_FLOOD: "foreign frames in one cycle: a frame flood",
+}
+NMT_STATE_NAMES = {0: "boot-up (it restarted)", 4: "STOPPED", 5: "OPERATIONAL", 127: "PRE-OPERATIONAL"}
 
 
 @dataclass(frozen=True)
@@ -88,6 +128,9 @@ class LawConfig:
     max_missing_cycles: int
     settle_tolerance: float  # [actuator unit] and [unit/s]: "at rest" for the stop
     safety: SafetyConfig = SafetyConfig()
+    max_speed: float = math.inf  # [unit/s] the actuators' speed limit, for the plausibility check
+    position_unit: str = "m"  # for messages
+    rest_target: float = 0.0  # [unit] the target sent before a drive's first TPDO (mid-stroke)
 
 
 @dataclass(frozen=True, slots=True)
@@ -105,8 +148,10 @@ class ControllerState:
     fault_reason: str = ""
     sensor_counter: int = -1  # last sensor counter seen, for staleness
     sensor_stale: int = 0  # cycles the counter has not advanced
+    sensor_missing: int = 0  # cycles in a row without a usable sample (missing or ambiguous)
     late_streak: int = 0  # consecutive late cycles
     warned: frozenset[str] = frozenset()  # warnings already raised in the current episode
+    last_measured: tuple[float, ...] = ()  # each drive's last fresh position, for the plausibility check
 
 
 # One handler per mode: (state, inputs, power states, measured positions, t, events) -> state.
@@ -134,11 +179,11 @@ class ControlLaw:
         }
 
     def initial_state(self) -> ControllerState:
-        zeros = (0.0,) * self.n
+        rest = (self.config.rest_target,) * self.n
         return ControllerState(
-            mode=Mode.CONFIGURING, cycle=0, mode_entered_s=0.0, setpoint=Setpoint.at_rest(zeros),
+            mode=Mode.CONFIGURING, cycle=0, mode_entered_s=0.0, setpoint=Setpoint.at_rest(rest),
             controlwords=(0,) * self.n, missing_streak=(0,) * self.n, task_state=None,
-            tcp_reference_m=None, tcp_measured_m=None,
+            tcp_reference_m=None, tcp_measured_m=None, last_measured=(math.nan,) * self.n,
         )
 
     # -- the step -------------------------------------------------------------------------
@@ -148,23 +193,42 @@ class ControlLaw:
         events: list[Event] = []
         measured = tuple(d.position for d in inputs.drives)
         powers = tuple(decode_statusword(d.statusword) for d in inputs.drives)
+        jump = self._position_jump(state, inputs)
         streak = tuple(0 if d.fresh else s + 1 for d, s in zip(inputs.drives, state.missing_streak))
-        state = replace(state, cycle=state.cycle + 1, missing_streak=streak,
+        last = tuple(d.position if d.fresh else x for d, x in zip(inputs.drives, state.last_measured))
+        state = replace(state, cycle=state.cycle + 1, missing_streak=streak, last_measured=last,
                         tcp_measured_m=self._measured_tcp(state, inputs, measured))
 
-        if state.mode not in (Mode.FAULT, Mode.CONFIGURING):
-            state, reason = self._safety(state, inputs, events)
-            reason = reason or self._fault_reason(state, inputs, powers)
+        if state.mode == Mode.CONFIGURING:
+            reason = self._configuring_fault(state, inputs)
             if reason:
                 state = self._enter(state, Mode.FAULT, t, events, Severity.FAULT, reason)
-                state = replace(state, fault_reason=reason, setpoint=Setpoint.at_rest(measured))
+                state = replace(state, fault_reason=reason)
+        elif state.mode == Mode.DONE and not all(math.isfinite(x) for x in state.last_measured):
+            # Stopped before every drive had answered (CONFIGURING -> DONE): nothing was enabled,
+            # the controlwords say disable voltage, and a never-heard position is no measurement.
+            pass
+        elif state.mode != Mode.FAULT:
+            state, reason = self._safety(state, inputs, events)
+            reason = reason or jump or self._fault_reason(state, inputs, powers)
+            if reason:
+                state = self._enter(state, Mode.FAULT, t, events, Severity.FAULT, reason)
+                state = replace(state, fault_reason=reason, setpoint=self._hold(state, measured))
         elif state.mode == Mode.FAULT and inputs.command == Command.RESET:
             # Recovery without a jump: ENABLING resets the drives' faults and commands the
             # measured positions; HOLDING restarts Ruckig from rest there; the task starts again.
             state = replace(self._enter(state, Mode.ENABLING, t, events, why="reset"), fault_reason="",
-                            setpoint=Setpoint.at_rest(measured), task_time_s=0.0, sensor_stale=0, late_streak=0,
+                            setpoint=Setpoint.at_rest(measured), task_time_s=0.0, sensor_stale=0, sensor_missing=0,
+                            late_streak=0,
                             warned=frozenset())
-        if inputs.stop_requested and state.mode in (Mode.ENABLING, Mode.HOLDING, Mode.RUNNING, Mode.PAUSED):
+        if inputs.command == Command.QUICK_STOP and state.mode not in (Mode.FAULT, Mode.DONE):
+            why = "quick stop requested"
+            state = replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, why), fault_reason=why,
+                            setpoint=self._hold(state, measured))
+        elif inputs.stop_requested and state.mode == Mode.CONFIGURING:
+            # nothing has been enabled yet: there is nothing to brake or to shut down
+            state = self._enter(state, Mode.DONE, t, events, Severity.INFO, "stop requested before enabling")
+        elif inputs.stop_requested and state.mode in (Mode.ENABLING, Mode.HOLDING, Mode.RUNNING, Mode.PAUSED):
             state = self._enter(state, Mode.STOPPING, t, events, Severity.INFO, "stop requested")
         elif inputs.command == Command.PAUSE and state.mode == Mode.RUNNING:
             state = self._enter(state, Mode.PAUSED, t, events, why="remote pause")
@@ -205,6 +269,11 @@ class ControlLaw:
         if sensor is not None and sensor.fresh:
             stale = state.sensor_stale + 1 if sensor.counter == state.sensor_counter else 0
             state = replace(state, sensor_counter=sensor.counter, sensor_stale=stale)
+        if sensor is not None:
+            missing = 0 if sensor.fresh else state.sensor_missing + 1
+            if missing != state.sensor_missing:
+                state = replace(state, sensor_missing=missing)
+        if sensor is not None and sensor.fresh:
             f = sensor.force_n
             magnitude = math.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2])
             if magnitude > sc.max_contact_force_n:
@@ -216,8 +285,13 @@ class ControlLaw:
                     return state, why
         if sensor is not None and stale >= sc.sensor_stale_cycles:  # stale > 0 only with a sensor
             state, why = self._react(state, sc.on_sensor_stale, "sensor_stale",
-                                     f"force sensor stale: counter stuck at {sensor.counter} for {stale} cycles",
-                                     events)
+                                     f"force sensor stale: counter stuck at {sensor.counter} for {stale} cycles", events)
+            if why:
+                return state, why
+        if state.sensor_missing >= self.config.max_missing_cycles:
+            # No usable sample (missing, or two senders on its COB-ID) as long as a drive may be silent.
+            state, why = self._react(state, sc.on_sensor_stale, "sensor_stale",
+                                     f"force sensor: no usable sample for {state.sensor_missing} cycles", events)
             if why:
                 return state, why
         if inputs.lost_heartbeats:
@@ -232,6 +306,14 @@ class ControlLaw:
                                      f"{inputs.error_frames} CAN error frame(s) received", events)
             if why:
                 return state, why
+        for a in inputs.anomalies:
+            what = f"{a.count} {ANOMALY_TEXT[a.kind]} (COB-ID 0x{a.cob_id:03X})"
+            state, why = self._react(state, sc.reaction_to(a.kind), a.kind.value, what, events)
+            if why:
+                return state, why
+        for r in inputs.nmt_reports:
+            return state, (f"node {r.node_id} heartbeat reports {NMT_STATE_NAMES.get(r.state, f'state {r.state}')}"
+                           f", not OPERATIONAL")
         late = state.late_streak + 1 if inputs.late else 0
         if late != state.late_streak:
             state = replace(state, late_streak=late)
@@ -246,9 +328,56 @@ class ControlLaw:
                 return state, status.reason
         return state, ""
 
+    def _position_jump(self, state: ControllerState, inputs: CycleInputs) -> str:
+        """A fresh position further from the last one than the actuator can move: a lying encoder or frame."""
+        cfg = self.config
+        tolerance = cfg.safety.max_position_jump
+        if not math.isfinite(tolerance) or state.mode in (Mode.CONFIGURING, Mode.FAULT):
+            return ""
+        for j, (d, last, gap) in enumerate(zip(inputs.drives, state.last_measured, state.missing_streak)):
+            if not (d.fresh and math.isfinite(last)):
+                continue
+            possible = cfg.max_speed * (gap + 1) * cfg.period_s + tolerance
+            step = abs(d.position - last)
+            if step > possible:  # also catches NaN below: NaN > x is False, the finite check is elsewhere
+                u = cfg.position_unit
+                return (f"drive {j + 1} position jumped {step:.4f} {u} in {gap + 1} cycle(s) (from {last:.4f} to "
+                        f"{d.position:.4f} {u}); at most {possible:.4f} {u} is possible "
+                        f"({cfg.max_speed} {u}/s + safety.max_position_jump {tolerance} {u})")
+        return ""
+
+    def _following_error(self, state: ControllerState, inputs: CycleInputs) -> str:
+        window = self.config.safety.following_window
+        if not math.isfinite(window):
+            return ""
+        for j, (d, target) in enumerate(zip(inputs.drives, state.setpoint.position)):
+            if d.fresh and abs(d.position - target) > window:
+                u = self.config.position_unit
+                return (f"drive {j + 1} following error {abs(d.position - target):.4f} {u} beyond the window of "
+                        f"{window} {u} (measured {d.position:.4f} {u}, commanded {target:.4f} {u})")
+        return ""
+
+    def _configuring_fault(self, state: ControllerState, inputs: CycleInputs) -> str:
+        """Before every drive has answered: what already makes starting pointless."""
+        if inputs.bus_off:
+            return "CAN bus-off reported by an error frame"
+        for e in inputs.emcy:
+            if e.error_code != 0:
+                return f"EMCY from node {e.node_id}: error code 0x{e.error_code:04X}, register 0x{e.error_register:02X}"
+        # A drive that never answered is judged on the time devices may take to come up after their
+        # NMT start (a slow machine, an emulated one), not on max_missing_cycles of a running bus.
+        waited_s = state.cycle * self.config.period_s
+        if waited_s >= self.config.enable_timeout_s:
+            for j, x in enumerate(state.last_measured):
+                if math.isnan(x):
+                    return f"drive {j + 1}: no TPDO within {self.config.enable_timeout_s} s of the start"
+        return ""
+
     def _fault_reason(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...]) -> str:
         for j, (p, streak) in enumerate(zip(powers, state.missing_streak)):
-            if p in (PowerState.FAULT, PowerState.FAULT_REACTION_ACTIVE):
+            # Judged on this cycle's TPDO only: a statusword not refreshed (missing frame) is old news,
+            # e.g. the FAULT a reset has just cleared; silence has its own limit below.
+            if inputs.drives[j].fresh and p in (PowerState.FAULT, PowerState.FAULT_REACTION_ACTIVE):
                 return f"drive {j + 1} reports {p.name} (statusword 0x{inputs.drives[j].statusword:04X})"
             if streak >= self.config.max_missing_cycles:
                 return f"drive {j + 1}: no TPDO for {streak} cycles"
@@ -258,8 +387,11 @@ class ControlLaw:
         if state.mode in (Mode.HOLDING, Mode.RUNNING, Mode.PAUSED) or (
                 state.mode == Mode.STOPPING and not self._shutting_down(state)):
             for j, p in enumerate(powers):
-                if p != PowerState.OPERATION_ENABLED:
+                if inputs.drives[j].fresh and p != PowerState.OPERATION_ENABLED:
                     return f"drive {j + 1} left OPERATION ENABLED (now {p.name})"
+            following = self._following_error(state, inputs)
+            if following:
+                return following
         for j, x in enumerate(inputs.drives):
             if not math.isfinite(x.position):
                 return f"drive {j + 1} position is not a number"
@@ -282,13 +414,16 @@ class ControlLaw:
         if all(d.fresh for d in inputs.drives):
             state = replace(state, setpoint=Setpoint.at_rest(measured))
             return self._enter(state, Mode.ENABLING, t, events, why="all drives answer")
-        return state
+        # Until every drive has answered, each is sent where it was last heard (else mid-stroke).
+        heard = tuple(x if math.isfinite(x) else q for x, q in zip(state.last_measured, state.setpoint.position))
+        return replace(state, setpoint=Setpoint.at_rest(heard))
 
     def _enabling(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...],
                   measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
-        # Command the measured position while the drives are not enabled: no jump at enable.
-        cws = tuple(controlword_towards(p, PowerState.OPERATION_ENABLED, cw)
-                    for p, cw in zip(powers, state.controlwords))
+        # Command the measured position while the drives are not enabled: no jump at enable. A drive
+        # not heard this cycle keeps its controlword: its statusword is old news (it may say FAULT).
+        cws = tuple(controlword_towards(p, PowerState.OPERATION_ENABLED, cw) if d.fresh else cw
+                    for p, cw, d in zip(powers, state.controlwords, inputs.drives))
         state = replace(state, controlwords=cws, setpoint=Setpoint.at_rest(measured))
         if all(p == PowerState.OPERATION_ENABLED for p in powers):
             return self._enter(state, Mode.HOLDING, t, events, why="all drives in OPERATION ENABLED")
@@ -368,7 +503,12 @@ class ControlLaw:
                measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
         cws = tuple(controlword_towards(p, PowerState.QUICK_STOP_ACTIVE, cw)
                     for p, cw in zip(powers, state.controlwords))
-        return replace(state, controlwords=cws, setpoint=Setpoint.at_rest(measured))
+        return replace(state, controlwords=cws, setpoint=self._hold(state, measured))
+
+    @staticmethod
+    def _hold(state: ControllerState, measured: tuple[float, ...]) -> Setpoint:
+        """At rest where each drive is measured; where it never answered (NaN), where it was sent."""
+        return Setpoint.at_rest(tuple(x if math.isfinite(x) else q for x, q in zip(measured, state.setpoint.position)))
 
     def _smooth_to_rest(self, state: ControllerState, t: float, events: list[Event]) -> ControllerState:
         result = self.smoother.brake(state.setpoint)

@@ -28,10 +28,51 @@ class SensorFeedback:
 
 
 @dataclass(frozen=True, slots=True)
+class TrackerFeedback:
+    """The platform's pose from a pose tracker (drivers/pdo_codec.py: its two TPDOs), in the base frame {0}."""
+
+    position_m: tuple[float, float, float]
+    rotation_vector_rad: tuple[float, float, float]  # R = exp([rotation_vector]x)
+    status: int
+    counter: int
+    fresh: bool  # a new sample (both frames, one counter) arrived since the last cycle
+
+
+@dataclass(frozen=True, slots=True)
 class EmcyReport:
     node_id: int
     error_code: int
     error_register: int
+
+
+class Anomaly(StrEnum):
+    """Something on the bus that no configured device or the controller itself should have sent."""
+
+    UNKNOWN_FRAME = "unknown_frame"  # a COB-ID that no configured node and not the controller uses
+    UNKNOWN_EMCY = "unknown_emcy"  # an EMCY from a node that is not configured
+    UNKNOWN_HEARTBEAT = "unknown_heartbeat"  # a heartbeat or boot-up from a node that is not configured
+    FOREIGN_SYNC = "foreign_sync"  # a SYNC the controller did not send: a second SYNC producer
+    FOREIGN_NMT = "foreign_nmt"  # an NMT command the controller did not send, to all or to a configured node
+    FOREIGN_COMMAND = "foreign_command"  # a frame on a COB-ID only the controller sends (RPDO, its heartbeat)
+    DUPLICATE_FRAME = "duplicate_frame"  # a node's TPDO twice in one cycle
+    FRAME_FLOOD = "frame_flood"  # more foreign frames in one cycle than safety.max_foreign_frames_per_cycle
+
+
+@dataclass(frozen=True, slots=True)
+class BusAnomaly:
+    """``count`` frames of one anomaly in one cycle; ``cob_id`` of the (first or most frequent) one."""
+
+    kind: Anomaly
+    cob_id: int
+    count: int
+
+
+@dataclass(frozen=True, slots=True)
+class NmtReport:
+    """A configured node's heartbeat this cycle that did not say OPERATIONAL (CiA 301 states)."""
+
+    node_id: int
+    state: int  # 0 boot-up, 4 stopped, 5 operational, 127 pre-operational
 
 
 class Command(StrEnum):
@@ -42,6 +83,7 @@ class Command(StrEnum):
     RESUME = "resume"
     SET_FORCE = "set_force"  # command_value: the new force setpoint [N]
     RESET = "reset"  # leave FAULT
+    QUICK_STOP = "quick_stop"  # from the loop shell only (a second signal, a stop that did not end in time)
 
 
 class Reaction(StrEnum):
@@ -62,6 +104,9 @@ class BusFeedback:
     lost_heartbeats: tuple[int, ...] = ()  # node ids whose heartbeat is overdue
     error_frames: int = 0  # CAN error frames received this cycle
     bus_off: bool = False  # an error frame reported bus-off
+    anomalies: tuple[BusAnomaly, ...] = ()
+    nmt_reports: tuple[NmtReport, ...] = ()
+    tracker: TrackerFeedback | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,6 +121,10 @@ class CycleInputs:
     error_frames: int = 0  # CAN error frames received this cycle
     bus_off: bool = False  # an error frame reported bus-off
     late: bool = False  # the loop woke more than the configured tolerance after its deadline
+    anomalies: tuple[BusAnomaly, ...] = ()  # foreign, unknown, duplicate or flooding frames this cycle
+    nmt_reports: tuple[NmtReport, ...] = ()  # configured nodes whose heartbeat was not OPERATIONAL
+    tracker: TrackerFeedback | None = None  # the platform's measured pose, where a tracker is configured
+    plans_ready: int = 0  # the last plan request the shell's off-loop planner has finished (plan_worker.py)
 
 
 @dataclass(frozen=True, slots=True)
@@ -98,9 +147,10 @@ class Event:
 
 
 def cycle_inputs(feedback: BusFeedback, stop_requested: bool = False, command: Command = Command.NONE,
-                 command_value: float = 0.0, late: bool = False) -> CycleInputs:
+                 command_value: float = 0.0, late: bool = False, plans_ready: int = 0) -> CycleInputs:
     """The step's inputs: the bus's feedback plus what the loop knows (stop, remote command, lateness)."""
     return CycleInputs(drives=feedback.drives, sensor=feedback.sensor, emcy=feedback.emcy,
                        stop_requested=stop_requested, command=command, command_value=command_value,
                        lost_heartbeats=feedback.lost_heartbeats, error_frames=feedback.error_frames,
-                       bus_off=feedback.bus_off, late=late)
+                       bus_off=feedback.bus_off, late=late, anomalies=feedback.anomalies,
+                       nmt_reports=feedback.nmt_reports, tracker=feedback.tracker, plans_ready=plans_ready)

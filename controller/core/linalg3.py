@@ -51,9 +51,15 @@ def inverse3(m: Matrix3) -> Matrix3:
     (a, b, c), (d, e, f), (g, h, i) = m
     co_a, co_b, co_c = e * i - f * h, f * g - d * i, d * h - e * g
     det = a * co_a + b * co_b + c * co_c
-    if det == 0.0:
-        raise np.linalg.LinAlgError("singular 3x3 matrix")
-    r = 1.0 / det
+    r = 1.0 / det if det != 0.0 else math.inf
+    if not math.isfinite(r):
+        # The determinant, a product of three entries, under- or overflowed (entries below
+        # about 1e-103 or above 1e102; found by tests/unit/test_linalg3.py): invert the matrix
+        # scaled to a largest entry of 1, then scale back. Never taken by the robots' Jacobians.
+        scale = max(abs(x) for row in m for x in row)
+        if scale == 0.0 or scale == 1.0 or not math.isfinite(scale):
+            raise np.linalg.LinAlgError("singular 3x3 matrix")
+        return scaled3(inverse3(scaled3(m, 1.0 / scale)), 1.0 / scale)
     return ((co_a * r, (c * h - b * i) * r, (b * f - c * e) * r),
             (co_b * r, (a * i - c * g) * r, (c * d - a * f) * r),
             (co_c * r, (b * g - a * h) * r, (a * e - b * d) * r))

@@ -12,9 +12,10 @@ objects are preallocated scratch space, not state. Intermediate waypoints are ne
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
-from ruckig import ControlInterface, InputParameter, Result, Ruckig, RuckigError, Trajectory
+from ruckig import ControlInterface, InputParameter, Result, Ruckig, RuckigError, Synchronization, Trajectory
 
 
 @dataclass(frozen=True, slots=True)
@@ -41,6 +42,9 @@ class SmoothingResult:
     setpoint: Setpoint
     ok: bool
     message: str  # why Ruckig refused, empty when ok
+
+
+TARGET_VELOCITY_MARGIN = 1.0 - 1e-6  # of v_max: 0.5 um/s at 0.5 m/s, far below any tolerance
 
 
 class RuckigSmoother:
@@ -76,8 +80,18 @@ class RuckigSmoother:
         plan becomes the fastest allowed transition instead of a fault.
         """
         lim = self._limits
-        target_velocity = tuple(min(max(v, -m), m) for v, m in zip(target_velocity, lim.max_velocity))
-        target_acceleration = tuple(min(max(a, -m), m) for a, m in zip(target_acceleration, lim.max_acceleration))
+        # Targets keep a relative margin below v_max: a target exactly at the limit with a rounding
+        # error's acceleration left is refused too (found by tests/unit/test_step_properties.py).
+        target_v_max = tuple(m * TARGET_VELOCITY_MARGIN for m in lim.max_velocity)
+        target_velocity = tuple(min(max(v, -m), m) for v, m in zip(target_velocity, target_v_max))
+        # A target state must be reachable from a state within the limits: with |a| the jerk-limited
+        # velocity change a^2 / (2 j) still ahead (or just behind), |v| + a^2 / (2 j) <= v_max.
+        # Ruckig refuses the whole input otherwise ("will inevitably ... exceed its maximum velocity").
+        target_acceleration = tuple(
+            min(max(a, -ma), ma) if (reach := math.sqrt(2.0 * j * max(0.0, mv - abs(v)))) >= ma
+            else min(max(a, -reach), reach)
+            for a, v, ma, mv, j in zip(target_acceleration, target_velocity, lim.max_acceleration,
+                                       target_v_max, lim.max_jerk))
         inp = self._inp
         inp.current_position = current.position
         inp.current_velocity = current.velocity
@@ -131,11 +145,25 @@ class RuckigSmoother:
         inp.target_acceleration = self._zeros
         return self._calculate(inp, current)
 
-    def _calculate(self, inp: InputParameter, current: Setpoint) -> SmoothingResult:
+    def _try(self, inp: InputParameter) -> tuple[Result, str]:
         try:
-            result = self._otg.calculate(inp, self._traj)
-        except RuckigError as err:  # the binding raises on invalid input (NaN, limits)
-            return SmoothingResult(current, False, f"Ruckig refused the input: {err}")
+            return self._otg.calculate(inp, self._traj), ""
+        except RuckigError as err:  # the binding raises on invalid input (NaN, limits) and some failures
+            return Result.Error, str(err)
+
+    def _calculate(self, inp: InputParameter, current: Setpoint) -> SmoothingResult:
+        result, error = self._try(inp)
+        if result == Result.ErrorSynchronizationCalculation or "error in step 2" in error:
+            # Ruckig 0.19 fails its time synchronisation ("error in step 2") for some nearly
+            # identical profiles on several axes; each axis's own time-optimal profile is a
+            # valid setpoint for one period, and the next cycle synchronises again.
+            inp.synchronization = Synchronization.No
+            try:
+                result, error = self._try(inp)
+            finally:
+                inp.synchronization = Synchronization.Time
+        if error:
+            return SmoothingResult(current, False, f"Ruckig refused the input: {error}")
         if result not in (Result.Working, Result.Finished):
             return SmoothingResult(current, False, f"Ruckig refused the input: {result.name}")
         # Past its duration Ruckig extrapolates the final state at constant acceleration. In the

@@ -50,6 +50,7 @@ from controller.errors import InputError
 from controller.shell.loop import period_error_us
 from controller.shell.realtime import RealtimeOptions
 from drivers import cob_ids
+from drivers.bus_load import measured_bus_load
 
 if TYPE_CHECKING:
     import subprocess
@@ -76,8 +77,6 @@ if TYPE_CHECKING:
 # their keys set where they are built. The code that reads them back (the cyclictest ratios, the
 # plots, the table) reads them as Json rather than through one TypedDict per table.
 Json = dict[str, Any]
-
-DRIVE_TPDO_BYTES = 6
 
 
 # -- statistics (pure) ------------------------------------------------------------------------
@@ -204,9 +203,9 @@ class LoopProbe:
         self._last_tpdo_s = math.nan
         self._prev_last_tpdo_s = math.nan
         self._rpdo_index = 0
-        self.frames: dict[int, int] = {}  # COB-ID -> frames seen
+        self.frames: dict[int, int] = {}  # COB-ID -> frames received once the loop runs
+        self.frames_out: dict[int, int] = {}  # COB-ID -> frames sent once the loop runs
         self.frame_shape: dict[int, tuple[int, bool, bool]] = {}  # COB-ID -> (bytes, is_fd, brs)
-        self.outgoing = 0
         self.sim_pid = sim_pid
         self.sample_every = sample_every
         self.samples: list[tuple[float, ...]] = []  # (monotonic, thread, process, sim, writer) [s]
@@ -214,8 +213,14 @@ class LoopProbe:
 
     def sink(self, outgoing: bool, t: float, msg: can.Message) -> None:
         cid = msg.arbitration_id
+        if self.n > 0:  # the bus load of the cyclic traffic: node set-up frames are not counted
+            counts = self.frames_out if outgoing else self.frames
+            k = counts.get(cid)
+            if k is None:
+                self.frame_shape[cid] = (len(msg.data), bool(msg.is_fd), bool(msg.bitrate_switch))
+                k = 0
+            counts[cid] = k + 1
         if outgoing:
-            self.outgoing += 1
             if cid == cob_ids.SYNC:
                 self._sync_s = t
             elif cid == self._first_rpdo_id:
@@ -224,11 +229,6 @@ class LoopProbe:
                     self.rpdo_after_tpdo_s[i] = t - self._prev_last_tpdo_s
                 self._rpdo_index = i + 1
             return
-        n = self.frames.get(cid)
-        if n is None:
-            self.frame_shape[cid] = (len(msg.data), bool(msg.is_fd), bool(msg.bitrate_switch))
-            n = 0
-        self.frames[cid] = n + 1
         if cid in self._tpdo_ids:
             self._last_tpdo_s = t
 
@@ -304,25 +304,6 @@ def cpu_use_percent(samples: list[tuple[float, ...]]) -> dict[str, float | None]
             "simulator_process": pct(first[3], last[3]), "writer_process": writer}
 
 
-def measured_bus_load(frames: dict[int, int], shapes: dict[int, tuple[int, bool, bool]], seconds: float,
-                      nominal_bit_s: float, data_bit_s: float) -> dict[str, object]:
-    """Bus time of the frames seen, each by its own length and FD/BRS flags, per second."""
-    from drivers.bus_load import classical_frame_bits, fd_frame_time_s
-
-    busy = 0.0
-    classical_on_fd = 0
-    for cid, count in frames.items():
-        n_bytes, is_fd, brs = shapes[cid]
-        if is_fd:
-            busy += count * fd_frame_time_s(n_bytes, nominal_bit_s, data_bit_s, bitrate_switch=brs)
-        else:
-            busy += count * classical_frame_bits(min(n_bytes, 8)) / nominal_bit_s
-            classical_on_fd += count
-    return {"percent": round(100.0 * busy / seconds, 1) if seconds > 0 else 0.0,
-            "frames_per_second": round(sum(frames.values()) / seconds, 1) if seconds > 0 else 0.0,
-            "classical_frames_per_second": round(classical_on_fd / seconds, 1) if seconds > 0 else 0.0}
-
-
 # -- the simulator process --------------------------------------------------------------------
 
 def simulator(spec: BusSpec, overrides: list[str], config_path: str | None, rt: RealtimeOptions,
@@ -349,8 +330,9 @@ class BenchCase:
 def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], config_path: str | None,
              rt: RealtimeOptions, sim_rt: RealtimeOptions, late_fraction: float,
              cyclictest_s: float = 0.0) -> dict[str, object]:
+    from controller.assembly import planned_bus_load
     from controller.config import load_config, parse_override
-    from controller.shell.service import planned_bus_load, run_controller
+    from controller.shell.service import run_controller
     from controller.tools.demo import random_udp_port
     from drivers.bus import parse_bus_spec
 
@@ -394,12 +376,9 @@ def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], conf
     overruns = _count(summary.get("overruns", 0))
     samples = probe.samples
     seconds = samples[-1][0] - samples[0][0] if len(samples) > 1 else 0.0
-    echo = cob_ids.SYNC in probe.frames  # the bus hands us our own frames too
-    frames = dict(probe.frames)
-    shapes = dict(probe.frame_shape)
-    if not echo:
-        shapes[-1] = (DRIVE_TPDO_BYTES, case.fd, case.fd)
-        frames[-1] = probe.outgoing
+    # each frame once in either direction: the service's bus tap drops the bus's echoes of our own
+    frames = {cid: probe.frames.get(cid, 0) + probe.frames_out.get(cid, 0)
+              for cid in probe.frames.keys() | probe.frames_out.keys()}
     per_err = period_error_us(probe.deadline_index[skip:n] * period + wake, period)  # across skipped deadlines
     result: dict[str, object] = {
         "case": case.name,
@@ -426,12 +405,12 @@ def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], conf
         "cpu_percent_of_one_core": cpu_use_percent(samples),
         "bus_load_percent": {
             "computed": round(planned_bus_load(cfg).percent, 1),
-            "measured": measured_bus_load(frames, shapes, seconds, cfg.bus.bitrate_bit_s,
+            "measured": measured_bus_load(frames, probe.frame_shape, seconds, cfg.bus.bitrate_bit_s,
                                           cfg.bus.data_bitrate_bit_s),
         },
         "missing_frames": summary.get("missing_frames"),
         "frames_per_cycle": {"in": round(sum(probe.frames.values()) / max(1, probe.n), 2),
-                             "out": round(probe.outgoing / max(1, probe.n), 2)},
+                             "out": round(sum(probe.frames_out.values()) / max(1, probe.n), 2)},
         "contour_laps": _contour_laps(summary),
         "_period_errors_us": per_err,
     }
@@ -753,9 +732,9 @@ def run_bench(rates_hz: tuple[float, ...], duration_s: float, compare_s: float, 
               late_fraction: float = 0.1, fd_from_hz: float = 500.0, progress: Callable[[str], None] = lambda s: None,
               schedulers: tuple[str, ...] = ("realtime",), cyclictest_s: float = 30.0
               ) -> dict[str, object]:
+    from controller.assembly import planned_bus_load
     from controller.config import load_config, parse_override
     from controller.shell.realtime import apply_realtime
-    from controller.shell.service import planned_bus_load
 
     out_dir.mkdir(parents=True, exist_ok=True)
     cfg = load_config(config_path, dict(parse_override(s) for s in overrides))
@@ -845,12 +824,12 @@ def plot_distributions(cases: list[Json], sleepers: list[Json], out_dir: Path) -
         ax1.hist(err + 0.1, bins=bins, color="tab:blue")
         ax1.set_xscale("log")
         ax1.set_yscale("log")
-        ax1.set_xlabel("period error + 0.1 [us] (offset for the log axis)")
-        ax1.set_ylabel("cycles")
+        ax1.set_xlabel("period error + 0.1 [µs] (offset for the log axis)")
+        ax1.set_ylabel("cycles per bin (log scale)")
         pe = case["period_error_us"]
         for q, style in (("p50", ":"), ("p99", "--"), ("p99_9", "-.")):
-            ax1.axvline(pe[q] + 0.1, color="k", linestyle=style, label=f"{q.replace('_', '.')} {pe[q]:.0f} us")
-        ax1.legend()
+            ax1.axvline(pe[q] + 0.1, color="k", linestyle=style, label=f"{q.replace('_', '.')}: {pe[q]:.0f} µs")
+        ax1.legend(title="period error", fontsize=8, framealpha=0.9, loc="upper right")
         ax1.set_title(f"{case['case']}: period error, {case['cycles']} cycles")
         _exceedance(ax2, err, f"service loop ({case['case']})")
         for s in sleepers:
@@ -859,7 +838,7 @@ def plot_distributions(cases: list[Json], sleepers: list[Json], out_dir: Path) -
                 _exceedance(ax2, s["naive"]["_errors_us"], "naive time.sleep(period)")
         period_us = 1e6 / case["rate_hz"]
         ax2.axvline(0.1 * period_us, color="r", linestyle="--", label="10 % of period")
-        ax2.set_title("fraction of cycles with period error > x")
+        ax2.set_title("fraction of cycles with a period error above x")
         ax2.legend(fontsize=8)
         fig.tight_layout()
         path = out_dir / f"period_error_{case['rate_hz']:g}hz_{case['scheduler']}.png"
@@ -878,8 +857,8 @@ def _exceedance(ax: Axes, err_us: np.ndarray, label: str) -> None:
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_ylim(max(1e-6, 0.5 / x.size), 1.1)
-    ax.set_xlabel("period error + 0.1 [us]")
-    ax.set_ylabel("fraction of cycles above")
+    ax.set_xlabel("x = period error + 0.1 [µs] (offset for the log axis)")
+    ax.set_ylabel("fraction of cycles with an error above x (log scale)")
     ax.grid(True, which="both", alpha=0.3)
 
 

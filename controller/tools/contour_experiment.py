@@ -23,6 +23,7 @@ from controller.assembly import build_robot
 from controller.config import Config
 from controller.robots.builtin import mass_model_from_config
 from controller.robots.cheope import CheopeRobot
+from controller.shell.loop import CycleObserver
 from controller.shell.realtime import RealtimeOptions
 from controller.shell.service import run_controller
 from controller.tasks.builtin import PathSection
@@ -50,19 +51,22 @@ def comparison_config(cfg: Config) -> Config:
 
 def run_contour_experiment(cfg: Config, spec: BusSpec, plot_dir: Path | None, max_duration_s: float = 600.0,
                            stop_event: threading.Event | None = None,
-                           realtime: RealtimeOptions | None = None) -> dict[str, object]:
+                           realtime: RealtimeOptions | None = None,
+                           observers: tuple[CycleObserver, ...] = ()) -> dict[str, object]:
     c = cfg.task.model("contour")
     robot = cheope_robot(cfg)
     stiffness = cfg.robot.mass.actuator_stiffness_n_m
 
     force_obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s))
-    summary = run_controller(cfg, spec, max_duration_s, stop_event, observers=(force_obs,), realtime=realtime)
+    summary = run_controller(cfg, spec, max_duration_s, stop_event, observers=(force_obs, *observers),
+                             realtime=realtime)
     summary["contour"] = contour_summary(force_obs, robot, stiffness, c.height_m, c.lap_speeds_m_s)
 
     if stop_event is None or not stop_event.is_set():
         cmp_cfg = comparison_config(cfg)
         pos_obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, 1)
-        cmp = run_controller(cmp_cfg, spec, max_duration_s, stop_event, observers=(pos_obs,), realtime=realtime)
+        cmp = run_controller(cmp_cfg, spec, max_duration_s, stop_event, observers=(pos_obs, *observers),
+                             realtime=realtime)
         summary["position_control_comparison"] = {
             "final_mode": cmp["final_mode"], "fault_reason": cmp["fault_reason"],
             "radius_m": cmp_cfg.task.model("path").radius_m, "speed_m_s": cmp_cfg.task.model("path").speed_m_s,

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from controller.config import Config
 from controller.errors import DeviceError
+from controller.shell.loop import CycleObserver
 from controller.shell.realtime import RealtimeOptions
 from controller.shell.service import run_controller
 from drivers.bus import BusSpec
@@ -103,11 +104,13 @@ def simulator_realtime_args(realtime: RealtimeOptions | None) -> list[str]:
 
 def run_demo(cfg: Config, spec: BusSpec, config_path: str | None, overrides: list[str],
              max_duration_s: float = 600.0, stop_event: threading.Event | None = None,
-             plot_dir: Path | None = None, realtime: RealtimeOptions | None = None) -> dict[str, object]:
+             plot_dir: Path | None = None, realtime: RealtimeOptions | None = None,
+             observers: tuple[CycleObserver, ...] = ()) -> dict[str, object]:
     sim_args = simulator_realtime_args(realtime)
     with simulator_process(spec, config_path, overrides, extra_args=sim_args):
         if cfg.task.kind == "contour":
             from controller.tools.contour_experiment import run_contour_experiment
 
-            return run_contour_experiment(cfg, spec, plot_dir, max_duration_s, stop_event, realtime)
-        return run_controller(cfg, spec, max_duration_s=max_duration_s, stop_event=stop_event, realtime=realtime)
+            return run_contour_experiment(cfg, spec, plot_dir, max_duration_s, stop_event, realtime, observers)
+        return run_controller(cfg, spec, max_duration_s=max_duration_s, stop_event=stop_event, realtime=realtime,
+                              observers=observers)

@@ -55,6 +55,23 @@ SCENARIOS: tuple[Scenario, ...] = (
     Scenario("contact force above limit", f"force=100@{FAULT_AT_S}", "fault", "safety.max_contact_force_n: fault"),
     Scenario("loop overrunning", f"stall=0.0015@{FAULT_AT_S}", "fault",
              "fault after safety.max_consecutive_late_cycles late cycles"),
+    # Someone or something on the bus that lies (drivers/cyclic_exchange.py watches the whole bus).
+    Scenario("drive position jump", f"jump:2=0.05@{FAULT_AT_S}", "fault",
+             "a step beyond max_velocity x time + safety.max_position_jump_m: fault at once"),
+    Scenario("following error (axis blocked)", f"block:2@{FAULT_AT_S}", "fault",
+             "the drive's own window (0x6065/0x6066): drive FAULT, EMCY 0x8611"),
+    Scenario("drive reboot (boot-up)", f"reboot:2@{FAULT_AT_S}", "fault",
+             "its boot-up heartbeat: fault at once, the restarted drive named"),
+    Scenario("NMT stop by someone else", f"nmt_stop:2@{FAULT_AT_S}", "fault",
+             "safety.on_foreign_nmt = fault: the foreign NMT command named"),
+    Scenario("second SYNC producer", f"foreign_sync@{FAULT_AT_S}", "fault", "safety.on_foreign_sync = fault"),
+    Scenario("unknown node on the bus", f"unknown_node:42@{FAULT_AT_S}", "warn",
+             "safety.on_unknown_node = warn: one event, counted, the task goes on"),
+    Scenario("frame flood", f"flood@{FAULT_AT_S}", "fault",
+             "more than safety.max_foreign_frames_per_cycle foreign frames in a cycle: a flood, named by COB-ID"),
+    Scenario("spoofed sensor frames", f"spoof_sensor=30@{FAULT_AT_S}", "fault",
+             "two samples in a cycle: neither is used (a contour adds nothing); no usable sample for "
+             "loop.max_missing_cycles: fault"),
 )
 
 

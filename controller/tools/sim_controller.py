@@ -6,8 +6,9 @@ simulator process), run on the monotonic clock so samples flow at the configured
 
     python -m controller.tools.sim_controller --set monitoring.listen='"tcp/127.0.0.1:7600"'
 
-prints ``READY <listen endpoints>`` once the publisher is up and, at the end, one JSON line
-with the final mode and the events. SIGTERM or SIGINT request a controlled stop.
+prints ``READY <robot id> <listen endpoints>`` once the publisher is up and, at the end, one
+JSON line with the final mode and the events. SIGTERM or SIGINT request a controlled stop.
+A start refused (a robot id already taken) ends with one line on stderr and exit code 2.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from controller.assembly import build_law
 from controller.config import Config, load_config, parse_override
 from controller.core.control_law import ControllerState
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
+from controller.errors import CheopeError
 from controller.monitoring.publisher import monitoring_publisher
 from controller.shell.loop import CycleLoop, CycleTiming
 from drivers.pacing import DeadlineSleeper
@@ -32,7 +34,8 @@ READY = "READY"
 
 
 def run_simulated(cfg: Config, stop_event: threading.Event, max_duration_s: float,
-                  on_ready: Callable[[tuple[str, ...]], None] = lambda endpoints: None) -> dict[str, object]:
+                  on_ready: Callable[[str, tuple[str, ...]], None] = lambda robot_id, endpoints: None
+                  ) -> dict[str, object]:
     from sim_backend.loopback import LoopbackExchange
 
     law = build_law(cfg)
@@ -45,13 +48,13 @@ def run_simulated(cfg: Config, stop_event: threading.Event, max_duration_s: floa
             events.extend(f"{e.severity.name}: {e.message}" for e in evs)
 
     with monitoring_publisher(cfg, stop_event, law.task) as pub:
-        on_ready(pub.listen_endpoints)
+        on_ready(pub.settings.robot_id, pub.listen_endpoints)
         loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction,
                          DeadlineSleeper(cfg.loop.spin_us * 1e-6), time.monotonic, observers=(_Events(), pub),
                          stop_event=stop_event, commands=pub.commands)
-        final, stats = loop.run(law.initial_state(), max_duration_s)
+        final, stats = loop.run(law.initial_state(), max_duration_s, exit_on_fault=not cfg.loop.stay_in_fault)
         counters = pub.counters()
-    return {"final_mode": final.mode.name, "fault_reason": final.fault_reason, "events": events,
+    return {"robot_id": pub.settings.robot_id, "final_mode": final.mode.name, "fault_reason": final.fault_reason, "events": events,
             "cycles": stats.cycles, "publisher": counters}
 
 
@@ -64,8 +67,12 @@ def main(argv: list[str] | None = None) -> int:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    result = run_simulated(cfg, stop, args.max_duration,
-                           lambda eps: print(f"{READY} {' '.join(eps)}", flush=True))
+    try:
+        result = run_simulated(cfg, stop, args.max_duration,
+                               lambda rid, eps: print(f"{READY} {rid} {' '.join(eps)}", flush=True))
+    except CheopeError as err:  # a robot id already taken, a session that cannot open: one line, as cheope run
+        print(f"sim_controller: error: {err}", file=sys.stderr)
+        return 2
     print(json.dumps(result), flush=True)
     return 0
 

@@ -5,8 +5,10 @@ from __future__ import annotations
 import json
 import os
 import random
+import select
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -89,6 +91,47 @@ def test_human_summary_names_the_figures():
     assert r.returncode == 0, r.stderr
     for label in ("loop rate", "period error", "late cycles", "missing frames", "tracking error"):
         assert label in r.stdout
+    # stdout is a pipe here, not a terminal: no live status line (its phase names, its escape codes)
+    assert "TRACKING" not in r.stdout and "\x1b" not in r.stdout
+
+
+def _demo_on_a_terminal(tmp_path: Path, *args: str) -> str:
+    """``cheope demo`` with its standard output on a pseudo-terminal; what the terminal received."""
+    leader, follower = os.openpty()
+    with open(tmp_path / "stderr.txt", "wb") as err:
+        proc = subprocess.Popen([*CHEOPE, "demo", "--task", "path", "--set", "task.path.laps=0.25", "--udp-port",
+                                 str(_port()), *TOLERANT, *args], stdout=follower, stderr=err,
+                                stdin=subprocess.DEVNULL, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    os.close(follower)
+    out = bytearray()
+    try:
+        deadline = time.monotonic() + 120.0
+        while time.monotonic() < deadline:
+            ready, _, _ = select.select([leader], [], [], 1.0)
+            if not ready:
+                continue
+            try:
+                chunk = os.read(leader, 65536)
+            except OSError:  # EIO: every writer (the demo, its simulator, the status line) has gone
+                break
+            if not chunk:
+                break
+            out += chunk
+    finally:
+        os.close(leader)
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
+    assert proc.returncode == 0, (tmp_path / "stderr.txt").read_text()
+    return out.decode(errors="replace")
+
+
+def test_on_a_terminal_the_demo_shows_where_it_is_and_with_json_nothing_but_the_json(tmp_path):
+    shown = _demo_on_a_terminal(tmp_path)
+    assert "RUNNING  TRACKING" in shown and "late cycles " in shown  # the status line's text
+    assert "final mode          DONE" in shown  # then the summary
+    quiet = _demo_on_a_terminal(tmp_path, "--json")
+    assert json.loads(quiet)["final_mode"] == "DONE"  # one JSON object and nothing else
 
 
 def test_over_budget_bus_is_refused_before_the_simulator_starts():
@@ -109,6 +152,12 @@ def test_over_budget_bus_is_refused_before_the_simulator_starts():
     (["demo", "--set", "loop.rate_hz=-3"], "loop.rate_hz = -3: must be >= 1.0"),
     (["demo", "--task", "path", "--set", "task.path.radius_m=0.3"], "path sample 0"),
     (["demo", "--task", "contour", "--set", "task.contour.expected_radius_m=0.3"], "path sample 0"),
+    (["run", "--udp-port", "0"], "UDP port 0 (--udp-port, bus.udp_port): must be in 1..65535"),
+    (["demo", "--inject", "drop:9@1"], "node 9 is not on the bus; drop takes drives 1, 2, 3 and the sensor 16"),
+    (["demo", "--inject", "drive_fault:16@1"], "node 16 is not a drive; drive_fault takes drives 1, 2, 3"),
+    (["demo", "--inject", "stall=1e9@1"], "stall of 1e+09 s must be in (0, 1] s"),
+    (["demo", "--inject", "delay:2=1e9@1"], "delay of 1e+09 s must be in (0, 1] s"),
+    (["run", "--max-duration", "0"], "--max-duration 0: must be > 0"),
 ])
 def test_bad_input_gets_one_clear_line(args, needle):
     r = _cheope(*args)

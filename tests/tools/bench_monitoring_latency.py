@@ -48,7 +48,7 @@ def on_cycle_cost_us(publish_rate_hz: float, calls: int = 8000) -> tuple[np.ndar
     cost = np.zeros(calls)
     with MonitorPublisher(publisher_settings(cfg), threading.Event(), law.task.name, law.task.phase_name) as pub:
         # a subscriber so that samples really go out on the wire
-        with MonitorClient(monitor_settings((ep,)), MonitorKeys.for_robot("cheope", "cheope-1")):
+        with MonitorClient(monitor_settings((ep,)), MonitorKeys.for_robot("cheope", "*", allow_wildcard=True)):
             time.sleep(0.5)
             clock = time.perf_counter_ns
             sleeper = DeadlineSleeper(cfg.loop.spin_us * 1e-6)  # paced like the loop: 400 Hz
@@ -69,7 +69,7 @@ def end_to_end_latency_s(samples: int = 4000, publish_rate_hz: float = 400.0) ->
            "--set", f'monitoring.listen="{ep}"', "--set", 'monitoring.on_listen_busy="fail"',
            "--set", f"monitoring.publish_rate_hz={publish_rate_hz}", "--set", "task.path.laps=50"]
     cycle, publish, received = [], [], []
-    with MonitorClient(monitor_settings((ep,)), MonitorKeys.for_robot("cheope", "cheope-1")) as client:
+    with MonitorClient(monitor_settings((ep,)), MonitorKeys.for_robot("cheope", "*", allow_wildcard=True)) as client:
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                 env={**os.environ, "PYTHONUNBUFFERED": "1"})
         try:

@@ -60,3 +60,14 @@ def test_load_is_linear_in_rate():
     two = compute_bus_load((FrameSpec("x", 8, 200.0),), 5e5)
     assert two.load_fraction == pytest.approx(2 * one.load_fraction)
     assert one.load_fraction == pytest.approx(100 * 135 / 5e5)
+
+
+def test_the_pose_tracker_adds_its_two_frames_at_its_own_rate():
+    from drivers.bus_load import compute_bus_load, cyclic_frames
+
+    base = cyclic_frames(400.0, 3, False, 10.0)
+    tracked = cyclic_frames(400.0, 3, False, 10.0, tracker_hz=100.0)
+    extra = [f for f in tracked if f not in base]
+    assert len(extra) == 1 and extra[0].rate_hz == 200.0
+    more = compute_bus_load(tracked, 1_000_000).percent - compute_bus_load(base, 1_000_000).percent
+    assert 2.0 < more < 3.0  # 200 frames of 8 bytes, about 111-135 bits each, of 1 Mbit/s

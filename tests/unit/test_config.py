@@ -52,3 +52,19 @@ def test_parse_override():
     assert parse_override("task.path.center_m=[0, 0, 0.45]") == ("task.path.center_m", [0, 0, 0.45])
     with pytest.raises(ConfigError, match="expected KEY=VALUE"):
         parse_override("loop.rate_hz")
+
+
+@pytest.mark.parametrize(("overrides", "message"), [
+    ({"recording.live_rerun": "somewhere"}, r"recording.live_rerun = 'somewhere': must be"),
+    ({"recording.live_foxglove": "localhost"}, r"recording.live_foxglove = 'localhost': must be HOST:PORT"),
+    ({"recording.live_foxglove": "127.0.0.1:99999"}, r"port in 0..65535"),
+])
+def test_bad_live_view_settings_are_named(overrides, message):
+    with pytest.raises(ConfigError, match=message):
+        load_config(overrides=overrides)
+
+
+def test_good_live_view_settings_load():
+    cfg = load_config(overrides={"recording.live_rerun": "rerun+http://127.0.0.1:9876/proxy",
+                                 "recording.live_foxglove": "127.0.0.1:8765"})
+    assert cfg.recording.live_foxglove == "127.0.0.1:8765"

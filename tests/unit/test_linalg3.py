@@ -36,8 +36,18 @@ def test_products_match_numpy(a, b, v, k):
 def test_inverse_and_solve_match_numpy_where_well_conditioned(a, v):
     if np.linalg.cond(a) > 1e6:
         return
-    assert np.allclose(inverse3(as_rows(a)), np.linalg.inv(a), rtol=1e-6, atol=1e-9)
-    assert np.allclose(solve3(as_rows(a), tuple(v)), np.linalg.solve(a, v), rtol=1e-6, atol=1e-9)
+    # Rounding errors of an inverse scale with its largest entry, not with each entry.
+    inv = np.linalg.inv(a)
+    assert np.allclose(inverse3(as_rows(a)), inv, rtol=1e-6, atol=1e-9 * max(1.0, np.abs(inv).max()))
+    x = np.linalg.solve(a, v)
+    assert np.allclose(solve3(as_rows(a), tuple(v)), x, rtol=1e-6, atol=1e-9 * max(1.0, np.abs(inv).max() * np.abs(v).max()))
+
+
+def test_the_inverse_of_a_matrix_whose_determinant_underflows_matches_numpy():
+    # Found by the property above: entries of 6.8e-145, a well-conditioned matrix whose
+    # determinant underflows to 0.0.
+    a = np.full((3, 3), 6.769652881360066e-145) - np.diag([6.769652881360066e-145, 6.769652881360066e-145, 0.0])
+    assert np.allclose(inverse3(as_rows(a)), np.linalg.inv(a), rtol=1e-9, atol=0.0)
 
 
 def test_inverse_of_a_singular_matrix_raises_as_numpy_does():
