@@ -394,6 +394,7 @@ class SimulatedDrive:
                 trace.append(x)
                 trace.append(a)
         self.position, self.velocity, self.acceleration = x, v, a
+        self.time_s = now_s
         if enabled:
             self._monitor_following_error(now_s, abs(self._reference(now_s) - x))
 
@@ -406,4 +407,3 @@ class SimulatedDrive:
         elif now_s - self._following_error_since_s >= self.following_error_time_s:
             self._following_error_since_s = None
             self.force_fault(EMCY_FOLLOWING_ERROR)
-        self.time_s = now_s

@@ -130,6 +130,20 @@ def test_not_in_csp_mode_holds_position():
     assert d.position == pytest.approx(0.55)
 
 
+def test_a_disabled_drive_integrates_only_the_time_since_its_last_advance():
+    # Found in stop 24: a drive not enabled never moved its clock on, so every SYNC integrated the
+    # whole time since its first one again (2 000 sub-steps per drive and SYNC 1 s into a run),
+    # and in the emulated vcan VM the simulator fell behind its TPDOs while the drives were enabled.
+    d = SimulatedDrive(drive_params_from_config(load_config()), position=0.55)
+    d.advance(0.0)
+    d.advance(1.0)
+    trace: list[float] = []
+    d.advance(1.0 + 4 * d.params.substep_s, trace=trace)
+    assert d.power != PowerState.OPERATION_ENABLED
+    assert len(trace) == 2 * 4  # position and acceleration per sub-step
+    assert d.time_s == 1.0 + 4 * d.params.substep_s
+
+
 def test_force_sensor_bias_noise_saturation_and_counter():
     s = SimulatedForceSensor(SensorParams(noise_std_n=0.5, bias_n=(1.0, -2.0, 0.5), range_n=100.0, seed=3))
     samples = []

@@ -18,7 +18,6 @@ import time
 from pathlib import Path
 
 import can
-import pytest
 
 from controller.tools.demo import simulator_process
 from drivers.bus import parse_bus_spec
@@ -60,9 +59,6 @@ def _popen(*args: str) -> subprocess.Popen[str]:
                             stderr=subprocess.PIPE, text=True, cwd=ROOT, env={**os.environ, "PYTHONUNBUFFERED": "1"})
 
 
-@pytest.mark.xfail(strict=False, reason="open defect, stop 23: after this stop's merges, `cheope demo` on vcan in the "
-                                        "emulated VM failed in the last runs (once: the writer's start over 20 s, now "
-                                        "120 s; the last run's reason was not seen before the stop). To fix first.")
 def test_demo_runs_end_to_end_on_vcan(vcan_channel: str, tmp_path: Path) -> None:
     r = _cheope("demo", "--task", "path", "--json", "--can", f"socketcan:{vcan_channel}", *_slow(tmp_path))
     assert r.returncode == 0, r.stderr + r.stdout
