@@ -67,6 +67,26 @@ def test_path_task_completes_and_tracks_the_circle():
                      "RUNNING -> STOPPING", "STOPPING -> DONE"]
 
 
+@pytest.mark.parametrize("rate_hz", [25.0, 100.0])
+def test_at_a_low_rate_the_drives_lag_of_one_period_is_no_following_error(rate_hz):
+    # Found in the vcan VM at 25 Hz: the measured position was judged against the setpoint aimed
+    # one period later, and the move to the path's start (0.3 m/s, 12 mm a period) faulted.
+    cfg = load_config(overrides={**SHORT, "loop.rate_hz": rate_hz, "task.path.laps": 0.25,
+                                 "sim.drive.sync_timeout_s": 0.5})
+    final, _, trace, _, _ = run(cfg, max_s=60.0)
+    assert final.mode == Mode.DONE, final.fault_reason
+    peak = max(abs(v) for sp in trace.setpoints for v in sp.velocity)
+    assert peak * cfg.period_s > 0.5 * cfg.safety.following_window_m or rate_hz > 25.0, peak  # the case the check must not trip on
+
+
+def test_a_blocked_drive_is_a_following_error_at_a_low_rate_too():
+    cfg = load_config(overrides={**SHORT, "loop.rate_hz": 25.0, "sim.drive.sync_timeout_s": 0.5,
+                                 "sim.faults": ["block:2@1.0"], "actuators.following_error_window_m": 1.0})
+    final, _, _, _, _ = run(cfg, max_s=60.0)
+    assert final.mode == Mode.FAULT
+    assert final.fault_reason.startswith("drive 2 following error"), final.fault_reason
+
+
 def test_setpoints_respect_velocity_acceleration_and_jerk_limits():
     cfg = load_config(overrides={**SHORT, "actuators.max_jerk_m_s3": 50.0, "actuators.max_acceleration_m_s2": 2.0})
     final, _, trace, _, _ = run(cfg)
