@@ -1,10 +1,10 @@
 """Benchmark: late cycles of a running controller with and without a flood of garbage Zenoh queries.
 
-    .venv/bin/python -m controller.tools.query_flood [--windows 3] [--window-s 5] [--rate 1000]
+    .venv/bin/python -m controller.tools.query_flood [--windows 3] [--window-s 5] [--rate 1000] [--realtime]
 
 Starts a controller (controller.tools.sim_controller: the production loop, law and publisher on
-the in-process simulated devices, normal scheduler, i.e. no real-time: what ``--no-realtime``
-gives ``cheope run``), then alternates windows without and with a flood: ``--rate`` queries a
+the in-process simulated devices; normal scheduler, what ``--no-realtime`` gives ``cheope run``,
+or with ``--realtime`` the loop thread as ``cheope run`` asks by default), then alternates windows without and with a flood: ``--rate`` queries a
 second from this process, half to ``status``, half to ``command`` with a random payload, none
 waited for. The late cycles of each window are the difference of the loop's own counter
 (``MonitorState.loop.late_cycles``: wake-up more than 10 % of a period after the deadline)
@@ -16,6 +16,7 @@ figures, not a test: on a shared two-core machine the numbers move with everythi
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import secrets
 import signal
@@ -77,6 +78,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rate", type=float, default=1000.0, help="flood: queries per second")
     ap.add_argument("--controller-root", metavar="DIR",
                     help="run the controller from this checkout (e.g. a worktree of an older commit, to compare)")
+    ap.add_argument("--realtime", action="store_true",
+                    help="the controller's loop thread under SCHED_FIFO 80 on the last CPU (cheope run's default)")
     args = ap.parse_args(argv)
     ep = f"tcp/127.0.0.1:{free_loopback_port()}"
     keys = MonitorKeys.for_robot("cheope", ROBOT)
@@ -85,7 +88,8 @@ def main(argv: list[str] | None = None) -> int:
         [sys.executable, "-m", "controller.tools.sim_controller", "--max-duration", str(duration),
          "--set", f'monitoring.listen="{ep}"', "--set", f'monitoring.robot_id="{ROBOT}"',
          "--set", "task.path.laps=1000", "--set", "loop.max_missing_cycles=10",
-         "--set", 'safety.on_late_cycles="warn"', "--set", "sim.drive.sync_timeout_s=0.5"],
+         "--set", 'safety.on_late_cycles="warn"', "--set", "sim.drive.sync_timeout_s=0.5",
+         *(["--realtime"] if args.realtime else [])],
         stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"}, cwd=args.controller_root)
     rows: dict[str, list[float]] = {"no flood": [], "flood": []}
     try:
@@ -110,10 +114,11 @@ def main(argv: list[str] | None = None) -> int:
         st = query_status(client_settings((ep,)), keys, timeout_s=5.0)
     finally:
         proc.send_signal(signal.SIGTERM)
-        proc.communicate(timeout=60)
+        out, _ = proc.communicate(timeout=60)
     for kind, vals in rows.items():
         print(f"{kind:<8}: late cycles per {args.window_s:g} s window median {statistics.median(vals):g}, "
               f"range {min(vals):g}-{max(vals):g} ({len(vals)} windows)")
+    print(f"controller loop thread: {json.loads(out.splitlines()[-1]).get('realtime', '?') if out.strip() else '?'}")
     print("controller counters: " + ", ".join(f"{k} {st.counters[k]}" for k in
                                                ("status_queries", "commands_accepted", "commands_refused")))
     return 0
