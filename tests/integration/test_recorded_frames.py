@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 import random
+import socket
 import subprocess
 import sys
 import threading
@@ -32,11 +33,27 @@ pytestmark = pytest.mark.integration
 Frame = tuple[int, bytes]
 
 
+WITNESS_BUFFER_BYTES = 16 * 2**20
+SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)  # linux/socket.h
+
+
+def _enlarge_receive_buffer(fd: int, size: int) -> None:
+    """A witness that falls behind must not lose frames: the default buffer (208 KiB) holds about
+    270 datagrams, 80 ms of this bus, and a witness thread on a busy 2-core machine can be held off
+    longer (CI lost 16 SYNCs once). Past ``rmem_max`` as root (SO_RCVBUFFORCE), else up to it."""
+    with socket.socket(fileno=os.dup(fd)) as sock:
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, size)
+        except PermissionError:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)
+
+
 class Witness:
     """Every frame on the bus while it runs, received on a socket of its own (a thread)."""
 
     def __init__(self, port: int) -> None:
         self.bus = open_bus(parse_bus_spec("udp_multicast", udp_port=port))
+        _enlarge_receive_buffer(self.bus.fileno(), WITNESS_BUFFER_BYTES)
         self.frames: list[Frame] = []
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="bus witness")
