@@ -125,15 +125,16 @@ def _states(client: MonitorClient, n: int, timeout_s: float = 10.0) -> list[Stat
     return got
 
 
-def _wait_mode(client: MonitorClient, mode: str, timeout_s: float = GENEROUS_S) -> StateUpdate:
-    """The first published state sample in ``mode``; fails at the deadline (the loops it replaces went on
-    silently, or had no deadline at all)."""
+def _wait_mode(client: MonitorClient, mode: str | frozenset[str], timeout_s: float = GENEROUS_S) -> StateUpdate:
+    """The first published state sample in ``mode`` (or one of a set); fails at the deadline (the loops
+    it replaces went on silently, or had no deadline at all)."""
+    modes = frozenset((mode,)) if isinstance(mode, str) else mode
     deadline = time.monotonic() + timeout_s
     seen = []
     while time.monotonic() < deadline:
         u = client.next_update(0.2)
         if isinstance(u, StateUpdate):
-            if u.msg.mode == mode:
+            if u.msg.mode in modes:
                 return u
             seen = [*seen[-4:], u.msg.mode]
     raise AssertionError(f"no state sample in {mode} within {timeout_s} s; the last ones: {seen}")
@@ -519,7 +520,11 @@ def test_cheope_command_reset_brings_a_controller_out_of_fault():
         _wait_mode(client, "FAULT")
         reset = _cheope("command", "reset", "--robot-id", "test-bot", *_connect(ep))
         assert reset.returncode == 0 and reset.stdout.startswith("accepted by test-bot: reset accepted"), reset.stderr
-        _wait_mode(client, "ENABLING")
+        # Out of FAULT, which only a reset does here (the injected fault is one-shot and the loop stays in
+        # FAULT otherwise). Not the ENABLING sample itself: ENABLING lasts a few cycles, and samples go out
+        # with congestion control DROP (controller/monitoring/publisher.py); a CI run once saw none of
+        # ENABLING and only the later DONE.
+        _wait_mode(client, frozenset({"ENABLING", "HOLDING", "RUNNING", "STOPPING", "DONE"}))
 
 
 def test_a_token_bucket_answers_its_burst_then_at_its_rate():
