@@ -47,7 +47,7 @@ from drivers.pdo_codec import (
 
 FrameSink = Callable[[bool, float, can.Message], None]  # (outgoing, monotonic time [s], frame)
 
-_DRIVE, _SENSOR_FORCE, _SENSOR_TORQUE, _EMCY, _HEARTBEAT, _OWN, _IGNORED, _TRACKER_P, _TRACKER_R = range(9)
+_DRIVE, _SENSOR_FORCE, _SENSOR_TORQUE, _EMCY, _HEARTBEAT, _OWN, _IGNORED, _TRACKER_P, _TRACKER_R, _KERNEL_SYNC = range(10)
 CAN_ERR_BUSOFF = 0x040  # error class bit of a SocketCAN error frame (linux/can/error.h)
 NMT_OPERATIONAL, NMT_BOOT_UP = 5, 0  # CiA 301 heartbeat state byte
 DEFAULT_FLOOD_FRAMES = 16  # foreign frames in one cycle that make a flood (config safety.max_foreign_frames_per_cycle)
@@ -82,10 +82,16 @@ class CyclicExchange:
                  heartbeat_timeout_s: float = 0.5, drive_codecs: tuple[DriveCodec, ...] | None = None,
                  sensor_codecs: tuple[SensorFrameCodec, SensorFrameCodec] | None = None,
                  send_sync: bool = True, flood_frames_per_cycle: int = DEFAULT_FLOOD_FRAMES,
-                 tracker_id: int | None = None) -> None:
+                 tracker_id: int | None = None, sync_period_s: float = 0.0) -> None:
         self.bus = bus
         self.fd = fd
         self.send_sync = send_sync  # False: the kernel's broadcast manager sends SYNC (drivers/kernel_sync.py)
+        # With SYNC from the kernel, the SYNCs this socket receives are the broadcast manager's (another
+        # socket of this host): their receive times feed drivers/kernel_sync.py's phase lock. One that
+        # comes less than half a period after the last is a second producer's.
+        self.sync_period_s = sync_period_s
+        self.kernel_sync_stamps: list[float] = []  # receive timestamps (the bus's clock) since the last take
+        self._last_kernel_sync = -math.inf
         self.n = len(drive_ids)
         self.scale = scale
         self.has_sensor = sensor_id is not None
@@ -129,7 +135,9 @@ class CyclicExchange:
         for node in configured:  # SDO answers of the set-up that come late; not cyclic traffic
             self._dispatch[cob_ids.sdo_response(node)] = (_IGNORED, node)
         # COB-IDs only the controller sends: whatever arrives there is someone else's.
-        for cob in (cob_ids.SYNC, cob_ids.NMT, cob_ids.heartbeat(controller_id),
+        if not send_sync:
+            self._dispatch[cob_ids.SYNC] = (_KERNEL_SYNC, cob_ids.SYNC)
+        for cob in ((cob_ids.SYNC,) if send_sync else ()) + (cob_ids.NMT, cob_ids.heartbeat(controller_id),
                     *(codec.rpdo_cob_id for codec in self._codecs), *(cob_ids.sdo_request(i) for i in configured)):
             self._dispatch[cob] = (_OWN, cob)
         self.flood_frames_per_cycle = flood_frames_per_cycle
@@ -312,6 +320,8 @@ class CyclicExchange:
                     self.last_heartbeat_s[index] = now
             elif kind == _OWN:
                 self._on_own_cob_id(msg)
+            elif kind == _KERNEL_SYNC:
+                self._on_kernel_sync(msg)
         except FrameError:
             c.rejected_frames += 1
 
@@ -359,6 +369,14 @@ class CyclicExchange:
             # A node that left OPERATIONAL, or restarted. One still coming up after the NMT start (its
             # PRE-OPERATIONAL heartbeat crossing the start command on a slow bus) is not judged.
             self._nmt[node] = state
+
+    def _on_kernel_sync(self, msg: can.Message) -> None:
+        stamp = msg.timestamp
+        if stamp - self._last_kernel_sync < 0.5 * self.sync_period_s:
+            self._report(Anomaly.FOREIGN_SYNC, msg.arbitration_id)  # two producers: not a sample of ours
+            return
+        self._last_kernel_sync = stamp
+        self.kernel_sync_stamps.append(stamp)
 
     def _on_own_cob_id(self, msg: can.Message) -> None:
         """A frame on a COB-ID only the controller sends, from someone else (the bus drops our echoes)."""

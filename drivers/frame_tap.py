@@ -32,7 +32,7 @@ import itertools
 import os
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import can
 from can.interfaces.udp_multicast import UdpMulticastBus
@@ -106,6 +106,15 @@ class FrameTap(can.BusABC):
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         return self.recv(timeout), True  # recv is overridden; kept for BusABC's contract
+
+    def _send_periodic_internal(self, msgs: can.Message | Sequence[can.Message], period: float,
+                                duration: float | None = None, autostart: bool = True,
+                                modifier_callback: Callable[[can.Message], None] | None = None
+                                ) -> can.broadcastmanager.CyclicSendTaskABC:
+        """The bus's own periodic sending (SocketCAN: the kernel's broadcast manager), not python-can's
+        Python thread through ``send``. Its frames do not pass the tap: the bus hands them back as
+        received (another socket of this host sent them), and so they are recorded, as received."""
+        return self.bus._send_periodic_internal(msgs, period, duration, autostart, modifier_callback)
 
     def fileno(self) -> int:
         return self.bus.fileno()

@@ -11,14 +11,27 @@ sends the first frame at once when its timer starts), so every later deadline of
 A wake-up later than ``lead_s`` lets that cycle's RPDOs miss their SYNC: the drives then
 extrapolate the last setpoint (``sim_backend/drive.py``; real drives do what their manufacturer
 chose), where with the loop as producer the whole cycle, SYNC included, would have been late.
+
+The broadcast manager does not keep a period on its own: it re-arms its timer at
+``ktime_get() + ival`` inside the timer's handler (``bcm_tx_set_expiry`` in net/can/bcm.c), so
+every interval is ``ival`` plus the timer's wake-up latency, and the SYNC drifts against the
+loop's absolute deadlines (2.2-3.1 % long in the emulated vcan VM; microseconds a period on real
+hardware, which still add up to a period within seconds at 400 Hz). ``SyncPhaseLock`` therefore
+watches the SYNCs (a socket of its own, kernel receive timestamps) and sets the next ``ival`` so
+that each SYNC stays ``lead_s`` after a deadline of the loop: a phase-locked loop of type 2 (the
+integral learns the mean latency, the proportional part removes the phase error).
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import can
+from can.interfaces.socketcan import constants as bcm
+from can.interfaces.socketcan.socketcan import CyclicSendTask as SocketcanCyclicSendTask
+from can.interfaces.socketcan.socketcan import build_bcm_header, build_can_frame, send_bcm
 
 from controller.core.cycle_data import BusFeedback, CycleOutputs
 from controller.errors import InputError
@@ -40,14 +53,51 @@ def sync_message(fd: bool = False) -> can.Message:
     return can.Message(arbitration_id=cob_ids.SYNC, data=b"", is_extended_id=False, is_fd=fd, bitrate_switch=fd)
 
 
+@dataclass
+class SyncPhaseLock:
+    """The broadcast manager's next interval from the SYNC times seen, so that SYNC n comes at
+    ``origin_s + n * period_s`` (pure: times in, interval out).
+
+    With ``ival`` the interval set and ``lat`` the timer's mean latency, a SYNC is late by
+    ``e_(n+1) = e_n + ival + lat - period``. ``ival = period - i - kp e`` with ``i += ki e`` drives e
+    to 0 with i -> lat: z^2 - (2 - kp) z + (1 - kp + ki), poles 0.9 and 0.8 for the defaults (one
+    more, near 0, from the timer already armed with the last interval). The interval is kept within
+    ``max_correction`` of the period and is in whole microseconds (the broadcast manager's timeval).
+    """
+
+    period_s: float
+    kp: float = 0.3
+    ki: float = 0.02
+    max_correction: float = 0.1
+    origin_s: float | None = None  # the first SYNC seen: the phase every later one is held to
+    integral_s: float = 0.0  # the learned mean latency of the timer
+    last_error_s: float = 0.0
+    syncs: int = 0
+
+    def update(self, sync_s: float) -> float:
+        """A SYNC seen at ``sync_s`` (monotonic): the interval to set now [s]."""
+        if self.origin_s is None:
+            self.origin_s = sync_s
+        t = sync_s - self.origin_s
+        error = t - round(t / self.period_s) * self.period_s  # late (+) or early (-) against its slot
+        self.last_error_s = error
+        self.syncs += 1
+        self.integral_s += self.ki * error
+        limit = self.max_correction * self.period_s
+        correction = min(max(self.integral_s + self.kp * error, -limit), limit)
+        return round((self.period_s - correction) * 1e6) * 1e-6
+
+
 class KernelSyncExchange:
     """The loop's ``Exchange`` with SYNC from the kernel: RPDOs (and heartbeat) from the loop.
 
-    ``exchange`` must be built with ``send_sync=False``.
+    ``exchange`` must be built with ``send_sync=False`` (it then hands over the SYNCs it receives,
+    the broadcast manager's, for the phase lock); its bus must be SocketCAN's (or a ``FrameTap`` of
+    it), whose ``send_periodic`` is the broadcast manager.
     """
 
     def __init__(self, exchange: CyclicExchange, period_s: float, lead_s: float,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, lock: SyncPhaseLock | None = None) -> None:
         if exchange.send_sync:
             raise ValueError("the exchange sends SYNC itself: build it with send_sync=False")
         if not 0.0 < lead_s < period_s:
@@ -56,8 +106,11 @@ class KernelSyncExchange:
         self.period_s = period_s
         self.lead_s = lead_s
         self.clock = clock
+        self.lock = lock or SyncPhaseLock(period_s)
         self.task: can.broadcastmanager.CyclicSendTaskABC | None = None
         self.first_sync_s = 0.0
+        self.interval_s = period_s  # what the broadcast manager re-arms with now
+        self.retimes = 0  # interval changes sent to the broadcast manager
 
     @property
     def counters(self) -> object:
@@ -67,6 +120,15 @@ class KernelSyncExchange:
         self.exchange.send(outputs)
         if self.task is None:
             self._start(self.clock() + self.lead_s)
+            return
+        stamps = self.exchange.kernel_sync_stamps
+        if stamps:
+            interval = self.interval_s
+            for stamp in stamps:
+                interval = self.lock.update(stamp)
+            stamps.clear()
+            if interval != self.interval_s:
+                self._retime(interval)
 
     def _start(self, at_s: float) -> None:
         # Once, at the start: spin to the first SYNC's time (a sleep could wake a tick late).
@@ -77,6 +139,25 @@ class KernelSyncExchange:
         if not isinstance(task, can.broadcastmanager.CyclicSendTaskABC):
             raise KernelSyncError(f"python-can returned {type(task).__name__} for a periodic SYNC")
         self.task = task
+
+    def _retime(self, interval_s: float) -> None:
+        """The broadcast manager's next intervals: TX_SETUP with SETTIMER and without STARTTIMER
+        changes the interval its handler re-arms with, without restarting or sending at once."""
+        task = self.task
+        if not isinstance(task, SocketcanCyclicSendTask):
+            return  # no broadcast manager (a test's bus): nothing to retime
+        seconds = int(interval_s)
+        header = build_bcm_header(bcm.CAN_BCM_TX_SETUP, task.flags | bcm.SETTIMER, 0, 0, 0, seconds,
+                                  round((interval_s - seconds) * 1e6), task.task_id, 1)
+        send_bcm(task.bcm_socket, header + build_can_frame(task.messages[0]))
+        self.interval_s = interval_s
+        self.retimes += 1
+
+    def report(self) -> dict[str, float | int]:
+        """The lock's state for the run summary."""
+        return {"syncs_seen": self.lock.syncs, "interval_us": round(self.interval_s * 1e6, 1),
+                "learned_latency_us": round(self.lock.integral_s * 1e6, 1),
+                "last_phase_error_us": round(self.lock.last_error_s * 1e6, 1), "retimes": self.retimes}
 
     def collect(self, deadline_s: float) -> BusFeedback:
         return self.exchange.collect(deadline_s)

@@ -29,7 +29,7 @@ class RecordedTraffic:
     frames_out: int
     frames_in: int
     by_function: dict[str, tuple[int, int]]  # CiA 301 function ("SYNC", "SDO request", ...) -> (out, in)
-    cyclic_span_s: float  # first to last SYNC sent
+    cyclic_span_s: float  # first to last SYNC sent (received, where the kernel sent them)
     sync_rate_hz: float  # SYNCs sent per second inside the cyclic span
     load_percent: float  # of the frames inside the cyclic span
     frames_per_second: float  # inside the cyclic span
@@ -69,6 +69,7 @@ def recorded_traffic(path: str | Path, report: ReadReport | None = None) -> Reco
     counts: Counter[tuple[str, bool]] = Counter()
     frames: list[tuple[float, int, int, bool, bool]] = []  # (t, cob_id, bytes, is_fd, brs)
     first_sync = last_sync = None
+    first_in = last_in = None  # SYNCs received: the kernel's, with bus.sync_producer = "kernel"
     for d in iter_decoded(path, (m.TOPIC_CAN,), report):
         f = d.message
         counts[(cob_ids.function_name(f.arbitration_id), f.outgoing)] += 1
@@ -78,6 +79,11 @@ def recorded_traffic(path: str | Path, report: ReadReport | None = None) -> Reco
         if f.outgoing and f.arbitration_id == cob_ids.SYNC:
             first_sync = f.monotonic_s if first_sync is None else first_sync
             last_sync = f.monotonic_s
+        elif f.arbitration_id == cob_ids.SYNC:
+            first_in = f.monotonic_s if first_in is None else first_in
+            last_in = f.monotonic_s
+    if first_sync is None:  # the controller sent no SYNC: the broadcast manager did (drivers/kernel_sync.py)
+        first_sync, last_sync = first_in, last_in
     cfg = _recorded_config(report)
     nominal = cfg.bus.bitrate_bit_s if cfg is not None else 1e6
     data_rate = cfg.bus.data_bitrate_bit_s if cfg is not None else nominal

@@ -154,7 +154,7 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float | None = No
             heartbeat_timeout_s=cfg.loop.heartbeat_consumer_s,
             drive_codecs=setup.drive_codecs, sensor_codecs=setup.sensor_codecs,
             send_sync=cfg.bus.sync_producer == "loop", flood_frames_per_cycle=cfg.safety.max_foreign_frames_per_cycle,
-            tracker_id=cfg.tracker.node_id if cfg.tracker.enabled else None,
+            tracker_id=cfg.tracker.node_id if cfg.tracker.enabled else None, sync_period_s=cfg.period_s,
         )
         kernel_sync = KernelSyncExchange(exchange, cfg.period_s, cfg.bus.sync_lead_fraction * cfg.period_s) \
             if cfg.bus.sync_producer == "kernel" else None
@@ -193,6 +193,7 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float | None = No
                             "frames": {"sent": bus.sent, "received": bus.received,
                                        "own_echoes_dropped": bus.own_echoes},
                             "recording": _recording_summary(session, cfg), "realtime": granted,
+                            **({"kernel_sync": kernel_sync.report()} if kernel_sync is not None else {}),
                             **{k: v for r in prepared.reports for k, v in r.summary().items()}})
 
 

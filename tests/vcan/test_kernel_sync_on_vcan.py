@@ -18,7 +18,8 @@ from controller.core.cycle_data import CycleOutputs
 from controller.shell.service import run_controller
 from drivers.bus import parse_bus_spec
 from drivers.cyclic_exchange import CyclicExchange
-from drivers.kernel_sync import KernelSyncExchange
+from drivers.frame_tap import FrameTap
+from drivers.kernel_sync import KernelSyncExchange, SyncPhaseLock
 from drivers.pdo_codec import PositionScale
 from sim_backend.server import Simulator
 
@@ -90,3 +91,51 @@ def test_controller_completes_the_path_with_kernel_sync(vcan_channel: str) -> No
     with can.Bus(interface="socketcan", channel=vcan_channel) as sim_bus, Simulator(cfg, sim_bus):
         summary = run_controller(cfg, parse_bus_spec(f"socketcan:{vcan_channel}"), max_duration_s=120.0)
     assert summary["final_mode"] == Mode.DONE.name, summary
+
+
+def _run_kernel_sync(channel: str, lock: SyncPhaseLock, seconds: float) -> tuple[list[float], dict[str, float | int]]:
+    """The loop's side for ``seconds`` at PERIOD_S (RPDOs at absolute deadlines, through a FrameTap as in
+    the service); a second socket's receive timestamps of every SYNC."""
+    with FrameTap(can.Bus(interface="socketcan", channel=channel)) as bus, \
+            can.Bus(interface="socketcan", channel=channel,
+                    can_filters=[{"can_id": 0x080, "can_mask": 0x7FF, "extended": False}]) as watcher:
+        ex = CyclicExchange(bus, (1,), PositionScale(1e7), None, 100, heartbeat_every=10**9, send_sync=False,
+                            sync_period_s=PERIOD_S)
+        sync = KernelSyncExchange(ex, PERIOD_S, 0.2 * PERIOD_S, lock=lock)
+        stamps: list[float] = []
+        try:
+            deadline = time.monotonic()
+            for _ in range(round(seconds / PERIOD_S)):
+                while time.monotonic() < deadline:
+                    pass
+                sync.send(CycleOutputs(controlwords=(0x06,), targets=(0.5,)))
+                ex.collect(deadline + 0.5 * PERIOD_S)
+                stamps += [m.timestamp for m in _drain(watcher)]
+                deadline += PERIOD_S
+        finally:
+            sync.stop()
+        assert bus.sent == round(seconds / PERIOD_S) + 1  # RPDOs and one heartbeat: the SYNCs are the kernel's
+        return stamps, sync.report()
+
+
+def _phase_errors_us(stamps: list[float]) -> list[float]:
+    return [((t - stamps[0]) - round((t - stamps[0]) / PERIOD_S) * PERIOD_S) * 1e6 for t in stamps]
+
+
+def test_the_phase_lock_holds_the_kernels_sync_on_the_loops_grid(vcan_channel: str) -> None:
+    seconds = 6.0
+    free, _ = _run_kernel_sync(vcan_channel, SyncPhaseLock(PERIOD_S, kp=0.0, ki=0.0), seconds)
+    locked, report = _run_kernel_sync(vcan_channel, SyncPhaseLock(PERIOD_S), seconds)
+    drift_us = ((free[-1] - free[0]) - (len(free) - 1) * PERIOD_S) * 1e6
+    late = sorted(abs(e) for e in _phase_errors_us(locked)[len(locked) // 2:])  # after the lock has settled
+    print(f"\nkernel SYNC free: {len(free)} SYNCs, drift {drift_us:.0f} us over {seconds} s; locked: {len(locked)} "
+          f"SYNCs, |phase error| p50 {late[len(late) // 2]:.0f} us, p95 {late[int(0.95 * len(late))]:.0f} us, "
+          f"max {late[-1]:.0f} us; {report}")
+    assert len(locked) >= 0.8 * seconds / PERIOD_S
+    assert report["syncs_seen"] >= 0.8 * seconds / PERIOD_S  # the exchange saw the kernel's SYNCs (not as foreign)
+    # The free SYNC slides against the loop's grid by the timer's latency in every interval (printed:
+    # 165-200 ms in 6 s in the emulated VM, a few ms on a real machine); the locked one stays on it:
+    # its median error within a tenth of a period. Not its maximum: the emulated VM stalls now and then
+    # (SYNCs 3-5 ms off their slot for a few periods, 1 run in 3), which no lock prevents and from
+    # which it recovers within its time constant (about 10 periods).
+    assert late[len(late) // 2] < PERIOD_S / 10 * 1e6, late[len(late) // 2]
