@@ -8,14 +8,9 @@ from __future__ import annotations
 
 import time
 
-import can
-import canopen
-import pytest
 from canopen.profiles.p402 import BaseNode402
 
-from controller.config import load_config
 from drivers.node_setup import DRIVE_EDS
-from sim_backend.server import Simulator
 
 
 def _wait(predicate, timeout_s=3.0):
@@ -25,25 +20,6 @@ def _wait(predicate, timeout_s=3.0):
             return True
         time.sleep(0.01)
     return False
-
-
-@pytest.fixture
-def sim_and_master():
-    channel = f"interop-{time.monotonic_ns()}"
-    cfg = load_config(overrides={"sensor.enabled": False})
-    sim_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=True)
-    master_bus = can.Bus(interface="virtual", channel=channel)
-    network = canopen.Network(master_bus)
-    sim = Simulator(cfg, sim_bus)
-    sim.start()
-    network.connect()
-    try:
-        yield sim, network
-    finally:
-        network.sync.stop()
-        network.disconnect()
-        sim.stop()
-        sim_bus.shutdown()
 
 
 def test_base_node_402_enables_the_drive_and_moves_it(sim_and_master):

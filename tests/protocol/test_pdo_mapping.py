@@ -49,26 +49,6 @@ def buses():
         bus.shutdown()
 
 
-@pytest.fixture
-def sim_and_master():
-    """A simulator without the sensor and a canopen master on the same virtual bus."""
-    cfg = load_config(overrides={"sensor.enabled": False})
-    channel = f"pdo-map-{time.monotonic_ns()}"
-    sim_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=True)
-    master_bus = can.Bus(interface="virtual", channel=channel)
-    network = canopen.Network(master_bus)
-    sim = Simulator(cfg, sim_bus)
-    sim.start()
-    network.connect()
-    try:
-        yield sim, network
-    finally:
-        network.sync.stop()
-        network.disconnect()
-        sim.stop()
-        sim_bus.shutdown()
-
-
 def _abort_code(action) -> int:
     with pytest.raises(canopen.SdoAbortedError) as err:
         action()
