@@ -25,6 +25,7 @@ from waiting import GENEROUS_S, ProcessLines, wait_for_exit, wait_until
 
 from controller.assembly import build_law
 from controller.config import Config, load_config
+from controller.monitoring.zenoh_session import free_loopback_port
 from controller.shell.loop import CycleLoop
 from drivers.pacing import DeadlineSleeper
 from logs.recorder import SessionRecorder, session_metadata
@@ -37,12 +38,6 @@ def _rerun_binary() -> str:
     import rerun_cli
 
     return str(Path(rerun_cli.__file__).parent / "rerun")
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @contextmanager
@@ -99,7 +94,7 @@ def _rrd_entities(path: Path) -> set[str]:
 
 
 def test_a_rerun_grpc_server_receives_the_robot_and_the_plots_during_the_run(tmp_path):
-    port = _free_port()
+    port = free_loopback_port()
     rrd = tmp_path / "live.rrd"
     server = subprocess.Popen([_rerun_binary(), "--bind", "127.0.0.1", "--port", str(port),
                                "--save", str(rrd)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
@@ -154,7 +149,7 @@ def test_a_foxglove_websocket_client_receives_the_cycle_and_the_scene_during_the
 
     from controller.messages import cheope_pb2 as pb
 
-    port = _free_port()
+    port = free_loopback_port()
     cfg = _config(tmp_path, live_foxglove=f"127.0.0.1:{port}")
     with _running_controller(cfg, tmp_path / "s.mcap") as loop_thread:
         def server_up() -> bool:

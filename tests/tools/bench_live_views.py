@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import socket
 import statistics
 import subprocess
 import tempfile
@@ -34,6 +33,7 @@ import pytest
 
 from controller.assembly import build_law
 from controller.config import load_config
+from controller.monitoring.zenoh_session import free_loopback_port
 from controller.shell.loop import CycleLoop, SimulatedTime
 from logs.recorder import SessionRecorder, session_metadata
 from sim_backend.loopback import LoopbackExchange
@@ -99,18 +99,12 @@ def _rerun_binary() -> str:
     return str(Path(rerun_cli.__file__).parent / "rerun")
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def run(seconds: float, repeats: int) -> dict[str, list[float]]:
     results: dict[str, list[float]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
         records = capture_records(seconds, d)
-        rerun_port = _free_port()
+        rerun_port = free_loopback_port()
         server = subprocess.Popen([_rerun_binary(), "--bind", "127.0.0.1", "--port",
                                    str(rerun_port), "--save", str(d / "live.rrd")],
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
