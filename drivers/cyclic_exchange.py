@@ -135,11 +135,11 @@ class CyclicExchange:
         for node in configured:  # SDO answers of the set-up that come late; not cyclic traffic
             self._dispatch[cob_ids.sdo_response(node)] = (_IGNORED, node)
         # COB-IDs only the controller sends: whatever arrives there is someone else's.
-        if not send_sync:
-            self._dispatch[cob_ids.SYNC] = (_KERNEL_SYNC, cob_ids.SYNC)
-        for cob in ((cob_ids.SYNC,) if send_sync else ()) + (cob_ids.NMT, cob_ids.heartbeat(controller_id),
+        for cob in (cob_ids.SYNC, cob_ids.NMT, cob_ids.heartbeat(controller_id),
                     *(codec.rpdo_cob_id for codec in self._codecs), *(cob_ids.sdo_request(i) for i in configured)):
             self._dispatch[cob] = (_OWN, cob)
+        if not send_sync:  # but SYNC is the kernel's broadcast manager's (drivers/kernel_sync.py)
+            self._dispatch[cob_ids.SYNC] = (_KERNEL_SYNC, cob_ids.SYNC)
         self.flood_frames_per_cycle = flood_frames_per_cycle
         self._anomalies: dict[tuple[Anomaly, int], int] = {}
         self._foreign_in_cycle = 0
