@@ -3,9 +3,6 @@ controller's set-up homing every drive over SDO before the first cycle."""
 
 from __future__ import annotations
 
-import time
-
-import can
 import pytest
 
 from controller.config import load_config
@@ -92,16 +89,6 @@ def test_a_limit_switch_beyond_the_stroke_is_a_homing_error():
 
 
 OFFSETS = (0.0123, -0.0201, 0.0057)
-
-
-@pytest.fixture
-def buses():
-    channel = f"homing-{time.monotonic_ns()}"
-    pair = (can.Bus(interface="virtual", channel=channel, receive_own_messages=True),
-            can.Bus(interface="virtual", channel=channel, receive_own_messages=True))
-    yield pair
-    for bus in pair:
-        bus.shutdown()
 
 
 def test_set_up_homes_every_drive_before_the_first_cycle(buses):

@@ -11,7 +11,6 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-import can
 import canopen
 import numpy as np
 import pytest
@@ -36,17 +35,6 @@ from sim_backend.server import Simulator
 VENDOR_EDS = Path(__file__).resolve().parent.parent / "data" / "vendor_drive.eds"
 VENDOR = {"actuators.eds_file": str(VENDOR_EDS), "actuators.vendor_id": 0x00000A5E,
           "actuators.product_code": 0x00C5D402}
-
-
-@pytest.fixture
-def buses():
-    """(simulator's bus, controller's bus) on one virtual channel, shut down after the test."""
-    channel = f"pdo-{time.monotonic_ns()}"
-    pair = (can.Bus(interface="virtual", channel=channel, receive_own_messages=True),
-            can.Bus(interface="virtual", channel=channel, receive_own_messages=True))
-    yield pair
-    for bus in pair:
-        bus.shutdown()
 
 
 def _abort_code(action) -> int:
