@@ -31,16 +31,23 @@ def cfg():
     return load_config(NSPU_TOML, {"recording.enabled": False, "monitoring.enabled": False})
 
 
-@pytest.fixture(scope="module")
-def streamed_run(cfg):
-    """One plan (about 2 s), streamed through Ruckig to the simulated drives and mechanics."""
+def _simulated_run(cfg, max_s, observers=(), plans_ready=None):
+    """The assembled law on the in-process simulated devices in simulated time: (law, exchange, final
+    state, the task's report)."""
     clock = SimulatedTime()
     assembly = assemble(cfg)
     law, (report,) = assembly.law, assembly.reports
     exchange = LoopbackExchange(cfg, clock.clock)
     loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
-                     observers=(RunRecorder(), report))
-    final, _ = loop.run(law.initial_state(), 20.0)
+                     observers=(RunRecorder(), report, *observers), plans_ready=plans_ready)
+    final, _ = loop.run(law.initial_state(), max_s)
+    return law, exchange, final, report
+
+
+@pytest.fixture(scope="module")
+def streamed_run(cfg):
+    """One plan (about 2 s), streamed through Ruckig to the simulated drives and mechanics."""
+    law, exchange, final, report = _simulated_run(cfg, 20.0)
     return law, exchange, final, report.summary(), report
 
 
@@ -91,13 +98,7 @@ def test_open_loop_misses_the_goal_with_a_model_mismatch():
     controller's odometry, integrated with its own model, believes it arrived (11 um): only a
     measurement of the platform (a tracker) can see and correct this."""
     cfg = load_config(NSPU_TOML, {"recording.enabled": False, "monitoring.enabled": False, **MISMATCH})
-    clock = SimulatedTime()
-    assembly = assemble(cfg)
-    law, (report,) = assembly.law, assembly.reports
-    exchange = LoopbackExchange(cfg, clock.clock)
-    loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
-                     observers=(RunRecorder(), report))
-    final, _ = loop.run(law.initial_state(), 20.0)
+    law, exchange, final, report = _simulated_run(cfg, 20.0)
     assert final.mode == Mode.DONE, final.fault_reason
     pe, ae = pose_errors(exchange.plant.kinematics.pose, law.robot.goal)
     assert pe > 1e-3 and ae > 1e-3  # the real platform misses
@@ -157,14 +158,8 @@ class TaskEvents:
 
 def _closed_loop_run(overrides, plans_ready=None, observers=()):
     cfg = load_config(NSPU_TOML, {"recording.enabled": False, "monitoring.enabled": False, **MISMATCH, **overrides})
-    clock = SimulatedTime()
-    assembly = assemble(cfg)
-    law, (report,) = assembly.law, assembly.reports
-    exchange = LoopbackExchange(cfg, clock.clock)
     seen = TaskEvents()
-    loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
-                     observers=(RunRecorder(), report, seen, *observers), plans_ready=plans_ready)
-    final, _ = loop.run(law.initial_state(), 40.0)
+    law, exchange, final, _ = _simulated_run(cfg, 40.0, (seen, *observers), plans_ready)
     return cfg, law, exchange, final, seen
 
 
