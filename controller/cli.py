@@ -324,16 +324,22 @@ def _pose_arg(text: str, what: str) -> Pose:
     return Pose(np.array(vals[:3]), rpy(*vals[3:]))
 
 
+def _nspu_config(args: argparse.Namespace, what: str) -> Config:
+    """The configuration of a 3-nSPU command (the 3-nSPU's by default); ``what`` says why only it."""
+    if not args.robot and not args.config:
+        args.robot = "nspu"
+    cfg = _config(args)
+    if cfg.robot.kind != "nspu":
+        raise ConfigError(f"{what}; robot.kind is {cfg.robot.kind!r}")
+    return cfg
+
+
 def cmd_plan(args: argparse.Namespace) -> int:
     from controller.planning.nonholonomic import paper_example_poses
     from controller.robots.builtin import nspu_poses_from_config
     from controller.tools.analysis.robot_analysis import plan_nspu
 
-    if not args.robot and not args.config:
-        args.robot = "nspu"
-    cfg = _config(args)
-    if cfg.robot.kind != "nspu":
-        raise ConfigError(f"cheope plan plans the 3-nSPU's motion; robot.kind is {cfg.robot.kind!r}")
+    cfg = _nspu_config(args, "cheope plan plans the 3-nSPU's motion")
     start, goal = paper_example_poses(cfg.robot.model("nspu").length_unit_m) if args.paper_example \
         else nspu_poses_from_config(cfg)
     if args.start:
@@ -351,11 +357,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 def cmd_plan_bench(args: argparse.Namespace) -> int:
     from controller.tools.planner_benchmark import format_report, run_benchmark
 
-    if not args.robot and not args.config:
-        args.robot = "nspu"
-    cfg = _config(args)
-    if cfg.robot.kind != "nspu":
-        raise ConfigError(f"cheope plan-bench benchmarks the 3-nSPU's planner; robot.kind is {cfg.robot.kind!r}")
+    cfg = _nspu_config(args, "cheope plan-bench benchmarks the 3-nSPU's planner")
     if args.pairs < 1:
         raise ConfigError(f"--pairs {args.pairs}: must be >= 1")
     report = run_benchmark(cfg, args.pairs, args.seed, lambda line: print(line, file=sys.stderr, flush=True))
