@@ -45,6 +45,36 @@ class SmoothingResult:
 
 
 TARGET_VELOCITY_MARGIN = 1.0 - 1e-6  # of v_max: 0.5 um/s at 0.5 m/s, far below any tolerance
+# The reactive correction asks for at most this part of the speed from which the setpoint can still
+# stop within its error (``stoppable_speed``): the margin covers the one period between samples and
+# the acceleration already under way. 0.5 converges from every state tried in
+# tests/unit/test_setpoint_smoothing.py; 1.0 would be the time-optimal switching curve itself.
+STOPPABLE_FRACTION = 0.5
+
+
+def stoppable_speed(distance: float, max_acceleration: float, max_jerk: float) -> float:
+    """The largest speed [unit/s] from which a jerk-limited stop, starting at zero acceleration, ends within ``distance``.
+
+    A stop from v with jerk j and deceleration a: below v = a^2/j the acceleration profile is a
+    triangle of duration 2 sqrt(v/j) and the distance is v sqrt(v/j), so v = (j d^2)^(1/3); above,
+    the profile has a plateau at a and d = v^2/(2a) + v a/(2j), the positive root of which is taken.
+    The two meet at d = a^3/j^2.
+
+    Why it bounds the reactive correction: a proportional correction k (q_ref - q) through a
+    jerk-limited velocity interface is a loop whose lag grows with the size of the velocity
+    change (the jerk-limited change takes 2 sqrt(dv/j)). For errors where that lag reaches 1/k,
+    every correction overshoots more than the last: a velocity step of 74 mm/s at 10 m/s^2 and
+    500 m/s^3 with k = 100/s grew into a +-64 mm, 1 m/s limit cycle (the diverging re-approach
+    of the contour task after a contact loss). Asking only for a speed the setpoint can still
+    shed before the error is used up is the proximate time-optimal servo's idea (linear near the
+    target, the braking curve away from it): the correction can no longer overshoot.
+    """
+    if distance <= 0.0:
+        return 0.0
+    a, j = max_acceleration, max_jerk
+    if distance <= a ** 3 / (j * j):
+        return float((j * distance * distance) ** (1.0 / 3.0))
+    return -a * a / (2.0 * j) + math.sqrt(a ** 4 / (4.0 * j * j) + 2.0 * a * distance)
 
 
 class RuckigSmoother:
@@ -125,12 +155,15 @@ class RuckigSmoother:
         inp.current_acceleration = current.acceleration
         h = self._period_s
         targets = []
-        for v, q_ref, q, qd, qdd, m in zip(target_velocity, target_position, current.position, current.velocity,
-                                           current.acceleration, lim.max_velocity):
+        for v, q_ref, q, qd, qdd, m, a_max, j_max in zip(
+                target_velocity, target_position, current.position, current.velocity, current.acceleration,
+                lim.max_velocity, lim.max_acceleration, lim.max_jerk):
             # The reference is for the sample one period ahead: compare it with where the setpoint
             # would be then, or the setpoint settles a period's travel ahead of its reference.
-            q_then = q + h * qd + 0.5 * h * h * qdd
-            targets.append(min(max(v + correction_per_s * (q_ref - q_then), -m), m))
+            error = q_ref - (q + h * qd + 0.5 * h * h * qdd)
+            correction = math.copysign(min(correction_per_s * abs(error),
+                                           STOPPABLE_FRACTION * stoppable_speed(abs(error), a_max, j_max)), error)
+            targets.append(min(max(v + correction, -m), m))
         inp.target_velocity = targets
         inp.target_acceleration = self._zeros
         return self._calculate(inp, current)

@@ -1,0 +1,65 @@
+"""The reactive tracking of RuckigSmoother: it settles from any state within the limits.
+
+The contour task's re-approach after a contact loss asked for a velocity step of 74 mm/s on
+one axis; the proportional correction through the jerk-limited velocity interface grew it into
+a +-64 mm, 1 m/s limit cycle that drove the tool into the workpiece. These tests hold the
+smoother alone against such steps, and the bound that removed the cycle against its formula.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother, Setpoint, stoppable_speed
+
+PERIOD_S = 0.0025
+LIMITS = AxisLimits((1.0,), (10.0,), (500.0,))  # the shipped Cheope actuator limits
+CORRECTION_PER_S = 0.25 / PERIOD_S  # as the law asks (REACTIVE_CORRECTION_PERIODS)
+
+
+def _settle(start: Setpoint, cycles: int) -> list[Setpoint]:
+    smoother = RuckigSmoother(LIMITS, PERIOD_S)
+    out = [start]
+    for _ in range(cycles):
+        result = smoother.track_velocity(out[-1], (0.0,), (0.0,), CORRECTION_PER_S)
+        assert result.ok, result.message
+        out.append(result.setpoint)
+    return out
+
+
+@pytest.mark.parametrize("velocity_m_s", [0.02, 0.074, 0.2, 0.5, 0.99, -0.3])
+@pytest.mark.parametrize("error_m", [0.0, 0.002, -0.05])
+def test_a_reference_that_stops_dead_is_reached_without_a_growing_oscillation(velocity_m_s: float,
+                                                                              error_m: float) -> None:
+    trace = _settle(Setpoint((error_m,), (velocity_m_s,), (0.0,)), 1200)
+    # The stop overshoots at most by the braking distance from the start (jerk- and acceleration-
+    # limited), never more on a later swing, and ends at rest on the reference.
+    peaks = [abs(s.position[0]) for s in trace]
+    first_half, second_half = max(peaks[:600]), max(peaks[600:])
+    assert second_half < 1e-6
+    assert first_half <= abs(error_m) + abs(velocity_m_s) * math.sqrt(abs(velocity_m_s) / 500.0) + 0.06
+    assert abs(trace[-1].velocity[0]) < 1e-6
+
+
+def test_the_swings_after_a_74_mm_s_step_shrink() -> None:
+    trace = _settle(Setpoint((0.0,), (0.074,), (0.0,)), 400)
+    # extremes of the position between velocity sign changes
+    swings, last = [], 0.0
+    for a, b in zip(trace, trace[1:]):
+        if a.velocity[0] * b.velocity[0] < 0.0:
+            swings.append(abs(b.position[0] - last))
+            last = b.position[0]
+    assert all(later <= earlier for earlier, later in zip(swings, swings[1:])), swings
+
+
+@pytest.mark.parametrize("speed", [0.001, 0.05, 0.2, 0.5, 1.0])
+def test_stoppable_speed_inverts_the_braking_distance(speed: float) -> None:
+    a, j = 10.0, 500.0
+    if speed <= a * a / j:
+        distance = speed * math.sqrt(speed / j)  # triangular acceleration profile
+    else:
+        distance = speed * speed / (2 * a) + speed * a / (2 * j)  # with a plateau at a
+    assert stoppable_speed(distance, a, j) == pytest.approx(speed, rel=1e-9)
+    assert stoppable_speed(0.0, a, j) == 0.0
