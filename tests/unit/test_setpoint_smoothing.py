@@ -8,6 +8,7 @@ smoother alone against such steps, and the bound that removed the cycle against 
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
@@ -47,11 +48,11 @@ def test_the_swings_after_a_74_mm_s_step_shrink() -> None:
     trace = _settle(Setpoint((0.0,), (0.074,), (0.0,)), 400)
     # extremes of the position between velocity sign changes
     swings, last = [], 0.0
-    for a, b in zip(trace, trace[1:]):
+    for a, b in itertools.pairwise(trace):
         if a.velocity[0] * b.velocity[0] < 0.0:
             swings.append(abs(b.position[0] - last))
             last = b.position[0]
-    assert all(later <= earlier for earlier, later in zip(swings, swings[1:])), swings
+    assert all(later <= earlier for earlier, later in itertools.pairwise(swings)), swings
 
 
 @pytest.mark.parametrize("speed", [0.001, 0.05, 0.2, 0.5, 1.0])
