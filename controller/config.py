@@ -172,7 +172,7 @@ class SafetySection(Section, frozen=True):
     """
 
     max_contact_force_n: Annotated[float, rng(0.0, 10000.0, lo_open=True)] = 60.0
-    sensor_stale_cycles: Annotated[int, rng(1, 100000)] = 5
+    sensor_stale_cycles: Annotated[int, rng(1, 100000)] = 20
     on_sensor_stale: Reaction = Reaction("fault")
     on_sensor_saturated: Reaction = Reaction("fault")
     on_heartbeat_lost: Reaction = Reaction("fault")
@@ -414,6 +414,8 @@ def config_to_dict(cfg: Any) -> dict[str, Any]:
             out.update({kind: config_to_dict(section) for kind, section in value.items()})
         elif isinstance(value, msgspec.Struct):
             out[f.name] = config_to_dict(value)
+        elif isinstance(value, tuple) and value and isinstance(value[0], msgspec.Struct):  # a list of tables
+            out[f.name] = [config_to_dict(v) for v in value]
         else:
             out[f.name] = value
     return out

@@ -137,14 +137,25 @@ class ReferenceTrail:
 
 
 def _workpiece(cfg: Config) -> list[Primitive]:
-    """The contour task's disk where the simulator has it, and the contour the task expects."""
+    """The contour task's workpiece where the simulator has it, and the contour the task expects."""
     out: list[Primitive] = []
     env = cfg.sim.environment
-    if env == "disk" or (env == "auto" and cfg.task.kind == "contour"):
-        d = cfg.sim.disk
-        out.append(Primitive("workpiece/disk", Shape.CYLINDER, DISK, start=(d.centre_m[0], d.centre_m[1], d.height_m),
-                             end=(0.0, 0.0, 1.0), radius_m=d.radius_m, length_m=d.thickness_m,
-                             label=f"workpiece r = {d.radius_m * 1000:.0f} mm"))
+    if env == "workpiece" or (env == "auto" and cfg.task.kind == "contour"):
+        w = cfg.sim.workpiece
+        if w.shape == "disk" and not w.features:
+            out.append(Primitive("workpiece/disk", Shape.CYLINDER, DISK, start=(w.centre_m[0], w.centre_m[1], w.height_m),
+                                 end=(0.0, 0.0, 1.0), radius_m=w.radius_m, length_m=w.thickness_m,
+                                 label=f"workpiece r = {w.radius_m * 1000:.0f} mm"))
+        else:
+            from sim_backend.plant import (
+                workpiece_environment,  # geometry only: the outline the simulator uses
+            )
+
+            rim = workpiece_environment(w).contour_points(360)
+            for dz in (-w.thickness_m / 2, w.thickness_m / 2):
+                out.append(Primitive("workpiece/outline", Shape.LINE, DISK, radius_m=0.0015,
+                                     points=tuple((float(x), float(y), float(z) + dz) for x, y, z in rim),
+                                     label=f"workpiece: {w.shape.replace('_', ' ')}" if dz > 0 else ""))
     if cfg.task.kind == "contour":
         e = cfg.task.model("contour")
         out.append(Primitive("workpiece/expected_contour", Shape.LINE, GREEN_FAINT,

@@ -68,6 +68,16 @@ from sim_backend.force_sensor import SensorParams, SimulatedForceSensor
 from sim_backend.mechanics import NO_ACCELERATION, ComplianceParams, CompliantTool
 from sim_backend.plant_kinematics import plant_kinematics
 from sim_backend.pose_tracker import SimulatedPoseTracker, TrackerParams
+from sim_backend.sim_config import SimWorkpieceSection
+from sim_backend.workpiece import (
+    BUMP_RAMP_M,
+    NOTCH_WALL_SLOPE,
+    ContactParams,
+    Feature,
+    PolylineEnvironment,
+    ShapeParams,
+    outline,
+)
 
 log = logging.getLogger(__name__)
 
@@ -100,12 +110,24 @@ def environment_from_config(cfg: Config) -> Environment:
         kind = task_entry(cfg.task.kind).sim_environment
     if kind == "free":
         return FreeSpace()
-    d = cfg.sim.disk
-    return DiskEnvironment(DiskParams(
-        centre_m=d.centre_m, height_m=d.height_m, radius_m=d.radius_m, thickness_m=d.thickness_m,
-        tool_radius_m=d.tool_radius_m, contact_stiffness_n_m=d.contact_stiffness_n_m,
-        sensor_stiffness_n_m=d.sensor_stiffness_n_m, contact_damping_n_s_m=d.contact_damping_n_s_m,
-        friction_coefficient=d.friction_coefficient))
+    return workpiece_environment(cfg.sim.workpiece)
+
+
+def workpiece_environment(w: SimWorkpieceSection) -> DiskEnvironment | PolylineEnvironment:
+    """The paper's plain disk with its exact model; any other shape, or a disk with features, as a polyline."""
+    if w.shape == "disk" and not w.features:
+        return DiskEnvironment(DiskParams(
+            centre_m=w.centre_m, height_m=w.height_m, radius_m=w.radius_m, thickness_m=w.thickness_m,
+            tool_radius_m=w.tool_radius_m, contact_stiffness_n_m=w.contact_stiffness_n_m,
+            sensor_stiffness_n_m=w.sensor_stiffness_n_m, contact_damping_n_s_m=w.contact_damping_n_s_m,
+            friction_coefficient=w.friction_coefficient))
+    features = tuple(Feature(f.angle_deg, f.length_m, f.depth_m,
+                             NOTCH_WALL_SLOPE * f.depth_m if f.depth_m > 0 else BUMP_RAMP_M) for f in w.features)
+    shape = ShapeParams(w.shape, w.centre_m, w.rotation_deg, w.radius_m, w.size_m, w.corner_radius_m, w.lobes,
+                        w.lobe_depth_m, features)
+    contact = ContactParams(w.height_m, w.thickness_m, w.tool_radius_m, w.contact_stiffness_n_m,
+                            w.sensor_stiffness_n_m, w.contact_damping_n_s_m, w.friction_coefficient)
+    return PolylineEnvironment(outline(shape), contact)
 
 
 class RobotPlant:

@@ -1,7 +1,7 @@
 """The simulator's configuration: ``[sim]`` and its sub-tables, in the same file as the controller's.
 
 The simulated devices read these (sim_backend/plant.py, drive.py, force_sensor.py,
-contact_disk.py, fault_injection.py); the controller never does. ``check_sim_section`` is the
+contact_disk.py, workpiece.py, fault_injection.py); the controller never does. ``check_sim_section`` is the
 checks msgspec's types cannot express (the fault specs parse).
 """
 
@@ -49,12 +49,28 @@ class SimSensorSection(Section, frozen=True):
     bandwidth_hz: Annotated[float, rng(0.1, 100000.0)] = 200.0
 
 
-class SimDiskSection(Section, frozen=True):
-    """The workpiece of the contour task; known to the simulator only (sim_backend/contact_disk.py)."""
+class SimFeatureSection(Section, frozen=True):
+    """A notch (``depth_m`` > 0) or bump (``depth_m`` < 0) on the workpiece's boundary (sim_backend/workpiece.py)."""
 
+    angle_deg: Annotated[float, rng(-360.0, 360.0)] = 0.0  # its middle, about the workpiece's centre (before rotation)
+    length_m: Annotated[float, rng(0.0, 0.5, lo_open=True)] = 0.01  # along the boundary
+    depth_m: Annotated[float, rng(-0.01, 0.01)] = 0.002  # inwards; negative: a raised stretch (bump)
+
+
+class SimWorkpieceSection(Section, frozen=True):
+    """The contour task's workpiece; known to the simulator only (sim_backend/workpiece.py, contact_disk.py)."""
+
+    shape: Literal["disk", "ellipse", "rounded_rectangle", "rounded_star", "kidney"] = "disk"
     centre_m: tuple[float, float] = (0.002, -0.001)
+    rotation_deg: Annotated[float, rng(-360.0, 360.0)] = 0.0  # about +Z, of the shape's own frame
     height_m: Annotated[float, rng(-10.0, 10.0)] = 0.50
-    radius_m: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.07
+    radius_m: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.07  # disk; star and kidney: mean radius
+    size_m: tuple[Annotated[float, rng(0.0, 1.0, lo_open=True)],
+                  Annotated[float, rng(0.0, 1.0, lo_open=True)]] = (0.08, 0.06)  # ellipse: semi-axes; rectangle: half extents
+    corner_radius_m: Annotated[float, rng(0.0, 1.0)] = 0.004  # rounded rectangle
+    lobes: Annotated[int, rng(2, 12)] = 5  # rounded star
+    lobe_depth_m: Annotated[float, rng(0.0, 0.5)] = 0.008  # star: lobe amplitude; kidney: depth of its dent
+    features: tuple[SimFeatureSection, ...] = ()  # notches and bumps
     thickness_m: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.01
     tool_radius_m: Annotated[float, rng(0.0, 0.1)] = 0.0
     contact_stiffness_n_m: Annotated[float, rng(0.0, 1e12, lo_open=True)] = 1.0e6
@@ -91,8 +107,8 @@ class SimSection(Section, frozen=True):
     sensor: SimSensorSection = msgspec.field(default_factory=SimSensorSection)
     structure_damping_ratio: Annotated[float, rng(0.0, 10.0)] = 0.5
     structure_inertial_load: bool = True  # the structure also carries M times the drives' acceleration (plant.py)
-    environment: Literal["auto", "free", "disk"] = "auto"
-    disk: SimDiskSection = msgspec.field(default_factory=SimDiskSection)
+    environment: Literal["auto", "free", "workpiece"] = "auto"
+    workpiece: SimWorkpieceSection = msgspec.field(default_factory=SimWorkpieceSection)
     nspu: SimNspuSection = msgspec.field(default_factory=SimNspuSection)
     tracker: SimTrackerSection = msgspec.field(default_factory=SimTrackerSection)
     faults: tuple[str, ...] = ()  # fault injection, sim_backend/fault_injection.py: "drop:2@3.0+0.5", ...

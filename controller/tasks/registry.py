@@ -40,7 +40,7 @@ class TaskEntry:
     section: type | None  # its [task.<kind>] section (a frozen dataclass), or None
     build: Callable[[Config, Robot], BuiltTask]  # raises ConfigError / WorkspaceError / PlanningError
     check: Callable[[Any], None] | None = None  # cross-checks of its section: raise ConfigError
-    sim_environment: str = "free"  # what the simulator places with sim.environment = "auto": "free", "disk"
+    sim_environment: str = "free"  # what the simulator places with sim.environment = "auto": "free", "workpiece"
 
 
 _TASKS: dict[str, TaskEntry] = {}

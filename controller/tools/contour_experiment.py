@@ -5,7 +5,7 @@ tracking (five laps, increasing then constant speed), then the same contour done
 position control along the nominal circle, the circle the operator believes the contour
 to be (``task.contour.expected_centre_m`` and ``expected_radius_m``), pressed in by
 ``comparison_press_m`` so that it would touch with about the force setpoint if the disk were
-where it is expected. The simulated disk is off by a few millimetres (``sim.disk.centre_m``),
+where it is expected. The simulated disk is off by a few millimetres (``sim.workpiece.centre_m``),
 as a workpiece placed by hand is: the comparison shows what force control buys. So that it
 can show it for a whole lap, the comparison runs without the contact-force guard and a
 saturated sensor only warns: with the configured safety (and on real hardware) it would be

@@ -156,7 +156,7 @@ def test_the_contour_session_draws_the_workpiece_where_the_simulator_has_it(tmp_
     _record(path, cfg, 0.5)
     _, updates, _ = _scene(path)
     disk = _entity(updates[0], "workpiece/disk")
-    d = cfg.sim.disk
+    d = cfg.sim.workpiece
     (c,) = disk.cylinders
     assert (c.pose.position.x, c.pose.position.y, c.pose.position.z) == pytest.approx(
         (d.centre_m[0], d.centre_m[1], d.height_m))

@@ -1,0 +1,229 @@
+"""Any closed planar workpiece for the contour task: a dense polyline and its contact model.
+
+The disk of seed 001 §7 has an exact model (``contact_disk.py``); every other shape lives here
+as a closed counter-clockwise polyline sampled evenly by arc length, with a normal at every
+vertex taken from the shape itself. The contact is the one of the disk: with penetration d of
+the tool's centre behind the boundary and outward normal n, F_n = max(0, k d - c d_dot) with the
+series stiffness of contact and sensor, and smoothed Coulomb friction along the tangent.
+
+The normal at the nearest point is interpolated between the two vertex normals (as a smooth
+surface's would be), so a dense polyline has no facets the tool could feel. The nearest
+segment is found by walking from the last one (the tool moves a fraction of a segment per
+sub-step); a full search only on the first call or after a jump.
+
+Shapes (``[sim.workpiece] shape``), in the workpiece's own frame before ``rotation_deg`` and
+``centre_m``: ``disk`` (radius), ``ellipse`` (semi-axes ``size_m``), ``rounded_rectangle``
+(half extents ``size_m``, ``corner_radius_m``), ``rounded_star`` (``lobes`` lobes of
+``lobe_depth_m`` about a mean radius; concave between lobes), ``kidney`` (a disk with one
+dent of ``lobe_depth_m``; concave there). Features on any shape: a ``notch`` (a recess of a
+given length and depth with 45-degree walls) and a ``bump`` (a raised stretch with gentle ramps),
+each placed at an angle about the centre.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sim_backend.environment import NO_FORCE, Vector3
+
+SAMPLES = 4096  # vertices of the polyline: 0.1-0.2 mm apart on the shipped shapes
+NOTCH_WALL_SLOPE = 1.0  # a notch's walls: 45 deg chamfers (wall length = depth), as a recess cut with a chamfer
+BUMP_RAMP_M = 10.0e-3  # a bump's flanks: 10 mm long, as a weld seam's or a taped shim's
+
+
+@dataclass(frozen=True)
+class Feature:
+    """A recess (``depth_m`` > 0) or a raised stretch (``depth_m`` < 0) of the boundary."""
+
+    angle_deg: float  # where its middle is, about the workpiece's centre (before rotation)
+    length_m: float  # along the boundary
+    depth_m: float  # inwards; negative: outwards (a bump)
+    ramp_m: float  # length of each transition
+
+
+@dataclass(frozen=True)
+class ShapeParams:
+    shape: str
+    centre_m: tuple[float, float]
+    rotation_deg: float
+    radius_m: float  # disk, star and kidney: the mean radius
+    size_m: tuple[float, float]  # ellipse: semi-axes; rounded rectangle: half extents
+    corner_radius_m: float
+    lobes: int
+    lobe_depth_m: float
+    features: tuple[Feature, ...] = field(default=())
+
+
+SHAPES = ("disk", "ellipse", "rounded_rectangle", "rounded_star", "kidney")
+
+
+def _polar(radius: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    return np.column_stack([radius * np.cos(theta), radius * np.sin(theta)])
+
+
+def _rounded_rectangle(a: float, b: float, rc: float, n: int) -> np.ndarray:
+    """Counter-clockwise outline of a rectangle of half extents a, b with corners of radius rc."""
+    rc = min(rc, a, b)
+    pieces = []
+    corners = ((a - rc, b - rc, 0.0), (-(a - rc), b - rc, 0.5 * math.pi), (-(a - rc), -(b - rc), math.pi),
+               ((a - rc), -(b - rc), 1.5 * math.pi))
+    for cx, cy, start in corners:  # each corner's arc, then the straight edge to the next (resampled later)
+        th = np.linspace(start, start + 0.5 * math.pi, n // 16, endpoint=True)
+        pieces.append(np.column_stack([cx + rc * np.cos(th), cy + rc * np.sin(th)]))
+    return np.vstack(pieces)
+
+
+def _raw_outline(p: ShapeParams) -> np.ndarray:
+    """A closed outline (first point not repeated), counter-clockwise, in the workpiece's frame."""
+    theta = np.linspace(0.0, 2.0 * math.pi, 8 * SAMPLES, endpoint=False)
+    if p.shape == "disk":
+        return _polar(np.full_like(theta, p.radius_m), theta)
+    if p.shape == "ellipse":
+        return np.column_stack([p.size_m[0] * np.cos(theta), p.size_m[1] * np.sin(theta)])
+    if p.shape == "rounded_rectangle":
+        return _rounded_rectangle(p.size_m[0], p.size_m[1], p.corner_radius_m, 8 * SAMPLES)
+    if p.shape == "rounded_star":
+        return _polar(p.radius_m + p.lobe_depth_m * np.cos(p.lobes * theta), theta)
+    if p.shape == "kidney":  # one dent on the -X side, a Gaussian in the angle
+        dent = p.lobe_depth_m * np.exp(-((theta - math.pi) ** 2) / (2.0 * 0.5 ** 2))
+        return _polar(p.radius_m - dent, theta)
+    raise ValueError(f"unknown workpiece shape {p.shape!r} (one of {', '.join(SHAPES)})")
+
+
+def _resample(points: np.ndarray, n: int) -> np.ndarray:
+    """``n`` points evenly spaced by arc length along the closed polyline ``points``."""
+    closed = np.vstack([points, points[:1]])
+    seg = np.hypot(*np.diff(closed, axis=0).T)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    target = np.linspace(0.0, s[-1], n, endpoint=False)
+    return np.column_stack([np.interp(target, s, closed[:, 0]), np.interp(target, s, closed[:, 1])])
+
+
+def _vertex_normals(points: np.ndarray) -> np.ndarray:
+    """Outward unit normals of a counter-clockwise closed polyline: the central difference turned by -90 deg."""
+    tangent = np.roll(points, -1, axis=0) - np.roll(points, 1, axis=0)
+    normal = np.column_stack([tangent[:, 1], -tangent[:, 0]])
+    result: np.ndarray = normal / np.hypot(normal[:, 0], normal[:, 1])[:, None]
+    return result
+
+
+def _plateau(distance: np.ndarray, half_length: float, ramp: float) -> np.ndarray:
+    """1 within ``half_length - ramp`` of the middle, 0 beyond ``half_length``, a cosine between."""
+    inner = max(half_length - ramp, 0.0)
+    x = np.clip((np.abs(distance) - inner) / max(half_length - inner, 1e-12), 0.0, 1.0)
+    result: np.ndarray = 0.5 * (1.0 + np.cos(math.pi * x))
+    return result
+
+
+def _apply_feature(points: np.ndarray, f: Feature) -> np.ndarray:
+    closed = np.vstack([points, points[:1]])
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(closed, axis=0).T))])[:-1]
+    perimeter = s[-1] + float(np.hypot(*(points[0] - points[-1])))
+    angles = np.arctan2(points[:, 1], points[:, 0])
+    middle = int(np.argmin(np.abs((angles - math.radians(f.angle_deg) + math.pi) % (2 * math.pi) - math.pi)))
+    along = (s - s[middle] + perimeter / 2) % perimeter - perimeter / 2
+    weight = _plateau(along, f.length_m / 2.0, f.ramp_m)
+    result: np.ndarray = points - (f.depth_m * weight)[:, None] * _vertex_normals(points)
+    return result
+
+
+def outline(p: ShapeParams, n: int = SAMPLES) -> np.ndarray:
+    """The workpiece's boundary in the base frame's XY: ``n`` points, counter-clockwise, evenly spaced."""
+    pts = _resample(_raw_outline(p), n)
+    for f in p.features:
+        pts = _resample(_apply_feature(pts, f), n)
+    c, s = math.cos(math.radians(p.rotation_deg)), math.sin(math.radians(p.rotation_deg))
+    rotated = pts @ np.array([[c, s], [-s, c]])
+    result: np.ndarray = rotated + np.asarray(p.centre_m)
+    return result
+
+
+@dataclass(frozen=True)
+class ContactParams:
+    height_m: float
+    thickness_m: float
+    tool_radius_m: float
+    contact_stiffness_n_m: float
+    sensor_stiffness_n_m: float
+    contact_damping_n_s_m: float
+    friction_coefficient: float
+    friction_velocity_m_s: float = 1e-3
+
+
+class PolylineEnvironment:
+    """Contact of the tool's ball with a closed planar polyline workpiece (see the module's text)."""
+
+    def __init__(self, points_m: np.ndarray, contact: ContactParams) -> None:
+        self.points = np.asarray(points_m, dtype=float)
+        self.normals = _vertex_normals(self.points)
+        self.contact = contact
+        self._k_series = 1.0 / (1.0 / contact.contact_stiffness_n_m + 1.0 / contact.sensor_stiffness_n_m)
+        self._xy = [(float(x), float(y)) for x, y in self.points]
+        self._nxy = [(float(x), float(y)) for x, y in self.normals]
+        self._n = len(self._xy)
+        self._hint: int | None = None
+        centre = self.points.mean(axis=0)
+        self._centre = (float(centre[0]), float(centre[1]))
+        self._max_radius = float(np.max(np.hypot(*(self.points - centre).T)))
+
+    def contour_points(self, n: int = 360) -> np.ndarray:
+        """The boundary (for plots and viewers), closed, at the workpiece's height."""
+        idx = np.linspace(0, self._n, n, endpoint=False).astype(int)
+        pts = np.vstack([self.points[idx], self.points[:1]])
+        return np.column_stack([pts, np.full(len(pts), self.contact.height_m)])
+
+    def _segment(self, i: int, x: float, y: float) -> tuple[float, float, float, float]:
+        """Squared distance to segment i -> i+1, the parameter along it, and the nearest point."""
+        ax, ay = self._xy[i]
+        bx, by = self._xy[(i + 1) % self._n]
+        dx, dy = bx - ax, by - ay
+        length2 = dx * dx + dy * dy
+        t = min(max(((x - ax) * dx + (y - ay) * dy) / length2, 0.0), 1.0) if length2 > 0.0 else 0.0
+        px, py = ax + t * dx, ay + t * dy
+        return (x - px) ** 2 + (y - py) ** 2, t, px, py
+
+    def _nearest(self, x: float, y: float) -> int:
+        hint = self._hint
+        if hint is not None:
+            hx, hy = self._xy[hint]
+            if (x - hx) ** 2 + (y - hy) ** 2 > 25e-6:  # moved more than 5 mm since: search again
+                hint = None
+        if hint is None:
+            d2 = (self.points[:, 0] - x) ** 2 + (self.points[:, 1] - y) ** 2
+            hint = int(np.argmin(d2))
+        best = self._segment(hint, x, y)[0]
+        for step in (1, -1):  # walk downhill both ways
+            while True:
+                j = (hint + step) % self._n
+                d = self._segment(j, x, y)[0]
+                if d >= best:
+                    break
+                hint, best = j, d
+        self._hint = hint
+        return hint
+
+    def contact_force(self, x_m: float, y_m: float, z_m: float, vx_m_s: float, vy_m_s: float) -> Vector3:
+        c = self.contact
+        if abs(z_m - c.height_m) > c.thickness_m / 2 + c.tool_radius_m:
+            return NO_FORCE
+        if math.hypot(x_m - self._centre[0], y_m - self._centre[1]) > self._max_radius + c.tool_radius_m + 1e-3:
+            return NO_FORCE  # far outside: no search
+        i = self._nearest(x_m, y_m)
+        d2, t, px, py = self._segment(i, x_m, y_m)
+        (n0x, n0y), (n1x, n1y) = self._nxy[i], self._nxy[(i + 1) % self._n]
+        nx, ny = n0x + t * (n1x - n0x), n0y + t * (n1y - n0y)
+        norm = math.hypot(nx, ny)
+        nx, ny = nx / norm, ny / norm
+        behind = -((x_m - px) * nx + (y_m - py) * ny)  # > 0: the tool's centre is inside the boundary
+        penetration = behind + c.tool_radius_m if behind > 0.0 else c.tool_radius_m - math.sqrt(d2)
+        if penetration <= 0.0:
+            return NO_FORCE
+        fn = self._k_series * penetration - c.contact_damping_n_s_m * (vx_m_s * nx + vy_m_s * ny)
+        if fn <= 0.0:
+            return NO_FORCE
+        tx, ty = -ny, nx
+        friction = -c.friction_coefficient * fn * math.tanh((vx_m_s * tx + vy_m_s * ty) / c.friction_velocity_m_s)
+        return (fn * nx + friction * tx, fn * ny + friction * ty, 0.0)
