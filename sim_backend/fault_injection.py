@@ -12,6 +12,8 @@ needs one. Kinds:
 - ``freeze``       the force sensor's counter stops advancing (stale data)
 - ``saturate``     the force sensor reports saturation
 - ``force=F``      the force sensor sees an extra F newtons along X (an unexpected contact)
+- ``drift=R``      the force sensor's bias drifts by R newtons a second along X (temperature); after
+                   DURATION the bias stays where it drifted to
 - ``error_frames`` CAN error frames on the bus; ``bus_off`` an error frame reporting bus-off
 - ``tx_full``      the controller's frames do not reach the devices (a full transmit queue)
 - ``stall=S``      the controller's loop wakes S seconds late every cycle (in-process runs only)
@@ -46,7 +48,7 @@ from controller.errors import InputError
 
 KINDS_WITH_NODE = ("drop", "delay", "malformed", "drive_fault", "heartbeat", "block", "jump", "reboot",
                    "nmt_stop", "unknown_node")
-KINDS = KINDS_WITH_NODE + ("freeze", "saturate", "force", "error_frames", "bus_off", "tx_full", "stall",
+KINDS = KINDS_WITH_NODE + ("freeze", "saturate", "force", "drift", "error_frames", "bus_off", "tx_full", "stall",
                            "foreign_sync", "flood", "spoof_sensor")
 DRIVE_ONLY_KINDS = ("drive_fault", "block", "jump", "reboot")
 FLOOD_COB_ID = 0x001
@@ -113,8 +115,8 @@ def check_fault(text: str, drive_nodes: Sequence[int], sensor_node: int | None) 
     if f.kind in ("delay", "stall") and not 0.0 < f.value <= MAX_LATENESS_S:
         raise FaultSpecError(f"fault {text!r}: {f.kind} of {f.value:g} s must be in (0, {MAX_LATENESS_S:g}] s; "
                              f"a longer silence is drop:N (a node) or a dead controller")
-    if f.kind == "force" and not abs(f.value) <= MAX_EXTRA_FORCE_N:
-        raise FaultSpecError(f"fault {text!r}: force={f.value:g} N is beyond +-{MAX_EXTRA_FORCE_N:g} N")
+    if f.kind in ("force", "drift") and not abs(f.value) <= MAX_EXTRA_FORCE_N:
+        raise FaultSpecError(f"fault {text!r}: {f.kind}={f.value:g} is beyond +-{MAX_EXTRA_FORCE_N:g} N (N/s)")
     return f
 
 
@@ -184,7 +186,12 @@ def apply_device_faults(schedule: FaultSchedule, plant: FaultableDevices, drive_
         sensor.status_flags = (sensor.status_flags | SENSOR_FORCE_SATURATED) if sat \
             else (sensor.status_flags & ~SENSOR_FORCE_SATURATED)
         force = schedule.active("force", now_s)
-        sensor.extra_force_n = (force.value, 0.0, 0.0) if force is not None else (0.0, 0.0, 0.0)
+        extra_x = force.value if force is not None else 0.0
+        t = schedule.elapsed(now_s)
+        for f in schedule.faults:  # a drift keeps the bias it reached when it ends
+            if f.kind == "drift" and t >= f.start_s:
+                extra_x += f.value * min(t - f.start_s, f.duration_s)
+        sensor.extra_force_n = (extra_x, 0.0, 0.0)
 
 
 def tpdo_payload(schedule: FaultSchedule, node: int, payload: bytes, now_s: float) -> bytes | None:

@@ -80,7 +80,7 @@ class SafetyConfig:
     """Reactions to abnormal inputs ("fault", "warn" or "ignore"); see config.SafetySection."""
 
     max_contact_force_n: float = 60.0
-    sensor_stale_cycles: int = 5
+    sensor_stale_cycles: int = 20
     on_sensor_stale: Reaction = Reaction.FAULT
     on_sensor_saturated: Reaction = Reaction.FAULT
     on_heartbeat_lost: Reaction = Reaction.FAULT
@@ -456,6 +456,9 @@ class ControlLaw:
                  measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
         period = self.config.period_s
         task_time = state.task_time_s + period
+        if inputs.sensor is not None and inputs.sensor.fresh and state.sensor_stale > 0:
+            # A frame whose counter did not advance repeats the last sample: no new evidence for the task.
+            inputs = replace(inputs, sensor=replace(inputs.sensor, fresh=False))
         ctx = TaskContext(t_s=task_time + PIPELINE_PERIODS * period, period_s=period, setpoint=state.setpoint,
                           inputs=inputs, tcp_measured_m=state.tcp_measured_m)
         out = self.task.step(state.task_state, ctx)

@@ -92,6 +92,20 @@ class ContourSection(Section, frozen=True):
     normal_tracker_hz: Annotated[float, rng(0.01, 50.0)] = 1.5
     comparison_press_m: Annotated[float, rng(0.0, 0.01)] = 6.0e-5
     direction: Literal[1, -1] = 1  # 1: counter-clockwise seen from +z
+    # off the happy path (controller/tasks/contour_tracking.py, "Off the happy path")
+    admittance_saturation_fraction: Annotated[float, rng(0.05, 1.0)] = 0.5  # of safety.max_contact_force_n
+    normal_gate_deg: Annotated[float, rng(1.0, 180.0)] = 60.0
+    max_force_step_n: Annotated[float, rng(0.1, 1000.0)] = 10.0
+    implausible_hold_s: Annotated[float, rng(0.0, 10.0)] = 0.5
+    stale_hold_cycles: Annotated[int, rng(1, 1000)] = 4
+    stop_deceleration_m_s2: Annotated[float, rng(0.001, 100.0)] = 5.0
+    reapproach_distance_m: Annotated[float, rng(0.0, 0.1, lo_open=True)] = 0.008
+    max_reacquire_attempts: Annotated[int, rng(1, 100)] = 3
+    max_normal_turn_rate_rad_s: Annotated[float, rng(0.01, 100.0)] = 2.0
+    min_tangential_speed_m_s: Annotated[float, rng(0.0, 1.0)] = 0.005
+    max_push_without_force_m: Annotated[float, rng(0.0001, 0.1)] = 0.003
+    creep_speed_m_s: Annotated[float, rng(0.0001, 1.0)] = 0.01
+    creep_distance_m: Annotated[float, rng(0.0, 1.0)] = 0.025
 
 
 def _check_contour(c: ContourSection) -> None:
@@ -99,14 +113,15 @@ def _check_contour(c: ContourSection) -> None:
         raise ConfigError("task.contour.lap_speeds_m_s = []: needs at least one lap")
 
 
-def contour_params(c: ContourSection, settle_tolerance_m: float) -> ContourParams:
-    """The task's parameters: the section's keys of the same name, and the three that differ."""
+def contour_params(c: ContourSection, settle_tolerance_m: float, max_contact_force_n: float) -> ContourParams:
+    """The task's parameters: the section's keys of the same name, and the four that differ."""
     from controller.tasks.contour_tracking import ContourParams
 
     same = {f.name: getattr(c, f.name) for f in dataclasses.fields(ContourParams) if hasattr(c, f.name)}
     return ContourParams(**same, approach_direction_rad=math.radians(c.approach_direction_deg),
                          reapproach_on_contact_loss=c.on_contact_loss == "reapproach",
-                         settle_tolerance_m=settle_tolerance_m)
+                         settle_tolerance_m=settle_tolerance_m,
+                         saturation_force_n=c.admittance_saturation_fraction * max_contact_force_n)
 
 
 def build_contour_task(cfg: Config, robot: Robot) -> BuiltTask:
@@ -121,7 +136,8 @@ def build_contour_task(cfg: Config, robot: Robot) -> BuiltTask:
         for th in np.linspace(0.0, 2.0 * np.pi, 73):
             ring.append((c.expected_centre_m[0] + r * np.cos(th), c.expected_centre_m[1] + r * np.sin(th), c.height_m))
     robot.check_path(np.array(ring))
-    return BuiltTask(ContourTrackingTask(robot, contour_params(c, cfg.loop.settle_tolerance_m)))  # type: ignore[arg-type]
+    params = contour_params(c, cfg.loop.settle_tolerance_m, cfg.safety.max_contact_force_n)
+    return BuiltTask(ContourTrackingTask(robot, params))  # type: ignore[arg-type]
 
 
 # -- the planned legs (seed 004): the 3-nSPU's settings are in [robot.nspu] ----------------------
@@ -138,7 +154,7 @@ def build_planned_task(cfg: Config, robot: Robot) -> BuiltTask:
 
 PATH = TaskEntry(kind="path", section=PathSection, build=build_path_task, check=_check_path)
 CONTOUR = TaskEntry(kind="contour", section=ContourSection, build=build_contour_task, check=_check_contour,
-                    sim_environment="disk")
+                    sim_environment="workpiece")
 PLANNED = TaskEntry(kind="planned", section=None, build=build_planned_task)
 
 for _entry in (PATH, CONTOUR, PLANNED):

@@ -1,7 +1,9 @@
 """Hybrid force/velocity tracking of an unknown contour (seed 001 §7, task frame after De Schutter).
 
 The tool keeps contact with the rim of an object lying in a plane z = const and travels
-along it. Every cycle, in the task frame {n, t, z}:
+along it. The object is any closed planar contour: the task knows only where it roughly is
+(``expected_centre_m``, ``expected_radius_m`` along the approach direction). Every cycle, in
+the task frame {n, t, z}:
 
 - n, the outward contour normal, follows the direction of the measured contact force in the
   XY plane (the contact pushes the tool out of the object). The force is low-pass filtered
@@ -9,10 +11,14 @@ along it. Every cycle, in the task frame {n, t, z}:
   (``track_normal``, ``normal_tracker_hz``) smooths its direction: the direction's noise,
   times the tangential speed, would be a velocity into the contour. The normal is only
   updated while the in-plane force exceeds ``normal_min_force_n``: below it the direction of
-  a small, noisy force means nothing.
+  a small, noisy force means nothing. A direction further than ``normal_gate_deg`` from the
+  tracker's prediction is no measurement of the contour (a disturbance is pulling on the
+  tool): the tracker only predicts.
 - t = z x n is the tangent (counter-clockwise seen from +Z, or the opposite with
-  ``direction = -1``): the tool moves along t at the lap's speed, with the speed changes
-  limited to ``tangential_acceleration_m_s2``.
+  ``direction = -1``): the tool moves along t at the lap's speed, with speed increases
+  limited to ``tangential_acceleration_m_s2`` and decreases to ``stop_deceleration_m_s2``.
+  Where the normal turns faster than ``max_normal_turn_rate_rad_s`` (a corner: the
+  curvature is the turn rate over the speed) the speed is derated so that it does not.
 - along -n a PI loop on the normal-force error e = F_d - F_n sets an admittance velocity
   v_n = kp e + ki integral(e): the robot is position controlled, so force is controlled
   through the commanded motion (indirect force control);
@@ -32,14 +38,38 @@ t taken from the previous cycle (its error enters only through the small frictio
 Removing the force component along t instead would leave a vector parallel to the previous
 normal: the estimate could never turn.
 
+Off the happy path (DESIGN.md, "Off the happy path"), by design rather than by exception:
+
+- **Never push past the limit.** Above ``saturation_force_n`` (a fraction of the safety
+  layer's contact-force limit) in the filtered or the latest raw sample, the normal command
+  only moves away from the contact, faster the nearer the limit (admittance saturation), and
+  the integral is emptied. Over ``max_force_n`` the tool retracts and the task faults; the
+  safety layer's limit stays the last line.
+- **Implausible force.** A step between two samples larger than ``max_force_step_n`` (the
+  sensor and the structure do not produce it while tracking: 1.8 N is the largest step measured
+  on the disk, 7-8 N in the rounded star's concave valleys at 40 mm/s) makes the signal suspect:
+  the sample is kept out of the filter, the normal and the integral, the tool does not move into
+  the contact and the tangential motion brakes. The signal is trusted again when it steps back
+  (a spike), or after ``implausible_hold_s`` at its new level (a real change: the filter
+  restarts from it). Cycles without a fresh sample (late, lost or stale frames) are
+  treated the same way after ``stale_hold_cycles``.
+- **Contact loss** (normal force under ``contact_lost_force_n`` for ``contact_lost_cycles``
+  fresh samples): CONTACT_LOST brakes the tangential motion; REAPPROACH moves along the last
+  normal measured in good contact, at the approach speed, guarded by the contact force, at
+  most ``reapproach_distance_m``; BACK_OFF returns to where that attempt started. After
+  ``max_reacquire_attempts`` failed attempts the tool retracts and the task ends with a fault
+  naming the cause. A re-acquired contact resumes tracking and lap counting where they stopped.
+
+Laps are counted without knowing the shape: by the angle the tool sweeps about a point inside
+the contour (the winding number of a closed curve about any inside point is one), the expected
+centre during the first lap and the centroid of the traced first lap after it. Every phase
+change is an event.
+
 Phases: MOVE_TO_START (to a point ``approach_clearance_m`` outside the expected contour),
 TARE (average the sensor's offset with no contact), APPROACH (guarded move towards the
 expected centre until the force passes ``contact_force_n``; fault after
-``max_approach_distance_m``), TRACKING (laps counted by the angle swept around the centre
-estimate, a least-squares circle fit of the contact points), RETRACT (along n), FINISHED.
-Over ``max_force_n`` the tool retracts and the task faults. A contact lost for
-``contact_lost_cycles`` cycles is counted and, as configured, re-approached along the last
-normal or ends the task.
+``max_approach_distance_m``), TRACKING, CONTACT_LOST, REAPPROACH, BACK_OFF, RETRACT (along n),
+FINISHED.
 """
 
 from __future__ import annotations
@@ -52,7 +82,6 @@ from typing import Protocol
 import numpy as np
 
 from controller.core.cycle_data import Command, Event, Severity
-from controller.core.linalg3 import solve3
 from controller.tasks.task import JointReference, TaskContext, TaskStep
 
 
@@ -63,6 +92,14 @@ class Kinematics(Protocol):
                      ) -> tuple[tuple[float, ...], tuple[float, ...]]: ...
 
 
+SETTLED_CONTACT_S = 0.25  # a contact this long near the setpoint and trusted gives the re-approach's normal
+STIFFNESS_PROBE_N = 1.0  # a rise of the normal force this large shows a contact answering the motion
+RETARE_MAX_FRACTION = 0.5  # of the setpoint: a re-approach re-tares the sensor when it reads less than this
+FORCE_BAND_FRACTION = 0.3  # of the force setpoint: a larger error derates the tangential speed ...
+FORCE_STOP_FRACTION = 0.6  # ... down to zero at this one (the disk's laps stay within 0.17 at 60 mm/s)
+UNSEEN_TURN_DECAY_S = 0.1  # without a direction measurement the normal's turn rate fades with this time constant
+
+
 class ContourPhase(IntEnum):
     MOVE_TO_START = 0
     TARE = 1
@@ -70,6 +107,9 @@ class ContourPhase(IntEnum):
     TRACKING = 3
     RETRACT = 4
     FINISHED = 5
+    CONTACT_LOST = 6
+    REAPPROACH = 7
+    BACK_OFF = 8
 
 
 @dataclass(frozen=True)
@@ -98,9 +138,22 @@ class ContourParams:
     retract_speed_m_s: float
     tare_s: float
     settle_tolerance_m: float
+    saturation_force_n: float  # above: the normal command only moves away from the contact [N]
     friction_estimate: float = 0.0
     direction: int = 1
     normal_tracker_hz: float = 1.5
+    normal_gate_deg: float = 60.0  # a force direction further from the prediction is no normal [deg]
+    max_force_step_n: float = 10.0  # a larger step between two samples is implausible [N]
+    implausible_hold_s: float = 0.5  # the longest a suspect signal is held off before its level is taken [s]
+    stale_hold_cycles: int = 4  # cycles without a fresh sample before the law holds as for a suspect one
+    stop_deceleration_m_s2: float = 5.0  # tangential braking (contact loss, suspect signal, corners, force band)
+    reapproach_distance_m: float = 0.008  # guarded travel along the last normal per attempt
+    max_reacquire_attempts: int = 3
+    max_normal_turn_rate_rad_s: float = 2.0  # corners: the speed is derated to keep the normal's turn rate
+    min_tangential_speed_m_s: float = 0.005  # the derating's floor
+    max_push_without_force_m: float = 0.003  # into the contact without the force rising: no contact there
+    creep_speed_m_s: float = 0.01  # after a re-acquisition, for creep_distance_m: the contour is irregular there
+    creep_distance_m: float = 0.025
 
 
 @dataclass(frozen=True, slots=True)
@@ -110,21 +163,37 @@ class ContourState:
     speed_m_s: float = 0.0  # tangential speed command
     normal: tuple[float, float] = (1.0, 0.0)  # outward contour normal estimate (XY)
     normal_rate_rad_s: float = 0.0  # how fast the normal turns (the tracker's second state)
+    contact_normal: tuple[float, float] = (1.0, 0.0)  # the normal when the contact was last good
+    contact_point: tuple[float, float] | None = None  # the measured TCP then: a re-approach aims behind it
     force_f: tuple[float, float, float] = (0.0, 0.0, 0.0)  # filtered, offset removed [N]
+    raw_force: tuple[float, float, float] | None = None  # the last sample, offset removed [N]
+    held_force: tuple[float, float, float] | None = None  # the last sample before an implausible step [N]
+    held_step: tuple[float, float] = (0.0, 0.0)  # that step in XY [N]: the same step back ends the suspicion
+    suspect_cycles: int = 0  # cycles since that step
+    settled_cycles: int = 0  # cycles of trusted force in a row: the contact normal is taken only when settled
+    stale_cycles: int = 0  # cycles in a row without a fresh sample
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor offset found by the tare [N]
     tare_sum: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # sum fx, fy, fz, count
     phase_start_s: float = 0.0
-    travel_m: float = 0.0  # distance moved in the current approach or retract
+    travel_m: float = 0.0  # distance moved in the current approach, re-approach, back-off or retract
     integral: float = 0.0  # of the normal-force error [N s]
     normal_force_n: float = 0.0
     force_error_n: float = 0.0
     swept_rad: float = 0.0
     last_angle: float | None = None
     lap: int = 0  # index of the lap in progress (0-based)
-    fit: tuple[float, ...] = (0.0,) * 9  # sums for the circle fit
-    centre: tuple[float, float] = (0.0, 0.0)
+    centre: tuple[float, float] = (0.0, 0.0)  # the point laps are counted about (inside the contour)
+    path_sums: tuple[float, float, float] = (0.0, 0.0, 0.0)  # first lap: sum x ds, sum y ds, sum ds
+    last_xy: tuple[float, float] | None = None  # measured TCP at the last tracking cycle
+    arc_m: float = 0.0  # tracked arc length
     low_force_cycles: int = 0
+    pushed_m: float = 0.0  # motion commanded into the contact since the force last rose
+    push_ref_n: float = 0.0  # the lowest normal force since then
+    creep_m: float = 0.0  # distance still to go at creep speed after a re-acquisition
     contact_losses: tuple[int, ...] = ()
+    attempts: int = 0  # failed re-acquisitions of the current loss
+    reapproach_direction: tuple[float, float] = (0.0, 0.0)  # unit, of the current re-approach
+    reapproach_m: float = 0.0  # its length: to the aim behind the last contact point
     fault: str = ""
     force_setpoint_n: float = 0.0
     qd_ref: tuple[float, ...] = ()  # joint velocity of the last reference, for its acceleration
@@ -153,22 +222,9 @@ def track_normal(angle_rad: float, rate_rad_s: float, measured_rad: float, dt: f
     return _wrap(predicted + math.sqrt(2.0) * wn * dt * innovation), rate_rad_s + wn * wn * dt * innovation
 
 
-def _fit_add(fit: tuple[float, ...], x: float, y: float) -> tuple[float, ...]:
-    """Sums of the Kasa least-squares circle fit: x^2 + y^2 + D x + E y + F = 0."""
-    r2 = x * x + y * y
-    n, sx, sy, sxx, syy, sxy, sr2, sxr2, syr2 = fit
-    return (n + 1, sx + x, sy + y, sxx + x * x, syy + y * y, sxy + x * y, sr2 + r2, sxr2 + x * r2, syr2 + y * r2)
-
-
-def _fit_centre(fit: tuple[float, ...]) -> tuple[float, float] | None:
-    n, sx, sy, sxx, syy, sxy, sr2, sxr2, syr2 = fit
-    if n < 10:
-        return None
-    a = ((sxx, sxy, sx), (sxy, syy, sy), (sx, sy, n))
-    if abs(sxx * (syy * n - sy * sy) - sxy * (sxy * n - sy * sx) + sx * (sxy * sy - syy * sx)) < 1e-18:
-        return None
-    d, e, _ = solve3(a, (-sxr2, -syr2, -sr2))
-    return (-d / 2.0, -e / 2.0)
+def fresh_sample(ctx: TaskContext) -> bool:
+    """Whether this cycle brought a new force sample (else the task runs on the last good one)."""
+    return ctx.inputs.sensor is not None and ctx.inputs.sensor.fresh
 
 
 class ContourTrackingTask:
@@ -189,7 +245,7 @@ class ContourTrackingTask:
 
     def start(self) -> ContourState:
         u = (math.cos(self.p.approach_direction_rad), math.sin(self.p.approach_direction_rad))
-        return ContourState(p_cmd=self.start_m, normal=u, centre=self.p.expected_centre_m,
+        return ContourState(p_cmd=self.start_m, normal=u, contact_normal=u, centre=self.p.expected_centre_m,
                             contact_losses=(0,) * self.laps, force_setpoint_n=self.p.force_setpoint_n)
 
     def phase_name(self, state: ContourState) -> str:
@@ -203,29 +259,101 @@ class ContourTrackingTask:
         qdd = tuple((a - b) / dt for a, b in zip(qd, s.qd_ref)) if s.qd_ref else (0.0,) * len(qd)
         return replace(s, qd_ref=qd), JointReference(q, qd, qdd, s.p_cmd, on_path, reactive=True)
 
-    def _filter_force(self, s: ContourState, ctx: TaskContext) -> ContourState:
+    def _moving(self, s: ContourState, v: tuple[float, float, float], dt: float, on_path: bool = False,
+                events: tuple[Event, ...] = (), travel_m: float = 0.0) -> TaskStep:
+        """Move the commanded TCP by v dt (travel adds to the phase's distance) and make the reference."""
+        s = replace(s, p_cmd=(s.p_cmd[0] + v[0] * dt, s.p_cmd[1] + v[1] * dt, s.p_cmd[2] + v[2] * dt),
+                    travel_m=s.travel_m + travel_m)
+        s, ref = self._reference(s, v, on_path, dt)
+        return TaskStep(s, ref, events=events)
+
+    def _enter(self, s: ContourState, phase: ContourPhase, t_s: float, **fields: object) -> ContourState:
+        return replace(s, phase=phase, phase_start_s=t_s, travel_m=0.0, **fields)  # type: ignore[arg-type]
+
+    def _filter_force(self, s: ContourState, ctx: TaskContext) -> tuple[ContourState, tuple[Event, ...]]:
+        """The sample into the filter, unless it is a step the sensor and structure cannot make.
+
+        After such a step the signal is suspect: samples stay out of the filter until it returns to
+        within ``max_force_step_n`` of the level before the step (a spike), or until it has held
+        the new level for ``implausible_hold_s`` (a real change: the filter restarts from it).
+        Before the tare there is no offset yet, and the tare averages raw samples itself.
+        """
         sensor = ctx.inputs.sensor
         if sensor is None or not sensor.fresh:
-            return s
-        a = 1.0 - math.exp(-2.0 * math.pi * self.p.force_filter_hz * ctx.period_s)
-        f = tuple(fp + a * (fm - o - fp) for fp, fm, o in zip(s.force_f, sensor.force_n, s.offset))
-        return replace(s, force_f=f)  # type: ignore[arg-type]
+            return replace(s, stale_cycles=s.stale_cycles + 1), ()
+        raw = (sensor.force_n[0] - s.offset[0], sensor.force_n[1] - s.offset[1], sensor.force_n[2] - s.offset[2])
+        last, s = s.raw_force, replace(s, stale_cycles=0, raw_force=raw)
+        if s.phase in (ContourPhase.MOVE_TO_START, ContourPhase.TARE) or last is None:
+            return s, ()
+        p = self.p
+        if s.held_force is not None:  # suspect: has the signal come back, or held its new level long enough?
+            held, jump = s.held_force, s.held_step
+            elapsed_s = (s.suspect_cycles + 1) * ctx.period_s
+            back = math.hypot(raw[0] - last[0] + jump[0], raw[1] - last[1] + jump[1]) <= p.max_force_step_n
+            if back or math.hypot(raw[0] - held[0], raw[1] - held[1]) <= p.max_force_step_n:
+                return self._filtered(replace(s, held_force=None, suspect_cycles=0), raw, ctx), (
+                    Event("force_plausible", Severity.INFO,
+                          f"force back at its level after {elapsed_s * 1000:.0f} ms; tracking on"),)
+            if elapsed_s >= p.implausible_hold_s:
+                return replace(s, held_force=None, suspect_cycles=0, force_f=raw), (
+                    Event("force_plausible", Severity.WARNING,
+                          f"force held a new level for {elapsed_s * 1000:.0f} ms: taken as real"),)
+            return replace(s, suspect_cycles=s.suspect_cycles + 1), ()
+        step = math.hypot(raw[0] - last[0], raw[1] - last[1])
+        if step > p.max_force_step_n:
+            return replace(s, held_force=last, held_step=(raw[0] - last[0], raw[1] - last[1]), suspect_cycles=0), (
+                Event("force_implausible", Severity.WARNING,
+                      f"force step of {step:.1f} N in one sample (> {p.max_force_step_n} N): held off, "
+                      f"no motion into the contact, tangential motion braking"),)
+        return self._filtered(s, raw, ctx), ()
 
-    def _move(self, s: ContourState, v: tuple[float, float, float], dt: float) -> tuple[float, float, float]:
-        return (s.p_cmd[0] + v[0] * dt, s.p_cmd[1] + v[1] * dt, s.p_cmd[2] + v[2] * dt)
+    def _filtered(self, s: ContourState, raw: tuple[float, float, float], ctx: TaskContext) -> ContourState:
+        a = 1.0 - math.exp(-2.0 * math.pi * self.p.force_filter_hz * ctx.period_s)
+        f = s.force_f
+        return replace(s, force_f=(f[0] + a * (raw[0] - f[0]), f[1] + a * (raw[1] - f[1]), f[2] + a * (raw[2] - f[2])))
+
+    def _trusted(self, s: ContourState) -> bool:
+        """Whether this cycle's force may steer the law: no implausible step held, no run of stale cycles."""
+        return s.held_force is None and s.stale_cycles < self.p.stale_hold_cycles
+
+    def _pressing_n(self, s: ContourState, normal: tuple[float, float]) -> float:
+        """The contact force along the normal that saturation judges: the larger of filtered and raw."""
+        filtered = s.force_f[0] * normal[0] + s.force_f[1] * normal[1]
+        raw = s.raw_force[0] * normal[0] + s.raw_force[1] * normal[1] if s.raw_force is not None else filtered
+        return max(filtered, raw)
+
+    def _saturated_retreat(self, pressing_n: float) -> float | None:
+        """Admittance saturation: the speed away from the contact [m/s] above ``saturation_force_n``, else None."""
+        p = self.p
+        if pressing_n <= p.saturation_force_n:
+            return None
+        span = max(p.max_force_n - p.saturation_force_n, 1e-9)
+        return p.max_normal_speed_m_s * min(1.0, 0.25 + (pressing_n - p.saturation_force_n) / span)
+
+    @staticmethod
+    def _in_band(s: ContourState, force_error_n: float) -> float:
+        """1 with the force error within its band, falling linearly to 0 at the stop fraction."""
+        band, stop = FORCE_BAND_FRACTION * s.force_setpoint_n, FORCE_STOP_FRACTION * s.force_setpoint_n
+        return min(1.0, max(0.0, (stop - abs(force_error_n)) / (stop - band)))
+
+    def _braked(self, speed: float, dt: float) -> float:
+        return max(0.0, speed - self.p.stop_deceleration_m_s2 * dt)
 
     # -- the step -------------------------------------------------------------------------------
 
     def step(self, state: ContourState, ctx: TaskContext) -> TaskStep:
-        s = self._filter_force(state, ctx)
+        s, signal_events = self._filter_force(state, ctx)
         if ctx.inputs.command == Command.SET_FORCE and ctx.inputs.command_value > 0:
             s = replace(s, force_setpoint_n=ctx.inputs.command_value)
         handler = {
             ContourPhase.MOVE_TO_START: self._move_to_start, ContourPhase.TARE: self._tare,
             ContourPhase.APPROACH: self._approach, ContourPhase.TRACKING: self._tracking,
+            ContourPhase.CONTACT_LOST: self._contact_lost, ContourPhase.REAPPROACH: self._reapproach,
+            ContourPhase.BACK_OFF: self._back_off,
             ContourPhase.RETRACT: self._retract, ContourPhase.FINISHED: self._finished,
         }[s.phase]
-        return handler(s, ctx)
+        out = handler(s, ctx)
+        return replace(out, events=signal_events + out.events) if signal_events else out
 
     def _move_to_start(self, s: ContourState, ctx: TaskContext) -> TaskStep:
         tol = self.p.settle_tolerance_m
@@ -234,7 +362,7 @@ class ContourTrackingTask:
             all(abs(v) <= tol for v in sp.velocity)
         ref = JointReference(self._start_q, (0.0,) * 3, (0.0,) * 3, self.start_m, False)
         if settled:
-            s = replace(s, phase=ContourPhase.TARE, phase_start_s=ctx.t_s)
+            s = self._enter(s, ContourPhase.TARE, ctx.t_s)
         return TaskStep(s, ref)
 
     def _tare(self, s: ContourState, ctx: TaskContext) -> TaskStep:
@@ -250,119 +378,299 @@ class ContourTrackingTask:
             return TaskStep(s, ref, fault="no force-sensor samples during the tare")
         offset = (fx / n, fy / n, fz / n)
         event = Event("contour", Severity.INFO, f"sensor offset {tuple(round(o, 3) for o in offset)} N; approaching")
-        s = replace(s, phase=ContourPhase.APPROACH, offset=offset, force_f=(0.0, 0.0, 0.0), phase_start_s=ctx.t_s,
-                    travel_m=0.0)
+        s = self._enter(s, ContourPhase.APPROACH, ctx.t_s, offset=offset, force_f=(0.0, 0.0, 0.0), raw_force=None)
         return TaskStep(s, ref, events=(event,))
+
+    def _in_contact(self, s: ContourState, along: tuple[float, float]) -> float | None:
+        """The contact force [N] when a guarded move towards -``along`` has met the contour, else None."""
+        if not self._trusted(s):
+            return None
+        f_xy = math.hypot(s.force_f[0], s.force_f[1])
+        return f_xy if f_xy >= self.p.contact_force_n else None
 
     def _approach(self, s: ContourState, ctx: TaskContext) -> TaskStep:
         p = self.p
-        f_xy = math.hypot(s.force_f[0], s.force_f[1])
-        if f_xy >= p.contact_force_n:
+        f_contact = self._in_contact(s, s.normal)
+        if f_contact is not None:
             n = _unit2(s.force_f[0], s.force_f[1]) or s.normal
-            event = Event("contact", Severity.INFO, f"contact at {f_xy:.2f} N after {s.travel_m * 1000:.1f} mm")
-            s = replace(s, phase=ContourPhase.TRACKING, normal=n, normal_rate_rad_s=0.0, integral=0.0,
-                        low_force_cycles=0, phase_start_s=ctx.t_s)
+            event = Event("contact", Severity.INFO, f"contact at {f_contact:.2f} N after {s.travel_m * 1000:.1f} mm")
+            s = self._enter(s, ContourPhase.TRACKING, ctx.t_s, normal=n, contact_normal=n, normal_rate_rad_s=0.0,
+                            integral=0.0, low_force_cycles=0)
             return self._tracking(s, ctx, (event,))
         limit = p.approach_clearance_m + p.max_approach_distance_m
         if s.travel_m > limit:
+            f_xy = math.hypot(s.force_f[0], s.force_f[1])
             why = f"no contact within {limit * 1000:.0f} mm of approach (force {f_xy:.2f} N < {p.contact_force_n} N)"
             s, ref = self._reference(s, (0.0, 0.0, 0.0), False, ctx.period_s)
             return TaskStep(s, ref, fault=why)
-        v = (-s.normal[0] * p.approach_speed_m_s, -s.normal[1] * p.approach_speed_m_s, 0.0)
-        s = replace(s, p_cmd=self._move(s, v, ctx.period_s), travel_m=s.travel_m + p.approach_speed_m_s * ctx.period_s)
-        s, ref = self._reference(s, v, False, ctx.period_s)
-        return TaskStep(s, ref)
+        speed = p.approach_speed_m_s if self._trusted(s) else 0.0
+        v = (-s.normal[0] * speed, -s.normal[1] * speed, 0.0)
+        return self._moving(s, v, ctx.period_s, travel_m=speed * ctx.period_s)
+
+    def _normal_update(self, s: ContourState, ctx: TaskContext, f_xy: float) -> tuple[tuple[float, float], float]:
+        """The normal estimate and its turn rate after this cycle's force (gated, see the module's text)."""
+        p, dt = self.p, ctx.period_s
+        normal, rate = s.normal, s.normal_rate_rad_s
+        angle = math.atan2(normal[1], normal[0])
+        predicted = angle + rate * dt
+        measured = predicted  # a repeated or suspect sample is no new direction: the tracker only predicts
+        if not self._trusted(s):
+            # The normal turns because the tool moves along a curved contour (rate = curvature x speed):
+            # while the tool brakes on an untrusted force, it turns only as far as the tool goes.
+            speed = self._braked(s.speed_m_s, dt)
+            rate = rate * speed / s.speed_m_s if s.speed_m_s > 0.0 else 0.0
+            angle = angle + rate * dt
+            return (math.cos(angle), math.sin(angle)), rate
+        if fresh_sample(ctx):
+            fx, fy = s.force_f[0], s.force_f[1]
+            mu = p.friction_estimate if s.speed_m_s > 0.0 else 0.0
+            t_prev = (-normal[1] * p.direction, normal[0] * p.direction)
+            k = mu * f_xy / math.sqrt(1.0 + mu * mu)  # friction force magnitude mu F_n
+            direction = math.atan2(fy + k * t_prev[1], fx + k * t_prev[0])
+            if abs(_wrap(direction - predicted)) <= math.radians(p.normal_gate_deg):
+                measured = direction
+        if measured == predicted:  # no direction this cycle: the turn fades instead of running on unseen
+            return (math.cos(predicted), math.sin(predicted)), rate * math.exp(-dt / UNSEEN_TURN_DECAY_S)
+        angle, rate = track_normal(angle, rate, measured, dt, p.normal_tracker_hz)
+        return (math.cos(angle), math.sin(angle)), rate
+
+    def _tangential_speed(self, s: ContourState, rate_rad_s: float, force_error_n: float, dt: float) -> float:
+        """The lap's speed, derated where the normal turns fast or the force leaves its band, braked
+        while the force is not trusted.
+
+        A force error beyond ``FORCE_BAND_FRACTION`` of the setpoint means the contour is not where
+        the tool is going: the edge of a notch (the force fades) or the ramp of a bump (it climbs).
+        The speed falls linearly to zero at ``FORCE_STOP_FRACTION``: the tool then goes down into the
+        notch or backs off the ramp along the normal before it goes on, instead of meeting the
+        notch's far wall or the bump's face at full speed.
+        """
+        p = self.p
+        if not self._trusted(s):
+            return self._braked(s.speed_m_s, dt)
+        target = p.lap_speeds_m_s[min(s.lap, len(p.lap_speeds_m_s) - 1)]
+        if s.creep_m > 0.0:
+            target = min(target, p.creep_speed_m_s)
+        target *= self._in_band(s, force_error_n)
+        up, down = p.tangential_acceleration_m_s2 * dt, p.stop_deceleration_m_s2 * dt
+        if abs(rate_rad_s) > p.max_normal_turn_rate_rad_s and s.speed_m_s > 0.0:  # a corner: keep the turn rate
+            corner = max(p.min_tangential_speed_m_s, s.speed_m_s * p.max_normal_turn_rate_rad_s / abs(rate_rad_s))
+            if corner < target:
+                # gently: the turn rate is measured through the normal's tracker, which lags the speed;
+                # a hard brake on it would make the two chase each other
+                target, down = corner, up
+        return min(max(target, s.speed_m_s - down), s.speed_m_s + up)
+
+    def _normal_speed(self, s: ContourState, ctx: TaskContext, fn: float, pressing_n: float
+                      ) -> tuple[float, float, float]:
+        """(v_n into the contact [m/s], the new integral, the force error): PI admittance, saturated."""
+        p = self.p
+        err = s.force_setpoint_n - fn
+        if not self._trusted(s):  # no new evidence: do not move into the contact, keep the integral
+            vn = min(0.0, p.force_kp_m_s_per_n * err + p.force_ki_m_s2_per_n * s.integral)
+            integral = s.integral
+        else:
+            # A cycle without a new force sample uses the last filtered force but adds nothing to the
+            # integral: the same error integrated twice would be a force spike made by the bus.
+            integral = s.integral + err * ctx.period_s if fresh_sample(ctx) else s.integral
+            vn = p.force_kp_m_s_per_n * err + p.force_ki_m_s2_per_n * integral
+            # Out of the force band the contact is not where the tool is going: motion into it is a
+            # guarded approach, down to the approach speed (a bias or a pull reads as a weak contact,
+            # and the integral would drive the tool at the contour at full normal speed).
+            inward = p.approach_speed_m_s + (p.max_normal_speed_m_s - p.approach_speed_m_s) * self._in_band(s, err)
+            if vn > inward or vn < -p.max_normal_speed_m_s:  # clamp and stop integrating (anti-windup)
+                vn = min(max(vn, -p.max_normal_speed_m_s), inward)
+                integral = s.integral
+        retreat = self._saturated_retreat(pressing_n)
+        if retreat is not None:  # admittance saturation: only away from the contact, integral emptied
+            vn, integral = min(vn, -retreat), 0.0
+        return vn, integral, err
 
     def _tracking(self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...] = ()) -> TaskStep:
         p = self.p
         dt = ctx.period_s
-        fx, fy = s.force_f[0], s.force_f[1]
-        f_xy = math.hypot(fx, fy)
-        normal, rate = s.normal, s.normal_rate_rad_s
-        if f_xy >= p.normal_min_force_n:
-            angle = math.atan2(normal[1], normal[0])
-            if fresh_sample(ctx):
-                mu = p.friction_estimate if s.speed_m_s > 0.0 else 0.0
-                t_prev = (-normal[1] * p.direction, normal[0] * p.direction)
-                k = mu * f_xy / math.sqrt(1.0 + mu * mu)  # friction force magnitude mu F_n
-                measured = math.atan2(fy + k * t_prev[1], fx + k * t_prev[0])
-            else:  # a repeated sample is no new direction: the tracker only predicts
-                measured = angle + rate * dt
-            normal_angle, rate = track_normal(angle, rate, measured, dt, p.normal_tracker_hz)
-            normal = (math.cos(normal_angle), math.sin(normal_angle))
-        fn = fx * normal[0] + fy * normal[1]  # normal force pressing the tool out of the object
-        if fn > p.max_force_n:
-            why = f"contact force {fn:.1f} N above the limit of {p.max_force_n} N"
+        f_xy = math.hypot(s.force_f[0], s.force_f[1])
+        normal, rate = self._normal_update(s, ctx, f_xy)
+        fn = s.force_f[0] * normal[0] + s.force_f[1] * normal[1]  # normal force pressing the tool out of the object
+        pressing = self._pressing_n(s, normal)  # the raw sample counts here too: a collision is a step
+        if pressing > p.max_force_n:
+            why = f"contact force {pressing:.1f} N above the limit of {p.max_force_n} N"
             ev = Event("over_force", Severity.FAULT, why + "; retracting")
-            s = replace(s, phase=ContourPhase.RETRACT, fault=why, travel_m=0.0, normal=normal, normal_force_n=fn)
+            s = self._enter(s, ContourPhase.RETRACT, ctx.t_s, fault=why, normal=normal, normal_force_n=fn)
             return self._retract(s, ctx, events + (ev,))
-        low = s.low_force_cycles + (1 if fresh_sample(ctx) else 0) if fn < p.contact_lost_force_n else 0
+        trusted = self._trusted(s)
+        counting = fresh_sample(ctx) and trusted
+        low = s.low_force_cycles + (1 if counting else 0) if fn < p.contact_lost_force_n else 0
         if low >= p.contact_lost_cycles:
-            losses = list(s.contact_losses)
-            losses[min(s.lap, len(losses) - 1)] += 1
-            s = replace(s, contact_losses=tuple(losses), low_force_cycles=0)
-            if p.reapproach_on_contact_loss:
-                ev = Event("contact_lost", Severity.WARNING, f"contact lost in lap {s.lap + 1}; re-approaching")
-                s = replace(s, phase=ContourPhase.APPROACH, travel_m=p.approach_clearance_m, normal=normal,
-                            speed_m_s=0.0)
-                s, ref = self._reference(s, (0.0, 0.0, 0.0), False, dt)
-                return TaskStep(s, ref, events=events + (ev,))
-            ev = Event("contact_lost", Severity.WARNING, f"contact lost in lap {s.lap + 1}; stopping")
-            s = replace(s, phase=ContourPhase.RETRACT, travel_m=0.0, normal=normal)
-            return self._retract(s, ctx, events + (ev,))
-        # PI admittance along the normal: positive error -> push further in (along -n). A cycle
-        # without a new force sample (``sensor.fresh`` false: a late or lost frame) uses the last
-        # filtered force but adds nothing to the integral: the same error integrated twice
-        # would be a force spike made by the bus, not by the contact.
-        err = s.force_setpoint_n - fn
-        integral = s.integral + err * dt if fresh_sample(ctx) else s.integral
-        vn = p.force_kp_m_s_per_n * err + p.force_ki_m_s2_per_n * integral
-        if abs(vn) > p.max_normal_speed_m_s:  # clamp and stop integrating (anti-windup)
-            vn = math.copysign(p.max_normal_speed_m_s, vn)
-            integral = s.integral
-        target_speed = p.lap_speeds_m_s[min(s.lap, len(p.lap_speeds_m_s) - 1)]
-        dv = p.tangential_acceleration_m_s2 * dt
-        speed = min(max(target_speed, s.speed_m_s - dv), s.speed_m_s + dv)
+            return self._lose_contact(replace(s, normal=normal, normal_rate_rad_s=rate), ctx, events)
+        vn, integral, err = self._normal_speed(s, ctx, fn, pressing)
+        # A real contact answers motion into it (stiffness >= 1e4 N/m here: 1 N in 0.1 mm). Millimetres
+        # of it without the force rising mean the force is not a contact's (a drifting bias, a pull on
+        # the tool): the contact is lost, whatever the force reads.
+        # Counted only while the force is below its band: within it the law always pushes in a little
+        # (on a convex contour the tangent leaves it), and the force answers.
+        ref_n = min(s.push_ref_n, fn)
+        pushed = s.pushed_m + max(vn, 0.0) * dt
+        if fn >= ref_n + STIFFNESS_PROBE_N or fn >= (1.0 - FORCE_BAND_FRACTION) * s.force_setpoint_n:
+            pushed, ref_n = 0.0, fn
+        if pushed >= p.max_push_without_force_m:
+            why = (f"no contact stiffness: {pushed * 1000:.1f} mm into the contact with the force staying near "
+                   f"{fn:.1f} N")
+            return self._lose_contact(replace(s, normal=normal, normal_rate_rad_s=rate), ctx, events, why)
+        s = replace(s, pushed_m=pushed, push_ref_n=ref_n)
+        speed = self._tangential_speed(s, rate, err, dt)
         t = (-normal[1] * p.direction, normal[0] * p.direction)
         v = (speed * t[0] - vn * normal[0], speed * t[1] - vn * normal[1], 0.0)  # z held at height_m
-        # lap counting around the centre estimate from the measured contact points
+        # The line a re-approach would take: the normal of a contact that has been good for a while,
+        # so that the moments of a disturbance (which tilt the force's direction) never become it.
+        settled = s.settled_cycles + 1 if trusted and 0.5 * s.force_setpoint_n <= fn <= 2.0 * s.force_setpoint_n else 0
+        good = settled * dt >= SETTLED_CONTACT_S
         tcp = ctx.tcp_measured_m or s.p_cmd
-        fit = _fit_add(s.fit, tcp[0], tcp[1])
+        # A force out of its band marks the contour as irregular here (a notch's edge, a bump, a
+        # disturbance): the next creep_distance_m go at creep speed, so that what comes next (a
+        # notch's far wall: a concave corner, whose impact no reaction can catch at full speed) is
+        # met slowly.
+        out_of_band = trusted and abs(err) > FORCE_BAND_FRACTION * s.force_setpoint_n and s.contact_point is not None
+        creep = p.creep_distance_m if out_of_band else max(0.0, s.creep_m - speed * dt)
+        s = replace(s, speed_m_s=speed, creep_m=creep, normal=normal, normal_rate_rad_s=rate, integral=integral,
+                    normal_force_n=fn, force_error_n=err, low_force_cycles=low, settled_cycles=settled,
+                    contact_normal=normal if good else s.contact_normal,
+                    contact_point=(tcp[0], tcp[1]) if good else s.contact_point)
+        s, lap_events = self._count_laps(s, ctx)
+        events = events + lap_events
+        if s.lap >= self.laps:
+            ev = Event("contour", Severity.INFO, "all laps done; retracting")
+            s = self._enter(s, ContourPhase.RETRACT, ctx.t_s)
+            return self._retract(s, ctx, events + (ev,))
+        return self._moving(s, v, dt, on_path=True, events=events)
+
+    def _count_laps(self, s: ContourState, ctx: TaskContext) -> tuple[ContourState, tuple[Event, ...]]:
+        """Laps by the angle swept about a point inside the contour (see the module's text)."""
+        tcp = ctx.tcp_measured_m or s.p_cmd
+        x, y = tcp[0], tcp[1]
+        ds = math.hypot(x - s.last_xy[0], y - s.last_xy[1]) if s.last_xy is not None else 0.0
         centre = s.centre
-        if abs(s.swept_rad) > math.radians(60):
-            centre = _fit_centre(fit) or centre
-        angle = math.atan2(tcp[1] - centre[1], tcp[0] - centre[0])
+        angle = math.atan2(y - centre[1], x - centre[0])
         swept = s.swept_rad + (_wrap(angle - s.last_angle) if s.last_angle is not None else 0.0)
         lap = int(abs(swept) // (2.0 * math.pi))
-        ev_list = list(events)
+        sums = s.path_sums
+        events: tuple[Event, ...] = ()
+        if s.lap == 0:
+            sums = (sums[0] + x * ds, sums[1] + y * ds, sums[2] + ds)
         if lap > s.lap:
-            ev_list.append(Event("lap", Severity.INFO, f"lap {s.lap + 1} of {self.laps} done"))
-        s = replace(s, p_cmd=self._move(s, v, dt), speed_m_s=speed, normal=normal, normal_rate_rad_s=rate,
-                    integral=integral, normal_force_n=fn, force_error_n=err, swept_rad=swept, last_angle=angle,
-                    lap=lap, fit=fit, centre=centre, low_force_cycles=low)
-        if lap >= self.laps:
-            ev_list.append(Event("contour", Severity.INFO, "all laps done; retracting"))
-            s = replace(s, phase=ContourPhase.RETRACT, travel_m=0.0)
-            return self._retract(s, ctx, tuple(ev_list))
-        s, ref = self._reference(s, v, True, dt)
-        return TaskStep(s, ref, events=tuple(ev_list))
+            events = (Event("lap", Severity.INFO, f"lap {s.lap + 1} of {self.laps} done "
+                                                  f"({s.arc_m * 1000 + ds * 1000:.0f} mm traced)"),)
+            if s.lap == 0 and sums[2] > 0.0:  # count about the traced contour's own centroid from now on
+                centre = (sums[0] / sums[2], sums[1] / sums[2])
+                angle = math.atan2(y - centre[1], x - centre[0])
+        s = replace(s, swept_rad=swept, last_angle=angle, lap=lap, centre=centre, path_sums=sums, last_xy=(x, y),
+                    arc_m=s.arc_m + ds)
+        return s, events
+
+    def _lose_contact(self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...], why: str = "") -> TaskStep:
+        p = self.p
+        losses = list(s.contact_losses)
+        losses[min(s.lap, len(losses) - 1)] += 1
+        s = replace(s, contact_losses=tuple(losses), low_force_cycles=0, integral=0.0, attempts=0, last_xy=None,
+                    pushed_m=0.0)
+        where = f"in lap {s.lap + 1} after {s.arc_m * 1000:.0f} mm" + (f" ({why})" if why else "")
+        if not p.reapproach_on_contact_loss:
+            ev = Event("contact_lost", Severity.WARNING, f"contact lost {where}; retracting (on_contact_loss = stop)")
+            s = self._enter(s, ContourPhase.RETRACT, ctx.t_s)
+            return self._retract(s, ctx, events + (ev,))
+        n = s.contact_normal
+        ev = Event("contact_lost", Severity.WARNING,
+                   f"contact lost {where}; braking, then re-approaching along ({n[0]:.3f}, {n[1]:.3f})")
+        s = self._enter(s, ContourPhase.CONTACT_LOST, ctx.t_s)
+        return self._contact_lost(s, ctx, events + (ev,))
+
+    def _contact_lost(self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...] = ()) -> TaskStep:
+        """Brake the tangential motion along the tangent it had; no motion into the contact."""
+        p, dt = self.p, ctx.period_s
+        speed = self._braked(s.speed_m_s, dt)
+        n = s.normal
+        t = (-n[1] * p.direction, n[0] * p.direction)
+        retreat = self._saturated_retreat(self._pressing_n(s, n)) or 0.0
+        v = (speed * t[0] + retreat * n[0], speed * t[1] + retreat * n[1], 0.0)
+        s = replace(s, speed_m_s=speed)
+        if speed == 0.0:
+            s = self._start_reapproach(s, ctx)
+            events = events + (self._attempt_event(s),)
+        return self._moving(s, v, dt, events=events)
+
+    def _attempt_event(self, s: ContourState) -> Event:
+        d = s.reapproach_direction
+        return Event("reapproach", Severity.INFO,
+                     f"re-approach {s.attempts + 1} of {self.p.max_reacquire_attempts} along ({d[0]:.3f}, {d[1]:.3f}), "
+                     f"guarded, at most {s.reapproach_m * 1000:.1f} mm")
+
+    def _start_reapproach(self, s: ContourState, ctx: TaskContext) -> ContourState:
+        """Aim ``reapproach_distance_m`` behind the last good contact point, along its normal.
+
+        From where the loss was noticed that is straight along -n; from wherever braking (or a
+        disturbance before it) took the tool, the line still meets the contour near the point it
+        was last known at. Without a good contact point yet: along -n from here.
+        """
+        n, depth = s.contact_normal, self.p.reapproach_distance_m
+        x, y = s.p_cmd[0], s.p_cmd[1]
+        f = s.force_f
+        if self._trusted(s) and math.hypot(f[0], f[1]) < RETARE_MAX_FRACTION * s.force_setpoint_n:
+            # Out of contact and standing: what the sensor reads is its own offset (a drifted bias).
+            s = replace(s, offset=(s.offset[0] + f[0], s.offset[1] + f[1], s.offset[2] + f[2]),
+                        force_f=(0.0, 0.0, 0.0), raw_force=None)
+        cp = s.contact_point if s.contact_point is not None else (x, y)
+        target = (cp[0] - n[0] * depth, cp[1] - n[1] * depth)
+        dx, dy = target[0] - x, target[1] - y
+        distance = math.hypot(dx, dy)
+        direction = (dx / distance, dy / distance) if distance > 1e-6 else (-n[0], -n[1])
+        return self._enter(s, ContourPhase.REAPPROACH, ctx.t_s, normal=n, normal_rate_rad_s=0.0, speed_m_s=0.0,
+                           reapproach_direction=direction, reapproach_m=max(distance, depth))
+
+    def _reapproach(self, s: ContourState, ctx: TaskContext) -> TaskStep:
+        """A guarded move towards behind the last good contact point, at the approach speed."""
+        p, dt = self.p, ctx.period_s
+        f_contact = self._in_contact(s, s.contact_normal)
+        if f_contact is not None:
+            ev = Event("contact", Severity.INFO, f"contact re-acquired at {f_contact:.2f} N after "
+                                                 f"{s.travel_m * 1000:.1f} mm (attempt {s.attempts + 1}); tracking on")
+            s = self._enter(s, ContourPhase.TRACKING, ctx.t_s, integral=0.0, low_force_cycles=0, attempts=0,
+                            settled_cycles=0, creep_m=p.creep_distance_m, push_ref_n=f_contact)
+            return self._tracking(s, ctx, (ev,))
+        if s.travel_m >= s.reapproach_m:
+            ev = Event("reapproach_failed", Severity.WARNING,
+                       f"no contact within {s.reapproach_m * 1000:.1f} mm (attempt {s.attempts + 1} of "
+                       f"{p.max_reacquire_attempts}); backing off")
+            s = self._enter(s, ContourPhase.BACK_OFF, ctx.t_s, attempts=s.attempts + 1)
+            return self._back_off(s, ctx, (ev,))
+        speed = p.approach_speed_m_s if self._trusted(s) else 0.0
+        d = s.reapproach_direction
+        return self._moving(s, (d[0] * speed, d[1] * speed, 0.0), dt, travel_m=speed * dt)
+
+    def _back_off(self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...] = ()) -> TaskStep:
+        """Back along the re-approach's line to where it started; then the next attempt or the end."""
+        p, dt = self.p, ctx.period_s
+        if s.travel_m >= s.reapproach_m:
+            if s.attempts >= p.max_reacquire_attempts:
+                why = (f"contact lost in lap {s.lap + 1} and not re-acquired in {s.attempts} guarded re-approaches "
+                       f"to {p.reapproach_distance_m * 1000:.0f} mm behind the last contact point")
+                ev = Event("contact_not_reacquired", Severity.FAULT, why + "; retracting")
+                s = self._enter(s, ContourPhase.RETRACT, ctx.t_s, fault=why)
+                return self._retract(s, ctx, events + (ev,))
+            s = self._start_reapproach(s, ctx)
+            events = events + (self._attempt_event(s),)
+            return self._moving(s, (0.0, 0.0, 0.0), dt, events=events)
+        d = s.reapproach_direction
+        speed = p.retract_speed_m_s
+        return self._moving(s, (-d[0] * speed, -d[1] * speed, 0.0), dt, events=events, travel_m=speed * dt)
 
     def _retract(self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...] = ()) -> TaskStep:
         p = self.p
         if s.travel_m >= p.retract_distance_m:
-            s = replace(s, phase=ContourPhase.FINISHED)
-            return self._finished(s, ctx, events)
+            s = replace(s, phase=ContourPhase.FINISHED, phase_start_s=ctx.t_s)
+            return self._finished(s, ctx, events + (Event("contour", Severity.INFO, "retracted"),))
         v = (s.normal[0] * p.retract_speed_m_s, s.normal[1] * p.retract_speed_m_s, 0.0)
-        s = replace(s, p_cmd=self._move(s, v, ctx.period_s), travel_m=s.travel_m + p.retract_speed_m_s * ctx.period_s,
-                    speed_m_s=0.0)
-        s, ref = self._reference(s, v, False, ctx.period_s)
-        return TaskStep(s, ref, events=events)
+        s = replace(s, speed_m_s=0.0)
+        return self._moving(s, v, ctx.period_s, events=events, travel_m=p.retract_speed_m_s * ctx.period_s)
 
     def _finished(self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...] = ()) -> TaskStep:
         s, ref = self._reference(s, (0.0, 0.0, 0.0), False, ctx.period_s)
         return TaskStep(s, ref, finished=True, fault=s.fault, events=events)
-
-
-def fresh_sample(ctx: TaskContext) -> bool:
-    """Whether this cycle brought a new force sample (else the task runs on the last good one)."""
-    return ctx.inputs.sensor is not None and ctx.inputs.sensor.fresh

@@ -33,6 +33,8 @@ from controller.robots.performance import MassModel, mass_ellipsoid, stiffness_e
 from controller.shell.loop import CycleTiming
 from controller.tasks.contour_tracking import ContourPhase, ContourState
 
+CORNER_RADIUS_M = 0.02  # samples where the contour's measured radius of curvature is below this are "corners"
+
 
 @dataclass
 class ContourObserver:
@@ -48,6 +50,7 @@ class ContourObserver:
     xy: list[tuple[float, float]] = field(default_factory=list)
     normal: list[tuple[float, float]] = field(default_factory=list)
     contact_losses: tuple[int, ...] = ()
+    corner: list[bool] = field(default_factory=list)  # the measured normal turning on a radius under CORNER_RADIUS_M
     _swept: float = 0.0
     _last_angle: float | None = None
 
@@ -62,6 +65,7 @@ class ContourObserver:
             if ts.phase != ContourPhase.TRACKING:
                 return
             self._append(t, ts.lap, ts.normal_force_n, ts.speed_m_s, tcp, ts.normal)
+            self.corner.append(abs(ts.normal_rate_rad_s) * CORNER_RADIUS_M > max(ts.speed_m_s, 1e-3))
             return
         if state.tcp_reference_m is None or inputs.sensor is None:
             return  # a position-controlled comparison run, off its path
@@ -185,9 +189,15 @@ def contour_summary(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: flo
         })
     d = direction_statistics(obs, robot, stiffness_n_m, height_m, lap_speeds_m_s)
     corr = d.correlation
+    corner = np.array(obs.corner, dtype=bool) if len(obs.corner) == t.size else np.zeros(t.size, dtype=bool)
     return {
         "samples": int(t.size),
         "laps": laps,
+        "force_error_rms_n": round(float(np.sqrt(np.mean(err ** 2))), 4),
+        "corners": {"samples": int(corner.sum()),
+                    "force_error_rms_n": round(float(np.sqrt(np.mean(err[corner] ** 2))), 4) if corner.any() else None,
+                    "force_error_rms_elsewhere_n": round(float(np.sqrt(np.mean(err[~corner] ** 2))), 4)
+                    if (~corner).any() else None},
         "force_error_vs_normal_stiffness_correlation": None if corr is None else round(corr, 3),
         "force_error_rms_soft_over_stiff": _soft_over_stiff(d.error_n, d.normal_stiffness_n_m),
         "normal_stiffness_range_n_m": [round(float(d.normal_stiffness_n_m.min()), 0),
