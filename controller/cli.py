@@ -366,11 +366,43 @@ def cmd_plan_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_faults(args: argparse.Namespace) -> int:
+    if args.contour_scan or args.contour_shapes:
+        return _contour_scan(args)
     from controller.tools.fault_scenarios import format_table, run_all
 
     rows = run_all(_config(args), Path(args.keep) if args.keep else None, tuple(args.only or ()))
     print(json.dumps(rows) if args.json else format_table(rows))
     return 0 if all(r["as_expected"] and r["recording_complete"] for r in rows) else 1
+
+
+def _contour_scan(args: argparse.Namespace) -> int:
+    from controller.tools.contour_scan import (
+        format_shapes,
+        format_table,
+        run_scan,
+        run_shapes,
+        shapes_met,
+        summary,
+    )
+
+    cfg = _config(args)
+    if args.contour_shapes:
+        shapes = run_shapes(cfg, Path(args.keep) if args.keep else None)
+        print(json.dumps(shapes) if args.json else format_shapes(shapes))
+        return 0 if shapes_met(shapes) else 1
+
+    def progress(done: int, total: int, row: dict[str, object]) -> None:
+        if sys.stderr.isatty():
+            print(f"\r{done}/{total} {str(row['scenario'])[:50]:<50} {row['outcome']}", end="", file=sys.stderr,
+                  flush=True)
+
+    rows = run_scan(cfg, Path(args.keep) if args.keep else None, max(1, args.jobs), progress)
+    if sys.stderr.isatty():
+        print(file=sys.stderr)
+    result = summary(rows, cfg.safety.max_contact_force_n)
+    print(json.dumps({"rows": rows, "summary": result}) if args.json
+          else format_table(rows, cfg.safety.max_contact_force_n))
+    return 0 if result["targets_met"] else 1
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -421,6 +453,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.add_argument("--only", action="append", metavar="SCENARIO", help="run only this scenario (repeatable)")
     p.add_argument("--keep", metavar="DIR", help="keep the scenarios' recordings in DIR")
+    p.add_argument("--contour-scan", action="store_true",
+                   help="instead: the contour task against force spikes, a notch, a bump, a drifting bias, stale and "
+                        "spoofed samples, in simulated time (controller/tools/contour_scan.py); exit 1 unless no run "
+                        "exceeds safety.max_contact_force_n, 95 %% end DONE and the rest retract with a named cause")
+    p.add_argument("--contour-shapes", action="store_true",
+                   help="instead: 3 laps at 40 mm/s on each workpiece shape (disk, ellipse, rounded rectangle, rounded "
+                        "star, kidney), in simulated time; exit 1 unless each ends DONE without contact loss, force "
+                        "error RMS <= 1 N, under the limit")
+    p.add_argument("--jobs", type=int, default=1, help="with --contour-scan: scenarios run in this many processes")
     p.set_defaults(func=cmd_faults)
     p = sub.add_parser("bus-load", help="bus load of the configured cycle")
     _common(p, bus=False)
