@@ -182,11 +182,12 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float | None = No
                          stop_event=stop_event, commands=publisher.commands if publisher is not None else None,
                          quick_stop_event=quick_stop_event, stop_timeout_s=cfg.loop.stop_timeout_s,
                          plans_ready=worker.ready if worker is not None else None)
-        restore = apply_realtime(realtime)
-        granted = granted_realtime()
+        if cfg.loop.freeze_gc:  # start-up work: before the loop takes its real-time priority
+            freeze_garbage_collector()
+        restore: Callable[[], None] = lambda: None
         try:
-            if cfg.loop.freeze_gc:
-                freeze_garbage_collector()
+            restore = apply_realtime(realtime)
+            granted = granted_realtime()
             faults_before = resource.getrusage(resource.RUSAGE_SELF).ru_majflt
             notify("READY=1")  # systemd Type=notify: the devices are configured, the loop starts
             final, stats = loop.run(prepared.law.initial_state(), max_duration_s,
