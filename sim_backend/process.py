@@ -21,7 +21,8 @@ READY_LINE = "cheope-sim ready"
 
 def serve(cfg: Config, spec: BusSpec, stop_event: threading.Event, announce: Callable[[str], None],
           realtime: RealtimeOptions | None = None) -> None:
-    """Set up, then go real-time, then start the devices and announce READY.
+    """Set up, then go real-time, then start the devices and announce READY; back to the normal
+    scheduler when stopped.
 
     Everything before ``apply_realtime`` (the bus, the EDS files, the plant, the canopen nodes,
     the garbage collection) runs under the normal scheduler: at SCHED_FIFO it would take the CPU
@@ -38,11 +39,13 @@ def serve(cfg: Config, spec: BusSpec, stop_event: threading.Event, announce: Cal
             # as in the controller: a full collection of the simulator's start-up heap took
             # 21 ms, five missing TPDOs at 400 Hz (the contour demo faulted so in lap 5)
             freeze_garbage_collector()
-        if realtime is not None:
-            apply_realtime(realtime)
+        drop_realtime = apply_realtime(realtime) if realtime is not None else lambda: None
         with simulator:  # start(): boot-up, heartbeats, the cyclic thread
             announce(f"{READY_LINE} on {spec}: drives {list(cfg.actuators.node_ids)}"
                      + (f", sensor {cfg.sensor.node_id}" if cfg.sensor.enabled else ""))
             stop_event.wait()
+            # the shut-down (threads joined, the heap freed at exit) is no real-time work either:
+            # at SCHED_FIFO it starved another simulator on this CPU as the start-up did
+            drop_realtime()
     if cfg.loop.freeze_gc:
         unfreeze_garbage_collector()

@@ -25,7 +25,7 @@ from sim_backend.server import Simulator
 RT = RealtimeOptions(priority=70, cpus=(0,), lock_memory=True, required=False)
 
 
-def test_the_simulator_goes_real_time_after_its_set_up_and_before_its_threads(monkeypatch):
+def test_the_simulator_is_real_time_only_from_after_its_set_up_to_before_its_shut_down(monkeypatch):
     calls: list[str] = []
     cfg = load_config()
 
@@ -42,6 +42,10 @@ def test_the_simulator_goes_real_time_after_its_set_up_and_before_its_threads(mo
             calls.append("device threads start")
             super().start()
 
+        def stop(self):
+            calls.append("device threads stop")
+            super().stop()
+
     def open_bus(spec):
         calls.append("bus open")
         return real_open_bus(spec)
@@ -51,7 +55,7 @@ def test_the_simulator_goes_real_time_after_its_set_up_and_before_its_threads(mo
         running = {t.name for t in threading.enumerate()}
         assert "sim-cyclic" not in running and "sim-pose" not in running  # they must inherit it
         calls.append("real-time")
-        return lambda: None
+        return lambda: calls.append("normal scheduler")
 
     stop = threading.Event()
     real_open_bus = process.open_bus
@@ -63,7 +67,7 @@ def test_the_simulator_goes_real_time_after_its_set_up_and_before_its_threads(mo
     announce = lambda line: (calls.append("READY"), stop.set())
     process.serve(cfg, parse_bus_spec(f"virtual:rt-order-{time.monotonic_ns()}"), stop, announce, RT)
     assert calls == ["bus open", "EDS files and plant loaded", "canopen nodes built", "gc frozen", "real-time",
-                     "device threads start", "READY"]
+                     "device threads start", "READY", "normal scheduler", "device threads stop"]
 
 
 def test_the_controller_goes_real_time_after_the_set_up_and_the_garbage_collection(monkeypatch):
