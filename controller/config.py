@@ -276,7 +276,7 @@ def _build_group(cls: type[RobotSection | TaskSection], table: Any, prefix: str)
         raise ConfigError(f"[{prefix}] must be a table, got {table!r}")
     sections = _registered_sections(prefix)
     kind = table.get("kind", cls.__struct_defaults__[0])
-    if kind not in sections:
+    if not isinstance(kind, str) or kind not in sections:
         raise ConfigError(f"{prefix}.kind = {kind!r}: must be one of {', '.join(sections)}")
     models: dict[str, Any] = {}
     for name, section in sections.items():

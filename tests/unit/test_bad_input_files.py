@@ -197,6 +197,14 @@ def test_each_damaged_configuration_is_one_line_naming_the_file(tmp_path, conten
     assert re.search(expected, _one_line_naming(err.value, path)), str(err.value)
 
 
+@pytest.mark.parametrize("kind", ["{ a = 1 }", "[1, 2]", "3"])
+@pytest.mark.parametrize("group", ["robot", "task"])
+def test_a_kind_that_is_not_a_name_is_one_line(tmp_path, group, kind):
+    path = _write(str(tmp_path), "robot.toml", f"[{group}]\nkind = {kind}\n".encode())
+    with pytest.raises(ConfigError, match=rf"{group}.kind = .*: must be one of"):
+        load_config(path)
+
+
 def test_a_configuration_path_that_is_a_directory_says_so(tmp_path):
     with pytest.raises(ConfigError, match="robot.toml is a directory, not a file"):
         (tmp_path / "robot.toml").mkdir()
