@@ -22,7 +22,7 @@ from controller.config import DEFAULT_CONFIG, ConfigError, load_config
 from controller.errors import InputError
 from controller.shell.service import node_setup_plan
 from drivers.node_setup import DRIVE_EDS, SENSOR_EDS, check_device_descriptions
-from drivers.pdo_mapping import DeviceDescriptionError, load_device_description
+from drivers.pdo_mapping import DeviceDescriptionError, PdoDirection, load_device_description
 from sim_backend.device_pdos import device_pdos_from_file
 
 DRIVE_BYTES = DRIVE_EDS.read_bytes()
@@ -110,6 +110,17 @@ def test_an_eds_without_the_pdos_the_project_needs_is_refused_naming_the_file(tm
     with pytest.raises(DeviceDescriptionError) as err:
         check_device_descriptions(plan)
     assert "node 1 TPDO1" in _one_line_naming(err.value, path)
+
+
+def test_a_pdo_mapping_declared_as_a_variable_is_refused_by_the_controller_and_not_a_crash_of_the_simulator(tmp_path):
+    mapping = b"".join(s for s in _sections(DRIVE_BYTES) if s.startswith(b"[1A00"))
+    as_variable = (b"[1A00]\nParameterName=TPDO1 mapping\nObjectType=0x7\nDataType=0x0005\nAccessType=rw\n"
+                   b"DefaultValue=0\nPDOMapping=0\n\n")
+    path = _write(str(tmp_path), "drive.eds", DRIVE_BYTES.replace(mapping, as_variable))
+    assert device_pdos_from_file(path, 1).pdo(PdoDirection.TRANSMIT, 1).config.objects == ()
+    plan = replace(node_setup_plan(load_config(overrides={"sensor.enabled": False})), drive_eds=path)
+    with pytest.raises(DeviceDescriptionError, match="TPDO mapping empty"):
+        check_device_descriptions(plan)
 
 
 def test_the_shipped_files_load_without_a_word(caplog):
