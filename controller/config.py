@@ -22,6 +22,7 @@ import msgspec
 
 from controller.config_schema import ConfigError, Section, convert_section, rng
 from controller.core.cycle_data import Reaction
+from controller.text_files import one_line, read_text_file
 from sim_backend.sim_config import SimSection, check_sim_section
 
 CONFIG_DIR = Path(__file__).parent / "configs"
@@ -275,7 +276,7 @@ def _build_group(cls: type[RobotSection | TaskSection], table: Any, prefix: str)
         raise ConfigError(f"[{prefix}] must be a table, got {table!r}")
     sections = _registered_sections(prefix)
     kind = table.get("kind", cls.__struct_defaults__[0])
-    if kind not in sections:
+    if not isinstance(kind, str) or kind not in sections:
         raise ConfigError(f"{prefix}.kind = {kind!r}: must be one of {', '.join(sections)}")
     models: dict[str, Any] = {}
     for name, section in sections.items():
@@ -383,16 +384,21 @@ def config_from_dict(table: dict[str, Any]) -> Config:
 def load_config(path: Path | str | None = None, overrides: dict[str, Any] | None = None) -> Config:
     """Load ``path`` (default: the shipped cheope.toml) and apply dotted-key ``overrides``."""
     p = Path(path) if path is not None else DEFAULT_CONFIG
-    try:
-        with p.open("rb") as fh:
-            table = tomllib.load(fh)
-    except FileNotFoundError as err:
-        raise ConfigError(f"configuration file {p} does not exist") from err
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"configuration file {p} is not valid TOML: {err}") from err
+    table = read_toml_table(p)
     for dotted, value in (overrides or {}).items():
         set_dotted(table, dotted, value)
     return config_from_dict(table)
+
+
+def read_toml_table(path: Path) -> dict[str, Any]:
+    """The TOML document at ``path``; whatever is wrong with the file is one ``ConfigError`` naming it."""
+    text = read_text_file(path, "configuration file", ConfigError)
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"configuration file {path} is not valid TOML: {one_line(err)}") from None
+    except RecursionError:  # tomllib reads nested arrays and inline tables recursively
+        raise ConfigError(f"configuration file {path} nests arrays or tables too deeply") from None
 
 
 def set_dotted(table: dict[str, Any], dotted: str, value: Any) -> None:

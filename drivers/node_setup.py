@@ -6,8 +6,10 @@ the notifier is stopped afterwards so the loop owns the bus alone.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +24,7 @@ from drivers.homing import HomingFailed, HomingPlan, home_drive
 from drivers.pdo_codec import DriveCodec, SensorFrameCodec
 from drivers.pdo_mapping import (
     COB_ID_INVALID,
+    DeviceDescriptionError,
     PdoConfig,
     PdoDirection,
     PdoMappingError,
@@ -263,11 +266,16 @@ def _configure_sensor_pdos(node: canopen.RemoteNode, node_id: int) -> tuple[Sens
             tpdo = configure_pdo(node, node_id, planned_pdo(od, PdoDirection.TRANSMIT, number, node_id, ()))
             where = f"node {node_id} {tpdo.name}"
             codecs.append(SensorFrameCodec(layout(tpdo.objects, od, where), where, tpdo.cob_id))
+        return force_then_torque(codecs[0], codecs[1], node_id)
     except PdoMappingError as err:
         raise NodeSetupError(str(err)) from err
-    force, torque = codecs
+
+
+def force_then_torque(force: SensorFrameCodec, torque: SensorFrameCodec, node_id: int
+                      ) -> tuple[SensorFrameCodec, SensorFrameCodec]:
+    """The sensor's two TPDOs in the order the exchange reads them, or a ``PdoMappingError``."""
     if not force.is_force or torque.is_force:
-        raise NodeSetupError(f"node {node_id}: TPDO1 must carry the force 0x2000 and TPDO2 the torque 0x2001")
+        raise PdoMappingError(f"node {node_id}: TPDO1 must carry the force 0x2000 and TPDO2 the torque 0x2001")
     return force, torque
 
 
@@ -345,7 +353,32 @@ def description_sensor_codecs(node_id: int, eds: Path = SENSOR_EDS) -> tuple[Sen
         tpdo = planned_pdo(od, PdoDirection.TRANSMIT, number, node_id, ())
         codecs.append(SensorFrameCodec(layout(tpdo.objects, od, f"node {node_id} {tpdo.name}"),
                                        f"node {node_id} {tpdo.name}", tpdo.cob_id))
-    return codecs[0], codecs[1]
+    return force_then_torque(codecs[0], codecs[1], node_id)
+
+
+def check_device_descriptions(plan: NodeSetupPlan) -> None:
+    """Build from the EDS files alone what the set-up builds from them, before any bus is opened.
+
+    A damaged file, or a mapping its file cannot carry, refuses the start with one line naming
+    the file (``DeviceDescriptionError``) instead of failing in the middle of the set-up.
+    """
+    for node_id in plan.drive_ids:
+        with naming_the_file(plan.drive_eds):
+            description_drive_codec(node_id, plan.drive_eds, plan.drive_rpdo_objects, plan.drive_tpdo_objects)
+    if plan.sensor_id is not None:
+        with naming_the_file(plan.sensor_eds):
+            description_sensor_codecs(plan.sensor_id, plan.sensor_eds)
+
+
+@contextlib.contextmanager
+def naming_the_file(eds: Path) -> Iterator[None]:
+    """A mapping error inside the block names ``eds`` (a file error already does); the simulator's too."""
+    try:
+        yield
+    except DeviceDescriptionError:
+        raise
+    except PdoMappingError as err:
+        raise DeviceDescriptionError(f"device description {eds}: {err}") from None
 
 
 def device_description_path(configured: str, default: Path) -> Path:

@@ -13,15 +13,23 @@ project maps no bit fields: every mapped length must be a whole number of bytes)
 
 from __future__ import annotations
 
+import configparser
+import contextlib
 import enum
+import io
+import logging
 import struct
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import canopen
-from canopen.objectdictionary import ODVariable
+from canopen.objectdictionary import ObjectDictionaryError, ODVariable
 
 from controller.errors import InputError
+from controller.text_files import one_line, read_text_file
+
+log = logging.getLogger(__name__)
 
 COB_ID_INVALID = 0x80000000  # bit 31 of a PDO COB-ID: the PDO does not exist (CiA 301 Table 70)
 COB_ID_NO_RTR = 0x40000000  # bit 30: no remote frame for this PDO
@@ -33,6 +41,10 @@ TRANSMISSION_SYNCHRONOUS = 1  # CiA 301 Table 71: synchronous, every SYNC
 
 class PdoMappingError(InputError):
     """A mapping cannot be built or laid out; the message names the node, object and value."""
+
+
+class DeviceDescriptionError(PdoMappingError):
+    """An EDS file that cannot be read, decoded or parsed; one line naming the file and the fault."""
 
 
 class PdoDirection(enum.Enum):
@@ -148,9 +160,70 @@ def find_variable(od: canopen.ObjectDictionary, index: int, subindex: int) -> OD
 
 
 def load_device_description(eds: Path, node_id: int) -> canopen.ObjectDictionary:
-    if not eds.is_file():
-        raise PdoMappingError(f"device description {eds} does not exist")
-    return canopen.import_od(str(eds), node_id)
+    """The object dictionary of the EDS file ``eds`` for ``node_id`` (canopen's EDS import).
+
+    Every way a file can be wrong is a ``DeviceDescriptionError`` naming the file: not there, a
+    directory, unreadable, empty, not UTF-8 text, not INI syntax, a section twice, no objects.
+    """
+    text = read_text_file(eds, "device description", DeviceDescriptionError)
+    with _held_log_records("canopen.objectdictionary") as warnings:
+        od = _parse_device_description(eds, text, node_id)
+    if len(od) == 0:
+        raise DeviceDescriptionError(f"device description {eds} describes no objects (no [1000]-style sections)")
+    for record in warnings:  # only for a file that loads: a refused one gets its one line alone
+        log.warning("device description %s: %s", eds, record.getMessage())
+    return od
+
+
+@contextlib.contextmanager
+def _held_log_records(logger_name: str) -> Iterator[list[logging.LogRecord]]:
+    """Keep what ``logger_name`` logs inside the block from the handlers; the records are yielded."""
+    records: list[logging.LogRecord] = []
+    handler = _ListHandler(records)
+    logger = logging.getLogger(logger_name)
+    propagate = logger.propagate
+    logger.addHandler(handler)
+    logger.propagate = False
+    try:
+        yield records
+    finally:
+        logger.removeHandler(handler)
+        logger.propagate = propagate
+
+
+class _ListHandler(logging.Handler):
+    def __init__(self, records: list[logging.LogRecord]) -> None:
+        super().__init__(logging.WARNING)
+        self.records = records
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
+
+
+def _parse_device_description(eds: Path, text: str, node_id: int) -> canopen.ObjectDictionary:
+    """canopen's EDS import of ``text``; its parser's exceptions become one line naming ``eds``."""
+    where = f"device description {eds}"
+    stream = io.StringIO(text)
+    stream.name = str(eds) if eds.suffix.lower() in (".eds", ".dcf") else f"{eds}.eds"  # canopen picks by suffix
+    try:
+        return canopen.import_od(stream, node_id)
+    except configparser.MissingSectionHeaderError as err:
+        raise DeviceDescriptionError(f"{where}: line {err.lineno} comes before any [section] header: "
+                                     f"{one_line(err.line)}") from None
+    except configparser.DuplicateSectionError as err:
+        raise DeviceDescriptionError(f"{where}: line {err.lineno}: section [{err.section}] appears twice") from None
+    except configparser.DuplicateOptionError as err:
+        raise DeviceDescriptionError(f"{where}: line {err.lineno}: key {err.option} appears twice in section "
+                                     f"[{err.section}]") from None
+    except configparser.ParsingError as err:
+        lineno, line = err.errors[0]
+        raise DeviceDescriptionError(f"{where}: line {lineno} is not KEY=VALUE: {one_line(line)} (a truncated "
+                                     f"or damaged file?)") from None
+    except (configparser.Error, ObjectDictionaryError, KeyError, ValueError, IndexError, TypeError) as err:
+        # canopen reads the sections without checking them: a missing key (NoOptionError), a
+        # value that is no number (ValueError), a sub-object without its parent (KeyError)
+        raise DeviceDescriptionError(f"{where} is not a valid device description: "
+                                     f"{one_line(getattr(err, 'message', None) or err)}") from None
 
 
 def _default(od: canopen.ObjectDictionary, index: int, subindex: int, where: str) -> int:

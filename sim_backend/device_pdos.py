@@ -11,9 +11,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 from controller.config import Config
-from drivers.node_setup import DRIVE_EDS, SENSOR_EDS, device_description_path
+from drivers.node_setup import DRIVE_EDS, SENSOR_EDS, device_description_path, naming_the_file
 from drivers.pdo_codec import CONTROLWORD, TARGET_POSITION
 from drivers.pdo_mapping import PdoDirection, load_device_description, planned_pdo
 from sim_backend.drive import SimulatedDrive
@@ -43,6 +44,12 @@ def _reader(values: dict[tuple[int, int], int], key: tuple[int, int]) -> Callabl
     return lambda: values.get(key, 0)
 
 
+def device_pdos_from_file(eds: Path, node_id: int) -> DevicePdos:
+    """A device's PDOs as its EDS file describes them; a damaged file is one line naming it."""
+    with naming_the_file(eds):
+        return DevicePdos.from_description(load_device_description(eds, node_id), node_id)
+
+
 class SimulatedPdos:
     def __init__(self, cfg: Config, drives: list[SimulatedDrive], sensor: SimulatedForceSensor | None) -> None:
         self.drive_ids = tuple(cfg.actuators.node_ids)
@@ -51,13 +58,11 @@ class SimulatedPdos:
         self.drive_eds = drive_eds
         self.drives = drives
         self.sensor = sensor
-        self.drive_pdos = [DevicePdos.from_description(load_device_description(drive_eds, n), n)
-                           for n in self.drive_ids]
+        self.drive_pdos = [device_pdos_from_file(drive_eds, n) for n in self.drive_ids]
         self.sensor_pdos = None
         if self.sensor_id is not None:
             sensor_eds = device_description_path(cfg.sensor.eds_file, SENSOR_EDS)
-            self.sensor_pdos = DevicePdos.from_description(load_device_description(sensor_eds, self.sensor_id),
-                                                           self.sensor_id)
+            self.sensor_pdos = device_pdos_from_file(sensor_eds, self.sensor_id)
         self.on_cob_ids_changed: Callable[[], None] | None = None  # the server re-reads its COB-ID tables
         self._drive_tpdos: list[_Tpdo] = []
         self._sensor_tpdos: list[_Tpdo] = []

@@ -96,7 +96,11 @@ class DevicePdos:
                 if mapping is None:
                     continue
                 config = pdo_from_description(od, direction, k + 1, node_id)
-                capacity = max(s for s in mapping.subindices if s > 0)
+                subindices = getattr(mapping, "subindices", {})  # a record; an EDS may declare a variable
+                capacity = max((s for s in subindices if s > 0), default=0)
+                if len(config.objects) > capacity:
+                    raise PdoMappingError(f"node {node_id} {config.name}: 0x{base + k:04X} maps "
+                                          f"{len(config.objects)} objects and has {capacity} entries")
                 entries = [0] * capacity
                 for j, obj in enumerate(config.objects):
                     entries[j] = obj.entry

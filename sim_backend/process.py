@@ -21,19 +21,31 @@ READY_LINE = "cheope-sim ready"
 
 def serve(cfg: Config, spec: BusSpec, stop_event: threading.Event, announce: Callable[[str], None],
           realtime: RealtimeOptions | None = None) -> None:
-    # Before any thread starts: canopen's notifier, the heartbeat producers and the watchdog
-    # inherit the priority and the affinity (the simulated hardware is real time as a whole).
-    if realtime is not None:
-        apply_realtime(realtime)
+    """Set up, then go real-time, then start the devices and announce READY; back to the normal
+    scheduler when stopped.
+
+    Everything before ``apply_realtime`` (the bus, the EDS files, the plant, the canopen nodes,
+    the garbage collection) runs under the normal scheduler: at SCHED_FIFO it would take the CPU
+    from another simulator on this host that answers its SYNCs there (a second ``cheope sim``
+    faulted the first's controller with missing TPDOs). The device threads start after it, and
+    inherit its priority and affinity (the simulated hardware is real time as a whole).
+    """
     # the SYNC handler competes with heartbeat and watchdog threads for the GIL
     sys.setswitchinterval(cfg.loop.gil_switch_interval_us * 1e-6)
-    with open_bus(spec) as bus, Simulator(cfg, bus):
+    with open_bus(spec) as bus:
+        simulator = Simulator(cfg, bus)
+        simulator.build_nodes()
         if cfg.loop.freeze_gc:
             # as in the controller: a full collection of the simulator's start-up heap took
             # 21 ms, five missing TPDOs at 400 Hz (the contour demo faulted so in lap 5)
             freeze_garbage_collector()
-        announce(f"{READY_LINE} on {spec}: drives {list(cfg.actuators.node_ids)}"
-                 + (f", sensor {cfg.sensor.node_id}" if cfg.sensor.enabled else ""))
-        stop_event.wait()
+        drop_realtime = apply_realtime(realtime) if realtime is not None else lambda: None
+        with simulator:  # start(): boot-up, heartbeats, the cyclic thread
+            announce(f"{READY_LINE} on {spec}: drives {list(cfg.actuators.node_ids)}"
+                     + (f", sensor {cfg.sensor.node_id}" if cfg.sensor.enabled else ""))
+            stop_event.wait()
+            # the shut-down (threads joined, the heap freed at exit) is no real-time work either:
+            # at SCHED_FIFO it starved another simulator on this CPU as the start-up did
+            drop_realtime()
     if cfg.loop.freeze_gc:
         unfreeze_garbage_collector()

@@ -112,6 +112,23 @@ class Simulator:
         self.stop()
 
     def start(self) -> None:
+        """The devices' nodes (``build_nodes``, unless done), then their boot-up, heartbeats and threads.
+
+        The threads inherit the calling thread's scheduling: a process that runs the simulator
+        real-time applies it between ``build_nodes`` and ``start`` (sim_backend/process.py).
+        """
+        if not self.nodes:
+            self.build_nodes()
+        for node in self.nodes.values():
+            self._boot(node)
+        self._thread = threading.Thread(target=self._run, name="sim-cyclic", daemon=True)
+        self._thread.start()
+        self._pose_thread = threading.Thread(target=self._follow_pose, name="sim-pose", daemon=True)
+        self._pose_thread.start()
+
+    def build_nodes(self) -> None:
+        """The canopen nodes from the object dictionaries, wired to the devices: start-up work
+        that sends nothing and starts no thread."""
         for j, node_id in enumerate(self.drive_ids):
             node = canopen.LocalNode(node_id, self.pdos.drive_pdos[j].od)
             self.network.add_node(node)
@@ -130,12 +147,6 @@ class Simulator:
         self._fast[cob_ids.SYNC] = self._on_sync
         self._fast[cob_ids.heartbeat(self.cfg.loop.controller_node_id)] = self._on_controller_heartbeat
         self.network.subscribe(cob_ids.NMT, self._on_nmt)
-        for node in self.nodes.values():
-            self._boot(node)
-        self._thread = threading.Thread(target=self._run, name="sim-cyclic", daemon=True)
-        self._thread.start()
-        self._pose_thread = threading.Thread(target=self._follow_pose, name="sim-pose", daemon=True)
-        self._pose_thread.start()
 
     def stop(self) -> None:
         self._stop.set()

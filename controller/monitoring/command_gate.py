@@ -1,8 +1,8 @@
 """Which remote commands a controller accepts: the one list the publisher and the CLI share.
 
 A remote ``stop`` is always accepted (a controlled stop, as Ctrl-C); ``pause``, ``resume``,
-``set_force`` and ``reset`` (leave FAULT, controller/core/control_law.py) only when the
-controller was started with ``--allow-remote-commands`` (DESIGN.md: monitoring is read-only,
+``set_force`` (below the contact-force limit) and ``reset`` (leave FAULT,
+controller/core/control_law.py) only when the controller was started with ``--allow-remote-commands`` (DESIGN.md: monitoring is read-only,
 any other remote command is off unless explicitly enabled). Imports nothing heavy: the
 command line's parser uses it.
 """
@@ -23,8 +23,12 @@ class CommandDecision:
     forward: bool = False  # hand it to the control law as CycleInputs.command
 
 
-def decide_command(name: str, value: float, commands_enabled: bool) -> CommandDecision:
-    """The gate: stop always; the gated commands only when enabled; anything else refused."""
+def decide_command(name: str, value: float, commands_enabled: bool, max_contact_force_n: float) -> CommandDecision:
+    """The gate: stop always; the gated commands only when enabled; anything else refused.
+
+    A ``set_force`` setpoint must lie below ``max_contact_force_n`` (``safety.max_contact_force_n``):
+    the law would press towards a force at which the safety layer faults.
+    """
     if name == "stop":
         return CommandDecision(True, "stop accepted: the controller brings the robot to a controlled stop")
     if name not in GATED_COMMANDS:
@@ -32,6 +36,7 @@ def decide_command(name: str, value: float, commands_enabled: bool) -> CommandDe
     if not commands_enabled:
         return CommandDecision(False, f"command {name!r} refused: remote commands other than stop are disabled "
                                       "(start the controller with --allow-remote-commands)")
-    if name == "set_force" and not (math.isfinite(value) and value > 0.0):
-        return CommandDecision(False, f"set_force value {value!r} N refused: must be finite and > 0")
+    if name == "set_force" and not (math.isfinite(value) and 0.0 < value < max_contact_force_n):
+        return CommandDecision(False, f"set_force value {value:g} N refused: must be > 0 and below the contact-force "
+                                      f"limit safety.max_contact_force_n = {max_contact_force_n:g} N")
     return CommandDecision(True, f"{name} accepted: applied at the next cycle", forward=True)

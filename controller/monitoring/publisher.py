@@ -83,6 +83,7 @@ class PublisherSettings:
     decimation: int  # publish every n-th cycle
     allow_remote_commands: bool = False
     config_json: str = "{}"
+    max_contact_force_n: float = 60.0  # safety.max_contact_force_n: the bound of a remote set_force
 
     def with_robot_id(self, robot_id: str) -> PublisherSettings:
         config = json.loads(self.config_json)
@@ -105,6 +106,7 @@ def publisher_settings(cfg: Config) -> PublisherSettings:
         session=session, keys=keys, robot_id=robot_id, key_prefix=m.key_prefix, robot_id_is_default=not m.robot_id,
         period_s=cfg.period_s, decimation=max(1, round(cfg.loop.rate_hz / m.publish_rate_hz)),
         allow_remote_commands=m.allow_remote_commands, config_json=json.dumps(config),
+        max_contact_force_n=cfg.safety.max_contact_force_n,
     )
 
 
@@ -330,7 +332,8 @@ class MonitorPublisher:
     def _on_command(self, query: zenoh.Query) -> bool:
         try:
             cmd = pb.Command.FromString(query.payload.to_bytes() if query.payload is not None else b"")
-            decision = decide_command(cmd.name, cmd.value, self.settings.allow_remote_commands) if cmd.name else \
+            decision = decide_command(cmd.name, cmd.value, self.settings.allow_remote_commands,
+                                      self.settings.max_contact_force_n) if cmd.name else \
                 CommandDecision(False, "no command in the query's payload (expected a cheope.v1.Command)")
         except DecodeError:
             cmd, decision = pb.Command(), CommandDecision(False, "payload is not a cheope.v1.Command")

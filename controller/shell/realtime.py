@@ -20,6 +20,10 @@ with that message.
   put the simulator on the other CPU.
 - ``mlockall(MCL_CURRENT | MCL_FUTURE)``: no page faults from swapped-out or lazily mapped
   pages on the hot path. Process-wide.
+
+All three are taken after the start-up work, never before it (``check_realtime`` only probes):
+several controllers and simulators share a host, and one's start-up at SCHED_FIFO took the
+CPU from another's running loop.
 """
 
 from __future__ import annotations
@@ -178,11 +182,14 @@ def lock_memory(libc: ctypes.CDLL | None = None) -> None:
         raise RealtimeError(f"--lock-memory: mlockall failed: {os.strerror(code)}")
 
 
-def check_realtime(options: RealtimeOptions) -> None:
+def check_realtime(options: RealtimeOptions, libc: ctypes.CDLL | None = None) -> None:
     """Refuse early, before anything is opened, when the kernel will not grant required ``options``.
 
-    The priority is tried and reset at once; the memory lock, process-wide, stays. Options
-    that are not required are not checked here: ``apply_realtime`` warns about them.
+    Each is tried and undone at once: the start-up work that follows (imports, sessions, the
+    devices' set-up) runs under the normal scheduler with unlocked memory, so it cannot starve
+    a loop or a simulator already running real-time on this host; ``apply_realtime`` applies
+    them after it. Options that are not required are not checked here: ``apply_realtime``
+    warns about them.
     """
     if not options.required:
         return
@@ -194,7 +201,9 @@ def check_realtime(options: RealtimeOptions) -> None:
         set_cpu_affinity(options.cpus)
         os.sched_setaffinity(0, before)
     if options.lock_memory:
-        lock_memory()
+        libc = libc or _libc()
+        lock_memory(libc)
+        libc.munlockall()
 
 
 def apply_realtime(options: RealtimeOptions) -> Callable[[], None]:

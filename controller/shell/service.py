@@ -22,7 +22,7 @@ import can
 from controller.assembly import assemble, planned_bus_load
 from controller.config import Config
 from controller.core.control_law import ControlLaw
-from controller.monitoring.publisher import monitoring_context
+from controller.monitoring.publisher import monitoring_context, publisher_settings
 from controller.robots.registry import actuator_units
 from controller.shell.loop import CycleLoop, CycleObserver
 from controller.shell.realtime import (
@@ -47,6 +47,7 @@ from drivers.node_setup import (
     DRIVE_EDS,
     SENSOR_EDS,
     NodeSetupPlan,
+    check_device_descriptions,
     configure_nodes,
     device_description_path,
 )
@@ -67,13 +68,29 @@ class PreparedRun:
     law: ControlLaw
     reports: tuple[RunReport, ...]  # the task's own (the 3-nSPU's reached pose against its goal)
     bus_load: BusLoad
+    setup_plan: NodeSetupPlan
 
 
-def prepare(cfg: Config) -> PreparedRun:
+def prepare(cfg: Config, spec: BusSpec, enforce_load_limit: bool = True) -> PreparedRun:
+    """Every check of a start that needs no bus: what ``cheope run`` refuses before it opens
+    anything, and what ``cheope bus-load`` checks as well (it reports the load itself, so it
+    passes ``enforce_load_limit=False``).
+
+    The bus load against its limit, the kernel's SYNC on a bus that has it, the EDS files and
+    the PDO mappings built from them, the monitoring settings, the robot and the whole task
+    against the workspace and singularity margins.
+    """
     load = planned_bus_load(cfg)
-    check_bus_load(load, cfg.bus.max_load_percent)
+    if enforce_load_limit:
+        check_bus_load(load, cfg.bus.max_load_percent)
+    if cfg.bus.sync_producer == "kernel":
+        check_kernel_sync(spec.interface)
+    setup_plan = node_setup_plan(cfg)
+    check_device_descriptions(setup_plan)
+    if cfg.monitoring.enabled:
+        publisher_settings(cfg)  # key prefix, robot id, endpoints
     assembly = assemble(cfg)
-    return PreparedRun(law=assembly.law, reports=assembly.reports, bus_load=load)
+    return PreparedRun(law=assembly.law, reports=assembly.reports, bus_load=load, setup_plan=setup_plan)
 
 
 def homing_plans(cfg: Config) -> tuple[HomingPlan, ...] | None:
@@ -127,9 +144,7 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float | None = No
     ``realtime`` (controller/shell/realtime.py) is checked before anything opens, and applied to
     this thread just before the loop starts, so helper threads started earlier keep SCHED_OTHER.
     """
-    prepared = prepare(cfg)
-    if cfg.bus.sync_producer == "kernel":
-        check_kernel_sync(spec.interface)  # before anything opens
+    prepared = prepare(cfg, spec)  # before anything opens
     realtime = realtime or RealtimeOptions()
     check_realtime(realtime)  # RealtimeError names the option and how to get the permission
     set_gil_switch_interval(cfg.loop.gil_switch_interval_us * 1e-6)
@@ -146,7 +161,7 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float | None = No
     with session or contextlib.nullcontext(), worker or contextlib.nullcontext(), monitoring_context(
             cfg, stop_event, prepared.law.task) as publisher, FrameTap(open_bus(spec), frame_sink) as bus:
         # every frame of the session through one tap: set-up included, own echoes dropped
-        setup = configure_nodes(bus, node_setup_plan(cfg))
+        setup = configure_nodes(bus, prepared.setup_plan)
         exchange = CyclicExchange(
             bus, tuple(cfg.actuators.node_ids), PositionScale(actuator_units(cfg).counts_per_unit),
             cfg.sensor.node_id if cfg.sensor.enabled else None, cfg.loop.controller_node_id,
@@ -167,11 +182,12 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float | None = No
                          stop_event=stop_event, commands=publisher.commands if publisher is not None else None,
                          quick_stop_event=quick_stop_event, stop_timeout_s=cfg.loop.stop_timeout_s,
                          plans_ready=worker.ready if worker is not None else None)
-        restore = apply_realtime(realtime)
-        granted = granted_realtime()
+        if cfg.loop.freeze_gc:  # start-up work: before the loop takes its real-time priority
+            freeze_garbage_collector()
+        restore: Callable[[], None] = lambda: None
         try:
-            if cfg.loop.freeze_gc:
-                freeze_garbage_collector()
+            restore = apply_realtime(realtime)
+            granted = granted_realtime()
             faults_before = resource.getrusage(resource.RUSAGE_SELF).ru_majflt
             notify("READY=1")  # systemd Type=notify: the devices are configured, the loop starts
             final, stats = loop.run(prepared.law.initial_state(), max_duration_s,

@@ -23,7 +23,7 @@ from controller.config import Config
 from controller.errors import DeviceError
 from controller.shell.loop import CycleObserver
 from controller.shell.realtime import RealtimeOptions
-from controller.shell.service import run_controller
+from controller.shell.service import prepare, run_controller
 from drivers.bus import BusSpec
 from sim_backend.process import READY_LINE
 
@@ -106,6 +106,7 @@ def run_demo(cfg: Config, spec: BusSpec, config_path: str | None, overrides: lis
              max_duration_s: float = 600.0, stop_event: threading.Event | None = None,
              plot_dir: Path | None = None, realtime: RealtimeOptions | None = None,
              observers: tuple[CycleObserver, ...] = ()) -> dict[str, object]:
+    prepare(cfg, spec)  # what the controller would refuse, refused before the simulator starts
     sim_args = simulator_realtime_args(realtime)
     with simulator_process(spec, config_path, overrides, extra_args=sim_args):
         if cfg.task.kind == "contour":
