@@ -42,6 +42,7 @@ from mcap.stream_reader import breakup_chunk
 
 from controller.errors import InputError
 from controller.messages import cheope_pb2 as pb
+from logs.messages import unpack_frames
 
 MAGIC = b"\x89MCAP0\r\n"
 _HEAD = struct.Struct("<BQ")
@@ -51,7 +52,9 @@ _KNOWN_OPCODES = {int(o) for o in Opcode}
 _CLASSES: dict[str, Any] = {
     "cheope.v1.CanFrame": pb.CanFrame, "cheope.v1.Cycle": pb.Cycle, "cheope.v1.Event": pb.Event,
     "foxglove.Log": Log, "foxglove.FrameTransform": FrameTransform, "foxglove.PoseInFrame": PoseInFrame,
+    "cheope.v1.CanFrameBatch": pb.CanFrameBatch, "cheope.v1.Keyframe": pb.Keyframe,
 }
+_BATCH_SCHEMA = "cheope.v1.CanFrameBatch"
 
 
 class LogFileError(InputError):
@@ -286,9 +289,26 @@ def iter_decoded(path: str | Path, topics: Iterable[str] | None = None, report: 
         except Exception:  # noqa: BLE001 - a damaged message inside an intact chunk: count, go on
             bad[ch.topic] += 1
             continue
+        if isinstance(value, pb.CanFrameBatch):
+            try:
+                yield from _batch_frames(ch.topic, msg, value)
+            except ValueError:
+                bad[ch.topic] += 1
+            continue
         yield Decoded(ch.topic, msg.log_time, msg.sequence, value)
     for topic, k in bad.items():
         report.problems.append(f"{k} message(s) on {topic} could not be decoded")
+
+
+def _batch_frames(topic: str, msg: Message, batch: Any) -> Iterator[Decoded]:
+    """One ``Decoded`` ``CanFrame`` per frame of a ``CanFrameBatch``, with the log time each frame
+    had as a message of its own (the batch's is its first frame's)."""
+    offset_ns: int | None = None
+    for frame in unpack_frames(batch.frames):
+        ns = int(frame.monotonic_s * 1e9)
+        if offset_ns is None:
+            offset_ns = msg.log_time - ns
+        yield Decoded(topic, ns + offset_ns, 0, frame)
 
 
 def read_info(path: str | Path) -> ReadReport:

@@ -29,6 +29,7 @@ file and exits. Only a killed writer leaves a truncated file (``cheope logs reco
 from __future__ import annotations
 
 import json
+import math
 import os
 import pickle
 import select
@@ -46,6 +47,7 @@ if TYPE_CHECKING:
 
 SETUP, CYCLE, FRAMES, END = range(4)
 _LENGTH = struct.Struct("<I")
+DEFAULT_VIEW_RATE_HZ = 20.0  # /tcp, /tcp_reference of a recording without a configuration
 _WRITER_CHUNK_LIMIT = 1 << 40  # chunks are closed by this module, never by mcap's own size rule
 
 Record = tuple[Any, ...]  # (kind, ...): the records listed in the module doc
@@ -142,7 +144,8 @@ class SessionWriter:
         w = Writer(self.stream, chunk_size=_WRITER_CHUNK_LIMIT, compression=compression)
         w.start(profile="", library="cheope logs.recorder")
         self.channels: dict[str, int] = {}
-        for topic, cls in ((m.TOPIC_CAN, pb.CanFrame), (m.TOPIC_CYCLE, pb.Cycle), (m.TOPIC_EVENTS, pb.Event),
+        self.pb = pb
+        for topic, cls in ((m.TOPIC_CAN, pb.CanFrameBatch), (m.TOPIC_CYCLE, pb.Cycle), (m.TOPIC_EVENTS, pb.Event),
                            (m.TOPIC_LOG, Log), (m.TOPIC_TCP, FrameTransform),
                            (m.TOPIC_TCP_REFERENCE, PoseInFrame), (m.TOPIC_SCENE, SceneUpdate)):
             sid = register_schema(w, cls)
@@ -154,6 +157,10 @@ class SessionWriter:
         self.writer = w
         cfg = _recorded_config(settings)
         self.scene = None if cfg is None else _scene_sampler(cfg)
+        # Every cycle's TCP is in /cycle (state.tcp_measured_m, tcp_reference_m); the viewers' own
+        # copies follow the 3D scene's rate: at the loop's rate they were a fifth of the file.
+        self.view_interval_s = 1.0 / (cfg.recording.scene_rate_hz if cfg is not None else DEFAULT_VIEW_RATE_HZ)
+        self.view_next_t = -math.inf
         self.live = None
         if cfg is not None and (cfg.recording.live_rerun or cfg.recording.live_foxglove):
             from logs.live_views import LiveViews
@@ -221,12 +228,12 @@ class SessionWriter:
         return len(data) + 31  # record overhead in the chunk
 
     def _frames(self, frames: list[FrameRecord]) -> int:
-        n = 0
-        for outgoing, mono_s, arb, data, fd, brs, err in frames:
-            msg = self.m.can_frame(mono_s, outgoing, arb, data, fd, brs, err)
-            n += self._add(self.m.TOPIC_CAN, msg.SerializeToString(), int(mono_s * 1e9) + self.offset_ns)
-            self.last_mono_s = mono_s
-        return n
+        """The frames as one ``CanFrameBatch`` (one MCAP message, one index entry, for all of them)."""
+        if not frames:
+            return 0
+        batch = self.pb.CanFrameBatch(frames=self.m.pack_frames(frames)).SerializeToString()
+        self.last_mono_s = frames[-1][1]
+        return self._add(self.m.TOPIC_CAN, batch, self.m.frame_log_time_ns(frames[0][1], self.offset_ns))
 
     def _cycle(self, cycle: int, t: float, mono_s: float, seq: int, cycle_pb: bytes,
                events: tuple[Event, ...], tcp_measured: Vector3 | None, tcp_reference: Vector3 | None) -> int:
@@ -242,11 +249,14 @@ class SessionWriter:
             if self.live is not None:
                 self.live.event(t, cycle, int(e.severity), f"[{e.kind}] {e.message}", log_pb, ns)
         tcp_pb = None
-        if tcp_measured is not None:
-            tcp_pb = m.tcp_transform(ns, tcp_measured).SerializeToString()
-            n += self._add(m.TOPIC_TCP, tcp_pb, ns)
-        if tcp_reference is not None:
-            n += self._add(m.TOPIC_TCP_REFERENCE, m.tcp_pose(ns, tcp_reference).SerializeToString(), ns)
+        if t >= self.view_next_t:  # /tcp and /tcp_reference for viewers, at the scene's rate
+            nxt = self.view_next_t + self.view_interval_s
+            self.view_next_t = nxt if nxt > t else t + self.view_interval_s  # the first, or after a gap
+            if tcp_measured is not None:
+                tcp_pb = m.tcp_transform(ns, tcp_measured).SerializeToString()
+                n += self._add(m.TOPIC_TCP, tcp_pb, ns)
+            if tcp_reference is not None:
+                n += self._add(m.TOPIC_TCP_REFERENCE, m.tcp_pose(ns, tcp_reference).SerializeToString(), ns)
         if self.scene is not None:
             n += self._scene(cycle_pb, t, ns, tcp_pb)
         return n
