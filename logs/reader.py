@@ -82,6 +82,7 @@ class ReadReport:
     orphan_messages: int = 0  # messages whose channel record was lost
     first_log_time_ns: int | None = None
     last_log_time_ns: int | None = None
+    chunks_checked: bool = True  # False: answered from the summary, no chunk read (logs info without --check)
 
     @property
     def messages(self) -> int:
@@ -99,7 +100,8 @@ class ReadReport:
 
     def status(self) -> str:
         if not self.problems:
-            return "complete"
+            return ("complete" if self.chunks_checked else
+                    "complete by its summary; chunks not checked (--check reads and checks every one)")
         return "; ".join(self.problems)
 
 
@@ -319,6 +321,39 @@ def read_info(path: str | Path) -> ReadReport:
     return report
 
 
+def read_head(path: str | Path) -> ReadReport:
+    """The header and the metadata written before the first chunk (the session's configuration and
+    ``cheope.file``): a few records from the start, for any file, finished, open or cut short."""
+    p = Path(path)
+    report = ReadReport(p)
+    try:
+        with open(p, "rb") as fh:
+            report.size_bytes = os.fstat(fh.fileno()).st_size
+            if fh.read(8) != MAGIC:
+                raise LogFileError(f"{p} is not an MCAP file (it does not start with the MCAP magic bytes)")
+            while True:
+                head = fh.read(9)
+                if len(head) < 9:
+                    break
+                opcode, length = _HEAD.unpack(head)
+                if opcode not in (Opcode.HEADER, Opcode.METADATA, Opcode.SCHEMA, Opcode.CHANNEL) or length > 1 << 26:
+                    break  # the first chunk (or damage): the head ends here
+                body = fh.read(length)
+                if len(body) < length:
+                    break
+                try:
+                    record = _parse(opcode, body)
+                except Exception:  # noqa: BLE001 - a damaged head: what was read so far is the answer
+                    break
+                if isinstance(record, Header):
+                    report.profile, report.library = record.profile, record.library
+                elif isinstance(record, Metadata):
+                    report.metadata[record.name] = dict(record.metadata)
+    except OSError as err:
+        raise LogFileError(f"cannot read {p}: {err.strerror or err}") from err
+    return report
+
+
 def read_info_from_summary(path: str | Path) -> ReadReport | None:
     """Channels, counts, metadata and duration from the summary section at the end of the file,
     reading the header, the footer, the summary and the metadata records only (milliseconds
@@ -358,6 +393,7 @@ def read_info_from_summary(path: str | Path) -> ReadReport | None:
     report.size_bytes = size
     report.profile, report.library = header.profile, header.library
     report.complete = True
+    report.chunks_checked = False
     report.chunks = len(summary.chunk_indexes)
     report.end_offset = size
     report.schemas = dict(summary.schemas)
@@ -394,6 +430,7 @@ def format_info(r: ReadReport) -> str:
 def info_dict(r: ReadReport) -> dict[str, Any]:
     return {
         "path": str(r.path), "size_bytes": r.size_bytes, "complete": r.complete, "problems": list(r.problems),
+        "chunks_checked": r.chunks_checked,
         "duration_s": r.duration_s, "messages": r.messages, "chunks": r.chunks, "damaged_chunks": r.damaged_chunks,
         "channels": {ch.topic: {"count": r.message_counts.get(ch.topic, 0),
                                 "schema": r.schemas[ch.schema_id].name if ch.schema_id in r.schemas else None,

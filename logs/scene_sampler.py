@@ -67,6 +67,10 @@ class SceneSampler:
         self._fixed_sent = True
         return self.drawing.fixed()
 
+    def resend_fixed(self) -> None:
+        """The fixed parts again at the next ``fixed_once`` (a new file of the session draws them too)."""
+        self._fixed_sent = False
+
     def due(self, t_s: float) -> bool:
         return t_s >= self._next_t
 
