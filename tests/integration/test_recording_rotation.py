@@ -258,3 +258,27 @@ def test_a_keyframe_names_only_classes_of_loaded_modules():
         decode_state(b'{"d":"builtins:dict","f":{}}')
     with pytest.raises(KeyframeError, match="damaged keyframe"):
         decode_state(b"{not json")
+
+
+def test_an_older_file_with_a_message_per_frame_reads_as_the_packed_format_does(tmp_path):
+    """tests/data/frames_one_message_each.mcap was written before the frames were packed (one
+    cheope.v1.CanFrame per frame): it reads and verifies as before, and the same session written
+    today gives the reader the same frames with the same log times, and the same cycles."""
+    from tools.bench_recording_size import main as rewrite
+
+    old = Path(__file__).resolve().parents[1] / "data" / "frames_one_message_each.mcap"
+    assert read_info(old).schemas and any(s.name == "cheope.v1.CanFrame" for s in read_info(old).schemas.values())
+    assert verify(old).ok
+    new = tmp_path / "packed.mcap"
+    rewrite(old, new)
+    assert {s.name for s in read_info(new).schemas.values()} >= {"cheope.v1.CanFrameBatch"}
+    offset = int(read_info(old).metadata[m.META_SESSION]["clock_offset_ns"])
+
+    def content(path):
+        return [(d.topic, d.log_time_ns, d.message.SerializeToString())
+                for d in iter_decoded(path, [m.TOPIC_CAN, m.TOPIC_CYCLE])]
+
+    frames = [d for d in iter_decoded(old, [m.TOPIC_CAN])]
+    assert len(frames) == 206 and all(d.log_time_ns == int(d.message.monotonic_s * 1e9) + offset for d in frames)
+    assert content(new) == content(old)
+    assert read_info(new).size_bytes < read_info(old).size_bytes

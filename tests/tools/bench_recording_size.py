@@ -65,15 +65,19 @@ def main(src: Path, dst: Path | None) -> dict[str, float]:
                     "chunk_size_bytes": 65536, "flush_interval_s": 0.5, "compression": "zstd"}
         session_now = [0.0]
         # chunks close on the session's clock (every flush_interval_s of it), as in the recorded run
+        real_time = sw.time  # type: ignore[attr-defined]
         sw.time = SimpleNamespace(monotonic=lambda: session_now[0])  # type: ignore[attr-defined,assignment]
-        writer = SessionWriter(settings)
-        cpu0 = time.process_time()
-        for r in recs:
-            if r[0] == CYCLE:
-                session_now[0] = float(r[5])  # type: ignore[arg-type]
-            writer.write(r)
-        writer.finish(len(recs), 0)
-        cpu_s = time.process_time() - cpu0
+        try:
+            writer = SessionWriter(settings)
+            cpu0 = time.process_time()
+            for r in recs:
+                if r[0] == CYCLE:
+                    session_now[0] = float(r[5])  # type: ignore[arg-type]
+                writer.write(r)
+            writer.finish(len(recs), 0)
+            cpu_s = time.process_time() - cpu0
+        finally:
+            sw.time = real_time  # type: ignore[attr-defined]
         size = out.stat().st_size
     return {"source_duration_s": round(duration_s, 3), "cycles": sum(1 for r in recs if r[0] == CYCLE),
             "bytes": size, "bytes_per_hour": round(size * HOUR_S / duration_s),
