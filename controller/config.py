@@ -214,7 +214,8 @@ class RecordingSection(Section, frozen=True):
     enabled: bool = True
     directory: str = ""  # "" = $XDG_DATA_HOME/cheope/sessions (~/.local/share/cheope/sessions)
     buffer_bytes: Annotated[int, rng(4096, 1 << 30)] = 4 << 20  # loop -> writer process; full: dropped
-    chunk_size_bytes: Annotated[int, rng(1024, 64 * 1024 * 1024)] = 65536  # uncompressed
+    # uncompressed; at 400 Hz flush_interval_s closes it first: larger chunks compress better (6 %)
+    chunk_size_bytes: Annotated[int, rng(1024, 64 * 1024 * 1024)] = 262144
     flush_interval_s: Annotated[float, rng(0.01, 60.0)] = 0.5  # close a chunk at least this often
     # the writer process gone (killed, disk full, file size limit) or the free-space guard below:
     # "stop" ends the run through STOPPING (a session that must be recorded is not worth running

@@ -224,8 +224,9 @@ def test_below_the_free_space_limit_the_recording_stops_cleanly_and_says_why(tmp
 
 
 def test_a_recovered_files_gap_is_named_as_lost_with_the_damaged_original(tmp_path):
-    files, _, _ = split_session(tmp_path, duration_s=100.0)  # one file
-    data = bytearray(files[0].read_bytes())
+    path = tmp_path / "s.mcap"
+    record_session(path, QUARTER_LAP, frames=False, chunk_size_bytes=4096)  # many chunks: one damaged mid-file
+    data = bytearray(path.read_bytes())
     mid = len(data) // 2
     data[mid: mid + 64] = bytes(b ^ 0xA5 for b in data[mid: mid + 64])
     damaged = tmp_path / "damaged.mcap"

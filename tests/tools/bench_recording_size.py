@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 from types import SimpleNamespace
 
+from controller.config import load_config
 from controller.core.cycle_data import Event, Severity
 from logs import messages as m
 from logs import session_writer as sw
@@ -62,7 +63,7 @@ def main(src: Path, dst: Path | None) -> dict[str, float]:
         out = dst or Path(tmp) / "bench.mcap"
         settings = {"path": str(out), "metadata": metadata,
                     "clock_offset_ns": int(metadata[m.META_SESSION]["clock_offset_ns"]),
-                    "chunk_size_bytes": 65536, "flush_interval_s": 0.5, "compression": "zstd"}
+                    "chunk_size_bytes": load_config().recording.chunk_size_bytes, "flush_interval_s": load_config().recording.flush_interval_s, "compression": "zstd"}
         session_now = [0.0]
         # chunks close on the session's clock (every flush_interval_s of it), as in the recorded run
         real_time = sw.time  # type: ignore[attr-defined]
