@@ -31,8 +31,8 @@ def split_session(tmp_path: Path, overrides=QUARTER_LAP, max_s: float = 10.0, du
     """A simulated session split by ``recording.max_file_duration_s``; its files in session order."""
     tmp_path.mkdir(parents=True, exist_ok=True)
     first = tmp_path / "cheope-20260101-000000.mcap"
-    _, _, stats, trace, _, rec = record_session(first, overrides, max_s=max_s, frames=False,
-                                                    limits=FileLimits(max_file_duration_s=duration_s))
+    _, _, stats, trace, _, rec = record_session(first, overrides, max_s=max_s, frames=False, chunk_size_bytes=8192,
+                                                limits=FileLimits(max_file_duration_s=duration_s))
     assert rec.error == "" and rec.dropped == 0
     return rec.files, stats, trace
 
