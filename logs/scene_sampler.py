@@ -41,6 +41,7 @@ class SceneFrame:
     cycle: int
     moving: list[Primitive]
     message: Any = None  # the parsed cheope.v1.Cycle it was drawn from
+    scene_pb: bytes = b""  # its foxglove.SceneUpdate, once the writer has made it
 
 
 class SceneSampler:

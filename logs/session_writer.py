@@ -59,7 +59,7 @@ if TYPE_CHECKING:
     from controller.config import Config
     from controller.core.cycle_data import Event
     from controller.core.linalg3 import Vector3
-    from logs.scene_sampler import SceneSampler
+    from logs.scene_sampler import SceneFrame, SceneSampler
 
 SETUP, CYCLE, FRAMES, END, KEYFRAME = range(5)
 _LENGTH = struct.Struct("<I")
@@ -374,24 +374,31 @@ class SessionWriter:
             n += self._add(m.TOPIC_LOG, log_pb, ns)
             if self.live is not None:
                 self.live.event(t, cycle, int(e.severity), f"[{e.kind}] {e.message}", log_pb, ns)
+        frame = None
+        if self.scene is not None:
+            n_scene, frame = self._scene(cycle_pb, t, ns)
+            n += n_scene
+            due = frame is not None  # the viewers' TCP with the 3D scene, on the same cycles
+        else:
+            due = t >= self.view_next_t
+            if due:
+                nxt = self.view_next_t + self.view_interval_s
+                self.view_next_t = nxt if nxt > t else t + self.view_interval_s  # the first, or after a gap
         tcp_pb = None
-        if t >= self.view_next_t:  # /tcp and /tcp_reference for viewers, at the scene's rate
-            nxt = self.view_next_t + self.view_interval_s
-            self.view_next_t = nxt if nxt > t else t + self.view_interval_s  # the first, or after a gap
+        if due:  # /tcp and /tcp_reference for viewers, at the scene's rate
             if tcp_measured is not None:
                 tcp_pb = m.tcp_transform(ns, tcp_measured).SerializeToString()
                 n += self._add(m.TOPIC_TCP, tcp_pb, ns)
             if tcp_reference is not None:
                 n += self._add(m.TOPIC_TCP_REFERENCE, m.tcp_pose(ns, tcp_reference).SerializeToString(), ns)
-        if self.scene is not None:
-            n += self._scene(cycle_pb, t, ns, tcp_pb)
+        if frame is not None and self.live is not None:
+            self.live.frame(frame, frame.message, cycle_pb, frame.scene_pb, tcp_pb, ns)
         return n
 
-    def _scene(self, cycle_pb: bytes, t: float, ns: int, tcp_pb: bytes | None) -> int:
-        """The robot for Foxglove: the fixed parts once, the moving ones when the sampler says (decimated).
-
-        The live views get the same drawing and the cycle it came from (logs/live_views.py).
-        """
+    def _scene(self, cycle_pb: bytes, t: float, ns: int) -> tuple[int, SceneFrame | None]:
+        """The robot for Foxglove: the fixed parts once, the moving ones when the sampler says
+        (decimated); the bytes written and the frame drawn, if any (the live views get it too,
+        logs/live_views.py)."""
         from logs.foxglove_scene import scene_update
 
         assert self.scene is not None
@@ -404,11 +411,9 @@ class SessionWriter:
                 self.live.fixed(fixed, data, ns)
         frame = self.scene.sample(cycle_pb, t)
         if frame is not None:
-            data = scene_update(frame.moving, ns, tuple(sorted(self.scene.moving_entities))).SerializeToString()
-            n += self._add(self.m.TOPIC_SCENE, data, ns)
-            if self.live is not None:
-                self.live.frame(frame, frame.message, cycle_pb, data, tcp_pb, ns)
-        return n
+            frame.scene_pb = scene_update(frame.moving, ns, tuple(sorted(self.scene.moving_entities))).SerializeToString()
+            n += self._add(self.m.TOPIC_SCENE, frame.scene_pb, ns)
+        return n, frame
 
     def _report_drops(self, dropped: int) -> int:
         from controller.core.cycle_data import Event, Severity
