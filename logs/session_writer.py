@@ -210,6 +210,7 @@ class SessionWriter:
                                      "previous": os.path.basename(previous)})
         self.writer = w
         self.file_written = 0
+        self.pending = 0  # the last file's open chunk was closed with it
         if keyframe is not None:
             self._add(m.TOPIC_KEYFRAME, keyframe[0], keyframe[1])
             self.writer.flush()  # the keyframe in a chunk of its own: a file cut short still has it
