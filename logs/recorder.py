@@ -120,6 +120,11 @@ def session_metadata(cfg: Config, extra: dict[str, str] | None = None) -> dict[s
     }
 
 
+def _is_answer(reply: dict[str, Any]) -> bool:
+    """The writer's answer to SETUP or to the end, as opposed to a notice on the way."""
+    return bool({"ready", "error", "written"} & reply.keys())
+
+
 def file_limits(cfg: Config) -> FileLimits:
     """recording.max_file_size_mb, max_file_duration_s, keep_total_size_gb, min_free_space_mb in bytes and seconds."""
     r = cfg.recording
@@ -184,6 +189,7 @@ class SessionRecorder:
         self._keyframe_wanted = False
         self._file_start_mono_s: float | None = None  # the open file's first cycle (max_file_duration_s)
         self._writer_said = ""  # why the writer stopped, when it said so before stopping
+        self._answers: list[dict[str, Any]] = []  # answers read while looking for notices
 
     @classmethod
     def for_config(cls, cfg: Config, clock: Callable[[], float] = time.monotonic,
@@ -232,9 +238,13 @@ class SessionRecorder:
         self._send(pack_record((KEYFRAME, self.dropped, cycle, t, mono_s, seq, STATE_ENCODING, data, problem)), 1)
 
     def _poll_replies(self) -> None:
-        """The writer's notices, without waiting: a keyframe request, a new file, why it stopped."""
+        """The writer's notices, without waiting: a keyframe request, a new file, why it stopped
+        (an answer that arrives with them, its last, is kept for ``_read_reply``)."""
         for reply in self._take_replies(0.0):
-            self._note(reply)
+            if _is_answer(reply):
+                self._answers.append(reply)
+            else:
+                self._note(reply)
 
     def _note(self, reply: dict[str, Any]) -> None:
         if "keyframe" in reply:
@@ -443,10 +453,12 @@ class SessionRecorder:
         """The writer's next answer (ready, error or the final count), notices noted on the way."""
         proc = self._proc
         assert proc is not None
+        if self._answers:
+            return self._answers.pop(0)
         deadline = time.monotonic() + timeout_s
         while True:
             for reply in self._take_replies(max(0.0, deadline - time.monotonic())):
-                if {"ready", "error", "written"} & reply.keys():
+                if _is_answer(reply):
                     return reply
                 self._note(reply)
             if self._reply_fd < 0 or time.monotonic() >= deadline:

@@ -276,7 +276,7 @@ class SessionWriter:
                                             set(self.files)):
             self.deleted.append(path)
             self._event("recording_deleted", f"{os.path.basename(path)} ({size / 1e6:.1f} MB) deleted: the "
-                        f"recordings exceeded recording.keep_total_size_gb = {self.limits.keep_total_bytes / 1e9:g}")
+                        f"recordings exceeded recording.keep_total_size_gb = {self.limits.keep_total_bytes / 1e9:.10g}")
 
     def maybe_flush(self) -> None:
         if self.error or not self.pending:
@@ -300,7 +300,7 @@ class SessionWriter:
         if free is None or free >= self.limits.min_free_bytes:
             return
         self.stopped = (f"free space on the file system of {self.path} is {free / 1e6:.0f} MB, below "
-                        f"recording.min_free_space_mb = {self.limits.min_free_bytes / 1e6:g}: recording stopped")
+                        f"recording.min_free_space_mb = {self.limits.min_free_bytes / 1e6:.10g}: recording stopped")
         self._event("recording_stopped", self.stopped, warning=True)
         print(f"recording stopped: {self.stopped}", file=sys.stderr, flush=True)
         self.notify(stopped=self.stopped)

@@ -215,6 +215,7 @@ def test_below_the_free_space_limit_the_recording_stops_cleanly_and_says_why(tmp
     _, _, _, _, _, rec = record_session(path, chunk_size_bytes=1024, on_failure=failures.append,
                                             limits=FileLimits(min_free_bytes=1 << 62))
     assert "below recording.min_free_space_mb" in rec.error
+    assert rec.written == read_info(path).messages > 0  # the writer's last answer reached the recorder
     assert failures in ([], [rec.error])  # called when the loop wrote after the writer stopped
     info = read_info(path)
     assert info.complete and not info.problems  # closed cleanly while it could be
