@@ -177,6 +177,7 @@ def _verify(args: argparse.Namespace) -> int:
         print(json.dumps({"ok": result.ok, "cycles_checked": result.cycles_checked,
                           "cycles_recorded": result.cycles_recorded, "problems": result.problems,
                           "files": [str(p) for p in result.files], "started_from": result.started_from,
+                          "continues_in": result.continues_in,
                           "divergence": None if d is None else {"cycle": d.cycle, "t_s": d.t_s, "field": d.field,
                                                                 "recorded": d.recorded, "recomputed": d.recomputed}}))
     else:

@@ -68,6 +68,7 @@ class VerifyResult:
     first_cycle: int | None = None
     last_cycle: int | None = None  # the last cycle reproduced
     resumed: list[str] = field(default_factory=list)  # keyframes the check started again from, after a gap
+    continues_in: str = ""  # the session's next file, when the last file given names one
 
     @property
     def ok(self) -> bool:
@@ -90,6 +91,8 @@ class VerifyResult:
         start = f" from {self.started_from}" if self.started_from else ""
         if self.resumed:
             start += f", again from {', '.join(self.resumed)}"
+        if self.continues_in:
+            start += f" (the session goes on in {self.continues_in})"
         if self.ok:
             return f"OK: {self.cycles_checked} cycle(s) reproduced bit for bit{where}{start}"
         if self.cycles_checked == self.cycles_recorded:
@@ -180,6 +183,8 @@ def verify(paths: str | Path | Sequence[str | Path], overrides: dict[str, Any] |
             run.count_rest(files[i + 1:])
             break
         run.state = run.next_seq = None  # the state is lost here: the next file starts from its keyframe
+    if result.report is not None and result.divergence is None:
+        result.continues_in = result.report.metadata.get(m.META_RECORDING, {}).get("next", "")
     return result
 
 

@@ -46,6 +46,7 @@ def test_a_session_split_in_files_verifies_file_by_file_and_as_a_whole(tmp_path,
         assert r.ok, (f.name, r.summary())
         # the first from the law's initial state, every other one from its own keyframe
         assert (r.started_from == "") == (k == 0) and (k == 0 or f.name in r.started_from)
+        assert r.continues_in == (files[k + 1].name if k + 1 < len(files) else "")
     assert sum(r.cycles_checked for r in alone) == stats.cycles
     # the whole session, in any order given: across the boundaries, each keyframe checked
     shuffled = random.Random(1).sample(files, len(files))
