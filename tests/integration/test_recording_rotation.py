@@ -276,3 +276,18 @@ def test_an_older_file_with_a_message_per_frame_reads_as_the_packed_format_does(
     assert len(frames) == 206 and all(d.log_time_ns == int(d.message.monotonic_s * 1e9) + offset for d in frames)
     assert content(new) == content(old)
     assert read_info(new).size_bytes < read_info(old).size_bytes
+
+
+def test_a_keyframe_request_already_answered_does_not_split_the_file_twice(tmp_path):
+    """Both limits at once: the duration's keyframe went out while the writer asked for the same
+    file because of the size; the stale request must not start a nearly empty file after it."""
+    from logs.recorder import SessionRecorder
+
+    rec = SessionRecorder(tmp_path / "s.mcap", {})
+    rec._note({"keyframe": 2})
+    assert rec._keyframe_wanted
+    rec._keyframe_wanted, rec._keyframes_sent = False, 1  # the keyframe for file 2 went out
+    rec._note({"keyframe": 2})
+    assert not rec._keyframe_wanted
+    rec._note({"keyframe": 3})
+    assert rec._keyframe_wanted
