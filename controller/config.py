@@ -215,11 +215,22 @@ class RecordingSection(Section, frozen=True):
     enabled: bool = True
     directory: str = ""  # "" = $XDG_DATA_HOME/cheope/sessions (~/.local/share/cheope/sessions)
     buffer_bytes: Annotated[int, rng(4096, 1 << 30)] = 4 << 20  # loop -> writer process; full: dropped
-    chunk_size_bytes: Annotated[int, rng(1024, 64 * 1024 * 1024)] = 65536  # uncompressed
+    # uncompressed; at 400 Hz flush_interval_s closes it first: larger chunks compress better (6 %)
+    chunk_size_bytes: Annotated[int, rng(1024, 64 * 1024 * 1024)] = 262144
     flush_interval_s: Annotated[float, rng(0.01, 60.0)] = 0.5  # close a chunk at least this often
-    # the writer process gone (killed, disk full, file size limit): "stop" ends the run through
-    # STOPPING (a session that must be recorded is not worth running blind), "warn" runs on unrecorded
+    # the writer process gone (killed, disk full, file size limit) or the free-space guard below:
+    # "stop" ends the run through STOPPING (a session that must be recorded is not worth running
+    # blind; a controlled stop, not a FAULT: the machine is sound), "warn" stops only the recording
     on_failure: Literal["stop", "warn"] = "stop"
+    # A long-lived service (logs/session_writer.py): the session goes on in a new file, which
+    # starts with a keyframe of the controller's state, past either limit (0: no limit) ...
+    max_file_size_mb: Annotated[float, rng(0.0, 1e7)] = 256.0  # [MB]: half an hour of the default session
+    max_file_duration_s: Annotated[float, rng(0.0, 1e7)] = 3600.0  # [s]
+    # ... the oldest recordings of the directory are deleted past this total, never an open file (0: keep all)
+    keep_total_size_gb: Annotated[float, rng(0.0, 1e6)] = 20.0  # [GB]: about 40 h of the default session
+    # below this much free space [MB] on the directory's file system the recording stops (on_failure),
+    # leaving room to close the file and for the rest of the system
+    min_free_space_mb: Annotated[float, rng(0.0, 1e7)] = 1024.0
     # the robot in 3D (/scene, live views): moving parts drawn at this rate [Hz], by the writer process
     scene_rate_hz: Annotated[float, rng(0.1, 1000.0)] = 20.0
     # live views, fed by the writer process (logs/live_views.py); they need the recording enabled
@@ -310,8 +321,24 @@ def _check_live_views(r: RecordingSection) -> None:
                               "0..65535 (0: a free port)")
 
 
+def _check_rotation(r: RecordingSection) -> None:
+    """A file limit below a chunk would rotate on every chunk; retention below a file would delete the open one's peers."""
+    if 0 < r.max_file_size_mb * 1e6 < 4 * r.chunk_size_bytes:
+        raise ConfigError(f"recording.max_file_size_mb = {r.max_file_size_mb:g}: must be 0 (no limit) or at least "
+                          f"four chunks (recording.chunk_size_bytes = {r.chunk_size_bytes}): "
+                          f"{4 * r.chunk_size_bytes / 1e6:g} MB")
+    if 0 < r.max_file_duration_s < 2 * r.flush_interval_s:
+        raise ConfigError(f"recording.max_file_duration_s = {r.max_file_duration_s:g}: must be 0 (no limit) or at least "
+                          f"two flush intervals (recording.flush_interval_s = {r.flush_interval_s:g}): "
+                          f"{2 * r.flush_interval_s:g} s")
+    if r.keep_total_size_gb and r.max_file_size_mb and r.keep_total_size_gb * 1e3 < 2 * r.max_file_size_mb:
+        raise ConfigError(f"recording.keep_total_size_gb = {r.keep_total_size_gb:g}: must be 0 (keep all) or hold at "
+                          f"least two files of recording.max_file_size_mb = {r.max_file_size_mb:g} MB")
+
+
 def _cross_checks(cfg: Config) -> None:
     _check_live_views(cfg.recording)
+    _check_rotation(cfg.recording)
     ids = list(cfg.actuators.node_ids) + ([cfg.sensor.node_id] if cfg.sensor.enabled else []) + [
         cfg.loop.controller_node_id] + ([cfg.tracker.node_id] if cfg.tracker.enabled else [])
     for i in cfg.actuators.node_ids:

@@ -1,7 +1,9 @@
 """Bodies of ``cheope logs info|recover`` and ``cheope replay``; ``add_commands`` wires them in.
 
-Errors end as one line on stderr with exit code 2; ``--verify`` exits 1 on a divergence, ``logs
-info`` on a damaged file and ``logs recover`` when it recovered nothing exit 1.
+Errors end as one line on stderr with exit code 2; ``--verify`` exits 1 on a divergence and 3 when
+it could check only part of the recording (truncated, damaged, cycles dropped, a file without its
+keyframe), saying how much; ``logs info`` on a damaged file and ``logs recover`` when it recovered
+nothing exit 1.
 """
 
 from __future__ import annotations
@@ -18,7 +20,8 @@ from typing import TypeVar
 # The caller's parser class (cheope's own ArgumentParser subclass): _SubParsersAction is invariant in it.
 ParserT = TypeVar("ParserT", bound=argparse.ArgumentParser)
 
-LARGE_FILE_BYTES = 4 * 1024 * 1024  # a progress bar above this size (on a terminal)
+LARGE_FILE_BYTES = 4 * 1024 * 1024
+VERIFY_INCOMPLETE = 3  # --verify: no divergence, but part of the recording could not be checked  # a progress bar above this size (on a terminal)
 
 
 def add_commands(sub: argparse._SubParsersAction[ParserT],
@@ -33,19 +36,25 @@ def add_commands(sub: argparse._SubParsersAction[ParserT],
                    help="read every chunk, check its CRC and count the recorded CAN traffic (default: the summary at the end of a finished "
                         "file; a file without one is always read whole)")
     q.set_defaults(func=cmd_logs_info)
+    q = logs_sub.add_parser("list", help="the sessions in a directory and their files (a long session is split)")
+    q.add_argument("directory", nargs="?", default="",
+                   help="default: $XDG_DATA_HOME/cheope/sessions, where recording.directory = \"\" records")
+    q.add_argument("--json", action="store_true", help="print one JSON object")
+    q.set_defaults(func=cmd_logs_list)
     q = logs_sub.add_parser("recover", help="write a complete, indexed file from a truncated or damaged one")
     q.add_argument("file")
     q.add_argument("-o", "--output", help="output file (default: FILE.recovered.mcap beside it)")
     q.set_defaults(func=cmd_logs_recover)
 
     p = sub.add_parser("replay", help="replay a recording: to Rerun, onto a CAN bus, or through the step (--verify)")
-    p.add_argument("file")
+    p.add_argument("file", nargs="+", help="the recording; --verify: one file, or several files of one session")
     what = p.add_mutually_exclusive_group(required=True)
     what.add_argument("--rerun", nargs="?", const="", metavar="OUT.rrd",
                       help="convert to Rerun; without OUT spawn the viewer (or write FILE.rrd when none can start)")
     what.add_argument("--bus", metavar="INTERFACE[:CHANNEL]", help="send the recorded frames with their timing")
     what.add_argument("--verify", action="store_true",
-                      help="run the recorded inputs through the step and compare the outputs bit for bit")
+                      help="run the recorded inputs through the step and compare the outputs bit for bit "
+                           "(exit 1: a divergence, 3: only part of the recording could be checked)")
     p.add_argument("--speed", type=float, default=1.0, help="--bus: time scale (2 = twice as fast)")
     p.add_argument("--udp-port", type=int, help="--bus: UDP port of the udp_multicast bus")
     p.add_argument("--fd", action="store_true", help="--bus: open the bus for CAN FD")
@@ -122,9 +131,29 @@ def cmd_logs_recover(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_logs_list(args: argparse.Namespace) -> int:
+    from logs.reader import LogFileError
+    from logs.session_list import format_sessions, list_sessions
+
+    try:
+        sessions = list_sessions(args.directory)
+    except LogFileError as err:
+        return _fail(args, err)
+    if args.json:
+        print(json.dumps({"directory": str(sessions.directory), "sessions": [x.as_dict() for x in sessions.sessions]}))
+    else:
+        print(format_sessions(sessions))
+    return 0
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from logs.reader import LogFileError
 
+    if not args.verify and len(args.file) > 1:
+        print(f"cheope {args.command}: error: --rerun and --bus take one file, got {len(args.file)}", file=sys.stderr)
+        return 2
+    if not args.verify:
+        args.file = args.file[0]
     try:
         if args.verify:
             return _verify(args)
@@ -140,17 +169,22 @@ def _verify(args: argparse.Namespace) -> int:
     from logs.replay_verify import verify
 
     overrides = dict(parse_override(s) for s in args.set)
-    path = Path(args.file)
-    with _progress(path, "verifying") as progress:
-        result = verify(path, overrides, progress)
+    paths = [Path(f) for f in args.file]
+    with _progress(paths[0], "verifying") as progress:
+        result = verify(paths, overrides, progress)
     if args.json:
         d = result.divergence
-        print(json.dumps({"ok": result.ok, "cycles_checked": result.cycles_checked, "problems": result.problems,
+        print(json.dumps({"ok": result.ok, "cycles_checked": result.cycles_checked,
+                          "cycles_recorded": result.cycles_recorded, "problems": result.problems,
+                          "files": [str(p) for p in result.files], "started_from": result.started_from,
+                          "continues_in": result.continues_in,
                           "divergence": None if d is None else {"cycle": d.cycle, "t_s": d.t_s, "field": d.field,
                                                                 "recorded": d.recorded, "recomputed": d.recomputed}}))
     else:
         print(result.summary())
-    return 0 if result.ok else 1
+    if result.ok:
+        return 0
+    return 1 if result.divergence is not None else VERIFY_INCOMPLETE
 
 
 def _bus(args: argparse.Namespace) -> int:

@@ -4,7 +4,7 @@ The recording's channels (all Protobuf, schemas embedded):
 
 | topic | schema | what |
 | --- | --- | --- |
-| ``/can`` | ``cheope.v1.CanFrame`` | every frame in and out, with its send/receive time |
+| ``/can`` | ``cheope.v1.CanFrameBatch`` | every frame in and out, with its send/receive time: one message per cycle |
 | ``/cycle`` | ``cheope.v1.Cycle`` | per cycle: the step's inputs, outputs, state sample and timing |
 | ``/events`` | ``cheope.v1.Event`` | the step's events, and the recorder's own drop reports |
 | ``/log`` | ``foxglove.Log`` | the same events as log lines, for viewers |
@@ -17,13 +17,20 @@ plus the offset between the wall clock and the monotonic clock taken when the re
 started (``cheope.session`` metadata, ``clock_offset_ns``). The ``/cycle`` messages carry the
 on_cycle call index as their MCAP ``sequence``: a gap in it is a cycle the recorder dropped,
 not one the loop skipped (skipped cycles show as gaps in ``Cycle.cycle`` only).
+
+``/can`` holds the frames that came before each cycle in one ``CanFrameBatch`` (packed, see
+``pack_frames``); files written before it hold one ``cheope.v1.CanFrame`` per frame.
+``logs.reader.iter_decoded`` gives both back as one ``CanFrame`` per frame, with the log time
+each frame had in the older files. A rotated file starts with ``/keyframe``
+(``cheope.v1.Keyframe``: the controller's state, logs/keyframe.py).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Protocol
 
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
@@ -56,6 +63,7 @@ TOPIC_LOG = "/log"
 TOPIC_TCP = "/tcp"
 TOPIC_TCP_REFERENCE = "/tcp_reference"
 TOPIC_SCENE = "/scene"
+TOPIC_KEYFRAME = "/keyframe"
 
 BASE_FRAME = "base"
 TCP_FRAME = "tcp"
@@ -65,6 +73,8 @@ META_GEOMETRY = "cheope.geometry"  # {"robot_kind", "json": the [robot] section 
 META_VERSIONS = "cheope.versions"  # {"package": "version", ...}
 META_SESSION = "cheope.session"  # {"started_utc", "clock_offset_ns", "period_s", ...}
 META_RECORDING = "cheope.recording"  # written at close: {"dropped", "written", "complete"}
+# the files of one session: {"session_id", "sequence" (1, 2, ...), "previous" (file name), "next" (at close)}
+META_FILE = "cheope.file"
 
 _DOUBLE = struct.Struct("<d")
 _LOG_LEVEL = {Severity.INFO: Log.Level.INFO, Severity.WARNING: Log.Level.WARNING, Severity.FAULT: Log.Level.ERROR}
@@ -95,6 +105,82 @@ def can_frame(monotonic_s: float, outgoing: bool, arbitration_id: int, data: byt
               bitrate_switch: bool, is_error_frame: bool) -> pb.CanFrame:
     return pb.CanFrame(monotonic_s=monotonic_s, outgoing=outgoing, arbitration_id=arbitration_id, data=data,
                        is_fd=is_fd, bitrate_switch=bitrate_switch, is_error_frame=is_error_frame)
+
+
+# CanFrameBatch.frames, little-endian, by column (each compresses better among its likes): the
+# time encoding (uint8) and the count n (uint32), n times, n arbitration ids (uint32), n flags
+# (uint8: 1 outgoing, 2 FD, 4 bitrate switch, 8 error frame), n data lengths (uint8), the data.
+# The times: TIMES_NS (uint64): the first frame's integer nanoseconds, then each one's difference
+# from the one before (small numbers, mostly zero bytes), when every double monotonic_s is its
+# nanoseconds / 1e9, as time.monotonic() makes them; else TIMES_BITS: each double's bits XOR the
+# previous one's. Either way every double comes back bit for bit.
+_HEAD = struct.Struct("<BI")
+TIMES_NS, TIMES_BITS = 1, 2
+_OUTGOING, _FD, _BRS, _ERROR = 1, 2, 4, 8
+_U64 = (1 << 64) - 1
+_NS_LIMIT = 1 << 62  # nanoseconds whose differences stay within int64 (146 years)
+
+FrameTuple = tuple[bool, float, int, bytes, bool, bool, bool]  # (outgoing, monotonic_s, id, data, fd, brs, error)
+
+
+def _time_column(times: list[float]) -> tuple[int, list[int]]:
+    try:
+        ns = [round(t * 1e9) for t in times]
+    except (ValueError, OverflowError):  # nan, inf
+        ns = []
+    if ns and all(abs(k) < _NS_LIMIT and k / 1e9 == t and (k or math.copysign(1.0, t) > 0)  # -0.0: bits
+                  for k, t in zip(ns, times)):
+        return TIMES_NS, [(b - a) & _U64 for a, b in zip((0, *ns), ns)]
+    bits = struct.unpack(f"<{len(times)}Q", struct.pack(f"<{len(times)}d", *times))
+    return TIMES_BITS, [b ^ a for a, b in zip((0, *bits), bits)]
+
+
+def _times(encoding: int, column: tuple[int, ...]) -> tuple[float, ...]:
+    acc, out = 0, []
+    for x in column:
+        acc = (acc + x) & _U64 if encoding == TIMES_NS else acc ^ x
+        out.append(acc)
+    if encoding == TIMES_NS:
+        return tuple((k - (1 << 64) if k >> 63 else k) / 1e9 for k in out)
+    if encoding == TIMES_BITS:
+        return struct.unpack(f"<{len(out)}d", struct.pack(f"<{len(out)}Q", *out))
+    raise ValueError(f"a CAN frame batch with an unknown time encoding {encoding}")
+
+
+def pack_frames(frames: list[FrameTuple]) -> bytes:
+    """``frames`` as ``CanFrameBatch.frames`` (see above): exact, every double bit for bit."""
+    n = len(frames)
+    encoding, times = _time_column([f[1] for f in frames])
+    flags = [outgoing | fd << 1 | brs << 2 | err << 3 for outgoing, _, _, _, fd, brs, err in frames]
+    return b"".join((struct.pack(f"<BI{n}Q{n}I{n}B{n}B", encoding, n, *times, *[f[2] for f in frames], *flags,
+                                 *[len(f[3]) for f in frames]), *[f[3] for f in frames]))
+
+
+def unpack_frames(packed: bytes) -> Iterator[pb.CanFrame]:
+    """The frames of ``CanFrameBatch.frames``, each as the ``CanFrame`` an older file held;
+    ``ValueError`` when the bytes do not hold what their count says."""
+    if len(packed) < _HEAD.size:
+        raise ValueError(f"a CAN frame batch of {len(packed)} bytes has no frame count")
+    encoding, n = _HEAD.unpack_from(packed)
+    columns = struct.Struct(f"<{n}Q{n}I{n}B{n}B")
+    if _HEAD.size + columns.size > len(packed):
+        raise ValueError(f"a CAN frame batch of {len(packed)} bytes is too short for its {n} frames")
+    cols = columns.unpack_from(packed, _HEAD.size)
+    ids, flags, lengths = cols[n:2 * n], cols[2 * n:3 * n], cols[3 * n:]
+    times = _times(encoding, cols[:n])
+    pos = _HEAD.size + columns.size
+    if pos + sum(lengths) != len(packed):
+        raise ValueError(f"a CAN frame batch holds {len(packed) - pos} data bytes, its frames {sum(lengths)}")
+    for t, arb, f, length in zip(times, ids, flags, lengths):
+        yield pb.CanFrame(monotonic_s=t, outgoing=bool(f & _OUTGOING), arbitration_id=arb,
+                          data=packed[pos:pos + length], is_fd=bool(f & _FD), bitrate_switch=bool(f & _BRS),
+                          is_error_frame=bool(f & _ERROR))
+        pos += length
+
+
+def frame_log_time_ns(monotonic_s: float, offset_ns: int) -> int:
+    """A frame's MCAP log time: its monotonic time on the wall clock (``clock_offset_ns``)."""
+    return int(monotonic_s * 1e9) + offset_ns
 
 
 def inputs_to_pb(inputs: CycleInputs, out: pb.CycleInputs) -> None:

@@ -42,6 +42,7 @@ from mcap.stream_reader import breakup_chunk
 
 from controller.errors import InputError
 from controller.messages import cheope_pb2 as pb
+from logs.messages import unpack_frames
 
 MAGIC = b"\x89MCAP0\r\n"
 _HEAD = struct.Struct("<BQ")
@@ -51,7 +52,9 @@ _KNOWN_OPCODES = {int(o) for o in Opcode}
 _CLASSES: dict[str, Any] = {
     "cheope.v1.CanFrame": pb.CanFrame, "cheope.v1.Cycle": pb.Cycle, "cheope.v1.Event": pb.Event,
     "foxglove.Log": Log, "foxglove.FrameTransform": FrameTransform, "foxglove.PoseInFrame": PoseInFrame,
+    "cheope.v1.CanFrameBatch": pb.CanFrameBatch, "cheope.v1.Keyframe": pb.Keyframe,
 }
+_BATCH_SCHEMA = "cheope.v1.CanFrameBatch"
 
 
 class LogFileError(InputError):
@@ -79,6 +82,7 @@ class ReadReport:
     orphan_messages: int = 0  # messages whose channel record was lost
     first_log_time_ns: int | None = None
     last_log_time_ns: int | None = None
+    chunks_checked: bool = True  # False: answered from the summary, no chunk read (logs info without --check)
 
     @property
     def messages(self) -> int:
@@ -96,7 +100,8 @@ class ReadReport:
 
     def status(self) -> str:
         if not self.problems:
-            return "complete"
+            return ("complete" if self.chunks_checked else
+                    "complete by its summary; chunks not checked (--check reads and checks every one)")
         return "; ".join(self.problems)
 
 
@@ -286,9 +291,26 @@ def iter_decoded(path: str | Path, topics: Iterable[str] | None = None, report: 
         except Exception:  # noqa: BLE001 - a damaged message inside an intact chunk: count, go on
             bad[ch.topic] += 1
             continue
+        if isinstance(value, pb.CanFrameBatch):
+            try:
+                yield from _batch_frames(ch.topic, msg, value)
+            except ValueError:
+                bad[ch.topic] += 1
+            continue
         yield Decoded(ch.topic, msg.log_time, msg.sequence, value)
     for topic, k in bad.items():
         report.problems.append(f"{k} message(s) on {topic} could not be decoded")
+
+
+def _batch_frames(topic: str, msg: Message, batch: Any) -> Iterator[Decoded]:
+    """One ``Decoded`` ``CanFrame`` per frame of a ``CanFrameBatch``, with the log time each frame
+    had as a message of its own (the batch's is its first frame's)."""
+    offset_ns: int | None = None
+    for frame in unpack_frames(batch.frames):
+        ns = int(frame.monotonic_s * 1e9)
+        if offset_ns is None:
+            offset_ns = msg.log_time - ns
+        yield Decoded(topic, ns + offset_ns, 0, frame)
 
 
 def read_info(path: str | Path) -> ReadReport:
@@ -296,6 +318,39 @@ def read_info(path: str | Path) -> ReadReport:
     report = ReadReport(Path(path))
     for _ in iter_messages(path, report):
         pass
+    return report
+
+
+def read_head(path: str | Path) -> ReadReport:
+    """The header and the metadata written before the first chunk (the session's configuration and
+    ``cheope.file``): a few records from the start, for any file, finished, open or cut short."""
+    p = Path(path)
+    report = ReadReport(p)
+    try:
+        with open(p, "rb") as fh:
+            report.size_bytes = os.fstat(fh.fileno()).st_size
+            if fh.read(8) != MAGIC:
+                raise LogFileError(f"{p} is not an MCAP file (it does not start with the MCAP magic bytes)")
+            while True:
+                head = fh.read(9)
+                if len(head) < 9:
+                    break
+                opcode, length = _HEAD.unpack(head)
+                if opcode not in (Opcode.HEADER, Opcode.METADATA, Opcode.SCHEMA, Opcode.CHANNEL) or length > 1 << 26:
+                    break  # the first chunk (or damage): the head ends here
+                body = fh.read(length)
+                if len(body) < length:
+                    break
+                try:
+                    record = _parse(opcode, body)
+                except Exception:  # noqa: BLE001 - a damaged head: what was read so far is the answer
+                    break
+                if isinstance(record, Header):
+                    report.profile, report.library = record.profile, record.library
+                elif isinstance(record, Metadata):
+                    report.metadata[record.name] = dict(record.metadata)
+    except OSError as err:
+        raise LogFileError(f"cannot read {p}: {err.strerror or err}") from err
     return report
 
 
@@ -338,6 +393,7 @@ def read_info_from_summary(path: str | Path) -> ReadReport | None:
     report.size_bytes = size
     report.profile, report.library = header.profile, header.library
     report.complete = True
+    report.chunks_checked = False
     report.chunks = len(summary.chunk_indexes)
     report.end_offset = size
     report.schemas = dict(summary.schemas)
@@ -374,6 +430,7 @@ def format_info(r: ReadReport) -> str:
 def info_dict(r: ReadReport) -> dict[str, Any]:
     return {
         "path": str(r.path), "size_bytes": r.size_bytes, "complete": r.complete, "problems": list(r.problems),
+        "chunks_checked": r.chunks_checked,
         "duration_s": r.duration_s, "messages": r.messages, "chunks": r.chunks, "damaged_chunks": r.damaged_chunks,
         "channels": {ch.topic: {"count": r.message_counts.get(ch.topic, 0),
                                 "schema": r.schemas[ch.schema_id].name if ch.schema_id in r.schemas else None,

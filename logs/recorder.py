@@ -35,6 +35,7 @@ import select
 import subprocess
 import sys
 import time
+import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import metadata as _importlib_metadata
@@ -46,17 +47,21 @@ import can
 from controller.config import Config, config_to_dict
 from controller.errors import DeviceError
 from logs import messages as m
-from logs.session_writer import CYCLE, END, FRAMES, SETUP, FrameRecord, pack_record
+from logs.keyframe import ENCODING as STATE_ENCODING
+from logs.keyframe import KeyframeError, encode_state
+from logs.session_writer import CYCLE, END, FRAMES, KEYFRAME, SETUP, FileLimits, FrameRecord, pack_record
 
 log = logging.getLogger(__name__)
 
 DEFAULT_BUFFER_BYTES = 4 << 20  # about 4 s of a 1 kHz session in the backlog, as much again in the pipe
-DEFAULT_CHUNK_SIZE_BYTES = 64 * 1024
+DEFAULT_CHUNK_SIZE_BYTES = 256 * 1024  # at 400 Hz flush_interval_s closes the chunk first (about 120 kB)
 DEFAULT_FLUSH_INTERVAL_S = 0.5
 # The wait ends on the writer's reply; the bound is for an emulated CPU (the vcan VM), where the
 # writer's imports (the scene drawing, the schemas) took longer than 20 s.
 WRITER_START_TIMEOUT_S = 120.0
 WRITER_FINISH_TIMEOUT_S = 120.0
+NO_FILE_LIMITS = FileLimits()  # one file, however long; no retention, no free-space guard
+REPLY_POLL_CYCLES = 16  # the writer's notices are looked at every this many cycles (a select, no wait)
 _MAX_FRAMES_PER_RECORD = 256  # frames with no cycle after them (node set-up, shutdown) go out in batches
 _REPO = str(Path(__file__).resolve().parents[1])  # the writer process imports the same code as this one
 
@@ -115,6 +120,18 @@ def session_metadata(cfg: Config, extra: dict[str, str] | None = None) -> dict[s
     }
 
 
+def _is_answer(reply: dict[str, Any]) -> bool:
+    """The writer's answer to SETUP or to the end, as opposed to a notice on the way."""
+    return bool({"ready", "error", "written"} & reply.keys())
+
+
+def file_limits(cfg: Config) -> FileLimits:
+    """recording.max_file_size_mb, max_file_duration_s, keep_total_size_gb, min_free_space_mb in bytes and seconds."""
+    r = cfg.recording
+    return FileLimits(int(r.max_file_size_mb * 1e6), r.max_file_duration_s, int(r.keep_total_size_gb * 1e9),
+                      int(r.min_free_space_mb * 1e6))
+
+
 @dataclass(frozen=True)
 class RecorderCounters:
     queued: int  # items handed over by the loop thread
@@ -131,7 +148,8 @@ class SessionRecorder:
                  buffer_bytes: int = DEFAULT_BUFFER_BYTES, chunk_size_bytes: int = DEFAULT_CHUNK_SIZE_BYTES,
                  flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S, clock: Callable[[], float] = time.monotonic,
                  phase_name: Callable[[object], str] | None = None, compression: str = "zstd",
-                 lossless: bool = False, on_failure: Callable[[str], None] | None = None) -> None:
+                 lossless: bool = False, on_failure: Callable[[str], None] | None = None,
+                 limits: FileLimits = NO_FILE_LIMITS) -> None:
         if buffer_bytes < 4096:
             raise ValueError(f"buffer_bytes = {buffer_bytes}: must be >= 4096")
         if chunk_size_bytes < 1024:
@@ -147,6 +165,10 @@ class SessionRecorder:
         self.phase_name = phase_name
         self.compression = compression
         self.lossless = lossless
+        self.limits = limits
+        self.session_id = uuid.uuid4().hex  # in every file's cheope.file metadata: the files of one session
+        self.files: list[Path] = [self.path]  # the session's files so far (rotation adds to it)
+        self.deleted: list[Path] = []  # recordings the retention deleted (known at close)
         self.queued = 0
         self.dropped = 0
         self.written = 0  # known when the writer has finished (close)
@@ -161,6 +183,14 @@ class SessionRecorder:
         self._backlog = bytearray()
         self._proc: subprocess.Popen[bytes] | None = None
         self._fd = -1
+        self._reply_fd = -1  # the writer's standard output: JSON lines
+        self._replies = bytearray()
+        self._poll_countdown = 0
+        self._keyframe_wanted = False
+        self._keyframes_sent = 0  # file 1 + this is the file the last keyframe starts
+        self._file_start_mono_s: float | None = None  # the open file's first cycle (max_file_duration_s)
+        self._writer_said = ""  # why the writer stopped, when it said so before stopping
+        self._answers: list[dict[str, Any]] = []  # answers read while looking for notices
 
     @classmethod
     def for_config(cls, cfg: Config, clock: Callable[[], float] = time.monotonic,
@@ -172,7 +202,7 @@ class SessionRecorder:
         stream.close()
         return cls(path, session_metadata(cfg, extra_metadata), buffer_bytes=r.buffer_bytes,
                    chunk_size_bytes=r.chunk_size_bytes, flush_interval_s=r.flush_interval_s, clock=clock,
-                   phase_name=phase_name)
+                   phase_name=phase_name, limits=file_limits(cfg))
 
     # -- the loop thread's side: hand over, never wait ----------------------------------------
 
@@ -184,8 +214,53 @@ class SessionRecorder:
         frames = self._frames
         self._frames = []
         body = m.cycle_to_pb(cycle, t, inputs, state, outputs, timing, self.phase_name).SerializeToString()
-        self._send(pack_record((CYCLE, self.dropped, frames, cycle, t, self.clock(), seq, body, events,
+        mono_s = self.clock()
+        self._send(pack_record((CYCLE, self.dropped, frames, cycle, t, mono_s, seq, body, events,
                                 state.tcp_measured_m, state.tcp_reference_m)), 1 + len(frames))
+        self._poll_countdown -= 1
+        if self._poll_countdown <= 0:
+            self._poll_countdown = REPLY_POLL_CYCLES
+            self._poll_replies()
+        if self._file_start_mono_s is None:
+            self._file_start_mono_s = mono_s
+        elif self.limits.max_file_duration_s and mono_s - self._file_start_mono_s >= self.limits.max_file_duration_s:
+            self._keyframe_wanted = True  # by the controller's clock: simulated time rotates as a real one
+        if self._keyframe_wanted:
+            self._keyframe_wanted = False
+            self._file_start_mono_s = mono_s
+            self._send_keyframe(cycle, t, mono_s, seq, state)
+
+    def _send_keyframe(self, cycle: int, t: float, mono_s: float, seq: int, state: Any) -> None:
+        """The state after this cycle, for the writer's next file (about 70 µs for the contour task's
+        state, once a file)."""
+        try:
+            data, problem = encode_state(state), ""
+        except KeyframeError as err:
+            data, problem = b"", str(err)
+        dropped = self.dropped
+        self._send(pack_record((KEYFRAME, self.dropped, cycle, t, mono_s, seq, STATE_ENCODING, data, problem)), 1)
+        if self.dropped == dropped:  # a dropped one is asked for again by the writer, and sent then
+            self._keyframes_sent += 1
+
+    def _poll_replies(self) -> None:
+        """The writer's notices, without waiting: a keyframe request, a new file, why it stopped
+        (an answer that arrives with them, its last, is kept for ``_read_reply``)."""
+        for reply in self._take_replies(0.0):
+            if _is_answer(reply):
+                self._answers.append(reply)
+            else:
+                self._note(reply)
+
+    def _note(self, reply: dict[str, Any]) -> None:
+        # {"keyframe": n}: the writer wants to start file n; a keyframe already sent for it (the
+        # duration limit came first, or an answer to an earlier request) is not sent twice
+        if "keyframe" in reply and int(reply["keyframe"]) > 1 + self._keyframes_sent:
+            self._keyframe_wanted = True
+        if "file" in reply:
+            self.files.append(Path(reply["file"]))
+            log.info("recording continues in %s", reply["file"])
+        if "stopped" in reply:
+            self._writer_said = str(reply["stopped"])
 
     def on_frame(self, outgoing: bool, monotonic_s: float, msg: can.Message) -> None:
         """``FrameSink``: copies the frame now (the exchange rewrites its outgoing messages)."""
@@ -266,7 +341,10 @@ class SessionRecorder:
 
     def _writer_gone(self, err: OSError | TimeoutError) -> None:
         first = not self.error
-        self.error = self.error or f"the writer process of {self.path} stopped reading: {err.strerror or err}"
+        if first:
+            self._poll_replies()  # a writer that stopped on purpose said why before it closed its input
+        self.error = self.error or self._writer_said or (
+            f"the writer process of {self.path} stopped reading: {err.strerror or err}")
         self._backlog.clear()
         self._fd = -1
         if first and self.on_failure is not None:
@@ -290,7 +368,7 @@ class SessionRecorder:
         offset_ns = time.time_ns() - int(self.clock() * 1e9)
         session = dict(self.metadata.get(m.META_SESSION, {}))
         session.update(started_utc=_dt.datetime.now(_dt.UTC).isoformat(timespec="microseconds"),
-                       clock_offset_ns=str(offset_ns), hostname=platform.node())
+                       clock_offset_ns=str(offset_ns), hostname=platform.node(), session_id=self.session_id)
         self.metadata[m.META_SESSION] = session
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (_REPO, os.environ.get("PYTHONPATH")) if p)}
         try:
@@ -308,10 +386,15 @@ class SessionRecorder:
                 fcntl.fcntl(self._fd, fcntl.F_SETPIPE_SZ, int(Path("/proc/sys/fs/pipe-max-size").read_text()))
             except (OSError, ValueError):
                 pass
+        assert proc.stdout is not None  # stdout=PIPE
+        self._reply_fd = proc.stdout.fileno()  # read with os.read only (never the buffered file object)
+        lim = self.limits
         self._write_all(pack_record((SETUP, {
             "path": str(self.path), "metadata": self.metadata, "clock_offset_ns": offset_ns,
             "chunk_size_bytes": self.chunk_size_bytes, "flush_interval_s": self.flush_interval_s,
-            "compression": self.compression})))
+            "compression": self.compression, "session_id": self.session_id,
+            "max_file_bytes": lim.max_file_bytes, "max_file_duration_s": lim.max_file_duration_s,
+            "keep_total_bytes": lim.keep_total_bytes, "min_free_bytes": lim.min_free_bytes})))
         reply = self._read_reply(WRITER_START_TIMEOUT_S)
         if "ready" not in reply:
             self._stop_process()
@@ -341,25 +424,54 @@ class SessionRecorder:
         self.written = int(reply.get("written", 0))
         self.chunks = int(reply.get("chunks", 0))
         self.error = self.error or str(reply.get("error") or "")
+        if "files" in reply:
+            self.files = [Path(p) for p in reply["files"]]
+        self.deleted = [Path(p) for p in reply.get("deleted", ())]
         self._stop_process()
         if self.error:
             log.warning("recording %s: %s", self.path, self.error)
 
+    def _take_replies(self, timeout_s: float) -> list[dict[str, Any]]:
+        """The writer's complete JSON lines within ``timeout_s`` (0: what has arrived); [] at its end."""
+        fd = self._reply_fd
+        if fd < 0:
+            return []
+        ready, _, _ = select.select([fd], [], [], timeout_s)
+        if ready:
+            try:
+                data = os.read(fd, 1 << 16)
+            except OSError:
+                data = b""
+            if not data:
+                self._reply_fd = -1  # the writer closed its output: it has exited
+            self._replies += data
+        out = []
+        while b"\n" in self._replies:
+            line, _, rest = bytes(self._replies).partition(b"\n")
+            self._replies[:] = rest
+            try:
+                reply = json.loads(line)
+            except ValueError:
+                reply = {"error": f"the recording's writer process said {line[:200]!r}"}
+            out.append(reply if isinstance(reply, dict) else {"error": f"the writer process said {line[:200]!r}"})
+        return out
+
     def _read_reply(self, timeout_s: float) -> dict[str, Any]:
-        """The writer's next JSON line, or an error naming why there is none."""
+        """The writer's next answer (ready, error or the final count), notices noted on the way."""
         proc = self._proc
-        assert proc is not None and proc.stdout is not None
-        ready, _, _ = select.select([proc.stdout], [], [], timeout_s)
-        line = proc.stdout.readline() if ready else b""
-        if not line:
-            status = proc.poll()
-            why = "timed out" if status is None else f"exited with status {status}"
-            return {"error": f"the recording's writer process {why} (see its message above)"}
-        try:
-            reply: dict[str, Any] = json.loads(line)  # the writer's replies are JSON objects
-            return reply
-        except ValueError:
-            return {"error": f"the recording's writer process said {line[:200]!r}"}
+        assert proc is not None
+        if self._answers:
+            return self._answers.pop(0)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            for reply in self._take_replies(max(0.0, deadline - time.monotonic())):
+                if _is_answer(reply):
+                    return reply
+                self._note(reply)
+            if self._reply_fd < 0 or time.monotonic() >= deadline:
+                status = proc.poll()
+                why = "timed out" if status is None else f"exited with status {status}"
+                return {"error": f"the recording's writer process {why} (see its message above)"}
 
     def _stop_process(self) -> None:
         proc = self._proc

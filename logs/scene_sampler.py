@@ -41,6 +41,7 @@ class SceneFrame:
     cycle: int
     moving: list[Primitive]
     message: Any = None  # the parsed cheope.v1.Cycle it was drawn from
+    scene_pb: bytes = b""  # its foxglove.SceneUpdate, once the writer has made it
 
 
 class SceneSampler:
@@ -66,6 +67,10 @@ class SceneSampler:
             return None
         self._fixed_sent = True
         return self.drawing.fixed()
+
+    def resend_fixed(self) -> None:
+        """The fixed parts again at the next ``fixed_once`` (a new file of the session draws them too)."""
+        self._fixed_sent = False
 
     def due(self, t_s: float) -> bool:
         return t_s >= self._next_t

@@ -12,12 +12,25 @@ little-endian length and a pickle of a tuple whose first item is the kind:
     (SETUP, settings dict)                                     first, once
     (CYCLE, dropped, frames, cycle, t, mono_s, seq, cycle_pb, events, tcp_measured, tcp_reference)
     (FRAMES, dropped, frames)                                  frames without a cycle after them
+    (KEYFRAME, dropped, cycle, t, mono_s, seq, encoding, state, problem)   asked for: see below
     (END, queued, dropped)                                     the recorder's close
 
 ``frames`` is a list of (outgoing, monotonic_s, arbitration_id, data, is_fd, brs, is_error),
 ``cycle_pb`` the serialised ``cheope.v1.Cycle`` and ``dropped`` the loop's running count of
 items it could not hand over. Writer -> loop, on standard output, JSON lines: ``{"ready": ...}``
-or ``{"error": ...}`` after SETUP, and ``{"written": n, "chunks": n, "error": ""}`` at the end.
+or ``{"error": ...}`` after SETUP, and ``{"written": n, "chunks": n, "error": "", "files": [...],
+"deleted": [...]}`` at the end; in between ``{"keyframe": n}``, ``{"file": path}`` and ``{"stopped": why}``.
+
+A long session is split into files (``recording.max_file_size_mb``, ``max_file_duration_s``).
+Past a limit the writer asks the controller for a keyframe (``{"keyframe": n}``); the recorder
+answers after its next cycle with the controller's state after that cycle (logs/keyframe.py),
+and the writer closes the file there and opens the next one (``NAME.002.mcap``, ...) with the
+same metadata, ``cheope.file`` (session id, sequence, previous file) and the keyframe first, so
+``cheope replay FILE --verify`` can start from any file. After each new file the oldest
+recordings of the directory are deleted past ``recording.keep_total_size_gb`` (never an open
+one), and after each chunk the free space is checked: below ``recording.min_free_space_mb`` the
+writer names the reason on /events and to the controller (``{"stopped": why}``), closes the file
+cleanly and its input, so the controller's next write fails and ``recording.on_failure`` decides.
 
 The writer ends at END or at the end of its input. A controller killed with SIGKILL closes the
 pipe, so the writer still writes the index and footer: the file is complete up to the last
@@ -29,23 +42,28 @@ file and exits. Only a killed writer leaves a truncated file (``cheope logs reco
 from __future__ import annotations
 
 import json
+import math
 import os
 import pickle
+import re
 import select
 import signal
 import struct
 import sys
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, BinaryIO, TextIO
 
 if TYPE_CHECKING:
     from controller.config import Config
     from controller.core.cycle_data import Event
     from controller.core.linalg3 import Vector3
-    from logs.scene_sampler import SceneSampler
+    from logs.scene_sampler import SceneFrame, SceneSampler
 
-SETUP, CYCLE, FRAMES, END = range(4)
+SETUP, CYCLE, FRAMES, END, KEYFRAME = range(5)
 _LENGTH = struct.Struct("<I")
+DEFAULT_VIEW_RATE_HZ = 20.0  # /tcp, /tcp_reference of a recording without a configuration
 _WRITER_CHUNK_LIMIT = 1 << 40  # chunks are closed by this module, never by mcap's own size rule
 
 Record = tuple[Any, ...]  # (kind, ...): the records listed in the module doc
@@ -109,73 +127,156 @@ class RecordReader:
 
 
 class SessionWriter:
-    """The MCAP side: channels, metadata, chunking; ``write(record)`` for each CYCLE/FRAMES record."""
+    """The MCAP side: channels, metadata, chunking; ``write(record)`` for each CYCLE/FRAMES/KEYFRAME record.
 
-    def __init__(self, settings: dict[str, Any]) -> None:
-        from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
-        from foxglove_schemas_protobuf.Log_pb2 import Log
-        from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
-        from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
-        from mcap.well_known import MessageEncoding
-        from mcap.writer import CompressionType, Writer
-        from mcap_protobuf.schema import register_schema
+    ``notify`` sends a JSON line to the controller (a keyframe request, a new file, a stop).
+    """
+
+    def __init__(self, settings: dict[str, Any], notify: Callable[..., None] | None = None) -> None:
+        from mcap.writer import CompressionType
 
         from controller.messages import cheope_pb2 as pb
         from logs import messages as m
 
         self.m = m
-        self.path = settings["path"]
+        self.pb = pb
+        self.settings = settings
+        self.notify = notify or (lambda **_: None)
+        self.first_path = self.path = str(settings["path"])
         self.offset_ns: int = settings["clock_offset_ns"]
         self.chunk_size_bytes: int = settings["chunk_size_bytes"]
         self.flush_interval_s: float = settings["flush_interval_s"]
+        self.limits = FileLimits.from_settings(settings)
+        self.session_id: str = settings.get("session_id", "")
+        self.compression = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
+                            "none": CompressionType.NONE}[settings["compression"]]
         self.written = 0
         self.chunks = 0
         self.error = ""
+        self.stopped = ""  # why the free-space guard stopped the recording (the file itself is sound)
         self.reported_drops = 0
         self.last_cycle: tuple[int, float] = (0, 0.0)
         self.last_mono_s = 0.0
         self.pending = 0  # bytes in the open chunk
         self.last_flush = time.monotonic()
-        compression = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
-                       "none": CompressionType.NONE}[settings["compression"]]
-        self.stream: BinaryIO = open(self.path, "wb")  # noqa: SIM115 - lives until finish() closes it
-        w = Writer(self.stream, chunk_size=_WRITER_CHUNK_LIMIT, compression=compression)
-        w.start(profile="", library="cheope logs.recorder")
-        self.channels: dict[str, int] = {}
-        for topic, cls in ((m.TOPIC_CAN, pb.CanFrame), (m.TOPIC_CYCLE, pb.Cycle), (m.TOPIC_EVENTS, pb.Event),
-                           (m.TOPIC_LOG, Log), (m.TOPIC_TCP, FrameTransform),
-                           (m.TOPIC_TCP_REFERENCE, PoseInFrame), (m.TOPIC_SCENE, SceneUpdate)):
-            sid = register_schema(w, cls)
-            self.channels[topic] = w.register_channel(topic=topic, message_encoding=MessageEncoding.Protobuf,
-                                                      schema_id=sid)
-        for name, data in settings["metadata"].items():
-            w.add_metadata(name, data)
-        self.stream.flush()  # the configuration first: it survives anything that follows
-        self.writer = w
+        self.files: list[str] = []
+        self.deleted: list[str] = []  # by the retention (recording.keep_total_size_gb)
+        self.keyframe_asked_s: float | None = None  # monotonic time of the open request, None when none
+        self.file_written = 0
+        self._open(self.path, None)
         cfg = _recorded_config(settings)
         self.scene = None if cfg is None else _scene_sampler(cfg)
+        # Every cycle's TCP is in /cycle (state.tcp_measured_m, tcp_reference_m); the viewers' own
+        # copies follow the 3D scene's rate: at the loop's rate they were a fifth of the file.
+        self.view_interval_s = 1.0 / (cfg.recording.scene_rate_hz if cfg is not None else DEFAULT_VIEW_RATE_HZ)
+        self.view_next_t = -math.inf
         self.live = None
         if cfg is not None and (cfg.recording.live_rerun or cfg.recording.live_foxglove):
             from logs.live_views import LiveViews
 
             live = LiveViews(cfg)
             self.live = live if live.active else None
+        self._retain()
+
+    def _open(self, path: str, keyframe: Any) -> None:
+        """A new file: header, schemas, channels, the session's metadata and this file's place in
+        the session (``cheope.file``), flushed before anything else; then the keyframe, if any."""
+        from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+        from foxglove_schemas_protobuf.Log_pb2 import Log
+        from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+        from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+        from mcap.well_known import MessageEncoding
+        from mcap.writer import Writer
+        from mcap_protobuf.schema import register_schema
+
+        m, pb = self.m, self.pb
+        previous = self.files[-1] if self.files else ""
+        self.stream: BinaryIO = open(path, "wb")  # noqa: SIM115 - lives until finish() closes it
+        self.path = path
+        self.files.append(path)
+        w = Writer(self.stream, chunk_size=_WRITER_CHUNK_LIMIT, compression=self.compression)
+        w.start(profile="", library="cheope logs.recorder")
+        self.channels: dict[str, int] = {}
+        for topic, cls in ((m.TOPIC_CAN, pb.CanFrameBatch), (m.TOPIC_CYCLE, pb.Cycle), (m.TOPIC_EVENTS, pb.Event),
+                           (m.TOPIC_LOG, Log), (m.TOPIC_TCP, FrameTransform),
+                           (m.TOPIC_TCP_REFERENCE, PoseInFrame), (m.TOPIC_SCENE, SceneUpdate),
+                           (m.TOPIC_KEYFRAME, pb.Keyframe)):
+            sid = register_schema(w, cls)
+            self.channels[topic] = w.register_channel(topic=topic, message_encoding=MessageEncoding.Protobuf,
+                                                      schema_id=sid)
+        for name, data in self.settings["metadata"].items():
+            w.add_metadata(name, data)
+        w.add_metadata(m.META_FILE, {"session_id": self.session_id, "sequence": str(len(self.files)),
+                                     "previous": os.path.basename(previous)})
+        self.writer = w
+        self.file_written = 0
+        self.pending = 0  # the last file's open chunk was closed with it
+        if keyframe is not None:
+            self._add(m.TOPIC_KEYFRAME, keyframe[0], keyframe[1])
+            self.writer.flush()  # the keyframe in a chunk of its own: a file cut short still has it
+        self.stream.flush()  # the configuration first: it survives anything that follows
 
     # -- records -----------------------------------------------------------------------------
 
     def write(self, record: Record) -> None:
-        if self.error:
+        if self.error or self.stopped:
             return  # keep reading: the loop must never find the pipe full because the disk failed
         try:
             if record[0] == CYCLE:
                 self.pending += self._frames(record[2]) + self._cycle(*record[3:])
+                self._ask_keyframe_when_due()
             elif record[0] == FRAMES:
                 self.pending += self._frames(record[2])
+            elif record[0] == KEYFRAME:
+                self._rotate(*record[2:])
             if record[1] != self.reported_drops:
                 self.pending += self._report_drops(record[1])
             self.maybe_flush()
         except (OSError, ValueError) as err:
             self._fail(f"writing {self.path} failed: {err}")
+
+    def _ask_keyframe_when_due(self) -> None:
+        """Past the size limit, ask the controller for its state (again after a second: it may have
+        been dropped); the file goes on until the keyframe comes. (The duration limit is the
+        recorder's: it knows the time without asking.)"""
+        if not self.limits.max_file_bytes or self.stream.tell() < self.limits.max_file_bytes:
+            return
+        now = time.monotonic()
+        if self.keyframe_asked_s is None or now - self.keyframe_asked_s >= KEYFRAME_RETRY_S:
+            self.keyframe_asked_s = now
+            self.notify(keyframe=len(self.files) + 1)
+
+    def _rotate(self, cycle: int, t: float, mono_s: float, seq: int, encoding: str, state: bytes,
+                problem: str) -> None:
+        """Close this file, open the session's next one with the keyframe: the state after ``cycle``."""
+        self.keyframe_asked_s = None
+        ns = self.m.frame_log_time_ns(mono_s, self.offset_ns)
+        if problem:
+            self._event("keyframe_missing", f"the controller's state could not be recorded: {problem}; "
+                        "the next file cannot be verified alone", warning=True)
+        keyframe = self.pb.Keyframe(cycle=cycle, t_s=t, sequence=seq, encoding=encoding, state=state)
+        nxt = next_file_path(self.first_path, len(self.files) + 1)
+        self._close_file({"next": os.path.basename(nxt), "complete": "true"})
+        try:
+            self._open(nxt, (keyframe.SerializeToString(), ns))
+        except OSError as err:
+            self._fail(f"cannot create the recording's next file {nxt}: {err.strerror or err}")
+            return
+        self.notify(file=nxt)
+        if self.scene is not None:
+            self.scene.resend_fixed()  # each file draws the whole robot
+        self.view_next_t = -math.inf
+        self._retain()
+
+    def _retain(self) -> None:
+        """recording.keep_total_size_gb: the oldest recordings of the directory go first."""
+        if not self.limits.keep_total_bytes:
+            return
+        for path, size in enforce_retention(os.path.dirname(self.path) or ".", self.limits.keep_total_bytes,
+                                            set(self.files)):
+            self.deleted.append(path)
+            self._event("recording_deleted", f"{os.path.basename(path)} ({size / 1e6:.1f} MB) deleted: the "
+                        f"recordings exceeded recording.keep_total_size_gb = {self.limits.keep_total_bytes / 1e9:.10g}")
 
     def maybe_flush(self) -> None:
         if self.error or not self.pending:
@@ -189,17 +290,38 @@ class SessionWriter:
             self.chunks += 1
             self.pending = 0
             self.last_flush = time.monotonic()
+            self._guard_free_space()
+
+    def _guard_free_space(self) -> None:
+        """Below recording.min_free_space_mb the recording stops, the file closed cleanly while it can be."""
+        if not self.limits.min_free_bytes or self.stopped:
+            return
+        free = free_bytes(self.path)
+        if free is None or free >= self.limits.min_free_bytes:
+            return
+        self.stopped = (f"free space on the file system of {self.path} is {free / 1e6:.0f} MB, below "
+                        f"recording.min_free_space_mb = {self.limits.min_free_bytes / 1e6:.10g}: recording stopped")
+        self._event("recording_stopped", self.stopped, warning=True)
+        print(f"recording stopped: {self.stopped}", file=sys.stderr, flush=True)
+        self.notify(stopped=self.stopped)
 
     def finish(self, queued: int | None, dropped: int) -> None:
         """The drop count, ``cheope.recording``, the index and the footer; closes the file."""
+        if not self.error and dropped != self.reported_drops:
+            try:
+                self._report_drops(dropped)
+            except (OSError, ValueError) as err:
+                self._fail(f"cannot finish {self.path}: {err}")
+        self._close_file({"queued": "unknown" if queued is None else str(queued), "dropped": str(dropped),
+                          "complete": "true", **({"stopped": self.stopped} if self.stopped else {}),
+                          **({} if queued is not None else {"ended": "the controller closed the pipe without END"})})
+
+    def _close_file(self, recording: dict[str, str]) -> None:
+        """``cheope.recording`` (this file's count, the session's so far), the index, the footer."""
         try:
             if not self.error:
-                if dropped != self.reported_drops:
-                    self._report_drops(dropped)
                 self.writer.add_metadata(self.m.META_RECORDING, {
-                    "queued": "unknown" if queued is None else str(queued), "dropped": str(dropped),
-                    "written": str(self.written), "complete": "true",
-                    **({} if queued is not None else {"ended": "the controller closed the pipe without END"})})
+                    "written": str(self.written), "file_written": str(self.file_written), **recording})
                 self.writer.finish()
         except (OSError, ValueError) as err:
             self._fail(f"cannot finish {self.path}: {err}")
@@ -208,6 +330,17 @@ class SessionWriter:
                 self.stream.close()
             except OSError as err:
                 self.error = self.error or f"cannot close {self.path}: {err}"
+
+    def _event(self, kind: str, message: str, warning: bool = False) -> None:
+        """The recorder's own event on /events and /log, at the last cycle."""
+        from controller.core.cycle_data import Event, Severity
+
+        cycle, t = self.last_cycle
+        e = Event(kind, Severity.WARNING if warning else Severity.INFO, message)
+        ns = self.m.frame_log_time_ns(self.last_mono_s, self.offset_ns)
+        self.pending += (self._add(self.m.TOPIC_EVENTS, self.m.event_to_pb(cycle, t, e).SerializeToString(), ns)
+                         + self._add(self.m.TOPIC_LOG, self.m.event_to_log(ns, e).SerializeToString(), ns))
+
 
     # -- conversions -------------------------------------------------------------------------
 
@@ -218,15 +351,16 @@ class SessionWriter:
     def _add(self, topic: str, data: bytes, unix_ns: int, sequence: int = 0) -> int:
         self.writer.add_message(self.channels[topic], unix_ns, data, unix_ns, sequence)
         self.written += 1
+        self.file_written += 1
         return len(data) + 31  # record overhead in the chunk
 
     def _frames(self, frames: list[FrameRecord]) -> int:
-        n = 0
-        for outgoing, mono_s, arb, data, fd, brs, err in frames:
-            msg = self.m.can_frame(mono_s, outgoing, arb, data, fd, brs, err)
-            n += self._add(self.m.TOPIC_CAN, msg.SerializeToString(), int(mono_s * 1e9) + self.offset_ns)
-            self.last_mono_s = mono_s
-        return n
+        """The frames as one ``CanFrameBatch`` (one MCAP message, one index entry, for all of them)."""
+        if not frames:
+            return 0
+        batch = self.pb.CanFrameBatch(frames=self.m.pack_frames(frames)).SerializeToString()
+        self.last_mono_s = frames[-1][1]
+        return self._add(self.m.TOPIC_CAN, batch, self.m.frame_log_time_ns(frames[0][1], self.offset_ns))
 
     def _cycle(self, cycle: int, t: float, mono_s: float, seq: int, cycle_pb: bytes,
                events: tuple[Event, ...], tcp_measured: Vector3 | None, tcp_reference: Vector3 | None) -> int:
@@ -241,21 +375,31 @@ class SessionWriter:
             n += self._add(m.TOPIC_LOG, log_pb, ns)
             if self.live is not None:
                 self.live.event(t, cycle, int(e.severity), f"[{e.kind}] {e.message}", log_pb, ns)
-        tcp_pb = None
-        if tcp_measured is not None:
-            tcp_pb = m.tcp_transform(ns, tcp_measured).SerializeToString()
-            n += self._add(m.TOPIC_TCP, tcp_pb, ns)
-        if tcp_reference is not None:
-            n += self._add(m.TOPIC_TCP_REFERENCE, m.tcp_pose(ns, tcp_reference).SerializeToString(), ns)
+        frame = None
         if self.scene is not None:
-            n += self._scene(cycle_pb, t, ns, tcp_pb)
+            n_scene, frame = self._scene(cycle_pb, t, ns)
+            n += n_scene
+            due = frame is not None  # the viewers' TCP with the 3D scene, on the same cycles
+        else:
+            due = t >= self.view_next_t
+            if due:
+                nxt = self.view_next_t + self.view_interval_s
+                self.view_next_t = nxt if nxt > t else t + self.view_interval_s  # the first, or after a gap
+        tcp_pb = None
+        if due:  # /tcp and /tcp_reference for viewers, at the scene's rate
+            if tcp_measured is not None:
+                tcp_pb = m.tcp_transform(ns, tcp_measured).SerializeToString()
+                n += self._add(m.TOPIC_TCP, tcp_pb, ns)
+            if tcp_reference is not None:
+                n += self._add(m.TOPIC_TCP_REFERENCE, m.tcp_pose(ns, tcp_reference).SerializeToString(), ns)
+        if frame is not None and self.live is not None:
+            self.live.frame(frame, frame.message, cycle_pb, frame.scene_pb, tcp_pb, ns)
         return n
 
-    def _scene(self, cycle_pb: bytes, t: float, ns: int, tcp_pb: bytes | None) -> int:
-        """The robot for Foxglove: the fixed parts once, the moving ones when the sampler says (decimated).
-
-        The live views get the same drawing and the cycle it came from (logs/live_views.py).
-        """
+    def _scene(self, cycle_pb: bytes, t: float, ns: int) -> tuple[int, SceneFrame | None]:
+        """The robot for Foxglove: the fixed parts once, the moving ones when the sampler says
+        (decimated); the bytes written and the frame drawn, if any (the live views get it too,
+        logs/live_views.py)."""
         from logs.foxglove_scene import scene_update
 
         assert self.scene is not None
@@ -268,11 +412,9 @@ class SessionWriter:
                 self.live.fixed(fixed, data, ns)
         frame = self.scene.sample(cycle_pb, t)
         if frame is not None:
-            data = scene_update(frame.moving, ns, tuple(sorted(self.scene.moving_entities))).SerializeToString()
-            n += self._add(self.m.TOPIC_SCENE, data, ns)
-            if self.live is not None:
-                self.live.frame(frame, frame.message, cycle_pb, data, tcp_pb, ns)
-        return n
+            frame.scene_pb = scene_update(frame.moving, ns, tuple(sorted(self.scene.moving_entities))).SerializeToString()
+            n += self._add(self.m.TOPIC_SCENE, frame.scene_pb, ns)
+        return n, frame
 
     def _report_drops(self, dropped: int) -> int:
         from controller.core.cycle_data import Event, Severity
@@ -285,6 +427,74 @@ class SessionWriter:
         ns = int(self.last_mono_s * 1e9) + self.offset_ns
         return (self._add(self.m.TOPIC_EVENTS, self.m.event_to_pb(cycle, t, e).SerializeToString(), ns)
                 + self._add(self.m.TOPIC_LOG, self.m.event_to_log(ns, e).SerializeToString(), ns))
+
+
+KEYFRAME_RETRY_S = 1.0
+_RECORDING_NAME = re.compile(r"^cheope-\d{8}-\d{6}(-\d+)?(\.\d{3,})?\.mcap$")
+# A file written to this recently may be another recorder's open file: retention leaves it.
+OPEN_FILE_AGE_S = 120.0
+
+
+@dataclass(frozen=True)
+class FileLimits:
+    """recording.max_file_size_mb, max_file_duration_s, keep_total_size_gb, min_free_space_mb (0: none)."""
+
+    max_file_bytes: int = 0
+    max_file_duration_s: float = 0.0
+    keep_total_bytes: int = 0
+    min_free_bytes: int = 0
+
+    @classmethod
+    def from_settings(cls, settings: dict[str, Any]) -> FileLimits:
+        return cls(int(settings.get("max_file_bytes", 0)), float(settings.get("max_file_duration_s", 0.0)),
+                   int(settings.get("keep_total_bytes", 0)), int(settings.get("min_free_bytes", 0)))
+
+
+def next_file_path(first: str, sequence: int) -> str:
+    """The session's file number ``sequence`` (2, 3...): beside the first, ``NAME.002.mcap``."""
+    root, ext = os.path.splitext(first)
+    return f"{root}.{sequence:03d}{ext}"
+
+
+def free_bytes(path: str) -> int | None:
+    """Free space for unprivileged writers on ``path``'s file system; None when it cannot be known."""
+    try:
+        st = os.statvfs(os.path.dirname(path) or ".")
+    except OSError:
+        return None
+    return st.f_bavail * st.f_frsize
+
+
+def enforce_retention(directory: str, keep_bytes: int, open_paths: set[str], now: float | None = None
+                      ) -> list[tuple[str, int]]:
+    """Delete the oldest recordings (``cheope-*.mcap`` as the recorder names them) in ``directory``
+    until they total at most ``keep_bytes``; never one of ``open_paths`` nor one written to in the
+    last ``OPEN_FILE_AGE_S`` (another controller's open file). Returns (path, size) deleted."""
+    now = time.time() if now is None else now
+    files = []
+    try:
+        with os.scandir(directory) as it:
+            for e in it:
+                if _RECORDING_NAME.match(e.name) and e.is_file(follow_symlinks=False):
+                    st = e.stat(follow_symlinks=False)
+                    files.append((st.st_mtime, e.name, e.path, st.st_size))
+    except OSError:
+        return []
+    total = sum(f[3] for f in files)
+    deleted = []
+    keep = {os.path.abspath(p) for p in open_paths}
+    for mtime, _, path, size in sorted(files):
+        if total <= keep_bytes:
+            break
+        if os.path.abspath(path) in keep or now - mtime < OPEN_FILE_AGE_S:
+            continue
+        try:
+            os.unlink(path)
+        except OSError:
+            continue
+        total -= size
+        deleted.append((path, size))
+    return deleted
 
 
 def _recorded_config(settings: dict[str, Any]) -> Config | None:
@@ -340,7 +550,7 @@ def serve(fd: int, out: TextIO) -> int:
         _reply(out, error=f"the first record must be SETUP, got {setup!r:.80}")
         return 1
     try:
-        writer = SessionWriter(setup[1])
+        writer = SessionWriter(setup[1], lambda **fields: _reply(out, **fields))
     except OSError as err:
         _reply(out, error=f"cannot create the recording {setup[1].get('path')}: {err.strerror or err}")
         return 1
@@ -362,14 +572,21 @@ def serve(fd: int, out: TextIO) -> int:
             break
         dropped = record[1]
         writer.write(record)
+        if writer.stopped:
+            # the free-space guard: the file is closed cleanly, and the controller's next write
+            # fails at once (EPIPE) so that its recording.on_failure decides, with the reason it was sent
+            break
         if writer.error:
             # stop reading: the controller's next write fails (EPIPE) and its recording.on_failure
             # policy decides, instead of the loop running on with a recording that only looks alive
             break
+    if writer.stopped:
+        os.close(fd)
     writer.finish(queued, dropped)
     if writer.live is not None:
         writer.live.close()
-    _reply(out, written=writer.written, chunks=writer.chunks, error=writer.error)
+    _reply(out, written=writer.written, chunks=writer.chunks, error=writer.error or writer.stopped,
+           files=writer.files, deleted=writer.deleted)
     return 0 if not writer.error else 2
 
 

@@ -262,4 +262,6 @@ def _recording_summary(session: SessionRecorder | None, cfg: Config) -> dict[str
         what = "every cycle and frame" if session.error else f"{session.dropped} item(s) (cycles, frame batches)"
         lost = f"{what} from cycle {cycle} (t = {t:.3f} s) on" + (f" ({session.dropped} items)" if session.error else "")
     return {"path": str(session.path), "dropped": session.dropped, "written": session.written,
-            "error": session.error, "lost": lost, "on_failure": cfg.recording.on_failure}
+            "error": session.error, "lost": lost, "on_failure": cfg.recording.on_failure,
+            "session_id": session.session_id, "files": [str(p) for p in session.files],
+            "deleted": [str(p) for p in session.deleted]}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import signal
@@ -81,10 +82,20 @@ def test_round_trip_counts_and_contents_match(tmp_path):
     report = read_info(path)
     assert report.complete and not report.problems
     assert report.message_counts[m.TOPIC_CYCLE] == stats.cycles == len(trace.rows)
-    assert report.message_counts[m.TOPIC_CAN] == len(sent)
+    # the frames before each cycle in one /can message, not one per frame (the frames a cycle's
+    # observer sends go with the next cycle, the last ones in a batch of their own at close)
+    assert report.message_counts[m.TOPIC_CAN] == len(trace.rows) == len(sent) // 2
     n_events = sum(len(r[5]) for r in trace.rows)
     assert report.message_counts[m.TOPIC_EVENTS] == report.message_counts[m.TOPIC_LOG] == n_events == 5
-    assert report.message_counts[m.TOPIC_TCP] == sum(1 for r in trace.rows if r[3].tcp_measured_m is not None)
+    # every cycle's TCP is in /cycle; the viewers' /tcp follows the 3D scene's rate, exactly
+    tcp_times = [d.message.timestamp.seconds * 10**9 + d.message.timestamp.nanos
+                 for d in iter_decoded(path, [m.TOPIC_TCP])]
+    cycle_times = {d.log_time_ns: d.message for d in iter_decoded(path, [m.TOPIC_CYCLE])}
+    assert set(tcp_times) <= set(cycle_times)
+    gaps_s = [(b - a) * 1e-9 for a, b in itertools.pairwise(tcp_times)]
+    interval_s = 1.0 / cfg.recording.scene_rate_hz
+    # on the cycles' grid: a cycle early or late, as rounding of the times places it
+    assert gaps_s and all(abs(g - interval_s) <= cfg.period_s + 1e-9 for g in gaps_s)
 
     cycles = [d for d in iter_decoded(path, [m.TOPIC_CYCLE])]
     for d, (cycle, t, inputs, state, outputs, _) in zip(cycles, trace.rows, strict=True):
@@ -342,7 +353,10 @@ def test_logs_info_reads_a_finished_file_from_its_summary_alone(tmp_path, sessio
     walked = info_dict(read_info(path))
     from logs.reader import read_info_from_summary
 
-    assert info_dict(read_info_from_summary(path)) == walked
+    # the same report, save that it says its chunks were not checked
+    assert walked.pop("chunks_checked") is True
+    walked_unchecked = {**walked, "chunks_checked": False}
+    assert info_dict(read_info_from_summary(path)) == walked_unchecked
 
     def no_walk(*_a, **_k):
         raise AssertionError("logs info walked the chunks of a file with a summary")
@@ -350,13 +364,14 @@ def test_logs_info_reads_a_finished_file_from_its_summary_alone(tmp_path, sessio
     with monkeypatch.context() as mp:
         mp.setattr(logs.reader, "iter_messages", no_walk)
         assert main(["logs", "info", "--json", str(path)]) == 0
-    assert json.loads(capsys.readouterr().out) == walked
+    assert json.loads(capsys.readouterr().out) == walked_unchecked
     data = bytearray(session_bytes)
     mid = len(data) // 2
     data[mid: mid + 64] = bytes(b ^ 0xA5 for b in data[mid: mid + 64])
     path.write_bytes(data)
     assert main(["logs", "info", str(path)]) == 0  # the summary is intact: nothing is read to doubt it
-    capsys.readouterr()
+    # ... and it does not call the file sound: it says its chunks were not checked
+    assert "chunks not checked (--check" in capsys.readouterr().out
     assert main(["logs", "info", "--check", str(path)]) == 1
     assert "damaged chunk" in capsys.readouterr().out
 
@@ -387,7 +402,7 @@ def test_rerun_reads_the_mcap_file_directly_and_decodes_the_protobuf_channels(tm
     store = McapReader(path).stream().collect()
     summary = store.summary()
     assert "cheope.v1.Cycle:message" in summary  # our schema, decoded by reflection
-    assert "cheope.v1.CanFrame:message" in summary
+    assert "cheope.v1.CanFrameBatch:message" in summary
     assert "Transform3D:translation" in summary  # foxglove.FrameTransform -> Transform3D
     assert "TextLog:text" in summary  # foxglove.Log -> TextLog
     assert "cheope.config" in summary  # the metadata

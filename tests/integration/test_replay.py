@@ -63,12 +63,15 @@ def test_verify_stops_at_a_recorder_drop(tmp_path):
     with rec:
         for k, row in enumerate(trace.rows):
             if k == 50:
-                rec._cycle_calls += 1  # what a full queue does: the call index moves on, nothing is queued
+                rec._cycle_calls += 1  # what a full queue does: the call index moves on, nothing is queued,
+                rec._lost(1)  # the loss is counted
                 continue
             rec.on_cycle(*row, timing=_Timing())
     result = verify(path)
-    assert result.cycles_checked == 50
-    assert any("dropped by the recorder" in p for p in result.problems)
+    assert result.cycles_checked == 50 and result.cycles_recorded == len(trace.rows) - 1
+    assert not result.ok and result.divergence is None
+    assert any("1 cycle(s) dropped by the recorder before cycle 51" in p for p in result.problems)
+    assert f"50 of the {len(trace.rows) - 1} readable cycle(s)" in result.summary()
 
 
 class _Timing:
@@ -76,14 +79,18 @@ class _Timing:
     step_s = 0.0
 
 
-def test_verify_of_a_truncated_file_checks_what_is_there(tmp_path):
+def test_verify_of_a_truncated_file_checks_what_is_there_and_exits_non_zero(tmp_path, capsys):
     src = DATA / "path_quarter_lap.mcap"
     path = tmp_path / "t.mcap"
     data = src.read_bytes()
     path.write_bytes(data[: len(data) // 2])
     result = verify(path)
-    assert result.ok and 100 < result.cycles_checked < 821
+    # what is there is verified, and the check says it could not verify the whole session
+    assert not result.ok and result.divergence is None and 100 < result.cycles_checked < 821
     assert any(p.startswith("truncated") for p in result.problems)
+    assert main(["replay", str(path), "--verify"]) == 3
+    out = capsys.readouterr().out
+    assert out.startswith(f"PARTLY VERIFIED: the {result.cycles_checked} readable cycle(s) (cycles 0..") and "truncated" in out
 
 
 _RECEIVER = textwrap.dedent("""
@@ -159,8 +166,8 @@ def test_replay_sends_every_recorded_frame_once_whatever_its_direction(tmp_path)
 def test_replay_cli_errors_are_one_line(tmp_path, capsys):
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(b"\x89MCAP0\r\n")
-    assert main(["replay", str(bad), "--verify"]) == 1
-    assert capsys.readouterr().out.startswith("nothing verified")
+    assert main(["replay", str(bad), "--verify"]) == 3  # not a divergence, but nothing verified either
+    assert capsys.readouterr().out.startswith("NOT VERIFIED: nothing verified")
     assert main(["replay", str(tmp_path / "nope.mcap"), "--verify"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "cannot read" in err

@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import struct
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from controller.messages import cheope_pb2 as pb
 from controller.messages.generate import HERE, generate
 
@@ -37,3 +43,32 @@ def test_the_tracker_and_plans_ready_round_trip_into_the_steps_inputs():
     msg = pb.CycleInputs()
     inputs_to_pb(without, msg)
     assert inputs_from_pb(msg) == without and not msg.HasField("tracker")
+
+
+_frame = st.tuples(st.booleans(), st.floats(allow_nan=True, allow_infinity=True), st.integers(0, 0x1FFFFFFF),
+                   st.binary(max_size=64), st.booleans(), st.booleans(), st.booleans())
+
+
+def _exact(frames):
+    return [(o, struct.pack("<d", t), i, bytes(d), fd, brs, err) for o, t, i, d, fd, brs, err in frames]
+
+
+@settings(deadline=None)  # a shared machine's pause is not a failure of the packing
+@given(st.lists(_frame, max_size=40) | st.lists(
+    st.builds(lambda k, f: (f[0], k / 1e9, *f[2:]), st.integers(0, 10**15), _frame), max_size=40))
+def test_a_cycles_frames_packed_in_one_batch_come_back_bit_for_bit(frames):
+    """Every frame with its direction, time (any double: nanoseconds or not, -0.0, nan), id, data and flags."""
+    from logs.messages import pack_frames, unpack_frames
+
+    back = [(f.outgoing, f.monotonic_s, f.arbitration_id, f.data, f.is_fd, f.bitrate_switch, f.is_error_frame)
+            for f in unpack_frames(pack_frames(frames))]
+    assert _exact(back) == _exact(frames)
+
+
+def test_a_cut_batch_is_refused_not_misread():
+    from logs.messages import pack_frames, unpack_frames
+
+    packed = pack_frames([(True, 1.5, 0x181, b"\x01\x02", False, False, False)] * 3)
+    for cut in (2, len(packed) - 1):
+        with pytest.raises(ValueError, match="CAN frame batch"):
+            list(unpack_frames(packed[:cut]))

@@ -1,0 +1,116 @@
+"""The controller's state as bytes: what a rotated recording file starts with (its keyframe).
+
+``cheope replay FILE --verify`` rebuilds the law from the configuration and needs the state the
+law had before the file's first cycle; the first file of a session starts from
+``law.initial_state()``, every later one from the keyframe the recorder wrote at its start.
+
+The state is a tree of frozen dataclasses, enums, tuples, frozensets, numbers, strings and,
+for planned tasks, NumPy arrays. It is written as JSON with type tags: floats by ``repr``
+(which round-trips every double bit for bit, -0.0, inf and nan included), arrays as their
+raw bytes. Not pickle: a recording is a file from anywhere, and reading it must not run
+code. Decoding builds only dataclasses and enums of modules already imported (the law's own,
+once ``build_law`` has run), so a file cannot make the reader import anything.
+"""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import enum
+import json
+import math
+import sys
+from typing import Any
+
+import numpy as np
+
+ENCODING = "cheope-state-json-1"
+
+
+class KeyframeError(ValueError):
+    """The keyframe cannot be turned back into a state (unknown type, damaged JSON)."""
+
+
+def _qualified(cls: type) -> str:
+    return f"{cls.__module__}:{cls.__qualname__}"
+
+
+def _float(x: float) -> Any:
+    # JSON has no nan/inf and json.dumps would write bare NaN: keep every double as its repr then
+    return x if math.isfinite(x) else {"f": repr(x)}
+
+
+def _encode(v: Any) -> Any:
+    if v is None or isinstance(v, (bool, str)):
+        return v
+    if isinstance(v, enum.Enum):  # before int: IntEnum is an int
+        return {"e": _qualified(type(v)), "v": v.name}
+    if isinstance(v, int):
+        return v
+    if isinstance(v, float):
+        return _float(v)
+    if isinstance(v, tuple):
+        return {"t": [_encode(x) for x in v]}
+    if isinstance(v, frozenset):
+        return {"s": sorted((_encode(x) for x in v), key=json.dumps)}
+    if isinstance(v, np.ndarray):
+        return {"a": str(v.dtype), "shape": list(v.shape), "b": base64.b64encode(np.ascontiguousarray(v).tobytes())
+                .decode("ascii")}
+    if isinstance(v, np.generic):
+        return _encode(v.item())
+    if dataclasses.is_dataclass(v) and not isinstance(v, type):
+        return {"d": _qualified(type(v)),
+                "f": {f.name: _encode(getattr(v, f.name)) for f in dataclasses.fields(v) if f.init}}
+    raise KeyframeError(f"cannot record a state value of type {type(v).__name__}: {v!r:.80}")
+
+
+def encode_state(state: object) -> bytes:
+    """The state as compact JSON bytes (see the module doc)."""
+    return json.dumps(_encode(state), separators=(",", ":"), allow_nan=False).encode()
+
+
+def _loaded_class(name: str) -> type:
+    module, _, qualname = name.partition(":")
+    mod = sys.modules.get(module)
+    obj: Any = mod
+    for part in qualname.split("."):
+        obj = getattr(obj, part, None)
+    if not isinstance(obj, type):
+        raise KeyframeError(f"the keyframe names {name!r}, which is not a class of a loaded module")
+    return obj
+
+
+def _decode(v: Any) -> Any:
+    if not isinstance(v, dict):
+        if isinstance(v, list):
+            raise KeyframeError("a bare list in the keyframe (tuples are tagged)")
+        return v
+    if "t" in v:
+        return tuple(_decode(x) for x in v["t"])
+    if "s" in v:
+        return frozenset(_decode(x) for x in v["s"])
+    if "f" in v and "d" not in v:
+        return float(v["f"])
+    if "e" in v:
+        cls = _loaded_class(v["e"])
+        if not issubclass(cls, enum.Enum):
+            raise KeyframeError(f"{v['e']!r} in the keyframe is not an enum")
+        return cls[v["v"]]
+    if "a" in v:
+        return np.frombuffer(base64.b64decode(v["b"]), dtype=np.dtype(v["a"])).reshape(v["shape"]).copy()
+    if "d" in v:
+        cls = _loaded_class(v["d"])
+        if not dataclasses.is_dataclass(cls):
+            raise KeyframeError(f"{v['d']!r} in the keyframe is not a dataclass")
+        return cls(**{k: _decode(x) for k, x in v["f"].items()})
+    raise KeyframeError(f"unknown value in the keyframe: {json.dumps(v)[:80]}")
+
+
+def decode_state(data: bytes) -> Any:
+    """The state ``encode_state`` wrote; ``KeyframeError`` when it cannot be rebuilt."""
+    try:
+        return _decode(json.loads(data))
+    except KeyframeError:
+        raise
+    except (ValueError, TypeError, KeyError, AttributeError) as err:
+        raise KeyframeError(f"damaged keyframe: {err}") from err

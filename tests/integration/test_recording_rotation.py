@@ -1,0 +1,293 @@
+"""A long session: files split by size and duration, each standing alone, retention, the free-space guard."""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import time
+from pathlib import Path
+
+import pytest
+from test_recording import record_session
+
+from controller.cli import main
+from controller.config import ConfigError, load_config
+from controller.messages import cheope_pb2 as pb
+from logs import messages as m
+from logs.keyframe import decode_state, encode_state
+from logs.reader import iter_decoded, read_head, read_info
+from logs.recorder import session_metadata
+from logs.recovery import recover
+from logs.replay_verify import verify
+from logs.session_list import list_sessions
+from logs.session_writer import CYCLE, KEYFRAME, FileLimits, SessionWriter, enforce_retention
+
+QUARTER_LAP = {"task.path.laps": 0.25, "task.path.ramp_s": 0.2}
+CONTOUR = {"task.kind": "contour", "task.contour.approach_clearance_m": 0.003}
+
+
+def split_session(tmp_path: Path, overrides=QUARTER_LAP, max_s: float = 10.0, duration_s: float = 0.4):
+    """A simulated session split by ``recording.max_file_duration_s``; its files in session order."""
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    first = tmp_path / "cheope-20260101-000000.mcap"
+    _, _, stats, trace, _, rec = record_session(first, overrides, max_s=max_s, frames=False, chunk_size_bytes=8192,
+                                                limits=FileLimits(max_file_duration_s=duration_s))
+    assert rec.error == "" and rec.dropped == 0
+    return rec.files, stats, trace
+
+
+@pytest.mark.parametrize("overrides", [QUARTER_LAP, CONTOUR], ids=["path", "contour"])
+def test_a_session_split_in_files_verifies_file_by_file_and_as_a_whole(tmp_path, overrides, capsys):
+    files, stats, _ = split_session(tmp_path, overrides, max_s=2.0 if overrides is CONTOUR else 10.0)
+    assert len(files) >= 3 and all(f.exists() for f in files)
+    alone = [verify(f) for f in files]
+    for k, (f, r) in enumerate(zip(files, alone, strict=True)):
+        assert r.ok, (f.name, r.summary())
+        # the first from the law's initial state, every other one from its own keyframe
+        assert (r.started_from == "") == (k == 0) and (k == 0 or f.name in r.started_from)
+        assert r.continues_in == (files[k + 1].name if k + 1 < len(files) else "")
+    assert sum(r.cycles_checked for r in alone) == stats.cycles
+    # the whole session, in any order given: across the boundaries, each keyframe checked
+    shuffled = random.Random(1).sample(files, len(files))
+    whole = verify(shuffled)
+    assert whole.ok and whole.cycles_checked == stats.cycles and whole.files == files, whole.summary()
+    assert main(["replay", *map(str, shuffled), "--verify"]) == 0
+    assert capsys.readouterr().out.startswith(f"OK: {stats.cycles} cycle(s) reproduced bit for bit in {len(files)} files")
+
+
+def test_the_files_of_a_session_are_linked_and_each_carries_what_a_reader_needs(tmp_path):
+    files, _, _ = split_session(tmp_path)
+    heads = [read_head(f).metadata for f in files]
+    ids = {h[m.META_FILE]["session_id"] for h in heads}
+    assert len(ids) == 1 and len(ids.pop()) == 32
+    assert [h[m.META_FILE]["sequence"] for h in heads] == [str(k) for k in range(1, len(files) + 1)]
+    assert [h[m.META_FILE]["previous"] for h in heads] == ["", *(f.name for f in files[:-1])]
+    for f, h in zip(files, heads, strict=True):
+        assert m.META_CONFIG in h and m.META_SESSION in h  # each file rebuilds the law alone
+        info = read_info(f)
+        assert info.complete and not info.problems
+        assert (info.message_counts[m.TOPIC_KEYFRAME] == 1) == (f != files[0])
+    assert [read_info(f).metadata[m.META_RECORDING].get("next", "") for f in files] == [
+        *(f.name for f in files[1:]), ""]
+
+
+def test_logs_list_shows_the_session_and_its_files(tmp_path, capsys):
+    files, _, _ = split_session(tmp_path)
+    (tmp_path / "notes.mcap").write_bytes(b"not a recording")
+    listing = list_sessions(tmp_path)
+    assert len(listing.sessions) == 1 and [f.path for f in listing.sessions[0].files] == files
+    assert all(f.finished and f.duration_s is not None for f in listing.sessions[0].files)
+    assert main(["logs", "list", str(tmp_path)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[1].startswith("session ") and f"{len(files)} file(s)" in out[1]
+    assert [line.split()[1] for line in out[2:2 + len(files)]] == [f.name for f in files]
+    assert out[-1].startswith("not a recording: notes.mcap")
+    assert main(["logs", "list", "--json", str(tmp_path)]) == 0
+    assert json.loads(capsys.readouterr().out)["sessions"][0]["missing_sequences"] == []
+    assert main(["logs", "list", str(tmp_path / "nope")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "does not exist" in err
+
+
+def test_a_truncated_file_of_a_session_says_how_much_was_verified_and_exits_non_zero(tmp_path, capsys):
+    files, stats, _ = split_session(tmp_path)
+    middle = files[1]
+    data = middle.read_bytes()
+    middle.write_bytes(data[: len(data) * 2 // 3])
+    alone = verify(middle)
+    assert not alone.ok and alone.divergence is None and 0 < alone.cycles_checked
+    assert main(["replay", str(middle), "--verify"]) == 3
+    out = capsys.readouterr().out
+    assert out.startswith(f"PARTLY VERIFIED: the {alone.cycles_checked} readable cycle(s)") and "truncated" in out
+    # the whole session: up to the cut, then again from the next file's keyframe
+    whole = verify(files)
+    assert not whole.ok and whole.divergence is None
+    assert stats.cycles - whole.cycles_checked == stats.cycles - whole.cycles_recorded > 0  # the cut-off cycles
+    assert files[2].name in " ".join(whole.resumed)
+    assert main(["replay", *map(str, files), "--verify"]) == 3
+
+
+def test_files_of_different_sessions_or_with_a_gap_are_refused_with_one_line(tmp_path, capsys):
+    a, _, _ = split_session(tmp_path / "a")
+    b, _, _ = split_session(tmp_path / "b")
+    assert main(["replay", str(a[0]), str(b[1]), "--verify"]) == 2
+    assert "different sessions" in capsys.readouterr().err
+    assert main(["replay", str(a[0]), str(a[2]), "--verify"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "file 2 is missing" in err
+    assert main(["replay", str(a[1]), str(a[2]), "--rerun"]) == 2
+    assert "take one file" in capsys.readouterr().err
+
+
+def _copy_with_keyframe(src: Path, dst: Path, state: bytes) -> None:
+    """``src`` message for message, metadata and all, with another state in its keyframe."""
+    from mcap.writer import Writer
+
+    from logs.reader import ReadReport, iter_messages
+
+    report = read_info(src)
+    r = ReadReport(src)
+    with open(dst, "wb") as fh:
+        w = Writer(fh)
+        w.start()
+        ids: dict[int, int] = {}
+        for ch, msg in iter_messages(src, r):
+            if ch.id not in ids:
+                sc = r.schemas[ch.schema_id]
+                ids[ch.id] = w.register_channel(ch.topic, ch.message_encoding,
+                                                w.register_schema(sc.name, sc.encoding, sc.data))
+            data = msg.data
+            if ch.topic == m.TOPIC_KEYFRAME:
+                kf = pb.Keyframe.FromString(data)
+                kf.state = state
+                data = kf.SerializeToString()
+            w.add_message(ids[ch.id], msg.log_time, data, msg.publish_time, msg.sequence)
+        for name, meta in report.metadata.items():
+            w.add_metadata(name, meta)
+        w.finish()
+
+
+def test_a_keyframe_that_disagrees_with_the_replayed_state_is_a_divergence(tmp_path):
+    import dataclasses
+
+    files, _, _ = split_session(tmp_path / "s")
+    kf = next(d.message for d in iter_decoded(files[1], [m.TOPIC_KEYFRAME]))
+    state = decode_state(kf.state)
+    assert encode_state(state) == kf.state  # the codec is exact: a state comes back as it was
+    forged = tmp_path / files[1].name
+    _copy_with_keyframe(files[1], forged, encode_state(dataclasses.replace(state, late_streak=state.late_streak + 1)))
+    whole = verify([files[0], forged])
+    assert whole.divergence is not None and whole.divergence.field == f"the keyframe of {forged.name}"
+    assert whole.cycles_checked == verify(files[0]).cycles_checked and not whole.ok
+
+
+def test_the_writer_asks_for_a_keyframe_past_the_size_limit_and_rotates_on_it(tmp_path):
+    """The size limit is the writer's: it asks, goes on writing until the state comes, then rotates."""
+    _, _, _, trace, _, _ = record_session(tmp_path / "ref.mcap", max_s=0.5, frames=False)
+    cfg = load_config()
+    asked: list[dict] = []
+    first = tmp_path / "cheope-20260101-000000.mcap"
+    w = SessionWriter({"path": str(first), "metadata": session_metadata(cfg), "clock_offset_ns": 0,
+                       "chunk_size_bytes": 1024, "flush_interval_s": 0.5, "compression": "zstd",
+                       "session_id": "s" * 32, "max_file_bytes": 8000}, lambda **f: asked.append(f))
+    body = m.cycle_to_pb(0, 0.0, trace.rows[0][2], trace.rows[0][3], trace.rows[0][4], _Timing()).SerializeToString()
+    k = 0
+    while not asked:
+        w.write((CYCLE, 0, [], k, k * 0.0025, k * 0.0025, k, body, (), None, None))
+        k += 1
+        assert k < 1000, "the writer never asked for a keyframe"
+    assert asked == [{"keyframe": 2}] and w.files == [str(first)]
+    w.write((CYCLE, 0, [], k, k * 0.0025, k * 0.0025, k, body, (), None, None))  # the file goes on meanwhile
+    w.write((KEYFRAME, 0, k, k * 0.0025, k * 0.0025, k, "cheope-state-json-1", encode_state(trace.rows[0][3]), ""))
+    assert asked[-1] == {"file": str(tmp_path / "cheope-20260101-000000.002.mcap")} and len(w.files) == 2
+    w.finish(k + 1, 0)
+    assert read_info(first).complete and read_info(w.files[1]).complete
+    assert read_info(first).message_counts[m.TOPIC_CYCLE] == k + 1
+
+
+class _Timing:
+    wake_error_s = 0.0
+    step_s = 0.0
+
+
+def test_retention_deletes_the_oldest_recordings_first_never_an_open_or_a_foreign_file(tmp_path):
+    now = time.time()
+    names = [f"cheope-20260101-00000{k}.mcap" for k in range(5)]
+    for k, name in enumerate(names):
+        p = tmp_path / name
+        p.write_bytes(b"x" * 1000)
+        os.utime(p, (now - 10_000 + k, now - 10_000 + k))
+    foreign = tmp_path / "my-notes.mcap"
+    foreign.write_bytes(b"x" * 5000)
+    os.utime(foreign, (now - 20_000, now - 20_000))
+    recent = tmp_path / "cheope-20260101-000009.002.mcap"  # another controller's open file
+    recent.write_bytes(b"x" * 1000)
+    open_file = tmp_path / names[0]  # ours, open: the oldest, still kept
+    deleted = enforce_retention(str(tmp_path), 3000, {str(open_file)}, now=now)
+    assert [Path(p).name for p, _ in deleted] == names[1:4]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([names[0], names[4], foreign.name, recent.name])
+
+
+def test_below_the_free_space_limit_the_recording_stops_cleanly_and_says_why(tmp_path):
+    path = tmp_path / "s.mcap"
+    failures: list[str] = []
+    # more free space required than any disk has: the guard trips at the first chunk
+    _, _, _, _, _, rec = record_session(path, chunk_size_bytes=1024, on_failure=failures.append,
+                                            limits=FileLimits(min_free_bytes=1 << 62))
+    assert "below recording.min_free_space_mb" in rec.error
+    assert rec.written == read_info(path).messages > 0  # the writer's last answer reached the recorder
+    assert failures in ([], [rec.error])  # called when the loop wrote after the writer stopped
+    info = read_info(path)
+    assert info.complete and not info.problems  # closed cleanly while it could be
+    assert "below recording.min_free_space_mb" in info.metadata[m.META_RECORDING]["stopped"]
+    events = [d.message for d in iter_decoded(path, [m.TOPIC_EVENTS])]
+    assert events[-1].kind == "recording_stopped" and "free space" in events[-1].message
+
+
+def test_a_recovered_files_gap_is_named_as_lost_with_the_damaged_original(tmp_path):
+    path = tmp_path / "s.mcap"
+    record_session(path, QUARTER_LAP, frames=False, chunk_size_bytes=4096)  # many chunks: one damaged mid-file
+    data = bytearray(path.read_bytes())
+    mid = len(data) // 2
+    data[mid: mid + 64] = bytes(b ^ 0xA5 for b in data[mid: mid + 64])
+    damaged = tmp_path / "damaged.mcap"
+    damaged.write_bytes(data)
+    out = recover(damaged).output
+    result = verify(out)
+    assert not result.ok and result.divergence is None
+    gap = next(p for p in result.problems if "before cycle" in p)
+    assert "lost with the damaged part of" in gap and "dropped by the recorder" not in gap
+
+
+def test_rotation_settings_are_validated_with_the_key_and_the_value():
+    with pytest.raises(ConfigError, match=r"recording.max_file_size_mb = 0.1: must be 0 \(no limit\) or at least"):
+        load_config(overrides={"recording.max_file_size_mb": 0.1})
+    with pytest.raises(ConfigError, match="recording.max_file_duration_s = 0.5"):
+        load_config(overrides={"recording.max_file_duration_s": 0.5})
+    with pytest.raises(ConfigError, match="recording.keep_total_size_gb = 0.1"):
+        load_config(overrides={"recording.keep_total_size_gb": 0.1})
+    with pytest.raises(ConfigError, match="recording.min_free_space_mb"):
+        load_config(overrides={"recording.min_free_space_mb": -1.0})
+    r = load_config().recording
+    assert (r.max_file_size_mb, r.max_file_duration_s, r.keep_total_size_gb, r.min_free_space_mb) == (
+        256.0, 3600.0, 20.0, 1024.0)
+
+
+def test_an_older_file_with_a_message_per_frame_reads_as_the_packed_format_does(tmp_path):
+    """tests/data/frames_one_message_each.mcap was written before the frames were packed (one
+    cheope.v1.CanFrame per frame): it reads and verifies as before, and the same session written
+    today gives the reader the same frames with the same log times, and the same cycles."""
+    from tools.bench_recording_size import main as rewrite
+
+    old = Path(__file__).resolve().parents[1] / "data" / "frames_one_message_each.mcap"
+    assert read_info(old).schemas and any(s.name == "cheope.v1.CanFrame" for s in read_info(old).schemas.values())
+    assert verify(old).ok
+    new = tmp_path / "packed.mcap"
+    rewrite(old, new)
+    assert {s.name for s in read_info(new).schemas.values()} >= {"cheope.v1.CanFrameBatch"}
+    offset = int(read_info(old).metadata[m.META_SESSION]["clock_offset_ns"])
+
+    def content(path):
+        return [(d.topic, d.log_time_ns, d.message.SerializeToString())
+                for d in iter_decoded(path, [m.TOPIC_CAN, m.TOPIC_CYCLE])]
+
+    frames = [d for d in iter_decoded(old, [m.TOPIC_CAN])]
+    assert len(frames) == 206 and all(d.log_time_ns == int(d.message.monotonic_s * 1e9) + offset for d in frames)
+    assert content(new) == content(old)
+    assert read_info(new).size_bytes < read_info(old).size_bytes
+
+
+def test_a_keyframe_request_already_answered_does_not_split_the_file_twice(tmp_path):
+    """Both limits at once: the duration's keyframe went out while the writer asked for the same
+    file because of the size; the stale request must not start a nearly empty file after it."""
+    from logs.recorder import SessionRecorder
+
+    rec = SessionRecorder(tmp_path / "s.mcap", {})
+    rec._note({"keyframe": 2})
+    assert rec._keyframe_wanted
+    rec._keyframe_wanted, rec._keyframes_sent = False, 1  # the keyframe for file 2 went out
+    rec._note({"keyframe": 2})
+    assert not rec._keyframe_wanted
+    rec._note({"keyframe": 3})
+    assert rec._keyframe_wanted

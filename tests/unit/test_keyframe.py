@@ -1,0 +1,65 @@
+"""The controller's state as a keyframe: every value comes back as it was, and nothing else is built."""
+
+from __future__ import annotations
+
+import enum
+import math
+import struct
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+
+from logs.keyframe import KeyframeError, decode_state, encode_state
+
+
+class Phase(enum.Enum):
+    A = 1
+    B = 2
+
+
+@dataclass(frozen=True)
+class Inner:
+    plan: np.ndarray
+    peaks: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class State:
+    phase: Phase
+    values: tuple[float, ...]
+    warned: frozenset[str]
+    inner: Inner | None
+    name: str = ""
+    count: int = 0
+    nothing: None = None
+    derived: int = field(default=0, init=False)  # recomputed, not recorded
+
+
+def _bits(xs):
+    return [struct.pack("<d", x) for x in xs]
+
+
+def test_every_value_comes_back_bit_for_bit():
+    plan = np.linspace(0.0, 1.0, 12).reshape(4, 3) / 3.0
+    s = State(Phase.B, (0.1 + 0.2, -0.0, math.inf, -math.inf, math.nan, 5e-324), frozenset({"b", "a"}),
+              Inner(plan, (1 / 3,)), "x\u00e9", 2**70)
+    back = decode_state(encode_state(s))
+    assert back.phase is Phase.B and back.warned == s.warned and back.name == s.name and back.count == 2**70
+    assert _bits(back.values) == _bits(s.values)  # -0.0 and nan included
+    assert back.inner.plan.dtype == plan.dtype and back.inner.plan.tobytes() == plan.tobytes()
+    assert back.inner.plan.shape == (4, 3) and back.inner.plan.flags.writeable
+    assert encode_state(back) == encode_state(s)
+
+
+def test_only_dataclasses_and_enums_of_loaded_modules_are_built():
+    with pytest.raises(KeyframeError, match="not a class of a loaded module"):
+        decode_state(b'{"d":"no_such_module:Thing","f":{}}')
+    with pytest.raises(KeyframeError, match="not a dataclass"):
+        decode_state(b'{"d":"builtins:dict","f":{}}')
+    with pytest.raises(KeyframeError, match="not an enum"):
+        decode_state(b'{"e":"builtins:dict","v":"A"}')
+    with pytest.raises(KeyframeError, match="damaged keyframe"):
+        decode_state(b"{not json")
+    with pytest.raises(KeyframeError, match="cannot record a state value of type"):
+        encode_state(State(Phase.A, (), frozenset(), None, name=object()))  # type: ignore[arg-type]
