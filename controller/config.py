@@ -192,7 +192,10 @@ class SafetySection(Section, frozen=True):
     on_foreign_sync: Reaction = Reaction("fault")  # a second SYNC producer
     on_foreign_nmt: Reaction = Reaction("fault")  # someone else's NMT command to our nodes
     on_foreign_command: Reaction = Reaction("fault")  # someone else's RPDO or SDO to our drives
-    on_duplicate_frames: Reaction = Reaction("warn")  # a node's TPDO twice in one cycle
+    # A device's TPDO twice in one answer window: the sample is never used (as if missing); this is
+    # what to do about a second sender on the bus (README, "A bus that cannot lie": why "fault").
+    on_duplicate_frames: Reaction = Reaction("fault")
+    on_rejected_frames: Reaction = Reaction("warn")  # a configured node's frame of the wrong length (per burst)
     on_frame_flood: Reaction = Reaction("fault")
     max_foreign_frames_per_cycle: Annotated[int, rng(1, 100000)] = 16
 

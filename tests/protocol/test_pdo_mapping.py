@@ -221,7 +221,8 @@ def test_vendor_drive_runs_the_cyclic_exchange_against_the_in_process_simulator(
         assert [o.index for o in codec.tpdo.objects] == [0x6064, 0x6041, 0x6061]
         scale = PositionScale(cfg.actuators.counts_per_m)
         ex = CyclicExchange(bus, tuple(cfg.actuators.node_ids), scale, None, cfg.loop.controller_node_id,
-                            heartbeat_every=1, drive_codecs=report.drive_codecs)
+                            heartbeat_every=1, drive_codecs=report.drive_codecs,
+                            answer_window_s=0.005)  # a generous deadline for the answers, a short window after
         start = [d.position for d in sim.drives]
         ex.send(None)
         fb = ex.collect(time.monotonic() + 5.0)
