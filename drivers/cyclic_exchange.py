@@ -183,6 +183,12 @@ class CyclicExchange:
         # give a generous deadline for a slow simulator shorten it.
         self.answer_window_s = answer_window_s
         self._sensor_candidates = [0, 0]  # force, torque frames this window
+        # Answers a device still owes: windows in a row without any candidate of it. A device that
+        # stalls answers the SYNCs it missed in a burst; one extra candidate per answer owed is its
+        # own late answer, not a second sender: still no sample (nobody can tell which is which),
+        # counted late, not reported. A rogue cannot use it: nothing ambiguous is ever used.
+        self._owed = [0] * self.n
+        self._sensor_owed = [0, 0]
         self._sensor_trusted_counter = -1  # the counter of the last sample used
         self._sensor_cycles_since_trusted = 0
         self._force = (0.0, 0.0, 0.0)
@@ -327,6 +333,9 @@ class CyclicExchange:
 
     def _close_window(self) -> None:
         """The window's verdict per device: one decoded candidate is the sample, else none."""
+        self._owed = [owed + 1 if count == 0 else 0 for owed, count in zip(self._owed, self._candidates)]
+        self._sensor_owed = [owed + 1 if count == 0 else 0
+                             for owed, count in zip(self._sensor_owed, self._sensor_candidates)]
         for j in range(self.n):
             count = self._candidates[j]
             if count == 1 and self._candidate_ok[j]:
@@ -414,13 +423,17 @@ class CyclicExchange:
             # Before this cycle's SYNC: the last window is closed. Late, never used; a second one for a
             # cycle that already had its sample is someone else's (or the true one after a rogue's).
             self.counters.late_frames += 1
-            if self._fresh[j]:
+            if self._owed[j] > 0:
+                self._owed[j] -= 1  # the answer to a SYNC it missed
+            elif self._fresh[j]:
                 self._report(Anomaly.DUPLICATE_FRAME, msg.arbitration_id, node)
             return
         self._candidates[j] += 1
         self.last_frame_in_s = now
-        if self._candidates[j] > 1:
+        if self._candidates[j] - 1 > self._owed[j]:
             self._report(Anomaly.DUPLICATE_FRAME, msg.arbitration_id, node)
+        elif self._candidates[j] > 1:
+            self.counters.late_frames += 1
         try:
             sw, counts = self._codecs[j].decode_tpdo(msg.data)
         except FrameError:
@@ -452,9 +465,10 @@ class CyclicExchange:
         if self._collecting:
             self._sensor_candidates[k] += 1
             if self._sensor_candidates[k] > 1:
-                # Two senders on the sensor's COB-ID (or a late sample and the true one): nobody can
+                # Two senders on the sensor's COB-ID, or a late sample and the true one: nobody can
                 # tell which is true: no fresh sample this cycle.
-                self._report(Anomaly.DUPLICATE_FRAME, msg.arbitration_id, sensor_node)
+                if self._sensor_candidates[k] - 1 > self._sensor_owed[k]:
+                    self._report(Anomaly.DUPLICATE_FRAME, msg.arbitration_id, sensor_node)
                 self._sensor_ambiguous = True
         try:
             x, y, z, status, counter = codec.decode(msg.data)
@@ -467,6 +481,7 @@ class CyclicExchange:
             self._sensor_ambiguous = True
         if not self._collecting:
             self.counters.late_frames += 1
+            self._sensor_owed[k] = max(0, self._sensor_owed[k] - 1)
             return  # outside its window: never a sample
         if kind == _SENSOR_FORCE:
             self._candidate_force, self._force_counter = (x, y, z), counter

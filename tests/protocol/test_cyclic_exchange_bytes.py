@@ -558,3 +558,22 @@ def test_a_boot_up_is_judged_even_from_a_node_never_heard_operational(bus, clock
     one_cycle(ex, clock, None)
     bus.answers[1] = [frame(heartbeat_id(2), b"\x00"), *all_answers(1)]
     assert one_cycle(ex, clock, None).nmt_reports == (NmtReport(2, 0),)
+
+
+def test_a_stalled_device_s_burst_of_owed_answers_is_not_a_second_sender_but_still_not_used(bus, clock):
+    """Drive 2 misses a window, then answers both SYNCs in the next one (a stalled simulator): no
+    sample (nobody can tell which is which), counted late, no duplicate reported; once it has caught
+    up, two candidates again are a second sender's."""
+    ex = make_exchange(bus, clock)
+    bus.answers[0] = all_answers(0)
+    one_cycle(ex, clock, None)
+    bus.answers[1] = [f for f in all_answers(1) if f.arbitration_id != tpdo1(2)]
+    assert not one_cycle(ex, clock, None).drives[1].fresh
+    late = next(f for f in all_answers(1) if f.arbitration_id == tpdo1(2))
+    bus.answers[2] = [late, *all_answers(2)]
+    before = ex.counters.late_frames
+    fb = one_cycle(ex, clock, None)
+    assert not fb.drives[1].fresh and fb.anomalies == () and ex.counters.late_frames == before + 1
+    bus.answers[3] = [late, *all_answers(3)]  # nothing owed any more
+    fb = one_cycle(ex, clock, None)
+    assert not fb.drives[1].fresh and (Anomaly.DUPLICATE_FRAME, tpdo1(2)) in anomalies(fb)
