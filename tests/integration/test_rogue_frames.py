@@ -240,3 +240,13 @@ def test_a_rogue_sender_on_udp_multicast_never_steers_the_controller(tmp_path):
     assert all(abs(b - a) < 0.02 for a, b in itertools.pairwise(used))  # 50 mm never appears in what was used
     targets = [c.outputs.targets[1] for c in cycles]
     assert all(abs(b - a) < 0.02 for a, b in itertools.pairwise(targets))
+
+
+def test_a_long_burst_is_reported_while_it_goes_on_not_once_per_run_nor_per_frame():
+    """1.2 s of short EMCYs (480 cycles): a start, the running count after a second, the end with its count."""
+    final, trace = run([f"rogue_emcy:2@{ROGUE_AT_S}+1.2"], max_s=4.0)
+    assert final.mode == Mode.DONE, final.fault_reason
+    burst = [e.message for e in trace.events if "(COB-ID 0x082)" in e.message]
+    what = "frame(s) of the wrong length (rejected) from node 2 (COB-ID 0x082)"
+    assert burst == [f"burst starts: 1 {what}", f"burst goes on: 401 {what} in 401 cycle(s) so far",
+                     f"burst ended: 480 {what} in 480 cycle(s)"]
