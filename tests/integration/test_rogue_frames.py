@@ -11,6 +11,7 @@ from __future__ import annotations
 import itertools
 import json
 import random
+import signal
 import struct
 import subprocess
 import sys
@@ -18,15 +19,21 @@ import threading
 from dataclasses import dataclass, field
 
 import can
+import canopen
 import pytest
 from busy_machine import TOLERANT
+from test_faults import _wait_until_drive_1_moves_under_the_controller
+from waiting import wait_until
 
 from controller.assembly import build_law
 from controller.config import load_config
 from controller.core.control_law import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
 from controller.shell.loop import CycleLoop, CycleTiming, SimulatedTime
-from drivers.cia402 import PowerState
+from controller.tools.demo import simulator_process, stop_process
+from drivers.bus import parse_bus_spec
+from drivers.cia402 import PowerState, decode_statusword
+from drivers.node_setup import DRIVE_EDS
 from sim_backend.drive import ABORT_NO_ACTION
 from sim_backend.loopback import LoopbackExchange
 
@@ -250,3 +257,48 @@ def test_a_long_burst_is_reported_while_it_goes_on_not_once_per_run_nor_per_fram
     what = "frame(s) of the wrong length (rejected) from node 2 (COB-ID 0x082)"
     assert burst == [f"burst starts: 1 {what}", f"burst goes on: 401 {what} in 401 cycle(s) so far",
                      f"burst ended: 480 {what} in 480 cycle(s)"]
+
+
+@pytest.mark.integration
+def test_another_master_s_nmt_pre_operational_leaves_no_drive_enabled_over_udp_multicast(tmp_path):
+    """The issue's case: with loop.stay_in_fault = true, a second node on the bus sends NMT "enter
+    PRE-OPERATIONAL" to drive 2 mid-motion. Drive 2 no longer processes RPDOs (their quick stop), yet
+    every drive, read back over SDO while the controller holds FAULT, is out of OPERATION ENABLED
+    (its own 0x6007 reaction and the controller's SDO quick stop), and the fault names command and node."""
+    port = random.SystemRandom().randint(48000, 49999)
+    spec = parse_bus_spec("udp_multicast", udp_port=port)
+    ids = tuple(load_config().actuators.node_ids)
+    sets = ["--set", "task.path.laps=3", "--set", f'recording.directory="{tmp_path}"', "--set", "monitoring.enabled=false",
+            "--set", "loop.stay_in_fault=true", *TOLERANT]
+    with simulator_process(spec, None, ["task.path.laps=3"]), \
+            can.Bus(interface="udp_multicast", channel=spec.channel, port=port) as bus:
+        ctrl = subprocess.Popen([sys.executable, "-m", "controller", "run", "--json", "--no-realtime",
+                                 "--udp-port", str(port), *sets],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            _wait_until_drive_1_moves_under_the_controller(bus, ctrl)
+            bus.send(can.Message(arbitration_id=0x000, data=bytes((0x80, 2)), is_extended_id=False))
+            network = canopen.Network(can.Bus(interface="udp_multicast", channel=spec.channel, port=port))
+            network.connect()  # a socket of its own, without the backlog of ``bus``
+            try:
+                for node_id in ids:
+                    node = canopen.RemoteNode(node_id, str(DRIVE_EDS))
+                    node.sdo.RESPONSE_TIMEOUT = 2.0
+                    network.add_node(node)
+
+                def none_enabled() -> bool:
+                    assert ctrl.poll() is None, ctrl.communicate()  # the controller holds FAULT
+                    states = [decode_statusword(network[n].sdo[0x6041].raw) for n in ids]
+                    return PowerState.OPERATION_ENABLED not in states
+
+                wait_until(none_enabled, "every drive out of OPERATION ENABLED while the controller holds FAULT",
+                           poll_s=0.05)
+            finally:
+                network.disconnect()
+            ctrl.send_signal(signal.SIGINT)  # a stop ends a run that holds FAULT
+            out, err = ctrl.communicate(timeout=60)
+            summary = json.loads(out)
+            assert summary["final_mode"] == "FAULT", err[-2000:]
+            assert summary["fault_reason"] == "NMT enter PRE-OPERATIONAL to node 2 from another master"
+        finally:
+            stop_process(ctrl)
