@@ -277,19 +277,25 @@ class ControlLaw:
             state = self._enter(state, Mode.RUNNING, t, events, why="remote resume")
 
         state = self._handlers[state.mode](state, inputs, powers, measured, t, events)
-        by_sdo: tuple[int, ...] = ()
-        if state.mode == Mode.FAULT:
-            # quick stop by SDO as well to every drive that may not process the RPDO's controlword
-            doubtful = state.unreachable | {j for j, s in enumerate(state.missing_streak) if s > 0}
-            by_sdo = tuple(sorted(doubtful - state.sdo_stopped))
-            if by_sdo:
-                state = replace(state, sdo_stopped=state.sdo_stopped | set(by_sdo))
-                nodes = ", ".join(str(self._node_id(j)) for j in by_sdo)
-                events.append(Event("sdo_quick_stop", Severity.WARNING,
-                                    f"quick stop by SDO 0x6040 as well to node(s) {nodes}: not OPERATIONAL or not heard"))
+        state, by_sdo = self._quick_stops_by_sdo(state, events)
         outputs = CycleOutputs(controlwords=state.controlwords, targets=state.setpoint.position,
                                sdo_controlwords=tuple((j, CW_QUICK_STOP) for j in by_sdo))
         return state, outputs, tuple(events)
+
+    def _quick_stops_by_sdo(self, state: ControllerState, events: list[Event]
+                            ) -> tuple[ControllerState, tuple[int, ...]]:
+        """In FAULT: the drives to be sent the quick stop by SDO as well (once each), those that may
+        not process the RPDO that carries it: not OPERATIONAL, told to leave it, or not heard."""
+        if state.mode != Mode.FAULT:
+            return state, ()
+        doubtful = state.unreachable | {j for j, s in enumerate(state.missing_streak) if s > 0}
+        by_sdo = tuple(sorted(doubtful - state.sdo_stopped))
+        if not by_sdo:
+            return state, ()
+        nodes = ", ".join(str(self._node_id(j)) for j in by_sdo)
+        events.append(Event("sdo_quick_stop", Severity.WARNING,
+                            f"quick stop by SDO 0x6040 as well to node(s) {nodes}: not OPERATIONAL or not heard"))
+        return replace(state, sdo_stopped=state.sdo_stopped | set(by_sdo)), by_sdo
 
     def _node_id(self, j: int) -> int:
         ids = self.config.drive_node_ids
