@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import can
 
@@ -82,6 +82,7 @@ class ExchangeCounters:
     frames_in: int = 0
     frames_out: int = 0
     rejected_frames: int = 0  # frames that did not decode
+    rejected_by_node: dict[int, int] = field(default_factory=dict)  # the same, per configured node
     late_frames: int = 0  # TPDOs of an earlier cycle, found before this cycle's SYNC
     missing_drive_frames: int = 0
     missing_sensor_frames: int = 0
@@ -208,6 +209,7 @@ class CyclicExchange:
         self._collecting = False
         self.drive_ids = tuple(drive_ids)
         self.sensor_id = sensor_id
+        self.tracker_id = tracker_id
         self._sdo = can.Message(arbitration_id=0, data=bytearray(8), is_extended_id=False)
         self.heartbeat_timeout_s = heartbeat_timeout_s
         self.last_heartbeat_s = [math.nan] * self.n
@@ -401,7 +403,6 @@ class CyclicExchange:
                 self._on_tracker(kind, msg)
             elif kind == _EMCY:
                 if len(msg.data) != 8:
-                    self._report(Anomaly.REJECTED_FRAME, msg.arbitration_id, index)
                     raise FrameError(f"EMCY from node {index} must have 8 data bytes, got {len(msg.data)}")
                 code = int.from_bytes(msg.data[0:2], "little")
                 self._emcy.append(EmcyReport(index, code, msg.data[2]))
@@ -414,7 +415,26 @@ class CyclicExchange:
             elif kind == _KERNEL_SYNC:
                 self._on_kernel_sync(msg)
         except FrameError:
-            c.rejected_frames += 1
+            self._reject(msg.arbitration_id, self._node_of(kind, index, msg.arbitration_id))
+
+    def _node_of(self, kind: int, index: int, cob_id: int) -> int:
+        """The configured node a routed frame belongs to (0: the controller's own COB-IDs)."""
+        if kind == _EMCY:
+            return index
+        if kind == _HEARTBEAT:
+            return cob_id - 0x700
+        if kind in (_SENSOR_FORCE, _SENSOR_TORQUE):
+            return self.sensor_id or 0
+        if kind in (_TRACKER_P, _TRACKER_R):
+            return self.tracker_id or 0
+        return 0
+
+    def _reject(self, cob_id: int, node_id: int) -> None:
+        """A configured node's frame that does not decode: counted per node and reported with it."""
+        c = self.counters
+        c.rejected_frames += 1
+        c.rejected_by_node[node_id] = c.rejected_by_node.get(node_id, 0) + 1
+        self._report(Anomaly.REJECTED_FRAME, cob_id, node_id)
 
     def _on_drive_tpdo(self, j: int, msg: can.Message, now: float) -> None:
         """A candidate for drive ``j``'s sample: judged, kept until the window closes."""
@@ -437,8 +457,7 @@ class CyclicExchange:
         try:
             sw, counts = self._codecs[j].decode_tpdo(msg.data)
         except FrameError:
-            self.counters.rejected_frames += 1
-            self._report(Anomaly.REJECTED_FRAME, msg.arbitration_id, node)
+            self._reject(msg.arbitration_id, node)
             self._candidate_ok[j] = False
             return
         x = self.scale.to_unit(counts)
@@ -473,9 +492,8 @@ class CyclicExchange:
         try:
             x, y, z, status, counter = codec.decode(msg.data)
         except FrameError:
-            self._report(Anomaly.REJECTED_FRAME, msg.arbitration_id, sensor_node)
             self._sensor_ambiguous = self._sensor_ambiguous or self._collecting
-            raise
+            raise  # rejected and reported by _notify
         if self._collecting and not self._counter_follows(counter):
             self._report(Anomaly.IMPLAUSIBLE_FRAME, msg.arbitration_id, sensor_node)
             self._sensor_ambiguous = True

@@ -343,6 +343,9 @@ def test_sensor_and_emcy_frames_of_the_wrong_length_are_rejected_and_counted(bus
     fb = one_cycle(ex, clock, None)
     assert ex.counters.rejected_frames == 1
     assert fb.emcy == ()
+    node = 1 if cob_id == emcy_id(1) else SENSOR  # counted per node and named, not rejected silently
+    assert ex.counters.rejected_by_node == {node: 1}
+    assert (Anomaly.REJECTED_FRAME, node) in {(a.kind, a.node_id) for a in fb.anomalies}
 
 
 def test_a_tpdo_that_arrives_after_the_collect_is_late_never_used_and_a_second_candidate(bus, clock):
