@@ -260,7 +260,7 @@ class ControlLaw:
             # Recovery without a jump: ENABLING resets the drives' faults and commands the
             # measured positions; HOLDING restarts Ruckig from rest there; the task starts again.
             state = replace(self._enter(state, Mode.ENABLING, t, events, why="reset"), fault_reason="",
-                            setpoint=Setpoint.at_rest(measured), task_time_s=0.0, sensor_stale=0, sensor_missing=0,
+                            setpoint=self._hold(state), task_time_s=0.0, sensor_stale=0, sensor_missing=0,
                             late_streak=0, warned=frozenset(), unreachable=frozenset(), sdo_stopped=frozenset())
         if inputs.command == Command.QUICK_STOP and state.mode not in (Mode.FAULT, Mode.DONE):
             why = "quick stop requested"
@@ -566,11 +566,11 @@ class ControlLaw:
 
     def _enabling(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...],
                   measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
-        # Command the measured position while the drives are not enabled: no jump at enable. A drive
+        # Command the measured (trusted) position while the drives are not enabled: no jump at enable. A drive
         # not heard this cycle keeps its controlword: its statusword is old news (it may say FAULT).
         cws = tuple(controlword_towards(p, PowerState.OPERATION_ENABLED, cw) if d.fresh else cw
                     for p, cw, d in zip(powers, state.controlwords, inputs.drives))
-        state = replace(state, controlwords=cws, setpoint=Setpoint.at_rest(measured))
+        state = replace(state, controlwords=cws, setpoint=self._hold(state))  # where each was last trusted
         if all(p == PowerState.OPERATION_ENABLED for p in powers):
             return self._enter(state, Mode.HOLDING, t, events, why="all drives in OPERATION ENABLED")
         if t - state.mode_entered_s > self.config.enable_timeout_s:
