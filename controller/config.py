@@ -142,7 +142,7 @@ class BusSection(Section, frozen=True):
 
 class LoopSection(Section, frozen=True):
     rate_hz: Annotated[float, rng(1.0, 4000.0)] = 400.0
-    collect_fraction: Annotated[float, rng(0.05, 0.95)] = 0.8
+    collect_fraction: Annotated[float, rng(0.05, 0.95)] = 0.8  # the answer window after SYNC (drivers/cyclic_exchange.py)
     spin_us: Annotated[float, rng(0.0, 5000.0)] = 300.0
     gil_switch_interval_us: Annotated[float, rng(1.0, 100000.0)] = 200.0
     freeze_gc: bool = True  # gc.freeze() the start-up heap before the loop (controller/shell/realtime.py)
