@@ -49,7 +49,13 @@ def safety_config(cfg: Config) -> SafetyConfig:
         following_window=s.following_window_rad if rotary else s.following_window_m,
         on_unknown_node=s.on_unknown_node, on_foreign_sync=s.on_foreign_sync, on_foreign_nmt=s.on_foreign_nmt,
         on_foreign_command=s.on_foreign_command, on_duplicate_frames=s.on_duplicate_frames,
-        on_frame_flood=s.on_frame_flood)
+        on_rejected_frames=s.on_rejected_frames, on_frame_flood=s.on_frame_flood)
+
+
+def position_plausibility(cfg: Config) -> tuple[float, float]:
+    """What the exchange judges every drive candidate by (drivers/cyclic_exchange.py), in actuator
+    units: the speed limit over one period, and the margin the law's jump check allows."""
+    return actuator_units(cfg).max_velocity * cfg.period_s, safety_config(cfg).max_position_jump
 
 
 @dataclass(frozen=True)
@@ -69,7 +75,7 @@ def assemble(cfg: Config, robot: Robot | None = None) -> Assembly:
                         max_missing_cycles=cfg.loop.max_missing_cycles,
                         settle_tolerance=cfg.loop.settle_tolerance_m, safety=safety_config(cfg),
                         max_speed=a.max_velocity, position_unit=a.unit.value,
-                        rest_target=0.5 * (a.stroke_min + a.stroke_max))
+                        rest_target=0.5 * (a.stroke_min + a.stroke_max), drive_node_ids=tuple(cfg.actuators.node_ids))
     return Assembly(ControlLaw(robot, built.task, RuckigSmoother(limits, cfg.period_s), law_cfg), built.reports)
 
 

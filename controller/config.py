@@ -143,7 +143,7 @@ class BusSection(Section, frozen=True):
 
 class LoopSection(Section, frozen=True):
     rate_hz: Annotated[float, rng(1.0, 4000.0)] = 400.0
-    collect_fraction: Annotated[float, rng(0.05, 0.95)] = 0.8
+    collect_fraction: Annotated[float, rng(0.05, 0.95)] = 0.8  # the answer window after SYNC (drivers/cyclic_exchange.py)
     spin_us: Annotated[float, rng(0.0, 5000.0)] = 300.0
     gil_switch_interval_us: Annotated[float, rng(1.0, 100000.0)] = 200.0
     freeze_gc: bool = True  # gc.freeze() the start-up heap before the loop (controller/shell/realtime.py)
@@ -193,7 +193,10 @@ class SafetySection(Section, frozen=True):
     on_foreign_sync: Reaction = Reaction("fault")  # a second SYNC producer
     on_foreign_nmt: Reaction = Reaction("fault")  # someone else's NMT command to our nodes
     on_foreign_command: Reaction = Reaction("fault")  # someone else's RPDO or SDO to our drives
-    on_duplicate_frames: Reaction = Reaction("warn")  # a node's TPDO twice in one cycle
+    # A device's TPDO twice in one answer window: the sample is never used (as if missing); this is
+    # what to do about a second sender on the bus (README, "A bus that cannot lie": why "fault").
+    on_duplicate_frames: Reaction = Reaction("fault")
+    on_rejected_frames: Reaction = Reaction("warn")  # a configured node's frame of the wrong length (per burst)
     on_frame_flood: Reaction = Reaction("fault")
     max_foreign_frames_per_cycle: Annotated[int, rng(1, 100000)] = 16
 

@@ -11,6 +11,18 @@ someone else's (a second SYNC producer, a second master); frames from COB-IDs no
 EMCY and heartbeats of unknown nodes, two TPDOs of one node in one cycle and a flood of
 foreign frames become ``BusAnomaly`` reports; heartbeats of configured nodes that do not say
 OPERATIONAL become ``NmtReport`` s. What to do about them is the law's decision ([safety]).
+
+A measurement is used only when it can only be the device's (DESIGN.md, "Trust in measurements"):
+a TPDO counts as a sample only in its answer window, from this cycle's SYNC to the collect
+deadline (the collect waits for the whole window, so a frame that comes before the real answer
+cannot complete the cycle); two candidates for one device in one window make the device's
+sample unusable for the cycle (as if missing), whichever came first; a frame that does not
+decode is a candidate too, and reported with its node. Every candidate is judged on the
+device's physics: a drive's position against its last trusted one (``max_position_step`` per
+cycle + ``max_position_jump``), the sensor's rolling counter against its last trusted one. A
+lone implausible drive sample is delivered for the law's jump check (which faults and names
+it); an implausible candidate among several, or a sensor sample whose counter cannot follow,
+is reported. Frames of a cycle's devices after the window are late: counted, never used.
 """
 
 from __future__ import annotations
@@ -18,7 +30,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import can
 
@@ -50,6 +62,9 @@ FrameSink = Callable[[bool, float, can.Message], None]  # (outgoing, monotonic t
 _DRIVE, _SENSOR_FORCE, _SENSOR_TORQUE, _EMCY, _HEARTBEAT, _OWN, _IGNORED, _TRACKER_P, _TRACKER_R, _KERNEL_SYNC = range(10)
 CAN_ERR_BUSOFF = 0x040  # error class bit of a SocketCAN error frame (linux/can/error.h)
 NMT_OPERATIONAL, NMT_BOOT_UP = 5, 0  # CiA 301 heartbeat state byte
+SDO_DOWNLOAD_2_BYTES = 0x2B  # CiA 301 expedited download of 2 data bytes (client command specifier)
+CONTROLWORD = 0x6040
+COUNTER_MODULO = 256  # the sensor's rolling counter is a u8
 DEFAULT_FLOOD_FRAMES = 16  # foreign frames in one cycle that make a flood (config safety.max_foreign_frames_per_cycle)
 
 
@@ -67,6 +82,7 @@ class ExchangeCounters:
     frames_in: int = 0
     frames_out: int = 0
     rejected_frames: int = 0  # frames that did not decode
+    rejected_by_node: dict[int, int] = field(default_factory=dict)  # the same, per configured node
     late_frames: int = 0  # TPDOs of an earlier cycle, found before this cycle's SYNC
     missing_drive_frames: int = 0
     missing_sensor_frames: int = 0
@@ -82,7 +98,9 @@ class CyclicExchange:
                  heartbeat_timeout_s: float = 0.5, drive_codecs: tuple[DriveCodec, ...] | None = None,
                  sensor_codecs: tuple[SensorFrameCodec, SensorFrameCodec] | None = None,
                  send_sync: bool = True, flood_frames_per_cycle: int = DEFAULT_FLOOD_FRAMES,
-                 tracker_id: int | None = None, sync_period_s: float = 0.0) -> None:
+                 tracker_id: int | None = None, sync_period_s: float = 0.0,
+                 max_position_step: float = math.inf, max_position_jump: float = math.inf,
+                 answer_window_s: float = math.inf) -> None:
         self.bus = bus
         self.fd = fd
         self.send_sync = send_sync  # False: the kernel's broadcast manager sends SYNC (drivers/kernel_sync.py)
@@ -141,7 +159,7 @@ class CyclicExchange:
         if not send_sync:  # but SYNC is the kernel's broadcast manager's (drivers/kernel_sync.py)
             self._dispatch[cob_ids.SYNC] = (_KERNEL_SYNC, cob_ids.SYNC)
         self.flood_frames_per_cycle = flood_frames_per_cycle
-        self._anomalies: dict[tuple[Anomaly, int], int] = {}
+        self._anomalies: dict[tuple[Anomaly, int, int, int], int] = {}  # (kind, COB-ID, node, command) -> count
         self._foreign_in_cycle = 0
         self._nmt: dict[int, int] = {}  # node -> last non-operational heartbeat state this cycle
         self._operational_nodes: set[int] = set()  # configured nodes heard OPERATIONAL
@@ -150,9 +168,35 @@ class CyclicExchange:
         self._statusword = [0] * self.n
         self._position = [math.nan] * self.n
         self._fresh = [False] * self.n
+        # This window's candidates per drive: how many, the last decoded one, and whether any was
+        # beyond the drive's physics (judged against the last trusted position).
+        self._candidates = [0] * self.n
+        self._candidate_sw = [0] * self.n
+        self._candidate_x = [math.nan] * self.n
+        self._candidate_ok = [False] * self.n  # the last candidate decoded
+        self._implausible = [False] * self.n
+        self._trusted_x = [math.nan] * self.n  # the last position used as a sample
+        self._cycles_since_trusted = [0] * self.n
+        self.max_position_step = max_position_step  # [unit per cycle] the actuator's speed limit x period
+        self.max_position_jump = max_position_jump  # [unit] safety.max_position_jump
+        # How long after its SYNC a cycle's answers are taken once every device has answered; at most
+        # to collect's deadline (the loop's: collect_fraction of the period). Tools and tests that
+        # give a generous deadline for a slow simulator shorten it.
+        self.answer_window_s = answer_window_s
+        self._sensor_candidates = [0, 0]  # force, torque frames this window
+        # Answers a device still owes: windows in a row without any candidate of it. A device that
+        # stalls answers the SYNCs it missed in a burst; one extra candidate per answer owed is its
+        # own late answer, not a second sender: still no sample (nobody can tell which is which),
+        # counted late, not reported. A rogue cannot use it: nothing ambiguous is ever used.
+        self._owed = [0] * self.n
+        self._sensor_owed = [0, 0]
+        self._sensor_trusted_counter = -1  # the counter of the last sample used
+        self._sensor_cycles_since_trusted = 0
         self._force = (0.0, 0.0, 0.0)
         self._torque = (0.0, 0.0, 0.0)
         self._sensor_status = 0
+        self._candidate_force = self._candidate_torque = (0.0, 0.0, 0.0)  # this window's, until it closes
+        self._candidate_status = 0
         self._force_counter = -1
         self._torque_counter = -1
         self._sensor_fresh = False
@@ -164,6 +208,9 @@ class CyclicExchange:
         self._emcy: list[EmcyReport] = []
         self._collecting = False
         self.drive_ids = tuple(drive_ids)
+        self.sensor_id = sensor_id
+        self.tracker_id = tracker_id
+        self._sdo = can.Message(arbitration_id=0, data=bytearray(8), is_extended_id=False)
         self.heartbeat_timeout_s = heartbeat_timeout_s
         self.last_heartbeat_s = [math.nan] * self.n
         self.started_s = clock()
@@ -192,6 +239,10 @@ class CyclicExchange:
         self._drain_late()
         self._judging = True
         self._fresh = [False] * self.n
+        self._candidates = [0] * self.n
+        self._implausible = [False] * self.n
+        self._candidate_ok = [False] * self.n
+        self._sensor_candidates = [0, 0]
         self._sensor_fresh = self._sensor_ambiguous = False
         self._force_counter = self._torque_counter = -1
         self.sent_s = self.clock()
@@ -206,6 +257,19 @@ class CyclicExchange:
             self._send(self._heartbeat)
         self.cycles += 1
 
+    def send_controlword_by_sdo(self, drive_index: int, controlword: int) -> None:
+        """An expedited SDO download of 0x6040 to one drive, not waiting for the answer.
+
+        For a drive that does not process RPDOs (PRE-OPERATIONAL, or not heard): SDO works in
+        PRE-OPERATIONAL too (CiA 301). Its answer on 0x580 + node is ignored like set-up's late ones.
+        """
+        node = self.drive_ids[drive_index]
+        msg = self._sdo
+        msg.arbitration_id = cob_ids.sdo_request(node)
+        msg.data[:] = bytes((SDO_DOWNLOAD_2_BYTES, CONTROLWORD & 0xFF, CONTROLWORD >> 8, 0,
+                             controlword & 0xFF, (controlword >> 8) & 0xFF, 0, 0))
+        self._send(msg)
+
     # -- in ---------------------------------------------------------------------------------
 
     def _drain_late(self) -> None:
@@ -218,20 +282,28 @@ class CyclicExchange:
             self._notify(msg)
 
     def _complete(self) -> bool:
-        return all(self._fresh) and (self._sensor_fresh or not self.has_sensor)
+        return all(self._candidates) and (not self.has_sensor or min(self._sensor_candidates) > 0)
 
     def collect(self, deadline_s: float) -> BusFeedback:
-        """Receive until every TPDO of this cycle arrived or ``deadline_s`` (monotonic) passed."""
+        """Receive until ``deadline_s`` (monotonic), the end of this cycle's answer window.
+
+        The whole window, even when every device has answered: a second candidate for a device
+        (someone else on its COB-ID) must be seen whether it comes before or after the real one.
+        """
         self._collecting = True
         clock = self.clock
-        while not self._complete():
+        window_end_s = min(deadline_s, self.sent_s + self.answer_window_s)
+        while True:
+            remaining = (window_end_s if self._complete() else deadline_s) - clock()
+            if remaining <= 0.0 and self._complete():
+                break
             # Past the deadline, still take what has already arrived: if this process was
             # descheduled, the answers may be waiting in the socket, and they are on time.
-            remaining = max(0.0, deadline_s - clock())
-            msg = self.bus.recv(timeout=remaining)
+            msg = self.bus.recv(timeout=max(0.0, remaining))
             if msg is None:
                 break
             self._notify(msg)
+        self._close_window()
         c = self.counters
         missing = self.n - sum(self._fresh)
         c.missing_drive_frames += missing
@@ -261,17 +333,45 @@ class CyclicExchange:
         self._nmt = {}
         return feedback
 
+    def _close_window(self) -> None:
+        """The window's verdict per device: one decoded candidate is the sample, else none."""
+        self._owed = [owed + 1 if count == 0 else 0 for owed, count in zip(self._owed, self._candidates)]
+        self._sensor_owed = [owed + 1 if count == 0 else 0
+                             for owed, count in zip(self._sensor_owed, self._sensor_candidates)]
+        for j in range(self.n):
+            count = self._candidates[j]
+            if count == 1 and self._candidate_ok[j]:
+                self._statusword[j] = self._candidate_sw[j]
+                self._position[j] = self._candidate_x[j]
+                self._fresh[j] = True
+                if not self._implausible[j]:  # a lone implausible one goes to the law's jump check
+                    self._trusted_x[j] = self._candidate_x[j]
+                    self._cycles_since_trusted[j] = 0
+                    continue
+            elif count > 1 and self._implausible[j]:
+                self._report(Anomaly.IMPLAUSIBLE_FRAME, self._codecs[j].tpdo_cob_id, self.drive_ids[j])
+            self._cycles_since_trusted[j] += 1
+        if self.has_sensor:
+            if self._sensor_fresh and not self._sensor_ambiguous:
+                self._force, self._torque = self._candidate_force, self._candidate_torque
+                self._sensor_status = self._candidate_status
+                self._sensor_trusted_counter = self._force_counter
+                self._sensor_cycles_since_trusted = 0
+            else:
+                self._sensor_cycles_since_trusted += 1
+
     def _anomaly_reports(self) -> tuple[BusAnomaly, ...]:
-        reports = tuple(BusAnomaly(kind, cob, n) for (kind, cob), n in self._anomalies.items())
+        reports = tuple(BusAnomaly(kind, cob, n, node, command)
+                        for (kind, cob, node, command), n in self._anomalies.items())
         if self._foreign_in_cycle > self.flood_frames_per_cycle:
             busiest = max(self._anomalies.items(), key=lambda item: item[1])[0][1]
             reports += (BusAnomaly(Anomaly.FRAME_FLOOD, busiest, self._foreign_in_cycle),)
         return reports
 
-    def _report(self, kind: Anomaly, cob_id: int) -> None:
+    def _report(self, kind: Anomaly, cob_id: int, node_id: int = 0, command: int = 0) -> None:
         if not self._judging:
             return
-        key = (kind, cob_id)
+        key = (kind, cob_id, node_id, command)
         self._anomalies[key] = self._anomalies.get(key, 0) + 1
         self._foreign_in_cycle += 1
         self.counters.foreign_frames += 1
@@ -293,19 +393,11 @@ class CyclicExchange:
             self._report(_unknown_kind(msg.arbitration_id), msg.arbitration_id)
             return
         kind, index = route
+        if kind == _DRIVE:
+            self._on_drive_tpdo(index, msg, now)
+            return
         try:
-            if kind == _DRIVE:
-                sw, counts = self._codecs[index].decode_tpdo(msg.data)
-                if self._collecting and self._fresh[index]:
-                    self._report(Anomaly.DUPLICATE_FRAME, msg.arbitration_id)  # the last one wins, reported
-                self._statusword[index] = sw
-                self._position[index] = self.scale.to_unit(counts)
-                if self._collecting:
-                    self._fresh[index] = True
-                    self.last_frame_in_s = now
-                else:
-                    c.late_frames += 1
-            elif kind in (_SENSOR_FORCE, _SENSOR_TORQUE):
+            if kind in (_SENSOR_FORCE, _SENSOR_TORQUE):
                 self._on_sensor(kind, msg, now)
             elif kind in (_TRACKER_P, _TRACKER_R):
                 self._on_tracker(kind, msg)
@@ -323,27 +415,100 @@ class CyclicExchange:
             elif kind == _KERNEL_SYNC:
                 self._on_kernel_sync(msg)
         except FrameError:
-            c.rejected_frames += 1
+            self._reject(msg.arbitration_id, self._node_of(kind, index, msg.arbitration_id))
+
+    def _node_of(self, kind: int, index: int, cob_id: int) -> int:
+        """The configured node a routed frame belongs to (0: the controller's own COB-IDs)."""
+        if kind == _EMCY:
+            return index
+        if kind == _HEARTBEAT:
+            return cob_id - 0x700
+        if kind in (_SENSOR_FORCE, _SENSOR_TORQUE):
+            return self.sensor_id or 0
+        if kind in (_TRACKER_P, _TRACKER_R):
+            return self.tracker_id or 0
+        return 0
+
+    def _reject(self, cob_id: int, node_id: int) -> None:
+        """A configured node's frame that does not decode: counted per node and reported with it."""
+        c = self.counters
+        c.rejected_frames += 1
+        c.rejected_by_node[node_id] = c.rejected_by_node.get(node_id, 0) + 1
+        self._report(Anomaly.REJECTED_FRAME, cob_id, node_id)
+
+    def _on_drive_tpdo(self, j: int, msg: can.Message, now: float) -> None:
+        """A candidate for drive ``j``'s sample: judged, kept until the window closes."""
+        node = self.drive_ids[j]
+        if not self._collecting:
+            # Before this cycle's SYNC: the last window is closed. Late, never used; a second one for a
+            # cycle that already had its sample is someone else's (or the true one after a rogue's).
+            self.counters.late_frames += 1
+            if self._owed[j] > 0:
+                self._owed[j] -= 1  # the answer to a SYNC it missed
+            elif self._fresh[j]:
+                self._report(Anomaly.DUPLICATE_FRAME, msg.arbitration_id, node)
+            return
+        self._candidates[j] += 1
+        self.last_frame_in_s = now
+        if self._candidates[j] - 1 > self._owed[j]:
+            self._report(Anomaly.DUPLICATE_FRAME, msg.arbitration_id, node)
+        elif self._candidates[j] > 1:
+            self.counters.late_frames += 1
+        try:
+            sw, counts = self._codecs[j].decode_tpdo(msg.data)
+        except FrameError:
+            self._reject(msg.arbitration_id, node)
+            self._candidate_ok[j] = False
+            return
+        x = self.scale.to_unit(counts)
+        trusted = self._trusted_x[j]
+        possible = self.max_position_step * (self._cycles_since_trusted[j] + 1) + self.max_position_jump
+        if abs(x - trusted) > possible:  # False while nothing is trusted yet (NaN)
+            self._implausible[j] = True
+        self._candidate_sw[j], self._candidate_x[j], self._candidate_ok[j] = sw, x, True
+
+    def _counter_follows(self, counter: int) -> bool:
+        """A sensor counter the sensor can have sent now: the trusted one, or as many steps on as SYNCs since.
+
+        The same counter is a stale sensor (the law's judgement), not someone else's frame.
+        """
+        if self._sensor_trusted_counter < 0:
+            return True
+        step = (counter - self._sensor_trusted_counter) % COUNTER_MODULO
+        return step <= self._sensor_cycles_since_trusted + 1
 
     def _on_sensor(self, kind: int, msg: can.Message, now: float) -> None:
         codec = self._force_codec if kind == _SENSOR_FORCE else self._torque_codec
-        x, y, z, status, counter = codec.decode(msg.data)
-        previous = self._force_counter if kind == _SENSOR_FORCE else self._torque_counter
-        if self._collecting and previous >= 0 and counter != (previous + 1) % 256:
-            # A second frame in one cycle that is not simply the newer sample after a late one:
-            # two senders on the sensor's COB-ID. Nobody can tell which is true: no fresh sample.
-            self._report(Anomaly.DUPLICATE_FRAME, msg.arbitration_id)
+        k = 0 if kind == _SENSOR_FORCE else 1
+        sensor_node = self.sensor_id or 0
+        if self._collecting:
+            self._sensor_candidates[k] += 1
+            if self._sensor_candidates[k] > 1:
+                # Two senders on the sensor's COB-ID, or a late sample and the true one: nobody can
+                # tell which is true: no fresh sample this cycle.
+                if self._sensor_candidates[k] - 1 > self._sensor_owed[k]:
+                    self._report(Anomaly.DUPLICATE_FRAME, msg.arbitration_id, sensor_node)
+                self._sensor_ambiguous = True
+        try:
+            x, y, z, status, counter = codec.decode(msg.data)
+        except FrameError:
+            self._sensor_ambiguous = self._sensor_ambiguous or self._collecting
+            raise  # rejected and reported by _notify
+        if self._collecting and not self._counter_follows(counter):
+            self._report(Anomaly.IMPLAUSIBLE_FRAME, msg.arbitration_id, sensor_node)
             self._sensor_ambiguous = True
+        if not self._collecting:
+            self.counters.late_frames += 1
+            self._sensor_owed[k] = max(0, self._sensor_owed[k] - 1)
+            return  # outside its window: never a sample
         if kind == _SENSOR_FORCE:
-            self._force, self._force_counter = (x, y, z), counter
+            self._candidate_force, self._force_counter = (x, y, z), counter
         else:
-            self._torque, self._torque_counter = (x, y, z), counter
-        self._sensor_status = status
-        if self._collecting and self._force_counter == self._torque_counter:
+            self._candidate_torque, self._torque_counter = (x, y, z), counter
+        self._candidate_status = status
+        if self._force_counter == self._torque_counter:
             self._sensor_fresh = True
             self.last_frame_in_s = now
-        elif not self._collecting:
-            self.counters.late_frames += 1
 
     def _on_tracker(self, kind: int, msg: can.Message) -> None:
         """A tracker frame, whenever it comes (drained or collected): the pair with one counter is a sample."""
@@ -384,8 +549,11 @@ class CyclicExchange:
         if cob == cob_ids.SYNC:
             self._report(Anomaly.FOREIGN_SYNC, cob)
         elif cob == cob_ids.NMT:
-            target = msg.data[1] if len(msg.data) == 2 else 0
+            command, target = (msg.data[0], msg.data[1]) if len(msg.data) == 2 else (0, 0)
             concerns_us = target == 0 or target in self._configured_nodes
-            self._report(Anomaly.FOREIGN_NMT if concerns_us else Anomaly.UNKNOWN_FRAME, cob)
+            if concerns_us:
+                self._report(Anomaly.FOREIGN_NMT, cob, target, command)
+            else:
+                self._report(Anomaly.UNKNOWN_FRAME, cob)
         else:
             self._report(Anomaly.FOREIGN_COMMAND, cob)

@@ -162,6 +162,9 @@ class KernelSyncExchange:
     def collect(self, deadline_s: float) -> BusFeedback:
         return self.exchange.collect(deadline_s)
 
+    def send_controlword_by_sdo(self, drive_index: int, controlword: int) -> None:
+        self.exchange.send_controlword_by_sdo(drive_index, controlword)
+
     def stop(self) -> None:
         """Stop the SYNC (the drives then stop on their SYNC watchdog, as with a silent loop)."""
         if self.task is not None:

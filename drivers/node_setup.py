@@ -189,6 +189,19 @@ def _write_following_error(node: canopen.RemoteNode, node_id: int, plan: NodeSet
     _write_verified(node, node_id, 0x6066, 0, plan.following_error_time_ms)
 
 
+ABORT_CONNECTION_QUICK_STOP = 3  # 0x6007 (CiA 402): what a drive does by itself when it loses its master
+
+
+def _write_abort_connection(node: canopen.RemoteNode, node_id: int) -> None:
+    """0x6007: a drive that loses the controller (its heartbeat, 0x1016, or NMT OPERATIONAL, where a
+    foreign master can take it) quick-stops by itself; the controller's own stop may not reach it."""
+    if find_variable(node.object_dictionary, 0x6007, 0) is None:
+        log.warning("node %d: its EDS has no abort connection option code 0x6007; on a lost master it "
+                    "reacts as its firmware does", node_id)
+        return
+    _write_verified(node, node_id, 0x6007, 0, ABORT_CONNECTION_QUICK_STOP)
+
+
 def configure_pdo(node: canopen.RemoteNode, node_id: int, config: PdoConfig) -> PdoConfig:
     """Write one PDO by CiA 301's remap procedure, then read every parameter back and compare.
 
@@ -280,7 +293,8 @@ def force_then_torque(force: SensorFrameCodec, torque: SensorFrameCodec, node_id
 
 
 def configure_nodes(bus: can.BusABC, plan: NodeSetupPlan) -> NodeSetupReport:
-    """NMT pre-operational; per node: identity, mode, heartbeats, SYNC timing, PDOs; NMT start.
+    """NMT pre-operational; per node: identity, mode, heartbeats (the drives consume the controller's),
+    the drives' reaction to a lost master (0x6007), SYNC timing, PDOs; NMT start.
 
     Every value written is read back; the PDO codecs are built from what the devices report.
     """
@@ -307,6 +321,7 @@ def configure_nodes(bus: can.BusABC, plan: NodeSetupPlan) -> NodeSetupReport:
                                      f"expected 8 (CSP)")
             _write_verified(node, node_id, 0x1017, 0, hb_ms)
             _write_verified(node, node_id, 0x1016, 1, consumer)
+            _write_abort_connection(node, node_id)
             if plan.cycle_period_s > 0:
                 _write_sync_timing(node, node_id, plan.cycle_period_s)
                 _write_interpolation_period(node, node_id, plan.cycle_period_s)

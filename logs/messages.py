@@ -201,7 +201,7 @@ def inputs_to_pb(inputs: CycleInputs, out: pb.CycleInputs) -> None:
     out.bus_off = inputs.bus_off
     out.late = inputs.late
     for a in inputs.anomalies:
-        out.anomalies.add(kind=a.kind.value, cob_id=a.cob_id, count=a.count)
+        out.anomalies.add(kind=a.kind.value, cob_id=a.cob_id, count=a.count, node_id=a.node_id, command=a.command)
     for r in inputs.nmt_reports:
         out.nmt_reports.add(node_id=r.node_id, state=r.state)
     out.plans_ready = inputs.plans_ready
@@ -230,7 +230,7 @@ def inputs_from_pb(msg: pb.CycleInputs) -> CycleInputs:
         stop_requested=msg.stop_requested, command=Command(msg.command), command_value=msg.command_value,
         lost_heartbeats=tuple(msg.lost_heartbeats), error_frames=msg.error_frames, bus_off=msg.bus_off,
         late=msg.late,
-        anomalies=tuple(BusAnomaly(Anomaly(a.kind), a.cob_id, a.count) for a in msg.anomalies),
+        anomalies=tuple(BusAnomaly(Anomaly(a.kind), a.cob_id, a.count, a.node_id, a.command) for a in msg.anomalies),
         nmt_reports=tuple(NmtReport(r.node_id, r.state) for r in msg.nmt_reports),
         tracker=tracker, plans_ready=msg.plans_ready,
     )

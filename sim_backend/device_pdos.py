@@ -129,6 +129,20 @@ class SimulatedPdos:
             out.append((t.pdo.config.cob_id, t.pack()) if t.pack is not None and t.pdo.due_on_sync() else None)
         return out
 
+    def rogue_drive_tpdo(self, j: int, offset: float) -> tuple[int, bytes] | None:
+        """Drive ``j``'s TPDO as mapped, reporting ``offset`` [unit] more than the drive: what someone
+        else on its COB-ID sends (fault injection). Not a transmission of the drive's own."""
+        t = self._drive_tpdos[j]
+        if t.pack is None:
+            return None
+        drive = self.drives[j]
+        true_error = drive.reported_position_error
+        drive.reported_position_error = true_error + offset
+        try:
+            return t.pdo.config.cob_id, t.pack()
+        finally:
+            drive.reported_position_error = true_error
+
     def sensor_tpdos(self) -> list[tuple[int, bytes]]:
         """At a SYNC: the sensor latches a sample; its valid TPDOs as mapped."""
         if self.sensor is None:

@@ -23,8 +23,11 @@ Behaviour, as a real CSP drive:
 - a following-error monitor (0x6065 window, 0x6066 time, written by the master): the position
   reference and the carriage further apart than the window for longer than the time -> FAULT
   and EMCY 0x8611;
-- a watchdog: no SYNC for ``sync_timeout_s`` or no controller heartbeat for the consumer
-  time while enabled -> quick stop and an EMCY (0x8130 heartbeat / 0x8240 sync lost).
+- a watchdog: no SYNC for ``sync_timeout_s`` while enabled -> quick stop and EMCY 0x8240;
+- the abort connection option code 0x6007 (CiA 402), the drive's own reaction to losing its
+  master while enabled: the controller's heartbeat not heard for the consumer time (0x1016,
+  EMCY 0x8130) or NMT leaving OPERATIONAL (PRE-OPERATIONAL or STOPPED, where RPDOs are no
+  longer processed): 0 nothing, 1 FAULT, 2 disable voltage, 3 quick stop.
 
 Time is an argument everywhere (``advance(now_s)``); the process shell reads the clock.
 """
@@ -57,6 +60,9 @@ EMCY_SYNC_LOST = 0x8240
 EMCY_FORCED_FAULT = 0x5000  # device hardware, used by fault injection
 EMCY_FOLLOWING_ERROR = 0x8611  # CiA 402: following error (window 0x6065 exceeded for longer than 0x6066)
 EMCY_SYNC_PERIOD = 0x8700  # CiA 402 "sync controller": the SYNC interval is not the configured period
+EMCY_COMMUNICATION = 0x8100  # CiA 301 communication error: here NMT left OPERATIONAL while enabled
+# 0x6007 abort connection option codes (CiA 402)
+ABORT_NO_ACTION, ABORT_FAULT, ABORT_DISABLE_VOLTAGE, ABORT_QUICK_STOP = 0, 1, 2, 3
 
 # The SYNC period check: the median of this many SYNC intervals (robust to a descheduled master
 # or simulator) against the configured cycle, off by this factor or more either way. It catches a
@@ -117,6 +123,7 @@ class SimulatedDrive:
     last_heartbeat_s: float | None = None
     time_s: float | None = None
     heartbeat_consumer_s: float = 0.0  # object 0x1016; 0 disables the heartbeat watchdog
+    abort_connection_option: int = ABORT_FAULT  # object 0x6007 (the EDS default; set-up writes quick stop)
     communication_cycle_period_s: float = 0.0  # object 0x1006; 0: not configured
     sync_intervals_s: list[float] = field(default_factory=list)  # the last SYNC_PERIOD_WINDOW intervals
     sync_period_mismatch: bool = False  # reported once by EMCY_SYNC_PERIOD until the period matches again
@@ -256,9 +263,25 @@ class SimulatedDrive:
         return round((self.position + self.encoder_offset + self.reported_position_error) * self.params.counts_per_unit)
 
     def on_nmt_stopped(self) -> None:
-        """NMT left OPERATIONAL while enabled: the abort-connection reaction (0x6007 = 3, quick stop)."""
-        if self.power == PowerState.OPERATION_ENABLED:
-            self.power = PowerState.QUICK_STOP_ACTIVE
+        """NMT STOPPED while enabled: an abort connection (0x6007)."""
+        self.on_nmt_left_operational()
+
+    def on_nmt_left_operational(self) -> None:
+        """NMT PRE-OPERATIONAL or STOPPED while enabled: RPDOs no longer reach it, an abort connection."""
+        self.abort_connection(EMCY_COMMUNICATION)
+
+    def abort_connection(self, error_code: int) -> None:
+        """The reaction 0x6007 asks for to a lost master, while enabled (nothing otherwise)."""
+        if self.power != PowerState.OPERATION_ENABLED:
+            return
+        option = self.abort_connection_option
+        if option == ABORT_FAULT:
+            self.force_fault(error_code)
+        elif option == ABORT_DISABLE_VOLTAGE:
+            self.power = PowerState.SWITCH_ON_DISABLED
+            self.pending_emcy.append(error_code)
+        elif option == ABORT_QUICK_STOP:
+            self._quick_stop(error_code)
 
     def reboot(self) -> None:
         """Power cycle of the drive's electronics: the power state machine starts again, the carriage stays."""
@@ -300,7 +323,7 @@ class SimulatedDrive:
             self._quick_stop(EMCY_SYNC_LOST)
         elif (self.heartbeat_consumer_s > 0 and self.last_heartbeat_s is not None
               and now_s - self.last_heartbeat_s > self.heartbeat_consumer_s):
-            self._quick_stop(EMCY_HEARTBEAT_LOST)
+            self.abort_connection(EMCY_HEARTBEAT_LOST)
 
     def _quick_stop(self, error_code: int) -> None:
         self.power = PowerState.QUICK_STOP_ACTIVE

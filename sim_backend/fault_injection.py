@@ -27,7 +27,15 @@ Someone else on the bus (issue "a bus that cannot lie"):
 - ``foreign_sync`` a second SYNC producer: one more SYNC with every SYNC
 - ``unknown_node:N``  an unconfigured node N sends heartbeats and TPDOs
 - ``flood``        a babbling node floods the bus with frames of COB-ID 0x001
-- ``spoof_sensor=F``  a second force frame with F newtons along X and a counter out of step
+- ``spoof_sensor=F``  a second force frame with F newtons along X and a counter out of step,
+  before the true one
+- ``rogue_tpdo:N=D``  a second TPDO on drive N's COB-ID reporting D (m or rad) more than the
+  drive, before the true answer (D = 0.05: a jump; D = 0.0025: a small offset that tracks it)
+- ``rogue_short:N``  a TPDO of the wrong length on drive N's COB-ID, before the true answer
+- ``rogue_emcy:N``   an EMCY of the wrong length (3 bytes) on node N's EMCY COB-ID
+- ``nmt_preop:N``  another master sends NMT "enter PRE-OPERATIONAL" to node N (it stops
+  processing RPDOs; a drive reacts by its 0x6007 abort connection option)
+- ``nmt_reset:N``  another master sends NMT "reset node" to node N (it restarts)
 
 Examples: ``drop:2@3.0+0.5``, ``force=100@2``, ``freeze@1.5``.
 """
@@ -47,13 +55,15 @@ if TYPE_CHECKING:
 from controller.errors import InputError
 
 KINDS_WITH_NODE = ("drop", "delay", "malformed", "drive_fault", "heartbeat", "block", "jump", "reboot",
-                   "nmt_stop", "unknown_node")
+                   "nmt_stop", "nmt_preop", "nmt_reset", "unknown_node", "rogue_tpdo", "rogue_short", "rogue_emcy")
 KINDS = KINDS_WITH_NODE + ("freeze", "saturate", "force", "drift", "error_frames", "bus_off", "tx_full", "stall",
                            "foreign_sync", "flood", "spoof_sensor")
-DRIVE_ONLY_KINDS = ("drive_fault", "block", "jump", "reboot")
+DRIVE_ONLY_KINDS = ("drive_fault", "block", "jump", "reboot", "rogue_tpdo", "rogue_short")
 FLOOD_COB_ID = 0x001
 FLOOD_FRAMES_PER_SYNC = 32  # more than a 1 Mbit/s bus carries in 2.5 ms besides the cycle's own frames
-NMT_STOP = 0x02  # CiA 301 NMT command specifiers
+NMT_STOP, NMT_ENTER_PRE_OPERATIONAL, NMT_RESET_NODE = 0x02, 0x80, 0x81  # CiA 301 NMT command specifiers
+ROGUE_EMCY_BYTES = 3  # an EMCY is 8 bytes (CiA 301)
+ROGUE_TPDO_BYTES = 3  # shorter than any drive TPDO mapping with a statusword and a position
 SPOOF_COUNTER_OFFSET = 128  # the spoofed sample's counter: as far from the true one as a u8 goes
 _NUMBER = r"[0-9]+(?:\.[0-9]*)?(?:[eE][-+]?[0-9]+)?"
 _PATTERN = re.compile(rf"^(?P<kind>[a-z_]+)(:(?P<node>\d+))?(=(?P<value>-?{_NUMBER}))?@(?P<start>{_NUMBER})"
@@ -223,7 +233,9 @@ class BusFaults:
     delays_s: tuple[tuple[int, float], ...] = ()  # (node, seconds) its TPDO leaves late
     foreign_frames: tuple[tuple[int, bytes], ...] = ()  # (COB-ID, data) someone else sends with this SYNC
     reboots: tuple[int, ...] = ()  # nodes that restart at this SYNC (once)
-    spoofed_force_n: float | None = None  # a second force frame with this Fx, counter out of step
+    spoofed_force_n: float | None = None  # a second force frame with this Fx, counter out of step, first
+    rogue_offsets: tuple[tuple[int, float], ...] = ()  # (drive node, D): its TPDO + D, before the true one
+    rogue_short: tuple[int, ...] = ()  # drive nodes: a short TPDO on their COB-ID before the true one
 
 
 NO_BUS_FAULTS = BusFaults()
@@ -248,6 +260,8 @@ def bus_faults(schedule: FaultSchedule, now_s: float, node_ids: tuple[int, ...])
         foreign_frames=_foreign_frames(schedule, now_s),
         reboots=tuple(n for n in node_ids if schedule.first_time("reboot", now_s, n)),
         spoofed_force_n=spoof.value if spoof is not None else None,
+        rogue_offsets=tuple((n, f.value) for n in node_ids if (f := schedule.active("rogue_tpdo", now_s, n)) is not None),
+        rogue_short=tuple(n for n in node_ids if schedule.active("rogue_short", now_s, n) is not None),
     )
 
 
@@ -255,9 +269,13 @@ def _foreign_frames(schedule: FaultSchedule, now_s: float) -> tuple[tuple[int, b
     frames: list[tuple[int, bytes]] = []
     if schedule.active("foreign_sync", now_s) is not None:
         frames.append((0x080, b""))
-    stop = schedule.active("nmt_stop", now_s)
-    if stop is not None:
-        frames.append((0x000, bytes((NMT_STOP, stop.node))))
+    for kind, command in (("nmt_stop", NMT_STOP), ("nmt_preop", NMT_ENTER_PRE_OPERATIONAL), ("nmt_reset", NMT_RESET_NODE)):
+        nmt = schedule.active(kind, now_s)
+        if nmt is not None:
+            frames.append((0x000, bytes((command, nmt.node))))
+    emcy = schedule.active("rogue_emcy", now_s)
+    if emcy is not None:
+        frames.append((0x080 + emcy.node, bytes(ROGUE_EMCY_BYTES)))
     stranger = schedule.active("unknown_node", now_s)
     if stranger is not None:
         frames += [(0x700 + stranger.node, b"\x05"), (0x180 + stranger.node, bytes(6))]
@@ -280,3 +298,25 @@ def spoofed_sensor_frame(force_payload: bytes, force_x_n: float) -> bytes:
 def nmt_commands(frames: tuple[tuple[int, bytes], ...]) -> list[tuple[int, int]]:
     """(command specifier, node: 0 = all) of the NMT commands among ``frames``."""
     return [(data[0], data[1]) for cob, data in frames if cob == 0x000 and len(data) == 2]
+
+
+class RogueSource(Protocol):
+    """What ``rogue_drive_frames`` reads: the simulated drives and their TPDOs as mapped (device_pdos.py)."""
+
+    def rogue_drive_tpdo(self, j: int, offset: float) -> tuple[int, bytes] | None: ...
+
+
+def rogue_drive_frames(pdos: RogueSource, drive_ids: tuple[int, ...], faults: BusFaults
+                       ) -> list[tuple[int, bytes]]:
+    """Someone else's frames on the drives' TPDO COB-IDs, to be sent before the true answers:
+    the drive's TPDO reporting D more (``rogue_tpdo``), or one of the wrong length (``rogue_short``)."""
+    frames: list[tuple[int, bytes]] = []
+    for node, offset in faults.rogue_offsets:
+        tpdo = pdos.rogue_drive_tpdo(drive_ids.index(node), offset)
+        if tpdo is not None:
+            frames.append(tpdo)
+    for node in faults.rogue_short:
+        tpdo = pdos.rogue_drive_tpdo(drive_ids.index(node), 0.0)
+        if tpdo is not None:
+            frames.append((tpdo[0], tpdo[1][:ROGUE_TPDO_BYTES]))
+    return frames

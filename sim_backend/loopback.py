@@ -21,6 +21,7 @@ from collections.abc import Callable
 import can
 import numpy as np
 
+from controller.assembly import position_plausibility
 from controller.config import Config
 from controller.core.cycle_data import BusFeedback, CycleOutputs
 from controller.robots.registry import actuator_units
@@ -37,6 +38,7 @@ from drivers.cia402 import (
 from drivers.cyclic_exchange import CyclicExchange, ExchangeCounters
 from drivers.homing import HomingFailed
 from drivers.node_setup import (
+    ABORT_CONNECTION_QUICK_STOP,
     DRIVE_EDS,
     SENSOR_EDS,
     description_drive_codec,
@@ -47,6 +49,8 @@ from drivers.pdo_codec import PositionScale
 from sim_backend.device_pdos import SimulatedPdos
 from sim_backend.environment import Environment
 from sim_backend.fault_injection import (
+    NMT_ENTER_PRE_OPERATIONAL,
+    NMT_RESET_NODE,
     NMT_STOP,
     NO_BUS_FAULTS,
     BusFaults,
@@ -54,6 +58,7 @@ from sim_backend.fault_injection import (
     apply_device_faults,
     bus_faults,
     nmt_commands,
+    rogue_drive_frames,
     spoofed_sensor_frame,
     tpdo_payload,
 )
@@ -106,6 +111,8 @@ class LoopbackExchange:
             d.following_error_window = (cfg.actuators.following_error_window_rad if rotary
                                         else cfg.actuators.following_error_window_m)
             d.following_error_time_s = cfg.actuators.following_error_time_s
+            d.abort_connection_option = ABORT_CONNECTION_QUICK_STOP  # 0x6007, and 0x1016 below
+            d.heartbeat_consumer_s = cfg.loop.heartbeat_consumer_s
         self.drive_ids = tuple(cfg.actuators.node_ids)
         self.sensor_id = cfg.sensor.node_id if self.plant.sensor is not None else None
         # both sides mapped as the configuration and the EDS say, as set-up would write and read back
@@ -125,13 +132,17 @@ class LoopbackExchange:
         nodes = (*self.drive_ids, *(() if self.sensor_id is None else (self.sensor_id,)))
         self.nmt_state = {n: NMT_OPERATIONAL for n in nodes}  # node set-up has started them all
         self.bus = DeviceBus(self._on_controller_frame)
+        step_limit, jump_margin = position_plausibility(cfg)
         self.exchange = CyclicExchange(
             self.bus, self.drive_ids, self.scale, self.sensor_id, cfg.loop.controller_node_id,
             heartbeat_every=max(1, round(cfg.loop.heartbeat_period_s * cfg.loop.rate_hz)), clock=clock,
             heartbeat_timeout_s=cfg.loop.heartbeat_consumer_s, drive_codecs=self.codecs,
             sensor_codecs=self.sensor_codecs, flood_frames_per_cycle=cfg.safety.max_foreign_frames_per_cycle,
-            tracker_id=self.tracker_id)
+            tracker_id=self.tracker_id, max_position_step=step_limit,
+            max_position_jump=jump_margin)
         self._rpdo_drive = {c.rpdo_cob_id: j for j, c in enumerate(self.codecs)}
+        self._sdo_drive = {cob_ids.sdo_request(n): j for j, n in enumerate(self.drive_ids)}
+        self._controller_heartbeat = cob_ids.heartbeat(cfg.loop.controller_node_id)
         self._delayed: list[can.Message] = []
         self._bus_faults = NO_BUS_FAULTS
         self._silenced: set[int] = set()
@@ -190,6 +201,9 @@ class LoopbackExchange:
     def collect(self, deadline_s: float) -> BusFeedback:
         return self.exchange.collect(deadline_s)
 
+    def send_controlword_by_sdo(self, drive_index: int, controlword: int) -> None:
+        self.exchange.send_controlword_by_sdo(drive_index, controlword)
+
     # -- the devices' side --------------------------------------------------------------------
 
     def _on_controller_frame(self, msg: can.Message) -> None:
@@ -201,6 +215,22 @@ class LoopbackExchange:
             self.pdos.receive_rpdo(j, msg.data)  # as the drive's mapping says; a wrong one is dropped
         elif cob == cob_ids.SYNC:
             self._on_sync(self.clock())
+        elif cob == self._controller_heartbeat:
+            for d in self.drives:
+                d.on_controller_heartbeat(self.clock())
+        elif cob in self._sdo_drive:
+            self._on_sdo_request(self._sdo_drive[cob], bytes(msg.data))
+
+    def _on_sdo_request(self, j: int, data: bytes) -> None:
+        """The one SDO the loop sends (drivers/cyclic_exchange.py): an expedited write of the controlword.
+
+        SDO is served in PRE-OPERATIONAL and OPERATIONAL, not in STOPPED (CiA 301); the answer is
+        not modelled (the exchange ignores it).
+        """
+        node = self.drive_ids[j]
+        if self.nmt_state[node] == NMT_STOPPED or len(data) != 8 or data[1:4] != b"\x40\x60\x00":
+            return
+        self.drives[j].on_controlword(int.from_bytes(data[4:6], "little"))
 
     def _on_sync(self, now: float) -> None:
         faults: BusFaults = self._bus_faults
@@ -209,16 +239,21 @@ class LoopbackExchange:
             inbox.append(_frame(faults.error_class, bytes(8), error=True))
         for cob, data in faults.foreign_frames:  # someone else's, sent with the SYNC
             inbox.append(_frame(cob, data))
+        reboots = list(faults.reboots)
         for command, node in nmt_commands(faults.foreign_frames):
-            if command == NMT_STOP:
-                for n in self.nmt_state:
-                    if node in (0, n):
-                        self.nmt_state[n] = NMT_STOPPED
-                        if n in self.drive_ids:
-                            self.drives[self.drive_ids.index(n)].on_nmt_stopped()
-        for node in faults.reboots:
+            for n in self.nmt_state:
+                if node not in (0, n):
+                    continue
+                if command == NMT_RESET_NODE:
+                    reboots.append(n)
+                elif command in (NMT_STOP, NMT_ENTER_PRE_OPERATIONAL):
+                    self.nmt_state[n] = NMT_STOPPED if command == NMT_STOP else NMT_PRE_OPERATIONAL
+                    if n in self.drive_ids:  # no RPDO reaches it now: its 0x6007 reaction
+                        self.drives[self.drive_ids.index(n)].on_nmt_left_operational()
+        for node in reboots:
             self.nmt_state[node] = NMT_PRE_OPERATIONAL
-            self.drives[self.drive_ids.index(node)].reboot()
+            if node in self.drive_ids:
+                self.drives[self.drive_ids.index(node)].reboot()
             inbox.append(_frame(cob_ids.heartbeat(node), bytes((NMT_BOOT_UP,))))
         apply_device_faults(self.faults, self.plant, self.drive_ids, now)
         self.plant.sync(now)
@@ -226,6 +261,7 @@ class LoopbackExchange:
         if sample is not None:
             self.plant.update_kinematics(*sample)
         delays = dict(faults.delays_s)
+        inbox.extend(_frame(cob, data) for cob, data in rogue_drive_frames(self.pdos, self.drive_ids, faults))
         for node, tpdo in zip(self.drive_ids, self.pdos.drive_tpdos()):  # as each drive's mapping says
             if tpdo is None or self.nmt_state[node] != NMT_OPERATIONAL:
                 continue
@@ -236,9 +272,9 @@ class LoopbackExchange:
         sensor_frames = self.pdos.sensor_tpdos()
         if sensor_frames and self.sensor_id is not None and self.nmt_state[self.sensor_id] == NMT_OPERATIONAL:
             for k, (cob, data) in enumerate(sensor_frames):
-                inbox.append(_frame(cob, data))
-                if k == 0 and faults.spoofed_force_n is not None:
+                if k == 0 and faults.spoofed_force_n is not None:  # someone else's, before the true one
                     inbox.append(_frame(cob, spoofed_sensor_frame(data, faults.spoofed_force_n)))
+                inbox.append(_frame(cob, data))
         tracker_frames = self.plant.tracker_frames(now)  # after the pose was advanced to this SYNC
         if tracker_frames is not None and self.tracker_id is not None:
             inbox.append(_frame(cob_ids.tpdo1(self.tracker_id), tracker_frames[0]))

@@ -43,6 +43,7 @@ from sim_backend.fault_injection import (
     apply_device_faults,
     bus_faults,
     nmt_commands,
+    rogue_drive_frames,
     spoofed_sensor_frame,
     tpdo_payload,
 )
@@ -54,6 +55,7 @@ log = logging.getLogger(__name__)
 DRIVE_EDS, SENSOR_EDS = SHIPPED_DRIVE_EDS, SHIPPED_SENSOR_EDS  # the tools' names for the shipped files
 NMT_OPERATIONAL = 5
 NMT_STOPPED = 4
+NMT_PRE_OPERATIONAL = 127
 WATCHDOG_PERIOD_S = 0.005
 # A watchdog tick this late means the simulator's process was not running: SYNC frames may be
 # waiting unread in its socket, so this tick does not judge them lost (see _watchdog_loop).
@@ -270,6 +272,8 @@ class Simulator:
                     drive.following_error_window = 0.0 if value == 0xFFFFFFFF else value / counts
                 elif index == 0x6066:  # following error time out [ms]
                     drive.following_error_time_s = value / 1000.0
+                elif index == 0x6007:  # abort connection option code (CiA 402)
+                    drive.abort_connection_option = value
                 elif index == 0x1016 and subindex == 1:
                     # CiA 301: bits 16..23 node id, bits 0..15 consumer time [ms]
                     drive.heartbeat_consumer_s = (value & 0xFFFF) / 1000.0
@@ -329,6 +333,7 @@ class Simulator:
             apply_device_faults(self.faults, self.plant, self.drive_ids, now)
             self.plant.sync(now)
             sample = self.plant.kinematics_sample()
+            frames += rogue_drive_frames(self.pdos, self.drive_ids, bus)  # someone else's, first
             for node_id, tpdo in zip(self.drive_ids, self.pdos.drive_tpdos()):
                 out = tpdo_payload(self.faults, node_id, tpdo[1], now) if tpdo is not None else None
                 if tpdo is None or out is None or not self._operational(node_id):
@@ -343,9 +348,9 @@ class Simulator:
             sensor_frames = self.pdos.sensor_tpdos()
             if sensor_frames and self._operational(self.cfg.sensor.node_id):
                 for k, (cob, payload) in enumerate(sensor_frames):
-                    frames.append((cob, payload))
-                    if k == 0 and bus.spoofed_force_n is not None:  # a second sender on the force COB-ID
+                    if k == 0 and bus.spoofed_force_n is not None:  # a second sender on the force COB-ID, first
                         frames.append((cob, spoofed_sensor_frame(payload, bus.spoofed_force_n)))
+                    frames.append((cob, payload))
             tracker_frames = self.plant.tracker_frames(now)  # the pose as the pose thread last had it
             if tracker_frames is not None:
                 frames.append((cob_ids.tpdo1(self.cfg.tracker.node_id), tracker_frames[0]))
@@ -386,12 +391,15 @@ class Simulator:
         self._after_nmt()
 
     def _after_nmt(self) -> None:
-        """What the devices do after an NMT command: a reset reboots, a stop aborts the connection."""
+        """What the devices do after an NMT command: a reset reboots; leaving OPERATIONAL (stop,
+        pre-operational) aborts the connection while enabled (0x6007)."""
         for node_id, node in self.nodes.items():
             if node.nmt._state == 0:
+                if node_id in self.drive_ids:
+                    self.drives[self.drive_ids.index(node_id)].reboot()
                 self._boot(node)
-            elif node.nmt._state == NMT_STOPPED and node_id in self.drive_ids:
-                self.drives[self.drive_ids.index(node_id)].on_nmt_stopped()
+            elif node.nmt._state in (NMT_STOPPED, NMT_PRE_OPERATIONAL) and node_id in self.drive_ids:
+                self.drives[self.drive_ids.index(node_id)].on_nmt_left_operational()
 
     def _flush_emcy(self) -> None:
         for node_id, d in zip(self.drive_ids, self.drives):

@@ -37,6 +37,7 @@ import numpy as np
 
 from controller.core.cycle_data import (
     Anomaly,
+    BusAnomaly,
     Command,
     CycleInputs,
     CycleOutputs,
@@ -49,7 +50,7 @@ from controller.robots.cheope import PoseStatus
 from controller.robots.errors import NoSolutionError
 from controller.robots.robot import Robot
 from controller.tasks.task import Task, TaskContext
-from drivers.cia402 import PowerState, controlword_towards, decode_statusword
+from drivers.cia402 import CW_QUICK_STOP, PowerState, controlword_towards, decode_statusword
 from drivers.pdo_codec import SENSOR_FORCE_SATURATED
 
 PIPELINE_PERIODS = 2
@@ -95,11 +96,15 @@ class SafetyConfig:
     on_foreign_sync: Reaction = Reaction.FAULT
     on_foreign_nmt: Reaction = Reaction.FAULT
     on_foreign_command: Reaction = Reaction.FAULT
-    on_duplicate_frames: Reaction = Reaction.WARN
+    on_duplicate_frames: Reaction = Reaction.FAULT
+    on_rejected_frames: Reaction = Reaction.WARN
     on_frame_flood: Reaction = Reaction.FAULT
 
     def reaction_to(self, anomaly: Anomaly) -> Reaction:
         return {
+            Anomaly.REJECTED_FRAME: self.on_rejected_frames,
+            # beyond the device's physics, among several candidates: the law's jump check always faults too
+            Anomaly.IMPLAUSIBLE_FRAME: Reaction.FAULT,
             Anomaly.UNKNOWN_FRAME: self.on_unknown_node, Anomaly.UNKNOWN_EMCY: self.on_unknown_node,
             Anomaly.UNKNOWN_HEARTBEAT: self.on_unknown_node, Anomaly.FOREIGN_SYNC: self.on_foreign_sync,
             Anomaly.FOREIGN_NMT: self.on_foreign_nmt, Anomaly.FOREIGN_COMMAND: self.on_foreign_command,
@@ -114,9 +119,35 @@ ANOMALY_TEXT = {
     Anomaly.FOREIGN_SYNC: "SYNC the controller did not send (a second SYNC producer)",
     Anomaly.FOREIGN_NMT: "NMT command the controller did not send",
     Anomaly.FOREIGN_COMMAND: "frame on a COB-ID only the controller sends (a second master)",
-    Anomaly.DUPLICATE_FRAME: "TPDO(s) twice in one cycle",
+    Anomaly.DUPLICATE_FRAME: "TPDO(s) twice in one cycle (a second sender; neither is used)",
+    Anomaly.REJECTED_FRAME: "frame(s) of the wrong length (rejected)",
+    Anomaly.IMPLAUSIBLE_FRAME: "TPDO(s) the device cannot have sent (a position step or counter beyond it; not used)",
     Anomaly.FRAME_FLOOD: "foreign frames in one cycle: a frame flood",
 }
+NMT_COMMAND_NAMES = {0x01: "start", 0x02: "stop", 0x80: "enter PRE-OPERATIONAL", 0x81: "reset node",
+                     0x82: "reset communication"}  # CiA 301 NMT command specifiers
+# A burst of anomalies under "warn": one event when it starts, one with its count when it ends
+# (the first cycle without it), and one with the running count this often while it goes on.
+BURST_REPORT_S = 1.0
+
+
+def anomaly_text(a: BusAnomaly) -> str:
+    """One line for a cycle's anomaly: how many, what, from or to which node, on which COB-ID."""
+    if a.kind == Anomaly.FOREIGN_NMT:
+        command = NMT_COMMAND_NAMES.get(a.command, f"command 0x{a.command:02X}")
+        target = f"node {a.node_id}" if a.node_id else "all nodes"
+        times = f" ({a.count} times)" if a.count > 1 else ""
+        return f"NMT {command} to {target} from another master{times}"
+    return f"{a.count} {ANOMALY_TEXT[a.kind]}{_from_node(a.node_id)} (COB-ID 0x{a.cob_id:03X})"
+
+
+def _from_node(node_id: int) -> str:
+    return f" from node {node_id}" if node_id else ""
+
+
+def listed(names: list[str]) -> str:
+    """"2", "1 and 2", "1, 2, 3 and the force sensor"."""
+    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
 NMT_STATE_NAMES = {0: "boot-up (it restarted)", 4: "STOPPED", 5: "OPERATIONAL", 127: "PRE-OPERATIONAL"}
 
 
@@ -131,6 +162,7 @@ class LawConfig:
     max_speed: float = math.inf  # [unit/s] the actuators' speed limit, for the plausibility check
     position_unit: str = "m"  # for messages
     rest_target: float = 0.0  # [unit] the target sent before a drive's first TPDO (mid-stroke)
+    drive_node_ids: tuple[int, ...] = ()  # CANopen node ids of the drives, in order (empty: 1..n)
 
 
 @dataclass(frozen=True, slots=True)
@@ -151,7 +183,15 @@ class ControllerState:
     sensor_missing: int = 0  # cycles in a row without a usable sample (missing or ambiguous)
     late_streak: int = 0  # consecutive late cycles
     warned: frozenset[str] = frozenset()  # warnings already raised in the current episode
-    last_measured: tuple[float, ...] = ()  # each drive's last fresh position, for the plausibility check
+    # Each drive's last trusted position: fresh and within its physics. The plausibility check's
+    # reference, and the only source of hold and stop targets (never a flagged frame).
+    last_measured: tuple[float, ...] = ()
+    # Anomaly bursts under "warn": (key, frames, cycles with it, cycle of the last report)
+    bursts: tuple[tuple[str, int, int, int], ...] = ()
+    # Drives (indices) that may not process RPDOs: reported not OPERATIONAL, or the target of a
+    # foreign NMT command, or heartbeat lost. In FAULT they get the quick stop by SDO as well.
+    unreachable: frozenset[int] = frozenset()
+    sdo_stopped: frozenset[int] = frozenset()  # drives already sent the quick stop by SDO in this fault
 
 
 # One handler per mode: (state, inputs, power states, measured positions, t, events) -> state.
@@ -193,11 +233,13 @@ class ControlLaw:
         events: list[Event] = []
         measured = tuple(d.position for d in inputs.drives)
         powers = tuple(decode_statusword(d.statusword) for d in inputs.drives)
-        jump = self._position_jump(state, inputs)
+        jump, implausible = self._position_jump(state, inputs)
         streak = tuple(0 if d.fresh else s + 1 for d, s in zip(inputs.drives, state.missing_streak))
-        last = tuple(d.position if d.fresh else x for d, x in zip(inputs.drives, state.last_measured))
+        last = tuple(d.position if d.fresh and not bad else x
+                     for d, x, bad in zip(inputs.drives, state.last_measured, implausible))
         state = replace(state, cycle=state.cycle + 1, missing_streak=streak, last_measured=last,
-                        tcp_measured_m=self._measured_tcp(state, inputs, measured))
+                        tcp_measured_m=self._measured_tcp(state, inputs, measured),
+                        unreachable=state.unreachable | self._unreachable(inputs))
 
         if state.mode == Mode.CONFIGURING:
             reason = self._configuring_fault(state, inputs)
@@ -213,18 +255,17 @@ class ControlLaw:
             reason = reason or jump or self._fault_reason(state, inputs, powers)
             if reason:
                 state = self._enter(state, Mode.FAULT, t, events, Severity.FAULT, reason)
-                state = replace(state, fault_reason=reason, setpoint=self._hold(state, measured))
+                state = replace(state, fault_reason=reason, setpoint=self._hold(state))
         elif state.mode == Mode.FAULT and inputs.command == Command.RESET:
             # Recovery without a jump: ENABLING resets the drives' faults and commands the
             # measured positions; HOLDING restarts Ruckig from rest there; the task starts again.
             state = replace(self._enter(state, Mode.ENABLING, t, events, why="reset"), fault_reason="",
-                            setpoint=Setpoint.at_rest(measured), task_time_s=0.0, sensor_stale=0, sensor_missing=0,
-                            late_streak=0,
-                            warned=frozenset())
+                            setpoint=self._hold(state), task_time_s=0.0, sensor_stale=0, sensor_missing=0,
+                            late_streak=0, warned=frozenset(), unreachable=frozenset(), sdo_stopped=frozenset())
         if inputs.command == Command.QUICK_STOP and state.mode not in (Mode.FAULT, Mode.DONE):
             why = "quick stop requested"
             state = replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, why), fault_reason=why,
-                            setpoint=self._hold(state, measured))
+                            setpoint=self._hold(state))
         elif inputs.stop_requested and state.mode == Mode.CONFIGURING:
             # nothing has been enabled yet: there is nothing to brake or to shut down
             state = self._enter(state, Mode.DONE, t, events, Severity.INFO, "stop requested before enabling")
@@ -236,8 +277,39 @@ class ControlLaw:
             state = self._enter(state, Mode.RUNNING, t, events, why="remote resume")
 
         state = self._handlers[state.mode](state, inputs, powers, measured, t, events)
-        outputs = CycleOutputs(controlwords=state.controlwords, targets=state.setpoint.position)
+        state, by_sdo = self._quick_stops_by_sdo(state, events)
+        outputs = CycleOutputs(controlwords=state.controlwords, targets=state.setpoint.position,
+                               sdo_controlwords=tuple((j, CW_QUICK_STOP) for j in by_sdo))
         return state, outputs, tuple(events)
+
+    def _quick_stops_by_sdo(self, state: ControllerState, events: list[Event]
+                            ) -> tuple[ControllerState, tuple[int, ...]]:
+        """In FAULT: the drives to be sent the quick stop by SDO as well (once each), those that may
+        not process the RPDO that carries it: not OPERATIONAL, told to leave it, or not heard."""
+        if state.mode != Mode.FAULT:
+            return state, ()
+        doubtful = state.unreachable | {j for j, s in enumerate(state.missing_streak) if s > 0}
+        by_sdo = tuple(sorted(doubtful - state.sdo_stopped))
+        if not by_sdo:
+            return state, ()
+        nodes = ", ".join(str(self._node_id(j)) for j in by_sdo)
+        events.append(Event("sdo_quick_stop", Severity.WARNING,
+                            f"quick stop by SDO 0x6040 as well to node(s) {nodes}: not OPERATIONAL or not heard"))
+        return replace(state, sdo_stopped=state.sdo_stopped | set(by_sdo)), by_sdo
+
+    def _node_id(self, j: int) -> int:
+        ids = self.config.drive_node_ids
+        return ids[j] if j < len(ids) else j + 1
+
+    def _unreachable(self, inputs: CycleInputs) -> frozenset[int]:
+        """Drives this cycle says may not process RPDOs: not OPERATIONAL, told to leave it, or unheard."""
+        index = {self._node_id(j): j for j in range(self.n)}
+        found = {index[r.node_id] for r in inputs.nmt_reports if r.node_id in index}
+        found |= {index[n] for n in inputs.lost_heartbeats if n in index}
+        for a in inputs.anomalies:
+            if a.kind == Anomaly.FOREIGN_NMT and a.command != 0x01:  # anything but "start"
+                found |= set(range(self.n)) if a.node_id == 0 else ({index[a.node_id]} if a.node_id in index else set())
+        return frozenset(found)
 
     # -- checks ---------------------------------------------------------------------------
 
@@ -288,6 +360,9 @@ class ControlLaw:
                                      f"force sensor stale: counter stuck at {sensor.counter} for {stale} cycles", events)
             if why:
                 return state, why
+        silence = self._silence(state)
+        if silence:
+            return state, silence
         if state.sensor_missing >= self.config.max_missing_cycles:
             # No usable sample (missing, or two senders on its COB-ID) as long as a drive may be silent.
             state, why = self._react(state, sc.on_sensor_stale, "sensor_stale",
@@ -306,11 +381,9 @@ class ControlLaw:
                                      f"{inputs.error_frames} CAN error frame(s) received", events)
             if why:
                 return state, why
-        for a in inputs.anomalies:
-            what = f"{a.count} {ANOMALY_TEXT[a.kind]} (COB-ID 0x{a.cob_id:03X})"
-            state, why = self._react(state, sc.reaction_to(a.kind), a.kind.value, what, events)
-            if why:
-                return state, why
+        state, why = self._anomalies(state, inputs, events)
+        if why:
+            return state, why
         for r in inputs.nmt_reports:
             return state, (f"node {r.node_id} heartbeat reports {NMT_STATE_NAMES.get(r.state, f'state {r.state}')}"
                            f", not OPERATIONAL")
@@ -328,23 +401,85 @@ class ControlLaw:
                 return state, status.reason
         return state, ""
 
-    def _position_jump(self, state: ControllerState, inputs: CycleInputs) -> str:
-        """A fresh position further from the last one than the actuator can move: a lying encoder or frame."""
+    def _silence(self, state: ControllerState) -> str:
+        """Every drive (and the sensor) without a usable sample for max_missing_cycles, named in one fault."""
+        limit = self.config.max_missing_cycles
+        silent = [j for j, s in enumerate(state.missing_streak) if s >= limit]
+        if not silent:
+            return ""
+        sensor = state.sensor_missing >= limit
+        if len(silent) == 1 and not sensor:
+            return f"drive {silent[0] + 1}: no TPDO for {state.missing_streak[silent[0]]} cycles"
+        cycles = min(state.missing_streak[j] for j in silent)
+        names = [str(j + 1) for j in silent]
+        if sensor:
+            names.append("the force sensor")
+            cycles = min(cycles, state.sensor_missing)
+        return f"{'drives' if len(silent) > 1 else 'drive'} {listed(names)} silent for {cycles} cycles"
+
+    def _anomalies(self, state: ControllerState, inputs: CycleInputs, events: list[Event]
+                   ) -> tuple[ControllerState, str]:
+        """This cycle's bus anomalies by their configured reaction; "warn" is reported per burst."""
+        sc = self.config.safety
+        seen: dict[str, int] = {}
+        texts: dict[str, str] = {}
+        for a in inputs.anomalies:
+            reaction = sc.reaction_to(a.kind)
+            if reaction == Reaction.FAULT:
+                return state, anomaly_text(a)
+            if reaction == Reaction.WARN:
+                key = f"{a.kind.value}:{a.node_id}:0x{a.cob_id:03X}"
+                seen[key] = seen.get(key, 0) + a.count
+                texts.setdefault(key, anomaly_text(a))
+        if not seen and not state.bursts:
+            return state, ""
+        every = max(1, round(BURST_REPORT_S / self.config.period_s))
+        bursts = []
+        for key, frames, cycles, reported in state.bursts:
+            kind = key.split(":")[0]
+            if key not in seen:
+                events.append(Event(kind, Severity.WARNING, f"burst ended: {frames} {self._burst_what(key)} "
+                                                            f"in {cycles} cycle(s)"))
+                continue
+            frames, cycles = frames + seen.pop(key), cycles + 1
+            if state.cycle - reported >= every:
+                events.append(Event(kind, Severity.WARNING, f"burst goes on: {frames} {self._burst_what(key)} "
+                                                            f"in {cycles} cycle(s) so far"))
+                reported = state.cycle
+            bursts.append((key, frames, cycles, reported))
+        for key, frames in seen.items():  # bursts that start in this cycle
+            events.append(Event(key.split(":")[0], Severity.WARNING, f"burst starts: {texts[key]}"))
+            bursts.append((key, frames, 1, state.cycle))
+        return replace(state, bursts=tuple(bursts)), ""
+
+    @staticmethod
+    def _burst_what(key: str) -> str:
+        kind, node, cob = key.split(":")
+        return f"{ANOMALY_TEXT[Anomaly(kind)]}{_from_node(int(node))} (COB-ID {cob})"
+
+    def _position_jump(self, state: ControllerState, inputs: CycleInputs) -> tuple[str, tuple[bool, ...]]:
+        """Fresh positions further from the last trusted ones than the actuator can move: a lying encoder
+        or frame. Returns the fault (none in CONFIGURING or FAULT) and which drives' positions are not
+        to be trusted (judged in FAULT too: hold targets come only from trusted positions)."""
         cfg = self.config
         tolerance = cfg.safety.max_position_jump
-        if not math.isfinite(tolerance) or state.mode in (Mode.CONFIGURING, Mode.FAULT):
-            return ""
+        flags = [False] * self.n
+        if not math.isfinite(tolerance) or state.mode == Mode.CONFIGURING:
+            return "", tuple(flags)
+        reason = ""
         for j, (d, last, gap) in enumerate(zip(inputs.drives, state.last_measured, state.missing_streak)):
             if not (d.fresh and math.isfinite(last)):
                 continue
             possible = cfg.max_speed * (gap + 1) * cfg.period_s + tolerance
             step = abs(d.position - last)
             if step > possible:  # also catches NaN below: NaN > x is False, the finite check is elsewhere
+                flags[j] = True
                 u = cfg.position_unit
-                return (f"drive {j + 1} position jumped {step:.4f} {u} in {gap + 1} cycle(s) (from {last:.4f} to "
-                        f"{d.position:.4f} {u}); at most {possible:.4f} {u} is possible "
-                        f"({cfg.max_speed} {u}/s + safety.max_position_jump {tolerance} {u})")
-        return ""
+                reason = reason or (
+                    f"drive {j + 1} position jumped {step:.4f} {u} in {gap + 1} cycle(s) (from {last:.4f} to "
+                    f"{d.position:.4f} {u}); at most {possible:.4f} {u} is possible "
+                    f"({cfg.max_speed} {u}/s + safety.max_position_jump {tolerance} {u})")
+        return ("" if state.mode == Mode.FAULT else reason), tuple(flags)
 
     def _following_error(self, state: ControllerState, inputs: CycleInputs) -> str:
         """A fresh position further than the window from where the drive should be at its sample.
@@ -390,7 +525,7 @@ class ControlLaw:
             # e.g. the FAULT a reset has just cleared; silence has its own limit below.
             if inputs.drives[j].fresh and p in (PowerState.FAULT, PowerState.FAULT_REACTION_ACTIVE):
                 return f"drive {j + 1} reports {p.name} (statusword 0x{inputs.drives[j].statusword:04X})"
-            if streak >= self.config.max_missing_cycles:
+            if streak >= self.config.max_missing_cycles:  # _safety names them first, all at once
                 return f"drive {j + 1}: no TPDO for {streak} cycles"
         for e in inputs.emcy:
             if e.error_code != 0:
@@ -431,11 +566,11 @@ class ControlLaw:
 
     def _enabling(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...],
                   measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
-        # Command the measured position while the drives are not enabled: no jump at enable. A drive
+        # Command the measured (trusted) position while the drives are not enabled: no jump at enable. A drive
         # not heard this cycle keeps its controlword: its statusword is old news (it may say FAULT).
         cws = tuple(controlword_towards(p, PowerState.OPERATION_ENABLED, cw) if d.fresh else cw
                     for p, cw, d in zip(powers, state.controlwords, inputs.drives))
-        state = replace(state, controlwords=cws, setpoint=Setpoint.at_rest(measured))
+        state = replace(state, controlwords=cws, setpoint=self._hold(state))  # where each was last trusted
         if all(p == PowerState.OPERATION_ENABLED for p in powers):
             return self._enter(state, Mode.HOLDING, t, events, why="all drives in OPERATION ENABLED")
         if t - state.mode_entered_s > self.config.enable_timeout_s:
@@ -466,12 +601,12 @@ class ControlLaw:
         task_state, ref, finished = out.state, out.reference, out.finished
         if out.fault:
             return replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, out.fault), fault_reason=out.fault,
-                           task_state=task_state, setpoint=Setpoint.at_rest(measured))
+                           task_state=task_state, setpoint=self._hold(state))
         pose = self.robot.check_pose(np.asarray(ref.tcp_m))
         if not pose.ok:
             why = f"task reference leaves the safe workspace: {pose.reason}"
             return replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, why), fault_reason=why,
-                           setpoint=Setpoint.at_rest(measured))
+                           setpoint=self._hold(state))
         if ref.reactive:
             result = self.smoother.track_velocity(state.setpoint, ref.position, ref.velocity,
                                                   REACTIVE_CORRECTION_PERIODS / period)
@@ -479,7 +614,7 @@ class ControlLaw:
             result = self.smoother.step(state.setpoint, ref.position, ref.velocity, ref.acceleration)
         if not result.ok:
             return replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, result.message),
-                           fault_reason=result.message, setpoint=Setpoint.at_rest(measured))
+                           fault_reason=result.message, setpoint=self._hold(state))
         state = replace(state, task_state=task_state, setpoint=result.setpoint, task_time_s=task_time,
                         tcp_reference_m=ref.tcp_m if ref.on_path else None)
         if finished:
@@ -517,12 +652,17 @@ class ControlLaw:
                measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
         cws = tuple(controlword_towards(p, PowerState.QUICK_STOP_ACTIVE, cw)
                     for p, cw in zip(powers, state.controlwords))
-        return replace(state, controlwords=cws, setpoint=self._hold(state, measured))
+        return replace(state, controlwords=cws, setpoint=self._hold(state))
 
     @staticmethod
-    def _hold(state: ControllerState, measured: tuple[float, ...]) -> Setpoint:
-        """At rest where each drive is measured; where it never answered (NaN), where it was sent."""
-        return Setpoint.at_rest(tuple(x if math.isfinite(x) else q for x, q in zip(measured, state.setpoint.position)))
+    def _hold(state: ControllerState) -> Setpoint:
+        """At rest where each drive was last measured and trusted; where it never was, where it was sent.
+
+        Never from a flagged frame: a position the plausibility check refused is not in
+        ``last_measured``, so a rogue frame cannot choose where the robot stops.
+        """
+        return Setpoint.at_rest(tuple(x if math.isfinite(x) else q
+                                      for x, q in zip(state.last_measured, state.setpoint.position)))
 
     def _smooth_to_rest(self, state: ControllerState, t: float, events: list[Event]) -> ControllerState:
         result = self.smoother.brake(state.setpoint)

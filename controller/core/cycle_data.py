@@ -54,17 +54,25 @@ class Anomaly(StrEnum):
     FOREIGN_SYNC = "foreign_sync"  # a SYNC the controller did not send: a second SYNC producer
     FOREIGN_NMT = "foreign_nmt"  # an NMT command the controller did not send, to all or to a configured node
     FOREIGN_COMMAND = "foreign_command"  # a frame on a COB-ID only the controller sends (RPDO, its heartbeat)
-    DUPLICATE_FRAME = "duplicate_frame"  # a node's TPDO twice in one cycle
+    DUPLICATE_FRAME = "duplicate_frame"  # a node's TPDO twice in one cycle: its sample is unusable this cycle
+    REJECTED_FRAME = "rejected_frame"  # a configured node's frame that does not decode (wrong length)
+    IMPLAUSIBLE_FRAME = "implausible_frame"  # a candidate beyond the device's physics or counter
     FRAME_FLOOD = "frame_flood"  # more foreign frames in one cycle than safety.max_foreign_frames_per_cycle
 
 
 @dataclass(frozen=True, slots=True)
 class BusAnomaly:
-    """``count`` frames of one anomaly in one cycle; ``cob_id`` of the (first or most frequent) one."""
+    """``count`` frames of one anomaly in one cycle; ``cob_id`` of the (first or most frequent) one.
+
+    ``node_id``: the configured node the frames concern (the TPDO's or EMCY's owner, an NMT
+    command's target; 0: none or all); ``command``: an NMT command's specifier (CiA 301).
+    """
 
     kind: Anomaly
     cob_id: int
     count: int
+    node_id: int = 0
+    command: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -131,6 +139,9 @@ class CycleInputs:
 class CycleOutputs:
     controlwords: tuple[int, ...]
     targets: tuple[float, ...]
+    # (drive index, controlword) to be written by SDO 0x6040 as well this cycle: in FAULT, to drives
+    # that may not process RPDOs (not OPERATIONAL, not heard). The loop shell writes it, off the step.
+    sdo_controlwords: tuple[tuple[int, int], ...] = ()
 
 
 class Severity(IntEnum):

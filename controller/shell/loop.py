@@ -17,7 +17,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -34,6 +34,13 @@ class Exchange(Protocol):
     def send(self, outputs: CycleOutputs | None) -> None: ...
 
     def collect(self, deadline_s: float) -> BusFeedback: ...
+
+
+@runtime_checkable
+class SdoControlwords(Protocol):
+    """An exchange that can also write a drive's controlword by SDO (drivers/cyclic_exchange.py)."""
+
+    def send_controlword_by_sdo(self, drive_index: int, controlword: int) -> None: ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -232,6 +239,8 @@ class CycleLoop:
             c0 = clock()
             state, outputs, events = self.law.step(state, inputs, t)
             timing = CycleTiming(woke - deadline, clock() - c0)
+            if outputs.sdo_controlwords:
+                self._write_controlwords_by_sdo(outputs)
             stats.record(timing.wake_error_s, timing.step_s, k)
             o0 = clock()
             for obs in self.observers:
@@ -253,6 +262,14 @@ class CycleLoop:
         stats.finished_s = clock()
         stats.fold()
         return state, stats
+
+    def _write_controlwords_by_sdo(self, outputs: CycleOutputs) -> None:
+        """What the step asks for on top of the RPDOs (a quick stop to a drive that may not process
+        them): one expedited SDO each, sent now, not waited for; an exchange without SDO cannot."""
+        if not isinstance(self.exchange, SdoControlwords):
+            return
+        for drive_index, controlword in outputs.sdo_controlwords:
+            self.exchange.send_controlword_by_sdo(drive_index, controlword)
 
 
 class SimulatedTime:

@@ -88,6 +88,7 @@ def summarize(stats: LoopStats, recorder: RunRecorder, final: ControllerState,
         "overruns": stats.overruns,
         "missing_frames": {"drive": c.missing_drive_frames, "sensor": c.missing_sensor_frames},
         "rejected_frames": c.rejected_frames,
+        "rejected_frames_by_node": {str(node): n for node, n in sorted(c.rejected_by_node.items())},
         "foreign_frames": c.foreign_frames,
         "send_errors": c.send_errors,  # e.g. ENOBUFS: a full transmit queue
         "error_frames": c.error_frames,

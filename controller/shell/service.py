@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 
 import can
 
-from controller.assembly import assemble, planned_bus_load
+from controller.assembly import assemble, planned_bus_load, position_plausibility
 from controller.config import Config
 from controller.core.control_law import ControlLaw
 from controller.monitoring.publisher import monitoring_context, publisher_settings
@@ -162,6 +162,7 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float | None = No
             cfg, stop_event, prepared.law.task) as publisher, FrameTap(open_bus(spec), frame_sink) as bus:
         # every frame of the session through one tap: set-up included, own echoes dropped
         setup = configure_nodes(bus, prepared.setup_plan)
+        step_limit, jump_margin = position_plausibility(cfg)
         exchange = CyclicExchange(
             bus, tuple(cfg.actuators.node_ids), PositionScale(actuator_units(cfg).counts_per_unit),
             cfg.sensor.node_id if cfg.sensor.enabled else None, cfg.loop.controller_node_id,
@@ -170,6 +171,7 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float | None = No
             drive_codecs=setup.drive_codecs, sensor_codecs=setup.sensor_codecs,
             send_sync=cfg.bus.sync_producer == "loop", flood_frames_per_cycle=cfg.safety.max_foreign_frames_per_cycle,
             tracker_id=cfg.tracker.node_id if cfg.tracker.enabled else None, sync_period_s=cfg.period_s,
+            max_position_step=step_limit, max_position_jump=jump_margin,
         )
         kernel_sync = KernelSyncExchange(exchange, cfg.period_s, cfg.bus.sync_lead_fraction * cfg.period_s) \
             if cfg.bus.sync_producer == "kernel" else None

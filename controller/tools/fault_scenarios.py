@@ -42,8 +42,9 @@ class Scenario:
 SCENARIOS: tuple[Scenario, ...] = (
     Scenario("drive TPDO missing", f"drop:2@{FAULT_AT_S}", "fault", "fault after loop.max_missing_cycles; quick stop"),
     Scenario("drive TPDO late", f"delay:2=0.01@{FAULT_AT_S}", "fault", "late = missing: fault, quick stop"),
-    Scenario("malformed TPDO, one", f"malformed:2@{FAULT_AT_S}+0.002", "ignore",
-             "frame rejected and counted; one missing cycle is ignored, the task goes on"),
+    Scenario("malformed TPDO, one", f"malformed:2@{FAULT_AT_S}+0.002", "warn",
+             "frame rejected, counted and reported with its node (safety.on_rejected_frames = warn: one event "
+             "when a burst starts, one with its count when it ends); one missing cycle is ignored, the task goes on"),
     Scenario("sensor counter frozen", f"freeze@{FAULT_AT_S}", "fault", "stale after safety.sensor_stale_cycles; quick stop"),
     Scenario("sensor saturated", f"saturate@{FAULT_AT_S}", "fault", "safety.on_sensor_saturated = fault; quick stop"),
     Scenario("drive fault + EMCY", f"drive_fault:3@{FAULT_AT_S}", "fault", "fault at once; quick stop of the others"),
@@ -63,15 +64,29 @@ SCENARIOS: tuple[Scenario, ...] = (
     Scenario("drive reboot (boot-up)", f"reboot:2@{FAULT_AT_S}", "fault",
              "its boot-up heartbeat: fault at once, the restarted drive named"),
     Scenario("NMT stop by someone else", f"nmt_stop:2@{FAULT_AT_S}", "fault",
-             "safety.on_foreign_nmt = fault: the foreign NMT command named"),
+             "safety.on_foreign_nmt = fault: the foreign NMT command named; the drive's 0x6007 quick-stops it"),
+    Scenario("NMT pre-operational by someone else", f"nmt_preop:2@{FAULT_AT_S}", "fault",
+             "safety.on_foreign_nmt = fault, command and node named; quick stop by SDO as well to the drive "
+             "that no longer processes RPDOs"),
+    Scenario("NMT reset by someone else", f"nmt_reset:2@{FAULT_AT_S}+0.002", "fault",
+             "safety.on_foreign_nmt = fault, command and node named; the drive restarts disabled"),
     Scenario("second SYNC producer", f"foreign_sync@{FAULT_AT_S}", "fault", "safety.on_foreign_sync = fault"),
     Scenario("unknown node on the bus", f"unknown_node:42@{FAULT_AT_S}", "warn",
              "safety.on_unknown_node = warn: one event, counted, the task goes on"),
     Scenario("frame flood", f"flood@{FAULT_AT_S}", "fault",
              "more than safety.max_foreign_frames_per_cycle foreign frames in a cycle: a flood, named by COB-ID"),
     Scenario("spoofed sensor frames", f"spoof_sensor=30@{FAULT_AT_S}", "fault",
-             "two samples in a cycle: neither is used (a contour adds nothing); no usable sample for "
-             "loop.max_missing_cycles: fault"),
+             "a second force frame before the true one, its counter out of step: neither is used; "
+             "safety.on_duplicate_frames = fault"),
+    # A rogue sender's frame on a drive's COB-ID, before the true answer: never used.
+    Scenario("rogue TPDO, position jump", f"rogue_tpdo:2=0.05@{FAULT_AT_S}", "fault",
+             "two candidates in one answer window: neither is used; safety.on_duplicate_frames = fault"),
+    Scenario("rogue TPDO, small offset", f"rogue_tpdo:2=0.0025@{FAULT_AT_S}", "fault",
+             "2.5 mm off, within the drive's physics: two candidates all the same; safety.on_duplicate_frames = fault"),
+    Scenario("rogue TPDO, wrong length", f"rogue_short:2@{FAULT_AT_S}", "fault",
+             "a candidate that does not decode: rejected, named, and the true one not used either"),
+    Scenario("rogue EMCY, wrong length", f"rogue_emcy:2@{FAULT_AT_S}+0.002", "warn",
+             "rejected, counted and reported with its node (safety.on_rejected_frames = warn), the task goes on"),
 )
 
 

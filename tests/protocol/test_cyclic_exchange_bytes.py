@@ -18,7 +18,7 @@ from collections.abc import Callable
 import can
 import pytest
 
-from controller.core.cycle_data import Anomaly, CycleOutputs, EmcyReport, NmtReport
+from controller.core.cycle_data import Anomaly, BusAnomaly, CycleOutputs, EmcyReport, NmtReport
 from drivers.cyclic_exchange import CAN_ERR_BUSOFF, CyclicExchange
 from drivers.pdo_codec import PositionScale
 
@@ -123,11 +123,14 @@ def bus():
     b.shutdown()
 
 
+MAX_STEP_M, MAX_JUMP_M = 0.0025, 0.005  # 1 m/s at 400 Hz, safety.max_position_jump_m
+
+
 def make_exchange(bus: ScriptedBus, clock: FakeClock, sensor: int | None = SENSOR,
                   sink: Callable | None = None) -> CyclicExchange:
     return CyclicExchange(bus, DRIVES, PositionScale(COUNTS_PER_M), sensor, CONTROLLER,
                           heartbeat_every=HEARTBEAT_EVERY, clock=clock, frame_sink=sink,
-                          heartbeat_timeout_s=HEARTBEAT_TIMEOUT_S)
+                          heartbeat_timeout_s=HEARTBEAT_TIMEOUT_S, max_position_step=MAX_STEP_M, max_position_jump=MAX_JUMP_M)
 
 
 def all_answers(cycle: int, drives: dict[int, tuple[int, int]] | None = None, counter: int | None = None,
@@ -340,17 +343,23 @@ def test_sensor_and_emcy_frames_of_the_wrong_length_are_rejected_and_counted(bus
     fb = one_cycle(ex, clock, None)
     assert ex.counters.rejected_frames == 1
     assert fb.emcy == ()
+    node = 1 if cob_id == emcy_id(1) else SENSOR  # counted per node and named, not rejected silently
+    assert ex.counters.rejected_by_node == {node: 1}
+    assert (Anomaly.REJECTED_FRAME, node) in {(a.kind, a.node_id) for a in fb.anomalies}
 
 
-def test_a_tpdo_that_arrives_after_the_collect_is_late_not_fresh(bus, clock):
+def test_a_tpdo_that_arrives_after_the_collect_is_late_never_used_and_a_second_candidate(bus, clock):
+    """Outside its answer window a TPDO is never a sample (its value is not delivered either); one
+    for a cycle that already had its sample is a second sender's (or the true one after a rogue's)."""
     ex = make_exchange(bus, clock)
     bus.answers[0] = all_answers(0)
-    one_cycle(ex, clock, None)
+    first = one_cycle(ex, clock, None)
     bus.inbox.append(frame(tpdo1(1), drive_pdo(0x1637, 4242)))  # cycle 0's answer, after its collect
     bus.answers[1] = [f for f in all_answers(1) if f.arbitration_id != tpdo1(1)]
     fb = one_cycle(ex, clock, None)
     assert ex.counters.late_frames == 1
-    assert not fb.drives[0].fresh and fb.drives[0].position == pytest.approx(4242e-7)
+    assert not fb.drives[0].fresh and fb.drives[0].position == first.drives[0].position
+    assert BusAnomaly(Anomaly.DUPLICATE_FRAME, tpdo1(1), 1, node_id=1) in fb.anomalies
 
 
 def test_our_own_frames_echoed_by_the_bus_are_ignored(clock):
@@ -447,9 +456,12 @@ def test_frames_on_cob_ids_only_the_controller_sends_are_foreign(bus, clock):
         frame(rpdo1(2), drive_pdo(0x000F, 9_000_000)),  # a second master commanding drive 2
         frame(0x600 + 3, bytes(8)),  # an SDO request to drive 3
         *all_answers(0)]
-    assert anomalies(one_cycle(ex, clock, None)) == {
-        (Anomaly.FOREIGN_NMT, 0x000): 2, (Anomaly.UNKNOWN_FRAME, 0x000): 1,
+    fb = one_cycle(ex, clock, None)
+    assert anomalies(fb) == {
+        (Anomaly.FOREIGN_NMT, 0x000): 1, (Anomaly.UNKNOWN_FRAME, 0x000): 1,
         (Anomaly.FOREIGN_COMMAND, rpdo1(2)): 1, (Anomaly.FOREIGN_COMMAND, 0x603): 1}
+    # each foreign NMT command with its target node and command specifier, for the fault to name them
+    assert {(a.node_id, a.command) for a in fb.anomalies if a.kind == Anomaly.FOREIGN_NMT} == {(2, 0x02), (0, 0x81)}
 
 
 def test_unknown_nodes_are_reported_by_what_they_send(bus, clock):
@@ -473,13 +485,30 @@ def test_a_flood_is_diagnosed_with_its_busiest_cob_id(bus, clock):
     assert anomalies(one_cycle(ex, clock, None)) == {(Anomaly.UNKNOWN_FRAME, 0x001): 10}
 
 
-def test_two_tpdos_of_one_drive_in_one_cycle_are_reported_and_the_last_wins(bus, clock):
+@pytest.mark.parametrize("rogue_first", [True, False], ids=["rogue-first", "rogue-second"])
+def test_two_tpdos_of_one_drive_in_one_cycle_make_its_sample_unusable_whichever_comes_first(bus, clock, rogue_first):
     ex = make_exchange(bus, clock)
-    answers = all_answers(0)
-    bus.answers[0] = [*answers[:2], frame(tpdo1(2), drive_pdo(0x1637, 5_500_000)), *answers[2:]]  # a spoofed jump
+    bus.answers[0] = all_answers(0)
+    before = one_cycle(ex, clock, None).drives[1].position
+    answers = all_answers(1)
+    real = next(f for f in answers if f.arbitration_id == tpdo1(2))
+    rogue = frame(tpdo1(2), drive_pdo(0x1637, 5_500_000))  # a spoofed jump on drive 2's COB-ID
+    others = [f for f in answers if f is not real]
+    bus.answers[1] = [*((rogue, real) if rogue_first else (real, rogue)), *others]
     fb = one_cycle(ex, clock, None)
-    assert anomalies(fb) == {(Anomaly.DUPLICATE_FRAME, tpdo1(2)): 1}
-    assert fb.drives[1].position == pytest.approx(0.55)
+    found = {(a.kind, a.cob_id, a.node_id): a.count for a in fb.anomalies}
+    # reported with the node; the rogue's candidate is also beyond what the drive can move
+    assert found == {(Anomaly.DUPLICATE_FRAME, tpdo1(2), 2): 1, (Anomaly.IMPLAUSIBLE_FRAME, tpdo1(2), 2): 1}
+    assert not fb.drives[1].fresh and fb.drives[1].position == before  # neither value is used
+    assert fb.drives[0].fresh and fb.drives[2].fresh
+
+
+def test_a_wrong_length_tpdo_is_a_candidate_reported_with_its_node(bus, clock):
+    ex = make_exchange(bus, clock)
+    bus.answers[0] = [frame(tpdo1(3), drive_pdo(0x1637, 1)[:3]), *all_answers(0)]  # before the real answer
+    fb = one_cycle(ex, clock, None)
+    assert ex.counters.rejected_frames == 1 and not fb.drives[2].fresh
+    assert {(a.kind, a.node_id) for a in fb.anomalies} == {(Anomaly.REJECTED_FRAME, 3), (Anomaly.DUPLICATE_FRAME, 3)}
 
 
 def test_a_second_sensor_sample_that_does_not_follow_makes_the_cycle_s_sample_not_fresh(bus, clock):
@@ -489,11 +518,24 @@ def test_a_second_sensor_sample_that_does_not_follow_makes_the_cycle_s_sample_no
     bus.answers[0] = [*answers[:3], answers[3], spoofed, answers[4]]
     fb = one_cycle(ex, clock, None)
     assert not fb.sensor.fresh and anomalies(fb) == {(Anomaly.DUPLICATE_FRAME, tpdo1(SENSOR)): 1}
-    # a late answer of the last cycle followed by this cycle's: the newer sample, no anomaly
+    # two force frames in one window are two candidates, even when their counters follow each other:
+    # a spoofer who guesses the next counter cannot win the race either
     late, now = all_answers(1, counter=42), all_answers(1, counter=43)
-    bus.answers[1] = [late[3], *now]  # the late force frame, then this cycle's
+    bus.answers[1] = [late[3], *now]
     fb = one_cycle(ex, clock, None)
-    assert fb.sensor.fresh and fb.sensor.counter == 43 and fb.anomalies == ()
+    assert not fb.sensor.fresh and anomalies(fb) == {(Anomaly.DUPLICATE_FRAME, tpdo1(SENSOR)): 1}
+
+
+def test_a_lone_sensor_sample_whose_counter_cannot_follow_is_not_used(bus, clock):
+    ex = make_exchange(bus, clock)
+    bus.answers[0] = all_answers(0, counter=10)
+    assert one_cycle(ex, clock, None).sensor.fresh
+    answers = all_answers(1, counter=10 + 128)  # the only force and torque frames, 128 steps on in one cycle
+    bus.answers[1] = answers
+    fb = one_cycle(ex, clock, None)
+    assert not fb.sensor.fresh and (Anomaly.IMPLAUSIBLE_FRAME, tpdo1(SENSOR)) in anomalies(fb)
+    bus.answers[2] = all_answers(2, counter=12)  # the sensor's own next counter (one SYNC missed): used
+    assert one_cycle(ex, clock, None).sensor.fresh
 
 
 def test_heartbeats_are_judged_by_their_nmt_state(bus, clock):
@@ -519,3 +561,22 @@ def test_a_boot_up_is_judged_even_from_a_node_never_heard_operational(bus, clock
     one_cycle(ex, clock, None)
     bus.answers[1] = [frame(heartbeat_id(2), b"\x00"), *all_answers(1)]
     assert one_cycle(ex, clock, None).nmt_reports == (NmtReport(2, 0),)
+
+
+def test_a_stalled_device_s_burst_of_owed_answers_is_not_a_second_sender_but_still_not_used(bus, clock):
+    """Drive 2 misses a window, then answers both SYNCs in the next one (a stalled simulator): no
+    sample (nobody can tell which is which), counted late, no duplicate reported; once it has caught
+    up, two candidates again are a second sender's."""
+    ex = make_exchange(bus, clock)
+    bus.answers[0] = all_answers(0)
+    one_cycle(ex, clock, None)
+    bus.answers[1] = [f for f in all_answers(1) if f.arbitration_id != tpdo1(2)]
+    assert not one_cycle(ex, clock, None).drives[1].fresh
+    late = next(f for f in all_answers(1) if f.arbitration_id == tpdo1(2))
+    bus.answers[2] = [late, *all_answers(2)]
+    before = ex.counters.late_frames
+    fb = one_cycle(ex, clock, None)
+    assert not fb.drives[1].fresh and fb.anomalies == () and ex.counters.late_frames == before + 1
+    bus.answers[3] = [late, *all_answers(3)]  # nothing owed any more
+    fb = one_cycle(ex, clock, None)
+    assert not fb.drives[1].fresh and (Anomaly.DUPLICATE_FRAME, tpdo1(2)) in anomalies(fb)

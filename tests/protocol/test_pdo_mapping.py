@@ -22,7 +22,7 @@ from controller.core.control_law import Mode
 from controller.core.cycle_data import CycleOutputs
 from drivers.cia402 import PowerState, decode_statusword
 from drivers.node_setup import DRIVE_EDS, NodeSetupError, configure_nodes
-from sim_backend.drive import EMCY_SYNC_PERIOD
+from sim_backend.drive import ABORT_QUICK_STOP, EMCY_SYNC_PERIOD
 from sim_backend.pdo_parameters import (
     ABORT_CANNOT_MAP,
     ABORT_DEVICE_STATE,
@@ -166,6 +166,10 @@ def test_set_up_writes_mapping_and_sync_timing_and_reads_them_back(buses):
             assert d.interpolation_period_s == pytest.approx(cfg.period_s)
         sdo_node = sim.nodes[1]
         assert sdo_node.sdo[0x1006].raw == 2500 and sdo_node.sdo[0x1005].raw == 0x80
+        # the drives' own reaction to a lost master: quick stop (0x6007), on the controller's heartbeat (0x1016)
+        for d in sim.drives:
+            assert d.abort_connection_option == ABORT_QUICK_STOP
+            assert d.heartbeat_consumer_s == pytest.approx(cfg.loop.heartbeat_consumer_s)
 
 
 def test_a_mapping_the_device_refuses_stops_the_start_naming_node_object_and_value(tmp_path, buses):
@@ -221,7 +225,8 @@ def test_vendor_drive_runs_the_cyclic_exchange_against_the_in_process_simulator(
         assert [o.index for o in codec.tpdo.objects] == [0x6064, 0x6041, 0x6061]
         scale = PositionScale(cfg.actuators.counts_per_m)
         ex = CyclicExchange(bus, tuple(cfg.actuators.node_ids), scale, None, cfg.loop.controller_node_id,
-                            heartbeat_every=1, drive_codecs=report.drive_codecs)
+                            heartbeat_every=1, drive_codecs=report.drive_codecs,
+                            answer_window_s=0.005)  # a generous deadline for the answers, a short window after
         start = [d.position for d in sim.drives]
         ex.send(None)
         fb = ex.collect(time.monotonic() + 5.0)

@@ -20,6 +20,10 @@ from drivers.cia402 import (
 )
 from drivers.pdo_codec import FORCE_N_PER_COUNT, SENSOR_FORCE_SATURATED, decode_sensor_frame
 from sim_backend.drive import (
+    ABORT_DISABLE_VOLTAGE,
+    ABORT_FAULT,
+    ABORT_NO_ACTION,
+    ABORT_QUICK_STOP,
     EMCY_HEARTBEAT_LOST,
     EMCY_POSITION_RANGE,
     EMCY_SYNC_LOST,
@@ -103,14 +107,28 @@ def test_the_watchdog_thread_skips_the_tick_after_a_stall_of_its_process():
     assert not watchdog_due(10.0, stalled, last_sync_s=9.9, sync_timeout_s=timeout)
 
 
-def test_quick_stops_when_the_controller_heartbeat_stops():
+@pytest.mark.parametrize(("option", "power"), [
+    (ABORT_QUICK_STOP, PowerState.QUICK_STOP_ACTIVE), (ABORT_FAULT, PowerState.FAULT),
+    (ABORT_DISABLE_VOLTAGE, PowerState.SWITCH_ON_DISABLED), (ABORT_NO_ACTION, PowerState.OPERATION_ENABLED)])
+def test_the_controller_heartbeat_lost_gets_the_abort_connection_reaction_of_0x6007(option, power):
     d, t = enabled_drive()
+    d.abort_connection_option = option
     d.heartbeat_consumer_s = 0.3
     d.on_controller_heartbeat(t)
     for _ in range(160):  # SYNC keeps coming for 0.4 s, heartbeat does not
         t = cycle(d, t, 0.55)
-    assert d.power == PowerState.QUICK_STOP_ACTIVE
-    assert EMCY_HEARTBEAT_LOST in d.pending_emcy
+    assert d.power == power
+    assert (EMCY_HEARTBEAT_LOST in d.pending_emcy) == (option != ABORT_NO_ACTION)
+
+
+@pytest.mark.parametrize(("option", "power"), [
+    (ABORT_QUICK_STOP, PowerState.QUICK_STOP_ACTIVE), (ABORT_FAULT, PowerState.FAULT),
+    (ABORT_NO_ACTION, PowerState.OPERATION_ENABLED)])
+def test_nmt_leaving_operational_while_enabled_gets_the_abort_connection_reaction(option, power):
+    d, _ = enabled_drive()
+    d.abort_connection_option = option
+    d.on_nmt_left_operational()  # PRE-OPERATIONAL: its RPDOs (and their quick stop) no longer reach it
+    assert d.power == power
 
 
 def test_end_stop_faults_the_drive():
