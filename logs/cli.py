@@ -15,6 +15,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TypeVar
 
+from controller.errors import InputError
+
 # The caller's parser class (cheope's own ArgumentParser subclass): _SubParsersAction is invariant in it.
 ParserT = TypeVar("ParserT", bound=argparse.ArgumentParser)
 
@@ -37,12 +39,21 @@ def add_commands(sub: argparse._SubParsersAction[ParserT],
     q.add_argument("file")
     q.add_argument("-o", "--output", help="output file (default: FILE.recovered.mcap beside it)")
     q.set_defaults(func=cmd_logs_recover)
+    q = logs_sub.add_parser("export", help="the recorded CAN frames for CAN tools: Vector ASC/BLF, candump log, PEAK TRC, "
+                                           "CSV (python-can's writers)")
+    q.add_argument("file")
+    q.add_argument("--format", required=True, choices=("asc", "blf", "log", "trc", "csv"),
+                   help="asc, blf (Vector), log (candump -L), trc (PEAK), csv (python-can's columns: no direction)")
+    q.add_argument("-o", "--output", help="output file (default: FILE with the format's suffix, beside it)")
+    q.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    q.set_defaults(func=cmd_logs_export)
 
     p = sub.add_parser("replay", help="replay a recording: to Rerun, onto a CAN bus, or through the step (--verify)")
-    p.add_argument("file")
+    p.add_argument("file", nargs="?", help="the recording (.mcap); may also follow --rerun")
     what = p.add_mutually_exclusive_group(required=True)
     what.add_argument("--rerun", nargs="?", const="", metavar="OUT.rrd",
-                      help="convert to Rerun; without OUT spawn the viewer (or write FILE.rrd when none can start)")
+                      help="to Rerun with the robot drawn: without OUT spawn the viewer (or write FILE.rrd when none "
+                           "can start); cheope replay --rerun FILE.mcap reads FILE.mcap")
     what.add_argument("--bus", metavar="INTERFACE[:CHANNEL]", help="send the recorded frames with their timing")
     what.add_argument("--verify", action="store_true",
                       help="run the recorded inputs through the step and compare the outputs bit for bit")
@@ -122,9 +133,48 @@ def cmd_logs_recover(args: argparse.Namespace) -> int:
     return 0
 
 
+def rerun_input_and_output(file: str | None, rerun: str | None) -> tuple[str, str | None]:
+    """(recording, OUT.rrd or None) of ``cheope replay [FILE] --rerun [X]``: an X that names a
+    recording (``cheope replay --rerun FILE.mcap``) is the input, never an output to overwrite."""
+    if file is None:
+        if not rerun:
+            raise InputError("no recording given: cheope replay FILE.mcap --rerun [OUT.rrd]")
+        if rerun.endswith(".rrd"):
+            raise InputError(f"--rerun {rerun}: is the output; which recording? cheope replay FILE.mcap --rerun {rerun}")
+        return rerun, None
+    if rerun and not rerun.endswith(".rrd"):
+        raise InputError(f"--rerun {rerun}: the output must be a .rrd file (Rerun's recording format)")
+    return file, rerun or None
+
+
+def cmd_logs_export(args: argparse.Namespace) -> int:
+    """Exit 0 when every recorded frame was written, 1 when the format could not hold some (it says
+    which), 2 when the input is no recording or the output cannot be written."""
+    from logs.can_export import ExportError, export_frames
+    from logs.reader import LogFileError
+
+    path = Path(args.file)
+    try:
+        with _progress(path, "exporting") as progress:
+            r = export_frames(path, args.format, args.output, progress)
+    except (LogFileError, ExportError) as err:
+        return _fail(args, err)
+    not_written = "; ".join(f"{k} {why} not written" for why, k in r.frames_not_written.items())
+    if args.json:
+        print(json.dumps({"output": str(r.output), "format": r.format, "frames_written": r.frames_written,
+                          "frames_out": r.frames_out, "frames_in": r.frames_written - r.frames_out,
+                          "frames_not_written": r.frames_not_written, "note": r.note, "problems": r.report.problems}))
+    else:
+        print(f"wrote {r.frames_written} frames to {r.output} ({r.frames_out} Tx, {r.frames_written - r.frames_out} Rx)"
+              + "".join(f"; {t}" for t in (not_written, r.note, "; ".join(r.report.problems)) if t))
+    return 1 if r.frames_not_written else 0
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from logs.reader import LogFileError
 
+    if args.rerun is None and args.file is None:
+        return _fail(args, InputError("no recording given: cheope replay FILE.mcap --verify|--bus|--rerun"))
     try:
         if args.verify:
             return _verify(args)
@@ -176,8 +226,11 @@ def _bus(args: argparse.Namespace) -> int:
 def _rerun(args: argparse.Namespace) -> int:
     from logs.rerun_export import export
 
-    path = Path(args.file)
-    out = args.rerun or None
+    try:
+        file, out = rerun_input_and_output(args.file, args.rerun)
+    except InputError as err:
+        return _fail(args, err)
+    path = Path(file)
     with _progress(path, "converting") as progress:
         r = export(path, out, spawn=out is None, progress=progress)
     problems = "; ".join(r.report.problems)

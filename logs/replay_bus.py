@@ -19,8 +19,8 @@ import can
 
 from drivers.bus import BusSpec, open_bus
 from drivers.pacing import DeadlineSleeper
-from logs import messages as m
-from logs.reader import ReadReport, iter_decoded
+from logs.bus_traffic import recorded_frames
+from logs.reader import ReadReport
 
 
 @dataclass(frozen=True)
@@ -46,8 +46,7 @@ def replay_to_bus(path: str | Path, spec: BusSpec, speed: float = 1.0, stop_even
     t_start = time.monotonic()
     try:
         first: float | None = None
-        for d in iter_decoded(path, (m.TOPIC_CAN,), report):
-            f = d.message
+        for f in recorded_frames(path, report):
             if first is None:
                 first, t_start = f.monotonic_s, time.monotonic()
             sleeper.sleep_until(t_start + (f.monotonic_s - first) / speed)

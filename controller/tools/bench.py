@@ -961,7 +961,7 @@ def add_bench_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--config", help="TOML configuration (default: the shipped one)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a configuration key")
     ap.add_argument("--rates", default="400,1000", help="loop rates to measure [Hz], comma-separated")
-    ap.add_argument("--duration", type=float, default=300.0, help="seconds per rate with the simulator (issue: 300)")
+    ap.add_argument("--duration", type=float, default=300.0, help="seconds per rate with the simulator (default 300)")
     ap.add_argument("--compare", type=float, default=20.0, help="seconds per rate of loop shell vs naive sleep")
     ap.add_argument("--fd-from", type=float, default=500.0, help="rates from this one up run on CAN FD [Hz]")
     ap.add_argument("--late-fraction", type=float, default=0.1, help="late: woke this part of a period after")
