@@ -58,6 +58,9 @@ def add_commands(sub: argparse._SubParsersAction[ParserT],
     what.add_argument("--verify", action="store_true",
                       help="run the recorded inputs through the step and compare the outputs bit for bit")
     p.add_argument("--speed", type=float, default=1.0, help="--bus: time scale (2 = twice as fast)")
+    p.add_argument("--only", choices=("sent", "received"),
+                   help="--bus: only the frames the controller sent, or only those it received (a bus carries "
+                        "no direction: a listener sees every replayed frame as received; logs export keeps it)")
     p.add_argument("--udp-port", type=int, help="--bus: UDP port of the udp_multicast bus")
     p.add_argument("--fd", action="store_true", help="--bus: open the bus for CAN FD")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
@@ -211,7 +214,7 @@ def _bus(args: argparse.Namespace) -> int:
     stop: threading.Event = args.stop_on_signals()
     path = Path(args.file)
     with _progress(path, "replaying") as progress:
-        r = replay_to_bus(path, spec, args.speed, stop, progress)
+        r = replay_to_bus(path, spec, args.speed, stop, progress, only=args.only)
     problems = "; ".join(r.report.problems)
     if args.json:
         print(json.dumps({"frames_sent": r.frames_sent,

@@ -46,6 +46,7 @@ from typing import TYPE_CHECKING, Any, Protocol, SupportsInt, cast
 
 import numpy as np
 
+from controller.cli_output import strict_json
 from controller.errors import InputError
 from controller.shell.loop import period_error_us
 from controller.shell.realtime import RealtimeOptions
@@ -999,6 +1000,6 @@ def run_bench_command(args: argparse.Namespace, rt: RealtimeOptions) -> int:
                        late_fraction=args.late_fraction, fd_from_hz=args.fd_from,
                        progress=lambda s: print(s, file=sys.stderr, flush=True), schedulers=schedulers,
                        cyclictest_s=args.cyclictest)
-    print(json.dumps(report, indent=2) if args.json else format_table(report))
+    print(strict_json(report, indent=2) if args.json else format_table(report))
     print(f"JSON: {Path(args.out) / 'bench.json'}", file=sys.stderr)
     return 0

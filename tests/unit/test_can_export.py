@@ -1,10 +1,8 @@
 """``cheope logs export``: every recorded frame once, read back by python-can, decoded by cantools.
 
-The recording is written by the project's own recorder (its writer process), with the traffic of
-a few cycles built from the shipped DBC: SYNC, the drives' RPDOs (sent by the controller) and
-TPDOs (received), the sensor's TPDOs, heartbeats, an SDO exchange; plus one CAN FD frame and one
-error frame for the formats' limits. Times are the recorder's clock, a known monotonic value, so
-the Unix times written are monotonic + the recorded clock offset.
+The recording (tests/can_traffic.py) is written by the project's own recorder with the traffic of
+40 cycles built from the shipped DBC; one CAN FD frame and one error frame test the formats'
+limits. The Unix times written are the recorded monotonic times + the recorded clock offset.
 """
 
 from __future__ import annotations
@@ -18,54 +16,15 @@ from pathlib import Path
 import can
 import cantools
 import pytest
+from can_traffic import DBC, T0_S
+from can_traffic import record_traffic as _record
 
-from drivers.node_setup import EDS_DIR
 from logs.bus_traffic import clock_offset_s, recorded_frames
 from logs.can_export import FORMATS, export_frames
 from logs.reader import ReadReport
-from logs.recorder import SessionRecorder
 
-DBC = EDS_DIR.parent / "dbc" / "cheope.dbc"
-T0_S = 12_345.678901  # the controller's monotonic clock at the first frame
-PERIOD_S = 0.0025
 # Reading back: 1 us of resolution in the text formats, plus the float rounding of a Unix time (0.24 us).
 RESOLUTION_S = {"asc": 1.5e-6, "blf": 1.5e-6, "log": 1.5e-6, "trc": 1.5e-6, "csv": 1e-9}
-
-
-def _cycle_frames(db: cantools.database.Database, k: int) -> list[tuple[bool, can.Message]]:
-    """(outgoing, frame) of one cycle as the controller's tap sees it."""
-    def frame(name: str, values: dict[str, float]) -> can.Message:
-        msg = db.get_message_by_name(name)
-        return can.Message(arbitration_id=msg.frame_id, data=msg.encode(values), is_extended_id=False)
-
-    out = [frame(f"Drive{j}_RPDO1", {s.name: s.minimum or 0 for s in db.get_message_by_name(f"Drive{j}_RPDO1").signals})
-           for j in (1, 2, 3)]
-    out.append(can.Message(arbitration_id=0x80, data=b"", is_extended_id=False))  # SYNC
-    received = [frame(f"Drive{j}_TPDO1", {s.name: s.minimum or 0
-                                          for s in db.get_message_by_name(f"Drive{j}_TPDO1").signals})
-                for j in (1, 2, 3)]
-    received.append(can.Message(arbitration_id=0x190, data=bytes([k % 256, 1, 2, 3, 4, 5, 6, 7]),
-                                is_extended_id=False))
-    return [(True, f) for f in out] + [(False, f) for f in received]
-
-
-def _record(path: Path, extra: list[tuple[bool, can.Message]] = ()) -> list[tuple[float, bool, can.Message]]:
-    """A recording of 40 cycles of traffic (and ``extra`` frames at the end); returns what went in."""
-    db = cantools.database.load_file(DBC)
-    now = [T0_S]
-    frames: list[tuple[float, bool, can.Message]] = []
-    recorder = SessionRecorder(path, {"cheope.session": {"task": "path"}}, clock=lambda: now[0])
-    with recorder:
-        setup = [(True, can.Message(arbitration_id=0x601, data=bytes([0x40, 0x18, 0x10, 1, 0, 0, 0, 0]),
-                                    is_extended_id=False)),
-                 (False, can.Message(arbitration_id=0x581, data=bytes([0x43, 0x18, 0x10, 1, 0x9A, 0, 0, 0]),
-                                     is_extended_id=False))]
-        cycles = [f for k in range(40) for f in _cycle_frames(db, k)]
-        for i, (outgoing, msg) in enumerate([*setup, *cycles, *extra]):
-            t = T0_S + i * PERIOD_S / 9 + (i % 7) * 1.3e-6  # odd microseconds, not a grid
-            recorder.on_frame(outgoing, t, msg)
-            frames.append((t, outgoing, msg))
-    return frames
 
 
 @pytest.fixture(scope="module")
@@ -107,7 +66,7 @@ def test_python_can_reads_every_frame_back_with_its_direction_and_time(recording
 
 
 def test_cantools_decodes_the_export_with_the_shipped_dbc(recording, tmp_path: Path):
-    path, frames = recording
+    path, _ = recording
     db = cantools.database.load_file(DBC)
     out = export_frames(path, "log", tmp_path / "x.log").output
     decoded = {}
