@@ -7,7 +7,6 @@ info`` on a damaged file and ``logs recover`` when it recovered nothing exit 1.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import threading
 from collections.abc import Callable, Iterator
@@ -15,6 +14,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TypeVar
 
+from controller.cli_output import progress_line, strict_json
 from controller.errors import InputError
 
 # The caller's parser class (cheope's own ArgumentParser subclass): _SubParsersAction is invariant in it.
@@ -93,6 +93,20 @@ def _progress(path: Path, label: str) -> Iterator[Callable[[int], None] | None]:
         yield lambda done: bar.update(task, completed=done)
 
 
+@contextmanager
+def _working(path: Path, label: str) -> Iterator[Callable[[str], None]]:
+    """A status line with the time elapsed while a large file is walked (on a terminal); else silent."""
+    try:
+        large = path.stat().st_size >= LARGE_FILE_BYTES
+    except OSError:
+        large = False
+    if not large:
+        yield lambda _text: None
+        return
+    with progress_line(label) as progress:
+        yield progress
+
+
 def cmd_logs_info(args: argparse.Namespace) -> int:
     """Exit 0 for an intact file, 1 for a damaged or truncated one (it says what), 2 for no MCAP at all.
 
@@ -107,12 +121,16 @@ def cmd_logs_info(args: argparse.Namespace) -> int:
         report = None if args.check else read_info_from_summary(args.file)
         traffic = None
         if report is None:
-            report = read_info(args.file)
-            traffic = recorded_traffic(args.file) if report.message_counts.get(m.TOPIC_CAN) else None
+            with _working(Path(args.file), "cheope logs info") as progress:
+                progress("reading every chunk")
+                report = read_info(args.file)
+                if report.message_counts.get(m.TOPIC_CAN):
+                    progress("counting the CAN traffic")
+                    traffic = recorded_traffic(args.file)
     except LogFileError as err:
         return _fail(args, err)
     if args.json:
-        print(json.dumps({**info_dict(report), **({"can": traffic.as_dict()} if traffic is not None else {})}))
+        print(strict_json({**info_dict(report), **({"can": traffic.as_dict()} if traffic is not None else {})}))
     else:
         print(format_info(report) + ("\n" + traffic.format() if traffic is not None else ""))
     return 1 if report.damaged else 0
@@ -123,7 +141,9 @@ def cmd_logs_recover(args: argparse.Namespace) -> int:
     from logs.recovery import recover
 
     try:
-        r = recover(args.file, args.output)
+        with _working(Path(args.file), "cheope logs recover") as progress:
+            progress("copying what is readable")
+            r = recover(args.file, args.output)
     except LogFileError as err:
         return _fail(args, err)
     lost = "; ".join(r.report.problems) or "nothing was damaged"
@@ -164,7 +184,7 @@ def cmd_logs_export(args: argparse.Namespace) -> int:
         return _fail(args, err)
     not_written = "; ".join(f"{k} {why} not written" for why, k in r.frames_not_written.items())
     if args.json:
-        print(json.dumps({"output": str(r.output), "format": r.format, "frames_written": r.frames_written,
+        print(strict_json({"output": str(r.output), "format": r.format, "frames_written": r.frames_written,
                           "frames_out": r.frames_out, "frames_in": r.frames_written - r.frames_out,
                           "frames_not_written": r.frames_not_written, "note": r.note, "problems": r.report.problems}))
     else:
@@ -198,7 +218,7 @@ def _verify(args: argparse.Namespace) -> int:
         result = verify(path, overrides, progress)
     if args.json:
         d = result.divergence
-        print(json.dumps({"ok": result.ok, "cycles_checked": result.cycles_checked, "problems": result.problems,
+        print(strict_json({"ok": result.ok, "cycles_checked": result.cycles_checked, "problems": result.problems,
                           "divergence": None if d is None else {"cycle": d.cycle, "t_s": d.t_s, "field": d.field,
                                                                 "recorded": d.recorded, "recomputed": d.recomputed}}))
     else:
@@ -217,7 +237,7 @@ def _bus(args: argparse.Namespace) -> int:
         r = replay_to_bus(path, spec, args.speed, stop, progress, only=args.only)
     problems = "; ".join(r.report.problems)
     if args.json:
-        print(json.dumps({"frames_sent": r.frames_sent,
+        print(strict_json({"frames_sent": r.frames_sent,
                           "send_errors": r.send_errors, "duration_s": r.duration_s, "problems": r.report.problems}))
     else:
         print(f"sent {r.frames_sent} frames onto {spec} in {r.duration_s:.2f} s (speed {args.speed:g}, "
@@ -243,7 +263,7 @@ def _rerun(args: argparse.Namespace) -> int:
         text = f"wrote {r.output} ({r.cycles} cycles)" + (f"; no viewer: {r.note}; open it with: rerun {r.output}"
                                                            if r.note else "")
     if args.json:
-        print(json.dumps({"output": str(r.output) if r.output else None, "spawned": r.spawned, "cycles": r.cycles,
+        print(strict_json({"output": str(r.output) if r.output else None, "spawned": r.spawned, "cycles": r.cycles,
                           "entities": list(r.entities), "note": r.note, "problems": r.report.problems}))
     else:
         print(text + (f" (input: {problems})" if problems else ""))
