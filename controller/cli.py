@@ -384,7 +384,7 @@ def cmd_plan_bench(args: argparse.Namespace) -> int:
     with progress_line("cheope plan-bench") as progress:
         def each_pair(line: str) -> None:
             log.info("%s", line)
-            progress(f"{line} (of {args.pairs})")
+            progress(f"{line}; pairs 0..{args.pairs - 1}")
 
         report = run_benchmark(cfg, args.pairs, args.seed, each_pair)
     print(strict_json(report) if args.json else format_report(report))
