@@ -115,6 +115,14 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path):
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "--format" in r.stderr
 
 
+def test_an_output_that_cannot_be_written_is_one_line_and_exit_2(recording, tmp_path: Path):
+    path, _ = recording
+    r = _cheope("logs", "export", str(path), "--format", "blf", "-o", str(tmp_path / "missing" / "x.blf"))
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "cannot write" in r.stderr and "x.blf" in r.stderr
+    r = _cheope("logs", "export", str(path), "--format", "log", "-o", str(path))
+    assert r.returncode == 2 and "is the recording itself" in r.stderr and path.read_bytes()[:5] == b"\x89MCAP"
+
+
 def _cheope(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "controller", *args], capture_output=True, text=True, check=False,
                           timeout=60)
