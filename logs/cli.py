@@ -1,7 +1,8 @@
-"""Bodies of ``cheope logs info|recover`` and ``cheope replay``; ``add_commands`` wires them in.
+"""Bodies of ``cheope logs info|recover|export`` and ``cheope replay``; ``add_commands`` wires them in.
 
 Errors end as one line on stderr with exit code 2; ``--verify`` exits 1 on a divergence, ``logs
-info`` on a damaged file and ``logs recover`` when it recovered nothing exit 1.
+info`` on a damaged file, ``logs recover`` when it recovered nothing and ``logs export`` when the
+format could not hold every frame exit 1.
 """
 
 from __future__ import annotations
