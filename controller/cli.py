@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any, NoReturn
 
 import can
 
+from controller.cli_output import progress_line, strict_json
 from controller.config import Config, ConfigError, load_config, parse_override
 from controller.errors import CheopeError, RefusedError
 from controller.monitoring.cli_commands import add_controller_options, monitoring_overrides
@@ -28,13 +29,28 @@ if TYPE_CHECKING:
     from controller.shell.realtime import RealtimeOptions
 
 
-def _common(ap: argparse.ArgumentParser, bus: bool = True) -> None:
-    ap.add_argument("--config", help="TOML configuration (default: the shipped controller/configs/cheope.toml)")
+NSPU_ONLY = ("nspu",)  # plan and plan-bench: the 3-nSPU's planner
+
+
+def _config_help(robots: tuple[str, ...]) -> str:
+    """--config's help: which shipped file each --robot choice loads, and the one without --robot."""
+    files = {kind: f.name for kind in robots if (f := robot_entry(kind).config_file) is not None}
+    if len(robots) == 1:
+        return f"TOML configuration (default: the shipped controller/configs/{files[robots[0]]})"
+    per_robot = ", ".join(f"{name} for --robot {kind}" for kind, name in files.items())
+    return (f"TOML configuration (default: the shipped file of --robot in controller/configs/: {per_robot}; "
+            f"without --robot: cheope.toml)")
+
+
+def _common(ap: argparse.ArgumentParser, bus: bool = True, robots: tuple[str, ...] | None = None) -> None:
+    """``robots``: the --robot choices the command accepts (all registered robots when None)."""
+    robots = robots or robot_kinds()
+    ap.add_argument("--config", help=_config_help(robots))
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override a configuration key, e.g. --set loop.rate_hz=1000 (repeatable)")
     ap.add_argument("--rate", type=float, help="loop rate [Hz] (same as --set loop.rate_hz=...)")
-    ap.add_argument("--robot", choices=robot_kinds(),
-                    help="the robot: loads controller/configs/ROBOT.toml unless --config is given "
+    ap.add_argument("--robot", choices=robots,
+                    help="the robot: loads its shipped configuration unless --config is given "
                          "(then sets robot.kind)")
     if bus:
         ap.add_argument("--can", help="INTERFACE[:CHANNEL]: socketcan:vcan0, udp_multicast, virtual:x "
@@ -137,7 +153,7 @@ def _stop_on_signals() -> threading.Event:
 
 def _print_summary(summary: dict[str, Any], as_json: bool) -> None:
     if as_json:
-        print(json.dumps(summary))
+        print(strict_json(summary))
         return
     pe, te = summary["period_error_us"], summary["tracking_error_m"]
     lines = [
@@ -217,7 +233,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         if cfg.task.kind != "contour":
             raise ConfigError("--simulated-time runs the contour experiment: use it with --task contour")
         summary = run_simulated_time(cfg, args.max_duration, Path(args.plot) if args.plot else None)
-        print(json.dumps(summary) if args.json else json.dumps(summary, indent=1))
+        print(strict_json(summary) if args.json else strict_json(summary, indent=1))
         return 0 if summary["final_mode"] == "DONE" else 1
     spec = _spec(args, cfg, default_port=random_udp_port())
     with live_status(status_wanted(args.json, sys.stdout)) as status:
@@ -278,7 +294,7 @@ def cmd_bus_load(args: argparse.Namespace) -> int:
     load = prepare(cfg, _spec(args, cfg), enforce_load_limit=False).bus_load
     ok = load.percent <= cfg.bus.max_load_percent
     if args.json:
-        print(json.dumps({"load_percent": load.percent, "limit_percent": cfg.bus.max_load_percent, "ok": ok,
+        print(strict_json({"load_percent": load.percent, "limit_percent": cfg.bus.max_load_percent, "ok": ok,
                           "frames_per_second": load.frames_per_second, "fd": cfg.bus.fd,
                           "frames": [f.__dict__ for f in load.frames]}))
     else:
@@ -309,8 +325,10 @@ def cmd_analyze(args: argparse.Namespace) -> int:
     if not entry.analyze:
         raise ConfigError(f"robot.kind = {cfg.robot.kind!r} has no analysis plots")
     analyze = load_reference(entry.analyze)
-    report = analyze(cfg, Path(args.out))
-    print(json.dumps(report) if args.json else "\n".join(f"{k}: {v}" for k, v in report.items()))
+    with progress_line("cheope analyze") as progress:
+        progress(f"{cfg.robot.kind}: workspace, margins, ellipsoids -> {args.out}")
+        report = analyze(cfg, Path(args.out))
+    print(strict_json(report) if args.json else "\n".join(f"{k}: {v}" for k, v in report.items()))
     return 0
 
 
@@ -353,8 +371,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if args.no_type2_check:
         print("cheope plan: warning: the type-II singularity check is off; the plan may cross det M = 0",
               file=sys.stderr)
-    report = plan_nspu(cfg, start, goal, not args.no_type2_check, Path(args.plot) if args.plot else None)
-    print(json.dumps(report) if args.json else "\n".join(f"{k}: {v}" for k, v in report.items()))
+    with progress_line("cheope plan") as progress:
+        progress("planning")
+        report = plan_nspu(cfg, start, goal, not args.no_type2_check, Path(args.plot) if args.plot else None)
+    print(strict_json(report) if args.json else "\n".join(f"{k}: {v}" for k, v in report.items()))
     return 0 if report["ok"] else 1
 
 
@@ -364,8 +384,14 @@ def cmd_plan_bench(args: argparse.Namespace) -> int:
     cfg = _nspu_config(args, "cheope plan-bench benchmarks the 3-nSPU's planner")
     if args.pairs < 1:
         raise ConfigError(f"--pairs {args.pairs}: must be >= 1")
-    report = run_benchmark(cfg, args.pairs, args.seed, lambda line: print(line, file=sys.stderr, flush=True))
-    print(json.dumps(report) if args.json else format_report(report))
+    log = logging.getLogger("cheope.plan-bench")
+    with progress_line("cheope plan-bench") as progress:
+        def each_pair(line: str) -> None:
+            log.info("%s", line)
+            progress(f"{line}; pairs 0..{args.pairs - 1}")
+
+        report = run_benchmark(cfg, args.pairs, args.seed, each_pair)
+    print(strict_json(report) if args.json else format_report(report))
     return 0
 
 
@@ -374,8 +400,9 @@ def cmd_faults(args: argparse.Namespace) -> int:
         return _contour_scan(args)
     from controller.tools.fault_scenarios import format_table, run_all
 
-    rows = run_all(_config(args), Path(args.keep) if args.keep else None, tuple(args.only or ()))
-    print(json.dumps(rows) if args.json else format_table(rows))
+    with progress_line("cheope faults") as progress:
+        rows = run_all(_config(args), Path(args.keep) if args.keep else None, tuple(args.only or ()), progress)
+    print(strict_json(rows) if args.json else format_table(rows))
     return 0 if all(r["as_expected"] and r["recording_complete"] for r in rows) else 1
 
 
@@ -416,6 +443,19 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+def _verbose_on_every_command(parser: argparse.ArgumentParser) -> None:
+    """``-v`` after the subcommand too (``cheope run -v``, ``cheope logs info -v FILE``); SUPPRESS keeps a
+    ``-v`` given before the subcommand from being reset to False by the subcommand's default."""
+    for action in parser._actions:
+        if not isinstance(action, argparse._SubParsersAction):
+            continue
+        for sub in {id(p): p for p in action.choices.values()}.values():
+            if "-v" not in sub._option_string_actions:
+                sub.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
+                                 help="log to stderr (also before the command)")
+            _verbose_on_every_command(sub)
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = OneLineParser(prog="cheope", description="Controller service for parallel-kinematic robots")
     ap.add_argument("-v", "--verbose", action="store_true", help="log to stderr")
@@ -442,7 +482,7 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog=RUN_EXIT_CODES)
     _common(p)
     add_controller_options(p)
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--max-duration", type=float, default=None, metavar="SECONDS",
                    help="stop (through STOPPING: brake, disable the drives) after this long; default: run until stopped")
     _live_options(p)
@@ -454,7 +494,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_sim)
     p = sub.add_parser("faults", help="inject every handled fault into the simulated devices; table of reactions")
     _common(p, bus=False)
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print the rows as one JSON array")
     p.add_argument("--only", action="append", metavar="SCENARIO", help="run only this scenario (repeatable)")
     p.add_argument("--keep", metavar="DIR", help="keep the scenarios' recordings in DIR")
     p.add_argument("--contour-scan", action="store_true",
@@ -469,15 +509,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_faults)
     p = sub.add_parser("bus-load", help="bus load of the configured cycle")
     _common(p, bus=False)
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print the load and its frames as one JSON object")
     p.set_defaults(func=cmd_bus_load)
     p = sub.add_parser("analyze", help="workspace, singularity margins and ellipsoids; writes PNG plots")
     _common(p, bus=False)
     p.add_argument("--out", default="analysis", help="directory for the PNG plots")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print the report as one JSON object")
     p.set_defaults(func=cmd_analyze)
     p = sub.add_parser("plan", help="3-nSPU: plan a non-holonomic motion (seed 004) and report it")
-    _common(p, bus=False)
+    _common(p, bus=False, robots=NSPU_ONLY)
     p.add_argument("--from", dest="start", metavar="X,Y,Z,ROLL,PITCH,YAW",
                    help="start pose [m, rad] (default: the config's robot.nspu.start_*)")
     p.add_argument("--to", dest="goal", metavar="X,Y,Z,ROLL,PITCH,YAW",
@@ -486,14 +526,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seed 004 section 4: (0,0,25) aul RPY(0,0,-pi/6) -> (-0.4,-0.2,35) aul RPY(0,0,-pi/2)")
     p.add_argument("--no-type2-check", action="store_true",
                    help="allow plans crossing the type-II singularity det M = 0 (the paper's assumptions; warns)")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print the report as one JSON object (strict: null for NaN)")
     p.add_argument("--plot", metavar="DIR", help="write the plan's PNG plots here")
     p.set_defaults(func=cmd_plan)
     p = sub.add_parser("plan-bench", help="3-nSPU: the planner over random seeded pose pairs; success, time, error")
-    _common(p, bus=False)
+    _common(p, bus=False, robots=NSPU_ONLY)
     p.add_argument("--pairs", type=int, default=100, help="number of pose pairs (default 100)")
     p.add_argument("--seed", type=int, default=0, help="seed of the pairs (default 0)")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print the report as one JSON object (strict: null for NaN)")
     p.set_defaults(func=cmd_plan_bench)
     p = sub.add_parser("bench", help="timing benchmark with the simulator: 400 Hz and 1 kHz, table, JSON, PNG")
     from controller.tools.bench import add_bench_arguments
@@ -511,6 +551,7 @@ def build_parser() -> argparse.ArgumentParser:
     from logs.cli import add_commands as add_log_commands  # cheope logs info|recover, cheope replay
 
     add_log_commands(sub, _stop_on_signals)
+    _verbose_on_every_command(ap)
     return ap
 
 

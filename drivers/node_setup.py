@@ -33,6 +33,15 @@ from drivers.pdo_mapping import (
     load_device_description,
     planned_pdo,
 )
+from drivers.sim_environment import (
+    ABORT_DEVICE_STATE,
+    ABORT_OBJECT_DOES_NOT_EXIST,
+    ENVIRONMENT_CODES,
+    ENVIRONMENT_NAMES,
+    SIM_ENVIRONMENT_INDEX,
+    SIM_ENVIRONMENT_SUBINDEX,
+    mismatch_message,
+)
 
 log = logging.getLogger(__name__)
 
@@ -66,6 +75,9 @@ class NodeSetupPlan:
     following_error_time_ms: int = 0  # 0x6066
     answer_timeout_s: float = 5.0  # how long a node may take to answer at all (it may still be booting)
     sdo_timeout_s: float = 1.0  # each SDO response; canopen's 0.3 s default is short for slow machines
+    # announced to a simulated sensor (drivers/sim_environment.py): "free", "workpiece"; None: not announced
+    sim_environment: str | None = None
+    task_kind: str = ""  # named when the simulator refuses the environment
 
 
 @dataclass(frozen=True)
@@ -239,6 +251,22 @@ def _identity(node: canopen.RemoteNode, node_id: int, expected_vendor: int, expe
     return ident
 
 
+def _announce_environment(node: canopen.RemoteNode, node_id: int, environment: str, task_kind: str) -> None:
+    """Tell a simulated sensor the workpiece the task needs; a real one has no such object."""
+    try:
+        node.sdo.download(SIM_ENVIRONMENT_INDEX, SIM_ENVIRONMENT_SUBINDEX, bytes([ENVIRONMENT_CODES[environment]]))
+    except canopen.SdoAbortedError as err:
+        if err.code == ABORT_OBJECT_DOES_NOT_EXIST:
+            log.info("node %d has no simulator environment object: not a simulator", node_id)
+            return
+        if err.code != ABORT_DEVICE_STATE:
+            raise
+        code = node.sdo.upload(SIM_ENVIRONMENT_INDEX, SIM_ENVIRONMENT_SUBINDEX)[0]
+        raise NodeSetupError(mismatch_message(ENVIRONMENT_NAMES.get(code, f"code {code}"), environment,
+                                              task_kind)) from err
+    log.info("node %d (simulated): environment %s announced for task.kind = %s", node_id, environment, task_kind)
+
+
 def _remote_node(network: canopen.Network, node_id: int, eds: Path, plan: NodeSetupPlan) -> canopen.RemoteNode:
     try:
         node = canopen.RemoteNode(node_id, load_device_description(eds, node_id))
@@ -336,6 +364,8 @@ def configure_nodes(bus: can.BusABC, plan: NodeSetupPlan) -> NodeSetupReport:
             if plan.cycle_period_s > 0:
                 _write_sync_timing(node, plan.sensor_id, plan.cycle_period_s)
             sensor_codecs = _configure_sensor_pdos(node, plan.sensor_id)
+            if plan.sim_environment is not None:
+                _announce_environment(node, plan.sensor_id, plan.sim_environment, plan.task_kind)
         network.nmt.state = "OPERATIONAL"  # broadcast start
         return NodeSetupReport(tuple(identities), tuple(positions), time.monotonic() - t0,
                                tuple(drive_codecs), sensor_codecs)

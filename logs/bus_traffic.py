@@ -13,15 +13,59 @@ from __future__ import annotations
 
 import json
 from collections import Counter
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from controller.config import Config, ConfigError, recorded_config_from_dict
 from drivers import cob_ids
 from drivers.bus_load import measured_bus_load
 from logs import messages as m
 from logs.reader import ReadReport, iter_decoded
+
+
+class RecordedFrame(Protocol):
+    """One CAN frame of a recording, as the controller's bus tap saw it (drivers/frame_tap.py)."""
+
+    @property
+    def monotonic_s(self) -> float: ...  # send or receive time on the controller's monotonic clock
+
+    @property
+    def outgoing(self) -> bool: ...  # sent by the controller (else received by it)
+
+    @property
+    def arbitration_id(self) -> int: ...
+
+    @property
+    def data(self) -> bytes: ...
+
+    @property
+    def is_fd(self) -> bool: ...
+
+    @property
+    def bitrate_switch(self) -> bool: ...
+
+    @property
+    def is_error_frame(self) -> bool: ...
+
+
+def recorded_frames(path: str | Path, report: ReadReport | None = None) -> Iterator[RecordedFrame]:
+    """Every CAN frame of the recording once, in recorded order: the one reader of ``/can`` for the
+    tools (bus load, replay onto a bus, export), so a change of its layout on disk changes only this."""
+    for d in iter_decoded(path, (m.TOPIC_CAN,), report):
+        frame: RecordedFrame = d.message
+        yield frame
+
+
+def clock_offset_s(report: ReadReport) -> float | None:
+    """Unix time minus the controller's monotonic clock for this recording (``cheope.session``);
+    None when the metadata is missing (a file damaged at its start)."""
+    offset = report.metadata.get(m.META_SESSION, {}).get("clock_offset_ns")
+    try:
+        return int(offset) * 1e-9 if offset is not None else None
+    except ValueError:
+        return None
 
 
 @dataclass(frozen=True)
@@ -70,8 +114,7 @@ def recorded_traffic(path: str | Path, report: ReadReport | None = None) -> Reco
     frames: list[tuple[float, int, int, bool, bool]] = []  # (t, cob_id, bytes, is_fd, brs)
     first_sync = last_sync = None
     first_in = last_in = None  # SYNCs received: the kernel's, with bus.sync_producer = "kernel"
-    for d in iter_decoded(path, (m.TOPIC_CAN,), report):
-        f = d.message
+    for f in recorded_frames(path, report):
         counts[(cob_ids.function_name(f.arbitration_id), f.outgoing)] += 1
         if f.is_error_frame:
             continue

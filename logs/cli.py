@@ -1,21 +1,23 @@
-"""Bodies of ``cheope logs info|recover`` and ``cheope replay``; ``add_commands`` wires them in.
+"""Bodies of ``cheope logs info|recover|export`` and ``cheope replay``; ``add_commands`` wires them in.
 
 Errors end as one line on stderr with exit code 2; ``--verify`` exits 1 on a divergence and 3 when
 it could check only part of the recording (truncated, damaged, cycles dropped, a file without its
-keyframe), saying how much; ``logs info`` on a damaged file and ``logs recover`` when it recovered
-nothing exit 1.
+keyframe), saying how much; ``logs info`` on a damaged file, ``logs recover`` when it recovered
+nothing and ``logs export`` when the format could not hold every frame exit 1.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TypeVar
+
+from controller.cli_output import progress_line, strict_json
+from controller.errors import InputError
 
 # The caller's parser class (cheope's own ArgumentParser subclass): _SubParsersAction is invariant in it.
 ParserT = TypeVar("ParserT", bound=argparse.ArgumentParser)
@@ -45,17 +47,30 @@ def add_commands(sub: argparse._SubParsersAction[ParserT],
     q.add_argument("file")
     q.add_argument("-o", "--output", help="output file (default: FILE.recovered.mcap beside it)")
     q.set_defaults(func=cmd_logs_recover)
+    q = logs_sub.add_parser("export", help="the recorded CAN frames for CAN tools: Vector ASC/BLF, candump log, PEAK TRC, "
+                                           "CSV (python-can's writers)")
+    q.add_argument("file")
+    q.add_argument("--format", required=True, choices=("asc", "blf", "log", "trc", "csv"),
+                   help="asc, blf (Vector), log (candump -L), trc (PEAK), csv (python-can's columns: no direction)")
+    q.add_argument("-o", "--output", help="output file (default: FILE with the format's suffix, beside it)")
+    q.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    q.set_defaults(func=cmd_logs_export)
 
     p = sub.add_parser("replay", help="replay a recording: to Rerun, onto a CAN bus, or through the step (--verify)")
-    p.add_argument("file", nargs="+", help="the recording; --verify: one file, or several files of one session")
+    p.add_argument("file", nargs="*", help="the recording (.mcap; may also follow --rerun); --verify: one file, or "
+                                           "several files of one session")
     what = p.add_mutually_exclusive_group(required=True)
     what.add_argument("--rerun", nargs="?", const="", metavar="OUT.rrd",
-                      help="convert to Rerun; without OUT spawn the viewer (or write FILE.rrd when none can start)")
+                      help="to Rerun with the robot drawn: without OUT spawn the viewer (or write FILE.rrd when none "
+                           "can start); cheope replay --rerun FILE.mcap reads FILE.mcap")
     what.add_argument("--bus", metavar="INTERFACE[:CHANNEL]", help="send the recorded frames with their timing")
     what.add_argument("--verify", action="store_true",
                       help="run the recorded inputs through the step and compare the outputs bit for bit "
                            "(exit 1: a divergence, 3: only part of the recording could be checked)")
     p.add_argument("--speed", type=float, default=1.0, help="--bus: time scale (2 = twice as fast)")
+    p.add_argument("--only", choices=("sent", "received"),
+                   help="--bus: only the frames the controller sent, or only those it received (a bus carries "
+                        "no direction: a listener sees every replayed frame as received; logs export keeps it)")
     p.add_argument("--udp-port", type=int, help="--bus: UDP port of the udp_multicast bus")
     p.add_argument("--fd", action="store_true", help="--bus: open the bus for CAN FD")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
@@ -88,6 +103,20 @@ def _progress(path: Path, label: str) -> Iterator[Callable[[int], None] | None]:
         yield lambda done: bar.update(task, completed=done)
 
 
+@contextmanager
+def _working(path: Path, label: str) -> Iterator[Callable[[str], None]]:
+    """A status line with the time elapsed while a large file is walked (on a terminal); else silent."""
+    try:
+        large = path.stat().st_size >= LARGE_FILE_BYTES
+    except OSError:
+        large = False
+    if not large:
+        yield lambda _text: None
+        return
+    with progress_line(label) as progress:
+        yield progress
+
+
 def cmd_logs_info(args: argparse.Namespace) -> int:
     """Exit 0 for an intact file, 1 for a damaged or truncated one (it says what), 2 for no MCAP at all.
 
@@ -102,12 +131,16 @@ def cmd_logs_info(args: argparse.Namespace) -> int:
         report = None if args.check else read_info_from_summary(args.file)
         traffic = None
         if report is None:
-            report = read_info(args.file)
-            traffic = recorded_traffic(args.file) if report.message_counts.get(m.TOPIC_CAN) else None
+            with _working(Path(args.file), "cheope logs info") as progress:
+                progress("reading every chunk")
+                report = read_info(args.file)
+                if report.message_counts.get(m.TOPIC_CAN):
+                    progress("counting the CAN traffic")
+                    traffic = recorded_traffic(args.file)
     except LogFileError as err:
         return _fail(args, err)
     if args.json:
-        print(json.dumps({**info_dict(report), **({"can": traffic.as_dict()} if traffic is not None else {})}))
+        print(strict_json({**info_dict(report), **({"can": traffic.as_dict()} if traffic is not None else {})}))
     else:
         print(format_info(report) + ("\n" + traffic.format() if traffic is not None else ""))
     return 1 if report.damaged else 0
@@ -118,7 +151,9 @@ def cmd_logs_recover(args: argparse.Namespace) -> int:
     from logs.recovery import recover
 
     try:
-        r = recover(args.file, args.output)
+        with _working(Path(args.file), "cheope logs recover") as progress:
+            progress("copying what is readable")
+            r = recover(args.file, args.output)
     except LogFileError as err:
         return _fail(args, err)
     lost = "; ".join(r.report.problems) or "nothing was damaged"
@@ -146,14 +181,53 @@ def cmd_logs_list(args: argparse.Namespace) -> int:
     return 0
 
 
+def rerun_input_and_output(file: str | None, rerun: str | None) -> tuple[str, str | None]:
+    """(recording, OUT.rrd or None) of ``cheope replay [FILE] --rerun [X]``: an X that names a
+    recording (``cheope replay --rerun FILE.mcap``) is the input, never an output to overwrite."""
+    if file is None:
+        if not rerun:
+            raise InputError("no recording given: cheope replay FILE.mcap --rerun [OUT.rrd]")
+        if rerun.endswith(".rrd"):
+            raise InputError(f"--rerun {rerun}: is the output; which recording? cheope replay FILE.mcap --rerun {rerun}")
+        return rerun, None
+    if rerun and not rerun.endswith(".rrd"):
+        raise InputError(f"--rerun {rerun}: the output must be a .rrd file (Rerun's recording format)")
+    return file, rerun or None
+
+
+def cmd_logs_export(args: argparse.Namespace) -> int:
+    """Exit 0 when every recorded frame was written, 1 when the format could not hold some (it says
+    which), 2 when the input is no recording or the output cannot be written."""
+    from logs.can_export import ExportError, export_frames
+    from logs.reader import LogFileError
+
+    path = Path(args.file)
+    try:
+        with _progress(path, "exporting") as progress:
+            r = export_frames(path, args.format, args.output, progress)
+    except (LogFileError, ExportError) as err:
+        return _fail(args, err)
+    not_written = "; ".join(f"{k} {why} not written" for why, k in r.frames_not_written.items())
+    if args.json:
+        print(strict_json({"output": str(r.output), "format": r.format, "frames_written": r.frames_written,
+                          "frames_out": r.frames_out, "frames_in": r.frames_written - r.frames_out,
+                          "frames_not_written": r.frames_not_written, "note": r.note, "problems": r.report.problems}))
+    else:
+        print(f"wrote {r.frames_written} frames to {r.output} ({r.frames_out} Tx, {r.frames_written - r.frames_out} Rx)"
+              + "".join(f"; {t}" for t in (not_written, r.note, "; ".join(r.report.problems)) if t))
+    return 1 if r.frames_not_written else 0
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from logs.reader import LogFileError
 
     if not args.verify and len(args.file) > 1:
         print(f"cheope {args.command}: error: --rerun and --bus take one file, got {len(args.file)}", file=sys.stderr)
         return 2
+    if args.rerun is None and not args.file:
+        return _fail(args, InputError("no recording given: cheope replay FILE.mcap --verify|--bus|--rerun"))
     if not args.verify:
-        args.file = args.file[0]
+        args.file = args.file[0] if args.file else None
     try:
         if args.verify:
             return _verify(args)
@@ -174,7 +248,7 @@ def _verify(args: argparse.Namespace) -> int:
         result = verify(paths, overrides, progress)
     if args.json:
         d = result.divergence
-        print(json.dumps({"ok": result.ok, "cycles_checked": result.cycles_checked,
+        print(strict_json({"ok": result.ok, "cycles_checked": result.cycles_checked,
                           "cycles_recorded": result.cycles_recorded, "problems": result.problems,
                           "files": [str(p) for p in result.files], "started_from": result.started_from,
                           "continues_in": result.continues_in,
@@ -195,10 +269,10 @@ def _bus(args: argparse.Namespace) -> int:
     stop: threading.Event = args.stop_on_signals()
     path = Path(args.file)
     with _progress(path, "replaying") as progress:
-        r = replay_to_bus(path, spec, args.speed, stop, progress)
+        r = replay_to_bus(path, spec, args.speed, stop, progress, only=args.only)
     problems = "; ".join(r.report.problems)
     if args.json:
-        print(json.dumps({"frames_sent": r.frames_sent,
+        print(strict_json({"frames_sent": r.frames_sent,
                           "send_errors": r.send_errors, "duration_s": r.duration_s, "problems": r.report.problems}))
     else:
         print(f"sent {r.frames_sent} frames onto {spec} in {r.duration_s:.2f} s (speed {args.speed:g}, "
@@ -210,8 +284,11 @@ def _bus(args: argparse.Namespace) -> int:
 def _rerun(args: argparse.Namespace) -> int:
     from logs.rerun_export import export
 
-    path = Path(args.file)
-    out = args.rerun or None
+    try:
+        file, out = rerun_input_and_output(args.file, args.rerun)
+    except InputError as err:
+        return _fail(args, err)
+    path = Path(file)
     with _progress(path, "converting") as progress:
         r = export(path, out, spawn=out is None, progress=progress)
     problems = "; ".join(r.report.problems)
@@ -221,7 +298,7 @@ def _rerun(args: argparse.Namespace) -> int:
         text = f"wrote {r.output} ({r.cycles} cycles)" + (f"; no viewer: {r.note}; open it with: rerun {r.output}"
                                                            if r.note else "")
     if args.json:
-        print(json.dumps({"output": str(r.output) if r.output else None, "spawned": r.spawned, "cycles": r.cycles,
+        print(strict_json({"output": str(r.output) if r.output else None, "spawned": r.spawned, "cycles": r.cycles,
                           "entities": list(r.entities), "note": r.note, "problems": r.report.problems}))
     else:
         print(text + (f" (input: {problems})" if problems else ""))

@@ -104,10 +104,21 @@ class CompliantRobot(Protocol):
     def jacobian(self, tcp_m: np.ndarray, /) -> np.ndarray: ...
 
 
-def environment_from_config(cfg: Config) -> Environment:
+def environment_kind(cfg: Config) -> str:
+    """"free" or "workpiece": sim.environment, or with "auto" what the configured task expects (until the
+    controller announces its own task's at set-up, drivers/sim_environment.py)."""
     kind: str = cfg.sim.environment
     if kind == "auto":  # what the task expects: the contour task's workpiece (controller/tasks/builtin.py)
         kind = task_entry(cfg.task.kind).sim_environment
+    return kind
+
+
+def environment_from_config(cfg: Config) -> Environment:
+    return environment_named(cfg, environment_kind(cfg))
+
+
+def environment_named(cfg: Config, kind: str) -> Environment:
+    """Free space, or the workpiece of ``[sim.workpiece]``."""
     if kind == "free":
         return FreeSpace()
     return workpiece_environment(cfg.sim.workpiece)
@@ -150,8 +161,9 @@ class RobotPlant:
             self.tracker = SimulatedPoseTracker(TrackerParams(t.rate_hz, t.position_noise_m, t.angle_noise_rad, t.seed))
         self.environment = environment or environment_from_config(cfg)
         self.loaded = not isinstance(self.environment, FreeSpace)
-        self.tool = CompliantTool(ComplianceParams(cfg.robot.mass.actuator_stiffness_n_m,
-                                                   cfg.sim.structure_damping_ratio, mass_model_from_config(cfg)))
+        self._compliance = ComplianceParams(cfg.robot.mass.actuator_stiffness_n_m, cfg.sim.structure_damping_ratio,
+                                            mass_model_from_config(cfg))
+        self.tool = CompliantTool(self._compliance)
         self.substep_s = cfg.sim.drive.substep_s
         d = cfg.sim.drive
         self._cogging_n = d.cogging_force_n if self.kinematics.cogging else 0.0
@@ -165,6 +177,20 @@ class RobotPlant:
         self.tcp_kinematic_m = np.zeros(3)
         self.force_n = np.zeros(3)
         self._update_kinematics()
+
+    @property
+    def environment_kind(self) -> str:
+        return "free" if isinstance(self.environment, FreeSpace) else "workpiece"
+
+    def set_environment(self, environment: Environment) -> None:
+        """Another workpiece, at set-up (the controller's task announced it): the structure starts
+        undeflected, and is loaded from now on only when something can touch the tool."""
+        self.environment = environment
+        self.loaded = not isinstance(environment, FreeSpace)
+        self.tool = CompliantTool(self._compliance)
+        self.force_n = np.zeros(3)
+        if self.loaded and self.time_s is not None:
+            self._refresh_structure()
 
     @property
     def tcp_m(self) -> np.ndarray:

@@ -35,6 +35,12 @@ from controller.shell.realtime import reset_scheduler
 from drivers import cob_ids
 from drivers.node_setup import DRIVE_EDS as SHIPPED_DRIVE_EDS
 from drivers.node_setup import SENSOR_EDS as SHIPPED_SENSOR_EDS
+from drivers.sim_environment import (
+    ENVIRONMENT_CODES,
+    ENVIRONMENT_NAMES,
+    SIM_ENVIRONMENT_INDEX,
+    SIM_ENVIRONMENT_SUBINDEX,
+)
 from sim_backend.device_pdos import SimulatedPdos
 from sim_backend.drive import SimulatedDrive
 from sim_backend.environment import Environment
@@ -47,8 +53,8 @@ from sim_backend.fault_injection import (
     spoofed_sensor_frame,
     tpdo_payload,
 )
-from sim_backend.pdo_parameters import DevicePdos
-from sim_backend.plant import RobotPlant
+from sim_backend.pdo_parameters import ABORT_DEVICE_STATE, ABORT_VALUE_RANGE, DevicePdos
+from sim_backend.plant import RobotPlant, environment_named
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +77,16 @@ def watchdog_due(now_s: float, previous_tick_s: float, last_sync_s: float | None
     if now_s - previous_tick_s > STARVED_TICK_S:
         return False
     return last_sync_s is None or now_s - last_sync_s >= 0.5 * sync_timeout_s
+
+
+def add_environment_object(node: canopen.LocalNode, kind: str) -> None:
+    """The simulator-only object the controller announces its task's environment to (not in the
+    shipped EDS, which describes the real sensor); reads give the environment placed."""
+    var = canopen.objectdictionary.ODVariable("Simulated environment", SIM_ENVIRONMENT_INDEX, SIM_ENVIRONMENT_SUBINDEX)
+    var.data_type = canopen.objectdictionary.UNSIGNED8
+    var.access_type = "rw"
+    var.default = ENVIRONMENT_CODES[kind]
+    node.object_dictionary.add_object(var)
 
 
 class Simulator:
@@ -223,13 +239,34 @@ class Simulator:
             self._fast[cob] = self._rpdo_handler(j)
 
     def _wire_sensor(self, node: canopen.LocalNode, pdos: DevicePdos) -> None:
+        add_environment_object(node, self.plant.environment_kind)
+
         def on_write(index: int, subindex: int, od: canopen.objectdictionary.ODVariable, data: bytes) -> None:
             raw = od.decode_raw(data)
-            if isinstance(raw, int):
-                with self.lock:
-                    pdos.write(index, subindex, raw)  # SdoAbortedError refuses an invalid mapping
+            if not isinstance(raw, int):
+                return
+            if index == SIM_ENVIRONMENT_INDEX:
+                self._on_environment_announced(raw)
+                return
+            with self.lock:
+                pdos.write(index, subindex, raw)  # SdoAbortedError refuses an invalid mapping
 
         node.add_write_callback(on_write)
+
+    def _on_environment_announced(self, code: int) -> None:
+        """The controller's task needs this environment: place it (sim.environment = "auto"), or
+        refuse it with an SDO abort when this simulator was configured to another one."""
+        wanted = ENVIRONMENT_NAMES.get(code)
+        if wanted is None:
+            raise canopen.SdoAbortedError(ABORT_VALUE_RANGE)
+        configured = self.cfg.sim.environment
+        if configured != "auto" and configured != wanted:
+            log.warning("the controller's task needs %s; sim.environment = %r: refused", wanted, configured)
+            raise canopen.SdoAbortedError(ABORT_DEVICE_STATE)
+        with self.lock:
+            if wanted != self.plant.environment_kind:
+                self.plant.set_environment(environment_named(self.cfg, wanted))
+                log.info("environment %s placed for the controller's task", wanted)
 
     def _wire_drive(self, node: canopen.LocalNode, drive: SimulatedDrive, pdos: DevicePdos) -> None:
         interpolation = {1: 0, 2: -3}  # 0x60C2 sub 1 value, sub 2 exponent (the EDS defaults)

@@ -107,6 +107,8 @@ class SimSection(Section, frozen=True):
     sensor: SimSensorSection = msgspec.field(default_factory=SimSensorSection)
     structure_damping_ratio: Annotated[float, rng(0.0, 10.0)] = 0.5
     structure_inertial_load: bool = True  # the structure also carries M times the drives' acceleration (plant.py)
+    # "auto": what the controller's task announces at set-up (drivers/sim_environment.py); "free"/"workpiece"
+    # fixed, and a controller whose task needs the other one is refused at its start
     environment: Literal["auto", "free", "workpiece"] = "auto"
     workpiece: SimWorkpieceSection = msgspec.field(default_factory=SimWorkpieceSection)
     nspu: SimNspuSection = msgspec.field(default_factory=SimNspuSection)

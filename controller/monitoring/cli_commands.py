@@ -31,6 +31,10 @@ if TYPE_CHECKING:
 # The caller's parser class (cheope's own ArgumentParser subclass): _SubParsersAction is invariant in it.
 ParserT = TypeVar("ParserT", bound=argparse.ArgumentParser)
 
+# "No controller" is one answer whoever asks: list here, status and stop through MonitoringConnectionError
+# (a DeviceError: cheope's exit code 2 in controller/cli.py).
+EXIT_NO_CONTROLLER = 2
+
 
 def add_controller_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("remote monitoring (Zenoh)")
@@ -93,11 +97,11 @@ def cmd_list(args: argparse.Namespace) -> int:
         found = list_controllers(settings, args.key_prefix, args.timeout)
     except MonitoringConnectionError as err:  # nothing listens at any endpoint given
         print(f"cheope list: no controller found: {err}", file=sys.stderr)
-        return 1
+        return EXIT_NO_CONTROLLER
     if not found:
         print(f"cheope list: no controller found under {args.key_prefix}/*/ (connected to "
               f"{', '.join(settings.connect)})", file=sys.stderr)
-        return 1
+        return EXIT_NO_CONTROLLER
     if args.json:
         print(json.dumps([{**asdict(c), "listen_endpoints": list(c.listen_endpoints)} for c in found]))
         return 0
@@ -185,7 +189,7 @@ def add_subcommands(sub: argparse._SubParsersAction[ParserT]) -> None:
     p.set_defaults(func=cmd_monitor)
     p = sub.add_parser("status", help="ask a running controller for its status once")
     _client_options(p)
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print the status as one JSON object")
     p.set_defaults(func=cmd_status)
     p = sub.add_parser("stop", help="bring a running controller's robot to a controlled stop")
     _client_options(p)

@@ -36,7 +36,7 @@ from controller.shell.realtime import (
 )
 from controller.shell.run_summary import RunRecorder, summarize
 from controller.shell.systemd_notify import notify
-from controller.tasks.registry import RunReport
+from controller.tasks.registry import RunReport, task_entry
 from drivers.bus import BusSpec, open_bus
 from drivers.bus_load import BusLoad, check_bus_load
 from drivers.cyclic_exchange import CyclicExchange, FrameSink
@@ -128,6 +128,8 @@ def node_setup_plan(cfg: Config) -> NodeSetupPlan:
         drive_rpdo_objects=cfg.actuators.rpdo_objects, drive_tpdo_objects=cfg.actuators.tpdo_objects,
         homing=homing_plans(cfg), **_following_error_objects(cfg),
         sdo_timeout_s=cfg.loop.sdo_timeout_s, answer_timeout_s=max(5.0, 3.0 * cfg.loop.sdo_timeout_s),
+        sim_environment=task_entry(cfg.task.kind).sim_environment if cfg.sensor.enabled else None,
+        task_kind=cfg.task.kind,
     )
 
 

@@ -46,6 +46,7 @@ from typing import TYPE_CHECKING, Any, Protocol, SupportsInt, cast
 
 import numpy as np
 
+from controller.cli_output import strict_json
 from controller.errors import InputError
 from controller.shell.loop import period_error_us
 from controller.shell.realtime import RealtimeOptions
@@ -962,7 +963,7 @@ def add_bench_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--config", help="TOML configuration (default: the shipped one)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a configuration key")
     ap.add_argument("--rates", default="400,1000", help="loop rates to measure [Hz], comma-separated")
-    ap.add_argument("--duration", type=float, default=300.0, help="seconds per rate with the simulator (issue: 300)")
+    ap.add_argument("--duration", type=float, default=300.0, help="seconds per rate with the simulator (default 300)")
     ap.add_argument("--compare", type=float, default=20.0, help="seconds per rate of loop shell vs naive sleep")
     ap.add_argument("--fd-from", type=float, default=500.0, help="rates from this one up run on CAN FD [Hz]")
     ap.add_argument("--late-fraction", type=float, default=0.1, help="late: woke this part of a period after")
@@ -1000,6 +1001,6 @@ def run_bench_command(args: argparse.Namespace, rt: RealtimeOptions) -> int:
                        late_fraction=args.late_fraction, fd_from_hz=args.fd_from,
                        progress=lambda s: print(s, file=sys.stderr, flush=True), schedulers=schedulers,
                        cyclictest_s=args.cyclictest)
-    print(json.dumps(report, indent=2) if args.json else format_table(report))
+    print(strict_json(report, indent=2) if args.json else format_table(report))
     print(f"JSON: {Path(args.out) / 'bench.json'}", file=sys.stderr)
     return 0

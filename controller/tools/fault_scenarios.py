@@ -14,6 +14,7 @@ active, switched off, or faulted), or, for a warning, the task finishing normall
 from __future__ import annotations
 
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -169,13 +170,20 @@ def run_scenario(base: Config, sc: Scenario, directory: Path) -> dict[str, objec
 
 
 def run_all(base: Config | None = None, directory: Path | None = None,
-            only: tuple[str, ...] = ()) -> list[dict[str, object]]:
+            only: tuple[str, ...] = (), progress: Callable[[str], None] | None = None) -> list[dict[str, object]]:
+    """The scenarios' rows; ``progress`` hears ``scenario 3/12: NAME`` before each one starts."""
     base = base or load_config()
     # The path task, one lap: long enough for every reaction, short enough for a table.
     base = msgspec.structs.replace(base, task=msgspec.structs.replace(base.task, kind="path"))
+    chosen = [sc for sc in SCENARIOS if not only or sc.name in only]
+    rows = []
     with tempfile.TemporaryDirectory(prefix="cheope-faults-") as tmp:
         out = Path(directory or tmp)
-        return [run_scenario(base, sc, out) for sc in SCENARIOS if not only or sc.name in only]
+        for k, sc in enumerate(chosen, 1):
+            if progress is not None:
+                progress(f"scenario {k}/{len(chosen)}: {sc.name}")
+            rows.append(run_scenario(base, sc, out))
+    return rows
 
 
 def format_table(rows: list[dict[str, object]]) -> str:

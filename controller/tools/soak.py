@@ -22,11 +22,13 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from controller.cli_output import progress_line, strict_json
 from controller.errors import InputError
 from controller.tools.demo import random_udp_port, simulator_process
 from drivers.bus import parse_bus_spec
@@ -78,7 +80,8 @@ class SoakResult:
 
 
 def run_soak(duration_s: float, warmup_s: float, sample_s: float, rate_hz: float, realtime_args: list[str],
-             recording_dir: Path, extra_sets: list[str]) -> SoakResult:
+             recording_dir: Path, extra_sets: list[str], progress: Callable[[str], None] | None = None) -> SoakResult:
+    """``progress`` hears ``120/1800 s, RSS 72.4 MB`` at each RSS sample."""
     if not duration_s > warmup_s + 2 * sample_s:
         raise InputError(f"--duration {duration_s:g} s: must exceed --warmup-s {warmup_s:g} s by two samples")
     port = random_udp_port()
@@ -100,6 +103,8 @@ def run_soak(duration_s: float, warmup_s: float, sample_s: float, rate_hz: float
                 if kb is not None:
                     times.append(now)
                     rss.append(kb)
+                    if progress is not None:
+                        progress(f"{now:.0f}/{duration_s:.0f} s, controller RSS {kb / 1024:.1f} MB")
                 time.sleep(sample_s)  # a sampling period, not a wait for an event
             if proc.poll() is None:
                 proc.send_signal(signal.SIGTERM)
@@ -136,8 +141,8 @@ def add_soak_arguments(ap: argparse.ArgumentParser) -> None:
 
 
 def run_soak_command(args: argparse.Namespace, realtime_args: list[str]) -> int:
-    with tempfile.TemporaryDirectory(prefix="cheope-soak-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="cheope-soak-") as tmp, progress_line("cheope soak") as progress:
         result = run_soak(args.duration, args.warmup_s, args.sample_s, args.rate, realtime_args,
-                          Path(args.keep) if args.keep else Path(tmp), list(args.set))
-    print(json.dumps(result.__dict__) if args.json else result.table())
+                          Path(args.keep) if args.keep else Path(tmp), list(args.set), progress)
+    print(strict_json(result.__dict__) if args.json else result.table())
     return 0 if result.final_mode == "DONE" and result.exit_code == 0 else 1

@@ -478,7 +478,8 @@ def test_cheope_list_shows_two_controllers_and_the_tools_address_them_by_id():
 def test_tools_that_find_nothing_say_so_in_one_line():
     ep = _endpoint()
     listed = _cheope("list", *_connect(ep))
-    assert listed.returncode == 1 and listed.stdout == ""
+    status = _cheope("status", *_connect(ep))
+    assert listed.returncode == status.returncode == 2 and listed.stdout == ""  # one answer for "no controller"
     assert listed.stderr.count("\n") == 1 and listed.stderr.startswith("cheope list: no controller found")
     assert ep in listed.stderr
     mon = _cheope("monitor", "--json", "--duration", "1", *_connect(ep))

@@ -1,0 +1,157 @@
+"""``cheope logs export FILE --format asc|blf|log|trc|csv``: a recording's CAN frames for the usual CAN tools.
+
+Vector CANalyzer/CANoe read ``.asc`` and ``.blf``, can-utils (``canplayer``, ``log2asc``) and
+SavvyCAN read candump's ``.log``, PEAK's tools ``.trc``, asammdf converts all of them; python-can
+reads every one back (``can.LogReader``). The files are written by python-can's own writers, so
+they are what those tools expect from python-can.
+
+Every recorded frame is written once, in recorded order, with the recording's time: the
+controller's monotonic reading plus the session's clock offset (``cheope.session``), so the
+timestamps are Unix times and line up with the MCAP's ``log_time``. The direction is the
+controller's: a frame it sent is Tx, one it received is Rx.
+
+What a format cannot hold (python-can's writers, version 4.6):
+
+| format | direction | CAN FD | error frames | time resolution |
+| --- | --- | --- | --- | --- |
+| asc | Rx/Tx | yes | yes | 1 us after the first frame; the start to 1 ms (the ``date`` line) |
+| blf | the DIR flag | yes | yes | 1 ns after a start truncated to 1 ms |
+| log | R/T (``candump -L``) | yes | yes | 1 us |
+| trc | Rx/Tx | no: not written | no: not written | 1 us (offsets in ms with 3 decimals) |
+| csv | no column for it | no flag (length only) | yes | full (``repr`` of the float) |
+
+A frame the format cannot hold is counted in ``frames_not_written`` by reason, never silently
+dropped; the command says so and exits 1.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import can
+
+from controller.errors import InputError
+from logs import messages as m
+from logs.bus_traffic import RecordedFrame, clock_offset_s, recorded_frames
+from logs.reader import ReadReport
+
+FORMATS = ("asc", "blf", "log", "trc", "csv")
+PROGRESS_EVERY_FRAMES = 2000
+NO_DIRECTION = ("csv",)  # python-can's CSV columns have no direction
+
+# The frames each format's python-can writer leaves out (it logs a warning and returns).
+_UNWRITABLE: dict[str, tuple[tuple[str, Callable[[RecordedFrame], bool]], ...]] = {
+    "trc": (("CAN FD frames (python-can's TRC writer has none)", lambda f: f.is_fd),
+            ("error frames (python-can's TRC writer has none)", lambda f: f.is_error_frame)),
+}
+
+
+class ExportError(InputError):
+    """The export cannot be written (unknown format, output not writable)."""
+
+
+@dataclass(frozen=True)
+class ExportResult:
+    output: Path
+    format: str
+    frames_written: int
+    frames_out: int  # of those, sent by the controller (Tx)
+    frames_not_written: dict[str, int]  # reason -> frames the format cannot hold
+    note: str  # what the format loses for every frame ("" when nothing)
+    report: ReadReport
+
+
+class _RecordedAscWriter(can.ASCWriter):
+    """python-can's ASC writer dates the file with the time of the export (``datetime.now()`` in its
+    ``date`` header line, which ASC readers take as the measurement's start); this one with the
+    recording's first frame, so absolute times read back are the recording's."""
+
+    def __init__(self, file: Path, start_unix_s: float) -> None:
+        self._recorded_start = _dt.datetime.fromtimestamp(start_unix_s)
+        super().__init__(file)
+
+    def _format_header_datetime(self, dt: _dt.datetime) -> str:
+        return super()._format_header_datetime(self._recorded_start)
+
+
+def default_output(path: Path, fmt: str) -> Path:
+    return path.with_suffix(f".{fmt}")
+
+
+def _candump_channel(report: ReadReport) -> str:
+    """The interface name candump would print: the recorded SocketCAN channel, else ``can0``."""
+    bus = report.metadata.get(m.META_SESSION, {}).get("bus", "")
+    interface, _, channel = bus.partition(":")
+    return channel if interface == "socketcan" and channel else "can0"
+
+
+def _writer(fmt: str, out: Path, first_unix_s: float, report: ReadReport) -> can.io.generic.MessageWriter:
+    if fmt == "asc":
+        return _RecordedAscWriter(out, first_unix_s)
+    if fmt == "blf":
+        return can.BLFWriter(out)
+    if fmt == "log":
+        return can.CanutilsLogWriter(out, channel=_candump_channel(report))
+    if fmt == "trc":
+        return can.TRCWriter(out)
+    return can.CSVWriter(out)
+
+
+def to_message(f: RecordedFrame, unix_s: float) -> can.Message:
+    """The frame as python-can's ``Message``, Rx/Tx from the controller's side."""
+    return can.Message(timestamp=unix_s, arbitration_id=f.arbitration_id, is_extended_id=f.arbitration_id > 0x7FF,
+                       data=f.data, is_fd=f.is_fd, bitrate_switch=f.bitrate_switch,
+                       is_error_frame=f.is_error_frame, is_rx=not f.outgoing)
+
+
+def export_frames(path: str | Path, fmt: str, out: str | Path | None = None,
+                  progress: Callable[[int], None] | None = None) -> ExportResult:
+    """Write every CAN frame of ``path`` to ``out`` (default: beside it, the format's suffix)."""
+    if fmt not in FORMATS:
+        raise ExportError(f"--format {fmt!r}: must be one of {', '.join(FORMATS)}")
+    path = Path(path)
+    target = Path(out) if out else default_output(path, fmt)
+    if target.resolve() == path.resolve():
+        raise ExportError(f"-o {target}: is the recording itself")
+    report = ReadReport(path)
+    unwritable = _UNWRITABLE.get(fmt, ())
+    skipped: Counter[str] = Counter()
+    written = sent = 0
+    writer: can.io.generic.MessageWriter | None = None
+    offset_s = 0.0
+    try:
+        for f in recorded_frames(path, report):
+            if writer is None:  # the session's metadata comes before the first chunk of frames
+                offset_s = clock_offset_s(report) or 0.0
+                writer = _open(fmt, target, f.monotonic_s + offset_s, report)
+            reason = next((why for why, cannot in unwritable if cannot(f)), None)
+            if reason is not None:
+                skipped[reason] += 1
+                continue
+            writer.on_message_received(to_message(f, f.monotonic_s + offset_s))
+            written += 1
+            sent += f.outgoing
+            if progress is not None and written % PROGRESS_EVERY_FRAMES == 0:
+                progress(report.end_offset)
+        if writer is None:  # no frame at all: an empty file of the format, so a script finds one
+            writer = _open(fmt, target, 0.0, report)
+    finally:
+        if writer is not None:
+            writer.stop()
+    note = "python-can's CSV has no direction column: use asc, blf, log or trc to keep Rx/Tx" \
+        if fmt in NO_DIRECTION else ""
+    if offset_s == 0.0 and written:
+        monotonic = "no clock offset in the recording: times are the controller's monotonic clock, not Unix time"
+        note = f"{note}; {monotonic}" if note else monotonic
+    return ExportResult(target, fmt, written, sent, dict(skipped), note, report)
+
+
+def _open(fmt: str, target: Path, first_unix_s: float, report: ReadReport) -> can.io.generic.MessageWriter:
+    try:
+        return _writer(fmt, target, first_unix_s, report)
+    except OSError as err:
+        raise ExportError(f"cannot write {target}: {err.strerror or err}") from err

@@ -1,0 +1,148 @@
+"""The command line's details: help texts, choices, -v anywhere, strict JSON, the progress line."""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from controller.cli import build_parser
+from controller.cli_output import ProgressLine, progress_line, strict_json
+from controller.errors import InputError
+from controller.tools.fault_scenarios import SCENARIOS, run_all
+from logs.cli import rerun_input_and_output
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+
+
+def _subparser(*path: str) -> argparse.ArgumentParser:
+    parser = build_parser()
+    for name in path:
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        parser = sub.choices[name]
+    return parser
+
+
+def _option(parser: argparse.ArgumentParser, flag: str) -> argparse.Action:
+    return parser._option_string_actions[flag]
+
+
+def _reject_constant(name: str) -> object:
+    raise ValueError(f"not strict JSON: {name}")
+
+
+@pytest.mark.parametrize("command", ["run", "faults", "bus-load", "analyze", "plan", "plan-bench", "demo", "status"])
+def test_every_json_option_says_what_it_prints(command: str):
+    text = _option(_subparser(command), "--json").help
+    assert text and "JSON" in text
+
+
+def test_config_help_names_the_file_each_robot_loads():
+    run_help = _option(_subparser("run"), "--config").help or ""
+    for kind, name in (("cheope", "cheope.toml"), ("uru", "uru.toml"), ("nspu", "nspu.toml")):
+        assert f"{name} for --robot {kind}" in run_help
+    for command in ("plan", "plan-bench"):
+        only = _option(_subparser(command), "--config").help or ""
+        assert "nspu.toml" in only and "cheope.toml" not in only
+
+
+@pytest.mark.parametrize("command", ["plan", "plan-bench"])
+def test_plan_commands_offer_only_the_robot_they_plan_for(command: str):
+    assert list(_option(_subparser(command), "--robot").choices or ()) == ["nspu"]
+    r = subprocess.run([sys.executable, "-m", "controller", command, "--robot", "cheope"], capture_output=True,
+                       text=True, check=False, timeout=60)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "invalid choice: 'cheope'" in r.stderr
+
+
+def test_bench_duration_help_states_the_default():
+    text = _option(_subparser("bench"), "--duration").help or ""
+    assert "issue" not in text and "default 300" in text
+
+
+@pytest.mark.parametrize("argv", [["-v", "bus-load"], ["bus-load", "-v"], ["logs", "info", "-v", "x.mcap"],
+                                  ["-v", "logs", "info", "x.mcap"], ["replay", "x.mcap", "--verify", "--verbose"]])
+def test_verbose_before_or_after_the_command(argv: list[str]):
+    assert build_parser().parse_args(argv).verbose is True
+
+
+def test_without_verbose_it_is_off():
+    assert build_parser().parse_args(["bus-load"]).verbose is False
+    assert build_parser().parse_args(["logs", "info", "x.mcap"]).verbose is False
+
+
+def test_replay_rerun_takes_a_recording_after_it_as_the_input():
+    assert rerun_input_and_output(None, "session.mcap") == ("session.mcap", None)
+    assert rerun_input_and_output("session.mcap", "out.rrd") == ("session.mcap", "out.rrd")
+    assert rerun_input_and_output("session.mcap", "") == ("session.mcap", None)
+    with pytest.raises(InputError, match="must be a .rrd"):
+        rerun_input_and_output("a.mcap", "b.mcap")  # never overwrite a recording with Rerun's data
+    with pytest.raises(InputError, match="which recording"):
+        rerun_input_and_output(None, "out.rrd")
+
+
+def test_replay_rerun_with_the_file_after_it_converts_that_file(tmp_path: Path):
+    src = tmp_path / "session.mcap"
+    src.write_bytes((DATA / "path_quarter_lap.mcap").read_bytes())
+    r = subprocess.run([sys.executable, "-m", "controller", "replay", "--rerun", str(src), "--json"],
+                       capture_output=True, text=True, check=False, timeout=120,
+                       env={"PATH": "/nonexistent", "HOME": str(tmp_path)})  # no viewer can start: FILE.rrd
+    assert r.returncode == 0, r.stderr
+    result = json.loads(r.stdout)
+    assert result["cycles"] > 0 and Path(result["output"]) == src.with_suffix(".rrd")
+    assert {"/world/rods/capsules", "/world/sliders/boxes", "/world/platform/cylinders"} <= set(result["entities"])
+    assert src.with_suffix(".rrd").stat().st_size > 0 and src.read_bytes()[:8] == b"\x89MCAP0\r\n"  # input intact
+
+
+def test_strict_json_has_null_for_nan_and_infinity():
+    text = strict_json({"a": float("nan"), "b": [1.0, float("inf"), {"c": -float("inf")}], "d": (2.5,)})
+    assert json.loads(text, parse_constant=_reject_constant) == {"a": None, "b": [1.0, None, {"c": None}],
+                                                                 "d": [2.5]}
+
+
+def test_plan_json_is_strict_json_for_a_refused_plan():
+    # the paper's example crosses det M = 0: the report has NaN figures, printed as null
+    r = subprocess.run([sys.executable, "-m", "controller", "plan", "--paper-example", "--json"],
+                       capture_output=True, text=True, check=False, timeout=120)
+    assert r.returncode == 1, r.stderr
+    report = json.loads(r.stdout, parse_constant=_reject_constant)
+    assert report["ok"] is False and None in report.values()
+
+
+class _Terminal(io.StringIO):
+    def __init__(self, tty: bool) -> None:
+        super().__init__()
+        self.tty = tty
+
+    def isatty(self) -> bool:
+        return self.tty
+
+
+def test_progress_line_only_on_a_terminal_and_erased_at_the_end():
+    term = _Terminal(tty=True)
+    with progress_line("cheope faults", term) as progress:
+        progress("scenario 1/2: drive silent")
+    text = term.getvalue()
+    assert "cheope faults: 0 s  scenario 1/2: drive silent" in text and text.endswith("\r\x1b[K")
+    pipe = _Terminal(tty=False)
+    with progress_line("cheope faults", pipe) as progress:
+        progress("scenario 1/2: drive silent")
+    assert pipe.getvalue() == ""
+
+
+def test_progress_line_shows_the_time_elapsed():
+    now = [100.0]
+    line = ProgressLine("cheope analyze", _Terminal(tty=True), clock=lambda: now[0])
+    now[0] = 103.4
+    line.update("cheope: workspace")
+    assert line.line() == "cheope analyze: 3 s  cheope: workspace"
+
+
+def test_faults_reports_each_scenario_before_running_it():
+    heard: list[str] = []
+    rows = run_all(only=(SCENARIOS[0].name,), progress=heard.append)
+    assert heard == [f"scenario 1/1: {SCENARIOS[0].name}"] and len(rows) == 1
