@@ -20,7 +20,7 @@ from typing import Any
 import rclpy
 from rclpy.node import Node
 
-from controller.ros2.bridge import STOP_SERVICE, TOPICS, _message_class
+from controller.ros2.bridge import STOP_SERVICE, TOPICS, message_class
 
 
 def _stamp(header: Any) -> float:
@@ -67,7 +67,7 @@ def main() -> int:
         return handle
 
     for topic, type_name in TOPICS.items():
-        node.create_subscription(_message_class(type_name), f"{args.namespace}/{topic}", on_message(topic), 50)
+        node.create_subscription(message_class(type_name), f"{args.namespace}/{topic}", on_message(topic), 50)
     deadline = time.monotonic() + args.timeout
     state_topics = [t for t in TOPICS if t != "events"]
     while any(got[t] < args.count for t in state_topics):

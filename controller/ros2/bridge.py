@@ -123,7 +123,7 @@ class RosPublisher:
             raise InputError(f"--namespace {namespace!r}: {str(err).splitlines()[0]}") from None
         self.pubs: dict[str, Any] = {}
         for name, type_name in TOPICS.items():
-            self.pubs[name] = self.node.create_publisher(_message_class(type_name), name, 10)
+            self.pubs[name] = self.node.create_publisher(message_class(type_name), name, 10)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         if stop is not None:
@@ -178,7 +178,7 @@ class RosPublisher:
         self.spinner.join(2.0)
 
 
-def _message_class(type_name: str) -> Any:
+def message_class(type_name: str) -> Any:
     import importlib
 
     package, _, cls = type_name.split("/")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 from pathlib import Path
 from typing import TypeVar
@@ -18,9 +19,17 @@ def _notice(line: str) -> None:
     print(f"cheope ros2: {line}", file=sys.stderr, flush=True)
 
 
+# ROS 2 namespace rules (rcl's validation): absolute or relative, tokens of letters, digits and '_'
+# that do not start with a digit, separated by single '/'
+_NAMESPACE = re.compile(r"^/?([A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*)?$")
+
+
 def cmd_ros2(args: argparse.Namespace) -> int:
     from controller.ros2.bridge import check_ros2, run_live, run_replay
 
+    if not args.namespace or not _NAMESPACE.match(args.namespace):
+        raise InputError(f"--namespace {args.namespace!r}: use names of letters, digits and '_' (not starting with "
+                         "a digit) separated by '/', e.g. /cheope/robot_1")
     check_ros2()
     if args.replay is not None:
         if not (math.isfinite(args.speed) and args.speed >= 0.0):

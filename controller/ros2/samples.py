@@ -26,6 +26,7 @@ if TYPE_CHECKING:
     from controller.robots.robot import Robot
 
 Vec3 = tuple[float, float, float]
+_GRID_TOLERANCE_S = 1e-6  # the sum of the sampling intervals drifts from the cycles' times by rounding
 
 
 @dataclass(frozen=True)
@@ -94,7 +95,7 @@ class CycleSampler:
 
     def sample(self, c: Any, stamp_s: float) -> BridgeSample | None:
         self.late_cycles += bool(c.inputs.late)
-        if c.t_s < self._next_t:
+        if c.t_s < self._next_t - _GRID_TOLERANCE_S:
             return None
         interval_s = 1.0 / self.rate_hz
         self._next_t = (c.t_s if self._next_t == -math.inf else self._next_t) + interval_s
