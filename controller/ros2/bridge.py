@@ -122,6 +122,7 @@ class RosPublisher:
             rclpy.shutdown(context=self.context)
             raise InputError(f"--namespace {namespace!r}: {str(err).splitlines()[0]}") from None
         self.pubs: dict[str, Any] = {}
+        self._fixed_markers: list[Any] | None = None
         for name, type_name in TOPICS.items():
             self.pubs[name] = self.node.create_publisher(message_class(type_name), name, 10)
         self.executor = SingleThreadedExecutor(context=self.context)
@@ -155,16 +156,21 @@ class RosPublisher:
             if msg is not None:
                 self.pubs[name].publish(msg)
         if drawing is not None:
-            self.pubs["robot_markers"].publish(rm.markers(self._drawn(s, drawing), s.stamp_s))
+            self.pubs["robot_markers"].publish(self._robot_markers(s, drawing))
         self.pubs["diagnostics"].publish(rm.diagnostics(s))
 
-    @staticmethod
-    def _drawn(s: BridgeSample, drawing: RobotDrawing) -> list[Any]:
+    def _robot_markers(self, s: BridgeSample, drawing: RobotDrawing) -> Any:
+        """The whole robot: the fixed parts' markers built once and restamped (they were most of the
+        cost of a sample), the moving ones drawn from this sample."""
         from logs.robot_drawing import MeasuredPose
 
+        rm = self.rm
+        if self._fixed_markers is None:
+            self._fixed_markers = rm.markers(drawing.fixed(), s.stamp_s)
         pose = MeasuredPose(t_s=s.t_s, q=s.positions, tcp_m=s.tcp_measured_m, force_n=s.force_n,
                             reference_m=s.tcp_reference_m)
-        return [*drawing.fixed(), *drawing.moving(pose)]
+        return rm.marker_array(s.stamp_s, rm.restamp(self._fixed_markers, s.stamp_s),
+                               rm.markers(drawing.moving(pose), s.stamp_s))
 
     def event(self, stamp_s: float, severity: int, kind: str, text: str, robot_id: str) -> None:
         self.pubs["events"].publish(self.rm.event_log(stamp_s, severity, kind, text, robot_id))

@@ -111,6 +111,24 @@ def _cylinder(p: Primitive, t_s: float, centre: Vec3, direction: Vec3, length_m:
     return m
 
 
+_POINTS: dict[Vec3, Point] = {}  # the reference trail's points, reused while they stay in its window
+_POINTS_KEPT = 4096
+
+
+def _points(points: tuple[Vec3, ...]) -> list[Point]:
+    """``Point`` messages for ``points``; building one costs microseconds of Python, and a 600-point trail
+    that moves one point a sample cost most of a sample's time."""
+    if len(_POINTS) > _POINTS_KEPT:
+        _POINTS.clear()
+    out = []
+    for v in points:
+        pt = _POINTS.get(v)
+        if pt is None:
+            pt = _POINTS[v] = Point(x=v[0], y=v[1], z=v[2])
+        out.append(pt)
+    return out
+
+
 def primitive_markers(p: Primitive, t_s: float) -> list[Marker]:
     """``p`` as rviz2 markers (ids are set by ``markers``)."""
     out: list[Marker] = []
@@ -131,7 +149,7 @@ def primitive_markers(p: Primitive, t_s: float) -> list[Marker]:
     elif p.shape == Shape.LINE:
         m = _marker(Marker.LINE_STRIP, p, t_s, (0.0, 0.0, 0.0))
         m.scale.x = 2.0 * p.radius_m
-        m.points = [Point(x=x, y=y, z=z) for x, y, z in p.points]
+        m.points = _points(p.points)
         out.append(m)
     elif p.shape == Shape.ARROW:
         m = _marker(Marker.ARROW, p, t_s, (0.0, 0.0, 0.0), _X, _X)
@@ -149,13 +167,26 @@ def primitive_markers(p: Primitive, t_s: float) -> list[Marker]:
     return out
 
 
-def markers(primitives: Iterable[Primitive], t_s: float) -> MarkerArray:
-    """DELETEALL, then every primitive's markers, numbered within their namespace."""
-    out: list[Any] = [Marker(header=header(t_s), action=Marker.DELETEALL)]
+def markers(primitives: Iterable[Primitive], t_s: float) -> list[Any]:
+    """Every primitive's markers, numbered within their namespace."""
+    out: list[Any] = []
     ids: dict[str, int] = {}
     for p in primitives:
         for m in primitive_markers(p, t_s):
             m.id = ids.get(m.ns, 0)
             ids[m.ns] = m.id + 1
             out.append(m)
-    return MarkerArray(markers=out)
+    return out
+
+
+def restamp(markers_: list[Any], t_s: float) -> list[Any]:
+    """``markers_`` (built once: the fixed parts) stamped ``t_s``."""
+    t = stamp(t_s)
+    for m in markers_:
+        m.header.stamp = t
+    return markers_
+
+
+def marker_array(t_s: float, *groups: list[Any]) -> MarkerArray:
+    """DELETEALL, then the groups' markers (groups of distinct namespaces: the fixed and the moving parts)."""
+    return MarkerArray(markers=[Marker(header=header(t_s), action=Marker.DELETEALL)] + [m for g in groups for m in g])
