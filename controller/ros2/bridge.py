@@ -215,13 +215,31 @@ def _controller_config(status_json: str) -> Config | None:
         return None
 
 
+def _wait_for_status(ask: Callable[[], Any], notice: Callable[[str], None], retry_s: float = 1.0) -> Any:
+    """The controller's status, asked again every ``retry_s`` until it answers (a bridge may start first, or
+    a loaded controller answer late); None when SIGTERM or Ctrl-C came first. Each new reason is noticed once."""
+    last = ""
+    with _terminated_by_sigterm() as done:
+        while not done.is_set():
+            try:
+                return ask()
+            except MonitoringConnectionError as err:
+                if str(err) != last:
+                    notice(f"{err}; asking again (Ctrl-C to stop)")
+                    last = str(err)
+            done.wait(retry_s)
+    return None
+
+
 def run_live(tool: SessionSettings, watch: SessionSettings, key_prefix: str, robot_id: str | None, namespace: str,
              timeout_s: float, notice: Callable[[str], None]) -> int:
     """Bridge one controller until SIGTERM or Ctrl-C; returns the number of state samples published."""
     from controller.monitoring.commands import RobotSelector, query_status, send_command
     from controller.monitoring.monitor_view import AliveUpdate, EventUpdate, MonitorClient, StateUpdate
 
-    status = query_status(tool, RobotSelector(key_prefix, robot_id), timeout_s)
+    status = _wait_for_status(lambda: query_status(tool, RobotSelector(key_prefix, robot_id), timeout_s), notice)
+    if status is None:
+        return 0
     keys = MonitorKeys.for_robot(key_prefix, status.robot_id)
     view = robot_view(_controller_config(status.config_json))
 

@@ -58,9 +58,11 @@ def _process(cmd: list[str], env: dict[str, str], what: str) -> Iterator[subproc
         proc.communicate()
 
 
-def _probe_lines(proc: subprocess.Popen[bytes]) -> list[dict[str, Any]]:
+def _probe_lines(proc: subprocess.Popen[bytes], bridge: subprocess.Popen[bytes]) -> list[dict[str, Any]]:
     out, err = proc.communicate(timeout=GENEROUS_S * 2)
-    assert proc.returncode == 0, (out[-2000:], err[-2000:])
+    if proc.returncode != 0:
+        bridge.terminate()
+        raise AssertionError(f"the subscriber: {out[-2000:]!r} {err[-2000:]!r}; the bridge: {bridge.communicate()!r}")
     return [json.loads(line) for line in out.decode().splitlines() if line.startswith("{")]
 
 
@@ -100,10 +102,10 @@ def test_a_ros2_subscriber_gets_the_zenoh_state_and_its_stop_request_stops_the_c
         ProcessLines(ctl).next_matching(lambda line: line.startswith("READY"), "the controller ready")
         with MonitorClient(monitor_settings((endpoint,)), MonitorKeys.for_robot("cheope", ROBOT_ID)) as watch, \
                 _process([sys.executable, "-m", "controller", "ros2", "--robot-id", ROBOT_ID, "--zenoh-connect",
-                          endpoint, "--namespace", namespace], ros_env, "the bridge"), \
+                          endpoint, "--namespace", namespace], ros_env, "the bridge") as bridge, \
                 _process([sys.executable, PROBE, "--namespace", namespace, "--count", "5", "--call-stop",
                           "--timeout", str(GENEROUS_S)], ros_env, "the subscriber") as probe:
-            lines = _probe_lines(probe)
+            lines = _probe_lines(probe, bridge)
             states: dict[float, Any] = {}
             while (u := watch.next_update(0.0)) is not None:
                 if isinstance(u, StateUpdate):
@@ -158,8 +160,8 @@ def test_a_replayed_recording_reaches_a_ros2_subscriber_as_recorded(ros_env, tmp
     with _process([sys.executable, PROBE, "--namespace", namespace, "--count", "5", "--timeout", str(GENEROUS_S)],
                   ros_env, "the subscriber") as probe, \
             _process([sys.executable, "-m", "controller", "ros2", "--replay", str(path), "--namespace", namespace,
-                      "--wait-subscriber", str(GENEROUS_S)], ros_env, "the bridge"):
-        lines = _probe_lines(probe)
+                      "--wait-subscriber", str(GENEROUS_S)], ros_env, "the bridge") as bridge:
+        lines = _probe_lines(probe, bridge)
     _check_graph(lines, namespace)
     got = _by_topic(lines)
     for js in got["joint_states"]:
