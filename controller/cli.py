@@ -548,6 +548,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-realtime", action="store_true", help="both processes under the normal scheduler")
     p.set_defaults(func=cmd_soak)
     add_monitoring_subcommands(sub)
+    from controller.ros2.cli import add_subcommand as add_ros2_subcommand  # imports no ROS
+
+    add_ros2_subcommand(sub)
     from logs.cli import add_commands as add_log_commands  # cheope logs info|recover, cheope replay
 
     add_log_commands(sub, _stop_on_signals)

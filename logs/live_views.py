@@ -15,8 +15,10 @@ viewer that cannot start is reported once on stderr and left out.
   ``cheope replay --rerun``: the robot as solids under ``/world``, the plots under ``/plots``.
 - Foxglove (``recording.live_foxglove = "HOST:PORT"``, ``--foxglove [HOST:PORT]``, default
   ``127.0.0.1:8765``): foxglove-sdk's WebSocket server with the recording's own channels and
-  schemas: ``/scene``, ``/cycle`` (at the scene rate), ``/tcp``, ``/log``; open it in Foxglove with
-  "Open connection" -> ``ws://HOST:PORT`` and the shipped layout (logs/foxglove_layout.json).
+  schemas: ``/scene``, ``/cycle``, ``/tcp`` and ``/tcp_reference`` (at the scene rate), ``/log``; open it in
+  Foxglove (or Lichtblick: both WebSocket subprotocol names are accepted, logs/foxglove_shim.py) with
+  "Open connection" -> ``ws://HOST:PORT`` and the shipped layout (logs/foxglove_layout.json), which
+  names only topics both the live server and a recording have.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from logs.messages import tcp_pose
 from logs.robot_drawing import Primitive
 
 if TYPE_CHECKING:
@@ -143,34 +146,65 @@ class RerunLive:
 
 
 class FoxgloveLive:
-    """foxglove-sdk's WebSocket server; messages are the recording's own Protobuf bytes."""
+    """foxglove-sdk's WebSocket server behind the subprotocol shim; messages are the recording's own Protobuf bytes.
 
-    TOPICS = ("/scene", "/cycle", "/tcp", "/log")
+    Clients offering either ``foxglove.sdk.v1`` or ``foxglove.websocket.v1`` connect (logs/foxglove_shim.py).
+    The fixed parts of the robot go out once, as in the recording, and again whenever a client
+    subscribes to ``/scene``: a client that joins late gets the base, the guides and the workpiece
+    at once (the SDK keeps no history; the SDK's one sink is every client, so the others get the
+    same entities again, which replace themselves).
+    """
+
+    TOPICS = ("/scene", "/cycle", "/tcp", "/tcp_reference", "/log")
 
     def __init__(self, spec: str) -> None:
         import foxglove
+        from foxglove.websocket import ChannelView, Client, ServerListener
         from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
         from foxglove_schemas_protobuf.Log_pb2 import Log
+        from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
         from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
         from mcap_protobuf.schema import build_file_descriptor_set
 
         from controller.messages import cheope_pb2 as pb
+        from logs.foxglove_shim import SubprotocolShim
 
         host, port = parse_host_port(spec)
         self.context = foxglove.Context()
         self.channels: dict[str, Any] = {}
-        for topic, cls in zip(self.TOPICS, (SceneUpdate, pb.Cycle, FrameTransform, Log)):
+        for topic, cls in zip(self.TOPICS, (SceneUpdate, pb.Cycle, FrameTransform, PoseInFrame, Log), strict=True):
             schema = foxglove.Schema(name=cls.DESCRIPTOR.full_name, encoding="protobuf",
                                      data=build_file_descriptor_set(cls).SerializeToString())
             self.channels[topic] = foxglove.Channel(topic, schema=schema, message_encoding="protobuf",
                                                     context=self.context)
-        self.server = foxglove.start_server(name="cheope", host=host, port=port, context=self.context)
-        print(f"live Foxglove: ws://{host}:{self.server.port}", file=sys.stderr, flush=True)
+        self._fixed: tuple[bytes, int] | None = None  # the fixed scene and its log time, once drawn
+        live = self
+
+        class Listener(ServerListener):
+            def on_subscribe(self, client: Client, channel: ChannelView) -> None:  # on the SDK's thread
+                fixed = live._fixed
+                if channel.topic == "/scene" and fixed is not None:
+                    live.channels["/scene"].log(fixed[0], log_time=fixed[1])
+
+        self.server = foxglove.start_server(name="cheope", host="127.0.0.1", port=0, context=self.context,
+                                            server_listener=Listener())
+        try:
+            self.shim = SubprotocolShim(host, port, self.server.port)
+        except OSError:
+            self.server.stop()
+            raise
+        self.port = self.shim.port
+        print(f"live Foxglove: ws://{host}:{self.port}", file=sys.stderr, flush=True)
+
+    def fixed(self, scene_pb: bytes, unix_ns: int) -> None:
+        self._fixed = (scene_pb, unix_ns)
+        self.log("/scene", scene_pb, unix_ns)
 
     def log(self, topic: str, data: bytes, unix_ns: int) -> None:
         self.channels[topic].log(data, log_time=unix_ns)
 
     def close(self) -> None:
+        self.shim.close()
         self.server.stop()
 
 
@@ -200,7 +234,7 @@ class LiveViews:
         if self.rerun is not None:
             self.rerun.fixed(primitives)
         if self.foxglove is not None:
-            self.foxglove.log("/scene", scene_pb, unix_ns)
+            self.foxglove.fixed(scene_pb, unix_ns)
 
     def frame(self, f: SceneFrame, cycle: Any, cycle_pb: bytes, scene_pb: bytes, tcp_pb: bytes | None,
               unix_ns: int) -> None:
@@ -211,6 +245,9 @@ class LiveViews:
             self.foxglove.log("/cycle", cycle_pb, unix_ns)
             if tcp_pb is not None:
                 self.foxglove.log("/tcp", tcp_pb, unix_ns)
+            reference = cycle.state.tcp_reference_m
+            if len(reference) == 3:  # the recording's /tcp_reference, at the scene rate
+                self.foxglove.log("/tcp_reference", tcp_pose(unix_ns, (reference[0], reference[1], reference[2])).SerializeToString(), unix_ns)
 
     def event(self, t_s: float, cycle: int, severity: int, text: str, log_pb: bytes, unix_ns: int) -> None:
         if self.rerun is not None:

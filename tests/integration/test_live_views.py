@@ -113,16 +113,20 @@ def test_a_rerun_grpc_server_receives_the_robot_and_the_plots_during_the_run(tmp
         server.wait()
 
 
-def _foxglove_messages(port: int, topics: tuple[str, ...], count: int) -> dict[str, list[bytes]]:
-    """Subscribe to ``topics`` and collect ``count`` messages of each (Foxglove WebSocket protocol)."""
+def _foxglove_messages(port: int, topics: tuple[str, ...], enough: dict[str, int],
+                       subprotocol: str = "foxglove.websocket.v1") -> tuple[set[str], dict[str, list[bytes]]]:
+    """Subscribe to ``topics`` and collect messages until each topic has ``enough[topic]`` (Foxglove
+    WebSocket protocol, offering only ``subprotocol``); the topics advertised and the messages."""
     from websockets.sync.client import connect
 
     got: dict[str, list[bytes]] = {t: [] for t in topics}
-    with connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"],
+    advertised: set[str] = set()
+    with connect(f"ws://127.0.0.1:{port}", subprotocols=[subprotocol],
                  open_timeout=GENEROUS_S, max_size=None) as ws:
+        assert ws.subprotocol == subprotocol
         by_sub: dict[int, str] = {}
         deadline = time.monotonic() + GENEROUS_S
-        while any(len(v) < count for v in got.values()):
+        while any(len(got[t]) < n for t, n in enough.items()):
             assert time.monotonic() < deadline, {k: len(v) for k, v in got.items()}
             msg = ws.recv(timeout=GENEROUS_S)
             if isinstance(msg, str):
@@ -130,6 +134,7 @@ def _foxglove_messages(port: int, topics: tuple[str, ...], count: int) -> dict[s
                 if op.get("op") == "advertise":
                     subs = []
                     for ch in op["channels"]:
+                        advertised.add(ch["topic"])
                         if ch["topic"] in topics:
                             sub_id = len(by_sub) + 1
                             by_sub[sub_id] = ch["topic"]
@@ -141,10 +146,20 @@ def _foxglove_messages(port: int, topics: tuple[str, ...], count: int) -> dict[s
                 topic = by_sub.get(sub_id)
                 if topic is not None:
                     got[topic].append(bytes(msg[13:]))
-    return got
+    return advertised, got
 
 
-def test_a_foxglove_websocket_client_receives_the_cycle_and_the_scene_during_the_run(tmp_path):
+def _server_up(port: int) -> bool:
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=1.0):
+            return True
+    except OSError:
+        return False
+
+
+def test_a_legacy_foxglove_client_receives_every_topic_of_the_layout_and_the_fixed_scene_during_the_run(tmp_path):
+    """A client offering only ``foxglove.websocket.v1`` (older Foxglove, Lichtblick), joining after the start."""
+    from foxglove_layout_paths import named_topics, plot_paths, resolve
     from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
     from controller.messages import cheope_pb2 as pb
@@ -152,21 +167,63 @@ def test_a_foxglove_websocket_client_receives_the_cycle_and_the_scene_during_the
     port = free_loopback_port()
     cfg = _config(tmp_path, live_foxglove=f"127.0.0.1:{port}")
     with _running_controller(cfg, tmp_path / "s.mcap") as loop_thread:
-        def server_up() -> bool:
-            try:
-                with socket.create_connection(("127.0.0.1", port), timeout=1.0):
-                    return True
-            except OSError:
-                return False
-
-        wait_until(server_up, "the Foxglove server listening")
-        got = _foxglove_messages(port, ("/cycle", "/scene"), count=5)
+        wait_until(lambda: _server_up(port), "the Foxglove server listening")
+        topics = tuple(sorted(named_topics()))
+        advertised, got = _foxglove_messages(port, topics, {"/cycle": 5, "/scene": 5, "/tcp_reference": 1})
         assert loop_thread.is_alive(), loop_thread.ended  # type: ignore[attr-defined]
+    assert set(topics) <= advertised
     cycles = [pb.Cycle.FromString(b) for b in got["/cycle"]]
     assert all(len(c.inputs.drives) == 3 for c in cycles)
     assert len({c.cycle for c in cycles}) == len(cycles)  # successive cycles, not one repeated
     ids = {e.id for b in got["/scene"] for e in SceneUpdate.FromString(b).entities}
     assert {"rods", "sliders", "platform"} <= ids
+    assert {"base", "guides"} <= ids  # the fixed parts, drawn before this client subscribed
+    for paths in plot_paths():  # each plot of the layout has a series in what the live server sends
+        assert any(resolve(c, p) is not None for c in cycles for p in paths), paths
+
+
+def _scene_bytes(entity: str) -> bytes:
+    from logs.foxglove_scene import scene_update
+    from logs.robot_drawing import Primitive, Shape
+
+    return scene_update([Primitive(entity, Shape.SPHERE, (1.0, 1.0, 1.0, 1.0), radius_m=0.01)], 1).SerializeToString()
+
+
+@pytest.mark.parametrize("subprotocol", ["foxglove.websocket.v1", "foxglove.sdk.v1"])
+def test_a_client_joining_after_the_fixed_scene_was_sent_gets_it_when_it_subscribes(subprotocol):
+    from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+
+    from logs.live_views import FoxgloveLive
+
+    live = FoxgloveLive(f"127.0.0.1:{free_loopback_port()}")
+    try:
+        live.fixed(_scene_bytes("base"), 1)  # sent once, before any client is there
+        live.log("/scene", _scene_bytes("rods"), 2)
+        _, got = _foxglove_messages(live.port, ("/scene",), {"/scene": 1}, subprotocol)
+    finally:
+        live.close()
+    (first,) = got["/scene"]
+    assert [e.id for e in SceneUpdate.FromString(first).entities] == ["base"]
+
+
+def test_a_client_offering_no_foxglove_subprotocol_is_refused(monkeypatch):
+    import logging
+
+    from websockets.exceptions import InvalidStatus
+    from websockets.sync.client import connect
+
+    from logs.live_views import FoxgloveLive
+
+    # the SDK logs the refusal through Python's logging from its own thread, which would leave a
+    # threading._DummyThread for that thread behind (the leak check counts it)
+    monkeypatch.setattr(logging.getLogger("foxglove.websocket.server"), "disabled", True)
+    live = FoxgloveLive(f"127.0.0.1:{free_loopback_port()}")
+    try:
+        with pytest.raises(InvalidStatus, match="400"):
+            connect(f"ws://127.0.0.1:{live.port}", subprotocols=["mqtt"],
+                    open_timeout=GENEROUS_S)
+    finally:
+        live.close()
 
 
 @pytest.mark.parametrize(("spec", "message"), [("127.0.0.1:http", "is not a number"), (":70000", "0..65535")])

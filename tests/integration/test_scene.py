@@ -162,30 +162,3 @@ def test_the_contour_session_draws_the_workpiece_where_the_simulator_has_it(tmp_
         (d.centre_m[0], d.centre_m[1], d.height_m))
     assert c.size.x == pytest.approx(2 * d.radius_m)
     assert "workpiece/expected_contour" in {e.id for e in updates[0].entities}
-
-
-def test_the_shipped_foxglove_layout_names_channels_and_values_a_contour_recording_has(tmp_path):
-    import json
-    import re
-
-    from controller.messages import cheope_pb2 as pb
-
-    layout = json.loads((Path(m.__file__).parent / "foxglove_layout.json").read_text())
-    cfg = _config("cheope", {"task.kind": "contour"})
-    path = tmp_path / "k.mcap"
-    _record(path, cfg, 0.5)
-    with path.open("rb") as f:
-        reader = make_reader(f)
-        channels = {c.topic for c in reader.get_summary().channels.values()}
-        values: set[str] = set()
-        for _, _, message in reader.iter_messages(topics=[m.TOPIC_CYCLE]):
-            values |= set(pb.Cycle.FromString(message.data).state.task_values)
-    panels = layout["configById"]
-    three_d = next(v for k, v in panels.items() if k.startswith("3D!"))
-    assert m.TOPIC_SCENE in three_d["topics"] and set(three_d["topics"]) <= channels
-    assert next(v for k, v in panels.items() if k.startswith("RosOut!"))["topicToRender"] in channels
-    plotted = [p["value"] for k, v in panels.items() if k.startswith("Plot!") for p in v["paths"]]
-    assert plotted
-    for value in plotted:
-        topic, field = re.fullmatch(r"(/\w+)\.state\.task_values\.(\w+)", value).groups()
-        assert topic in channels and field in values, value
