@@ -98,7 +98,7 @@ class ContourSection(Section, frozen=True):
     max_force_step_n: Annotated[float, rng(0.1, 1000.0)] = 10.0
     implausible_hold_s: Annotated[float, rng(0.0, 10.0)] = 0.5
     stale_hold_cycles: Annotated[int, rng(1, 1000)] = 4
-    stop_deceleration_m_s2: Annotated[float, rng(0.001, 100.0)] = 5.0
+    stop_deceleration_m_s2: Annotated[float, rng(0.001, 100.0)] = 2.0
     reapproach_distance_m: Annotated[float, rng(0.0, 0.1, lo_open=True)] = 0.008
     max_reacquire_attempts: Annotated[int, rng(1, 100)] = 3
     max_normal_turn_rate_rad_s: Annotated[float, rng(0.01, 100.0)] = 2.0

@@ -146,7 +146,7 @@ class ContourParams:
     max_force_step_n: float = 10.0  # a larger step between two samples is implausible [N]
     implausible_hold_s: float = 0.5  # the longest a suspect signal is held off before its level is taken [s]
     stale_hold_cycles: int = 4  # cycles without a fresh sample before the law holds as for a suspect one
-    stop_deceleration_m_s2: float = 5.0  # tangential braking (contact loss, suspect signal, corners, force band)
+    stop_deceleration_m_s2: float = 2.0  # tangential braking (contact loss, suspect signal, corners, force band)
     reapproach_distance_m: float = 0.008  # guarded travel along the last normal per attempt
     max_reacquire_attempts: int = 3
     max_normal_turn_rate_rad_s: float = 2.0  # corners: the speed is derated to keep the normal's turn rate
@@ -289,8 +289,9 @@ class ContourTrackingTask:
         if s.held_force is not None:  # suspect: has the signal come back, or held its new level long enough?
             held, jump = s.held_force, s.held_step
             elapsed_s = (s.suspect_cycles + 1) * ctx.period_s
-            back = math.hypot(raw[0] - last[0] + jump[0], raw[1] - last[1] + jump[1]) <= p.max_force_step_n
-            if back or math.hypot(raw[0] - held[0], raw[1] - held[1]) <= p.max_force_step_n:
+            tolerance = 0.5 * p.max_force_step_n  # tighter than the step: a swing of the structure is no return
+            back = math.hypot(raw[0] - last[0] + jump[0], raw[1] - last[1] + jump[1]) <= tolerance
+            if back or math.hypot(raw[0] - held[0], raw[1] - held[1]) <= tolerance:
                 return self._filtered(replace(s, held_force=None, suspect_cycles=0), raw, ctx), (
                     Event("force_plausible", Severity.INFO,
                           f"force back at its level after {elapsed_s * 1000:.0f} ms; tracking on"),)
