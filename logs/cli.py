@@ -175,7 +175,7 @@ def cmd_logs_list(args: argparse.Namespace) -> int:
     except LogFileError as err:
         return _fail(args, err)
     if args.json:
-        print(json.dumps({"directory": str(sessions.directory), "sessions": [x.as_dict() for x in sessions.sessions]}))
+        print(strict_json({"directory": str(sessions.directory), "sessions": [x.as_dict() for x in sessions.sessions]}))
     else:
         print(format_sessions(sessions))
     return 0
