@@ -405,8 +405,20 @@ def recorded_config_from_dict(table: dict[str, Any]) -> Config:
     return config_from_dict(table)
 
 
+def _migrate(table: dict[str, Any]) -> dict[str, Any]:
+    """Older files and recordings: ``[sim.disk]`` is ``[sim.workpiece]`` (shape "disk") since issue 26."""
+    sim = table.get("sim")
+    if isinstance(sim, dict) and "disk" in sim and "workpiece" not in sim:
+        sim = {**sim, "workpiece": sim["disk"]}
+        del sim["disk"]
+        if sim.get("environment") == "disk":
+            sim["environment"] = "workpiece"
+        table = {**table, "sim": sim}
+    return table
+
+
 def config_from_dict(table: dict[str, Any]) -> Config:
-    cfg = _build_config(table)
+    cfg = _build_config(_migrate(table))
     _cross_checks(cfg)
     return cfg
 

@@ -94,6 +94,10 @@ class Kinematics(Protocol):
 
 SETTLED_CONTACT_S = 0.25  # a contact this long near the setpoint and trusted gives the re-approach's normal
 STIFFNESS_PROBE_N = 1.0  # a rise of the normal force this large shows a contact answering the motion
+MOTION_WITNESS_SPEED_M_S = 0.02  # sliding faster than this, the measured motion witnesses the tangent
+MOTION_GATE_DEG = 15.0  # a force direction further from the motion's normal is not the contour's
+CONSISTENCY_MAX_DEG = 8.0  # the measured motion's angle to the tangent for a contact normal to be trusted
+CONSISTENCY_MIN_SPEED_M_S = 0.005  # slower motion says nothing about the tangent
 RETARE_MAX_FRACTION = 0.5  # of the setpoint: a re-approach re-tares the sensor when it reads less than this
 FORCE_BAND_FRACTION = 0.3  # of the force setpoint: a larger error derates the tangential speed ...
 FORCE_STOP_FRACTION = 0.6  # ... down to zero at this one (the disk's laps stay within 0.17 at 60 mm/s)
@@ -332,6 +336,18 @@ class ContourTrackingTask:
         return p.max_normal_speed_m_s * min(1.0, 0.25 + (pressing_n - p.saturation_force_n) / span)
 
     @staticmethod
+    def _moves_along_tangent(s: ContourState, normal: tuple[float, float], tcp: tuple[float, float, float],
+                             dt: float) -> bool:
+        """The measured TCP moved (faster than CONSISTENCY_MIN_SPEED) within CONSISTENCY_MAX_DEG of the tangent."""
+        if s.last_xy is None:
+            return False
+        dx, dy = tcp[0] - s.last_xy[0], tcp[1] - s.last_xy[1]
+        step = math.hypot(dx, dy)
+        if step < CONSISTENCY_MIN_SPEED_M_S * dt:
+            return False
+        return abs(dx * normal[0] + dy * normal[1]) <= step * math.sin(math.radians(CONSISTENCY_MAX_DEG))
+
+    @staticmethod
     def _in_band(s: ContourState, force_error_n: float) -> float:
         """1 with the force error within its band, falling linearly to 0 at the stop fraction."""
         band, stop = FORCE_BAND_FRACTION * s.force_setpoint_n, FORCE_STOP_FRACTION * s.force_setpoint_n
@@ -428,12 +444,30 @@ class ContourTrackingTask:
             t_prev = (-normal[1] * p.direction, normal[0] * p.direction)
             k = mu * f_xy / math.sqrt(1.0 + mu * mu)  # friction force magnitude mu F_n
             direction = math.atan2(fy + k * t_prev[1], fx + k * t_prev[0])
-            if abs(_wrap(direction - predicted)) <= math.radians(p.normal_gate_deg):
+            witness = self._motion_normal(s, ctx)
+            if abs(_wrap(direction - predicted)) <= math.radians(p.normal_gate_deg) and (
+                    witness is None or abs(_wrap(direction - witness)) <= math.radians(MOTION_GATE_DEG)):
                 measured = direction
         if measured == predicted:  # no direction this cycle: the turn fades instead of running on unseen
             return (math.cos(predicted), math.sin(predicted)), rate * math.exp(-dt / UNSEEN_TURN_DECAY_S)
         angle, rate = track_normal(angle, rate, measured, dt, p.normal_tracker_hz)
         return (math.cos(angle), math.sin(angle)), rate
+
+    def _motion_normal(self, s: ContourState, ctx: TaskContext) -> float | None:
+        """The normal's angle the measured motion implies, sliding faster than MOTION_WITNESS_SPEED_M_S; else None.
+
+        In contact the contour guides the tool: its measured motion runs along the true tangent
+        (the law's own normal correction is a few mm/s against tens along the tangent). A force
+        direction far from that normal is a disturbance pulling on the tool, not the contour.
+        """
+        tcp = ctx.tcp_measured_m
+        if tcp is None or s.last_xy is None or s.speed_m_s < MOTION_WITNESS_SPEED_M_S:
+            return None
+        dx, dy = tcp[0] - s.last_xy[0], tcp[1] - s.last_xy[1]
+        if math.hypot(dx, dy) < 0.5 * MOTION_WITNESS_SPEED_M_S * ctx.period_s:
+            return None
+        # t = z x n turned back: n = t x z, with the travel direction's sign
+        return math.atan2(-dx * self.p.direction, dy * self.p.direction)
 
     def _tangential_speed(self, s: ContourState, rate_rad_s: float, force_error_n: float, dt: float) -> float:
         """The lap's speed, derated where the normal turns fast or the force leaves its band, braked
@@ -451,7 +485,10 @@ class ContourTrackingTask:
         target = p.lap_speeds_m_s[min(s.lap, len(p.lap_speeds_m_s) - 1)]
         if s.creep_m > 0.0:
             target = min(target, p.creep_speed_m_s)
-        target *= self._in_band(s, force_error_n)
+        raw_error_n = force_error_n if s.raw_force is None else \
+            s.force_setpoint_n - (s.raw_force[0] * s.normal[0] + s.raw_force[1] * s.normal[1])
+        # the raw sample too: a contact surprise shows there about 15 ms before it does through the filter
+        target *= min(self._in_band(s, force_error_n), self._in_band(s, raw_error_n))
         up, down = p.tangential_acceleration_m_s2 * dt, p.stop_deceleration_m_s2 * dt
         if abs(rate_rad_s) > p.max_normal_turn_rate_rad_s and s.speed_m_s > 0.0:  # a corner: keep the turn rate
             corner = max(p.min_tangential_speed_m_s, s.speed_m_s * p.max_normal_turn_rate_rad_s / abs(rate_rad_s))
@@ -523,9 +560,13 @@ class ContourTrackingTask:
         v = (speed * t[0] - vn * normal[0], speed * t[1] - vn * normal[1], 0.0)  # z held at height_m
         # The line a re-approach would take: the normal of a contact that has been good for a while,
         # so that the moments of a disturbance (which tilt the force's direction) never become it.
-        settled = s.settled_cycles + 1 if trusted and 0.5 * s.force_setpoint_n <= fn <= 2.0 * s.force_setpoint_n else 0
-        good = settled * dt >= SETTLED_CONTACT_S
+        # ... and only while the tool's measured motion runs along the tangent this normal implies: a
+        # force disturbance tilts the normal, but the contour, not the estimate, guides the tool.
         tcp = ctx.tcp_measured_m or s.p_cmd
+        along = self._moves_along_tangent(s, normal, tcp, dt)
+        settled = s.settled_cycles + 1 if trusted and along and \
+            0.5 * s.force_setpoint_n <= fn <= 2.0 * s.force_setpoint_n else 0
+        good = settled * dt >= SETTLED_CONTACT_S
         # A force out of its band marks the contour as irregular here (a notch's edge, a bump, a
         # disturbance): the next creep_distance_m go at creep speed, so that what comes next (a
         # notch's far wall: a concave corner, whose impact no reaction can catch at full speed) is

@@ -68,3 +68,14 @@ def test_good_live_view_settings_load():
     cfg = load_config(overrides={"recording.live_rerun": "rerun+http://127.0.0.1:9876/proxy",
                                  "recording.live_foxglove": "127.0.0.1:8765"})
     assert cfg.recording.live_foxglove == "127.0.0.1:8765"
+
+
+def test_a_configuration_with_the_old_sim_disk_section_still_loads_as_the_workpiece():
+    from controller.config import config_from_dict, config_to_dict
+
+    table = config_to_dict(load_config(overrides={"sim.workpiece.radius_m": 0.066}))
+    table["sim"]["disk"] = table["sim"].pop("workpiece")
+    table["sim"]["environment"] = "disk"
+    cfg = config_from_dict(table)
+    assert cfg.sim.workpiece.radius_m == 0.066 and cfg.sim.workpiece.shape == "disk"
+    assert cfg.sim.environment == "workpiece"
