@@ -95,7 +95,7 @@ class Kinematics(Protocol):
 SETTLED_CONTACT_S = 0.25  # a contact this long near the setpoint and trusted gives the re-approach's normal
 STIFFNESS_PROBE_N = 1.0  # a rise of the normal force this large shows a contact answering the motion
 MOTION_WITNESS_SPEED_M_S = 0.02  # sliding faster than this, the measured motion witnesses the tangent
-MOTION_GATE_DEG = 15.0  # a force direction further from the motion's normal is not the contour's
+MOTION_GATE_DEG = 15.0  # a force direction is taken at most this far from the motion's normal
 CONSISTENCY_MAX_DEG = 8.0  # the measured motion's angle to the tangent for a contact normal to be trusted
 CONSISTENCY_MIN_SPEED_M_S = 0.005  # slower motion says nothing about the tangent
 RETARE_MAX_FRACTION = 0.5  # of the setpoint: a re-approach re-tares the sensor when it reads less than this
@@ -445,8 +445,10 @@ class ContourTrackingTask:
             k = mu * f_xy / math.sqrt(1.0 + mu * mu)  # friction force magnitude mu F_n
             direction = math.atan2(fy + k * t_prev[1], fx + k * t_prev[0])
             witness = self._motion_normal(s, ctx)
-            if abs(_wrap(direction - predicted)) <= math.radians(p.normal_gate_deg) and (
-                    witness is None or abs(_wrap(direction - witness)) <= math.radians(MOTION_GATE_DEG)):
+            if witness is not None:  # at most MOTION_GATE_DEG from the normal the motion implies
+                gate = math.radians(MOTION_GATE_DEG)
+                direction = witness + min(max(_wrap(direction - witness), -gate), gate)
+            if abs(_wrap(direction - predicted)) <= math.radians(p.normal_gate_deg):
                 measured = direction
         if measured == predicted:  # no direction this cycle: the turn fades instead of running on unseen
             return (math.cos(predicted), math.sin(predicted)), rate * math.exp(-dt / UNSEEN_TURN_DECAY_S)
@@ -674,8 +676,10 @@ class ContourTrackingTask:
         if f_contact is not None:
             ev = Event("contact", Severity.INFO, f"contact re-acquired at {f_contact:.2f} N after "
                                                  f"{s.travel_m * 1000:.1f} mm (attempt {s.attempts + 1}); tracking on")
+            tcp = ctx.tcp_measured_m or s.p_cmd  # where the contour was found again: the next re-approach's aim
             s = self._enter(s, ContourPhase.TRACKING, ctx.t_s, integral=0.0, low_force_cycles=0, attempts=0,
-                            settled_cycles=0, creep_m=p.creep_distance_m, push_ref_n=f_contact)
+                            settled_cycles=0, creep_m=p.creep_distance_m, push_ref_n=f_contact,
+                            contact_point=(tcp[0], tcp[1]))
             return self._tracking(s, ctx, (ev,))
         if s.travel_m >= s.reapproach_m:
             ev = Event("reapproach_failed", Severity.WARNING,
