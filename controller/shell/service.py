@@ -115,6 +115,12 @@ def _following_error_objects(cfg: Config) -> dict[str, int]:
             "following_error_time_ms": round(a.following_error_time_s * 1000)}
 
 
+def expected_environment(cfg: Config) -> str:
+    """The world the controller announces to a simulated sensor: sim.environment when set, else its task's."""
+    explicit: str = cfg.sim.environment
+    return explicit if explicit != "auto" else task_entry(cfg.task.kind).sim_environment
+
+
 def node_setup_plan(cfg: Config) -> NodeSetupPlan:
     return NodeSetupPlan(
         drive_ids=tuple(cfg.actuators.node_ids),
@@ -128,7 +134,7 @@ def node_setup_plan(cfg: Config) -> NodeSetupPlan:
         drive_rpdo_objects=cfg.actuators.rpdo_objects, drive_tpdo_objects=cfg.actuators.tpdo_objects,
         homing=homing_plans(cfg), **_following_error_objects(cfg),
         sdo_timeout_s=cfg.loop.sdo_timeout_s, answer_timeout_s=max(5.0, 3.0 * cfg.loop.sdo_timeout_s),
-        sim_environment=task_entry(cfg.task.kind).sim_environment if cfg.sensor.enabled else None,
+        sim_environment=expected_environment(cfg) if cfg.sensor.enabled else None,
         task_kind=cfg.task.kind,
     )
 

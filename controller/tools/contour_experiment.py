@@ -46,7 +46,9 @@ def comparison_config(cfg: Config) -> Config:
                        laps=1.0, ramp_s=0.5, check_samples=cfg.task.model("path").check_samples)
     safety = msgspec.structs.replace(cfg.safety, on_sensor_saturated="warn",
                                  max_contact_force_n=1.0e4)  # simulated hardware only: see above
-    return msgspec.structs.replace(cfg, task=msgspec.structs.replace(cfg.task, kind="path", models={**cfg.task.models, "path": path}), safety=safety)
+    # the same workpiece under position control: announced as such, though the path task alone expects free space
+    sim = msgspec.structs.replace(cfg.sim, environment="workpiece")
+    return msgspec.structs.replace(cfg, task=msgspec.structs.replace(cfg.task, kind="path", models={**cfg.task.models, "path": path}), safety=safety, sim=sim)
 
 
 def run_contour_experiment(cfg: Config, spec: BusSpec, plot_dir: Path | None, max_duration_s: float = 600.0,

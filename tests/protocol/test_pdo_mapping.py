@@ -226,7 +226,10 @@ def test_vendor_drive_runs_the_cyclic_exchange_against_the_in_process_simulator(
         scale = PositionScale(cfg.actuators.counts_per_m)
         ex = CyclicExchange(bus, tuple(cfg.actuators.node_ids), scale, None, cfg.loop.controller_node_id,
                             heartbeat_every=1, drive_codecs=report.drive_codecs,
-                            answer_window_s=0.005)  # a generous deadline for the answers, a short window after
+                            # the answer window (collect waits it out) as the loop's, so that the SYNCs come
+                            # about at the drives' configured period: a 5 ms window made the CSP drives see
+                            # SYNC at half their interpolation rate, and they fell behind their targets
+                            answer_window_s=cfg.loop.collect_fraction * cfg.period_s)
         start = [d.position for d in sim.drives]
         ex.send(None)
         fb = ex.collect(time.monotonic() + 5.0)
