@@ -35,6 +35,9 @@ def _slow(tmp_path: Path) -> list[str]:
             "--set", "loop.heartbeat_consumer_s=2.0",
             "--set", "safety.on_late_cycles=\"warn\"", "--set", "task.path.laps=0.25",
             "--set", "task.path.speed_m_s=0.05", "--set", f'recording.directory="{tmp_path}"',
+            # the VM's /tmp has about 500 MB free: below the default guard (1024 MB) every recording
+            # would stop at once and, with recording.on_failure = "stop", end the run after 4 cycles
+            "--set", "recording.min_free_space_mb=64",
             "--set", "monitoring.enabled=false"]
 
 
