@@ -58,7 +58,10 @@ def test_demo_runs_the_contour_experiment_over_the_bus_by_default():
     s = json.loads(r.stdout)
     assert s["final_mode"] == "DONE", s["fault_reason"]
     (lap,) = s["contour"]["laps"]
-    assert lap["speed_achieved_m_s"] == pytest.approx(0.06, rel=0.1)  # includes the ramp from rest
+    # 0.055 m/s in simulated time (tests/unit/test_contour_tracking.py checks that figure). Over a bus on
+    # a busy machine a late sample can push the force out of its band, and the next 25 mm go at creep
+    # speed (controller/tasks/contour_tracking.py): 0.041 m/s seen under the full suite. Bounds only.
+    assert 0.02 < lap["speed_achieved_m_s"] <= 0.066
     assert lap["contact_losses"] == 0 and lap["force_error_rms_n"] < 2.0  # 0.7 N in simulated time
     cmp = s["position_control_comparison"]
     assert cmp["final_mode"] == "DONE" and cmp["laps"][0]["force_error_max_n"] > 100.0  # the disk is 2.2 mm off
