@@ -12,7 +12,7 @@ from controller.core.control_law import ControlLaw, LawConfig, SafetyConfig
 from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother
 from controller.robots.registry import actuator_units, robot_from_config
 from controller.robots.robot import ActuatorUnit, Robot
-from controller.tasks.registry import BuiltTask, RunReport, task_from_config
+from controller.tasks.registry import BuiltTask, RunReport, task_entry, task_from_config
 from drivers.bus_load import BusLoad, compute_bus_load, cyclic_frames
 
 
@@ -75,7 +75,8 @@ def assemble(cfg: Config, robot: Robot | None = None) -> Assembly:
                         max_missing_cycles=cfg.loop.max_missing_cycles,
                         settle_tolerance=cfg.loop.settle_tolerance_m, safety=safety_config(cfg),
                         max_speed=a.max_velocity, position_unit=a.unit.value,
-                        rest_target=0.5 * (a.stroke_min + a.stroke_max), drive_node_ids=tuple(cfg.actuators.node_ids))
+                        rest_target=0.5 * (a.stroke_min + a.stroke_max), drive_node_ids=tuple(cfg.actuators.node_ids),
+                        sensor_in_task=task_entry(cfg.task.kind).uses_force_sensor)
     return Assembly(ControlLaw(robot, built.task, RuckigSmoother(limits, cfg.period_s), law_cfg), built.reports)
 
 

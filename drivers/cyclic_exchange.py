@@ -86,6 +86,11 @@ class ExchangeCounters:
     late_frames: int = 0  # TPDOs of an earlier cycle, found before this cycle's SYNC
     missing_drive_frames: int = 0
     missing_sensor_frames: int = 0
+    # The longest run of cycles without a usable sample, over the drives and of the sensor: the
+    # stalls this machine shows, from which loop.max_missing_cycles and safety.sensor_stale_cycles
+    # are chosen (docs: "Silence tolerated").
+    longest_drive_silence_cycles: int = 0
+    longest_sensor_silence_cycles: int = 0
     error_frames: int = 0
     send_errors: int = 0
     foreign_frames: int = 0  # frames reported as a BusAnomaly (unknown, foreign, duplicate)
@@ -213,6 +218,9 @@ class CyclicExchange:
         self._sdo = can.Message(arbitration_id=0, data=bytearray(8), is_extended_id=False)
         self.heartbeat_timeout_s = heartbeat_timeout_s
         self.last_heartbeat_s = [math.nan] * self.n
+        self.sensor_heartbeat_s = math.nan  # the sensor's heartbeat, supervised as a drive's
+        self._drive_silence = [0] * self.n  # cycles in a row without a usable TPDO, per drive
+        self._sensor_silence = 0
         self.started_s = clock()
         self._error_frames = 0
         self._bus_off = False
@@ -309,6 +317,7 @@ class CyclicExchange:
         c.missing_drive_frames += missing
         if self.has_sensor and not self._sensor_fresh:
             c.missing_sensor_frames += 1
+        self._count_silences()
         drives = tuple(DriveFeedback(sw, x, f) for sw, x, f in zip(self._statusword, self._position, self._fresh))
         sensor = SensorFeedback(self._force, self._torque, self._sensor_status, max(self._force_counter, 0),
                                 self._sensor_fresh and not self._sensor_ambiguous) if self.has_sensor else None
@@ -316,8 +325,7 @@ class CyclicExchange:
                                   max(self._tracker_counters[0], 0), self._tracker_fresh) if self.has_tracker else None
         self._tracker_fresh = False
         now = clock()
-        lost = tuple(node for node, last in zip(self.drive_ids, self.last_heartbeat_s)
-                     if now - (self.started_s if math.isnan(last) else last) > self.heartbeat_timeout_s)
+        lost = self._lost_heartbeats(now)
         feedback = BusFeedback(drives=drives, sensor=sensor, emcy=tuple(self._emcy), lost_heartbeats=lost,
                                error_frames=self._error_frames, bus_off=self._bus_off,
                                anomalies=self._anomaly_reports() if self._anomalies else (),
@@ -410,12 +418,33 @@ class CyclicExchange:
                 self._on_heartbeat(index, msg)
                 if index >= 0:
                     self.last_heartbeat_s[index] = now
+                elif self.sensor_id is not None and msg.arbitration_id == cob_ids.heartbeat(self.sensor_id):
+                    self.sensor_heartbeat_s = now
             elif kind == _OWN:
                 self._on_own_cob_id(msg)
             elif kind == _KERNEL_SYNC:
                 self._on_kernel_sync(msg)
         except FrameError:
             self._reject(msg.arbitration_id, self._node_of(kind, index, msg.arbitration_id))
+
+    def _lost_heartbeats(self, now: float) -> tuple[int, ...]:
+        """The drives and the sensor whose heartbeat is overdue (counted from the start until the first)."""
+        nodes = list(zip(self.drive_ids, self.last_heartbeat_s))
+        if self.sensor_id is not None:
+            nodes.append((self.sensor_id, self.sensor_heartbeat_s))
+        return tuple(node for node, last in nodes
+                     if now - (self.started_s if math.isnan(last) else last) > self.heartbeat_timeout_s)
+
+    def _count_silences(self) -> None:
+        """Each device's run of cycles without a usable sample, and the longest so far."""
+        c = self.counters
+        self._drive_silence = [0 if f else s + 1 for f, s in zip(self._fresh, self._drive_silence)]
+        if self._drive_silence:
+            c.longest_drive_silence_cycles = max(c.longest_drive_silence_cycles, max(self._drive_silence))
+        if self.has_sensor:
+            usable = self._sensor_fresh and not self._sensor_ambiguous
+            self._sensor_silence = 0 if usable else self._sensor_silence + 1
+            c.longest_sensor_silence_cycles = max(c.longest_sensor_silence_cycles, self._sensor_silence)
 
     def _node_of(self, kind: int, index: int, cob_id: int) -> int:
         """The configured node a routed frame belongs to (0: the controller's own COB-IDs)."""

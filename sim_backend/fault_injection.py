@@ -242,6 +242,7 @@ NO_BUS_FAULTS = BusFaults()
 
 
 def bus_faults(schedule: FaultSchedule, now_s: float, node_ids: tuple[int, ...]) -> BusFaults:
+    """``node_ids``: every device on the bus (the drives and the sensor), for ``heartbeat:N`` and ``delay:N``."""
     if not schedule.faults:
         return NO_BUS_FAULTS
     bus_off = schedule.active("bus_off", now_s) is not None

@@ -192,7 +192,8 @@ class LoopbackExchange:
         now = self.clock()
         self.plant.advance(now)
         self.faults.start(now)
-        self._bus_faults = bus_faults(self.faults, now, self.drive_ids)
+        sensor = () if self.sensor_id is None else (self.sensor_id,)
+        self._bus_faults = bus_faults(self.faults, now, (*self.drive_ids, *sensor))
         self.bus.full = self._bus_faults.controller_frames_lost
         self.bus.inbox.extend(self._delayed)  # last cycle's late TPDOs: read before this SYNC, as late
         self._delayed = []
@@ -274,7 +275,9 @@ class LoopbackExchange:
             for k, (cob, data) in enumerate(sensor_frames):
                 if k == 0 and faults.spoofed_force_n is not None:  # someone else's, before the true one
                     inbox.append(_frame(cob, spoofed_sensor_frame(data, faults.spoofed_force_n)))
-                inbox.append(_frame(cob, data))
+                payload = tpdo_payload(self.faults, self.sensor_id, data, now)  # drop:N, malformed:N
+                if payload is not None:
+                    inbox.append(_frame(cob, payload))
         tracker_frames = self.plant.tracker_frames(now)  # after the pose was advanced to this SYNC
         if tracker_frames is not None and self.tracker_id is not None:
             inbox.append(_frame(cob_ids.tpdo1(self.tracker_id), tracker_frames[0]))

@@ -347,7 +347,7 @@ class Simulator:
         frames: list[tuple[int, bytes]] = []
         delayed: list[tuple[float, int, bytes]] = []
         self.faults.start(now)
-        bus = bus_faults(self.faults, now, self.drive_ids)
+        bus = bus_faults(self.faults, now, (*self.drive_ids, self.cfg.sensor.node_id))
         if bus.controller_frames_lost:
             self._lost_until_next_sync = True  # and this cycle's RPDOs with it (_rpdo_handler)
             return
@@ -379,15 +379,19 @@ class Simulator:
                     delayed.append((delays[node_id], tpdo[0], out))
                 else:
                     frames.append((tpdo[0], out))
-                if node_id in bus.silent_heartbeats and node_id not in self._silenced:
+            for node_id in bus.silent_heartbeats:  # drives and the sensor alike (heartbeat:N)
+                if node_id in self.nodes and node_id not in self._silenced:
                     self.nodes[node_id].nmt.stop_heartbeat()
                     self._silenced.add(node_id)
             sensor_frames = self.pdos.sensor_tpdos()
-            if sensor_frames and self._operational(self.cfg.sensor.node_id):
+            sensor_id = self.cfg.sensor.node_id
+            if sensor_frames and self._operational(sensor_id):
                 for k, (cob, payload) in enumerate(sensor_frames):
                     if k == 0 and bus.spoofed_force_n is not None:  # a second sender on the force COB-ID, first
                         frames.append((cob, spoofed_sensor_frame(payload, bus.spoofed_force_n)))
-                    frames.append((cob, payload))
+                    out = tpdo_payload(self.faults, sensor_id, payload, now)  # drop:N, malformed:N
+                    if out is not None:
+                        frames.append((cob, out))
             tracker_frames = self.plant.tracker_frames(now)  # the pose as the pose thread last had it
             if tracker_frames is not None:
                 frames.append((cob_ids.tpdo1(self.cfg.tracker.node_id), tracker_frames[0]))

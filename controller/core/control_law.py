@@ -163,6 +163,12 @@ class LawConfig:
     position_unit: str = "m"  # for messages
     rest_target: float = 0.0  # [unit] the target sent before a drive's first TPDO (mid-stroke)
     drive_node_ids: tuple[int, ...] = ()  # CANopen node ids of the drives, in order (empty: 1..n)
+    # Does the task use the force sensor's samples? If it does, a sensor without a usable sample for
+    # safety.sensor_stale_cycles faults; if not, a stall of its frames is no hazard and the sensor is
+    # supervised by its heartbeat (loop.heartbeat_consumer_s), as any node the task does not read.
+    # Its samples, when they come, are still judged against the contact-force limit. From the
+    # task's entry (controller/tasks/registry.py ``uses_force_sensor``).
+    sensor_in_task: bool = True
 
 
 @dataclass(frozen=True, slots=True)
@@ -363,8 +369,9 @@ class ControlLaw:
         silence = self._silence(state)
         if silence:
             return state, silence
-        if state.sensor_missing >= self.config.max_missing_cycles:
-            # No usable sample (missing, or two senders on its COB-ID) as long as a drive may be silent.
+        if self.config.sensor_in_task and state.sensor_missing >= sc.sensor_stale_cycles:
+            # No usable sample (missing, or two senders on its COB-ID): no new information, as a counter
+            # that does not advance, so the same tolerance (the contour task holds from the 4th cycle).
             state, why = self._react(state, sc.on_sensor_stale, "sensor_stale",
                                      f"force sensor: no usable sample for {state.sensor_missing} cycles", events)
             if why:

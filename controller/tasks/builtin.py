@@ -154,7 +154,7 @@ def build_planned_task(cfg: Config, robot: Robot) -> BuiltTask:
 
 PATH = TaskEntry(kind="path", section=PathSection, build=build_path_task, check=_check_path)
 CONTOUR = TaskEntry(kind="contour", section=ContourSection, build=build_contour_task, check=_check_contour,
-                    sim_environment="workpiece")
+                    sim_environment="workpiece", uses_force_sensor=True)
 PLANNED = TaskEntry(kind="planned", section=None, build=build_planned_task)
 
 for _entry in (PATH, CONTOUR, PLANNED):

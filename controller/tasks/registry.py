@@ -41,6 +41,9 @@ class TaskEntry:
     build: Callable[[Config, Robot], BuiltTask]  # raises ConfigError / WorkspaceError / PlanningError
     check: Callable[[Any], None] | None = None  # cross-checks of its section: raise ConfigError
     sim_environment: str = "free"  # what the simulator places with sim.environment = "auto": "free", "workpiece"
+    # Whether the task reads the force sensor's samples: then every cycle without one counts towards
+    # safety.sensor_stale_cycles; if not, the sensor is supervised by its heartbeat (LawConfig).
+    uses_force_sensor: bool = False
 
 
 _TASKS: dict[str, TaskEntry] = {}

@@ -45,6 +45,24 @@ def rss_kb(pid: int) -> int | None:
     return None
 
 
+def memory_kb(pid: int) -> dict[str, int]:
+    """What the resident set is made of [kB]: ``VmRSS`` = ``RssAnon`` (heap, stacks) + ``RssFile``
+    (mapped files: the interpreter, numpy's and the other libraries' code) + ``RssShmem``, and
+    ``VmLck``. With ``mlockall`` (``cheope run`` locks by default where permitted) every mapped page
+    is faulted in and stays resident, so VmRSS counts whole libraries that an unlocked process
+    leaves on disk: about three times the unlocked figure; the slope is what shows a leak."""
+    wanted = ("VmRSS:", "RssAnon:", "RssFile:", "RssShmem:", "VmLck:")
+    out: dict[str, int] = {}
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith(wanted):
+                key, value = line.split()[:2]
+                out[key.rstrip(":")] = int(value)
+    except (OSError, ValueError):
+        return {}
+    return out
+
+
 def rss_slope_kb_per_min(times_s: np.ndarray, rss: np.ndarray) -> float:
     """Least-squares slope of RSS [kB] against time [s], in kB per minute."""
     if times_s.size < 2 or np.ptp(times_s) == 0:
@@ -63,6 +81,9 @@ class SoakResult:
     cycles: int
     late_cycles: int
     late_per_10k: float
+    period_error_max_us: float  # the loop's longest stall: its worst wake-up past a deadline
+    longest_silence_cycles: dict[str, int]  # the devices' longest run of cycles without a usable sample
+    memory_end_kb: dict[str, int]  # VmRSS, RssAnon, RssFile, RssShmem, VmLck at the last sample
     final_mode: str
     fault_reason: str
     exit_code: int
@@ -73,7 +94,11 @@ class SoakResult:
             f"soak                {self.duration_s:.0f} s, warm-up {self.warmup_s:.0f} s, {self.samples} RSS samples",
             (f"controller RSS      {self.rss_warm_kb / 1024:.1f} MB after warm-up, {self.rss_end_kb / 1024:.1f} MB "
              f"at the end, slope {self.rss_slope_kb_per_min:+.2f} kB/min"),
+            ("memory at the end   " + ", ".join(f"{k} {v / 1024:.1f} MB" for k, v in self.memory_end_kb.items())),
             f"late cycles         {self.late_cycles} of {self.cycles}: {self.late_per_10k:.1f} per 10 000",
+            (f"longest stalls      loop period error max {self.period_error_max_us / 1000:.1f} ms; no usable sample "
+             f"for {self.longest_silence_cycles.get('drive', 0)} cycles (a drive), "
+             f"{self.longest_silence_cycles.get('sensor', 0)} (the sensor)"),
             (f"end                 {self.final_mode}{f' ({self.fault_reason})' if self.fault_reason else ''}, "
              f"exit {self.exit_code} (SIGTERM)"),
         ])
@@ -96,6 +121,7 @@ def run_soak(duration_s: float, warmup_s: float, sample_s: float, rate_hz: float
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         times: list[float] = []
         rss: list[int] = []
+        memory: dict[str, int] = {}
         try:
             start = time.monotonic()
             while (now := time.monotonic() - start) < duration_s and proc.poll() is None:
@@ -103,6 +129,7 @@ def run_soak(duration_s: float, warmup_s: float, sample_s: float, rate_hz: float
                 if kb is not None:
                     times.append(now)
                     rss.append(kb)
+                    memory = memory_kb(proc.pid) or memory
                     if progress is not None:
                         progress(f"{now:.0f}/{duration_s:.0f} s, controller RSS {kb / 1024:.1f} MB")
                 time.sleep(sample_s)  # a sampling period, not a wait for an event
@@ -124,7 +151,10 @@ def run_soak(duration_s: float, warmup_s: float, sample_s: float, rate_hz: float
         duration_s=float(t[-1]) if t.size else 0.0, warmup_s=warmup_s, samples=int(warm.sum()),
         rss_warm_kb=int(r[warm][0]), rss_end_kb=int(r[-1]),
         rss_slope_kb_per_min=rss_slope_kb_per_min(t[warm], r[warm]), cycles=cycles, late_cycles=late,
-        late_per_10k=1e4 * late / cycles if cycles else 0.0, final_mode=str(summary["final_mode"]),
+        late_per_10k=1e4 * late / cycles if cycles else 0.0,
+        period_error_max_us=float(summary["period_error_us"]["max"]),
+        longest_silence_cycles=dict(summary.get("longest_silence_cycles", {})), memory_end_kb=memory,
+        final_mode=str(summary["final_mode"]),
         fault_reason=str(summary["fault_reason"]),
         exit_code=proc.returncode, recording=summary.get("recording"))
 

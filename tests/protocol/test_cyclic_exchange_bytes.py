@@ -378,8 +378,8 @@ def test_a_drive_whose_heartbeat_is_overdue_is_reported_lost(bus, clock):
     ex = make_exchange(bus, clock)
     period = 0.04
     lost_per_cycle = []
-    for k in range(18):  # drives 1 and 3 beat every 0.08 s; drive 2's last beat is at 0.16 s (cycle 4)
-        beats = [frame(heartbeat_id(n), b"\x05") for n in DRIVES if k % 2 == 0 and (n != 2 or k <= 4)]
+    for k in range(18):  # drives 1, 3 and the sensor beat every 0.08 s; drive 2's last beat is at 0.16 s (cycle 4)
+        beats = [frame(heartbeat_id(n), b"\x05") for n in (*DRIVES, SENSOR) if k % 2 == 0 and (n != 2 or k <= 4)]
         bus.answers[k] = [*beats, *all_answers(k)]
         lost_per_cycle.append(one_cycle(ex, clock, None, period).lost_heartbeats)
     # overdue once more than 0.5 s passed since 0.16 s: from 0.68 s (cycle 17) on, not at 0.64 s
@@ -394,7 +394,18 @@ def test_a_drive_never_heard_is_lost_after_the_timeout_from_the_start(bus, clock
         bus.answers[k] = all_answers(k)  # TPDOs but no heartbeat at all
         seen.append(one_cycle(ex, clock, None, 0.04).lost_heartbeats)
     assert seen[:13] == [()] * 13  # up to 0.48 s after the exchange started
-    assert seen[13] == DRIVES  # 0.52 s
+    assert seen[13] == (*DRIVES, SENSOR)  # 0.52 s: the sensor is supervised by its heartbeat too
+
+
+def test_the_sensor_whose_heartbeat_stops_is_reported_lost(bus, clock):
+    ex = make_exchange(bus, clock)
+    lost_per_cycle = []
+    for k in range(18):  # everyone beats every 0.08 s; the sensor's last beat is at 0.16 s (cycle 4)
+        beats = [frame(heartbeat_id(n), b"\x05") for n in (*DRIVES, SENSOR) if k % 2 == 0 and (n != SENSOR or k <= 4)]
+        bus.answers[k] = [*beats, *all_answers(k)]
+        lost_per_cycle.append(one_cycle(ex, clock, None, 0.04).lost_heartbeats)
+    assert lost_per_cycle[:17] == [()] * 17
+    assert lost_per_cycle[17] == (SENSOR,)
 
 
 def test_every_frame_goes_to_the_sink_once_with_its_direction(bus, clock):

@@ -1,0 +1,76 @@
+"""How long a device may fall silent before the fault, per device and per task (docs: "Silence
+tolerated"), in simulated time on the in-process devices: deterministic, no wall clock.
+
+- a drive: ``loop.max_missing_cycles`` (20 cycles, 50 ms at 400 Hz: the drives' own SYNC watchdog);
+- the force sensor, while the task reads it (contour): ``safety.sensor_stale_cycles`` (20);
+- the force sensor, while the task does not read it (path): its heartbeat only.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from controller.assembly import build_law
+from controller.config import load_config
+from controller.core.control_law import Mode
+from controller.shell.loop import CycleLoop, SimulatedTime
+from sim_backend.loopback import LoopbackExchange
+
+PATH = {"task.path.laps": 0.5}
+SENSOR = 16
+
+
+def _run(overrides: dict[str, object], max_s: float = 30.0):
+    cfg = load_config(overrides=overrides)
+    clock = SimulatedTime()
+    law = build_law(cfg)
+    exchange = LoopbackExchange(cfg, clock.clock)
+    loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock)
+    final, _ = loop.run(law.initial_state(), max_s)
+    return cfg, final, exchange.counters
+
+
+def test_the_shipped_tolerances():
+    cfg = load_config()
+    assert cfg.loop.max_missing_cycles == 20 and cfg.safety.sensor_stale_cycles == 20
+    assert cfg.loop.max_missing_cycles * cfg.period_s == pytest.approx(cfg.sim.drive.sync_timeout_s)
+
+
+def test_a_drive_silent_for_less_than_its_tolerance_costs_nothing():
+    # 16 cycles (40 ms) of silence from drive 2 mid-path: the drives extrapolate, then hold
+    cfg, final, counters = _run({**PATH, "sim.faults": ["drop:2@1.0+0.04"]})
+    assert final.mode == Mode.DONE, final.fault_reason
+    assert 15 <= counters.longest_drive_silence_cycles < cfg.loop.max_missing_cycles
+
+
+def test_a_drive_silent_for_its_tolerance_faults_naming_it():
+    cfg, final, _ = _run({**PATH, "sim.faults": ["drop:2@1.0"]})
+    assert final.mode == Mode.FAULT
+    assert final.fault_reason == f"drive 2: no TPDO for {cfg.loop.max_missing_cycles} cycles"
+
+
+def test_the_path_task_rides_through_a_silent_sensor_it_does_not_read():
+    # the sensor's TPDOs gone from 1 s to the end (2.3 s, 900 cycles) while its heartbeat goes on
+    _, final, counters = _run({**PATH, "sim.faults": [f"drop:{SENSOR}@1.0"]})
+    assert final.mode == Mode.DONE, final.fault_reason
+    assert counters.longest_sensor_silence_cycles > 900
+
+
+def test_a_sensor_the_task_does_not_read_is_supervised_by_its_heartbeat():
+    _, final, _ = _run({**PATH, "sim.faults": [f"drop:{SENSOR}@1.0", f"heartbeat:{SENSOR}@1.0"]})
+    assert final.mode == Mode.FAULT
+    assert final.fault_reason == f"heartbeat lost from node(s) [{SENSOR}]"
+
+
+@pytest.mark.parametrize(("silent_s", "faults"), [(0.03, False), (0.1, True)])
+def test_the_contour_task_tolerates_sensor_silence_up_to_sensor_stale_cycles(silent_s, faults):
+    # in lap 2 of a two-lap contour: 12 cycles ride through (the task holds from the 4th), 40 fault
+    over = {"task.kind": "contour", "task.contour.lap_speeds_m_s": [0.04, 0.04],
+            "sim.faults": [f"drop:{SENSOR}@20.0+{silent_s}"]}
+    cfg, final, counters = _run(over, max_s=60.0)
+    if faults:
+        assert final.mode == Mode.FAULT
+        assert final.fault_reason == f"force sensor: no usable sample for {cfg.safety.sensor_stale_cycles} cycles"
+    else:
+        assert final.mode == Mode.DONE, final.fault_reason
+        assert counters.longest_sensor_silence_cycles >= 11
