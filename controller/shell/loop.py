@@ -3,8 +3,12 @@
 Per cycle k, with deadline d_k = d_0 + k * period on a monotonic clock:
   1. sleep until d_k (``Sleeper``: coarse sleep, then a short spin);
   2. send the RPDOs computed in cycle k-1, then SYNC (the exchange);
-  3. collect this cycle's TPDOs for collect_fraction * period after the SYNC went out (from
-     the actual send time: a late wake-up must not shrink the drives' time to answer);
+  3. collect this cycle's TPDOs until collect_fraction * period after the deadline (the answer
+     window: the exchange listens to its end even when every device has answered, to see a second
+     sender). From the deadline, not from the actual send: a window from the send carried every
+     late wake-up into the next cycle (2 ms of 2.5 left 0.3 ms to catch up per cycle, and a soak
+     at the defaults faulted on 50 late cycles in a row within 30 s). A late wake-up still gives
+     the devices half the window after its SYNC;
   4. ``law.step(state, inputs, k * period)``;
   5. hand copies to the observers (recorder, publisher, statistics): they must not block.
 If the loop falls more than one period behind, it skips the missed deadlines (counted as
@@ -225,7 +229,7 @@ class CycleLoop:
             self.sleeper.sleep_until(deadline)
             woke = clock()
             self.exchange.send(outputs)
-            feedback = self.exchange.collect(clock() + self.collect_s)
+            feedback = self.exchange.collect(max(deadline + self.collect_s, clock() + 0.5 * self.collect_s))
             pending = self.commands() if self.commands is not None else None
             command, value = (Command(pending[0]), pending[1]) if pending is not None else (Command.NONE, 0.0)
             stop = self.stop_event.is_set() or (time_up_cycle is not None and k >= time_up_cycle)
