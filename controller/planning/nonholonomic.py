@@ -44,7 +44,7 @@ Singularities (beyond the paper, which only assumes S invertible):
   measures stay above their limits everywhere.  The penalty's gradient chains the measures'
   pose gradients (complex steps) with the variational sensitivities at every sample.
 
-Robustness (measured with `cheope plan-bench`, 100 seeded pairs; figures in README.md):
+Robustness (measured with `cheope plan-bench`, 100 seeded pairs; figures in docs/concepts/robots.md):
 * the dominant failure of the direct iteration on random pairs was not convergence but the
   motion it converged to: it reached the goal while crossing det M = 0 (6 of the first 36
   pairs), and the null-space repair could not undo the crossing.  Different initial controls
