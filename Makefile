@@ -4,7 +4,7 @@ PYTHON ?= python3
 VENV := .venv
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: setup demo test test-all test-vcan lint bench clean
+.PHONY: setup demo test test-all test-vcan lint docs bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -33,6 +33,10 @@ lint: setup
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/mypy
 
+# The documentation site into site/; --strict turns every broken link or missing page into an error.
+docs: setup
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet
+
 # The bench runs cyclictest (Debian rt-tests) beside each case for the machine's floor: installed
 # here when missing and this is root, as tests/vcan/run installs its tools; else the bench says so.
 bench: setup
@@ -41,4 +45,4 @@ bench: setup
 	$(VENV)/bin/cheope bench $(BENCH_ARGS)
 
 clean:
-	rm -rf $(VENV) *.egg-info .pytest_cache .hypothesis
+	rm -rf $(VENV) *.egg-info .pytest_cache .hypothesis site
