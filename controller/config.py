@@ -194,7 +194,7 @@ class SafetySection(Section, frozen=True):
     on_foreign_nmt: Reaction = Reaction("fault")  # someone else's NMT command to our nodes
     on_foreign_command: Reaction = Reaction("fault")  # someone else's RPDO or SDO to our drives
     # A device's TPDO twice in one answer window: the sample is never used (as if missing); this is
-    # what to do about a second sender on the bus (README, "A bus that cannot lie": why "fault").
+    # what to do about a second sender on the bus (docs/concepts/supervision.md: why "fault").
     on_duplicate_frames: Reaction = Reaction("fault")
     on_rejected_frames: Reaction = Reaction("warn")  # a configured node's frame of the wrong length (per burst)
     on_frame_flood: Reaction = Reaction("fault")

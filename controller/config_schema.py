@@ -4,7 +4,7 @@ A section is a frozen ``Section`` (a msgspec Struct that refuses unknown keys); 
 type carries its allowed range (``Annotated[float, rng(0.0, 10.0)]``), choices are ``Literal``
 or a ``StrEnum``. ``convert_section`` turns a TOML table into the section, or raises a
 ``ConfigError`` that names the dotted key, the value and what is allowed. msgspec does the type
-and range checks (README, "Design decisions": why msgspec, and its start-up cost).
+and range checks (docs/dependencies.md: why msgspec, and its start-up cost).
 """
 
 from __future__ import annotations

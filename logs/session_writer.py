@@ -3,7 +3,7 @@
 Why a process and not a thread: the MCAP writer, the Protobuf messages of every CAN frame and
 the compression are pure-Python work of about 150 µs per 1 kHz cycle. On a thread it holds the
 GIL the loop thread needs the moment it wakes; at 1 kHz that alone took the period error p99
-from 37 µs to 634 µs (README, "Speed"). In its own process it has its own GIL and the loop only
+from 37 µs to 634 µs (docs/measurements/speed.md). In its own process it has its own GIL and the loop only
 pays for turning a cycle into bytes and one ``write`` to a pipe (logs/recorder.py).
 
 The wire format, loop -> writer, on the writer's standard input: records of a 4-byte

@@ -39,7 +39,7 @@ structure's damping in cheope.toml are set for it):
   smaller force ripple), magnet pitches of a few centimetres. Cheope's motors are not
   documented in seed 001; the default, 2 N (about 1 % of a 200 N motor) with the three magnet
   tracks mounted 120 deg apart, is the force-type disturbance through which the structure's
-  compliance shows in the contour's force error (README, "Contour tracking").
+  compliance shows in the contour's force error (docs/concepts/contour-tracking.md).
 - ``sim.structure_inertial_load``: the deflection is measured from the kinematic TCP, which
   accelerates with the drives, so M (s_kin'' + x'') = F - K x - D x'; s_kin'' = J^-1 q''
   (the J' s' term, about v^2 / rod length, is left out). Off, the tool follows the kinematic

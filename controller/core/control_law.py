@@ -493,7 +493,7 @@ class ControlLaw:
 
         The position was sampled at this cycle's SYNC, where the drive reached the setpoint of two
         steps ago; ``state.setpoint`` is the last step's, aimed one period later (the cycle in
-        README): the expected position is that setpoint taken back one period along its own
+        docs/concepts/cycle.md): the expected position is that setpoint taken back one period along its own
         motion, q - v T + a T^2 / 2. Against the last setpoint itself a drive at full speed would
         lag by v T: 20 mm at 0.5 m/s and 25 Hz, twice the default window.
         """

@@ -7,7 +7,7 @@ end to the put that costs 38 µs p50, 169 µs p99 with a monitor in another proc
 (``pytest tests/tools/bench_monitoring_latency.py -m bench -s``), on the published cycles only (one
 in 20 at 1 kHz), after the RPDOs have gone out. It used to be a publisher thread fed by a
 queue: that thread, waking for each sample, took the GIL the loop needed when its deadline
-came (README, "Speed"). Zenoh's own threads are Rust and need no GIL.
+came (docs/measurements/speed.md). Zenoh's own threads are Rust and need no GIL.
 
 Zenoh entities under ``<key_prefix>/<robot_id>/`` (see zenoh_session.py): ``state``,
 ``events``, the liveliness token ``alive``, and two queryables. ``status`` answers a Status;

@@ -5,7 +5,7 @@ section (``[robot.<kind>]``), the factory of its model, its actuators' unit and 
 default task, its shipped configuration file, and, named by module path so that the runtime
 does not import them, its simulator hook (``sim_backend``) and its analysis plots (tools).
 The three robots of the papers are registered in ``controller/robots/builtin.py``; a new
-robot is a model file and one ``register_robot`` call (README, "Adding a robot").
+robot is a model file and one ``register_robot`` call (docs/tutorial/own-robot.md).
 """
 
 from __future__ import annotations

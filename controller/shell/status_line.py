@@ -10,7 +10,7 @@ cycle and every ``interval_s`` writes one JSON line to a pipe with one non-block
 (``python -m controller.shell.status_line``) reads the lines and draws them with rich's ``Live``
 on the terminal the controller was started from; it ends at the end of its input, erasing the
 line, before the summary is printed. A process and not a thread for the same reason as the
-recorder's writer (README, Design decisions): a thread drawing with rich would take the GIL the
+recorder's writer (docs/concepts/design-decisions.md): a thread drawing with rich would take the GIL the
 loop needs at its deadlines.
 """
 

@@ -9,7 +9,7 @@ stops it with SIGTERM (the service's orderly stop) and reads its JSON summary. P
   loop's ring are not a leak), with the RSS at the warm-up's end and at the end;
 - late cycles per 10 000 (the summary's ``late_cycles`` over its ``cycles``), final mode and
   exit status (SIGTERM must end in DONE, exit 0).
-A benchmark, not a test: its figures depend on the machine (see README, "Soak").
+A benchmark, not a test: its figures depend on the machine (docs/guides/service.md).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""A fourth robot, registered from this one file: what README "Adding a robot" promises.
+"""A fourth robot, registered from this one file: what docs/tutorial/own-robot.md promises.
 
 A toy Cartesian gantry (three orthogonal linear axes: the TCP is the axes' positions plus an
 offset) with its configuration section, its model, its simulator hook and its registry entry,

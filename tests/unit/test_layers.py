@@ -1,4 +1,4 @@
-"""The layers the README's table describes, checked on the code's own imports (ast, no import).
+"""The layers the README's folder table describes, checked on the code's own imports (ast, no import).
 
 - no import cycle among the modules' top-level imports;
 - the pure core (controller/core) does no I/O: it imports neither the shell, the tools, the
