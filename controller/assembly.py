@@ -18,11 +18,19 @@ from drivers.bus_load import BusLoad, compute_bus_load, cyclic_frames
 
 def planned_bus_load(cfg: Config) -> BusLoad:
     """The cyclic traffic's share of the bus (drivers/bus_load.py), checked before anything opens."""
-    frames = cyclic_frames(cfg.loop.rate_hz, len(cfg.actuators.node_ids), cfg.sensor.enabled,
-                           1.0 / cfg.loop.heartbeat_period_s,
-                           tracker_hz=cfg.tracker.rate_hz if cfg.tracker.enabled else 0.0)
-    return compute_bus_load(frames, cfg.bus.bitrate_bit_s, fd=cfg.bus.fd,
-                            data_bit_s=cfg.bus.data_bitrate_bit_s if cfg.bus.fd else None)
+    frames = cyclic_frames(
+        cfg.loop.rate_hz,
+        len(cfg.actuators.node_ids),
+        cfg.sensor.enabled,
+        1.0 / cfg.loop.heartbeat_period_s,
+        tracker_hz=cfg.tracker.rate_hz if cfg.tracker.enabled else 0.0,
+    )
+    return compute_bus_load(
+        frames,
+        cfg.bus.bitrate_bit_s,
+        fd=cfg.bus.fd,
+        data_bit_s=cfg.bus.data_bitrate_bit_s if cfg.bus.fd else None,
+    )
 
 
 def build_robot(cfg: Config) -> Robot:
@@ -41,15 +49,24 @@ def safety_config(cfg: Config) -> SafetyConfig:
     s = cfg.safety
     rotary = actuator_units(cfg).unit == ActuatorUnit.RADIAN
     return SafetyConfig(
-        max_contact_force_n=s.max_contact_force_n, sensor_stale_cycles=s.sensor_stale_cycles,
-        on_sensor_stale=s.on_sensor_stale, on_sensor_saturated=s.on_sensor_saturated,
-        on_heartbeat_lost=s.on_heartbeat_lost, on_error_frames=s.on_error_frames,
-        max_consecutive_late_cycles=s.max_consecutive_late_cycles, on_late_cycles=s.on_late_cycles,
+        max_contact_force_n=s.max_contact_force_n,
+        sensor_stale_cycles=s.sensor_stale_cycles,
+        on_sensor_stale=s.on_sensor_stale,
+        on_sensor_saturated=s.on_sensor_saturated,
+        on_heartbeat_lost=s.on_heartbeat_lost,
+        on_error_frames=s.on_error_frames,
+        max_consecutive_late_cycles=s.max_consecutive_late_cycles,
+        on_late_cycles=s.on_late_cycles,
         max_position_jump=s.max_position_jump_rad if rotary else s.max_position_jump_m,
         following_window=s.following_window_rad if rotary else s.following_window_m,
-        on_unknown_node=s.on_unknown_node, on_foreign_sync=s.on_foreign_sync, on_foreign_nmt=s.on_foreign_nmt,
-        on_foreign_command=s.on_foreign_command, on_duplicate_frames=s.on_duplicate_frames,
-        on_rejected_frames=s.on_rejected_frames, on_frame_flood=s.on_frame_flood)
+        on_unknown_node=s.on_unknown_node,
+        on_foreign_sync=s.on_foreign_sync,
+        on_foreign_nmt=s.on_foreign_nmt,
+        on_foreign_command=s.on_foreign_command,
+        on_duplicate_frames=s.on_duplicate_frames,
+        on_rejected_frames=s.on_rejected_frames,
+        on_frame_flood=s.on_frame_flood,
+    )
 
 
 def position_plausibility(cfg: Config) -> tuple[float, float]:
@@ -70,14 +87,22 @@ def assemble(cfg: Config, robot: Robot | None = None) -> Assembly:
     a = actuator_units(cfg)  # m or rad
     n = robot.n_actuators
     limits = AxisLimits((a.max_velocity,) * n, (a.max_acceleration,) * n, (a.max_jerk,) * n)
-    law_cfg = LawConfig(period_s=cfg.period_s, enable_timeout_s=cfg.loop.enable_timeout_s,
-                        hold_before_task_s=cfg.loop.hold_before_task_s,
-                        max_missing_cycles=cfg.loop.max_missing_cycles,
-                        settle_tolerance=cfg.loop.settle_tolerance_m, safety=safety_config(cfg),
-                        max_speed=a.max_velocity, position_unit=a.unit.value,
-                        rest_target=0.5 * (a.stroke_min + a.stroke_max), drive_node_ids=tuple(cfg.actuators.node_ids),
-                        sensor_in_task=task_entry(cfg.task.kind).uses_force_sensor)
-    return Assembly(ControlLaw(robot, built.task, RuckigSmoother(limits, cfg.period_s), law_cfg), built.reports)
+    law_cfg = LawConfig(
+        period_s=cfg.period_s,
+        enable_timeout_s=cfg.loop.enable_timeout_s,
+        hold_before_task_s=cfg.loop.hold_before_task_s,
+        max_missing_cycles=cfg.loop.max_missing_cycles,
+        settle_tolerance=cfg.loop.settle_tolerance_m,
+        safety=safety_config(cfg),
+        max_speed=a.max_velocity,
+        position_unit=a.unit.value,
+        rest_target=0.5 * (a.stroke_min + a.stroke_max),
+        drive_node_ids=tuple(cfg.actuators.node_ids),
+        sensor_in_task=task_entry(cfg.task.kind).uses_force_sensor,
+    )
+    return Assembly(
+        ControlLaw(robot, built.task, RuckigSmoother(limits, cfg.period_s), law_cfg), built.reports
+    )
 
 
 def build_law(cfg: Config, robot: Robot | None = None) -> ControlLaw:

@@ -38,50 +38,80 @@ def _config_help(robots: tuple[str, ...]) -> str:
     if len(robots) == 1:
         return f"TOML configuration (default: the shipped controller/configs/{files[robots[0]]})"
     per_robot = ", ".join(f"{name} for --robot {kind}" for kind, name in files.items())
-    return (f"TOML configuration (default: the shipped file of --robot in controller/configs/: {per_robot}; "
-            f"without --robot: cheope.toml)")
+    return (
+        f"TOML configuration (default: the shipped file of --robot in controller/configs/: {per_robot}; "
+        f"without --robot: cheope.toml)"
+    )
 
 
 def _common(ap: argparse.ArgumentParser, bus: bool = True, robots: tuple[str, ...] | None = None) -> None:
     """``robots``: the --robot choices the command accepts (all registered robots when None)."""
     robots = robots or robot_kinds()
     ap.add_argument("--config", help=_config_help(robots))
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="override a configuration key, e.g. --set loop.rate_hz=1000 (repeatable)")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a configuration key, e.g. --set loop.rate_hz=1000 (repeatable)",
+    )
     ap.add_argument("--rate", type=float, help="loop rate [Hz] (same as --set loop.rate_hz=...)")
-    ap.add_argument("--robot", choices=robots,
-                    help="the robot: loads its shipped configuration unless --config is given "
-                         "(then sets robot.kind)")
+    ap.add_argument(
+        "--robot",
+        choices=robots,
+        help="the robot: loads its shipped configuration unless --config is given (then sets robot.kind)",
+    )
     if bus:
-        ap.add_argument("--can", help="INTERFACE[:CHANNEL]: socketcan:vcan0, udp_multicast, virtual:x "
-                                      "(default: the config's bus.can)")
+        ap.add_argument(
+            "--can",
+            help="INTERFACE[:CHANNEL]: socketcan:vcan0, udp_multicast, virtual:x "
+            "(default: the config's bus.can)",
+        )
         ap.add_argument("--udp-port", type=int, help="UDP port of the udp_multicast bus")
         ap.add_argument("--fd", action="store_true", help="use CAN FD frames")
-        ap.add_argument("--inject", action="append", metavar="FAULT",
-                        help="simulator fault, KIND[:NODE][=VALUE]@START[+DURATION], e.g. drop:2@3+0.5 "
-                             "(repeatable; see sim_backend/fault_injection.py)")
+        ap.add_argument(
+            "--inject",
+            action="append",
+            metavar="FAULT",
+            help="simulator fault, KIND[:NODE][=VALUE]@START[+DURATION], e.g. drop:2@3+0.5 "
+            "(repeatable; see sim_backend/fault_injection.py)",
+        )
 
 
 def _rt_options(ap: argparse.ArgumentParser) -> None:
     g = ap.add_argument_group(
         "real-time options (Linux). Without any of them the loop asks for SCHED_FIFO 80 on the last CPU "
         "with locked memory (the simulator: SCHED_FIFO 70 on the others) and runs on with one line of "
-        "warning where refused; given explicitly they are required")
+        "warning where refused; given explicitly they are required"
+    )
     g.add_argument("--rt-priority", type=int, metavar="N", help="SCHED_FIFO priority 1..99 for the loop")
     g.add_argument("--cpu", metavar="CPUS", help="CPU affinity, e.g. 1 or 0,1")
     g.add_argument("--lock-memory", action="store_true", help="mlockall: no page faults on the hot path")
     g.add_argument("--no-realtime", action="store_true", help="ask for none of them: the normal scheduler")
-    g.add_argument("--rt-best-effort", action="store_true",
-                   help="apply the options given where permitted, warn and run on where not")
+    g.add_argument(
+        "--rt-best-effort",
+        action="store_true",
+        help="apply the options given where permitted, warn and run on where not",
+    )
 
 
 def _live_options(ap: argparse.ArgumentParser) -> None:
     g = ap.add_argument_group("live views, fed by the recording's writer process (logs/live_views.py)")
-    g.add_argument("--rerun", nargs="?", const="spawn", metavar="WHERE",
-                   help="stream the session to Rerun: spawn (a viewer, the default), serve (gRPC + web viewer "
-                        "for a browser) or a rerun+http://HOST:PORT/proxy URL")
-    g.add_argument("--foxglove", nargs="?", const="127.0.0.1:8765", metavar="HOST:PORT",
-                   help="serve the session over the Foxglove WebSocket protocol (default 127.0.0.1:8765)")
+    g.add_argument(
+        "--rerun",
+        nargs="?",
+        const="spawn",
+        metavar="WHERE",
+        help="stream the session to Rerun: spawn (a viewer, the default), serve (gRPC + web viewer "
+        "for a browser) or a rerun+http://HOST:PORT/proxy URL",
+    )
+    g.add_argument(
+        "--foxglove",
+        nargs="?",
+        const="127.0.0.1:8765",
+        metavar="HOST:PORT",
+        help="serve the session over the Foxglove WebSocket protocol (default 127.0.0.1:8765)",
+    )
 
 
 def _live_overrides(args: argparse.Namespace) -> list[str]:
@@ -104,8 +134,12 @@ def _realtime(args: argparse.Namespace, simulator: bool = False) -> RealtimeOpti
     if not explicit:
         default = RealtimeOptions.default()
         return default.for_simulator() if simulator else default
-    return RealtimeOptions(priority=args.rt_priority, cpus=parse_cpus(args.cpu) if args.cpu else (),
-                           lock_memory=args.lock_memory, required=not args.rt_best_effort)
+    return RealtimeOptions(
+        priority=args.rt_priority,
+        cpus=parse_cpus(args.cpu) if args.cpu else (),
+        lock_memory=args.lock_memory,
+        required=not args.rt_best_effort,
+    )
 
 
 def _overrides(args: argparse.Namespace) -> list[str]:
@@ -139,8 +173,9 @@ def _spec(args: argparse.Namespace, cfg: Config, default_port: int | None = None
     """The bus of the options, else the configuration's (commands without bus options: its alone)."""
     # 0 is a value (refused by parse_bus_spec), not "not given"
     port = next(p for p in (getattr(args, "udp_port", None), default_port, cfg.bus.udp_port) if p is not None)
-    return parse_bus_spec(getattr(args, "can", None) or cfg.bus.can, fd=getattr(args, "fd", False) or cfg.bus.fd,
-                          udp_port=port)
+    return parse_bus_spec(
+        getattr(args, "can", None) or cfg.bus.can, fd=getattr(args, "fd", False) or cfg.bus.fd, udp_port=port
+    )
 
 
 def _stop_on_signals() -> threading.Event:
@@ -157,49 +192,68 @@ def _print_summary(summary: dict[str, Any], as_json: bool) -> None:
         return
     pe, te = summary["period_error_us"], summary["tracking_error_m"]
     lines = [
-        f"final mode          {summary['final_mode']}" + (f" ({summary['fault_reason']})" if summary["fault_reason"] else ""),
+        f"final mode          {summary['final_mode']}"
+        + (f" ({summary['fault_reason']})" if summary["fault_reason"] else ""),
         f"bus                 {summary['bus']}, planned load {summary['bus_load_percent']:.1f} %",
-        (f"loop rate           {summary['achieved_rate_hz']:.2f} Hz achieved of {summary['nominal_rate_hz']:.0f} Hz, "
-         f"{summary['cycles']} cycles"),
+        (
+            f"loop rate           {summary['achieved_rate_hz']:.2f} Hz achieved of {summary['nominal_rate_hz']:.0f} Hz, "
+            f"{summary['cycles']} cycles"
+        ),
         f"period error        p50 {pe['p50']:.0f} us, p99 {pe['p99']:.0f} us, max {pe['max']:.0f} us",
-        (f"observers           p99 {summary['observers_us']['p99']:.0f} us, "
-         f"max {summary['observers_us']['max']:.0f} us (recorder, publisher: they must only hand off)"),
+        (
+            f"observers           p99 {summary['observers_us']['p99']:.0f} us, "
+            f"max {summary['observers_us']['max']:.0f} us (recorder, publisher: they must only hand off)"
+        ),
         f"late cycles         {summary['late_cycles']} (overruns {summary['overruns']})",
         f"real-time           {summary.get('realtime', 'none')}",
         f"missing frames      drives {summary['missing_frames']['drive']}, sensor {summary['missing_frames']['sensor']}",
     ]
     if te["rms"] is not None:
-        lines.append(f"tracking error      RMS {te['rms'] * 1e6:.1f} um, max {te['max'] * 1e6:.1f} um "
-                     f"({te['samples']} samples)")
+        lines.append(
+            f"tracking error      RMS {te['rms'] * 1e6:.1f} um, max {te['max'] * 1e6:.1f} um "
+            f"({te['samples']} samples)"
+        )
     contour = summary.get("contour")
     if contour:
-        lines.append("contour tracking    lap  speed cmd/achieved [mm/s]  force error RMS/max [N]  contact losses")
+        lines.append(
+            "contour tracking    lap  speed cmd/achieved [mm/s]  force error RMS/max [N]  contact losses"
+        )
         for lap in contour["laps"]:
             cmd = lap["speed_commanded_m_s"]
-            lines.append(f"                    {lap['lap']:>3}  {cmd * 1000 if cmd else float('nan'):>8.1f} / "
-                         f"{lap['speed_achieved_m_s'] * 1000:<8.1f}        {lap['force_error_rms_n']:>6.2f} / "
-                         f"{lap['force_error_max_n']:<6.2f}          {lap['contact_losses']}")
-        lines.append(f"force error vs normal stiffness: correlation "
-                     f"{contour['force_error_vs_normal_stiffness_correlation']}, RMS soft half / stiff half "
-                     f"{contour['force_error_rms_soft_over_stiff']}")
+            lines.append(
+                f"                    {lap['lap']:>3}  {cmd * 1000 if cmd else float('nan'):>8.1f} / "
+                f"{lap['speed_achieved_m_s'] * 1000:<8.1f}        {lap['force_error_rms_n']:>6.2f} / "
+                f"{lap['force_error_max_n']:<6.2f}          {lap['contact_losses']}"
+            )
+        lines.append(
+            f"force error vs normal stiffness: correlation "
+            f"{contour['force_error_vs_normal_stiffness_correlation']}, RMS soft half / stiff half "
+            f"{contour['force_error_rms_soft_over_stiff']}"
+        )
     cmp = summary.get("position_control_comparison")
     if cmp and cmp.get("laps"):
         lap = cmp["laps"][0]
-        lines.append(f"position control    same contour at {cmp['speed_m_s'] * 1000:.0f} mm/s: force error RMS "
-                     f"{lap['force_error_rms_n']:.2f} N, max {lap['force_error_max_n']:.2f} N, "
-                     f"contact losses {lap['contact_losses']} ({cmp['final_mode']})")
+        lines.append(
+            f"position control    same contour at {cmp['speed_m_s'] * 1000:.0f} mm/s: force error RMS "
+            f"{lap['force_error_rms_n']:.2f} N, max {lap['force_error_max_n']:.2f} N, "
+            f"contact losses {lap['contact_losses']} ({cmp['final_mode']})"
+        )
     if "position_error_m" in summary:  # the 3-nSPU: the reached pose against the goal
         plan, lte = summary["plan"], summary["leg_tracking_error_m"]
-        lines.append(f"plan                {plan['status']}, {plan['iterations']} iterations, error "
-                     f"{plan['final_error']:.2e}, {plan['planning_time_s']} s; streamed in "
-                     f"{plan['streamed_duration_s']:.3f} s")
+        lines.append(
+            f"plan                {plan['status']}, {plan['iterations']} iterations, error "
+            f"{plan['final_error']:.2e}, {plan['planning_time_s']} s; streamed in "
+            f"{plan['streamed_duration_s']:.3f} s"
+        )
         if lte["rms"] is not None:
             lines.append(f"leg tracking error  RMS {lte['rms'] * 1e6:.1f} um, max {lte['max'] * 1e6:.1f} um")
         if summary["position_error_m"] is not None:
-            lines.append(f"reached vs goal     position {summary['position_error_m'] * 1e6:.1f} um, angle "
-                         f"{summary['angle_error_rad'] * 1e3:.3f} mrad (plan's own end error "
-                         f"{summary['plan_end_position_error_m'] * 1e6:.1f} um, "
-                         f"{summary['plan_end_angle_error_rad'] * 1e3:.3f} mrad)")
+            lines.append(
+                f"reached vs goal     position {summary['position_error_m'] * 1e6:.1f} um, angle "
+                f"{summary['angle_error_rad'] * 1e3:.3f} mrad (plan's own end error "
+                f"{summary['plan_end_position_error_m'] * 1e6:.1f} um, "
+                f"{summary['plan_end_angle_error_rad'] * 1e3:.3f} mrad)"
+            )
         lines.append(f"why                 {summary['explanation']}")
     for p in summary.get("plots", []):
         lines.append(f"plot                {p}")
@@ -237,8 +291,17 @@ def cmd_demo(args: argparse.Namespace) -> int:
         return 0 if summary["final_mode"] == "DONE" else 1
     spec = _spec(args, cfg, default_port=random_udp_port())
     with live_status(status_wanted(args.json, sys.stdout)) as status:
-        summary = run_demo(cfg, spec, _config_path(args), _overrides(args), args.max_duration, _stop_on_signals(),
-                           Path(args.plot) if args.plot else None, _realtime(args), _status_observers(status, cfg))
+        summary = run_demo(
+            cfg,
+            spec,
+            _config_path(args),
+            _overrides(args),
+            args.max_duration,
+            _stop_on_signals(),
+            Path(args.plot) if args.plot else None,
+            _realtime(args),
+            _status_observers(status, cfg),
+        )
     _print_summary(summary, args.json)
     return 0 if summary["final_mode"] == "DONE" else 1
 
@@ -248,12 +311,21 @@ def cmd_run(args: argparse.Namespace) -> int:
     from controller.shell.stop_signals import install_stop_signals
 
     if args.max_duration is not None and not args.max_duration > 0:
-        raise ConfigError(f"--max-duration {args.max_duration:g}: must be > 0 (leave it out to run until stopped)")
+        raise ConfigError(
+            f"--max-duration {args.max_duration:g}: must be > 0 (leave it out to run until stopped)"
+        )
     cfg = _config(args)
     signals = install_stop_signals()
     with live_status(status_wanted(args.json, sys.stdout)) as status:
-        summary = run_controller(cfg, _spec(args, cfg), args.max_duration, signals.stop, realtime=_realtime(args),
-                                 quick_stop_event=signals.quick_stop, observers=_status_observers(status, cfg))
+        summary = run_controller(
+            cfg,
+            _spec(args, cfg),
+            args.max_duration,
+            signals.stop,
+            realtime=_realtime(args),
+            quick_stop_event=signals.quick_stop,
+            observers=_status_observers(status, cfg),
+        )
     _print_summary(summary, args.json)
     return run_exit_code(summary)
 
@@ -280,8 +352,13 @@ def cmd_sim(args: argparse.Namespace) -> int:
     from sim_backend.process import serve
 
     cfg = _config(args)
-    serve(cfg, _spec(args, cfg), _stop_on_signals(), lambda line: print(line, flush=True),
-          _realtime(args, simulator=True))
+    serve(
+        cfg,
+        _spec(args, cfg),
+        _stop_on_signals(),
+        lambda line: print(line, flush=True),
+        _realtime(args, simulator=True),
+    )
     return 0
 
 
@@ -294,16 +371,30 @@ def cmd_bus_load(args: argparse.Namespace) -> int:
     load = prepare(cfg, _spec(args, cfg), enforce_load_limit=False).bus_load
     ok = load.percent <= cfg.bus.max_load_percent
     if args.json:
-        print(strict_json({"load_percent": load.percent, "limit_percent": cfg.bus.max_load_percent, "ok": ok,
-                          "frames_per_second": load.frames_per_second, "fd": cfg.bus.fd,
-                          "frames": [f.__dict__ for f in load.frames]}))
+        print(
+            strict_json(
+                {
+                    "load_percent": load.percent,
+                    "limit_percent": cfg.bus.max_load_percent,
+                    "ok": ok,
+                    "frames_per_second": load.frames_per_second,
+                    "fd": cfg.bus.fd,
+                    "frames": [f.__dict__ for f in load.frames],
+                }
+            )
+        )
     else:
-        kind = f"CAN FD {cfg.bus.bitrate_bit_s / 1e6:g}/{cfg.bus.data_bitrate_bit_s / 1e6:g} Mbit/s" if cfg.bus.fd \
+        kind = (
+            f"CAN FD {cfg.bus.bitrate_bit_s / 1e6:g}/{cfg.bus.data_bitrate_bit_s / 1e6:g} Mbit/s"
+            if cfg.bus.fd
             else f"classical CAN {cfg.bus.bitrate_bit_s / 1e6:g} Mbit/s"
+        )
         print(f"{kind} at {cfg.loop.rate_hz:g} Hz, worst-case bit stuffing")
         for f in load.frames:
             print(f"  {f.name:<16} {f.n_bytes:>2} bytes  {f.rate_hz:>8.1f} frames/s")
-        print(f"load {load.percent:.1f} % (limit {cfg.bus.max_load_percent:g} %): {'OK' if ok else 'REFUSED'}")
+        print(
+            f"load {load.percent:.1f} % (limit {cfg.bus.max_load_percent:g} %): {'OK' if ok else 'REFUSED'}"
+        )
     return 0 if ok else 1
 
 
@@ -362,15 +453,20 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from controller.tools.analysis.robot_analysis import plan_nspu
 
     cfg = _nspu_config(args, "cheope plan plans the 3-nSPU's motion")
-    start, goal = paper_example_poses(cfg.robot.model("nspu").length_unit_m) if args.paper_example \
+    start, goal = (
+        paper_example_poses(cfg.robot.model("nspu").length_unit_m)
+        if args.paper_example
         else nspu_poses_from_config(cfg)
+    )
     if args.start:
         start = _pose_arg(args.start, "from")
     if args.goal:
         goal = _pose_arg(args.goal, "to")
     if args.no_type2_check:
-        print("cheope plan: warning: the type-II singularity check is off; the plan may cross det M = 0",
-              file=sys.stderr)
+        print(
+            "cheope plan: warning: the type-II singularity check is off; the plan may cross det M = 0",
+            file=sys.stderr,
+        )
     with progress_line("cheope plan") as progress:
         progress("planning")
         report = plan_nspu(cfg, start, goal, not args.no_type2_check, Path(args.plot) if args.plot else None)
@@ -386,6 +482,7 @@ def cmd_plan_bench(args: argparse.Namespace) -> int:
         raise ConfigError(f"--pairs {args.pairs}: must be >= 1")
     log = logging.getLogger("cheope.plan-bench")
     with progress_line("cheope plan-bench") as progress:
+
         def each_pair(line: str) -> None:
             log.info("%s", line)
             progress(f"{line}; pairs 0..{args.pairs - 1}")
@@ -401,7 +498,9 @@ def cmd_faults(args: argparse.Namespace) -> int:
     from controller.tools.fault_scenarios import format_table, run_all
 
     with progress_line("cheope faults") as progress:
-        rows = run_all(_config(args), Path(args.keep) if args.keep else None, tuple(args.only or ()), progress)
+        rows = run_all(
+            _config(args), Path(args.keep) if args.keep else None, tuple(args.only or ()), progress
+        )
     print(strict_json(rows) if args.json else format_table(rows))
     return 0 if all(r["as_expected"] and r["recording_complete"] for r in rows) else 1
 
@@ -424,15 +523,22 @@ def _contour_scan(args: argparse.Namespace) -> int:
 
     def progress(done: int, total: int, row: dict[str, object]) -> None:
         if sys.stderr.isatty():
-            print(f"\r{done}/{total} {str(row['scenario'])[:50]:<50} {row['outcome']}", end="", file=sys.stderr,
-                  flush=True)
+            print(
+                f"\r{done}/{total} {str(row['scenario'])[:50]:<50} {row['outcome']}",
+                end="",
+                file=sys.stderr,
+                flush=True,
+            )
 
     rows = run_scan(cfg, Path(args.keep) if args.keep else None, max(1, args.jobs), progress)
     if sys.stderr.isatty():
         print(file=sys.stderr)
     result = summary(rows, cfg.safety.max_contact_force_n)
-    print(json.dumps({"rows": rows, "summary": result}) if args.json
-          else format_table(rows, cfg.safety.max_contact_force_n))
+    print(
+        json.dumps({"rows": rows, "summary": result})
+        if args.json
+        else format_table(rows, cfg.safety.max_contact_force_n)
+    )
     return 0 if result["targets_met"] else 1
 
 
@@ -451,8 +557,13 @@ def _verbose_on_every_command(parser: argparse.ArgumentParser) -> None:
             continue
         for sub in {id(p): p for p in action.choices.values()}.values():
             if "-v" not in sub._option_string_actions:
-                sub.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
-                                 help="log to stderr (also before the command)")
+                sub.add_argument(
+                    "-v",
+                    "--verbose",
+                    action="store_true",
+                    default=argparse.SUPPRESS,
+                    help="log to stderr (also before the command)",
+                )
             _verbose_on_every_command(sub)
 
 
@@ -465,26 +576,40 @@ def build_parser() -> argparse.ArgumentParser:
     add_controller_options(p)
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--max-duration", type=float, default=600.0, help="stop after this many seconds")
-    p.add_argument("--task", choices=task_kinds(),
-                   help="the task (default: the robot's first, Cheope's contour, or the --config file's): contour runs the "
-                        "paper's force-controlled contour tracking, then the same contour under position control; "
-                        "path: once around the configured circle; planned: the 3-nSPU's planned motion")
+    p.add_argument(
+        "--task",
+        choices=task_kinds(),
+        help="the task (default: the robot's first, Cheope's contour, or the --config file's): contour runs the "
+        "paper's force-controlled contour tracking, then the same contour under position control; "
+        "path: once around the configured circle; planned: the 3-nSPU's planned motion",
+    )
     p.add_argument("--plot", metavar="DIR", help="write the contour experiment's PNG plots here")
-    p.add_argument("--simulated-time", action="store_true",
-                   help="with --task contour: run the laps against the in-process devices in simulated time "
-                        "(deterministic, no bus, no simulator process)")
+    p.add_argument(
+        "--simulated-time",
+        action="store_true",
+        help="with --task contour: run the laps against the in-process devices in simulated time "
+        "(deterministic, no bus, no simulator process)",
+    )
     _live_options(p)
     _rt_options(p)  # the simulator gets the priority minus 10 and the same memory locking
     p.set_defaults(func=cmd_demo)
-    p = sub.add_parser("run", help="only the controller, against whatever devices are on the bus",
-                       description="Run the controller until its task ends or it is told to stop (SIGTERM, "
-                                   "SIGINT, cheope stop, --max-duration); a second signal quick-stops the drives.",
-                       epilog=RUN_EXIT_CODES)
+    p = sub.add_parser(
+        "run",
+        help="only the controller, against whatever devices are on the bus",
+        description="Run the controller until its task ends or it is told to stop (SIGTERM, "
+        "SIGINT, cheope stop, --max-duration); a second signal quick-stops the drives.",
+        epilog=RUN_EXIT_CODES,
+    )
     _common(p)
     add_controller_options(p)
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    p.add_argument("--max-duration", type=float, default=None, metavar="SECONDS",
-                   help="stop (through STOPPING: brake, disable the drives) after this long; default: run until stopped")
+    p.add_argument(
+        "--max-duration",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="stop (through STOPPING: brake, disable the drives) after this long; default: run until stopped",
+    )
     _live_options(p)
     _rt_options(p)
     p.set_defaults(func=cmd_run)
@@ -492,20 +617,30 @@ def build_parser() -> argparse.ArgumentParser:
     _common(p)
     _rt_options(p)
     p.set_defaults(func=cmd_sim)
-    p = sub.add_parser("faults", help="inject every handled fault into the simulated devices; table of reactions")
+    p = sub.add_parser(
+        "faults", help="inject every handled fault into the simulated devices; table of reactions"
+    )
     _common(p, bus=False)
     p.add_argument("--json", action="store_true", help="print the rows as one JSON array")
     p.add_argument("--only", action="append", metavar="SCENARIO", help="run only this scenario (repeatable)")
     p.add_argument("--keep", metavar="DIR", help="keep the scenarios' recordings in DIR")
-    p.add_argument("--contour-scan", action="store_true",
-                   help="instead: the contour task against force spikes, a notch, a bump, a drifting bias, stale and "
-                        "spoofed samples, in simulated time (controller/tools/contour_scan.py); exit 1 unless no run "
-                        "exceeds safety.max_contact_force_n, 95 %% end DONE and the rest retract with a named cause")
-    p.add_argument("--contour-shapes", action="store_true",
-                   help="instead: 3 laps at 40 mm/s on each workpiece shape (disk, ellipse, rounded rectangle, rounded "
-                        "star, kidney), in simulated time; exit 1 unless each ends DONE without contact loss, force "
-                        "error RMS <= 1 N, under the limit")
-    p.add_argument("--jobs", type=int, default=1, help="with --contour-scan: scenarios run in this many processes")
+    p.add_argument(
+        "--contour-scan",
+        action="store_true",
+        help="instead: the contour task against force spikes, a notch, a bump, a drifting bias, stale and "
+        "spoofed samples, in simulated time (controller/tools/contour_scan.py); exit 1 unless no run "
+        "exceeds safety.max_contact_force_n, 95 %% end DONE and the rest retract with a named cause",
+    )
+    p.add_argument(
+        "--contour-shapes",
+        action="store_true",
+        help="instead: 3 laps at 40 mm/s on each workpiece shape (disk, ellipse, rounded rectangle, rounded "
+        "star, kidney), in simulated time; exit 1 unless each ends DONE without contact loss, force "
+        "error RMS <= 1 N, under the limit",
+    )
+    p.add_argument(
+        "--jobs", type=int, default=1, help="with --contour-scan: scenarios run in this many processes"
+    )
     p.set_defaults(func=cmd_faults)
     p = sub.add_parser("bus-load", help="bus load of the configured cycle")
     _common(p, bus=False)
@@ -518,30 +653,54 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_analyze)
     p = sub.add_parser("plan", help="3-nSPU: plan a non-holonomic motion (seed 004) and report it")
     _common(p, bus=False, robots=NSPU_ONLY)
-    p.add_argument("--from", dest="start", metavar="X,Y,Z,ROLL,PITCH,YAW",
-                   help="start pose [m, rad] (default: the config's robot.nspu.start_*)")
-    p.add_argument("--to", dest="goal", metavar="X,Y,Z,ROLL,PITCH,YAW",
-                   help="goal pose [m, rad] (default: the config's robot.nspu.goal_*)")
-    p.add_argument("--paper-example", action="store_true",
-                   help="seed 004 section 4: (0,0,25) aul RPY(0,0,-pi/6) -> (-0.4,-0.2,35) aul RPY(0,0,-pi/2)")
-    p.add_argument("--no-type2-check", action="store_true",
-                   help="allow plans crossing the type-II singularity det M = 0 (the paper's assumptions; warns)")
-    p.add_argument("--json", action="store_true", help="print the report as one JSON object (strict: null for NaN)")
+    p.add_argument(
+        "--from",
+        dest="start",
+        metavar="X,Y,Z,ROLL,PITCH,YAW",
+        help="start pose [m, rad] (default: the config's robot.nspu.start_*)",
+    )
+    p.add_argument(
+        "--to",
+        dest="goal",
+        metavar="X,Y,Z,ROLL,PITCH,YAW",
+        help="goal pose [m, rad] (default: the config's robot.nspu.goal_*)",
+    )
+    p.add_argument(
+        "--paper-example",
+        action="store_true",
+        help="seed 004 section 4: (0,0,25) aul RPY(0,0,-pi/6) -> (-0.4,-0.2,35) aul RPY(0,0,-pi/2)",
+    )
+    p.add_argument(
+        "--no-type2-check",
+        action="store_true",
+        help="allow plans crossing the type-II singularity det M = 0 (the paper's assumptions; warns)",
+    )
+    p.add_argument(
+        "--json", action="store_true", help="print the report as one JSON object (strict: null for NaN)"
+    )
     p.add_argument("--plot", metavar="DIR", help="write the plan's PNG plots here")
     p.set_defaults(func=cmd_plan)
-    p = sub.add_parser("plan-bench", help="3-nSPU: the planner over random seeded pose pairs; success, time, error")
+    p = sub.add_parser(
+        "plan-bench", help="3-nSPU: the planner over random seeded pose pairs; success, time, error"
+    )
     _common(p, bus=False, robots=NSPU_ONLY)
     p.add_argument("--pairs", type=int, default=100, help="number of pose pairs (default 100)")
     p.add_argument("--seed", type=int, default=0, help="seed of the pairs (default 0)")
-    p.add_argument("--json", action="store_true", help="print the report as one JSON object (strict: null for NaN)")
+    p.add_argument(
+        "--json", action="store_true", help="print the report as one JSON object (strict: null for NaN)"
+    )
     p.set_defaults(func=cmd_plan_bench)
-    p = sub.add_parser("bench", help="timing benchmark with the simulator: 400 Hz and 1 kHz, table, JSON, PNG")
+    p = sub.add_parser(
+        "bench", help="timing benchmark with the simulator: 400 Hz and 1 kHz, table, JSON, PNG"
+    )
     from controller.tools.bench import add_bench_arguments
 
     add_bench_arguments(p)
     _rt_options(p)
     p.set_defaults(func=cmd_bench)
-    p = sub.add_parser("soak", help="a long run of cheope sim + cheope run: controller RSS slope, late cycles per 10 000")
+    p = sub.add_parser(
+        "soak", help="a long run of cheope sim + cheope run: controller RSS slope, late cycles per 10 000"
+    )
     from controller.tools.soak import add_soak_arguments
 
     add_soak_arguments(p)
@@ -560,8 +719,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING,
+        format="%(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
     try:
         code: int = args.func(args)
         return code

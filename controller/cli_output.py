@@ -43,8 +43,9 @@ def strict_json(value: Any, indent: int | None = None) -> str:
 class ProgressLine:
     """``label: 12 s  TEXT`` on ``stream``, redrawn every ``TICK_S`` and on ``update``; silent off a terminal."""
 
-    def __init__(self, label: str, stream: IO[str] | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self, label: str, stream: IO[str] | None = None, clock: Callable[[], float] = time.monotonic
+    ) -> None:
         self.stream = stream if stream is not None else sys.stderr
         self.label = label
         self.enabled = self.stream.isatty()

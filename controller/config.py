@@ -138,12 +138,16 @@ class BusSection(Section, frozen=True):
     # Who sends SYNC: "loop" (the cycle sends RPDOs then SYNC) or "kernel" (SocketCAN only: the
     # kernel's broadcast manager sends SYNC every period; the loop sends the RPDOs ahead of it).
     sync_producer: Literal["loop", "kernel"] = "loop"
-    sync_lead_fraction: Annotated[float, rng(0.05, 0.9)] = 0.2  # kernel: RPDOs this part of a period before SYNC
+    sync_lead_fraction: Annotated[float, rng(0.05, 0.9)] = (
+        0.2  # kernel: RPDOs this part of a period before SYNC
+    )
 
 
 class LoopSection(Section, frozen=True):
     rate_hz: Annotated[float, rng(1.0, 4000.0)] = 400.0
-    collect_fraction: Annotated[float, rng(0.05, 0.95)] = 0.8  # the answer window after SYNC (drivers/cyclic_exchange.py)
+    collect_fraction: Annotated[float, rng(0.05, 0.95)] = (
+        0.8  # the answer window after SYNC (drivers/cyclic_exchange.py)
+    )
     spin_us: Annotated[float, rng(0.0, 5000.0)] = 300.0
     gil_switch_interval_us: Annotated[float, rng(1.0, 100000.0)] = 200.0
     freeze_gc: bool = True  # gc.freeze() the start-up heap before the loop (controller/shell/realtime.py)
@@ -159,8 +163,6 @@ class LoopSection(Section, frozen=True):
     stop_timeout_s: Annotated[float, rng(0.01, 600.0)] = 10.0
     hold_before_task_s: Annotated[float, rng(0.0, 60.0)] = 0.2
     settle_tolerance_m: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 2.0e-5
-
-
 
 
 class SafetySection(Section, frozen=True):
@@ -196,7 +198,9 @@ class SafetySection(Section, frozen=True):
     # A device's TPDO twice in one answer window: the sample is never used (as if missing); this is
     # what to do about a second sender on the bus (docs/concepts/supervision.md: why "fault").
     on_duplicate_frames: Reaction = Reaction("fault")
-    on_rejected_frames: Reaction = Reaction("warn")  # a configured node's frame of the wrong length (per burst)
+    on_rejected_frames: Reaction = Reaction(
+        "warn"
+    )  # a configured node's frame of the wrong length (per burst)
     on_frame_flood: Reaction = Reaction("fault")
     max_foreign_frames_per_cycle: Annotated[int, rng(1, 100000)] = 16
 
@@ -313,40 +317,59 @@ _GROUPS: dict[str, type[RobotSection | TaskSection]] = {"robot": RobotSection, "
 
 def _check_live_views(r: RecordingSection) -> None:
     """The live-view settings are refused at start, not when the writer process tries them."""
-    if r.live_rerun and r.live_rerun not in ("spawn", "serve") and not r.live_rerun.startswith(
-            ("rerun+http://", "rerun+https://")):
-        raise ConfigError(f"recording.live_rerun = {r.live_rerun!r}: must be \"\" (off), \"spawn\", \"serve\" "
-                          "or a rerun+http://HOST:PORT/proxy URL")
+    if (
+        r.live_rerun
+        and r.live_rerun not in ("spawn", "serve")
+        and not r.live_rerun.startswith(("rerun+http://", "rerun+https://"))
+    ):
+        raise ConfigError(
+            f'recording.live_rerun = {r.live_rerun!r}: must be "" (off), "spawn", "serve" '
+            "or a rerun+http://HOST:PORT/proxy URL"
+        )
     if r.live_foxglove:
         _, sep, port = r.live_foxglove.rpartition(":")
         if not sep or not port.isdigit() or int(port) > 65535:
-            raise ConfigError(f"recording.live_foxglove = {r.live_foxglove!r}: must be HOST:PORT with a port in "
-                              "0..65535 (0: a free port)")
+            raise ConfigError(
+                f"recording.live_foxglove = {r.live_foxglove!r}: must be HOST:PORT with a port in "
+                "0..65535 (0: a free port)"
+            )
 
 
 def _check_rotation(r: RecordingSection) -> None:
     """A file limit below a chunk would rotate on every chunk; retention below a file would delete the open one's peers."""
     if 0 < r.max_file_size_mb * 1e6 < 4 * r.chunk_size_bytes:
-        raise ConfigError(f"recording.max_file_size_mb = {r.max_file_size_mb:g}: must be 0 (no limit) or at least "
-                          f"four chunks (recording.chunk_size_bytes = {r.chunk_size_bytes}): "
-                          f"{4 * r.chunk_size_bytes / 1e6:g} MB")
+        raise ConfigError(
+            f"recording.max_file_size_mb = {r.max_file_size_mb:g}: must be 0 (no limit) or at least "
+            f"four chunks (recording.chunk_size_bytes = {r.chunk_size_bytes}): "
+            f"{4 * r.chunk_size_bytes / 1e6:g} MB"
+        )
     if 0 < r.max_file_duration_s < 2 * r.flush_interval_s:
-        raise ConfigError(f"recording.max_file_duration_s = {r.max_file_duration_s:g}: must be 0 (no limit) or at least "
-                          f"two flush intervals (recording.flush_interval_s = {r.flush_interval_s:g}): "
-                          f"{2 * r.flush_interval_s:g} s")
+        raise ConfigError(
+            f"recording.max_file_duration_s = {r.max_file_duration_s:g}: must be 0 (no limit) or at least "
+            f"two flush intervals (recording.flush_interval_s = {r.flush_interval_s:g}): "
+            f"{2 * r.flush_interval_s:g} s"
+        )
     if r.keep_total_size_gb and r.max_file_size_mb and r.keep_total_size_gb * 1e3 < 2 * r.max_file_size_mb:
-        raise ConfigError(f"recording.keep_total_size_gb = {r.keep_total_size_gb:g}: must be 0 (keep all) or hold at "
-                          f"least two files of recording.max_file_size_mb = {r.max_file_size_mb:g} MB")
+        raise ConfigError(
+            f"recording.keep_total_size_gb = {r.keep_total_size_gb:g}: must be 0 (keep all) or hold at "
+            f"least two files of recording.max_file_size_mb = {r.max_file_size_mb:g} MB"
+        )
 
 
 def _cross_checks(cfg: Config) -> None:
     _check_live_views(cfg.recording)
     _check_rotation(cfg.recording)
-    ids = list(cfg.actuators.node_ids) + ([cfg.sensor.node_id] if cfg.sensor.enabled else []) + [
-        cfg.loop.controller_node_id] + ([cfg.tracker.node_id] if cfg.tracker.enabled else [])
+    ids = (
+        list(cfg.actuators.node_ids)
+        + ([cfg.sensor.node_id] if cfg.sensor.enabled else [])
+        + [cfg.loop.controller_node_id]
+        + ([cfg.tracker.node_id] if cfg.tracker.enabled else [])
+    )
     for i in cfg.actuators.node_ids:
         if not 1 <= i <= 127:
-            raise ConfigError(f"actuators.node_ids = {list(cfg.actuators.node_ids)}: node ids must be in 1..127")
+            raise ConfigError(
+                f"actuators.node_ids = {list(cfg.actuators.node_ids)}: node ids must be in 1..127"
+            )
     if len(set(ids)) != len(ids):
         raise ConfigError(
             f"node ids must be distinct: actuators.node_ids = {list(cfg.actuators.node_ids)}, "
@@ -359,7 +382,9 @@ def _cross_checks(cfg: Config) -> None:
             f"loop.heartbeat_period_s = {cfg.loop.heartbeat_period_s}"
         )
     _registered_cross_checks(cfg)
-    check_sim_section(cfg.sim, tuple(cfg.actuators.node_ids), cfg.sensor.node_id if cfg.sensor.enabled else None)
+    check_sim_section(
+        cfg.sim, tuple(cfg.actuators.node_ids), cfg.sensor.node_id if cfg.sensor.enabled else None
+    )
     if cfg.bus.fd and cfg.bus.data_bitrate_bit_s < cfg.bus.bitrate_bit_s:
         raise ConfigError(
             f"bus.data_bitrate_bit_s = {cfg.bus.data_bitrate_bit_s} must be >= bus.bitrate_bit_s = "
@@ -382,8 +407,10 @@ def _registered_cross_checks(cfg: Config) -> None:
             check(section)
     tasks = robot_entry(cfg.robot.kind).tasks
     if cfg.task.kind not in tasks:
-        raise ConfigError(f"task.kind = {cfg.task.kind!r}: robot.kind = {cfg.robot.kind!r} runs "
-                          f"{', '.join(repr(t) for t in tasks)}")
+        raise ConfigError(
+            f"task.kind = {cfg.task.kind!r}: robot.kind = {cfg.robot.kind!r} runs "
+            f"{', '.join(repr(t) for t in tasks)}"
+        )
 
 
 # Keys an earlier version wrote into recordings (``cheope.config``) and this one no longer has.
@@ -399,8 +426,12 @@ def recorded_config_from_dict(table: dict[str, Any]) -> Config:
         if isinstance(table.get(section), dict):
             table[section].pop(key, None)
     robot, task = table.get("robot"), table.get("task")
-    if isinstance(robot, dict) and isinstance(task, dict) and robot.get("kind") == "nspu" \
-            and task.get("kind", "path") == "path":
+    if (
+        isinstance(robot, dict)
+        and isinstance(task, dict)
+        and robot.get("kind") == "nspu"
+        and task.get("kind", "path") == "path"
+    ):
         task["kind"] = "planned"  # earlier versions chose the 3-nSPU's planned task by robot.kind
     return config_from_dict(table)
 

@@ -65,8 +65,15 @@ def _named(err: msgspec.ValidationError, table: dict[str, Any], cls: type, prefi
     return ConfigError(f"{key} = {value!r}: {_plain(what, _choices_at(cls, path))}")
 
 
-_TYPE_NAMES = {"float": "a number", "int": "an integer", "bool": "true or false", "str": "a string",
-               "array": "a list", "object": "a table", "null": "nothing"}
+_TYPE_NAMES = {
+    "float": "a number",
+    "int": "an integer",
+    "bool": "true or false",
+    "str": "a string",
+    "array": "a list",
+    "object": "a table",
+    "null": "nothing",
+}
 
 
 def _plain(what: str, choices: tuple[object, ...]) -> str:
@@ -89,8 +96,11 @@ def _choices_at(cls: type, path: str) -> tuple[object, ...]:
     """The allowed values of a Literal or enum field at ``path`` (else empty)."""
     tp: Any = cls
     for name in re.findall(r"\.(\w+)", path):
-        fields = {f.name: f.type for f in msgspec.structs.fields(tp)} if isinstance(tp, type) and \
-            issubclass(tp, msgspec.Struct) else {}
+        fields = (
+            {f.name: f.type for f in msgspec.structs.fields(tp)}
+            if isinstance(tp, type) and issubclass(tp, msgspec.Struct)
+            else {}
+        )
         if name not in fields:
             return ()
         tp = fields[name]

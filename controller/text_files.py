@@ -36,13 +36,17 @@ def read_text_file(path: Path, what: str, error: type[InputError] = InputError) 
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as err:
         line, column = text_position(data, err.start)
-        raise error(f"{where} is not UTF-8 text: byte 0x{data[err.start]:02X} at line {line}, column {column}; "
-                    "save it as UTF-8") from None
+        raise error(
+            f"{where} is not UTF-8 text: byte 0x{data[err.start]:02X} at line {line}, column {column}; "
+            "save it as UTF-8"
+        ) from None
     control = next((k for k, ch in enumerate(text) if ch < " " and ch not in _ALLOWED_CONTROLS), None)
     if control is not None:
         line, column = text_position(text, control)
-        raise error(f"{where} is not a text file: control character 0x{ord(text[control]):02X} at line {line}, "
-                    f"column {column}")
+        raise error(
+            f"{where} is not a text file: control character 0x{ord(text[control]):02X} at line {line}, "
+            f"column {column}"
+        )
     return text
 
 
@@ -57,4 +61,4 @@ def text_position(text: str | bytes, offset: int) -> tuple[int, int]:
 def one_line(value: object, limit: int = 160) -> str:
     """``value`` as one line of at most ``limit`` characters (a parser's message may span lines)."""
     text = " ".join(str(value).split())
-    return text if len(text) <= limit else text[:limit - 3] + "..."
+    return text if len(text) <= limit else text[: limit - 3] + "..."

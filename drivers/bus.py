@@ -78,7 +78,8 @@ def open_bus(spec: BusSpec) -> can.BusABC:
         if mtu_file.exists() and int(mtu_file.read_text()) < CANFD_MTU:
             raise can.CanInitializationError(
                 f"cannot open {spec}: {spec.channel} cannot carry CAN FD frames (MTU {mtu_file.read_text().strip()}; "
-                f"ip link set {spec.channel} down && ip link set {spec.channel} mtu {CANFD_MTU} up)")
+                f"ip link set {spec.channel} down && ip link set {spec.channel} mtu {CANFD_MTU} up)"
+            )
     try:
         return can.Bus(**kwargs)
     except (OSError, can.CanError) as err:

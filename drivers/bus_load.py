@@ -46,7 +46,10 @@ def classical_frame_bits(n_bytes: int, worst_case_stuffing: bool = True) -> int:
 
 
 def fd_frame_time_s(
-    n_bytes: int, nominal_bit_s: float, data_bit_s: float, bitrate_switch: bool = True,
+    n_bytes: int,
+    nominal_bit_s: float,
+    data_bit_s: float,
+    bitrate_switch: bool = True,
     worst_case_stuffing: bool = True,
 ) -> float:
     n = fd_padded_length(n_bytes)
@@ -83,7 +86,10 @@ class BusLoad:
 
 
 def compute_bus_load(
-    frames: tuple[FrameSpec, ...], nominal_bit_s: float, fd: bool = False, data_bit_s: float | None = None,
+    frames: tuple[FrameSpec, ...],
+    nominal_bit_s: float,
+    fd: bool = False,
+    data_bit_s: float | None = None,
     worst_case_stuffing: bool = True,
 ) -> BusLoad:
     """Fraction of bus time the frames occupy (1.0 = a saturated bus)."""
@@ -92,8 +98,13 @@ def compute_bus_load(
     busy_s = 0.0
     for f in frames:
         if fd:
-            t = fd_frame_time_s(f.n_bytes, nominal_bit_s, data_bit_s or nominal_bit_s,
-                                bitrate_switch=data_bit_s is not None, worst_case_stuffing=worst_case_stuffing)
+            t = fd_frame_time_s(
+                f.n_bytes,
+                nominal_bit_s,
+                data_bit_s or nominal_bit_s,
+                bitrate_switch=data_bit_s is not None,
+                worst_case_stuffing=worst_case_stuffing,
+            )
         else:
             t = classical_frame_bits(f.n_bytes, worst_case_stuffing) / nominal_bit_s
         busy_s += t * f.rate_hz
@@ -106,8 +117,13 @@ def compute_bus_load(
 
 
 def cyclic_frames(
-    cycle_hz: float, n_drives: int, sensor: bool, heartbeat_hz: float, drive_pdo_bytes: int = 6,
-    sensor_pdo_bytes: int = 8, tracker_hz: float = 0.0,
+    cycle_hz: float,
+    n_drives: int,
+    sensor: bool,
+    heartbeat_hz: float,
+    drive_pdo_bytes: int = 6,
+    sensor_pdo_bytes: int = 8,
+    tracker_hz: float = 0.0,
 ) -> tuple[FrameSpec, ...]:
     """The frames of one configuration of this project (see drivers/pdo_codec.py)."""
     frames = [
@@ -125,8 +141,13 @@ def cyclic_frames(
     return tuple(frames)
 
 
-def measured_bus_load(frames: dict[int, int], shapes: dict[int, tuple[int, bool, bool]], seconds: float,
-                      nominal_bit_s: float, data_bit_s: float) -> dict[str, float]:
+def measured_bus_load(
+    frames: dict[int, int],
+    shapes: dict[int, tuple[int, bool, bool]],
+    seconds: float,
+    nominal_bit_s: float,
+    data_bit_s: float,
+) -> dict[str, float]:
     """Bus time of frames seen on a bus over ``seconds``, each by its own length and FD/BRS flags.
 
     ``frames`` counts them by COB-ID, ``shapes`` gives each COB-ID's (data bytes, is_fd, brs).
@@ -140,9 +161,11 @@ def measured_bus_load(frames: dict[int, int], shapes: dict[int, tuple[int, bool,
         else:
             busy += count * classical_frame_bits(min(n_bytes, 8)) / nominal_bit_s
             classical_on_fd += count
-    return {"percent": round(100.0 * busy / seconds, 1) if seconds > 0 else 0.0,
-            "frames_per_second": round(sum(frames.values()) / seconds, 1) if seconds > 0 else 0.0,
-            "classical_frames_per_second": round(classical_on_fd / seconds, 1) if seconds > 0 else 0.0}
+    return {
+        "percent": round(100.0 * busy / seconds, 1) if seconds > 0 else 0.0,
+        "frames_per_second": round(sum(frames.values()) / seconds, 1) if seconds > 0 else 0.0,
+        "classical_frames_per_second": round(classical_on_fd / seconds, 1) if seconds > 0 else 0.0,
+    }
 
 
 def check_bus_load(load: BusLoad, max_load_percent: float) -> None:

@@ -76,6 +76,7 @@ def statusword_bits(state: PowerState) -> int:
 
 # --- master side -------------------------------------------------------------------------
 
+
 def controlword_towards(current: PowerState, wanted: PowerState, previous_controlword: int = 0) -> int:
     """The controlword that moves a drive one transition from ``current`` towards ``wanted``.
 
@@ -107,6 +108,7 @@ def controlword_towards(current: PowerState, wanted: PowerState, previous_contro
 
 
 # --- device side -------------------------------------------------------------------------
+
 
 def _is_shutdown(cw: int) -> bool:
     return cw & 0x87 == 0x06

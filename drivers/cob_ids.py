@@ -45,8 +45,20 @@ def function_name(cob_id: int) -> str:
     if cob_id == SYNC:
         return "SYNC"
     code, node = cob_id >> 7, cob_id & 0x7F
-    names = {1: "EMCY", 3: "TPDO1", 4: "RPDO1", 5: "TPDO2", 6: "RPDO2", 7: "TPDO3", 8: "RPDO3", 9: "TPDO4",
-             10: "RPDO4", 11: "SDO response", 12: "SDO request", 14: "heartbeat"}
+    names = {
+        1: "EMCY",
+        3: "TPDO1",
+        4: "RPDO1",
+        5: "TPDO2",
+        6: "RPDO2",
+        7: "TPDO3",
+        8: "RPDO3",
+        9: "TPDO4",
+        10: "RPDO4",
+        11: "SDO response",
+        12: "SDO request",
+        14: "heartbeat",
+    }
     if cob_id > 0x7FF or code not in names or node == 0:
         return "other"
     return names[code]

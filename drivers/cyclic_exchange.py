@@ -59,13 +59,26 @@ from drivers.pdo_codec import (
 
 FrameSink = Callable[[bool, float, can.Message], None]  # (outgoing, monotonic time [s], frame)
 
-_DRIVE, _SENSOR_FORCE, _SENSOR_TORQUE, _EMCY, _HEARTBEAT, _OWN, _IGNORED, _TRACKER_P, _TRACKER_R, _KERNEL_SYNC = range(10)
+(
+    _DRIVE,
+    _SENSOR_FORCE,
+    _SENSOR_TORQUE,
+    _EMCY,
+    _HEARTBEAT,
+    _OWN,
+    _IGNORED,
+    _TRACKER_P,
+    _TRACKER_R,
+    _KERNEL_SYNC,
+) = range(10)
 CAN_ERR_BUSOFF = 0x040  # error class bit of a SocketCAN error frame (linux/can/error.h)
 NMT_OPERATIONAL, NMT_BOOT_UP = 5, 0  # CiA 301 heartbeat state byte
 SDO_DOWNLOAD_2_BYTES = 0x2B  # CiA 301 expedited download of 2 data bytes (client command specifier)
 CONTROLWORD = 0x6040
 COUNTER_MODULO = 256  # the sensor's rolling counter is a u8
-DEFAULT_FLOOD_FRAMES = 16  # foreign frames in one cycle that make a flood (config safety.max_foreign_frames_per_cycle)
+DEFAULT_FLOOD_FRAMES = (
+    16  # foreign frames in one cycle that make a flood (config safety.max_foreign_frames_per_cycle)
+)
 
 
 def _unknown_kind(cob_id: int) -> Anomaly:
@@ -97,18 +110,33 @@ class ExchangeCounters:
 
 
 class CyclicExchange:
-    def __init__(self, bus: can.BusABC, drive_ids: tuple[int, ...], scale: PositionScale,
-                 sensor_id: int | None, controller_id: int, heartbeat_every: int, fd: bool = False,
-                 clock: Callable[[], float] = time.monotonic, frame_sink: FrameSink | None = None,
-                 heartbeat_timeout_s: float = 0.5, drive_codecs: tuple[DriveCodec, ...] | None = None,
-                 sensor_codecs: tuple[SensorFrameCodec, SensorFrameCodec] | None = None,
-                 send_sync: bool = True, flood_frames_per_cycle: int = DEFAULT_FLOOD_FRAMES,
-                 tracker_id: int | None = None, sync_period_s: float = 0.0,
-                 max_position_step: float = math.inf, max_position_jump: float = math.inf,
-                 answer_window_s: float = math.inf) -> None:
+    def __init__(
+        self,
+        bus: can.BusABC,
+        drive_ids: tuple[int, ...],
+        scale: PositionScale,
+        sensor_id: int | None,
+        controller_id: int,
+        heartbeat_every: int,
+        fd: bool = False,
+        clock: Callable[[], float] = time.monotonic,
+        frame_sink: FrameSink | None = None,
+        heartbeat_timeout_s: float = 0.5,
+        drive_codecs: tuple[DriveCodec, ...] | None = None,
+        sensor_codecs: tuple[SensorFrameCodec, SensorFrameCodec] | None = None,
+        send_sync: bool = True,
+        flood_frames_per_cycle: int = DEFAULT_FLOOD_FRAMES,
+        tracker_id: int | None = None,
+        sync_period_s: float = 0.0,
+        max_position_step: float = math.inf,
+        max_position_jump: float = math.inf,
+        answer_window_s: float = math.inf,
+    ) -> None:
         self.bus = bus
         self.fd = fd
-        self.send_sync = send_sync  # False: the kernel's broadcast manager sends SYNC (drivers/kernel_sync.py)
+        self.send_sync = (
+            send_sync  # False: the kernel's broadcast manager sends SYNC (drivers/kernel_sync.py)
+        )
         # With SYNC from the kernel, the SYNCs this socket receives are the broadcast manager's (another
         # socket of this host): their receive times feed drivers/kernel_sync.py's phase lock. One that
         # comes less than half a period after the last is a second producer's.
@@ -126,13 +154,23 @@ class CyclicExchange:
         self._codecs = drive_codecs or tuple(description_drive_codec(i) for i in drive_ids)
         if len(self._codecs) != self.n:
             raise ValueError(f"{len(self._codecs)} drive codecs for {self.n} drives")
-        self._rpdos = [can.Message(arbitration_id=codec.rpdo_cob_id, data=bytearray(codec.rpdo.size),
-                                   is_extended_id=False, is_fd=fd, bitrate_switch=fd) for codec in self._codecs]
-        self._sync = can.Message(arbitration_id=cob_ids.SYNC, data=b"", is_extended_id=False, is_fd=fd,
-                                 bitrate_switch=fd)
+        self._rpdos = [
+            can.Message(
+                arbitration_id=codec.rpdo_cob_id,
+                data=bytearray(codec.rpdo.size),
+                is_extended_id=False,
+                is_fd=fd,
+                bitrate_switch=fd,
+            )
+            for codec in self._codecs
+        ]
+        self._sync = can.Message(
+            arbitration_id=cob_ids.SYNC, data=b"", is_extended_id=False, is_fd=fd, bitrate_switch=fd
+        )
         # Heartbeat of the controller, NMT state 5 (operational): the drives consume it.
-        self._heartbeat = can.Message(arbitration_id=cob_ids.heartbeat(controller_id), data=b"\x05",
-                                      is_extended_id=False)
+        self._heartbeat = can.Message(
+            arbitration_id=cob_ids.heartbeat(controller_id), data=b"\x05", is_extended_id=False
+        )
         self._dispatch: dict[int, tuple[int, int]] = {}
         for j, i in enumerate(drive_ids):
             self._dispatch[self._codecs[j].tpdo_cob_id] = (_DRIVE, j)
@@ -152,19 +190,29 @@ class CyclicExchange:
             self._dispatch[cob_ids.tpdo2(tracker_id)] = (_TRACKER_R, 0)
             self._dispatch[cob_ids.emcy(tracker_id)] = (_EMCY, tracker_id)
             self._dispatch[cob_ids.heartbeat(tracker_id)] = (_HEARTBEAT, -1)
-        configured = (*drive_ids, *(() if sensor_id is None else (sensor_id,)),
-                      *(() if tracker_id is None else (tracker_id,)))
+        configured = (
+            *drive_ids,
+            *(() if sensor_id is None else (sensor_id,)),
+            *(() if tracker_id is None else (tracker_id,)),
+        )
         self._configured_nodes = frozenset(configured)
         for node in configured:  # SDO answers of the set-up that come late; not cyclic traffic
             self._dispatch[cob_ids.sdo_response(node)] = (_IGNORED, node)
         # COB-IDs only the controller sends: whatever arrives there is someone else's.
-        for cob in (cob_ids.SYNC, cob_ids.NMT, cob_ids.heartbeat(controller_id),
-                    *(codec.rpdo_cob_id for codec in self._codecs), *(cob_ids.sdo_request(i) for i in configured)):
+        for cob in (
+            cob_ids.SYNC,
+            cob_ids.NMT,
+            cob_ids.heartbeat(controller_id),
+            *(codec.rpdo_cob_id for codec in self._codecs),
+            *(cob_ids.sdo_request(i) for i in configured),
+        ):
             self._dispatch[cob] = (_OWN, cob)
         if not send_sync:  # but SYNC is the kernel's broadcast manager's (drivers/kernel_sync.py)
             self._dispatch[cob_ids.SYNC] = (_KERNEL_SYNC, cob_ids.SYNC)
         self.flood_frames_per_cycle = flood_frames_per_cycle
-        self._anomalies: dict[tuple[Anomaly, int, int, int], int] = {}  # (kind, COB-ID, node, command) -> count
+        self._anomalies: dict[
+            tuple[Anomaly, int, int, int], int
+        ] = {}  # (kind, COB-ID, node, command) -> count
         self._foreign_in_cycle = 0
         self._nmt: dict[int, int] = {}  # node -> last non-operational heartbeat state this cycle
         self._operational_nodes: set[int] = set()  # configured nodes heard OPERATIONAL
@@ -256,7 +304,9 @@ class CyclicExchange:
         self.sent_s = self.clock()
         if outputs is not None:
             to_counts = self.scale.to_counts
-            for msg, codec, cw, target in zip(self._rpdos, self._codecs, outputs.controlwords, outputs.targets):
+            for msg, codec, cw, target in zip(
+                self._rpdos, self._codecs, outputs.controlwords, outputs.targets
+            ):
                 codec.pack_rpdo_into(msg.data, cw, to_counts(target))
                 self._send(msg)
         if self.send_sync:
@@ -274,8 +324,18 @@ class CyclicExchange:
         node = self.drive_ids[drive_index]
         msg = self._sdo
         msg.arbitration_id = cob_ids.sdo_request(node)
-        msg.data[:] = bytes((SDO_DOWNLOAD_2_BYTES, CONTROLWORD & 0xFF, CONTROLWORD >> 8, 0,
-                             controlword & 0xFF, (controlword >> 8) & 0xFF, 0, 0))
+        msg.data[:] = bytes(
+            (
+                SDO_DOWNLOAD_2_BYTES,
+                CONTROLWORD & 0xFF,
+                CONTROLWORD >> 8,
+                0,
+                controlword & 0xFF,
+                (controlword >> 8) & 0xFF,
+                0,
+                0,
+            )
+        )
         self._send(msg)
 
     # -- in ---------------------------------------------------------------------------------
@@ -318,19 +378,45 @@ class CyclicExchange:
         if self.has_sensor and not self._sensor_fresh:
             c.missing_sensor_frames += 1
         self._count_silences()
-        drives = tuple(DriveFeedback(sw, x, f) for sw, x, f in zip(self._statusword, self._position, self._fresh))
-        sensor = SensorFeedback(self._force, self._torque, self._sensor_status, max(self._force_counter, 0),
-                                self._sensor_fresh and not self._sensor_ambiguous) if self.has_sensor else None
-        tracker = TrackerFeedback(self._tracker_p, self._tracker_r, self._tracker_status,
-                                  max(self._tracker_counters[0], 0), self._tracker_fresh) if self.has_tracker else None
+        drives = tuple(
+            DriveFeedback(sw, x, f) for sw, x, f in zip(self._statusword, self._position, self._fresh)
+        )
+        sensor = (
+            SensorFeedback(
+                self._force,
+                self._torque,
+                self._sensor_status,
+                max(self._force_counter, 0),
+                self._sensor_fresh and not self._sensor_ambiguous,
+            )
+            if self.has_sensor
+            else None
+        )
+        tracker = (
+            TrackerFeedback(
+                self._tracker_p,
+                self._tracker_r,
+                self._tracker_status,
+                max(self._tracker_counters[0], 0),
+                self._tracker_fresh,
+            )
+            if self.has_tracker
+            else None
+        )
         self._tracker_fresh = False
         now = clock()
         lost = self._lost_heartbeats(now)
-        feedback = BusFeedback(drives=drives, sensor=sensor, emcy=tuple(self._emcy), lost_heartbeats=lost,
-                               error_frames=self._error_frames, bus_off=self._bus_off,
-                               anomalies=self._anomaly_reports() if self._anomalies else (),
-                               nmt_reports=tuple(NmtReport(n, st) for n, st in self._nmt.items()) if self._nmt else (),
-                               tracker=tracker)
+        feedback = BusFeedback(
+            drives=drives,
+            sensor=sensor,
+            emcy=tuple(self._emcy),
+            lost_heartbeats=lost,
+            error_frames=self._error_frames,
+            bus_off=self._bus_off,
+            anomalies=self._anomaly_reports() if self._anomalies else (),
+            nmt_reports=tuple(NmtReport(n, st) for n, st in self._nmt.items()) if self._nmt else (),
+            tracker=tracker,
+        )
         # The reports start again here, not at the next send: what arrives after this cycle's last
         # TPDO (an EMCY, a bus-off) is read by the next send's drain and belongs to the next cycle.
         self._emcy = []
@@ -344,8 +430,9 @@ class CyclicExchange:
     def _close_window(self) -> None:
         """The window's verdict per device: one decoded candidate is the sample, else none."""
         self._owed = [owed + 1 if count == 0 else 0 for owed, count in zip(self._owed, self._candidates)]
-        self._sensor_owed = [owed + 1 if count == 0 else 0
-                             for owed, count in zip(self._sensor_owed, self._sensor_candidates)]
+        self._sensor_owed = [
+            owed + 1 if count == 0 else 0 for owed, count in zip(self._sensor_owed, self._sensor_candidates)
+        ]
         for j in range(self.n):
             count = self._candidates[j]
             if count == 1 and self._candidate_ok[j]:
@@ -369,8 +456,10 @@ class CyclicExchange:
                 self._sensor_cycles_since_trusted += 1
 
     def _anomaly_reports(self) -> tuple[BusAnomaly, ...]:
-        reports = tuple(BusAnomaly(kind, cob, n, node, command)
-                        for (kind, cob, node, command), n in self._anomalies.items())
+        reports = tuple(
+            BusAnomaly(kind, cob, n, node, command)
+            for (kind, cob, node, command), n in self._anomalies.items()
+        )
         if self._foreign_in_cycle > self.flood_frames_per_cycle:
             busiest = max(self._anomalies.items(), key=lambda item: item[1])[0][1]
             reports += (BusAnomaly(Anomaly.FRAME_FLOOD, busiest, self._foreign_in_cycle),)
@@ -432,8 +521,11 @@ class CyclicExchange:
         nodes = list(zip(self.drive_ids, self.last_heartbeat_s))
         if self.sensor_id is not None:
             nodes.append((self.sensor_id, self.sensor_heartbeat_s))
-        return tuple(node for node, last in nodes
-                     if now - (self.started_s if math.isnan(last) else last) > self.heartbeat_timeout_s)
+        return tuple(
+            node
+            for node, last in nodes
+            if now - (self.started_s if math.isnan(last) else last) > self.heartbeat_timeout_s
+        )
 
     def _count_silences(self) -> None:
         """Each device's run of cycles without a usable sample, and the longest so far."""
@@ -542,7 +634,9 @@ class CyclicExchange:
     def _on_tracker(self, kind: int, msg: can.Message) -> None:
         """A tracker frame, whenever it comes (drained or collected): the pair with one counter is a sample."""
         i = 0 if kind == _TRACKER_P else 1
-        x, y, z, status, counter = decode_tracker_frame(msg.data, TRACKER_M_PER_COUNT if i == 0 else TRACKER_RAD_PER_COUNT)
+        x, y, z, status, counter = decode_tracker_frame(
+            msg.data, TRACKER_M_PER_COUNT if i == 0 else TRACKER_RAD_PER_COUNT
+        )
         if i == 0:
             self._tracker_p = (x, y, z)
         else:
@@ -554,7 +648,9 @@ class CyclicExchange:
 
     def _on_heartbeat(self, index: int, msg: can.Message) -> None:
         if len(msg.data) != 1:
-            raise FrameError(f"heartbeat 0x{msg.arbitration_id:03X} must have 1 data byte, got {len(msg.data)}")
+            raise FrameError(
+                f"heartbeat 0x{msg.arbitration_id:03X} must have 1 data byte, got {len(msg.data)}"
+            )
         state = msg.data[0] & 0x7F  # bit 7 is the toggle bit of node guarding
         node = msg.arbitration_id - 0x700
         if state == NMT_OPERATIONAL:

@@ -54,8 +54,9 @@ class FrameTap(can.BusABC):
     The tap owns ``bus``: its ``shutdown`` shuts ``bus`` down too.
     """
 
-    def __init__(self, bus: can.BusABC, sink: FrameSink | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self, bus: can.BusABC, sink: FrameSink | None = None, clock: Callable[[], float] = time.monotonic
+    ) -> None:
         self.bus = bus
         self.sink = sink
         self.clock = clock
@@ -107,10 +108,14 @@ class FrameTap(can.BusABC):
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         return self.recv(timeout), True  # recv is overridden; kept for BusABC's contract
 
-    def _send_periodic_internal(self, msgs: can.Message | Sequence[can.Message], period: float,
-                                duration: float | None = None, autostart: bool = True,
-                                modifier_callback: Callable[[can.Message], None] | None = None
-                                ) -> can.broadcastmanager.CyclicSendTaskABC:
+    def _send_periodic_internal(
+        self,
+        msgs: can.Message | Sequence[can.Message],
+        period: float,
+        duration: float | None = None,
+        autostart: bool = True,
+        modifier_callback: Callable[[can.Message], None] | None = None,
+    ) -> can.broadcastmanager.CyclicSendTaskABC:
         """The bus's own periodic sending (SocketCAN: the kernel's broadcast manager), not python-can's
         Python thread through ``send``. Its frames do not pass the tap: the bus hands them back as
         received (another socket of this host sent them), and so they are recorded, as received."""

@@ -58,8 +58,14 @@ Write = Callable[[int, int, int], None]
 Read = Callable[[int, int], int]
 
 
-def home_drive(node_id: int, plan: HomingPlan, write: Write, read: Read,
-               clock: Callable[[], float] = time.monotonic, poll_s: float = HOMING_POLL_S) -> None:
+def home_drive(
+    node_id: int,
+    plan: HomingPlan,
+    write: Write,
+    read: Read,
+    clock: Callable[[], float] = time.monotonic,
+    poll_s: float = HOMING_POLL_S,
+) -> None:
     write(0x607C, 0, plan.home_offset_counts)
     write(0x6098, 0, plan.method)
     write(0x6099, 1, plan.switch_speed_counts_s)
@@ -68,26 +74,34 @@ def home_drive(node_id: int, plan: HomingPlan, write: Write, read: Read,
     write(0x6060, 0, MODE_HOMING)
     mode = read(0x6061, 0)
     if mode != MODE_HOMING:
-        raise HomingFailed(f"node {node_id}: mode of operation display 0x6061 reads {mode}, expected 6 (homing)")
+        raise HomingFailed(
+            f"node {node_id}: mode of operation display 0x6061 reads {mode}, expected 6 (homing)"
+        )
     for cw in (CW_SHUTDOWN, CW_SWITCH_ON, CW_ENABLE_OPERATION):
         write(0x6040, 0, cw)
     sw = read(0x6041, 0)
     if decode_statusword(sw) != PowerState.OPERATION_ENABLED:
-        raise HomingFailed(f"node {node_id}: statusword 0x6041 = 0x{sw:04X} ({decode_statusword(sw).name}) "
-                           f"after enable operation, expected OPERATION_ENABLED before homing")
+        raise HomingFailed(
+            f"node {node_id}: statusword 0x6041 = 0x{sw:04X} ({decode_statusword(sw).name}) "
+            f"after enable operation, expected OPERATION_ENABLED before homing"
+        )
     write(0x6040, 0, CW_ENABLE_OPERATION | CW_HOMING_START)
     deadline = clock() + plan.timeout_s
     try:
         while True:
             sw = read(0x6041, 0)
             if sw & SW_HOMING_ERROR:
-                raise HomingFailed(f"node {node_id}: homing method {plan.method} failed: statusword 0x6041 = "
-                                   f"0x{sw:04X} (bit 13 homing error)")
+                raise HomingFailed(
+                    f"node {node_id}: homing method {plan.method} failed: statusword 0x6041 = "
+                    f"0x{sw:04X} (bit 13 homing error)"
+                )
             if sw & SW_HOMING_ATTAINED and sw & SW_TARGET_REACHED:
                 return
             if clock() > deadline:
-                raise HomingFailed(f"node {node_id}: homing method {plan.method} not attained within "
-                                   f"{plan.timeout_s} s (actuators.homing_timeout_s): statusword 0x6041 = 0x{sw:04X}")
+                raise HomingFailed(
+                    f"node {node_id}: homing method {plan.method} not attained within "
+                    f"{plan.timeout_s} s (actuators.homing_timeout_s): statusword 0x6041 = 0x{sw:04X}"
+                )
             time.sleep(poll_s)  # nothing signals the end but the statusword
     finally:
         write(0x6040, 0, CW_DISABLE_VOLTAGE)  # stopped and switched off, attained or not

@@ -45,12 +45,16 @@ class KernelSyncError(InputError):
 
 def check_kernel_sync(interface: str) -> None:
     if interface != "socketcan":
-        raise KernelSyncError(f"bus.sync_producer = 'kernel' needs a socketcan bus (the kernel's broadcast "
-                              f"manager); the bus is {interface}: use sync_producer = 'loop'")
+        raise KernelSyncError(
+            f"bus.sync_producer = 'kernel' needs a socketcan bus (the kernel's broadcast "
+            f"manager); the bus is {interface}: use sync_producer = 'loop'"
+        )
 
 
 def sync_message(fd: bool = False) -> can.Message:
-    return can.Message(arbitration_id=cob_ids.SYNC, data=b"", is_extended_id=False, is_fd=fd, bitrate_switch=fd)
+    return can.Message(
+        arbitration_id=cob_ids.SYNC, data=b"", is_extended_id=False, is_fd=fd, bitrate_switch=fd
+    )
 
 
 @dataclass
@@ -96,8 +100,14 @@ class KernelSyncExchange:
     it), whose ``send_periodic`` is the broadcast manager.
     """
 
-    def __init__(self, exchange: CyclicExchange, period_s: float, lead_s: float,
-                 clock: Callable[[], float] = time.monotonic, lock: SyncPhaseLock | None = None) -> None:
+    def __init__(
+        self,
+        exchange: CyclicExchange,
+        period_s: float,
+        lead_s: float,
+        clock: Callable[[], float] = time.monotonic,
+        lock: SyncPhaseLock | None = None,
+    ) -> None:
         if exchange.send_sync:
             raise ValueError("the exchange sends SYNC itself: build it with send_sync=False")
         if not 0.0 < lead_s < period_s:
@@ -147,17 +157,30 @@ class KernelSyncExchange:
         if not isinstance(task, SocketcanCyclicSendTask):
             return  # no broadcast manager (a test's bus): nothing to retime
         seconds = int(interval_s)
-        header = build_bcm_header(bcm.CAN_BCM_TX_SETUP, task.flags | bcm.SETTIMER, 0, 0, 0, seconds,
-                                  round((interval_s - seconds) * 1e6), task.task_id, 1)
+        header = build_bcm_header(
+            bcm.CAN_BCM_TX_SETUP,
+            task.flags | bcm.SETTIMER,
+            0,
+            0,
+            0,
+            seconds,
+            round((interval_s - seconds) * 1e6),
+            task.task_id,
+            1,
+        )
         send_bcm(task.bcm_socket, header + build_can_frame(task.messages[0]))
         self.interval_s = interval_s
         self.retimes += 1
 
     def report(self) -> dict[str, float | int]:
         """The lock's state for the run summary."""
-        return {"syncs_seen": self.lock.syncs, "interval_us": round(self.interval_s * 1e6, 1),
-                "learned_latency_us": round(self.lock.integral_s * 1e6, 1),
-                "last_phase_error_us": round(self.lock.last_error_s * 1e6, 1), "retimes": self.retimes}
+        return {
+            "syncs_seen": self.lock.syncs,
+            "interval_us": round(self.interval_s * 1e6, 1),
+            "learned_latency_us": round(self.lock.integral_s * 1e6, 1),
+            "last_phase_error_us": round(self.lock.last_error_s * 1e6, 1),
+            "retimes": self.retimes,
+        }
 
     def collect(self, deadline_s: float) -> BusFeedback:
         return self.exchange.collect(deadline_s)

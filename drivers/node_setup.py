@@ -64,7 +64,9 @@ class NodeSetupPlan:
     controller_id: int
     heartbeat_period_s: float
     heartbeat_consumer_s: float
-    cycle_period_s: float = 0.0  # the SYNC period: 0x1006 and the drives' interpolation time period (0: not written)
+    cycle_period_s: float = (
+        0.0  # the SYNC period: 0x1006 and the drives' interpolation time period (0: not written)
+    )
     drive_eds: Path = DRIVE_EDS
     sensor_eds: Path = SENSOR_EDS
     sensor_vendor_id: int | None = None  # None: vendor_id
@@ -107,7 +109,7 @@ def interpolation_time_period(period_s: float) -> tuple[int, int]:
     """
     finest: tuple[int, int] | None = None
     for index in range(-1, -10, -1):
-        value = period_s / 10.0 ** index
+        value = period_s / 10.0**index
         if round(value) > 255:
             break
         if round(value) > 0:
@@ -115,7 +117,9 @@ def interpolation_time_period(period_s: float) -> tuple[int, int]:
             if abs(value - round(value)) < 1e-6 * value:
                 return finest
     if finest is None:
-        raise ValueError(f"interpolation time period {period_s} s cannot be written as an 8-bit value x 10^index s")
+        raise ValueError(
+            f"interpolation time period {period_s} s cannot be written as an 8-bit value x 10^index s"
+        )
     return finest
 
 
@@ -144,8 +148,9 @@ def _write(node: canopen.RemoteNode, node_id: int, index: int, subindex: int, va
     try:
         node.sdo.download(index, subindex, var.encode_raw(value))
     except canopen.SdoAbortedError as err:
-        raise NodeSetupError(f"node {node_id}: writing 0x{index:04X}sub{subindex} = 0x{value & 0xFFFFFFFF:X} "
-                             f"refused: {err}") from err
+        raise NodeSetupError(
+            f"node {node_id}: writing 0x{index:04X}sub{subindex} = 0x{value & 0xFFFFFFFF:X} refused: {err}"
+        ) from err
 
 
 def _read(node: canopen.RemoteNode, node_id: int, index: int, subindex: int) -> int:
@@ -167,8 +172,10 @@ def _write_verified(node: canopen.RemoteNode, node_id: int, index: int, subindex
 def _check_reads(node: canopen.RemoteNode, node_id: int, index: int, subindex: int, value: int) -> None:
     back = _read(node, node_id, index, subindex)
     if back != value:
-        raise NodeSetupError(f"node {node_id}: 0x{index:04X}sub{subindex} reads back 0x{back & 0xFFFFFFFF:X}, "
-                             f"wrote 0x{value & 0xFFFFFFFF:X}")
+        raise NodeSetupError(
+            f"node {node_id}: 0x{index:04X}sub{subindex} reads back 0x{back & 0xFFFFFFFF:X}, "
+            f"wrote 0x{value & 0xFFFFFFFF:X}"
+        )
 
 
 def _write_interpolation_period(node: canopen.RemoteNode, node_id: int, period_s: float) -> None:
@@ -194,8 +201,11 @@ def _write_following_error(node: canopen.RemoteNode, node_id: int, plan: NodeSet
         return
     od = node.object_dictionary
     if find_variable(od, 0x6065, 0) is None or find_variable(od, 0x6066, 0) is None:
-        log.warning("node %d: its EDS has no following-error objects 0x6065/0x6066; only the controller's "
-                    "window (safety.following_window_m) watches it", node_id)
+        log.warning(
+            "node %d: its EDS has no following-error objects 0x6065/0x6066; only the controller's "
+            "window (safety.following_window_m) watches it",
+            node_id,
+        )
         return
     _write_verified(node, node_id, 0x6065, 0, plan.following_error_window_counts)
     _write_verified(node, node_id, 0x6066, 0, plan.following_error_time_ms)
@@ -208,8 +218,11 @@ def _write_abort_connection(node: canopen.RemoteNode, node_id: int) -> None:
     """0x6007: a drive that loses the controller (its heartbeat, 0x1016, or NMT OPERATIONAL, where a
     foreign master can take it) quick-stops by itself; the controller's own stop may not reach it."""
     if find_variable(node.object_dictionary, 0x6007, 0) is None:
-        log.warning("node %d: its EDS has no abort connection option code 0x6007; on a lost master it "
-                    "reacts as its firmware does", node_id)
+        log.warning(
+            "node %d: its EDS has no abort connection option code 0x6007; on a lost master it "
+            "reacts as its firmware does",
+            node_id,
+        )
         return
     _write_verified(node, node_id, 0x6007, 0, ABORT_CONNECTION_QUICK_STOP)
 
@@ -236,9 +249,11 @@ def configure_pdo(node: canopen.RemoteNode, node_id: int, config: PdoConfig) -> 
     return config
 
 
-def _identity(node: canopen.RemoteNode, node_id: int, expected_vendor: int, expected_product: int
-              ) -> NodeIdentity:
+def _identity(
+    node: canopen.RemoteNode, node_id: int, expected_vendor: int, expected_product: int
+) -> NodeIdentity:
     """``node_id`` is the id ``node`` was made with (canopen types ``node.id`` as possibly None)."""
+
     def u32(sub: int) -> int:
         return int.from_bytes(node.sdo.upload(0x1018, sub), "little")
 
@@ -254,7 +269,9 @@ def _identity(node: canopen.RemoteNode, node_id: int, expected_vendor: int, expe
 def _announce_environment(node: canopen.RemoteNode, node_id: int, environment: str, task_kind: str) -> None:
     """Tell a simulated sensor the workpiece the task needs; a real one has no such object."""
     try:
-        node.sdo.download(SIM_ENVIRONMENT_INDEX, SIM_ENVIRONMENT_SUBINDEX, bytes([ENVIRONMENT_CODES[environment]]))
+        node.sdo.download(
+            SIM_ENVIRONMENT_INDEX, SIM_ENVIRONMENT_SUBINDEX, bytes([ENVIRONMENT_CODES[environment]])
+        )
     except canopen.SdoAbortedError as err:
         if err.code == ABORT_OBJECT_DOES_NOT_EXIST:
             log.info("node %d has no simulator environment object: not a simulator", node_id)
@@ -262,12 +279,17 @@ def _announce_environment(node: canopen.RemoteNode, node_id: int, environment: s
         if err.code != ABORT_DEVICE_STATE:
             raise
         code = node.sdo.upload(SIM_ENVIRONMENT_INDEX, SIM_ENVIRONMENT_SUBINDEX)[0]
-        raise NodeSetupError(mismatch_message(ENVIRONMENT_NAMES.get(code, f"code {code}"), environment,
-                                              task_kind)) from err
-    log.info("node %d (simulated): environment %s announced for task.kind = %s", node_id, environment, task_kind)
+        raise NodeSetupError(
+            mismatch_message(ENVIRONMENT_NAMES.get(code, f"code {code}"), environment, task_kind)
+        ) from err
+    log.info(
+        "node %d (simulated): environment %s announced for task.kind = %s", node_id, environment, task_kind
+    )
 
 
-def _remote_node(network: canopen.Network, node_id: int, eds: Path, plan: NodeSetupPlan) -> canopen.RemoteNode:
+def _remote_node(
+    network: canopen.Network, node_id: int, eds: Path, plan: NodeSetupPlan
+) -> canopen.RemoteNode:
     try:
         node = canopen.RemoteNode(node_id, load_device_description(eds, node_id))
     except PdoMappingError as err:
@@ -280,8 +302,12 @@ def _remote_node(network: canopen.Network, node_id: int, eds: Path, plan: NodeSe
 
 def _home(node: canopen.RemoteNode, node_id: int, plan: HomingPlan) -> None:
     try:
-        home_drive(node_id, plan, lambda index, sub, value: _write(node, node_id, index, sub, value),
-                   lambda index, sub: _read(node, node_id, index, sub))
+        home_drive(
+            node_id,
+            plan,
+            lambda index, sub, value: _write(node, node_id, index, sub, value),
+            lambda index, sub: _read(node, node_id, index, sub),
+        )
     except HomingFailed as err:
         raise NodeSetupError(str(err)) from err
 
@@ -293,13 +319,16 @@ def _configure_drive_pdos(node: canopen.RemoteNode, node_id: int, plan: NodeSetu
         tpdo = planned_pdo(od, PdoDirection.TRANSMIT, 1, node_id, plan.drive_tpdo_objects)
         rpdo, tpdo = configure_pdo(node, node_id, rpdo), configure_pdo(node, node_id, tpdo)
         where = f"node {node_id}"
-        return DriveCodec(layout(rpdo.objects, od, where), layout(tpdo.objects, od, where), where,
-                          rpdo.cob_id, tpdo.cob_id)
+        return DriveCodec(
+            layout(rpdo.objects, od, where), layout(tpdo.objects, od, where), where, rpdo.cob_id, tpdo.cob_id
+        )
     except PdoMappingError as err:
         raise NodeSetupError(str(err)) from err
 
 
-def _configure_sensor_pdos(node: canopen.RemoteNode, node_id: int) -> tuple[SensorFrameCodec, SensorFrameCodec]:
+def _configure_sensor_pdos(
+    node: canopen.RemoteNode, node_id: int
+) -> tuple[SensorFrameCodec, SensorFrameCodec]:
     od = node.object_dictionary
     codecs = []
     try:
@@ -312,11 +341,14 @@ def _configure_sensor_pdos(node: canopen.RemoteNode, node_id: int) -> tuple[Sens
         raise NodeSetupError(str(err)) from err
 
 
-def force_then_torque(force: SensorFrameCodec, torque: SensorFrameCodec, node_id: int
-                      ) -> tuple[SensorFrameCodec, SensorFrameCodec]:
+def force_then_torque(
+    force: SensorFrameCodec, torque: SensorFrameCodec, node_id: int
+) -> tuple[SensorFrameCodec, SensorFrameCodec]:
     """The sensor's two TPDOs in the order the exchange reads them, or a ``PdoMappingError``."""
     if not force.is_force or torque.is_force:
-        raise PdoMappingError(f"node {node_id}: TPDO1 must carry the force 0x2000 and TPDO2 the torque 0x2001")
+        raise PdoMappingError(
+            f"node {node_id}: TPDO1 must carry the force 0x2000 and TPDO2 the torque 0x2001"
+        )
     return force, torque
 
 
@@ -345,8 +377,9 @@ def configure_nodes(bus: can.BusABC, plan: NodeSetupPlan) -> NodeSetupReport:
             _write(node, node_id, 0x6060, 0, MODE_CYCLIC_SYNC_POSITION)
             mode = _read(node, node_id, 0x6061, 0)
             if mode != MODE_CYCLIC_SYNC_POSITION:
-                raise NodeSetupError(f"node {node_id}: mode of operation display 0x6061 reads {mode}, "
-                                     f"expected 8 (CSP)")
+                raise NodeSetupError(
+                    f"node {node_id}: mode of operation display 0x6061 reads {mode}, expected 8 (CSP)"
+                )
             _write_verified(node, node_id, 0x1017, 0, hb_ms)
             _write_verified(node, node_id, 0x1016, 1, consumer)
             _write_abort_connection(node, node_id)
@@ -367,8 +400,9 @@ def configure_nodes(bus: can.BusABC, plan: NodeSetupPlan) -> NodeSetupReport:
             if plan.sim_environment is not None:
                 _announce_environment(node, plan.sensor_id, plan.sim_environment, plan.task_kind)
         network.nmt.state = "OPERATIONAL"  # broadcast start
-        return NodeSetupReport(tuple(identities), tuple(positions), time.monotonic() - t0,
-                               tuple(drive_codecs), sensor_codecs)
+        return NodeSetupReport(
+            tuple(identities), tuple(positions), time.monotonic() - t0, tuple(drive_codecs), sensor_codecs
+        )
     except canopen.SdoAbortedError as err:
         raise NodeSetupError(f"SDO aborted during set-up: {err}") from err
     except canopen.SdoCommunicationError as err:
@@ -379,25 +413,37 @@ def configure_nodes(bus: can.BusABC, plan: NodeSetupPlan) -> NodeSetupReport:
         network.bus = None  # the bus stays open for the cyclic loop; canopen must not close it
 
 
-def description_drive_codec(node_id: int, eds: Path = DRIVE_EDS, rpdo_objects: tuple[str, ...] = (),
-                            tpdo_objects: tuple[str, ...] = ()) -> DriveCodec:
+def description_drive_codec(
+    node_id: int,
+    eds: Path = DRIVE_EDS,
+    rpdo_objects: tuple[str, ...] = (),
+    tpdo_objects: tuple[str, ...] = (),
+) -> DriveCodec:
     """The codec of a drive mapped as ``eds`` and the configuration say, without asking the drive
     (what ``configure_nodes`` writes; for exchanges built without a set-up: tests, bench)."""
     od = load_device_description(eds, node_id)
     rpdo = planned_pdo(od, PdoDirection.RECEIVE, 1, node_id, rpdo_objects)
     tpdo = planned_pdo(od, PdoDirection.TRANSMIT, 1, node_id, tpdo_objects)
     where = f"node {node_id}"
-    return DriveCodec(layout(rpdo.objects, od, where), layout(tpdo.objects, od, where), where,
-                      rpdo.cob_id, tpdo.cob_id)
+    return DriveCodec(
+        layout(rpdo.objects, od, where), layout(tpdo.objects, od, where), where, rpdo.cob_id, tpdo.cob_id
+    )
 
 
-def description_sensor_codecs(node_id: int, eds: Path = SENSOR_EDS) -> tuple[SensorFrameCodec, SensorFrameCodec]:
+def description_sensor_codecs(
+    node_id: int, eds: Path = SENSOR_EDS
+) -> tuple[SensorFrameCodec, SensorFrameCodec]:
     od = load_device_description(eds, node_id)
     codecs = []
     for number in (1, 2):
         tpdo = planned_pdo(od, PdoDirection.TRANSMIT, number, node_id, ())
-        codecs.append(SensorFrameCodec(layout(tpdo.objects, od, f"node {node_id} {tpdo.name}"),
-                                       f"node {node_id} {tpdo.name}", tpdo.cob_id))
+        codecs.append(
+            SensorFrameCodec(
+                layout(tpdo.objects, od, f"node {node_id} {tpdo.name}"),
+                f"node {node_id} {tpdo.name}",
+                tpdo.cob_id,
+            )
+        )
     return force_then_torque(codecs[0], codecs[1], node_id)
 
 

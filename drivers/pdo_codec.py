@@ -63,7 +63,9 @@ class PositionScale:
     def to_counts(self, value: float) -> int:
         counts = round(value * self.counts_per_unit)
         if not -INT32_MAX - 1 <= counts <= INT32_MAX:
-            raise ValueError(f"position {value} does not fit in an int32 at {self.counts_per_unit} counts/unit")
+            raise ValueError(
+                f"position {value} does not fit in an int32 at {self.counts_per_unit} counts/unit"
+            )
         return counts
 
     def to_unit(self, counts: int) -> float:
@@ -99,7 +101,9 @@ def saturating_i16(value: float, per_count: float) -> tuple[int, bool]:
     return counts, False
 
 
-def encode_sensor_frame(values: tuple[float, float, float], per_count: float, status: int, counter: int) -> bytes:
+def encode_sensor_frame(
+    values: tuple[float, float, float], per_count: float, status: int, counter: int
+) -> bytes:
     """One sensor TPDO; values beyond the i16 range saturate and set the status bit."""
     c0, s0 = saturating_i16(values[0], per_count)
     c1, s1 = saturating_i16(values[1], per_count)
@@ -136,18 +140,23 @@ class DriveCodec:
     RPDO with other objects is refused: the controller would have nothing to write into them.
     """
 
-    def __init__(self, rpdo: PdoLayout, tpdo: PdoLayout, where: str, rpdo_cob_id: int = 0,
-                 tpdo_cob_id: int = 0) -> None:
+    def __init__(
+        self, rpdo: PdoLayout, tpdo: PdoLayout, where: str, rpdo_cob_id: int = 0, tpdo_cob_id: int = 0
+    ) -> None:
         self.rpdo, self.tpdo = rpdo, tpdo
         self.rpdo_cob_id, self.tpdo_cob_id = rpdo_cob_id, tpdo_cob_id
         self._cw, self._target = rpdo.slot(*CONTROLWORD), rpdo.slot(*TARGET_POSITION)
         self._sw, self._position = tpdo.slot(*STATUSWORD), tpdo.slot(*POSITION_ACTUAL)
         if self._cw < 0 or self._target < 0 or len(rpdo.objects) != 2:
-            raise PdoMappingError(f"{where} RPDO mapping {', '.join(map(str, rpdo.objects)) or 'empty'}: must "
-                                  f"map exactly the controlword 0x6040 and the target position 0x607A")
+            raise PdoMappingError(
+                f"{where} RPDO mapping {', '.join(map(str, rpdo.objects)) or 'empty'}: must "
+                f"map exactly the controlword 0x6040 and the target position 0x607A"
+            )
         if self._sw < 0 or self._position < 0:
-            raise PdoMappingError(f"{where} TPDO mapping {', '.join(map(str, tpdo.objects)) or 'empty'}: must "
-                                  f"map the statusword 0x6041 and the position actual value 0x6064")
+            raise PdoMappingError(
+                f"{where} TPDO mapping {', '.join(map(str, tpdo.objects)) or 'empty'}: must "
+                f"map the statusword 0x6041 and the position actual value 0x6064"
+            )
         self._rpdo_first_is_cw = self._cw == 0
         self._rpdo_packer = rpdo.packer
         self._tpdo_packer = tpdo.packer
@@ -172,18 +181,24 @@ class SensorFrameCodec:
     def __init__(self, tpdo: PdoLayout, where: str, cob_id: int = 0) -> None:
         self.layout = tpdo
         self.cob_id = cob_id
-        indices = {obj.index for obj in tpdo.objects if obj.index in (SENSOR_FORCE_OBJECT, SENSOR_TORQUE_OBJECT)}
+        indices = {
+            obj.index for obj in tpdo.objects if obj.index in (SENSOR_FORCE_OBJECT, SENSOR_TORQUE_OBJECT)
+        }
         if len(indices) != 1:
-            raise PdoMappingError(f"{where} mapping {', '.join(map(str, tpdo.objects)) or 'empty'}: must map the "
-                                  f"three axes of either 0x2000 (force) or 0x2001 (torque)")
+            raise PdoMappingError(
+                f"{where} mapping {', '.join(map(str, tpdo.objects)) or 'empty'}: must map the "
+                f"three axes of either 0x2000 (force) or 0x2001 (torque)"
+            )
         axis_object = indices.pop()
         self.is_force = axis_object == SENSOR_FORCE_OBJECT
         self.per_count = FORCE_N_PER_COUNT if self.is_force else TORQUE_NM_PER_COUNT
         self._axes = tuple(tpdo.slot(axis_object, k) for k in (1, 2, 3))
         self._status, self._counter = tpdo.slot(*SENSOR_STATUS_OBJECT), tpdo.slot(*SENSOR_COUNTER_OBJECT)
         if min(self._axes) < 0 or self._status < 0 or self._counter < 0:
-            raise PdoMappingError(f"{where} mapping {', '.join(map(str, tpdo.objects))}: must map "
-                                  f"0x{axis_object:04X}sub1..3, the status 0x2002 and the counter 0x2003")
+            raise PdoMappingError(
+                f"{where} mapping {', '.join(map(str, tpdo.objects))}: must map "
+                f"0x{axis_object:04X}sub1..3, the status 0x2002 and the counter 0x2003"
+            )
         self._packer = tpdo.packer
 
     def decode(self, data: bytes | bytearray) -> tuple[float, float, float, int, int]:
@@ -195,17 +210,26 @@ class SensorFrameCodec:
         return v[ax] * k, v[ay] * k, v[az] * k, v[self._status], v[self._counter]
 
 
-def encode_tracker_frames(position_m: tuple[float, float, float], rotation_vector_rad: tuple[float, float, float],
-                          status: int, counter: int) -> tuple[bytes, bytes]:
+def encode_tracker_frames(
+    position_m: tuple[float, float, float],
+    rotation_vector_rad: tuple[float, float, float],
+    status: int,
+    counter: int,
+) -> tuple[bytes, bytes]:
     """The tracker's two TPDOs for one sample; a coordinate beyond the i16 range saturates and sets the status bit."""
     frames = []
-    for values, per_count in ((position_m, TRACKER_M_PER_COUNT), (rotation_vector_rad, TRACKER_RAD_PER_COUNT)):
+    for values, per_count in (
+        (position_m, TRACKER_M_PER_COUNT),
+        (rotation_vector_rad, TRACKER_RAD_PER_COUNT),
+    ):
         counts = [saturating_i16(v, per_count) for v in values]
         if any(sat for _, sat in counts):
             status |= TRACKER_SATURATED
         frames.append(counts)
-    return tuple(SENSOR_TPDO.pack(*(c for c, _ in f), status & 0xFF, counter & 0xFF)  # type: ignore[return-value]
-                 for f in frames)
+    return tuple(
+        SENSOR_TPDO.pack(*(c for c, _ in f), status & 0xFF, counter & 0xFF)  # type: ignore[return-value]
+        for f in frames
+    )
 
 
 def decode_tracker_frame(data: bytes | bytearray, per_count: float) -> tuple[float, float, float, int, int]:

@@ -102,8 +102,10 @@ def struct_char(var: ODVariable) -> str:
     fmt = getattr(packer, "format", "")
     fmt = fmt.lstrip("<") if isinstance(fmt, str) else ""
     if len(fmt) != 1:  # "<h", "B"; the 24-, 40-, 48- and 56-bit types have no struct code
-        raise PdoMappingError(f"object 0x{var.index:04X}sub{var.subindex} has data type "
-                              f"0x{var.data_type or 0:04X}, which this project cannot map")
+        raise PdoMappingError(
+            f"object 0x{var.index:04X}sub{var.subindex} has data type "
+            f"0x{var.data_type or 0:04X}, which this project cannot map"
+        )
     return fmt
 
 
@@ -135,13 +137,17 @@ def layout(objects: tuple[MappedObject, ...], od: canopen.ObjectDictionary, wher
             raise PdoMappingError(f"{where}: {obj} is not in the device description")
         char = struct_char(var)
         if struct.calcsize("<" + char) * 8 != obj.bit_length:
-            raise PdoMappingError(f"{where}: {obj} has {struct.calcsize('<' + char) * 8} bits in the "
-                                  f"device description, mapped with {obj.bit_length}")
+            raise PdoMappingError(
+                f"{where}: {obj} has {struct.calcsize('<' + char) * 8} bits in the "
+                f"device description, mapped with {obj.bit_length}"
+            )
         chars.append(char)
     packer = struct.Struct("<" + "".join(chars))
     if packer.size > MAX_CLASSICAL_PDO_BYTES:
-        raise PdoMappingError(f"{where}: mapping {', '.join(map(str, objects))} takes {packer.size} bytes, "
-                              f"a PDO carries at most {MAX_CLASSICAL_PDO_BYTES}")
+        raise PdoMappingError(
+            f"{where}: mapping {', '.join(map(str, objects))} takes {packer.size} bytes, "
+            f"a PDO carries at most {MAX_CLASSICAL_PDO_BYTES}"
+        )
     return PdoLayout(objects, packer)
 
 
@@ -169,7 +175,9 @@ def load_device_description(eds: Path, node_id: int) -> canopen.ObjectDictionary
     with _held_log_records("canopen.objectdictionary") as warnings:
         od = _parse_device_description(eds, text, node_id)
     if len(od) == 0:
-        raise DeviceDescriptionError(f"device description {eds} describes no objects (no [1000]-style sections)")
+        raise DeviceDescriptionError(
+            f"device description {eds} describes no objects (no [1000]-style sections)"
+        )
     for record in warnings:  # only for a file that loads: a refused one gets its one line alone
         log.warning("device description %s: %s", eds, record.getMessage())
     return od
@@ -204,37 +212,48 @@ def _parse_device_description(eds: Path, text: str, node_id: int) -> canopen.Obj
     """canopen's EDS import of ``text``; its parser's exceptions become one line naming ``eds``."""
     where = f"device description {eds}"
     stream = io.StringIO(text)
-    stream.name = str(eds) if eds.suffix.lower() in (".eds", ".dcf") else f"{eds}.eds"  # canopen picks by suffix
+    stream.name = (
+        str(eds) if eds.suffix.lower() in (".eds", ".dcf") else f"{eds}.eds"
+    )  # canopen picks by suffix
     try:
         return canopen.import_od(stream, node_id)
     except configparser.MissingSectionHeaderError as err:
-        raise DeviceDescriptionError(f"{where}: line {err.lineno} comes before any [section] header: "
-                                     f"{one_line(err.line)}") from None
+        raise DeviceDescriptionError(
+            f"{where}: line {err.lineno} comes before any [section] header: {one_line(err.line)}"
+        ) from None
     except configparser.DuplicateSectionError as err:
-        raise DeviceDescriptionError(f"{where}: line {err.lineno}: section [{err.section}] appears twice") from None
+        raise DeviceDescriptionError(
+            f"{where}: line {err.lineno}: section [{err.section}] appears twice"
+        ) from None
     except configparser.DuplicateOptionError as err:
-        raise DeviceDescriptionError(f"{where}: line {err.lineno}: key {err.option} appears twice in section "
-                                     f"[{err.section}]") from None
+        raise DeviceDescriptionError(
+            f"{where}: line {err.lineno}: key {err.option} appears twice in section [{err.section}]"
+        ) from None
     except configparser.ParsingError as err:
         lineno, line = err.errors[0]
-        raise DeviceDescriptionError(f"{where}: line {lineno} is not KEY=VALUE: {one_line(line)} (a truncated "
-                                     f"or damaged file?)") from None
+        raise DeviceDescriptionError(
+            f"{where}: line {lineno} is not KEY=VALUE: {one_line(line)} (a truncated or damaged file?)"
+        ) from None
     except (configparser.Error, ObjectDictionaryError, KeyError, ValueError, IndexError, TypeError) as err:
         # canopen reads the sections without checking them: a missing key (NoOptionError), a
         # value that is no number (ValueError), a sub-object without its parent (KeyError)
-        raise DeviceDescriptionError(f"{where} is not a valid device description: "
-                                     f"{one_line(getattr(err, 'message', None) or err)}") from None
+        raise DeviceDescriptionError(
+            f"{where} is not a valid device description: {one_line(getattr(err, 'message', None) or err)}"
+        ) from None
 
 
 def _default(od: canopen.ObjectDictionary, index: int, subindex: int, where: str) -> int:
     var = find_variable(od, index, subindex)
     if var is None or not isinstance(var.default, int):
-        raise PdoMappingError(f"{where}: the device description has no default for 0x{index:04X}sub{subindex}")
+        raise PdoMappingError(
+            f"{where}: the device description has no default for 0x{index:04X}sub{subindex}"
+        )
     return var.default
 
 
-def pdo_from_description(od: canopen.ObjectDictionary, direction: PdoDirection, number: int,
-                         node_id: int) -> PdoConfig:
+def pdo_from_description(
+    od: canopen.ObjectDictionary, direction: PdoDirection, number: int, node_id: int
+) -> PdoConfig:
     """A PDO as the EDS's defaults describe it (COB-ID ``$NODEID+...`` resolved by canopen)."""
     probe = PdoConfig(direction, number, 0, 0, ())
     where = f"node {node_id} {probe.name}"
@@ -252,15 +271,17 @@ def parse_object_reference(text: str) -> tuple[int, int]:
         index = int(index_text, 0)
         subindex = int(sub_text, 0) if sub_text else 0
     except ValueError:
-        raise PdoMappingError(f"mapped object {text!r} is not INDEX or INDEX:SUBINDEX (like 0x607A or "
-                              f"0x2000:1)") from None
+        raise PdoMappingError(
+            f"mapped object {text!r} is not INDEX or INDEX:SUBINDEX (like 0x607A or 0x2000:1)"
+        ) from None
     if not (0 <= index <= 0xFFFF and 0 <= subindex <= 0xFF):
         raise PdoMappingError(f"mapped object {text!r} is outside 0x0000..0xFFFF:0..255")
     return index, subindex
 
 
-def objects_from_references(references: tuple[str, ...], od: canopen.ObjectDictionary,
-                            where: str) -> tuple[MappedObject, ...]:
+def objects_from_references(
+    references: tuple[str, ...], od: canopen.ObjectDictionary, where: str
+) -> tuple[MappedObject, ...]:
     """Mapped objects named in the configuration, their lengths from the device description."""
     objects = []
     for text in references:
@@ -269,19 +290,28 @@ def objects_from_references(references: tuple[str, ...], od: canopen.ObjectDicti
         if var is None:
             raise PdoMappingError(f"{where}: object {text} is not in the device description")
         if not var.pdo_mappable:
-            raise PdoMappingError(f"{where}: object {text} ({var.name}) is not PDO-mappable in the "
-                                  f"device description")
+            raise PdoMappingError(
+                f"{where}: object {text} ({var.name}) is not PDO-mappable in the device description"
+            )
         objects.append(MappedObject(index, subindex, len(var)))
     return tuple(objects)
 
 
-def planned_pdo(od: canopen.ObjectDictionary, direction: PdoDirection, number: int, node_id: int,
-                references: tuple[str, ...]) -> PdoConfig:
+def planned_pdo(
+    od: canopen.ObjectDictionary,
+    direction: PdoDirection,
+    number: int,
+    node_id: int,
+    references: tuple[str, ...],
+) -> PdoConfig:
     """What the master writes: the EDS's default PDO, its objects replaced by the configured ones
     (when any), synchronous (every SYNC: the cycle needs each TPDO once per period)."""
     default = pdo_from_description(od, direction, number, node_id)
-    objects = objects_from_references(references, od, f"node {node_id} {default.name}") if references \
+    objects = (
+        objects_from_references(references, od, f"node {node_id} {default.name}")
+        if references
         else default.objects
+    )
     config = PdoConfig(direction, number, default.cob_id, TRANSMISSION_SYNCHRONOUS, objects)
     layout(objects, od, f"node {node_id} {config.name}")  # refuses a mapping over 8 bytes before any write
     return config

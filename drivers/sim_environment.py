@@ -27,7 +27,9 @@ ENVIRONMENT_WORDS = {"free": "free space", "workpiece": "the contour task's work
 
 def mismatch_message(simulator: str, expected: str, task_kind: str) -> str:
     """The one line a refused start prints."""
-    return (f"the simulator has {ENVIRONMENT_WORDS.get(simulator, simulator)} (its sim.environment = "
-            f"\"{simulator}\"), task.kind = \"{task_kind}\" needs {ENVIRONMENT_WORDS.get(expected, expected)}: "
-            f"start cheope sim with sim.environment = \"auto\" (the default: the controller's task decides) "
-            f"or \"{expected}\"")
+    return (
+        f"the simulator has {ENVIRONMENT_WORDS.get(simulator, simulator)} (its sim.environment = "
+        f'"{simulator}"), task.kind = "{task_kind}" needs {ENVIRONMENT_WORDS.get(expected, expected)}: '
+        f'start cheope sim with sim.environment = "auto" (the default: the controller\'s task decides) '
+        f'or "{expected}"'
+    )

@@ -88,22 +88,35 @@ class RecordedTraffic:
         return round(self.planned_load_percent * self.sync_rate_hz / self.nominal_rate_hz, 1)
 
     def as_dict(self) -> dict[str, Any]:
-        return {"frames_out": self.frames_out, "frames_in": self.frames_in,
-                "by_function": {k: {"out": o, "in": i} for k, (o, i) in self.by_function.items()},
-                "cyclic_span_s": self.cyclic_span_s, "sync_rate_hz": self.sync_rate_hz,
-                "load_percent": self.load_percent, "frames_per_second": self.frames_per_second,
-                "planned_load_percent": self.planned_load_percent, "nominal_rate_hz": self.nominal_rate_hz,
-                "planned_at_sync_rate_percent": self.planned_at_sync_rate_percent}
+        return {
+            "frames_out": self.frames_out,
+            "frames_in": self.frames_in,
+            "by_function": {k: {"out": o, "in": i} for k, (o, i) in self.by_function.items()},
+            "cyclic_span_s": self.cyclic_span_s,
+            "sync_rate_hz": self.sync_rate_hz,
+            "load_percent": self.load_percent,
+            "frames_per_second": self.frames_per_second,
+            "planned_load_percent": self.planned_load_percent,
+            "nominal_rate_hz": self.nominal_rate_hz,
+            "planned_at_sync_rate_percent": self.planned_at_sync_rate_percent,
+        }
 
     def format(self) -> str:
         lines = [f"CAN frames {self.frames_out} sent, {self.frames_in} received"]
         for name, (out, inc) in sorted(self.by_function.items()):
             lines.append(f"  {name:<16} {out:>9} out {inc:>9} in")
-        planned = "" if self.planned_load_percent is None else (
-            f"; planned {self.planned_load_percent:.1f} % at {self.nominal_rate_hz:g} Hz, "
-            f"{self.planned_at_sync_rate_percent:.1f} % at the SYNC rate achieved")
-        lines.append(f"bus load   {self.load_percent:.1f} %, {self.frames_per_second:.0f} frames/s, SYNC at "
-                     f"{self.sync_rate_hz:.1f} Hz over the cyclic phase of {self.cyclic_span_s:.3f} s{planned}")
+        planned = (
+            ""
+            if self.planned_load_percent is None
+            else (
+                f"; planned {self.planned_load_percent:.1f} % at {self.nominal_rate_hz:g} Hz, "
+                f"{self.planned_at_sync_rate_percent:.1f} % at the SYNC rate achieved"
+            )
+        )
+        lines.append(
+            f"bus load   {self.load_percent:.1f} %, {self.frames_per_second:.0f} frames/s, SYNC at "
+            f"{self.sync_rate_hz:.1f} Hz over the cyclic phase of {self.cyclic_span_s:.3f} s{planned}"
+        )
         return "\n".join(lines)
 
 
@@ -152,9 +165,13 @@ def recorded_traffic(path: str | Path, report: ReadReport | None = None) -> Reco
         frames_out=sum(k for (_, out), k in counts.items() if out),
         frames_in=sum(k for (_, out), k in counts.items() if not out),
         by_function={n: (counts[(n, True)], counts[(n, False)]) for n in names},
-        cyclic_span_s=span, sync_rate_hz=round(syncs / span, 2) if span > 0 else 0.0,
-        load_percent=load["percent"], frames_per_second=load["frames_per_second"],
-        planned_load_percent=planned, nominal_rate_hz=cfg.loop.rate_hz if cfg is not None else None)
+        cyclic_span_s=span,
+        sync_rate_hz=round(syncs / span, 2) if span > 0 else 0.0,
+        load_percent=load["percent"],
+        frames_per_second=load["frames_per_second"],
+        planned_load_percent=planned,
+        nominal_rate_hz=cfg.loop.rate_hz if cfg is not None else None,
+    )
 
 
 def _recorded_config(report: ReadReport) -> Config | None:

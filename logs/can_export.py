@@ -45,8 +45,10 @@ NO_DIRECTION = ("csv",)  # python-can's CSV columns have no direction
 
 # The frames each format's python-can writer leaves out (it logs a warning and returns).
 _UNWRITABLE: dict[str, tuple[tuple[str, Callable[[RecordedFrame], bool]], ...]] = {
-    "trc": (("CAN FD frames (python-can's TRC writer has none)", lambda f: f.is_fd),
-            ("error frames (python-can's TRC writer has none)", lambda f: f.is_error_frame)),
+    "trc": (
+        ("CAN FD frames (python-can's TRC writer has none)", lambda f: f.is_fd),
+        ("error frames (python-can's TRC writer has none)", lambda f: f.is_error_frame),
+    ),
 }
 
 
@@ -103,13 +105,21 @@ def _writer(fmt: str, out: Path, first_unix_s: float, report: ReadReport) -> can
 
 def to_message(f: RecordedFrame, unix_s: float) -> can.Message:
     """The frame as python-can's ``Message``, Rx/Tx from the controller's side."""
-    return can.Message(timestamp=unix_s, arbitration_id=f.arbitration_id, is_extended_id=f.arbitration_id > 0x7FF,
-                       data=f.data, is_fd=f.is_fd, bitrate_switch=f.bitrate_switch,
-                       is_error_frame=f.is_error_frame, is_rx=not f.outgoing)
+    return can.Message(
+        timestamp=unix_s,
+        arbitration_id=f.arbitration_id,
+        is_extended_id=f.arbitration_id > 0x7FF,
+        data=f.data,
+        is_fd=f.is_fd,
+        bitrate_switch=f.bitrate_switch,
+        is_error_frame=f.is_error_frame,
+        is_rx=not f.outgoing,
+    )
 
 
-def export_frames(path: str | Path, fmt: str, out: str | Path | None = None,
-                  progress: Callable[[int], None] | None = None) -> ExportResult:
+def export_frames(
+    path: str | Path, fmt: str, out: str | Path | None = None, progress: Callable[[int], None] | None = None
+) -> ExportResult:
     """Write every CAN frame of ``path`` to ``out`` (default: beside it, the format's suffix)."""
     if fmt not in FORMATS:
         raise ExportError(f"--format {fmt!r}: must be one of {', '.join(FORMATS)}")
@@ -142,10 +152,15 @@ def export_frames(path: str | Path, fmt: str, out: str | Path | None = None,
     finally:
         if writer is not None:
             writer.stop()
-    note = "python-can's CSV has no direction column: use asc, blf, log or trc to keep Rx/Tx" \
-        if fmt in NO_DIRECTION else ""
+    note = (
+        "python-can's CSV has no direction column: use asc, blf, log or trc to keep Rx/Tx"
+        if fmt in NO_DIRECTION
+        else ""
+    )
     if offset_s == 0.0 and written:
-        monotonic = "no clock offset in the recording: times are the controller's monotonic clock, not Unix time"
+        monotonic = (
+            "no clock offset in the recording: times are the controller's monotonic clock, not Unix time"
+        )
         note = f"{note}; {monotonic}" if note else monotonic
     return ExportResult(target, fmt, written, sent, dict(skipped), note, report)
 

@@ -26,55 +26,98 @@ LARGE_FILE_BYTES = 4 * 1024 * 1024
 VERIFY_INCOMPLETE = 3  # --verify: no divergence, but part of the recording could not be checked  # a progress bar above this size (on a terminal)
 
 
-def add_commands(sub: argparse._SubParsersAction[ParserT],
-                 stop_on_signals: Callable[[], threading.Event]) -> None:
+def add_commands(
+    sub: argparse._SubParsersAction[ParserT], stop_on_signals: Callable[[], threading.Event]
+) -> None:
     """``cheope logs`` and ``cheope replay``; ``stop_on_signals`` is the caller's (SIGINT/SIGTERM)."""
     p = sub.add_parser("logs", help="inspect and repair session recordings (MCAP)")
     logs_sub = p.add_subparsers(dest="logs_command", required=True)
-    q = logs_sub.add_parser("info", help="duration, channels, message counts, metadata, damage, CAN traffic and bus load")
+    q = logs_sub.add_parser(
+        "info", help="duration, channels, message counts, metadata, damage, CAN traffic and bus load"
+    )
     q.add_argument("file")
     q.add_argument("--json", action="store_true", help="print one JSON object")
-    q.add_argument("--check", action="store_true",
-                   help="read every chunk, check its CRC and count the recorded CAN traffic (default: the summary at the end of a finished "
-                        "file; a file without one is always read whole)")
+    q.add_argument(
+        "--check",
+        action="store_true",
+        help="read every chunk, check its CRC and count the recorded CAN traffic (default: the summary at the end of a finished "
+        "file; a file without one is always read whole)",
+    )
     q.set_defaults(func=cmd_logs_info)
-    q = logs_sub.add_parser("list", help="the sessions in a directory and their files (a long session is split)")
-    q.add_argument("directory", nargs="?", default="",
-                   help="default: $XDG_DATA_HOME/cheope/sessions, where recording.directory = \"\" records")
+    q = logs_sub.add_parser(
+        "list", help="the sessions in a directory and their files (a long session is split)"
+    )
+    q.add_argument(
+        "directory",
+        nargs="?",
+        default="",
+        help='default: $XDG_DATA_HOME/cheope/sessions, where recording.directory = "" records',
+    )
     q.add_argument("--json", action="store_true", help="print one JSON object")
     q.set_defaults(func=cmd_logs_list)
     q = logs_sub.add_parser("recover", help="write a complete, indexed file from a truncated or damaged one")
     q.add_argument("file")
     q.add_argument("-o", "--output", help="output file (default: FILE.recovered.mcap beside it)")
     q.set_defaults(func=cmd_logs_recover)
-    q = logs_sub.add_parser("export", help="the recorded CAN frames for CAN tools: Vector ASC/BLF, candump log, PEAK TRC, "
-                                           "CSV (python-can's writers)")
+    q = logs_sub.add_parser(
+        "export",
+        help="the recorded CAN frames for CAN tools: Vector ASC/BLF, candump log, PEAK TRC, "
+        "CSV (python-can's writers)",
+    )
     q.add_argument("file")
-    q.add_argument("--format", required=True, choices=("asc", "blf", "log", "trc", "csv"),
-                   help="asc, blf (Vector), log (candump -L), trc (PEAK), csv (python-can's columns: no direction)")
+    q.add_argument(
+        "--format",
+        required=True,
+        choices=("asc", "blf", "log", "trc", "csv"),
+        help="asc, blf (Vector), log (candump -L), trc (PEAK), csv (python-can's columns: no direction)",
+    )
     q.add_argument("-o", "--output", help="output file (default: FILE with the format's suffix, beside it)")
     q.add_argument("--json", action="store_true", help="print the result as one JSON object")
     q.set_defaults(func=cmd_logs_export)
 
-    p = sub.add_parser("replay", help="replay a recording: to Rerun, onto a CAN bus, or through the step (--verify)")
-    p.add_argument("file", nargs="*", help="the recording (.mcap; may also follow --rerun); --verify: one file, or "
-                                           "several files of one session")
+    p = sub.add_parser(
+        "replay", help="replay a recording: to Rerun, onto a CAN bus, or through the step (--verify)"
+    )
+    p.add_argument(
+        "file",
+        nargs="*",
+        help="the recording (.mcap; may also follow --rerun); --verify: one file, or "
+        "several files of one session",
+    )
     what = p.add_mutually_exclusive_group(required=True)
-    what.add_argument("--rerun", nargs="?", const="", metavar="OUT.rrd",
-                      help="to Rerun with the robot drawn: without OUT spawn the viewer (or write FILE.rrd when none "
-                           "can start); cheope replay --rerun FILE.mcap reads FILE.mcap")
-    what.add_argument("--bus", metavar="INTERFACE[:CHANNEL]", help="send the recorded frames with their timing")
-    what.add_argument("--verify", action="store_true",
-                      help="run the recorded inputs through the step and compare the outputs bit for bit "
-                           "(exit 1: a divergence, 3: only part of the recording could be checked)")
+    what.add_argument(
+        "--rerun",
+        nargs="?",
+        const="",
+        metavar="OUT.rrd",
+        help="to Rerun with the robot drawn: without OUT spawn the viewer (or write FILE.rrd when none "
+        "can start); cheope replay --rerun FILE.mcap reads FILE.mcap",
+    )
+    what.add_argument(
+        "--bus", metavar="INTERFACE[:CHANNEL]", help="send the recorded frames with their timing"
+    )
+    what.add_argument(
+        "--verify",
+        action="store_true",
+        help="run the recorded inputs through the step and compare the outputs bit for bit "
+        "(exit 1: a divergence, 3: only part of the recording could be checked)",
+    )
     p.add_argument("--speed", type=float, default=1.0, help="--bus: time scale (2 = twice as fast)")
-    p.add_argument("--only", choices=("sent", "received"),
-                   help="--bus: only the frames the controller sent, or only those it received (a bus carries "
-                        "no direction: a listener sees every replayed frame as received; logs export keeps it)")
+    p.add_argument(
+        "--only",
+        choices=("sent", "received"),
+        help="--bus: only the frames the controller sent, or only those it received (a bus carries "
+        "no direction: a listener sees every replayed frame as received; logs export keeps it)",
+    )
     p.add_argument("--udp-port", type=int, help="--bus: UDP port of the udp_multicast bus")
     p.add_argument("--fd", action="store_true", help="--bus: open the bus for CAN FD")
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="--verify: change the recorded configuration (does the change alter the outputs?)")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="--verify: change the recorded configuration (does the change alter the outputs?)",
+    )
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.set_defaults(func=cmd_replay, stop_on_signals=stop_on_signals)
 
@@ -97,8 +140,14 @@ def _progress(path: Path, label: str) -> Iterator[Callable[[int], None] | None]:
     from rich.console import Console
     from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TimeRemainingColumn
 
-    with Progress(TextColumn(label), BarColumn(), DownloadColumn(), TimeRemainingColumn(),
-                  console=Console(stderr=True), transient=True) as bar:
+    with Progress(
+        TextColumn(label),
+        BarColumn(),
+        DownloadColumn(),
+        TimeRemainingColumn(),
+        console=Console(stderr=True),
+        transient=True,
+    ) as bar:
         task = bar.add_task(label, total=size)
         yield lambda done: bar.update(task, completed=done)
 
@@ -140,7 +189,9 @@ def cmd_logs_info(args: argparse.Namespace) -> int:
     except LogFileError as err:
         return _fail(args, err)
     if args.json:
-        print(strict_json({**info_dict(report), **({"can": traffic.as_dict()} if traffic is not None else {})}))
+        print(
+            strict_json({**info_dict(report), **({"can": traffic.as_dict()} if traffic is not None else {})})
+        )
     else:
         print(format_info(report) + ("\n" + traffic.format() if traffic is not None else ""))
     return 1 if report.damaged else 0
@@ -159,8 +210,10 @@ def cmd_logs_recover(args: argparse.Namespace) -> int:
     lost = "; ".join(r.report.problems) or "nothing was damaged"
     if r.messages_saved == 0:
         r.output.unlink(missing_ok=True)  # a file with no message in it would only look like a recovery
-        print(f"cheope logs recover: nothing recovered from {args.file}: no readable message ({lost})",
-              file=sys.stderr)
+        print(
+            f"cheope logs recover: nothing recovered from {args.file}: no readable message ({lost})",
+            file=sys.stderr,
+        )
         return 1
     print(f"recovered {r.messages_saved} messages from {r.report.chunks} chunk(s) into {r.output} ({lost})")
     return 0
@@ -175,7 +228,11 @@ def cmd_logs_list(args: argparse.Namespace) -> int:
     except LogFileError as err:
         return _fail(args, err)
     if args.json:
-        print(strict_json({"directory": str(sessions.directory), "sessions": [x.as_dict() for x in sessions.sessions]}))
+        print(
+            strict_json(
+                {"directory": str(sessions.directory), "sessions": [x.as_dict() for x in sessions.sessions]}
+            )
+        )
     else:
         print(format_sessions(sessions))
     return 0
@@ -188,7 +245,9 @@ def rerun_input_and_output(file: str | None, rerun: str | None) -> tuple[str, st
         if not rerun:
             raise InputError("no recording given: cheope replay FILE.mcap --rerun [OUT.rrd]")
         if rerun.endswith(".rrd"):
-            raise InputError(f"--rerun {rerun}: is the output; which recording? cheope replay FILE.mcap --rerun {rerun}")
+            raise InputError(
+                f"--rerun {rerun}: is the output; which recording? cheope replay FILE.mcap --rerun {rerun}"
+            )
         return rerun, None
     if rerun and not rerun.endswith(".rrd"):
         raise InputError(f"--rerun {rerun}: the output must be a .rrd file (Rerun's recording format)")
@@ -209,12 +268,25 @@ def cmd_logs_export(args: argparse.Namespace) -> int:
         return _fail(args, err)
     not_written = "; ".join(f"{k} {why} not written" for why, k in r.frames_not_written.items())
     if args.json:
-        print(strict_json({"output": str(r.output), "format": r.format, "frames_written": r.frames_written,
-                          "frames_out": r.frames_out, "frames_in": r.frames_written - r.frames_out,
-                          "frames_not_written": r.frames_not_written, "note": r.note, "problems": r.report.problems}))
+        print(
+            strict_json(
+                {
+                    "output": str(r.output),
+                    "format": r.format,
+                    "frames_written": r.frames_written,
+                    "frames_out": r.frames_out,
+                    "frames_in": r.frames_written - r.frames_out,
+                    "frames_not_written": r.frames_not_written,
+                    "note": r.note,
+                    "problems": r.report.problems,
+                }
+            )
+        )
     else:
-        print(f"wrote {r.frames_written} frames to {r.output} ({r.frames_out} Tx, {r.frames_written - r.frames_out} Rx)"
-              + "".join(f"; {t}" for t in (not_written, r.note, "; ".join(r.report.problems)) if t))
+        print(
+            f"wrote {r.frames_written} frames to {r.output} ({r.frames_out} Tx, {r.frames_written - r.frames_out} Rx)"
+            + "".join(f"; {t}" for t in (not_written, r.note, "; ".join(r.report.problems)) if t)
+        )
     return 1 if r.frames_not_written else 0
 
 
@@ -222,7 +294,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from logs.reader import LogFileError
 
     if not args.verify and len(args.file) > 1:
-        print(f"cheope {args.command}: error: --rerun and --bus take one file, got {len(args.file)}", file=sys.stderr)
+        print(
+            f"cheope {args.command}: error: --rerun and --bus take one file, got {len(args.file)}",
+            file=sys.stderr,
+        )
         return 2
     if args.rerun is None and not args.file:
         return _fail(args, InputError("no recording given: cheope replay FILE.mcap --verify|--bus|--rerun"))
@@ -248,12 +323,28 @@ def _verify(args: argparse.Namespace) -> int:
         result = verify(paths, overrides, progress)
     if args.json:
         d = result.divergence
-        print(strict_json({"ok": result.ok, "cycles_checked": result.cycles_checked,
-                          "cycles_recorded": result.cycles_recorded, "problems": result.problems,
-                          "files": [str(p) for p in result.files], "started_from": result.started_from,
-                          "continues_in": result.continues_in,
-                          "divergence": None if d is None else {"cycle": d.cycle, "t_s": d.t_s, "field": d.field,
-                                                                "recorded": d.recorded, "recomputed": d.recomputed}}))
+        print(
+            strict_json(
+                {
+                    "ok": result.ok,
+                    "cycles_checked": result.cycles_checked,
+                    "cycles_recorded": result.cycles_recorded,
+                    "problems": result.problems,
+                    "files": [str(p) for p in result.files],
+                    "started_from": result.started_from,
+                    "continues_in": result.continues_in,
+                    "divergence": None
+                    if d is None
+                    else {
+                        "cycle": d.cycle,
+                        "t_s": d.t_s,
+                        "field": d.field,
+                        "recorded": d.recorded,
+                        "recomputed": d.recomputed,
+                    },
+                }
+            )
+        )
     else:
         print(result.summary())
     if result.ok:
@@ -265,19 +356,30 @@ def _bus(args: argparse.Namespace) -> int:
     from drivers.bus import DEFAULT_UDP_PORT, parse_bus_spec
     from logs.replay_bus import replay_to_bus
 
-    spec = parse_bus_spec(args.bus, fd=args.fd, udp_port=DEFAULT_UDP_PORT if args.udp_port is None else args.udp_port)
+    spec = parse_bus_spec(
+        args.bus, fd=args.fd, udp_port=DEFAULT_UDP_PORT if args.udp_port is None else args.udp_port
+    )
     stop: threading.Event = args.stop_on_signals()
     path = Path(args.file)
     with _progress(path, "replaying") as progress:
         r = replay_to_bus(path, spec, args.speed, stop, progress, only=args.only)
     problems = "; ".join(r.report.problems)
     if args.json:
-        print(strict_json({"frames_sent": r.frames_sent,
-                          "send_errors": r.send_errors, "duration_s": r.duration_s, "problems": r.report.problems}))
+        print(
+            strict_json(
+                {
+                    "frames_sent": r.frames_sent,
+                    "send_errors": r.send_errors,
+                    "duration_s": r.duration_s,
+                    "problems": r.report.problems,
+                }
+            )
+        )
     else:
-        print(f"sent {r.frames_sent} frames onto {spec} in {r.duration_s:.2f} s (speed {args.speed:g}, "
-              f"{r.send_errors} send errors)"
-              + (f"; {problems}" if problems else ""))
+        print(
+            f"sent {r.frames_sent} frames onto {spec} in {r.duration_s:.2f} s (speed {args.speed:g}, "
+            f"{r.send_errors} send errors)" + (f"; {problems}" if problems else "")
+        )
     return 0
 
 
@@ -295,11 +397,22 @@ def _rerun(args: argparse.Namespace) -> int:
     if r.spawned:
         text = f"sent {r.cycles} cycles to a new Rerun viewer"
     else:
-        text = f"wrote {r.output} ({r.cycles} cycles)" + (f"; no viewer: {r.note}; open it with: rerun {r.output}"
-                                                           if r.note else "")
+        text = f"wrote {r.output} ({r.cycles} cycles)" + (
+            f"; no viewer: {r.note}; open it with: rerun {r.output}" if r.note else ""
+        )
     if args.json:
-        print(strict_json({"output": str(r.output) if r.output else None, "spawned": r.spawned, "cycles": r.cycles,
-                          "entities": list(r.entities), "note": r.note, "problems": r.report.problems}))
+        print(
+            strict_json(
+                {
+                    "output": str(r.output) if r.output else None,
+                    "spawned": r.spawned,
+                    "cycles": r.cycles,
+                    "entities": list(r.entities),
+                    "note": r.note,
+                    "problems": r.report.problems,
+                }
+            )
+        )
     else:
         print(text + (f" (input: {problems})" if problems else ""))
     return 0

@@ -43,7 +43,9 @@ def quaternion_from_to(a: Vec3, b: Vec3) -> tuple[float, float, float, float]:
     return (cx / n, cy / n, cz / n, w / n)
 
 
-def _set_pose(pose: object, position: Vec3, q: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)) -> None:
+def _set_pose(
+    pose: object, position: Vec3, q: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+) -> None:
     p, o = pose.position, pose.orientation  # type: ignore[attr-defined]
     p.x, p.y, p.z = position
     o.x, o.y, o.z, o.w = q

@@ -29,7 +29,12 @@ _COPY_BYTES = 65536
 
 def offered_subprotocols(head: bytes) -> list[str]:
     """The subprotocols an HTTP upgrade request offers (every ``Sec-WebSocket-Protocol`` header, in order)."""
-    return [p.strip() for m in _HEADER.finditer(head) for p in m["value"].decode("latin-1").split(",") if p.strip()]
+    return [
+        p.strip()
+        for m in _HEADER.finditer(head)
+        for p in m["value"].decode("latin-1").split(",")
+        if p.strip()
+    ]
 
 
 def rewrite_request(head: bytes) -> tuple[bytes, bool]:
@@ -68,9 +73,12 @@ class SubprotocolShim:
         self.sdk_port = sdk_port
         self.loop = asyncio.new_event_loop()
         self.server = self.loop.run_until_complete(
-            asyncio.start_server(self._serve, host, port, limit=_MAX_HEAD_BYTES))
+            asyncio.start_server(self._serve, host, port, limit=_MAX_HEAD_BYTES)
+        )
         self.port: int = self.server.sockets[0].getsockname()[1]
-        self.thread = threading.Thread(target=self.loop.run_forever, name="foxglove-subprotocol-shim", daemon=True)
+        self.thread = threading.Thread(
+            target=self.loop.run_forever, name="foxglove-subprotocol-shim", daemon=True
+        )
         self.thread.start()
 
     async def _serve(self, client_r: asyncio.StreamReader, client_w: asyncio.StreamWriter) -> None:

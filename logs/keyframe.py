@@ -54,13 +54,18 @@ def _encode(v: Any) -> Any:
     if isinstance(v, frozenset):
         return {"s": sorted((_encode(x) for x in v), key=json.dumps)}
     if isinstance(v, np.ndarray):
-        return {"a": str(v.dtype), "shape": list(v.shape), "b": base64.b64encode(np.ascontiguousarray(v).tobytes())
-                .decode("ascii")}
+        return {
+            "a": str(v.dtype),
+            "shape": list(v.shape),
+            "b": base64.b64encode(np.ascontiguousarray(v).tobytes()).decode("ascii"),
+        }
     if isinstance(v, np.generic):
         return _encode(v.item())
     if dataclasses.is_dataclass(v) and not isinstance(v, type):
-        return {"d": _qualified(type(v)),
-                "f": {f.name: _encode(getattr(v, f.name)) for f in dataclasses.fields(v) if f.init}}
+        return {
+            "d": _qualified(type(v)),
+            "f": {f.name: _encode(getattr(v, f.name)) for f in dataclasses.fields(v) if f.init},
+        }
     raise KeyframeError(f"cannot record a state value of type {type(v).__name__}: {v!r:.80}")
 
 

@@ -51,7 +51,9 @@ def parse_host_port(spec: str, default_port: int = DEFAULT_FOXGLOVE_PORT) -> tup
     try:
         p = int(port) if port else default_port
     except ValueError:
-        raise LiveViewError(f"recording.live_foxglove = {spec!r}: the port {port!r} is not a number") from None
+        raise LiveViewError(
+            f"recording.live_foxglove = {spec!r}: the port {port!r} is not a number"
+        ) from None
     if not 0 <= p <= 65535:
         raise LiveViewError(f"recording.live_foxglove = {spec!r}: the port must be 0..65535")
     return host, p
@@ -76,7 +78,9 @@ class RerunLive:
 
             ok, why = can_spawn_viewer()
             if not ok:
-                raise LiveViewError(f"cannot spawn a Rerun viewer: {why}; --rerun serve hosts a web viewer instead")
+                raise LiveViewError(
+                    f"cannot spawn a Rerun viewer: {why}; --rerun serve hosts a web viewer instead"
+                )
             # the viewer executable is installed beside this interpreter (the venv's bin), which
             # need not be on PATH when cheope was started by its full path
             os.environ["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"
@@ -88,7 +92,9 @@ class RerunLive:
         elif where.startswith("rerun+http"):
             self.rec.connect_grpc(where, default_blueprint=bp)
         else:
-            raise LiveViewError(f"recording.live_rerun = {where!r}: use spawn, serve or a rerun+http://HOST:PORT/proxy URL")
+            raise LiveViewError(
+                f"recording.live_rerun = {where!r}: use spawn, serve or a rerun+http://HOST:PORT/proxy URL"
+            )
         self.scene = RerunScene(self.rec)
         self.rr = rr
         self._plot_rows: list[tuple[float, int, dict[str, float]]] = []
@@ -130,8 +136,11 @@ class RerunLive:
                 cs.append(c)
                 vs.append(v)
         for path, (ts, cs, vs) in series.items():
-            self.rec.send_columns(path, indexes=[rr.TimeColumn("time", duration=ts), rr.TimeColumn("cycle", sequence=cs)],
-                                  columns=rr.Scalars.columns(scalars=vs))
+            self.rec.send_columns(
+                path,
+                indexes=[rr.TimeColumn("time", duration=ts), rr.TimeColumn("cycle", sequence=cs)],
+                columns=rr.Scalars.columns(scalars=vs),
+            )
         self._plot_rows.clear()
 
     def event(self, t_s: float, cycle: int, severity: int, text: str) -> None:
@@ -172,11 +181,17 @@ class FoxgloveLive:
         host, port = parse_host_port(spec)
         self.context = foxglove.Context()
         self.channels: dict[str, Any] = {}
-        for topic, cls in zip(self.TOPICS, (SceneUpdate, pb.Cycle, FrameTransform, PoseInFrame, Log), strict=True):
-            schema = foxglove.Schema(name=cls.DESCRIPTOR.full_name, encoding="protobuf",
-                                     data=build_file_descriptor_set(cls).SerializeToString())
-            self.channels[topic] = foxglove.Channel(topic, schema=schema, message_encoding="protobuf",
-                                                    context=self.context)
+        for topic, cls in zip(
+            self.TOPICS, (SceneUpdate, pb.Cycle, FrameTransform, PoseInFrame, Log), strict=True
+        ):
+            schema = foxglove.Schema(
+                name=cls.DESCRIPTOR.full_name,
+                encoding="protobuf",
+                data=build_file_descriptor_set(cls).SerializeToString(),
+            )
+            self.channels[topic] = foxglove.Channel(
+                topic, schema=schema, message_encoding="protobuf", context=self.context
+            )
         self._fixed: tuple[bytes, int] | None = None  # the fixed scene and its log time, once drawn
         live = self
 
@@ -186,8 +201,9 @@ class FoxgloveLive:
                 if channel.topic == "/scene" and fixed is not None:
                     live.channels["/scene"].log(fixed[0], log_time=fixed[1])
 
-        self.server = foxglove.start_server(name="cheope", host="127.0.0.1", port=0, context=self.context,
-                                            server_listener=Listener())
+        self.server = foxglove.start_server(
+            name="cheope", host="127.0.0.1", port=0, context=self.context, server_listener=Listener()
+        )
         try:
             self.shim = SubprotocolShim(host, port, self.server.port)
         except OSError:
@@ -236,8 +252,9 @@ class LiveViews:
         if self.foxglove is not None:
             self.foxglove.fixed(scene_pb, unix_ns)
 
-    def frame(self, f: SceneFrame, cycle: Any, cycle_pb: bytes, scene_pb: bytes, tcp_pb: bytes | None,
-              unix_ns: int) -> None:
+    def frame(
+        self, f: SceneFrame, cycle: Any, cycle_pb: bytes, scene_pb: bytes, tcp_pb: bytes | None, unix_ns: int
+    ) -> None:
         if self.rerun is not None:
             self.rerun.frame(f, cycle)
         if self.foxglove is not None:
@@ -247,7 +264,11 @@ class LiveViews:
                 self.foxglove.log("/tcp", tcp_pb, unix_ns)
             reference = cycle.state.tcp_reference_m
             if len(reference) == 3:  # the recording's /tcp_reference, at the scene rate
-                self.foxglove.log("/tcp_reference", tcp_pose(unix_ns, (reference[0], reference[1], reference[2])).SerializeToString(), unix_ns)
+                self.foxglove.log(
+                    "/tcp_reference",
+                    tcp_pose(unix_ns, (reference[0], reference[1], reference[2])).SerializeToString(),
+                    unix_ns,
+                )
 
     def event(self, t_s: float, cycle: int, severity: int, text: str, log_pb: bytes, unix_ns: int) -> None:
         if self.rerun is not None:

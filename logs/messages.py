@@ -77,7 +77,11 @@ META_RECORDING = "cheope.recording"  # written at close: {"dropped", "written", 
 META_FILE = "cheope.file"
 
 _DOUBLE = struct.Struct("<d")
-_LOG_LEVEL = {Severity.INFO: Log.Level.INFO, Severity.WARNING: Log.Level.WARNING, Severity.FAULT: Log.Level.ERROR}
+_LOG_LEVEL = {
+    Severity.INFO: Log.Level.INFO,
+    Severity.WARNING: Log.Level.WARNING,
+    Severity.FAULT: Log.Level.ERROR,
+}
 
 
 class _Timestamp(Protocol):
@@ -101,10 +105,24 @@ def _set_time(stamp: _Timestamp, unix_ns: int) -> None:
     stamp.seconds, stamp.nanos = divmod(unix_ns, 1_000_000_000)
 
 
-def can_frame(monotonic_s: float, outgoing: bool, arbitration_id: int, data: bytes, is_fd: bool,
-              bitrate_switch: bool, is_error_frame: bool) -> pb.CanFrame:
-    return pb.CanFrame(monotonic_s=monotonic_s, outgoing=outgoing, arbitration_id=arbitration_id, data=data,
-                       is_fd=is_fd, bitrate_switch=bitrate_switch, is_error_frame=is_error_frame)
+def can_frame(
+    monotonic_s: float,
+    outgoing: bool,
+    arbitration_id: int,
+    data: bytes,
+    is_fd: bool,
+    bitrate_switch: bool,
+    is_error_frame: bool,
+) -> pb.CanFrame:
+    return pb.CanFrame(
+        monotonic_s=monotonic_s,
+        outgoing=outgoing,
+        arbitration_id=arbitration_id,
+        data=data,
+        is_fd=is_fd,
+        bitrate_switch=bitrate_switch,
+        is_error_frame=is_error_frame,
+    )
 
 
 # CanFrameBatch.frames, little-endian, by column (each compresses better among its likes): the
@@ -120,7 +138,9 @@ _OUTGOING, _FD, _BRS, _ERROR = 1, 2, 4, 8
 _U64 = (1 << 64) - 1
 _NS_LIMIT = 1 << 62  # nanoseconds whose differences stay within int64 (146 years)
 
-FrameTuple = tuple[bool, float, int, bytes, bool, bool, bool]  # (outgoing, monotonic_s, id, data, fd, brs, error)
+FrameTuple = tuple[
+    bool, float, int, bytes, bool, bool, bool
+]  # (outgoing, monotonic_s, id, data, fd, brs, error)
 
 
 def _time_column(times: list[float]) -> tuple[int, list[int]]:
@@ -128,8 +148,10 @@ def _time_column(times: list[float]) -> tuple[int, list[int]]:
         ns = [round(t * 1e9) for t in times]
     except (ValueError, OverflowError):  # nan, inf
         ns = []
-    if ns and all(abs(k) < _NS_LIMIT and k / 1e9 == t and (k or math.copysign(1.0, t) > 0)  # -0.0: bits
-                  for k, t in zip(ns, times)):
+    if ns and all(
+        abs(k) < _NS_LIMIT and k / 1e9 == t and (k or math.copysign(1.0, t) > 0)  # -0.0: bits
+        for k, t in zip(ns, times)
+    ):
         return TIMES_NS, [(b - a) & _U64 for a, b in zip((0, *ns), ns)]
     bits = struct.unpack(f"<{len(times)}Q", struct.pack(f"<{len(times)}d", *times))
     return TIMES_BITS, [b ^ a for a, b in zip((0, *bits), bits)]
@@ -152,8 +174,20 @@ def pack_frames(frames: list[FrameTuple]) -> bytes:
     n = len(frames)
     encoding, times = _time_column([f[1] for f in frames])
     flags = [outgoing | fd << 1 | brs << 2 | err << 3 for outgoing, _, _, _, fd, brs, err in frames]
-    return b"".join((struct.pack(f"<BI{n}Q{n}I{n}B{n}B", encoding, n, *times, *[f[2] for f in frames], *flags,
-                                 *[len(f[3]) for f in frames]), *[f[3] for f in frames]))
+    return b"".join(
+        (
+            struct.pack(
+                f"<BI{n}Q{n}I{n}B{n}B",
+                encoding,
+                n,
+                *times,
+                *[f[2] for f in frames],
+                *flags,
+                *[len(f[3]) for f in frames],
+            ),
+            *[f[3] for f in frames],
+        )
+    )
 
 
 def unpack_frames(packed: bytes) -> Iterator[pb.CanFrame]:
@@ -166,15 +200,21 @@ def unpack_frames(packed: bytes) -> Iterator[pb.CanFrame]:
     if _HEAD.size + columns.size > len(packed):
         raise ValueError(f"a CAN frame batch of {len(packed)} bytes is too short for its {n} frames")
     cols = columns.unpack_from(packed, _HEAD.size)
-    ids, flags, lengths = cols[n:2 * n], cols[2 * n:3 * n], cols[3 * n:]
+    ids, flags, lengths = cols[n : 2 * n], cols[2 * n : 3 * n], cols[3 * n :]
     times = _times(encoding, cols[:n])
     pos = _HEAD.size + columns.size
     if pos + sum(lengths) != len(packed):
         raise ValueError(f"a CAN frame batch holds {len(packed) - pos} data bytes, its frames {sum(lengths)}")
     for t, arb, f, length in zip(times, ids, flags, lengths):
-        yield pb.CanFrame(monotonic_s=t, outgoing=bool(f & _OUTGOING), arbitration_id=arb,
-                          data=packed[pos:pos + length], is_fd=bool(f & _FD), bitrate_switch=bool(f & _BRS),
-                          is_error_frame=bool(f & _ERROR))
+        yield pb.CanFrame(
+            monotonic_s=t,
+            outgoing=bool(f & _OUTGOING),
+            arbitration_id=arb,
+            data=packed[pos : pos + length],
+            is_fd=bool(f & _FD),
+            bitrate_switch=bool(f & _BRS),
+            is_error_frame=bool(f & _ERROR),
+        )
         pos += length
 
 
@@ -201,7 +241,9 @@ def inputs_to_pb(inputs: CycleInputs, out: pb.CycleInputs) -> None:
     out.bus_off = inputs.bus_off
     out.late = inputs.late
     for a in inputs.anomalies:
-        out.anomalies.add(kind=a.kind.value, cob_id=a.cob_id, count=a.count, node_id=a.node_id, command=a.command)
+        out.anomalies.add(
+            kind=a.kind.value, cob_id=a.cob_id, count=a.count, node_id=a.node_id, command=a.command
+        )
     for r in inputs.nmt_reports:
         out.nmt_reports.add(node_id=r.node_id, state=r.state)
     out.plans_ready = inputs.plans_ready
@@ -221,18 +263,26 @@ def inputs_from_pb(msg: pb.CycleInputs) -> CycleInputs:
     tracker = None
     if msg.HasField("tracker"):
         k = msg.tracker
-        tracker = TrackerFeedback(tuple(k.position_m), tuple(k.rotation_vector_rad),
-                                  k.status, k.counter, k.fresh)
+        tracker = TrackerFeedback(
+            tuple(k.position_m), tuple(k.rotation_vector_rad), k.status, k.counter, k.fresh
+        )
     return CycleInputs(
         drives=tuple(DriveFeedback(d.statusword, d.position, d.fresh) for d in msg.drives),
         sensor=sensor,
         emcy=tuple(EmcyReport(e.node_id, e.error_code, e.error_register) for e in msg.emcy),
-        stop_requested=msg.stop_requested, command=Command(msg.command), command_value=msg.command_value,
-        lost_heartbeats=tuple(msg.lost_heartbeats), error_frames=msg.error_frames, bus_off=msg.bus_off,
+        stop_requested=msg.stop_requested,
+        command=Command(msg.command),
+        command_value=msg.command_value,
+        lost_heartbeats=tuple(msg.lost_heartbeats),
+        error_frames=msg.error_frames,
+        bus_off=msg.bus_off,
         late=msg.late,
-        anomalies=tuple(BusAnomaly(Anomaly(a.kind), a.cob_id, a.count, a.node_id, a.command) for a in msg.anomalies),
+        anomalies=tuple(
+            BusAnomaly(Anomaly(a.kind), a.cob_id, a.count, a.node_id, a.command) for a in msg.anomalies
+        ),
         nmt_reports=tuple(NmtReport(r.node_id, r.state) for r in msg.nmt_reports),
-        tracker=tracker, plans_ready=msg.plans_ready,
+        tracker=tracker,
+        plans_ready=msg.plans_ready,
     )
 
 
@@ -255,8 +305,15 @@ def task_values(task_state: object) -> dict[str, float]:
     return out
 
 
-def cycle_to_pb(cycle: int, t: float, inputs: CycleInputs, state: ControllerState, outputs: CycleOutputs,
-                timing: CycleTimingLike, phase_name: Callable[[object], str] | None = None) -> pb.Cycle:
+def cycle_to_pb(
+    cycle: int,
+    t: float,
+    inputs: CycleInputs,
+    state: ControllerState,
+    outputs: CycleOutputs,
+    timing: CycleTimingLike,
+    phase_name: Callable[[object], str] | None = None,
+) -> pb.Cycle:
     msg = pb.Cycle(cycle=cycle, t_s=t)
     inputs_to_pb(inputs, msg.inputs)
     msg.outputs.controlwords.extend(outputs.controlwords)
@@ -289,8 +346,11 @@ def event_to_pb(cycle: int, t: float, event: Event) -> pb.Event:
 
 
 def event_to_log(unix_ns: int, event: Event) -> Log:
-    msg = Log(level=_LOG_LEVEL.get(event.severity, Log.Level.UNKNOWN), message=event.message,
-              name=f"cheope.{event.kind}")
+    msg = Log(
+        level=_LOG_LEVEL.get(event.severity, Log.Level.UNKNOWN),
+        message=event.message,
+        name=f"cheope.{event.kind}",
+    )
     _set_time(msg.timestamp, unix_ns)
     return msg
 

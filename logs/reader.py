@@ -50,9 +50,14 @@ _KNOWN_OPCODES = {int(o) for o in Opcode}
 
 # Our own topics decode with the generated classes (fast, no descriptor pool).
 _CLASSES: dict[str, Any] = {
-    "cheope.v1.CanFrame": pb.CanFrame, "cheope.v1.Cycle": pb.Cycle, "cheope.v1.Event": pb.Event,
-    "foxglove.Log": Log, "foxglove.FrameTransform": FrameTransform, "foxglove.PoseInFrame": PoseInFrame,
-    "cheope.v1.CanFrameBatch": pb.CanFrameBatch, "cheope.v1.Keyframe": pb.Keyframe,
+    "cheope.v1.CanFrame": pb.CanFrame,
+    "cheope.v1.Cycle": pb.Cycle,
+    "cheope.v1.Event": pb.Event,
+    "foxglove.Log": Log,
+    "foxglove.FrameTransform": FrameTransform,
+    "foxglove.PoseInFrame": PoseInFrame,
+    "cheope.v1.CanFrameBatch": pb.CanFrameBatch,
+    "cheope.v1.Keyframe": pb.Keyframe,
 }
 _BATCH_SCHEMA = "cheope.v1.CanFrameBatch"
 
@@ -100,8 +105,11 @@ class ReadReport:
 
     def status(self) -> str:
         if not self.problems:
-            return ("complete" if self.chunks_checked else
-                    "complete by its summary; chunks not checked (--check reads and checks every one)")
+            return (
+                "complete"
+                if self.chunks_checked
+                else "complete by its summary; chunks not checked (--check reads and checks every one)"
+            )
         return "; ".join(self.problems)
 
 
@@ -140,7 +148,7 @@ def _resync(raw: bytes | mmap.mmap, start: int) -> int | None:
         _, length = _HEAD.unpack_from(raw, pos)
         if 0 < length <= n - pos - 9:
             try:
-                _chunk_records(_parse(Opcode.CHUNK, raw[pos + 9: pos + 9 + length]))
+                _chunk_records(_parse(Opcode.CHUNK, raw[pos + 9 : pos + 9 + length]))
                 return pos
             except Exception:  # noqa: BLE001, S110 - any failure means "not a chunk here"
                 pass
@@ -195,35 +203,45 @@ def _walk(raw: bytes | mmap.mmap, report: ReadReport) -> Iterator[tuple[Channel,
 
     while pos < n:
         if pos + 9 > n:
-            report.problems.append(f"truncated: {n - pos} stray byte(s) at offset {pos} after the last record")
+            report.problems.append(
+                f"truncated: {n - pos} stray byte(s) at offset {pos} after the last record"
+            )
             break
         opcode, length = _HEAD.unpack_from(raw, pos)
         if opcode not in _KNOWN_OPCODES or length > n - pos - 9:
             nxt = _resync(raw, pos + 1)
             if nxt is None:
                 if opcode in _KNOWN_OPCODES:
-                    report.problems.append(f"truncated: the {Opcode(opcode).name} record at offset {pos} needs "
-                                           f"{length} bytes, the file has {n - pos - 9} after its header")
+                    report.problems.append(
+                        f"truncated: the {Opcode(opcode).name} record at offset {pos} needs "
+                        f"{length} bytes, the file has {n - pos - 9} after its header"
+                    )
                 else:
-                    report.problems.append(f"damaged record header at offset {pos}; nothing readable after it")
+                    report.problems.append(
+                        f"damaged record header at offset {pos}; nothing readable after it"
+                    )
                 break
             report.problems.append(f"damaged record header at offset {pos}; resumed at offset {nxt}")
             report.skipped_bytes += nxt - pos
             pos = nxt
             continue
-        body = raw[pos + 9: pos + 9 + length]
+        body = raw[pos + 9 : pos + 9 + length]
         start, pos = pos, pos + 9 + length
         try:
             record = _parse(opcode, body)
         except Exception as err:  # noqa: BLE001 - damaged input: report it, go on with the next record
-            report.problems.append(f"damaged {Opcode(opcode).name} record at offset {start}: {err or type(err).__name__}")
+            report.problems.append(
+                f"damaged {Opcode(opcode).name} record at offset {start}: {err or type(err).__name__}"
+            )
             continue
         if isinstance(record, Chunk):
             try:
                 records = _chunk_records(record)
             except Exception as err:  # noqa: BLE001
                 report.damaged_chunks += 1
-                report.problems.append(f"damaged chunk at offset {start} skipped: {err or type(err).__name__}")
+                report.problems.append(
+                    f"damaged chunk at offset {start} skipped: {err or type(err).__name__}"
+                )
                 continue
             report.chunks += 1
             report.end_offset = pos
@@ -238,7 +256,7 @@ def _walk(raw: bytes | mmap.mmap, report: ReadReport) -> Iterator[tuple[Channel,
             yield from emit([record])
         elif isinstance(record, Footer):
             report.complete = True
-            if raw[pos:pos + 8] != MAGIC:
+            if raw[pos : pos + 8] != MAGIC:
                 report.problems.append("the footer is not followed by the closing magic bytes")
             break
     if not report.complete and not any(p.startswith("truncated") for p in report.problems):
@@ -270,8 +288,9 @@ class Decoded:
     message: Any
 
 
-def iter_decoded(path: str | Path, topics: Iterable[str] | None = None, report: ReadReport | None = None
-                 ) -> Iterator[Decoded]:
+def iter_decoded(
+    path: str | Path, topics: Iterable[str] | None = None, report: ReadReport | None = None
+) -> Iterator[Decoded]:
     """Decoded Protobuf messages of ``topics`` (all when None); undecodable ones are counted as problems."""
     report = report if report is not None else ReadReport(Path(path))
     wanted = set(topics) if topics is not None else None
@@ -336,7 +355,10 @@ def read_head(path: str | Path) -> ReadReport:
                 if len(head) < 9:
                     break
                 opcode, length = _HEAD.unpack(head)
-                if opcode not in (Opcode.HEADER, Opcode.METADATA, Opcode.SCHEMA, Opcode.CHANNEL) or length > 1 << 26:
+                if (
+                    opcode not in (Opcode.HEADER, Opcode.METADATA, Opcode.SCHEMA, Opcode.CHANNEL)
+                    or length > 1 << 26
+                ):
                     break  # the first chunk (or damage): the head ends here
                 body = fh.read(length)
                 if len(body) < length:
@@ -417,8 +439,10 @@ def format_info(r: ReadReport) -> str:
     ]
     for ch in sorted(r.channels.values(), key=lambda c: c.id):
         schema = r.schemas.get(ch.schema_id)
-        lines.append(f"  {ch.topic:<16} {r.message_counts.get(ch.topic, 0):>9}  "
-                     f"{schema.name if schema else '(no schema)'} [{ch.message_encoding}]")
+        lines.append(
+            f"  {ch.topic:<16} {r.message_counts.get(ch.topic, 0):>9}  "
+            f"{schema.name if schema else '(no schema)'} [{ch.message_encoding}]"
+        )
     lines.append("metadata")
     for name, data in r.metadata.items():
         for k, v in data.items():
@@ -429,11 +453,22 @@ def format_info(r: ReadReport) -> str:
 
 def info_dict(r: ReadReport) -> dict[str, Any]:
     return {
-        "path": str(r.path), "size_bytes": r.size_bytes, "complete": r.complete, "problems": list(r.problems),
+        "path": str(r.path),
+        "size_bytes": r.size_bytes,
+        "complete": r.complete,
+        "problems": list(r.problems),
         "chunks_checked": r.chunks_checked,
-        "duration_s": r.duration_s, "messages": r.messages, "chunks": r.chunks, "damaged_chunks": r.damaged_chunks,
-        "channels": {ch.topic: {"count": r.message_counts.get(ch.topic, 0),
-                                "schema": r.schemas[ch.schema_id].name if ch.schema_id in r.schemas else None,
-                                "encoding": ch.message_encoding} for ch in r.channels.values()},
+        "duration_s": r.duration_s,
+        "messages": r.messages,
+        "chunks": r.chunks,
+        "damaged_chunks": r.damaged_chunks,
+        "channels": {
+            ch.topic: {
+                "count": r.message_counts.get(ch.topic, 0),
+                "schema": r.schemas[ch.schema_id].name if ch.schema_id in r.schemas else None,
+                "encoding": ch.message_encoding,
+            }
+            for ch in r.channels.values()
+        },
         "metadata": r.metadata,
     }

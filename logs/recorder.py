@@ -65,8 +65,17 @@ REPLY_POLL_CYCLES = 16  # the writer's notices are looked at every this many cyc
 _MAX_FRAMES_PER_RECORD = 256  # frames with no cycle after them (node set-up, shutdown) go out in batches
 _REPO = str(Path(__file__).resolve().parents[1])  # the writer process imports the same code as this one
 
-VERSIONED_PACKAGES = ("cheope-controller", "python-can", "canopen", "ruckig", "numpy", "protobuf", "mcap",
-                      "mcap-protobuf-support", "foxglove-schemas-protobuf")
+VERSIONED_PACKAGES = (
+    "cheope-controller",
+    "python-can",
+    "canopen",
+    "ruckig",
+    "numpy",
+    "protobuf",
+    "mcap",
+    "mcap-protobuf-support",
+    "foxglove-schemas-protobuf",
+)
 
 
 class RecordingError(DeviceError, OSError):
@@ -79,8 +88,9 @@ def default_sessions_directory() -> Path:
     return Path(base) / "cheope" / "sessions"
 
 
-def open_session_file(directory: str | Path = "", prefix: str = "cheope", now: _dt.datetime | None = None
-                      ) -> tuple[Path, IO[bytes]]:
+def open_session_file(
+    directory: str | Path = "", prefix: str = "cheope", now: _dt.datetime | None = None
+) -> tuple[Path, IO[bytes]]:
     """Create ``DIR/PREFIX-YYYYmmdd-HHMMSS.mcap`` (``-2``, ``-3``... if taken) exclusively; '' = the default dir."""
     d = Path(directory) if str(directory) else default_sessions_directory()
     try:
@@ -128,8 +138,12 @@ def _is_answer(reply: dict[str, Any]) -> bool:
 def file_limits(cfg: Config) -> FileLimits:
     """recording.max_file_size_mb, max_file_duration_s, keep_total_size_gb, min_free_space_mb in bytes and seconds."""
     r = cfg.recording
-    return FileLimits(int(r.max_file_size_mb * 1e6), r.max_file_duration_s, int(r.keep_total_size_gb * 1e9),
-                      int(r.min_free_space_mb * 1e6))
+    return FileLimits(
+        int(r.max_file_size_mb * 1e6),
+        r.max_file_duration_s,
+        int(r.keep_total_size_gb * 1e9),
+        int(r.min_free_space_mb * 1e6),
+    )
 
 
 @dataclass(frozen=True)
@@ -140,16 +154,24 @@ class RecorderCounters:
     chunks: int  # flushes that closed a chunk
 
 
-
 class SessionRecorder:
     """Loop observer and frame sink that records the session to ``path`` (see the module doc)."""
 
-    def __init__(self, path: str | Path, metadata: dict[str, dict[str, str]] | None = None, *,
-                 buffer_bytes: int = DEFAULT_BUFFER_BYTES, chunk_size_bytes: int = DEFAULT_CHUNK_SIZE_BYTES,
-                 flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S, clock: Callable[[], float] = time.monotonic,
-                 phase_name: Callable[[object], str] | None = None, compression: str = "zstd",
-                 lossless: bool = False, on_failure: Callable[[str], None] | None = None,
-                 limits: FileLimits = NO_FILE_LIMITS) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        metadata: dict[str, dict[str, str]] | None = None,
+        *,
+        buffer_bytes: int = DEFAULT_BUFFER_BYTES,
+        chunk_size_bytes: int = DEFAULT_CHUNK_SIZE_BYTES,
+        flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S,
+        clock: Callable[[], float] = time.monotonic,
+        phase_name: Callable[[object], str] | None = None,
+        compression: str = "zstd",
+        lossless: bool = False,
+        on_failure: Callable[[str], None] | None = None,
+        limits: FileLimits = NO_FILE_LIMITS,
+    ) -> None:
         if buffer_bytes < 4096:
             raise ValueError(f"buffer_bytes = {buffer_bytes}: must be >= 4096")
         if chunk_size_bytes < 1024:
@@ -193,21 +215,40 @@ class SessionRecorder:
         self._answers: list[dict[str, Any]] = []  # answers read while looking for notices
 
     @classmethod
-    def for_config(cls, cfg: Config, clock: Callable[[], float] = time.monotonic,
-                   phase_name: Callable[[object], str] | None = None,
-                   extra_metadata: dict[str, str] | None = None) -> SessionRecorder:
+    def for_config(
+        cls,
+        cfg: Config,
+        clock: Callable[[], float] = time.monotonic,
+        phase_name: Callable[[object], str] | None = None,
+        extra_metadata: dict[str, str] | None = None,
+    ) -> SessionRecorder:
         """A recorder for ``cfg.recording`` (directory, buffer, chunks) with the session's metadata."""
         r = cfg.recording
         path, stream = open_session_file(r.directory)  # exclusive: the name is ours
         stream.close()
-        return cls(path, session_metadata(cfg, extra_metadata), buffer_bytes=r.buffer_bytes,
-                   chunk_size_bytes=r.chunk_size_bytes, flush_interval_s=r.flush_interval_s, clock=clock,
-                   phase_name=phase_name, limits=file_limits(cfg))
+        return cls(
+            path,
+            session_metadata(cfg, extra_metadata),
+            buffer_bytes=r.buffer_bytes,
+            chunk_size_bytes=r.chunk_size_bytes,
+            flush_interval_s=r.flush_interval_s,
+            clock=clock,
+            phase_name=phase_name,
+            limits=file_limits(cfg),
+        )
 
     # -- the loop thread's side: hand over, never wait ----------------------------------------
 
-    def on_cycle(self, cycle: int, t: float, inputs: Any, state: Any, outputs: Any,
-                 events: tuple[Any, ...], timing: Any) -> None:
+    def on_cycle(
+        self,
+        cycle: int,
+        t: float,
+        inputs: Any,
+        state: Any,
+        outputs: Any,
+        events: tuple[Any, ...],
+        timing: Any,
+    ) -> None:
         seq = self._cycle_calls
         self._cycle_calls = seq + 1
         self._last_cycle = (cycle, t)
@@ -215,15 +256,34 @@ class SessionRecorder:
         self._frames = []
         body = m.cycle_to_pb(cycle, t, inputs, state, outputs, timing, self.phase_name).SerializeToString()
         mono_s = self.clock()
-        self._send(pack_record((CYCLE, self.dropped, frames, cycle, t, mono_s, seq, body, events,
-                                state.tcp_measured_m, state.tcp_reference_m)), 1 + len(frames))
+        self._send(
+            pack_record(
+                (
+                    CYCLE,
+                    self.dropped,
+                    frames,
+                    cycle,
+                    t,
+                    mono_s,
+                    seq,
+                    body,
+                    events,
+                    state.tcp_measured_m,
+                    state.tcp_reference_m,
+                )
+            ),
+            1 + len(frames),
+        )
         self._poll_countdown -= 1
         if self._poll_countdown <= 0:
             self._poll_countdown = REPLY_POLL_CYCLES
             self._poll_replies()
         if self._file_start_mono_s is None:
             self._file_start_mono_s = mono_s
-        elif self.limits.max_file_duration_s and mono_s - self._file_start_mono_s >= self.limits.max_file_duration_s:
+        elif (
+            self.limits.max_file_duration_s
+            and mono_s - self._file_start_mono_s >= self.limits.max_file_duration_s
+        ):
             self._keyframe_wanted = True  # by the controller's clock: simulated time rotates as a real one
         if self._keyframe_wanted:
             self._keyframe_wanted = False
@@ -238,7 +298,9 @@ class SessionRecorder:
         except KeyframeError as err:
             data, problem = b"", str(err)
         dropped = self.dropped
-        self._send(pack_record((KEYFRAME, self.dropped, cycle, t, mono_s, seq, STATE_ENCODING, data, problem)), 1)
+        self._send(
+            pack_record((KEYFRAME, self.dropped, cycle, t, mono_s, seq, STATE_ENCODING, data, problem)), 1
+        )
         if self.dropped == dropped:  # a dropped one is asked for again by the writer, and sent then
             self._keyframes_sent += 1
 
@@ -264,8 +326,17 @@ class SessionRecorder:
 
     def on_frame(self, outgoing: bool, monotonic_s: float, msg: can.Message) -> None:
         """``FrameSink``: copies the frame now (the exchange rewrites its outgoing messages)."""
-        self._frames.append((outgoing, monotonic_s, msg.arbitration_id, bytes(msg.data), msg.is_fd,
-                             msg.bitrate_switch, msg.is_error_frame))
+        self._frames.append(
+            (
+                outgoing,
+                monotonic_s,
+                msg.arbitration_id,
+                bytes(msg.data),
+                msg.is_fd,
+                msg.bitrate_switch,
+                msg.is_error_frame,
+            )
+        )
         if len(self._frames) >= _MAX_FRAMES_PER_RECORD:
             self._send_frames()
 
@@ -324,7 +395,7 @@ class SessionRecorder:
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         while view:
             try:
-                view = view[os.write(self._fd, view):]
+                view = view[os.write(self._fd, view) :]
             except BlockingIOError:
                 if deadline is not None and time.monotonic() > deadline:
                     self._writer_gone(TimeoutError(f"the writer took no data for {timeout_s:g} s"))
@@ -343,8 +414,11 @@ class SessionRecorder:
         first = not self.error
         if first:
             self._poll_replies()  # a writer that stopped on purpose said why before it closed its input
-        self.error = self.error or self._writer_said or (
-            f"the writer process of {self.path} stopped reading: {err.strerror or err}")
+        self.error = (
+            self.error
+            or self._writer_said
+            or (f"the writer process of {self.path} stopped reading: {err.strerror or err}")
+        )
         self._backlog.clear()
         self._fd = -1
         if first and self.on_failure is not None:
@@ -367,13 +441,24 @@ class SessionRecorder:
         """Start the writer process and wait until it has written the header and the metadata."""
         offset_ns = time.time_ns() - int(self.clock() * 1e9)
         session = dict(self.metadata.get(m.META_SESSION, {}))
-        session.update(started_utc=_dt.datetime.now(_dt.UTC).isoformat(timespec="microseconds"),
-                       clock_offset_ns=str(offset_ns), hostname=platform.node(), session_id=self.session_id)
+        session.update(
+            started_utc=_dt.datetime.now(_dt.UTC).isoformat(timespec="microseconds"),
+            clock_offset_ns=str(offset_ns),
+            hostname=platform.node(),
+            session_id=self.session_id,
+        )
         self.metadata[m.META_SESSION] = session
-        env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (_REPO, os.environ.get("PYTHONPATH")) if p)}
+        env = {
+            **os.environ,
+            "PYTHONPATH": os.pathsep.join(p for p in (_REPO, os.environ.get("PYTHONPATH")) if p),
+        }
         try:
-            proc = subprocess.Popen([sys.executable, "-m", "logs.session_writer"], stdin=subprocess.PIPE,
-                                    stdout=subprocess.PIPE, env=env)
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "logs.session_writer"],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                env=env,
+            )
         except OSError as err:
             raise RecordingError(f"cannot start the recording's writer process: {err}") from err
         self._proc = proc
@@ -389,16 +474,32 @@ class SessionRecorder:
         assert proc.stdout is not None  # stdout=PIPE
         self._reply_fd = proc.stdout.fileno()  # read with os.read only (never the buffered file object)
         lim = self.limits
-        self._write_all(pack_record((SETUP, {
-            "path": str(self.path), "metadata": self.metadata, "clock_offset_ns": offset_ns,
-            "chunk_size_bytes": self.chunk_size_bytes, "flush_interval_s": self.flush_interval_s,
-            "compression": self.compression, "session_id": self.session_id,
-            "max_file_bytes": lim.max_file_bytes, "max_file_duration_s": lim.max_file_duration_s,
-            "keep_total_bytes": lim.keep_total_bytes, "min_free_bytes": lim.min_free_bytes})))
+        self._write_all(
+            pack_record(
+                (
+                    SETUP,
+                    {
+                        "path": str(self.path),
+                        "metadata": self.metadata,
+                        "clock_offset_ns": offset_ns,
+                        "chunk_size_bytes": self.chunk_size_bytes,
+                        "flush_interval_s": self.flush_interval_s,
+                        "compression": self.compression,
+                        "session_id": self.session_id,
+                        "max_file_bytes": lim.max_file_bytes,
+                        "max_file_duration_s": lim.max_file_duration_s,
+                        "keep_total_bytes": lim.keep_total_bytes,
+                        "min_free_bytes": lim.min_free_bytes,
+                    },
+                )
+            )
+        )
         reply = self._read_reply(WRITER_START_TIMEOUT_S)
         if "ready" not in reply:
             self._stop_process()
-            raise RecordingError(reply.get("error") or f"the recording's writer process did not start: {reply}")
+            raise RecordingError(
+                reply.get("error") or f"the recording's writer process did not start: {reply}"
+            )
         if not self.lossless:
             os.set_blocking(self._fd, False)
 
@@ -453,7 +554,9 @@ class SessionRecorder:
                 reply = json.loads(line)
             except ValueError:
                 reply = {"error": f"the recording's writer process said {line[:200]!r}"}
-            out.append(reply if isinstance(reply, dict) else {"error": f"the writer process said {line[:200]!r}"})
+            out.append(
+                reply if isinstance(reply, dict) else {"error": f"the writer process said {line[:200]!r}"}
+            )
         return out
 
     def _read_reply(self, timeout_s: float) -> dict[str, Any]:

@@ -55,7 +55,9 @@ def recover(src: str | Path, out: str | Path | None = None) -> RecoveryResult:
                     sid = 0
                     schema = report.schemas.get(ch.schema_id)
                     if schema is not None:
-                        sid = schema_ids.get(schema.id) or w.register_schema(schema.name, schema.encoding, schema.data)
+                        sid = schema_ids.get(schema.id) or w.register_schema(
+                            schema.name, schema.encoding, schema.data
+                        )
                         schema_ids[schema.id] = sid
                     cid = w.register_channel(ch.topic, ch.message_encoding, sid, dict(ch.metadata))
                     channel_ids[ch.id] = cid
@@ -63,10 +65,16 @@ def recover(src: str | Path, out: str | Path | None = None) -> RecoveryResult:
                 saved += 1
             for name, data in report.metadata.items():
                 w.add_metadata(name, data)
-            w.add_metadata("cheope.recovery", {
-                "source": str(src), "messages_saved": str(saved), "chunks_read": str(report.chunks),
-                "damaged_chunks": str(report.damaged_chunks), "problems": "; ".join(report.problems) or "none",
-            })
+            w.add_metadata(
+                "cheope.recovery",
+                {
+                    "source": str(src),
+                    "messages_saved": str(saved),
+                    "chunks_read": str(report.chunks),
+                    "damaged_chunks": str(report.damaged_chunks),
+                    "problems": "; ".join(report.problems) or "none",
+                },
+            )
             w.finish()
     except LogFileError:
         dst.unlink(missing_ok=True)

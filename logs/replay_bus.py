@@ -49,9 +49,15 @@ class BusReplayResult:
 REPLAY_SIDES = ("sent", "received")  # --only: the controller's frames, or its devices'
 
 
-def replay_to_bus(path: str | Path, spec: BusSpec, speed: float = 1.0, stop_event: threading.Event | None = None,
-                  progress: Callable[[int], None] | None = None, bus: can.BusABC | None = None,
-                  only: str | None = None) -> BusReplayResult:
+def replay_to_bus(
+    path: str | Path,
+    spec: BusSpec,
+    speed: float = 1.0,
+    stop_event: threading.Event | None = None,
+    progress: Callable[[int], None] | None = None,
+    bus: can.BusABC | None = None,
+    only: str | None = None,
+) -> BusReplayResult:
     """Send the recorded frames of ``path`` onto ``spec`` (or an open ``bus``) with their timing;
     ``only``: "sent" or "received" (by the controller) plays that side alone, its timing kept."""
     if not speed > 0:
@@ -77,8 +83,14 @@ def replay_to_bus(path: str | Path, spec: BusSpec, speed: float = 1.0, stop_even
             sleeper.sleep_until(t_start + (f.monotonic_s - first) / speed)
             if stop.is_set():
                 break
-            msg = can.Message(arbitration_id=f.arbitration_id, data=f.data, is_extended_id=f.arbitration_id > 0x7FF,
-                              is_fd=f.is_fd, bitrate_switch=f.bitrate_switch, is_error_frame=f.is_error_frame)
+            msg = can.Message(
+                arbitration_id=f.arbitration_id,
+                data=f.data,
+                is_extended_id=f.arbitration_id > 0x7FF,
+                is_fd=f.is_fd,
+                bitrate_switch=f.bitrate_switch,
+                is_error_frame=f.is_error_frame,
+            )
             try:
                 bus.send(msg, timeout=0.1)
                 sent += 1

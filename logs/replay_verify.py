@@ -51,8 +51,10 @@ class Divergence:
     recomputed: str
 
     def __str__(self) -> str:
-        return (f"cycle {self.cycle} (t = {self.t_s!r} s): {self.field}: recorded {self.recorded}, "
-                f"recomputed {self.recomputed}")
+        return (
+            f"cycle {self.cycle} (t = {self.t_s!r} s): {self.field}: recorded {self.recorded}, "
+            f"recomputed {self.recomputed}"
+        )
 
 
 @dataclass
@@ -61,7 +63,9 @@ class VerifyResult:
     cycles_checked: int = 0
     cycles_recorded: int = 0  # readable /cycle messages in the files given
     divergence: Divergence | None = None
-    problems: list[str] = field(default_factory=list)  # what limited the check (damage, drops, a missing keyframe)
+    problems: list[str] = field(
+        default_factory=list
+    )  # what limited the check (damage, drops, a missing keyframe)
     report: ReadReport | None = None  # the last file's
     files: list[Path] = field(default_factory=list)  # in session order
     started_from: str = ""  # "the initial state" or the keyframe a file alone starts from
@@ -73,8 +77,12 @@ class VerifyResult:
     @property
     def ok(self) -> bool:
         """Every recorded cycle of the files given reproduced, nothing in the way."""
-        return (self.divergence is None and self.cycles_checked > 0 and not self.problems
-                and self.cycles_checked == self.cycles_recorded)
+        return (
+            self.divergence is None
+            and self.cycles_checked > 0
+            and not self.problems
+            and self.cycles_checked == self.cycles_recorded
+        )
 
     def _span(self) -> str:
         if self.first_cycle is None:
@@ -84,10 +92,14 @@ class VerifyResult:
     def summary(self) -> str:
         where = f" in {len(self.files)} files" if len(self.files) > 1 else ""
         if self.divergence is not None:
-            return (f"DIVERGES after {self.cycles_checked} identical cycle(s){where}: first difference at "
-                    f"{self.divergence}")
+            return (
+                f"DIVERGES after {self.cycles_checked} identical cycle(s){where}: first difference at "
+                f"{self.divergence}"
+            )
         if self.cycles_checked == 0:
-            return "NOT VERIFIED: nothing verified: " + ("; ".join(self.problems) or "the recording has no cycles")
+            return "NOT VERIFIED: nothing verified: " + (
+                "; ".join(self.problems) or "the recording has no cycles"
+            )
         start = f" from {self.started_from}" if self.started_from else ""
         if self.resumed:
             start += f", again from {', '.join(self.resumed)}"
@@ -99,10 +111,14 @@ class VerifyResult:
             what = f"the {self.cycles_checked} readable cycle(s) ({self._span()})"
         else:
             share = 100.0 * self.cycles_checked / self.cycles_recorded if self.cycles_recorded else 0.0
-            what = (f"{self.cycles_checked} of the {self.cycles_recorded} readable cycle(s) ({share:.1f} %, "
-                    f"{self._span()})")
-        return (f"PARTLY VERIFIED: {what} reproduced bit for bit{where}{start}; not checked: "
-                f"{'; '.join(self.problems) or 'cycles past the end of the check'}")
+            what = (
+                f"{self.cycles_checked} of the {self.cycles_recorded} readable cycle(s) ({share:.1f} %, "
+                f"{self._span()})"
+            )
+        return (
+            f"PARTLY VERIFIED: {what} reproduced bit for bit{where}{start}; not checked: "
+            f"{'; '.join(self.problems) or 'cycles past the end of the check'}"
+        )
 
 
 def _fmt(v: Any) -> str:
@@ -166,11 +182,16 @@ def _law_from(report: ReadReport, overrides: dict[str, Any]) -> Any:
     try:
         return build_law(recorded_config_from_dict(table))
     except ConfigError as err:
-        raise LogFileError(f"the configuration recorded in {report.path} does not load any more: {err}") from err
+        raise LogFileError(
+            f"the configuration recorded in {report.path} does not load any more: {err}"
+        ) from err
 
 
-def verify(paths: str | Path | Sequence[str | Path], overrides: dict[str, Any] | None = None,
-           progress: Callable[[int], None] | None = None) -> VerifyResult:
+def verify(
+    paths: str | Path | Sequence[str | Path],
+    overrides: dict[str, Any] | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> VerifyResult:
     """Replay the inputs of ``paths`` (one file, or files of one session in any order) through a
     law rebuilt from the recorded configuration; see the module doc."""
     files = session_order([Path(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)])
@@ -180,7 +201,7 @@ def verify(paths: str | Path | Sequence[str | Path], overrides: dict[str, Any] |
         if run.file(path):
             continue
         if result.divergence is not None:
-            run.count_rest(files[i + 1:])
+            run.count_rest(files[i + 1 :])
             break
         run.state = run.next_seq = None  # the state is lost here: the next file starts from its keyframe
     if result.report is not None and result.divergence is None:
@@ -197,26 +218,32 @@ def session_order(paths: list[Path]) -> list[Path]:
     for p in paths:
         meta = read_head(p).metadata.get(m.META_FILE)
         if meta is None:
-            raise LogFileError(f"{p} has no {m.META_FILE} metadata: it is not a file of a split session, "
-                               "verify it alone")
+            raise LogFileError(
+                f"{p} has no {m.META_FILE} metadata: it is not a file of a split session, verify it alone"
+            )
         keyed.append((int(meta.get("sequence", "0")), meta.get("session_id", ""), p))
     keyed.sort(key=lambda k: k[0])
     sessions = {k[1] for k in keyed}
     if len(sessions) > 1:
-        raise LogFileError("the files are of different sessions: " + ", ".join(f"{p.name} of {sid[:8]}"
-                                                                               for _, sid, p in keyed))
+        raise LogFileError(
+            "the files are of different sessions: "
+            + ", ".join(f"{p.name} of {sid[:8]}" for _, sid, p in keyed)
+        )
     for (a, _, pa), (b, _, pb_) in itertools.pairwise(keyed):
         if b != a + 1:
-            raise LogFileError(f"{pa.name} is file {a} of its session and {pb_.name} file {b}: "
-                               + ("the same file twice" if a == b else f"file {a + 1} is missing"))
+            raise LogFileError(
+                f"{pa.name} is file {a} of its session and {pb_.name} file {b}: "
+                + ("the same file twice" if a == b else f"file {a + 1} is missing")
+            )
     return [k[2] for k in keyed]
 
 
 class _Run:
     """The replay's state across the files of a session."""
 
-    def __init__(self, result: VerifyResult, overrides: dict[str, Any], progress: Callable[[int], None] | None
-                 ) -> None:
+    def __init__(
+        self, result: VerifyResult, overrides: dict[str, Any], progress: Callable[[int], None] | None
+    ) -> None:
         self.result = result
         self.overrides = overrides
         self.progress = progress
@@ -265,7 +292,11 @@ class _Run:
                 continue
             if d.topic == m.TOPIC_EVENTS:
                 saw_drop = saw_drop or d.message.kind == "recorder_drop"
-                if pending is not None and d.message.cycle == pending[0].cycle and d.message.kind != "recorder_drop":
+                if (
+                    pending is not None
+                    and d.message.cycle == pending[0].cycle
+                    and d.message.kind != "recorder_drop"
+                ):
                     rec_events.append(d.message)
                 continue
             result.cycles_recorded += 1
@@ -277,7 +308,8 @@ class _Run:
                 if d.sequence != 0:
                     result.problems.append(
                         f"{path.name} starts at cycle {rec.cycle} (sequence {d.sequence}) without a keyframe: "
-                        "verify it with the session's earlier files")
+                        "verify it with the session's earlier files"
+                    )
                     self._count_rest(decoded)
                     return False
                 self._build_law(report, path)
@@ -307,8 +339,10 @@ class _Run:
         if settle():
             return False
         if gap is not None:
-            result.problems.append(f"{gap[0]} cycle(s) {_why_missing(report, saw_drop)} before cycle {gap[1]} in "
-                                   f"{path.name}: verified up to there")
+            result.problems.append(
+                f"{gap[0]} cycle(s) {_why_missing(report, saw_drop)} before cycle {gap[1]} in "
+                f"{path.name}: verified up to there"
+            )
         result.problems.extend(f"{path.name}: {p}" if len(result.files) > 1 else p for p in report.problems)
         return gap is None and not report.problems
 
@@ -317,8 +351,10 @@ class _Run:
         result = self.result
         if kf.encoding != KEYFRAME_ENCODING or not kf.state:
             if self.state is None:
-                result.problems.append(f"{path.name}'s keyframe holds no state it can start from"
-                                       + (f" (encoding {kf.encoding!r})" if kf.encoding else ""))
+                result.problems.append(
+                    f"{path.name}'s keyframe holds no state it can start from"
+                    + (f" (encoding {kf.encoding!r})" if kf.encoding else "")
+                )
                 return False
             return True
         self._build_law(report, path)
@@ -339,9 +375,13 @@ class _Run:
                 result.started_from = where
             return True
         if encode_state(self.state) != kf.state:
-            result.divergence = Divergence(kf.cycle, kf.t_s, f"the keyframe of {path.name}",
-                                           "the state at the start of the file",
-                                           "a different state replayed from the files before it")
+            result.divergence = Divergence(
+                kf.cycle,
+                kf.t_s,
+                f"the keyframe of {path.name}",
+                "the state at the start of the file",
+                "a different state replayed from the files before it",
+            )
             return False
         return True
 
@@ -364,8 +404,10 @@ def _why_missing(report: ReadReport, saw_drop: bool) -> str:
         return "lost in a damaged chunk"
     recovery = report.metadata.get("cheope.recovery")
     if recovery is not None:
-        return (f"lost with the damaged part of {recovery.get('source', 'the original file')}, which "
-                f"cheope logs recover copied this file from ({recovery.get('problems', 'no details')})")
+        return (
+            f"lost with the damaged part of {recovery.get('source', 'the original file')}, which "
+            f"cheope logs recover copied this file from ({recovery.get('problems', 'no details')})"
+        )
     dropped = report.metadata.get(m.META_RECORDING, {}).get("dropped", "")
     if saw_drop or (dropped.isdigit() and int(dropped) > 0):
         return "dropped by the recorder"

@@ -74,8 +74,12 @@ class ExportResult:
 _NAN3 = (math.nan, math.nan, math.nan)
 
 
-def _gather(path: Path, report: ReadReport, progress: Callable[[int], None] | None,
-            sampler: SceneSampler | None = None) -> _Series:
+def _gather(
+    path: Path,
+    report: ReadReport,
+    progress: Callable[[int], None] | None,
+    sampler: SceneSampler | None = None,
+) -> _Series:
     s = _Series()
     k = 0
     for d in iter_decoded(path, (m.TOPIC_CYCLE, m.TOPIC_EVENTS), report):
@@ -122,8 +126,11 @@ def blueprint(has_force: bool, has_force_error: bool) -> Any:
     plots.append(rrb.TimeSeriesView(origin="/plots/loop", name="loop timing"))
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Vertical(rrb.Spatial3DView(origin="/world", name="robot"),
-                         rrb.TextLogView(origin="/events", name="events"), row_shares=[3, 1]),
+            rrb.Vertical(
+                rrb.Spatial3DView(origin="/world", name="robot"),
+                rrb.TextLogView(origin="/events", name="events"),
+                row_shares=[3, 1],
+            ),
             rrb.Vertical(*plots),
             column_shares=[3, 2],
         ),
@@ -133,13 +140,19 @@ def blueprint(has_force: bool, has_force_error: bool) -> Any:
 
 def can_spawn_viewer() -> tuple[bool, str]:
     """Whether a viewer window can open here; the reason when not."""
-    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+    if sys.platform.startswith("linux") and not (
+        os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+    ):
         return False, "no display (neither DISPLAY nor WAYLAND_DISPLAY is set)"
     return True, ""
 
 
-def export(path: str | Path, out: str | Path | None = None, spawn: bool = False,
-           progress: Callable[[int], None] | None = None) -> ExportResult:
+def export(
+    path: str | Path,
+    out: str | Path | None = None,
+    spawn: bool = False,
+    progress: Callable[[int], None] | None = None,
+) -> ExportResult:
     """Convert ``path`` to Rerun: into ``out`` (.rrd), or to a spawned viewer when ``spawn``.
 
     With ``spawn`` and no display (or a viewer that fails to start), the recording goes to
@@ -203,8 +216,15 @@ def _config(report: ReadReport) -> Any:
         return None  # an older configuration: the plots still work, the 3D geometry is left out
 
 
-def _send(rec: Any, s: _Series, sampler: SceneSampler | None, force: np.ndarray, force_err: np.ndarray, has_force: bool,
-          has_force_error: bool) -> list[str]:
+def _send(
+    rec: Any,
+    s: _Series,
+    sampler: SceneSampler | None,
+    force: np.ndarray,
+    force_err: np.ndarray,
+    has_force: bool,
+    has_force_error: bool,
+) -> list[str]:
     import rerun as rr
 
     t = np.asarray(s.t, dtype=float)
@@ -241,21 +261,35 @@ def _send(rec: Any, s: _Series, sampler: SceneSampler | None, force: np.ndarray,
     tcp = np.array(s.tcp, dtype=float)
     known = np.isfinite(tcp).all(axis=1)
     if known.any():
-        rec.send_columns("/world/tcp", indexes=idx(known),
-                         columns=rr.Points3D.columns(positions=tcp[known], radii=np.full(int(known.sum()), 0.004)))
-        rec.log("/world/tcp_trail", rr.LineStrips3D([tcp[known]], radii=0.0008, colors=[[80, 160, 255]]),
-                static=True)
+        rec.send_columns(
+            "/world/tcp",
+            indexes=idx(known),
+            columns=rr.Points3D.columns(positions=tcp[known], radii=np.full(int(known.sum()), 0.004)),
+        )
+        rec.log(
+            "/world/tcp_trail",
+            rr.LineStrips3D([tcp[known]], radii=0.0008, colors=[[80, 160, 255]]),
+            static=True,
+        )
         entities += ["/world/tcp", "/world/tcp_trail"]
     ref = np.array(s.ref, dtype=float)
     on_path = np.isfinite(ref).all(axis=1)
     if on_path.any():
-        rec.log("/world/reference_path", rr.Points3D(ref[on_path][:: max(1, int(on_path.sum()) // 2000)],
-                                                     radii=0.0006, colors=[[255, 200, 0]]), static=True)
+        rec.log(
+            "/world/reference_path",
+            rr.Points3D(
+                ref[on_path][:: max(1, int(on_path.sum()) // 2000)], radii=0.0006, colors=[[255, 200, 0]]
+            ),
+            static=True,
+        )
         entities.append("/world/reference_path")
     if has_force and known.any():
         ok = known & np.isfinite(force).all(axis=1)
-        rec.send_columns("/world/force", indexes=idx(ok),
-                         columns=rr.Arrows3D.columns(origins=tcp[ok], vectors=force[ok] * FORCE_ARROW_M_PER_N))
+        rec.send_columns(
+            "/world/force",
+            indexes=idx(ok),
+            columns=rr.Arrows3D.columns(origins=tcp[ok], vectors=force[ok] * FORCE_ARROW_M_PER_N),
+        )
         entities.append("/world/force")
     if sampler is not None:
         entities += _send_scene(rec, sampler, s.scene)

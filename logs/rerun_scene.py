@@ -18,8 +18,14 @@ from logs.robot_drawing import Primitive, Shape
 
 WORLD = "/world"
 _Z: tuple[float, float, float] = (0.0, 0.0, 1.0)
-_CHILD = {Shape.CAPSULE: "capsules", Shape.CYLINDER: "cylinders", Shape.BOX: "boxes", Shape.SPHERE: "spheres",
-          Shape.LINE: "lines", Shape.ARROW: "arrows"}
+_CHILD = {
+    Shape.CAPSULE: "capsules",
+    Shape.CYLINDER: "cylinders",
+    Shape.BOX: "boxes",
+    Shape.SPHERE: "spheres",
+    Shape.LINE: "lines",
+    Shape.ARROW: "arrows",
+}
 
 
 def _rgba(p: Primitive) -> list[int]:
@@ -45,33 +51,58 @@ def archetypes(primitives: list[Primitive]) -> dict[str, Any]:
         if shape == Shape.CAPSULE:
             d = [(p.end[0] - p.start[0], p.end[1] - p.start[1], p.end[2] - p.start[2]) for p in parts]
             out[path] = rr.Capsules3D(  # plain floats: numpy's per-call overhead dominates for 3-vectors
-                lengths=[math.hypot(*v) for v in d], radii=[p.radius_m for p in parts],
+                lengths=[math.hypot(*v) for v in d],
+                radii=[p.radius_m for p in parts],
                 translations=[p.start for p in parts],
                 quaternions=[rr.Quaternion(xyzw=quaternion_from_to(_Z, v)) for v in d],
-                colors=colors, fill_mode="solid", **_labels(parts))
+                colors=colors,
+                fill_mode="solid",
+                **_labels(parts),
+            )
         elif shape == Shape.CYLINDER:
             out[path] = rr.Cylinders3D(
-                lengths=[p.length_m for p in parts], radii=[p.radius_m for p in parts], centers=[p.start for p in parts],
+                lengths=[p.length_m for p in parts],
+                radii=[p.radius_m for p in parts],
+                centers=[p.start for p in parts],
                 quaternions=[rr.Quaternion(xyzw=quaternion_from_to(_Z, p.end)) for p in parts],
-                colors=colors, fill_mode="solid", **_labels(parts))
+                colors=colors,
+                fill_mode="solid",
+                **_labels(parts),
+            )
         elif shape == Shape.BOX:
             out[path] = rr.Boxes3D(
                 half_sizes=[(p.width_m / 2, p.width_m / 2, p.length_m / 2) for p in parts],
                 centers=[p.start for p in parts],
                 quaternions=[rr.Quaternion(xyzw=quaternion_from_to(_Z, p.end)) for p in parts],
-                colors=colors, fill_mode="solid", **_labels(parts))
+                colors=colors,
+                fill_mode="solid",
+                **_labels(parts),
+            )
         elif shape == Shape.SPHERE:
             out[path] = rr.Ellipsoids3D(
-                half_sizes=[(p.radius_m,) * 3 for p in parts], centers=[p.start for p in parts], colors=colors,
-                fill_mode="solid", **_labels(parts))
+                half_sizes=[(p.radius_m,) * 3 for p in parts],
+                centers=[p.start for p in parts],
+                colors=colors,
+                fill_mode="solid",
+                **_labels(parts),
+            )
         elif shape == Shape.LINE:
-            out[path] = rr.LineStrips3D([list(p.points) for p in parts], radii=[p.radius_m for p in parts],
-                                        colors=colors, **_labels(parts))
+            out[path] = rr.LineStrips3D(
+                [list(p.points) for p in parts],
+                radii=[p.radius_m for p in parts],
+                colors=colors,
+                **_labels(parts),
+            )
         elif shape == Shape.ARROW:
             vectors = [(p.end[0] - p.start[0], p.end[1] - p.start[1], p.end[2] - p.start[2]) for p in parts]
             if all(math.isfinite(x) for v in vectors for x in v):
-                out[path] = rr.Arrows3D(origins=[p.start for p in parts], vectors=vectors,
-                                        radii=[p.radius_m for p in parts], colors=colors, **_labels(parts))
+                out[path] = rr.Arrows3D(
+                    origins=[p.start for p in parts],
+                    vectors=vectors,
+                    radii=[p.radius_m for p in parts],
+                    colors=colors,
+                    **_labels(parts),
+                )
     return out
 
 

@@ -96,7 +96,9 @@ def _v(a: Sequence[float] | np.ndarray) -> Vec3:
 
 
 def _circle(cx: float, cy: float, z: float, r: float, n: int = 96) -> tuple[Vec3, ...]:
-    return tuple((cx + r * math.cos(a), cy + r * math.sin(a), z) for a in np.linspace(0.0, 2.0 * math.pi, n + 1))
+    return tuple(
+        (cx + r * math.cos(a), cy + r * math.sin(a), z) for a in np.linspace(0.0, 2.0 * math.pi, n + 1)
+    )
 
 
 def _margin_color(fraction_used: float) -> Rgba:
@@ -112,8 +114,17 @@ def _force_arrow(pose: MeasuredPose) -> list[Primitive]:
         return []
     f = np.asarray(pose.force_n)
     tip = np.asarray(pose.tcp_m) + f * FORCE_ARROW_M_PER_N
-    return [Primitive("force", Shape.ARROW, RED, start=pose.tcp_m, end=_v(tip), radius_m=0.002,
-                      label=f"{float(np.linalg.norm(f)):.1f} N")]
+    return [
+        Primitive(
+            "force",
+            Shape.ARROW,
+            RED,
+            start=pose.tcp_m,
+            end=_v(tip),
+            radius_m=0.002,
+            label=f"{float(np.linalg.norm(f)):.1f} N",
+        )
+    ]
 
 
 @dataclass
@@ -143,9 +154,18 @@ def _workpiece(cfg: Config) -> list[Primitive]:
     if env == "workpiece" or (env == "auto" and cfg.task.kind == "contour"):
         w = cfg.sim.workpiece
         if w.shape == "disk" and not w.features:
-            out.append(Primitive("workpiece/disk", Shape.CYLINDER, DISK, start=(w.centre_m[0], w.centre_m[1], w.height_m),
-                                 end=(0.0, 0.0, 1.0), radius_m=w.radius_m, length_m=w.thickness_m,
-                                 label=f"workpiece r = {w.radius_m * 1000:.0f} mm"))
+            out.append(
+                Primitive(
+                    "workpiece/disk",
+                    Shape.CYLINDER,
+                    DISK,
+                    start=(w.centre_m[0], w.centre_m[1], w.height_m),
+                    end=(0.0, 0.0, 1.0),
+                    radius_m=w.radius_m,
+                    length_m=w.thickness_m,
+                    label=f"workpiece r = {w.radius_m * 1000:.0f} mm",
+                )
+            )
         else:
             from sim_backend.plant import (
                 workpiece_environment,  # geometry only: the outline the simulator uses
@@ -153,24 +173,48 @@ def _workpiece(cfg: Config) -> list[Primitive]:
 
             rim = workpiece_environment(w).contour_points(360)
             for dz in (-w.thickness_m / 2, w.thickness_m / 2):
-                out.append(Primitive("workpiece/outline", Shape.LINE, DISK, radius_m=0.0015,
-                                     points=tuple((float(x), float(y), float(z) + dz) for x, y, z in rim),
-                                     label=f"workpiece: {w.shape.replace('_', ' ')}" if dz > 0 else ""))
+                out.append(
+                    Primitive(
+                        "workpiece/outline",
+                        Shape.LINE,
+                        DISK,
+                        radius_m=0.0015,
+                        points=tuple((float(x), float(y), float(z) + dz) for x, y, z in rim),
+                        label=f"workpiece: {w.shape.replace('_', ' ')}" if dz > 0 else "",
+                    )
+                )
     if cfg.task.kind == "contour":
         e = cfg.task.model("contour")
-        out.append(Primitive("workpiece/expected_contour", Shape.LINE, GREEN_FAINT,
-                             points=_circle(e.expected_centre_m[0], e.expected_centre_m[1], e.height_m,
-                                            e.expected_radius_m), radius_m=0.0005))
+        out.append(
+            Primitive(
+                "workpiece/expected_contour",
+                Shape.LINE,
+                GREEN_FAINT,
+                points=_circle(
+                    e.expected_centre_m[0], e.expected_centre_m[1], e.height_m, e.expected_radius_m
+                ),
+                radius_m=0.0005,
+            )
+        )
     return out
 
 
-def _box_between(entity: str, a: np.ndarray, axis: np.ndarray, length_m: float, width_m: float, color: Rgba,
-                 label: str = "") -> Primitive:
-    return Primitive(entity, Shape.BOX, color, start=_v(a), end=_v(axis), length_m=length_m, width_m=width_m,
-                     label=label)
+def _box_between(
+    entity: str,
+    a: np.ndarray,
+    axis: np.ndarray,
+    length_m: float,
+    width_m: float,
+    color: Rgba,
+    label: str = "",
+) -> Primitive:
+    return Primitive(
+        entity, Shape.BOX, color, start=_v(a), end=_v(axis), length_m=length_m, width_m=width_m, label=label
+    )
 
 
 # -- Cheope (seed 001) ------------------------------------------------------------------------------
+
 
 @dataclass
 class CheopeDrawing:
@@ -188,13 +232,40 @@ class CheopeDrawing:
 
     def fixed(self) -> list[Primitive]:
         g, c = self.robot.geometry, self.section
-        out = [Primitive("base", Shape.CYLINDER, DARK, start=(0.0, 0.0, -0.02), end=(0.0, 0.0, 1.0), radius_m=0.12,
-                         length_m=0.04, label="base {0}")]
+        out = [
+            Primitive(
+                "base",
+                Shape.CYLINDER,
+                DARK,
+                start=(0.0, 0.0, -0.02),
+                end=(0.0, 0.0, 1.0),
+                radius_m=0.12,
+                length_m=0.04,
+                label="base {0}",
+            )
+        ]
         for j, n in enumerate(g.axes):
-            out.append(Primitive("guides", Shape.CAPSULE, GREY, start=_v(c.stroke_min_m * n - 0.03 * n),
-                                 end=_v(c.stroke_max_m * n + 0.03 * n), radius_m=0.012, label=f"guide {j + 1}"))
-            out.append(Primitive("guides", Shape.CAPSULE, STEEL, start=_v(0.0 * n), end=_v(c.stroke_min_m * n),
-                                 radius_m=0.008))
+            out.append(
+                Primitive(
+                    "guides",
+                    Shape.CAPSULE,
+                    GREY,
+                    start=_v(c.stroke_min_m * n - 0.03 * n),
+                    end=_v(c.stroke_max_m * n + 0.03 * n),
+                    radius_m=0.012,
+                    label=f"guide {j + 1}",
+                )
+            )
+            out.append(
+                Primitive(
+                    "guides",
+                    Shape.CAPSULE,
+                    STEEL,
+                    start=_v(0.0 * n),
+                    end=_v(c.stroke_min_m * n),
+                    radius_m=0.008,
+                )
+            )
         return out + _workpiece(self.cfg)
 
     def moving(self, pose: MeasuredPose) -> list[Primitive]:
@@ -215,20 +286,48 @@ class CheopeDrawing:
             swing = joint_swing_rad(g, tcp, q)
             limit = self.robot.limits.joint_swing_limit_rad
             for j in range(3):
-                out.append(Primitive("rods", Shape.CAPSULE, _margin_color(float(swing[j]) / limit), start=_v(sliders[j]),
-                                     end=_v(joints[j]), radius_m=0.007,
-                                     label=f"rod {j + 1}: joint swing {math.degrees(float(swing[j])):.1f} of "
-                                           f"{math.degrees(limit):.0f} deg"))
+                out.append(
+                    Primitive(
+                        "rods",
+                        Shape.CAPSULE,
+                        _margin_color(float(swing[j]) / limit),
+                        start=_v(sliders[j]),
+                        end=_v(joints[j]),
+                        radius_m=0.007,
+                        label=f"rod {j + 1}: joint swing {math.degrees(float(swing[j])):.1f} of "
+                        f"{math.degrees(limit):.0f} deg",
+                    )
+                )
                 out.append(Primitive("platform", Shape.SPHERE, STEEL, start=_v(joints[j]), radius_m=0.011))
-            out.append(Primitive("platform", Shape.CYLINDER, STEEL, start=_v(tcp + (0.0, 0.0, 0.03)),
-                                 end=(0.0, 0.0, 1.0), radius_m=g.platform_radius_m * 1.15, length_m=0.012))
-            out.append(Primitive("tool", Shape.CYLINDER, ORANGE, start=_v(tcp + (0.0, 0.0, 0.012)),
-                                 end=(0.0, 0.0, 1.0), radius_m=0.004, length_m=0.024, label="tool"))
+            out.append(
+                Primitive(
+                    "platform",
+                    Shape.CYLINDER,
+                    STEEL,
+                    start=_v(tcp + (0.0, 0.0, 0.03)),
+                    end=(0.0, 0.0, 1.0),
+                    radius_m=g.platform_radius_m * 1.15,
+                    length_m=0.012,
+                )
+            )
+            out.append(
+                Primitive(
+                    "tool",
+                    Shape.CYLINDER,
+                    ORANGE,
+                    start=_v(tcp + (0.0, 0.0, 0.012)),
+                    end=(0.0, 0.0, 1.0),
+                    radius_m=0.004,
+                    length_m=0.024,
+                    label="tool",
+                )
+            )
             out.append(Primitive("tool", Shape.SPHERE, ORANGE, start=_v(tcp), radius_m=0.005))
         return out + _force_arrow(pose) + self.trail.primitive()
 
 
 # -- 3-URU (seed 003) -------------------------------------------------------------------------------
+
 
 @dataclass
 class UruDrawing:
@@ -250,9 +349,21 @@ class UruDrawing:
         out = [Primitive("base", Shape.SPHERE, DARK, start=(0.0, 0.0, 0.0), radius_m=0.015, label="O")]
         for i in range(3):
             a = g.base_offset_m * e[i]
-            out.append(Primitive("base", Shape.CAPSULE, GREY, start=(0.0, 0.0, 0.0), end=_v(a), radius_m=0.008))
-            out.append(Primitive("motors", Shape.CYLINDER, DARK, start=_v(a - 0.03 * e[i]), end=_v(e[i]),
-                                 radius_m=0.025, length_m=0.05, label=f"motor {i + 1}"))
+            out.append(
+                Primitive("base", Shape.CAPSULE, GREY, start=(0.0, 0.0, 0.0), end=_v(a), radius_m=0.008)
+            )
+            out.append(
+                Primitive(
+                    "motors",
+                    Shape.CYLINDER,
+                    DARK,
+                    start=_v(a - 0.03 * e[i]),
+                    end=_v(e[i]),
+                    radius_m=0.025,
+                    length_m=0.05,
+                    label=f"motor {i + 1}",
+                )
+            )
         return out + _workpiece(self.cfg)
 
     def moving(self, pose: MeasuredPose) -> list[Primitive]:
@@ -276,10 +387,28 @@ class UruDrawing:
             b = p + g.platform_offset_m * e[i]  # b_i = p + d_p e_i
             serial = abs(math.sin(float(conf.th3_rad[i])))
             used = (1.0 - serial) / max(1.0 - self.min_sin_th3, 1e-9)
-            out.append(Primitive("proximal_links", Shape.CAPSULE, BLUE, start=_v(a), end=_v(c), radius_m=0.008,
-                                 label=f"link {i + 1}"))
-            out.append(Primitive("distal_links", Shape.CAPSULE, _margin_color(used), start=_v(c), end=_v(b),
-                                 radius_m=0.007, label=f"limb {i + 1}: sin th3 = {serial:.2f}"))
+            out.append(
+                Primitive(
+                    "proximal_links",
+                    Shape.CAPSULE,
+                    BLUE,
+                    start=_v(a),
+                    end=_v(c),
+                    radius_m=0.008,
+                    label=f"link {i + 1}",
+                )
+            )
+            out.append(
+                Primitive(
+                    "distal_links",
+                    Shape.CAPSULE,
+                    _margin_color(used),
+                    start=_v(c),
+                    end=_v(b),
+                    radius_m=0.007,
+                    label=f"limb {i + 1}: sin th3 = {serial:.2f}",
+                )
+            )
             out.append(Primitive("joints", Shape.SPHERE, STEEL, start=_v(c), radius_m=0.011))
             out.append(Primitive("platform", Shape.CAPSULE, STEEL, start=_v(p), end=_v(b), radius_m=0.009))
         out.append(Primitive("tool", Shape.SPHERE, ORANGE, start=_v(p), radius_m=0.014, label="P"))
@@ -287,6 +416,7 @@ class UruDrawing:
 
 
 # -- 3-nSPU (seeds 000, 004) ------------------------------------------------------------------------
+
 
 @dataclass
 class NspuDrawing:
@@ -312,10 +442,21 @@ class NspuDrawing:
         g = self.robot.geometry
         out: list[Primitive] = []
         for i in range(3):
-            out.append(Primitive("base", Shape.SPHERE, DARK, start=_v(g.a_m[i]), radius_m=0.012,
-                                 label=f"A{i + 1}"))
-            out.append(Primitive("base", Shape.CYLINDER, (0.5, 0.5, 0.55, 0.35), start=_v(g.a_m[i]), end=_v(g.r[i]),
-                                 radius_m=0.05, length_m=0.002, label=f"nS plane {i + 1}"))
+            out.append(
+                Primitive("base", Shape.SPHERE, DARK, start=_v(g.a_m[i]), radius_m=0.012, label=f"A{i + 1}")
+            )
+            out.append(
+                Primitive(
+                    "base",
+                    Shape.CYLINDER,
+                    (0.5, 0.5, 0.55, 0.35),
+                    start=_v(g.a_m[i]),
+                    end=_v(g.r[i]),
+                    radius_m=0.05,
+                    length_m=0.002,
+                    label=f"nS plane {i + 1}",
+                )
+            )
         return out
 
     def moving(self, pose: MeasuredPose) -> list[Primitive]:
@@ -327,7 +468,9 @@ class NspuDrawing:
             return []
         if self.last is not None and pose.t_s > self.last[0]:
             try:
-                self.pose = advance_pose_to_leg_lengths(self.robot.geometry, self.pose, q, pose.t_s - self.last[0])
+                self.pose = advance_pose_to_leg_lengths(
+                    self.robot.geometry, self.pose, q, pose.t_s - self.last[0]
+                )
             except (NspuModelError, NoSolutionError, ValueError):
                 pass  # keep the last pose: a drawing never stops a recording
         self.last = (pose.t_s, q)
@@ -336,18 +479,32 @@ class NspuDrawing:
         out: list[Primitive] = []
         for i in range(3):
             b = limbs.b[i]
-            out.append(Primitive("legs", Shape.CAPSULE, BLUE, start=_v(g.a_m[i]), end=_v(b), radius_m=0.006,
-                                 label=f"leg {i + 1}: {q[i]:.4f} m"))
+            out.append(
+                Primitive(
+                    "legs",
+                    Shape.CAPSULE,
+                    BLUE,
+                    start=_v(g.a_m[i]),
+                    end=_v(b),
+                    radius_m=0.006,
+                    label=f"leg {i + 1}: {q[i]:.4f} m",
+                )
+            )
             out.append(Primitive("platform", Shape.SPHERE, STEEL, start=_v(b), radius_m=0.008))
         ring = (*(_v(limbs.b[i]) for i in range(3)), _v(limbs.b[0]))
         out.append(Primitive("platform", Shape.LINE, STEEL, points=ring, radius_m=0.004))
-        out.append(Primitive("tool", Shape.SPHERE, ORANGE, start=_v(self.pose.p_m), radius_m=0.006, label="P"))
+        out.append(
+            Primitive("tool", Shape.SPHERE, ORANGE, start=_v(self.pose.p_m), radius_m=0.006, label="P")
+        )
         return out
 
 
 def drawing_for_config(cfg: Config) -> RobotDrawing | None:
     """The drawing of the configured robot; None for a robot without one (a user's own registered robot)."""
     kinds: dict[str, type[CheopeDrawing | UruDrawing | NspuDrawing]] = {
-        "cheope": CheopeDrawing, "uru": UruDrawing, "nspu": NspuDrawing}
+        "cheope": CheopeDrawing,
+        "uru": UruDrawing,
+        "nspu": NspuDrawing,
+    }
     cls = kinds.get(cfg.robot.kind)
     return None if cls is None else cls(cfg)

@@ -30,9 +30,14 @@ def pose_from_cycle(c: Any) -> MeasuredPose:
     st = c.state
     tcp = tuple(st.tcp_measured_m) if len(st.tcp_measured_m) == 3 else None
     ref = tuple(st.tcp_reference_m) if len(st.tcp_reference_m) == 3 else None
-    force = tuple(c.inputs.sensor.force_n) if c.inputs.HasField("sensor") and len(c.inputs.sensor.force_n) == 3 else None
-    return MeasuredPose(t_s=c.t_s, q=tuple(d.position for d in c.inputs.drives), tcp_m=tcp,
-                        force_n=force, reference_m=ref)
+    force = (
+        tuple(c.inputs.sensor.force_n)
+        if c.inputs.HasField("sensor") and len(c.inputs.sensor.force_n) == 3
+        else None
+    )
+    return MeasuredPose(
+        t_s=c.t_s, q=tuple(d.position for d in c.inputs.drives), tcp_m=tcp, force_n=force, reference_m=ref
+    )
 
 
 @dataclass

@@ -44,10 +44,23 @@ class Session:
         return [k for k in range(min(seqs), max(seqs) + 1) if k not in seqs] if seqs else []
 
     def as_dict(self) -> dict[str, Any]:
-        return {"session_id": self.session_id, "started_utc": self.started_utc, "task": self.task,
-                "size_bytes": self.size_bytes, "missing_sequences": self.missing(),
-                "files": [{"path": str(f.path), "sequence": f.sequence, "size_bytes": f.size_bytes,
-                           "finished": f.finished, "duration_s": f.duration_s} for f in self.files]}
+        return {
+            "session_id": self.session_id,
+            "started_utc": self.started_utc,
+            "task": self.task,
+            "size_bytes": self.size_bytes,
+            "missing_sequences": self.missing(),
+            "files": [
+                {
+                    "path": str(f.path),
+                    "sequence": f.sequence,
+                    "size_bytes": f.size_bytes,
+                    "finished": f.finished,
+                    "duration_s": f.duration_s,
+                }
+                for f in self.files
+            ],
+        }
 
 
 @dataclass(frozen=True)
@@ -89,28 +102,39 @@ def list_sessions(directory: str | Path = "") -> SessionListing:
         seq = int(file_meta.get("sequence", "1")) if file_meta.get("sequence", "1").isdigit() else 1
         finished = _ends_with_magic(path, head.size_bytes)
         summary = read_info_from_summary(path) if finished else None
-        session = sessions.setdefault(sid, Session(sid, session_meta.get("started_utc", ""),
-                                                   session_meta.get("task", "")))
-        session.files.append(SessionFile(path, seq, head.size_bytes, finished,
-                                         None if summary is None else summary.duration_s))
+        session = sessions.setdefault(
+            sid, Session(sid, session_meta.get("started_utc", ""), session_meta.get("task", ""))
+        )
+        session.files.append(
+            SessionFile(path, seq, head.size_bytes, finished, None if summary is None else summary.duration_s)
+        )
     for s in sessions.values():
         s.files.sort(key=lambda f: f.sequence)
-    return SessionListing(d, sorted(sessions.values(), key=lambda s: (s.started_utc, s.files[0].path.name)),
-                          unreadable)
+    return SessionListing(
+        d, sorted(sessions.values(), key=lambda s: (s.started_utc, s.files[0].path.name)), unreadable
+    )
 
 
 def format_sessions(listing: SessionListing) -> str:
-    lines = [(f"{listing.directory}: {len(listing.sessions)} session(s), "
-             f"{sum(s.size_bytes for s in listing.sessions) / 1e6:.1f} MB")]
+    lines = [
+        (
+            f"{listing.directory}: {len(listing.sessions)} session(s), "
+            f"{sum(s.size_bytes for s in listing.sessions) / 1e6:.1f} MB"
+        )
+    ]
     for s in listing.sessions:
         sid = s.session_id if s.session_id.startswith("file:") else s.session_id[:12]
         missing = s.missing()
-        lines.append(f"session {sid}  started {s.started_utc or '?'}  task {s.task or '?'}  "
-                     f"{len(s.files)} file(s), {s.size_bytes / 1e6:.1f} MB"
-                     + (f"  (files {', '.join(map(str, missing))} not here)" if missing else ""))
+        lines.append(
+            f"session {sid}  started {s.started_utc or '?'}  task {s.task or '?'}  "
+            f"{len(s.files)} file(s), {s.size_bytes / 1e6:.1f} MB"
+            + (f"  (files {', '.join(map(str, missing))} not here)" if missing else "")
+        )
         for f in s.files:
             duration = "" if f.duration_s is None else f"{f.duration_s:9.1f} s"
-            lines.append(f"  {f.sequence:>3}  {f.path.name:<40} {f.size_bytes / 1e6:9.2f} MB {duration:>11}  "
-                         f"{'finished' if f.finished else 'open or cut short'}")
+            lines.append(
+                f"  {f.sequence:>3}  {f.path.name:<40} {f.size_bytes / 1e6:9.2f} MB {duration:>11}  "
+                f"{'finished' if f.finished else 'open or cut short'}"
+            )
     lines += [f"not a recording: {u}" for u in listing.unreadable]
     return "\n".join(lines)

@@ -98,8 +98,8 @@ class RecordReader:
         (n,) = _LENGTH.unpack_from(self._buf)
         if len(self._buf) < 4 + n:
             return None
-        body = bytes(self._buf[4:4 + n])
-        del self._buf[:4 + n]
+        body = bytes(self._buf[4 : 4 + n])
+        del self._buf[: 4 + n]
         record: Record = pickle.loads(body)
         return record
 
@@ -148,8 +148,11 @@ class SessionWriter:
         self.flush_interval_s: float = settings["flush_interval_s"]
         self.limits = FileLimits.from_settings(settings)
         self.session_id: str = settings.get("session_id", "")
-        self.compression = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
-                            "none": CompressionType.NONE}[settings["compression"]]
+        self.compression = {
+            "zstd": CompressionType.ZSTD,
+            "lz4": CompressionType.LZ4,
+            "none": CompressionType.NONE,
+        }[settings["compression"]]
         self.written = 0
         self.chunks = 0
         self.error = ""
@@ -168,7 +171,9 @@ class SessionWriter:
         self.scene = None if cfg is None else _scene_sampler(cfg)
         # Every cycle's TCP is in /cycle (state.tcp_measured_m, tcp_reference_m); the viewers' own
         # copies follow the 3D scene's rate: at the loop's rate they were a fifth of the file.
-        self.view_interval_s = 1.0 / (cfg.recording.scene_rate_hz if cfg is not None else DEFAULT_VIEW_RATE_HZ)
+        self.view_interval_s = 1.0 / (
+            cfg.recording.scene_rate_hz if cfg is not None else DEFAULT_VIEW_RATE_HZ
+        )
         self.view_next_t = -math.inf
         self.live = None
         if cfg is not None and (cfg.recording.live_rerun or cfg.recording.live_foxglove):
@@ -197,17 +202,30 @@ class SessionWriter:
         w = Writer(self.stream, chunk_size=_WRITER_CHUNK_LIMIT, compression=self.compression)
         w.start(profile="", library="cheope logs.recorder")
         self.channels: dict[str, int] = {}
-        for topic, cls in ((m.TOPIC_CAN, pb.CanFrameBatch), (m.TOPIC_CYCLE, pb.Cycle), (m.TOPIC_EVENTS, pb.Event),
-                           (m.TOPIC_LOG, Log), (m.TOPIC_TCP, FrameTransform),
-                           (m.TOPIC_TCP_REFERENCE, PoseInFrame), (m.TOPIC_SCENE, SceneUpdate),
-                           (m.TOPIC_KEYFRAME, pb.Keyframe)):
+        for topic, cls in (
+            (m.TOPIC_CAN, pb.CanFrameBatch),
+            (m.TOPIC_CYCLE, pb.Cycle),
+            (m.TOPIC_EVENTS, pb.Event),
+            (m.TOPIC_LOG, Log),
+            (m.TOPIC_TCP, FrameTransform),
+            (m.TOPIC_TCP_REFERENCE, PoseInFrame),
+            (m.TOPIC_SCENE, SceneUpdate),
+            (m.TOPIC_KEYFRAME, pb.Keyframe),
+        ):
             sid = register_schema(w, cls)
-            self.channels[topic] = w.register_channel(topic=topic, message_encoding=MessageEncoding.Protobuf,
-                                                      schema_id=sid)
+            self.channels[topic] = w.register_channel(
+                topic=topic, message_encoding=MessageEncoding.Protobuf, schema_id=sid
+            )
         for name, data in self.settings["metadata"].items():
             w.add_metadata(name, data)
-        w.add_metadata(m.META_FILE, {"session_id": self.session_id, "sequence": str(len(self.files)),
-                                     "previous": os.path.basename(previous)})
+        w.add_metadata(
+            m.META_FILE,
+            {
+                "session_id": self.session_id,
+                "sequence": str(len(self.files)),
+                "previous": os.path.basename(previous),
+            },
+        )
         self.writer = w
         self.file_written = 0
         self.pending = 0  # the last file's open chunk was closed with it
@@ -246,14 +264,19 @@ class SessionWriter:
             self.keyframe_asked_s = now
             self.notify(keyframe=len(self.files) + 1)
 
-    def _rotate(self, cycle: int, t: float, mono_s: float, seq: int, encoding: str, state: bytes,
-                problem: str) -> None:
+    def _rotate(
+        self, cycle: int, t: float, mono_s: float, seq: int, encoding: str, state: bytes, problem: str
+    ) -> None:
         """Close this file, open the session's next one with the keyframe: the state after ``cycle``."""
         self.keyframe_asked_s = None
         ns = self.m.frame_log_time_ns(mono_s, self.offset_ns)
         if problem:
-            self._event("keyframe_missing", f"the controller's state could not be recorded: {problem}; "
-                        "the next file cannot be verified alone", warning=True)
+            self._event(
+                "keyframe_missing",
+                f"the controller's state could not be recorded: {problem}; "
+                "the next file cannot be verified alone",
+                warning=True,
+            )
         keyframe = self.pb.Keyframe(cycle=cycle, t_s=t, sequence=seq, encoding=encoding, state=state)
         nxt = next_file_path(self.first_path, len(self.files) + 1)
         self._close_file({"next": os.path.basename(nxt), "complete": "true"})
@@ -272,16 +295,23 @@ class SessionWriter:
         """recording.keep_total_size_gb: the oldest recordings of the directory go first."""
         if not self.limits.keep_total_bytes:
             return
-        for path, size in enforce_retention(os.path.dirname(self.path) or ".", self.limits.keep_total_bytes,
-                                            set(self.files)):
+        for path, size in enforce_retention(
+            os.path.dirname(self.path) or ".", self.limits.keep_total_bytes, set(self.files)
+        ):
             self.deleted.append(path)
-            self._event("recording_deleted", f"{os.path.basename(path)} ({size / 1e6:.1f} MB) deleted: the "
-                        f"recordings exceeded recording.keep_total_size_gb = {self.limits.keep_total_bytes / 1e9:.10g}")
+            self._event(
+                "recording_deleted",
+                f"{os.path.basename(path)} ({size / 1e6:.1f} MB) deleted: the "
+                f"recordings exceeded recording.keep_total_size_gb = {self.limits.keep_total_bytes / 1e9:.10g}",
+            )
 
     def maybe_flush(self) -> None:
         if self.error or not self.pending:
             return
-        if self.pending >= self.chunk_size_bytes or time.monotonic() - self.last_flush >= self.flush_interval_s:
+        if (
+            self.pending >= self.chunk_size_bytes
+            or time.monotonic() - self.last_flush >= self.flush_interval_s
+        ):
             try:
                 self.writer.flush()
             except (OSError, ValueError) as err:
@@ -299,8 +329,10 @@ class SessionWriter:
         free = free_bytes(self.path)
         if free is None or free >= self.limits.min_free_bytes:
             return
-        self.stopped = (f"free space on the file system of {self.path} is {free / 1e6:.0f} MB, below "
-                        f"recording.min_free_space_mb = {self.limits.min_free_bytes / 1e6:.10g}: recording stopped")
+        self.stopped = (
+            f"free space on the file system of {self.path} is {free / 1e6:.0f} MB, below "
+            f"recording.min_free_space_mb = {self.limits.min_free_bytes / 1e6:.10g}: recording stopped"
+        )
         self._event("recording_stopped", self.stopped, warning=True)
         print(f"recording stopped: {self.stopped}", file=sys.stderr, flush=True)
         self.notify(stopped=self.stopped)
@@ -312,16 +344,24 @@ class SessionWriter:
                 self._report_drops(dropped)
             except (OSError, ValueError) as err:
                 self._fail(f"cannot finish {self.path}: {err}")
-        self._close_file({"queued": "unknown" if queued is None else str(queued), "dropped": str(dropped),
-                          "complete": "true", **({"stopped": self.stopped} if self.stopped else {}),
-                          **({} if queued is not None else {"ended": "the controller closed the pipe without END"})})
+        self._close_file(
+            {
+                "queued": "unknown" if queued is None else str(queued),
+                "dropped": str(dropped),
+                "complete": "true",
+                **({"stopped": self.stopped} if self.stopped else {}),
+                **({} if queued is not None else {"ended": "the controller closed the pipe without END"}),
+            }
+        )
 
     def _close_file(self, recording: dict[str, str]) -> None:
         """``cheope.recording`` (this file's count, the session's so far), the index, the footer."""
         try:
             if not self.error:
-                self.writer.add_metadata(self.m.META_RECORDING, {
-                    "written": str(self.written), "file_written": str(self.file_written), **recording})
+                self.writer.add_metadata(
+                    self.m.META_RECORDING,
+                    {"written": str(self.written), "file_written": str(self.file_written), **recording},
+                )
                 self.writer.finish()
         except (OSError, ValueError) as err:
             self._fail(f"cannot finish {self.path}: {err}")
@@ -338,9 +378,9 @@ class SessionWriter:
         cycle, t = self.last_cycle
         e = Event(kind, Severity.WARNING if warning else Severity.INFO, message)
         ns = self.m.frame_log_time_ns(self.last_mono_s, self.offset_ns)
-        self.pending += (self._add(self.m.TOPIC_EVENTS, self.m.event_to_pb(cycle, t, e).SerializeToString(), ns)
-                         + self._add(self.m.TOPIC_LOG, self.m.event_to_log(ns, e).SerializeToString(), ns))
-
+        self.pending += self._add(
+            self.m.TOPIC_EVENTS, self.m.event_to_pb(cycle, t, e).SerializeToString(), ns
+        ) + self._add(self.m.TOPIC_LOG, self.m.event_to_log(ns, e).SerializeToString(), ns)
 
     # -- conversions -------------------------------------------------------------------------
 
@@ -362,8 +402,17 @@ class SessionWriter:
         self.last_mono_s = frames[-1][1]
         return self._add(self.m.TOPIC_CAN, batch, self.m.frame_log_time_ns(frames[0][1], self.offset_ns))
 
-    def _cycle(self, cycle: int, t: float, mono_s: float, seq: int, cycle_pb: bytes,
-               events: tuple[Event, ...], tcp_measured: Vector3 | None, tcp_reference: Vector3 | None) -> int:
+    def _cycle(
+        self,
+        cycle: int,
+        t: float,
+        mono_s: float,
+        seq: int,
+        cycle_pb: bytes,
+        events: tuple[Event, ...],
+        tcp_measured: Vector3 | None,
+        tcp_reference: Vector3 | None,
+    ) -> int:
         m = self.m
         ns = int(mono_s * 1e9) + self.offset_ns
         self.last_cycle = (cycle, t)
@@ -412,7 +461,9 @@ class SessionWriter:
                 self.live.fixed(fixed, data, ns)
         frame = self.scene.sample(cycle_pb, t)
         if frame is not None:
-            frame.scene_pb = scene_update(frame.moving, ns, tuple(sorted(self.scene.moving_entities))).SerializeToString()
+            frame.scene_pb = scene_update(
+                frame.moving, ns, tuple(sorted(self.scene.moving_entities))
+            ).SerializeToString()
             n += self._add(self.m.TOPIC_SCENE, frame.scene_pb, ns)
         return n, frame
 
@@ -422,11 +473,15 @@ class SessionWriter:
         new = dropped - self.reported_drops
         self.reported_drops = dropped
         cycle, t = self.last_cycle
-        e = Event("recorder_drop", Severity.WARNING,
-                  f"recorder queue full: {new} item(s) dropped after cycle {cycle} ({dropped} in total)")
+        e = Event(
+            "recorder_drop",
+            Severity.WARNING,
+            f"recorder queue full: {new} item(s) dropped after cycle {cycle} ({dropped} in total)",
+        )
         ns = int(self.last_mono_s * 1e9) + self.offset_ns
-        return (self._add(self.m.TOPIC_EVENTS, self.m.event_to_pb(cycle, t, e).SerializeToString(), ns)
-                + self._add(self.m.TOPIC_LOG, self.m.event_to_log(ns, e).SerializeToString(), ns))
+        return self._add(
+            self.m.TOPIC_EVENTS, self.m.event_to_pb(cycle, t, e).SerializeToString(), ns
+        ) + self._add(self.m.TOPIC_LOG, self.m.event_to_log(ns, e).SerializeToString(), ns)
 
 
 KEYFRAME_RETRY_S = 1.0
@@ -446,8 +501,12 @@ class FileLimits:
 
     @classmethod
     def from_settings(cls, settings: dict[str, Any]) -> FileLimits:
-        return cls(int(settings.get("max_file_bytes", 0)), float(settings.get("max_file_duration_s", 0.0)),
-                   int(settings.get("keep_total_bytes", 0)), int(settings.get("min_free_bytes", 0)))
+        return cls(
+            int(settings.get("max_file_bytes", 0)),
+            float(settings.get("max_file_duration_s", 0.0)),
+            int(settings.get("keep_total_bytes", 0)),
+            int(settings.get("min_free_bytes", 0)),
+        )
 
 
 def next_file_path(first: str, sequence: int) -> str:
@@ -465,8 +524,9 @@ def free_bytes(path: str) -> int | None:
     return st.f_bavail * st.f_frsize
 
 
-def enforce_retention(directory: str, keep_bytes: int, open_paths: set[str], now: float | None = None
-                      ) -> list[tuple[str, int]]:
+def enforce_retention(
+    directory: str, keep_bytes: int, open_paths: set[str], now: float | None = None
+) -> list[tuple[str, int]]:
     """Delete the oldest recordings (``cheope-*.mcap`` as the recorder names them) in ``directory``
     until they total at most ``keep_bytes``; never one of ``open_paths`` nor one written to in the
     last ``OPEN_FILE_AGE_S`` (another controller's open file). Returns (path, size) deleted."""
@@ -585,8 +645,14 @@ def serve(fd: int, out: TextIO) -> int:
     writer.finish(queued, dropped)
     if writer.live is not None:
         writer.live.close()
-    _reply(out, written=writer.written, chunks=writer.chunks, error=writer.error or writer.stopped,
-           files=writer.files, deleted=writer.deleted)
+    _reply(
+        out,
+        written=writer.written,
+        chunks=writer.chunks,
+        error=writer.error or writer.stopped,
+        files=writer.files,
+        deleted=writer.deleted,
+    )
     return 0 if not writer.error else 2
 
 

@@ -57,12 +57,19 @@ class DiskEnvironment:
         if fn <= 0.0:
             return NO_FORCE
         tx, ty = -ny, nx  # z x n
-        friction = -p.friction_coefficient * fn * math.tanh((vx_m_s * tx + vy_m_s * ty) / p.friction_velocity_m_s)
+        friction = (
+            -p.friction_coefficient * fn * math.tanh((vx_m_s * tx + vy_m_s * ty) / p.friction_velocity_m_s)
+        )
         return (fn * nx + friction * tx, fn * ny + friction * ty, 0.0)
 
     def contour_points(self, n: int = 180) -> np.ndarray:
         """The disk's rim (for plots and viewers)."""
         th = np.linspace(0, 2 * np.pi, n)
         p = self.params
-        return np.column_stack([p.centre_m[0] + p.radius_m * np.cos(th), p.centre_m[1] + p.radius_m * np.sin(th),
-                                np.full(n, p.height_m)])
+        return np.column_stack(
+            [
+                p.centre_m[0] + p.radius_m * np.cos(th),
+                p.centre_m[1] + p.radius_m * np.sin(th),
+                np.full(n, p.height_m),
+            ]
+        )

@@ -32,8 +32,10 @@ def _drive_objects(drive: SimulatedDrive) -> dict[tuple[int, int], Callable[[], 
     """The drive's mappable objects a TPDO reads (drivers/eds/cheope_drive.eds)."""
     counts = drive.params.counts_per_unit
     return {
-        (0x6041, 0): drive.statusword, (0x6064, 0): drive.position_counts,
-        (0x606C, 0): lambda: round(drive.velocity * counts), (0x6061, 0): lambda: drive.mode_of_operation,
+        (0x6041, 0): drive.statusword,
+        (0x6064, 0): drive.position_counts,
+        (0x606C, 0): lambda: round(drive.velocity * counts),
+        (0x6061, 0): lambda: drive.mode_of_operation,
         (0x603F, 0): lambda: drive.error_code,
         (0x607A, 0): lambda: round((drive.received_target + drive.encoder_offset) * counts),
         (0x6040, 0): lambda: drive.last_controlword,
@@ -51,7 +53,9 @@ def device_pdos_from_file(eds: Path, node_id: int) -> DevicePdos:
 
 
 class SimulatedPdos:
-    def __init__(self, cfg: Config, drives: list[SimulatedDrive], sensor: SimulatedForceSensor | None) -> None:
+    def __init__(
+        self, cfg: Config, drives: list[SimulatedDrive], sensor: SimulatedForceSensor | None
+    ) -> None:
         self.drive_ids = tuple(cfg.actuators.node_ids)
         self.sensor_id = cfg.sensor.node_id if sensor is not None else None
         drive_eds = device_description_path(cfg.actuators.eds_file, DRIVE_EDS)
@@ -75,11 +79,14 @@ class SimulatedPdos:
         """What the controller's set-up writes over SDO (the loopback has no SDO): config + EDS mapping."""
         for node_id, device in zip(self.drive_ids, self.drive_pdos):
             device.apply(planned_pdo(device.od, PdoDirection.RECEIVE, 1, node_id, cfg.actuators.rpdo_objects))
-            device.apply(planned_pdo(device.od, PdoDirection.TRANSMIT, 1, node_id, cfg.actuators.tpdo_objects))
+            device.apply(
+                planned_pdo(device.od, PdoDirection.TRANSMIT, 1, node_id, cfg.actuators.tpdo_objects)
+            )
         if self.sensor_pdos is not None and self.sensor_id is not None:
             for number in (1, 2):
-                self.sensor_pdos.apply(planned_pdo(self.sensor_pdos.od, PdoDirection.TRANSMIT, number,
-                                                   self.sensor_id, ()))
+                self.sensor_pdos.apply(
+                    planned_pdo(self.sensor_pdos.od, PdoDirection.TRANSMIT, number, self.sensor_id, ())
+                )
 
     def _rebuild(self) -> None:
         self._drive_tpdos = []
@@ -93,8 +100,12 @@ class SimulatedPdos:
         self._sensor_tpdos = []
         if self.sensor_pdos is not None and self.sensor is not None:
             values = self.sensor.object_values
-            getters = {key: _reader(values, key) for key in
-                       [(0x2000, k) for k in (1, 2, 3)] + [(0x2001, k) for k in (1, 2, 3)] + [(0x2002, 0), (0x2003, 0)]}
+            getters = {
+                key: _reader(values, key)
+                for key in [(0x2000, k) for k in (1, 2, 3)]
+                + [(0x2001, k) for k in (1, 2, 3)]
+                + [(0x2002, 0), (0x2003, 0)]
+            }
             for number in (1, 2):
                 tpdo = self.sensor_pdos.pdo(PdoDirection.TRANSMIT, number)
                 self._sensor_tpdos.append(_Tpdo(tpdo, value_packer(tpdo, getters)))
@@ -126,7 +137,9 @@ class SimulatedPdos:
         """At a SYNC, after the drives latched: each drive's (COB-ID, TPDO1) or None when it sends none."""
         out: list[tuple[int, bytes] | None] = []
         for t in self._drive_tpdos:
-            out.append((t.pdo.config.cob_id, t.pack()) if t.pack is not None and t.pdo.due_on_sync() else None)
+            out.append(
+                (t.pdo.config.cob_id, t.pack()) if t.pack is not None and t.pdo.due_on_sync() else None
+            )
         return out
 
     def rogue_drive_tpdo(self, j: int, offset: float) -> tuple[int, bytes] | None:
@@ -148,5 +161,8 @@ class SimulatedPdos:
         if self.sensor is None:
             return []
         self.sensor.latch()
-        return [(t.pdo.config.cob_id, t.pack()) for t in self._sensor_tpdos
-                if t.pack is not None and t.pdo.due_on_sync()]
+        return [
+            (t.pdo.config.cob_id, t.pack())
+            for t in self._sensor_tpdos
+            if t.pack is not None and t.pdo.due_on_sync()
+        ]

@@ -165,11 +165,20 @@ class SimulatedDrive:
     def on_controlword(self, controlword: int) -> None:
         previous = self.last_controlword
         self._on_power_controlword(controlword)
-        if (self.mode_of_operation == MODE_HOMING and self.power == PowerState.OPERATION_ENABLED
-                and controlword & CW_HOMING_START and not previous & CW_HOMING_START):
+        if (
+            self.mode_of_operation == MODE_HOMING
+            and self.power == PowerState.OPERATION_ENABLED
+            and controlword & CW_HOMING_START
+            and not previous & CW_HOMING_START
+        ):
             p = self.params
-            self.homing = HomingRun(self.homing_settings, p.negative_limit_switch, p.positive_limit_switch,
-                                    p.stroke_min, p.stroke_max)
+            self.homing = HomingRun(
+                self.homing_settings,
+                p.negative_limit_switch,
+                p.positive_limit_switch,
+                p.stroke_min,
+                p.stroke_max,
+            )
             self.homing.start(self.position)
             self._homing_result()
 
@@ -260,7 +269,9 @@ class SimulatedDrive:
 
     def position_counts(self) -> int:
         # quantised; the fault injection's error on top of the incremental encoder's offset
-        return round((self.position + self.encoder_offset + self.reported_position_error) * self.params.counts_per_unit)
+        return round(
+            (self.position + self.encoder_offset + self.reported_position_error) * self.params.counts_per_unit
+        )
 
     def on_nmt_stopped(self) -> None:
         """NMT STOPPED while enabled: an abort connection (0x6007)."""
@@ -319,10 +330,17 @@ class SimulatedDrive:
         # frame means the frames waited in the simulator's socket while its process was not
         # scheduled, and a real drive would have had its SYNC on time. A SYNC that really
         # stopped is caught by the simulator's watchdog thread, which checks.
-        if check_sync_timeout and self.last_sync_s is not None and now_s - self.last_sync_s > p.sync_timeout_s:
+        if (
+            check_sync_timeout
+            and self.last_sync_s is not None
+            and now_s - self.last_sync_s > p.sync_timeout_s
+        ):
             self._quick_stop(EMCY_SYNC_LOST)
-        elif (self.heartbeat_consumer_s > 0 and self.last_heartbeat_s is not None
-              and now_s - self.last_heartbeat_s > self.heartbeat_consumer_s):
+        elif (
+            self.heartbeat_consumer_s > 0
+            and self.last_heartbeat_s is not None
+            and now_s - self.last_heartbeat_s > self.heartbeat_consumer_s
+        ):
             self.abort_connection(EMCY_HEARTBEAT_LOST)
 
     def _quick_stop(self, error_code: int) -> None:
@@ -344,8 +362,13 @@ class SimulatedDrive:
         self.position, self.velocity, self.acceleration = x, v, a
         self._homing_result()
 
-    def advance(self, now_s: float, check_sync_timeout: bool = True, substeps: int = 0,
-                trace: list[float] | None = None) -> None:
+    def advance(
+        self,
+        now_s: float,
+        check_sync_timeout: bool = True,
+        substeps: int = 0,
+        trace: list[float] | None = None,
+    ) -> None:
         """Integrate the carriage up to ``now_s`` in equal sub-steps, checking the watchdogs first.
 
         ``substeps`` (0: as many as ``params.substep_s`` needs) lets the plant step drives and
@@ -368,8 +391,14 @@ class SimulatedDrive:
             self._advance_homing(self.homing, n, h, trace)
             self.time_s = now_s
             return
-        enabled = self.power == PowerState.OPERATION_ENABLED and self.mode_of_operation == MODE_CYCLIC_SYNC_POSITION
-        stopping = self.power in (PowerState.QUICK_STOP_ACTIVE, PowerState.FAULT_REACTION_ACTIVE, PowerState.FAULT)
+        enabled = (
+            self.power == PowerState.OPERATION_ENABLED and self.mode_of_operation == MODE_CYCLIC_SYNC_POSITION
+        )
+        stopping = self.power in (
+            PowerState.QUICK_STOP_ACTIVE,
+            PowerState.FAULT_REACTION_ACTIVE,
+            PowerState.FAULT,
+        )
         if enabled:
             wn = 2.0 * math.pi * p.bandwidth_hz
             wn2, c = wn * wn, 2.0 * p.damping_ratio * wn

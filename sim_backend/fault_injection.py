@@ -54,10 +54,36 @@ if TYPE_CHECKING:
 
 from controller.errors import InputError
 
-KINDS_WITH_NODE = ("drop", "delay", "malformed", "drive_fault", "heartbeat", "block", "jump", "reboot",
-                   "nmt_stop", "nmt_preop", "nmt_reset", "unknown_node", "rogue_tpdo", "rogue_short", "rogue_emcy")
-KINDS = KINDS_WITH_NODE + ("freeze", "saturate", "force", "drift", "error_frames", "bus_off", "tx_full", "stall",
-                           "foreign_sync", "flood", "spoof_sensor")
+KINDS_WITH_NODE = (
+    "drop",
+    "delay",
+    "malformed",
+    "drive_fault",
+    "heartbeat",
+    "block",
+    "jump",
+    "reboot",
+    "nmt_stop",
+    "nmt_preop",
+    "nmt_reset",
+    "unknown_node",
+    "rogue_tpdo",
+    "rogue_short",
+    "rogue_emcy",
+)
+KINDS = KINDS_WITH_NODE + (
+    "freeze",
+    "saturate",
+    "force",
+    "drift",
+    "error_frames",
+    "bus_off",
+    "tx_full",
+    "stall",
+    "foreign_sync",
+    "flood",
+    "spoof_sensor",
+)
 DRIVE_ONLY_KINDS = ("drive_fault", "block", "jump", "reboot", "rogue_tpdo", "rogue_short")
 FLOOD_COB_ID = 0x001
 FLOOD_FRAMES_PER_SYNC = 32  # more than a 1 Mbit/s bus carries in 2.5 ms besides the cycle's own frames
@@ -66,8 +92,10 @@ ROGUE_EMCY_BYTES = 3  # an EMCY is 8 bytes (CiA 301)
 ROGUE_TPDO_BYTES = 3  # shorter than any drive TPDO mapping with a statusword and a position
 SPOOF_COUNTER_OFFSET = 128  # the spoofed sample's counter: as far from the true one as a u8 goes
 _NUMBER = r"[0-9]+(?:\.[0-9]*)?(?:[eE][-+]?[0-9]+)?"
-_PATTERN = re.compile(rf"^(?P<kind>[a-z_]+)(:(?P<node>\d+))?(=(?P<value>-?{_NUMBER}))?@(?P<start>{_NUMBER})"
-                      rf"(\+(?P<duration>{_NUMBER}))?$")
+_PATTERN = re.compile(
+    rf"^(?P<kind>[a-z_]+)(:(?P<node>\d+))?(=(?P<value>-?{_NUMBER}))?@(?P<start>{_NUMBER})"
+    rf"(\+(?P<duration>{_NUMBER}))?$"
+)
 
 
 class FaultSpecError(InputError):
@@ -89,15 +117,21 @@ class Fault:
 def parse_fault(text: str) -> Fault:
     m = _PATTERN.match(text.strip())
     if not m:
-        raise FaultSpecError(f"fault {text!r}: expected KIND[:NODE][=VALUE]@START[+DURATION], e.g. drop:2@3.0+0.5")
+        raise FaultSpecError(
+            f"fault {text!r}: expected KIND[:NODE][=VALUE]@START[+DURATION], e.g. drop:2@3.0+0.5"
+        )
     kind = m["kind"]
     if kind not in KINDS:
         raise FaultSpecError(f"fault {text!r}: unknown kind {kind!r}; known: {', '.join(KINDS)}")
     if kind in KINDS_WITH_NODE and m["node"] is None:
         raise FaultSpecError(f"fault {text!r}: {kind} needs a node id, e.g. {kind}:2@1.0")
-    return Fault(kind=kind, start_s=float(m["start"]),
-                 duration_s=float(m["duration"]) if m["duration"] else math.inf,
-                 node=int(m["node"]) if m["node"] else 0, value=float(m["value"]) if m["value"] else 0.0)
+    return Fault(
+        kind=kind,
+        start_s=float(m["start"]),
+        duration_s=float(m["duration"]) if m["duration"] else math.inf,
+        node=int(m["node"]) if m["node"] else 0,
+        value=float(m["value"]) if m["value"] else 0.0,
+    )
 
 
 # A late frame or a late wake-up longer than this is no longer "late": it is a silent node
@@ -113,20 +147,29 @@ def check_fault(text: str, drive_nodes: Sequence[int], sensor_node: int | None) 
         raise FaultSpecError(f"fault {text!r}: START must be a finite number of seconds")
     devices = (*drive_nodes, *((sensor_node,) if sensor_node is not None else ()))
     if f.kind == "unknown_node" and (f.node in devices or not 1 <= f.node <= 127):
-        raise FaultSpecError(f"fault {text!r}: unknown_node takes a node id in 1..127 that is not configured "
-                             f"(the bus has {', '.join(map(str, devices))})")
+        raise FaultSpecError(
+            f"fault {text!r}: unknown_node takes a node id in 1..127 that is not configured "
+            f"(the bus has {', '.join(map(str, devices))})"
+        )
     if f.kind in KINDS_WITH_NODE and f.kind != "unknown_node":
         allowed = tuple(drive_nodes) if f.kind in DRIVE_ONLY_KINDS else devices
         if f.node not in allowed:
             known = f"drives {', '.join(map(str, drive_nodes))}" + (
-                f" and the sensor {sensor_node}" if sensor_node is not None and f.kind not in DRIVE_ONLY_KINDS else "")
+                f" and the sensor {sensor_node}"
+                if sensor_node is not None and f.kind not in DRIVE_ONLY_KINDS
+                else ""
+            )
             what = "a drive" if f.node in devices else "on the bus"
             raise FaultSpecError(f"fault {text!r}: node {f.node} is not {what}; {f.kind} takes {known}")
     if f.kind in ("delay", "stall") and not 0.0 < f.value <= MAX_LATENESS_S:
-        raise FaultSpecError(f"fault {text!r}: {f.kind} of {f.value:g} s must be in (0, {MAX_LATENESS_S:g}] s; "
-                             f"a longer silence is drop:N (a node) or a dead controller")
+        raise FaultSpecError(
+            f"fault {text!r}: {f.kind} of {f.value:g} s must be in (0, {MAX_LATENESS_S:g}] s; "
+            f"a longer silence is drop:N (a node) or a dead controller"
+        )
     if f.kind in ("force", "drift") and not abs(f.value) <= MAX_EXTRA_FORCE_N:
-        raise FaultSpecError(f"fault {text!r}: {f.kind}={f.value:g} is beyond +-{MAX_EXTRA_FORCE_N:g} N (N/s)")
+        raise FaultSpecError(
+            f"fault {text!r}: {f.kind}={f.value:g} is beyond +-{MAX_EXTRA_FORCE_N:g} N (N/s)"
+        )
     return f
 
 
@@ -159,8 +202,12 @@ class FaultSchedule:
     def first_time(self, kind: str, now_s: float, node: int = 0) -> bool:
         """True once, the first time ``kind`` is active (for one-shot faults such as drive_fault)."""
         for i, f in enumerate(self.faults):
-            if f.kind == kind and (node == 0 or f.node == node) and f.active(self.elapsed(now_s)) \
-                    and i not in self._fired:
+            if (
+                f.kind == kind
+                and (node == 0 or f.node == node)
+                and f.active(self.elapsed(now_s))
+                and i not in self._fired
+            ):
                 self._fired.add(i)
                 return True
         return False
@@ -176,8 +223,9 @@ class FaultableDevices(Protocol):
     def sensor(self) -> SimulatedForceSensor | None: ...
 
 
-def apply_device_faults(schedule: FaultSchedule, plant: FaultableDevices, drive_ids: tuple[int, ...],
-                        now_s: float) -> None:
+def apply_device_faults(
+    schedule: FaultSchedule, plant: FaultableDevices, drive_ids: tuple[int, ...], now_s: float
+) -> None:
     """The faults that change the devices themselves, applied at a SYNC (simulator and loopback)."""
     from drivers.pdo_codec import SENSOR_FORCE_SATURATED
     from sim_backend.drive import EMCY_FORCED_FAULT
@@ -193,8 +241,11 @@ def apply_device_faults(schedule: FaultSchedule, plant: FaultableDevices, drive_
     if sensor is not None:
         sensor.freeze_counter = schedule.active("freeze", now_s) is not None
         sat = schedule.active("saturate", now_s) is not None
-        sensor.status_flags = (sensor.status_flags | SENSOR_FORCE_SATURATED) if sat \
+        sensor.status_flags = (
+            (sensor.status_flags | SENSOR_FORCE_SATURATED)
+            if sat
             else (sensor.status_flags & ~SENSOR_FORCE_SATURATED)
+        )
         force = schedule.active("force", now_s)
         extra_x = force.value if force is not None else 0.0
         t = schedule.elapsed(now_s)
@@ -261,7 +312,9 @@ def bus_faults(schedule: FaultSchedule, now_s: float, node_ids: tuple[int, ...])
         foreign_frames=_foreign_frames(schedule, now_s),
         reboots=tuple(n for n in node_ids if schedule.first_time("reboot", now_s, n)),
         spoofed_force_n=spoof.value if spoof is not None else None,
-        rogue_offsets=tuple((n, f.value) for n in node_ids if (f := schedule.active("rogue_tpdo", now_s, n)) is not None),
+        rogue_offsets=tuple(
+            (n, f.value) for n in node_ids if (f := schedule.active("rogue_tpdo", now_s, n)) is not None
+        ),
         rogue_short=tuple(n for n in node_ids if schedule.active("rogue_short", now_s, n) is not None),
     )
 
@@ -270,7 +323,11 @@ def _foreign_frames(schedule: FaultSchedule, now_s: float) -> tuple[tuple[int, b
     frames: list[tuple[int, bytes]] = []
     if schedule.active("foreign_sync", now_s) is not None:
         frames.append((0x080, b""))
-    for kind, command in (("nmt_stop", NMT_STOP), ("nmt_preop", NMT_ENTER_PRE_OPERATIONAL), ("nmt_reset", NMT_RESET_NODE)):
+    for kind, command in (
+        ("nmt_stop", NMT_STOP),
+        ("nmt_preop", NMT_ENTER_PRE_OPERATIONAL),
+        ("nmt_reset", NMT_RESET_NODE),
+    ):
         nmt = schedule.active(kind, now_s)
         if nmt is not None:
             frames.append((0x000, bytes((command, nmt.node))))
@@ -293,7 +350,9 @@ def spoofed_sensor_frame(force_payload: bytes, force_x_n: float) -> bytes:
     from drivers.pdo_codec import FORCE_N_PER_COUNT, decode_sensor_frame, encode_sensor_frame
 
     _, y, z, status, counter = decode_sensor_frame(force_payload, FORCE_N_PER_COUNT)
-    return encode_sensor_frame((force_x_n, y, z), FORCE_N_PER_COUNT, status, (counter + SPOOF_COUNTER_OFFSET) % 256)
+    return encode_sensor_frame(
+        (force_x_n, y, z), FORCE_N_PER_COUNT, status, (counter + SPOOF_COUNTER_OFFSET) % 256
+    )
 
 
 def nmt_commands(frames: tuple[tuple[int, bytes], ...]) -> list[tuple[int, int]]:
@@ -307,8 +366,9 @@ class RogueSource(Protocol):
     def rogue_drive_tpdo(self, j: int, offset: float) -> tuple[int, bytes] | None: ...
 
 
-def rogue_drive_frames(pdos: RogueSource, drive_ids: tuple[int, ...], faults: BusFaults
-                       ) -> list[tuple[int, bytes]]:
+def rogue_drive_frames(
+    pdos: RogueSource, drive_ids: tuple[int, ...], faults: BusFaults
+) -> list[tuple[int, bytes]]:
     """Someone else's frames on the drives' TPDO COB-IDs, to be sent before the true answers:
     the drive's TPDO reporting D more (``rogue_tpdo``), or one of the wrong length (``rogue_short``)."""
     frames: list[tuple[int, bytes]] = []

@@ -65,7 +65,9 @@ class SimulatedForceSensor:
         self._filtered_xyz = (f0, f1, f2)
         if self._next_sample_s is None or t_s >= self._next_sample_s:
             p = self.params
-            self._sample = np.array((f0, f1, f2)) + np.asarray(p.bias_n) + self.rng.normal(0.0, p.noise_std_n, 3)
+            self._sample = (
+                np.array((f0, f1, f2)) + np.asarray(p.bias_n) + self.rng.normal(0.0, p.noise_std_n, 3)
+            )
             self._next_sample_s = (self._next_sample_s or t_s) + 1.0 / p.sample_rate_hz
 
     def latch(self) -> dict[tuple[int, int], int]:

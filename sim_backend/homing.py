@@ -62,8 +62,12 @@ class HomingRun:
         m = self.settings.method
         if m in CURRENT_POSITION_METHODS:
             self.home_position, self.phase = position, HomingPhase.ATTAINED
-        elif m in (NEGATIVE_LIMIT_SWITCH, POSITIVE_LIMIT_SWITCH) and self.settings.switch_speed > 0 \
-                and self.settings.zero_speed > 0 and self.settings.acceleration > 0:
+        elif (
+            m in (NEGATIVE_LIMIT_SWITCH, POSITIVE_LIMIT_SWITCH)
+            and self.settings.switch_speed > 0
+            and self.settings.zero_speed > 0
+            and self.settings.acceleration > 0
+        ):
             self.phase = HomingPhase.SEARCH_SWITCH
         else:
             self.phase = HomingPhase.ERROR  # a method this drive does not have, or no speeds

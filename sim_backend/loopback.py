@@ -96,7 +96,9 @@ class DeviceBus(can.BusABC):
 
 
 class LoopbackExchange:
-    def __init__(self, cfg: Config, clock: Callable[[], float], environment: Environment | None = None) -> None:
+    def __init__(
+        self, cfg: Config, clock: Callable[[], float], environment: Environment | None = None
+    ) -> None:
         self.clock = clock
         self.scale = PositionScale(actuator_units(cfg).counts_per_unit)  # m or rad
         self.plant = RobotPlant(cfg, environment)
@@ -108,8 +110,9 @@ class LoopbackExchange:
         for d in self.drives:  # what node set-up does over SDO on the real path: CSP, 0x60C2, 0x6065/0x6066
             d.mode_of_operation = 8
             d.interpolation_period_s = cfg.period_s
-            d.following_error_window = (cfg.actuators.following_error_window_rad if rotary
-                                        else cfg.actuators.following_error_window_m)
+            d.following_error_window = (
+                cfg.actuators.following_error_window_rad if rotary else cfg.actuators.following_error_window_m
+            )
             d.following_error_time_s = cfg.actuators.following_error_time_s
             d.abort_connection_option = ABORT_CONNECTION_QUICK_STOP  # 0x6007, and 0x1016 below
             d.heartbeat_consumer_s = cfg.loop.heartbeat_consumer_s
@@ -119,11 +122,17 @@ class LoopbackExchange:
         self.pdos = SimulatedPdos(cfg, self.drives, self.plant.sensor)
         self.pdos.apply_configured_mapping(cfg)
         eds = device_description_path(cfg.actuators.eds_file, DRIVE_EDS)
-        self.codecs = tuple(description_drive_codec(n, eds, cfg.actuators.rpdo_objects, cfg.actuators.tpdo_objects)
-                            for n in self.drive_ids)
-        self.sensor_codecs = description_sensor_codecs(
-            cfg.sensor.node_id, device_description_path(cfg.sensor.eds_file, SENSOR_EDS)) \
-            if cfg.sensor.enabled else None
+        self.codecs = tuple(
+            description_drive_codec(n, eds, cfg.actuators.rpdo_objects, cfg.actuators.tpdo_objects)
+            for n in self.drive_ids
+        )
+        self.sensor_codecs = (
+            description_sensor_codecs(
+                cfg.sensor.node_id, device_description_path(cfg.sensor.eds_file, SENSOR_EDS)
+            )
+            if cfg.sensor.enabled
+            else None
+        )
         self.faults = FaultSchedule.from_strings(tuple(cfg.sim.faults))
         self.heartbeat_period_s = cfg.loop.heartbeat_period_s
         self._last_heartbeat_s: dict[int, float] = {}
@@ -134,12 +143,21 @@ class LoopbackExchange:
         self.bus = DeviceBus(self._on_controller_frame)
         step_limit, jump_margin = position_plausibility(cfg)
         self.exchange = CyclicExchange(
-            self.bus, self.drive_ids, self.scale, self.sensor_id, cfg.loop.controller_node_id,
-            heartbeat_every=max(1, round(cfg.loop.heartbeat_period_s * cfg.loop.rate_hz)), clock=clock,
-            heartbeat_timeout_s=cfg.loop.heartbeat_consumer_s, drive_codecs=self.codecs,
-            sensor_codecs=self.sensor_codecs, flood_frames_per_cycle=cfg.safety.max_foreign_frames_per_cycle,
-            tracker_id=self.tracker_id, max_position_step=step_limit,
-            max_position_jump=jump_margin)
+            self.bus,
+            self.drive_ids,
+            self.scale,
+            self.sensor_id,
+            cfg.loop.controller_node_id,
+            heartbeat_every=max(1, round(cfg.loop.heartbeat_period_s * cfg.loop.rate_hz)),
+            clock=clock,
+            heartbeat_timeout_s=cfg.loop.heartbeat_consumer_s,
+            drive_codecs=self.codecs,
+            sensor_codecs=self.sensor_codecs,
+            flood_frames_per_cycle=cfg.safety.max_foreign_frames_per_cycle,
+            tracker_id=self.tracker_id,
+            max_position_step=step_limit,
+            max_position_jump=jump_margin,
+        )
         self._rpdo_drive = {c.rpdo_cob_id: j for j, c in enumerate(self.codecs)}
         self._sdo_drive = {cob_ids.sdo_request(n): j for j, n in enumerate(self.drive_ids)}
         self._controller_heartbeat = cob_ids.heartbeat(cfg.loop.controller_node_id)
@@ -157,8 +175,12 @@ class LoopbackExchange:
         step_s = cfg.sim.drive.substep_s * 10
         for j, d in enumerate(self.drives):
             d.homing_settings = HomingSettings(
-                method=a.homing_method, home_offset=a.home_offsets_m[j], switch_speed=a.homing_switch_speed_m_s,
-                zero_speed=a.homing_zero_speed_m_s, acceleration=a.homing_acceleration_m_s2)
+                method=a.homing_method,
+                home_offset=a.home_offsets_m[j],
+                switch_speed=a.homing_switch_speed_m_s,
+                zero_speed=a.homing_zero_speed_m_s,
+                acceleration=a.homing_acceleration_m_s2,
+            )
             d.set_mode(MODE_HOMING)
             for cw in (CW_SHUTDOWN, CW_SWITCH_ON, CW_ENABLE_OPERATION, CW_ENABLE_OPERATION | CW_HOMING_START):
                 d.on_controlword(cw)
@@ -168,8 +190,10 @@ class LoopbackExchange:
                 t += step_s
                 d.advance(t)
             if not d.statusword() & SW_HOMING_ATTAINED:
-                raise HomingFailed(f"node {cfg.actuators.node_ids[j]}: "
-                                   f"homing method {a.homing_method} failed: statusword 0x{d.statusword():04X}")
+                raise HomingFailed(
+                    f"node {cfg.actuators.node_ids[j]}: "
+                    f"homing method {a.homing_method} failed: statusword 0x{d.statusword():04X}"
+                )
             d.on_controlword(CW_DISABLE_VOLTAGE)
             d.time_s = None  # the loop's clock starts at its own 0
         self.plant.update_kinematics(None, np.array([d.position for d in self.drives]))

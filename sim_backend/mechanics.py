@@ -58,11 +58,17 @@ class CompliantTool:
         j = as_rows(np.asarray(jac)) if isinstance(jac, np.ndarray) else jac
         jtj = matmul3(transpose3(j), j)
         p = self.params
-        m0, mq = p.masses.translating_kg, p.masses.per_actuator_kg  # M = m_0 I + m_q J^T J (cartesian_mass_matrix)
+        m0, mq = (
+            p.masses.translating_kg,
+            p.masses.per_actuator_kg,
+        )  # M = m_0 I + m_q J^T J (cartesian_mass_matrix)
 
         def mass_row(r: int) -> Vector3:
-            return (mq * jtj[r][0] + (m0 if r == 0 else 0.0), mq * jtj[r][1] + (m0 if r == 1 else 0.0),
-                    mq * jtj[r][2] + (m0 if r == 2 else 0.0))
+            return (
+                mq * jtj[r][0] + (m0 if r == 0 else 0.0),
+                mq * jtj[r][1] + (m0 if r == 1 else 0.0),
+                mq * jtj[r][2] + (m0 if r == 2 else 0.0),
+            )
 
         inv_mass = inverse3((mass_row(0), mass_row(1), mass_row(2)))
         self._inv_mass = inv_mass

@@ -69,7 +69,11 @@ class DevicePdo:
 
     def due_on_sync(self) -> bool:
         """Called once per SYNC for a TPDO: whether it goes out on this one."""
-        if not self.valid or self.layout is None or self.config.transmission_type not in TPDO_TRANSMISSION_TYPES:
+        if (
+            not self.valid
+            or self.layout is None
+            or self.config.transmission_type not in TPDO_TRANSMISSION_TYPES
+        ):
             return False  # an event-driven default (254/255) is not simulated: such a TPDO stays silent
         self.syncs += 1
         if self.syncs >= self.config.transmission_type:
@@ -99,8 +103,10 @@ class DevicePdos:
                 subindices = getattr(mapping, "subindices", {})  # a record; an EDS may declare a variable
                 capacity = max((s for s in subindices if s > 0), default=0)
                 if len(config.objects) > capacity:
-                    raise PdoMappingError(f"node {node_id} {config.name}: 0x{base + k:04X} maps "
-                                          f"{len(config.objects)} objects and has {capacity} entries")
+                    raise PdoMappingError(
+                        f"node {node_id} {config.name}: 0x{base + k:04X} maps "
+                        f"{len(config.objects)} objects and has {capacity} entries"
+                    )
                 entries = [0] * capacity
                 for j, obj in enumerate(config.objects):
                     entries[j] = obj.entry
@@ -140,7 +146,9 @@ class DevicePdos:
             pdo.valid = valid
             self._changed()
         elif subindex == 2:
-            allowed = RPDO_TRANSMISSION_TYPES if c.direction == PdoDirection.RECEIVE else TPDO_TRANSMISSION_TYPES
+            allowed = (
+                RPDO_TRANSMISSION_TYPES if c.direction == PdoDirection.RECEIVE else TPDO_TRANSMISSION_TYPES
+            )
             if value not in allowed:
                 raise SdoAbortedError(ABORT_VALUE_RANGE)
             pdo.config = PdoConfig(c.direction, c.number, c.cob_id, value, c.objects)
@@ -206,8 +214,9 @@ class DevicePdos:
         self.write(comm, 1, config.cob_id)
 
 
-def value_packer(pdo: DevicePdo, getters: dict[tuple[int, int], Callable[[], int]]
-                 ) -> Callable[[], bytes] | None:
+def value_packer(
+    pdo: DevicePdo, getters: dict[tuple[int, int], Callable[[], int]]
+) -> Callable[[], bytes] | None:
     """A function packing the current values of a TPDO's mapped objects; None when not mapped."""
     if pdo.layout is None:
         return None

@@ -87,14 +87,21 @@ def drive_params_from_config(cfg: Config) -> DriveParams:
     u = actuator_units(cfg)  # m, or rad for the URU's motors; the stroke of the configured robot
     rotary = u.unit == ActuatorUnit.RADIAN  # the drive-side limits in the actuators' unit
     return DriveParams(
-        bandwidth_hz=d.bandwidth_hz, damping_ratio=d.damping_ratio,
+        bandwidth_hz=d.bandwidth_hz,
+        damping_ratio=d.damping_ratio,
         max_velocity=d.max_velocity_rad_s if rotary else d.max_velocity_m_s,
         max_acceleration=d.max_acceleration_rad_s2 if rotary else d.max_acceleration_m_s2,
-        quick_stop_deceleration=d.quick_stop_deceleration_rad_s2 if rotary else d.quick_stop_deceleration_m_s2,
+        quick_stop_deceleration=d.quick_stop_deceleration_rad_s2
+        if rotary
+        else d.quick_stop_deceleration_m_s2,
         velocity_feedforward=d.velocity_feedforward,
-        stroke_min=u.stroke_min, stroke_max=u.stroke_max, counts_per_unit=u.counts_per_unit,
-        sync_timeout_s=d.sync_timeout_s, substep_s=d.substep_s,
-        negative_limit_switch=d.limit_switches_m[0], positive_limit_switch=d.limit_switches_m[1],
+        stroke_min=u.stroke_min,
+        stroke_max=u.stroke_max,
+        counts_per_unit=u.counts_per_unit,
+        sync_timeout_s=d.sync_timeout_s,
+        substep_s=d.substep_s,
+        negative_limit_switch=d.limit_switches_m[0],
+        positive_limit_switch=d.limit_switches_m[1],
     )
 
 
@@ -105,7 +112,7 @@ class CompliantRobot(Protocol):
 
 
 def environment_kind(cfg: Config) -> str:
-    """"free" or "workpiece": sim.environment, or with "auto" what the configured task expects (until the
+    """ "free" or "workpiece": sim.environment, or with "auto" what the configured task expects (until the
     controller announces its own task's at set-up, drivers/sim_environment.py)."""
     kind: str = cfg.sim.environment
     if kind == "auto":  # what the task expects: the contour task's workpiece (controller/tasks/builtin.py)
@@ -127,17 +134,45 @@ def environment_named(cfg: Config, kind: str) -> Environment:
 def workpiece_environment(w: SimWorkpieceSection) -> DiskEnvironment | PolylineEnvironment:
     """The paper's plain disk with its exact model; any other shape, or a disk with features, as a polyline."""
     if w.shape == "disk" and not w.features:
-        return DiskEnvironment(DiskParams(
-            centre_m=w.centre_m, height_m=w.height_m, radius_m=w.radius_m, thickness_m=w.thickness_m,
-            tool_radius_m=w.tool_radius_m, contact_stiffness_n_m=w.contact_stiffness_n_m,
-            sensor_stiffness_n_m=w.sensor_stiffness_n_m, contact_damping_n_s_m=w.contact_damping_n_s_m,
-            friction_coefficient=w.friction_coefficient))
-    features = tuple(Feature(f.angle_deg, f.length_m, f.depth_m,
-                             NOTCH_WALL_SLOPE * f.depth_m if f.depth_m > 0 else BUMP_RAMP_M) for f in w.features)
-    shape = ShapeParams(w.shape, w.centre_m, w.rotation_deg, w.radius_m, w.size_m, w.corner_radius_m, w.lobes,
-                        w.lobe_depth_m, features)
-    contact = ContactParams(w.height_m, w.thickness_m, w.tool_radius_m, w.contact_stiffness_n_m,
-                            w.sensor_stiffness_n_m, w.contact_damping_n_s_m, w.friction_coefficient)
+        return DiskEnvironment(
+            DiskParams(
+                centre_m=w.centre_m,
+                height_m=w.height_m,
+                radius_m=w.radius_m,
+                thickness_m=w.thickness_m,
+                tool_radius_m=w.tool_radius_m,
+                contact_stiffness_n_m=w.contact_stiffness_n_m,
+                sensor_stiffness_n_m=w.sensor_stiffness_n_m,
+                contact_damping_n_s_m=w.contact_damping_n_s_m,
+                friction_coefficient=w.friction_coefficient,
+            )
+        )
+    features = tuple(
+        Feature(
+            f.angle_deg, f.length_m, f.depth_m, NOTCH_WALL_SLOPE * f.depth_m if f.depth_m > 0 else BUMP_RAMP_M
+        )
+        for f in w.features
+    )
+    shape = ShapeParams(
+        w.shape,
+        w.centre_m,
+        w.rotation_deg,
+        w.radius_m,
+        w.size_m,
+        w.corner_radius_m,
+        w.lobes,
+        w.lobe_depth_m,
+        features,
+    )
+    contact = ContactParams(
+        w.height_m,
+        w.thickness_m,
+        w.tool_radius_m,
+        w.contact_stiffness_n_m,
+        w.sensor_stiffness_n_m,
+        w.contact_damping_n_s_m,
+        w.friction_coefficient,
+    )
     return PolylineEnvironment(outline(shape), contact)
 
 
@@ -146,23 +181,36 @@ class RobotPlant:
         self.robot = robot_from_config(cfg)
         self.kinematics = plant_kinematics(cfg, self.robot)  # the robot's simulator hook
         params = drive_params_from_config(cfg)
-        self.drives = [SimulatedDrive(params, position=x, encoder_offset=offset) for x, offset in
-                       zip(self.kinematics.initial_positions(), cfg.sim.drive.encoder_offsets_m)]
+        self.drives = [
+            SimulatedDrive(params, position=x, encoder_offset=offset)
+            for x, offset in zip(self.kinematics.initial_positions(), cfg.sim.drive.encoder_offsets_m)
+        ]
         s = cfg.sim.sensor
-        self.sensor = SimulatedForceSensor(SensorParams(s.noise_std_n, s.bias_n, s.range_n, s.seed,
-                                                        s.sample_rate_hz, s.bandwidth_hz)) \
-            if cfg.sensor.enabled else None
+        self.sensor = (
+            SimulatedForceSensor(
+                SensorParams(s.noise_std_n, s.bias_n, s.range_n, s.seed, s.sample_rate_hz, s.bandwidth_hz)
+            )
+            if cfg.sensor.enabled
+            else None
+        )
         self.tracker: SimulatedPoseTracker | None = None
         if cfg.tracker.enabled:  # the platform's pose: only a hook that integrates one has it (the 3-nSPU's)
             if not hasattr(self.kinematics, "pose"):
-                raise ValueError(f"tracker.enabled: the simulated {cfg.robot.kind} has no platform pose to track "
-                                 "(only the 3-nSPU's simulator integrates one)")
+                raise ValueError(
+                    f"tracker.enabled: the simulated {cfg.robot.kind} has no platform pose to track "
+                    "(only the 3-nSPU's simulator integrates one)"
+                )
             t = cfg.sim.tracker
-            self.tracker = SimulatedPoseTracker(TrackerParams(t.rate_hz, t.position_noise_m, t.angle_noise_rad, t.seed))
+            self.tracker = SimulatedPoseTracker(
+                TrackerParams(t.rate_hz, t.position_noise_m, t.angle_noise_rad, t.seed)
+            )
         self.environment = environment or environment_from_config(cfg)
         self.loaded = not isinstance(self.environment, FreeSpace)
-        self._compliance = ComplianceParams(cfg.robot.mass.actuator_stiffness_n_m, cfg.sim.structure_damping_ratio,
-                                            mass_model_from_config(cfg))
+        self._compliance = ComplianceParams(
+            cfg.robot.mass.actuator_stiffness_n_m,
+            cfg.sim.structure_damping_ratio,
+            mass_model_from_config(cfg),
+        )
         self.tool = CompliantTool(self._compliance)
         self.substep_s = cfg.sim.drive.substep_s
         d = cfg.sim.drive
@@ -248,7 +296,11 @@ class RobotPlant:
             k1 = k0
         self.tcp_kinematic_m = k1
         k0x, k0y, k0z = float(k0[0]), float(k0[1]), float(k0[2])
-        vkx, vky, vkz = (float(k1[0]) - k0x) / span_s, (float(k1[1]) - k0y) / span_s, (float(k1[2]) - k0z) / span_s
+        vkx, vky, vkz = (
+            (float(k1[0]) - k0x) / span_s,
+            (float(k1[1]) - k0y) / span_s,
+            (float(k1[2]) - k0z) / span_s,
+        )
         h = span_s / n
         tool, env, sensor = self.tool, self.environment, self.sensor
         cogging, ck, phases = self._cogging_n, self._cogging_k, self._cogging_phase
@@ -259,17 +311,26 @@ class RobotPlant:
             tau = (i + 1) * h
             dx, dy, dz = tool.deflection_m
             tvx, tvy, _ = tool.velocity_m_s
-            force = env.contact_force(k0x + vkx * tau + dx, k0y + vky * tau + dy, k0z + vkz * tau + dz,
-                                      vkx + tvx, vky + tvy)
+            force = env.contact_force(
+                k0x + vkx * tau + dx, k0y + vky * tau + dy, k0z + vkz * tau + dz, vkx + tvx, vky + tvy
+            )
             fx, fy, fz = force
             j = 2 * i
             if cogging:  # the carriages' cogging forces, on the structure as J^T f
-                jf = matvec(jt, tuple(cogging * sin(ck * tr[j] + ph)  # type: ignore[arg-type]
-                                      for tr, ph in zip(traces, phases)))
+                jf = matvec(
+                    jt,
+                    tuple(
+                        cogging * sin(ck * tr[j] + ph)  # type: ignore[arg-type]
+                        for tr, ph in zip(traces, phases)
+                    ),
+                )
                 fx, fy, fz = fx + jf[0], fy + jf[1], fz + jf[2]
             # the kinematic TCP's acceleration J^-1 q'' loads the structure
-            ab = matvec(jinv, (traces[0][j + 1], traces[1][j + 1], traces[2][j + 1])) if inertial \
+            ab = (
+                matvec(jinv, (traces[0][j + 1], traces[1][j + 1], traces[2][j + 1]))
+                if inertial
                 else NO_ACCELERATION
+            )
             tool.step((fx, fy, fz), h, ab)
             if sensor is not None:
                 sensor.observe(t0_s + tau, h, force[0], force[1], force[2])

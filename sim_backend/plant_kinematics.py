@@ -71,8 +71,13 @@ class NspuOdometry:
 
     cogging = False
 
-    def __init__(self, robot: Any, geometry: Any = None, leg_offset_m: np.ndarray | None = None,
-                 start_offset_m: np.ndarray | None = None) -> None:
+    def __init__(
+        self,
+        robot: Any,
+        geometry: Any = None,
+        leg_offset_m: np.ndarray | None = None,
+        start_offset_m: np.ndarray | None = None,
+    ) -> None:
         from controller.robots.nspu import Pose, leg_lengths
 
         self.robot = robot
@@ -93,7 +98,9 @@ class NspuOdometry:
             p = p - np.linalg.solve(jac, res)
         if start_offset_m is not None and np.any(start_offset_m):
             p = p + np.asarray(start_offset_m, dtype=float)
-            self._initial = tuple(float(x) for x in leg_lengths(self.geometry, Pose(p, robot.start.R)) - self.leg_offset_m)
+            self._initial = tuple(
+                float(x) for x in leg_lengths(self.geometry, Pose(p, robot.start.R)) - self.leg_offset_m
+            )
         self.pose = Pose(p, robot.start.R)
         self._pose_time_s: float | None = None
 
@@ -111,7 +118,9 @@ class NspuOdometry:
             if t_s - self._pose_time_s < ODOMETRY_INTERVAL_S - 1e-9:
                 return previous_tcp_m  # not yet: the legs' motion over the next SYNCs goes into one step
             if np.any(np.abs(legs - leg_lengths(self.geometry, self.pose)) > 1e-12):
-                self.pose = advance_pose_to_leg_lengths(self.geometry, self.pose, legs, t_s - self._pose_time_s)
+                self.pose = advance_pose_to_leg_lengths(
+                    self.geometry, self.pose, legs, t_s - self._pose_time_s
+                )
         self._pose_time_s = t_s
         return np.array(self.pose.p_m)
 
@@ -142,9 +151,16 @@ def nspu_kinematics(cfg: Config, robot: Any) -> PlantKinematics:
 
     mis = cfg.sim.nspu
     g = robot.geometry
-    true_geometry = NspuGeometry(g.a_m, _turned_axes(g.r, mis.r_axis_error_rad), g.b_platform_m,
-                                 _turned_axes(g.w4_platform, mis.w4_axis_error_rad), leg_min_m=g.leg_min_m,
-                                 leg_max_m=g.leg_max_m, length_unit_m=g.length_unit_m, name=g.name + " (simulated)")
+    true_geometry = NspuGeometry(
+        g.a_m,
+        _turned_axes(g.r, mis.r_axis_error_rad),
+        g.b_platform_m,
+        _turned_axes(g.w4_platform, mis.w4_axis_error_rad),
+        leg_min_m=g.leg_min_m,
+        leg_max_m=g.leg_max_m,
+        length_unit_m=g.length_unit_m,
+        name=g.name + " (simulated)",
+    )
     return NspuOdometry(robot, true_geometry, np.array(mis.leg_offset_m), np.array(mis.start_offset_m))
 
 

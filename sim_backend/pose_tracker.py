@@ -30,7 +30,9 @@ class TrackerParams:
         if not self.rate_hz > 0.0:
             raise ValueError(f"sim.tracker.rate_hz must be positive, got {self.rate_hz}")
         if self.position_noise_m < 0.0 or self.angle_noise_rad < 0.0:
-            raise ValueError(f"sim.tracker noise must be >= 0, got {self.position_noise_m} m, {self.angle_noise_rad} rad")
+            raise ValueError(
+                f"sim.tracker noise must be >= 0, got {self.position_noise_m} m, {self.angle_noise_rad} rad"
+            )
 
 
 class SimulatedPoseTracker:
@@ -40,7 +42,9 @@ class SimulatedPoseTracker:
         self._next_s: float | None = None
         self.counter = 0
 
-    def frames(self, now_s: float, position_m: np.ndarray, rotation: np.ndarray) -> tuple[bytes, bytes] | None:
+    def frames(
+        self, now_s: float, position_m: np.ndarray, rotation: np.ndarray
+    ) -> tuple[bytes, bytes] | None:
         """The two TPDOs of a sample of the pose (P [m], R) if one is due at ``now_s``, else None."""
         from controller.robots.nspu import so3_exp, so3_log
 
@@ -52,5 +56,6 @@ class SimulatedPoseTracker:
         p = np.asarray(position_m, dtype=float) + self._rng.normal(0.0, self.params.position_noise_m, 3)
         r = so3_log(so3_exp(self._rng.normal(0.0, self.params.angle_noise_rad, 3)) @ np.asarray(rotation))
         self.counter = (self.counter + 1) % 256
-        return encode_tracker_frames((float(p[0]), float(p[1]), float(p[2])),
-                                     (float(r[0]), float(r[1]), float(r[2])), 0, self.counter)
+        return encode_tracker_frames(
+            (float(p[0]), float(p[1]), float(p[2])), (float(r[0]), float(r[1]), float(r[2])), 0, self.counter
+        )

@@ -19,8 +19,13 @@ from sim_backend.server import Simulator
 READY_LINE = "cheope-sim ready"
 
 
-def serve(cfg: Config, spec: BusSpec, stop_event: threading.Event, announce: Callable[[str], None],
-          realtime: RealtimeOptions | None = None) -> None:
+def serve(
+    cfg: Config,
+    spec: BusSpec,
+    stop_event: threading.Event,
+    announce: Callable[[str], None],
+    realtime: RealtimeOptions | None = None,
+) -> None:
     """Set up, then go real-time, then start the devices and announce READY; back to the normal
     scheduler when stopped.
 
@@ -41,8 +46,10 @@ def serve(cfg: Config, spec: BusSpec, stop_event: threading.Event, announce: Cal
             freeze_garbage_collector()
         drop_realtime = apply_realtime(realtime) if realtime is not None else lambda: None
         with simulator:  # start(): boot-up, heartbeats, the cyclic thread
-            announce(f"{READY_LINE} on {spec}: drives {list(cfg.actuators.node_ids)}"
-                     + (f", sensor {cfg.sensor.node_id}" if cfg.sensor.enabled else ""))
+            announce(
+                f"{READY_LINE} on {spec}: drives {list(cfg.actuators.node_ids)}"
+                + (f", sensor {cfg.sensor.node_id}" if cfg.sensor.enabled else "")
+            )
             stop_event.wait()
             # the shut-down (threads joined, the heap freed at exit) is no real-time work either:
             # at SCHED_FIFO it starved another simulator on this CPU as the start-up did

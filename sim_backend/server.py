@@ -68,7 +68,9 @@ WATCHDOG_PERIOD_S = 0.005
 STARVED_TICK_S = 4 * WATCHDOG_PERIOD_S
 
 
-def watchdog_due(now_s: float, previous_tick_s: float, last_sync_s: float | None, sync_timeout_s: float) -> bool:
+def watchdog_due(
+    now_s: float, previous_tick_s: float, last_sync_s: float | None, sync_timeout_s: float
+) -> bool:
     """Whether the watchdog thread advances the drives itself on this tick.
 
     Only when SYNC is overdue by half the drives' timeout, and not on the first tick after a
@@ -82,7 +84,9 @@ def watchdog_due(now_s: float, previous_tick_s: float, last_sync_s: float | None
 def add_environment_object(node: canopen.LocalNode, kind: str) -> None:
     """The simulator-only object the controller announces its task's environment to (not in the
     shipped EDS, which describes the real sensor); reads give the environment placed."""
-    var = canopen.objectdictionary.ODVariable("Simulated environment", SIM_ENVIRONMENT_INDEX, SIM_ENVIRONMENT_SUBINDEX)
+    var = canopen.objectdictionary.ODVariable(
+        "Simulated environment", SIM_ENVIRONMENT_INDEX, SIM_ENVIRONMENT_SUBINDEX
+    )
     var.data_type = canopen.objectdictionary.UNSIGNED8
     var.access_type = "rw"
     var.default = ENVIRONMENT_CODES[kind]
@@ -92,8 +96,13 @@ def add_environment_object(node: canopen.LocalNode, kind: str) -> None:
 class Simulator:
     """Simulated hardware on one bus. Use as a context manager."""
 
-    def __init__(self, cfg: Config, bus: can.BusABC, environment: Environment | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self,
+        cfg: Config,
+        bus: can.BusABC,
+        environment: Environment | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.cfg = cfg
         self.bus = bus
         self.clock = clock
@@ -182,8 +191,13 @@ class Simulator:
     def _message(self, cob_id: int) -> can.Message:
         # On an FD bus the PDOs go as FD frames with bit-rate switch, as the controller's do;
         # canopen's send_message would send classical frames, all at the nominal rate.
-        return can.Message(arbitration_id=cob_id, data=bytes(8), is_extended_id=False, is_fd=self._fd,
-                           bitrate_switch=self._fd)
+        return can.Message(
+            arbitration_id=cob_id,
+            data=bytes(8),
+            is_extended_id=False,
+            is_fd=self._fd,
+            bitrate_switch=self._fd,
+        )
 
     # -- the cyclic thread ------------------------------------------------------------------
 
@@ -275,8 +289,10 @@ class Simulator:
             with self.lock:
                 self.plant.advance(self.clock(), check_sync_timeout=False)
                 return {
-                    0x6041: drive.statusword, 0x6064: drive.position_counts,
-                    0x6061: lambda: drive.mode_of_operation, 0x603F: lambda: drive.error_code,
+                    0x6041: drive.statusword,
+                    0x6064: drive.position_counts,
+                    0x6061: lambda: drive.mode_of_operation,
+                    0x603F: lambda: drive.error_code,
                 }.get(index, lambda: None)()
 
         def on_write(index: int, subindex: int, od: canopen.objectdictionary.ODVariable, data: bytes) -> None:
@@ -387,7 +403,9 @@ class Simulator:
             sensor_id = self.cfg.sensor.node_id
             if sensor_frames and self._operational(sensor_id):
                 for k, (cob, payload) in enumerate(sensor_frames):
-                    if k == 0 and bus.spoofed_force_n is not None:  # a second sender on the force COB-ID, first
+                    if (
+                        k == 0 and bus.spoofed_force_n is not None
+                    ):  # a second sender on the force COB-ID, first
                         frames.append((cob, spoofed_sensor_frame(payload, bus.spoofed_force_n)))
                     out = tpdo_payload(self.faults, sensor_id, payload, now)  # drop:N, malformed:N
                     if out is not None:
@@ -406,8 +424,11 @@ class Simulator:
             timer.daemon = True
             timer.start()
         if bus.error_class:  # the class bits of a SocketCAN error frame
-            self.bus.send(can.Message(arbitration_id=bus.error_class, is_error_frame=True,
-                                      data=bytes(8), is_extended_id=False))
+            self.bus.send(
+                can.Message(
+                    arbitration_id=bus.error_class, is_error_frame=True, data=bytes(8), is_extended_id=False
+                )
+            )
 
     def _send_pdo(self, cob_id: int, payload: bytes, reuse: bool = True) -> None:
         msg = self._tx.get(cob_id) if reuse else None
@@ -447,4 +468,3 @@ class Simulator:
             while d.pending_emcy:
                 code = d.pending_emcy.pop(0)
                 self.nodes[node_id].emcy.send(code, 0x01 if code else 0x00)
-

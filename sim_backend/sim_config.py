@@ -52,7 +52,9 @@ class SimSensorSection(Section, frozen=True):
 class SimFeatureSection(Section, frozen=True):
     """A notch (``depth_m`` > 0) or bump (``depth_m`` < 0) on the workpiece's boundary (sim_backend/workpiece.py)."""
 
-    angle_deg: Annotated[float, rng(-360.0, 360.0)] = 0.0  # its middle, about the workpiece's centre (before rotation)
+    angle_deg: Annotated[float, rng(-360.0, 360.0)] = (
+        0.0  # its middle, about the workpiece's centre (before rotation)
+    )
     length_m: Annotated[float, rng(0.0, 0.5, lo_open=True)] = 0.01  # along the boundary
     depth_m: Annotated[float, rng(-0.01, 0.01)] = 0.002  # inwards; negative: a raised stretch (bump)
 
@@ -65,8 +67,9 @@ class SimWorkpieceSection(Section, frozen=True):
     rotation_deg: Annotated[float, rng(-360.0, 360.0)] = 0.0  # about +Z, of the shape's own frame
     height_m: Annotated[float, rng(-10.0, 10.0)] = 0.50
     radius_m: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.07  # disk; star and kidney: mean radius
-    size_m: tuple[Annotated[float, rng(0.0, 1.0, lo_open=True)],
-                  Annotated[float, rng(0.0, 1.0, lo_open=True)]] = (0.08, 0.06)  # ellipse: semi-axes; rectangle: half extents
+    size_m: tuple[
+        Annotated[float, rng(0.0, 1.0, lo_open=True)], Annotated[float, rng(0.0, 1.0, lo_open=True)]
+    ] = (0.08, 0.06)  # ellipse: semi-axes; rectangle: half extents
     corner_radius_m: Annotated[float, rng(0.0, 1.0)] = 0.004  # rounded rectangle
     lobes: Annotated[int, rng(2, 12)] = 5  # rounded star
     lobe_depth_m: Annotated[float, rng(0.0, 0.5)] = 0.008  # star: lobe amplitude; kidney: depth of its dent
@@ -87,7 +90,11 @@ class SimNspuSection(Section, frozen=True):
     """
 
     leg_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # physical leg length minus encoder reading
-    w4_axis_error_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)  # platform U-joint axis w4i turned about z x w4i
+    w4_axis_error_rad: tuple[float, float, float] = (
+        0.0,
+        0.0,
+        0.0,
+    )  # platform U-joint axis w4i turned about z x w4i
     r_axis_error_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)  # nS-plane normal r_i turned about z x r_i
     # the platform starts this far from the plan's start position (orientation kept); the drives read its legs
     start_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -106,7 +113,9 @@ class SimSection(Section, frozen=True):
     drive: SimDriveSection = msgspec.field(default_factory=SimDriveSection)
     sensor: SimSensorSection = msgspec.field(default_factory=SimSensorSection)
     structure_damping_ratio: Annotated[float, rng(0.0, 10.0)] = 0.5
-    structure_inertial_load: bool = True  # the structure also carries M times the drives' acceleration (plant.py)
+    structure_inertial_load: bool = (
+        True  # the structure also carries M times the drives' acceleration (plant.py)
+    )
     # "auto": what the controller's task announces at set-up (drivers/sim_environment.py); "free"/"workpiece"
     # fixed, and a controller whose task needs the other one is refused at its start
     environment: Literal["auto", "free", "workpiece"] = "auto"
@@ -123,7 +132,9 @@ def check_sim_section(sim: SimSection, drive_nodes: tuple[int, ...], sensor_node
         vals = getattr(sim.nspu, key)
         limit = 0.01 if key.endswith("_m") else 0.1
         if not all(abs(v) <= limit for v in vals):
-            raise ConfigError(f"sim.nspu.{key} = {list(vals)}: each must be within +-{limit} (a mismatch, not a new robot)")
+            raise ConfigError(
+                f"sim.nspu.{key} = {list(vals)}: each must be within +-{limit} (a mismatch, not a new robot)"
+            )
     from sim_backend.fault_injection import FaultSpecError, check_fault  # pure parsing, no I/O
 
     for i, text in enumerate(sim.faults):

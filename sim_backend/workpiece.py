@@ -30,7 +30,9 @@ import numpy as np
 from sim_backend.environment import NO_FORCE, Vector3
 
 SAMPLES = 4096  # vertices of the polyline: 0.1-0.2 mm apart on the shipped shapes
-NOTCH_WALL_SLOPE = 1.0  # a notch's walls: 45 deg chamfers (wall length = depth), as a recess cut with a chamfer
+NOTCH_WALL_SLOPE = (
+    1.0  # a notch's walls: 45 deg chamfers (wall length = depth), as a recess cut with a chamfer
+)
 BUMP_RAMP_M = 10.0e-3  # a bump's flanks: 10 mm long, as a weld seam's or a taped shim's
 
 
@@ -68,8 +70,12 @@ def _rounded_rectangle(a: float, b: float, rc: float, n: int) -> np.ndarray:
     """Counter-clockwise outline of a rectangle of half extents a, b with corners of radius rc."""
     rc = min(rc, a, b)
     pieces = []
-    corners = ((a - rc, b - rc, 0.0), (-(a - rc), b - rc, 0.5 * math.pi), (-(a - rc), -(b - rc), math.pi),
-               ((a - rc), -(b - rc), 1.5 * math.pi))
+    corners = (
+        (a - rc, b - rc, 0.0),
+        (-(a - rc), b - rc, 0.5 * math.pi),
+        (-(a - rc), -(b - rc), math.pi),
+        ((a - rc), -(b - rc), 1.5 * math.pi),
+    )
     for cx, cy, start in corners:  # each corner's arc, then the straight edge to the next (resampled later)
         th = np.linspace(start, start + 0.5 * math.pi, n // 16, endpoint=True)
         pieces.append(np.column_stack([cx + rc * np.cos(th), cy + rc * np.sin(th)]))
@@ -88,7 +94,7 @@ def _raw_outline(p: ShapeParams) -> np.ndarray:
     if p.shape == "rounded_star":
         return _polar(p.radius_m + p.lobe_depth_m * np.cos(p.lobes * theta), theta)
     if p.shape == "kidney":  # one dent on the -X side, a Gaussian in the angle
-        dent = p.lobe_depth_m * np.exp(-((theta - math.pi) ** 2) / (2.0 * 0.5 ** 2))
+        dent = p.lobe_depth_m * np.exp(-((theta - math.pi) ** 2) / (2.0 * 0.5**2))
         return _polar(p.radius_m - dent, theta)
     raise ValueError(f"unknown workpiece shape {p.shape!r} (one of {', '.join(SHAPES)})")
 
@@ -209,7 +215,10 @@ class PolylineEnvironment:
         c = self.contact
         if abs(z_m - c.height_m) > c.thickness_m / 2 + c.tool_radius_m:
             return NO_FORCE
-        if math.hypot(x_m - self._centre[0], y_m - self._centre[1]) > self._max_radius + c.tool_radius_m + 1e-3:
+        if (
+            math.hypot(x_m - self._centre[0], y_m - self._centre[1])
+            > self._max_radius + c.tool_radius_m + 1e-3
+        ):
             return NO_FORCE  # far outside: no search
         i = self._nearest(x_m, y_m)
         d2, t, px, py = self._segment(i, x_m, y_m)
@@ -225,5 +234,7 @@ class PolylineEnvironment:
         if fn <= 0.0:
             return NO_FORCE
         tx, ty = -ny, nx
-        friction = -c.friction_coefficient * fn * math.tanh((vx_m_s * tx + vy_m_s * ty) / c.friction_velocity_m_s)
+        friction = (
+            -c.friction_coefficient * fn * math.tanh((vx_m_s * tx + vy_m_s * ty) / c.friction_velocity_m_s)
+        )
         return (fn * nx + friction * tx, fn * ny + friction * ty, 0.0)

@@ -29,23 +29,38 @@ def _stamp(header: Any) -> float:
 
 def _fields(topic: str, msg: Any) -> dict[str, Any]:
     if topic == "joint_states":
-        return {"stamp": _stamp(msg.header), "frame": msg.header.frame_id, "name": list(msg.name),
-                "position": list(msg.position)}
+        return {
+            "stamp": _stamp(msg.header),
+            "frame": msg.header.frame_id,
+            "name": list(msg.name),
+            "position": list(msg.position),
+        }
     if topic == "wrench":
         f, t = msg.wrench.force, msg.wrench.torque
-        return {"stamp": _stamp(msg.header), "frame": msg.header.frame_id, "force": [f.x, f.y, f.z],
-                "torque": [t.x, t.y, t.z]}
+        return {
+            "stamp": _stamp(msg.header),
+            "frame": msg.header.frame_id,
+            "force": [f.x, f.y, f.z],
+            "torque": [t.x, t.y, t.z],
+        }
     if topic.startswith("tcp/"):
         p = msg.pose.position
         return {"stamp": _stamp(msg.header), "frame": msg.header.frame_id, "position": [p.x, p.y, p.z]}
     if topic == "robot_markers":
-        return {"stamp": _stamp(msg.markers[0].header) if msg.markers else None,
-                "namespaces": sorted({m.ns for m in msg.markers if m.ns}),
-                "first_action": msg.markers[0].action if msg.markers else None, "count": len(msg.markers)}
+        return {
+            "stamp": _stamp(msg.markers[0].header) if msg.markers else None,
+            "namespaces": sorted({m.ns for m in msg.markers if m.ns}),
+            "first_action": msg.markers[0].action if msg.markers else None,
+            "count": len(msg.markers),
+        }
     if topic == "diagnostics":
         (st,) = msg.status
-        return {"stamp": _stamp(msg.header), "level": st.level[0] if isinstance(st.level, bytes) else int(st.level),
-                "message": st.message, "values": {kv.key: kv.value for kv in st.values}}
+        return {
+            "stamp": _stamp(msg.header),
+            "level": st.level[0] if isinstance(st.level, bytes) else int(st.level),
+            "message": st.message,
+            "values": {kv.key: kv.value for kv in st.values},
+        }
     return {"stamp": float(msg.stamp.sec) + msg.stamp.nanosec * 1e-9, "level": int(msg.level), "msg": msg.msg}
 
 
@@ -64,6 +79,7 @@ def main() -> int:
         def handle(msg: Any) -> None:
             got[topic] += 1
             print(json.dumps({"topic": topic, **_fields(topic, msg)}), flush=True)
+
         return handle
 
     for topic, type_name in TOPICS.items():
@@ -75,7 +91,9 @@ def main() -> int:
             print(json.dumps({"timeout": got}), flush=True)
             return 1
         rclpy.spin_once(node, timeout_sec=0.1)
-    graph = {name: types for name, types in node.get_topic_names_and_types() if name.startswith(args.namespace)}
+    graph = {
+        name: types for name, types in node.get_topic_names_and_types() if name.startswith(args.namespace)
+    }
     print(json.dumps({"graph": graph}), flush=True)
     if args.call_stop:
         from std_srvs.srv import Trigger
@@ -88,8 +106,12 @@ def main() -> int:
         future = client.call_async(Trigger.Request())
         rclpy.spin_until_future_complete(node, future, timeout_sec=max(0.1, deadline - time.monotonic()))
         reply = future.result()
-        print(json.dumps({"stop": None if reply is None else {"success": reply.success, "message": reply.message}}),
-              flush=True)
+        print(
+            json.dumps(
+                {"stop": None if reply is None else {"success": reply.success, "message": reply.message}}
+            ),
+            flush=True,
+        )
         events_before = got["events"]
         while got["events"] == events_before and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.1)

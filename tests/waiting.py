@@ -18,7 +18,9 @@ T = TypeVar("T")
 GENEROUS_S = 60.0  # a loaded two-core CI machine runs several processes at once
 
 
-def wait_until(condition: Callable[[], T], what: str, timeout_s: float = GENEROUS_S, poll_s: float = 0.02) -> T:
+def wait_until(
+    condition: Callable[[], T], what: str, timeout_s: float = GENEROUS_S, poll_s: float = 0.02
+) -> T:
     """The first truthy value of ``condition()``, polled until ``timeout_s``; else fail naming ``what``.
 
     For conditions nothing signals (a file's size, an SDO object): the poll interval only paces
@@ -41,6 +43,7 @@ def wait_for_exit(pid: int, what: str, timeout_s: float = GENEROUS_S) -> None:
     except ProcessLookupError:
         return  # already gone
     except OSError:  # a kernel without pidfd (before 5.3): poll for it instead
+
         def gone() -> bool:
             try:
                 os.kill(pid, 0)
@@ -88,6 +91,8 @@ class ProcessLines:
             if readable:
                 chunk = os.read(self.fd, 65536)
                 if not chunk:
-                    raise AssertionError(f"{what}: the process ended its output (exit {self.proc.poll()}); "
-                                         f"last lines {self.lines[-5:]}")
+                    raise AssertionError(
+                        f"{what}: the process ended its output (exit {self.proc.poll()}); "
+                        f"last lines {self.lines[-5:]}"
+                    )
                 self.buffer += chunk

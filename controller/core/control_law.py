@@ -105,10 +105,14 @@ class SafetyConfig:
             Anomaly.REJECTED_FRAME: self.on_rejected_frames,
             # beyond the device's physics, among several candidates: the law's jump check always faults too
             Anomaly.IMPLAUSIBLE_FRAME: Reaction.FAULT,
-            Anomaly.UNKNOWN_FRAME: self.on_unknown_node, Anomaly.UNKNOWN_EMCY: self.on_unknown_node,
-            Anomaly.UNKNOWN_HEARTBEAT: self.on_unknown_node, Anomaly.FOREIGN_SYNC: self.on_foreign_sync,
-            Anomaly.FOREIGN_NMT: self.on_foreign_nmt, Anomaly.FOREIGN_COMMAND: self.on_foreign_command,
-            Anomaly.DUPLICATE_FRAME: self.on_duplicate_frames, Anomaly.FRAME_FLOOD: self.on_frame_flood,
+            Anomaly.UNKNOWN_FRAME: self.on_unknown_node,
+            Anomaly.UNKNOWN_EMCY: self.on_unknown_node,
+            Anomaly.UNKNOWN_HEARTBEAT: self.on_unknown_node,
+            Anomaly.FOREIGN_SYNC: self.on_foreign_sync,
+            Anomaly.FOREIGN_NMT: self.on_foreign_nmt,
+            Anomaly.FOREIGN_COMMAND: self.on_foreign_command,
+            Anomaly.DUPLICATE_FRAME: self.on_duplicate_frames,
+            Anomaly.FRAME_FLOOD: self.on_frame_flood,
         }[anomaly]
 
 
@@ -124,8 +128,13 @@ ANOMALY_TEXT = {
     Anomaly.IMPLAUSIBLE_FRAME: "TPDO(s) the device cannot have sent (a position step or counter beyond it; not used)",
     Anomaly.FRAME_FLOOD: "foreign frames in one cycle: a frame flood",
 }
-NMT_COMMAND_NAMES = {0x01: "start", 0x02: "stop", 0x80: "enter PRE-OPERATIONAL", 0x81: "reset node",
-                     0x82: "reset communication"}  # CiA 301 NMT command specifiers
+NMT_COMMAND_NAMES = {
+    0x01: "start",
+    0x02: "stop",
+    0x80: "enter PRE-OPERATIONAL",
+    0x81: "reset node",
+    0x82: "reset communication",
+}  # CiA 301 NMT command specifiers
 # A burst of anomalies under "warn": one event when it starts, one with its count when it ends
 # (the first cycle without it), and one with the running count this often while it goes on.
 BURST_REPORT_S = 1.0
@@ -146,8 +155,10 @@ def _from_node(node_id: int) -> str:
 
 
 def listed(names: list[str]) -> str:
-    """"2", "1 and 2", "1, 2, 3 and the force sensor"."""
+    """ "2", "1 and 2", "1, 2, 3 and the force sensor"."""
     return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
+
+
 NMT_STATE_NAMES = {0: "boot-up (it restarted)", 4: "STOPPED", 5: "OPERATIONAL", 127: "PRE-OPERATIONAL"}
 
 
@@ -219,33 +230,53 @@ class ControlLaw:
         # Robots that know their actuators' strokes check the measured positions every cycle.
         self._check_actuators = robot.check_actuators if isinstance(robot, ChecksActuators) else None
         self._handlers: dict[Mode, ModeHandler] = {
-            Mode.CONFIGURING: self._configuring, Mode.ENABLING: self._enabling, Mode.HOLDING: self._holding,
-            Mode.RUNNING: self._running, Mode.PAUSED: self._paused, Mode.STOPPING: self._stopping,
-            Mode.DONE: self._done, Mode.FAULT: self._fault,
+            Mode.CONFIGURING: self._configuring,
+            Mode.ENABLING: self._enabling,
+            Mode.HOLDING: self._holding,
+            Mode.RUNNING: self._running,
+            Mode.PAUSED: self._paused,
+            Mode.STOPPING: self._stopping,
+            Mode.DONE: self._done,
+            Mode.FAULT: self._fault,
         }
 
     def initial_state(self) -> ControllerState:
         rest = (self.config.rest_target,) * self.n
         return ControllerState(
-            mode=Mode.CONFIGURING, cycle=0, mode_entered_s=0.0, setpoint=Setpoint.at_rest(rest),
-            controlwords=(0,) * self.n, missing_streak=(0,) * self.n, task_state=None,
-            tcp_reference_m=None, tcp_measured_m=None, last_measured=(math.nan,) * self.n,
+            mode=Mode.CONFIGURING,
+            cycle=0,
+            mode_entered_s=0.0,
+            setpoint=Setpoint.at_rest(rest),
+            controlwords=(0,) * self.n,
+            missing_streak=(0,) * self.n,
+            task_state=None,
+            tcp_reference_m=None,
+            tcp_measured_m=None,
+            last_measured=(math.nan,) * self.n,
         )
 
     # -- the step -------------------------------------------------------------------------
 
-    def step(self, state: ControllerState, inputs: CycleInputs, t: float
-             ) -> tuple[ControllerState, CycleOutputs, tuple[Event, ...]]:
+    def step(
+        self, state: ControllerState, inputs: CycleInputs, t: float
+    ) -> tuple[ControllerState, CycleOutputs, tuple[Event, ...]]:
         events: list[Event] = []
         measured = tuple(d.position for d in inputs.drives)
         powers = tuple(decode_statusword(d.statusword) for d in inputs.drives)
         jump, implausible = self._position_jump(state, inputs)
         streak = tuple(0 if d.fresh else s + 1 for d, s in zip(inputs.drives, state.missing_streak))
-        last = tuple(d.position if d.fresh and not bad else x
-                     for d, x, bad in zip(inputs.drives, state.last_measured, implausible))
-        state = replace(state, cycle=state.cycle + 1, missing_streak=streak, last_measured=last,
-                        tcp_measured_m=self._measured_tcp(state, inputs, measured),
-                        unreachable=state.unreachable | self._unreachable(inputs))
+        last = tuple(
+            d.position if d.fresh and not bad else x
+            for d, x, bad in zip(inputs.drives, state.last_measured, implausible)
+        )
+        state = replace(
+            state,
+            cycle=state.cycle + 1,
+            missing_streak=streak,
+            last_measured=last,
+            tcp_measured_m=self._measured_tcp(state, inputs, measured),
+            unreachable=state.unreachable | self._unreachable(inputs),
+        )
 
         if state.mode == Mode.CONFIGURING:
             reason = self._configuring_fault(state, inputs)
@@ -265,13 +296,25 @@ class ControlLaw:
         elif state.mode == Mode.FAULT and inputs.command == Command.RESET:
             # Recovery without a jump: ENABLING resets the drives' faults and commands the
             # measured positions; HOLDING restarts Ruckig from rest there; the task starts again.
-            state = replace(self._enter(state, Mode.ENABLING, t, events, why="reset"), fault_reason="",
-                            setpoint=self._hold(state), task_time_s=0.0, sensor_stale=0, sensor_missing=0,
-                            late_streak=0, warned=frozenset(), unreachable=frozenset(), sdo_stopped=frozenset())
+            state = replace(
+                self._enter(state, Mode.ENABLING, t, events, why="reset"),
+                fault_reason="",
+                setpoint=self._hold(state),
+                task_time_s=0.0,
+                sensor_stale=0,
+                sensor_missing=0,
+                late_streak=0,
+                warned=frozenset(),
+                unreachable=frozenset(),
+                sdo_stopped=frozenset(),
+            )
         if inputs.command == Command.QUICK_STOP and state.mode not in (Mode.FAULT, Mode.DONE):
             why = "quick stop requested"
-            state = replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, why), fault_reason=why,
-                            setpoint=self._hold(state))
+            state = replace(
+                self._enter(state, Mode.FAULT, t, events, Severity.FAULT, why),
+                fault_reason=why,
+                setpoint=self._hold(state),
+            )
         elif inputs.stop_requested and state.mode == Mode.CONFIGURING:
             # nothing has been enabled yet: there is nothing to brake or to shut down
             state = self._enter(state, Mode.DONE, t, events, Severity.INFO, "stop requested before enabling")
@@ -284,12 +327,16 @@ class ControlLaw:
 
         state = self._handlers[state.mode](state, inputs, powers, measured, t, events)
         state, by_sdo = self._quick_stops_by_sdo(state, events)
-        outputs = CycleOutputs(controlwords=state.controlwords, targets=state.setpoint.position,
-                               sdo_controlwords=tuple((j, CW_QUICK_STOP) for j in by_sdo))
+        outputs = CycleOutputs(
+            controlwords=state.controlwords,
+            targets=state.setpoint.position,
+            sdo_controlwords=tuple((j, CW_QUICK_STOP) for j in by_sdo),
+        )
         return state, outputs, tuple(events)
 
-    def _quick_stops_by_sdo(self, state: ControllerState, events: list[Event]
-                            ) -> tuple[ControllerState, tuple[int, ...]]:
+    def _quick_stops_by_sdo(
+        self, state: ControllerState, events: list[Event]
+    ) -> tuple[ControllerState, tuple[int, ...]]:
         """In FAULT: the drives to be sent the quick stop by SDO as well (once each), those that may
         not process the RPDO that carries it: not OPERATIONAL, told to leave it, or not heard."""
         if state.mode != Mode.FAULT:
@@ -299,8 +346,13 @@ class ControlLaw:
         if not by_sdo:
             return state, ()
         nodes = ", ".join(str(self._node_id(j)) for j in by_sdo)
-        events.append(Event("sdo_quick_stop", Severity.WARNING,
-                            f"quick stop by SDO 0x6040 as well to node(s) {nodes}: not OPERATIONAL or not heard"))
+        events.append(
+            Event(
+                "sdo_quick_stop",
+                Severity.WARNING,
+                f"quick stop by SDO 0x6040 as well to node(s) {nodes}: not OPERATIONAL or not heard",
+            )
+        )
         return replace(state, sdo_stopped=state.sdo_stopped | set(by_sdo)), by_sdo
 
     def _node_id(self, j: int) -> int:
@@ -314,13 +366,18 @@ class ControlLaw:
         found |= {index[n] for n in inputs.lost_heartbeats if n in index}
         for a in inputs.anomalies:
             if a.kind == Anomaly.FOREIGN_NMT and a.command != 0x01:  # anything but "start"
-                found |= set(range(self.n)) if a.node_id == 0 else ({index[a.node_id]} if a.node_id in index else set())
+                found |= (
+                    set(range(self.n))
+                    if a.node_id == 0
+                    else ({index[a.node_id]} if a.node_id in index else set())
+                )
         return frozenset(found)
 
     # -- checks ---------------------------------------------------------------------------
 
-    def _measured_tcp(self, state: ControllerState, inputs: CycleInputs, measured: tuple[float, ...]
-                      ) -> tuple[float, float, float] | None:
+    def _measured_tcp(
+        self, state: ControllerState, inputs: CycleInputs, measured: tuple[float, ...]
+    ) -> tuple[float, float, float] | None:
         if not all(d.fresh for d in inputs.drives):
             return state.tcp_measured_m
         try:
@@ -328,8 +385,9 @@ class ControlLaw:
         except NoSolutionError:
             return None
 
-    def _react(self, state: ControllerState, reaction: Reaction, key: str, why: str, events: list[Event]
-               ) -> tuple[ControllerState, str]:
+    def _react(
+        self, state: ControllerState, reaction: Reaction, key: str, why: str, events: list[Event]
+    ) -> tuple[ControllerState, str]:
         """Apply a configured reaction to an abnormal condition ``key``."""
         if reaction == Reaction.FAULT:
             return state, why
@@ -338,8 +396,9 @@ class ControlLaw:
             return replace(state, warned=state.warned | {key}), ""
         return state, ""
 
-    def _safety(self, state: ControllerState, inputs: CycleInputs, events: list[Event]
-                ) -> tuple[ControllerState, str]:
+    def _safety(
+        self, state: ControllerState, inputs: CycleInputs, events: list[Event]
+    ) -> tuple[ControllerState, str]:
         """Configurable checks of the inputs; returns the updated state and a fault reason or ""."""
         sc = self.config.safety
         sensor = inputs.sensor
@@ -357,13 +416,23 @@ class ControlLaw:
             if magnitude > sc.max_contact_force_n:
                 return state, f"contact force {magnitude:.1f} N above the limit of {sc.max_contact_force_n} N"
             if sensor.status & SENSOR_FORCE_SATURATED:
-                state, why = self._react(state, sc.on_sensor_saturated, "sensor_saturated",
-                                         f"force sensor saturated (status 0x{sensor.status:02X})", events)
+                state, why = self._react(
+                    state,
+                    sc.on_sensor_saturated,
+                    "sensor_saturated",
+                    f"force sensor saturated (status 0x{sensor.status:02X})",
+                    events,
+                )
                 if why:
                     return state, why
         if sensor is not None and stale >= sc.sensor_stale_cycles:  # stale > 0 only with a sensor
-            state, why = self._react(state, sc.on_sensor_stale, "sensor_stale",
-                                     f"force sensor stale: counter stuck at {sensor.counter} for {stale} cycles", events)
+            state, why = self._react(
+                state,
+                sc.on_sensor_stale,
+                "sensor_stale",
+                f"force sensor stale: counter stuck at {sensor.counter} for {stale} cycles",
+                events,
+            )
             if why:
                 return state, why
         silence = self._silence(state)
@@ -372,34 +441,52 @@ class ControlLaw:
         if self.config.sensor_in_task and state.sensor_missing >= sc.sensor_stale_cycles:
             # No usable sample (missing, or two senders on its COB-ID): no new information, as a counter
             # that does not advance, so the same tolerance (the contour task holds from the 4th cycle).
-            state, why = self._react(state, sc.on_sensor_stale, "sensor_stale",
-                                     f"force sensor: no usable sample for {state.sensor_missing} cycles", events)
+            state, why = self._react(
+                state,
+                sc.on_sensor_stale,
+                "sensor_stale",
+                f"force sensor: no usable sample for {state.sensor_missing} cycles",
+                events,
+            )
             if why:
                 return state, why
         if inputs.lost_heartbeats:
-            state, why = self._react(state, sc.on_heartbeat_lost, "heartbeat_lost",
-                                     f"heartbeat lost from node(s) {list(inputs.lost_heartbeats)}", events)
+            state, why = self._react(
+                state,
+                sc.on_heartbeat_lost,
+                "heartbeat_lost",
+                f"heartbeat lost from node(s) {list(inputs.lost_heartbeats)}",
+                events,
+            )
             if why:
                 return state, why
         if inputs.bus_off:
             return state, "CAN bus-off reported by an error frame"
         if inputs.error_frames:
-            state, why = self._react(state, sc.on_error_frames, "error_frames",
-                                     f"{inputs.error_frames} CAN error frame(s) received", events)
+            state, why = self._react(
+                state,
+                sc.on_error_frames,
+                "error_frames",
+                f"{inputs.error_frames} CAN error frame(s) received",
+                events,
+            )
             if why:
                 return state, why
         state, why = self._anomalies(state, inputs, events)
         if why:
             return state, why
         for r in inputs.nmt_reports:
-            return state, (f"node {r.node_id} heartbeat reports {NMT_STATE_NAMES.get(r.state, f'state {r.state}')}"
-                           f", not OPERATIONAL")
+            return state, (
+                f"node {r.node_id} heartbeat reports {NMT_STATE_NAMES.get(r.state, f'state {r.state}')}"
+                f", not OPERATIONAL"
+            )
         late = state.late_streak + 1 if inputs.late else 0
         if late != state.late_streak:
             state = replace(state, late_streak=late)
         if late >= sc.max_consecutive_late_cycles:
-            state, why = self._react(state, sc.on_late_cycles, "late_cycles",
-                                     f"the loop woke late {late} cycles in a row", events)
+            state, why = self._react(
+                state, sc.on_late_cycles, "late_cycles", f"the loop woke late {late} cycles in a row", events
+            )
             if why:
                 return state, why
         if self._check_actuators is not None:
@@ -424,8 +511,9 @@ class ControlLaw:
             cycles = min(cycles, state.sensor_missing)
         return f"{'drives' if len(silent) > 1 else 'drive'} {listed(names)} silent for {cycles} cycles"
 
-    def _anomalies(self, state: ControllerState, inputs: CycleInputs, events: list[Event]
-                   ) -> tuple[ControllerState, str]:
+    def _anomalies(
+        self, state: ControllerState, inputs: CycleInputs, events: list[Event]
+    ) -> tuple[ControllerState, str]:
         """This cycle's bus anomalies by their configured reaction; "warn" is reported per burst."""
         sc = self.config.safety
         seen: dict[str, int] = {}
@@ -445,13 +533,23 @@ class ControlLaw:
         for key, frames, cycles, reported in state.bursts:
             kind = key.split(":")[0]
             if key not in seen:
-                events.append(Event(kind, Severity.WARNING, f"burst ended: {frames} {self._burst_what(key)} "
-                                                            f"in {cycles} cycle(s)"))
+                events.append(
+                    Event(
+                        kind,
+                        Severity.WARNING,
+                        f"burst ended: {frames} {self._burst_what(key)} in {cycles} cycle(s)",
+                    )
+                )
                 continue
             frames, cycles = frames + seen.pop(key), cycles + 1
             if state.cycle - reported >= every:
-                events.append(Event(kind, Severity.WARNING, f"burst goes on: {frames} {self._burst_what(key)} "
-                                                            f"in {cycles} cycle(s) so far"))
+                events.append(
+                    Event(
+                        kind,
+                        Severity.WARNING,
+                        f"burst goes on: {frames} {self._burst_what(key)} in {cycles} cycle(s) so far",
+                    )
+                )
                 reported = state.cycle
             bursts.append((key, frames, cycles, reported))
         for key, frames in seen.items():  # bursts that start in this cycle
@@ -485,7 +583,8 @@ class ControlLaw:
                 reason = reason or (
                     f"drive {j + 1} position jumped {step:.4f} {u} in {gap + 1} cycle(s) (from {last:.4f} to "
                     f"{d.position:.4f} {u}); at most {possible:.4f} {u} is possible "
-                    f"({cfg.max_speed} {u}/s + safety.max_position_jump {tolerance} {u})")
+                    f"({cfg.max_speed} {u}/s + safety.max_position_jump {tolerance} {u})"
+                )
         return ("" if state.mode == Mode.FAULT else reason), tuple(flags)
 
     def _following_error(self, state: ControllerState, inputs: CycleInputs) -> str:
@@ -506,8 +605,10 @@ class ControlLaw:
             expected = q - v * T + 0.5 * a * T * T
             if d.fresh and abs(d.position - expected) > window:
                 u = self.config.position_unit
-                return (f"drive {j + 1} following error {abs(d.position - expected):.4f} {u} beyond the window of "
-                        f"{window} {u} (measured {d.position:.4f} {u}, expected {expected:.4f} {u} at this sample)")
+                return (
+                    f"drive {j + 1} following error {abs(d.position - expected):.4f} {u} beyond the window of "
+                    f"{window} {u} (measured {d.position:.4f} {u}, expected {expected:.4f} {u} at this sample)"
+                )
         return ""
 
     def _configuring_fault(self, state: ControllerState, inputs: CycleInputs) -> str:
@@ -526,7 +627,9 @@ class ControlLaw:
                     return f"drive {j + 1}: no TPDO within {self.config.enable_timeout_s} s of the start"
         return ""
 
-    def _fault_reason(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...]) -> str:
+    def _fault_reason(
+        self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...]
+    ) -> str:
         for j, (p, streak) in enumerate(zip(powers, state.missing_streak)):
             # Judged on this cycle's TPDO only: a statusword not refreshed (missing frame) is old news,
             # e.g. the FAULT a reset has just cleared; silence has its own limit below.
@@ -538,7 +641,8 @@ class ControlLaw:
             if e.error_code != 0:
                 return f"EMCY from node {e.node_id}: error code 0x{e.error_code:04X}, register 0x{e.error_register:02X}"
         if state.mode in (Mode.HOLDING, Mode.RUNNING, Mode.PAUSED) or (
-                state.mode == Mode.STOPPING and not self._shutting_down(state)):
+            state.mode == Mode.STOPPING and not self._shutting_down(state)
+        ):
             for j, p in enumerate(powers):
                 if inputs.drives[j].fresh and p != PowerState.OPERATION_ENABLED:
                     return f"drive {j + 1} left OPERATION ENABLED (now {p.name})"
@@ -551,32 +655,59 @@ class ControlLaw:
         return ""
 
     def _shutting_down(self, state: ControllerState) -> bool:
-        return any(cw != controlword_towards(PowerState.OPERATION_ENABLED, PowerState.OPERATION_ENABLED)
-                   for cw in state.controlwords)
+        return any(
+            cw != controlword_towards(PowerState.OPERATION_ENABLED, PowerState.OPERATION_ENABLED)
+            for cw in state.controlwords
+        )
 
     # -- mode handlers ----------------------------------------------------------------------
 
-    def _enter(self, state: ControllerState, mode: Mode, t: float, events: list[Event],
-               severity: Severity = Severity.INFO, why: str = "") -> ControllerState:
+    def _enter(
+        self,
+        state: ControllerState,
+        mode: Mode,
+        t: float,
+        events: list[Event],
+        severity: Severity = Severity.INFO,
+        why: str = "",
+    ) -> ControllerState:
         text = f"{state.mode.name} -> {mode.name}" + (f": {why}" if why else "")
         events.append(Event("mode", severity, text))
         return replace(state, mode=mode, mode_entered_s=t)
 
-    def _configuring(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...],
-                     measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
+    def _configuring(
+        self,
+        state: ControllerState,
+        inputs: CycleInputs,
+        powers: tuple[PowerState, ...],
+        measured: tuple[float, ...],
+        t: float,
+        events: list[Event],
+    ) -> ControllerState:
         if all(d.fresh for d in inputs.drives):
             state = replace(state, setpoint=Setpoint.at_rest(measured))
             return self._enter(state, Mode.ENABLING, t, events, why="all drives answer")
         # Until every drive has answered, each is sent where it was last heard (else mid-stroke).
-        heard = tuple(x if math.isfinite(x) else q for x, q in zip(state.last_measured, state.setpoint.position))
+        heard = tuple(
+            x if math.isfinite(x) else q for x, q in zip(state.last_measured, state.setpoint.position)
+        )
         return replace(state, setpoint=Setpoint.at_rest(heard))
 
-    def _enabling(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...],
-                  measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
+    def _enabling(
+        self,
+        state: ControllerState,
+        inputs: CycleInputs,
+        powers: tuple[PowerState, ...],
+        measured: tuple[float, ...],
+        t: float,
+        events: list[Event],
+    ) -> ControllerState:
         # Command the measured (trusted) position while the drives are not enabled: no jump at enable. A drive
         # not heard this cycle keeps its controlword: its statusword is old news (it may say FAULT).
-        cws = tuple(controlword_towards(p, PowerState.OPERATION_ENABLED, cw) if d.fresh else cw
-                    for p, cw, d in zip(powers, state.controlwords, inputs.drives))
+        cws = tuple(
+            controlword_towards(p, PowerState.OPERATION_ENABLED, cw) if d.fresh else cw
+            for p, cw, d in zip(powers, state.controlwords, inputs.drives)
+        )
         state = replace(state, controlwords=cws, setpoint=self._hold(state))  # where each was last trusted
         if all(p == PowerState.OPERATION_ENABLED for p in powers):
             return self._enter(state, Mode.HOLDING, t, events, why="all drives in OPERATION ENABLED")
@@ -586,54 +717,103 @@ class ControlLaw:
             return replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, why), fault_reason=why)
         return state
 
-    def _holding(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...],
-                 measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
+    def _holding(
+        self,
+        state: ControllerState,
+        inputs: CycleInputs,
+        powers: tuple[PowerState, ...],
+        measured: tuple[float, ...],
+        t: float,
+        events: list[Event],
+    ) -> ControllerState:
         state = self._smooth_to_rest(state, t, events)
         if t - state.mode_entered_s >= self.config.hold_before_task_s and state.mode == Mode.HOLDING:
             state = replace(state, task_state=self.task.start())
             return self._enter(state, Mode.RUNNING, t, events, why=f"task {self.task.name} starts")
         return state
 
-    def _running(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...],
-                 measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
+    def _running(
+        self,
+        state: ControllerState,
+        inputs: CycleInputs,
+        powers: tuple[PowerState, ...],
+        measured: tuple[float, ...],
+        t: float,
+        events: list[Event],
+    ) -> ControllerState:
         period = self.config.period_s
         task_time = state.task_time_s + period
         if inputs.sensor is not None and inputs.sensor.fresh and state.sensor_stale > 0:
             # A frame whose counter did not advance repeats the last sample: no new evidence for the task.
             inputs = replace(inputs, sensor=replace(inputs.sensor, fresh=False))
-        ctx = TaskContext(t_s=task_time + PIPELINE_PERIODS * period, period_s=period, setpoint=state.setpoint,
-                          inputs=inputs, tcp_measured_m=state.tcp_measured_m)
+        ctx = TaskContext(
+            t_s=task_time + PIPELINE_PERIODS * period,
+            period_s=period,
+            setpoint=state.setpoint,
+            inputs=inputs,
+            tcp_measured_m=state.tcp_measured_m,
+        )
         out = self.task.step(state.task_state, ctx)
         events.extend(out.events)
         task_state, ref, finished = out.state, out.reference, out.finished
         if out.fault:
-            return replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, out.fault), fault_reason=out.fault,
-                           task_state=task_state, setpoint=self._hold(state))
+            return replace(
+                self._enter(state, Mode.FAULT, t, events, Severity.FAULT, out.fault),
+                fault_reason=out.fault,
+                task_state=task_state,
+                setpoint=self._hold(state),
+            )
         pose = self.robot.check_pose(np.asarray(ref.tcp_m))
         if not pose.ok:
             why = f"task reference leaves the safe workspace: {pose.reason}"
-            return replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, why), fault_reason=why,
-                           setpoint=self._hold(state))
+            return replace(
+                self._enter(state, Mode.FAULT, t, events, Severity.FAULT, why),
+                fault_reason=why,
+                setpoint=self._hold(state),
+            )
         if ref.reactive:
-            result = self.smoother.track_velocity(state.setpoint, ref.position, ref.velocity,
-                                                  REACTIVE_CORRECTION_PERIODS / period)
+            result = self.smoother.track_velocity(
+                state.setpoint, ref.position, ref.velocity, REACTIVE_CORRECTION_PERIODS / period
+            )
         else:
             result = self.smoother.step(state.setpoint, ref.position, ref.velocity, ref.acceleration)
         if not result.ok:
-            return replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, result.message),
-                           fault_reason=result.message, setpoint=self._hold(state))
-        state = replace(state, task_state=task_state, setpoint=result.setpoint, task_time_s=task_time,
-                        tcp_reference_m=ref.tcp_m if ref.on_path else None)
+            return replace(
+                self._enter(state, Mode.FAULT, t, events, Severity.FAULT, result.message),
+                fault_reason=result.message,
+                setpoint=self._hold(state),
+            )
+        state = replace(
+            state,
+            task_state=task_state,
+            setpoint=result.setpoint,
+            task_time_s=task_time,
+            tcp_reference_m=ref.tcp_m if ref.on_path else None,
+        )
         if finished:
             return self._enter(state, Mode.STOPPING, t, events, why=f"task {self.task.name} finished")
         return state
 
-    def _paused(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...],
-                measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
+    def _paused(
+        self,
+        state: ControllerState,
+        inputs: CycleInputs,
+        powers: tuple[PowerState, ...],
+        measured: tuple[float, ...],
+        t: float,
+        events: list[Event],
+    ) -> ControllerState:
         return replace(self._smooth_to_rest(state, t, events), tcp_reference_m=None)
 
-    def _stopping(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...],
-                  measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
+    def _stopping(
+        self,
+        state: ControllerState,
+        inputs: CycleInputs,
+        powers: tuple[PowerState, ...],
+        measured: tuple[float, ...],
+        t: float,
+        events: list[Event],
+    ) -> ControllerState:
         state = replace(state, tcp_reference_m=None)
         if not self._shutting_down(state):
             state = self._smooth_to_rest(state, t, events)
@@ -644,21 +824,39 @@ class ControlLaw:
                 state = replace(state, setpoint=Setpoint.at_rest(state.setpoint.position))
             else:
                 return state
-        cws = tuple(controlword_towards(p, PowerState.READY_TO_SWITCH_ON, cw)
-                    for p, cw in zip(powers, state.controlwords))
+        cws = tuple(
+            controlword_towards(p, PowerState.READY_TO_SWITCH_ON, cw)
+            for p, cw in zip(powers, state.controlwords)
+        )
         state = replace(state, controlwords=cws)
         if all(p in (PowerState.READY_TO_SWITCH_ON, PowerState.SWITCH_ON_DISABLED) for p in powers):
             return self._enter(state, Mode.DONE, t, events, why="drives shut down")
         return state
 
-    def _done(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...],
-              measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
+    def _done(
+        self,
+        state: ControllerState,
+        inputs: CycleInputs,
+        powers: tuple[PowerState, ...],
+        measured: tuple[float, ...],
+        t: float,
+        events: list[Event],
+    ) -> ControllerState:
         return state
 
-    def _fault(self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...],
-               measured: tuple[float, ...], t: float, events: list[Event]) -> ControllerState:
-        cws = tuple(controlword_towards(p, PowerState.QUICK_STOP_ACTIVE, cw)
-                    for p, cw in zip(powers, state.controlwords))
+    def _fault(
+        self,
+        state: ControllerState,
+        inputs: CycleInputs,
+        powers: tuple[PowerState, ...],
+        measured: tuple[float, ...],
+        t: float,
+        events: list[Event],
+    ) -> ControllerState:
+        cws = tuple(
+            controlword_towards(p, PowerState.QUICK_STOP_ACTIVE, cw)
+            for p, cw in zip(powers, state.controlwords)
+        )
         return replace(state, controlwords=cws, setpoint=self._hold(state))
 
     @staticmethod
@@ -668,12 +866,15 @@ class ControlLaw:
         Never from a flagged frame: a position the plausibility check refused is not in
         ``last_measured``, so a rogue frame cannot choose where the robot stops.
         """
-        return Setpoint.at_rest(tuple(x if math.isfinite(x) else q
-                                      for x, q in zip(state.last_measured, state.setpoint.position)))
+        return Setpoint.at_rest(
+            tuple(x if math.isfinite(x) else q for x, q in zip(state.last_measured, state.setpoint.position))
+        )
 
     def _smooth_to_rest(self, state: ControllerState, t: float, events: list[Event]) -> ControllerState:
         result = self.smoother.brake(state.setpoint)
         if not result.ok:
-            return replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, result.message),
-                           fault_reason=result.message)
+            return replace(
+                self._enter(state, Mode.FAULT, t, events, Severity.FAULT, result.message),
+                fault_reason=result.message,
+            )
         return replace(state, setpoint=result.setpoint)

@@ -157,11 +157,28 @@ class Event:
     message: str
 
 
-def cycle_inputs(feedback: BusFeedback, stop_requested: bool = False, command: Command = Command.NONE,
-                 command_value: float = 0.0, late: bool = False, plans_ready: int = 0) -> CycleInputs:
+def cycle_inputs(
+    feedback: BusFeedback,
+    stop_requested: bool = False,
+    command: Command = Command.NONE,
+    command_value: float = 0.0,
+    late: bool = False,
+    plans_ready: int = 0,
+) -> CycleInputs:
     """The step's inputs: the bus's feedback plus what the loop knows (stop, remote command, lateness)."""
-    return CycleInputs(drives=feedback.drives, sensor=feedback.sensor, emcy=feedback.emcy,
-                       stop_requested=stop_requested, command=command, command_value=command_value,
-                       lost_heartbeats=feedback.lost_heartbeats, error_frames=feedback.error_frames,
-                       bus_off=feedback.bus_off, late=late, anomalies=feedback.anomalies,
-                       nmt_reports=feedback.nmt_reports, tracker=feedback.tracker, plans_ready=plans_ready)
+    return CycleInputs(
+        drives=feedback.drives,
+        sensor=feedback.sensor,
+        emcy=feedback.emcy,
+        stop_requested=stop_requested,
+        command=command,
+        command_value=command_value,
+        lost_heartbeats=feedback.lost_heartbeats,
+        error_frames=feedback.error_frames,
+        bus_off=feedback.bus_off,
+        late=late,
+        anomalies=feedback.anomalies,
+        nmt_reports=feedback.nmt_reports,
+        tracker=feedback.tracker,
+        plans_ready=plans_ready,
+    )

@@ -16,9 +16,11 @@ Matrix3 = tuple[Vector3, Vector3, Vector3]
 
 
 def matvec(m: Matrix3, v: Vector3) -> Vector3:
-    return (m[0][0] * v[0] + m[0][1] * v[1] + m[0][2] * v[2],
-            m[1][0] * v[0] + m[1][1] * v[1] + m[1][2] * v[2],
-            m[2][0] * v[0] + m[2][1] * v[1] + m[2][2] * v[2])
+    return (
+        m[0][0] * v[0] + m[0][1] * v[1] + m[0][2] * v[2],
+        m[1][0] * v[0] + m[1][1] * v[1] + m[1][2] * v[2],
+        m[2][0] * v[0] + m[2][1] * v[1] + m[2][2] * v[2],
+    )
 
 
 def as_rows(m: np.ndarray) -> Matrix3:
@@ -36,9 +38,11 @@ def _dot3(r: Vector3, c: Vector3) -> float:
 
 def matmul3(a: Matrix3, b: Matrix3) -> Matrix3:
     c0, c1, c2 = transpose3(b)
-    return ((_dot3(a[0], c0), _dot3(a[0], c1), _dot3(a[0], c2)),
-            (_dot3(a[1], c0), _dot3(a[1], c1), _dot3(a[1], c2)),
-            (_dot3(a[2], c0), _dot3(a[2], c1), _dot3(a[2], c2)))
+    return (
+        (_dot3(a[0], c0), _dot3(a[0], c1), _dot3(a[0], c2)),
+        (_dot3(a[1], c0), _dot3(a[1], c1), _dot3(a[1], c2)),
+        (_dot3(a[2], c0), _dot3(a[2], c1), _dot3(a[2], c2)),
+    )
 
 
 def scaled3(m: Matrix3, k: float) -> Matrix3:
@@ -60,9 +64,11 @@ def inverse3(m: Matrix3) -> Matrix3:
         if scale == 0.0 or scale == 1.0 or not math.isfinite(scale):
             raise np.linalg.LinAlgError("singular 3x3 matrix")
         return scaled3(inverse3(scaled3(m, 1.0 / scale)), 1.0 / scale)
-    return ((co_a * r, (c * h - b * i) * r, (b * f - c * e) * r),
-            (co_b * r, (a * i - c * g) * r, (c * d - a * f) * r),
-            (co_c * r, (b * g - a * h) * r, (a * e - b * d) * r))
+    return (
+        (co_a * r, (c * h - b * i) * r, (b * f - c * e) * r),
+        (co_b * r, (a * i - c * g) * r, (c * d - a * f) * r),
+        (co_c * r, (b * g - a * h) * r, (a * e - b * d) * r),
+    )
 
 
 def solve3(m: Matrix3, v: Vector3) -> Vector3:
@@ -90,7 +96,9 @@ def symmetric_eigenvalues3(m: Matrix3) -> Vector3:
         return lo, mid, hi
     b00, b11, b22 = a00 - q, a11 - q, a22 - q
     p = math.sqrt((b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * off) / 6.0)
-    det = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02)) / p ** 3
+    det = (
+        b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02)
+    ) / p**3
     phi = math.acos(max(-1.0, min(1.0, det / 2.0))) / 3.0
     largest = q + 2.0 * p * math.cos(phi)
     smallest = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)

@@ -72,9 +72,9 @@ def stoppable_speed(distance: float, max_acceleration: float, max_jerk: float) -
     if distance <= 0.0:
         return 0.0
     a, j = max_acceleration, max_jerk
-    if distance <= a ** 3 / (j * j):
+    if distance <= a**3 / (j * j):
         return float((j * distance * distance) ** (1.0 / 3.0))
-    return -a * a / (2.0 * j) + math.sqrt(a ** 4 / (4.0 * j * j) + 2.0 * a * distance)
+    return -a * a / (2.0 * j) + math.sqrt(a**4 / (4.0 * j * j) + 2.0 * a * distance)
 
 
 class RuckigSmoother:
@@ -118,10 +118,13 @@ class RuckigSmoother:
         # velocity change a^2 / (2 j) still ahead (or just behind), |v| + a^2 / (2 j) <= v_max.
         # Ruckig refuses the whole input otherwise ("will inevitably ... exceed its maximum velocity").
         target_acceleration = tuple(
-            min(max(a, -ma), ma) if (reach := math.sqrt(2.0 * j * max(0.0, mv - abs(v)))) >= ma
+            min(max(a, -ma), ma)
+            if (reach := math.sqrt(2.0 * j * max(0.0, mv - abs(v)))) >= ma
             else min(max(a, -reach), reach)
-            for a, v, ma, mv, j in zip(target_acceleration, target_velocity, lim.max_acceleration,
-                                       target_v_max, lim.max_jerk))
+            for a, v, ma, mv, j in zip(
+                target_acceleration, target_velocity, lim.max_acceleration, target_v_max, lim.max_jerk
+            )
+        )
         inp = self._inp
         inp.current_position = current.position
         inp.current_velocity = current.velocity
@@ -156,13 +159,25 @@ class RuckigSmoother:
         h = self._period_s
         targets = []
         for v, q_ref, q, qd, qdd, m, a_max, j_max in zip(
-                target_velocity, target_position, current.position, current.velocity, current.acceleration,
-                lim.max_velocity, lim.max_acceleration, lim.max_jerk):
+            target_velocity,
+            target_position,
+            current.position,
+            current.velocity,
+            current.acceleration,
+            lim.max_velocity,
+            lim.max_acceleration,
+            lim.max_jerk,
+        ):
             # The reference is for the sample one period ahead: compare it with where the setpoint
             # would be then, or the setpoint settles a period's travel ahead of its reference.
             error = q_ref - (q + h * qd + 0.5 * h * h * qdd)
-            correction = math.copysign(min(correction_per_s * abs(error),
-                                           STOPPABLE_FRACTION * stoppable_speed(abs(error), a_max, j_max)), error)
+            correction = math.copysign(
+                min(
+                    correction_per_s * abs(error),
+                    STOPPABLE_FRACTION * stoppable_speed(abs(error), a_max, j_max),
+                ),
+                error,
+            )
             targets.append(min(max(v + correction, -m), m))
         inp.target_velocity = targets
         inp.target_acceleration = self._zeros

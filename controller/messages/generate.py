@@ -1,6 +1,6 @@
 """Regenerate cheope_pb2.py from cheope.proto (needs the dev extra: grpcio-tools).
 
-    python -m controller.messages.generate
+python -m controller.messages.generate
 """
 
 from __future__ import annotations

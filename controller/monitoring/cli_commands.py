@@ -38,13 +38,26 @@ EXIT_NO_CONTROLLER = 2
 
 def add_controller_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("remote monitoring (Zenoh)")
-    g.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT",
-                   help="also connect to this Zenoh router or peer, e.g. tcp/192.168.1.10:7447 (repeatable)")
-    g.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 configuration file (TLS, access control)")
-    g.add_argument("--allow-remote-commands", action="store_true",
-                   help="accept remote pause, resume, reset and set_force (a remote stop is always accepted)")
-    g.add_argument("--robot-id", help="this controller's id under cheope/ (default: <host>-<4 hex digits>); "
-                                      "refused at start when a live controller reachable holds it")
+    g.add_argument(
+        "--zenoh-connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="also connect to this Zenoh router or peer, e.g. tcp/192.168.1.10:7447 (repeatable)",
+    )
+    g.add_argument(
+        "--zenoh-config", metavar="FILE", help="Zenoh JSON5 configuration file (TLS, access control)"
+    )
+    g.add_argument(
+        "--allow-remote-commands",
+        action="store_true",
+        help="accept remote pause, resume, reset and set_force (a remote stop is always accepted)",
+    )
+    g.add_argument(
+        "--robot-id",
+        help="this controller's id under cheope/ (default: <host>-<4 hex digits>); "
+        "refused at start when a live controller reachable holds it",
+    )
 
 
 def monitoring_overrides(args: argparse.Namespace) -> list[str]:
@@ -64,15 +77,28 @@ def monitoring_overrides(args: argparse.Namespace) -> list[str]:
     return sets
 
 
-def _client_options(p: argparse.ArgumentParser, timeout: bool = True, robot_id: str | None = None,
-                    robot_help: str = "the controller's robot id (default: the only controller reachable; "
-                                      "`cheope list` shows them)") -> None:
+def _client_options(
+    p: argparse.ArgumentParser,
+    timeout: bool = True,
+    robot_id: str | None = None,
+    robot_help: str = "the controller's robot id (default: the only controller reachable; "
+    "`cheope list` shows them)",
+) -> None:
     if robot_id != "":
         p.add_argument("--robot-id", default=robot_id, help=robot_help)
-    p.add_argument("--key-prefix", default="cheope", help="the controller's monitoring.key_prefix (default cheope)")
-    p.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT",
-                   help=f"where the controller (or a router) listens (default {DEFAULT_CONNECT}; repeatable)")
-    p.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 configuration file (TLS, access control)")
+    p.add_argument(
+        "--key-prefix", default="cheope", help="the controller's monitoring.key_prefix (default cheope)"
+    )
+    p.add_argument(
+        "--zenoh-connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help=f"where the controller (or a router) listens (default {DEFAULT_CONNECT}; repeatable)",
+    )
+    p.add_argument(
+        "--zenoh-config", metavar="FILE", help="Zenoh JSON5 configuration file (TLS, access control)"
+    )
     if timeout:
         p.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for the answer")
 
@@ -99,8 +125,11 @@ def cmd_list(args: argparse.Namespace) -> int:
         print(f"cheope list: no controller found: {err}", file=sys.stderr)
         return EXIT_NO_CONTROLLER
     if not found:
-        print(f"cheope list: no controller found under {args.key_prefix}/*/ (connected to "
-              f"{', '.join(settings.connect)})", file=sys.stderr)
+        print(
+            f"cheope list: no controller found under {args.key_prefix}/*/ (connected to "
+            f"{', '.join(settings.connect)})",
+            file=sys.stderr,
+        )
         return EXIT_NO_CONTROLLER
     if args.json:
         print(json.dumps([{**asdict(c), "listen_endpoints": list(c.listen_endpoints)} for c in found]))
@@ -108,7 +137,9 @@ def cmd_list(args: argparse.Namespace) -> int:
     print(f"{'robot id':<24} {'mode':<12} {'task':<10} {'up [s]':>9}  listening on")
     for c in found:
         up = f"{c.uptime_s:9.1f}" if c.uptime_s is not None else f"{'-':>9}"
-        print(f"{c.robot_id:<24} {c.mode or '?':<12} {c.task or '-':<10} {up}  {', '.join(c.listen_endpoints) or '-'}")
+        print(
+            f"{c.robot_id:<24} {c.mode or '?':<12} {c.task or '-':<10} {up}  {', '.join(c.listen_endpoints) or '-'}"
+        )
     return 0
 
 
@@ -118,8 +149,15 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     settings = monitor_settings(_endpoints(args), args.zenoh_config or "")
     keys = MonitorKeys.for_robot(args.key_prefix, args.robot_id, allow_wildcard=True)
     try:
-        run_monitor(settings, keys, args.json, sys.stdout, args.duration, args.count,
-                    notice=lambda line: print(f"cheope monitor: {line}", file=sys.stderr, flush=True))
+        run_monitor(
+            settings,
+            keys,
+            args.json,
+            sys.stdout,
+            args.duration,
+            args.count,
+            notice=lambda line: print(f"cheope monitor: {line}", file=sys.stderr, flush=True),
+        )
     except KeyboardInterrupt:
         pass
     return 0
@@ -130,10 +168,17 @@ def cmd_status(args: argparse.Namespace) -> int:
 
     from controller.monitoring.commands import query_status
 
-    status = query_status(client_settings(_endpoints(args), args.zenoh_config or "", args.timeout), _target(args),
-                          timeout_s=args.timeout)
-    d = MessageToDict(status, preserving_proto_field_name=True, always_print_fields_with_no_presence=True,
-                      unquote_int64_if_possible=True)
+    status = query_status(
+        client_settings(_endpoints(args), args.zenoh_config or "", args.timeout),
+        _target(args),
+        timeout_s=args.timeout,
+    )
+    d = MessageToDict(
+        status,
+        preserving_proto_field_name=True,
+        always_print_fields_with_no_presence=True,
+        unquote_int64_if_possible=True,
+    )
     d["config"] = json.loads(d.pop("config_json") or "{}")
     if args.json:
         print(json.dumps(d))
@@ -151,10 +196,17 @@ def cmd_status(args: argparse.Namespace) -> int:
 def _command(args: argparse.Namespace, name: str, value: float) -> int:
     from controller.monitoring.commands import send_command
 
-    robot_id, reply = send_command(client_settings(_endpoints(args), args.zenoh_config or "", args.timeout), _target(args),
-                                   name=name, value=value, timeout_s=args.timeout)
-    print(("accepted by " if reply.accepted else "refused by ") + f"{robot_id}: {reply.message}",
-          file=sys.stdout if reply.accepted else sys.stderr)
+    robot_id, reply = send_command(
+        client_settings(_endpoints(args), args.zenoh_config or "", args.timeout),
+        _target(args),
+        name=name,
+        value=value,
+        timeout_s=args.timeout,
+    )
+    print(
+        ("accepted by " if reply.accepted else "refused by ") + f"{robot_id}: {reply.message}",
+        file=sys.stdout if reply.accepted else sys.stderr,
+    )
     return 0 if reply.accepted else 1
 
 
@@ -176,13 +228,19 @@ def cmd_router(args: argparse.Namespace) -> int:
 
 
 def add_subcommands(sub: argparse._SubParsersAction[ParserT]) -> None:
-    p = sub.add_parser("list", help="every live controller reachable: robot id, mode, task, uptime, endpoints")
+    p = sub.add_parser(
+        "list", help="every live controller reachable: robot id, mode, task, uptime, endpoints"
+    )
     _client_options(p, robot_id="")
     p.add_argument("--json", action="store_true", help="one JSON array")
     p.set_defaults(func=cmd_list)
     p = sub.add_parser("monitor", help="live view of the running controllers over Zenoh")
-    _client_options(p, timeout=False, robot_id="*", robot_help="the robot to watch (default *: every controller "
-                                                               "reachable)")
+    _client_options(
+        p,
+        timeout=False,
+        robot_id="*",
+        robot_help="the robot to watch (default *: every controller reachable)",
+    )
     p.add_argument("--json", action="store_true", help="one JSON object per line (state, event, liveliness)")
     p.add_argument("--duration", type=float, help="exit after this many seconds")
     p.add_argument("--count", type=int, help="exit after this many state samples")
@@ -194,16 +252,29 @@ def add_subcommands(sub: argparse._SubParsersAction[ParserT]) -> None:
     p = sub.add_parser("stop", help="bring a running controller's robot to a controlled stop")
     _client_options(p)
     p.set_defaults(func=cmd_stop)
-    p = sub.add_parser("command", help="send pause, resume, reset or set_force (refused unless the controller "
-                                       "was started with --allow-remote-commands), or stop")
+    p = sub.add_parser(
+        "command",
+        help="send pause, resume, reset or set_force (refused unless the controller "
+        "was started with --allow-remote-commands), or stop",
+    )
     _client_options(p)
     # the publisher's gate is the one list of commands: the CLI cannot drift from it again
     p.add_argument("name", choices=(*GATED_COMMANDS, *ALWAYS_ACCEPTED))
     p.add_argument("value", type=float, nargs="?", default=0.0, help="set_force: the force setpoint [N]")
     p.set_defaults(func=cmd_command)
-    p = sub.add_parser("router", help="a Zenoh router (router-mode session) that many controllers and the tools "
-                                      "connect to, as zenohd would")
-    p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
-                   help=f"where it listens (default {DEFAULT_ROUTER_LISTEN}; repeatable)")
-    p.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 configuration file (TLS, access control)")
+    p = sub.add_parser(
+        "router",
+        help="a Zenoh router (router-mode session) that many controllers and the tools "
+        "connect to, as zenohd would",
+    )
+    p.add_argument(
+        "--listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help=f"where it listens (default {DEFAULT_ROUTER_LISTEN}; repeatable)",
+    )
+    p.add_argument(
+        "--zenoh-config", metavar="FILE", help="Zenoh JSON5 configuration file (TLS, access control)"
+    )
     p.set_defaults(func=cmd_router)

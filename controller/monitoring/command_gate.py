@@ -23,7 +23,9 @@ class CommandDecision:
     forward: bool = False  # hand it to the control law as CycleInputs.command
 
 
-def decide_command(name: str, value: float, commands_enabled: bool, max_contact_force_n: float) -> CommandDecision:
+def decide_command(
+    name: str, value: float, commands_enabled: bool, max_contact_force_n: float
+) -> CommandDecision:
     """The gate: stop always; the gated commands only when enabled; anything else refused.
 
     A ``set_force`` setpoint must lie below ``max_contact_force_n`` (``safety.max_contact_force_n``):
@@ -34,9 +36,15 @@ def decide_command(name: str, value: float, commands_enabled: bool, max_contact_
     if name not in GATED_COMMANDS:
         return CommandDecision(False, f"unknown command {name!r}; known: stop, {', '.join(GATED_COMMANDS)}")
     if not commands_enabled:
-        return CommandDecision(False, f"command {name!r} refused: remote commands other than stop are disabled "
-                                      "(start the controller with --allow-remote-commands)")
+        return CommandDecision(
+            False,
+            f"command {name!r} refused: remote commands other than stop are disabled "
+            "(start the controller with --allow-remote-commands)",
+        )
     if name == "set_force" and not (math.isfinite(value) and 0.0 < value < max_contact_force_n):
-        return CommandDecision(False, f"set_force value {value:g} N refused: must be > 0 and below the contact-force "
-                                      f"limit safety.max_contact_force_n = {max_contact_force_n:g} N")
+        return CommandDecision(
+            False,
+            f"set_force value {value:g} N refused: must be > 0 and below the contact-force "
+            f"limit safety.max_contact_force_n = {max_contact_force_n:g} N",
+        )
     return CommandDecision(True, f"{name} accepted: applied at the next cycle", forward=True)

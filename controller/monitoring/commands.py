@@ -57,16 +57,24 @@ def resolve(session: zenoh.Session, settings: SessionSettings, target: Target) -
         return MonitorKeys.for_robot(target.key_prefix, target.robot_id)
     ids = live_robot_ids(session, target.key_prefix)
     if not ids:
-        raise MonitoringConnectionError(f"no controller found under {target.key_prefix}/*/ (connected to "
-                                        f"{_where(settings)})")
+        raise MonitoringConnectionError(
+            f"no controller found under {target.key_prefix}/*/ (connected to {_where(settings)})"
+        )
     if len(ids) > 1:
-        raise MonitoringConnectionError(f"{len(ids)} controllers reachable ({', '.join(ids)}): choose one with "
-                                        "--robot-id")
+        raise MonitoringConnectionError(
+            f"{len(ids)} controllers reachable ({', '.join(ids)}): choose one with --robot-id"
+        )
     return MonitorKeys.for_robot(target.key_prefix, ids[0])
 
 
-def _one_reply(session: zenoh.Session, settings: SessionSettings, key: str, timeout_s: float,
-               payload: bytes | None = None, encoding: zenoh.Encoding | None = None) -> bytes:
+def _one_reply(
+    session: zenoh.Session,
+    settings: SessionSettings,
+    key: str,
+    timeout_s: float,
+    payload: bytes | None = None,
+    encoding: zenoh.Encoding | None = None,
+) -> bytes:
     if payload is not None:
         replies = session.get(key, timeout=timeout_s, payload=payload, encoding=encoding)
     else:
@@ -78,8 +86,9 @@ def _one_reply(session: zenoh.Session, settings: SessionSettings, key: str, time
         detail = err.payload.to_bytes() if err is not None else b""
         if detail != b"Timeout":  # Zenoh's own end of a get that waited for more answers
             raise MonitoringConnectionError(f"{key} answered with an error: {detail!r}")
-    raise MonitoringConnectionError(f"no controller answered on {key} within {timeout_s:g} s (connected to "
-                                    f"{_where(settings)})")
+    raise MonitoringConnectionError(
+        f"no controller answered on {key} within {timeout_s:g} s (connected to {_where(settings)})"
+    )
 
 
 def query_status(settings: SessionSettings, target: Target, timeout_s: float = 2.0) -> pb.Status:
@@ -89,14 +98,16 @@ def query_status(settings: SessionSettings, target: Target, timeout_s: float = 2
         return pb.Status.FromString(_one_reply(session, settings, keys.status, timeout_s))
 
 
-def send_command(settings: SessionSettings, target: Target, name: str, value: float = 0.0,
-                 timeout_s: float = 2.0) -> tuple[str, pb.CommandReply]:
+def send_command(
+    settings: SessionSettings, target: Target, name: str, value: float = 0.0, timeout_s: float = 2.0
+) -> tuple[str, pb.CommandReply]:
     """Send one command (``stop``, ``pause``, ``resume``, ``reset``, ``set_force``); the robot id and its answer."""
     cmd = pb.Command(name=name, value=value)
     with tool_session(settings) as session:
         keys = resolve(session, settings, target)
-        reply = _one_reply(session, settings, keys.command, timeout_s, cmd.SerializeToString(),
-                           encoding_for("Command"))
+        reply = _one_reply(
+            session, settings, keys.command, timeout_s, cmd.SerializeToString(), encoding_for("Command")
+        )
         return keys.prefix.rsplit("/", 1)[1], pb.CommandReply.FromString(reply)
 
 
@@ -112,8 +123,9 @@ class ControllerListing:
     software_version: str = ""
 
 
-def list_controllers(settings: SessionSettings, key_prefix: str = "cheope", timeout_s: float = 2.0
-                     ) -> list[ControllerListing]:
+def list_controllers(
+    settings: SessionSettings, key_prefix: str = "cheope", timeout_s: float = 2.0
+) -> list[ControllerListing]:
     """Every controller whose liveliness token is live among the sessions reached, with its status."""
     out = []
     with tool_session(settings) as session:
@@ -125,6 +137,9 @@ def list_controllers(settings: SessionSettings, key_prefix: str = "cheope", time
                 out.append(ControllerListing(robot_id))
                 continue
             task = json.loads(st.config_json or "{}").get("task", {}).get("kind", "")
-            out.append(ControllerListing(robot_id, st.mode, task, st.uptime_s, tuple(st.listen_endpoints),
-                                         st.software_version))
+            out.append(
+                ControllerListing(
+                    robot_id, st.mode, task, st.uptime_s, tuple(st.listen_endpoints), st.software_version
+                )
+            )
     return out

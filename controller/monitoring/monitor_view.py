@@ -73,8 +73,9 @@ Update = StateUpdate | EventUpdate | AliveUpdate | UndecodableUpdate
 class MonitorClient:
     """Context manager: a Zenoh session subscribed to ``keys``' state, events and liveliness."""
 
-    def __init__(self, settings: SessionSettings, keys: MonitorKeys, clock: Callable[[], float] = time.monotonic
-                 ) -> None:
+    def __init__(
+        self, settings: SessionSettings, keys: MonitorKeys, clock: Callable[[], float] = time.monotonic
+    ) -> None:
         self.settings = settings
         self.keys = keys
         self.clock = clock
@@ -87,8 +88,9 @@ class MonitorClient:
         z, k = self._session, self.keys
         try:
             self._entities = [
-                z.liveliness().declare_subscriber(k.alive, zenoh.handlers.Callback(self._on_alive, indirect=False),
-                                                  history=True),
+                z.liveliness().declare_subscriber(
+                    k.alive, zenoh.handlers.Callback(self._on_alive, indirect=False), history=True
+                ),
                 z.declare_subscriber(k.state, zenoh.handlers.Callback(self._on_state, indirect=False)),
                 z.declare_subscriber(k.events, zenoh.handlers.Callback(self._on_event, indirect=False)),
             ]
@@ -120,8 +122,10 @@ class MonitorClient:
             return f"nothing answers at {where} yet; waiting for a controller there (Ctrl-C to stop)"
         key_prefix, robot_id = self.keys.prefix.rsplit("/", 1)
         if not live_robot_ids(self._session, key_prefix, robot_id):
-            return f"no controller found under {self.keys.prefix}/ (connected to {where}); waiting for one " \
-                   "(Ctrl-C to stop)"
+            return (
+                f"no controller found under {self.keys.prefix}/ (connected to {where}); waiting for one "
+                "(Ctrl-C to stop)"
+            )
         return ""
 
     def next_update(self, timeout_s: float) -> Update | None:
@@ -142,12 +146,25 @@ class MonitorClient:
 
 def update_to_json(u: Update) -> str:
     """One line for ``cheope monitor --json``: a ``type`` field, the key, the arrival time and the message."""
-    out: dict[str, object] = {"type": {StateUpdate: "state", EventUpdate: "event", AliveUpdate: "liveliness",
-                                       UndecodableUpdate: "undecodable"}[type(u)],
-                              "key": u.key, "received_monotonic_s": u.received_monotonic_s}
+    out: dict[str, object] = {
+        "type": {
+            StateUpdate: "state",
+            EventUpdate: "event",
+            AliveUpdate: "liveliness",
+            UndecodableUpdate: "undecodable",
+        }[type(u)],
+        "key": u.key,
+        "received_monotonic_s": u.received_monotonic_s,
+    }
     if isinstance(u, (StateUpdate, EventUpdate)):
-        out.update(MessageToDict(u.msg, preserving_proto_field_name=True, always_print_fields_with_no_presence=True,
-                               unquote_int64_if_possible=True))
+        out.update(
+            MessageToDict(
+                u.msg,
+                preserving_proto_field_name=True,
+                always_print_fields_with_no_presence=True,
+                unquote_int64_if_possible=True,
+            )
+        )
     elif isinstance(u, AliveUpdate):
         out["alive"] = u.alive
     else:
@@ -213,7 +230,17 @@ def render_fleet(fleet: FleetView, now_s: float) -> RenderableType:
     if len(fleet.robots) == 1:
         return render(next(iter(fleet.robots.values())), now_s)
     table = Table(title=f"controllers under {fleet.key_prefix}/ ({len(fleet.robots)})")
-    for col in ("robot id", "alive", "mode", "task / phase", "cycle", "rate [Hz]", "late", "samples/s", "alarms"):
+    for col in (
+        "robot id",
+        "alive",
+        "mode",
+        "task / phase",
+        "cycle",
+        "rate [Hz]",
+        "late",
+        "samples/s",
+        "alarms",
+    ):
         table.add_column(col)
     if not fleet.robots:
         table.add_row("[yellow]waiting for a controller[/]", *([""] * 8))
@@ -223,9 +250,17 @@ def render_fleet(fleet: FleetView, now_s: float) -> RenderableType:
         if s is None:
             table.add_row(rid, alive, *([""] * 7))
             continue
-        table.add_row(rid, alive, s.mode, f"{s.task or '-'} / {s.task_phase or '-'}", str(s.cycle),
-                      f"{s.loop.achieved_rate_hz:.1f}", str(s.loop.late_cycles), f"{view.sample_rate_hz(now_s):.1f}",
-                      "; ".join(s.alarms) or "none")
+        table.add_row(
+            rid,
+            alive,
+            s.mode,
+            f"{s.task or '-'} / {s.task_phase or '-'}",
+            str(s.cycle),
+            f"{s.loop.achieved_rate_hz:.1f}",
+            str(s.loop.late_cycles),
+            f"{view.sample_rate_hz(now_s):.1f}",
+            "; ".join(s.alarms) or "none",
+        )
     return table
 
 
@@ -234,20 +269,29 @@ def render(view: ViewModel, now_s: float) -> Group:
     from rich.panel import Panel
     from rich.table import Table
 
-    status = {None: "[yellow]waiting for the controller[/]", True: "[green]alive[/]",
-              False: "[red]gone (liveliness token lost)[/]"}[view.alive]
+    status = {
+        None: "[yellow]waiting for the controller[/]",
+        True: "[green]alive[/]",
+        False: "[red]gone (liveliness token lost)[/]",
+    }[view.alive]
     head = Table.grid(padding=(0, 2))
     head.add_column(style="bold")
     head.add_column()
     head.add_row("controller", f"{view.prefix}  {status}")
     s = view.last_state
-    head.add_row("samples", f"{view.sample_rate_hz(now_s):.1f} /s received"
-                 + (f", last {now_s - view.last_state_at_s:.1f} s ago" if s is not None else ""))
+    head.add_row(
+        "samples",
+        f"{view.sample_rate_hz(now_s):.1f} /s received"
+        + (f", last {now_s - view.last_state_at_s:.1f} s ago" if s is not None else ""),
+    )
     parts: list[RenderableType] = [head]
     if s is not None:
-        head.add_row("loop", f"{s.loop.achieved_rate_hz:.1f} Hz, period error p50 {s.loop.period_error_p50_us:.0f} us "
-                     f"p99 {s.loop.period_error_p99_us:.0f} us, late {s.loop.late_cycles}, missing frames "
-                     f"{s.loop.missing_drive_frames}/{s.loop.missing_sensor_frames}")
+        head.add_row(
+            "loop",
+            f"{s.loop.achieved_rate_hz:.1f} Hz, period error p50 {s.loop.period_error_p50_us:.0f} us "
+            f"p99 {s.loop.period_error_p99_us:.0f} us, late {s.loop.late_cycles}, missing frames "
+            f"{s.loop.missing_drive_frames}/{s.loop.missing_sensor_frames}",
+        )
         head.add_row("mode", f"{s.mode}   task {s.task or '-'}   phase {s.task_phase or '-'}")
         head.add_row("cycle", f"{s.cycle}   t {s.t_s:.3f} s")
         head.add_row("TCP", _vec(s.tcp_m, 1e3, "mm"))
@@ -258,8 +302,13 @@ def render(view: ViewModel, now_s: float) -> Group:
         for j, (tg, ps) in enumerate(zip(s.targets, s.positions)):
             axes.add_row(str(j + 1), f"{tg * 1e3:.3f}", f"{ps * 1e3:.3f}", f"{(tg - ps) * 1e6:.1f}")
         parts.append(axes)
-        parts.append(Panel("\n".join(s.alarms) if s.alarms else "none", title="alarms",
-                           style="red" if s.alarms else "green"))
+        parts.append(
+            Panel(
+                "\n".join(s.alarms) if s.alarms else "none",
+                title="alarms",
+                style="red" if s.alarms else "green",
+            )
+        )
     parts.append(Panel("\n".join(view.events) or "-", title="events"))
     return Group(*parts)
 
@@ -268,9 +317,16 @@ def _vec(v: Sequence[float], scale: float, unit: str) -> str:
     return "  ".join(f"{x * scale:+.3f}" for x in v) + f" {unit}" if len(v) else "-"
 
 
-def run_monitor(settings: SessionSettings, keys: MonitorKeys, as_json: bool, out: TextIO,
-                duration_s: float | None = None, count: int | None = None, refresh_hz: float = 10.0,
-                notice: Callable[[str], None] | None = None) -> int:
+def run_monitor(
+    settings: SessionSettings,
+    keys: MonitorKeys,
+    as_json: bool,
+    out: TextIO,
+    duration_s: float | None = None,
+    count: int | None = None,
+    refresh_hz: float = 10.0,
+    notice: Callable[[str], None] | None = None,
+) -> int:
     """Run until ``duration_s`` elapses, ``count`` state samples arrived, or Ctrl-C; returns samples seen.
 
     ``notice`` gets one line when no controller is found at the start (the monitor then waits)."""
@@ -297,8 +353,12 @@ def run_monitor(settings: SessionSettings, keys: MonitorKeys, as_json: bool, out
 
         view = FleetView(keys.prefix.rsplit("/", 1)[0])
         period = 1.0 / refresh_hz
-        with Live(render_fleet(view, time.monotonic()), console=Console(file=out), auto_refresh=False,
-                  transient=False) as live:
+        with Live(
+            render_fleet(view, time.monotonic()),
+            console=Console(file=out),
+            auto_refresh=False,
+            transient=False,
+        ) as live:
             next_draw = time.monotonic()
             while count is None or seen < count:
                 now = time.monotonic()

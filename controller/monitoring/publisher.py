@@ -88,8 +88,12 @@ class PublisherSettings:
     def with_robot_id(self, robot_id: str) -> PublisherSettings:
         config = json.loads(self.config_json)
         config["monitoring"]["robot_id"] = robot_id
-        return replace(self, robot_id=robot_id, keys=MonitorKeys.for_robot(self.key_prefix, robot_id),
-                       config_json=json.dumps(config))
+        return replace(
+            self,
+            robot_id=robot_id,
+            keys=MonitorKeys.for_robot(self.key_prefix, robot_id),
+            config_json=json.dumps(config),
+        )
 
 
 def publisher_settings(cfg: Config) -> PublisherSettings:
@@ -97,15 +101,25 @@ def publisher_settings(cfg: Config) -> PublisherSettings:
     m = cfg.monitoring
     robot_id = resolve_robot_id(m.robot_id)
     keys = MonitorKeys.for_robot(m.key_prefix, robot_id)
-    session = SessionSettings(mode=m.mode, listen=split_endpoints(m.listen, "monitoring.listen"),
-                              connect=split_endpoints(m.connect, "monitoring.connect"), config_file=m.config_file,
-                              on_listen_busy=m.on_listen_busy)
+    session = SessionSettings(
+        mode=m.mode,
+        listen=split_endpoints(m.listen, "monitoring.listen"),
+        connect=split_endpoints(m.connect, "monitoring.connect"),
+        config_file=m.config_file,
+        on_listen_busy=m.on_listen_busy,
+    )
     config = config_to_dict(cfg)
     config["monitoring"]["robot_id"] = robot_id  # the id in use, also when drawn
     return PublisherSettings(
-        session=session, keys=keys, robot_id=robot_id, key_prefix=m.key_prefix, robot_id_is_default=not m.robot_id,
-        period_s=cfg.period_s, decimation=max(1, round(cfg.loop.rate_hz / m.publish_rate_hz)),
-        allow_remote_commands=m.allow_remote_commands, config_json=json.dumps(config),
+        session=session,
+        keys=keys,
+        robot_id=robot_id,
+        key_prefix=m.key_prefix,
+        robot_id_is_default=not m.robot_id,
+        period_s=cfg.period_s,
+        decimation=max(1, round(cfg.loop.rate_hz / m.publish_rate_hz)),
+        allow_remote_commands=m.allow_remote_commands,
+        config_json=json.dumps(config),
         max_contact_force_n=cfg.safety.max_contact_force_n,
     )
 
@@ -123,9 +137,14 @@ def _versions() -> list[str]:
 class MonitorPublisher:
     """Context manager and CycleObserver; ``commands`` is the loop's CommandSource."""
 
-    def __init__(self, settings: PublisherSettings, stop_event: threading.Event,
-                 task_name: str = "", task_phase: Callable[[object], str] | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self,
+        settings: PublisherSettings,
+        stop_event: threading.Event,
+        task_name: str = "",
+        task_phase: Callable[[object], str] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.settings = settings
         self.stop_event = stop_event
         self.task_name = task_name
@@ -148,7 +167,9 @@ class MonitorPublisher:
         self.status_queries = 0  # these three: written by the query servers' threads only
         self.commands_accepted = 0
         self.commands_refused = 0
-        self._pending: deque[tuple[str, float]] = deque(maxlen=16)  # accepted commands -> the loop, one a cycle
+        self._pending: deque[tuple[str, float]] = deque(
+            maxlen=16
+        )  # accepted commands -> the loop, one a cycle
         self._mode = "STARTING"
         self._alarms: deque[tuple[float, str]] = deque(maxlen=32)
         self._started_s = 0.0
@@ -165,29 +186,46 @@ class MonitorPublisher:
     def __enter__(self) -> Self:
         self._session, self.listen_endpoints = open_session(self.settings.session)
         try:
-            claimed = claim_robot_id(self._session, self.settings.key_prefix, self.settings.robot_id,
-                                     drawn=self.settings.robot_id_is_default)
+            claimed = claim_robot_id(
+                self._session,
+                self.settings.key_prefix,
+                self.settings.robot_id,
+                drawn=self.settings.robot_id_is_default,
+            )
             if claimed != self.settings.robot_id:
                 self.settings = self.settings.with_robot_id(claimed)
             s, k, z = self.settings, self.settings.keys, self._session
             drop = zenoh.CongestionControl.DROP
-            self._state_pub = z.declare_publisher(k.state, encoding=encoding_for("MonitorState"),
-                                                  congestion_control=drop, express=True)
-            self._event_pub = z.declare_publisher(k.events, encoding=encoding_for("Event"), congestion_control=drop,
-                                                  priority=zenoh.Priority.DATA_HIGH)
+            self._state_pub = z.declare_publisher(
+                k.state, encoding=encoding_for("MonitorState"), congestion_control=drop, express=True
+            )
+            self._event_pub = z.declare_publisher(
+                k.events,
+                encoding=encoding_for("Event"),
+                congestion_control=drop,
+                priority=zenoh.Priority.DATA_HIGH,
+            )
             self._entities = [self._state_pub, self._event_pub]
             self._static_status = pb.Status(
-                robot_id=s.robot_id, software_version=_version("cheope-controller"), config_json=s.config_json,
-                versions=self._versions, commands_enabled=s.allow_remote_commands,
-                listen_endpoints=self.listen_endpoints).SerializeToString()
-            self._servers = [QueryServer(z, k.status, self._on_status, _STATUS_LIMITS, "cheope-query-status"),
-                             QueryServer(z, k.command, self._on_command, _COMMAND_LIMITS, "cheope-query-command")]
+                robot_id=s.robot_id,
+                software_version=_version("cheope-controller"),
+                config_json=s.config_json,
+                versions=self._versions,
+                commands_enabled=s.allow_remote_commands,
+                listen_endpoints=self.listen_endpoints,
+            ).SerializeToString()
+            self._servers = [
+                QueryServer(z, k.status, self._on_status, _STATUS_LIMITS, "cheope-query-status"),
+                QueryServer(z, k.command, self._on_command, _COMMAND_LIMITS, "cheope-query-command"),
+            ]
             self._entities.append(z.liveliness().declare_token(k.alive))
         except BaseException:
             self.close()
             raise
         self._started_s = self.clock()
-        log.info("monitoring: publishing under %s/ (listen %s)", k.prefix, ", ".join(self.listen_endpoints) or "-")
+        log.info(
+            "monitoring: publishing under %s/ (listen %s)", k.prefix, ", ".join(self.listen_endpoints) or "-"
+        )
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -203,8 +241,16 @@ class MonitorPublisher:
 
     # -- the loop's side: must return in microseconds ----------------------------------------
 
-    def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
-                 outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None:
+    def on_cycle(
+        self,
+        cycle: int,
+        t: float,
+        inputs: CycleInputs,
+        state: ControllerState,
+        outputs: CycleOutputs,
+        events: tuple[Event, ...],
+        timing: CycleTiming,
+    ) -> None:
         self._ring[self._n & (_RING - 1)] = t + timing.wake_error_s
         self._n += 1
         if timing.wake_error_s > self._late_s:
@@ -230,14 +276,29 @@ class MonitorPublisher:
             self.publish_errors += 1
             log.warning("monitoring: publish failed: %s", err)
 
-    def _publish_state(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
-                       outputs: CycleOutputs, cycle_s: float) -> None:
+    def _publish_state(
+        self,
+        cycle: int,
+        t: float,
+        inputs: CycleInputs,
+        state: ControllerState,
+        outputs: CycleOutputs,
+        cycle_s: float,
+    ) -> None:
         self._mode = state.mode.name
         msg = pb.MonitorState(
-            robot_id=self.settings.robot_id, cycle=cycle, t_s=t, mode=state.mode.name, task=self.task_name,
-            task_phase=self._phase(state), targets=outputs.targets, positions=[d.position for d in inputs.drives],
-            tcp_m=state.tcp_measured_m or (), force_n=inputs.sensor.force_n if inputs.sensor is not None else (),
-            alarms=self._current_alarms(t, inputs, state), cycle_monotonic_s=cycle_s,
+            robot_id=self.settings.robot_id,
+            cycle=cycle,
+            t_s=t,
+            mode=state.mode.name,
+            task=self.task_name,
+            task_phase=self._phase(state),
+            targets=outputs.targets,
+            positions=[d.position for d in inputs.drives],
+            tcp_m=state.tcp_measured_m or (),
+            force_n=inputs.sensor.force_n if inputs.sensor is not None else (),
+            alarms=self._current_alarms(t, inputs, state),
+            cycle_monotonic_s=cycle_s,
         )
         self._fill_loop_statistics(msg.loop)
         msg.publish_monotonic_s = self.clock()
@@ -275,8 +336,12 @@ class MonitorPublisher:
             self._stats_at_s = now
             self._timing_stats = self._timing_statistics()
         rate, p50, p99, pmax = self._timing_stats
-        out.achieved_rate_hz, out.period_error_p50_us, out.period_error_p99_us, out.period_error_max_us = \
-            rate, p50, p99, pmax
+        out.achieved_rate_hz, out.period_error_p50_us, out.period_error_p99_us, out.period_error_max_us = (
+            rate,
+            p50,
+            p99,
+            pmax,
+        )
         out.late_cycles = self.late_cycles
         c = self.exchange_counters
         if c is not None:
@@ -303,15 +368,25 @@ class MonitorPublisher:
     def counters(self) -> dict[str, int]:
         c = self.exchange_counters
         out = {
-            "cycles": self._n, "late_cycles": self.late_cycles, "samples_published": self.published_samples,
+            "cycles": self._n,
+            "late_cycles": self.late_cycles,
+            "samples_published": self.published_samples,
             "events_published": self.published_events,
-            "publish_errors": self.publish_errors, "status_queries": self.status_queries,
-            "commands_accepted": self.commands_accepted, "commands_refused": self.commands_refused,
+            "publish_errors": self.publish_errors,
+            "status_queries": self.status_queries,
+            "commands_accepted": self.commands_accepted,
+            "commands_refused": self.commands_refused,
         }
         if c is not None:
-            out.update(frames_in=c.frames_in, frames_out=c.frames_out, rejected_frames=c.rejected_frames,
-                       late_frames=c.late_frames, missing_drive_frames=c.missing_drive_frames,
-                       missing_sensor_frames=c.missing_sensor_frames, send_errors=c.send_errors)
+            out.update(
+                frames_in=c.frames_in,
+                frames_out=c.frames_out,
+                rejected_frames=c.rejected_frames,
+                late_frames=c.late_frames,
+                missing_drive_frames=c.missing_drive_frames,
+                missing_sensor_frames=c.missing_sensor_frames,
+                send_errors=c.send_errors,
+            )
         return out
 
     def status(self) -> pb.Status:
@@ -320,7 +395,9 @@ class MonitorPublisher:
     def status_bytes(self) -> bytes:
         """The serialised Status: the fixed part, then what changes. Protobuf merges concatenated
         messages field by field, and the two parts set different fields: one Status."""
-        changing = pb.Status(uptime_s=self.clock() - self._started_s, counters=self.counters(), mode=self._mode)
+        changing = pb.Status(
+            uptime_s=self.clock() - self._started_s, counters=self.counters(), mode=self._mode
+        )
         tail: bytes = changing.SerializeToString()
         return self._static_status + tail
 
@@ -332,9 +409,18 @@ class MonitorPublisher:
     def _on_command(self, query: zenoh.Query) -> bool:
         try:
             cmd = pb.Command.FromString(query.payload.to_bytes() if query.payload is not None else b"")
-            decision = decide_command(cmd.name, cmd.value, self.settings.allow_remote_commands,
-                                      self.settings.max_contact_force_n) if cmd.name else \
-                CommandDecision(False, "no command in the query's payload (expected a cheope.v1.Command)")
+            decision = (
+                decide_command(
+                    cmd.name,
+                    cmd.value,
+                    self.settings.allow_remote_commands,
+                    self.settings.max_contact_force_n,
+                )
+                if cmd.name
+                else CommandDecision(
+                    False, "no command in the query's payload (expected a cheope.v1.Command)"
+                )
+            )
         except DecodeError:
             cmd, decision = pb.Command(), CommandDecision(False, "payload is not a cheope.v1.Command")
         if decision.accepted:
@@ -343,11 +429,15 @@ class MonitorPublisher:
                 self.stop_event.set()
             elif decision.forward:
                 self._pending.append((cmd.name, cmd.value))
-            log.info("monitoring: remote command %r: %s", cmd.name, decision.message)  # rate-limited: see the server
+            log.info(
+                "monitoring: remote command %r: %s", cmd.name, decision.message
+            )  # rate-limited: see the server
         else:
             self.commands_refused += 1
         reply = pb.CommandReply(accepted=decision.accepted, message=decision.message)
-        query.reply(self.settings.keys.command, reply.SerializeToString(), encoding=encoding_for("CommandReply"))
+        query.reply(
+            self.settings.keys.command, reply.SerializeToString(), encoding=encoding_for("CommandReply")
+        )
         return decision.accepted
 
 
@@ -358,15 +448,20 @@ def _version(name: str) -> str:
         return "unknown"
 
 
-def monitoring_publisher(cfg: Config, stop_event: threading.Event, task: Task[Any] | None = None
-                         ) -> MonitorPublisher:
+def monitoring_publisher(
+    cfg: Config, stop_event: threading.Event, task: Task[Any] | None = None
+) -> MonitorPublisher:
     """The publisher of ``cfg.monitoring`` (not yet open: use it as a context manager)."""
-    return MonitorPublisher(publisher_settings(cfg), stop_event,
-                            task_name=task.name if task is not None else "",
-                            task_phase=task.phase_name if task is not None else None)
+    return MonitorPublisher(
+        publisher_settings(cfg),
+        stop_event,
+        task_name=task.name if task is not None else "",
+        task_phase=task.phase_name if task is not None else None,
+    )
 
 
-def monitoring_context(cfg: Config, stop_event: threading.Event, task: Task[Any] | None = None
-                       ) -> AbstractContextManager[MonitorPublisher | None]:
+def monitoring_context(
+    cfg: Config, stop_event: threading.Event, task: Task[Any] | None = None
+) -> AbstractContextManager[MonitorPublisher | None]:
     """The open-able publisher when ``monitoring.enabled``, else a context yielding None."""
     return monitoring_publisher(cfg, stop_event, task) if cfg.monitoring.enabled else nullcontext(None)

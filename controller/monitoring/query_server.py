@@ -46,14 +46,21 @@ class QueryLimits:
 
     def __post_init__(self) -> None:
         if self.capacity < 1 or self.burst < 1 or not self.rate_hz > 0.0 or not self.log_every_s > 0.0:
-            raise ValueError(f"query limits {self}: capacity and burst must be >= 1, rate_hz and log_every_s > 0")
+            raise ValueError(
+                f"query limits {self}: capacity and burst must be >= 1, rate_hz and log_every_s > 0"
+            )
 
 
 class TokenBucket:
     """``burst`` tokens, refilled at ``rate_hz``; ``wait`` sleeps until one is there and takes it."""
 
-    def __init__(self, rate_hz: float, burst: int, clock: Callable[[], float] = time.monotonic,
-                 sleep: Callable[[float], None] = time.sleep) -> None:
+    def __init__(
+        self,
+        rate_hz: float,
+        burst: int,
+        clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
+    ) -> None:
         self.rate_hz = rate_hz
         self.burst = float(burst)
         self.clock = clock
@@ -80,8 +87,9 @@ QueryHandler = Callable[[zenoh.Query], bool]  # answers one query; False: it was
 class QueryServer:
     """A queryable on ``key`` served by one rate-limited thread; ``close`` undeclares and joins it."""
 
-    def __init__(self, session: zenoh.Session, key: str, handle: QueryHandler, limits: QueryLimits,
-                 name: str) -> None:
+    def __init__(
+        self, session: zenoh.Session, key: str, handle: QueryHandler, limits: QueryLimits, name: str
+    ) -> None:
         self.key = key
         self.limits = limits
         self.answered = 0  # written by the server's thread only
@@ -112,8 +120,12 @@ class QueryServer:
             self.refused += not ok
             now = time.monotonic()
             if self.refused > refused_logged and now >= next_log_s:
-                log.info("monitoring: %d query(ies) on %s refused so far (answered %d)", self.refused, self.key,
-                         self.answered)
+                log.info(
+                    "monitoring: %d query(ies) on %s refused so far (answered %d)",
+                    self.refused,
+                    self.key,
+                    self.answered,
+                )
                 refused_logged, next_log_s = self.refused, now + self.limits.log_every_s
 
     def close(self, timeout_s: float = 5.0) -> None:

@@ -38,7 +38,9 @@ class RobotIdTakenError(RefusedError):
 
 def default_robot_id(host: str | None = None) -> str:
     """``<host>-<4 hex digits>``; the host name reduced to the characters a key chunk allows."""
-    name = _NOT_IN_AN_ID.sub("-", (host if host is not None else socket.gethostname()).split(".")[0]).strip("-")
+    name = _NOT_IN_AN_ID.sub("-", (host if host is not None else socket.gethostname()).split(".")[0]).strip(
+        "-"
+    )
     return f"{name or 'host'}-{secrets.token_hex(2)}"
 
 
@@ -46,8 +48,9 @@ def resolve_robot_id(configured: str) -> str:
     return configured or default_robot_id()
 
 
-def live_robot_ids(session: zenoh.Session, key_prefix: str, robot_id: str = "*",
-                   timeout_s: float = ALIVE_TIMEOUT_S) -> list[str]:
+def live_robot_ids(
+    session: zenoh.Session, key_prefix: str, robot_id: str = "*", timeout_s: float = ALIVE_TIMEOUT_S
+) -> list[str]:
     """The ids whose token ``<key_prefix>/<robot_id>/alive`` is live among the sessions reached (sorted)."""
     ids = set()
     depth = key_prefix.count("/") + 1
@@ -57,8 +60,9 @@ def live_robot_ids(session: zenoh.Session, key_prefix: str, robot_id: str = "*",
     return sorted(ids)
 
 
-def claim_robot_id(session: zenoh.Session, key_prefix: str, robot_id: str, drawn: bool,
-                   timeout_s: float = ALIVE_TIMEOUT_S) -> str:
+def claim_robot_id(
+    session: zenoh.Session, key_prefix: str, robot_id: str, drawn: bool, timeout_s: float = ALIVE_TIMEOUT_S
+) -> str:
     """``robot_id`` if no session reached holds it; a drawn id is redrawn, a configured one refused."""
     for _ in range(_DRAWS):
         if not live_robot_ids(session, key_prefix, robot_id, timeout_s):
@@ -67,6 +71,9 @@ def claim_robot_id(session: zenoh.Session, key_prefix: str, robot_id: str, drawn
             raise RobotIdTakenError(
                 f"monitoring.robot_id = {robot_id!r} is taken: a live controller holds {key_prefix}/{robot_id}/alive "
                 "(`cheope list` shows the controllers reachable); choose another id "
-                "(--set monitoring.robot_id=...) or leave it empty for a unique one")
+                "(--set monitoring.robot_id=...) or leave it empty for a unique one"
+            )
         robot_id = default_robot_id()
-    raise RobotIdTakenError(f"{_DRAWS} drawn robot ids under {key_prefix}/ were all taken; set monitoring.robot_id")
+    raise RobotIdTakenError(
+        f"{_DRAWS} drawn robot ids under {key_prefix}/ were all taken; set monitoring.robot_id"
+    )

@@ -21,8 +21,12 @@ from controller.monitoring.zenoh_session import SessionSettings, open_session
 READY = "READY"
 
 
-def run_router(listen: tuple[str, ...], config_file: str = "", say: Callable[[str], None] = print,
-               stop: threading.Event | None = None) -> int:
+def run_router(
+    listen: tuple[str, ...],
+    config_file: str = "",
+    say: Callable[[str], None] = print,
+    stop: threading.Event | None = None,
+) -> int:
     """Run until SIGINT or SIGTERM (or ``stop``); prints ``READY <endpoints>`` once it listens."""
     if stop is None:
         stop = threading.Event()

@@ -59,8 +59,10 @@ class MonitorKeys:
     def for_robot(cls, key_prefix: str, robot_id: str, allow_wildcard: bool = False) -> MonitorKeys:
         chunks = key_prefix.split("/")
         if not key_prefix or not all(_CHUNK.match(c) for c in chunks):
-            raise ConfigError(f"monitoring.key_prefix = {key_prefix!r}: use chunks of letters, digits, "
-                              "'-', '_', '.' separated by '/'")
+            raise ConfigError(
+                f"monitoring.key_prefix = {key_prefix!r}: use chunks of letters, digits, "
+                "'-', '_', '.' separated by '/'"
+            )
         if not (_CHUNK.match(robot_id) or (allow_wildcard and robot_id == "*")):
             raise ConfigError(f"monitoring.robot_id = {robot_id!r}: use letters, digits, '-', '_', '.'")
         return cls(f"{key_prefix}/{robot_id}")
@@ -97,12 +99,15 @@ def split_endpoints(text: str, key: str) -> tuple[str, ...]:
 def check_endpoint(endpoint: str, key: str) -> None:
     m = _ENDPOINT.match(endpoint)
     if m is None:
-        raise ConfigError(f"{key} = {endpoint!r}: expected a Zenoh endpoint PROTOCOL/ADDRESS, "
-                          "e.g. tcp/127.0.0.1:7448")
+        raise ConfigError(
+            f"{key} = {endpoint!r}: expected a Zenoh endpoint PROTOCOL/ADDRESS, e.g. tcp/127.0.0.1:7448"
+        )
     if m["proto"] in _IP_PROTOCOLS:
         host, sep, port = m["addr"].rpartition(":")
         if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
-            raise ConfigError(f"{key} = {endpoint!r}: expected {m['proto']}/HOST:PORT with a port in 0..65535")
+            raise ConfigError(
+                f"{key} = {endpoint!r}: expected {m['proto']}/HOST:PORT with a port in 0..65535"
+            )
 
 
 def is_loopback(endpoint: str) -> bool:
@@ -159,8 +164,10 @@ def build_zenoh_config(settings: SessionSettings) -> zenoh.Config:
             conf.insert_json5(key, "false")
     if _get(conf, "connect/retry") is None:
         lo, hi = settings.connect_retry_ms
-        conf.insert_json5("connect/retry", json.dumps(
-            {"period_init_ms": lo, "period_max_ms": hi, "period_increase_factor": 2}))
+        conf.insert_json5(
+            "connect/retry",
+            json.dumps({"period_init_ms": lo, "period_max_ms": hi, "period_increase_factor": 2}),
+        )
     if settings.mode == "peer" and _get(conf, "connect/timeout_ms") is None:
         conf.insert_json5("connect/timeout_ms", json.dumps(settings.connect_timeout_ms))
     if settings.mode == "peer" and _get(conf, "connect/exit_on_failure") is None:
@@ -202,23 +209,34 @@ def open_session(settings: SessionSettings) -> tuple[zenoh.Session, tuple[str, .
             if "Address already in use" in str(err):
                 continue
             raise MonitoringConnectionError(_describe(settings, err)) from err
-        log.warning("monitoring: %s is in use; listening on %s instead", ", ".join(settings.listen),
-                    ", ".join(listen))
+        log.warning(
+            "monitoring: %s is in use; listening on %s instead", ", ".join(settings.listen), ", ".join(listen)
+        )
         return session, listen
     raise MonitoringConnectionError(f"cannot listen on {', '.join(settings.listen)}: address in use")
 
 
 def _describe(settings: SessionSettings, err: Exception) -> str:
     first = str(err).split(" at /", 1)[0]  # zenoh appends Rust source locations
-    where = ", ".join(f"{k} {', '.join(v)}" for k, v in (("listen", settings.listen), ("connect", settings.connect))
-                      if v) or "no endpoints"
-    hint = " (is the controller running, and listening there? see monitoring.listen)" \
-        if settings.mode == "client" and "connect" in first.lower() else ""
+    where = (
+        ", ".join(
+            f"{k} {', '.join(v)}"
+            for k, v in (("listen", settings.listen), ("connect", settings.connect))
+            if v
+        )
+        or "no endpoints"
+    )
+    hint = (
+        " (is the controller running, and listening there? see monitoring.listen)"
+        if settings.mode == "client" and "connect" in first.lower()
+        else ""
+    )
     return f"cannot open a Zenoh session ({settings.mode}; {where}): {first.strip().rstrip('!')}{hint}"
 
 
-def client_settings(connect: tuple[str, ...] = (), config_file: str = "", timeout_s: float = 2.0
-                    ) -> SessionSettings:
+def client_settings(
+    connect: tuple[str, ...] = (), config_file: str = "", timeout_s: float = 2.0
+) -> SessionSettings:
     """Settings of the one-shot tools (``cheope list``, ``status``, ``stop``, ``command``): a peer that
     listens nowhere and connects to every endpoint given (controllers, routers), not only the first as
     a Zenoh client would; the open waits up to ``timeout_s`` for all of them, then goes on with those
@@ -226,8 +244,13 @@ def client_settings(connect: tuple[str, ...] = (), config_file: str = "", timeou
     endpoints = connect or (DEFAULT_CONNECT,)
     # one endpoint: a client (a Zenoh router answers a peer's liveliness queries only for its clients,
     # measured with eclipse-zenoh 1.10); several: a peer, which connects to each of them
-    return SessionSettings(mode="client" if len(endpoints) == 1 else "peer", listen=(), connect=endpoints,
-                           config_file=config_file, connect_timeout_ms=int(timeout_s * 1000))
+    return SessionSettings(
+        mode="client" if len(endpoints) == 1 else "peer",
+        listen=(),
+        connect=endpoints,
+        config_file=config_file,
+        connect_timeout_ms=int(timeout_s * 1000),
+    )
 
 
 def connected(session: zenoh.Session) -> int:
@@ -248,15 +271,22 @@ def open_tool_session(settings: SessionSettings, poll_s: float = 0.02) -> zenoh.
         time.sleep(poll_s)  # nothing signals a new connection in zenoh's Python API
     if settings.connect and connected(session) == 0:
         session.close()
-        raise MonitoringConnectionError(f"nothing answers at {', '.join(settings.connect)}: no controller or router "
-                                        "listens there (see monitoring.listen, --zenoh-connect)")
+        raise MonitoringConnectionError(
+            f"nothing answers at {', '.join(settings.connect)}: no controller or router "
+            "listens there (see monitoring.listen, --zenoh-connect)"
+        )
     return session
 
 
 def monitor_settings(connect: tuple[str, ...] = (), config_file: str = "") -> SessionSettings:
     """Settings of ``cheope monitor``: a peer that listens nowhere and keeps retrying its connect endpoints."""
-    return SessionSettings(mode="peer", listen=(), connect=connect or (DEFAULT_CONNECT,), config_file=config_file,
-                           connect_retry_ms=(200, 1000))
+    return SessionSettings(
+        mode="peer",
+        listen=(),
+        connect=connect or (DEFAULT_CONNECT,),
+        config_file=config_file,
+        connect_retry_ms=(200, 1000),
+    )
 
 
 class ZenohEntity(Protocol):

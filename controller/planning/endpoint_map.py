@@ -98,15 +98,22 @@ def _so3_exp_single(w: Array) -> Array:
     else:
         th = math.sqrt(th2)
         a, b = math.sin(th) / th, (1.0 - math.cos(th)) / th2
-    return np.array([
-        [1.0 - b * (y * y + z * z), -a * z + b * x * y, a * y + b * x * z],
-        [a * z + b * x * y, 1.0 - b * (x * x + z * z), -a * x + b * y * z],
-        [-a * y + b * x * z, a * x + b * y * z, 1.0 - b * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1.0 - b * (y * y + z * z), -a * z + b * x * y, a * y + b * x * z],
+            [a * z + b * x * y, 1.0 - b * (x * x + z * z), -a * x + b * y * z],
+            [-a * y + b * x * z, a * x + b * y * z, 1.0 - b * (x * x + y * y)],
+        ]
+    )
 
 
 def integrate_motion(
-    geometry: NspuGeometry, start: Pose, lambdas: Array, horizon_s: float, harmonics: int, n_steps: int,
+    geometry: NspuGeometry,
+    start: Pose,
+    lambdas: Array,
+    horizon_s: float,
+    harmonics: int,
+    n_steps: int,
     keep_stages: bool = False,
 ) -> tuple[Array, Array, Array, Array | None, Array | None]:
     """RKMK4 steps of system (7) for one coefficient vector (as `controller.robots.nspu.rkmk4_step`).
@@ -200,7 +207,9 @@ def integrate_motion_with_stages(
     return Motion(t, ps, Rs, sp, sr)
 
 
-def sensitivity(geometry: NspuGeometry, motion: Motion, lambdas: Array, horizon_s: float, harmonics: int) -> Array:
+def sensitivity(
+    geometry: NspuGeometry, motion: Motion, lambdas: Array, horizon_s: float, harmonics: int
+) -> Array:
     """d_pose (N+1, 6, n) of a `Motion` (passes 2 and 3 of `integrate_with_sensitivity`)."""
     n = np.asarray(lambdas).size
     n_steps = motion.t_s.size - 1
@@ -213,8 +222,9 @@ def sensitivity(geometry: NspuGeometry, motion: Motion, lambdas: Array, horizon_
     # pass 2: the variational system's matrices at every stage (seed 004 eq. (11))
     stage_v = np.stack([v_nodes[:-1], v_half, v_half, v_nodes[1:]], axis=1)  # (N, 4, 3)
     stage_P = np.stack([P_nodes[:-1], P_half, P_half, P_nodes[1:]], axis=1)  # (N, 4, 3, n)
-    F, A_top = _linearise(geometry, motion.stage_p.reshape(-1, 3), motion.stage_R.reshape(-1, 3, 3),
-                          stage_v.reshape(-1, 3))
+    F, A_top = _linearise(
+        geometry, motion.stage_p.reshape(-1, 3), motion.stage_R.reshape(-1, 3, 3), stage_v.reshape(-1, 3)
+    )
     A = np.zeros((n_steps, 4, 6, 6))
     A[:, :, :3, :] = A_top.reshape(n_steps, 4, 3, 6)  # A11 | A12
     A[:, :, 3:, 3:] = -hat(stage_v)  # -[v]
@@ -248,7 +258,9 @@ def integrate_with_sensitivity(
     Raises np.linalg.LinAlgError where S is singular; non-finite values mean the same.
     """
     motion = integrate_motion_with_stages(geometry, start, lambdas, horizon_s, harmonics, n_steps)
-    return Sensitivity(motion.t_s, motion.p_m, motion.R, sensitivity(geometry, motion, lambdas, horizon_s, harmonics))
+    return Sensitivity(
+        motion.t_s, motion.p_m, motion.R, sensitivity(geometry, motion, lambdas, horizon_s, harmonics)
+    )
 
 
 def so3_log_left_jacobian_inverse(r: Array) -> Array:

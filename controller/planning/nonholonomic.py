@@ -143,7 +143,9 @@ class PlannerConfig:
     repair_error_bound: float = 100.0  # while repairing, error may grow up to this x tolerance
     max_repair_iterations: int = 10  # null-space steps away from a singularity before the attempt fails
     initial_guesses: int = 8  # initial controls tried in turn: the paper's, then its sign variants
-    continuation: bool = True  # after a stalled or exhausted direct iteration, the homotopy from an easier goal
+    continuation: bool = (
+        True  # after a stalled or exhausted direct iteration, the homotopy from an easier goal
+    )
     continuation_first_step: float = 0.25  # first step of the homotopy parameter in (0, 1]
     continuation_min_step: float = 1.0 / 64  # give up the homotopy below this step
     continuation_iterations: int = 8  # Newton steps per intermediate goal
@@ -295,7 +297,9 @@ def rollout(
     lam = np.asarray(lambdas, dtype=float)
     single = lam.ndim == 1
     if single:  # one trajectory: the fast single-pose stepping of endpoint_map (same scheme)
-        t1, p1, r1, _, _ = integrate_motion(geometry, start, lam, config.horizon_s, config.harmonics, config.n_steps)
+        t1, p1, r1, _, _ = integrate_motion(
+            geometry, start, lam, config.horizon_s, config.harmonics, config.n_steps
+        )
         return t1, p1, r1
     lam2 = lam
     nb = lam2.shape[0]
@@ -348,8 +352,14 @@ class _Eval:
     def norm(self) -> float:
         return float(np.linalg.norm(self.e))
 
-    def differentiate(self, geometry: NspuGeometry, goal: Pose, config: PlannerConfig, scale: float,
-                      signs: tuple[float, float]) -> _Eval:
+    def differentiate(
+        self,
+        geometry: NspuGeometry,
+        goal: Pose,
+        config: PlannerConfig,
+        scale: float,
+        signs: tuple[float, float],
+    ) -> _Eval:
         """Fill jac (6, n) and grad_penalty (n,) from the variational equations; returns self."""
         if self.jac.shape[1] == self.lam.size:
             return self
@@ -359,7 +369,9 @@ class _Eval:
         _, self.jac = _error_and_jacobian(sen, goal, scale)
         self.jac = np.nan_to_num(self.jac)
         if config.avoid_singularities and self.penalty > 0.0:
-            self.grad_penalty = _penalty_gradient(geometry, sen.p_m, sen.R, d_pose, self.det_s, self.tm, signs, config)
+            self.grad_penalty = _penalty_gradient(
+                geometry, sen.p_m, sen.R, d_pose, self.det_s, self.tm, signs, config
+            )
         else:
             self.grad_penalty = np.zeros(self.lam.size)
         return self
@@ -378,7 +390,9 @@ def _evaluate(
     """End-point error and singularity measures of one motion; None if S turns singular on the way."""
     try:
         with np.errstate(all="ignore"):
-            motion = integrate_motion_with_stages(geometry, start, lam, config.horizon_s, config.harmonics, steps)
+            motion = integrate_motion_with_stages(
+                geometry, start, lam, config.horizon_s, config.harmonics, steps
+            )
     except (np.linalg.LinAlgError, SingularityError):
         return None
     if not (np.all(np.isfinite(motion.p_m)) and np.all(np.isfinite(motion.R))):
@@ -388,8 +402,15 @@ def _evaluate(
         det_s, tm = singularity_measures(geometry, motion.p_m, motion.R)
     feasible = _feasible(det_s, tm, signs, config)
     pen = float(_penalty(det_s, tm, signs[0], signs[1], config)) if config.avoid_singularities else 0.0
-    return _Eval(lam=lam, motion=motion, e=e, det_s=det_s, tm=tm, penalty=pen if np.isfinite(pen) else float("inf"),
-                 feasible=feasible)
+    return _Eval(
+        lam=lam,
+        motion=motion,
+        e=e,
+        det_s=det_s,
+        tm=tm,
+        penalty=pen if np.isfinite(pen) else float("inf"),
+        feasible=feasible,
+    )
 
 
 def _error_and_jacobian(sen: Sensitivity, goal: Pose, scale: float) -> tuple[Array, Array]:
@@ -400,7 +421,12 @@ def _error_and_jacobian(sen: Sensitivity, goal: Pose, scale: float) -> tuple[Arr
 
 
 def error_jacobian(
-    geometry: NspuGeometry, start: Pose, goal: Pose, lambdas: Array, config: PlannerConfig, steps: int | None = None
+    geometry: NspuGeometry,
+    start: Pose,
+    goal: Pose,
+    lambdas: Array,
+    config: PlannerConfig,
+    steps: int | None = None,
 ) -> tuple[Array, Array]:
     """End-point error e (6,) and its Jacobian d e / d Lambda (6, n) (seed 004 eq. (12)-(13)).
 
@@ -408,14 +434,26 @@ def error_jacobian(
     the position rows in the error's position unit (config.position_scale_m or the geometry's).
     """
     scale = geometry.length_unit_m if config.position_scale_m is None else config.position_scale_m
-    sen = integrate_with_sensitivity(geometry, start, np.asarray(lambdas, dtype=float), config.horizon_s,
-                                     config.harmonics, config.plan_steps if steps is None else steps)
+    sen = integrate_with_sensitivity(
+        geometry,
+        start,
+        np.asarray(lambdas, dtype=float),
+        config.horizon_s,
+        config.harmonics,
+        config.plan_steps if steps is None else steps,
+    )
     return _error_and_jacobian(sen, goal, scale)
 
 
 def _penalty_gradient(
-    geometry: NspuGeometry, p: Array, R: Array, d_pose: Array, det_s: Array, tm: Array,
-    signs: tuple[float, float], config: PlannerConfig,
+    geometry: NspuGeometry,
+    p: Array,
+    R: Array,
+    d_pose: Array,
+    det_s: Array,
+    tm: Array,
+    signs: tuple[float, float],
+    config: PlannerConfig,
 ) -> Array:
     """Gradient of `_penalty` of a trajectory with respect to Lambda.
 
@@ -522,16 +560,23 @@ def plan_motion(
     config.restart_seed (deterministic).  `iterations` counts the iterations of all attempts.  Returns a PlanResult; check `.ok` / `.status` or call
     `.raise_for_status()`.
     """
-    lam = paper_initial_lambdas(config.harmonics) if initial_lambdas is None else np.array(initial_lambdas, float)
+    lam = (
+        paper_initial_lambdas(config.harmonics)
+        if initial_lambdas is None
+        else np.array(initial_lambdas, float)
+    )
     if lam.shape != (config.n_params,) or not np.all(np.isfinite(lam)):
-        raise PlanningError(f"initial_lambdas must be finite with shape ({config.n_params},), got {lam.shape}")
+        raise PlanningError(
+            f"initial_lambdas must be finite with shape ({config.n_params},), got {lam.shape}"
+        )
     scale = geometry.length_unit_m if config.position_scale_m is None else config.position_scale_m
     if not scale > 0:
         raise PlanningError(f"position_scale_m must be positive, got {scale}")
 
     def fail(status: PlanStatus, message: str) -> PlanResult:
-        return _build_result(geometry, start, goal, config, lam, status, message, [float("nan")], 0, None,
-                             config.plan_steps)
+        return _build_result(
+            geometry, start, goal, config, lam, status, message, [float("nan")], 0, None, config.plan_steps
+        )
 
     for label, pose in (("start", start), ("goal", goal)):
         msg = check_pose(geometry, pose, config, label)
@@ -554,12 +599,18 @@ def plan_motion(
     signs = (float(np.sign(det_s0)), float(np.sign(tm0)))
     rng = np.random.default_rng(config.restart_seed)
     attempts: list[str] = []
-    guesses = [lam] if initial_lambdas is not None else _initial_guesses(config.harmonics, config.initial_guesses)
+    guesses = (
+        [lam] if initial_lambdas is not None else _initial_guesses(config.harmonics, config.initial_guesses)
+    )
     iterations = 0
     res = fail(PlanStatus.MAX_ITERATIONS, "no attempt")
     for k, guess in enumerate(guesses):
         res = _plan_once(geometry, start, goal, config, guess, scale, signs)
-        if not res.ok and config.continuation and res.status in (PlanStatus.STALLED, PlanStatus.MAX_ITERATIONS):
+        if (
+            not res.ok
+            and config.continuation
+            and res.status in (PlanStatus.STALLED, PlanStatus.MAX_ITERATIONS)
+        ):
             attempts.append(f"guess {k} direct: {res.status.value}: {res.message}")
             res = _plan_by_continuation(geometry, start, goal, config, guess, scale, signs, res.iterations)
         iterations += res.iterations
@@ -575,7 +626,9 @@ def plan_motion(
         if not res.ok:
             attempts.append(f"restart {k + 1}: {res.status.value}: {res.message}")
     if attempts:
-        res = dataclasses.replace(res, message=res.message + f" | {len(attempts)} earlier: " + "; ".join(attempts))
+        res = dataclasses.replace(
+            res, message=res.message + f" | {len(attempts)} earlier: " + "; ".join(attempts)
+        )
     return dataclasses.replace(res, iterations=iterations)
 
 
@@ -584,9 +637,24 @@ def _initial_guesses(harmonics: int, count: int) -> list[Array]:
     coefficients flipped (the order: flips that most often gave a plan clear of det M = 0 on
     `cheope plan-bench` pairs first).  Different initial controls converge to different motions:
     where the first crosses det M = 0 a variant often stays on the start's side."""
-    order = [(1, 1, 1, 1), (-1, -1, 1, 1), (1, -1, 1, -1), (-1, 1, 1, 1), (1, -1, -1, -1), (-1, 1, -1, 1),
-             (-1, -1, -1, 1), (1, 1, -1, -1), (1, 1, 1, -1), (-1, -1, 1, -1), (1, -1, 1, 1), (-1, 1, 1, -1),
-             (1, 1, -1, 1), (-1, -1, -1, -1), (1, -1, -1, 1), (-1, 1, -1, -1)]
+    order = [
+        (1, 1, 1, 1),
+        (-1, -1, 1, 1),
+        (1, -1, 1, -1),
+        (-1, 1, 1, 1),
+        (1, -1, -1, -1),
+        (-1, 1, -1, 1),
+        (-1, -1, -1, 1),
+        (1, 1, -1, -1),
+        (1, 1, 1, -1),
+        (-1, -1, 1, -1),
+        (1, -1, 1, 1),
+        (-1, 1, 1, -1),
+        (1, 1, -1, 1),
+        (-1, -1, -1, -1),
+        (1, -1, -1, 1),
+        (-1, 1, -1, -1),
+    ]
     base = paper_initial_lambdas(harmonics).reshape(3, 2 * harmonics + 1)
     out = []
     for s11, s21, s32, s30 in order[: max(1, count)]:
@@ -602,8 +670,14 @@ def _initial_guesses(harmonics: int, count: int) -> list[Array]:
 
 
 def _newton(
-    geometry: NspuGeometry, start: Pose, goal: Pose, lam: Array, config: PlannerConfig, scale: float,
-    tolerance: float, max_iterations: int,
+    geometry: NspuGeometry,
+    start: Pose,
+    goal: Pose,
+    lam: Array,
+    config: PlannerConfig,
+    scale: float,
+    tolerance: float,
+    max_iterations: int,
 ) -> tuple[Array, int, bool]:
     """Damped Newton iteration of eq. (17) on the end error alone (line search, step cap), for the
     intermediate goals of the continuation: (coefficients, iterations, error below `tolerance`)."""
@@ -620,7 +694,9 @@ def _newton(
             step *= config.max_step_norm / norm
         g = config.gamma
         for _ in range(config.max_halvings + 1):
-            trial = _evaluate(geometry, start, goal, lam + g * step, plain, scale, (1.0, 1.0), config.plan_steps)
+            trial = _evaluate(
+                geometry, start, goal, lam + g * step, plain, scale, (1.0, 1.0), config.plan_steps
+            )
             if trial is not None and trial.norm < ev.norm:
                 lam, ev = lam + g * step, trial
                 break
@@ -646,7 +722,9 @@ def _plan_by_continuation(
     of the homotopy that fails is halved, one that succeeds grows.  The last stage is the full
     iteration (`_plan_once`: singularity repair, verification)."""
     try:
-        _, ps, Rs, _, _ = integrate_motion(geometry, start, lam, config.horizon_s, config.harmonics, config.plan_steps)
+        _, ps, Rs, _, _ = integrate_motion(
+            geometry, start, lam, config.horizon_s, config.harmonics, config.plan_steps
+        )
     except np.linalg.LinAlgError:
         return _plan_once(geometry, start, goal, config, lam, scale, signs)
     p_from, r_from = ps[-1], Rs[-1]
@@ -658,8 +736,9 @@ def _plan_by_continuation(
             break
         sub_goal = Pose(p_from + s_try * (goal.p_m - p_from), so3_exp(s_try * turn) @ r_from)
         budget = max(1, min(config.continuation_iterations, config.max_iterations + iterations_so_far - used))
-        lam_try, its, ok = _newton(geometry, start, sub_goal, lam, config, scale,
-                                   config.continuation_tolerance, budget)
+        lam_try, its, ok = _newton(
+            geometry, start, sub_goal, lam, config, scale, config.continuation_tolerance, budget
+        )
         used += its
         if ok:
             lam, s, ds = lam_try, s_try, min(1.0, 1.5 * ds)
@@ -686,16 +765,27 @@ def _plan_once(
     """One run of the iteration from initial coefficients `lam`."""
     steps = config.plan_steps
 
-    def result(status: PlanStatus, message: str, lam_: Array, errs: list[float], it: int,
-               fine: tuple[Array, Array, Array] | None = None) -> PlanResult:
+    def result(
+        status: PlanStatus,
+        message: str,
+        lam_: Array,
+        errs: list[float],
+        it: int,
+        fine: tuple[Array, Array, Array] | None = None,
+    ) -> PlanResult:
         return _build_result(geometry, start, goal, config, lam_, status, message, errs, it, fine, steps)
 
     errs: list[float] = []
     it = 0
     ev = _evaluate(geometry, start, goal, lam, config, scale, signs, steps)
     if ev is None:
-        return result(PlanStatus.SINGULARITY, "initial controls: det S = 0 met while integrating system (7) "
-                      "(seed 004 eq. (7))", lam, [float("nan")], 0)
+        return result(
+            PlanStatus.SINGULARITY,
+            "initial controls: det S = 0 met while integrating system (7) (seed 004 eq. (7))",
+            lam,
+            [float("nan")],
+            0,
+        )
     errs.append(ev.norm)
     # Phase 1: Newton-type iteration of seed 004 eq. (17) on the error alone.
     # Phase 2 (avoid_singularities, when the trajectory approaches det S = 0 or det M = 0):
@@ -710,31 +800,46 @@ def _plan_once(
             fine = _fine_rollout(geometry, start, lam, config)
             if fine is not None:
                 e_fine = pose_error(fine[1][-1], fine[2][-1], goal, scale)
-                agree = float(np.linalg.norm(e_fine - ev.e)) <= config.integration_tolerance * config.tolerance
+                agree = (
+                    float(np.linalg.norm(e_fine - ev.e)) <= config.integration_tolerance * config.tolerance
+                )
                 if agree and float(np.linalg.norm(e_fine)) < config.tolerance:
                     break
             if steps >= config.n_steps:
-                return result(PlanStatus.SINGULARITY, f"error {err_norm:.3e} reached with {steps} steps but the "
-                              f"verification integration failed (det S = 0 or non-finite)", lam, errs, it)
+                return result(
+                    PlanStatus.SINGULARITY,
+                    f"error {err_norm:.3e} reached with {steps} steps but the "
+                    f"verification integration failed (det S = 0 or non-finite)",
+                    lam,
+                    errs,
+                    it,
+                )
             steps = min(2 * steps, config.n_steps)  # error control: refine and go on iterating
             ev_ref = _evaluate(geometry, start, goal, lam, config, scale, signs, steps)
             if ev_ref is None:
-                return result(PlanStatus.SINGULARITY, f"iteration {it}: det S = 0 met with {steps} steps",
-                              lam, errs, it)
+                return result(
+                    PlanStatus.SINGULARITY, f"iteration {it}: det S = 0 met with {steps} steps", lam, errs, it
+                )
             ev = ev_ref
             errs[-1] = ev.norm  # the same iteration, integrated more accurately
             continue
         if done and phase == 1:
             phase, repair_start = 2, it
         if phase == 2 and it - repair_start >= config.max_repair_iterations:
-            k = int(np.argmin(signs[1] * ev.tm)) if config.check_type2 else int(np.argmin(signs[0] * ev.det_s))
+            k = (
+                int(np.argmin(signs[1] * ev.tm))
+                if config.check_type2
+                else int(np.argmin(signs[0] * ev.det_s))
+            )
             return result(
                 PlanStatus.SINGULARITY,
                 f"the controls reached the goal (E < {config.tolerance}) on a motion too close to a singularity, "
                 f"and {config.max_repair_iterations} null-space steps did not give a clear one: now E = {err_norm:.3e}, "
                 f"closest normalised det M = {ev.tm[k]:.3e}, det S = {ev.det_s[k]:.3e} at t = {ev.motion.t_s[k]:.3f} s "
                 f"(limits {config.min_type2_measure}, {config.min_abs_det_s})",
-                lam, errs, it,
+                lam,
+                errs,
+                it,
             )
         if it >= config.max_iterations:
             if err_norm < config.tolerance:
@@ -742,12 +847,16 @@ def _plan_once(
                     PlanStatus.SINGULARITY,
                     f"error {err_norm:.3e} reached but the trajectory still approaches a singularity "
                     f"(penalty {ev.penalty:.3e}) after {it} iterations",
-                    lam, errs, it,
+                    lam,
+                    errs,
+                    it,
                 )
             return result(
                 PlanStatus.MAX_ITERATIONS,
                 f"error {err_norm:.3e} >= tolerance {config.tolerance} after {it} iterations",
-                lam, errs, it,
+                lam,
+                errs,
+                it,
             )
         ev.differentiate(geometry, goal, config, scale, signs)
         pinv = np.linalg.pinv(ev.jac)
@@ -760,7 +869,9 @@ def _plan_once(
                 return result(
                     PlanStatus.SINGULARITY,
                     f"singularity penalty {ev.penalty:.3e} cannot be reduced in the null space (iteration {it})",
-                    lam, errs, it,
+                    lam,
+                    errs,
+                    it,
                 )
             step = newton + ns * (ev.penalty / nn2)  # Gauss-Newton length along the projected gradient
         else:
@@ -780,7 +891,10 @@ def _plan_once(
                 if phase == 1:
                     ok = trial.norm < err_norm
                 elif repairing:
-                    ok = trial.penalty < ev.penalty and trial.norm < config.repair_error_bound * config.tolerance
+                    ok = (
+                        trial.penalty < ev.penalty
+                        and trial.norm < config.repair_error_bound * config.tolerance
+                    )
                 else:
                     ok = trial.norm < err_norm and (trial.feasible or trial.penalty <= ev.penalty)
                 if ok:
@@ -789,20 +903,33 @@ def _plan_once(
             g *= 0.5
         if accepted is None:
             if not config.line_search:
-                return result(PlanStatus.SINGULARITY, f"iteration {it + 1}: det S = 0 met while integrating "
-                              "system (7)", cand, errs, it + 1)
+                return result(
+                    PlanStatus.SINGULARITY,
+                    f"iteration {it + 1}: det S = 0 met while integrating system (7)",
+                    cand,
+                    errs,
+                    it + 1,
+                )
             status = PlanStatus.SINGULARITY if phase == 2 else PlanStatus.STALLED
             return result(
                 status,
                 f"no step decreased the {'singularity penalty' if repairing else 'error'} (error {err_norm:.3e}, "
                 f"penalty {ev.penalty:.3e}; gamma down to {g:.2e}) at iteration {it}",
-                lam, errs, it,
+                lam,
+                errs,
+                it,
             )
         lam, ev = cand, accepted
         it += 1
         errs.append(ev.norm)
-    return result(PlanStatus.CONVERGED, f"error {ev.norm:.3e} < {config.tolerance} after {it} iterations", lam,
-                  errs, it, fine)
+    return result(
+        PlanStatus.CONVERGED,
+        f"error {ev.norm:.3e} < {config.tolerance} after {it} iterations",
+        lam,
+        errs,
+        it,
+        fine,
+    )
 
 
 def _fine_rollout(
@@ -851,9 +978,16 @@ def _build_result(
         ps, Rs, legs, rates = nan3, np.full((n, 3, 3), np.nan), nan3, nan3
         det_s, tm = np.full(n, np.nan), np.full(n, np.nan)
         if status is PlanStatus.CONVERGED:
-            status, message = PlanStatus.SINGULARITY, "final trajectory: det S = 0 met while integrating system (7)"
+            status, message = (
+                PlanStatus.SINGULARITY,
+                "final trajectory: det S = 0 met while integrating system (7)",
+            )
     if status is PlanStatus.CONVERGED:
-        bad = ~np.isfinite(det_s) | (np.sign(det_s) != np.sign(det_s[0])) | (np.abs(det_s) < config.min_abs_det_s)
+        bad = (
+            ~np.isfinite(det_s)
+            | (np.sign(det_s) != np.sign(det_s[0]))
+            | (np.abs(det_s) < config.min_abs_det_s)
+        )
         if config.check_type2:
             bad |= (np.sign(tm) != np.sign(tm[0])) | (np.abs(tm) < config.min_type2_measure)
         if np.any(bad) or not np.all(np.isfinite(ps)):

@@ -27,6 +27,7 @@ if TYPE_CHECKING:  # the models load on demand, when a robot is built: the confi
 
 # -- Cheope (seed 001) --------------------------------------------------------------------------
 
+
 class CheopeSection(Section, frozen=True):
     rod_length_m: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.50
     axis_tilt_deg: Annotated[float, rng(1.0, 89.0)] = 60.0
@@ -116,8 +117,10 @@ def _check_uru(u: UruSection) -> None:
     if any(k == 0 for k in u.gear_ratios):
         raise ConfigError(f"robot.uru.gear_ratios = {list(u.gear_ratios)}: must be non-zero")
     if u.motor_min_rad >= u.motor_max_rad:
-        raise ConfigError(f"robot.uru.motor_min_rad = {u.motor_min_rad} must be < robot.uru.motor_max_rad = "
-                          f"{u.motor_max_rad}")
+        raise ConfigError(
+            f"robot.uru.motor_min_rad = {u.motor_min_rad} must be < robot.uru.motor_max_rad = "
+            f"{u.motor_max_rad}"
+        )
 
 
 def uru_from_config(cfg: Config) -> UruRobot:
@@ -126,16 +129,28 @@ def uru_from_config(cfg: Config) -> UruRobot:
 
     u: UruSection = cfg.robot.model("uru")
     geometry = UruGeometry(
-        base_offset_m=u.base_offset_m, platform_offset_m=u.platform_offset_m,
-        proximal_lengths_m=u.proximal_lengths_m, distal_lengths_m=u.distal_lengths_m, gear_ratios=u.gear_ratios,
-        motor_offsets_rad=u.motor_offsets_rad, knee_sign=u.knee_sign, home_position_m=u.home_position_m,
+        base_offset_m=u.base_offset_m,
+        platform_offset_m=u.platform_offset_m,
+        proximal_lengths_m=u.proximal_lengths_m,
+        distal_lengths_m=u.distal_lengths_m,
+        gear_ratios=u.gear_ratios,
+        motor_offsets_rad=u.motor_offsets_rad,
+        knee_sign=u.knee_sign,
+        home_position_m=u.home_position_m,
     )
-    margins = UruPathMargins(plane_distance_m=u.min_plane_distance_m, det_v=u.min_det_v, det_s=u.min_det_s,
-                             det_a=u.min_det_a, sin_th3=u.min_sin_th3, workspace_m=u.min_workspace_margin_m)
+    margins = UruPathMargins(
+        plane_distance_m=u.min_plane_distance_m,
+        det_v=u.min_det_v,
+        det_s=u.min_det_s,
+        det_a=u.min_det_a,
+        sin_th3=u.min_sin_th3,
+        workspace_m=u.min_workspace_margin_m,
+    )
     return UruRobot(geometry, UruLimits(u.motor_min_rad, u.motor_max_rad, margins))
 
 
 # -- 3-nSPU (seeds 000, 004) --------------------------------------------------------------------
+
 
 class NspuSection(Section, frozen=True):
     """3-nSPU (seeds 000, 004): seed 000 §3.5 geometry, start and goal poses, planner, streaming."""
@@ -158,8 +173,12 @@ class NspuSection(Section, frozen=True):
     stream_steps: Annotated[int, rng(10, 1000000)] = 1000  # resolution of the streamed plan
     limit_fraction: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.5  # of the limits
     # closed-loop execution with a pose tracker ([tracker] enabled; controller/tasks/planned_legs.py)
-    correction_tolerance_m: Annotated[float, rng(0.0, 0.1, lo_open=True)] = 2.0e-4  # accepted distance to the goal
-    correction_tolerance_rad: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 1.0e-3  # accepted angle to the goal
+    correction_tolerance_m: Annotated[float, rng(0.0, 0.1, lo_open=True)] = (
+        2.0e-4  # accepted distance to the goal
+    )
+    correction_tolerance_rad: Annotated[float, rng(0.0, 1.0, lo_open=True)] = (
+        1.0e-3  # accepted angle to the goal
+    )
     max_corrections: Annotated[int, rng(0, 100)] = 3  # correcting plans after the first
     tracker_samples: Annotated[int, rng(1, 10000)] = 10  # tracker samples averaged into one measurement
     settle_s: Annotated[float, rng(0.0, 10.0)] = 0.1  # after a motion, before measuring
@@ -168,7 +187,9 @@ class NspuSection(Section, frozen=True):
 
 def _check_nspu(n: NspuSection) -> None:
     if n.leg_min_m >= n.leg_max_m:
-        raise ConfigError(f"robot.nspu.leg_min_m = {n.leg_min_m} must be < robot.nspu.leg_max_m = {n.leg_max_m}")
+        raise ConfigError(
+            f"robot.nspu.leg_min_m = {n.leg_min_m} must be < robot.nspu.leg_max_m = {n.leg_max_m}"
+        )
 
 
 def nspu_geometry_from_config(cfg: Config) -> NspuGeometry:
@@ -176,8 +197,16 @@ def nspu_geometry_from_config(cfg: Config) -> NspuGeometry:
 
     n: NspuSection = cfg.robot.model("nspu")
     g = NspuGeometry.paper_example(length_unit_m=n.length_unit_m, r3_variant=n.r3_variant)
-    return NspuGeometry(g.a_m, g.r, g.b_platform_m, g.w4_platform, leg_min_m=n.leg_min_m, leg_max_m=n.leg_max_m,
-                        length_unit_m=n.length_unit_m, name=g.name)
+    return NspuGeometry(
+        g.a_m,
+        g.r,
+        g.b_platform_m,
+        g.w4_platform,
+        leg_min_m=n.leg_min_m,
+        leg_max_m=n.leg_max_m,
+        length_unit_m=n.length_unit_m,
+        name=g.name,
+    )
 
 
 def nspu_poses_from_config(cfg: Config) -> tuple[Pose, Pose]:
@@ -187,8 +216,10 @@ def nspu_poses_from_config(cfg: Config) -> tuple[Pose, Pose]:
     from controller.robots.nspu import Pose, rpy
 
     n: NspuSection = cfg.robot.model("nspu")
-    return (Pose(np.array(n.start_position_m), rpy(*n.start_rpy_rad)),
-            Pose(np.array(n.goal_position_m), rpy(*n.goal_rpy_rad)))
+    return (
+        Pose(np.array(n.start_position_m), rpy(*n.start_rpy_rad)),
+        Pose(np.array(n.goal_position_m), rpy(*n.goal_rpy_rad)),
+    )
 
 
 def nspu_from_config(cfg: Config) -> NspuRobot:
@@ -201,23 +232,38 @@ def nspu_from_config(cfg: Config) -> NspuRobot:
 # -- the entries --------------------------------------------------------------------------------
 
 CHEOPE = RobotEntry(
-    kind="cheope", section=CheopeSection, build=cheope_from_config, unit=ActuatorUnit.METRE,
-    stroke=lambda c: (c.stroke_min_m, c.stroke_max_m), tasks=("contour", "path"),
-    config_file=CONFIG_DIR / "cheope.toml", check=_check_cheope,
+    kind="cheope",
+    section=CheopeSection,
+    build=cheope_from_config,
+    unit=ActuatorUnit.METRE,
+    stroke=lambda c: (c.stroke_min_m, c.stroke_max_m),
+    tasks=("contour", "path"),
+    config_file=CONFIG_DIR / "cheope.toml",
+    check=_check_cheope,
     sim_hook="sim_backend.plant_kinematics:cheope_kinematics",
     analyze="controller.tools.analysis.cheope_plots:analyze_cheope",
 )
 URU = RobotEntry(
-    kind="uru", section=UruSection, build=uru_from_config, unit=ActuatorUnit.RADIAN,
-    stroke=lambda u: (u.motor_min_rad, u.motor_max_rad), tasks=("path",),
-    config_file=CONFIG_DIR / "uru.toml", check=_check_uru,
+    kind="uru",
+    section=UruSection,
+    build=uru_from_config,
+    unit=ActuatorUnit.RADIAN,
+    stroke=lambda u: (u.motor_min_rad, u.motor_max_rad),
+    tasks=("path",),
+    config_file=CONFIG_DIR / "uru.toml",
+    check=_check_uru,
     sim_hook="sim_backend.plant_kinematics:uru_kinematics",
     analyze="controller.tools.analysis.robot_analysis:analyze_uru",
 )
 NSPU = RobotEntry(
-    kind="nspu", section=NspuSection, build=nspu_from_config, unit=ActuatorUnit.METRE,
-    stroke=lambda n: (n.leg_min_m, n.leg_max_m), tasks=("planned",),
-    config_file=CONFIG_DIR / "nspu.toml", check=_check_nspu,
+    kind="nspu",
+    section=NspuSection,
+    build=nspu_from_config,
+    unit=ActuatorUnit.METRE,
+    stroke=lambda n: (n.leg_min_m, n.leg_max_m),
+    tasks=("planned",),
+    config_file=CONFIG_DIR / "nspu.toml",
+    check=_check_nspu,
     sim_hook="sim_backend.plant_kinematics:nspu_kinematics",
     analyze="controller.tools.analysis.robot_analysis:analyze_nspu",
 )

@@ -67,8 +67,10 @@ class CheopeGeometry:
         st, ct = math.sin(self.axis_tilt_rad), math.cos(self.axis_tilt_rad)
         axes = np.array([[st * math.cos(az), st * math.sin(az), ct] for az in self.axis_azimuths_rad])
         plat = np.array(
-            [[self.platform_radius_m * math.cos(az), self.platform_radius_m * math.sin(az), 0.0]
-             for az in self.platform_azimuths_rad]
+            [
+                [self.platform_radius_m * math.cos(az), self.platform_radius_m * math.sin(az), 0.0]
+                for az in self.platform_azimuths_rad
+            ]
         )
         axes.setflags(write=False)
         plat.setflags(write=False)
@@ -77,8 +79,12 @@ class CheopeGeometry:
         object.__setattr__(self, "rows_axes", tuple(tuple(float(x) for x in r) for r in axes))
         object.__setattr__(self, "rows_platform", tuple(tuple(float(x) for x in r) for r in plat))
         # The neutral directions need the inverse kinematics of this very geometry.
-        q0 = _inverse(self.rows_axes, self.rows_platform, self.rod_length_m,
-                      np.asarray(self.joint_neutral_tcp_m, dtype=float))
+        q0 = _inverse(
+            self.rows_axes,
+            self.rows_platform,
+            self.rod_length_m,
+            np.asarray(self.joint_neutral_tcp_m, dtype=float),
+        )
         neutral = rod_directions_from(axes, plat, self.rod_length_m, np.asarray(self.joint_neutral_tcp_m), q0)
         neutral.setflags(write=False)
         object.__setattr__(self, "neutral_rod_directions", neutral)
@@ -123,8 +129,9 @@ def rod_directions_from(
 
 
 def rod_directions(geom: CheopeGeometry, tcp_m: np.ndarray, q_m: np.ndarray) -> np.ndarray:
-    return rod_directions_from(geom.axes, geom.platform_vectors, geom.rod_length_m,
-                               np.asarray(tcp_m, float), np.asarray(q_m, float))
+    return rod_directions_from(
+        geom.axes, geom.platform_vectors, geom.rod_length_m, np.asarray(tcp_m, float), np.asarray(q_m, float)
+    )
 
 
 def _sub(a: Vector3, b: Vector3) -> Vector3:
@@ -155,8 +162,10 @@ def direct_kinematics(geom: CheopeGeometry, q_m: np.ndarray) -> np.ndarray:
     """
     q = [float(q_m[0]), float(q_m[1]), float(q_m[2])]
     axes, plat = geom.rows_axes, geom.rows_platform
-    c = [(q[j] * axes[j][0] - plat[j][0], q[j] * axes[j][1] - plat[j][1], q[j] * axes[j][2] - plat[j][2])
-         for j in range(_AXES)]
+    c = [
+        (q[j] * axes[j][0] - plat[j][0], q[j] * axes[j][1] - plat[j][1], q[j] * axes[j][2] - plat[j][2])
+        for j in range(_AXES)
+    ]
     d12 = _sub(c[1], c[0])
     x_c2 = math.sqrt(_dot(d12, d12))
     if x_c2 < 1e-12:
@@ -212,8 +221,11 @@ def _jacobian_rows(geom: CheopeGeometry, tcp_m: Point3, q_m: Point3 | None = Non
     rows = []
     for j in range(_AXES):
         # w_j scaled by l; the scale cancels in w_j / (w_j . n_j)
-        w = (s[0] + plat[j][0] - q[j] * axes[j][0], s[1] + plat[j][1] - q[j] * axes[j][1],
-             s[2] + plat[j][2] - q[j] * axes[j][2])
+        w = (
+            s[0] + plat[j][0] - q[j] * axes[j][0],
+            s[1] + plat[j][1] - q[j] * axes[j][1],
+            s[2] + plat[j][2] - q[j] * axes[j][2],
+        )
         k = _dot(w, axes[j])
         if abs(k) < 1e-12 * geom.rod_length_m:
             raise NoSolutionError(f"inverse singularity at TCP {list(s)} m: w_{j + 1} . n_{j + 1} = 0")
@@ -235,7 +247,9 @@ class SingularityMeasures:
     structural: float
 
 
-def singularity_measures(geom: CheopeGeometry, tcp_m: np.ndarray, q_m: np.ndarray | None = None) -> SingularityMeasures:
+def singularity_measures(
+    geom: CheopeGeometry, tcp_m: np.ndarray, q_m: np.ndarray | None = None
+) -> SingularityMeasures:
     s = np.asarray(tcp_m, dtype=float)
     q = inverse_kinematics(geom, s) if q_m is None else np.asarray(q_m, float)
     w = rod_directions(geom, s, q)
@@ -304,8 +318,9 @@ class CheopeRobot:
     def jacobian(self, tcp_m: np.ndarray) -> np.ndarray:
         return jacobian(self.geometry, tcp_m)
 
-    def joint_motion(self, tcp_m: tuple[float, float, float], velocity_m_s: tuple[float, float, float]
-                     ) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    def joint_motion(
+        self, tcp_m: tuple[float, float, float], velocity_m_s: tuple[float, float, float]
+    ) -> tuple[tuple[float, ...], tuple[float, ...]]:
         """(q, q_dot = J v) at ``tcp_m`` in plain floats: a task's reference every cycle."""
         g = self.geometry
         q = _inverse_floats(g.rows_axes, g.rows_platform, g.rod_length_m, tcp_m)
@@ -330,24 +345,36 @@ class CheopeRobot:
         k: list[float] = []
         for j in range(_AXES):
             if not lim.stroke_min_m <= q[j] <= lim.stroke_max_m:
-                return PoseStatus(False, f"actuator {j + 1} at {q[j]:.4f} m is outside its stroke "
-                                         f"[{lim.stroke_min_m}, {lim.stroke_max_m}] m")
+                return PoseStatus(
+                    False,
+                    f"actuator {j + 1} at {q[j]:.4f} m is outside its stroke "
+                    f"[{lim.stroke_min_m}, {lim.stroke_max_m}] m",
+                )
             n, a = g.rows_axes[j], g.rows_platform[j]
-            wj = ((s[0] + a[0] - q[j] * n[0]) * inv_l, (s[1] + a[1] - q[j] * n[1]) * inv_l,
-                  (s[2] + a[2] - q[j] * n[2]) * inv_l)
+            wj = (
+                (s[0] + a[0] - q[j] * n[0]) * inv_l,
+                (s[1] + a[1] - q[j] * n[1]) * inv_l,
+                (s[2] + a[2] - q[j] * n[2]) * inv_l,
+            )
             swing = math.acos(max(-1.0, min(1.0, _dot(wj, g.rows_neutral[j]))))
             if swing > lim.joint_swing_limit_rad:
-                return PoseStatus(False, f"spherical joints of leg {j + 1} swing {math.degrees(swing):.1f} deg, "
-                                         f"limit {math.degrees(lim.joint_swing_limit_rad):.1f} deg")
+                return PoseStatus(
+                    False,
+                    f"spherical joints of leg {j + 1} swing {math.degrees(swing):.1f} deg, "
+                    f"limit {math.degrees(lim.joint_swing_limit_rad):.1f} deg",
+                )
             w.append(wj)
             k.append(_dot(wj, n))
         direct = abs(_dot(w[0], _cross(w[1], w[2])))  # |det W3|
         inverse = min(abs(x) for x in k)
-        structural = min(math.sqrt(_dot(c, c)) for c in (_cross(w[0], w[1]), _cross(w[0], w[2]),
-                                                        _cross(w[1], w[2])))
-        for name, value, low in (("direct", direct, lim.min_direct_measure),
-                                 ("inverse", inverse, lim.min_inverse_measure),
-                                 ("structural", structural, lim.min_structural_measure)):
+        structural = min(
+            math.sqrt(_dot(c, c)) for c in (_cross(w[0], w[1]), _cross(w[0], w[2]), _cross(w[1], w[2]))
+        )
+        for name, value, low in (
+            ("direct", direct, lim.min_direct_measure),
+            ("inverse", inverse, lim.min_inverse_measure),
+            ("structural", structural, lim.min_structural_measure),
+        ):
             if value < low:
                 return PoseStatus(False, f"within the {name}-singularity margin: measure {value:.3f} < {low}")
         jac: Matrix3 = (_over(w[0], k[0]), _over(w[1], k[1]), _over(w[2], k[2]))
@@ -362,8 +389,11 @@ class CheopeRobot:
         lim = self.limits
         for j, x in enumerate(q_m):
             if not lim.stroke_min_m <= x <= lim.stroke_max_m:  # also False for NaN
-                return PoseStatus(False, f"actuator {j + 1} measured at {x:.4f} m, outside its stroke "
-                                         f"[{lim.stroke_min_m}, {lim.stroke_max_m}] m")
+                return PoseStatus(
+                    False,
+                    f"actuator {j + 1} measured at {x:.4f} m, outside its stroke "
+                    f"[{lim.stroke_min_m}, {lim.stroke_max_m}] m",
+                )
         return POSE_OK
 
     def check_path(self, points_m: np.ndarray) -> None:

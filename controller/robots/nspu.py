@@ -341,7 +341,9 @@ def limb_state(geometry: NspuGeometry, p: Array, R: Array) -> LimbState:
     c = _cross(g, w4)
     nc = _sqrt_sum_sq(c)
     if np.any(np.real(nc) < 1e-9):
-        raise SingularityError(f"U joint degenerate: limb axis parallel to w4i (|g x w4| = {np.min(np.real(nc))})")
+        raise SingularityError(
+            f"U joint degenerate: limb axis parallel to w4i (|g x w4| = {np.min(np.real(nc))})"
+        )
     w3 = c / nc[..., None]  # w3i _|_ g_i, w3i _|_ w4i (design assumption, module docstring)
     h = _cross(w3, w4)  # seed 000 eq. (1)
     hxr = _cross(h, geometry.r)
@@ -424,7 +426,9 @@ def twist_from_leg_rates(
     Ms[:, 3:] /= scale
     rc = 1.0 / np.linalg.cond(Ms)
     if not rc > rcond_min:
-        raise SingularityError(f"type-II singularity (seed 000 eq. (26)): 1/cond(M) = {rc:.3e} at p = {pose.p_m}")
+        raise SingularityError(
+            f"type-II singularity (seed 000 eq. (26)): 1/cond(M) = {rc:.3e} at p = {pose.p_m}"
+        )
     x = np.linalg.solve(M, rhs)
     return x[:3], x[3:]
 
@@ -445,7 +449,9 @@ def static_wrench(geometry: NspuGeometry, pose: Pose, tau_n: Array, tau_perp_n: 
     return w[:3], w[3:]
 
 
-def joint_forces_from_wrench(geometry: NspuGeometry, pose: Pose, f_n: Array, m_nm: Array) -> tuple[Array, Array]:
+def joint_forces_from_wrench(
+    geometry: NspuGeometry, pose: Pose, f_n: Array, m_nm: Array
+) -> tuple[Array, Array]:
     """Inverse of eq. (25): actuator forces tau [N] and shear forces tau_perp [N] for a wrench."""
     M = io_matrix(geometry, pose)
     x = np.linalg.solve(M.T, np.concatenate([np.asarray(f_n, float), np.asarray(m_nm, float)]))
@@ -493,7 +499,10 @@ def vector_fields_xzx(geometry: NspuGeometry, x: Array) -> Array:
 
 
 def vector_field_jacobians(
-    geometry: NspuGeometry, x: Array, method: Literal["central", "complex"] = "central", step: float | None = None
+    geometry: NspuGeometry,
+    x: Array,
+    method: Literal["central", "complex"] = "central",
+    step: float | None = None,
 ) -> Array:
     """d v_i / d x for i = 1..3, shape (..., 3 fields, 6, 6), by central or complex-step differences."""
     x = np.asarray(x, dtype=float)
@@ -505,9 +514,10 @@ def vector_field_jacobians(
             vk = np.imag(vector_fields_xzx(geometry, x + 1j * hstep * eye[k])) / hstep
         elif method == "central":
             hstep = 1e-6 * max(1.0, float(np.max(np.abs(x[..., :3])))) if step is None else step
-            vk = (vector_fields_xzx(geometry, x + hstep * eye[k]) - vector_fields_xzx(geometry, x - hstep * eye[k])) / (
-                2 * hstep
-            )
+            vk = (
+                vector_fields_xzx(geometry, x + hstep * eye[k])
+                - vector_fields_xzx(geometry, x - hstep * eye[k])
+            ) / (2 * hstep)
         else:
             raise NspuModelError(f"unknown differentiation method {method!r}")
         cols.append(vk)  # (..., 6, 3): derivative wrt x_k

@@ -39,19 +39,25 @@ class NspuRobot:
         return leg_lengths(self.geometry, self.start)
 
     def inverse_kinematics(self, tcp_m: np.ndarray) -> np.ndarray:
-        raise NoSolutionError("the 3-nSPU has no inverse kinematics from a position alone: its pose has 6 DOFs "
-                              "and 3 actuators; stream a planned motion (controller/tasks/planned_legs.py)")
+        raise NoSolutionError(
+            "the 3-nSPU has no inverse kinematics from a position alone: its pose has 6 DOFs "
+            "and 3 actuators; stream a planned motion (controller/tasks/planned_legs.py)"
+        )
 
     def direct_kinematics(self, q_m: np.ndarray) -> np.ndarray:
-        raise NoSolutionError(f"the 3-nSPU pose is not a function of the leg lengths {np.asarray(q_m).tolist()} m "
-                              "(non-holonomic joints): integrate it along the leg motion instead")
+        raise NoSolutionError(
+            f"the 3-nSPU pose is not a function of the leg lengths {np.asarray(q_m).tolist()} m "
+            "(non-holonomic joints): integrate it along the leg motion instead"
+        )
 
     def check_actuators(self, q_m: tuple[float, ...]) -> PoseStatus:
         g = self.geometry
         for j, x in enumerate(q_m):
             if not g.leg_min_m <= x <= g.leg_max_m:  # also False for NaN
-                return PoseStatus(False, f"leg {j + 1} measured at {x:.4f} m, outside its stroke "
-                                         f"[{g.leg_min_m}, {g.leg_max_m}] m")
+                return PoseStatus(
+                    False,
+                    f"leg {j + 1} measured at {x:.4f} m, outside its stroke [{g.leg_min_m}, {g.leg_max_m}] m",
+                )
         return POSE_OK
 
     def check_pose(self, tcp_m: np.ndarray) -> PoseStatus:
@@ -78,8 +84,13 @@ class NspuRobot:
 ODOMETRY_INTERVAL_S = 0.01
 
 
-def pose_odometry(geometry: NspuGeometry, start: Pose, t_s: np.ndarray, legs_m: np.ndarray,
-                  interval_s: float = ODOMETRY_INTERVAL_S) -> Pose:
+def pose_odometry(
+    geometry: NspuGeometry,
+    start: Pose,
+    t_s: np.ndarray,
+    legs_m: np.ndarray,
+    interval_s: float = ODOMETRY_INTERVAL_S,
+) -> Pose:
     """The pose reached by moving the legs through the samples ``legs_m`` (N, 3) at ``t_s`` (N,).
 
     The same integration as the simulator's: one RKMK4 step from the leg lengths at the two
@@ -101,5 +112,7 @@ def pose_odometry(geometry: NspuGeometry, start: Pose, t_s: np.ndarray, legs_m: 
 
 def pose_errors(reached: Pose, goal: Pose) -> tuple[float, float]:
     """(|p - p_goal| [m], |log(R R_goal^T)| [rad])."""
-    return (float(np.linalg.norm(reached.p_m - goal.p_m)),
-            float(np.linalg.norm(so3_log(reached.R @ goal.R.T))))
+    return (
+        float(np.linalg.norm(reached.p_m - goal.p_m)),
+        float(np.linalg.norm(so3_log(reached.R @ goal.R.T))),
+    )

@@ -33,7 +33,9 @@ class RobotEntry:
     tasks: tuple[str, ...] = ("path",)  # the task kinds it can run; the first is its demo's
     config_file: Path | None = None  # its shipped configuration (``cheope ... --robot KIND``)
     check: Callable[[Any], None] | None = None  # cross-checks of its section: raise ConfigError
-    sim_hook: str = ""  # "module:factory" of its simulated kinematics; "" = rigid (sim_backend/plant_kinematics.py)
+    sim_hook: str = (
+        ""  # "module:factory" of its simulated kinematics; "" = rigid (sim_backend/plant_kinematics.py)
+    )
     analyze: str = ""  # "module:function(cfg, out_dir) -> dict" writing its plots (cheope analyze)
 
 
@@ -95,10 +97,18 @@ def actuator_units(cfg: Config) -> ActuatorUnits:
     a = cfg.actuators
     lo, hi = entry.stroke(cfg.robot.model())
     if entry.unit == ActuatorUnit.RADIAN:
-        return ActuatorUnits(entry.unit, a.counts_per_rad, a.max_velocity_rad_s, a.max_acceleration_rad_s2,
-                             a.max_jerk_rad_s3, lo, hi)
-    return ActuatorUnits(entry.unit, a.counts_per_m, a.max_velocity_m_s, a.max_acceleration_m_s2, a.max_jerk_m_s3,
-                         lo, hi)
+        return ActuatorUnits(
+            entry.unit,
+            a.counts_per_rad,
+            a.max_velocity_rad_s,
+            a.max_acceleration_rad_s2,
+            a.max_jerk_rad_s3,
+            lo,
+            hi,
+        )
+    return ActuatorUnits(
+        entry.unit, a.counts_per_m, a.max_velocity_m_s, a.max_acceleration_m_s2, a.max_jerk_m_s3, lo, hi
+    )
 
 
 def load_reference(ref: str) -> Any:

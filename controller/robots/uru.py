@@ -194,7 +194,9 @@ def _as_points(p_m: np.ndarray) -> np.ndarray:
     return p.reshape(-1, 3)
 
 
-def _frames(p: np.ndarray, geom: UruGeometry) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _frames(
+    p: np.ndarray, geom: UruGeometry
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """g, h, w = b - a, alpha, beta for each point and limb (seed 003, eq. (15)-(16), (A1))."""
     perp = p[:, None, :] * (1.0 - _E)[None, :, :]  # p - (e_i . p) e_i
     beta = np.linalg.norm(perp, axis=2)  # |e_i x p|, seed 003 eq. (A1)
@@ -247,8 +249,21 @@ def _configurations(p: np.ndarray, geom: UruGeometry, th2: np.ndarray | None = N
     gxu = np.cross(g, u)
     sin3 = np.einsum("nij,nij->ni", v, gxu)
     cos3 = np.einsum("nij,nij->ni", v, u)
-    return {"g": g, "h": h, "w": w, "alpha": alpha, "beta": beta, "th1": _th1(g), "th2": th2,
-            "u": u, "v": v, "d": d, "gxu": gxu, "sin3": sin3, "cos3": cos3}
+    return {
+        "g": g,
+        "h": h,
+        "w": w,
+        "alpha": alpha,
+        "beta": beta,
+        "th1": _th1(g),
+        "th2": th2,
+        "u": u,
+        "v": v,
+        "d": d,
+        "gxu": gxu,
+        "sin3": sin3,
+        "cos3": cos3,
+    }
 
 
 # ---------------------------------------------------------------------------------------------
@@ -394,20 +409,28 @@ def _newton(
     )
 
 
-def _closure_residual(geom: UruGeometry, p: np.ndarray, th2: np.ndarray
-                      ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def _closure_residual(
+    geom: UruGeometry, p: np.ndarray, th2: np.ndarray
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """R_i = |b_i - c_i|^2 - r_i^2 for given th_i2 (seed 003, eq. (A1) is R_i = 0)."""
     cfg = _configurations(p[None, :], geom, th2[None, :])
     d = cfg["d"][0]
     return np.einsum("ij,ij->i", d, d) - geom.r**2, cfg
 
 
-def _branch_check(geom: UruGeometry, p: np.ndarray, target: np.ndarray,
-                  to_target: Callable[[np.ndarray], np.ndarray], what: str) -> np.ndarray:
+def _branch_check(
+    geom: UruGeometry,
+    p: np.ndarray,
+    target: np.ndarray,
+    to_target: Callable[[np.ndarray], np.ndarray],
+    what: str,
+) -> np.ndarray:
     try:
         got = to_target(p)
     except UruNoSolutionError as err:
-        raise UruNoSolutionError(f"direct kinematics for {what}: solution p = {p.tolist()} m fails IK ({err})") from err
+        raise UruNoSolutionError(
+            f"direct kinematics for {what}: solution p = {p.tolist()} m fails IK ({err})"
+        ) from err
     if not np.allclose(got, target, atol=1e-7, rtol=0.0):
         raise UruNoSolutionError(
             f"direct kinematics for {what}: converged to p = {p.tolist()} m on the other knee branch "
@@ -442,8 +465,9 @@ def _solve(
     solution branch connected to p0, which reaches the target when no singularity lies between.
     """
     try:
-        return _branch_check(geom, _newton(geom, lambda q: rj(q, target), p0, what, tol_m, max_iter),
-                             target, ik, what)
+        return _branch_check(
+            geom, _newton(geom, lambda q: rj(q, target), p0, what, tol_m, max_iter), target, ik, what
+        )
     except UruNoSolutionError as first:
         try:
             start = ik(p0)
@@ -455,12 +479,18 @@ def _solve(
                 tgt = start + (target - start) * (j / _CONTINUATION_STEPS)
                 p = _newton(geom, functools.partial(_swap_call, rj, tgt), p, what, tol_m, max_iter)
         except UruNoSolutionError as second:
-            raise UruNoSolutionError(f"{first}; continuation from the guess also failed: {second}") from second
+            raise UruNoSolutionError(
+                f"{first}; continuation from the guess also failed: {second}"
+            ) from second
         return _branch_check(geom, p, target, ik, what)
 
 
 def direct_kinematics_joint(
-    geom: UruGeometry, th2_rad: np.ndarray, p_guess_m: np.ndarray | None = None, tol_m: float = 1e-12, max_iter: int = 50
+    geom: UruGeometry,
+    th2_rad: np.ndarray,
+    p_guess_m: np.ndarray | None = None,
+    tol_m: float = 1e-12,
+    max_iter: int = 50,
 ) -> np.ndarray:
     """Platform position p [m] from the actuated-joint angles th_i2 [rad] (direct position analysis).
 
@@ -486,7 +516,11 @@ def direct_kinematics_joint(
 
 
 def direct_kinematics(
-    geom: UruGeometry, thm_rad: np.ndarray, p_guess_m: np.ndarray | None = None, tol_m: float = 1e-12, max_iter: int = 50
+    geom: UruGeometry,
+    thm_rad: np.ndarray,
+    p_guess_m: np.ndarray | None = None,
+    tol_m: float = 1e-12,
+    max_iter: int = 50,
 ) -> np.ndarray:
     """Platform position p [m] from the motor-shaft angles th_M [rad].
 
@@ -758,13 +792,19 @@ def check_path(geom: UruGeometry, path_m: np.ndarray, margins: UruPathMargins = 
             raise UruPathRefusedError("non-finite position", idx, float("nan"), 0.0, p)
         ws = float(workspace_margin_m(geom, p))
         if ws < margins.workspace_m:
-            raise UruPathRefusedError("reachable-workspace boundary (eq. (29)) margin [m]", idx, ws,
-                                      margins.workspace_m, p)
+            raise UruPathRefusedError(
+                "reachable-workspace boundary (eq. (29)) margin [m]", idx, ws, margins.workspace_m, p
+            )
         plane = float(np.min(np.abs(p)))
         if plane < margins.plane_distance_m:
             axis = "xyz"[int(np.argmin(np.abs(p)))]
-            raise UruPathRefusedError(f"rotation singularity: distance to plane {axis}=0 (eq. (17)) [m]", idx,
-                                      plane, margins.plane_distance_m, p)
+            raise UruPathRefusedError(
+                f"rotation singularity: distance to plane {axis}=0 (eq. (17)) [m]",
+                idx,
+                plane,
+                margins.plane_distance_m,
+                p,
+            )
         m = singularity_measures(geom, p)
         checks = (
             ("serial singularity min|sin th_i3| (eq. (27))", m.serial_min_sin_th3, margins.sin_th3),
@@ -777,13 +817,18 @@ def check_path(geom: UruGeometry, path_m: np.ndarray, margins: UruPathMargins = 
                 raise UruPathRefusedError(name, idx, val, lim, p)
         signs = np.sign([m.rotation_det_h, m.translation_det_v, m.actuation_det_s, m.combined_det_a])
         if prev_signs is not None:
-            names = ("rotation singularity det H (eq. (14))", "translation singularity det V (eq. (20))",
-                     "actuation singularity det S (eq. (35))", "combined singularity det A (eq. (36))")
+            names = (
+                "rotation singularity det H (eq. (14))",
+                "translation singularity det V (eq. (20))",
+                "actuation singularity det S (eq. (35))",
+                "combined singularity det A (eq. (36))",
+            )
             values = (m.rotation_det_h, m.translation_det_v, m.actuation_det_s, m.combined_det_a)
             for name, s_now, s_prev, val in zip(names, signs, prev_signs, values):
                 if s_now != s_prev:
-                    raise UruPathRefusedError(f"{name} changed sign (locus crossed between samples)", idx,
-                                              val, 0.0, p)
+                    raise UruPathRefusedError(
+                        f"{name} changed sign (locus crossed between samples)", idx, val, 0.0, p
+                    )
         prev_signs = signs
 
 
@@ -795,8 +840,11 @@ DEFAULT_PATH_CENTRE_M = (0.12, 0.12, 0.12)
 DEFAULT_PATH_RADIUS_M = 0.04
 
 
-def default_path(s: float | np.ndarray, centre_m: tuple[float, float, float] = DEFAULT_PATH_CENTRE_M,
-                 radius_m: float = DEFAULT_PATH_RADIUS_M) -> np.ndarray:
+def default_path(
+    s: float | np.ndarray,
+    centre_m: tuple[float, float, float] = DEFAULT_PATH_CENTRE_M,
+    radius_m: float = DEFAULT_PATH_RADIUS_M,
+) -> np.ndarray:
     """Platform positions [m] on a circle inside the first octant for s in [0, 1] (one lap).
 
     The circle lies in the plane through ``centre_m`` normal to (1, 1, 1)/sqrt(3); with the
@@ -811,6 +859,7 @@ def default_path(s: float | np.ndarray, centre_m: tuple[float, float, float] = D
     e_a = np.array([1.0, -1.0, 0.0]) / math.sqrt(2.0)
     e_b = np.cross(n, e_a)
     ang = 2.0 * math.pi * s_arr
-    pts = (np.asarray(centre_m, float)
-           + radius_m * (np.cos(ang)[..., None] * e_a + np.sin(ang)[..., None] * e_b))
+    pts = np.asarray(centre_m, float) + radius_m * (
+        np.cos(ang)[..., None] * e_a + np.sin(ang)[..., None] * e_b
+    )
     return pts

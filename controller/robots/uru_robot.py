@@ -82,7 +82,11 @@ class UruRobot:
         """Platform position p [m] from motor-shaft angles [rad]; Newton from ``guess_m`` (default: home)."""
         g = self.geometry
         target = (float(q_rad[0]), float(q_rad[1]), float(q_rad[2]))
-        p0 = g.home_position_m if guess_m is None else (float(guess_m[0]), float(guess_m[1]), float(guess_m[2]))
+        p0 = (
+            g.home_position_m
+            if guess_m is None
+            else (float(guess_m[0]), float(guess_m[1]), float(guess_m[2]))
+        )
         try:
             return np.array(_newton_motor(g, target, p0))
         except NoSolutionError:
@@ -98,8 +102,11 @@ class UruRobot:
         lim = self.limits
         for j, x in enumerate(q_rad):
             if not lim.motor_min_rad <= x <= lim.motor_max_rad:  # also False for NaN
-                return PoseStatus(False, f"motor {j + 1} measured at {x:.4f} rad, outside its range "
-                                         f"[{lim.motor_min_rad}, {lim.motor_max_rad}] rad")
+                return PoseStatus(
+                    False,
+                    f"motor {j + 1} measured at {x:.4f} rad, outside its range "
+                    f"[{lim.motor_min_rad}, {lim.motor_max_rad}] rad",
+                )
         return POSE_OK
 
     def check_pose(self, tcp_m: np.ndarray) -> PoseStatus:
@@ -115,8 +122,11 @@ class UruRobot:
         plane = min(abs(x) for x in p)
         checks = (
             ("reachable-workspace boundary (eq. (29)) margin [m]", m["workspace_m"], mg.workspace_m),
-            (f"rotation singularity: distance to plane {'xyz'[[abs(x) for x in p].index(plane)]}=0 (eq. (17)) [m]",
-             plane, mg.plane_distance_m),
+            (
+                f"rotation singularity: distance to plane {'xyz'[[abs(x) for x in p].index(plane)]}=0 (eq. (17)) [m]",
+                plane,
+                mg.plane_distance_m,
+            ),
             ("serial singularity min|sin th_i3| (eq. (27))", m["sin_th3"], mg.sin_th3),
             ("translation singularity |det V| (eq. (20))", abs(m["det_v"]), mg.det_v),
             ("actuation singularity |det S| (eq. (35))", abs(m["det_s"]), mg.det_s),
@@ -137,8 +147,9 @@ class UruRobot:
         for i, p in enumerate(pts):
             status = self.check_pose(p)
             if not status.ok:
-                raise UruWorkspaceError(f"path sample {i} at {np.round(p, 4).tolist()} m: {status.reason}",
-                                        status.reason)
+                raise UruWorkspaceError(
+                    f"path sample {i} at {np.round(p, 4).tolist()} m: {status.reason}", status.reason
+                )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -151,8 +162,10 @@ def _limb(geom: uru.UruGeometry, i: int, p: Vector3) -> tuple[float, float, floa
     perp[i] = 0.0
     beta = math.sqrt(perp[0] * perp[0] + perp[1] * perp[1] + perp[2] * perp[2])  # |e_i x p|
     if beta < 1e-12:
-        raise NoSolutionError(f"platform position {list(p)} m lies on the axis of e_{i + 1}: g_{i + 1} is "
-                              "undefined (seed 003 eq. (15a))")
+        raise NoSolutionError(
+            f"platform position {list(p)} m lies on the axis of e_{i + 1}: g_{i + 1} is "
+            "undefined (seed 003 eq. (15a))"
+        )
     h = (perp[0] / beta, perp[1] / beta, perp[2] / beta)  # eq. (15b)-(16)
     # g_i = e_i x p / |e_i x p| (eq. (15a), '+' sign)
     if i == 0:
@@ -172,7 +185,8 @@ def _limb(geom: uru.UruGeometry, i: int, p: Vector3) -> tuple[float, float, floa
     if abs(ratio) > 1.0 + 1e-12:
         raise NoSolutionError(
             f"platform position {list(p)} m is out of reach of limb {i + 1}: |B_{i + 1} - A_{i + 1}| = {rho:.6g} m "
-            f"outside [{abs(f - r):.6g}, {f + r:.6g}] m (seed 003 eq. (29))")
+            f"outside [{abs(f - r):.6g}, {f + r:.6g}] m (seed 003 eq. (29))"
+        )
     th2 = math.atan2(beta, alpha) - geom.knee_sign * math.acos(max(-1.0, min(1.0, ratio)))  # eq. (A2)
     return th1, th2, beta, g, h, alpha
 
@@ -188,9 +202,14 @@ def _ik(geom: uru.UruGeometry, x: float, y: float, z: float) -> tuple[float, flo
 
 def _solve3(a: list[list[float]], b: list[float]) -> list[float]:
     """Cramer's rule for a 3x3 system; NoSolutionError when singular."""
+
     def det(m: list[list[float]]) -> float:
-        return (m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-                + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]))
+        return (
+            m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+        )
+
     d = det(a)
     if abs(d) < 1e-14:
         raise NoSolutionError(f"singular Newton matrix (det {d:.3e})")
@@ -203,8 +222,9 @@ def _solve3(a: list[list[float]], b: list[float]) -> list[float]:
     return out
 
 
-def _newton_motor(geom: uru.UruGeometry, target: tuple[float, float, float],
-                  p0: tuple[float, float, float]) -> tuple[float, float, float]:
+def _newton_motor(
+    geom: uru.UruGeometry, target: tuple[float, float, float], p0: tuple[float, float, float]
+) -> tuple[float, float, float]:
     p = list(p0)
     q = _ik(geom, *p)
     res = [q[i] - target[i] for i in range(3)]
@@ -235,12 +255,16 @@ def _newton_motor(geom: uru.UruGeometry, target: tuple[float, float, float],
                 break
             lam *= 0.5
         else:
-            raise NoSolutionError(f"direct kinematics for th_M = {list(target)} rad: no Newton step reduces the "
-                                  f"residual {norm:.3e} rad at p = {p} m")
+            raise NoSolutionError(
+                f"direct kinematics for th_M = {list(target)} rad: no Newton step reduces the "
+                f"residual {norm:.3e} rad at p = {p} m"
+            )
     if norm < 1e-8:
         return p[0], p[1], p[2]
-    raise NoSolutionError(f"direct kinematics for th_M = {list(target)} rad: residual {norm:.3e} rad after "
-                          f"{_NEWTON_MAX_ITER} iterations")
+    raise NoSolutionError(
+        f"direct kinematics for th_M = {list(target)} rad: residual {norm:.3e} rad after "
+        f"{_NEWTON_MAX_ITER} iterations"
+    )
 
 
 class _Measures(TypedDict):
@@ -280,13 +304,22 @@ def _measures(geom: uru.UruGeometry, p: Vector3) -> _Measures:
 
     def triple(m: list[Vector3]) -> float:
         x, y, z = m
-        return (x[0] * (y[1] * z[2] - y[2] * z[1]) - x[1] * (y[0] * z[2] - y[2] * z[0])
-                + x[2] * (y[0] * z[1] - y[1] * z[0]))
+        return (
+            x[0] * (y[1] * z[2] - y[2] * z[1])
+            - x[1] * (y[0] * z[2] - y[2] * z[0])
+            + x[2] * (y[0] * z[1] - y[1] * z[0])
+        )
 
     det_v, det_a = triple(v), triple(a)
     det_s = det_a / det_v if det_v != 0.0 else math.nan  # det S = det A / det V (uru.py module doc)
-    return {"workspace_m": margin, "sin_th3": min(sin3), "det_v": det_v, "det_a": det_a, "det_s": det_s,
-            "motor_rad": tuple(motor)}
+    return {
+        "workspace_m": margin,
+        "sin_th3": min(sin3),
+        "det_v": det_v,
+        "det_a": det_a,
+        "det_s": det_s,
+        "motor_rad": tuple(motor),
+    }
 
 
 # ---------------------------------------------------------------------------------------------

@@ -76,8 +76,10 @@ def check_ros2() -> None:
     try:
         import rclpy  # noqa: F401
     except ImportError as err:
-        raise Ros2UnavailableError(f"cheope ros2 needs the ROS 2 Python packages: pip install 'cheope-controller[ros2]' "
-                                   f"(Python 3.11 on Linux x86_64); {err}") from None
+        raise Ros2UnavailableError(
+            f"cheope ros2 needs the ROS 2 Python packages: pip install 'cheope-controller[ros2]' "
+            f"(Python 3.11 on Linux x86_64); {err}"
+        ) from None
 
 
 @dataclass(frozen=True)
@@ -151,8 +153,11 @@ class RosPublisher:
     def publish(self, s: BridgeSample, drawing: RobotDrawing | None) -> None:
         rm = self.rm
         self.pubs["joint_states"].publish(rm.joint_state(s))
-        for name, msg in (("wrench", rm.wrench(s)), ("tcp/measured", rm.pose(s.stamp_s, s.tcp_measured_m)),
-                          ("tcp/reference", rm.pose(s.stamp_s, s.tcp_reference_m))):
+        for name, msg in (
+            ("wrench", rm.wrench(s)),
+            ("tcp/measured", rm.pose(s.stamp_s, s.tcp_measured_m)),
+            ("tcp/reference", rm.pose(s.stamp_s, s.tcp_reference_m)),
+        ):
             if msg is not None:
                 self.pubs[name].publish(msg)
         if drawing is not None:
@@ -167,10 +172,12 @@ class RosPublisher:
         rm = self.rm
         if self._fixed_markers is None:
             self._fixed_markers = rm.markers(drawing.fixed(), s.stamp_s)
-        pose = MeasuredPose(t_s=s.t_s, q=s.positions, tcp_m=s.tcp_measured_m, force_n=s.force_n,
-                            reference_m=s.tcp_reference_m)
-        return rm.marker_array(s.stamp_s, rm.restamp(self._fixed_markers, s.stamp_s),
-                               rm.markers(drawing.moving(pose), s.stamp_s))
+        pose = MeasuredPose(
+            t_s=s.t_s, q=s.positions, tcp_m=s.tcp_measured_m, force_n=s.force_n, reference_m=s.tcp_reference_m
+        )
+        return rm.marker_array(
+            s.stamp_s, rm.restamp(self._fixed_markers, s.stamp_s), rm.markers(drawing.moving(pose), s.stamp_s)
+        )
 
     def event(self, stamp_s: float, severity: int, kind: str, text: str, robot_id: str) -> None:
         self.pubs["events"].publish(self.rm.event_log(stamp_s, severity, kind, text, robot_id))
@@ -206,6 +213,7 @@ def _terminated_by_sigterm() -> Iterator[threading.Event]:
 
 # -- live: a controller's Zenoh state -----------------------------------------------------------------
 
+
 def _controller_config(status_json: str) -> Config | None:
     from controller.config import ConfigError, recorded_config_from_dict
 
@@ -231,13 +239,22 @@ def _wait_for_status(ask: Callable[[], Any], notice: Callable[[str], None], retr
     return None
 
 
-def run_live(tool: SessionSettings, watch: SessionSettings, key_prefix: str, robot_id: str | None, namespace: str,
-             timeout_s: float, notice: Callable[[str], None]) -> int:
+def run_live(
+    tool: SessionSettings,
+    watch: SessionSettings,
+    key_prefix: str,
+    robot_id: str | None,
+    namespace: str,
+    timeout_s: float,
+    notice: Callable[[str], None],
+) -> int:
     """Bridge one controller until SIGTERM or Ctrl-C; returns the number of state samples published."""
     from controller.monitoring.commands import RobotSelector, query_status, send_command
     from controller.monitoring.monitor_view import AliveUpdate, EventUpdate, MonitorClient, StateUpdate
 
-    status = _wait_for_status(lambda: query_status(tool, RobotSelector(key_prefix, robot_id), timeout_s), notice)
+    status = _wait_for_status(
+        lambda: query_status(tool, RobotSelector(key_prefix, robot_id), timeout_s), notice
+    )
     if status is None:
         return 0
     keys = MonitorKeys.for_robot(key_prefix, status.robot_id)
@@ -255,8 +272,10 @@ def run_live(tool: SessionSettings, watch: SessionSettings, key_prefix: str, rob
     with _terminated_by_sigterm() as done, MonitorClient(watch, keys) as client:
         ros = RosPublisher(namespace, stop)
         try:
-            notice(f"bridging {keys.prefix}/ to ROS 2 under {ros.namespace} (topics {', '.join(TOPICS)}; "
-                   f"service {STOP_SERVICE})")
+            notice(
+                f"bridging {keys.prefix}/ to ROS 2 under {ros.namespace} (topics {', '.join(TOPICS)}; "
+                f"service {STOP_SERVICE})"
+            )
             while not done.is_set():
                 u = client.next_update(0.2)
                 if isinstance(u, StateUpdate):
@@ -275,8 +294,10 @@ def run_live(tool: SessionSettings, watch: SessionSettings, key_prefix: str, rob
 
 # -- replay: a recording ----------------------------------------------------------------------------
 
-def run_replay(path: Path, namespace: str, speed: float, wait_subscriber_s: float,
-               notice: Callable[[str], None]) -> int:
+
+def run_replay(
+    path: Path, namespace: str, speed: float, wait_subscriber_s: float, notice: Callable[[str], None]
+) -> int:
     """Publish the recording's cycles and events; returns the number of samples published."""
     from logs import messages as m
     from logs.reader import iter_decoded, read_info
@@ -285,8 +306,10 @@ def run_replay(path: Path, namespace: str, speed: float, wait_subscriber_s: floa
     meta = info.metadata
     cfg = _controller_config(meta.get(m.META_CONFIG, {}).get("json", ""))
     if cfg is None:
-        raise InputError(f"{path}: no readable {m.META_CONFIG} metadata (the robot's configuration); "
-                         "is it a cheope recording?")
+        raise InputError(
+            f"{path}: no readable {m.META_CONFIG} metadata (the robot's configuration); "
+            "is it a cheope recording?"
+        )
     offset_s = int(meta.get(m.META_SESSION, {}).get("clock_offset_ns", "0")) * 1e-9
     view = robot_view(cfg)
     robot_id = cfg.monitoring.robot_id or path.stem
@@ -298,7 +321,9 @@ def run_replay(path: Path, namespace: str, speed: float, wait_subscriber_s: floa
             deadline = time.monotonic() + wait_subscriber_s
             while ros.subscribers() == 0 and time.monotonic() < deadline and not done.is_set():
                 done.wait(0.05)  # nothing signals a new subscriber in rclpy's API
-            notice(f"replaying {path} to ROS 2 under {ros.namespace} ({info.message_counts[m.TOPIC_CYCLE]} cycles)")
+            notice(
+                f"replaying {path} to ROS 2 under {ros.namespace} ({info.message_counts[m.TOPIC_CYCLE]} cycles)"
+            )
             pace = _Pace(speed)
             for d in iter_decoded(path, (m.TOPIC_CYCLE, m.TOPIC_EVENTS)):
                 if done.is_set():

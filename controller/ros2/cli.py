@@ -28,8 +28,10 @@ def cmd_ros2(args: argparse.Namespace) -> int:
     from controller.ros2.bridge import check_ros2, run_live, run_replay
 
     if not args.namespace or not _NAMESPACE.match(args.namespace):
-        raise InputError(f"--namespace {args.namespace!r}: use names of letters, digits and '_' (not starting with "
-                         "a digit) separated by '/', e.g. /cheope/robot_1")
+        raise InputError(
+            f"--namespace {args.namespace!r}: use names of letters, digits and '_' (not starting with "
+            "a digit) separated by '/', e.g. /cheope/robot_1"
+        )
     check_ros2()
     if args.replay is not None:
         if not (math.isfinite(args.speed) and args.speed >= 0.0):
@@ -43,23 +45,46 @@ def cmd_ros2(args: argparse.Namespace) -> int:
     from controller.monitoring.zenoh_session import client_settings, monitor_settings
 
     endpoints = _endpoints(args)
-    run_live(client_settings(endpoints, args.zenoh_config or "", args.timeout),
-             monitor_settings(endpoints, args.zenoh_config or ""), args.key_prefix, args.robot_id, args.namespace,
-             args.timeout, _notice)
+    run_live(
+        client_settings(endpoints, args.zenoh_config or "", args.timeout),
+        monitor_settings(endpoints, args.zenoh_config or ""),
+        args.key_prefix,
+        args.robot_id,
+        args.namespace,
+        args.timeout,
+        _notice,
+    )
     return 0
 
 
 def add_subcommand(sub: argparse._SubParsersAction[ParserT]) -> None:
     from controller.ros2.bridge import DEFAULT_NAMESPACE
 
-    p = sub.add_parser("ros2", help="publish a controller's state (or a recording) as ROS 2 topics, with a stop "
-                                    "service; needs the ros2 extra")
+    p = sub.add_parser(
+        "ros2",
+        help="publish a controller's state (or a recording) as ROS 2 topics, with a stop "
+        "service; needs the ros2 extra",
+    )
     _client_options(p)
-    p.add_argument("--namespace", default=DEFAULT_NAMESPACE,
-                   help=f"ROS 2 namespace of the topics and the stop service (default {DEFAULT_NAMESPACE})")
-    p.add_argument("--replay", metavar="FILE", help="publish this recording (.mcap) instead of a live controller")
-    p.add_argument("--speed", type=float, default=1.0,
-                   help="--replay: the recording's pace times this (default 1; 0: as fast as possible)")
-    p.add_argument("--wait-subscriber", type=float, default=0.0, metavar="SECONDS",
-                   help="--replay: wait up to this long for a ROS 2 subscriber before starting (default 0)")
+    p.add_argument(
+        "--namespace",
+        default=DEFAULT_NAMESPACE,
+        help=f"ROS 2 namespace of the topics and the stop service (default {DEFAULT_NAMESPACE})",
+    )
+    p.add_argument(
+        "--replay", metavar="FILE", help="publish this recording (.mcap) instead of a live controller"
+    )
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=1.0,
+        help="--replay: the recording's pace times this (default 1; 0: as fast as possible)",
+    )
+    p.add_argument(
+        "--wait-subscriber",
+        type=float,
+        default=0.0,
+        metavar="SECONDS",
+        help="--replay: wait up to this long for a ROS 2 subscriber before starting (default 0)",
+    )
     p.set_defaults(func=cmd_ros2)

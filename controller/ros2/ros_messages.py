@@ -46,7 +46,9 @@ def joint_names(n: int) -> list[str]:
 
 def joint_state(s: BridgeSample) -> JointState:
     """Measured actuator positions; no velocities or efforts (the state does not carry them)."""
-    return JointState(header=header(s.stamp_s), name=joint_names(len(s.positions)), position=list(s.positions))
+    return JointState(
+        header=header(s.stamp_s), name=joint_names(len(s.positions)), position=list(s.positions)
+    )
 
 
 def wrench(s: BridgeSample) -> WrenchStamped | None:
@@ -71,19 +73,35 @@ def pose(t_s: float, p: Vec3 | None) -> PoseStamped | None:
 
 def diagnostics(s: BridgeSample) -> DiagnosticArray:
     level = diagnostic_level(s)
-    values = [KeyValue(key="mode", value=s.mode), KeyValue(key="task", value=s.task),
-              KeyValue(key="task_phase", value=s.task_phase), KeyValue(key="cycle", value=str(s.cycle)),
-              KeyValue(key="t_s", value=repr(s.t_s))]
+    values = [
+        KeyValue(key="mode", value=s.mode),
+        KeyValue(key="task", value=s.task),
+        KeyValue(key="task_phase", value=s.task_phase),
+        KeyValue(key="cycle", value=str(s.cycle)),
+        KeyValue(key="t_s", value=repr(s.t_s)),
+    ]
     values += [KeyValue(key=k, value=repr(v)) for k, v in s.counters.items()]
     values += [KeyValue(key=f"alarm_{i + 1}", value=a) for i, a in enumerate(s.alarms)]
-    status = DiagnosticStatus(level=bytes([level]), name=f"cheope/{s.robot_id}: controller", hardware_id=s.robot_id,
-                              message=s.mode + (f": {'; '.join(s.alarms)}" if s.alarms else ""), values=values)
+    status = DiagnosticStatus(
+        level=bytes([level]),
+        name=f"cheope/{s.robot_id}: controller",
+        hardware_id=s.robot_id,
+        message=s.mode + (f": {'; '.join(s.alarms)}" if s.alarms else ""),
+        values=values,
+    )
     return DiagnosticArray(header=header(s.stamp_s), status=[status])
 
 
 def event_log(t_s: float, severity: int, kind: str, text: str, robot_id: str) -> Log:
-    return Log(stamp=stamp(t_s), level=LOG_LEVELS.get(severity, Log.ERROR), name=f"cheope.{robot_id}",
-               msg=f"[{kind}] {text}", file="", function=kind, line=0)
+    return Log(
+        stamp=stamp(t_s),
+        level=LOG_LEVELS.get(severity, Log.ERROR),
+        name=f"cheope.{robot_id}",
+        msg=f"[{kind}] {text}",
+        file="",
+        function=kind,
+        line=0,
+    )
 
 
 def _color(rgba: tuple[float, float, float, float]) -> ColorRGBA:
@@ -135,8 +153,11 @@ def primitive_markers(p: Primitive, t_s: float) -> list[Marker]:
     if p.shape == Shape.CAPSULE:
         d = (p.end[0] - p.start[0], p.end[1] - p.start[1], p.end[2] - p.start[2])
         centre = ((p.start[0] + p.end[0]) / 2, (p.start[1] + p.end[1]) / 2, (p.start[2] + p.end[2]) / 2)
-        out += [_sphere(p, t_s, p.start), _sphere(p, t_s, p.end),
-                _cylinder(p, t_s, centre, d, math.sqrt(sum(x * x for x in d)))]
+        out += [
+            _sphere(p, t_s, p.start),
+            _sphere(p, t_s, p.end),
+            _cylinder(p, t_s, centre, d, math.sqrt(sum(x * x for x in d))),
+        ]
     elif p.shape == Shape.CYLINDER:
         out.append(_cylinder(p, t_s, p.start, p.end, p.length_m))
     elif p.shape == Shape.BOX:
@@ -153,13 +174,22 @@ def primitive_markers(p: Primitive, t_s: float) -> list[Marker]:
         out.append(m)
     elif p.shape == Shape.ARROW:
         m = _marker(Marker.ARROW, p, t_s, (0.0, 0.0, 0.0), _X, _X)
-        m.points = [Point(x=p.start[0], y=p.start[1], z=p.start[2]), Point(x=p.end[0], y=p.end[1], z=p.end[2])]
+        m.points = [
+            Point(x=p.start[0], y=p.start[1], z=p.start[2]),
+            Point(x=p.end[0], y=p.end[1], z=p.end[2]),
+        ]
         m.scale.x, m.scale.y, m.scale.z = 2.0 * p.radius_m, 5.0 * p.radius_m, 0.02
         out.append(m)
     if p.label:
         at = p.end if p.shape in (Shape.CAPSULE, Shape.ARROW) else p.start
-        t = Marker(header=header(t_s), ns=f"{p.entity}/labels", type=Marker.TEXT_VIEW_FACING, action=Marker.ADD,
-                   text=p.label, color=ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0))
+        t = Marker(
+            header=header(t_s),
+            ns=f"{p.entity}/labels",
+            type=Marker.TEXT_VIEW_FACING,
+            action=Marker.ADD,
+            text=p.label,
+            color=ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0),
+        )
         t.pose.position.x, t.pose.position.y, t.pose.position.z = at[0], at[1], at[2] + 0.02
         t.pose.orientation.w = 1.0
         t.scale.z = 0.015  # text height [m]
@@ -189,4 +219,6 @@ def restamp(markers_: list[Any], t_s: float) -> list[Any]:
 
 def marker_array(t_s: float, *groups: list[Any]) -> MarkerArray:
     """DELETEALL, then the groups' markers (groups of distinct namespaces: the fixed and the moving parts)."""
-    return MarkerArray(markers=[Marker(header=header(t_s), action=Marker.DELETEALL)] + [m for g in groups for m in g])
+    return MarkerArray(
+        markers=[Marker(header=header(t_s), action=Marker.DELETEALL)] + [m for g in groups for m in g]
+    )

@@ -72,14 +72,30 @@ def sample_from_state(state: Any, robot: Robot | None) -> BridgeSample:
     loop = state.loop
     targets = tuple(state.targets)
     return BridgeSample(
-        robot_id=state.robot_id, cycle=state.cycle, t_s=state.t_s, stamp_s=state.cycle_monotonic_s,
-        mode=state.mode, task=state.task, task_phase=state.task_phase, positions=tuple(state.positions),
-        targets=targets, tcp_measured_m=_vec3(state.tcp_m), tcp_reference_m=commanded_tcp(robot, targets),
-        force_n=_vec3(state.force_n), torque_nm=None, alarms=tuple(state.alarms),
-        counters={"achieved_rate_hz": loop.achieved_rate_hz, "period_error_p50_us": loop.period_error_p50_us,
-                  "period_error_p99_us": loop.period_error_p99_us, "late_cycles": loop.late_cycles,
-                  "missing_drive_frames": loop.missing_drive_frames,
-                  "missing_sensor_frames": loop.missing_sensor_frames, "rejected_frames": loop.rejected_frames})
+        robot_id=state.robot_id,
+        cycle=state.cycle,
+        t_s=state.t_s,
+        stamp_s=state.cycle_monotonic_s,
+        mode=state.mode,
+        task=state.task,
+        task_phase=state.task_phase,
+        positions=tuple(state.positions),
+        targets=targets,
+        tcp_measured_m=_vec3(state.tcp_m),
+        tcp_reference_m=commanded_tcp(robot, targets),
+        force_n=_vec3(state.force_n),
+        torque_nm=None,
+        alarms=tuple(state.alarms),
+        counters={
+            "achieved_rate_hz": loop.achieved_rate_hz,
+            "period_error_p50_us": loop.period_error_p50_us,
+            "period_error_p99_us": loop.period_error_p99_us,
+            "late_cycles": loop.late_cycles,
+            "missing_drive_frames": loop.missing_drive_frames,
+            "missing_sensor_frames": loop.missing_sensor_frames,
+            "rejected_frames": loop.rejected_frames,
+        },
+    )
 
 
 @dataclass
@@ -105,13 +121,22 @@ class CycleSampler:
         targets = tuple(c.outputs.targets)
         st = c.state
         return BridgeSample(
-            robot_id=self.robot_id, cycle=c.cycle, t_s=c.t_s, stamp_s=stamp_s, mode=st.mode, task=self.task,
-            task_phase=st.task_phase, positions=tuple(d.position for d in c.inputs.drives), targets=targets,
-            tcp_measured_m=_vec3(st.tcp_measured_m), tcp_reference_m=commanded_tcp(self.robot, targets),
+            robot_id=self.robot_id,
+            cycle=c.cycle,
+            t_s=c.t_s,
+            stamp_s=stamp_s,
+            mode=st.mode,
+            task=self.task,
+            task_phase=st.task_phase,
+            positions=tuple(d.position for d in c.inputs.drives),
+            targets=targets,
+            tcp_measured_m=_vec3(st.tcp_measured_m),
+            tcp_reference_m=commanded_tcp(self.robot, targets),
             force_n=_vec3(sensor.force_n) if sensor is not None else None,
             torque_nm=_vec3(sensor.torque_nm) if sensor is not None else None,
             alarms=(f"FAULT: {st.fault_reason}",) if st.fault_reason else (),
-            counters={"late_cycles": self.late_cycles})
+            counters={"late_cycles": self.late_cycles},
+        )
 
 
 def diagnostic_level(sample: BridgeSample) -> int:

@@ -56,8 +56,16 @@ class CycleTiming:
 class CycleObserver(Protocol):
     """Receives every cycle. Runs on the loop's thread: it must hand off and return in microseconds."""
 
-    def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
-                 outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None: ...
+    def on_cycle(
+        self,
+        cycle: int,
+        t: float,
+        inputs: CycleInputs,
+        state: ControllerState,
+        outputs: CycleOutputs,
+        events: tuple[Event, ...],
+        timing: CycleTiming,
+    ) -> None: ...
 
 
 DEFAULT_RING_CYCLES = 4096  # about 10 s at 400 Hz of per-cycle timing kept as it was measured
@@ -78,7 +86,9 @@ class LoopStats:
     wake_error_s: np.ndarray = field(init=False)  # ring: actual wake-up minus deadline
     step_s: np.ndarray = field(init=False)  # ring: compute time of law.step
     observers_s: np.ndarray = field(init=False)  # ring: time spent handing the cycle to the observers
-    deadline_index: np.ndarray = field(init=False)  # ring: k of each executed cycle (skipped deadlines leave gaps)
+    deadline_index: np.ndarray = field(
+        init=False
+    )  # ring: k of each executed cycle (skipped deadlines leave gaps)
     wake_hist_us: LogHistogram = field(init=False)
     step_hist_us: LogHistogram = field(init=False)
     observers_hist_us: LogHistogram = field(init=False)
@@ -99,7 +109,8 @@ class LoopStats:
         self.observers_s = np.zeros(self.ring_cycles)
         self.deadline_index = np.zeros(self.ring_cycles, dtype=np.int64)
         self.wake_hist_us, self.step_hist_us, self.observers_hist_us, self.period_error_hist_us = (
-            LogHistogram(0.1, 1e8) for _ in range(4))  # 0.1 µs .. 100 s
+            LogHistogram(0.1, 1e8) for _ in range(4)
+        )  # 0.1 µs .. 100 s
 
     def record(self, wake_error_s: float, step_s: float, deadline_index: int) -> None:
         if self.cycles - self._folded == self.ring_cycles:
@@ -139,8 +150,12 @@ class LoopStats:
         """The last ``min(cycles, ring_cycles)`` cycles as measured, oldest first."""
         n = min(self.cycles, self.ring_cycles)
         idx = np.arange(self.cycles - n, self.cycles) % self.ring_cycles
-        return {"wake_error_s": self.wake_error_s[idx], "step_s": self.step_s[idx],
-                "observers_s": self.observers_s[idx], "deadline_index": self.deadline_index[idx]}
+        return {
+            "wake_error_s": self.wake_error_s[idx],
+            "step_s": self.step_s[idx],
+            "observers_s": self.observers_s[idx],
+            "deadline_index": self.deadline_index[idx],
+        }
 
     @property
     def achieved_rate_hz(self) -> float:
@@ -177,13 +192,22 @@ class CycleLoop:
     becomes a quick stop, so the loop ends in bounded time whatever the drives do.
     """
 
-    def __init__(self, law: ControlLaw, exchange: Exchange, period_s: float, collect_fraction: float,
-                 sleeper: Sleeper, clock: Callable[[], float] = time.monotonic,
-                 observers: tuple[CycleObserver, ...] = (), stop_event: threading.Event | None = None,
-                 commands: CommandSource | None = None, late_tolerance_s: float = float("inf"),
-                 quick_stop_event: threading.Event | None = None,
-                 stop_timeout_s: float = DEFAULT_STOP_TIMEOUT_S,
-                 plans_ready: Callable[[], int] | None = None) -> None:
+    def __init__(
+        self,
+        law: ControlLaw,
+        exchange: Exchange,
+        period_s: float,
+        collect_fraction: float,
+        sleeper: Sleeper,
+        clock: Callable[[], float] = time.monotonic,
+        observers: tuple[CycleObserver, ...] = (),
+        stop_event: threading.Event | None = None,
+        commands: CommandSource | None = None,
+        late_tolerance_s: float = float("inf"),
+        quick_stop_event: threading.Event | None = None,
+        stop_timeout_s: float = DEFAULT_STOP_TIMEOUT_S,
+        plans_ready: Callable[[], int] | None = None,
+    ) -> None:
         if not stop_timeout_s > 0:
             raise ValueError(f"stop_timeout_s = {stop_timeout_s}: must be > 0")
         self.law = law
@@ -196,12 +220,19 @@ class CycleLoop:
         self.stop_event = stop_event or threading.Event()
         self.quick_stop_event = quick_stop_event or threading.Event()
         self.commands = commands
-        self.plans_ready = plans_ready  # an off-loop planner's progress (plan_worker.py), an input of the step
+        self.plans_ready = (
+            plans_ready  # an off-loop planner's progress (plan_worker.py), an input of the step
+        )
         self.late_tolerance_s = late_tolerance_s
         self.stop_timeout_s = stop_timeout_s
 
-    def run(self, state: ControllerState, max_duration_s: float | None = None, linger_after_end_s: float = 0.1,
-            exit_on_fault: bool = True) -> tuple[ControllerState, LoopStats]:
+    def run(
+        self,
+        state: ControllerState,
+        max_duration_s: float | None = None,
+        linger_after_end_s: float = 0.1,
+        exit_on_fault: bool = True,
+    ) -> tuple[ControllerState, LoopStats]:
         """Run until the law reaches DONE or FAULT, plus ``linger_after_end_s`` so that the last
         controlwords reach the drives.
 
@@ -235,10 +266,18 @@ class CycleLoop:
             stop = self.stop_event.is_set() or (time_up_cycle is not None and k >= time_up_cycle)
             if stop and stop_cycle is None:
                 stop_cycle = k
-            if self.quick_stop_event.is_set() or (stop_cycle is not None and k - stop_cycle > stop_timeout_cycles):
+            if self.quick_stop_event.is_set() or (
+                stop_cycle is not None and k - stop_cycle > stop_timeout_cycles
+            ):
                 command, value = Command.QUICK_STOP, 0.0
-            inputs = cycle_inputs(feedback, stop, command, value, late=woke - deadline > self.late_tolerance_s,
-                                  plans_ready=self.plans_ready() if self.plans_ready is not None else 0)
+            inputs = cycle_inputs(
+                feedback,
+                stop,
+                command,
+                value,
+                late=woke - deadline > self.late_tolerance_s,
+                plans_ready=self.plans_ready() if self.plans_ready is not None else 0,
+            )
             t = k * period
             c0 = clock()
             state, outputs, events = self.law.step(state, inputs, t)

@@ -44,8 +44,9 @@ class PlanWorker:
 
     def __init__(self, planner: CorrectionPlanner) -> None:
         self.planner = planner
-        self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
-                                         initializer=_lower_priority)
+        self._pool = ProcessPoolExecutor(
+            max_workers=1, mp_context=multiprocessing.get_context("spawn"), initializer=_lower_priority
+        )
         self._pool.submit(int).result()  # start the process now, not at the first request
         self._submitted = 0
         self._ready = 0
@@ -69,8 +70,16 @@ class PlanWorker:
         with self._lock:
             return self._ready
 
-    def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
-                 outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None:
+    def on_cycle(
+        self,
+        cycle: int,
+        t: float,
+        inputs: CycleInputs,
+        state: ControllerState,
+        outputs: CycleOutputs,
+        events: tuple[Event, ...],
+        timing: CycleTiming,
+    ) -> None:
         task_state = state.task_state
         request_id = getattr(task_state, "request_id", 0)
         if request_id <= self._submitted:

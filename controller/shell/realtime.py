@@ -47,11 +47,15 @@ MCL_FUTURE = 2
 DEFAULT_LOOP_PRIORITY = 80  # above the kernel's threaded IRQs (50) on PREEMPT_RT, below its watchdogs (99)
 SIMULATOR_PRIORITY_STEP = 10  # the simulated hardware runs this far below the loop
 
-_PRIORITY_HINT = ("run as root, give the interpreter CAP_SYS_NICE (sudo setcap cap_sys_nice+ep <python>), "
-                  "or allow it in /etc/security/limits.conf (@group - rtprio 90); inside a container "
-                  "start it with --cap-add SYS_NICE")
-_LOCK_HINT = ("run as root, give the interpreter CAP_IPC_LOCK, or raise the limit (ulimit -l unlimited, "
-              "or @group - memlock unlimited in /etc/security/limits.conf)")
+_PRIORITY_HINT = (
+    "run as root, give the interpreter CAP_SYS_NICE (sudo setcap cap_sys_nice+ep <python>), "
+    "or allow it in /etc/security/limits.conf (@group - rtprio 90); inside a container "
+    "start it with --cap-add SYS_NICE"
+)
+_LOCK_HINT = (
+    "run as root, give the interpreter CAP_IPC_LOCK, or raise the limit (ulimit -l unlimited, "
+    "or @group - memlock unlimited in /etc/security/limits.conf)"
+)
 
 
 class RealtimeError(InputError):
@@ -84,14 +88,20 @@ class RealtimeOptions:
         to the rest of the system (and to the simulator, ``for_simulator``).
         """
         allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
-        return cls(priority=priority, cpus=(allowed[-1],) if len(allowed) > 1 else (), lock_memory=True,
-                   required=False)
+        return cls(
+            priority=priority,
+            cpus=(allowed[-1],) if len(allowed) > 1 else (),
+            lock_memory=True,
+            required=False,
+        )
 
     def for_simulator(self) -> RealtimeOptions:
         """The simulated hardware's options beside a loop with these: one step below, on the other CPUs."""
         others = tuple(sorted(os.sched_getaffinity(0) - set(self.cpus))) if self.cpus else ()
         priority = None if self.priority is None else max(1, self.priority - SIMULATOR_PRIORITY_STEP)
-        return RealtimeOptions(priority=priority, cpus=others, lock_memory=self.lock_memory, required=self.required)
+        return RealtimeOptions(
+            priority=priority, cpus=others, lock_memory=self.lock_memory, required=self.required
+        )
 
     def __post_init__(self) -> None:
         if self.priority is not None and not 1 <= self.priority <= 99:
@@ -138,8 +148,9 @@ def set_fifo_priority(priority: int) -> None:
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
     except PermissionError as err:
-        raise RealtimeError(f"--rt-priority {priority}: SCHED_FIFO not permitted ({err.strerror}); "
-                            f"{_PRIORITY_HINT}") from err
+        raise RealtimeError(
+            f"--rt-priority {priority}: SCHED_FIFO not permitted ({err.strerror}); {_PRIORITY_HINT}"
+        ) from err
     except OSError as err:
         raise RealtimeError(f"--rt-priority {priority}: SCHED_FIFO refused by the kernel: {err}") from err
 
@@ -158,8 +169,10 @@ def set_cpu_affinity(cpus: tuple[int, ...]) -> None:
     allowed = os.sched_getaffinity(0)
     outside = sorted(set(cpus) - allowed)
     if outside:
-        raise RealtimeError(f"--cpu {label}: CPU {outside[0]} is not one this process may use "
-                            f"(allowed: {','.join(str(c) for c in sorted(allowed))})")
+        raise RealtimeError(
+            f"--cpu {label}: CPU {outside[0]} is not one this process may use "
+            f"(allowed: {','.join(str(c) for c in sorted(allowed))})"
+        )
     try:
         os.sched_setaffinity(0, set(cpus))
     except OSError as err:
@@ -230,7 +243,9 @@ def apply_realtime(options: RealtimeOptions) -> Callable[[], None]:
         attempt(lock_memory)
     if options.cpus:
         attempt(lambda: set_cpu_affinity(options.cpus))
-    applied_priority = options.priority is not None and attempt(lambda: set_fifo_priority(options.priority or 0))
+    applied_priority = options.priority is not None and attempt(
+        lambda: set_fifo_priority(options.priority or 0)
+    )
     if refused:
         log.warning("%s", refused_realtime(refused))
 
@@ -268,8 +283,9 @@ def granted_realtime() -> str:
 
 def refused_realtime(reasons: list[str]) -> str:
     """The one line printed when default real-time options are refused."""
-    return ("real-time options refused, running without them (--no-realtime silences this): "
-            + "; ".join(reasons))
+    return "real-time options refused, running without them (--no-realtime silences this): " + "; ".join(
+        reasons
+    )
 
 
 def parse_cpus(text: str) -> tuple[int, ...]:

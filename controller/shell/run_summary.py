@@ -34,10 +34,19 @@ class RunRecorder:
     events: deque[tuple[float, Event]] = field(default_factory=lambda: deque(maxlen=EVENT_RING))
     events_seen: int = 0
     _references: deque[tuple[float, float, float] | None] = field(
-        default_factory=lambda: deque([None] * PIPELINE_PERIODS, maxlen=PIPELINE_PERIODS))
+        default_factory=lambda: deque([None] * PIPELINE_PERIODS, maxlen=PIPELINE_PERIODS)
+    )
 
-    def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
-                 outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None:
+    def on_cycle(
+        self,
+        cycle: int,
+        t: float,
+        inputs: CycleInputs,
+        state: ControllerState,
+        outputs: CycleOutputs,
+        events: tuple[Event, ...],
+        timing: CycleTiming,
+    ) -> None:
         ref = self._references[0]
         if ref is not None and state.tcp_measured_m is not None and all(d.fresh for d in inputs.drives):
             error_m = math.dist(ref, state.tcp_measured_m)
@@ -61,9 +70,14 @@ def _hist_us(h: LogHistogram, *qs: float, with_max: bool = True) -> dict[str, fl
     return out
 
 
-def summarize(stats: LoopStats, recorder: RunRecorder, final: ControllerState,
-              counters: ExchangeCounters | None, bus_load_percent: float,
-              extra: dict[str, object] | None = None) -> dict[str, object]:
+def summarize(
+    stats: LoopStats,
+    recorder: RunRecorder,
+    final: ControllerState,
+    counters: ExchangeCounters | None,
+    bus_load_percent: float,
+    extra: dict[str, object] | None = None,
+) -> dict[str, object]:
     """The demo's summary as one JSON-ready dict (SI units and microseconds in the names).
 
     Timing percentiles come from the loop's fixed-size histograms: each is the upper edge of its
@@ -87,8 +101,10 @@ def summarize(stats: LoopStats, recorder: RunRecorder, final: ControllerState,
         "late_cycles": stats.late_cycles(),
         "overruns": stats.overruns,
         "missing_frames": {"drive": c.missing_drive_frames, "sensor": c.missing_sensor_frames},
-        "longest_silence_cycles": {"drive": c.longest_drive_silence_cycles,
-                                   "sensor": c.longest_sensor_silence_cycles},
+        "longest_silence_cycles": {
+            "drive": c.longest_drive_silence_cycles,
+            "sensor": c.longest_sensor_silence_cycles,
+        },
         "rejected_frames": c.rejected_frames,
         "rejected_frames_by_node": {str(node): n for node, n in sorted(c.rejected_by_node.items())},
         "foreign_frames": c.foreign_frames,
@@ -96,8 +112,11 @@ def summarize(stats: LoopStats, recorder: RunRecorder, final: ControllerState,
         "error_frames": c.error_frames,
         "bus_load_percent": round(bus_load_percent, 2),
         "tracking_error_m": {"rms": te.rms, "max": te.maximum, "samples": te.count},
-        "events": [f"{t:.4f}s {e.severity.name}: {e.message}" for t, e in recorder.events
-                   if e.severity >= Severity.INFO],
+        "events": [
+            f"{t:.4f}s {e.severity.name}: {e.message}"
+            for t, e in recorder.events
+            if e.severity >= Severity.INFO
+        ],
         "events_not_kept": recorder.events_seen - len(recorder.events),
     }
     if extra:

@@ -99,11 +99,17 @@ def homing_plans(cfg: Config) -> tuple[HomingPlan, ...] | None:
     if a.homing_method == 0:
         return None
     per_unit = actuator_units(cfg).counts_per_unit
-    return tuple(HomingPlan(method=a.homing_method, home_offset_counts=round(offset * per_unit),
-                            switch_speed_counts_s=round(a.homing_switch_speed_m_s * per_unit),
-                            zero_speed_counts_s=round(a.homing_zero_speed_m_s * per_unit),
-                            acceleration_counts_s2=round(a.homing_acceleration_m_s2 * per_unit),
-                            timeout_s=a.homing_timeout_s) for offset in a.home_offsets_m)
+    return tuple(
+        HomingPlan(
+            method=a.homing_method,
+            home_offset_counts=round(offset * per_unit),
+            switch_speed_counts_s=round(a.homing_switch_speed_m_s * per_unit),
+            zero_speed_counts_s=round(a.homing_zero_speed_m_s * per_unit),
+            acceleration_counts_s2=round(a.homing_acceleration_m_s2 * per_unit),
+            timeout_s=a.homing_timeout_s,
+        )
+        for offset in a.home_offsets_m
+    )
 
 
 def _following_error_objects(cfg: Config) -> dict[str, int]:
@@ -111,8 +117,10 @@ def _following_error_objects(cfg: Config) -> dict[str, int]:
     units = actuator_units(cfg)
     a = cfg.actuators
     window = a.following_error_window_rad if units.unit.value == "rad" else a.following_error_window_m
-    return {"following_error_window_counts": round(window * units.counts_per_unit),
-            "following_error_time_ms": round(a.following_error_time_s * 1000)}
+    return {
+        "following_error_window_counts": round(window * units.counts_per_unit),
+        "following_error_time_ms": round(a.following_error_time_s * 1000),
+    }
 
 
 def expected_environment(cfg: Config) -> str:
@@ -125,24 +133,37 @@ def node_setup_plan(cfg: Config) -> NodeSetupPlan:
     return NodeSetupPlan(
         drive_ids=tuple(cfg.actuators.node_ids),
         sensor_id=cfg.sensor.node_id if cfg.sensor.enabled else None,
-        vendor_id=cfg.actuators.vendor_id, drive_product_code=cfg.actuators.product_code,
-        sensor_product_code=cfg.sensor.product_code, controller_id=cfg.loop.controller_node_id,
-        heartbeat_period_s=cfg.loop.heartbeat_period_s, heartbeat_consumer_s=cfg.loop.heartbeat_consumer_s,
+        vendor_id=cfg.actuators.vendor_id,
+        drive_product_code=cfg.actuators.product_code,
+        sensor_product_code=cfg.sensor.product_code,
+        controller_id=cfg.loop.controller_node_id,
+        heartbeat_period_s=cfg.loop.heartbeat_period_s,
+        heartbeat_consumer_s=cfg.loop.heartbeat_consumer_s,
         cycle_period_s=cfg.period_s,
         drive_eds=device_description_path(cfg.actuators.eds_file, DRIVE_EDS),
-        sensor_eds=device_description_path(cfg.sensor.eds_file, SENSOR_EDS), sensor_vendor_id=cfg.sensor.vendor_id,
-        drive_rpdo_objects=cfg.actuators.rpdo_objects, drive_tpdo_objects=cfg.actuators.tpdo_objects,
-        homing=homing_plans(cfg), **_following_error_objects(cfg),
-        sdo_timeout_s=cfg.loop.sdo_timeout_s, answer_timeout_s=max(5.0, 3.0 * cfg.loop.sdo_timeout_s),
+        sensor_eds=device_description_path(cfg.sensor.eds_file, SENSOR_EDS),
+        sensor_vendor_id=cfg.sensor.vendor_id,
+        drive_rpdo_objects=cfg.actuators.rpdo_objects,
+        drive_tpdo_objects=cfg.actuators.tpdo_objects,
+        homing=homing_plans(cfg),
+        **_following_error_objects(cfg),
+        sdo_timeout_s=cfg.loop.sdo_timeout_s,
+        answer_timeout_s=max(5.0, 3.0 * cfg.loop.sdo_timeout_s),
         sim_environment=expected_environment(cfg) if cfg.sensor.enabled else None,
         task_kind=cfg.task.kind,
     )
 
 
-def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float | None = None,
-                   stop_event: threading.Event | None = None, observers: tuple[CycleObserver, ...] = (),
-                   frame_sink: FrameSink | None = None, realtime: RealtimeOptions | None = None,
-                   quick_stop_event: threading.Event | None = None) -> dict[str, object]:
+def run_controller(
+    cfg: Config,
+    spec: BusSpec,
+    max_duration_s: float | None = None,
+    stop_event: threading.Event | None = None,
+    observers: tuple[CycleObserver, ...] = (),
+    frame_sink: FrameSink | None = None,
+    realtime: RealtimeOptions | None = None,
+    quick_stop_event: threading.Event | None = None,
+) -> dict[str, object]:
     """Run the configured task on the bus until it ends or is stopped; returns the summary (see
     controller/shell/run_summary.py).
 
@@ -166,32 +187,55 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float | None = No
     worker = _plan_worker(prepared.law.task)  # the 3-nSPU's correcting plans, off the loop
     if worker is not None:
         observers = (*observers, worker)
-    with session or contextlib.nullcontext(), worker or contextlib.nullcontext(), monitoring_context(
-            cfg, stop_event, prepared.law.task) as publisher, FrameTap(open_bus(spec), frame_sink) as bus:
+    with (
+        session or contextlib.nullcontext(),
+        worker or contextlib.nullcontext(),
+        monitoring_context(cfg, stop_event, prepared.law.task) as publisher,
+        FrameTap(open_bus(spec), frame_sink) as bus,
+    ):
         # every frame of the session through one tap: set-up included, own echoes dropped
         setup = configure_nodes(bus, prepared.setup_plan)
         step_limit, jump_margin = position_plausibility(cfg)
         exchange = CyclicExchange(
-            bus, tuple(cfg.actuators.node_ids), PositionScale(actuator_units(cfg).counts_per_unit),
-            cfg.sensor.node_id if cfg.sensor.enabled else None, cfg.loop.controller_node_id,
-            heartbeat_every=max(1, round(cfg.loop.heartbeat_period_s * cfg.loop.rate_hz)), fd=spec.fd,
+            bus,
+            tuple(cfg.actuators.node_ids),
+            PositionScale(actuator_units(cfg).counts_per_unit),
+            cfg.sensor.node_id if cfg.sensor.enabled else None,
+            cfg.loop.controller_node_id,
+            heartbeat_every=max(1, round(cfg.loop.heartbeat_period_s * cfg.loop.rate_hz)),
+            fd=spec.fd,
             heartbeat_timeout_s=cfg.loop.heartbeat_consumer_s,
-            drive_codecs=setup.drive_codecs, sensor_codecs=setup.sensor_codecs,
-            send_sync=cfg.bus.sync_producer == "loop", flood_frames_per_cycle=cfg.safety.max_foreign_frames_per_cycle,
-            tracker_id=cfg.tracker.node_id if cfg.tracker.enabled else None, sync_period_s=cfg.period_s,
-            max_position_step=step_limit, max_position_jump=jump_margin,
+            drive_codecs=setup.drive_codecs,
+            sensor_codecs=setup.sensor_codecs,
+            send_sync=cfg.bus.sync_producer == "loop",
+            flood_frames_per_cycle=cfg.safety.max_foreign_frames_per_cycle,
+            tracker_id=cfg.tracker.node_id if cfg.tracker.enabled else None,
+            sync_period_s=cfg.period_s,
+            max_position_step=step_limit,
+            max_position_jump=jump_margin,
         )
-        kernel_sync = KernelSyncExchange(exchange, cfg.period_s, cfg.bus.sync_lead_fraction * cfg.period_s) \
-            if cfg.bus.sync_producer == "kernel" else None
+        kernel_sync = (
+            KernelSyncExchange(exchange, cfg.period_s, cfg.bus.sync_lead_fraction * cfg.period_s)
+            if cfg.bus.sync_producer == "kernel"
+            else None
+        )
         if publisher is not None:
             publisher.exchange_counters = exchange.counters
-        loop = CycleLoop(prepared.law, kernel_sync or exchange, cfg.period_s, cfg.loop.collect_fraction,
-                         DeadlineSleeper(cfg.loop.spin_us * 1e-6), time.monotonic,
-                         late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s,
-                         observers=(recorder, *observers, *((publisher,) if publisher is not None else ())),
-                         stop_event=stop_event, commands=publisher.commands if publisher is not None else None,
-                         quick_stop_event=quick_stop_event, stop_timeout_s=cfg.loop.stop_timeout_s,
-                         plans_ready=worker.ready if worker is not None else None)
+        loop = CycleLoop(
+            prepared.law,
+            kernel_sync or exchange,
+            cfg.period_s,
+            cfg.loop.collect_fraction,
+            DeadlineSleeper(cfg.loop.spin_us * 1e-6),
+            time.monotonic,
+            late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s,
+            observers=(recorder, *observers, *((publisher,) if publisher is not None else ())),
+            stop_event=stop_event,
+            commands=publisher.commands if publisher is not None else None,
+            quick_stop_event=quick_stop_event,
+            stop_timeout_s=cfg.loop.stop_timeout_s,
+            plans_ready=worker.ready if worker is not None else None,
+        )
         if cfg.loop.freeze_gc:  # start-up work: before the loop takes its real-time priority
             freeze_garbage_collector()
         restore: Callable[[], None] = lambda: None
@@ -200,8 +244,9 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float | None = No
             granted = granted_realtime()
             faults_before = resource.getrusage(resource.RUSAGE_SELF).ru_majflt
             notify("READY=1")  # systemd Type=notify: the devices are configured, the loop starts
-            final, stats = loop.run(prepared.law.initial_state(), max_duration_s,
-                                    exit_on_fault=not cfg.loop.stay_in_fault)
+            final, stats = loop.run(
+                prepared.law.initial_state(), max_duration_s, exit_on_fault=not cfg.loop.stay_in_fault
+            )
             notify("STOPPING=1")
             # a page the kernel dropped (memory pressure, proactive reclaim) is read back from disk
             # when touched: milliseconds each, inside a cycle (--lock-memory prevents it)
@@ -212,15 +257,24 @@ def run_controller(cfg: Config, spec: BusSpec, max_duration_s: float | None = No
             restore()
             if cfg.loop.freeze_gc:
                 unfreeze_garbage_collector()
-    return summarize(stats, recorder, final, exchange.counters, prepared.bus_load.percent,
-                     extra={"bus": str(spec), "sync_producer": cfg.bus.sync_producer,
-                            "node_setup_s": round(setup.duration_s, 3),
-                            "major_page_faults": major_faults,
-                            "frames": {"sent": bus.sent, "received": bus.received,
-                                       "own_echoes_dropped": bus.own_echoes},
-                            "recording": _recording_summary(session, cfg), "realtime": granted,
-                            **({"kernel_sync": kernel_sync.report()} if kernel_sync is not None else {}),
-                            **{k: v for r in prepared.reports for k, v in r.summary().items()}})
+    return summarize(
+        stats,
+        recorder,
+        final,
+        exchange.counters,
+        prepared.bus_load.percent,
+        extra={
+            "bus": str(spec),
+            "sync_producer": cfg.bus.sync_producer,
+            "node_setup_s": round(setup.duration_s, 3),
+            "major_page_faults": major_faults,
+            "frames": {"sent": bus.sent, "received": bus.received, "own_echoes_dropped": bus.own_echoes},
+            "recording": _recording_summary(session, cfg),
+            "realtime": granted,
+            **({"kernel_sync": kernel_sync.report()} if kernel_sync is not None else {}),
+            **{k: v for r in prepared.reports for k, v in r.summary().items()},
+        },
+    )
 
 
 def _plan_worker(task: object) -> PlanWorker | None:
@@ -234,25 +288,30 @@ def _plan_worker(task: object) -> PlanWorker | None:
     return PlanWorker(planner)
 
 
-def _session_recorder(cfg: Config, law: ControlLaw, spec: BusSpec, stop_event: threading.Event
-                      ) -> SessionRecorder | None:
+def _session_recorder(
+    cfg: Config, law: ControlLaw, spec: BusSpec, stop_event: threading.Event
+) -> SessionRecorder | None:
     if not cfg.recording.enabled:
         return None
     from logs.recorder import SessionRecorder
 
-    recorder = SessionRecorder.for_config(cfg, phase_name=law.task.phase_name, extra_metadata={"bus": str(spec)})
+    recorder = SessionRecorder.for_config(
+        cfg, phase_name=law.task.phase_name, extra_metadata={"bus": str(spec)}
+    )
     recorder.on_failure = _on_recording_failure(cfg.recording.on_failure, stop_event)
     return recorder
 
 
 def _on_recording_failure(policy: str, stop_event: threading.Event) -> Callable[[str], None]:
     """recording.on_failure: "stop" ends the run through STOPPING, "warn" runs on unrecorded."""
+
     def stop(why: str) -> None:
-        log.warning("recording lost (%s): stopping the run (recording.on_failure = \"stop\")", why)
+        log.warning('recording lost (%s): stopping the run (recording.on_failure = "stop")', why)
         stop_event.set()
 
     def warn(why: str) -> None:
-        log.warning("recording lost (%s): running on unrecorded (recording.on_failure = \"warn\")", why)
+        log.warning('recording lost (%s): running on unrecorded (recording.on_failure = "warn")', why)
+
     return stop if policy == "stop" else warn
 
 
@@ -260,6 +319,7 @@ def _both_sinks(a: FrameSink, b: FrameSink) -> FrameSink:
     def sink(outgoing: bool, monotonic_s: float, msg: can.Message) -> None:
         a(outgoing, monotonic_s, msg)
         b(outgoing, monotonic_s, msg)
+
     return sink
 
 
@@ -269,9 +329,20 @@ def _recording_summary(session: SessionRecorder | None, cfg: Config) -> dict[str
     lost = ""
     if session.first_lost_cycle is not None:
         cycle, t = session.first_lost_cycle
-        what = "every cycle and frame" if session.error else f"{session.dropped} item(s) (cycles, frame batches)"
-        lost = f"{what} from cycle {cycle} (t = {t:.3f} s) on" + (f" ({session.dropped} items)" if session.error else "")
-    return {"path": str(session.path), "dropped": session.dropped, "written": session.written,
-            "error": session.error, "lost": lost, "on_failure": cfg.recording.on_failure,
-            "session_id": session.session_id, "files": [str(p) for p in session.files],
-            "deleted": [str(p) for p in session.deleted]}
+        what = (
+            "every cycle and frame" if session.error else f"{session.dropped} item(s) (cycles, frame batches)"
+        )
+        lost = f"{what} from cycle {cycle} (t = {t:.3f} s) on" + (
+            f" ({session.dropped} items)" if session.error else ""
+        )
+    return {
+        "path": str(session.path),
+        "dropped": session.dropped,
+        "written": session.written,
+        "error": session.error,
+        "lost": lost,
+        "on_failure": cfg.recording.on_failure,
+        "session_id": session.session_id,
+        "files": [str(p) for p in session.files],
+        "deleted": [str(p) for p in session.deleted],
+    }

@@ -98,8 +98,13 @@ class StatusObserver:
     with ``force_error_n`` in its ``TRACKING`` phase has a force error (the contour task).
     """
 
-    def __init__(self, write: Callable[[bytes], None], period_s: float, laps: int | None = None,
-                 interval_s: float = DEFAULT_INTERVAL_S) -> None:
+    def __init__(
+        self,
+        write: Callable[[bytes], None],
+        period_s: float,
+        laps: int | None = None,
+        interval_s: float = DEFAULT_INTERVAL_S,
+    ) -> None:
         self.write = write
         self.period_s = period_s
         self.laps = laps
@@ -110,8 +115,16 @@ class StatusObserver:
         self._sum_sq = 0.0
         self._samples = 0
 
-    def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
-                 outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None:
+    def on_cycle(
+        self,
+        cycle: int,
+        t: float,
+        inputs: CycleInputs,
+        state: ControllerState,
+        outputs: CycleOutputs,
+        events: tuple[Event, ...],
+        timing: CycleTiming,
+    ) -> None:
         if cycle <= self._last_cycle or self.run == 0:  # the loop starts at cycle 0: a new run
             self.run += 1
             self._late = 0
@@ -133,10 +146,17 @@ class StatusObserver:
         ts = state.task_state
         lap = getattr(ts, "lap", None)
         return StatusSnapshot(
-            run=self.run, elapsed_s=cycle * self.period_s, mode=state.mode.name, phase=_phase_name(ts),
-            lap=lap + 1 if isinstance(lap, int) else None, laps=self.laps if isinstance(lap, int) else None,
+            run=self.run,
+            elapsed_s=cycle * self.period_s,
+            mode=state.mode.name,
+            phase=_phase_name(ts),
+            lap=lap + 1 if isinstance(lap, int) else None,
+            laps=self.laps if isinstance(lap, int) else None,
             force_error_rms_n=math.sqrt(self._sum_sq / self._samples) if self._samples else None,
-            force_error_samples=self._samples, late_cycles=self._late, fault=state.fault_reason)
+            force_error_samples=self._samples,
+            late_cycles=self._late,
+            fault=state.fault_reason,
+        )
 
 
 class StatusDisplay:
@@ -182,7 +202,9 @@ def live_status(enabled: bool) -> Iterator[StatusDisplay | None]:
         yield None
         return
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (_REPO, os.environ.get("PYTHONPATH")) if p)}
-    proc = subprocess.Popen([sys.executable, "-m", "controller.shell.status_line"], stdin=subprocess.PIPE, env=env)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "controller.shell.status_line"], stdin=subprocess.PIPE, env=env
+    )
     display = StatusDisplay(proc)
     try:
         yield display
@@ -206,11 +228,12 @@ def draw(lines: IO[bytes]) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the controller stops the run
+    signal.signal(
+        signal.SIGINT, signal.SIG_IGN
+    )  # Ctrl-C reaches the whole group: the controller stops the run
     draw(sys.stdin.buffer)
     return 0
 
 
 if __name__ == "__main__":
     sys.exit(main())
-

@@ -25,7 +25,9 @@ class StopSignals:
         self.stop.set()
 
 
-def install_stop_signals(signals: tuple[signal.Signals, ...] = (signal.SIGINT, signal.SIGTERM)) -> StopSignals:
+def install_stop_signals(
+    signals: tuple[signal.Signals, ...] = (signal.SIGINT, signal.SIGTERM),
+) -> StopSignals:
     """Route ``signals`` to a new ``StopSignals`` (call from the main thread)."""
     handler = StopSignals()
     for sig in signals:

@@ -28,7 +28,9 @@ class LogHistogram:
 
     def __init__(self, lowest: float, highest: float, resolution: float = 0.01) -> None:
         if not (lowest > 0 and highest > lowest):
-            raise ValueError(f"LogHistogram: need 0 < lowest < highest, got lowest={lowest}, highest={highest}")
+            raise ValueError(
+                f"LogHistogram: need 0 < lowest < highest, got lowest={lowest}, highest={highest}"
+            )
         if not 0 < resolution < 1:
             raise ValueError(f"LogHistogram: resolution = {resolution}: must be in (0, 1)")
         self.lowest = lowest
@@ -116,6 +118,6 @@ class FloatRing:
 
     def values(self) -> np.ndarray:
         if self._n <= self.capacity:
-            return self._buf[:self._n].copy()
+            return self._buf[: self._n].copy()
         i = self._n % self.capacity
         return np.concatenate((self._buf[i:], self._buf[:i]))

@@ -22,6 +22,7 @@ if TYPE_CHECKING:  # the tasks load on demand, when one is built: the configurat
 
 # -- the circle path ----------------------------------------------------------------------------
 
+
 class PathSection(Section, frozen=True):
     """A circle in a plane parallel to XY: the first task of issue 2."""
 
@@ -32,8 +33,6 @@ class PathSection(Section, frozen=True):
     ramp_s: Annotated[float, rng(0.0, 60.0)] = 0.5
     check_samples: Annotated[int, rng(8, 1_000_000)] = 720
     normal: tuple[float, float, float] = (0.0, 0.0, 1.0)  # the circle's plane normal (not normalised)
-
-
 
 
 def _check_path(p: PathSection) -> None:
@@ -47,8 +46,9 @@ def build_path_task(cfg: Config, robot: Robot) -> BuiltTask:
 
     p: PathSection = cfg.task.model("path")
     try:
-        path = CirclePath(center_m=p.center_m, radius_m=p.radius_m, speed_m_s=p.speed_m_s, laps=p.laps,
-                          ramp_s=p.ramp_s)
+        path = CirclePath(
+            center_m=p.center_m, radius_m=p.radius_m, speed_m_s=p.speed_m_s, laps=p.laps, ramp_s=p.ramp_s
+        )
     except ValueError as err:
         raise ConfigError(f"[task.path]: {err}") from err
     trajectory: CartesianTrajectory = path
@@ -61,6 +61,7 @@ def build_path_task(cfg: Config, robot: Robot) -> BuiltTask:
 
 
 # -- contour tracking (seed 001 §7) -------------------------------------------------------------
+
 
 class ContourSection(Section, frozen=True):
     """Hybrid force/velocity contour tracking (seed 001 §7); see controller/tasks/contour_tracking.py."""
@@ -118,10 +119,13 @@ def contour_params(c: ContourSection, settle_tolerance_m: float, max_contact_for
     from controller.tasks.contour_tracking import ContourParams
 
     same = {f.name: getattr(c, f.name) for f in dataclasses.fields(ContourParams) if hasattr(c, f.name)}
-    return ContourParams(**same, approach_direction_rad=math.radians(c.approach_direction_deg),
-                         reapproach_on_contact_loss=c.on_contact_loss == "reapproach",
-                         settle_tolerance_m=settle_tolerance_m,
-                         saturation_force_n=c.admittance_saturation_fraction * max_contact_force_n)
+    return ContourParams(
+        **same,
+        approach_direction_rad=math.radians(c.approach_direction_deg),
+        reapproach_on_contact_loss=c.on_contact_loss == "reapproach",
+        settle_tolerance_m=settle_tolerance_m,
+        saturation_force_n=c.admittance_saturation_fraction * max_contact_force_n,
+    )
 
 
 def build_contour_task(cfg: Config, robot: Robot) -> BuiltTask:
@@ -134,7 +138,9 @@ def build_contour_task(cfg: Config, robot: Robot) -> BuiltTask:
     ring = []
     for r in (c.expected_radius_m - c.max_approach_distance_m, c.expected_radius_m + c.approach_clearance_m):
         for th in np.linspace(0.0, 2.0 * np.pi, 73):
-            ring.append((c.expected_centre_m[0] + r * np.cos(th), c.expected_centre_m[1] + r * np.sin(th), c.height_m))
+            ring.append(
+                (c.expected_centre_m[0] + r * np.cos(th), c.expected_centre_m[1] + r * np.sin(th), c.height_m)
+            )
     robot.check_path(np.array(ring))
     params = contour_params(c, cfg.loop.settle_tolerance_m, cfg.safety.max_contact_force_n)
     return BuiltTask(ContourTrackingTask(robot, params))  # type: ignore[arg-type]
@@ -142,19 +148,31 @@ def build_contour_task(cfg: Config, robot: Robot) -> BuiltTask:
 
 # -- the planned legs (seed 004): the 3-nSPU's settings are in [robot.nspu] ----------------------
 
+
 def build_planned_task(cfg: Config, robot: Robot) -> BuiltTask:
     from controller.tasks.planned_legs import build_planned_legs_task
 
-    task, report = build_planned_legs_task(cfg.robot.model("nspu"), actuator_units(cfg), cfg.loop.settle_tolerance_m,
-                                           robot, tracker=cfg.tracker.enabled)
+    task, report = build_planned_legs_task(
+        cfg.robot.model("nspu"),
+        actuator_units(cfg),
+        cfg.loop.settle_tolerance_m,
+        robot,
+        tracker=cfg.tracker.enabled,
+    )
     return BuiltTask(task, (report,))
 
 
 # -- the entries --------------------------------------------------------------------------------
 
 PATH = TaskEntry(kind="path", section=PathSection, build=build_path_task, check=_check_path)
-CONTOUR = TaskEntry(kind="contour", section=ContourSection, build=build_contour_task, check=_check_contour,
-                    sim_environment="workpiece", uses_force_sensor=True)
+CONTOUR = TaskEntry(
+    kind="contour",
+    section=ContourSection,
+    build=build_contour_task,
+    check=_check_contour,
+    sim_environment="workpiece",
+    uses_force_sensor=True,
+)
 PLANNED = TaskEntry(kind="planned", section=None, build=build_planned_task)
 
 for _entry in (PATH, CONTOUR, PLANNED):

@@ -88,8 +88,9 @@ from controller.tasks.task import JointReference, TaskContext, TaskStep
 class Kinematics(Protocol):
     def inverse_kinematics(self, tcp_m: np.ndarray) -> np.ndarray: ...
 
-    def joint_motion(self, tcp_m: tuple[float, float, float], velocity_m_s: tuple[float, float, float]
-                     ) -> tuple[tuple[float, ...], tuple[float, ...]]: ...
+    def joint_motion(
+        self, tcp_m: tuple[float, float, float], velocity_m_s: tuple[float, float, float]
+    ) -> tuple[tuple[float, ...], tuple[float, ...]]: ...
 
 
 SETTLED_CONTACT_S = 0.25  # a contact this long near the setpoint and trusted gives the re-approach's normal
@@ -101,7 +102,9 @@ CONSISTENCY_MIN_SPEED_M_S = 0.005  # slower motion says nothing about the tangen
 RETARE_MAX_FRACTION = 0.5  # of the setpoint: a re-approach re-tares the sensor when it reads less than this
 FORCE_BAND_FRACTION = 0.3  # of the force setpoint: a larger error derates the tangential speed ...
 FORCE_STOP_FRACTION = 0.6  # ... down to zero at this one (the disk's laps stay within 0.17 at 60 mm/s)
-UNSEEN_TURN_DECAY_S = 0.1  # without a direction measurement the normal's turn rate fades with this time constant
+UNSEEN_TURN_DECAY_S = (
+    0.1  # without a direction measurement the normal's turn rate fades with this time constant
+)
 
 
 class ContourPhase(IntEnum):
@@ -150,13 +153,17 @@ class ContourParams:
     max_force_step_n: float = 10.0  # a larger step between two samples is implausible [N]
     implausible_hold_s: float = 0.5  # the longest a suspect signal is held off before its level is taken [s]
     stale_hold_cycles: int = 4  # cycles without a fresh sample before the law holds as for a suspect one
-    stop_deceleration_m_s2: float = 2.0  # tangential braking (contact loss, suspect signal, corners, force band)
+    stop_deceleration_m_s2: float = (
+        2.0  # tangential braking (contact loss, suspect signal, corners, force band)
+    )
     reapproach_distance_m: float = 0.008  # guarded travel along the last normal per attempt
     max_reacquire_attempts: int = 3
     max_normal_turn_rate_rad_s: float = 2.0  # corners: the speed is derated to keep the normal's turn rate
     min_tangential_speed_m_s: float = 0.005  # the derating's floor
     max_push_without_force_m: float = 0.003  # into the contact without the force rising: no contact there
-    creep_speed_m_s: float = 0.01  # after a re-acquisition, for creep_distance_m: the contour is irregular there
+    creep_speed_m_s: float = (
+        0.01  # after a re-acquisition, for creep_distance_m: the contour is irregular there
+    )
     creep_distance_m: float = 0.025
 
 
@@ -212,8 +219,9 @@ def _wrap(a: float) -> float:
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
-def track_normal(angle_rad: float, rate_rad_s: float, measured_rad: float, dt: float, natural_hz: float
-                 ) -> tuple[float, float]:
+def track_normal(
+    angle_rad: float, rate_rad_s: float, measured_rad: float, dt: float, natural_hz: float
+) -> tuple[float, float]:
     """One step of a second-order (type-2) tracker of the normal's angle: (angle, turn rate).
 
     theta' = omega + 2 zeta w_n (theta_m - theta), omega' = w_n^2 (theta_m - theta), zeta = 1/sqrt(2):
@@ -249,25 +257,42 @@ class ContourTrackingTask:
 
     def start(self) -> ContourState:
         u = (math.cos(self.p.approach_direction_rad), math.sin(self.p.approach_direction_rad))
-        return ContourState(p_cmd=self.start_m, normal=u, contact_normal=u, centre=self.p.expected_centre_m,
-                            contact_losses=(0,) * self.laps, force_setpoint_n=self.p.force_setpoint_n)
+        return ContourState(
+            p_cmd=self.start_m,
+            normal=u,
+            contact_normal=u,
+            centre=self.p.expected_centre_m,
+            contact_losses=(0,) * self.laps,
+            force_setpoint_n=self.p.force_setpoint_n,
+        )
 
     def phase_name(self, state: ContourState) -> str:
         return state.phase.name
 
     # -- helpers ------------------------------------------------------------------------------
 
-    def _reference(self, s: ContourState, v: tuple[float, float, float], on_path: bool, dt: float
-                   ) -> tuple[ContourState, JointReference]:
+    def _reference(
+        self, s: ContourState, v: tuple[float, float, float], on_path: bool, dt: float
+    ) -> tuple[ContourState, JointReference]:
         q, qd = self.robot.joint_motion(s.p_cmd, v)
         qdd = tuple((a - b) / dt for a, b in zip(qd, s.qd_ref)) if s.qd_ref else (0.0,) * len(qd)
         return replace(s, qd_ref=qd), JointReference(q, qd, qdd, s.p_cmd, on_path, reactive=True)
 
-    def _moving(self, s: ContourState, v: tuple[float, float, float], dt: float, on_path: bool = False,
-                events: tuple[Event, ...] = (), travel_m: float = 0.0) -> TaskStep:
+    def _moving(
+        self,
+        s: ContourState,
+        v: tuple[float, float, float],
+        dt: float,
+        on_path: bool = False,
+        events: tuple[Event, ...] = (),
+        travel_m: float = 0.0,
+    ) -> TaskStep:
         """Move the commanded TCP by v dt (travel adds to the phase's distance) and make the reference."""
-        s = replace(s, p_cmd=(s.p_cmd[0] + v[0] * dt, s.p_cmd[1] + v[1] * dt, s.p_cmd[2] + v[2] * dt),
-                    travel_m=s.travel_m + travel_m)
+        s = replace(
+            s,
+            p_cmd=(s.p_cmd[0] + v[0] * dt, s.p_cmd[1] + v[1] * dt, s.p_cmd[2] + v[2] * dt),
+            travel_m=s.travel_m + travel_m,
+        )
         s, ref = self._reference(s, v, on_path, dt)
         return TaskStep(s, ref, events=events)
 
@@ -285,7 +310,11 @@ class ContourTrackingTask:
         sensor = ctx.inputs.sensor
         if sensor is None or not sensor.fresh:
             return replace(s, stale_cycles=s.stale_cycles + 1), ()
-        raw = (sensor.force_n[0] - s.offset[0], sensor.force_n[1] - s.offset[1], sensor.force_n[2] - s.offset[2])
+        raw = (
+            sensor.force_n[0] - s.offset[0],
+            sensor.force_n[1] - s.offset[1],
+            sensor.force_n[2] - s.offset[2],
+        )
         last, s = s.raw_force, replace(s, stale_cycles=0, raw_force=raw)
         if s.phase in (ContourPhase.MOVE_TO_START, ContourPhase.TARE) or last is None:
             return s, ()
@@ -293,29 +322,47 @@ class ContourTrackingTask:
         if s.held_force is not None:  # suspect: has the signal come back, or held its new level long enough?
             held, jump = s.held_force, s.held_step
             elapsed_s = (s.suspect_cycles + 1) * ctx.period_s
-            tolerance = 0.5 * p.max_force_step_n  # tighter than the step: a swing of the structure is no return
+            tolerance = (
+                0.5 * p.max_force_step_n
+            )  # tighter than the step: a swing of the structure is no return
             back = math.hypot(raw[0] - last[0] + jump[0], raw[1] - last[1] + jump[1]) <= tolerance
             if back or math.hypot(raw[0] - held[0], raw[1] - held[1]) <= tolerance:
                 return self._filtered(replace(s, held_force=None, suspect_cycles=0), raw, ctx), (
-                    Event("force_plausible", Severity.INFO,
-                          f"force back at its level after {elapsed_s * 1000:.0f} ms; tracking on"),)
+                    Event(
+                        "force_plausible",
+                        Severity.INFO,
+                        f"force back at its level after {elapsed_s * 1000:.0f} ms; tracking on",
+                    ),
+                )
             if elapsed_s >= p.implausible_hold_s:
                 return replace(s, held_force=None, suspect_cycles=0, force_f=raw), (
-                    Event("force_plausible", Severity.WARNING,
-                          f"force held a new level for {elapsed_s * 1000:.0f} ms: taken as real"),)
+                    Event(
+                        "force_plausible",
+                        Severity.WARNING,
+                        f"force held a new level for {elapsed_s * 1000:.0f} ms: taken as real",
+                    ),
+                )
             return replace(s, suspect_cycles=s.suspect_cycles + 1), ()
         step = math.hypot(raw[0] - last[0], raw[1] - last[1])
         if step > p.max_force_step_n:
-            return replace(s, held_force=last, held_step=(raw[0] - last[0], raw[1] - last[1]), suspect_cycles=0), (
-                Event("force_implausible", Severity.WARNING,
-                      f"force step of {step:.1f} N in one sample (> {p.max_force_step_n} N): held off, "
-                      f"no motion into the contact, tangential motion braking"),)
+            return replace(
+                s, held_force=last, held_step=(raw[0] - last[0], raw[1] - last[1]), suspect_cycles=0
+            ), (
+                Event(
+                    "force_implausible",
+                    Severity.WARNING,
+                    f"force step of {step:.1f} N in one sample (> {p.max_force_step_n} N): held off, "
+                    f"no motion into the contact, tangential motion braking",
+                ),
+            )
         return self._filtered(s, raw, ctx), ()
 
     def _filtered(self, s: ContourState, raw: tuple[float, float, float], ctx: TaskContext) -> ContourState:
         a = 1.0 - math.exp(-2.0 * math.pi * self.p.force_filter_hz * ctx.period_s)
         f = s.force_f
-        return replace(s, force_f=(f[0] + a * (raw[0] - f[0]), f[1] + a * (raw[1] - f[1]), f[2] + a * (raw[2] - f[2])))
+        return replace(
+            s, force_f=(f[0] + a * (raw[0] - f[0]), f[1] + a * (raw[1] - f[1]), f[2] + a * (raw[2] - f[2]))
+        )
 
     def _trusted(self, s: ContourState) -> bool:
         """Whether this cycle's force may steer the law: no implausible step held, no run of stale cycles."""
@@ -336,8 +383,9 @@ class ContourTrackingTask:
         return p.max_normal_speed_m_s * min(1.0, 0.25 + (pressing_n - p.saturation_force_n) / span)
 
     @staticmethod
-    def _moves_along_tangent(s: ContourState, normal: tuple[float, float], tcp: tuple[float, float, float],
-                             dt: float) -> bool:
+    def _moves_along_tangent(
+        s: ContourState, normal: tuple[float, float], tcp: tuple[float, float, float], dt: float
+    ) -> bool:
         """The measured TCP moved (faster than CONSISTENCY_MIN_SPEED) within CONSISTENCY_MAX_DEG of the tangent."""
         if s.last_xy is None:
             return False
@@ -363,11 +411,15 @@ class ContourTrackingTask:
         if ctx.inputs.command == Command.SET_FORCE and ctx.inputs.command_value > 0:
             s = replace(s, force_setpoint_n=ctx.inputs.command_value)
         handler = {
-            ContourPhase.MOVE_TO_START: self._move_to_start, ContourPhase.TARE: self._tare,
-            ContourPhase.APPROACH: self._approach, ContourPhase.TRACKING: self._tracking,
-            ContourPhase.CONTACT_LOST: self._contact_lost, ContourPhase.REAPPROACH: self._reapproach,
+            ContourPhase.MOVE_TO_START: self._move_to_start,
+            ContourPhase.TARE: self._tare,
+            ContourPhase.APPROACH: self._approach,
+            ContourPhase.TRACKING: self._tracking,
+            ContourPhase.CONTACT_LOST: self._contact_lost,
+            ContourPhase.REAPPROACH: self._reapproach,
             ContourPhase.BACK_OFF: self._back_off,
-            ContourPhase.RETRACT: self._retract, ContourPhase.FINISHED: self._finished,
+            ContourPhase.RETRACT: self._retract,
+            ContourPhase.FINISHED: self._finished,
         }[s.phase]
         out = handler(s, ctx)
         return replace(out, events=signal_events + out.events) if signal_events else out
@@ -375,8 +427,9 @@ class ContourTrackingTask:
     def _move_to_start(self, s: ContourState, ctx: TaskContext) -> TaskStep:
         tol = self.p.settle_tolerance_m
         sp = ctx.setpoint
-        settled = all(abs(a - b) <= tol for a, b in zip(sp.position, self._start_q)) and \
-            all(abs(v) <= tol for v in sp.velocity)
+        settled = all(abs(a - b) <= tol for a, b in zip(sp.position, self._start_q)) and all(
+            abs(v) <= tol for v in sp.velocity
+        )
         ref = JointReference(self._start_q, (0.0,) * 3, (0.0,) * 3, self.start_m, False)
         if settled:
             s = self._enter(s, ContourPhase.TARE, ctx.t_s)
@@ -386,7 +439,9 @@ class ContourTrackingTask:
         sensor = ctx.inputs.sensor
         if sensor is not None and sensor.fresh:
             fx, fy, fz, n = s.tare_sum
-            s = replace(s, tare_sum=(fx + sensor.force_n[0], fy + sensor.force_n[1], fz + sensor.force_n[2], n + 1))
+            s = replace(
+                s, tare_sum=(fx + sensor.force_n[0], fy + sensor.force_n[1], fz + sensor.force_n[2], n + 1)
+            )
         s, ref = self._reference(s, (0.0, 0.0, 0.0), False, ctx.period_s)
         if ctx.t_s - s.phase_start_s < self.p.tare_s:
             return TaskStep(s, ref)
@@ -394,8 +449,12 @@ class ContourTrackingTask:
         if n == 0:
             return TaskStep(s, ref, fault="no force-sensor samples during the tare")
         offset = (fx / n, fy / n, fz / n)
-        event = Event("contour", Severity.INFO, f"sensor offset {tuple(round(o, 3) for o in offset)} N; approaching")
-        s = self._enter(s, ContourPhase.APPROACH, ctx.t_s, offset=offset, force_f=(0.0, 0.0, 0.0), raw_force=None)
+        event = Event(
+            "contour", Severity.INFO, f"sensor offset {tuple(round(o, 3) for o in offset)} N; approaching"
+        )
+        s = self._enter(
+            s, ContourPhase.APPROACH, ctx.t_s, offset=offset, force_f=(0.0, 0.0, 0.0), raw_force=None
+        )
         return TaskStep(s, ref, events=(event,))
 
     def _in_contact(self, s: ContourState, along: tuple[float, float]) -> float | None:
@@ -410,9 +469,19 @@ class ContourTrackingTask:
         f_contact = self._in_contact(s, s.normal)
         if f_contact is not None:
             n = _unit2(s.force_f[0], s.force_f[1]) or s.normal
-            event = Event("contact", Severity.INFO, f"contact at {f_contact:.2f} N after {s.travel_m * 1000:.1f} mm")
-            s = self._enter(s, ContourPhase.TRACKING, ctx.t_s, normal=n, contact_normal=n, normal_rate_rad_s=0.0,
-                            integral=0.0, low_force_cycles=0)
+            event = Event(
+                "contact", Severity.INFO, f"contact at {f_contact:.2f} N after {s.travel_m * 1000:.1f} mm"
+            )
+            s = self._enter(
+                s,
+                ContourPhase.TRACKING,
+                ctx.t_s,
+                normal=n,
+                contact_normal=n,
+                normal_rate_rad_s=0.0,
+                integral=0.0,
+                low_force_cycles=0,
+            )
             return self._tracking(s, ctx, (event,))
         limit = p.approach_clearance_m + p.max_approach_distance_m
         if s.travel_m > limit:
@@ -424,7 +493,9 @@ class ContourTrackingTask:
         v = (-s.normal[0] * speed, -s.normal[1] * speed, 0.0)
         return self._moving(s, v, ctx.period_s, travel_m=speed * ctx.period_s)
 
-    def _normal_update(self, s: ContourState, ctx: TaskContext, f_xy: float) -> tuple[tuple[float, float], float]:
+    def _normal_update(
+        self, s: ContourState, ctx: TaskContext, f_xy: float
+    ) -> tuple[tuple[float, float], float]:
         """The normal estimate and its turn rate after this cycle's force (gated, see the module's text)."""
         p, dt = self.p, ctx.period_s
         normal, rate = s.normal, s.normal_rate_rad_s
@@ -487,21 +558,29 @@ class ContourTrackingTask:
         target = p.lap_speeds_m_s[min(s.lap, len(p.lap_speeds_m_s) - 1)]
         if s.creep_m > 0.0:
             target = min(target, p.creep_speed_m_s)
-        raw_error_n = force_error_n if s.raw_force is None else \
-            s.force_setpoint_n - (s.raw_force[0] * s.normal[0] + s.raw_force[1] * s.normal[1])
+        raw_error_n = (
+            force_error_n
+            if s.raw_force is None
+            else s.force_setpoint_n - (s.raw_force[0] * s.normal[0] + s.raw_force[1] * s.normal[1])
+        )
         # the raw sample too: a contact surprise shows there about 15 ms before it does through the filter
         target *= min(self._in_band(s, force_error_n), self._in_band(s, raw_error_n))
         up, down = p.tangential_acceleration_m_s2 * dt, p.stop_deceleration_m_s2 * dt
-        if abs(rate_rad_s) > p.max_normal_turn_rate_rad_s and s.speed_m_s > 0.0:  # a corner: keep the turn rate
-            corner = max(p.min_tangential_speed_m_s, s.speed_m_s * p.max_normal_turn_rate_rad_s / abs(rate_rad_s))
+        if (
+            abs(rate_rad_s) > p.max_normal_turn_rate_rad_s and s.speed_m_s > 0.0
+        ):  # a corner: keep the turn rate
+            corner = max(
+                p.min_tangential_speed_m_s, s.speed_m_s * p.max_normal_turn_rate_rad_s / abs(rate_rad_s)
+            )
             if corner < target:
                 # gently: the turn rate is measured through the normal's tracker, which lags the speed;
                 # a hard brake on it would make the two chase each other
                 target, down = corner, up
         return min(max(target, s.speed_m_s - down), s.speed_m_s + up)
 
-    def _normal_speed(self, s: ContourState, ctx: TaskContext, fn: float, pressing_n: float
-                      ) -> tuple[float, float, float]:
+    def _normal_speed(
+        self, s: ContourState, ctx: TaskContext, fn: float, pressing_n: float
+    ) -> tuple[float, float, float]:
         """(v_n into the contact [m/s], the new integral, the force error): PI admittance, saturated."""
         p = self.p
         err = s.force_setpoint_n - fn
@@ -516,7 +595,9 @@ class ContourTrackingTask:
             # Out of the force band the contact is not where the tool is going: motion into it is a
             # guarded approach, down to the approach speed (a bias or a pull reads as a weak contact,
             # and the integral would drive the tool at the contour at full normal speed).
-            inward = p.approach_speed_m_s + (p.max_normal_speed_m_s - p.approach_speed_m_s) * self._in_band(s, err)
+            inward = p.approach_speed_m_s + (p.max_normal_speed_m_s - p.approach_speed_m_s) * self._in_band(
+                s, err
+            )
             if vn > inward or vn < -p.max_normal_speed_m_s:  # clamp and stop integrating (anti-windup)
                 vn = min(max(vn, -p.max_normal_speed_m_s), inward)
                 integral = s.integral
@@ -530,7 +611,9 @@ class ContourTrackingTask:
         dt = ctx.period_s
         f_xy = math.hypot(s.force_f[0], s.force_f[1])
         normal, rate = self._normal_update(s, ctx, f_xy)
-        fn = s.force_f[0] * normal[0] + s.force_f[1] * normal[1]  # normal force pressing the tool out of the object
+        fn = (
+            s.force_f[0] * normal[0] + s.force_f[1] * normal[1]
+        )  # normal force pressing the tool out of the object
         pressing = self._pressing_n(s, normal)  # the raw sample counts here too: a collision is a step
         if pressing > p.max_force_n:
             why = f"contact force {pressing:.1f} N above the limit of {p.max_force_n} N"
@@ -553,8 +636,10 @@ class ContourTrackingTask:
         if fn >= ref_n + STIFFNESS_PROBE_N or fn >= (1.0 - FORCE_BAND_FRACTION) * s.force_setpoint_n:
             pushed, ref_n = 0.0, fn
         if pushed >= p.max_push_without_force_m:
-            why = (f"no contact stiffness: {pushed * 1000:.1f} mm into the contact with the force staying near "
-                   f"{fn:.1f} N")
+            why = (
+                f"no contact stiffness: {pushed * 1000:.1f} mm into the contact with the force staying near "
+                f"{fn:.1f} N"
+            )
             return self._lose_contact(replace(s, normal=normal, normal_rate_rad_s=rate), ctx, events, why)
         s = replace(s, pushed_m=pushed, push_ref_n=ref_n)
         speed = self._tangential_speed(s, rate, err, dt)
@@ -566,19 +651,34 @@ class ContourTrackingTask:
         # force disturbance tilts the normal, but the contour, not the estimate, guides the tool.
         tcp = ctx.tcp_measured_m or s.p_cmd
         along = self._moves_along_tangent(s, normal, tcp, dt)
-        settled = s.settled_cycles + 1 if trusted and along and \
-            0.5 * s.force_setpoint_n <= fn <= 2.0 * s.force_setpoint_n else 0
+        settled = (
+            s.settled_cycles + 1
+            if trusted and along and 0.5 * s.force_setpoint_n <= fn <= 2.0 * s.force_setpoint_n
+            else 0
+        )
         good = settled * dt >= SETTLED_CONTACT_S
         # A force out of its band marks the contour as irregular here (a notch's edge, a bump, a
         # disturbance): the next creep_distance_m go at creep speed, so that what comes next (a
         # notch's far wall: a concave corner, whose impact no reaction can catch at full speed) is
         # met slowly.
-        out_of_band = trusted and abs(err) > FORCE_BAND_FRACTION * s.force_setpoint_n and s.contact_point is not None
+        out_of_band = (
+            trusted and abs(err) > FORCE_BAND_FRACTION * s.force_setpoint_n and s.contact_point is not None
+        )
         creep = p.creep_distance_m if out_of_band else max(0.0, s.creep_m - speed * dt)
-        s = replace(s, speed_m_s=speed, creep_m=creep, normal=normal, normal_rate_rad_s=rate, integral=integral,
-                    normal_force_n=fn, force_error_n=err, low_force_cycles=low, settled_cycles=settled,
-                    contact_normal=normal if good else s.contact_normal,
-                    contact_point=(tcp[0], tcp[1]) if good else s.contact_point)
+        s = replace(
+            s,
+            speed_m_s=speed,
+            creep_m=creep,
+            normal=normal,
+            normal_rate_rad_s=rate,
+            integral=integral,
+            normal_force_n=fn,
+            force_error_n=err,
+            low_force_cycles=low,
+            settled_cycles=settled,
+            contact_normal=normal if good else s.contact_normal,
+            contact_point=(tcp[0], tcp[1]) if good else s.contact_point,
+        )
         s, lap_events = self._count_laps(s, ctx)
         events = events + lap_events
         if s.lap >= self.laps:
@@ -601,29 +701,56 @@ class ContourTrackingTask:
         if s.lap == 0:
             sums = (sums[0] + x * ds, sums[1] + y * ds, sums[2] + ds)
         if lap > s.lap:
-            events = (Event("lap", Severity.INFO, f"lap {s.lap + 1} of {self.laps} done "
-                                                  f"({s.arc_m * 1000 + ds * 1000:.0f} mm traced)"),)
+            events = (
+                Event(
+                    "lap",
+                    Severity.INFO,
+                    f"lap {s.lap + 1} of {self.laps} done ({s.arc_m * 1000 + ds * 1000:.0f} mm traced)",
+                ),
+            )
             if s.lap == 0 and sums[2] > 0.0:  # count about the traced contour's own centroid from now on
                 centre = (sums[0] / sums[2], sums[1] / sums[2])
                 angle = math.atan2(y - centre[1], x - centre[0])
-        s = replace(s, swept_rad=swept, last_angle=angle, lap=lap, centre=centre, path_sums=sums, last_xy=(x, y),
-                    arc_m=s.arc_m + ds)
+        s = replace(
+            s,
+            swept_rad=swept,
+            last_angle=angle,
+            lap=lap,
+            centre=centre,
+            path_sums=sums,
+            last_xy=(x, y),
+            arc_m=s.arc_m + ds,
+        )
         return s, events
 
-    def _lose_contact(self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...], why: str = "") -> TaskStep:
+    def _lose_contact(
+        self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...], why: str = ""
+    ) -> TaskStep:
         p = self.p
         losses = list(s.contact_losses)
         losses[min(s.lap, len(losses) - 1)] += 1
-        s = replace(s, contact_losses=tuple(losses), low_force_cycles=0, integral=0.0, attempts=0, last_xy=None,
-                    pushed_m=0.0)
+        s = replace(
+            s,
+            contact_losses=tuple(losses),
+            low_force_cycles=0,
+            integral=0.0,
+            attempts=0,
+            last_xy=None,
+            pushed_m=0.0,
+        )
         where = f"in lap {s.lap + 1} after {s.arc_m * 1000:.0f} mm" + (f" ({why})" if why else "")
         if not p.reapproach_on_contact_loss:
-            ev = Event("contact_lost", Severity.WARNING, f"contact lost {where}; retracting (on_contact_loss = stop)")
+            ev = Event(
+                "contact_lost", Severity.WARNING, f"contact lost {where}; retracting (on_contact_loss = stop)"
+            )
             s = self._enter(s, ContourPhase.RETRACT, ctx.t_s)
             return self._retract(s, ctx, events + (ev,))
         n = s.contact_normal
-        ev = Event("contact_lost", Severity.WARNING,
-                   f"contact lost {where}; braking, then re-approaching along ({n[0]:.3f}, {n[1]:.3f})")
+        ev = Event(
+            "contact_lost",
+            Severity.WARNING,
+            f"contact lost {where}; braking, then re-approaching along ({n[0]:.3f}, {n[1]:.3f})",
+        )
         s = self._enter(s, ContourPhase.CONTACT_LOST, ctx.t_s)
         return self._contact_lost(s, ctx, events + (ev,))
 
@@ -643,9 +770,12 @@ class ContourTrackingTask:
 
     def _attempt_event(self, s: ContourState) -> Event:
         d = s.reapproach_direction
-        return Event("reapproach", Severity.INFO,
-                     f"re-approach {s.attempts + 1} of {self.p.max_reacquire_attempts} along ({d[0]:.3f}, {d[1]:.3f}), "
-                     f"guarded, at most {s.reapproach_m * 1000:.1f} mm")
+        return Event(
+            "reapproach",
+            Severity.INFO,
+            f"re-approach {s.attempts + 1} of {self.p.max_reacquire_attempts} along ({d[0]:.3f}, {d[1]:.3f}), "
+            f"guarded, at most {s.reapproach_m * 1000:.1f} mm",
+        )
 
     def _start_reapproach(self, s: ContourState, ctx: TaskContext) -> ContourState:
         """Aim ``reapproach_distance_m`` behind the last good contact point, along its normal.
@@ -659,32 +789,62 @@ class ContourTrackingTask:
         f = s.force_f
         if self._trusted(s) and math.hypot(f[0], f[1]) < RETARE_MAX_FRACTION * s.force_setpoint_n:
             # Out of contact and standing: what the sensor reads is its own offset (a drifted bias).
-            s = replace(s, offset=(s.offset[0] + f[0], s.offset[1] + f[1], s.offset[2] + f[2]),
-                        force_f=(0.0, 0.0, 0.0), raw_force=None)
+            s = replace(
+                s,
+                offset=(s.offset[0] + f[0], s.offset[1] + f[1], s.offset[2] + f[2]),
+                force_f=(0.0, 0.0, 0.0),
+                raw_force=None,
+            )
         cp = s.contact_point if s.contact_point is not None else (x, y)
         target = (cp[0] - n[0] * depth, cp[1] - n[1] * depth)
         dx, dy = target[0] - x, target[1] - y
         distance = math.hypot(dx, dy)
         direction = (dx / distance, dy / distance) if distance > 1e-6 else (-n[0], -n[1])
-        return self._enter(s, ContourPhase.REAPPROACH, ctx.t_s, normal=n, normal_rate_rad_s=0.0, speed_m_s=0.0,
-                           reapproach_direction=direction, reapproach_m=max(distance, depth))
+        return self._enter(
+            s,
+            ContourPhase.REAPPROACH,
+            ctx.t_s,
+            normal=n,
+            normal_rate_rad_s=0.0,
+            speed_m_s=0.0,
+            reapproach_direction=direction,
+            reapproach_m=max(distance, depth),
+        )
 
     def _reapproach(self, s: ContourState, ctx: TaskContext) -> TaskStep:
         """A guarded move towards behind the last good contact point, at the approach speed."""
         p, dt = self.p, ctx.period_s
         f_contact = self._in_contact(s, s.contact_normal)
         if f_contact is not None:
-            ev = Event("contact", Severity.INFO, f"contact re-acquired at {f_contact:.2f} N after "
-                                                 f"{s.travel_m * 1000:.1f} mm (attempt {s.attempts + 1}); tracking on")
-            tcp = ctx.tcp_measured_m or s.p_cmd  # where the contour was found again: the next re-approach's aim
-            s = self._enter(s, ContourPhase.TRACKING, ctx.t_s, integral=0.0, low_force_cycles=0, attempts=0,
-                            settled_cycles=0, creep_m=p.creep_distance_m, push_ref_n=f_contact,
-                            contact_point=(tcp[0], tcp[1]))
+            ev = Event(
+                "contact",
+                Severity.INFO,
+                f"contact re-acquired at {f_contact:.2f} N after "
+                f"{s.travel_m * 1000:.1f} mm (attempt {s.attempts + 1}); tracking on",
+            )
+            tcp = (
+                ctx.tcp_measured_m or s.p_cmd
+            )  # where the contour was found again: the next re-approach's aim
+            s = self._enter(
+                s,
+                ContourPhase.TRACKING,
+                ctx.t_s,
+                integral=0.0,
+                low_force_cycles=0,
+                attempts=0,
+                settled_cycles=0,
+                creep_m=p.creep_distance_m,
+                push_ref_n=f_contact,
+                contact_point=(tcp[0], tcp[1]),
+            )
             return self._tracking(s, ctx, (ev,))
         if s.travel_m >= s.reapproach_m:
-            ev = Event("reapproach_failed", Severity.WARNING,
-                       f"no contact within {s.reapproach_m * 1000:.1f} mm (attempt {s.attempts + 1} of "
-                       f"{p.max_reacquire_attempts}); backing off")
+            ev = Event(
+                "reapproach_failed",
+                Severity.WARNING,
+                f"no contact within {s.reapproach_m * 1000:.1f} mm (attempt {s.attempts + 1} of "
+                f"{p.max_reacquire_attempts}); backing off",
+            )
             s = self._enter(s, ContourPhase.BACK_OFF, ctx.t_s, attempts=s.attempts + 1)
             return self._back_off(s, ctx, (ev,))
         speed = p.approach_speed_m_s if self._trusted(s) else 0.0
@@ -696,8 +856,10 @@ class ContourTrackingTask:
         p, dt = self.p, ctx.period_s
         if s.travel_m >= s.reapproach_m:
             if s.attempts >= p.max_reacquire_attempts:
-                why = (f"contact lost in lap {s.lap + 1} and not re-acquired in {s.attempts} guarded re-approaches "
-                       f"to {p.reapproach_distance_m * 1000:.0f} mm behind the last contact point")
+                why = (
+                    f"contact lost in lap {s.lap + 1} and not re-acquired in {s.attempts} guarded re-approaches "
+                    f"to {p.reapproach_distance_m * 1000:.0f} mm behind the last contact point"
+                )
                 ev = Event("contact_not_reacquired", Severity.FAULT, why + "; retracting")
                 s = self._enter(s, ContourPhase.RETRACT, ctx.t_s, fault=why)
                 return self._retract(s, ctx, events + (ev,))

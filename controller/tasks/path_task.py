@@ -45,15 +45,21 @@ class PathTaskState:
 class PathTask:
     name = "path"
 
-    def __init__(self, robot: InverseKinematics, path: CartesianTrajectory, settle_tolerance: float,
-                 fd_step_s: float = 1e-3) -> None:
+    def __init__(
+        self,
+        robot: InverseKinematics,
+        path: CartesianTrajectory,
+        settle_tolerance: float,
+        fd_step_s: float = 1e-3,
+    ) -> None:
         self.robot = robot
         self.path = path
         self.settle_tolerance = settle_tolerance
         self.fd_step_s = fd_step_s
         p0, _, _ = path.sample(0.0)
-        self._start = JointReference(tuple(robot.inverse_kinematics(p0).tolist()), (0.0,) * 3, (0.0,) * 3,
-                                     tuple(p0.tolist()), False)
+        self._start = JointReference(
+            tuple(robot.inverse_kinematics(p0).tolist()), (0.0,) * 3, (0.0,) * 3, tuple(p0.tolist()), False
+        )
 
     def start(self) -> PathTaskState:
         return PathTaskState()
@@ -67,8 +73,9 @@ class PathTask:
         qm = ik(self.path.sample(tau - h)[0])
         qd = (qp - qm) / (2.0 * h)
         qdd = (qp - 2.0 * q + qm) / (h * h)
-        return JointReference(tuple(q.tolist()), tuple(qd.tolist()), tuple(qdd.tolist()),
-                              tuple(p.tolist()), True)
+        return JointReference(
+            tuple(q.tolist()), tuple(qd.tolist()), tuple(qdd.tolist()), tuple(p.tolist()), True
+        )
 
     def phase_name(self, state: PathTaskState) -> str:
         return state.phase.name
@@ -77,13 +84,15 @@ class PathTask:
         state, ref, finished = self.reference(state, ctx.t_s, ctx.setpoint)
         return TaskStep(state, ref, finished)
 
-    def reference(self, state: PathTaskState, t_cmd_s: float, setpoint: Setpoint
-                  ) -> tuple[PathTaskState, JointReference, bool]:
+    def reference(
+        self, state: PathTaskState, t_cmd_s: float, setpoint: Setpoint
+    ) -> tuple[PathTaskState, JointReference, bool]:
         """Reference for the setpoint the drives reach at task time ``t_cmd_s``; True once finished."""
         if state.phase == PathPhase.MOVE_TO_START:
             start = self._start
-            settled = all(abs(a - b) <= self.settle_tolerance for a, b in zip(setpoint.position, start.position)) \
-                and all(abs(v) <= self.settle_tolerance for v in setpoint.velocity)
+            settled = all(
+                abs(a - b) <= self.settle_tolerance for a, b in zip(setpoint.position, start.position)
+            ) and all(abs(v) <= self.settle_tolerance for v in setpoint.velocity)
             if not settled:
                 return state, start, False
             state = PathTaskState(PathPhase.TRACKING, t_cmd_s)

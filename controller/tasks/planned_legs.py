@@ -103,8 +103,14 @@ class StreamedPlan:
         return tuple(pos.tolist()), tuple(vel.tolist()), tuple(acc.tolist()), tuple(plat.tolist())
 
 
-def time_scale_plan(plan: PlanResult, max_velocity: float, max_acceleration: float, max_jerk: float,
-                    limit_fraction: float = 0.5, stream_steps: int = 1000) -> StreamedPlan:
+def time_scale_plan(
+    plan: PlanResult,
+    max_velocity: float,
+    max_acceleration: float,
+    max_jerk: float,
+    limit_fraction: float = 0.5,
+    stream_steps: int = 1000,
+) -> StreamedPlan:
     """Resample a converged plan and time-scale it to ``limit_fraction`` of the actuators' limits (see module doc)."""
     plan.raise_for_status()
     if not 0.0 < limit_fraction <= 1.0:
@@ -113,7 +119,9 @@ def time_scale_plan(plan: PlanResult, max_velocity: float, max_acceleration: flo
     horizon = cfg.horizon_s
     t, ps, rs = rollout(plan.geometry, plan.start, plan.lambdas, cfg)
     legs = leg_lengths_batch(plan.geometry, ps, rs)
-    rates = feedback_leg_rates(plan.geometry, ps, rs, controls(plan.lambdas, t, horizon, cfg.harmonics))  # eq. (6)
+    rates = feedback_leg_rates(
+        plan.geometry, ps, rs, controls(plan.lambdas, t, horizon, cfg.harmonics)
+    )  # eq. (6)
     tau = np.linspace(0.0, 1.0, stream_steps + 1)  # task time at D = T, in units of T
 
     def profile(duration: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -131,7 +139,9 @@ def time_scale_plan(plan: PlanResult, max_velocity: float, max_acceleration: flo
     _, v1, a1, j1, _ = profile(horizon)
     pv, pa, pj = float(np.abs(v1).max()), float(np.abs(a1).max()), float(np.abs(j1).max())
     f = limit_fraction
-    scale = max(pv / (f * max_velocity), math.sqrt(pa / (f * max_acceleration)), (pj / (f * max_jerk)) ** (1 / 3))
+    scale = max(
+        pv / (f * max_velocity), math.sqrt(pa / (f * max_acceleration)), (pj / (f * max_jerk)) ** (1 / 3)
+    )
     duration = horizon * scale
     pos, vel, acc, jerk, plat = profile(duration)
     acc[0] = acc[-1] = 0.0  # exact: s'' = 0 at both ends
@@ -210,9 +220,15 @@ class PlannedLegsTask:
 
     name = "planned_legs"
 
-    def __init__(self, streamed: StreamedPlan, start_tolerance_m: float,
-                 robot: ActuatorCheck | None = None, correction: CorrectionSettings | None = None,
-                 planner: CorrectionPlanner | None = None, goal: Pose | None = None) -> None:
+    def __init__(
+        self,
+        streamed: StreamedPlan,
+        start_tolerance_m: float,
+        robot: ActuatorCheck | None = None,
+        correction: CorrectionSettings | None = None,
+        planner: CorrectionPlanner | None = None,
+        goal: Pose | None = None,
+    ) -> None:
         self.streamed = streamed
         self.start_tolerance_m = start_tolerance_m
         self.robot = robot  # with check_actuators: the reference is checked against the stroke
@@ -231,19 +247,24 @@ class PlannedLegsTask:
         return state.phase.name
 
     def _hold(self, ctx: TaskContext, plan: StreamedPlan) -> JointReference:
-        return JointReference(ctx.setpoint.position, (0.0,) * 3, (0.0,) * 3, plan.sample(plan.duration_s)[3], False)
+        return JointReference(
+            ctx.setpoint.position, (0.0,) * 3, (0.0,) * 3, plan.sample(plan.duration_s)[3], False
+        )
 
     def step(self, state: LegsTaskState, ctx: TaskContext) -> TaskStep:
         if state.phase == LegsPhase.CHECK_START:
             if self.correction is not None:  # measure where the platform is before moving
-                return TaskStep(replace(state, phase=LegsPhase.MEASURING, start_s=ctx.t_s),
-                                self._hold(ctx, self.streamed))
+                return TaskStep(
+                    replace(state, phase=LegsPhase.MEASURING, start_s=ctx.t_s), self._hold(ctx, self.streamed)
+                )
             off = max(abs(a - b) for a, b in zip(ctx.setpoint.position, self._start.position))
             if off > self.start_tolerance_m:
-                why = (f"the legs {list(np.round(ctx.setpoint.position, 6))} m are not at the plan's start "
-                       f"{list(np.round(self._start.position, 6))} m (off by {off:.2e} m > {self.start_tolerance_m} m): "
-                       "a non-holonomic platform cannot be brought back to its start pose by moving the legs; "
-                       "restart the simulator (or re-home the robot) at the planned start pose")
+                why = (
+                    f"the legs {list(np.round(ctx.setpoint.position, 6))} m are not at the plan's start "
+                    f"{list(np.round(self._start.position, 6))} m (off by {off:.2e} m > {self.start_tolerance_m} m): "
+                    "a non-holonomic platform cannot be brought back to its start pose by moving the legs; "
+                    "restart the simulator (or re-home the robot) at the planned start pose"
+                )
                 return TaskStep(state, self._start, fault=why)
             return self._begin_stream(state, ctx, self.streamed, None, "streaming the plan")
         if state.phase == LegsPhase.MEASURING:
@@ -265,20 +286,31 @@ class PlannedLegsTask:
             if self.correction is None:
                 state = replace(state, phase=LegsPhase.FINISHED)
             else:  # settle, then measure against the goal
-                state = replace(state, phase=LegsPhase.MEASURING, start_s=ctx.t_s, samples=0, sum_pose=(0.0,) * 6)
+                state = replace(
+                    state, phase=LegsPhase.MEASURING, start_s=ctx.t_s, samples=0, sum_pose=(0.0,) * 6
+                )
                 return TaskStep(state, JointReference(pos, (0.0,) * 3, (0.0,) * 3, plat, False))
         finished = state.phase == LegsPhase.FINISHED
         return TaskStep(state, JointReference(pos, vel, acc, plat, not finished), finished)
 
-    def _begin_stream(self, state: LegsTaskState, ctx: TaskContext, plan: StreamedPlan,
-                      origin: tuple[float, ...] | None, what: str) -> TaskStep:
-        state = replace(state, phase=LegsPhase.STREAMING, start_s=ctx.t_s, streamed=plan, leg_origin_m=origin,
-                        moved=True)
+    def _begin_stream(
+        self,
+        state: LegsTaskState,
+        ctx: TaskContext,
+        plan: StreamedPlan,
+        origin: tuple[float, ...] | None,
+        what: str,
+    ) -> TaskStep:
+        state = replace(
+            state, phase=LegsPhase.STREAMING, start_s=ctx.t_s, streamed=plan, leg_origin_m=origin, moved=True
+        )
         msg = f"{what}: {plan.duration_s:.3f} s (time scale {plan.scale:.3f})"
         pos, vel, acc, plat = plan.sample(0.0)
         if origin is not None:
             pos = origin
-        return TaskStep(state, JointReference(pos, vel, acc, plat, True), events=(Event("task", Severity.INFO, msg),))
+        return TaskStep(
+            state, JointReference(pos, vel, acc, plat, True), events=(Event("task", Severity.INFO, msg),)
+        )
 
     def _measure(self, state: LegsTaskState, ctx: TaskContext) -> TaskStep:
         """Hold the legs; after settle_s, average the fresh tracker samples; then decide."""
@@ -303,26 +335,50 @@ class PlannedLegsTask:
             start = self.robot.start if isinstance(self.robot, NspuRobot) else self.goal
             pe, ae = pose_errors(measured, start)
             if pe <= c.tolerance_m and ae <= c.tolerance_rad:
-                return self._begin_stream(replace(state, samples=0, sum_pose=(0.0,) * 6), ctx, self.streamed,
-                                          ctx.setpoint.position, f"at the plan's start ({pe * 1e3:.3f} mm, "
-                                          f"{ae * 1e3:.2f} mrad off): streaming the plan")
+                return self._begin_stream(
+                    replace(state, samples=0, sum_pose=(0.0,) * 6),
+                    ctx,
+                    self.streamed,
+                    ctx.setpoint.position,
+                    f"at the plan's start ({pe * 1e3:.3f} mm, {ae * 1e3:.2f} mrad off): streaming the plan",
+                )
             what = f"the platform is {pe * 1e3:.3f} mm, {ae * 1e3:.2f} mrad from the plan's start"
         else:
             pe, ae = pose_errors(measured, self.goal)
             state = replace(state, measured_position_error_m=pe, measured_angle_error_rad=ae)
             if pe <= c.tolerance_m and ae <= c.tolerance_rad:
                 msg = f"measured {pe * 1e3:.3f} mm, {ae * 1e3:.2f} mrad from the goal: within the tolerance"
-                return TaskStep(replace(state, phase=LegsPhase.FINISHED), hold, True,
-                                events=(Event("task", Severity.INFO, msg),))
+                return TaskStep(
+                    replace(state, phase=LegsPhase.FINISHED),
+                    hold,
+                    True,
+                    events=(Event("task", Severity.INFO, msg),),
+                )
             if state.corrections >= c.max_corrections:
-                msg = (f"measured {pe * 1e3:.3f} mm, {ae * 1e3:.2f} mrad from the goal after {state.corrections} "
-                       f"corrections (tolerance {c.tolerance_m * 1e3:.3f} mm, {c.tolerance_rad * 1e3:.2f} mrad)")
-                return TaskStep(replace(state, phase=LegsPhase.FINISHED), hold, True,
-                                events=(Event("task", Severity.WARNING, msg),))
+                msg = (
+                    f"measured {pe * 1e3:.3f} mm, {ae * 1e3:.2f} mrad from the goal after {state.corrections} "
+                    f"corrections (tolerance {c.tolerance_m * 1e3:.3f} mm, {c.tolerance_rad * 1e3:.2f} mrad)"
+                )
+                return TaskStep(
+                    replace(state, phase=LegsPhase.FINISHED),
+                    hold,
+                    True,
+                    events=(Event("task", Severity.WARNING, msg),),
+                )
             what = f"measured {pe * 1e3:.3f} mm, {ae * 1e3:.2f} mrad from the goal"
-        state = replace(state, phase=LegsPhase.PLANNING, samples=0, sum_pose=(0.0,) * 6,
-                        request_id=state.request_id + 1, request=request)
-        ev = Event("task", Severity.INFO, f"{what}: replanning from the measured pose (plan request {state.request_id})")
+        state = replace(
+            state,
+            phase=LegsPhase.PLANNING,
+            samples=0,
+            sum_pose=(0.0,) * 6,
+            request_id=state.request_id + 1,
+            request=request,
+        )
+        ev = Event(
+            "task",
+            Severity.INFO,
+            f"{what}: replanning from the measured pose (plan request {state.request_id})",
+        )
         step = self._await_plan(state, ctx)
         return replace(step, events=(ev, *step.events))
 
@@ -336,9 +392,14 @@ class PlannedLegsTask:
         if result.streamed is None:
             return TaskStep(state, hold, fault=f"correction {state.request_id}: {result.failure}")
         corrections = state.corrections + (1 if state.moved else 0)
-        return self._begin_stream(replace(state, corrections=corrections), ctx, result.streamed,
-                                  ctx.setpoint.position, f"streaming the plan from the measured pose (request {state.request_id}, "
-                                  f"{result.iterations} iterations)")
+        return self._begin_stream(
+            replace(state, corrections=corrections),
+            ctx,
+            result.streamed,
+            ctx.setpoint.position,
+            f"streaming the plan from the measured pose (request {state.request_id}, "
+            f"{result.iterations} iterations)",
+        )
 
 
 EXPLANATION = (
@@ -359,8 +420,9 @@ class PlanExecutionReport:
     simulator's mechanics, which integrate the drives' actual positions at every SYNC.
     """
 
-    def __init__(self, robot: NspuRobot, plan: PlanResult, streamed: StreamedPlan,
-                 planning_time_s: float) -> None:
+    def __init__(
+        self, robot: NspuRobot, plan: PlanResult, streamed: StreamedPlan, planning_time_s: float
+    ) -> None:
         self.robot = robot
         self.plan = plan
         self.streamed = streamed
@@ -371,8 +433,16 @@ class PlanExecutionReport:
         self.leg_errors_m: list[float] = []
         self._task_state: object = None  # the last one: the closed loop's measurements and corrections
 
-    def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
-                 outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None:
+    def on_cycle(
+        self,
+        cycle: int,
+        t: float,
+        inputs: CycleInputs,
+        state: ControllerState,
+        outputs: CycleOutputs,
+        events: tuple[Event, ...],
+        timing: CycleTiming,
+    ) -> None:
         self._task_state = state.task_state
         ref = self._refs[-2]  # the setpoint the drives were to reach at this SYNC (sent two cycles ago)
         self._refs.append(state.setpoint.position if state.tcp_reference_m is not None else None)
@@ -390,43 +460,77 @@ class PlanExecutionReport:
         from controller.robots.nspu_robot import pose_errors, pose_odometry
 
         plan, goal = self.plan, self.robot.goal
-        plan_end = (float(np.linalg.norm(plan.p_m[-1] - goal.p_m)),
-                    float(np.linalg.norm(so3_log(plan.R[-1] @ goal.R.T))))
+        plan_end = (
+            float(np.linalg.norm(plan.p_m[-1] - goal.p_m)),
+            float(np.linalg.norm(so3_log(plan.R[-1] @ goal.R.T))),
+        )
         out: dict[str, object] = {
-            "plan": {"status": plan.status.value, "iterations": plan.iterations, "final_error": plan.final_error,
-                     "planning_time_s": round(self.planning_time_s, 3), "message": plan.message,
-                     "streamed_duration_s": self.streamed.duration_s, "time_scale": self.streamed.scale,
-                     "leg_peaks": {"velocity_m_s": self.streamed.peaks[0],
-                                   "acceleration_m_s2": self.streamed.peaks[1], "jerk_m_s3": self.streamed.peaks[2]}},
-            "plan_end_position_error_m": plan_end[0], "plan_end_angle_error_rad": plan_end[1],
+            "plan": {
+                "status": plan.status.value,
+                "iterations": plan.iterations,
+                "final_error": plan.final_error,
+                "planning_time_s": round(self.planning_time_s, 3),
+                "message": plan.message,
+                "streamed_duration_s": self.streamed.duration_s,
+                "time_scale": self.streamed.scale,
+                "leg_peaks": {
+                    "velocity_m_s": self.streamed.peaks[0],
+                    "acceleration_m_s2": self.streamed.peaks[1],
+                    "jerk_m_s3": self.streamed.peaks[2],
+                },
+            },
+            "plan_end_position_error_m": plan_end[0],
+            "plan_end_angle_error_rad": plan_end[1],
             "goal_pose": {"position_m": goal.p_m.tolist(), "rotation_vector_rad": so3_log(goal.R).tolist()},
             "explanation": EXPLANATION,
         }
         ts = self._task_state
-        if isinstance(ts, LegsTaskState) and (ts.request_id > 0 or not math.isnan(ts.measured_position_error_m)):
+        if isinstance(ts, LegsTaskState) and (
+            ts.request_id > 0 or not math.isnan(ts.measured_position_error_m)
+        ):
             # the tracker's view (averaged samples) at the last measurement against the goal
-            out["closed_loop"] = {"plans_from_measured_pose": ts.request_id, "corrections": ts.corrections,
-                                  "measured_position_error_m": ts.measured_position_error_m,
-                                  "measured_angle_error_rad": ts.measured_angle_error_rad,
-                                  "note": "position_error_m and angle_error_rad are the odometry's, integrated with "
-                                          "the model from the plan's start pose: they cannot see a model mismatch "
-                                          "or an off start; these are the tracker's"}
+            out["closed_loop"] = {
+                "plans_from_measured_pose": ts.request_id,
+                "corrections": ts.corrections,
+                "measured_position_error_m": ts.measured_position_error_m,
+                "measured_angle_error_rad": ts.measured_angle_error_rad,
+                "note": "position_error_m and angle_error_rad are the odometry's, integrated with "
+                "the model from the plan's start pose: they cannot see a model mismatch "
+                "or an off start; these are the tracker's",
+            }
         err = np.asarray(self.leg_errors_m)
-        out["leg_tracking_error_m"] = {"rms": float(np.sqrt(np.mean(err**2))) if err.size else None,
-                                       "max": float(err.max()) if err.size else None, "samples": int(err.size)}
+        out["leg_tracking_error_m"] = {
+            "rms": float(np.sqrt(np.mean(err**2))) if err.size else None,
+            "max": float(err.max()) if err.size else None,
+            "samples": int(err.size),
+        }
         if len(self._t) >= 2:
-            reached = pose_odometry(self.robot.geometry, self.robot.start, np.array(self._t), np.array(self._legs))
+            reached = pose_odometry(
+                self.robot.geometry, self.robot.start, np.array(self._t), np.array(self._legs)
+            )
             pe, ae = pose_errors(reached, goal)
-            out.update({"reached_pose": {"position_m": reached.p_m.tolist(),
-                                         "rotation_vector_rad": so3_log(reached.R).tolist()},
-                        "position_error_m": pe, "angle_error_rad": ae})
+            out.update(
+                {
+                    "reached_pose": {
+                        "position_m": reached.p_m.tolist(),
+                        "rotation_vector_rad": so3_log(reached.R).tolist(),
+                    },
+                    "position_error_m": pe,
+                    "angle_error_rad": ae,
+                }
+            )
         else:
             out.update({"reached_pose": None, "position_error_m": None, "angle_error_rad": None})
         return out
 
 
-def build_planned_legs_task(section: NspuSection, limits: ActuatorUnits, settle_tolerance_m: float,
-                            robot: Robot, tracker: bool = False) -> tuple[PlannedLegsTask, PlanExecutionReport]:
+def build_planned_legs_task(
+    section: NspuSection,
+    limits: ActuatorUnits,
+    settle_tolerance_m: float,
+    robot: Robot,
+    tracker: bool = False,
+) -> tuple[PlannedLegsTask, PlanExecutionReport]:
     """Plan the configured motion (seed 004), time-scale it to ``section.limit_fraction`` of the
     actuators' limits and wrap it in a task with its report.
 
@@ -442,28 +546,57 @@ def build_planned_legs_task(section: NspuSection, limits: ActuatorUnits, settle_
     t0 = time.perf_counter()
     plan = plan_motion(robot.geometry, robot.start, robot.goal, planner_config(section)).raise_for_status()
     planning_time = time.perf_counter() - t0
-    streamed = time_scale_plan(plan, limits.max_velocity, limits.max_acceleration, limits.max_jerk,
-                               section.limit_fraction, section.stream_steps)
+    streamed = time_scale_plan(
+        plan,
+        limits.max_velocity,
+        limits.max_acceleration,
+        limits.max_jerk,
+        section.limit_fraction,
+        section.stream_steps,
+    )
     correction, planner = None, None
     if tracker:  # closed loop: measure with the tracker, replan from the measured pose (PlannedLegsTask)
         from controller.tasks.plan_correction import CorrectionPlanner, CorrectionProblem
 
-        correction = CorrectionSettings(section.correction_tolerance_m, section.correction_tolerance_rad,
-                                        section.max_corrections, section.tracker_samples, section.settle_s,
-                                        in_step=section.correction_planning == "in_step")
-        planner = CorrectionPlanner(CorrectionProblem(
-            robot.geometry, robot.goal, planner_config(section),
-            (limits.max_velocity, limits.max_acceleration, limits.max_jerk), section.limit_fraction,
-            section.stream_steps))
-    task = PlannedLegsTask(streamed, start_tolerance_m=max(settle_tolerance_m, 1e-5), robot=robot,
-                           correction=correction, planner=planner, goal=robot.goal)
+        correction = CorrectionSettings(
+            section.correction_tolerance_m,
+            section.correction_tolerance_rad,
+            section.max_corrections,
+            section.tracker_samples,
+            section.settle_s,
+            in_step=section.correction_planning == "in_step",
+        )
+        planner = CorrectionPlanner(
+            CorrectionProblem(
+                robot.geometry,
+                robot.goal,
+                planner_config(section),
+                (limits.max_velocity, limits.max_acceleration, limits.max_jerk),
+                section.limit_fraction,
+                section.stream_steps,
+            )
+        )
+    task = PlannedLegsTask(
+        streamed,
+        start_tolerance_m=max(settle_tolerance_m, 1e-5),
+        robot=robot,
+        correction=correction,
+        planner=planner,
+        goal=robot.goal,
+    )
     return task, PlanExecutionReport(robot, plan, streamed, planning_time)
 
 
 def planner_config(n: NspuSection, check_type2: bool | None = None) -> PlannerConfig:
     from controller.planning.nonholonomic import PlannerConfig
 
-    return PlannerConfig(horizon_s=n.horizon_s, harmonics=n.harmonics, tolerance=n.tolerance,
-                         max_iterations=n.max_iterations, n_steps=n.n_steps,
-                         plan_steps=min(PlannerConfig.plan_steps, n.n_steps),  # the iteration's steps: at most n_steps
-                         check_type2=n.check_type2 if check_type2 is None else check_type2, restarts=n.restarts)
+    return PlannerConfig(
+        horizon_s=n.horizon_s,
+        harmonics=n.harmonics,
+        tolerance=n.tolerance,
+        max_iterations=n.max_iterations,
+        n_steps=n.n_steps,
+        plan_steps=min(PlannerConfig.plan_steps, n.n_steps),  # the iteration's steps: at most n_steps
+        check_type2=n.check_type2 if check_type2 is None else check_type2,
+        restarts=n.restarts,
+    )

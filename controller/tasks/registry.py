@@ -22,8 +22,9 @@ class RunReport(Protocol):
     """A task's own account of a run (the 3-nSPU's reached pose against its goal): an observer
     of every cycle (controller/shell/loop.py ``CycleObserver``) whose summary joins the run's."""
 
-    def on_cycle(self, cycle: int, t: float, inputs: Any, state: Any, outputs: Any, events: Any,
-                 timing: Any) -> None: ...
+    def on_cycle(
+        self, cycle: int, t: float, inputs: Any, state: Any, outputs: Any, events: Any, timing: Any
+    ) -> None: ...
 
     def summary(self) -> dict[str, object]: ...
 
@@ -40,7 +41,9 @@ class TaskEntry:
     section: type | None  # its [task.<kind>] section (a frozen dataclass), or None
     build: Callable[[Config, Robot], BuiltTask]  # raises ConfigError / WorkspaceError / PlanningError
     check: Callable[[Any], None] | None = None  # cross-checks of its section: raise ConfigError
-    sim_environment: str = "free"  # what the simulator places with sim.environment = "auto": "free", "workpiece"
+    sim_environment: str = (
+        "free"  # what the simulator places with sim.environment = "auto": "free", "workpiece"
+    )
     # Whether the task reads the force sensor's samples: then every cycle without one counts towards
     # safety.sensor_stale_cycles; if not, the sensor is supervised by its heartbeat (LawConfig).
     uses_force_sensor: bool = False

@@ -74,6 +74,7 @@ if TYPE_CHECKING:
         queue: SimpleQueue[can.Message]
         sent: int
 
+
 # The benchmark's results are JSON-shaped (bench.json): nested dicts of numbers, strings and lists,
 # their keys set where they are built. The code that reads them back (the cyclictest ratios, the
 # plots, the table) reads them as Json rather than through one TypedDict per table.
@@ -82,14 +83,19 @@ Json = dict[str, Any]
 
 # -- statistics (pure) ------------------------------------------------------------------------
 
+
 def percentiles_us(values_us: np.ndarray) -> dict[str, float]:
     """p50, p99, p99.9 and max of ``values_us``, rounded to 0.1 us (zeros when empty)."""
     v = np.asarray(values_us, dtype=float)
     if v.size == 0:
         return {"p50": 0.0, "p99": 0.0, "p99_9": 0.0, "max": 0.0}
     p50, p99, p999 = np.percentile(v, [50.0, 99.0, 99.9])
-    return {"p50": round(float(p50), 1), "p99": round(float(p99), 1), "p99_9": round(float(p999), 1),
-            "max": round(float(v.max()), 1)}
+    return {
+        "p50": round(float(p50), 1),
+        "p99": round(float(p99), 1),
+        "p99_9": round(float(p999), 1),
+        "max": round(float(v.max()), 1),
+    }
 
 
 def late_per_10k(wake_error_s: np.ndarray, period_s: float, late_fraction: float, overruns: int = 0) -> float:
@@ -119,6 +125,7 @@ def schedule_stats(wake_s: np.ndarray, period_s: float, late_fraction: float = 0
 
 
 # -- the two sleepers, side by side -----------------------------------------------------------
+
 
 def busy_work(duration_s: float, clock: Callable[[], float] = time.perf_counter) -> None:
     """Spin for ``duration_s``: a stand-in for the step's compute time."""
@@ -153,21 +160,33 @@ def deadline_loop(period_s: float, cycles: int, work_s: float, spin_s: float) ->
     return wake
 
 
-def compare_sleepers(period_s: float, duration_s: float, work_s: float, spin_s: float,
-                     blocks: int = 4, late_fraction: float = 0.1) -> dict[str, object]:
+def compare_sleepers(
+    period_s: float,
+    duration_s: float,
+    work_s: float,
+    spin_s: float,
+    blocks: int = 4,
+    late_fraction: float = 0.1,
+) -> dict[str, object]:
     """Alternate blocks of both loops (A B A B ...) for ``duration_s`` in all; stats per loop."""
     per_block = max(2, int(duration_s / (2 * blocks) / period_s))
     arms: dict[str, list[np.ndarray]] = {"deadline": [], "naive": []}
     for _ in range(blocks):
         arms["deadline"].append(deadline_loop(period_s, per_block, work_s, spin_s))
         arms["naive"].append(naive_loop(period_s, per_block, work_s))
-    out: dict[str, object] = {"work_us": round(work_s * 1e6, 1), "blocks": blocks, "cycles_per_block": per_block}
+    out: dict[str, object] = {
+        "work_us": round(work_s * 1e6, 1),
+        "blocks": blocks,
+        "cycles_per_block": per_block,
+    }
     for name, runs in arms.items():
         stats = [schedule_stats(w, period_s, late_fraction) for w in runs]
         errors = np.concatenate([period_error_us(w, period_s) for w in runs])
         out[name] = {
             "achieved_rate_hz": round(float(np.mean([s["achieved_rate_hz"] for s in stats])), 3),
-            "drift_ms_per_s": round(float(np.mean([s["drift_ms"] for s in stats])) / (per_block * period_s), 3),
+            "drift_ms_per_s": round(
+                float(np.mean([s["drift_ms"] for s in stats])) / (per_block * period_s), 3
+            ),
             "period_error_us": percentiles_us(errors),
             "late_per_10k": round(float(np.mean([s["late_per_10k"] for s in stats])), 2),
             "_errors_us": errors,
@@ -176,6 +195,7 @@ def compare_sleepers(period_s: float, duration_s: float, work_s: float, spin_s: 
 
 
 # -- probes on the real loop ------------------------------------------------------------------
+
 
 class LoopProbe:
     """Observer and frame sink of one ``run_controller`` run; preallocated, a few hundred ns a call.
@@ -188,8 +208,14 @@ class LoopProbe:
     times once a second (the loop thread's own, the process's, the simulator's).
     """
 
-    def __init__(self, capacity: int, tpdo_ids: frozenset[int], first_rpdo_id: int, sim_pid: int | None,
-                 sample_every: int) -> None:
+    def __init__(
+        self,
+        capacity: int,
+        tpdo_ids: frozenset[int],
+        first_rpdo_id: int,
+        sim_pid: int | None,
+        sample_every: int,
+    ) -> None:
         self.capacity = capacity
         self.wake_error_s = np.zeros(capacity)
         self.step_s = np.zeros(capacity)
@@ -233,8 +259,16 @@ class LoopProbe:
         if cid in self._tpdo_ids:
             self._last_tpdo_s = t
 
-    def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
-                 outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None:
+    def on_cycle(
+        self,
+        cycle: int,
+        t: float,
+        inputs: CycleInputs,
+        state: ControllerState,
+        outputs: CycleOutputs,
+        events: tuple[Event, ...],
+        timing: CycleTiming,
+    ) -> None:
         now = time.monotonic()
         i = self.n
         if i < self.capacity:
@@ -250,8 +284,15 @@ class LoopProbe:
         if i % self.sample_every == 0:
             if self.writer_pid is None:
                 self.writer_pid = child_pid("logs.session_writer")
-            self.samples.append((now, time.thread_time(), time.process_time(), process_cpu_s(self.sim_pid),
-                                 process_cpu_s(self.writer_pid)))
+            self.samples.append(
+                (
+                    now,
+                    time.thread_time(),
+                    time.process_time(),
+                    process_cpu_s(self.sim_pid),
+                    process_cpu_s(self.writer_pid),
+                )
+            )
 
 
 def process_cpu_s(pid: int | None) -> float:
@@ -299,16 +340,29 @@ def cpu_use_percent(samples: list[tuple[float, ...]]) -> dict[str, float | None]
     # the writer starts after the first sample: take its first known value
     writer0 = next((x[4] for x in samples if not math.isnan(x[4])), math.nan)
     writer_dt = next((last[0] - x[0] for x in samples if not math.isnan(x[4])), dt)
-    writer = None if math.isnan(writer0) or math.isnan(last[4]) or writer_dt <= 0 else \
-        round(100.0 * (last[4] - writer0) / writer_dt, 1)
-    return {"loop_thread": pct(first[1], last[1]), "controller_process": pct(first[2], last[2]),
-            "simulator_process": pct(first[3], last[3]), "writer_process": writer}
+    writer = (
+        None
+        if math.isnan(writer0) or math.isnan(last[4]) or writer_dt <= 0
+        else round(100.0 * (last[4] - writer0) / writer_dt, 1)
+    )
+    return {
+        "loop_thread": pct(first[1], last[1]),
+        "controller_process": pct(first[2], last[2]),
+        "simulator_process": pct(first[3], last[3]),
+        "writer_process": writer,
+    }
 
 
 # -- the simulator process --------------------------------------------------------------------
 
-def simulator(spec: BusSpec, overrides: list[str], config_path: str | None, rt: RealtimeOptions,
-              ready_timeout_s: float = 120.0) -> AbstractContextManager[subprocess.Popen[str]]:
+
+def simulator(
+    spec: BusSpec,
+    overrides: list[str],
+    config_path: str | None,
+    rt: RealtimeOptions,
+    ready_timeout_s: float = 120.0,
+) -> AbstractContextManager[subprocess.Popen[str]]:
     """``cheope sim`` as a child process with its own real-time options."""
     from controller.tools.demo import simulator_process
 
@@ -316,6 +370,7 @@ def simulator(spec: BusSpec, overrides: list[str], config_path: str | None, rt: 
 
 
 # -- one configuration against the simulator --------------------------------------------------
+
 
 @dataclass(frozen=True)
 class BenchCase:
@@ -325,12 +380,23 @@ class BenchCase:
 
     @property
     def name(self) -> str:
-        return f"{self.rate_hz:g} Hz " + ("FD" if self.fd else "classic") + (" RT" if self.realtime else " normal")
+        return (
+            f"{self.rate_hz:g} Hz "
+            + ("FD" if self.fd else "classic")
+            + (" RT" if self.realtime else " normal")
+        )
 
 
-def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], config_path: str | None,
-             rt: RealtimeOptions, sim_rt: RealtimeOptions, late_fraction: float,
-             cyclictest_s: float = 0.0) -> dict[str, object]:
+def run_case(
+    case: BenchCase,
+    duration_s: float,
+    base_overrides: list[str],
+    config_path: str | None,
+    rt: RealtimeOptions,
+    sim_rt: RealtimeOptions,
+    late_fraction: float,
+    cyclictest_s: float = 0.0,
+) -> dict[str, object]:
     from controller.assembly import planned_bus_load
     from controller.config import load_config, parse_override
     from controller.shell.service import run_controller
@@ -358,19 +424,30 @@ def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], conf
         c = cfg.task.model("contour")
         contour = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s))
     with simulator(spec, overrides, config_path, sim_rt) as proc:
-        probe = LoopProbe(capacity, frozenset(tpdo_ids), cob_ids.rpdo1(ids[0]), proc.pid,
-                          sample_every=max(1, round(cfg.loop.rate_hz)))
-        summary = run_controller(cfg, spec, max_duration_s=duration_s,
-                                 observers=(probe,) if contour is None else (probe, contour),
-                                 frame_sink=probe.sink, realtime=rt)
+        probe = LoopProbe(
+            capacity,
+            frozenset(tpdo_ids),
+            cob_ids.rpdo1(ids[0]),
+            proc.pid,
+            sample_every=max(1, round(cfg.loop.rate_hz)),
+        )
+        summary = run_controller(
+            cfg,
+            spec,
+            max_duration_s=duration_s,
+            observers=(probe,) if contour is None else (probe, contour),
+            frame_sink=probe.sink,
+            realtime=rt,
+        )
     if contour is not None:
         from controller.tools.analysis.contour_report import contour_summary
         from controller.tools.contour_experiment import cheope_robot
 
         c = cfg.task.model("contour")
         stiffness = cfg.robot.mass.actuator_stiffness_n_m
-        summary["contour"] = contour_summary(contour, cheope_robot(cfg), stiffness, c.height_m,
-                                             c.lap_speeds_m_s)
+        summary["contour"] = contour_summary(
+            contour, cheope_robot(cfg), stiffness, c.height_m, c.lap_speeds_m_s
+        )
     n = min(probe.n, capacity)
     skip = min(n // 10, round(cfg.loop.rate_hz))  # the first second: node set-up done, caches cold
     wake = probe.wake_error_s[skip:n]
@@ -378,9 +455,13 @@ def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], conf
     samples = probe.samples
     seconds = samples[-1][0] - samples[0][0] if len(samples) > 1 else 0.0
     # each frame once in either direction: the service's bus tap drops the bus's echoes of our own
-    frames = {cid: probe.frames.get(cid, 0) + probe.frames_out.get(cid, 0)
-              for cid in probe.frames.keys() | probe.frames_out.keys()}
-    per_err = period_error_us(probe.deadline_index[skip:n] * period + wake, period)  # across skipped deadlines
+    frames = {
+        cid: probe.frames.get(cid, 0) + probe.frames_out.get(cid, 0)
+        for cid in probe.frames.keys() | probe.frames_out.keys()
+    }
+    per_err = period_error_us(
+        probe.deadline_index[skip:n] * period + wake, period
+    )  # across skipped deadlines
     result: dict[str, object] = {
         "case": case.name,
         "scheduler": "realtime" if case.realtime else "normal",
@@ -402,22 +483,26 @@ def run_case(case: BenchCase, duration_s: float, base_overrides: list[str], conf
         "step_us": percentiles_us(probe.step_s[skip:n] * 1e6),
         "tpdo_to_ready_us": percentiles_us(_finite(probe.ready_after_tpdo_s[skip:n]) * 1e6),
         "sync_to_last_tpdo_us": percentiles_us(_finite(probe.answer_s[skip:n]) * 1e6),
-        "tpdo_to_rpdo_us": percentiles_us(_finite(probe.rpdo_after_tpdo_s[skip + 1:n]) * 1e6),
+        "tpdo_to_rpdo_us": percentiles_us(_finite(probe.rpdo_after_tpdo_s[skip + 1 : n]) * 1e6),
         "cpu_percent_of_one_core": cpu_use_percent(samples),
         "bus_load_percent": {
             "computed": round(planned_bus_load(cfg).percent, 1),
-            "measured": measured_bus_load(frames, probe.frame_shape, seconds, cfg.bus.bitrate_bit_s,
-                                          cfg.bus.data_bitrate_bit_s),
+            "measured": measured_bus_load(
+                frames, probe.frame_shape, seconds, cfg.bus.bitrate_bit_s, cfg.bus.data_bitrate_bit_s
+            ),
         },
         "missing_frames": summary.get("missing_frames"),
-        "frames_per_cycle": {"in": round(sum(probe.frames.values()) / max(1, probe.n), 2),
-                             "out": round(sum(probe.frames_out.values()) / max(1, probe.n), 2)},
+        "frames_per_cycle": {
+            "in": round(sum(probe.frames.values()) / max(1, probe.n), 2),
+            "out": round(sum(probe.frames_out.values()) / max(1, probe.n), 2),
+        },
         "contour_laps": _contour_laps(summary),
         "_period_errors_us": per_err,
     }
     if cyclictest_s > 0:
-        result["cyclictest"] = machine_floor(case.rate_hz, cyclictest_s, rt, late_fraction / case.rate_hz * 1e6,
-                                             result)
+        result["cyclictest"] = machine_floor(
+            case.rate_hz, cyclictest_s, rt, late_fraction / case.rate_hz * 1e6, result
+        )
     return result
 
 
@@ -433,22 +518,30 @@ def _contour_laps(summary: dict[str, object]) -> list[dict[str, object]] | None:
     return contour.get("laps") if isinstance(contour, dict) else None
 
 
-def machine_floor(rate_hz: float, duration_s: float, rt: RealtimeOptions, late_us: float,
-                  case: Json) -> dict[str, object]:
+def machine_floor(
+    rate_hz: float, duration_s: float, rt: RealtimeOptions, late_us: float, case: Json
+) -> dict[str, object]:
     """cyclictest at the case's rate, priority, CPU and memory locking, and the case's figures over it."""
     from controller.tools.cyclictest import CyclictestError, run_cyclictest
 
     try:
-        floor: Json = run_cyclictest(rate_hz, duration_s, rt.priority, rt.cpus[0] if rt.cpus else None,
-                                     rt.lock_memory, (late_us, 100.0, 250.0))
+        floor: Json = run_cyclictest(
+            rate_hz,
+            duration_s,
+            rt.priority,
+            rt.cpus[0] if rt.cpus else None,
+            rt.lock_memory,
+            (late_us, 100.0, 250.0),
+        )
     except CyclictestError as err:
         return {"error": str(err)}
     above = floor["per_10k_above_us"][f"{late_us:g}"]
     wake = case["wake_latency_us"]
     floor["late_us"] = late_us
     floor["late_ratio"] = round(case["late_per_10k"] / above, 2) if above > 0 else None
-    floor["wake_p99_ratio"] = round(wake["p99"] / floor["latency_us"]["p99"], 2) \
-        if floor["latency_us"]["p99"] > 0 else None
+    floor["wake_p99_ratio"] = (
+        round(wake["p99"] / floor["latency_us"]["p99"], 2) if floor["latency_us"]["p99"] > 0 else None
+    )
     return floor
 
 
@@ -459,8 +552,10 @@ def _finite(a: np.ndarray) -> np.ndarray:
 
 # -- the step in Python against Ruckig's own calculation time ---------------------------------
 
-def step_breakdown(config_path: str | None, overrides: list[str], rate_hz: float, cycles: int,
-                   profile_top: int = 12) -> dict[str, object]:
+
+def step_breakdown(
+    config_path: str | None, overrides: list[str], rate_hz: float, cycles: int, profile_top: int = 12
+) -> dict[str, object]:
     """Run the law on the in-process loopback plant (simulated time): step time vs Ruckig's.
 
     Ruckig's reported time is ``OutputParameter.calculation_duration`` of a second Ruckig
@@ -536,7 +631,8 @@ def step_breakdown(config_path: str | None, overrides: list[str], rate_hz: float
         "ruckig_reported_calculation_us": percentiles_us(reported),
         "ruckig_call_in_python_us": percentiles_us(wrapped),
         "ruckig_share_of_step_percent": round(100.0 * float(np.sum(reported)) / float(np.sum(step_us)), 1)
-        if step_us.sum() > 0 else 0.0,
+        if step_us.sum() > 0
+        else 0.0,
         "profile_top_tottime": _profile_lines(buf.getvalue()),
     }
 
@@ -548,6 +644,7 @@ def _profile_lines(text: str) -> list[str]:
 
 
 # -- the cyclic PDO path against canopen's PDO objects ----------------------------------------
+
 
 def stub_bus() -> StubBus:
     """A python-can bus that costs (almost) nothing: sends are counted, frames to receive are
@@ -575,8 +672,9 @@ def stub_bus() -> StubBus:
     return cast("StubBus", _StubBus())  # the same attributes as StubBus, declared above
 
 
-def compare_pdo_paths(cycles: int, config_path: str | None = None, overrides: list[str] | None = None
-                      ) -> dict[str, object]:
+def compare_pdo_paths(
+    cycles: int, config_path: str | None = None, overrides: list[str] | None = None
+) -> dict[str, object]:
     """CPU time per cycle of the cyclic PDO path: this project's exchange vs canopen's PDO objects.
 
     Both run the same cycle on a stub bus (``stub_bus``): 3 RPDOs and SYNC out, then the 3 drive
@@ -599,12 +697,22 @@ def compare_pdo_paths(cycles: int, config_path: str | None = None, overrides: li
     ids = tuple(cfg.actuators.node_ids)
     sid = cfg.sensor.node_id
     scale = PositionScale(cfg.actuators.counts_per_m)
-    tpdos = [can.Message(arbitration_id=cob_ids.tpdo1(i), data=encode_drive_tpdo(0x1237, 5_000_000 + i),
-                         is_extended_id=False) for i in ids]
-    tpdos += [can.Message(arbitration_id=cob_ids.tpdo1(sid), data=bytes([1, 0, 2, 0, 3, 0, 0, 7]),
-                          is_extended_id=False),
-              can.Message(arbitration_id=cob_ids.tpdo2(sid), data=bytes([4, 0, 5, 0, 6, 0, 0, 7]),
-                          is_extended_id=False)]
+    tpdos = [
+        can.Message(
+            arbitration_id=cob_ids.tpdo1(i),
+            data=encode_drive_tpdo(0x1237, 5_000_000 + i),
+            is_extended_id=False,
+        )
+        for i in ids
+    ]
+    tpdos += [
+        can.Message(
+            arbitration_id=cob_ids.tpdo1(sid), data=bytes([1, 0, 2, 0, 3, 0, 0, 7]), is_extended_id=False
+        ),
+        can.Message(
+            arbitration_id=cob_ids.tpdo2(sid), data=bytes([4, 0, 5, 0, 6, 0, 0, 7]), is_extended_id=False
+        ),
+    ]
     outputs = CycleOutputs(controlwords=(0x0F,) * len(ids), targets=(0.5,) * len(ids))
 
     def measure(cycle: Callable[[], None]) -> tuple[float, float]:
@@ -615,10 +723,15 @@ def compare_pdo_paths(cycles: int, config_path: str | None = None, overrides: li
             cycle()
         return (time.process_time() - c0) / cycles * 1e6, (time.perf_counter() - w0) / cycles * 1e6
 
-    results: dict[str, object] = {"cycles": cycles, "frames_per_cycle": {"out": len(ids) + 1, "in": len(tpdos)}}
+    results: dict[str, object] = {
+        "cycles": cycles,
+        "frames_per_cycle": {"out": len(ids) + 1, "in": len(tpdos)},
+    }
     bus = stub_bus()
     # the cost of decoding a cycle, not of waiting out its answer window
-    ex = CyclicExchange(bus, ids, scale, sid, cfg.loop.controller_node_id, heartbeat_every=10**9, answer_window_s=0.0)
+    ex = CyclicExchange(
+        bus, ids, scale, sid, cfg.loop.controller_node_id, heartbeat_every=10**9, answer_window_s=0.0
+    )
 
     def project_cycle() -> None:
         ex.send(outputs)
@@ -717,23 +830,42 @@ def bus_frame_cost(spec_text: str, fd: bool, frames: int = 2000) -> dict[str, ob
     finally:
         tx.shutdown()
         rx.shutdown()
-    return {"bus": str(spec), "frames": frames, "send_us": percentiles_us(send_us),
-            "recv_us": percentiles_us(recv_us), "own_frames_received_back": own}
+    return {
+        "bus": str(spec),
+        "frames": frames,
+        "send_us": percentiles_us(send_us),
+        "recv_us": percentiles_us(recv_us),
+        "own_frames_received_back": own,
+    }
 
 
 # -- the whole benchmark ----------------------------------------------------------------------
 
 # A timing benchmark must run its whole length: a burst of late or missing frames on a loaded
 # machine is counted, not turned into a quick stop (``--strict`` keeps the configured reactions).
-TOLERANT_SAFETY = ("loop.max_missing_cycles=1000", 'safety.on_late_cycles="warn"',
-                   'safety.on_sensor_stale="warn"', 'safety.on_heartbeat_lost="warn"')
+TOLERANT_SAFETY = (
+    "loop.max_missing_cycles=1000",
+    'safety.on_late_cycles="warn"',
+    'safety.on_sensor_stale="warn"',
+    'safety.on_heartbeat_lost="warn"',
+)
 
 
-def run_bench(rates_hz: tuple[float, ...], duration_s: float, compare_s: float, out_dir: Path,
-              config_path: str | None, overrides: list[str], rt: RealtimeOptions, sim_rt: RealtimeOptions,
-              late_fraction: float = 0.1, fd_from_hz: float = 500.0, progress: Callable[[str], None] = lambda s: None,
-              schedulers: tuple[str, ...] = ("realtime",), cyclictest_s: float = 30.0
-              ) -> dict[str, object]:
+def run_bench(
+    rates_hz: tuple[float, ...],
+    duration_s: float,
+    compare_s: float,
+    out_dir: Path,
+    config_path: str | None,
+    overrides: list[str],
+    rt: RealtimeOptions,
+    sim_rt: RealtimeOptions,
+    late_fraction: float = 0.1,
+    fd_from_hz: float = 500.0,
+    progress: Callable[[str], None] = lambda s: None,
+    schedulers: tuple[str, ...] = ("realtime",),
+    cyclictest_s: float = 30.0,
+) -> dict[str, object]:
     from controller.assembly import planned_bus_load
     from controller.config import load_config, parse_override
     from controller.shell.realtime import apply_realtime
@@ -741,12 +873,18 @@ def run_bench(rates_hz: tuple[float, ...], duration_s: float, compare_s: float, 
     out_dir.mkdir(parents=True, exist_ok=True)
     cfg = load_config(config_path, dict(parse_override(s) for s in overrides))
     report: Json = {
-        "machine": {"cpus": os.cpu_count(), "python": sys.version.split()[0],
-                    "load_average_at_start": [round(x, 2) for x in os.getloadavg()]},
-        "duration_s": duration_s, "compare_s": compare_s,
-        "definitions": {"period_error": "|(wake_k - wake_k-1) - period|",
-                        "late": f"woke > {late_fraction:g} x period after the deadline, or a skipped deadline",
-                        "cpu_percent": "% of one CPU over the run"},
+        "machine": {
+            "cpus": os.cpu_count(),
+            "python": sys.version.split()[0],
+            "load_average_at_start": [round(x, 2) for x in os.getloadavg()],
+        },
+        "duration_s": duration_s,
+        "compare_s": compare_s,
+        "definitions": {
+            "period_error": "|(wake_k - wake_k-1) - period|",
+            "late": f"woke > {late_fraction:g} x period after the deadline, or a skipped deadline",
+            "cpu_percent": "% of one CPU over the run",
+        },
     }
     from controller.tools.cyclictest import INSTALL_HINT, cyclictest_path
 
@@ -764,14 +902,23 @@ def run_bench(rates_hz: tuple[float, ...], duration_s: float, compare_s: float, 
         case = BenchCase(rate, fd=rate >= fd_from_hz)
         progress(f"{rate:g} Hz: step cost and Ruckig in process ...")
         # the contour experiment in process as over the bus (its tracking laps are what it costs)
-        bd: Json = step_breakdown(config_path, [*overrides, "task.path.laps=10.0"], rate,
-                            cycles=int((duration_s if contour else min(10.0, duration_s)) * rate))
+        bd: Json = step_breakdown(
+            config_path,
+            [*overrides, "task.path.laps=10.0"],
+            rate,
+            cycles=int((duration_s if contour else min(10.0, duration_s)) * rate),
+        )
         breakdowns.append(bd)
         progress(f"{case.name}: loop shell vs naive sleep ...")
         restore = apply_realtime(rt)  # the same priority and CPU as the service's loop thread
         try:
-            cmp = compare_sleepers(1.0 / rate, compare_s, bd["step_us"]["p50"] * 1e-6, cfg.loop.spin_us * 1e-6,
-                                   late_fraction=late_fraction)
+            cmp = compare_sleepers(
+                1.0 / rate,
+                compare_s,
+                bd["step_us"]["p50"] * 1e-6,
+                cfg.loop.spin_us * 1e-6,
+                late_fraction=late_fraction,
+            )
         finally:
             restore()
         cmp["rate_hz"] = rate
@@ -779,12 +926,25 @@ def run_bench(rates_hz: tuple[float, ...], duration_s: float, compare_s: float, 
         for scheduler in schedulers:
             case = BenchCase(rate, fd=rate >= fd_from_hz, realtime=scheduler == "realtime")
             case_rt, case_sim_rt = (rt, sim_rt) if case.realtime else (RealtimeOptions(), RealtimeOptions())
-            progress(f"{case.name}: controller + simulator for up to {duration_s:g} s, then cyclictest "
-                     f"for {cyclictest_s:g} s ...")
-            cases.append(run_case(case, duration_s, overrides, config_path, case_rt, case_sim_rt, late_fraction,
-                                  cyclictest_s))
-    classical_1k = load_config(config_path, dict(parse_override(s) for s in
-                                                 [*overrides, "loop.rate_hz=1000", "bus.fd=false"]))
+            progress(
+                f"{case.name}: controller + simulator for up to {duration_s:g} s, then cyclictest "
+                f"for {cyclictest_s:g} s ..."
+            )
+            cases.append(
+                run_case(
+                    case,
+                    duration_s,
+                    overrides,
+                    config_path,
+                    case_rt,
+                    case_sim_rt,
+                    late_fraction,
+                    cyclictest_s,
+                )
+            )
+    classical_1k = load_config(
+        config_path, dict(parse_override(s) for s in [*overrides, "loop.rate_hz=1000", "bus.fd=false"])
+    )
     report["classical_can_1khz_computed_load_percent"] = round(planned_bus_load(classical_1k).percent, 1)
     report["step_breakdown"] = breakdowns
     report["sleepers"] = sleepers
@@ -830,7 +990,9 @@ def plot_distributions(cases: list[Json], sleepers: list[Json], out_dir: Path) -
         ax1.set_ylabel("cycles per bin (log scale)")
         pe = case["period_error_us"]
         for q, style in (("p50", ":"), ("p99", "--"), ("p99_9", "-.")):
-            ax1.axvline(pe[q] + 0.1, color="k", linestyle=style, label=f"{q.replace('_', '.')}: {pe[q]:.0f} µs")
+            ax1.axvline(
+                pe[q] + 0.1, color="k", linestyle=style, label=f"{q.replace('_', '.')}: {pe[q]:.0f} µs"
+            )
         ax1.legend(title="period error", fontsize=8, framealpha=0.9, loc="upper right")
         ax1.set_title(f"{case['case']}: period error, {case['cycles']} cycles")
         _exceedance(ax2, err, f"service loop ({case['case']})")
@@ -866,6 +1028,7 @@ def _exceedance(ax: Axes, err_us: np.ndarray, label: str) -> None:
 
 # -- output -----------------------------------------------------------------------------------
 
+
 def format_table(report: Json) -> str:
     lines = []
     cases = report["cases"]
@@ -886,27 +1049,56 @@ def format_table(report: Json) -> str:
     row("SYNC out -> last TPDO in p50/p99 us", lambda c: q(c["sync_to_last_tpdo_us"], ("p50", "p99")))
     row("last TPDO -> outputs ready p50/p99", lambda c: q(c["tpdo_to_ready_us"], ("p50", "p99")))
     row("last TPDO -> RPDOs out p50/p99 us", lambda c: q(c["tpdo_to_rpdo_us"], ("p50", "p99")))
-    row("CPU loop thread / process [%]", lambda c: "{} / {}".format(
-        c["cpu_percent_of_one_core"]["loop_thread"], c["cpu_percent_of_one_core"]["controller_process"]))
+    row(
+        "CPU loop thread / process [%]",
+        lambda c: "{} / {}".format(
+            c["cpu_percent_of_one_core"]["loop_thread"], c["cpu_percent_of_one_core"]["controller_process"]
+        ),
+    )
     row("CPU simulator [%]", lambda c: f"{c['cpu_percent_of_one_core']['simulator_process']}")
-    row("bus load computed / measured [%]", lambda c: "{:.1f} / {:.1f}".format(
-        c["bus_load_percent"]["computed"], c["bus_load_percent"]["measured"]["percent"]))
+    row(
+        "bus load computed / measured [%]",
+        lambda c: "{:.1f} / {:.1f}".format(
+            c["bus_load_percent"]["computed"], c["bus_load_percent"]["measured"]["percent"]
+        ),
+    )
     row("CPU MCAP writer [%]", lambda c: f"{c['cpu_percent_of_one_core'].get('writer_process')}")
     f = report["bus_frame_cost"]
     row("python-can floor ctrl / sim [%]", lambda c: "{} / {}".format(*python_can_floor_percent(c, f)))
-    row("missing frames drive/sensor", lambda c: "{}/{}".format(
-        (c["missing_frames"] or {}).get("drive"), (c["missing_frames"] or {}).get("sensor")))
-    row("laps 4-5 force error RMS [N]", lambda c: "/".join(
-        f"{lap['force_error_rms_n']:.2f}" for lap in (c.get("contour_laps") or [])[3:5]) or "-")
-    row("cyclictest p50/p99/p99.9/max us", lambda c: q(c["cyclictest"]["latency_us"])
-        if "latency_us" in c.get("cyclictest", {}) else "-")
-    row("cyclictest late per 10 000", lambda c: "{}".format(
-        c["cyclictest"]["per_10k_above_us"][f"{c['cyclictest']['late_us']:g}"])
-        if "latency_us" in c.get("cyclictest", {}) else "-")
-    row("late ratio loop / cyclictest", lambda c: f"{c['cyclictest'].get('late_ratio')}"
-        if "latency_us" in c.get("cyclictest", {}) else "-")
-    row("wake p99 ratio loop / cyclictest", lambda c: f"{c['cyclictest'].get('wake_p99_ratio')}"
-        if "latency_us" in c.get("cyclictest", {}) else "-")
+    row(
+        "missing frames drive/sensor",
+        lambda c: "{}/{}".format(
+            (c["missing_frames"] or {}).get("drive"), (c["missing_frames"] or {}).get("sensor")
+        ),
+    )
+    row(
+        "laps 4-5 force error RMS [N]",
+        lambda c: (
+            "/".join(f"{lap['force_error_rms_n']:.2f}" for lap in (c.get("contour_laps") or [])[3:5]) or "-"
+        ),
+    )
+    row(
+        "cyclictest p50/p99/p99.9/max us",
+        lambda c: q(c["cyclictest"]["latency_us"]) if "latency_us" in c.get("cyclictest", {}) else "-",
+    )
+    row(
+        "cyclictest late per 10 000",
+        lambda c: (
+            "{}".format(c["cyclictest"]["per_10k_above_us"][f"{c['cyclictest']['late_us']:g}"])
+            if "latency_us" in c.get("cyclictest", {})
+            else "-"
+        ),
+    )
+    row(
+        "late ratio loop / cyclictest",
+        lambda c: f"{c['cyclictest'].get('late_ratio')}" if "latency_us" in c.get("cyclictest", {}) else "-",
+    )
+    row(
+        "wake p99 ratio loop / cyclictest",
+        lambda c: (
+            f"{c['cyclictest'].get('wake_p99_ratio')}" if "latency_us" in c.get("cyclictest", {}) else "-"
+        ),
+    )
     row("final mode", lambda c: c["final_mode"])
     for c in cases:
         if c.get("fault_reason"):
@@ -920,25 +1112,35 @@ def format_table(report: Json) -> str:
     for s in report["sleepers"]:
         for arm in ("deadline", "naive"):
             a = s[arm]
-            lines.append(f"  {s['rate_hz']:>6g} Hz {arm:8} rate {a['achieved_rate_hz']:>9.2f} Hz  drift "
-                         f"{a['drift_ms_per_s']:>8.3f} ms/s  period error p50/p99/p99.9/max "
-                         f"{q(a['period_error_us'])} us  late/10k {a['late_per_10k']:.1f}")
+            lines.append(
+                f"  {s['rate_hz']:>6g} Hz {arm:8} rate {a['achieved_rate_hz']:>9.2f} Hz  drift "
+                f"{a['drift_ms_per_s']:>8.3f} ms/s  period error p50/p99/p99.9/max "
+                f"{q(a['period_error_us'])} us  late/10k {a['late_per_10k']:.1f}"
+            )
     p = report["pdo_path"]
     lines.append("")
-    lines.append(f"cyclic PDO path, CPU per cycle (stub bus, 4 frames out, 5 in): project {p['project_cpu_us']} us, "
-                 f"canopen PDO objects {p['canopen_cpu_us']} us (x{p['canopen_over_project']}); wall "
-                 f"{p['project_wall_us']} / {p['canopen_wall_us']} us")
+    lines.append(
+        f"cyclic PDO path, CPU per cycle (stub bus, 4 frames out, 5 in): project {p['project_cpu_us']} us, "
+        f"canopen PDO objects {p['canopen_cpu_us']} us (x{p['canopen_over_project']}); wall "
+        f"{p['project_wall_us']} / {p['canopen_wall_us']} us"
+    )
     f = report["bus_frame_cost"]
-    lines.append(f"python-can per frame on {f['bus']}: send p50/p99 {q(f['send_us'], ('p50', 'p99'))} us, "
-                 f"recv p50/p99 {q(f['recv_us'], ('p50', 'p99'))} us; own frames received back "
-                 f"{f['own_frames_received_back']} of {f['frames']}")
+    lines.append(
+        f"python-can per frame on {f['bus']}: send p50/p99 {q(f['send_us'], ('p50', 'p99'))} us, "
+        f"recv p50/p99 {q(f['recv_us'], ('p50', 'p99'))} us; own frames received back "
+        f"{f['own_frames_received_back']} of {f['frames']}"
+    )
     for b in report["step_breakdown"]:
-        lines.append(f"step at {b['rate_hz']:g} Hz (in process): p50/p99 {q(b['step_us'], ('p50', 'p99'))} us; "
-                     f"Ruckig reported {q(b['ruckig_reported_calculation_us'], ('p50', 'p99'))} us, "
-                     f"Ruckig call in Python {q(b['ruckig_call_in_python_us'], ('p50', 'p99'))} us, "
-                     f"{b['ruckig_calls_per_cycle']} calls/cycle: Ruckig {b['ruckig_share_of_step_percent']} % of step")
-    lines.append(f"classical CAN 1 Mbit/s at 1 kHz: computed load {report['classical_can_1khz_computed_load_percent']} %"
-                 " (over the limit: refused)")
+        lines.append(
+            f"step at {b['rate_hz']:g} Hz (in process): p50/p99 {q(b['step_us'], ('p50', 'p99'))} us; "
+            f"Ruckig reported {q(b['ruckig_reported_calculation_us'], ('p50', 'p99'))} us, "
+            f"Ruckig call in Python {q(b['ruckig_call_in_python_us'], ('p50', 'p99'))} us, "
+            f"{b['ruckig_calls_per_cycle']} calls/cycle: Ruckig {b['ruckig_share_of_step_percent']} % of step"
+        )
+    lines.append(
+        f"classical CAN 1 Mbit/s at 1 kHz: computed load {report['classical_can_1khz_computed_load_percent']} %"
+        " (over the limit: refused)"
+    )
     for path in report["plots"]:
         lines.append(f"plot {path}")
     return "\n".join(lines)
@@ -961,24 +1163,45 @@ def python_can_floor_percent(case: Json, cost: Json) -> tuple[float, float]:
 
 def add_bench_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--config", help="TOML configuration (default: the shipped one)")
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a configuration key")
+    ap.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", help="override a configuration key"
+    )
     ap.add_argument("--rates", default="400,1000", help="loop rates to measure [Hz], comma-separated")
-    ap.add_argument("--duration", type=float, default=300.0, help="seconds per rate with the simulator (default 300)")
-    ap.add_argument("--compare", type=float, default=20.0, help="seconds per rate of loop shell vs naive sleep")
+    ap.add_argument(
+        "--duration", type=float, default=300.0, help="seconds per rate with the simulator (default 300)"
+    )
+    ap.add_argument(
+        "--compare", type=float, default=20.0, help="seconds per rate of loop shell vs naive sleep"
+    )
     ap.add_argument("--fd-from", type=float, default=500.0, help="rates from this one up run on CAN FD [Hz]")
     ap.add_argument("--late-fraction", type=float, default=0.1, help="late: woke this part of a period after")
     ap.add_argument("--sim-rt-priority", type=int, metavar="N", help="SCHED_FIFO priority of the simulator")
     ap.add_argument("--sim-cpu", metavar="CPUS", help="CPU affinity of the simulator")
     ap.add_argument("--out", default="bench", help="directory for bench.json and the PNG plots")
-    ap.add_argument("--task", choices=("path", "contour"), default="path",
-                    help="the task over the bus: the circle (default) or the contour experiment (its own length)")
-    ap.add_argument("--schedulers", default="realtime,normal",
-                    help="run each rate with the real-time options (realtime) and/or without (normal)")
-    ap.add_argument("--cyclictest", type=float, default=30.0, metavar="S",
-                    help="seconds of cyclictest beside each case (0: none)")
+    ap.add_argument(
+        "--task",
+        choices=("path", "contour"),
+        default="path",
+        help="the task over the bus: the circle (default) or the contour experiment (its own length)",
+    )
+    ap.add_argument(
+        "--schedulers",
+        default="realtime,normal",
+        help="run each rate with the real-time options (realtime) and/or without (normal)",
+    )
+    ap.add_argument(
+        "--cyclictest",
+        type=float,
+        default=30.0,
+        metavar="S",
+        help="seconds of cyclictest beside each case (0: none)",
+    )
     ap.add_argument("--json", action="store_true", help="print the JSON instead of the table")
-    ap.add_argument("--strict", action="store_true",
-                    help="keep the configured safety reactions (default: late/missing frames only warn)")
+    ap.add_argument(
+        "--strict",
+        action="store_true",
+        help="keep the configured safety reactions (default: late/missing frames only warn)",
+    )
 
 
 def run_bench_command(args: argparse.Namespace, rt: RealtimeOptions) -> int:
@@ -987,8 +1210,12 @@ def run_bench_command(args: argparse.Namespace, rt: RealtimeOptions) -> int:
     if args.sim_rt_priority is None and not args.sim_cpu:
         sim_rt = rt.for_simulator()  # as the demo gives it: one step below the loop, on the other CPUs
     else:
-        sim_rt = RealtimeOptions(priority=args.sim_rt_priority, cpus=parse_cpus(args.sim_cpu) if args.sim_cpu else (),
-                                 lock_memory=rt.lock_memory, required=rt.required)
+        sim_rt = RealtimeOptions(
+            priority=args.sim_rt_priority,
+            cpus=parse_cpus(args.sim_cpu) if args.sim_cpu else (),
+            lock_memory=rt.lock_memory,
+            required=rt.required,
+        )
     rates = tuple(float(r) for r in args.rates.split(","))
     overrides = list(args.set) if args.strict else [*TOLERANT_SAFETY, *args.set]
     if args.task == "contour":
@@ -997,10 +1224,21 @@ def run_bench_command(args: argparse.Namespace, rt: RealtimeOptions) -> int:
     unknown = [x for x in schedulers if x not in ("realtime", "normal")]
     if unknown or not schedulers:
         raise InputError(f"--schedulers {args.schedulers!r}: expected realtime, normal or both")
-    report = run_bench(rates, args.duration, args.compare, Path(args.out), args.config, overrides, rt, sim_rt,
-                       late_fraction=args.late_fraction, fd_from_hz=args.fd_from,
-                       progress=lambda s: print(s, file=sys.stderr, flush=True), schedulers=schedulers,
-                       cyclictest_s=args.cyclictest)
+    report = run_bench(
+        rates,
+        args.duration,
+        args.compare,
+        Path(args.out),
+        args.config,
+        overrides,
+        rt,
+        sim_rt,
+        late_fraction=args.late_fraction,
+        fd_from_hz=args.fd_from,
+        progress=lambda s: print(s, file=sys.stderr, flush=True),
+        schedulers=schedulers,
+        cyclictest_s=args.cyclictest,
+    )
     print(strict_json(report, indent=2) if args.json else format_table(report))
     print(f"JSON: {Path(args.out) / 'bench.json'}", file=sys.stderr)
     return 0

@@ -45,8 +45,14 @@ def _allowed(t: mi.Type) -> str:
 
 
 def _type_name(t: mi.Type) -> str:
-    names = {mi.FloatType: "number", mi.IntType: "integer", mi.BoolType: "bool", mi.StrType: "string",
-             mi.LiteralType: "choice", mi.EnumType: "choice"}
+    names = {
+        mi.FloatType: "number",
+        mi.IntType: "integer",
+        mi.BoolType: "bool",
+        mi.StrType: "string",
+        mi.LiteralType: "choice",
+        mi.EnumType: "choice",
+    }
     for cls, name in names.items():
         if isinstance(t, cls):
             return name

@@ -41,37 +41,57 @@ def cheope_robot(cfg: Config) -> CheopeRobot:
 
 def comparison_config(cfg: Config) -> Config:
     c = cfg.task.model("contour")
-    path = PathSection(center_m=(c.expected_centre_m[0], c.expected_centre_m[1], c.height_m),
-                       radius_m=c.expected_radius_m - c.comparison_press_m, speed_m_s=c.lap_speeds_m_s[-1],
-                       laps=1.0, ramp_s=0.5, check_samples=cfg.task.model("path").check_samples)
-    safety = msgspec.structs.replace(cfg.safety, on_sensor_saturated="warn",
-                                 max_contact_force_n=1.0e4)  # simulated hardware only: see above
+    path = PathSection(
+        center_m=(c.expected_centre_m[0], c.expected_centre_m[1], c.height_m),
+        radius_m=c.expected_radius_m - c.comparison_press_m,
+        speed_m_s=c.lap_speeds_m_s[-1],
+        laps=1.0,
+        ramp_s=0.5,
+        check_samples=cfg.task.model("path").check_samples,
+    )
+    safety = msgspec.structs.replace(
+        cfg.safety, on_sensor_saturated="warn", max_contact_force_n=1.0e4
+    )  # simulated hardware only: see above
     # the same workpiece under position control: announced as such, though the path task alone expects free space
     sim = msgspec.structs.replace(cfg.sim, environment="workpiece")
-    return msgspec.structs.replace(cfg, task=msgspec.structs.replace(cfg.task, kind="path", models={**cfg.task.models, "path": path}), safety=safety, sim=sim)
+    return msgspec.structs.replace(
+        cfg,
+        task=msgspec.structs.replace(cfg.task, kind="path", models={**cfg.task.models, "path": path}),
+        safety=safety,
+        sim=sim,
+    )
 
 
-def run_contour_experiment(cfg: Config, spec: BusSpec, plot_dir: Path | None, max_duration_s: float = 600.0,
-                           stop_event: threading.Event | None = None,
-                           realtime: RealtimeOptions | None = None,
-                           observers: tuple[CycleObserver, ...] = ()) -> dict[str, object]:
+def run_contour_experiment(
+    cfg: Config,
+    spec: BusSpec,
+    plot_dir: Path | None,
+    max_duration_s: float = 600.0,
+    stop_event: threading.Event | None = None,
+    realtime: RealtimeOptions | None = None,
+    observers: tuple[CycleObserver, ...] = (),
+) -> dict[str, object]:
     c = cfg.task.model("contour")
     robot = cheope_robot(cfg)
     stiffness = cfg.robot.mass.actuator_stiffness_n_m
 
     force_obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s))
-    summary = run_controller(cfg, spec, max_duration_s, stop_event, observers=(force_obs, *observers),
-                             realtime=realtime)
+    summary = run_controller(
+        cfg, spec, max_duration_s, stop_event, observers=(force_obs, *observers), realtime=realtime
+    )
     summary["contour"] = contour_summary(force_obs, robot, stiffness, c.height_m, c.lap_speeds_m_s)
 
     if stop_event is None or not stop_event.is_set():
         cmp_cfg = comparison_config(cfg)
         pos_obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, 1)
-        cmp = run_controller(cmp_cfg, spec, max_duration_s, stop_event, observers=(pos_obs, *observers),
-                             realtime=realtime)
+        cmp = run_controller(
+            cmp_cfg, spec, max_duration_s, stop_event, observers=(pos_obs, *observers), realtime=realtime
+        )
         summary["position_control_comparison"] = {
-            "final_mode": cmp["final_mode"], "fault_reason": cmp["fault_reason"],
-            "radius_m": cmp_cfg.task.model("path").radius_m, "speed_m_s": cmp_cfg.task.model("path").speed_m_s,
+            "final_mode": cmp["final_mode"],
+            "fault_reason": cmp["fault_reason"],
+            "radius_m": cmp_cfg.task.model("path").radius_m,
+            "speed_m_s": cmp_cfg.task.model("path").speed_m_s,
             **contour_summary(pos_obs, robot, stiffness, c.height_m, None),
         }
     else:
@@ -81,21 +101,25 @@ def run_contour_experiment(cfg: Config, spec: BusSpec, plot_dir: Path | None, ma
     return summary
 
 
-def _plot(cfg: Config, plot_dir: Path, force_obs: ContourObserver, pos_obs: ContourObserver | None = None
-          ) -> list[str]:
+def _plot(
+    cfg: Config, plot_dir: Path, force_obs: ContourObserver, pos_obs: ContourObserver | None = None
+) -> list[str]:
     """Fig. 8-9 of the force-controlled run and, when there is one, of the comparison."""
     c = cfg.task.model("contour")
     robot = cheope_robot(cfg)
     stiffness = cfg.robot.mass.actuator_stiffness_n_m
     masses = mass_model_from_config(cfg)
-    plots = plot_contour(force_obs, robot, stiffness, masses, c.height_m, plot_dir, "force control",
-                         c.lap_speeds_m_s)
+    plots = plot_contour(
+        force_obs, robot, stiffness, masses, c.height_m, plot_dir, "force control", c.lap_speeds_m_s
+    )
     if pos_obs is not None and pos_obs.t:
         plots += plot_contour(pos_obs, robot, stiffness, masses, c.height_m, plot_dir, "position control")
     return [str(p) for p in plots]
 
 
-def run_simulated_time(cfg: Config, max_duration_s: float = 600.0, plot_dir: Path | None = None) -> dict[str, object]:
+def run_simulated_time(
+    cfg: Config, max_duration_s: float = 600.0, plot_dir: Path | None = None
+) -> dict[str, object]:
     """The force-controlled laps against the in-process devices in simulated time.
 
     Deterministic and free of the machine's timing: the reference to compare a run over a
@@ -110,13 +134,18 @@ def run_simulated_time(cfg: Config, max_duration_s: float = 600.0, plot_dir: Pat
     law = build_law(cfg)
     exchange = LoopbackExchange(cfg, clock.clock)
     obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s))
-    final, stats = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
-                             observers=(obs,)).run(law.initial_state(), max_duration_s)
+    final, stats = CycleLoop(
+        law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(obs,)
+    ).run(law.initial_state(), max_duration_s)
     summary: dict[str, object] = {
-        "final_mode": final.mode.name, "fault_reason": final.fault_reason, "cycles": stats.cycles,
+        "final_mode": final.mode.name,
+        "fault_reason": final.fault_reason,
+        "cycles": stats.cycles,
         "simulated_time": True,
-        "contour": contour_summary(obs, cheope_robot(cfg), cfg.robot.mass.actuator_stiffness_n_m, c.height_m,
-                                   c.lap_speeds_m_s)}
+        "contour": contour_summary(
+            obs, cheope_robot(cfg), cfg.robot.mass.actuator_stiffness_n_m, c.height_m, c.lap_speeds_m_s
+        ),
+    }
     if plot_dir is not None:
         summary["plots"] = _plot(cfg, plot_dir, obs)
     return summary

@@ -67,10 +67,20 @@ class _Watch:
     task: ContourState | None = None
     causes: list[str] = field(default_factory=list)
 
-    def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
-                 outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None:
+    def on_cycle(
+        self,
+        cycle: int,
+        t: float,
+        inputs: CycleInputs,
+        state: ControllerState,
+        outputs: CycleOutputs,
+        events: tuple[Event, ...],
+        timing: CycleTiming,
+    ) -> None:
         f = self.exchange.plant.force_n
-        self.max_true_force_n = max(self.max_true_force_n, math.sqrt(float(f[0] ** 2 + f[1] ** 2 + f[2] ** 2)))
+        self.max_true_force_n = max(
+            self.max_true_force_n, math.sqrt(float(f[0] ** 2 + f[1] ** 2 + f[2] ** 2))
+        )
         if isinstance(state.task_state, ContourState):
             self.task = state.task_state
         for e in events:
@@ -81,23 +91,30 @@ class _Watch:
 def scan_config(base: Config) -> Config:
     c = base.task.model("contour")
     contour = msgspec.structs.replace(c, lap_speeds_m_s=SCAN_LAP_SPEEDS_M_S)
-    return msgspec.structs.replace(base, task=msgspec.structs.replace(
-        base.task, kind="contour", models={**base.task.models, "contour": contour}))
+    return msgspec.structs.replace(
+        base,
+        task=msgspec.structs.replace(
+            base.task, kind="contour", models={**base.task.models, "contour": contour}
+        ),
+    )
 
 
 def _with(cfg: Config, sc: ContourScenario, directory: Path | None) -> Config:
     from sim_backend.sim_config import SimFeatureSection
 
-    workpiece = msgspec.structs.replace(cfg.sim.workpiece, features=tuple(
-        SimFeatureSection(**f) for f in sc.features))
+    workpiece = msgspec.structs.replace(
+        cfg.sim.workpiece, features=tuple(SimFeatureSection(**f) for f in sc.features)
+    )
     sim = msgspec.structs.replace(cfg.sim, faults=sc.faults, workpiece=workpiece)
-    recording = msgspec.structs.replace(cfg.recording, enabled=directory is not None,
-                                        directory=str(directory or ""))
+    recording = msgspec.structs.replace(
+        cfg.recording, enabled=directory is not None, directory=str(directory or "")
+    )
     return msgspec.structs.replace(cfg, sim=sim, recording=recording)
 
 
-def run_contour_scenario(base: Config, sc: ContourScenario, directory: Path | None,
-                         observers: tuple[object, ...] = ()) -> dict[str, object]:
+def run_contour_scenario(
+    base: Config, sc: ContourScenario, directory: Path | None, observers: tuple[object, ...] = ()
+) -> dict[str, object]:
     """One scenario in simulated time; recorded to ``directory`` when given."""
     from logs.recorder import SessionRecorder
 
@@ -106,14 +123,29 @@ def run_contour_scenario(base: Config, sc: ContourScenario, directory: Path | No
     law = build_law(cfg)
     exchange = LoopbackExchange(cfg, clock.clock)
     watch = _Watch(exchange)
-    recorder = SessionRecorder.for_config(cfg, clock=clock.clock, phase_name=law.task.phase_name,
-                                          extra_metadata={"contour_scenario": sc.name}) if directory else None
+    recorder = (
+        SessionRecorder.for_config(
+            cfg,
+            clock=clock.clock,
+            phase_name=law.task.phase_name,
+            extra_metadata={"contour_scenario": sc.name},
+        )
+        if directory
+        else None
+    )
     loop_observers = (watch, *observers, *((recorder,) if recorder is not None else ()))
     if recorder is not None:
         recorder.__enter__()
     try:
-        loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
-                         observers=loop_observers)
+        loop = CycleLoop(
+            law,
+            exchange,
+            cfg.period_s,
+            cfg.loop.collect_fraction,
+            clock,
+            clock.clock,
+            observers=loop_observers,
+        )
         final, _ = loop.run(law.initial_state(), MAX_DURATION_S)
     finally:
         if recorder is not None:
@@ -121,8 +153,9 @@ def run_contour_scenario(base: Config, sc: ContourScenario, directory: Path | No
     return _row(cfg, sc, final, watch, recorder.path if recorder is not None else None)
 
 
-def _row(cfg: Config, sc: ContourScenario, final: ControllerState, watch: _Watch, path: Path | None
-         ) -> dict[str, object]:
+def _row(
+    cfg: Config, sc: ContourScenario, final: ControllerState, watch: _Watch, path: Path | None
+) -> dict[str, object]:
     task = watch.task
     laps = len(cfg.task.model("contour").lap_speeds_m_s)
     laps_done = min(task.lap, laps) if task is not None else 0
@@ -135,9 +168,12 @@ def _row(cfg: Config, sc: ContourScenario, final: ControllerState, watch: _Watch
         outcome = final.mode.name
     return {
         "scenario": sc.name,
-        "injected": list(sc.faults) + [f"{'notch' if f['depth_m'] > 0 else 'bump'} {abs(f['depth_m']) * 1000:g} mm"
-                                       f" x {f['length_m'] * 1000:g} mm at {f['angle_deg']:g} deg"
-                                       for f in sc.features],
+        "injected": list(sc.faults)
+        + [
+            f"{'notch' if f['depth_m'] > 0 else 'bump'} {abs(f['depth_m']) * 1000:g} mm"
+            f" x {f['length_m'] * 1000:g} mm at {f['angle_deg']:g} deg"
+            for f in sc.features
+        ],
         "contact_losses": sum(task.contact_losses) if task is not None else 0,
         "reacquired": watch.reacquired,
         "max_true_contact_force_n": round(watch.max_true_force_n, 2),
@@ -153,19 +189,34 @@ def _row(cfg: Config, sc: ContourScenario, final: ControllerState, watch: _Watch
 def lap_places(base: Config) -> tuple[list[float], dict[str, object]]:
     """The times [s] at which an undisturbed run passes the 12 places, and that run's row."""
     times: list[float] = []
-    targets = [2.0 * math.pi * (1.0 + k / 6.0) for k in range(6)] + \
-              [2.0 * math.pi * (2.0 + (k + 0.5) / 6.0) for k in range(6)]
+    targets = [2.0 * math.pi * (1.0 + k / 6.0) for k in range(6)] + [
+        2.0 * math.pi * (2.0 + (k + 0.5) / 6.0) for k in range(6)
+    ]
 
     class Places:
-        def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
-                     outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None:
+        def on_cycle(
+            self,
+            cycle: int,
+            t: float,
+            inputs: CycleInputs,
+            state: ControllerState,
+            outputs: CycleOutputs,
+            events: tuple[Event, ...],
+            timing: CycleTiming,
+        ) -> None:
             ts = state.task_state
-            if isinstance(ts, ContourState) and len(times) < len(targets) and abs(ts.swept_rad) >= targets[len(times)]:
+            if (
+                isinstance(ts, ContourState)
+                and len(times) < len(targets)
+                and abs(ts.swept_rad) >= targets[len(times)]
+            ):
                 times.append(round(t, 3))
 
     row = run_contour_scenario(base, ContourScenario("undisturbed"), None, observers=(Places(),))
     if len(times) < PLACES:
-        raise RuntimeError(f"the undisturbed scan run ended {row['outcome']} ({row['cause']}) before its 12 places")
+        raise RuntimeError(
+            f"the undisturbed scan run ended {row['outcome']} ({row['cause']}) before its 12 places"
+        )
     return times, row
 
 
@@ -174,26 +225,43 @@ def scenarios(places_s: list[float], period_s: float) -> Iterator[ContourScenari
         amplitude = SPIKE_AMPLITUDES_N[i % len(SPIKE_AMPLITUDES_N)]
         for sign, duration in ((1.0, SPIKE_DURATIONS_S[i % 4]), (-1.0, SPIKE_DURATIONS_S[(i + 1) % 4])):
             f = sign * amplitude
-            yield ContourScenario(f"spike {f:+g} N for {duration:g} s at place {i + 1}",
-                                  (f"force={f:g}@{t}+{duration}",))
-    yield ContourScenario("notch 2 mm x 5 mm", features=({"angle_deg": 90.0, "length_m": 0.005, "depth_m": 0.002},))
-    yield ContourScenario("notch 3 mm x 20 mm", features=({"angle_deg": 200.0, "length_m": 0.02, "depth_m": 0.003},))
-    yield ContourScenario("bump 1 mm x 20 mm", features=({"angle_deg": 45.0, "length_m": 0.02, "depth_m": -0.001},))
-    yield ContourScenario("bump 2 mm x 30 mm", features=({"angle_deg": 270.0, "length_m": 0.03, "depth_m": -0.002},))
+            yield ContourScenario(
+                f"spike {f:+g} N for {duration:g} s at place {i + 1}", (f"force={f:g}@{t}+{duration}",)
+            )
+    yield ContourScenario(
+        "notch 2 mm x 5 mm", features=({"angle_deg": 90.0, "length_m": 0.005, "depth_m": 0.002},)
+    )
+    yield ContourScenario(
+        "notch 3 mm x 20 mm", features=({"angle_deg": 200.0, "length_m": 0.02, "depth_m": 0.003},)
+    )
+    yield ContourScenario(
+        "bump 1 mm x 20 mm", features=({"angle_deg": 45.0, "length_m": 0.02, "depth_m": -0.001},)
+    )
+    yield ContourScenario(
+        "bump 2 mm x 30 mm", features=({"angle_deg": 270.0, "length_m": 0.03, "depth_m": -0.002},)
+    )
     for rate in (0.3, -0.3):
-        yield ContourScenario(f"bias drifting {rate:+g} N/s for 15 s", (f"drift={rate:g}@{places_s[0] - 5.0:.3f}+15",))
+        yield ContourScenario(
+            f"bias drifting {rate:+g} N/s for 15 s", (f"drift={rate:g}@{places_s[0] - 5.0:.3f}+15",)
+        )
     for n, t in zip(STALE_BURSTS, places_s[1::4]):
         yield ContourScenario(f"{n} stale sample(s)", (f"freeze@{t}+{n * period_s + period_s / 2:.6f}",))
     yield ContourScenario("spoofed sample, 30 N", (f"spoof_sensor=30@{places_s[2]}+{period_s / 2:.6f}",))
-    yield ContourScenario("spoofed samples, -30 N, 4 cycles", (f"spoof_sensor=-30@{places_s[7]}+{3.5 * period_s:.6f}",))
+    yield ContourScenario(
+        "spoofed samples, -30 N, 4 cycles", (f"spoof_sensor=-30@{places_s[7]}+{3.5 * period_s:.6f}",)
+    )
 
 
 def _run_one(args: tuple[Config, ContourScenario, Path | None]) -> dict[str, object]:
     return run_contour_scenario(*args)
 
 
-def run_scan(base: Config | None = None, directory: Path | None = None, jobs: int = 1,
-             progress: Callable[[int, int, dict[str, object]], None] | None = None) -> list[dict[str, object]]:
+def run_scan(
+    base: Config | None = None,
+    directory: Path | None = None,
+    jobs: int = 1,
+    progress: Callable[[int, int, dict[str, object]], None] | None = None,
+) -> list[dict[str, object]]:
     """Every scenario; rows in the order of ``scenarios``, the undisturbed run first."""
     base = scan_config(base or load_config())
     with tempfile.TemporaryDirectory(prefix="cheope-contour-scan-") as tmp:
@@ -224,25 +292,38 @@ def summary(rows: list[dict[str, object]], max_contact_force_n: float) -> dict[s
     retracted = sum(r["outcome"] == "retracted" for r in rows)
     over = sum(bool(r["over_limit"]) for r in rows)
     worst = max(float(r["max_true_contact_force_n"]) for r in rows)  # type: ignore[arg-type]
-    return {"scenarios": n, "done": done, "retracted": retracted, "other": n - done - retracted,
-            "over_limit": over, "done_percent": round(100.0 * done / n, 1), "max_true_contact_force_n": worst,
-            "limit_n": max_contact_force_n,
-            "targets_met": over == 0 and done >= 0.95 * n and done + retracted == n}
+    return {
+        "scenarios": n,
+        "done": done,
+        "retracted": retracted,
+        "other": n - done - retracted,
+        "over_limit": over,
+        "done_percent": round(100.0 * done / n, 1),
+        "max_true_contact_force_n": worst,
+        "limit_n": max_contact_force_n,
+        "targets_met": over == 0 and done >= 0.95 * n and done + retracted == n,
+    }
 
 
 def format_table(rows: list[dict[str, object]], max_contact_force_n: float) -> str:
-    lines = ["| scenario | contact losses | re-acquired | max true contact force [N] | final mode | cause |",
-             "| --- | --- | --- | --- | --- | --- |"]
+    lines = [
+        "| scenario | contact losses | re-acquired | max true contact force [N] | final mode | cause |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
     for r in rows:
-        lines.append(f"| {r['scenario']} | {r['contact_losses']} | {r['reacquired']} | "
-                     f"{r['max_true_contact_force_n']:.1f}{' **over**' if r['over_limit'] else ''} | "
-                     f"{r['outcome']} | {r['cause'] or '-'} |")
+        lines.append(
+            f"| {r['scenario']} | {r['contact_losses']} | {r['reacquired']} | "
+            f"{r['max_true_contact_force_n']:.1f}{' **over**' if r['over_limit'] else ''} | "
+            f"{r['outcome']} | {r['cause'] or '-'} |"
+        )
     s = summary(rows, max_contact_force_n)
     lines.append("")
-    lines.append(f"{s['scenarios']} scenarios: {s['done']} DONE ({s['done_percent']} %), {s['retracted']} retracted, "
-                 f"{s['other']} other; {s['over_limit']} over the {max_contact_force_n:g} N limit "
-                 f"(largest true contact force {s['max_true_contact_force_n']:.1f} N); targets "
-                 f"{'met' if s['targets_met'] else 'NOT met'}")
+    lines.append(
+        f"{s['scenarios']} scenarios: {s['done']} DONE ({s['done_percent']} %), {s['retracted']} retracted, "
+        f"{s['other']} other; {s['over_limit']} over the {max_contact_force_n:g} N limit "
+        f"(largest true contact force {s['max_true_contact_force_n']:.1f} N); targets "
+        f"{'met' if s['targets_met'] else 'NOT met'}"
+    )
     return "\n".join(lines)
 
 
@@ -253,14 +334,29 @@ SHAPE_LAP_SPEEDS_M_S = (0.04, 0.04, 0.04)  # the issue's target: 3 laps at 40 mm
 # placed off its nominal pose (centre and rotation) as the disk is.
 SHAPES: dict[str, dict[str, object]] = {
     "disk": {},
-    "ellipse": {"sim.workpiece.size_m": [0.075, 0.055], "sim.workpiece.rotation_deg": 10.0,
-                "task.contour.expected_radius_m": 0.074},
-    "rounded_rectangle": {"sim.workpiece.size_m": [0.065, 0.05], "sim.workpiece.corner_radius_m": 0.004,
-                          "sim.workpiece.rotation_deg": 5.0, "task.contour.expected_radius_m": 0.066},
-    "rounded_star": {"sim.workpiece.radius_m": 0.065, "sim.workpiece.lobe_depth_m": 0.006,
-                     "sim.workpiece.rotation_deg": 8.0, "task.contour.expected_radius_m": 0.07},
-    "kidney": {"sim.workpiece.radius_m": 0.068, "sim.workpiece.lobe_depth_m": 0.012,
-               "sim.workpiece.rotation_deg": -12.0, "task.contour.expected_radius_m": 0.068},
+    "ellipse": {
+        "sim.workpiece.size_m": [0.075, 0.055],
+        "sim.workpiece.rotation_deg": 10.0,
+        "task.contour.expected_radius_m": 0.074,
+    },
+    "rounded_rectangle": {
+        "sim.workpiece.size_m": [0.065, 0.05],
+        "sim.workpiece.corner_radius_m": 0.004,
+        "sim.workpiece.rotation_deg": 5.0,
+        "task.contour.expected_radius_m": 0.066,
+    },
+    "rounded_star": {
+        "sim.workpiece.radius_m": 0.065,
+        "sim.workpiece.lobe_depth_m": 0.006,
+        "sim.workpiece.rotation_deg": 8.0,
+        "task.contour.expected_radius_m": 0.07,
+    },
+    "kidney": {
+        "sim.workpiece.radius_m": 0.068,
+        "sim.workpiece.lobe_depth_m": 0.012,
+        "sim.workpiece.rotation_deg": -12.0,
+        "task.contour.expected_radius_m": 0.068,
+    },
 }
 
 
@@ -268,8 +364,12 @@ def shape_config(base: Config, shape: str) -> Config:
     from controller.config import config_from_dict, config_to_dict, set_dotted
 
     table = config_to_dict(base)
-    for key, value in {"task.kind": "contour", "task.contour.lap_speeds_m_s": list(SHAPE_LAP_SPEEDS_M_S),
-                       "sim.workpiece.shape": shape, **SHAPES[shape]}.items():
+    for key, value in {
+        "task.kind": "contour",
+        "task.contour.lap_speeds_m_s": list(SHAPE_LAP_SPEEDS_M_S),
+        "sim.workpiece.shape": shape,
+        **SHAPES[shape],
+    }.items():
         set_dotted(table, key, value)
     return config_from_dict(table)
 
@@ -284,15 +384,24 @@ def run_shape(base: Config, shape: str, directory: Path | None = None) -> dict[s
     obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s))
     row = run_contour_scenario(cfg, ContourScenario(shape), directory, observers=(obs,))
     robot = build_robot(cfg)
-    s = contour_summary(obs, robot, cfg.robot.mass.actuator_stiffness_n_m, c.height_m,  # type: ignore[arg-type]
-                        c.lap_speeds_m_s)
+    s = contour_summary(
+        obs,
+        robot,
+        cfg.robot.mass.actuator_stiffness_n_m,
+        c.height_m,  # type: ignore[arg-type]
+        c.lap_speeds_m_s,
+    )
     corners = s["corners"]
     assert isinstance(corners, dict)
     duration = obs.t[-1] - obs.t[0] if obs.t else 0.0
-    return {**row, "force_error_rms_n": s["force_error_rms_n"], "corner_samples": corners["samples"],
-            "force_error_rms_corners_n": corners["force_error_rms_n"],
-            "force_error_rms_elsewhere_n": corners["force_error_rms_elsewhere_n"],
-            "tracking_s": round(duration, 1)}
+    return {
+        **row,
+        "force_error_rms_n": s["force_error_rms_n"],
+        "corner_samples": corners["samples"],
+        "force_error_rms_corners_n": corners["force_error_rms_n"],
+        "force_error_rms_elsewhere_n": corners["force_error_rms_elsewhere_n"],
+        "tracking_s": round(duration, 1),
+    }
 
 
 def run_shapes(base: Config | None = None, directory: Path | None = None) -> list[dict[str, object]]:
@@ -302,21 +411,37 @@ def run_shapes(base: Config | None = None, directory: Path | None = None) -> lis
 
 def shapes_met(rows: list[dict[str, object]]) -> bool:
     """DONE, no contact loss, under the limit, force error RMS <= 1 N away from corners (corners reported apart)."""
-    return all(r["outcome"] == "DONE" and r["contact_losses"] == 0 and not r["over_limit"]
-               and float(r["force_error_rms_elsewhere_n"]) <= 1.0 for r in rows)  # type: ignore[arg-type]
+    return all(
+        r["outcome"] == "DONE"
+        and r["contact_losses"] == 0
+        and not r["over_limit"]
+        and float(r["force_error_rms_elsewhere_n"]) <= 1.0
+        for r in rows
+    )  # type: ignore[arg-type]
 
 
 def format_shapes(rows: list[dict[str, object]]) -> str:
-    lines = [("| shape | final mode | contact losses | force error RMS [N] | at corners [N] (samples) | elsewhere [N] "
-             "| max true contact force [N] | tracking [s] |"),
-             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines = [
+        (
+            "| shape | final mode | contact losses | force error RMS [N] | at corners [N] (samples) | elsewhere [N] "
+            "| max true contact force [N] | tracking [s] |"
+        ),
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
     for r in rows:
-        corner = "-" if r["force_error_rms_corners_n"] is None else \
-            f"{r['force_error_rms_corners_n']:.2f} ({r['corner_samples']})"
-        lines.append(f"| {r['scenario']} | {r['outcome']} | {r['contact_losses']} | {r['force_error_rms_n']:.2f} | "
-                     f"{corner} | {r['force_error_rms_elsewhere_n']:.2f} | {r['max_true_contact_force_n']:.1f} | "
-                     f"{r['tracking_s']} |")
+        corner = (
+            "-"
+            if r["force_error_rms_corners_n"] is None
+            else f"{r['force_error_rms_corners_n']:.2f} ({r['corner_samples']})"
+        )
+        lines.append(
+            f"| {r['scenario']} | {r['outcome']} | {r['contact_losses']} | {r['force_error_rms_n']:.2f} | "
+            f"{corner} | {r['force_error_rms_elsewhere_n']:.2f} | {r['max_true_contact_force_n']:.1f} | "
+            f"{r['tracking_s']} |"
+        )
     lines.append("")
-    lines.append(f"targets (DONE, no contact loss, RMS <= 1 N away from corners, under the limit) "
-                 f"{'met' if shapes_met(rows) else 'NOT met'}")
+    lines.append(
+        f"targets (DONE, no contact loss, RMS <= 1 N away from corners, under the limit) "
+        f"{'met' if shapes_met(rows) else 'NOT met'}"
+    )
     return "\n".join(lines)

@@ -90,9 +90,25 @@ def cyclictest_path() -> str | None:
     return shutil.which("cyclictest")
 
 
-def cyclictest_command(binary: str, interval_us: int, loops: int, histogram_us: int, histfile: Path,
-                       priority: int | None, cpu: int | None, lock_memory: bool) -> list[str]:
-    cmd = [binary, "-t1", "-q", f"-i{interval_us}", f"-l{loops}", f"-h{histogram_us}", f"--histfile={histfile}"]
+def cyclictest_command(
+    binary: str,
+    interval_us: int,
+    loops: int,
+    histogram_us: int,
+    histfile: Path,
+    priority: int | None,
+    cpu: int | None,
+    lock_memory: bool,
+) -> list[str]:
+    cmd = [
+        binary,
+        "-t1",
+        "-q",
+        f"-i{interval_us}",
+        f"-l{loops}",
+        f"-h{histogram_us}",
+        f"--histfile={histfile}",
+    ]
     cmd += [f"-p{priority}"] if priority is not None else ["--policy=other"]
     if cpu is not None:
         cmd.append(f"-a{cpu}")
@@ -101,8 +117,14 @@ def cyclictest_command(binary: str, interval_us: int, loops: int, histogram_us: 
     return cmd
 
 
-def run_cyclictest(rate_hz: float, duration_s: float, priority: int | None, cpu: int | None,
-                   lock_memory: bool, thresholds_us: tuple[float, ...]) -> dict[str, object]:
+def run_cyclictest(
+    rate_hz: float,
+    duration_s: float,
+    priority: int | None,
+    cpu: int | None,
+    lock_memory: bool,
+    thresholds_us: tuple[float, ...],
+) -> dict[str, object]:
     """One cyclictest thread at ``rate_hz`` for ``duration_s``: latency percentiles and rates above thresholds."""
     binary = cyclictest_path()
     if binary is None:
@@ -112,9 +134,13 @@ def run_cyclictest(rate_hz: float, duration_s: float, priority: int | None, cpu:
     histogram_us = max(2 * interval_us, 10_000)
     with tempfile.TemporaryDirectory(prefix="cheope-cyclictest-") as tmp:
         histfile = Path(tmp) / "histogram.txt"
-        cmd = cyclictest_command(binary, interval_us, loops, histogram_us, histfile, priority, cpu, lock_memory)
+        cmd = cyclictest_command(
+            binary, interval_us, loops, histogram_us, histfile, priority, cpu, lock_memory
+        )
         try:
-            done = subprocess.run(cmd, capture_output=True, text=True, timeout=duration_s * 3 + 30, check=False)
+            done = subprocess.run(
+                cmd, capture_output=True, text=True, timeout=duration_s * 3 + 30, check=False
+            )
         except subprocess.TimeoutExpired as err:
             raise CyclictestError(f"cyclictest did not finish within {err.timeout:.0f} s") from err
         if done.returncode != 0 or not histfile.exists():
@@ -123,7 +149,11 @@ def run_cyclictest(rate_hz: float, duration_s: float, priority: int | None, cpu:
     return {
         "command": " ".join(cmd[:1] + [c for c in cmd[1:] if not c.startswith("--histfile")]),
         "samples": hist.samples,
-        "latency_us": {"p50": hist.percentile_us(0.5), "p99": hist.percentile_us(0.99),
-                       "p99_9": hist.percentile_us(0.999), "max": hist.max_us},
+        "latency_us": {
+            "p50": hist.percentile_us(0.5),
+            "p99": hist.percentile_us(0.99),
+            "p99_9": hist.percentile_us(0.999),
+            "max": hist.max_us,
+        },
         "per_10k_above_us": {f"{t:g}": round(hist.per_10k_above(t), 2) for t in thresholds_us},
     }

@@ -42,20 +42,38 @@ SIMULATOR_READY_TIMEOUT_S = 120.0
 
 
 @contextmanager
-def simulator_process(spec: BusSpec, config_path: str | None, overrides: list[str],
-                      ready_timeout_s: float = SIMULATOR_READY_TIMEOUT_S, extra_args: list[str] | tuple[str, ...] = ()
-                      ) -> Iterator[subprocess.Popen[str]]:
+def simulator_process(
+    spec: BusSpec,
+    config_path: str | None,
+    overrides: list[str],
+    ready_timeout_s: float = SIMULATOR_READY_TIMEOUT_S,
+    extra_args: list[str] | tuple[str, ...] = (),
+) -> Iterator[subprocess.Popen[str]]:
     """``cheope sim`` as a child process; ``extra_args`` go to its command line (real-time options)."""
-    cmd = [sys.executable, "-m", "controller", "sim", "--can", f"{spec.interface}:{spec.channel}",
-           "--udp-port", str(spec.udp_port), *extra_args]
+    cmd = [
+        sys.executable,
+        "-m",
+        "controller",
+        "sim",
+        "--can",
+        f"{spec.interface}:{spec.channel}",
+        "--udp-port",
+        str(spec.udp_port),
+        *extra_args,
+    ]
     if spec.fd:
         cmd.append("--fd")
     if config_path:
         cmd += ["--config", config_path]
     for s in overrides:
         cmd += ["--set", s]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
     try:
         _wait_ready(proc, ready_timeout_s)
         yield proc
@@ -102,16 +120,31 @@ def simulator_realtime_args(realtime: RealtimeOptions | None) -> list[str]:
     return [] if realtime is None else realtime.for_simulator().cli_args()
 
 
-def run_demo(cfg: Config, spec: BusSpec, config_path: str | None, overrides: list[str],
-             max_duration_s: float = 600.0, stop_event: threading.Event | None = None,
-             plot_dir: Path | None = None, realtime: RealtimeOptions | None = None,
-             observers: tuple[CycleObserver, ...] = ()) -> dict[str, object]:
+def run_demo(
+    cfg: Config,
+    spec: BusSpec,
+    config_path: str | None,
+    overrides: list[str],
+    max_duration_s: float = 600.0,
+    stop_event: threading.Event | None = None,
+    plot_dir: Path | None = None,
+    realtime: RealtimeOptions | None = None,
+    observers: tuple[CycleObserver, ...] = (),
+) -> dict[str, object]:
     prepare(cfg, spec)  # what the controller would refuse, refused before the simulator starts
     sim_args = simulator_realtime_args(realtime)
     with simulator_process(spec, config_path, overrides, extra_args=sim_args):
         if cfg.task.kind == "contour":
             from controller.tools.contour_experiment import run_contour_experiment
 
-            return run_contour_experiment(cfg, spec, plot_dir, max_duration_s, stop_event, realtime, observers)
-        return run_controller(cfg, spec, max_duration_s=max_duration_s, stop_event=stop_event, realtime=realtime,
-                              observers=observers)
+            return run_contour_experiment(
+                cfg, spec, plot_dir, max_duration_s, stop_event, realtime, observers
+            )
+        return run_controller(
+            cfg,
+            spec,
+            max_duration_s=max_duration_s,
+            stop_event=stop_event,
+            realtime=realtime,
+            observers=observers,
+        )

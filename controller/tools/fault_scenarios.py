@@ -41,53 +41,143 @@ class Scenario:
 
 
 SCENARIOS: tuple[Scenario, ...] = (
-    Scenario("drive TPDO missing", f"drop:2@{FAULT_AT_S}", "fault", "fault after loop.max_missing_cycles; quick stop"),
+    Scenario(
+        "drive TPDO missing",
+        f"drop:2@{FAULT_AT_S}",
+        "fault",
+        "fault after loop.max_missing_cycles; quick stop",
+    ),
     Scenario("drive TPDO late", f"delay:2=0.01@{FAULT_AT_S}", "fault", "late = missing: fault, quick stop"),
-    Scenario("malformed TPDO, one", f"malformed:2@{FAULT_AT_S}+0.002", "warn",
-             "frame rejected, counted and reported with its node (safety.on_rejected_frames = warn: one event "
-             "when a burst starts, one with its count when it ends); one missing cycle is ignored, the task goes on"),
-    Scenario("sensor counter frozen", f"freeze@{FAULT_AT_S}", "fault", "stale after safety.sensor_stale_cycles; quick stop"),
-    Scenario("sensor saturated", f"saturate@{FAULT_AT_S}", "fault", "safety.on_sensor_saturated = fault; quick stop"),
-    Scenario("drive fault + EMCY", f"drive_fault:3@{FAULT_AT_S}", "fault", "fault at once; quick stop of the others"),
-    Scenario("drive heartbeat lost", f"heartbeat:1@{FAULT_AT_S}", "fault", "safety.on_heartbeat_lost = fault"),
-    Scenario("CAN error frames", f"error_frames@{FAULT_AT_S}+0.05", "warn", "warning event once; the task goes on"),
+    Scenario(
+        "malformed TPDO, one",
+        f"malformed:2@{FAULT_AT_S}+0.002",
+        "warn",
+        "frame rejected, counted and reported with its node (safety.on_rejected_frames = warn: one event "
+        "when a burst starts, one with its count when it ends); one missing cycle is ignored, the task goes on",
+    ),
+    Scenario(
+        "sensor counter frozen",
+        f"freeze@{FAULT_AT_S}",
+        "fault",
+        "stale after safety.sensor_stale_cycles; quick stop",
+    ),
+    Scenario(
+        "sensor saturated",
+        f"saturate@{FAULT_AT_S}",
+        "fault",
+        "safety.on_sensor_saturated = fault; quick stop",
+    ),
+    Scenario(
+        "drive fault + EMCY",
+        f"drive_fault:3@{FAULT_AT_S}",
+        "fault",
+        "fault at once; quick stop of the others",
+    ),
+    Scenario(
+        "drive heartbeat lost", f"heartbeat:1@{FAULT_AT_S}", "fault", "safety.on_heartbeat_lost = fault"
+    ),
+    Scenario(
+        "CAN error frames", f"error_frames@{FAULT_AT_S}+0.05", "warn", "warning event once; the task goes on"
+    ),
     Scenario("CAN bus-off", f"bus_off@{FAULT_AT_S}", "fault", "fault at once; quick stop"),
-    Scenario("transmit queue full", f"tx_full@{FAULT_AT_S}+0.5", "fault",
-             "send errors counted, drives silent: fault; drives quick-stop on their SYNC watchdog"),
-    Scenario("contact force above limit", f"force=100@{FAULT_AT_S}", "fault", "safety.max_contact_force_n: fault"),
-    Scenario("loop overrunning", f"stall=0.0015@{FAULT_AT_S}", "fault",
-             "fault after safety.max_consecutive_late_cycles late cycles"),
+    Scenario(
+        "transmit queue full",
+        f"tx_full@{FAULT_AT_S}+0.5",
+        "fault",
+        "send errors counted, drives silent: fault; drives quick-stop on their SYNC watchdog",
+    ),
+    Scenario(
+        "contact force above limit", f"force=100@{FAULT_AT_S}", "fault", "safety.max_contact_force_n: fault"
+    ),
+    Scenario(
+        "loop overrunning",
+        f"stall=0.0015@{FAULT_AT_S}",
+        "fault",
+        "fault after safety.max_consecutive_late_cycles late cycles",
+    ),
     # Someone or something on the bus that lies (drivers/cyclic_exchange.py watches the whole bus).
-    Scenario("drive position jump", f"jump:2=0.05@{FAULT_AT_S}", "fault",
-             "a step beyond max_velocity x time + safety.max_position_jump_m: fault at once"),
-    Scenario("following error (axis blocked)", f"block:2@{FAULT_AT_S}", "fault",
-             "the drive's own window (0x6065/0x6066): drive FAULT, EMCY 0x8611"),
-    Scenario("drive reboot (boot-up)", f"reboot:2@{FAULT_AT_S}", "fault",
-             "its boot-up heartbeat: fault at once, the restarted drive named"),
-    Scenario("NMT stop by someone else", f"nmt_stop:2@{FAULT_AT_S}", "fault",
-             "safety.on_foreign_nmt = fault: the foreign NMT command named; the drive's 0x6007 quick-stops it"),
-    Scenario("NMT pre-operational by someone else", f"nmt_preop:2@{FAULT_AT_S}", "fault",
-             "safety.on_foreign_nmt = fault, command and node named; quick stop by SDO as well to the drive "
-             "that no longer processes RPDOs"),
-    Scenario("NMT reset by someone else", f"nmt_reset:2@{FAULT_AT_S}+0.002", "fault",
-             "safety.on_foreign_nmt = fault, command and node named; the drive restarts disabled"),
+    Scenario(
+        "drive position jump",
+        f"jump:2=0.05@{FAULT_AT_S}",
+        "fault",
+        "a step beyond max_velocity x time + safety.max_position_jump_m: fault at once",
+    ),
+    Scenario(
+        "following error (axis blocked)",
+        f"block:2@{FAULT_AT_S}",
+        "fault",
+        "the drive's own window (0x6065/0x6066): drive FAULT, EMCY 0x8611",
+    ),
+    Scenario(
+        "drive reboot (boot-up)",
+        f"reboot:2@{FAULT_AT_S}",
+        "fault",
+        "its boot-up heartbeat: fault at once, the restarted drive named",
+    ),
+    Scenario(
+        "NMT stop by someone else",
+        f"nmt_stop:2@{FAULT_AT_S}",
+        "fault",
+        "safety.on_foreign_nmt = fault: the foreign NMT command named; the drive's 0x6007 quick-stops it",
+    ),
+    Scenario(
+        "NMT pre-operational by someone else",
+        f"nmt_preop:2@{FAULT_AT_S}",
+        "fault",
+        "safety.on_foreign_nmt = fault, command and node named; quick stop by SDO as well to the drive "
+        "that no longer processes RPDOs",
+    ),
+    Scenario(
+        "NMT reset by someone else",
+        f"nmt_reset:2@{FAULT_AT_S}+0.002",
+        "fault",
+        "safety.on_foreign_nmt = fault, command and node named; the drive restarts disabled",
+    ),
     Scenario("second SYNC producer", f"foreign_sync@{FAULT_AT_S}", "fault", "safety.on_foreign_sync = fault"),
-    Scenario("unknown node on the bus", f"unknown_node:42@{FAULT_AT_S}", "warn",
-             "safety.on_unknown_node = warn: one event, counted, the task goes on"),
-    Scenario("frame flood", f"flood@{FAULT_AT_S}", "fault",
-             "more than safety.max_foreign_frames_per_cycle foreign frames in a cycle: a flood, named by COB-ID"),
-    Scenario("spoofed sensor frames", f"spoof_sensor=30@{FAULT_AT_S}", "fault",
-             "a second force frame before the true one, its counter out of step: neither is used; "
-             "safety.on_duplicate_frames = fault"),
+    Scenario(
+        "unknown node on the bus",
+        f"unknown_node:42@{FAULT_AT_S}",
+        "warn",
+        "safety.on_unknown_node = warn: one event, counted, the task goes on",
+    ),
+    Scenario(
+        "frame flood",
+        f"flood@{FAULT_AT_S}",
+        "fault",
+        "more than safety.max_foreign_frames_per_cycle foreign frames in a cycle: a flood, named by COB-ID",
+    ),
+    Scenario(
+        "spoofed sensor frames",
+        f"spoof_sensor=30@{FAULT_AT_S}",
+        "fault",
+        "a second force frame before the true one, its counter out of step: neither is used; "
+        "safety.on_duplicate_frames = fault",
+    ),
     # A rogue sender's frame on a drive's COB-ID, before the true answer: never used.
-    Scenario("rogue TPDO, position jump", f"rogue_tpdo:2=0.05@{FAULT_AT_S}", "fault",
-             "two candidates in one answer window: neither is used; safety.on_duplicate_frames = fault"),
-    Scenario("rogue TPDO, small offset", f"rogue_tpdo:2=0.0025@{FAULT_AT_S}", "fault",
-             "2.5 mm off, within the drive's physics: two candidates all the same; safety.on_duplicate_frames = fault"),
-    Scenario("rogue TPDO, wrong length", f"rogue_short:2@{FAULT_AT_S}", "fault",
-             "a candidate that does not decode: rejected, named, and the true one not used either"),
-    Scenario("rogue EMCY, wrong length", f"rogue_emcy:2@{FAULT_AT_S}+0.002", "warn",
-             "rejected, counted and reported with its node (safety.on_rejected_frames = warn), the task goes on"),
+    Scenario(
+        "rogue TPDO, position jump",
+        f"rogue_tpdo:2=0.05@{FAULT_AT_S}",
+        "fault",
+        "two candidates in one answer window: neither is used; safety.on_duplicate_frames = fault",
+    ),
+    Scenario(
+        "rogue TPDO, small offset",
+        f"rogue_tpdo:2=0.0025@{FAULT_AT_S}",
+        "fault",
+        "2.5 mm off, within the drive's physics: two candidates all the same; safety.on_duplicate_frames = fault",
+    ),
+    Scenario(
+        "rogue TPDO, wrong length",
+        f"rogue_short:2@{FAULT_AT_S}",
+        "fault",
+        "a candidate that does not decode: rejected, named, and the true one not used either",
+    ),
+    Scenario(
+        "rogue EMCY, wrong length",
+        f"rogue_emcy:2@{FAULT_AT_S}+0.002",
+        "warn",
+        "rejected, counted and reported with its node (safety.on_rejected_frames = warn), the task goes on",
+    ),
 )
 
 
@@ -113,8 +203,16 @@ class _Watch:
     reaction: str = ""
     safe_s: float | None = None
 
-    def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
-                 outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None:
+    def on_cycle(
+        self,
+        cycle: int,
+        t: float,
+        inputs: CycleInputs,
+        state: ControllerState,
+        outputs: CycleOutputs,
+        events: tuple[Event, ...],
+        timing: CycleTiming,
+    ) -> None:
         if t < self.fault_at_s:
             return
         for e in events:
@@ -131,17 +229,28 @@ def run_scenario(base: Config, sc: Scenario, directory: Path) -> dict[str, objec
     from logs.recorder import SessionRecorder
 
     cfg = msgspec.structs.replace(
-        base, sim=msgspec.structs.replace(base.sim, faults=(sc.fault,)),
-        recording=msgspec.structs.replace(base.recording, enabled=True, directory=str(directory)))
+        base,
+        sim=msgspec.structs.replace(base.sim, faults=(sc.fault,)),
+        recording=msgspec.structs.replace(base.recording, enabled=True, directory=str(directory)),
+    )
     clock = SimulatedTime()
     law = build_law(cfg)
     exchange = LoopbackExchange(cfg, clock.clock)
     watch = _Watch(exchange, FAULT_AT_S)
     sleeper = StallingSleeper(clock, exchange.faults)
-    with SessionRecorder.for_config(cfg, clock=clock.clock, phase_name=law.task.phase_name,
-                                    extra_metadata={"fault_scenario": sc.name}) as recorder:
-        loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, sleeper, clock.clock,
-                         observers=(watch, recorder), late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s)
+    with SessionRecorder.for_config(
+        cfg, clock=clock.clock, phase_name=law.task.phase_name, extra_metadata={"fault_scenario": sc.name}
+    ) as recorder:
+        loop = CycleLoop(
+            law,
+            exchange,
+            cfg.period_s,
+            cfg.loop.collect_fraction,
+            sleeper,
+            clock.clock,
+            observers=(watch, recorder),
+            late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s,
+        )
         final, stats = loop.run(law.initial_state(), 60.0)
     report = read_info(recorder.path)
     if final.mode == Mode.FAULT:
@@ -159,18 +268,27 @@ def run_scenario(base: Config, sc: Scenario, directory: Path) -> dict[str, objec
         "as_expected": observed == sc.expected,
         "final_mode": final.mode.name,
         "time_to_reaction_s": None if watch.reaction_s is None else round(watch.reaction_s - FAULT_AT_S, 4),
-        "time_to_safe_state_s": None if watch.safe_s is None or sc.expected != "fault"
+        "time_to_safe_state_s": None
+        if watch.safe_s is None or sc.expected != "fault"
         else round(watch.safe_s - FAULT_AT_S, 4),
-        "recording_complete": bool(report.complete and not report.damaged_chunks and recorder.dropped == 0
-                                   and cycles_recorded == stats.cycles),
+        "recording_complete": bool(
+            report.complete
+            and not report.damaged_chunks
+            and recorder.dropped == 0
+            and cycles_recorded == stats.cycles
+        ),
         "recording": {"cycles": cycles_recorded, "loop_cycles": stats.cycles, "dropped": recorder.dropped},
         "rejected_frames": exchange.rejected_frames,
         "send_errors": exchange.send_errors,
     }
 
 
-def run_all(base: Config | None = None, directory: Path | None = None,
-            only: tuple[str, ...] = (), progress: Callable[[str], None] | None = None) -> list[dict[str, object]]:
+def run_all(
+    base: Config | None = None,
+    directory: Path | None = None,
+    only: tuple[str, ...] = (),
+    progress: Callable[[str], None] | None = None,
+) -> list[dict[str, object]]:
     """The scenarios' rows; ``progress`` hears ``scenario 3/12: NAME`` before each one starts."""
     base = base or load_config()
     # The path task, one lap: long enough for every reaction, short enough for a table.
@@ -191,10 +309,14 @@ def format_table(rows: list[dict[str, object]]) -> str:
     lines = [head, "| --- | --- | --- | --- | --- | --- |"]
     for r in rows:
         safe = r["time_to_safe_state_s"]
-        safe_text = "n/a (task goes on)" if safe is None and r["final_mode"] == "DONE" else (
-            "-" if safe is None else f"{safe:.4f}")
+        safe_text = (
+            "n/a (task goes on)"
+            if safe is None and r["final_mode"] == "DONE"
+            else ("-" if safe is None else f"{safe:.4f}")
+        )
         mark = "" if r["as_expected"] else " **(unexpected)**"
-        lines.append(f"| {r['scenario']} | `{r['fault']}` | {r['reaction_expected']} | "
-                     f"{r['reaction_observed']}{mark} | {safe_text} | {'yes' if r['recording_complete'] else 'NO'} |")
+        lines.append(
+            f"| {r['scenario']} | `{r['fault']}` | {r['reaction_expected']} | "
+            f"{r['reaction_observed']}{mark} | {safe_text} | {'yes' if r['recording_complete'] else 'NO'} |"
+        )
     return "\n".join(lines)
-

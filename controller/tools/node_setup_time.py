@@ -33,7 +33,9 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             sim_bus.shutdown()
             bus.shutdown()
-    print(f"configure_nodes ms: {[round(d) for d in durations_ms]}, median {statistics.median(durations_ms):.0f}")
+    print(
+        f"configure_nodes ms: {[round(d) for d in durations_ms]}, median {statistics.median(durations_ms):.0f}"
+    )
     return 0
 
 

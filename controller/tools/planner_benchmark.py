@@ -37,7 +37,9 @@ class PairSpread:
     step_rad: float = 0.15
 
 
-def random_pairs(cfg: Config, count: int, seed: int, spread: PairSpread = PairSpread()) -> list[tuple[object, object]]:
+def random_pairs(
+    cfg: Config, count: int, seed: int, spread: PairSpread = PairSpread()
+) -> list[tuple[object, object]]:
     """`count` (start, goal) Pose pairs that pass the planner's start/goal checks (module doc)."""
     from controller.planning.nonholonomic import check_pose, singularity_measures
     from controller.robots.builtin import nspu_geometry_from_config, nspu_poses_from_config
@@ -54,12 +56,24 @@ def random_pairs(cfg: Config, count: int, seed: int, spread: PairSpread = PairSp
     while len(pairs) < count:
         draws += 1
         if draws > 200 * count:
-            raise RuntimeError(f"only {len(pairs)} of {count} admissible pairs in {draws} draws: spread too wide")
+            raise RuntimeError(
+                f"only {len(pairs)} of {count} admissible pairs in {draws} draws: spread too wide"
+            )
         s = spread
-        p0 = np.array([rng.uniform(-s.start_xy_m, s.start_xy_m), rng.uniform(-s.start_xy_m, s.start_xy_m),
-                       rng.uniform(*s.start_z_range_m)])
-        a0 = np.array([rng.uniform(-s.start_tilt_rad, s.start_tilt_rad), rng.uniform(-s.start_tilt_rad, s.start_tilt_rad),
-                       base_yaw + rng.uniform(-s.start_yaw_rad, s.start_yaw_rad)])
+        p0 = np.array(
+            [
+                rng.uniform(-s.start_xy_m, s.start_xy_m),
+                rng.uniform(-s.start_xy_m, s.start_xy_m),
+                rng.uniform(*s.start_z_range_m),
+            ]
+        )
+        a0 = np.array(
+            [
+                rng.uniform(-s.start_tilt_rad, s.start_tilt_rad),
+                rng.uniform(-s.start_tilt_rad, s.start_tilt_rad),
+                base_yaw + rng.uniform(-s.start_yaw_rad, s.start_yaw_rad),
+            ]
+        )
         p1 = p0 + rng.uniform(-s.step_m, s.step_m, 3)
         a1 = a0 + rng.uniform(-s.step_rad, s.step_rad, 3)
         start, goal = Pose(p0, rpy(*a0)), Pose(p1, rpy(*a1))
@@ -73,8 +87,9 @@ def random_pairs(cfg: Config, count: int, seed: int, spread: PairSpread = PairSp
     return pairs
 
 
-def run_benchmark(cfg: Config, count: int = 100, seed: int = 0,
-                  progress: Callable[[str], None] | None = None) -> dict[str, object]:
+def run_benchmark(
+    cfg: Config, count: int = 100, seed: int = 0, progress: Callable[[str], None] | None = None
+) -> dict[str, object]:
     """Plan every pair with the configured planner; per-pair rows and the summary figures."""
     from controller.planning.nonholonomic import plan_motion
     from controller.robots.builtin import nspu_geometry_from_config
@@ -89,14 +104,24 @@ def run_benchmark(cfg: Config, count: int = 100, seed: int = 0,
         t0, c0 = time.perf_counter(), time.process_time()
         res = plan_motion(geometry, start, goal, pcfg)
         elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
-        rows.append({
-            "pair": k, "status": res.status.value, "ok": res.ok, "iterations": res.iterations,
-            "time_s": elapsed, "cpu_s": cpu, "verified_error": res.verified_error, "message": res.message,
-            "start": [*start.p_m.tolist(), *so3_log(start.R).tolist()],
-            "goal": [*goal.p_m.tolist(), *so3_log(goal.R).tolist()],
-        })
+        rows.append(
+            {
+                "pair": k,
+                "status": res.status.value,
+                "ok": res.ok,
+                "iterations": res.iterations,
+                "time_s": elapsed,
+                "cpu_s": cpu,
+                "verified_error": res.verified_error,
+                "message": res.message,
+                "start": [*start.p_m.tolist(), *so3_log(start.R).tolist()],
+                "goal": [*goal.p_m.tolist(), *so3_log(goal.R).tolist()],
+            }
+        )
         if progress is not None:
-            progress(f"pair {k}: {res.status.value}, {res.iterations} iterations, {elapsed:.3f} s ({cpu:.3f} s CPU)")
+            progress(
+                f"pair {k}: {res.status.value}, {res.iterations} iterations, {elapsed:.3f} s ({cpu:.3f} s CPU)"
+            )
     times = np.array([float(r["time_s"]) for r in rows])  # type: ignore[arg-type]
     cpus = np.array([float(r["cpu_s"]) for r in rows])  # type: ignore[arg-type]
     ok = [r for r in rows if r["ok"]]
@@ -105,14 +130,25 @@ def run_benchmark(cfg: Config, count: int = 100, seed: int = 0,
     for r in rows:
         statuses[str(r["status"])] = statuses.get(str(r["status"]), 0) + 1
     return {
-        "pairs": len(rows), "seed": seed, "success_rate": len(ok) / len(rows), "statuses": statuses,
-        "time_s": {"p50": float(np.percentile(times, 50)), "p95": float(np.percentile(times, 95)),
-                   "max": float(times.max())},
-        "cpu_s": {"p50": float(np.percentile(cpus, 50)), "p95": float(np.percentile(cpus, 95)),
-                  "max": float(cpus.max())},
+        "pairs": len(rows),
+        "seed": seed,
+        "success_rate": len(ok) / len(rows),
+        "statuses": statuses,
+        "time_s": {
+            "p50": float(np.percentile(times, 50)),
+            "p95": float(np.percentile(times, 95)),
+            "max": float(times.max()),
+        },
+        "cpu_s": {
+            "p50": float(np.percentile(cpus, 50)),
+            "p95": float(np.percentile(cpus, 95)),
+            "max": float(cpus.max()),
+        },
         "load_average_1min": os.getloadavg()[0],
-        "verified_error": {"p50": float(np.median(errs)) if errs.size else None,
-                           "max": float(errs.max()) if errs.size else None},
+        "verified_error": {
+            "p50": float(np.median(errs)) if errs.size else None,
+            "max": float(errs.max()) if errs.size else None,
+        },
         "iterations_p50": float(np.median([float(r["iterations"]) for r in ok])) if ok else None,  # type: ignore[arg-type]
         "rows": rows,
     }
@@ -126,10 +162,13 @@ def format_report(report: dict[str, object]) -> str:
         f"success             {float(report['success_rate']) * 100:.0f} %   "  # type: ignore[arg-type]
         + ", ".join(f"{k} {v}" for k, v in sorted(statuses.items())),
         f"planning time       p50 {t['p50']:.3f} s, p95 {t['p95']:.3f} s, max {t['max']:.3f} s (wall)",
-        (f"planning CPU time   p50 {c['p50']:.3f} s, p95 {c['p95']:.3f} s, max {c['max']:.3f} s "
-         f"(machine load average at the end {report['load_average_1min']:.1f})"),
+        (
+            f"planning CPU time   p50 {c['p50']:.3f} s, p95 {c['p95']:.3f} s, max {c['max']:.3f} s "
+            f"(machine load average at the end {report['load_average_1min']:.1f})"
+        ),
         f"end error E         p50 {e['p50']:.2e}, max {e['max']:.2e} (verified integration; tolerance in the config)"
-        if e["p50"] is not None else "end error E         no success",
+        if e["p50"] is not None
+        else "end error E         no success",
         f"iterations          p50 {report['iterations_p50']}",
     ]
     rows = report["rows"]

@@ -76,21 +76,46 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--windows", type=int, default=3, help="windows of each kind (alternating)")
     ap.add_argument("--window-s", type=float, default=5.0)
     ap.add_argument("--rate", type=float, default=1000.0, help="flood: queries per second")
-    ap.add_argument("--controller-root", metavar="DIR",
-                    help="run the controller from this checkout (e.g. a worktree of an older commit, to compare)")
-    ap.add_argument("--realtime", action="store_true",
-                    help="the controller's loop thread under SCHED_FIFO 80 on the last CPU (cheope run's default)")
+    ap.add_argument(
+        "--controller-root",
+        metavar="DIR",
+        help="run the controller from this checkout (e.g. a worktree of an older commit, to compare)",
+    )
+    ap.add_argument(
+        "--realtime",
+        action="store_true",
+        help="the controller's loop thread under SCHED_FIFO 80 on the last CPU (cheope run's default)",
+    )
     args = ap.parse_args(argv)
     ep = f"tcp/127.0.0.1:{free_loopback_port()}"
     keys = MonitorKeys.for_robot("cheope", ROBOT)
     duration = 2 * args.windows * args.window_s + 30
     proc = subprocess.Popen(
-        [sys.executable, "-m", "controller.tools.sim_controller", "--max-duration", str(duration),
-         "--set", f'monitoring.listen="{ep}"', "--set", f'monitoring.robot_id="{ROBOT}"',
-         "--set", "task.path.laps=1000", "--set", "loop.max_missing_cycles=10",
-         "--set", 'safety.on_late_cycles="warn"', "--set", "sim.drive.sync_timeout_s=0.5",
-         *(["--realtime"] if args.realtime else [])],
-        stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"}, cwd=args.controller_root)
+        [
+            sys.executable,
+            "-m",
+            "controller.tools.sim_controller",
+            "--max-duration",
+            str(duration),
+            "--set",
+            f'monitoring.listen="{ep}"',
+            "--set",
+            f'monitoring.robot_id="{ROBOT}"',
+            "--set",
+            "task.path.laps=1000",
+            "--set",
+            "loop.max_missing_cycles=10",
+            "--set",
+            'safety.on_late_cycles="warn"',
+            "--set",
+            "sim.drive.sync_timeout_s=0.5",
+            *(["--realtime"] if args.realtime else []),
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        cwd=args.controller_root,
+    )
     rows: dict[str, list[float]] = {"no flood": [], "flood": []}
     try:
         assert proc.stdout is not None and proc.stdout.readline().startswith("READY")
@@ -99,8 +124,11 @@ def main(argv: list[str] | None = None) -> int:
             for w in range(2 * args.windows):
                 kind = "flood" if w % 2 else "no flood"
                 stop, sent = threading.Event(), [0]
-                flooder = threading.Thread(target=_flood, args=(ep, keys, args.rate, stop, sent)) \
-                    if kind == "flood" else None
+                flooder = (
+                    threading.Thread(target=_flood, args=(ep, keys, args.rate, stop, sent))
+                    if kind == "flood"
+                    else None
+                )
                 if flooder is not None:
                     flooder.start()
                 late, cycles = _late_in_window(client, args.window_s)
@@ -108,19 +136,29 @@ def main(argv: list[str] | None = None) -> int:
                 if flooder is not None:
                     flooder.join()
                 rows[kind].append(late)
-                print(f"window {w + 1}: {kind:<8} late cycles {late:5d} of {cycles:5d}"
-                      + (f", {sent[0]} queries sent ({sent[0] / args.window_s:.0f}/s)" if flooder else ""),
-                      flush=True)
+                print(
+                    f"window {w + 1}: {kind:<8} late cycles {late:5d} of {cycles:5d}"
+                    + (f", {sent[0]} queries sent ({sent[0] / args.window_s:.0f}/s)" if flooder else ""),
+                    flush=True,
+                )
         st = query_status(client_settings((ep,)), keys, timeout_s=5.0)
     finally:
         proc.send_signal(signal.SIGTERM)
         out, _ = proc.communicate(timeout=60)
     for kind, vals in rows.items():
-        print(f"{kind:<8}: late cycles per {args.window_s:g} s window median {statistics.median(vals):g}, "
-              f"range {min(vals):g}-{max(vals):g} ({len(vals)} windows)")
-    print(f"controller loop thread: {json.loads(out.splitlines()[-1]).get('realtime', '?') if out.strip() else '?'}")
-    print("controller counters: " + ", ".join(f"{k} {st.counters[k]}" for k in
-                                               ("status_queries", "commands_accepted", "commands_refused")))
+        print(
+            f"{kind:<8}: late cycles per {args.window_s:g} s window median {statistics.median(vals):g}, "
+            f"range {min(vals):g}-{max(vals):g} ({len(vals)} windows)"
+        )
+    print(
+        f"controller loop thread: {json.loads(out.splitlines()[-1]).get('realtime', '?') if out.strip() else '?'}"
+    )
+    print(
+        "controller counters: "
+        + ", ".join(
+            f"{k} {st.counters[k]}" for k in ("status_queries", "commands_accepted", "commands_refused")
+        )
+    )
     return 0
 
 

@@ -34,9 +34,13 @@ from drivers.pacing import DeadlineSleeper
 READY = "READY"
 
 
-def run_simulated(cfg: Config, stop_event: threading.Event, max_duration_s: float,
-                  on_ready: Callable[[str, tuple[str, ...]], None] = lambda robot_id, endpoints: None,
-                  realtime: RealtimeOptions | None = None) -> dict[str, object]:
+def run_simulated(
+    cfg: Config,
+    stop_event: threading.Event,
+    max_duration_s: float,
+    on_ready: Callable[[str, tuple[str, ...]], None] = lambda robot_id, endpoints: None,
+    realtime: RealtimeOptions | None = None,
+) -> dict[str, object]:
     from sim_backend.loopback import LoopbackExchange
 
     law = build_law(cfg)
@@ -44,45 +48,80 @@ def run_simulated(cfg: Config, stop_event: threading.Event, max_duration_s: floa
     events: list[str] = []
 
     class _Events:
-        def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
-                     outputs: CycleOutputs, evs: tuple[Event, ...], timing: CycleTiming) -> None:
+        def on_cycle(
+            self,
+            cycle: int,
+            t: float,
+            inputs: CycleInputs,
+            state: ControllerState,
+            outputs: CycleOutputs,
+            evs: tuple[Event, ...],
+            timing: CycleTiming,
+        ) -> None:
             events.extend(f"{e.severity.name}: {e.message}" for e in evs)
 
     with monitoring_publisher(cfg, stop_event, law.task) as pub:
         on_ready(pub.settings.robot_id, pub.listen_endpoints)
-        loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction,
-                         DeadlineSleeper(cfg.loop.spin_us * 1e-6), time.monotonic, observers=(_Events(), pub),
-                         stop_event=stop_event, commands=pub.commands)
+        loop = CycleLoop(
+            law,
+            exchange,
+            cfg.period_s,
+            cfg.loop.collect_fraction,
+            DeadlineSleeper(cfg.loop.spin_us * 1e-6),
+            time.monotonic,
+            observers=(_Events(), pub),
+            stop_event=stop_event,
+            commands=pub.commands,
+        )
         # on this thread only: the publisher's (Zenoh's) threads are already running under the normal scheduler
         restore = apply_realtime(realtime) if realtime is not None else None
         granted = granted_realtime()
         try:
-            final, stats = loop.run(law.initial_state(), max_duration_s, exit_on_fault=not cfg.loop.stay_in_fault)
+            final, stats = loop.run(
+                law.initial_state(), max_duration_s, exit_on_fault=not cfg.loop.stay_in_fault
+            )
         finally:
             if restore is not None:
                 restore()
         counters = pub.counters()
-    return {"robot_id": pub.settings.robot_id, "final_mode": final.mode.name, "fault_reason": final.fault_reason, "events": events,
-            "cycles": stats.cycles, "publisher": counters, "realtime": granted, "late_cycles": stats.late_cycles()}
+    return {
+        "robot_id": pub.settings.robot_id,
+        "final_mode": final.mode.name,
+        "fault_reason": final.fault_reason,
+        "events": events,
+        "cycles": stats.cycles,
+        "publisher": counters,
+        "realtime": granted,
+        "late_cycles": stats.late_cycles(),
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m controller.tools.sim_controller")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--max-duration", type=float, default=60.0)
-    ap.add_argument("--realtime", action="store_true",
-                    help="the loop thread as cheope run's default: SCHED_FIFO 80 on the last CPU, memory locked, "
-                         "where permitted (one warning line where refused)")
+    ap.add_argument(
+        "--realtime",
+        action="store_true",
+        help="the loop thread as cheope run's default: SCHED_FIFO 80 on the last CPU, memory locked, "
+        "where permitted (one warning line where refused)",
+    )
     args = ap.parse_args(argv)
     cfg = load_config(overrides=dict(parse_override(s) for s in args.set))
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     try:
-        result = run_simulated(cfg, stop, args.max_duration,
-                               lambda rid, eps: print(f"{READY} {rid} {' '.join(eps)}", flush=True),
-                               RealtimeOptions.default() if args.realtime else None)
-    except CheopeError as err:  # a robot id already taken, a session that cannot open: one line, as cheope run
+        result = run_simulated(
+            cfg,
+            stop,
+            args.max_duration,
+            lambda rid, eps: print(f"{READY} {rid} {' '.join(eps)}", flush=True),
+            RealtimeOptions.default() if args.realtime else None,
+        )
+    except (
+        CheopeError
+    ) as err:  # a robot id already taken, a session that cannot open: one line, as cheope run
         print(f"sim_controller: error: {err}", file=sys.stderr)
         return 2
     print(json.dumps(result), flush=True)

@@ -90,34 +90,69 @@ class SoakResult:
     recording: dict[str, object] | None
 
     def table(self) -> str:
-        return "\n".join([
-            f"soak                {self.duration_s:.0f} s, warm-up {self.warmup_s:.0f} s, {self.samples} RSS samples",
-            (f"controller RSS      {self.rss_warm_kb / 1024:.1f} MB after warm-up, {self.rss_end_kb / 1024:.1f} MB "
-             f"at the end, slope {self.rss_slope_kb_per_min:+.2f} kB/min"),
-            ("memory at the end   " + ", ".join(f"{k} {v / 1024:.1f} MB" for k, v in self.memory_end_kb.items())),
-            f"late cycles         {self.late_cycles} of {self.cycles}: {self.late_per_10k:.1f} per 10 000",
-            (f"longest stalls      loop period error max {self.period_error_max_us / 1000:.1f} ms; no usable sample "
-             f"for {self.longest_silence_cycles.get('drive', 0)} cycles (a drive), "
-             f"{self.longest_silence_cycles.get('sensor', 0)} (the sensor)"),
-            (f"end                 {self.final_mode}{f' ({self.fault_reason})' if self.fault_reason else ''}, "
-             f"exit {self.exit_code} (SIGTERM)"),
-        ])
+        return "\n".join(
+            [
+                f"soak                {self.duration_s:.0f} s, warm-up {self.warmup_s:.0f} s, {self.samples} RSS samples",
+                (
+                    f"controller RSS      {self.rss_warm_kb / 1024:.1f} MB after warm-up, {self.rss_end_kb / 1024:.1f} MB "
+                    f"at the end, slope {self.rss_slope_kb_per_min:+.2f} kB/min"
+                ),
+                (
+                    "memory at the end   "
+                    + ", ".join(f"{k} {v / 1024:.1f} MB" for k, v in self.memory_end_kb.items())
+                ),
+                f"late cycles         {self.late_cycles} of {self.cycles}: {self.late_per_10k:.1f} per 10 000",
+                (
+                    f"longest stalls      loop period error max {self.period_error_max_us / 1000:.1f} ms; no usable sample "
+                    f"for {self.longest_silence_cycles.get('drive', 0)} cycles (a drive), "
+                    f"{self.longest_silence_cycles.get('sensor', 0)} (the sensor)"
+                ),
+                (
+                    f"end                 {self.final_mode}{f' ({self.fault_reason})' if self.fault_reason else ''}, "
+                    f"exit {self.exit_code} (SIGTERM)"
+                ),
+            ]
+        )
 
 
-def run_soak(duration_s: float, warmup_s: float, sample_s: float, rate_hz: float, realtime_args: list[str],
-             recording_dir: Path, extra_sets: list[str], progress: Callable[[str], None] | None = None) -> SoakResult:
+def run_soak(
+    duration_s: float,
+    warmup_s: float,
+    sample_s: float,
+    rate_hz: float,
+    realtime_args: list[str],
+    recording_dir: Path,
+    extra_sets: list[str],
+    progress: Callable[[str], None] | None = None,
+) -> SoakResult:
     """``progress`` hears ``120/1800 s, RSS 72.4 MB`` at each RSS sample."""
     if not duration_s > warmup_s + 2 * sample_s:
         raise InputError(f"--duration {duration_s:g} s: must exceed --warmup-s {warmup_s:g} s by two samples")
     port = random_udp_port()
     spec = parse_bus_spec("udp_multicast", fd=False, udp_port=port)
-    sets = [f"loop.rate_hz={rate_hz}", 'task.kind="path"', "task.path.laps=1000.0",
-            f'recording.directory="{recording_dir}"', f'monitoring.robot_id="soak-{os.getpid()}"',
-            *extra_sets]
+    sets = [
+        f"loop.rate_hz={rate_hz}",
+        'task.kind="path"',
+        "task.path.laps=1000.0",
+        f'recording.directory="{recording_dir}"',
+        f'monitoring.robot_id="soak-{os.getpid()}"',
+        *extra_sets,
+    ]
     set_args = [a for s in sets for a in ("--set", s)]
     with simulator_process(spec, None, sets, extra_args=realtime_args):
-        cmd = [sys.executable, "-m", "controller", "run", "--json", "--can", "udp_multicast",
-               "--udp-port", str(port), *realtime_args, *set_args]
+        cmd = [
+            sys.executable,
+            "-m",
+            "controller",
+            "run",
+            "--json",
+            "--can",
+            "udp_multicast",
+            "--udp-port",
+            str(port),
+            *realtime_args,
+            *set_args,
+        ]
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         times: list[float] = []
         rss: list[int] = []
@@ -141,38 +176,65 @@ def run_soak(duration_s: float, warmup_s: float, sample_s: float, rate_hz: float
                 proc.kill()
                 proc.wait()
     if proc.returncode not in (0, 1, 3) or not out.strip() or sum(t >= warmup_s for t in times) < 2:
-        raise InputError(f"cheope run ended with status {proc.returncode} after {times[-1] if times else 0:.0f} s: "
-                         f"{err.strip()[-2000:]} {out.strip()[-2000:]}")
+        raise InputError(
+            f"cheope run ended with status {proc.returncode} after {times[-1] if times else 0:.0f} s: "
+            f"{err.strip()[-2000:]} {out.strip()[-2000:]}"
+        )
     summary = json.loads(out)
     t, r = np.asarray(times), np.asarray(rss, dtype=float)
     warm = t >= warmup_s
     cycles, late = int(summary["cycles"]), int(summary["late_cycles"])
     return SoakResult(
-        duration_s=float(t[-1]) if t.size else 0.0, warmup_s=warmup_s, samples=int(warm.sum()),
-        rss_warm_kb=int(r[warm][0]), rss_end_kb=int(r[-1]),
-        rss_slope_kb_per_min=rss_slope_kb_per_min(t[warm], r[warm]), cycles=cycles, late_cycles=late,
+        duration_s=float(t[-1]) if t.size else 0.0,
+        warmup_s=warmup_s,
+        samples=int(warm.sum()),
+        rss_warm_kb=int(r[warm][0]),
+        rss_end_kb=int(r[-1]),
+        rss_slope_kb_per_min=rss_slope_kb_per_min(t[warm], r[warm]),
+        cycles=cycles,
+        late_cycles=late,
         late_per_10k=1e4 * late / cycles if cycles else 0.0,
         period_error_max_us=float(summary["period_error_us"]["max"]),
-        longest_silence_cycles=dict(summary.get("longest_silence_cycles", {})), memory_end_kb=memory,
+        longest_silence_cycles=dict(summary.get("longest_silence_cycles", {})),
+        memory_end_kb=memory,
         final_mode=str(summary["final_mode"]),
         fault_reason=str(summary["fault_reason"]),
-        exit_code=proc.returncode, recording=summary.get("recording"))
+        exit_code=proc.returncode,
+        recording=summary.get("recording"),
+    )
 
 
 def add_soak_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--duration", type=float, default=1800.0, help="seconds of running (default 1800)")
-    ap.add_argument("--warmup-s", type=float, default=120.0, help="seconds left out of the slope (default 120)")
+    ap.add_argument(
+        "--warmup-s", type=float, default=120.0, help="seconds left out of the slope (default 120)"
+    )
     ap.add_argument("--sample-s", type=float, default=5.0, help="seconds between RSS samples (default 5)")
     ap.add_argument("--rate", type=float, default=400.0, help="loop rate [Hz] (default 400)")
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="more configuration overrides for both processes (repeatable)")
-    ap.add_argument("--keep", metavar="DIR", help="keep the session recording in DIR (default: a deleted temp dir)")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="more configuration overrides for both processes (repeatable)",
+    )
+    ap.add_argument(
+        "--keep", metavar="DIR", help="keep the session recording in DIR (default: a deleted temp dir)"
+    )
     ap.add_argument("--json", action="store_true", help="print the figures as one JSON object")
 
 
 def run_soak_command(args: argparse.Namespace, realtime_args: list[str]) -> int:
     with tempfile.TemporaryDirectory(prefix="cheope-soak-") as tmp, progress_line("cheope soak") as progress:
-        result = run_soak(args.duration, args.warmup_s, args.sample_s, args.rate, realtime_args,
-                          Path(args.keep) if args.keep else Path(tmp), list(args.set), progress)
+        result = run_soak(
+            args.duration,
+            args.warmup_s,
+            args.sample_s,
+            args.rate,
+            realtime_args,
+            Path(args.keep) if args.keep else Path(tmp),
+            list(args.set),
+            progress,
+        )
     print(strict_json(result.__dict__) if args.json else result.table())
     return 0 if result.final_mode == "DONE" and result.exit_code == 0 else 1

@@ -26,8 +26,9 @@ from drivers.pacing import DeadlineSleeper
 SYNC_COB_ID = 0x080
 
 
-def measure(spec_text: str, producer: str, rate_hz: float, duration_s: float, spin_us: float = 300.0
-            ) -> dict[str, object]:
+def measure(
+    spec_text: str, producer: str, rate_hz: float, duration_s: float, spin_us: float = 300.0
+) -> dict[str, object]:
     spec = parse_bus_spec(spec_text)
     if producer == "kernel":
         check_kernel_sync(spec.interface)
@@ -65,11 +66,18 @@ def measure(spec_text: str, producer: str, rate_hz: float, duration_s: float, sp
     if intervals.size < 2:
         raise SystemExit(f"only {len(stamps)} SYNC frames received on {spec}")
     dev_us = np.abs(intervals - period) * 1e6
-    return {"producer": producer, "bus": str(spec), "rate_hz": rate_hz, "syncs": len(stamps),
-            "mean_period_us": round(float(intervals.mean()) * 1e6, 3),
-            "period_error_us": {"p50": round(float(np.percentile(dev_us, 50)), 1),
-                                "p99": round(float(np.percentile(dev_us, 99)), 1),
-                                "max": round(float(dev_us.max()), 1)}}
+    return {
+        "producer": producer,
+        "bus": str(spec),
+        "rate_hz": rate_hz,
+        "syncs": len(stamps),
+        "mean_period_us": round(float(intervals.mean()) * 1e6, 3),
+        "period_error_us": {
+            "p50": round(float(np.percentile(dev_us, 50)), 1),
+            "p99": round(float(np.percentile(dev_us, 99)), 1),
+            "max": round(float(dev_us.max()), 1),
+        },
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -78,7 +86,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--producer", choices=("loop", "kernel"), default="kernel")
     parser.add_argument("--rate", type=float, default=400.0, help="SYNC rate [Hz]")
     parser.add_argument("--duration", type=float, default=10.0, help="[s]")
-    parser.add_argument("--fifo", action="store_true", help="SCHED_FIFO 80 for this process (needs permission)")
+    parser.add_argument(
+        "--fifo", action="store_true", help="SCHED_FIFO 80 for this process (needs permission)"
+    )
     args = parser.parse_args(argv)
     if args.fifo:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(80))

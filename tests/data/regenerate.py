@@ -39,9 +39,17 @@ def record(path: Path, overrides: dict, max_s: float) -> int:
     exchange = LoopbackExchange(cfg, clock.clock)
     path.unlink(missing_ok=True)
     # 64 kB chunks: simulated time outruns flush_interval_s, and the tests that cut a file need several
-    with SessionRecorder(path, session_metadata(cfg, {"generator": "tests/data/regenerate.py"}), clock=clock.clock,
-                         phase_name=law.task.phase_name, lossless=True, chunk_size_bytes=64 * 1024) as rec:
-        loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(rec,))
+    with SessionRecorder(
+        path,
+        session_metadata(cfg, {"generator": "tests/data/regenerate.py"}),
+        clock=clock.clock,
+        phase_name=law.task.phase_name,
+        lossless=True,
+        chunk_size_bytes=64 * 1024,
+    ) as rec:
+        loop = CycleLoop(
+            law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(rec,)
+        )
         _, stats = loop.run(law.initial_state(), max_s)
     return stats.cycles
 

@@ -29,11 +29,30 @@ pytestmark = pytest.mark.integration
 @pytest.fixture(scope="module")
 def demo_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
     directory = tmp_path_factory.mktemp("demo")
-    r = subprocess.run([sys.executable, "-m", "controller", "demo", "--task", "path", "--json", "--no-realtime",
-                        "--udp-port", str(random_udp_port()), "--set", "task.path.laps=0.25",
-                        "--set", f'recording.directory="{directory}"', *TOLERANT],
-                       capture_output=True, text=True, timeout=300, check=False,
-                       env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "controller",
+            "demo",
+            "--task",
+            "path",
+            "--json",
+            "--no-realtime",
+            "--udp-port",
+            str(random_udp_port()),
+            "--set",
+            "task.path.laps=0.25",
+            "--set",
+            f'recording.directory="{directory}"',
+            *TOLERANT,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
     # DONE or, on a busy shared machine, FAULT (issue 30): either way a complete recording to export
     assert r.returncode in (0, 1) and r.stdout, r.stderr
     recording = json.loads(r.stdout)["recording"]
@@ -62,5 +81,11 @@ def test_cantools_decodes_every_frame_the_dbc_describes(demo_recording: Path, tm
             names.add(db.get_message_by_frame_id(msg.arbitration_id).name)
             decoded += 1
     assert decoded > 1000
-    assert {"SYNC", "Drive1_RPDO1", "Drive1_TPDO1", "ForceSensor_TPDO1", "ForceSensor_TPDO2",
-            "Controller_Heartbeat"} <= names
+    assert {
+        "SYNC",
+        "Drive1_RPDO1",
+        "Drive1_TPDO1",
+        "ForceSensor_TPDO1",
+        "ForceSensor_TPDO2",
+        "Controller_Heartbeat",
+    } <= names

@@ -28,18 +28,41 @@ def _port() -> int:
 
 
 def _cheope(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*CHEOPE, *args], capture_output=True, text=True, timeout=timeout, check=False,
-                          env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    return subprocess.run(
+        [*CHEOPE, *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        check=False,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
 
 
 def test_demo_runs_the_path_task_end_to_end():
-    r = _cheope("demo", "--task", "path", "--json", "--set", "task.path.laps=0.5", "--udp-port", str(_port()),
-                *TOLERANT)
+    r = _cheope(
+        "demo",
+        "--task",
+        "path",
+        "--json",
+        "--set",
+        "task.path.laps=0.5",
+        "--udp-port",
+        str(_port()),
+        *TOLERANT,
+    )
     assert r.returncode == 0, r.stderr + r.stdout
     s = json.loads(r.stdout)
     assert s["final_mode"] == "DONE"
-    for key in ("achieved_rate_hz", "period_error_us", "late_cycles", "missing_frames", "bus_load_percent",
-                "tracking_error_m", "observers_us", "major_page_faults"):
+    for key in (
+        "achieved_rate_hz",
+        "period_error_us",
+        "late_cycles",
+        "missing_frames",
+        "bus_load_percent",
+        "tracking_error_m",
+        "observers_us",
+        "major_page_faults",
+    ):
         assert key in s
     assert 380.0 < s["achieved_rate_hz"] < 420.0
     assert s["bus_load_percent"] == pytest.approx(40.925, abs=0.01)
@@ -52,8 +75,16 @@ def test_demo_runs_the_path_task_end_to_end():
 
 def test_demo_runs_the_contour_experiment_over_the_bus_by_default():
     """The demo's default on Cheope: approach, the laps (one here), retract, then the comparison."""
-    r = _cheope("demo", "--json", "--set", "task.contour.lap_speeds_m_s=[0.06]", "--udp-port", str(_port()),
-                *TOLERANT, timeout=240.0)
+    r = _cheope(
+        "demo",
+        "--json",
+        "--set",
+        "task.contour.lap_speeds_m_s=[0.06]",
+        "--udp-port",
+        str(_port()),
+        *TOLERANT,
+        timeout=240.0,
+    )
     assert r.returncode == 0, r.stderr + r.stdout
     s = json.loads(r.stdout)
     assert s["final_mode"] == "DONE", s["fault_reason"]
@@ -64,7 +95,9 @@ def test_demo_runs_the_contour_experiment_over_the_bus_by_default():
     assert 0.02 < lap["speed_achieved_m_s"] <= 0.066
     assert lap["contact_losses"] == 0 and lap["force_error_rms_n"] < 2.0  # 0.7 N in simulated time
     cmp = s["position_control_comparison"]
-    assert cmp["final_mode"] == "DONE" and cmp["laps"][0]["force_error_max_n"] > 100.0  # the disk is 2.2 mm off
+    assert (
+        cmp["final_mode"] == "DONE" and cmp["laps"][0]["force_error_max_n"] > 100.0
+    )  # the disk is 2.2 mm off
 
 
 def test_demo_task_defaults(tmp_path):
@@ -84,13 +117,17 @@ def test_demo_task_defaults(tmp_path):
 def test_run_against_a_separately_started_simulator():
     spec = parse_bus_spec("udp_multicast", udp_port=_port())
     with simulator_process(spec, None, ["task.path.laps=0.25"]):
-        r = _cheope("run", "--json", "--udp-port", str(spec.udp_port), "--set", "task.path.laps=0.25", *TOLERANT)
+        r = _cheope(
+            "run", "--json", "--udp-port", str(spec.udp_port), "--set", "task.path.laps=0.25", *TOLERANT
+        )
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["final_mode"] == "DONE"
 
 
 def test_human_summary_names_the_figures():
-    r = _cheope("demo", "--task", "path", "--set", "task.path.laps=0.25", "--udp-port", str(_port()), *TOLERANT)
+    r = _cheope(
+        "demo", "--task", "path", "--set", "task.path.laps=0.25", "--udp-port", str(_port()), *TOLERANT
+    )
     assert r.returncode == 0, r.stderr
     for label in ("loop rate", "period error", "late cycles", "missing frames", "tracking error"):
         assert label in r.stdout
@@ -102,9 +139,24 @@ def _demo_on_a_terminal(tmp_path: Path, *args: str) -> str:
     """``cheope demo`` with its standard output on a pseudo-terminal; what the terminal received."""
     leader, follower = os.openpty()
     with open(tmp_path / "stderr.txt", "wb") as err:
-        proc = subprocess.Popen([*CHEOPE, "demo", "--task", "path", "--set", "task.path.laps=0.25", "--udp-port",
-                                 str(_port()), *TOLERANT, *args], stdout=follower, stderr=err,
-                                stdin=subprocess.DEVNULL, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        proc = subprocess.Popen(
+            [
+                *CHEOPE,
+                "demo",
+                "--task",
+                "path",
+                "--set",
+                "task.path.laps=0.25",
+                "--udp-port",
+                str(_port()),
+                *TOLERANT,
+                *args,
+            ],
+            stdout=follower,
+            stderr=err,
+            stdin=subprocess.DEVNULL,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )
     os.close(follower)
     out = bytearray()
     try:
@@ -145,23 +197,32 @@ def test_over_budget_bus_is_refused_before_the_simulator_starts():
     assert "Traceback" not in r.stderr
 
 
-@pytest.mark.parametrize("args,needle", [
-    (["run", "--can", "kvaser:0"], "interface 'kvaser' is not one of"),
-    (["run", "--can", "udp_multicast:239.0.0.1"], "only allowed on the interface-local group"),
-    (["demo", "--config", "/nonexistent.toml"], "/nonexistent.toml does not exist"),
-    (["demo", "--bogus-option"], "unrecognized arguments: --bogus-option"),
-    (["demo", "--rate", "fast"], "argument --rate: invalid float value: 'fast'"),
-    (["launch"], "invalid choice: 'launch'"),
-    (["demo", "--set", "loop.rate_hz=-3"], "loop.rate_hz = -3: must be >= 1.0"),
-    (["demo", "--task", "path", "--set", "task.path.radius_m=0.3"], "path sample 0"),
-    (["demo", "--task", "contour", "--set", "task.contour.expected_radius_m=0.3"], "path sample 0"),
-    (["run", "--udp-port", "0"], "UDP port 0 (--udp-port, bus.udp_port): must be in 1..65535"),
-    (["demo", "--inject", "drop:9@1"], "node 9 is not on the bus; drop takes drives 1, 2, 3 and the sensor 16"),
-    (["demo", "--inject", "drive_fault:16@1"], "node 16 is not a drive; drive_fault takes drives 1, 2, 3"),
-    (["demo", "--inject", "stall=1e9@1"], "stall of 1e+09 s must be in (0, 1] s"),
-    (["demo", "--inject", "delay:2=1e9@1"], "delay of 1e+09 s must be in (0, 1] s"),
-    (["run", "--max-duration", "0"], "--max-duration 0: must be > 0"),
-])
+@pytest.mark.parametrize(
+    "args,needle",
+    [
+        (["run", "--can", "kvaser:0"], "interface 'kvaser' is not one of"),
+        (["run", "--can", "udp_multicast:239.0.0.1"], "only allowed on the interface-local group"),
+        (["demo", "--config", "/nonexistent.toml"], "/nonexistent.toml does not exist"),
+        (["demo", "--bogus-option"], "unrecognized arguments: --bogus-option"),
+        (["demo", "--rate", "fast"], "argument --rate: invalid float value: 'fast'"),
+        (["launch"], "invalid choice: 'launch'"),
+        (["demo", "--set", "loop.rate_hz=-3"], "loop.rate_hz = -3: must be >= 1.0"),
+        (["demo", "--task", "path", "--set", "task.path.radius_m=0.3"], "path sample 0"),
+        (["demo", "--task", "contour", "--set", "task.contour.expected_radius_m=0.3"], "path sample 0"),
+        (["run", "--udp-port", "0"], "UDP port 0 (--udp-port, bus.udp_port): must be in 1..65535"),
+        (
+            ["demo", "--inject", "drop:9@1"],
+            "node 9 is not on the bus; drop takes drives 1, 2, 3 and the sensor 16",
+        ),
+        (
+            ["demo", "--inject", "drive_fault:16@1"],
+            "node 16 is not a drive; drive_fault takes drives 1, 2, 3",
+        ),
+        (["demo", "--inject", "stall=1e9@1"], "stall of 1e+09 s must be in (0, 1] s"),
+        (["demo", "--inject", "delay:2=1e9@1"], "delay of 1e+09 s must be in (0, 1] s"),
+        (["run", "--max-duration", "0"], "--max-duration 0: must be > 0"),
+    ],
+)
 def test_bad_input_gets_one_clear_line(args, needle):
     r = _cheope(*args)
     assert r.returncode == 2

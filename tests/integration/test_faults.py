@@ -42,7 +42,9 @@ def test_every_fault_scenario_gets_its_reaction_and_a_complete_recording(tmp_pat
         if r["reaction_expected"].startswith("fault"):
             # quick stop within a quarter second of the detection; a heartbeat is overdue only after
             # the consumer time (loop.heartbeat_consumer_s) since the last one
-            detection_s = load_config().loop.heartbeat_consumer_s if r["fault"].startswith("heartbeat") else 0.0
+            detection_s = (
+                load_config().loop.heartbeat_consumer_s if r["fault"].startswith("heartbeat") else 0.0
+            )
             assert 0.0 < r["time_to_safe_state_s"] < detection_s + 0.25, r
     malformed = next(r for r in rows if r["scenario"].startswith("malformed"))
     assert malformed["rejected_frames"] == 1 and malformed["final_mode"] == "DONE"
@@ -68,8 +70,9 @@ def test_recovery_after_a_reset_starts_from_the_measured_positions_within_the_je
             modes.append(state.mode)
             measured.append(tuple(d.position for d in inputs.drives))
 
-    final, _ = CycleLoop(law, ex, cfg.period_s, 0.8, clock, clock.clock, observers=(Trace(),),
-                         commands=commands).run(law.initial_state(), 30.0, exit_on_fault=False)
+    final, _ = CycleLoop(
+        law, ex, cfg.period_s, 0.8, clock, clock.clock, observers=(Trace(),), commands=commands
+    ).run(law.initial_state(), 30.0, exit_on_fault=False)
     assert sent["reset"] and Mode.FAULT in modes
     assert final.mode == Mode.DONE, final.fault_reason
     k = modes.index(Mode.ENABLING, modes.index(Mode.FAULT))  # the first cycle after the reset
@@ -87,11 +90,37 @@ def test_decoders_never_raise_and_count_what_they_reject(cob_id, data, fd, error
         ex = CyclicExchange(bus, (1, 2, 3), PositionScale(1e7), 16, 100, heartbeat_every=40)
         ex._collecting = True
         before = ex.counters.rejected_frames
-        ex._notify(can.Message(arbitration_id=cob_id, data=data, is_fd=fd, is_error_frame=error_frame,
-                               is_extended_id=False))
-        routed = cob_id in (0x181, 0x182, 0x183, 0x190, 0x290, 0x81, 0x82, 0x83, 0x90, 0x701, 0x702, 0x703, 0x710)
-        expected_len = {0x181: 6, 0x182: 6, 0x183: 6, 0x190: 8, 0x290: 8,
-                        0x701: 1, 0x702: 1, 0x703: 1, 0x710: 1}.get(cob_id, 8)  # heartbeats: the NMT state
+        ex._notify(
+            can.Message(
+                arbitration_id=cob_id, data=data, is_fd=fd, is_error_frame=error_frame, is_extended_id=False
+            )
+        )
+        routed = cob_id in (
+            0x181,
+            0x182,
+            0x183,
+            0x190,
+            0x290,
+            0x81,
+            0x82,
+            0x83,
+            0x90,
+            0x701,
+            0x702,
+            0x703,
+            0x710,
+        )
+        expected_len = {
+            0x181: 6,
+            0x182: 6,
+            0x183: 6,
+            0x190: 8,
+            0x290: 8,
+            0x701: 1,
+            0x702: 1,
+            0x703: 1,
+            0x710: 1,
+        }.get(cob_id, 8)  # heartbeats: the NMT state
         if routed and not error_frame and len(data) != expected_len:
             assert ex.counters.rejected_frames == before + 1
         else:
@@ -107,13 +136,26 @@ def test_a_killed_controller_leaves_the_simulated_robot_stopped(tmp_path):
     spec = parse_bus_spec("udp_multicast", udp_port=port)
     cfg = load_config()
     # tolerant of a busy machine: the point is what happens after the kill
-    sets = ["--set", "task.path.laps=3", "--set", f'recording.directory="{tmp_path}"', "--set", "monitoring.enabled=false",
-            *TOLERANT]
+    sets = [
+        "--set",
+        "task.path.laps=3",
+        "--set",
+        f'recording.directory="{tmp_path}"',
+        "--set",
+        "monitoring.enabled=false",
+        *TOLERANT,
+    ]
     ids = tuple(cfg.actuators.node_ids)
-    with simulator_process(spec, None, ["task.path.laps=3"]), \
-            can.Bus(interface="udp_multicast", channel=spec.channel, port=port) as bus:
-        ctrl = subprocess.Popen([sys.executable, "-m", "controller", "run", "--udp-port", str(port), *sets],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    with (
+        simulator_process(spec, None, ["task.path.laps=3"]),
+        can.Bus(interface="udp_multicast", channel=spec.channel, port=port) as bus,
+    ):
+        ctrl = subprocess.Popen(
+            [sys.executable, "-m", "controller", "run", "--udp-port", str(port), *sets],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         try:
             _wait_until_drive_1_moves_under_the_controller(bus, ctrl)  # well into the task, not a guessed 4 s
             ctrl.send_signal(signal.SIGKILL)
@@ -135,8 +177,11 @@ def test_a_killed_controller_leaves_the_simulated_robot_stopped(tmp_path):
                     previous.append(positions)
                     return states == [PowerState.QUICK_STOP_ACTIVE] * 3 and still
 
-                wait_until(quick_stopped_and_still, "every drive quick-stopped by its SYNC watchdog and standing still",
-                           poll_s=0.05)
+                wait_until(
+                    quick_stopped_and_still,
+                    "every drive quick-stopped by its SYNC watchdog and standing still",
+                    poll_s=0.05,
+                )
             finally:
                 network.disconnect()
         finally:
@@ -144,11 +189,21 @@ def test_a_killed_controller_leaves_the_simulated_robot_stopped(tmp_path):
 
 
 @pytest.mark.integration
-@pytest.mark.parametrize(("signals", "args", "exit_code", "mode", "powers"), [
-    ((signal.SIGTERM,), (), 0, "DONE", {PowerState.READY_TO_SWITCH_ON, PowerState.SWITCH_ON_DISABLED}),
-    ((), ("--max-duration", "4"), 0, "DONE", {PowerState.READY_TO_SWITCH_ON, PowerState.SWITCH_ON_DISABLED}),
-    ((signal.SIGTERM, signal.SIGINT), (), 1, "FAULT", {PowerState.QUICK_STOP_ACTIVE}),
-], ids=["sigterm-stops", "max-duration-stops", "second-signal-quick-stops"])
+@pytest.mark.parametrize(
+    ("signals", "args", "exit_code", "mode", "powers"),
+    [
+        ((signal.SIGTERM,), (), 0, "DONE", {PowerState.READY_TO_SWITCH_ON, PowerState.SWITCH_ON_DISABLED}),
+        (
+            (),
+            ("--max-duration", "4"),
+            0,
+            "DONE",
+            {PowerState.READY_TO_SWITCH_ON, PowerState.SWITCH_ON_DISABLED},
+        ),
+        ((signal.SIGTERM, signal.SIGINT), (), 1, "FAULT", {PowerState.QUICK_STOP_ACTIVE}),
+    ],
+    ids=["sigterm-stops", "max-duration-stops", "second-signal-quick-stops"],
+)
 def test_a_signal_mid_motion_stops_the_run_under_control(tmp_path, signals, args, exit_code, mode, powers):
     """SIGTERM while the carriages move (or the end of --max-duration): STOPPING brakes, the drives
     are disabled, DONE, exit 0 (read back over SDO from the drives); a second signal quick-stops
@@ -157,14 +212,40 @@ def test_a_signal_mid_motion_stops_the_run_under_control(tmp_path, signals, args
     spec = parse_bus_spec("udp_multicast", udp_port=port)
     ids = tuple(load_config().actuators.node_ids)
     # more tolerant of a busy machine than TOLERANT: a drive fault before the signal is not the point here
-    sets = ["--set", "task.path.laps=3", "--set", f'recording.directory="{tmp_path}"',
-            "--set", "monitoring.enabled=false", *TOLERANT, "--set", "loop.max_missing_cycles=100",
-            "--set", "safety.sensor_stale_cycles=100"]
-    with simulator_process(spec, None, ["task.path.laps=3"]), \
-            can.Bus(interface="udp_multicast", channel=spec.channel, port=port) as bus:
-        ctrl = subprocess.Popen([sys.executable, "-m", "controller", "run", "--json", "--no-realtime",
-                                 "--udp-port", str(port), *args, *sets],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    sets = [
+        "--set",
+        "task.path.laps=3",
+        "--set",
+        f'recording.directory="{tmp_path}"',
+        "--set",
+        "monitoring.enabled=false",
+        *TOLERANT,
+        "--set",
+        "loop.max_missing_cycles=100",
+        "--set",
+        "safety.sensor_stale_cycles=100",
+    ]
+    with (
+        simulator_process(spec, None, ["task.path.laps=3"]),
+        can.Bus(interface="udp_multicast", channel=spec.channel, port=port) as bus,
+    ):
+        ctrl = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "controller",
+                "run",
+                "--json",
+                "--no-realtime",
+                "--udp-port",
+                str(port),
+                *args,
+                *sets,
+            ],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         try:
             _wait_until_drive_1_moves_under_the_controller(bus, ctrl)
             for sig in signals:
@@ -217,8 +298,13 @@ def _wait_until_drive_1_moves_under_the_controller(bus: can.BusABC, ctrl: subpro
 
 
 def test_bad_fault_spec_is_one_clear_line():
-    r = subprocess.run([sys.executable, "-m", "controller", "demo", "--inject", "explode@1"],
-                       capture_output=True, text=True, timeout=60, check=False)
+    r = subprocess.run(
+        [sys.executable, "-m", "controller", "demo", "--inject", "explode@1"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
     assert r.returncode == 2
     assert "unknown kind 'explode'" in r.stderr and "Traceback" not in r.stderr
 
@@ -231,10 +317,32 @@ def test_a_50_mm_position_jump_over_udp_multicast_faults_within_3_cycles(tmp_pat
     from logs.reader import iter_decoded
 
     port = random.SystemRandom().randint(48000, 49999)
-    r = subprocess.run([sys.executable, "-m", "controller", "demo", "--task", "path", "--json",
-                        "--udp-port", str(port), "--inject", "jump:2=0.05@1.0", "--set", "task.path.laps=1",
-                        "--set", f'recording.directory="{tmp_path}"', "--set", "monitoring.enabled=false", *TOLERANT],
-                       capture_output=True, text=True, timeout=300, check=False)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "controller",
+            "demo",
+            "--task",
+            "path",
+            "--json",
+            "--udp-port",
+            str(port),
+            "--inject",
+            "jump:2=0.05@1.0",
+            "--set",
+            "task.path.laps=1",
+            "--set",
+            f'recording.directory="{tmp_path}"',
+            "--set",
+            "monitoring.enabled=false",
+            *TOLERANT,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     summary = json.loads(r.stdout)
     assert summary["final_mode"] == "FAULT", summary["final_mode"]
     assert "drive 2 position jumped" in summary["fault_reason"], summary["fault_reason"]

@@ -28,9 +28,12 @@ def _record(path: Path, task_kind: str, max_s: float) -> None:
     clock = SimulatedTime()
     law = build_law(cfg)
     exchange = LoopbackExchange(cfg, clock.clock)
-    with SessionRecorder(path, session_metadata(cfg), clock=clock.clock, phase_name=law.task.phase_name,
-                         lossless=True) as rec:
-        loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(rec,))
+    with SessionRecorder(
+        path, session_metadata(cfg), clock=clock.clock, phase_name=law.task.phase_name, lossless=True
+    ) as rec:
+        loop = CycleLoop(
+            law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(rec,)
+        )
         loop.run(law.initial_state(), max_s)
 
 

@@ -49,8 +49,16 @@ def _running_controller(cfg: Config, path: Path) -> Iterator[threading.Thread]:
     errors: list[BaseException] = []
     ended: list[str] = []
     with SessionRecorder(path, session_metadata(cfg)) as rec:
-        loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, DeadlineSleeper(0.0),
-                         time.monotonic, observers=(rec,), stop_event=stop)
+        loop = CycleLoop(
+            law,
+            exchange,
+            cfg.period_s,
+            cfg.loop.collect_fraction,
+            DeadlineSleeper(0.0),
+            time.monotonic,
+            observers=(rec,),
+            stop_event=stop,
+        )
 
         def run() -> None:
             try:
@@ -73,9 +81,13 @@ def _running_controller(cfg: Config, path: Path) -> Iterator[threading.Thread]:
 def _config(tmp_path: Path, **recording: str) -> Config:
     # The devices run in this process beside the test's own reading (Rerun's reader holds the GIL for
     # tens of ms): their SYNC watchdog and the late-cycle reaction would fault a run that only stalled.
-    overrides: dict[str, object] = {"recording.directory": str(tmp_path), "task.path.laps": 20.0,
-                                    "safety.on_late_cycles": "warn", "loop.max_missing_cycles": 10,
-                                    "sim.drive.sync_timeout_s": 5.0}
+    overrides: dict[str, object] = {
+        "recording.directory": str(tmp_path),
+        "task.path.laps": 20.0,
+        "safety.on_late_cycles": "warn",
+        "loop.max_missing_cycles": 10,
+        "sim.drive.sync_timeout_s": 5.0,
+    }
     overrides.update({f"recording.{k}": v for k, v in recording.items()})
     return load_config(overrides=overrides)
 
@@ -96,14 +108,23 @@ def _rrd_entities(path: Path) -> set[str]:
 def test_a_rerun_grpc_server_receives_the_robot_and_the_plots_during_the_run(tmp_path):
     port = free_loopback_port()
     rrd = tmp_path / "live.rrd"
-    server = subprocess.Popen([_rerun_binary(), "--bind", "127.0.0.1", "--port", str(port),
-                               "--save", str(rrd)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    server = subprocess.Popen(
+        [_rerun_binary(), "--bind", "127.0.0.1", "--port", str(port), "--save", str(rrd)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
     try:
-        ProcessLines(server).next_matching(lambda line: "Listening for gRPC" in line, "the Rerun server listening")
+        ProcessLines(server).next_matching(
+            lambda line: "Listening for gRPC" in line, "the Rerun server listening"
+        )
         cfg = _config(tmp_path, live_rerun=f"rerun+http://127.0.0.1:{port}/proxy")
         with _running_controller(cfg, tmp_path / "s.mcap") as loop_thread:
-            wanted = {"/world/rods/capsules", "/world/sliders/boxes", "/world/guides/capsules",
-                      "/plots/actuators/position_1"}
+            wanted = {
+                "/world/rods/capsules",
+                "/world/sliders/boxes",
+                "/world/guides/capsules",
+                "/plots/actuators/position_1",
+            }
             wait_until(lambda: wanted <= _rrd_entities(rrd), "the robot and the plots at the Rerun server")
             # received while the controller runs (20 laps: about 100 s)
             assert loop_thread.is_alive(), loop_thread.ended  # type: ignore[attr-defined]
@@ -113,16 +134,18 @@ def test_a_rerun_grpc_server_receives_the_robot_and_the_plots_during_the_run(tmp
         server.wait()
 
 
-def _foxglove_messages(port: int, topics: tuple[str, ...], enough: dict[str, int],
-                       subprotocol: str = "foxglove.websocket.v1") -> tuple[set[str], dict[str, list[bytes]]]:
+def _foxglove_messages(
+    port: int, topics: tuple[str, ...], enough: dict[str, int], subprotocol: str = "foxglove.websocket.v1"
+) -> tuple[set[str], dict[str, list[bytes]]]:
     """Subscribe to ``topics`` and collect messages until each topic has ``enough[topic]`` (Foxglove
     WebSocket protocol, offering only ``subprotocol``); the topics advertised and the messages."""
     from websockets.sync.client import connect
 
     got: dict[str, list[bytes]] = {t: [] for t in topics}
     advertised: set[str] = set()
-    with connect(f"ws://127.0.0.1:{port}", subprotocols=[subprotocol],
-                 open_timeout=GENEROUS_S, max_size=None) as ws:
+    with connect(
+        f"ws://127.0.0.1:{port}", subprotocols=[subprotocol], open_timeout=GENEROUS_S, max_size=None
+    ) as ws:
         assert ws.subprotocol == subprotocol
         by_sub: dict[int, str] = {}
         deadline = time.monotonic() + GENEROUS_S
@@ -157,7 +180,9 @@ def _server_up(port: int) -> bool:
         return False
 
 
-def test_a_legacy_foxglove_client_receives_every_topic_of_the_layout_and_the_fixed_scene_during_the_run(tmp_path):
+def test_a_legacy_foxglove_client_receives_every_topic_of_the_layout_and_the_fixed_scene_during_the_run(
+    tmp_path,
+):
     """A client offering only ``foxglove.websocket.v1`` (older Foxglove, Lichtblick), joining after the start."""
     from foxglove_layout_paths import named_topics, plot_paths, resolve
     from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
@@ -186,7 +211,9 @@ def _scene_bytes(entity: str) -> bytes:
     from logs.foxglove_scene import scene_update
     from logs.robot_drawing import Primitive, Shape
 
-    return scene_update([Primitive(entity, Shape.SPHERE, (1.0, 1.0, 1.0, 1.0), radius_m=0.01)], 1).SerializeToString()
+    return scene_update(
+        [Primitive(entity, Shape.SPHERE, (1.0, 1.0, 1.0, 1.0), radius_m=0.01)], 1
+    ).SerializeToString()
 
 
 @pytest.mark.parametrize("subprotocol", ["foxglove.websocket.v1", "foxglove.sdk.v1"])
@@ -220,8 +247,7 @@ def test_a_client_offering_no_foxglove_subprotocol_is_refused(monkeypatch):
     live = FoxgloveLive(f"127.0.0.1:{free_loopback_port()}")
     try:
         with pytest.raises(InvalidStatus, match="400"):
-            connect(f"ws://127.0.0.1:{live.port}", subprotocols=["mqtt"],
-                    open_timeout=GENEROUS_S)
+            connect(f"ws://127.0.0.1:{live.port}", subprotocols=["mqtt"], open_timeout=GENEROUS_S)
     finally:
         live.close()
 

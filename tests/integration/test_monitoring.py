@@ -65,11 +65,25 @@ def _endpoint() -> str:
 
 
 def _controller_cmd(endpoint: str, *sets: str, max_duration_s: float = 30.0) -> list[str]:
-    cmd = [sys.executable, "-m", "controller.tools.sim_controller", "--max-duration", str(max_duration_s),
-           "--set", f'monitoring.listen="{endpoint}"', "--set", 'monitoring.robot_id="test-bot"',
-           "--set", 'monitoring.on_listen_busy="fail"', "--set", "task.path.laps=20",
-           # these tests check monitoring, not timing: a loaded machine must not fault the run (SYNC watchdog, late cycles)
-           *TOLERANT, "--set", "sim.drive.sync_timeout_s=0.5"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "controller.tools.sim_controller",
+        "--max-duration",
+        str(max_duration_s),
+        "--set",
+        f'monitoring.listen="{endpoint}"',
+        "--set",
+        'monitoring.robot_id="test-bot"',
+        "--set",
+        'monitoring.on_listen_busy="fail"',
+        "--set",
+        "task.path.laps=20",
+        # these tests check monitoring, not timing: a loaded machine must not fault the run (SYNC watchdog, late cycles)
+        *TOLERANT,
+        "--set",
+        "sim.drive.sync_timeout_s=0.5",
+    ]
     for s in sets:
         cmd += ["--set", s]
     return cmd
@@ -100,8 +114,13 @@ def _stop(proc: subprocess.Popen[str]) -> str:
 
 @contextmanager
 def controller(endpoint: str, *sets: str, max_duration_s: float = 30.0):
-    proc = subprocess.Popen(_controller_cmd(endpoint, *sets, max_duration_s=max_duration_s),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
+    proc = subprocess.Popen(
+        _controller_cmd(endpoint, *sets, max_duration_s=max_duration_s),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=ENV,
+    )
     try:
         line = _readline(proc, 30.0)
         assert line.startswith("READY"), f"{line!r} {proc.stderr.read() if proc.poll() is not None else ''}"
@@ -125,7 +144,9 @@ def _states(client: MonitorClient, n: int, timeout_s: float = 10.0) -> list[Stat
     return got
 
 
-def _wait_mode(client: MonitorClient, mode: str | frozenset[str], timeout_s: float = GENEROUS_S) -> StateUpdate:
+def _wait_mode(
+    client: MonitorClient, mode: str | frozenset[str], timeout_s: float = GENEROUS_S
+) -> StateUpdate:
     """The first published state sample in ``mode`` (or one of a set); fails at the deadline (the loops
     it replaces went on silently, or had no deadline at all)."""
     modes = frozenset((mode,)) if isinstance(mode, str) else mode
@@ -151,6 +172,7 @@ def _wait_alive(client: MonitorClient, alive: bool, timeout_s: float = 10.0) -> 
 
 # -- configuration: loopback, no scouting ---------------------------------------------------
 
+
 def test_default_sessions_stay_on_loopback_with_scouting_off(cfg):
     s = publisher_settings(cfg).session
     assert s.listen == ("tcp/127.0.0.1:7448",) and s.connect == ()
@@ -164,10 +186,13 @@ def test_default_sessions_stay_on_loopback_with_scouting_off(cfg):
 
 def test_a_zenoh_file_keeps_its_settings_and_gets_the_defaults_for_the_rest(tmp_path):
     f = tmp_path / "z.json5"
-    f.write_text('{ mode: "peer", connect: { endpoints: ["tcp/127.0.0.1:9001"] }, '
-                 'scouting: { multicast: { enabled: false }, gossip: { enabled: true } } }')
-    conf = build_zenoh_config(SessionSettings(listen=("tcp/127.0.0.1:9000",), connect=("tcp/127.0.0.1:9002",),
-                                              config_file=str(f)))
+    f.write_text(
+        '{ mode: "peer", connect: { endpoints: ["tcp/127.0.0.1:9001"] }, '
+        "scouting: { multicast: { enabled: false }, gossip: { enabled: true } } }"
+    )
+    conf = build_zenoh_config(
+        SessionSettings(listen=("tcp/127.0.0.1:9000",), connect=("tcp/127.0.0.1:9002",), config_file=str(f))
+    )
     assert json.loads(conf.get_json("connect/endpoints")) == ["tcp/127.0.0.1:9001", "tcp/127.0.0.1:9002"]
     assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/127.0.0.1:9000"]  # unset in the file
     assert json.loads(conf.get_json("scouting/gossip/enabled")) is True  # the file's explicit choice
@@ -175,12 +200,15 @@ def test_a_zenoh_file_keeps_its_settings_and_gets_the_defaults_for_the_rest(tmp_
         build_zenoh_config(SessionSettings(config_file=str(tmp_path / "missing.json5")))
 
 
-@pytest.mark.parametrize("key, value, match", [
-    ("monitoring.robot_id", "a/b", "robot_id"),
-    ("monitoring.key_prefix", "", "key_prefix"),
-    ("monitoring.listen", "127.0.0.1:7448", "monitoring.listen"),
-    ("monitoring.connect", "tcp/host:99999", "monitoring.connect"),
-])
+@pytest.mark.parametrize(
+    "key, value, match",
+    [
+        ("monitoring.robot_id", "a/b", "robot_id"),
+        ("monitoring.key_prefix", "", "key_prefix"),
+        ("monitoring.listen", "127.0.0.1:7448", "monitoring.listen"),
+        ("monitoring.connect", "tcp/host:99999", "monitoring.connect"),
+    ],
+)
 def test_bad_monitoring_settings_name_the_key(key, value, match):
     with pytest.raises(ConfigError, match=match):
         publisher_settings(load_config(overrides={key: value}))
@@ -192,6 +220,7 @@ def test_endpoints_split_on_commas():
 
 # -- the command gate ------------------------------------------------------------------------
 
+
 def test_stop_is_always_accepted_and_other_commands_only_when_enabled():
     assert decide_command("stop", 0.0, False, 60.0).accepted
     for name in ("pause", "resume", "set_force"):
@@ -202,6 +231,7 @@ def test_stop_is_always_accepted_and_other_commands_only_when_enabled():
 
 
 # -- the loop's side: never waits --------------------------------------------------------------
+
 
 def _cycle_args(k: int):
     inputs = CycleInputs(drives=(DriveFeedback(0x1237, 0.55, True),) * 3)
@@ -230,9 +260,13 @@ def test_on_cycle_publishes_every_nth_cycle_on_the_loops_thread(cfg):
 
 # -- across processes ------------------------------------------------------------------------
 
+
 def test_monitor_receives_decimated_state_and_events_from_another_process():
     ep = _endpoint()
-    with MonitorClient(monitor_settings((ep,)), KEYS) as client, controller(ep, "monitoring.publish_rate_hz=100.0"):
+    with (
+        MonitorClient(monitor_settings((ep,)), KEYS) as client,
+        controller(ep, "monitoring.publish_rate_hz=100.0"),
+    ):
         assert _wait_alive(client, True).key == KEYS.alive
         states = _states(client, 30)
     cycles = [s.msg.cycle for s in states]
@@ -297,7 +331,10 @@ def test_a_command_other_than_stop_is_refused_when_commands_are_disabled():
 
 def test_pause_and_resume_reach_the_law_when_enabled():
     ep = _endpoint()
-    with MonitorClient(monitor_settings((ep,)), KEYS) as client, controller(ep, "monitoring.allow_remote_commands=true") as proc:
+    with (
+        MonitorClient(monitor_settings((ep,)), KEYS) as client,
+        controller(ep, "monitoring.allow_remote_commands=true") as proc,
+    ):
         _wait_mode(client, "RUNNING")
         assert send_command(client_settings((ep,)), KEYS, "pause", timeout_s=5.0)[1].accepted
         _wait_mode(client, "PAUSED")
@@ -326,18 +363,43 @@ def test_remote_stop_brings_a_running_task_to_a_controlled_stop():
 def test_cheope_stop_stops_cheope_demo_through_the_service():
     ep = _endpoint()
     demo = subprocess.Popen(
-        [sys.executable, "-m", "controller", "demo", "--task", "path", "--json", "--set", "task.path.laps=20",
-         "--set", f'monitoring.listen="{ep}"', "--set", 'monitoring.on_listen_busy="fail"',
-         # this test starts more processes meanwhile; it checks the stop command, not timing, so the
-         # drives' SYNC watchdog gets 0.5 s too (a CI run once faulted on a 50 ms gap at start)
-         *TOLERANT, "--set", "sim.drive.sync_timeout_s=0.5"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
+        [
+            sys.executable,
+            "-m",
+            "controller",
+            "demo",
+            "--task",
+            "path",
+            "--json",
+            "--set",
+            "task.path.laps=20",
+            "--set",
+            f'monitoring.listen="{ep}"',
+            "--set",
+            'monitoring.on_listen_busy="fail"',
+            # this test starts more processes meanwhile; it checks the stop command, not timing, so the
+            # drives' SYNC watchdog gets 0.5 s too (a CI run once faulted on a 50 ms gap at start)
+            *TOLERANT,
+            "--set",
+            "sim.drive.sync_timeout_s=0.5",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=ENV,
+    )
     try:
         cli = [sys.executable, "-m", "controller"]
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline:
-            st = subprocess.run(cli + ["status", "--json", "--zenoh-connect", ep], check=False, capture_output=True, text=True,
-                                env=ENV, timeout=30)
+            st = subprocess.run(
+                cli + ["status", "--json", "--zenoh-connect", ep],
+                check=False,
+                capture_output=True,
+                text=True,
+                env=ENV,
+                timeout=30,
+            )
             if st.returncode == 0 and json.loads(st.stdout)["mode"] == "RUNNING":
                 break
             time.sleep(0.3)
@@ -346,14 +408,26 @@ def test_cheope_stop_stops_cheope_demo_through_the_service():
                 pytest.fail(f"the demo exited {demo.returncode}: {out_[-1500:]} {err_[-1500:]}")
         else:
             pytest.fail(f"the demo never reported RUNNING: {st.stderr}")
-        mon = subprocess.run(cli + ["monitor", "--json", "--count", "3", "--duration", "10", "--zenoh-connect", ep],
-                             check=False, capture_output=True, text=True, env=ENV, timeout=30)
+        mon = subprocess.run(
+            cli + ["monitor", "--json", "--count", "3", "--duration", "10", "--zenoh-connect", ep],
+            check=False,
+            capture_output=True,
+            text=True,
+            env=ENV,
+            timeout=30,
+        )
         lines = [json.loads(line) for line in mon.stdout.splitlines()]
         seen = f"monitor stdout {mon.stdout[-1500:]!r} stderr {mon.stderr[-1500:]!r}, demo running: {demo.poll() is None}"
         assert sum(d["type"] == "state" for d in lines) == 3, seen
         assert any(d["type"] == "liveliness" and d["alive"] for d in lines), seen
-        stop = subprocess.run(cli + ["stop", "--zenoh-connect", ep], check=False, capture_output=True, text=True, env=ENV,
-                              timeout=30)
+        stop = subprocess.run(
+            cli + ["stop", "--zenoh-connect", ep],
+            check=False,
+            capture_output=True,
+            text=True,
+            env=ENV,
+            timeout=30,
+        )
         assert stop.returncode == 0 and stop.stdout.startswith("accepted"), stop.stderr
         out, err = demo.communicate(timeout=30)
     finally:
@@ -367,8 +441,14 @@ def test_cheope_stop_stops_cheope_demo_through_the_service():
 
 def test_status_without_a_controller_ends_with_one_clear_line():
     ep = _endpoint()
-    r = subprocess.run([sys.executable, "-m", "controller", "status", "--zenoh-connect", ep, "--timeout", "1"],
-                       check=False, capture_output=True, text=True, env=ENV, timeout=30)
+    r = subprocess.run(
+        [sys.executable, "-m", "controller", "status", "--zenoh-connect", ep, "--timeout", "1"],
+        check=False,
+        capture_output=True,
+        text=True,
+        env=ENV,
+        timeout=30,
+    )
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and ep in r.stderr and r.stderr.startswith("cheope status: error:")
     with pytest.raises(MonitoringConnectionError, match="127.0.0.1"):
@@ -377,10 +457,21 @@ def test_status_without_a_controller_ends_with_one_clear_line():
 
 # -- the view --------------------------------------------------------------------------------
 
+
 def test_view_renders_state_alarms_events_and_liveliness():
-    msg = pb.MonitorState(robot_id="r", cycle=12, t_s=0.03, mode="RUNNING", task="path", task_phase="TRACKING",
-                          targets=[0.5, 0.6, 0.7], positions=[0.5001, 0.6, 0.7], tcp_m=[0.0, 0.01, 0.5],
-                          force_n=[0.1, 0.2, 9.5], alarms=["drive 2: no TPDO for 1 cycle(s)"])
+    msg = pb.MonitorState(
+        robot_id="r",
+        cycle=12,
+        t_s=0.03,
+        mode="RUNNING",
+        task="path",
+        task_phase="TRACKING",
+        targets=[0.5, 0.6, 0.7],
+        positions=[0.5001, 0.6, 0.7],
+        tcp_m=[0.0, 0.01, 0.5],
+        force_n=[0.1, 0.2, 9.5],
+        alarms=["drive 2: no TPDO for 1 cycle(s)"],
+    )
     view = ViewModel("cheope/r")
     view.apply(AliveUpdate("cheope/r/alive", True, 1.0))
     view.apply(StateUpdate("cheope/r/state", msg, 1.1))
@@ -391,7 +482,15 @@ def test_view_renders_state_alarms_events_and_liveliness():
     buf = io.StringIO()
     Console(file=buf, width=120).print(render(view, 1.5))
     text = buf.getvalue()
-    for expected in ("RUNNING", "TRACKING", "drive 2: no TPDO", "+9.500 N", "controller gone", "WARNING", "gone"):
+    for expected in (
+        "RUNNING",
+        "TRACKING",
+        "drive 2: no TPDO",
+        "+9.500 N",
+        "controller gone",
+        "WARNING",
+        "gone",
+    ):
         assert expected in text, expected
     line = json.loads(update_to_json(StateUpdate("cheope/r/state", msg, 1.1)))
     assert line["type"] == "state" and line["cycle"] == 12 and line["force_n"] == [0.1, 0.2, 9.5]
@@ -399,9 +498,16 @@ def test_view_renders_state_alarms_events_and_liveliness():
 
 # -- many robots: ids, cheope list, a router -------------------------------------------------
 
+
 def _cheope(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "controller", *args], check=False, capture_output=True, text=True,
-                          env=ENV, timeout=60)
+    return subprocess.run(
+        [sys.executable, "-m", "controller", *args],
+        check=False,
+        capture_output=True,
+        text=True,
+        env=ENV,
+        timeout=60,
+    )
 
 
 def _json(r: subprocess.CompletedProcess[str]):
@@ -418,7 +524,10 @@ def test_a_default_robot_id_is_the_host_and_a_suffix_and_differs_between_control
     host = socket.gethostname().split(".")[0]
     assert a.robot_id_is_default and a.robot_id.rsplit("-", 1)[0] == re.sub(r"[^A-Za-z0-9_.\-]+", "-", host)
     assert re.fullmatch(r"[0-9a-f]{4}", a.robot_id.rsplit("-", 1)[1])
-    assert a.keys.prefix == f"cheope/{a.robot_id}" and json.loads(a.config_json)["monitoring"]["robot_id"] == a.robot_id
+    assert (
+        a.keys.prefix == f"cheope/{a.robot_id}"
+        and json.loads(a.config_json)["monitoring"]["robot_id"] == a.robot_id
+    )
     assert a.robot_id != b.robot_id or a.robot_id != publisher_settings(load_config()).robot_id
     assert not publisher_settings(load_config(overrides={"monitoring.robot_id": "r1"})).robot_id_is_default
 
@@ -426,9 +535,16 @@ def test_a_default_robot_id_is_the_host_and_a_suffix_and_differs_between_control
 def test_a_robot_id_already_live_refuses_the_start():
     ep_a, ep_b = _endpoint(), _endpoint()
     with controller(ep_a, 'monitoring.robot_id="dup"'):
-        second = subprocess.run(_controller_cmd(ep_b, 'monitoring.robot_id="dup"', f'monitoring.connect="{ep_a}"',
-                                                max_duration_s=10.0),
-                                check=False, capture_output=True, text=True, env=ENV, timeout=60)
+        second = subprocess.run(
+            _controller_cmd(
+                ep_b, 'monitoring.robot_id="dup"', f'monitoring.connect="{ep_a}"', max_duration_s=10.0
+            ),
+            check=False,
+            capture_output=True,
+            text=True,
+            env=ENV,
+            timeout=60,
+        )
         assert second.returncode == 2, second.stdout + second.stderr
         assert "monitoring.robot_id = 'dup' is taken" in second.stderr and second.stderr.count("\n") == 1
         assert not second.stdout.startswith("READY")
@@ -439,11 +555,15 @@ def test_a_robot_id_already_live_refuses_the_start():
 def test_a_drawn_robot_id_that_is_taken_is_drawn_again():
     ep = _endpoint()
     with controller(ep, 'monitoring.robot_id="bot-a"'):
-        settings = publisher_settings(load_config(overrides={"monitoring.listen": _endpoint(),
-                                                             "monitoring.connect": ep}))
+        settings = publisher_settings(
+            load_config(overrides={"monitoring.listen": _endpoint(), "monitoring.connect": ep})
+        )
         taken = replace(settings, robot_id="bot-a", keys=MonitorKeys.for_robot("cheope", "bot-a"))
         with MonitorPublisher(taken, threading.Event()) as pub:
-            assert pub.settings.robot_id != "bot-a" and pub.settings.keys.prefix == f"cheope/{pub.settings.robot_id}"
+            assert (
+                pub.settings.robot_id != "bot-a"
+                and pub.settings.keys.prefix == f"cheope/{pub.settings.robot_id}"
+            )
             both = _connect(ep, *pub.listen_endpoints)  # peers do not route for each other: ask both
             ids = [c["robot_id"] for c in _json(_cheope("list", "--json", *both))]
         assert sorted(ids) == sorted(["bot-a", pub.settings.robot_id])
@@ -451,8 +571,10 @@ def test_a_drawn_robot_id_that_is_taken_is_drawn_again():
 
 def test_cheope_list_shows_two_controllers_and_the_tools_address_them_by_id():
     ep_a, ep_b = _endpoint(), _endpoint()
-    with controller(ep_a, 'monitoring.robot_id="bot-a"', max_duration_s=120.0), \
-            controller(ep_b, 'monitoring.robot_id="bot-b"', max_duration_s=120.0) as proc_b:
+    with (
+        controller(ep_a, 'monitoring.robot_id="bot-a"', max_duration_s=120.0),
+        controller(ep_b, 'monitoring.robot_id="bot-b"', max_duration_s=120.0) as proc_b,
+    ):
         listed = _cheope("list", "--json", *_connect(ep_a, ep_b))
         assert listed.returncode == 0, listed.stderr
         rows = {c["robot_id"]: c for c in json.loads(listed.stdout)}
@@ -460,10 +582,15 @@ def test_cheope_list_shows_two_controllers_and_the_tools_address_them_by_id():
         assert rows["bot-a"]["listen_endpoints"] == [ep_a] and rows["bot-b"]["listen_endpoints"] == [ep_b]
         assert all(r["task"] == "path" and r["mode"] and r["uptime_s"] > 0 for r in rows.values())
         table = _cheope("list", *_connect(ep_a, ep_b)).stdout.splitlines()
-        assert table[0].startswith("robot id") and [line.split()[0] for line in table[1:]] == ["bot-a", "bot-b"]
+        assert table[0].startswith("robot id") and [line.split()[0] for line in table[1:]] == [
+            "bot-a",
+            "bot-b",
+        ]
         ambiguous = _cheope("status", *_connect(ep_a, ep_b))
         assert ambiguous.returncode == 2 and ambiguous.stderr.count("\n") == 1
-        assert "2 controllers reachable (bot-a, bot-b)" in ambiguous.stderr and "--robot-id" in ambiguous.stderr
+        assert (
+            "2 controllers reachable (bot-a, bot-b)" in ambiguous.stderr and "--robot-id" in ambiguous.stderr
+        )
         st = _json(_cheope("status", "--json", "--robot-id", "bot-b", *_connect(ep_a, ep_b)))
         assert st["robot_id"] == "bot-b"
         stop = _cheope("stop", "--robot-id", "bot-b", *_connect(ep_a, ep_b))
@@ -479,7 +606,9 @@ def test_tools_that_find_nothing_say_so_in_one_line():
     ep = _endpoint()
     listed = _cheope("list", *_connect(ep))
     status = _cheope("status", *_connect(ep))
-    assert listed.returncode == status.returncode == 2 and listed.stdout == ""  # one answer for "no controller"
+    assert (
+        listed.returncode == status.returncode == 2 and listed.stdout == ""
+    )  # one answer for "no controller"
     assert listed.stderr.count("\n") == 1 and listed.stderr.startswith("cheope list: no controller found")
     assert ep in listed.stderr
     mon = _cheope("monitor", "--json", "--duration", "1", *_connect(ep))
@@ -491,16 +620,29 @@ def test_tools_that_find_nothing_say_so_in_one_line():
 
 def test_three_controllers_monitored_from_one_place_through_a_router():
     router_ep = _endpoint()
-    router = subprocess.Popen([sys.executable, "-m", "controller", "router", "--listen", router_ep],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
+    router = subprocess.Popen(
+        [sys.executable, "-m", "controller", "router", "--listen", router_ep],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=ENV,
+    )
     try:
         assert _readline(router, 30.0).startswith(f"READY {router_ep}")
         ids = ("bot-1", "bot-2", "bot-3")
         with contextlib.ExitStack() as stack:
             for rid in ids:  # each listens nowhere and connects only to the router
-                stack.enter_context(controller("", f'monitoring.robot_id="{rid}"', f'monitoring.connect="{router_ep}"',
-                                               'monitoring.mode="client"', "loop.rate_hz=100.0",
-                                               "monitoring.publish_rate_hz=10.0", max_duration_s=120.0))
+                stack.enter_context(
+                    controller(
+                        "",
+                        f'monitoring.robot_id="{rid}"',
+                        f'monitoring.connect="{router_ep}"',
+                        'monitoring.mode="client"',
+                        "loop.rate_hz=100.0",
+                        "monitoring.publish_rate_hz=10.0",
+                        max_duration_s=120.0,
+                    )
+                )
             listed = _cheope("list", "--json", *_connect(router_ep))
             assert sorted(c["robot_id"] for c in _json(listed)) == list(ids)
             mon = _cheope("monitor", "--json", "--count", "30", "--duration", "30", *_connect(router_ep))
@@ -514,11 +656,17 @@ def test_three_controllers_monitored_from_one_place_through_a_router():
 
 def test_cheope_command_reset_brings_a_controller_out_of_fault():
     ep = _endpoint()
-    sets = ("monitoring.allow_remote_commands=true", "loop.stay_in_fault=true", 'sim.faults=["drive_fault:2@0.5+0.2"]')
+    sets = (
+        "monitoring.allow_remote_commands=true",
+        "loop.stay_in_fault=true",
+        'sim.faults=["drive_fault:2@0.5+0.2"]',
+    )
     with MonitorClient(monitor_settings((ep,)), KEYS) as client, controller(ep, *sets):
         _wait_mode(client, "FAULT")
         reset = _cheope("command", "reset", "--robot-id", "test-bot", *_connect(ep))
-        assert reset.returncode == 0 and reset.stdout.startswith("accepted by test-bot: reset accepted"), reset.stderr
+        assert reset.returncode == 0 and reset.stdout.startswith("accepted by test-bot: reset accepted"), (
+            reset.stderr
+        )
         # Out of FAULT, which only a reset does here (the injected fault is one-shot and the loop stays in
         # FAULT otherwise). Not the ENABLING sample itself: ENABLING lasts a few cycles, and samples go out
         # with congestion control DROP (controller/monitoring/publisher.py); a CI run once saw none of

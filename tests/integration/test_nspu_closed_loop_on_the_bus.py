@@ -24,19 +24,47 @@ from busy_machine import TOLERANT
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
-MISMATCH = ["--set", "tracker.enabled=true",
-            "--set", "sim.nspu.leg_offset_m=[0.0005,-0.0005,0.0005]",
-            "--set", "sim.nspu.w4_axis_error_rad=[0.001,-0.001,0.001]",
-            "--set", "sim.nspu.r_axis_error_rad=[-0.001,0.001,0.001]"]
-TOLERANCE_M, TOLERANCE_RAD = 2.0e-4, 1.0e-3  # robot.nspu.correction_tolerance_* in controller/configs/nspu.toml
+MISMATCH = [
+    "--set",
+    "tracker.enabled=true",
+    "--set",
+    "sim.nspu.leg_offset_m=[0.0005,-0.0005,0.0005]",
+    "--set",
+    "sim.nspu.w4_axis_error_rad=[0.001,-0.001,0.001]",
+    "--set",
+    "sim.nspu.r_axis_error_rad=[-0.001,0.001,0.001]",
+]
+TOLERANCE_M, TOLERANCE_RAD = (
+    2.0e-4,
+    1.0e-3,
+)  # robot.nspu.correction_tolerance_* in controller/configs/nspu.toml
 
 
 def _demo(*args: str) -> dict[str, Any]:
     port = str(random.SystemRandom().randint(45000, 47999))
-    r = subprocess.run([sys.executable, "-m", "controller", "demo", "--robot", "nspu", "--json", "--udp-port", port,
-                        "--max-duration", "120", *TOLERANT, *MISMATCH, *args],
-                       capture_output=True, text=True, timeout=400, check=False,
-                       env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "controller",
+            "demo",
+            "--robot",
+            "nspu",
+            "--json",
+            "--udp-port",
+            port,
+            "--max-duration",
+            "120",
+            *TOLERANT,
+            *MISMATCH,
+            *args,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=400,
+        check=False,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
     assert r.returncode == 0, r.stderr + r.stdout
     summary: dict[str, Any] = json.loads(r.stdout)
     assert summary["final_mode"] == "DONE", summary["fault_reason"]

@@ -80,16 +80,40 @@ def test_a_path_demo_records_each_frame_once_with_the_sdo_and_nmt_set_up(tmp_pat
     cfg = load_config()
     drives, sensor, me = tuple(cfg.actuators.node_ids), cfg.sensor.node_id, cfg.loop.controller_node_id
     nodes = (*drives, sensor)
-    controller_ids = {cob_ids.NMT, cob_ids.SYNC, cob_ids.heartbeat(me),
-                      *(cob_ids.rpdo1(i) for i in drives), *(cob_ids.sdo_request(i) for i in nodes)}
+    controller_ids = {
+        cob_ids.NMT,
+        cob_ids.SYNC,
+        cob_ids.heartbeat(me),
+        *(cob_ids.rpdo1(i) for i in drives),
+        *(cob_ids.sdo_request(i) for i in nodes),
+    }
     sdo_responses = {cob_ids.sdo_response(i) for i in nodes}
     port = random.SystemRandom().randint(45000, 47999)
     with Witness(port) as witness:
-        r = subprocess.run([sys.executable, "-m", "controller", "demo", "--task", "path", "--json", "--no-realtime",
-                            "--udp-port", str(port), "--set", "task.path.laps=0.25",
-                            "--set", f'recording.directory="{tmp_path}"', *TOLERANT],
-                           capture_output=True, text=True, timeout=300, check=False,
-                           env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        r = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "controller",
+                "demo",
+                "--task",
+                "path",
+                "--json",
+                "--no-realtime",
+                "--udp-port",
+                str(port),
+                "--set",
+                "task.path.laps=0.25",
+                "--set",
+                f'recording.directory="{tmp_path}"',
+                *TOLERANT,
+            ],
+            capture_output=True,
+            text=True,
+            timeout=300,
+            check=False,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )
     assert r.returncode == 0, r.stderr + r.stdout
     summary = json.loads(r.stdout)
     assert summary["recording"]["dropped"] == 0 and not summary["recording"]["error"]

@@ -53,8 +53,9 @@ def record_session(path: Path, overrides=SHORT, max_s: float = 10.0, frames: boo
     ex = LoopbackExchange(cfg, clock.clock)
     trace = Trace()
     sent: list[tuple[bool, float, int, bytes]] = []
-    with SessionRecorder(path, session_metadata(cfg), clock=clock.clock, phase_name=law.task.phase_name,
-                         **kw) as rec:
+    with SessionRecorder(
+        path, session_metadata(cfg), clock=clock.clock, phase_name=law.task.phase_name, **kw
+    ) as rec:
         out_msg = can.Message(arbitration_id=0x201, data=bytearray(8), is_extended_id=False)
 
         class Sink:  # rewrites one preallocated outgoing message, as drivers/cyclic_exchange.py does
@@ -68,8 +69,15 @@ def record_session(path: Path, overrides=SHORT, max_s: float = 10.0, frames: boo
                 rec.on_frame(False, clock.now_s + 1e-4, rx)
                 sent.append((False, clock.now_s + 1e-4, 0x181, bytes(rx.data)))
 
-        loop = CycleLoop(law, ex, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
-                         observers=(trace, rec, Sink()))
+        loop = CycleLoop(
+            law,
+            ex,
+            cfg.period_s,
+            cfg.loop.collect_fraction,
+            clock,
+            clock.clock,
+            observers=(trace, rec, Sink()),
+        )
         final, stats = loop.run(law.initial_state(), max_s)
     return cfg, final, stats, trace, sent, rec
 
@@ -88,8 +96,10 @@ def test_round_trip_counts_and_contents_match(tmp_path):
     n_events = sum(len(r[5]) for r in trace.rows)
     assert report.message_counts[m.TOPIC_EVENTS] == report.message_counts[m.TOPIC_LOG] == n_events == 5
     # every cycle's TCP is in /cycle; the viewers' /tcp follows the 3D scene's rate, exactly
-    tcp_times = [d.message.timestamp.seconds * 10**9 + d.message.timestamp.nanos
-                 for d in iter_decoded(path, [m.TOPIC_TCP])]
+    tcp_times = [
+        d.message.timestamp.seconds * 10**9 + d.message.timestamp.nanos
+        for d in iter_decoded(path, [m.TOPIC_TCP])
+    ]
     cycle_times = {d.log_time_ns: d.message for d in iter_decoded(path, [m.TOPIC_CYCLE])}
     assert set(tcp_times) <= set(cycle_times)
     gaps_s = [(b - a) * 1e-9 for a, b in itertools.pairwise(tcp_times)]
@@ -102,12 +112,17 @@ def test_round_trip_counts_and_contents_match(tmp_path):
         c = d.message
         assert (c.cycle, c.t_s) == (cycle, t)
         assert m.inputs_from_pb(c.inputs) == inputs  # exact doubles
-        assert tuple(c.outputs.targets) == outputs.targets and tuple(c.outputs.controlwords) == outputs.controlwords
+        assert (
+            tuple(c.outputs.targets) == outputs.targets
+            and tuple(c.outputs.controlwords) == outputs.controlwords
+        )
         assert c.state.mode == state.mode.name
         assert tuple(c.state.setpoint_velocity) == state.setpoint.velocity
     assert [d.sequence for d in cycles] == list(range(len(cycles)))
-    frames = [(f.message.outgoing, f.message.monotonic_s, f.message.arbitration_id, f.message.data)
-              for f in iter_decoded(path, [m.TOPIC_CAN])]
+    frames = [
+        (f.message.outgoing, f.message.monotonic_s, f.message.arbitration_id, f.message.data)
+        for f in iter_decoded(path, [m.TOPIC_CAN])
+    ]
     assert frames == sent  # the preallocated outgoing message was copied, not referenced
     events = [d.message for d in iter_decoded(path, [m.TOPIC_EVENTS])]
     assert [e.message for e in events] == [e.message for r in trace.rows for e in r[5]]
@@ -192,11 +207,17 @@ _RECORDING_CONTROLLER = textwrap.dedent("""
 def _start_recording_controller(path: Path) -> tuple[subprocess.Popen, int, ProcessLines]:
     """A controller recording in real time, once its file has grown past 60 kB; its writer's pid; its output."""
     # stderr is shared with the writer process (it inherits it): the tests read what both said
-    proc = subprocess.Popen([sys.executable, "-c", _RECORDING_CONTROLLER.format(repo=str(REPO), path=str(path))],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _RECORDING_CONTROLLER.format(repo=str(REPO), path=str(path))],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     lines = ProcessLines(proc)
     try:
-        writer_pid = int(lines.next_matching(lambda line: line.startswith("WRITER "), "the writer's pid").split()[1])
+        writer_pid = int(
+            lines.next_matching(lambda line: line.startswith("WRITER "), "the writer's pid").split()[1]
+        )
         lines.next_matching(lambda line: line.startswith("GROWN "), "the recording growing past 60 kB")
     except AssertionError:
         proc.kill()
@@ -213,7 +234,9 @@ def test_sigkill_of_the_controller_still_leaves_a_complete_file(tmp_path):
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     proc.stdout.close()
-    wait_for_exit(writer_pid, "the writer process ending after its controller")  # it sees the end of its input
+    wait_for_exit(
+        writer_pid, "the writer process ending after its controller"
+    )  # it sees the end of its input
     said = proc.stderr.read()  # the writer's end of the pipe is closed now: this returns
     proc.stderr.close()
     assert "Traceback" not in said and "BrokenPipeError" not in said, said  # its reply had no reader
@@ -228,8 +251,12 @@ def test_sigkill_of_the_writer_leaves_a_readable_file_and_recover_completes_it(t
     proc, writer_pid, lines = _start_recording_controller(path)
     try:
         os.kill(writer_pid, signal.SIGKILL)
-        lines.next_matching(lambda line: line.startswith("WRITER_GONE "), "the controller noticing its writer gone")
-        lines.next_matching(lambda line: line.startswith("STILL_CYCLING "), "100 more cycles without the writer")
+        lines.next_matching(
+            lambda line: line.startswith("WRITER_GONE "), "the controller noticing its writer gone"
+        )
+        lines.next_matching(
+            lambda line: line.startswith("STILL_CYCLING "), "100 more cycles without the writer"
+        )
         assert proc.poll() is None, "the controller must go on without its writer"
     finally:
         proc.kill()
@@ -288,7 +315,7 @@ def test_a_corrupted_chunk_is_skipped_and_the_rest_is_read(tmp_path, session_byt
     full = read_info_bytes(tmp_path, session_bytes)
     data = bytearray(session_bytes)
     mid = len(data) // 2
-    data[mid: mid + 64] = bytes(b ^ 0xA5 for b in data[mid: mid + 64])  # inside a chunk's compressed data
+    data[mid : mid + 64] = bytes(b ^ 0xA5 for b in data[mid : mid + 64])  # inside a chunk's compressed data
     path = tmp_path / "c.mcap"
     path.write_bytes(data)
     report = read_info(path)
@@ -305,13 +332,14 @@ def test_a_damaged_record_header_resumes_at_the_next_chunk(tmp_path, session_byt
     offsets = []
     pos = 8
     import struct
+
     while pos < len(data):
         op, length = struct.unpack_from("<BQ", data, pos)
         if op == 0x06 and pos > len(data) // 3:
             offsets.append(pos)
             break
         pos += 9 + length
-    data[offsets[0]: offsets[0] + 9] = b"\xff" * 9
+    data[offsets[0] : offsets[0] + 9] = b"\xff" * 9
     path = tmp_path / "h.mcap"
     path.write_bytes(data)
     report = read_info(path)
@@ -367,7 +395,7 @@ def test_logs_info_reads_a_finished_file_from_its_summary_alone(tmp_path, sessio
     assert json.loads(capsys.readouterr().out) == walked_unchecked
     data = bytearray(session_bytes)
     mid = len(data) // 2
-    data[mid: mid + 64] = bytes(b ^ 0xA5 for b in data[mid: mid + 64])
+    data[mid : mid + 64] = bytes(b ^ 0xA5 for b in data[mid : mid + 64])
     path.write_bytes(data)
     assert main(["logs", "info", str(path)]) == 0  # the summary is intact: nothing is read to doubt it
     # ... and it does not call the file sound: it says its chunks were not checked
@@ -424,10 +452,11 @@ def test_a_large_buffer_queues_every_cycle_and_frame(tmp_path):
             per_call.append(time.perf_counter_ns() - t0)
     per_call.sort()
     median_us = per_call[len(per_call) // 2] / 1000
-    print(f"recorder on_cycle + on_frame: median {median_us:.1f} us, p99 "
-          f"{per_call[int(0.99 * len(per_call))] / 1000:.1f} us over {len(per_call)} calls")
+    print(
+        f"recorder on_cycle + on_frame: median {median_us:.1f} us, p99 "
+        f"{per_call[int(0.99 * len(per_call))] / 1000:.1f} us over {len(per_call)} calls"
+    )
     assert rec.dropped == 0 and rec.queued == len(per_call) * 2  # a cycle and a frame per call
-
 
 
 def test_a_recording_that_cannot_be_created_is_one_clear_error_before_the_run(tmp_path):
@@ -435,7 +464,9 @@ def test_a_recording_that_cannot_be_created_is_one_clear_error_before_the_run(tm
 
     path = tmp_path / "no-such-dir" / "s.mcap"
     rec = SessionRecorder(path, session_metadata(load_config()))
-    with pytest.raises(RecordingError, match=r"cannot create the recording .*no-such-dir/s\.mcap: No such file"):
+    with pytest.raises(
+        RecordingError, match=r"cannot create the recording .*no-such-dir/s\.mcap: No such file"
+    ):
         rec.start()
     assert rec._proc is None  # the writer process is gone
 
@@ -522,20 +553,49 @@ def test_a_killed_writer_ends_the_run_by_the_recording_policy(tmp_path, policy):
     from drivers.bus import parse_bus_spec
 
     spec = parse_bus_spec("udp_multicast", udp_port=random.SystemRandom().randint(48000, 49999))
-    sets = ["--set", "task.path.laps=3", "--set", f'recording.directory="{tmp_path}"', "--set",
-            "monitoring.enabled=false", "--set", f'recording.on_failure="{policy}"', *TOLERANT,
-            "--set", "loop.max_missing_cycles=100", "--set", "safety.sensor_stale_cycles=100"]
-    with simulator_process(spec, None, ["task.path.laps=3"]), \
-            can.Bus(interface="udp_multicast", channel=spec.channel, port=spec.udp_port) as bus:
-        proc = subprocess.Popen([sys.executable, "-m", "controller", "run", "--json", "--no-realtime",
-                                 "--udp-port", str(spec.udp_port), *sets],
-                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    sets = [
+        "--set",
+        "task.path.laps=3",
+        "--set",
+        f'recording.directory="{tmp_path}"',
+        "--set",
+        "monitoring.enabled=false",
+        "--set",
+        f'recording.on_failure="{policy}"',
+        *TOLERANT,
+        "--set",
+        "loop.max_missing_cycles=100",
+        "--set",
+        "safety.sensor_stale_cycles=100",
+    ]
+    with (
+        simulator_process(spec, None, ["task.path.laps=3"]),
+        can.Bus(interface="udp_multicast", channel=spec.channel, port=spec.udp_port) as bus,
+    ):
+        proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "controller",
+                "run",
+                "--json",
+                "--no-realtime",
+                "--udp-port",
+                str(spec.udp_port),
+                *sets,
+            ],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
         lines = ProcessLines(proc)
         try:
             writer = wait_until(lambda: _writer_of(proc.pid), "the recording's writer process")
             _drive_1_position_changes(bus, proc)
             os.kill(writer, signal.SIGKILL)
-            lines.next_matching(lambda line: "recording lost" in line and policy in line, "the policy's warning")
+            lines.next_matching(
+                lambda line: "recording lost" in line and policy in line, "the policy's warning"
+            )
             if policy == "warn":
                 _drive_1_position_changes(bus, proc)  # still driving, unrecorded
                 proc.send_signal(signal.SIGTERM)

@@ -31,8 +31,14 @@ def split_session(tmp_path: Path, overrides=QUARTER_LAP, max_s: float = 10.0, du
     """A simulated session split by ``recording.max_file_duration_s``; its files in session order."""
     tmp_path.mkdir(parents=True, exist_ok=True)
     first = tmp_path / "cheope-20260101-000000.mcap"
-    _, _, stats, trace, _, rec = record_session(first, overrides, max_s=max_s, frames=False, chunk_size_bytes=8192,
-                                                limits=FileLimits(max_file_duration_s=duration_s))
+    _, _, stats, trace, _, rec = record_session(
+        first,
+        overrides,
+        max_s=max_s,
+        frames=False,
+        chunk_size_bytes=8192,
+        limits=FileLimits(max_file_duration_s=duration_s),
+    )
     assert rec.error == "" and rec.dropped == 0
     return rec.files, stats, trace
 
@@ -53,7 +59,9 @@ def test_a_session_split_in_files_verifies_file_by_file_and_as_a_whole(tmp_path,
     whole = verify(shuffled)
     assert whole.ok and whole.cycles_checked == stats.cycles and whole.files == files, whole.summary()
     assert main(["replay", *map(str, shuffled), "--verify"]) == 0
-    assert capsys.readouterr().out.startswith(f"OK: {stats.cycles} cycle(s) reproduced bit for bit in {len(files)} files")
+    assert capsys.readouterr().out.startswith(
+        f"OK: {stats.cycles} cycle(s) reproduced bit for bit in {len(files)} files"
+    )
 
 
 def test_the_files_of_a_session_are_linked_and_each_carries_what_a_reader_needs(tmp_path):
@@ -69,7 +77,9 @@ def test_the_files_of_a_session_are_linked_and_each_carries_what_a_reader_needs(
         assert info.complete and not info.problems
         assert (info.message_counts[m.TOPIC_KEYFRAME] == 1) == (f != files[0])
     assert [read_info(f).metadata[m.META_RECORDING].get("next", "") for f in files] == [
-        *(f.name for f in files[1:]), ""]
+        *(f.name for f in files[1:]),
+        "",
+    ]
 
 
 def test_logs_list_shows_the_session_and_its_files(tmp_path, capsys):
@@ -81,7 +91,7 @@ def test_logs_list_shows_the_session_and_its_files(tmp_path, capsys):
     assert main(["logs", "list", str(tmp_path)]) == 0
     out = capsys.readouterr().out.splitlines()
     assert out[1].startswith("session ") and f"{len(files)} file(s)" in out[1]
-    assert [line.split()[1] for line in out[2:2 + len(files)]] == [f.name for f in files]
+    assert [line.split()[1] for line in out[2 : 2 + len(files)]] == [f.name for f in files]
     assert out[-1].startswith("not a recording: notes.mcap")
     assert main(["logs", "list", "--json", str(tmp_path)]) == 0
     assert json.loads(capsys.readouterr().out)["sessions"][0]["missing_sequences"] == []
@@ -99,11 +109,16 @@ def test_a_truncated_file_of_a_session_says_how_much_was_verified_and_exits_non_
     assert not alone.ok and alone.divergence is None and 0 < alone.cycles_checked
     assert main(["replay", str(middle), "--verify"]) == 3
     out = capsys.readouterr().out
-    assert out.startswith(f"PARTLY VERIFIED: the {alone.cycles_checked} readable cycle(s)") and "truncated" in out
+    assert (
+        out.startswith(f"PARTLY VERIFIED: the {alone.cycles_checked} readable cycle(s)")
+        and "truncated" in out
+    )
     # the whole session: up to the cut, then again from the next file's keyframe
     whole = verify(files)
     assert not whole.ok and whole.divergence is None
-    assert stats.cycles - whole.cycles_checked == stats.cycles - whole.cycles_recorded > 0  # the cut-off cycles
+    assert (
+        stats.cycles - whole.cycles_checked == stats.cycles - whole.cycles_recorded > 0
+    )  # the cut-off cycles
     assert files[2].name in " ".join(whole.resumed)
     assert main(["replay", *map(str, files), "--verify"]) == 3
 
@@ -135,8 +150,9 @@ def _copy_with_keyframe(src: Path, dst: Path, state: bytes) -> None:
         for ch, msg in iter_messages(src, r):
             if ch.id not in ids:
                 sc = r.schemas[ch.schema_id]
-                ids[ch.id] = w.register_channel(ch.topic, ch.message_encoding,
-                                                w.register_schema(sc.name, sc.encoding, sc.data))
+                ids[ch.id] = w.register_channel(
+                    ch.topic, ch.message_encoding, w.register_schema(sc.name, sc.encoding, sc.data)
+                )
             data = msg.data
             if ch.topic == m.TOPIC_KEYFRAME:
                 kf = pb.Keyframe.FromString(data)
@@ -156,7 +172,9 @@ def test_a_keyframe_that_disagrees_with_the_replayed_state_is_a_divergence(tmp_p
     state = decode_state(kf.state)
     assert encode_state(state) == kf.state  # the codec is exact: a state comes back as it was
     forged = tmp_path / files[1].name
-    _copy_with_keyframe(files[1], forged, encode_state(dataclasses.replace(state, late_streak=state.late_streak + 1)))
+    _copy_with_keyframe(
+        files[1], forged, encode_state(dataclasses.replace(state, late_streak=state.late_streak + 1))
+    )
     whole = verify([files[0], forged])
     assert whole.divergence is not None and whole.divergence.field == f"the keyframe of {forged.name}"
     assert whole.cycles_checked == verify(files[0]).cycles_checked and not whole.ok
@@ -168,10 +186,22 @@ def test_the_writer_asks_for_a_keyframe_past_the_size_limit_and_rotates_on_it(tm
     cfg = load_config()
     asked: list[dict] = []
     first = tmp_path / "cheope-20260101-000000.mcap"
-    w = SessionWriter({"path": str(first), "metadata": session_metadata(cfg), "clock_offset_ns": 0,
-                       "chunk_size_bytes": 1024, "flush_interval_s": 0.5, "compression": "zstd",
-                       "session_id": "s" * 32, "max_file_bytes": 8000}, lambda **f: asked.append(f))
-    body = m.cycle_to_pb(0, 0.0, trace.rows[0][2], trace.rows[0][3], trace.rows[0][4], _Timing()).SerializeToString()
+    w = SessionWriter(
+        {
+            "path": str(first),
+            "metadata": session_metadata(cfg),
+            "clock_offset_ns": 0,
+            "chunk_size_bytes": 1024,
+            "flush_interval_s": 0.5,
+            "compression": "zstd",
+            "session_id": "s" * 32,
+            "max_file_bytes": 8000,
+        },
+        lambda **f: asked.append(f),
+    )
+    body = m.cycle_to_pb(
+        0, 0.0, trace.rows[0][2], trace.rows[0][3], trace.rows[0][4], _Timing()
+    ).SerializeToString()
     k = 0
     while not asked:
         w.write((CYCLE, 0, [], k, k * 0.0025, k * 0.0025, k, body, (), None, None))
@@ -179,7 +209,9 @@ def test_the_writer_asks_for_a_keyframe_past_the_size_limit_and_rotates_on_it(tm
         assert k < 1000, "the writer never asked for a keyframe"
     assert asked == [{"keyframe": 2}] and w.files == [str(first)]
     w.write((CYCLE, 0, [], k, k * 0.0025, k * 0.0025, k, body, (), None, None))  # the file goes on meanwhile
-    w.write((KEYFRAME, 0, k, k * 0.0025, k * 0.0025, k, "cheope-state-json-1", encode_state(trace.rows[0][3]), ""))
+    w.write(
+        (KEYFRAME, 0, k, k * 0.0025, k * 0.0025, k, "cheope-state-json-1", encode_state(trace.rows[0][3]), "")
+    )
     assert asked[-1] == {"file": str(tmp_path / "cheope-20260101-000000.002.mcap")} and len(w.files) == 2
     w.finish(k + 1, 0)
     assert read_info(first).complete and read_info(w.files[1]).complete
@@ -206,15 +238,18 @@ def test_retention_deletes_the_oldest_recordings_first_never_an_open_or_a_foreig
     open_file = tmp_path / names[0]  # ours, open: the oldest, still kept
     deleted = enforce_retention(str(tmp_path), 3000, {str(open_file)}, now=now)
     assert [Path(p).name for p, _ in deleted] == names[1:4]
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([names[0], names[4], foreign.name, recent.name])
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        [names[0], names[4], foreign.name, recent.name]
+    )
 
 
 def test_below_the_free_space_limit_the_recording_stops_cleanly_and_says_why(tmp_path):
     path = tmp_path / "s.mcap"
     failures: list[str] = []
     # more free space required than any disk has: the guard trips at the first chunk
-    _, _, _, _, _, rec = record_session(path, chunk_size_bytes=1024, on_failure=failures.append,
-                                            limits=FileLimits(min_free_bytes=1 << 62))
+    _, _, _, _, _, rec = record_session(
+        path, chunk_size_bytes=1024, on_failure=failures.append, limits=FileLimits(min_free_bytes=1 << 62)
+    )
     assert "below recording.min_free_space_mb" in rec.error
     assert rec.written == read_info(path).messages > 0  # the writer's last answer reached the recorder
     assert failures in ([], [rec.error])  # called when the loop wrote after the writer stopped
@@ -227,10 +262,12 @@ def test_below_the_free_space_limit_the_recording_stops_cleanly_and_says_why(tmp
 
 def test_a_recovered_files_gap_is_named_as_lost_with_the_damaged_original(tmp_path):
     path = tmp_path / "s.mcap"
-    record_session(path, QUARTER_LAP, frames=False, chunk_size_bytes=4096)  # many chunks: one damaged mid-file
+    record_session(
+        path, QUARTER_LAP, frames=False, chunk_size_bytes=4096
+    )  # many chunks: one damaged mid-file
     data = bytearray(path.read_bytes())
     mid = len(data) // 2
-    data[mid: mid + 64] = bytes(b ^ 0xA5 for b in data[mid: mid + 64])
+    data[mid : mid + 64] = bytes(b ^ 0xA5 for b in data[mid : mid + 64])
     damaged = tmp_path / "damaged.mcap"
     damaged.write_bytes(data)
     out = recover(damaged).output
@@ -241,7 +278,9 @@ def test_a_recovered_files_gap_is_named_as_lost_with_the_damaged_original(tmp_pa
 
 
 def test_rotation_settings_are_validated_with_the_key_and_the_value():
-    with pytest.raises(ConfigError, match=r"recording.max_file_size_mb = 0.1: must be 0 \(no limit\) or at least"):
+    with pytest.raises(
+        ConfigError, match=r"recording.max_file_size_mb = 0.1: must be 0 \(no limit\) or at least"
+    ):
         load_config(overrides={"recording.max_file_size_mb": 0.1})
     with pytest.raises(ConfigError, match="recording.max_file_duration_s = 0.5"):
         load_config(overrides={"recording.max_file_duration_s": 0.5})
@@ -251,7 +290,11 @@ def test_rotation_settings_are_validated_with_the_key_and_the_value():
         load_config(overrides={"recording.min_free_space_mb": -1.0})
     r = load_config().recording
     assert (r.max_file_size_mb, r.max_file_duration_s, r.keep_total_size_gb, r.min_free_space_mb) == (
-        256.0, 3600.0, 20.0, 1024.0)
+        256.0,
+        3600.0,
+        20.0,
+        1024.0,
+    )
 
 
 def test_an_older_file_with_a_message_per_frame_reads_as_the_packed_format_does(tmp_path):
@@ -261,7 +304,9 @@ def test_an_older_file_with_a_message_per_frame_reads_as_the_packed_format_does(
     from tools.bench_recording_size import main as rewrite
 
     old = Path(__file__).resolve().parents[1] / "data" / "frames_one_message_each.mcap"
-    assert read_info(old).schemas and any(s.name == "cheope.v1.CanFrame" for s in read_info(old).schemas.values())
+    assert read_info(old).schemas and any(
+        s.name == "cheope.v1.CanFrame" for s in read_info(old).schemas.values()
+    )
     assert verify(old).ok
     new = tmp_path / "packed.mcap"
     rewrite(old, new)
@@ -269,11 +314,15 @@ def test_an_older_file_with_a_message_per_frame_reads_as_the_packed_format_does(
     offset = int(read_info(old).metadata[m.META_SESSION]["clock_offset_ns"])
 
     def content(path):
-        return [(d.topic, d.log_time_ns, d.message.SerializeToString())
-                for d in iter_decoded(path, [m.TOPIC_CAN, m.TOPIC_CYCLE])]
+        return [
+            (d.topic, d.log_time_ns, d.message.SerializeToString())
+            for d in iter_decoded(path, [m.TOPIC_CAN, m.TOPIC_CYCLE])
+        ]
 
     frames = [d for d in iter_decoded(old, [m.TOPIC_CAN])]
-    assert len(frames) == 206 and all(d.log_time_ns == int(d.message.monotonic_s * 1e9) + offset for d in frames)
+    assert len(frames) == 206 and all(
+        d.log_time_ns == int(d.message.monotonic_s * 1e9) + offset for d in frames
+    )
     assert content(new) == content(old)
     assert read_info(new).size_bytes < read_info(old).size_bytes
 

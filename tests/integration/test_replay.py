@@ -58,8 +58,9 @@ def test_a_changed_gain_is_reported_at_the_first_divergence(tmp_path, capsys):
 def test_verify_stops_at_a_recorder_drop(tmp_path):
     path = tmp_path / "s.mcap"
     _, _, _, trace, _, _ = record_session(tmp_path / "ref.mcap", max_s=0.5, frames=False)
-    rec = SessionRecorder(path, session_metadata(load_config(overrides={"task.path.laps": 0.1,
-                                                                        "task.path.ramp_s": 0.1})))
+    rec = SessionRecorder(
+        path, session_metadata(load_config(overrides={"task.path.laps": 0.1, "task.path.ramp_s": 0.1}))
+    )
     with rec:
         for k, row in enumerate(trace.rows):
             if k == 50:
@@ -90,7 +91,10 @@ def test_verify_of_a_truncated_file_checks_what_is_there_and_exits_non_zero(tmp_
     assert any(p.startswith("truncated") for p in result.problems)
     assert main(["replay", str(path), "--verify"]) == 3
     out = capsys.readouterr().out
-    assert out.startswith(f"PARTLY VERIFIED: the {result.cycles_checked} readable cycle(s) (cycles 0..") and "truncated" in out
+    assert (
+        out.startswith(f"PARTLY VERIFIED: the {result.cycles_checked} readable cycle(s) (cycles 0..")
+        and "truncated" in out
+    )
 
 
 _RECEIVER = textwrap.dedent("""
@@ -119,8 +123,9 @@ def test_replay_onto_a_bus_is_received_by_another_process_with_the_timing(tmp_pa
     # the recording: per cycle one outgoing 0x201 and one incoming 0x181 frame, each sent once
     expected = [(arb, data.hex()) for _, _, arb, data in sent]
     port = random.randint(20000, 60000)
-    proc = subprocess.Popen([sys.executable, "-c", _RECEIVER.format(repo=str(REPO), port=port)],
-                            stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _RECEIVER.format(repo=str(REPO), port=port)], stdout=subprocess.PIPE, text=True
+    )
     try:
         assert proc.stdout.readline().strip() == "ready"
         result = replay_to_bus(path, parse_bus_spec("udp_multicast", udp_port=port), speed=2.0)

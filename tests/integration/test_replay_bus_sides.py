@@ -52,23 +52,46 @@ class Listener:
 
 
 def _replay(path: Path, port: int, *extra: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "controller", "replay", str(path), "--bus", "udp_multicast",
-                           "--udp-port", str(port), "--speed", "4", *extra],
-                          capture_output=True, text=True, check=False, timeout=120)
+    return subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "controller",
+            "replay",
+            str(path),
+            "--bus",
+            "udp_multicast",
+            "--udp-port",
+            str(port),
+            "--speed",
+            "4",
+            *extra,
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=120,
+    )
 
 
 @pytest.mark.parametrize("only", [None, "sent", "received"])
 def test_every_frame_of_the_side_replayed_arrives_once_in_order(tmp_path: Path, only: str | None):
     path = tmp_path / "traffic.mcap"
     recorded = record_traffic(path)
-    want = [(m.arbitration_id, bytes(m.data)) for _, outgoing, m in recorded
-            if only is None or outgoing == (only == "sent")]
+    want = [
+        (m.arbitration_id, bytes(m.data))
+        for _, outgoing, m in recorded
+        if only is None or outgoing == (only == "sent")
+    ]
     port = random_udp_port()
     listener = Listener(port)
     try:
         r = _replay(path, port, *(("--only", only) if only else ()))
-        assert r.returncode == 0 and r.stdout.startswith(f"sent {len(want)} frames") and "0 send errors" in r.stdout, \
-            r.stdout + r.stderr
+        assert (
+            r.returncode == 0
+            and r.stdout.startswith(f"sent {len(want)} frames")
+            and "0 send errors" in r.stdout
+        ), r.stdout + r.stderr
         wait_until(lambda: len(listener.frames) >= len(want), f"{len(want)} replayed frames at the listener")
     finally:
         listener.close()

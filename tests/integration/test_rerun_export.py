@@ -10,14 +10,24 @@ from logs.rerun_export import export
 DATA = Path(__file__).resolve().parents[1] / "data"
 
 # Cheope as solid primitives (logs/robot_drawing.py -> logs/rerun_scene.py): entity -> archetype
-CHEOPE_SOLIDS = {"/world/base/cylinders": "Cylinders3D", "/world/guides/capsules": "Capsules3D",
-                 "/world/sliders/boxes": "Boxes3D", "/world/rods/capsules": "Capsules3D",
-                 "/world/platform/cylinders": "Cylinders3D", "/world/platform/spheres": "Ellipsoids3D",
-                 "/world/tool/cylinders": "Cylinders3D"}
+CHEOPE_SOLIDS = {
+    "/world/base/cylinders": "Cylinders3D",
+    "/world/guides/capsules": "Capsules3D",
+    "/world/sliders/boxes": "Boxes3D",
+    "/world/rods/capsules": "Capsules3D",
+    "/world/platform/cylinders": "Cylinders3D",
+    "/world/platform/spheres": "Ellipsoids3D",
+    "/world/tool/cylinders": "Cylinders3D",
+}
 ROBOT = set(CHEOPE_SOLIDS) | {"/world/tcp", "/world/tcp_trail", "/world/force"}
 PLOTS = {f"/plots/actuators/{k}_{j}" for k in ("target", "position") for j in (1, 2, 3)} | {
-    "/plots/force/fx", "/plots/force/fy", "/plots/force/fz", "/plots/loop/period_ms", "/plots/loop/wake_error_us",
-    "/plots/loop/step_us"}
+    "/plots/force/fx",
+    "/plots/force/fy",
+    "/plots/force/fz",
+    "/plots/loop/period_ms",
+    "/plots/loop/wake_error_us",
+    "/plots/loop/step_us",
+}
 
 
 def _entities(rrd: Path) -> set[str]:
@@ -57,8 +67,9 @@ def test_the_robot_is_drawn_with_solid_primitives_and_the_blueprint_has_a_3d_vie
     arch = _archetypes(out)
     for entity, archetype in CHEOPE_SOLIDS.items():
         assert archetype in arch.get(entity, set()), (entity, arch.get(entity))
-    assert not any("LineStrips3D" in arch.get(e, set()) for e in ("/world/rods", "/world/rods/capsules")), \
+    assert not any("LineStrips3D" in arch.get(e, set()) for e in ("/world/rods", "/world/rods/capsules")), (
         "the rods are still drawn as lines"
+    )
     views = _blueprint_views(out)
     assert views.count("3D") == 1 and "TextLog" in views and views.count("TimeSeries") >= 3, views
 
@@ -79,11 +90,16 @@ def test_the_contour_session_adds_the_workpiece_and_the_normal_force_error(tmp_p
     out = tmp_path / "contour.rrd"
     export(DATA / "contour_contact.mcap", out)
     entities = _entities(out)
-    assert {"/world/workpiece/disk/cylinders", "/world/workpiece/expected_contour/lines",
-            "/plots/normal_force_error"} <= entities
+    assert {
+        "/world/workpiece/disk/cylinders",
+        "/world/workpiece/expected_contour/lines",
+        "/plots/normal_force_error",
+    } <= entities
 
 
-def test_without_a_display_the_viewer_is_not_spawned_and_the_file_is_written_beside(tmp_path, monkeypatch, capsys):
+def test_without_a_display_the_viewer_is_not_spawned_and_the_file_is_written_beside(
+    tmp_path, monkeypatch, capsys
+):
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     src = tmp_path / "s.mcap"

@@ -51,11 +51,21 @@ class Trace:
     states: list[ControllerState] = field(default_factory=list)
     outputs: list[CycleOutputs] = field(default_factory=list)
     events: list[Event] = field(default_factory=list)
-    true_positions: list[tuple[float, ...]] = field(default_factory=list)  # what each drive's own TPDO carried
+    true_positions: list[tuple[float, ...]] = field(
+        default_factory=list
+    )  # what each drive's own TPDO carried
     powers: list[tuple[PowerState, ...]] = field(default_factory=list)
 
-    def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState, outputs: CycleOutputs,
-                 events: tuple[Event, ...], timing: CycleTiming) -> None:
+    def on_cycle(
+        self,
+        cycle: int,
+        t: float,
+        inputs: CycleInputs,
+        state: ControllerState,
+        outputs: CycleOutputs,
+        events: tuple[Event, ...],
+        timing: CycleTiming,
+    ) -> None:
         drives = self.exchange.drives
         self.t.append(t)
         self.inputs.append(inputs)
@@ -67,7 +77,9 @@ class Trace:
         self.powers.append(tuple(d.power for d in drives))
 
 
-def run(faults: list[str], abort_option: int | None = None, max_s: float = 3.0) -> tuple[ControllerState, Trace]:
+def run(
+    faults: list[str], abort_option: int | None = None, max_s: float = 3.0
+) -> tuple[ControllerState, Trace]:
     cfg = load_config(overrides={"sim.faults": faults, "task.path.laps": 0.5})
     clock = SimulatedTime()
     law = build_law(cfg)
@@ -76,8 +88,9 @@ def run(faults: list[str], abort_option: int | None = None, max_s: float = 3.0) 
         for d in ex.drives:
             d.abort_connection_option = abort_option
     trace = Trace(ex)
-    final, _ = CycleLoop(law, ex, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
-                         observers=(trace,)).run(law.initial_state(), max_s)
+    final, _ = CycleLoop(
+        law, ex, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(trace,)
+    ).run(law.initial_state(), max_s)
     return final, trace
 
 
@@ -86,10 +99,16 @@ def assert_drive_2_never_measured_off(trace: Trace) -> None:
     for k, (inputs, true) in enumerate(zip(trace.inputs, trace.true_positions)):
         d = inputs.drives[DRIVE_2]
         if d.fresh:
-            assert d.position == pytest.approx(true[DRIVE_2], abs=1e-6), (trace.t[k], d.position, true[DRIVE_2])
+            assert d.position == pytest.approx(true[DRIVE_2], abs=1e-6), (
+                trace.t[k],
+                d.position,
+                true[DRIVE_2],
+            )
     used = {i.drives[DRIVE_2].position for i in trace.inputs if i.drives[DRIVE_2].fresh}
     for k, state in enumerate(trace.states):
-        if state.mode == Mode.FAULT:  # held where the drive was measured and trusted, never where the rogue said
+        if (
+            state.mode == Mode.FAULT
+        ):  # held where the drive was measured and trusted, never where the rogue said
             assert state.setpoint.position[DRIVE_2] in used, trace.t[k]
 
 
@@ -99,8 +118,10 @@ def test_a_rogue_drive_tpdo_before_the_real_one_is_never_used(offset_m, what):
     candidates in one window; neither is used, and the fault names the node and the COB-ID."""
     final, trace = run([f"rogue_tpdo:2={offset_m}@{ROGUE_AT_S}"])
     assert final.mode == Mode.FAULT
-    assert final.fault_reason == "1 TPDO(s) twice in one cycle (a second sender; neither is used) from node 2 " \
-                                 "(COB-ID 0x182)"
+    assert (
+        final.fault_reason == "1 TPDO(s) twice in one cycle (a second sender; neither is used) from node 2 "
+        "(COB-ID 0x182)"
+    )
     first_rogue = next(k for k, t in enumerate(trace.t) if t >= ROGUE_AT_S)
     assert not trace.inputs[first_rogue].drives[DRIVE_2].fresh  # the cycle of the race: unusable
     assert trace.states[first_rogue].mode == Mode.FAULT
@@ -111,14 +132,16 @@ def test_a_lone_rogue_drive_tpdo_with_the_duplicates_warned_is_still_never_used(
     """With safety.on_duplicate_frames = warn, the rogue goes on for cycles: every one of them
     unusable, so the drive is as silent and loop.max_missing_cycles faults, naming it."""
     cfg_faults = [f"rogue_tpdo:2=0.0025@{ROGUE_AT_S}"]
-    cfg = load_config(overrides={"sim.faults": cfg_faults, "task.path.laps": 0.5,
-                                 "safety.on_duplicate_frames": "warn"})
+    cfg = load_config(
+        overrides={"sim.faults": cfg_faults, "task.path.laps": 0.5, "safety.on_duplicate_frames": "warn"}
+    )
     clock = SimulatedTime()
     law = build_law(cfg)
     ex = LoopbackExchange(cfg, clock.clock)
     trace = Trace(ex)
-    final, _ = CycleLoop(law, ex, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
-                         observers=(trace,)).run(law.initial_state(), 3.0)
+    final, _ = CycleLoop(
+        law, ex, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(trace,)
+    ).run(law.initial_state(), 3.0)
     assert final.fault_reason == f"drive 2: no TPDO for {cfg.loop.max_missing_cycles} cycles"
     starts = [e for e in trace.events if e.message.startswith("burst starts") and "from node 2" in e.message]
     assert len(starts) == 1  # one event when the burst starts, not one per frame
@@ -143,7 +166,9 @@ def test_a_spoofed_sensor_frame_before_the_real_one_is_never_used():
     assert final.mode == Mode.FAULT
     assert "from node 16 (COB-ID 0x190)" in final.fault_reason
     fresh_forces = [i.sensor.force_n[0] for i in trace.inputs if i.sensor is not None and i.sensor.fresh]
-    assert fresh_forces and max(abs(f) for f in fresh_forces) < 5.0  # the path task touches nothing; 30 N never
+    assert (
+        fresh_forces and max(abs(f) for f in fresh_forces) < 5.0
+    )  # the path task touches nothing; 30 N never
 
 
 def test_a_wrong_length_tpdo_before_the_real_one_is_never_used_and_named():
@@ -162,18 +187,24 @@ def test_a_short_emcy_is_rejected_and_reported_per_burst_with_its_count():
     assert final.mode == Mode.DONE, final.fault_reason
     assert all(i.emcy == () for i in trace.inputs)
     burst = [e.message for e in trace.events if "(COB-ID 0x082)" in e.message]
-    assert burst == ["burst starts: 1 frame(s) of the wrong length (rejected) from node 2 (COB-ID 0x082)",
-                     "burst ended: 20 frame(s) of the wrong length (rejected) from node 2 (COB-ID 0x082) in 20 cycle(s)"]
+    assert burst == [
+        "burst starts: 1 frame(s) of the wrong length (rejected) from node 2 (COB-ID 0x082)",
+        "burst ended: 20 frame(s) of the wrong length (rejected) from node 2 (COB-ID 0x082) in 20 cycle(s)",
+    ]
 
 
-@pytest.mark.parametrize(("fault", "command"), [
-    ("nmt_preop", "enter PRE-OPERATIONAL"), ("nmt_stop", "stop"), ("nmt_reset", "reset node")])
+@pytest.mark.parametrize(
+    ("fault", "command"),
+    [("nmt_preop", "enter PRE-OPERATIONAL"), ("nmt_stop", "stop"), ("nmt_reset", "reset node")],
+)
 def test_a_foreign_nmt_command_to_one_drive_stops_every_drive_within_100_ms(fault, command):
     """Another master's NMT to drive 2, which then processes no RPDO: every drive out of OPERATION
     ENABLED within 100 ms (simulated time, the devices' own state), the command and node named."""
     final, trace = run([f"{fault}:2@{ROGUE_AT_S}+0.0025"])
     assert final.fault_reason == f"NMT {command} to node 2 from another master"
-    enabled_until = max(t for t, powers in zip(trace.t, trace.powers) if PowerState.OPERATION_ENABLED in powers)
+    enabled_until = max(
+        t for t, powers in zip(trace.t, trace.powers) if PowerState.OPERATION_ENABLED in powers
+    )
     assert ROGUE_AT_S <= enabled_until < ROGUE_AT_S + 0.1
 
 
@@ -210,8 +241,9 @@ def test_a_rogue_sender_on_udp_multicast_never_steers_the_controller(tmp_path):
     sent = [0]
 
     def rogue() -> None:
-        with can.Bus(interface="udp_multicast", channel="ff11:7079:7468:6f6e:6465:6d6f:6d63:6173",
-                     port=port) as bus:
+        with can.Bus(
+            interface="udp_multicast", channel="ff11:7079:7468:6f6e:6465:6d6f:6d63:6173", port=port
+        ) as bus:
             last: bytes | None = None
             start_counts: int | None = None
             while not stop.is_set():
@@ -231,10 +263,30 @@ def test_a_rogue_sender_on_udp_multicast_never_steers_the_controller(tmp_path):
     thread = threading.Thread(target=rogue, daemon=True)
     thread.start()
     try:
-        r = subprocess.run([sys.executable, "-m", "controller", "demo", "--task", "path", "--json",
-                            "--udp-port", str(port), "--set", "task.path.laps=1",
-                            "--set", f'recording.directory="{tmp_path}"', "--set", "monitoring.enabled=false",
-                            *TOLERANT], capture_output=True, text=True, timeout=300, check=False)
+        r = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "controller",
+                "demo",
+                "--task",
+                "path",
+                "--json",
+                "--udp-port",
+                str(port),
+                "--set",
+                "task.path.laps=1",
+                "--set",
+                f'recording.directory="{tmp_path}"',
+                "--set",
+                "monitoring.enabled=false",
+                *TOLERANT,
+            ],
+            capture_output=True,
+            text=True,
+            timeout=300,
+            check=False,
+        )
     finally:
         stop.set()
         thread.join(timeout=5)
@@ -255,8 +307,11 @@ def test_a_long_burst_is_reported_while_it_goes_on_not_once_per_run_nor_per_fram
     assert final.mode == Mode.DONE, final.fault_reason
     burst = [e.message for e in trace.events if "(COB-ID 0x082)" in e.message]
     what = "frame(s) of the wrong length (rejected) from node 2 (COB-ID 0x082)"
-    assert burst == [f"burst starts: 1 {what}", f"burst goes on: 401 {what} in 401 cycle(s) so far",
-                     f"burst ended: 480 {what} in 480 cycle(s)"]
+    assert burst == [
+        f"burst starts: 1 {what}",
+        f"burst goes on: 401 {what} in 401 cycle(s) so far",
+        f"burst ended: 480 {what} in 480 cycle(s)",
+    ]
 
 
 @pytest.mark.integration
@@ -268,13 +323,37 @@ def test_another_master_s_nmt_pre_operational_leaves_no_drive_enabled_over_udp_m
     port = random.SystemRandom().randint(48000, 49999)
     spec = parse_bus_spec("udp_multicast", udp_port=port)
     ids = tuple(load_config().actuators.node_ids)
-    sets = ["--set", "task.path.laps=3", "--set", f'recording.directory="{tmp_path}"', "--set", "monitoring.enabled=false",
-            "--set", "loop.stay_in_fault=true", *TOLERANT]
-    with simulator_process(spec, None, ["task.path.laps=3"]), \
-            can.Bus(interface="udp_multicast", channel=spec.channel, port=port) as bus:
-        ctrl = subprocess.Popen([sys.executable, "-m", "controller", "run", "--json", "--no-realtime",
-                                 "--udp-port", str(port), *sets],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    sets = [
+        "--set",
+        "task.path.laps=3",
+        "--set",
+        f'recording.directory="{tmp_path}"',
+        "--set",
+        "monitoring.enabled=false",
+        "--set",
+        "loop.stay_in_fault=true",
+        *TOLERANT,
+    ]
+    with (
+        simulator_process(spec, None, ["task.path.laps=3"]),
+        can.Bus(interface="udp_multicast", channel=spec.channel, port=port) as bus,
+    ):
+        ctrl = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "controller",
+                "run",
+                "--json",
+                "--no-realtime",
+                "--udp-port",
+                str(port),
+                *sets,
+            ],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         try:
             _wait_until_drive_1_moves_under_the_controller(bus, ctrl)
             bus.send(can.Message(arbitration_id=0x000, data=bytes((0x80, 2)), is_extended_id=False))
@@ -296,8 +375,11 @@ def test_another_master_s_nmt_pre_operational_leaves_no_drive_enabled_over_udp_m
                         return False
                     return PowerState.OPERATION_ENABLED not in states
 
-                wait_until(none_enabled, "every drive out of OPERATION ENABLED while the controller holds FAULT",
-                           poll_s=0.05)
+                wait_until(
+                    none_enabled,
+                    "every drive out of OPERATION ENABLED while the controller holds FAULT",
+                    poll_s=0.05,
+                )
             finally:
                 network.disconnect()
             ctrl.send_signal(signal.SIGINT)  # a stop ends a run that holds FAULT

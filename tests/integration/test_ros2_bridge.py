@@ -30,8 +30,11 @@ from controller.monitoring.zenoh_session import MonitorKeys, free_loopback_port,
 from controller.robots.registry import robot_from_config
 from controller.ros2.bridge import TOPICS  # imports no ROS
 
-pytest.importorskip("rclpy", reason="the ros2 extra is not installed (pip install '.[ros2]': ROS 2 wheels, "
-                                    "CPython 3.11 on Linux x86_64)")
+pytest.importorskip(
+    "rclpy",
+    reason="the ros2 extra is not installed (pip install '.[ros2]': ROS 2 wheels, "
+    "CPython 3.11 on Linux x86_64)",
+)
 pytestmark = pytest.mark.ros2
 ROBOT_ID = "ros2-bridge-test"
 PROBE = str(Path(__file__).resolve().parent.parent / "ros2_probe.py")
@@ -41,8 +44,11 @@ MARKER_DELETEALL = 3
 @pytest.fixture
 def ros_env() -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if k != "ROS_LOCALHOST_ONLY"}
-    env.update(ROS_DOMAIN_ID=str(random.randint(1, 200)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               PYTHONUNBUFFERED="1")
+    env.update(
+        ROS_DOMAIN_ID=str(random.randint(1, 200)),
+        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+        PYTHONUNBUFFERED="1",
+    )
     return env
 
 
@@ -62,7 +68,9 @@ def _probe_lines(proc: subprocess.Popen[bytes], bridge: subprocess.Popen[bytes])
     out, err = proc.communicate(timeout=GENEROUS_S * 2)
     if proc.returncode != 0:
         bridge.terminate()
-        raise AssertionError(f"the subscriber: {out[-2000:]!r} {err[-2000:]!r}; the bridge: {bridge.communicate()!r}")
+        raise AssertionError(
+            f"the subscriber: {out[-2000:]!r} {err[-2000:]!r}; the bridge: {bridge.communicate()!r}"
+        )
     return [json.loads(line) for line in out.decode().splitlines() if line.startswith("{")]
 
 
@@ -94,17 +102,59 @@ def _commanded(robot: Any, targets: Any) -> list[float]:
 def test_a_ros2_subscriber_gets_the_zenoh_state_and_its_stop_request_stops_the_controller(ros_env):
     endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
     namespace = "/cheope_test"
-    controller = [sys.executable, "-m", "controller.tools.sim_controller", "--max-duration", "120",
-                  "--set", f'monitoring.listen="{endpoint}"', "--set", f'monitoring.robot_id="{ROBOT_ID}"',
-                  "--set", "task.path.laps=50", *TOLERANT, "--set", "sim.drive.sync_timeout_s=0.5"]
+    controller = [
+        sys.executable,
+        "-m",
+        "controller.tools.sim_controller",
+        "--max-duration",
+        "120",
+        "--set",
+        f'monitoring.listen="{endpoint}"',
+        "--set",
+        f'monitoring.robot_id="{ROBOT_ID}"',
+        "--set",
+        "task.path.laps=50",
+        *TOLERANT,
+        "--set",
+        "sim.drive.sync_timeout_s=0.5",
+    ]
     robot = robot_from_config(load_config())
     with _process(controller, ros_env, "the controller") as ctl:
         ProcessLines(ctl).next_matching(lambda line: line.startswith("READY"), "the controller ready")
-        with MonitorClient(monitor_settings((endpoint,)), MonitorKeys.for_robot("cheope", ROBOT_ID)) as watch, \
-                _process([sys.executable, "-m", "controller", "ros2", "--robot-id", ROBOT_ID, "--zenoh-connect",
-                          endpoint, "--namespace", namespace], ros_env, "the bridge") as bridge, \
-                _process([sys.executable, PROBE, "--namespace", namespace, "--count", "5", "--call-stop",
-                          "--timeout", str(GENEROUS_S)], ros_env, "the subscriber") as probe:
+        with (
+            MonitorClient(monitor_settings((endpoint,)), MonitorKeys.for_robot("cheope", ROBOT_ID)) as watch,
+            _process(
+                [
+                    sys.executable,
+                    "-m",
+                    "controller",
+                    "ros2",
+                    "--robot-id",
+                    ROBOT_ID,
+                    "--zenoh-connect",
+                    endpoint,
+                    "--namespace",
+                    namespace,
+                ],
+                ros_env,
+                "the bridge",
+            ) as bridge,
+            _process(
+                [
+                    sys.executable,
+                    PROBE,
+                    "--namespace",
+                    namespace,
+                    "--count",
+                    "5",
+                    "--call-stop",
+                    "--timeout",
+                    str(GENEROUS_S),
+                ],
+                ros_env,
+                "the subscriber",
+            ) as probe,
+        ):
             lines = _probe_lines(probe, bridge)
             states: dict[float, Any] = {}
             while (u := watch.next_update(0.0)) is not None:
@@ -121,7 +171,9 @@ def test_a_ros2_subscriber_gets_the_zenoh_state_and_its_stop_request_stops_the_c
     for p in got["tcp/measured"]:
         assert p["position"] == list(_matching(states, p["stamp"]).tcp_m)
     for p in got["tcp/reference"]:
-        assert p["position"] == pytest.approx(_commanded(robot, _matching(states, p["stamp"]).targets), abs=1e-12)
+        assert p["position"] == pytest.approx(
+            _commanded(robot, _matching(states, p["stamp"]).targets), abs=1e-12
+        )
     for d in got["diagnostics"]:
         s = _matching(states, d["stamp"])
         assert (d["values"]["mode"], int(d["values"]["cycle"])) == (s.mode, s.cycle)
@@ -133,8 +185,9 @@ def test_a_ros2_subscriber_gets_the_zenoh_state_and_its_stop_request_stops_the_c
     (stop,) = [line["stop"] for line in lines if "stop" in line]
     assert stop["success"] and "stop accepted" in stop["message"]
     assert final["final_mode"] == "DONE" and "INFO: RUNNING -> STOPPING: stop requested" in final["events"]
-    assert got["events"] and all(e["msg"].split("] ", 1)[1] in {ev.split(": ", 1)[1] for ev in final["events"]}
-                                 for e in got["events"])
+    assert got["events"] and all(
+        e["msg"].split("] ", 1)[1] in {ev.split(": ", 1)[1] for ev in final["events"]} for e in got["events"]
+    )
 
 
 def test_a_replayed_recording_reaches_a_ros2_subscriber_as_recorded(ros_env, tmp_path):
@@ -149,18 +202,45 @@ def test_a_replayed_recording_reaches_a_ros2_subscriber_as_recorded(ros_env, tmp
     path = tmp_path / "session.mcap"
     clock = SimulatedTime()
     law = build_law(cfg)
-    with SessionRecorder(path, session_metadata(cfg), clock=clock.clock, phase_name=law.task.phase_name,
-                         lossless=True) as rec:
-        loop = CycleLoop(law, LoopbackExchange(cfg, clock.clock), cfg.period_s, cfg.loop.collect_fraction, clock,
-                         clock.clock, observers=(rec,))
+    with SessionRecorder(
+        path, session_metadata(cfg), clock=clock.clock, phase_name=law.task.phase_name, lossless=True
+    ) as rec:
+        loop = CycleLoop(
+            law,
+            LoopbackExchange(cfg, clock.clock),
+            cfg.period_s,
+            cfg.loop.collect_fraction,
+            clock,
+            clock.clock,
+            observers=(rec,),
+        )
         loop.run(law.initial_state(), 3.0)
     offset_s = int(read_info(path).metadata[m.META_SESSION]["clock_offset_ns"]) * 1e-9
     cycles = {d.log_time_ns * 1e-9 - offset_s: d.message for d in iter_decoded(path, [m.TOPIC_CYCLE])}
     namespace = "/cheope_replay"
-    with _process([sys.executable, PROBE, "--namespace", namespace, "--count", "5", "--timeout", str(GENEROUS_S)],
-                  ros_env, "the subscriber") as probe, \
-            _process([sys.executable, "-m", "controller", "ros2", "--replay", str(path), "--namespace", namespace,
-                      "--wait-subscriber", str(GENEROUS_S)], ros_env, "the bridge") as bridge:
+    with (
+        _process(
+            [sys.executable, PROBE, "--namespace", namespace, "--count", "5", "--timeout", str(GENEROUS_S)],
+            ros_env,
+            "the subscriber",
+        ) as probe,
+        _process(
+            [
+                sys.executable,
+                "-m",
+                "controller",
+                "ros2",
+                "--replay",
+                str(path),
+                "--namespace",
+                namespace,
+                "--wait-subscriber",
+                str(GENEROUS_S),
+            ],
+            ros_env,
+            "the bridge",
+        ) as bridge,
+    ):
         lines = _probe_lines(probe, bridge)
     _check_graph(lines, namespace)
     got = _by_topic(lines)

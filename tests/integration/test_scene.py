@@ -24,18 +24,23 @@ from logs.recorder import SessionRecorder, session_metadata
 from sim_backend.loopback import LoopbackExchange
 
 FIXED = {"cheope": {"base", "guides"}, "uru": {"base", "motors"}, "nspu": {"base"}}
-MOVING = {"cheope": {"sliders", "rods", "platform", "tool", "force"},
-          "uru": {"proximal_links", "distal_links", "joints", "platform", "tool"},
-          "nspu": {"legs", "platform", "tool"}}
+MOVING = {
+    "cheope": {"sliders", "rods", "platform", "tool", "force"},
+    "uru": {"proximal_links", "distal_links", "joints", "platform", "tool"},
+    "nspu": {"legs", "platform", "tool"},
+}
 
 
 def _record(path: Path, cfg: Config, max_s: float) -> None:
     clock = SimulatedTime()
     law = build_law(cfg)
     exchange = LoopbackExchange(cfg, clock.clock)
-    with SessionRecorder(path, session_metadata(cfg), clock=clock.clock, phase_name=law.task.phase_name,
-                         lossless=True) as rec:
-        loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(rec,))
+    with SessionRecorder(
+        path, session_metadata(cfg), clock=clock.clock, phase_name=law.task.phase_name, lossless=True
+    ) as rec:
+        loop = CycleLoop(
+            law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(rec,)
+        )
         loop.run(law.initial_state(), max_s)
 
 
@@ -91,7 +96,12 @@ def test_the_scene_decodes_with_the_foxglove_schema_and_holds_each_robots_parts(
     assert FIXED[kind] <= first, first
     assert all(e.frame_id == "base" for u in updates for e in u.entities)
     moving = [u for u in updates[1:]]
-    drawn = {e.id for u in moving for e in u.entities if len(e.cylinders) + len(e.spheres) + len(e.cubes) + len(e.arrows)}
+    drawn = {
+        e.id
+        for u in moving
+        for e in u.entities
+        if len(e.cylinders) + len(e.spheres) + len(e.cubes) + len(e.arrows)
+    }
     assert MOVING[kind] <= drawn, drawn
     # decimated: one update per 1/20 s of the cycles' time, not one per cycle
     span_s = cycles[-1].t_s - cycles[0].t_s
@@ -159,6 +169,7 @@ def test_the_contour_session_draws_the_workpiece_where_the_simulator_has_it(tmp_
     d = cfg.sim.workpiece
     (c,) = disk.cylinders
     assert (c.pose.position.x, c.pose.position.y, c.pose.position.z) == pytest.approx(
-        (d.centre_m[0], d.centre_m[1], d.height_m))
+        (d.centre_m[0], d.centre_m[1], d.height_m)
+    )
     assert c.size.x == pytest.approx(2 * d.radius_m)
     assert "workpiece/expected_contour" in {e.id for e in updates[0].entities}

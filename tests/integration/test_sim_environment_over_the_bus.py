@@ -24,16 +24,36 @@ CONTACT_WITHIN_S = 10.0  # the contour's approach touches the disk about 2 s aft
 
 
 def _run_contour(port: int, *extra: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "controller", "run", "--can", "udp_multicast", "--udp-port",
-                           str(port), "--no-realtime", "--set", 'task.kind="contour"', "--set",
-                           "recording.enabled=false", *TOLERANT, *extra],
-                          capture_output=True, text=True, check=False, timeout=120)
+    return subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "controller",
+            "run",
+            "--can",
+            "udp_multicast",
+            "--udp-port",
+            str(port),
+            "--no-realtime",
+            "--set",
+            'task.kind="contour"',
+            "--set",
+            "recording.enabled=false",
+            *TOLERANT,
+            *extra,
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=120,
+    )
 
 
 def test_the_simulator_places_the_disk_for_the_controllers_contour_task():
     port = random_udp_port()
-    with simulator_process(parse_bus_spec("udp_multicast", udp_port=port), None, [],
-                           extra_args=["--no-realtime"]):
+    with simulator_process(
+        parse_bus_spec("udp_multicast", udp_port=port), None, [], extra_args=["--no-realtime"]
+    ):
         r = _run_contour(port, "--json", "--max-duration", str(CONTACT_WITHIN_S))
     summary = json.loads(r.stdout)
     # Touching the disk is the claim; what happens after it on a busy shared machine (a stalled
@@ -44,9 +64,15 @@ def test_the_simulator_places_the_disk_for_the_controllers_contour_task():
 
 def test_a_simulator_configured_to_free_space_refuses_the_contour_at_start_in_one_line():
     port = random_udp_port()
-    with simulator_process(parse_bus_spec("udp_multicast", udp_port=port), None, ['sim.environment="free"'],
-                           extra_args=["--no-realtime"]):
+    with simulator_process(
+        parse_bus_spec("udp_multicast", udp_port=port),
+        None,
+        ['sim.environment="free"'],
+        extra_args=["--no-realtime"],
+    ):
         r = _run_contour(port, "--max-duration", "5")
     assert r.returncode == 2 and r.stdout == ""
-    assert r.stderr.count("\n") == 1 and r.stderr.startswith("cheope run: error: the simulator has free space")
+    assert r.stderr.count("\n") == 1 and r.stderr.startswith(
+        "cheope run: error: the simulator has free space"
+    )
     assert 'task.kind = "contour"' in r.stderr and 'sim.environment = "auto"' in r.stderr

@@ -37,8 +37,10 @@ def sim_and_master() -> Iterator[tuple[Simulator, canopen.Network]]:
 def buses() -> Iterator[tuple[can.BusABC, can.BusABC]]:
     """(simulator's bus, controller's bus) on one virtual channel, shut down after the test."""
     channel = f"buses-{time.monotonic_ns()}"
-    pair = (can.Bus(interface="virtual", channel=channel, receive_own_messages=True),
-            can.Bus(interface="virtual", channel=channel, receive_own_messages=True))
+    pair = (
+        can.Bus(interface="virtual", channel=channel, receive_own_messages=True),
+        can.Bus(interface="virtual", channel=channel, receive_own_messages=True),
+    )
     yield pair
     for bus in pair:
         bus.shutdown()

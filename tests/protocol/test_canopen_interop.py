@@ -48,7 +48,8 @@ def test_base_node_402_enables_the_drive_and_moves_it(sim_and_master):
     for target_m in (0.56, 0.58, 0.57):
         rpdo["Target position"].raw = round(target_m * 1e7)
         assert _wait(lambda target_m=target_m: abs(node.tpdo_values[0x6064] - target_m * 1e7) < 50), (
-            f"drive did not reach {target_m} m: at {node.tpdo_values[0x6064] / 1e7} m")
+            f"drive did not reach {target_m} m: at {node.tpdo_values[0x6064] / 1e7} m"
+        )
 
     node.state = "SWITCH ON DISABLED"
     assert node.state == "SWITCH ON DISABLED"

@@ -94,8 +94,9 @@ class ScriptedBus(can.BusABC):
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         if msg.arbitration_id in self.fail_sends:
             raise can.CanOperationError("Transmit buffer full (ENOBUFS)")
-        self.sent.append((msg.arbitration_id, bytes(msg.data), msg.is_extended_id, msg.is_remote_frame,
-                          msg.is_error_frame))
+        self.sent.append(
+            (msg.arbitration_id, bytes(msg.data), msg.is_extended_id, msg.is_remote_frame, msg.is_error_frame)
+        )
         if self.echo:
             self.inbox.append(frame(msg.arbitration_id, bytes(msg.data)))
         if msg.arbitration_id == SYNC_ID:
@@ -104,7 +105,9 @@ class ScriptedBus(can.BusABC):
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         # The exchange is always called with its deadline now: a wait here would be a wall-clock wait.
-        assert timeout is not None and timeout <= 0.0 or self.inbox, f"the exchange would block for {timeout} s"
+        assert timeout is not None and timeout <= 0.0 or self.inbox, (
+            f"the exchange would block for {timeout} s"
+        )
         return (self.inbox.popleft() if self.inbox else None), False
 
     def ids_sent(self) -> list[int]:
@@ -126,20 +129,40 @@ def bus():
 MAX_STEP_M, MAX_JUMP_M = 0.0025, 0.005  # 1 m/s at 400 Hz, safety.max_position_jump_m
 
 
-def make_exchange(bus: ScriptedBus, clock: FakeClock, sensor: int | None = SENSOR,
-                  sink: Callable | None = None) -> CyclicExchange:
-    return CyclicExchange(bus, DRIVES, PositionScale(COUNTS_PER_M), sensor, CONTROLLER,
-                          heartbeat_every=HEARTBEAT_EVERY, clock=clock, frame_sink=sink,
-                          heartbeat_timeout_s=HEARTBEAT_TIMEOUT_S, max_position_step=MAX_STEP_M, max_position_jump=MAX_JUMP_M)
+def make_exchange(
+    bus: ScriptedBus, clock: FakeClock, sensor: int | None = SENSOR, sink: Callable | None = None
+) -> CyclicExchange:
+    return CyclicExchange(
+        bus,
+        DRIVES,
+        PositionScale(COUNTS_PER_M),
+        sensor,
+        CONTROLLER,
+        heartbeat_every=HEARTBEAT_EVERY,
+        clock=clock,
+        frame_sink=sink,
+        heartbeat_timeout_s=HEARTBEAT_TIMEOUT_S,
+        max_position_step=MAX_STEP_M,
+        max_position_jump=MAX_JUMP_M,
+    )
 
 
-def all_answers(cycle: int, drives: dict[int, tuple[int, int]] | None = None, counter: int | None = None,
-                force=(150, -75, 1000), torque=(12, -34, 56), status: int = 0) -> list[can.Message]:
+def all_answers(
+    cycle: int,
+    drives: dict[int, tuple[int, int]] | None = None,
+    counter: int | None = None,
+    force=(150, -75, 1000),
+    torque=(12, -34, 56),
+    status: int = 0,
+) -> list[can.Message]:
     """Every device's answer to one SYNC: drive TPDO1s, then the sensor's force and torque TPDOs."""
     drives = drives if drives is not None else {n: (0x1637, 5_000_000 + 1000 * n + cycle) for n in DRIVES}
     frames = [frame(tpdo1(n), drive_pdo(sw, counts)) for n, (sw, counts) in drives.items()]
     c = cycle % 256 if counter is None else counter
-    frames += [frame(tpdo1(SENSOR), sensor_pdo(*force, status, c)), frame(tpdo2(SENSOR), sensor_pdo(*torque, status, c))]
+    frames += [
+        frame(tpdo1(SENSOR), sensor_pdo(*force, status, c)),
+        frame(tpdo2(SENSOR), sensor_pdo(*torque, status, c)),
+    ]
     return frames
 
 
@@ -151,6 +174,7 @@ def one_cycle(ex: CyclicExchange, clock: FakeClock, outputs: CycleOutputs | None
 
 
 # -- out: RPDOs, SYNC, heartbeat ----------------------------------------------------------------
+
 
 def test_rpdo_bytes_are_controlword_and_target_counts_little_endian(bus, clock):
     ex = make_exchange(bus, clock)
@@ -171,7 +195,11 @@ def test_targets_round_to_the_nearest_count():
         ex = make_exchange(bus, FakeClock())
         # 0.1 um per count: 0.30000004 m -> 3000000.4 -> 3000000; 0.30000006 -> 3000001; -0.00000006 -> -1
         ex.send(CycleOutputs((0x0F,) * 3, (0.30000004, 0.30000006, -0.00000006)))
-        assert [s[1] for s in bus.sent[:3]] == [drive_pdo(0x0F, 3000000), drive_pdo(0x0F, 3000001), drive_pdo(0x0F, -1)]
+        assert [s[1] for s in bus.sent[:3]] == [
+            drive_pdo(0x0F, 3000000),
+            drive_pdo(0x0F, 3000001),
+            drive_pdo(0x0F, -1),
+        ]
     finally:
         bus.shutdown()
 
@@ -216,10 +244,17 @@ def test_a_send_that_fails_is_counted_not_raised(bus, clock):
 
 # -- in: TPDOs, sensor, EMCY, error frames -------------------------------------------------------
 
+
 def test_drive_and_sensor_tpdos_decode_into_the_feedback(bus, clock):
     ex = make_exchange(bus, clock)
-    bus.answers[0] = all_answers(0, drives={1: (0x1637, 7150800), 2: (0x0250, -1), 3: (0x0208, 2**31 - 1)},
-                                 counter=200, force=(150, -75, 32767), torque=(12, -34, -32767), status=0x01)
+    bus.answers[0] = all_answers(
+        0,
+        drives={1: (0x1637, 7150800), 2: (0x0250, -1), 3: (0x0208, 2**31 - 1)},
+        counter=200,
+        force=(150, -75, 32767),
+        torque=(12, -34, -32767),
+        status=0x01,
+    )
     fb = one_cycle(ex, clock, None)
     assert [(d.statusword, d.fresh) for d in fb.drives] == [(0x1637, True), (0x0250, True), (0x0208, True)]
     assert fb.drives[0].position == pytest.approx(0.71508, abs=1e-12)
@@ -246,11 +281,18 @@ def test_frames_in_any_order_and_foreign_frames_are_fine(bus, clock):
 def test_emcy_frames_become_reports_with_node_code_and_register(bus, clock):
     ex = make_exchange(bus, clock)
     # before the cycle's last TPDO: the collect returns as soon as every TPDO is in (see the xfail below)
-    bus.answers[0] = [frame(emcy_id(2), emcy_frame(0x5000, 0x01, b"\x11\x22\x33\x44\x55")),
-                      frame(emcy_id(SENSOR), emcy_frame(0x8130, 0x11)), frame(emcy_id(3), emcy_frame(0x0000, 0x00)),
-                      *all_answers(0)]
+    bus.answers[0] = [
+        frame(emcy_id(2), emcy_frame(0x5000, 0x01, b"\x11\x22\x33\x44\x55")),
+        frame(emcy_id(SENSOR), emcy_frame(0x8130, 0x11)),
+        frame(emcy_id(3), emcy_frame(0x0000, 0x00)),
+        *all_answers(0),
+    ]
     fb = one_cycle(ex, clock, None)
-    assert fb.emcy == (EmcyReport(2, 0x5000, 0x01), EmcyReport(SENSOR, 0x8130, 0x11), EmcyReport(3, 0x0000, 0x00))
+    assert fb.emcy == (
+        EmcyReport(2, 0x5000, 0x01),
+        EmcyReport(SENSOR, 0x8130, 0x11),
+        EmcyReport(3, 0x0000, 0x00),
+    )
     # reports belong to their cycle
     bus.answers[1] = all_answers(1)
     assert one_cycle(ex, clock, None).emcy == ()
@@ -258,7 +300,9 @@ def test_emcy_frames_become_reports_with_node_code_and_register(bus, clock):
 
 def test_error_frames_are_counted_and_a_bus_off_is_flagged(bus, clock):
     ex = make_exchange(bus, clock)
-    controller_problem = can.Message(arbitration_id=0x004, is_error_frame=True, data=b"\x00\x04" + b"\x00" * 6)
+    controller_problem = can.Message(
+        arbitration_id=0x004, is_error_frame=True, data=b"\x00\x04" + b"\x00" * 6
+    )
     bus_off = can.Message(arbitration_id=CAN_ERR_BUSOFF, is_error_frame=True, data=b"\x00" * 8)
     assert CAN_ERR_BUSOFF == 0x040  # linux/can/error.h
     bus.answers[0] = [controller_problem, *all_answers(0)]
@@ -276,8 +320,11 @@ def test_error_frames_are_counted_and_a_bus_off_is_flagged(bus, clock):
 @pytest.mark.parametrize("late_frame", ["emcy", "bus_off"])
 def test_an_emcy_or_bus_off_after_the_cycles_tpdos_reaches_the_next_feedback(bus, clock, late_frame):
     ex = make_exchange(bus, clock)
-    late = (frame(emcy_id(2), emcy_frame(0x5000, 0x01)) if late_frame == "emcy"
-            else can.Message(arbitration_id=CAN_ERR_BUSOFF, is_error_frame=True, data=b"\x00" * 8))
+    late = (
+        frame(emcy_id(2), emcy_frame(0x5000, 0x01))
+        if late_frame == "emcy"
+        else can.Message(arbitration_id=CAN_ERR_BUSOFF, is_error_frame=True, data=b"\x00" * 8)
+    )
     bus.answers[0] = [*all_answers(0), late]  # e.g. a drive faulting between two SYNCs
     bus.answers[1] = all_answers(1)
     reports = [one_cycle(ex, clock, None), one_cycle(ex, clock, None)]
@@ -290,17 +337,25 @@ def test_an_emcy_or_bus_off_after_the_cycles_tpdos_reaches_the_next_feedback(bus
 
 def test_a_missing_tpdo_is_flagged_not_fresh_with_the_last_values_and_counted(bus, clock):
     ex = make_exchange(bus, clock)
-    bus.answers[0] = all_answers(0, drives={1: (0x1637, 100), 3: (0x1637, 300)}, counter=7)  # drive 2 never answered
+    bus.answers[0] = all_answers(
+        0, drives={1: (0x1637, 100), 3: (0x1637, 300)}, counter=7
+    )  # drive 2 never answered
     fb = one_cycle(ex, clock, None)
     assert [d.fresh for d in fb.drives] == [True, False, True]
     assert fb.drives[1].statusword == 0 and math.isnan(fb.drives[1].position)  # nothing received yet
     bus.answers[1] = all_answers(1, drives={1: (0x1637, 101), 2: (0x1637, 201), 3: (0x1637, 301)}, counter=8)
     assert all(d.fresh for d in one_cycle(ex, clock, None).drives)
-    bus.answers[2] = [f for f in all_answers(2, drives={1: (0x1637, 102), 3: (0x0208, 302)}, counter=9)
-                      if f.arbitration_id != tpdo2(SENSOR)]  # drive 2 and the sensor's torque frame missing
+    bus.answers[2] = [
+        f
+        for f in all_answers(2, drives={1: (0x1637, 102), 3: (0x0208, 302)}, counter=9)
+        if f.arbitration_id != tpdo2(SENSOR)
+    ]  # drive 2 and the sensor's torque frame missing
     fb = one_cycle(ex, clock, None)
     assert [d.fresh for d in fb.drives] == [True, False, True]
-    assert (fb.drives[1].statusword, fb.drives[1].position) == (0x1637, pytest.approx(201e-7))  # the last received
+    assert (fb.drives[1].statusword, fb.drives[1].position) == (
+        0x1637,
+        pytest.approx(201e-7),
+    )  # the last received
     assert fb.drives[2].statusword == 0x0208 and fb.drives[2].position == pytest.approx(302e-7)
     assert not fb.sensor.fresh  # force without its torque frame of the same counter
     assert ex.counters.missing_drive_frames == 2 and ex.counters.missing_sensor_frames == 1
@@ -315,11 +370,15 @@ def test_sensor_frames_of_different_counters_are_not_fresh(bus, clock):
     assert not fb.sensor.fresh and ex.counters.missing_sensor_frames == 1
 
 
-@pytest.mark.parametrize(("cob_id", "data"), [
-    (tpdo1(2), drive_pdo(0x1637, 5) + b"\x00"),  # 7 bytes
-    (tpdo1(2), drive_pdo(0x1637, 5)[:3]),  # 3 bytes
-    (tpdo1(2), b""),
-], ids=["tpdo-7-bytes", "tpdo-3-bytes", "tpdo-empty"])
+@pytest.mark.parametrize(
+    ("cob_id", "data"),
+    [
+        (tpdo1(2), drive_pdo(0x1637, 5) + b"\x00"),  # 7 bytes
+        (tpdo1(2), drive_pdo(0x1637, 5)[:3]),  # 3 bytes
+        (tpdo1(2), b""),
+    ],
+    ids=["tpdo-7-bytes", "tpdo-3-bytes", "tpdo-empty"],
+)
 def test_a_drive_tpdo_of_the_wrong_length_is_rejected_and_counted(bus, clock, cob_id, data):
     ex = make_exchange(bus, clock)
     bus.answers[0] = all_answers(0, drives={1: (0x1637, 100), 2: (0x1637, 200), 3: (0x1637, 300)})
@@ -327,15 +386,21 @@ def test_a_drive_tpdo_of_the_wrong_length_is_rejected_and_counted(bus, clock, co
     bus.answers[1] = [f if f.arbitration_id != cob_id else frame(cob_id, data) for f in all_answers(1)]
     fb = one_cycle(ex, clock, None)
     assert ex.counters.rejected_frames == 1
-    assert not fb.drives[1].fresh and fb.drives[1].position == pytest.approx(200e-7)  # the malformed one changed nothing
+    assert not fb.drives[1].fresh and fb.drives[1].position == pytest.approx(
+        200e-7
+    )  # the malformed one changed nothing
     assert ex.counters.missing_drive_frames == 1
 
 
-@pytest.mark.parametrize(("cob_id", "data"), [
-    (tpdo1(SENSOR), sensor_pdo(1, 2, 3, 0, 0)[:7]),
-    (tpdo2(SENSOR), sensor_pdo(1, 2, 3, 0, 0) + b"\x00"),
-    (emcy_id(1), emcy_frame(0x5000, 0x01)[:6]),
-], ids=["force-7-bytes", "torque-9-bytes", "emcy-6-bytes"])
+@pytest.mark.parametrize(
+    ("cob_id", "data"),
+    [
+        (tpdo1(SENSOR), sensor_pdo(1, 2, 3, 0, 0)[:7]),
+        (tpdo2(SENSOR), sensor_pdo(1, 2, 3, 0, 0) + b"\x00"),
+        (emcy_id(1), emcy_frame(0x5000, 0x01)[:6]),
+    ],
+    ids=["force-7-bytes", "torque-9-bytes", "emcy-6-bytes"],
+)
 def test_sensor_and_emcy_frames_of_the_wrong_length_are_rejected_and_counted(bus, clock, cob_id, data):
     ex = make_exchange(bus, clock)
     answers = [f for f in all_answers(0) if f.arbitration_id != cob_id]
@@ -369,7 +434,9 @@ def test_our_own_frames_echoed_by_the_bus_are_ignored(clock):
         bus.answers[0] = all_answers(0)
         fb = one_cycle(ex, clock, CycleOutputs((0x0F,) * 3, (0.5, 0.5, 0.5)))
         assert all(d.fresh for d in fb.drives) and ex.counters.rejected_frames == 0
-        assert [d.position for d in fb.drives] == [pytest.approx((5_000_000 + 1000 * n) / COUNTS_PER_M) for n in DRIVES]
+        assert [d.position for d in fb.drives] == [
+            pytest.approx((5_000_000 + 1000 * n) / COUNTS_PER_M) for n in DRIVES
+        ]
     finally:
         bus.shutdown()
 
@@ -378,8 +445,12 @@ def test_a_drive_whose_heartbeat_is_overdue_is_reported_lost(bus, clock):
     ex = make_exchange(bus, clock)
     period = 0.04
     lost_per_cycle = []
-    for k in range(18):  # drives 1, 3 and the sensor beat every 0.08 s; drive 2's last beat is at 0.16 s (cycle 4)
-        beats = [frame(heartbeat_id(n), b"\x05") for n in (*DRIVES, SENSOR) if k % 2 == 0 and (n != 2 or k <= 4)]
+    for k in range(
+        18
+    ):  # drives 1, 3 and the sensor beat every 0.08 s; drive 2's last beat is at 0.16 s (cycle 4)
+        beats = [
+            frame(heartbeat_id(n), b"\x05") for n in (*DRIVES, SENSOR) if k % 2 == 0 and (n != 2 or k <= 4)
+        ]
         bus.answers[k] = [*beats, *all_answers(k)]
         lost_per_cycle.append(one_cycle(ex, clock, None, period).lost_heartbeats)
     # overdue once more than 0.5 s passed since 0.16 s: from 0.68 s (cycle 17) on, not at 0.64 s
@@ -401,7 +472,11 @@ def test_the_sensor_whose_heartbeat_stops_is_reported_lost(bus, clock):
     ex = make_exchange(bus, clock)
     lost_per_cycle = []
     for k in range(18):  # everyone beats every 0.08 s; the sensor's last beat is at 0.16 s (cycle 4)
-        beats = [frame(heartbeat_id(n), b"\x05") for n in (*DRIVES, SENSOR) if k % 2 == 0 and (n != SENSOR or k <= 4)]
+        beats = [
+            frame(heartbeat_id(n), b"\x05")
+            for n in (*DRIVES, SENSOR)
+            if k % 2 == 0 and (n != SENSOR or k <= 4)
+        ]
         bus.answers[k] = [*beats, *all_answers(k)]
         lost_per_cycle.append(one_cycle(ex, clock, None, 0.04).lost_heartbeats)
     assert lost_per_cycle[:17] == [()] * 17
@@ -410,7 +485,9 @@ def test_the_sensor_whose_heartbeat_stops_is_reported_lost(bus, clock):
 
 def test_every_frame_goes_to_the_sink_once_with_its_direction(bus, clock):
     log: list[tuple[bool, float, int, bytes]] = []
-    ex = make_exchange(bus, clock, sink=lambda out, t, msg: log.append((out, t, msg.arbitration_id, bytes(msg.data))))
+    ex = make_exchange(
+        bus, clock, sink=lambda out, t, msg: log.append((out, t, msg.arbitration_id, bytes(msg.data)))
+    )
     bus.answers[0] = all_answers(0)
     one_cycle(ex, clock, CycleOutputs((0x0F,) * 3, (0.5, 0.5, 0.5)))
     out = [(i, d) for o, _, i, d in log if o]
@@ -421,6 +498,7 @@ def test_every_frame_goes_to_the_sink_once_with_its_direction(bus, clock):
 
 
 # -- the whole bus: frames nobody configured should send ------------------------------------------
+
 
 def anomalies(fb) -> dict[tuple[Anomaly, int], int]:
     return {(a.kind, a.cob_id): a.count for a in fb.anomalies}
@@ -447,7 +525,12 @@ def test_a_second_sync_producer_is_a_foreign_sync(clock):
         bus.answers[0] = all_answers(0)
         assert one_cycle(ex, clock, None).anomalies == ()
         answers = all_answers(1)
-        bus.answers[1] = [frame(SYNC_ID, b""), *answers[:-1], frame(SYNC_ID, b""), answers[-1]]  # someone else's
+        bus.answers[1] = [
+            frame(SYNC_ID, b""),
+            *answers[:-1],
+            frame(SYNC_ID, b""),
+            answers[-1],
+        ]  # someone else's
         assert anomalies(one_cycle(ex, clock, None)) == {(Anomaly.FOREIGN_SYNC, SYNC_ID): 2}
         # one that comes after the cycle's last TPDO is read before the next SYNC and reported with it
         bus.answers[2] = [*all_answers(2), frame(SYNC_ID, b"")]
@@ -466,29 +549,52 @@ def test_frames_on_cob_ids_only_the_controller_sends_are_foreign(bus, clock):
         frame(0x000, b"\x02\x33"),  # NMT stop of node 0x33, which is nobody we know
         frame(rpdo1(2), drive_pdo(0x000F, 9_000_000)),  # a second master commanding drive 2
         frame(0x600 + 3, bytes(8)),  # an SDO request to drive 3
-        *all_answers(0)]
+        *all_answers(0),
+    ]
     fb = one_cycle(ex, clock, None)
     assert anomalies(fb) == {
-        (Anomaly.FOREIGN_NMT, 0x000): 1, (Anomaly.UNKNOWN_FRAME, 0x000): 1,
-        (Anomaly.FOREIGN_COMMAND, rpdo1(2)): 1, (Anomaly.FOREIGN_COMMAND, 0x603): 1}
+        (Anomaly.FOREIGN_NMT, 0x000): 1,
+        (Anomaly.UNKNOWN_FRAME, 0x000): 1,
+        (Anomaly.FOREIGN_COMMAND, rpdo1(2)): 1,
+        (Anomaly.FOREIGN_COMMAND, 0x603): 1,
+    }
     # each foreign NMT command with its target node and command specifier, for the fault to name them
-    assert {(a.node_id, a.command) for a in fb.anomalies if a.kind == Anomaly.FOREIGN_NMT} == {(2, 0x02), (0, 0x81)}
+    assert {(a.node_id, a.command) for a in fb.anomalies if a.kind == Anomaly.FOREIGN_NMT} == {
+        (2, 0x02),
+        (0, 0x81),
+    }
 
 
 def test_unknown_nodes_are_reported_by_what_they_send(bus, clock):
     ex = make_exchange(bus, clock)
-    bus.answers[0] = [frame(emcy_id(0x20), emcy_frame(0x8130, 0x11)), frame(heartbeat_id(0x21), b"\x05"),
-                      frame(0x123, b"\x01"), frame(0x123, b"\x02"), *all_answers(0)]
+    bus.answers[0] = [
+        frame(emcy_id(0x20), emcy_frame(0x8130, 0x11)),
+        frame(heartbeat_id(0x21), b"\x05"),
+        frame(0x123, b"\x01"),
+        frame(0x123, b"\x02"),
+        *all_answers(0),
+    ]
     fb = one_cycle(ex, clock, None)
-    assert anomalies(fb) == {(Anomaly.UNKNOWN_EMCY, 0x0A0): 1, (Anomaly.UNKNOWN_HEARTBEAT, 0x721): 1,
-                             (Anomaly.UNKNOWN_FRAME, 0x123): 2}
+    assert anomalies(fb) == {
+        (Anomaly.UNKNOWN_EMCY, 0x0A0): 1,
+        (Anomaly.UNKNOWN_HEARTBEAT, 0x721): 1,
+        (Anomaly.UNKNOWN_FRAME, 0x123): 2,
+    }
     assert fb.emcy == ()  # an unknown node's EMCY is not one of ours
     assert all(d.fresh for d in fb.drives) and fb.sensor.fresh
 
 
 def test_a_flood_is_diagnosed_with_its_busiest_cob_id(bus, clock):
-    ex = CyclicExchange(bus, DRIVES, PositionScale(COUNTS_PER_M), SENSOR, CONTROLLER, heartbeat_every=HEARTBEAT_EVERY,
-                        clock=clock, flood_frames_per_cycle=10)
+    ex = CyclicExchange(
+        bus,
+        DRIVES,
+        PositionScale(COUNTS_PER_M),
+        SENSOR,
+        CONTROLLER,
+        heartbeat_every=HEARTBEAT_EVERY,
+        clock=clock,
+        flood_frames_per_cycle=10,
+    )
     bus.answers[0] = [*(frame(0x001, b"") for _ in range(30)), frame(0x123, b""), *all_answers(0)]
     found = anomalies(one_cycle(ex, clock, None))
     assert found[(Anomaly.FRAME_FLOOD, 0x001)] == 31 and found[(Anomaly.UNKNOWN_FRAME, 0x001)] == 30
@@ -497,7 +603,9 @@ def test_a_flood_is_diagnosed_with_its_busiest_cob_id(bus, clock):
 
 
 @pytest.mark.parametrize("rogue_first", [True, False], ids=["rogue-first", "rogue-second"])
-def test_two_tpdos_of_one_drive_in_one_cycle_make_its_sample_unusable_whichever_comes_first(bus, clock, rogue_first):
+def test_two_tpdos_of_one_drive_in_one_cycle_make_its_sample_unusable_whichever_comes_first(
+    bus, clock, rogue_first
+):
     ex = make_exchange(bus, clock)
     bus.answers[0] = all_answers(0)
     before = one_cycle(ex, clock, None).drives[1].position
@@ -519,7 +627,10 @@ def test_a_wrong_length_tpdo_is_a_candidate_reported_with_its_node(bus, clock):
     bus.answers[0] = [frame(tpdo1(3), drive_pdo(0x1637, 1)[:3]), *all_answers(0)]  # before the real answer
     fb = one_cycle(ex, clock, None)
     assert ex.counters.rejected_frames == 1 and not fb.drives[2].fresh
-    assert {(a.kind, a.node_id) for a in fb.anomalies} == {(Anomaly.REJECTED_FRAME, 3), (Anomaly.DUPLICATE_FRAME, 3)}
+    assert {(a.kind, a.node_id) for a in fb.anomalies} == {
+        (Anomaly.REJECTED_FRAME, 3),
+        (Anomaly.DUPLICATE_FRAME, 3),
+    }
 
 
 def test_a_second_sensor_sample_that_does_not_follow_makes_the_cycle_s_sample_not_fresh(bus, clock):
@@ -557,10 +668,18 @@ def test_heartbeats_are_judged_by_their_nmt_state(bus, clock):
     assert one_cycle(ex, clock, None).nmt_reports == ()
     bus.answers[1] = [frame(heartbeat_id(n), b"\x05") for n in (*DRIVES, SENSOR)] + all_answers(1)
     assert one_cycle(ex, clock, None).nmt_reports == ()
-    bus.answers[2] = [frame(heartbeat_id(2), b"\x00"), frame(heartbeat_id(SENSOR), b"\x7f"),
-                      frame(heartbeat_id(3), b"\x84"), *all_answers(2)]
+    bus.answers[2] = [
+        frame(heartbeat_id(2), b"\x00"),
+        frame(heartbeat_id(SENSOR), b"\x7f"),
+        frame(heartbeat_id(3), b"\x84"),
+        *all_answers(2),
+    ]
     fb = one_cycle(ex, clock, None)
-    assert fb.nmt_reports == (NmtReport(2, 0), NmtReport(SENSOR, 127), NmtReport(3, 4))  # 0x84: toggle bit + 4
+    assert fb.nmt_reports == (
+        NmtReport(2, 0),
+        NmtReport(SENSOR, 127),
+        NmtReport(3, 4),
+    )  # 0x84: toggle bit + 4
     assert fb.anomalies == ()
     bus.answers[3] = [frame(heartbeat_id(2), b"\x05"), *all_answers(3)]
     assert one_cycle(ex, clock, None).nmt_reports == ()

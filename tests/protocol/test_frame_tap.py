@@ -29,8 +29,12 @@ def _spec(interface: str):
 def test_own_frames_are_seen_once_as_sent_and_an_identical_foreign_frame_once_as_received(interface):
     spec = _spec(interface)
     seen: list[tuple[bool, int, bytes]] = []
-    with FrameTap(open_bus(spec), lambda out, t, msg: seen.append((out, msg.arbitration_id, bytes(msg.data)))) \
-            as tap, open_bus(spec) as other:
+    with (
+        FrameTap(
+            open_bus(spec), lambda out, t, msg: seen.append((out, msg.arbitration_id, bytes(msg.data)))
+        ) as tap,
+        open_bus(spec) as other,
+    ):
         for _ in range(3):
             tap.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))
         other.send(SYNC)  # the same COB-ID and bytes as ours, from another node
@@ -65,7 +69,9 @@ def test_canopen_set_up_through_the_tap_is_recorded_both_ways():
     """SDO requests out, responses in, through canopen's notifier thread reading the tap."""
     spec = _spec("virtual")
     seen: list[tuple[bool, int]] = []
-    network = canopen.Network(FrameTap(open_bus(spec), lambda out, t, msg: seen.append((out, msg.arbitration_id))))
+    network = canopen.Network(
+        FrameTap(open_bus(spec), lambda out, t, msg: seen.append((out, msg.arbitration_id)))
+    )
     server_net = canopen.Network(open_bus(spec))
     try:
         network.connect()

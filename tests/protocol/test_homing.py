@@ -30,7 +30,9 @@ SUBSTEP_S = 0.001
 
 
 def homing_drive(position: float, encoder_offset: float, settings: HomingSettings) -> SimulatedDrive:
-    d = SimulatedDrive(drive_params_from_config(load_config()), position=position, encoder_offset=encoder_offset)
+    d = SimulatedDrive(
+        drive_params_from_config(load_config()), position=position, encoder_offset=encoder_offset
+    )
     d.homing_settings = settings
     d.set_mode(MODE_HOMING)
     for cw in (CW_SHUTDOWN, CW_SWITCH_ON, CW_ENABLE_OPERATION):
@@ -61,8 +63,9 @@ def test_current_position_homing_sets_the_reported_position_to_the_home_offset()
 
 @pytest.mark.parametrize(("method", "switch_edge"), [(17, 0.32), (18, 0.88)])
 def test_limit_switch_homing_finds_the_switch_edge_and_reports_the_home_offset_there(method, switch_edge):
-    settings = HomingSettings(method=method, home_offset=0.25, switch_speed=0.2, zero_speed=0.005,
-                              acceleration=2.0)
+    settings = HomingSettings(
+        method=method, home_offset=0.25, switch_speed=0.2, zero_speed=0.005, acceleration=2.0
+    )
     d = homing_drive(0.55, encoder_offset=-0.0123, settings=settings)
     run_until_done(d)
     assert d.statusword() & SW_HOMING_ATTAINED
@@ -78,8 +81,9 @@ def test_limit_switch_homing_finds_the_switch_edge_and_reports_the_home_offset_t
 def test_a_limit_switch_beyond_the_stroke_is_a_homing_error():
     cfg = load_config(overrides={"sim.drive.limit_switches_m": [0.10, 0.95]})  # both outside 0.30..0.90
     d = SimulatedDrive(drive_params_from_config(cfg), position=0.55)
-    d.homing_settings = HomingSettings(method=17, home_offset=0.0, switch_speed=0.5, zero_speed=0.01,
-                                       acceleration=5.0)
+    d.homing_settings = HomingSettings(
+        method=17, home_offset=0.0, switch_speed=0.5, zero_speed=0.01, acceleration=5.0
+    )
     d.set_mode(MODE_HOMING)
     for cw in (CW_SHUTDOWN, CW_SWITCH_ON, CW_ENABLE_OPERATION):
         d.on_controlword(cw)
@@ -92,10 +96,17 @@ OFFSETS = (0.0123, -0.0201, 0.0057)
 
 
 def test_set_up_homes_every_drive_before_the_first_cycle(buses):
-    cfg = load_config(overrides={
-        "sensor.enabled": False, "actuators.homing_method": 17, "actuators.home_offsets_m": [0.32] * 3,
-        "actuators.homing_switch_speed_m_s": 0.2, "actuators.homing_acceleration_m_s2": 5.0,
-        "actuators.homing_zero_speed_m_s": 0.01, "sim.drive.encoder_offsets_m": list(OFFSETS)})
+    cfg = load_config(
+        overrides={
+            "sensor.enabled": False,
+            "actuators.homing_method": 17,
+            "actuators.home_offsets_m": [0.32] * 3,
+            "actuators.homing_switch_speed_m_s": 0.2,
+            "actuators.homing_acceleration_m_s2": 5.0,
+            "actuators.homing_zero_speed_m_s": 0.01,
+            "sim.drive.encoder_offsets_m": list(OFFSETS),
+        }
+    )
     sim_bus, bus = buses
     with Simulator(cfg, sim_bus) as sim:
         before = [d.position_counts() / COUNTS - d.position for d in sim.drives]
@@ -109,12 +120,23 @@ def test_set_up_homes_every_drive_before_the_first_cycle(buses):
 
 
 def test_a_homing_error_stops_the_start_naming_node_and_statusword(buses):
-    cfg = load_config(overrides={
-        "sensor.enabled": False, "actuators.homing_method": 18, "sim.drive.limit_switches_m": [0.32, 0.95],
-        "actuators.homing_switch_speed_m_s": 0.5, "actuators.homing_acceleration_m_s2": 5.0})
+    cfg = load_config(
+        overrides={
+            "sensor.enabled": False,
+            "actuators.homing_method": 18,
+            "sim.drive.limit_switches_m": [0.32, 0.95],
+            "actuators.homing_switch_speed_m_s": 0.5,
+            "actuators.homing_acceleration_m_s2": 5.0,
+        }
+    )
     sim_bus, bus = buses
-    with Simulator(cfg, sim_bus), pytest.raises(
-            NodeSetupError, match=r"node 1: homing method 18 failed: statusword 0x6041 = 0x[0-9A-F]{4} \(bit 13"):
+    with (
+        Simulator(cfg, sim_bus),
+        pytest.raises(
+            NodeSetupError,
+            match=r"node 1: homing method 18 failed: statusword 0x6041 = 0x[0-9A-F]{4} \(bit 13",
+        ),
+    ):
         configure_nodes(bus, node_setup_plan(cfg))
 
 
@@ -128,8 +150,9 @@ def _run_in_simulated_time(cfg):
     law = build_law(cfg)
     exchange = LoopbackExchange(cfg, clock.clock)
     recorder = RunRecorder()
-    loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
-                     observers=(recorder,))
+    loop = CycleLoop(
+        law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(recorder,)
+    )
     final, _ = loop.run(law.initial_state(), 60.0)
     return final, recorder, exchange
 
@@ -141,8 +164,14 @@ def test_the_path_task_runs_after_homing_drives_with_unknown_encoder_offsets(met
     # 17: the negative switch's edge; 37: the carriages stand at a known place (the simulator's start)
     base = load_config()
     home = [0.32] * 3 if method == 17 else list(base.sim.drive.initial_positions_m)
-    cfg = load_config(overrides={"task.path.laps": 0.5, "sim.drive.encoder_offsets_m": list(OFFSETS),
-                                 "actuators.homing_method": method, "actuators.home_offsets_m": home})
+    cfg = load_config(
+        overrides={
+            "task.path.laps": 0.5,
+            "sim.drive.encoder_offsets_m": list(OFFSETS),
+            "actuators.homing_method": method,
+            "actuators.home_offsets_m": home,
+        }
+    )
     final, recorder, exchange = _run_in_simulated_time(cfg)
     assert final.mode == Mode.DONE, final.fault_reason
     assert max(recorder.tracking_error_m) < 80e-6

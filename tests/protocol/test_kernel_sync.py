@@ -28,9 +28,12 @@ def test_kernel_sync_on_a_bus_without_a_broadcast_manager_is_refused_before_the_
         raise AssertionError("the bus was opened")
 
     monkeypatch.setattr("controller.shell.service.open_bus", no_bus)
-    cfg = load_config(overrides={"bus.sync_producer": "kernel", "recording.enabled": False,
-                                 "monitoring.enabled": False})
-    with pytest.raises(KernelSyncError, match=r"bus.sync_producer = 'kernel' needs a socketcan bus.*udp_multicast"):
+    cfg = load_config(
+        overrides={"bus.sync_producer": "kernel", "recording.enabled": False, "monitoring.enabled": False}
+    )
+    with pytest.raises(
+        KernelSyncError, match=r"bus.sync_producer = 'kernel' needs a socketcan bus.*udp_multicast"
+    ):
         run_controller(cfg, parse_bus_spec("udp_multicast"))
 
 
@@ -49,8 +52,9 @@ def test_the_kernel_exchange_needs_an_exchange_that_sends_no_sync():
             KernelSyncExchange(quiet, 0.0025, 0.003)
 
 
-def _broadcast_manager(period_s: float, latency_s: Callable[[int], float], syncs: int,
-                       lock: SyncPhaseLock | None) -> list[float]:
+def _broadcast_manager(
+    period_s: float, latency_s: Callable[[int], float], syncs: int, lock: SyncPhaseLock | None
+) -> list[float]:
     """SYNC times of Linux's broadcast manager (net/can/bcm.c): the handler of SYNC n re-arms at its
     own time + the interval set then, and fires that much plus its latency later. The loop sees
     SYNC n at its next cycle and sets the interval the handler of SYNC n + 1 uses."""
@@ -63,9 +67,12 @@ def _broadcast_manager(period_s: float, latency_s: Callable[[int], float], syncs
     return times
 
 
-@pytest.mark.parametrize(("period", "mean_latency_us", "jitter_us"), [(0.0025, 5.0, 3.0), (0.01, 250.0, 150.0)])
-def test_the_phase_lock_holds_each_sync_at_its_slot_where_the_broadcast_manager_drifts(period, mean_latency_us,
-                                                                                        jitter_us):
+@pytest.mark.parametrize(
+    ("period", "mean_latency_us", "jitter_us"), [(0.0025, 5.0, 3.0), (0.01, 250.0, 150.0)]
+)
+def test_the_phase_lock_holds_each_sync_at_its_slot_where_the_broadcast_manager_drifts(
+    period, mean_latency_us, jitter_us
+):
     # 5 us at 400 Hz: a real machine's timer latency; 250 us at 100 Hz: what the emulated vcan VM
     # showed (a 2-3 % long period)
     rng = random.Random(7)
@@ -107,11 +114,21 @@ class _Inbox(can.BusABC):
 
 def test_with_kernel_sync_the_exchange_takes_the_syncs_it_receives_as_the_kernels_and_flags_a_second_producer():
     # 100.013: a second producer's SYNC, 3 ms after one of the kernel's at a 10 ms period
-    syncs = [can.Message(arbitration_id=0x080, data=b"", is_extended_id=False, timestamp=t)
-             for t in (100.000, 100.010, 100.013, 100.020)]
+    syncs = [
+        can.Message(arbitration_id=0x080, data=b"", is_extended_id=False, timestamp=t)
+        for t in (100.000, 100.010, 100.013, 100.020)
+    ]
     with _Inbox([]) as bus:
-        ex = CyclicExchange(bus, (1,), PositionScale(1e7), None, 100, heartbeat_every=10**6, send_sync=False,
-                            sync_period_s=0.01)
+        ex = CyclicExchange(
+            bus,
+            (1,),
+            PositionScale(1e7),
+            None,
+            100,
+            heartbeat_every=10**6,
+            send_sync=False,
+            sync_period_s=0.01,
+        )
         ex.send(None)
         bus.frames.extend(syncs)
         feedback = ex.collect(deadline_s=0.0)
@@ -131,10 +148,16 @@ def test_a_frame_tap_hands_periodic_sending_to_its_bus():
         def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
             return None, False
 
-        def _send_periodic_internal(self, msgs, period, duration=None, autostart=True, modifier_callback=None):
+        def _send_periodic_internal(
+            self, msgs, period, duration=None, autostart=True, modifier_callback=None
+        ):
             sent_by_bus.append(period)
             return super()._send_periodic_internal(msgs, period, duration, autostart=False)
 
     with FrameTap(PeriodicBus()) as tap:
-        tap.send_periodic(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False), 0.0025, store_task=False)
-    assert sent_by_bus == [0.0025]  # the bus's own periodic sending (the kernel's on SocketCAN), not a thread's
+        tap.send_periodic(
+            can.Message(arbitration_id=0x080, data=b"", is_extended_id=False), 0.0025, store_task=False
+        )
+    assert sent_by_bus == [
+        0.0025
+    ]  # the bus's own periodic sending (the kernel's on SocketCAN), not a thread's

@@ -44,20 +44,23 @@ def test_drive_frames_round_trip(cw, counts):
 
 @given(st.tuples(*[st.floats(-327.0, 327.0)] * 3), st.integers(0, 255))
 def test_force_frame_round_trip_within_half_a_count(values, counter):
-    x, y, z, status, c = decode_sensor_frame(encode_sensor_frame(values, FORCE_N_PER_COUNT, 0, counter),
-                                             FORCE_N_PER_COUNT)
+    x, y, z, status, c = decode_sensor_frame(
+        encode_sensor_frame(values, FORCE_N_PER_COUNT, 0, counter), FORCE_N_PER_COUNT
+    )
     assert c == counter and status == 0
     for got, want in zip((x, y, z), values):
         assert abs(got - want) <= FORCE_N_PER_COUNT / 2 + 1e-12
 
 
 def test_sensor_frame_saturates_and_flags_it():
-    x, _, _, status, _ = decode_sensor_frame(encode_sensor_frame((1000.0, 0, 0), FORCE_N_PER_COUNT, 0, 1),
-                                             FORCE_N_PER_COUNT)
+    x, _, _, status, _ = decode_sensor_frame(
+        encode_sensor_frame((1000.0, 0, 0), FORCE_N_PER_COUNT, 0, 1), FORCE_N_PER_COUNT
+    )
     assert x == pytest.approx(327.67)
     assert status & SENSOR_FORCE_SATURATED
-    _, _, _, tstatus, _ = decode_sensor_frame(encode_sensor_frame((0, 0, 99.0), TORQUE_NM_PER_COUNT, 0, 1),
-                                              TORQUE_NM_PER_COUNT)
+    _, _, _, tstatus, _ = decode_sensor_frame(
+        encode_sensor_frame((0, 0, 99.0), TORQUE_NM_PER_COUNT, 0, 1), TORQUE_NM_PER_COUNT
+    )
     assert tstatus & 0x02
 
 

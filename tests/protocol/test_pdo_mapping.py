@@ -33,8 +33,11 @@ from sim_backend.pdo_parameters import (
 from sim_backend.server import Simulator
 
 VENDOR_EDS = Path(__file__).resolve().parent.parent / "data" / "vendor_drive.eds"
-VENDOR = {"actuators.eds_file": str(VENDOR_EDS), "actuators.vendor_id": 0x00000A5E,
-          "actuators.product_code": 0x00C5D402}
+VENDOR = {
+    "actuators.eds_file": str(VENDOR_EDS),
+    "actuators.vendor_id": 0x00000A5E,
+    "actuators.product_code": 0x00C5D402,
+}
 
 
 def _abort_code(action) -> int:
@@ -44,6 +47,7 @@ def _abort_code(action) -> int:
 
 
 # -- the simulated drive as a slave, remapped by canopen alone ---------------------------------
+
 
 def test_canopen_remaps_tpdo_and_rpdo_and_the_drive_follows_the_new_layout(sim_and_master):
     sim, network = sim_and_master
@@ -90,8 +94,10 @@ def test_canopen_remaps_tpdo_and_rpdo_and_the_drive_follows_the_new_layout(sim_a
     assert drive.power == PowerState.OPERATION_ENABLED
     target = start_counts + 100_000  # +10 mm
     rpdo["Target position"].raw = target
-    wait_until(lambda: abs(node.tpdo[1]["Position actual value"].raw - target) < 50,
-               "the drive reaches the target sent in the remapped RPDO")
+    wait_until(
+        lambda: abs(node.tpdo[1]["Position actual value"].raw - target) < 50,
+        "the drive reaches the target sent in the remapped RPDO",
+    )
     node.state = "SWITCH ON DISABLED"
     rpdo.stop()
 
@@ -145,6 +151,7 @@ def test_sync_period_mismatch_is_reported_by_emcy(sim_and_master):
 
 # -- the controller's set-up as the master -----------------------------------------------------
 
+
 def _setup_plan(cfg):
     from controller.shell.service import node_setup_plan
 
@@ -194,14 +201,17 @@ def test_a_drive_with_another_identity_is_refused_naming_node_and_0x1018(buses):
     cfg = load_config(overrides={"sensor.enabled": False})
     sim_bus, bus = buses
     vendor_sim = load_config(overrides={"sensor.enabled": False, **VENDOR})
-    with Simulator(vendor_sim, sim_bus), pytest.raises(NodeSetupError,
-                                                       match=r"node 1: identity 0x1018 reads vendor 0x00000A5E"):
+    with (
+        Simulator(vendor_sim, sim_bus),
+        pytest.raises(NodeSetupError, match=r"node 1: identity 0x1018 reads vendor 0x00000A5E"),
+    ):
         configure_nodes(bus, _setup_plan(cfg))
 
 
 def test_a_mapping_over_8_bytes_is_refused_before_anything_is_written(buses):
-    cfg = load_config(overrides={"sensor.enabled": False,
-                                 "actuators.tpdo_objects": ["0x6041", "0x6064", "0x606C"]})
+    cfg = load_config(
+        overrides={"sensor.enabled": False, "actuators.tpdo_objects": ["0x6041", "0x6064", "0x606C"]}
+    )
     sim_bus, bus = buses
     with Simulator(cfg, sim_bus) as sim:
         with pytest.raises(NodeSetupError, match=r"node 1 TPDO1: mapping .* takes 10 bytes"):
@@ -210,6 +220,7 @@ def test_a_mapping_over_8_bytes_is_refused_before_anything_is_written(buses):
 
 
 # -- a second vendor's drive, through configuration alone --------------------------------------
+
 
 def test_vendor_drive_runs_the_cyclic_exchange_against_the_in_process_simulator(buses):
     from drivers.cyclic_exchange import CyclicExchange
@@ -224,12 +235,19 @@ def test_vendor_drive_runs_the_cyclic_exchange_against_the_in_process_simulator(
         assert [o.index for o in codec.rpdo.objects] == [0x607A, 0x6040]
         assert [o.index for o in codec.tpdo.objects] == [0x6064, 0x6041, 0x6061]
         scale = PositionScale(cfg.actuators.counts_per_m)
-        ex = CyclicExchange(bus, tuple(cfg.actuators.node_ids), scale, None, cfg.loop.controller_node_id,
-                            heartbeat_every=1, drive_codecs=report.drive_codecs,
-                            # the answer window (collect waits it out) as the loop's, so that the SYNCs come
-                            # about at the drives' configured period: a 5 ms window made the CSP drives see
-                            # SYNC at half their interpolation rate, and they fell behind their targets
-                            answer_window_s=cfg.loop.collect_fraction * cfg.period_s)
+        ex = CyclicExchange(
+            bus,
+            tuple(cfg.actuators.node_ids),
+            scale,
+            None,
+            cfg.loop.controller_node_id,
+            heartbeat_every=1,
+            drive_codecs=report.drive_codecs,
+            # the answer window (collect waits it out) as the loop's, so that the SYNCs come
+            # about at the drives' configured period: a 5 ms window made the CSP drives see
+            # SYNC at half their interpolation rate, and they fell behind their targets
+            answer_window_s=cfg.loop.collect_fraction * cfg.period_s,
+        )
         start = [d.position for d in sim.drives]
         ex.send(None)
         fb = ex.collect(time.monotonic() + 5.0)
@@ -266,24 +284,28 @@ def test_vendor_drive_runs_the_path_task_in_simulated_time():
     exchange = LoopbackExchange(cfg, clock.clock)
     assert [o.index for o in exchange.codecs[0].tpdo.objects] == [0x6064, 0x6041, 0x6061]
     recorder = RunRecorder()
-    loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
-                     observers=(recorder,))
+    loop = CycleLoop(
+        law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(recorder,)
+    )
     final, _ = loop.run(law.initial_state(), 30.0)
     assert final.mode == Mode.DONE, final.fault_reason
     err = np.array(recorder.tracking_error_m)
     assert err.size > 800 and err.max() < 80e-6
 
 
-
 def test_set_up_writes_the_drives_following_error_window_and_time_and_reads_them_back(buses):
-    cfg = load_config(overrides={"actuators.following_error_window_m": 0.004, "actuators.following_error_time_s": 0.02})
+    cfg = load_config(
+        overrides={"actuators.following_error_window_m": 0.004, "actuators.following_error_time_s": 0.02}
+    )
     sim_bus, bus = buses
     with Simulator(cfg, sim_bus) as sim:
         configure_nodes(bus, _setup_plan(cfg))
         for node_id, d in zip(cfg.actuators.node_ids, sim.drives):
             assert sim.nodes[node_id].sdo[0x6065].raw == 40_000  # counts: 4 mm at 0.1 um per count
             assert sim.nodes[node_id].sdo[0x6066].raw == 20  # ms
-            assert d.following_error_window == pytest.approx(0.004) and d.following_error_time_s == pytest.approx(0.02)
+            assert d.following_error_window == pytest.approx(
+                0.004
+            ) and d.following_error_time_s == pytest.approx(0.02)
 
 
 def test_a_drive_beyond_its_following_error_window_for_its_time_faults_with_emcy_8611():

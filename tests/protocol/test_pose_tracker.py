@@ -26,7 +26,9 @@ def test_tracker_frames_round_trip_to_a_count():
     fp, fr = encode_tracker_frames(p, r, 0, 7)
     xp = decode_tracker_frame(fp, TRACKER_M_PER_COUNT)
     xr = decode_tracker_frame(fr, TRACKER_RAD_PER_COUNT)
-    assert np.allclose(xp[:3], p, atol=TRACKER_M_PER_COUNT / 2) and np.allclose(xr[:3], r, atol=TRACKER_RAD_PER_COUNT / 2)
+    assert np.allclose(xp[:3], p, atol=TRACKER_M_PER_COUNT / 2) and np.allclose(
+        xr[:3], r, atol=TRACKER_RAD_PER_COUNT / 2
+    )
     assert xp[3:] == (0, 7) and xr[3:] == (0, 7)
 
 
@@ -39,8 +41,10 @@ def test_tracker_position_beyond_the_range_saturates_and_says_so():
 
 
 def _run(overrides: dict[str, object], cycles: int) -> tuple[LoopbackExchange, list]:
-    cfg = load_config(NSPU_TOML, {"recording.enabled": False, "monitoring.enabled": False, "tracker.enabled": True,
-                                  **overrides})
+    cfg = load_config(
+        NSPU_TOML,
+        {"recording.enabled": False, "monitoring.enabled": False, "tracker.enabled": True, **overrides},
+    )
     clock = SimulatedTime()
     ex = LoopbackExchange(cfg, clock.clock)
     out = []
@@ -52,8 +56,14 @@ def _run(overrides: dict[str, object], cycles: int) -> tuple[LoopbackExchange, l
 
 
 def test_the_exchange_decodes_the_simulated_pose_at_the_tracker_rate():
-    ex, samples = _run({"sim.tracker.position_noise_m": 0.0, "sim.tracker.angle_noise_rad": 0.0,
-                        "sim.tracker.rate_hz": 100.0}, 40)
+    ex, samples = _run(
+        {
+            "sim.tracker.position_noise_m": 0.0,
+            "sim.tracker.angle_noise_rad": 0.0,
+            "sim.tracker.rate_hz": 100.0,
+        },
+        40,
+    )
     fresh = [k for k, s in enumerate(samples) if s is not None and s.fresh]
     assert np.all(np.diff(fresh) == 4)  # 100 Hz on a 400 Hz loop: every fourth SYNC
     assert len(fresh) == 10
@@ -64,8 +74,14 @@ def test_the_exchange_decodes_the_simulated_pose_at_the_tracker_rate():
 
 
 def test_the_simulated_tracker_noise_has_the_configured_spread():
-    ex, samples = _run({"sim.tracker.position_noise_m": 1e-3, "sim.tracker.angle_noise_rad": 2e-3,
-                        "sim.tracker.rate_hz": 400.0}, 400)
+    ex, samples = _run(
+        {
+            "sim.tracker.position_noise_m": 1e-3,
+            "sim.tracker.angle_noise_rad": 2e-3,
+            "sim.tracker.rate_hz": 400.0,
+        },
+        400,
+    )
     p = np.array([s.position_m for s in samples if s.fresh])
     truth = ex.plant.kinematics.pose.p_m  # the platform stands still (no targets sent)
     assert p.shape[0] > 350

@@ -66,14 +66,29 @@ def test_the_simulator_is_real_time_only_from_after_its_set_up_to_before_its_shu
     monkeypatch.setattr(process, "unfreeze_garbage_collector", lambda: None)
     announce = lambda line: (calls.append("READY"), stop.set())
     process.serve(cfg, parse_bus_spec(f"virtual:rt-order-{time.monotonic_ns()}"), stop, announce, RT)
-    assert calls == ["bus open", "EDS files and plant loaded", "canopen nodes built", "gc frozen", "real-time",
-                     "device threads start", "READY", "normal scheduler", "device threads stop"]
+    assert calls == [
+        "bus open",
+        "EDS files and plant loaded",
+        "canopen nodes built",
+        "gc frozen",
+        "real-time",
+        "device threads start",
+        "READY",
+        "normal scheduler",
+        "device threads stop",
+    ]
 
 
 def test_the_controller_goes_real_time_after_the_set_up_and_the_garbage_collection(monkeypatch):
     """A short run over a virtual bus against an in-process simulator; only the order is judged."""
-    cfg = load_config(overrides={"recording.enabled": False, "monitoring.enabled": False, "sensor.enabled": False,
-                                 "loop.freeze_gc": True})
+    cfg = load_config(
+        overrides={
+            "recording.enabled": False,
+            "monitoring.enabled": False,
+            "sensor.enabled": False,
+            "loop.freeze_gc": True,
+        }
+    )
     channel = f"rt-order-{time.monotonic_ns()}"
     calls: list[str] = []
     configure = service.configure_nodes
@@ -94,11 +109,20 @@ def test_the_controller_goes_real_time_after_the_set_up_and_the_garbage_collecti
     sim_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=True)
     try:
         with Simulator(cfg, sim_bus):
-            service.run_controller(cfg, parse_bus_spec(f"virtual:{channel}"), max_duration_s=0.05, realtime=RT)
+            service.run_controller(
+                cfg, parse_bus_spec(f"virtual:{channel}"), max_duration_s=0.05, realtime=RT
+            )
     finally:
         sim_bus.shutdown()
-    assert calls == ["checked", "devices configured", "gc frozen", "real-time", "READY=1", "STOPPING=1",
-                     "real-time restored"]
+    assert calls == [
+        "checked",
+        "devices configured",
+        "gc frozen",
+        "real-time",
+        "READY=1",
+        "STOPPING=1",
+        "real-time restored",
+    ]
 
 
 class _RecordingLibc:

@@ -44,8 +44,13 @@ class ScriptedBus(can.BusABC):
             self.inbox.put(m)
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        copy = can.Message(arbitration_id=msg.arbitration_id, data=bytes(msg.data), is_extended_id=False,
-                           is_error_frame=msg.is_error_frame, is_fd=msg.is_fd)
+        copy = can.Message(
+            arbitration_id=msg.arbitration_id,
+            data=bytes(msg.data),
+            is_extended_id=False,
+            is_error_frame=msg.is_error_frame,
+            is_fd=msg.is_fd,
+        )
         with self._changed:
             self.sent.append(copy)
             self._changed.notify_all()
@@ -59,7 +64,9 @@ class ScriptedBus(can.BusABC):
     def wait_for(self, done: Callable[[list[can.Message]], bool]) -> list[can.Message]:
         with self._changed:
             if not self._changed.wait_for(lambda: done(self.sent), timeout=WAIT_S):
-                raise AssertionError(f"expected frames not sent; sent: {[hex(m.arbitration_id) for m in self.sent]}")
+                raise AssertionError(
+                    f"expected frames not sent; sent: {[hex(m.arbitration_id) for m in self.sent]}"
+                )
             return list(self.sent)
 
 
@@ -79,8 +86,12 @@ def sim() -> Iterator[tuple[Simulator, ScriptedBus]]:
     simulator.start()
     try:
         nodes = (*cfg.actuators.node_ids, cfg.sensor.node_id)
-        bus.wait_for(lambda sent: all(any(m.arbitration_id == cob_ids.heartbeat(n) and bytes(m.data) == b"\x00"
-                                          for m in sent) for n in nodes))  # boot-up messages
+        bus.wait_for(
+            lambda sent: all(
+                any(m.arbitration_id == cob_ids.heartbeat(n) and bytes(m.data) == b"\x00" for m in sent)
+                for n in nodes
+            )
+        )  # boot-up messages
         bus.push(frame(cob_ids.NMT, bytes([0x01, 0x00])))  # NMT start, all nodes
         yield simulator, bus
     finally:
@@ -98,8 +109,10 @@ def sync_and_wait(bus: ScriptedBus, *before: can.Message, tpdos: int = 5) -> lis
 
 
 def rpdos(controlword: int, targets_m: tuple[float, ...]) -> list[can.Message]:
-    return [frame(cob_ids.rpdo1(n), encode_drive_rpdo(controlword, round(x * COUNTS_PER_M)))
-            for n, x in zip((1, 2, 3), targets_m)]
+    return [
+        frame(cob_ids.rpdo1(n), encode_drive_rpdo(controlword, round(x * COUNTS_PER_M)))
+        for n, x in zip((1, 2, 3), targets_m)
+    ]
 
 
 def test_sync_is_answered_with_the_exact_tpdos_of_every_device(sim):
@@ -135,7 +148,9 @@ def test_rpdo_targets_wait_for_the_next_sync_and_a_batch_is_drained_in_order(sim
     bus.push(*batch)
     bus.wait_for(lambda s: len(after(s, first, cob_ids.tpdo1(3))) >= 3)
     for d, x in zip(simulator.drives, start):
-        assert d.latched_target == pytest.approx(x + 3 * step, abs=1e-9)  # the last SYNC latched the last target
+        assert d.latched_target == pytest.approx(
+            x + 3 * step, abs=1e-9
+        )  # the last SYNC latched the last target
     assert simulator.sync_count == 3 + 3
 
 
@@ -177,8 +192,9 @@ def faulty_sim(request) -> Iterator[tuple[Simulator, ScriptedBus]]:
         bus.shutdown()
 
 
-@pytest.mark.parametrize("faulty_sim,bus_off", [("error_frames@0", False), ("bus_off@0", True)],
-                         indirect=["faulty_sim"])
+@pytest.mark.parametrize(
+    "faulty_sim,bus_off", [("error_frames@0", False), ("bus_off@0", True)], indirect=["faulty_sim"]
+)
 def test_a_bus_fault_is_one_decision_sent_as_a_frame_and_fed_back_in_process(faulty_sim, bus_off):
     """The simulator process sends the error frame the in-process loopback reports as feedback
     (sim_backend/fault_injection.py ``bus_faults``), and the exchange reads it the same way."""
@@ -213,8 +229,10 @@ def test_the_simulated_tracker_answers_a_sync_with_the_pose_in_two_frames():
     from controller.robots.nspu import so3_log
     from drivers.pdo_codec import TRACKER_M_PER_COUNT, TRACKER_RAD_PER_COUNT, decode_tracker_frame
 
-    cfg = load_config(CONFIG_DIR / "nspu.toml", {"tracker.enabled": True, "sim.tracker.position_noise_m": 0.0,
-                                                 "sim.tracker.angle_noise_rad": 0.0})
+    cfg = load_config(
+        CONFIG_DIR / "nspu.toml",
+        {"tracker.enabled": True, "sim.tracker.position_noise_m": 0.0, "sim.tracker.angle_noise_rad": 0.0},
+    )
     bus = ScriptedBus()
     simulator = Simulator(cfg, bus)
     simulator.start()

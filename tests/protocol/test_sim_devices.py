@@ -107,9 +107,15 @@ def test_the_watchdog_thread_skips_the_tick_after_a_stall_of_its_process():
     assert not watchdog_due(10.0, stalled, last_sync_s=9.9, sync_timeout_s=timeout)
 
 
-@pytest.mark.parametrize(("option", "power"), [
-    (ABORT_QUICK_STOP, PowerState.QUICK_STOP_ACTIVE), (ABORT_FAULT, PowerState.FAULT),
-    (ABORT_DISABLE_VOLTAGE, PowerState.SWITCH_ON_DISABLED), (ABORT_NO_ACTION, PowerState.OPERATION_ENABLED)])
+@pytest.mark.parametrize(
+    ("option", "power"),
+    [
+        (ABORT_QUICK_STOP, PowerState.QUICK_STOP_ACTIVE),
+        (ABORT_FAULT, PowerState.FAULT),
+        (ABORT_DISABLE_VOLTAGE, PowerState.SWITCH_ON_DISABLED),
+        (ABORT_NO_ACTION, PowerState.OPERATION_ENABLED),
+    ],
+)
 def test_the_controller_heartbeat_lost_gets_the_abort_connection_reaction_of_0x6007(option, power):
     d, t = enabled_drive()
     d.abort_connection_option = option
@@ -121,9 +127,14 @@ def test_the_controller_heartbeat_lost_gets_the_abort_connection_reaction_of_0x6
     assert (EMCY_HEARTBEAT_LOST in d.pending_emcy) == (option != ABORT_NO_ACTION)
 
 
-@pytest.mark.parametrize(("option", "power"), [
-    (ABORT_QUICK_STOP, PowerState.QUICK_STOP_ACTIVE), (ABORT_FAULT, PowerState.FAULT),
-    (ABORT_NO_ACTION, PowerState.OPERATION_ENABLED)])
+@pytest.mark.parametrize(
+    ("option", "power"),
+    [
+        (ABORT_QUICK_STOP, PowerState.QUICK_STOP_ACTIVE),
+        (ABORT_FAULT, PowerState.FAULT),
+        (ABORT_NO_ACTION, PowerState.OPERATION_ENABLED),
+    ],
+)
 def test_nmt_leaving_operational_while_enabled_gets_the_abort_connection_reaction(option, power):
     d, _ = enabled_drive()
     d.abort_connection_option = option
@@ -184,8 +195,14 @@ def test_force_sensor_bias_noise_saturation_and_counter():
 def test_cogging_moves_the_tool_by_the_inverse_jacobian_of_the_carriage_displacement():
     """A carriage force f through the lumped stiffness k J^T J: the tool moves by J^-1 f / k."""
     amplitude, period, phases = 4.0, 0.024, (0.0, 120.0, 240.0)
-    cfg = load_config(overrides={"task.kind": "contour", "sim.drive.cogging_force_n": amplitude,
-                                 "sim.drive.cogging_period_m": period, "sim.drive.cogging_phases_deg": list(phases)})
+    cfg = load_config(
+        overrides={
+            "task.kind": "contour",
+            "sim.drive.cogging_force_n": amplitude,
+            "sim.drive.cogging_period_m": period,
+            "sim.drive.cogging_phases_deg": list(phases),
+        }
+    )
     plant = RobotPlant(cfg)  # drives disabled, brakes holding; the TCP is clear of the disk
     plant.advance(0.0)
     plant.advance(3.0)  # the structure's modes have settled
@@ -234,6 +251,7 @@ def test_drive_reports_the_acceleration_of_its_last_substep():
 
 
 # -- a late or missing setpoint (a CSP drive's interpolator, sim_backend/drive.py) ------------
+
 
 def moving_drive(speed_m_s: float = 0.1, cycles: int = 200) -> tuple[SimulatedDrive, float, float]:
     """A drive following a ramp with 0x60C2 set to the period; returns it, the time and the last target."""
@@ -307,7 +325,7 @@ def test_interpolation_time_period_as_written_by_the_set_up():
     assert interpolation_time_period(0.001) == (1, -3)
     assert interpolation_time_period(0.00025) == (25, -5)
     value, index = interpolation_time_period(1 / 300)  # no exact form: the finest that fits 8 bits
-    assert value <= 255 and value * 10.0 ** index == pytest.approx(1 / 300, rel=0.02)
+    assert value <= 255 and value * 10.0**index == pytest.approx(1 / 300, rel=0.02)
 
 
 def _syncs(d: SimulatedDrive, t: float, intervals_s: list[float]) -> float:

@@ -45,7 +45,11 @@ def test_a_simulator_configured_to_another_environment_refuses_and_the_start_fai
         assert isinstance(sim.plant.environment, FreeSpace)
     message = str(err.value)
     assert "\n" not in message
-    assert 'sim.environment = "free"' in message and 'task.kind = "contour"' in message and "workpiece" in message
+    assert (
+        'sim.environment = "free"' in message
+        and 'task.kind = "contour"' in message
+        and "workpiece" in message
+    )
 
 
 def test_a_sensor_without_the_object_is_a_real_one_and_the_set_up_goes_on(buses, monkeypatch):

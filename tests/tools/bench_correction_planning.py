@@ -20,10 +20,16 @@ from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.tasks.plan_correction import correction_plan
 from sim_backend.loopback import LoopbackExchange
 
-SETTINGS = {"sim.nspu.leg_offset_m": [0.0005, -0.0005, 0.0005], "sim.nspu.w4_axis_error_rad": [0.001, -0.001, 0.001],
-            "sim.nspu.r_axis_error_rad": [-0.001, 0.001, 0.001], "sim.nspu.start_offset_m": [0.002, 0.0, 0.0],
-            "tracker.enabled": True, "robot.nspu.correction_planning": "in_step",
-            "recording.enabled": False, "monitoring.enabled": False}
+SETTINGS = {
+    "sim.nspu.leg_offset_m": [0.0005, -0.0005, 0.0005],
+    "sim.nspu.w4_axis_error_rad": [0.001, -0.001, 0.001],
+    "sim.nspu.r_axis_error_rad": [-0.001, 0.001, 0.001],
+    "sim.nspu.start_offset_m": [0.002, 0.0, 0.0],
+    "tracker.enabled": True,
+    "robot.nspu.correction_planning": "in_step",
+    "recording.enabled": False,
+    "monitoring.enabled": False,
+}
 
 
 class Requests:
@@ -44,8 +50,15 @@ def main() -> None:
     clock = SimulatedTime()
     law = assemble(cfg).law
     seen = Requests()
-    CycleLoop(law, LoopbackExchange(cfg, clock.clock), cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
-              observers=(seen,)).run(law.initial_state(), 40.0)
+    CycleLoop(
+        law,
+        LoopbackExchange(cfg, clock.clock),
+        cfg.period_s,
+        cfg.loop.collect_fraction,
+        clock,
+        clock.clock,
+        observers=(seen,),
+    ).run(law.initial_state(), 40.0)
     problem = law.task.correction_planner.problem
     for rid, request in seen.by_id.items():
         times = []
@@ -54,9 +67,11 @@ def main() -> None:
             result = correction_plan(problem, request)  # type: ignore[arg-type]
             times.append(time.perf_counter() - t0)
         med = statistics.median(times)
-        print(f"request {rid}: {result.iterations} iterations; {args.repeats} runs: median {med:.3f} s, "
-              f"min {min(times):.3f} s, max {max(times):.3f} s; {med * cfg.loop.rate_hz:.0f} periods at "
-              f"{cfg.loop.rate_hz:.0f} Hz")
+        print(
+            f"request {rid}: {result.iterations} iterations; {args.repeats} runs: median {med:.3f} s, "
+            f"min {min(times):.3f} s, max {max(times):.3f} s; {med * cfg.loop.rate_hz:.0f} periods at "
+            f"{cfg.loop.rate_hz:.0f} Hz"
+        )
 
 
 if __name__ == "__main__":

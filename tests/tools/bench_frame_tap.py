@@ -28,7 +28,8 @@ from drivers.frame_tap import FrameTap
 
 N = 5000
 spec = parse_bus_spec("udp_multicast", udp_port=random.randint(51000, 52000))
-raw = open_bus(spec); tap = FrameTap(open_bus(spec), lambda o, t, m: None)
+raw = open_bus(spec)
+tap = FrameTap(open_bus(spec), lambda o, t, m: None)
 msg = can.Message(arbitration_id=0x201, data=bytearray(6), is_extended_id=False)
 
 
@@ -46,18 +47,33 @@ def tap_cycle() -> float:
         tap.send(msg)
         tap.recv(0.0)  # drops the echo inside, returns None
     return (time.thread_time() - t0) / N * 1e6
+
+
 raw_r, tap_r = [], []
 for _ in range(7):
     raw_r.append(raw_cycle())
     tap_r.append(tap_cycle())
-print(f"send + read own echo, raw udp_multicast bus: median {statistics.median(raw_r):.1f} us, range {min(raw_r):.1f}-{max(raw_r):.1f}")
-print(f"send + echo dropped, through FrameTap:       median {statistics.median(tap_r):.1f} us, range {min(tap_r):.1f}-{max(tap_r):.1f}")
-raw.shutdown(); tap.shutdown()
+print(
+    f"send + read own echo, raw udp_multicast bus: median {statistics.median(raw_r):.1f} us, range {min(raw_r):.1f}-{max(raw_r):.1f}"
+)
+print(
+    f"send + echo dropped, through FrameTap:       median {statistics.median(tap_r):.1f} us, range {min(tap_r):.1f}-{max(tap_r):.1f}"
+)
+raw.shutdown()
+tap.shutdown()
 
 obs = StatusObserver(lambda b: None, 0.0025, laps=5)
-st = ControllerState(mode=Mode.RUNNING, cycle=0, mode_entered_s=0.0, setpoint=Setpoint.at_rest((0.0,)*3),
-                     controlwords=(0,)*3, missing_streak=(0,)*3, task_state=ContourState(phase=ContourPhase.TRACKING, lap=1, force_error_n=0.3),
-                     tcp_reference_m=None, tcp_measured_m=None)
+st = ControllerState(
+    mode=Mode.RUNNING,
+    cycle=0,
+    mode_entered_s=0.0,
+    setpoint=Setpoint.at_rest((0.0,) * 3),
+    controlwords=(0,) * 3,
+    missing_streak=(0,) * 3,
+    task_state=ContourState(phase=ContourPhase.TRACKING, lap=1, force_error_n=0.3),
+    tcp_reference_m=None,
+    tcp_measured_m=None,
+)
 inp, out, tim = CycleInputs(drives=()), CycleOutputs((), ()), CycleTiming(1e-5, 1e-4)
 res = []
 for r in range(7):
@@ -65,4 +81,6 @@ for r in range(7):
     for k in range(r * 40000, (r + 1) * 40000):
         obs.on_cycle(k, 0.0, inp, st, out, (), tim)
     res.append((time.thread_time() - t0) / 40000 * 1e6)
-print(f"StatusObserver.on_cycle (a JSON line every 100 cycles included): median {statistics.median(res):.2f} us, range {min(res):.2f}-{max(res):.2f}")
+print(
+    f"StatusObserver.on_cycle (a JSON line every 100 cycles included): median {statistics.median(res):.2f} us, range {min(res):.2f}-{max(res):.2f}"
+)

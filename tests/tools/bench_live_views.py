@@ -56,17 +56,25 @@ def capture_records(seconds: float, directory: Path) -> list[tuple[object, ...]]
     exchange = LoopbackExchange(cfg, clock.clock)
     recorder_module.pack_record = capture  # type: ignore[assignment]
     try:
-        with SessionRecorder(directory / "capture.mcap", session_metadata(cfg), clock=clock.clock,
-                             phase_name=law.task.phase_name, lossless=True) as rec:
-            loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
-                             observers=(rec,))
+        with SessionRecorder(
+            directory / "capture.mcap",
+            session_metadata(cfg),
+            clock=clock.clock,
+            phase_name=law.task.phase_name,
+            lossless=True,
+        ) as rec:
+            loop = CycleLoop(
+                law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(rec,)
+            )
             loop.run(law.initial_state(), seconds)
     finally:
         recorder_module.pack_record = original
     return records
 
 
-def writer_cpu_per_cycle_us(records: list[tuple[object, ...]], recording: dict[str, object], out: Path) -> float:
+def writer_cpu_per_cycle_us(
+    records: list[tuple[object, ...]], recording: dict[str, object], out: Path
+) -> float:
     """Feed the captured records to a SessionWriter whose configuration has ``recording`` changed."""
     from logs import messages as m
     from logs.session_writer import CYCLE, END, SETUP, SessionWriter
@@ -105,9 +113,19 @@ def run(seconds: float, repeats: int) -> dict[str, list[float]]:
         d = Path(tmp)
         records = capture_records(seconds, d)
         rerun_port = free_loopback_port()
-        server = subprocess.Popen([_rerun_binary(), "--bind", "127.0.0.1", "--port",
-                                   str(rerun_port), "--save", str(d / "live.rrd")],
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        server = subprocess.Popen(
+            [
+                _rerun_binary(),
+                "--bind",
+                "127.0.0.1",
+                "--port",
+                str(rerun_port),
+                "--save",
+                str(d / "live.rrd"),
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         try:
             variants: dict[str, dict[str, object]] = {
                 "no scene": {"scene_rate_hz": 0.1},
@@ -117,7 +135,9 @@ def run(seconds: float, repeats: int) -> dict[str, list[float]]:
             }
             for k in range(repeats):
                 for name, ov in variants.items():
-                    us = writer_cpu_per_cycle_us(records, ov, d / f"{k}-{len(results.get(name, []))}-{hash(name)}.mcap")
+                    us = writer_cpu_per_cycle_us(
+                        records, ov, d / f"{k}-{len(results.get(name, []))}-{hash(name)}.mcap"
+                    )
                     results.setdefault(name, []).append(us)
         finally:
             server.terminate()
@@ -127,8 +147,12 @@ def run(seconds: float, repeats: int) -> dict[str, list[float]]:
 
 def report(results: dict[str, list[float]], seconds: float) -> str:
     runs = len(next(iter(results.values())))
-    lines = [(f"writer process CPU per 400 Hz cycle, contour task, {seconds:g} s simulated, {runs} runs each: "
-             "median (min-max) [us]")]
+    lines = [
+        (
+            f"writer process CPU per 400 Hz cycle, contour task, {seconds:g} s simulated, {runs} runs each: "
+            "median (min-max) [us]"
+        )
+    ]
     for name, v in results.items():
         lines.append(f"  {name:24s} {statistics.median(v):7.1f} ({min(v):.1f}-{max(v):.1f})")
     return "\n".join(lines)

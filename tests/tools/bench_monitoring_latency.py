@@ -37,18 +37,29 @@ from drivers.pacing import DeadlineSleeper
 
 def on_cycle_cost_us(publish_rate_hz: float, calls: int = 8000) -> tuple[np.ndarray, int]:
     ep = f"tcp/127.0.0.1:{free_loopback_port()}"
-    cfg = load_config(overrides={"monitoring.publish_rate_hz": publish_rate_hz, "monitoring.listen": ep,
-                                 "monitoring.on_listen_busy": "fail"})
+    cfg = load_config(
+        overrides={
+            "monitoring.publish_rate_hz": publish_rate_hz,
+            "monitoring.listen": ep,
+            "monitoring.on_listen_busy": "fail",
+        }
+    )
     law = build_law(cfg)
     state = law.initial_state()
-    inputs = CycleInputs(drives=(DriveFeedback(0x1237, 0.55, True),) * 3,
-                         sensor=SensorFeedback((0.1, 0.2, 3.0), (0.0, 0.0, 0.0), 0, 1, True))
+    inputs = CycleInputs(
+        drives=(DriveFeedback(0x1237, 0.55, True),) * 3,
+        sensor=SensorFeedback((0.1, 0.2, 3.0), (0.0, 0.0, 0.0), 0, 1, True),
+    )
     outputs = CycleOutputs((0x0F,) * 3, (0.55,) * 3)
     timing = CycleTiming(2e-6, 1.5e-4)
     cost = np.zeros(calls)
-    with MonitorPublisher(publisher_settings(cfg), threading.Event(), law.task.name, law.task.phase_name) as pub:
+    with MonitorPublisher(
+        publisher_settings(cfg), threading.Event(), law.task.name, law.task.phase_name
+    ) as pub:
         # a subscriber so that samples really go out on the wire
-        with MonitorClient(monitor_settings((ep,)), MonitorKeys.for_robot("cheope", "*", allow_wildcard=True)):
+        with MonitorClient(
+            monitor_settings((ep,)), MonitorKeys.for_robot("cheope", "*", allow_wildcard=True)
+        ):
             time.sleep(0.5)
             clock = time.perf_counter_ns
             sleeper = DeadlineSleeper(cfg.loop.spin_us * 1e-6)  # paced like the loop: 400 Hz
@@ -65,13 +76,32 @@ def on_cycle_cost_us(publish_rate_hz: float, calls: int = 8000) -> tuple[np.ndar
 
 def end_to_end_latency_s(samples: int = 4000, publish_rate_hz: float = 400.0) -> dict[str, np.ndarray]:
     ep = f"tcp/127.0.0.1:{free_loopback_port()}"
-    cmd = [sys.executable, "-m", "controller.tools.sim_controller", "--max-duration", "60",
-           "--set", f'monitoring.listen="{ep}"', "--set", 'monitoring.on_listen_busy="fail"',
-           "--set", f"monitoring.publish_rate_hz={publish_rate_hz}", "--set", "task.path.laps=50"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "controller.tools.sim_controller",
+        "--max-duration",
+        "60",
+        "--set",
+        f'monitoring.listen="{ep}"',
+        "--set",
+        'monitoring.on_listen_busy="fail"',
+        "--set",
+        f"monitoring.publish_rate_hz={publish_rate_hz}",
+        "--set",
+        "task.path.laps=50",
+    ]
     cycle, publish, received = [], [], []
-    with MonitorClient(monitor_settings((ep,)), MonitorKeys.for_robot("cheope", "*", allow_wildcard=True)) as client:
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    with MonitorClient(
+        monitor_settings((ep,)), MonitorKeys.for_robot("cheope", "*", allow_wildcard=True)
+    ) as client:
+        proc = subprocess.Popen(
+            cmd,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )
         try:
             sel = selectors.DefaultSelector()
             sel.register(proc.stdout, selectors.EVENT_READ)
@@ -97,8 +127,10 @@ def end_to_end_latency_s(samples: int = 4000, publish_rate_hz: float = 400.0) ->
 
 
 def _pct(a: np.ndarray, scale: float = 1.0) -> str:
-    return f"p50 {np.percentile(a, 50) * scale:.1f}, p99 {np.percentile(a, 99) * scale:.1f}, " \
-           f"max {a.max() * scale:.1f}"
+    return (
+        f"p50 {np.percentile(a, 50) * scale:.1f}, p99 {np.percentile(a, 99) * scale:.1f}, "
+        f"max {a.max() * scale:.1f}"
+    )
 
 
 def report() -> str:
@@ -106,12 +138,18 @@ def report() -> str:
     for rate in (50.0, 400.0):
         cost, errors = on_cycle_cost_us(rate)
         published = cost[:: max(1, round(400.0 / rate))]  # the cycles that build and put a sample
-        lines.append(f"on_cycle at 400 Hz loop, publish {rate:g} Hz, {cost.size} calls [us]: {_pct(cost)}; "
-                     f"publishing cycles: {_pct(published)}; publish errors {errors}")
+        lines.append(
+            f"on_cycle at 400 Hz loop, publish {rate:g} Hz, {cost.size} calls [us]: {_pct(cost)}; "
+            f"publishing cycles: {_pct(published)}; publish errors {errors}"
+        )
     lat = end_to_end_latency_s()
     n = lat["cycle_to_receive"].size
-    lines.append(f"end-to-end latency, publish 400 Hz, {n} samples [us]: {_pct(lat['cycle_to_receive'], 1e6)}")
-    lines.append(f"  of which cycle -> put (protobuf, on the loop's thread) [us]: {_pct(lat['cycle_to_publish'], 1e6)}")
+    lines.append(
+        f"end-to-end latency, publish 400 Hz, {n} samples [us]: {_pct(lat['cycle_to_receive'], 1e6)}"
+    )
+    lines.append(
+        f"  of which cycle -> put (protobuf, on the loop's thread) [us]: {_pct(lat['cycle_to_publish'], 1e6)}"
+    )
     lines.append(f"  of which put -> monitor callback (Zenoh) [us]: {_pct(lat['publish_to_receive'], 1e6)}")
     return "\n".join(lines)
 

@@ -38,18 +38,40 @@ def records(path: Path) -> tuple[list[tuple[object, ...]], dict[str, dict[str, s
     for d in iter_decoded(path, (m.TOPIC_EVENTS,), ReadReport(path)):
         if d.message.kind != "recorder_drop":
             events.setdefault(d.message.cycle, []).append(
-                Event(d.message.kind, Severity(d.message.severity), d.message.message))
+                Event(d.message.kind, Severity(d.message.severity), d.message.message)
+            )
     for d in iter_decoded(path, (m.TOPIC_CAN, m.TOPIC_CYCLE), ReadReport(path)):
         if d.topic == m.TOPIC_CAN:
             f = d.message
-            frames.append((f.outgoing, f.monotonic_s, f.arbitration_id, bytes(f.data), f.is_fd, f.bitrate_switch,
-                           f.is_error_frame))
+            frames.append(
+                (
+                    f.outgoing,
+                    f.monotonic_s,
+                    f.arbitration_id,
+                    bytes(f.data),
+                    f.is_fd,
+                    f.bitrate_switch,
+                    f.is_error_frame,
+                )
+            )
             continue
         c = d.message
         st = c.state
-        out.append((CYCLE, 0, frames, c.cycle, c.t_s, (d.log_time_ns - offset_ns) * 1e-9, d.sequence,
-                    c.SerializeToString(), tuple(events.get(c.cycle, ())),
-                    tuple(st.tcp_measured_m) or None, tuple(st.tcp_reference_m) or None))
+        out.append(
+            (
+                CYCLE,
+                0,
+                frames,
+                c.cycle,
+                c.t_s,
+                (d.log_time_ns - offset_ns) * 1e-9,
+                d.sequence,
+                c.SerializeToString(),
+                tuple(events.get(c.cycle, ())),
+                tuple(st.tcp_measured_m) or None,
+                tuple(st.tcp_reference_m) or None,
+            )
+        )
         frames = []
     if frames:
         out.append((FRAMES, 0, frames))
@@ -61,9 +83,14 @@ def main(src: Path, dst: Path | None) -> dict[str, float]:
     metadata.pop(m.META_RECORDING, None)
     with tempfile.TemporaryDirectory() as tmp:
         out = dst or Path(tmp) / "bench.mcap"
-        settings = {"path": str(out), "metadata": metadata,
-                    "clock_offset_ns": int(metadata[m.META_SESSION]["clock_offset_ns"]),
-                    "chunk_size_bytes": load_config().recording.chunk_size_bytes, "flush_interval_s": load_config().recording.flush_interval_s, "compression": "zstd"}
+        settings = {
+            "path": str(out),
+            "metadata": metadata,
+            "clock_offset_ns": int(metadata[m.META_SESSION]["clock_offset_ns"]),
+            "chunk_size_bytes": load_config().recording.chunk_size_bytes,
+            "flush_interval_s": load_config().recording.flush_interval_s,
+            "compression": "zstd",
+        }
         session_now = [0.0]
         # chunks close on the session's clock (every flush_interval_s of it), as in the recorded run
         real_time = sw.time  # type: ignore[attr-defined]
@@ -80,10 +107,15 @@ def main(src: Path, dst: Path | None) -> dict[str, float]:
         finally:
             sw.time = real_time  # type: ignore[attr-defined]
         size = out.stat().st_size
-    return {"source_duration_s": round(duration_s, 3), "cycles": sum(1 for r in recs if r[0] == CYCLE),
-            "bytes": size, "bytes_per_hour": round(size * HOUR_S / duration_s),
-            "gb_per_hour": round(size * HOUR_S / duration_s / 1e9, 3),
-            "writer_cpu_s": round(cpu_s, 3), "writer_cpu_percent_of_session": round(100 * cpu_s / duration_s, 2)}
+    return {
+        "source_duration_s": round(duration_s, 3),
+        "cycles": sum(1 for r in recs if r[0] == CYCLE),
+        "bytes": size,
+        "bytes_per_hour": round(size * HOUR_S / duration_s),
+        "gb_per_hour": round(size * HOUR_S / duration_s / 1e9, 3),
+        "writer_cpu_s": round(cpu_s, 3),
+        "writer_cpu_percent_of_session": round(100 * cpu_s / duration_s, 2),
+    }
 
 
 if __name__ == "__main__":

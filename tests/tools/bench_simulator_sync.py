@@ -40,10 +40,12 @@ def main() -> None:
             cost_s[k] = time.perf_counter() - t0
     finally:
         bus.shutdown()
-    us = cost_s[min(500, args.syncs // 2):] * 1e6
+    us = cost_s[min(500, args.syncs // 2) :] * 1e6
     p50, p90, p99 = np.percentile(us, [50, 90, 99])
-    print(f"simulator _on_sync after {args.idle_s:g} s idle: p50 {p50:.1f} us, p90 {p90:.1f} us, p99 {p99:.1f} us "
-          f"({us.size} SYNCs)")
+    print(
+        f"simulator _on_sync after {args.idle_s:g} s idle: p50 {p50:.1f} us, p90 {p90:.1f} us, p99 {p99:.1f} us "
+        f"({us.size} SYNCs)"
+    )
 
 
 if __name__ == "__main__":

@@ -87,8 +87,12 @@ def test_cpu_use_from_samples():
     nan = float("nan")
     # (monotonic, loop thread, controller, simulator, writer) [s]; the writer is found after the first sample
     samples = [(10.0, 1.0, 2.0, 3.0, nan), (11.0, 1.2, 2.5, 3.2, 0.5), (12.0, 1.5, 3.0, nan, 0.6)]
-    assert cpu_use_percent(samples) == {"loop_thread": 25.0, "controller_process": 50.0, "simulator_process": None,
-                                        "writer_process": 10.0}
+    assert cpu_use_percent(samples) == {
+        "loop_thread": 25.0,
+        "controller_process": 50.0,
+        "simulator_process": None,
+        "writer_process": 10.0,
+    }
     assert cpu_use_percent(samples[:1])["loop_thread"] is None
 
 
@@ -110,14 +114,17 @@ def test_project_pdo_path_is_cheaper_than_canopens_pdo_objects():
 
 # -- real-time options ------------------------------------------------------------------------
 
+
 def test_options_validate_their_values():
     with pytest.raises(RealtimeError, match="--rt-priority 0: SCHED_FIFO priorities are 1..99"):
         RealtimeOptions(priority=0)
     with pytest.raises(RealtimeError, match="--cpu -1"):
         RealtimeOptions(cpus=(-1,))
     assert RealtimeOptions().describe() == "none" and not RealtimeOptions().any
-    assert RealtimeOptions(priority=80, cpus=(1,), lock_memory=True).describe() == \
-        "SCHED_FIFO 80, CPU 1, memory locked"
+    assert (
+        RealtimeOptions(priority=80, cpus=(1,), lock_memory=True).describe()
+        == "SCHED_FIFO 80, CPU 1, memory locked"
+    )
 
 
 def test_parse_cpus():
@@ -132,13 +139,17 @@ def test_priority_not_permitted_says_how_to_get_it(monkeypatch):
         raise PermissionError(errno.EPERM, "Operation not permitted")
 
     monkeypatch.setattr(os, "sched_setscheduler", refuse)
-    with pytest.raises(RealtimeError, match=r"--rt-priority 50: SCHED_FIFO not permitted .*CAP_SYS_NICE.*rtprio"):
+    with pytest.raises(
+        RealtimeError, match=r"--rt-priority 50: SCHED_FIFO not permitted .*CAP_SYS_NICE.*rtprio"
+    ):
         realtime.set_fifo_priority(50)
 
 
 def test_cpu_outside_the_allowed_set_is_named(monkeypatch):
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
-    with pytest.raises(RealtimeError, match=r"--cpu 7: CPU 7 is not one this process may use \(allowed: 0,1\)"):
+    with pytest.raises(
+        RealtimeError, match=r"--cpu 7: CPU 7 is not one this process may use \(allowed: 0,1\)"
+    ):
         realtime.set_cpu_affinity((7,))
 
 
@@ -166,8 +177,13 @@ def test_affinity_applies_to_this_thread_and_restores():
 
 
 def test_cli_refuses_a_bad_rt_option_with_one_line():
-    r = subprocess.run([sys.executable, "-m", "controller", "run", "--rt-priority", "120", "--max-duration", "1"],
-                       check=False, capture_output=True, text=True, timeout=60)
+    r = subprocess.run(
+        [sys.executable, "-m", "controller", "run", "--rt-priority", "120", "--max-duration", "1"],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert r.returncode == 2
     assert r.stderr.strip().splitlines()[-1].endswith("--rt-priority 120: SCHED_FIFO priorities are 1..99")
 
@@ -206,7 +222,10 @@ def test_demo_gives_the_simulator_the_other_cpus_one_priority_step_below():
 
     assert simulator_realtime_args(None) == []
     assert simulator_realtime_args(RealtimeOptions(priority=80, lock_memory=True)) == [
-        "--rt-priority", "70", "--lock-memory"]
+        "--rt-priority",
+        "70",
+        "--lock-memory",
+    ]
     allowed = sorted(os.sched_getaffinity(0))
     args = simulator_realtime_args(RealtimeOptions(priority=5, cpus=(allowed[-1],)))
     assert args[:2] == ["--rt-priority", "1"]
@@ -217,10 +236,16 @@ def test_demo_gives_the_simulator_the_other_cpus_one_priority_step_below():
 def test_realtime_options_as_a_child_process_options():
     assert RealtimeOptions().cli_args() == []
     assert RealtimeOptions(priority=70, cpus=(0, 1), lock_memory=True).cli_args() == [
-        "--rt-priority", "70", "--cpu", "0,1", "--lock-memory"]
+        "--rt-priority",
+        "70",
+        "--cpu",
+        "0,1",
+        "--lock-memory",
+    ]
 
 
 # -- real-time scheduling by default, where permitted ------------------------------------------
+
 
 def test_default_realtime_asks_for_fifo_the_last_cpu_and_locked_memory():
     rt = RealtimeOptions.default()

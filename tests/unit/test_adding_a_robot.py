@@ -33,6 +33,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 # -- the robot: section, model, simulator hook, entry -------------------------------------------
 
+
 class GantrySection(Section, frozen=True):
     offset_m: tuple[float, float, float] = (0.0, 0.0, 0.2)  # TCP when every axis is at 0
     stroke_min_m: Annotated[float, rng(-10.0, 10.0)] = -0.3
@@ -72,13 +73,18 @@ def gantry_kinematics(cfg, robot):  # the simulator hook: rigid, starting at hom
 
 
 GANTRY = RobotEntry(
-    kind="gantry", section=GantrySection, build=lambda cfg: GantryRobot(cfg.robot.model("gantry")),
-    unit=ActuatorUnit.METRE, stroke=lambda s: (s.stroke_min_m, s.stroke_max_m), tasks=("path",),
+    kind="gantry",
+    section=GantrySection,
+    build=lambda cfg: GantryRobot(cfg.robot.model("gantry")),
+    unit=ActuatorUnit.METRE,
+    stroke=lambda s: (s.stroke_min_m, s.stroke_max_m),
+    tasks=("path",),
     sim_hook=f"{__name__}:gantry_kinematics",
 )
 
 
 # -- the tests -----------------------------------------------------------------------------------
+
 
 @pytest.fixture
 def gantry():
@@ -89,21 +95,29 @@ def gantry():
 
 def gantry_config(**task_path):
     path = {"center_m": [0.1, 0.0, 0.3], "radius_m": 0.05, "speed_m_s": 0.1, "laps": 1.0, **task_path}
-    return config_from_dict({
-        "robot": {"kind": "gantry", "gantry": {"offset_m": [0.0, 0.0, 0.2]}},
-        "task": {"kind": "path", "path": path},
-        "sensor": {"enabled": False}, "recording": {"enabled": False}, "monitoring": {"enabled": False},
-    })
+    return config_from_dict(
+        {
+            "robot": {"kind": "gantry", "gantry": {"offset_m": [0.0, 0.0, 0.2]}},
+            "task": {"kind": "path", "path": path},
+            "sensor": {"enabled": False},
+            "recording": {"enabled": False},
+            "monitoring": {"enabled": False},
+        }
+    )
 
 
 def test_a_new_robot_is_registered_from_at_most_three_files(gantry):
     entry = robot_entry("gantry")
     hook_module = sys.modules[entry.sim_hook.partition(":")[0]]
-    files = {Path(inspect.getsourcefile(obj)).resolve() for obj in  # type: ignore[arg-type]
-             (entry.section, entry.build, hook_module, GantryRobot)}
+    files = {
+        Path(inspect.getsourcefile(obj)).resolve()
+        for obj in (entry.section, entry.build, hook_module, GantryRobot)  # type: ignore[arg-type]
+    }
     assert len(files) <= 3
     # and none of the product's own files had to change for it
-    assert not any(f.is_relative_to(REPO / d) for f in files for d in ("controller", "drivers", "sim_backend", "logs"))
+    assert not any(
+        f.is_relative_to(REPO / d) for f in files for d in ("controller", "drivers", "sim_backend", "logs")
+    )
 
 
 def test_the_new_robot_runs_its_path_task_on_the_simulated_drives(gantry):
@@ -113,8 +127,9 @@ def test_the_new_robot_runs_its_path_task_on_the_simulated_drives(gantry):
     clock = SimulatedTime()
     exchange = LoopbackExchange(cfg, clock.clock)
     recorder = RunRecorder()
-    loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
-                     observers=(recorder,))
+    loop = CycleLoop(
+        law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(recorder,)
+    )
     final, _ = loop.run(law.initial_state(), 30.0)
     assert final.mode == Mode.DONE, final.fault_reason
     tcp = exchange.plant.tcp_m  # the simulated gantry is back where the circle starts and ends

@@ -54,7 +54,10 @@ def _load_eds_everywhere(path: Path, sensor: bool = False) -> None:
     """What the controller (before opening a bus) and the simulator build from the file."""
     plan = node_setup_plan(load_config(overrides={"sensor.enabled": sensor}))
     plan = replace(plan, sensor_eds=path) if sensor else replace(plan, drive_eds=path)
-    for load in (lambda: check_device_descriptions(plan), lambda: device_pdos_from_file(path, 16 if sensor else 1)):
+    for load in (
+        lambda: check_device_descriptions(plan),
+        lambda: device_pdos_from_file(path, 16 if sensor else 1),
+    ):
         try:
             load()
         except DeviceDescriptionError as err:
@@ -69,24 +72,36 @@ def _write(directory: str, name: str, data: bytes) -> Path:
 
 # -- EDS files: each damage of the issue, by hand --------------------------------------------
 
+
 def _without_headers(data: bytes) -> bytes:
     return re.sub(rb"^\[.*\]\r?\n", b"", data, flags=re.MULTILINE)
 
 
-@pytest.mark.parametrize("damage,expected", [
-    (lambda d: d[:d.index(b"SubNumber") + 4], r"line \d+ is not KEY=VALUE: 'SubN'"),  # cut in the middle of a line
-    (lambda d: d[:d.index(b"[1000]")], "describes no objects"),  # cut before the first object
-    (_without_headers, r"line \d+ comes before any \[section\] header"),
-    (lambda d: d + b"\n" + _section(d, b"[1000]"), r"section \[1000\] appears twice"),
-    (lambda d: b"", "is empty"),
-    (lambda d: b"\n  \n", "is empty"),
-    (lambda d: b"[FileInfo]\nFileName=x.eds\n", "describes no objects"),
-    (lambda d: d.decode().encode("utf-16"), "is UTF-16 text"),
-    (lambda d: d.replace(b"linear", "lin\u00e9ar".encode("latin-1"), 1), r"not UTF-8 text: byte 0xE9 at line 1"),
-    (lambda d: d[:100] + b"\x00\x01\x02" + d[100:], "control character 0x00 at line"),
-    (lambda d: d.replace(b"ParameterName=Device type", b"Name=Device type", 1),
-     "is not a valid device description: No option 'ParameterName' in section: '1000'"),
-])
+@pytest.mark.parametrize(
+    "damage,expected",
+    [
+        (
+            lambda d: d[: d.index(b"SubNumber") + 4],
+            r"line \d+ is not KEY=VALUE: 'SubN'",
+        ),  # cut in the middle of a line
+        (lambda d: d[: d.index(b"[1000]")], "describes no objects"),  # cut before the first object
+        (_without_headers, r"line \d+ comes before any \[section\] header"),
+        (lambda d: d + b"\n" + _section(d, b"[1000]"), r"section \[1000\] appears twice"),
+        (lambda d: b"", "is empty"),
+        (lambda d: b"\n  \n", "is empty"),
+        (lambda d: b"[FileInfo]\nFileName=x.eds\n", "describes no objects"),
+        (lambda d: d.decode().encode("utf-16"), "is UTF-16 text"),
+        (
+            lambda d: d.replace(b"linear", "lin\u00e9ar".encode("latin-1"), 1),
+            r"not UTF-8 text: byte 0xE9 at line 1",
+        ),
+        (lambda d: d[:100] + b"\x00\x01\x02" + d[100:], "control character 0x00 at line"),
+        (
+            lambda d: d.replace(b"ParameterName=Device type", b"Name=Device type", 1),
+            "is not a valid device description: No option 'ParameterName' in section: '1000'",
+        ),
+    ],
+)
 def test_each_damaged_eds_is_one_line_naming_file_and_fault(tmp_path, damage, expected):
     path = _write(str(tmp_path), "drive.eds", damage(DRIVE_BYTES))
     with pytest.raises(DeviceDescriptionError) as err:
@@ -105,17 +120,21 @@ def test_an_eds_path_that_is_a_directory_says_so_not_that_it_does_not_exist(tmp_
 def test_an_eds_without_the_pdos_the_project_needs_is_refused_naming_the_file(tmp_path):
     # parses, has objects, but TPDO1's mapping 0x1A00 is gone: the set-up could not build its codec
     kept = [s for s in _sections(DRIVE_BYTES) if not s.startswith(b"[1A00")]
-    path = _write(str(tmp_path), "drive.eds", DRIVE_BYTES[:DRIVE_BYTES.index(b"[")] + b"".join(kept))
+    path = _write(str(tmp_path), "drive.eds", DRIVE_BYTES[: DRIVE_BYTES.index(b"[")] + b"".join(kept))
     plan = replace(node_setup_plan(load_config(overrides={"sensor.enabled": False})), drive_eds=path)
     with pytest.raises(DeviceDescriptionError) as err:
         check_device_descriptions(plan)
     assert "node 1 TPDO1" in _one_line_naming(err.value, path)
 
 
-def test_a_pdo_mapping_declared_as_a_variable_is_refused_by_the_controller_and_not_a_crash_of_the_simulator(tmp_path):
+def test_a_pdo_mapping_declared_as_a_variable_is_refused_by_the_controller_and_not_a_crash_of_the_simulator(
+    tmp_path,
+):
     mapping = b"".join(s for s in _sections(DRIVE_BYTES) if s.startswith(b"[1A00"))
-    as_variable = (b"[1A00]\nParameterName=TPDO1 mapping\nObjectType=0x7\nDataType=0x0005\nAccessType=rw\n"
-                   b"DefaultValue=0\nPDOMapping=0\n\n")
+    as_variable = (
+        b"[1A00]\nParameterName=TPDO1 mapping\nObjectType=0x7\nDataType=0x0005\nAccessType=rw\n"
+        b"DefaultValue=0\nPDOMapping=0\n\n"
+    )
     path = _write(str(tmp_path), "drive.eds", DRIVE_BYTES.replace(mapping, as_variable))
     assert device_pdos_from_file(path, 1).pdo(PdoDirection.TRANSMIT, 1).config.objects == ()
     plan = replace(node_setup_plan(load_config(overrides={"sensor.enabled": False})), drive_eds=path)
@@ -140,6 +159,7 @@ def test_a_warning_of_canopen_about_a_file_that_loads_names_the_file(tmp_path, c
 
 # -- EDS files: fuzzed ---------------------------------------------------------------------
 
+
 @FUZZ
 @given(st.sampled_from([(DRIVE_BYTES, False), (SENSOR_BYTES, True)]), st.data())
 def test_a_truncated_eds_loads_or_is_one_line(shipped, data):
@@ -159,7 +179,7 @@ def test_junk_bytes_in_an_eds_load_or_are_one_line(offset, junk):
 @FUZZ
 @given(st.sampled_from(_sections(DRIVE_BYTES)), st.integers(0, 1))
 def test_a_duplicated_eds_section_is_refused_naming_it(section, where):
-    name = section[1:section.index(b"]")].decode()
+    name = section[1 : section.index(b"]")].decode()
     at = DRIVE_BYTES.index(section) if where == 0 else len(DRIVE_BYTES)
     with tempfile.TemporaryDirectory() as d:
         path = _write(d, "drive.eds", DRIVE_BYTES[:at] + section + b"\n" + DRIVE_BYTES[at:])
@@ -185,6 +205,7 @@ def test_an_eds_in_another_encoding_is_refused_naming_the_encoding_problem(encod
 
 # -- configuration files --------------------------------------------------------------------
 
+
 def _load_config_or_one_line(path: Path) -> None:
     try:
         load_config(path)
@@ -192,15 +213,18 @@ def _load_config_or_one_line(path: Path) -> None:
         assert "\n" not in str(err), str(err)
 
 
-@pytest.mark.parametrize("content,expected", [
-    (CONFIG_BYTES.decode().encode("utf-16"), "is UTF-16 text"),
-    (CONFIG_BYTES.replace(b"Cheope", "Ch\u00e9ope".encode("latin-1"), 1), "is not UTF-8 text: byte 0xE9"),
-    (b"", "is empty"),
-    (b"\x00\x00\x01", "is empty|control character 0x00"),
-    (CONFIG_BYTES + b"\n[loop]\nrate_hz = 400\n", r"is not valid TOML: Cannot declare \('loop',\) twice"),
-    (CONFIG_BYTES[:CONFIG_BYTES.index(b"\n[loop]") + 4], "is not valid TOML"),
-    (b"a = " + b"[" * 5000 + b"]" * 5000, "nests arrays or tables too deeply|is not valid TOML"),
-])
+@pytest.mark.parametrize(
+    "content,expected",
+    [
+        (CONFIG_BYTES.decode().encode("utf-16"), "is UTF-16 text"),
+        (CONFIG_BYTES.replace(b"Cheope", "Ch\u00e9ope".encode("latin-1"), 1), "is not UTF-8 text: byte 0xE9"),
+        (b"", "is empty"),
+        (b"\x00\x00\x01", "is empty|control character 0x00"),
+        (CONFIG_BYTES + b"\n[loop]\nrate_hz = 400\n", r"is not valid TOML: Cannot declare \('loop',\) twice"),
+        (CONFIG_BYTES[: CONFIG_BYTES.index(b"\n[loop]") + 4], "is not valid TOML"),
+        (b"a = " + b"[" * 5000 + b"]" * 5000, "nests arrays or tables too deeply|is not valid TOML"),
+    ],
+)
 def test_each_damaged_configuration_is_one_line_naming_the_file(tmp_path, content, expected):
     path = _write(str(tmp_path), "robot.toml", content)
     with pytest.raises(ConfigError) as err:
@@ -234,7 +258,9 @@ def test_a_truncated_configuration_loads_or_is_one_line(data):
 @given(st.integers(0, len(CONFIG_BYTES)), st.binary(min_size=1, max_size=32))
 def test_junk_bytes_in_a_configuration_load_or_are_one_line(offset, junk):
     with tempfile.TemporaryDirectory() as d:
-        _load_config_or_one_line(_write(d, "robot.toml", CONFIG_BYTES[:offset] + junk + CONFIG_BYTES[offset:]))
+        _load_config_or_one_line(
+            _write(d, "robot.toml", CONFIG_BYTES[:offset] + junk + CONFIG_BYTES[offset:])
+        )
 
 
 @FUZZ
@@ -259,4 +285,6 @@ def test_a_configuration_in_another_encoding_is_refused(encoding):
         path = _write(d, "robot.toml", encoded)
         with pytest.raises(ConfigError) as err:
             load_config(path)
-        assert re.search("UTF-16 text|not UTF-8 text|control character 0x00", _one_line_naming(err.value, path))
+        assert re.search(
+            "UTF-16 text|not UTF-8 text|control character 0x00", _one_line_naming(err.value, path)
+        )

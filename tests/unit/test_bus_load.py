@@ -52,7 +52,8 @@ def test_fd_frame_by_hand():
     # 20 bytes is padded to 20 and uses CRC-21 (32-bit CRC field)
     assert fd_padded_length(17) == 20
     assert fd_frame_time_s(20, 1e6, 1e6, bitrate_switch=False, worst_case_stuffing=False) == pytest.approx(
-        (17 + 12 + 1 + 4 + 160 + 32 + 1) / 1e6)
+        (17 + 12 + 1 + 4 + 160 + 32 + 1) / 1e6
+    )
 
 
 def test_load_is_linear_in_rate():

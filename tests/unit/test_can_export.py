@@ -61,7 +61,10 @@ def test_python_can_reads_every_frame_back_with_its_direction_and_time(recording
             assert math.isclose(got.timestamp - first_read, t - T0_S, abs_tol=RESOLUTION_S[fmt])
             assert math.isclose(first_read, T0_S + offset, abs_tol=1e-3)
         else:
-            assert math.isclose(got.timestamp, t + offset, abs_tol=RESOLUTION_S[fmt]), (got.timestamp, t + offset)
+            assert math.isclose(got.timestamp, t + offset, abs_tol=RESOLUTION_S[fmt]), (
+                got.timestamp,
+                t + offset,
+            )
     assert ("direction" in result.note) is (fmt == "csv")
 
 
@@ -73,16 +76,18 @@ def test_cantools_decodes_the_export_with_the_shipped_dbc(recording, tmp_path: P
     for msg in can.LogReader(out):
         if msg.arbitration_id in (0x601, 0x581):  # SDO: not in the DBC
             continue
-        decoded[db.get_message_by_frame_id(msg.arbitration_id).name] = db.decode_message(msg.arbitration_id,
-                                                                                         msg.data)
+        decoded[db.get_message_by_frame_id(msg.arbitration_id).name] = db.decode_message(
+            msg.arbitration_id, msg.data
+        )
     assert {"SYNC", "Drive1_RPDO1", "Drive3_TPDO1", "ForceSensor_TPDO1"} <= set(decoded)
     want = db.decode_message(0x190, bytes([39, 1, 2, 3, 4, 5, 6, 7]))  # the last cycle's sensor frame
     assert decoded["ForceSensor_TPDO1"] == want
 
 
 def test_frames_a_format_cannot_hold_are_counted_not_dropped(tmp_path: Path):
-    fd = can.Message(arbitration_id=0x201, data=bytes(range(12)), is_extended_id=False, is_fd=True,
-                     bitrate_switch=True)
+    fd = can.Message(
+        arbitration_id=0x201, data=bytes(range(12)), is_extended_id=False, is_fd=True, bitrate_switch=True
+    )
     error = can.Message(arbitration_id=0, data=bytes(8), is_error_frame=True, is_extended_id=False)
     path = tmp_path / "fd.mcap"
     frames = _record(path, [(True, fd), (False, error)])
@@ -118,11 +123,16 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path):
 def test_an_output_that_cannot_be_written_is_one_line_and_exit_2(recording, tmp_path: Path):
     path, _ = recording
     r = _cheope("logs", "export", str(path), "--format", "blf", "-o", str(tmp_path / "missing" / "x.blf"))
-    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "cannot write" in r.stderr and "x.blf" in r.stderr
+    assert (
+        r.returncode == 2 and r.stderr.count("\n") == 1 and "cannot write" in r.stderr and "x.blf" in r.stderr
+    )
     r = _cheope("logs", "export", str(path), "--format", "log", "-o", str(path))
-    assert r.returncode == 2 and "is the recording itself" in r.stderr and path.read_bytes()[:5] == b"\x89MCAP"
+    assert (
+        r.returncode == 2 and "is the recording itself" in r.stderr and path.read_bytes()[:5] == b"\x89MCAP"
+    )
 
 
 def _cheope(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "controller", *args], capture_output=True, text=True, check=False,
-                          timeout=60)
+    return subprocess.run(
+        [sys.executable, "-m", "controller", *args], capture_output=True, text=True, check=False, timeout=60
+    )

@@ -68,8 +68,12 @@ def test_jacobian_matches_finite_differences(s):
     s = np.array(s)
     jac = jacobian(GEOM, s)
     h = 1e-6
-    fd = np.column_stack([(inverse_kinematics(GEOM, s + h * e) - inverse_kinematics(GEOM, s - h * e)) / (2 * h)
-                          for e in np.eye(3)])
+    fd = np.column_stack(
+        [
+            (inverse_kinematics(GEOM, s + h * e) - inverse_kinematics(GEOM, s - h * e)) / (2 * h)
+            for e in np.eye(3)
+        ]
+    )
     assert np.allclose(jac, fd, rtol=1e-7, atol=1e-8)
 
 
@@ -107,6 +111,7 @@ def test_inverse_singularity_measure_vanishes_where_a_rod_is_orthogonal_to_its_a
         r = np.array([0.0, 0.0, z]) + GEOM.platform_vectors[0]
         n = GEOM.axes[0]
         return (n @ r) ** 2 - r @ r + GEOM.rod_length_m**2
+
     lo, hi = 0.5, 2.0
     assert disc(lo) > 0 > disc(hi)
     for _ in range(100):
@@ -160,9 +165,12 @@ def test_fast_pose_check_agrees_with_the_reference_measures(x, y, z):
     lim = ROBOT.limits
     m = singularity_measures(GEOM, s, q)
     sv = np.linalg.svd(jacobian(GEOM, s, q), compute_uv=False)
-    expected = (all(lim.stroke_min_m <= v <= lim.stroke_max_m for v in q)
-                and joint_swing_rad(GEOM, s, q).max() <= lim.joint_swing_limit_rad
-                and m.direct >= lim.min_direct_measure and m.inverse >= lim.min_inverse_measure
-                and m.structural >= lim.min_structural_measure
-                and sv[0] / sv[-1] <= lim.max_condition_number)
+    expected = (
+        all(lim.stroke_min_m <= v <= lim.stroke_max_m for v in q)
+        and joint_swing_rad(GEOM, s, q).max() <= lim.joint_swing_limit_rad
+        and m.direct >= lim.min_direct_measure
+        and m.inverse >= lim.min_inverse_measure
+        and m.structural >= lim.min_structural_measure
+        and sv[0] / sv[-1] <= lim.max_condition_number
+    )
     assert ROBOT.check_pose(s).ok == expected

@@ -33,30 +33,39 @@ def test_statusword_encoding_round_trips(state):
 def test_canopen_package_agrees_on_the_state_coding():
     from canopen.profiles.p402 import State402
 
-    names = {S.NOT_READY_TO_SWITCH_ON: "NOT READY TO SWITCH ON", S.SWITCH_ON_DISABLED: "SWITCH ON DISABLED",
-             S.READY_TO_SWITCH_ON: "READY TO SWITCH ON", S.SWITCHED_ON: "SWITCHED ON",
-             S.OPERATION_ENABLED: "OPERATION ENABLED", S.QUICK_STOP_ACTIVE: "QUICK STOP ACTIVE",
-             S.FAULT_REACTION_ACTIVE: "FAULT REACTION ACTIVE", S.FAULT: "FAULT"}
+    names = {
+        S.NOT_READY_TO_SWITCH_ON: "NOT READY TO SWITCH ON",
+        S.SWITCH_ON_DISABLED: "SWITCH ON DISABLED",
+        S.READY_TO_SWITCH_ON: "READY TO SWITCH ON",
+        S.SWITCHED_ON: "SWITCHED ON",
+        S.OPERATION_ENABLED: "OPERATION ENABLED",
+        S.QUICK_STOP_ACTIVE: "QUICK STOP ACTIVE",
+        S.FAULT_REACTION_ACTIVE: "FAULT REACTION ACTIVE",
+        S.FAULT: "FAULT",
+    }
     for state, name in names.items():
         mask, bits = State402.SW_MASK[name]
         assert statusword_bits(state) & mask == bits
 
 
-@pytest.mark.parametrize("start,cw,end", [
-    (S.SWITCH_ON_DISABLED, CW_SHUTDOWN, S.READY_TO_SWITCH_ON),  # 2
-    (S.READY_TO_SWITCH_ON, CW_SWITCH_ON, S.SWITCHED_ON),  # 3
-    (S.SWITCHED_ON, CW_ENABLE_OPERATION, S.OPERATION_ENABLED),  # 4
-    (S.OPERATION_ENABLED, CW_SWITCH_ON, S.SWITCHED_ON),  # 5
-    (S.SWITCHED_ON, CW_SHUTDOWN, S.READY_TO_SWITCH_ON),  # 6
-    (S.READY_TO_SWITCH_ON, CW_DISABLE_VOLTAGE, S.SWITCH_ON_DISABLED),  # 7
-    (S.OPERATION_ENABLED, CW_SHUTDOWN, S.READY_TO_SWITCH_ON),  # 8
-    (S.OPERATION_ENABLED, CW_DISABLE_VOLTAGE, S.SWITCH_ON_DISABLED),  # 9
-    (S.SWITCHED_ON, CW_DISABLE_VOLTAGE, S.SWITCH_ON_DISABLED),  # 10
-    (S.OPERATION_ENABLED, CW_QUICK_STOP, S.QUICK_STOP_ACTIVE),  # 11
-    (S.QUICK_STOP_ACTIVE, CW_DISABLE_VOLTAGE, S.SWITCH_ON_DISABLED),  # 12
-    (S.QUICK_STOP_ACTIVE, CW_ENABLE_OPERATION, S.OPERATION_ENABLED),  # 16
-    (S.SWITCH_ON_DISABLED, CW_ENABLE_OPERATION, S.SWITCH_ON_DISABLED),  # no shortcut
-])
+@pytest.mark.parametrize(
+    "start,cw,end",
+    [
+        (S.SWITCH_ON_DISABLED, CW_SHUTDOWN, S.READY_TO_SWITCH_ON),  # 2
+        (S.READY_TO_SWITCH_ON, CW_SWITCH_ON, S.SWITCHED_ON),  # 3
+        (S.SWITCHED_ON, CW_ENABLE_OPERATION, S.OPERATION_ENABLED),  # 4
+        (S.OPERATION_ENABLED, CW_SWITCH_ON, S.SWITCHED_ON),  # 5
+        (S.SWITCHED_ON, CW_SHUTDOWN, S.READY_TO_SWITCH_ON),  # 6
+        (S.READY_TO_SWITCH_ON, CW_DISABLE_VOLTAGE, S.SWITCH_ON_DISABLED),  # 7
+        (S.OPERATION_ENABLED, CW_SHUTDOWN, S.READY_TO_SWITCH_ON),  # 8
+        (S.OPERATION_ENABLED, CW_DISABLE_VOLTAGE, S.SWITCH_ON_DISABLED),  # 9
+        (S.SWITCHED_ON, CW_DISABLE_VOLTAGE, S.SWITCH_ON_DISABLED),  # 10
+        (S.OPERATION_ENABLED, CW_QUICK_STOP, S.QUICK_STOP_ACTIVE),  # 11
+        (S.QUICK_STOP_ACTIVE, CW_DISABLE_VOLTAGE, S.SWITCH_ON_DISABLED),  # 12
+        (S.QUICK_STOP_ACTIVE, CW_ENABLE_OPERATION, S.OPERATION_ENABLED),  # 16
+        (S.SWITCH_ON_DISABLED, CW_ENABLE_OPERATION, S.SWITCH_ON_DISABLED),  # no shortcut
+    ],
+)
 def test_device_transitions(start, cw, end):
     assert device_transition(start, cw, 0) == end
 
@@ -66,9 +75,19 @@ def test_fault_reset_needs_a_rising_edge():
     assert device_transition(S.FAULT, CW_FAULT_RESET, CW_FAULT_RESET) == S.FAULT
 
 
-@given(st.sampled_from([S.SWITCH_ON_DISABLED, S.READY_TO_SWITCH_ON, S.SWITCHED_ON, S.OPERATION_ENABLED,
-                        S.QUICK_STOP_ACTIVE, S.FAULT]),
-       st.sampled_from([S.OPERATION_ENABLED, S.READY_TO_SWITCH_ON, S.SWITCH_ON_DISABLED]))
+@given(
+    st.sampled_from(
+        [
+            S.SWITCH_ON_DISABLED,
+            S.READY_TO_SWITCH_ON,
+            S.SWITCHED_ON,
+            S.OPERATION_ENABLED,
+            S.QUICK_STOP_ACTIVE,
+            S.FAULT,
+        ]
+    ),
+    st.sampled_from([S.OPERATION_ENABLED, S.READY_TO_SWITCH_ON, S.SWITCH_ON_DISABLED]),
+)
 def test_master_reaches_the_wanted_state_from_anywhere(start, wanted):
     state, cw = start, 0
     for _ in range(8):

@@ -36,7 +36,9 @@ def _reject_constant(name: str) -> object:
     raise ValueError(f"not strict JSON: {name}")
 
 
-@pytest.mark.parametrize("command", ["run", "faults", "bus-load", "analyze", "plan", "plan-bench", "demo", "status"])
+@pytest.mark.parametrize(
+    "command", ["run", "faults", "bus-load", "analyze", "plan", "plan-bench", "demo", "status"]
+)
 def test_every_json_option_says_what_it_prints(command: str):
     text = _option(_subparser(command), "--json").help
     assert text and "JSON" in text
@@ -54,8 +56,13 @@ def test_config_help_names_the_file_each_robot_loads():
 @pytest.mark.parametrize("command", ["plan", "plan-bench"])
 def test_plan_commands_offer_only_the_robot_they_plan_for(command: str):
     assert list(_option(_subparser(command), "--robot").choices or ()) == ["nspu"]
-    r = subprocess.run([sys.executable, "-m", "controller", command, "--robot", "cheope"], capture_output=True,
-                       text=True, check=False, timeout=60)
+    r = subprocess.run(
+        [sys.executable, "-m", "controller", command, "--robot", "cheope"],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=60,
+    )
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "invalid choice: 'cheope'" in r.stderr
 
 
@@ -64,8 +71,16 @@ def test_bench_duration_help_states_the_default():
     assert "issue" not in text and "default 300" in text
 
 
-@pytest.mark.parametrize("argv", [["-v", "bus-load"], ["bus-load", "-v"], ["logs", "info", "-v", "x.mcap"],
-                                  ["-v", "logs", "info", "x.mcap"], ["replay", "x.mcap", "--verify", "--verbose"]])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["-v", "bus-load"],
+        ["bus-load", "-v"],
+        ["logs", "info", "-v", "x.mcap"],
+        ["-v", "logs", "info", "x.mcap"],
+        ["replay", "x.mcap", "--verify", "--verbose"],
+    ],
+)
 def test_verbose_before_or_after_the_command(argv: list[str]):
     assert build_parser().parse_args(argv).verbose is True
 
@@ -88,26 +103,43 @@ def test_replay_rerun_takes_a_recording_after_it_as_the_input():
 def test_replay_rerun_with_the_file_after_it_converts_that_file(tmp_path: Path):
     src = tmp_path / "session.mcap"
     src.write_bytes((DATA / "path_quarter_lap.mcap").read_bytes())
-    r = subprocess.run([sys.executable, "-m", "controller", "replay", "--rerun", str(src), "--json"],
-                       capture_output=True, text=True, check=False, timeout=120,
-                       env={"PATH": "/nonexistent", "HOME": str(tmp_path)})  # no viewer can start: FILE.rrd
+    r = subprocess.run(
+        [sys.executable, "-m", "controller", "replay", "--rerun", str(src), "--json"],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=120,
+        env={"PATH": "/nonexistent", "HOME": str(tmp_path)},
+    )  # no viewer can start: FILE.rrd
     assert r.returncode == 0, r.stderr
     result = json.loads(r.stdout)
     assert result["cycles"] > 0 and Path(result["output"]) == src.with_suffix(".rrd")
-    assert {"/world/rods/capsules", "/world/sliders/boxes", "/world/platform/cylinders"} <= set(result["entities"])
-    assert src.with_suffix(".rrd").stat().st_size > 0 and src.read_bytes()[:8] == b"\x89MCAP0\r\n"  # input intact
+    assert {"/world/rods/capsules", "/world/sliders/boxes", "/world/platform/cylinders"} <= set(
+        result["entities"]
+    )
+    assert (
+        src.with_suffix(".rrd").stat().st_size > 0 and src.read_bytes()[:8] == b"\x89MCAP0\r\n"
+    )  # input intact
 
 
 def test_strict_json_has_null_for_nan_and_infinity():
     text = strict_json({"a": float("nan"), "b": [1.0, float("inf"), {"c": -float("inf")}], "d": (2.5,)})
-    assert json.loads(text, parse_constant=_reject_constant) == {"a": None, "b": [1.0, None, {"c": None}],
-                                                                 "d": [2.5]}
+    assert json.loads(text, parse_constant=_reject_constant) == {
+        "a": None,
+        "b": [1.0, None, {"c": None}],
+        "d": [2.5],
+    }
 
 
 def test_plan_json_is_strict_json_for_a_refused_plan():
     # the paper's example crosses det M = 0: the report has NaN figures, printed as null
-    r = subprocess.run([sys.executable, "-m", "controller", "plan", "--paper-example", "--json"],
-                       capture_output=True, text=True, check=False, timeout=120)
+    r = subprocess.run(
+        [sys.executable, "-m", "controller", "plan", "--paper-example", "--json"],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=120,
+    )
     assert r.returncode == 1, r.stderr
     report = json.loads(r.stdout, parse_constant=_reject_constant)
     assert report["ok"] is False and None in report.values()

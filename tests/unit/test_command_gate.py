@@ -27,7 +27,9 @@ def test_the_bound_is_the_configured_limit_not_a_constant():
     settings = publisher_settings(load_config(overrides={"safety.max_contact_force_n": 25.0}))
     assert settings.max_contact_force_n == 25.0
     assert not decide_command("set_force", 30.0, True, settings.max_contact_force_n).accepted
-    assert decide_command("set_force", 30.0, True, publisher_settings(load_config()).max_contact_force_n).accepted
+    assert decide_command(
+        "set_force", 30.0, True, publisher_settings(load_config()).max_contact_force_n
+    ).accepted
 
 
 def test_the_other_gated_commands_ignore_the_value():

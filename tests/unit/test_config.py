@@ -13,21 +13,27 @@ def test_shipped_defaults_load(cfg):
     assert cfg.period_s == pytest.approx(0.0025)
 
 
-@pytest.mark.parametrize("overrides,message", [
-    ({"loop.rate_hz": -5}, r"loop.rate_hz = -5: must be >= 1.0"),
-    ({"robot.cheope.rod_length_m": -1.0}, r"robot.cheope.rod_length_m = -1.0: must be > 0.0"),
-    ({"robot.cheope.rod_length_m": "long"}, r"robot.cheope.rod_length_m = 'long': expected a number"),
-    ({"loop.unknown_key": 1}, r"unknown key\(s\) unknown_key in \[loop\]"),
-    ({"actuators.node_ids": [1, 1, 2]}, r"node ids must be distinct"),
-    ({"actuators.node_ids": [1, 2]}, r"actuators.node_ids = \[1, 2\]: expected a list of 3 values"),
-    ({"robot.cheope.stroke_min_m": 0.9, "robot.cheope.stroke_max_m": 0.3}, r"stroke_min_m = 0.9 must be <"),
-    ({"loop.max_missing_cycles": 2.5}, r"loop.max_missing_cycles = 2.5: expected an integer"),
-    ({"robot.kind": "hexapod"}, r"robot.kind = 'hexapod': must be one of"),
-    ({"loop.rate_hz": float("nan")}, r"loop.rate_hz = nan: must be finite"),
-    ({"sim.drive.cogging_period_m": 0.0}, r"sim.drive.cogging_period_m = 0.0: must be > 0.0"),
-    ({"sim.drive.cogging_force_n": -1.0}, r"sim.drive.cogging_force_n = -1.0: must be >= 0.0"),
-    ({"sim.structure_inertial_load": 1}, r"sim.structure_inertial_load = 1: expected true or false"),
-])
+@pytest.mark.parametrize(
+    "overrides,message",
+    [
+        ({"loop.rate_hz": -5}, r"loop.rate_hz = -5: must be >= 1.0"),
+        ({"robot.cheope.rod_length_m": -1.0}, r"robot.cheope.rod_length_m = -1.0: must be > 0.0"),
+        ({"robot.cheope.rod_length_m": "long"}, r"robot.cheope.rod_length_m = 'long': expected a number"),
+        ({"loop.unknown_key": 1}, r"unknown key\(s\) unknown_key in \[loop\]"),
+        ({"actuators.node_ids": [1, 1, 2]}, r"node ids must be distinct"),
+        ({"actuators.node_ids": [1, 2]}, r"actuators.node_ids = \[1, 2\]: expected a list of 3 values"),
+        (
+            {"robot.cheope.stroke_min_m": 0.9, "robot.cheope.stroke_max_m": 0.3},
+            r"stroke_min_m = 0.9 must be <",
+        ),
+        ({"loop.max_missing_cycles": 2.5}, r"loop.max_missing_cycles = 2.5: expected an integer"),
+        ({"robot.kind": "hexapod"}, r"robot.kind = 'hexapod': must be one of"),
+        ({"loop.rate_hz": float("nan")}, r"loop.rate_hz = nan: must be finite"),
+        ({"sim.drive.cogging_period_m": 0.0}, r"sim.drive.cogging_period_m = 0.0: must be > 0.0"),
+        ({"sim.drive.cogging_force_n": -1.0}, r"sim.drive.cogging_force_n = -1.0: must be >= 0.0"),
+        ({"sim.structure_inertial_load": 1}, r"sim.structure_inertial_load = 1: expected true or false"),
+    ],
+)
 def test_invalid_values_are_named(overrides, message):
     with pytest.raises(ConfigError, match=message):
         load_config(overrides=overrides)
@@ -54,19 +60,29 @@ def test_parse_override():
         parse_override("loop.rate_hz")
 
 
-@pytest.mark.parametrize(("overrides", "message"), [
-    ({"recording.live_rerun": "somewhere"}, r"recording.live_rerun = 'somewhere': must be"),
-    ({"recording.live_foxglove": "localhost"}, r"recording.live_foxglove = 'localhost': must be HOST:PORT"),
-    ({"recording.live_foxglove": "127.0.0.1:99999"}, r"port in 0..65535"),
-])
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ({"recording.live_rerun": "somewhere"}, r"recording.live_rerun = 'somewhere': must be"),
+        (
+            {"recording.live_foxglove": "localhost"},
+            r"recording.live_foxglove = 'localhost': must be HOST:PORT",
+        ),
+        ({"recording.live_foxglove": "127.0.0.1:99999"}, r"port in 0..65535"),
+    ],
+)
 def test_bad_live_view_settings_are_named(overrides, message):
     with pytest.raises(ConfigError, match=message):
         load_config(overrides=overrides)
 
 
 def test_good_live_view_settings_load():
-    cfg = load_config(overrides={"recording.live_rerun": "rerun+http://127.0.0.1:9876/proxy",
-                                 "recording.live_foxglove": "127.0.0.1:8765"})
+    cfg = load_config(
+        overrides={
+            "recording.live_rerun": "rerun+http://127.0.0.1:9876/proxy",
+            "recording.live_foxglove": "127.0.0.1:8765",
+        }
+    )
     assert cfg.recording.live_foxglove == "127.0.0.1:8765"
 
 

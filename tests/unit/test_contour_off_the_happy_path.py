@@ -43,13 +43,22 @@ def _ctx(force, tcp=(0.07, 0.0, 0.5), fresh=True) -> TaskContext:
 
 
 def _tracking(task, **fields) -> ContourState:
-    s = replace(task.start(), phase=ContourPhase.TRACKING, p_cmd=(0.07, 0.0, 0.5), normal=(1.0, 0.0),
-                contact_normal=(1.0, 0.0), contact_point=(0.07, 0.0), speed_m_s=0.04,
-                force_f=(10.0, 0.0, 0.0), raw_force=(10.0, 0.0, 0.0))
+    s = replace(
+        task.start(),
+        phase=ContourPhase.TRACKING,
+        p_cmd=(0.07, 0.0, 0.5),
+        normal=(1.0, 0.0),
+        contact_normal=(1.0, 0.0),
+        contact_point=(0.07, 0.0),
+        speed_m_s=0.04,
+        force_f=(10.0, 0.0, 0.0),
+        raw_force=(10.0, 0.0, 0.0),
+    )
     return replace(s, **fields)
 
 
 # -- the failures the issue found, end to end in simulated time ----------------------------------
+
 
 @pytest.mark.slow
 @pytest.mark.parametrize("fault", ["force=-12@33+0.12", "force=12@36+0.12"])
@@ -64,8 +73,12 @@ SCAN_WORST = [
     ContourScenario("spike -12 N for 0.3 s", ("force=-12@15.832+0.3",)),
     ContourScenario("spike +5 N for 0.2 s", ("force=5@21.315+0.2",)),
     ContourScenario("spike -8 N for 0.2 s", ("force=-8@14.615+0.2",)),
-    ContourScenario("notch 3 mm x 20 mm", features=({"angle_deg": 200.0, "length_m": 0.02, "depth_m": 0.003},)),
-    ContourScenario("bump 2 mm x 30 mm", features=({"angle_deg": 270.0, "length_m": 0.03, "depth_m": -0.002},)),
+    ContourScenario(
+        "notch 3 mm x 20 mm", features=({"angle_deg": 200.0, "length_m": 0.02, "depth_m": 0.003},)
+    ),
+    ContourScenario(
+        "bump 2 mm x 30 mm", features=({"angle_deg": 270.0, "length_m": 0.03, "depth_m": -0.002},)
+    ),
     ContourScenario("10 stale samples", ("freeze@24.968+0.02625",)),
 ]
 
@@ -84,10 +97,13 @@ def test_the_scans_hardest_scenarios_end_done_under_the_limit(scenario):
 @pytest.mark.parametrize("rate_n_s", [0.3, -0.3])
 def test_a_drifting_bias_ends_done_or_in_a_controlled_retract_never_in_the_workpiece(rate_n_s):
     """The drift walked the tool out of the workspace once; now the law finds the phantom contact out."""
-    row = run_contour_scenario(scan_config(load_config()), ContourScenario("drift", (f"drift={rate_n_s}@8.33+15",)),
-                               None)
+    row = run_contour_scenario(
+        scan_config(load_config()), ContourScenario("drift", (f"drift={rate_n_s}@8.33+15",)), None
+    )
     assert not row["over_limit"], row["max_true_contact_force_n"]
-    assert row["outcome"] == "DONE" or (row["outcome"] == "retracted" and "not re-acquired" in str(row["cause"]))
+    assert row["outcome"] == "DONE" or (
+        row["outcome"] == "retracted" and "not re-acquired" in str(row["cause"])
+    )
 
 
 @pytest.mark.slow
@@ -107,14 +123,17 @@ def test_the_rounded_star_is_followed_without_contact_loss():
 
 # -- the designed phases, step by step ------------------------------------------------------------
 
+
 def test_a_contact_loss_re_approaches_backs_off_and_gives_up_with_a_named_cause():
     task, cfg = _task()
     c = cfg.task.model("contour")
     s = _tracking(task)
     phases, kinds = [], []
     for _ in range(200000):
-        out = task.step(replace(s, force_f=(0.0, 0.0, 0.0)) if s.phase == ContourPhase.TRACKING else s,
-                        _ctx((0.0, 0.0, 0.0), tcp=s.p_cmd))
+        out = task.step(
+            replace(s, force_f=(0.0, 0.0, 0.0)) if s.phase == ContourPhase.TRACKING else s,
+            _ctx((0.0, 0.0, 0.0), tcp=s.p_cmd),
+        )
         s = out.state
         kinds += [e.kind for e in out.events]
         if not phases or phases[-1] != s.phase:
@@ -172,7 +191,9 @@ def test_above_the_saturation_force_the_law_only_moves_away_from_the_contact():
     assert out.state.p_cmd[0] > s.p_cmd[0]  # along +n: away from the contact
     assert out.state.integral == 0.0
     below = _tracking(task, integral=5.0, force_f=(sat - 15.0, 0.0, 0.0), raw_force=(sat - 15.0, 0.0, 0.0))
-    assert task.step(below, _ctx((sat - 15.0, 0.0, 0.0))).state.p_cmd[0] < below.p_cmd[0]  # the integral pushes in
+    assert (
+        task.step(below, _ctx((sat - 15.0, 0.0, 0.0))).state.p_cmd[0] < below.p_cmd[0]
+    )  # the integral pushes in
 
 
 def test_an_implausible_step_is_held_off_and_a_spike_that_steps_back_leaves_no_trace():
@@ -187,7 +208,9 @@ def test_an_implausible_step_is_held_off_and_a_spike_that_steps_back_leaves_no_t
     assert held.p_cmd[0] >= s.p_cmd[0]  # no motion into the contact
     assert held.speed_m_s < s.speed_m_s  # tangential braking
     back = task.step(held, _ctx((10.0, 0.0, 0.0)))
-    assert [e.kind for e in back.events] == ["force_plausible"] and "back at its level" in back.events[0].message
+    assert [e.kind for e in back.events] == ["force_plausible"] and "back at its level" in back.events[
+        0
+    ].message
     assert back.state.held_force is None
 
 
@@ -257,10 +280,12 @@ def test_a_force_direction_the_tools_motion_contradicts_turns_the_normal_less():
     s = _tracking(task, speed_m_s=0.06, last_xy=(0.07, -0.00015), force_f=pulled, raw_force=pulled)
     contradicted = task.step(s, _ctx(pulled, tcp=(0.07, 0.0, 0.5))).state  # moved along +y: n = +x
     t = (-math.sin(tilt), math.cos(tilt))
-    agreeing = task.step(replace(s, last_xy=(0.07 - 0.00015 * t[0], -0.00015 * t[1])),
-                         _ctx(pulled, tcp=(0.07, 0.0, 0.5))).state  # moved along the pulled tangent
+    agreeing = task.step(
+        replace(s, last_xy=(0.07 - 0.00015 * t[0], -0.00015 * t[1])), _ctx(pulled, tcp=(0.07, 0.0, 0.5))
+    ).state  # moved along the pulled tangent
     turn = [math.atan2(x.normal[1], x.normal[0]) for x in (contradicted, agreeing)]
     assert 0.0 < turn[0] < turn[1]
     # no more than the tracker's step for a direction 15 deg off
-    assert turn[0] == pytest.approx(track_normal(0.0, 0.0, math.radians(15.0), DT, task.p.normal_tracker_hz)[0],
-                                    rel=1e-9)
+    assert turn[0] == pytest.approx(
+        track_normal(0.0, 0.0, math.radians(15.0), DT, task.p.normal_tracker_hz)[0], rel=1e-9
+    )

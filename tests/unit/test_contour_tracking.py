@@ -51,8 +51,12 @@ def test_normal_estimate_removes_friction_with_the_friction_estimate():
         out = task.step(s, _ctx(force))
         s = replace(out.state, p_cmd=(0.07, 0.0, 0.5), speed_m_s=0.05)
     est = out.state.normal
-    assert math.atan2(est[1], est[0]) == pytest.approx(0.3, abs=2e-3)  # without compensation: off by 0.149 rad
-    assert out.state.normal_force_n == pytest.approx(fn * math.cos(math.atan(mu)) * math.sqrt(1 + mu * mu), rel=1e-2)
+    assert math.atan2(est[1], est[0]) == pytest.approx(
+        0.3, abs=2e-3
+    )  # without compensation: off by 0.149 rad
+    assert out.state.normal_force_n == pytest.approx(
+        fn * math.cos(math.atan(mu)) * math.sqrt(1 + mu * mu), rel=1e-2
+    )
 
 
 def test_normal_tracker_follows_a_steadily_turning_normal_without_lag():
@@ -130,11 +134,15 @@ def test_over_force_retracts_and_then_faults():
         if out.finished:
             break
     assert out.finished and "above the limit" in out.fault
-    assert s.p_cmd[0] > 0.07 + 0.9 * cfg.task.model("contour").retract_distance_m  # moved out along the normal
+    assert (
+        s.p_cmd[0] > 0.07 + 0.9 * cfg.task.model("contour").retract_distance_m
+    )  # moved out along the normal
 
 
 # at rest when the contact goes: no tangential motion to brake, the re-approach starts at once
-@pytest.mark.parametrize("policy,phase", [("reapproach", ContourPhase.REAPPROACH), ("stop", ContourPhase.RETRACT)])
+@pytest.mark.parametrize(
+    "policy,phase", [("reapproach", ContourPhase.REAPPROACH), ("stop", ContourPhase.RETRACT)]
+)
 def test_contact_loss_is_counted_and_handled_as_configured(policy, phase):
     task, cfg = _task(**{"task.contour.on_contact_loss": policy})
     s = _tracking(task, normal=(1.0, 0.0))
@@ -156,7 +164,9 @@ def test_approach_without_contact_faults_after_the_configured_distance():
         if out.fault:
             break
     assert "no contact within" in out.fault
-    assert s.travel_m == pytest.approx(c.approach_clearance_m + c.max_approach_distance_m, abs=c.approach_speed_m_s * DT * 2)
+    assert s.travel_m == pytest.approx(
+        c.approach_clearance_m + c.max_approach_distance_m, abs=c.approach_speed_m_s * DT * 2
+    )
 
 
 def _closed_loop(**overrides):
@@ -167,20 +177,27 @@ def _closed_loop(**overrides):
     ex = LoopbackExchange(cfg, clock.clock)
     obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s))
     final, _ = CycleLoop(law, ex, cfg.period_s, 0.8, clock, clock.clock, observers=(obs,)).run(
-        law.initial_state(), 120.0)
-    summary = contour_summary(obs, build_robot(cfg), cfg.robot.mass.actuator_stiffness_n_m, c.height_m,
-                              c.lap_speeds_m_s)
+        law.initial_state(), 120.0
+    )
+    summary = contour_summary(
+        obs, build_robot(cfg), cfg.robot.mass.actuator_stiffness_n_m, c.height_m, c.lap_speeds_m_s
+    )
     return final, summary, ex
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("centre,radius", [((0.003, -0.002), 0.07), ((-0.002, 0.001), 0.066),
-                                           ((0.0, 0.003), 0.073)])
+@pytest.mark.parametrize(
+    "centre,radius", [((0.003, -0.002), 0.07), ((-0.002, 0.001), 0.066), ((0.0, 0.003), 0.073)]
+)
 def test_closed_loop_follows_an_off_centre_disk_of_another_radius(centre, radius):
-    final, summary, ex = _closed_loop(**{"sim.workpiece.centre_m": list(centre), "sim.workpiece.radius_m": radius})
+    final, summary, ex = _closed_loop(
+        **{"sim.workpiece.centre_m": list(centre), "sim.workpiece.radius_m": radius}
+    )
     assert final.mode == Mode.DONE, final.fault_reason
     assert [lap["lap"] for lap in summary["laps"]] == [1, 2]
-    for lap, speed, tol in zip(summary["laps"], (0.05, 0.08), (0.08, 0.02)):  # lap 1 includes the ramp from rest
+    for lap, speed, tol in zip(
+        summary["laps"], (0.05, 0.08), (0.08, 0.02)
+    ):  # lap 1 includes the ramp from rest
         assert lap["force_error_rms_n"] < 1.0
         assert lap["contact_losses"] == 0
         assert lap["speed_achieved_m_s"] == pytest.approx(speed, rel=tol)
@@ -197,8 +214,10 @@ def test_closed_loop_faults_when_there_is_nothing_to_touch():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("placement", [{}, {"sim.sensor.seed": 3, "sim.workpiece.centre_m": [0.0, 0.003],
-                                              "sim.workpiece.radius_m": 0.073}])
+@pytest.mark.parametrize(
+    "placement",
+    [{}, {"sim.sensor.seed": 3, "sim.workpiece.centre_m": [0.0, 0.003], "sim.workpiece.radius_m": 0.073}],
+)
 def test_force_error_is_worse_along_the_minor_axis_of_the_stiffness_as_in_the_paper(placement):
     """Seed 001 §7: worse force error where the normal lies along the stiffness ellipsoid's minor axis.
 
@@ -231,19 +250,28 @@ def test_the_stiffness_correlation_uses_the_laps_after_the_last_speed_change():
 
 # -- a late or missing force sample: the law runs on the last good one ------------------------
 
+
 def test_a_cycle_without_a_new_force_sample_adds_nothing_to_the_integral_or_the_loss_count():
     task, _ = _task()
     s = _tracking(task, normal=(1.0, 0.0), integral=0.01, low_force_cycles=2, force_f=(0.5, 0.0, 0.0))
-    stale = replace(_ctx((0.5, 0.0, 0.0)), inputs=replace(_ctx((0.5, 0.0, 0.0)).inputs,
-                                                          sensor=SensorFeedback((0.5, 0.0, 0.0), (0.0,) * 3, 0, 1, False)))
+    stale = replace(
+        _ctx((0.5, 0.0, 0.0)),
+        inputs=replace(
+            _ctx((0.5, 0.0, 0.0)).inputs, sensor=SensorFeedback((0.5, 0.0, 0.0), (0.0,) * 3, 0, 1, False)
+        ),
+    )
     out = task.step(s, stale)
     assert out.state.integral == s.integral  # the same error is not integrated twice
-    assert out.state.low_force_cycles == s.low_force_cycles  # a repeated sample is no evidence of a lost contact
+    assert (
+        out.state.low_force_cycles == s.low_force_cycles
+    )  # a repeated sample is no evidence of a lost contact
     fresh = task.step(s, _ctx((0.5, 0.0, 0.0)))
     assert fresh.state.low_force_cycles == 3
     # within the force band (out of it the motion into the contact is a guarded approach that integrates nothing)
     s = replace(s, force_f=(8.0, 0.0, 0.0), low_force_cycles=0)
-    stale = replace(stale, inputs=replace(stale.inputs, sensor=replace(stale.inputs.sensor, force_n=(8.0, 0.0, 0.0))))
+    stale = replace(
+        stale, inputs=replace(stale.inputs, sensor=replace(stale.inputs.sensor, force_n=(8.0, 0.0, 0.0)))
+    )
     assert task.step(s, stale).state.integral == s.integral
     assert task.step(s, _ctx((8.0, 0.0, 0.0))).state.integral > s.integral
 
@@ -263,8 +291,11 @@ class LossyExchange:
         self.k += 1
         if self.k in self.lost and self.last is not None:
             last = self.last
-            inputs = replace(inputs, drives=tuple(replace(d, fresh=False) for d in last.drives),
-                             sensor=replace(last.sensor, fresh=False))
+            inputs = replace(
+                inputs,
+                drives=tuple(replace(d, fresh=False) for d in last.drives),
+                sensor=replace(last.sensor, fresh=False),
+            )
         self.last = inputs
         return inputs
 
@@ -281,10 +312,12 @@ def test_lost_frames_in_the_force_loop_cost_nothing_visible():
         ex = LossyExchange(LoopbackExchange(cfg, clock.clock), lost)
         obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s))
         final, _ = CycleLoop(law, ex, cfg.period_s, 0.8, clock, clock.clock, observers=(obs,)).run(
-            law.initial_state(), 120.0)
+            law.initial_state(), 120.0
+        )
         assert final.mode == Mode.DONE, final.fault_reason
-        return contour_summary(obs, build_robot(cfg), cfg.robot.mass.actuator_stiffness_n_m, c.height_m,
-                               c.lap_speeds_m_s)
+        return contour_summary(
+            obs, build_robot(cfg), cfg.robot.mass.actuator_stiffness_n_m, c.height_m, c.lap_speeds_m_s
+        )
 
     clean = run(set())
     lost = set(range(2000, 20000, 25))

@@ -46,8 +46,16 @@ def run(cfg: Config, max_s: float = 30.0, hook=None, stop: threading.Event | Non
     law = build_law(cfg)
     exchange = LoopbackExchange(cfg, clock.clock)
     trace, recorder = Trace(hook=hook), RunRecorder()
-    loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
-                     observers=(trace, recorder), stop_event=stop)
+    loop = CycleLoop(
+        law,
+        exchange,
+        cfg.period_s,
+        cfg.loop.collect_fraction,
+        clock,
+        clock.clock,
+        observers=(trace, recorder),
+        stop_event=stop,
+    )
     final, stats = loop.run(law.initial_state(), max_s)
     return final, stats, trace, recorder, exchange
 
@@ -63,32 +71,49 @@ def test_path_task_completes_and_tracks_the_circle():
     assert np.sqrt(np.mean(err**2)) < 50e-6
     assert err.max() < 80e-6
     kinds = [e.message.split(":")[0] for _, e in rec.events]
-    assert kinds == ["CONFIGURING -> ENABLING", "ENABLING -> HOLDING", "HOLDING -> RUNNING",
-                     "RUNNING -> STOPPING", "STOPPING -> DONE"]
+    assert kinds == [
+        "CONFIGURING -> ENABLING",
+        "ENABLING -> HOLDING",
+        "HOLDING -> RUNNING",
+        "RUNNING -> STOPPING",
+        "STOPPING -> DONE",
+    ]
 
 
 @pytest.mark.parametrize("rate_hz", [25.0, 100.0])
 def test_at_a_low_rate_the_drives_lag_of_one_period_is_no_following_error(rate_hz):
     # Found in the vcan VM at 25 Hz: the measured position was judged against the setpoint aimed
     # one period later, and the move to the path's start (0.3 m/s, 12 mm a period) faulted.
-    cfg = load_config(overrides={**SHORT, "loop.rate_hz": rate_hz, "task.path.laps": 0.25,
-                                 "sim.drive.sync_timeout_s": 0.5})
+    cfg = load_config(
+        overrides={**SHORT, "loop.rate_hz": rate_hz, "task.path.laps": 0.25, "sim.drive.sync_timeout_s": 0.5}
+    )
     final, _, trace, _, _ = run(cfg, max_s=60.0)
     assert final.mode == Mode.DONE, final.fault_reason
     peak = max(abs(v) for sp in trace.setpoints for v in sp.velocity)
-    assert peak * cfg.period_s > 0.5 * cfg.safety.following_window_m or rate_hz > 25.0, peak  # the case the check must not trip on
+    assert peak * cfg.period_s > 0.5 * cfg.safety.following_window_m or rate_hz > 25.0, (
+        peak
+    )  # the case the check must not trip on
 
 
 def test_a_blocked_drive_is_a_following_error_at_a_low_rate_too():
-    cfg = load_config(overrides={**SHORT, "loop.rate_hz": 25.0, "sim.drive.sync_timeout_s": 0.5,
-                                 "sim.faults": ["block:2@1.0"], "actuators.following_error_window_m": 1.0})
+    cfg = load_config(
+        overrides={
+            **SHORT,
+            "loop.rate_hz": 25.0,
+            "sim.drive.sync_timeout_s": 0.5,
+            "sim.faults": ["block:2@1.0"],
+            "actuators.following_error_window_m": 1.0,
+        }
+    )
     final, _, _, _, _ = run(cfg, max_s=60.0)
     assert final.mode == Mode.FAULT
     assert final.fault_reason.startswith("drive 2 following error"), final.fault_reason
 
 
 def test_setpoints_respect_velocity_acceleration_and_jerk_limits():
-    cfg = load_config(overrides={**SHORT, "actuators.max_jerk_m_s3": 50.0, "actuators.max_acceleration_m_s2": 2.0})
+    cfg = load_config(
+        overrides={**SHORT, "actuators.max_jerk_m_s3": 50.0, "actuators.max_acceleration_m_s2": 2.0}
+    )
     final, _, trace, _, _ = run(cfg)
     assert final.mode == Mode.DONE
     dt = cfg.period_s
@@ -148,8 +173,9 @@ def test_a_stalled_cycle_shows_in_the_period_error_and_the_observer_time():
             if cycle == 200:
                 clock.now_s += 0.051
 
-    loop = CycleLoop(law, LoopbackExchange(cfg, clock.clock), cfg.period_s, 0.8, clock, clock.clock,
-                     observers=(Stall(),))
+    loop = CycleLoop(
+        law, LoopbackExchange(cfg, clock.clock), cfg.period_s, 0.8, clock, clock.clock, observers=(Stall(),)
+    )
     _, stats = loop.run(law.initial_state(), 1.0)
     assert stats.overruns == 19  # the loop goes on at the 20th deadline after, 1 ms late
     errors = stats.period_error_hist_us
@@ -177,7 +203,10 @@ def test_a_drive_fault_is_seen_and_answered_with_quick_stop():
     loop = CycleLoop(law, ex, cfg.period_s, 0.6, clock, clock.clock, observers=(Trace(hook=hook),))
     final, _ = loop.run(law.initial_state(), 10.0)
     assert final.mode == Mode.FAULT
-    assert "drive 3 reports FAULT" in final.fault_reason or "EMCY from node 3: error code 0x5000" in final.fault_reason
+    assert (
+        "drive 3 reports FAULT" in final.fault_reason
+        or "EMCY from node 3: error code 0x5000" in final.fault_reason
+    )
     for d in ex.drives[:2]:
         assert decode_statusword(d.statusword()) == PowerState.QUICK_STOP_ACTIVE
         assert d.velocity == 0.0

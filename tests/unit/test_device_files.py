@@ -53,8 +53,12 @@ def test_dbc_decodes_drive_frames_like_the_codec(dbc):
 
 
 def test_dbc_decodes_sensor_frames_like_the_codec(dbc):
-    f = dbc.decode_message(cob_ids.tpdo1(16), encode_sensor_frame((1.5, -2.25, 40.0), FORCE_N_PER_COUNT, 4, 9))
-    assert f["Fx"] == pytest.approx(1.5) and f["Fy"] == pytest.approx(-2.25) and f["Fz"] == pytest.approx(40.0)
+    f = dbc.decode_message(
+        cob_ids.tpdo1(16), encode_sensor_frame((1.5, -2.25, 40.0), FORCE_N_PER_COUNT, 4, 9)
+    )
+    assert (
+        f["Fx"] == pytest.approx(1.5) and f["Fy"] == pytest.approx(-2.25) and f["Fz"] == pytest.approx(40.0)
+    )
     assert f["F_Status"] == 4 and f["F_Counter"] == 9
     t = dbc.decode_message(cob_ids.tpdo2(16), encode_sensor_frame((0.5, 0, -1.25), TORQUE_NM_PER_COUNT, 0, 9))
     assert t["Tx"] == pytest.approx(0.5) and t["Tz"] == pytest.approx(-1.25)

@@ -12,14 +12,22 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def test_the_configuration_keys_page_is_what_the_schema_says():
     shipped = (ROOT / "docs/reference/configuration-keys.md").read_text(encoding="utf-8")
-    assert shipped == page(), "regenerate: python -m controller.tools.config_reference > docs/reference/configuration-keys.md"
+    assert shipped == page(), (
+        "regenerate: python -m controller.tools.config_reference > docs/reference/configuration-keys.md"
+    )
 
 
 def test_the_configuration_keys_page_names_every_section():
     text = page()
-    for key in ("loop.max_missing_cycles", "safety.sensor_stale_cycles", "robot.cheope.rod_length_m",
-                "robot.uru.knee_sign", "task.contour.force_setpoint_n", "sim.drive.sync_timeout_s",
-                "recording.max_file_size_mb"):
+    for key in (
+        "loop.max_missing_cycles",
+        "safety.sensor_stale_cycles",
+        "robot.cheope.rod_length_m",
+        "robot.uru.knee_sign",
+        "task.contour.force_setpoint_n",
+        "sim.drive.sync_timeout_s",
+        "recording.max_file_size_mb",
+    ):
         assert f"| `{key}` |" in text
 
 

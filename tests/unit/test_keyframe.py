@@ -42,8 +42,14 @@ def _bits(xs):
 
 def test_every_value_comes_back_bit_for_bit():
     plan = np.linspace(0.0, 1.0, 12).reshape(4, 3) / 3.0
-    s = State(Phase.B, (0.1 + 0.2, -0.0, math.inf, -math.inf, math.nan, 5e-324), frozenset({"b", "a"}),
-              Inner(plan, (1 / 3,)), "x\u00e9", 2**70)
+    s = State(
+        Phase.B,
+        (0.1 + 0.2, -0.0, math.inf, -math.inf, math.nan, 5e-324),
+        frozenset({"b", "a"}),
+        Inner(plan, (1 / 3,)),
+        "x\u00e9",
+        2**70,
+    )
     back = decode_state(encode_state(s))
     assert back.phase is Phase.B and back.warned == s.warned and back.name == s.name and back.count == 2**70
     assert _bits(back.values) == _bits(s.values)  # -0.0 and nan included

@@ -17,7 +17,17 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
 PACKAGES = ("controller", "drivers", "sim_backend", "logs")
-IO_LIBRARIES = ("can", "canopen", "zenoh", "mcap", "mcap_protobuf", "rerun", "matplotlib", "socket", "subprocess")
+IO_LIBRARIES = (
+    "can",
+    "canopen",
+    "zenoh",
+    "mcap",
+    "mcap_protobuf",
+    "rerun",
+    "matplotlib",
+    "socket",
+    "subprocess",
+)
 
 
 def _module_name(path: Path) -> str:
@@ -85,7 +95,7 @@ def test_no_import_cycles():
         stack.append(m)
         for n in sorted(graph[m]):
             if state.get(n) == 1:
-                raise AssertionError("import cycle: " + " -> ".join(stack[stack.index(n):] + [n]))
+                raise AssertionError("import cycle: " + " -> ".join(stack[stack.index(n) :] + [n]))
             if n not in state:
                 walk(n)
         stack.pop()
@@ -101,8 +111,20 @@ def test_the_core_does_no_io():
         if not _in(m, "controller.core"):
             continue
         names = _imports(m, False)
-        bad = [n for n in _ours(names) if _in(n, "controller.shell", "controller.tools", "controller.monitoring",
-                                               "sim_backend", "logs", "drivers.bus", "drivers.cyclic_exchange")]
+        bad = [
+            n
+            for n in _ours(names)
+            if _in(
+                n,
+                "controller.shell",
+                "controller.tools",
+                "controller.monitoring",
+                "sim_backend",
+                "logs",
+                "drivers.bus",
+                "drivers.cyclic_exchange",
+            )
+        ]
         bad += [n for n in names if n.split(".")[0] in IO_LIBRARIES]
         assert not bad, f"{m} imports {bad}"
 

@@ -40,13 +40,17 @@ def test_inverse_and_solve_match_numpy_where_well_conditioned(a, v):
     inv = np.linalg.inv(a)
     assert np.allclose(inverse3(as_rows(a)), inv, rtol=1e-6, atol=1e-9 * max(1.0, np.abs(inv).max()))
     x = np.linalg.solve(a, v)
-    assert np.allclose(solve3(as_rows(a), tuple(v)), x, rtol=1e-6, atol=1e-9 * max(1.0, np.abs(inv).max() * np.abs(v).max()))
+    assert np.allclose(
+        solve3(as_rows(a), tuple(v)), x, rtol=1e-6, atol=1e-9 * max(1.0, np.abs(inv).max() * np.abs(v).max())
+    )
 
 
 def test_the_inverse_of_a_matrix_whose_determinant_underflows_matches_numpy():
     # Found by the property above: entries of 6.8e-145, a well-conditioned matrix whose
     # determinant underflows to 0.0.
-    a = np.full((3, 3), 6.769652881360066e-145) - np.diag([6.769652881360066e-145, 6.769652881360066e-145, 0.0])
+    a = np.full((3, 3), 6.769652881360066e-145) - np.diag(
+        [6.769652881360066e-145, 6.769652881360066e-145, 0.0]
+    )
     assert np.allclose(inverse3(as_rows(a)), np.linalg.inv(a), rtol=1e-9, atol=0.0)
 
 
@@ -66,8 +70,9 @@ def test_symmetric_eigenvalues_match_eigvalsh(a):
     assert np.allclose(got, expected, rtol=0.0, atol=1e-7 * max(1e-3, expected[-1]))
 
 
-@pytest.mark.parametrize("a", [np.array([[8.5, 0, 0], [0, 0, 0], [8.5, 0, 0]]),
-                               np.array([[3.0, 0, 0], [0, 0, 0], [3.0, 0, 0]])])
+@pytest.mark.parametrize(
+    "a", [np.array([[8.5, 0, 0], [0, 0, 0], [8.5, 0, 0]]), np.array([[3.0, 0, 0], [0, 0, 0], [3.0, 0, 0]])]
+)
 def test_symmetric_eigenvalues_where_two_nearly_coincide(a):
     # hypothesis found these: a large eigenvalue beside two that differ by 1e-3 of a part
     s = a @ a.T + np.diag([1e-3, 2e-3, 3e-3])

@@ -14,8 +14,9 @@ from controller.messages.generate import HERE, generate
 
 def test_generated_code_is_up_to_date(tmp_path):
     fresh = generate(tmp_path)
-    assert fresh.read_text() == (HERE / "cheope_pb2.py").read_text(), \
+    assert fresh.read_text() == (HERE / "cheope_pb2.py").read_text(), (
         "cheope_pb2.py is stale: run python -m controller.messages.generate"
+    )
 
 
 def test_cycle_round_trips_doubles_exactly():
@@ -33,9 +34,11 @@ def test_the_tracker_and_plans_ready_round_trip_into_the_steps_inputs():
     from controller.core.cycle_data import CycleInputs, DriveFeedback, TrackerFeedback
     from logs.messages import inputs_from_pb, inputs_to_pb
 
-    inputs = CycleInputs(drives=(DriveFeedback(0x1637, 0.1 + 0.2, True),),
-                         tracker=TrackerFeedback((1 / 3, -0.0251, 0.2713), (0.075, 0.31, -0.532), 0, 42, True),
-                         plans_ready=2)
+    inputs = CycleInputs(
+        drives=(DriveFeedback(0x1637, 0.1 + 0.2, True),),
+        tracker=TrackerFeedback((1 / 3, -0.0251, 0.2713), (0.075, 0.31, -0.532), 0, 42, True),
+        plans_ready=2,
+    )
     msg = pb.CycleInputs()
     inputs_to_pb(inputs, msg)
     assert inputs_from_pb(pb.CycleInputs.FromString(msg.SerializeToString())) == inputs
@@ -45,8 +48,15 @@ def test_the_tracker_and_plans_ready_round_trip_into_the_steps_inputs():
     assert inputs_from_pb(msg) == without and not msg.HasField("tracker")
 
 
-_frame = st.tuples(st.booleans(), st.floats(allow_nan=True, allow_infinity=True), st.integers(0, 0x1FFFFFFF),
-                   st.binary(max_size=64), st.booleans(), st.booleans(), st.booleans())
+_frame = st.tuples(
+    st.booleans(),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.integers(0, 0x1FFFFFFF),
+    st.binary(max_size=64),
+    st.booleans(),
+    st.booleans(),
+    st.booleans(),
+)
 
 
 def _exact(frames):
@@ -54,14 +64,18 @@ def _exact(frames):
 
 
 @settings(deadline=None)  # a shared machine's pause is not a failure of the packing
-@given(st.lists(_frame, max_size=40) | st.lists(
-    st.builds(lambda k, f: (f[0], k / 1e9, *f[2:]), st.integers(0, 10**15), _frame), max_size=40))
+@given(
+    st.lists(_frame, max_size=40)
+    | st.lists(st.builds(lambda k, f: (f[0], k / 1e9, *f[2:]), st.integers(0, 10**15), _frame), max_size=40)
+)
 def test_a_cycles_frames_packed_in_one_batch_come_back_bit_for_bit(frames):
     """Every frame with its direction, time (any double: nanoseconds or not, -0.0, nan), id, data and flags."""
     from logs.messages import pack_frames, unpack_frames
 
-    back = [(f.outgoing, f.monotonic_s, f.arbitration_id, f.data, f.is_fd, f.bitrate_switch, f.is_error_frame)
-            for f in unpack_frames(pack_frames(frames))]
+    back = [
+        (f.outgoing, f.monotonic_s, f.arbitration_id, f.data, f.is_fd, f.bitrate_switch, f.is_error_frame)
+        for f in unpack_frames(pack_frames(frames))
+    ]
     assert _exact(back) == _exact(frames)
 
 

@@ -38,8 +38,16 @@ def _simulated_run(cfg, max_s, observers=(), plans_ready=None):
     assembly = assemble(cfg)
     law, (report,) = assembly.law, assembly.reports
     exchange = LoopbackExchange(cfg, clock.clock)
-    loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
-                     observers=(RunRecorder(), report, *observers), plans_ready=plans_ready)
+    loop = CycleLoop(
+        law,
+        exchange,
+        cfg.period_s,
+        cfg.loop.collect_fraction,
+        clock,
+        clock.clock,
+        observers=(RunRecorder(), report, *observers),
+        plans_ready=plans_ready,
+    )
     final, _ = loop.run(law.initial_state(), max_s)
     return law, exchange, final, report
 
@@ -59,7 +67,10 @@ def test_time_scaling_keeps_the_limits_and_the_path(streamed_run, cfg):
     v, acc, j = s.peaks
     assert v <= f * a.max_velocity_m_s * 1.001 and acc <= f * a.max_acceleration_m_s2 * 1.001
     assert j <= f * a.max_jerk_m_s3 * 1.001
-    assert max(v / (f * a.max_velocity_m_s), acc / (f * a.max_acceleration_m_s2), j / (f * a.max_jerk_m_s3)) > 0.99
+    assert (
+        max(v / (f * a.max_velocity_m_s), acc / (f * a.max_acceleration_m_s2), j / (f * a.max_jerk_m_s3))
+        > 0.99
+    )
     # zero velocity at both ends, start/end legs are the plan's
     assert np.allclose(s.rates_m_s[[0, -1]], 0.0, atol=1e-12)
     plan = streamed_run[4].plan
@@ -69,7 +80,9 @@ def test_time_scaling_keeps_the_limits_and_the_path(streamed_run, cfg):
     d = np.gradient(s.legs_m, s.t_s, axis=0)
     assert np.max(np.abs(d[2:-2] - s.rates_m_s[2:-2])) < 1e-3 * v
     # the streamed legs are those of the planned poses (time reparametrised, same path)
-    assert np.allclose(leg_lengths_batch(plan.geometry, plan.p_m, plan.R)[[0, -1]], s.legs_m[[0, -1]], atol=1e-6)
+    assert np.allclose(
+        leg_lengths_batch(plan.geometry, plan.p_m, plan.R)[[0, -1]], s.legs_m[[0, -1]], atol=1e-6
+    )
 
 
 def test_streamed_execution_reaches_the_goal(streamed_run):
@@ -88,8 +101,11 @@ def test_streamed_execution_reaches_the_goal(streamed_run):
     assert "non-holonomic" in summary["explanation"]
 
 
-MISMATCH = {"sim.nspu.leg_offset_m": [0.0005, -0.0005, 0.0005], "sim.nspu.w4_axis_error_rad": [0.001, -0.001, 0.001],
-            "sim.nspu.r_axis_error_rad": [-0.001, 0.001, 0.001]}
+MISMATCH = {
+    "sim.nspu.leg_offset_m": [0.0005, -0.0005, 0.0005],
+    "sim.nspu.w4_axis_error_rad": [0.001, -0.001, 0.001],
+    "sim.nspu.r_axis_error_rad": [-0.001, 0.001, 0.001],
+}
 
 
 def test_open_loop_misses_the_goal_with_a_model_mismatch():
@@ -107,15 +123,22 @@ def test_open_loop_misses_the_goal_with_a_model_mismatch():
 
 
 def test_planning_failure_is_refused_before_anything_moves():
-    cfg = load_config(NSPU_TOML, {"robot.nspu.goal_position_m": [-0.004, -0.002, 0.35],
-                                  "robot.nspu.goal_rpy_rad": [0.0, 0.0, -1.5708]})  # the paper's goal
+    cfg = load_config(
+        NSPU_TOML,
+        {
+            "robot.nspu.goal_position_m": [-0.004, -0.002, 0.35],
+            "robot.nspu.goal_rpy_rad": [0.0, 0.0, -1.5708],
+        },
+    )  # the paper's goal
     with pytest.raises(PlanningError, match="type-II"):
         build_law(cfg)
 
 
 def test_legs_not_at_the_plan_start_fault(cfg):
     law = build_law(load_config(NSPU_TOML, {"robot.nspu.max_iterations": 50}))
-    moved = load_config(NSPU_TOML, {"robot.nspu.start_position_m": [0.0, 0.0, 0.26]})  # the simulator starts here
+    moved = load_config(
+        NSPU_TOML, {"robot.nspu.start_position_m": [0.0, 0.0, 0.26]}
+    )  # the simulator starts here
     clock = SimulatedTime()
     exchange = LoopbackExchange(moved, clock.clock)
     loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock)
@@ -124,15 +147,30 @@ def test_legs_not_at_the_plan_start_fault(cfg):
 
 
 def test_demo_end_to_end(tmp_path):
-    cmd = [sys.executable, "-m", "controller", "demo", "--robot", "nspu", "--json", "--max-duration", "60",
-           *TOLERANT, "--set", f'recording.directory="{tmp_path}"',
-           "--set", "monitoring.enabled=false"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "controller",
+        "demo",
+        "--robot",
+        "nspu",
+        "--json",
+        "--max-duration",
+        "60",
+        *TOLERANT,
+        "--set",
+        f'recording.directory="{tmp_path}"',
+        "--set",
+        "monitoring.enabled=false",
+    ]
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
     assert out.returncode == 0, out.stderr[-2000:]
     s = json.loads(out.stdout)
     assert s["final_mode"] == "DONE"
     assert s["plan"]["status"] == "converged"
-    assert s["position_error_m"] < 2e-3 and s["angle_error_rad"] < 2e-2  # accuracy: see the simulated-time test
+    assert (
+        s["position_error_m"] < 2e-3 and s["angle_error_rad"] < 2e-2
+    )  # accuracy: see the simulated-time test
     assert "explanation" in s and s["reached_pose"] is not None
 
 
@@ -157,7 +195,9 @@ class TaskEvents:
 
 
 def _closed_loop_run(overrides, plans_ready=None, observers=()):
-    cfg = load_config(NSPU_TOML, {"recording.enabled": False, "monitoring.enabled": False, **MISMATCH, **overrides})
+    cfg = load_config(
+        NSPU_TOML, {"recording.enabled": False, "monitoring.enabled": False, **MISMATCH, **overrides}
+    )
     seen = TaskEvents()
     law, exchange, final, _ = _simulated_run(cfg, 40.0, (seen, *observers), plans_ready)
     return cfg, law, exchange, final, seen
@@ -167,8 +207,9 @@ def test_closed_loop_reaches_the_goal_despite_the_mismatch_and_an_off_start():
     """Issue 20: 0.5 mm leg offsets, 1 mrad axis errors, a start 2 mm off the plan's: with the
     tracker the execution replans from the measured start and again from the measured end, and
     the simulated platform ends within 1 mm and 10 mrad of the goal (measured 34 um, 0.05 mrad)."""
-    _, law, exchange, final, seen = _closed_loop_run({**TRACKED, **OFF_START,
-                                                      "robot.nspu.correction_planning": "in_step"})
+    _, law, exchange, final, seen = _closed_loop_run(
+        {**TRACKED, **OFF_START, "robot.nspu.correction_planning": "in_step"}
+    )
     assert final.mode == Mode.DONE, final.fault_reason
     pe, ae = pose_errors(exchange.plant.kinematics.pose, law.robot.goal)
     assert pe < 1e-3 and ae < 1e-2
@@ -186,9 +227,14 @@ def test_without_the_tracker_the_off_start_is_refused_and_the_mismatch_misses():
     assert final.mode == Mode.FAULT and "not at the plan's start" in final.fault_reason
     # the mismatch alone: open loop misses (test_open_loop_misses_the_goal_with_a_model_mismatch);
     # with the tracker but no correction allowed it misses by as much, and says so
-    _, law, exchange, final, seen = _closed_loop_run({**TRACKED, "robot.nspu.max_corrections": 0,
-                                                      "robot.nspu.correction_tolerance_m": 0.01,  # accept the start
-                                                      "robot.nspu.correction_planning": "in_step"})
+    _, law, exchange, final, seen = _closed_loop_run(
+        {
+            **TRACKED,
+            "robot.nspu.max_corrections": 0,
+            "robot.nspu.correction_tolerance_m": 0.01,  # accept the start
+            "robot.nspu.correction_planning": "in_step",
+        }
+    )
     pe, ae = pose_errors(exchange.plant.kinematics.pose, law.robot.goal)
     assert final.mode == Mode.DONE and pe > 1e-3 and ae > 1e-3
     assert "after 0 corrections" in seen.messages[-1]
@@ -200,16 +246,26 @@ def test_plans_off_the_loop_enter_as_inputs_and_replay_bit_for_bit():
     itself) gives the same outputs, bit for bit."""
     from controller.shell.plan_worker import PlanWorker
 
-    cfg = load_config(NSPU_TOML, {"recording.enabled": False, "monitoring.enabled": False, **MISMATCH, **TRACKED,
-                                  **OFF_START})
+    cfg = load_config(
+        NSPU_TOML,
+        {"recording.enabled": False, "monitoring.enabled": False, **MISMATCH, **TRACKED, **OFF_START},
+    )
     assert cfg.robot.model("nspu").correction_planning == "worker"
     law = build_law(cfg)
     with PlanWorker(law.task.correction_planner) as worker:
         clock = SimulatedTime()
         exchange = LoopbackExchange(cfg, clock.clock)
         seen = TaskEvents()
-        loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
-                         observers=(seen, worker), plans_ready=worker.ready)
+        loop = CycleLoop(
+            law,
+            exchange,
+            cfg.period_s,
+            cfg.loop.collect_fraction,
+            clock,
+            clock.clock,
+            observers=(seen, worker),
+            plans_ready=worker.ready,
+        )
         final, _ = loop.run(law.initial_state(), 60.0)
     assert final.mode == Mode.DONE, final.fault_reason
     pe, ae = pose_errors(exchange.plant.kinematics.pose, law.robot.goal)
@@ -217,7 +273,7 @@ def test_plans_off_the_loop_enter_as_inputs_and_replay_bit_for_bit():
     ready = [i.plans_ready for _, i, _ in seen.cycles]
     first_request, first_ready = seen.request_ids.index(1), ready.index(1)
     assert first_ready > first_request + 10  # the loop ran on while the worker planned ...
-    held = [o.targets for _, _, o in seen.cycles[first_request + 3:first_ready]]
+    held = [o.targets for _, _, o in seen.cycles[first_request + 3 : first_ready]]
     assert all(h == held[0] for h in held)  # ... holding the legs
     fresh = build_law(cfg)
     state = fresh.initial_state()

@@ -57,7 +57,10 @@ def paper_plan():
 @pytest.fixture(scope="module")
 def near_plans():
     # 200 samples: test_plan_exposes_sampled_legs_and_consistent_rates differentiates them numerically
-    return {k: plan_motion(GEOM, START, g, PlannerConfig(max_iterations=30, n_steps=200)) for k, g in PAIRS.items()}
+    return {
+        k: plan_motion(GEOM, START, g, PlannerConfig(max_iterations=30, n_steps=200))
+        for k, g in PAIRS.items()
+    }
 
 
 def test_fourier_controls_eq15() -> None:
@@ -231,7 +234,9 @@ def test_next_initial_controls_after_a_crossing_motion() -> None:
 
 
 def test_budget_exhausted_is_reported() -> None:
-    res = plan_motion(GEOM, START, PAIRS["near_b"], PlannerConfig(max_iterations=1, initial_guesses=1, continuation=False))
+    res = plan_motion(
+        GEOM, START, PAIRS["near_b"], PlannerConfig(max_iterations=1, initial_guesses=1, continuation=False)
+    )
     assert res.status is PlanStatus.MAX_ITERATIONS
     assert "after 1 iterations" in res.message and res.final_error > 1e-3
     with pytest.raises(PlanningError, match="max_iterations"):
@@ -257,11 +262,18 @@ def test_singular_goal_pose_is_reported() -> None:
 
 def test_leg_stroke_violation_is_reported(paper_plan) -> None:
     legs = paper_plan.legs_m
-    lo = min(leg_lengths_batch(GEOM, START.p_m, START.R).min(), leg_lengths_batch(GEOM, GOAL.p_m, GOAL.R).min())
+    lo = min(
+        leg_lengths_batch(GEOM, START.p_m, START.R).min(), leg_lengths_batch(GEOM, GOAL.p_m, GOAL.R).min()
+    )
     assert legs.min() < lo - 1e-3  # the plan dips below both end lengths
     narrow = NspuGeometry(
-        GEOM.a_m, GEOM.r, GEOM.b_platform_m, GEOM.w4_platform,
-        leg_min_m=lo - 1e-4, leg_max_m=legs.max() + 1e-3, length_unit_m=UNIT,
+        GEOM.a_m,
+        GEOM.r,
+        GEOM.b_platform_m,
+        GEOM.w4_platform,
+        leg_min_m=lo - 1e-4,
+        leg_max_m=legs.max() + 1e-3,
+        length_unit_m=UNIT,
     )
     res = plan_motion(narrow, START, GOAL, PlannerConfig(check_type2=False))
     assert res.status is PlanStatus.LEG_STROKE

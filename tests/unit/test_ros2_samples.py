@@ -29,13 +29,29 @@ def test_the_commanded_tcp_is_the_direct_kinematics_of_the_targets(robot):
 def test_a_state_sample_keeps_the_controllers_clock_and_values(robot):
     p = np.array([0.0, 0.0, 0.5])
     targets = [float(x) for x in robot.inverse_kinematics(p)]
-    state = pb.MonitorState(robot_id="r", cycle=12, t_s=0.03, mode="RUNNING", task="path", targets=targets,
-                            positions=[0.1, 0.2, 0.3], tcp_m=[1.0, 2.0, 3.0], force_n=[4.0, 5.0, 6.0],
-                            alarms=["sensor: no frame this cycle"], cycle_monotonic_s=1234.5)
+    state = pb.MonitorState(
+        robot_id="r",
+        cycle=12,
+        t_s=0.03,
+        mode="RUNNING",
+        task="path",
+        targets=targets,
+        positions=[0.1, 0.2, 0.3],
+        tcp_m=[1.0, 2.0, 3.0],
+        force_n=[4.0, 5.0, 6.0],
+        alarms=["sensor: no frame this cycle"],
+        cycle_monotonic_s=1234.5,
+    )
     state.loop.late_cycles = 7
     s = sample_from_state(state, robot)
-    assert (s.stamp_s, s.cycle, s.positions, s.tcp_measured_m, s.force_n, s.torque_nm) == \
-        (1234.5, 12, (0.1, 0.2, 0.3), (1.0, 2.0, 3.0), (4.0, 5.0, 6.0), None)
+    assert (s.stamp_s, s.cycle, s.positions, s.tcp_measured_m, s.force_n, s.torque_nm) == (
+        1234.5,
+        12,
+        (0.1, 0.2, 0.3),
+        (1.0, 2.0, 3.0),
+        (4.0, 5.0, 6.0),
+        None,
+    )
     assert s.tcp_reference_m == pytest.approx((0.0, 0.0, 0.5), abs=1e-9)
     assert s.counters["late_cycles"] == 7
     assert diagnostic_level(s) == 1  # an alarm: WARN

@@ -21,9 +21,14 @@ from sim_backend.loopback import LoopbackExchange
 LONG = {"task.path.laps": 20.0}  # far longer than any test lets it run
 
 
-def _run(cfg: Config, max_s: float | None, stop_at_s: float | None = None, quick_at_s: float | None = None,
-         stop_timeout_s: float = 10.0, stop: threading.Event | None = None
-         ) -> tuple[ControllerState, LoopbackExchange, list[Mode], RunRecorder]:
+def _run(
+    cfg: Config,
+    max_s: float | None,
+    stop_at_s: float | None = None,
+    quick_at_s: float | None = None,
+    stop_timeout_s: float = 10.0,
+    stop: threading.Event | None = None,
+) -> tuple[ControllerState, LoopbackExchange, list[Mode], RunRecorder]:
     clock = SimulatedTime()
     law = build_law(cfg)
     exchange = LoopbackExchange(cfg, clock.clock)
@@ -40,8 +45,18 @@ def _run(cfg: Config, max_s: float | None, stop_at_s: float | None = None, quick
                 quick.set()
 
     rec = RunRecorder()
-    loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock,
-                     observers=(Hook(), rec), stop_event=stop, quick_stop_event=quick, stop_timeout_s=stop_timeout_s)
+    loop = CycleLoop(
+        law,
+        exchange,
+        cfg.period_s,
+        cfg.loop.collect_fraction,
+        clock,
+        clock.clock,
+        observers=(Hook(), rec),
+        stop_event=stop,
+        quick_stop_event=quick,
+        stop_timeout_s=stop_timeout_s,
+    )
     final, _ = loop.run(law.initial_state(), max_s)
     return final, exchange, modes, rec
 

@@ -32,8 +32,9 @@ def _settle(start: Setpoint, cycles: int) -> list[Setpoint]:
 
 @pytest.mark.parametrize("velocity_m_s", [0.02, 0.074, 0.2, 0.5, 0.99, -0.3])
 @pytest.mark.parametrize("error_m", [0.0, 0.002, -0.05])
-def test_a_reference_that_stops_dead_is_reached_without_a_growing_oscillation(velocity_m_s: float,
-                                                                              error_m: float) -> None:
+def test_a_reference_that_stops_dead_is_reached_without_a_growing_oscillation(
+    velocity_m_s: float, error_m: float
+) -> None:
     trace = _settle(Setpoint((error_m,), (velocity_m_s,), (0.0,)), 1200)
     # The stop overshoots at most by the braking distance from the start (jerk- and acceleration-
     # limited), never more on a later swing, and ends at rest on the reference.

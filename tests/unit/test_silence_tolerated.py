@@ -65,12 +65,18 @@ def test_a_sensor_the_task_does_not_read_is_supervised_by_its_heartbeat():
 @pytest.mark.parametrize(("silent_s", "faults"), [(0.03, False), (0.1, True)])
 def test_the_contour_task_tolerates_sensor_silence_up_to_sensor_stale_cycles(silent_s, faults):
     # in lap 2 of a two-lap contour: 12 cycles ride through (the task holds from the 4th), 40 fault
-    over = {"task.kind": "contour", "task.contour.lap_speeds_m_s": [0.04, 0.04],
-            "sim.faults": [f"drop:{SENSOR}@20.0+{silent_s}"]}
+    over = {
+        "task.kind": "contour",
+        "task.contour.lap_speeds_m_s": [0.04, 0.04],
+        "sim.faults": [f"drop:{SENSOR}@20.0+{silent_s}"],
+    }
     cfg, final, counters = _run(over, max_s=60.0)
     if faults:
         assert final.mode == Mode.FAULT
-        assert final.fault_reason == f"force sensor: no usable sample for {cfg.safety.sensor_stale_cycles} cycles"
+        assert (
+            final.fault_reason
+            == f"force sensor: no usable sample for {cfg.safety.sensor_stale_cycles} cycles"
+        )
     else:
         assert final.mode == Mode.DONE, final.fault_reason
         assert counters.longest_sensor_silence_cycles >= 11

@@ -27,30 +27,61 @@ LATE = CycleTiming(wake_error_s=0.5 * PERIOD_S, step_s=1e-4)
 
 
 def _state(mode: Mode, task_state: object, fault: str = "") -> ControllerState:
-    return ControllerState(mode=mode, cycle=0, mode_entered_s=0.0, setpoint=Setpoint.at_rest((0.0,) * 3),
-                           controlwords=(0,) * 3, missing_streak=(0,) * 3, task_state=task_state,
-                           tcp_reference_m=None, tcp_measured_m=None, fault_reason=fault)
+    return ControllerState(
+        mode=mode,
+        cycle=0,
+        mode_entered_s=0.0,
+        setpoint=Setpoint.at_rest((0.0,) * 3),
+        controlwords=(0,) * 3,
+        missing_streak=(0,) * 3,
+        task_state=task_state,
+        tcp_reference_m=None,
+        tcp_measured_m=None,
+        fault_reason=fault,
+    )
 
 
 def _snapshot(**kw: object) -> StatusSnapshot:
-    base = StatusSnapshot(run=1, elapsed_s=12.5, mode="RUNNING", phase="TRACKING", lap=2, laps=5,
-                          force_error_rms_n=0.314, force_error_samples=100, late_cycles=3)
+    base = StatusSnapshot(
+        run=1,
+        elapsed_s=12.5,
+        mode="RUNNING",
+        phase="TRACKING",
+        lap=2,
+        laps=5,
+        force_error_rms_n=0.314,
+        force_error_samples=100,
+        late_cycles=3,
+    )
     return dataclasses.replace(base, **kw)
 
 
 def test_the_text_says_phase_lap_force_error_and_late_cycles():
-    assert status_text(_snapshot()) == \
-        " 12.5 s  RUNNING  TRACKING  lap 2/5  force error 0.31 N RMS  late cycles 3"
+    assert (
+        status_text(_snapshot())
+        == " 12.5 s  RUNNING  TRACKING  lap 2/5  force error 0.31 N RMS  late cycles 3"
+    )
 
 
 def test_the_text_leaves_out_what_the_task_does_not_have():
-    text = status_text(_snapshot(phase="MOVE_TO_START", lap=None, laps=None, force_error_rms_n=None,
-                                 force_error_samples=0, late_cycles=0))
+    text = status_text(
+        _snapshot(
+            phase="MOVE_TO_START",
+            lap=None,
+            laps=None,
+            force_error_rms_n=None,
+            force_error_samples=0,
+            late_cycles=0,
+        )
+    )
     assert text == " 12.5 s  RUNNING  MOVE_TO_START  late cycles 0"
-    assert status_text(_snapshot(mode="CONFIGURING", phase="", lap=None, force_error_rms_n=None)) == \
-        " 12.5 s  CONFIGURING  late cycles 3"
+    assert (
+        status_text(_snapshot(mode="CONFIGURING", phase="", lap=None, force_error_rms_n=None))
+        == " 12.5 s  CONFIGURING  late cycles 3"
+    )
     assert status_text(_snapshot(run=2, elapsed_s=0.5, force_error_rms_n=None)).startswith(
-        "run 2    0.5 s  RUNNING  TRACKING  lap 2/5  late")  # the contour demo's comparison run
+        "run 2    0.5 s  RUNNING  TRACKING  lap 2/5  late"
+    )  # the contour demo's comparison run
 
 
 def test_the_text_names_a_fault():
@@ -71,7 +102,9 @@ def test_the_observer_counts_late_and_skipped_cycles_and_the_force_error_while_t
     errors = [0.5, -0.5, 1.0, -1.0, 0.5, -0.5, 1.0, -1.0]
     for i, e in enumerate(errors):  # cycles 10..17, two of them late
         tracking = ContourState(phase=ContourPhase.TRACKING, lap=1, force_error_n=e)
-        obs.on_cycle(10 + i, 0.0, INPUTS, _state(Mode.RUNNING, tracking), OUTPUTS, (), LATE if i in (2, 5) else ON_TIME)
+        obs.on_cycle(
+            10 + i, 0.0, INPUTS, _state(Mode.RUNNING, tracking), OUTPUTS, (), LATE if i in (2, 5) else ON_TIME
+        )
     # the loop skipped cycles 18..22 (an overrun of five deadlines), then cycle 23
     obs.on_cycle(23, 0.0, INPUTS, _state(Mode.RUNNING, tracking), OUTPUTS, (), ON_TIME)
     snaps = _lines(written)
@@ -96,8 +129,13 @@ def test_a_second_run_starts_counting_again():
     snaps = _lines(written)
     assert [(s.run, s.late_cycles) for s in snaps] == [(1, 1), (1, 2), (1, 3), (2, 0)]
     second = snaps[-1]
-    assert (second.mode, second.phase, second.lap, second.force_error_rms_n, second.fault) == \
-        ("FAULT", "TRACKING", None, None, "x")
+    assert (second.mode, second.phase, second.lap, second.force_error_rms_n, second.fault) == (
+        "FAULT",
+        "TRACKING",
+        None,
+        None,
+        "x",
+    )
 
 
 def test_shown_only_on_a_terminal_and_never_with_json():

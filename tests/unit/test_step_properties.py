@@ -56,8 +56,13 @@ from sim_backend.loopback import LoopbackExchange
 # runs) to annotate lines; the shrunk example and its note() say enough.
 # derandomize: the same 30 examples each run, so main stays green; a random search (drop it) found a
 # target 2.6 % over the velocity limit in RUNNING at 200 Hz once (issue 16 note), not yet fixed
-PROPERTY_SETTINGS = settings(max_examples=30, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow],
-                             phases=[Phase.explicit, Phase.reuse, Phase.generate, Phase.target, Phase.shrink])
+PROPERTY_SETTINGS = settings(
+    max_examples=30,
+    deadline=None,
+    derandomize=True,
+    suppress_health_check=[HealthCheck.too_slow],
+    phases=[Phase.explicit, Phase.reuse, Phase.generate, Phase.target, Phase.shrink],
+)
 
 # The tolerance of the limit checks. Ruckig (include/ruckig/profile.hpp) accepts a profile
 # whose velocity or acceleration passes its limit by v_eps = a_eps = 1e-12 (absolute). Every
@@ -88,6 +93,7 @@ NO_FRAME_YET = DriveFeedback(0, math.nan, False)
 
 
 # -- the harness ----------------------------------------------------------------------------
+
 
 @dataclass
 class CycleRecord:
@@ -132,15 +138,20 @@ class ClosedLoop:
         for j, d in enumerate(self.ex.drives):
             d.on_rpdo = self._recording_rpdo(j, d, d.on_rpdo)
 
-    def _recording_rpdo(self, j: int, drive, original: Callable[[int, int], None]) -> Callable[[int, int], None]:
+    def _recording_rpdo(
+        self, j: int, drive, original: Callable[[int, int], None]
+    ) -> Callable[[int, int], None]:
         def on_rpdo(controlword: int, target_counts: int) -> None:
             self.rpdos.append((self.k, j, controlword, target_counts, drive.position_counts()))
             original(controlword, target_counts)
 
         return on_rpdo
 
-    def cycle(self, perturbation: Perturbation | None = None,
-              extra: Callable[[int, BusFeedback], BusFeedback] | None = None) -> CycleRecord:
+    def cycle(
+        self,
+        perturbation: Perturbation | None = None,
+        extra: Callable[[int, BusFeedback], BusFeedback] | None = None,
+    ) -> CycleRecord:
         k, p = self.k, perturbation or Perturbation()
         self.time.sleep_until((k + 1) * self.period)
         self.ex.send(self.outputs)
@@ -160,12 +171,21 @@ class ClosedLoop:
         if extra is not None:
             fb = extra(k, fb)
         stop = p.stop_from is not None and k >= p.stop_from
-        inputs = cycle_inputs(fb, stop_requested=stop, command=p.commands.get(k, Command.NONE), late=k in p.late)
+        inputs = cycle_inputs(
+            fb, stop_requested=stop, command=p.commands.get(k, Command.NONE), late=k in p.late
+        )
         mode_before = self.state.mode
         self.state, self.outputs, _ = self.law.step(self.state, inputs, k * self.period)
-        rec = CycleRecord(k, tuple(d.fresh for d in inputs.drives), tuple(d.position for d in inputs.drives),
-                          tuple(decode_statusword(d.statusword) for d in inputs.drives), self.state, self.outputs,
-                          mode_before, tuple(d.power for d in self.ex.drives))
+        rec = CycleRecord(
+            k,
+            tuple(d.fresh for d in inputs.drives),
+            tuple(d.position for d in inputs.drives),
+            tuple(decode_statusword(d.statusword) for d in inputs.drives),
+            self.state,
+            self.outputs,
+            mode_before,
+            tuple(d.power for d in self.ex.drives),
+        )
         self.records.append(rec)
         self.k += 1
         return rec
@@ -198,6 +218,7 @@ def trim_streaks(cycles_by_drive: dict[int, set[int]], max_streak: int) -> set[i
 
 # -- a. no output beyond the limits ------------------------------------------------------------
 
+
 @st.composite
 def limited_task(draw):
     """A path task and actuator limits within the configuration's valid ranges."""
@@ -205,7 +226,11 @@ def limited_task(draw):
     return {
         "loop.rate_hz": rate,
         "loop.hold_before_task_s": draw(st.floats(0.0, 0.05)),
-        "task.path.center_m": [draw(st.floats(-0.01, 0.01)), draw(st.floats(-0.01, 0.01)), draw(st.floats(0.47, 0.53))],
+        "task.path.center_m": [
+            draw(st.floats(-0.01, 0.01)),
+            draw(st.floats(-0.01, 0.01)),
+            draw(st.floats(0.47, 0.53)),
+        ],
         "task.path.radius_m": draw(st.floats(0.01, 0.08)),
         "task.path.speed_m_s": draw(st.floats(0.02, 0.4)),
         "task.path.laps": draw(st.floats(0.05, 1.0)),
@@ -214,15 +239,18 @@ def limited_task(draw):
         "actuators.max_acceleration_m_s2": draw(st.floats(0.5, 20.0)),
         "actuators.max_jerk_m_s3": draw(st.floats(20.0, 2000.0)),
         # start away from the path, so that the move to its start meets the limits too
-        "sim.drive.initial_positions_m": [0.71508 + draw(st.floats(-0.1, 0.1)),
-                                          0.56794 + draw(st.floats(-0.1, 0.1)),
-                                          0.42697 + draw(st.floats(-0.1, 0.1))],
+        "sim.drive.initial_positions_m": [
+            0.71508 + draw(st.floats(-0.1, 0.1)),
+            0.56794 + draw(st.floats(-0.1, 0.1)),
+            0.42697 + draw(st.floats(-0.1, 0.1)),
+        ],
     }
 
 
 @st.composite
 def perturbations(draw, cycles: int, n_drives: int, max_missing: int, max_late: int):
     """Missing and stale TPDOs, late wake-ups, pause/resume and maybe a stop; never enough to fault."""
+
     def bursts(max_len: int) -> list[tuple[int, int]]:
         return draw(st.lists(st.tuples(st.integers(0, cycles - 1), st.integers(1, max_len)), max_size=8))
 
@@ -233,8 +261,12 @@ def perturbations(draw, cycles: int, n_drives: int, max_missing: int, max_late: 
     missing_pairs = set()
     for j, cs in missing.items():
         missing_pairs |= {(c, j) for c in trim_streaks({j: cs}, max_missing)}
-    stale = {(c, j) for c, j in draw(st.lists(st.tuples(st.integers(0, cycles - 1), st.integers(0, n_drives - 1)),
-                                              max_size=20))}
+    stale = {
+        (c, j)
+        for c, j in draw(
+            st.lists(st.tuples(st.integers(0, cycles - 1), st.integers(0, n_drives - 1)), max_size=20)
+        )
+    }
     late = trim_streaks({0: {c + i for c, n in bursts(max_late + 5) for i in range(n)}}, max_late)
     commands: dict[int, Command] = {}
     for c in draw(st.lists(st.integers(0, cycles - 1), max_size=6, unique=True)):
@@ -248,7 +280,9 @@ def perturbations(draw, cycles: int, n_drives: int, max_missing: int, max_late: 
 def test_targets_never_exceed_the_actuator_limits_or_leave_the_stroke(task, data):
     cfg, law = build_or_reject(task)
     cycles = min(600, int(0.75 * cfg.loop.rate_hz))
-    p = data.draw(perturbations(cycles, law.n, cfg.loop.max_missing_cycles, cfg.safety.max_consecutive_late_cycles))
+    p = data.draw(
+        perturbations(cycles, law.n, cfg.loop.max_missing_cycles, cfg.safety.max_consecutive_late_cycles)
+    )
     loop = ClosedLoop(cfg, law)
     for _ in range(cycles):
         loop.cycle(p)
@@ -269,17 +303,21 @@ def test_targets_never_exceed_the_actuator_limits_or_leave_the_stroke(task, data
     targets = [r.outputs.targets for r in loop.records[started:end]]
     v_tol, a_tol = velocity_tolerance(hi, T), acceleration_tolerance(hi, T)
     for i, x in enumerate(targets):
-        assert all(lo <= q <= hi for q in x), f"cycle {started + i}: target {x} outside the stroke [{lo}, {hi}] m"
+        assert all(lo <= q <= hi for q in x), (
+            f"cycle {started + i}: target {x} outside the stroke [{lo}, {hi}] m"
+        )
     for i in range(1, len(targets)):
         for j in range(law.n):
             v = (targets[i][j] - targets[i - 1][j]) / T
-            assert abs(v) <= vmax + v_tol, \
+            assert abs(v) <= vmax + v_tol, (
                 f"cycle {started + i}, actuator {j + 1}: targets imply {v} m/s, limit {vmax} ({modes[started + i].name})"
+            )
     for i in range(2, len(targets)):
         for j in range(law.n):
             acc = (targets[i][j] - 2.0 * targets[i - 1][j] + targets[i - 2][j]) / (T * T)
-            assert abs(acc) <= amax + a_tol, \
+            assert abs(acc) <= amax + a_tol, (
                 f"cycle {started + i}, actuator {j + 1}: targets imply {acc} m/s^2, limit {amax} ({modes[started + i].name})"
+            )
     # and the smoother's own state agrees
     for r in loop.records[started:end]:
         sp = r.state.setpoint
@@ -290,9 +328,11 @@ def test_targets_never_exceed_the_actuator_limits_or_leave_the_stroke(task, data
 # The input the limits property found (1 kHz, a_max 2 m/s^2, j_max 20 m/s^3, the move to the
 # path's start of three symmetric axes): each axis alone is solvable (all three in 0.0379661803013 s,
 # within 1e-13 s of each other), all three together are not, neither to the target nor braking.
-RUCKIG_STEP2_CASE = Setpoint((0.6889135428952743, 0.5945763663104189, 0.505413742420422),
-                             (-0.014413332459232361, 0.014413332459508443, 0.014413332459346628),
-                             (0.7592978985218729, -0.7592978985291448, -0.7592978985248826))
+RUCKIG_STEP2_CASE = Setpoint(
+    (0.6889135428952743, 0.5945763663104189, 0.505413742420422),
+    (-0.014413332459232361, 0.014413332459508443, 0.014413332459346628),
+    (0.7592978985218729, -0.7592978985291448, -0.7592978985248826),
+)
 
 
 def test_a_fast_decelerating_target_is_clipped_not_refused():
@@ -331,16 +371,24 @@ def test_a_stop_before_every_drive_answered_ends_done_not_faulted_on_the_silent_
 
 # -- b. no jump at enable ----------------------------------------------------------------------
 
-START_STATES = [PowerState.SWITCH_ON_DISABLED, PowerState.READY_TO_SWITCH_ON, PowerState.SWITCHED_ON,
-                PowerState.OPERATION_ENABLED, PowerState.QUICK_STOP_ACTIVE, PowerState.FAULT]
+START_STATES = [
+    PowerState.SWITCH_ON_DISABLED,
+    PowerState.READY_TO_SWITCH_ON,
+    PowerState.SWITCHED_ON,
+    PowerState.OPERATION_ENABLED,
+    PowerState.QUICK_STOP_ACTIVE,
+    PowerState.FAULT,
+]
 
 
 @PROPERTY_SETTINGS
-@given(data=st.data(),
-       rate=st.sampled_from([200.0, 400.0, 1000.0]),
-       start=st.lists(st.floats(0.0, 1.0), min_size=3, max_size=3),
-       powers=st.lists(st.sampled_from(START_STATES), min_size=3, max_size=3),
-       reset_after=st.integers(1, 20))
+@given(
+    data=st.data(),
+    rate=st.sampled_from([200.0, 400.0, 1000.0]),
+    start=st.lists(st.floats(0.0, 1.0), min_size=3, max_size=3),
+    powers=st.lists(st.sampled_from(START_STATES), min_size=3, max_size=3),
+    reset_after=st.integers(1, 20),
+)
 def test_no_jump_at_enable_the_target_is_where_the_drive_is(data, rate, start, powers, reset_after):
     base = load_config()
     lo, hi = base.robot.model("cheope").stroke_min_m, base.robot.model("cheope").stroke_max_m
@@ -348,15 +396,20 @@ def test_no_jump_at_enable_the_target_is_where_the_drive_is(data, rate, start, p
     # Anywhere in the stroke; within a count of an end stop, on it. (The simulated drive faults at
     # an end stop passed by any amount: a carriage 0.4 count inside it, commanded to the measured
     # count, i.e. onto the stop, overshoots it by ~1e-11 m in its 0.9-damped position loop.)
-    initial = [lo if x - lo < count else hi if hi - x < count else x for x in (lo + u * (hi - lo) for u in start)]
-    cfg, law = build_or_reject({"loop.rate_hz": rate, "loop.hold_before_task_s": 0.05,
-                                "sim.drive.initial_positions_m": initial})
+    initial = [
+        lo if x - lo < count else hi if hi - x < count else x for x in (lo + u * (hi - lo) for u in start)
+    ]
+    cfg, law = build_or_reject(
+        {"loop.rate_hz": rate, "loop.hold_before_task_s": 0.05, "sim.drive.initial_positions_m": initial}
+    )
     loop = ClosedLoop(cfg, law)
     for d, power in zip(loop.ex.drives, powers):
         d.power = power  # a drive left in any state by whatever ran before
     cycles = int(0.15 * rate) + 40
     # TPDOs missing now and then from the second cycle on (cycle 0: see the CONFIGURING xfail above)
-    missing = frozenset(data.draw(st.lists(st.tuples(st.integers(1, cycles - 1), st.integers(0, 2)), max_size=12)))
+    missing = frozenset(
+        data.draw(st.lists(st.tuples(st.integers(1, cycles - 1), st.integers(0, 2)), max_size=12))
+    )
     p = Perturbation(missing=frozenset((c, j) for c, j in missing if (c - 1, j) not in missing))
     scale = loop.ex.scale
     faults = []
@@ -381,8 +434,9 @@ def test_no_jump_at_enable_the_target_is_where_the_drive_is(data, rate, start, p
             enabled_at = r.measured  # all drives report OPERATION ENABLED in this very cycle
         reference = r.measured if r.state.mode == Mode.ENABLING else enabled_at
         for j, (x, m) in enumerate(zip(r.outputs.targets, reference)):
-            assert scale.to_counts(x) == scale.to_counts(m), \
+            assert scale.to_counts(x) == scale.to_counts(m), (
                 f"cycle {r.k} ({r.state.mode.name}): target {x} m for drive {j + 1} measured at {m} m"
+            )
 
     # The drives' view: every RPDO that leaves or keeps a drive enabled, until the task starts, carries
     # the position the drive is at when it arrives; and no drive has moved.
@@ -391,9 +445,13 @@ def test_no_jump_at_enable_the_target_is_where_the_drive_is(data, rate, start, p
         if c - 1 >= first_running:
             break
         if cw & 0x8F == 0x0F or loop.records[c - 1].powers[j] == PowerState.OPERATION_ENABLED:
-            assert target == position, f"cycle {c}: drive {j + 1} at {position} counts was sent {target} (cw 0x{cw:04X})"
+            assert target == position, (
+                f"cycle {c}: drive {j + 1} at {position} counts was sent {target} (cw 0x{cw:04X})"
+            )
     for j, (d, x0) in enumerate(zip(loop.ex.drives, initial)):
-        assert d.position_counts() == round(x0 * scale.counts_per_unit), f"drive {j + 1} moved before the task"
+        assert d.position_counts() == round(x0 * scale.counts_per_unit), (
+            f"drive {j + 1} moved before the task"
+        )
     # and the run got there: the only faults are those of a drive that started in FAULT
     assert all("reports FAULT" in f for f in faults) and (PowerState.FAULT in powers) == bool(faults), faults
     assert Mode.HOLDING in modes and Mode.RUNNING in modes, loop.state.fault_reason
@@ -403,7 +461,14 @@ def test_no_jump_at_enable_the_target_is_where_the_drive_is(data, rate, start, p
 
 FAULT_CAUSES = ("drive_fault", "emcy", "silent", "bus_off", "heartbeat_lost")
 # How many cycles each mode usually lasts in these runs, to place the injection inside it.
-MODE_SPAN = {Mode.ENABLING: 3, Mode.HOLDING: 8, Mode.RUNNING: 60, Mode.PAUSED: 30, Mode.STOPPING: 4, Mode.DONE: 30}
+MODE_SPAN = {
+    Mode.ENABLING: 3,
+    Mode.HOLDING: 8,
+    Mode.RUNNING: 60,
+    Mode.PAUSED: 30,
+    Mode.STOPPING: 4,
+    Mode.DONE: 30,
+}
 
 
 @dataclass
@@ -446,8 +511,15 @@ def is_stop_command(cw: int) -> bool:
     return cw & CW_FAULT_RESET == 0 and (cw & 0x06 == 0x02 or cw & 0x02 == 0x00)
 
 
-def fault_scenario(cfg: Config, law: ControlLaw, fault: FaultInjection, mode: Mode, delay: int, after: int,
-                   pick: Callable[[list], object]) -> ClosedLoop:
+def fault_scenario(
+    cfg: Config,
+    law: ControlLaw,
+    fault: FaultInjection,
+    mode: Mode,
+    delay: int,
+    after: int,
+    pick: Callable[[list], object],
+) -> ClosedLoop:
     """Run to ``mode`` (pausing or stopping the task to get there), inject ``fault`` ``delay`` cycles
     into it, and go on ``after`` cycles past its bound with anything but a reset (``pick`` chooses)."""
     loop = ClosedLoop(cfg, law)
@@ -472,8 +544,10 @@ def fault_scenario(cfg: Config, law: ControlLaw, fault: FaultInjection, mode: Mo
             if stop_from is None and pick([False, True]):
                 stop_from = k
         fault.before_send(loop, k)
-        loop.cycle(Perturbation(missing=fault.missing(k), commands=commands, stop_from=stop_from),
-                   extra=lambda k, fb: fault.feedback(loop, k, fb))
+        loop.cycle(
+            Perturbation(missing=fault.missing(k), commands=commands, stop_from=stop_from),
+            extra=lambda k, fb: fault.feedback(loop, k, fb),
+        )
         if fault.at is not None and loop.k >= fault.at + fault.bound(cfg) + after:
             break
     assert fault.at is not None, f"the run never reached {mode.name}"
@@ -484,45 +558,62 @@ def assert_quick_stop_from_the_fault_on(loop: ClosedLoop, fault: FaultInjection)
     cfg = loop.cfg
     injected_in = loop.records[fault.at].mode_before
     modes = [r.state.mode for r in loop.records]
-    assert Mode.FAULT not in modes[:fault.at], "a fault before the injection"
+    assert Mode.FAULT not in modes[: fault.at], "a fault before the injection"
     first = modes.index(Mode.FAULT) if Mode.FAULT in modes else None
-    assert first is not None and first <= fault.at + fault.bound(cfg), \
+    assert first is not None and first <= fault.at + fault.bound(cfg), (
         f"{fault.cause} at cycle {fault.at} ({injected_in.name}): FAULT at {first}, bound {fault.bound(cfg)} cycles"
+    )
     for r in loop.records[first:]:
         assert r.state.mode == Mode.FAULT, f"cycle {r.k}: left FAULT for {r.state.mode.name}"
         for j, (cw, power) in enumerate(zip(r.outputs.controlwords, r.powers)):
-            assert cw in (CW_QUICK_STOP, CW_DISABLE_VOLTAGE) and is_stop_command(cw), \
+            assert cw in (CW_QUICK_STOP, CW_DISABLE_VOLTAGE) and is_stop_command(cw), (
                 f"cycle {r.k}: drive {j + 1} sent controlword 0x{cw:04X}"
+            )
             # what it does to a drive: an enabled one stops on its quick-stop ramp, none is (re-)enabled
             if power == PowerState.OPERATION_ENABLED:
                 assert cw == CW_QUICK_STOP, f"cycle {r.k}: drive {j + 1} is enabled and gets 0x{cw:04X}"
             for now in (PowerState.OPERATION_ENABLED, PowerState.QUICK_STOP_ACTIVE, PowerState.SWITCHED_ON):
-                assert device_transition(now, cw, cw) in (PowerState.QUICK_STOP_ACTIVE, PowerState.SWITCH_ON_DISABLED)
+                assert device_transition(now, cw, cw) in (
+                    PowerState.QUICK_STOP_ACTIVE,
+                    PowerState.SWITCH_ON_DISABLED,
+                )
     # and the drives themselves: from the SYNC after the fault's first controlwords, none is enabled
-    for r in loop.records[first + 1:]:
+    for r in loop.records[first + 1 :]:
         assert PowerState.OPERATION_ENABLED not in r.device_powers, f"cycle {r.k}: {r.device_powers}"
 
 
-FAULT_TASK = {"loop.hold_before_task_s": 0.02, "task.path.laps": 0.1, "task.path.ramp_s": 0.05,
-              "task.path.speed_m_s": 0.2}
+FAULT_TASK = {
+    "loop.hold_before_task_s": 0.02,
+    "task.path.laps": 0.1,
+    "task.path.ramp_s": 0.05,
+    "task.path.speed_m_s": 0.2,
+}
 
 
 @PROPERTY_SETTINGS
-@given(data=st.data(),
-       rate=st.sampled_from([200.0, 400.0, 1000.0]),
-       mode=st.sampled_from(list(MODE_SPAN)),
-       cause=st.sampled_from(FAULT_CAUSES),
-       drive=st.integers(0, 2),
-       sustained=st.booleans(),
-       emcy_code=st.integers(0x1000, 0xFFFF))
-def test_every_fault_cause_ends_in_quick_stop_and_stays_there(data, rate, mode, cause, drive, sustained, emcy_code):
+@given(
+    data=st.data(),
+    rate=st.sampled_from([200.0, 400.0, 1000.0]),
+    mode=st.sampled_from(list(MODE_SPAN)),
+    cause=st.sampled_from(FAULT_CAUSES),
+    drive=st.integers(0, 2),
+    sustained=st.booleans(),
+    emcy_code=st.integers(0x1000, 0xFFFF),
+)
+def test_every_fault_cause_ends_in_quick_stop_and_stays_there(
+    data, rate, mode, cause, drive, sustained, emcy_code
+):
     cfg, law = build_or_reject({**FAULT_TASK, "loop.rate_hz": rate})
     fault = FaultInjection(cause, drive, sustained, emcy_code)
     delay = data.draw(st.integers(0, MODE_SPAN[mode] - 1), label="cycles into the mode")
     after = data.draw(st.integers(20, 60), label="cycles after the fault")
-    loop = fault_scenario(cfg, law, fault, mode, delay, after, lambda options: data.draw(st.sampled_from(options)))
+    loop = fault_scenario(
+        cfg, law, fault, mode, delay, after, lambda options: data.draw(st.sampled_from(options))
+    )
     event(f"{cause} in {loop.records[fault.at].mode_before.name}")
-    note(f"{cause} at cycle {fault.at} in {loop.records[fault.at].mode_before.name}: {loop.state.fault_reason}")
+    note(
+        f"{cause} at cycle {fault.at} in {loop.records[fault.at].mode_before.name}: {loop.state.fault_reason}"
+    )
     assert_quick_stop_from_the_fault_on(loop, fault)
 
 
@@ -542,6 +633,7 @@ def test_every_fault_cause_in_every_mode(cause, mode):
 # (an EMCY, a bus-off, a drive silent from the start; see the tests below): its controlwords are
 # already 0x0000, disable voltage, and any other lasting cause faults on the first supervised cycle.
 
+
 @pytest.mark.parametrize("cause", ["drive_fault", "heartbeat_lost"])
 def test_a_lasting_fault_cause_during_configuring_faults_on_the_first_supervised_cycle(cause):
     cfg = load_config()
@@ -554,7 +646,7 @@ def test_a_lasting_fault_cause_during_configuring_faults_on_the_first_supervised
         loop.cycle(Perturbation(missing=missing), extra=lambda k, fb: fault.feedback(loop, k, fb))
     modes = [r.state.mode for r in loop.records]
     supervised = next(r.k for r in loop.records if r.mode_before != Mode.CONFIGURING)
-    assert modes[:unheard + 1] == [Mode.CONFIGURING] * unheard + [Mode.ENABLING]
+    assert modes[: unheard + 1] == [Mode.CONFIGURING] * unheard + [Mode.ENABLING]
     assert modes[supervised:] == [Mode.FAULT] * (len(modes) - supervised)
     assert all(cw == CW_DISABLE_VOLTAGE for r in loop.records for cw in r.outputs.controlwords)
 
@@ -578,7 +670,9 @@ def test_a_drive_silent_from_the_start_faults_after_the_enable_timeout():
         rec = loop.cycle(Perturbation(missing=frozenset({(k, 1)})))
         if k < limit - 1:
             assert rec.state.mode == Mode.CONFIGURING, (k, rec.state.fault_reason)
-    assert all(cw == CW_DISABLE_VOLTAGE for r in loop.records for cw in r.outputs.controlwords)  # safe meanwhile
+    assert all(
+        cw == CW_DISABLE_VOLTAGE for r in loop.records for cw in r.outputs.controlwords
+    )  # safe meanwhile
     assert loop.state.mode == Mode.FAULT, loop.state.mode.name
     assert loop.state.fault_reason.startswith("drive 2: no TPDO within"), loop.state.fault_reason
 
@@ -588,7 +682,11 @@ def test_a_missing_tpdo_right_after_a_reset_does_not_fault_again():
     loop.ex.drives[0].power = PowerState.FAULT
     loop.cycle()  # CONFIGURING -> ENABLING
     assert loop.cycle().state.mode == Mode.FAULT  # drive 1 reports FAULT
-    assert loop.cycle(Perturbation(commands={2: Command.RESET})).state.mode == Mode.ENABLING  # sends the fault reset
-    rec = loop.cycle(Perturbation(missing=frozenset({(3, 0)})))  # drive 1 (now SWITCH ON DISABLED) is not heard
+    assert (
+        loop.cycle(Perturbation(commands={2: Command.RESET})).state.mode == Mode.ENABLING
+    )  # sends the fault reset
+    rec = loop.cycle(
+        Perturbation(missing=frozenset({(3, 0)}))
+    )  # drive 1 (now SWITCH ON DISABLED) is not heard
     assert loop.ex.drives[0].power == PowerState.SWITCH_ON_DISABLED
     assert rec.state.mode == Mode.ENABLING, rec.state.fault_reason

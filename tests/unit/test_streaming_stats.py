@@ -34,7 +34,9 @@ def test_an_empty_histogram_reports_zero():
     assert LogHistogram(1.0, 10.0).percentile(99) == 0.0
 
 
-@pytest.mark.parametrize(("lowest", "highest", "resolution"), [(0.0, 1.0, 0.01), (2.0, 1.0, 0.01), (1.0, 2.0, 1.5)])
+@pytest.mark.parametrize(
+    ("lowest", "highest", "resolution"), [(0.0, 1.0, 0.01), (2.0, 1.0, 0.01), (1.0, 2.0, 1.5)]
+)
 def test_a_histogram_with_bad_bounds_is_refused(lowest, highest, resolution):
     with pytest.raises(ValueError, match="LogHistogram"):
         LogHistogram(lowest, highest, resolution)

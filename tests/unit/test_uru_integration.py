@@ -44,8 +44,14 @@ def test_fast_kinematics_and_checks_agree_with_the_model():
         assert np.allclose(q, uru.inverse_kinematics(g, p), atol=1e-12)
         assert np.allclose(ROBOT.direct_kinematics(q), p, atol=1e-9)
         m = uru.singularity_measures(g, p)
-        ok = (m.workspace_margin_m >= 0.02 and np.min(np.abs(p)) >= 0.02 and m.serial_min_sin_th3 >= 0.1
-              and abs(m.translation_det_v) >= 0.05 and abs(m.actuation_det_s) >= 0.05 and abs(m.combined_det_a) >= 0.05)
+        ok = (
+            m.workspace_margin_m >= 0.02
+            and np.min(np.abs(p)) >= 0.02
+            and m.serial_min_sin_th3 >= 0.1
+            and abs(m.translation_det_v) >= 0.05
+            and abs(m.actuation_det_s) >= 0.05
+            and abs(m.combined_det_a) >= 0.05
+        )
         assert ROBOT.check_pose(p).ok == ok, (p, ROBOT.check_pose(p))
     assert n > 50
 
@@ -53,8 +59,12 @@ def test_fast_kinematics_and_checks_agree_with_the_model():
 def test_jacobian_matches_finite_differences_of_the_motor_angles():
     p = np.array([0.12, 0.10, 0.14])
     h = 1e-6
-    fd = np.column_stack([(ROBOT.inverse_kinematics(p + h * e) - ROBOT.inverse_kinematics(p - h * e)) / (2 * h)
-                          for e in np.eye(3)])
+    fd = np.column_stack(
+        [
+            (ROBOT.inverse_kinematics(p + h * e) - ROBOT.inverse_kinematics(p - h * e)) / (2 * h)
+            for e in np.eye(3)
+        ]
+    )
     assert np.allclose(ROBOT.jacobian(p), fd, rtol=1e-6, atol=1e-6)
 
 
@@ -69,11 +79,23 @@ def test_rotary_units_come_from_the_rad_keys():
 
 
 def test_path_crossing_a_coordinate_plane_is_refused_and_names_the_locus():
-    ok_cfg = _cfg(**{"task.path.center_m": [0.12, 0.08, 0.12], "task.path.normal": [0.0, 0.0, 1.0],
-                     "task.path.radius_m": 0.04, "task.path.laps": 1.0})
+    ok_cfg = _cfg(
+        **{
+            "task.path.center_m": [0.12, 0.08, 0.12],
+            "task.path.normal": [0.0, 0.0, 1.0],
+            "task.path.radius_m": 0.04,
+            "task.path.laps": 1.0,
+        }
+    )
     build_law(ok_cfg)  # keeps 0.04 m from y = 0: accepted
-    cfg = _cfg(**{"task.path.center_m": [0.12, 0.02, 0.12], "task.path.normal": [0.0, 0.0, 1.0],
-                  "task.path.radius_m": 0.04, "task.path.laps": 1.0})  # a full lap crosses y = 0
+    cfg = _cfg(
+        **{
+            "task.path.center_m": [0.12, 0.02, 0.12],
+            "task.path.normal": [0.0, 0.0, 1.0],
+            "task.path.radius_m": 0.04,
+            "task.path.laps": 1.0,
+        }
+    )  # a full lap crosses y = 0
     with pytest.raises(UruWorkspaceError, match=r"plane y=0 \(eq. \(17\)\)") as err:
         build_law(cfg)
     assert "rotation singularity" in err.value.locus
@@ -91,7 +113,9 @@ def test_closed_loop_in_simulated_time_tracks_the_octant_circle():
     law = build_law(cfg)
     exchange = LoopbackExchange(cfg, clock.clock)
     rec = RunRecorder()
-    loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(rec,))
+    loop = CycleLoop(
+        law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(rec,)
+    )
     final, _ = loop.run(law.initial_state(), 20.0)
     assert final.mode == Mode.DONE, final.fault_reason
     err = np.asarray(rec.tracking_error_m)
@@ -104,9 +128,22 @@ def test_closed_loop_in_simulated_time_tracks_the_octant_circle():
 
 @pytest.mark.slow
 def test_demo_end_to_end(tmp_path):
-    cmd = [sys.executable, "-m", "controller", "demo", "--robot", "uru", "--json", "--max-duration", "60",
-           *TOLERANT, "--set", f'recording.directory="{tmp_path}"',
-           "--set", "monitoring.enabled=false"] + [a for k, v in SHORT.items() for a in ("--set", f"{k}={v}")]
+    cmd = [
+        sys.executable,
+        "-m",
+        "controller",
+        "demo",
+        "--robot",
+        "uru",
+        "--json",
+        "--max-duration",
+        "60",
+        *TOLERANT,
+        "--set",
+        f'recording.directory="{tmp_path}"',
+        "--set",
+        "monitoring.enabled=false",
+    ] + [a for k, v in SHORT.items() for a in ("--set", f"{k}={v}")]
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
     assert out.returncode == 0, out.stderr[-2000:]
     summary = json.loads(out.stdout)

@@ -107,8 +107,9 @@ def test_ik_matches_printed_tan_half_formula_a2() -> None:
             beta = np.array([math.hypot(y, z), math.hypot(x, z), math.hypot(x, y)])
             f, r = geom.f, geom.r
             q = alpha**2 + beta**2 + f**2 - r**2
-            t = (2 * f * beta + sign * np.sqrt(4 * f**2 * (alpha**2 + beta**2) - q**2)) / ((alpha + f) ** 2
-                                                                                      + beta**2 - r**2)
+            t = (2 * f * beta + sign * np.sqrt(4 * f**2 * (alpha**2 + beta**2) - q**2)) / (
+                (alpha + f) ** 2 + beta**2 - r**2
+            )
             th = actuated_joint_angles(geom, p)
             np.testing.assert_allclose(np.tan(th / 2), t, rtol=1e-9, atol=1e-12)
             # eq. (A1) itself
@@ -117,8 +118,12 @@ def test_ik_matches_printed_tan_half_formula_a2() -> None:
 
 @settings(max_examples=60, deadline=None)
 @given(
-    st.floats(0.04, 0.28), st.floats(0.04, 0.28), st.floats(0.04, 0.28),
-    st.floats(-0.001, 0.001), st.floats(-0.001, 0.001), st.floats(-0.001, 0.001),
+    st.floats(0.04, 0.28),
+    st.floats(0.04, 0.28),
+    st.floats(0.04, 0.28),
+    st.floats(-0.001, 0.001),
+    st.floats(-0.001, 0.001),
+    st.floats(-0.001, 0.001),
 )
 def test_round_trip_motor_angles(x: float, y: float, z: float, dx: float, dy: float, dz: float) -> None:
     p = np.array([x, y, z])
@@ -227,7 +232,9 @@ def test_eq34_corrected_matches_matrix_product_and_det_identity() -> None:
             mats = velocity_matrices(geom, p)
             np.testing.assert_allclose(actuation_matrix_explicit(geom, p), mats.S, atol=1e-10)
             # derived: det A (eq. (36)) = det S (eq. (35)) * det V (eq. (20))
-            assert np.linalg.det(mats.A) == pytest.approx(np.linalg.det(mats.S) * np.linalg.det(mats.V), rel=1e-9)
+            assert np.linalg.det(mats.A) == pytest.approx(
+                np.linalg.det(mats.S) * np.linalg.det(mats.V), rel=1e-9
+            )
             # eq. (6b)/(27): G_ii = f_i sin th_i3
             cfg = configuration(geom, p)
             np.testing.assert_allclose(np.diag(mats.G), geom.f * np.sin(cfg.th3_rad), atol=1e-12)
@@ -242,8 +249,13 @@ def test_printed_eq34_index_is_a_typo() -> None:
     printed = np.eye(3)
     for i in range(3):
         for j in range(3):
-            printed[i, j] += (GEOM_ASYM.k[i] * cfg.g[i] @ np.cross(v[(i + 1) % 3], v[(i + 2) % 3])
-                              * mats.G[j, j] / (detv * cfg.beta_m[i]))
+            printed[i, j] += (
+                GEOM_ASYM.k[i]
+                * cfg.g[i]
+                @ np.cross(v[(i + 1) % 3], v[(i + 2) % 3])
+                * mats.G[j, j]
+                / (detv * cfg.beta_m[i])
+            )
     assert np.max(np.abs(printed - mats.S)) > 1e-3
 
 
@@ -310,8 +322,12 @@ def test_rotation_singularity_is_the_coordinate_planes() -> None:
 
 @pytest.mark.parametrize("radius_m,offset_m", [(0.2, 0.1), (0.15, 0.0), (0.31, 0.07)])
 def test_workspace_is_sphere_of_radius_2R(radius_m: float, offset_m: float) -> None:
-    geom = UruGeometry(base_offset_m=offset_m, platform_offset_m=offset_m,
-                       proximal_lengths_m=(radius_m,) * 3, distal_lengths_m=(radius_m,) * 3)
+    geom = UruGeometry(
+        base_offset_m=offset_m,
+        platform_offset_m=offset_m,
+        proximal_lengths_m=(radius_m,) * 3,
+        distal_lengths_m=(radius_m,) * 3,
+    )
     rng = np.random.default_rng(13)
     dirs = rng.normal(size=(300, 3))
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
@@ -349,10 +365,16 @@ def test_eq25_expansion_equals_det_v() -> None:
         m = 1 / np.array([math.hypot(y, z), math.hypot(x, z), math.hypot(x, y)])  # eq. (23)
         n = 1 - f * m * np.sin(th)  # eq. (26a)
         q = geom.offset_m - f * np.cos(th)  # eq. (26b)
-        e25 = (x * y * z * (1 - n[1] * n[2] - n[0] * n[1] - n[0] * n[2] + 2 * n[0] * n[1] * n[2])
-               + x * y * q[2] * (1 - n[0] * n[1]) + x * z * q[1] * (1 - n[0] * n[2])
-               + y * z * q[0] * (1 - n[1] * n[2]) + x * q[1] * q[2] + y * q[0] * q[2] + z * q[0] * q[1]
-               + q[0] * q[1] * q[2])
+        e25 = (
+            x * y * z * (1 - n[1] * n[2] - n[0] * n[1] - n[0] * n[2] + 2 * n[0] * n[1] * n[2])
+            + x * y * q[2] * (1 - n[0] * n[1])
+            + x * z * q[1] * (1 - n[0] * n[2])
+            + y * z * q[0] * (1 - n[1] * n[2])
+            + x * q[1] * q[2]
+            + y * q[0] * q[2]
+            + z * q[0] * q[1]
+            + q[0] * q[1] * q[2]
+        )
         assert e25 == pytest.approx(np.prod(geom.r) * np.linalg.det(cfg.v), rel=1e-10)  # eq. (24)
 
 
@@ -426,7 +448,11 @@ def test_plots_are_written(tmp_path) -> None:
     from controller.tools.analysis.uru_plots import plot_workspace_and_singularities
 
     files = plot_workspace_and_singularities(GEOM, tmp_path / "png", grid_points=61)
-    assert [f.name for f in files] == ["uru_workspace_3d.png", "uru_sections_z.png", "uru_section_diagonal.png"]
+    assert [f.name for f in files] == [
+        "uru_workspace_3d.png",
+        "uru_sections_z.png",
+        "uru_section_diagonal.png",
+    ]
     for f in files:
         assert f.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert f.stat().st_size > 20_000

@@ -26,24 +26,53 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def _slow(tmp_path: Path) -> list[str]:
-    return ["--rate", "25", "--set", "loop.max_missing_cycles=20", "--set", "loop.sdo_timeout_s=5.0",
-            "--set", "sim.drive.sync_timeout_s=0.5", "--set", 'task.kind="path"',
-            # the emulated VM's simulator takes seconds to answer its first SYNC, and its sensor frames
-            # (sent after the drives') can miss the collect window for many cycles in a row: these
-            # tests check the CAN plumbing, not the timing of an emulated CPU
-            "--set", "loop.enable_timeout_s=60.0", "--set", 'safety.on_sensor_stale="warn"',
-            "--set", "loop.heartbeat_consumer_s=2.0",
-            "--set", "safety.on_late_cycles=\"warn\"", "--set", "task.path.laps=0.25",
-            "--set", "task.path.speed_m_s=0.05", "--set", f'recording.directory="{tmp_path}"',
-            # the VM's /tmp has about 500 MB free: below the default guard (1024 MB) every recording
-            # would stop at once and, with recording.on_failure = "stop", end the run after 4 cycles
-            "--set", "recording.min_free_space_mb=64",
-            "--set", "monitoring.enabled=false"]
+    return [
+        "--rate",
+        "25",
+        "--set",
+        "loop.max_missing_cycles=20",
+        "--set",
+        "loop.sdo_timeout_s=5.0",
+        "--set",
+        "sim.drive.sync_timeout_s=0.5",
+        "--set",
+        'task.kind="path"',
+        # the emulated VM's simulator takes seconds to answer its first SYNC, and its sensor frames
+        # (sent after the drives') can miss the collect window for many cycles in a row: these
+        # tests check the CAN plumbing, not the timing of an emulated CPU
+        "--set",
+        "loop.enable_timeout_s=60.0",
+        "--set",
+        'safety.on_sensor_stale="warn"',
+        "--set",
+        "loop.heartbeat_consumer_s=2.0",
+        "--set",
+        'safety.on_late_cycles="warn"',
+        "--set",
+        "task.path.laps=0.25",
+        "--set",
+        "task.path.speed_m_s=0.05",
+        "--set",
+        f'recording.directory="{tmp_path}"',
+        # the VM's /tmp has about 500 MB free: below the default guard (1024 MB) every recording
+        # would stop at once and, with recording.on_failure = "stop", end the run after 4 cycles
+        "--set",
+        "recording.min_free_space_mb=64",
+        "--set",
+        "monitoring.enabled=false",
+    ]
 
 
 def _cheope(*args: str, timeout: float = 600.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "controller", *args], capture_output=True, text=True,
-                          timeout=timeout, check=False, cwd=ROOT, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    return subprocess.run(
+        [sys.executable, "-m", "controller", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        check=False,
+        cwd=ROOT,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
 
 
 def _wait_until_enabled(channel: str, timeout_s: float = 400.0) -> None:
@@ -58,8 +87,14 @@ def _wait_until_enabled(channel: str, timeout_s: float = 400.0) -> None:
 
 
 def _popen(*args: str) -> subprocess.Popen[str]:
-    return subprocess.Popen([sys.executable, "-m", "controller", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, cwd=ROOT, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    return subprocess.Popen(
+        [sys.executable, "-m", "controller", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
 
 
 def test_demo_runs_end_to_end_on_vcan(vcan_channel: str, tmp_path: Path) -> None:
@@ -94,8 +129,16 @@ def test_can_fd_run_sends_fd_frames(vcan_fd_channel: str, tmp_path: Path) -> Non
     t = threading.Thread(target=sniff)
     t.start()
     try:
-        r = _cheope("demo", "--task", "path", "--json", "--fd", "--can", f"socketcan:{vcan_fd_channel}",
-                    *_slow(tmp_path))
+        r = _cheope(
+            "demo",
+            "--task",
+            "path",
+            "--json",
+            "--fd",
+            "--can",
+            f"socketcan:{vcan_fd_channel}",
+            *_slow(tmp_path),
+        )
     finally:
         stop.set()
         t.join()
@@ -105,15 +148,27 @@ def test_can_fd_run_sends_fd_frames(vcan_fd_channel: str, tmp_path: Path) -> Non
 
 
 def test_error_frames_are_counted_and_the_run_goes_on(vcan_channel: str, tmp_path: Path) -> None:
-    proc = _popen("demo", "--task", "path", "--json", "--can", f"socketcan:{vcan_channel}", *_slow(tmp_path),
-                  "--set", "task.path.laps=1.0")
+    proc = _popen(
+        "demo",
+        "--task",
+        "path",
+        "--json",
+        "--can",
+        f"socketcan:{vcan_channel}",
+        *_slow(tmp_path),
+        "--set",
+        "task.path.laps=1.0",
+    )
     try:
         _wait_until_enabled(vcan_channel)
         time.sleep(1.0)  # inject while the task runs
         with can.Bus(interface="socketcan", channel=vcan_channel) as bus:
             for _ in range(5):
-                bus.send(can.Message(arbitration_id=0x004, is_error_frame=True, data=bytes(8),
-                                     is_extended_id=False))  # CAN_ERR_CRTL class: not bus-off
+                bus.send(
+                    can.Message(
+                        arbitration_id=0x004, is_error_frame=True, data=bytes(8), is_extended_id=False
+                    )
+                )  # CAN_ERR_CRTL class: not bus-off
                 time.sleep(0.05)
         out, err = proc.communicate(timeout=600)
     finally:
@@ -128,13 +183,38 @@ def test_error_frames_are_counted_and_the_run_goes_on(vcan_channel: str, tmp_pat
 
 
 def test_full_transmit_queue_is_counted_and_ends_in_a_safe_stop(vcan_channel: str, tmp_path: Path) -> None:
-    proc = _popen("demo", "--task", "path", "--json", "--can", f"socketcan:{vcan_channel}", *_slow(tmp_path),
-                  "--set", "task.path.laps=2.0")
+    proc = _popen(
+        "demo",
+        "--task",
+        "path",
+        "--json",
+        "--can",
+        f"socketcan:{vcan_channel}",
+        *_slow(tmp_path),
+        "--set",
+        "task.path.laps=2.0",
+    )
     try:
         _wait_until_enabled(vcan_channel)
         time.sleep(1.0)
-        subprocess.run(["tc", "qdisc", "replace", "dev", vcan_channel, "root", "tbf", "rate", "10kbit",
-                        "burst", "160", "limit", "64"], check=True)
+        subprocess.run(
+            [
+                "tc",
+                "qdisc",
+                "replace",
+                "dev",
+                vcan_channel,
+                "root",
+                "tbf",
+                "rate",
+                "10kbit",
+                "burst",
+                "160",
+                "limit",
+                "64",
+            ],
+            check=True,
+        )
         out, err = proc.communicate(timeout=600)
     finally:
         subprocess.run(["tc", "qdisc", "del", "dev", vcan_channel, "root"], check=False)

@@ -34,8 +34,10 @@ def _drain(bus: can.BusABC) -> list[can.Message]:
 
 
 def test_kernel_sync_goes_on_while_python_does_not_touch_the_bus(vcan_channel: str) -> None:
-    with can.Bus(interface="socketcan", channel=vcan_channel) as bus, \
-            can.Bus(interface="socketcan", channel=vcan_channel) as watcher:
+    with (
+        can.Bus(interface="socketcan", channel=vcan_channel) as bus,
+        can.Bus(interface="socketcan", channel=vcan_channel) as watcher,
+    ):
         ex = CyclicExchange(bus, (1,), PositionScale(1e7), None, 100, heartbeat_every=10**9, send_sync=False)
         sync = KernelSyncExchange(ex, PERIOD_S, 0.2 * PERIOD_S)
         try:
@@ -54,8 +56,10 @@ def test_kernel_sync_goes_on_while_python_does_not_touch_the_bus(vcan_channel: s
 
 
 def test_rpdos_go_out_between_the_kernel_syncs(vcan_channel: str) -> None:
-    with can.Bus(interface="socketcan", channel=vcan_channel) as bus, \
-            can.Bus(interface="socketcan", channel=vcan_channel) as watcher:
+    with (
+        can.Bus(interface="socketcan", channel=vcan_channel) as bus,
+        can.Bus(interface="socketcan", channel=vcan_channel) as watcher,
+    ):
         ex = CyclicExchange(bus, (1,), PositionScale(1e7), None, 100, heartbeat_every=10**9, send_sync=False)
         sync = KernelSyncExchange(ex, PERIOD_S, 0.3 * PERIOD_S)
         try:
@@ -73,34 +77,60 @@ def test_rpdos_go_out_between_the_kernel_syncs(vcan_channel: str) -> None:
     # after the first SYNC, RPDO and SYNC alternate; two SYNCs without an RPDO between them are a
     # cycle that missed its lead (the VM without KVM runs Python several times slower: allow some)
     first = ids.index(0x080)
-    pairs = list(zip(ids[first:], ids[first + 1:]))
+    pairs = list(zip(ids[first:], ids[first + 1 :]))
     assert sum(1 for a, b in pairs if a == b == 0x080) <= ids.count(0x080) // 2, ids
 
 
 def test_controller_completes_the_path_with_kernel_sync(vcan_channel: str) -> None:
-    cfg = load_config(overrides={
-        "task.kind": "path", "task.path.laps": 0.25, "task.path.speed_m_s": 0.05, "loop.rate_hz": 25.0,
-        "loop.max_missing_cycles": 20, "loop.sdo_timeout_s": 5.0, "sim.drive.sync_timeout_s": 0.5,
-        "loop.enable_timeout_s": 10.0, "loop.heartbeat_consumer_s": 2.0, "safety.on_late_cycles": "warn",
-        "recording.enabled": False, "monitoring.enabled": False, "bus.sync_producer": "kernel",
-        # the path needs no force sensor; in the emulated VM the in-process simulator's sensor frames,
-        # sent after the drives', came after the collect window 20 cycles in a row (a sensor that
-        # silent faults since the bus-watching work): this test is about SYNC from the kernel
-        "sensor.enabled": False,
-    })
+    cfg = load_config(
+        overrides={
+            "task.kind": "path",
+            "task.path.laps": 0.25,
+            "task.path.speed_m_s": 0.05,
+            "loop.rate_hz": 25.0,
+            "loop.max_missing_cycles": 20,
+            "loop.sdo_timeout_s": 5.0,
+            "sim.drive.sync_timeout_s": 0.5,
+            "loop.enable_timeout_s": 10.0,
+            "loop.heartbeat_consumer_s": 2.0,
+            "safety.on_late_cycles": "warn",
+            "recording.enabled": False,
+            "monitoring.enabled": False,
+            "bus.sync_producer": "kernel",
+            # the path needs no force sensor; in the emulated VM the in-process simulator's sensor frames,
+            # sent after the drives', came after the collect window 20 cycles in a row (a sensor that
+            # silent faults since the bus-watching work): this test is about SYNC from the kernel
+            "sensor.enabled": False,
+        }
+    )
     with can.Bus(interface="socketcan", channel=vcan_channel) as sim_bus, Simulator(cfg, sim_bus):
         summary = run_controller(cfg, parse_bus_spec(f"socketcan:{vcan_channel}"), max_duration_s=120.0)
     assert summary["final_mode"] == Mode.DONE.name, summary
 
 
-def _run_kernel_sync(channel: str, lock: SyncPhaseLock, seconds: float) -> tuple[list[float], dict[str, float | int]]:
+def _run_kernel_sync(
+    channel: str, lock: SyncPhaseLock, seconds: float
+) -> tuple[list[float], dict[str, float | int]]:
     """The loop's side for ``seconds`` at PERIOD_S (RPDOs at absolute deadlines, through a FrameTap as in
     the service); a second socket's receive timestamps of every SYNC."""
-    with FrameTap(can.Bus(interface="socketcan", channel=channel)) as bus, \
-            can.Bus(interface="socketcan", channel=channel,
-                    can_filters=[{"can_id": 0x080, "can_mask": 0x7FF, "extended": False}]) as watcher:
-        ex = CyclicExchange(bus, (1,), PositionScale(1e7), None, 100, heartbeat_every=10**9, send_sync=False,
-                            sync_period_s=PERIOD_S)
+    with (
+        FrameTap(can.Bus(interface="socketcan", channel=channel)) as bus,
+        can.Bus(
+            interface="socketcan",
+            channel=channel,
+            can_filters=[{"can_id": 0x080, "can_mask": 0x7FF, "extended": False}],
+        ) as watcher,
+    ):
+        ex = CyclicExchange(
+            bus,
+            (1,),
+            PositionScale(1e7),
+            None,
+            100,
+            heartbeat_every=10**9,
+            send_sync=False,
+            sync_period_s=PERIOD_S,
+        )
         sync = KernelSyncExchange(ex, PERIOD_S, 0.2 * PERIOD_S, lock=lock)
         stamps: list[float] = []
         try:
@@ -114,7 +144,9 @@ def _run_kernel_sync(channel: str, lock: SyncPhaseLock, seconds: float) -> tuple
                 deadline += PERIOD_S
         finally:
             sync.stop()
-        assert bus.sent == round(seconds / PERIOD_S) + 1  # RPDOs and one heartbeat: the SYNCs are the kernel's
+        assert (
+            bus.sent == round(seconds / PERIOD_S) + 1
+        )  # RPDOs and one heartbeat: the SYNCs are the kernel's
         return stamps, sync.report()
 
 
@@ -127,12 +159,16 @@ def test_the_phase_lock_holds_the_kernels_sync_on_the_loops_grid(vcan_channel: s
     free, _ = _run_kernel_sync(vcan_channel, SyncPhaseLock(PERIOD_S, kp=0.0, ki=0.0), seconds)
     locked, report = _run_kernel_sync(vcan_channel, SyncPhaseLock(PERIOD_S), seconds)
     drift_us = ((free[-1] - free[0]) - (len(free) - 1) * PERIOD_S) * 1e6
-    late = sorted(abs(e) for e in _phase_errors_us(locked)[len(locked) // 2:])  # after the lock has settled
-    print(f"\nkernel SYNC free: {len(free)} SYNCs, drift {drift_us:.0f} us over {seconds} s; locked: {len(locked)} "
-          f"SYNCs, |phase error| p50 {late[len(late) // 2]:.0f} us, p95 {late[int(0.95 * len(late))]:.0f} us, "
-          f"max {late[-1]:.0f} us; {report}")
+    late = sorted(abs(e) for e in _phase_errors_us(locked)[len(locked) // 2 :])  # after the lock has settled
+    print(
+        f"\nkernel SYNC free: {len(free)} SYNCs, drift {drift_us:.0f} us over {seconds} s; locked: {len(locked)} "
+        f"SYNCs, |phase error| p50 {late[len(late) // 2]:.0f} us, p95 {late[int(0.95 * len(late))]:.0f} us, "
+        f"max {late[-1]:.0f} us; {report}"
+    )
     assert len(locked) >= 0.8 * seconds / PERIOD_S
-    assert report["syncs_seen"] >= 0.8 * seconds / PERIOD_S  # the exchange saw the kernel's SYNCs (not as foreign)
+    assert (
+        report["syncs_seen"] >= 0.8 * seconds / PERIOD_S
+    )  # the exchange saw the kernel's SYNCs (not as foreign)
     # The free SYNC slides against the loop's grid by the timer's latency in every interval (printed:
     # 165-200 ms in 6 s in the emulated VM, a few ms on a real machine); the locked one stays on it:
     # its median error within a tenth of a period. Not its maximum: the emulated VM stalls now and then

@@ -42,8 +42,9 @@ def _cond(robot: CheopeRobot, p: np.ndarray) -> float:
     return jacobian_indices(jacobian(robot.geometry, p)).condition_number
 
 
-def workspace_sections(robot: CheopeRobot, out: Path, xs_m: tuple[float, ...] = (-0.08, 0.0, 0.08),
-                       n: int = 81) -> dict[str, float]:
+def workspace_sections(
+    robot: CheopeRobot, out: Path, xs_m: tuple[float, ...] = (-0.08, 0.0, 0.08), n: int = 81
+) -> dict[str, float]:
     ys = np.linspace(-0.20, 0.20, n)
     zs = np.linspace(0.30, 0.70, n)
     fig, axes = plt.subplots(1, len(xs_m), figsize=(5 * len(xs_m), 4.6), sharey=True)
@@ -56,8 +57,9 @@ def workspace_sections(robot: CheopeRobot, out: Path, xs_m: tuple[float, ...] = 
                 if robot.check_pose(p).ok:
                     grid[i, j] = _cond(robot, p)
                     usable += 1
-        im = ax.pcolormesh(ys, zs, grid, shading="auto", cmap="viridis", vmin=1.0,
-                           vmax=robot.limits.max_condition_number)
+        im = ax.pcolormesh(
+            ys, zs, grid, shading="auto", cmap="viridis", vmin=1.0, vmax=robot.limits.max_condition_number
+        )
         ax.set_title(f"x = {x:+.2f} m")
         ax.set_xlabel("y [m]")
         ax.set_ylabel("z [m]")
@@ -73,8 +75,12 @@ def workspace_sections(robot: CheopeRobot, out: Path, xs_m: tuple[float, ...] = 
 def _ellipse_xy(ell: Ellipsoid, n: int = 72) -> np.ndarray:
     """The section of an ellipsoid with the XY plane through its centre (reach per direction)."""
     th = np.linspace(0, 2 * np.pi, n)
-    return np.array([ell.reach(np.array([math.cos(t), math.sin(t), 0.0])) * np.array([math.cos(t), math.sin(t)])
-                     for t in th])
+    return np.array(
+        [
+            ell.reach(np.array([math.cos(t), math.sin(t), 0.0])) * np.array([math.cos(t), math.sin(t)])
+            for t in th
+        ]
+    )
 
 
 def _nice(value: float) -> float:
@@ -93,8 +99,13 @@ def _si(value: float, unit: str) -> str:
     return f"{value:g} {unit}"
 
 
-def ellipse_sections(robot: CheopeRobot, masses: MassModel, stiffness_n_m: float, out: Path,
-                     zs_m: tuple[float, ...] = (0.45, 0.50, 0.55)) -> None:
+def ellipse_sections(
+    robot: CheopeRobot,
+    masses: MassModel,
+    stiffness_n_m: float,
+    out: Path,
+    zs_m: tuple[float, ...] = (0.45, 0.50, 0.55),
+) -> None:
     """XY sections of the four ellipsoids (seed 001 Fig. 7), drawn at their grid points.
 
     Each ellipsoid is the image of a unit ball (see controller/robots/performance.py), so its
@@ -105,19 +116,29 @@ def ellipse_sections(robot: CheopeRobot, masses: MassModel, stiffness_n_m: float
     kinds: tuple[tuple[str, str, str, Callable[[np.ndarray], Ellipsoid]], ...] = (
         ("force", "TCP force for |actuator forces| <= 1 N", "N", lambda j: force_ellipsoid(j)),
         ("velocity", "TCP speed for |actuator speeds| <= 1 m/s", "m/s", lambda j: velocity_ellipsoid(j)),
-        ("stiffness", "force K d for |d| <= 1 mm", "N",
-         lambda j: stiffness_ellipsoid(j, stiffness_n_m * 1e-3)),
-        ("mass", "force M a for |a| <= 1 m/s^2", "N", lambda j: mass_ellipsoid(j, masses)))
+        (
+            "stiffness",
+            "force K d for |d| <= 1 mm",
+            "N",
+            lambda j: stiffness_ellipsoid(j, stiffness_n_m * 1e-3),
+        ),
+        ("mass", "force M a for |a| <= 1 m/s^2", "N", lambda j: mass_ellipsoid(j, masses)),
+    )
     centres = [(x, y) for x in (-0.06, 0.0, 0.06) for y in (-0.06, 0.0, 0.06)]
     shapes: dict[tuple[int, int], list[tuple[tuple[float, float], np.ndarray]]] = {}
     for r, z in enumerate(zs_m):
         for c, (_, _, _, make) in enumerate(kinds):
-            shapes[r, c] = [((x, y), _ellipse_xy(make(jacobian(robot.geometry, np.array([x, y, z])))))
-                            for x, y in centres if robot.check_pose(np.array([x, y, z])).ok]
+            shapes[r, c] = [
+                ((x, y), _ellipse_xy(make(jacobian(robot.geometry, np.array([x, y, z])))))
+                for x, y in centres
+                if robot.check_pose(np.array([x, y, z])).ok
+            ]
     fig, axes = plt.subplots(len(zs_m), len(kinds), figsize=(15, 3.9 * len(zs_m)), squeeze=False)
     half_cell_m = 0.026  # the largest ellipse of a column fills most of the 0.06 m grid spacing
     for c, (name, what, unit, _) in enumerate(kinds):
-        largest = max((float(np.abs(sh).max()) for r in range(len(zs_m)) for _, sh in shapes[r, c]), default=1.0)
+        largest = max(
+            (float(np.abs(sh).max()) for r in range(len(zs_m)) for _, sh in shapes[r, c]), default=1.0
+        )
         scale = half_cell_m / largest  # plot metres per unit
         bar = _nice(largest)
         for r, z in enumerate(zs_m):
@@ -137,8 +158,11 @@ def ellipse_sections(robot: CheopeRobot, masses: MassModel, stiffness_n_m: float
             ax.set_xlabel("x [m]", fontsize=8)
             ax.set_ylabel("y [m]", fontsize=8)
             ax.set_title(f"{name}, z = {z:.2f} m\n{what}", fontsize=9)
-    fig.suptitle("XY sections of the performance ellipsoids at grid points (dots) inside the usable workspace; "
-                 "bar: the scale of each column", fontsize=11)
+    fig.suptitle(
+        "XY sections of the performance ellipsoids at grid points (dots) inside the usable workspace; "
+        "bar: the scale of each column",
+        fontsize=11,
+    )
     fig.tight_layout()
     fig.savefig(out / "cheope_ellipses.png", dpi=110)
     plt.close(fig)
@@ -153,13 +177,35 @@ def path_margins(robot: CheopeRobot, path: CirclePath, out: Path, n: int = 361) 
     s = np.linspace(0, 1, n)
     lim = robot.limits
     panels = (
-        ("direct singularity measure", "|det W| [-]", [m.direct for m in meas], lim.min_direct_measure, "minimum"),
-        ("inverse singularity measure", "min_j |w_j . n_j| [-]", [m.inverse for m in meas],
-         lim.min_inverse_measure, "minimum"),
-        ("structural singularity measure", "min |w_i x w_j| [-]", [m.structural for m in meas],
-         lim.min_structural_measure, "minimum"),
+        (
+            "direct singularity measure",
+            "|det W| [-]",
+            [m.direct for m in meas],
+            lim.min_direct_measure,
+            "minimum",
+        ),
+        (
+            "inverse singularity measure",
+            "min_j |w_j . n_j| [-]",
+            [m.inverse for m in meas],
+            lim.min_inverse_measure,
+            "minimum",
+        ),
+        (
+            "structural singularity measure",
+            "min |w_i x w_j| [-]",
+            [m.structural for m in meas],
+            lim.min_structural_measure,
+            "minimum",
+        ),
         ("condition number of J", "cond(J) [-]", cond, lim.max_condition_number, "maximum"),
-        ("largest spherical-joint swing", "swing [deg]", swing, math.degrees(lim.joint_swing_limit_rad), "maximum"),
+        (
+            "largest spherical-joint swing",
+            "swing [deg]",
+            swing,
+            math.degrees(lim.joint_swing_limit_rad),
+            "maximum",
+        ),
     )
     fig, axes = plt.subplots(2, 3, figsize=(15, 7.5))
     for ax, (title, ylabel, values, limit, kind) in zip(axes.flat, panels):
@@ -174,11 +220,17 @@ def path_margins(robot: CheopeRobot, path: CirclePath, out: Path, n: int = 361) 
         ax.legend(fontsize=8, loc="best")
         ax.grid(alpha=0.3)
     axes.flat[-1].axis("off")
-    axes.flat[-1].text(0.0, 0.5, f"path: circle of {path.radius_m * 1000:g} mm radius around\n"
-                                 f"{tuple(round(float(v), 3) for v in path.center_m)} m, {path.laps:g} lap(s)\n\n"
-                                 "singularity measures of seed 001 (of unit\n"
-                                 "vectors: dimensionless); a point is refused\n"
-                                 "below a minimum or above a maximum", fontsize=10, va="center")
+    axes.flat[-1].text(
+        0.0,
+        0.5,
+        f"path: circle of {path.radius_m * 1000:g} mm radius around\n"
+        f"{tuple(round(float(v), 3) for v in path.center_m)} m, {path.laps:g} lap(s)\n\n"
+        "singularity measures of seed 001 (of unit\n"
+        "vectors: dimensionless); a point is refused\n"
+        "below a minimum or above a maximum",
+        fontsize=10,
+        va="center",
+    )
     fig.suptitle("Cheope: margins along the configured path", fontsize=12)
     fig.tight_layout()
     fig.savefig(out / "cheope_path_margins.png", dpi=110)
@@ -209,14 +261,18 @@ def analyze_cheope(cfg: Config, out: Path) -> dict[str, object]:
         "centre_sigma_min": round(ind.sigma_min, 4),
         "centre_det_J": round(ind.det, 4),
         "force_capacity_x_over_y": round(force_ellipsoid(jac).reach(ex) / force_ellipsoid(jac).reach(ey), 3),
-        "velocity_capacity_y_over_x": round(velocity_ellipsoid(jac).reach(ey) / velocity_ellipsoid(jac).reach(ex), 3),
+        "velocity_capacity_y_over_x": round(
+            velocity_ellipsoid(jac).reach(ey) / velocity_ellipsoid(jac).reach(ex), 3
+        ),
         # Two stiffness ratios, which differ: the radius of the image ellipsoid {K d : |d| <= 1} along
         # x over y (the force for a unit displacement, whatever its direction) and the directional
         # stiffness u^T K u (the force along u for a unit displacement along u), K = k J^T J.
         "stiffness_image_reach_x_over_y": round(
-            stiffness_ellipsoid(jac, 1.0).reach(ex) / stiffness_ellipsoid(jac, 1.0).reach(ey), 3),
+            stiffness_ellipsoid(jac, 1.0).reach(ex) / stiffness_ellipsoid(jac, 1.0).reach(ey), 3
+        ),
         "stiffness_directional_x_over_y": round(
-            float(ex @ cartesian_stiffness(jac, 1.0) @ ex) / float(ey @ cartesian_stiffness(jac, 1.0) @ ey), 3),
+            float(ex @ cartesian_stiffness(jac, 1.0) @ ex) / float(ey @ cartesian_stiffness(jac, 1.0) @ ey), 3
+        ),
     }
     report.update(path_margins(robot, path, out))
     report.update(workspace_sections(robot, out))

@@ -50,12 +50,22 @@ class ContourObserver:
     xy: list[tuple[float, float]] = field(default_factory=list)
     normal: list[tuple[float, float]] = field(default_factory=list)
     contact_losses: tuple[int, ...] = ()
-    corner: list[bool] = field(default_factory=list)  # the measured normal turning on a radius under CORNER_RADIUS_M
+    corner: list[bool] = field(
+        default_factory=list
+    )  # the measured normal turning on a radius under CORNER_RADIUS_M
     _swept: float = 0.0
     _last_angle: float | None = None
 
-    def on_cycle(self, cycle: int, t: float, inputs: CycleInputs, state: ControllerState,
-                 outputs: CycleOutputs, events: tuple[Event, ...], timing: CycleTiming) -> None:
+    def on_cycle(
+        self,
+        cycle: int,
+        t: float,
+        inputs: CycleInputs,
+        state: ControllerState,
+        outputs: CycleOutputs,
+        events: tuple[Event, ...],
+        timing: CycleTiming,
+    ) -> None:
         ts = state.task_state
         tcp = state.tcp_measured_m
         if tcp is None or state.mode != Mode.RUNNING:
@@ -78,8 +88,15 @@ class ContourObserver:
         n = (math.cos(angle), math.sin(angle))
         self._append(t, lap, math.hypot(f[0], f[1]), float("nan"), tcp, n)  # no commanded tangential speed
 
-    def _append(self, t: float, lap: int, fn: float, speed: float, tcp: tuple[float, float, float],
-                normal: tuple[float, float]) -> None:
+    def _append(
+        self,
+        t: float,
+        lap: int,
+        fn: float,
+        speed: float,
+        tcp: tuple[float, float, float],
+        normal: tuple[float, float],
+    ) -> None:
         self.t.append(t)
         self.lap.append(lap)
         self.fn.append(fn)
@@ -88,8 +105,9 @@ class ContourObserver:
         self.normal.append(normal)
 
 
-def _normal_stiffness(robot: CheopeRobot, stiffness_n_m: float, xy: np.ndarray, height_m: float,
-                      normals: np.ndarray) -> np.ndarray:
+def _normal_stiffness(
+    robot: CheopeRobot, stiffness_n_m: float, xy: np.ndarray, height_m: float, normals: np.ndarray
+) -> np.ndarray:
     out = np.empty(len(xy))
     for i, ((x, y), (nx, ny)) in enumerate(zip(xy, normals)):
         jac = robot.jacobian(np.array([x, y, height_m]))
@@ -141,8 +159,13 @@ class DirectionStatistics:
     correlation: float | None
 
 
-def direction_statistics(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: float, height_m: float,
-                         lap_speeds_m_s: tuple[float, ...] | None) -> DirectionStatistics:
+def direction_statistics(
+    obs: ContourObserver,
+    robot: CheopeRobot,
+    stiffness_n_m: float,
+    height_m: float,
+    lap_speeds_m_s: tuple[float, ...] | None,
+) -> DirectionStatistics:
     lap = np.array(obs.lap)
     xy = np.array(obs.xy)
     m = np.isin(lap, constant_speed_laps(lap_speeds_m_s, obs.laps))
@@ -161,12 +184,21 @@ def direction_statistics(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m
     return DirectionStatistics(err, kn, np.array(centres), np.array(bin_err), np.array(bin_k), corr)
 
 
-def contour_summary(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: float, height_m: float,
-                    lap_speeds_m_s: tuple[float, ...] | None) -> dict[str, object]:
+def contour_summary(
+    obs: ContourObserver,
+    robot: CheopeRobot,
+    stiffness_n_m: float,
+    height_m: float,
+    lap_speeds_m_s: tuple[float, ...] | None,
+) -> dict[str, object]:
     if not obs.t:
-        return {"samples": 0, "laps": [], "force_error_vs_normal_stiffness_correlation": None,
-                "force_error_rms_soft_over_stiff": None,
-                "normal_stiffness_range_n_m": None}
+        return {
+            "samples": 0,
+            "laps": [],
+            "force_error_vs_normal_stiffness_correlation": None,
+            "force_error_rms_soft_over_stiff": None,
+            "normal_stiffness_range_n_m": None,
+        }
     t = np.array(obs.t)
     lap = np.array(obs.lap)
     err = obs.force_setpoint_n - np.array(obs.fn)
@@ -178,37 +210,55 @@ def contour_summary(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: flo
             continue
         dist = np.sum(np.hypot(*np.diff(xy[m], axis=0).T))
         dur = t[m][-1] - t[m][0]
-        laps.append({
-            "lap": k + 1,
-            "speed_commanded_m_s": lap_speeds_m_s[k] if lap_speeds_m_s else None,
-            "speed_achieved_m_s": round(float(dist / dur), 5) if dur > 0 else None,
-            "force_error_rms_n": round(float(np.sqrt(np.mean(err[m] ** 2))), 4),
-            "force_error_max_n": round(float(np.abs(err[m]).max()), 4),
-            "contact_losses": int(obs.contact_losses[k]) if k < len(obs.contact_losses)
-            else int(np.count_nonzero(np.diff((np.array(obs.fn)[m] < 0.5).astype(int)) == 1)),
-        })
+        laps.append(
+            {
+                "lap": k + 1,
+                "speed_commanded_m_s": lap_speeds_m_s[k] if lap_speeds_m_s else None,
+                "speed_achieved_m_s": round(float(dist / dur), 5) if dur > 0 else None,
+                "force_error_rms_n": round(float(np.sqrt(np.mean(err[m] ** 2))), 4),
+                "force_error_max_n": round(float(np.abs(err[m]).max()), 4),
+                "contact_losses": int(obs.contact_losses[k])
+                if k < len(obs.contact_losses)
+                else int(np.count_nonzero(np.diff((np.array(obs.fn)[m] < 0.5).astype(int)) == 1)),
+            }
+        )
     d = direction_statistics(obs, robot, stiffness_n_m, height_m, lap_speeds_m_s)
     corr = d.correlation
     corner = np.array(obs.corner, dtype=bool) if len(obs.corner) == t.size else np.zeros(t.size, dtype=bool)
     return {
         "samples": int(t.size),
         "laps": laps,
-        "force_error_rms_n": round(float(np.sqrt(np.mean(err ** 2))), 4),
-        "corners": {"samples": int(corner.sum()),
-                    "force_error_rms_n": round(float(np.sqrt(np.mean(err[corner] ** 2))), 4) if corner.any() else None,
-                    "force_error_rms_elsewhere_n": round(float(np.sqrt(np.mean(err[~corner] ** 2))), 4)
-                    if (~corner).any() else None},
+        "force_error_rms_n": round(float(np.sqrt(np.mean(err**2))), 4),
+        "corners": {
+            "samples": int(corner.sum()),
+            "force_error_rms_n": round(float(np.sqrt(np.mean(err[corner] ** 2))), 4)
+            if corner.any()
+            else None,
+            "force_error_rms_elsewhere_n": round(float(np.sqrt(np.mean(err[~corner] ** 2))), 4)
+            if (~corner).any()
+            else None,
+        },
         "force_error_vs_normal_stiffness_correlation": None if corr is None else round(corr, 3),
         "force_error_rms_soft_over_stiff": _soft_over_stiff(d.error_n, d.normal_stiffness_n_m),
-        "normal_stiffness_range_n_m": [round(float(d.normal_stiffness_n_m.min()), 0),
-                                       round(float(d.normal_stiffness_n_m.max()), 0)]
-        if d.normal_stiffness_n_m.size else None,
+        "normal_stiffness_range_n_m": [
+            round(float(d.normal_stiffness_n_m.min()), 0),
+            round(float(d.normal_stiffness_n_m.max()), 0),
+        ]
+        if d.normal_stiffness_n_m.size
+        else None,
     }
 
 
-def plot_contour(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: float, masses: MassModel,
-                 height_m: float, out: Path, title: str = "force control",
-                 lap_speeds_m_s: tuple[float, ...] | None = None) -> list[Path]:
+def plot_contour(
+    obs: ContourObserver,
+    robot: CheopeRobot,
+    stiffness_n_m: float,
+    masses: MassModel,
+    height_m: float,
+    out: Path,
+    title: str = "force control",
+    lap_speeds_m_s: tuple[float, ...] | None = None,
+) -> list[Path]:
     """Fig. 9: force and speed against time with the laps; Fig. 8: the contour and the error.
 
     The Fig. 8 panel shows the constant-speed laps (``constant_speed_laps``), with the colour
@@ -229,7 +279,9 @@ def plot_contour(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: float,
     a1.set_ylabel("force [N]")
     a1.legend(loc="upper right", fontsize=8)
     k = max(1, int(0.02 / max(np.median(np.diff(t)), 1e-6))) if t.size > 2 else 1
-    a2.plot(t, np.convolve(np.nan_to_num(speed), np.ones(k) / k, mode="same") * 1000, lw=0.8, label="achieved")
+    a2.plot(
+        t, np.convolve(np.nan_to_num(speed), np.ones(k) / k, mode="same") * 1000, lw=0.8, label="achieved"
+    )
     cmd = np.array(obs.speed_cmd) * 1000
     if np.isfinite(cmd).any():
         a2.plot(t, cmd, lw=0.8, ls="--", label="commanded")
@@ -242,8 +294,16 @@ def plot_contour(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: float,
             ax.axvline(t[b], color="grey", lw=0.6)
     for lo, hi in itertools.pairwise(bounds):  # each lap named between its grey boundaries
         if lap[lo] >= 0 and hi > lo:
-            a1.text((t[lo] + t[hi]) / 2, 1.0, f"lap {int(lap[lo]) + 1}", transform=a1.get_xaxis_transform(),
-                    ha="center", va="bottom", fontsize=8, color="grey")
+            a1.text(
+                (t[lo] + t[hi]) / 2,
+                1.0,
+                f"lap {int(lap[lo]) + 1}",
+                transform=a1.get_xaxis_transform(),
+                ha="center",
+                va="bottom",
+                fontsize=8,
+                color="grey",
+            )
     a1.set_title(f"Contour tracking ({title}): force and speed, laps marked (cf. seed 001 Fig. 9)", pad=16)
     fig.tight_layout()
     p1 = out / f"contour_force_speed_{title.replace(' ', '_')}.png"
@@ -255,8 +315,15 @@ def plot_contour(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: float,
     d = direction_statistics(obs, robot, stiffness_n_m, height_m, lap_speeds_m_s)  # over the same laps
     const = np.isin(lap, shown)
     err = np.abs(d.error_n)
-    sc = ax.scatter(xy[const, 0] * 1000, xy[const, 1] * 1000, c=err, s=3, cmap="inferno_r",
-                    vmin=0.0, vmax=float(np.percentile(err, 99)) if err.size else None)
+    sc = ax.scatter(
+        xy[const, 0] * 1000,
+        xy[const, 1] * 1000,
+        c=err,
+        s=3,
+        cmap="inferno_r",
+        vmin=0.0,
+        vmax=float(np.percentile(err, 99)) if err.size else None,
+    )
     laps_shown = ", ".join(str(k + 1) for k in shown)
     fig.colorbar(sc, ax=ax, label=f"|normal-force error| [N], laps {laps_shown} (99th percentile clipped)")
     # stiffness and mass ellipses (XY sections) at 8 points of the contour
@@ -265,35 +332,53 @@ def plot_contour(obs: ContourObserver, robot: CheopeRobot, stiffness_n_m: float,
     for th in np.linspace(0, 2 * np.pi, 8, endpoint=False):
         p = np.array([c[0] + r * np.cos(th), c[1] + r * np.sin(th), height_m])
         jac = robot.jacobian(p)
-        for ell, colour, scale in ((stiffness_ellipsoid(jac, stiffness_n_m), "tab:blue", 12.0),
-                                   (mass_ellipsoid(jac, masses), "tab:green", 12.0)):
+        for ell, colour, scale in (
+            (stiffness_ellipsoid(jac, stiffness_n_m), "tab:blue", 12.0),
+            (mass_ellipsoid(jac, masses), "tab:green", 12.0),
+        ):
             dirs = np.linspace(0, 2 * np.pi, 60)
             reach = np.array([ell.reach(np.array([np.cos(d), np.sin(d), 0.0])) for d in dirs])
             reach = reach / reach.max() * scale
-            ax.plot((p[0] + 0.0) * 1000 + reach * np.cos(dirs) + 28 * np.cos(th),
-                    p[1] * 1000 + reach * np.sin(dirs) + 28 * np.sin(th), color=colour, lw=1)
+            ax.plot(
+                (p[0] + 0.0) * 1000 + reach * np.cos(dirs) + 28 * np.cos(th),
+                p[1] * 1000 + reach * np.sin(dirs) + 28 * np.sin(th),
+                color=colour,
+                lw=1,
+            )
     ax.plot([], [], color="tab:blue", label="stiffness {K d : |d| <= 1}\n(XY section, shape only)")
     ax.plot([], [], color="tab:green", label="mass {M a : |a| <= 1}\n(XY section, shape only)")
     ax.legend(loc="center", fontsize=8)  # inside the contour, where nothing is drawn
     ax.set_aspect("equal")
     ax.set_xlabel("x [mm]")
     ax.set_ylabel("y [mm]")
-    ax.set_title(f"Contour ({title}) and force error, with stiffness and mass ellipses (cf. Fig. 8)", fontsize=9)
-    ab.plot(d.bin_angle_deg, d.bin_error_rms_n, "o-", color="tab:red", ms=3, label="force error RMS per 10 deg")
+    ax.set_title(
+        f"Contour ({title}) and force error, with stiffness and mass ellipses (cf. Fig. 8)", fontsize=9
+    )
+    ab.plot(
+        d.bin_angle_deg, d.bin_error_rms_n, "o-", color="tab:red", ms=3, label="force error RMS per 10 deg"
+    )
     ab.set_xlabel("contour angle around the centre [deg]")
     ab.set_ylabel("normal-force error RMS [N]", color="tab:red")
     ab.set_xlim(-180, 180)
     ak = ab.twinx()
-    ak.plot(d.bin_angle_deg, d.bin_stiffness_n_m / 1e6, "s--", color="tab:blue", ms=3,
-            label="directional stiffness n^T K n, K = k J^T J")
+    ak.plot(
+        d.bin_angle_deg,
+        d.bin_stiffness_n_m / 1e6,
+        "s--",
+        color="tab:blue",
+        ms=3,
+        label="directional stiffness n^T K n, K = k J^T J",
+    )
     ak.set_ylabel("directional stiffness along the normal n^T K n [N/µm]", color="tab:blue")
     handles = ab.get_legend_handles_labels()[0] + ak.get_legend_handles_labels()[0]
     ab.legend(handles, [str(h.get_label()) for h in handles], loc="upper right", fontsize=8)
     ratio = _soft_over_stiff(d.error_n, d.normal_stiffness_n_m)
     corr = "n/a" if d.correlation is None else f"{d.correlation:+.2f}"
-    ab.set_title(f"error and directional stiffness along the normal, per 10 deg\n"
-                 f"correlation {corr}, RMS soft half / stiff half {ratio}",
-                 fontsize=9)
+    ab.set_title(
+        f"error and directional stiffness along the normal, per 10 deg\n"
+        f"correlation {corr}, RMS soft half / stiff half {ratio}",
+        fontsize=9,
+    )
     fig.tight_layout()
     p2 = out / f"contour_error_map_{title.replace(' ', '_')}.png"
     fig.savefig(p2, dpi=110)

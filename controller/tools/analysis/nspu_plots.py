@@ -28,8 +28,10 @@ def plot_plan(result: PlanResult, out_dir: str | Path, prefix: str = "nspu_plan"
     out.mkdir(parents=True, exist_ok=True)
     t = result.t_s
     cfg = result.config
-    title = (f"{result.status.value}: {result.iterations} iterations, E = {result.final_error:.2e} "
-             f"(plan time T = {cfg.horizon_s:g} s; streaming rescales time)")
+    title = (
+        f"{result.status.value}: {result.iterations} iterations, E = {result.final_error:.2e} "
+        f"(plan time T = {cfg.horizon_s:g} s; streaming rescales time)"
+    )
     paths: list[Path] = []
 
     def save(fig: Figure, name: str) -> None:
@@ -47,9 +49,14 @@ def plot_plan(result: PlanResult, out_dir: str | Path, prefix: str = "nspu_plan"
         axes[0].axhline(result.goal.p_m[i] * 1e3, color=col, ls="--", lw=0.8)
         axes[1].plot(t, rv[:, i], color=col, label=f"r{c}")
         axes[1].axhline(goal_rv[i], color=col, ls="--", lw=0.8)
-    axes[0].set(xlabel="plan time t [s]", ylabel="platform position [mm]", title="position p(t) (dashed: goal)")
-    axes[1].set(xlabel="plan time t [s]", ylabel="rotation vector [rad]",
-                title="orientation r(t), [r] = log R(t) (dashed: goal)")
+    axes[0].set(
+        xlabel="plan time t [s]", ylabel="platform position [mm]", title="position p(t) (dashed: goal)"
+    )
+    axes[1].set(
+        xlabel="plan time t [s]",
+        ylabel="rotation vector [rad]",
+        title="orientation r(t), [r] = log R(t) (dashed: goal)",
+    )
     for ax in axes:
         ax.grid(True)
         ax.legend(loc="best", fontsize=8)
@@ -65,7 +72,9 @@ def plot_plan(result: PlanResult, out_dir: str | Path, prefix: str = "nspu_plan"
         if lo - 0.02 <= limit <= hi + 0.02:  # draw a stroke limit only when it is near the motion
             axes[0].axhline(limit * 1e3, color="r", ls="--", lw=0.8, label=name)
     axes[0].set(xlabel="plan time t [s]", ylabel="leg length [mm]", title="leg lengths l(t)")
-    axes[1].set(xlabel="plan time t [s]", ylabel="leg rate [mm/s]", title="leg rates u(t), seed 004 eq. (6), at T")
+    axes[1].set(
+        xlabel="plan time t [s]", ylabel="leg rate [mm/s]", title="leg rates u(t), seed 004 eq. (6), at T"
+    )
     for ax in axes:
         ax.grid(True)
         ax.legend(loc="best", fontsize=8)
@@ -75,19 +84,32 @@ def plot_plan(result: PlanResult, out_dir: str | Path, prefix: str = "nspu_plan"
     tm = result.type2_measure
     sign = float(np.sign(tm[0])) if np.isfinite(tm[0]) and tm[0] != 0 else 1.0
     axes[0].plot(t, sign * tm, label="normalised det M x sign at start")
-    axes[0].axhline(cfg.min_type2_measure, color="r", ls="--", lw=0.8, label=f"refusal limit {cfg.min_type2_measure:g}")
-    axes[0].axhline(cfg.avoidance_margin, color="orange", ls=":", lw=0.8,
-                    label=f"avoidance margin {cfg.avoidance_margin:g}")
+    axes[0].axhline(
+        cfg.min_type2_measure, color="r", ls="--", lw=0.8, label=f"refusal limit {cfg.min_type2_measure:g}"
+    )
+    axes[0].axhline(
+        cfg.avoidance_margin,
+        color="orange",
+        ls=":",
+        lw=0.8,
+        label=f"avoidance margin {cfg.avoidance_margin:g}",
+    )
     axes[0].axhline(0.0, color="k", lw=0.8)
-    axes[0].set(xlabel="plan time t [s]", ylabel="[-] (0: type-II singular)",
-                title="distance from det M = 0 (seed 000 eq. 26)")
+    axes[0].set(
+        xlabel="plan time t [s]",
+        ylabel="[-] (0: type-II singular)",
+        title="distance from det M = 0 (seed 000 eq. 26)",
+    )
     ds = result.det_s
     sgn_s = float(np.sign(ds[0])) if np.isfinite(ds[0]) and ds[0] != 0 else 1.0
     axes[1].plot(t, sgn_s * ds, label="det S x sign at start")
     axes[1].axhline(cfg.min_abs_det_s, color="r", ls="--", lw=0.8, label=f"limit {cfg.min_abs_det_s:g}")
     axes[1].axhline(0.0, color="k", lw=0.8)
-    axes[1].set(xlabel="plan time t [s]", ylabel="[-] (0: system (7) singular)",
-                title="det S along the motion (seed 000 eq. 27)")
+    axes[1].set(
+        xlabel="plan time t [s]",
+        ylabel="[-] (0: system (7) singular)",
+        title="det S along the motion (seed 000 eq. 27)",
+    )
     for ax in axes:
         ax.grid(True)
         ax.legend(loc="best", fontsize=8)
@@ -176,12 +198,16 @@ def plot_singularity_loci(
         tri = np.vstack([a, a[:1]])
         ax2.plot(tri[:, 0], tri[:, 1], "k--", lw=0.8, label="frame triangle A_i")
         ax3.plot(tri[:, 0], tri[:, 1], 0 * tri[:, 0], "k--", lw=0.8)
-        ax3.set(xlabel="x [aul]", ylabel="y [aul]", zlabel="z [aul]", title="3D view (zero contours per slice)")
+        ax3.set(
+            xlabel="x [aul]", ylabel="y [aul]", zlabel="z [aul]", title="3D view (zero contours per slice)"
+        )
         ax2.set(xlabel="x [aul]", ylabel="y [aul]", title="top view")
         ax2.set_aspect("equal")
         ax2.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), title="slice height")
-        fig.suptitle(f"{title}, XZX Euler angles {tuple(float(e) for e in eta)} rad; "
-                     f"lengths in the papers' unit, 1 aul = {unit:g} m")
+        fig.suptitle(
+            f"{title}, XZX Euler angles {tuple(float(e) for e in eta)} rad; "
+            f"lengths in the papers' unit, 1 aul = {unit:g} m"
+        )
         fig.tight_layout()
         paths.append(out / fname)
         fig.savefig(paths[-1], dpi=110, bbox_inches="tight")  # the legend beside the top view stays in
@@ -234,8 +260,10 @@ def plot_execution(recording: str | Path, out_dir: str | Path, name: str = "nspu
         ax.legend(fontsize=8, loc="best")
     for ax in axes[1]:
         ax.set_xlabel("run time t [s]")
-    fig.suptitle("3-nSPU: executed against planned motion (phases: "
-                 + " -> ".join(dict.fromkeys(phases)) + ")", fontsize=10)
+    fig.suptitle(
+        "3-nSPU: executed against planned motion (phases: " + " -> ".join(dict.fromkeys(phases)) + ")",
+        fontsize=10,
+    )
     fig.tight_layout()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

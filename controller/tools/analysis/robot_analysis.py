@@ -45,8 +45,13 @@ def analyze_uru(cfg: Config, out_dir: Path) -> dict[str, object]:
     motors = np.array([robot.inverse_kinematics(x) for x in pts]) if verdict == "accepted" else None
     report: dict[str, object] = {
         "robot": "uru",
-        "geometry": {"f_m": robot.geometry.f.tolist(), "r_m": robot.geometry.r.tolist(), "k": robot.geometry.k.tolist(),
-                     "d_b_m": robot.geometry.base_offset_m, "d_p_m": robot.geometry.platform_offset_m},
+        "geometry": {
+            "f_m": robot.geometry.f.tolist(),
+            "r_m": robot.geometry.r.tolist(),
+            "k": robot.geometry.k.tolist(),
+            "d_b_m": robot.geometry.base_offset_m,
+            "d_p_m": robot.geometry.platform_offset_m,
+        },
         "path_check": verdict,
         "path_min_plane_distance_m": round(float(np.min(np.abs(pts))), 5),
         "path_min_workspace_margin_m": round(float(np.nanmin(fields["workspace_margin_m"])), 5),
@@ -57,13 +62,15 @@ def analyze_uru(cfg: Config, out_dir: Path) -> dict[str, object]:
         "plots": [str(f) for f in files],
     }
     if motors is not None:
-        report["path_motor_range_rad"] = [[round(float(a), 4), round(float(b), 4)]
-                                          for a, b in zip(motors.min(axis=0), motors.max(axis=0))]
+        report["path_motor_range_rad"] = [
+            [round(float(a), 4), round(float(b), 4)] for a, b in zip(motors.min(axis=0), motors.max(axis=0))
+        ]
     return report
 
 
-def analyze_nspu(cfg: Config, out_dir: Path, euler_xzx_rad: tuple[float, float, float] = (0.0, 1.0, 0.0)
-                 ) -> dict[str, object]:
+def analyze_nspu(
+    cfg: Config, out_dir: Path, euler_xzx_rad: tuple[float, float, float] = (0.0, 1.0, 0.0)
+) -> dict[str, object]:
     from controller.planning.nonholonomic import type2_measure
     from controller.robots.builtin import nspu_from_config
     from controller.tools.analysis.nspu_plots import plot_singularity_loci
@@ -80,8 +87,9 @@ def analyze_nspu(cfg: Config, out_dir: Path, euler_xzx_rad: tuple[float, float, 
     }
 
 
-def plan_nspu(cfg: Config, start: Pose, goal: Pose, check_type2: bool, plot_dir: Path | None
-              ) -> dict[str, object]:
+def plan_nspu(
+    cfg: Config, start: Pose, goal: Pose, check_type2: bool, plot_dir: Path | None
+) -> dict[str, object]:
     """Plan start -> goal (Pose) with the configured planner; the report says CONVERGED or why not."""
     from controller.planning.nonholonomic import plan_motion
     from controller.robots.builtin import nspu_geometry_from_config
@@ -94,24 +102,34 @@ def plan_nspu(cfg: Config, start: Pose, goal: Pose, check_type2: bool, plot_dir:
     res = plan_motion(geometry, start, goal, pcfg)
     elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
     out: dict[str, object] = {
-        "status": res.status.value, "ok": res.ok, "message": res.message, "iterations": res.iterations,
-        "final_error": res.final_error, "verified_error": res.verified_error, "plan_steps": res.plan_steps,
-        "planning_time_s": round(elapsed, 3), "planning_cpu_s": round(cpu, 3),
+        "status": res.status.value,
+        "ok": res.ok,
+        "message": res.message,
+        "iterations": res.iterations,
+        "final_error": res.final_error,
+        "verified_error": res.verified_error,
+        "plan_steps": res.plan_steps,
+        "planning_time_s": round(elapsed, 3),
+        "planning_cpu_s": round(cpu, 3),
         "error_history": [float(e) for e in res.error_history],
         "type2_check": check_type2,
     }
     if not check_type2:
-        out["warning"] = ("the type-II singularity check is off (the paper's assumptions): the plan may cross "
-                          "det M = 0, where the platform is not controlled by the legs")
+        out["warning"] = (
+            "the type-II singularity check is off (the paper's assumptions): the plan may cross "
+            "det M = 0, where the platform is not controlled by the legs"
+        )
     if res.ok:
         tm = res.type2_measure
-        out.update({
-            "legs_range_m": [float(res.legs_m.min()), float(res.legs_m.max())],
-            "max_leg_rate_m_s_at_T": float(np.abs(res.leg_rates_m_s).max()),
-            "type2_sign_changes": int(np.sum(np.diff(np.sign(tm)) != 0)),
-            "end_position_error_m": float(np.linalg.norm(res.p_m[-1] - goal.p_m)),
-            "end_angle_error_rad": float(np.linalg.norm(so3_log(res.R[-1] @ goal.R.T))),
-        })
+        out.update(
+            {
+                "legs_range_m": [float(res.legs_m.min()), float(res.legs_m.max())],
+                "max_leg_rate_m_s_at_T": float(np.abs(res.leg_rates_m_s).max()),
+                "type2_sign_changes": int(np.sum(np.diff(np.sign(tm)) != 0)),
+                "end_position_error_m": float(np.linalg.norm(res.p_m[-1] - goal.p_m)),
+                "end_angle_error_rad": float(np.linalg.norm(so3_log(res.R[-1] @ goal.R.T))),
+            }
+        )
     if plot_dir is not None and np.all(np.isfinite(res.p_m)):  # a failed plan's plots show why
         from controller.tools.analysis.nspu_plots import plot_plan
 

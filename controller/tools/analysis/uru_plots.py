@@ -47,8 +47,10 @@ def _geometry_label(geom: UruGeometry) -> str:
     def fmt(a: np.ndarray) -> str:
         return "(" + ", ".join(f"{float(x):g}" for x in a) + ")"
 
-    return (f"d_b = {geom.base_offset_m:g} m, d_p = {geom.platform_offset_m:g} m, f = {fmt(geom.f)} m, "
-            f"r = {fmt(geom.r)} m, k = {fmt(geom.k)}, knee {geom.knee_sign:+d}")
+    return (
+        f"d_b = {geom.base_offset_m:g} m, d_p = {geom.platform_offset_m:g} m, f = {fmt(geom.f)} m, "
+        f"r = {fmt(geom.r)} m, k = {fmt(geom.k)}, knee {geom.knee_sign:+d}"
+    )
 
 
 def _workspace_extent_m(geom: UruGeometry) -> float:
@@ -92,8 +94,15 @@ def _plot_3d(geom: UruGeometry, path: np.ndarray, fname: Path) -> None:
     ext = _workspace_extent_m(geom)
     fig = plt.figure(figsize=(7.5, 7))
     ax = fig.add_subplot(111, projection="3d")
-    ax.plot_surface(bnd[..., 0], bnd[..., 1], bnd[..., 2], color="tab:blue", alpha=0.15, linewidth=0.3,
-                    edgecolor="tab:blue")
+    ax.plot_surface(
+        bnd[..., 0],
+        bnd[..., 1],
+        bnd[..., 2],
+        color="tab:blue",
+        alpha=0.15,
+        linewidth=0.3,
+        edgecolor="tab:blue",
+    )
     s = np.linspace(-ext, ext, 2)
     a, b = np.meshgrid(s, s)
     zero = np.zeros_like(a)
@@ -107,17 +116,28 @@ def _plot_3d(geom: UruGeometry, path: np.ndarray, fname: Path) -> None:
     ax.set_ylim(-ext, ext)
     ax.set_zlim(-ext, ext)
     ax.set_box_aspect((1, 1, 1))
-    ax.set_title("3-URU reachable workspace (blue, seed 003 eq. (29))\n"
-                 "rotation-singularity planes x=0, y=0, z=0 (red, eq. (17))\n" + _geometry_label(geom), fontsize=9)
+    ax.set_title(
+        "3-URU reachable workspace (blue, seed 003 eq. (29))\n"
+        "rotation-singularity planes x=0, y=0, z=0 (red, eq. (17))\n" + _geometry_label(geom),
+        fontsize=9,
+    )
     ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
     fig.savefig(fname, dpi=110)
     plt.close(fig)
 
 
-def _section(ax: Axes, u: np.ndarray, w: np.ndarray, fields: dict[str, np.ndarray], key: str, vlim: float,
-             title: str, axis_lines: list[tuple[str, np.ndarray, np.ndarray]],
-             path_uv: np.ndarray | None) -> QuadMesh:
+def _section(
+    ax: Axes,
+    u: np.ndarray,
+    w: np.ndarray,
+    fields: dict[str, np.ndarray],
+    key: str,
+    vlim: float,
+    title: str,
+    axis_lines: list[tuple[str, np.ndarray, np.ndarray]],
+    path_uv: np.ndarray | None,
+) -> QuadMesh:
     """One section panel: colour map of ``fields[key]`` inside the workspace plus the loci."""
     inside = fields["workspace_margin_m"] >= 0.0
     val = np.where(inside, fields[key], np.nan)
@@ -125,8 +145,11 @@ def _section(ax: Axes, u: np.ndarray, w: np.ndarray, fields: dict[str, np.ndarra
     ax.contour(u, w, fields["workspace_margin_m"], levels=[0.0], colors="k", linewidths=1.2)
     # Wide green under the thin red coordinate-plane lines: parts of the det V = 0 surface lie on
     # the coordinate planes (mixed-sign octants) and would otherwise be hidden.
-    styles = (("translation_det_v", "tab:green", "-", 3.5), ("actuation_det_s", "tab:purple", "--", 1.6),
-              ("combined_det_a", "tab:orange", ":", 1.6))
+    styles = (
+        ("translation_det_v", "tab:green", "-", 3.5),
+        ("actuation_det_s", "tab:purple", "--", 1.6),
+        ("combined_det_a", "tab:orange", ":", 1.6),
+    )
     for fkey, col, ls, lw in styles:
         data = np.where(inside, fields[fkey], np.nan)
         if fkey == "actuation_det_s":
@@ -157,8 +180,9 @@ def _legend_handles() -> list[Line2D]:
     ]
 
 
-def _plot_z_sections(geom: UruGeometry, path: np.ndarray, fname: Path, z_levels_m: tuple[float, ...],
-                     n: int) -> None:
+def _plot_z_sections(
+    geom: UruGeometry, path: np.ndarray, fname: Path, z_levels_m: tuple[float, ...], n: int
+) -> None:
     ext = _workspace_extent_m(geom)
     s = np.linspace(-ext, ext, n)
     xg, yg = np.meshgrid(s, s)
@@ -169,11 +193,13 @@ def _plot_z_sections(geom: UruGeometry, path: np.ndarray, fname: Path, z_levels_
         fields = singularity_fields(geom, pts)
         near = path[np.abs(path[:, 2] - zc) < 0.01][:, :2]
         lines = [("x=0", np.zeros(2), np.array([-ext, ext])), ("y=0", np.array([-ext, ext]), np.zeros(2))]
-        for row, (key, vlim, label) in enumerate((("translation_det_v", 1.0, "det V (eq. (20))"),
-                                                   ("actuation_det_s", 5.0, "det S (eq. (35))"))):
+        for row, (key, vlim, label) in enumerate(
+            (("translation_det_v", 1.0, "det V (eq. (20))"), ("actuation_det_s", 5.0, "det S (eq. (35))"))
+        ):
             ax = axes[row, col]
-            meshes.append((row, _section(ax, xg, yg, fields, key, vlim, f"z = {zc:.3f} m: colour {label}",
-                                         lines, near)))
+            meshes.append(
+                (row, _section(ax, xg, yg, fields, key, vlim, f"z = {zc:.3f} m: colour {label}", lines, near))
+            )
             ax.set_xlabel("x [m]")
             ax.set_ylabel("y [m]")
     fig.subplots_adjust(bottom=0.12, top=0.92, left=0.06, right=0.88, wspace=0.3, hspace=0.3)
@@ -198,15 +224,19 @@ def _plot_diagonal(geom: UruGeometry, path: np.ndarray, fname: Path, n: int) -> 
     near = np.stack([t_path, path[:, 2]], axis=1)[np.abs(path[:, 0] - path[:, 1]) < 0.01]
     lines = [("x=y=0", np.zeros(2), np.array([-ext, ext])), ("z=0", np.array([-ext, ext]), np.zeros(2))]
     fig, axes = plt.subplots(1, 2, figsize=(10.5, 5.6))
-    for ax, (key, vlim, label) in zip(axes, (("translation_det_v", 1.0, "det V (eq. (20))"),
-                                             ("actuation_det_s", 5.0, "det S (eq. (35))"))):
+    for ax, (key, vlim, label) in zip(
+        axes, (("translation_det_v", 1.0, "det V (eq. (20))"), ("actuation_det_s", 5.0, "det S (eq. (35))"))
+    ):
         mesh = _section(ax, tg, zg, fields, key, vlim, f"plane x = y: colour {label}", lines, near)
         ax.set_xlabel("(x + y)/sqrt(2) [m]")
         ax.set_ylabel("z [m]")
         fig.colorbar(mesh, ax=ax, shrink=0.8)
     fig.legend(handles=_legend_handles(), loc="lower center", ncol=3, fontsize=8)
-    fig.suptitle("3-URU section x = y (the z axis x = y = 0 is a double rotation singularity)\n"
-                 + _geometry_label(geom), fontsize=10)
+    fig.suptitle(
+        "3-URU section x = y (the z axis x = y = 0 is a double rotation singularity)\n"
+        + _geometry_label(geom),
+        fontsize=10,
+    )
     fig.subplots_adjust(bottom=0.2, top=0.9)
     fig.savefig(fname, dpi=110)
     plt.close(fig)
