@@ -386,9 +386,9 @@ def run_shape(base: Config, shape: str, directory: Path | None = None) -> dict[s
     robot = build_robot(cfg)
     s = contour_summary(
         obs,
-        robot,
+        robot,  # type: ignore[arg-type]
         cfg.robot.mass.actuator_stiffness_n_m,
-        c.height_m,  # type: ignore[arg-type]
+        c.height_m,
         c.lap_speeds_m_s,
     )
     corners = s["corners"]
@@ -415,9 +415,9 @@ def shapes_met(rows: list[dict[str, object]]) -> bool:
         r["outcome"] == "DONE"
         and r["contact_losses"] == 0
         and not r["over_limit"]
-        and float(r["force_error_rms_elsewhere_n"]) <= 1.0
+        and float(r["force_error_rms_elsewhere_n"]) <= 1.0  # type: ignore[arg-type]
         for r in rows
-    )  # type: ignore[arg-type]
+    )
 
 
 def format_shapes(rows: list[dict[str, object]]) -> str:
