@@ -28,9 +28,11 @@ test-all: lint
 test-vcan: setup
 	tests/vcan/run
 
-# Static checks: ruff on the whole tree, mypy with the profile in pyproject.toml ([tool.mypy]).
+# Static checks: ruff's rule set and its formatter on the whole tree ([tool.ruff] in pyproject.toml),
+# mypy with the profile there ([tool.mypy]).
 lint: setup
 	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
 	$(VENV)/bin/mypy
 
 # The documentation site into site/; --strict turns every broken link or missing page into an error.

@@ -305,7 +305,7 @@ class CyclicExchange:
         if outputs is not None:
             to_counts = self.scale.to_counts
             for msg, codec, cw, target in zip(
-                self._rpdos, self._codecs, outputs.controlwords, outputs.targets
+                self._rpdos, self._codecs, outputs.controlwords, outputs.targets, strict=True
             ):
                 codec.pack_rpdo_into(msg.data, cw, to_counts(target))
                 self._send(msg)
@@ -379,7 +379,8 @@ class CyclicExchange:
             c.missing_sensor_frames += 1
         self._count_silences()
         drives = tuple(
-            DriveFeedback(sw, x, f) for sw, x, f in zip(self._statusword, self._position, self._fresh)
+            DriveFeedback(sw, x, f)
+            for sw, x, f in zip(self._statusword, self._position, self._fresh, strict=True)
         )
         sensor = (
             SensorFeedback(
@@ -429,9 +430,12 @@ class CyclicExchange:
 
     def _close_window(self) -> None:
         """The window's verdict per device: one decoded candidate is the sample, else none."""
-        self._owed = [owed + 1 if count == 0 else 0 for owed, count in zip(self._owed, self._candidates)]
+        self._owed = [
+            owed + 1 if count == 0 else 0 for owed, count in zip(self._owed, self._candidates, strict=True)
+        ]
         self._sensor_owed = [
-            owed + 1 if count == 0 else 0 for owed, count in zip(self._sensor_owed, self._sensor_candidates)
+            owed + 1 if count == 0 else 0
+            for owed, count in zip(self._sensor_owed, self._sensor_candidates, strict=True)
         ]
         for j in range(self.n):
             count = self._candidates[j]
@@ -473,7 +477,7 @@ class CyclicExchange:
         self._foreign_in_cycle += 1
         self.counters.foreign_frames += 1
 
-    def _notify(self, msg: can.Message) -> None:
+    def _notify(self, msg: can.Message) -> None:  # noqa: C901  (one dispatch per kind of frame the exchange can receive)
         now = self.clock()
         c = self.counters
         c.frames_in += 1
@@ -518,7 +522,7 @@ class CyclicExchange:
 
     def _lost_heartbeats(self, now: float) -> tuple[int, ...]:
         """The drives and the sensor whose heartbeat is overdue (counted from the start until the first)."""
-        nodes = list(zip(self.drive_ids, self.last_heartbeat_s))
+        nodes = list(zip(self.drive_ids, self.last_heartbeat_s, strict=True))
         if self.sensor_id is not None:
             nodes.append((self.sensor_id, self.sensor_heartbeat_s))
         return tuple(
@@ -530,7 +534,9 @@ class CyclicExchange:
     def _count_silences(self) -> None:
         """Each device's run of cycles without a usable sample, and the longest so far."""
         c = self.counters
-        self._drive_silence = [0 if f else s + 1 for f, s in zip(self._fresh, self._drive_silence)]
+        self._drive_silence = [
+            0 if f else s + 1 for f, s in zip(self._fresh, self._drive_silence, strict=True)
+        ]
         if self._drive_silence:
             c.longest_drive_silence_cycles = max(c.longest_drive_silence_cycles, max(self._drive_silence))
         if self.has_sensor:

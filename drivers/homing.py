@@ -49,7 +49,7 @@ class HomingPlan:
     timeout_s: float
 
 
-class HomingFailed(DeviceError):
+class HomingError(DeviceError):
     """Homing ended in an error or did not end; the message names the node and the statusword."""
 
 
@@ -74,14 +74,14 @@ def home_drive(
     write(0x6060, 0, MODE_HOMING)
     mode = read(0x6061, 0)
     if mode != MODE_HOMING:
-        raise HomingFailed(
+        raise HomingError(
             f"node {node_id}: mode of operation display 0x6061 reads {mode}, expected 6 (homing)"
         )
     for cw in (CW_SHUTDOWN, CW_SWITCH_ON, CW_ENABLE_OPERATION):
         write(0x6040, 0, cw)
     sw = read(0x6041, 0)
     if decode_statusword(sw) != PowerState.OPERATION_ENABLED:
-        raise HomingFailed(
+        raise HomingError(
             f"node {node_id}: statusword 0x6041 = 0x{sw:04X} ({decode_statusword(sw).name}) "
             f"after enable operation, expected OPERATION_ENABLED before homing"
         )
@@ -91,14 +91,14 @@ def home_drive(
         while True:
             sw = read(0x6041, 0)
             if sw & SW_HOMING_ERROR:
-                raise HomingFailed(
+                raise HomingError(
                     f"node {node_id}: homing method {plan.method} failed: statusword 0x6041 = "
                     f"0x{sw:04X} (bit 13 homing error)"
                 )
             if sw & SW_HOMING_ATTAINED and sw & SW_TARGET_REACHED:
                 return
             if clock() > deadline:
-                raise HomingFailed(
+                raise HomingError(
                     f"node {node_id}: homing method {plan.method} not attained within "
                     f"{plan.timeout_s} s (actuators.homing_timeout_s): statusword 0x6041 = 0x{sw:04X}"
                 )

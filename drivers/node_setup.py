@@ -20,7 +20,7 @@ from canopen.objectdictionary import ODVariable
 from controller.errors import DeviceError
 from drivers.cia402 import MODE_CYCLIC_SYNC_POSITION
 from drivers.cob_ids import SYNC
-from drivers.homing import HomingFailed, HomingPlan, home_drive
+from drivers.homing import HomingError, HomingPlan, home_drive
 from drivers.pdo_codec import DriveCodec, SensorFrameCodec
 from drivers.pdo_mapping import (
     COB_ID_INVALID,
@@ -308,7 +308,7 @@ def _home(node: canopen.RemoteNode, node_id: int, plan: HomingPlan) -> None:
             lambda index, sub, value: _write(node, node_id, index, sub, value),
             lambda index, sub: _read(node, node_id, index, sub),
         )
-    except HomingFailed as err:
+    except HomingError as err:
         raise NodeSetupError(str(err)) from err
 
 

@@ -113,7 +113,7 @@ class RerunLive:
         for j, x in enumerate(cycle.outputs.targets):
             values[f"/plots/actuators/target_{j + 1}"] = x
         if cycle.inputs.HasField("sensor"):
-            for name, v in zip(("fx", "fy", "fz"), cycle.inputs.sensor.force_n):
+            for name, v in zip(("fx", "fy", "fz"), cycle.inputs.sensor.force_n, strict=True):
                 values[f"/plots/force/{name}"] = v
         fe = cycle.state.task_values.get("force_error_n")
         if fe is not None and math.isfinite(fe):
@@ -234,12 +234,12 @@ class LiveViews:
         if r.live_rerun:
             try:
                 self.rerun = RerunLive(r.live_rerun, cfg, cfg.task.kind == "contour")
-            except Exception as err:  # noqa: BLE001 - a viewer that cannot start never stops the recording
+            except Exception as err:
                 _warn(f"Rerun ({r.live_rerun})", err)
         if r.live_foxglove:
             try:
                 self.foxglove = FoxgloveLive(r.live_foxglove)
-            except Exception as err:  # noqa: BLE001 - as above
+            except Exception as err:
                 _warn(f"Foxglove ({r.live_foxglove})", err)
 
     @property
@@ -281,5 +281,5 @@ class LiveViews:
             if view is not None:
                 try:
                     view.close()
-                except Exception as err:  # noqa: BLE001 - closing a viewer never fails the recording
+                except Exception as err:
                     _warn("closing", err)

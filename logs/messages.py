@@ -150,11 +150,11 @@ def _time_column(times: list[float]) -> tuple[int, list[int]]:
         ns = []
     if ns and all(
         abs(k) < _NS_LIMIT and k / 1e9 == t and (k or math.copysign(1.0, t) > 0)  # -0.0: bits
-        for k, t in zip(ns, times)
+        for k, t in zip(ns, times, strict=True)
     ):
-        return TIMES_NS, [(b - a) & _U64 for a, b in zip((0, *ns), ns)]
+        return TIMES_NS, [(b - a) & _U64 for a, b in zip((0, *ns), ns, strict=True)]
     bits = struct.unpack(f"<{len(times)}Q", struct.pack(f"<{len(times)}d", *times))
-    return TIMES_BITS, [b ^ a for a, b in zip((0, *bits), bits)]
+    return TIMES_BITS, [b ^ a for a, b in zip((0, *bits), bits, strict=True)]
 
 
 def _times(encoding: int, column: tuple[int, ...]) -> tuple[float, ...]:
@@ -205,7 +205,7 @@ def unpack_frames(packed: bytes) -> Iterator[pb.CanFrame]:
     pos = _HEAD.size + columns.size
     if pos + sum(lengths) != len(packed):
         raise ValueError(f"a CAN frame batch holds {len(packed) - pos} data bytes, its frames {sum(lengths)}")
-    for t, arb, f, length in zip(times, ids, flags, lengths):
+    for t, arb, f, length in zip(times, ids, flags, lengths, strict=True):
         yield pb.CanFrame(
             monotonic_s=t,
             outgoing=bool(f & _OUTGOING),
@@ -332,7 +332,7 @@ def cycle_to_pb(
         if phase_name is not None:
             try:
                 st.task_phase = phase_name(state.task_state)
-            except Exception:  # noqa: BLE001 - a task's display helper must never stop the recording
+            except Exception:
                 st.task_phase = "?"
         for k, v in task_values(state.task_state).items():
             st.task_values[k] = v

@@ -25,6 +25,7 @@ Usage::
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import fcntl
 import json
@@ -467,10 +468,8 @@ class SessionRecorder:
         try:
             fcntl.fcntl(self._fd, fcntl.F_SETPIPE_SZ, self.buffer_bytes)
         except OSError:  # above /proc/sys/fs/pipe-max-size: the largest allowed is tried next
-            try:
+            with contextlib.suppress(OSError, ValueError):
                 fcntl.fcntl(self._fd, fcntl.F_SETPIPE_SZ, int(Path("/proc/sys/fs/pipe-max-size").read_text()))
-            except (OSError, ValueError):
-                pass
         assert proc.stdout is not None  # stdout=PIPE
         self._reply_fd = proc.stdout.fileno()  # read with os.read only (never the buffered file object)
         lim = self.limits
@@ -584,10 +583,8 @@ class SessionRecorder:
         self._fd = -1
         for stream in (proc.stdin, proc.stdout):
             if stream is not None:
-                try:
+                with contextlib.suppress(OSError):
                     stream.close()
-                except OSError:
-                    pass
         try:
             proc.wait(timeout=2.0)  # it has answered, or it never will
         except subprocess.TimeoutExpired:

@@ -37,7 +37,7 @@ def recover(src: str | Path, out: str | Path | None = None) -> RecoveryResult:
     report = ReadReport(src)
     try:
         # opened apart from the `with fh` below: its errors are told from the writer's
-        fh = open(dst, "xb")  # noqa: SIM115
+        fh = open(dst, "xb")  # noqa: SIM115  (closed by the `with fh` below)
     except FileExistsError as err:
         raise LogFileError(f"recover {src}: {dst} already exists; pass another output file") from err
     except OSError as err:

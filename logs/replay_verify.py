@@ -146,7 +146,7 @@ class _Compare:
             if self.diff is not None:
                 self.diff = Divergence(self.cycle, self.t, name, repr(rec), repr(new))
             return
-        for i, (a, b) in enumerate(zip(rec, new)):
+        for i, (a, b) in enumerate(zip(rec, new, strict=True)):
             self.value(f"{name}[{i}]", float(a) if isinstance(b, float) else a, b)
 
 
@@ -165,7 +165,7 @@ def _compare_cycle(c: _Compare, rec: pb.Cycle, state: Any, outputs: Any) -> None
 
 def _compare_events(c: _Compare, rec: list[pb.Event], new: tuple[Event, ...]) -> None:
     c.value("events", [e.message for e in rec], [e.message for e in new])
-    for i, (a, b) in enumerate(zip(rec, new)):
+    for i, (a, b) in enumerate(zip(rec, new, strict=True)):
         c.value(f"events[{i}].kind", a.kind, b.kind)
         c.value(f"events[{i}].severity", int(a.severity), int(b.severity))
 
@@ -258,7 +258,7 @@ class _Run:
                 report.metadata.update(read_info(path).metadata)
             self.law = _law_from(report, self.overrides)
 
-    def file(self, path: Path) -> bool:
+    def file(self, path: Path) -> bool:  # noqa: C901  (every way one file of a session can start, continue or end)
         """Verify one file on from where the last one ended; False when the check ends here."""
         result = self.result
         report = ReadReport(path)

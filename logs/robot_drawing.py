@@ -21,6 +21,7 @@ Units: metres, newtons; the force arrow is ``FORCE_ARROW_M_PER_N`` metres per ne
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -304,7 +305,7 @@ class CheopeDrawing:
                     "platform",
                     Shape.CYLINDER,
                     STEEL,
-                    start=_v(tcp + (0.0, 0.0, 0.03)),
+                    start=_v((*tcp, 0.0, 0.0, 0.03)),
                     end=(0.0, 0.0, 1.0),
                     radius_m=g.platform_radius_m * 1.15,
                     length_m=0.012,
@@ -315,7 +316,7 @@ class CheopeDrawing:
                     "tool",
                     Shape.CYLINDER,
                     ORANGE,
-                    start=_v(tcp + (0.0, 0.0, 0.012)),
+                    start=_v((*tcp, 0.0, 0.0, 0.012)),
                     end=(0.0, 0.0, 1.0),
                     radius_m=0.004,
                     length_m=0.024,
@@ -467,12 +468,11 @@ class NspuDrawing:
         if q.shape != (3,) or not np.isfinite(q).all():
             return []
         if self.last is not None and pose.t_s > self.last[0]:
-            try:
+            # keep the last pose when this one does not solve: a drawing never stops a recording
+            with contextlib.suppress(NspuModelError, NoSolutionError, ValueError):
                 self.pose = advance_pose_to_leg_lengths(
                     self.robot.geometry, self.pose, q, pose.t_s - self.last[0]
                 )
-            except (NspuModelError, NoSolutionError, ValueError):
-                pass  # keep the last pose: a drawing never stops a recording
         self.last = (pose.t_s, q)
         g = self.robot.geometry
         limbs = limb_state(g, self.pose.p_m, self.pose.R)

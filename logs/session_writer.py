@@ -196,7 +196,7 @@ class SessionWriter:
 
         m, pb = self.m, self.pb
         previous = self.files[-1] if self.files else ""
-        self.stream: BinaryIO = open(path, "wb")  # noqa: SIM115 - lives until finish() closes it
+        self.stream: BinaryIO = open(path, "wb")  # noqa: SIM115  (open for the file's life, closed at rotation)
         self.path = path
         self.files.append(path)
         w = Writer(self.stream, chunk_size=_WRITER_CHUNK_LIMIT, compression=self.compression)

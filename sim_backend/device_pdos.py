@@ -77,7 +77,7 @@ class SimulatedPdos:
 
     def apply_configured_mapping(self, cfg: Config) -> None:
         """What the controller's set-up writes over SDO (the loopback has no SDO): config + EDS mapping."""
-        for node_id, device in zip(self.drive_ids, self.drive_pdos):
+        for node_id, device in zip(self.drive_ids, self.drive_pdos, strict=True):
             device.apply(planned_pdo(device.od, PdoDirection.RECEIVE, 1, node_id, cfg.actuators.rpdo_objects))
             device.apply(
                 planned_pdo(device.od, PdoDirection.TRANSMIT, 1, node_id, cfg.actuators.tpdo_objects)
@@ -91,7 +91,7 @@ class SimulatedPdos:
     def _rebuild(self) -> None:
         self._drive_tpdos = []
         self._rpdo_slots = []
-        for device, drive in zip(self.drive_pdos, self.drives):
+        for device, drive in zip(self.drive_pdos, self.drives, strict=True):
             tpdo = device.pdo(PdoDirection.TRANSMIT, 1)
             self._drive_tpdos.append(_Tpdo(tpdo, value_packer(tpdo, _drive_objects(drive))))
             rpdo = device.pdo(PdoDirection.RECEIVE, 1)

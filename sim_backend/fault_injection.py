@@ -71,7 +71,8 @@ KINDS_WITH_NODE = (
     "rogue_short",
     "rogue_emcy",
 )
-KINDS = KINDS_WITH_NODE + (
+KINDS = (
+    *KINDS_WITH_NODE,
     "freeze",
     "saturate",
     "force",
@@ -231,7 +232,7 @@ def apply_device_faults(
     from sim_backend.drive import EMCY_FORCED_FAULT
 
     schedule.start(now_s)
-    for node, drive in zip(drive_ids, plant.drives):
+    for node, drive in zip(drive_ids, plant.drives, strict=True):
         if schedule.first_time("drive_fault", now_s, node):
             drive.force_fault(EMCY_FORCED_FAULT)
         jump = schedule.active("jump", now_s, node)

@@ -36,7 +36,7 @@ from drivers.cia402 import (
     SW_HOMING_ATTAINED,
 )
 from drivers.cyclic_exchange import CyclicExchange, ExchangeCounters
-from drivers.homing import HomingFailed
+from drivers.homing import HomingError
 from drivers.node_setup import (
     ABORT_CONNECTION_QUICK_STOP,
     DRIVE_EDS,
@@ -190,7 +190,7 @@ class LoopbackExchange:
                 t += step_s
                 d.advance(t)
             if not d.statusword() & SW_HOMING_ATTAINED:
-                raise HomingFailed(
+                raise HomingError(
                     f"node {cfg.actuators.node_ids[j]}: "
                     f"homing method {a.homing_method} failed: statusword 0x{d.statusword():04X}"
                 )
@@ -257,7 +257,7 @@ class LoopbackExchange:
             return
         self.drives[j].on_controlword(int.from_bytes(data[4:6], "little"))
 
-    def _on_sync(self, now: float) -> None:
+    def _on_sync(self, now: float) -> None:  # noqa: C901  (one SYNC of every simulated device and every scheduled fault)
         faults: BusFaults = self._bus_faults
         inbox = self.bus.inbox
         if faults.error_class:  # the bus's trouble shows while this cycle's frames are on it
@@ -287,7 +287,9 @@ class LoopbackExchange:
             self.plant.update_kinematics(*sample)
         delays = dict(faults.delays_s)
         inbox.extend(_frame(cob, data) for cob, data in rogue_drive_frames(self.pdos, self.drive_ids, faults))
-        for node, tpdo in zip(self.drive_ids, self.pdos.drive_tpdos()):  # as each drive's mapping says
+        for node, tpdo in zip(
+            self.drive_ids, self.pdos.drive_tpdos(), strict=True
+        ):  # as each drive's mapping says
             if tpdo is None or self.nmt_state[node] != NMT_OPERATIONAL:
                 continue
             cob, data = tpdo
@@ -306,7 +308,7 @@ class LoopbackExchange:
         if tracker_frames is not None and self.tracker_id is not None:
             inbox.append(_frame(cob_ids.tpdo1(self.tracker_id), tracker_frames[0]))
             inbox.append(_frame(cob_ids.tpdo2(self.tracker_id), tracker_frames[1]))
-        for node, d in zip(self.drive_ids, self.drives):
+        for node, d in zip(self.drive_ids, self.drives, strict=True):
             while d.pending_emcy:
                 code = d.pending_emcy.pop(0)
                 data = code.to_bytes(2, "little") + bytes((0x01 if code else 0x00,)) + bytes(5)

@@ -183,7 +183,9 @@ class RobotPlant:
         params = drive_params_from_config(cfg)
         self.drives = [
             SimulatedDrive(params, position=x, encoder_offset=offset)
-            for x, offset in zip(self.kinematics.initial_positions(), cfg.sim.drive.encoder_offsets_m)
+            for x, offset in zip(
+                self.kinematics.initial_positions(), cfg.sim.drive.encoder_offsets_m, strict=True
+            )
         ]
         s = cfg.sim.sensor
         self.sensor = (
@@ -269,7 +271,7 @@ class RobotPlant:
             return
         n = max(1, math.ceil(span / self.substep_s - 1e-9))
         traces: list[list[float]] = [[] for _ in self.drives]
-        for d, trace in zip(self.drives, traces):
+        for d, trace in zip(self.drives, traces, strict=True):
             d.advance(now_s, check_sync_timeout, n, trace)
         self._structure(self.time_s, span, n, traces)
         self.time_s = now_s
@@ -321,7 +323,7 @@ class RobotPlant:
                     jt,
                     tuple(
                         cogging * sin(ck * tr[j] + ph)  # type: ignore[arg-type]
-                        for tr, ph in zip(traces, phases)
+                        for tr, ph in zip(traces, phases, strict=True)
                     ),
                 )
                 fx, fy, fz = fx + jf[0], fy + jf[1], fz + jf[2]

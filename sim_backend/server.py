@@ -18,6 +18,7 @@ frame has come for ``WATCHDOG_PERIOD_S``.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import queue
 import threading
@@ -235,10 +236,8 @@ class Simulator:
         Under the normal scheduler: the cyclic thread, real-time where permitted, preempts it and
         takes the interpreter back within the switch interval when a frame arrives.
         """
-        try:
+        with contextlib.suppress(OSError):
             reset_scheduler()
-        except OSError:
-            pass
         while (sample := self._kinematics.get()) is not None:
             self.plant.update_kinematics(*sample)
 
@@ -282,7 +281,7 @@ class Simulator:
                 self.plant.set_environment(environment_named(self.cfg, wanted))
                 log.info("environment %s placed for the controller's task", wanted)
 
-    def _wire_drive(self, node: canopen.LocalNode, drive: SimulatedDrive, pdos: DevicePdos) -> None:
+    def _wire_drive(self, node: canopen.LocalNode, drive: SimulatedDrive, pdos: DevicePdos) -> None:  # noqa: C901  (the canopen SDO hooks of a drive's objects)
         interpolation = {1: 0, 2: -3}  # 0x60C2 sub 1 value, sub 2 exponent (the EDS defaults)
 
         def on_read(index: int, subindex: int, od: object) -> int | None:
@@ -295,7 +294,7 @@ class Simulator:
                     0x603F: lambda: drive.error_code,
                 }.get(index, lambda: None)()
 
-        def on_write(index: int, subindex: int, od: canopen.objectdictionary.ODVariable, data: bytes) -> None:
+        def on_write(index: int, subindex: int, od: canopen.objectdictionary.ODVariable, data: bytes) -> None:  # noqa: C901  (one branch per object a drive's SDO server acts on)
             raw = od.decode_raw(data)
             if not isinstance(raw, int):  # every object written here is an integer in the EDS
                 return
@@ -359,7 +358,7 @@ class Simulator:
 
         return on_rpdo
 
-    def _on_sync(self, data: bytearray, now: float) -> None:
+    def _on_sync(self, data: bytearray, now: float) -> None:  # noqa: C901  (one SYNC of every simulated device and every scheduled fault)
         frames: list[tuple[int, bytes]] = []
         delayed: list[tuple[float, int, bytes]] = []
         self.faults.start(now)
@@ -387,7 +386,7 @@ class Simulator:
             self.plant.sync(now)
             sample = self.plant.kinematics_sample()
             frames += rogue_drive_frames(self.pdos, self.drive_ids, bus)  # someone else's, first
-            for node_id, tpdo in zip(self.drive_ids, self.pdos.drive_tpdos()):
+            for node_id, tpdo in zip(self.drive_ids, self.pdos.drive_tpdos(), strict=True):
                 out = tpdo_payload(self.faults, node_id, tpdo[1], now) if tpdo is not None else None
                 if tpdo is None or out is None or not self._operational(node_id):
                     continue
@@ -464,7 +463,7 @@ class Simulator:
                 self.drives[self.drive_ids.index(node_id)].on_nmt_left_operational()
 
     def _flush_emcy(self) -> None:
-        for node_id, d in zip(self.drive_ids, self.drives):
+        for node_id, d in zip(self.drive_ids, self.drives, strict=True):
             while d.pending_emcy:
                 code = d.pending_emcy.pop(0)
                 self.nodes[node_id].emcy.send(code, 0x01 if code else 0x00)

@@ -264,10 +264,12 @@ class ControlLaw:
         measured = tuple(d.position for d in inputs.drives)
         powers = tuple(decode_statusword(d.statusword) for d in inputs.drives)
         jump, implausible = self._position_jump(state, inputs)
-        streak = tuple(0 if d.fresh else s + 1 for d, s in zip(inputs.drives, state.missing_streak))
+        streak = tuple(
+            0 if d.fresh else s + 1 for d, s in zip(inputs.drives, state.missing_streak, strict=True)
+        )
         last = tuple(
             d.position if d.fresh and not bad else x
-            for d, x, bad in zip(inputs.drives, state.last_measured, implausible)
+            for d, x, bad in zip(inputs.drives, state.last_measured, implausible, strict=True)
         )
         state = replace(
             state,
@@ -396,7 +398,7 @@ class ControlLaw:
             return replace(state, warned=state.warned | {key}), ""
         return state, ""
 
-    def _safety(
+    def _safety(  # noqa: C901  (the safety checks in their order of precedence, one branch each)
         self, state: ControllerState, inputs: CycleInputs, events: list[Event]
     ) -> tuple[ControllerState, str]:
         """Configurable checks of the inputs; returns the updated state and a fault reason or ""."""
@@ -572,7 +574,9 @@ class ControlLaw:
         if not math.isfinite(tolerance) or state.mode == Mode.CONFIGURING:
             return "", tuple(flags)
         reason = ""
-        for j, (d, last, gap) in enumerate(zip(inputs.drives, state.last_measured, state.missing_streak)):
+        for j, (d, last, gap) in enumerate(
+            zip(inputs.drives, state.last_measured, state.missing_streak, strict=True)
+        ):
             if not (d.fresh and math.isfinite(last)):
                 continue
             possible = cfg.max_speed * (gap + 1) * cfg.period_s + tolerance
@@ -599,10 +603,12 @@ class ControlLaw:
         window = self.config.safety.following_window
         if not math.isfinite(window):
             return ""
-        T = self.config.period_s
+        t_s = self.config.period_s
         sp = state.setpoint
-        for j, (d, q, v, a) in enumerate(zip(inputs.drives, sp.position, sp.velocity, sp.acceleration)):
-            expected = q - v * T + 0.5 * a * T * T
+        for j, (d, q, v, a) in enumerate(
+            zip(inputs.drives, sp.position, sp.velocity, sp.acceleration, strict=True)
+        ):
+            expected = q - v * t_s + 0.5 * a * t_s * t_s
             if d.fresh and abs(d.position - expected) > window:
                 u = self.config.position_unit
                 return (
@@ -630,7 +636,7 @@ class ControlLaw:
     def _fault_reason(
         self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...]
     ) -> str:
-        for j, (p, streak) in enumerate(zip(powers, state.missing_streak)):
+        for j, (p, streak) in enumerate(zip(powers, state.missing_streak, strict=True)):
             # Judged on this cycle's TPDO only: a statusword not refreshed (missing frame) is old news,
             # e.g. the FAULT a reset has just cleared; silence has its own limit below.
             if inputs.drives[j].fresh and p in (PowerState.FAULT, PowerState.FAULT_REACTION_ACTIVE):
@@ -689,7 +695,8 @@ class ControlLaw:
             return self._enter(state, Mode.ENABLING, t, events, why="all drives answer")
         # Until every drive has answered, each is sent where it was last heard (else mid-stroke).
         heard = tuple(
-            x if math.isfinite(x) else q for x, q in zip(state.last_measured, state.setpoint.position)
+            x if math.isfinite(x) else q
+            for x, q in zip(state.last_measured, state.setpoint.position, strict=True)
         )
         return replace(state, setpoint=Setpoint.at_rest(heard))
 
@@ -706,7 +713,7 @@ class ControlLaw:
         # not heard this cycle keeps its controlword: its statusword is old news (it may say FAULT).
         cws = tuple(
             controlword_towards(p, PowerState.OPERATION_ENABLED, cw) if d.fresh else cw
-            for p, cw, d in zip(powers, state.controlwords, inputs.drives)
+            for p, cw, d in zip(powers, state.controlwords, inputs.drives, strict=True)
         )
         state = replace(state, controlwords=cws, setpoint=self._hold(state))  # where each was last trusted
         if all(p == PowerState.OPERATION_ENABLED for p in powers):
@@ -826,7 +833,7 @@ class ControlLaw:
                 return state
         cws = tuple(
             controlword_towards(p, PowerState.READY_TO_SWITCH_ON, cw)
-            for p, cw in zip(powers, state.controlwords)
+            for p, cw in zip(powers, state.controlwords, strict=True)
         )
         state = replace(state, controlwords=cws)
         if all(p in (PowerState.READY_TO_SWITCH_ON, PowerState.SWITCH_ON_DISABLED) for p in powers):
@@ -855,7 +862,7 @@ class ControlLaw:
     ) -> ControllerState:
         cws = tuple(
             controlword_towards(p, PowerState.QUICK_STOP_ACTIVE, cw)
-            for p, cw in zip(powers, state.controlwords)
+            for p, cw in zip(powers, state.controlwords, strict=True)
         )
         return replace(state, controlwords=cws, setpoint=self._hold(state))
 
@@ -867,7 +874,10 @@ class ControlLaw:
         ``last_measured``, so a rogue frame cannot choose where the robot stops.
         """
         return Setpoint.at_rest(
-            tuple(x if math.isfinite(x) else q for x, q in zip(state.last_measured, state.setpoint.position))
+            tuple(
+                x if math.isfinite(x) else q
+                for x, q in zip(state.last_measured, state.setpoint.position, strict=True)
+            )
         )
 
     def _smooth_to_rest(self, state: ControllerState, t: float, events: list[Event]) -> ControllerState:

@@ -113,7 +113,9 @@ class RuckigSmoother:
         # Targets keep a relative margin below v_max: a target exactly at the limit with a rounding
         # error's acceleration left is refused too (found by tests/unit/test_step_properties.py).
         target_v_max = tuple(m * TARGET_VELOCITY_MARGIN for m in lim.max_velocity)
-        target_velocity = tuple(min(max(v, -m), m) for v, m in zip(target_velocity, target_v_max))
+        target_velocity = tuple(
+            min(max(v, -m), m) for v, m in zip(target_velocity, target_v_max, strict=True)
+        )
         # A target state must be reachable from a state within the limits: with |a| the jerk-limited
         # velocity change a^2 / (2 j) still ahead (or just behind), |v| + a^2 / (2 j) <= v_max.
         # Ruckig refuses the whole input otherwise ("will inevitably ... exceed its maximum velocity").
@@ -122,7 +124,12 @@ class RuckigSmoother:
             if (reach := math.sqrt(2.0 * j * max(0.0, mv - abs(v)))) >= ma
             else min(max(a, -reach), reach)
             for a, v, ma, mv, j in zip(
-                target_acceleration, target_velocity, lim.max_acceleration, target_v_max, lim.max_jerk
+                target_acceleration,
+                target_velocity,
+                lim.max_acceleration,
+                target_v_max,
+                lim.max_jerk,
+                strict=True,
             )
         )
         inp = self._inp
@@ -167,6 +174,7 @@ class RuckigSmoother:
             lim.max_velocity,
             lim.max_acceleration,
             lim.max_jerk,
+            strict=True,
         ):
             # The reference is for the sample one period ahead: compare it with where the setpoint
             # would be then, or the setpoint settles a period's travel ahead of its reference.

@@ -9,6 +9,7 @@ for many controllers on one machine or network.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from dataclasses import asdict
@@ -148,7 +149,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
 
     settings = monitor_settings(_endpoints(args), args.zenoh_config or "")
     keys = MonitorKeys.for_robot(args.key_prefix, args.robot_id, allow_wildcard=True)
-    try:
+    with contextlib.suppress(KeyboardInterrupt):
         run_monitor(
             settings,
             keys,
@@ -158,8 +159,6 @@ def cmd_monitor(args: argparse.Namespace) -> int:
             args.count,
             notice=lambda line: print(f"cheope monitor: {line}", file=sys.stderr, flush=True),
         )
-    except KeyboardInterrupt:
-        pass
     return 0
 
 

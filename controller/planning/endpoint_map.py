@@ -50,7 +50,7 @@ def fourier_rows(t_s: Array, horizon_s: float, harmonics: int) -> Array:
         cols += [np.sin(arg), np.cos(arg)]
     basis = np.stack(cols, axis=-1)  # (..., 2h+1)
     m = basis.shape[-1]
-    out = np.zeros(t.shape + (3, 3 * m))
+    out = np.zeros((*t.shape, 3, 3 * m))
     for i in range(3):
         out[..., i, i * m : (i + 1) * m] = basis
     return out

@@ -255,7 +255,7 @@ def fourier_basis(t_s: Array, horizon_s: float, harmonics: int) -> Array:
 def controls(lambdas: Array, t_s: Array, horizon_s: float, harmonics: int) -> Array:
     """v(t) = P(t) Lambda, Lambda ordered (lambda_{1,0..2h}, lambda_{2,..}, lambda_{3,..}); (..., N, 3)."""
     lam = np.asarray(lambdas, dtype=float)
-    lam = lam.reshape(lam.shape[:-1] + (3, 2 * harmonics + 1))
+    lam = lam.reshape((*lam.shape[:-1], 3, 2 * harmonics + 1))
     basis = fourier_basis(t_s, horizon_s, harmonics)  # (N, 2h+1)
     return np.einsum("nk,...ik->...ni", basis, lam)
 
@@ -753,7 +753,7 @@ def _plan_by_continuation(
     return dataclasses.replace(res, message=res.message + note, iterations=res.iterations + used)
 
 
-def _plan_once(
+def _plan_once(  # noqa: C901  (seed 004's iteration with its integration-accuracy and line-search branches)
     geometry: NspuGeometry,
     start: Pose,
     goal: Pose,

@@ -78,7 +78,7 @@ class SingularityError(NspuModelError):
 def hat(w: Array) -> Array:
     """Skew matrix [w] with [w] x = w x x; vectorised over leading dimensions."""
     w = np.asarray(w)
-    out = np.zeros(w.shape[:-1] + (3, 3), dtype=w.dtype)
+    out = np.zeros((*w.shape[:-1], 3, 3), dtype=w.dtype)
     out[..., 0, 1] = -w[..., 2]
     out[..., 0, 2] = w[..., 1]
     out[..., 1, 0] = w[..., 2]
@@ -135,7 +135,7 @@ def so3_log(r: Array) -> Array:
             if np.dot(axis, v) < 0.0:
                 axis = -axis
             out[k] = alpha * axis
-    return out.reshape(r.shape[:-2] + (3,))
+    return out.reshape((*r.shape[:-2], 3))
 
 
 def rot_x(a: Array | float) -> Array:
@@ -491,7 +491,7 @@ def vector_fields_xzx(geometry: NspuGeometry, x: Array) -> Array:
     p, eta = x[..., :3], x[..., 3:]
     R = euler_xzx(eta)
     M = io_blocks(geometry, p, R).M
-    rhs = np.broadcast_to(np.concatenate([np.eye(3), np.zeros((3, 3))], axis=0), M.shape[:-2] + (6, 3))
+    rhs = np.broadcast_to(np.concatenate([np.eye(3), np.zeros((3, 3))], axis=0), (*M.shape[:-2], 6, 3))
     tw = np.linalg.solve(M, rhs)  # first three columns of M^-1
     H = euler_xzx_rate_matrix(eta)
     eta_dot = np.linalg.solve(H, tw[..., 3:, :])  # seed 000 eq. (29): eta_dot = H^-1 omega

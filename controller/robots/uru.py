@@ -595,10 +595,8 @@ def velocity_matrices(geom: UruGeometry, p_m: np.ndarray) -> UruVelocityMatrices
     N = np.diag(1.0 / beta)  # eq. (31)
     K = np.diag(geom.k)  # eq. (33)
     detv = float(np.linalg.det(V))
-    if abs(detv) > 1e-14:
-        S = np.eye(3) + K @ N @ M @ np.linalg.solve(V, G)  # eq. (32)
-    else:
-        S = np.full((3, 3), np.nan)
+    # eq. (32); undefined (NaN) where V is singular
+    S = np.eye(3) + K @ N @ M @ np.linalg.solve(V, G) if abs(detv) > 1e-14 else np.full((3, 3), np.nan)
     coef = geom.k * Gd / beta
     A = V + coef[:, None] * M  # eq. (19): coefficient rows of p_dot
     D = np.diag(geom.k * Gd)  # eq. (19): right-hand side k_i [g_i x (b_i - a_i)] . v_i
@@ -824,7 +822,7 @@ def check_path(geom: UruGeometry, path_m: np.ndarray, margins: UruPathMargins = 
                 "combined singularity det A (eq. (36))",
             )
             values = (m.rotation_det_h, m.translation_det_v, m.actuation_det_s, m.combined_det_a)
-            for name, s_now, s_prev, val in zip(names, signs, prev_signs, values):
+            for name, s_now, s_prev, val in zip(names, signs, prev_signs, values, strict=True):
                 if s_now != s_prev:
                     raise UruPathRefusedError(
                         f"{name} changed sign (locus crossed between samples)", idx, val, 0.0, p

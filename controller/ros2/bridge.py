@@ -74,7 +74,7 @@ def keep_dds_local() -> None:
 
 def check_ros2() -> None:
     try:
-        import rclpy  # noqa: F401
+        import rclpy  # noqa: F401  (imported to find out whether it can be)
     except ImportError as err:
         raise Ros2UnavailableError(
             f"cheope ros2 needs the ROS 2 Python packages: pip install 'cheope-controller[ros2]' "

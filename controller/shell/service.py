@@ -238,7 +238,10 @@ def run_controller(
         )
         if cfg.loop.freeze_gc:  # start-up work: before the loop takes its real-time priority
             freeze_garbage_collector()
-        restore: Callable[[], None] = lambda: None
+
+        def restore() -> None:
+            return None
+
         try:
             restore = apply_realtime(realtime)
             granted = granted_realtime()

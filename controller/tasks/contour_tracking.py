@@ -275,7 +275,7 @@ class ContourTrackingTask:
         self, s: ContourState, v: tuple[float, float, float], on_path: bool, dt: float
     ) -> tuple[ContourState, JointReference]:
         q, qd = self.robot.joint_motion(s.p_cmd, v)
-        qdd = tuple((a - b) / dt for a, b in zip(qd, s.qd_ref)) if s.qd_ref else (0.0,) * len(qd)
+        qdd = tuple((a - b) / dt for a, b in zip(qd, s.qd_ref, strict=True)) if s.qd_ref else (0.0,) * len(qd)
         return replace(s, qd_ref=qd), JointReference(q, qd, qdd, s.p_cmd, on_path, reactive=True)
 
     def _moving(
@@ -427,7 +427,7 @@ class ContourTrackingTask:
     def _move_to_start(self, s: ContourState, ctx: TaskContext) -> TaskStep:
         tol = self.p.settle_tolerance_m
         sp = ctx.setpoint
-        settled = all(abs(a - b) <= tol for a, b in zip(sp.position, self._start_q)) and all(
+        settled = all(abs(a - b) <= tol for a, b in zip(sp.position, self._start_q, strict=True)) and all(
             abs(v) <= tol for v in sp.velocity
         )
         ref = JointReference(self._start_q, (0.0,) * 3, (0.0,) * 3, self.start_m, False)
@@ -619,7 +619,7 @@ class ContourTrackingTask:
             why = f"contact force {pressing:.1f} N above the limit of {p.max_force_n} N"
             ev = Event("over_force", Severity.FAULT, why + "; retracting")
             s = self._enter(s, ContourPhase.RETRACT, ctx.t_s, fault=why, normal=normal, normal_force_n=fn)
-            return self._retract(s, ctx, events + (ev,))
+            return self._retract(s, ctx, (*events, ev))
         trusted = self._trusted(s)
         counting = fresh_sample(ctx) and trusted
         low = s.low_force_cycles + (1 if counting else 0) if fn < p.contact_lost_force_n else 0
@@ -684,7 +684,7 @@ class ContourTrackingTask:
         if s.lap >= self.laps:
             ev = Event("contour", Severity.INFO, "all laps done; retracting")
             s = self._enter(s, ContourPhase.RETRACT, ctx.t_s)
-            return self._retract(s, ctx, events + (ev,))
+            return self._retract(s, ctx, (*events, ev))
         return self._moving(s, v, dt, on_path=True, events=events)
 
     def _count_laps(self, s: ContourState, ctx: TaskContext) -> tuple[ContourState, tuple[Event, ...]]:
@@ -744,7 +744,7 @@ class ContourTrackingTask:
                 "contact_lost", Severity.WARNING, f"contact lost {where}; retracting (on_contact_loss = stop)"
             )
             s = self._enter(s, ContourPhase.RETRACT, ctx.t_s)
-            return self._retract(s, ctx, events + (ev,))
+            return self._retract(s, ctx, (*events, ev))
         n = s.contact_normal
         ev = Event(
             "contact_lost",
@@ -752,7 +752,7 @@ class ContourTrackingTask:
             f"contact lost {where}; braking, then re-approaching along ({n[0]:.3f}, {n[1]:.3f})",
         )
         s = self._enter(s, ContourPhase.CONTACT_LOST, ctx.t_s)
-        return self._contact_lost(s, ctx, events + (ev,))
+        return self._contact_lost(s, ctx, (*events, ev))
 
     def _contact_lost(self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...] = ()) -> TaskStep:
         """Brake the tangential motion along the tangent it had; no motion into the contact."""
@@ -765,7 +765,7 @@ class ContourTrackingTask:
         s = replace(s, speed_m_s=speed)
         if speed == 0.0:
             s = self._start_reapproach(s, ctx)
-            events = events + (self._attempt_event(s),)
+            events = (*events, self._attempt_event(s))
         return self._moving(s, v, dt, events=events)
 
     def _attempt_event(self, s: ContourState) -> Event:
@@ -862,9 +862,9 @@ class ContourTrackingTask:
                 )
                 ev = Event("contact_not_reacquired", Severity.FAULT, why + "; retracting")
                 s = self._enter(s, ContourPhase.RETRACT, ctx.t_s, fault=why)
-                return self._retract(s, ctx, events + (ev,))
+                return self._retract(s, ctx, (*events, ev))
             s = self._start_reapproach(s, ctx)
-            events = events + (self._attempt_event(s),)
+            events = (*events, self._attempt_event(s))
             return self._moving(s, (0.0, 0.0, 0.0), dt, events=events)
         d = s.reapproach_direction
         speed = p.retract_speed_m_s
@@ -874,7 +874,7 @@ class ContourTrackingTask:
         p = self.p
         if s.travel_m >= p.retract_distance_m:
             s = replace(s, phase=ContourPhase.FINISHED, phase_start_s=ctx.t_s)
-            return self._finished(s, ctx, events + (Event("contour", Severity.INFO, "retracted"),))
+            return self._finished(s, ctx, (*events, Event("contour", Severity.INFO, "retracted")))
         v = (s.normal[0] * p.retract_speed_m_s, s.normal[1] * p.retract_speed_m_s, 0.0)
         s = replace(s, speed_m_s=0.0)
         return self._moving(s, v, ctx.period_s, events=events, travel_m=p.retract_speed_m_s * ctx.period_s)

@@ -91,7 +91,8 @@ class PathTask:
         if state.phase == PathPhase.MOVE_TO_START:
             start = self._start
             settled = all(
-                abs(a - b) <= self.settle_tolerance for a, b in zip(setpoint.position, start.position)
+                abs(a - b) <= self.settle_tolerance
+                for a, b in zip(setpoint.position, start.position, strict=True)
             ) and all(abs(v) <= self.settle_tolerance for v in setpoint.velocity)
             if not settled:
                 return state, start, False

@@ -257,7 +257,7 @@ class PlannedLegsTask:
                 return TaskStep(
                     replace(state, phase=LegsPhase.MEASURING, start_s=ctx.t_s), self._hold(ctx, self.streamed)
                 )
-            off = max(abs(a - b) for a, b in zip(ctx.setpoint.position, self._start.position))
+            off = max(abs(a - b) for a, b in zip(ctx.setpoint.position, self._start.position, strict=True))
             if off > self.start_tolerance_m:
                 why = (
                     f"the legs {list(np.round(ctx.setpoint.position, 6))} m are not at the plan's start "
@@ -277,7 +277,7 @@ class PlannedLegsTask:
         pos, vel, acc, plat = plan.sample(tau)
         if state.leg_origin_m is not None:  # increments from where the legs stood
             l0 = plan.legs_m[0]
-            pos = tuple(o + p - float(z) for o, p, z in zip(state.leg_origin_m, pos, l0))
+            pos = tuple(o + p - float(z) for o, p, z in zip(state.leg_origin_m, pos, l0, strict=True))
         if self.robot is not None:
             status = self.robot.check_actuators(pos)
             if not status.ok:
@@ -320,7 +320,9 @@ class PlannedLegsTask:
         k = ctx.inputs.tracker
         if ctx.t_s - state.start_s < c.settle_s or k is None or not k.fresh:
             return TaskStep(state, hold)
-        sums = tuple(a + b for a, b in zip(state.sum_pose, (*k.position_m, *k.rotation_vector_rad)))
+        sums = tuple(
+            a + b for a, b in zip(state.sum_pose, (*k.position_m, *k.rotation_vector_rad), strict=True)
+        )
         n = state.samples + 1
         if n < c.tracker_samples:
             return TaskStep(replace(state, samples=n, sum_pose=sums), hold)
@@ -453,7 +455,7 @@ class PlanExecutionReport:
         self._t.append(t)
         self._legs.append(legs)
         if ref is not None:
-            self.leg_errors_m.append(max(abs(a - b) for a, b in zip(legs, ref)))
+            self.leg_errors_m.append(max(abs(a - b) for a, b in zip(legs, ref, strict=True)))
 
     def summary(self) -> dict[str, object]:
         from controller.robots.nspu import so3_log

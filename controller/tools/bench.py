@@ -764,7 +764,7 @@ def compare_pdo_paths(
         fvars, tqvars = list(sensor.tpdo[1])[:3], list(sensor.tpdo[2])[:3]
 
         def canopen_cycle() -> None:
-            for m, (cw, tp), c, x in zip(rpdos, rvars, outputs.controlwords, outputs.targets):
+            for m, (cw, tp), c, x in zip(rpdos, rvars, outputs.controlwords, outputs.targets, strict=True):
                 cw.raw = c
                 tp.raw = scale.to_counts(x)
                 m.transmit()

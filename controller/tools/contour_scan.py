@@ -244,7 +244,7 @@ def scenarios(places_s: list[float], period_s: float) -> Iterator[ContourScenari
         yield ContourScenario(
             f"bias drifting {rate:+g} N/s for 15 s", (f"drift={rate:g}@{places_s[0] - 5.0:.3f}+15",)
         )
-    for n, t in zip(STALE_BURSTS, places_s[1::4]):
+    for n, t in zip(STALE_BURSTS, places_s[1::4], strict=True):
         yield ContourScenario(f"{n} stale sample(s)", (f"freeze@{t}+{n * period_s + period_s / 2:.6f}",))
     yield ContourScenario("spoofed sample, 30 N", (f"spoof_sensor=30@{places_s[2]}+{period_s / 2:.6f}",))
     yield ContourScenario(

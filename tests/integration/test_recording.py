@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
 import os
@@ -499,10 +500,8 @@ def test_a_writer_that_stops_reading_blocks_neither_the_loop_nor_the_exit(tmp_pa
         closing.join(GENEROUS_S)  # returns at all: a close that waited for the stopped writer never would
         assert not closing.is_alive(), f"close() still waiting for a stopped writer after {GENEROUS_S} s"
     finally:
-        try:
+        with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signal.SIGCONT)
-        except ProcessLookupError:
-            pass
     assert "took no data" in rec.error or "timed out" in rec.error
     assert rec._proc is None
 

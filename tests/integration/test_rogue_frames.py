@@ -96,7 +96,7 @@ def run(
 
 def assert_drive_2_never_measured_off(trace: Trace) -> None:
     """Every fresh drive-2 sample the step got is what drive 2 itself sent, and no target went elsewhere."""
-    for k, (inputs, true) in enumerate(zip(trace.inputs, trace.true_positions)):
+    for k, (inputs, true) in enumerate(zip(trace.inputs, trace.true_positions, strict=True)):
         d = inputs.drives[DRIVE_2]
         if d.fresh:
             assert d.position == pytest.approx(true[DRIVE_2], abs=1e-6), (
@@ -203,7 +203,7 @@ def test_a_foreign_nmt_command_to_one_drive_stops_every_drive_within_100_ms(faul
     final, trace = run([f"{fault}:2@{ROGUE_AT_S}+0.0025"])
     assert final.fault_reason == f"NMT {command} to node 2 from another master"
     enabled_until = max(
-        t for t, powers in zip(trace.t, trace.powers) if PowerState.OPERATION_ENABLED in powers
+        t for t, powers in zip(trace.t, trace.powers, strict=True) if PowerState.OPERATION_ENABLED in powers
     )
     assert ROGUE_AT_S <= enabled_until < ROGUE_AT_S + 0.1
 
@@ -216,7 +216,7 @@ def test_a_drive_put_in_pre_operational_that_does_not_stop_itself_is_quick_stopp
     asked = [k for k, o in enumerate(trace.outputs) if o.sdo_controlwords]
     assert asked and trace.outputs[asked[0]].sdo_controlwords == ((DRIVE_2, 0x0002),)
     assert any(e.kind == "sdo_quick_stop" and "node(s) 2" in e.message for e in trace.events)
-    after = [p for t, p in zip(trace.t, trace.powers) if t >= ROGUE_AT_S + 0.1]
+    after = [p for t, p in zip(trace.t, trace.powers, strict=True) if t >= ROGUE_AT_S + 0.1]
     assert after and all(PowerState.OPERATION_ENABLED not in p for p in after)
     assert after[-1][DRIVE_2] == PowerState.QUICK_STOP_ACTIVE
 

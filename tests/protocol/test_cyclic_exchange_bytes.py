@@ -105,7 +105,7 @@ class ScriptedBus(can.BusABC):
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         # The exchange is always called with its deadline now: a wait here would be a wall-clock wait.
-        assert timeout is not None and timeout <= 0.0 or self.inbox, (
+        assert (timeout is not None and timeout <= 0.0) or self.inbox, (
             f"the exchange would block for {timeout} s"
         )
         return (self.inbox.popleft() if self.inbox else None), False

@@ -113,7 +113,7 @@ def test_set_up_homes_every_drive_before_the_first_cycle(buses):
         assert before == pytest.approx(OFFSETS, abs=1e-7)
         report = configure_nodes(bus, node_setup_plan(cfg))
         # the positions the controller starts from are the true ones: the encoders' offsets are gone
-        for counts, d in zip(report.initial_positions_counts, sim.drives):
+        for counts, d in zip(report.initial_positions_counts, sim.drives, strict=True):
             assert counts / COUNTS == pytest.approx(d.position, abs=0.001)
             assert d.position == pytest.approx(0.32, abs=0.001)  # at the negative switch's edge
             assert d.power == PowerState.SWITCH_ON_DISABLED and d.mode_of_operation == 8

@@ -48,7 +48,7 @@ def test_force_frame_round_trip_within_half_a_count(values, counter):
         encode_sensor_frame(values, FORCE_N_PER_COUNT, 0, counter), FORCE_N_PER_COUNT
     )
     assert c == counter and status == 0
-    for got, want in zip((x, y, z), values):
+    for got, want in zip((x, y, z), values, strict=True):
         assert abs(got - want) <= FORCE_N_PER_COUNT / 2 + 1e-12
 
 

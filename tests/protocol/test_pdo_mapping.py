@@ -261,11 +261,11 @@ def test_vendor_drive_runs_the_cyclic_exchange_against_the_in_process_simulator(
         assert {decode_statusword(d.statusword) for d in fb.drives} == {PowerState.OPERATION_ENABLED}
         goal = tuple(x + 0.005 for x in start)
         for _ in range(400):  # 5 mm in 1 mm steps, then hold
-            step = tuple(min(g, x + 0.001) for g, x in zip(goal, targets))
+            step = tuple(min(g, x + 0.001) for g, x in zip(goal, targets, strict=True))
             targets = step
             ex.send(CycleOutputs(controlwords=(0x0F,) * 3, targets=targets))
             fb = ex.collect(time.monotonic() + 5.0)
-            if all(abs(d.position - g) < 2e-6 for d, g in zip(fb.drives, goal)):
+            if all(abs(d.position - g) < 2e-6 for d, g in zip(fb.drives, goal, strict=True)):
                 break
         assert [d.position for d in fb.drives] == pytest.approx(goal, abs=2e-6)
         assert [d.position for d in sim.drives] == pytest.approx(goal, abs=2e-6)
@@ -300,7 +300,7 @@ def test_set_up_writes_the_drives_following_error_window_and_time_and_reads_them
     sim_bus, bus = buses
     with Simulator(cfg, sim_bus) as sim:
         configure_nodes(bus, _setup_plan(cfg))
-        for node_id, d in zip(cfg.actuators.node_ids, sim.drives):
+        for node_id, d in zip(cfg.actuators.node_ids, sim.drives, strict=True):
             assert sim.nodes[node_id].sdo[0x6065].raw == 40_000  # counts: 4 mm at 0.1 um per count
             assert sim.nodes[node_id].sdo[0x6066].raw == 20  # ms
             assert d.following_error_window == pytest.approx(

@@ -64,7 +64,10 @@ def test_the_simulator_is_real_time_only_from_after_its_set_up_to_before_its_shu
     monkeypatch.setattr(process, "apply_realtime", apply)
     monkeypatch.setattr(process, "freeze_garbage_collector", lambda: calls.append("gc frozen"))
     monkeypatch.setattr(process, "unfreeze_garbage_collector", lambda: None)
-    announce = lambda line: (calls.append("READY"), stop.set())
+
+    def announce(line):
+        return (calls.append("READY"), stop.set())
+
     process.serve(cfg, parse_bus_spec(f"virtual:rt-order-{time.monotonic_ns()}"), stop, announce, RT)
     assert calls == [
         "bus open",

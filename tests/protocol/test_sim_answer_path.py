@@ -111,7 +111,7 @@ def sync_and_wait(bus: ScriptedBus, *before: can.Message, tpdos: int = 5) -> lis
 def rpdos(controlword: int, targets_m: tuple[float, ...]) -> list[can.Message]:
     return [
         frame(cob_ids.rpdo1(n), encode_drive_rpdo(controlword, round(x * COUNTS_PER_M)))
-        for n, x in zip((1, 2, 3), targets_m)
+        for n, x in zip((1, 2, 3), targets_m, strict=True)
     ]
 
 
@@ -147,7 +147,7 @@ def test_rpdo_targets_wait_for_the_next_sync_and_a_batch_is_drained_in_order(sim
     first = len(bus.sent)
     bus.push(*batch)
     bus.wait_for(lambda s: len(after(s, first, cob_ids.tpdo1(3))) >= 3)
-    for d, x in zip(simulator.drives, start):
+    for d, x in zip(simulator.drives, start, strict=True):
         assert d.latched_target == pytest.approx(
             x + 3 * step, abs=1e-9
         )  # the last SYNC latched the last target

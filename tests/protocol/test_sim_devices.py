@@ -245,7 +245,7 @@ def test_drive_reports_the_acceleration_of_its_last_substep():
     d.advance(d.time_s + h)
     assert d.acceleration > 1.0
     assert d.acceleration == pytest.approx((d.velocity - v0) / h)
-    for k in range(2, 400):
+    for _k in range(2, 400):
         t = cycle(d, t, 0.55 + 0.1 * PERIOD)  # hold: it settles
     assert abs(d.acceleration) < 1e-3
 
@@ -307,7 +307,7 @@ def test_a_late_sync_lets_the_reference_run_on_for_one_period_at_the_segment_spe
     assert d.position > x and d.velocity > 0.0
 
 
-def test_the_interpolation_period_is_0x60C2_not_the_measured_sync_interval():
+def test_the_interpolation_period_is_0x60c2_not_the_measured_sync_interval():
     d, t, target = moving_drive()
     # a SYNC 1 ms early: with 0x60C2 the drive still interpolates over 2.5 ms
     t_early = t - 0.001

@@ -5,6 +5,7 @@ from __future__ import annotations
 import ctypes
 import errno
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -116,7 +117,7 @@ def test_project_pdo_path_is_cheaper_than_canopens_pdo_objects():
 
 
 def test_options_validate_their_values():
-    with pytest.raises(RealtimeError, match="--rt-priority 0: SCHED_FIFO priorities are 1..99"):
+    with pytest.raises(RealtimeError, match=re.escape("--rt-priority 0: SCHED_FIFO priorities are 1..99")):
         RealtimeOptions(priority=0)
     with pytest.raises(RealtimeError, match="--cpu -1"):
         RealtimeOptions(cpus=(-1,))

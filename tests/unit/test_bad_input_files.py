@@ -36,7 +36,7 @@ OTHER_ENCODINGS = ("utf-16", "utf-16-le", "utf-16-be", "utf-32", "latin-1", "cp1
 def _sections(data: bytes) -> list[bytes]:
     """Each ``[section]`` of an INI/TOML text with its lines, up to the next header."""
     starts = [m.start() for m in re.finditer(rb"^\[", data, flags=re.MULTILINE)]
-    return [data[a:b] for a, b in zip(starts, [*starts[1:], len(data)])]
+    return [data[a:b] for a, b in zip(starts, [*starts[1:], len(data)], strict=True)]
 
 
 def _section(data: bytes, header: bytes) -> bytes:
@@ -111,9 +111,9 @@ def test_each_damaged_eds_is_one_line_naming_file_and_fault(tmp_path, damage, ex
 
 def test_an_eds_path_that_is_a_directory_says_so_not_that_it_does_not_exist(tmp_path):
     (tmp_path / "drive.eds").mkdir()
-    with pytest.raises(DeviceDescriptionError, match="drive.eds is a directory, not a file"):
+    with pytest.raises(DeviceDescriptionError, match=re.escape("drive.eds is a directory, not a file")):
         load_device_description(tmp_path / "drive.eds", 1)
-    with pytest.raises(DeviceDescriptionError, match="nothing.eds does not exist"):
+    with pytest.raises(DeviceDescriptionError, match=re.escape("nothing.eds does not exist")):
         load_device_description(tmp_path / "nothing.eds", 1)
 
 
@@ -241,7 +241,7 @@ def test_a_kind_that_is_not_a_name_is_one_line(tmp_path, group, kind):
 
 
 def test_a_configuration_path_that_is_a_directory_says_so(tmp_path):
-    with pytest.raises(ConfigError, match="robot.toml is a directory, not a file"):
+    with pytest.raises(ConfigError, match=re.escape("robot.toml is a directory, not a file")):
         (tmp_path / "robot.toml").mkdir()
         load_config(tmp_path / "robot.toml")
 

@@ -53,7 +53,7 @@ def test_python_can_reads_every_frame_back_with_its_direction_and_time(recording
     read = list(can.LogReader(out, **({"relative_timestamp": False} if fmt == "asc" else {})))
     assert len(read) == len(frames)
     first_read = read[0].timestamp
-    for (t, outgoing, sent), got in zip(frames, read):
+    for (t, outgoing, sent), got in zip(frames, read, strict=True):
         assert (got.arbitration_id, bytes(got.data)) == (sent.arbitration_id, bytes(sent.data))
         if fmt != "csv":  # python-can's CSV has no direction column (the export says so)
             assert got.is_rx is (not outgoing)

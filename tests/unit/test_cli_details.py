@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -94,7 +95,7 @@ def test_replay_rerun_takes_a_recording_after_it_as_the_input():
     assert rerun_input_and_output(None, "session.mcap") == ("session.mcap", None)
     assert rerun_input_and_output("session.mcap", "out.rrd") == ("session.mcap", "out.rrd")
     assert rerun_input_and_output("session.mcap", "") == ("session.mcap", None)
-    with pytest.raises(InputError, match="must be a .rrd"):
+    with pytest.raises(InputError, match=re.escape("must be a .rrd")):
         rerun_input_and_output("a.mcap", "b.mcap")  # never overwrite a recording with Rerun's data
     with pytest.raises(InputError, match="which recording"):
         rerun_input_and_output(None, "out.rrd")

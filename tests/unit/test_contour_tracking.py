@@ -158,7 +158,7 @@ def test_approach_without_contact_faults_after_the_configured_distance():
     task, cfg = _task()
     s = replace(task.start(), phase=ContourPhase.APPROACH)
     c = cfg.task.model("contour")
-    for k in range(100000):
+    for _k in range(100000):
         out = task.step(s, _ctx((0.0, 0.0, 0.0)))
         s = out.state
         if out.fault:
@@ -196,7 +196,7 @@ def test_closed_loop_follows_an_off_centre_disk_of_another_radius(centre, radius
     assert final.mode == Mode.DONE, final.fault_reason
     assert [lap["lap"] for lap in summary["laps"]] == [1, 2]
     for lap, speed, tol in zip(
-        summary["laps"], (0.05, 0.08), (0.08, 0.02)
+        summary["laps"], (0.05, 0.08), (0.08, 0.02), strict=True
     ):  # lap 1 includes the ramp from rest
         assert lap["force_error_rms_n"] < 1.0
         assert lap["contact_losses"] == 0
@@ -324,7 +324,7 @@ def test_lost_frames_in_the_force_loop_cost_nothing_visible():
     for start in (4000, 6000, 8000):
         lost |= {start, start + 1, start + 2}
     degraded = run(lost)
-    for a, b in zip(clean["laps"], degraded["laps"]):
+    for a, b in zip(clean["laps"], degraded["laps"], strict=True):
         assert b["contact_losses"] == 0
         assert b["force_error_rms_n"] < 1.3 * a["force_error_rms_n"] + 0.05
         assert b["force_error_max_n"] < a["force_error_max_n"] + 1.0

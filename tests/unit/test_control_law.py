@@ -250,7 +250,7 @@ def test_a_nan_position_faults_at_once():
     state = law.initial_state()
     good = CycleInputs(tuple(DriveFeedback(0x1637, 0.55, True) for _ in range(3)))
     state, _, _ = law.step(state, good, 0.0)  # CONFIGURING -> ENABLING
-    bad = CycleInputs((DriveFeedback(0x1637, math.nan, True),) + good.drives[1:])
+    bad = CycleInputs((DriveFeedback(5687, math.nan, True), *good.drives[1:]))
     state, _, _ = law.step(state, bad, cfg.period_s)
     assert state.mode == Mode.FAULT
     assert "actuator 1 measured at nan m" in state.fault_reason

@@ -165,7 +165,10 @@ def test_reduced_singularity_condition(pose: Pose) -> None:
 def test_type2_singularity_raises() -> None:
     start = Pose(np.array([0, 0, 25.0]) * UNIT, rpy(0, 0, -np.pi / 6))
     goal = Pose(np.array([-0.4, -0.2, 35.0]) * UNIT, rpy(0, 0, -np.pi / 2))
-    det = lambda s: np.linalg.det(io_matrix(GEOM, _interp(start, goal, s)))
+
+    def det(s):
+        return np.linalg.det(io_matrix(GEOM, _interp(start, goal, s)))
+
     lo, hi = 0.0, 1.0
     assert det(lo) * det(hi) < 0
     for _ in range(60):
@@ -201,7 +204,10 @@ def test_vector_field_jacobians_complex_step_vs_central() -> None:
 
 def _flow(x: np.ndarray, k: int, sign: float, eps: float, n: int = 40) -> np.ndarray:
     h = eps / n
-    f = lambda y: sign * vector_fields_xzx(GEOM, y)[:, k]
+
+    def f(y):
+        return sign * vector_fields_xzx(GEOM, y)[:, k]
+
     for _ in range(n):
         k1 = f(x)
         k2 = f(x + 0.5 * h * k1)

@@ -296,25 +296,25 @@ def test_targets_never_exceed_the_actuator_limits_or_leave_the_stroke(task, data
     a = cfg.actuators
     vmax, amax = a.max_velocity_m_s, a.max_acceleration_m_s2
     lo, hi = cfg.robot.model("cheope").stroke_min_m, cfg.robot.model("cheope").stroke_max_m
-    T = cfg.period_s
+    period_s = cfg.period_s
     # From the first step that has heard every drive (before it, the targets are the last heard
     # positions or mid-stroke under controlword 0: see test_a_target_before_the_first_tpdo_...).
     started = next(i for i, m in enumerate(modes) if m != Mode.CONFIGURING)
     targets = [r.outputs.targets for r in loop.records[started:end]]
-    v_tol, a_tol = velocity_tolerance(hi, T), acceleration_tolerance(hi, T)
+    v_tol, a_tol = velocity_tolerance(hi, period_s), acceleration_tolerance(hi, period_s)
     for i, x in enumerate(targets):
         assert all(lo <= q <= hi for q in x), (
             f"cycle {started + i}: target {x} outside the stroke [{lo}, {hi}] m"
         )
     for i in range(1, len(targets)):
         for j in range(law.n):
-            v = (targets[i][j] - targets[i - 1][j]) / T
+            v = (targets[i][j] - targets[i - 1][j]) / period_s
             assert abs(v) <= vmax + v_tol, (
                 f"cycle {started + i}, actuator {j + 1}: targets imply {v} m/s, limit {vmax} ({modes[started + i].name})"
             )
     for i in range(2, len(targets)):
         for j in range(law.n):
-            acc = (targets[i][j] - 2.0 * targets[i - 1][j] + targets[i - 2][j]) / (T * T)
+            acc = (targets[i][j] - 2.0 * targets[i - 1][j] + targets[i - 2][j]) / (period_s * period_s)
             assert abs(acc) <= amax + a_tol, (
                 f"cycle {started + i}, actuator {j + 1}: targets imply {acc} m/s^2, limit {amax} ({modes[started + i].name})"
             )
@@ -403,7 +403,7 @@ def test_no_jump_at_enable_the_target_is_where_the_drive_is(data, rate, start, p
         {"loop.rate_hz": rate, "loop.hold_before_task_s": 0.05, "sim.drive.initial_positions_m": initial}
     )
     loop = ClosedLoop(cfg, law)
-    for d, power in zip(loop.ex.drives, powers):
+    for d, power in zip(loop.ex.drives, powers, strict=True):
         d.power = power  # a drive left in any state by whatever ran before
     cycles = int(0.15 * rate) + 40
     # TPDOs missing now and then from the second cycle on (cycle 0: see the CONFIGURING xfail above)
@@ -433,7 +433,7 @@ def test_no_jump_at_enable_the_target_is_where_the_drive_is(data, rate, start, p
         if r.state.mode == Mode.HOLDING and enabled_at is None:
             enabled_at = r.measured  # all drives report OPERATION ENABLED in this very cycle
         reference = r.measured if r.state.mode == Mode.ENABLING else enabled_at
-        for j, (x, m) in enumerate(zip(r.outputs.targets, reference)):
+        for j, (x, m) in enumerate(zip(r.outputs.targets, reference, strict=True)):
             assert scale.to_counts(x) == scale.to_counts(m), (
                 f"cycle {r.k} ({r.state.mode.name}): target {x} m for drive {j + 1} measured at {m} m"
             )
@@ -448,7 +448,7 @@ def test_no_jump_at_enable_the_target_is_where_the_drive_is(data, rate, start, p
             assert target == position, (
                 f"cycle {c}: drive {j + 1} at {position} counts was sent {target} (cw 0x{cw:04X})"
             )
-    for j, (d, x0) in enumerate(zip(loop.ex.drives, initial)):
+    for j, (d, x0) in enumerate(zip(loop.ex.drives, initial, strict=True)):
         assert d.position_counts() == round(x0 * scale.counts_per_unit), (
             f"drive {j + 1} moved before the task"
         )
@@ -565,7 +565,7 @@ def assert_quick_stop_from_the_fault_on(loop: ClosedLoop, fault: FaultInjection)
     )
     for r in loop.records[first:]:
         assert r.state.mode == Mode.FAULT, f"cycle {r.k}: left FAULT for {r.state.mode.name}"
-        for j, (cw, power) in enumerate(zip(r.outputs.controlwords, r.powers)):
+        for j, (cw, power) in enumerate(zip(r.outputs.controlwords, r.powers, strict=True)):
             assert cw in (CW_QUICK_STOP, CW_DISABLE_VOLTAGE) and is_stop_command(cw), (
                 f"cycle {r.k}: drive {j + 1} sent controlword 0x{cw:04X}"
             )

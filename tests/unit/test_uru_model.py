@@ -176,7 +176,7 @@ def test_direct_kinematics_reports_no_solution() -> None:
     geom = UruGeometry(proximal_lengths_m=(0.3, 0.3, 0.3), distal_lengths_m=(0.1, 0.1, 0.1))
     th2 = actuated_joint_angles(geom, np.array([0.12, 0.12, 0.12]))
     th2[0] = -math.pi / 2
-    with pytest.raises(UruNoSolutionError, match="direct kinematics .*no convergence"):
+    with pytest.raises(UruNoSolutionError, match=r"direct kinematics .*no convergence"):
         direct_kinematics_joint(geom, th2)
 
 
@@ -278,8 +278,8 @@ def test_omega_terms_t_and_h_eq5_by_rigid_body_velocities() -> None:
         rates = rng.normal(size=5)
         # joint screws (axis, point): e through A, g through A, g through C, g through B, e through B
         axes = [(e, a[i]), (g, a[i]), (g, c[i]), (g, b[i]), (e, b[i])]
-        omega = sum(w * ax for w, (ax, _pt) in zip(rates, axes))
-        v_p = sum(w * np.cross(ax, p - pt) for w, (ax, pt) in zip(rates, axes))  # velocity of P
+        omega = sum(w * ax for w, (ax, _pt) in zip(rates, axes, strict=True))
+        v_p = sum(w * np.cross(ax, p - pt) for w, (ax, pt) in zip(rates, axes, strict=True))  # velocity of P
         assert mats.H[i] @ omega == pytest.approx(0.0, abs=1e-12)  # eq. (2)
         lhs = mats.V[i] @ v_p + mats.T[i] @ omega  # eq. (4)
         assert lhs == pytest.approx(mats.G[i, i] * rates[1], abs=1e-12)
@@ -321,7 +321,7 @@ def test_rotation_singularity_is_the_coordinate_planes() -> None:
 
 
 @pytest.mark.parametrize("radius_m,offset_m", [(0.2, 0.1), (0.15, 0.0), (0.31, 0.07)])
-def test_workspace_is_sphere_of_radius_2R(radius_m: float, offset_m: float) -> None:
+def test_workspace_is_sphere_of_radius_2r(radius_m: float, offset_m: float) -> None:
     geom = UruGeometry(
         base_offset_m=offset_m,
         platform_offset_m=offset_m,
@@ -424,7 +424,7 @@ def test_path_crossing_a_coordinate_plane_is_refused() -> None:
     assert err.sample_index == 41  # y = 0.101 - 0.002 * 41 = 0.019 < 0.02 m
     assert err.value == pytest.approx(0.019, abs=1e-12)
     # a coarse path that jumps over the plane is refused by the sign check of det H
-    with pytest.raises(UruPathRefusedError, match="det H .*changed sign"):
+    with pytest.raises(UruPathRefusedError, match=r"det H .*changed sign"):
         check_path(GEOM, np.array([start, end]), UruPathMargins(plane_distance_m=0.0))
 
 
@@ -439,7 +439,7 @@ def test_path_leaving_the_workspace_is_refused() -> None:
 def test_path_through_actuation_singularity_is_refused() -> None:
     # section z = 0.05 m, octant (+, -, +): det S changes sign between y = -0.03 and y = -0.1 at x = 0.2
     path = np.array([[0.2, y, 0.05] for y in np.linspace(-0.03, -0.1, 40)])
-    with pytest.raises(UruPathRefusedError, match="actuation|combined"):
+    with pytest.raises(UruPathRefusedError, match=r"actuation|combined"):
         check_path(GEOM, path, UruPathMargins(plane_distance_m=0.01))
 
 

@@ -11,6 +11,7 @@ Fixtures:
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
 import threading
@@ -127,10 +128,8 @@ def no_leaks(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
         bus.shutdown()
     for pid in sorted(_children(os.getpid()) - children_before):
         problems.append(f"child process left running: pid {pid}")
-        try:
+        with contextlib.suppress(ProcessLookupError):
             os.kill(pid, 9)
-        except ProcessLookupError:
-            pass
     deadline = time.monotonic() + LEAK_GRACE_S
     for thread in set(threading.enumerate()) - threads_before:
         thread.join(max(0.0, deadline - time.monotonic()))

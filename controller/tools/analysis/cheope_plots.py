@@ -49,7 +49,7 @@ def workspace_sections(
     zs = np.linspace(0.30, 0.70, n)
     fig, axes = plt.subplots(1, len(xs_m), figsize=(5 * len(xs_m), 4.6), sharey=True)
     usable = 0
-    for ax, x in zip(axes, xs_m):
+    for ax, x in zip(axes, xs_m, strict=True):
         grid = np.full((n, n), np.nan)
         for i, z in enumerate(zs):
             for j, y in enumerate(ys):
@@ -208,7 +208,7 @@ def path_margins(robot: CheopeRobot, path: CirclePath, out: Path, n: int = 361) 
         ),
     )
     fig, axes = plt.subplots(2, 3, figsize=(15, 7.5))
-    for ax, (title, ylabel, values, limit, kind) in zip(axes.flat, panels):
+    for ax, (title, ylabel, values, limit, kind) in zip(axes.flat, panels, strict=True):
         ax.plot(s, values, color="tab:blue", label="along the path")
         ax.axhline(limit, color="tab:red", ls="--", lw=1.0, label=f"configured {kind} ({limit:g})")
         lo, hi = min(min(values), limit), max(max(values), limit)

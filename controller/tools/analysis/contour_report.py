@@ -109,7 +109,7 @@ def _normal_stiffness(
     robot: CheopeRobot, stiffness_n_m: float, xy: np.ndarray, height_m: float, normals: np.ndarray
 ) -> np.ndarray:
     out = np.empty(len(xy))
-    for i, ((x, y), (nx, ny)) in enumerate(zip(xy, normals)):
+    for i, ((x, y), (nx, ny)) in enumerate(zip(xy, normals, strict=True)):
         jac = robot.jacobian(np.array([x, y, height_m]))
         jn = jac @ np.array([nx, ny, 0.0])
         out[i] = stiffness_n_m * float(jn @ jn)

@@ -44,7 +44,7 @@ def plot_plan(result: PlanResult, out_dir: str | Path, prefix: str = "nspu_plan"
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     rv = so3_log(result.R)
     goal_rv = so3_log(result.goal.R)
-    for i, (c, col) in enumerate(zip("xyz", ("C0", "C1", "C2"))):
+    for i, (c, col) in enumerate(zip("xyz", ("C0", "C1", "C2"), strict=True)):
         axes[0].plot(t, result.p_m[:, i] * 1e3, color=col, label=f"{c}")
         axes[0].axhline(result.goal.p_m[i] * 1e3, color=col, ls="--", lw=0.8)
         axes[1].plot(t, rv[:, i], color=col, label=f"r{c}")
@@ -140,13 +140,13 @@ def _grid_values(
     p = np.stack([X, Y, np.full_like(X, z)], axis=-1)
     with np.errstate(all="ignore"):
         if which == "type2":
-            R = np.broadcast_to(euler_xzx(eta), X.shape + (3, 3))
+            R = np.broadcast_to(euler_xzx(eta), (*X.shape, 3, 3))
             return type2_measure(geometry, p, R)
-        x = np.concatenate([p, np.broadcast_to(eta, X.shape + (3,))], axis=-1)
+        x = np.concatenate([p, np.broadcast_to(eta, (*X.shape, 3))], axis=-1)
         det_l = controllability_det(geometry, x)
         # L's columns have poles on det M = 0 (v_i = adj(M)/det M), where det L changes sign
         # without vanishing: mask a band around the type-II locus so only true zeros are drawn.
-        R = np.broadcast_to(euler_xzx(eta), X.shape + (3, 3))
+        R = np.broadcast_to(euler_xzx(eta), (*X.shape, 3, 3))
         return np.where(np.abs(type2_measure(geometry, p, R)) < 0.02, np.nan, det_l)
 
 
@@ -244,7 +244,7 @@ def plot_execution(recording: str | Path, out_dir: str | Path, name: str = "nspu
         raise ValueError(f"{recording}: no pose tracker samples (run with --set tracker.enabled=true)")
     ref_mm, pos_mm, rot_mrad = np.array(ref) * 1e3, np.array(pos) * 1e3, np.array(rot) * 1e3
     fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
-    for i, (ax, label) in enumerate(zip(axes.flat[:3], ("x", "y", "z"))):
+    for i, (ax, label) in enumerate(zip(axes.flat[:3], ("x", "y", "z"), strict=True)):
         ax.plot(t_trk, pos_mm[:, i], ".", ms=2, color="tab:orange", label="executed (tracker)")
         if len(ref):
             ax.plot(t_ref, ref_mm[:, i], ".", ms=1, color="tab:blue", label="planned (streamed plan)")
@@ -254,7 +254,7 @@ def plot_execution(recording: str | Path, out_dir: str | Path, name: str = "nspu
         ax.plot(t_trk, rot_mrad[:, i], ".", ms=2, label=f"{label} (tracker)")
     ax.set_ylabel("rotation vector [mrad]")
     for ax in axes.flat:
-        for tp, ph in zip(t_phase, phases):
+        for tp, _ph in zip(t_phase, phases, strict=True):
             ax.axvline(tp, color="0.8", lw=0.8)
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8, loc="best")

@@ -63,7 +63,8 @@ def analyze_uru(cfg: Config, out_dir: Path) -> dict[str, object]:
     }
     if motors is not None:
         report["path_motor_range_rad"] = [
-            [round(float(a), 4), round(float(b), 4)] for a, b in zip(motors.min(axis=0), motors.max(axis=0))
+            [round(float(a), 4), round(float(b), 4)]
+            for a, b in zip(motors.min(axis=0), motors.max(axis=0), strict=True)
         ]
     return report
 

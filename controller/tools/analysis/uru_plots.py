@@ -225,7 +225,9 @@ def _plot_diagonal(geom: UruGeometry, path: np.ndarray, fname: Path, n: int) -> 
     lines = [("x=y=0", np.zeros(2), np.array([-ext, ext])), ("z=0", np.array([-ext, ext]), np.zeros(2))]
     fig, axes = plt.subplots(1, 2, figsize=(10.5, 5.6))
     for ax, (key, vlim, label) in zip(
-        axes, (("translation_det_v", 1.0, "det V (eq. (20))"), ("actuation_det_s", 5.0, "det S (eq. (35))"))
+        axes,
+        (("translation_det_v", 1.0, "det V (eq. (20))"), ("actuation_det_s", 5.0, "det S (eq. (35))")),
+        strict=True,
     ):
         mesh = _section(ax, tg, zg, fields, key, vlim, f"plane x = y: colour {label}", lines, near)
         ax.set_xlabel("(x + y)/sqrt(2) [m]")
