@@ -234,12 +234,12 @@ class LiveViews:
         if r.live_rerun:
             try:
                 self.rerun = RerunLive(r.live_rerun, cfg, cfg.task.kind == "contour")
-            except Exception as err:
+            except Exception as err:  # a viewer that cannot start never stops the recording
                 _warn(f"Rerun ({r.live_rerun})", err)
         if r.live_foxglove:
             try:
                 self.foxglove = FoxgloveLive(r.live_foxglove)
-            except Exception as err:
+            except Exception as err:  # as above
                 _warn(f"Foxglove ({r.live_foxglove})", err)
 
     @property
@@ -281,5 +281,5 @@ class LiveViews:
             if view is not None:
                 try:
                     view.close()
-                except Exception as err:
+                except Exception as err:  # closing a viewer never fails the recording
                     _warn("closing", err)

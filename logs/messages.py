@@ -332,7 +332,7 @@ def cycle_to_pb(
         if phase_name is not None:
             try:
                 st.task_phase = phase_name(state.task_state)
-            except Exception:
+            except Exception:  # a task's display helper must never stop the recording
                 st.task_phase = "?"
         for k, v in task_values(state.task_state).items():
             st.task_values[k] = v

@@ -150,7 +150,7 @@ def _resync(raw: bytes | mmap.mmap, start: int) -> int | None:
             try:
                 _chunk_records(_parse(Opcode.CHUNK, raw[pos + 9 : pos + 9 + length]))
                 return pos
-            except Exception:
+            except Exception:  # any failure means "not a chunk here"
                 pass
         pos = raw.find(b"\x06", pos + 1)
     return None
@@ -229,7 +229,7 @@ def _walk(raw: bytes | mmap.mmap, report: ReadReport) -> Iterator[tuple[Channel,
         start, pos = pos, pos + 9 + length
         try:
             record = _parse(opcode, body)
-        except Exception as err:
+        except Exception as err:  # damaged input: report it, go on with the next record
             report.problems.append(
                 f"damaged {Opcode(opcode).name} record at offset {start}: {err or type(err).__name__}"
             )
@@ -276,7 +276,7 @@ def decoder_for(schema: Schema | None) -> Callable[[bytes], Any] | None:
 
     try:
         return DecoderFactory().decoder_for("protobuf", schema)
-    except Exception:
+    except Exception:  # an unknown or broken schema: the channel stays raw
         return None
 
 
@@ -307,7 +307,7 @@ def iter_decoded(
             continue
         try:
             value = dec(msg.data)
-        except Exception:
+        except Exception:  # a damaged message inside an intact chunk: count, go on
             bad[ch.topic] += 1
             continue
         if isinstance(value, pb.CanFrameBatch):
@@ -365,7 +365,7 @@ def read_head(path: str | Path) -> ReadReport:
                     break
                 try:
                     record = _parse(opcode, body)
-                except Exception:
+                except Exception:  # a damaged head: what was read so far is the answer
                     break
                 if isinstance(record, Header):
                     report.profile, report.library = record.profile, record.library

@@ -183,7 +183,7 @@ def export(
             try:
                 rec.spawn(default_blueprint=bp)
                 spawned = True
-            except Exception as err:
+            except Exception as err:  # any failure to start the viewer: fall back to a file
                 note = f"the viewer did not start: {err}"
     if not spawned:
         output = Path(out) if out is not None else path.with_suffix(".rrd")

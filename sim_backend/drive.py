@@ -415,7 +415,7 @@ class SimulatedDrive:
                 r = (t - t0) / period if period > 0 else 1.0
                 ref = x0 + (r if 0.0 <= r <= x_end else (0.0 if r < 0.0 else x_end)) * dx
                 acc = wn2 * (ref - x) + c * (v_ff - v)
-                acc = amax if acc > amax else (-amax if acc < -amax else acc)
+                acc = amax if acc > amax else (-amax if acc < -amax else acc)  # no call: inner loop
             elif stopping and moving:
                 if abs(v) <= p.quick_stop_deceleration * h:
                     v, acc = 0.0, 0.0
@@ -432,7 +432,7 @@ class SimulatedDrive:
             # Semi-implicit Euler: stable for wn * h << 1 (60 Hz, 0.5 ms: 0.19).
             v0 = v
             v = v + acc * h
-            v = vmax if v > vmax else (-vmax if v < -vmax else v)
+            v = vmax if v > vmax else (-vmax if v < -vmax else v)  # no call: inner loop
             a = (v - v0) / h
             x += v * h
             t += h

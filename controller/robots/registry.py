@@ -53,7 +53,7 @@ def unregister_robot(kind: str) -> None:
 
 def _entries() -> dict[str, RobotEntry]:
     if not _ROBOTS:
-        pass
+        import controller.robots.builtin  # noqa: F401  (registers the papers' robots)
     return _ROBOTS
 
 

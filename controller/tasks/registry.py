@@ -59,7 +59,7 @@ def register_task(entry: TaskEntry) -> None:
 
 def _entries() -> dict[str, TaskEntry]:
     if not _TASKS:
-        pass
+        import controller.tasks.builtin  # noqa: F401  (registers path, contour, planned)
     return _TASKS
 
 

@@ -64,7 +64,7 @@ def _running_controller(cfg: Config, path: Path) -> Iterator[threading.Thread]:
             try:
                 final, _ = loop.run(law.initial_state(), GENEROUS_S)
                 ended.append(f"{final.mode.name} {final.fault_reason}")
-            except BaseException as err:
+            except BaseException as err:  # reported by the test
                 errors.append(err)
 
         thread = threading.Thread(target=run, name="test-loop")
@@ -101,7 +101,7 @@ def _rrd_entities(path: Path) -> set[str]:
         with warnings.catch_warnings():  # the server's file has no footer until it ends: read by a scan
             warnings.simplefilter("ignore")
             return set(RrdReader(path).stream().collect().schema().entity_paths())
-    except Exception:
+    except Exception:  # a file the server is still writing: read it again later
         return set()
 
 
