@@ -28,6 +28,7 @@ each frame had in the older files. A rotated file starts with ``/keyframe``
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 import struct
 from collections.abc import Callable, Iterator
@@ -152,9 +153,9 @@ def _time_column(times: list[float]) -> tuple[int, list[int]]:
         abs(k) < _NS_LIMIT and k / 1e9 == t and (k or math.copysign(1.0, t) > 0)  # -0.0: bits
         for k, t in zip(ns, times, strict=True)
     ):
-        return TIMES_NS, [(b - a) & _U64 for a, b in zip((0, *ns), ns, strict=True)]
+        return TIMES_NS, [(b - a) & _U64 for a, b in itertools.pairwise((0, *ns))]  # deltas
     bits = struct.unpack(f"<{len(times)}Q", struct.pack(f"<{len(times)}d", *times))
-    return TIMES_BITS, [b ^ a for a, b in zip((0, *bits), bits, strict=True)]
+    return TIMES_BITS, [b ^ a for a, b in itertools.pairwise((0, *bits))]  # XOR with the last
 
 
 def _times(encoding: int, column: tuple[int, ...]) -> tuple[float, ...]:
