@@ -109,6 +109,18 @@ class ExchangeCounters:
     foreign_frames: int = 0  # frames reported as a BusAnomaly (unknown, foreign, duplicate)
 
 
+OWED_FORGOTTEN_AFTER = 3  # windows in step after which answers still owed are taken as never coming
+
+
+def _owed_after(owed: int, in_step: int, candidates: int) -> tuple[int, int]:
+    """A device's answers still owed, and its windows in step, after a window with ``candidates``."""
+    if candidates == 0:
+        return owed + 1, 0
+    owed = max(0, owed + 1 - candidates)
+    in_step = in_step + 1 if candidates == 1 else 0
+    return (0 if in_step >= OWED_FORGOTTEN_AFTER else owed), in_step
+
+
 class CyclicExchange:
     def __init__(
         self,
@@ -241,8 +253,18 @@ class CyclicExchange:
         # stalls answers the SYNCs it missed in a burst; one extra candidate per answer owed is its
         # own late answer, not a second sender: still no sample (nobody can tell which is which),
         # counted late, not reported. A rogue cannot use it: nothing ambiguous is ever used.
+        #
+        # A stalled device's burst straddles windows: of four owed answers one may land in this
+        # window and three after it, before the next SYNC. The debt is paid answer by answer
+        # (owed + 1 - candidates), not cleared by the first window with a candidate: cleared, the
+        # three were reported as a second sender, and a 9 ms stall of the simulator faulted a soak
+        # at the defaults ("3 TPDO(s) twice in one cycle from node 1"). An answer a device never
+        # sends (a SYNC it really missed) is forgotten once it has answered OWED_FORGOTTEN_AFTER
+        # windows in a row exactly once each: it is in step again.
         self._owed = [0] * self.n
         self._sensor_owed = [0, 0]
+        self._in_step = [0] * self.n  # windows in a row with exactly one candidate and nothing late
+        self._sensor_in_step = [0, 0]
         self._sensor_trusted_counter = -1  # the counter of the last sample used
         self._sensor_cycles_since_trusted = 0
         self._force = (0.0, 0.0, 0.0)
@@ -430,13 +452,12 @@ class CyclicExchange:
 
     def _close_window(self) -> None:
         """The window's verdict per device: one decoded candidate is the sample, else none."""
-        self._owed = [
-            owed + 1 if count == 0 else 0 for owed, count in zip(self._owed, self._candidates, strict=True)
-        ]
-        self._sensor_owed = [
-            owed + 1 if count == 0 else 0
-            for owed, count in zip(self._sensor_owed, self._sensor_candidates, strict=True)
-        ]
+        for j, count in enumerate(self._candidates):
+            self._owed[j], self._in_step[j] = _owed_after(self._owed[j], self._in_step[j], count)
+        for k, count in enumerate(self._sensor_candidates):
+            self._sensor_owed[k], self._sensor_in_step[k] = _owed_after(
+                self._sensor_owed[k], self._sensor_in_step[k], count
+            )
         for j in range(self.n):
             count = self._candidates[j]
             if count == 1 and self._candidate_ok[j]:
@@ -570,6 +591,7 @@ class CyclicExchange:
             # Before this cycle's SYNC: the last window is closed. Late, never used; a second one for a
             # cycle that already had its sample is someone else's (or the true one after a rogue's).
             self.counters.late_frames += 1
+            self._in_step[j] = 0
             if self._owed[j] > 0:
                 self._owed[j] -= 1  # the answer to a SYNC it missed
             elif self._fresh[j]:
@@ -627,6 +649,7 @@ class CyclicExchange:
         if not self._collecting:
             self.counters.late_frames += 1
             self._sensor_owed[k] = max(0, self._sensor_owed[k] - 1)
+            self._sensor_in_step[k] = 0
             return  # outside its window: never a sample
         if kind == _SENSOR_FORCE:
             self._candidate_force, self._force_counter = (x, y, z), counter

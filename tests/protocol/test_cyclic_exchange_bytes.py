@@ -710,3 +710,41 @@ def test_a_stalled_device_s_burst_of_owed_answers_is_not_a_second_sender_but_sti
     bus.answers[3] = [late, *all_answers(3)]  # nothing owed any more
     fb = one_cycle(ex, clock, None)
     assert not fb.drives[1].fresh and (Anomaly.DUPLICATE_FRAME, tpdo1(2)) in anomalies(fb)
+
+
+def test_a_burst_of_owed_answers_that_straddles_the_window_is_not_a_second_sender(bus, clock):
+    """Drive 2 stalls for three SYNCs, then answers all four at once: one lands in the window, three
+    after it, before the next SYNC (seen in a soak at the defaults: a 9 ms stall of the simulator
+    faulted it with "3 TPDO(s) twice in one cycle"). Its debt is paid answer by answer: nothing is
+    reported, and the next window's answer is its sample."""
+    ex = make_exchange(bus, clock)
+    bus.answers[0] = all_answers(0)
+    one_cycle(ex, clock, None)
+    mine = [next(f for f in all_answers(k) if f.arbitration_id == tpdo1(2)) for k in range(1, 5)]
+    for k in (1, 2, 3):
+        bus.answers[k] = [f for f in all_answers(k) if f.arbitration_id != tpdo1(2)]
+        assert not one_cycle(ex, clock, None).drives[1].fresh
+    bus.answers[4] = [*(f for f in all_answers(4) if f.arbitration_id != tpdo1(2)), mine[0]]
+    fb = one_cycle(ex, clock, None)
+    assert fb.anomalies == ()
+    bus.inbox.extend(mine[1:])  # after the window, before the next SYNC
+    bus.answers[5] = all_answers(5)
+    fb = one_cycle(ex, clock, None)
+    assert fb.anomalies == () and fb.drives[1].fresh
+
+
+def test_an_answer_a_device_never_sends_is_forgotten_once_it_is_in_step_again(bus, clock):
+    """A SYNC drive 2 really missed (its answer never comes): after three windows with exactly one
+    answer each, a second candidate is a second sender's again."""
+    ex = make_exchange(bus, clock)
+    bus.answers[0] = all_answers(0)
+    one_cycle(ex, clock, None)
+    bus.answers[1] = [f for f in all_answers(1) if f.arbitration_id != tpdo1(2)]
+    one_cycle(ex, clock, None)
+    for k in (2, 3, 4):
+        bus.answers[k] = all_answers(k)
+        assert one_cycle(ex, clock, None).drives[1].fresh
+    rogue = next(f for f in all_answers(5) if f.arbitration_id == tpdo1(2))
+    bus.answers[5] = [rogue, *all_answers(5)]
+    fb = one_cycle(ex, clock, None)
+    assert not fb.drives[1].fresh and (Anomaly.DUPLICATE_FRAME, tpdo1(2)) in anomalies(fb)
