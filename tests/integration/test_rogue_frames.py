@@ -224,7 +224,8 @@ def test_a_drive_put_in_pre_operational_that_does_not_stop_itself_is_quick_stopp
 def test_every_silent_node_is_named_in_one_fault():
     """The simulator gone (its frames lost): one fault names all of them."""
     final, _ = run([f"tx_full@{ROGUE_AT_S}"])
-    assert final.fault_reason == "drives 1, 2, 3 and the force sensor silent for 5 cycles"
+    limit = load_config().loop.max_missing_cycles
+    assert final.fault_reason == f"drives 1, 2, 3 and the force sensor silent for {limit} cycles"
 
 
 @pytest.mark.integration

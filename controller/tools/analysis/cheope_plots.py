@@ -208,7 +208,7 @@ def path_margins(robot: CheopeRobot, path: CirclePath, out: Path, n: int = 361) 
         ),
     )
     fig, axes = plt.subplots(2, 3, figsize=(15, 7.5))
-    for ax, (title, ylabel, values, limit, kind) in zip(axes.flat, panels, strict=True):
+    for ax, (title, ylabel, values, limit, kind) in zip(axes.flat[: len(panels)], panels, strict=True):
         ax.plot(s, values, color="tab:blue", label="along the path")
         ax.axhline(limit, color="tab:red", ls="--", lw=1.0, label=f"configured {kind} ({limit:g})")
         lo, hi = min(min(values), limit), max(max(values), limit)
