@@ -265,6 +265,8 @@ class CyclicExchange:
         self._sensor_owed = [0, 0]
         self._in_step = [0] * self.n  # windows in a row with exactly one candidate and nothing late
         self._sensor_in_step = [0, 0]
+        self._slack = [0] * self.n  # answers a device owed when its trusted sample was taken
+        self._sensor_slack = 0
         self._sensor_trusted_counter = -1  # the counter of the last sample used
         self._sensor_cycles_since_trusted = 0
         self._force = (0.0, 0.0, 0.0)
@@ -451,7 +453,15 @@ class CyclicExchange:
         return feedback
 
     def _close_window(self) -> None:
-        """The window's verdict per device: one decoded candidate is the sample, else none."""
+        """The window's verdict per device: one decoded candidate is the sample, else none.
+
+        A device that still owed answers from before the window may have sent its burst's oldest
+        one: the sample is then up to that many SYNCs old, and the device's next answer may be as
+        many steps further on than the SYNCs since (``_slack``). Without that allowance the
+        sensor's next counter seemed to jump, a frame "the device cannot have sent", and a soak at
+        the defaults faulted on it."""
+        owed_at_open = list(self._owed)
+        sensor_owed_at_open = max(self._sensor_owed)
         for j, count in enumerate(self._candidates):
             self._owed[j], self._in_step[j] = _owed_after(self._owed[j], self._in_step[j], count)
         for k, count in enumerate(self._sensor_candidates):
@@ -467,6 +477,7 @@ class CyclicExchange:
                 if not self._implausible[j]:  # a lone implausible one goes to the law's jump check
                     self._trusted_x[j] = self._candidate_x[j]
                     self._cycles_since_trusted[j] = 0
+                    self._slack[j] = owed_at_open[j]
                     continue
             elif count > 1 and self._implausible[j]:
                 self._report(Anomaly.IMPLAUSIBLE_FRAME, self._codecs[j].tpdo_cob_id, self.drive_ids[j])
@@ -477,6 +488,7 @@ class CyclicExchange:
                 self._sensor_status = self._candidate_status
                 self._sensor_trusted_counter = self._force_counter
                 self._sensor_cycles_since_trusted = 0
+                self._sensor_slack = sensor_owed_at_open
             else:
                 self._sensor_cycles_since_trusted += 1
 
@@ -611,7 +623,10 @@ class CyclicExchange:
             return
         x = self.scale.to_unit(counts)
         trusted = self._trusted_x[j]
-        possible = self.max_position_step * (self._cycles_since_trusted[j] + 1) + self.max_position_jump
+        possible = (
+            self.max_position_step * (self._cycles_since_trusted[j] + 1 + self._slack[j])
+            + self.max_position_jump
+        )
         if abs(x - trusted) > possible:  # False while nothing is trusted yet (NaN)
             self._implausible[j] = True
         self._candidate_sw[j], self._candidate_x[j], self._candidate_ok[j] = sw, x, True
@@ -624,7 +639,7 @@ class CyclicExchange:
         if self._sensor_trusted_counter < 0:
             return True
         step = (counter - self._sensor_trusted_counter) % COUNTER_MODULO
-        return step <= self._sensor_cycles_since_trusted + 1
+        return step <= self._sensor_cycles_since_trusted + 1 + self._sensor_slack
 
     def _on_sensor(self, kind: int, msg: can.Message, now: float) -> None:
         codec = self._force_codec if kind == _SENSOR_FORCE else self._torque_codec

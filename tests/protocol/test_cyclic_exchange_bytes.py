@@ -748,3 +748,26 @@ def test_an_answer_a_device_never_sends_is_forgotten_once_it_is_in_step_again(bu
     bus.answers[5] = [rogue, *all_answers(5)]
     fb = one_cycle(ex, clock, None)
     assert not fb.drives[1].fresh and (Anomaly.DUPLICATE_FRAME, tpdo1(2)) in anomalies(fb)
+
+
+def test_the_sensor_s_burst_after_a_stall_is_not_a_counter_jump(bus, clock):
+    """The sensor stalls for three SYNCs and answers all four at once, one pair in the window and
+    three after it: the next window's counter, four on from the burst's first (the sample of its
+    window), is its own (found in a soak: "a TPDO the device cannot have sent")."""
+    ex = make_exchange(bus, clock)
+    bus.answers[0] = all_answers(0, counter=10)
+    assert one_cycle(ex, clock, None).sensor.fresh
+    sensor_ids = (tpdo1(SENSOR), tpdo2(SENSOR))
+    for k in (1, 2, 3):
+        bus.answers[k] = [f for f in all_answers(k, counter=10 + k) if f.arbitration_id not in sensor_ids]
+        assert not one_cycle(ex, clock, None).sensor.fresh
+    burst = [
+        f for k in (1, 2, 3, 4) for f in all_answers(k, counter=10 + k) if f.arbitration_id in sensor_ids
+    ]
+    bus.answers[4] = [*(f for f in all_answers(4) if f.arbitration_id not in sensor_ids), *burst[:2]]
+    fb = one_cycle(ex, clock, None)
+    assert fb.anomalies == ()
+    bus.inbox.extend(burst[2:])
+    bus.answers[5] = all_answers(5, counter=15)
+    fb = one_cycle(ex, clock, None)
+    assert fb.anomalies == () and fb.sensor.fresh and fb.sensor.counter == 15
