@@ -9,9 +9,9 @@ from dataclasses import dataclass
 
 from controller.config import Config, ConfigError
 from controller.core.control_law import ControlLaw, LawConfig, SafetyConfig
+from controller.core.ports import ActuatorUnit, Robot
 from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother
 from controller.robots.registry import actuator_units, robot_from_config
-from controller.robots.robot import ActuatorUnit, Robot
 from controller.tasks.registry import BuiltTask, RunReport, task_entry, task_from_config
 from drivers.bus_load import BusLoad, compute_bus_load, cyclic_frames
 

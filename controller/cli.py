@@ -24,8 +24,8 @@ from controller.tasks.registry import task_kinds
 from drivers.bus import BusSpec, parse_bus_spec
 
 if TYPE_CHECKING:
+    from controller.core.ports import CycleObserver
     from controller.robots.nspu import Pose
-    from controller.shell.loop import CycleObserver
     from controller.shell.realtime import RealtimeOptions
 
 

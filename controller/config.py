@@ -21,11 +21,11 @@ from typing import Annotated, Any, Literal
 import msgspec
 
 from controller.config_schema import ConfigError, Section, convert_section, rng
+from controller.configs import CONFIG_DIR
 from controller.core.cycle_data import Reaction
 from controller.text_files import one_line, read_text_file
 from sim_backend.sim_config import SimSection, check_sim_section
 
-CONFIG_DIR = Path(__file__).parent / "configs"
 DEFAULT_CONFIG = CONFIG_DIR / "cheope.toml"
 
 
@@ -405,12 +405,22 @@ def _registered_cross_checks(cfg: Config) -> None:
         check = task_entry(kind).check
         if check is not None:
             check(section)
-    tasks = robot_entry(cfg.robot.kind).tasks
+    tasks = runnable_tasks(cfg.robot.kind)
     if cfg.task.kind not in tasks:
         raise ConfigError(
             f"task.kind = {cfg.task.kind!r}: robot.kind = {cfg.robot.kind!r} runs "
             f"{', '.join(repr(t) for t in tasks)}"
         )
+
+
+def runnable_tasks(robot_kind: str) -> tuple[str, ...]:
+    """The tasks a robot runs: those its entry lists (the first is its demo's), then every task
+    whose entry names the robot."""
+    from controller.robots.registry import robot_entry
+    from controller.tasks.registry import task_entry, task_kinds
+
+    own = robot_entry(robot_kind).tasks
+    return own + tuple(k for k in task_kinds() if k not in own and robot_kind in task_entry(k).robots)
 
 
 # Keys an earlier version wrote into recordings (``cheope.config``) and this one no longer has.

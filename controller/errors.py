@@ -27,3 +27,11 @@ class DeviceError(CheopeError):
     """A device, bus, process or permission problem: a node that does not answer its set-up, a
     simulator that does not start, a monitoring peer that cannot be reached, a recording that
     cannot be written."""
+
+
+class NoSolutionError(RefusedError):
+    """A kinematic problem has no solution on the configured branch; the message says why."""
+
+
+class WorkspaceError(RefusedError):
+    """A pose or path violates the workspace, the joint limits or the singularity margins."""

@@ -19,8 +19,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from controller.errors import DeviceError
-from drivers.cia402 import (
+from controller.core.cia402 import (
     CW_DISABLE_VOLTAGE,
     CW_ENABLE_OPERATION,
     CW_HOMING_START,
@@ -33,6 +32,7 @@ from drivers.cia402 import (
     PowerState,
     decode_statusword,
 )
+from controller.errors import DeviceError
 
 HOMING_POLL_S = 0.01  # between statusword reads while the drive homes
 

@@ -17,8 +17,8 @@ import can
 import canopen
 from canopen.objectdictionary import ODVariable
 
+from controller.core.cia402 import MODE_CYCLIC_SYNC_POSITION
 from controller.errors import DeviceError
-from drivers.cia402 import MODE_CYCLIC_SYNC_POSITION
 from drivers.cob_ids import SYNC
 from drivers.homing import HomingError, HomingPlan, home_drive
 from drivers.pdo_codec import DriveCodec, SensorFrameCodec

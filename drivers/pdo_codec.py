@@ -23,6 +23,7 @@ import math
 import struct
 from dataclasses import dataclass
 
+from controller.core.cycle_data import SENSOR_FORCE_SATURATED, SENSOR_TORQUE_SATURATED
 from controller.errors import InputError
 from drivers.pdo_mapping import PdoLayout, PdoMappingError
 
@@ -45,9 +46,6 @@ TRACKER_RAD_PER_COUNT = 1.0e-4
 TRACKER_SATURATED = 0x01  # a coordinate beyond the i16 range (the frame carries the clipped value)
 
 # Sensor status bits.
-SENSOR_FORCE_SATURATED = 0x01
-SENSOR_TORQUE_SATURATED = 0x02
-SENSOR_ERROR = 0x04
 
 
 @dataclass(frozen=True)

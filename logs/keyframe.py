@@ -74,8 +74,15 @@ def encode_state(state: object) -> bytes:
     return json.dumps(_encode(state), separators=(",", ":"), allow_nan=False).encode()
 
 
+# Classes that moved since a recording may have named them: the old name reads as the new one.
+MOVED_CLASSES = {
+    "controller.tasks.planned_legs:StreamedPlan": "controller.tasks.streamed_plan:StreamedPlan",
+    "drivers.cia402:PowerState": "controller.core.cia402:PowerState",
+}
+
+
 def _loaded_class(name: str) -> type:
-    module, _, qualname = name.partition(":")
+    module, _, qualname = MOVED_CLASSES.get(name, name).partition(":")
     mod = sys.modules.get(module)
     obj: Any = mod
     for part in qualname.split("."):

@@ -368,8 +368,8 @@ class UruDrawing:
         return out + _workpiece(self.cfg)
 
     def moving(self, pose: MeasuredPose) -> list[Primitive]:
+        from controller.errors import NoSolutionError
         from controller.robots import uru
-        from controller.robots.errors import NoSolutionError
 
         self.trail.add(pose.reference_m)
         out: list[Primitive] = []
@@ -461,7 +461,7 @@ class NspuDrawing:
         return out
 
     def moving(self, pose: MeasuredPose) -> list[Primitive]:
-        from controller.robots.errors import NoSolutionError
+        from controller.errors import NoSolutionError
         from controller.robots.nspu import NspuModelError, advance_pose_to_leg_lengths, limb_state
 
         q = np.asarray(pose.q, dtype=float)

@@ -1,7 +1,7 @@
 """A simulated CiA 402 drive for a linear (or rotary) actuator, cyclic synchronous position.
 
 Behaviour, as a real CSP drive:
-- the power state machine of CiA 402 driven by the controlword (``drivers.cia402``);
+- the power state machine of CiA 402 driven by the controlword (``controller.core.cia402``);
 - on SYNC it latches the last received target and reports the position sampled at the
   SYNC; between SYNCs its position reference is interpolated linearly from the previous to
   the new target over the interpolation time period (object 0x60C2, written by the master at
@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from drivers.cia402 import (
+from controller.core.cia402 import (
     CW_HOMING_START,
     MODE_CYCLIC_SYNC_POSITION,
     MODE_HOMING,

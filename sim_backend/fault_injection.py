@@ -228,7 +228,7 @@ def apply_device_faults(
     schedule: FaultSchedule, plant: FaultableDevices, drive_ids: tuple[int, ...], now_s: float
 ) -> None:
     """The faults that change the devices themselves, applied at a SYNC (simulator and loopback)."""
-    from drivers.pdo_codec import SENSOR_FORCE_SATURATED
+    from controller.core.cycle_data import SENSOR_FORCE_SATURATED
     from sim_backend.drive import EMCY_FORCED_FAULT
 
     schedule.start(now_s)

@@ -14,14 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.pdo_codec import (
-    FORCE_N_PER_COUNT,
-    SENSOR_FORCE_SATURATED,
-    SENSOR_TORQUE_SATURATED,
-    SENSOR_TPDO,
-    TORQUE_NM_PER_COUNT,
-    saturating_i16,
-)
+from controller.core.cycle_data import SENSOR_FORCE_SATURATED, SENSOR_TORQUE_SATURATED
+from drivers.pdo_codec import FORCE_N_PER_COUNT, SENSOR_TPDO, TORQUE_NM_PER_COUNT, saturating_i16
 
 
 @dataclass(frozen=True)

@@ -23,10 +23,7 @@ import numpy as np
 
 from controller.assembly import position_plausibility
 from controller.config import Config
-from controller.core.cycle_data import BusFeedback, CycleOutputs
-from controller.robots.registry import actuator_units
-from drivers import cob_ids
-from drivers.cia402 import (
+from controller.core.cia402 import (
     CW_DISABLE_VOLTAGE,
     CW_ENABLE_OPERATION,
     CW_HOMING_START,
@@ -35,6 +32,9 @@ from drivers.cia402 import (
     MODE_HOMING,
     SW_HOMING_ATTAINED,
 )
+from controller.core.cycle_data import BusFeedback, CycleOutputs
+from controller.robots.registry import actuator_units
+from drivers import cob_ids
 from drivers.cyclic_exchange import CyclicExchange, ExchangeCounters
 from drivers.homing import HomingError
 from drivers.node_setup import (

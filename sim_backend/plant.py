@@ -56,10 +56,10 @@ import numpy as np
 
 from controller.config import Config
 from controller.core.linalg3 import Matrix3, as_rows, inverse3, matvec, transpose3
+from controller.core.ports import ActuatorUnit
+from controller.errors import NoSolutionError
 from controller.robots.builtin import mass_model_from_config
-from controller.robots.errors import NoSolutionError
 from controller.robots.registry import actuator_units, robot_from_config
-from controller.robots.robot import ActuatorUnit
 from controller.tasks.registry import task_entry
 from sim_backend.contact_disk import DiskEnvironment, DiskParams
 from sim_backend.drive import DriveParams, SimulatedDrive

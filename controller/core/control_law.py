@@ -35,7 +35,9 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from controller.core.cia402 import CW_QUICK_STOP, PowerState, controlword_towards, decode_statusword
 from controller.core.cycle_data import (
+    SENSOR_FORCE_SATURATED,
     Anomaly,
     BusAnomaly,
     Command,
@@ -45,13 +47,9 @@ from controller.core.cycle_data import (
     Reaction,
     Severity,
 )
+from controller.core.ports import PoseStatus, Robot, Task, TaskContext
 from controller.core.setpoint_smoothing import RuckigSmoother, Setpoint
-from controller.robots.cheope import PoseStatus
-from controller.robots.errors import NoSolutionError
-from controller.robots.robot import Robot
-from controller.tasks.task import Task, TaskContext
-from drivers.cia402 import CW_QUICK_STOP, PowerState, controlword_towards, decode_statusword
-from drivers.pdo_codec import SENSOR_FORCE_SATURATED
+from controller.errors import NoSolutionError
 
 PIPELINE_PERIODS = 2
 # A reactive reference's position error decays with a time constant of 1/0.25 = 4 periods.

@@ -18,6 +18,12 @@ class DriveFeedback:
     fresh: bool  # its TPDO arrived this cycle (else the values are the last ones received)
 
 
+# The force sensor's status bits (drivers/eds/force_sensor.eds, object 0x2002), as SensorFeedback.status carries them.
+SENSOR_FORCE_SATURATED = 0x01
+SENSOR_TORQUE_SATURATED = 0x02
+SENSOR_ERROR = 0x04
+
+
 @dataclass(frozen=True, slots=True)
 class SensorFeedback:
     force_n: tuple[float, float, float]

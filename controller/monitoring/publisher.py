@@ -45,6 +45,7 @@ from google.protobuf.message import DecodeError
 from controller.config import Config, config_to_dict
 from controller.core.control_law import ControllerState
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severity
+from controller.core.ports import CycleTiming, Task
 from controller.messages import cheope_pb2 as pb
 from controller.monitoring.command_gate import CommandDecision, decide_command
 from controller.monitoring.query_server import QueryLimits, QueryServer
@@ -58,8 +59,6 @@ from controller.monitoring.zenoh_session import (
     open_session,
     split_endpoints,
 )
-from controller.shell.loop import CycleTiming
-from controller.tasks.task import Task
 from drivers.cyclic_exchange import ExchangeCounters
 
 log = logging.getLogger(__name__)

@@ -12,12 +12,13 @@ import math
 from collections.abc import Iterable
 from typing import TYPE_CHECKING, Annotated, Literal
 
-from controller.config import CONFIG_DIR, Config
 from controller.config_schema import ConfigError, Section, rng
-from controller.robots.registry import RobotEntry, register_robot
-from controller.robots.robot import ActuatorUnit
+from controller.configs import CONFIG_DIR
+from controller.core.ports import ActuatorUnit
+from controller.robots.registry import RobotEntry
 
 if TYPE_CHECKING:  # the models load on demand, when a robot is built: the configuration loads without them
+    from controller.config import Config
     from controller.robots.cheope import CheopeRobot
     from controller.robots.nspu import NspuGeometry, Pose
     from controller.robots.nspu_robot import NspuRobot
@@ -267,6 +268,3 @@ NSPU = RobotEntry(
     sim_hook="sim_backend.plant_kinematics:nspu_kinematics",
     analyze="controller.tools.analysis.robot_analysis:analyze_nspu",
 )
-
-for _entry in (CHEOPE, URU, NSPU):
-    register_robot(_entry)

@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from controller.core.linalg3 import Matrix3, Vector3, matmul3, symmetric_eigenvalues3, transpose3
-from controller.errors import RefusedError
-from controller.robots.errors import NoSolutionError
+from controller.core.ports import POSE_OK, PoseStatus
+from controller.errors import NoSolutionError, WorkspaceError
 
 _AXES = 3
 
@@ -272,21 +272,6 @@ def joint_swing_rad(geom: CheopeGeometry, tcp_m: np.ndarray, q_m: np.ndarray | N
     w = rod_directions(geom, s, q)
     c = np.clip(np.einsum("ij,ij->i", w, geom.neutral_rod_directions), -1.0, 1.0)
     return np.arccos(c)
-
-
-@dataclass(frozen=True)
-class PoseStatus:
-    """Result of a per-cycle pose check: ``ok`` or the reason it is not."""
-
-    ok: bool
-    reason: str = ""
-
-
-POSE_OK = PoseStatus(True)
-
-
-class WorkspaceError(RefusedError):
-    """A pose or path violates the workspace, the joint limits or the singularity margins."""
 
 
 @dataclass(frozen=True)

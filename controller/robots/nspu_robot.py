@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.robots.cheope import POSE_OK, PoseStatus, WorkspaceError
-from controller.robots.errors import NoSolutionError
+from controller.core.ports import POSE_OK, PoseStatus
+from controller.errors import NoSolutionError, WorkspaceError
 from controller.robots.nspu import NspuGeometry, Pose, advance_pose_to_leg_lengths, leg_lengths, so3_log
 
 

@@ -4,8 +4,10 @@ An entry is everything the rest of the code needs to know about a robot: its con
 section (``[robot.<kind>]``), the factory of its model, its actuators' unit and stroke, its
 default task, its shipped configuration file, and, named by module path so that the runtime
 does not import them, its simulator hook (``sim_backend``) and its analysis plots (tools).
-The three robots of the papers are registered in ``controller/robots/builtin.py``; a new
-robot is a model file and one ``register_robot`` call (docs/tutorial/own-robot.md).
+The registry finds its robots through the ``cheope.robots`` entry points (controller/plugins.py):
+the three robots of the papers are declared in this project's ``pyproject.toml`` (their entries
+in ``controller/robots/builtin.py``), a plug-in robot in its own distribution's; a robot of a
+test or a script can also be added with ``register_robot`` (docs/tutorial/own-robot.md).
 """
 
 from __future__ import annotations
@@ -16,11 +18,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from controller.robots.robot import ActuatorUnit
+from controller.core.ports import ActuatorUnit
+from controller.plugins import ROBOTS_GROUP, Registry
 
 if TYPE_CHECKING:
     from controller.config import Config
-    from controller.robots.robot import Robot
+    from controller.core.ports import Robot
 
 
 @dataclass(frozen=True)
@@ -39,22 +42,13 @@ class RobotEntry:
     analyze: str = ""  # "module:function(cfg, out_dir) -> dict" writing its plots (cheope analyze)
 
 
-_ROBOTS: dict[str, RobotEntry] = {}
-
-
-def register_robot(entry: RobotEntry) -> None:
-    """Add a robot; registering a kind again replaces its entry (tests, plug-ins)."""
-    _ROBOTS[entry.kind] = entry
-
-
-def unregister_robot(kind: str) -> None:
-    _ROBOTS.pop(kind, None)
+ROBOTS: Registry[RobotEntry] = Registry(ROBOTS_GROUP, RobotEntry, "robot")
+register_robot = ROBOTS.register
+unregister_robot = ROBOTS.unregister
 
 
 def _entries() -> dict[str, RobotEntry]:
-    if not _ROBOTS:
-        import controller.robots.builtin  # noqa: F401  (registers the papers' robots)
-    return _ROBOTS
+    return ROBOTS.entries()
 
 
 def robot_kinds() -> tuple[str, ...]:
@@ -67,10 +61,7 @@ def robot_sections() -> dict[str, type]:
 
 
 def robot_entry(kind: str) -> RobotEntry:
-    try:
-        return _entries()[kind]
-    except KeyError:
-        raise KeyError(f"no robot {kind!r} is registered (known: {', '.join(_entries())})") from None
+    return ROBOTS.entry(kind)
 
 
 def robot_from_config(cfg: Config) -> Robot:

@@ -59,8 +59,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from controller.errors import RefusedError
-from controller.robots.errors import NoSolutionError
+from controller.errors import NoSolutionError, RefusedError
 
 _E = np.eye(3)
 _E.setflags(write=False)

@@ -37,9 +37,9 @@ from typing import Protocol, TypedDict
 import numpy as np
 
 from controller.core.linalg3 import Vector3
+from controller.core.ports import POSE_OK, PoseStatus
+from controller.errors import NoSolutionError, WorkspaceError
 from controller.robots import uru
-from controller.robots.cheope import POSE_OK, PoseStatus, WorkspaceError
-from controller.robots.errors import NoSolutionError
 
 _FD_STEP_M = 1e-7
 _NEWTON_TOL_RAD = 1e-10

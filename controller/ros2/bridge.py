@@ -45,7 +45,7 @@ from controller.ros2.samples import BridgeSample, CycleSampler, sample_from_stat
 
 if TYPE_CHECKING:
     from controller.config import Config
-    from controller.robots.robot import Robot
+    from controller.core.ports import Robot
     from logs.robot_drawing import RobotDrawing
 
 DEFAULT_NAMESPACE = "/cheope"

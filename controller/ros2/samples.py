@@ -23,7 +23,7 @@ import numpy as np
 from controller.core.control_law import Mode
 
 if TYPE_CHECKING:
-    from controller.robots.robot import Robot
+    from controller.core.ports import Robot
 
 Vec3 = tuple[float, float, float]
 _GRID_TOLERANCE_S = 1e-6  # the sum of the sampling intervals drifts from the cycles' times by rounding
@@ -57,7 +57,7 @@ def commanded_tcp(robot: Robot | None, targets: tuple[float, ...]) -> Vec3 | Non
     """The robot's direct kinematics of ``targets``; None without a model, a solution or a finite result."""
     if robot is None or len(targets) != robot.n_actuators:
         return None
-    from controller.robots.errors import NoSolutionError
+    from controller.errors import NoSolutionError
 
     try:
         p = robot.direct_kinematics(np.asarray(targets, dtype=float))

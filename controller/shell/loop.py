@@ -26,7 +26,8 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from controller.core.control_law import ControlLaw, ControllerState, Mode
-from controller.core.cycle_data import BusFeedback, Command, CycleInputs, CycleOutputs, Event, cycle_inputs
+from controller.core.cycle_data import BusFeedback, Command, CycleOutputs, cycle_inputs
+from controller.core.ports import CycleObserver, CycleTiming
 from controller.shell.streaming_stats import LogHistogram
 
 
@@ -45,27 +46,6 @@ class SdoControlwords(Protocol):
     """An exchange that can also write a drive's controlword by SDO (drivers/cyclic_exchange.py)."""
 
     def send_controlword_by_sdo(self, drive_index: int, controlword: int) -> None: ...
-
-
-@dataclass(frozen=True, slots=True)
-class CycleTiming:
-    wake_error_s: float  # actual wake-up minus the deadline
-    step_s: float  # compute time of law.step
-
-
-class CycleObserver(Protocol):
-    """Receives every cycle. Runs on the loop's thread: it must hand off and return in microseconds."""
-
-    def on_cycle(
-        self,
-        cycle: int,
-        t: float,
-        inputs: CycleInputs,
-        state: ControllerState,
-        outputs: CycleOutputs,
-        events: tuple[Event, ...],
-        timing: CycleTiming,
-    ) -> None: ...
 
 
 DEFAULT_RING_CYCLES = 4096  # about 10 s at 400 Hz of per-cycle timing kept as it was measured

@@ -29,7 +29,7 @@ from controller.tasks.plan_correction import CorrectionPlan, CorrectionPlanner, 
 if TYPE_CHECKING:
     from controller.core.control_law import ControllerState
     from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
-    from controller.shell.loop import CycleTiming
+    from controller.core.ports import CycleTiming
 
 log = logging.getLogger(__name__)
 WORKER_NICE = 10

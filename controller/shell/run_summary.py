@@ -16,7 +16,8 @@ import numpy as np
 
 from controller.core.control_law import PIPELINE_PERIODS, ControllerState
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severity
-from controller.shell.loop import CycleTiming, LoopStats
+from controller.core.ports import CycleTiming
+from controller.shell.loop import LoopStats
 from controller.shell.streaming_stats import FloatRing, LogHistogram, RunningMoments
 from drivers.cyclic_exchange import ExchangeCounters
 

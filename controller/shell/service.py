@@ -22,9 +22,10 @@ import can
 from controller.assembly import assemble, planned_bus_load, position_plausibility
 from controller.config import Config
 from controller.core.control_law import ControlLaw
+from controller.core.ports import CycleObserver
 from controller.monitoring.publisher import monitoring_context, publisher_settings
 from controller.robots.registry import actuator_units
-from controller.shell.loop import CycleLoop, CycleObserver
+from controller.shell.loop import CycleLoop
 from controller.shell.realtime import (
     RealtimeOptions,
     apply_realtime,

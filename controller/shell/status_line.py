@@ -32,7 +32,7 @@ from typing import IO, TYPE_CHECKING
 if TYPE_CHECKING:  # the drawing process imports this module: it must not load the law (numpy, Ruckig)
     from controller.core.control_law import ControllerState
     from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
-    from controller.shell.loop import CycleTiming
+    from controller.core.ports import CycleTiming
 
 DEFAULT_INTERVAL_S = 0.25
 LATE_FRACTION = 0.1  # a cycle woke more than this fraction of a period late: the run summary's definition

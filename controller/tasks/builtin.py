@@ -10,13 +10,13 @@ import dataclasses
 import math
 from typing import TYPE_CHECKING, Annotated, Literal
 
-from controller.config import Config
 from controller.config_schema import ConfigError, Section, rng
 from controller.robots.registry import actuator_units
-from controller.tasks.registry import BuiltTask, TaskEntry, register_task
+from controller.tasks.registry import BuiltTask, TaskEntry
 
 if TYPE_CHECKING:  # the tasks load on demand, when one is built: the configuration loads without them
-    from controller.robots.robot import Robot
+    from controller.config import Config
+    from controller.core.ports import Robot
     from controller.tasks.contour_tracking import ContourParams
     from controller.tasks.path_task import CartesianTrajectory
 
@@ -174,6 +174,3 @@ CONTOUR = TaskEntry(
     uses_force_sensor=True,
 )
 PLANNED = TaskEntry(kind="planned", section=None, build=build_planned_task)
-
-for _entry in (PATH, CONTOUR, PLANNED):
-    register_task(_entry)

@@ -82,7 +82,7 @@ from typing import Protocol
 import numpy as np
 
 from controller.core.cycle_data import Command, Event, Severity
-from controller.tasks.task import JointReference, TaskContext, TaskStep
+from controller.core.ports import JointReference, TaskContext, TaskStep
 
 
 class Kinematics(Protocol):

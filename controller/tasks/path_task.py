@@ -13,8 +13,8 @@ from typing import Protocol
 
 import numpy as np
 
+from controller.core.ports import JointReference, TaskContext, TaskStep
 from controller.core.setpoint_smoothing import Setpoint
-from controller.tasks.task import JointReference, TaskContext, TaskStep
 
 
 class CartesianTrajectory(Protocol):

@@ -26,7 +26,7 @@ import numpy as np
 if TYPE_CHECKING:
     from controller.planning.nonholonomic import PlannerConfig
     from controller.robots.nspu import NspuGeometry, Pose
-    from controller.tasks.planned_legs import StreamedPlan
+    from controller.tasks.streamed_plan import StreamedPlan
 
 PoseRequest = tuple[float, float, float, float, float, float]  # P [m], rotation vector [rad]
 
@@ -62,7 +62,7 @@ def correction_plan(problem: CorrectionProblem, request: PoseRequest) -> Correct
     """The plan from the request's pose to the goal, time-scaled: a pure function of its arguments."""
     from controller.planning.nonholonomic import plan_motion
     from controller.robots.nspu import NspuModelError
-    from controller.tasks.planned_legs import time_scale_plan
+    from controller.tasks.streamed_plan import time_scale_plan
 
     try:
         start = pose_from_request(request)

@@ -2,8 +2,9 @@
 
 An entry is the task's configuration section (``[task.<kind>]``, or none), the factory that
 builds it for a robot, and what the simulator should place for it (``sim_environment``: the
-contour task's workpiece). Which robot runs which task is the robot's entry's ``tasks``. The
-built-in tasks are registered in ``controller/tasks/builtin.py``.
+contour task's workpiece). Which robot runs which task is the robot's entry's ``tasks``. Tasks
+are found through the ``cheope.tasks`` entry points (controller/plugins.py): the built-in ones
+are declared in this project's ``pyproject.toml``, their entries in ``controller/tasks/builtin.py``.
 """
 
 from __future__ import annotations
@@ -12,10 +13,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
+from controller.plugins import TASKS_GROUP, Registry
+
 if TYPE_CHECKING:
     from controller.config import Config
-    from controller.robots.robot import Robot
-    from controller.tasks.task import Task
+    from controller.core.ports import Robot, Task
 
 
 class RunReport(Protocol):
@@ -47,20 +49,18 @@ class TaskEntry:
     # Whether the task reads the force sensor's samples: then every cycle without one counts towards
     # safety.sensor_stale_cycles; if not, the sensor is supervised by its heartbeat (LawConfig).
     uses_force_sensor: bool = False
+    # Robot kinds this task runs on besides the robots whose entry lists it (``RobotEntry.tasks``):
+    # a task of a plug-in names the robots it was made for without changing their entries.
+    robots: tuple[str, ...] = ()
 
 
-_TASKS: dict[str, TaskEntry] = {}
-
-
-def register_task(entry: TaskEntry) -> None:
-    """Add a task; registering a kind again replaces its entry."""
-    _TASKS[entry.kind] = entry
+TASKS: Registry[TaskEntry] = Registry(TASKS_GROUP, TaskEntry, "task")
+register_task = TASKS.register
+unregister_task = TASKS.unregister
 
 
 def _entries() -> dict[str, TaskEntry]:
-    if not _TASKS:
-        import controller.tasks.builtin  # noqa: F401  (registers path, contour, planned)
-    return _TASKS
+    return TASKS.entries()
 
 
 def task_kinds() -> tuple[str, ...]:
@@ -72,10 +72,7 @@ def task_sections() -> dict[str, type | None]:
 
 
 def task_entry(kind: str) -> TaskEntry:
-    try:
-        return _entries()[kind]
-    except KeyError:
-        raise KeyError(f"no task {kind!r} is registered (known: {', '.join(_entries())})") from None
+    return TASKS.entry(kind)
 
 
 def task_from_config(cfg: Config, robot: Robot) -> BuiltTask:

@@ -63,8 +63,8 @@ if TYPE_CHECKING:
 
     from controller.core.control_law import ControllerState
     from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
+    from controller.core.ports import CycleTiming
     from controller.core.setpoint_smoothing import Setpoint, SmoothingResult
-    from controller.shell.loop import CycleTiming
     from drivers.bus import BusSpec
 
     class StubBus(can.BusABC):

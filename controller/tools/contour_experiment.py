@@ -21,9 +21,9 @@ import msgspec
 
 from controller.assembly import build_robot
 from controller.config import Config
+from controller.core.ports import CycleObserver
 from controller.robots.builtin import mass_model_from_config
 from controller.robots.cheope import CheopeRobot
-from controller.shell.loop import CycleObserver
 from controller.shell.realtime import RealtimeOptions
 from controller.shell.service import run_controller
 from controller.tasks.builtin import PathSection

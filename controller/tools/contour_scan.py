@@ -38,7 +38,8 @@ from controller.assembly import build_law
 from controller.config import Config, load_config
 from controller.core.control_law import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
-from controller.shell.loop import CycleLoop, CycleTiming, SimulatedTime
+from controller.core.ports import CycleTiming
+from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.tasks.contour_tracking import ContourPhase, ContourState
 from sim_backend.loopback import LoopbackExchange
 

@@ -20,8 +20,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from controller.config import Config
+from controller.core.ports import CycleObserver
 from controller.errors import DeviceError
-from controller.shell.loop import CycleObserver
 from controller.shell.realtime import RealtimeOptions
 from controller.shell.service import prepare, run_controller
 from drivers.bus import BusSpec

@@ -22,10 +22,11 @@ import msgspec
 
 from controller.assembly import build_law
 from controller.config import Config, load_config
+from controller.core.cia402 import PowerState
 from controller.core.control_law import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severity
-from controller.shell.loop import CycleLoop, CycleTiming, SimulatedTime
-from drivers.cia402 import PowerState
+from controller.core.ports import CycleTiming
+from controller.shell.loop import CycleLoop, SimulatedTime
 from sim_backend.fault_injection import FaultSchedule
 from sim_backend.loopback import LoopbackExchange
 

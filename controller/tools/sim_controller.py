@@ -25,9 +25,10 @@ from controller.assembly import build_law
 from controller.config import Config, load_config, parse_override
 from controller.core.control_law import ControllerState
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
+from controller.core.ports import CycleTiming
 from controller.errors import CheopeError
 from controller.monitoring.publisher import monitoring_publisher
-from controller.shell.loop import CycleLoop, CycleTiming
+from controller.shell.loop import CycleLoop
 from controller.shell.realtime import RealtimeOptions, apply_realtime, granted_realtime
 from drivers.pacing import DeadlineSleeper
 

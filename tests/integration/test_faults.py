@@ -21,12 +21,12 @@ from waiting import wait_until
 
 from controller.assembly import build_law
 from controller.config import load_config
+from controller.core.cia402 import PowerState, decode_statusword
 from controller.core.control_law import Mode
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.tools.demo import simulator_process, stop_process
 from controller.tools.fault_scenarios import SCENARIOS, run_all
 from drivers.bus import parse_bus_spec
-from drivers.cia402 import PowerState, decode_statusword
 from drivers.cyclic_exchange import CyclicExchange
 from drivers.node_setup import DRIVE_EDS
 from drivers.pdo_codec import PositionScale

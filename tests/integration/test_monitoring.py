@@ -30,6 +30,7 @@ from waiting import GENEROUS_S, wait_for_exit
 
 from controller.config import ConfigError, load_config
 from controller.core.cycle_data import CycleInputs, CycleOutputs, DriveFeedback
+from controller.core.ports import CycleTiming
 from controller.messages import cheope_pb2 as pb
 from controller.monitoring.command_gate import decide_command
 from controller.monitoring.commands import query_status, send_command
@@ -54,7 +55,6 @@ from controller.monitoring.zenoh_session import (
     monitor_settings,
     split_endpoints,
 )
-from controller.shell.loop import CycleTiming
 
 KEYS = MonitorKeys.for_robot("cheope", "test-bot")
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}

@@ -27,12 +27,13 @@ from waiting import wait_until
 
 from controller.assembly import build_law
 from controller.config import load_config
+from controller.core.cia402 import PowerState, decode_statusword
 from controller.core.control_law import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
-from controller.shell.loop import CycleLoop, CycleTiming, SimulatedTime
+from controller.core.ports import CycleTiming
+from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.tools.demo import simulator_process, stop_process
 from drivers.bus import parse_bus_spec
-from drivers.cia402 import PowerState, decode_statusword
 from drivers.node_setup import DRIVE_EDS
 from sim_backend.drive import ABORT_NO_ACTION
 from sim_backend.loopback import LoopbackExchange

@@ -6,8 +6,7 @@ from __future__ import annotations
 import pytest
 
 from controller.config import load_config
-from controller.shell.service import node_setup_plan
-from drivers.cia402 import (
+from controller.core.cia402 import (
     CW_DISABLE_VOLTAGE,
     CW_ENABLE_OPERATION,
     CW_HOMING_START,
@@ -19,6 +18,7 @@ from drivers.cia402 import (
     SW_TARGET_REACHED,
     PowerState,
 )
+from controller.shell.service import node_setup_plan
 from drivers.node_setup import NodeSetupError, configure_nodes
 from sim_backend.drive import SimulatedDrive
 from sim_backend.homing import HomingSettings

@@ -6,9 +6,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from controller.core.cycle_data import SENSOR_FORCE_SATURATED
 from drivers.pdo_codec import (
     FORCE_N_PER_COUNT,
-    SENSOR_FORCE_SATURATED,
     TORQUE_NM_PER_COUNT,
     FrameError,
     PositionScale,

@@ -18,9 +18,9 @@ from canopen.profiles.p402 import BaseNode402
 from waiting import wait_until
 
 from controller.config import load_config
+from controller.core.cia402 import PowerState, decode_statusword
 from controller.core.control_law import Mode
 from controller.core.cycle_data import CycleOutputs
-from drivers.cia402 import PowerState, decode_statusword
 from drivers.node_setup import DRIVE_EDS, NodeSetupError, configure_nodes
 from sim_backend.drive import ABORT_QUICK_STOP, EMCY_SYNC_PERIOD
 from sim_backend.pdo_parameters import (
@@ -309,7 +309,7 @@ def test_set_up_writes_the_drives_following_error_window_and_time_and_reads_them
 
 
 def test_a_drive_beyond_its_following_error_window_for_its_time_faults_with_emcy_8611():
-    from drivers.cia402 import CW_ENABLE_OPERATION, CW_SHUTDOWN, CW_SWITCH_ON, PowerState
+    from controller.core.cia402 import CW_ENABLE_OPERATION, CW_SHUTDOWN, CW_SWITCH_ON, PowerState
     from sim_backend.drive import EMCY_FOLLOWING_ERROR
     from sim_backend.plant import RobotPlant
 

@@ -14,8 +14,14 @@ import can
 import pytest
 
 from controller.config import load_config
+from controller.core.cia402 import (
+    CW_ENABLE_OPERATION,
+    CW_SHUTDOWN,
+    CW_SWITCH_ON,
+    PowerState,
+    decode_statusword,
+)
 from drivers import cob_ids
-from drivers.cia402 import CW_ENABLE_OPERATION, CW_SHUTDOWN, CW_SWITCH_ON, PowerState, decode_statusword
 from drivers.pdo_codec import (
     FORCE_N_PER_COUNT,
     decode_drive_tpdo,

@@ -9,8 +9,7 @@ import pytest
 
 from controller.assembly import build_robot
 from controller.config import load_config
-from controller.robots.performance import MassModel, cartesian_mass_matrix
-from drivers.cia402 import (
+from controller.core.cia402 import (
     CW_ENABLE_OPERATION,
     CW_SHUTDOWN,
     CW_SWITCH_ON,
@@ -18,7 +17,9 @@ from drivers.cia402 import (
     PowerState,
     decode_statusword,
 )
-from drivers.pdo_codec import FORCE_N_PER_COUNT, SENSOR_FORCE_SATURATED, decode_sensor_frame
+from controller.core.cycle_data import SENSOR_FORCE_SATURATED
+from controller.robots.performance import MassModel, cartesian_mass_matrix
+from drivers.pdo_codec import FORCE_N_PER_COUNT, decode_sensor_frame
 from sim_backend.drive import (
     ABORT_DISABLE_VOLTAGE,
     ABORT_FAULT,

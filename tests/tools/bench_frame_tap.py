@@ -19,8 +19,8 @@ import can
 
 from controller.core.control_law import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs
+from controller.core.ports import CycleTiming
 from controller.core.setpoint_smoothing import Setpoint
-from controller.shell.loop import CycleTiming
 from controller.shell.status_line import StatusObserver
 from controller.tasks.contour_tracking import ContourPhase, ContourState
 from drivers.bus import open_bus, parse_bus_spec

@@ -28,10 +28,10 @@ import pytest
 from controller.assembly import build_law
 from controller.config import load_config
 from controller.core.cycle_data import CycleInputs, CycleOutputs, DriveFeedback, SensorFeedback
+from controller.core.ports import CycleTiming
 from controller.monitoring.monitor_view import MonitorClient, StateUpdate
 from controller.monitoring.publisher import MonitorPublisher, publisher_settings
 from controller.monitoring.zenoh_session import MonitorKeys, free_loopback_port, monitor_settings
-from controller.shell.loop import CycleTiming
 from drivers.pacing import DeadlineSleeper
 
 

@@ -202,7 +202,7 @@ def test_bus_frame_cost_measures_both_sides_of_the_udp_bus():
 def test_loop_probe_times_the_devices_answer_from_sync_to_the_last_tpdo():
     import can
 
-    from controller.shell.loop import CycleTiming
+    from controller.core.ports import CycleTiming
     from controller.tools.bench import LoopProbe
     from drivers import cob_ids
 

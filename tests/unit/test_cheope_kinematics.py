@@ -10,6 +10,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from controller.config import load_config
+from controller.errors import NoSolutionError
 from controller.robots.builtin import cheope_from_config
 from controller.robots.cheope import (
     CheopeGeometry,
@@ -20,7 +21,6 @@ from controller.robots.cheope import (
     rod_directions,
     singularity_measures,
 )
-from controller.robots.errors import NoSolutionError
 
 GEOM = CheopeGeometry()
 ROBOT = cheope_from_config(load_config())

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from drivers.cia402 import (
+from controller.core.cia402 import (
     CW_DISABLE_VOLTAGE,
     CW_ENABLE_OPERATION,
     CW_FAULT_RESET,

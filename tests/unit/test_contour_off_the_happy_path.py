@@ -15,10 +15,10 @@ import pytest
 from controller.assembly import build_robot
 from controller.config import load_config
 from controller.core.cycle_data import CycleInputs, DriveFeedback, SensorFeedback
+from controller.core.ports import TaskContext
 from controller.core.setpoint_smoothing import Setpoint
 from controller.tasks.builtin import build_contour_task
 from controller.tasks.contour_tracking import ContourPhase, ContourState, track_normal
-from controller.tasks.task import TaskContext
 from controller.tools.contour_scan import (
     ContourScenario,
     run_contour_scenario,

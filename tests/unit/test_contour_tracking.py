@@ -12,11 +12,11 @@ from controller.assembly import build_law, build_robot
 from controller.config import load_config
 from controller.core.control_law import Mode
 from controller.core.cycle_data import CycleInputs, DriveFeedback, SensorFeedback
+from controller.core.ports import TaskContext
 from controller.core.setpoint_smoothing import Setpoint
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.tasks.builtin import build_contour_task
 from controller.tasks.contour_tracking import ContourPhase, ContourState, _wrap, track_normal
-from controller.tasks.task import TaskContext
 from controller.tools.analysis.contour_report import ContourObserver, constant_speed_laps, contour_summary
 from sim_backend.loopback import LoopbackExchange
 

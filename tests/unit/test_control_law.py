@@ -11,13 +11,13 @@ import pytest
 
 from controller.assembly import build_law
 from controller.config import Config, load_config
+from controller.core.cia402 import CW_QUICK_STOP, PowerState, decode_statusword
 from controller.core.control_law import Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, DriveFeedback
 from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother, Setpoint
-from controller.robots.cheope import WorkspaceError
+from controller.errors import WorkspaceError
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.shell.run_summary import RunRecorder
-from drivers.cia402 import CW_QUICK_STOP, PowerState, decode_statusword
 from sim_backend.drive import EMCY_FORCED_FAULT
 from sim_backend.loopback import LoopbackExchange
 

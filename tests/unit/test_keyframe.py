@@ -69,3 +69,10 @@ def test_only_dataclasses_and_enums_of_loaded_modules_are_built():
         decode_state(b"{not json")
     with pytest.raises(KeyframeError, match="cannot record a state value of type"):
         encode_state(State(Phase.A, (), frozenset(), None, name=object()))  # type: ignore[arg-type]
+
+
+def test_a_keyframe_written_before_a_class_moved_still_reads():
+    from controller.core.cia402 import PowerState
+
+    old = b'{"e":"drivers.cia402:PowerState","v":"OPERATION_ENABLED"}'  # the module it had then
+    assert decode_state(old) is PowerState.OPERATION_ENABLED

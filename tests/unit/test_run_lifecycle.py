@@ -11,11 +11,11 @@ import pytest
 
 from controller.assembly import build_law
 from controller.config import Config, load_config
+from controller.core.cia402 import PowerState, decode_statusword
 from controller.core.control_law import ControllerState, Mode
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.shell.run_summary import RunRecorder
 from controller.shell.stop_signals import StopSignals
-from drivers.cia402 import PowerState, decode_statusword
 from sim_backend.loopback import LoopbackExchange
 
 LONG = {"task.path.laps": 20.0}  # far longer than any test lets it run

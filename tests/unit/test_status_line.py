@@ -13,8 +13,8 @@ import pytest
 
 from controller.core.control_law import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs
+from controller.core.ports import CycleTiming
 from controller.core.setpoint_smoothing import Setpoint
-from controller.shell.loop import CycleTiming
 from controller.shell.status_line import StatusObserver, StatusSnapshot, status_text, status_wanted
 from controller.tasks.contour_tracking import ContourPhase, ContourState
 from controller.tasks.path_task import PathPhase, PathTaskState

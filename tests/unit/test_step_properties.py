@@ -29,6 +29,14 @@ from hypothesis import strategies as st
 
 from controller.assembly import build_law
 from controller.config import Config, ConfigError, load_config
+from controller.core.cia402 import (
+    CW_DISABLE_VOLTAGE,
+    CW_FAULT_RESET,
+    CW_QUICK_STOP,
+    PowerState,
+    decode_statusword,
+    device_transition,
+)
 from controller.core.control_law import ControlLaw, ControllerState, Mode
 from controller.core.cycle_data import (
     BusFeedback,
@@ -39,16 +47,8 @@ from controller.core.cycle_data import (
     cycle_inputs,
 )
 from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother, Setpoint
-from controller.robots.cheope import WorkspaceError
+from controller.errors import WorkspaceError
 from controller.shell.loop import SimulatedTime
-from drivers.cia402 import (
-    CW_DISABLE_VOLTAGE,
-    CW_FAULT_RESET,
-    CW_QUICK_STOP,
-    PowerState,
-    decode_statusword,
-    device_transition,
-)
 from sim_backend.drive import EMCY_FORCED_FAULT
 from sim_backend.loopback import LoopbackExchange
 

@@ -28,9 +28,9 @@ import numpy as np
 
 from controller.core.control_law import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
+from controller.core.ports import CycleTiming
 from controller.robots.cheope import CheopeRobot
 from controller.robots.performance import MassModel, mass_ellipsoid, stiffness_ellipsoid
-from controller.shell.loop import CycleTiming
 from controller.tasks.contour_tracking import ContourPhase, ContourState
 
 CORNER_RADIUS_M = 0.02  # samples where the contour's measured radius of curvature is below this are "corners"

@@ -1,0 +1,150 @@
+"""The ports: the interfaces every part of the controller speaks, in one place.
+
+A robot model, a task, and whatever watches the loop (recorder, publisher, statistics, a tool's
+own observer) meet the pure law here and nowhere else. Everything in this module is vocabulary:
+protocols and frozen values, no behaviour. ``controller/core`` imports nothing above itself, so
+a robot or a task of your own depends on the core and the core on neither.
+
+- ``Robot`` (with ``PoseStatus``, ``POSE_OK`` and ``ActuatorUnit``): what a robot model is to the
+  law and the service. Registered with ``controller.robots.registry``.
+- ``Task`` (with ``TaskContext``, ``TaskStep``, ``JointReference``): what a task is to the law, a
+  pure function from a context to a joint reference. Registered with ``controller.tasks.registry``.
+- ``CycleObserver`` and ``CycleTiming``: what the loop shell hands every observer each cycle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import TYPE_CHECKING, Protocol, TypeVar
+
+from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
+from controller.core.setpoint_smoothing import Setpoint
+
+if TYPE_CHECKING:  # annotations only: the registries and the configuration load without numpy
+    import numpy as np
+
+    from controller.core.control_law import ControllerState
+
+
+# -- robots -----------------------------------------------------------------------------------
+
+
+class ActuatorUnit(StrEnum):
+    """The position unit of a robot's actuators; it selects the ``_m`` or ``_rad`` limit keys."""
+
+    METRE = "m"
+    RADIAN = "rad"
+
+
+@dataclass(frozen=True)
+class PoseStatus:
+    """Result of a per-cycle pose check: ``ok`` or the reason it is not."""
+
+    ok: bool
+    reason: str = ""
+
+
+POSE_OK = PoseStatus(True)
+
+
+class Robot(Protocol):
+    """A parallel robot's model: kinematics and the checks the law and the service make.
+
+    Positions ``q`` are in actuator units (m for linear, rad for rotary actuators, see
+    ``ActuatorUnit``); poses and points in metres in the base frame.
+    """
+
+    @property
+    def n_actuators(self) -> int: ...  # read-only: the models are frozen dataclasses
+
+    def inverse_kinematics(self, tcp_m: np.ndarray, /) -> np.ndarray:
+        """Actuator positions for a TCP position; raises NoSolutionError outside the workspace."""
+        ...
+
+    def direct_kinematics(self, q: np.ndarray, /) -> np.ndarray:
+        """The TCP position for actuator positions; raises NoSolutionError where there is none."""
+        ...
+
+    def check_pose(self, tcp_m: np.ndarray, /) -> PoseStatus:
+        """Every cycle, on the task's reference: inside the safe workspace and margins?"""
+        ...
+
+    def check_path(self, points_m: np.ndarray, /) -> None:
+        """Before a run, on a whole path: raises WorkspaceError naming the first bad sample."""
+        ...
+
+
+# -- tasks ------------------------------------------------------------------------------------
+
+S = TypeVar("S")  # a task's state
+
+
+@dataclass(frozen=True, slots=True)
+class JointReference:
+    position: tuple[float, ...]
+    velocity: tuple[float, ...]
+    acceleration: tuple[float, ...]
+    tcp_m: tuple[float, float, float]
+    on_path: bool  # False while moving to the task's start (not counted in tracking error)
+    reactive: bool = False  # recomputed from measurements each cycle: smoothed by velocity (see
+    #                         RuckigSmoother.track_velocity), else by position
+
+
+@dataclass(frozen=True, slots=True)
+class TaskContext:
+    t_s: float  # task time the reference is for: advances only while the task runs
+    period_s: float
+    setpoint: Setpoint  # the last setpoint sent
+    inputs: CycleInputs
+    tcp_measured_m: tuple[float, float, float] | None
+
+
+@dataclass(frozen=True, slots=True)
+class TaskStep:
+    state: object
+    reference: JointReference
+    finished: bool = False
+    fault: str = ""  # non-empty: the law faults with this reason
+    events: tuple[Event, ...] = ()
+
+
+class Task(Protocol[S]):
+    """A task, generic in its own frozen state ``S`` (the law keeps it in ``ControllerState.task_state``).
+
+    A task turns the robot's goal (follow a path, track a contour, play a plan) into the joint
+    reference Ruckig smooths. It sees the cycle's inputs and the measured TCP, keeps its own
+    frozen state, and may finish, raise events, or ask for a fault.
+    """
+
+    name: str
+
+    def start(self) -> S: ...
+
+    def step(self, state: S, ctx: TaskContext) -> TaskStep: ...
+
+    def phase_name(self, state: S) -> str: ...
+
+
+# -- the loop's observers ---------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class CycleTiming:
+    wake_error_s: float  # actual wake-up minus the deadline
+    step_s: float  # compute time of law.step
+
+
+class CycleObserver(Protocol):
+    """Receives every cycle. Runs on the loop's thread: it must hand off and return in microseconds."""
+
+    def on_cycle(
+        self,
+        cycle: int,
+        t: float,
+        inputs: CycleInputs,
+        state: ControllerState,
+        outputs: CycleOutputs,
+        events: tuple[Event, ...],
+        timing: CycleTiming,
+    ) -> None: ...

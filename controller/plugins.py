@@ -1,0 +1,98 @@
+"""Plug-ins by entry point: how the registries find robots and tasks, the built-in ones included.
+
+A distribution declares what it brings under an entry-point group of this project:
+
+```toml
+[project.entry-points."cheope.robots"]
+gantry = "my_gantry:GANTRY"        # a controller.robots.registry.RobotEntry
+[project.entry-points."cheope.tasks"]
+square = "my_tasks:SQUARE"         # a controller.tasks.registry.TaskEntry
+```
+
+The papers' robots and tasks are declared the same way, in this project's ``pyproject.toml``, so
+a plug-in and a built-in are found alike: ``pip install`` a distribution and ``cheope --robot
+gantry`` knows it. A plug-in that cannot be loaded, or whose object is not an entry of its
+group's kind, stops the lookup with an error naming the distribution and the entry point.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from importlib.metadata import EntryPoint, entry_points
+from typing import Generic, Protocol, TypeVar
+
+from controller.errors import InputError
+
+ROBOTS_GROUP = "cheope.robots"
+TASKS_GROUP = "cheope.tasks"
+
+E = TypeVar("E")
+
+
+class PluginError(InputError):
+    """An entry point that does not load, or does not give what its group asks for."""
+
+
+def _origin(ep: EntryPoint) -> str:
+    dist = ep.dist.name if ep.dist is not None else "an unknown distribution"
+    return f"entry point {ep.name} = {ep.value!r} of {dist} (group {ep.group})"
+
+
+def discover(group: str, kind: type[E]) -> Iterator[tuple[str, E]]:
+    """``(name, object)`` of every entry point in ``group``, each checked to be a ``kind``."""
+    for ep in entry_points(group=group):
+        try:
+            obj = ep.load()
+        except Exception as err:  # a plug-in's import error, whatever it is: name the plug-in
+            raise PluginError(f"{_origin(ep)} does not load: {type(err).__name__}: {err}") from err
+        if not isinstance(obj, kind):
+            raise PluginError(f"{_origin(ep)} is a {type(obj).__name__}, not a {kind.__name__}")
+        yield ep.name, obj
+
+
+class _Entry(Protocol):
+    @property
+    def kind(self) -> str: ...
+
+
+K = TypeVar("K", bound=_Entry)
+
+
+class Registry(Generic[K]):
+    """The entries of one group: those of the entry points, found at the first lookup, and those
+    added by ``register`` (a test, a script), which win over an entry point of the same kind."""
+
+    def __init__(self, group: str, entry_type: type[K], what: str) -> None:
+        self.group, self.entry_type, self.what = group, entry_type, what
+        self._added: dict[str, K] = {}
+        self._found: dict[str, K] | None = None
+
+    def register(self, entry: K) -> None:
+        """Add an entry; registering a kind again replaces its entry."""
+        self._added[entry.kind] = entry
+
+    def unregister(self, kind: str) -> None:
+        self._added.pop(kind, None)
+
+    def rediscover(self) -> None:
+        """Read the entry points again at the next lookup (a distribution installed since)."""
+        self._found = None
+
+    def entries(self) -> dict[str, K]:
+        if self._found is None:
+            found: dict[str, K] = {}
+            for name, entry in discover(self.group, self.entry_type):
+                if name != entry.kind:
+                    raise PluginError(
+                        f"entry point {name} of group {self.group} gives the {self.what} {entry.kind!r}"
+                    )
+                found[name] = entry
+            self._found = found
+        return {**self._found, **self._added}
+
+    def entry(self, kind: str) -> K:
+        entries = self.entries()
+        try:
+            return entries[kind]
+        except KeyError:
+            raise KeyError(f"no {self.what} {kind!r} is registered (known: {', '.join(entries)})") from None

@@ -1,0 +1,68 @@
+"""A robot brought by a plug-in: a toy Cartesian gantry, in this one file.
+
+Three orthogonal linear axes, the TCP is the axes' positions plus an offset: its configuration
+section, its model, its simulator hook and its registry entry. Registered from a script with
+``register_robot(GANTRY)`` (tests/unit/test_adding_a_robot.py), or declared in a distribution's
+metadata as ``[cheope.robots] gantry = cheope_gantry_robot:GANTRY`` (tests/unit/test_plugins.py).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import numpy as np
+
+from controller.config_schema import Section, rng
+from controller.core.ports import POSE_OK, ActuatorUnit, PoseStatus
+from controller.errors import WorkspaceError
+from controller.robots.registry import RobotEntry
+from sim_backend.plant_kinematics import RigidKinematics
+
+
+class GantrySection(Section, frozen=True):
+    offset_m: tuple[float, float, float] = (0.0, 0.0, 0.2)  # TCP when every axis is at 0
+    stroke_min_m: Annotated[float, rng(-10.0, 10.0)] = -0.3
+    stroke_max_m: Annotated[float, rng(-10.0, 10.0)] = 0.3
+    home_m: tuple[float, float, float] = (0.1, 0.0, 0.3)  # where the simulated axes start
+
+
+class GantryRobot:
+    n_actuators = 3
+
+    def __init__(self, section: GantrySection) -> None:
+        self.offset = np.asarray(section.offset_m)
+        self.lo, self.hi = section.stroke_min_m, section.stroke_max_m
+
+    def inverse_kinematics(self, tcp_m: np.ndarray) -> np.ndarray:
+        return np.asarray(tcp_m, dtype=float) - self.offset
+
+    def direct_kinematics(self, q: np.ndarray) -> np.ndarray:
+        return np.asarray(q, dtype=float) + self.offset
+
+    def check_pose(self, tcp_m: np.ndarray) -> PoseStatus:
+        q = self.inverse_kinematics(tcp_m)
+        if np.all((q >= self.lo) & (q <= self.hi)):
+            return POSE_OK
+        return PoseStatus(False, f"axis positions {q.round(4).tolist()} m outside [{self.lo}, {self.hi}] m")
+
+    def check_path(self, points_m: np.ndarray) -> None:
+        for i, p in enumerate(points_m):
+            status = self.check_pose(p)
+            if not status.ok:
+                raise WorkspaceError(f"path sample {i} at {np.round(p, 4).tolist()} m: {status.reason}")
+
+
+def gantry_kinematics(cfg, robot):  # the simulator hook: rigid, starting at home
+    section: GantrySection = cfg.robot.model("gantry")
+    return RigidKinematics(robot, tuple(robot.inverse_kinematics(np.asarray(section.home_m)).tolist()))
+
+
+GANTRY = RobotEntry(
+    kind="gantry",
+    section=GantrySection,
+    build=lambda cfg: GantryRobot(cfg.robot.model("gantry")),
+    unit=ActuatorUnit.METRE,
+    stroke=lambda s: (s.stroke_min_m, s.stroke_max_m),
+    tasks=("path",),
+    sim_hook="cheope_gantry_robot:gantry_kinematics",
+)

@@ -1,0 +1,123 @@
+"""Plug-ins by entry point: a robot and a task from a distribution of their own, next to the built-ins.
+
+The distribution is what ``pip install`` leaves behind: a ``*.dist-info`` folder with its
+``entry_points.txt`` on ``sys.path``, beside its modules (tests/plugins/). Nothing of the
+product's own files changes for it; the tests run the plug-in task on a built-in robot and the
+plug-in robot, in simulated time.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from controller.assembly import build_law
+from controller.config import ConfigError, config_from_dict, load_config
+from controller.core.control_law import Mode
+from controller.plugins import PluginError
+from controller.robots.registry import ROBOTS, register_robot, robot_kinds, unregister_robot
+from controller.shell.loop import CycleLoop, SimulatedTime
+from controller.tasks.registry import TASKS, task_kinds
+from sim_backend.loopback import LoopbackExchange
+
+PLUGINS = Path(__file__).resolve().parents[1] / "plugins"
+
+
+def _install(site: Path, name: str, entry_points: str) -> None:
+    info = site / f"{name}-1.0.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {name}\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text(entry_points)
+
+
+@pytest.fixture
+def installed(tmp_path, monkeypatch):
+    """The plug-in distribution installed: found at the registries' next lookup."""
+    _install(
+        tmp_path,
+        "cheope_gantry_plugins",
+        "[cheope.robots]\ngantry = cheope_gantry_robot:GANTRY\n\n[cheope.tasks]\nsquare = cheope_square_task:SQUARE\n",
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.syspath_prepend(str(PLUGINS))
+    ROBOTS.rediscover()
+    TASKS.rediscover()
+    yield tmp_path
+    monkeypatch.undo()
+    ROBOTS.rediscover()
+    TASKS.rediscover()
+
+
+def _run(cfg, max_s: float = 40.0):
+    law = build_law(cfg)
+    clock = SimulatedTime()
+    exchange = LoopbackExchange(cfg, clock.clock)
+    loop = CycleLoop(law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock)
+    final, _ = loop.run(law.initial_state(), max_s)
+    return final, exchange
+
+
+def test_the_plugins_are_found_next_to_the_built_ins(installed):
+    assert set(robot_kinds()) == {"cheope", "uru", "nspu", "gantry"}
+    assert set(task_kinds()) == {"path", "contour", "planned", "square"}
+
+
+def test_a_plugin_task_runs_on_a_built_in_robot(installed):
+    cfg = load_config(
+        overrides={"task.kind": "square", "task.square.side_m": 0.06, "task.square.side_s": 0.6}
+    )
+    final, exchange = _run(cfg)
+    assert final.mode == Mode.DONE, final.fault_reason
+    # the square ends where it started: the first corner, (+h, -h) off its centre
+    assert np.allclose(exchange.plant.tcp_m, [0.03, -0.03, 0.5], atol=2e-4)
+
+
+def test_a_plugin_robot_runs_a_built_in_task_and_the_plugin_task(installed):
+    for task in ("path", "square"):
+        cfg = config_from_dict(
+            {
+                "robot": {"kind": "gantry"},
+                "task": {
+                    "kind": task,
+                    "path": {"center_m": [0.1, 0.0, 0.3], "radius_m": 0.05},
+                    "square": {"center_m": [0.1, 0.0, 0.3], "side_m": 0.05, "side_s": 0.5},
+                },
+                "sensor": {"enabled": False},
+                "recording": {"enabled": False},
+                "monitoring": {"enabled": False},
+            }
+        )
+        final, _ = _run(cfg)
+        assert final.mode == Mode.DONE, (task, final.fault_reason)
+
+
+def test_a_task_runs_only_on_the_robots_it_names(installed):
+    with pytest.raises(ConfigError, match=re.escape("task.kind = 'square': robot.kind = 'uru' runs 'path'")):
+        config_from_dict({"robot": {"kind": "uru"}, "task": {"kind": "square"}})
+
+
+def test_registering_a_robot_before_the_first_lookup_keeps_the_built_ins(installed):
+    from cheope_gantry_robot import GANTRY
+
+    register_robot(GANTRY)
+    try:
+        assert {"cheope", "uru", "nspu", "gantry"} <= set(robot_kinds())
+    finally:
+        unregister_robot("gantry")
+
+
+def test_a_plugin_that_does_not_load_is_named(tmp_path, monkeypatch):
+    _install(tmp_path, "broken_plugin", "[cheope.robots]\nbroken = no_such_module:ROBOT\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    ROBOTS.rediscover()
+    try:
+        with pytest.raises(
+            PluginError, match=r"entry point broken = 'no_such_module:ROBOT' of broken_plugin"
+        ):
+            robot_kinds()
+    finally:
+        monkeypatch.undo()
+        ROBOTS.rediscover()
