@@ -92,5 +92,5 @@ def test_the_registry_refuses_what_the_new_robot_cannot_do(gantry):
 
 
 def test_an_unregistered_robot_is_named_with_the_known_ones():
-    with pytest.raises(ConfigError, match=r"robot.kind = 'gantry': must be one of cheope, uru, nspu"):
+    with pytest.raises(ConfigError, match=r"robot.kind = 'gantry': must be one of cheope, nspu, uru"):
         config_from_dict({"robot": {"kind": "gantry"}})
