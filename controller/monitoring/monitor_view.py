@@ -299,7 +299,8 @@ def render(view: ViewModel, now_s: float) -> Group:
         axes = Table(title="actuators", expand=False)
         for col in ("axis", "target [mm]", "position [mm]", "target - position [um]"):
             axes.add_column(col, justify="right")
-        for j, (tg, ps) in enumerate(zip(s.targets, s.positions, strict=True)):
+        # a peer's sample: before every drive answered it may carry targets without positions
+        for j, (tg, ps) in enumerate(zip(s.targets, s.positions, strict=False)):
             axes.add_row(str(j + 1), f"{tg * 1e3:.3f}", f"{ps * 1e3:.3f}", f"{(tg - ps) * 1e6:.1f}")
         parts.append(axes)
         parts.append(
