@@ -88,6 +88,8 @@ class SoakResult:
     fault_reason: str
     exit_code: int
     recording: dict[str, object] | None
+    recording_gb_per_hour: float  # the session's files (every rotation) over the run's duration
+    rss_series: list[tuple[float, int]]  # (s since start, VmRSS kB) at every sample: a step or a slope
 
     def table(self) -> str:
         return "\n".join(
@@ -107,6 +109,7 @@ class SoakResult:
                     f"for {self.longest_silence_cycles.get('drive', 0)} cycles (a drive), "
                     f"{self.longest_silence_cycles.get('sensor', 0)} (the sensor)"
                 ),
+                f"recording           {self.recording_gb_per_hour:.3f} GB an hour (every file of the session)",
                 (
                     f"end                 {self.final_mode}{f' ({self.fault_reason})' if self.fault_reason else ''}, "
                     f"exit {self.exit_code} (SIGTERM)"
@@ -201,7 +204,17 @@ def run_soak(
         fault_reason=str(summary["fault_reason"]),
         exit_code=proc.returncode,
         recording=summary.get("recording"),
+        recording_gb_per_hour=_gb_per_hour(summary.get("recording"), float(t[-1]) if t.size else 0.0),
+        rss_series=[(round(float(a), 1), int(b)) for a, b in zip(t, r, strict=True)],
     )
+
+
+def _gb_per_hour(recording: dict[str, object] | None, duration_s: float) -> float:
+    files = recording.get("files") if isinstance(recording, dict) else None
+    if not isinstance(files, list) or duration_s <= 0.0:
+        return 0.0
+    size = sum(Path(str(f)).stat().st_size for f in files if Path(str(f)).is_file())
+    return size / 1e9 * 3600.0 / duration_s
 
 
 def add_soak_arguments(ap: argparse.ArgumentParser) -> None:
