@@ -34,19 +34,8 @@ from controller.tools.demo import random_udp_port, simulator_process
 from drivers.bus import parse_bus_spec
 
 
-def rss_kb(pid: int) -> int | None:
-    """The resident set of ``pid`` [kB], None once it is gone."""
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1])
-    except (OSError, ValueError):
-        return None
-    return None
-
-
 def memory_kb(pid: int) -> dict[str, int]:
-    """What the resident set is made of [kB]: ``VmRSS`` = ``RssAnon`` (heap, stacks) + ``RssFile``
+    """The resident set and what it is made of [kB] ({} once ``pid`` is gone): ``VmRSS`` = ``RssAnon`` (heap, stacks) + ``RssFile``
     (mapped files: the interpreter, numpy's and the other libraries' code) + ``RssShmem``, and
     ``VmLck``. With ``mlockall`` (``cheope run`` locks by default where permitted) every mapped page
     is faulted in and stays resident, so VmRSS counts whole libraries that an unlocked process
@@ -163,11 +152,12 @@ def run_soak(
         try:
             start = time.monotonic()
             while (now := time.monotonic() - start) < duration_s and proc.poll() is None:
-                kb = rss_kb(proc.pid)
+                sample = memory_kb(proc.pid)  # one read of /proc/PID/status: VmRSS and its parts
+                kb = sample.get("VmRSS")
                 if kb is not None:
                     times.append(now)
                     rss.append(kb)
-                    memory = memory_kb(proc.pid) or memory
+                    memory = sample
                     if progress is not None:
                         progress(f"{now:.0f}/{duration_s:.0f} s, controller RSS {kb / 1024:.1f} MB")
                 time.sleep(sample_s)  # a sampling period, not a wait for an event
