@@ -106,7 +106,7 @@ class RerunLive:
         rec = self.rec
         rec.set_time("time", duration=f.t_s)
         rec.set_time("cycle", sequence=f.cycle)
-        self.scene.log_moving(f.moving)
+        self.scene.log_moving(f.moving, f.kept)
         values: dict[str, float] = {}
         for j, d in enumerate(cycle.inputs.drives):
             values[f"/plots/actuators/position_{j + 1}"] = d.position

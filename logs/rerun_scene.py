@@ -122,14 +122,16 @@ class RerunScene:
             self.rec.log(path, a, static=True)
         return sorted(arch)
 
-    def log_moving(self, primitives: list[Primitive]) -> list[str]:
-        """At the stream's current time; returns the paths drawn."""
+    def log_moving(self, primitives: list[Primitive], kept: frozenset[str] = frozenset()) -> list[str]:
+        """At the stream's current time; returns the paths drawn. The entities in ``kept`` stay as
+        they were drawn last (``SceneFrame.kept``: the trail between its redraws)."""
         import rerun as rr
 
         arch = archetypes(primitives)
         for path, a in arch.items():
             self.rec.log(path, a)
-        for gone in self._moving_paths - set(arch):
+        kept_paths = {p for p in self._moving_paths for e in kept if p.startswith(f"{WORLD}/{e}/")}
+        for gone in self._moving_paths - set(arch) - kept_paths:
             self.rec.log(gone, rr.Clear(recursive=False))
         self._moving_paths |= set(arch)
         return sorted(arch)

@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING, Any
 
 from logs.robot_drawing import (
     DEFAULT_SCENE_RATE_HZ,
+    DEFAULT_TRAIL_INTERVAL_S,
+    TRAIL_ENTITY,
     MeasuredPose,
     Primitive,
     RobotDrawing,
@@ -46,18 +48,26 @@ class SceneFrame:
     cycle: int
     moving: list[Primitive]
     message: Any = None  # the parsed cheope.v1.Cycle it was drawn from
+    kept: frozenset[str] = frozenset()  # entities drawn before and left as they are (not cleared)
     scene_pb: bytes = b""  # its foxglove.SceneUpdate, once the writer has made it
 
 
 class SceneSampler:
     """One ``SceneFrame`` per ``1 / rate_hz`` of the cycles' nominal time."""
 
-    def __init__(self, drawing: RobotDrawing, rate_hz: float = DEFAULT_SCENE_RATE_HZ) -> None:
+    def __init__(
+        self,
+        drawing: RobotDrawing,
+        rate_hz: float = DEFAULT_SCENE_RATE_HZ,
+        trail_interval_s: float = DEFAULT_TRAIL_INTERVAL_S,
+    ) -> None:
         if not (math.isfinite(rate_hz) and rate_hz > 0):
             raise ValueError(f"scene rate must be a positive number of Hz, got {rate_hz}")
         self.drawing = drawing
         self.interval_s = 1.0 / rate_hz
+        self.trail_interval_s = trail_interval_s
         self._next_t = -math.inf
+        self._next_trail_t = -math.inf
         self._fixed_sent = False
         self.moving_entities: set[str] = set()  # every moving entity drawn so far
 
@@ -95,6 +105,12 @@ class SceneSampler:
         self._next_t = (c.t_s if self._next_t == -math.inf else self._next_t) + self.interval_s
         if self._next_t <= c.t_s:  # a gap (paused recording): restart the grid here
             self._next_t = c.t_s + self.interval_s
-        moving = self.drawing.moving(pose_from_cycle(c))
+        moving = self.drawing.moving(pose_from_cycle(c))  # every frame: the trail gains its point
+        kept: frozenset[str] = frozenset()
+        if TRAIL_ENTITY in self.moving_entities and c.t_s < self._next_trail_t:
+            moving = [p for p in moving if p.entity != TRAIL_ENTITY]
+            kept = frozenset({TRAIL_ENTITY})
+        elif any(p.entity == TRAIL_ENTITY for p in moving):
+            self._next_trail_t = c.t_s + self.trail_interval_s
         self.moving_entities.update(p.entity for p in moving)
-        return SceneFrame(c.t_s, c.cycle, moving, c)
+        return SceneFrame(c.t_s, c.cycle, moving, c, kept=kept)

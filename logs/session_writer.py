@@ -462,7 +462,7 @@ class SessionWriter:
         frame = self.scene.sample(cycle_pb, t)
         if frame is not None:
             frame.scene_pb = scene_update(
-                frame.moving, ns, tuple(sorted(self.scene.moving_entities))
+                frame.moving, ns, tuple(sorted(self.scene.moving_entities - frame.kept))
             ).SerializeToString()
             n += self._add(self.m.TOPIC_SCENE, frame.scene_pb, ns)
         return n, frame

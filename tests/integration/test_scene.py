@@ -173,3 +173,25 @@ def test_the_contour_session_draws_the_workpiece_where_the_simulator_has_it(tmp_
     )
     assert c.size.x == pytest.approx(2 * d.radius_m)
     assert "workpiece/expected_contour" in {e.id for e in updates[0].entities}
+
+
+def test_the_reference_trail_is_redrawn_twice_a_second_and_never_cleared_between(tmp_path):
+    """The trail is the one growing part (600 points): redrawn with the other moving parts at
+    20 Hz it made most of /scene's bytes. Between its redraws the updates leave it out, so
+    Foxglove keeps the last line instead of clearing it."""
+    from logs.robot_drawing import DEFAULT_TRAIL_INTERVAL_S, TRAIL_ENTITY
+
+    cfg = _config("cheope")
+    path = tmp_path / "trail.mcap"
+    _record(path, cfg, 3.0)
+    _, updates, _ = _logged(path)
+    moving = updates[1:]
+    with_trail = [u for u in moving if any(e.id == TRAIL_ENTITY for e in u.message.entities)]
+    # never an empty trail entity: that would clear the line in the viewer
+    assert all(len(_entity(u.message, TRAIL_ENTITY).lines) == 1 for u in with_trail)
+    span_s = (moving[-1].log_time_ns - moving[0].log_time_ns) / 1e9
+    assert len(with_trail) <= span_s / DEFAULT_TRAIL_INTERVAL_S + 2, (len(with_trail), span_s)
+    assert len(with_trail) >= span_s / DEFAULT_TRAIL_INTERVAL_S - 2, (len(with_trail), span_s)
+    assert len(moving) > 4 * len(with_trail)  # the rest of the robot keeps the scene rate
+    lengths = [len(_entity(u.message, TRAIL_ENTITY).lines[0].points) for u in with_trail]
+    assert lengths == sorted(lengths) and lengths[-1] > lengths[0]  # the line grows between redraws
