@@ -77,7 +77,7 @@ class SoakResult:
     fault_reason: str
     exit_code: int
     recording: dict[str, object] | None
-    recording_gb_per_hour: float  # the session's files (every rotation) over the run's duration
+    recording_gb_per_hour: float  # the session's files (every rotation) over the controller's run time
     rss_series: list[tuple[float, int]]  # (s since start, VmRSS kB) at every sample: a step or a slope
 
     def table(self) -> str:
@@ -146,6 +146,7 @@ def run_soak(
             *set_args,
         ]
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        started = time.monotonic()
         times: list[float] = []
         rss: list[int] = []
         memory: dict[str, int] = {}
@@ -164,6 +165,7 @@ def run_soak(
             if proc.poll() is None:
                 proc.send_signal(signal.SIGTERM)
             out, err = proc.communicate(timeout=120)
+            ran_s = time.monotonic() - started  # what the recording covers: start-up to the last write
         finally:
             if proc.poll() is None:
                 proc.kill()
@@ -194,7 +196,7 @@ def run_soak(
         fault_reason=str(summary["fault_reason"]),
         exit_code=proc.returncode,
         recording=summary.get("recording"),
-        recording_gb_per_hour=_gb_per_hour(summary.get("recording"), float(t[-1]) if t.size else 0.0),
+        recording_gb_per_hour=_gb_per_hour(summary.get("recording"), ran_s),
         rss_series=[(round(float(a), 1), int(b)) for a, b in zip(t, r, strict=True)],
     )
 
