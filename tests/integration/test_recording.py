@@ -312,10 +312,24 @@ def read_info_bytes(tmp_path: Path, data: bytes):
     return read_info(p)
 
 
+def _compressed_data_offset(data: bytes) -> int:
+    """Where the compressed records of the middle chunk start (MCAP spec, Chunk record)."""
+    import io
+
+    from mcap.reader import make_reader
+
+    index = sorted(
+        make_reader(io.BytesIO(data)).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset
+    )
+    c = index[len(index) // 2]
+    # opcode, record length, start and end time, uncompressed size, CRC, compression string, records length
+    return c.chunk_start_offset + 1 + 8 + 8 + 8 + 8 + 4 + 4 + len(c.compression) + 8
+
+
 def test_a_corrupted_chunk_is_skipped_and_the_rest_is_read(tmp_path, session_bytes):
     full = read_info_bytes(tmp_path, session_bytes)
     data = bytearray(session_bytes)
-    mid = len(data) // 2
+    mid = _compressed_data_offset(session_bytes) + 16
     data[mid : mid + 64] = bytes(b ^ 0xA5 for b in data[mid : mid + 64])  # inside a chunk's compressed data
     path = tmp_path / "c.mcap"
     path.write_bytes(data)
@@ -395,7 +409,7 @@ def test_logs_info_reads_a_finished_file_from_its_summary_alone(tmp_path, sessio
         assert main(["logs", "info", "--json", str(path)]) == 0
     assert json.loads(capsys.readouterr().out) == walked_unchecked
     data = bytearray(session_bytes)
-    mid = len(data) // 2
+    mid = _compressed_data_offset(session_bytes) + 16
     data[mid : mid + 64] = bytes(b ^ 0xA5 for b in data[mid : mid + 64])
     path.write_bytes(data)
     assert main(["logs", "info", str(path)]) == 0  # the summary is intact: nothing is read to doubt it
