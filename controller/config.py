@@ -224,9 +224,10 @@ class RecordingSection(Section, frozen=True):
     buffer_bytes: Annotated[int, rng(4096, 1 << 30)] = 4 << 20  # loop -> writer process; full: dropped
     # uncompressed; at 400 Hz (about 300 kB/s) flush_interval_s closes it first. Larger chunks
     # compress better: a 180-s path session rewritten with 0.5, 1 and 2 s chunks took 0.512, 0.483
-    # and 0.466 GB an hour; 1 s keeps what a killed writer loses (its open chunk) to a second.
+    # and 0.466 GB an hour. 2 s (about 600 kB, near the 768 kB the MCAP libraries default to) bounds
+    # what a killed writer loses (its open chunk); a killed controller loses nothing (the writer ends the file).
     chunk_size_bytes: Annotated[int, rng(1024, 64 * 1024 * 1024)] = 1048576
-    flush_interval_s: Annotated[float, rng(0.01, 60.0)] = 1.0  # close a chunk at least this often
+    flush_interval_s: Annotated[float, rng(0.01, 60.0)] = 2.0  # close a chunk at least this often
     # the writer process gone (killed, disk full, file size limit) or the free-space guard below:
     # "stop" ends the run through STOPPING (a session that must be recorded is not worth running
     # blind; a controlled stop, not a FAULT: the machine is sound), "warn" stops only the recording

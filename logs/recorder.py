@@ -55,8 +55,8 @@ from logs.session_writer import CYCLE, END, FRAMES, KEYFRAME, SETUP, FileLimits,
 log = logging.getLogger(__name__)
 
 DEFAULT_BUFFER_BYTES = 4 << 20  # about 4 s of a 1 kHz session in the backlog, as much again in the pipe
-DEFAULT_CHUNK_SIZE_BYTES = 1024 * 1024  # at 400 Hz flush_interval_s closes the chunk first (about 300 kB)
-DEFAULT_FLUSH_INTERVAL_S = 1.0
+DEFAULT_CHUNK_SIZE_BYTES = 1024 * 1024  # at 400 Hz flush_interval_s closes the chunk first (about 600 kB)
+DEFAULT_FLUSH_INTERVAL_S = 2.0
 # The wait ends on the writer's reply; the bound is for an emulated CPU (the vcan VM), where the
 # writer's imports (the scene drawing, the schemas) took longer than 20 s.
 WRITER_START_TIMEOUT_S = 120.0
