@@ -109,7 +109,14 @@ class ExchangeCounters:
     foreign_frames: int = 0  # frames reported as a BusAnomaly (unknown, foreign, duplicate)
 
 
-OWED_FORGOTTEN_AFTER = 3  # windows in step after which answers still owed are taken as never coming
+# Windows in step (one answer each) after which answers still owed are taken as never coming (a SYNC
+# the device really missed). A device can also lag one answer behind for a while (each window holds
+# its answer to the SYNC before) and then catch up with two: forgotten after 3 windows, that catch-up
+# was taken for a second sender (a contour demo on a loaded machine faulted on it, three windows one
+# behind). 20 windows is the silence the law tolerates from a drive (loop.max_missing_cycles at its
+# default). Meanwhile a second sender's frame may pass unreported once, never as data: a window
+# with two candidates has no sample.
+OWED_FORGOTTEN_AFTER = 20
 
 
 def _owed_after(owed: int, in_step: int, candidates: int) -> tuple[int, int]:
