@@ -66,6 +66,7 @@ def safety_config(cfg: Config) -> SafetyConfig:
         on_duplicate_frames=s.on_duplicate_frames,
         on_rejected_frames=s.on_rejected_frames,
         on_frame_flood=s.on_frame_flood,
+        sensor_breach_retract_s=s.sensor_breach_retract_s,
     )
 
 
@@ -99,6 +100,8 @@ def assemble(cfg: Config, robot: Robot | None = None) -> Assembly:
         rest_target=0.5 * (a.stroke_min + a.stroke_max),
         drive_node_ids=tuple(cfg.actuators.node_ids),
         sensor_in_task=task_entry(cfg.task.kind).uses_force_sensor,
+        sensor_node_id=cfg.sensor.node_id if cfg.sensor.enabled else 0,
+        task_retracts_on_sensor_breach=task_entry(cfg.task.kind).retracts_on_sensor_breach,
     )
     return Assembly(
         ControlLaw(robot, built.task, RuckigSmoother(limits, cfg.period_s), law_cfg), built.reports

@@ -203,6 +203,11 @@ class SafetySection(Section, frozen=True):
     )  # a configured node's frame of the wrong length (per burst)
     on_frame_flood: Reaction = Reaction("fault")
     max_foreign_frames_per_cycle: Annotated[int, rng(1, 100000)] = 16
+    # A second sender on the force sensor's COB-ID (a duplicate or impossible frame from its node)
+    # while a task that can retract without force data holds the tool in contact: the task retracts,
+    # then the fault (the sensor's data is never used again); past this time [s] the fault comes
+    # anyway. 0: the quick stop at once, in contact. Any other task: the fault at once.
+    sensor_breach_retract_s: Annotated[float, rng(0.0, 60.0)] = 2.0
 
 
 class TaskSection(Section, frozen=True):

@@ -97,6 +97,7 @@ class SafetyConfig:
     on_duplicate_frames: Reaction = Reaction.FAULT
     on_rejected_frames: Reaction = Reaction.WARN
     on_frame_flood: Reaction = Reaction.FAULT
+    sensor_breach_retract_s: float = 0.0  # see config.SafetySection; 0: fault at once
 
     def reaction_to(self, anomaly: Anomaly) -> Reaction:
         return {
@@ -178,6 +179,10 @@ class LawConfig:
     # Its samples, when they come, are still judged against the contact-force limit. From the
     # task's entry (controller/tasks/registry.py ``uses_force_sensor``).
     sensor_in_task: bool = True
+    sensor_node_id: int = 0  # the force sensor's CANopen node id (0: none), for a breach of its frames
+    # The task retracts without force data when the sensor's frames are no longer trusted
+    # (TaskEntry.retracts_on_sensor_breach); with safety.sensor_breach_retract_s > 0 the law lets it.
+    task_retracts_on_sensor_breach: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -207,6 +212,10 @@ class ControllerState:
     # foreign NMT command, or heartbeat lost. In FAULT they get the quick stop by SDO as well.
     unreachable: frozenset[int] = frozenset()
     sdo_stopped: frozenset[int] = frozenset()  # drives already sent the quick stop by SDO in this fault
+    # A second sender on the force sensor's COB-ID during the task (what it was, and the cycle): its
+    # frames are withheld from the task, which retracts; the fault follows (_sensor_breach).
+    sensor_breach: str = ""
+    sensor_breach_cycle: int = 0
 
 
 # One handler per mode: (state, inputs, power states, measured positions, t, events) -> state.
@@ -307,6 +316,7 @@ class ControlLaw:
                 warned=frozenset(),
                 unreachable=frozenset(),
                 sdo_stopped=frozenset(),
+                sensor_breach="",
             )
         if inputs.command == Command.QUICK_STOP and state.mode not in (Mode.FAULT, Mode.DONE):
             why = "quick stop requested"
@@ -403,10 +413,14 @@ class ControlLaw:
         sc = self.config.safety
         sensor = inputs.sensor
         stale = 0
-        if sensor is not None and sensor.fresh:
-            stale = state.sensor_stale + 1 if sensor.counter == state.sensor_counter else 0
-            state = replace(state, sensor_counter=sensor.counter, sensor_stale=stale)
-        if sensor is not None:
+        if state.sensor_breach:
+            why = self._sensor_breach_fault(state)
+            if why:
+                return state, why
+        elif sensor is not None:  # a breached sensor's frames count for nothing, nor does their absence
+            if sensor.fresh:
+                stale = state.sensor_stale + 1 if sensor.counter == state.sensor_counter else 0
+                state = replace(state, sensor_counter=sensor.counter, sensor_stale=stale)
             missing = 0 if sensor.fresh else state.sensor_missing + 1
             if missing != state.sensor_missing:
                 state = replace(state, sensor_missing=missing)
@@ -438,7 +452,11 @@ class ControlLaw:
         silence = self._silence(state)
         if silence:
             return state, silence
-        if self.config.sensor_in_task and state.sensor_missing >= sc.sensor_stale_cycles:
+        if (
+            self.config.sensor_in_task
+            and not state.sensor_breach
+            and state.sensor_missing >= sc.sensor_stale_cycles
+        ):
             # No usable sample (missing, or two senders on its COB-ID): no new information, as a counter
             # that does not advance, so the same tolerance (the contour task holds from the 4th cycle).
             state, why = self._react(
@@ -495,6 +513,31 @@ class ControlLaw:
                 return state, status.reason
         return state, ""
 
+    def _retract_on_breach(self, state: ControllerState, a: BusAnomaly) -> bool:
+        """A second sender on the force sensor's COB-ID while a task that can retract without force
+        data runs: the retract comes before the fault. Holding still in contact under a quick stop,
+        the force is whatever it was; the drives' own frames are still trusted, so moving away along
+        the last normal is the safer end (scan: the spoofed-sample scenarios)."""
+        c = self.config
+        return (
+            a.kind in (Anomaly.DUPLICATE_FRAME, Anomaly.IMPLAUSIBLE_FRAME)
+            and c.sensor_node_id != 0
+            and a.node_id == c.sensor_node_id
+            and c.task_retracts_on_sensor_breach
+            and c.safety.sensor_breach_retract_s > 0.0
+            and state.mode == Mode.RUNNING
+        )
+
+    def _sensor_breach_fault(self, state: ControllerState) -> str:
+        """The fault after a sensor breach: out of RUNNING (a stop, a pause), or past the retract's time."""
+        why = f"force sensor not trusted: {state.sensor_breach}"
+        if state.mode != Mode.RUNNING:
+            return why
+        limit_s = self.config.safety.sensor_breach_retract_s
+        if (state.cycle - state.sensor_breach_cycle) * self.config.period_s > limit_s:
+            return f"{why}; the task did not retract within {limit_s:g} s"
+        return ""
+
     def _silence(self, state: ControllerState) -> str:
         """Every drive (and the sensor) without a usable sample for max_missing_cycles, named in one fault."""
         limit = self.config.max_missing_cycles
@@ -520,6 +563,18 @@ class ControlLaw:
         texts: dict[str, str] = {}
         for a in inputs.anomalies:
             reaction = sc.reaction_to(a.kind)
+            if reaction == Reaction.FAULT and self._retract_on_breach(state, a):
+                if not state.sensor_breach:
+                    state = replace(state, sensor_breach=anomaly_text(a), sensor_breach_cycle=state.cycle)
+                    events.append(
+                        Event(
+                            "sensor_breach",
+                            Severity.WARNING,
+                            f"{anomaly_text(a)}: the force sensor's data is no longer used; "
+                            f"the task retracts before the fault",
+                        )
+                    )
+                continue
             if reaction == Reaction.FAULT:
                 return state, anomaly_text(a)
             if reaction == Reaction.WARN:
@@ -748,7 +803,9 @@ class ControlLaw:
     ) -> ControllerState:
         period = self.config.period_s
         task_time = state.task_time_s + period
-        if inputs.sensor is not None and inputs.sensor.fresh and state.sensor_stale > 0:
+        if state.sensor_breach:  # someone else sends on its COB-ID: nothing of it reaches the task
+            inputs = replace(inputs, sensor=None)
+        elif inputs.sensor is not None and inputs.sensor.fresh and state.sensor_stale > 0:
             # A frame whose counter did not advance repeats the last sample: no new evidence for the task.
             inputs = replace(inputs, sensor=replace(inputs.sensor, fresh=False))
         ctx = TaskContext(
@@ -757,6 +814,7 @@ class ControlLaw:
             setpoint=state.setpoint,
             inputs=inputs,
             tcp_measured_m=state.tcp_measured_m,
+            sensor_breach=state.sensor_breach,
         )
         out = self.task.step(state.task_state, ctx)
         events.extend(out.events)

@@ -98,6 +98,11 @@ class TaskContext:
     setpoint: Setpoint  # the last setpoint sent
     inputs: CycleInputs
     tcp_measured_m: tuple[float, float, float] | None
+    # Non-empty: the force sensor's frames are no longer trusted (a second sender on its COB-ID, named
+    # here); ``inputs.sensor`` is None from then on. A task whose entry says ``retracts_on_sensor_breach``
+    # moves away from the contact without force data and ends with a fault naming it, within
+    # safety.sensor_breach_retract_s; else the law faults at once.
+    sensor_breach: str = ""
 
 
 @dataclass(frozen=True, slots=True)

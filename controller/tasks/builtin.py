@@ -172,5 +172,6 @@ CONTOUR = TaskEntry(
     check=_check_contour,
     sim_environment="workpiece",
     uses_force_sensor=True,
+    retracts_on_sensor_breach=True,
 )
 PLANNED = TaskEntry(kind="planned", section=None, build=build_planned_task)

@@ -408,6 +408,8 @@ class ContourTrackingTask:
 
     def step(self, state: ContourState, ctx: TaskContext) -> TaskStep:
         s, signal_events = self._filter_force(state, ctx)
+        if ctx.sensor_breach and s.phase not in (ContourPhase.RETRACT, ContourPhase.FINISHED):
+            return self._sensor_breach(s, ctx)
         if ctx.inputs.command == Command.SET_FORCE and ctx.inputs.command_value > 0:
             s = replace(s, force_setpoint_n=ctx.inputs.command_value)
         handler = {
@@ -869,6 +871,19 @@ class ContourTrackingTask:
         d = s.reapproach_direction
         speed = p.retract_speed_m_s
         return self._moving(s, (-d[0] * speed, -d[1] * speed, 0.0), dt, events=events, travel_m=speed * dt)
+
+    def _sensor_breach(self, s: ContourState, ctx: TaskContext) -> TaskStep:
+        """Someone else sends on the sensor's COB-ID (the law names it): no force sample can be trusted
+        any more. Before the approach the tool is nowhere near the contour: the fault at once. After
+        it, the retract along the last normal needs no force (distance and speed are the retract's):
+        it moves the tool out of the contact before the fault."""
+        why = f"force sensor not trusted: {ctx.sensor_breach}"
+        if s.phase in (ContourPhase.MOVE_TO_START, ContourPhase.TARE):
+            s, ref = self._reference(s, (0.0, 0.0, 0.0), False, ctx.period_s)
+            return TaskStep(s, ref, fault=why)
+        ev = Event("sensor_breach", Severity.FAULT, why + "; retracting without force data")
+        s = self._enter(s, ContourPhase.RETRACT, ctx.t_s, fault=why)
+        return self._retract(s, ctx, (ev,))
 
     def _retract(self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...] = ()) -> TaskStep:
         p = self.p

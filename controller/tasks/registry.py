@@ -49,6 +49,10 @@ class TaskEntry:
     # Whether the task reads the force sensor's samples: then every cycle without one counts towards
     # safety.sensor_stale_cycles; if not, the sensor is supervised by its heartbeat (LawConfig).
     uses_force_sensor: bool = False
+    # Whether the task, told that the force sensor is no longer trusted (``TaskContext.sensor_breach``),
+    # retracts without force data and ends with a fault: then a second sender on the sensor's COB-ID
+    # during the task is a controlled retract, not a quick stop in contact (docs/concepts/supervision.md).
+    retracts_on_sensor_breach: bool = False
     # Robot kinds this task runs on besides the robots whose entry lists it (``RobotEntry.tasks``):
     # a task of a plug-in names the robots it was made for without changing their entries.
     robots: tuple[str, ...] = ()

@@ -14,8 +14,8 @@ by 30). Scenarios (``sim_backend/fault_injection.py`` syntax, and workpiece feat
 - a notch (a recess a few mm deep and 5-20 mm long) and a bump (a 1-2 mm raised stretch);
 - a slowly drifting sensor bias (+-0.3 N/s for 15 s, then held: 4.5 N);
 - bursts of 1, 5 and 10 stale sensor samples (the counter stops);
-- a spoofed force sample, once and for 4 cycles in a row (a second sensor frame on the bus: fewer
-  than ``loop.max_missing_cycles``, beyond which the safety layer's quick stop is the answer).
+- a spoofed force sample, once and for 4 cycles in a row (a second sensor frame on the bus: the
+  law stops using the sensor and the task retracts before the fault, ``safety.sensor_breach_retract_s``).
 
 Outcomes: ``DONE`` (all laps), ``retracted`` (the task retracted and ended with a fault naming
 the cause: the designed way out), ``FAULT`` (the safety layer's quick stop: the last line).

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import math
 import random
 import signal
 import struct
@@ -32,6 +33,7 @@ from controller.core.control_law import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
 from controller.core.ports import CycleTiming
 from controller.shell.loop import CycleLoop, SimulatedTime
+from controller.tasks.contour_tracking import ContourPhase
 from controller.tools.demo import simulator_process, stop_process
 from drivers.bus import parse_bus_spec
 from drivers.node_setup import DRIVE_EDS
@@ -56,6 +58,7 @@ class Trace:
         default_factory=list
     )  # what each drive's own TPDO carried
     powers: list[tuple[PowerState, ...]] = field(default_factory=list)
+    true_force_n: list[float] = field(default_factory=list)  # the simulated contact's, not the measurement
 
     def on_cycle(
         self,
@@ -76,12 +79,16 @@ class Trace:
         # the plant moves on only at the next send: this is where each drive was at this cycle's SYNC
         self.true_positions.append(tuple(d.position_counts() / d.params.counts_per_unit for d in drives))
         self.powers.append(tuple(d.power for d in drives))
+        self.true_force_n.append(math.hypot(*(float(x) for x in self.exchange.plant.force_n)))
 
 
 def run(
-    faults: list[str], abort_option: int | None = None, max_s: float = 3.0
+    faults: list[str],
+    abort_option: int | None = None,
+    max_s: float = 3.0,
+    overrides: dict[str, object] | None = None,
 ) -> tuple[ControllerState, Trace]:
-    cfg = load_config(overrides={"sim.faults": faults, "task.path.laps": 0.5})
+    cfg = load_config(overrides={"sim.faults": faults, "task.path.laps": 0.5, **(overrides or {})})
     clock = SimulatedTime()
     law = build_law(cfg)
     ex = LoopbackExchange(cfg, clock.clock)
@@ -170,6 +177,64 @@ def test_a_spoofed_sensor_frame_before_the_real_one_is_never_used():
     assert (
         fresh_forces and max(abs(f) for f in fresh_forces) < 5.0
     )  # the path task touches nothing; 30 N never
+
+
+CONTOUR_SPOOF_AT_S = 4.0  # the contour task tracks the disk by then (contact at about 2 s)
+
+
+def _contour_spoofed(**overrides: object) -> tuple[ControllerState, Trace, int]:
+    """The contour task with a spoofed 30 N force frame while it tracks; the breach's cycle index."""
+    final, trace = run(
+        [f"spoof_sensor=30@{CONTOUR_SPOOF_AT_S}"], max_s=8.0, overrides={"task.kind": "contour", **overrides}
+    )
+    k = next(k for k, s in enumerate(trace.states) if s.sensor_breach or s.mode == Mode.FAULT)
+    assert trace.states[k - 1].task_state.phase == ContourPhase.TRACKING
+    return final, trace, k
+
+
+def test_a_spoofed_sensor_frame_during_the_contour_retracts_the_tool_before_the_fault():
+    """Someone else's force frame while the tool is in contact: the law stops using the sensor and
+    the task moves the tool away along the last normal (no force needed), then the fault names the
+    breach. The drives' own frames are still trusted; a quick stop would have held the tool in
+    contact at whatever force it had."""
+    final, trace, k = _contour_spoofed()
+    assert final.mode == Mode.FAULT
+    assert final.fault_reason == (
+        "force sensor not trusted: 1 TPDO(s) the device cannot have sent (a position step or counter "
+        "beyond it; not used) from node 16 (COB-ID 0x190)"
+    )
+    assert trace.states[k].mode == Mode.RUNNING and trace.states[k].sensor_breach
+    # from the breach on, nothing of the sensor reaches the task: its filtered force never moves again
+    frozen = trace.states[k].task_state.force_f
+    assert all(s.task_state.force_f == frozen for s in trace.states[k:])
+    f = next(j for j in range(k, len(trace.states)) if trace.states[j].mode == Mode.FAULT)
+    assert trace.states[f].task_state.phase == ContourPhase.FINISHED  # retracted, then the fault
+    # the tool left the contact: 10 mm along the normal (the retract), no contact force at the fault
+    start, end = trace.states[k].tcp_measured_m, trace.states[f].tcp_measured_m
+    assert math.dist(start, end) > 0.008
+    assert trace.true_force_n[k] > 5.0 and trace.true_force_n[f] == 0.0
+    assert max(trace.true_force_n[k:]) <= trace.true_force_n[k] + 1.0  # never pressed harder
+    kinds = [e.kind for e in trace.events]
+    assert "sensor_breach" in kinds and kinds.index("sensor_breach") < kinds.index(
+        "mode", kinds.index("sensor_breach")
+    )
+
+
+def test_with_no_time_to_retract_a_spoofed_sensor_frame_is_the_quick_stop_at_once():
+    final, trace, k = _contour_spoofed(**{"safety.sensor_breach_retract_s": 0.0})
+    assert trace.states[k].mode == Mode.FAULT and not trace.states[k].sensor_breach
+    assert final.fault_reason.startswith("1 TPDO(s) the device cannot have sent")
+
+
+def test_a_retract_that_takes_too_long_ends_in_the_fault_at_the_bound():
+    """A retract of 0.5 m at 20 mm/s cannot end within safety.sensor_breach_retract_s (0.5 s): the
+    law faults at the bound, naming both."""
+    final, trace, k = _contour_spoofed(
+        **{"safety.sensor_breach_retract_s": 0.5, "task.contour.retract_distance_m": 0.5}
+    )
+    assert final.fault_reason.endswith("; the task did not retract within 0.5 s")
+    f = next(j for j in range(k, len(trace.states)) if trace.states[j].mode == Mode.FAULT)
+    assert (f - k) * 0.0025 == pytest.approx(0.5, abs=0.01)
 
 
 def test_a_wrong_length_tpdo_before_the_real_one_is_never_used_and_named():
