@@ -272,8 +272,10 @@ def _status_observers(status: StatusDisplay | None, cfg: Config) -> tuple[CycleO
     """The live status line's loop observer, when there is a terminal to show it on."""
     if status is None:
         return ()
-    laps = len(cfg.task.model("contour").lap_speeds_m_s) if cfg.task.kind == "contour" else None
-    return (status.observer(cfg.period_s, laps),)
+    from controller.tasks.registry import task_entry
+
+    count = task_entry(cfg.task.kind).laps
+    return (status.observer(cfg.period_s, count(cfg.task.model()) if count is not None else None),)
 
 
 def cmd_demo(args: argparse.Namespace) -> int:

@@ -228,12 +228,15 @@ class LiveViews:
     """The configured live views; each call reaches every view that started."""
 
     def __init__(self, cfg: Config) -> None:
+        from controller.tasks.registry import task_entry
+
         r = cfg.recording
         self.rerun: RerunLive | None = None
         self.foxglove: FoxgloveLive | None = None
         if r.live_rerun:
             try:
-                self.rerun = RerunLive(r.live_rerun, cfg, cfg.task.kind == "contour")
+                # a task that controls a force reports its error (task_values["force_error_n"])
+                self.rerun = RerunLive(r.live_rerun, cfg, task_entry(cfg.task.kind).uses_force_sensor)
             except Exception as err:  # a viewer that cannot start never stops the recording
                 _warn(f"Rerun ({r.live_rerun})", err)
         if r.live_foxglove:

@@ -101,12 +101,6 @@ def _v(a: Sequence[float] | np.ndarray) -> Vec3:
     return (float(a[0]), float(a[1]), float(a[2]))
 
 
-def _circle(cx: float, cy: float, z: float, r: float, n: int = 96) -> tuple[Vec3, ...]:
-    return tuple(
-        (cx + r * math.cos(a), cy + r * math.sin(a), z) for a in np.linspace(0.0, 2.0 * math.pi, n + 1)
-    )
-
-
 def _margin_color(fraction_used: float) -> Rgba:
     """Green at 0 (far from the limit), through yellow, red at 1 (at the limit) and beyond."""
     f = min(max(fraction_used, 0.0), 1.0)
@@ -154,10 +148,12 @@ class ReferenceTrail:
 
 
 def _workpiece(cfg: Config) -> list[Primitive]:
-    """The contour task's workpiece where the simulator has it, and the contour the task expects."""
+    """The workpiece where the simulator has it, and the outline the task expects (its entry's)."""
+    from controller.tasks.registry import task_entry
+
     out: list[Primitive] = []
     env = cfg.sim.environment
-    if env == "workpiece" or (env == "auto" and cfg.task.kind == "contour"):
+    if env == "workpiece" or (env == "auto" and task_entry(cfg.task.kind).sim_environment == "workpiece"):
         w = cfg.sim.workpiece
         if w.shape == "disk" and not w.features:
             out.append(
@@ -189,16 +185,14 @@ def _workpiece(cfg: Config) -> list[Primitive]:
                         label=f"workpiece: {w.shape.replace('_', ' ')}" if dz > 0 else "",
                     )
                 )
-    if cfg.task.kind == "contour":
-        e = cfg.task.model("contour")
+    outline = task_entry(cfg.task.kind).expected_outline
+    if outline is not None:
         out.append(
             Primitive(
                 "workpiece/expected_contour",
                 Shape.LINE,
                 GREEN_FAINT,
-                points=_circle(
-                    e.expected_centre_m[0], e.expected_centre_m[1], e.height_m, e.expected_radius_m
-                ),
+                points=outline(cfg.task.model()),
                 radius_m=0.0005,
             )
         )

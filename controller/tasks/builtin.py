@@ -128,6 +128,19 @@ def contour_params(c: ContourSection, settle_tolerance_m: float, max_contact_for
     )
 
 
+def _contour_laps(c: ContourSection) -> int:
+    return len(c.lap_speeds_m_s)
+
+
+def _contour_expected_outline(c: ContourSection, n: int = 96) -> tuple[tuple[float, float, float], ...]:
+    """The circle the task expects to meet (``expected_centre_m``, ``expected_radius_m``)."""
+    (cx, cy), r = c.expected_centre_m, c.expected_radius_m
+    return tuple(
+        (cx + r * math.cos(2.0 * math.pi * k / n), cy + r * math.sin(2.0 * math.pi * k / n), c.height_m)
+        for k in range(n + 1)
+    )
+
+
 def build_contour_task(cfg: Config, robot: Robot) -> BuiltTask:
     import numpy as np
 
@@ -173,5 +186,7 @@ CONTOUR = TaskEntry(
     sim_environment="workpiece",
     uses_force_sensor=True,
     retracts_on_sensor_breach=True,
+    laps=_contour_laps,
+    expected_outline=_contour_expected_outline,
 )
 PLANNED = TaskEntry(kind="planned", section=None, build=build_planned_task)

@@ -53,6 +53,11 @@ class TaskEntry:
     # retracts without force data and ends with a fault: then a second sender on the sensor's COB-ID
     # during the task is a controlled retract, not a quick stop in contact (docs/concepts/supervision.md).
     retracts_on_sensor_breach: bool = False
+    # Laps the task runs, from its section (the live status line's "lap 2/5"); None: it counts none.
+    laps: Callable[[Any], int] | None = None
+    # The outline the task expects to meet, from its section, in {0} [m] (drawn faint in the 3D
+    # scene beside what the simulator really has); None: nothing expected.
+    expected_outline: Callable[[Any], tuple[tuple[float, float, float], ...]] | None = None
     # Robot kinds this task runs on besides the robots whose entry lists it (``RobotEntry.tasks``):
     # a task of a plug-in names the robots it was made for without changing their entries.
     robots: tuple[str, ...] = ()
