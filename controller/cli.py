@@ -18,7 +18,7 @@ from controller.config import Config, ConfigError, load_config, parse_override
 from controller.errors import CheopeError, RefusedError
 from controller.monitoring.cli_commands import add_controller_options, monitoring_overrides
 from controller.monitoring.cli_commands import add_subcommands as add_monitoring_subcommands
-from controller.robots.registry import load_reference, robot_entry, robot_kinds
+from controller.robots.registry import robot_entry, robot_kinds
 from controller.shell.status_line import StatusDisplay, live_status, status_wanted
 from controller.tasks.registry import task_kinds
 from drivers.bus import BusSpec, parse_bus_spec
@@ -414,10 +414,11 @@ def cmd_soak(args: argparse.Namespace) -> int:
 
 def cmd_analyze(args: argparse.Namespace) -> int:
     cfg = _config(args)
-    entry = robot_entry(cfg.robot.kind)
-    if not entry.analyze:
+    from controller.plugins import ANALYSES
+
+    analyze = ANALYSES.get(cfg.robot.kind)
+    if analyze is None:
         raise ConfigError(f"robot.kind = {cfg.robot.kind!r} has no analysis plots")
-    analyze = load_reference(entry.analyze)
     with progress_line("cheope analyze") as progress:
         progress(f"{cfg.robot.kind}: workspace, margins, ellipsoids -> {args.out}")
         report = analyze(cfg, Path(args.out))

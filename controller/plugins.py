@@ -7,7 +7,15 @@ A distribution declares what it brings under an entry-point group of this projec
 gantry = "my_gantry:GANTRY"        # a controller.robots.registry.RobotEntry
 [project.entry-points."cheope.tasks"]
 square = "my_tasks:SQUARE"         # a controller.tasks.registry.TaskEntry
+[project.entry-points."cheope.sim_kinematics"]
+gantry = "my_gantry:gantry_kinematics"   # (cfg, robot) -> the simulator's kinematics of that robot
+[project.entry-points."cheope.analyses"]
+gantry = "my_gantry_plots:analyze"       # (cfg, out_dir) -> dict: its plots (cheope analyze)
 ```
+
+The hooks of the last two groups are named by robot kind and live in the layer that runs them
+(the simulator, the analysis tools), not in the robot's entry: the controller never imports
+them, and only the one asked for is loaded (no plotting library for a run).
 
 The papers' robots and tasks are declared the same way, in this project's ``pyproject.toml``, so
 a plug-in and a built-in are found alike: ``pip install`` a distribution and ``cheope --robot
@@ -17,14 +25,16 @@ group's kind, stops the lookup with an error naming the distribution and the ent
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from importlib.metadata import EntryPoint, entry_points
-from typing import Generic, Protocol, TypeVar
+from typing import Any, Generic, Protocol, TypeVar
 
 from controller.errors import InputError
 
 ROBOTS_GROUP = "cheope.robots"
 TASKS_GROUP = "cheope.tasks"
+SIM_KINEMATICS_GROUP = "cheope.sim_kinematics"
+ANALYSES_GROUP = "cheope.analyses"
 
 E = TypeVar("E")
 
@@ -96,3 +106,36 @@ class Registry(Generic[K]):
             return entries[kind]
         except KeyError:
             raise KeyError(f"no {self.what} {kind!r} is registered (known: {', '.join(entries)})") from None
+
+
+class Hooks:
+    """Callables by kind (a robot's) under one entry-point group, and those added by ``register``
+    (a script, a test), which win. Only the entry point asked for is loaded."""
+
+    def __init__(self, group: str, what: str) -> None:
+        self.group, self.what = group, what
+        self._added: dict[str, Callable[..., Any]] = {}
+
+    def register(self, kind: str, hook: Callable[..., Any]) -> None:
+        self._added[kind] = hook
+
+    def unregister(self, kind: str) -> None:
+        self._added.pop(kind, None)
+
+    def get(self, kind: str) -> Callable[..., Any] | None:
+        """The hook of ``kind``, or None when no distribution declares one."""
+        if kind in self._added:
+            return self._added[kind]
+        for ep in entry_points(group=self.group, name=kind):
+            try:
+                hook = ep.load()
+            except Exception as err:  # a plug-in's import error, whatever it is: name the plug-in
+                raise PluginError(f"{_origin(ep)} does not load: {type(err).__name__}: {err}") from err
+            if not callable(hook):
+                raise PluginError(f"{_origin(ep)} is a {type(hook).__name__}, not a {self.what}")
+            return hook  # type: ignore[no-any-return]
+        return None
+
+
+SIM_KINEMATICS = Hooks(SIM_KINEMATICS_GROUP, "simulator kinematics factory")
+ANALYSES = Hooks(ANALYSES_GROUP, "analysis function")

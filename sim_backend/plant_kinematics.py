@@ -1,7 +1,7 @@
 """How the simulated plant turns its drives' positions into the tool's position: one hook per robot.
 
-A robot's registry entry names its hook (``RobotEntry.sim_hook``, "module:factory"); a robot
-without one is rigid: the TCP is its direct kinematics, and the drives start at
+A robot's hook is declared by kind under the entry-point group ``cheope.sim_kinematics``
+(``controller/plugins.py``; the built-ins in ``pyproject.toml``); a robot without one is rigid: the TCP is its direct kinematics, and the drives start at
 ``sim.drive.initial_positions_m``. The hook also says where the simulated drives start (where
 the robot stands at power-on) and whether its linear motors' cogging loads the compliant
 structure (``sim_backend/plant.py``).
@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from controller.robots.registry import load_reference, robot_entry
+from controller.plugins import SIM_KINEMATICS
 
 if TYPE_CHECKING:
     from controller.config import Config
@@ -166,9 +166,8 @@ def nspu_kinematics(cfg: Config, robot: Any) -> PlantKinematics:
 
 def plant_kinematics(cfg: Config, robot: Any) -> PlantKinematics:
     """The configured robot's hook, or rigid kinematics from ``sim.drive.initial_positions_m``."""
-    hook = robot_entry(cfg.robot.kind).sim_hook
-    if not hook:
+    factory = SIM_KINEMATICS.get(cfg.robot.kind)
+    if factory is None:
         return RigidKinematics(robot, cfg.sim.drive.initial_positions_m)
-    factory = load_reference(hook)
     kinematics: PlantKinematics = factory(cfg, robot)
     return kinematics

@@ -241,8 +241,6 @@ CHEOPE = RobotEntry(
     tasks=("contour", "path"),
     config_file=CONFIG_DIR / "cheope.toml",
     check=_check_cheope,
-    sim_hook="sim_backend.plant_kinematics:cheope_kinematics",
-    analyze="controller.tools.analysis.cheope_plots:analyze_cheope",
 )
 URU = RobotEntry(
     kind="uru",
@@ -253,8 +251,6 @@ URU = RobotEntry(
     tasks=("path",),
     config_file=CONFIG_DIR / "uru.toml",
     check=_check_uru,
-    sim_hook="sim_backend.plant_kinematics:uru_kinematics",
-    analyze="controller.tools.analysis.robot_analysis:analyze_uru",
 )
 NSPU = RobotEntry(
     kind="nspu",
@@ -265,6 +261,4 @@ NSPU = RobotEntry(
     tasks=("planned",),
     config_file=CONFIG_DIR / "nspu.toml",
     check=_check_nspu,
-    sim_hook="sim_backend.plant_kinematics:nspu_kinematics",
-    analyze="controller.tools.analysis.robot_analysis:analyze_nspu",
 )

@@ -12,7 +12,6 @@ test or a script can also be added with ``register_robot`` (docs/tutorial/own-ro
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,10 +35,8 @@ class RobotEntry:
     tasks: tuple[str, ...] = ("path",)  # the task kinds it can run; the first is its demo's
     config_file: Path | None = None  # its shipped configuration (``cheope ... --robot KIND``)
     check: Callable[[Any], None] | None = None  # cross-checks of its section: raise ConfigError
-    sim_hook: str = (
-        ""  # "module:factory" of its simulated kinematics; "" = rigid (sim_backend/plant_kinematics.py)
-    )
-    analyze: str = ""  # "module:function(cfg, out_dir) -> dict" writing its plots (cheope analyze)
+    # Its simulator kinematics and its analysis plots are hooks of their own, by robot kind
+    # (entry-point groups cheope.sim_kinematics and cheope.analyses: controller/plugins.py).
 
 
 ROBOTS: Registry[RobotEntry] = Registry(ROBOTS_GROUP, RobotEntry, "robot")
@@ -100,9 +97,3 @@ def actuator_units(cfg: Config) -> ActuatorUnits:
     return ActuatorUnits(
         entry.unit, a.counts_per_m, a.max_velocity_m_s, a.max_acceleration_m_s2, a.max_jerk_m_s3, lo, hi
     )
-
-
-def load_reference(ref: str) -> Any:
-    """The object a ``"package.module:attribute"`` reference names (simulator hooks, plots)."""
-    module, _, attribute = ref.partition(":")
-    return getattr(importlib.import_module(module), attribute)

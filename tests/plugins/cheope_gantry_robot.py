@@ -64,5 +64,4 @@ GANTRY = RobotEntry(
     unit=ActuatorUnit.METRE,
     stroke=lambda s: (s.stroke_min_m, s.stroke_max_m),
     tasks=("path",),
-    sim_hook="cheope_gantry_robot:gantry_kinematics",
 )

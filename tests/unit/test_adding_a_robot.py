@@ -15,12 +15,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cheope_gantry_robot import GANTRY, GantryRobot
+from cheope_gantry_robot import GANTRY, GantryRobot, gantry_kinematics
 
 from controller.assembly import build_law
 from controller.config import ConfigError, config_from_dict, config_to_dict
 from controller.core.control_law import Mode
 from controller.errors import WorkspaceError
+from controller.plugins import SIM_KINEMATICS
 from controller.robots.registry import register_robot, robot_entry, unregister_robot
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.shell.run_summary import RunRecorder
@@ -35,8 +36,10 @@ REPO = Path(__file__).resolve().parents[2]
 @pytest.fixture
 def gantry():
     register_robot(GANTRY)
+    SIM_KINEMATICS.register("gantry", gantry_kinematics)
     yield GANTRY
     unregister_robot("gantry")
+    SIM_KINEMATICS.unregister("gantry")
 
 
 def gantry_config(**task_path):
@@ -54,7 +57,9 @@ def gantry_config(**task_path):
 
 def test_a_new_robot_is_registered_from_at_most_three_files(gantry):
     entry = robot_entry("gantry")
-    hook_module = sys.modules[entry.sim_hook.partition(":")[0]]
+    hook = SIM_KINEMATICS.get("gantry")
+    assert hook is gantry_kinematics
+    hook_module = sys.modules[hook.__module__]
     files = {
         Path(inspect.getsourcefile(obj)).resolve()
         for obj in (entry.section, entry.build, hook_module, GantryRobot)  # type: ignore[arg-type]

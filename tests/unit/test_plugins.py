@@ -39,7 +39,8 @@ def installed(tmp_path, monkeypatch):
     _install(
         tmp_path,
         "cheope_gantry_plugins",
-        "[cheope.robots]\ngantry = cheope_gantry_robot:GANTRY\n\n[cheope.tasks]\nsquare = cheope_square_task:SQUARE\n",
+        "[cheope.robots]\ngantry = cheope_gantry_robot:GANTRY\n\n[cheope.tasks]\nsquare = cheope_square_task:SQUARE\n"
+        "\n[cheope.sim_kinematics]\ngantry = cheope_gantry_robot:gantry_kinematics\n",
     )
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.syspath_prepend(str(PLUGINS))
@@ -121,3 +122,18 @@ def test_a_plugin_that_does_not_load_is_named(tmp_path, monkeypatch):
     finally:
         monkeypatch.undo()
         ROBOTS.rediscover()
+
+
+def test_a_robots_simulator_hook_is_found_by_its_kind_and_one_that_does_not_load_is_named(
+    installed, tmp_path, monkeypatch
+):
+    from cheope_gantry_robot import gantry_kinematics
+
+    from controller.plugins import SIM_KINEMATICS
+
+    assert SIM_KINEMATICS.get("gantry") is gantry_kinematics  # from the distribution's entry point
+    assert SIM_KINEMATICS.get("no_such_robot") is None  # rigid kinematics, the simulator's default
+    _install(tmp_path / "other", "broken_hooks", "[cheope.sim_kinematics]\nbroken = no_such_module:f\n")
+    monkeypatch.syspath_prepend(str(tmp_path / "other"))
+    with pytest.raises(PluginError, match=r"entry point broken = 'no_such_module:f' of broken_hooks"):
+        SIM_KINEMATICS.get("broken")
