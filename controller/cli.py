@@ -284,11 +284,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
     args = demo_defaults(args)  # also for the simulator's overrides: the disk is there for the contour
     cfg = _config(args)
     if args.simulated_time:
-        from controller.tools.contour_experiment import run_simulated_time
+        from controller.tools.experiment import experiment_for
 
-        if cfg.task.kind != "contour":
-            raise ConfigError("--simulated-time runs the contour experiment: use it with --task contour")
-        summary = run_simulated_time(cfg, args.max_duration, Path(args.plot) if args.plot else None)
+        experiment = experiment_for(cfg.task.kind)
+        if experiment is None or experiment.simulated_time is None:
+            raise ConfigError(
+                f"--simulated-time runs a task's experiment in simulated time: task.kind = "
+                f"{cfg.task.kind!r} has none (the contour's has: --task contour)"
+            )
+        summary = experiment.simulated_time(cfg, args.max_duration, Path(args.plot) if args.plot else None)
         print(strict_json(summary) if args.json else strict_json(summary, indent=1))
         return 0 if summary["final_mode"] == "DONE" else 1
     spec = _spec(args, cfg, default_port=random_udp_port())

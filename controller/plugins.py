@@ -11,9 +11,11 @@ square = "my_tasks:SQUARE"         # a controller.tasks.registry.TaskEntry
 gantry = "my_gantry:gantry_kinematics"   # (cfg, robot) -> the simulator's kinematics of that robot
 [project.entry-points."cheope.analyses"]
 gantry = "my_gantry_plots:analyze"       # (cfg, out_dir) -> dict: its plots (cheope analyze)
+[project.entry-points."cheope.experiments"]
+square = "my_tasks_experiments:SQUARE"   # a controller.tools.experiment.Experiment, by task kind
 ```
 
-The hooks of the last two groups are named by robot kind and live in the layer that runs them
+The hooks of the last three groups are named by robot or task kind and live in the layer that runs them
 (the simulator, the analysis tools), not in the robot's entry: the controller never imports
 them, and only the one asked for is loaded (no plotting library for a run).
 
@@ -25,7 +27,7 @@ group's kind, stops the lookup with an error naming the distribution and the ent
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from importlib.metadata import EntryPoint, entry_points
 from typing import Any, Generic, Protocol, TypeVar
 
@@ -35,6 +37,7 @@ ROBOTS_GROUP = "cheope.robots"
 TASKS_GROUP = "cheope.tasks"
 SIM_KINEMATICS_GROUP = "cheope.sim_kinematics"
 ANALYSES_GROUP = "cheope.analyses"
+EXPERIMENTS_GROUP = "cheope.experiments"
 
 E = TypeVar("E")
 
@@ -112,17 +115,18 @@ class Hooks:
     """Callables by kind (a robot's) under one entry-point group, and those added by ``register``
     (a script, a test), which win. Only the entry point asked for is loaded."""
 
-    def __init__(self, group: str, what: str) -> None:
-        self.group, self.what = group, what
-        self._added: dict[str, Callable[..., Any]] = {}
+    def __init__(self, group: str, what: str, hook_type: type | None = None) -> None:
+        """``hook_type``: what each hook must be an instance of (default: any callable)."""
+        self.group, self.what, self.hook_type = group, what, hook_type
+        self._added: dict[str, Any] = {}
 
-    def register(self, kind: str, hook: Callable[..., Any]) -> None:
+    def register(self, kind: str, hook: Any) -> None:
         self._added[kind] = hook
 
     def unregister(self, kind: str) -> None:
         self._added.pop(kind, None)
 
-    def get(self, kind: str) -> Callable[..., Any] | None:
+    def get(self, kind: str) -> Any:
         """The hook of ``kind``, or None when no distribution declares one."""
         if kind in self._added:
             return self._added[kind]
@@ -131,9 +135,9 @@ class Hooks:
                 hook = ep.load()
             except Exception as err:  # a plug-in's import error, whatever it is: name the plug-in
                 raise PluginError(f"{_origin(ep)} does not load: {type(err).__name__}: {err}") from err
-            if not callable(hook):
+            if not (isinstance(hook, self.hook_type) if self.hook_type is not None else callable(hook)):
                 raise PluginError(f"{_origin(ep)} is a {type(hook).__name__}, not a {self.what}")
-            return hook  # type: ignore[no-any-return]
+            return hook
         return None
 
 

@@ -28,6 +28,7 @@ from controller.shell.realtime import RealtimeOptions
 from controller.shell.service import run_controller
 from controller.tasks.builtin import PathSection
 from controller.tools.analysis.contour_report import ContourObserver, contour_summary, plot_contour
+from controller.tools.experiment import Experiment
 from drivers.bus import BusSpec
 
 
@@ -149,3 +150,6 @@ def run_simulated_time(
     if plot_dir is not None:
         summary["plots"] = _plot(cfg, plot_dir, obs)
     return summary
+
+
+CONTOUR = Experiment(run_contour_experiment, run_simulated_time)  # entry point cheope.experiments: contour

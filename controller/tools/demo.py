@@ -24,6 +24,7 @@ from controller.core.ports import CycleObserver
 from controller.errors import DeviceError
 from controller.shell.realtime import RealtimeOptions
 from controller.shell.service import prepare, run_controller
+from controller.tools.experiment import experiment_for
 from drivers.bus import BusSpec
 from sim_backend.process import READY_LINE
 
@@ -134,12 +135,9 @@ def run_demo(
     prepare(cfg, spec)  # what the controller would refuse, refused before the simulator starts
     sim_args = simulator_realtime_args(realtime)
     with simulator_process(spec, config_path, overrides, extra_args=sim_args):
-        if cfg.task.kind == "contour":
-            from controller.tools.contour_experiment import run_contour_experiment
-
-            return run_contour_experiment(
-                cfg, spec, plot_dir, max_duration_s, stop_event, realtime, observers
-            )
+        experiment = experiment_for(cfg.task.kind)
+        if experiment is not None:  # the task's own experiment (the contour's: laps, comparison, plots)
+            return experiment.over_bus(cfg, spec, plot_dir, max_duration_s, stop_event, realtime, observers)
         return run_controller(
             cfg,
             spec,

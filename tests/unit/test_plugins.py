@@ -8,6 +8,7 @@ plug-in robot, in simulated time.
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -137,3 +138,26 @@ def test_a_robots_simulator_hook_is_found_by_its_kind_and_one_that_does_not_load
     monkeypatch.syspath_prepend(str(tmp_path / "other"))
     with pytest.raises(PluginError, match=r"entry point broken = 'no_such_module:f' of broken_hooks"):
         SIM_KINEMATICS.get("broken")
+
+
+def test_a_tasks_experiment_is_what_demo_runs_for_it_and_a_task_without_one_is_told(capsys):
+    """``cheope demo --simulated-time`` runs the experiment declared for the task's kind
+    (cheope.experiments), not a branch on "contour"."""
+    from controller.cli import main
+    from controller.tools.experiment import EXPERIMENTS, Experiment
+
+    assert main(["demo", "--task", "path", "--simulated-time"]) != 0
+    assert "task.kind = 'path' has none" in capsys.readouterr().err
+    ran: list[str] = []
+
+    def laps_in_simulated_time(cfg, max_duration_s, plot_dir):
+        ran.append(cfg.task.kind)
+        return {"final_mode": "DONE", "laps": 1}
+
+    EXPERIMENTS.register("path", Experiment(over_bus=lambda *a: {}, simulated_time=laps_in_simulated_time))
+    try:
+        assert main(["demo", "--task", "path", "--simulated-time", "--json"]) == 0
+    finally:
+        EXPERIMENTS.unregister("path")
+    assert ran == ["path"]
+    assert json.loads(capsys.readouterr().out) == {"final_mode": "DONE", "laps": 1}
