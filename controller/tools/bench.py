@@ -50,6 +50,7 @@ from controller.cli_output import strict_json
 from controller.errors import InputError
 from controller.shell.loop import period_error_us
 from controller.shell.realtime import RealtimeOptions
+from controller.tools.experiment import experiment_for
 from drivers import cob_ids
 from drivers.bus_load import measured_bus_load
 
@@ -417,12 +418,10 @@ def run_case(
     tpdo_ids = {cob_ids.tpdo1(i) for i in ids}
     if cfg.sensor.enabled:
         tpdo_ids |= {cob_ids.tpdo1(cfg.sensor.node_id), cob_ids.tpdo2(cfg.sensor.node_id)}
-    contour = None
-    if cfg.task.kind == "contour":  # the force error of the laps, as the demo reports it
-        from controller.tools.analysis.contour_report import ContourObserver
-
-        c = cfg.task.model("contour")
-        contour = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s))
+    experiment = experiment_for(cfg.task.kind)
+    lap_report = (  # the task's own per-lap report, as its demo gives it (the contour's force error)
+        experiment.lap_report(cfg) if experiment is not None and experiment.lap_report is not None else None
+    )
     with simulator(spec, overrides, config_path, sim_rt) as proc:
         probe = LoopProbe(
             capacity,
@@ -435,19 +434,12 @@ def run_case(
             cfg,
             spec,
             max_duration_s=duration_s,
-            observers=(probe,) if contour is None else (probe, contour),
+            observers=(probe,) if lap_report is None else (probe, lap_report[0]),
             frame_sink=probe.sink,
             realtime=rt,
         )
-    if contour is not None:
-        from controller.tools.analysis.contour_report import contour_summary
-        from controller.tools.contour_experiment import cheope_robot
-
-        c = cfg.task.model("contour")
-        stiffness = cfg.robot.mass.actuator_stiffness_n_m
-        summary["contour"] = contour_summary(
-            contour, cheope_robot(cfg), stiffness, c.height_m, c.lap_speeds_m_s
-        )
+    if lap_report is not None:
+        summary["task_report"] = lap_report[1]()
     n = min(probe.n, capacity)
     skip = min(n // 10, round(cfg.loop.rate_hz))  # the first second: node set-up done, caches cold
     wake = probe.wake_error_s[skip:n]
@@ -496,7 +488,7 @@ def run_case(
             "in": round(sum(probe.frames.values()) / max(1, probe.n), 2),
             "out": round(sum(probe.frames_out.values()) / max(1, probe.n), 2),
         },
-        "contour_laps": _contour_laps(summary),
+        "task_laps": _task_laps(summary),
         "_period_errors_us": per_err,
     }
     if cyclictest_s > 0:
@@ -513,9 +505,10 @@ def _count(value: object) -> int:
     return int(value)
 
 
-def _contour_laps(summary: dict[str, object]) -> list[dict[str, object]] | None:
-    contour = summary.get("contour")
-    return contour.get("laps") if isinstance(contour, dict) else None
+def _task_laps(summary: dict[str, object]) -> list[dict[str, object]] | None:
+    """The laps of the task's own report (``Experiment.lap_report``: the contour's force error)."""
+    report = summary.get("task_report")
+    return report.get("laps") if isinstance(report, dict) else None
 
 
 def machine_floor(
@@ -897,16 +890,16 @@ def run_bench(
     cases: list[dict[str, object]] = []
     breakdowns: list[dict[str, object]] = []
     sleepers: list[dict[str, object]] = []
-    contour = cfg.task.kind == "contour"
+    has_experiment = experiment_for(cfg.task.kind) is not None
     for rate in rates_hz:
         case = BenchCase(rate, fd=rate >= fd_from_hz)
         progress(f"{rate:g} Hz: step cost and Ruckig in process ...")
-        # the contour experiment in process as over the bus (its tracking laps are what it costs)
+        # a task's experiment in process as over the bus (the contour's tracking laps are what it costs)
         bd: Json = step_breakdown(
             config_path,
             [*overrides, "task.path.laps=10.0"],
             rate,
-            cycles=int((duration_s if contour else min(10.0, duration_s)) * rate),
+            cycles=int((duration_s if has_experiment else min(10.0, duration_s)) * rate),
         )
         breakdowns.append(bd)
         progress(f"{case.name}: loop shell vs naive sleep ...")
@@ -1074,7 +1067,7 @@ def format_table(report: Json) -> str:
     row(
         "laps 4-5 force error RMS [N]",
         lambda c: (
-            "/".join(f"{lap['force_error_rms_n']:.2f}" for lap in (c.get("contour_laps") or [])[3:5]) or "-"
+            "/".join(f"{lap['force_error_rms_n']:.2f}" for lap in (c.get("task_laps") or [])[3:5]) or "-"
         ),
     )
     row(
@@ -1161,6 +1154,13 @@ def python_can_floor_percent(case: Json, cost: Json) -> tuple[float, float]:
     return round(controller, 1), round(simulator, 1)
 
 
+def _bench_tasks() -> tuple[str, ...]:
+    """The tasks the bench can run over the bus: those of its robot, the shipped configuration's."""
+    from controller.config import load_config, runnable_tasks
+
+    return runnable_tasks(load_config().robot.kind)
+
+
 def add_bench_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--config", help="TOML configuration (default: the shipped one)")
     ap.add_argument(
@@ -1180,9 +1180,10 @@ def add_bench_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--out", default="bench", help="directory for bench.json and the PNG plots")
     ap.add_argument(
         "--task",
-        choices=("path", "contour"),
+        choices=_bench_tasks(),
         default="path",
-        help="the task over the bus: the circle (default) or the contour experiment (its own length)",
+        help="the task over the bus: the circle (default), or another task of the configured robot "
+        "(a task with an experiment, as the contour, runs its own length)",
     )
     ap.add_argument(
         "--schedulers",
@@ -1218,8 +1219,8 @@ def run_bench_command(args: argparse.Namespace, rt: RealtimeOptions) -> int:
         )
     rates = tuple(float(r) for r in args.rates.split(","))
     overrides = list(args.set) if args.strict else [*TOLERANT_SAFETY, *args.set]
-    if args.task == "contour":
-        overrides.insert(0, 'task.kind="contour"')
+    if args.task != "path":
+        overrides.insert(0, f'task.kind="{args.task}"')
     schedulers = tuple(x.strip() for x in args.schedulers.split(",") if x.strip())
     unknown = [x for x in schedulers if x not in ("realtime", "normal")]
     if unknown or not schedulers:

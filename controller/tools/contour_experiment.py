@@ -15,6 +15,7 @@ stopped at once, as the displaced disk is pressed millimetres deep at the start.
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from pathlib import Path
 
 import msgspec
@@ -76,11 +77,11 @@ def run_contour_experiment(
     robot = cheope_robot(cfg)
     stiffness = cfg.robot.mass.actuator_stiffness_n_m
 
-    force_obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s))
+    force_obs, laps = contour_lap_report(cfg)
     summary = run_controller(
         cfg, spec, max_duration_s, stop_event, observers=(force_obs, *observers), realtime=realtime
     )
-    summary["contour"] = contour_summary(force_obs, robot, stiffness, c.height_m, c.lap_speeds_m_s)
+    summary["contour"] = laps()
 
     if stop_event is None or not stop_event.is_set():
         cmp_cfg = comparison_config(cfg)
@@ -100,6 +101,14 @@ def run_contour_experiment(
     if plot_dir is not None:
         summary["plots"] = _plot(cfg, plot_dir, force_obs, pos_obs)
     return summary
+
+
+def contour_lap_report(cfg: Config) -> tuple[ContourObserver, Callable[[], dict[str, object]]]:
+    """The force error per lap, in the normal's direction, as the demo reports it (``summary["contour"]``)."""
+    c = cfg.task.model("contour")
+    obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s))
+    stiffness = cfg.robot.mass.actuator_stiffness_n_m
+    return obs, lambda: contour_summary(obs, cheope_robot(cfg), stiffness, c.height_m, c.lap_speeds_m_s)
 
 
 def _plot(
@@ -152,4 +161,6 @@ def run_simulated_time(
     return summary
 
 
-CONTOUR = Experiment(run_contour_experiment, run_simulated_time)  # entry point cheope.experiments: contour
+CONTOUR = Experiment(
+    run_contour_experiment, run_simulated_time, contour_lap_report
+)  # entry point cheope.experiments: contour

@@ -17,6 +17,7 @@ from controller.plugins import EXPERIMENTS_GROUP, Hooks
 
 if TYPE_CHECKING:
     from controller.config import Config
+    from controller.core.ports import CycleObserver
 
 
 @dataclass(frozen=True)
@@ -27,6 +28,9 @@ class Experiment:
     # (cfg, max_duration_s, plot_dir) -> summary, against the in-process devices in simulated
     # time (``cheope demo --simulated-time``); None: the experiment has no such run
     simulated_time: Callable[[Config, float, Path | None], dict[str, object]] | None = None
+    # cfg -> (an observer for a run of the task, the summary of what it saw): the per-lap report the
+    # bench adds to its runs over the bus (``cheope bench --task KIND``); None: no such report
+    lap_report: Callable[[Config], tuple[CycleObserver, Callable[[], dict[str, object]]]] | None = None
 
 
 EXPERIMENTS = Hooks(EXPERIMENTS_GROUP, "Experiment", Experiment)
