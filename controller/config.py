@@ -78,7 +78,7 @@ class RobotSection(Section, frozen=True):
 
 
 class ActuatorsSection(Section, frozen=True):
-    node_ids: tuple[int, int, int] = (1, 2, 3)
+    node_ids: tuple[int, ...] = (1, 2, 3)
     counts_per_m: Annotated[float, rng(1.0, 1e12)] = 1.0e7
     # Rotary actuators (robot.kind = "uru": motor-shaft angles) use these instead of the _m keys.
     counts_per_rad: Annotated[float, rng(1.0, 1e12)] = 166886.05  # 2^20 counts per turn
@@ -102,7 +102,7 @@ class ActuatorsSection(Section, frozen=True):
     # CiA 402 homing before the first cycle (drivers/homing.py): 0 none, 17/18 negative/positive limit
     # switch, 35/37 current position. Positions and speeds in the actuators' unit (rad for rotary ones).
     homing_method: Literal[0, 17, 18, 35, 37] = 0
-    home_offsets_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # each drive's position at home (0x607C)
+    home_offsets_m: tuple[float, ...] = (0.0, 0.0, 0.0)  # each drive's position at home (0x607C)
     homing_switch_speed_m_s: Annotated[float, rng(0.0, 100.0, lo_open=True)] = 0.1
     homing_zero_speed_m_s: Annotated[float, rng(0.0, 100.0, lo_open=True)] = 0.005
     homing_acceleration_m_s2: Annotated[float, rng(0.0, 1e4, lo_open=True)] = 1.0

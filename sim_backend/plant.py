@@ -59,7 +59,7 @@ from controller.core.linalg3 import Matrix3, as_rows, inverse3, matvec, transpos
 from controller.core.ports import ActuatorUnit
 from controller.errors import NoSolutionError
 from controller.robots.builtin import mass_model_from_config
-from controller.robots.registry import actuator_units, robot_from_config
+from controller.robots.registry import actuator_units, check_axes, robot_from_config
 from controller.tasks.registry import task_entry
 from sim_backend.contact_disk import DiskEnvironment, DiskParams
 from sim_backend.drive import DriveParams, SimulatedDrive
@@ -179,6 +179,11 @@ def workpiece_environment(w: SimWorkpieceSection) -> DiskEnvironment | PolylineE
 class RobotPlant:
     def __init__(self, cfg: Config, environment: Environment | None = None) -> None:
         self.robot = robot_from_config(cfg)
+        check_axes(
+            cfg.robot.kind,
+            self.robot.n_actuators,
+            {"sim.drive.encoder_offsets_m": cfg.sim.drive.encoder_offsets_m},
+        )
         self.kinematics = plant_kinematics(cfg, self.robot)  # the robot's simulator hook
         params = drive_params_from_config(cfg)
         self.drives = [

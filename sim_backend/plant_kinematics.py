@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from controller.plugins import SIM_KINEMATICS
+from controller.robots.registry import check_axes
 
 if TYPE_CHECKING:
     from controller.config import Config
@@ -168,6 +169,11 @@ def plant_kinematics(cfg: Config, robot: Any) -> PlantKinematics:
     """The configured robot's hook, or rigid kinematics from ``sim.drive.initial_positions_m``."""
     factory = SIM_KINEMATICS.get(cfg.robot.kind)
     if factory is None:
+        check_axes(
+            cfg.robot.kind,
+            robot.n_actuators,
+            {"sim.drive.initial_positions_m": cfg.sim.drive.initial_positions_m},
+        )
         return RigidKinematics(robot, cfg.sim.drive.initial_positions_m)
     kinematics: PlantKinematics = factory(cfg, robot)
     return kinematics

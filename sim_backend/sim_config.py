@@ -28,10 +28,10 @@ class SimDriveSection(Section, frozen=True):
     max_velocity_rad_s: Annotated[float, rng(0.0, 1e4, lo_open=True)] = 12.0  # rotary drives
     max_acceleration_rad_s2: Annotated[float, rng(0.0, 1e6, lo_open=True)] = 240.0
     quick_stop_deceleration_rad_s2: Annotated[float, rng(0.0, 1e6, lo_open=True)] = 30.0
-    initial_positions_m: tuple[float, float, float] = (0.71508, 0.56794, 0.42697)  # TCP at (0.09, 0, 0.5) m
+    initial_positions_m: tuple[float, ...] = (0.71508, 0.56794, 0.42697)  # TCP at (0.09, 0, 0.5) m
     # Incremental encoders: each drive reports its true position plus this offset until homed (rad
     # for rotary drives); the homing limit switches close below / above these true positions.
-    encoder_offsets_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    encoder_offsets_m: tuple[float, ...] = (0.0, 0.0, 0.0)
     limit_switches_m: tuple[float, float] = (0.32, 0.88)
     # Cheope's linear motors: a cogging force A sin(2 pi q / period + phase) on each carriage, acting
     # through the structure's actuator stiffness (sim_backend/plant.py); 0 N disables it

@@ -90,6 +90,12 @@ class JointReference:
     reactive: bool = False  # recomputed from measurements each cycle: smoothed by velocity (see
     #                         RuckigSmoother.track_velocity), else by position
 
+    @classmethod
+    def at_rest(cls, position: tuple[float, ...], tcp_m: tuple[float, float, float]) -> JointReference:
+        """Go to ``position`` and stop there (off the path): no velocity or acceleration, on any number of axes."""
+        zeros = (0.0,) * len(position)
+        return cls(position, zeros, zeros, tcp_m, False)
+
 
 @dataclass(frozen=True, slots=True)
 class TaskContext:

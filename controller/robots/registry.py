@@ -62,8 +62,30 @@ def robot_entry(kind: str) -> RobotEntry:
 
 
 def robot_from_config(cfg: Config) -> Robot:
-    """The model of ``robot.kind``; ValueError (from the model) when the geometry is inconsistent."""
-    return robot_entry(cfg.robot.kind).build(cfg)
+    """The model of ``robot.kind``; ValueError (from the model) when the geometry is inconsistent,
+    ConfigError when a per-actuator list has not one value per actuator."""
+    robot = robot_entry(cfg.robot.kind).build(cfg)
+    check_axes(
+        cfg.robot.kind,
+        robot.n_actuators,
+        {
+            "actuators.node_ids": cfg.actuators.node_ids,
+            "actuators.home_offsets_m": cfg.actuators.home_offsets_m,
+        },
+    )
+    return robot
+
+
+def check_axes(kind: str, n: int, lists: dict[str, tuple[Any, ...]]) -> None:
+    """Every per-actuator list of the configuration holds one value per actuator of the robot: a
+    robot of 4 or 6 axes is configured with lists of 4 or 6 (any length is a valid list)."""
+    from controller.config_schema import ConfigError
+
+    for key, values in lists.items():
+        if len(values) != n:
+            raise ConfigError(
+                f"{key} = {list(values)}: {len(values)} value(s) for the {n} actuators of robot.kind = {kind!r}"
+            )
 
 
 @dataclass(frozen=True)

@@ -432,7 +432,7 @@ class ContourTrackingTask:
         settled = all(abs(a - b) <= tol for a, b in zip(sp.position, self._start_q, strict=True)) and all(
             abs(v) <= tol for v in sp.velocity
         )
-        ref = JointReference(self._start_q, (0.0,) * 3, (0.0,) * 3, self.start_m, False)
+        ref = JointReference.at_rest(self._start_q, self.start_m)
         if settled:
             s = self._enter(s, ContourPhase.TARE, ctx.t_s)
         return TaskStep(s, ref)

@@ -57,9 +57,7 @@ class PathTask:
         self.settle_tolerance = settle_tolerance
         self.fd_step_s = fd_step_s
         p0, _, _ = path.sample(0.0)
-        self._start = JointReference(
-            tuple(robot.inverse_kinematics(p0).tolist()), (0.0,) * 3, (0.0,) * 3, tuple(p0.tolist()), False
-        )
+        self._start = JointReference.at_rest(tuple(robot.inverse_kinematics(p0).tolist()), tuple(p0.tolist()))
 
     def start(self) -> PathTaskState:
         return PathTaskState()

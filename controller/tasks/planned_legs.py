@@ -138,7 +138,7 @@ class PlannedLegsTask:
         self.correction_planner = planner  # the shell's PlanWorker fills its memo off the loop
         self.goal = goal
         first = streamed.sample(0.0)
-        self._start = JointReference(first[0], (0.0,) * 3, (0.0,) * 3, first[3], False)
+        self._start = JointReference.at_rest(first[0], first[3])
 
     def start(self) -> LegsTaskState:
         return LegsTaskState()
@@ -147,9 +147,7 @@ class PlannedLegsTask:
         return state.phase.name
 
     def _hold(self, ctx: TaskContext, plan: StreamedPlan) -> JointReference:
-        return JointReference(
-            ctx.setpoint.position, (0.0,) * 3, (0.0,) * 3, plan.sample(plan.duration_s)[3], False
-        )
+        return JointReference.at_rest(ctx.setpoint.position, plan.sample(plan.duration_s)[3])
 
     def step(self, state: LegsTaskState, ctx: TaskContext) -> TaskStep:
         if state.phase == LegsPhase.CHECK_START:
@@ -189,7 +187,7 @@ class PlannedLegsTask:
                 state = replace(
                     state, phase=LegsPhase.MEASURING, start_s=ctx.t_s, samples=0, sum_pose=(0.0,) * 6
                 )
-                return TaskStep(state, JointReference(pos, (0.0,) * 3, (0.0,) * 3, plat, False))
+                return TaskStep(state, JointReference.at_rest(pos, plat))
         finished = state.phase == LegsPhase.FINISHED
         return TaskStep(state, JointReference(pos, vel, acc, plat, not finished), finished)
 

@@ -99,3 +99,72 @@ def test_the_registry_refuses_what_the_new_robot_cannot_do(gantry):
 def test_an_unregistered_robot_is_named_with_the_known_ones():
     with pytest.raises(ConfigError, match=r"robot.kind = 'gantry': must be one of cheope, nspu, uru"):
         config_from_dict({"robot": {"kind": "gantry"}})
+
+
+class TwinColumnGantry(GantryRobot):
+    """Four axes: x, y and two z columns side by side, commanded alike (a gantry's twin columns)."""
+
+    n_actuators = 4
+
+    def inverse_kinematics(self, tcp_m: np.ndarray) -> np.ndarray:
+        q = np.asarray(tcp_m, dtype=float) - self.offset
+        return np.array([q[0], q[1], q[2], q[2]])
+
+    def direct_kinematics(self, q: np.ndarray) -> np.ndarray:
+        q = np.asarray(q, dtype=float)
+        return np.array([q[0], q[1], 0.5 * (q[2] + q[3])]) + self.offset
+
+
+@pytest.fixture
+def twin():
+    from dataclasses import replace
+
+    entry = replace(GANTRY, kind="twin", build=lambda cfg: TwinColumnGantry(cfg.robot.model("twin")))
+    register_robot(entry)
+    yield entry
+    unregister_robot("twin")
+
+
+def twin_config(**sections):
+    return config_from_dict(
+        {
+            "robot": {"kind": "twin", "twin": {"offset_m": [0.0, 0.0, 0.2]}},
+            "task": {"kind": "path", "path": {"center_m": [0.1, 0.0, 0.3], "radius_m": 0.05, "laps": 1.0}},
+            "sensor": {"enabled": False},
+            "recording": {"enabled": False},
+            "monitoring": {"enabled": False},
+            **sections,
+        }
+    )
+
+
+def test_a_robot_of_four_axes_is_configured_with_four_node_ids_and_runs_its_path(twin):
+    """The per-actuator lists have any length: four drives on the bus (nodes 1-4), four setpoints
+    streamed, the twin columns at the same height all the way."""
+    cfg = twin_config(
+        actuators={"node_ids": [1, 2, 3, 4], "home_offsets_m": [0.0] * 4},
+        sim={"drive": {"initial_positions_m": [0.1, 0.0, 0.1, 0.1], "encoder_offsets_m": [0.0] * 4}},
+    )
+    law = build_law(cfg)
+    clock = SimulatedTime()
+    exchange = LoopbackExchange(cfg, clock.clock)
+    heights: list[tuple[float, float]] = []
+
+    class Columns:
+        def on_cycle(self, cycle, t, inputs, state, outputs, events, timing):
+            assert len(outputs.targets) == 4 and len(inputs.drives) == 4
+            heights.append((outputs.targets[2], outputs.targets[3]))
+
+    final, _ = CycleLoop(
+        law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(Columns(),)
+    ).run(law.initial_state(), 30.0)
+    assert final.mode == Mode.DONE, final.fault_reason
+    assert np.allclose(exchange.plant.tcp_m, [0.15, 0.0, 0.3], atol=1e-4)
+    assert heights and all(a == b for a, b in heights)
+
+
+def test_a_per_actuator_list_of_the_wrong_length_is_named(twin):
+    with pytest.raises(
+        ConfigError, match=r"actuators.node_ids = \[1, 2, 3\]: 3 value\(s\) for the 4 actuators"
+    ):
+        build_law(twin_config())
