@@ -90,7 +90,7 @@ class ContourSection(Section, frozen=True):
     retract_speed_m_s: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.02
     tare_s: Annotated[float, rng(0.0, 60.0, lo_open=True)] = 0.1
     friction_estimate: Annotated[float, rng(0.0, 2.0)] = 0.1
-    normal_tracker_hz: Annotated[float, rng(0.01, 50.0)] = 2.5
+    normal_tracker_hz: Annotated[float, rng(0.01, 50.0)] = 1.5
     comparison_press_m: Annotated[float, rng(0.0, 0.01)] = 6.0e-5
     direction: Literal[1, -1] = 1  # 1: counter-clockwise seen from +z
     # off the happy path (controller/tasks/contour_tracking.py, "Off the happy path")

@@ -148,7 +148,7 @@ class ContourParams:
     saturation_force_n: float  # above: the normal command only moves away from the contact [N]
     friction_estimate: float = 0.0
     direction: int = 1
-    normal_tracker_hz: float = 2.5
+    normal_tracker_hz: float = 1.5
     normal_gate_deg: float = 60.0  # a force direction further from the prediction is no normal [deg]
     max_force_step_n: float = 10.0  # a larger step between two samples is implausible [N]
     implausible_hold_s: float = 0.5  # the longest a suspect signal is held off before its level is taken [s]

@@ -47,7 +47,7 @@ def test_normal_estimate_removes_friction_with_the_friction_estimate():
     fn, mu = 10.0, 0.15
     force = (fn * (true_n[0] - mu * t[0]), fn * (true_n[1] - mu * t[1]), 0.0)  # F = Fn (n - mu t)
     s = _tracking(task, normal=(math.cos(0.29), math.sin(0.29)), speed_m_s=0.05, force_f=force)
-    for _ in range(800):  # 2 s: the normal tracker (2.5 Hz) settles on the compensated direction
+    for _ in range(800):  # 2 s: the normal tracker (1.5 Hz) settles on the compensated direction
         out = task.step(s, _ctx(force))
         s = replace(out.state, p_cmd=(0.07, 0.0, 0.5), speed_m_s=0.05)
     est = out.state.normal
