@@ -44,22 +44,6 @@ def _default_models(group: str) -> dict[str, Any]:
     return {kind: section() for kind, section in _registered_sections(group).items() if section is not None}
 
 
-class MarginsSection(Section, frozen=True):
-    """Minimum distances from the singularity classes of seed 001 §5.1 and a conditioning bound."""
-
-    min_direct_measure: Annotated[float, rng(0.0, 1.0)] = 0.20
-    min_inverse_measure: Annotated[float, rng(0.0, 1.0)] = 0.20
-    min_structural_measure: Annotated[float, rng(0.0, 1.0)] = 0.20
-    max_condition_number: Annotated[float, rng(1.0, 1e6)] = 10.0
-
-
-class MassSection(Section, frozen=True):
-    platform_kg: Annotated[float, rng(0.0, 1000.0)] = 8.0
-    slider_kg: Annotated[float, rng(0.0, 1000.0)] = 1.0
-    rod_pair_kg: Annotated[float, rng(0.0, 1000.0)] = 0.4
-    actuator_stiffness_n_m: Annotated[float, rng(0.0, 1e12, lo_open=True)] = 2.0e5
-
-
 class RobotSection(Section, frozen=True):
     """``kind`` selects a registered robot (controller/robots/registry.py); ``[robot.<kind>]`` is its section.
 
@@ -68,8 +52,6 @@ class RobotSection(Section, frozen=True):
     """
 
     kind: str = "cheope"
-    margins: MarginsSection = msgspec.field(default_factory=MarginsSection)
-    mass: MassSection = msgspec.field(default_factory=MassSection)
     models: Mapping[str, Any] = msgspec.field(default_factory=lambda: _default_models("robot"))
 
     def model(self, kind: str | None = None) -> Any:
@@ -455,7 +437,18 @@ def recorded_config_from_dict(table: dict[str, Any]) -> Config:
 
 
 def _migrate(table: dict[str, Any]) -> dict[str, Any]:
-    """Older files and recordings: ``[sim.disk]`` is ``[sim.workpiece]`` (shape "disk") since issue 26."""
+    """Older files and recordings: ``[sim.disk]`` is ``[sim.workpiece]`` (shape "disk") since issue 26;
+    ``[robot.margins]`` and ``[robot.mass]`` are Cheope's, ``[robot.cheope.margins]`` and
+    ``[robot.cheope.mass]``, since issue 29 (an old key given with --set lands there too)."""
+    robot = table.get("robot")
+    if isinstance(robot, dict) and ("margins" in robot or "mass" in robot):
+        robot = dict(robot)
+        cheope = dict(robot.get("cheope") or {})
+        for name in ("margins", "mass"):
+            if isinstance(robot.get(name), dict):
+                cheope[name] = {**(cheope.get(name) or {}), **robot.pop(name)}
+        robot["cheope"] = cheope
+        table = {**table, "robot": robot}
     sim = table.get("sim")
     if isinstance(sim, dict) and "disk" in sim and "workpiece" not in sim:
         sim = {**sim, "workpiece": sim["disk"]}

@@ -214,7 +214,7 @@ class RobotPlant:
         self.environment = environment or environment_from_config(cfg)
         self.loaded = not isinstance(self.environment, FreeSpace)
         self._compliance = ComplianceParams(
-            cfg.robot.mass.actuator_stiffness_n_m,
+            cfg.robot.model("cheope").mass.actuator_stiffness_n_m,
             cfg.sim.structure_damping_ratio,
             mass_model_from_config(cfg),
         )

@@ -84,7 +84,7 @@ def symmetric_eigenvalues3(m: Matrix3) -> Vector3:
     q + 2 p cos(phi + 2 pi k / 3), cos(3 phi) = det(B)/2. Accurate to about 1e-8 of the
     largest eigenvalue (``tests/test_linalg3.py`` holds it to 1e-7): where two eigenvalues
     nearly coincide, acos near +-1 keeps only half the digits. Enough for a condition number
-    checked against its limit (``robot.margins.max_condition_number``, 10).
+    checked against its limit (``robot.cheope.margins.max_condition_number``, 10).
     """
     a00, a01, a02 = m[0]
     a11, a12 = m[1][1], m[1][2]

@@ -12,6 +12,8 @@ import math
 from collections.abc import Iterable
 from typing import TYPE_CHECKING, Annotated, Literal
 
+import msgspec
+
 from controller.config_schema import ConfigError, Section, rng
 from controller.configs import CONFIG_DIR
 from controller.core.ports import ActuatorUnit
@@ -29,6 +31,24 @@ if TYPE_CHECKING:  # the models load on demand, when a robot is built: the confi
 # -- Cheope (seed 001) --------------------------------------------------------------------------
 
 
+class MarginsSection(Section, frozen=True):
+    """Minimum distances from the singularity classes of seed 001 §5.1 and a conditioning bound."""
+
+    min_direct_measure: Annotated[float, rng(0.0, 1.0)] = 0.20
+    min_inverse_measure: Annotated[float, rng(0.0, 1.0)] = 0.20
+    min_structural_measure: Annotated[float, rng(0.0, 1.0)] = 0.20
+    max_condition_number: Annotated[float, rng(1.0, 1e6)] = 10.0
+
+
+class MassSection(Section, frozen=True):
+    """Cheope's lumped masses and its actuators' servo stiffness (controller/robots/performance.py)."""
+
+    platform_kg: Annotated[float, rng(0.0, 1000.0)] = 8.0
+    slider_kg: Annotated[float, rng(0.0, 1000.0)] = 1.0
+    rod_pair_kg: Annotated[float, rng(0.0, 1000.0)] = 0.4
+    actuator_stiffness_n_m: Annotated[float, rng(0.0, 1e12, lo_open=True)] = 2.0e5
+
+
 class CheopeSection(Section, frozen=True):
     rod_length_m: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.50
     axis_tilt_deg: Annotated[float, rng(1.0, 89.0)] = 60.0
@@ -39,6 +59,8 @@ class CheopeSection(Section, frozen=True):
     joint_swing_limit_deg: Annotated[float, rng(0.0, 90.0, lo_open=True)] = 22.0
     stroke_min_m: Annotated[float, rng(-10.0, 10.0)] = 0.30
     stroke_max_m: Annotated[float, rng(-10.0, 10.0)] = 0.90
+    margins: MarginsSection = msgspec.field(default_factory=MarginsSection)
+    mass: MassSection = msgspec.field(default_factory=MassSection)
 
 
 def _check_cheope(c: CheopeSection) -> None:
@@ -49,10 +71,10 @@ def _check_cheope(c: CheopeSection) -> None:
 
 
 def mass_model_from_config(cfg: Config) -> MassModel:
-    """Cheope's lumped masses (``[robot.mass]``): the mass ellipsoid's and the simulated structure's."""
+    """Cheope's lumped masses (``[robot.cheope.mass]``): the mass ellipsoid's and the simulated structure's."""
     from controller.robots.performance import MassModel
 
-    m = cfg.robot.mass
+    m = cfg.robot.model("cheope").mass
     return MassModel(m.platform_kg, m.slider_kg, m.rod_pair_kg)
 
 
@@ -60,7 +82,7 @@ def cheope_from_config(cfg: Config) -> CheopeRobot:
     from controller.robots.cheope import CheopeGeometry, CheopeLimits, CheopeRobot
 
     c: CheopeSection = cfg.robot.model("cheope")
-    m = cfg.robot.margins
+    m = c.margins
     geometry = CheopeGeometry(
         rod_length_m=c.rod_length_m,
         axis_tilt_rad=math.radians(c.axis_tilt_deg),

@@ -75,7 +75,7 @@ def run_contour_experiment(
 ) -> dict[str, object]:
     c = cfg.task.model("contour")
     robot = cheope_robot(cfg)
-    stiffness = cfg.robot.mass.actuator_stiffness_n_m
+    stiffness = cfg.robot.model("cheope").mass.actuator_stiffness_n_m
 
     force_obs, laps = contour_lap_report(cfg)
     summary = run_controller(
@@ -107,7 +107,7 @@ def contour_lap_report(cfg: Config) -> tuple[ContourObserver, Callable[[], dict[
     """The force error per lap, in the normal's direction, as the demo reports it (``summary["contour"]``)."""
     c = cfg.task.model("contour")
     obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s))
-    stiffness = cfg.robot.mass.actuator_stiffness_n_m
+    stiffness = cfg.robot.model("cheope").mass.actuator_stiffness_n_m
     return obs, lambda: contour_summary(obs, cheope_robot(cfg), stiffness, c.height_m, c.lap_speeds_m_s)
 
 
@@ -117,7 +117,7 @@ def _plot(
     """Fig. 8-9 of the force-controlled run and, when there is one, of the comparison."""
     c = cfg.task.model("contour")
     robot = cheope_robot(cfg)
-    stiffness = cfg.robot.mass.actuator_stiffness_n_m
+    stiffness = cfg.robot.model("cheope").mass.actuator_stiffness_n_m
     masses = mass_model_from_config(cfg)
     plots = plot_contour(
         force_obs, robot, stiffness, masses, c.height_m, plot_dir, "force control", c.lap_speeds_m_s
@@ -153,7 +153,11 @@ def run_simulated_time(
         "cycles": stats.cycles,
         "simulated_time": True,
         "contour": contour_summary(
-            obs, cheope_robot(cfg), cfg.robot.mass.actuator_stiffness_n_m, c.height_m, c.lap_speeds_m_s
+            obs,
+            cheope_robot(cfg),
+            cfg.robot.model("cheope").mass.actuator_stiffness_n_m,
+            c.height_m,
+            c.lap_speeds_m_s,
         ),
     }
     if plot_dir is not None:

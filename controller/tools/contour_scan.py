@@ -388,7 +388,7 @@ def run_shape(base: Config, shape: str, directory: Path | None = None) -> dict[s
     s = contour_summary(
         obs,
         robot,  # type: ignore[arg-type]
-        cfg.robot.mass.actuator_stiffness_n_m,
+        cfg.robot.model("cheope").mass.actuator_stiffness_n_m,
         c.height_m,
         c.lap_speeds_m_s,
     )

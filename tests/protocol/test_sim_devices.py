@@ -211,7 +211,7 @@ def test_cogging_moves_the_tool_by_the_inverse_jacobian_of_the_carriage_displace
     q = np.array([d.position for d in plant.drives])
     f = amplitude * np.sin(2.0 * np.pi * q / period + np.radians(phases))
     jac = plant.robot.jacobian(plant.tcp_kinematic_m)
-    expected = np.linalg.solve(jac, f) / cfg.robot.mass.actuator_stiffness_n_m
+    expected = np.linalg.solve(jac, f) / cfg.robot.model("cheope").mass.actuator_stiffness_n_m
     assert np.max(np.abs(expected)) > 1e-6  # a visible test: micrometres
     assert np.asarray(plant.tool.deflection_m) == pytest.approx(expected, rel=1e-3, abs=1e-10)
 
@@ -226,8 +226,12 @@ def test_without_cogging_the_unloaded_structure_stays_put():
 def test_inertial_load_deflects_the_structure_by_its_mass_times_the_base_acceleration():
     cfg = load_config()
     jac = build_robot(cfg).jacobian(np.array([0.03, -0.02, 0.5]))
-    masses = MassModel(cfg.robot.mass.platform_kg, cfg.robot.mass.slider_kg, cfg.robot.mass.rod_pair_kg)
-    k = cfg.robot.mass.actuator_stiffness_n_m
+    masses = MassModel(
+        cfg.robot.model("cheope").mass.platform_kg,
+        cfg.robot.model("cheope").mass.slider_kg,
+        cfg.robot.model("cheope").mass.rod_pair_kg,
+    )
+    k = cfg.robot.model("cheope").mass.actuator_stiffness_n_m
     tool = CompliantTool(ComplianceParams(k, 0.2, masses))
     tool.set_structure(jac)
     a = (0.3, -0.2, 0.1)

@@ -14,7 +14,7 @@ def test_analyze_writes_the_plots_and_reports_the_indices(cfg, tmp_path):
     assert report["force_capacity_x_over_y"] > 1.0 and report["velocity_capacity_y_over_x"] > 1.0
     assert report["path_max_condition_number"] < 4.5
     assert report["path_max_joint_swing_deg"] < 22.0
-    assert report["path_min_inverse_measure"] > cfg.robot.margins.min_inverse_measure
+    assert report["path_min_inverse_measure"] > cfg.robot.model("cheope").margins.min_inverse_measure
 
 
 def test_analyze_reports_both_stiffness_ratios_and_says_which_is_which(cfg, tmp_path):

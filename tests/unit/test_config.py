@@ -106,3 +106,21 @@ def test_a_configuration_with_the_old_sim_disk_section_still_loads_as_the_workpi
     cfg = config_from_dict(table)
     assert cfg.sim.workpiece.radius_m == 0.066 and cfg.sim.workpiece.shape == "disk"
     assert cfg.sim.environment == "workpiece"
+
+
+def test_an_older_file_s_robot_margins_and_mass_are_cheope_s():
+    """``[robot.margins]`` and ``[robot.mass]`` sat on the generic robot section until issue 29: a file
+    or a recording that has them, or a --set of their old keys, lands in ``[robot.cheope.*]``."""
+    from controller.config import config_from_dict
+
+    cfg = config_from_dict(
+        {"robot": {"kind": "cheope", "mass": {"platform_kg": 9.5}, "margins": {"max_condition_number": 12.0}}}
+    )
+    cheope = cfg.robot.model("cheope")
+    assert cheope.mass.platform_kg == 9.5 and cheope.mass.slider_kg == 1.0
+    assert cheope.margins.max_condition_number == 12.0
+    assert (
+        load_config(overrides={"robot.mass.rod_pair_kg": 0.5}).robot.model("cheope").mass.rod_pair_kg == 0.5
+    )
+    with pytest.raises(ConfigError, match=r"unknown key\(s\) bogus"):
+        config_from_dict({"robot": {"mass": {"bogus": 1.0}}})

@@ -180,7 +180,11 @@ def _closed_loop(**overrides):
         law.initial_state(), 120.0
     )
     summary = contour_summary(
-        obs, build_robot(cfg), cfg.robot.mass.actuator_stiffness_n_m, c.height_m, c.lap_speeds_m_s
+        obs,
+        build_robot(cfg),
+        cfg.robot.model("cheope").mass.actuator_stiffness_n_m,
+        c.height_m,
+        c.lap_speeds_m_s,
     )
     return final, summary, ex
 
@@ -316,7 +320,11 @@ def test_lost_frames_in_the_force_loop_cost_nothing_visible():
         )
         assert final.mode == Mode.DONE, final.fault_reason
         return contour_summary(
-            obs, build_robot(cfg), cfg.robot.mass.actuator_stiffness_n_m, c.height_m, c.lap_speeds_m_s
+            obs,
+            build_robot(cfg),
+            cfg.robot.model("cheope").mass.actuator_stiffness_n_m,
+            c.height_m,
+            c.lap_speeds_m_s,
         )
 
     clean = run(set())

@@ -276,6 +276,6 @@ def analyze_cheope(cfg: Config, out: Path) -> dict[str, object]:
     }
     report.update(path_margins(robot, path, out))
     report.update(workspace_sections(robot, out))
-    ellipse_sections(robot, masses, cfg.robot.mass.actuator_stiffness_n_m, out)
+    ellipse_sections(robot, masses, cfg.robot.model("cheope").mass.actuator_stiffness_n_m, out)
     report["plots"] = sorted(str(f) for f in out.glob("cheope_*.png"))
     return report
