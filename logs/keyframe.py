@@ -78,6 +78,8 @@ def encode_state(state: object) -> bytes:
 MOVED_CLASSES = {
     "controller.tasks.planned_legs:StreamedPlan": "controller.tasks.streamed_plan:StreamedPlan",
     "drivers.cia402:PowerState": "controller.core.cia402:PowerState",
+    "controller.core.control_law:ControllerState": "controller.core.controller_state:ControllerState",
+    "controller.core.control_law:Mode": "controller.core.controller_state:Mode",
 }
 
 

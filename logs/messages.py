@@ -55,7 +55,7 @@ from controller.core.cycle_data import (
 from controller.messages import cheope_pb2 as pb
 
 if TYPE_CHECKING:
-    from controller.core.control_law import ControllerState
+    from controller.core.controller_state import ControllerState
 
 TOPIC_CAN = "/can"
 TOPIC_CYCLE = "/cycle"

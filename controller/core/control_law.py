@@ -30,12 +30,12 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from enum import IntEnum
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from controller.core.cia402 import CW_QUICK_STOP, PowerState, controlword_towards, decode_statusword
+from controller.core.controller_state import ControllerState, Mode
 from controller.core.cycle_data import (
     SENSOR_FORCE_SATURATED,
     Anomaly,
@@ -54,17 +54,6 @@ from controller.errors import NoSolutionError
 PIPELINE_PERIODS = 2
 # A reactive reference's position error decays with a time constant of 1/0.25 = 4 periods.
 REACTIVE_CORRECTION_PERIODS = 0.25
-
-
-class Mode(IntEnum):
-    CONFIGURING = 0
-    ENABLING = 1
-    HOLDING = 2
-    RUNNING = 3
-    PAUSED = 4
-    STOPPING = 5
-    DONE = 6
-    FAULT = 7
 
 
 @runtime_checkable
@@ -183,39 +172,6 @@ class LawConfig:
     # The task retracts without force data when the sensor's frames are no longer trusted
     # (TaskEntry.retracts_on_sensor_breach); with safety.sensor_breach_retract_s > 0 the law lets it.
     task_retracts_on_sensor_breach: bool = False
-
-
-@dataclass(frozen=True, slots=True)
-class ControllerState:
-    mode: Mode
-    cycle: int
-    mode_entered_s: float
-    setpoint: Setpoint
-    controlwords: tuple[int, ...]
-    missing_streak: tuple[int, ...]
-    task_state: object
-    tcp_reference_m: tuple[float, float, float] | None  # path point for the next SYNC; None off the path
-    tcp_measured_m: tuple[float, float, float] | None  # direct kinematics of the measured positions
-    task_time_s: float = 0.0
-    fault_reason: str = ""
-    sensor_counter: int = -1  # last sensor counter seen, for staleness
-    sensor_stale: int = 0  # cycles the counter has not advanced
-    sensor_missing: int = 0  # cycles in a row without a usable sample (missing or ambiguous)
-    late_streak: int = 0  # consecutive late cycles
-    warned: frozenset[str] = frozenset()  # warnings already raised in the current episode
-    # Each drive's last trusted position: fresh and within its physics. The plausibility check's
-    # reference, and the only source of hold and stop targets (never a flagged frame).
-    last_measured: tuple[float, ...] = ()
-    # Anomaly bursts under "warn": (key, frames, cycles with it, cycle of the last report)
-    bursts: tuple[tuple[str, int, int, int], ...] = ()
-    # Drives (indices) that may not process RPDOs: reported not OPERATIONAL, or the target of a
-    # foreign NMT command, or heartbeat lost. In FAULT they get the quick stop by SDO as well.
-    unreachable: frozenset[int] = frozenset()
-    sdo_stopped: frozenset[int] = frozenset()  # drives already sent the quick stop by SDO in this fault
-    # A second sender on the force sensor's COB-ID during the task (what it was, and the cycle): its
-    # frames are withheld from the task, which retracts; the fault follows (_sensor_breach).
-    sensor_breach: str = ""
-    sensor_breach_cycle: int = 0
 
 
 # One handler per mode: (state, inputs, power states, measured positions, t, events) -> state.

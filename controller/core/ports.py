@@ -24,7 +24,7 @@ from controller.core.setpoint_smoothing import Setpoint
 if TYPE_CHECKING:  # annotations only: the registries and the configuration load without numpy
     import numpy as np
 
-    from controller.core.control_law import ControllerState
+    from controller.core.controller_state import ControllerState
 
 
 # -- robots -----------------------------------------------------------------------------------

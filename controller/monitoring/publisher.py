@@ -43,7 +43,7 @@ import zenoh
 from google.protobuf.message import DecodeError
 
 from controller.config import Config, config_to_dict
-from controller.core.control_law import ControllerState
+from controller.core.controller_state import ControllerState
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severity
 from controller.core.ports import CycleTiming, Task
 from controller.messages import cheope_pb2 as pb

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from controller.core.control_law import Mode
+from controller.core.controller_state import Mode
 
 if TYPE_CHECKING:
     from controller.core.ports import Robot

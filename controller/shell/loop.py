@@ -25,7 +25,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from controller.core.control_law import ControlLaw, ControllerState, Mode
+from controller.core.control_law import ControlLaw
+from controller.core.controller_state import ControllerState, Mode
 from controller.core.cycle_data import BusFeedback, Command, CycleOutputs, cycle_inputs
 from controller.core.ports import CycleObserver, CycleTiming
 from controller.shell.streaming_stats import LogHistogram

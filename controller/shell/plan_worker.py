@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Self
 from controller.tasks.plan_correction import CorrectionPlan, CorrectionPlanner, PoseRequest, correction_plan
 
 if TYPE_CHECKING:
-    from controller.core.control_law import ControllerState
+    from controller.core.controller_state import ControllerState
     from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
     from controller.core.ports import CycleTiming
 

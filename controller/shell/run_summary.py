@@ -14,7 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from controller.core.control_law import PIPELINE_PERIODS, ControllerState
+from controller.core.control_law import PIPELINE_PERIODS
+from controller.core.controller_state import ControllerState
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severity
 from controller.core.ports import CycleTiming
 from controller.shell.loop import LoopStats

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
 if TYPE_CHECKING:  # the drawing process imports this module: it must not load the law (numpy, Ruckig)
-    from controller.core.control_law import ControllerState
+    from controller.core.controller_state import ControllerState
     from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
     from controller.core.ports import CycleTiming
 

@@ -38,7 +38,7 @@ from controller.core.ports import JointReference, TaskContext, TaskStep
 from controller.tasks.streamed_plan import StreamedPlan, time_scale_plan
 
 if TYPE_CHECKING:
-    from controller.core.control_law import ControllerState
+    from controller.core.controller_state import ControllerState
     from controller.core.cycle_data import CycleInputs, CycleOutputs
     from controller.core.ports import CycleTiming, PoseStatus, Robot
     from controller.planning.nonholonomic import PlannerConfig, PlanResult

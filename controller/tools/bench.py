@@ -62,7 +62,7 @@ if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from ruckig import InputParameter
 
-    from controller.core.control_law import ControllerState
+    from controller.core.controller_state import ControllerState
     from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
     from controller.core.ports import CycleTiming
     from controller.core.setpoint_smoothing import Setpoint, SmoothingResult

@@ -36,7 +36,7 @@ import msgspec
 
 from controller.assembly import build_law
 from controller.config import Config, load_config
-from controller.core.control_law import ControllerState, Mode
+from controller.core.controller_state import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
 from controller.core.ports import CycleTiming
 from controller.shell.loop import CycleLoop, SimulatedTime

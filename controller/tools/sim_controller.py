@@ -23,7 +23,7 @@ from collections.abc import Callable
 
 from controller.assembly import build_law
 from controller.config import Config, load_config, parse_override
-from controller.core.control_law import ControllerState
+from controller.core.controller_state import ControllerState
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
 from controller.core.ports import CycleTiming
 from controller.errors import CheopeError

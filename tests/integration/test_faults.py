@@ -22,7 +22,7 @@ from waiting import wait_until
 from controller.assembly import build_law
 from controller.config import load_config
 from controller.core.cia402 import PowerState, decode_statusword
-from controller.core.control_law import Mode
+from controller.core.controller_state import Mode
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.tools.demo import simulator_process, stop_process
 from controller.tools.fault_scenarios import SCENARIOS, run_all

@@ -22,7 +22,7 @@ from waiting import GENEROUS_S, ProcessLines, wait_for_exit, wait_until
 from controller.assembly import build_law
 from controller.cli import main
 from controller.config import config_from_dict, load_config
-from controller.core.control_law import Mode
+from controller.core.controller_state import Mode
 from controller.shell.loop import CycleLoop, SimulatedTime
 from logs import messages as m
 from logs.reader import LogFileError, info_dict, iter_decoded, read_info

@@ -29,7 +29,7 @@ from waiting import wait_until
 from controller.assembly import build_law
 from controller.config import load_config
 from controller.core.cia402 import PowerState, decode_statusword
-from controller.core.control_law import ControllerState, Mode
+from controller.core.controller_state import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
 from controller.core.ports import CycleTiming
 from controller.shell.loop import CycleLoop, SimulatedTime

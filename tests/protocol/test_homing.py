@@ -159,7 +159,7 @@ def _run_in_simulated_time(cfg):
 
 @pytest.mark.parametrize("method", [17, 37])
 def test_the_path_task_runs_after_homing_drives_with_unknown_encoder_offsets(method):
-    from controller.core.control_law import Mode
+    from controller.core.controller_state import Mode
 
     # 17: the negative switch's edge; 37: the carriages stand at a known place (the simulator's start)
     base = load_config()

@@ -19,7 +19,7 @@ from waiting import wait_until
 
 from controller.config import load_config
 from controller.core.cia402 import PowerState, decode_statusword
-from controller.core.control_law import Mode
+from controller.core.controller_state import Mode
 from controller.core.cycle_data import CycleOutputs
 from drivers.node_setup import DRIVE_EDS, NodeSetupError, configure_nodes
 from sim_backend.drive import ABORT_QUICK_STOP, EMCY_SYNC_PERIOD

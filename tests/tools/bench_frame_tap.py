@@ -17,7 +17,7 @@ import time
 
 import can
 
-from controller.core.control_law import ControllerState, Mode
+from controller.core.controller_state import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs
 from controller.core.ports import CycleTiming
 from controller.core.setpoint_smoothing import Setpoint

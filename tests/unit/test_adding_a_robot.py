@@ -19,7 +19,7 @@ from cheope_gantry_robot import GANTRY, GantryRobot, gantry_kinematics
 
 from controller.assembly import build_law
 from controller.config import ConfigError, config_from_dict, config_to_dict
-from controller.core.control_law import Mode
+from controller.core.controller_state import Mode
 from controller.errors import WorkspaceError
 from controller.plugins import SIM_KINEMATICS
 from controller.robots.registry import register_robot, robot_entry, unregister_robot

@@ -10,7 +10,7 @@ import pytest
 
 from controller.assembly import build_law, build_robot
 from controller.config import load_config
-from controller.core.control_law import Mode
+from controller.core.controller_state import Mode
 from controller.core.cycle_data import CycleInputs, DriveFeedback, SensorFeedback
 from controller.core.ports import TaskContext
 from controller.core.setpoint_smoothing import Setpoint

@@ -12,7 +12,7 @@ import pytest
 from controller.assembly import build_law
 from controller.config import Config, load_config
 from controller.core.cia402 import CW_QUICK_STOP, PowerState, decode_statusword
-from controller.core.control_law import Mode
+from controller.core.controller_state import Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, DriveFeedback
 from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother, Setpoint
 from controller.errors import WorkspaceError

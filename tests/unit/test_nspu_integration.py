@@ -12,7 +12,7 @@ from busy_machine import TOLERANT
 
 from controller.assembly import assemble, build_law
 from controller.config import CONFIG_DIR, load_config
-from controller.core.control_law import Mode
+from controller.core.controller_state import Mode
 from controller.planning.nonholonomic import PlanningError
 from controller.robots.nspu import leg_lengths_batch
 from controller.robots.nspu_robot import pose_errors

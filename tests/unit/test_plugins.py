@@ -17,7 +17,7 @@ import pytest
 
 from controller.assembly import build_law
 from controller.config import ConfigError, config_from_dict, load_config
-from controller.core.control_law import Mode
+from controller.core.controller_state import Mode
 from controller.plugins import PluginError
 from controller.robots.registry import ROBOTS, register_robot, robot_kinds, unregister_robot
 from controller.shell.loop import CycleLoop, SimulatedTime

@@ -12,7 +12,7 @@ import pytest
 from controller.assembly import build_law
 from controller.config import Config, load_config
 from controller.core.cia402 import PowerState, decode_statusword
-from controller.core.control_law import ControllerState, Mode
+from controller.core.controller_state import ControllerState, Mode
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.shell.run_summary import RunRecorder
 from controller.shell.stop_signals import StopSignals

@@ -12,7 +12,7 @@ import pytest
 
 from controller.assembly import build_law
 from controller.config import load_config
-from controller.core.control_law import Mode
+from controller.core.controller_state import Mode
 from controller.shell.loop import CycleLoop, SimulatedTime
 from sim_backend.loopback import LoopbackExchange
 

@@ -37,7 +37,8 @@ from controller.core.cia402 import (
     decode_statusword,
     device_transition,
 )
-from controller.core.control_law import ControlLaw, ControllerState, Mode
+from controller.core.control_law import ControlLaw
+from controller.core.controller_state import ControllerState, Mode
 from controller.core.cycle_data import (
     BusFeedback,
     Command,

@@ -12,7 +12,7 @@ from busy_machine import TOLERANT
 
 from controller.assembly import build_law
 from controller.config import CONFIG_DIR, ConfigError, load_config
-from controller.core.control_law import Mode
+from controller.core.controller_state import Mode
 from controller.robots import uru
 from controller.robots.builtin import uru_from_config
 from controller.robots.registry import actuator_units

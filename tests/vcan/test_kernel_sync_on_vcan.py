@@ -14,7 +14,7 @@ import time
 import can
 
 from controller.config import load_config
-from controller.core.control_law import Mode
+from controller.core.controller_state import Mode
 from controller.core.cycle_data import CycleOutputs
 from controller.shell.service import run_controller
 from drivers.bus import parse_bus_spec

@@ -1,0 +1,57 @@
+"""The controller's state between two steps, and its modes: what the pure step passes to itself.
+
+Its own module because everything around the law reads it (the cycle observers' ports, the
+recorder, the keyframe of a rotated file, the tools) while only the law writes it; the law's
+module (``control_law.py``) says how each field changes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+
+from controller.core.setpoint_smoothing import Setpoint
+
+
+class Mode(IntEnum):
+    CONFIGURING = 0
+    ENABLING = 1
+    HOLDING = 2
+    RUNNING = 3
+    PAUSED = 4
+    STOPPING = 5
+    DONE = 6
+    FAULT = 7
+
+
+@dataclass(frozen=True, slots=True)
+class ControllerState:
+    mode: Mode
+    cycle: int
+    mode_entered_s: float
+    setpoint: Setpoint
+    controlwords: tuple[int, ...]
+    missing_streak: tuple[int, ...]
+    task_state: object
+    tcp_reference_m: tuple[float, float, float] | None  # path point for the next SYNC; None off the path
+    tcp_measured_m: tuple[float, float, float] | None  # direct kinematics of the measured positions
+    task_time_s: float = 0.0
+    fault_reason: str = ""
+    sensor_counter: int = -1  # last sensor counter seen, for staleness
+    sensor_stale: int = 0  # cycles the counter has not advanced
+    sensor_missing: int = 0  # cycles in a row without a usable sample (missing or ambiguous)
+    late_streak: int = 0  # consecutive late cycles
+    warned: frozenset[str] = frozenset()  # warnings already raised in the current episode
+    # Each drive's last trusted position: fresh and within its physics. The plausibility check's
+    # reference, and the only source of hold and stop targets (never a flagged frame).
+    last_measured: tuple[float, ...] = ()
+    # Anomaly bursts under "warn": (key, frames, cycles with it, cycle of the last report)
+    bursts: tuple[tuple[str, int, int, int], ...] = ()
+    # Drives (indices) that may not process RPDOs: reported not OPERATIONAL, or the target of a
+    # foreign NMT command, or heartbeat lost. In FAULT they get the quick stop by SDO as well.
+    unreachable: frozenset[int] = frozenset()
+    sdo_stopped: frozenset[int] = frozenset()  # drives already sent the quick stop by SDO in this fault
+    # A second sender on the force sensor's COB-ID during the task (what it was, and the cycle): its
+    # frames are withheld from the task, which retracts; the fault follows (_sensor_breach).
+    sensor_breach: str = ""
+    sensor_breach_cycle: int = 0
