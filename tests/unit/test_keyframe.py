@@ -76,3 +76,17 @@ def test_a_keyframe_written_before_a_class_moved_still_reads():
 
     old = b'{"e":"drivers.cia402:PowerState","v":"OPERATION_ENABLED"}'  # the module it had then
     assert decode_state(old) is PowerState.OPERATION_ENABLED
+
+
+def test_a_keyframe_of_the_law_s_state_before_it_moved_to_controller_state_still_reads():
+    from controller.assembly import build_law
+    from controller.config import load_config
+    from controller.core.controller_state import ControllerState, Mode
+
+    state = build_law(load_config()).initial_state()
+    new = encode_state(state)
+    old = new.replace(b"controller.core.controller_state:", b"controller.core.control_law:")
+    assert old != new and b"controller.core.controller_state:" not in old
+    back = decode_state(old)
+    assert isinstance(back, ControllerState) and back.mode is Mode.CONFIGURING
+    assert encode_state(back) == new  # the same state (its NaNs compare unequal as values)
