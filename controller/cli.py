@@ -636,7 +636,8 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="instead: the contour task against force spikes, a notch, a bump, a drifting bias, stale and "
         "spoofed samples, in simulated time (controller/tools/contour_scan.py); exit 1 unless no run "
-        "exceeds safety.max_contact_force_n, 95 %% end DONE and the rest retract with a named cause",
+        "exceeds safety.max_contact_force_n, 95 %% of the disturbances to ride through end DONE and the "
+        "rest (the spoofed samples among them: an integrity breach) retract with a named cause",
     )
     p.add_argument(
         "--contour-shapes",

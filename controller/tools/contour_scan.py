@@ -20,7 +20,10 @@ by 30). Scenarios (``sim_backend/fault_injection.py`` syntax, and workpiece feat
 Outcomes: ``DONE`` (all laps), ``retracted`` (the task retracted and ended with a fault naming
 the cause: the designed way out), ``FAULT`` (the safety layer's quick stop: the last line).
 Targets (issue "Force control that holds"): no run exceeds ``safety.max_contact_force_n``; at
-least 95 % end DONE; every other one retracted.
+least 95 % of the disturbances to ride through end DONE; every other run retracted, the spoofed
+sensor frames included: someone else sending on the sensor's COB-ID is an integrity breach (issue
+"No impostor data"), which no task may ride through, so those two end in the retract by design
+and are counted apart (``ContourScenario.ride_through``).
 """
 
 from __future__ import annotations
@@ -56,6 +59,9 @@ class ContourScenario:
     name: str
     faults: tuple[str, ...] = ()
     features: tuple[dict[str, float], ...] = ()  # [sim.workpiece] features
+    # A disturbance the task must ride through (DONE); False: an integrity breach (someone else's
+    # frames on the sensor's COB-ID), which ends in a retract and a named fault by design.
+    ride_through: bool = True
 
 
 @dataclass
@@ -182,6 +188,7 @@ def _row(
         "laps_done": laps_done,
         "final_mode": final.mode.name,
         "outcome": outcome,
+        "ride_through": sc.ride_through,
         "cause": final.fault_reason,
         "recording": str(path) if path is not None else None,
     }
@@ -247,9 +254,13 @@ def scenarios(places_s: list[float], period_s: float) -> Iterator[ContourScenari
         )
     for n, t in zip(STALE_BURSTS, places_s[1::4], strict=True):
         yield ContourScenario(f"{n} stale sample(s)", (f"freeze@{t}+{n * period_s + period_s / 2:.6f}",))
-    yield ContourScenario("spoofed sample, 30 N", (f"spoof_sensor=30@{places_s[2]}+{period_s / 2:.6f}",))
     yield ContourScenario(
-        "spoofed samples, -30 N, 4 cycles", (f"spoof_sensor=-30@{places_s[7]}+{3.5 * period_s:.6f}",)
+        "spoofed sample, 30 N", (f"spoof_sensor=30@{places_s[2]}+{period_s / 2:.6f}",), ride_through=False
+    )
+    yield ContourScenario(
+        "spoofed samples, -30 N, 4 cycles",
+        (f"spoof_sensor=-30@{places_s[7]}+{3.5 * period_s:.6f}",),
+        ride_through=False,
     )
 
 
@@ -288,9 +299,15 @@ def run_scan(
 
 
 def summary(rows: list[dict[str, object]], max_contact_force_n: float) -> dict[str, object]:
+    """The targets: no run over the limit; at least 95 % of the disturbances to ride through end
+    DONE; every other run retracts with a named cause, the integrity breaches (spoofed sensor
+    frames, which issue "No impostor data" ends by design) included."""
     n = len(rows)
     done = sum(r["outcome"] == "DONE" for r in rows)
     retracted = sum(r["outcome"] == "retracted" for r in rows)
+    ride = [r for r in rows if r.get("ride_through", True)]
+    breaches = [r for r in rows if not r.get("ride_through", True)]
+    ride_done = sum(r["outcome"] == "DONE" for r in ride)
     over = sum(bool(r["over_limit"]) for r in rows)
     worst = max(float(r["max_true_contact_force_n"]) for r in rows)  # type: ignore[arg-type]
     return {
@@ -300,9 +317,17 @@ def summary(rows: list[dict[str, object]], max_contact_force_n: float) -> dict[s
         "other": n - done - retracted,
         "over_limit": over,
         "done_percent": round(100.0 * done / n, 1),
+        "ride_through": len(ride),
+        "ride_through_done": ride_done,
+        "ride_through_done_percent": round(100.0 * ride_done / len(ride), 1) if ride else 100.0,
+        "breaches": len(breaches),
+        "breaches_retracted": sum(r["outcome"] == "retracted" for r in breaches),
         "max_true_contact_force_n": worst,
         "limit_n": max_contact_force_n,
-        "targets_met": over == 0 and done >= 0.95 * n and done + retracted == n,
+        "targets_met": over == 0
+        and ride_done >= 0.95 * len(ride)
+        and done + retracted == n
+        and all(r["outcome"] == "retracted" for r in breaches),
     }
 
 
@@ -320,7 +345,10 @@ def format_table(rows: list[dict[str, object]], max_contact_force_n: float) -> s
     s = summary(rows, max_contact_force_n)
     lines.append("")
     lines.append(
-        f"{s['scenarios']} scenarios: {s['done']} DONE ({s['done_percent']} %), {s['retracted']} retracted, "
+        f"{s['scenarios']} scenarios: {s['done']} DONE ({s['done_percent']} % of all; "
+        f"{s['ride_through_done']} of the {s['ride_through']} disturbances to ride through, "
+        f"{s['ride_through_done_percent']} %), {s['retracted']} retracted ({s['breaches_retracted']} of "
+        f"the {s['breaches']} integrity breaches, which end so by design), "
         f"{s['other']} other; {s['over_limit']} over the {max_contact_force_n:g} N limit "
         f"(largest true contact force {s['max_true_contact_force_n']:.1f} N); targets "
         f"{'met' if s['targets_met'] else 'NOT met'}"

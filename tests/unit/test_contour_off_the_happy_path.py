@@ -289,3 +289,27 @@ def test_a_force_direction_the_tools_motion_contradicts_turns_the_normal_less():
     assert turn[0] == pytest.approx(
         track_normal(0.0, 0.0, math.radians(15.0), DT, task.p.normal_tracker_hz)[0], rel=1e-9
     )
+
+
+def _row(outcome: str, ride_through: bool = True, force_n: float = 20.0) -> dict[str, object]:
+    return {
+        "outcome": outcome,
+        "ride_through": ride_through,
+        "over_limit": force_n > LIMIT_N,
+        "max_true_contact_force_n": force_n,
+    }
+
+
+def test_the_scans_verdict_counts_the_integrity_breaches_apart():
+    """A spoofed sensor must end in the retract (issue "No impostor data"), never DONE: the 95 %
+    is of the disturbances to ride through, and a breach that does not retract fails the scan."""
+    from controller.tools.contour_scan import summary
+
+    ride = [_row("DONE")] * 34
+    assert summary([*ride, _row("retracted", False), _row("retracted", False)], LIMIT_N)["targets_met"]
+    assert not summary([*ride, _row("retracted", False), _row("DONE", False)], LIMIT_N)["targets_met"]
+    assert not summary([*ride, _row("retracted", False), _row("FAULT", False)], LIMIT_N)["targets_met"]
+    # 95 % of those to ride through: 19 of 20 is enough (with the other one retracted), 18 is not
+    assert summary([_row("DONE")] * 19 + [_row("retracted")], LIMIT_N)["targets_met"]
+    assert not summary([_row("DONE")] * 18 + [_row("retracted")] * 2, LIMIT_N)["targets_met"]
+    assert not summary([*ride, _row("DONE", force_n=61.0)], LIMIT_N)["targets_met"]  # over the limit
