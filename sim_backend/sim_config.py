@@ -23,7 +23,7 @@ class SimDriveSection(Section, frozen=True):
     max_velocity_m_s: Annotated[float, rng(0.0, 100.0, lo_open=True)] = 2.0
     max_acceleration_m_s2: Annotated[float, rng(0.0, 1e5, lo_open=True)] = 40.0
     quick_stop_deceleration_m_s2: Annotated[float, rng(0.0, 1e5, lo_open=True)] = 5.0
-    sync_timeout_s: Annotated[float, rng(0.001, 60.0)] = 0.05
+    sync_timeout_s: Annotated[float, rng(0.001, 60.0)] = 0.1
     substep_s: Annotated[float, rng(1e-6, 0.01)] = 5.0e-4
     max_velocity_rad_s: Annotated[float, rng(0.0, 1e4, lo_open=True)] = 12.0  # rotary drives
     max_acceleration_rad_s2: Annotated[float, rng(0.0, 1e6, lo_open=True)] = 240.0

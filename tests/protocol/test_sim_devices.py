@@ -79,12 +79,13 @@ def test_quick_stops_when_sync_stops():
     d, t = enabled_drive()
     for k in range(100):
         t = cycle(d, t, 0.55 + 0.2 * k * PERIOD)  # moving at 0.2 m/s
-    d.advance(t + 0.04)  # within the 50 ms SYNC timeout: still enabled
+    timeout = d.params.sync_timeout_s
+    d.advance(t + 0.8 * timeout)  # within the SYNC timeout: still enabled
     assert d.power == PowerState.OPERATION_ENABLED
-    d.advance(t + 0.06)
+    d.advance(t + 1.2 * timeout)
     assert d.power == PowerState.QUICK_STOP_ACTIVE
     assert EMCY_SYNC_LOST in d.pending_emcy
-    d.advance(t + 0.2)  # 0.2 m/s at 5 m/s^2 stops within 40 ms
+    d.advance(t + 1.2 * timeout + 0.15)  # 0.2 m/s at 5 m/s^2 stops within 40 ms
     assert d.velocity == 0.0
 
 

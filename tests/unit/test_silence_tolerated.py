@@ -33,7 +33,10 @@ def _run(overrides: dict[str, object], max_s: float = 30.0):
 def test_the_shipped_tolerances():
     cfg = load_config()
     assert cfg.loop.max_missing_cycles == 20 and cfg.safety.sensor_stale_cycles == 20
-    assert cfg.loop.max_missing_cycles * cfg.period_s == pytest.approx(cfg.sim.drive.sync_timeout_s)
+    # the drives wait longer for SYNC than the law for a drive: a stall of the loop itself (69 ms
+    # measured in a soak) is the drives' to judge, and their watchdog (100 ms) rides it through
+    assert cfg.sim.drive.sync_timeout_s == 0.1
+    assert cfg.sim.drive.sync_timeout_s > cfg.loop.max_missing_cycles * cfg.period_s
 
 
 def test_a_drive_silent_for_less_than_its_tolerance_costs_nothing():
