@@ -1,7 +1,7 @@
 """How long a device may fall silent before the fault, per device and per task (docs: "Silence
 tolerated"), in simulated time on the in-process devices: deterministic, no wall clock.
 
-- a drive: ``loop.max_missing_cycles`` (20 cycles, 50 ms at 400 Hz: the drives' own SYNC watchdog);
+- a drive: ``loop.max_missing_cycles`` (40 cycles, 100 ms at 400 Hz: the drives' own SYNC watchdog);
 - the force sensor, while the task reads it (contour): ``safety.sensor_stale_cycles`` (20);
 - the force sensor, while the task does not read it (path): its heartbeat only.
 """
@@ -32,11 +32,11 @@ def _run(overrides: dict[str, object], max_s: float = 30.0):
 
 def test_the_shipped_tolerances():
     cfg = load_config()
-    assert cfg.loop.max_missing_cycles == 20 and cfg.safety.sensor_stale_cycles == 20
-    # the drives wait longer for SYNC than the law for a drive: a stall of the loop itself (69 ms
-    # measured in a soak) is the drives' to judge, and their watchdog (100 ms) rides it through
+    assert cfg.loop.max_missing_cycles == 40 and cfg.safety.sensor_stale_cycles == 20
+    # a stall of the loop (69 ms) is the drives' to judge, one of the simulator (over 50 ms: every
+    # device silent) the law's: both ride through 100 ms, the drives' SYNC watchdog
     assert cfg.sim.drive.sync_timeout_s == 0.1
-    assert cfg.sim.drive.sync_timeout_s > cfg.loop.max_missing_cycles * cfg.period_s
+    assert cfg.loop.max_missing_cycles * cfg.period_s == pytest.approx(cfg.sim.drive.sync_timeout_s)
 
 
 def test_a_drive_silent_for_less_than_its_tolerance_costs_nothing():
