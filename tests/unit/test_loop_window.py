@@ -1,0 +1,73 @@
+"""Where the loop's answer window closes: after the deadline, and before the cycle's own work.
+
+A fake clock that the step advances (a costly step), a stand-in exchange that records each
+window's end: deterministic, no wall clock.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from controller.assembly import build_law
+from controller.config import load_config
+from controller.shell.loop import WINDOW_MARGIN_S, CycleLoop, SimulatedTime
+from sim_backend.loopback import LoopbackExchange
+
+PERIOD_S = 0.0025
+COLLECT_FRACTION = 0.8
+
+
+class RecordingExchange:
+    """The loopback devices, with every window's end recorded relative to its deadline."""
+
+    def __init__(self, inner: LoopbackExchange, clock: SimulatedTime) -> None:
+        self.inner, self.clock, self.ends_after_send_s = inner, clock, []
+
+    def send(self, outputs):
+        self.sent_s = self.clock.now_s
+        self.inner.send(outputs)
+
+    def collect(self, deadline_s):
+        self.ends_after_send_s.append(deadline_s - self.sent_s)
+        return self.inner.collect(deadline_s)
+
+
+class CostlyLaw:
+    """The real law, whose step takes ``cost_s`` of the clock from cycle ``from_cycle`` on."""
+
+    def __init__(self, law, clock: SimulatedTime, cost_s: float, from_cycle: int) -> None:
+        self.law, self.clock, self.cost_s, self.from_cycle, self.cycles = law, clock, cost_s, from_cycle, 0
+
+    def step(self, state, inputs, t):
+        self.cycles += 1
+        if self.cycles >= self.from_cycle:
+            self.clock.now_s += self.cost_s
+        return self.law.step(state, inputs, t)
+
+
+def _windows(cost_s: float, cycles: int = 400) -> list[float]:
+    cfg = load_config(overrides={"recording.enabled": False, "monitoring.enabled": False})
+    clock = SimulatedTime()
+    law = build_law(cfg)
+    exchange = RecordingExchange(LoopbackExchange(cfg, clock.clock), clock)
+    loop = CycleLoop(
+        CostlyLaw(law, clock, cost_s, 50), exchange, PERIOD_S, COLLECT_FRACTION, clock, clock.clock
+    )
+    loop.run(law.initial_state(), cycles * PERIOD_S)
+    return exchange.ends_after_send_s
+
+
+def test_a_cheap_step_leaves_the_window_where_collect_fraction_puts_it():
+    ends = _windows(0.0)
+    assert ends[100] == pytest.approx(COLLECT_FRACTION * PERIOD_S)
+
+
+def test_a_costly_step_shortens_the_next_windows_so_that_the_cycle_still_ends_in_its_period():
+    """A 0.7-ms step after a 2-ms window would end every cycle 0.2 ms into the next: the windows
+    close before the next deadline minus the step's recent peak and the margin, and the loop keeps
+    its deadlines (the wake-ups are on time: the clock never passes a deadline before the sleep)."""
+    cost_s = 0.0007
+    ends = _windows(cost_s)
+    assert ends[20] == pytest.approx(COLLECT_FRACTION * PERIOD_S)  # before the costly steps
+    assert ends[100] == pytest.approx(PERIOD_S - cost_s - WINDOW_MARGIN_S)
+    assert max(ends[60:]) <= PERIOD_S - cost_s - WINDOW_MARGIN_S + 1e-12
