@@ -51,13 +51,17 @@ def _origin(ep: EntryPoint) -> str:
     return f"entry point {ep.name} = {ep.value!r} of {dist} (group {ep.group})"
 
 
+def _load(ep: EntryPoint) -> Any:
+    try:
+        return ep.load()
+    except Exception as err:  # a plug-in's import error, whatever it is: name the plug-in
+        raise PluginError(f"{_origin(ep)} does not load: {type(err).__name__}: {err}") from err
+
+
 def discover(group: str, kind: type[E]) -> Iterator[tuple[str, E]]:
     """``(name, object)`` of every entry point in ``group``, each checked to be a ``kind``."""
     for ep in entry_points(group=group):
-        try:
-            obj = ep.load()
-        except Exception as err:  # a plug-in's import error, whatever it is: name the plug-in
-            raise PluginError(f"{_origin(ep)} does not load: {type(err).__name__}: {err}") from err
+        obj = _load(ep)
         if not isinstance(obj, kind):
             raise PluginError(f"{_origin(ep)} is a {type(obj).__name__}, not a {kind.__name__}")
         yield ep.name, obj
@@ -131,10 +135,7 @@ class Hooks:
         if kind in self._added:
             return self._added[kind]
         for ep in entry_points(group=self.group, name=kind):
-            try:
-                hook = ep.load()
-            except Exception as err:  # a plug-in's import error, whatever it is: name the plug-in
-                raise PluginError(f"{_origin(ep)} does not load: {type(err).__name__}: {err}") from err
+            hook = _load(ep)
             if not (isinstance(hook, self.hook_type) if self.hook_type is not None else callable(hook)):
                 raise PluginError(f"{_origin(ep)} is a {type(hook).__name__}, not a {self.what}")
             return hook
