@@ -291,6 +291,17 @@ class CyclicExchange:
         self._tracker_fresh = False  # a complete new sample since the last collect
         self._emcy: list[EmcyReport] = []
         self._collecting = False
+        # The SYNC periods the windows belong to. With SYNC from the loop every window is its send's
+        # (slot 0 throughout); with SYNC from the kernel (drivers/kernel_sync.py) the SYNCs come on
+        # their own, and KernelSyncExchange sets, before each send, the slot of the loop's cycle
+        # (cycle_slot) and how a SYNC's receive timestamp maps to its slot (sync_slot_of).
+        self.cycle_slot = 0
+        self.sync_slot_of: Callable[[float], int] | None = None
+        self._window_open = False  # this window's candidates are being counted (_open_window)
+        self._window_slot = -1  # the SYNC period of the last window opened
+        self._sync_ahead: int | None = None  # a collect stopped at the SYNC of this later slot
+        self._last_sync_slot = -1  # of the last kernel SYNC received
+        self._draining = False
         self.drive_ids = tuple(drive_ids)
         self.sensor_id = sensor_id
         self.tracker_id = tracker_id
@@ -323,15 +334,16 @@ class CyclicExchange:
 
     def send(self, outputs: CycleOutputs | None) -> None:
         """RPDOs of ``outputs`` (none before the first step), then SYNC; every Nth cycle a heartbeat."""
+        ahead, self._sync_ahead = self._sync_ahead, None
+        self._window_open = self._collecting = False
+        if ahead is not None:  # the last collect ended at a later SYNC (kernel SYNC): its answers follow
+            self._open_window(ahead)
         self._drain_late()
         self._judging = True
-        self._fresh = [False] * self.n
-        self._candidates = [0] * self.n
-        self._implausible = [False] * self.n
-        self._candidate_ok = [False] * self.n
-        self._sensor_candidates = [0, 0]
-        self._sensor_fresh = self._sensor_ambiguous = False
-        self._force_counter = self._torque_counter = -1
+        if not self._window_open or self._window_slot != self.cycle_slot:
+            if self._window_open:  # answers to the SYNC of a cycle the loop skipped: nobody's sample
+                self.counters.late_frames += sum(self._candidates)
+            self._open_window(self.cycle_slot)
         self.sent_s = self.clock()
         if outputs is not None:
             to_counts = self.scale.to_counts
@@ -371,14 +383,26 @@ class CyclicExchange:
 
     # -- in ---------------------------------------------------------------------------------
 
+    def _open_window(self, slot: int) -> None:
+        """The answer window of SYNC period ``slot`` opens: no candidate yet. At the send, or (kernel
+        SYNC) at the SYNC when it came first: what arrives after a SYNC answers it."""
+        self._window_open = self._collecting = True
+        self._window_slot = slot
+        self._fresh = [False] * self.n
+        self._candidates = [0] * self.n
+        self._implausible = [False] * self.n
+        self._candidate_ok = [False] * self.n
+        self._sensor_candidates = [0, 0]
+        self._sensor_fresh = self._sensor_ambiguous = False
+        self._force_counter = self._torque_counter = -1
+
     def _drain_late(self) -> None:
-        """What arrived since the last collect: late TPDOs, echoes, reports for the next cycle."""
-        self._collecting = False
-        while True:
-            msg = self.bus.recv(timeout=0.0)
-            if msg is None:
-                return
+        """What arrived since the last collect: late TPDOs, echoes, reports for the next cycle
+        (and, with kernel SYNC, this cycle's answers when its SYNC has already gone)."""
+        self._draining = True
+        while (msg := self.bus.recv(timeout=0.0)) is not None:
             self._notify(msg)
+        self._draining = False
 
     def _complete(self) -> bool:
         return all(self._candidates) and (not self.has_sensor or min(self._sensor_candidates) > 0)
@@ -402,6 +426,8 @@ class CyclicExchange:
             if msg is None:
                 break
             self._notify(msg)
+            if self._sync_ahead is not None:
+                break  # the next cycle's SYNC (kernel SYNC): what follows answers it
         self._close_window()
         c = self.counters
         missing = self.n - sum(self._fresh)
@@ -718,6 +744,30 @@ class CyclicExchange:
             return
         self._last_kernel_sync = stamp
         self.kernel_sync_stamps.append(stamp)
+        if not self._judging or self.sync_slot_of is None:
+            return
+        # The window follows the SYNC the answers follow, not the loop's send. A loop that wakes later
+        # than the lead finds its SYNC, and the drives' answers to it, in the drain: taken by the send,
+        # those answers were late frames of a cycle that had its sample, "TPDO twice in one cycle", a
+        # fault in 4 of 8 runs of the 25-Hz path on the emulated vcan VM (wake-ups up to 39 ms late
+        # with a lead of 8 ms). A collect that runs into the next SYNC stops there.
+        slot = self.sync_slot_of(stamp)
+        if slot == self._last_sync_slot:
+            # Two SYNCs nearest one period: a stall of the kernel's timer left one about half a period
+            # off and the lock pulls the next one in (intervals down to 0.9 periods). Every device
+            # answers both: one more answer owed each, not a second sender (the window's verdict:
+            # two candidates, no sample).
+            self._owed = [o + 1 for o in self._owed]
+            self._sensor_owed = [o + 1 for o in self._sensor_owed]
+        self._last_sync_slot = slot
+        if slot <= self._window_slot:
+            return  # this window's SYNC, or a late one of a window before: its answers are late frames
+        if not self._draining:
+            self._sync_ahead = slot
+            return
+        if self._window_open:  # a whole period missed: the window before was never collected
+            self.counters.late_frames += sum(self._candidates)
+        self._open_window(slot)
 
     def _on_own_cob_id(self, msg: can.Message) -> None:
         """A frame on a COB-ID only the controller sends, from someone else (the bus drops our echoes)."""

@@ -73,7 +73,9 @@ class SyncPhaseLock:
     kp: float = 0.3
     ki: float = 0.02
     max_correction: float = 0.1
-    origin_s: float | None = None  # the first SYNC seen: the phase every later one is held to
+    # the grid every SYNC is held to: KernelSyncExchange sets it to the first SYNC's send time (the
+    # loop's grid); left None, the first SYNC seen, latency and all
+    origin_s: float | None = None
     integral_s: float = 0.0  # the learned mean latency of the timer
     last_error_s: float = 0.0
     syncs: int = 0
@@ -119,6 +121,8 @@ class KernelSyncExchange:
         self.lock = lock or SyncPhaseLock(period_s)
         self.task: can.broadcastmanager.CyclicSendTaskABC | None = None
         self.first_sync_s = 0.0
+        self.stamp_offset_s = 0.0  # receive timestamps' clock minus the loop's
+        self._deadline_s: float | None = None  # the next send's cycle deadline (cycle_deadline)
         self.interval_s = period_s  # what the broadcast manager re-arms with now
         self.retimes = 0  # interval changes sent to the broadcast manager
 
@@ -126,10 +130,21 @@ class KernelSyncExchange:
     def counters(self) -> object:
         return self.exchange.counters
 
+    def cycle_deadline(self, deadline_s: float) -> None:
+        """The deadline of the cycle whose send comes next (the loop's ``CycleDeadlines``)."""
+        self._deadline_s = deadline_s
+
     def send(self, outputs: CycleOutputs | None) -> None:
+        # the cycle's deadline, or (a caller that does not give it) now, within half a period after it
+        deadline_s, self._deadline_s = (
+            self._deadline_s if self._deadline_s is not None else self.clock(),
+            None,
+        )
+        if self.task is not None:
+            self.exchange.cycle_slot = self._cycle_slot(deadline_s)
         self.exchange.send(outputs)
         if self.task is None:
-            self._start(self.clock() + self.lead_s)
+            self._start(deadline_s + self.lead_s)
             return
         stamps = self.exchange.kernel_sync_stamps
         if stamps:
@@ -144,11 +159,28 @@ class KernelSyncExchange:
         # Once, at the start: spin to the first SYNC's time (a sleep could wake a tick late).
         while self.clock() < at_s:
             pass
-        self.first_sync_s = self.clock()
+        # SYNC n is due at at_s + n periods, lead_s after the loop's deadline n: the grid the lock holds
+        # the SYNCs to, on the clock of the receive timestamps (SocketCAN's: CLOCK_REALTIME, a constant
+        # offset from the loop's monotonic clock). From the deadline, not from when the first SYNC went
+        # or was seen: the first cycle's send came 5-20 ms after its deadline in the emulated VM, and
+        # a grid that late took the next cycle's SYNC for this one's, one period behind ever after.
+        self.first_sync_s = at_s
+        self.stamp_offset_s = time.time() - self.clock()
+        if self.lock.origin_s is None:
+            self.lock.origin_s = self.first_sync_s + self.stamp_offset_s
+        self.exchange.sync_slot_of = self._sync_slot
         task = self.exchange.bus.send_periodic(sync_message(self.exchange.fd), self.period_s)
         if not isinstance(task, can.broadcastmanager.CyclicSendTaskABC):
             raise KernelSyncError(f"python-can returned {type(task).__name__} for a periodic SYNC")
         self.task = task
+
+    def _sync_slot(self, stamp_s: float) -> int:
+        """The SYNC period a SYNC received at ``stamp_s`` (its receive timestamp) belongs to."""
+        return round((stamp_s - (self.lock.origin_s or 0.0)) / self.period_s)
+
+    def _cycle_slot(self, deadline_s: float) -> int:
+        """The SYNC period of the loop's cycle with ``deadline_s``: the SYNC lead_s after it."""
+        return round((deadline_s + self.lead_s - self.first_sync_s) / self.period_s)
 
     def _retime(self, interval_s: float) -> None:
         """The broadcast manager's next intervals: TX_SETUP with SETTIMER and without STARTTIMER

@@ -58,6 +58,14 @@ class SdoControlwords(Protocol):
     def send_controlword_by_sdo(self, drive_index: int, controlword: int) -> None: ...
 
 
+@runtime_checkable
+class CycleDeadlines(Protocol):
+    """An exchange that is told each cycle's deadline before its send: with SYNC from the kernel
+    (drivers/kernel_sync.py) the SYNC comes on the loop's grid, not at the send, which may be late."""
+
+    def cycle_deadline(self, deadline_s: float) -> None: ...
+
+
 DEFAULT_RING_CYCLES = 4096  # about 10 s at 400 Hz of per-cycle timing kept as it was measured
 
 
@@ -252,10 +260,13 @@ class CycleLoop:
         linger = max(1, int(linger_after_end_s / period))
         work_peak_s = 0.0  # recent peak of the step and the observers [s]
         work_decay = 0.5 ** (period / WORK_PEAK_HALF_LIFE_S)
+        deadlines = self.exchange if isinstance(self.exchange, CycleDeadlines) else None
         while True:
             deadline = first_deadline + k * period
             self.sleeper.sleep_until(deadline)
             woke = clock()
+            if deadlines is not None:
+                deadlines.cycle_deadline(deadline)
             self.exchange.send(outputs)
             feedback = self.exchange.collect(self._window_end(deadline, work_peak_s))
             pending = self.commands() if self.commands is not None else None

@@ -797,3 +797,138 @@ def test_the_sensor_s_burst_after_a_stall_is_not_a_counter_jump(bus, clock):
     bus.answers[5] = all_answers(5, counter=15)
     fb = one_cycle(ex, clock, None)
     assert fb.anomalies == () and fb.sensor.fresh and fb.sensor.counter == 15
+
+
+# -- SYNC from the kernel (bus.sync_producer = "kernel"): the windows follow the SYNCs -------------
+
+KERNEL_PERIOD_S = 0.04
+
+
+def kernel_sync(slot: int) -> can.Message:
+    """The broadcast manager's SYNC of period ``slot``, received 0.3 ms after its time."""
+    msg = frame(SYNC_ID, b"")
+    msg.timestamp = slot * KERNEL_PERIOD_S + 0.0003
+    return msg
+
+
+def drive_answers(slot: int) -> list[can.Message]:
+    return [frame(tpdo1(n), drive_pdo(0x1637, 5_000_000 + 1000 * n + slot)) for n in DRIVES]
+
+
+def kernel_exchange(bus: ScriptedBus, clock: FakeClock) -> CyclicExchange:
+    ex = CyclicExchange(
+        bus,
+        DRIVES,
+        PositionScale(COUNTS_PER_M),
+        None,
+        CONTROLLER,
+        heartbeat_every=10**9,
+        clock=clock,
+        send_sync=False,
+        sync_period_s=KERNEL_PERIOD_S,
+    )
+    ex.sync_slot_of = lambda stamp: round(stamp / KERNEL_PERIOD_S)  # what KernelSyncExchange installs
+    return ex
+
+
+def kernel_cycle(ex, bus, clock, slot, before_send=(), after_send=()):
+    """One loop cycle of SYNC period ``slot``: frames that came before its send (a loop that woke
+    late), its send, frames after it, its collect."""
+    ex.cycle_slot = slot  # what KernelSyncExchange sets before each send
+    bus.inbox.extend(before_send)
+    ex.send(None)
+    bus.inbox.extend(after_send)
+    fb = ex.collect(clock())
+    clock.now_s += KERNEL_PERIOD_S
+    return fb
+
+
+def positions(fb) -> list[int]:
+    return [round(d.position * COUNTS_PER_M) if d.fresh else -1 for d in fb.drives]
+
+
+def test_kernel_sync_a_loop_that_wakes_after_its_sync_takes_the_answers_that_followed_it(bus, clock):
+    ex = kernel_exchange(bus, clock)
+    assert positions(kernel_cycle(ex, bus, clock, 0, after_send=[kernel_sync(0), *drive_answers(0)])) == [
+        5_001_000,
+        5_002_000,
+        5_003_000,
+    ]
+    # the loop woke after SYNC 1, the drives had answered it: those answers are cycle 1's sample (they
+    # were taken for late frames of cycle 0, a second sender: the 25-Hz path faulted on it on vcan)
+    fb = kernel_cycle(ex, bus, clock, 1, before_send=[kernel_sync(1), *drive_answers(1)])
+    assert fb.anomalies == () and positions(fb) == [5_001_001, 5_002_001, 5_003_001]
+    fb = kernel_cycle(ex, bus, clock, 2, after_send=[kernel_sync(2), *drive_answers(2)])
+    assert fb.anomalies == () and positions(fb) == [5_001_002, 5_002_002, 5_003_002]
+
+
+def test_kernel_sync_a_sync_later_than_its_window_leaves_its_answers_late_and_the_next_cycle_in_step(
+    bus, clock
+):
+    ex = kernel_exchange(bus, clock)
+    kernel_cycle(ex, bus, clock, 0, after_send=[kernel_sync(0), *drive_answers(0)])
+    assert positions(kernel_cycle(ex, bus, clock, 1)) == [-1, -1, -1]  # SYNC 1 not there yet
+    late_before = ex.counters.late_frames
+    fb = kernel_cycle(
+        ex,
+        bus,
+        clock,
+        2,
+        before_send=[kernel_sync(1), *drive_answers(1)],
+        after_send=[kernel_sync(2), *drive_answers(2)],
+    )
+    # SYNC 1's answers are not cycle 2's sample; SYNC 2's are
+    assert fb.anomalies == () and positions(fb) == [5_001_002, 5_002_002, 5_003_002]
+    assert ex.counters.late_frames - late_before == 3
+    fb = kernel_cycle(ex, bus, clock, 3, after_send=[kernel_sync(3), *drive_answers(3)])
+    assert fb.anomalies == () and positions(fb) == [5_001_003, 5_002_003, 5_003_003]
+
+
+def test_kernel_sync_a_collect_stops_at_the_next_sync_and_its_answers_are_the_next_cycle_s(bus, clock):
+    ex = kernel_exchange(bus, clock)
+    kernel_cycle(ex, bus, clock, 0, after_send=[kernel_sync(0), *drive_answers(0)])
+    fb = kernel_cycle(
+        ex, bus, clock, 1, after_send=[kernel_sync(1), *drive_answers(1), kernel_sync(2), *drive_answers(2)]
+    )
+    assert fb.anomalies == () and positions(fb) == [5_001_001, 5_002_001, 5_003_001]
+    fb = kernel_cycle(ex, bus, clock, 2)  # SYNC 2 and its answers came during the collect before
+    assert fb.anomalies == () and positions(fb) == [5_001_002, 5_002_002, 5_003_002]
+
+
+def test_kernel_sync_the_answers_to_a_skipped_cycle_s_sync_are_nobody_s_sample(bus, clock):
+    ex = kernel_exchange(bus, clock)
+    kernel_cycle(ex, bus, clock, 0, after_send=[kernel_sync(0), *drive_answers(0)])
+    kernel_cycle(ex, bus, clock, 1, after_send=[kernel_sync(1), *drive_answers(1)])
+    late_before = ex.counters.late_frames
+    # the loop overran: cycle 2 skipped, cycle 3 woke after its SYNC
+    fb = kernel_cycle(
+        ex, bus, clock, 3, before_send=[kernel_sync(2), *drive_answers(2), kernel_sync(3), *drive_answers(3)]
+    )
+    assert fb.anomalies == () and positions(fb) == [5_001_003, 5_002_003, 5_003_003]
+    assert ex.counters.late_frames - late_before == 3
+
+
+def test_kernel_sync_a_second_sender_is_still_found_when_the_loop_woke_late(bus, clock):
+    ex = kernel_exchange(bus, clock)
+    kernel_cycle(ex, bus, clock, 0, after_send=[kernel_sync(0), *drive_answers(0)])
+    rogue = frame(tpdo1(2), drive_pdo(0x1637, 5_002_001))
+    fb = kernel_cycle(ex, bus, clock, 1, before_send=[kernel_sync(1), *drive_answers(1), rogue])
+    assert {(a.kind, a.node_id) for a in fb.anomalies} == {(Anomaly.DUPLICATE_FRAME, 2)}
+    assert positions(fb) == [5_001_001, -1, 5_003_001]
+
+
+def test_kernel_sync_two_syncs_nearest_one_period_are_each_answered_not_a_second_sender(bus, clock):
+    """A stall of the kernel's timer leaves a SYNC half a period late; the lock pulls the next one in
+    (0.9 periods): both round to one period. The devices answer both."""
+    ex = kernel_exchange(bus, clock)
+    kernel_cycle(ex, bus, clock, 0, after_send=[kernel_sync(0), *drive_answers(0)])
+    late = frame(SYNC_ID, b"")
+    late.timestamp = 0.6 * KERNEL_PERIOD_S  # SYNC 1, 0.4 periods early: nearest period 1
+    pulled_in = frame(SYNC_ID, b"")
+    pulled_in.timestamp = 1.45 * KERNEL_PERIOD_S  # the next, 0.85 periods on: nearest period 1 too
+    fb = kernel_cycle(ex, bus, clock, 1, after_send=[late, *drive_answers(1)])
+    assert fb.anomalies == () and positions(fb) == [5_001_001, 5_002_001, 5_003_001]
+    fb = kernel_cycle(ex, bus, clock, 2, before_send=[pulled_in, *drive_answers(2)])
+    assert fb.anomalies == ()  # its answers came before cycle 2's send: late, owed, not a second sender
+    fb = kernel_cycle(ex, bus, clock, 3, after_send=[kernel_sync(3), *drive_answers(3)])
+    assert fb.anomalies == () and positions(fb) == [5_001_003, 5_002_003, 5_003_003]

@@ -162,3 +162,47 @@ def test_a_frame_tap_hands_periodic_sending_to_its_bus():
     assert sent_by_bus == [
         0.0025
     ]  # the bus's own periodic sending (the kernel's on SocketCAN), not a thread's
+
+
+class _TickingClock:
+    """A monotonic clock that moves 1 us a call (the start spins on it)."""
+
+    def __init__(self) -> None:
+        self.now_s = 1000.0
+
+    def __call__(self) -> float:
+        self.now_s += 1e-6
+        return self.now_s
+
+
+def test_the_kernel_exchange_pairs_each_cycle_with_the_sync_lead_s_after_its_deadline():
+    period, lead = 0.01, 0.002
+    clock = _TickingClock()
+    with can.Bus(interface="virtual", channel="kernel-sync-slots") as bus:
+        ex = CyclicExchange(
+            bus,
+            (1,),
+            PositionScale(1e7),
+            None,
+            100,
+            heartbeat_every=10**9,
+            send_sync=False,
+            sync_period_s=period,
+        )
+        sync = KernelSyncExchange(ex, period, lead, clock=clock)
+        first_deadline = clock() - 0.015  # the first cycle's send 15 ms after its deadline (the VM's worst)
+        try:
+            sync.cycle_deadline(first_deadline)
+            sync.send(None)  # the first cycle: starts the SYNC lead s after its deadline
+            for k in (1, 2, 7):
+                sync.cycle_deadline(first_deadline + k * period)
+                sync.send(None)
+                assert ex.cycle_slot == k
+        finally:
+            sync.stop()
+    assert sync.first_sync_s == first_deadline + lead  # the grid is the deadline's, not the late send's
+    assert ex.sync_slot_of is not None
+    origin = sync.lock.origin_s  # held to the grid, on the stamps' clock
+    assert origin == pytest.approx(sync.first_sync_s + sync.stamp_offset_s)
+    # a SYNC belongs to the period whose time it is nearest, early or late
+    assert [ex.sync_slot_of(origin + 5 * period + d) for d in (-0.004, 0.0, 0.004)] == [5, 5, 5]

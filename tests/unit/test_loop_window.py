@@ -6,6 +6,8 @@ window's end: deterministic, no wall clock.
 
 from __future__ import annotations
 
+import itertools
+
 import pytest
 
 from controller.assembly import build_law
@@ -71,3 +73,35 @@ def test_a_costly_step_shortens_the_next_windows_so_that_the_cycle_still_ends_in
     assert ends[20] == pytest.approx(COLLECT_FRACTION * PERIOD_S)  # before the costly steps
     assert ends[100] == pytest.approx(PERIOD_S - cost_s - WINDOW_MARGIN_S)
     assert max(ends[60:]) <= PERIOD_S - cost_s - WINDOW_MARGIN_S + 1e-12
+
+
+class DeadlineExchange(RecordingExchange):
+    """An exchange that wants each cycle's deadline (``CycleDeadlines``: the kernel SYNC's)."""
+
+    def __init__(self, inner: LoopbackExchange, clock: SimulatedTime) -> None:
+        super().__init__(inner, clock)
+        self.deadlines: list[float] = []
+        self.told_before_send: list[bool] = []
+
+    def cycle_deadline(self, deadline_s: float) -> None:
+        self.deadlines.append(deadline_s)
+
+    def send(self, outputs):
+        self.told_before_send.append(len(self.deadlines) == len(self.told_before_send) + 1)
+        super().send(outputs)
+
+
+def test_the_loop_tells_an_exchange_that_wants_it_each_cycle_s_deadline_before_its_send():
+    cfg = load_config(overrides={"recording.enabled": False, "monitoring.enabled": False})
+    clock = SimulatedTime(start_s=5.0)
+    law = build_law(cfg)
+    exchange = DeadlineExchange(LoopbackExchange(cfg, clock.clock), clock)
+    # a step that costs 1.5 periods from cycle 10: the loop skips deadlines, the grid stays
+    loop = CycleLoop(
+        CostlyLaw(law, clock, 1.5 * PERIOD_S, 10), exchange, PERIOD_S, COLLECT_FRACTION, clock, clock.clock
+    )
+    loop.run(law.initial_state(), 40 * PERIOD_S)
+    assert all(exchange.told_before_send) and len(exchange.deadlines) > 10
+    slots = [(d - exchange.deadlines[0]) / PERIOD_S for d in exchange.deadlines]
+    assert all(s == pytest.approx(round(s)) for s in slots)  # every deadline on the loop's grid
+    assert any(b - a > 1.5 for a, b in itertools.pairwise(slots))  # and skipped cycles skip their slots
