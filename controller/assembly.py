@@ -7,12 +7,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from controller.config import Config, ConfigError
+from controller.config import Config, ConfigError, SafetySection
 from controller.core.control_law import ControlLaw, LawConfig, SafetyConfig
 from controller.core.ports import ActuatorUnit, Robot
 from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother
-from controller.robots.registry import actuator_units, robot_from_config
-from controller.tasks.registry import BuiltTask, RunReport, task_entry, task_from_config
+from controller.robots.registry import ActuatorUnits, actuator_units, robot_from_config
+from controller.tasks.registry import BuiltTask, RunReport, TaskSettings, task_entry
 from drivers.bus_load import BusLoad, compute_bus_load, cyclic_frames
 
 
@@ -40,14 +40,28 @@ def build_robot(cfg: Config) -> Robot:
         raise ConfigError(f"[robot.{cfg.robot.kind}] geometry is inconsistent: {err}") from err
 
 
-def build_task(cfg: Config, robot: Robot) -> BuiltTask:
+def task_settings(cfg: Config, units: ActuatorUnits) -> TaskSettings:
+    """The settings every task may read beside its own section."""
+    return TaskSettings(
+        robot_kind=cfg.robot.kind,
+        robot_section=cfg.robot.model(),
+        units=units,
+        settle_tolerance_m=cfg.loop.settle_tolerance_m,
+        max_contact_force_n=cfg.safety.max_contact_force_n,
+        tracker_enabled=cfg.tracker.enabled,
+    )
+
+
+def build_task(cfg: Config, robot: Robot, units: ActuatorUnits) -> BuiltTask:
     """The configured task for ``robot``; WorkspaceError / PlanningError when it cannot be run."""
-    return task_from_config(cfg, robot)
+    entry = task_entry(cfg.task.kind)
+    section = cfg.task.model() if entry.section is not None else None
+    return entry.build(section, robot, task_settings(cfg, units))
 
 
-def safety_config(cfg: Config) -> SafetyConfig:
-    s = cfg.safety
-    rotary = actuator_units(cfg).unit == ActuatorUnit.RADIAN
+def safety_config(s: SafetySection, units: ActuatorUnits) -> SafetyConfig:
+    """``[safety]`` for the law, its position limits in the actuators' unit (the _rad keys for rotary ones)."""
+    rotary = units.unit == ActuatorUnit.RADIAN
     return SafetyConfig(
         max_contact_force_n=s.max_contact_force_n,
         sensor_stale_cycles=s.sensor_stale_cycles,
@@ -73,19 +87,21 @@ def safety_config(cfg: Config) -> SafetyConfig:
 def position_plausibility(cfg: Config) -> tuple[float, float]:
     """What the exchange judges every drive candidate by (drivers/cyclic_exchange.py), in actuator
     units: the speed limit over one period, and the margin the law's jump check allows."""
-    return actuator_units(cfg).max_velocity * cfg.period_s, safety_config(cfg).max_position_jump
+    units = actuator_units(cfg)
+    return units.max_velocity * cfg.period_s, safety_config(cfg.safety, units).max_position_jump
 
 
 @dataclass(frozen=True)
 class Assembly:
     law: ControlLaw
     reports: tuple[RunReport, ...]  # the task's own run reports (observers with a summary)
+    units: ActuatorUnits  # the actuators' unit and limits, resolved once for the whole run
 
 
 def assemble(cfg: Config, robot: Robot | None = None) -> Assembly:
     robot = robot or build_robot(cfg)
-    built = build_task(cfg, robot)
     a = actuator_units(cfg)  # m or rad
+    built = build_task(cfg, robot, a)
     n = robot.n_actuators
     limits = AxisLimits((a.max_velocity,) * n, (a.max_acceleration,) * n, (a.max_jerk,) * n)
     law_cfg = LawConfig(
@@ -94,7 +110,7 @@ def assemble(cfg: Config, robot: Robot | None = None) -> Assembly:
         hold_before_task_s=cfg.loop.hold_before_task_s,
         max_missing_cycles=cfg.loop.max_missing_cycles,
         settle_tolerance=cfg.loop.settle_tolerance_m,
-        safety=safety_config(cfg),
+        safety=safety_config(cfg.safety, a),
         max_speed=a.max_velocity,
         position_unit=a.unit.value,
         rest_target=0.5 * (a.stroke_min + a.stroke_max),
@@ -104,7 +120,7 @@ def assemble(cfg: Config, robot: Robot | None = None) -> Assembly:
         task_retracts_on_sensor_breach=task_entry(cfg.task.kind).retracts_on_sensor_breach,
     )
     return Assembly(
-        ControlLaw(robot, built.task, RuckigSmoother(limits, cfg.period_s), law_cfg), built.reports
+        ControlLaw(robot, built.task, RuckigSmoother(limits, cfg.period_s), law_cfg), built.reports, a
     )
 
 

@@ -456,14 +456,14 @@ def _nspu_config(args: argparse.Namespace, what: str) -> Config:
 
 def cmd_plan(args: argparse.Namespace) -> int:
     from controller.planning.nonholonomic import paper_example_poses
-    from controller.robots.builtin import nspu_poses_from_config
+    from controller.robots.builtin import nspu_poses
     from controller.tools.analysis.robot_analysis import plan_nspu
 
     cfg = _nspu_config(args, "cheope plan plans the 3-nSPU's motion")
     start, goal = (
         paper_example_poses(cfg.robot.model("nspu").length_unit_m)
         if args.paper_example
-        else nspu_poses_from_config(cfg)
+        else nspu_poses(cfg.robot.model("nspu"))
     )
     if args.start:
         start = _pose_arg(args.start, "from")

@@ -11,12 +11,14 @@ square = "my_tasks:SQUARE"         # a controller.tasks.registry.TaskEntry
 gantry = "my_gantry:gantry_kinematics"   # (cfg, robot) -> the simulator's kinematics of that robot
 [project.entry-points."cheope.analyses"]
 gantry = "my_gantry_plots:analyze"       # (cfg, out_dir) -> dict: its plots (cheope analyze)
+[project.entry-points."cheope.scene_drawings"]
+gantry = "my_gantry:GantryDrawing"       # cfg -> a logs.robot_drawing.RobotDrawing: its 3D scene
 [project.entry-points."cheope.experiments"]
 square = "my_tasks_experiments:SQUARE"   # a controller.tools.experiment.Experiment, by task kind
 ```
 
-The hooks of the last three groups are named by robot or task kind and live in the layer that runs them
-(the simulator, the analysis tools), not in the robot's entry: the controller never imports
+The hooks of the last four groups are named by robot or task kind and live in the layer that runs them
+(the simulator, the analysis tools, the recording's and the viewers' scene), not in the robot's entry: the controller never imports
 them, and only the one asked for is loaded (no plotting library for a run).
 
 The papers' robots and tasks are declared the same way, in this project's ``pyproject.toml``, so
@@ -38,6 +40,7 @@ TASKS_GROUP = "cheope.tasks"
 SIM_KINEMATICS_GROUP = "cheope.sim_kinematics"
 ANALYSES_GROUP = "cheope.analyses"
 EXPERIMENTS_GROUP = "cheope.experiments"
+SCENE_DRAWINGS_GROUP = "cheope.scene_drawings"
 
 E = TypeVar("E")
 
@@ -144,3 +147,4 @@ class Hooks:
 
 SIM_KINEMATICS = Hooks(SIM_KINEMATICS_GROUP, "simulator kinematics factory")
 ANALYSES = Hooks(ANALYSES_GROUP, "analysis function")
+SCENE_DRAWINGS = Hooks(SCENE_DRAWINGS_GROUP, "scene drawing factory")

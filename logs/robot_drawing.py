@@ -224,9 +224,9 @@ class CheopeDrawing:
     robot_kind: str = "cheope"
 
     def __post_init__(self) -> None:
-        from controller.robots.builtin import cheope_from_config
+        from controller.robots.builtin import build_cheope
 
-        self.robot = cheope_from_config(self.cfg)
+        self.robot = build_cheope(self.cfg.robot.model("cheope"))
         self.section = self.cfg.robot.model("cheope")
         self.trail = ReferenceTrail()
 
@@ -337,9 +337,9 @@ class UruDrawing:
     robot_kind: str = "uru"
 
     def __post_init__(self) -> None:
-        from controller.robots.builtin import uru_from_config
+        from controller.robots.builtin import build_uru
 
-        self.robot = uru_from_config(self.cfg)
+        self.robot = build_uru(self.cfg.robot.model("uru"))
         self.min_sin_th3 = self.cfg.robot.model("uru").min_sin_th3
         self.trail = ReferenceTrail()
 
@@ -432,9 +432,9 @@ class NspuDrawing:
     robot_kind: str = "nspu"
 
     def __post_init__(self) -> None:
-        from controller.robots.builtin import nspu_from_config
+        from controller.robots.builtin import build_nspu
 
-        self.robot = nspu_from_config(self.cfg)
+        self.robot = build_nspu(self.cfg.robot.model("nspu"))
         self.pose = self.robot.start
         self.last: tuple[float, np.ndarray] | None = None
 
@@ -499,11 +499,10 @@ class NspuDrawing:
 
 
 def drawing_for_config(cfg: Config) -> RobotDrawing | None:
-    """The drawing of the configured robot; None for a robot without one (a user's own registered robot)."""
-    kinds: dict[str, type[CheopeDrawing | UruDrawing | NspuDrawing]] = {
-        "cheope": CheopeDrawing,
-        "uru": UruDrawing,
-        "nspu": NspuDrawing,
-    }
-    cls = kinds.get(cfg.robot.kind)
-    return None if cls is None else cls(cfg)
+    """The drawing of the configured robot (its ``cheope.scene_drawings`` hook, controller/plugins.py);
+    None for a robot that declares none (the viewers then show the numbers without a scene)."""
+    from controller.plugins import SCENE_DRAWINGS
+
+    factory = SCENE_DRAWINGS.get(cfg.robot.kind)
+    drawing: RobotDrawing | None = None if factory is None else factory(cfg)
+    return drawing

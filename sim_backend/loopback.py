@@ -100,12 +100,12 @@ class LoopbackExchange:
         self, cfg: Config, clock: Callable[[], float], environment: Environment | None = None
     ) -> None:
         self.clock = clock
-        self.scale = PositionScale(actuator_units(cfg).counts_per_unit)  # m or rad
+        units = actuator_units(cfg)
+        self.scale = PositionScale(units.counts_per_unit)  # m or rad
         self.plant = RobotPlant(cfg, environment)
         self.drives = self.plant.drives
         if cfg.actuators.homing_method:
             self._home(cfg)
-        units = actuator_units(cfg)
         rotary = units.unit.value == "rad"
         for d in self.drives:  # what node set-up does over SDO on the real path: CSP, 0x60C2, 0x6065/0x6066
             d.mode_of_operation = 8

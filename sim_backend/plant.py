@@ -58,7 +58,7 @@ from controller.config import Config
 from controller.core.linalg3 import Matrix3, as_rows, inverse3, matvec, transpose3
 from controller.core.ports import ActuatorUnit
 from controller.errors import NoSolutionError
-from controller.robots.builtin import mass_model_from_config
+from controller.robots.builtin import cheope_mass_model
 from controller.robots.registry import actuator_units, check_axes, robot_from_config
 from controller.tasks.registry import task_entry
 from sim_backend.contact_disk import DiskEnvironment, DiskParams
@@ -216,7 +216,7 @@ class RobotPlant:
         self._compliance = ComplianceParams(
             cfg.robot.model("cheope").mass.actuator_stiffness_n_m,
             cfg.sim.structure_damping_ratio,
-            mass_model_from_config(cfg),
+            cheope_mass_model(cfg.robot.model("cheope").mass),
         )
         self.tool = CompliantTool(self._compliance)
         self.substep_s = cfg.sim.drive.substep_s

@@ -42,14 +42,13 @@ import numpy as np
 import zenoh
 from google.protobuf.message import DecodeError
 
-from controller.config import Config, config_to_dict
 from controller.core.controller_state import ControllerState
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severity
 from controller.core.ports import CycleTiming, Task
 from controller.messages import cheope_pb2 as pb
 from controller.monitoring.command_gate import CommandDecision, decide_command
 from controller.monitoring.query_server import QueryLimits, QueryServer
-from controller.monitoring.robot_identity import claim_robot_id, resolve_robot_id
+from controller.monitoring.robot_identity import claim_robot_id
 from controller.monitoring.zenoh_session import (
     MonitorKeys,
     SessionSettings,
@@ -57,7 +56,6 @@ from controller.monitoring.zenoh_session import (
     close_session,
     encoding_for,
     open_session,
-    split_endpoints,
 )
 from drivers.cyclic_exchange import ExchangeCounters
 
@@ -93,34 +91,6 @@ class PublisherSettings:
             keys=MonitorKeys.for_robot(self.key_prefix, robot_id),
             config_json=json.dumps(config),
         )
-
-
-def publisher_settings(cfg: Config) -> PublisherSettings:
-    """Validated settings from ``[monitoring]`` (ConfigError names a bad key)."""
-    m = cfg.monitoring
-    robot_id = resolve_robot_id(m.robot_id)
-    keys = MonitorKeys.for_robot(m.key_prefix, robot_id)
-    session = SessionSettings(
-        mode=m.mode,
-        listen=split_endpoints(m.listen, "monitoring.listen"),
-        connect=split_endpoints(m.connect, "monitoring.connect"),
-        config_file=m.config_file,
-        on_listen_busy=m.on_listen_busy,
-    )
-    config = config_to_dict(cfg)
-    config["monitoring"]["robot_id"] = robot_id  # the id in use, also when drawn
-    return PublisherSettings(
-        session=session,
-        keys=keys,
-        robot_id=robot_id,
-        key_prefix=m.key_prefix,
-        robot_id_is_default=not m.robot_id,
-        period_s=cfg.period_s,
-        decimation=max(1, round(cfg.loop.rate_hz / m.publish_rate_hz)),
-        allow_remote_commands=m.allow_remote_commands,
-        config_json=json.dumps(config),
-        max_contact_force_n=cfg.safety.max_contact_force_n,
-    )
 
 
 def _versions() -> list[str]:
@@ -448,11 +418,11 @@ def _version(name: str) -> str:
 
 
 def monitoring_publisher(
-    cfg: Config, stop_event: threading.Event, task: Task[Any] | None = None
+    settings: PublisherSettings, stop_event: threading.Event, task: Task[Any] | None = None
 ) -> MonitorPublisher:
-    """The publisher of ``cfg.monitoring`` (not yet open: use it as a context manager)."""
+    """The publisher with ``settings`` (not yet open: use it as a context manager)."""
     return MonitorPublisher(
-        publisher_settings(cfg),
+        settings,
         stop_event,
         task_name=task.name if task is not None else "",
         task_phase=task.phase_name if task is not None else None,
@@ -460,7 +430,7 @@ def monitoring_publisher(
 
 
 def monitoring_context(
-    cfg: Config, stop_event: threading.Event, task: Task[Any] | None = None
+    settings: PublisherSettings | None, stop_event: threading.Event, task: Task[Any] | None = None
 ) -> AbstractContextManager[MonitorPublisher | None]:
-    """The open-able publisher when ``monitoring.enabled``, else a context yielding None."""
-    return monitoring_publisher(cfg, stop_event, task) if cfg.monitoring.enabled else nullcontext(None)
+    """The open-able publisher with ``settings``, else (monitoring off) a context yielding None."""
+    return monitoring_publisher(settings, stop_event, task) if settings is not None else nullcontext(None)

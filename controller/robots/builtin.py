@@ -20,7 +20,6 @@ from controller.core.ports import ActuatorUnit
 from controller.robots.registry import RobotEntry
 
 if TYPE_CHECKING:  # the models load on demand, when a robot is built: the configuration loads without them
-    from controller.config import Config
     from controller.robots.cheope import CheopeRobot
     from controller.robots.nspu import NspuGeometry, Pose
     from controller.robots.nspu_robot import NspuRobot
@@ -70,18 +69,16 @@ def _check_cheope(c: CheopeSection) -> None:
         )
 
 
-def mass_model_from_config(cfg: Config) -> MassModel:
+def cheope_mass_model(m: MassSection) -> MassModel:
     """Cheope's lumped masses (``[robot.cheope.mass]``): the mass ellipsoid's and the simulated structure's."""
     from controller.robots.performance import MassModel
 
-    m = cfg.robot.model("cheope").mass
     return MassModel(m.platform_kg, m.slider_kg, m.rod_pair_kg)
 
 
-def cheope_from_config(cfg: Config) -> CheopeRobot:
+def build_cheope(c: CheopeSection) -> CheopeRobot:
     from controller.robots.cheope import CheopeGeometry, CheopeLimits, CheopeRobot
 
-    c: CheopeSection = cfg.robot.model("cheope")
     m = c.margins
     geometry = CheopeGeometry(
         rod_length_m=c.rod_length_m,
@@ -146,11 +143,10 @@ def _check_uru(u: UruSection) -> None:
         )
 
 
-def uru_from_config(cfg: Config) -> UruRobot:
+def build_uru(u: UruSection) -> UruRobot:
     from controller.robots.uru import UruGeometry, UruPathMargins
     from controller.robots.uru_robot import UruLimits, UruRobot
 
-    u: UruSection = cfg.robot.model("uru")
     geometry = UruGeometry(
         base_offset_m=u.base_offset_m,
         platform_offset_m=u.platform_offset_m,
@@ -215,10 +211,9 @@ def _check_nspu(n: NspuSection) -> None:
         )
 
 
-def nspu_geometry_from_config(cfg: Config) -> NspuGeometry:
+def nspu_geometry(n: NspuSection) -> NspuGeometry:
     from controller.robots.nspu import NspuGeometry
 
-    n: NspuSection = cfg.robot.model("nspu")
     g = NspuGeometry.paper_example(length_unit_m=n.length_unit_m, r3_variant=n.r3_variant)
     return NspuGeometry(
         g.a_m,
@@ -232,24 +227,23 @@ def nspu_geometry_from_config(cfg: Config) -> NspuGeometry:
     )
 
 
-def nspu_poses_from_config(cfg: Config) -> tuple[Pose, Pose]:
+def nspu_poses(n: NspuSection) -> tuple[Pose, Pose]:
     """Start and goal of the configured motion; orientations as RPY = Rz(yaw) Ry(pitch) Rx(roll)."""
     import numpy as np
 
     from controller.robots.nspu import Pose, rpy
 
-    n: NspuSection = cfg.robot.model("nspu")
     return (
         Pose(np.array(n.start_position_m), rpy(*n.start_rpy_rad)),
         Pose(np.array(n.goal_position_m), rpy(*n.goal_rpy_rad)),
     )
 
 
-def nspu_from_config(cfg: Config) -> NspuRobot:
+def build_nspu(n: NspuSection) -> NspuRobot:
     from controller.robots.nspu_robot import NspuRobot
 
-    start, goal = nspu_poses_from_config(cfg)
-    return NspuRobot(nspu_geometry_from_config(cfg), start, goal)
+    start, goal = nspu_poses(n)
+    return NspuRobot(nspu_geometry(n), start, goal)
 
 
 # -- the entries --------------------------------------------------------------------------------
@@ -257,7 +251,7 @@ def nspu_from_config(cfg: Config) -> NspuRobot:
 CHEOPE = RobotEntry(
     kind="cheope",
     section=CheopeSection,
-    build=cheope_from_config,
+    build=build_cheope,
     unit=ActuatorUnit.METRE,
     stroke=lambda c: (c.stroke_min_m, c.stroke_max_m),
     tasks=("contour", "path"),
@@ -267,7 +261,7 @@ CHEOPE = RobotEntry(
 URU = RobotEntry(
     kind="uru",
     section=UruSection,
-    build=uru_from_config,
+    build=build_uru,
     unit=ActuatorUnit.RADIAN,
     stroke=lambda u: (u.motor_min_rad, u.motor_max_rad),
     tasks=("path",),
@@ -277,7 +271,7 @@ URU = RobotEntry(
 NSPU = RobotEntry(
     kind="nspu",
     section=NspuSection,
-    build=nspu_from_config,
+    build=build_nspu,
     unit=ActuatorUnit.METRE,
     stroke=lambda n: (n.leg_min_m, n.leg_max_m),
     tasks=("planned",),

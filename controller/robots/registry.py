@@ -29,7 +29,7 @@ if TYPE_CHECKING:
 class RobotEntry:
     kind: str  # robot.kind in the configuration
     section: type  # its [robot.<kind>] section: a frozen dataclass (controller/config.py validates it)
-    build: Callable[[Config], Robot]  # raises ValueError when the section's geometry is inconsistent
+    build: Callable[[Any], Robot]  # its model from its section; ValueError when the geometry is inconsistent
     unit: ActuatorUnit
     stroke: Callable[[Any], tuple[float, float]]  # the actuators' range [unit] from its section
     tasks: tuple[str, ...] = ("path",)  # the task kinds it can run; the first is its demo's
@@ -64,7 +64,7 @@ def robot_entry(kind: str) -> RobotEntry:
 def robot_from_config(cfg: Config) -> Robot:
     """The model of ``robot.kind``; ValueError (from the model) when the geometry is inconsistent,
     ConfigError when a per-actuator list has not one value per actuator."""
-    robot = robot_entry(cfg.robot.kind).build(cfg)
+    robot = robot_entry(cfg.robot.kind).build(cfg.robot.model())
     check_axes(
         cfg.robot.kind,
         robot.n_actuators,

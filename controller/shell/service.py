@@ -9,6 +9,7 @@ loop. Nothing moves before every check has passed.
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import resource
 import threading
@@ -20,11 +21,13 @@ from typing import TYPE_CHECKING
 import can
 
 from controller.assembly import assemble, planned_bus_load, position_plausibility
-from controller.config import Config
+from controller.config import ActuatorsSection, Config, config_to_dict
 from controller.core.control_law import ControlLaw
 from controller.core.ports import CycleObserver
-from controller.monitoring.publisher import monitoring_context, publisher_settings
-from controller.robots.registry import actuator_units
+from controller.monitoring.publisher import PublisherSettings, monitoring_context
+from controller.monitoring.robot_identity import resolve_robot_id
+from controller.monitoring.zenoh_session import MonitorKeys, SessionSettings, split_endpoints
+from controller.robots.registry import ActuatorUnits, actuator_units
 from controller.shell.loop import CycleLoop
 from controller.shell.realtime import (
     RealtimeOptions,
@@ -70,6 +73,8 @@ class PreparedRun:
     reports: tuple[RunReport, ...]  # the task's own (the 3-nSPU's reached pose against its goal)
     bus_load: BusLoad
     setup_plan: NodeSetupPlan
+    publisher: PublisherSettings | None  # None: monitoring off
+    units: ActuatorUnits  # the actuators' unit and limits (m or rad)
 
 
 def prepare(cfg: Config, spec: BusSpec, enforce_load_limit: bool = True) -> PreparedRun:
@@ -88,18 +93,51 @@ def prepare(cfg: Config, spec: BusSpec, enforce_load_limit: bool = True) -> Prep
         check_kernel_sync(spec.interface)
     setup_plan = node_setup_plan(cfg)
     check_device_descriptions(setup_plan)
-    if cfg.monitoring.enabled:
-        publisher_settings(cfg)  # key prefix, robot id, endpoints
+    publisher = publisher_settings(cfg) if cfg.monitoring.enabled else None  # prefix, robot id, endpoints
     assembly = assemble(cfg)
-    return PreparedRun(law=assembly.law, reports=assembly.reports, bus_load=load, setup_plan=setup_plan)
+    return PreparedRun(
+        law=assembly.law,
+        reports=assembly.reports,
+        bus_load=load,
+        setup_plan=setup_plan,
+        publisher=publisher,
+        units=assembly.units,
+    )
 
 
-def homing_plans(cfg: Config) -> tuple[HomingPlan, ...] | None:
+def publisher_settings(cfg: Config) -> PublisherSettings:
+    """Validated settings from ``[monitoring]`` (ConfigError names a bad key)."""
+    m = cfg.monitoring
+    robot_id = resolve_robot_id(m.robot_id)
+    keys = MonitorKeys.for_robot(m.key_prefix, robot_id)
+    session = SessionSettings(
+        mode=m.mode,
+        listen=split_endpoints(m.listen, "monitoring.listen"),
+        connect=split_endpoints(m.connect, "monitoring.connect"),
+        config_file=m.config_file,
+        on_listen_busy=m.on_listen_busy,
+    )
+    config = config_to_dict(cfg)
+    config["monitoring"]["robot_id"] = robot_id  # the id in use, also when drawn
+    return PublisherSettings(
+        session=session,
+        keys=keys,
+        robot_id=robot_id,
+        key_prefix=m.key_prefix,
+        robot_id_is_default=not m.robot_id,
+        period_s=cfg.period_s,
+        decimation=max(1, round(cfg.loop.rate_hz / m.publish_rate_hz)),
+        allow_remote_commands=m.allow_remote_commands,
+        config_json=json.dumps(config),
+        max_contact_force_n=cfg.safety.max_contact_force_n,
+    )
+
+
+def homing_plans(a: ActuatorsSection, units: ActuatorUnits) -> tuple[HomingPlan, ...] | None:
     """Each drive's homing (drivers/homing.py) in counts, or None when the configuration has none."""
-    a = cfg.actuators
     if a.homing_method == 0:
         return None
-    per_unit = actuator_units(cfg).counts_per_unit
+    per_unit = units.counts_per_unit
     return tuple(
         HomingPlan(
             method=a.homing_method,
@@ -113,10 +151,8 @@ def homing_plans(cfg: Config) -> tuple[HomingPlan, ...] | None:
     )
 
 
-def _following_error_objects(cfg: Config) -> dict[str, int]:
+def _following_error_objects(a: ActuatorsSection, units: ActuatorUnits) -> dict[str, int]:
     """0x6065 in encoder counts and 0x6066 in ms from ``[actuators]`` (the _rad keys for rotary drives)."""
-    units = actuator_units(cfg)
-    a = cfg.actuators
     window = a.following_error_window_rad if units.unit.value == "rad" else a.following_error_window_m
     return {
         "following_error_window_counts": round(window * units.counts_per_unit),
@@ -131,6 +167,7 @@ def expected_environment(cfg: Config) -> str:
 
 
 def node_setup_plan(cfg: Config) -> NodeSetupPlan:
+    units = actuator_units(cfg)
     return NodeSetupPlan(
         drive_ids=tuple(cfg.actuators.node_ids),
         sensor_id=cfg.sensor.node_id if cfg.sensor.enabled else None,
@@ -146,8 +183,8 @@ def node_setup_plan(cfg: Config) -> NodeSetupPlan:
         sensor_vendor_id=cfg.sensor.vendor_id,
         drive_rpdo_objects=cfg.actuators.rpdo_objects,
         drive_tpdo_objects=cfg.actuators.tpdo_objects,
-        homing=homing_plans(cfg),
-        **_following_error_objects(cfg),
+        homing=homing_plans(cfg.actuators, units),
+        **_following_error_objects(cfg.actuators, units),
         sdo_timeout_s=cfg.loop.sdo_timeout_s,
         answer_timeout_s=max(5.0, 3.0 * cfg.loop.sdo_timeout_s),
         sim_environment=expected_environment(cfg) if cfg.sensor.enabled else None,
@@ -191,7 +228,7 @@ def run_controller(
     with (
         session or contextlib.nullcontext(),
         worker or contextlib.nullcontext(),
-        monitoring_context(cfg, stop_event, prepared.law.task) as publisher,
+        monitoring_context(prepared.publisher, stop_event, prepared.law.task) as publisher,
         FrameTap(open_bus(spec), frame_sink) as bus,
     ):
         # every frame of the session through one tap: set-up included, own echoes dropped
@@ -200,7 +237,7 @@ def run_controller(
         exchange = CyclicExchange(
             bus,
             tuple(cfg.actuators.node_ids),
-            PositionScale(actuator_units(cfg).counts_per_unit),
+            PositionScale(prepared.units.counts_per_unit),
             cfg.sensor.node_id if cfg.sensor.enabled else None,
             cfg.loop.controller_node_id,
             heartbeat_every=max(1, round(cfg.loop.heartbeat_period_s * cfg.loop.rate_hz)),

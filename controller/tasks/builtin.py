@@ -11,11 +11,9 @@ import math
 from typing import TYPE_CHECKING, Annotated, Literal
 
 from controller.config_schema import ConfigError, Section, rng
-from controller.robots.registry import actuator_units
-from controller.tasks.registry import BuiltTask, TaskEntry
+from controller.tasks.registry import BuiltTask, TaskEntry, TaskSettings
 
 if TYPE_CHECKING:  # the tasks load on demand, when one is built: the configuration loads without them
-    from controller.config import Config
     from controller.core.ports import Robot
     from controller.tasks.contour_tracking import ContourParams
     from controller.tasks.path_task import CartesianTrajectory
@@ -40,11 +38,10 @@ def _check_path(p: PathSection) -> None:
         raise ConfigError(f"task.path.normal = {list(p.normal)}: must be a non-zero vector")
 
 
-def build_path_task(cfg: Config, robot: Robot) -> BuiltTask:
+def build_path_task(p: PathSection, robot: Robot, shared: TaskSettings) -> BuiltTask:
     from controller.tasks.circle_path import CirclePath
     from controller.tasks.path_task import PathTask
 
-    p: PathSection = cfg.task.model("path")
     try:
         path = CirclePath(
             center_m=p.center_m, radius_m=p.radius_m, speed_m_s=p.speed_m_s, laps=p.laps, ramp_s=p.ramp_s
@@ -57,7 +54,7 @@ def build_path_task(cfg: Config, robot: Robot) -> BuiltTask:
 
         trajectory = TiltedCirclePath(path, p.normal)
     robot.check_path(trajectory.points(p.check_samples))  # WorkspaceError names the sample
-    return BuiltTask(PathTask(robot, trajectory, settle_tolerance=cfg.loop.settle_tolerance_m))
+    return BuiltTask(PathTask(robot, trajectory, settle_tolerance=shared.settle_tolerance_m))
 
 
 # -- contour tracking (seed 001 §7) -------------------------------------------------------------
@@ -141,12 +138,11 @@ def _contour_expected_outline(c: ContourSection, n: int = 96) -> tuple[tuple[flo
     )
 
 
-def build_contour_task(cfg: Config, robot: Robot) -> BuiltTask:
+def build_contour_task(c: ContourSection, robot: Robot, shared: TaskSettings) -> BuiltTask:
     import numpy as np
 
     from controller.tasks.contour_tracking import ContourTrackingTask
 
-    c: ContourSection = cfg.task.model("contour")
     # The whole neighbourhood the task may visit: the expected contour, widened by the approach.
     ring = []
     for r in (c.expected_radius_m - c.max_approach_distance_m, c.expected_radius_m + c.approach_clearance_m):
@@ -155,22 +151,22 @@ def build_contour_task(cfg: Config, robot: Robot) -> BuiltTask:
                 (c.expected_centre_m[0] + r * np.cos(th), c.expected_centre_m[1] + r * np.sin(th), c.height_m)
             )
     robot.check_path(np.array(ring))
-    params = contour_params(c, cfg.loop.settle_tolerance_m, cfg.safety.max_contact_force_n)
+    params = contour_params(c, shared.settle_tolerance_m, shared.max_contact_force_n)
     return BuiltTask(ContourTrackingTask(robot, params))  # type: ignore[arg-type]
 
 
 # -- the planned legs (seed 004): the 3-nSPU's settings are in [robot.nspu] ----------------------
 
 
-def build_planned_task(cfg: Config, robot: Robot) -> BuiltTask:
+def build_planned_task(_: None, robot: Robot, shared: TaskSettings) -> BuiltTask:
     from controller.tasks.planned_legs import build_planned_legs_task
 
     task, report = build_planned_legs_task(
-        cfg.robot.model("nspu"),
-        actuator_units(cfg),
-        cfg.loop.settle_tolerance_m,
+        shared.robot_section,  # [robot.nspu]: the planner's settings are the robot's
+        shared.units,
+        shared.settle_tolerance_m,
         robot,
-        tracker=cfg.tracker.enabled,
+        tracker=shared.tracker_enabled,
     )
     return BuiltTask(task, (report,))
 

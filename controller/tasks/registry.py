@@ -16,8 +16,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 from controller.plugins import TASKS_GROUP, Registry
 
 if TYPE_CHECKING:
-    from controller.config import Config
     from controller.core.ports import Robot, Task
+    from controller.robots.registry import ActuatorUnits
 
 
 class RunReport(Protocol):
@@ -38,10 +38,25 @@ class BuiltTask:
 
 
 @dataclass(frozen=True)
+class TaskSettings:
+    """What a task's factory may need beside its own section, resolved once by the assembly
+    (``controller/assembly.py``): a task does not read the whole configuration."""
+
+    robot_kind: str
+    robot_section: Any  # [robot.<kind>]: a task made for one robot reads that robot's settings here
+    units: ActuatorUnits  # the actuators' unit and limits
+    settle_tolerance_m: float  # loop.settle_tolerance_m: "at rest" at the end of a motion
+    max_contact_force_n: float  # safety.max_contact_force_n: the safety layer's limit
+    tracker_enabled: bool  # [tracker]: a pose tracker measures the platform
+
+
+@dataclass(frozen=True)
 class TaskEntry:
     kind: str  # task.kind in the configuration
     section: type | None  # its [task.<kind>] section (a frozen dataclass), or None
-    build: Callable[[Config, Robot], BuiltTask]  # raises ConfigError / WorkspaceError / PlanningError
+    # (its section or None, the robot, the shared settings) -> the task; raises ConfigError /
+    # WorkspaceError / PlanningError
+    build: Callable[[Any, Robot, TaskSettings], BuiltTask]
     check: Callable[[Any], None] | None = None  # cross-checks of its section: raise ConfigError
     sim_environment: str = (
         "free"  # what the simulator places with sim.environment = "auto": "free", "workpiece"
@@ -82,7 +97,3 @@ def task_sections() -> dict[str, type | None]:
 
 def task_entry(kind: str) -> TaskEntry:
     return TASKS.entry(kind)
-
-
-def task_from_config(cfg: Config, robot: Robot) -> BuiltTask:
-    return task_entry(cfg.task.kind).build(cfg, robot)

@@ -23,7 +23,7 @@ import msgspec
 from controller.assembly import build_robot
 from controller.config import Config
 from controller.core.ports import CycleObserver
-from controller.robots.builtin import mass_model_from_config
+from controller.robots.builtin import cheope_mass_model
 from controller.robots.cheope import CheopeRobot
 from controller.shell.realtime import RealtimeOptions
 from controller.shell.service import run_controller
@@ -118,7 +118,7 @@ def _plot(
     c = cfg.task.model("contour")
     robot = cheope_robot(cfg)
     stiffness = cfg.robot.model("cheope").mass.actuator_stiffness_n_m
-    masses = mass_model_from_config(cfg)
+    masses = cheope_mass_model(cfg.robot.model("cheope").mass)
     plots = plot_contour(
         force_obs, robot, stiffness, masses, c.height_m, plot_dir, "force control", c.lap_speeds_m_s
     )

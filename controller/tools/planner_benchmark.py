@@ -42,13 +42,13 @@ def random_pairs(
 ) -> list[tuple[object, object]]:
     """`count` (start, goal) Pose pairs that pass the planner's start/goal checks (module doc)."""
     from controller.planning.nonholonomic import check_pose, singularity_measures
-    from controller.robots.builtin import nspu_geometry_from_config, nspu_poses_from_config
+    from controller.robots.builtin import nspu_geometry, nspu_poses
     from controller.robots.nspu import Pose, rpy
     from controller.tasks.planned_legs import planner_config
 
-    geometry = nspu_geometry_from_config(cfg)
+    geometry = nspu_geometry(cfg.robot.model("nspu"))
     pcfg = planner_config(cfg.robot.model("nspu"))
-    base, _ = nspu_poses_from_config(cfg)
+    base, _ = nspu_poses(cfg.robot.model("nspu"))
     base_yaw = float(np.arctan2(base.R[1, 0], base.R[0, 0]))
     rng = np.random.default_rng(seed)
     pairs: list[tuple[object, object]] = []
@@ -92,11 +92,11 @@ def run_benchmark(
 ) -> dict[str, object]:
     """Plan every pair with the configured planner; per-pair rows and the summary figures."""
     from controller.planning.nonholonomic import plan_motion
-    from controller.robots.builtin import nspu_geometry_from_config
+    from controller.robots.builtin import nspu_geometry
     from controller.robots.nspu import Pose, so3_log
     from controller.tasks.planned_legs import planner_config
 
-    geometry = nspu_geometry_from_config(cfg)
+    geometry = nspu_geometry(cfg.robot.model("nspu"))
     pcfg = planner_config(cfg.robot.model("nspu"))
     rows: list[dict[str, object]] = []
     for k, (start, goal) in enumerate(random_pairs(cfg, count, seed)):

@@ -30,6 +30,7 @@ from controller.errors import CheopeError
 from controller.monitoring.publisher import monitoring_publisher
 from controller.shell.loop import CycleLoop
 from controller.shell.realtime import RealtimeOptions, apply_realtime, granted_realtime
+from controller.shell.service import publisher_settings
 from drivers.pacing import DeadlineSleeper
 
 READY = "READY"
@@ -61,7 +62,7 @@ def run_simulated(
         ) -> None:
             events.extend(f"{e.severity.name}: {e.message}" for e in evs)
 
-    with monitoring_publisher(cfg, stop_event, law.task) as pub:
+    with monitoring_publisher(publisher_settings(cfg), stop_event, law.task) as pub:
         on_ready(pub.settings.robot_id, pub.listen_endpoints)
         loop = CycleLoop(
             law,

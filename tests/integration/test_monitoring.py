@@ -43,7 +43,7 @@ from controller.monitoring.monitor_view import (
     render,
     update_to_json,
 )
-from controller.monitoring.publisher import MonitorPublisher, publisher_settings
+from controller.monitoring.publisher import MonitorPublisher
 from controller.monitoring.query_server import QueryLimits, TokenBucket
 from controller.monitoring.zenoh_session import (
     MonitoringConnectionError,
@@ -55,6 +55,7 @@ from controller.monitoring.zenoh_session import (
     monitor_settings,
     split_endpoints,
 )
+from controller.shell.service import publisher_settings
 
 KEYS = MonitorKeys.for_robot("cheope", "test-bot")
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}

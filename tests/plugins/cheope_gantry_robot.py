@@ -1,7 +1,7 @@
 """A robot brought by a plug-in: a toy Cartesian gantry, in this one file.
 
 Three orthogonal linear axes, the TCP is the axes' positions plus an offset: its configuration
-section, its model, its simulator hook and its registry entry. Registered from a script with
+section, its model, its simulator hook, its 3D scene and its registry entry. Registered from a script with
 ``register_robot(GANTRY)`` (tests/unit/test_adding_a_robot.py), or declared in a distribution's
 metadata as ``[cheope.robots] gantry = cheope_gantry_robot:GANTRY`` (tests/unit/test_plugins.py).
 """
@@ -16,6 +16,7 @@ from controller.config_schema import Section, rng
 from controller.core.ports import POSE_OK, ActuatorUnit, PoseStatus
 from controller.errors import WorkspaceError
 from controller.robots.registry import RobotEntry
+from logs.robot_drawing import DARK, ORANGE, MeasuredPose, Primitive, Shape
 from sim_backend.plant_kinematics import RigidKinematics
 
 
@@ -57,10 +58,34 @@ def gantry_kinematics(cfg, robot):  # the simulator hook: rigid, starting at hom
     return RigidKinematics(robot, tuple(robot.inverse_kinematics(np.asarray(section.home_m)).tolist()))
 
 
+class GantryDrawing:  # its 3D scene (logs/robot_drawing.py): a base plate, the three axes, the tool
+    robot_kind = "gantry"
+
+    def __init__(self, cfg) -> None:
+        self.robot = GantryRobot(cfg.robot.model("gantry"))
+
+    def fixed(self) -> list[Primitive]:
+        return [Primitive("base", Shape.BOX, DARK, end=(1.0, 0.0, 0.0), length_m=0.6, width_m=0.6)]
+
+    def moving(self, pose: MeasuredPose) -> list[Primitive]:
+        o = self.robot.offset
+        x, y, z = (float(v) for v in np.asarray(pose.q[:3]) + o)
+        corners = (
+            (float(o[0]), float(o[1]), float(o[2])),
+            (x, float(o[1]), float(o[2])),
+            (x, y, float(o[2])),
+            (x, y, z),
+        )
+        return [
+            Primitive("axes", Shape.LINE, DARK, points=corners, radius_m=0.004),
+            Primitive("tool", Shape.SPHERE, ORANGE, start=(x, y, z), radius_m=0.01),
+        ]
+
+
 GANTRY = RobotEntry(
     kind="gantry",
     section=GantrySection,
-    build=lambda cfg: GantryRobot(cfg.robot.model("gantry")),
+    build=GantryRobot,
     unit=ActuatorUnit.METRE,
     stroke=lambda s: (s.stroke_min_m, s.stroke_max_m),
     tasks=("path",),

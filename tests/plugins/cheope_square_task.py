@@ -20,7 +20,7 @@ import numpy as np
 
 from controller.config_schema import Section, rng
 from controller.tasks.path_task import PathTask
-from controller.tasks.registry import BuiltTask, TaskEntry
+from controller.tasks.registry import BuiltTask, TaskEntry, TaskSettings
 
 
 class SquareSection(Section, frozen=True):
@@ -60,11 +60,10 @@ class SquarePath:
         return np.array([self.sample(t)[0] for t in np.linspace(0.0, self.duration_s, n)])
 
 
-def build_square_task(cfg, robot) -> BuiltTask:
-    s: SquareSection = cfg.task.model("square")
+def build_square_task(s: SquareSection, robot, shared: TaskSettings) -> BuiltTask:
     path = SquarePath(s.center_m, s.side_m, s.side_s)
     robot.check_path(path.points(max(8, math.ceil(path.duration_s * 100))))
-    return BuiltTask(PathTask(robot, path, settle_tolerance=cfg.loop.settle_tolerance_m))
+    return BuiltTask(PathTask(robot, path, settle_tolerance=shared.settle_tolerance_m))
 
 
 SQUARE = TaskEntry(kind="square", section=SquareSection, build=build_square_task, robots=("cheope", "gantry"))

@@ -30,8 +30,9 @@ from controller.config import load_config
 from controller.core.cycle_data import CycleInputs, CycleOutputs, DriveFeedback, SensorFeedback
 from controller.core.ports import CycleTiming
 from controller.monitoring.monitor_view import MonitorClient, StateUpdate
-from controller.monitoring.publisher import MonitorPublisher, publisher_settings
+from controller.monitoring.publisher import MonitorPublisher
 from controller.monitoring.zenoh_session import MonitorKeys, free_loopback_port, monitor_settings
+from controller.shell.service import publisher_settings
 from drivers.pacing import DeadlineSleeper
 
 

@@ -20,11 +20,14 @@ def test_analyze_writes_the_plots_and_reports_the_indices(cfg, tmp_path):
 def test_analyze_reports_both_stiffness_ratios_and_says_which_is_which(cfg, tmp_path):
     import numpy as np
 
-    from controller.robots.builtin import cheope_from_config
+    from controller.robots.builtin import build_cheope
     from controller.robots.cheope import jacobian
 
     report = analyze_cheope(cfg, tmp_path)
-    jac = jacobian(cheope_from_config(cfg).geometry, np.asarray(cfg.task.model("path").center_m, dtype=float))
+    jac = jacobian(
+        build_cheope(cfg.robot.model("cheope")).geometry,
+        np.asarray(cfg.task.model("path").center_m, dtype=float),
+    )
     k = jac.T @ jac  # K / k: the ratios do not depend on the actuator stiffness
     ex, ey = np.eye(3)[0], np.eye(3)[1]
     k2_inv = np.linalg.inv(k @ k)

@@ -119,7 +119,7 @@ class TwinColumnGantry(GantryRobot):
 def twin():
     from dataclasses import replace
 
-    entry = replace(GANTRY, kind="twin", build=lambda cfg: TwinColumnGantry(cfg.robot.model("twin")))
+    entry = replace(GANTRY, kind="twin", build=TwinColumnGantry)
     register_robot(entry)
     yield entry
     unregister_robot("twin")

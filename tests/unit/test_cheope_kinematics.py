@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from controller.config import load_config
 from controller.errors import NoSolutionError
-from controller.robots.builtin import cheope_from_config
+from controller.robots.builtin import build_cheope
 from controller.robots.cheope import (
     CheopeGeometry,
     direct_kinematics,
@@ -23,7 +23,7 @@ from controller.robots.cheope import (
 )
 
 GEOM = CheopeGeometry()
-ROBOT = cheope_from_config(load_config())
+ROBOT = build_cheope(load_config().robot.model("cheope"))
 coord = st.floats(min_value=-0.12, max_value=0.12)
 height = st.floats(min_value=0.35, max_value=0.65)
 

@@ -8,7 +8,7 @@ import pytest
 
 from controller.config import load_config
 from controller.monitoring.command_gate import decide_command
-from controller.monitoring.publisher import publisher_settings
+from controller.shell.service import publisher_settings
 
 
 @pytest.mark.parametrize("value", [1e9, 60.0, 60.000001, math.inf, math.nan, 0.0, -1.0, -math.inf])

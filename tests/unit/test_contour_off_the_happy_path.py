@@ -12,12 +12,12 @@ from dataclasses import replace
 
 import pytest
 
-from controller.assembly import build_robot
+from controller.assembly import build_robot, build_task
 from controller.config import load_config
 from controller.core.cycle_data import CycleInputs, DriveFeedback, SensorFeedback
 from controller.core.ports import TaskContext
 from controller.core.setpoint_smoothing import Setpoint
-from controller.tasks.builtin import build_contour_task
+from controller.robots.registry import actuator_units
 from controller.tasks.contour_tracking import ContourPhase, ContourState, track_normal
 from controller.tools.contour_scan import (
     ContourScenario,
@@ -33,7 +33,7 @@ LIMIT_N = 60.0
 
 def _task(**overrides):
     cfg = load_config(overrides={"task.kind": "contour", **overrides})
-    return build_contour_task(cfg, build_robot(cfg)).task, cfg
+    return build_task(cfg, build_robot(cfg), actuator_units(cfg)).task, cfg
 
 
 def _ctx(force, tcp=(0.07, 0.0, 0.5), fresh=True) -> TaskContext:

@@ -8,14 +8,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from controller.assembly import build_law, build_robot
+from controller.assembly import build_law, build_robot, build_task
 from controller.config import load_config
 from controller.core.controller_state import Mode
 from controller.core.cycle_data import CycleInputs, DriveFeedback, SensorFeedback
 from controller.core.ports import TaskContext
 from controller.core.setpoint_smoothing import Setpoint
+from controller.robots.registry import actuator_units
 from controller.shell.loop import CycleLoop, SimulatedTime
-from controller.tasks.builtin import build_contour_task
 from controller.tasks.contour_tracking import ContourPhase, ContourState, _wrap, track_normal
 from controller.tools.analysis.contour_report import ContourObserver, constant_speed_laps, contour_summary
 from sim_backend.loopback import LoopbackExchange
@@ -26,7 +26,7 @@ DT = 0.0025
 
 def _task(**overrides):
     cfg = load_config(overrides={**FAST, **overrides})
-    return build_contour_task(cfg, build_robot(cfg)).task, cfg
+    return build_task(cfg, build_robot(cfg), actuator_units(cfg)).task, cfg
 
 
 def _ctx(force, tcp=(0.07, 0.0, 0.5), t=1.0) -> TaskContext:

@@ -199,13 +199,13 @@ def test_shipped_default_motion_converges_and_is_verified() -> None:
     """The configured default motion (controller/configs/nspu.toml) plans in a few iterations; the
     end error is below the tolerance in the finer verification integration too."""
     from controller.config import CONFIG_DIR, load_config
-    from controller.robots.builtin import nspu_geometry_from_config, nspu_poses_from_config
+    from controller.robots.builtin import nspu_geometry, nspu_poses
     from controller.tasks.planned_legs import planner_config
 
     cfg = load_config(str(CONFIG_DIR / "nspu.toml"), {})
-    start, goal = nspu_poses_from_config(cfg)
+    start, goal = nspu_poses(cfg.robot.model("nspu"))
     pcfg = planner_config(cfg.robot.model("nspu"))
-    res = plan_motion(nspu_geometry_from_config(cfg), start, goal, pcfg)
+    res = plan_motion(nspu_geometry(cfg.robot.model("nspu")), start, goal, pcfg)
     assert res.status is PlanStatus.CONVERGED, res.message
     assert res.iterations <= 10
     assert res.final_error < pcfg.tolerance and res.verified_error < pcfg.tolerance

@@ -41,7 +41,8 @@ def installed(tmp_path, monkeypatch):
         tmp_path,
         "cheope_gantry_plugins",
         "[cheope.robots]\ngantry = cheope_gantry_robot:GANTRY\n\n[cheope.tasks]\nsquare = cheope_square_task:SQUARE\n"
-        "\n[cheope.sim_kinematics]\ngantry = cheope_gantry_robot:gantry_kinematics\n",
+        "\n[cheope.sim_kinematics]\ngantry = cheope_gantry_robot:gantry_kinematics\n"
+        "\n[cheope.scene_drawings]\ngantry = cheope_gantry_robot:GantryDrawing\n",
     )
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.syspath_prepend(str(PLUGINS))
@@ -161,3 +162,34 @@ def test_a_tasks_experiment_is_what_demo_runs_for_it_and_a_task_without_one_is_t
         EXPERIMENTS.unregister("path")
     assert ran == ["path"]
     assert json.loads(capsys.readouterr().out) == {"final_mode": "DONE", "laps": 1}
+
+
+def test_a_plugin_robot_brings_its_scene_and_a_robot_without_one_records_none(installed, tmp_path):
+    """The recording's scene (logs/scene_sampler.py) draws the gantry from its distribution's hook."""
+    from cheope_gantry_robot import GantryDrawing
+
+    from logs.robot_drawing import drawing_for_config
+    from logs.scene_sampler import SceneSampler
+
+    cfg = config_from_dict(
+        {
+            "robot": {"kind": "gantry"},
+            "task": {"path": {"center_m": [0.1, 0.0, 0.3], "radius_m": 0.05}},
+            "sensor": {"enabled": False},
+        }
+    )
+    drawing = drawing_for_config(cfg)
+    assert isinstance(drawing, GantryDrawing)
+    sampler = SceneSampler.for_config(cfg)
+    assert sampler is not None and [p.entity for p in sampler.fixed_once() or []] == ["base"]
+    from logs.robot_drawing import MeasuredPose
+
+    moved = drawing.moving(MeasuredPose(0.0, (0.1, 0.0, 0.05), None, None))
+    assert moved[-1].entity == "tool" and np.allclose(moved[-1].start, (0.1, 0.0, 0.25))
+    from controller.plugins import SCENE_DRAWINGS
+
+    SCENE_DRAWINGS.register("gantry", None)  # a robot that declares no scene: the viewers show none
+    try:
+        assert drawing_for_config(cfg) is None and SceneSampler.for_config(cfg) is None
+    finally:
+        SCENE_DRAWINGS.unregister("gantry")

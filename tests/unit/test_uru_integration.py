@@ -14,7 +14,7 @@ from controller.assembly import build_law
 from controller.config import CONFIG_DIR, ConfigError, load_config
 from controller.core.controller_state import Mode
 from controller.robots import uru
-from controller.robots.builtin import uru_from_config
+from controller.robots.builtin import build_uru
 from controller.robots.registry import actuator_units
 from controller.robots.uru_robot import UruWorkspaceError
 from controller.shell.loop import CycleLoop, SimulatedTime
@@ -29,7 +29,7 @@ def _cfg(**overrides):
     return load_config(URU_TOML, {**SHORT, **overrides})
 
 
-ROBOT = uru_from_config(_cfg())
+ROBOT = build_uru(_cfg().robot.model("uru"))
 
 
 def test_fast_kinematics_and_checks_agree_with_the_model():

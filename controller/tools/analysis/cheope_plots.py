@@ -23,7 +23,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from controller.config import Config
-from controller.robots.builtin import cheope_from_config, mass_model_from_config
+from controller.robots.builtin import build_cheope, cheope_mass_model
 from controller.robots.cheope import CheopeRobot, jacobian, joint_swing_rad, singularity_measures
 from controller.robots.performance import (
     Ellipsoid,
@@ -246,8 +246,8 @@ def path_margins(robot: CheopeRobot, path: CirclePath, out: Path, n: int = 361) 
 
 def analyze_cheope(cfg: Config, out: Path) -> dict[str, object]:
     out.mkdir(parents=True, exist_ok=True)
-    robot = cheope_from_config(cfg)
-    masses = mass_model_from_config(cfg)
+    robot = build_cheope(cfg.robot.model("cheope"))
+    masses = cheope_mass_model(cfg.robot.model("cheope").mass)
     p = cfg.task.model("path")
     path = CirclePath(p.center_m, p.radius_m, p.speed_m_s, p.laps, p.ramp_s)
     centre = np.asarray(p.center_m, dtype=float)

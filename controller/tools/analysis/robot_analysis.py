@@ -24,11 +24,11 @@ if TYPE_CHECKING:
 
 def analyze_uru(cfg: Config, out_dir: Path) -> dict[str, object]:
     from controller.robots import uru
-    from controller.robots.builtin import uru_from_config
+    from controller.robots.builtin import build_uru
     from controller.robots.uru_robot import UruWorkspaceError
     from controller.tools.analysis.uru_plots import plot_workspace_and_singularities
 
-    robot = uru_from_config(cfg)
+    robot = build_uru(cfg.robot.model("uru"))
     files = plot_workspace_and_singularities(robot.geometry, out_dir)
     p = cfg.task.model("path")
     from controller.robots.uru_robot import TiltedCirclePath
@@ -73,10 +73,10 @@ def analyze_nspu(
     cfg: Config, out_dir: Path, euler_xzx_rad: tuple[float, float, float] = (0.0, 1.0, 0.0)
 ) -> dict[str, object]:
     from controller.planning.nonholonomic import type2_measure
-    from controller.robots.builtin import nspu_from_config
+    from controller.robots.builtin import build_nspu
     from controller.tools.analysis.nspu_plots import plot_singularity_loci
 
-    robot = nspu_from_config(cfg)
+    robot = build_nspu(cfg.robot.model("nspu"))
     files = plot_singularity_loci(robot.geometry, out_dir, euler_xzx_rad=euler_xzx_rad)
     return {
         "robot": "nspu",
@@ -93,11 +93,11 @@ def plan_nspu(
 ) -> dict[str, object]:
     """Plan start -> goal (Pose) with the configured planner; the report says CONVERGED or why not."""
     from controller.planning.nonholonomic import plan_motion
-    from controller.robots.builtin import nspu_geometry_from_config
+    from controller.robots.builtin import nspu_geometry
     from controller.robots.nspu import so3_log
     from controller.tasks.planned_legs import planner_config
 
-    geometry = nspu_geometry_from_config(cfg)
+    geometry = nspu_geometry(cfg.robot.model("nspu"))
     pcfg = planner_config(cfg.robot.model("nspu"), check_type2=check_type2)
     t0, c0 = time.perf_counter(), time.process_time()
     res = plan_motion(geometry, start, goal, pcfg)
