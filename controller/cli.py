@@ -230,6 +230,9 @@ def _print_summary(summary: dict[str, Any], as_json: bool) -> None:
             f"{contour['force_error_vs_normal_stiffness_correlation']}, RMS soft half / stiff half "
             f"{contour['force_error_rms_soft_over_stiff']}"
         )
+    true_force = summary.get("simulator", {}).get("max_true_contact_force_n")
+    if true_force is not None:  # the simulator's, not the measurement: what a disturbed sensor hides
+        lines.append(f"simulator           max true contact force {true_force:.1f} N")
     cmp = summary.get("position_control_comparison")
     if cmp and cmp.get("laps"):
         lap = cmp["laps"][0]

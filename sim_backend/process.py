@@ -17,6 +17,7 @@ from drivers.bus import BusSpec, open_bus
 from sim_backend.server import Simulator
 
 READY_LINE = "cheope-sim ready"
+STOPPED_LINE = "cheope-sim stopped"  # then what the simulator saw: its largest true contact force
 
 
 def serve(
@@ -54,5 +55,6 @@ def serve(
             # the shut-down (threads joined, the heap freed at exit) is no real-time work either:
             # at SCHED_FIFO it starved another simulator on this CPU as the start-up did
             drop_realtime()
+        announce(f"{STOPPED_LINE}: max true contact force {simulator.max_contact_force_n:.3f} N")
     if cfg.loop.freeze_gc:
         unfreeze_garbage_collector()

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import queue
 import threading
 import time
@@ -121,6 +122,9 @@ class Simulator:
         self.nodes: dict[int, canopen.LocalNode] = {}
         self.sync_count = 0
         self.rejected_frames = 0
+        # the simulator's true contact force, largest at any SYNC: what a disturbance of the
+        # measurement can hide from the controller (reported when the simulator stops)
+        self.max_contact_force_n = 0.0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._kinematics: queue.SimpleQueue[tuple[float, np.ndarray] | None] = queue.SimpleQueue()
@@ -384,6 +388,10 @@ class Simulator:
             self.sync_count += 1
             apply_device_faults(self.faults, self.plant, self.drive_ids, now)
             self.plant.sync(now)
+            f = self.plant.force_n
+            self.max_contact_force_n = max(
+                self.max_contact_force_n, math.sqrt(float(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]))
+            )
             sample = self.plant.kinematics_sample()
             frames += rogue_drive_frames(self.pdos, self.drive_ids, bus)  # someone else's, first
             for node_id, tpdo in zip(self.drive_ids, self.pdos.drive_tpdos(), strict=True):

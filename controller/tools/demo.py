@@ -26,7 +26,7 @@ from controller.shell.realtime import RealtimeOptions
 from controller.shell.service import prepare, run_controller
 from controller.tools.experiment import experiment_for
 from drivers.bus import BusSpec
-from sim_backend.process import READY_LINE
+from sim_backend.process import READY_LINE, STOPPED_LINE
 
 
 class SimulatorStartError(DeviceError, RuntimeError):
@@ -49,8 +49,13 @@ def simulator_process(
     overrides: list[str],
     ready_timeout_s: float = SIMULATOR_READY_TIMEOUT_S,
     extra_args: list[str] | tuple[str, ...] = (),
+    report: dict[str, object] | None = None,
 ) -> Iterator[subprocess.Popen[str]]:
-    """``cheope sim`` as a child process; ``extra_args`` go to its command line (real-time options)."""
+    """``cheope sim`` as a child process; ``extra_args`` go to its command line (real-time options).
+
+    ``report``, when given, receives what the simulator saw when it stopped
+    (``max_true_contact_force_n``: its largest true contact force; absent if it said nothing).
+    """
     cmd = [
         sys.executable,
         "-m",
@@ -79,7 +84,9 @@ def simulator_process(
         _wait_ready(proc, ready_timeout_s)
         yield proc
     finally:
-        stop_process(proc)
+        said = stop_process(proc)
+        if report is not None:
+            report.update(simulator_report(said))
 
 
 def _wait_ready(proc: subprocess.Popen[str], timeout_s: float) -> None:
@@ -99,17 +106,27 @@ def _wait_ready(proc: subprocess.Popen[str], timeout_s: float) -> None:
     raise SimulatorStartError(f"simulator not ready within {timeout_s} s")
 
 
-def stop_process(proc: subprocess.Popen[str], timeout_s: float = 5.0) -> None:
+def stop_process(proc: subprocess.Popen[str], timeout_s: float = 5.0) -> str:
+    """SIGTERM, then SIGKILL after ``timeout_s``; what it wrote to stdout since it was last read."""
     if proc.poll() is None:
         proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-    for stream in (proc.stdout, proc.stderr):
-        if stream is not None:
-            stream.close()
+    try:
+        out, _ = proc.communicate(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, _ = proc.communicate()
+    except ValueError:  # its streams were closed already
+        proc.wait()
+        out = ""
+    return out or ""
+
+
+def simulator_report(stdout: str) -> dict[str, object]:
+    """The simulator's last words (``sim_backend/process.py``, STOPPED_LINE) as numbers."""
+    for line in stdout.splitlines():
+        if line.startswith(STOPPED_LINE) and "max true contact force" in line:
+            return {"max_true_contact_force_n": float(line.rsplit("force", 1)[1].split()[0])}
+    return {}
 
 
 def simulator_realtime_args(realtime: RealtimeOptions | None) -> list[str]:
@@ -134,15 +151,21 @@ def run_demo(
 ) -> dict[str, object]:
     prepare(cfg, spec)  # what the controller would refuse, refused before the simulator starts
     sim_args = simulator_realtime_args(realtime)
-    with simulator_process(spec, config_path, overrides, extra_args=sim_args):
+    simulator: dict[str, object] = {}
+    with simulator_process(spec, config_path, overrides, extra_args=sim_args, report=simulator):
         experiment = experiment_for(cfg.task.kind)
         if experiment is not None:  # the task's own experiment (the contour's: laps, comparison, plots)
-            return experiment.over_bus(cfg, spec, plot_dir, max_duration_s, stop_event, realtime, observers)
-        return run_controller(
-            cfg,
-            spec,
-            max_duration_s=max_duration_s,
-            stop_event=stop_event,
-            realtime=realtime,
-            observers=observers,
-        )
+            summary = experiment.over_bus(
+                cfg, spec, plot_dir, max_duration_s, stop_event, realtime, observers
+            )
+        else:
+            summary = run_controller(
+                cfg,
+                spec,
+                max_duration_s=max_duration_s,
+                stop_event=stop_event,
+                realtime=realtime,
+                observers=observers,
+            )
+    # what only the simulator knows: the true contact force (the controller sees the measurement)
+    return {**summary, "simulator": simulator}

@@ -16,6 +16,7 @@ import sys
 import pytest
 from busy_machine import TOLERANT
 
+from controller.config import load_config
 from controller.tools.demo import random_udp_port, simulator_process
 from drivers.bus import parse_bus_spec
 
@@ -51,8 +52,9 @@ def _run_contour(port: int, *extra: str) -> subprocess.CompletedProcess[str]:
 
 def test_the_simulator_places_the_disk_for_the_controllers_contour_task():
     port = random_udp_port()
+    seen: dict[str, object] = {}
     with simulator_process(
-        parse_bus_spec("udp_multicast", udp_port=port), None, [], extra_args=["--no-realtime"]
+        parse_bus_spec("udp_multicast", udp_port=port), None, [], extra_args=["--no-realtime"], report=seen
     ):
         r = _run_contour(port, "--json", "--max-duration", str(CONTACT_WITHIN_S))
     summary = json.loads(r.stdout)
@@ -60,17 +62,22 @@ def test_the_simulator_places_the_disk_for_the_controllers_contour_task():
     # sensor sample can fault a run: issue 30) is not this test's.
     assert any("contact at" in e for e in summary["events"]), summary["events"]
     assert "no contact" not in summary["fault_reason"], summary["fault_reason"]
+    # the simulator's own account when it stops: the true contact force it had, the disk touched
+    assert seen["max_true_contact_force_n"] >= load_config().task.model("contour").contact_force_n
 
 
 def test_a_simulator_configured_to_free_space_refuses_the_contour_at_start_in_one_line():
     port = random_udp_port()
+    seen: dict[str, object] = {}
     with simulator_process(
         parse_bus_spec("udp_multicast", udp_port=port),
         None,
         ['sim.environment="free"'],
         extra_args=["--no-realtime"],
+        report=seen,
     ):
         r = _run_contour(port, "--max-duration", "5")
+    assert seen == {"max_true_contact_force_n": 0.0}  # nothing touched in free space
     assert r.returncode == 2 and r.stdout == ""
     assert r.stderr.count("\n") == 1 and r.stderr.startswith(
         "cheope run: error: the simulator has free space"

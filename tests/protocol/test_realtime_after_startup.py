@@ -66,7 +66,9 @@ def test_the_simulator_is_real_time_only_from_after_its_set_up_to_before_its_shu
     monkeypatch.setattr(process, "unfreeze_garbage_collector", lambda: None)
 
     def announce(line):
-        return (calls.append("READY"), stop.set())
+        if line.startswith(process.READY_LINE):
+            return (calls.append("READY"), stop.set())
+        return calls.append(line.split(":")[0])  # the last words, on the normal scheduler
 
     process.serve(cfg, parse_bus_spec(f"virtual:rt-order-{time.monotonic_ns()}"), stop, announce, RT)
     assert calls == [
@@ -79,6 +81,7 @@ def test_the_simulator_is_real_time_only_from_after_its_set_up_to_before_its_shu
         "READY",
         "normal scheduler",
         "device threads stop",
+        process.STOPPED_LINE,
     ]
 
 
