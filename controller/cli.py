@@ -231,8 +231,12 @@ def _print_summary(summary: dict[str, Any], as_json: bool) -> None:
             f"{contour['force_error_rms_soft_over_stiff']}"
         )
     true_force = summary.get("simulator", {}).get("max_true_contact_force_n")
-    if true_force is not None:  # the simulator's, not the measurement: what a disturbed sensor hides
-        lines.append(f"simulator           max true contact force {true_force:.1f} N")
+    if true_force:  # the simulator's, not the measurement: what a disturbed sensor hides
+        lines.append(
+            "simulator           max true contact force per controller session "
+            + ", ".join(f"{f:.1f}" for f in true_force)
+            + " N (in the order they ran)"
+        )
     cmp = summary.get("position_control_comparison")
     if cmp and cmp.get("laps"):
         lap = cmp["laps"][0]

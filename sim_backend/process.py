@@ -17,7 +17,9 @@ from drivers.bus import BusSpec, open_bus
 from sim_backend.server import Simulator
 
 READY_LINE = "cheope-sim ready"
-STOPPED_LINE = "cheope-sim stopped"  # then what the simulator saw: its largest true contact force
+STOPPED_LINE = (
+    "cheope-sim stopped"  # then what it saw: its largest true contact force, per controller session
+)
 
 
 def serve(
@@ -55,6 +57,11 @@ def serve(
             # the shut-down (threads joined, the heap freed at exit) is no real-time work either:
             # at SCHED_FIFO it starved another simulator on this CPU as the start-up did
             drop_realtime()
-        announce(f"{STOPPED_LINE}: max true contact force {simulator.max_contact_force_n:.3f} N")
+        maxima = simulator.max_contact_force_n or [0.0]
+        announce(
+            f"{STOPPED_LINE}: max true contact force per controller session "
+            + " ".join(f"{m:.3f}" for m in maxima)
+            + " N"
+        )
     if cfg.loop.freeze_gc:
         unfreeze_garbage_collector()

@@ -95,6 +95,9 @@ def add_environment_object(node: canopen.LocalNode, kind: str) -> None:
     node.object_dictionary.add_object(var)
 
 
+NMT_START_REMOTE_NODE = 0x01  # CiA 301 NMT command specifier
+
+
 class Simulator:
     """Simulated hardware on one bus. Use as a context manager."""
 
@@ -122,9 +125,10 @@ class Simulator:
         self.nodes: dict[int, canopen.LocalNode] = {}
         self.sync_count = 0
         self.rejected_frames = 0
-        # the simulator's true contact force, largest at any SYNC: what a disturbance of the
-        # measurement can hide from the controller (reported when the simulator stops)
-        self.max_contact_force_n = 0.0
+        # the simulator's true contact force, largest at any SYNC, per controller session (a new one
+        # at each NMT start): what a disturbance of the measurement can hide from the controller,
+        # reported when the simulator stops (sim_backend/process.py)
+        self.max_contact_force_n: list[float] = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._kinematics: queue.SimpleQueue[tuple[float, np.ndarray] | None] = queue.SimpleQueue()
@@ -389,9 +393,11 @@ class Simulator:
             apply_device_faults(self.faults, self.plant, self.drive_ids, now)
             self.plant.sync(now)
             f = self.plant.force_n
-            self.max_contact_force_n = max(
-                self.max_contact_force_n, math.sqrt(float(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]))
-            )
+            force_n = math.sqrt(float(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]))
+            if not self.max_contact_force_n:
+                self.max_contact_force_n.append(0.0)
+            if force_n > self.max_contact_force_n[-1]:
+                self.max_contact_force_n[-1] = force_n
             sample = self.plant.kinematics_sample()
             frames += rogue_drive_frames(self.pdos, self.drive_ids, bus)  # someone else's, first
             for node_id, tpdo in zip(self.drive_ids, self.pdos.drive_tpdos(), strict=True):
@@ -457,6 +463,9 @@ class Simulator:
         if len(data) != 2:
             self.rejected_frames += 1
             return
+        if data[0] == NMT_START_REMOTE_NODE:
+            with self.lock:
+                self.max_contact_force_n.append(0.0)  # a controller's session starts
         self._after_nmt()
 
     def _after_nmt(self) -> None:

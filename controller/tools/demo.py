@@ -54,7 +54,8 @@ def simulator_process(
     """``cheope sim`` as a child process; ``extra_args`` go to its command line (real-time options).
 
     ``report``, when given, receives what the simulator saw when it stopped
-    (``max_true_contact_force_n``: its largest true contact force; absent if it said nothing).
+    (``max_true_contact_force_n``: its largest true contact force in each controller session, in
+    the order they ran, a session starting at each NMT start; absent if it said nothing).
     """
     cmd = [
         sys.executable,
@@ -123,9 +124,11 @@ def stop_process(proc: subprocess.Popen[str], timeout_s: float = 5.0) -> str:
 
 def simulator_report(stdout: str) -> dict[str, object]:
     """The simulator's last words (``sim_backend/process.py``, STOPPED_LINE) as numbers."""
+    marker = "max true contact force per controller session"
     for line in stdout.splitlines():
-        if line.startswith(STOPPED_LINE) and "max true contact force" in line:
-            return {"max_true_contact_force_n": float(line.rsplit("force", 1)[1].split()[0])}
+        if line.startswith(STOPPED_LINE) and marker in line:
+            values = line.split(marker, 1)[1].split()[:-1]  # the numbers, then "N"
+            return {"max_true_contact_force_n": [float(v) for v in values]}
     return {}
 
 
