@@ -18,7 +18,7 @@ from controller.core.cycle_data import CycleInputs, DriveFeedback, SensorFeedbac
 from controller.core.ports import TaskContext
 from controller.core.setpoint_smoothing import Setpoint
 from controller.robots.registry import actuator_units
-from controller.tasks.contour_tracking import ContourPhase, ContourState, track_normal
+from controller.tasks.contour_tracking import MOTION_GATE_DEG, ContourPhase, ContourState, track_normal
 from controller.tools.contour_scan import (
     ContourScenario,
     run_contour_scenario,
@@ -273,7 +273,7 @@ def test_stale_samples_stop_the_motion_into_the_contact():
 
 def test_a_force_direction_the_tools_motion_contradicts_turns_the_normal_less():
     """Sliding at speed, the contour guides the tool: a plausible pull tilting the force 25 deg is taken
-    only up to 15 deg from the normal the motion implies."""
+    only up to MOTION_GATE_DEG from the normal the motion implies."""
     task, _ = _task()
     tilt = math.radians(25.0)
     pulled = (10.0 * math.cos(tilt), 10.0 * math.sin(tilt), 0.0)
@@ -285,9 +285,9 @@ def test_a_force_direction_the_tools_motion_contradicts_turns_the_normal_less():
     ).state  # moved along the pulled tangent
     turn = [math.atan2(x.normal[1], x.normal[0]) for x in (contradicted, agreeing)]
     assert 0.0 < turn[0] < turn[1]
-    # no more than the tracker's step for a direction 15 deg off
+    # no more than the tracker's step for a direction MOTION_GATE_DEG off
     assert turn[0] == pytest.approx(
-        track_normal(0.0, 0.0, math.radians(15.0), DT, task.p.normal_tracker_hz)[0], rel=1e-9
+        track_normal(0.0, 0.0, 0.0, math.radians(MOTION_GATE_DEG), DT, task.p.normal_tracker_hz)[0], rel=1e-9
     )
 
 

@@ -61,24 +61,38 @@ def test_normal_estimate_removes_friction_with_the_friction_estimate():
 
 def test_normal_tracker_follows_a_steadily_turning_normal_without_lag():
     # a circle of R = 70 mm at 60 mm/s: the normal turns at 0.857 rad/s, across the +-pi seam
-    rate, angle, est = 0.06 / 0.07, 3.0, (3.0, 0.0)
+    rate, angle, est = 0.06 / 0.07, 3.0, (3.0, 0.0, 0.0)
     for _ in range(1200):  # 3 s at 400 Hz
         angle = _wrap(angle + rate * DT)
         est = track_normal(*est, angle, DT, 1.5)
-    assert _wrap(est[0] - angle) == pytest.approx(0.0, abs=1e-6)  # type 2: no lag at a constant turn rate
+    assert _wrap(est[0] - angle) == pytest.approx(0.0, abs=1e-6)  # no lag at a constant turn rate
     assert est[1] == pytest.approx(rate, rel=1e-4)
+
+
+def test_normal_tracker_follows_a_changing_curvature_without_lag():
+    """A turn rate that ramps (the curvature changing along the contour, as into a star's valley):
+    a type-2 tracker would lag it by alpha / w^2 = 22.5 mrad (1.3 deg) here; the third state does not."""
+    alpha, angle, est = 2.0, 0.0, (0.0, 0.0, 0.0)  # rad/s^2
+    for k in range(1, 1201):
+        angle = _wrap(0.5 * alpha * (k * DT) ** 2)
+        est = track_normal(*est, angle, DT, 1.5)
+    assert _wrap(est[0] - angle) == pytest.approx(0.0, abs=2e-4)
+    assert est[1] == pytest.approx(alpha * 1200 * DT, rel=1e-3) and est[2] == pytest.approx(alpha, rel=1e-2)
 
 
 def test_normal_tracker_passes_the_force_directions_noise_only_below_its_bandwidth():
     rng = np.random.default_rng(3)
     noise = rng.normal(0.0, 0.01, 8000)  # rad: 0.1 N on 10 N, white at 400 Hz
-    out, est = [], (0.0, 0.0)
+    out, est = [], (0.0, 0.0, 0.0)
     for n in noise:
         est = track_normal(*est, n, DT, 1.5)
         out.append(est[0])
-    # the loop's noise bandwidth B = w_n (zeta + 1 / (4 zeta)) / 2 = 5.0 Hz of the 200 Hz band:
-    # std down by sqrt(200 / 5) = 6.3 (a first-order filter at the old 10 Hz passed 15.7 Hz: 3.6)
-    assert np.std(noise) / np.std(out[800:]) == pytest.approx(6.3, rel=0.15)
+    # The loop's noise bandwidth: for T(s) = (b2 s^2 + b1 s + b0) / (s^3 + a2 s^2 + a1 s + a0),
+    # (1/2pi) int_0^inf |T|^2 = (b2^2 a0 a1 + (b1^2 - 2 b0 b2) a0 + b0^2 a2) / (4 a0 (a1 a2 - a0));
+    # with a = b = (2 w, 2 w^2, w^3): B = 5 w_n / 6 = 7.85 Hz of the 200 Hz band, the std down by
+    # sqrt(200 / 7.85) = 5.05 (a type-2 tracker at the same w_n passed 5.0 Hz: 6.3)
+    bandwidth_hz = 5.0 * 2.0 * math.pi * 1.5 / 6.0
+    assert np.std(noise) / np.std(out[800:]) == pytest.approx(math.sqrt(200.0 / bandwidth_hz), rel=0.1)
 
 
 def test_force_below_the_setpoint_moves_the_tool_into_the_contour():
