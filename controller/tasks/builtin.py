@@ -38,6 +38,11 @@ def _check_path(p: PathSection) -> None:
         raise ConfigError(f"task.path.normal = {list(p.normal)}: must be a non-zero vector")
 
 
+def _path_lasting(p: PathSection, duration_s: float) -> dict[str, object]:
+    """Laps enough to keep moving for ``duration_s``, one more for the ramps."""
+    return {"task.path.laps": float(math.ceil(duration_s * p.speed_m_s / (2.0 * math.pi * p.radius_m)) + 1)}
+
+
 def build_path_task(p: PathSection, robot: Robot, shared: TaskSettings) -> BuiltTask:
     from controller.tasks.circle_path import CirclePath
     from controller.tasks.path_task import PathTask
@@ -173,7 +178,9 @@ def build_planned_task(_: None, robot: Robot, shared: TaskSettings) -> BuiltTask
 
 # -- the entries --------------------------------------------------------------------------------
 
-PATH = TaskEntry(kind="path", section=PathSection, build=build_path_task, check=_check_path)
+PATH = TaskEntry(
+    kind="path", section=PathSection, build=build_path_task, check=_check_path, lasting=_path_lasting
+)
 CONTOUR = TaskEntry(
     kind="contour",
     section=ContourSection,

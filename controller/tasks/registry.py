@@ -73,6 +73,9 @@ class TaskEntry:
     # The outline the task expects to meet, from its section, in {0} [m] (drawn faint in the 3D
     # scene beside what the simulator really has); None: nothing expected.
     expected_outline: Callable[[Any], tuple[tuple[float, float, float], ...]] | None = None
+    # Overrides (dotted keys) that make the task last at least this long [s], from its section: a
+    # bench run of a fixed length (``cheope bench``); None: the task lasts as configured.
+    lasting: Callable[[Any, float], dict[str, object]] | None = None
     # Robot kinds this task runs on besides the robots whose entry lists it (``RobotEntry.tasks``):
     # a task of a plug-in names the robots it was made for without changing their entries.
     robots: tuple[str, ...] = ()

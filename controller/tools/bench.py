@@ -401,15 +401,15 @@ def run_case(
     from controller.assembly import planned_bus_load
     from controller.config import load_config, parse_override
     from controller.shell.service import run_controller
+    from controller.tasks.registry import task_entry
     from controller.tools.demo import random_udp_port
     from drivers.bus import parse_bus_spec
 
     overrides = [*base_overrides, f"loop.rate_hz={case.rate_hz}", f"bus.fd={'true' if case.fd else 'false'}"]
     cfg = load_config(config_path, dict(parse_override(s) for s in overrides))
-    if cfg.task.kind == "path":  # enough laps to keep moving for the whole run
-        p = cfg.task.model("path")
-        laps = math.ceil(duration_s * p.speed_m_s / (2 * math.pi * p.radius_m)) + 1
-        overrides.append(f"task.path.laps={float(laps)}")
+    lasting = task_entry(cfg.task.kind).lasting
+    if lasting is not None:  # enough of the task to keep it moving for the whole run
+        overrides += [f"{key}={value!r}" for key, value in lasting(cfg.task.model(), duration_s).items()]
         cfg = load_config(config_path, dict(parse_override(s) for s in overrides))
     spec = parse_bus_spec(cfg.bus.can, fd=cfg.bus.fd, udp_port=random_udp_port())
     period = cfg.period_s

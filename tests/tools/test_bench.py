@@ -362,3 +362,17 @@ def test_the_summary_says_what_was_granted_not_what_was_asked():
     assert f"CPU {cpu}" in granted
     if os.sched_getscheduler(0) == os.SCHED_OTHER:
         assert granted.startswith("normal scheduler")
+
+
+def test_a_bench_run_asks_the_task_for_enough_of_itself():
+    """The path task lasts as long as the run (its entry's ``lasting``); the contour its laps."""
+    import math
+
+    from controller.config import load_config
+    from controller.tasks.registry import task_entry
+
+    p = load_config().task.model("path")
+    (key, laps), *_ = task_entry("path").lasting(p, 60.0).items()
+    assert key == "task.path.laps" and laps * 2 * math.pi * p.radius_m >= 60.0 * p.speed_m_s
+    assert (laps - 2) * 2 * math.pi * p.radius_m < 60.0 * p.speed_m_s  # one lap more, not many
+    assert task_entry("contour").lasting is None
