@@ -157,7 +157,7 @@ class SafetySection(Section, frozen=True):
     """
 
     max_contact_force_n: Annotated[float, rng(0.0, 10000.0, lo_open=True)] = 60.0
-    sensor_stale_cycles: Annotated[int, rng(1, 100000)] = 20
+    sensor_stale_cycles: Annotated[int, rng(1, 100000)] = 40
     on_sensor_stale: Reaction = Reaction("fault")
     on_sensor_saturated: Reaction = Reaction("fault")
     on_heartbeat_lost: Reaction = Reaction("fault")

@@ -2,12 +2,13 @@
 tolerated"), in simulated time on the in-process devices: deterministic, no wall clock.
 
 - a drive: ``loop.max_missing_cycles`` (40 cycles, 100 ms at 400 Hz: the drives' own SYNC watchdog);
-- the force sensor, while the task reads it (contour): ``safety.sensor_stale_cycles`` (20);
+- the force sensor, while the task reads it (contour): ``safety.sensor_stale_cycles`` (40, as a drive);
 - the force sensor, while the task does not read it (path): its heartbeat only.
 """
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from controller.assembly import build_law
@@ -18,6 +19,16 @@ from sim_backend.loopback import LoopbackExchange
 
 PATH = {"task.path.laps": 0.5}
 SENSOR = 16
+
+
+class _PeakForce:
+    """The simulator's true contact force, largest over the run."""
+
+    def __init__(self, exchange: LoopbackExchange) -> None:
+        self.exchange, self.max_n = exchange, 0.0
+
+    def on_cycle(self, *_: object) -> None:
+        self.max_n = max(self.max_n, float(np.linalg.norm(self.exchange.plant.force_n)))
 
 
 def _run(overrides: dict[str, object], max_s: float = 30.0):
@@ -32,7 +43,7 @@ def _run(overrides: dict[str, object], max_s: float = 30.0):
 
 def test_the_shipped_tolerances():
     cfg = load_config()
-    assert cfg.loop.max_missing_cycles == 40 and cfg.safety.sensor_stale_cycles == 20
+    assert cfg.loop.max_missing_cycles == 40 and cfg.safety.sensor_stale_cycles == 40
     # a stall of the loop (69 ms) is the drives' to judge, one of the simulator (over 50 ms: every
     # device silent) the law's: both ride through 100 ms, the drives' SYNC watchdog
     assert cfg.sim.drive.sync_timeout_s == 0.1
@@ -65,15 +76,29 @@ def test_a_sensor_the_task_does_not_read_is_supervised_by_its_heartbeat():
     assert final.fault_reason == f"heartbeat lost from node(s) [{SENSOR}]"
 
 
-@pytest.mark.parametrize(("silent_s", "faults"), [(0.03, False), (0.1, True)])
-def test_the_contour_task_tolerates_sensor_silence_up_to_sensor_stale_cycles(silent_s, faults):
-    # in lap 2 of a two-lap contour: 12 cycles ride through (the task holds from the 4th), 40 fault
+@pytest.mark.parametrize(
+    ("silent_s", "nodes", "faults"),
+    [(0.03, (SENSOR,), False), (0.08, (1, 2, 3, SENSOR), False), (0.12, (SENSOR,), True)],
+)
+def test_the_contour_task_tolerates_sensor_silence_up_to_sensor_stale_cycles(silent_s, nodes, faults):
+    # In lap 2 of a two-lap contour: 12 cycles ride through (the task holds from the 4th), and 32 of
+    # the whole simulator (the contour demo over the bus saw 23-31 with every device silent at
+    # once, and faulted on the 20 of that day), without pressing on; 48 fault.
     over = {
         "task.kind": "contour",
         "task.contour.lap_speeds_m_s": [0.04, 0.04],
-        "sim.faults": [f"drop:{SENSOR}@20.0+{silent_s}"],
+        "sim.faults": [f"drop:{n}@20.0+{silent_s}" for n in nodes],
     }
-    cfg, final, counters = _run(over, max_s=60.0)
+    cfg = load_config(overrides=over)
+    clock = SimulatedTime()
+    law = build_law(cfg)
+    exchange = LoopbackExchange(cfg, clock.clock)
+    peak = _PeakForce(exchange)
+    loop = CycleLoop(
+        law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(peak,)
+    )
+    final, _ = loop.run(law.initial_state(), 60.0)
+    counters = exchange.counters
     if faults:
         assert final.mode == Mode.FAULT
         assert (
@@ -82,4 +107,7 @@ def test_the_contour_task_tolerates_sensor_silence_up_to_sensor_stale_cycles(sil
         )
     else:
         assert final.mode == Mode.DONE, final.fault_reason
-        assert counters.longest_sensor_silence_cycles >= 11
+        assert counters.longest_sensor_silence_cycles >= round(silent_s / cfg.period_s) - 1
+        # the task held: the true contact force stayed under the task's own retract limit (30.1 N
+        # after the sensor's 12 cycles, 21.5 N after the whole simulator's 32)
+        assert peak.max_n < cfg.task.model("contour").max_force_n
