@@ -43,7 +43,6 @@ def build_robot(cfg: Config) -> Robot:
 def task_settings(cfg: Config, units: ActuatorUnits) -> TaskSettings:
     """The settings every task may read beside its own section."""
     return TaskSettings(
-        robot_kind=cfg.robot.kind,
         robot_section=cfg.robot.model(),
         units=units,
         settle_tolerance_m=cfg.loop.settle_tolerance_m,
@@ -84,11 +83,10 @@ def safety_config(s: SafetySection, units: ActuatorUnits) -> SafetyConfig:
     )
 
 
-def position_plausibility(cfg: Config) -> tuple[float, float]:
+def position_plausibility(units: ActuatorUnits, safety: SafetyConfig, period_s: float) -> tuple[float, float]:
     """What the exchange judges every drive candidate by (drivers/cyclic_exchange.py), in actuator
     units: the speed limit over one period, and the margin the law's jump check allows."""
-    units = actuator_units(cfg)
-    return units.max_velocity * cfg.period_s, safety_config(cfg.safety, units).max_position_jump
+    return units.max_velocity * period_s, safety.max_position_jump
 
 
 @dataclass(frozen=True)

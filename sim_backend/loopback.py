@@ -21,7 +21,7 @@ from collections.abc import Callable
 import can
 import numpy as np
 
-from controller.assembly import position_plausibility
+from controller.assembly import position_plausibility, safety_config
 from controller.config import Config
 from controller.core.cia402 import (
     CW_DISABLE_VOLTAGE,
@@ -141,7 +141,7 @@ class LoopbackExchange:
         nodes = (*self.drive_ids, *(() if self.sensor_id is None else (self.sensor_id,)))
         self.nmt_state = {n: NMT_OPERATIONAL for n in nodes}  # node set-up has started them all
         self.bus = DeviceBus(self._on_controller_frame)
-        step_limit, jump_margin = position_plausibility(cfg)
+        step_limit, jump_margin = position_plausibility(units, safety_config(cfg.safety, units), cfg.period_s)
         self.exchange = CyclicExchange(
             self.bus,
             self.drive_ids,

@@ -233,7 +233,9 @@ def run_controller(
     ):
         # every frame of the session through one tap: set-up included, own echoes dropped
         setup = configure_nodes(bus, prepared.setup_plan)
-        step_limit, jump_margin = position_plausibility(cfg)
+        step_limit, jump_margin = position_plausibility(
+            prepared.units, prepared.law.config.safety, cfg.period_s
+        )
         exchange = CyclicExchange(
             bus,
             tuple(cfg.actuators.node_ids),

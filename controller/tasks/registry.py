@@ -42,7 +42,6 @@ class TaskSettings:
     """What a task's factory may need beside its own section, resolved once by the assembly
     (``controller/assembly.py``): a task does not read the whole configuration."""
 
-    robot_kind: str
     robot_section: Any  # [robot.<kind>]: a task made for one robot reads that robot's settings here
     units: ActuatorUnits  # the actuators' unit and limits
     settle_tolerance_m: float  # loop.settle_tolerance_m: "at rest" at the end of a motion
