@@ -13,6 +13,7 @@ from collections.abc import Callable
 
 import can
 import pytest
+from kernel_sync_exchange import quiet_exchange
 
 from controller.config import ConfigError, load_config
 from controller.core.cycle_data import Anomaly
@@ -48,7 +49,7 @@ def test_the_kernel_exchange_needs_an_exchange_that_sends_no_sync():
         ex = CyclicExchange(bus, (1,), PositionScale(1e7), None, 100, heartbeat_every=1)
         with pytest.raises(ValueError, match="send_sync=False"):
             KernelSyncExchange(ex, 0.0025, 0.0005)
-        quiet = CyclicExchange(bus, (1,), PositionScale(1e7), None, 100, heartbeat_every=1, send_sync=False)
+        quiet = quiet_exchange(bus, heartbeat_every=1)
         with pytest.raises(ValueError, match=re.escape("lead 0.003 s must be within the period 0.0025 s")):
             KernelSyncExchange(quiet, 0.0025, 0.003)
 
@@ -120,16 +121,7 @@ def test_with_kernel_sync_the_exchange_takes_the_syncs_it_receives_as_the_kernel
         for t in (100.000, 100.010, 100.013, 100.020)
     ]
     with _Inbox([]) as bus:
-        ex = CyclicExchange(
-            bus,
-            (1,),
-            PositionScale(1e7),
-            None,
-            100,
-            heartbeat_every=10**6,
-            send_sync=False,
-            sync_period_s=0.01,
-        )
+        ex = quiet_exchange(bus, sync_period_s=0.01, heartbeat_every=10**6)
         ex.send(None)
         bus.frames.extend(syncs)
         feedback = ex.collect(deadline_s=0.0)
@@ -179,16 +171,7 @@ def test_the_kernel_exchange_pairs_each_cycle_with_the_sync_lead_s_after_its_dea
     period, lead = 0.01, 0.002
     clock = _TickingClock()
     with can.Bus(interface="virtual", channel="kernel-sync-slots") as bus:
-        ex = CyclicExchange(
-            bus,
-            (1,),
-            PositionScale(1e7),
-            None,
-            100,
-            heartbeat_every=10**9,
-            send_sync=False,
-            sync_period_s=period,
-        )
+        ex = quiet_exchange(bus, sync_period_s=period)
         sync = KernelSyncExchange(ex, period, lead, clock=clock)
         first_deadline = clock() - 0.015  # the first cycle's send 15 ms after its deadline (the VM's worst)
         try:

@@ -12,16 +12,15 @@ import itertools
 import time
 
 import can
+from kernel_sync_exchange import quiet_exchange
 
 from controller.config import load_config
 from controller.core.controller_state import Mode
 from controller.core.cycle_data import CycleOutputs
 from controller.shell.service import run_controller
 from drivers.bus import parse_bus_spec
-from drivers.cyclic_exchange import CyclicExchange
 from drivers.frame_tap import FrameTap
 from drivers.kernel_sync import KernelSyncExchange, SyncPhaseLock
-from drivers.pdo_codec import PositionScale
 from sim_backend.server import Simulator
 
 PERIOD_S = 0.01
@@ -39,7 +38,7 @@ def test_kernel_sync_goes_on_while_python_does_not_touch_the_bus(vcan_channel: s
         can.Bus(interface="socketcan", channel=vcan_channel) as bus,
         can.Bus(interface="socketcan", channel=vcan_channel) as watcher,
     ):
-        ex = CyclicExchange(bus, (1,), PositionScale(1e7), None, 100, heartbeat_every=10**9, send_sync=False)
+        ex = quiet_exchange(bus)
         sync = KernelSyncExchange(ex, PERIOD_S, 0.2 * PERIOD_S)
         try:
             sync.send(None)  # starts the broadcast manager's timer
@@ -61,7 +60,7 @@ def test_rpdos_go_out_between_the_kernel_syncs(vcan_channel: str) -> None:
         can.Bus(interface="socketcan", channel=vcan_channel) as bus,
         can.Bus(interface="socketcan", channel=vcan_channel) as watcher,
     ):
-        ex = CyclicExchange(bus, (1,), PositionScale(1e7), None, 100, heartbeat_every=10**9, send_sync=False)
+        ex = quiet_exchange(bus)
         sync = KernelSyncExchange(ex, PERIOD_S, 0.3 * PERIOD_S)
         try:
             deadline = time.monotonic()
@@ -141,16 +140,7 @@ def _run_kernel_sync(
             can_filters=[{"can_id": 0x080, "can_mask": 0x7FF, "extended": False}],
         ) as watcher,
     ):
-        ex = CyclicExchange(
-            bus,
-            (1,),
-            PositionScale(1e7),
-            None,
-            100,
-            heartbeat_every=10**9,
-            send_sync=False,
-            sync_period_s=PERIOD_S,
-        )
+        ex = quiet_exchange(bus, sync_period_s=PERIOD_S)
         sync = KernelSyncExchange(ex, PERIOD_S, 0.2 * PERIOD_S, lock=lock)
         stamps: list[float] = []
         try:
