@@ -17,9 +17,8 @@ from drivers.bus import BusSpec, open_bus
 from sim_backend.server import Simulator
 
 READY_LINE = "cheope-sim ready"
-STOPPED_LINE = (
-    "cheope-sim stopped"  # then what it saw: its largest true contact force, per controller session
-)
+STOPPED_LINE = "cheope-sim stopped"  # then what it saw:
+CONTACT_FORCE_REPORT = "max true contact force per controller session"  # the numbers, then "N"
 
 
 def serve(
@@ -58,10 +57,6 @@ def serve(
             # at SCHED_FIFO it starved another simulator on this CPU as the start-up did
             drop_realtime()
         maxima = simulator.max_contact_force_n or [0.0]
-        announce(
-            f"{STOPPED_LINE}: max true contact force per controller session "
-            + " ".join(f"{m:.3f}" for m in maxima)
-            + " N"
-        )
+        announce(f"{STOPPED_LINE}: {CONTACT_FORCE_REPORT} " + " ".join(f"{m:.3f}" for m in maxima) + " N")
     if cfg.loop.freeze_gc:
         unfreeze_garbage_collector()

@@ -26,7 +26,7 @@ from controller.shell.realtime import RealtimeOptions
 from controller.shell.service import prepare, run_controller
 from controller.tools.experiment import experiment_for
 from drivers.bus import BusSpec
-from sim_backend.process import READY_LINE, STOPPED_LINE
+from sim_backend.process import CONTACT_FORCE_REPORT, READY_LINE, STOPPED_LINE
 
 
 class SimulatorStartError(DeviceError, RuntimeError):
@@ -124,10 +124,9 @@ def stop_process(proc: subprocess.Popen[str], timeout_s: float = 5.0) -> str:
 
 def simulator_report(stdout: str) -> dict[str, object]:
     """The simulator's last words (``sim_backend/process.py``, STOPPED_LINE) as numbers."""
-    marker = "max true contact force per controller session"
     for line in stdout.splitlines():
-        if line.startswith(STOPPED_LINE) and marker in line:
-            values = line.split(marker, 1)[1].split()[:-1]  # the numbers, then "N"
+        if line.startswith(STOPPED_LINE) and CONTACT_FORCE_REPORT in line:
+            values = line.split(CONTACT_FORCE_REPORT, 1)[1].split()[:-1]  # the numbers, then "N"
             return {"max_true_contact_force_n": [float(v) for v in values]}
     return {}
 
