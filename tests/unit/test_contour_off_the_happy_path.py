@@ -90,7 +90,9 @@ def test_the_scans_hardest_scenarios_end_done_under_the_limit(scenario):
     row = run_contour_scenario(scan_config(load_config()), scenario, None)
     assert row["outcome"] == "DONE", row["cause"]
     assert row["laps_done"] == 3
-    assert not row["over_limit"], row["max_true_contact_force_n"]
+    # half the limit: the braking that these scenarios cause pushed the tool in up to 44.3 N while
+    # the integral kept the velocity into the contour it had learnt at speed (_integral_at_speed)
+    assert row["max_true_contact_force_n"] < 0.5 * LIMIT_N
 
 
 @pytest.mark.slow
@@ -269,6 +271,24 @@ def test_stale_samples_stop_the_motion_into_the_contact():
         assert out.state.p_cmd[0] >= s.p_cmd[0] - 1e-12  # never along -n
         s = out.state
     assert s.speed_m_s < 0.04  # braking
+
+
+def test_braking_takes_the_integrals_velocity_into_the_contour_down_with_the_speed():
+    """At speed the integral holds a velocity into the contour proportional to the speed (the
+    friction the normal estimate gets wrong tilts the tangent out of it); a braking tool keeps
+    only its share, and a tool at rest none."""
+    task, _ = _task()
+    # the force at its setpoint, the raw sample 7 N over it: beyond the force band's stop fraction,
+    # the speed brakes to zero
+    s = _tracking(task, speed_m_s=0.06, integral=1.12, raw_force=(17.0, 0.0, 0.0))
+    out = task.step(s, _ctx((17.0, 0.0, 0.0)))
+    assert 0.0 < out.state.speed_m_s < s.speed_m_s
+    assert out.state.integral == pytest.approx(s.integral * out.state.speed_m_s / s.speed_m_s, rel=0.02)
+    s = out.state
+    for _ in range(round(0.06 / (task.p.stop_deceleration_m_s2 * DT))):
+        s = task.step(s, _ctx((17.0, 0.0, 0.0))).state
+    assert s.speed_m_s == 0.0
+    assert s.integral <= 0.0  # no velocity into the contact left from it (before: 0.9, 3 mm/s)
 
 
 def test_a_force_direction_the_tools_motion_contradicts_turns_the_normal_less():
