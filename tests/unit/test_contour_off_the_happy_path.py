@@ -90,9 +90,10 @@ def test_the_scans_hardest_scenarios_end_done_under_the_limit(scenario):
     row = run_contour_scenario(scan_config(load_config()), scenario, None)
     assert row["outcome"] == "DONE", row["cause"]
     assert row["laps_done"] == 3
-    # half the limit: the braking that these scenarios cause pushed the tool in up to 44.3 N while
-    # the integral kept the velocity into the contour it had learnt at speed (_integral_at_speed)
-    assert row["max_true_contact_force_n"] < 0.5 * LIMIT_N
+    # The braking these scenarios cause pushed the tool in while the integral kept the velocity into
+    # the contour it had learnt at speed (_integral_at_speed): 43.0 N (the -8 N spike) and 33.5 N
+    # (the stale samples) before, at most 35.2 N since.
+    assert row["max_true_contact_force_n"] < 40.0
 
 
 @pytest.mark.slow
