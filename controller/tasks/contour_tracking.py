@@ -421,21 +421,22 @@ class ContourTrackingTask:
         band, stop = FORCE_BAND_FRACTION * s.force_setpoint_n, FORCE_STOP_FRACTION * s.force_setpoint_n
         return min(1.0, max(0.0, (stop - abs(force_error_n)) / (stop - band)))
 
-    @staticmethod
-    def _integral_at_speed(s: ContourState, speed_m_s: float) -> ContourState:
-        """The integral scaled down with the tangential speed when the tool slows.
+    def _integral_at_speed(self, s: ContourState, speed_m_s: float) -> tuple[ContourState, float]:
+        """The integral scaled with the tangential speed, and the share of it that acts at this speed.
 
         What the integral holds while sliding is a velocity into the contour proportional to the
         speed: the normal estimate is tilted by the friction the estimate gets wrong (0.15 in the
         simulator against an estimate of 0.1) and the tangent leaves the contour by that angle.
         Measured over the bus: ki x integral 1.1, 2.4, 3.9 mm/s at 20, 40, 60 mm/s. Kept while the
         tool brakes (2 m/s^2: 60 mm/s to rest in 30 ms, faster than the integral unwinds), it
-        drove a stopped tool into the disk: 10 -> 24 N within 20 cycles. Speeding up, the
-        integral learns the larger velocity as it always has.
+        drove a stopped tool into the disk: 10 -> 24 N within 20 cycles; scaled down only, the
+        tool pressed 2 N too little for the 0.4 s it took to speed up again. So it follows the
+        speed both ways down to ``min_tangential_speed_m_s``; slower, it is kept for when the tool
+        slides again and acts only in proportion (a tool at rest has no tilt to make up for).
         """
-        if 0.0 <= speed_m_s < s.speed_m_s:
-            return replace(s, integral=s.integral * speed_m_s / s.speed_m_s)
-        return s
+        floor = self.p.min_tangential_speed_m_s
+        ratio = max(speed_m_s, floor) / max(s.speed_m_s, floor)
+        return replace(s, integral=s.integral * ratio), min(1.0, speed_m_s / floor)
 
     def _braked(self, speed: float, dt: float) -> float:
         return max(0.0, speed - self.p.stop_deceleration_m_s2 * dt)
@@ -622,19 +623,22 @@ class ContourTrackingTask:
         return min(max(target, s.speed_m_s - down), s.speed_m_s + up)
 
     def _normal_speed(
-        self, s: ContourState, ctx: TaskContext, fn: float, pressing_n: float
+        self, s: ContourState, ctx: TaskContext, fn: float, pressing_n: float, share: float
     ) -> tuple[float, float, float]:
-        """(v_n into the contact [m/s], the new integral, the force error): PI admittance, saturated."""
+        """(v_n into the contact [m/s], the new integral, the force error): PI admittance, saturated;
+        ``share`` of the integral acts (``_integral_at_speed``)."""
         p = self.p
         err = s.force_setpoint_n - fn
         if not self._trusted(s):  # no new evidence: do not move into the contact, keep the integral
-            vn = min(0.0, p.force_kp_m_s_per_n * err + p.force_ki_m_s2_per_n * s.integral)
+            vn = min(0.0, p.force_kp_m_s_per_n * err + p.force_ki_m_s2_per_n * share * s.integral)
             integral = s.integral
         else:
             # A cycle without a new force sample uses the last filtered force but adds nothing to the
-            # integral: the same error integrated twice would be a force spike made by the bus.
-            integral = s.integral + err * ctx.period_s if fresh_sample(ctx) else s.integral
-            vn = p.force_kp_m_s_per_n * err + p.force_ki_m_s2_per_n * integral
+            # integral: the same error integrated twice would be a force spike made by the bus. Nor
+            # does a tool too slow for its integral to act fully: it would wind up unseen.
+            learning = fresh_sample(ctx) and share == 1.0
+            integral = s.integral + err * ctx.period_s if learning else s.integral
+            vn = p.force_kp_m_s_per_n * err + p.force_ki_m_s2_per_n * share * integral
             # Out of the force band the contact is not where the tool is going: motion into it is a
             # guarded approach, down to the approach speed (a bias or a pull reads as a weak contact,
             # and the integral would drive the tool at the contour at full normal speed).
@@ -671,7 +675,8 @@ class ContourTrackingTask:
                 replace(s, normal=normal, normal_rate_rad_s=rate, normal_accel_rad_s2=accel), ctx, events
             )
         speed = self._tangential_speed(s, rate, s.force_setpoint_n - fn, dt)
-        vn, integral, err = self._normal_speed(self._integral_at_speed(s, speed), ctx, fn, pressing)
+        at_speed, share = self._integral_at_speed(s, speed)
+        vn, integral, err = self._normal_speed(at_speed, ctx, fn, pressing, share)
         # A real contact answers motion into it (stiffness >= 1e4 N/m here: 1 N in 0.1 mm). Millimetres
         # of it without the force rising mean the force is not a contact's (a drifting bias, a pull on
         # the tool): the contact is lost, whatever the force reads.

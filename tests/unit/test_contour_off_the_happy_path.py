@@ -274,22 +274,26 @@ def test_stale_samples_stop_the_motion_into_the_contact():
     assert s.speed_m_s < 0.04  # braking
 
 
-def test_braking_takes_the_integrals_velocity_into_the_contour_down_with_the_speed():
+def test_the_integrals_velocity_into_the_contour_follows_the_tangential_speed():
     """At speed the integral holds a velocity into the contour proportional to the speed (the
-    friction the normal estimate gets wrong tilts the tangent out of it); a braking tool keeps
-    only its share, and a tool at rest none."""
+    friction the normal estimate gets wrong tilts the tangent out of it): a braking tool keeps its
+    share, a tool speeding up gets it back, and a tool at rest is not moved into the contact by it."""
     task, _ = _task()
     # the force at its setpoint, the raw sample 7 N over it: beyond the force band's stop fraction,
-    # the speed brakes to zero
+    # the speed brakes
     s = _tracking(task, speed_m_s=0.06, integral=1.12, raw_force=(17.0, 0.0, 0.0))
     out = task.step(s, _ctx((17.0, 0.0, 0.0)))
     assert 0.0 < out.state.speed_m_s < s.speed_m_s
     assert out.state.integral == pytest.approx(s.integral * out.state.speed_m_s / s.speed_m_s, rel=0.02)
-    s = out.state
-    for _ in range(round(0.06 / (task.p.stop_deceleration_m_s2 * DT))):
-        s = task.step(s, _ctx((17.0, 0.0, 0.0))).state
-    assert s.speed_m_s == 0.0
-    assert s.integral <= 0.0  # no velocity into the contact left from it (before: 0.9, 3 mm/s)
+    # speeding up again towards the lap's speed
+    slow = replace(s, speed_m_s=0.03, integral=0.56, raw_force=(10.0, 0.0, 0.0), lap=2)  # 60 mm/s
+    up = task.step(slow, _ctx((10.0, 0.0, 0.0))).state
+    assert up.speed_m_s > slow.speed_m_s
+    assert up.integral == pytest.approx(slow.integral * up.speed_m_s / slow.speed_m_s, rel=1e-3)
+    # at rest with the integral of 60 mm/s (3.9 mm/s into the contact, 10 um a cycle before)
+    rest = replace(s, speed_m_s=0.0, raw_force=(10.0, 0.0, 0.0))
+    out = task.step(rest, _ctx((10.0, 0.0, 0.0)))
+    assert out.state.p_cmd[0] - rest.p_cmd[0] > -1e-6  # n = +x: into the contact is -x
 
 
 def test_a_force_direction_the_tools_motion_contradicts_turns_the_normal_less():

@@ -271,7 +271,10 @@ def test_the_stiffness_correlation_uses_the_laps_after_the_last_speed_change():
 
 def test_a_cycle_without_a_new_force_sample_adds_nothing_to_the_integral_or_the_loss_count():
     task, _ = _task()
-    s = _tracking(task, normal=(1.0, 0.0), integral=0.01, low_force_cycles=2, force_f=(0.5, 0.0, 0.0))
+    # sliding at the first lap's speed: the integral learns (at rest it waits, _integral_at_speed)
+    s = _tracking(
+        task, normal=(1.0, 0.0), integral=0.01, low_force_cycles=2, force_f=(0.5, 0.0, 0.0), speed_m_s=0.02
+    )
     stale = replace(
         _ctx((0.5, 0.0, 0.0)),
         inputs=replace(
@@ -279,7 +282,9 @@ def test_a_cycle_without_a_new_force_sample_adds_nothing_to_the_integral_or_the_
         ),
     )
     out = task.step(s, stale)
-    assert out.state.integral == s.integral  # the same error is not integrated twice
+    # the same error is not integrated twice (the integral only follows the speed, derated out of
+    # the force band)
+    assert out.state.integral == pytest.approx(s.integral * out.state.speed_m_s / s.speed_m_s, rel=1e-12)
     assert (
         out.state.low_force_cycles == s.low_force_cycles
     )  # a repeated sample is no evidence of a lost contact
@@ -290,8 +295,10 @@ def test_a_cycle_without_a_new_force_sample_adds_nothing_to_the_integral_or_the_
     stale = replace(
         stale, inputs=replace(stale.inputs, sensor=replace(stale.inputs.sensor, force_n=(8.0, 0.0, 0.0)))
     )
-    assert task.step(s, stale).state.integral == s.integral
-    assert task.step(s, _ctx((8.0, 0.0, 0.0))).state.integral > s.integral
+    out = task.step(s, stale).state
+    assert out.integral == pytest.approx(s.integral * out.speed_m_s / s.speed_m_s, rel=1e-12)
+    out = task.step(s, _ctx((8.0, 0.0, 0.0))).state
+    assert out.integral > s.integral * out.speed_m_s / s.speed_m_s
 
 
 class LossyExchange:
