@@ -21,7 +21,9 @@ the task frame {n, t, z}:
   curvature is the turn rate over the speed) the speed is derated so that it does not.
 - along -n a PI loop on the normal-force error e = F_d - F_n sets an admittance velocity
   v_n = kp e + ki integral(e): the robot is position controlled, so force is controlled
-  through the commanded motion (indirect force control);
+  through the commanded motion (indirect force control). The integral follows the tangential
+  speed (``_integral_at_speed``): what it holds while sliding is a velocity into the contour
+  proportional to the speed;
 - along z the commanded height is held.
 
 The commanded TCP p_cmd integrates v = v_t t - v_n n each cycle; its inverse kinematics
@@ -159,7 +161,7 @@ class ContourParams:
     reapproach_distance_m: float = 0.008  # guarded travel along the last normal per attempt
     max_reacquire_attempts: int = 3
     max_normal_turn_rate_rad_s: float = 2.0  # corners: the speed is derated to keep the normal's turn rate
-    min_tangential_speed_m_s: float = 0.005  # the derating's floor
+    min_tangential_speed_m_s: float = 0.005  # the derating's floor; slower, the integral acts in proportion
     max_push_without_force_m: float = 0.003  # into the contact without the force rising: no contact there
     creep_speed_m_s: float = (
         0.01  # after a re-acquisition, for creep_distance_m: the contour is irregular there

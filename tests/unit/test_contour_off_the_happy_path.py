@@ -118,7 +118,7 @@ def test_any_contour_is_followed_without_knowing_it(shape):
 
 @pytest.mark.slow
 def test_the_rounded_star_is_followed_without_contact_loss():
-    """Its force error away from corners is 1.03 N RMS against the 1 N target (docs/measurements/history.md)."""
+    """Its force error away from corners is 0.88 N RMS against the 1 N target (docs/measurements/history.md)."""
     row = run_shape(load_config(), "rounded_star")
     assert row["outcome"] == "DONE" and row["contact_losses"] == 0 and not row["over_limit"], row
     assert float(row["force_error_rms_elsewhere_n"]) < 1.1  # type: ignore[arg-type]
