@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import queue
 import threading
+import time
 from collections.abc import Callable, Iterator
 
 import can
@@ -29,7 +30,7 @@ from drivers.pdo_codec import (
     encode_drive_rpdo,
     encode_drive_tpdo,
 )
-from sim_backend.server import Simulator
+from sim_backend.server import Simulator, arrival_s
 
 WAIT_S = 20.0  # generous: only a broken simulator takes this long
 COUNTS_PER_M = 1e7
@@ -135,6 +136,29 @@ def test_sync_is_answered_with_the_exact_tpdos_of_every_device(sim):
     assert counter == decode_sensor_frame(torque.data, 0.001)[4] == 1 and status == 0
     bias = load_config().sim.sensor.bias_n  # free space: bias and noise only
     assert (fx, fy, fz) == pytest.approx(bias, abs=0.5)
+
+
+def test_a_sync_is_latched_when_it_arrived_not_when_the_simulator_got_to_it(sim):
+    """A real drive latches at SYNC; the simulator's process may come to the frame later. Its
+    receive timestamp (wall clock, python-can's) says when it arrived: 3 ms before it was pushed
+    here, so the drives latch 3 ms before the push, however late the thread handles it."""
+    simulator, bus = sim
+    start = len(bus.sent)
+    pushed_s = time.monotonic()
+    sync = frame(cob_ids.SYNC)
+    sync.timestamp = time.time() - 0.003
+    bus.push(sync)
+    tpdo_ids = {cob_ids.tpdo1(n) for n in (1, 2, 3)}
+    bus.wait_for(lambda s: sum(m.arbitration_id in tpdo_ids for m in s[start:]) >= 3)
+    assert simulator.plant.last_sync_s is not None
+    assert simulator.plant.last_sync_s < pushed_s - 0.002
+
+
+def test_a_frame_without_a_plausible_timestamp_is_timed_by_its_handling():
+    assert arrival_s(1000.000, now_s=50.002, wall_now_s=1000.002) == pytest.approx(50.000)
+    assert arrival_s(0.0, now_s=50.0, wall_now_s=1000.0) == 50.0  # no timestamp (a frame built here)
+    assert arrival_s(1000.5, now_s=50.0, wall_now_s=1000.0) == 50.0  # from the future: another clock
+    assert arrival_s(998.0, now_s=50.0, wall_now_s=1000.0) == 50.0  # 2 s old: beyond MAX_FRAME_AGE_S
 
 
 def test_rpdo_targets_wait_for_the_next_sync_and_a_batch_is_drained_in_order(sim):
