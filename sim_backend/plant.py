@@ -354,10 +354,15 @@ class RobotPlant:
 
     @property
     def sync_interval_s(self) -> float:
-        """The SYNC interval the drives expect: 0x1006 when the master set it, else their
-        interpolation period (0x60C2, else the measured interval)."""
+        """The SYNC interval to integrate ahead: the one the drives expect (0x1006 when the master
+        set it, else their interpolation period), or the last measured one when that was shorter.
+
+        Never past the next SYNC: a state integrated beyond it is from the future when it comes
+        (a master cycling faster than it configured left the drives 0.5 mm ahead of their
+        targets). A SYNC later than this costs only the rest of the integration when it comes.
+        """
         drive = self.drives[0]
-        return drive.communication_cycle_period_s or drive.segment_period_s
+        return min(drive.communication_cycle_period_s or drive.segment_period_s, drive.sync_period_s)
 
     def integrate_next_interval(self, sync_s: float) -> None:
         """Integrate the interval after the SYNC at ``sync_s`` now, with what that SYNC latched.
