@@ -238,7 +238,9 @@ def _print_summary(summary: dict[str, Any], as_json: bool) -> None:
             + " N (in the order they ran)"
         )
     cmp = summary.get("position_control_comparison")
-    if cmp and cmp.get("laps"):
+    if cmp and cmp.get("skipped"):
+        lines.append(f"position control    not run: {cmp['skipped']}")
+    elif cmp and cmp.get("laps"):
         lap = cmp["laps"][0]
         lines.append(
             f"position control    same contour at {cmp['speed_m_s'] * 1000:.0f} mm/s: force error RMS "

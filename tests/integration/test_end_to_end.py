@@ -100,6 +100,25 @@ def test_demo_runs_the_contour_experiment_over_the_bus_by_default():
     )  # the disk is 2.2 mm off
 
 
+def test_the_position_comparison_is_not_run_after_a_contour_that_did_not_end_done():
+    """After a fault the tool is still in contact, and the comparison's move to its path's start
+    (position control, guard off) drove it through the disk: 6 080 N of true contact force."""
+    r = _cheope(
+        "demo",
+        "--json",
+        "--inject",
+        "force=100@3",  # over the safety limit while the contour approaches or tracks: FAULT
+        "--udp-port",
+        str(_port()),
+        *TOLERANT,
+        timeout=240.0,
+    )
+    s = json.loads(r.stdout)
+    assert s["final_mode"] == "FAULT", s["fault_reason"]
+    assert "skipped" in s["position_control_comparison"]
+    assert len(s["simulator"]["max_true_contact_force_n"]) == 1  # one controller session: no comparison
+
+
 def test_demo_task_defaults(tmp_path):
     def task_of(*argv: str) -> str:
         return cli._config(cli.demo_defaults(cli.build_parser().parse_args(["demo", *argv]))).task.kind
