@@ -370,10 +370,10 @@ class RobotPlant:
         A real drive answers SYNC with the position it has at that instant; the simulator has to
         compute it, and an interval of the loaded structure is the largest part of its SYNC
         handling. Done after the answers instead of before them, the next SYNC finds its state
-        ready (``sync`` then only integrates what the SYNC came late by). The state is the same: what moves the
-        structure in the interval is what this SYNC latched, and a controlword acts from the next
-        SYNC on, as the in-process loopback integrates it (its ``send`` advances the plant before
-        the cycle's RPDOs).
+        ready (``sync`` then only integrates what the SYNC came late by). The state is the same:
+        what moves the structure in the interval is what this SYNC latched, and a controlword acts
+        from the next SYNC on, as the in-process loopback integrates it (its ``send`` advances the
+        plant before the cycle's RPDOs).
         """
         self.advance(sync_s + self.sync_interval_s, check_sync_timeout=False)
 

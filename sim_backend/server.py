@@ -12,9 +12,8 @@ frame handling, lean: it blocks on the bus, drains every frame that is waiting i
 answers SYNC with TPDOs of the state the plant has ready and integrates the interval after it
 once the answers are out (``plant.py``, ``integrate_next_interval``: the answers do not wait
 for the loaded structure's integration), stores RPDO targets without touching the plant, and
-hands only the rare SDO and
-NMT frames to canopen (``Network.notify``, canopen's documented entry for a custom receive
-loop; no canopen notifier thread). The same thread ticks the drives' SYNC watchdog when no
+hands only the rare SDO and NMT frames to canopen (``Network.notify``, canopen's documented
+entry for a custom receive loop; no canopen notifier thread). The same thread ticks the drives' SYNC watchdog when no
 frame has come for ``WATCHDOG_PERIOD_S``.
 """
 
@@ -78,9 +77,9 @@ def arrival_s(timestamp_s: float, now_s: float, wall_now_s: float) -> float:
 
     A real drive latches its position when SYNC arrives, whatever its firmware does next; the
     simulator's process may run a while after (kernel to handler 0.16 ms at p50 and 1.4-6.6 ms at
-    the worst in three contour demos, measured with the instrumentation of issue 26's note). Integrating the drives to the time it handles the SYNC turned that delay into
-    a longer SYNC interval followed by a shorter one: a kick the structure does not get from real
-    drives. So the time is the frame's receive timestamp (python-can's ``msg.timestamp``, on the
+    the worst in three contour demos, measured with the instrumentation of issue 26's note).
+    Integrating the drives to the time it handles the SYNC turned that delay into a longer SYNC
+    interval followed by a shorter one: a kick the structure does not get from real drives. So the time is the frame's receive timestamp (python-can's ``msg.timestamp``, on the
     wall clock: the kernel's on SocketCAN and udp_multicast) moved to the simulator's clock by its
     age; ``now_s`` where the age is not plausible (no timestamp, another clock).
     """

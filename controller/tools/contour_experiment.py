@@ -83,6 +83,7 @@ def run_contour_experiment(
     )
     summary["contour"] = laps()
 
+    pos_obs: ContourObserver | None = None
     if summary["final_mode"] != "DONE":
         # The comparison's path task starts from wherever the tool is, with the contact guard off:
         # after a fault the tool is still in contact, and its move to the path's start went through
@@ -91,7 +92,6 @@ def run_contour_experiment(
         summary["position_control_comparison"] = {
             "skipped": f"the contour run ended {summary['final_mode']}, with the tool where it stopped"
         }
-        pos_obs = None
     elif stop_event is None or not stop_event.is_set():
         cmp_cfg = comparison_config(cfg)
         pos_obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, 1)
@@ -105,8 +105,6 @@ def run_contour_experiment(
             "speed_m_s": cmp_cfg.task.model("path").speed_m_s,
             **contour_summary(pos_obs, robot, stiffness, c.height_m, None),
         }
-    else:
-        pos_obs = None
     if plot_dir is not None:
         summary["plots"] = _plot(cfg, plot_dir, force_obs, pos_obs)
     return summary
