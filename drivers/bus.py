@@ -10,6 +10,7 @@ from typing import Any
 import can
 
 from controller.errors import InputError
+from drivers.local_multicast import LocalUdpMulticastBus
 
 # Interface-local IPv6 multicast group (DESIGN.md): never leaves this machine.
 LOCAL_MULTICAST_GROUP = "ff11:7079:7468:6f6e:6465:6d6f:6d63:6173"
@@ -68,9 +69,6 @@ def open_bus(spec: BusSpec) -> can.BusABC:
     """Open the bus; raises can.CanInitializationError with the spec in the message."""
     # python-can passes the interface's own options through ``**kwargs: Any``.
     kwargs: dict[str, Any] = {"interface": spec.interface, "channel": spec.channel, "fd": spec.fd}
-    if spec.interface == "udp_multicast":
-        kwargs["port"] = spec.udp_port
-        kwargs["hop_limit"] = 1
     if spec.interface == "virtual":
         kwargs["receive_own_messages"] = True  # like the other two: every bus sees its own frames
     if spec.fd and spec.interface == "socketcan":
@@ -81,6 +79,9 @@ def open_bus(spec: BusSpec) -> can.BusABC:
                 f"ip link set {spec.channel} down && ip link set {spec.channel} mtu {CANFD_MTU} up)"
             )
     try:
+        if spec.interface == "udp_multicast":
+            # not python-can's own: its socket listens on every address (drivers/local_multicast.py)
+            return LocalUdpMulticastBus(spec.channel, spec.udp_port, fd=spec.fd)
         return can.Bus(**kwargs)
     except (OSError, can.CanError) as err:
         hint = ""

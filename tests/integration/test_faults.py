@@ -26,7 +26,7 @@ from controller.core.controller_state import Mode
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.tools.demo import simulator_process, stop_process
 from controller.tools.fault_scenarios import SCENARIOS, run_all
-from drivers.bus import parse_bus_spec
+from drivers.bus import open_bus, parse_bus_spec
 from drivers.cyclic_exchange import CyclicExchange
 from drivers.node_setup import DRIVE_EDS
 from drivers.pdo_codec import PositionScale
@@ -148,7 +148,7 @@ def test_a_killed_controller_leaves_the_simulated_robot_stopped(tmp_path):
     ids = tuple(cfg.actuators.node_ids)
     with (
         simulator_process(spec, None, ["task.path.laps=3"]),
-        can.Bus(interface="udp_multicast", channel=spec.channel, port=port) as bus,
+        open_bus(spec) as bus,
     ):
         ctrl = subprocess.Popen(
             [sys.executable, "-m", "controller", "run", "--udp-port", str(port), *sets],
@@ -160,7 +160,7 @@ def test_a_killed_controller_leaves_the_simulated_robot_stopped(tmp_path):
             _wait_until_drive_1_moves_under_the_controller(bus, ctrl)  # well into the task, not a guessed 4 s
             ctrl.send_signal(signal.SIGKILL)
             ctrl.wait()
-            network = canopen.Network(can.Bus(interface="udp_multicast", channel=spec.channel, port=port))
+            network = canopen.Network(open_bus(spec))
             network.connect()  # a socket of its own, without the backlog of ``bus`` (as in the test below)
             try:
                 for node_id in ids:
@@ -227,7 +227,7 @@ def test_a_signal_mid_motion_stops_the_run_under_control(tmp_path, signals, args
     ]
     with (
         simulator_process(spec, None, ["task.path.laps=3"]),
-        can.Bus(interface="udp_multicast", channel=spec.channel, port=port) as bus,
+        open_bus(spec) as bus,
     ):
         ctrl = subprocess.Popen(
             [
@@ -261,7 +261,7 @@ def test_a_signal_mid_motion_stops_the_run_under_control(tmp_path, signals, args
             assert "Traceback" not in err
             # A socket of its own: ``bus`` stopped reading when drive 1 moved, and its buffer, full of
             # the run's frames, dropped the SDO answer once (CI) before canopen's notifier drained it.
-            network = canopen.Network(can.Bus(interface="udp_multicast", channel=spec.channel, port=port))
+            network = canopen.Network(open_bus(spec))
             network.connect()
             try:
                 for node_id in ids:

@@ -563,7 +563,7 @@ def test_a_killed_writer_ends_the_run_by_the_recording_policy(tmp_path, policy):
     from busy_machine import TOLERANT
 
     from controller.tools.demo import simulator_process, stop_process
-    from drivers.bus import parse_bus_spec
+    from drivers.bus import open_bus, parse_bus_spec
 
     spec = parse_bus_spec("udp_multicast", udp_port=random.SystemRandom().randint(48000, 49999))
     sets = [
@@ -583,7 +583,7 @@ def test_a_killed_writer_ends_the_run_by_the_recording_policy(tmp_path, policy):
     ]
     with (
         simulator_process(spec, None, ["task.path.laps=3"]),
-        can.Bus(interface="udp_multicast", channel=spec.channel, port=spec.udp_port) as bus,
+        open_bus(spec) as bus,
     ):
         proc = subprocess.Popen(
             [

@@ -35,7 +35,7 @@ from controller.core.ports import CycleTiming
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.tasks.contour_tracking import ContourPhase
 from controller.tools.demo import simulator_process, stop_process
-from drivers.bus import parse_bus_spec
+from drivers.bus import open_bus, parse_bus_spec
 from drivers.node_setup import DRIVE_EDS
 from sim_backend.drive import ABORT_NO_ACTION
 from sim_backend.loopback import LoopbackExchange
@@ -308,9 +308,7 @@ def test_a_rogue_sender_on_udp_multicast_never_steers_the_controller(tmp_path):
     sent = [0]
 
     def rogue() -> None:
-        with can.Bus(
-            interface="udp_multicast", channel="ff11:7079:7468:6f6e:6465:6d6f:6d63:6173", port=port
-        ) as bus:
+        with open_bus(parse_bus_spec("udp_multicast", udp_port=port)) as bus:
             last: bytes | None = None
             start_counts: int | None = None
             while not stop.is_set():
@@ -403,7 +401,7 @@ def test_another_master_s_nmt_pre_operational_leaves_no_drive_enabled_over_udp_m
     ]
     with (
         simulator_process(spec, None, ["task.path.laps=3"]),
-        can.Bus(interface="udp_multicast", channel=spec.channel, port=port) as bus,
+        open_bus(spec) as bus,
     ):
         ctrl = subprocess.Popen(
             [
@@ -424,7 +422,7 @@ def test_another_master_s_nmt_pre_operational_leaves_no_drive_enabled_over_udp_m
         try:
             _wait_until_drive_1_moves_under_the_controller(bus, ctrl)
             bus.send(can.Message(arbitration_id=0x000, data=bytes((0x80, 2)), is_extended_id=False))
-            network = canopen.Network(can.Bus(interface="udp_multicast", channel=spec.channel, port=port))
+            network = canopen.Network(open_bus(spec))
             network.connect()  # a socket of its own, without the backlog of ``bus``
             try:
                 for node_id in ids:

@@ -1,0 +1,177 @@
+"""The ``udp_multicast`` bus that hears only this machine: python-can's UDP multicast bus, with
+its receiving socket bound to the interface-local group instead of every address.
+
+python-can's ``UdpMulticastBus`` binds its socket to ``[::]:PORT`` (IPv4 and IPv6, every
+address): a unicast datagram from another host to this host's address and that port, carrying
+a packed CAN frame, reached the controller and the simulator alike (issue 38: an NMT stop to
+node 2 from the network faulted a running robot). Here the one socket
+
+- is IPv6 only (``IPV6_V6ONLY``): no IPv4 datagram reaches it;
+- is bound to the group address ``ff11:...`` itself, scoped to one interface: Linux delivers to
+  it only datagrams addressed to that group, so a unicast to the host's address finds no
+  socket (the sender gets "port unreachable");
+- sends with hop limit 0 and multicast loop on: the datagram is looped back to this host's
+  members and never put on a wire (Linux drops interface-local multicast on any interface
+  but loopback on the way out, RFC 4291 2.7, and drops such datagrams arriving from a wire
+  on the way in);
+- keeps a datagram only when its source is one of this host's own addresses (a second line
+  behind the binding; the set is read again, at most once a second, when an unknown source
+  appears, so a newly configured address does not silence the bus).
+
+The interface (the group's scope) must be the same in every process on the bus: the loopback
+interface when it carries multicast, else the multicast-capable interface that is up with the
+lowest index (``multicast_interface``), the one rule every process applies alike. The loopback
+interface of most Linux systems carries no multicast (``ip link set lo multicast on`` makes it
+the one chosen); the datagrams never leave the host through another interface either.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import logging
+import socket
+import struct
+import time
+from pathlib import Path
+from typing import Any
+
+import can
+from can import BusABC, CanProtocol
+from can.interfaces.udp_multicast import UdpMulticastBus
+from can.interfaces.udp_multicast.bus import GeneralPurposeUdpMulticastBus
+from can.interfaces.udp_multicast.utils import is_msgpack_installed
+
+log = logging.getLogger(__name__)
+
+SO_TIMESTAMPNS = 35  # linux/socket.h (python-can's udp_multicast reads the same kernel timestamps)
+_IFF_UP, _IFF_LOOPBACK, _IFF_MULTICAST = 0x1, 0x8, 0x1000  # linux/if.h
+_SYS_NET = Path("/sys/class/net")
+_IF_INET6 = Path("/proc/net/if_inet6")
+_REREAD_ADDRESSES_S = 1.0  # an unknown source reads this host's addresses again at most this often
+_LOG_FOREIGN_EVERY_S = 5.0
+
+
+class NoMulticastInterfaceError(can.CanInitializationError):
+    """No interface of this machine can carry the interface-local group."""
+
+
+def _interface_usable(name: str) -> tuple[bool, bool]:
+    """(up with multicast and IPv6, is the loopback interface)."""
+    try:
+        flags = int((_SYS_NET / name / "flags").read_text(), 16)
+        ipv6_off = Path(f"/proc/sys/net/ipv6/conf/{name}/disable_ipv6").read_text().strip() == "1"
+    except (OSError, ValueError):
+        return False, False
+    return bool(flags & _IFF_UP and flags & _IFF_MULTICAST) and not ipv6_off, bool(flags & _IFF_LOOPBACK)
+
+
+def multicast_interface() -> tuple[str, int]:
+    """The interface whose scope the group takes: (name, index). The loopback interface when it
+    carries multicast, else the lowest-index interface that is up with multicast and IPv6."""
+    candidates = []
+    for index, name in socket.if_nameindex():
+        usable, loopback = _interface_usable(name)
+        if usable:
+            candidates.append((not loopback, index, name))
+    if not candidates:
+        raise NoMulticastInterfaceError(
+            "no network interface of this machine is up with IPv6 multicast, which the interface-local "
+            "group needs (ip link set lo multicast on gives the loopback interface that)"
+        )
+    _, index, name = min(candidates)
+    return name, index
+
+
+def host_addresses() -> frozenset[str]:
+    """Every IPv6 address of this host (its network namespace), as ``inet_ntop`` writes them."""
+    out = set()
+    try:
+        lines = _IF_INET6.read_text().splitlines()
+    except OSError:
+        return frozenset({"::1"})
+    for line in lines:
+        fields = line.split()
+        if fields:
+            out.add(str(ipaddress.IPv6Address(bytes.fromhex(fields[0]))))
+    return frozenset(out)
+
+
+class LocalGroupSocket(GeneralPurposeUdpMulticastBus):
+    """python-can's send/receive handler, on a socket bound to the group on one interface."""
+
+    def __init__(self, group: str, port: int, interface: tuple[str, int]) -> None:
+        self.interface_name, self.interface_index = interface
+        self.foreign_datagrams = 0  # datagrams from a source that is not this host's (dropped)
+        self._addresses = host_addresses()
+        self._addresses_read_s = time.monotonic()
+        self._foreign_logged_s = -_LOG_FOREIGN_EVERY_S
+        super().__init__(group, port, hop_limit=0)
+        self._send_destination = (group, port, 0, self.interface_index)  # type: ignore[assignment]
+
+    def _create_socket(self, address_family: socket.AddressFamily) -> socket.socket:
+        if address_family != socket.AF_INET6:
+            raise OSError(f"{self.group}: the local group is IPv6")
+        sock = socket.socket(socket.AF_INET6, socket.SOCK_DGRAM)
+        try:
+            ipv6 = socket.IPPROTO_IPV6
+            sock.setsockopt(ipv6, socket.IPV6_V6ONLY, 1)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # every process of the bus binds it
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+            sock.setsockopt(ipv6, socket.IPV6_MULTICAST_HOPS, 0)  # looped back only, never on a wire
+            sock.setsockopt(ipv6, socket.IPV6_MULTICAST_LOOP, 1)
+            sock.setsockopt(ipv6, socket.IPV6_MULTICAST_IF, self.interface_index)
+            sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+            self.timestamp_nanosecond = True
+            # the group address itself, not [::]: a datagram to any other address finds no socket
+            sock.bind((self.group, self.port, 0, self.interface_index))
+            request = socket.inet_pton(socket.AF_INET6, self.group) + struct.pack("@I", self.interface_index)
+            sock.setsockopt(ipv6, socket.IPV6_JOIN_GROUP, request)
+        except OSError as err:
+            sock.close()
+            raise can.CanInitializationError(
+                f"cannot join {self.group} port {self.port} on {self.interface_name}: {err.strerror or err}"
+            ) from err
+        return sock
+
+    def recv(self, timeout: float | None = None) -> Any:
+        """python-can's ``recv``, keeping only datagrams from this host's own addresses."""
+        result = super().recv(timeout)
+        if result is None or result[1][0] in self._addresses:
+            return result
+        now = time.monotonic()
+        if now - self._addresses_read_s >= _REREAD_ADDRESSES_S:  # a new address of this host?
+            self._addresses, self._addresses_read_s = host_addresses(), now
+            if result[1][0] in self._addresses:
+                return result
+        self.foreign_datagrams += 1
+        if now - self._foreign_logged_s >= _LOG_FOREIGN_EVERY_S:
+            self._foreign_logged_s = now
+            log.warning(
+                "udp_multicast bus: %d datagram(s) from a source not of this host dropped (last from %s)",
+                self.foreign_datagrams,
+                result[1][0],
+            )
+        return None  # BusABC.recv waits on for the rest of its timeout
+
+
+class LocalUdpMulticastBus(UdpMulticastBus):
+    """``UdpMulticastBus`` on ``LocalGroupSocket``: the interface-local group, this host only.
+
+    Its ``__init__`` does what the parent's does (the msgpack check, BusABC's set-up, the FD
+    protocol) around the one socket the parent would have bound to every address.
+    """
+
+    def __init__(self, channel: str, port: int, fd: bool = True, **kwargs: Any) -> None:
+        is_msgpack_installed()
+        BusABC.__init__(self, channel, **kwargs)
+        try:
+            self._multicast = LocalGroupSocket(channel, port, multicast_interface())
+        except BaseException:
+            self._is_shutdown = True  # nothing to shut down: no "not properly shut down" warning later
+            raise
+        self._can_protocol = CanProtocol.CAN_FD if fd else CanProtocol.CAN_20
+
+    @property
+    def foreign_datagrams(self) -> int:
+        sock: LocalGroupSocket = self._multicast  # type: ignore[assignment]
+        return sock.foreign_datagrams

@@ -1,0 +1,66 @@
+"""The machine-local udp_multicast bus (drivers/local_multicast.py): its socket, interface and source check.
+
+The network side (nothing from another machine arrives) is tests/integration/test_bus_stays_on_the_machine.py.
+"""
+
+from __future__ import annotations
+
+import socket
+
+import can
+import pytest
+from can.interfaces.udp_multicast.bus import GeneralPurposeUdpMulticastBus
+
+import drivers.local_multicast as lm
+from controller.tools.demo import random_udp_port
+from drivers.bus import LOCAL_MULTICAST_GROUP, open_bus, parse_bus_spec
+
+
+def test_the_socket_is_ipv6_only_bound_to_the_group_and_never_sends_beyond_the_host() -> None:
+    with open_bus(parse_bus_spec("udp_multicast", udp_port=random_udp_port())) as bus:
+        sock = bus._multicast._socket
+        _, index = lm.multicast_interface()
+        assert sock.getsockname() == (LOCAL_MULTICAST_GROUP, bus._multicast.port, 0, index)
+        assert sock.getsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY) == 1
+        assert sock.getsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_HOPS) == 0
+        assert sock.getsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_IF) == index
+
+
+def test_frames_of_this_host_go_round_between_two_buses() -> None:
+    spec = parse_bus_spec("udp_multicast", udp_port=random_udp_port())
+    with open_bus(spec) as a, open_bus(spec) as b:
+        a.send(can.Message(arbitration_id=0x123, data=b"\x01\x02", is_extended_id=False))
+        got = b.recv(10.0)
+        assert got is not None and (got.arbitration_id, bytes(got.data)) == (0x123, b"\x01\x02")
+        assert b.foreign_datagrams == 0
+
+
+def test_a_datagram_from_a_source_not_of_this_host_is_dropped_and_counted(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Behind the binding (which no such datagram passes on Linux), the source check."""
+    arrivals = [(b"x", ("2001:db8::66", 1, 0, 0), 1.0), (b"y", ("::1", 1, 0, 0), 2.0)]
+    monkeypatch.setattr(GeneralPurposeUdpMulticastBus, "recv", lambda self, timeout=None: arrivals.pop(0))
+    with open_bus(parse_bus_spec("udp_multicast", udp_port=random_udp_port())) as bus:
+        handler = bus._multicast
+        assert handler.recv(0.0) is None  # the foreign one
+        assert handler.foreign_datagrams == 1
+        assert handler.recv(0.0) == (b"y", ("::1", 1, 0, 0), 2.0)
+
+
+def test_the_interface_is_the_loopback_when_it_carries_multicast_else_the_lowest_index_up(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    usable = {"lo": (False, True), "eth1": (True, False), "eth0": (True, False), "ifb0": (False, False)}
+    monkeypatch.setattr(socket, "if_nameindex", lambda: [(1, "lo"), (2, "ifb0"), (3, "eth0"), (4, "eth1")])
+    monkeypatch.setattr(lm, "_interface_usable", lambda name: usable[name])
+    assert lm.multicast_interface() == ("eth0", 3)
+    usable["lo"] = (True, True)
+    assert lm.multicast_interface() == ("lo", 1)
+    usable.update({k: (False, v[1]) for k, v in usable.items()})
+    with pytest.raises(lm.NoMulticastInterfaceError, match="ip link set lo multicast on"):
+        lm.multicast_interface()
+
+
+def test_this_hosts_addresses_include_the_loopback() -> None:
+    assert "::1" in lm.host_addresses()
