@@ -9,6 +9,7 @@ a robot or a task of your own depends on the core and the core on neither.
   law and the service. Registered with ``controller.robots.registry``.
 - ``Task`` (with ``TaskContext``, ``TaskStep``, ``JointReference``): what a task is to the law, a
   pure function from a context to a joint reference. Registered with ``controller.tasks.registry``.
+  ``ForceSetpointTask``: a task whose force setpoint a remote ``set_force`` may change, and below what.
 - ``CycleObserver`` and ``CycleTiming``: what the loop shell hands every observer each cycle.
 """
 
@@ -16,7 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import TYPE_CHECKING, Protocol, TypeVar
+from typing import TYPE_CHECKING, Protocol, TypeVar, runtime_checkable
 
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
 from controller.core.setpoint_smoothing import Setpoint
@@ -135,6 +136,25 @@ class Task(Protocol[S]):
     def step(self, state: S, ctx: TaskContext) -> TaskStep: ...
 
     def phase_name(self, state: S) -> str: ...
+
+
+@dataclass(frozen=True)
+class ForceSetpointLimit:
+    """What a force setpoint must stay below, and where that bound comes from (for a refusal)."""
+
+    below_n: float  # a setpoint must be > 0 and below this [N]
+    why: str  # the configuration keys that set it, in words
+
+
+@runtime_checkable
+class ForceSetpointTask(Protocol):
+    """A task that presses with a force setpoint a remote ``set_force`` may change (the contour).
+
+    The limit is the task's own: the force it can track and not fault at, not the safety layer's
+    contact-force limit (a setpoint between the two was accepted, then faulted the task 2 s later).
+    """
+
+    def force_setpoint_limit(self) -> ForceSetpointLimit: ...
 
 
 # -- the loop's observers ---------------------------------------------------------------------

@@ -15,6 +15,7 @@ import sys
 from dataclasses import asdict
 from typing import TYPE_CHECKING, TypeVar
 
+from controller.config import ConfigError
 from controller.monitoring.command_gate import ALWAYS_ACCEPTED, GATED_COMMANDS
 from controller.monitoring.zenoh_session import (
     DEFAULT_CONNECT,
@@ -111,8 +112,19 @@ def _endpoints(args: argparse.Namespace) -> tuple[str, ...]:
 
 
 def _target(args: argparse.Namespace) -> RobotSelector:
+    """The one robot of ``--robot-id`` (checked before connecting: one id, no wildcard), or the only
+    one reachable."""
     from controller.monitoring.commands import RobotSelector
 
+    if args.robot_id is not None:
+        try:
+            MonitorKeys.for_robot(args.key_prefix, args.robot_id)
+        except ConfigError as err:
+            every = "; cheope stop --all stops every controller reachable" if args.command == "stop" else ""
+            raise ConfigError(
+                f"--robot-id {args.robot_id!r}: names one robot by its id (letters, digits, '-', '_', "
+                f"'.'; no wildcard: a command reaches one robot){every}"
+            ) from err
     return RobotSelector(args.key_prefix, args.robot_id)
 
 
@@ -210,7 +222,27 @@ def _command(args: argparse.Namespace, name: str, value: float) -> int:
 
 
 def cmd_stop(args: argparse.Namespace) -> int:
-    return _command(args, "stop", 0.0)
+    if not args.all:
+        return _command(args, "stop", 0.0)
+    from controller.monitoring.commands import stop_every_robot
+
+    if args.robot_id is not None:
+        raise ConfigError("--all stops every controller reachable; --robot-id names one: give one of them")
+    settings = client_settings(_endpoints(args), args.zenoh_config or "", args.timeout)
+    answers = stop_every_robot(settings, args.key_prefix, args.timeout)
+    if not answers:
+        print(
+            f"cheope stop: no controller found under {args.key_prefix}/*/ (connected to "
+            f"{', '.join(settings.connect)})",
+            file=sys.stderr,
+        )
+        return EXIT_NO_CONTROLLER
+    for robot_id, accepted, message in answers:
+        print(
+            ("accepted by " if accepted else "refused by ") + f"{robot_id}: {message}",
+            file=sys.stdout if accepted else sys.stderr,
+        )
+    return 0 if all(accepted for _, accepted, _ in answers) else 1
 
 
 def cmd_command(args: argparse.Namespace) -> int:
@@ -250,6 +282,11 @@ def add_subcommands(sub: argparse._SubParsersAction[ParserT]) -> None:
     p.set_defaults(func=cmd_status)
     p = sub.add_parser("stop", help="bring a running controller's robot to a controlled stop")
     _client_options(p)
+    p.add_argument(
+        "--all",
+        action="store_true",
+        help="stop every controller reachable, each by its own id (one command per robot)",
+    )
     p.set_defaults(func=cmd_stop)
     p = sub.add_parser(
         "command",

@@ -1,7 +1,7 @@
 """Which remote commands a controller accepts: the one list the publisher and the CLI share.
 
 A remote ``stop`` is always accepted (a controlled stop, as Ctrl-C); ``pause``, ``resume``,
-``set_force`` (below the contact-force limit) and ``reset`` (leave FAULT,
+``set_force`` (to a task that takes a force setpoint, below that task's own limit) and ``reset`` (leave FAULT,
 controller/core/control_law.py) only when the controller was started with ``--allow-remote-commands`` (DESIGN.md: monitoring is read-only,
 any other remote command is off unless explicitly enabled). Imports nothing heavy: the
 command line's parser uses it.
@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
+from controller.core.ports import ForceSetpointLimit
 
 ALWAYS_ACCEPTED = ("stop",)
 GATED_COMMANDS = ("pause", "resume", "set_force", "reset")
@@ -24,12 +26,17 @@ class CommandDecision:
 
 
 def decide_command(
-    name: str, value: float, commands_enabled: bool, max_contact_force_n: float
+    name: str,
+    value: float,
+    commands_enabled: bool,
+    force_limit: ForceSetpointLimit | None,
+    task_name: str = "",
 ) -> CommandDecision:
     """The gate: stop always; the gated commands only when enabled; anything else refused.
 
-    A ``set_force`` setpoint must lie below ``max_contact_force_n`` (``safety.max_contact_force_n``):
-    the law would press towards a force at which the safety layer faults.
+    A ``set_force`` needs a task that takes a force setpoint (``force_limit`` not None, the
+    running task's ``force_setpoint_limit``), and a value above 0 and below that task's limit:
+    the force it can hold and does not fault at (not ``safety.max_contact_force_n``, above it).
     """
     if name == "stop":
         return CommandDecision(True, "stop accepted: the controller brings the robot to a controlled stop")
@@ -41,10 +48,18 @@ def decide_command(
             f"command {name!r} refused: remote commands other than stop are disabled "
             "(start the controller with --allow-remote-commands)",
         )
-    if name == "set_force" and not (math.isfinite(value) and 0.0 < value < max_contact_force_n):
+    if name == "set_force" and force_limit is None:
+        return CommandDecision(
+            False, f"set_force refused: the task {task_name or '(none)'} takes no force setpoint"
+        )
+    if (
+        name == "set_force"
+        and force_limit is not None
+        and not (math.isfinite(value) and 0.0 < value < force_limit.below_n)
+    ):
         return CommandDecision(
             False,
-            f"set_force value {value:g} N refused: must be > 0 and below the contact-force "
-            f"limit safety.max_contact_force_n = {max_contact_force_n:g} N",
+            f"set_force value {value:g} N refused: must be > 0 and below {force_limit.below_n:g} N, "
+            f"{force_limit.why}",
         )
     return CommandDecision(True, f"{name} accepted: applied at the next cycle", forward=True)

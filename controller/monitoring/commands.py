@@ -111,6 +111,27 @@ def send_command(
         return keys.prefix.rsplit("/", 1)[1], pb.CommandReply.FromString(reply)
 
 
+def stop_every_robot(
+    settings: SessionSettings, key_prefix: str = "cheope", timeout_s: float = 2.0
+) -> list[tuple[str, bool, str]]:
+    """``cheope stop --all``: a stop to each live controller by its own id (no wildcard key: the
+    controllers refuse one); (robot id, accepted, message) each, a robot that did not answer refused."""
+    out = []
+    cmd = pb.Command(name="stop").SerializeToString()
+    with tool_session(settings) as session:
+        for robot_id in live_robot_ids(session, key_prefix, timeout_s=timeout_s):
+            keys = MonitorKeys.for_robot(key_prefix, robot_id)
+            try:
+                reply = pb.CommandReply.FromString(
+                    _one_reply(session, settings, keys.command, timeout_s, cmd, encoding_for("Command"))
+                )
+            except MonitoringConnectionError as err:
+                out.append((robot_id, False, str(err)))
+                continue
+            out.append((robot_id, reply.accepted, reply.message))
+    return out
+
+
 @dataclass(frozen=True)
 class ControllerListing:
     """One line of ``cheope list``: a live controller and what its status said (empty if it did not answer)."""

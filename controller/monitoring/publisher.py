@@ -44,7 +44,7 @@ from google.protobuf.message import DecodeError
 
 from controller.core.controller_state import ControllerState
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severity
-from controller.core.ports import CycleTiming, Task
+from controller.core.ports import CycleTiming, ForceSetpointLimit, ForceSetpointTask, Task
 from controller.messages import cheope_pb2 as pb
 from controller.monitoring.command_gate import CommandDecision, decide_command
 from controller.monitoring.query_server import QueryLimits, QueryServer
@@ -80,7 +80,6 @@ class PublisherSettings:
     decimation: int  # publish every n-th cycle
     allow_remote_commands: bool = False
     config_json: str = "{}"
-    max_contact_force_n: float = 60.0  # safety.max_contact_force_n: the bound of a remote set_force
 
     def with_robot_id(self, robot_id: str) -> PublisherSettings:
         config = json.loads(self.config_json)
@@ -113,11 +112,13 @@ class MonitorPublisher:
         task_name: str = "",
         task_phase: Callable[[object], str] | None = None,
         clock: Callable[[], float] = time.monotonic,
+        force_limit: ForceSetpointLimit | None = None,
     ) -> None:
         self.settings = settings
         self.stop_event = stop_event
         self.task_name = task_name
         self.task_phase = task_phase
+        self.force_limit = force_limit  # the running task's bound of a remote set_force (None: none taken)
         self.clock = clock
         self.listen_endpoints: tuple[str, ...] = ()
         self.exchange_counters: ExchangeCounters | None = None  # the exchange's, read only
@@ -371,19 +372,39 @@ class MonitorPublisher:
         return self._static_status + tail
 
     def _on_status(self, query: zenoh.Query) -> bool:
+        if not self._names_this_robot(query, self.settings.keys.status):
+            return False
         self.status_queries += 1
         query.reply(self.settings.keys.status, self.status_bytes(), encoding=encoding_for("Status"))
         return True
 
+    def _names_this_robot(self, query: zenoh.Query, key: str) -> bool:
+        """A query answered only on this robot's own key, written out: ``cheope/*/command`` or
+        ``cheope/**`` reach every robot on a router at once (one such get put two into STOPPING),
+        so they are refused, with a reply that says so (a command reply for commands)."""
+        asked = str(query.key_expr)
+        if asked == key:
+            return True
+        why = (
+            f"{asked} refused by {self.settings.robot_id}: a query names one robot by its id, "
+            f"without wildcards ({key}; cheope list shows the ids)"
+        )
+        if key == self.settings.keys.command:
+            self.commands_refused += 1
+            reply = pb.CommandReply(accepted=False, message=why)
+            query.reply(key, reply.SerializeToString(), encoding=encoding_for("CommandReply"))
+        else:
+            query.reply_err(why.encode(), encoding=zenoh.Encoding.TEXT_PLAIN)
+        return False
+
     def _on_command(self, query: zenoh.Query) -> bool:
+        if not self._names_this_robot(query, self.settings.keys.command):
+            return False
         try:
             cmd = pb.Command.FromString(query.payload.to_bytes() if query.payload is not None else b"")
             decision = (
                 decide_command(
-                    cmd.name,
-                    cmd.value,
-                    self.settings.allow_remote_commands,
-                    self.settings.max_contact_force_n,
+                    cmd.name, cmd.value, self.settings.allow_remote_commands, self.force_limit, self.task_name
                 )
                 if cmd.name
                 else CommandDecision(
@@ -426,6 +447,7 @@ def monitoring_publisher(
         stop_event,
         task_name=task.name if task is not None else "",
         task_phase=task.phase_name if task is not None else None,
+        force_limit=task.force_setpoint_limit() if isinstance(task, ForceSetpointTask) else None,
     )
 
 

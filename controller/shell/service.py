@@ -129,7 +129,6 @@ def publisher_settings(cfg: Config) -> PublisherSettings:
         decimation=max(1, round(cfg.loop.rate_hz / m.publish_rate_hz)),
         allow_remote_commands=m.allow_remote_commands,
         config_json=json.dumps(config),
-        max_contact_force_n=cfg.safety.max_contact_force_n,
     )
 
 

@@ -84,7 +84,7 @@ from typing import Protocol
 import numpy as np
 
 from controller.core.cycle_data import Command, Event, Severity
-from controller.core.ports import JointReference, TaskContext, TaskStep
+from controller.core.ports import ForceSetpointLimit, JointReference, TaskContext, TaskStep
 
 
 class Kinematics(Protocol):
@@ -288,6 +288,21 @@ class ContourTrackingTask:
             force_setpoint_n=self.p.force_setpoint_n,
         )
 
+    def force_setpoint_limit(self) -> ForceSetpointLimit:
+        """Below the admittance saturation (above it the law only moves away from the contact: the
+        force cannot be held there) and below the task's own limit (``max_force_n``: it faults there)."""
+        p = self.p
+        if p.saturation_force_n < p.max_force_n:
+            return ForceSetpointLimit(
+                p.saturation_force_n,
+                f"the task's admittance saturation ({p.saturation_force_n:g} N = "
+                "task.contour.admittance_saturation_fraction x safety.max_contact_force_n; its limit "
+                f"task.contour.max_force_n = {p.max_force_n:g} N)",
+            )
+        return ForceSetpointLimit(
+            p.max_force_n, f"the task's limit task.contour.max_force_n = {p.max_force_n:g} N"
+        )
+
     def phase_name(self, state: ContourState) -> str:
         return state.phase.name
 
@@ -449,7 +464,10 @@ class ContourTrackingTask:
         s, signal_events = self._filter_force(state, ctx)
         if ctx.sensor_breach and s.phase not in (ContourPhase.RETRACT, ContourPhase.FINISHED):
             return self._sensor_breach(s, ctx)
-        if ctx.inputs.command == Command.SET_FORCE and ctx.inputs.command_value > 0:
+        if (
+            ctx.inputs.command == Command.SET_FORCE
+            and 0.0 < ctx.inputs.command_value < self.force_setpoint_limit().below_n
+        ):  # the command gate refuses the others already; the step takes no setpoint it cannot track
             s = replace(s, force_setpoint_n=ctx.inputs.command_value)
         handler = {
             ContourPhase.MOVE_TO_START: self._move_to_start,

@@ -30,10 +30,10 @@ from waiting import GENEROUS_S, wait_for_exit
 
 from controller.config import ConfigError, load_config
 from controller.core.cycle_data import CycleInputs, CycleOutputs, DriveFeedback
-from controller.core.ports import CycleTiming
+from controller.core.ports import CycleTiming, ForceSetpointLimit
 from controller.messages import cheope_pb2 as pb
 from controller.monitoring.command_gate import decide_command
-from controller.monitoring.commands import query_status, send_command
+from controller.monitoring.commands import query_status, send_command, tool_session
 from controller.monitoring.monitor_view import (
     AliveUpdate,
     EventUpdate,
@@ -223,12 +223,13 @@ def test_endpoints_split_on_commas():
 
 
 def test_stop_is_always_accepted_and_other_commands_only_when_enabled():
-    assert decide_command("stop", 0.0, False, 60.0).accepted
+    limit = ForceSetpointLimit(30.0, "the task's")
+    assert decide_command("stop", 0.0, False, limit).accepted
     for name in ("pause", "resume", "set_force"):
-        refused = decide_command(name, 5.0, False, 60.0)
+        refused = decide_command(name, 5.0, False, limit)
         assert not refused.accepted and "--allow-remote-commands" in refused.message
-        assert decide_command(name, 5.0, True, 60.0).forward
-    assert not decide_command("reboot", 0.0, True, 60.0).accepted
+        assert decide_command(name, 5.0, True, limit).forward
+    assert not decide_command("reboot", 0.0, True, limit).accepted
 
 
 # -- the loop's side: never waits --------------------------------------------------------------
@@ -601,6 +602,62 @@ def test_cheope_list_shows_two_controllers_and_the_tools_address_them_by_id():
         assert [c["robot_id"] for c in only_a] == ["bot-a"]  # bot-a was not stopped
         one = _json(_cheope("status", "--json", *_connect(ep_a, ep_b)))  # the only one: no id needed
         assert one["robot_id"] == "bot-a"
+
+
+@contextmanager
+def _two_publishers(allow_remote_commands: bool = True):
+    """Two robots' publishers in this process (bot-a, bot-b), each on its own loopback endpoint."""
+    pubs, events = [], []
+    with contextlib.ExitStack() as stack:
+        for robot_id in ("bot-a", "bot-b"):
+            cfg = load_config(
+                overrides={
+                    "monitoring.listen": _endpoint(),
+                    "monitoring.robot_id": robot_id,
+                    "monitoring.allow_remote_commands": allow_remote_commands,
+                }
+            )
+            events.append(threading.Event())
+            pubs.append(stack.enter_context(MonitorPublisher(publisher_settings(cfg), events[-1])))
+        yield pubs, events
+
+
+def test_a_wildcard_key_is_refused_by_every_robot_and_moves_none():
+    """Issue 38: one get on cheope/*/command with a stop put two robots into STOPPING."""
+    with _two_publishers() as (pubs, events):
+        endpoints = tuple(e for p in pubs for e in p.listen_endpoints)
+        with tool_session(client_settings(endpoints)) as session:
+            for key in ("cheope/*/command", "cheope/**", "**/command"):
+                for name in ("stop", "pause", "set_force"):
+                    payload = pb.Command(name=name, value=5.0).SerializeToString()
+                    replies = list(session.get(key, payload=payload, timeout=5.0))
+                    answers = [pb.CommandReply.FromString(r.ok.payload.to_bytes()) for r in replies if r.ok]
+                    assert len(answers) == 2 and not any(a.accepted for a in answers), (key, answers)
+                    assert all("names one robot by its id, without wildcards" in a.message for a in answers)
+            status = [r for r in session.get("cheope/*/status", timeout=5.0)]
+            assert len(status) == 2 and all(r.err is not None for r in status)
+            assert b"without wildcards" in status[0].err.payload.to_bytes()
+            assert not any(e.is_set() for e in events) and all(p.commands() is None for p in pubs)
+            exact = pb.Command(name="stop").SerializeToString()
+            (reply,) = [r for r in session.get("cheope/bot-a/command", payload=exact, timeout=5.0) if r.ok]
+            assert pb.CommandReply.FromString(reply.ok.payload.to_bytes()).accepted
+        assert [e.is_set() for e in events] == [True, False]
+        assert [p.commands_refused for p in pubs] == [9, 9]
+
+
+def test_cheope_stop_all_stops_each_robot_by_its_own_id_and_robot_id_takes_no_wildcard():
+    with _two_publishers(allow_remote_commands=False) as (pubs, events):
+        endpoints = [e for p in pubs for e in p.listen_endpoints]
+        wildcard = _cheope("stop", "--robot-id", "*", *_connect(*endpoints))
+        assert wildcard.returncode == 2 and "no wildcard" in wildcard.stderr and "--all" in wildcard.stderr
+        assert not any(e.is_set() for e in events)
+        everyone = _cheope("stop", "--all", *_connect(*endpoints))
+        assert everyone.returncode == 0, everyone.stderr
+        assert sorted(line.split(":")[0] for line in everyone.stdout.splitlines()) == [
+            "accepted by bot-a",
+            "accepted by bot-b",
+        ]
+        assert all(e.is_set() for e in events)
 
 
 def test_tools_that_find_nothing_say_so_in_one_line():

@@ -1,37 +1,95 @@
-"""The remote command gate's bound on set_force: the configured contact-force limit."""
+"""The remote command gate's bound on set_force: the running task's own limit (issue 38, item 5).
+
+Before, a set_force was checked against safety.max_contact_force_n (60 N): during a contour
+``cheope command set_force 45`` was accepted and the task faulted 2.1 s later at its own 40 N.
+"""
 
 from __future__ import annotations
 
 import math
+import threading
+from dataclasses import replace
 
 import pytest
 
+from controller.assembly import build_law
 from controller.config import load_config
+from controller.core.cycle_data import Command, CycleInputs, DriveFeedback, SensorFeedback
+from controller.core.ports import ForceSetpointLimit, ForceSetpointTask, TaskContext
+from controller.core.setpoint_smoothing import Setpoint
 from controller.monitoring.command_gate import decide_command
+from controller.monitoring.publisher import monitoring_publisher
 from controller.shell.service import publisher_settings
 
+CONTOUR = {"task.kind": "contour"}
 
-@pytest.mark.parametrize("value", [1e9, 60.0, 60.000001, math.inf, math.nan, 0.0, -1.0, -math.inf])
-def test_set_force_outside_zero_to_the_contact_force_limit_is_refused_naming_the_limit(value):
-    decision = decide_command("set_force", value, True, 60.0)
+
+def _limit(**overrides: object) -> ForceSetpointLimit:
+    task = build_law(load_config(overrides={**CONTOUR, **overrides})).task
+    assert isinstance(task, ForceSetpointTask)
+    return task.force_setpoint_limit()
+
+
+def test_the_contours_limit_is_its_admittance_saturation_when_below_its_force_limit() -> None:
+    limit = _limit()  # 0.5 x 60 N = 30 N of saturation, 40 N of task.contour.max_force_n
+    assert limit.below_n == 30.0
+    assert "admittance_saturation_fraction" in limit.why and "task.contour.max_force_n = 40 N" in limit.why
+
+
+def test_the_contours_limit_is_its_force_limit_when_the_saturation_is_above_it() -> None:
+    limit = _limit(**{"task.contour.admittance_saturation_fraction": 1.0})  # 60 N of saturation
+    assert limit.below_n == 40.0 and "task.contour.max_force_n = 40 N" in limit.why
+
+
+@pytest.mark.parametrize("value", [45.0, 40.0, 30.0, 1e9, math.inf, math.nan, 0.0, -1.0])
+def test_set_force_at_or_above_the_tasks_limit_is_refused_naming_it(value: float) -> None:
+    """45 N: the issue's case, accepted before against the 60 N of safety.max_contact_force_n."""
+    decision = decide_command("set_force", value, True, _limit(), "contour")
     assert not decision.accepted and not decision.forward
-    assert "safety.max_contact_force_n = 60 N" in decision.message
+    assert "below 30 N" in decision.message and "task.contour.max_force_n = 40 N" in decision.message
 
 
-@pytest.mark.parametrize("value", [1e-3, 10.0, 59.9])
-def test_set_force_below_the_limit_is_forwarded_to_the_law(value):
-    assert decide_command("set_force", value, True, 60.0).forward
+@pytest.mark.parametrize("value", [1e-3, 10.0, 29.9])
+def test_set_force_below_the_tasks_limit_is_forwarded_to_the_law(value: float) -> None:
+    assert decide_command("set_force", value, True, _limit(), "contour").forward
 
 
-def test_the_bound_is_the_configured_limit_not_a_constant():
-    settings = publisher_settings(load_config(overrides={"safety.max_contact_force_n": 25.0}))
-    assert settings.max_contact_force_n == 25.0
-    assert not decide_command("set_force", 30.0, True, settings.max_contact_force_n).accepted
-    assert decide_command(
-        "set_force", 30.0, True, publisher_settings(load_config()).max_contact_force_n
-    ).accepted
+def test_a_task_without_a_force_setpoint_refuses_set_force() -> None:
+    decision = decide_command("set_force", 5.0, True, None, "path")
+    assert not decision.accepted and "the task path takes no force setpoint" in decision.message
 
 
-def test_the_other_gated_commands_ignore_the_value():
+def test_the_publisher_takes_the_running_tasks_limit() -> None:
+    for overrides, below in (({}, 30.0), ({"task.contour.max_force_n": 20.0}, 20.0)):
+        cfg = load_config(overrides={**CONTOUR, **overrides})
+        pub = monitoring_publisher(publisher_settings(cfg), threading.Event(), build_law(cfg).task)
+        assert pub.force_limit is not None and pub.force_limit.below_n == below
+    path = load_config(overrides={"task.kind": "path"})
+    assert (
+        monitoring_publisher(publisher_settings(path), threading.Event(), build_law(path).task).force_limit
+        is None
+    )
+
+
+def test_the_step_takes_no_setpoint_at_or_above_the_limit() -> None:
+    """A second line behind the gate: the pure step keeps its setpoint for a value it cannot track."""
+    from controller.tasks.contour_tracking import ContourPhase, ContourTrackingTask
+
+    task = build_law(load_config(overrides=CONTOUR)).task
+    assert isinstance(task, ContourTrackingTask)
+    tracking = replace(task.start(), phase=ContourPhase.TRACKING, p_cmd=(0.07, 0.0, 0.5))
+    sensor = SensorFeedback((10.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0, 1, True)
+    drives = tuple(DriveFeedback(0x1637, 0.55, True) for _ in range(3))
+
+    def setpoint_after(value: float) -> float:
+        inputs = CycleInputs(drives, sensor, command=Command.SET_FORCE, command_value=value)
+        ctx = TaskContext(1.0, 0.0025, Setpoint.at_rest((0.55,) * 3), inputs, (0.07, 0.0, 0.5))
+        return float(task.step(tracking, ctx).state.force_setpoint_n)
+
+    assert setpoint_after(45.0) == tracking.force_setpoint_n
+    assert setpoint_after(25.0) == 25.0
+
+
+def test_the_other_gated_commands_ignore_the_value() -> None:
     for name in ("pause", "resume", "reset"):
-        assert decide_command(name, 1e9, True, 60.0).forward
+        assert decide_command(name, 1e9, True, None).forward
