@@ -18,6 +18,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
+import can
+
 from controller.config import Config, ConfigError, recorded_config_from_dict
 from drivers import cob_ids
 from drivers.bus_load import measured_bus_load
@@ -26,10 +28,11 @@ from logs.reader import ReadReport, iter_decoded
 
 
 class RecordedFrame(Protocol):
-    """One CAN frame of a recording, as the controller's bus tap saw it (drivers/frame_tap.py)."""
+    """One CAN frame of a recording, as the controller's bus tap saw it (drivers/frame_tap.py):
+    ``cheope.v1.CanFrames.Frame``, whatever the file's format (logs/reader.py)."""
 
     @property
-    def monotonic_s(self) -> float: ...  # send or receive time on the controller's monotonic clock
+    def unix_time_ns(self) -> int: ...  # send or receive time on the wall clock (the MCAP log time) [ns]
 
     @property
     def outgoing(self) -> bool: ...  # sent by the controller (else received by it)
@@ -41,10 +44,22 @@ class RecordedFrame(Protocol):
     def data(self) -> bytes: ...
 
     @property
+    def is_extended_id(self) -> bool: ...
+
+    @property
+    def is_remote_frame(self) -> bool: ...
+
+    @property
+    def remote_length(self) -> int: ...  # the DLC a remote frame requests
+
+    @property
     def is_fd(self) -> bool: ...
 
     @property
     def bitrate_switch(self) -> bool: ...
+
+    @property
+    def error_state_indicator(self) -> bool: ...
 
     @property
     def is_error_frame(self) -> bool: ...
@@ -56,6 +71,26 @@ def recorded_frames(path: str | Path, report: ReadReport | None = None) -> Itera
     for d in iter_decoded(path, (m.TOPIC_CAN,), report):
         frame: RecordedFrame = d.message
         yield frame
+
+
+def as_message(f: RecordedFrame, direction: bool = True) -> can.Message:
+    """The frame as python-can's ``Message``, stamped with its Unix time [s]; ``direction``: Rx/Tx from
+    the controller's side (``is_rx``), else python-can's default (a frame to send again)."""
+    msg = can.Message(
+        timestamp=f.unix_time_ns * 1e-9,
+        arbitration_id=f.arbitration_id,
+        is_extended_id=f.is_extended_id,
+        is_remote_frame=f.is_remote_frame,
+        dlc=f.remote_length if f.is_remote_frame else None,
+        data=None if f.is_remote_frame else f.data,
+        is_fd=f.is_fd,
+        bitrate_switch=f.bitrate_switch,
+        error_state_indicator=f.error_state_indicator,
+        is_error_frame=f.is_error_frame,
+    )
+    if direction:
+        msg.is_rx = not f.outgoing
+    return msg
 
 
 def clock_offset_s(report: ReadReport) -> float | None:
@@ -124,26 +159,27 @@ def recorded_traffic(path: str | Path, report: ReadReport | None = None) -> Reco
     """Walk the ``/can`` channel of ``path`` (damaged parts are skipped and noted in ``report``)."""
     report = report if report is not None else ReadReport(Path(path))
     counts: Counter[tuple[str, bool]] = Counter()
-    frames: list[tuple[float, int, int, bool, bool]] = []  # (t, cob_id, bytes, is_fd, brs)
+    frames: list[tuple[int, int, int, bool, bool]] = []  # (t [ns], cob_id, bytes, is_fd, brs)
     first_sync = last_sync = None
     first_in = last_in = None  # SYNCs received: the kernel's, with bus.sync_producer = "kernel"
     for f in recorded_frames(path, report):
         counts[(cob_ids.function_name(f.arbitration_id), f.outgoing)] += 1
         if f.is_error_frame:
             continue
-        frames.append((f.monotonic_s, f.arbitration_id, len(f.data), f.is_fd, f.bitrate_switch))
+        t_ns = f.unix_time_ns
+        frames.append((t_ns, f.arbitration_id, len(f.data), f.is_fd, f.bitrate_switch))
         if f.outgoing and f.arbitration_id == cob_ids.SYNC:
-            first_sync = f.monotonic_s if first_sync is None else first_sync
-            last_sync = f.monotonic_s
+            first_sync = t_ns if first_sync is None else first_sync
+            last_sync = t_ns
         elif f.arbitration_id == cob_ids.SYNC:
-            first_in = f.monotonic_s if first_in is None else first_in
-            last_in = f.monotonic_s
+            first_in = t_ns if first_in is None else first_in
+            last_in = t_ns
     if first_sync is None:  # the controller sent no SYNC: the broadcast manager did (drivers/kernel_sync.py)
         first_sync, last_sync = first_in, last_in
     cfg = _recorded_config(report)
     nominal = cfg.bus.bitrate_bit_s if cfg is not None else 1e6
     data_rate = cfg.bus.data_bitrate_bit_s if cfg is not None else nominal
-    span = 0.0 if first_sync is None or last_sync is None else last_sync - first_sync
+    span = 0.0 if first_sync is None or last_sync is None else (last_sync - first_sync) * 1e-9
     syncs = 0
     by_id: Counter[int] = Counter()
     shapes: dict[int, tuple[int, bool, bool]] = {}

@@ -1,24 +1,26 @@
-"""``cheope logs export FILE --format asc|blf|log|trc|csv``: a recording's CAN frames for the usual CAN tools.
+"""``cheope logs export FILE --format asc|blf|log|trc|csv|mf4``: a recording's CAN frames for the usual CAN tools.
 
 Vector CANalyzer/CANoe read ``.asc`` and ``.blf``, can-utils (``canplayer``, ``log2asc``) and
-SavvyCAN read candump's ``.log``, PEAK's tools ``.trc``, asammdf converts all of them; python-can
-reads every one back (``can.LogReader``). The files are written by python-can's own writers, so
-they are what those tools expect from python-can.
+SavvyCAN read candump's ``.log``, PEAK's tools ``.trc``, ASAM MDF tools (asammdf, CANape,
+CANalyzer) ``.mf4``; python-can reads every one back (``can.LogReader``). The files are written by
+python-can's own writers, so they are what those tools expect from python-can. ``mf4`` needs
+asammdf (``pip install 'cheope-controller[mf4]'``, python-can's ``mf4`` extra).
 
-Every recorded frame is written once, in recorded order, with the recording's time: the
-controller's monotonic reading plus the session's clock offset (``cheope.session``), so the
+Every recorded frame is written once, in recorded order, with the recording's time (the frame's
+``unix_time_ns``: the controller's monotonic reading plus the session's clock offset), so the
 timestamps are Unix times and line up with the MCAP's ``log_time``. The direction is the
 controller's: a frame it sent is Tx, one it received is Rx.
 
 What a format cannot hold (python-can's writers, version 4.6):
 
-| format | direction | CAN FD | error frames | time resolution |
-| --- | --- | --- | --- | --- |
-| asc | Rx/Tx | yes | yes | 1 us after the first frame; the start to 1 ms (the ``date`` line) |
-| blf | the DIR flag | yes | yes | 1 ns after a start truncated to 1 ms |
-| log | R/T (``candump -L``) | yes | yes | 1 us |
-| trc | Rx/Tx | no: not written | no: not written | 1 us (offsets in ms with 3 decimals) |
-| csv | no column for it | no flag (length only) | yes | full (``repr`` of the float) |
+| format | direction | CAN FD | error frames | remote frames | time resolution |
+| --- | --- | --- | --- | --- | --- |
+| asc | Rx/Tx | yes | yes | yes | 1 us after the first frame; the start to 1 ms (the ``date`` line) |
+| blf | the DIR flag | yes | yes | yes | 1 ns after a start truncated to 1 ms |
+| log | R/T (``candump -L``) | yes | yes | without their DLC (``#R``) | 1 us |
+| trc | Rx/Tx | no: not written | no: not written | no: not written | 1 us (offsets in ms with 3 decimals) |
+| csv | no column for it | no flag (length only) | yes | yes | full (``repr`` of the float) |
+| mf4 | the Dir channel | yes | yes | yes | float64 seconds after the start (the header's start time) |
 
 A frame the format cannot hold is counted in ``frames_not_written`` by reason, never silently
 dropped; the command says so and exits 1.
@@ -36,10 +38,10 @@ import can
 
 from controller.errors import InputError
 from logs import messages as m
-from logs.bus_traffic import RecordedFrame, clock_offset_s, recorded_frames
+from logs.bus_traffic import RecordedFrame, as_message, recorded_frames
 from logs.reader import ReadReport
 
-FORMATS = ("asc", "blf", "log", "trc", "csv")
+FORMATS = ("asc", "blf", "log", "trc", "csv", "mf4")
 PROGRESS_EVERY_FRAMES = 2000
 NO_DIRECTION = ("csv",)  # python-can's CSV columns have no direction
 
@@ -48,6 +50,7 @@ _UNWRITABLE: dict[str, tuple[tuple[str, Callable[[RecordedFrame], bool]], ...]] 
     "trc": (
         ("CAN FD frames (python-can's TRC writer has none)", lambda f: f.is_fd),
         ("error frames (python-can's TRC writer has none)", lambda f: f.is_error_frame),
+        ("remote frames (python-can's TRC writer has none)", lambda f: f.is_remote_frame),
     ),
 }
 
@@ -80,6 +83,17 @@ class _RecordedAscWriter(can.ASCWriter):
         return super()._format_header_datetime(self._recorded_start)
 
 
+class _RecordedMf4Writer(can.MF4Writer):
+    """python-can's MF4 writer starts the measurement at the time of the export (``datetime.now()``,
+    and every timestamp relative to it); this one at the recording's first frame."""
+
+    def __init__(self, file: Path, start_unix_s: float) -> None:
+        super().__init__(file)
+        start = _dt.datetime.fromtimestamp(start_unix_s, tz=_dt.UTC)
+        self._mdf.header.start_time = start
+        self.last_timestamp = self._start_time = start.timestamp()
+
+
 def default_output(path: Path, fmt: str) -> Path:
     return path.with_suffix(f".{fmt}")
 
@@ -100,21 +114,15 @@ def _writer(fmt: str, out: Path, first_unix_s: float, report: ReadReport) -> can
         return can.CanutilsLogWriter(out, channel=_candump_channel(report))
     if fmt == "trc":
         return can.TRCWriter(out)
+    if fmt == "mf4":
+        try:
+            import asammdf  # noqa: F401  (python-can's MF4 writer needs it)
+        except ImportError:
+            raise ExportError(
+                "--format mf4 needs asammdf: pip install 'cheope-controller[mf4]' (python-can's mf4 extra)"
+            ) from None
+        return _RecordedMf4Writer(out, first_unix_s)
     return can.CSVWriter(out)
-
-
-def to_message(f: RecordedFrame, unix_s: float) -> can.Message:
-    """The frame as python-can's ``Message``, Rx/Tx from the controller's side."""
-    return can.Message(
-        timestamp=unix_s,
-        arbitration_id=f.arbitration_id,
-        is_extended_id=f.arbitration_id > 0x7FF,
-        data=f.data,
-        is_fd=f.is_fd,
-        bitrate_switch=f.bitrate_switch,
-        is_error_frame=f.is_error_frame,
-        is_rx=not f.outgoing,
-    )
 
 
 def export_frames(
@@ -132,17 +140,15 @@ def export_frames(
     skipped: Counter[str] = Counter()
     written = sent = 0
     writer: can.io.generic.MessageWriter | None = None
-    offset_s = 0.0
     try:
         for f in recorded_frames(path, report):
             if writer is None:  # the session's metadata comes before the first chunk of frames
-                offset_s = clock_offset_s(report) or 0.0
-                writer = _open(fmt, target, f.monotonic_s + offset_s, report)
+                writer = _open(fmt, target, f.unix_time_ns * 1e-9, report)
             reason = next((why for why, cannot in unwritable if cannot(f)), None)
             if reason is not None:
                 skipped[reason] += 1
                 continue
-            writer.on_message_received(to_message(f, f.monotonic_s + offset_s))
+            writer.on_message_received(as_message(f))
             written += 1
             sent += f.outgoing
             if progress is not None and written % PROGRESS_EVERY_FRAMES == 0:
@@ -153,15 +159,10 @@ def export_frames(
         if writer is not None:
             writer.stop()
     note = (
-        "python-can's CSV has no direction column: use asc, blf, log or trc to keep Rx/Tx"
+        "python-can's CSV has no direction column: use asc, blf, log, trc or mf4 to keep Rx/Tx"
         if fmt in NO_DIRECTION
         else ""
     )
-    if offset_s == 0.0 and written:
-        monotonic = (
-            "no clock offset in the recording: times are the controller's monotonic clock, not Unix time"
-        )
-        note = f"{note}; {monotonic}" if note else monotonic
     return ExportResult(target, fmt, written, sent, dict(skipped), note, report)
 
 

@@ -62,14 +62,15 @@ def add_commands(
     q = logs_sub.add_parser(
         "export",
         help="the recorded CAN frames for CAN tools: Vector ASC/BLF, candump log, PEAK TRC, "
-        "CSV (python-can's writers)",
+        "CSV, ASAM MF4 (python-can's writers)",
     )
     q.add_argument("file")
     q.add_argument(
         "--format",
         required=True,
-        choices=("asc", "blf", "log", "trc", "csv"),
-        help="asc, blf (Vector), log (candump -L), trc (PEAK), csv (python-can's columns: no direction)",
+        choices=("asc", "blf", "log", "trc", "csv", "mf4"),
+        help="asc, blf (Vector), log (candump -L), trc (PEAK), csv (python-can's columns: no direction), "
+        "mf4 (ASAM MDF 4; needs the mf4 extra: asammdf)",
     )
     q.add_argument("-o", "--output", help="output file (default: FILE with the format's suffix, beside it)")
     q.add_argument("--json", action="store_true", help="print the result as one JSON object")

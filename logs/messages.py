@@ -4,7 +4,7 @@ The recording's channels (all Protobuf, schemas embedded):
 
 | topic | schema | what |
 | --- | --- | --- |
-| ``/can`` | ``cheope.v1.CanFrameBatch`` | every frame in and out, with its send/receive time: one message per cycle |
+| ``/can`` | ``cheope.v1.CanFrames`` | every frame in and out, with its time, direction and flags: one message per cycle |
 | ``/cycle`` | ``cheope.v1.Cycle`` | per cycle: the step's inputs, outputs, state sample and timing |
 | ``/events`` | ``cheope.v1.Event`` | the step's events, and the recorder's own drop reports |
 | ``/log`` | ``foxglove.Log`` | the same events as log lines, for viewers |
@@ -18,20 +18,19 @@ started (``cheope.session`` metadata, ``clock_offset_ns``). The ``/cycle`` messa
 on_cycle call index as their MCAP ``sequence``: a gap in it is a cycle the recorder dropped,
 not one the loop skipped (skipped cycles show as gaps in ``Cycle.cycle`` only).
 
-``/can`` holds the frames that came before each cycle in one ``CanFrameBatch`` (packed, see
-``pack_frames``); files written before it hold one ``cheope.v1.CanFrame`` per frame.
-``logs.reader.iter_decoded`` gives both back as one ``CanFrame`` per frame, with the log time
-each frame had in the older files. A rotated file starts with ``/keyframe``
-(``cheope.v1.Keyframe``: the controller's state, logs/keyframe.py).
+``/can`` holds the frames that came before each cycle in one ``CanFrames`` (one entry per
+frame). Older files hold a ``cheope.v1.CanFrameBatch`` per cycle (packed by column,
+logs/can_frame_batch.py) or one ``cheope.v1.CanFrame`` per frame: ``logs.reader.iter_decoded``
+gives every format back as one ``CanFrames.Frame`` per frame, with the frame's time as its log
+time. A rotated file starts with ``/keyframe`` (``cheope.v1.Keyframe``: the controller's state,
+logs/keyframe.py).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import itertools
-import math
 import struct
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol
 
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
@@ -55,6 +54,8 @@ from controller.core.cycle_data import (
 from controller.messages import cheope_pb2 as pb
 
 if TYPE_CHECKING:
+    import can
+
     from controller.core.controller_state import ControllerState
 
 TOPIC_CAN = "/can"
@@ -106,122 +107,72 @@ def _set_time(stamp: _Timestamp, unix_ns: int) -> None:
     stamp.seconds, stamp.nanos = divmod(unix_ns, 1_000_000_000)
 
 
-def can_frame(
-    monotonic_s: float,
-    outgoing: bool,
-    arbitration_id: int,
-    data: bytes,
-    is_fd: bool,
-    bitrate_switch: bool,
-    is_error_frame: bool,
-) -> pb.CanFrame:
-    return pb.CanFrame(
-        monotonic_s=monotonic_s,
-        outgoing=outgoing,
-        arbitration_id=arbitration_id,
-        data=data,
-        is_fd=is_fd,
-        bitrate_switch=bitrate_switch,
-        is_error_frame=is_error_frame,
+# A CAN frame as the recorder hands it to the writer (logs/recorder.py, on the loop's thread: a
+# plain tuple, the cheapest to build): (outgoing, monotonic_s, arbitration_id, data,
+# is_extended_id, is_remote_frame, remote_length, is_fd, bitrate_switch, error_state_indicator,
+# is_error_frame).
+FrameRecord = tuple[bool, float, int, bytes, bool, bool, int, bool, bool, bool, bool]
+
+
+def frame_record(outgoing: bool, monotonic_s: float, msg: can.Message) -> FrameRecord:
+    """``msg`` as a ``FrameRecord``: its bytes copied (the exchange rewrites its outgoing messages)."""
+    return (
+        outgoing,
+        monotonic_s,
+        msg.arbitration_id,
+        bytes(msg.data),
+        msg.is_extended_id,
+        msg.is_remote_frame,
+        msg.dlc if msg.is_remote_frame else 0,
+        msg.is_fd,
+        msg.bitrate_switch,
+        msg.error_state_indicator,
+        msg.is_error_frame,
     )
 
 
-# CanFrameBatch.frames, little-endian, by column (each compresses better among its likes): the
-# time encoding (uint8) and the count n (uint32), n times, n arbitration ids (uint32), n flags
-# (uint8: 1 outgoing, 2 FD, 4 bitrate switch, 8 error frame), n data lengths (uint8), the data.
-# The times: TIMES_NS (uint64): the first frame's integer nanoseconds, then each one's difference
-# from the one before (small numbers, mostly zero bytes), when every double monotonic_s is its
-# nanoseconds / 1e9, as time.monotonic() makes them; else TIMES_BITS: each double's bits XOR the
-# previous one's. Either way every double comes back bit for bit.
-_HEAD = struct.Struct("<BI")
-TIMES_NS, TIMES_BITS = 1, 2
-_OUTGOING, _FD, _BRS, _ERROR = 1, 2, 4, 8
-_U64 = (1 << 64) - 1
-_NS_LIMIT = 1 << 62  # nanoseconds whose differences stay within int64 (146 years)
-
-FrameTuple = tuple[
-    bool, float, int, bytes, bool, bool, bool
-]  # (outgoing, monotonic_s, id, data, fd, brs, error)
-
-
-def _time_column(times: list[float]) -> tuple[int, list[int]]:
-    try:
-        ns = [round(t * 1e9) for t in times]
-    except (ValueError, OverflowError):  # nan, inf
-        ns = []
-    if ns and all(
-        abs(k) < _NS_LIMIT and k / 1e9 == t and (k or math.copysign(1.0, t) > 0)  # -0.0: bits
-        for k, t in zip(ns, times, strict=True)
-    ):
-        return TIMES_NS, [(b - a) & _U64 for a, b in itertools.pairwise((0, *ns))]  # deltas
-    bits = struct.unpack(f"<{len(times)}Q", struct.pack(f"<{len(times)}d", *times))
-    return TIMES_BITS, [b ^ a for a, b in itertools.pairwise((0, *bits))]  # XOR with the last
-
-
-def _times(encoding: int, column: tuple[int, ...]) -> tuple[float, ...]:
-    acc, out = 0, []
-    for x in column:
-        acc = (acc + x) & _U64 if encoding == TIMES_NS else acc ^ x
-        out.append(acc)
-    if encoding == TIMES_NS:
-        return tuple((k - (1 << 64) if k >> 63 else k) / 1e9 for k in out)
-    if encoding == TIMES_BITS:
-        return struct.unpack(f"<{len(out)}d", struct.pack(f"<{len(out)}Q", *out))
-    raise ValueError(f"a CAN frame batch with an unknown time encoding {encoding}")
-
-
-def pack_frames(frames: list[FrameTuple]) -> bytes:
-    """``frames`` as ``CanFrameBatch.frames`` (see above): exact, every double bit for bit."""
-    n = len(frames)
-    encoding, times = _time_column([f[1] for f in frames])
-    flags = [outgoing | fd << 1 | brs << 2 | err << 3 for outgoing, _, _, _, fd, brs, err in frames]
-    return b"".join(
-        (
-            struct.pack(
-                f"<BI{n}Q{n}I{n}B{n}B",
-                encoding,
-                n,
-                *times,
-                *[f[2] for f in frames],
-                *flags,
-                *[len(f[3]) for f in frames],
-            ),
-            *[f[3] for f in frames],
-        )
-    )
-
-
-def unpack_frames(packed: bytes) -> Iterator[pb.CanFrame]:
-    """The frames of ``CanFrameBatch.frames``, each as the ``CanFrame`` an older file held;
-    ``ValueError`` when the bytes do not hold what their count says."""
-    if len(packed) < _HEAD.size:
-        raise ValueError(f"a CAN frame batch of {len(packed)} bytes has no frame count")
-    encoding, n = _HEAD.unpack_from(packed)
-    columns = struct.Struct(f"<{n}Q{n}I{n}B{n}B")
-    if _HEAD.size + columns.size > len(packed):
-        raise ValueError(f"a CAN frame batch of {len(packed)} bytes is too short for its {n} frames")
-    cols = columns.unpack_from(packed, _HEAD.size)
-    ids, flags, lengths = cols[n : 2 * n], cols[2 * n : 3 * n], cols[3 * n :]
-    times = _times(encoding, cols[:n])
-    pos = _HEAD.size + columns.size
-    if pos + sum(lengths) != len(packed):
-        raise ValueError(f"a CAN frame batch holds {len(packed) - pos} data bytes, its frames {sum(lengths)}")
-    for t, arb, f, length in zip(times, ids, flags, lengths, strict=True):
-        yield pb.CanFrame(
-            monotonic_s=t,
-            outgoing=bool(f & _OUTGOING),
+def can_frames(frames: list[FrameRecord], offset_ns: int) -> pb.CanFrames:
+    """One ``/can`` message: ``frames`` with their times on the wall clock (``unix_time_ns_of``)."""
+    out = pb.CanFrames()
+    add = out.frames.add
+    for outgoing, mono_s, arb, data, ext, rtr, rlen, fd, brs, esi, err in frames:
+        add(
+            unix_time_ns=unix_time_ns_of(mono_s, offset_ns),
             arbitration_id=arb,
-            data=packed[pos : pos + length],
-            is_fd=bool(f & _FD),
-            bitrate_switch=bool(f & _BRS),
-            is_error_frame=bool(f & _ERROR),
+            data=data,
+            outgoing=outgoing,
+            is_extended_id=ext,
+            is_remote_frame=rtr,
+            remote_length=rlen,
+            is_fd=fd,
+            bitrate_switch=brs,
+            error_state_indicator=esi,
+            is_error_frame=err,
         )
-        pos += length
+    return out
 
 
-def frame_log_time_ns(monotonic_s: float, offset_ns: int) -> int:
-    """A frame's MCAP log time: its monotonic time on the wall clock (``clock_offset_ns``)."""
-    return int(monotonic_s * 1e9) + offset_ns
+def frame_from_legacy(f: pb.CanFrame, unix_time_ns: int) -> pb.CanFrames.Frame:
+    """A frame of a recording written before ``CanFrames`` (``CanFrame``, one per message or packed in a
+    ``CanFrameBatch``) as the frames are now. Those files did not record the id's format, remote frames
+    nor ESI: an id above 0x7FF is taken for an extended one, the rest as data frames without ESI."""
+    return pb.CanFrames.Frame(
+        unix_time_ns=unix_time_ns,
+        arbitration_id=f.arbitration_id,
+        data=f.data,
+        outgoing=f.outgoing,
+        is_extended_id=f.arbitration_id > 0x7FF,
+        is_fd=f.is_fd,
+        bitrate_switch=f.bitrate_switch,
+        is_error_frame=f.is_error_frame,
+    )
+
+
+def unix_time_ns_of(monotonic_s: float, offset_ns: int) -> int:
+    """A monotonic reading on the wall clock (``clock_offset_ns``): the MCAP log time of what happened
+    then, and a frame's ``unix_time_ns``. Rounded: ``time.monotonic()`` is integer nanoseconds / 1e9,
+    which comes back whole (recordings before ``CanFrames`` truncated, at most 1 ns earlier)."""
+    return round(monotonic_s * 1e9) + offset_ns
 
 
 def inputs_to_pb(inputs: CycleInputs, out: pb.CycleInputs) -> None:

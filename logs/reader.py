@@ -42,7 +42,8 @@ from mcap.stream_reader import breakup_chunk
 
 from controller.errors import InputError
 from controller.messages import cheope_pb2 as pb
-from logs.messages import unpack_frames
+from logs.can_frame_batch import unpack_frames
+from logs.messages import frame_from_legacy
 
 MAGIC = b"\x89MCAP0\r\n"
 _HEAD = struct.Struct("<BQ")
@@ -56,10 +57,10 @@ _CLASSES: dict[str, Any] = {
     "foxglove.Log": Log,
     "foxglove.FrameTransform": FrameTransform,
     "foxglove.PoseInFrame": PoseInFrame,
+    "cheope.v1.CanFrames": pb.CanFrames,
     "cheope.v1.CanFrameBatch": pb.CanFrameBatch,
     "cheope.v1.Keyframe": pb.Keyframe,
 }
-_BATCH_SCHEMA = "cheope.v1.CanFrameBatch"
 
 
 class LogFileError(InputError):
@@ -310,10 +311,10 @@ def iter_decoded(
         except Exception:  # a damaged message inside an intact chunk: count, go on
             bad[ch.topic] += 1
             continue
-        if isinstance(value, pb.CanFrameBatch):
+        if isinstance(value, (pb.CanFrames, pb.CanFrameBatch, pb.CanFrame)):
             try:
-                yield from _batch_frames(ch.topic, msg, value)
-            except ValueError:
+                yield from _frames(ch.topic, msg, value)
+            except (ValueError, OverflowError):  # a batch that does not add up, a time that is no number
                 bad[ch.topic] += 1
             continue
         yield Decoded(ch.topic, msg.log_time, msg.sequence, value)
@@ -321,15 +322,20 @@ def iter_decoded(
         report.problems.append(f"{k} message(s) on {topic} could not be decoded")
 
 
-def _batch_frames(topic: str, msg: Message, batch: Any) -> Iterator[Decoded]:
-    """One ``Decoded`` ``CanFrame`` per frame of a ``CanFrameBatch``, with the log time each frame
-    had as a message of its own (the batch's is its first frame's)."""
-    offset_ns: int | None = None
-    for frame in unpack_frames(batch.frames):
-        ns = int(frame.monotonic_s * 1e9)
-        if offset_ns is None:
-            offset_ns = msg.log_time - ns
-        yield Decoded(topic, ns + offset_ns, 0, frame)
+def _frames(topic: str, msg: Message, value: Any) -> Iterator[Decoded]:
+    """One ``Decoded`` ``CanFrames.Frame`` per CAN frame, whichever format the file has (logs/messages.py),
+    its log time the frame's own time."""
+    if isinstance(value, pb.CanFrames):
+        for f in value.frames:
+            yield Decoded(topic, f.unix_time_ns, 0, f)
+    elif isinstance(value, pb.CanFrame):  # the oldest files: a message per frame, at the frame's time
+        yield Decoded(topic, msg.log_time, msg.sequence, frame_from_legacy(value, msg.log_time))
+    else:  # a CanFrameBatch: the batch's log time is its first frame's
+        frames = list(unpack_frames(value.frames))  # all or none: a batch that does not add up is refused
+        offset_ns = msg.log_time - round(frames[0].monotonic_s * 1e9) if frames else 0
+        for f in frames:
+            ns = round(f.monotonic_s * 1e9) + offset_ns
+            yield Decoded(topic, ns, 0, frame_from_legacy(f, ns))
 
 
 def read_info(path: str | Path) -> ReadReport:

@@ -50,7 +50,8 @@ from controller.errors import DeviceError
 from logs import messages as m
 from logs.keyframe import ENCODING as STATE_ENCODING
 from logs.keyframe import KeyframeError, encode_state
-from logs.session_writer import CYCLE, END, FRAMES, KEYFRAME, SETUP, FileLimits, FrameRecord, pack_record
+from logs.messages import FrameRecord, frame_record
+from logs.session_writer import CYCLE, END, FRAMES, KEYFRAME, SETUP, FileLimits, pack_record
 
 log = logging.getLogger(__name__)
 
@@ -327,17 +328,7 @@ class SessionRecorder:
 
     def on_frame(self, outgoing: bool, monotonic_s: float, msg: can.Message) -> None:
         """``FrameSink``: copies the frame now (the exchange rewrites its outgoing messages)."""
-        self._frames.append(
-            (
-                outgoing,
-                monotonic_s,
-                msg.arbitration_id,
-                bytes(msg.data),
-                msg.is_fd,
-                msg.bitrate_switch,
-                msg.is_error_frame,
-            )
-        )
+        self._frames.append(frame_record(outgoing, monotonic_s, msg))
         if len(self._frames) >= _MAX_FRAMES_PER_RECORD:
             self._send_frames()
 

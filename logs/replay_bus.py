@@ -34,7 +34,7 @@ import can
 
 from drivers.bus import BusSpec, open_bus
 from drivers.pacing import DeadlineSleeper
-from logs.bus_traffic import recorded_frames
+from logs.bus_traffic import as_message, recorded_frames
 from logs.reader import ReadReport
 
 
@@ -74,25 +74,17 @@ def replay_to_bus(
     bus = bus if bus is not None else open_bus(spec)
     t_start = time.monotonic()
     try:
-        first: float | None = None
+        first_ns: int | None = None
         for f in recorded_frames(path, report):
             if wanted_outgoing is not None and f.outgoing != wanted_outgoing:
                 continue
-            if first is None:
-                first, t_start = f.monotonic_s, time.monotonic()
-            sleeper.sleep_until(t_start + (f.monotonic_s - first) / speed)
+            if first_ns is None:
+                first_ns, t_start = f.unix_time_ns, time.monotonic()
+            sleeper.sleep_until(t_start + (f.unix_time_ns - first_ns) * 1e-9 / speed)
             if stop.is_set():
                 break
-            msg = can.Message(
-                arbitration_id=f.arbitration_id,
-                data=f.data,
-                is_extended_id=f.arbitration_id > 0x7FF,
-                is_fd=f.is_fd,
-                bitrate_switch=f.bitrate_switch,
-                is_error_frame=f.is_error_frame,
-            )
             try:
-                bus.send(msg, timeout=0.1)
+                bus.send(as_message(f, direction=False), timeout=0.1)
                 sent += 1
             except can.CanError:
                 errors += 1

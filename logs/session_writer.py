@@ -15,7 +15,7 @@ little-endian length and a pickle of a tuple whose first item is the kind:
     (KEYFRAME, dropped, cycle, t, mono_s, seq, encoding, state, problem)   asked for: see below
     (END, queued, dropped)                                     the recorder's close
 
-``frames`` is a list of (outgoing, monotonic_s, arbitration_id, data, is_fd, brs, is_error),
+``frames`` is a list of ``logs.messages.FrameRecord`` (outgoing, monotonic_s, arbitration_id, data, flags),
 ``cycle_pb`` the serialised ``cheope.v1.Cycle`` and ``dropped`` the loop's running count of
 items it could not hand over. Writer -> loop, on standard output, JSON lines: ``{"ready": ...}``
 or ``{"error": ...}`` after SETUP, and ``{"written": n, "chunks": n, "error": "", "files": [...],
@@ -59,6 +59,7 @@ if TYPE_CHECKING:
     from controller.config import Config
     from controller.core.cycle_data import Event
     from controller.core.linalg3 import Vector3
+    from logs.messages import FrameRecord
     from logs.scene_sampler import SceneFrame, SceneSampler
 
 SETUP, CYCLE, FRAMES, END, KEYFRAME = range(5)
@@ -67,8 +68,6 @@ DEFAULT_VIEW_RATE_HZ = 20.0  # /tcp, /tcp_reference of a recording without a con
 _WRITER_CHUNK_LIMIT = 1 << 40  # chunks are closed by this module, never by mcap's own size rule
 
 Record = tuple[Any, ...]  # (kind, ...): the records listed in the module doc
-# (outgoing, monotonic_s, arbitration_id, data, is_fd, brs, is_error)
-FrameRecord = tuple[bool, float, int, bytes, bool, bool, bool]
 
 
 def pack_record(record: Record) -> bytes:
@@ -203,7 +202,7 @@ class SessionWriter:
         w.start(profile="", library="cheope logs.recorder")
         self.channels: dict[str, int] = {}
         for topic, cls in (
-            (m.TOPIC_CAN, pb.CanFrameBatch),
+            (m.TOPIC_CAN, pb.CanFrames),
             (m.TOPIC_CYCLE, pb.Cycle),
             (m.TOPIC_EVENTS, pb.Event),
             (m.TOPIC_LOG, Log),
@@ -269,7 +268,7 @@ class SessionWriter:
     ) -> None:
         """Close this file, open the session's next one with the keyframe: the state after ``cycle``."""
         self.keyframe_asked_s = None
-        ns = self.m.frame_log_time_ns(mono_s, self.offset_ns)
+        ns = self.m.unix_time_ns_of(mono_s, self.offset_ns)
         if problem:
             self._event(
                 "keyframe_missing",
@@ -377,7 +376,7 @@ class SessionWriter:
 
         cycle, t = self.last_cycle
         e = Event(kind, Severity.WARNING if warning else Severity.INFO, message)
-        ns = self.m.frame_log_time_ns(self.last_mono_s, self.offset_ns)
+        ns = self.m.unix_time_ns_of(self.last_mono_s, self.offset_ns)
         self.pending += self._add(
             self.m.TOPIC_EVENTS, self.m.event_to_pb(cycle, t, e).SerializeToString(), ns
         ) + self._add(self.m.TOPIC_LOG, self.m.event_to_log(ns, e).SerializeToString(), ns)
@@ -395,12 +394,12 @@ class SessionWriter:
         return len(data) + 31  # record overhead in the chunk
 
     def _frames(self, frames: list[FrameRecord]) -> int:
-        """The frames as one ``CanFrameBatch`` (one MCAP message, one index entry, for all of them)."""
+        """The frames as one ``CanFrames`` (one MCAP message, one index entry, for all of them)."""
         if not frames:
             return 0
-        batch = self.pb.CanFrameBatch(frames=self.m.pack_frames(frames)).SerializeToString()
+        batch = self.m.can_frames(frames, self.offset_ns).SerializeToString()
         self.last_mono_s = frames[-1][1]
-        return self._add(self.m.TOPIC_CAN, batch, self.m.frame_log_time_ns(frames[0][1], self.offset_ns))
+        return self._add(self.m.TOPIC_CAN, batch, self.m.unix_time_ns_of(frames[0][1], self.offset_ns))
 
     def _cycle(
         self,
@@ -414,7 +413,7 @@ class SessionWriter:
         tcp_reference: Vector3 | None,
     ) -> int:
         m = self.m
-        ns = int(mono_s * 1e9) + self.offset_ns
+        ns = self.m.unix_time_ns_of(mono_s, self.offset_ns)
         self.last_cycle = (cycle, t)
         self.last_mono_s = mono_s
         n = self._add(m.TOPIC_CYCLE, cycle_pb, ns, seq)
@@ -478,7 +477,7 @@ class SessionWriter:
             Severity.WARNING,
             f"recorder queue full: {new} item(s) dropped after cycle {cycle} ({dropped} in total)",
         )
-        ns = int(self.last_mono_s * 1e9) + self.offset_ns
+        ns = self.m.unix_time_ns_of(self.last_mono_s, self.offset_ns)
         return self._add(
             self.m.TOPIC_EVENTS, self.m.event_to_pb(cycle, t, e).SerializeToString(), ns
         ) + self._add(self.m.TOPIC_LOG, self.m.event_to_log(ns, e).SerializeToString(), ns)

@@ -88,4 +88,5 @@ def test_cantools_decodes_every_frame_the_dbc_describes(demo_recording: Path, tm
         "ForceSensor_TPDO1",
         "ForceSensor_TPDO2",
         "Controller_Heartbeat",
+        "NMT",
     } <= names

@@ -120,11 +120,13 @@ def test_round_trip_counts_and_contents_match(tmp_path):
         assert c.state.mode == state.mode.name
         assert tuple(c.state.setpoint_velocity) == state.setpoint.velocity
     assert [d.sequence for d in cycles] == list(range(len(cycles)))
+    offset = int(report.metadata[m.META_SESSION]["clock_offset_ns"])
     frames = [
-        (f.message.outgoing, f.message.monotonic_s, f.message.arbitration_id, f.message.data)
+        (f.message.outgoing, f.message.unix_time_ns, f.message.arbitration_id, f.message.data)
         for f in iter_decoded(path, [m.TOPIC_CAN])
     ]
-    assert frames == sent  # the preallocated outgoing message was copied, not referenced
+    # the preallocated outgoing message was copied, not referenced; each time the monotonic one on the wall clock
+    assert frames == [(o, round(t * 1e9) + offset, i, d) for o, t, i, d in sent]
     events = [d.message for d in iter_decoded(path, [m.TOPIC_EVENTS])]
     assert [e.message for e in events] == [e.message for r in trace.rows for e in r[5]]
     # the configuration in the metadata rebuilds the same Config
@@ -136,10 +138,11 @@ def test_round_trip_counts_and_contents_match(tmp_path):
 
 def test_log_time_is_the_controller_clock_on_the_wall_clock(tmp_path):
     path = tmp_path / "s.mcap"
-    record_session(path, max_s=0.3)
+    *_, sent, _ = record_session(path, max_s=0.3)
     offset = int(read_info(path).metadata[m.META_SESSION]["clock_offset_ns"])
-    for d in iter_decoded(path, [m.TOPIC_CAN]):
-        assert d.log_time_ns == int(d.message.monotonic_s * 1e9) + offset
+    frames = list(iter_decoded(path, [m.TOPIC_CAN]))
+    assert [d.log_time_ns for d in frames] == [round(t * 1e9) + offset for _, t, _, _ in sent]
+    assert all(d.log_time_ns == d.message.unix_time_ns for d in frames)
     assert abs(offset - time.time_ns()) < 60e9  # simulated clock starts at 0: offset ~ now
 
 
@@ -437,6 +440,27 @@ def test_session_files_get_timestamped_unique_names(tmp_path):
     assert p1.suffix == p2.suffix == ".mcap"
 
 
+def test_a_generic_protobuf_reader_decodes_every_can_frame_from_the_embedded_schema(tmp_path):
+    """mcap + mcap-protobuf-support, no project code: the schema in the file is enough to get each
+    frame's time, direction, id, data and flags."""
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    path = tmp_path / "g.mcap"
+    *_, sent, _ = record_session(path, max_s=0.3)
+    offset = int(read_info(path).metadata[m.META_SESSION]["clock_offset_ns"])
+    with path.open("rb") as f:
+        decoded = [
+            (frame.outgoing, frame.unix_time_ns, frame.arbitration_id, frame.data, frame.is_extended_id)
+            for schema, _, _, msg in make_reader(
+                f, decoder_factories=[DecoderFactory()]
+            ).iter_decoded_messages(topics=[m.TOPIC_CAN])
+            for frame in msg.frames
+            if schema is not None and schema.name == "cheope.v1.CanFrames"
+        ]
+    assert decoded == [(o, round(t * 1e9) + offset, i, d, False) for o, t, i, d in sent]
+
+
 def test_rerun_reads_the_mcap_file_directly_and_decodes_the_protobuf_channels(tmp_path):
     from rerun.chunk import McapReader
 
@@ -445,7 +469,20 @@ def test_rerun_reads_the_mcap_file_directly_and_decodes_the_protobuf_channels(tm
     store = McapReader(path).stream().collect()
     summary = store.summary()
     assert "cheope.v1.Cycle:message" in summary  # our schema, decoded by reflection
-    assert "cheope.v1.CanFrameBatch:message" in summary
+    assert "cheope.v1.CanFrames:message" in summary
+    # each CAN frame a struct of its own fields (not an opaque blob): id and data per frame
+    can_rows = [
+        frame
+        for chunk in store.stream()
+        if chunk.entity_path == m.TOPIC_CAN and not chunk.is_static
+        for row in chunk.to_record_batch().column("cheope.v1.CanFrames:message").to_pylist()
+        for message in row
+        for frame in message["frames"]
+    ]
+    ours = [d.message for d in iter_decoded(path, [m.TOPIC_CAN])]
+    assert [(f["unix_time_ns"], f["arbitration_id"], f["data"], f["outgoing"]) for f in can_rows] == [
+        (f.unix_time_ns, f.arbitration_id, f.data, f.outgoing) for f in ours
+    ]
     assert "Transform3D:translation" in summary  # foxglove.FrameTransform -> Transform3D
     assert "TextLog:text" in summary  # foxglove.Log -> TextLog
     assert "cheope.config" in summary  # the metadata

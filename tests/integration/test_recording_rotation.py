@@ -17,7 +17,7 @@ from controller.config import ConfigError, load_config
 from controller.messages import cheope_pb2 as pb
 from logs import messages as m
 from logs.keyframe import decode_state, encode_state
-from logs.reader import iter_decoded, read_head, read_info
+from logs.reader import iter_decoded, iter_messages, read_head, read_info
 from logs.recorder import session_metadata
 from logs.recovery import recover
 from logs.replay_verify import verify
@@ -298,10 +298,72 @@ def test_rotation_settings_are_validated_with_the_key_and_the_value():
     )
 
 
-def test_an_older_file_with_a_message_per_frame_reads_as_the_packed_format_does(tmp_path):
-    """tests/data/frames_one_message_each.mcap was written before the frames were packed (one
+def _with_packed_batches(src: Path, dst: Path) -> int:
+    """``src`` as the recorder wrote it before CanFrames: its /can messages as CanFrameBatch (packed by
+    column, tests/can_frame_batch_packing.py), everything else as it is. Returns the batches written."""
+    from can_frame_batch_packing import pack_frames
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+    from mcap_protobuf.schema import register_schema
+
+    offset = int(read_info(src).metadata[m.META_SESSION]["clock_offset_ns"])
+    batches = 0
+    with src.open("rb") as f, dst.open("wb") as out:
+        reader = make_reader(f)
+        w = Writer(out)
+        w.start()
+        channels = {}
+        for schema, channel, msg in reader.iter_messages():
+            if channel.id not in channels:
+                if channel.topic == m.TOPIC_CAN:
+                    sid = register_schema(w, pb.CanFrameBatch)
+                else:
+                    sid = w.register_schema(schema.name, schema.encoding, schema.data)
+                channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding, sid)
+            data = msg.data
+            if channel.topic == m.TOPIC_CAN:
+                frames = pb.CanFrames.FromString(data).frames
+                data = pb.CanFrameBatch(
+                    frames=pack_frames(
+                        [
+                            (
+                                x.outgoing,
+                                (x.unix_time_ns - offset) / 1e9,
+                                x.arbitration_id,
+                                x.data,
+                                x.is_fd,
+                                x.bitrate_switch,
+                                x.is_error_frame,
+                            )
+                            for x in frames
+                        ]
+                    )
+                ).SerializeToString()
+                batches += 1
+            w.add_message(channels[channel.id], msg.log_time, data, msg.publish_time, msg.sequence)
+        for record in reader.iter_metadata():
+            w.add_metadata(record.name, record.metadata)
+        w.finish()
+    return batches
+
+
+def test_an_older_file_with_packed_batches_reads_frame_by_frame(tmp_path):
+    """A recording as the recorder wrote it before CanFrames (a CanFrameBatch per cycle, frames packed by
+    column): each batch reads as its frames at the times they had, the first at the batch's log time."""
+    today = tmp_path / "today.mcap"
+    record_session(today, max_s=0.3)
+    old = tmp_path / "packed.mcap"
+    assert _with_packed_batches(today, old) > 50
+    assert {s.name for s in read_info(old).schemas.values()} >= {"cheope.v1.CanFrameBatch"}
+    assert [(d.log_time_ns, d.message) for d in iter_decoded(old, [m.TOPIC_CAN])] == [
+        (d.log_time_ns, d.message) for d in iter_decoded(today, [m.TOPIC_CAN])
+    ]
+
+
+def test_an_older_file_with_a_message_per_frame_reads_as_todays_format_does(tmp_path):
+    """tests/data/frames_one_message_each.mcap was written before the frames were batched (one
     cheope.v1.CanFrame per frame): it reads and verifies as before, and the same session written
-    today gives the reader the same frames with the same log times, and the same cycles."""
+    today gives the reader the same frames with the same times, and the same cycles."""
     from tools.bench_recording_size import main as rewrite
 
     old = Path(__file__).resolve().parents[1] / "data" / "frames_one_message_each.mcap"
@@ -309,9 +371,9 @@ def test_an_older_file_with_a_message_per_frame_reads_as_the_packed_format_does(
         s.name == "cheope.v1.CanFrame" for s in read_info(old).schemas.values()
     )
     assert verify(old).ok
-    new = tmp_path / "packed.mcap"
+    new = tmp_path / "batched.mcap"
     rewrite(old, new)
-    assert {s.name for s in read_info(new).schemas.values()} >= {"cheope.v1.CanFrameBatch"}
+    assert {s.name for s in read_info(new).schemas.values()} >= {"cheope.v1.CanFrames"}
     offset = int(read_info(old).metadata[m.META_SESSION]["clock_offset_ns"])
 
     def content(path):
@@ -321,9 +383,12 @@ def test_an_older_file_with_a_message_per_frame_reads_as_the_packed_format_does(
         ]
 
     frames = [d for d in iter_decoded(old, [m.TOPIC_CAN])]
-    assert len(frames) == 206 and all(
-        d.log_time_ns == int(d.message.monotonic_s * 1e9) + offset for d in frames
-    )
+    as_written = [
+        pb.CanFrame.FromString(msg.data) for ch, msg in iter_messages(old) if ch.topic == m.TOPIC_CAN
+    ]
+    assert len(frames) == 206 and [(d.log_time_ns, d.message.unix_time_ns) for d in frames] == [
+        (int(f.monotonic_s * 1e9) + offset,) * 2 for f in as_written
+    ]
     assert content(new) == content(old)
     assert read_info(new).size_bytes < read_info(old).size_bytes
 

@@ -1,12 +1,15 @@
 """Bytes per hour and writer CPU of the recording format, on the content of a recorded session.
 
-    .venv/bin/python tests/tools/bench_recording_size.py SESSION.mcap [OUT.mcap]
+    .venv/bin/python tests/tools/bench_recording_size.py SESSION.mcap [OUT.mcap] [--without-can]
 
 The session's frames, cycles and events are handed to ``logs.session_writer.SessionWriter`` as
 the recorder hands them over (one CYCLE record per cycle, with the frames before it), in the
 same process, and the writer's CPU time (``time.process_time``, the scene drawing included) and
-the file it writes are measured. Run it with ``PYTHONPATH`` at an older checkout to measure that
-version's writer on the same content. Not a pytest benchmark: it prints numbers, asserts nothing.
+the file it writes are measured. Run an older checkout's copy of this file with ``PYTHONPATH`` at
+that checkout to measure that version's writer on the same content. ``--without-can`` writes the
+same session without its CAN frames: the difference to a whole file is what ``/can`` costs
+(``can_frames`` says how many frames that is). Not a pytest benchmark: it prints numbers, asserts
+nothing.
 """
 
 from __future__ import annotations
@@ -28,12 +31,15 @@ from logs.session_writer import CYCLE, FRAMES, SessionWriter
 HOUR_S = 3600.0
 
 
-def records(path: Path) -> tuple[list[tuple[object, ...]], dict[str, dict[str, str]], float]:
-    """The recorder's records for ``path``, its metadata and its duration [s]."""
+def records(
+    path: Path, with_can: bool = True
+) -> tuple[list[tuple[object, ...]], dict[str, dict[str, str]], float]:
+    """The recorder's records for ``path`` (without its CAN frames unless ``with_can``), its metadata
+    and its duration [s]."""
     info = read_info(path)
     offset_ns = int(info.metadata[m.META_SESSION]["clock_offset_ns"])
     out: list[tuple[object, ...]] = []
-    frames: list[tuple[bool, float, int, bytes, bool, bool, bool]] = []
+    frames: list[m.FrameRecord] = []
     events: dict[int, list[Event]] = {}
     for d in iter_decoded(path, (m.TOPIC_EVENTS,), ReadReport(path)):
         if d.message.kind != "recorder_drop":
@@ -43,14 +49,20 @@ def records(path: Path) -> tuple[list[tuple[object, ...]], dict[str, dict[str, s
     for d in iter_decoded(path, (m.TOPIC_CAN, m.TOPIC_CYCLE), ReadReport(path)):
         if d.topic == m.TOPIC_CAN:
             f = d.message
+            if not with_can:
+                continue
             frames.append(
                 (
                     f.outgoing,
-                    f.monotonic_s,
+                    (f.unix_time_ns - offset_ns) * 1e-9,  # the monotonic reading (m.unix_time_ns_of)
                     f.arbitration_id,
                     bytes(f.data),
+                    f.is_extended_id,
+                    f.is_remote_frame,
+                    f.remote_length,
                     f.is_fd,
                     f.bitrate_switch,
+                    f.error_state_indicator,
                     f.is_error_frame,
                 )
             )
@@ -78,8 +90,8 @@ def records(path: Path) -> tuple[list[tuple[object, ...]], dict[str, dict[str, s
     return out, info.metadata, info.duration_s
 
 
-def main(src: Path, dst: Path | None) -> dict[str, float]:
-    recs, metadata, duration_s = records(src)
+def main(src: Path, dst: Path | None, with_can: bool = True) -> dict[str, float]:
+    recs, metadata, duration_s = records(src, with_can)
     metadata.pop(m.META_RECORDING, None)
     with tempfile.TemporaryDirectory() as tmp:
         out = dst or Path(tmp) / "bench.mcap"
@@ -110,6 +122,7 @@ def main(src: Path, dst: Path | None) -> dict[str, float]:
     return {
         "source_duration_s": round(duration_s, 3),
         "cycles": sum(1 for r in recs if r[0] == CYCLE),
+        "can_frames": sum(len(r[2]) for r in recs if r[0] in (CYCLE, FRAMES)),  # type: ignore[arg-type]
         "bytes": size,
         "bytes_per_hour": round(size * HOUR_S / duration_s),
         "gb_per_hour": round(size * HOUR_S / duration_s / 1e9, 3),
@@ -119,6 +132,12 @@ def main(src: Path, dst: Path | None) -> dict[str, float]:
 
 
 if __name__ == "__main__":
-    if len(sys.argv) not in (2, 3):
+    flags = [a for a in sys.argv[1:] if a.startswith("--")]
+    paths = [a for a in sys.argv[1:] if not a.startswith("--")]
+    if len(paths) not in (1, 2) or set(flags) - {"--without-can"}:
         sys.exit(__doc__)
-    print(json.dumps(main(Path(sys.argv[1]), Path(sys.argv[2]) if len(sys.argv) == 3 else None)))
+    print(
+        json.dumps(
+            main(Path(paths[0]), Path(paths[1]) if len(paths) == 2 else None, "--without-can" not in flags)
+        )
+    )

@@ -24,7 +24,7 @@ from logs.can_export import FORMATS, export_frames
 from logs.reader import ReadReport
 
 # Reading back: 1 us of resolution in the text formats, plus the float rounding of a Unix time (0.24 us).
-RESOLUTION_S = {"asc": 1.5e-6, "blf": 1.5e-6, "log": 1.5e-6, "trc": 1.5e-6, "csv": 1e-9}
+RESOLUTION_S = {"asc": 1.5e-6, "blf": 1.5e-6, "log": 1.5e-6, "trc": 1.5e-6, "csv": 1e-9, "mf4": 1e-6}
 
 
 @pytest.fixture(scope="module")
@@ -100,6 +100,25 @@ def test_frames_a_format_cannot_hold_are_counted_not_dropped(tmp_path: Path):
     assert back[-1].is_error_frame and back[-1].is_rx
 
 
+@pytest.mark.parametrize("fmt", ["asc", "blf", "log", "csv", "mf4"])
+def test_remote_frames_and_extended_ids_are_recorded_and_exported_as_they_were(tmp_path: Path, fmt: str):
+    """A node-guarding RTR (0x701, DLC 1) and a 29-bit id at 0x123 (below 0x7FF: not guessed from the
+    value): both recorded with their flags, both read back from the export as they were sent."""
+    rtr = can.Message(arbitration_id=0x701, is_remote_frame=True, dlc=1, is_extended_id=False)
+    ext = can.Message(arbitration_id=0x123, data=b"\x01\x02", is_extended_id=True)
+    path = tmp_path / "flags.mcap"
+    _record(path, [(True, rtr), (False, ext)])
+    recorded = list(recorded_frames(path))[-2:]
+    assert [(f.is_remote_frame, f.remote_length, f.is_extended_id) for f in recorded] == [
+        (True, 1, False),
+        (False, 0, True),
+    ]
+    back = list(can.LogReader(export_frames(path, fmt, tmp_path / f"x.{fmt}").output))[-2:]
+    # candump's log as python-can writes it: ``701#R``, the requested length left out (logs/can_export.py)
+    assert (back[0].arbitration_id, back[0].is_remote_frame, back[0].dlc) == (0x701, True, fmt != "log")
+    assert (back[1].arbitration_id, back[1].is_extended_id, bytes(back[1].data)) == (0x123, True, b"\x01\x02")
+
+
 def test_the_command_exits_1_and_names_what_a_format_could_not_hold(tmp_path: Path):
     fd = can.Message(arbitration_id=0x201, data=bytes(range(12)), is_extended_id=False, is_fd=True)
     path = tmp_path / "fd.mcap"
@@ -116,7 +135,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path):
     not_mcap.write_text("hello")
     r = _cheope("logs", "export", str(not_mcap), "--format", "asc")
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "not an MCAP file" in r.stderr
-    r = _cheope("logs", "export", str(not_mcap), "--format", "mf4")
+    r = _cheope("logs", "export", str(not_mcap), "--format", "mdf")
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "--format" in r.stderr
 
 

@@ -46,10 +46,29 @@ def dbc(repo_root):
 
 
 def test_dbc_decodes_drive_frames_like_the_codec(dbc):
-    rx = dbc.decode_message(cob_ids.rpdo1(3), encode_drive_rpdo(0x000F, -123456))
+    rx = dbc.decode_message(cob_ids.rpdo1(3), encode_drive_rpdo(0x000F, -123456), decode_choices=False)
     assert rx == {"Drive3_Controlword": 0x000F, "Drive3_TargetPosition": pytest.approx(-0.0123456)}
-    tx = dbc.decode_message(cob_ids.tpdo1(1), encode_drive_tpdo(0x1637, 5823093))
-    assert tx == {"Drive1_Statusword": 0x1637, "Drive1_PositionActual": pytest.approx(0.5823093)}
+    tx = dbc.decode_message(cob_ids.tpdo1(1), encode_drive_tpdo(0x1637, 5823093), decode_choices=False)
+    assert tx.pop("Drive1_PositionActual") == pytest.approx(0.5823093)
+    # the statusword as its 16 bits, each a signal of its own: together the whole word
+    assert len(tx) == 16 and sum(v << i for i, v in enumerate(tx.values())) == 0x1637
+
+
+def test_dbc_names_the_nmt_states_the_statusword_bits_and_the_controlword_commands(dbc):
+    """Value tables: what a CAN viewer shows instead of numbers."""
+    for node in (1, 2, 3, 16):
+        states = {
+            str(dbc.decode_message(cob_ids.heartbeat(node), bytes([s])).popitem()[1])
+            for s in (0x00, 0x04, 0x05, 0x7F)
+        }
+        assert states == {"Boot-up", "Stopped", "Operational", "Pre-operational"}
+    fault = dbc.decode_message(cob_ids.tpdo1(2), encode_drive_tpdo(0x0218, 0))  # fault, quick stop active
+    assert fault["Drive2_SW_Fault"] == "fault" and fault["Drive2_SW_QuickStop"] == "quick stop active"
+    assert fault["Drive2_SW_OperationEnabled"] == "operation disabled"
+    enable = dbc.decode_message(cob_ids.rpdo1(2), encode_drive_rpdo(0x000F, 0))
+    assert enable["Drive2_Controlword"] == "Enable operation"
+    nmt = dbc.decode_message(cob_ids.NMT, bytes([0x81, 0]))
+    assert nmt == {"NMT_Command": "Reset node", "NMT_NodeId": "All nodes"}
 
 
 def test_dbc_decodes_sensor_frames_like_the_codec(dbc):

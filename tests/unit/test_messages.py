@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import struct
 
+import can
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -68,9 +69,11 @@ def _exact(frames):
     st.lists(_frame, max_size=40)
     | st.lists(st.builds(lambda k, f: (f[0], k / 1e9, *f[2:]), st.integers(0, 10**15), _frame), max_size=40)
 )
-def test_a_cycles_frames_packed_in_one_batch_come_back_bit_for_bit(frames):
+def test_an_older_files_packed_batch_comes_back_bit_for_bit(frames):
     """Every frame with its direction, time (any double: nanoseconds or not, -0.0, nan), id, data and flags."""
-    from logs.messages import pack_frames, unpack_frames
+    from can_frame_batch_packing import pack_frames
+
+    from logs.can_frame_batch import unpack_frames
 
     back = [
         (f.outgoing, f.monotonic_s, f.arbitration_id, f.data, f.is_fd, f.bitrate_switch, f.is_error_frame)
@@ -80,9 +83,68 @@ def test_a_cycles_frames_packed_in_one_batch_come_back_bit_for_bit(frames):
 
 
 def test_a_cut_batch_is_refused_not_misread():
-    from logs.messages import pack_frames, unpack_frames
+    from can_frame_batch_packing import pack_frames
+
+    from logs.can_frame_batch import unpack_frames
 
     packed = pack_frames([(True, 1.5, 0x181, b"\x01\x02", False, False, False)] * 3)
     for cut in (2, len(packed) - 1):
         with pytest.raises(ValueError, match="CAN frame batch"):
             list(unpack_frames(packed[:cut]))
+
+
+_can_message = st.builds(
+    lambda ext, rtr, fd, brs, esi, err, arb, data, dlc: can.Message(
+        arbitration_id=arb if ext else arb & 0x7FF,
+        is_extended_id=ext,
+        is_remote_frame=rtr and not fd,
+        dlc=dlc if rtr and not fd else None,
+        data=None if rtr and not fd else data[: 64 if fd else 8],
+        is_fd=fd,
+        bitrate_switch=brs and fd,
+        error_state_indicator=esi and fd,
+        is_error_frame=err,
+        check=False,
+    ),
+    st.booleans(),
+    st.booleans(),
+    st.booleans(),
+    st.booleans(),
+    st.booleans(),
+    st.booleans(),
+    st.integers(0, 0x1FFFFFFF),
+    st.binary(max_size=64),
+    st.integers(0, 8),
+)
+
+
+@settings(deadline=None)
+@given(
+    st.lists(st.tuples(st.booleans(), st.integers(0, 10**15), _can_message), max_size=20),
+    st.integers(0, 2 * 10**18),
+)
+def test_a_cycles_frames_come_back_frame_by_frame_with_every_flag(frames, offset_ns):
+    """Direction, time (the monotonic nanoseconds on the wall clock), id, data, extended id, RTR and the
+    length it requests, FD, BRS, ESI and error frames: in one CanFrames message, decoded field by field."""
+    from logs.bus_traffic import as_message
+    from logs.messages import can_frames, frame_record
+
+    records = [frame_record(out, ns / 1e9, msg) for out, ns, msg in frames]
+    back = pb.CanFrames.FromString(can_frames(records, offset_ns).SerializeToString()).frames
+    assert len(back) == len(frames)
+    for (outgoing, ns, sent), f in zip(frames, back, strict=True):
+        assert f.unix_time_ns == ns + offset_ns and f.outgoing is outgoing
+        again = as_message(f)
+        assert again.is_rx is not outgoing and again.timestamp == pytest.approx((ns + offset_ns) * 1e-9)
+        for name in (
+            "arbitration_id",
+            "is_extended_id",
+            "is_remote_frame",
+            "dlc",
+            "data",
+            "is_fd",
+            "bitrate_switch",
+            "error_state_indicator",
+            "is_error_frame",
+        ):
+            assert getattr(again, name) == getattr(sent, name), name
