@@ -14,12 +14,16 @@ Entities:
   the expected contour, when the task is the contour task);
 - ``/plots``: ``actuators/target_j`` and ``actuators/position_j`` [m], ``force/fx|fy|fz`` [N],
   ``normal_force_error`` [N] (the contour task's F_d - F_n, from the recorded task values),
-  ``loop/period_ms`` (between consecutive cycles on the controller's clock),
-  ``loop/wake_error_us``, ``loop/step_us``;
+  ``loop/period_us`` (between consecutive cycles on the controller's clock),
+  ``loop/wake_error_us``, ``loop/step_us`` (one unit on the loop's plot: µs);
 - ``/events``: the step's events as log lines.
 
 The blueprint puts the 3D view and the event log on the left and the time series on the
 right. The geometry comes from the recorded configuration (``cheope.config`` metadata).
+
+The same conversion serves the Rerun viewer as an external importer (logs/rerun_importer.py,
+``rerun-importer-cheope``): ``rerun FILE.mcap`` shows the robot beside the viewer's own MCAP
+channels.
 """
 
 from __future__ import annotations
@@ -123,7 +127,7 @@ def blueprint(has_force: bool, has_force_error: bool) -> Any:
         plots.append(rrb.TimeSeriesView(origin="/plots/force", name="force [N]"))
     if has_force_error:
         plots.append(rrb.TimeSeriesView(origin="/plots/normal_force_error", name="normal-force error [N]"))
-    plots.append(rrb.TimeSeriesView(origin="/plots/loop", name="loop timing"))
+    plots.append(rrb.TimeSeriesView(origin="/plots/loop", name="loop timing [µs]"))
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
@@ -147,13 +151,23 @@ def can_spawn_viewer() -> tuple[bool, str]:
     return True, ""
 
 
+@dataclass(frozen=True)
+class StdoutStream:
+    """Where an external importer sends the conversion: standard output, into the viewer's recording."""
+
+    application_id: str = APP_ID
+    recording_id: str | None = None  # the viewer's, so that its own MCAP channels join the robot
+
+
 def export(
     path: str | Path,
     out: str | Path | None = None,
     spawn: bool = False,
     progress: Callable[[int], None] | None = None,
+    stdout: StdoutStream | None = None,
 ) -> ExportResult:
-    """Convert ``path`` to Rerun: into ``out`` (.rrd), or to a spawned viewer when ``spawn``.
+    """Convert ``path`` to Rerun: into ``out`` (.rrd), to a spawned viewer when ``spawn``, or to
+    standard output as ``stdout`` says (the viewer's importer).
 
     With ``spawn`` and no display (or a viewer that fails to start), the recording goes to
     ``out`` or, without one, to ``FILE.rrd`` beside the MCAP file; ``ExportResult.note`` says why.
@@ -162,7 +176,7 @@ def export(
 
     path = Path(path)
     report = ReadReport(path)
-    cfg = _config(_leading_metadata(path))
+    cfg = _config(leading_metadata(path))
     sampler = None if cfg is None else SceneSampler.for_config(cfg, SCENE_RATE_HZ)
     s = _gather(path, report, progress, sampler)
     if m.META_CONFIG not in report.metadata:
@@ -175,6 +189,12 @@ def export(
     has_force_error = bool(np.isfinite(force_err).any())
     bp = blueprint(has_force, has_force_error)
 
+    if stdout is not None:
+        rec = rr.RecordingStream(stdout.application_id, recording_id=stdout.recording_id or path.stem)
+        rec.stdout(default_blueprint=bp)
+        entities = _send(rec, s, sampler, force, force_err, has_force, has_force_error)
+        rec.flush()
+        return ExportResult(None, False, len(s.t), tuple(entities), report)
     rec = rr.RecordingStream(APP_ID, recording_id=f"{path.stem}")
     spawned, note, output = False, "", None
     if spawn:
@@ -194,7 +214,7 @@ def export(
     return ExportResult(output, spawned, len(s.t), tuple(entities), report, note)
 
 
-def _leading_metadata(path: Path) -> ReadReport:
+def leading_metadata(path: Path) -> ReadReport:
     """The metadata the recorder writes before any message (the configuration), without reading on."""
     from logs.reader import iter_messages
 
@@ -253,8 +273,8 @@ def _send(
         scalars("/plots/normal_force_error", force_err)
     log_ns = np.asarray(s.log_ns, dtype=np.int64)
     if len(log_ns) > 1:
-        period = np.concatenate([[math.nan], np.diff(log_ns) * 1e-6])
-        scalars("/plots/loop/period_ms", period)
+        period = np.concatenate([[math.nan], np.diff(log_ns) * 1e-3])
+        scalars("/plots/loop/period_us", period)
     scalars("/plots/loop/wake_error_us", np.asarray(s.wake_us))
     scalars("/plots/loop/step_us", np.asarray(s.step_us))
 

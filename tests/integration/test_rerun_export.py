@@ -24,7 +24,7 @@ PLOTS = {f"/plots/actuators/{k}_{j}" for k in ("target", "position") for j in (1
     "/plots/force/fx",
     "/plots/force/fy",
     "/plots/force/fz",
-    "/plots/loop/period_ms",
+    "/plots/loop/period_us",
     "/plots/loop/wake_error_us",
     "/plots/loop/step_us",
 }
@@ -125,3 +125,32 @@ def test_a_file_without_cycles_is_one_clear_error(tmp_path, capsys):
     src.write_bytes(b"\x89MCAP0\r\n")
     assert main(["replay", str(src), "--rerun", str(tmp_path / "e.rrd")]) == 2
     assert "no readable control cycles" in capsys.readouterr().err
+
+
+def test_the_rerun_viewer_importer_draws_the_robot_of_a_recording_it_opens(tmp_path):
+    """``rerun FILE.mcap`` runs ``rerun-importer-cheope FILE --recording-id ID`` (the venv's bin on PATH):
+    its standard output is the robot, the plots and the blueprint, in the viewer's recording."""
+    import subprocess
+    import sys
+
+    from rerun.chunk import RrdReader
+
+    importer = Path(sys.executable).parent / "rerun-importer-cheope"
+    rrd = tmp_path / "from_importer.rrd"
+    with rrd.open("wb") as out:
+        r = subprocess.run(
+            [str(importer), str(DATA / "path_quarter_lap.mcap"), "--recording-id", "the-viewers-id"],
+            stdout=out,
+            stderr=subprocess.PIPE,
+            timeout=120,
+            check=False,
+        )
+    assert r.returncode == 0, r.stderr
+    assert _entities(rrd) >= ROBOT | PLOTS
+    assert [str(e.recording_id) for e in RrdReader(rrd).recordings()] == ["the-viewers-id"]
+    # not a cheope recording: "not mine" (66), nothing on standard output
+    other = tmp_path / "other.mcap"
+    other.write_bytes(b"\x89MCAP0\r\n" + bytes(100))
+    for path in (other, DATA.parent / "conftest.py"):
+        r = subprocess.run([str(importer), str(path)], capture_output=True, timeout=60, check=False)
+        assert (r.returncode, r.stdout) == (66, b""), r.stderr
