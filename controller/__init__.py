@@ -1,0 +1,14 @@
+"""The control computer's side: the law, the loop shell, the service and its command line.
+
+Set before anything imports numpy: its BLAS (OpenBLAS) starts a pool of worker threads under the
+normal scheduler at import (one on a 2-CPU machine), and hands a large enough product to them.
+The law's algebra is 3x3 and gains nothing from threads, and a loop at SCHED_FIFO that waits
+for a pool thread a busy machine preempts is held up by it (docs/concepts/realtime.md). One
+thread: no pool. Child processes (the simulator, the recording's writer) inherit it. A program
+that imported numpy before this package keeps its pool; setting the variable explicitly wins.
+"""
+
+import os
+
+for _pool in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
+    os.environ.setdefault(_pool, "1")

@@ -186,6 +186,28 @@ def _stop_on_signals() -> threading.Event:
     return stop
 
 
+def _longest_cycle_line(summary: dict[str, Any]) -> str:
+    """Where the longest cycle's time went (wake-up to the end of its work), and the loop's collections."""
+    c, g = summary.get("longest_cycle_us") or {}, summary["garbage_collections"]
+    parts = ", ".join(
+        f"{name} {c[key]:.0f}"
+        for name, key in (
+            ("woke late", "wake_error"),
+            ("send", "send"),
+            ("collect past window", "collect_over"),
+            ("step", "step"),
+            ("observers", "observers"),
+            ("gc", "gc"),
+        )
+    )
+    head = (
+        f"longest cycle       {c['span']:.0f} us (cycle {c['cycle']}: {parts} us); "
+        if c
+        else "longest cycle       -; "
+    )
+    return head + f"{g['count']} collection(s) between cycles, max {g['max_us']:.0f} us"
+
+
 def _print_summary(summary: dict[str, Any], as_json: bool) -> None:
     if as_json:
         print(strict_json(summary))
@@ -205,6 +227,7 @@ def _print_summary(summary: dict[str, Any], as_json: bool) -> None:
             f"max {summary['observers_us']['max']:.0f} us (recorder, publisher: they must only hand off)"
         ),
         f"late cycles         {summary['late_cycles']} (overruns {summary['overruns']})",
+        _longest_cycle_line(summary),
         f"real-time           {summary.get('realtime', 'none')}",
         f"missing frames      drives {summary['missing_frames']['drive']}, sensor {summary['missing_frames']['sensor']}",
     ]

@@ -14,13 +14,29 @@ Per cycle k, with deadline d_k = d_0 + k * period on a monotonic clock:
      step and observers (0.44 + 0.19 ms at their medians on this machine) after a 2-ms window
      overran the 2.5-ms period: the next wake-up was late in 35-77 % of a demo's cycles;
   4. ``law.step(state, inputs, k * period)``;
-  5. hand copies to the observers (recorder, publisher, statistics): they must not block.
+  5. hand copies to the observers (recorder, publisher, statistics): they must not block;
+  6. collect garbage, when there is any to collect, here and nowhere else (``collect_garbage``).
 If the loop falls more than one period behind, it skips the missed deadlines (counted as
 overruns) rather than running a burst of late cycles, as ros2_control's loop does.
+
+Garbage collection. CPython's collector runs whenever the young generation has grown by its
+threshold (700 tracked objects), inside whatever allocation crosses it: in the middle of a
+step, where a full collection once took 31 ms (path task, simulated time). During ``run`` the
+automatic collector is off (``gc.disable``) and the loop collects after the cycle's observers,
+when the cycle's outputs are ready and only the sleep to the next deadline is left, the
+generation CPython would have chosen. A cycle in its steady state allocates as many tracked
+objects as it frees (``cheope bench --work`` counts them), so these collections are rare; each is
+counted and timed (``LoopStats.gc_collections``, ``gc_max_s``).
+
+Where the time of a long cycle went: each cycle's send, its collect past the window's end, its
+step and its observers are kept in the ring beside its wake-up error, and the longest cycle of
+the run (wake-up to the end of its work) with its parts (``LoopStats.longest_cycle``): a cycle
+stalled by something beside the loop shows which part of it waited.
 """
 
 from __future__ import annotations
 
+import gc
 import threading
 import time
 from collections.abc import Callable
@@ -84,6 +100,9 @@ class LoopStats:
     wake_error_s: np.ndarray = field(init=False)  # ring: actual wake-up minus deadline
     step_s: np.ndarray = field(init=False)  # ring: compute time of law.step
     observers_s: np.ndarray = field(init=False)  # ring: time spent handing the cycle to the observers
+    send_s: np.ndarray = field(init=False)  # ring: time the exchange took to send the outputs and SYNC
+    # ring: how long after its answer window's end the collect returned (it should return at it)
+    collect_over_s: np.ndarray = field(init=False)
     deadline_index: np.ndarray = field(
         init=False
     )  # ring: k of each executed cycle (skipped deadlines leave gaps)
@@ -93,6 +112,10 @@ class LoopStats:
     period_error_hist_us: LogHistogram = field(init=False)  # |actual - nominal period| between wake-ups
     cycles: int = 0
     overruns: int = 0  # deadlines skipped because the loop fell behind
+    gc_collections: int = 0  # garbage collections the loop ran between cycles (module text)
+    gc_max_s: float = 0.0  # the longest of them
+    # the cycle with the longest span from its wake-up to the end of its work, and its parts [s]
+    longest_cycle: dict[str, float] = field(default_factory=dict)
     started_s: float = 0.0
     finished_s: float = 0.0
     _folded: int = field(init=False, default=0)  # cycles already in the histograms
@@ -105,6 +128,8 @@ class LoopStats:
         self.wake_error_s = np.zeros(self.ring_cycles)
         self.step_s = np.zeros(self.ring_cycles)
         self.observers_s = np.zeros(self.ring_cycles)
+        self.send_s = np.zeros(self.ring_cycles)
+        self.collect_over_s = np.zeros(self.ring_cycles)
         self.deadline_index = np.zeros(self.ring_cycles, dtype=np.int64)
         self.wake_hist_us, self.step_hist_us, self.observers_hist_us, self.period_error_hist_us = (
             LogHistogram(0.1, 1e8) for _ in range(4)
@@ -124,6 +149,34 @@ class LoopStats:
         """Time of the observers of the cycle recorded last."""
         if self.cycles > self._folded:
             self.observers_s[(self.cycles - 1) % self.ring_cycles] = observers_s
+
+    def record_exchange(self, send_s: float, collect_over_s: float) -> None:
+        """The exchange's part of the cycle recorded last: its send, and its collect past the window."""
+        if self.cycles > self._folded:
+            i = (self.cycles - 1) % self.ring_cycles
+            self.send_s[i] = send_s
+            self.collect_over_s[i] = collect_over_s
+
+    def record_span(self, span_s: float, gc_s: float) -> None:
+        """The span of the cycle recorded last (wake-up to the end of its work, a collection
+        included): kept with its parts when it is the longest of the run so far."""
+        if span_s <= self.longest_cycle.get("span_s", 0.0) or self.cycles <= self._folded:
+            return
+        i = (self.cycles - 1) % self.ring_cycles
+        self.longest_cycle = {
+            "cycle": float(self.deadline_index[i]),
+            "span_s": span_s,
+            "wake_error_s": float(self.wake_error_s[i]),
+            "send_s": float(self.send_s[i]),
+            "collect_over_s": float(self.collect_over_s[i]),
+            "step_s": float(self.step_s[i]),
+            "observers_s": float(self.observers_s[i]),
+            "gc_s": gc_s,
+        }
+
+    def record_gc(self, duration_s: float) -> None:
+        self.gc_collections += 1
+        self.gc_max_s = max(self.gc_max_s, duration_s)
 
     def fold(self) -> None:
         """Move the cycles not yet counted into the histograms (the ring keeps them as the last cycles)."""
@@ -152,6 +205,8 @@ class LoopStats:
             "wake_error_s": self.wake_error_s[idx],
             "step_s": self.step_s[idx],
             "observers_s": self.observers_s[idx],
+            "send_s": self.send_s[idx],
+            "collect_over_s": self.collect_over_s[idx],
             "deadline_index": self.deadline_index[idx],
         }
 
@@ -205,6 +260,7 @@ class CycleLoop:
         quick_stop_event: threading.Event | None = None,
         stop_timeout_s: float = DEFAULT_STOP_TIMEOUT_S,
         plans_ready: Callable[[], int] | None = None,
+        collect_garbage: bool = True,
     ) -> None:
         if not stop_timeout_s > 0:
             raise ValueError(f"stop_timeout_s = {stop_timeout_s}: must be > 0")
@@ -223,6 +279,7 @@ class CycleLoop:
         )
         self.late_tolerance_s = late_tolerance_s
         self.stop_timeout_s = stop_timeout_s
+        self.collect_garbage = collect_garbage  # the loop, not the allocator, decides when (module text)
 
     def _window_end(self, deadline: float, work_peak_s: float) -> float:
         """When this cycle's answer window closes (step 3 of the module's text)."""
@@ -251,16 +308,45 @@ class CycleLoop:
         stop_timeout_cycles = max(1, int(self.stop_timeout_s / period))
         stats = LoopStats(period_s=period)
         clock = self.clock
+        stats.started_s = clock() + period  # the first deadline
+        linger = max(1, int(linger_after_end_s / period))
+        deadlines = self.exchange if isinstance(self.exchange, CycleDeadlines) else None
+        collector_was_on = gc.isenabled()
+        if self.collect_garbage:
+            gc.disable()
+        try:
+            state = self._cycles(
+                state, stats, time_up_cycle, stop_timeout_cycles, linger, exit_on_fault, deadlines
+            )
+        finally:
+            if collector_was_on:
+                gc.enable()
+        stats.finished_s = clock()
+        stats.fold()
+        return state, stats
+
+    def _cycles(
+        self,
+        state: ControllerState,
+        stats: LoopStats,
+        time_up_cycle: int | None,
+        stop_timeout_cycles: int,
+        linger: int,
+        exit_on_fault: bool,
+        deadlines: CycleDeadlines | None,
+    ) -> ControllerState:
+        """The cycles of ``run`` until the run ends; the state it ends in."""
+        period = self.period_s
+        clock = self.clock
         outputs: CycleOutputs | None = None
-        first_deadline = clock() + period
-        stats.started_s = first_deadline
+        first_deadline = stats.started_s
         k = 0
         end_cycle: int | None = None
         stop_cycle: int | None = None  # the cycle a stop was first asked for
-        linger = max(1, int(linger_after_end_s / period))
         work_peak_s = 0.0  # recent peak of the step and the observers [s]
         work_decay = 0.5 ** (period / WORK_PEAK_HALF_LIFE_S)
-        deadlines = self.exchange if isinstance(self.exchange, CycleDeadlines) else None
+        collect_garbage = self.collect_garbage
+        young_limit, middle_limit, old_limit = gc.get_threshold()
         while True:
             deadline = first_deadline + k * period
             self.sleeper.sleep_until(deadline)
@@ -268,7 +354,10 @@ class CycleLoop:
             if deadlines is not None:
                 deadlines.cycle_deadline(deadline)
             self.exchange.send(outputs)
-            feedback = self.exchange.collect(self._window_end(deadline, work_peak_s))
+            sent = clock()
+            window_end = self._window_end(deadline, work_peak_s)
+            feedback = self.exchange.collect(window_end)
+            collected = clock()
             pending = self.commands() if self.commands is not None else None
             command, value = (Command(pending[0]), pending[1]) if pending is not None else (Command.NONE, 0.0)
             stop = self.stop_event.is_set() or (time_up_cycle is not None and k >= time_up_cycle)
@@ -293,11 +382,22 @@ class CycleLoop:
             if outputs.sdo_controlwords:
                 self._write_controlwords_by_sdo(outputs)
             stats.record(timing.wake_error_s, timing.step_s, k)
+            stats.record_exchange(sent - woke, max(0.0, collected - window_end))
             o0 = clock()
             for obs in self.observers:
                 obs.on_cycle(k, t, inputs, state, outputs, events, timing)
-            stats.record_observers(clock() - o0)
-            work_peak_s = max(clock() - c0, work_peak_s * work_decay)
+            worked = clock()
+            stats.record_observers(worked - o0)
+            work_peak_s = max(worked - c0, work_peak_s * work_decay)
+            gc_s = 0.0
+            if collect_garbage and gc.get_count()[0] >= young_limit:
+                # the generation CPython would collect, after the cycle's work instead of inside it
+                counts = gc.get_count()
+                generation = 2 if counts[2] >= old_limit else 1 if counts[1] >= middle_limit else 0
+                gc.collect(generation)
+                gc_s = clock() - worked
+                stats.record_gc(gc_s)
+            stats.record_span(worked + gc_s - woke, gc_s)
             ending = state.mode == Mode.DONE or (state.mode == Mode.FAULT and (exit_on_fault or stop))
             if end_cycle is None and ending:
                 end_cycle = k  # keep cycling a little so the last commands reach the drives
@@ -311,9 +411,7 @@ class CycleLoop:
                 skipped = int(behind / period)
                 stats.overruns += skipped
                 k += skipped
-        stats.finished_s = clock()
-        stats.fold()
-        return state, stats
+        return state
 
     def _write_controlwords_by_sdo(self, outputs: CycleOutputs) -> None:
         """What the step asks for on top of the RPDOs (a quick stop to a drive that may not process

@@ -72,6 +72,10 @@ def _hist_us(h: LogHistogram, *qs: float, with_max: bool = True) -> dict[str, fl
     return out
 
 
+def _longest_cycle_us(longest: dict[str, float]) -> dict[str, float]:
+    return {k.removesuffix("_s"): (int(v) if k == "cycle" else round(v * 1e6, 1)) for k, v in longest.items()}
+
+
 def summarize(
     stats: LoopStats,
     recorder: RunRecorder,
@@ -100,6 +104,10 @@ def summarize(
         # the recorder, publisher and statistics on the loop's thread: they must only hand off
         "observers_us": _hist_us(stats.observers_hist_us, 50, 99),
         "statistics_resolution": "percentiles: upper edge of 1 % bins (at most 1 % or 0.1 us above)",
+        # collections run by the loop after a cycle's work (the automatic collector is off in the loop)
+        "garbage_collections": {"count": stats.gc_collections, "max_us": round(stats.gc_max_s * 1e6, 1)},
+        # the cycle with the longest span from its wake-up to the end of its work, and its parts
+        "longest_cycle_us": _longest_cycle_us(stats.longest_cycle),
         "late_cycles": stats.late_cycles(),
         "overruns": stats.overruns,
         "missing_frames": {"drive": c.missing_drive_frames, "sensor": c.missing_sensor_frames},

@@ -28,6 +28,7 @@ from controller.monitoring.publisher import PublisherSettings, monitoring_contex
 from controller.monitoring.robot_identity import resolve_robot_id
 from controller.monitoring.zenoh_session import MonitorKeys, SessionSettings, split_endpoints
 from controller.robots.registry import ActuatorUnits, actuator_units
+from controller.shell.helper_threads import HelperThreadWatch
 from controller.shell.loop import CycleLoop
 from controller.shell.realtime import (
     RealtimeOptions,
@@ -260,6 +261,7 @@ def run_controller(
         )
         if publisher is not None:
             publisher.exchange_counters = exchange.counters
+        helpers = HelperThreadWatch.for_period(cfg.period_s)  # real-time below the loop (helper_threads.py)
         loop = CycleLoop(
             prepared.law,
             kernel_sync or exchange,
@@ -268,7 +270,7 @@ def run_controller(
             DeadlineSleeper(cfg.loop.spin_us * 1e-6),
             time.monotonic,
             late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s,
-            observers=(recorder, *observers, *((publisher,) if publisher is not None else ())),
+            observers=(recorder, *observers, *((publisher,) if publisher is not None else ()), helpers),
             stop_event=stop_event,
             commands=publisher.commands if publisher is not None else None,
             quick_stop_event=quick_stop_event,
@@ -281,9 +283,12 @@ def run_controller(
         def restore() -> None:
             return None
 
+        helpers_at_start = 0
+
         try:
             restore = apply_realtime(realtime)
             granted = granted_realtime()
+            helpers_at_start = helpers.start()
             faults_before = resource.getrusage(resource.RUSAGE_SELF).ru_majflt
             notify("READY=1")  # systemd Type=notify: the devices are configured, the loop starts
             final, stats = loop.run(
@@ -296,6 +301,7 @@ def run_controller(
         finally:
             if kernel_sync is not None:
                 kernel_sync.stop()
+            helpers.restore()
             restore()
             if cfg.loop.freeze_gc:
                 unfreeze_garbage_collector()
@@ -313,6 +319,7 @@ def run_controller(
             "frames": {"sent": bus.sent, "received": bus.received, "own_echoes_dropped": bus.own_echoes},
             "recording": _recording_summary(session, cfg),
             "realtime": granted,
+            "helper_threads_raised": {"at_start": helpers_at_start, "during_run": helpers.raised},
             **({"kernel_sync": kernel_sync.report()} if kernel_sync is not None else {}),
             **{k: v for r in prepared.reports for k, v in r.summary().items()},
         },
