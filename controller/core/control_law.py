@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -48,6 +48,7 @@ from controller.core.cycle_data import (
     Severity,
 )
 from controller.core.ports import PoseStatus, Robot, Task, TaskContext
+from controller.core.record_replace import replace
 from controller.core.setpoint_smoothing import RuckigSmoother, Setpoint
 from controller.errors import NoSolutionError
 

@@ -77,7 +77,7 @@ FINISHED.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from enum import IntEnum
 from typing import Protocol
 
@@ -85,6 +85,7 @@ import numpy as np
 
 from controller.core.cycle_data import Command, Event, Severity
 from controller.core.ports import ForceSetpointLimit, JointReference, TaskContext, TaskStep
+from controller.core.record_replace import replace
 
 
 class Kinematics(Protocol):
@@ -334,7 +335,7 @@ class ContourTrackingTask:
         return TaskStep(s, ref, events=events)
 
     def _enter(self, s: ContourState, phase: ContourPhase, t_s: float, **fields: object) -> ContourState:
-        return replace(s, phase=phase, phase_start_s=t_s, travel_m=0.0, **fields)  # type: ignore[arg-type]
+        return replace(s, phase=phase, phase_start_s=t_s, travel_m=0.0, **fields)
 
     def _filter_force(self, s: ContourState, ctx: TaskContext) -> tuple[ContourState, tuple[Event, ...]]:
         """The sample into the filter, unless it is a step the sensor and structure cannot make.

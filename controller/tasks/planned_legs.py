@@ -27,7 +27,7 @@ time [0, T]; the legs follow l(t). This module plays l back on the actuators' cl
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from enum import IntEnum
 from typing import TYPE_CHECKING, Protocol
 
@@ -35,6 +35,7 @@ import numpy as np
 
 from controller.core.cycle_data import Event, Severity
 from controller.core.ports import JointReference, TaskContext, TaskStep
+from controller.core.record_replace import replace
 from controller.tasks.streamed_plan import StreamedPlan, time_scale_plan
 
 if TYPE_CHECKING:

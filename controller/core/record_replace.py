@@ -1,0 +1,79 @@
+"""``replace(record, **changes)``: ``dataclasses.replace`` for the step's records, without its per-call walk.
+
+The law passes its state to itself as frozen dataclasses and changes them with ``replace`` several
+times a cycle. ``dataclasses.replace`` walks the class's fields on every call (is it an init field,
+an InitVar?) and reads every value into a keyword dict: in the contour task 11 645 of the step's
+23 091 bytecodes a cycle were that walk, in the path task 1 953 of 9 688
+(``python -m controller.tools.cycle_work``, issue 37). Here the walk is done once per class: the
+init fields' current values come from one ``operator.attrgetter`` call, the changes overwrite
+theirs by index, and the class is called with them positionally. That is the same ``__init__``
+(with its ``__post_init__``) that ``dataclasses.replace`` calls with the same values: the same
+record, bit for bit.
+
+A class whose ``__init__`` is not one positional parameter per field, in field order (keyword-only
+fields, ``init=False`` fields, InitVars, a hand-written ``__init__``), is left to
+``dataclasses.replace``. A name that is no field raises ``TypeError`` naming it, as
+``dataclasses.replace`` does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import operator
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class _Plan:
+    values: Callable[[Any], tuple[Any, ...]]  # the init fields' values, in __init__'s order
+    index: dict[str, int]  # field name -> position
+
+
+_PLANS: dict[type, _Plan | None] = {}  # None: the class is left to dataclasses.replace
+
+
+def _plan(cls: type) -> _Plan | None:
+    if not dataclasses.is_dataclass(cls):
+        raise TypeError(f"replace() should be called on dataclass instances, not {cls.__name__}")
+    fields = dataclasses.fields(cls)
+    names = [f.name for f in fields]
+    try:
+        params = list(inspect.signature(cls).parameters.values())
+    except (TypeError, ValueError):
+        return None
+    positional = (inspect.Parameter.POSITIONAL_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)
+    if [p.name for p in params] != names or any(p.kind not in positional for p in params):
+        return None
+    if not all(f.init for f in fields):
+        return None
+    if len(names) == 1:
+        name = names[0]
+        return _Plan(lambda record: (getattr(record, name),), {name: 0})
+    getter: Callable[[Any], tuple[Any, ...]] = operator.attrgetter(*names)
+    return _Plan(getter, {n: i for i, n in enumerate(names)})
+
+
+def replace(record: T, /, **changes: Any) -> T:
+    """A copy of the dataclass instance ``record`` with ``changes`` (``dataclasses.replace``'s meaning)."""
+    cls = type(record)
+    try:
+        plan = _PLANS[cls]
+    except KeyError:
+        plan = _PLANS[cls] = _plan(cls)
+    if plan is None:
+        return dataclasses.replace(record, **changes)  # type: ignore[type-var]  # a dataclass: checked in _plan
+    values = plan.values(record)
+    if changes:
+        values_list = list(values)
+        index = plan.index
+        for name, value in changes.items():
+            i = index.get(name)
+            if i is None:
+                raise TypeError(f"{cls.__name__} has no field {name!r} to replace")
+            values_list[i] = value
+        return cls(*values_list)
+    return cls(*values)

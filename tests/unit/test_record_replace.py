@@ -1,0 +1,127 @@
+"""``controller.core.record_replace.replace`` gives what ``dataclasses.replace`` gives, for every kind of class."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import pytest
+
+from controller.assembly import build_law
+from controller.config import load_config
+from controller.core.record_replace import replace
+from controller.shell.loop import CycleLoop, SimulatedTime
+from sim_backend.loopback import LoopbackExchange
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class Slotted:
+    a: float
+    b: tuple[int, ...] = ()
+    c: str = "x"
+
+
+@dataclasses.dataclass(frozen=True)
+class Checked:
+    value: float
+
+    def __post_init__(self) -> None:
+        if not self.value >= 0.0:
+            raise ValueError(f"value = {self.value}: must be >= 0")
+
+
+@dataclasses.dataclass
+class WithInitFalse:
+    a: int
+    derived: int = dataclasses.field(init=False, default=7)
+
+
+@dataclasses.dataclass(kw_only=True)
+class KeywordOnly:
+    a: int
+    b: int = 2
+
+
+@dataclasses.dataclass(frozen=True)
+class One:
+    only: float
+
+
+def _same(x: object, y: object) -> bool:
+    """Equal field by field, floats bit for bit (NaN included)."""
+    if type(x) is not type(y):
+        return False
+    for f in dataclasses.fields(x):  # type: ignore[arg-type]
+        a, b = getattr(x, f.name), getattr(y, f.name)
+        if isinstance(a, float) and isinstance(b, float):
+            if math.isnan(a) != math.isnan(b) or (not math.isnan(a) and a.hex() != b.hex()):
+                return False
+        elif a != b:
+            return False
+    return True
+
+
+@pytest.mark.parametrize(
+    ("record", "changes"),
+    [
+        (Slotted(1.0, (2,), "y"), {"a": -0.0}),
+        (Slotted(1.0), {"b": (1, 2), "c": "z"}),
+        (Slotted(float("nan")), {}),
+        (Checked(1.0), {"value": 2.0}),
+        (WithInitFalse(1), {"a": 3}),
+        (KeywordOnly(a=1), {"b": 5}),
+        (One(1.0), {"only": 2.5}),
+        (One(1.0), {}),
+    ],
+)
+def test_the_same_as_dataclasses_replace(record: object, changes: dict[str, object]):
+    ours, theirs = replace(record, **changes), dataclasses.replace(record, **changes)  # type: ignore[type-var]
+    assert _same(ours, theirs)
+    assert ours is not record
+
+
+def test_post_init_checks_still_run():
+    with pytest.raises(ValueError, match=r"value = -1\.0"):
+        replace(Checked(1.0), value=-1.0)
+
+
+def test_an_unknown_field_is_named():
+    with pytest.raises(TypeError, match="'d'"):
+        replace(Slotted(1.0), d=2)
+
+
+def test_a_non_dataclass_is_refused():
+    with pytest.raises(TypeError, match="dataclass"):
+        replace(3.0)
+
+
+def test_the_law_s_states_along_a_run_match_dataclasses_replace():
+    """Every state of a contour run (enabling, approach, contact), replaced both ways with each field."""
+    cfg = load_config(overrides={"task.kind": "contour", "task.contour.approach_clearance_m": 0.003})
+    clock = SimulatedTime()
+    law = build_law(cfg)
+    states = []
+
+    class Keep:
+        def on_cycle(self, cycle, t, inputs, state, outputs, events, timing):
+            if cycle % 50 == 0:
+                states.append(state)
+
+    CycleLoop(
+        law,
+        LoopbackExchange(cfg, clock.clock),
+        cfg.period_s,
+        cfg.loop.collect_fraction,
+        clock,
+        clock.clock,
+        observers=(Keep(),),
+    ).run(law.initial_state(), 1.0)
+    assert len(states) > 5
+    assert sum(s.task_state is not None for s in states) > 3  # the task's own state too
+    for state in states:
+        for record in (r for r in (state, state.task_state, state.setpoint) if r is not None):
+            for f in dataclasses.fields(record):
+                value = getattr(record, f.name)
+                assert _same(
+                    replace(record, **{f.name: value}), dataclasses.replace(record, **{f.name: value})
+                )
