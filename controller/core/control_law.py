@@ -48,7 +48,7 @@ from controller.core.cycle_data import (
     Severity,
 )
 from controller.core.ports import PoseStatus, Robot, Task, TaskContext
-from controller.core.record_replace import replace
+from controller.core.records import replace
 from controller.core.setpoint_smoothing import RuckigSmoother, Setpoint
 from controller.errors import NoSolutionError
 

@@ -7,9 +7,9 @@ module (``control_law.py``) says how each field changes.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from enum import IntEnum
 
+from controller.core.records import record
 from controller.core.setpoint_smoothing import Setpoint
 
 
@@ -24,7 +24,7 @@ class Mode(IntEnum):
     FAULT = 7
 
 
-@dataclass(frozen=True, slots=True)
+@record
 class ControllerState:
     mode: Mode
     cycle: int

@@ -7,11 +7,12 @@ once a cycle and safe to hand to the recorder and publisher threads.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from enum import IntEnum, StrEnum
 
+from controller.core.records import record
 
-@dataclass(frozen=True, slots=True)
+
+@record
 class DriveFeedback:
     statusword: int
     position: float
@@ -24,7 +25,7 @@ SENSOR_TORQUE_SATURATED = 0x02
 SENSOR_ERROR = 0x04
 
 
-@dataclass(frozen=True, slots=True)
+@record
 class SensorFeedback:
     force_n: tuple[float, float, float]
     torque_nm: tuple[float, float, float]
@@ -33,7 +34,7 @@ class SensorFeedback:
     fresh: bool
 
 
-@dataclass(frozen=True, slots=True)
+@record
 class TrackerFeedback:
     """The platform's pose from a pose tracker (drivers/pdo_codec.py: its two TPDOs), in the base frame {0}."""
 
@@ -44,7 +45,7 @@ class TrackerFeedback:
     fresh: bool  # a new sample (both frames, one counter) arrived since the last cycle
 
 
-@dataclass(frozen=True, slots=True)
+@record
 class EmcyReport:
     node_id: int
     error_code: int
@@ -66,7 +67,7 @@ class Anomaly(StrEnum):
     FRAME_FLOOD = "frame_flood"  # more foreign frames in one cycle than safety.max_foreign_frames_per_cycle
 
 
-@dataclass(frozen=True, slots=True)
+@record
 class BusAnomaly:
     """``count`` frames of one anomaly in one cycle; ``cob_id`` of the (first or most frequent) one.
 
@@ -81,7 +82,7 @@ class BusAnomaly:
     command: int = 0
 
 
-@dataclass(frozen=True, slots=True)
+@record
 class NmtReport:
     """A configured node's heartbeat this cycle that did not say OPERATIONAL (CiA 301 states)."""
 
@@ -108,7 +109,7 @@ class Reaction(StrEnum):
     IGNORE = "ignore"
 
 
-@dataclass(frozen=True, slots=True)
+@record
 class BusFeedback:
     """What the bus delivered for one cycle: the exchange's result, before the loop adds its own inputs."""
 
@@ -123,7 +124,7 @@ class BusFeedback:
     tracker: TrackerFeedback | None = None
 
 
-@dataclass(frozen=True, slots=True)
+@record
 class CycleInputs:
     drives: tuple[DriveFeedback, ...]
     sensor: SensorFeedback | None = None
@@ -141,7 +142,7 @@ class CycleInputs:
     plans_ready: int = 0  # the last plan request the shell's off-loop planner has finished (plan_worker.py)
 
 
-@dataclass(frozen=True, slots=True)
+@record
 class CycleOutputs:
     controlwords: tuple[int, ...]
     targets: tuple[float, ...]
@@ -156,7 +157,7 @@ class Severity(IntEnum):
     FAULT = 2
 
 
-@dataclass(frozen=True, slots=True)
+@record
 class Event:
     kind: str  # a stable identifier: "mode", "drive_fault", "missing_tpdo", ...
     severity: Severity

@@ -20,6 +20,7 @@ from enum import StrEnum
 from typing import TYPE_CHECKING, Protocol, TypeVar, runtime_checkable
 
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
+from controller.core.records import record
 from controller.core.setpoint_smoothing import Setpoint
 
 if TYPE_CHECKING:  # annotations only: the registries and the configuration load without numpy
@@ -81,7 +82,7 @@ class Robot(Protocol):
 S = TypeVar("S")  # a task's state
 
 
-@dataclass(frozen=True, slots=True)
+@record
 class JointReference:
     position: tuple[float, ...]
     velocity: tuple[float, ...]
@@ -98,7 +99,7 @@ class JointReference:
         return cls(position, zeros, zeros, tcp_m, False)
 
 
-@dataclass(frozen=True, slots=True)
+@record
 class TaskContext:
     t_s: float  # task time the reference is for: advances only while the task runs
     period_s: float
@@ -112,7 +113,7 @@ class TaskContext:
     sensor_breach: str = ""
 
 
-@dataclass(frozen=True, slots=True)
+@record
 class TaskStep:
     state: object
     reference: JointReference
@@ -160,7 +161,7 @@ class ForceSetpointTask(Protocol):
 # -- the loop's observers ---------------------------------------------------------------------
 
 
-@dataclass(frozen=True, slots=True)
+@record
 class CycleTiming:
     wake_error_s: float  # actual wake-up minus the deadline
     step_s: float  # compute time of law.step

@@ -17,8 +17,10 @@ from dataclasses import dataclass
 
 from ruckig import ControlInterface, InputParameter, Result, Ruckig, RuckigError, Synchronization, Trajectory
 
+from controller.core.records import record
 
-@dataclass(frozen=True, slots=True)
+
+@record
 class Setpoint:
     position: tuple[float, ...]
     velocity: tuple[float, ...]
@@ -37,7 +39,7 @@ class AxisLimits:
     max_jerk: tuple[float, ...]  # [unit/s^3]
 
 
-@dataclass(frozen=True, slots=True)
+@record
 class SmoothingResult:
     setpoint: Setpoint
     ok: bool

@@ -85,7 +85,7 @@ import numpy as np
 
 from controller.core.cycle_data import Command, Event, Severity
 from controller.core.ports import ForceSetpointLimit, JointReference, TaskContext, TaskStep
-from controller.core.record_replace import replace
+from controller.core.records import record, replace
 
 
 class Kinematics(Protocol):
@@ -170,7 +170,7 @@ class ContourParams:
     creep_distance_m: float = 0.025
 
 
-@dataclass(frozen=True, slots=True)
+@record
 class ContourState:
     phase: ContourPhase = ContourPhase.MOVE_TO_START
     p_cmd: tuple[float, float, float] = (0.0, 0.0, 0.0)

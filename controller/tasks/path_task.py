@@ -7,13 +7,13 @@ for any robot model with an ``inverse_kinematics`` and is accurate to O(h^2).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from enum import IntEnum
 from typing import Protocol
 
 import numpy as np
 
 from controller.core.ports import JointReference, TaskContext, TaskStep
+from controller.core.records import record
 from controller.core.setpoint_smoothing import Setpoint
 
 
@@ -36,7 +36,7 @@ class PathPhase(IntEnum):
     FINISHED = 2
 
 
-@dataclass(frozen=True, slots=True)
+@record
 class PathTaskState:
     phase: PathPhase = PathPhase.MOVE_TO_START
     tracking_start_s: float = 0.0

@@ -35,7 +35,7 @@ import numpy as np
 
 from controller.core.cycle_data import Event, Severity
 from controller.core.ports import JointReference, TaskContext, TaskStep
-from controller.core.record_replace import replace
+from controller.core.records import record, replace
 from controller.tasks.streamed_plan import StreamedPlan, time_scale_plan
 
 if TYPE_CHECKING:
@@ -70,7 +70,7 @@ class CorrectionSettings:
     in_step: bool  # plan inside the step (simulated time); else wait for the off-loop worker's plans_ready
 
 
-@dataclass(frozen=True, slots=True)
+@record
 class LegsTaskState:
     phase: LegsPhase = LegsPhase.CHECK_START
     start_s: float = 0.0

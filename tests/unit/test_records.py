@@ -1,15 +1,18 @@
-"""``controller.core.record_replace.replace`` gives what ``dataclasses.replace`` gives, for every kind of class."""
+"""``controller.core.records.replace`` gives what ``dataclasses.replace`` gives, for every kind of class."""
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import pickle
 
 import pytest
 
 from controller.assembly import build_law
 from controller.config import load_config
-from controller.core.record_replace import replace
+from controller.core.controller_state import ControllerState
+from controller.core.records import record, replace
+from controller.core.setpoint_smoothing import Setpoint
 from controller.shell.loop import CycleLoop, SimulatedTime
 from sim_backend.loopback import LoopbackExchange
 
@@ -119,9 +122,39 @@ def test_the_law_s_states_along_a_run_match_dataclasses_replace():
     assert len(states) > 5
     assert sum(s.task_state is not None for s in states) > 3  # the task's own state too
     for state in states:
-        for record in (r for r in (state, state.task_state, state.setpoint) if r is not None):
-            for f in dataclasses.fields(record):
-                value = getattr(record, f.name)
-                assert _same(
-                    replace(record, **{f.name: value}), dataclasses.replace(record, **{f.name: value})
-                )
+        for rec in (r for r in (state, state.task_state, state.setpoint) if r is not None):
+            for f in dataclasses.fields(rec):
+                value = getattr(rec, f.name)
+                assert _same(replace(rec, **{f.name: value}), dataclasses.replace(rec, **{f.name: value}))
+
+
+@record
+class Point:
+    x: float
+    tags: tuple[str, ...] = ()
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class FrozenPoint:
+    x: float
+    tags: tuple[str, ...] = ()
+
+
+def test_a_record_compares_hashes_and_pickles_as_the_frozen_dataclass():
+    a, b = Point(1.0, ("a",)), Point(1.0, ("a",))
+    assert a == b and a is not b
+    assert hash(a) == hash(b) == hash(FrozenPoint(1.0, ("a",)))  # by the fields, in order
+    assert {a, b} == {a}
+    assert Point(2.0) != a
+    assert pickle.loads(pickle.dumps(a)) == a
+    assert repr(a).endswith("Point(x=1.0, tags=('a',))")
+    assert not hasattr(a, "__dict__")  # slots: no attribute can be added by mistake
+    with pytest.raises(AttributeError):
+        a.y = 2.0  # type: ignore[attr-defined]
+
+
+def test_the_law_s_records_are_records():
+    for cls in (ControllerState, Setpoint):
+        params = cls.__dataclass_params__  # type: ignore[attr-defined]
+        assert params.unsafe_hash and not params.frozen
+        assert "__slots__" in cls.__dict__
