@@ -30,14 +30,21 @@ def _children() -> set[int]:
 
 @pytest.fixture(autouse=True, scope="session")
 def recordings_in_a_temporary_directory(tmp_path_factory):
-    """Sessions recorded by the tests (and their subprocesses) go to a temporary XDG data home."""
-    old = os.environ.get("XDG_DATA_HOME")
+    """Sessions recorded by the tests (and their subprocesses) go to a temporary XDG data home, and
+    the controllers they start announce themselves in a temporary runtime directory
+    (controller/monitoring/local_controllers.py), unseen by the tools of anything else on the machine."""
+    names = ("XDG_DATA_HOME", "XDG_RUNTIME_DIR")
+    old = {name: os.environ.get(name) for name in names}
     os.environ["XDG_DATA_HOME"] = str(tmp_path_factory.mktemp("xdg-data"))
+    runtime = tmp_path_factory.mktemp("xdg-runtime")
+    runtime.chmod(0o700)
+    os.environ["XDG_RUNTIME_DIR"] = str(runtime)
     yield
-    if old is None:
-        os.environ.pop("XDG_DATA_HOME", None)
-    else:
-        os.environ["XDG_DATA_HOME"] = old
+    for name, value in old.items():
+        if value is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = value
 
 
 @pytest.fixture(autouse=True)

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Self, TextIO
 
 import zenoh
+import zenoh.ext
 from google.protobuf.json_format import MessageToDict
 from google.protobuf.message import DecodeError
 
@@ -32,7 +33,9 @@ from controller.monitoring.zenoh_session import (
     ZenohEntity,
     close_session,
     connected,
+    declare_event_subscriber,
     open_session,
+    source_name,
 )
 
 if TYPE_CHECKING:
@@ -61,13 +64,20 @@ class AliveUpdate:
 
 
 @dataclass(frozen=True)
+class MissedEventsUpdate:
+    key: str  # the events' key of the controller that published them (the subscribed one when unknown)
+    count: int  # events that controller published and this monitor never received
+    received_monotonic_s: float
+
+
+@dataclass(frozen=True)
 class UndecodableUpdate:
     key: str
     reason: str
     received_monotonic_s: float
 
 
-Update = StateUpdate | EventUpdate | AliveUpdate | UndecodableUpdate
+Update = StateUpdate | EventUpdate | AliveUpdate | MissedEventsUpdate | UndecodableUpdate
 
 
 class MonitorClient:
@@ -82,6 +92,7 @@ class MonitorClient:
         self._q: queue.SimpleQueue[tuple[int, str, object, float]] = queue.SimpleQueue()
         self._session: zenoh.Session | None = None
         self._entities: list[ZenohEntity] = []
+        self._event_keys: dict[str, str] = {}  # an events publisher's id -> its key (to place its misses)
 
     def __enter__(self) -> Self:
         self._session, _ = open_session(self.settings)
@@ -92,8 +103,9 @@ class MonitorClient:
                     k.alive, zenoh.handlers.Callback(self._on_alive, indirect=False), history=True
                 ),
                 z.declare_subscriber(k.state, zenoh.handlers.Callback(self._on_state, indirect=False)),
-                z.declare_subscriber(k.events, zenoh.handlers.Callback(self._on_event, indirect=False)),
             ]
+            # the last events of each controller at once (joining late), then a count of any missed
+            self._entities += declare_event_subscriber(z, k.events, self._on_event, self._on_miss)
         except zenoh.ZError:
             self._session.close()
             raise
@@ -109,7 +121,13 @@ class MonitorClient:
         self._q.put((0, str(s.key_expr), s.payload.to_bytes(), self.clock()))
 
     def _on_event(self, s: zenoh.Sample) -> None:
+        if s.source_info is not None:
+            self._event_keys[source_name(s.source_info.source_id)] = str(s.key_expr)
         self._q.put((1, str(s.key_expr), s.payload.to_bytes(), self.clock()))
+
+    def _on_miss(self, miss: zenoh.ext.Miss) -> None:
+        key = self._event_keys.get(source_name(miss.source), self.keys.events)
+        self._q.put((3, key, miss.nb, self.clock()))
 
     def _on_alive(self, s: zenoh.Sample) -> None:
         self._q.put((2, str(s.key_expr), s.kind == zenoh.SampleKind.PUT, self.clock()))
@@ -136,6 +154,9 @@ class MonitorClient:
             return None
         if kind == 2:
             return AliveUpdate(key, bool(data), at)
+        if kind == 3:
+            assert isinstance(data, int)
+            return MissedEventsUpdate(key, data, at)
         try:
             if kind == 0:
                 return StateUpdate(key, pb.MonitorState.FromString(data), at)
@@ -151,6 +172,7 @@ def update_to_json(u: Update) -> str:
             StateUpdate: "state",
             EventUpdate: "event",
             AliveUpdate: "liveliness",
+            MissedEventsUpdate: "missed_events",
             UndecodableUpdate: "undecodable",
         }[type(u)],
         "key": u.key,
@@ -167,6 +189,8 @@ def update_to_json(u: Update) -> str:
         )
     elif isinstance(u, AliveUpdate):
         out["alive"] = u.alive
+    elif isinstance(u, MissedEventsUpdate):
+        out["count"] = u.count
     else:
         out["reason"] = u.reason
     return json.dumps(out)
@@ -183,6 +207,7 @@ class ViewModel:
     arrivals: deque[float] = field(default_factory=lambda: deque(maxlen=512))
     events: deque[str] = field(default_factory=lambda: deque(maxlen=8))
     changes: int = 0  # liveliness transitions seen
+    missed_events: int = 0  # events the controller published that never arrived here
 
     def apply(self, u: Update) -> None:
         if isinstance(u, StateUpdate):
@@ -198,6 +223,9 @@ class ViewModel:
                 self.changes += 1
             self.alive = u.alive
             self.events.append(f"{'controller up' if u.alive else 'controller gone'} ({u.key})")
+        elif isinstance(u, MissedEventsUpdate):
+            self.missed_events += u.count
+            self.events.append(f"{u.count} event(s) published and not received ({self.missed_events} in all)")
 
     def sample_rate_hz(self, now_s: float, window_s: float = 1.0) -> float:
         recent = [a for a in self.arrivals if now_s - a <= window_s]
@@ -235,10 +263,10 @@ def render_fleet(fleet: FleetView, now_s: float) -> RenderableType:
         "alive",
         "mode",
         "task / phase",
-        "cycle",
+        "cycle [-]",
         "rate [Hz]",
-        "late",
-        "samples/s",
+        "late [cycles]",
+        "samples [1/s]",
         "alarms",
     ):
         table.add_column(col)
@@ -288,16 +316,16 @@ def render(view: ViewModel, now_s: float) -> Group:
     if s is not None:
         head.add_row(
             "loop",
-            f"{s.loop.achieved_rate_hz:.1f} Hz, period error p50 {s.loop.period_error_p50_us:.0f} us "
-            f"p99 {s.loop.period_error_p99_us:.0f} us, late {s.loop.late_cycles}, missing frames "
-            f"{s.loop.missing_drive_frames}/{s.loop.missing_sensor_frames}",
+            f"{s.loop.achieved_rate_hz:.1f} Hz, period error p50 {s.loop.period_error_p50_us:.0f} µs "
+            f"p99 {s.loop.period_error_p99_us:.0f} µs, late {s.loop.late_cycles} cycles, missing frames "
+            f"{s.loop.missing_drive_frames} drive / {s.loop.missing_sensor_frames} sensor",
         )
         head.add_row("mode", f"{s.mode}   task {s.task or '-'}   phase {s.task_phase or '-'}")
         head.add_row("cycle", f"{s.cycle}   t {s.t_s:.3f} s")
         head.add_row("TCP", _vec(s.tcp_m, 1e3, "mm"))
         head.add_row("force", _vec(s.force_n, 1.0, "N"))
         axes = Table(title="actuators", expand=False)
-        for col in ("axis", "target [mm]", "position [mm]", "target - position [um]"):
+        for col in ("axis", "target [mm]", "position [mm]", "target - position [µm]"):
             axes.add_column(col, justify="right")
         # a peer's sample: before every drive answered it may carry targets without positions
         for j, (tg, ps) in enumerate(zip(s.targets, s.positions, strict=False)):

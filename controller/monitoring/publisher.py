@@ -10,7 +10,8 @@ queue: that thread, waking for each sample, took the GIL the loop needed when it
 came (docs/measurements/speed.md). Zenoh's own threads are Rust and need no GIL.
 
 Zenoh entities under ``<key_prefix>/<robot_id>/`` (see zenoh_session.py): ``state``,
-``events``, the liveliness token ``alive``, and two queryables. ``status`` answers a Status;
+``events`` (with a cache of the last ones for late joiners), the liveliness token ``alive``,
+and three queryables. ``schema`` answers cheope.proto as a FileDescriptorSet; ``status`` a Status;
 ``command`` takes a Command and answers a CommandReply (the gate: command_gate.py): ``stop``
 sets the loop's stop event (a controlled stop); the gated commands reach the step as
 ``CycleInputs.command`` through ``commands()``, the loop's command source, one per cycle.
@@ -36,6 +37,7 @@ from collections.abc import Callable
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, replace
 from importlib import metadata
+from pathlib import Path
 from typing import Any, Self
 
 import numpy as np
@@ -47,15 +49,19 @@ from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severit
 from controller.core.ports import CycleTiming, ForceSetpointLimit, ForceSetpointTask, Task
 from controller.messages import cheope_pb2 as pb
 from controller.monitoring.command_gate import CommandDecision, decide_command
+from controller.monitoring.local_controllers import announce, withdraw
 from controller.monitoring.query_server import QueryLimits, QueryServer
 from controller.monitoring.robot_identity import claim_robot_id
 from controller.monitoring.zenoh_session import (
+    SCHEMA_ENCODING,
     MonitorKeys,
     SessionSettings,
     ZenohEntity,
     close_session,
+    declare_event_publisher,
     encoding_for,
     open_session,
+    schema_descriptor_set,
 )
 from drivers.cyclic_exchange import ExchangeCounters
 
@@ -150,6 +156,7 @@ class MonitorPublisher:
         self._entities: list[ZenohEntity] = []
         self._servers: list[QueryServer] = []
         self._static_status = b""  # the Status fields fixed for the run, serialised once
+        self._announcement: Path | None = None  # local_controllers.py: this user's tools find it
 
     # -- lifecycle --------------------------------------------------------------------------
 
@@ -169,12 +176,7 @@ class MonitorPublisher:
             self._state_pub = z.declare_publisher(
                 k.state, encoding=encoding_for("MonitorState"), congestion_control=drop, express=True
             )
-            self._event_pub = z.declare_publisher(
-                k.events,
-                encoding=encoding_for("Event"),
-                congestion_control=drop,
-                priority=zenoh.Priority.DATA_HIGH,
-            )
+            self._event_pub = declare_event_publisher(z, k.events)  # a cache for late joiners
             self._entities = [self._state_pub, self._event_pub]
             self._static_status = pb.Status(
                 robot_id=s.robot_id,
@@ -187,8 +189,10 @@ class MonitorPublisher:
             self._servers = [
                 QueryServer(z, k.status, self._on_status, _STATUS_LIMITS, "cheope-query-status"),
                 QueryServer(z, k.command, self._on_command, _COMMAND_LIMITS, "cheope-query-command"),
+                QueryServer(z, k.schema, self._on_schema, _STATUS_LIMITS, "cheope-query-schema"),
             ]
             self._entities.append(z.liveliness().declare_token(k.alive))
+            self._announcement = announce(s.robot_id, self.listen_endpoints)  # for this user's tools
         except BaseException:
             self.close()
             raise
@@ -202,6 +206,8 @@ class MonitorPublisher:
         self.close()
 
     def close(self) -> None:
+        withdraw(self._announcement)
+        self._announcement = None
         for server in self._servers:
             server.close()
         self._servers = []
@@ -376,6 +382,12 @@ class MonitorPublisher:
             return False
         self.status_queries += 1
         query.reply(self.settings.keys.status, self.status_bytes(), encoding=encoding_for("Status"))
+        return True
+
+    def _on_schema(self, query: zenoh.Query) -> bool:
+        if not self._names_this_robot(query, self.settings.keys.schema):
+            return False
+        query.reply(self.settings.keys.schema, schema_descriptor_set(), encoding=SCHEMA_ENCODING)
         return True
 
     def _names_this_robot(self, query: zenoh.Query, key: str) -> bool:

@@ -9,7 +9,14 @@ leaves unset (mode, listen endpoints, scouting) get the loopback defaults, and
 
 Key expressions, under ``<key_prefix>/<robot_id>/`` (``cheope/<host>-<suffix>/`` by default, robot_identity.py):
 ``state`` (MonitorState), ``events`` (Event), ``alive`` (liveliness token), ``status``
-(queryable answering Status), ``command`` (queryable taking Command, answering CommandReply).
+(queryable answering Status), ``command`` (queryable taking Command, answering CommandReply),
+``schema`` (queryable answering the ``google.protobuf.FileDescriptorSet`` of cheope.proto: a
+client decodes every payload without the repository).
+
+Events go out through zenoh-ext's advanced publisher: it keeps the last ``EVENT_HISTORY`` of them
+for subscribers that join late, and numbers them, with a heartbeat, so that a subscriber learns
+of every event it missed (``declare_event_subscriber``: the history at once, and a count of what
+went missing). Any plain Zenoh subscriber still receives the events as before.
 """
 
 from __future__ import annotations
@@ -19,14 +26,17 @@ import logging
 import re
 import socket
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from functools import cache
 from typing import Protocol
 
 import zenoh
+import zenoh.ext
 
 from controller.config import ConfigError
 from controller.errors import DeviceError
+from controller.monitoring.local_controllers import local_endpoints
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +96,75 @@ class MonitorKeys:
     @property
     def command(self) -> str:
         return f"{self.prefix}/command"
+
+    @property
+    def schema(self) -> str:
+        return f"{self.prefix}/schema"
+
+
+EVENT_HISTORY = 64  # events an advanced publisher keeps for late subscribers
+EVENT_HEARTBEAT_S = 1.0  # how soon a subscriber learns that the last event(s) went missing [s]
+SCHEMA_ENCODING = "application/protobuf;google.protobuf.FileDescriptorSet"
+
+
+def declare_event_publisher(session: zenoh.Session, key: str) -> zenoh.ext.AdvancedPublisher:
+    """The events' publisher: congestion DROP (a slow network never blocks the loop), high priority,
+    the last ``EVENT_HISTORY`` events cached for late joiners, sequence numbers and a sporadic
+    heartbeat for miss detection, and a liveliness token so that subscribers started first find it."""
+    return zenoh.ext.declare_advanced_publisher(
+        session,
+        key,
+        encoding=encoding_for("Event"),
+        congestion_control=zenoh.CongestionControl.DROP,
+        priority=zenoh.Priority.DATA_HIGH,
+        cache=zenoh.ext.CacheConfig(EVENT_HISTORY),
+        sample_miss_detection=zenoh.ext.MissDetectionConfig(
+            heartbeat=None, sporadic_heartbeat=EVENT_HEARTBEAT_S
+        ),
+        publisher_detection=True,
+    )
+
+
+def declare_event_subscriber(
+    session: zenoh.Session,
+    key: str,
+    on_event: Callable[[zenoh.Sample], None],
+    on_miss: Callable[[zenoh.ext.Miss], None],
+) -> list[ZenohEntity]:
+    """Events of ``key`` (a wildcard robot id too): the cached history of every publisher found, late
+    ones included, then each new one; ``on_miss`` when events of a publisher never arrived (``nb`` of
+    them, from ``source``: the samples' ``source_info.source_id``). The callbacks run on Zenoh's threads."""
+    sub = zenoh.ext.declare_advanced_subscriber(
+        session,
+        key,
+        zenoh.handlers.Callback(on_event, indirect=False),
+        history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=EVENT_HISTORY),
+        recovery=zenoh.ext.RecoveryConfig(periodic_queries=None, heartbeat=True),
+        subscriber_detection=True,
+    )
+    try:
+        misses = sub.sample_miss_listener(on_miss)
+    except zenoh.ZError:
+        sub.undeclare()
+        raise
+    return [sub, misses]
+
+
+def source_name(source: zenoh.EntityGlobalId) -> str:
+    """A publisher's id as text: the same for its samples' ``source_info`` and its misses' ``source``."""
+    return f"{source.zid}/{source.eid}"
+
+
+@cache
+def schema_descriptor_set() -> bytes:
+    """cheope.proto's messages (the Zenoh payloads and the recording's own) as a serialised
+    ``google.protobuf.FileDescriptorSet``: what the ``schema`` queryable answers."""
+    from mcap_protobuf.schema import build_file_descriptor_set
+
+    from controller.messages import cheope_pb2 as pb
+
+    data: bytes = build_file_descriptor_set(pb.MonitorState).SerializeToString()
+    return data
 
 
 def split_endpoints(text: str, key: str) -> tuple[str, ...]:
@@ -240,8 +319,9 @@ def client_settings(
     """Settings of the one-shot tools (``cheope list``, ``status``, ``stop``, ``command``): a peer that
     listens nowhere and connects to every endpoint given (controllers, routers), not only the first as
     a Zenoh client would; the open waits up to ``timeout_s`` for all of them, then goes on with those
-    that answered."""
-    endpoints = connect or (DEFAULT_CONNECT,)
+    that answered. Without endpoints: this user's controllers on this machine (local_controllers.py),
+    else ``DEFAULT_CONNECT``."""
+    endpoints = connect or local_endpoints() or (DEFAULT_CONNECT,)
     # one endpoint: a client (a Zenoh router answers a peer's liveliness queries only for its clients,
     # measured with eclipse-zenoh 1.10); several: a peer, which connects to each of them
     return SessionSettings(
@@ -279,11 +359,12 @@ def open_tool_session(settings: SessionSettings, poll_s: float = 0.02) -> zenoh.
 
 
 def monitor_settings(connect: tuple[str, ...] = (), config_file: str = "") -> SessionSettings:
-    """Settings of ``cheope monitor``: a peer that listens nowhere and keeps retrying its connect endpoints."""
+    """Settings of ``cheope monitor``: a peer that listens nowhere and keeps retrying its connect endpoints
+    (default: this user's controllers on this machine, else ``DEFAULT_CONNECT``: local_controllers.py)."""
     return SessionSettings(
         mode="peer",
         listen=(),
-        connect=connect or (DEFAULT_CONNECT,),
+        connect=connect or local_endpoints() or (DEFAULT_CONNECT,),
         config_file=config_file,
         connect_retry_ms=(200, 1000),
     )

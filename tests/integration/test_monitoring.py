@@ -248,9 +248,9 @@ def test_on_cycle_publishes_every_nth_cycle_on_the_loops_thread(cfg):
     state = build_law(cfg).initial_state()
     threads_before = {t.name for t in threading.enumerate()}
     with MonitorPublisher(publisher_settings(cfg), threading.Event()) as pub:
-        # no publisher thread: only the two query servers, which sleep in Rust (query_server.py)
+        # no publisher thread: only the three query servers, which sleep in Rust (query_server.py)
         added = {t.name for t in threading.enumerate()} - threads_before
-        assert added == {"cheope-query-status", "cheope-query-command"}
+        assert added == {"cheope-query-status", "cheope-query-command", "cheope-query-schema"}
         for k in range(400):
             cycle, t, inputs, outputs, timing = _cycle_args(k)
             pub.on_cycle(cycle, t, inputs, state, outputs, (), timing)
