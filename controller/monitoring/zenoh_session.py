@@ -254,6 +254,16 @@ def build_zenoh_config(settings: SessionSettings) -> zenoh.Config:
     return conf
 
 
+def listen_endpoints(conf: zenoh.Config) -> tuple[str, ...]:
+    """The endpoints a session opened with ``conf`` listens on: its ``listen/endpoints``, which a
+    ``--zenoh-config`` file may set (``cheope status`` reported the loopback default beside a
+    file's TLS endpoint), per mode where the file gives them per mode."""
+    endpoints = _get(conf, "listen/endpoints")
+    if isinstance(endpoints, dict):
+        endpoints = endpoints.get(str(_get(conf, "mode") or "peer"), [])
+    return tuple(str(e) for e in endpoints) if isinstance(endpoints, list) else ()
+
+
 def _get(conf: zenoh.Config, key: str) -> object:
     return json.loads(conf.get_json(key))  # get_json returns JSON text ("null" when unset)
 
@@ -274,16 +284,18 @@ def open_session(settings: SessionSettings) -> tuple[zenoh.Session, tuple[str, .
     With ``on_listen_busy="free_port"`` a loopback TCP listen port already in use (another
     controller on this machine, a concurrent test run) is replaced by a free one, with a warning.
     """
+    conf = build_zenoh_config(settings)
     try:
-        return zenoh.open(build_zenoh_config(settings)), settings.listen
+        return zenoh.open(conf), listen_endpoints(conf)
     except zenoh.ZError as err:
         busy = "Address already in use" in str(err)
         if not (busy and settings.on_listen_busy == "free_port"):
             raise MonitoringConnectionError(_describe(settings, err)) from err
     for _ in range(3):
         listen = _with_free_ports(settings.listen)
+        conf = build_zenoh_config(replace(settings, listen=listen))
         try:
-            session = zenoh.open(build_zenoh_config(replace(settings, listen=listen)))
+            session = zenoh.open(conf)
         except zenoh.ZError as err:
             if "Address already in use" in str(err):
                 continue
@@ -291,7 +303,7 @@ def open_session(settings: SessionSettings) -> tuple[zenoh.Session, tuple[str, .
         log.warning(
             "monitoring: %s is in use; listening on %s instead", ", ".join(settings.listen), ", ".join(listen)
         )
-        return session, listen
+        return session, listen_endpoints(conf)
     raise MonitoringConnectionError(f"cannot listen on {', '.join(settings.listen)}: address in use")
 
 
