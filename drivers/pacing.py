@@ -1,4 +1,5 @@
-"""Pacing to deadlines on the monotonic clock: the loop shell's cycle and a replay onto a bus.
+"""Pacing to deadlines on the monotonic clock: the loop shell's cycle and a replay onto a bus; and
+the monotonic clock on the wall clock.
 
 ``time.sleep`` alone wakes up to a scheduler tick late; the last ``spin_s`` before the
 deadline is spent reading the clock instead, which costs CPU but lands within microseconds.
@@ -23,3 +24,9 @@ class DeadlineSleeper:
             time.sleep(coarse)
         while self.clock() < deadline_s:
             pass
+
+
+def wall_clock_offset_ns(clock: Callable[[], float] = time.monotonic) -> int:
+    """Unix time minus ``clock`` [ns], read now: what turns the controller's monotonic readings into
+    wall-clock (ROS) times: a recording's ``clock_offset_ns``, the monitoring Status's."""
+    return time.time_ns() - round(clock() * 1e9)

@@ -47,6 +47,7 @@ import can
 
 from controller.config import Config, config_to_dict
 from controller.errors import DeviceError
+from drivers.pacing import wall_clock_offset_ns
 from logs import messages as m
 from logs.keyframe import ENCODING as STATE_ENCODING
 from logs.keyframe import KeyframeError, encode_state
@@ -431,7 +432,7 @@ class SessionRecorder:
 
     def start(self) -> None:
         """Start the writer process and wait until it has written the header and the metadata."""
-        offset_ns = time.time_ns() - int(self.clock() * 1e9)
+        offset_ns = wall_clock_offset_ns(self.clock)
         session = dict(self.metadata.get(m.META_SESSION, {}))
         session.update(
             started_utc=_dt.datetime.now(_dt.UTC).isoformat(timespec="microseconds"),

@@ -26,7 +26,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -95,6 +95,30 @@ class RobotDrawing(Protocol):
     def fixed(self) -> list[Primitive]: ...
 
     def moving(self, pose: MeasuredPose) -> list[Primitive]: ...
+
+
+@dataclass(frozen=True)
+class ActuatedJoint:
+    """An actuated joint as a URDF joint (controller/ros2/robot_description.py): the robot's own name
+    for it (the ROS JointState name), prismatic [m] or revolute [rad], its axis and origin in its
+    parent's frame at joint value 0, its parent (``base``, or a moving part the drawing computes,
+    named ``<entity>_<k>``: the k-th primitive of that entity in ``moving()``), and the shape of the
+    link it moves, in that link's frame."""
+
+    name: str
+    kind: str  # "prismatic" or "revolute"
+    axis: Vec3
+    origin: Vec3 = (0.0, 0.0, 0.0)
+    parent: str = "base"
+    visuals: tuple[Primitive, ...] = ()
+
+
+@runtime_checkable
+class JointedDrawing(RobotDrawing, Protocol):
+    """A drawing that also names its robot's actuated joints, one per actuator in actuator order (the
+    ROS 2 bridge's URDF and JointState); the other moving parts are passive, computed each sample."""
+
+    def actuated_joints(self) -> tuple[ActuatedJoint, ...]: ...
 
 
 def _v(a: Sequence[float] | np.ndarray) -> Vec3:
@@ -268,6 +292,18 @@ class CheopeDrawing:
             )
         return out + _workpiece(self.cfg)
 
+    def actuated_joints(self) -> tuple[ActuatedJoint, ...]:
+        """The three linear motors: a carriage sliding along its prismatic axis n_j (seed 001 §3)."""
+        return tuple(
+            ActuatedJoint(
+                f"slider_{j + 1}",
+                "prismatic",
+                _v(n),
+                visuals=(_box_between("sliders", np.zeros(3), n, 0.06, 0.04, BLUE),),
+            )
+            for j, n in enumerate(self.robot.geometry.axes)
+        )
+
     def moving(self, pose: MeasuredPose) -> list[Primitive]:
         from controller.robots.cheope import joint_swing_rad
 
@@ -366,6 +402,30 @@ class UruDrawing:
             )
         return out + _workpiece(self.cfg)
 
+    def actuated_joints(self) -> tuple[ActuatedJoint, ...]:
+        """The three motors on the base: a shaft turning about e_i at A_i with a crank mark; the links
+        it drives through the bevel gears (seed 003 eq. (7)-(13)) are passive, computed from the pose."""
+        g = self.robot.geometry
+        e = np.eye(3)
+        out = []
+        for i in range(3):
+            across = e[(i + 1) % 3]
+            out.append(
+                ActuatedJoint(
+                    f"motor_{i + 1}",
+                    "revolute",
+                    _v(e[i]),
+                    origin=_v(g.base_offset_m * e[i]),
+                    visuals=(
+                        Primitive(
+                            "motors", Shape.CYLINDER, STEEL, end=_v(e[i]), radius_m=0.012, length_m=0.02
+                        ),
+                        _box_between("motors", 0.02 * across, across, 0.03, 0.008, ORANGE),
+                    ),
+                )
+            )
+        return tuple(out)
+
     def moving(self, pose: MeasuredPose) -> list[Primitive]:
         from controller.errors import NoSolutionError
         from controller.robots import uru
@@ -458,6 +518,31 @@ class NspuDrawing:
                 )
             )
         return out
+
+    def actuated_joints(self) -> tuple[ActuatedJoint, ...]:
+        """The three legs: each a prismatic joint along the leg, from A_i (its direction set by the
+        passive nS joint, computed: the leg's drawn part ``legs_<i>``) to B_i, a rod of the shortest
+        leg length ending at B_i."""
+        rod_m = self.cfg.robot.model("nspu").leg_min_m
+        return tuple(
+            ActuatedJoint(
+                f"leg_{i + 1}",
+                "prismatic",
+                (0.0, 0.0, 1.0),
+                parent=f"legs_{i}",
+                visuals=(
+                    Primitive(
+                        "legs",
+                        Shape.CAPSULE,
+                        BLUE,
+                        start=(0.0, 0.0, -rod_m),
+                        end=(0.0, 0.0, 0.0),
+                        radius_m=0.006,
+                    ),
+                ),
+            )
+            for i in range(3)
+        )
 
     def moving(self, pose: MeasuredPose) -> list[Primitive]:
         from controller.errors import NoSolutionError

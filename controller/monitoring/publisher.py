@@ -64,6 +64,7 @@ from controller.monitoring.zenoh_session import (
     schema_descriptor_set,
 )
 from drivers.cyclic_exchange import ExchangeCounters
+from drivers.pacing import wall_clock_offset_ns
 
 log = logging.getLogger(__name__)
 
@@ -185,6 +186,7 @@ class MonitorPublisher:
                 versions=self._versions,
                 commands_enabled=s.allow_remote_commands,
                 listen_endpoints=self.listen_endpoints,
+                clock_offset_ns=wall_clock_offset_ns(self.clock),  # ROS time of the samples (cheope ros2)
             ).SerializeToString()
             self._servers = [
                 QueryServer(z, k.status, self._on_status, _STATUS_LIMITS, "cheope-query-status"),

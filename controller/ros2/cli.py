@@ -62,17 +62,19 @@ def add_subcommand(sub: argparse._SubParsersAction[ParserT]) -> None:
 
     p = sub.add_parser(
         "ros2",
-        help="publish a controller's state (or a recording) as ROS 2 topics, with a stop "
-        "service; needs the ros2 extra",
+        help="publish a controller's state (or a recording) as ROS 2 topics in ROS time, with its URDF, "
+        "/diagnostics, /rosout, /tf, and stop/pause/resume/reset services; needs the ros2 extra",
     )
     _client_options(p)
     p.add_argument(
         "--namespace",
         default=DEFAULT_NAMESPACE,
-        help=f"ROS 2 namespace of the topics and the stop service (default {DEFAULT_NAMESPACE})",
+        help=f"ROS 2 namespace of the topics and the services (default {DEFAULT_NAMESPACE})",
     )
     p.add_argument(
-        "--replay", metavar="FILE", help="publish this recording (.mcap) instead of a live controller"
+        "--replay",
+        metavar="FILE",
+        help="publish this recording (.mcap) instead of a live controller, with /clock",
     )
     p.add_argument(
         "--speed",

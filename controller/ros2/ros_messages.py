@@ -1,7 +1,7 @@
 """A ``BridgeSample`` and the robot's drawing as ROS 2 messages (needs the ``ros2`` extra).
 
-Frames: everything is in ``base`` ({0}, as ``/scene`` and ``/tcp`` in the recordings); set rviz2's
-fixed frame to ``base``. The drawing (logs/robot_drawing.py) becomes a ``MarkerArray`` that starts
+Times are ROS time, integer nanoseconds on the wall clock (samples.py). Frames: everything is in
+``base`` ({0}, as ``/scene`` and ``/tcp`` in the recordings); set rviz2's fixed frame to ``base``. The drawing (logs/robot_drawing.py) becomes a ``MarkerArray`` that starts
 with a DELETEALL and holds the fixed and the moving parts, one marker namespace per drawing
 entity, so each array replaces the last whole and a late subscriber gets the whole robot with
 the next sample. A capsule is a cylinder and a sphere at each end (rviz2 has no capsule), as
@@ -16,12 +16,14 @@ from typing import Any
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Point, PoseStamped, WrenchStamped
+from geometry_msgs.msg import Point, PoseStamped, TransformStamped, WrenchStamped
 from rcl_interfaces.msg import Log
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from std_msgs.msg import ColorRGBA, Header
+from std_msgs.msg import ColorRGBA, Header, String
 from visualization_msgs.msg import Marker, MarkerArray
 
+from controller.ros2.robot_description import Transform
 from controller.ros2.samples import BridgeSample, Vec3, diagnostic_level
 from logs.foxglove_scene import BASE_FRAME, quaternion_from_to
 from logs.robot_drawing import Primitive, Shape
@@ -31,30 +33,46 @@ _Z: Vec3 = (0.0, 0.0, 1.0)
 _X: Vec3 = (1.0, 0.0, 0.0)
 
 
-def stamp(t_s: float) -> Time:
-    sec = math.floor(t_s)
-    return Time(sec=int(sec), nanosec=min(round((t_s - sec) * 1e9), 999_999_999))
+def stamp(t_ns: int) -> Time:
+    sec, nanosec = divmod(t_ns, 1_000_000_000)
+    return Time(sec=sec, nanosec=nanosec)
 
 
-def header(t_s: float) -> Header:
-    return Header(stamp=stamp(t_s), frame_id=BASE_FRAME)
+def header(t_ns: int, frame_id: str = BASE_FRAME) -> Header:
+    return Header(stamp=stamp(t_ns), frame_id=frame_id)
 
 
-def joint_names(n: int) -> list[str]:
-    return [f"actuator_{j + 1}" for j in range(n)]
-
-
-def joint_state(s: BridgeSample) -> JointState:
-    """Measured actuator positions; no velocities or efforts (the state does not carry them)."""
+def joint_state(s: BridgeSample, names: tuple[str, ...], velocities: tuple[float, ...]) -> JointState:
+    """Measured actuator positions under the robot's joint names, with their velocities (samples.py:
+    empty for the first sample); no effort (the drives' effort does not reach the bridge)."""
     return JointState(
-        header=header(s.stamp_s), name=joint_names(len(s.positions)), position=list(s.positions)
+        header=header(s.stamp_ns, ""), name=list(names), position=list(s.positions), velocity=list(velocities)
     )
+
+
+def robot_description(urdf: str) -> String:
+    return String(data=urdf)
+
+
+def clock(t_ns: int) -> Clock:
+    return Clock(clock=stamp(t_ns))
+
+
+def transforms(t_ns: int, tfs: list[Transform]) -> list[TransformStamped]:
+    out = []
+    for tf in tfs:
+        m = TransformStamped(header=header(t_ns, tf.parent), child_frame_id=tf.child)
+        m.transform.translation.x, m.transform.translation.y, m.transform.translation.z = tf.translation
+        r = m.transform.rotation
+        r.x, r.y, r.z, r.w = tf.rotation
+        out.append(m)
+    return out
 
 
 def wrench(s: BridgeSample) -> WrenchStamped | None:
     if s.force_n is None:
         return None
-    msg = WrenchStamped(header=header(s.stamp_s))
+    msg = WrenchStamped(header=header(s.stamp_ns))
     msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z = s.force_n
     # NaN where the torque is not known (the Zenoh state carries the forces only), not a measured zero
     torque = s.torque_nm if s.torque_nm is not None else (math.nan, math.nan, math.nan)
@@ -62,16 +80,18 @@ def wrench(s: BridgeSample) -> WrenchStamped | None:
     return msg
 
 
-def pose(t_s: float, p: Vec3 | None) -> PoseStamped | None:
+def pose(t_ns: int, p: Vec3 | None) -> PoseStamped | None:
     if p is None:
         return None
-    msg = PoseStamped(header=header(t_s))
+    msg = PoseStamped(header=header(t_ns))
     msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = p
     msg.pose.orientation.w = 1.0  # a translational robot: the platform keeps the base's orientation
     return msg
 
 
-def diagnostics(s: BridgeSample) -> DiagnosticArray:
+def diagnostics(s: BridgeSample, node_name: str) -> DiagnosticArray:
+    """diagnostic_msgs conventions: one status per component, named ``<node>: <component>``, its
+    ``hardware_id`` the robot, level OK/WARN/ERROR, a one-line message and key/values."""
     level = diagnostic_level(s)
     values = [
         KeyValue(key="mode", value=s.mode),
@@ -84,19 +104,20 @@ def diagnostics(s: BridgeSample) -> DiagnosticArray:
     values += [KeyValue(key=f"alarm_{i + 1}", value=a) for i, a in enumerate(s.alarms)]
     status = DiagnosticStatus(
         level=bytes([level]),
-        name=f"cheope/{s.robot_id}: controller",
+        name=f"{node_name}: controller {s.robot_id}",
         hardware_id=s.robot_id,
         message=s.mode + (f": {'; '.join(s.alarms)}" if s.alarms else ""),
         values=values,
     )
-    return DiagnosticArray(header=header(s.stamp_s), status=[status])
+    return DiagnosticArray(header=header(s.stamp_ns, ""), status=[status])
 
 
-def event_log(t_s: float, severity: int, kind: str, text: str, robot_id: str) -> Log:
+def event_log(t_ns: int, severity: int, kind: str, text: str, logger_name: str) -> Log:
+    """An event as a ``/rosout`` line of the bridge's logger, stamped with the event's own time."""
     return Log(
-        stamp=stamp(t_s),
+        stamp=stamp(t_ns),
         level=LOG_LEVELS.get(severity, Log.ERROR),
-        name=f"cheope.{robot_id}",
+        name=logger_name,
         msg=f"[{kind}] {text}",
         file="",
         function=kind,
@@ -108,7 +129,7 @@ def _color(rgba: tuple[float, float, float, float]) -> ColorRGBA:
     return ColorRGBA(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
 
 
-def _marker(kind: int, p: Primitive, t_s: float, at: Vec3, direction: Vec3 = _Z, axis: Vec3 = _Z) -> Marker:
+def _marker(kind: int, p: Primitive, t_s: int, at: Vec3, direction: Vec3 = _Z, axis: Vec3 = _Z) -> Marker:
     m = Marker(header=header(t_s), ns=p.entity, type=kind, action=Marker.ADD, color=_color(p.color))
     m.pose.position.x, m.pose.position.y, m.pose.position.z = at
     q = quaternion_from_to(axis, direction)
@@ -116,13 +137,13 @@ def _marker(kind: int, p: Primitive, t_s: float, at: Vec3, direction: Vec3 = _Z,
     return m
 
 
-def _sphere(p: Primitive, t_s: float, at: Vec3) -> Marker:
+def _sphere(p: Primitive, t_s: int, at: Vec3) -> Marker:
     m = _marker(Marker.SPHERE, p, t_s, at)
     m.scale.x = m.scale.y = m.scale.z = 2.0 * p.radius_m
     return m
 
 
-def _cylinder(p: Primitive, t_s: float, centre: Vec3, direction: Vec3, length_m: float) -> Marker:
+def _cylinder(p: Primitive, t_s: int, centre: Vec3, direction: Vec3, length_m: float) -> Marker:
     m = _marker(Marker.CYLINDER, p, t_s, centre, direction)
     m.scale.x = m.scale.y = 2.0 * p.radius_m
     m.scale.z = length_m
@@ -147,7 +168,7 @@ def _points(points: tuple[Vec3, ...]) -> list[Point]:
     return out
 
 
-def primitive_markers(p: Primitive, t_s: float) -> list[Marker]:
+def primitive_markers(p: Primitive, t_s: int) -> list[Marker]:
     """``p`` as rviz2 markers (ids are set by ``markers``)."""
     out: list[Marker] = []
     if p.shape == Shape.CAPSULE:
@@ -197,7 +218,7 @@ def primitive_markers(p: Primitive, t_s: float) -> list[Marker]:
     return out
 
 
-def markers(primitives: Iterable[Primitive], t_s: float) -> list[Any]:
+def markers(primitives: Iterable[Primitive], t_s: int) -> list[Any]:
     """Every primitive's markers, numbered within their namespace."""
     out: list[Any] = []
     ids: dict[str, int] = {}
@@ -209,7 +230,7 @@ def markers(primitives: Iterable[Primitive], t_s: float) -> list[Any]:
     return out
 
 
-def restamp(markers_: list[Any], t_s: float) -> list[Any]:
+def restamp(markers_: list[Any], t_s: int) -> list[Any]:
     """``markers_`` (built once: the fixed parts) stamped ``t_s``."""
     t = stamp(t_s)
     for m in markers_:
@@ -217,7 +238,7 @@ def restamp(markers_: list[Any], t_s: float) -> list[Any]:
     return markers_
 
 
-def marker_array(t_s: float, *groups: list[Any]) -> MarkerArray:
+def marker_array(t_s: int, *groups: list[Any]) -> MarkerArray:
     """DELETEALL, then the groups' markers (groups of distinct namespaces: the fixed and the moving parts)."""
     return MarkerArray(
         markers=[Marker(header=header(t_s), action=Marker.DELETEALL)] + [m for g in groups for m in g]

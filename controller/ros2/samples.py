@@ -3,9 +3,10 @@
 One ``BridgeSample`` per state sample, from either source, so that ``cheope ros2`` and
 ``cheope ros2 --replay`` publish the same topics with the same meaning:
 
-- ``stamp_s``: the controller's monotonic clock when the loop handed the cycle over
-  (``MonitorState.cycle_monotonic_s``; in a recording the message's log time less the recording's
-  ``clock_offset_ns``, which is the same reading);
+- ``stamp_ns``: ROS time, the wall clock [ns]: the controller's monotonic clock when the loop
+  handed the cycle over (``MonitorState.cycle_monotonic_s``) plus the controller's offset of the
+  wall clock from it (``Status.clock_offset_ns``); in a recording the message's log time, which
+  is the same reading with the recording's ``clock_offset_ns``;
 - ``tcp_reference_m``: the TCP the actuator targets command, the robot's direct kinematics of
   ``targets`` (the Zenoh state carries the targets, not the task's path point); None where the
   model has no solution there;
@@ -34,7 +35,7 @@ class BridgeSample:
     robot_id: str
     cycle: int
     t_s: float  # the cycle's nominal time since the start [s]
-    stamp_s: float  # the controller's monotonic clock at this cycle [s]
+    stamp_ns: int  # ROS time at this cycle: the controller's monotonic clock on the wall clock [ns]
     mode: str
     task: str
     task_phase: str
@@ -67,15 +68,15 @@ def commanded_tcp(robot: Robot | None, targets: tuple[float, ...]) -> Vec3 | Non
     return v if v is not None and all(math.isfinite(x) for x in v) else None
 
 
-def sample_from_state(state: Any, robot: Robot | None) -> BridgeSample:
-    """A ``cheope.v1.MonitorState`` as a sample."""
+def sample_from_state(state: Any, robot: Robot | None, clock_offset_ns: int) -> BridgeSample:
+    """A ``cheope.v1.MonitorState`` as a sample, stamped with the controller's ``clock_offset_ns``."""
     loop = state.loop
     targets = tuple(state.targets)
     return BridgeSample(
         robot_id=state.robot_id,
         cycle=state.cycle,
         t_s=state.t_s,
-        stamp_s=state.cycle_monotonic_s,
+        stamp_ns=round(state.cycle_monotonic_s * 1e9) + clock_offset_ns,
         mode=state.mode,
         task=state.task,
         task_phase=state.task_phase,
@@ -109,7 +110,7 @@ class CycleSampler:
     late_cycles: int = 0
     _next_t: float = -math.inf
 
-    def sample(self, c: Any, stamp_s: float) -> BridgeSample | None:
+    def sample(self, c: Any, stamp_ns: int) -> BridgeSample | None:
         self.late_cycles += bool(c.inputs.late)
         if c.t_s < self._next_t - _GRID_TOLERANCE_S:
             return None
@@ -124,7 +125,7 @@ class CycleSampler:
             robot_id=self.robot_id,
             cycle=c.cycle,
             t_s=c.t_s,
-            stamp_s=stamp_s,
+            stamp_ns=stamp_ns,
             mode=st.mode,
             task=self.task,
             task_phase=st.task_phase,
@@ -144,3 +145,33 @@ def diagnostic_level(sample: BridgeSample) -> int:
     if sample.mode == Mode.FAULT.name:
         return 2
     return 1 if sample.alarms else 0
+
+
+@dataclass
+class JointVelocities:
+    """The measured actuators' velocities: each position's difference from the previous sample's over
+    the time between them (the drives report no velocity); empty for the first sample and after a
+    change in the number of actuators."""
+
+    _last: tuple[int, tuple[float, ...]] | None = None
+
+    def update(self, stamp_ns: int, positions: tuple[float, ...]) -> tuple[float, ...]:
+        last, self._last = self._last, (stamp_ns, positions)
+        if last is None or len(last[1]) != len(positions) or stamp_ns <= last[0]:
+            return ()
+        dt_s = (stamp_ns - last[0]) * 1e-9
+        return tuple((p - p0) / dt_s for p, p0 in zip(positions, last[1], strict=True))
+
+
+@dataclass
+class EveryInterval:
+    """True at most once per ``interval_ns`` of sample time (``/diagnostics`` at about 1 Hz)."""
+
+    interval_ns: int
+    _next_ns: int | None = None
+
+    def due(self, stamp_ns: int) -> bool:
+        if self._next_ns is not None and stamp_ns < self._next_ns:
+            return False
+        self._next_ns = stamp_ns + self.interval_ns
+        return True

@@ -9,11 +9,13 @@ runs do not see each other. Skipped where the ``ros2`` extra is not installed.
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import random
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -25,10 +27,16 @@ from busy_machine import TOLERANT
 from waiting import GENEROUS_S, ProcessLines, wait_for_exit
 
 from controller.config import load_config
+from controller.monitoring.commands import RobotSelector, query_status
 from controller.monitoring.monitor_view import MonitorClient, StateUpdate
-from controller.monitoring.zenoh_session import MonitorKeys, free_loopback_port, monitor_settings
+from controller.monitoring.zenoh_session import (
+    MonitorKeys,
+    client_settings,
+    free_loopback_port,
+    monitor_settings,
+)
 from controller.robots.registry import robot_from_config
-from controller.ros2.bridge import TOPICS  # imports no ROS
+from controller.ros2.bridge import CLOCK_TOPIC, GLOBAL_TOPICS, TOPICS, tf_message_class  # imports no ROS
 
 pytest.importorskip(
     "rclpy",
@@ -75,31 +83,64 @@ def _probe_lines(proc: subprocess.Popen[bytes], bridge: subprocess.Popen[bytes])
 
 
 def _by_topic(lines: list[dict[str, Any]]) -> dict[str, list[dict[str, Any]]]:
-    out: dict[str, list[dict[str, Any]]] = {t: [] for t in TOPICS}
+    out: dict[str, list[dict[str, Any]]] = {t: [] for t in (*TOPICS, *GLOBAL_TOPICS, CLOCK_TOPIC)}
     for line in lines:
         if "topic" in line:
             out[line["topic"]].append(line)
     return out
 
 
-def _matching(samples: dict[float, Any], stamp_s: float) -> Any:
-    """The sample stamped ``stamp_s`` (the header's nanoseconds round the float seconds)."""
-    (key,) = [k for k in samples if abs(k - stamp_s) < 2e-9 * max(1.0, abs(k))] or [None]
-    assert key is not None, f"no sample at {stamp_s!r}"
-    return samples[key]
+def _one(lines: list[dict[str, Any]], key: str) -> Any:
+    (value,) = [line[key] for line in lines if key in line]
+    return value
 
 
 def _check_graph(lines: list[dict[str, Any]], namespace: str) -> None:
-    (graph,) = [line["graph"] for line in lines if "graph" in line]
+    graph = _one(lines, "graph")
     for topic, type_name in TOPICS.items():
         assert graph.get(f"{namespace}/{topic}") == [type_name], (topic, graph)
+    for topic, type_name in GLOBAL_TOPICS.items():
+        assert type_name in graph.get(topic, []), (topic, graph)
+
+
+def _check_description(got: dict[str, list[dict[str, Any]]], joint_names: list[str]) -> Any:
+    """robot_description, parsed by a URDF parser: the actuated joints real, the passive parts
+    floating, the TCP a link; returns the model."""
+    from urdf_parser_py.urdf import URDF
+
+    (description,) = got["robot_description"]
+    model = URDF.from_xml_string(description["urdf"])
+    actuated = [j.name for j in model.joints if j.type in ("prismatic", "revolute")]
+    assert actuated == joint_names
+    assert {"base", "tcp"} <= {link.name for link in model.links}
+    assert any(j.type == "floating" for j in model.joints) and any(j.type == "fixed" for j in model.joints)
+    assert model.get_root() == "base"
+    return model
+
+
+def _matching(samples: dict[int, Any], stamp_ns: int) -> Any:
+    assert stamp_ns in samples, f"no sample at {stamp_ns}"
+    return samples[stamp_ns]
 
 
 def _commanded(robot: Any, targets: Any) -> list[float]:
     return [float(x) for x in robot.direct_kinematics(np.asarray(targets, dtype=float))]
 
 
-def test_a_ros2_subscriber_gets_the_zenoh_state_and_its_stop_request_stops_the_controller(ros_env):
+def _check_joint_states(got: dict[str, list[dict[str, Any]]], positions_at: Any) -> None:
+    names = ["slider_1", "slider_2", "slider_3"]
+    previous = None
+    for js in got["joint_states"]:
+        assert js["name"] == names and js["effort"] == []
+        assert js["position"] == positions_at(js["stamp"])
+        if previous is not None and js["velocity"]:  # each position's difference over the time between
+            dt = (js["stamp"] - previous["stamp"]) * 1e-9
+            want = [(p - p0) / dt for p, p0 in zip(js["position"], previous["position"], strict=True)]
+            assert js["velocity"] == pytest.approx(want, rel=1e-9, abs=1e-12)
+        previous = js
+
+
+def test_a_ros2_subscriber_gets_the_zenoh_state_in_ros_time_and_the_commands_go_through_the_gate(ros_env):
     endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
     namespace = "/cheope_test"
     controller = [
@@ -121,8 +162,13 @@ def test_a_ros2_subscriber_gets_the_zenoh_state_and_its_stop_request_stops_the_c
     robot = robot_from_config(load_config())
     with _process(controller, ros_env, "the controller") as ctl:
         ProcessLines(ctl).next_matching(lambda line: line.startswith("READY"), "the controller ready")
+        keys = MonitorKeys.for_robot("cheope", ROBOT_ID)
+        offset_ns = query_status(
+            client_settings((endpoint,)), RobotSelector("cheope", ROBOT_ID), GENEROUS_S
+        ).clock_offset_ns
+        assert abs(offset_ns - (time.time_ns() - time.monotonic_ns())) < 1e9  # the same machine's clocks
         with (
-            MonitorClient(monitor_settings((endpoint,)), MonitorKeys.for_robot("cheope", ROBOT_ID)) as watch,
+            MonitorClient(monitor_settings((endpoint,)), keys) as watch,
             _process(
                 [
                     sys.executable,
@@ -156,45 +202,52 @@ def test_a_ros2_subscriber_gets_the_zenoh_state_and_its_stop_request_stops_the_c
             ) as probe,
         ):
             lines = _probe_lines(probe, bridge)
-            states: dict[float, Any] = {}
+            states: dict[int, Any] = {}
             while (u := watch.next_update(0.0)) is not None:
-                if isinstance(u, StateUpdate):
-                    states[u.msg.cycle_monotonic_s] = u.msg
+                if isinstance(u, StateUpdate):  # ROS time: the controller's clock on its wall clock
+                    states[round(u.msg.cycle_monotonic_s * 1e9) + offset_ns] = u.msg
         final = json.loads(ctl.communicate(timeout=GENEROUS_S)[0].decode().splitlines()[-1])
     _check_graph(lines, namespace)
     got = _by_topic(lines)
-    for js in got["joint_states"]:
-        assert js["name"] == ["actuator_1", "actuator_2", "actuator_3"] and js["frame"] == "base"
-        assert js["position"] == list(_matching(states, js["stamp"]).positions)
+    _check_description(got, ["slider_1", "slider_2", "slider_3"])
+    _check_joint_states(got, lambda stamp: list(_matching(states, stamp).positions))
     for w in got["wrench"]:
         assert w["force"] == list(_matching(states, w["stamp"]).force_n)
     for p in got["tcp/measured"]:
-        assert p["position"] == list(_matching(states, p["stamp"]).tcp_m)
+        assert p["position"] == list(_matching(states, p["stamp"]).tcp_m) and p["frame"] == "base"
     for p in got["tcp/reference"]:
         assert p["position"] == pytest.approx(
             _commanded(robot, _matching(states, p["stamp"]).targets), abs=1e-12
         )
-    for d in got["diagnostics"]:
+    for d in got["/diagnostics"]:
         s = _matching(states, d["stamp"])
         assert (d["values"]["mode"], int(d["values"]["cycle"])) == (s.mode, s.cycle)
+        assert d["hardware_id"] == ROBOT_ID and d["name"].endswith(f"controller {ROBOT_ID}")
+    stamps = [d["stamp"] for d in got["/diagnostics"]]
+    assert stamps and all(b - a >= 1_000_000_000 for a, b in itertools.pairwise(stamps))  # about 1 Hz
     for m in got["robot_markers"]:
         _matching(states, m["stamp"])
         assert m["first_action"] == MARKER_DELETEALL
         assert {"base", "guides", "sliders", "rods", "platform", "tool"} <= set(m["namespaces"])
-    assert all(len(got[t]) >= 5 for t in TOPICS if t != "events"), {t: len(v) for t, v in got.items()}
-    (stop,) = [line["stop"] for line in lines if "stop" in line]
+    assert (
+        _one(lines, "pause")["success"] is False
+        and "--allow-remote-commands" in _one(lines, "pause")["message"]
+    )
+    assert _one(lines, "set_force")["successful"] is False
+    stop = _one(lines, "stop")
     assert stop["success"] and "stop accepted" in stop["message"]
     assert final["final_mode"] == "DONE" and "INFO: RUNNING -> STOPPING: stop requested" in final["events"]
-    assert got["events"] and all(
-        e["msg"].split("] ", 1)[1] in {ev.split(": ", 1)[1] for ev in final["events"]} for e in got["events"]
+    events = [e for e in got["/rosout"] if e["name"].endswith("cheope_bridge")]
+    assert events and all(
+        e["msg"].split("] ", 1)[1] in {ev.split(": ", 1)[1] for ev in final["events"]} for e in events
     )
 
 
-def test_a_replayed_recording_reaches_a_ros2_subscriber_as_recorded(ros_env, tmp_path):
+def test_a_replayed_recording_reaches_a_ros2_node_in_the_recordings_time_with_clock(ros_env, tmp_path):
     from controller.assembly import build_law
     from controller.shell.loop import CycleLoop, SimulatedTime
     from logs import messages as m
-    from logs.reader import iter_decoded, read_info
+    from logs.reader import iter_decoded
     from logs.recorder import SessionRecorder, session_metadata
     from sim_backend.loopback import LoopbackExchange
 
@@ -215,12 +268,21 @@ def test_a_replayed_recording_reaches_a_ros2_subscriber_as_recorded(ros_env, tmp
             observers=(rec,),
         )
         loop.run(law.initial_state(), 3.0)
-    offset_s = int(read_info(path).metadata[m.META_SESSION]["clock_offset_ns"]) * 1e-9
-    cycles = {d.log_time_ns * 1e-9 - offset_s: d.message for d in iter_decoded(path, [m.TOPIC_CYCLE])}
+    cycles = {d.log_time_ns: d.message for d in iter_decoded(path, [m.TOPIC_CYCLE])}
     namespace = "/cheope_replay"
     with (
         _process(
-            [sys.executable, PROBE, "--namespace", namespace, "--count", "5", "--timeout", str(GENEROUS_S)],
+            [
+                sys.executable,
+                PROBE,
+                "--namespace",
+                namespace,
+                "--count",
+                "5",
+                "--sim-time",
+                "--timeout",
+                str(GENEROUS_S),
+            ],
             ros_env,
             "the subscriber",
         ) as probe,
@@ -244,14 +306,20 @@ def test_a_replayed_recording_reaches_a_ros2_subscriber_as_recorded(ros_env, tmp
         lines = _probe_lines(probe, bridge)
     _check_graph(lines, namespace)
     got = _by_topic(lines)
-    for js in got["joint_states"]:
-        assert js["position"] == [d.position for d in _matching(cycles, js["stamp"]).inputs.drives]
+    _check_description(got, ["slider_1", "slider_2", "slider_3"])
+    _check_joint_states(got, lambda stamp: [d.position for d in _matching(cycles, stamp).inputs.drives])
     for w in got["wrench"]:
         sensor = _matching(cycles, w["stamp"]).inputs.sensor
         assert (w["force"], w["torque"]) == (list(sensor.force_n), list(sensor.torque_nm))
     for p in got["tcp/measured"]:
         assert p["position"] == list(_matching(cycles, p["stamp"]).state.tcp_measured_m)
-    for d in got["diagnostics"]:
+    for d in got["/diagnostics"]:
         c = _matching(cycles, d["stamp"])
         assert (d["values"]["mode"], int(d["values"]["cycle"])) == (c.state.mode, c.cycle)
-    assert all(len(got[t]) >= 5 for t in TOPICS if t != "events"), {t: len(v) for t, v in got.items()}
+    # a node with use_sim_time follows /clock: its "now" is a recorded stamp, not this machine's time
+    now = _one(lines, "now")
+    assert (now in cycles and abs(now - time.time_ns()) > 0) or now == 0
+    assert now in {js["stamp"] for js in got["joint_states"]} | set(cycles)
+    tcp = [line["tf_tcp"] for line in lines if "tf_tcp" in line]
+    if tf_message_class() is not None:  # a ROS 2 installation's tf2: the TCP from a tf2 buffer
+        assert tcp and any(tcp[0] == list(c.state.tcp_measured_m) for c in cycles.values())

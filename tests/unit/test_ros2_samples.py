@@ -10,7 +10,14 @@ import pytest
 from controller.config import load_config
 from controller.messages import cheope_pb2 as pb
 from controller.robots.registry import robot_from_config
-from controller.ros2.samples import CycleSampler, commanded_tcp, diagnostic_level, sample_from_state
+from controller.ros2.samples import (
+    CycleSampler,
+    EveryInterval,
+    JointVelocities,
+    commanded_tcp,
+    diagnostic_level,
+    sample_from_state,
+)
 
 
 @pytest.fixture(scope="module")
@@ -26,7 +33,7 @@ def test_the_commanded_tcp_is_the_direct_kinematics_of_the_targets(robot):
     assert commanded_tcp(None, q) is None
 
 
-def test_a_state_sample_keeps_the_controllers_clock_and_values(robot):
+def test_a_state_sample_is_stamped_in_ros_time_and_keeps_the_values(robot):
     p = np.array([0.0, 0.0, 0.5])
     targets = [float(x) for x in robot.inverse_kinematics(p)]
     state = pb.MonitorState(
@@ -43,9 +50,10 @@ def test_a_state_sample_keeps_the_controllers_clock_and_values(robot):
         cycle_monotonic_s=1234.5,
     )
     state.loop.late_cycles = 7
-    s = sample_from_state(state, robot)
-    assert (s.stamp_s, s.cycle, s.positions, s.tcp_measured_m, s.force_n, s.torque_nm) == (
-        1234.5,
+    offset_ns = 1_795_000_000_123_456_789  # the controller's wall clock minus its monotonic clock
+    s = sample_from_state(state, robot, offset_ns)
+    assert (s.stamp_ns, s.cycle, s.positions, s.tcp_measured_m, s.force_n, s.torque_nm) == (
+        1_234_500_000_000 + offset_ns,
         12,
         (0.1, 0.2, 0.3),
         (1.0, 2.0, 3.0),
@@ -67,7 +75,9 @@ def _cycle(n: int, period_s: float, late: bool = False) -> pb.Cycle:
 def test_recorded_cycles_are_sampled_at_the_monitoring_rate_and_late_cycles_counted():
     period_s = 1.0 / 400.0
     sampler = CycleSampler("r", "path", None, rate_hz=50.0)
-    picked = [s for n in range(100) if (s := sampler.sample(_cycle(n, period_s, late=n % 10 == 0), n * 1e-3))]
+    picked = [
+        s for n in range(100) if (s := sampler.sample(_cycle(n, period_s, late=n % 10 == 0), n * 10**6))
+    ]
     assert [s.cycle for s in picked] == list(range(0, 100, 8))
     assert sampler.late_cycles == 10
     assert picked[-1].counters["late_cycles"] == 10
@@ -76,5 +86,19 @@ def test_recorded_cycles_are_sampled_at_the_monitoring_rate_and_late_cycles_coun
 
 def test_a_fault_is_an_error_level():
     sampler = CycleSampler("r", "path", None, rate_hz=400.0)
-    s = sampler.sample(_cycle(99, 1.0 / 400.0), 0.0)
+    s = sampler.sample(_cycle(99, 1.0 / 400.0), 0)
     assert s is not None and diagnostic_level(s) == 2 and not math.isnan(s.t_s)
+
+
+def test_joint_velocities_are_the_positions_difference_over_the_time_between_samples():
+    v = JointVelocities()
+    assert v.update(1_000_000_000, (0.1, 0.2)) == ()  # nothing to difference yet
+    assert v.update(1_020_000_000, (0.1002, 0.1998)) == pytest.approx((0.01, -0.01))
+    assert v.update(1_020_000_000, (0.2, 0.2)) == ()  # no time between: no velocity, not infinity
+    assert v.update(1_040_000_000, (0.2, 0.2, 0.3)) == ()  # another number of actuators
+
+
+def test_diagnostics_are_due_once_a_second_of_sample_time():
+    every = EveryInterval(1_000_000_000)
+    due = [t for t in range(0, 5_000_000_000, 20_000_000) if every.due(t)]
+    assert due == [0, 1_000_000_000, 2_000_000_000, 3_000_000_000, 4_000_000_000]
