@@ -6,7 +6,7 @@ Subscribes to every topic of the bridge (controller/ros2/bridge.py: TOPICS under
 GLOBAL_TOPICS, and ``/clock``) with its ROS type and prints one JSON line per message (topic, stamp
 in integer nanoseconds, the fields the test compares); ``robot_description`` with its QoS
 (transient local: it came before this node). Once ``--count`` messages of each per-sample topic
-arrived it prints ``{"graph": {topic: [types]}}`` and, with ``--sim-time`` (the node's
+arrived, and two ``/diagnostics``, it prints ``{"graph": {topic: [types]}}`` and, with ``--sim-time`` (the node's
 ``use_sim_time``: its clock follows ``/clock``), ``{"now": ns}``; where tf2_ros is installed, the
 TCP from a tf2 buffer (``{"tf_tcp": [x, y, z]}``). With ``--call-stop`` it calls ``pause`` (which a
 controller without --allow-remote-commands refuses), sets the ``force_setpoint_n`` parameter (the
@@ -162,7 +162,12 @@ def main() -> int:
         if topic != CLOCK_TOPIC or not args.sim_time:  # with use_sim_time the node's own clock subscribes
             node.create_subscription(message_class(type_name), topic, on_message(topic), 50)
     deadline = time.monotonic() + args.timeout
-    while any(got.get(t, 0) < args.count for t in PER_SAMPLE) or not got.get("robot_description"):
+    # and two /diagnostics (about 1 Hz: the spacing is checked), the URDF (transient local)
+    while (
+        any(got.get(t, 0) < args.count for t in PER_SAMPLE)
+        or got.get("/diagnostics", 0) < 2
+        or not got.get("robot_description")
+    ):
         if time.monotonic() > deadline:
             print(json.dumps({"timeout": got}), flush=True)
             return 1
