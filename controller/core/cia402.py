@@ -59,11 +59,20 @@ MODE_HOMING = 6
 CW_HOMING_START = 1 << 4  # homing mode: a rising edge of bit 4 starts the homing method (0x6098)
 
 
-def decode_statusword(statusword: int) -> PowerState:
+def _decode_state_bits(statusword: int) -> PowerState:
     for state, mask, value in _SW_CODING:
         if statusword & mask == value:
             return state
     return PowerState.UNKNOWN
+
+
+_SW_CODING_BITS = 0x7F  # every mask of the state coding lies within these bits
+# decoded once for each value of those bits: three statuswords a cycle become three look-ups
+_POWER_STATES = tuple(_decode_state_bits(bits) for bits in range(_SW_CODING_BITS + 1))
+
+
+def decode_statusword(statusword: int) -> PowerState:
+    return _POWER_STATES[statusword & _SW_CODING_BITS]
 
 
 def statusword_bits(state: PowerState) -> int:

@@ -97,6 +97,9 @@ class RuckigSmoother:
         self._brake.max_jerk = list(limits.max_jerk)
         self._zeros = [0.0] * dofs
         self._limits = limits
+        # Targets keep a relative margin below v_max: a target exactly at the limit with a rounding
+        # error's acceleration left is refused too (found by tests/unit/test_step_properties.py).
+        self._target_v_max = tuple(m * TARGET_VELOCITY_MARGIN for m in limits.max_velocity)
 
     def step(
         self,
@@ -112,9 +115,7 @@ class RuckigSmoother:
         plan becomes the fastest allowed transition instead of a fault.
         """
         lim = self._limits
-        # Targets keep a relative margin below v_max: a target exactly at the limit with a rounding
-        # error's acceleration left is refused too (found by tests/unit/test_step_properties.py).
-        target_v_max = tuple(m * TARGET_VELOCITY_MARGIN for m in lim.max_velocity)
+        target_v_max = self._target_v_max
         target_velocity = tuple(
             min(max(v, -m), m) for v, m in zip(target_velocity, target_v_max, strict=True)
         )

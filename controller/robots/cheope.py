@@ -142,10 +142,6 @@ def _dot(a: Vector3, b: Vector3) -> float:
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-def _cross(a: Vector3, b: Vector3) -> Vector3:
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
 def _over(v: Vector3, k: float) -> Vector3:
     return (v[0] / k, v[1] / k, v[2] / k)
 
@@ -189,12 +185,23 @@ def direct_kinematics(geom: CheopeGeometry, q_m: np.ndarray) -> np.ndarray:
             f"(l^2 - x_a^2 - y_a^2 = {z2:.3e} m^2)"
         )
     z_a = math.sqrt(z2)
-    base = tuple(c[0][i] + x_a * ex[i] + y_a * ey[i] for i in range(3))  # eq. (3): {a} -> {0}
+    c0 = c[0]
+    base = (  # eq. (3): {a} -> {0}
+        c0[0] + x_a * ex[0] + y_a * ey[0],
+        c0[1] + x_a * ex[1] + y_a * ey[1],
+        c0[2] + x_a * ex[2] + y_a * ey[2],
+    )
     best = None
+    tolerance = 1e-9 * l
     for sign in (1.0, -1.0):
         s = (base[0] + sign * z_a * ez[0], base[1] + sign * z_a * ez[1], base[2] + sign * z_a * ez[2])
-        # on the branch: w_j . n_j = (s - c_j) . n_j / l <= 0 for every leg
-        on_branch = all(_dot(_sub(s, c[j]), axes[j]) <= 1e-9 * l for j in range(_AXES))
+        # on the branch: w_j . n_j = (s - c_j) . n_j / l <= 0 for every leg (written out: it runs
+        # every cycle, and the calls cost more than the arithmetic)
+        on_branch = True
+        for cj, n in zip(c, axes, strict=True):
+            if not (s[0] - cj[0]) * n[0] + (s[1] - cj[1]) * n[1] + (s[2] - cj[2]) * n[2] <= tolerance:
+                on_branch = False
+                break
         if on_branch and (best is None or s[2] > best[2]):
             best = s
     if best is None:
@@ -341,7 +348,8 @@ class CheopeRobot:
                 (s[1] + a[1] - q[j] * n[1]) * inv_l,
                 (s[2] + a[2] - q[j] * n[2]) * inv_l,
             )
-            swing = math.acos(max(-1.0, min(1.0, _dot(wj, g.rows_neutral[j]))))
+            u = g.rows_neutral[j]
+            swing = math.acos(max(-1.0, min(1.0, wj[0] * u[0] + wj[1] * u[1] + wj[2] * u[2])))
             if swing > lim.joint_swing_limit_rad:
                 return PoseStatus(
                     False,
@@ -349,11 +357,18 @@ class CheopeRobot:
                     f"limit {math.degrees(lim.joint_swing_limit_rad):.1f} deg",
                 )
             w.append(wj)
-            k.append(_dot(wj, n))
-        direct = abs(_dot(w[0], _cross(w[1], w[2])))  # |det W3|
-        inverse = min(abs(x) for x in k)
+            k.append(wj[0] * n[0] + wj[1] * n[1] + wj[2] * n[2])
+        # the measures of singularity_measures, with the products written out (every cycle)
+        (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = w
+        x01 = (a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0)
+        x02 = (a1 * c2 - a2 * c1, a2 * c0 - a0 * c2, a0 * c1 - a1 * c0)
+        x12 = (b1 * c2 - b2 * c1, b2 * c0 - b0 * c2, b0 * c1 - b1 * c0)
+        direct = abs(a0 * x12[0] + a1 * x12[1] + a2 * x12[2])  # |det W3|
+        inverse = min(abs(k[0]), abs(k[1]), abs(k[2]))
         structural = min(
-            math.sqrt(_dot(c, c)) for c in (_cross(w[0], w[1]), _cross(w[0], w[2]), _cross(w[1], w[2]))
+            math.sqrt(x01[0] * x01[0] + x01[1] * x01[1] + x01[2] * x01[2]),
+            math.sqrt(x02[0] * x02[0] + x02[1] * x02[1] + x02[2] * x02[2]),
+            math.sqrt(x12[0] * x12[0] + x12[1] * x12[1] + x12[2] * x12[2]),
         )
         for name, value, low in (
             ("direct", direct, lim.min_direct_measure),

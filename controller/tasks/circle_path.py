@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -30,11 +31,12 @@ class CirclePath:
                 f"({self.speed_m_s * self.ramp_s:.3f} m at {self.speed_m_s} m/s over {self.ramp_s} s each)"
             )
 
-    @property
+    # computed once: the path task asks for them several times a cycle
+    @cached_property
     def arc_length_m(self) -> float:
         return 2.0 * math.pi * self.radius_m * self.laps
 
-    @property
+    @cached_property
     def duration_s(self) -> float:
         v, tr = self.speed_m_s, self.ramp_s
         return (self.arc_length_m - v * tr) / v + 2.0 * tr

@@ -101,3 +101,15 @@ def test_master_reaches_the_wanted_state_from_anywhere(start, wanted):
 def test_quick_stop_from_operation_enabled():
     cw = controlword_towards(S.OPERATION_ENABLED, S.QUICK_STOP_ACTIVE)
     assert device_transition(S.OPERATION_ENABLED, cw, CW_ENABLE_OPERATION) == S.QUICK_STOP_ACTIVE
+
+
+def test_the_decoding_table_agrees_with_the_state_coding_for_every_statusword():
+    """decode_statusword looks the state up by the coding's bits: the same as the first row of
+    CiA 402-2's table whose mask matches, for every 16-bit statusword."""
+    from controller.core.cia402 import _SW_CODING
+
+    for sw in range(1 << 16):
+        expected = next(
+            (state for state, mask, value in _SW_CODING if sw & mask == value), PowerState.UNKNOWN
+        )
+        assert decode_statusword(sw) is expected, hex(sw)
