@@ -123,6 +123,10 @@ class BusSection(Section, frozen=True):
     sync_lead_fraction: Annotated[float, rng(0.05, 0.9)] = (
         0.2  # kernel: RPDOs this part of a period before SYNC
     )
+    # before sending anything, the controller listens this long for another master (SYNC, NMT,
+    # RPDOs, SDO requests, its own node id's heartbeat), the simulator for devices with its node
+    # ids (drivers/bus_presence.py); at least one loop.heartbeat_period_s to hear an idle controller [s]
+    presence_listen_s: Annotated[float, rng(0.05, 10.0)] = 0.3
 
 
 class LoopSection(Section, frozen=True):

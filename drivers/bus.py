@@ -33,6 +33,11 @@ class BusSpec:
     def __str__(self) -> str:
         return f"{self.interface}:{self.channel}" + (" (CAN FD)" if self.fd else "")
 
+    @property
+    def place(self) -> str:
+        """The bus as a message names it: with its UDP port for udp_multicast."""
+        return str(self) + (f" port {self.udp_port}" if self.interface == "udp_multicast" else "")
+
 
 def parse_bus_spec(text: str, fd: bool = False, udp_port: int = DEFAULT_UDP_PORT) -> BusSpec:
     """Parse ``socketcan:vcan0``, ``udp_multicast`` (the local group), ``virtual:name``."""

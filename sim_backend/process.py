@@ -14,11 +14,22 @@ from controller.shell.realtime import (
     unfreeze_garbage_collector,
 )
 from drivers.bus import BusSpec, open_bus
+from drivers.bus_presence import check_node_ids_free
 from sim_backend.server import Simulator
 
 READY_LINE = "cheope-sim ready"
 STOPPED_LINE = "cheope-sim stopped"  # then what it saw:
 CONTACT_FORCE_REPORT = "max true contact force per controller session"  # the numbers, then "N"
+
+
+def sdo_node_ids(cfg: Config) -> tuple[int, ...]:
+    """The simulated devices with an object dictionary: the drives and, when enabled, the sensor."""
+    return (*cfg.actuators.node_ids, *((cfg.sensor.node_id,) if cfg.sensor.enabled else ()))
+
+
+def device_node_ids(cfg: Config) -> tuple[int, ...]:
+    """Every node id the simulator sends as: its SDO devices and, when enabled, the pose tracker."""
+    return (*sdo_node_ids(cfg), *((cfg.tracker.node_id,) if cfg.tracker.enabled else ()))
 
 
 def serve(
@@ -40,6 +51,10 @@ def serve(
     # the SYNC handler competes with heartbeat and watchdog threads for the GIL
     sys.setswitchinterval(cfg.loop.gil_switch_interval_us * 1e-6)
     with open_bus(spec) as bus:
+        # one device per node id: a second simulator on this bus refuses before it sends a frame
+        check_node_ids_free(
+            bus, spec.place, device_node_ids(cfg), sdo_node_ids(cfg), cfg.bus.presence_listen_s
+        )
         simulator = Simulator(cfg, bus)
         simulator.build_nodes()
         if cfg.loop.freeze_gc:

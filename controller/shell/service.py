@@ -44,6 +44,7 @@ from controller.shell.systemd_notify import notify
 from controller.tasks.registry import RunReport, task_entry
 from drivers.bus import BusSpec, open_bus
 from drivers.bus_load import BusLoad, check_bus_load
+from drivers.bus_presence import check_no_other_master
 from drivers.cyclic_exchange import CyclicExchange, FrameSink
 from drivers.frame_tap import FrameTap
 from drivers.homing import HomingPlan
@@ -232,6 +233,8 @@ def run_controller(
         FrameTap(open_bus(spec), frame_sink) as bus,
     ):
         # every frame of the session through one tap: set-up included, own echoes dropped
+        # one master per bus: nothing is sent while another is heard (drivers/bus_presence.py)
+        check_no_other_master(bus, spec.place, cfg.loop.controller_node_id, cfg.bus.presence_listen_s)
         setup = configure_nodes(bus, prepared.setup_plan)
         step_limit, jump_margin = position_plausibility(
             prepared.units, prepared.law.config.safety, cfg.period_s
