@@ -237,6 +237,8 @@ class RecordingSection(Section, frozen=True):
     # live views, fed by the writer process (logs/live_views.py); they need the recording enabled
     live_rerun: str = ""  # "" off, "spawn" (a viewer), "serve" (gRPC + web viewer), or a rerun+http:// URL
     live_foxglove: str = ""  # "" off, or "HOST:PORT" of a Foxglove WebSocket server (foxglove-sdk)
+    # the live Foxglove server's /can: the frames since the last message, at most this often [Hz] (0: no /can live)
+    live_can_rate_hz: Annotated[float, rng(0.0, 1000.0)] = 10.0
 
 
 class MonitoringSection(Section, frozen=True):

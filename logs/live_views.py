@@ -15,10 +15,15 @@ viewer that cannot start is reported once on stderr and left out.
   ``cheope replay --rerun``: the robot as solids under ``/world``, the plots under ``/plots``.
 - Foxglove (``recording.live_foxglove = "HOST:PORT"``, ``--foxglove [HOST:PORT]``, default
   ``127.0.0.1:8765``): foxglove-sdk's WebSocket server with the recording's own channels and
-  schemas: ``/scene``, ``/cycle``, ``/tcp`` and ``/tcp_reference`` (at the scene rate), ``/log``; open it in
-  Foxglove (or Lichtblick: both WebSocket subprotocol names are accepted, logs/foxglove_shim.py) with
-  "Open connection" -> ``ws://HOST:PORT`` and the shipped layout (logs/foxglove_layout.json), which
-  names only topics both the live server and a recording have.
+  schemas: ``/scene``, ``/cycle``, ``/tcp``, ``/tcp_reference`` and ``/joint_states`` (at the scene
+  rate), ``/log``, ``/events``, and ``/can`` (the frames since its last message, at most
+  ``recording.live_can_rate_hz``; 0 leaves it out); open it in Foxglove (or Lichtblick: both
+  WebSocket subprotocol names are accepted, logs/foxglove_shim.py) with "Open connection" ->
+  ``ws://HOST:PORT`` and the shipped layout (logs/foxglove_layout.json), which names only topics
+  both the live server and a recording have. The server offers the service ``stop`` (the
+  protocol's services, JSON: no request, the reply ``{"accepted", "message"}``): a controlled stop,
+  the one remote command the Zenoh gate always accepts (controller/monitoring/command_gate.py); the
+  writer hands it to the controller (``{"command": "stop"}`` on its standard output, logs/recorder.py).
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ from __future__ import annotations
 import math
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -164,12 +170,13 @@ class FoxgloveLive:
     same entities again, which replace themselves).
     """
 
-    TOPICS = ("/scene", "/cycle", "/tcp", "/tcp_reference", "/log")
+    TOPICS = ("/scene", "/cycle", "/tcp", "/tcp_reference", "/log", "/events", "/can", "/joint_states")
 
-    def __init__(self, spec: str) -> None:
+    def __init__(self, spec: str, on_stop: Callable[[], tuple[bool, str]] | None = None) -> None:
         import foxglove
-        from foxglove.websocket import ChannelView, Client, ServerListener
+        from foxglove.websocket import Capability, ChannelView, Client, ServerListener
         from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+        from foxglove_schemas_protobuf.JointStates_pb2 import JointStates
         from foxglove_schemas_protobuf.Log_pb2 import Log
         from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
         from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
@@ -182,7 +189,9 @@ class FoxgloveLive:
         self.context = foxglove.Context()
         self.channels: dict[str, Any] = {}
         for topic, cls in zip(
-            self.TOPICS, (SceneUpdate, pb.Cycle, FrameTransform, PoseInFrame, Log), strict=True
+            self.TOPICS,
+            (SceneUpdate, pb.Cycle, FrameTransform, PoseInFrame, Log, pb.Event, pb.CanFrames, JointStates),
+            strict=True,
         ):
             schema = foxglove.Schema(
                 name=cls.DESCRIPTOR.full_name,
@@ -201,8 +210,16 @@ class FoxgloveLive:
                 if channel.topic == "/scene" and fixed is not None:
                     live.channels["/scene"].log(fixed[0], log_time=fixed[1])
 
+        services = [] if on_stop is None else [_stop_service(on_stop)]
         self.server = foxglove.start_server(
-            name="cheope", host="127.0.0.1", port=0, context=self.context, server_listener=Listener()
+            name="cheope",
+            host="127.0.0.1",
+            port=0,
+            context=self.context,
+            server_listener=Listener(),
+            capabilities=[Capability.Services] if services else None,
+            supported_encodings=["json"] if services else None,
+            services=services or None,
         )
         try:
             self.shim = SubprotocolShim(host, port, self.server.port)
@@ -224,10 +241,37 @@ class FoxgloveLive:
         self.server.stop()
 
 
+STOP_REPLY_SCHEMA = {
+    "type": "object",
+    "properties": {"accepted": {"type": "boolean"}, "message": {"type": "string"}},
+}
+
+
+def _stop_service(on_stop: Callable[[], tuple[bool, str]]) -> Any:
+    """The Foxglove protocol's service ``stop``: no request, a JSON reply (the SDK's thread calls it)."""
+    import json
+
+    import foxglove
+
+    def handle(_request: Any) -> bytes:
+        accepted, message = on_stop()
+        return json.dumps({"accepted": accepted, "message": message}).encode()
+
+    reply = foxglove.MessageSchema(
+        encoding="json",
+        schema=foxglove.Schema(
+            name="cheope.StopReply", encoding="jsonschema", data=json.dumps(STOP_REPLY_SCHEMA).encode()
+        ),
+    )
+    return foxglove.Service(
+        "stop", schema=foxglove.ServiceSchema("cheope.Stop", response=reply), handler=handle
+    )
+
+
 class LiveViews:
     """The configured live views; each call reaches every view that started."""
 
-    def __init__(self, cfg: Config) -> None:
+    def __init__(self, cfg: Config, on_stop: Callable[[], tuple[bool, str]] | None = None) -> None:
         from controller.tasks.registry import task_entry
 
         r = cfg.recording
@@ -241,7 +285,7 @@ class LiveViews:
                 _warn(f"Rerun ({r.live_rerun})", err)
         if r.live_foxglove:
             try:
-                self.foxglove = FoxgloveLive(r.live_foxglove)
+                self.foxglove = FoxgloveLive(r.live_foxglove, on_stop)
             except Exception as err:  # as above
                 _warn(f"Foxglove ({r.live_foxglove})", err)
 
@@ -273,11 +317,23 @@ class LiveViews:
                     unix_ns,
                 )
 
-    def event(self, t_s: float, cycle: int, severity: int, text: str, log_pb: bytes, unix_ns: int) -> None:
+    def event(
+        self, t_s: float, cycle: int, severity: int, text: str, log_pb: bytes, event_pb: bytes, unix_ns: int
+    ) -> None:
         if self.rerun is not None:
             self.rerun.event(t_s, cycle, severity, text)
         if self.foxglove is not None:
             self.foxglove.log("/log", log_pb, unix_ns)
+            self.foxglove.log("/events", event_pb, unix_ns)
+
+    def can(self, can_pb: bytes, unix_ns: int) -> None:
+        """``/can`` live: one message of the frames since the last (the writer decides when, by rate)."""
+        if self.foxglove is not None:
+            self.foxglove.log("/can", can_pb, unix_ns)
+
+    def joint_states(self, joints_pb: bytes, unix_ns: int) -> None:
+        if self.foxglove is not None:
+            self.foxglove.log("/joint_states", joints_pb, unix_ns)
 
     def close(self) -> None:
         for view in (self.rerun, self.foxglove):

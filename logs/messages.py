@@ -11,6 +11,7 @@ The recording's channels (all Protobuf, schemas embedded):
 | ``/tcp`` | ``foxglove.FrameTransform`` | ``base`` -> ``tcp``: the measured TCP (direct kinematics) |
 | ``/tcp_reference`` | ``foxglove.PoseInFrame`` | the path point the last setpoint aims at, in ``base`` |
 | ``/scene`` | ``foxglove.SceneUpdate`` | the robot in 3D (logs/robot_drawing.py): the fixed parts once, the moving ones at 20 Hz |
+| ``/joint_states`` | ``foxglove.JointStates`` | the actuated joints by the robot's names, position and velocity, at the scene's rate |
 
 MCAP ``log_time``/``publish_time`` are Unix nanoseconds: the controller's monotonic reading
 plus the offset between the wall clock and the monotonic clock taken when the recording
@@ -34,6 +35,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol
 
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.JointStates_pb2 import JointStates
 from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
@@ -66,6 +68,7 @@ TOPIC_TCP = "/tcp"
 TOPIC_TCP_REFERENCE = "/tcp_reference"
 TOPIC_SCENE = "/scene"
 TOPIC_KEYFRAME = "/keyframe"
+TOPIC_JOINT_STATES = "/joint_states"
 
 BASE_FRAME = "base"
 TCP_FRAME = "tcp"
@@ -327,6 +330,36 @@ def tcp_transform(unix_ns: int, tcp_m: tuple[float, float, float]) -> FrameTrans
     msg.translation.x, msg.translation.y, msg.translation.z = tcp_m
     msg.rotation.w = 1.0  # the platform of a translational robot does not rotate
     return msg
+
+
+def joint_states(
+    unix_ns: int, names: tuple[str, ...], positions: tuple[float, ...], velocities: tuple[float, ...]
+) -> JointStates:
+    """``foxglove.JointStates``: each actuated joint by the robot's name for it (``actuator_j`` without
+    one), its position and, from the second sample on, its velocity (``JointVelocities``)."""
+    msg = JointStates()
+    _set_time(msg.timestamp, unix_ns)
+    for j, q in enumerate(positions):
+        joint = msg.joints.add(name=names[j] if j < len(names) else f"actuator_{j + 1}", position=q)
+        if j < len(velocities):
+            joint.velocity = velocities[j]
+    return msg
+
+
+@dataclasses.dataclass
+class JointVelocities:
+    """The measured actuators' velocities: each position's difference from the previous sample's over
+    the time between them (the drives report no velocity); empty for the first sample and after a
+    change in the number of actuators."""
+
+    _last: tuple[int, tuple[float, ...]] | None = None
+
+    def update(self, stamp_ns: int, positions: tuple[float, ...]) -> tuple[float, ...]:
+        last, self._last = self._last, (stamp_ns, positions)
+        if last is None or len(last[1]) != len(positions) or stamp_ns <= last[0]:
+            return ()
+        dt_s = (stamp_ns - last[0]) * 1e-9
+        return tuple((p - p0) / dt_s for p, p0 in zip(positions, last[1], strict=True))
 
 
 def tcp_pose(unix_ns: int, tcp_m: tuple[float, float, float]) -> PoseInFrame:

@@ -201,6 +201,9 @@ class SessionRecorder:
         self.error: str = ""
         # called once, on the loop's thread, when the writer is gone (the service's recording.on_failure)
         self.on_failure = on_failure
+        # called on the loop's thread when a live view asked for a stop (the live Foxglove server's
+        # stop service, logs/live_views.py): the service's stop, as a remote ``cheope stop``
+        self.on_remote_stop: Callable[[], None] | None = None
         self.first_lost_cycle: tuple[int, float] | None = None  # (cycle, t) of the first cycle not recorded
         self._last_cycle: tuple[int, float] = (0, 0.0)
         self._cycle_calls = 0
@@ -326,6 +329,9 @@ class SessionRecorder:
             log.info("recording continues in %s", reply["file"])
         if "stopped" in reply:
             self._writer_said = str(reply["stopped"])
+        if reply.get("command") == "stop" and self.on_remote_stop is not None:
+            log.info("recording: the live Foxglove server's stop service asked for a stop")
+            self.on_remote_stop()
 
     def on_frame(self, outgoing: bool, monotonic_s: float, msg: can.Message) -> None:
         """``FrameSink``: copies the frame now (the exchange rewrites its outgoing messages)."""

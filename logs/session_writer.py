@@ -19,7 +19,8 @@ little-endian length and a pickle of a tuple whose first item is the kind:
 ``cycle_pb`` the serialised ``cheope.v1.Cycle`` and ``dropped`` the loop's running count of
 items it could not hand over. Writer -> loop, on standard output, JSON lines: ``{"ready": ...}``
 or ``{"error": ...}`` after SETUP, and ``{"written": n, "chunks": n, "error": "", "files": [...],
-"deleted": [...]}`` at the end; in between ``{"keyframe": n}``, ``{"file": path}`` and ``{"stopped": why}``.
+"deleted": [...]}`` at the end; in between ``{"keyframe": n}``, ``{"file": path}``, ``{"stopped": why}``
+and ``{"command": "stop"}`` (the live Foxglove server's stop service, logs/live_views.py).
 
 A long session is split into files (``recording.max_file_size_mb``, ``max_file_duration_s``).
 Past a limit the writer asks the controller for a keyframe (``{"keyframe": n}``); the recorder
@@ -50,6 +51,7 @@ import select
 import signal
 import struct
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -178,14 +180,30 @@ class SessionWriter:
         if cfg is not None and (cfg.recording.live_rerun or cfg.recording.live_foxglove):
             from logs.live_views import LiveViews
 
-            live = LiveViews(cfg)
+            live = LiveViews(cfg, self._remote_stop)
             self.live = live if live.active else None
+        self.live_can_interval_ns = (
+            round(1e9 / cfg.recording.live_can_rate_hz)
+            if cfg is not None and cfg.recording.live_can_rate_hz
+            else 0
+        )
+        self.live_frames: list[FrameRecord] = []  # /can live: the frames since its last message
+        self.live_can_next_ns = 0
+        self.live_can_first_ns = 0
+        self.joint_names = _joint_names(self.scene)
+        self.joint_velocities = self.m.JointVelocities()
         self._retain()
+
+    def _remote_stop(self) -> tuple[bool, str]:
+        """The live Foxglove server's stop service (its thread): the controller's stop, as ``cheope stop``'s."""
+        self.notify(command="stop")
+        return True, "stop requested: the controller brings the robot to a controlled stop"
 
     def _open(self, path: str, keyframe: Any) -> None:
         """A new file: header, schemas, channels, the session's metadata and this file's place in
         the session (``cheope.file``), flushed before anything else; then the keyframe, if any."""
         from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+        from foxglove_schemas_protobuf.JointStates_pb2 import JointStates
         from foxglove_schemas_protobuf.Log_pb2 import Log
         from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
         from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
@@ -209,6 +227,7 @@ class SessionWriter:
             (m.TOPIC_TCP, FrameTransform),
             (m.TOPIC_TCP_REFERENCE, PoseInFrame),
             (m.TOPIC_SCENE, SceneUpdate),
+            (m.TOPIC_JOINT_STATES, JointStates),
             (m.TOPIC_KEYFRAME, pb.Keyframe),
         ):
             sid = register_schema(w, cls)
@@ -399,7 +418,24 @@ class SessionWriter:
             return 0
         batch = self.m.can_frames(frames, self.offset_ns).SerializeToString()
         self.last_mono_s = frames[-1][1]
-        return self._add(self.m.TOPIC_CAN, batch, self.m.unix_time_ns_of(frames[0][1], self.offset_ns))
+        ns = self.m.unix_time_ns_of(frames[0][1], self.offset_ns)
+        if self.live is not None and self.live_can_interval_ns:
+            self._live_can(frames, ns)
+        return self._add(self.m.TOPIC_CAN, batch, ns)
+
+    def _live_can(self, frames: list[FrameRecord], ns: int) -> None:
+        """``/can`` live: the frames gathered since the last message, at most ``live_can_rate_hz``."""
+        if not self.live_frames:
+            self.live_can_first_ns = ns  # the message's log time: its first frame's
+        self.live_frames += frames
+        if ns >= self.live_can_next_ns:
+            assert self.live is not None
+            self.live.can(
+                self.m.can_frames(self.live_frames, self.offset_ns).SerializeToString(),
+                self.live_can_first_ns,
+            )
+            self.live_frames = []
+            self.live_can_next_ns = ns + self.live_can_interval_ns
 
     def _cycle(
         self,
@@ -418,11 +454,12 @@ class SessionWriter:
         self.last_mono_s = mono_s
         n = self._add(m.TOPIC_CYCLE, cycle_pb, ns, seq)
         for e in events:
-            n += self._add(m.TOPIC_EVENTS, m.event_to_pb(cycle, t, e).SerializeToString(), ns)
+            event_pb = m.event_to_pb(cycle, t, e).SerializeToString()
+            n += self._add(m.TOPIC_EVENTS, event_pb, ns)
             log_pb = m.event_to_log(ns, e).SerializeToString()
             n += self._add(m.TOPIC_LOG, log_pb, ns)
             if self.live is not None:
-                self.live.event(t, cycle, int(e.severity), f"[{e.kind}] {e.message}", log_pb, ns)
+                self.live.event(t, cycle, int(e.severity), f"[{e.kind}] {e.message}", log_pb, event_pb, ns)
         frame = None
         if self.scene is not None:
             n_scene, frame = self._scene(cycle_pb, t, ns)
@@ -440,6 +477,16 @@ class SessionWriter:
                 n += self._add(m.TOPIC_TCP, tcp_pb, ns)
             if tcp_reference is not None:
                 n += self._add(m.TOPIC_TCP_REFERENCE, m.tcp_pose(ns, tcp_reference).SerializeToString(), ns)
+        if frame is not None:  # the joints by the robot's names, with the 3D scene's rate
+            joints_pb = self.m.joint_states(
+                ns,
+                self.joint_names,
+                positions := tuple(d.position for d in frame.message.inputs.drives),
+                self.joint_velocities.update(ns, positions),
+            ).SerializeToString()
+            n += self._add(m.TOPIC_JOINT_STATES, joints_pb, ns)
+            if self.live is not None:
+                self.live.joint_states(joints_pb, ns)
         if frame is not None and self.live is not None:
             self.live.frame(frame, frame.message, cycle_pb, frame.scene_pb, tcp_pb, ns)
         return n
@@ -556,6 +603,14 @@ def enforce_retention(
     return deleted
 
 
+def _joint_names(scene: SceneSampler | None) -> tuple[str, ...]:
+    """The robot's actuated joints' names (its drawing's: as the ROS 2 bridge names them), or none."""
+    from logs.robot_drawing import JointedDrawing
+
+    drawing = scene.drawing if scene is not None else None
+    return tuple(j.name for j in drawing.actuated_joints()) if isinstance(drawing, JointedDrawing) else ()
+
+
 def _recorded_config(settings: dict[str, Any]) -> Config | None:
     """The session's configuration from the metadata; None without one (then no 3D scene)."""
     from controller.config import ConfigError, recorded_config_from_dict
@@ -582,8 +637,16 @@ def _scene_sampler(cfg: Config) -> SceneSampler | None:
         return None
 
 
+_REPLY_LOCK = threading.Lock()  # the live Foxglove server's stop comes on the SDK's thread
+
+
 def _reply(out: TextIO, **fields: object) -> None:
     """One JSON line to the controller; nothing when it is gone (killed: the file is finished all the same)."""
+    with _REPLY_LOCK:
+        _write_line(out, fields)
+
+
+def _write_line(out: TextIO, fields: dict[str, object]) -> None:
     try:
         out.write(json.dumps(fields) + "\n")
         out.flush()

@@ -56,9 +56,9 @@ from controller.ros2.samples import (
     BridgeSample,
     CycleSampler,
     EveryInterval,
-    JointVelocities,
     sample_from_state,
 )
+from logs.messages import JointVelocities  # the same velocities as the recordings' /joint_states
 
 if TYPE_CHECKING:
     from controller.config import Config

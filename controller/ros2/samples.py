@@ -148,22 +148,6 @@ def diagnostic_level(sample: BridgeSample) -> int:
 
 
 @dataclass
-class JointVelocities:
-    """The measured actuators' velocities: each position's difference from the previous sample's over
-    the time between them (the drives report no velocity); empty for the first sample and after a
-    change in the number of actuators."""
-
-    _last: tuple[int, tuple[float, ...]] | None = None
-
-    def update(self, stamp_ns: int, positions: tuple[float, ...]) -> tuple[float, ...]:
-        last, self._last = self._last, (stamp_ns, positions)
-        if last is None or len(last[1]) != len(positions) or stamp_ns <= last[0]:
-            return ()
-        dt_s = (stamp_ns - last[0]) * 1e-9
-        return tuple((p - p0) / dt_s for p, p0 in zip(positions, last[1], strict=True))
-
-
-@dataclass
 class EveryInterval:
     """True at most once per ``interval_ns`` of sample time (``/diagnostics`` at about 1 Hz)."""
 

@@ -258,3 +258,132 @@ def test_a_bad_foxglove_address_is_named(spec, message):
 
     with pytest.raises(LiveViewError, match=message):
         parse_host_port(spec)
+
+
+def test_the_live_server_sends_events_and_joint_states_as_recorded(tmp_path):
+    """The channels a recording has beside the layout's: /events and /joint_states (by the robot's joint
+    names, with velocities), live."""
+    from foxglove_schemas_protobuf.JointStates_pb2 import JointStates
+
+    port = free_loopback_port()
+    cfg = _config(tmp_path, live_foxglove=f"127.0.0.1:{port}")
+    with _running_controller(cfg, tmp_path / "s.mcap") as loop_thread:
+        wait_until(lambda: _server_up(port), "the Foxglove server listening")
+        topics = ("/events", "/can", "/joint_states")
+        advertised, got = _foxglove_messages(port, topics, {"/joint_states": 3})
+        assert loop_thread.is_alive(), loop_thread.ended  # type: ignore[attr-defined]
+    assert set(topics) <= advertised
+    joints = [JointStates.FromString(b) for b in got["/joint_states"]]
+    assert all([j.name for j in js.joints] == ["slider_1", "slider_2", "slider_3"] for js in joints)
+    assert any(all(j.HasField("velocity") for j in js.joints) for js in joints[1:])
+
+
+def test_the_live_servers_stop_service_answers_and_reaches_the_writers_callback():
+    """The Foxglove protocol's service call (binary: opcode 2 with the service and call ids, the
+    encoding, the payload) reaches ``on_stop``; its answer comes back as the JSON reply."""
+    from websockets.sync.client import connect
+
+    from logs.live_views import FoxgloveLive
+
+    calls: list[int] = []
+
+    def on_stop() -> tuple[bool, str]:
+        calls.append(1)
+        return True, "stop requested"
+
+    live = FoxgloveLive(f"127.0.0.1:{free_loopback_port()}", on_stop)
+    try:
+        with connect(
+            f"ws://127.0.0.1:{live.port}", subprotocols=["foxglove.websocket.v1"], open_timeout=GENEROUS_S
+        ) as ws:
+            deadline = time.monotonic() + GENEROUS_S
+            services: dict[str, int] = {}
+            while "stop" not in services:
+                assert time.monotonic() < deadline
+                msg = ws.recv(timeout=GENEROUS_S)
+                if isinstance(msg, str) and json.loads(msg).get("op") == "advertiseServices":
+                    services.update({s["name"]: s["id"] for s in json.loads(msg)["services"]})
+            encoding = b"json"
+            ws.send(struct.pack("<BIII", 2, services["stop"], 7, len(encoding)) + encoding + b"{}")
+            while True:
+                assert time.monotonic() < deadline
+                msg = ws.recv(timeout=GENEROUS_S)
+                if isinstance(msg, bytes) and msg[0] == 3:  # ServiceCallResponse
+                    service_id, call_id, n = struct.unpack_from("<III", msg, 1)
+                    reply = json.loads(msg[13 + n :])
+                    break
+    finally:
+        live.close()
+    assert (service_id, call_id, calls) == (services["stop"], 7, [1])
+    assert reply == {"accepted": True, "message": "stop requested"}
+
+
+def test_a_stop_from_the_live_view_reaches_the_recorders_owner(tmp_path):
+    """The writer's ``{"command": "stop"}`` line: the recorder calls ``on_remote_stop`` (the service: its
+    stop event), on the loop's thread, at its next look at the writer's notices."""
+    rec = SessionRecorder(tmp_path / "x.mcap", session_metadata(load_config()))
+    stops: list[int] = []
+    rec.on_remote_stop = lambda: stops.append(1)
+    rec._note({"command": "stop"})
+    rec._note({"file": str(tmp_path / "y.mcap")})
+    assert stops == [1]
+
+
+def test_the_live_can_channel_carries_every_frame_at_its_rate(tmp_path):
+    """The writer's /can live: the frames since its last message, at most recording.live_can_rate_hz
+    (2 Hz here) of the session's time, none twice, none lost between messages."""
+    from controller.messages import cheope_pb2 as pb
+    from logs.session_writer import CYCLE, SessionWriter
+
+    port = free_loopback_port()
+    cfg = _config(tmp_path, live_foxglove=f"127.0.0.1:{port}", live_can_rate_hz=2.0)
+    meta = session_metadata(cfg)
+    writer = SessionWriter(
+        {
+            "path": str(tmp_path / "w.mcap"),
+            "metadata": meta,
+            "clock_offset_ns": 10**18,
+            "chunk_size_bytes": 1 << 20,
+            "flush_interval_s": 2.0,
+            "compression": "zstd",
+        }
+    )
+    got: dict[str, list[bytes]] = {}
+    client = threading.Thread(
+        target=lambda: got.update(_foxglove_messages(writer.live.foxglove.port, ("/can",), {"/can": 3})[1])
+    )
+    try:
+        client.start()
+        time.sleep(1.0)  # the client subscribes (nothing says when, in the protocol)
+        k = 0
+        while client.is_alive() and k < 20000:
+            t = k * 0.0025
+            frames = [(True, 100.0 + t, 0x80, b"", False, False, 0, False, False, False, False)]
+            writer.write(
+                (
+                    CYCLE,
+                    0,
+                    frames,
+                    k,
+                    t,
+                    100.0 + t,
+                    k,
+                    pb.Cycle(cycle=k, t_s=t).SerializeToString(),
+                    (),
+                    None,
+                    None,
+                )
+            )
+            k += 1
+            if k % 40 == 0:
+                time.sleep(0.01)
+    finally:
+        client.join(GENEROUS_S)
+        writer.finish(k, 0)
+        writer.live.close()
+    batches = [pb.CanFrames.FromString(b) for b in got["/can"]]
+    times = [f.unix_time_ns for b in batches for f in b.frames]
+    assert len(batches) >= 3 and times == sorted(set(times))
+    assert all(len(b.frames) >= 150 for b in batches[1:])  # half a second of 400 Hz cycles each
+    steps = [times[i + 1] - times[i] for i in range(len(times) - 1)]
+    assert max(steps) <= 2_500_001  # consecutive cycles: no frame lost between two messages

@@ -13,11 +13,11 @@ from controller.robots.registry import robot_from_config
 from controller.ros2.samples import (
     CycleSampler,
     EveryInterval,
-    JointVelocities,
     commanded_tcp,
     diagnostic_level,
     sample_from_state,
 )
+from logs.messages import JointVelocities
 
 
 @pytest.fixture(scope="module")
