@@ -351,7 +351,8 @@ def _session_recorder(
         cfg, phase_name=law.task.phase_name, extra_metadata={"bus": str(spec)}
     )
     recorder.on_failure = _on_recording_failure(cfg.recording.on_failure, stop_event)
-    recorder.on_remote_stop = stop_event.set  # the live Foxglove server's stop: the stop Zenoh's gate always takes
+    # the live Foxglove server's stop service: the stop Zenoh's gate always takes
+    recorder.on_remote_stop = stop_event.set
     return recorder
 
 
