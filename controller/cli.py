@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import signal
 import sys
 import threading
@@ -18,6 +19,7 @@ from controller.config import Config, ConfigError, load_config, parse_override
 from controller.errors import CheopeError, RefusedError
 from controller.monitoring.cli_commands import add_controller_options, monitoring_overrides
 from controller.monitoring.cli_commands import add_subcommands as add_monitoring_subcommands
+from controller.output_paths import check_output_dir
 from controller.robots.registry import robot_entry, robot_kinds
 from controller.shell.status_line import StatusDisplay, live_status, status_wanted
 from controller.tasks.registry import task_kinds
@@ -310,9 +312,25 @@ def _status_observers(status: StatusDisplay | None, cfg: Config) -> tuple[CycleO
     return (status.observer(cfg.period_s, count(cfg.task.model()) if count is not None else None),)
 
 
+def _check_max_duration(args: argparse.Namespace) -> None:
+    if args.max_duration is not None and not (math.isfinite(args.max_duration) and args.max_duration > 0):
+        raise ConfigError(
+            f"--max-duration {args.max_duration:g}: must be > 0 (leave it out to run until stopped)"
+            if args.command == "run"
+            else f"--max-duration {args.max_duration:g}: must be > 0"
+        )
+
+
+def _plot_dir(args: argparse.Namespace) -> Path | None:
+    """--plot's directory, checked writable at start (not after the run that made the plots)."""
+    return check_output_dir(args.plot, "--plot") if args.plot else None
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     from controller.tools.demo import random_udp_port, run_demo
 
+    _check_max_duration(args)
+    plot = _plot_dir(args)
     args = demo_defaults(args)  # also for the simulator's overrides: the disk is there for the contour
     cfg = _config(args)
     if args.simulated_time:
@@ -324,7 +342,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
                 f"--simulated-time runs a task's experiment in simulated time: task.kind = "
                 f"{cfg.task.kind!r} has none (the contour's has: --task contour)"
             )
-        summary = experiment.simulated_time(cfg, args.max_duration, Path(args.plot) if args.plot else None)
+        summary = experiment.simulated_time(cfg, args.max_duration, plot)
         print(strict_json(summary) if args.json else strict_json(summary, indent=1))
         return 0 if summary["final_mode"] == "DONE" else 1
     spec = _spec(args, cfg, default_port=random_udp_port())
@@ -336,7 +354,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             _overrides(args),
             args.max_duration,
             _stop_on_signals(),
-            Path(args.plot) if args.plot else None,
+            plot,
             _realtime(args),
             _status_observers(status, cfg),
         )
@@ -348,10 +366,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from controller.shell.service import run_controller
     from controller.shell.stop_signals import install_stop_signals
 
-    if args.max_duration is not None and not args.max_duration > 0:
-        raise ConfigError(
-            f"--max-duration {args.max_duration:g}: must be > 0 (leave it out to run until stopped)"
-        )
+    _check_max_duration(args)
     cfg = _config(args)
     signals = install_stop_signals()
     with live_status(status_wanted(args.json, sys.stdout)) as status:
@@ -455,9 +470,10 @@ def cmd_analyze(args: argparse.Namespace) -> int:
     analyze = ANALYSES.get(cfg.robot.kind)
     if analyze is None:
         raise ConfigError(f"robot.kind = {cfg.robot.kind!r} has no analysis plots")
+    out = check_output_dir(args.out, "--out")
     with progress_line("cheope analyze") as progress:
         progress(f"{cfg.robot.kind}: workspace, margins, ellipsoids -> {args.out}")
-        report = analyze(cfg, Path(args.out))
+        report = analyze(cfg, out)
     print(strict_json(report) if args.json else "\n".join(f"{k}: {v}" for k, v in report.items()))
     return 0
 
@@ -492,6 +508,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from controller.tools.analysis.robot_analysis import plan_nspu
 
     cfg = _nspu_config(args, "cheope plan plans the 3-nSPU's motion")
+    plot = _plot_dir(args)
     start, goal = (
         paper_example_poses(cfg.robot.model("nspu").length_unit_m)
         if args.paper_example
@@ -508,7 +525,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         )
     with progress_line("cheope plan") as progress:
         progress("planning")
-        report = plan_nspu(cfg, start, goal, not args.no_type2_check, Path(args.plot) if args.plot else None)
+        report = plan_nspu(cfg, start, goal, not args.no_type2_check, plot)
     print(strict_json(report) if args.json else "\n".join(f"{k}: {v}" for k, v in report.items()))
     return 0 if report["ok"] else 1
 
@@ -536,10 +553,10 @@ def cmd_faults(args: argparse.Namespace) -> int:
         return _contour_scan(args)
     from controller.tools.fault_scenarios import format_table, run_all
 
+    cfg = _config(args)
+    keep = check_output_dir(args.keep, "--keep") if args.keep else None
     with progress_line("cheope faults") as progress:
-        rows = run_all(
-            _config(args), Path(args.keep) if args.keep else None, tuple(args.only or ()), progress
-        )
+        rows = run_all(cfg, keep, tuple(args.only or ()), progress)
     print(strict_json(rows) if args.json else format_table(rows))
     return 0 if all(r["as_expected"] and r["recording_complete"] for r in rows) else 1
 
@@ -555,8 +572,11 @@ def _contour_scan(args: argparse.Namespace) -> int:
     )
 
     cfg = _config(args)
+    keep = check_output_dir(args.keep, "--keep") if args.keep else None
+    if args.jobs < 1:
+        raise ConfigError(f"--jobs {args.jobs}: must be >= 1")
     if args.contour_shapes:
-        shapes = run_shapes(cfg, Path(args.keep) if args.keep else None)
+        shapes = run_shapes(cfg, keep)
         print(json.dumps(shapes) if args.json else format_shapes(shapes))
         return 0 if shapes_met(shapes) else 1
 
@@ -569,7 +589,7 @@ def _contour_scan(args: argparse.Namespace) -> int:
                 flush=True,
             )
 
-    rows = run_scan(cfg, Path(args.keep) if args.keep else None, max(1, args.jobs), progress)
+    rows = run_scan(cfg, keep, args.jobs, progress)
     if sys.stderr.isatty():
         print(file=sys.stderr)
     result = summary(rows, cfg.safety.max_contact_force_n)
@@ -764,6 +784,9 @@ def main(argv: list[str] | None = None) -> int:
         format="%(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )
+    # canopen logs an SDO transfer it gives up as ERROR ("Transfer aborted by client"), before the
+    # exception our set-up turns into its one line (node N did not answer...): shown with -v only
+    logging.getLogger("canopen").setLevel(logging.INFO if args.verbose else logging.CRITICAL)
     try:
         code: int = args.func(args)
         return code

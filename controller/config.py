@@ -379,7 +379,10 @@ def _cross_checks(cfg: Config) -> None:
         )
     _registered_cross_checks(cfg)
     check_sim_section(
-        cfg.sim, tuple(cfg.actuators.node_ids), cfg.sensor.node_id if cfg.sensor.enabled else None
+        cfg.sim,
+        tuple(cfg.actuators.node_ids),
+        cfg.sensor.node_id if cfg.sensor.enabled else None,
+        1.0 / cfg.loop.rate_hz,
     )
     if cfg.bus.fd and cfg.bus.data_bitrate_bit_s < cfg.bus.bitrate_bit_s:
         raise ConfigError(

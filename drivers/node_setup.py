@@ -360,6 +360,10 @@ def configure_nodes(bus: can.BusABC, plan: NodeSetupPlan) -> NodeSetupReport:
     """
     t0 = time.monotonic()
     network = canopen.Network(bus)
+    # its receive thread waits on the bus this long at most: stopped below before the bus can be
+    # closed (a thread still waiting when the bus was shut on an error path died with "Bad file
+    # descriptor" and a traceback)
+    network.NOTIFIER_CYCLE = 0.1
     network.connect()
     try:
         identities = []
@@ -409,7 +413,7 @@ def configure_nodes(bus: can.BusABC, plan: NodeSetupPlan) -> NodeSetupReport:
         raise NodeSetupError(f"SDO communication failed during set-up: {err}") from err
     finally:
         if network.notifier is not None:
-            network.notifier.stop(1.0)
+            network.notifier.stop(network.NOTIFIER_SHUTDOWN_TIMEOUT)  # returns once the thread has ended
         network.bus = None  # the bus stays open for the cyclic loop; canopen must not close it
 
 

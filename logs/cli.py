@@ -385,10 +385,13 @@ def _bus(args: argparse.Namespace) -> int:
 
 
 def _rerun(args: argparse.Namespace) -> int:
+    from controller.output_paths import check_output_file
     from logs.rerun_export import export
 
     try:
         file, out = rerun_input_and_output(args.file, args.rerun)
+        if out is not None:
+            check_output_file(out, "--rerun")  # before the conversion (Rerun's own error was a traceback)
     except InputError as err:
         return _fail(args, err)
     path = Path(file)

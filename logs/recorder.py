@@ -52,7 +52,7 @@ from logs import messages as m
 from logs.keyframe import ENCODING as STATE_ENCODING
 from logs.keyframe import KeyframeError, encode_state
 from logs.messages import FrameRecord, frame_record
-from logs.session_writer import CYCLE, END, FRAMES, KEYFRAME, SETUP, FileLimits, pack_record
+from logs.session_writer import CYCLE, END, FRAMES, KEYFRAME, SETUP, FileLimits, free_bytes, pack_record
 
 log = logging.getLogger(__name__)
 
@@ -232,6 +232,17 @@ class SessionRecorder:
         r = cfg.recording
         path, stream = open_session_file(r.directory)  # exclusive: the name is ours
         stream.close()
+        limits = file_limits(cfg)
+        free = free_bytes(str(path))
+        if free is not None and free < limits.min_free_bytes:
+            # refused here, before the bus is opened: the writer would stop the run mid-motion at
+            # its first chunk (1.6 s into the motion, with 2 MB free against 1024 MB)
+            path.unlink(missing_ok=True)
+            raise RecordingError(
+                f"recording.min_free_space_mb = {r.min_free_space_mb:g}: only {free / 1e6:.1f} MB free on the "
+                f"file system of {path.parent}; free space, lower the key, record elsewhere "
+                "(recording.directory) or not at all (recording.enabled = false)"
+            )
         return cls(
             path,
             session_metadata(cfg, extra_metadata),
@@ -240,7 +251,7 @@ class SessionRecorder:
             flush_interval_s=r.flush_interval_s,
             clock=clock,
             phase_name=phase_name,
-            limits=file_limits(cfg),
+            limits=limits,
         )
 
     # -- the loop thread's side: hand over, never wait ----------------------------------------

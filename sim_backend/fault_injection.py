@@ -141,11 +141,23 @@ MAX_LATENESS_S = 1.0
 MAX_EXTRA_FORCE_N = 10_000.0
 
 
-def check_fault(text: str, drive_nodes: Sequence[int], sensor_node: int | None) -> Fault:
-    """``parse_fault`` plus what only the configuration knows: the node exists, values are sane."""
+def check_fault(
+    text: str, drive_nodes: Sequence[int], sensor_node: int | None, period_s: float | None = None
+) -> Fault:
+    """``parse_fault`` plus what only the configuration knows: the node exists, values are sane,
+    and (given the loop's ``period_s``) the fault can fire."""
     f = parse_fault(text)
     if not math.isfinite(f.start_s):
         raise FaultSpecError(f"fault {text!r}: START must be a finite number of seconds")
+    # The simulator applies faults at the SYNCs, one a period, timed from the first (t = 0): a
+    # window shorter than a period after that may lie between two SYNCs and never fire
+    # (rogue_emcy:2@2+0.002 injected nothing at 400 Hz). One that opens at 0 holds the first SYNC.
+    if period_s is not None and f.start_s > 0.0 and f.duration_s < period_s:
+        raise FaultSpecError(
+            f"fault {text!r}: lasts {f.duration_s:g} s, less than one cycle ({period_s:g} s at "
+            f"loop.rate_hz = {1.0 / period_s:g}): the simulator applies faults at the SYNCs and "
+            f"this one could fall between two of them and never fire; give +DURATION >= {period_s:g}"
+        )
     devices = (*drive_nodes, *((sensor_node,) if sensor_node is not None else ()))
     if f.kind == "unknown_node" and (f.node in devices or not 1 <= f.node <= 127):
         raise FaultSpecError(

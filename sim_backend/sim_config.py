@@ -125,9 +125,11 @@ class SimSection(Section, frozen=True):
     faults: tuple[str, ...] = ()  # fault injection, sim_backend/fault_injection.py: "drop:2@3.0+0.5", ...
 
 
-def check_sim_section(sim: SimSection, drive_nodes: tuple[int, ...], sensor_node: int | None) -> None:
-    """The faults parse, name nodes on the configured bus and have sane values (--inject); the
-    3-nSPU's model mismatch stays a mismatch."""
+def check_sim_section(
+    sim: SimSection, drive_nodes: tuple[int, ...], sensor_node: int | None, period_s: float
+) -> None:
+    """The faults parse, name nodes on the configured bus, have sane values and can fire at the
+    loop's period ``period_s`` (--inject); the 3-nSPU's model mismatch stays a mismatch."""
     for key in ("leg_offset_m", "w4_axis_error_rad", "r_axis_error_rad", "start_offset_m"):
         vals = getattr(sim.nspu, key)
         limit = 0.01 if key.endswith("_m") else 0.1
@@ -139,6 +141,6 @@ def check_sim_section(sim: SimSection, drive_nodes: tuple[int, ...], sensor_node
 
     for i, text in enumerate(sim.faults):
         try:
-            check_fault(text, drive_nodes, sensor_node)
+            check_fault(text, drive_nodes, sensor_node, period_s)
         except FaultSpecError as err:
             raise ConfigError(f"sim.faults[{i}]: {err}") from err

@@ -29,6 +29,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from functools import cache
+from pathlib import Path
 from typing import Protocol
 
 import zenoh
@@ -37,6 +38,7 @@ import zenoh.ext
 from controller.config import ConfigError
 from controller.errors import DeviceError
 from controller.monitoring.local_controllers import local_endpoints
+from controller.text_files import read_text_file
 
 log = logging.getLogger(__name__)
 
@@ -220,6 +222,8 @@ class SessionSettings:
 def build_zenoh_config(settings: SessionSettings) -> zenoh.Config:
     """The Zenoh configuration: the file (if any), then the loopback defaults for what it leaves unset."""
     if settings.config_file:
+        # a bounded read first: Zenoh reads whatever is at the path, /dev/zero until memory runs out
+        read_text_file(Path(settings.config_file), "Zenoh configuration file", ConfigError)
         try:
             conf = zenoh.Config.from_file(settings.config_file)
         except zenoh.ZError as err:

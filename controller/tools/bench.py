@@ -1205,6 +1205,43 @@ def add_bench_arguments(ap: argparse.ArgumentParser) -> None:
     )
 
 
+def checked_bench_arguments(
+    args: argparse.Namespace, overrides: list[str]
+) -> tuple[tuple[float, ...], tuple[str, ...]]:
+    """The rates and schedulers, every argument and the configuration at each rate checked before
+    any section runs (``--rates 0`` failed after two sections, leaving an empty ./bench)."""
+    from controller.config import load_config, parse_override
+    from controller.output_paths import check_output_dir
+
+    try:
+        rates = tuple(float(r) for r in args.rates.split(","))
+    except ValueError:
+        raise InputError(
+            f"--rates {args.rates!r}: expected loop rates [Hz], comma-separated, e.g. 400,1000"
+        ) from None
+    for name, value, ok, allowed in (
+        ("--duration", args.duration, args.duration > 0, "> 0"),
+        ("--compare", args.compare, args.compare >= 0, ">= 0"),
+        ("--cyclictest", args.cyclictest, args.cyclictest >= 0, ">= 0"),
+        ("--fd-from", args.fd_from, args.fd_from > 0, "> 0"),
+        ("--late-fraction", args.late_fraction, 0 < args.late_fraction < 1, "in (0, 1)"),
+    ):
+        if not (math.isfinite(value) and ok):
+            raise InputError(f"{name} {value:g}: must be {allowed}")
+    sets = dict(parse_override(s) for s in overrides)
+    for rate in rates:  # the configuration's own range check of loop.rate_hz, and the rest at that rate
+        try:
+            load_config(args.config, {**sets, "loop.rate_hz": rate})
+        except InputError as err:
+            raise InputError(f"--rates {args.rates}: {err}") from None
+    schedulers = tuple(x.strip() for x in args.schedulers.split(",") if x.strip())
+    unknown = [x for x in schedulers if x not in ("realtime", "normal")]
+    if unknown or not schedulers:
+        raise InputError(f"--schedulers {args.schedulers!r}: expected realtime, normal or both")
+    check_output_dir(args.out, "--out")
+    return rates, schedulers
+
+
 def run_bench_command(args: argparse.Namespace, rt: RealtimeOptions) -> int:
     from controller.shell.realtime import parse_cpus
 
@@ -1217,14 +1254,10 @@ def run_bench_command(args: argparse.Namespace, rt: RealtimeOptions) -> int:
             lock_memory=rt.lock_memory,
             required=rt.required,
         )
-    rates = tuple(float(r) for r in args.rates.split(","))
     overrides = list(args.set) if args.strict else [*TOLERANT_SAFETY, *args.set]
     if args.task != "path":
         overrides.insert(0, f'task.kind="{args.task}"')
-    schedulers = tuple(x.strip() for x in args.schedulers.split(",") if x.strip())
-    unknown = [x for x in schedulers if x not in ("realtime", "normal")]
-    if unknown or not schedulers:
-        raise InputError(f"--schedulers {args.schedulers!r}: expected realtime, normal or both")
+    rates, schedulers = checked_bench_arguments(args, overrides)
     report = run_bench(
         rates,
         args.duration,

@@ -51,7 +51,7 @@ SCENARIOS: tuple[Scenario, ...] = (
     Scenario("drive TPDO late", f"delay:2=0.01@{FAULT_AT_S}", "fault", "late = missing: fault, quick stop"),
     Scenario(
         "malformed TPDO, one",
-        f"malformed:2@{FAULT_AT_S}+0.002",
+        f"malformed:2@{FAULT_AT_S}+0.0025",  # one cycle at 400 Hz: it fires at one SYNC
         "warn",
         "frame rejected, counted and reported with its node (safety.on_rejected_frames = warn: one event "
         "when a burst starts, one with its count when it ends); one missing cycle is ignored, the task goes on",
@@ -130,7 +130,7 @@ SCENARIOS: tuple[Scenario, ...] = (
     ),
     Scenario(
         "NMT reset by someone else",
-        f"nmt_reset:2@{FAULT_AT_S}+0.002",
+        f"nmt_reset:2@{FAULT_AT_S}+0.0025",  # one cycle at 400 Hz: it fires at one SYNC
         "fault",
         "safety.on_foreign_nmt = fault, command and node named; the drive restarts disabled",
     ),
@@ -175,7 +175,7 @@ SCENARIOS: tuple[Scenario, ...] = (
     ),
     Scenario(
         "rogue EMCY, wrong length",
-        f"rogue_emcy:2@{FAULT_AT_S}+0.002",
+        f"rogue_emcy:2@{FAULT_AT_S}+0.0025",  # one cycle at 400 Hz: it fires at one SYNC
         "warn",
         "rejected, counted and reported with its node (safety.on_rejected_frames = warn), the task goes on",
     ),
