@@ -36,8 +36,19 @@ lint: setup
 	$(VENV)/bin/mypy
 
 # The documentation site into site/; --strict turns every broken link or missing page into an error.
-docs: setup
-	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet
+# It needs the docs extra only: the dev venv where make setup made one, else a venv of its own with
+# the project and the docs extra (no ROS 2 wheels, no test tools).
+DOCS_VENV := .venv-docs
+$(DOCS_VENV)/.installed-stamp: pyproject.toml
+	$(PYTHON) -m venv $(DOCS_VENV)
+	$(DOCS_VENV)/bin/pip install --quiet --upgrade pip
+	$(DOCS_VENV)/bin/pip install --quiet -e '.[docs]'
+	touch $@
+
+docs:
+	@if [ -f $(STAMP) ]; then mkdocs=$(VENV)/bin/mkdocs; \
+	else $(MAKE) --no-print-directory $(DOCS_VENV)/.installed-stamp && mkdocs=$(DOCS_VENV)/bin/mkdocs; fi; \
+	NO_MKDOCS_2_WARNING=1 $$mkdocs build --strict --quiet
 
 # The bench runs cyclictest (Debian rt-tests) beside each case for the machine's floor: installed
 # here when missing and this is root, as tests/vcan/run installs its tools; else the bench says so.
@@ -47,4 +58,4 @@ bench: setup
 	$(VENV)/bin/cheope bench $(BENCH_ARGS)
 
 clean:
-	rm -rf $(VENV) *.egg-info .pytest_cache .hypothesis site
+	rm -rf $(VENV) $(DOCS_VENV) *.egg-info .pytest_cache .hypothesis site

@@ -9,6 +9,8 @@ import math
 import signal
 import sys
 import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
 
@@ -326,6 +328,16 @@ def _plot_dir(args: argparse.Namespace) -> Path | None:
     return check_output_dir(args.plot, "--plot") if args.plot else None
 
 
+@contextmanager
+def _quiet_progress(status: StatusDisplay | None) -> Iterator[Callable[[str], None]]:
+    """A progress line on stderr unless the live status line is on the terminal already."""
+    if status is not None:
+        yield lambda _text: None
+        return
+    with progress_line("cheope demo") as progress:
+        yield progress
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     from controller.tools.demo import random_udp_port, run_demo
 
@@ -342,11 +354,16 @@ def cmd_demo(args: argparse.Namespace) -> int:
                 f"--simulated-time runs a task's experiment in simulated time: task.kind = "
                 f"{cfg.task.kind!r} has none (the contour's has: --task contour)"
             )
-        summary = experiment.simulated_time(cfg, args.max_duration, plot)
+        with progress_line("cheope demo") as progress:
+            progress(f"{cfg.task.kind} in simulated time")
+            summary = experiment.simulated_time(cfg, args.max_duration, plot)
         print(strict_json(summary) if args.json else strict_json(summary, indent=1))
         return 0 if summary["final_mode"] == "DONE" else 1
     spec = _spec(args, cfg, default_port=random_udp_port())
-    with live_status(status_wanted(args.json, sys.stdout)) as status:
+    with live_status(status_wanted(args.json, sys.stdout)) as status, _quiet_progress(status) as progress:
+        # the terminal's status line shows the run; without it (--json, output to a file) the
+        # elapsed time goes to stderr, so that the simulator's start and the laps are not silence
+        progress(f"simulator and controller on {spec}, task {cfg.task.kind}")
         summary = run_demo(
             cfg,
             spec,
@@ -409,7 +426,9 @@ def cmd_sim(args: argparse.Namespace) -> int:
         cfg,
         _spec(args, cfg),
         _stop_on_signals(),
-        lambda line: print(line, flush=True),
+        (lambda line: print(json.dumps({"line": line}), flush=True))
+        if args.json
+        else (lambda line: print(line, flush=True)),
         _realtime(args, simulator=True),
     )
     return 0
@@ -674,6 +693,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_run)
     p = sub.add_parser("sim", help="only the simulated hardware")
     _common(p)
+    p.add_argument("--json", action="store_true", help="print its READY and STOPPED lines as JSON objects")
     _rt_options(p)
     p.set_defaults(func=cmd_sim)
     p = sub.add_parser(

@@ -35,7 +35,7 @@ def add_commands(
     q = logs_sub.add_parser(
         "info", help="duration, channels, message counts, metadata, damage, CAN traffic and bus load"
     )
-    q.add_argument("file")
+    q.add_argument("file", help="the recording (.mcap)")
     q.add_argument("--json", action="store_true", help="print one JSON object")
     q.add_argument(
         "--check",
@@ -56,15 +56,16 @@ def add_commands(
     q.add_argument("--json", action="store_true", help="print one JSON object")
     q.set_defaults(func=cmd_logs_list)
     q = logs_sub.add_parser("recover", help="write a complete, indexed file from a truncated or damaged one")
-    q.add_argument("file")
+    q.add_argument("file", help="the truncated or damaged recording (.mcap)")
     q.add_argument("-o", "--output", help="output file (default: FILE.recovered.mcap beside it)")
+    q.add_argument("--json", action="store_true", help="print the result as one JSON object")
     q.set_defaults(func=cmd_logs_recover)
     q = logs_sub.add_parser(
         "export",
         help="the recorded CAN frames for CAN tools: Vector ASC/BLF, candump log, PEAK TRC, "
         "CSV, ASAM MF4 (python-can's writers)",
     )
-    q.add_argument("file")
+    q.add_argument("file", help="the recording (.mcap)")
     q.add_argument(
         "--format",
         required=True,
@@ -209,6 +210,17 @@ def cmd_logs_recover(args: argparse.Namespace) -> int:
     except LogFileError as err:
         return _fail(args, err)
     lost = "; ".join(r.report.problems) or "nothing was damaged"
+    if args.json:
+        print(
+            strict_json(
+                {
+                    "output": str(r.output) if r.messages_saved else None,
+                    "messages_saved": r.messages_saved,
+                    "chunks": r.report.chunks,
+                    "problems": r.report.problems,
+                }
+            )
+        )
     if r.messages_saved == 0:
         r.output.unlink(missing_ok=True)  # a file with no message in it would only look like a recovery
         print(
@@ -216,7 +228,10 @@ def cmd_logs_recover(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 1
-    print(f"recovered {r.messages_saved} messages from {r.report.chunks} chunk(s) into {r.output} ({lost})")
+    if not args.json:
+        print(
+            f"recovered {r.messages_saved} messages from {r.report.chunks} chunk(s) into {r.output} ({lost})"
+        )
     return 0
 
 

@@ -214,11 +214,22 @@ def _command(args: argparse.Namespace, name: str, value: float) -> int:
         value=value,
         timeout_s=args.timeout,
     )
-    print(
-        ("accepted by " if reply.accepted else "refused by ") + f"{robot_id}: {reply.message}",
-        file=sys.stdout if reply.accepted else sys.stderr,
-    )
+    _print_answer(args, [(robot_id, reply.accepted, reply.message)], name)
     return 0 if reply.accepted else 1
+
+
+def _print_answer(args: argparse.Namespace, answers: list[tuple[str, bool, str]], name: str) -> None:
+    """Each robot's answer: a line each (refusals on stderr), or with --json one JSON array on stdout."""
+    if getattr(args, "json", False):
+        print(
+            json.dumps([{"robot_id": r, "command": name, "accepted": a, "message": m} for r, a, m in answers])
+        )
+        return
+    for robot_id, accepted, message in answers:
+        print(
+            ("accepted by " if accepted else "refused by ") + f"{robot_id}: {message}",
+            file=sys.stdout if accepted else sys.stderr,
+        )
 
 
 def cmd_stop(args: argparse.Namespace) -> int:
@@ -237,11 +248,7 @@ def cmd_stop(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EXIT_NO_CONTROLLER
-    for robot_id, accepted, message in answers:
-        print(
-            ("accepted by " if accepted else "refused by ") + f"{robot_id}: {message}",
-            file=sys.stdout if accepted else sys.stderr,
-        )
+    _print_answer(args, answers, "stop")
     return 0 if all(accepted for _, accepted, _ in answers) else 1
 
 
@@ -255,6 +262,12 @@ def cmd_router(args: argparse.Namespace) -> int:
     listen = tuple(args.listen) or (DEFAULT_ROUTER_LISTEN,)
     for e in listen:
         check_endpoint(e, "--listen")
+    if args.json:  # READY <endpoints> as one JSON object
+        return run_router(
+            listen,
+            args.zenoh_config or "",
+            lambda line: print(json.dumps({"ready": line.split()[1:]}), flush=True),
+        )
     return run_router(listen, args.zenoh_config or "", lambda line: print(line, flush=True))
 
 
@@ -287,6 +300,7 @@ def add_subcommands(sub: argparse._SubParsersAction[ParserT]) -> None:
         action="store_true",
         help="stop every controller reachable, each by its own id (one command per robot)",
     )
+    p.add_argument("--json", action="store_true", help="print the answers as one JSON array")
     p.set_defaults(func=cmd_stop)
     p = sub.add_parser(
         "command",
@@ -295,8 +309,13 @@ def add_subcommands(sub: argparse._SubParsersAction[ParserT]) -> None:
     )
     _client_options(p)
     # the publisher's gate is the one list of commands: the CLI cannot drift from it again
-    p.add_argument("name", choices=(*GATED_COMMANDS, *ALWAYS_ACCEPTED))
+    p.add_argument(
+        "name",
+        choices=(*GATED_COMMANDS, *ALWAYS_ACCEPTED),
+        help="the command: stop (always accepted) or one the controller must allow",
+    )
     p.add_argument("value", type=float, nargs="?", default=0.0, help="set_force: the force setpoint [N]")
+    p.add_argument("--json", action="store_true", help="print the answer as one JSON array")
     p.set_defaults(func=cmd_command)
     p = sub.add_parser(
         "router",
@@ -313,4 +332,5 @@ def add_subcommands(sub: argparse._SubParsersAction[ParserT]) -> None:
     p.add_argument(
         "--zenoh-config", metavar="FILE", help="Zenoh JSON5 configuration file (TLS, access control)"
     )
+    p.add_argument("--json", action="store_true", help="print where it listens as one JSON object")
     p.set_defaults(func=cmd_router)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import re
 import sys
@@ -40,12 +41,12 @@ def cmd_ros2(args: argparse.Namespace) -> int:
         if not path.is_file():
             raise InputError(f"--replay {args.replay!r}: no such file")
         n = run_replay(path, args.namespace, args.speed, args.wait_subscriber, _notice)
-        _notice(f"{n} samples published")
+        _report(args, n)
         return 0
     from controller.monitoring.zenoh_session import client_settings, monitor_settings
 
     endpoints = _endpoints(args)
-    run_live(
+    n = run_live(
         client_settings(endpoints, args.zenoh_config or "", args.timeout),
         monitor_settings(endpoints, args.zenoh_config or ""),
         args.key_prefix,
@@ -54,7 +55,16 @@ def cmd_ros2(args: argparse.Namespace) -> int:
         args.timeout,
         _notice,
     )
+    _report(args, n)
     return 0
+
+
+def _report(args: argparse.Namespace, samples: int) -> None:
+    """What the bridge did, at its end: a line on stderr, or one JSON object on stdout."""
+    if args.json:
+        print(json.dumps({"samples_published": samples}))
+    else:
+        _notice(f"{samples} samples published")
 
 
 def add_subcommand(sub: argparse._SubParsersAction[ParserT]) -> None:
@@ -88,5 +98,8 @@ def add_subcommand(sub: argparse._SubParsersAction[ParserT]) -> None:
         default=0.0,
         metavar="SECONDS",
         help="--replay: wait up to this long for a ROS 2 subscriber before starting (default 0)",
+    )
+    p.add_argument(
+        "--json", action="store_true", help="at the end, print what was published as one JSON object"
     )
     p.set_defaults(func=cmd_ros2)

@@ -662,3 +662,13 @@ def test_a_killed_writer_ends_the_run_by_the_recording_policy(tmp_path, policy):
     assert rec["on_failure"] == policy and "stopped reading" in rec["error"]
     assert rec["lost"].startswith("every cycle and frame from cycle ") and rec["dropped"] > 0
     assert not any("Traceback" in line for line in lines.lines)
+
+
+def test_logs_recover_says_what_it_saved_as_json(tmp_path, capsys):
+    path = tmp_path / "r.mcap"
+    record_session(path, max_s=0.3)
+    out = tmp_path / "copy.mcap"
+    assert main(["logs", "recover", str(path), "-o", str(out), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["output"] == str(out) and result["messages_saved"] == read_info(out).messages > 0
+    assert result["problems"] == []

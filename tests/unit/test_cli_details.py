@@ -179,3 +179,36 @@ def test_faults_reports_each_scenario_before_running_it():
     heard: list[str] = []
     rows = run_all(only=(SCENARIOS[0].name,), progress=heard.append)
     assert heard == [f"scenario 1/1: {SCENARIOS[0].name}"] and len(rows) == 1
+
+
+def _subcommands(parser, prefix=()):
+    import argparse
+
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in {id(p): (n, p) for n, p in action.choices.items()}.values():
+                yield from _subcommands(sub, (*prefix, name))
+            return
+    yield prefix, parser
+
+
+def test_every_argument_of_every_command_says_what_it_is():
+    from controller.cli import build_parser
+
+    missing = [
+        f"cheope {' '.join(cmd)} {a.option_strings or a.dest}"
+        for cmd, p in _subcommands(build_parser())
+        for a in p._actions
+        if not a.help and a.dest != "help"
+    ]
+    assert not missing, missing
+
+
+def test_every_command_that_reports_has_json():
+    """Each command prints something a script wants: ``--json`` on all of them (issue 40)."""
+    from controller.cli import build_parser
+
+    without = [
+        " ".join(cmd) for cmd, p in _subcommands(build_parser()) if "--json" not in p._option_string_actions
+    ]
+    assert without == [], without
