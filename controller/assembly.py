@@ -17,13 +17,22 @@ from drivers.bus_load import BusLoad, compute_bus_load, cyclic_frames
 
 
 def planned_bus_load(cfg: Config) -> BusLoad:
-    """The cyclic traffic's share of the bus (drivers/bus_load.py), checked before anything opens."""
+    """The cyclic traffic's share of the bus (drivers/bus_load.py), checked before anything opens:
+    the drives' PDOs as the configuration maps them (the EDS's default, or ``actuators.*_objects``)."""
+    from drivers.node_setup import DRIVE_EDS, description_drive_codec, device_description_path
+
+    a = cfg.actuators
+    codec = description_drive_codec(
+        a.node_ids[0], device_description_path(a.eds_file, DRIVE_EDS), a.rpdo_objects, a.tpdo_objects
+    )
     frames = cyclic_frames(
         cfg.loop.rate_hz,
-        len(cfg.actuators.node_ids),
+        len(a.node_ids),
         cfg.sensor.enabled,
         1.0 / cfg.loop.heartbeat_period_s,
+        drive_pdo_bytes=codec.rpdo.size,
         tracker_hz=cfg.tracker.rate_hz if cfg.tracker.enabled else 0.0,
+        drive_tpdo_bytes=codec.tpdo.size,
     )
     return compute_bus_load(
         frames,

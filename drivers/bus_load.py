@@ -124,12 +124,19 @@ def cyclic_frames(
     drive_pdo_bytes: int = 6,
     sensor_pdo_bytes: int = 8,
     tracker_hz: float = 0.0,
+    drive_tpdo_bytes: int | None = None,
 ) -> tuple[FrameSpec, ...]:
-    """The frames of one configuration of this project (see drivers/pdo_codec.py)."""
+    """The frames of one configuration of this project (see drivers/pdo_codec.py); the drives'
+    TPDO has ``drive_tpdo_bytes`` where its mapping differs from the RPDO's size (Cheope's maps the
+    effort 0x6077 too: 8 bytes)."""
     frames = [
         FrameSpec("SYNC", 0, cycle_hz),
         FrameSpec("drive RPDO1", drive_pdo_bytes, cycle_hz * n_drives),
-        FrameSpec("drive TPDO1", drive_pdo_bytes, cycle_hz * n_drives),
+        FrameSpec(
+            "drive TPDO1",
+            drive_pdo_bytes if drive_tpdo_bytes is None else drive_tpdo_bytes,
+            cycle_hz * n_drives,
+        ),
     ]
     n_nodes = n_drives + 1  # the controller's own heartbeat
     if sensor:

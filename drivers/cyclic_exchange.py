@@ -239,12 +239,14 @@ class CyclicExchange:
         self._judging = False  # frames before the first SYNC (set-up echoes, boot-ups) are not judged
         self._statusword = [0] * self.n
         self._position = [math.nan] * self.n
+        self._effort = [math.nan] * self.n  # [N], NaN where the TPDO does not map 0x6077
         self._fresh = [False] * self.n
         # This window's candidates per drive: how many, the last decoded one, and whether any was
         # beyond the drive's physics (judged against the last trusted position).
         self._candidates = [0] * self.n
         self._candidate_sw = [0] * self.n
         self._candidate_x = [math.nan] * self.n
+        self._candidate_effort = [math.nan] * self.n
         self._candidate_ok = [False] * self.n  # the last candidate decoded
         self._implausible = [False] * self.n
         self._trusted_x = [math.nan] * self.n  # the last position used as a sample
@@ -436,8 +438,8 @@ class CyclicExchange:
             c.missing_sensor_frames += 1
         self._count_silences()
         drives = tuple(
-            DriveFeedback(sw, x, f)
-            for sw, x, f in zip(self._statusword, self._position, self._fresh, strict=True)
+            DriveFeedback(sw, x, f, e)
+            for sw, x, f, e in zip(self._statusword, self._position, self._fresh, self._effort, strict=True)
         )
         sensor = (
             SensorFeedback(
@@ -506,6 +508,7 @@ class CyclicExchange:
             if count == 1 and self._candidate_ok[j]:
                 self._statusword[j] = self._candidate_sw[j]
                 self._position[j] = self._candidate_x[j]
+                self._effort[j] = self._candidate_effort[j]
                 self._fresh[j] = True
                 if not self._implausible[j]:  # a lone implausible one goes to the law's jump check
                     self._trusted_x[j] = self._candidate_x[j]
@@ -649,7 +652,7 @@ class CyclicExchange:
         elif self._candidates[j] > 1:
             self.counters.late_frames += 1
         try:
-            sw, counts = self._codecs[j].decode_tpdo(msg.data)
+            sw, counts, effort = self._codecs[j].decode_tpdo(msg.data)
         except FrameError:
             self._reject(msg.arbitration_id, node)
             self._candidate_ok[j] = False
@@ -663,6 +666,7 @@ class CyclicExchange:
         if abs(x - trusted) > possible:  # False while nothing is trusted yet (NaN)
             self._implausible[j] = True
         self._candidate_sw[j], self._candidate_x[j], self._candidate_ok[j] = sw, x, True
+        self._candidate_effort[j] = effort
 
     def _counter_follows(self, counter: int) -> bool:
         """A sensor counter the sensor can have sent now: the trusted one, or as many steps on as SYNCs since.

@@ -21,7 +21,7 @@ from controller.core.cia402 import MODE_CYCLIC_SYNC_POSITION
 from controller.errors import DeviceError
 from drivers.cob_ids import SYNC
 from drivers.homing import HomingError, HomingPlan, home_drive
-from drivers.pdo_codec import DriveCodec, SensorFrameCodec
+from drivers.pdo_codec import RATED_TORQUE, TORQUE_ACTUAL, DriveCodec, SensorFrameCodec
 from drivers.pdo_mapping import (
     COB_ID_INVALID,
     DeviceDescriptionError,
@@ -319,8 +319,16 @@ def _configure_drive_pdos(node: canopen.RemoteNode, node_id: int, plan: NodeSetu
         tpdo = planned_pdo(od, PdoDirection.TRANSMIT, 1, node_id, plan.drive_tpdo_objects)
         rpdo, tpdo = configure_pdo(node, node_id, rpdo), configure_pdo(node, node_id, tpdo)
         where = f"node {node_id}"
+        # The effort's scale is the drive's own rated torque (force, for a linear motor), read from it.
+        maps_effort = any((o.index, o.subindex) == TORQUE_ACTUAL for o in tpdo.objects)
+        rated = _read(node, node_id, *RATED_TORQUE) if maps_effort else 0
         return DriveCodec(
-            layout(rpdo.objects, od, where), layout(tpdo.objects, od, where), where, rpdo.cob_id, tpdo.cob_id
+            layout(rpdo.objects, od, where),
+            layout(tpdo.objects, od, where),
+            where,
+            rpdo.cob_id,
+            tpdo.cob_id,
+            effort_per_count(rated),
         )
     except PdoMappingError as err:
         raise NodeSetupError(str(err)) from err
@@ -429,9 +437,21 @@ def description_drive_codec(
     rpdo = planned_pdo(od, PdoDirection.RECEIVE, 1, node_id, rpdo_objects)
     tpdo = planned_pdo(od, PdoDirection.TRANSMIT, 1, node_id, tpdo_objects)
     where = f"node {node_id}"
+    rated = od.get_variable(*RATED_TORQUE) if RATED_TORQUE[0] in od else None
     return DriveCodec(
-        layout(rpdo.objects, od, where), layout(tpdo.objects, od, where), where, rpdo.cob_id, tpdo.cob_id
+        layout(rpdo.objects, od, where),
+        layout(tpdo.objects, od, where),
+        where,
+        rpdo.cob_id,
+        tpdo.cob_id,
+        effort_per_count(int(rated.default) if rated is not None and rated.default else 0),
     )
+
+
+def effort_per_count(rated_torque: int) -> float:
+    """[N] per count of the torque actual value 0x6077: a thousandth of the rated torque 0x6076 [mN m],
+    for a linear motor its rated force [mN] (CiA 402); 0 where the drive states none (no effort)."""
+    return rated_torque / 1.0e6
 
 
 def description_sensor_codecs(

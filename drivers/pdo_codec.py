@@ -6,7 +6,10 @@ here; everything above this module works in SI units.
 
 Drive (CiA 402, cyclic synchronous position):
   RPDO1 (0x200 + node): controlword 0x6040 (u16), target position 0x607A (i32)
-  TPDO1 (0x180 + node): statusword 0x6041 (u16), position actual value 0x6064 (i32)
+  TPDO1 (0x180 + node): statusword 0x6041 (u16), position actual value 0x6064 (i32) in the EDS's
+  default mapping; Cheope's configuration maps the torque actual value 0x6077 too (i16, per thousand
+  of the motor's rated torque 0x6076: for a linear motor its rated force in mN): the drive's effort,
+  the contact force's second witness (controller/core/contact_guard.py)
 Force/torque sensor:
   TPDO1 (0x180 + node): Fx, Fy, Fz (i16, FORCE_N_PER_COUNT), status (u8), counter (u8)
   TPDO2 (0x280 + node): Tx, Ty, Tz (i16, TORQUE_NM_PER_COUNT), status (u8), counter (u8)
@@ -124,6 +127,8 @@ CONTROLWORD = (0x6040, 0)
 TARGET_POSITION = (0x607A, 0)
 STATUSWORD = (0x6041, 0)
 POSITION_ACTUAL = (0x6064, 0)
+TORQUE_ACTUAL = (0x6077, 0)  # per thousand of the rated torque 0x6076 (CiA 402); a linear motor's force
+RATED_TORQUE = (0x6076, 0)  # [mN m], for a linear motor [mN]
 SENSOR_FORCE_OBJECT = 0x2000  # sub 1..3: Fx, Fy, Fz (drivers/eds/force_sensor.eds)
 SENSOR_TORQUE_OBJECT = 0x2001  # sub 1..3: Tx, Ty, Tz
 SENSOR_STATUS_OBJECT = (0x2002, 0)
@@ -134,12 +139,20 @@ class DriveCodec:
     """A drive's RPDO and TPDO as mapped at set-up: struct layouts and slots computed once.
 
     The RPDO must carry the controlword and the target position, the TPDO the statusword and
-    the position actual value, in any order; the TPDO may carry more (decoded, not used). An
-    RPDO with other objects is refused: the controller would have nothing to write into them.
+    the position actual value, in any order; the TPDO may carry more: the torque actual value
+    0x6077 is decoded as the drive's effort [N] (``effort_n_per_count``: the rated force 0x6076
+    over a thousand), anything else is decoded and not used. An RPDO with other objects is
+    refused: the controller would have nothing to write into them.
     """
 
     def __init__(
-        self, rpdo: PdoLayout, tpdo: PdoLayout, where: str, rpdo_cob_id: int = 0, tpdo_cob_id: int = 0
+        self,
+        rpdo: PdoLayout,
+        tpdo: PdoLayout,
+        where: str,
+        rpdo_cob_id: int = 0,
+        tpdo_cob_id: int = 0,
+        effort_n_per_count: float = 0.0,
     ) -> None:
         self.rpdo, self.tpdo = rpdo, tpdo
         self.rpdo_cob_id, self.tpdo_cob_id = rpdo_cob_id, tpdo_cob_id
@@ -155,6 +168,9 @@ class DriveCodec:
                 f"{where} TPDO mapping {', '.join(map(str, tpdo.objects)) or 'empty'}: must "
                 f"map the statusword 0x6041 and the position actual value 0x6064"
             )
+        self._effort = tpdo.slot(*TORQUE_ACTUAL)
+        self.has_effort = self._effort >= 0 and effort_n_per_count > 0.0
+        self.effort_n_per_count = effort_n_per_count if self.has_effort else math.nan
         self._rpdo_first_is_cw = self._cw == 0
         self._rpdo_packer = rpdo.packer
         self._tpdo_packer = tpdo.packer
@@ -165,12 +181,13 @@ class DriveCodec:
         else:
             self._rpdo_packer.pack_into(buffer, 0, target_counts, controlword)
 
-    def decode_tpdo(self, data: bytes | bytearray) -> tuple[int, int]:
-        """(statusword, position counts)."""
+    def decode_tpdo(self, data: bytes | bytearray) -> tuple[int, int, float]:
+        """(statusword, position counts, effort [N]: NaN where the TPDO does not map 0x6077)."""
         if len(data) != self._tpdo_packer.size:
             raise FrameError(f"drive TPDO must have {self._tpdo_packer.size} data bytes, got {len(data)}")
         values = self._tpdo_packer.unpack(data)
-        return values[self._sw], values[self._position]
+        effort = values[self._effort] * self.effort_n_per_count if self.has_effort else math.nan
+        return values[self._sw], values[self._position], effort
 
 
 class SensorFrameCodec:

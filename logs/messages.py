@@ -30,6 +30,7 @@ logs/keyframe.py).
 from __future__ import annotations
 
 import dataclasses
+import math
 import struct
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol
@@ -180,7 +181,9 @@ def unix_time_ns_of(monotonic_s: float, offset_ns: int) -> int:
 
 def inputs_to_pb(inputs: CycleInputs, out: pb.CycleInputs) -> None:
     for d in inputs.drives:
-        out.drives.add(statusword=d.statusword, position=d.position, fresh=d.fresh)
+        drive = out.drives.add(statusword=d.statusword, position=d.position, fresh=d.fresh)
+        if not math.isnan(d.effort_n):  # absent: the TPDO does not map 0x6077 (older sessions neither)
+            drive.effort_n = d.effort_n
     s = inputs.sensor
     if s is not None:
         out.sensor.force_n.extend(s.force_n)
@@ -222,7 +225,12 @@ def inputs_from_pb(msg: pb.CycleInputs) -> CycleInputs:
             tuple(k.position_m), tuple(k.rotation_vector_rad), k.status, k.counter, k.fresh
         )
     return CycleInputs(
-        drives=tuple(DriveFeedback(d.statusword, d.position, d.fresh) for d in msg.drives),
+        drives=tuple(
+            DriveFeedback(
+                d.statusword, d.position, d.fresh, d.effort_n if d.HasField("effort_n") else math.nan
+            )
+            for d in msg.drives
+        ),
         sensor=sensor,
         emcy=tuple(EmcyReport(e.node_id, e.error_code, e.error_register) for e in msg.emcy),
         stop_requested=msg.stop_requested,

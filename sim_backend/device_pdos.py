@@ -15,7 +15,7 @@ from pathlib import Path
 
 from controller.config import Config
 from drivers.node_setup import DRIVE_EDS, SENSOR_EDS, device_description_path, naming_the_file
-from drivers.pdo_codec import CONTROLWORD, TARGET_POSITION
+from drivers.pdo_codec import CONTROLWORD, RATED_TORQUE, TARGET_POSITION, saturating_i16
 from drivers.pdo_mapping import PdoDirection, load_device_description, planned_pdo
 from sim_backend.drive import SimulatedDrive
 from sim_backend.force_sensor import SimulatedForceSensor
@@ -28,10 +28,13 @@ class _Tpdo:
     pack: Callable[[], bytes] | None
 
 
-def _drive_objects(drive: SimulatedDrive) -> dict[tuple[int, int], Callable[[], int]]:
-    """The drive's mappable objects a TPDO reads (drivers/eds/cheope_drive.eds)."""
+def _drive_objects(drive: SimulatedDrive, rated_n: float) -> dict[tuple[int, int], Callable[[], int]]:
+    """The drive's mappable objects a TPDO reads (drivers/eds/cheope_drive.eds); ``rated_n`` is its
+    rated force 0x6076, of which the torque actual value 0x6077 counts thousandths."""
     counts = drive.params.counts_per_unit
+    per_count = rated_n / 1000.0
     return {
+        (0x6077, 0): lambda: saturating_i16(drive.effort_n, per_count)[0] if per_count > 0 else 0,
         (0x6041, 0): drive.statusword,
         (0x6064, 0): drive.position_counts,
         (0x606C, 0): lambda: round(drive.velocity * counts),
@@ -93,7 +96,9 @@ class SimulatedPdos:
         self._rpdo_slots = []
         for device, drive in zip(self.drive_pdos, self.drives, strict=True):
             tpdo = device.pdo(PdoDirection.TRANSMIT, 1)
-            self._drive_tpdos.append(_Tpdo(tpdo, value_packer(tpdo, _drive_objects(drive))))
+            rated = device.od.get_variable(*RATED_TORQUE) if RATED_TORQUE[0] in device.od else None
+            rated_n = int(rated.default or 0) / 1000.0 if rated is not None else 0.0  # [mN] to [N]
+            self._drive_tpdos.append(_Tpdo(tpdo, value_packer(tpdo, _drive_objects(drive, rated_n))))
             rpdo = device.pdo(PdoDirection.RECEIVE, 1)
             lay = rpdo.layout
             self._rpdo_slots.append((lay.slot(*CONTROLWORD), lay.slot(*TARGET_POSITION)) if lay else (-1, -1))

@@ -107,6 +107,7 @@ class SimulatedDrive:
     position: float
     velocity: float = 0.0
     acceleration: float = 0.0  # of the last sub-step, for the structure's inertial load (plant.py)
+    effort_n: float = 0.0  # the motor's force on its carriage along +q, set by the plant (0x6077)
     power: PowerState = PowerState.SWITCH_ON_DISABLED
     mode_of_operation: int = 0
     last_controlword: int = 0

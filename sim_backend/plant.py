@@ -224,8 +224,12 @@ class RobotPlant:
         self._cogging_n = d.cogging_force_n if self.kinematics.cogging else 0.0
         self._cogging_k = 2.0 * math.pi / d.cogging_period_m
         self._cogging_phase = tuple(math.radians(a) for a in d.cogging_phases_deg)
+        self._j: Matrix3 = ((0.0,) * 3,) * 3
         self._jt: Matrix3 = ((0.0,) * 3,) * 3
         self._jinv: Matrix3 = ((0.0,) * 3,) * 3
+        # The drives report their effort (0x6077) where the structure is modelled (Cheope's).
+        self._reports_effort = hasattr(self.robot, "jacobian")
+        self._sync_velocities: tuple[float, ...] | None = None  # the carriages' at the last SYNC
         self._inertial = cfg.sim.structure_inertial_load
         self.time_s: float | None = None
         self.last_sync_s: float | None = None
@@ -289,6 +293,7 @@ class RobotPlant:
         robot: CompliantRobot = self.robot  # type: ignore[assignment]  # loaded: Cheope's structure only
         jac = as_rows(robot.jacobian(self.tcp_kinematic_m))
         self.tool.set_structure(jac)
+        self._j = jac
         self._jt = transpose3(jac)
         self._jinv = inverse3(jac)
 
@@ -342,10 +347,53 @@ class RobotPlant:
             if sensor is not None:
                 sensor.observe(t0_s + tau, h, force[0], force[1], force[2])
         self.force_n = np.array(force)
+        self._loaded_efforts()
+
+    def _loaded_efforts(self) -> None:
+        """Each motor's force holding its carriage against the structure: tau = -J^-T (K x + D x').
+
+        K = k J^T J and D = c J^T J (``mechanics.py``), so J^-T K x = k J x: the motor j pushes
+        -(k (J x)_j + c (J x')_j) along +q_j. In a static contact K x = F, so J^T tau = -F; while the
+        tool accelerates the structure carries its inertia too (M (a + x'') = F - K x - D x'), which
+        the controller's witness adds back from its commanded acceleration
+        (controller/core/contact_guard.py). Cogging enters through the deflection it causes.
+        """
+        jx = matvec(self._j, self.tool.deflection_m)
+        jv = matvec(self._j, self.tool.velocity_m_s)
+        k, c = self._compliance.actuator_stiffness_n_m, self._compliance.actuator_damping_n_s_m
+        for d, x, v in zip(self.drives, jx, jv, strict=True):
+            d.effort_n = -(k * x + c * v)
+
+    def _free_efforts(self, interval_s: float) -> None:
+        """In free space the motors accelerate the structure: tau = J^-T M J^-1 q'' (no deflection kept).
+
+        q'' is each carriage's mean acceleration over the SYNC interval: the drive's effort signal is
+        filtered as a drive's torque actual value is (its instantaneous acceleration jumps at every
+        segment of the linearly interpolated target, which its current loop smooths).
+        """
+        previous = self._sync_velocities
+        self._sync_velocities = tuple(d.velocity for d in self.drives)
+        if previous is None or interval_s <= 0.0:
+            return
+        try:
+            jac = as_rows(self.robot.jacobian(self.tcp_kinematic_m))  # type: ignore[attr-defined]
+        except NoSolutionError:
+            return
+        qdd = tuple((v - v0) / interval_s for v, v0 in zip(self._sync_velocities, previous, strict=True))
+        jinv = inverse3(jac)
+        a = matvec(jinv, (qdd[0], qdd[1], qdd[2]))
+        masses = self._compliance.masses
+        m0, mq = masses.translating_kg, masses.per_actuator_kg
+        # M a = m0 a + mq J^T J a, and J a = q'': tau = J^-T (m0 a) + mq q''
+        tau = matvec(transpose3(jinv), (m0 * a[0], m0 * a[1], m0 * a[2]))
+        for d, t, acc in zip(self.drives, tau, qdd, strict=True):
+            d.effort_n = t + mq * acc
 
     def sync(self, now_s: float) -> None:
         """Latch the drives' targets at ``now_s`` (the TPDOs are packed by ``device_pdos.py``)."""
         self.advance(now_s, check_sync_timeout=False)
+        if not self.loaded and self._reports_effort:
+            self._free_efforts(now_s - self.last_sync_s if self.last_sync_s is not None else 0.0)
         self.last_sync_s = now_s
         for d in self.drives:
             d.on_sync(now_s)

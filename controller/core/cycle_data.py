@@ -7,6 +7,7 @@ once a cycle and safe to hand to the recorder and publisher threads.
 
 from __future__ import annotations
 
+import math
 from enum import IntEnum, StrEnum
 
 from controller.core.records import record
@@ -17,6 +18,10 @@ class DriveFeedback:
     statusword: int
     position: float
     fresh: bool  # its TPDO arrived this cycle (else the values are the last ones received)
+    # The drive's effort [N] (CiA 402 0x6077 torque actual value, a linear motor's force), positive
+    # pushing its carriage towards +q; NaN where its TPDO does not map it. The contact force's
+    # second witness (controller/core/contact_guard.py).
+    effort_n: float = math.nan
 
 
 # The force sensor's status bits (drivers/eds/force_sensor.eds, object 0x2002), as SensorFeedback.status carries them.

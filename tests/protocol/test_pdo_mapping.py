@@ -37,6 +37,7 @@ VENDOR = {
     "actuators.eds_file": str(VENDOR_EDS),
     "actuators.vendor_id": 0x00000A5E,
     "actuators.product_code": 0x00C5D402,
+    "actuators.tpdo_objects": [],  # its own default mapping: it has no torque actual value 0x6077
 }
 
 
@@ -177,6 +178,23 @@ def test_set_up_writes_mapping_and_sync_timing_and_reads_them_back(buses):
         for d in sim.drives:
             assert d.abort_connection_option == ABORT_QUICK_STOP
             assert d.heartbeat_consumer_s == pytest.approx(cfg.loop.heartbeat_consumer_s)
+
+
+def test_the_effort_is_mapped_scaled_by_the_drives_own_rated_force_and_carries_the_plants_effort(buses):
+    """Cheope's configuration maps the torque actual value 0x6077 (the contact force's second
+    witness); its scale is read from the drive (0x6076, here the EDS's 200 N: 0.2 N a count)."""
+    cfg = load_config()
+    assert cfg.actuators.tpdo_objects == ("0x6041", "0x6064", "0x6077")
+    sim_bus, bus = buses
+    with Simulator(cfg, sim_bus) as sim:
+        report = configure_nodes(bus, _setup_plan(cfg))
+        for j, codec in enumerate(report.drive_codecs):
+            assert codec.has_effort and codec.effort_n_per_count == pytest.approx(0.2)
+            sim.drives[j].effort_n = -12.34 * (j + 1)
+            tpdo = sim.pdos.drive_tpdos()[j]
+            assert tpdo is not None
+            _, _, effort = codec.decode_tpdo(tpdo[1])
+            assert effort == pytest.approx(-12.34 * (j + 1), abs=0.1)  # quantised to 0.2 N
 
 
 def test_a_mapping_the_device_refuses_stops_the_start_naming_node_object_and_value(tmp_path, buses):

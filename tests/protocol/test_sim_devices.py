@@ -242,6 +242,46 @@ def test_inertial_load_deflects_the_structure_by_its_mass_times_the_base_acceler
     assert np.asarray(tool.deflection_m) == pytest.approx(expected, rel=1e-3)
 
 
+def test_the_drives_effort_holds_the_structure_against_a_static_load():
+    """The motors' forces (0x6077) carry what the structure carries: J^T tau = -K x. With the cogging
+    as the only load, the structure deflects by K^-1 J^T f and the efforts cancel the cogging."""
+    cfg = load_config(overrides={"task.kind": "contour"})
+    plant = RobotPlant(cfg)  # the TCP clear of the disk: cogging is the only load
+    plant.advance(0.0)
+    plant.advance(3.0)  # settled
+    plant.sync(3.0)
+    q = np.array([d.position for d in plant.drives])
+    d = cfg.sim.drive
+    cogging = d.cogging_force_n * np.sin(
+        2.0 * np.pi * q / d.cogging_period_m + np.radians(d.cogging_phases_deg)
+    )
+    efforts = np.array([drive.effort_n for drive in plant.drives])
+    assert np.max(np.abs(cogging)) > 0.5  # a visible test
+    assert efforts == pytest.approx(-cogging, abs=1e-3)
+
+
+def test_in_free_space_the_drives_effort_accelerates_the_structures_mass():
+    """tau = J^-T M J^-1 q'' with M = m0 I + mq J^T J (controller/robots/performance.py), q'' each
+    carriage's mean acceleration over the SYNC interval (a drive's torque actual value is filtered)."""
+    cfg = load_config()  # the path task: free space, no structure integrated
+    plant = RobotPlant(cfg)
+    plant.advance(0.0)
+    plant.sync(0.0)  # the carriages' velocities at this SYNC: at rest
+    interval_s = 0.0025
+    for drive, a in zip(plant.drives, (0.4, -0.3, 0.2), strict=True):
+        drive.velocity = a * interval_s  # the mean acceleration over the interval to the next SYNC
+    plant._free_efforts(interval_s)  # what the next SYNC computes (the disabled drives would not move)
+    jac = plant.robot.jacobian(plant.tcp_kinematic_m)
+    masses = MassModel(
+        cfg.robot.model("cheope").mass.platform_kg,
+        cfg.robot.model("cheope").mass.slider_kg,
+        cfg.robot.model("cheope").mass.rod_pair_kg,
+    )
+    tcp_acceleration = np.linalg.solve(jac, np.array([0.4, -0.3, 0.2]))
+    efforts = np.array([drive.effort_n for drive in plant.drives])
+    assert jac.T @ efforts == pytest.approx(cartesian_mass_matrix(jac, masses) @ tcp_acceleration, rel=1e-9)
+
+
 def test_drive_reports_the_acceleration_of_its_last_substep():
     d, t = enabled_drive()
     t = cycle(d, t, 0.55)

@@ -137,7 +137,9 @@ def test_a_pdo_mapping_declared_as_a_variable_is_refused_by_the_controller_and_n
     )
     path = _write(str(tmp_path), "drive.eds", DRIVE_BYTES.replace(mapping, as_variable))
     assert device_pdos_from_file(path, 1).pdo(PdoDirection.TRANSMIT, 1).config.objects == ()
-    plan = replace(node_setup_plan(load_config(overrides={"sensor.enabled": False})), drive_eds=path)
+    # the EDS's default TPDO mapping (the shipped configuration names its own objects)
+    cfg = load_config(overrides={"sensor.enabled": False, "actuators.tpdo_objects": []})
+    plan = replace(node_setup_plan(cfg), drive_eds=path)
     with pytest.raises(DeviceDescriptionError, match="TPDO mapping empty"):
         check_device_descriptions(plan)
 
