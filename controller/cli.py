@@ -157,6 +157,8 @@ def _overrides(args: argparse.Namespace) -> list[str]:
         sets.insert(0, f'robot.kind="{args.robot}"')
     if getattr(args, "inject", None):
         sets.append("sim.faults=[" + ", ".join(f'"{f}"' for f in args.inject) + "]")
+    if getattr(args, "fd", False):  # the configuration says CAN FD too: the bus load is planned for it
+        sets.append("bus.fd=true")
     return sets + monitoring_overrides(args) + _live_overrides(args)
 
 

@@ -29,6 +29,7 @@ from controller.monitoring.robot_identity import resolve_robot_id
 from controller.monitoring.zenoh_session import MonitorKeys, SessionSettings, split_endpoints
 from controller.robots.registry import ActuatorUnits, actuator_units
 from controller.shell.helper_threads import HelperThreadWatch
+from controller.shell.log_handoff import log_records_off_the_loop
 from controller.shell.loop import CycleLoop
 from controller.shell.realtime import (
     RealtimeOptions,
@@ -231,6 +232,7 @@ def run_controller(
         worker or contextlib.nullcontext(),
         monitoring_context(prepared.publisher, stop_event, prepared.law.task) as publisher,
         FrameTap(open_bus(spec), frame_sink) as bus,
+        log_records_off_the_loop(),  # a blocked stderr cannot stall the loop (log_handoff.py)
     ):
         # every frame of the session through one tap: set-up included, own echoes dropped
         # one master per bus: nothing is sent while another is heard (drivers/bus_presence.py)

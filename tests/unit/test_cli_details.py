@@ -212,3 +212,13 @@ def test_every_command_that_reports_has_json():
         " ".join(cmd) for cmd, p in _subcommands(build_parser()) if "--json" not in p._option_string_actions
     ]
     assert without == [], without
+
+
+def test_fd_on_the_command_line_plans_the_bus_load_for_can_fd():
+    """``cheope demo --rate 1000 --fd`` was refused on the classical bus's load (101.8 %)."""
+    from controller.assembly import planned_bus_load
+    from controller.cli import _config
+
+    cfg = _config(build_parser().parse_args(["demo", "--rate", "1000", "--fd"]))
+    assert cfg.bus.fd is True
+    assert planned_bus_load(cfg).percent < 70.0
