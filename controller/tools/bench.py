@@ -858,6 +858,8 @@ def run_bench(
     progress: Callable[[str], None] = lambda s: None,
     schedulers: tuple[str, ...] = ("realtime",),
     cyclictest_s: float = 30.0,
+    task: str = "path",
+    instructions: bool = False,
 ) -> dict[str, object]:
     from controller.assembly import planned_bus_load
     from controller.config import load_config, parse_override
@@ -883,6 +885,7 @@ def run_bench(
 
     if cyclictest_s > 0 and cyclictest_path() is None:
         progress(INSTALL_HINT)
+    report["work_per_cycle"] = work_per_cycle(task, instructions, progress)
     progress("cyclic PDO path: project vs canopen ...")
     report["pdo_path"] = compare_pdo_paths(20000 if duration_s >= 60 else 5000, config_path, overrides)
     progress("python-can send/recv per frame on the configured bus ...")
@@ -947,6 +950,31 @@ def run_bench(
     clean = _strip_private(report)
     (out_dir / "bench.json").write_text(json.dumps(clean, indent=2))
     return clean
+
+
+def work_per_cycle(task: str, instructions: bool, progress: Callable[[str], None]) -> Json | None:
+    """The deterministic figure beside the timed ones (controller/tools/cycle_work.py): the task's
+    work per cycle at the default configuration over its fixed window, against the budget;
+    machine instructions too with ``instructions`` (valgrind, minutes). None for a task without a window."""
+    from controller.tools.cycle_work import (
+        BUDGET_PER_CYCLE,
+        DEFAULT_TASK_WINDOWS,
+        count_instructions,
+        count_work,
+        over_budget,
+    )
+
+    if task not in DEFAULT_TASK_WINDOWS:
+        return None
+    skip, cycles = DEFAULT_TASK_WINDOWS[task]
+    progress(f"work per cycle of the {task} task (interpreter counts, cycles {skip}-{skip + cycles - 1}) ...")
+    work: Json = count_work(task, skip, cycles)
+    work["budget_per_cycle"] = BUDGET_PER_CYCLE[task]
+    work["over_budget"] = over_budget(work)
+    if instructions:
+        progress("... and machine instructions per cycle under callgrind (minutes) ...")
+        work.update(count_instructions(task, skip, cycles))
+    return work
 
 
 def _strip_private(report: Json) -> Json:
@@ -1110,8 +1138,20 @@ def format_table(report: Json) -> str:
                 f"{a['drift_ms_per_s']:>8.3f} ms/s  period error p50/p99/p99.9/max "
                 f"{q(a['period_error_us'])} us  late/10k {a['late_per_10k']:.1f}"
             )
-    p = report["pdo_path"]
     lines.append("")
+    w = report.get("work_per_cycle")
+    if w:
+        b = w["budget_per_cycle"]
+        ipc = w.get("instructions_per_cycle")
+        lines.append(
+            f"work per cycle, {w['task']} task, cycles {w['skip']}-{w['skip'] + w['cycles'] - 1} (deterministic): "
+            f"{w['bytecodes_per_cycle']:.0f} bytecodes (budget {b['bytecodes']}), {w['c_calls_per_cycle']:.0f} C calls "
+            f"(budget {b['c_calls']}), {w['python_calls_per_cycle']:.0f} Python calls, "
+            + (f"{ipc} instructions (callgrind), " if ipc else "")
+            + f"{w['tracked_objects_left_per_cycle']} tracked objects left"
+            + (f"; OVER BUDGET: {'; '.join(w['over_budget'])}" if w["over_budget"] else "")
+        )
+    p = report["pdo_path"]
     lines.append(
         f"cyclic PDO path, CPU per cycle (stub bus, 4 frames out, 5 in): project {p['project_cpu_us']} us, "
         f"canopen PDO objects {p['canopen_cpu_us']} us (x{p['canopen_over_project']}); wall "
@@ -1197,6 +1237,11 @@ def add_bench_arguments(ap: argparse.ArgumentParser) -> None:
         metavar="S",
         help="seconds of cyclictest beside each case (0: none)",
     )
+    ap.add_argument(
+        "--instructions",
+        action="store_true",
+        help="also machine instructions per cycle (valgrind's callgrind; a few minutes)",
+    )
     ap.add_argument("--json", action="store_true", help="print the JSON instead of the table")
     ap.add_argument(
         "--strict",
@@ -1272,6 +1317,8 @@ def run_bench_command(args: argparse.Namespace, rt: RealtimeOptions) -> int:
         progress=lambda s: print(s, file=sys.stderr, flush=True),
         schedulers=schedulers,
         cyclictest_s=args.cyclictest,
+        task=args.task,
+        instructions=args.instructions,
     )
     print(strict_json(report, indent=2) if args.json else format_table(report))
     print(f"JSON: {Path(args.out) / 'bench.json'}", file=sys.stderr)

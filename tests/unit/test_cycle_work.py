@@ -1,0 +1,61 @@
+"""The cycle's work stays within its budget (controller/tools/cycle_work.py, docs/measurements/speed.md).
+
+Deterministic counts of the interpreter over a fixed window of a simulated-time run, not timing:
+the same code and configuration give the same figures on any machine, busy or not. A change that
+makes the cycle about 1.3 times costlier fails here: raising the budget is then a decision, taken
+in the tool's ``BUDGET_PER_CYCLE`` and in the docs' table together.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import can
+import pytest
+
+from controller.tools.cycle_work import (
+    BUDGET_PER_CYCLE,
+    DEFAULT_TASK_WINDOWS,
+    count_work,
+    measured_run,
+    over_budget,
+    reference_run,
+)
+from drivers.cob_ids import tpdo1
+
+SPEED_PAGE = Path(__file__).resolve().parents[2] / "docs" / "measurements" / "speed.md"
+
+
+@pytest.mark.parametrize("task", sorted(DEFAULT_TASK_WINDOWS))
+def test_the_cycle_stays_within_its_budget(task: str):
+    skip, cycles = DEFAULT_TASK_WINDOWS[task]
+    result = count_work(task, skip, cycles)
+    assert not over_budget(result), (over_budget(result), result)
+    # every part of the cycle was counted: a window that measured nothing would pass any budget
+    for part, bytecodes in result["bytecodes_per_cycle_by_part"].items():
+        assert bytecodes > 100, (part, result)
+
+
+def test_a_script_the_controller_does_not_reproduce_is_refused():
+    """The measured cycles must be the reference run's: a device's answer changed changes the outputs."""
+    script = reference_run("path", [], 200)
+    for answers in script.per_send[150:]:  # from cycle ~50 on, drive 1 reports FAULT (CiA 402 0x0008)
+        for i, msg in enumerate(answers):
+            if msg.arbitration_id == tpdo1(1):
+                answers[i] = can.Message(
+                    arbitration_id=msg.arbitration_id,
+                    data=b"\x08\x00" + bytes(msg.data[2:]),
+                    is_extended_id=False,
+                )
+    with pytest.raises(RuntimeError, match="differ from the reference run's from cycle"):
+        measured_run("path", [], script, 100, 50, count=False, marker=False)
+
+
+def test_the_docs_state_the_budget_the_test_holds():
+    text = SPEED_PAGE.read_text()
+    for task, budget in BUDGET_PER_CYCLE.items():
+        row = re.search(rf"^\| budget, {task} task \|(.*)$", text, re.M)
+        assert row is not None, f"no budget row for the {task} task in {SPEED_PAGE.name}"
+        numbers = [int(n.replace(" ", "")) for n in re.findall(r"\d[\d ]*\d|\d", row.group(1))]
+        assert numbers[:2] == [budget["bytecodes"], budget["c_calls"]], row.group(0)
