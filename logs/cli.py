@@ -3,7 +3,10 @@
 Errors end as one line on stderr with exit code 2; ``--verify`` exits 1 on a divergence and 3 when
 it could check only part of the recording (truncated, damaged, cycles dropped, a file without its
 keyframe), saying how much; ``logs info`` on a damaged file, ``logs recover`` when it recovered
-nothing and ``logs export`` when the format could not hold every frame exit 1.
+nothing and ``logs export`` when the format could not hold every frame exit 1. Every command that
+read nothing exits 1 too: ``logs export`` without a frame, ``replay --rerun`` without a cycle,
+``replay --bus`` without a frame sent, ``logs list`` without a session (an unreadable file's
+export said "wrote 0 frames" and exited 0).
 """
 
 from __future__ import annotations
@@ -251,7 +254,7 @@ def cmd_logs_list(args: argparse.Namespace) -> int:
         )
     else:
         print(format_sessions(sessions))
-    return 0
+    return 0 if sessions.sessions else 1  # read nothing
 
 
 def rerun_input_and_output(file: str | None, rerun: str | None) -> tuple[str, str | None]:
@@ -303,7 +306,9 @@ def cmd_logs_export(args: argparse.Namespace) -> int:
             f"wrote {r.frames_written} frames to {r.output} ({r.frames_out} Tx, {r.frames_written - r.frames_out} Rx)"
             + "".join(f"; {t}" for t in (not_written, r.note, "; ".join(r.report.problems)) if t)
         )
-    return 1 if r.frames_not_written else 0
+    if r.frames_written == 0:
+        print(f"cheope logs export: no CAN frame read from {path}", file=sys.stderr)
+    return 1 if r.frames_not_written or r.frames_written == 0 else 0
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
@@ -396,7 +401,7 @@ def _bus(args: argparse.Namespace) -> int:
             f"sent {r.frames_sent} frames onto {spec} in {r.duration_s:.2f} s (speed {args.speed:g}, "
             f"{r.send_errors} send errors)" + (f"; {problems}" if problems else "")
         )
-    return 0
+    return 0 if r.frames_sent else 1  # read (or sent) nothing
 
 
 def _rerun(args: argparse.Namespace) -> int:
@@ -434,4 +439,4 @@ def _rerun(args: argparse.Namespace) -> int:
         )
     else:
         print(text + (f" (input: {problems})" if problems else ""))
-    return 0
+    return 0 if r.cycles else 1  # read nothing

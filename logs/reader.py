@@ -17,6 +17,7 @@ import io
 import mmap
 import os
 import struct
+import zlib
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -85,7 +86,8 @@ class ReadReport:
     channels: dict[int, Channel] = field(default_factory=dict)
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     message_counts: Counter[str] = field(default_factory=Counter)  # by topic
-    orphan_messages: int = 0  # messages whose channel record was lost
+    orphan_messages: int = 0  # messages whose channel record was lost (and the summary has none)
+    channels_from_summary: int = 0  # channels whose record was lost, taken from the summary section
     first_log_time_ns: int | None = None
     last_log_time_ns: int | None = None
     chunks_checked: bool = True  # False: answered from the summary, no chunk read (logs info without --check)
@@ -179,15 +181,73 @@ def iter_messages(path: str | Path, report: ReadReport | None = None) -> Iterato
             raw.close()
 
 
+_FOOTER = struct.Struct("<BQQQI")  # opcode, length (20), summary_start, summary_offset_start, summary_crc
+
+
+def summary_definitions(
+    raw: bytes | mmap.mmap, report: ReadReport
+) -> tuple[dict[int, Schema], dict[int, Channel]]:
+    """The schemas and channels the summary section at the end repeats, when the file has a footer
+    and the summary passes its CRC (a mismatch is reported, and the summary not used).
+
+    They stand in for the records of a damaged chunk: the channel of a message in an intact chunk
+    was defined in the first chunk, which a zeroed or flipped byte made unreadable, and the whole
+    recording was lost although its other chunks were intact."""
+    n = len(raw)
+    footer_at = n - 8 - _FOOTER.size
+    if footer_at < 8 or raw[n - 8 :] != MAGIC:
+        return {}, {}
+    opcode, length, start, _, crc = _FOOTER.unpack_from(raw, footer_at)
+    if opcode != Opcode.FOOTER or length != _FOOTER.size - 9 or not 8 <= start <= footer_at:
+        return {}, {}
+    if start == 0:
+        return {}, {}
+    # MCAP: the CRC of the summary section through the footer's summary_offset_start (0: none written)
+    if crc and zlib.crc32(raw[start : footer_at + 9 + 16]) != crc:
+        report.problems.append(
+            f"the summary section (offset {start}) does not match its CRC: its schemas and channels are not used"
+        )
+        return {}, {}
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    pos = start
+    while pos + 9 <= footer_at:
+        op, size = _HEAD.unpack_from(raw, pos)
+        if size > footer_at - pos - 9:
+            break
+        if op in (Opcode.SCHEMA, Opcode.CHANNEL):
+            try:
+                record = _parse(op, raw[pos + 9 : pos + 9 + size])
+            except Exception:  # the CRC passed: a record the library cannot read is left out
+                record = None
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel):
+                channels[record.id] = record
+        pos += 9 + size
+    return schemas, channels
+
+
 def _walk(raw: bytes | mmap.mmap, report: ReadReport) -> Iterator[tuple[Channel, Message]]:  # noqa: C901  (every MCAP record kind and every way a file can be damaged)
     pos = 8
     report.end_offset = pos
     n = len(raw)
+    summary_schemas, summary_channels = summary_definitions(raw, report)
+
+    def from_summary(channel_id: int) -> Channel | None:
+        ch = summary_channels.get(channel_id)
+        if ch is not None:
+            report.channels[channel_id] = ch
+            report.channels_from_summary += 1
+            schema = summary_schemas.get(ch.schema_id)
+            if schema is not None and ch.schema_id not in report.schemas:
+                report.schemas[ch.schema_id] = schema
+        return ch
 
     def emit(records: Iterable[Any]) -> Iterator[tuple[Channel, Message]]:
         for r in records:
             if isinstance(r, Message):
-                ch = report.channels.get(r.channel_id)
+                ch = report.channels.get(r.channel_id) or from_summary(r.channel_id)
                 if ch is None:
                     report.orphan_messages += 1
                     continue
@@ -262,6 +322,10 @@ def _walk(raw: bytes | mmap.mmap, report: ReadReport) -> Iterator[tuple[Channel,
             break
     if not report.complete and not any(p.startswith("truncated") for p in report.problems):
         report.problems.append(f"truncated: the file ends at byte {n} without its summary and footer")
+    if report.channels_from_summary:
+        report.problems.append(
+            f"{report.channels_from_summary} channel definition(s) lost with a damaged part, taken from the summary"
+        )
     if report.orphan_messages:
         report.problems.append(f"{report.orphan_messages} message(s) whose channel definition was lost")
 
@@ -407,6 +471,8 @@ def read_info_from_summary(path: str | Path) -> ReadReport | None:
             fh.seek(0)
             reader = SeekingReader(fh)
             header = reader.get_header()
+            if not _summary_crc_matches(fh, size):
+                return None  # the walk reports it (read_info)
             summary = reader.get_summary()
             if summary is None or summary.statistics is None:
                 return None
@@ -433,6 +499,19 @@ def read_info_from_summary(path: str | Path) -> ReadReport | None:
     if stats.message_count:
         report.first_log_time_ns, report.last_log_time_ns = stats.message_start_time, stats.message_end_time
     return report
+
+
+def _summary_crc_matches(fh: Any, size: int) -> bool:
+    """The summary section against the footer's CRC (True when there is none to check)."""
+    footer_at = size - 8 - _FOOTER.size
+    fh.seek(footer_at)
+    opcode, _, start, _, crc = _FOOTER.unpack(fh.read(_FOOTER.size))
+    if opcode != Opcode.FOOTER or not crc or not 8 <= start <= footer_at:
+        return True
+    fh.seek(start)
+    ok: bool = zlib.crc32(fh.read(footer_at + 9 + 16 - start)) == crc
+    fh.seek(0)
+    return ok
 
 
 def format_info(r: ReadReport) -> str:
@@ -468,6 +547,7 @@ def info_dict(r: ReadReport) -> dict[str, Any]:
         "messages": r.messages,
         "chunks": r.chunks,
         "damaged_chunks": r.damaged_chunks,
+        "channels_from_summary": r.channels_from_summary,
         "channels": {
             ch.topic: {
                 "count": r.message_counts.get(ch.topic, 0),

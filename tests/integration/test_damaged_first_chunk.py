@@ -1,0 +1,134 @@
+"""A recording whose first chunk is damaged keeps the rest (issue 38, item 7; logs/reader.py).
+
+The first chunk defines every schema and channel; its loss made every later message an orphan
+("nothing recovered ... N message(s) whose channel definition was lost") although the other
+chunks were intact and the summary section at the end repeats every schema and channel. Now the
+reader takes them from the summary when it passes its CRC; ``logs info --check`` checks that CRC;
+and every ``logs`` command that read nothing exits non-zero.
+"""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import can
+import pytest
+
+from controller.cli import main
+from logs.reader import read_info, read_info_from_summary
+from logs.recorder import SessionRecorder
+
+pytestmark = pytest.mark.integration
+DATA = Path(__file__).resolve().parents[1] / "data"
+
+
+def _chunks(raw: bytes) -> list[tuple[int, int]]:
+    """(offset, record length with its 9-byte header) of every chunk record, walking the data section."""
+    out, pos = [], 8
+    while pos + 9 <= len(raw):
+        opcode, length = struct.unpack_from("<BQ", raw, pos)
+        if opcode == 0x06:
+            out.append((pos, 9 + length))
+        if opcode in (0x02, 0x0F):  # footer, data end
+            break
+        pos += 9 + length
+    return out
+
+
+def _first_chunk_zeroed(src: Path, dst: Path) -> Path:
+    raw = bytearray(src.read_bytes())
+    offset, length = _chunks(bytes(raw))[0]
+    raw[offset : offset + length] = bytes(length)
+    dst.write_bytes(raw)
+    return dst
+
+
+def _first_chunk_flipped(src: Path, dst: Path) -> Path:
+    raw = bytearray(src.read_bytes())
+    offset, length = _chunks(bytes(raw))[0]
+    raw[offset + length // 2] ^= 0xFF  # inside the compressed data: the chunk fails to decode or its CRC
+    dst.write_bytes(raw)
+    return dst
+
+
+@pytest.fixture
+def frames_recording(tmp_path: Path) -> Path:
+    """A recording of 600 CAN frames in small chunks (the first defines every channel)."""
+    path = tmp_path / "frames.mcap"
+    now = [100.0]
+    with SessionRecorder(
+        path,
+        {"cheope.session": {"task": "path"}},
+        clock=lambda: now[0],
+        chunk_size_bytes=1024,
+        flush_interval_s=0.001,
+    ) as rec:
+        for i in range(600):
+            now[0] = 100.0 + i * 0.001
+            msg = can.Message(
+                arbitration_id=0x181 + i % 3, data=struct.pack("<HI", i, i), is_extended_id=False
+            )
+            rec.on_frame(i % 2 == 0, now[0], msg)
+    assert len(_chunks(path.read_bytes())) >= 3
+    return path
+
+
+@pytest.mark.parametrize("damage", [_first_chunk_zeroed, _first_chunk_flipped])
+def test_recover_info_export_and_rerun_read_the_intact_chunks(damage, tmp_path: Path, capsys) -> None:
+    source = DATA / "contour_contact.mcap"
+    whole = read_info(source)
+    broken = damage(source, tmp_path / "broken.mcap")
+    report = read_info(broken)
+    assert report.orphan_messages == 0 and report.channels_from_summary > 0
+    assert 0 < report.messages < whole.messages and report.chunks == whole.chunks - 1
+    assert main(["logs", "info", "--check", str(broken)]) == 1  # damaged, and says what it read
+    assert "taken from the summary" in capsys.readouterr().out
+    assert main(["logs", "recover", str(broken), "-o", str(tmp_path / "r.mcap")]) == 0
+    recovered = read_info(tmp_path / "r.mcap")
+    assert recovered.messages == report.messages and not recovered.damaged
+    assert recovered.message_counts == report.message_counts
+    capsys.readouterr()
+    assert main(["replay", str(broken), "--rerun", str(tmp_path / "out.rrd")]) == 0
+    assert (tmp_path / "out.rrd").stat().st_size > 0
+
+
+def test_export_of_a_damaged_first_chunk_keeps_the_later_frames(
+    frames_recording: Path, tmp_path: Path
+) -> None:
+    broken = _first_chunk_zeroed(frames_recording, tmp_path / "broken.mcap")
+    out = tmp_path / "frames.log"
+    assert main(["logs", "export", str(broken), "--format", "log", "-o", str(out)]) == 0
+    lines = out.read_text().splitlines()
+    assert 0 < len(lines) < 600
+
+
+def test_every_logs_command_that_read_nothing_exits_non_zero(tmp_path: Path, capsys) -> None:
+    """A file with its magic and nothing readable after it, and an empty directory."""
+    nothing = tmp_path / "nothing.mcap"
+    nothing.write_bytes(b"\x89MCAP0\r\n" + bytes(4096))
+    assert main(["logs", "info", str(nothing)]) == 1
+    assert main(["logs", "recover", str(nothing), "-o", str(tmp_path / "r.mcap")]) == 1
+    assert main(["logs", "export", str(nothing), "--format", "csv", "-o", str(tmp_path / "n.csv")]) == 1
+    assert "no CAN frame read from" in capsys.readouterr().err
+    assert (
+        main(["replay", str(nothing), "--rerun", str(tmp_path / "n.rrd")]) == 2
+    )  # "no readable control cycles"
+    assert main(["replay", str(nothing), "--verify"]) != 0
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["logs", "list", str(empty)]) == 1
+
+
+def test_info_check_covers_the_summarys_crc(tmp_path: Path, capsys) -> None:
+    raw = bytearray((DATA / "path_quarter_lap.mcap").read_bytes())
+    footer = len(raw) - 8 - 29
+    summary_start = struct.unpack_from("<Q", raw, footer + 9)[0]
+    raw[summary_start + 20] ^= 0x01  # a byte of the summary's first record (its first schema)
+    bad = tmp_path / "bad-summary.mcap"
+    bad.write_bytes(raw)
+    assert read_info_from_summary(bad) is None  # not trusted: answered by walking the file instead
+    assert main(["logs", "info", "--check", str(bad)]) == 1
+    assert "does not match its CRC" in capsys.readouterr().out
+    assert main(["logs", "info", str(bad)]) == 1
+    assert main(["logs", "info", str(DATA / "path_quarter_lap.mcap")]) == 0
