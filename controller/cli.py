@@ -67,10 +67,11 @@ def _common(ap: argparse.ArgumentParser, bus: bool = True, robots: tuple[str, ..
     )
     if bus:
         ap.add_argument(
-            "--can",
-            help="INTERFACE[:CHANNEL]: socketcan:vcan0, udp_multicast, virtual:x "
-            "(default: the config's bus.can)",
+            "--bus",
+            metavar="INTERFACE[:CHANNEL]",
+            help="the CAN bus: socketcan:vcan0, udp_multicast, virtual:x (default: the config's bus.can)",
         )
+        ap.add_argument("--can", dest="bus", help=argparse.SUPPRESS)  # the spelling before --bus
         ap.add_argument("--udp-port", type=int, help="UDP port of the udp_multicast bus")
         ap.add_argument("--fd", action="store_true", help="use CAN FD frames")
         ap.add_argument(
@@ -180,7 +181,7 @@ def _spec(args: argparse.Namespace, cfg: Config, default_port: int | None = None
     # 0 is a value (refused by parse_bus_spec), not "not given"
     port = next(p for p in (getattr(args, "udp_port", None), default_port, cfg.bus.udp_port) if p is not None)
     return parse_bus_spec(
-        getattr(args, "can", None) or cfg.bus.can, fd=getattr(args, "fd", False) or cfg.bus.fd, udp_port=port
+        getattr(args, "bus", None) or cfg.bus.can, fd=getattr(args, "fd", False) or cfg.bus.fd, udp_port=port
     )
 
 
@@ -316,18 +317,18 @@ def _status_observers(status: StatusDisplay | None, cfg: Config) -> tuple[CycleO
     return (status.observer(cfg.period_s, count(cfg.task.model()) if count is not None else None),)
 
 
-def _check_max_duration(args: argparse.Namespace) -> None:
-    if args.max_duration is not None and not (math.isfinite(args.max_duration) and args.max_duration > 0):
+def _check_duration(args: argparse.Namespace) -> None:
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         raise ConfigError(
-            f"--max-duration {args.max_duration:g}: must be > 0 (leave it out to run until stopped)"
+            f"--duration {args.duration:g}: must be > 0 (leave it out to run until stopped)"
             if args.command == "run"
-            else f"--max-duration {args.max_duration:g}: must be > 0"
+            else f"--duration {args.duration:g}: must be > 0"
         )
 
 
 def _plot_dir(args: argparse.Namespace) -> Path | None:
-    """--plot's directory, checked writable at start (not after the run that made the plots)."""
-    return check_output_dir(args.plot, "--plot") if args.plot else None
+    """--output-dir, checked writable at start (not after the run that made the plots)."""
+    return check_output_dir(args.output_dir, "--output-dir") if args.output_dir else None
 
 
 @contextmanager
@@ -343,7 +344,7 @@ def _quiet_progress(status: StatusDisplay | None) -> Iterator[Callable[[str], No
 def cmd_demo(args: argparse.Namespace) -> int:
     from controller.tools.demo import random_udp_port, run_demo
 
-    _check_max_duration(args)
+    _check_duration(args)
     plot = _plot_dir(args)
     args = demo_defaults(args)  # also for the simulator's overrides: the disk is there for the contour
     cfg = _config(args)
@@ -358,7 +359,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             )
         with progress_line("cheope demo") as progress:
             progress(f"{cfg.task.kind} in simulated time")
-            summary = experiment.simulated_time(cfg, args.max_duration, plot)
+            summary = experiment.simulated_time(cfg, args.duration, plot)
         print(strict_json(summary) if args.json else strict_json(summary, indent=1))
         return 0 if summary["final_mode"] == "DONE" else 1
     spec = _spec(args, cfg, default_port=random_udp_port())
@@ -371,7 +372,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             spec,
             _config_path(args),
             _overrides(args),
-            args.max_duration,
+            args.duration,
             _stop_on_signals(),
             plot,
             _realtime(args),
@@ -385,14 +386,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     from controller.shell.service import run_controller
     from controller.shell.stop_signals import install_stop_signals
 
-    _check_max_duration(args)
+    _check_duration(args)
     cfg = _config(args)
     signals = install_stop_signals()
     with live_status(status_wanted(args.json, sys.stdout)) as status:
         summary = run_controller(
             cfg,
             _spec(args, cfg),
-            args.max_duration,
+            args.duration,
             signals.stop,
             realtime=_realtime(args),
             quick_stop_event=signals.quick_stop,
@@ -404,7 +405,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 EXIT_DONE, EXIT_FAULT, EXIT_REFUSED, EXIT_RECORDING_LOST = 0, 1, 2, 3
 RUN_EXIT_CODES = """exit status: 0 the run ended in DONE (task finished, or stopped by SIGTERM/SIGINT, cheope stop or
---max-duration: braked, drives disabled); 1 it ended in FAULT (a fault, a quick stop after a second
+--duration: braked, drives disabled); 1 it ended in FAULT (a fault, a quick stop after a second
 signal, or a stop that did not reach DONE within loop.stop_timeout_s); 2 refused at start (usage,
 configuration, bus load, workspace, real-time permissions, the bus or the devices); 3 DONE, but the
 recording was lost (see recording.on_failure)"""
@@ -491,9 +492,9 @@ def cmd_analyze(args: argparse.Namespace) -> int:
     analyze = ANALYSES.get(cfg.robot.kind)
     if analyze is None:
         raise ConfigError(f"robot.kind = {cfg.robot.kind!r} has no analysis plots")
-    out = check_output_dir(args.out, "--out")
+    out = check_output_dir(args.output_dir, "--output-dir")
     with progress_line("cheope analyze") as progress:
-        progress(f"{cfg.robot.kind}: workspace, margins, ellipsoids -> {args.out}")
+        progress(f"{cfg.robot.kind}: workspace, margins, ellipsoids -> {args.output_dir}")
         report = analyze(cfg, out)
     print(strict_json(report) if args.json else "\n".join(f"{k}: {v}" for k, v in report.items()))
     return 0
@@ -575,7 +576,7 @@ def cmd_faults(args: argparse.Namespace) -> int:
     from controller.tools.fault_scenarios import format_table, run_all
 
     cfg = _config(args)
-    keep = check_output_dir(args.keep, "--keep") if args.keep else None
+    keep = check_output_dir(args.output_dir, "--output-dir") if args.output_dir else None
     with progress_line("cheope faults") as progress:
         rows = run_all(cfg, keep, tuple(args.only or ()), progress)
     print(strict_json(rows) if args.json else format_table(rows))
@@ -593,7 +594,7 @@ def _contour_scan(args: argparse.Namespace) -> int:
     )
 
     cfg = _config(args)
-    keep = check_output_dir(args.keep, "--keep") if args.keep else None
+    keep = check_output_dir(args.output_dir, "--output-dir") if args.output_dir else None
     if args.jobs < 1:
         raise ConfigError(f"--jobs {args.jobs}: must be >= 1")
     if args.contour_shapes:
@@ -655,7 +656,10 @@ def build_parser() -> argparse.ArgumentParser:
     _common(p)
     add_controller_options(p)
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    p.add_argument("--max-duration", type=float, default=600.0, help="stop after this many seconds")
+    p.add_argument(
+        "--duration", type=float, default=600.0, metavar="SECONDS", help="stop after this long (default 600)"
+    )
+    p.add_argument("--max-duration", dest="duration", type=float, help=argparse.SUPPRESS)  # before --duration
     p.add_argument(
         "--task",
         choices=task_kinds(),
@@ -663,7 +667,8 @@ def build_parser() -> argparse.ArgumentParser:
         "paper's force-controlled contour tracking, then the same contour under position control; "
         "path: once around the configured circle; planned: the 3-nSPU's planned motion",
     )
-    p.add_argument("--plot", metavar="DIR", help="write the contour experiment's PNG plots here")
+    p.add_argument("--output-dir", metavar="DIR", help="write the contour experiment's PNG plots here")
+    p.add_argument("--plot", dest="output_dir", help=argparse.SUPPRESS)  # the spelling before --output-dir
     p.add_argument(
         "--simulated-time",
         action="store_true",
@@ -677,19 +682,20 @@ def build_parser() -> argparse.ArgumentParser:
         "run",
         help="only the controller, against whatever devices are on the bus",
         description="Run the controller until its task ends or it is told to stop (SIGTERM, "
-        "SIGINT, cheope stop, --max-duration); a second signal quick-stops the drives.",
+        "SIGINT, cheope stop, --duration); a second signal quick-stops the drives.",
         epilog=RUN_EXIT_CODES,
     )
     _common(p)
     add_controller_options(p)
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument(
-        "--max-duration",
+        "--duration",
         type=float,
         default=None,
         metavar="SECONDS",
         help="stop (through STOPPING: brake, disable the drives) after this long; default: run until stopped",
     )
+    p.add_argument("--max-duration", dest="duration", type=float, help=argparse.SUPPRESS)  # before --duration
     _live_options(p)
     _rt_options(p)
     p.set_defaults(func=cmd_run)
@@ -704,7 +710,8 @@ def build_parser() -> argparse.ArgumentParser:
     _common(p, bus=False)
     p.add_argument("--json", action="store_true", help="print the rows as one JSON array")
     p.add_argument("--only", action="append", metavar="SCENARIO", help="run only this scenario (repeatable)")
-    p.add_argument("--keep", metavar="DIR", help="keep the scenarios' recordings in DIR")
+    p.add_argument("--output-dir", metavar="DIR", help="keep the scenarios' recordings in DIR")
+    p.add_argument("--keep", dest="output_dir", help=argparse.SUPPRESS)  # the spelling before --output-dir
     p.add_argument(
         "--contour-scan",
         action="store_true",
@@ -730,7 +737,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_bus_load)
     p = sub.add_parser("analyze", help="workspace, singularity margins and ellipsoids; writes PNG plots")
     _common(p, bus=False)
-    p.add_argument("--out", default="analysis", help="directory for the PNG plots")
+    p.add_argument("--output-dir", default="analysis", metavar="DIR", help="directory for the PNG plots")
+    p.add_argument("--out", dest="output_dir", help=argparse.SUPPRESS)  # the spelling before --output-dir
     p.add_argument("--json", action="store_true", help="print the report as one JSON object")
     p.set_defaults(func=cmd_analyze)
     p = sub.add_parser("plan", help="3-nSPU: plan a non-holonomic motion (seed 004) and report it")
@@ -760,7 +768,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--json", action="store_true", help="print the report as one JSON object (strict: null for NaN)"
     )
-    p.add_argument("--plot", metavar="DIR", help="write the plan's PNG plots here")
+    p.add_argument("--output-dir", metavar="DIR", help="write the plan's PNG plots here")
+    p.add_argument("--plot", dest="output_dir", help=argparse.SUPPRESS)  # the spelling before --output-dir
     p.set_defaults(func=cmd_plan)
     p = sub.add_parser(
         "plan-bench", help="3-nSPU: the planner over random seeded pose pairs; success, time, error"

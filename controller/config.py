@@ -144,7 +144,7 @@ class LoopSection(Section, frozen=True):
     enable_timeout_s: Annotated[float, rng(0.01, 60.0)] = 2.0
     sdo_timeout_s: Annotated[float, rng(0.01, 60.0)] = 1.0
     stay_in_fault: bool = False  # keep cycling in FAULT (quick stop held) until a remote reset or a stop
-    # a stop (signal, cheope stop, --max-duration, a lost recording) that has not reached DONE by then
+    # a stop (signal, cheope stop, --duration, a lost recording) that has not reached DONE by then
     # quick-stops the drives: the process ends in bounded time whatever the drives answer
     stop_timeout_s: Annotated[float, rng(0.01, 600.0)] = 10.0
     hold_before_task_s: Annotated[float, rng(0.0, 60.0)] = 0.2

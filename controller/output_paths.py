@@ -1,6 +1,6 @@
 """Checking where a command will write before it does any work.
 
-``cheope demo --plot /proc/1/nope`` failed after the whole 80-s run, ``cheope replay REC --rerun
+``cheope demo --plot /proc/1/nope`` (now --output-dir) failed after the whole 80-s run, ``cheope replay REC --rerun
 /proc/1/x.rrd`` with a traceback: an output that cannot be written is found at start, with one
 line naming the option, the path and why (``InputError``, exit code 2). A directory is created
 (with its parents) and a file is created in it and removed again, which is what writing needs;

@@ -20,7 +20,7 @@ CANFD_MTU = 72  # a SocketCAN interface carries FD frames only with this MTU (li
 
 
 class BusSpecError(InputError):
-    """A ``--can`` specification is malformed or names something we refuse to use."""
+    """A ``--bus`` specification is malformed or names something we refuse to use."""
 
 
 @dataclass(frozen=True)
@@ -44,18 +44,18 @@ def parse_bus_spec(text: str, fd: bool = False, udp_port: int = DEFAULT_UDP_PORT
     interface, _, channel = text.partition(":")
     if interface not in SUPPORTED_INTERFACES:
         raise BusSpecError(
-            f"--can {text!r}: interface {interface!r} is not one of {', '.join(SUPPORTED_INTERFACES)}"
+            f"--bus {text!r}: interface {interface!r} is not one of {', '.join(SUPPORTED_INTERFACES)}"
         )
     if interface == "udp_multicast":
         channel = channel or LOCAL_MULTICAST_GROUP
         if channel != LOCAL_MULTICAST_GROUP:
             # ff15:/239. groups reach the network; this product only uses the local group.
             raise BusSpecError(
-                f"--can {text!r}: udp_multicast is only allowed on the interface-local group "
+                f"--bus {text!r}: udp_multicast is only allowed on the interface-local group "
                 f"{LOCAL_MULTICAST_GROUP}"
             )
     elif not channel:
-        raise BusSpecError(f"--can {text!r}: missing channel, expected {interface}:CHANNEL")
+        raise BusSpecError(f"--bus {text!r}: missing channel, expected {interface}:CHANNEL")
     if not 1 <= udp_port <= 65535:
         raise BusSpecError(f"UDP port {udp_port} (--udp-port, bus.udp_port): must be in 1..65535")
     return BusSpec(interface=interface, channel=channel, fd=fd, udp_port=udp_port)

@@ -101,7 +101,7 @@ def check_no_other_master(
     if heard:
         raise OtherMasterError(
             f"another master is active on {where}, heard {_described(heard, listen_s)}: stop it, or take "
-            "another bus (--udp-port, --can); nothing was sent"
+            "another bus (--udp-port, --bus); nothing was sent"
         )
 
 
@@ -140,5 +140,5 @@ def check_node_ids_free(
         taken = sorted({cob & 0x7F for _, cob in heard})
         raise NodeIdsTakenError(
             f"node id(s) {', '.join(map(str, taken))} already answer on {where}, heard {_described(heard, listen_s)}: "
-            "another simulator or device has them; stop it, or take another bus (--udp-port, --can)"
+            "another simulator or device has them; stop it, or take another bus (--udp-port, --bus)"
         )

@@ -1217,7 +1217,10 @@ def add_bench_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--late-fraction", type=float, default=0.1, help="late: woke this part of a period after")
     ap.add_argument("--sim-rt-priority", type=int, metavar="N", help="SCHED_FIFO priority of the simulator")
     ap.add_argument("--sim-cpu", metavar="CPUS", help="CPU affinity of the simulator")
-    ap.add_argument("--out", default="bench", help="directory for bench.json and the PNG plots")
+    ap.add_argument(
+        "--output-dir", default="bench", metavar="DIR", help="directory for bench.json and the PNG plots"
+    )
+    ap.add_argument("--out", dest="output_dir", help=argparse.SUPPRESS)  # the spelling before --output-dir
     ap.add_argument(
         "--task",
         choices=_bench_tasks(),
@@ -1283,7 +1286,7 @@ def checked_bench_arguments(
     unknown = [x for x in schedulers if x not in ("realtime", "normal")]
     if unknown or not schedulers:
         raise InputError(f"--schedulers {args.schedulers!r}: expected realtime, normal or both")
-    check_output_dir(args.out, "--out")
+    check_output_dir(args.output_dir, "--output-dir")
     return rates, schedulers
 
 
@@ -1307,7 +1310,7 @@ def run_bench_command(args: argparse.Namespace, rt: RealtimeOptions) -> int:
         rates,
         args.duration,
         args.compare,
-        Path(args.out),
+        Path(args.output_dir),
         args.config,
         overrides,
         rt,
@@ -1321,5 +1324,5 @@ def run_bench_command(args: argparse.Namespace, rt: RealtimeOptions) -> int:
         instructions=args.instructions,
     )
     print(strict_json(report, indent=2) if args.json else format_table(report))
-    print(f"JSON: {Path(args.out) / 'bench.json'}", file=sys.stderr)
+    print(f"JSON: {Path(args.output_dir) / 'bench.json'}", file=sys.stderr)
     return 0

@@ -62,7 +62,7 @@ def simulator_process(
         "-m",
         "controller",
         "sim",
-        "--can",
+        "--bus",
         f"{spec.interface}:{spec.channel}",
         "--udp-port",
         str(spec.udp_port),

@@ -138,7 +138,7 @@ def run_soak(
             "controller",
             "run",
             "--json",
-            "--can",
+            "--bus",
             "udp_multicast",
             "--udp-port",
             str(port),
@@ -224,8 +224,9 @@ def add_soak_arguments(ap: argparse.ArgumentParser) -> None:
         help="more configuration overrides for both processes (repeatable)",
     )
     ap.add_argument(
-        "--keep", metavar="DIR", help="keep the session recording in DIR (default: a deleted temp dir)"
+        "--output-dir", metavar="DIR", help="keep the session recording in DIR (default: a deleted temp dir)"
     )
+    ap.add_argument("--keep", dest="output_dir", help=argparse.SUPPRESS)  # the spelling before --output-dir
     ap.add_argument("--json", action="store_true", help="print the figures as one JSON object")
 
 
@@ -237,7 +238,7 @@ def run_soak_command(args: argparse.Namespace, realtime_args: list[str]) -> int:
             args.sample_s,
             args.rate,
             realtime_args,
-            Path(args.keep) if args.keep else Path(tmp),
+            Path(args.output_dir) if args.output_dir else Path(tmp),
             list(args.set),
             progress,
         )

@@ -38,7 +38,7 @@ def _bus_args(command: str) -> list[str]:
     if command == "bus-load":
         return []
     return [
-        "--can",
+        "--bus",
         "udp_multicast",
         "--udp-port",
         str(random.SystemRandom().randint(48000, 49999)),

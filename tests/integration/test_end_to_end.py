@@ -221,8 +221,8 @@ def test_over_budget_bus_is_refused_before_the_simulator_starts():
 @pytest.mark.parametrize(
     "args,needle",
     [
-        (["run", "--can", "kvaser:0"], "interface 'kvaser' is not one of"),
-        (["run", "--can", "udp_multicast:239.0.0.1"], "only allowed on the interface-local group"),
+        (["run", "--bus", "kvaser:0"], "interface 'kvaser' is not one of"),
+        (["run", "--bus", "udp_multicast:239.0.0.1"], "only allowed on the interface-local group"),
         (["demo", "--config", "/nonexistent.toml"], "/nonexistent.toml does not exist"),
         (["demo", "--bogus-option"], "unrecognized arguments: --bogus-option"),
         (["demo", "--rate", "fast"], "argument --rate: invalid float value: 'fast'"),
@@ -241,7 +241,7 @@ def test_over_budget_bus_is_refused_before_the_simulator_starts():
         ),
         (["demo", "--inject", "stall=1e9@1"], "stall of 1e+09 s must be in (0, 1] s"),
         (["demo", "--inject", "delay:2=1e9@1"], "delay of 1e+09 s must be in (0, 1] s"),
-        (["run", "--max-duration", "0"], "--max-duration 0: must be > 0"),
+        (["run", "--duration", "0"], "--duration 0: must be > 0"),
     ],
 )
 def test_bad_input_gets_one_clear_line(args, needle):

@@ -195,17 +195,17 @@ def test_a_killed_controller_leaves_the_simulated_robot_stopped(tmp_path):
         ((signal.SIGTERM,), (), 0, "DONE", {PowerState.READY_TO_SWITCH_ON, PowerState.SWITCH_ON_DISABLED}),
         (
             (),
-            ("--max-duration", "4"),
+            ("--duration", "4"),
             0,
             "DONE",
             {PowerState.READY_TO_SWITCH_ON, PowerState.SWITCH_ON_DISABLED},
         ),
         ((signal.SIGTERM, signal.SIGINT), (), 1, "FAULT", {PowerState.QUICK_STOP_ACTIVE}),
     ],
-    ids=["sigterm-stops", "max-duration-stops", "second-signal-quick-stops"],
+    ids=["sigterm-stops", "duration-stops", "second-signal-quick-stops"],
 )
 def test_a_signal_mid_motion_stops_the_run_under_control(tmp_path, signals, args, exit_code, mode, powers):
-    """SIGTERM while the carriages move (or the end of --max-duration): STOPPING brakes, the drives
+    """SIGTERM while the carriages move (or the end of --duration): STOPPING brakes, the drives
     are disabled, DONE, exit 0 (read back over SDO from the drives); a second signal quick-stops
     them instead, exit 1. Three laps take far longer than any of these runs."""
     port = random.SystemRandom().randint(48000, 49999)

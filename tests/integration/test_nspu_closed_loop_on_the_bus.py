@@ -53,7 +53,7 @@ def _demo(*args: str) -> dict[str, Any]:
             "--json",
             "--udp-port",
             port,
-            "--max-duration",
+            "--duration",
             "120",
             *TOLERANT,
             *MISMATCH,

@@ -83,19 +83,28 @@ def test_too_little_free_space_is_refused_before_the_bus_is_opened(tmp_path: Pat
 
 
 def test_demo_outputs_and_arguments_are_checked_before_the_simulator_starts(tmp_path: Path) -> None:
-    _one_line(_cheope("demo", "--plot", "/proc/1/nope", *QUIET), "--plot /proc/1/nope: cannot write there")
-    _one_line(_cheope("demo", "--max-duration", "-1", *QUIET), "--max-duration -1: must be > 0")
-    _one_line(_cheope("demo", "--max-duration", "nan", *QUIET), "--max-duration nan: must be > 0")
+    _one_line(
+        _cheope("demo", "--output-dir", "/proc/1/nope", *QUIET),
+        "--output-dir /proc/1/nope: cannot write there",
+    )
+    _one_line(_cheope("demo", "--duration", "-1", *QUIET), "--duration -1: must be > 0")
+    _one_line(_cheope("demo", "--duration", "nan", *QUIET), "--duration nan: must be > 0")
     plot_file = tmp_path / "a-file"
     plot_file.write_text("")
-    _one_line(_cheope("demo", "--plot", str(plot_file), *QUIET), f"--plot {plot_file}: is not a directory")
+    _one_line(
+        _cheope("demo", "--output-dir", str(plot_file), *QUIET),
+        f"--output-dir {plot_file}: is not a directory",
+    )
 
 
 def test_bench_arguments_and_its_output_are_checked_before_any_section(tmp_path: Path) -> None:
     _one_line(_cheope("bench", "--rates", "0", cwd=tmp_path), "--rates 0: loop.rate_hz = 0.0: must be >= 1.0")
     _one_line(_cheope("bench", "--rates", "400,x", cwd=tmp_path), "--rates '400,x': expected loop rates")
     _one_line(_cheope("bench", "--duration", "-5", cwd=tmp_path), "--duration -5: must be > 0")
-    _one_line(_cheope("bench", "--out", "/proc/1/b", cwd=tmp_path), "--out /proc/1/b: cannot write there")
+    _one_line(
+        _cheope("bench", "--output-dir", "/proc/1/b", cwd=tmp_path),
+        "--output-dir /proc/1/b: cannot write there",
+    )
     assert list(tmp_path.iterdir()) == []  # no ./bench left behind
 
 

@@ -31,7 +31,7 @@ def _run_contour(port: int, *extra: str) -> subprocess.CompletedProcess[str]:
             "-m",
             "controller",
             "run",
-            "--can",
+            "--bus",
             "udp_multicast",
             "--udp-port",
             str(port),
@@ -56,7 +56,7 @@ def test_the_simulator_places_the_disk_for_the_controllers_contour_task():
     with simulator_process(
         parse_bus_spec("udp_multicast", udp_port=port), None, [], extra_args=["--no-realtime"], report=seen
     ):
-        r = _run_contour(port, "--json", "--max-duration", str(CONTACT_WITHIN_S))
+        r = _run_contour(port, "--json", "--duration", str(CONTACT_WITHIN_S))
     summary = json.loads(r.stdout)
     # Touching the disk is the claim; what happens after it on a busy shared machine (a stalled
     # sensor sample can fault a run: issue 30) is not this test's.
@@ -78,7 +78,7 @@ def test_a_simulator_configured_to_free_space_refuses_the_contour_at_start_in_on
         extra_args=["--no-realtime"],
         report=seen,
     ):
-        r = _run_contour(port, "--max-duration", "5")
+        r = _run_contour(port, "--duration", "5")
     assert seen == {"max_true_contact_force_n": [0.0]}  # one session, nothing touched in free space
     assert r.returncode == 2 and r.stdout == ""
     assert r.stderr.count("\n") == 1 and r.stderr.startswith(

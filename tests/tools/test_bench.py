@@ -179,7 +179,7 @@ def test_affinity_applies_to_this_thread_and_restores():
 
 def test_cli_refuses_a_bad_rt_option_with_one_line():
     r = subprocess.run(
-        [sys.executable, "-m", "controller", "run", "--rt-priority", "120", "--max-duration", "1"],
+        [sys.executable, "-m", "controller", "run", "--rt-priority", "120", "--duration", "1"],
         check=False,
         capture_output=True,
         text=True,

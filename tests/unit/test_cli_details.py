@@ -222,3 +222,35 @@ def test_fd_on_the_command_line_plans_the_bus_load_for_can_fd():
     cfg = _config(build_parser().parse_args(["demo", "--rate", "1000", "--fd"]))
     assert cfg.bus.fd is True
     assert planned_bus_load(cfg).percent < 70.0
+
+
+def test_one_spelling_per_idea_and_the_old_ones_still_read():
+    """--bus, --output-dir, --duration everywhere (issue 40); --can, --plot, --keep, --out and
+    --max-duration still parse, unlisted in the help."""
+    from controller.cli import build_parser
+
+    ap = build_parser()
+    new = ap.parse_args(["demo", "--bus", "virtual:x", "--duration", "5", "--output-dir", "d"])
+    old = ap.parse_args(["demo", "--can", "virtual:x", "--max-duration", "5", "--plot", "d"])
+    assert (
+        (new.bus, new.duration, new.output_dir)
+        == (old.bus, old.duration, old.output_dir)
+        == ("virtual:x", 5.0, "d")
+    )
+    for command, old_flag in (
+        ("faults", "--keep"),
+        ("analyze", "--out"),
+        ("plan", "--plot"),
+        ("bench", "--out"),
+        ("soak", "--keep"),
+    ):
+        assert ap.parse_args([command, old_flag, "x"]).output_dir == "x"
+    spellings = {
+        flag
+        for _, p in _subcommands(ap)
+        for a in p._actions
+        if a.help != "==SUPPRESS=="
+        for flag in a.option_strings
+    }
+    assert not spellings & {"--can", "--plot", "--keep", "--out", "--max-duration"}
+    assert {"--bus", "--output-dir", "--duration"} <= spellings

@@ -155,7 +155,7 @@ def test_demo_end_to_end(tmp_path):
         "--robot",
         "nspu",
         "--json",
-        "--max-duration",
+        "--duration",
         "60",
         *TOLERANT,
         "--set",

@@ -136,7 +136,7 @@ def test_demo_end_to_end(tmp_path):
         "--robot",
         "uru",
         "--json",
-        "--max-duration",
+        "--duration",
         "60",
         *TOLERANT,
         "--set",

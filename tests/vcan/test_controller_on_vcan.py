@@ -98,7 +98,7 @@ def _popen(*args: str) -> subprocess.Popen[str]:
 
 
 def test_demo_runs_end_to_end_on_vcan(vcan_channel: str, tmp_path: Path) -> None:
-    r = _cheope("demo", "--task", "path", "--json", "--can", f"socketcan:{vcan_channel}", *_slow(tmp_path))
+    r = _cheope("demo", "--task", "path", "--json", "--bus", f"socketcan:{vcan_channel}", *_slow(tmp_path))
     assert r.returncode == 0, r.stderr + r.stdout
     s = json.loads(r.stdout)
     assert s["final_mode"] == "DONE"
@@ -110,7 +110,7 @@ def test_simulator_and_controller_as_separate_processes(vcan_channel: str, tmp_p
     spec = parse_bus_spec(f"socketcan:{vcan_channel}")
     overrides = [a for a in _slow(tmp_path) if "=" in a]
     with simulator_process(spec, None, overrides, ready_timeout_s=120.0):
-        r = _cheope("run", "--json", "--can", f"socketcan:{vcan_channel}", *_slow(tmp_path))
+        r = _cheope("run", "--json", "--bus", f"socketcan:{vcan_channel}", *_slow(tmp_path))
     assert r.returncode == 0, r.stderr + r.stdout
     assert json.loads(r.stdout)["final_mode"] == "DONE"
 
@@ -135,7 +135,7 @@ def test_can_fd_run_sends_fd_frames(vcan_fd_channel: str, tmp_path: Path) -> Non
             "path",
             "--json",
             "--fd",
-            "--can",
+            "--bus",
             f"socketcan:{vcan_fd_channel}",
             *_slow(tmp_path),
         )
@@ -153,7 +153,7 @@ def test_error_frames_are_counted_and_the_run_goes_on(vcan_channel: str, tmp_pat
         "--task",
         "path",
         "--json",
-        "--can",
+        "--bus",
         f"socketcan:{vcan_channel}",
         *_slow(tmp_path),
         "--set",
@@ -188,7 +188,7 @@ def test_full_transmit_queue_is_counted_and_ends_in_a_safe_stop(vcan_channel: st
         "--task",
         "path",
         "--json",
-        "--can",
+        "--bus",
         f"socketcan:{vcan_channel}",
         *_slow(tmp_path),
         "--set",
