@@ -17,13 +17,16 @@ class DeadlineSleeper:
     def __init__(self, spin_s: float, clock: Callable[[], float] = time.monotonic) -> None:
         self.spin_s = spin_s
         self.clock = clock
+        self.spun_s = 0.0  # time spent spinning so far: CPU use that is the price of the wake-up's precision
 
     def sleep_until(self, deadline_s: float) -> None:
         coarse = deadline_s - self.clock() - self.spin_s
         if coarse > 0.0:
             time.sleep(coarse)
-        while self.clock() < deadline_s:
-            pass
+        started = now = self.clock()
+        while now < deadline_s:
+            now = self.clock()
+        self.spun_s += now - started
 
 
 def wall_clock_offset_ns(clock: Callable[[], float] = time.monotonic) -> int:

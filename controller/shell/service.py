@@ -266,13 +266,14 @@ def run_controller(
         )
         if publisher is not None:
             publisher.exchange_counters = exchange.counters
+        sleeper = DeadlineSleeper(cfg.loop.spin_us * 1e-6)
         helpers = HelperThreadWatch.for_period(cfg.period_s)  # real-time below the loop (helper_threads.py)
         loop = CycleLoop(
             prepared.law,
             kernel_sync or exchange,
             cfg.period_s,
             cfg.loop.collect_fraction,
-            DeadlineSleeper(cfg.loop.spin_us * 1e-6),
+            sleeper,
             time.monotonic,
             late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s,
             observers=(recorder, *observers, *((publisher,) if publisher is not None else ()), helpers),
@@ -325,6 +326,8 @@ def run_controller(
             "recording": _recording_summary(session, cfg),
             "realtime": granted,
             "helper_threads_raised": {"at_start": helpers_at_start, "during_run": helpers.raised},
+            # the sleeper's spin before each deadline (loop.spin_us): CPU spent on the wake-up's precision
+            "spin_s": round(sleeper.spun_s, 3),
             **({"kernel_sync": kernel_sync.report()} if kernel_sync is not None else {}),
             **{k: v for r in prepared.reports for k, v in r.summary().items()},
         },

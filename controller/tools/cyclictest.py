@@ -15,6 +15,8 @@ from __future__ import annotations
 import shutil
 import subprocess
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -126,34 +128,58 @@ def run_cyclictest(
     thresholds_us: tuple[float, ...],
 ) -> dict[str, object]:
     """One cyclictest thread at ``rate_hz`` for ``duration_s``: latency percentiles and rates above thresholds."""
+    with cyclictest_beside(rate_hz, duration_s, priority, cpu, lock_memory, thresholds_us) as result:
+        pass
+    return result
+
+
+@contextmanager
+def cyclictest_beside(
+    rate_hz: float,
+    duration_s: float,
+    priority: int | None,
+    cpu: int | None,
+    lock_memory: bool,
+    thresholds_us: tuple[float, ...],
+) -> Iterator[dict[str, object]]:
+    """cyclictest started on entering and waited for on leaving, for whatever runs beside it in the
+    ``with`` block (the bench's run: both see the same machine); the dict yielded is filled then."""
     binary = cyclictest_path()
     if binary is None:
         raise CyclictestError(INSTALL_HINT)
     interval_us = round(1e6 / rate_hz)
     loops = max(1, round(duration_s * rate_hz))
     histogram_us = max(2 * interval_us, 10_000)
+    result: dict[str, object] = {}
     with tempfile.TemporaryDirectory(prefix="cheope-cyclictest-") as tmp:
         histfile = Path(tmp) / "histogram.txt"
         cmd = cyclictest_command(
             binary, interval_us, loops, histogram_us, histfile, priority, cpu, lock_memory
         )
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
-            done = subprocess.run(
-                cmd, capture_output=True, text=True, timeout=duration_s * 3 + 30, check=False
-            )
-        except subprocess.TimeoutExpired as err:
-            raise CyclictestError(f"cyclictest did not finish within {err.timeout:.0f} s") from err
-        if done.returncode != 0 or not histfile.exists():
-            raise CyclictestError(f"cyclictest exited with {done.returncode}: {done.stderr.strip()[-300:]}")
+            yield result
+            try:
+                _, err = proc.communicate(timeout=duration_s * 3 + 30)
+            except subprocess.TimeoutExpired as exc:
+                raise CyclictestError(f"cyclictest did not finish within {exc.timeout:.0f} s") from exc
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+        if proc.returncode != 0 or not histfile.exists():
+            raise CyclictestError(f"cyclictest exited with {proc.returncode}: {err.strip()[-300:]}")
         hist = parse_histogram(histfile.read_text())
-    return {
-        "command": " ".join(cmd[:1] + [c for c in cmd[1:] if not c.startswith("--histfile")]),
-        "samples": hist.samples,
-        "latency_us": {
-            "p50": hist.percentile_us(0.5),
-            "p99": hist.percentile_us(0.99),
-            "p99_9": hist.percentile_us(0.999),
-            "max": hist.max_us,
-        },
-        "per_10k_above_us": {f"{t:g}": round(hist.per_10k_above(t), 2) for t in thresholds_us},
-    }
+    result.update(
+        {
+            "command": " ".join(cmd[:1] + [c for c in cmd[1:] if not c.startswith("--histfile")]),
+            "samples": hist.samples,
+            "latency_us": {
+                "p50": hist.percentile_us(0.5),
+                "p99": hist.percentile_us(0.99),
+                "p99_9": hist.percentile_us(0.999),
+                "max": hist.max_us,
+            },
+            "per_10k_above_us": {f"{t:g}": round(hist.per_10k_above(t), 2) for t in thresholds_us},
+        }
+    )

@@ -105,3 +105,21 @@ def test_the_loop_tells_an_exchange_that_wants_it_each_cycle_s_deadline_before_i
     slots = [(d - exchange.deadlines[0]) / PERIOD_S for d in exchange.deadlines]
     assert all(s == pytest.approx(round(s)) for s in slots)  # every deadline on the loop's grid
     assert any(b - a > 1.5 for a, b in itertools.pairwise(slots))  # and skipped cycles skip their slots
+
+
+def test_the_sleeper_counts_the_time_it_spins():
+    """What the bench subtracts from the loop's CPU use: the spin before each deadline, on the clock."""
+    from drivers.pacing import DeadlineSleeper
+
+    now = [0.0]
+
+    def clock() -> float:
+        now[0] += 10e-6  # every read takes 10 us of this clock
+        return now[0]
+
+    sleeper = DeadlineSleeper(spin_s=1.0, clock=clock)  # the deadline is within the spin: no sleep
+    sleeper.sleep_until(1e-3)
+    assert now[0] >= 1e-3
+    assert sleeper.spun_s == pytest.approx(1e-3, abs=30e-6)
+    sleeper.sleep_until(now[0] - 1.0)  # a deadline already past: no spin
+    assert sleeper.spun_s == pytest.approx(1e-3, abs=30e-6)
