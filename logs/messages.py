@@ -32,7 +32,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING, Protocol
 
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
@@ -341,17 +341,33 @@ def tcp_transform(unix_ns: int, tcp_m: tuple[float, float, float]) -> FrameTrans
 
 
 def joint_states(
-    unix_ns: int, names: tuple[str, ...], positions: tuple[float, ...], velocities: tuple[float, ...]
+    unix_ns: int,
+    names: tuple[str, ...],
+    positions: tuple[float, ...],
+    velocities: tuple[float, ...],
+    efforts: tuple[float, ...] = (),
 ) -> JointStates:
     """``foxglove.JointStates``: each actuated joint by the robot's name for it (``actuator_j`` without
-    one), its position and, from the second sample on, its velocity (``JointVelocities``)."""
+    one), its position, from the second sample on its velocity (``JointVelocities``), and the
+    drive's effort where its TPDO maps 0x6077."""
     msg = JointStates()
     _set_time(msg.timestamp, unix_ns)
     for j, q in enumerate(positions):
         joint = msg.joints.add(name=names[j] if j < len(names) else f"actuator_{j + 1}", position=q)
         if j < len(velocities):
             joint.velocity = velocities[j]
+        if j < len(efforts):
+            joint.effort = efforts[j]
     return msg
+
+
+def recorded_efforts(drives: Iterable[pb.DriveFeedback]) -> tuple[float, ...]:
+    """A recorded cycle's drive efforts (0x6077), one per drive, or none where one is not mapped
+    (older sessions, a drive whose TPDO leaves it out)."""
+    drives = list(drives)
+    if not drives or not all(d.HasField("effort_n") for d in drives):
+        return ()
+    return tuple(d.effort_n for d in drives)
 
 
 @dataclasses.dataclass

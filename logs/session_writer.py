@@ -483,6 +483,7 @@ class SessionWriter:
                 self.joint_names,
                 positions := tuple(d.position for d in frame.message.inputs.drives),
                 self.joint_velocities.update(ns, positions),
+                self.m.recorded_efforts(frame.message.inputs.drives),
             ).SerializeToString()
             n += self._add(m.TOPIC_JOINT_STATES, joints_pb, ns)
             if self.live is not None:

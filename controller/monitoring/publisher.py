@@ -273,6 +273,7 @@ class MonitorPublisher:
             task_phase=self._phase(state),
             targets=outputs.targets,
             positions=[d.position for d in inputs.drives],
+            efforts_n=_efforts(inputs),
             tcp_m=state.tcp_measured_m or (),
             force_n=inputs.sensor.force_n if inputs.sensor is not None else (),
             alarms=self._current_alarms(t, inputs, state),
@@ -443,6 +444,12 @@ class MonitorPublisher:
             self.settings.keys.command, reply.SerializeToString(), encoding=encoding_for("CommandReply")
         )
         return decision.accepted
+
+
+def _efforts(inputs: CycleInputs) -> list[float]:
+    """The drives' efforts, one per drive, or none where a drive's TPDO does not map 0x6077 (NaN)."""
+    efforts = [d.effort_n for d in inputs.drives]
+    return efforts if all(e == e for e in efforts) else []
 
 
 def _version(name: str) -> str:

@@ -44,9 +44,13 @@ def header(t_ns: int, frame_id: str = BASE_FRAME) -> Header:
 
 def joint_state(s: BridgeSample, names: tuple[str, ...], velocities: tuple[float, ...]) -> JointState:
     """Measured actuator positions under the robot's joint names, with their velocities (samples.py:
-    empty for the first sample); no effort (the drives' effort does not reach the bridge)."""
+    empty for the first sample) and the drives' efforts (0x6077; empty where a drive does not map it)."""
     return JointState(
-        header=header(s.stamp_ns, ""), name=list(names), position=list(s.positions), velocity=list(velocities)
+        header=header(s.stamp_ns, ""),
+        name=list(names),
+        position=list(s.positions),
+        velocity=list(velocities),
+        effort=list(s.efforts),
     )
 
 

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from controller.core.controller_state import Mode
+from logs.messages import recorded_efforts
 
 if TYPE_CHECKING:
     from controller.core.ports import Robot
@@ -40,6 +41,7 @@ class BridgeSample:
     task: str
     task_phase: str
     positions: tuple[float, ...]  # measured actuator positions [m] or [rad]
+    efforts: tuple[float, ...]  # the drives' efforts (0x6077) [N] or [N m]; empty where not mapped
     targets: tuple[float, ...]
     tcp_measured_m: Vec3 | None
     tcp_reference_m: Vec3 | None
@@ -81,6 +83,7 @@ def sample_from_state(state: Any, robot: Robot | None, clock_offset_ns: int) -> 
         task=state.task,
         task_phase=state.task_phase,
         positions=tuple(state.positions),
+        efforts=tuple(state.efforts_n),
         targets=targets,
         tcp_measured_m=_vec3(state.tcp_m),
         tcp_reference_m=commanded_tcp(robot, targets),
@@ -130,6 +133,7 @@ class CycleSampler:
             task=self.task,
             task_phase=st.task_phase,
             positions=tuple(d.position for d in c.inputs.drives),
+            efforts=recorded_efforts(c.inputs.drives),
             targets=targets,
             tcp_measured_m=_vec3(st.tcp_measured_m),
             tcp_reference_m=commanded_tcp(self.robot, targets),

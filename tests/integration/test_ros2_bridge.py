@@ -127,11 +127,12 @@ def _commanded(robot: Any, targets: Any) -> list[float]:
     return [float(x) for x in robot.direct_kinematics(np.asarray(targets, dtype=float))]
 
 
-def _check_joint_states(got: dict[str, list[dict[str, Any]]], positions_at: Any) -> None:
+def _check_joint_states(got: dict[str, list[dict[str, Any]]], positions_at: Any, efforts_at: Any) -> None:
     names = ["slider_1", "slider_2", "slider_3"]
     previous = None
+    assert any(js["effort"] for js in got["joint_states"])  # the drives' 0x6077, mapped in their TPDO
     for js in got["joint_states"]:
-        assert js["name"] == names and js["effort"] == []
+        assert js["name"] == names and js["effort"] == efforts_at(js["stamp"])
         assert js["position"] == positions_at(js["stamp"])
         if previous is not None and js["velocity"]:  # each position's difference over the time between
             dt = (js["stamp"] - previous["stamp"]) * 1e-9
@@ -210,7 +211,11 @@ def test_a_ros2_subscriber_gets_the_zenoh_state_in_ros_time_and_the_commands_go_
     _check_graph(lines, namespace)
     got = _by_topic(lines)
     _check_description(got, ["slider_1", "slider_2", "slider_3"])
-    _check_joint_states(got, lambda stamp: list(_matching(states, stamp).positions))
+    _check_joint_states(
+        got,
+        lambda stamp: list(_matching(states, stamp).positions),
+        lambda stamp: list(_matching(states, stamp).efforts_n),
+    )
     for w in got["wrench"]:
         assert w["force"] == list(_matching(states, w["stamp"]).force_n)
     for p in got["tcp/measured"]:
@@ -247,6 +252,7 @@ def test_a_replayed_recording_reaches_a_ros2_node_in_the_recordings_time_with_cl
     from controller.assembly import build_law
     from controller.shell.loop import CycleLoop, SimulatedTime
     from logs import messages as m
+    from logs.messages import recorded_efforts
     from logs.reader import iter_decoded
     from logs.recorder import SessionRecorder, session_metadata
     from sim_backend.loopback import LoopbackExchange
@@ -307,7 +313,11 @@ def test_a_replayed_recording_reaches_a_ros2_node_in_the_recordings_time_with_cl
     _check_graph(lines, namespace)
     got = _by_topic(lines)
     _check_description(got, ["slider_1", "slider_2", "slider_3"])
-    _check_joint_states(got, lambda stamp: [d.position for d in _matching(cycles, stamp).inputs.drives])
+    _check_joint_states(
+        got,
+        lambda stamp: [d.position for d in _matching(cycles, stamp).inputs.drives],
+        lambda stamp: list(recorded_efforts(_matching(cycles, stamp).inputs.drives)),
+    )
     for w in got["wrench"]:
         sensor = _matching(cycles, w["stamp"]).inputs.sensor
         assert (w["force"], w["torque"]) == (list(sensor.force_n), list(sensor.torque_nm))
