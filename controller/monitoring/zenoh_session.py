@@ -223,7 +223,10 @@ def build_zenoh_config(settings: SessionSettings) -> zenoh.Config:
     """The Zenoh configuration: the file (if any), then the loopback defaults for what it leaves unset."""
     if settings.config_file:
         # a bounded read first: Zenoh reads whatever is at the path, /dev/zero until memory runs out
-        read_text_file(Path(settings.config_file), "Zenoh configuration file", ConfigError)
+        try:
+            read_text_file(Path(settings.config_file), "Zenoh configuration file", ConfigError)
+        except ConfigError as err:
+            raise ConfigError(f"monitoring.config_file (--zenoh-config): {err}") from None
         try:
             conf = zenoh.Config.from_file(settings.config_file)
         except zenoh.ZError as err:

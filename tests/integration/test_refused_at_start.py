@@ -60,7 +60,9 @@ def test_an_endless_file_as_config_is_refused_after_a_bounded_read(command: str,
 
 def test_an_endless_file_as_zenoh_config_is_refused() -> None:
     r = _cheope("run", "--zenoh-config", "/dev/zero", "--udp-port", str(random_udp_port()))
-    _one_line(r, "Zenoh configuration file /dev/zero is larger than 4 MiB")
+    _one_line(
+        r, "monitoring.config_file (--zenoh-config): Zenoh configuration file /dev/zero is larger than 4 MiB"
+    )
 
 
 def test_too_little_free_space_is_refused_before_the_bus_is_opened(tmp_path: Path) -> None:
