@@ -11,6 +11,7 @@ from controller.config import Config, ConfigError, SafetySection
 from controller.core.control_law import ControlLaw, LawConfig, SafetyConfig
 from controller.core.ports import ActuatorUnit, Robot
 from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother
+from controller.node_plan import emcy_reactions, fault_reset_config
 from controller.robots.registry import ActuatorUnits, actuator_units, robot_from_config
 from controller.tasks.registry import BuiltTask, RunReport, TaskSettings, task_entry
 from drivers.bus_load import BusLoad, compute_bus_load, cyclic_frames
@@ -125,6 +126,8 @@ def assemble(cfg: Config, robot: Robot | None = None) -> Assembly:
         sensor_in_task=task_entry(cfg.task.kind).uses_force_sensor,
         sensor_node_id=cfg.sensor.node_id if cfg.sensor.enabled else 0,
         task_retracts_on_sensor_breach=task_entry(cfg.task.kind).retracts_on_sensor_breach,
+        fault_resets=tuple(fault_reset_config(cfg, node) for node in cfg.actuators.node_ids),
+        emcy_reactions=emcy_reactions(cfg),
     )
     return Assembly(
         ControlLaw(robot, built.task, RuckigSmoother(limits, cfg.period_s), law_cfg), built.reports, a

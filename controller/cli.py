@@ -473,6 +473,39 @@ def cmd_bus_load(args: argparse.Namespace) -> int:
     return 0 if ok else 1
 
 
+def cmd_nodes(args: argparse.Namespace) -> int:
+    from drivers.bus import open_bus
+    from drivers.node_scan import log_quietly, lss_fast_scan, nodes_as_json, nodes_table, scan_nodes
+    from drivers.node_setup import DRIVE_EDS, SENSOR_EDS, device_description_path
+
+    cfg = _config(args)
+    if not args.verbose:
+        log_quietly()
+    eds = (
+        device_description_path(cfg.actuators.eds_file, DRIVE_EDS),
+        device_description_path(cfg.sensor.eds_file, SENSOR_EDS),
+    )
+    for node_id in args.lss_assign:
+        if not 1 <= node_id <= 127:
+            raise ConfigError(f"--lss-assign {node_id}: a node id is 1..127")
+    with open_bus(_spec(args, cfg)) as bus:
+        lss = lss_fast_scan(bus, tuple(args.lss_assign)) if args.lss_scan or args.lss_assign else []
+        nodes = scan_nodes(bus, eds, sdo_timeout_s=cfg.loop.sdo_timeout_s)
+    if args.json:
+        print(strict_json({"lss": [n.__dict__ for n in lss], "nodes": nodes_as_json(nodes)}, indent=1))
+        return 0
+    for n in lss:
+        address = (
+            f"vendor 0x{n.vendor_id:08X} product 0x{n.product_code:08X} revision 0x{n.revision:08X} "
+            f"serial 0x{n.serial:08X}"
+        )
+        print(f"LSS: a node without node id: {address}" + (f" -> node id {n.assigned}" if n.assigned else ""))
+    if (args.lss_scan or args.lss_assign) and not lss:
+        print("LSS: no node without a node id answered the fast scan")
+    print(nodes_table(nodes))
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from controller.tools.bench import run_bench_command
 
@@ -731,6 +764,27 @@ def build_parser() -> argparse.ArgumentParser:
         "--jobs", type=int, default=1, help="with --contour-scan: scenarios run in this many processes"
     )
     p.set_defaults(func=cmd_faults)
+    p = sub.add_parser(
+        "nodes",
+        help="scan the bus: each node's identity, NMT state, power state, error code and PDO mapping",
+        description="Commissioning: every node that answers SDO (ids 1..127), described; with --lss-scan "
+        "or --lss-assign, first the nodes without a node id (LSS fast scan, CiA 305). A master's "
+        "traffic: not beside a running controller (it would take it for a second master).",
+    )
+    _common(p, robots=None)
+    p.add_argument("--json", action="store_true", help="print the nodes as one JSON object")
+    p.add_argument(
+        "--lss-scan", action="store_true", help="find the nodes without a node id first (LSS fast scan)"
+    )
+    p.add_argument(
+        "--lss-assign",
+        type=int,
+        action="append",
+        default=[],
+        metavar="NODE_ID",
+        help="give the nodes without a node id these ids, one each in the order found (repeatable); stored",
+    )
+    p.set_defaults(func=cmd_nodes)
     p = sub.add_parser("bus-load", help="bus load of the configured cycle")
     _common(p, bus=False)
     p.add_argument("--json", action="store_true", help="print the load and its frames as one JSON object")

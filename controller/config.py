@@ -13,6 +13,7 @@ configures both processes, so the whole document is validated before either star
 
 from __future__ import annotations
 
+import re
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
@@ -22,7 +23,7 @@ import msgspec
 
 from controller.config_schema import ConfigError, Section, convert_section, rng
 from controller.configs import CONFIG_DIR
-from controller.core.cycle_data import Reaction
+from controller.core.cycle_data import EmcyAction, Reaction
 from controller.text_files import one_line, read_text_file
 from sim_backend.sim_config import SimSection, check_sim_section
 
@@ -89,6 +90,32 @@ class ActuatorsSection(Section, frozen=True):
     homing_zero_speed_m_s: Annotated[float, rng(0.0, 100.0, lo_open=True)] = 0.005
     homing_acceleration_m_s2: Annotated[float, rng(0.0, 1e4, lo_open=True)] = 1.0
     homing_timeout_s: Annotated[float, rng(0.1, 600.0)] = 30.0
+    # How homing is judged done (drivers/homing.py): "attained" statusword bit 12, or "position" (a
+    # drive that never sets it: bit 10 and the position within homing_position_window_m of its home
+    # offset). homing_skip_if_homed: a drive that reports itself homed (mode 6, bit 12) is not homed again.
+    homing_done: Literal["attained", "position"] = "attained"
+    homing_position_window_m: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 1.0e-4
+    homing_skip_if_homed: bool = False
+    # The drives' identity beyond vendor and product (0x1018 sub 3); unset: not checked.
+    revision_number: Annotated[int, rng(0, 2**32 - 1)] | None = None
+    # The PDO mapping: "write" it at start (the EDS's or rpdo_objects/tpdo_objects) and read it back,
+    # or "read" it from the drive as it is (a fixed mapping); the codecs come from what is read.
+    pdo_mapping: Literal["write", "read"] = "write"
+    # How the controller and each drive watch each other: "heartbeat" (0x1017 produced, 0x1016
+    # consumes the controller's) or "guarding" (the controller polls, 0x100C guard time, 0x100D life
+    # time factor; the drive's life guarding watches the polls).
+    supervision: Literal["heartbeat", "guarding"] = "heartbeat"
+    guard_time_s: Annotated[float, rng(0.01, 60.0)] = 0.1
+    life_time_factor: Annotated[int, rng(1, 255)] = 3
+    # The fault reset (at set-up over SDO, in ENABLING by the controlword): bit 7 high for
+    # fault_reset_hold_s (0: one cycle, the edge), then up to fault_reset_wait_s for the statusword to
+    # leave FAULT, at most fault_reset_attempts times (0: until loop.enable_timeout_s).
+    fault_reset_hold_s: Annotated[float, rng(0.0, 10.0)] = 0.0
+    fault_reset_wait_s: Annotated[float, rng(0.0, 60.0)] = 0.0
+    fault_reset_attempts: Annotated[int, rng(0, 1000)] = 0
+    # The drives' EMCY error codes that do not fault: "0xFF01" or a range "0xFF00-0xFFFF" -> "warn"
+    # (an event) or "hold" (a running task pauses until resumed); every other code faults.
+    emcy_reactions: Mapping[str, EmcyAction] = msgspec.field(default_factory=dict)
 
 
 class SensorSection(Section, frozen=True):
@@ -143,6 +170,9 @@ class LoopSection(Section, frozen=True):
     controller_node_id: Annotated[int, rng(1, 127)] = 100
     enable_timeout_s: Annotated[float, rng(0.01, 60.0)] = 2.0
     sdo_timeout_s: Annotated[float, rng(0.01, 60.0)] = 1.0
+    sdo_retries: Annotated[int, rng(0, 100)] = 0  # an SDO that times out or is aborted 0x0800002x, again
+    boot_timeout_s: Annotated[float, rng(0.01, 600.0)] = 5.0  # a node may take this long to answer SDO
+    boot_retries: Annotated[int, rng(0, 100)] = 0  # then an NMT reset node and as long again, this often
     stay_in_fault: bool = False  # keep cycling in FAULT (quick stop held) until a remote reset or a stop
     # a stop (signal, cheope stop, --duration, a lost recording) that has not reached DONE by then
     # quick-stops the drives: the process ends in bounded time whatever the drives answer
@@ -256,6 +286,40 @@ class MonitoringSection(Section, frozen=True):
     allow_remote_commands: bool = False  # pause, resume, set_force; a remote stop is always accepted
 
 
+class NodeSection(Section, frozen=True):
+    """``[[node]]``: one node's own values where it differs from the others (unset: the defaults of
+    [loop] and [actuators]); drivers/node_setup.py and the law use them through controller/node_plan.py."""
+
+    node_id: Annotated[int, rng(1, 127)]
+    serial_number: Annotated[int, rng(0, 2**32 - 1)] | None = None  # 0x1018 sub 4, checked at start
+    revision_number: Annotated[int, rng(0, 2**32 - 1)] | None = None  # 0x1018 sub 3
+    boot_timeout_s: Annotated[float, rng(0.01, 600.0)] | None = None
+    boot_retries: Annotated[int, rng(0, 100)] | None = None
+    sdo_timeout_s: Annotated[float, rng(0.01, 60.0)] | None = None
+    sdo_retries: Annotated[int, rng(0, 100)] | None = None
+    # a drive's only (not the sensor's):
+    supervision: Literal["heartbeat", "guarding"] | None = None
+    pdo_mapping: Literal["write", "read"] | None = None
+    fault_reset_hold_s: Annotated[float, rng(0.0, 10.0)] | None = None
+    fault_reset_wait_s: Annotated[float, rng(0.0, 60.0)] | None = None
+    fault_reset_attempts: Annotated[int, rng(0, 1000)] | None = None
+    homing_method: Literal[0, 17, 18, 35, 37] | None = None
+    homing_done: Literal["attained", "position"] | None = None
+    homing_skip_if_homed: bool | None = None
+
+
+DRIVE_ONLY_NODE_KEYS = (
+    "supervision",
+    "pdo_mapping",
+    "fault_reset_hold_s",
+    "fault_reset_wait_s",
+    "fault_reset_attempts",
+    "homing_method",
+    "homing_done",
+    "homing_skip_if_homed",
+)
+
+
 class Config(Section, frozen=True):
     robot: RobotSection = msgspec.field(default_factory=RobotSection)
     actuators: ActuatorsSection = msgspec.field(default_factory=ActuatorsSection)
@@ -268,6 +332,7 @@ class Config(Section, frozen=True):
     sim: SimSection = msgspec.field(default_factory=SimSection)
     recording: RecordingSection = msgspec.field(default_factory=RecordingSection)
     monitoring: MonitoringSection = msgspec.field(default_factory=MonitoringSection)
+    node: tuple[NodeSection, ...] = ()  # [[node]] tables: one node's own values
 
     @property
     def period_s(self) -> float:
@@ -377,6 +442,8 @@ def _cross_checks(cfg: Config) -> None:
             f"loop.heartbeat_consumer_s = {cfg.loop.heartbeat_consumer_s} must exceed "
             f"loop.heartbeat_period_s = {cfg.loop.heartbeat_period_s}"
         )
+    _check_nodes(cfg)
+    emcy_code_ranges(cfg.actuators.emcy_reactions)
     _registered_cross_checks(cfg)
     check_sim_section(
         cfg.sim,
@@ -389,6 +456,46 @@ def _cross_checks(cfg: Config) -> None:
             f"bus.data_bitrate_bit_s = {cfg.bus.data_bitrate_bit_s} must be >= bus.bitrate_bit_s = "
             f"{cfg.bus.bitrate_bit_s}"
         )
+
+
+def _check_nodes(cfg: Config) -> None:
+    """Each [[node]] names a configured node once; a drive's own keys are not given to the sensor."""
+    drives = tuple(cfg.actuators.node_ids)
+    sensor = cfg.sensor.node_id if cfg.sensor.enabled else None
+    seen: set[int] = set()
+    for i, n in enumerate(cfg.node):
+        if n.node_id in seen:
+            raise ConfigError(f"node[{i}].node_id = {n.node_id}: given twice; one [[node]] table per node")
+        seen.add(n.node_id)
+        if n.node_id not in drives and n.node_id != sensor:
+            raise ConfigError(
+                f"node[{i}].node_id = {n.node_id}: not a configured node (actuators.node_ids = "
+                f"{list(drives)}" + (f", sensor.node_id = {sensor}" if sensor is not None else "") + ")"
+            )
+        if n.node_id not in drives:
+            given = [k for k in DRIVE_ONLY_NODE_KEYS if getattr(n, k) is not None]
+            if given:
+                raise ConfigError(
+                    f"node[{i}] (node {n.node_id}, the sensor): {', '.join(given)} is a drive's only"
+                )
+
+
+_CODE = r"0[xX][0-9a-fA-F]{1,4}"
+
+
+def emcy_code_ranges(table: Mapping[str, EmcyAction]) -> tuple[tuple[int, int, EmcyAction], ...]:
+    """``actuators.emcy_reactions`` as (first code, last code, action), refused naming a bad key."""
+    out = []
+    for key, action in table.items():
+        m = re.fullmatch(rf"\s*({_CODE})\s*(?:-\s*({_CODE})\s*)?", key)
+        first, last = (int(m[1], 16), int(m[2] or m[1], 16)) if m else (0, -1)
+        if not m or not 0 < first <= last:
+            raise ConfigError(
+                f'actuators.emcy_reactions: key {key!r}: must be an EMCY error code "0xFF01" or a '
+                f'range "0xFF00-0xFFFF" within 0x0001..0xFFFF (0x0000 is the error reset)'
+            )
+        out.append((first, last, action))
+    return tuple(out)
 
 
 def _registered_cross_checks(cfg: Config) -> None:

@@ -57,6 +57,11 @@ def _named(err: msgspec.ValidationError, table: dict[str, Any], cls: type, prefi
         where = f"[{key}]" if key else "the top level"
         known = ", ".join(sorted(_fields_at(cls, path)))
         return ConfigError(f"unknown key(s) {unknown.group(1)} in {where}; known: {known}")
+    if path.endswith("[...]"):  # a value of a table of free keys (a Mapping): name the table
+        path = path.removesuffix("[...]")
+        key = key.removesuffix("[...]")
+        choices = _choices_at(cls, path, mapping_value=True)
+        return ConfigError(f"{key}: a value {_plain(what, choices)}")
     value = _value_at(table, path)
     if isinstance(value, dict):
         return ConfigError(f"[{key}]: {_plain(what, ())}")
@@ -92,8 +97,9 @@ def _plain(what: str, choices: tuple[object, ...]) -> str:
     return what[:1].lower() + what[1:]
 
 
-def _choices_at(cls: type, path: str) -> tuple[object, ...]:
-    """The allowed values of a Literal or enum field at ``path`` (else empty)."""
+def _choices_at(cls: type, path: str, mapping_value: bool = False) -> tuple[object, ...]:
+    """The allowed values of a Literal or enum field at ``path`` (else empty); with
+    ``mapping_value``, of the values of the Mapping field there."""
     tp: Any = cls
     for name in re.findall(r"\.(\w+)", path):
         fields = (
@@ -104,6 +110,8 @@ def _choices_at(cls: type, path: str) -> tuple[object, ...]:
         if name not in fields:
             return ()
         tp = fields[name]
+    if mapping_value and typing.get_args(tp):
+        tp = typing.get_args(tp)[-1]
     if typing.get_origin(tp) is typing.Literal:
         return typing.get_args(tp)
     if isinstance(tp, type) and issubclass(tp, enum.Enum):

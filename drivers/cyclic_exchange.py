@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import can
@@ -150,6 +150,7 @@ class CyclicExchange:
         max_position_step: float = math.inf,
         max_position_jump: float = math.inf,
         answer_window_s: float = math.inf,
+        guarded: Mapping[int, tuple[float, int]] | None = None,
     ) -> None:
         self.bus = bus
         self.fd = fd
@@ -309,6 +310,19 @@ class CyclicExchange:
         self.tracker_id = tracker_id
         self._sdo = can.Message(arbitration_id=0, data=bytearray(8), is_extended_id=False)
         self.heartbeat_timeout_s = heartbeat_timeout_s
+        # Node guarding (CiA 301) instead of heartbeat for these nodes: node -> (guard time [s], life
+        # time factor). A remote frame on 0x700 + node every guard time; the answer (its NMT state
+        # and a toggle bit that alternates) counts as its heartbeat; none within guard time x factor:
+        # lost, as a heartbeat is.
+        self.guarded = dict(guarded or {})
+        self._guard_requests = {
+            node: can.Message(
+                arbitration_id=cob_ids.heartbeat(node), is_remote_frame=True, dlc=1, is_extended_id=False
+            )
+            for node in self.guarded
+        }
+        self._guard_due_s = dict.fromkeys(self.guarded, -math.inf)
+        self._guard_toggle: dict[int, int] = {}  # the toggle bit the node's next answer must carry
         self.last_heartbeat_s = [math.nan] * self.n
         self.sensor_heartbeat_s = math.nan  # the sensor's heartbeat, supervised as a drive's
         self._drive_silence = [0] * self.n  # cycles in a row without a usable TPDO, per drive
@@ -358,7 +372,16 @@ class CyclicExchange:
             self._send(self._sync)
         if self.cycles % self.heartbeat_every == 0:
             self._send(self._heartbeat)
+        if self.guarded:
+            self._guard(self.sent_s)
         self.cycles += 1
+
+    def _guard(self, now: float) -> None:
+        """The node guarding requests that are due."""
+        for node, (guard_s, _) in self.guarded.items():
+            if now >= self._guard_due_s[node]:
+                self._guard_due_s[node] = now + guard_s
+                self._send(self._guard_requests[node])
 
     def send_controlword_by_sdo(self, drive_index: int, controlword: int) -> None:
         """An expedited SDO download of 0x6040 to one drive, not waiting for the answer.
@@ -577,7 +600,8 @@ class CyclicExchange:
                 code = int.from_bytes(msg.data[0:2], "little")
                 self._emcy.append(EmcyReport(index, code, msg.data[2]))
             elif kind == _HEARTBEAT:
-                self._on_heartbeat(index, msg)
+                if not self._on_heartbeat(index, msg):
+                    return  # a guarding answer out of toggle: not a sign of life
                 if index >= 0:
                     self.last_heartbeat_s[index] = now
                 elif self.sensor_id is not None and msg.arbitration_id == cob_ids.heartbeat(self.sensor_id):
@@ -597,8 +621,13 @@ class CyclicExchange:
         return tuple(
             node
             for node, last in nodes
-            if now - (self.started_s if math.isnan(last) else last) > self.heartbeat_timeout_s
+            if now - (self.started_s if math.isnan(last) else last) > self._life_time_s(node)
         )
+
+    def _life_time_s(self, node: int) -> float:
+        """How long a node may stay unheard: its heartbeat timeout, or its guard time x life time factor."""
+        guarding = self.guarded.get(node)
+        return self.heartbeat_timeout_s if guarding is None else guarding[0] * guarding[1]
 
     def _count_silences(self) -> None:
         """Each device's run of cycles without a usable sample, and the longest so far."""
@@ -727,19 +756,28 @@ class CyclicExchange:
         if self._tracker_counters[0] == self._tracker_counters[1]:
             self._tracker_fresh = True
 
-    def _on_heartbeat(self, index: int, msg: can.Message) -> None:
+    def _on_heartbeat(self, index: int, msg: can.Message) -> bool:
+        """A heartbeat or node guarding answer; False for a guarding answer whose toggle bit did not
+        alternate (CiA 301: the node did not see the request before, or the answer is a stale one)."""
         if len(msg.data) != 1:
             raise FrameError(
                 f"heartbeat 0x{msg.arbitration_id:03X} must have 1 data byte, got {len(msg.data)}"
             )
         state = msg.data[0] & 0x7F  # bit 7 is the toggle bit of node guarding
         node = msg.arbitration_id - 0x700
+        if node in self.guarded:
+            toggle = msg.data[0] & 0x80
+            expected = self._guard_toggle.get(node, toggle)  # the first answer sets the phase
+            self._guard_toggle[node] = toggle ^ 0x80
+            if toggle != expected:
+                return False
         if state == NMT_OPERATIONAL:
             self._operational_nodes.add(node)
         elif self._judging and (state == NMT_BOOT_UP or node in self._operational_nodes):
             # A node that left OPERATIONAL, or restarted. One still coming up after the NMT start (its
             # PRE-OPERATIONAL heartbeat crossing the start command on a slow bus) is not judged.
             self._nmt[node] = state
+        return True
 
     def _on_kernel_sync(self, msg: can.Message) -> None:
         stamp = msg.timestamp

@@ -9,22 +9,30 @@ from __future__ import annotations
 import contextlib
 import logging
 import time
-from collections.abc import Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypeVar
 
 import can
 import canopen
 from canopen.objectdictionary import ODVariable
 
-from controller.core.cia402 import MODE_CYCLIC_SYNC_POSITION
+from controller.core.cia402 import (
+    MODE_CYCLIC_SYNC_POSITION,
+    FaultResetConfig,
+)
 from controller.errors import DeviceError
 from drivers.cob_ids import SYNC
+from drivers.fault_reset import FaultResetError, reset_fault
 from drivers.homing import HomingError, HomingPlan, home_drive
 from drivers.pdo_codec import RATED_TORQUE, TORQUE_ACTUAL, DriveCodec, SensorFrameCodec
 from drivers.pdo_mapping import (
     COB_ID_INVALID,
+    COB_ID_MASK,
+    TRANSMISSION_SYNCHRONOUS,
     DeviceDescriptionError,
+    MappedObject,
     PdoConfig,
     PdoDirection,
     PdoMappingError,
@@ -32,10 +40,12 @@ from drivers.pdo_mapping import (
     layout,
     load_device_description,
     planned_pdo,
+    remap_writes,
 )
 from drivers.sim_environment import (
     ABORT_DEVICE_STATE,
     ABORT_OBJECT_DOES_NOT_EXIST,
+    ABORT_VALUE_RANGE_CODE,
     ENVIRONMENT_CODES,
     ENVIRONMENT_NAMES,
     SIM_ENVIRONMENT_INDEX,
@@ -50,8 +60,29 @@ DRIVE_EDS = EDS_DIR / "cheope_drive.eds"
 SENSOR_EDS = EDS_DIR / "force_sensor.eds"
 
 
+R = TypeVar("R")
+
+
 class NodeSetupError(DeviceError, RuntimeError):
     """A device did not answer, or answered with the wrong identity or configuration."""
+
+
+@dataclass(frozen=True)
+class NodeOptions:
+    """One node's own set-up values (controller/node_plan.py resolves them from the configuration)."""
+
+    boot_timeout_s: float = 5.0  # how long it may take to answer SDO at all (it may still be booting)
+    boot_retries: int = 0  # then an NMT reset node and as long again, this many times
+    sdo_timeout_s: float = 1.0  # each SDO response; canopen's 0.3 s default is short for slow machines
+    sdo_retries: int = 0  # an SDO that timed out or was aborted as transient (TRANSIENT_ABORTS), again
+    revision: int | None = None  # 0x1018 sub 3 (None: not checked)
+    serial: int | None = None  # 0x1018 sub 4
+    supervision: str = "heartbeat"  # a drive's: "heartbeat" (0x1016/0x1017) or "guarding" (0x100C/0x100D)
+    guard_time_s: float = 0.1
+    life_time_factor: int = 3
+    pdo_mapping: str = "write"  # a drive's: "write" the mapping, or "read" it as the drive has it
+    fault_reset: FaultResetConfig = field(default_factory=FaultResetConfig)
+    fault_reset_timeout_s: float = 2.0  # loop.enable_timeout_s: the fault reset's time at set-up
 
 
 @dataclass(frozen=True)
@@ -72,14 +103,25 @@ class NodeSetupPlan:
     sensor_vendor_id: int | None = None  # None: vendor_id
     drive_rpdo_objects: tuple[str, ...] = ()  # "0x607A", "0x2000:1"; empty: the EDS's default mapping
     drive_tpdo_objects: tuple[str, ...] = ()
-    homing: tuple[HomingPlan, ...] | None = None  # each drive's CiA 402 homing, before the PDOs start
+    # each drive's CiA 402 homing (None: that drive does not home), before the PDOs start
+    homing: tuple[HomingPlan | None, ...] | None = None
     following_error_window_counts: int = 0  # 0x6065 (0: not written; the EDS must have it)
     following_error_time_ms: int = 0  # 0x6066
-    answer_timeout_s: float = 5.0  # how long a node may take to answer at all (it may still be booting)
-    sdo_timeout_s: float = 1.0  # each SDO response; canopen's 0.3 s default is short for slow machines
     # announced to a simulated sensor (drivers/sim_environment.py): "free", "workpiece"; None: not announced
     sim_environment: str | None = None
     task_kind: str = ""  # named when the simulator refuses the environment
+    nodes: Mapping[int, NodeOptions] = field(default_factory=dict)  # by node id; missing: NodeOptions()
+
+    def options(self, node_id: int) -> NodeOptions:
+        return self.nodes.get(node_id, NodeOptions())
+
+    def guarded(self) -> dict[int, tuple[float, int]]:
+        """The drives supervised by node guarding: node -> (guard time [s], life time factor)."""
+        return {
+            n: (o.guard_time_s, o.life_time_factor)
+            for n in self.drive_ids
+            if (o := self.options(n)).supervision == "guarding"
+        }
 
 
 @dataclass(frozen=True)
@@ -98,6 +140,9 @@ class NodeSetupReport:
     duration_s: float
     drive_codecs: tuple[DriveCodec, ...] = ()  # from each drive's mapping as read back
     sensor_codecs: tuple[SensorFrameCodec, SensorFrameCodec] | None = None
+    # what the set-up met and handled beyond the plain sequence: a late boot, an NMT reset, SDO
+    # retries, a fault reset, homing skipped (one line each, also logged)
+    notes: tuple[str, ...] = ()
 
 
 def interpolation_time_period(period_s: float) -> tuple[int, int]:
@@ -123,153 +168,338 @@ def interpolation_time_period(period_s: float) -> tuple[int, int]:
     return finest
 
 
-def _wait_until_answering(node: canopen.RemoteNode, timeout_s: float) -> None:
+# SDO aborts that say "not now", not "never" (CiA 301): retried under sdo_retries, as a timeout is.
+ABORT_TRANSFER = 0x08000020  # data cannot be transferred or stored to the application
+ABORT_LOCAL_CONTROL = 0x08000021  # ... because of local control
+ABORT_SDO_TIMEOUT = 0x05040000  # SDO protocol timed out
+TRANSIENT_ABORTS = frozenset((ABORT_TRANSFER, ABORT_LOCAL_CONTROL, ABORT_SDO_TIMEOUT))
+ABORT_READ_ONLY = 0x06010002  # attempt to write a read only object (a fixed PDO mapping)
+NMT_RESET_NODE = 0x81
+NMT_ENTER_PRE_OPERATIONAL = 0x80
+
+# What a refusal of these objects most likely means, and the configuration that handles it.
+_HINTS: dict[tuple[int, int], str] = {
+    (0x1017, ABORT_OBJECT_DOES_NOT_EXIST): 'a drive without heartbeat: actuators.supervision = "guarding"',
+    (0x1016, ABORT_OBJECT_DOES_NOT_EXIST): 'a drive without heartbeat: actuators.supervision = "guarding"',
+    (
+        0x100C,
+        ABORT_OBJECT_DOES_NOT_EXIST,
+    ): 'a drive without node guarding: actuators.supervision = "heartbeat"',
+    (
+        0x100D,
+        ABORT_OBJECT_DOES_NOT_EXIST,
+    ): 'a drive without node guarding: actuators.supervision = "heartbeat"',
+    (
+        0x6060,
+        ABORT_VALUE_RANGE_CODE,
+    ): "a drive without this mode of operation (homing: actuators.homing_method = 0 for it, [[node]])",
+}
+
+
+def refusal_hint(index: int, code: int) -> str:
+    """ " (what it likely means: the configuration that handles it)" for an abort of a write, or ""."""
+    mapping = 0x1600 <= index <= 0x17FF or 0x1A00 <= index <= 0x1BFF
+    if mapping and code in (ABORT_READ_ONLY, ABORT_DEVICE_STATE):
+        return ' (a fixed PDO mapping: actuators.pdo_mapping = "read")'
+    if code in TRANSIENT_ABORTS:
+        return " (refused for now, not for good: loop.sdo_retries)"
+    hint = _HINTS.get((index, code))
+    return f" ({hint})" if hint else ""
+
+
+class _Device:
+    """One node during the set-up: checked SDO reads and writes with the node's retries, named in
+    every error, and the notes of what was handled."""
+
+    def __init__(self, node: canopen.RemoteNode, node_id: int, opts: NodeOptions, notes: list[str]) -> None:
+        self.node = node
+        self.node_id = node_id
+        self.opts = opts
+        self.notes = notes
+        self.retried = 0
+
+    def note(self, text: str) -> None:
+        log.info("%s", text)
+        self.notes.append(text)
+
+    def _sdo(self, call: Callable[[], R], what: str) -> R:
+        """``call`` (one SDO transfer) with the node's retries for timeouts and transient aborts."""
+        tries = self.opts.sdo_retries + 1
+        for k in range(tries):
+            try:
+                return call()
+            except canopen.SdoCommunicationError as err:
+                last: Exception = err
+            except canopen.SdoAbortedError as err:
+                if err.code not in TRANSIENT_ABORTS:
+                    raise
+                last = err
+            if k + 1 < tries:
+                self.retried += 1
+                log.info("node %d: %s: %s; again (%d of %d)", self.node_id, what, last, k + 1, tries - 1)
+        assert last is not None
+        if isinstance(last, canopen.SdoCommunicationError):
+            raise NodeSetupError(
+                f"node {self.node_id}: {what}: no answer within {self.opts.sdo_timeout_s} s"
+                + (f", {tries} tries" if tries > 1 else "")
+                + f" ({last}; loop.sdo_timeout_s, loop.sdo_retries)"
+            ) from last
+        raise last
+
+    def upload(self, index: int, subindex: int) -> bytes:
+        data: bytes = self._sdo(
+            lambda: self.node.sdo.upload(index, subindex), f"reading 0x{index:04X}sub{subindex}"
+        )
+        return data
+
+    def download(self, index: int, subindex: int, data: bytes) -> None:
+        self._sdo(
+            lambda: self.node.sdo.download(index, subindex, data), f"writing 0x{index:04X}sub{subindex}"
+        )
+
+    def variable(self, index: int, subindex: int) -> ODVariable:
+        var = find_variable(self.node.object_dictionary, index, subindex)
+        if var is None:
+            raise NodeSetupError(
+                f"node {self.node_id}: 0x{index:04X}sub{subindex} is not in its device description"
+            )
+        return var
+
+    def has(self, index: int, subindex: int = 0) -> bool:
+        return find_variable(self.node.object_dictionary, index, subindex) is not None
+
+    def write(self, index: int, subindex: int, value: int) -> None:
+        """One SDO download; an abort names the node, the object, the value, the abort and, where
+        it points at a known habit of drives, the configuration that handles it."""
+        var = self.variable(index, subindex)
+        try:
+            self.download(index, subindex, var.encode_raw(value))
+        except canopen.SdoAbortedError as err:
+            raise NodeSetupError(
+                f"node {self.node_id}: writing 0x{index:04X}sub{subindex} = 0x{value & 0xFFFFFFFF:X} "
+                f"refused: {err}{refusal_hint(index, err.code)}"
+            ) from err
+
+    def read(self, index: int, subindex: int) -> int:
+        var = self.variable(index, subindex)
+        try:
+            value = var.decode_raw(self.upload(index, subindex))
+        except canopen.SdoAbortedError as err:
+            raise NodeSetupError(
+                f"node {self.node_id}: reading 0x{index:04X}sub{subindex} refused: {err}"
+                f"{refusal_hint(index, err.code)}"
+            ) from err
+        if not isinstance(value, int):
+            raise NodeSetupError(
+                f"node {self.node_id}: 0x{index:04X}sub{subindex} is not an integer ({value!r})"
+            )
+        return value
+
+    def write_verified(self, index: int, subindex: int, value: int) -> None:
+        self.write(index, subindex, value)
+        self.check_reads(index, subindex, value)
+
+    def check_reads(self, index: int, subindex: int, value: int) -> None:
+        back = self.read(index, subindex)
+        if back != value:
+            raise NodeSetupError(
+                f"node {self.node_id}: 0x{index:04X}sub{subindex} reads back 0x{back & 0xFFFFFFFF:X}, "
+                f"wrote 0x{value & 0xFFFFFFFF:X}"
+            )
+
+
+def _answers(node: canopen.RemoteNode, timeout_s: float) -> Exception | None:
+    """None once the node answers an SDO request within ``timeout_s``, else the last error."""
     deadline = time.monotonic() + timeout_s
-    last: Exception | None = None
+    last: Exception | None = TimeoutError(f"no answer within {timeout_s} s")
     while time.monotonic() < deadline:
         try:
             node.sdo.upload(0x1000, 0)
-            return
+            return None
         except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as err:
             last = err
-    raise NodeSetupError(f"node {node.id} did not answer SDO requests within {timeout_s} s ({last})")
+    return last
 
 
-def _variable(node: canopen.RemoteNode, node_id: int, index: int, subindex: int) -> ODVariable:
-    var = find_variable(node.object_dictionary, index, subindex)
-    if var is None:
-        raise NodeSetupError(f"node {node_id}: 0x{index:04X}sub{subindex} is not in its device description")
-    return var
+def _wait_until_answering(device: _Device, network: canopen.Network) -> None:
+    """Until the node answers SDO, for its boot timeout; then, as often as its boot retries allow, an
+    NMT reset node (a node that boots only when told to) and the boot timeout again."""
+    opts, node_id = device.opts, device.node_id
+    t0 = time.monotonic()
+    for attempt in range(opts.boot_retries + 1):
+        if attempt:
+            network.send_message(0x000, bytes((NMT_RESET_NODE, node_id)))  # NMT reset node
+            device.note(
+                f"node {node_id}: no SDO answer within {opts.boot_timeout_s} s: NMT reset node sent "
+                f"({attempt} of {opts.boot_retries}, loop.boot_retries)"
+            )
+        last = _answers(device.node, opts.boot_timeout_s)
+        if last is None:
+            waited = time.monotonic() - t0
+            if attempt:
+                device.note(
+                    f"node {node_id}: answers after the NMT reset ({waited:.1f} s after the first request)"
+                )
+            elif waited > 0.5:
+                device.note(f"node {node_id}: booted late: first SDO answer after {waited:.1f} s")
+            if attempt:
+                # a node reset by us has restarted its NMT state machine: back to PRE-OPERATIONAL
+                network.send_message(0x000, bytes((NMT_ENTER_PRE_OPERATIONAL, node_id)))
+            return
+    raise NodeSetupError(
+        f"node {node_id} did not answer SDO requests within {opts.boot_timeout_s} s"
+        + (f" after each of {opts.boot_retries} NMT reset(s)" if opts.boot_retries else "")
+        + f" ({last}): not booted, or not on the bus (a node slow to boot: loop.boot_timeout_s; one that "
+        "boots only after an NMT reset: loop.boot_retries)"
+    )
 
 
-def _write(node: canopen.RemoteNode, node_id: int, index: int, subindex: int, value: int) -> None:
-    """One SDO download; an abort names the node, the object, the value and the abort."""
-    var = _variable(node, node_id, index, subindex)
-    try:
-        node.sdo.download(index, subindex, var.encode_raw(value))
-    except canopen.SdoAbortedError as err:
-        raise NodeSetupError(
-            f"node {node_id}: writing 0x{index:04X}sub{subindex} = 0x{value & 0xFFFFFFFF:X} refused: {err}"
-        ) from err
-
-
-def _read(node: canopen.RemoteNode, node_id: int, index: int, subindex: int) -> int:
-    var = _variable(node, node_id, index, subindex)
-    try:
-        value = var.decode_raw(node.sdo.upload(index, subindex))
-    except canopen.SdoAbortedError as err:
-        raise NodeSetupError(f"node {node_id}: reading 0x{index:04X}sub{subindex} refused: {err}") from err
-    if not isinstance(value, int):
-        raise NodeSetupError(f"node {node_id}: 0x{index:04X}sub{subindex} is not an integer ({value!r})")
-    return value
-
-
-def _write_verified(node: canopen.RemoteNode, node_id: int, index: int, subindex: int, value: int) -> None:
-    _write(node, node_id, index, subindex, value)
-    _check_reads(node, node_id, index, subindex, value)
-
-
-def _check_reads(node: canopen.RemoteNode, node_id: int, index: int, subindex: int, value: int) -> None:
-    back = _read(node, node_id, index, subindex)
-    if back != value:
-        raise NodeSetupError(
-            f"node {node_id}: 0x{index:04X}sub{subindex} reads back 0x{back & 0xFFFFFFFF:X}, "
-            f"wrote 0x{value & 0xFFFFFFFF:X}"
-        )
-
-
-def _write_interpolation_period(node: canopen.RemoteNode, node_id: int, period_s: float) -> None:
+def _write_interpolation_period(device: _Device, period_s: float) -> None:
     """0x60C2: the drive interpolates each target over this time (index first: no transient 2.5 s)."""
     value, index = interpolation_time_period(period_s)
-    _write_verified(node, node_id, 0x60C2, 2, index)
-    _write_verified(node, node_id, 0x60C2, 1, value)
+    device.write_verified(0x60C2, 2, index)
+    device.write_verified(0x60C2, 1, value)
 
 
-def _write_sync_timing(node: canopen.RemoteNode, node_id: int, period_s: float) -> None:
+def _write_sync_timing(device: _Device, period_s: float) -> None:
     """0x1005 (the device consumes SYNC on 0x080) and 0x1006 (the cycle in µs), where the EDS has them."""
-    od = node.object_dictionary
-    if find_variable(od, 0x1005, 0) is not None:
-        _write_verified(node, node_id, 0x1005, 0, SYNC)
-    if find_variable(od, 0x1006, 0) is not None:
-        _write_verified(node, node_id, 0x1006, 0, round(period_s * 1e6))
+    if device.has(0x1005):
+        device.write_verified(0x1005, 0, SYNC)
+    if device.has(0x1006):
+        device.write_verified(0x1006, 0, round(period_s * 1e6))
 
 
-def _write_following_error(node: canopen.RemoteNode, node_id: int, plan: NodeSetupPlan) -> None:
+def _write_following_error(device: _Device, plan: NodeSetupPlan) -> None:
     """0x6065/0x6066: the drive's own following-error monitor (CiA 402: beyond the window for longer
     than the time -> fault, EMCY 0x8611), where configured and the EDS has the objects."""
     if plan.following_error_window_counts <= 0:
         return
-    od = node.object_dictionary
-    if find_variable(od, 0x6065, 0) is None or find_variable(od, 0x6066, 0) is None:
+    if not device.has(0x6065) or not device.has(0x6066):
         log.warning(
             "node %d: its EDS has no following-error objects 0x6065/0x6066; only the controller's "
             "window (safety.following_window_m) watches it",
-            node_id,
+            device.node_id,
         )
         return
-    _write_verified(node, node_id, 0x6065, 0, plan.following_error_window_counts)
-    _write_verified(node, node_id, 0x6066, 0, plan.following_error_time_ms)
+    device.write_verified(0x6065, 0, plan.following_error_window_counts)
+    device.write_verified(0x6066, 0, plan.following_error_time_ms)
 
 
 ABORT_CONNECTION_QUICK_STOP = 3  # 0x6007 (CiA 402): what a drive does by itself when it loses its master
 
 
-def _write_abort_connection(node: canopen.RemoteNode, node_id: int) -> None:
-    """0x6007: a drive that loses the controller (its heartbeat, 0x1016, or NMT OPERATIONAL, where a
+def _write_abort_connection(device: _Device) -> None:
+    """0x6007: a drive that loses the controller (its heartbeat or guarding, or NMT OPERATIONAL, where a
     foreign master can take it) quick-stops by itself; the controller's own stop may not reach it."""
-    if find_variable(node.object_dictionary, 0x6007, 0) is None:
+    if not device.has(0x6007):
         log.warning(
             "node %d: its EDS has no abort connection option code 0x6007; on a lost master it "
             "reacts as its firmware does",
-            node_id,
+            device.node_id,
         )
         return
-    _write_verified(node, node_id, 0x6007, 0, ABORT_CONNECTION_QUICK_STOP)
+    device.write_verified(0x6007, 0, ABORT_CONNECTION_QUICK_STOP)
 
 
-def configure_pdo(node: canopen.RemoteNode, node_id: int, config: PdoConfig) -> PdoConfig:
+def _write_supervision(device: _Device, plan: NodeSetupPlan) -> None:
+    """How the drive and the controller watch each other: heartbeat (the drive produces one, 0x1017,
+    and consumes the controller's, 0x1016) or node guarding (the controller polls every guard time,
+    0x100C; the drive's life guarding expects a poll within guard time x life time factor, 0x100D)."""
+    opts = device.opts
+    if opts.supervision == "guarding":
+        device.write_verified(0x100C, 0, round(opts.guard_time_s * 1000))
+        device.write_verified(0x100D, 0, opts.life_time_factor)
+        return
+    device.write_verified(0x1017, 0, round(plan.heartbeat_period_s * 1000))
+    device.write_verified(0x1016, 1, (plan.controller_id << 16) | round(plan.heartbeat_consumer_s * 1000))
+
+
+def configure_pdo(device: _Device, config: PdoConfig) -> PdoConfig:
     """Write one PDO by CiA 301's remap procedure, then read every parameter back and compare.
 
     Invalid (COB-ID bit 31), transmission type, count 0, entries, count, valid again. Returns
     what the device reports, which is what the codecs are built from.
     """
     comm, mapping = config.communication_index, config.mapping_index
-    _write(node, node_id, comm, 1, config.cob_id | COB_ID_INVALID)
-    _write(node, node_id, comm, 2, config.transmission_type)
-    _write(node, node_id, mapping, 0, 0)
+    for index, subindex, value in remap_writes(config):
+        device.write(index, subindex, value)
+    device.check_reads(comm, 1, config.cob_id)
+    device.check_reads(comm, 2, config.transmission_type)
+    device.check_reads(mapping, 0, len(config.objects))
     for k, obj in enumerate(config.objects, start=1):
-        _write(node, node_id, mapping, k, obj.entry)
-    _write(node, node_id, mapping, 0, len(config.objects))
-    _write(node, node_id, comm, 1, config.cob_id)
-    _check_reads(node, node_id, comm, 1, config.cob_id)
-    _check_reads(node, node_id, comm, 2, config.transmission_type)
-    _check_reads(node, node_id, mapping, 0, len(config.objects))
-    for k, obj in enumerate(config.objects, start=1):
-        _check_reads(node, node_id, mapping, k, obj.entry)
+        device.check_reads(mapping, k, obj.entry)
     return config
 
 
-def _identity(
-    node: canopen.RemoteNode, node_id: int, expected_vendor: int, expected_product: int
-) -> NodeIdentity:
-    """``node_id`` is the id ``node`` was made with (canopen types ``node.id`` as possibly None)."""
+def read_pdo(device: _Device, direction: PdoDirection, number: int) -> PdoConfig:
+    """A PDO as the device has it (a fixed mapping): its COB-ID and entries read, nothing remapped;
+    a synchronous transmission type (1: every SYNC) written where it is not."""
+    base = 0x1400 if direction == PdoDirection.RECEIVE else 0x1800
+    comm, mapping = base + number - 1, base + number - 1 + 0x200
+    cob_field = device.read(comm, 1)
+    if cob_field & COB_ID_INVALID:
+        raise NodeSetupError(
+            f"node {device.node_id}: its {direction.value}{number} is not valid (0x{comm:04X}sub1 = "
+            f'0x{cob_field:08X}) and its mapping is read, not written (actuators.pdo_mapping = "read")'
+        )
+    if device.read(comm, 2) != TRANSMISSION_SYNCHRONOUS:
+        device.write_verified(comm, 2, TRANSMISSION_SYNCHRONOUS)
+    count = device.read(mapping, 0)
+    objects = tuple(MappedObject.from_entry(device.read(mapping, k)) for k in range(1, count + 1))
+    config = PdoConfig(direction, number, cob_field & COB_ID_MASK, TRANSMISSION_SYNCHRONOUS, objects)
+    device.note(
+        f"node {device.node_id}: {config.name} read from the drive: "
+        + ", ".join(str(o) for o in objects)
+        + ' (actuators.pdo_mapping = "read")'
+    )
+    return config
 
+
+def _identity(device: _Device, expected_vendor: int, expected_product: int) -> NodeIdentity:
     def u32(sub: int) -> int:
-        return int.from_bytes(node.sdo.upload(0x1018, sub), "little")
+        return int.from_bytes(device.upload(0x1018, sub), "little")
 
+    node_id = device.node_id
     ident = NodeIdentity(node_id, u32(1), u32(2), u32(3), u32(4))
     if (ident.vendor_id, ident.product_code) != (expected_vendor, expected_product):
         raise NodeSetupError(
             f"node {node_id}: identity 0x1018 reads vendor 0x{ident.vendor_id:08X} product "
             f"0x{ident.product_code:08X}, expected vendor 0x{expected_vendor:08X} product 0x{expected_product:08X}"
         )
+    for sub, name, got, want, key in (
+        (3, "revision number", ident.revision, device.opts.revision, "actuators.revision_number or [[node]]"),
+        (4, "serial number", ident.serial, device.opts.serial, "[[node]] serial_number"),
+    ):
+        if want is not None and got != want:
+            raise NodeSetupError(
+                f"node {node_id}: identity 0x1018 sub {sub} {name} reads 0x{got:08X}, expected 0x{want:08X} "
+                f"({key}): another device than the one configured"
+            )
     return ident
 
 
-def _announce_environment(node: canopen.RemoteNode, node_id: int, environment: str, task_kind: str) -> None:
-    """Tell a simulated sensor the workpiece the task needs; a real one has no such object."""
+def _reset_fault(device: _Device) -> None:
+    """A drive in FAULT at start: reset over SDO and verified (drivers/fault_reset.py)."""
     try:
-        node.sdo.download(
+        note = reset_fault(
+            device.node_id,
+            device.opts.fault_reset,
+            device.opts.fault_reset_timeout_s,
+            device.write,
+            device.read,
+            has_error_code=device.has(0x603F),
+        )
+    except FaultResetError as err:
+        raise NodeSetupError(str(err)) from err
+    if note:
+        device.note(note)
+
+
+def _announce_environment(device: _Device, environment: str, task_kind: str) -> None:
+    """Tell a simulated sensor the workpiece the task needs; a real one has no such object."""
+    node_id = device.node_id
+    try:
+        device.download(
             SIM_ENVIRONMENT_INDEX, SIM_ENVIRONMENT_SUBINDEX, bytes([ENVIRONMENT_CODES[environment]])
         )
     except canopen.SdoAbortedError as err:
@@ -278,7 +508,7 @@ def _announce_environment(node: canopen.RemoteNode, node_id: int, environment: s
             return
         if err.code != ABORT_DEVICE_STATE:
             raise
-        code = node.sdo.upload(SIM_ENVIRONMENT_INDEX, SIM_ENVIRONMENT_SUBINDEX)[0]
+        code = device.upload(SIM_ENVIRONMENT_INDEX, SIM_ENVIRONMENT_SUBINDEX)[0]
         raise NodeSetupError(
             mismatch_message(ENVIRONMENT_NAMES.get(code, f"code {code}"), environment, task_kind)
         ) from err
@@ -287,41 +517,49 @@ def _announce_environment(node: canopen.RemoteNode, node_id: int, environment: s
     )
 
 
-def _remote_node(
-    network: canopen.Network, node_id: int, eds: Path, plan: NodeSetupPlan
-) -> canopen.RemoteNode:
+def _device(
+    network: canopen.Network, node_id: int, eds: Path, plan: NodeSetupPlan, notes: list[str]
+) -> _Device:
     try:
         node = canopen.RemoteNode(node_id, load_device_description(eds, node_id))
     except PdoMappingError as err:
         raise NodeSetupError(f"node {node_id}: {err}") from err
-    node.sdo.RESPONSE_TIMEOUT = plan.sdo_timeout_s
+    opts = plan.options(node_id)
+    node.sdo.RESPONSE_TIMEOUT = opts.sdo_timeout_s
     network.add_node(node)
-    _wait_until_answering(node, plan.answer_timeout_s)
-    return node
+    device = _Device(node, node_id, opts, notes)
+    _wait_until_answering(device, network)
+    return device
 
 
-def _home(node: canopen.RemoteNode, node_id: int, plan: HomingPlan) -> None:
+def _home(device: _Device, plan: HomingPlan) -> None:
     try:
-        home_drive(
-            node_id,
-            plan,
-            lambda index, sub, value: _write(node, node_id, index, sub, value),
-            lambda index, sub: _read(node, node_id, index, sub),
-        )
+        homed = home_drive(device.node_id, plan, device.write, device.read)
     except HomingError as err:
         raise NodeSetupError(str(err)) from err
+    if not homed:
+        device.note(
+            f"node {device.node_id}: reports itself homed (mode 6, statusword bit 12): homing skipped "
+            "(actuators.homing_skip_if_homed)"
+        )
 
 
-def _configure_drive_pdos(node: canopen.RemoteNode, node_id: int, plan: NodeSetupPlan) -> DriveCodec:
-    od = node.object_dictionary
+def _configure_drive_pdos(device: _Device, plan: NodeSetupPlan) -> DriveCodec:
+    od = device.node.object_dictionary
+    node_id = device.node_id
+    where = f"node {node_id}"
     try:
-        rpdo = planned_pdo(od, PdoDirection.RECEIVE, 1, node_id, plan.drive_rpdo_objects)
-        tpdo = planned_pdo(od, PdoDirection.TRANSMIT, 1, node_id, plan.drive_tpdo_objects)
-        rpdo, tpdo = configure_pdo(node, node_id, rpdo), configure_pdo(node, node_id, tpdo)
-        where = f"node {node_id}"
+        if device.opts.pdo_mapping == "read":
+            rpdo = read_pdo(device, PdoDirection.RECEIVE, 1)
+            tpdo = read_pdo(device, PdoDirection.TRANSMIT, 1)
+            where = f'node {node_id} (its mapping as read: actuators.pdo_mapping = "read")'
+        else:
+            rpdo = planned_pdo(od, PdoDirection.RECEIVE, 1, node_id, plan.drive_rpdo_objects)
+            tpdo = planned_pdo(od, PdoDirection.TRANSMIT, 1, node_id, plan.drive_tpdo_objects)
+            rpdo, tpdo = configure_pdo(device, rpdo), configure_pdo(device, tpdo)
         # The effort's scale is the drive's own rated torque (force, for a linear motor), read from it.
         maps_effort = any((o.index, o.subindex) == TORQUE_ACTUAL for o in tpdo.objects)
-        rated = _read(node, node_id, *RATED_TORQUE) if maps_effort else 0
+        rated = device.read(*RATED_TORQUE) if maps_effort else 0
         return DriveCodec(
             layout(rpdo.objects, od, where),
             layout(tpdo.objects, od, where),
@@ -331,17 +569,16 @@ def _configure_drive_pdos(node: canopen.RemoteNode, node_id: int, plan: NodeSetu
             effort_per_count(rated),
         )
     except PdoMappingError as err:
-        raise NodeSetupError(str(err)) from err
+        raise NodeSetupError(f"{err}: the controller cannot run this drive with it") from err
 
 
-def _configure_sensor_pdos(
-    node: canopen.RemoteNode, node_id: int
-) -> tuple[SensorFrameCodec, SensorFrameCodec]:
-    od = node.object_dictionary
+def _configure_sensor_pdos(device: _Device) -> tuple[SensorFrameCodec, SensorFrameCodec]:
+    od = device.node.object_dictionary
+    node_id = device.node_id
     codecs = []
     try:
         for number in (1, 2):
-            tpdo = configure_pdo(node, node_id, planned_pdo(od, PdoDirection.TRANSMIT, number, node_id, ()))
+            tpdo = configure_pdo(device, planned_pdo(od, PdoDirection.TRANSMIT, number, node_id, ()))
             where = f"node {node_id} {tpdo.name}"
             codecs.append(SensorFrameCodec(layout(tpdo.objects, od, where), where, tpdo.cob_id))
         return force_then_torque(codecs[0], codecs[1], node_id)
@@ -360,9 +597,32 @@ def force_then_torque(
     return force, torque
 
 
+def _configure_drive(device: _Device, j: int, plan: NodeSetupPlan) -> tuple[NodeIdentity, DriveCodec, int]:
+    ident = _identity(device, plan.vendor_id, plan.drive_product_code)
+    _reset_fault(device)
+    homing = plan.homing[j] if plan.homing is not None else None
+    if homing is not None:
+        _home(device, homing)
+    device.write(0x6060, 0, MODE_CYCLIC_SYNC_POSITION)
+    mode = device.read(0x6061, 0)
+    if mode != MODE_CYCLIC_SYNC_POSITION:
+        raise NodeSetupError(
+            f"node {device.node_id}: mode of operation display 0x6061 reads {mode}, expected 8 (CSP)"
+        )
+    _write_supervision(device, plan)
+    _write_abort_connection(device)
+    if plan.cycle_period_s > 0:
+        _write_sync_timing(device, plan.cycle_period_s)
+        _write_interpolation_period(device, plan.cycle_period_s)
+    _write_following_error(device, plan)
+    codec = _configure_drive_pdos(device, plan)
+    return ident, codec, device.read(0x6064, 0)
+
+
 def configure_nodes(bus: can.BusABC, plan: NodeSetupPlan) -> NodeSetupReport:
-    """NMT pre-operational; per node: identity, mode, heartbeats (the drives consume the controller's),
-    the drives' reaction to a lost master (0x6007), SYNC timing, PDOs; NMT start.
+    """NMT pre-operational; per node: boot (timeout, NMT reset retries), identity, a fault at start
+    reset, homing, mode, supervision (heartbeat or guarding), the drives' reaction to a lost master
+    (0x6007), SYNC timing, PDOs (written, or read where fixed); NMT start.
 
     Every value written is read back; the PDO codecs are built from what the devices report.
     """
@@ -373,56 +633,63 @@ def configure_nodes(bus: can.BusABC, plan: NodeSetupPlan) -> NodeSetupReport:
     # descriptor" and a traceback)
     network.NOTIFIER_CYCLE = 0.1
     network.connect()
+    notes: list[str] = []
+    client_log = logging.getLogger("canopen.sdo.client")
+    client_log.addFilter(_quiet_client)
     try:
         identities = []
         positions = []
         drive_codecs = []
         sensor_codecs = None
         network.nmt.state = "PRE-OPERATIONAL"  # broadcast
-        hb_ms = round(plan.heartbeat_period_s * 1000)
-        consumer = (plan.controller_id << 16) | round(plan.heartbeat_consumer_s * 1000)
+        devices = []
         for j, node_id in enumerate(plan.drive_ids):
-            node = _remote_node(network, node_id, plan.drive_eds, plan)
-            identities.append(_identity(node, node_id, plan.vendor_id, plan.drive_product_code))
-            if plan.homing is not None:
-                _home(node, node_id, plan.homing[j])
-            _write(node, node_id, 0x6060, 0, MODE_CYCLIC_SYNC_POSITION)
-            mode = _read(node, node_id, 0x6061, 0)
-            if mode != MODE_CYCLIC_SYNC_POSITION:
-                raise NodeSetupError(
-                    f"node {node_id}: mode of operation display 0x6061 reads {mode}, expected 8 (CSP)"
-                )
-            _write_verified(node, node_id, 0x1017, 0, hb_ms)
-            _write_verified(node, node_id, 0x1016, 1, consumer)
-            _write_abort_connection(node, node_id)
-            if plan.cycle_period_s > 0:
-                _write_sync_timing(node, node_id, plan.cycle_period_s)
-                _write_interpolation_period(node, node_id, plan.cycle_period_s)
-            _write_following_error(node, node_id, plan)
-            drive_codecs.append(_configure_drive_pdos(node, node_id, plan))
-            positions.append(_read(node, node_id, 0x6064, 0))
+            device = _device(network, node_id, plan.drive_eds, plan, notes)
+            devices.append(device)
+            ident, codec, position = _configure_drive(device, j, plan)
+            identities.append(ident)
+            drive_codecs.append(codec)
+            positions.append(position)
         if plan.sensor_id is not None:
-            node = _remote_node(network, plan.sensor_id, plan.sensor_eds, plan)
+            device = _device(network, plan.sensor_id, plan.sensor_eds, plan, notes)
+            devices.append(device)
             vendor = plan.vendor_id if plan.sensor_vendor_id is None else plan.sensor_vendor_id
-            identities.append(_identity(node, plan.sensor_id, vendor, plan.sensor_product_code))
-            _write_verified(node, plan.sensor_id, 0x1017, 0, hb_ms)
+            identities.append(_identity(device, vendor, plan.sensor_product_code))
+            device.write_verified(0x1017, 0, round(plan.heartbeat_period_s * 1000))
             if plan.cycle_period_s > 0:
-                _write_sync_timing(node, plan.sensor_id, plan.cycle_period_s)
-            sensor_codecs = _configure_sensor_pdos(node, plan.sensor_id)
+                _write_sync_timing(device, plan.cycle_period_s)
+            sensor_codecs = _configure_sensor_pdos(device)
             if plan.sim_environment is not None:
-                _announce_environment(node, plan.sensor_id, plan.sim_environment, plan.task_kind)
+                _announce_environment(device, plan.sim_environment, plan.task_kind)
+        for device in devices:
+            if device.retried:
+                device.note(
+                    f"node {device.node_id}: {device.retried} SDO transfer(s) repeated (loop.sdo_retries)"
+                )
         network.nmt.state = "OPERATIONAL"  # broadcast start
         return NodeSetupReport(
-            tuple(identities), tuple(positions), time.monotonic() - t0, tuple(drive_codecs), sensor_codecs
+            tuple(identities),
+            tuple(positions),
+            time.monotonic() - t0,
+            tuple(drive_codecs),
+            sensor_codecs,
+            tuple(notes),
         )
     except canopen.SdoAbortedError as err:
         raise NodeSetupError(f"SDO aborted during set-up: {err}") from err
     except canopen.SdoCommunicationError as err:
         raise NodeSetupError(f"SDO communication failed during set-up: {err}") from err
     finally:
+        client_log.removeFilter(_quiet_client)
         if network.notifier is not None:
             network.notifier.stop(network.NOTIFIER_SHUTDOWN_TIMEOUT)  # returns once the thread has ended
         network.bus = None  # the bus stays open for the cyclic loop; canopen must not close it
+
+
+def _quiet_client(record: logging.LogRecord) -> bool:
+    """canopen's SDO client logs an ERROR line for each timed-out transfer; set-up waits for booting
+    nodes by timing out, retries, and names a real failure in its own error: not a library's line."""
+    return not record.getMessage().startswith("Transfer aborted by client")
 
 
 def description_drive_codec(

@@ -315,3 +315,17 @@ def planned_pdo(
     config = PdoConfig(direction, number, default.cob_id, TRANSMISSION_SYNCHRONOUS, objects)
     layout(objects, od, f"node {node_id} {config.name}")  # refuses a mapping over 8 bytes before any write
     return config
+
+
+def remap_writes(config: PdoConfig) -> list[tuple[int, int, int]]:
+    """The (index, subindex, value) SDO writes of CiA 301's remap procedure for ``config``: invalid
+    (COB-ID bit 31), transmission type, count 0, entries, count, valid again."""
+    comm, mapping = config.communication_index, config.mapping_index
+    return [
+        (comm, 1, config.cob_id | COB_ID_INVALID),
+        (comm, 2, config.transmission_type),
+        (mapping, 0, 0),
+        *((mapping, k, obj.entry) for k, obj in enumerate(config.objects, start=1)),
+        (mapping, 0, len(config.objects)),
+        (comm, 1, config.cob_id),
+    ]

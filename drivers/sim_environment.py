@@ -20,6 +20,7 @@ ENVIRONMENT_CODES = {"free": 0, "workpiece": 1}  # UNSIGNED8
 ENVIRONMENT_NAMES = {code: name for name, code in ENVIRONMENT_CODES.items()}
 # CiA 301 SDO abort codes
 ABORT_OBJECT_DOES_NOT_EXIST = 0x06020000
+ABORT_VALUE_RANGE_CODE = 0x06090030  # value range of parameter exceeded
 ABORT_DEVICE_STATE = 0x08000022  # data cannot be transferred or stored because of the present device state
 
 ENVIRONMENT_WORDS = {"free": "free space", "workpiece": "the contour task's workpiece"}

@@ -9,17 +9,28 @@ objects applied to the drive (controlword 0x6040, target position 0x607A).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from pathlib import Path
 
+from canopen import SdoAbortedError
+
 from controller.config import Config
+from controller.errors import CheopeError
 from drivers.node_setup import DRIVE_EDS, SENSOR_EDS, device_description_path, naming_the_file
-from drivers.pdo_codec import CONTROLWORD, RATED_TORQUE, TARGET_POSITION, saturating_i16
-from drivers.pdo_mapping import PdoDirection, load_device_description, planned_pdo
+from drivers.pdo_codec import CONTROLWORD, RATED_TORQUE, TARGET_POSITION, DriveCodec, saturating_i16
+from drivers.pdo_mapping import (
+    PdoDirection,
+    layout,
+    load_device_description,
+    objects_from_references,
+    planned_pdo,
+    remap_writes,
+)
 from sim_backend.drive import SimulatedDrive
 from sim_backend.force_sensor import SimulatedForceSensor
 from sim_backend.pdo_parameters import DevicePdo, DevicePdos, value_packer
+from sim_backend.quirks import Quirk, quirks_of
 
 
 @dataclass
@@ -55,6 +66,14 @@ def device_pdos_from_file(eds: Path, node_id: int) -> DevicePdos:
         return DevicePdos.from_description(load_device_description(eds, node_id), node_id)
 
 
+class PdoWriteRefusedError(CheopeError):
+    """A write of the remap procedure a simulated device refused (what set-up would be told by SDO)."""
+
+    def __init__(self, node_id: int, index: int, subindex: int, value: int, abort: SdoAbortedError) -> None:
+        super().__init__(f"node {node_id}: writing 0x{index:04X}sub{subindex} = 0x{value:X} refused: {abort}")
+        self.index, self.code = index, abort.code
+
+
 class SimulatedPdos:
     def __init__(
         self, cfg: Config, drives: list[SimulatedDrive], sensor: SimulatedForceSensor | None
@@ -74,17 +93,51 @@ class SimulatedPdos:
         self._drive_tpdos: list[_Tpdo] = []
         self._sensor_tpdos: list[_Tpdo] = []
         self._rpdo_slots: list[tuple[int, int]] = []
+        for node_id, device in zip(self.drive_ids, self.drive_pdos, strict=True):
+            if Quirk.FIXED_MAPPING in quirks_of(cfg.sim.drive.quirks, node_id, is_drive=True):
+                objects = objects_from_references(
+                    cfg.sim.quirk.fixed_tpdo_objects,
+                    device.od,
+                    f"sim.quirk.fixed_tpdo_objects (node {node_id})",
+                )
+                tpdo = device.pdo(PdoDirection.TRANSMIT, 1).config
+                device.fix(tpdo.with_objects(objects))
         for device in (*self.drive_pdos, *((self.sensor_pdos,) if self.sensor_pdos else ())):
             device.on_change = self._rebuild
         self._rebuild()
 
-    def apply_configured_mapping(self, cfg: Config) -> None:
-        """What the controller's set-up writes over SDO (the loopback has no SDO): config + EDS mapping."""
+    def drive_codec(self, j: int) -> DriveCodec:
+        """Drive ``j``'s codec from its mapping as it has it now (what set-up reads where it does not write)."""
+        device, node_id = self.drive_pdos[j], self.drive_ids[j]
+        rpdo, tpdo = device.pdo(PdoDirection.RECEIVE, 1).config, device.pdo(PdoDirection.TRANSMIT, 1).config
+        where = f"node {node_id}"
+        return DriveCodec(
+            layout(rpdo.objects, device.od, where),
+            layout(tpdo.objects, device.od, where),
+            where,
+            rpdo.cob_id,
+            tpdo.cob_id,
+        )
+
+    def apply_configured_mapping(self, cfg: Config, read: Collection[int] = ()) -> None:
+        """What the controller's set-up writes over SDO (the loopback has no SDO): config + EDS mapping,
+        except to the drives in ``read`` (actuators.pdo_mapping = "read": theirs is taken as it is).
+
+        A write a drive refuses (a fixed mapping) raises ``PdoWriteRefusedError`` naming it."""
         for node_id, device in zip(self.drive_ids, self.drive_pdos, strict=True):
-            device.apply(planned_pdo(device.od, PdoDirection.RECEIVE, 1, node_id, cfg.actuators.rpdo_objects))
-            device.apply(
-                planned_pdo(device.od, PdoDirection.TRANSMIT, 1, node_id, cfg.actuators.tpdo_objects)
-            )
+            if node_id in read:
+                continue
+            for direction, objects in (
+                (PdoDirection.RECEIVE, cfg.actuators.rpdo_objects),
+                (PdoDirection.TRANSMIT, cfg.actuators.tpdo_objects),
+            ):
+                for index, subindex, value in remap_writes(
+                    planned_pdo(device.od, direction, 1, node_id, objects)
+                ):
+                    try:
+                        device.write(index, subindex, value)
+                    except SdoAbortedError as err:
+                        raise PdoWriteRefusedError(node_id, index, subindex, value, err) from err
         if self.sensor_pdos is not None and self.sensor_id is not None:
             for number in (1, 2):
                 self.sensor_pdos.apply(

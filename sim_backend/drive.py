@@ -27,7 +27,11 @@ Behaviour, as a real CSP drive:
 - the abort connection option code 0x6007 (CiA 402), the drive's own reaction to losing its
   master while enabled: the controller's heartbeat not heard for the consumer time (0x1016,
   EMCY 0x8130) or NMT leaving OPERATIONAL (PRE-OPERATIONAL or STOPPED, where RPDOs are no
-  longer processed): 0 nothing, 1 FAULT, 2 disable voltage, 3 quick stop.
+  longer processed): 0 nothing, 1 FAULT, 2 disable voltage, 3 quick stop;
+- where ``quirks`` (``DriveQuirks``, sim_backend/quirks.py) say so, a real drive's habits: a
+  boot in FAULT until its power stage is ready, a fault reset that needs bit 7 held, slow
+  transitions towards OPERATION ENABLED, homing without "attained", no homing mode, a warning
+  EMCY at each enable. The ideal drive has none.
 
 Time is an argument everywhere (``advance(now_s)``); the process shell reads the clock.
 """
@@ -35,9 +39,10 @@ Time is an argument everywhere (``advance(now_s)``); the process shell reads the
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from controller.core.cia402 import (
+    CW_FAULT_RESET,
     CW_HOMING_START,
     MODE_CYCLIC_SYNC_POSITION,
     MODE_HOMING,
@@ -47,6 +52,7 @@ from controller.core.cia402 import (
     SW_REMOTE,
     SW_TARGET_REACHED,
     SW_VOLTAGE_ENABLED,
+    SW_WARNING,
     PowerState,
     device_transition,
     statusword_bits,
@@ -61,6 +67,9 @@ EMCY_FORCED_FAULT = 0x5000  # device hardware, used by fault injection
 EMCY_FOLLOWING_ERROR = 0x8611  # CiA 402: following error (window 0x6065 exceeded for longer than 0x6066)
 EMCY_SYNC_PERIOD = 0x8700  # CiA 402 "sync controller": the SYNC interval is not the configured period
 EMCY_COMMUNICATION = 0x8100  # CiA 301 communication error: here NMT left OPERATIONAL while enabled
+EMCY_DC_LINK_UNDERVOLTAGE = 0x3220  # CiA 402: the power stage's DC link is not up (quirk boots_in_fault)
+ERROR_REGISTER_GENERIC = 0x01  # CiA 301 0x1001 bit 0
+ERROR_REGISTER_MANUFACTURER = 0x80  # bit 7: a manufacturer-specific error (EMCY 0xFF00-0xFFFF)
 # 0x6007 abort connection option codes (CiA 402)
 ABORT_NO_ACTION, ABORT_FAULT, ABORT_DISABLE_VOLTAGE, ABORT_QUICK_STOP = 0, 1, 2, 3
 
@@ -72,6 +81,36 @@ ABORT_NO_ACTION, ABORT_FAULT, ABORT_DISABLE_VOLTAGE, ABORT_QUICK_STOP = 0, 1, 2,
 # --no-realtime, two runs; it skips the deadlines it missed), and that must not fault the drives.
 SYNC_PERIOD_WINDOW = 64
 SYNC_PERIOD_MISMATCH_FACTOR = 2.0
+
+
+def error_register(code: int) -> int:
+    """The error register (0x1001) an EMCY with ``code`` carries: none for "error reset"."""
+    if code == EMCY_NO_ERROR:
+        return 0
+    return ERROR_REGISTER_MANUFACTURER if code >= 0xFF00 else ERROR_REGISTER_GENERIC
+
+
+@dataclass(frozen=True)
+class DriveQuirks:
+    """A real drive's habits (sim_backend/quirks.py names and documents them); all off: ideal."""
+
+    boot_fault_code: int = 0  # boots in FAULT with this 0x603F until its power stage is ready (0: no)
+    power_stage_ready_s: float = 0.0  # ... this long after boot: until then a reset is refused
+    fault_reset_hold_s: float = 0.0  # bit 7 must be held high this long to reset (0: the edge)
+    transition_delay_s: float = 0.0  # each transition towards OPERATION ENABLED takes this long
+    homing_attained_bit: bool = True  # False: homing never sets statusword bit 12
+    homing_mode: bool = True  # False: no homing mode (absolute encoder, 0x6060 = 6 refused)
+    warning_emcy_code: int = 0  # a warning EMCY at each enable (0: none)
+
+
+# Transitions that wait for the power stage or the brake on a slow drive (CiA 402 2, 3, 4, 16):
+# towards OPERATION ENABLED. Switching off or stopping is never delayed.
+_UP = {
+    (PowerState.SWITCH_ON_DISABLED, PowerState.READY_TO_SWITCH_ON),
+    (PowerState.READY_TO_SWITCH_ON, PowerState.SWITCHED_ON),
+    (PowerState.SWITCHED_ON, PowerState.OPERATION_ENABLED),
+    (PowerState.QUICK_STOP_ACTIVE, PowerState.OPERATION_ENABLED),
+}
 
 
 @dataclass(frozen=True)
@@ -140,11 +179,36 @@ class SimulatedDrive:
     following_error_window: float = 0.0  # 0x6065 [unit]; 0: no monitoring
     following_error_time_s: float = 0.0  # 0x6066
     _following_error_since_s: float | None = None
+    interpolation: list[int] = field(default_factory=lambda: [0, -3])  # 0x60C2 sub 1, sub 2 (EDS defaults)
+    guarding: list[int] = field(default_factory=lambda: [0, 0])  # 0x100C guard time [ms], 0x100D factor
+    quirks: DriveQuirks = field(default_factory=DriveQuirks)
+    homed: bool = False  # homing attained since the last boot (an absolute encoder: always)
+    warning: bool = False  # statusword bit 7: a warning is active (quirk warning_emcy_on_enable)
+    booted_s: float | None = None  # when it (re)booted, on its clock (its first advance after it)
+    fault_cause_until_s: float | None = None  # a fault whose cause lasts: until then a reset is refused
+    _pending: tuple[PowerState, float] | None = None  # a slow transition: (state, when it completes)
+    _reset_high_since_s: float | None = None  # bit 7 high since (quirk fault_reset_hold)
 
     def __post_init__(self) -> None:
         self.received_target = self.position
         self.latched_target = self.position
         self.previous_target = self.position
+        self._boot()
+
+    def _boot(self) -> None:
+        """Power-on: an absolute encoder knows where it is; a drive whose power stage comes up late
+        starts in FAULT, and says so by EMCY (0x603F holds the code)."""
+        self.homed = not self.quirks.homing_mode
+        self.booted_s = None
+        self._pending = None
+        self._reset_high_since_s = None
+        self.warning = False
+        q = self.quirks
+        if q.boot_fault_code:
+            self.power = PowerState.FAULT
+            self.error_code = q.boot_fault_code
+            self.fault_cause_until_s = -1.0  # from the boot on: set at the first advance
+            self.pending_emcy.append(q.boot_fault_code)
 
     # -- protocol ---------------------------------------------------------------------------
 
@@ -152,6 +216,64 @@ class SimulatedDrive:
         self.received_target = self.from_counts(target_counts)
         self.target_received = True
         self.on_controlword(controlword)
+
+    def write_object(self, index: int, subindex: int, value: int) -> bool:  # noqa: C901  (one branch per object a drive acts on)
+        """An SDO write of one of its objects (CiA 301/402), positions in counts; False when the
+        value is one the drive refuses (a mode of operation it does not have)."""
+        counts = self.params.counts_per_unit
+        if index == 0x1006:
+            self.communication_cycle_period_s = value * 1e-6
+        elif index == 0x6060:
+            if value == MODE_HOMING and not self.quirks.homing_mode:
+                return False
+            self.set_mode(value)
+        elif index == 0x6040:
+            self.on_controlword(value)
+        elif index == 0x607A:
+            self.received_target = self.from_counts(value)
+        elif index == 0x6098:  # the homing objects (CiA 402), positions in counts
+            self.homing_settings = replace(self.homing_settings, method=value)
+        elif index == 0x607C:
+            self.homing_settings = replace(self.homing_settings, home_offset=value / counts)
+        elif index == 0x6099 and subindex == 1:
+            self.homing_settings = replace(self.homing_settings, switch_speed=value / counts)
+        elif index == 0x6099 and subindex == 2:
+            self.homing_settings = replace(self.homing_settings, zero_speed=value / counts)
+        elif index == 0x609A:
+            self.homing_settings = replace(self.homing_settings, acceleration=value / counts)
+        elif index == 0x6065:  # following error window [counts]; 0xFFFFFFFF: off (CiA 402)
+            self.following_error_window = 0.0 if value == 0xFFFFFFFF else value / counts
+        elif index == 0x6066:  # following error time out [ms]
+            self.following_error_time_s = value / 1000.0
+        elif index == 0x6007:  # abort connection option code (CiA 402)
+            self.abort_connection_option = value
+        elif index == 0x1016 and subindex == 1:
+            # CiA 301: bits 16..23 node id, bits 0..15 consumer time [ms]
+            self.heartbeat_consumer_s = (value & 0xFFFF) / 1000.0
+        elif index in (0x100C, 0x100D):
+            # node guarding (CiA 301): guard time [ms] x life time factor is the life time within
+            # which the master's next poll must come; the drive's life guarding (EMCY 0x8130)
+            self.guarding[0 if index == 0x100C else 1] = value
+            guard_ms, factor = self.guarding
+            self.heartbeat_consumer_s = guard_ms * factor / 1000.0
+        elif index == 0x60C2 and subindex in (1, 2):
+            # CiA 402 interpolation time period: value (sub 1) x 10^index (sub 2) s; 0: the drive
+            # takes the measured SYNC interval
+            self.interpolation[subindex - 1] = value
+            self.interpolation_period_s = self.interpolation[0] * 10.0 ** self.interpolation[1]
+        return True
+
+    def read_object(self, index: int) -> int | None:
+        """An SDO read of one of its live objects (None: the object dictionary's stored value)."""
+        if index == 0x6041:
+            return self.statusword()
+        if index == 0x6064:
+            return self.position_counts()
+        if index == 0x6061:
+            return self.mode_of_operation
+        if index == 0x603F:
+            return self.error_code
+        return None
 
     def from_counts(self, counts: int) -> float:
         """A position the master sent, in the drive's true coordinates."""
@@ -190,20 +312,77 @@ class SimulatedDrive:
             self.encoder_offset = self.homing_settings.home_offset - run.home_position
             run.home_position = math.nan  # applied once
             self.latched_target = self.previous_target = self.received_target = self.position
+            self.homed = True
 
     def _on_power_controlword(self, controlword: int) -> None:
         new = device_transition(self.power, controlword, self.last_controlword)
+        reset_bit = bool(controlword & CW_FAULT_RESET)
+        if self.power == PowerState.FAULT:
+            if not reset_bit:
+                self._reset_high_since_s = None
+            elif new != self.power and self.quirks.fault_reset_hold_s > 0.0:
+                # the edge starts the hold; the reset comes when bit 7 has stayed high long enough
+                self._reset_high_since_s = self.time_s if self.time_s is not None else 0.0
+                new = self.power
+            if new != self.power and self._cause_present():
+                new = self.power  # refused: the cause of the fault is still there
+        if new != self.power and (self.power, new) in _UP and self.quirks.transition_delay_s > 0.0:
+            pending = self._pending
+            if pending is None or pending[0] != new:
+                now = self.time_s if self.time_s is not None else 0.0
+                self._pending = (new, now + self.quirks.transition_delay_s)
+            new = self.power
+        elif new != self.power:
+            self._pending = None  # switching off or stopping: at once, whatever was under way
         if new != self.power:
-            if self.power == PowerState.FAULT:
-                self.error_code = EMCY_NO_ERROR
-                self.pending_emcy.append(EMCY_NO_ERROR)  # "error reset" EMCY
-            if new == PowerState.OPERATION_ENABLED:
-                # Enabling starts from where the carriage is: no jump.
-                self.latched_target = self.previous_target = self.received_target = self.position
-                self.velocity = 0.0
-                self.target_step = 0.0
-            self.power = new
+            self._set_power(new)
         self.last_controlword = controlword
+
+    def _set_power(self, new: PowerState) -> None:
+        if self.power == PowerState.FAULT:
+            self.error_code = EMCY_NO_ERROR
+            self.fault_cause_until_s = None
+            self._reset_high_since_s = None
+            self.pending_emcy.append(EMCY_NO_ERROR)  # "error reset" EMCY
+        if new == PowerState.OPERATION_ENABLED:
+            # Enabling starts from where the carriage is: no jump.
+            self.latched_target = self.previous_target = self.received_target = self.position
+            self.velocity = 0.0
+            self.target_step = 0.0
+            if self.quirks.warning_emcy_code:
+                self.warning = True
+                self.pending_emcy.append(self.quirks.warning_emcy_code)
+        elif self.power == PowerState.OPERATION_ENABLED:
+            self.warning = False
+        self.power = new
+
+    def _cause_present(self) -> bool:
+        """Whether the current fault's cause is still there (a reset is then refused)."""
+        until = self.fault_cause_until_s
+        if until is None:
+            return False
+        return until < 0.0 or self.time_s is None or self.time_s < until
+
+    def _timed_changes(self, now_s: float) -> None:
+        """What happens by itself with time: the boot's clock, a slow transition completing, a
+        fault reset held long enough."""
+        if self.booted_s is None:
+            self.booted_s = now_s
+            if self.fault_cause_until_s is not None and self.fault_cause_until_s < 0.0:
+                self.fault_cause_until_s = now_s + self.quirks.power_stage_ready_s
+        pending = self._pending
+        if pending is not None and now_s >= pending[1]:
+            self._pending = None
+            if (self.power, pending[0]) in _UP:
+                self._set_power(pending[0])
+        since = self._reset_high_since_s
+        if (
+            since is not None
+            and self.power == PowerState.FAULT
+            and now_s - since >= self.quirks.fault_reset_hold_s
+            and not self._cause_present()
+        ):
+            self._set_power(PowerState.SWITCH_ON_DISABLED)  # transition 15, after the hold
 
     def on_sync(self, now_s: float) -> None:
         self.advance(now_s, check_sync_timeout=False)
@@ -252,16 +431,23 @@ class SimulatedDrive:
         sw = statusword_bits(self.power) | SW_REMOTE
         if self.power in (PowerState.SWITCHED_ON, PowerState.OPERATION_ENABLED, PowerState.QUICK_STOP_ACTIVE):
             sw |= SW_VOLTAGE_ENABLED
-        if self.power == PowerState.OPERATION_ENABLED and self.mode_of_operation == MODE_HOMING:
+        if self.warning:
+            sw |= SW_WARNING
+        attained = SW_HOMING_ATTAINED if self.quirks.homing_attained_bit else 0
+        if self.mode_of_operation == MODE_HOMING and self.power != PowerState.OPERATION_ENABLED:
+            # not running a method: whether the drive is homed (what canopen's is_homed reads)
+            if self.homed:
+                sw |= SW_TARGET_REACHED | attained
+        elif self.power == PowerState.OPERATION_ENABLED and self.mode_of_operation == MODE_HOMING:
             # CiA 402 homing: 10 reached (or interrupted), 12 attained, 13 error; none while moving
             run = self.homing
             phase = run.phase if run is not None else HomingPhase.IDLE
             if phase == HomingPhase.ATTAINED:
-                sw |= SW_TARGET_REACHED | SW_HOMING_ATTAINED
+                sw |= SW_TARGET_REACHED | attained
             elif phase == HomingPhase.ERROR:
                 sw |= SW_HOMING_ERROR
             elif phase == HomingPhase.IDLE:
-                sw |= SW_TARGET_REACHED
+                sw |= SW_TARGET_REACHED | (attained if self.homed else 0)
         elif self.power == PowerState.OPERATION_ENABLED:
             sw |= SW_FOLLOWING_COMMAND
             if abs(self.position - self.latched_target) * self.params.counts_per_unit < 10:
@@ -296,13 +482,17 @@ class SimulatedDrive:
             self._quick_stop(error_code)
 
     def reboot(self) -> None:
-        """Power cycle of the drive's electronics: the power state machine starts again, the carriage stays."""
+        """Power cycle of the drive's electronics: the power state machine starts again, the carriage
+        stays; an incremental encoder has lost its home (an absolute one has not)."""
         self.power = PowerState.SWITCH_ON_DISABLED
         self.velocity = 0.0
         self.last_controlword = 0
         self.latched_target = self.previous_target = self.received_target = self.position
         self.target_step = 0.0
         self.error_code = EMCY_NO_ERROR
+        self.fault_cause_until_s = None
+        self.homing = None
+        self._boot()
 
     def force_fault(self, error_code: int) -> None:
         if self.power != PowerState.FAULT:
@@ -377,7 +567,9 @@ class SimulatedDrive:
         """
         if self.time_s is None:
             self.time_s = now_s
+            self._timed_changes(now_s)
             return
+        self._timed_changes(now_s)
         self._watchdog(now_s, check_sync_timeout)
         span = now_s - self.time_s
         if span <= 0.0:

@@ -280,6 +280,8 @@ def tpdo_payload(schedule: FaultSchedule, node: int, payload: bytes, now_s: floa
 # SocketCAN error classes (linux/can/error.h) of the error frames the simulated bus reports
 ERROR_CLASS_CONTROLLER = 0x004
 ERROR_CLASS_BUS_OFF = 0x040  # drivers/cyclic_exchange.py CAN_ERR_BUSOFF (a test holds them equal)
+ERROR_CLASS_RESTARTED = 0x100  # the controller restarted after a bus-off (CAN_ERR_RESTARTED)
+ERROR_CONTROLLER_PASSIVE = 0x30  # data[1] of an ERROR_CLASS_CONTROLLER frame: RX and TX passive
 
 
 @dataclass(frozen=True)

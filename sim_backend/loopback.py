@@ -15,6 +15,7 @@ the way unless a fault says so, and every frame arrives within its cycle unless 
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from collections.abc import Callable
 
@@ -23,30 +24,27 @@ import numpy as np
 
 from controller.assembly import position_plausibility, safety_config
 from controller.config import Config
-from controller.core.cia402 import (
-    CW_DISABLE_VOLTAGE,
-    CW_ENABLE_OPERATION,
-    CW_HOMING_START,
-    CW_SHUTDOWN,
-    CW_SWITCH_ON,
-    MODE_HOMING,
-    SW_HOMING_ATTAINED,
-)
+from controller.core.cia402 import MODE_CYCLIC_SYNC_POSITION
 from controller.core.cycle_data import BusFeedback, CycleOutputs
+from controller.node_plan import homing_plans, node_options
 from controller.robots.registry import actuator_units
 from drivers import cob_ids
 from drivers.cyclic_exchange import CyclicExchange, ExchangeCounters
-from drivers.homing import HomingError
+from drivers.fault_reset import reset_fault
+from drivers.homing import home_drive
 from drivers.node_setup import (
     ABORT_CONNECTION_QUICK_STOP,
     DRIVE_EDS,
     SENSOR_EDS,
+    NodeSetupError,
     description_drive_codec,
     description_sensor_codecs,
     device_description_path,
+    refusal_hint,
 )
 from drivers.pdo_codec import PositionScale
-from sim_backend.device_pdos import SimulatedPdos
+from sim_backend.device_pdos import PdoWriteRefusedError, SimulatedPdos
+from sim_backend.drive import SimulatedDrive, error_register
 from sim_backend.environment import Environment
 from sim_backend.fault_injection import (
     NMT_ENTER_PRE_OPERATIONAL,
@@ -62,8 +60,9 @@ from sim_backend.fault_injection import (
     spoofed_sensor_frame,
     tpdo_payload,
 )
-from sim_backend.homing import HomingSettings
+from sim_backend.pdo_parameters import ABORT_VALUE_RANGE
 from sim_backend.plant import RobotPlant
+from sim_backend.quirks import BusOffSchedule, Quirk, bus_has
 
 NMT_OPERATIONAL, NMT_STOPPED, NMT_PRE_OPERATIONAL, NMT_BOOT_UP = 5, 4, 127, 0
 
@@ -95,6 +94,36 @@ class DeviceBus(can.BusABC):
         return self.recv(), False
 
 
+class _DriveTime:
+    """A drive's simulated time during set-up: sleeping advances the drive."""
+
+    def __init__(self, drive: SimulatedDrive, step_s: float) -> None:
+        self.drive, self.step_s, self.t = drive, step_s, 0.0
+        drive.advance(0.0)
+
+    def now(self) -> float:
+        return self.t
+
+    def sleep(self, seconds: float) -> None:
+        end = self.t + seconds
+        while self.t < end:
+            self.t = min(end, self.t + self.step_s)
+            self.drive.advance(self.t)
+
+
+def _sdo_on(drive: SimulatedDrive, node_id: int) -> Callable[[int, int, int], None]:
+    """Set-up's SDO writes as the drive takes them; a refused value is refused as over the bus."""
+
+    def write(index: int, subindex: int, value: int) -> None:
+        if not drive.write_object(index, subindex, value):
+            raise NodeSetupError(
+                f"node {node_id}: writing 0x{index:04X}sub{subindex} = 0x{value:X} refused: "
+                f"Code 0x{ABORT_VALUE_RANGE:08X}"
+            )
+
+    return write
+
+
 class LoopbackExchange:
     def __init__(
         self, cfg: Config, clock: Callable[[], float], environment: Environment | None = None
@@ -104,11 +133,9 @@ class LoopbackExchange:
         self.scale = PositionScale(units.counts_per_unit)  # m or rad
         self.plant = RobotPlant(cfg, environment)
         self.drives = self.plant.drives
-        if cfg.actuators.homing_method:
-            self._home(cfg)
+        self._set_up(cfg)
         rotary = units.unit.value == "rad"
         for d in self.drives:  # what node set-up does over SDO on the real path: CSP, 0x60C2, 0x6065/0x6066
-            d.mode_of_operation = 8
             d.interpolation_period_s = cfg.period_s
             d.following_error_window = (
                 cfg.actuators.following_error_window_rad if rotary else cfg.actuators.following_error_window_m
@@ -120,11 +147,17 @@ class LoopbackExchange:
         self.sensor_id = cfg.sensor.node_id if self.plant.sensor is not None else None
         # both sides mapped as the configuration and the EDS say, as set-up would write and read back
         self.pdos = SimulatedPdos(cfg, self.drives, self.plant.sensor)
-        self.pdos.apply_configured_mapping(cfg)
+        read = {n for n in self.drive_ids if node_options(cfg, n).pdo_mapping == "read"}
+        try:
+            self.pdos.apply_configured_mapping(cfg, read)
+        except PdoWriteRefusedError as err:
+            raise NodeSetupError(f"{err}{refusal_hint(err.index, err.code)}") from err
         eds = device_description_path(cfg.actuators.eds_file, DRIVE_EDS)
         self.codecs = tuple(
-            description_drive_codec(n, eds, cfg.actuators.rpdo_objects, cfg.actuators.tpdo_objects)
-            for n in self.drive_ids
+            self.pdos.drive_codec(j)
+            if n in read
+            else description_drive_codec(n, eds, cfg.actuators.rpdo_objects, cfg.actuators.tpdo_objects)
+            for j, n in enumerate(self.drive_ids)
         )
         self.sensor_codecs = (
             description_sensor_codecs(
@@ -164,37 +197,44 @@ class LoopbackExchange:
         self._delayed: list[can.Message] = []
         self._bus_faults = NO_BUS_FAULTS
         self._silenced: set[int] = set()
+        q = cfg.sim.quirk
+        self.bus_off = (
+            BusOffSchedule(q.bus_off_after_s, q.error_passive_s, q.bus_off_restart_s)
+            if bus_has(cfg.sim.drive.quirks, Quirk.BUS_OFF)
+            else None
+        )
+        self._bus_off_elapsed_s = -math.inf
 
-    def _home(self, cfg: Config) -> None:
-        """What set-up does before the first cycle (drivers/homing.py), on each drive's own time.
+    def _set_up(self, cfg: Config) -> None:
+        """What node set-up does with each drive before the first cycle (drivers/node_setup.py), with
+        the same procedures, on each drive's own simulated time: a fault found at start reset and
+        verified (drivers/fault_reset.py), homing (drivers/homing.py).
 
-        The homing motion takes simulated seconds before the loop's time 0: each drive runs it
-        from t = 0, then forgets its time, so the loop's first cycle starts where homing ended.
+        Their motion and waits take simulated seconds before the loop's time 0: each drive runs
+        them from t = 0, then forgets its time, so the loop's first cycle starts where they ended.
+        The EMCYs a drive sent at boot went out before any master listened.
         """
-        a = cfg.actuators
-        step_s = cfg.sim.drive.substep_s * 10
-        for j, d in enumerate(self.drives):
-            d.homing_settings = HomingSettings(
-                method=a.homing_method,
-                home_offset=a.home_offsets_m[j],
-                switch_speed=a.homing_switch_speed_m_s,
-                zero_speed=a.homing_zero_speed_m_s,
-                acceleration=a.homing_acceleration_m_s2,
+        plans = homing_plans(cfg, actuator_units(cfg))
+        for j, (node_id, d) in enumerate(zip(cfg.actuators.node_ids, self.drives, strict=True)):
+            d.pending_emcy.clear()
+            clock = _DriveTime(d, cfg.sim.drive.substep_s * 10)
+            opts = node_options(cfg, node_id)
+            write, read = _sdo_on(d, node_id), (lambda index, sub, d=d: d.read_object(index) or 0)
+            reset_fault(
+                node_id,
+                opts.fault_reset,
+                opts.fault_reset_timeout_s,
+                write,
+                read,
+                True,
+                clock.now,
+                clock.sleep,
             )
-            d.set_mode(MODE_HOMING)
-            for cw in (CW_SHUTDOWN, CW_SWITCH_ON, CW_ENABLE_OPERATION, CW_ENABLE_OPERATION | CW_HOMING_START):
-                d.on_controlword(cw)
-            t = 0.0
-            d.advance(t)
-            while d.homing is not None and d.homing.moving and t < a.homing_timeout_s:
-                t += step_s
-                d.advance(t)
-            if not d.statusword() & SW_HOMING_ATTAINED:
-                raise HomingError(
-                    f"node {cfg.actuators.node_ids[j]}: "
-                    f"homing method {a.homing_method} failed: statusword 0x{d.statusword():04X}"
-                )
-            d.on_controlword(CW_DISABLE_VOLTAGE)
+            plan = plans[j] if plans is not None else None
+            if plan is not None:
+                home_drive(node_id, plan, write, read, clock.now, sleep=clock.sleep)
+            d.set_mode(MODE_CYCLIC_SYNC_POSITION)
+            d.pending_emcy.clear()  # the "error reset" EMCY of set-up's reset: before the loop listens
             d.time_s = None  # the loop's clock starts at its own 0
         self.plant.update_kinematics(None, np.array([d.position for d in self.drives]))
 
@@ -219,6 +259,12 @@ class LoopbackExchange:
         sensor = () if self.sensor_id is None else (self.sensor_id,)
         self._bus_faults = bus_faults(self.faults, now, (*self.drive_ids, *sensor))
         self.bus.full = self._bus_faults.controller_frames_lost
+        if self.bus_off is not None:  # the bus_off quirk: while off, nothing passes either way
+            elapsed = self.faults.elapsed(now)
+            for cls, data in self.bus_off.error_frames(self._bus_off_elapsed_s, elapsed):
+                self.bus.inbox.append(_frame(cls, data, error=True))
+            self._bus_off_elapsed_s = elapsed
+            self.bus.full = self.bus.full or self.bus_off.off(elapsed)
         self.bus.inbox.extend(self._delayed)  # last cycle's late TPDOs: read before this SYNC, as late
         self._delayed = []
         self.exchange.send(outputs)
@@ -311,7 +357,7 @@ class LoopbackExchange:
         for node, d in zip(self.drive_ids, self.drives, strict=True):
             while d.pending_emcy:
                 code = d.pending_emcy.pop(0)
-                data = code.to_bytes(2, "little") + bytes((0x01 if code else 0x00,)) + bytes(5)
+                data = code.to_bytes(2, "little") + bytes((error_register(code),)) + bytes(5)
                 inbox.append(_frame(cob_ids.emcy(node), data))
         self._heartbeats(now, faults)
 

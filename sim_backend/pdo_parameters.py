@@ -41,6 +41,7 @@ from drivers.pdo_mapping import (
     find_variable,
     layout,
     pdo_from_description,
+    remap_writes,
 )
 
 ABORT_CANNOT_MAP = 0x06040041
@@ -48,6 +49,7 @@ ABORT_PDO_LENGTH = 0x06040042
 ABORT_VALUE_RANGE = 0x06090030
 ABORT_VALUE_TOO_HIGH = 0x06090031
 ABORT_DEVICE_STATE = 0x08000022
+ABORT_READ_ONLY = 0x06010002
 
 # CiA 301 Table 71. RPDO: 0-240 act on the next SYNC, 254/255 at once; TPDO: 1-240 every nth
 # SYNC. Acyclic synchronous (0), RTR-only and event-driven TPDOs are not simulated.
@@ -90,6 +92,7 @@ class DevicePdos:
     node_id: int
     pdos: dict[int, DevicePdo] = field(default_factory=dict)  # by communication and mapping index
     on_change: Callable[[], None] | None = None  # a mapping was enabled or a PDO made (in)valid
+    fixed: bool = False  # its mappings refuse every write (0x06010002); the communication parameters do not
 
     @classmethod
     def from_description(cls, od: canopen.ObjectDictionary, node_id: int) -> DevicePdos:
@@ -119,13 +122,29 @@ class DevicePdos:
         base = 0x1400 if direction == PdoDirection.RECEIVE else 0x1800
         return self.pdos[base + number - 1]
 
-    # -- SDO writes ------------------------------------------------------------------------
+    # -- SDO reads and writes ---------------------------------------------------------------
+
+    def read(self, index: int, subindex: int) -> int | None:
+        """A PDO parameter as the device has it (None: not one of its PDO parameters)."""
+        pdo = self.pdos.get(index)
+        if pdo is None:
+            return None
+        c = pdo.config
+        if index == c.communication_index:
+            if subindex == 1:
+                return c.cob_id | (0 if pdo.valid else COB_ID_INVALID)
+            return c.transmission_type if subindex == 2 else None
+        if subindex == 0:
+            return pdo.count
+        return pdo.entries[subindex - 1] if 1 <= subindex <= pdo.capacity else None
 
     def write(self, index: int, subindex: int, value: int) -> None:
         """Check and apply an SDO write to a PDO parameter; raises SdoAbortedError to refuse it."""
         pdo = self.pdos.get(index)
         if pdo is None:
             return
+        if self.fixed and index == pdo.config.mapping_index:
+            raise SdoAbortedError(ABORT_READ_ONLY)  # a fixed mapping: its entries are read-only
         if index == pdo.config.communication_index:
             self._write_communication(pdo, subindex, value)
         else:
@@ -204,14 +223,13 @@ class DevicePdos:
 
     def apply(self, config: PdoConfig) -> None:
         """Write ``config`` through the remap procedure, as a master's SDO writes would."""
-        comm, mapping = config.communication_index, config.mapping_index
-        self.write(comm, 1, config.cob_id | COB_ID_INVALID)
-        self.write(comm, 2, config.transmission_type)
-        self.write(mapping, 0, 0)
-        for k, obj in enumerate(config.objects, start=1):
-            self.write(mapping, k, obj.entry)
-        self.write(mapping, 0, len(config.objects))
-        self.write(comm, 1, config.cob_id)
+        for index, subindex, value in remap_writes(config):
+            self.write(index, subindex, value)
+
+    def fix(self, config: PdoConfig) -> None:
+        """Give the PDO ``config`` for good: a device whose mapping is fixed (quirk fixed_mapping)."""
+        self.apply(config)
+        self.fixed = True
 
 
 def value_packer(

@@ -62,12 +62,13 @@ from controller.robots.builtin import cheope_mass_model
 from controller.robots.registry import actuator_units, check_axes, robot_from_config
 from controller.tasks.registry import task_entry
 from sim_backend.contact_disk import DiskEnvironment, DiskParams
-from sim_backend.drive import DriveParams, SimulatedDrive
+from sim_backend.drive import DriveParams, DriveQuirks, SimulatedDrive
 from sim_backend.environment import Environment, FreeSpace
 from sim_backend.force_sensor import SensorParams, SimulatedForceSensor
 from sim_backend.mechanics import NO_ACCELERATION, ComplianceParams, CompliantTool
 from sim_backend.plant_kinematics import plant_kinematics
 from sim_backend.pose_tracker import SimulatedPoseTracker, TrackerParams
+from sim_backend.quirks import QuirkValues, drive_quirks, quirks_of
 from sim_backend.sim_config import SimWorkpieceSection
 from sim_backend.workpiece import (
     BUMP_RAMP_M,
@@ -80,6 +81,18 @@ from sim_backend.workpiece import (
 )
 
 log = logging.getLogger(__name__)
+
+
+def configured_drive_quirks(cfg: Config) -> list[DriveQuirks]:
+    """Each drive's device-side quirks (sim.drive.quirks, sim_backend/quirks.py), in node order."""
+    q = cfg.sim.quirk
+    values = QuirkValues(
+        q.power_stage_ready_s, q.fault_reset_hold_s, q.transition_delay_s, q.warning_emcy_code
+    )
+    return [
+        drive_quirks(quirks_of(cfg.sim.drive.quirks, node, is_drive=True), values)
+        for node in cfg.actuators.node_ids
+    ]
 
 
 def drive_params_from_config(cfg: Config) -> DriveParams:
@@ -187,9 +200,12 @@ class RobotPlant:
         self.kinematics = plant_kinematics(cfg, self.robot)  # the robot's simulator hook
         params = drive_params_from_config(cfg)
         self.drives = [
-            SimulatedDrive(params, position=x, encoder_offset=offset)
-            for x, offset in zip(
-                self.kinematics.initial_positions(), cfg.sim.drive.encoder_offsets_m, strict=True
+            SimulatedDrive(params, position=x, encoder_offset=offset, quirks=quirks)
+            for x, offset, quirks in zip(
+                self.kinematics.initial_positions(),
+                cfg.sim.drive.encoder_offsets_m,
+                configured_drive_quirks(cfg),
+                strict=True,
             )
         ]
         s = cfg.sim.sensor

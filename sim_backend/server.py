@@ -23,10 +23,10 @@ import contextlib
 import logging
 import math
 import queue
+import random
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import replace
 from typing import Self
 
 import can
@@ -36,16 +36,18 @@ import numpy as np
 from controller.config import Config
 from controller.shell.realtime import reset_scheduler
 from drivers import cob_ids
+from drivers.node_setup import ABORT_TRANSFER
 from drivers.node_setup import DRIVE_EDS as SHIPPED_DRIVE_EDS
 from drivers.node_setup import SENSOR_EDS as SHIPPED_SENSOR_EDS
 from drivers.sim_environment import (
+    ABORT_OBJECT_DOES_NOT_EXIST,
     ENVIRONMENT_CODES,
     ENVIRONMENT_NAMES,
     SIM_ENVIRONMENT_INDEX,
     SIM_ENVIRONMENT_SUBINDEX,
 )
 from sim_backend.device_pdos import SimulatedPdos
-from sim_backend.drive import SimulatedDrive
+from sim_backend.drive import SimulatedDrive, error_register
 from sim_backend.environment import Environment
 from sim_backend.fault_injection import (
     FaultSchedule,
@@ -56,8 +58,10 @@ from sim_backend.fault_injection import (
     spoofed_sensor_frame,
     tpdo_payload,
 )
+from sim_backend.lss_slave import LSS_REQUEST, LSS_RESPONSE, LssSlave
 from sim_backend.pdo_parameters import ABORT_DEVICE_STATE, ABORT_VALUE_RANGE, DevicePdos
 from sim_backend.plant import RobotPlant, environment_named
+from sim_backend.quirks import BusOffSchedule, Quirk, bus_has, quirks_of
 
 log = logging.getLogger(__name__)
 
@@ -112,7 +116,16 @@ def add_environment_object(node: canopen.LocalNode, kind: str) -> None:
     node.object_dictionary.add_object(var)
 
 
-NMT_START_REMOTE_NODE = 0x01  # CiA 301 NMT command specifier
+# The objects a drive without heartbeat (guarding_only) or without node guarding (heartbeat_only) lacks.
+_SUPERVISION_MISSING = {Quirk.GUARDING_ONLY: (0x1016, 0x1017), Quirk.HEARTBEAT_ONLY: (0x100C, 0x100D)}
+SIM_SERIAL_BASE = 0x53494D00  # "SIM" and the node id: each simulated node's serial number (0x1018 sub 4)
+NMT_START_REMOTE_NODE = 0x01  # CiA 301 NMT command specifiers
+NMT_RESET_NODE, NMT_RESET_COMMUNICATION = 0x81, 0x82
+
+
+def _give_serial(node: canopen.LocalNode, node_id: int) -> None:
+    """Each simulated node its own serial number: an LSS address (0x1018) is unique."""
+    node.set_data(0x1018, 4, (SIM_SERIAL_BASE | node_id).to_bytes(4, "little"))
 
 
 class Simulator:
@@ -154,6 +167,23 @@ class Simulator:
         self._rpdo_routes: list[int] = []
         self._tx: dict[int, can.Message] = {}
         self.pdos = SimulatedPdos(cfg, self.drives, self.sensor)  # the mappings as written over SDO
+        # The nodes' own habits (sim_backend/quirks.py): boot, SDO, supervision; the drives' device
+        # habits are in the drives, the fixed mapping in their PDOs.
+        nodes = (*self.drive_ids, *((cfg.sensor.node_id,) if self.sensor is not None else ()))
+        self.quirks = {n: quirks_of(cfg.sim.drive.quirks, n, n in self.drive_ids) for n in nodes}
+        q = cfg.sim.quirk
+        self._boot_at: dict[int, float | None] = {}  # not booted yet: when it will (None: on an NMT reset)
+        self._sdo_requests: dict[int, int] = {}  # per node, for sdo_aborts
+        self._sdo_random = random.Random(q.seed)
+        self._guard_toggle: dict[int, int] = {}  # node guarding: the next answer's toggle bit
+        self._lss: dict[int, LssSlave] = {}  # the unconfigured nodes' LSS slaves
+        self.bus_off = (
+            BusOffSchedule(q.bus_off_after_s, q.error_passive_s, q.bus_off_restart_s)
+            if bus_has(cfg.sim.drive.quirks, Quirk.BUS_OFF)
+            else None
+        )
+        self._bus_off_elapsed_s = -math.inf
+        self._bus_is_off = False
 
     # -- life cycle -------------------------------------------------------------------------
 
@@ -172,8 +202,23 @@ class Simulator:
         """
         if not self.nodes:
             self.build_nodes()
-        for node in self.nodes.values():
-            self._boot(node)
+        now = self.clock()
+        with self.lock:
+            self.plant.advance(now, check_sync_timeout=False)  # power-on: the drives' clocks start
+        for node_id, node in self.nodes.items():
+            quirks = self.quirks.get(node_id)
+            if quirks is not None and Quirk.UNCONFIGURED in quirks:
+                self._boot_at[node_id] = None  # silent until an LSS master gives it its node id
+                self._lss[node_id] = LssSlave(self._identity(node), frozenset((node_id,)))
+            elif quirks is not None and Quirk.NEEDS_NMT_RESET in quirks:
+                self._boot_at[node_id] = None  # silent until an NMT reset
+            elif quirks is not None and Quirk.LATE_BOOT in quirks:
+                self._boot_at[node_id] = now + self.cfg.sim.quirk.boot_delay_s
+            else:
+                self.network.add_node(node)
+        for node_id, node in self.nodes.items():
+            if node_id not in self._boot_at:
+                self._boot(node)
         self._thread = threading.Thread(target=self._run, name="sim-cyclic", daemon=True)
         self._thread.start()
         self._pose_thread = threading.Thread(target=self._follow_pose, name="sim-pose", daemon=True)
@@ -184,12 +229,12 @@ class Simulator:
         that sends nothing and starts no thread."""
         for j, node_id in enumerate(self.drive_ids):
             node = canopen.LocalNode(node_id, self.pdos.drive_pdos[j].od)
-            self.network.add_node(node)
+            _give_serial(node, node_id)
             self._wire_drive(node, self.drives[j], self.pdos.drive_pdos[j])
             self.nodes[node_id] = node
         if self.sensor is not None and self.pdos.sensor_pdos is not None:
             node = canopen.LocalNode(self.cfg.sensor.node_id, self.pdos.sensor_pdos.od)
-            self.network.add_node(node)
+            _give_serial(node, self.cfg.sensor.node_id)
             self._wire_sensor(node, self.pdos.sensor_pdos)
             self.nodes[self.cfg.sensor.node_id] = node
         self._route_rpdos()
@@ -197,6 +242,7 @@ class Simulator:
         if self.plant.tracker is not None:  # no CANopen object dictionary: it starts sending by itself
             for cob in (cob_ids.tpdo1(self.cfg.tracker.node_id), cob_ids.tpdo2(self.cfg.tracker.node_id)):
                 self._tx[cob] = self._message(cob)
+        self._fast[LSS_REQUEST] = self._on_lss
         self._fast[cob_ids.SYNC] = self._on_sync
         self._fast[cob_ids.heartbeat(self.cfg.loop.controller_node_id)] = self._on_controller_heartbeat
         self.network.subscribe(cob_ids.NMT, self._on_nmt)
@@ -213,6 +259,86 @@ class Simulator:
     def _boot(self, node: canopen.LocalNode) -> None:
         node.nmt.send_command(0x81)  # reset: sends the boot-up message
         node.nmt.send_command(0x80)  # -> PRE-OPERATIONAL, starts the heartbeat of 0x1017
+        self._guard_toggle.pop(node.id or 0, None)
+        self._flush_emcy()  # what a drive says at boot (boots_in_fault: its error code)
+
+    def _boot_late(self, node_id: int) -> None:
+        """A node that was silent (late_boot, needs_nmt_reset) boots now: on the bus from here on."""
+        del self._boot_at[node_id]
+        node = self.nodes[node_id]
+        self.network.add_node(node)
+        if node_id in self.drive_ids:
+            self.drives[self.drive_ids.index(node_id)].reboot()
+        self._boot(node)
+        log.info("node %d booted (sim.drive.quirks)", node_id)
+
+    def _on_sdo_request(self, msg: can.Message) -> bool:
+        """A node's SDO habits: silent before boot, a late answer, an abort now and then. True when
+        handled here (dropped, answered, or scheduled); False: canopen's SDO server answers at once."""
+        node_id = msg.arbitration_id - 0x600
+        quirks = self.quirks.get(node_id)
+        if quirks is None:
+            return False
+        if node_id in self._boot_at:
+            return True  # not booted: no SDO server yet
+        if Quirk.SDO_ABORTS in quirks:
+            n = self._sdo_requests[node_id] = self._sdo_requests.get(node_id, 0) + 1
+            if n % self.cfg.sim.quirk.sdo_abort_every == 0:
+                abort = bytes((0x80, msg.data[1], msg.data[2], msg.data[3])) + ABORT_TRANSFER.to_bytes(
+                    4, "little"
+                )
+                self.bus.send(can.Message(arbitration_id=0x580 + node_id, data=abort, is_extended_id=False))
+                return True
+        if Quirk.SLOW_SDO in quirks:
+            q = self.cfg.sim.quirk
+            delay = self._sdo_random.uniform(q.sdo_delay_min_s, q.sdo_delay_max_s)
+            request = (msg.arbitration_id, bytearray(msg.data), msg.timestamp)
+            timer = threading.Timer(delay, self._late_sdo, request)
+            timer.daemon = True
+            timer.start()
+            return True
+        return False
+
+    @staticmethod
+    def _identity(node: canopen.LocalNode) -> tuple[int, int, int, int]:
+        def u32(sub: int) -> int:
+            return int.from_bytes(node.get_data(0x1018, sub), "little")
+
+        return (u32(1), u32(2), u32(3), u32(4))
+
+    def _on_lss(self, data: bytearray, now: float) -> None:
+        """An LSS request: each unconfigured node's slave answers; one given its id starts with it."""
+        for node_id, slave in list(self._lss.items()):
+            answer = slave.on_request(bytes(data))
+            if answer is not None:
+                self.bus.send(can.Message(arbitration_id=LSS_RESPONSE, data=answer, is_extended_id=False))
+            if slave.started:
+                del self._lss[node_id]
+                with self.lock:
+                    self._boot_late(node_id)
+
+    def _late_sdo(self, cob_id: int, data: bytearray, timestamp: float) -> None:
+        with self.lock:
+            if self._stop.is_set():
+                return  # the simulator stopped meanwhile (its bus may be closed)
+            with contextlib.suppress(can.CanError):
+                self.network.notify(cob_id, data, timestamp)
+
+    def _on_guarding_request(self, node_id: int, now: float) -> None:
+        """A node guarding request (a remote frame on 0x700 + node): the NMT state with the toggle bit
+        (CiA 301); the drive's life guarding takes it as the master's sign of life."""
+        quirks = self.quirks.get(node_id)
+        if quirks is None or Quirk.HEARTBEAT_ONLY in quirks or node_id in self._boot_at:
+            return
+        toggle = self._guard_toggle.get(node_id, 0)
+        self._guard_toggle[node_id] = toggle ^ 0x80
+        state = self.nodes[node_id].nmt._state  # canopen keeps the code here
+        self.bus.send(
+            can.Message(arbitration_id=0x700 + node_id, data=bytes((state | toggle,)), is_extended_id=False)
+        )
+        if node_id in self.drive_ids:
+            with self.lock:
+                self.drives[self.drive_ids.index(node_id)].on_controller_heartbeat(now)
 
     def _message(self, cob_id: int) -> can.Message:
         # On an FD bus the PDOs go as FD frames with bit-rate switch, as the controller's do;
@@ -235,15 +361,28 @@ class Simulator:
         while not self._stop.is_set():
             msg = bus.recv(timeout=WATCHDOG_PERIOD_S)
             while msg is not None:  # drain what is waiting before judging anything by the clock
-                if not (msg.is_error_frame or msg.is_remote_frame):
+                if self._bus_is_off or msg.is_error_frame:
+                    pass  # bus_off: nothing reaches the devices
+                elif msg.is_remote_frame:
+                    if 0x701 <= msg.arbitration_id <= 0x77F:  # node guarding
+                        self._on_guarding_request(msg.arbitration_id - 0x700, clock())
+                else:
                     handler = fast.get(msg.arbitration_id)
                     if handler is not None:
                         handler(msg.data, arrival_s(msg.timestamp, clock(), time.time()))
+                    elif 0x601 <= msg.arbitration_id <= 0x67F and self._on_sdo_request(msg):
+                        pass
                     elif msg.arbitration_id in subscribers:  # SDO requests, NMT: canopen's nodes
                         with self.lock:
                             self.network.notify(msg.arbitration_id, msg.data, msg.timestamp)
                 msg = bus.recv(timeout=0.0)
             now = clock()
+            if self.bus_off is not None:
+                self._bus_off_step(now)
+            for node_id, at in list(self._boot_at.items()) if self._boot_at else ():
+                if at is not None and now >= at:
+                    with self.lock:
+                        self._boot_late(node_id)
             if now - previous_tick_s < WATCHDOG_PERIOD_S:
                 continue
             due = watchdog_due(now, previous_tick_s, self.plant.last_sync_s, timeout)
@@ -306,59 +445,28 @@ class Simulator:
                 self.plant.set_environment(environment_named(self.cfg, wanted))
                 log.info("environment %s placed for the controller's task", wanted)
 
-    def _wire_drive(self, node: canopen.LocalNode, drive: SimulatedDrive, pdos: DevicePdos) -> None:  # noqa: C901  (the canopen SDO hooks of a drive's objects)
-        interpolation = {1: 0, 2: -3}  # 0x60C2 sub 1 value, sub 2 exponent (the EDS defaults)
-
+    def _wire_drive(self, node: canopen.LocalNode, drive: SimulatedDrive, pdos: DevicePdos) -> None:
         def on_read(index: int, subindex: int, od: object) -> int | None:
             with self.lock:
                 self.plant.advance(self.clock(), check_sync_timeout=False)
-                return {
-                    0x6041: drive.statusword,
-                    0x6064: drive.position_counts,
-                    0x6061: lambda: drive.mode_of_operation,
-                    0x603F: lambda: drive.error_code,
-                }.get(index, lambda: None)()
+                value = pdos.read(index, subindex)  # its PDO parameters as they are (a fixed mapping too)
+                return value if value is not None else drive.read_object(index)
 
-        def on_write(index: int, subindex: int, od: canopen.objectdictionary.ODVariable, data: bytes) -> None:  # noqa: C901  (one branch per object a drive's SDO server acts on)
+        def on_write(index: int, subindex: int, od: canopen.objectdictionary.ODVariable, data: bytes) -> None:
             raw = od.decode_raw(data)
             if not isinstance(raw, int):  # every object written here is an integer in the EDS
                 return
-            value = raw
+            quirks = self.quirks.get(node.id or 0)
+            missing = {
+                i for q, indices in _SUPERVISION_MISSING.items() if quirks and q in quirks for i in indices
+            }
+            if index in missing:
+                raise canopen.SdoAbortedError(ABORT_OBJECT_DOES_NOT_EXIST)  # this drive has no such service
             with self.lock:
-                pdos.write(index, subindex, value)  # SdoAbortedError refuses an invalid mapping
-                counts = drive.params.counts_per_unit
-                if index == 0x1006:
-                    drive.communication_cycle_period_s = value * 1e-6
-                elif index == 0x6060:
-                    drive.set_mode(value)
-                elif index == 0x6040:
-                    drive.on_controlword(value)
-                elif index == 0x607A:
-                    drive.received_target = drive.from_counts(value)
-                elif index == 0x6098:  # the homing objects (CiA 402), positions in counts
-                    drive.homing_settings = replace(drive.homing_settings, method=value)
-                elif index == 0x607C:
-                    drive.homing_settings = replace(drive.homing_settings, home_offset=value / counts)
-                elif index == 0x6099 and subindex == 1:
-                    drive.homing_settings = replace(drive.homing_settings, switch_speed=value / counts)
-                elif index == 0x6099 and subindex == 2:
-                    drive.homing_settings = replace(drive.homing_settings, zero_speed=value / counts)
-                elif index == 0x609A:
-                    drive.homing_settings = replace(drive.homing_settings, acceleration=value / counts)
-                elif index == 0x6065:  # following error window [counts]; 0xFFFFFFFF: off (CiA 402)
-                    drive.following_error_window = 0.0 if value == 0xFFFFFFFF else value / counts
-                elif index == 0x6066:  # following error time out [ms]
-                    drive.following_error_time_s = value / 1000.0
-                elif index == 0x6007:  # abort connection option code (CiA 402)
-                    drive.abort_connection_option = value
-                elif index == 0x1016 and subindex == 1:
-                    # CiA 301: bits 16..23 node id, bits 0..15 consumer time [ms]
-                    drive.heartbeat_consumer_s = (value & 0xFFFF) / 1000.0
-                elif index == 0x60C2 and subindex in interpolation:
-                    # CiA 402 interpolation time period: value (sub 1) x 10^index (sub 2) s; 0: the
-                    # drive takes the measured SYNC interval
-                    interpolation[subindex] = value
-                    drive.interpolation_period_s = interpolation[1] * 10.0 ** interpolation[2]
+                pdos.write(index, subindex, raw)  # SdoAbortedError refuses an invalid mapping
+                if not drive.write_object(index, subindex, raw):
+                    raise canopen.SdoAbortedError(ABORT_VALUE_RANGE)  # a mode it does not have
+                self._flush_emcy()  # a reset's "error reset" EMCY goes out now, not at the next SYNC
 
         node.add_read_callback(on_read)
         node.add_write_callback(on_write)
@@ -485,12 +593,19 @@ class Simulator:
         if data[0] == NMT_START_REMOTE_NODE:
             with self.lock:
                 self.max_contact_force_n.append(0.0)  # a controller's session starts
+        if data[0] in (NMT_RESET_NODE, NMT_RESET_COMMUNICATION):
+            for node_id, at in list(self._boot_at.items()):
+                if at is None and data[1] in (0, node_id) and node_id not in self._lss:  # needs_nmt_reset
+                    with self.lock:
+                        self._boot_late(node_id)
         self._after_nmt()
 
     def _after_nmt(self) -> None:
         """What the devices do after an NMT command: a reset reboots; leaving OPERATIONAL (stop,
         pre-operational) aborts the connection while enabled (0x6007)."""
         for node_id, node in self.nodes.items():
+            if node_id in self._boot_at:
+                continue  # not on the bus yet
             if node.nmt._state == 0:
                 if node_id in self.drive_ids:
                     self.drives[self.drive_ids.index(node_id)].reboot()
@@ -498,8 +613,37 @@ class Simulator:
             elif node.nmt._state in (NMT_STOPPED, NMT_PRE_OPERATIONAL) and node_id in self.drive_ids:
                 self.drives[self.drive_ids.index(node_id)].on_nmt_left_operational()
 
+    def _bus_off_step(self, now: float) -> None:
+        """The bus_off quirk on the clock: its error frames as they fall due; while the bus is off the
+        nodes' heartbeats stop and nothing passes either way (the SYNC watchdog of each drive sees it)."""
+        assert self.bus_off is not None
+        elapsed = self.faults.elapsed(now)
+        for cls, data in self.bus_off.error_frames(self._bus_off_elapsed_s, elapsed):
+            self.bus.send(
+                can.Message(arbitration_id=cls, is_error_frame=True, data=data, is_extended_id=False)
+            )
+        self._bus_off_elapsed_s = elapsed
+        off = self.bus_off.off(elapsed)
+        if off == self._bus_is_off:
+            return
+        self._bus_is_off = off
+        for node_id, node in self.nodes.items():
+            if node_id in self._boot_at or node_id in self._silenced:
+                continue
+            if off:
+                node.nmt.stop_heartbeat()
+            else:
+                node.nmt.start_heartbeat(node.nmt._heartbeat_time_ms)  # canopen keeps the period here
+        if not off:
+            with self.lock:
+                self._flush_emcy()  # what the drives said while the bus was off
+
     def _flush_emcy(self) -> None:
+        if self._bus_is_off:
+            return  # said when the bus is back
         for node_id, d in zip(self.drive_ids, self.drives, strict=True):
+            if node_id in self._boot_at:
+                continue  # not booted: said when it boots
             while d.pending_emcy:
                 code = d.pending_emcy.pop(0)
-                self.nodes[node_id].emcy.send(code, 0x01 if code else 0x00)
+                self.nodes[node_id].emcy.send(code, error_register(code))

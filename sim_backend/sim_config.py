@@ -38,6 +38,29 @@ class SimDriveSection(Section, frozen=True):
     cogging_force_n: Annotated[float, rng(0.0, 1e4)] = 2.0
     cogging_period_m: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.024
     cogging_phases_deg: tuple[float, float, float] = (0.0, 120.0, 240.0)
+    # A real drive's habits (sim_backend/quirks.py): "NAME" for every drive, "NAME:NODE" for one
+    # node (the node's own, such as late_boot or slow_sdo, may name the sensor); [sim.quirk] holds
+    # their values. [] is the ideal CiA 402 drive.
+    quirks: tuple[str, ...] = ()
+
+
+class SimQuirkSection(Section, frozen=True):
+    """The values of the quirks ``sim.drive.quirks`` names (sim_backend/quirks.py says what each does)."""
+
+    power_stage_ready_s: Annotated[float, rng(0.0, 60.0)] = 3.0  # boots_in_fault: FAULT this long after boot
+    fault_reset_hold_s: Annotated[float, rng(0.0, 5.0)] = 0.05  # fault_reset_hold: bit 7 held this long
+    transition_delay_s: Annotated[float, rng(0.0, 5.0)] = 0.3  # slow_power_states: each transition up
+    boot_delay_s: Annotated[float, rng(0.0, 60.0)] = 3.0  # late_boot: boot-up this long after power-on
+    sdo_delay_min_s: Annotated[float, rng(0.0, 5.0)] = 0.02  # slow_sdo: each answer this late ...
+    sdo_delay_max_s: Annotated[float, rng(0.0, 5.0)] = 0.05  # ... to this late (uniform, seeded)
+    sdo_abort_every: Annotated[int, rng(2, 1000)] = 10  # sdo_aborts: every n-th request aborted
+    # fixed_mapping: the TPDO1 it has and keeps ("INDEX" or "INDEX:SUB"; its RPDO1 is the EDS's)
+    fixed_tpdo_objects: tuple[str, ...] = ("0x6041", "0x6064", "0x6061")
+    warning_emcy_code: Annotated[int, rng(0x0001, 0xFFFF)] = 0xFF01  # warning_emcy_on_enable
+    bus_off_after_s: Annotated[float, rng(0.0, 3600.0)] = 2.0  # bus_off: error passive, after the first SYNC
+    error_passive_s: Annotated[float, rng(0.0, 60.0)] = 0.2  # then bus-off this much later
+    bus_off_restart_s: Annotated[float, rng(0.0, 60.0)] = 0.5  # and the bus restarted after this
+    seed: int = 3  # slow_sdo's delays
 
 
 class SimSensorSection(Section, frozen=True):
@@ -123,6 +146,7 @@ class SimSection(Section, frozen=True):
     nspu: SimNspuSection = msgspec.field(default_factory=SimNspuSection)
     tracker: SimTrackerSection = msgspec.field(default_factory=SimTrackerSection)
     faults: tuple[str, ...] = ()  # fault injection, sim_backend/fault_injection.py: "drop:2@3.0+0.5", ...
+    quirk: SimQuirkSection = msgspec.field(default_factory=SimQuirkSection)
 
 
 def check_sim_section(
@@ -138,9 +162,21 @@ def check_sim_section(
                 f"sim.nspu.{key} = {list(vals)}: each must be within +-{limit} (a mismatch, not a new robot)"
             )
     from sim_backend.fault_injection import FaultSpecError, check_fault  # pure parsing, no I/O
+    from sim_backend.quirks import QuirkSpecError, check_quirk
 
     for i, text in enumerate(sim.faults):
         try:
             check_fault(text, drive_nodes, sensor_node, period_s)
         except FaultSpecError as err:
             raise ConfigError(f"sim.faults[{i}]: {err}") from err
+    for i, text in enumerate(sim.drive.quirks):
+        try:
+            check_quirk(text, drive_nodes, sensor_node)
+        except QuirkSpecError as err:
+            raise ConfigError(f"sim.drive.quirks[{i}]: {err}") from err
+    q = sim.quirk
+    if q.sdo_delay_max_s < q.sdo_delay_min_s:
+        raise ConfigError(
+            f"sim.quirk.sdo_delay_max_s = {q.sdo_delay_max_s}: must be >= sim.quirk.sdo_delay_min_s = "
+            f"{q.sdo_delay_min_s}"
+        )

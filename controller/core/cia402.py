@@ -7,6 +7,7 @@ state). Bit layouts follow CiA 402-2 (the same masks as ``canopen.profiles.p402.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from enum import IntEnum
 
 
@@ -84,6 +85,18 @@ def statusword_bits(state: PowerState) -> int:
 
 
 # --- master side -------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FaultResetConfig:
+    """How ENABLING resets one drive's fault (config ``actuators.fault_reset_*``): bit 7 high for
+    ``hold_s`` (at least one cycle: the rising edge), low again, then up to ``wait_s`` for the
+    statusword to leave FAULT before the next attempt; at most ``attempts`` (0: until
+    ``enable_timeout_s``). The defaults are the edge of every other cycle."""
+
+    hold_s: float = 0.0
+    wait_s: float = 0.0
+    attempts: int = 0
 
 
 def controlword_towards(current: PowerState, wanted: PowerState, previous_controlword: int = 0) -> int:

@@ -34,8 +34,16 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from controller.core.cia402 import CW_QUICK_STOP, PowerState, controlword_towards, decode_statusword
-from controller.core.controller_state import ControllerState, Mode
+from controller.core.cia402 import (
+    CW_DISABLE_VOLTAGE,
+    CW_FAULT_RESET,
+    CW_QUICK_STOP,
+    FaultResetConfig,
+    PowerState,
+    controlword_towards,
+    decode_statusword,
+)
+from controller.core.controller_state import ControllerState, FaultResetProgress, Mode
 from controller.core.cycle_data import (
     SENSOR_FORCE_SATURATED,
     Anomaly,
@@ -43,6 +51,7 @@ from controller.core.cycle_data import (
     Command,
     CycleInputs,
     CycleOutputs,
+    EmcyAction,
     Event,
     Reaction,
     Severity,
@@ -152,6 +161,20 @@ NMT_STATE_NAMES = {0: "boot-up (it restarted)", 4: "STOPPED", 5: "OPERATIONAL", 
 
 
 @dataclass(frozen=True)
+class EmcyReaction:
+    """EMCY error codes ``first``..``last`` of the drives get ``action`` (config ``actuators.emcy_reactions``)."""
+
+    first: int
+    last: int
+    action: EmcyAction
+
+
+def error_code_text(code: int) -> str:
+    """ ", error code 0x3220" (the drive's last EMCY: CiA 301, the code 0x603F holds too), or ""."""
+    return f", error code 0x{code:04X}" if code else ""
+
+
+@dataclass(frozen=True)
 class LawConfig:
     period_s: float
     enable_timeout_s: float
@@ -173,6 +196,19 @@ class LawConfig:
     # The task retracts without force data when the sensor's frames are no longer trusted
     # (TaskEntry.retracts_on_sensor_breach); with safety.sensor_breach_retract_s > 0 the law lets it.
     task_retracts_on_sensor_breach: bool = False
+    fault_resets: tuple[FaultResetConfig, ...] = ()  # per drive; empty: FaultResetConfig() for each
+    emcy_reactions: tuple[EmcyReaction, ...] = ()  # the drives' EMCY codes that do not fault (first match)
+
+    def fault_reset(self, j: int) -> FaultResetConfig:
+        return self.fault_resets[j] if j < len(self.fault_resets) else FaultResetConfig()
+
+    def emcy_action(self, node_id: int, code: int) -> EmcyAction:
+        """A drive's EMCY ``code`` by the configured reactions; any other node's, or a code not listed: fault."""
+        if node_id in self.drive_node_ids:
+            for r in self.emcy_reactions:
+                if r.first <= code <= r.last:
+                    return r.action
+        return EmcyAction.FAULT
 
 
 # One handler per mode: (state, inputs, power states, measured positions, t, events) -> state.
@@ -243,9 +279,12 @@ class ControlLaw:
             tcp_measured_m=self._measured_tcp(state, inputs, measured),
             unreachable=state.unreachable | self._unreachable(inputs),
         )
+        if inputs.emcy:
+            state = self._note_error_codes(state, inputs)
+        emcy_fault = self._emcy_fault(inputs)
 
         if state.mode == Mode.CONFIGURING:
-            reason = self._configuring_fault(state, inputs)
+            reason = self._configuring_fault(state, inputs, emcy_fault)
             if reason:
                 state = self._enter(state, Mode.FAULT, t, events, Severity.FAULT, reason)
                 state = replace(state, fault_reason=reason)
@@ -255,10 +294,12 @@ class ControlLaw:
             pass
         elif state.mode != Mode.FAULT:
             state, reason = self._safety(state, inputs, events)
-            reason = reason or jump or self._fault_reason(state, inputs, powers)
+            reason = reason or jump or self._fault_reason(state, inputs, powers, emcy_fault)
             if reason:
                 state = self._enter(state, Mode.FAULT, t, events, Severity.FAULT, reason)
                 state = replace(state, fault_reason=reason, setpoint=self._hold(state))
+            elif inputs.emcy:
+                state = self._emcy_notes(state, inputs, t, events)
         elif state.mode == Mode.FAULT and inputs.command == Command.RESET:
             # Recovery without a jump: ENABLING resets the drives' faults and commands the
             # measured positions; HOLDING restarts Ruckig from rest there; the task starts again.
@@ -274,6 +315,8 @@ class ControlLaw:
                 unreachable=frozenset(),
                 sdo_stopped=frozenset(),
                 sensor_breach="",
+                fault_resets=(FaultResetProgress(),) * self.n,  # this ENABLING resets the drives' faults
+                bus_off_cycle=0,
             )
         if inputs.command == Command.QUICK_STOP and state.mode not in (Mode.FAULT, Mode.DONE):
             why = "quick stop requested"
@@ -292,6 +335,8 @@ class ControlLaw:
         elif inputs.command == Command.RESUME and state.mode == Mode.PAUSED:
             state = self._enter(state, Mode.RUNNING, t, events, why="remote resume")
 
+        if inputs.bus_off and state.mode == Mode.FAULT:
+            state = replace(state, bus_off_cycle=state.cycle)  # re-check the drives once the bus is back
         state = self._handlers[state.mode](state, inputs, powers, measured, t, events)
         state, by_sdo = self._quick_stops_by_sdo(state, events)
         outputs = CycleOutputs(
@@ -435,6 +480,11 @@ class ControlLaw:
             )
             if why:
                 return state, why
+        elif "heartbeat_lost" in state.warned:  # the episode under "warn" ends: said, and armed again
+            events.append(
+                Event("heartbeat_back", Severity.INFO, "every node's heartbeat (or guarding) is back")
+            )
+            state = replace(state, warned=state.warned - {"heartbeat_lost"})
         if inputs.bus_off:
             return state, "CAN bus-off reported by an error frame"
         if inputs.error_frames:
@@ -627,13 +677,12 @@ class ControlLaw:
                 )
         return ""
 
-    def _configuring_fault(self, state: ControllerState, inputs: CycleInputs) -> str:
+    def _configuring_fault(self, state: ControllerState, inputs: CycleInputs, emcy_fault: str) -> str:
         """Before every drive has answered: what already makes starting pointless."""
         if inputs.bus_off:
             return "CAN bus-off reported by an error frame"
-        for e in inputs.emcy:
-            if e.error_code != 0:
-                return f"EMCY from node {e.node_id}: error code 0x{e.error_code:04X}, register 0x{e.error_register:02X}"
+        if emcy_fault:
+            return emcy_fault
         # A drive that never answered is judged on the time devices may take to come up after their
         # NMT start (a slow machine, an emulated one), not on max_missing_cycles of a running bus.
         waited_s = state.cycle * self.config.period_s
@@ -644,18 +693,24 @@ class ControlLaw:
         return ""
 
     def _fault_reason(
-        self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...]
+        self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...], emcy_fault: str
     ) -> str:
+        # ENABLING after the operator's reset resets the drives' faults and judges its attempts itself;
+        # a drive in FAULT at the start, or one that faults on its way to enabled, is a fault
+        resetting = state.mode == Mode.ENABLING and bool(state.fault_resets)
         for j, (p, streak) in enumerate(zip(powers, state.missing_streak, strict=True)):
             # Judged on this cycle's TPDO only: a statusword not refreshed (missing frame) is old news,
             # e.g. the FAULT a reset has just cleared; silence has its own limit below.
-            if inputs.drives[j].fresh and p in (PowerState.FAULT, PowerState.FAULT_REACTION_ACTIVE):
-                return f"drive {j + 1} reports {p.name} (statusword 0x{inputs.drives[j].statusword:04X})"
+            faulted = p in (PowerState.FAULT, PowerState.FAULT_REACTION_ACTIVE)
+            if inputs.drives[j].fresh and faulted and not resetting:
+                return (
+                    f"drive {j + 1} reports {p.name} (statusword 0x{inputs.drives[j].statusword:04X})"
+                    + self._error_code(state, j)
+                )
             if streak >= self.config.max_missing_cycles:  # _safety names them first, all at once
                 return f"drive {j + 1}: no TPDO for {streak} cycles"
-        for e in inputs.emcy:
-            if e.error_code != 0:
-                return f"EMCY from node {e.node_id}: error code 0x{e.error_code:04X}, register 0x{e.error_register:02X}"
+        if emcy_fault:
+            return emcy_fault
         if state.mode in (Mode.HOLDING, Mode.RUNNING, Mode.PAUSED) or (
             state.mode == Mode.STOPPING and not self._shutting_down(state)
         ):
@@ -669,6 +724,47 @@ class ControlLaw:
             if not math.isfinite(x.position):
                 return f"drive {j + 1} position is not a number"
         return ""
+
+    def _error_code(self, state: ControllerState, j: int) -> str:
+        return error_code_text(state.error_codes[j]) if j < len(state.error_codes) else ""
+
+    def _note_error_codes(self, state: ControllerState, inputs: CycleInputs) -> ControllerState:
+        """Each drive's last error code as its EMCYs say (0 after an "error reset" EMCY)."""
+        codes = list(state.error_codes) or [0] * self.n
+        index = {self._node_id(j): j for j in range(self.n)}
+        for e in inputs.emcy:
+            j = index.get(e.node_id)
+            if j is not None and self.config.emcy_action(e.node_id, e.error_code) == EmcyAction.FAULT:
+                codes[j] = e.error_code  # a warning's code is no fault's
+        return replace(state, error_codes=tuple(codes))
+
+    def _emcy_fault(self, inputs: CycleInputs) -> str:
+        """The first EMCY of this cycle whose configured reaction is a fault ("" if none)."""
+        for e in inputs.emcy:
+            if e.error_code != 0 and self.config.emcy_action(e.node_id, e.error_code) == EmcyAction.FAULT:
+                return f"EMCY from node {e.node_id}: error code 0x{e.error_code:04X}, register 0x{e.error_register:02X}"
+        return ""
+
+    def _emcy_notes(
+        self, state: ControllerState, inputs: CycleInputs, t: float, events: list[Event]
+    ) -> ControllerState:
+        """EMCYs configured as "warn" (an event per code and episode) or "hold" (a running task pauses)."""
+        for e in inputs.emcy:
+            if e.error_code == 0:
+                continue
+            action = self.config.emcy_action(e.node_id, e.error_code)
+            what = f"EMCY from node {e.node_id}: error code 0x{e.error_code:04X}, register 0x{e.error_register:02X}"
+            if action == EmcyAction.HOLD and state.mode == Mode.RUNNING:
+                why = f"{what} (actuators.emcy_reactions: hold); the task resumes on the operator's resume"
+                state = self._enter(state, Mode.PAUSED, t, events, Severity.WARNING, why)
+                continue
+            key = f"emcy:{e.node_id}:0x{e.error_code:04X}"
+            if key not in state.warned:
+                events.append(
+                    Event("emcy_warning", Severity.WARNING, f"{what} (actuators.emcy_reactions: {action})")
+                )
+                state = replace(state, warned=state.warned | {key})
+        return state
 
     def _shutting_down(self, state: ControllerState) -> bool:
         return any(
@@ -721,18 +817,66 @@ class ControlLaw:
     ) -> ControllerState:
         # Command the measured (trusted) position while the drives are not enabled: no jump at enable. A drive
         # not heard this cycle keeps its controlword: its statusword is old news (it may say FAULT).
-        cws = tuple(
-            controlword_towards(p, PowerState.OPERATION_ENABLED, cw) if d.fresh else cw
-            for p, cw, d in zip(powers, state.controlwords, inputs.drives, strict=True)
-        )
-        state = replace(state, controlwords=cws, setpoint=self._hold(state))  # where each was last trusted
+        resets = list(state.fault_resets)  # empty: not after a reset
+        cws = list(state.controlwords)
+        stuck = ""
+        for j, (p, d) in enumerate(zip(powers, inputs.drives, strict=True)):
+            if not d.fresh:
+                continue
+            if p == PowerState.FAULT and resets:
+                cws[j], resets[j], why = self._fault_reset(state, j, resets[j], t)
+                stuck = stuck or why
+            else:
+                cws[j] = controlword_towards(p, PowerState.OPERATION_ENABLED, cws[j])
+                if resets and resets[j].holding:
+                    resets[j] = replace(resets[j], holding=False)
+        state = replace(
+            state, controlwords=tuple(cws), fault_resets=tuple(resets), setpoint=self._hold(state)
+        )  # where each was last trusted
+        if stuck:
+            return replace(
+                self._enter(state, Mode.FAULT, t, events, Severity.FAULT, stuck), fault_reason=stuck
+            )
         if all(p == PowerState.OPERATION_ENABLED for p in powers):
+            state = replace(state, fault_resets=())
             return self._enter(state, Mode.HOLDING, t, events, why="all drives in OPERATION ENABLED")
         if t - state.mode_entered_s > self.config.enable_timeout_s:
-            states = ", ".join(f"{j + 1}: {p.name}" for j, p in enumerate(powers))
+            states = ", ".join(
+                f"{j + 1}: {p.name}" + (self._error_code(state, j) if p == PowerState.FAULT else "")
+                for j, p in enumerate(powers)
+            )
             why = f"drives not enabled within {self.config.enable_timeout_s} s ({states})"
             return replace(self._enter(state, Mode.FAULT, t, events, Severity.FAULT, why), fault_reason=why)
         return state
+
+    def _fault_reset(
+        self, state: ControllerState, j: int, progress: FaultResetProgress, t: float
+    ) -> tuple[int, FaultResetProgress, str]:
+        """One cycle of drive ``j``'s fault reset: (controlword, progress, fault reason or "").
+
+        Edge, hold, wait, verify: bit 7 goes high (a rising edge: the controlword before it has it
+        low) and stays high for ``hold_s`` (one cycle at least), goes low, and the statusword has
+        ``wait_s`` to leave FAULT; a drive still in FAULT then gets the next attempt, up to
+        ``attempts``. Some drives reset on the edge, some only after bit 7 was held (ros_canopen
+        #138/#139), and a fault whose cause is still present does not clear at all: the statusword
+        is the verification (canopen #261), and the error code names the cause.
+        """
+        cfg = self.config.fault_reset(j)
+        eps = 1e-9
+        if progress.holding:
+            if t - progress.since_s < max(cfg.hold_s, self.config.period_s) - eps:
+                return CW_FAULT_RESET, progress, ""
+            return CW_DISABLE_VOLTAGE, FaultResetProgress(progress.attempts, False, t), ""
+        if progress.attempts and t - progress.since_s < cfg.wait_s - eps:
+            return CW_DISABLE_VOLTAGE, progress, ""  # waiting for the statusword
+        if cfg.attempts and progress.attempts >= cfg.attempts:
+            why = (
+                f"drive {j + 1} stays in FAULT after {progress.attempts} fault reset(s) "
+                f"(actuators.fault_reset_attempts = {cfg.attempts}, hold {cfg.hold_s:g} s, wait {cfg.wait_s:g} s)"
+                + self._error_code(state, j)
+            )
+            return CW_DISABLE_VOLTAGE, progress, why
+        return CW_FAULT_RESET, FaultResetProgress(progress.attempts + 1, True, t), ""
 
     def _holding(
         self,
@@ -877,7 +1021,38 @@ class ControlLaw:
             controlword_towards(p, PowerState.QUICK_STOP_ACTIVE, cw)
             for p, cw in zip(powers, state.controlwords, strict=True)
         )
-        return replace(state, controlwords=cws, setpoint=self._hold(state))
+        state = replace(state, controlwords=cws, setpoint=self._hold(state))
+        if state.bus_off_cycle and state.cycle > state.bus_off_cycle and any(d.fresh for d in inputs.drives):
+            state = self._after_bus_off(state, inputs, powers, events)
+        return state
+
+    def _after_bus_off(
+        self,
+        state: ControllerState,
+        inputs: CycleInputs,
+        powers: tuple[PowerState, ...],
+        events: list[Event],
+    ) -> ControllerState:
+        """The first cycle a drive is heard again after a bus-off (the interface restarted): each
+        drive re-checked in one event; the task waits in FAULT for the operator's reset."""
+        down_s = (state.cycle - state.bus_off_cycle) * self.config.period_s
+        checks = []
+        restarted = {r.node_id for r in inputs.nmt_reports if r.state == 0}
+        for j, (d, p) in enumerate(zip(inputs.drives, powers, strict=True)):
+            node = self._node_id(j)
+            if d.fresh:
+                checks.append(f"{j + 1} {p.name} (0x{d.statusword:04X}){self._error_code(state, j)}")
+            else:
+                checks.append(f"{j + 1} silent" + (" (it restarted)" if node in restarted else ""))
+        events.append(
+            Event(
+                "bus_restored",
+                Severity.WARNING,
+                f"the bus is back {down_s:.2f} s after the bus-off; drives re-checked: {', '.join(checks)}; "
+                f"the task resumes only on the operator's reset",
+            )
+        )
+        return replace(state, bus_off_cycle=0)
 
     @staticmethod
     def _hold(state: ControllerState) -> Setpoint:

@@ -7,6 +7,7 @@ module (``control_law.py``) says how each field changes.
 
 from __future__ import annotations
 
+import math
 from enum import IntEnum
 
 from controller.core.records import record
@@ -22,6 +23,16 @@ class Mode(IntEnum):
     STOPPING = 5
     DONE = 6
     FAULT = 7
+
+
+@record
+class FaultResetProgress:
+    """One drive's fault reset in ENABLING (control_law ``_fault_reset``): attempts made, and since
+    when bit 7 has been held high (``holding``) or low again (waiting for the statusword)."""
+
+    attempts: int = 0
+    holding: bool = False
+    since_s: float = -math.inf
 
 
 @record
@@ -55,3 +66,10 @@ class ControllerState:
     # frames are withheld from the task, which retracts; the fault follows (_sensor_breach).
     sensor_breach: str = ""
     sensor_breach_cycle: int = 0
+    # Each drive's fault reset under way in ENABLING (empty: none yet), and its last error code as
+    # its EMCYs said (CiA 301: the code it also holds in 0x603F; 0 after an "error reset" EMCY).
+    fault_resets: tuple[FaultResetProgress, ...] = ()
+    error_codes: tuple[int, ...] = ()
+    # A bus-off faulted the run at this cycle (0: none): FAULT re-checks the drives when the bus
+    # is back and says so once (control_law ``_after_bus_off``).
+    bus_off_cycle: int = 0

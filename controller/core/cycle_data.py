@@ -114,6 +114,13 @@ class Reaction(StrEnum):
     IGNORE = "ignore"
 
 
+class EmcyAction(StrEnum):
+    """What the law does about a drive's EMCY error code (config ``actuators.emcy_reactions``)."""
+
+    FAULT = "fault"  # quick stop, stay in FAULT until a reset (every code not configured)
+    HOLD = "hold"  # a running task pauses (brakes and holds) until the operator resumes it
+    WARN = "warn"  # one warning event per code and episode, go on
+
 @record
 class BusFeedback:
     """What the bus delivered for one cycle: the exchange's result, before the loop adds its own inputs."""

@@ -21,13 +21,14 @@ from typing import TYPE_CHECKING
 import can
 
 from controller.assembly import assemble, planned_bus_load, position_plausibility
-from controller.config import ActuatorsSection, Config, config_to_dict
+from controller.config import Config, config_to_dict
 from controller.core.control_law import ControlLaw
 from controller.core.ports import CycleObserver
 from controller.monitoring.publisher import PublisherSettings, monitoring_context
 from controller.monitoring.robot_identity import resolve_robot_id
 from controller.monitoring.zenoh_session import MonitorKeys, SessionSettings, split_endpoints
-from controller.robots.registry import ActuatorUnits, actuator_units
+from controller.node_plan import node_setup_plan
+from controller.robots.registry import ActuatorUnits
 from controller.shell.helper_threads import HelperThreadWatch
 from controller.shell.log_handoff import log_records_off_the_loop
 from controller.shell.loop import CycleLoop
@@ -42,22 +43,14 @@ from controller.shell.realtime import (
 )
 from controller.shell.run_summary import RunRecorder, summarize
 from controller.shell.systemd_notify import notify
-from controller.tasks.registry import RunReport, task_entry
+from controller.tasks.registry import RunReport
 from drivers.bus import BusSpec, open_bus
 from drivers.bus_load import BusLoad, check_bus_load
 from drivers.bus_presence import check_no_other_master
 from drivers.cyclic_exchange import CyclicExchange, FrameSink
 from drivers.frame_tap import FrameTap
-from drivers.homing import HomingPlan
 from drivers.kernel_sync import KernelSyncExchange, check_kernel_sync
-from drivers.node_setup import (
-    DRIVE_EDS,
-    SENSOR_EDS,
-    NodeSetupPlan,
-    check_device_descriptions,
-    configure_nodes,
-    device_description_path,
-)
+from drivers.node_setup import NodeSetupPlan, check_device_descriptions, configure_nodes
 from drivers.pacing import DeadlineSleeper
 from drivers.pdo_codec import PositionScale
 
@@ -135,65 +128,6 @@ def publisher_settings(cfg: Config) -> PublisherSettings:
     )
 
 
-def homing_plans(a: ActuatorsSection, units: ActuatorUnits) -> tuple[HomingPlan, ...] | None:
-    """Each drive's homing (drivers/homing.py) in counts, or None when the configuration has none."""
-    if a.homing_method == 0:
-        return None
-    per_unit = units.counts_per_unit
-    return tuple(
-        HomingPlan(
-            method=a.homing_method,
-            home_offset_counts=round(offset * per_unit),
-            switch_speed_counts_s=round(a.homing_switch_speed_m_s * per_unit),
-            zero_speed_counts_s=round(a.homing_zero_speed_m_s * per_unit),
-            acceleration_counts_s2=round(a.homing_acceleration_m_s2 * per_unit),
-            timeout_s=a.homing_timeout_s,
-        )
-        for offset in a.home_offsets_m
-    )
-
-
-def _following_error_objects(a: ActuatorsSection, units: ActuatorUnits) -> dict[str, int]:
-    """0x6065 in encoder counts and 0x6066 in ms from ``[actuators]`` (the _rad keys for rotary drives)."""
-    window = a.following_error_window_rad if units.unit.value == "rad" else a.following_error_window_m
-    return {
-        "following_error_window_counts": round(window * units.counts_per_unit),
-        "following_error_time_ms": round(a.following_error_time_s * 1000),
-    }
-
-
-def expected_environment(cfg: Config) -> str:
-    """The world the controller announces to a simulated sensor: sim.environment when set, else its task's."""
-    explicit: str = cfg.sim.environment
-    return explicit if explicit != "auto" else task_entry(cfg.task.kind).sim_environment
-
-
-def node_setup_plan(cfg: Config) -> NodeSetupPlan:
-    units = actuator_units(cfg)
-    return NodeSetupPlan(
-        drive_ids=tuple(cfg.actuators.node_ids),
-        sensor_id=cfg.sensor.node_id if cfg.sensor.enabled else None,
-        vendor_id=cfg.actuators.vendor_id,
-        drive_product_code=cfg.actuators.product_code,
-        sensor_product_code=cfg.sensor.product_code,
-        controller_id=cfg.loop.controller_node_id,
-        heartbeat_period_s=cfg.loop.heartbeat_period_s,
-        heartbeat_consumer_s=cfg.loop.heartbeat_consumer_s,
-        cycle_period_s=cfg.period_s,
-        drive_eds=device_description_path(cfg.actuators.eds_file, DRIVE_EDS),
-        sensor_eds=device_description_path(cfg.sensor.eds_file, SENSOR_EDS),
-        sensor_vendor_id=cfg.sensor.vendor_id,
-        drive_rpdo_objects=cfg.actuators.rpdo_objects,
-        drive_tpdo_objects=cfg.actuators.tpdo_objects,
-        homing=homing_plans(cfg.actuators, units),
-        **_following_error_objects(cfg.actuators, units),
-        sdo_timeout_s=cfg.loop.sdo_timeout_s,
-        answer_timeout_s=max(5.0, 3.0 * cfg.loop.sdo_timeout_s),
-        sim_environment=expected_environment(cfg) if cfg.sensor.enabled else None,
-        task_kind=cfg.task.kind,
-    )
-
-
 def run_controller(
     cfg: Config,
     spec: BusSpec,
@@ -258,6 +192,7 @@ def run_controller(
             sync_period_s=cfg.period_s,
             max_position_step=step_limit,
             max_position_jump=jump_margin,
+            guarded=prepared.setup_plan.guarded(),
         )
         kernel_sync = (
             KernelSyncExchange(exchange, cfg.period_s, cfg.bus.sync_lead_fraction * cfg.period_s)
@@ -321,6 +256,7 @@ def run_controller(
             "bus": str(spec),
             "sync_producer": cfg.bus.sync_producer,
             "node_setup_s": round(setup.duration_s, 3),
+            "node_setup_notes": list(setup.notes),
             "major_page_faults": major_faults,
             "frames": {"sent": bus.sent, "received": bus.received, "own_echoes_dropped": bus.own_echoes},
             "recording": _recording_summary(session, cfg),

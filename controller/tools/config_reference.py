@@ -38,6 +38,10 @@ def _allowed(t: mi.Type) -> str:
         return " \\| ".join(f"`{v!r}`".replace("'", '"') for v in t.values)
     if isinstance(t, mi.EnumType):
         return " \\| ".join(f'`"{m.value}"`' for m in t.cls)
+    if isinstance(t, mi.UnionType):
+        return ", ".join(x for x in (_allowed(u) for u in t.types) if x)
+    if isinstance(t, mi.DictType):
+        return f"each value {_allowed(t.value_type)}"
     if isinstance(t, (mi.ListType, mi.TupleType, mi.VarTupleType)):
         items = getattr(t, "item_type", None)
         return f"each {_allowed(items)}" if items is not None and _allowed(items) else ""
@@ -61,7 +65,11 @@ def _type_name(t: mi.Type) -> str:
     if isinstance(t, (mi.ListType, mi.VarTupleType)):
         return "list"
     if isinstance(t, mi.UnionType):
-        return " or ".join(_type_name(x) for x in t.types)
+        return " or ".join(_type_name(x) for x in t.types if not isinstance(x, mi.NoneType)) + (
+            " (optional)" if any(isinstance(x, mi.NoneType) for x in t.types) else ""
+        )
+    if isinstance(t, mi.DictType):
+        return "table"
     return type(t).__name__.removesuffix("Type").lower()
 
 
@@ -76,6 +84,10 @@ def _value(v: Any) -> str:
         return f'"{v}"'
     if isinstance(v, (tuple, list)):
         return "[" + ", ".join(_value(x) for x in v) + "]"
+    if v is None:
+        return "unset"
+    if isinstance(v, Mapping):
+        return "{" + ", ".join(f"{_value(k)} = {_value(x)}" for k, x in v.items()) + "}"
     return repr(v)
 
 
@@ -94,6 +106,13 @@ def rows(section: msgspec.Struct, prefix: str) -> Iterator[tuple[str, str, str, 
                     yield from rows(sub, f"{prefix}.{kind}")
             continue
         t = fields[name].type
+        item = getattr(t, "item_type", None)
+        if isinstance(item, mi.StructType):  # a list of tables ([[node]], features): each table's keys
+            yield key, "list of tables", "", _value(value)
+            for f in item.fields:
+                default = "required" if f.required else _value(f.default)
+                yield f"{key}[].{f.name}", _type_name(f.type), _allowed(f.type), default
+            continue
         yield key, _type_name(t), _allowed(t), _value(value)
 
 

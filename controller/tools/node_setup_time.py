@@ -13,7 +13,7 @@ import time
 import can
 
 from controller.config import load_config
-from controller.shell.service import node_setup_plan
+from controller.node_plan import node_setup_plan
 from drivers.node_setup import configure_nodes
 from sim_backend.server import Simulator
 

@@ -18,7 +18,7 @@ from controller.core.cia402 import (
     SW_TARGET_REACHED,
     PowerState,
 )
-from controller.shell.service import node_setup_plan
+from controller.node_plan import node_setup_plan
 from drivers.node_setup import NodeSetupError, configure_nodes
 from sim_backend.drive import SimulatedDrive
 from sim_backend.homing import HomingSettings

@@ -154,7 +154,7 @@ def test_sync_period_mismatch_is_reported_by_emcy(sim_and_master):
 
 
 def _setup_plan(cfg):
-    from controller.shell.service import node_setup_plan
+    from controller.node_plan import node_setup_plan
 
     return node_setup_plan(cfg)
 

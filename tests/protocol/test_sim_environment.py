@@ -11,7 +11,7 @@ import canopen
 import pytest
 
 from controller.config import load_config
-from controller.shell.service import node_setup_plan
+from controller.node_plan import node_setup_plan
 from drivers.node_setup import NodeSetupError, configure_nodes
 from drivers.sim_environment import SIM_ENVIRONMENT_INDEX
 from sim_backend.contact_disk import DiskEnvironment

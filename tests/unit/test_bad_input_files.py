@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 
 from controller.config import DEFAULT_CONFIG, ConfigError, load_config
 from controller.errors import InputError
-from controller.shell.service import node_setup_plan
+from controller.node_plan import node_setup_plan
 from drivers.node_setup import DRIVE_EDS, SENSOR_EDS, check_device_descriptions
 from drivers.pdo_mapping import DeviceDescriptionError, PdoDirection, load_device_description
 from sim_backend.device_pdos import device_pdos_from_file
