@@ -356,10 +356,16 @@ class CyclicExchange:
             self._open_window(ahead)
         self._drain_late()
         self._judging = True
-        if not self._window_open or self._window_slot != self.cycle_slot:
+        # This cycle's window: its own SYNC period, or a later one where the bus is ahead of the loop
+        # (a SYNC after this cycle's has come already: what answers now may answer it). Going back
+        # to the loop's own period after a later SYNC had been seen took both SYNCs' answers into
+        # one window with no answer owed: "TPDO twice in one cycle" with one sender, the kernel-SYNC
+        # defect (tests/protocol/test_kernel_sync_pairing.py).
+        slot = max(self.cycle_slot, self._last_sync_slot)
+        if not self._window_open or self._window_slot < slot:
             if self._window_open:  # answers to the SYNC of a cycle the loop skipped: nobody's sample
-                self.counters.late_frames += sum(self._candidates)
-            self._open_window(self.cycle_slot)
+                self._abandon_window()
+            self._open_window(slot)
         self.sent_s = self.clock()
         if outputs is not None:
             to_counts = self.scale.to_counts
@@ -420,6 +426,19 @@ class CyclicExchange:
         self._sensor_candidates = [0, 0]
         self._sensor_fresh = self._sensor_ambiguous = False
         self._force_counter = self._torque_counter = -1
+
+    def _abandon_window(self) -> None:
+        """A window given up before its collect (a later SYNC came first): its candidates are late
+        frames, nobody's sample, and what each device has not answered yet it still owes (its
+        answer comes later: without the debt it was taken for a second sender)."""
+        self.counters.late_frames += sum(self._candidates)
+        for j, count in enumerate(self._candidates):
+            self._owed[j], self._in_step[j] = _owed_after(self._owed[j], self._in_step[j], count)
+        for k, count in enumerate(self._sensor_candidates):
+            self._sensor_owed[k], self._sensor_in_step[k] = _owed_after(
+                self._sensor_owed[k], self._sensor_in_step[k], count
+            )
+        self._window_open = False
 
     def _drain_late(self) -> None:
         """What arrived since the last collect: late TPDOs, echoes, reports for the next cycle
@@ -801,6 +820,11 @@ class CyclicExchange:
             # two candidates, no sample).
             self._owed = [o + 1 for o in self._owed]
             self._sensor_owed = [o + 1 for o in self._sensor_owed]
+            # a new debt: the windows in step that forget debts count from here (counted from before,
+            # a device long in step had this one forgotten at once, and its late answer was taken
+            # for a second sender)
+            self._in_step = [0] * self.n
+            self._sensor_in_step = [0, 0]
         self._last_sync_slot = slot
         if slot <= self._window_slot:
             return  # this window's SYNC, or a late one of a window before: its answers are late frames
@@ -808,7 +832,7 @@ class CyclicExchange:
             self._sync_ahead = slot
             return
         if self._window_open:  # a whole period missed: the window before was never collected
-            self.counters.late_frames += sum(self._candidates)
+            self._abandon_window()
         self._open_window(slot)
 
     def _on_own_cob_id(self, msg: can.Message) -> None:

@@ -932,3 +932,47 @@ def test_kernel_sync_two_syncs_nearest_one_period_are_each_answered_not_a_second
     assert fb.anomalies == ()  # its answers came before cycle 2's send: late, owed, not a second sender
     fb = kernel_cycle(ex, bus, clock, 3, after_send=[kernel_sync(3), *drive_answers(3)])
     assert fb.anomalies == () and positions(fb) == [5_001_003, 5_002_003, 5_003_003]
+
+
+def test_kernel_sync_a_loop_behind_two_syncs_takes_their_late_answers_for_owed_not_a_second_sender(
+    bus, clock
+):
+    """The kernel-SYNC defect ("TPDO twice in one cycle" with one sender): the loop woke after SYNC 1
+    and SYNC 2, the drives answered both after its send. The window went back to the loop's own
+    period 1 and took SYNC 1's answer with none owed, and SYNC 2's, after it, was a second sender's;
+    it now stays on period 2, with SYNC 1's answer owed."""
+    ex = kernel_exchange(bus, clock)
+    kernel_cycle(ex, bus, clock, 0, after_send=[kernel_sync(0), *drive_answers(0)])
+    fb = kernel_cycle(
+        ex,
+        bus,
+        clock,
+        1,
+        before_send=[kernel_sync(1), kernel_sync(2)],
+        after_send=[*drive_answers(1), *drive_answers(2)],
+    )
+    assert fb.anomalies == ()  # SYNC 1's answer is owed, SYNC 2's may come with it: no second sender
+    for slot in (3, 4):
+        fb = kernel_cycle(ex, bus, clock, slot, after_send=[kernel_sync(slot), *drive_answers(slot)])
+        assert fb.anomalies == () and positions(fb) == [5_001_000 + slot, 5_002_000 + slot, 5_003_000 + slot]
+
+
+def test_kernel_sync_a_debt_from_two_syncs_in_one_period_is_not_forgotten_by_the_windows_before_it(
+    bus, clock
+):
+    """A device in step for more windows than OWED_FORGOTTEN_AFTER; then a SYNC half a period late
+    and the next on time round to one period, the second's answer after the window: it is owed (the
+    count of windows in step started before the debt and forgot it at once)."""
+    ex = kernel_exchange(bus, clock)
+    for slot in range(OWED_FORGOTTEN_AFTER + 5):
+        kernel_cycle(ex, bus, clock, slot, after_send=[kernel_sync(slot), *drive_answers(slot)])
+    k = OWED_FORGOTTEN_AFTER + 5
+    late, next_one = frame(SYNC_ID, b""), frame(SYNC_ID, b"")
+    late.timestamp = (k + 0.52) * KERNEL_PERIOD_S  # SYNC k, half a period late: nearest period k + 1
+    next_one.timestamp = (k + 1.1) * KERNEL_PERIOD_S  # SYNC k + 1: nearest period k + 1 too
+    fb = kernel_cycle(ex, bus, clock, k, before_send=[late], after_send=[next_one, *drive_answers(k)])
+    assert fb.anomalies == ()
+    fb = kernel_cycle(ex, bus, clock, k + 1, before_send=drive_answers(k + 1))  # SYNC k + 1's answers, late
+    assert fb.anomalies == ()
+    fb = kernel_cycle(ex, bus, clock, k + 2, after_send=[kernel_sync(k + 2), *drive_answers(k + 2)])
+    assert fb.anomalies == () and positions(fb) == [5_001_000 + k + 2, 5_002_000 + k + 2, 5_003_000 + k + 2]

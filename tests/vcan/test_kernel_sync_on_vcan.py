@@ -109,17 +109,10 @@ def test_controller_completes_the_path_with_kernel_sync(vcan_channel: str) -> No
             # period of its motion, 14.3-14.4 mm against the 10-mm window, in 2 runs of 2 in this order
             # (not once in 12 runs of the same test later in the process): three times the window.
             "safety.following_window_m": 0.03,
-            # and half a period of lead (20 ms, 8 at the default 0.2): the emulated VM's first cycles
-            # woke 10-40 ms late, and a "TPDO twice in one cycle" fault is still open there (1 run of
-            # 3 at the default lead faulted on it 15 cycles in, after the windows were paired with
-            # their SYNCs; the cause is not found yet)
-            "bus.sync_lead_fraction": 0.5,
-            # ... and with half a period it struck once more, 22 cycles in (the full vcan run of
-            # d53afeb). Until its cause is found this test judges that as a warning (the two frames
-            # are still not used: one missing cycle); what a duplicate must do is tested on scripted
-            # buses (tests/protocol/test_cyclic_exchange_bytes.py), and the defect is named in
-            # docs/reference/canopen.md
-            "safety.on_duplicate_frames": "warn",
+            # The default lead (0.2 of a period) and the default reaction to a TPDO twice in one cycle
+            # (a fault): the pairing defect that struck here (15 and 22 cycles in, while the first
+            # cycles ran late) is found and fixed (drivers/cyclic_exchange.py, reproduced on a timed
+            # scripted bus in tests/protocol/test_kernel_sync_pairing.py)
         }
     )
     with can.Bus(interface="socketcan", channel=vcan_channel) as sim_bus, Simulator(cfg, sim_bus):
