@@ -121,6 +121,7 @@ class EmcyAction(StrEnum):
     HOLD = "hold"  # a running task pauses (brakes and holds) until the operator resumes it
     WARN = "warn"  # one warning event per code and episode, go on
 
+
 @record
 class BusFeedback:
     """What the bus delivered for one cycle: the exchange's result, before the loop adds its own inputs."""
