@@ -437,14 +437,20 @@ def read_pdo(device: _Device, direction: PdoDirection, number: int) -> PdoConfig
     base = 0x1400 if direction == PdoDirection.RECEIVE else 0x1800
     comm, mapping = base + number - 1, base + number - 1 + 0x200
     cob_field = device.read(comm, 1)
+    count = device.read(mapping, 0)
     if cob_field & COB_ID_INVALID:
-        raise NodeSetupError(
-            f"node {device.node_id}: its {direction.value}{number} is not valid (0x{comm:04X}sub1 = "
-            f'0x{cob_field:08X}) and its mapping is read, not written (actuators.pdo_mapping = "read")'
-        )
+        # left invalid by an earlier master (a remap the drive refused half-way): valid again, as it is
+        if count == 0:
+            raise NodeSetupError(
+                f"node {device.node_id}: its {direction.value}{number} is not valid (0x{comm:04X}sub1 = "
+                f"0x{cob_field:08X}) and maps nothing, and its mapping is read, not written "
+                '(actuators.pdo_mapping = "read")'
+            )
+        device.write_verified(comm, 1, cob_field & ~COB_ID_INVALID)
+        device.note(f"node {device.node_id}: its {direction.value}{number} was not valid: made valid again")
+        cob_field &= ~COB_ID_INVALID
     if device.read(comm, 2) != TRANSMISSION_SYNCHRONOUS:
         device.write_verified(comm, 2, TRANSMISSION_SYNCHRONOUS)
-    count = device.read(mapping, 0)
     objects = tuple(MappedObject.from_entry(device.read(mapping, k)) for k in range(1, count + 1))
     config = PdoConfig(direction, number, cob_field & COB_ID_MASK, TRANSMISSION_SYNCHRONOUS, objects)
     device.note(

@@ -456,20 +456,25 @@ class Simulator:
             raw = od.decode_raw(data)
             if not isinstance(raw, int):  # every object written here is an integer in the EDS
                 return
-            quirks = self.quirks.get(node.id or 0)
-            missing = {
-                i for q, indices in _SUPERVISION_MISSING.items() if quirks and q in quirks for i in indices
-            }
-            if index in missing:
-                raise canopen.SdoAbortedError(ABORT_OBJECT_DOES_NOT_EXIST)  # this drive has no such service
             with self.lock:
                 pdos.write(index, subindex, raw)  # SdoAbortedError refuses an invalid mapping
                 if not drive.write_object(index, subindex, raw):
                     raise canopen.SdoAbortedError(ABORT_VALUE_RANGE)  # a mode it does not have
                 self._flush_emcy()  # a reset's "error reset" EMCY goes out now, not at the next SYNC
 
+        quirks = self.quirks.get(node.id or 0)
+        missing = {
+            i for q, indices in _SUPERVISION_MISSING.items() if quirks and q in quirks for i in indices
+        }
+
+        def refuse_missing(index: int, subindex: int, od: object, data: bytes) -> None:
+            if index in missing:
+                raise canopen.SdoAbortedError(ABORT_OBJECT_DOES_NOT_EXIST)  # this drive has no such service
+
         node.add_read_callback(on_read)
         node.add_write_callback(on_write)
+        # before canopen's own NMT callback, which would start a heartbeat a drive without one lacks
+        node._write_callbacks.insert(0, refuse_missing)
 
     # -- cyclic traffic ---------------------------------------------------------------------
 

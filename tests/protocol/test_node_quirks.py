@@ -79,14 +79,19 @@ def test_occasional_sdo_aborts_are_retried(buses):
 
 def test_a_fixed_mapping_is_read_not_written(buses):
     fixed = {"sim.drive.quirks": ["fixed_mapping:2"]}
-    refused(
-        buses,
-        config(**fixed),
-        r'node 2: writing 0x1600sub0 = 0x0 refused: Code 0x06010002.*\(a fixed PDO mapping: actuators\.pdo_mapping = "read"\)',
-    )
-    report, _ = set_up(buses, config(**fixed, **{"node": [{"node_id": 2, "pdo_mapping": "read"}]}))
+    sim_bus, bus = buses
+    with Simulator(config(**fixed), sim_bus):
+        with pytest.raises(
+            NodeSetupError, match=r"node 2: writing 0x1600sub0 = 0x0 refused: Code 0x06010002"
+        ) as err:
+            configure_nodes(bus, node_setup_plan(config(**fixed)))
+        assert '(a fixed PDO mapping: actuators.pdo_mapping = "read")' in str(err.value)
+        # the refused remap left its RPDO1 invalid (the procedure's first step): reading makes it valid again
+        cfg = config(**fixed, **{"node": [{"node_id": 2, "pdo_mapping": "read"}]})
+        report = configure_nodes(bus, node_setup_plan(cfg))
     tpdo = report.drive_codecs[1].tpdo
     assert [(o.index, o.subindex) for o in tpdo.objects] == [(0x6041, 0), (0x6064, 0), (0x6061, 0)]
+    assert "node 2: its RPDO1 was not valid: made valid again" in report.notes
 
 
 def test_a_fixed_mapping_without_the_position_cannot_be_run(buses):
@@ -106,15 +111,15 @@ def test_a_fixed_mapping_without_the_position_cannot_be_run(buses):
 
 def test_a_drive_without_heartbeat_is_supervised_by_node_guarding(buses):
     guarding = {"sim.drive.quirks": ["guarding_only"]}
-    refused(
-        buses,
-        config(**guarding),
-        r'writing 0x1017sub0 = 0x64 refused: Code 0x06020000.*supervision = "guarding"',
-    )
     cfg = config(**guarding, **{"actuators.supervision": "guarding"})
     sim_bus, bus = buses
     with Simulator(cfg, sim_bus) as sim:
-        configure_nodes(bus, node_setup_plan(cfg))
+        with pytest.raises(
+            NodeSetupError, match=r"writing 0x1017sub0 = 0x64 refused: Code 0x06020000"
+        ) as err:
+            configure_nodes(bus, node_setup_plan(config(**guarding)))
+        assert 'a drive without heartbeat: actuators.supervision = "guarding"' in str(err.value)
+        configure_nodes(bus, node_setup_plan(cfg))  # the same drives, started again with guarding
         assert all(d.heartbeat_consumer_s == pytest.approx(0.3) for d in sim.drives)  # 0x100C x 0x100D
         for guarded, lost in (({n: (0.1, 3) for n in (1, 2, 3)}, ()), ({}, (1, 2, 3))):
             ex = CyclicExchange(bus, (1, 2, 3), PositionScale(1e7), None, 100, 40, guarded=guarded)
@@ -122,7 +127,8 @@ def test_a_drive_without_heartbeat_is_supervised_by_node_guarding(buses):
             while time.monotonic() < deadline:  # 1 s of 100 Hz cycles
                 ex.send(None)
                 feedback = ex.collect(time.monotonic() + 0.01)
-            assert feedback.lost_heartbeats == lost, guarded  # no heartbeat, only the answers to guarding
+            # no heartbeat (not even after the refused 0x1017 write), only the answers to guarding
+            assert feedback.lost_heartbeats == lost, guarded
 
 
 def test_a_drive_without_node_guarding_refuses_it_by_name(buses):
