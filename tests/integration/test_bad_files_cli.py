@@ -59,7 +59,10 @@ def bad_files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[list[
     """name -> (options that point at the damaged file, what its one line must say)."""
     d = tmp_path_factory.mktemp("bad-files")
     drive = DRIVE_EDS.read_bytes()
-    (d / "truncated.eds").write_bytes(drive[:2000])
+    # cut inside a key, about 2 kB in: its last line is no KEY=VALUE
+    truncated = drive[: drive.index(b"\nObjectType=", 1900) + len(b"\nObjectTy")]
+    (d / "truncated.eds").write_bytes(truncated)
+    truncated_line = truncated.count(b"\n") + 1
     (d / "twice.eds").write_bytes(drive + b"\n[1000]\nParameterName=Device type\nObjectType=0x7\n")
     twice_line = drive.count(b"\n") + 2  # after the file and its empty line
     (d / "directory.eds").mkdir()
@@ -69,7 +72,7 @@ def bad_files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[list[
     return {
         "truncated": (
             [f'--set=actuators.eds_file="{d / "truncated.eds"}"'],
-            f"device description {d / 'truncated.eds'}: line 118 is not KEY=VALUE",
+            f"device description {d / 'truncated.eds'}: line {truncated_line} is not KEY=VALUE",
         ),
         "section twice": (
             [f'--set=actuators.eds_file="{d / "twice.eds"}"'],

@@ -285,9 +285,9 @@ def _wait_until_drive_1_moves_under_the_controller(bus: can.BusABC, ctrl: subpro
         nonlocal start, last
         assert ctrl.poll() is None, ctrl.communicate()
         msg = bus.recv(timeout=0.1)
-        if msg is None or msg.arbitration_id != 0x181 or len(msg.data) != 6:
+        if msg is None or msg.arbitration_id != 0x181 or len(msg.data) < 6:
             return False
-        statusword, counts = struct.unpack("<Hi", msg.data)
+        statusword, counts = struct.unpack_from("<Hi", msg.data)  # then its effort (cheope.toml's mapping)
         if decode_statusword(statusword) != PowerState.OPERATION_ENABLED:
             return False
         start = counts if start is None else start

@@ -580,7 +580,7 @@ def _drive_1_position_changes(bus: can.BusABC, proc: subprocess.Popen) -> bool:
         nonlocal first
         assert proc.poll() is None, "the controller ended"
         msg = bus.recv(timeout=0.1)
-        if msg is None or msg.arbitration_id != 0x181 or len(msg.data) != 6:
+        if msg is None or msg.arbitration_id != 0x181 or len(msg.data) < 6:  # statusword, position, (effort)
             return False
         counts = int.from_bytes(msg.data[2:6], "little", signed=True)
         first = counts if first is None else first

@@ -315,12 +315,14 @@ def test_a_rogue_sender_on_udp_multicast_never_steers_the_controller(tmp_path):
                 msg = bus.recv(timeout=0.05)
                 if msg is None:
                     continue
-                if msg.arbitration_id == 0x182 and len(msg.data) == 6 and bytes(msg.data) != last:
-                    sw, counts = struct.unpack("<Hi", msg.data)
+                # drive 2's TPDO: statusword and position first, then its effort (cheope.toml's mapping)
+                if msg.arbitration_id == 0x182 and len(msg.data) >= 6 and bytes(msg.data) != last:
+                    sw, counts = struct.unpack_from("<Hi", msg.data)
                     start_counts = counts if start_counts is None else start_counts
                     if abs(counts - start_counts) > 20_000:
                         armed.set()
-                    last = struct.pack("<Hi", sw, counts + 500_000)  # + 50 mm at 1e7 counts/m
+                    # + 50 mm at 1e7 counts/m, the rest of the frame as it was
+                    last = struct.pack("<Hi", sw, counts + 500_000) + bytes(msg.data[6:])
                 elif msg.arbitration_id == 0x080 and armed.is_set() and last is not None:
                     bus.send(can.Message(arbitration_id=0x182, data=last, is_extended_id=False))
                     sent[0] += 1
