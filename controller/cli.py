@@ -871,7 +871,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     # canopen logs an SDO transfer it gives up as ERROR ("Transfer aborted by client"), before the
     # exception our set-up turns into its one line (node N did not answer...): shown with -v only
-    logging.getLogger("canopen").setLevel(logging.INFO if args.verbose else logging.CRITICAL)
+    # (canopen.sdo only: the warnings of canopen's EDS reader name what is wrong in a file)
+    logging.getLogger("canopen.sdo").setLevel(logging.INFO if args.verbose else logging.CRITICAL)
     try:
         code: int = args.func(args)
         return code
