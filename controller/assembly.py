@@ -8,6 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from controller.config import Config, ConfigError, SafetySection
+from controller.core.contact_guard import ContactGuardConfig
 from controller.core.control_law import ControlLaw, LawConfig, SafetyConfig
 from controller.core.ports import ActuatorUnit, Robot
 from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother
@@ -15,6 +16,8 @@ from controller.node_plan import emcy_reactions, fault_reset_config
 from controller.robots.registry import ActuatorUnits, actuator_units, robot_from_config
 from controller.tasks.registry import BuiltTask, RunReport, TaskSettings, task_entry
 from drivers.bus_load import BusLoad, compute_bus_load, cyclic_frames
+from drivers.pdo_codec import TORQUE_ACTUAL
+from drivers.pdo_mapping import parse_object_reference
 
 
 def planned_bus_load(cfg: Config) -> BusLoad:
@@ -58,6 +61,7 @@ def task_settings(cfg: Config, units: ActuatorUnits) -> TaskSettings:
         settle_tolerance_m=cfg.loop.settle_tolerance_m,
         max_contact_force_n=cfg.safety.max_contact_force_n,
         tracker_enabled=cfg.tracker.enabled,
+        witness_tolerance_n=cfg.safety.contact.tolerance_n,
     )
 
 
@@ -71,6 +75,7 @@ def build_task(cfg: Config, robot: Robot, units: ActuatorUnits) -> BuiltTask:
 def safety_config(s: SafetySection, units: ActuatorUnits) -> SafetyConfig:
     """``[safety]`` for the law, its position limits in the actuators' unit (the _rad keys for rotary ones)."""
     rotary = units.unit == ActuatorUnit.RADIAN
+    c = s.contact
     return SafetyConfig(
         max_contact_force_n=s.max_contact_force_n,
         sensor_stale_cycles=s.sensor_stale_cycles,
@@ -90,6 +95,22 @@ def safety_config(s: SafetySection, units: ActuatorUnits) -> SafetyConfig:
         on_rejected_frames=s.on_rejected_frames,
         on_frame_flood=s.on_frame_flood,
         sensor_breach_retract_s=s.sensor_breach_retract_s,
+        contact=ContactGuardConfig(
+            free_space_force_n=c.free_space_force_n,
+            guarded_move_force_n=c.guarded_move_force_n,
+            max_contact_force_n=s.max_contact_force_n,
+            max_contact_speed_m_s=c.max_contact_speed_m_s,
+            witness_required=c.witness_required,
+            tolerance_n=c.tolerance_n,
+            tolerance_fraction=c.tolerance_fraction,
+            inertia_fraction=c.inertia_fraction,
+            inertia_time_constant_s=c.inertia_time_constant_s,
+            disagreement_cycles=c.disagreement_cycles,
+            sensor_suspect_s=c.sensor_suspect_s,
+            back_off_distance_m=c.back_off_distance_m,
+            back_off_speed_m_s=c.back_off_speed_m_s,
+            back_off_acceleration_m_s2=c.back_off_acceleration_m_s2,
+        ),
     )
 
 
@@ -106,8 +127,28 @@ class Assembly:
     units: ActuatorUnits  # the actuators' unit and limits, resolved once for the whole run
 
 
+def check_force_witness(cfg: Config, robot: Robot) -> None:
+    """A task that reads the force sensor runs with the sensor's second witness, unless told not to:
+    the drives must report their effort (0x6077 in their TPDO) and the robot must map it to a force."""
+    if not (task_entry(cfg.task.kind).uses_force_sensor and cfg.safety.contact.witness_required):
+        return
+    fix = "or set safety.contact.witness_required = false to run on the force sensor alone"
+    if not callable(getattr(robot, "contact_force_from_efforts", None)):
+        raise ConfigError(
+            f"task.kind = {cfg.task.kind!r} reads the force sensor, and robot.kind = {cfg.robot.kind!r} cannot "
+            f"tell the contact force from its drives' efforts (the sensor's second witness); {fix}"
+        )
+    if not any(parse_object_reference(o) == TORQUE_ACTUAL for o in cfg.actuators.tpdo_objects):
+        raise ConfigError(
+            f"task.kind = {cfg.task.kind!r} reads the force sensor: its second witness is the drives' effort, "
+            f"the torque actual value 0x6077, which actuators.tpdo_objects = {list(cfg.actuators.tpdo_objects)} "
+            f'does not map; add "0x6077" {fix}'
+        )
+
+
 def assemble(cfg: Config, robot: Robot | None = None) -> Assembly:
     robot = robot or build_robot(cfg)
+    check_force_witness(cfg, robot)
     a = actuator_units(cfg)  # m or rad
     built = build_task(cfg, robot, a)
     n = robot.n_actuators

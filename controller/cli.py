@@ -246,15 +246,20 @@ def _print_summary(summary: dict[str, Any], as_json: bool) -> None:
     contour = summary.get("contour")
     if contour:
         lines.append(
-            "contour tracking    lap  speed cmd/achieved [mm/s]  force error RMS/max [N]  contact losses"
+            "contour tracking    lap  speed cmd/achieved [mm/s]  force error RMS/max [N]  "
+            "true error RMS/max [N]  contact losses"
         )
         for lap in contour["laps"]:
             cmd = lap["speed_commanded_m_s"]
+            true_rms, true_max = lap.get("true_force_error_rms_n"), lap.get("true_force_error_max_n")
+            truth = f"{true_rms:>6.2f} / {true_max:<6.2f}" if true_rms is not None else f"{'-':>6}   {'':<6}"
             lines.append(
                 f"                    {lap['lap']:>3}  {cmd * 1000 if cmd else float('nan'):>8.1f} / "
                 f"{lap['speed_achieved_m_s'] * 1000:<8.1f}        {lap['force_error_rms_n']:>6.2f} / "
-                f"{lap['force_error_max_n']:<6.2f}          {lap['contact_losses']}"
+                f"{lap['force_error_max_n']:<6.2f}          {truth}         {lap['contact_losses']}"
             )
+        if contour.get("max_true_contact_force_n") is not None:  # the simulator's, whatever the sensor said
+            lines.append(f"true contact force  max {contour['max_true_contact_force_n']:.1f} N")
         lines.append(
             f"force error vs normal stiffness: correlation "
             f"{contour['force_error_vs_normal_stiffness_correlation']}, RMS soft half / stiff half "
@@ -433,6 +438,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
         if args.json
         else (lambda line: print(line, flush=True)),
         _realtime(args, simulator=True),
+        true_force_tap=args.true_force_tap,
     )
     return 0
 
@@ -604,7 +610,7 @@ def cmd_plan_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_faults(args: argparse.Namespace) -> int:
-    if args.contour_scan or args.contour_shapes:
+    if args.contour_scan or args.contour_shapes or args.contour_stress:
         return _contour_scan(args)
     from controller.tools.fault_scenarios import format_table, run_all
 
@@ -634,6 +640,8 @@ def _contour_scan(args: argparse.Namespace) -> int:
         shapes = run_shapes(cfg, keep)
         print(json.dumps(shapes) if args.json else format_shapes(shapes))
         return 0 if shapes_met(shapes) else 1
+    if args.contour_stress:
+        return _contour_stress(args, cfg, keep)
 
     def progress(done: int, total: int, row: dict[str, object]) -> None:
         if sys.stderr.isatty():
@@ -652,6 +660,26 @@ def _contour_scan(args: argparse.Namespace) -> int:
         json.dumps({"rows": rows, "summary": result})
         if args.json
         else format_table(rows, cfg.safety.max_contact_force_n)
+    )
+    return 0 if result["targets_met"] else 1
+
+
+def _contour_stress(args: argparse.Namespace, cfg: Config, keep: Path | None) -> int:
+    from controller.tools import contour_stress
+
+    margin_m = cfg.task.model("contour").envelope_margin_m
+    with progress_line("cheope faults --contour-stress") as update:
+        rows = contour_stress.run_stress(
+            cfg,
+            keep,
+            args.jobs,
+            lambda done, total, row: update(f"{done}/{total} {row['scenario']}: {row['outcome']}"),
+        )
+    result = contour_stress.summary(rows, cfg.safety.max_contact_force_n, margin_m)
+    print(
+        json.dumps({"rows": rows, "summary": result})
+        if args.json
+        else contour_stress.format_table(rows, cfg.safety.max_contact_force_n, margin_m)
     )
     return 0 if result["targets_met"] else 1
 
@@ -736,6 +764,13 @@ def build_parser() -> argparse.ArgumentParser:
     _common(p)
     p.add_argument("--json", action="store_true", help="print its READY and STOPPED lines as JSON objects")
     _rt_options(p)
+    p.add_argument(
+        "--true-force-tap",
+        metavar="PATH",
+        default="",
+        help="write the true contact force of every SYNC into this memory-mapped file, made by its "
+        "reader (cheope demo does: sim_backend/true_force_tap.py)",
+    )
     p.set_defaults(func=cmd_sim)
     p = sub.add_parser(
         "faults", help="inject every handled fault into the simulated devices; table of reactions"
@@ -761,7 +796,18 @@ def build_parser() -> argparse.ArgumentParser:
         "error RMS <= 1 N, under the limit",
     )
     p.add_argument(
-        "--jobs", type=int, default=1, help="with --contour-scan: scenarios run in this many processes"
+        "--contour-stress",
+        action="store_true",
+        help="instead: the contour task against what no scan was tuned to (misplaced parts, steep bumps, "
+        "offset steps and drifts to 60 N, long spikes, tares in contact), in simulated time "
+        "(controller/tools/contour_stress.py); exit 1 unless no run exceeds safety.max_contact_force_n or "
+        "ends off the part unnamed, 90 %% of those to ride through end DONE and the rest end named",
+    )
+    p.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="with --contour-scan or --contour-stress: scenarios run in this many processes",
     )
     p.set_defaults(func=cmd_faults)
     p = sub.add_parser(

@@ -181,6 +181,32 @@ class LoopSection(Section, frozen=True):
     settle_tolerance_m: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 2.0e-5
 
 
+class ContactGuardSection(Section, frozen=True):
+    """The contact guard (controller/core/contact_guard.py): every move of an enabled robot is judged
+    against what the task's reference says about contact, on the larger of the force sensor's reading
+    and the drives' effort witness; past a limit the tool backs off along the force, then FAULT."""
+
+    free_space_force_n: Annotated[float, rng(0.1, 10000.0)] = 10.0  # no contact expected: a collision above
+    guarded_move_force_n: Annotated[float, rng(0.1, 10000.0)] = 25.0  # a guarded move (approach) above this
+    max_contact_speed_m_s: Annotated[float, rng(0.0, 10.0, lo_open=True)] = (
+        0.1  # a task's move expecting contact
+    )
+    # A task that reads the force sensor runs only where the drives report their effort (0x6077 mapped in
+    # actuators.tpdo_objects) and the robot maps it to a force: the sensor's second witness.
+    witness_required: bool = True
+    tolerance_n: Annotated[float, rng(0.0, 10000.0)] = 6.0  # sensor vs witness: the witness's own error ...
+    tolerance_fraction: Annotated[float, rng(0.0, 10.0)] = 0.25  # ... plus this share of the larger force
+    inertia_fraction: Annotated[float, rng(0.0, 10.0)] = 1.0  # ... plus this share of |M a|, its recent peak
+    inertia_time_constant_s: Annotated[float, rng(0.001, 10.0)] = (
+        0.1  # ... fading with this (the structure rings)
+    )
+    disagreement_cycles: Annotated[int, rng(1, 100000)] = 10  # beyond it this long: the sensor is suspect
+    sensor_suspect_s: Annotated[float, rng(0.0, 600.0)] = 2.0  # the task's time to resolve it; then back off
+    back_off_distance_m: Annotated[float, rng(0.0, 1.0)] = 0.005  # the protective back-off along the force
+    back_off_speed_m_s: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.02
+    back_off_acceleration_m_s2: Annotated[float, rng(0.0, 100.0, lo_open=True)] = 0.5
+
+
 class SafetySection(Section, frozen=True):
     """What the law does about each abnormal input (see controller/core/control_law.py, ``_safety``).
 
@@ -224,6 +250,7 @@ class SafetySection(Section, frozen=True):
     # then the fault (the sensor's data is never used again); past this time [s] the fault comes
     # anyway. 0: the quick stop at once, in contact. Any other task: the fault at once.
     sensor_breach_retract_s: Annotated[float, rng(0.0, 60.0)] = 2.0
+    contact: ContactGuardSection = msgspec.field(default_factory=ContactGuardSection)
 
 
 class TaskSection(Section, frozen=True):

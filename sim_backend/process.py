@@ -16,6 +16,7 @@ from controller.shell.realtime import (
 from drivers.bus import BusSpec, open_bus
 from drivers.bus_presence import check_node_ids_free
 from sim_backend.server import Simulator
+from sim_backend.true_force_tap import TrueForceTap
 
 READY_LINE = "cheope-sim ready"
 STOPPED_LINE = "cheope-sim stopped"  # then what it saw:
@@ -38,6 +39,7 @@ def serve(
     stop_event: threading.Event,
     announce: Callable[[str], None],
     realtime: RealtimeOptions | None = None,
+    true_force_tap: str = "",
 ) -> None:
     """Set up, then go real-time, then start the devices and announce READY; back to the normal
     scheduler when stopped.
@@ -55,7 +57,8 @@ def serve(
         check_node_ids_free(
             bus, spec.place, device_node_ids(cfg), sdo_node_ids(cfg), cfg.bus.presence_listen_s
         )
-        simulator = Simulator(cfg, bus)
+        tap = TrueForceTap(true_force_tap) if true_force_tap else None
+        simulator = Simulator(cfg, bus, true_force_tap=tap)
         simulator.build_nodes()
         if cfg.loop.freeze_gc:
             # as in the controller: a full collection of the simulator's start-up heap took
@@ -73,5 +76,7 @@ def serve(
             drop_realtime()
         maxima = simulator.max_contact_force_n or [0.0]
         announce(f"{STOPPED_LINE}: {CONTACT_FORCE_REPORT} " + " ".join(f"{m:.3f}" for m in maxima) + " N")
+    if tap is not None:
+        tap.close()
     if cfg.loop.freeze_gc:
         unfreeze_garbage_collector()

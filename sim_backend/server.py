@@ -62,6 +62,7 @@ from sim_backend.lss_slave import LSS_REQUEST, LSS_RESPONSE, LssSlave
 from sim_backend.pdo_parameters import ABORT_DEVICE_STATE, ABORT_VALUE_RANGE, DevicePdos
 from sim_backend.plant import RobotPlant, environment_named
 from sim_backend.quirks import BusOffSchedule, Quirk, bus_has, quirks_of
+from sim_backend.true_force_tap import TrueForceTap
 
 log = logging.getLogger(__name__)
 
@@ -137,8 +138,10 @@ class Simulator:
         bus: can.BusABC,
         environment: Environment | None = None,
         clock: Callable[[], float] = time.monotonic,
+        true_force_tap: TrueForceTap | None = None,
     ) -> None:
         self.cfg = cfg
+        self.true_force_tap = true_force_tap  # the true contact force, shared with the demo (a diagnostic)
         self.bus = bus
         self.clock = clock
         self.plant = RobotPlant(cfg, environment)
@@ -524,6 +527,8 @@ class Simulator:
             self.plant.sync(now)
             f = self.plant.force_n
             force_n = math.sqrt(float(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]))
+            if self.true_force_tap is not None:
+                self.true_force_tap.write(float(f[0]), float(f[1]), float(f[2]))
             if not self.max_contact_force_n:
                 self.max_contact_force_n.append(0.0)
             if force_n > self.max_contact_force_n[-1]:

@@ -13,13 +13,18 @@ Supervisor modes (see ``Mode``)::
                                              v          v
                                             STOPPING -> DONE          (any mode) -> FAULT
 
+    HOLDING, RUNNING, PAUSED, STOPPING -> BACKING_OFF -> FAULT        (the contact guard)
+
 CONFIGURING waits for every drive's first TPDO (the loop shell has done NMT and SDO set-up
 before the first cycle; an EMCY, a bus-off or a drive not heard within ``enable_timeout_s``
 faults here too), ENABLING walks each drive's CiA 402 power state machine to
 OPERATION ENABLED while commanding its measured position (no jump at enable), HOLDING keeps
 the position for ``hold_before_task_s``, RUNNING streams the task through Ruckig, PAUSED
 brakes and holds with the task clock stopped (remote ``pause``/``resume``), STOPPING brakes
-within the limits and then shuts the drives down, FAULT quick-stops them.
+within the limits and then shuts the drives down, FAULT quick-stops them. BACKING_OFF is the
+contact guard's protective stop (``contact_guard.py``): a contact force beyond what the task's
+reference expects moves the tool away along the force, at a bounded speed, then the law faults
+naming the cause; a force is never answered by a stop in place.
 
 The task runs on its own clock, ``task_time_s``, which advances one period per RUNNING
 cycle: a pause does not make a path jump ahead when it resumes.
@@ -43,6 +48,17 @@ from controller.core.cia402 import (
     controlword_towards,
     decode_statusword,
 )
+from controller.core.contact_guard import (
+    ContactGuardConfig,
+    Witness,
+    advance_back_off,
+    back_off_summary,
+    begin_back_off,
+    norm3,
+)
+from controller.core.contact_guard import (
+    watch as watch_contact,
+)
 from controller.core.controller_state import ControllerState, FaultResetProgress, Mode
 from controller.core.cycle_data import (
     SENSOR_FORCE_SATURATED,
@@ -56,7 +72,7 @@ from controller.core.cycle_data import (
     Reaction,
     Severity,
 )
-from controller.core.ports import PoseStatus, Robot, Task, TaskContext
+from controller.core.ports import ContactExpectation, ForceWitnessModel, PoseStatus, Robot, Task, TaskContext
 from controller.core.records import replace
 from controller.core.setpoint_smoothing import RuckigSmoother, Setpoint
 from controller.errors import NoSolutionError
@@ -97,6 +113,7 @@ class SafetyConfig:
     on_rejected_frames: Reaction = Reaction.WARN
     on_frame_flood: Reaction = Reaction.FAULT
     sensor_breach_retract_s: float = 0.0  # see config.SafetySection; 0: fault at once
+    contact: ContactGuardConfig = ContactGuardConfig()  # the contact guard ([safety.contact])
 
     def reaction_to(self, anomaly: Anomaly) -> Reaction:
         return {
@@ -133,6 +150,19 @@ NMT_COMMAND_NAMES = {
     0x81: "reset node",
     0x82: "reset communication",
 }  # CiA 301 NMT command specifiers
+# The modes in which the contact guard watches (the drives enabled, the law commanding them).
+GUARDED_MODES = frozenset((Mode.HOLDING, Mode.RUNNING, Mode.PAUSED, Mode.STOPPING, Mode.BACKING_OFF))
+# The drives' efforts sampled at a SYNC show their motion towards the setpoint this many steps old
+# (the pipeline: computed, sent at the next deadline, latched, interpolated over the period after):
+# the witness adds back the inertia of that setpoint's acceleration (measured: lags 2-4 fit best).
+WITNESS_ACCELERATION_LAG = 3
+# The force sensor's troubles: with the drives enabled, their fault is a protective back-off.
+SENSOR_TROUBLE = frozenset(("sensor_stale", "sensor_saturated"))
+# A back-off that meets this much more force than it started from makes things worse: the quick stop.
+BACK_OFF_WORSE_N = 10.0
+# ... judged after this many cycles: the setpoints already on their way (PIPELINE_PERIODS) and the
+# structure's momentum carry the tool on for a few cycles whatever the back-off commands
+BACK_OFF_GRACE_CYCLES = 16
 # A burst of anomalies under "warn": one event when it starts, one with its count when it ends
 # (the first cycle without it), and one with the running count this often while it goes on.
 BURST_REPORT_S = 1.0
@@ -229,6 +259,10 @@ class ControlLaw:
         self.n = robot.n_actuators
         # Robots that know their actuators' strokes check the measured positions every cycle.
         self._check_actuators = robot.check_actuators if isinstance(robot, ChecksActuators) else None
+        # Robots that tell the contact force from their drives' efforts give the sensor its second witness.
+        self._witness_model: ForceWitnessModel | None = (
+            robot if callable(getattr(robot, "contact_force_from_efforts", None)) else None  # type: ignore[assignment]
+        )
         self._handlers: dict[Mode, ModeHandler] = {
             Mode.CONFIGURING: self._configuring,
             Mode.ENABLING: self._enabling,
@@ -238,6 +272,7 @@ class ControlLaw:
             Mode.STOPPING: self._stopping,
             Mode.DONE: self._done,
             Mode.FAULT: self._fault,
+            Mode.BACKING_OFF: self._backing_off,
         }
 
     def initial_state(self) -> ControllerState:
@@ -293,31 +328,11 @@ class ControlLaw:
             # the controlwords say disable voltage, and a never-heard position is no measurement.
             pass
         elif state.mode != Mode.FAULT:
-            state, reason = self._safety(state, inputs, events)
-            reason = reason or jump or self._fault_reason(state, inputs, powers, emcy_fault)
-            if reason:
-                state = self._enter(state, Mode.FAULT, t, events, Severity.FAULT, reason)
-                state = replace(state, fault_reason=reason, setpoint=self._hold(state))
-            elif inputs.emcy:
-                state = self._emcy_notes(state, inputs, t, events)
+            state = self._supervise(state, inputs, powers, jump, emcy_fault, t, events)
         elif state.mode == Mode.FAULT and inputs.command == Command.RESET:
-            # Recovery without a jump: ENABLING resets the drives' faults and commands the
-            # measured positions; HOLDING restarts Ruckig from rest there; the task starts again.
-            state = replace(
-                self._enter(state, Mode.ENABLING, t, events, why="reset"),
-                fault_reason="",
-                setpoint=self._hold(state),
-                task_time_s=0.0,
-                sensor_stale=0,
-                sensor_missing=0,
-                late_streak=0,
-                warned=frozenset(),
-                unreachable=frozenset(),
-                sdo_stopped=frozenset(),
-                sensor_breach="",
-                fault_resets=(FaultResetProgress(),) * self.n,  # this ENABLING resets the drives' faults
-                bus_off_cycle=0,
-            )
+            state = self._reset(state, t, events)
+        if state.mode in GUARDED_MODES:
+            state = self._guard_contact(state, inputs, t, events)
         if inputs.command == Command.QUICK_STOP and state.mode not in (Mode.FAULT, Mode.DONE):
             why = "quick stop requested"
             state = replace(
@@ -345,6 +360,58 @@ class ControlLaw:
             sdo_controlwords=tuple((j, CW_QUICK_STOP) for j in by_sdo),
         )
         return state, outputs, tuple(events)
+
+    def _supervise(
+        self,
+        state: ControllerState,
+        inputs: CycleInputs,
+        powers: tuple[PowerState, ...],
+        jump: str,
+        emcy_fault: str,
+        t: float,
+        events: list[Event],
+    ) -> ControllerState:
+        """Every mode but FAULT: the safety layer's limits, the drives' faults and EMCYs."""
+        state, reason = self._safety(state, inputs, events)
+        if reason and reason == state.protective_cause and state.mode in GUARDED_MODES:
+            # The force sensor gone stale or saturated with the drives enabled: the tool may be
+            # pressing on something with a force nobody reads; back off along the drives' effort
+            # witness (or brake in place without one), never a quick stop in contact. Backing off
+            # already, it goes on.
+            if state.mode != Mode.BACKING_OFF:
+                state = self._begin_back_off(state, reason, t, events)
+            reason = ""
+        reason = reason or jump or self._fault_reason(state, inputs, powers, emcy_fault)
+        if reason:
+            state = self._enter(state, Mode.FAULT, t, events, Severity.FAULT, reason)
+            state = replace(state, fault_reason=reason, setpoint=self._hold(state))
+        elif inputs.emcy:
+            state = self._emcy_notes(state, inputs, t, events)
+        return state
+
+    def _reset(self, state: ControllerState, t: float, events: list[Event]) -> ControllerState:
+        """The operator's reset in FAULT."""
+        # Recovery without a jump: ENABLING resets the drives' faults and commands the
+        # measured positions; HOLDING restarts Ruckig from rest there; the task starts again.
+        return replace(
+            self._enter(state, Mode.ENABLING, t, events, why="reset"),
+            fault_reason="",
+            setpoint=self._hold(state),
+            task_time_s=0.0,
+            sensor_stale=0,
+            sensor_missing=0,
+            late_streak=0,
+            warned=frozenset(),
+            unreachable=frozenset(),
+            sdo_stopped=frozenset(),
+            sensor_breach="",
+            fault_resets=(FaultResetProgress(),) * self.n,  # this ENABLING resets the drives' faults
+            bus_off_cycle=0,
+            contact=replace(
+                state.contact, expectation=ContactExpectation.NONE, suspect="", disagreeing=0, agreeing=0
+            ),
+            back_off=None,
+        )
 
     def _quick_stops_by_sdo(
         self, state: ControllerState, events: list[Event]
@@ -402,6 +469,8 @@ class ControlLaw:
     ) -> tuple[ControllerState, str]:
         """Apply a configured reaction to an abnormal condition ``key``."""
         if reaction == Reaction.FAULT:
+            if key in SENSOR_TROUBLE:
+                state = replace(state, protective_cause=why)
             return state, why
         if reaction == Reaction.WARN and key not in state.warned:
             events.append(Event(key, Severity.WARNING, why))
@@ -429,7 +498,8 @@ class ControlLaw:
         if sensor is not None and sensor.fresh:
             f = sensor.force_n
             magnitude = math.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2])
-            if magnitude > sc.max_contact_force_n:
+            if magnitude > sc.max_contact_force_n and state.mode not in GUARDED_MODES:
+                # Drives not yet enabled: nothing to back off with. Enabled, the contact guard judges.
                 return state, f"contact force {magnitude:.1f} N above the limit of {sc.max_contact_force_n} N"
             if sensor.status & SENSOR_FORCE_SATURATED:
                 state, why = self._react(
@@ -711,7 +781,7 @@ class ControlLaw:
                 return f"drive {j + 1}: no TPDO for {streak} cycles"
         if emcy_fault:
             return emcy_fault
-        if state.mode in (Mode.HOLDING, Mode.RUNNING, Mode.PAUSED) or (
+        if state.mode in (Mode.HOLDING, Mode.RUNNING, Mode.PAUSED, Mode.BACKING_OFF) or (
             state.mode == Mode.STOPPING and not self._shutting_down(state)
         ):
             for j, p in enumerate(powers):
@@ -909,6 +979,7 @@ class ControlLaw:
         elif inputs.sensor is not None and inputs.sensor.fresh and state.sensor_stale > 0:
             # A frame whose counter did not advance repeats the last sample: no new evidence for the task.
             inputs = replace(inputs, sensor=replace(inputs.sensor, fresh=False))
+        witness = state.contact.witness
         ctx = TaskContext(
             t_s=task_time + PIPELINE_PERIODS * period,
             period_s=period,
@@ -916,6 +987,8 @@ class ControlLaw:
             inputs=inputs,
             tcp_measured_m=state.tcp_measured_m,
             sensor_breach=state.sensor_breach,
+            force_witness_n=witness.force_n if witness is not None else None,
+            sensor_suspect=state.contact.suspect,
         )
         out = self.task.step(state.task_state, ctx)
         events.extend(out.events)
@@ -924,6 +997,14 @@ class ControlLaw:
             return replace(
                 self._enter(state, Mode.FAULT, t, events, Severity.FAULT, out.fault),
                 fault_reason=out.fault,
+                task_state=task_state,
+                setpoint=self._hold(state),
+            )
+        too_fast = self._contact_speed(state, ref.tcp_m, ref.contact)
+        if too_fast:
+            return replace(
+                self._enter(state, Mode.FAULT, t, events, Severity.FAULT, too_fast),
+                fault_reason=too_fast,
                 task_state=task_state,
                 setpoint=self._hold(state),
             )
@@ -953,6 +1034,7 @@ class ControlLaw:
             setpoint=result.setpoint,
             task_time_s=task_time,
             tcp_reference_m=ref.tcp_m if ref.on_path else None,
+            contact=replace(state.contact, expectation=ref.contact, reference_m=ref.tcp_m),
         )
         if finished:
             return self._enter(state, Mode.STOPPING, t, events, why=f"task {self.task.name} finished")
@@ -1053,6 +1135,159 @@ class ControlLaw:
             )
         )
         return replace(state, bus_off_cycle=0)
+
+    # -- the contact guard (contact_guard.py) ---------------------------------------------------
+
+    def _witness(
+        self, state: ControllerState, inputs: CycleInputs, history: tuple[tuple[float, ...], ...]
+    ) -> Witness | None:
+        """The contact force the drives' efforts imply this cycle, where the robot and the drives tell
+        it; ``history``: the setpoints' last accelerations, newest last."""
+        model = self._witness_model
+        tcp = state.tcp_measured_m
+        if (
+            model is None
+            or tcp is None
+            or len(history) < WITNESS_ACCELERATION_LAG
+            or not all(d.fresh and d.effort_n == d.effort_n for d in inputs.drives)
+        ):
+            return None
+        found = model.contact_force_from_efforts(
+            tcp,
+            tuple(d.position for d in inputs.drives),
+            tuple(d.effort_n for d in inputs.drives),
+            history[-WITNESS_ACCELERATION_LAG],
+        )
+        return Witness(*found) if found is not None else None
+
+    def _guard_contact(
+        self, state: ControllerState, inputs: CycleInputs, t: float, events: list[Event]
+    ) -> ControllerState:
+        """The guard's watch this cycle; past a limit, the protective back-off (or, backing off into
+        more force, the quick stop)."""
+        cfg = self.config.safety.contact
+        was_suspect = state.contact.suspect
+        history = (*state.contact.accelerations, state.setpoint.acceleration)[-WITNESS_ACCELERATION_LAG:]
+        tolerance = self.config.settle_tolerance
+        at_rest = all(-tolerance <= v <= tolerance for v in state.setpoint.velocity)
+        w, cause = watch_contact(
+            cfg,
+            replace(state.contact, accelerations=history),
+            inputs,
+            state.sensor_stale > 0 or bool(state.sensor_breach),
+            self._witness(state, inputs, history),
+            at_rest,
+            state.cycle,
+            self.config.period_s,
+        )
+        state = replace(state, contact=w)
+        if w.suspect and not was_suspect:
+            events.append(Event("sensor_suspect", Severity.WARNING, f"force sensor suspect: {w.suspect}"))
+        elif was_suspect and not w.suspect:
+            events.append(
+                Event("sensor_suspect", Severity.INFO, "force sensor and drives' effort agree again")
+            )
+        if state.mode == Mode.BACKING_OFF:
+            b = state.back_off
+            if (
+                b is not None
+                and b.cycles > BACK_OFF_GRACE_CYCLES
+                and w.force_n > max(b.entry_force_n, cfg.max_contact_force_n) + BACK_OFF_WORSE_N
+            ):
+                why = f"{back_off_summary(b)}, and met {w.force_n:.1f} N backing off: quick stop"
+                return replace(
+                    self._enter(state, Mode.FAULT, t, events, Severity.FAULT, why),
+                    fault_reason=why,
+                    setpoint=self._hold(state),
+                )
+            return state
+        if not cause:
+            return state
+        return self._begin_back_off(state, cause, t, events)
+
+    def _begin_back_off(
+        self, state: ControllerState, cause: str, t: float, events: list[Event]
+    ) -> ControllerState:
+        """BACKING_OFF along the force the guard trusts (contact_guard.begin_back_off), naming ``cause``."""
+        origin = state.tcp_measured_m or state.contact.reference_m
+        if origin is None:  # no pose to move from: the quick stop is all there is
+            return replace(
+                self._enter(state, Mode.FAULT, t, events, Severity.FAULT, cause),
+                fault_reason=cause,
+                setpoint=self._hold(state),
+            )
+        back_off = begin_back_off(
+            self.config.safety.contact, state.contact, cause, origin, cause != state.protective_cause
+        )
+        d = back_off.direction
+        where = f"backing off along ({d[0]:.2f}, {d[1]:.2f}, {d[2]:.2f})" if d else "braking in place"
+        events.append(Event("protective_stop", Severity.FAULT, f"{cause}: {where}"))
+        return replace(
+            self._enter(state, Mode.BACKING_OFF, t, events, Severity.FAULT, f"protective stop: {cause}"),
+            back_off=back_off,
+            tcp_reference_m=None,
+        )
+
+    def _contact_speed(
+        self, state: ControllerState, tcp_m: tuple[float, float, float], contact: ContactExpectation
+    ) -> str:
+        """A reference that expects contact and moves faster than a guarded move may: the task's bug."""
+        last = state.contact.reference_m
+        if contact == ContactExpectation.NONE or last is None:
+            return ""
+        speed = norm3((tcp_m[0] - last[0], tcp_m[1] - last[1], tcp_m[2] - last[2])) / self.config.period_s
+        limit = self.config.safety.contact.max_contact_speed_m_s
+        if speed <= limit:
+            return ""
+        return (
+            f"the task's reference moves at {speed:.3f} m/s where it expects contact; a guarded move "
+            f"is at most safety.contact.max_contact_speed_m_s = {limit} m/s"
+        )
+
+    def _backing_off(
+        self,
+        state: ControllerState,
+        inputs: CycleInputs,
+        powers: tuple[PowerState, ...],
+        measured: tuple[float, ...],
+        t: float,
+        events: list[Event],
+    ) -> ControllerState:
+        """Away from the force at a bounded speed (reactive, as a task's guarded move), then at rest: FAULT."""
+        b = state.back_off
+        assert b is not None
+        period = self.config.period_s
+        b, p, v = advance_back_off(self.config.safety.contact, b, period)
+        state = replace(state, back_off=b)
+        if not b.braking:
+            try:
+                q = self.robot.inverse_kinematics(np.asarray(p))
+                ahead = self.robot.inverse_kinematics(
+                    np.asarray((p[0] + v[0] * period, p[1] + v[1] * period, p[2] + v[2] * period))
+                )
+            except NoSolutionError:
+                b = replace(b, braking=True)
+                state = replace(state, back_off=b)
+            else:
+                qd = tuple((float(a) - float(c)) / period for a, c in zip(ahead, q, strict=True))
+                result = self.smoother.track_velocity(
+                    state.setpoint, tuple(float(x) for x in q), qd, REACTIVE_CORRECTION_PERIODS / period
+                )
+                if result.ok:
+                    return replace(state, setpoint=result.setpoint)
+                b = replace(b, braking=True)
+                state = replace(state, back_off=b)
+        state = self._smooth_to_rest(state, t, events)
+        if state.mode != Mode.BACKING_OFF or any(
+            abs(x) > self.config.settle_tolerance for x in state.setpoint.velocity
+        ):
+            return state
+        why = back_off_summary(b)
+        return replace(
+            self._enter(state, Mode.FAULT, t, events, Severity.FAULT, why),
+            fault_reason=why,
+            setpoint=Setpoint.at_rest(state.setpoint.position),
+        )
 
     @staticmethod
     def _hold(state: ControllerState) -> Setpoint:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from enum import IntEnum
 
+from controller.core.contact_guard import BackOff, ContactWatch
 from controller.core.records import record
 from controller.core.setpoint_smoothing import Setpoint
 
@@ -23,6 +24,7 @@ class Mode(IntEnum):
     STOPPING = 5
     DONE = 6
     FAULT = 7
+    BACKING_OFF = 8  # the contact guard's protective stop: away from the force, then FAULT
 
 
 @record
@@ -73,3 +75,6 @@ class ControllerState:
     # A bus-off faulted the run at this cycle (0: none): FAULT re-checks the drives when the bus
     # is back and says so once (control_law ``_after_bus_off``).
     bus_off_cycle: int = 0
+    contact: ContactWatch = ContactWatch()  # the contact guard's watch (contact_guard.py)
+    back_off: BackOff | None = None  # the protective back-off in progress (BACKING_OFF)
+    protective_cause: str = ""  # a fault this cycle that backs off instead (the sensor's troubles)

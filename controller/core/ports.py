@@ -16,7 +16,7 @@ a robot or a task of your own depends on the core and the core on neither.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import StrEnum
+from enum import IntEnum, StrEnum
 from typing import TYPE_CHECKING, Protocol, TypeVar, runtime_checkable
 
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
@@ -77,7 +77,36 @@ class Robot(Protocol):
         ...
 
 
+class ForceWitnessModel(Protocol):
+    """A robot that tells the contact force from its drives' efforts: the force sensor's second witness.
+
+    An optional capability (controller/core/contact_guard.py): the law cross-checks the sensor with
+    it every cycle and its limits act on the larger of the two. Cheope's (controller/robots/cheope.py)
+    maps the efforts through its Jacobian and adds back its own inertial load.
+    """
+
+    def contact_force_from_efforts(
+        self,
+        tcp_m: tuple[float, float, float],
+        q: tuple[float, ...],
+        efforts_n: tuple[float, ...],
+        qdd: tuple[float, ...],
+    ) -> tuple[tuple[float, float, float], float] | None:
+        """(the contact force on the tool [N], |M a| [N]: the model's own inertial load), or None at a
+        pose where the efforts tell nothing (a singularity)."""
+        ...
+
+
 # -- tasks ------------------------------------------------------------------------------------
+
+
+class ContactExpectation(IntEnum):
+    """What a task's reference says about contact; the law's contact guard judges forces by it."""
+
+    NONE = 0  # free space: a force above safety.contact.free_space_force_n is a collision
+    GUARDED = 1  # a guarded move seeking contact at a bounded speed (approach, re-approach)
+    PRESSING = 2  # in contact by design, up to safety.max_contact_force_n
+
 
 S = TypeVar("S")  # a task's state
 
@@ -91,6 +120,7 @@ class JointReference:
     on_path: bool  # False while moving to the task's start (not counted in tracking error)
     reactive: bool = False  # recomputed from measurements each cycle: smoothed by velocity (see
     #                         RuckigSmoother.track_velocity), else by position
+    contact: ContactExpectation = ContactExpectation.NONE  # what the law's contact guard expects
 
     @classmethod
     def at_rest(cls, position: tuple[float, ...], tcp_m: tuple[float, float, float]) -> JointReference:
@@ -111,6 +141,12 @@ class TaskContext:
     # moves away from the contact without force data and ends with a fault naming it, within
     # safety.sensor_breach_retract_s; else the law faults at once.
     sensor_breach: str = ""
+    # The contact force the drives' efforts imply (the sensor's second witness, contact_guard.py), this
+    # cycle or the last; None without one (a robot without the capability, drives that do not map it).
+    force_witness_n: tuple[float, float, float] | None = None
+    # Non-empty: the sensor disagrees with that witness beyond its tolerance (why); the task must
+    # resolve it (re-tare in free space) within safety.contact.sensor_suspect_s, or the law backs off.
+    sensor_suspect: str = ""
 
 
 @record

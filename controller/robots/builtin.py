@@ -97,7 +97,7 @@ def build_cheope(c: CheopeSection) -> CheopeRobot:
         min_structural_measure=m.min_structural_measure,
         max_condition_number=m.max_condition_number,
     )
-    return CheopeRobot(geometry=geometry, limits=limits)
+    return CheopeRobot(geometry=geometry, limits=limits, masses=cheope_mass_model(c.mass))
 
 
 def _three(values: Iterable[float]) -> tuple[float, float, float]:

@@ -31,6 +31,11 @@ class PathSection(Section, frozen=True):
     ramp_s: Annotated[float, rng(0.0, 60.0)] = 0.5
     check_samples: Annotated[int, rng(8, 1_000_000)] = 720
     normal: tuple[float, float, float] = (0.0, 0.0, 1.0)  # the circle's plane normal (not normalised)
+    # what the path says to the contact guard (controller/core/contact_guard.py): "none", free space; "pressing",
+    # a path meant to touch (the contour demo's position-control comparison), to its start then as a guarded
+    # move at move_speed_m_s
+    contact: Literal["none", "pressing"] = "none"
+    move_speed_m_s: Annotated[float, rng(0.0, 1.0)] = 0.0  # 0: to the start at Ruckig's own speed
 
 
 def _check_path(p: PathSection) -> None:
@@ -44,6 +49,7 @@ def _path_lasting(p: PathSection, duration_s: float) -> dict[str, object]:
 
 
 def build_path_task(p: PathSection, robot: Robot, shared: TaskSettings) -> BuiltTask:
+    from controller.core.ports import ContactExpectation
     from controller.tasks.circle_path import CirclePath
     from controller.tasks.path_task import PathTask
 
@@ -59,7 +65,16 @@ def build_path_task(p: PathSection, robot: Robot, shared: TaskSettings) -> Built
 
         trajectory = TiltedCirclePath(path, p.normal)
     robot.check_path(trajectory.points(p.check_samples))  # WorkspaceError names the sample
-    return BuiltTask(PathTask(robot, trajectory, settle_tolerance=shared.settle_tolerance_m))
+    contact = ContactExpectation.PRESSING if p.contact == "pressing" else ContactExpectation.NONE
+    return BuiltTask(
+        PathTask(
+            robot,
+            trajectory,
+            settle_tolerance=shared.settle_tolerance_m,
+            contact=contact,
+            move_speed_m_s=p.move_speed_m_s,
+        )
+    )
 
 
 # -- contour tracking (seed 001 §7) -------------------------------------------------------------
@@ -109,6 +124,26 @@ class ContourSection(Section, frozen=True):
     max_push_without_force_m: Annotated[float, rng(0.0001, 0.1)] = 0.003
     creep_speed_m_s: Annotated[float, rng(0.0001, 1.0)] = 0.01
     creep_distance_m: Annotated[float, rng(0.0, 1.0)] = 0.025
+    # safe by design (controller/tasks/contour_tracking.py, "Safe by design")
+    placement_tolerance_m: Annotated[float, rng(0.0, 1.0)] = 0.015  # the part may lie this far from expected
+    move_speed_m_s: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.015  # to the staging point
+    search_speed_m_s: Annotated[float, rng(0.0, 0.1, lo_open=True)] = 0.01  # guarded, to the nominal start
+    # the first lap's speed at most: a feature of the unknown contour (a weld bead) is met this fast, later
+    # laps slow down before what the first one traced
+    explore_speed_m_s: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.02
+    min_contact_stiffness_n_m: Annotated[float, rng(0.0, 1e9)] = (
+        2000.0  # a contact's force rises this steeply
+    )
+    envelope_margin_m: Annotated[float, rng(0.0, 1.0, lo_open=True)] = (
+        0.012  # from the contour traced in lap 1
+    )
+    retare_clearance_m: Annotated[float, rng(0.0, 0.1)] = 0.002  # out of contact before a re-tare
+    max_retares_per_lap: Annotated[int, rng(0, 1000)] = 3
+    sensor_bias_limit_n: Annotated[float, rng(0.0, 1000.0, lo_open=True)] = (
+        4.0  # tared sensor - effort witness
+    )
+    sensor_bias_time_constant_s: Annotated[float, rng(0.01, 60.0)] = 2.0
+    witness_verdict_cycles: Annotated[int, rng(1, 10000)] = 8  # the witness judges a held step this long
 
 
 def _check_contour(c: ContourSection) -> None:
@@ -116,8 +151,10 @@ def _check_contour(c: ContourSection) -> None:
         raise ConfigError("task.contour.lap_speeds_m_s = []: needs at least one lap")
 
 
-def contour_params(c: ContourSection, settle_tolerance_m: float, max_contact_force_n: float) -> ContourParams:
-    """The task's parameters: the section's keys of the same name, and the four that differ."""
+def contour_params(
+    c: ContourSection, settle_tolerance_m: float, max_contact_force_n: float, witness_tolerance_n: float = 6.0
+) -> ContourParams:
+    """The task's parameters: the section's keys of the same name, and the five that differ."""
     from controller.tasks.contour_tracking import ContourParams
 
     same = {f.name: getattr(c, f.name) for f in dataclasses.fields(ContourParams) if hasattr(c, f.name)}
@@ -127,6 +164,7 @@ def contour_params(c: ContourSection, settle_tolerance_m: float, max_contact_for
         reapproach_on_contact_loss=c.on_contact_loss == "reapproach",
         settle_tolerance_m=settle_tolerance_m,
         saturation_force_n=c.admittance_saturation_fraction * max_contact_force_n,
+        witness_tolerance_n=witness_tolerance_n,
     )
 
 
@@ -148,15 +186,19 @@ def build_contour_task(c: ContourSection, robot: Robot, shared: TaskSettings) ->
 
     from controller.tasks.contour_tracking import ContourTrackingTask
 
-    # The whole neighbourhood the task may visit: the expected contour, widened by the approach.
+    # The whole neighbourhood the task may visit: the expected contour, widened by the approach, out to
+    # the staging point (the placement tolerance beyond the clearance).
     ring = []
-    for r in (c.expected_radius_m - c.max_approach_distance_m, c.expected_radius_m + c.approach_clearance_m):
+    outer = c.expected_radius_m + c.approach_clearance_m + c.placement_tolerance_m
+    for r in (c.expected_radius_m - c.max_approach_distance_m - c.placement_tolerance_m, outer):
         for th in np.linspace(0.0, 2.0 * np.pi, 73):
             ring.append(
                 (c.expected_centre_m[0] + r * np.cos(th), c.expected_centre_m[1] + r * np.sin(th), c.height_m)
             )
     robot.check_path(np.array(ring))
-    params = contour_params(c, shared.settle_tolerance_m, shared.max_contact_force_n)
+    params = contour_params(
+        c, shared.settle_tolerance_m, shared.max_contact_force_n, shared.witness_tolerance_n
+    )
     return BuiltTask(ContourTrackingTask(robot, params))  # type: ignore[arg-type]
 
 

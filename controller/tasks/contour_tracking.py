@@ -84,7 +84,13 @@ from typing import Protocol
 import numpy as np
 
 from controller.core.cycle_data import Command, Event, Severity
-from controller.core.ports import ForceSetpointLimit, JointReference, TaskContext, TaskStep
+from controller.core.ports import (
+    ContactExpectation,
+    ForceSetpointLimit,
+    JointReference,
+    TaskContext,
+    TaskStep,
+)
 from controller.core.records import record, replace
 
 
@@ -104,7 +110,14 @@ MOTION_WITNESS_SPEED_M_S = 0.02  # sliding faster than this, the measured motion
 MOTION_GATE_DEG = 10.0
 CONSISTENCY_MAX_DEG = 8.0  # the measured motion's angle to the tangent for a contact normal to be trusted
 CONSISTENCY_MIN_SPEED_M_S = 0.005  # slower motion says nothing about the tangent
-RETARE_MAX_FRACTION = 0.5  # of the setpoint: a re-approach re-tares the sensor when it reads less than this
+STALE_CONTACT_POINT_M = 0.015  # a last good contact point further than this is not where to re-approach
+ENVELOPE_SPACING_M = 0.002  # the first lap's traced contour keeps a point this often (the envelope's)
+ENVELOPE_SEARCH = 8  # segments each side of the last nearest one searched every cycle
+MOVE_ACCELERATION_M_S2 = 0.2  # the move to the staging point speeds up and brakes at this
+TRACE_BACKFILL = 2  # trace points before an irregular one that get its speed too (4 mm)
+LOOK_AHEAD_VERTICES = 6  # of the lap-1 trace: 12 mm, more than braking from 60 mm/s takes at ...
+LOOK_AHEAD_DECELERATION_M_S2 = 0.5  # ... this (3.6 mm): gentle, the structure does not ring
+MIN_BIAS_SPEED_M_S = 0.015  # slower, the cogging does not average out of the sensor-minus-witness filter
 FORCE_BAND_FRACTION = 0.3  # of the force setpoint: a larger error derates the tangential speed ...
 FORCE_STOP_FRACTION = 0.6  # ... down to zero at this one (the disk's laps stay within 0.17 at 60 mm/s)
 UNSEEN_TURN_DECAY_S = 0.1  # without a direction measurement the normal's turn rate (and its change) fade with this time constant
@@ -120,6 +133,22 @@ class ContourPhase(IntEnum):
     CONTACT_LOST = 6
     REAPPROACH = 7
     BACK_OFF = 8
+    RETARE = 9  # out of contact along the last normal, then the sensor's offset measured again
+
+
+# What each phase's reference says about contact (the law's contact guard, controller/core/contact_guard.py).
+PHASE_CONTACT = {
+    ContourPhase.MOVE_TO_START: ContactExpectation.NONE,
+    ContourPhase.TARE: ContactExpectation.NONE,
+    ContourPhase.APPROACH: ContactExpectation.GUARDED,
+    ContourPhase.TRACKING: ContactExpectation.PRESSING,
+    ContourPhase.RETRACT: ContactExpectation.PRESSING,
+    ContourPhase.FINISHED: ContactExpectation.NONE,
+    ContourPhase.CONTACT_LOST: ContactExpectation.PRESSING,  # braking, still in contact or near
+    ContourPhase.REAPPROACH: ContactExpectation.GUARDED,
+    ContourPhase.BACK_OFF: ContactExpectation.PRESSING,  # leaving where the re-approach went
+    ContourPhase.RETARE: ContactExpectation.PRESSING,  # leaving the contact; NONE once out, for the tare
+}
 
 
 @dataclass(frozen=True)
@@ -168,6 +197,23 @@ class ContourParams:
         0.01  # after a re-acquisition, for creep_distance_m: the contour is irregular there
     )
     creep_distance_m: float = 0.025
+    # Off the happy path, by design (the module's text, "Safe by design")
+    placement_tolerance_m: float = 0.015  # the part may lie this far from where it is expected
+    search_speed_m_s: float = 0.01  # a guarded move's speed until the nominal start point
+    move_speed_m_s: float = 0.015  # the move to the staging point, in free space: bounded all the same
+    explore_speed_m_s: float = 0.02  # the first lap's speed at most: the contour is not known yet
+    min_contact_stiffness_n_m: float = (
+        2000.0  # a contact's force rises at least this steeply with the advance
+    )
+    envelope_margin_m: float = 0.012  # the tool stays this close to the contour traced in lap 1
+    retare_clearance_m: float = 0.002  # after a contact loss: this far out along the normal, then the tare
+    max_retares_per_lap: int = 3
+    sensor_bias_limit_n: float = 4.0  # the tared sensor minus the effort witness, filtered: a drifted offset
+    sensor_bias_time_constant_s: float = 2.0
+    witness_verdict_cycles: int = (
+        8  # after an implausible step, the witness decides: real or the sensor's offset
+    )
+    witness_tolerance_n: float = 6.0  # safety.contact.tolerance_n: the effort witness's own error
 
 
 @record
@@ -212,6 +258,21 @@ class ContourState:
     fault: str = ""
     force_setpoint_n: float = 0.0
     qd_ref: tuple[float, ...] = ()  # joint velocity of the last reference, for its acceleration
+    start_checked: bool = False  # the way to the staging point was checked clear of the part
+    guard_base_n: float = 0.0  # a guarded move: the lowest force against its direction since it began
+    guard_rise_m: float | None = None  # its travel when that force first rose half the contact force
+    verdict: str = ""  # what the effort witness says of a held step ("real", "offset", ""), ...
+    verdict_cycles: int = 0  # ... for this many cycles in a row
+    bias_n: tuple[float, float] = (0.0, 0.0)  # tared sensor minus the effort witness, filtered (XY)
+    retares: tuple[int, ...] = ()  # re-tares in free space per lap
+    retare_why: str = ""  # why the current re-tare
+    offset_doubt: str = ""  # a held step the witness says was the sensor's offset: re-tare (why)
+    approached_m: float = -1.0  # a re-tare during the approach: how far it had gone (-1: none)
+    # the contour traced in lap 1, every ENVELOPE_SPACING_M, with the speed the first lap found for it
+    trace: tuple[TracePoint, ...] = ()
+    trace_index: int = 0  # the trace's segment nearest the tool at the last cycle
+    retract_direction: tuple[float, float] = (1.0, 0.0)  # unit: along the measured force when it began
+    retare_direction: tuple[float, float] = (1.0, 0.0)  # unit: a re-tare's way out (_way_out)
 
 
 def _unit2(x: float, y: float) -> tuple[float, float] | None:
@@ -221,6 +282,63 @@ def _unit2(x: float, y: float) -> tuple[float, float] | None:
 
 def _wrap(a: float) -> float:
     return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+TracePoint = tuple[float, float, float]  # x, y [m] and the speed at most there in later laps [m/s]
+
+
+def _closed(trace: tuple[TracePoint, ...]) -> tuple[TracePoint, ...]:
+    """The first lap's trace as a closed polyline: its last points back over its first dropped."""
+    if len(trace) < 4:
+        return trace
+    first = trace[0]
+    end = len(trace)
+    while (
+        end > 3
+        and math.hypot(trace[end - 1][0] - first[0], trace[end - 1][1] - first[1]) < ENVELOPE_SPACING_M
+    ):
+        end -= 1
+    return trace[:end]
+
+
+def _nearest_on_trace(
+    trace: tuple[TracePoint, ...], x: float, y: float, around: int, span: int
+) -> tuple[float, int]:
+    """(distance, segment) of the point nearest (x, y) on the closed polyline ``trace``, searched
+    ``span`` segments each side of ``around`` (the whole of it when span covers it)."""
+    n = len(trace)
+    best, best_k = math.inf, around
+    for k in range(around - span, around + span + 1) if 2 * span + 1 < n else range(n):
+        i = k % n
+        ax, ay, _ = trace[i]
+        bx, by, _ = trace[(i + 1) % n]
+        dx, dy = bx - ax, by - ay
+        length2 = dx * dx + dy * dy
+        u = min(1.0, max(0.0, ((x - ax) * dx + (y - ay) * dy) / length2)) if length2 > 0.0 else 0.0
+        d = math.hypot(x - ax - u * dx, y - ay - u * dy)
+        if d < best:
+            best, best_k = d, i
+    return best, best_k
+
+
+def trace_normal(s: ContourState, direction: int) -> tuple[float, float] | None:
+    """The contour's outward normal where the tool is, from the trace of its measured positions (no
+    force in it): the last segment in the first lap, the nearest one after; None without a segment of
+    at least half the trace's spacing. The part lies to the -normal side of the way the tool travels
+    (``direction``: +1 counter-clockwise), as the tracker's tangent t = (-n_y, n_x) * direction."""
+    trace = s.trace
+    n = len(trace)
+    if n < 2:
+        return None
+    if s.lap == 0:
+        a, b = trace[-2], trace[-1]
+    else:
+        a, b = trace[s.trace_index % n], trace[(s.trace_index + 1) % n]
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    length = math.hypot(dx, dy)
+    if length < 0.5 * ENVELOPE_SPACING_M:
+        return None
+    return (direction * dy / length, -direction * dx / length)
 
 
 def predict_normal(angle_rad: float, rate_rad_s: float, accel_rad_s2: float, dt: float) -> float:
@@ -270,9 +388,14 @@ class ContourTrackingTask:
         self.p = params
         u = (math.cos(params.approach_direction_rad), math.sin(params.approach_direction_rad))
         c = params.expected_centre_m
-        r = params.expected_radius_m + params.approach_clearance_m
+        # The staging point: outside the expected contour by the approach clearance and the part's
+        # placement tolerance. Nearer than that the part may be anywhere: only guarded moves go there.
+        self.zone_radius_m = (
+            params.expected_radius_m + params.approach_clearance_m + params.placement_tolerance_m
+        )
+        r = self.zone_radius_m
         self.start_m = (c[0] + r * u[0], c[1] + r * u[1], params.height_m)
-        self._start_q = tuple(robot.inverse_kinematics(np.array(self.start_m)).tolist())
+        robot.inverse_kinematics(np.array(self.start_m))  # reachable, or the task is refused at start
 
     @property
     def laps(self) -> int:
@@ -310,11 +433,18 @@ class ContourTrackingTask:
     # -- helpers ------------------------------------------------------------------------------
 
     def _reference(
-        self, s: ContourState, v: tuple[float, float, float], on_path: bool, dt: float
+        self,
+        s: ContourState,
+        v: tuple[float, float, float],
+        on_path: bool,
+        dt: float,
+        contact: ContactExpectation | None = None,
     ) -> tuple[ContourState, JointReference]:
         q, qd = self.robot.joint_motion(s.p_cmd, v)
         qdd = tuple((a - b) / dt for a, b in zip(qd, s.qd_ref, strict=True)) if s.qd_ref else (0.0,) * len(qd)
-        return replace(s, qd_ref=qd), JointReference(q, qd, qdd, s.p_cmd, on_path, reactive=True)
+        expected = PHASE_CONTACT[s.phase] if contact is None else contact
+        ref = JointReference(q, qd, qdd, s.p_cmd, on_path, reactive=True, contact=expected)
+        return replace(s, qd_ref=qd), ref
 
     def _moving(
         self,
@@ -372,6 +502,23 @@ class ContourTrackingTask:
                         f"force back at its level after {elapsed_s * 1000:.0f} ms; tracking on",
                     ),
                 )
+            s, verdict = self._witness_verdict(s, ctx, raw, held)
+            size = math.hypot(raw[0] - held[0], raw[1] - held[1])
+            if verdict == "real":
+                return replace(s, held_force=None, suspect_cycles=0, force_f=raw), (
+                    Event(
+                        "force_plausible",
+                        Severity.WARNING,
+                        f"force step of {size:.1f} N is real: the drives' effort moved with it",
+                    ),
+                )
+            if elapsed_s >= p.implausible_hold_s and verdict == "offset":
+                # The sensor's offset stepped: the force is still what it was before the step, and the
+                # offset is measured again in free space (``_sensor_doubt``, the re-tare).
+                why = f"the force sensor's offset stepped by {size:.1f} N and the drives' effort did not"
+                return replace(s, held_force=None, suspect_cycles=0, raw_force=held, offset_doubt=why), (
+                    Event("sensor_offset_step", Severity.WARNING, why + ": re-taring in free space"),
+                )
             if elapsed_s >= p.implausible_hold_s:
                 return replace(s, held_force=None, suspect_cycles=0, force_f=raw), (
                     Event(
@@ -384,7 +531,11 @@ class ContourTrackingTask:
         step = math.hypot(raw[0] - last[0], raw[1] - last[1])
         if step > p.max_force_step_n:
             return replace(
-                s, held_force=last, held_step=(raw[0] - last[0], raw[1] - last[1]), suspect_cycles=0
+                s,
+                held_force=last,
+                held_step=(raw[0] - last[0], raw[1] - last[1]),
+                suspect_cycles=0,
+                verdict_cycles=0,
             ), (
                 Event(
                     "force_implausible",
@@ -394,6 +545,33 @@ class ContourTrackingTask:
                 ),
             )
         return self._filtered(s, raw, ctx), ()
+
+    def _witness_verdict(
+        self,
+        s: ContourState,
+        ctx: TaskContext,
+        raw: tuple[float, float, float],
+        held: tuple[float, float, float],
+    ) -> tuple[ContourState, str]:
+        """What the drives' effort witness says of a step held as implausible: "real" when it agrees with
+        the new level and not with the old one, "offset" (the sensor's own) the other way round, within
+        its tolerance (``witness_tolerance_n`` and a quarter of the force); "" while it cannot tell. A
+        verdict counts once it has stood ``witness_verdict_cycles`` in a row: a braking tool makes the
+        structure ring, and the motors feel the ringing for a few cycles where the sensor does not."""
+        w = ctx.force_witness_n
+        if w is None:
+            return replace(s, verdict="", verdict_cycles=0), ""
+        tol = self.p.witness_tolerance_n + 0.25 * max(
+            math.hypot(raw[0], raw[1]), math.hypot(held[0], held[1])
+        )
+        agrees_new = math.hypot(raw[0] - w[0], raw[1] - w[1]) <= tol
+        agrees_old = math.hypot(held[0] - w[0], held[1] - w[1]) <= tol
+        verdict = (
+            "real" if agrees_new and not agrees_old else "offset" if agrees_old and not agrees_new else ""
+        )
+        n = s.verdict_cycles + 1 if verdict and verdict == s.verdict else (1 if verdict else 0)
+        s = replace(s, verdict=verdict, verdict_cycles=n)
+        return s, verdict if n >= self.p.witness_verdict_cycles else ""
 
     def _filtered(self, s: ContourState, raw: tuple[float, float, float], ctx: TaskContext) -> ContourState:
         a = 1.0 - math.exp(-2.0 * math.pi * self.p.force_filter_hz * ctx.period_s)
@@ -406,11 +584,23 @@ class ContourTrackingTask:
         """Whether this cycle's force may steer the law: no implausible step held, no run of stale cycles."""
         return s.held_force is None and s.stale_cycles < self.p.stale_hold_cycles
 
-    def _pressing_n(self, s: ContourState, normal: tuple[float, float]) -> float:
-        """The contact force along the normal that saturation judges: the larger of filtered and raw."""
+    def _pressing_n(self, s: ContourState, normal: tuple[float, float], ctx: TaskContext) -> float:
+        """The contact force along the normal that saturation and the task's limit judge: the largest of
+        the filtered force, the latest raw sample (a collision is a step), unless it is a step held as
+        implausible, and the drives' effort witness (a sensor reading low is no licence to push)."""
         filtered = s.force_f[0] * normal[0] + s.force_f[1] * normal[1]
-        raw = s.raw_force[0] * normal[0] + s.raw_force[1] * normal[1] if s.raw_force is not None else filtered
-        return max(filtered, raw)
+        raw = (
+            s.raw_force[0] * normal[0] + s.raw_force[1] * normal[1]
+            if s.raw_force is not None and s.held_force is None
+            else filtered
+        )
+        w = ctx.force_witness_n
+        # less its own error (the cogging, the structure ringing after the tool brakes): it must not
+        # retract a tool the sensor rightly says presses within its limit
+        witness = (
+            w[0] * normal[0] + w[1] * normal[1] - self.p.witness_tolerance_n if w is not None else filtered
+        )
+        return max(filtered, raw, witness)
 
     def _saturated_retreat(self, pressing_n: float) -> float | None:
         """Admittance saturation: the speed away from the contact [m/s] above ``saturation_force_n``, else None."""
@@ -470,6 +660,11 @@ class ContourTrackingTask:
             and 0.0 < ctx.inputs.command_value < self.force_setpoint_limit().below_n
         ):  # the command gate refuses the others already; the step takes no setpoint it cannot track
             s = replace(s, force_setpoint_n=ctx.inputs.command_value)
+        if s.phase in (ContourPhase.APPROACH, ContourPhase.REAPPROACH):
+            doubt = self._sensor_doubt(s, ctx)
+            if doubt:  # a guarded move on a doubtful offset would meet a phantom contour: re-tare first
+                out = self._begin_retare(replace(s, retare_why=doubt), ctx, ())
+                return replace(out, events=(*signal_events, *out.events))
         handler = {
             ContourPhase.MOVE_TO_START: self._move_to_start,
             ContourPhase.TARE: self._tare,
@@ -480,55 +675,163 @@ class ContourTrackingTask:
             ContourPhase.BACK_OFF: self._back_off,
             ContourPhase.RETRACT: self._retract,
             ContourPhase.FINISHED: self._finished,
+            ContourPhase.RETARE: self._retare,
         }[s.phase]
         out = handler(s, ctx)
         return replace(out, events=signal_events + out.events) if signal_events else out
 
-    def _move_to_start(self, s: ContourState, ctx: TaskContext) -> TaskStep:
-        tol = self.p.settle_tolerance_m
-        sp = ctx.setpoint
-        settled = all(abs(a - b) <= tol for a, b in zip(sp.position, self._start_q, strict=True)) and all(
-            abs(v) <= tol for v in sp.velocity
+    def _start_path_blocked(self, from_m: tuple[float, float, float]) -> str:
+        """Why the straight move from ``from_m`` to the staging point may not go (it passes nearer the
+        expected contour than the part may lie), or "". A tool that already stands in that zone (a
+        part expected larger than the one the home was chosen for) may leave it: the move is refused
+        only where it comes nearer the centre than it starts."""
+        c, (x0, y0), (x1, y1) = self.p.expected_centre_m, from_m[:2], self.start_m[:2]
+        dx, dy = x1 - x0, y1 - y0
+        length2 = dx * dx + dy * dy
+        u = min(1.0, max(0.0, ((c[0] - x0) * dx + (c[1] - y0) * dy) / length2)) if length2 > 0.0 else 0.0
+        d = math.hypot(x0 + u * dx - c[0], y0 + u * dy - c[1])
+        if d >= min(self.zone_radius_m, math.hypot(x0 - c[0], y0 - c[1])) - 1e-4:
+            return ""
+        return (
+            f"the move to the contour's start point ({self.start_m[0]:.3f}, {self.start_m[1]:.3f}) m passes "
+            f"{d * 1000:.0f} mm from the expected centre, inside the {self.zone_radius_m * 1000:.0f} mm where "
+            f"the part may lie (expected radius + approach clearance + placement tolerance): move the robot "
+            f"or choose another task.contour.approach_direction_deg"
         )
-        ref = JointReference.at_rest(self._start_q, self.start_m)
-        if settled:
-            s = self._enter(s, ContourPhase.TARE, ctx.t_s)
-        return TaskStep(s, ref)
+
+    def _move_to_start(self, s: ContourState, ctx: TaskContext) -> TaskStep:
+        """A straight line to the staging point at ``move_speed_m_s`` at most, in free space.
+
+        Bounded, because a part misplaced by more than its tolerance may be in the way: the safety
+        layer's guard stops a move that meets it, and the slower the move the less it meets it with."""
+        p, dt = self.p, ctx.period_s
+        if not s.start_checked:
+            here = ctx.tcp_measured_m or s.p_cmd
+            blocked = self._start_path_blocked(here)
+            if blocked:
+                return TaskStep(s, JointReference.at_rest(ctx.setpoint.position, here), fault=blocked)
+            s = replace(s, start_checked=True, p_cmd=here, speed_m_s=0.0)
+        d = (self.start_m[0] - s.p_cmd[0], self.start_m[1] - s.p_cmd[1], self.start_m[2] - s.p_cmd[2])
+        left = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        settled = all(abs(v) <= p.settle_tolerance_m for v in ctx.setpoint.velocity)
+        if left <= 1e-6 and settled:
+            s = self._enter(replace(s, p_cmd=self.start_m, speed_m_s=0.0), ContourPhase.TARE, ctx.t_s)
+            s, ref = self._reference(s, (0.0, 0.0, 0.0), False, dt)
+            return TaskStep(s, ref)
+        a = MOVE_ACCELERATION_M_S2
+        speed = min(p.move_speed_m_s, s.speed_m_s + a * dt, math.sqrt(2.0 * a * left), left / dt)
+        v = (
+            (d[0] / left * speed, d[1] / left * speed, d[2] / left * speed)
+            if left > 1e-6
+            else (0.0, 0.0, 0.0)
+        )
+        return self._moving(replace(s, speed_m_s=speed), v, dt)
 
     def _tare(self, s: ContourState, ctx: TaskContext) -> TaskStep:
-        sensor = ctx.inputs.sensor
-        if sensor is not None and sensor.fresh:
-            fx, fy, fz, n = s.tare_sum
-            s = replace(
-                s, tare_sum=(fx + sensor.force_n[0], fy + sensor.force_n[1], fz + sensor.force_n[2], n + 1)
-            )
         s, ref = self._reference(s, (0.0, 0.0, 0.0), False, ctx.period_s)
-        if ctx.t_s - s.phase_start_s < self.p.tare_s:
+        s, offset, fault = self._taring(s, ctx)
+        if fault:
+            return TaskStep(s, ref, fault=fault)
+        if offset is None:
             return TaskStep(s, ref)
-        fx, fy, fz, n = s.tare_sum
-        if n == 0:
-            return TaskStep(s, ref, fault="no force-sensor samples during the tare")
-        offset = (fx / n, fy / n, fz / n)
         event = Event(
             "contour", Severity.INFO, f"sensor offset {tuple(round(o, 3) for o in offset)} N; approaching"
         )
         s = self._enter(
-            s, ContourPhase.APPROACH, ctx.t_s, offset=offset, force_f=(0.0, 0.0, 0.0), raw_force=None
+            s,
+            ContourPhase.APPROACH,
+            ctx.t_s,
+            offset=offset,
+            force_f=(0.0, 0.0, 0.0),
+            raw_force=None,
+            guard_base_n=0.0,
+            guard_rise_m=None,
         )
         return TaskStep(s, ref, events=(event,))
 
-    def _in_contact(self, s: ContourState, along: tuple[float, float]) -> float | None:
-        """The contact force [N] when a guarded move towards -``along`` has met the contour, else None."""
-        if not self._trusted(s):
-            return None
-        f_xy = math.hypot(s.force_f[0], s.force_f[1])
-        return f_xy if f_xy >= self.p.contact_force_n else None
+    def _taring(
+        self, s: ContourState, ctx: TaskContext
+    ) -> tuple[ContourState, tuple[float, float, float] | None, str]:
+        """Average the sensor at rest in free space for ``tare_s``: (state, the offset when done, a fault).
+
+        Free space is the drives' word too: a sample the effort witness says is in contact (beyond its
+        own error) is no offset; a tare that finds no such sample within a second more is refused."""
+        sensor = ctx.inputs.sensor
+        witness = ctx.force_witness_n
+        touching = witness is not None and math.hypot(witness[0], witness[1]) > self.p.witness_tolerance_n
+        if sensor is not None and sensor.fresh and not touching:
+            fx, fy, fz, n = s.tare_sum
+            s = replace(
+                s, tare_sum=(fx + sensor.force_n[0], fy + sensor.force_n[1], fz + sensor.force_n[2], n + 1)
+            )
+        elapsed = ctx.t_s - s.phase_start_s
+        fx, fy, fz, n = s.tare_sum
+        if elapsed < self.p.tare_s or (
+            n < 0.5 * self.p.tare_s / ctx.period_s and elapsed < self.p.tare_s + 1.0
+        ):
+            return s, None, ""
+        if n == 0:
+            if touching and witness is not None:
+                return (
+                    s,
+                    None,
+                    (
+                        f"tare refused: the drives' effort says {math.hypot(witness[0], witness[1]):.1f} N of contact "
+                        "where the tool should be in free space"
+                    ),
+                )
+            return s, None, "no force-sensor samples during the tare"
+        return replace(s, tare_sum=(0.0, 0.0, 0.0, 0)), (fx / n, fy / n, fz / n), ""
+
+    def _guarded_contact(
+        self, s: ContourState, moving: tuple[float, float], speed_m_s: float, dt: float
+    ) -> tuple[ContourState, float | None, tuple[Event, ...]]:
+        """A guarded move along ``moving`` (unit): (state, the contact force [N] once met, events).
+
+        Contact is what a contact does: the force against the motion rises as the tool advances, at
+        least ``min_contact_stiffness_n_m`` steep (from half the contact force above the lowest it read
+        during this move to the whole of it), and points against the motion (within 60 degrees). A
+        force that creeps up slower is the sensor drifting, not a contour: the move goes on from the new
+        level. The latest raw sample counts: the filter would add its lag to the guarded move's stop."""
+        p = self.p
+        if not self._trusted(s) or s.raw_force is None:
+            return s, None, ()
+        raw = s.raw_force
+        against = -(raw[0] * moving[0] + raw[1] * moving[1])  # the force opposing the motion
+        base = min(s.guard_base_n, against)
+        if s.guard_rise_m is None and against < base + 0.5 * p.contact_force_n:
+            return replace(s, guard_base_n=base), None, ()
+        rise_at = s.guard_rise_m if s.guard_rise_m is not None else s.travel_m
+        s = replace(s, guard_base_n=base, guard_rise_m=rise_at)
+        if against < base + p.contact_force_n:
+            return s, None, ()
+        f_xy = math.hypot(raw[0], raw[1])
+        steep = (s.travel_m - rise_at) * p.min_contact_stiffness_n_m <= 0.5 * p.contact_force_n + 1e-12
+        # a strong force is a contact whatever its direction (a wall met at an angle); a weak one counts
+        # only against the motion
+        facing = against >= 0.5 * f_xy or f_xy >= 3.0 * p.contact_force_n
+        if steep and facing:
+            return s, f_xy, ()
+        why = (
+            f"force rose {against - base:.2f} N over {(s.travel_m - rise_at) * 1000:.2f} mm"
+            if not steep
+            else f"force of {f_xy:.2f} N not against the motion"
+        )
+        ev = Event(
+            "contact_doubtful", Severity.WARNING, f"{why}: no contact's answer to the advance; moving on"
+        )
+        return replace(s, guard_base_n=against, guard_rise_m=None), None, (ev,)
 
     def _approach(self, s: ContourState, ctx: TaskContext) -> TaskStep:
         p = self.p
-        f_contact = self._in_contact(s, s.normal)
-        if f_contact is not None:
-            n = _unit2(s.force_f[0], s.force_f[1]) or s.normal
+        moving = (-s.normal[0], -s.normal[1])
+        # From the staging point at the search speed; from the nominal start point (the approach
+        # clearance outside the expected contour) at the approach speed.
+        speed = p.search_speed_m_s if s.travel_m < p.placement_tolerance_m else p.approach_speed_m_s
+        s, f_contact, guard_events = self._guarded_contact(s, moving, speed, ctx.period_s)
+        if f_contact is not None and s.raw_force is not None:
+            raw = s.raw_force
+            n = _unit2(raw[0], raw[1]) or s.normal
             event = Event(
                 "contact", Severity.INFO, f"contact at {f_contact:.2f} N after {s.travel_m * 1000:.1f} mm"
             )
@@ -536,6 +839,7 @@ class ContourTrackingTask:
                 s,
                 ContourPhase.TRACKING,
                 ctx.t_s,
+                force_f=raw,  # the filter restarts from the contact's sample: no lag into the first cycles
                 normal=n,
                 contact_normal=n,
                 normal_rate_rad_s=0.0,
@@ -544,15 +848,15 @@ class ContourTrackingTask:
                 low_force_cycles=0,
             )
             return self._tracking(s, ctx, (event,))
-        limit = p.approach_clearance_m + p.max_approach_distance_m
+        limit = p.placement_tolerance_m + p.approach_clearance_m + p.max_approach_distance_m
         if s.travel_m > limit:
             f_xy = math.hypot(s.force_f[0], s.force_f[1])
             why = f"no contact within {limit * 1000:.0f} mm of approach (force {f_xy:.2f} N < {p.contact_force_n} N)"
             s, ref = self._reference(s, (0.0, 0.0, 0.0), False, ctx.period_s)
             return TaskStep(s, ref, fault=why)
-        speed = p.approach_speed_m_s if self._trusted(s) else 0.0
-        v = (-s.normal[0] * speed, -s.normal[1] * speed, 0.0)
-        return self._moving(s, v, ctx.period_s, travel_m=speed * ctx.period_s)
+        speed = speed if self._trusted(s) else 0.0
+        v = (moving[0] * speed, moving[1] * speed, 0.0)
+        return self._moving(s, v, ctx.period_s, events=guard_events, travel_m=speed * ctx.period_s)
 
     def _normal_update(
         self, s: ContourState, ctx: TaskContext, f_xy: float
@@ -607,7 +911,9 @@ class ContourTrackingTask:
         # t = z x n turned back: n = t x z, with the travel direction's sign
         return math.atan2(-dx * self.p.direction, dy * self.p.direction)
 
-    def _tangential_speed(self, s: ContourState, rate_rad_s: float, force_error_n: float, dt: float) -> float:
+    def _tangential_speed(
+        self, s: ContourState, rate_rad_s: float, force_error_n: float, dt: float, tcp_xy: tuple[float, float]
+    ) -> float:
         """The lap's speed, derated where the normal turns fast or the force leaves its band, braked
         while the force is not trusted.
 
@@ -621,8 +927,11 @@ class ContourTrackingTask:
         if not self._trusted(s):
             return self._braked(s.speed_m_s, dt)
         target = p.lap_speeds_m_s[min(s.lap, len(p.lap_speeds_m_s) - 1)]
+        if s.lap == 0:  # the contour is unknown: what it holds is met at the exploring speed at most
+            target = min(target, p.explore_speed_m_s)
         if s.creep_m > 0.0:
             target = min(target, p.creep_speed_m_s)
+        target = min(target, self._look_ahead_speed(s, tcp_xy))
         raw_error_n = (
             force_error_n
             if s.raw_force is None
@@ -682,20 +991,26 @@ class ContourTrackingTask:
         fn = (
             s.force_f[0] * normal[0] + s.force_f[1] * normal[1]
         )  # normal force pressing the tool out of the object
-        pressing = self._pressing_n(s, normal)  # the raw sample counts here too: a collision is a step
+        pressing = self._pressing_n(s, normal, ctx)  # the raw sample counts here too: a collision is a step
         if pressing > p.max_force_n:
             why = f"contact force {pressing:.1f} N above the limit of {p.max_force_n} N"
             ev = Event("over_force", Severity.FAULT, why + "; retracting")
-            s = self._enter(s, ContourPhase.RETRACT, ctx.t_s, fault=why, normal=normal, normal_force_n=fn)
-            return self._retract(s, ctx, (*events, ev))
+            s = replace(s, normal=normal, normal_force_n=fn)
+            return self._begin_retract(s, ctx, (*events, ev), why)
         trusted = self._trusted(s)
         counting = fresh_sample(ctx) and trusted
         low = s.low_force_cycles + (1 if counting else 0) if fn < p.contact_lost_force_n else 0
-        if low >= p.contact_lost_cycles:
-            return self._lose_contact(
-                replace(s, normal=normal, normal_rate_rad_s=rate, normal_accel_rad_s2=accel), ctx, events
-            )
-        speed = self._tangential_speed(s, rate, s.force_setpoint_n - fn, dt)
+        s = self._bias(s, ctx)
+        doubt = self._sensor_doubt(s, ctx)
+        if low >= p.contact_lost_cycles or doubt:
+            s = replace(s, normal=normal, normal_rate_rad_s=rate, normal_accel_rad_s2=accel, retare_why=doubt)
+            return self._lose_contact(s, ctx, events, doubt)
+        s, outside = self._envelope(s, ctx)
+        if outside:
+            ev = Event("envelope", Severity.FAULT, outside + "; retracting")
+            return self._begin_retract(replace(s, normal=normal), ctx, (*events, ev), outside)
+        tcp = ctx.tcp_measured_m or s.p_cmd
+        speed = self._tangential_speed(s, rate, s.force_setpoint_n - fn, dt, (tcp[0], tcp[1]))
         at_speed, share = self._integral_at_speed(s, speed)
         vn, integral, err = self._normal_speed(at_speed, ctx, fn, pressing, share)
         # A real contact answers motion into it (stiffness >= 1e4 N/m here: 1 N in 0.1 mm). Millimetres
@@ -757,9 +1072,112 @@ class ContourTrackingTask:
         events = events + lap_events
         if s.lap >= self.laps:
             ev = Event("contour", Severity.INFO, "all laps done; retracting")
-            s = self._enter(s, ContourPhase.RETRACT, ctx.t_s)
-            return self._retract(s, ctx, (*events, ev))
+            return self._begin_retract(s, ctx, (*events, ev))
         return self._moving(s, v, dt, on_path=True, events=events)
+
+    def _bias(self, s: ContourState, ctx: TaskContext) -> ContourState:
+        """The tared sensor minus the effort witness, filtered (XY), while sliding: a drifted offset shows
+        there. The witness's own error is mostly the cogging, periodic along each carriage's stroke: it
+        averages out of the filter while the tool slides, not while it stands."""
+        w, raw = ctx.force_witness_n, s.raw_force
+        if w is None or raw is None or not fresh_sample(ctx) or not self._trusted(s):
+            return s
+        if s.speed_m_s < MIN_BIAS_SPEED_M_S:
+            return s
+        a = 1.0 - math.exp(-ctx.period_s / self.p.sensor_bias_time_constant_s)
+        b = s.bias_n
+        return replace(s, bias_n=(b[0] + a * (raw[0] - w[0] - b[0]), b[1] + a * (raw[1] - w[1] - b[1])))
+
+    def _sensor_doubt(self, s: ContourState, ctx: TaskContext) -> str:
+        """Why the sensor's offset is in doubt, or "": a step the witness did not follow, the law's
+        cross-check (unless a held step is being judged: the hold's own verdict comes first), or the
+        filtered bias."""
+        if s.offset_doubt:
+            return s.offset_doubt
+        if ctx.sensor_suspect and s.held_force is None:
+            return f"the safety layer finds the force sensor suspect: {ctx.sensor_suspect}"
+        bias = math.hypot(s.bias_n[0], s.bias_n[1])
+        if bias > self.p.sensor_bias_limit_n:
+            return f"the tared sensor reads {bias:.1f} N off the drives' effort (filtered)"
+        return ""
+
+    def _envelope(self, s: ContourState, ctx: TaskContext) -> tuple[ContourState, str]:
+        """Inside the envelope? Before the first lap is done: the expected contour widened by the part's
+        placement tolerance and the margin; after it: within ``envelope_margin_m`` of the contour the
+        tool traced in lap 1 (kept every ENVELOPE_SPACING_M). Else the reason to retract."""
+        tcp = ctx.tcp_measured_m
+        if tcp is None:
+            return s, ""
+        p = self.p
+        x, y = tcp[0], tcp[1]
+        if s.lap == 0 or len(s.trace) < 3:
+            if s.lap == 0 and (
+                not s.trace or math.hypot(x - s.trace[-1][0], y - s.trace[-1][1]) >= ENVELOPE_SPACING_M
+            ):
+                s = replace(s, trace=self._traced(s, x, y))
+            c = p.expected_centre_m
+            r = math.hypot(x - c[0], y - c[1])
+            band = p.placement_tolerance_m + p.envelope_margin_m
+            if abs(r - p.expected_radius_m) <= band:
+                return s, ""
+            return s, (
+                f"the tool left the envelope: {r * 1000:.0f} mm from the expected centre, where the contour is "
+                f"expected at {p.expected_radius_m * 1000:.0f} +- {band * 1000:.0f} mm"
+            )
+        distance, index = _nearest_on_trace(s.trace, x, y, s.trace_index, ENVELOPE_SEARCH)
+        if distance > p.envelope_margin_m:
+            distance, index = _nearest_on_trace(s.trace, x, y, 0, len(s.trace))  # the whole trace, once
+        s = replace(s, trace_index=index)
+        if distance <= p.envelope_margin_m:
+            return s, ""
+        return s, (
+            f"the tool left the envelope: {distance * 1000:.1f} mm from the contour traced in lap 1 "
+            f"(at most {p.envelope_margin_m * 1000:.0f} mm)"
+        )
+
+    def _traced(self, s: ContourState, x: float, y: float) -> tuple[TracePoint, ...]:
+        """The trace with (x, y) added. Where the first lap found the contour irregular (the force out
+        of its band, a step held, the creep after either) the point keeps the creep speed for later
+        laps, and so do the TRACE_BACKFILL points before it: the force rises on a bump's flank, which
+        began before."""
+        irregular = s.creep_m > 0.0 or s.held_force is not None
+        if not irregular:
+            return (*s.trace, (x, y, math.inf))
+        cap = self.p.creep_speed_m_s
+        k = max(0, len(s.trace) - TRACE_BACKFILL)
+        marked = tuple((a, b, min(c, cap)) for a, b, c in s.trace[k:])
+        return (*s.trace[:k], *marked, (x, y, cap))
+
+    def _look_ahead_speed(self, s: ContourState, tcp: tuple[float, float]) -> float:
+        """After the first lap, the speed from which the tool at ``tcp`` still brakes (at
+        LOOK_AHEAD_DECELERATION_M_S2) to what the traced contour ahead allows: at each vertex what the
+        first lap found there (``_traced``: the creep speed where it was irregular), and a normal turning
+        at most at ``max_normal_turn_rate_rad_s`` (a bump's flank, a corner). Found in lap 1, met slowly
+        from then on, instead of at the lap's speed with only the force to tell."""
+        trace = s.trace
+        n = len(trace)
+        if s.lap == 0 or n < 8:
+            return math.inf
+        p = self.p
+        i = s.trace_index
+        best = max(p.min_tangential_speed_m_s, min(trace[i][2], trace[(i + 1) % n][2]))  # this segment's
+        travelled = -math.hypot(tcp[0] - trace[i][0], tcp[1] - trace[i][1])  # from the tool on
+        for k in range(1, LOOK_AHEAD_VERTICES + 1):
+            a, b, c = trace[(i + k - 1) % n], trace[(i + k) % n], trace[(i + k + 1) % n]
+            first, second = (b[0] - a[0], b[1] - a[1]), (c[0] - b[0], c[1] - b[1])
+            travelled += math.hypot(*first)
+            there = b[2]  # what the first lap found there
+            if min(math.hypot(*first), math.hypot(*second)) >= 0.5 * ENVELOPE_SPACING_M:  # else: where the
+                turn = abs(_wrap(math.atan2(second[1], second[0]) - math.atan2(first[1], first[0])))  # trace
+                if turn > 1e-9:  # closes on itself, no direction worth a turn
+                    there = min(there, p.max_normal_turn_rate_rad_s * math.hypot(*second) / turn)
+            if there == math.inf:
+                continue
+            there = max(p.min_tangential_speed_m_s, there)
+            best = min(
+                best, math.sqrt(there * there + 2.0 * LOOK_AHEAD_DECELERATION_M_S2 * max(0.0, travelled))
+            )
+        return best
 
     def _count_laps(self, s: ContourState, ctx: TaskContext) -> tuple[ContourState, tuple[Event, ...]]:
         """Laps by the angle swept about a point inside the contour (see the module's text)."""
@@ -785,6 +1203,7 @@ class ContourTrackingTask:
             if s.lap == 0 and sums[2] > 0.0:  # count about the traced contour's own centroid from now on
                 centre = (sums[0] / sums[2], sums[1] / sums[2])
                 angle = math.atan2(y - centre[1], x - centre[0])
+                s = replace(s, trace=_closed(s.trace))
         s = replace(
             s,
             swept_rad=swept,
@@ -817,8 +1236,7 @@ class ContourTrackingTask:
             ev = Event(
                 "contact_lost", Severity.WARNING, f"contact lost {where}; retracting (on_contact_loss = stop)"
             )
-            s = self._enter(s, ContourPhase.RETRACT, ctx.t_s)
-            return self._retract(s, ctx, (*events, ev))
+            return self._begin_retract(s, ctx, (*events, ev))
         n = s.contact_normal
         ev = Event(
             "contact_lost",
@@ -834,13 +1252,100 @@ class ContourTrackingTask:
         speed = self._braked(s.speed_m_s, dt)
         n = s.normal
         t = (-n[1] * p.direction, n[0] * p.direction)
-        retreat = self._saturated_retreat(self._pressing_n(s, n)) or 0.0
+        retreat = self._saturated_retreat(self._pressing_n(s, n, ctx)) or 0.0
         v = (speed * t[0] + retreat * n[0], speed * t[1] + retreat * n[1], 0.0)
         s = replace(s, speed_m_s=speed)
         if speed == 0.0:
-            s = self._start_reapproach(s, ctx)
-            events = (*events, self._attempt_event(s))
+            return self._begin_retare(s, ctx, events)
         return self._moving(s, v, dt, events=events)
+
+    def _begin_retare(self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...]) -> TaskStep:
+        """Out of contact: along the last good normal into free space, there the sensor's offset anew.
+
+        The offset found at the start may have drifted, or a step of it may have been taken for a
+        contact: a re-approach on a stale offset meets a phantom contour (or presses a real one
+        harder than it reads). At most ``max_retares_per_lap`` in a lap: a sensor that needs more is
+        drifting faster than the task can work with, and the tool retracts naming it."""
+        p = self.p
+        lap = min(s.lap, self.laps - 1)
+        retares = s.retares or (0,) * self.laps
+        if retares[lap] >= p.max_retares_per_lap:
+            why = (
+                f"the force sensor needed more than {p.max_retares_per_lap} re-tares in free space in lap "
+                f"{lap + 1} (last: {s.retare_why or 'contact lost'})"
+            )
+            ev = Event("sensor_retares", Severity.FAULT, why + "; retracting")
+            return self._begin_retract(s, ctx, (*events, ev), why)
+        counted = tuple(r + (1 if k == lap else 0) for k, r in enumerate(retares))
+        # Before the first contact, the approach goes on afterwards from where it was (less the way out).
+        approached = s.travel_m if s.phase == ContourPhase.APPROACH else -1.0
+        s = self._enter(
+            s,
+            ContourPhase.RETARE,
+            ctx.t_s,
+            retares=counted,
+            tare_sum=(0.0, 0.0, 0.0, 0),
+            speed_m_s=0.0,
+            approached_m=approached,
+            retare_direction=self._way_out(s),
+        )
+        return self._retare(s, ctx, events)
+
+    def _way_out(self, s: ContourState) -> tuple[float, float]:
+        """A re-tare's way into free space. Not the force's: a re-tare doubts the sensor, and the normal
+        the tracker estimates from it turns with its offset (a +20 N step of it in lap 2: the way "out"
+        pressed the part to 70 N before the guard backed off). Before the first contact the approach's
+        own line back; in contact the outward normal of the contour the tool has traced."""
+        if s.phase in (ContourPhase.APPROACH, ContourPhase.REAPPROACH) or s.contact_point is None:
+            return s.normal
+        return trace_normal(s, self.p.direction) or s.contact_normal
+
+    def _retare(self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...] = ()) -> TaskStep:
+        p, dt = self.p, ctx.period_s
+        n = s.retare_direction  # _way_out, chosen as the re-tare began
+        if s.travel_m < p.retare_clearance_m:
+            step = min(p.search_speed_m_s * dt, p.retare_clearance_m - s.travel_m)
+            if s.travel_m + step >= p.retare_clearance_m:  # out after this step: the tare's time starts now
+                s = replace(s, phase_start_s=ctx.t_s, travel_m=p.retare_clearance_m - step)
+            return self._moving(
+                s, (n[0] * step / dt, n[1] * step / dt, 0.0), dt, events=events, travel_m=step
+            )
+        # Out of contact and at rest: free space, where the safety layer takes its own baseline too.
+        settled = all(abs(v) <= p.settle_tolerance_m for v in ctx.setpoint.velocity)
+        contact = ContactExpectation.NONE if settled else ContactExpectation.PRESSING
+        s, ref = self._reference(s, (0.0, 0.0, 0.0), False, dt, contact)
+        if not settled:
+            return TaskStep(replace(s, phase_start_s=ctx.t_s), ref, events=events)
+        s, offset, fault = self._taring(s, ctx)
+        if fault:
+            ev = Event("sensor_retare", Severity.FAULT, fault + "; retracting")
+            return self._begin_retract(s, ctx, (*events, ev), fault)
+        if offset is None:
+            return TaskStep(s, ref, events=events)
+        moved = math.sqrt(sum((a - b) ** 2 for a, b in zip(offset, s.offset, strict=True)))
+        ev = Event(
+            "contour",
+            Severity.INFO,
+            f"sensor re-tared in free space: offset {tuple(round(o, 2) for o in offset)} N "
+            f"({moved:.2f} N from the last)",
+        )
+        s = replace(
+            s,
+            offset=offset,
+            force_f=(0.0, 0.0, 0.0),
+            raw_force=None,
+            held_force=None,
+            suspect_cycles=0,
+            bias_n=(0.0, 0.0),
+            retare_why="",
+            offset_doubt="",
+        )
+        if s.approached_m >= 0.0:  # back to the approach, with what it had travelled
+            s = self._enter(s, ContourPhase.APPROACH, ctx.t_s, guard_base_n=0.0, guard_rise_m=None)
+            s = replace(s, travel_m=max(0.0, s.approached_m - p.retare_clearance_m), approached_m=-1.0)
+            return self._moving(s, (0.0, 0.0, 0.0), dt, events=(*events, ev))
+        s = self._start_reapproach(s, ctx)
+        return self._moving(s, (0.0, 0.0, 0.0), dt, events=(*events, ev, self._attempt_event(s)))
 
     def _attempt_event(self, s: ContourState) -> Event:
         d = s.reapproach_direction
@@ -860,16 +1365,11 @@ class ContourTrackingTask:
         """
         n, depth = s.contact_normal, self.p.reapproach_distance_m
         x, y = s.p_cmd[0], s.p_cmd[1]
-        f = s.force_f
-        if self._trusted(s) and math.hypot(f[0], f[1]) < RETARE_MAX_FRACTION * s.force_setpoint_n:
-            # Out of contact and standing: what the sensor reads is its own offset (a drifted bias).
-            s = replace(
-                s,
-                offset=(s.offset[0] + f[0], s.offset[1] + f[1], s.offset[2] + f[2]),
-                force_f=(0.0, 0.0, 0.0),
-                raw_force=None,
-            )
         cp = s.contact_point if s.contact_point is not None else (x, y)
+        if math.hypot(cp[0] - x, cp[1] - y) > STALE_CONTACT_POINT_M:
+            # The last good contact is far back along the contour (the force was in doubt since): the
+            # line to it would cut across the part. From here, along the normal estimated now.
+            cp, n = (x, y), s.normal
         target = (cp[0] - n[0] * depth, cp[1] - n[1] * depth)
         dx, dy = target[0] - x, target[1] - y
         distance = math.hypot(dx, dy)
@@ -884,13 +1384,16 @@ class ContourTrackingTask:
             speed_m_s=0.0,
             reapproach_direction=direction,
             reapproach_m=max(distance, depth),
+            guard_base_n=0.0,
+            guard_rise_m=None,
         )
 
     def _reapproach(self, s: ContourState, ctx: TaskContext) -> TaskStep:
         """A guarded move towards behind the last good contact point, at the approach speed."""
         p, dt = self.p, ctx.period_s
-        f_contact = self._in_contact(s, s.contact_normal)
-        if f_contact is not None:
+        d = s.reapproach_direction
+        s, f_contact, guard_events = self._guarded_contact(s, d, p.approach_speed_m_s, dt)
+        if f_contact is not None and s.raw_force is not None:
             ev = Event(
                 "contact",
                 Severity.INFO,
@@ -911,8 +1414,9 @@ class ContourTrackingTask:
                 creep_m=p.creep_distance_m,
                 push_ref_n=f_contact,
                 contact_point=(tcp[0], tcp[1]),
+                force_f=s.raw_force,
             )
-            return self._tracking(s, ctx, (ev,))
+            return self._tracking(s, ctx, (*guard_events, ev))
         if s.travel_m >= s.reapproach_m:
             ev = Event(
                 "reapproach_failed",
@@ -921,10 +1425,11 @@ class ContourTrackingTask:
                 f"{p.max_reacquire_attempts}); backing off",
             )
             s = self._enter(s, ContourPhase.BACK_OFF, ctx.t_s, attempts=s.attempts + 1)
-            return self._back_off(s, ctx, (ev,))
+            return self._back_off(s, ctx, (*guard_events, ev))
         speed = p.approach_speed_m_s if self._trusted(s) else 0.0
-        d = s.reapproach_direction
-        return self._moving(s, (d[0] * speed, d[1] * speed, 0.0), dt, travel_m=speed * dt)
+        return self._moving(
+            s, (d[0] * speed, d[1] * speed, 0.0), dt, events=guard_events, travel_m=speed * dt
+        )
 
     def _back_off(self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...] = ()) -> TaskStep:
         """Back along the re-approach's line to where it started; then the next attempt or the end."""
@@ -936,8 +1441,7 @@ class ContourTrackingTask:
                     f"to {p.reapproach_distance_m * 1000:.0f} mm behind the last contact point"
                 )
                 ev = Event("contact_not_reacquired", Severity.FAULT, why + "; retracting")
-                s = self._enter(s, ContourPhase.RETRACT, ctx.t_s, fault=why)
-                return self._retract(s, ctx, (*events, ev))
+                return self._begin_retract(s, ctx, (*events, ev), why)
             s = self._start_reapproach(s, ctx)
             events = (*events, self._attempt_event(s))
             return self._moving(s, (0.0, 0.0, 0.0), dt, events=events)
@@ -954,16 +1458,33 @@ class ContourTrackingTask:
         if s.phase in (ContourPhase.MOVE_TO_START, ContourPhase.TARE):
             s, ref = self._reference(s, (0.0, 0.0, 0.0), False, ctx.period_s)
             return TaskStep(s, ref, fault=why)
-        ev = Event("sensor_breach", Severity.FAULT, why + "; retracting without force data")
-        s = self._enter(s, ContourPhase.RETRACT, ctx.t_s, fault=why)
-        return self._retract(s, ctx, (ev,))
+        ev = Event("sensor_breach", Severity.FAULT, why + "; retracting without the sensor's data")
+        return self._begin_retract(replace(s, raw_force=None), ctx, (ev,), why)
+
+    def _begin_retract(
+        self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...], fault: str = ""
+    ) -> TaskStep:
+        """Away from the contour along the force measured now: the flank of a bump or a step, not the
+        normal the task last estimated. The sensor's latest sample when it is trusted and strong
+        enough to have a direction; else the drives' effort witness beyond its own error; else the
+        last normal estimate."""
+        p = self.p
+        direction = s.normal
+        raw, witness = s.raw_force, ctx.force_witness_n
+        if raw is not None and self._trusted(s) and math.hypot(raw[0], raw[1]) >= p.normal_min_force_n:
+            direction = _unit2(raw[0], raw[1]) or direction
+        elif witness is not None and math.hypot(witness[0], witness[1]) > p.witness_tolerance_n:
+            direction = _unit2(witness[0], witness[1]) or direction
+        s = self._enter(s, ContourPhase.RETRACT, ctx.t_s, fault=fault or s.fault, retract_direction=direction)
+        return self._retract(s, ctx, events)
 
     def _retract(self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...] = ()) -> TaskStep:
         p = self.p
         if s.travel_m >= p.retract_distance_m:
             s = replace(s, phase=ContourPhase.FINISHED, phase_start_s=ctx.t_s)
             return self._finished(s, ctx, (*events, Event("contour", Severity.INFO, "retracted")))
-        v = (s.normal[0] * p.retract_speed_m_s, s.normal[1] * p.retract_speed_m_s, 0.0)
+        d = s.retract_direction
+        v = (d[0] * p.retract_speed_m_s, d[1] * p.retract_speed_m_s, 0.0)
         s = replace(s, speed_m_s=0.0)
         return self._moving(s, v, ctx.period_s, events=events, travel_m=p.retract_speed_m_s * ctx.period_s)
 

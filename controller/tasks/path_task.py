@@ -7,13 +7,14 @@ for any robot model with an ``inverse_kinematics`` and is accurate to O(h^2).
 
 from __future__ import annotations
 
+import math
 from enum import IntEnum
 from typing import Protocol
 
 import numpy as np
 
-from controller.core.ports import JointReference, TaskContext, TaskStep
-from controller.core.records import record
+from controller.core.ports import ContactExpectation, JointReference, TaskContext, TaskStep
+from controller.core.records import record, replace
 from controller.core.setpoint_smoothing import Setpoint
 
 
@@ -30,6 +31,9 @@ class InverseKinematics(Protocol):
     def inverse_kinematics(self, tcp_m: np.ndarray) -> np.ndarray: ...
 
 
+BOUNDED_MOVE_ACCELERATION_M_S2 = 0.2  # a bounded move to the start speeds up and brakes at this
+
+
 class PathPhase(IntEnum):
     MOVE_TO_START = 0
     TRACKING = 1
@@ -40,6 +44,8 @@ class PathPhase(IntEnum):
 class PathTaskState:
     phase: PathPhase = PathPhase.MOVE_TO_START
     tracking_start_s: float = 0.0
+    p_cmd: tuple[float, float, float] | None = None  # a bounded move to the start: where it is [m]
+    speed_m_s: float = 0.0  # ... and how fast it goes
 
 
 class PathTask:
@@ -51,11 +57,17 @@ class PathTask:
         path: CartesianTrajectory,
         settle_tolerance: float,
         fd_step_s: float = 1e-3,
+        contact: ContactExpectation = ContactExpectation.NONE,
+        move_speed_m_s: float = 0.0,
     ) -> None:
         self.robot = robot
         self.path = path
         self.settle_tolerance = settle_tolerance
         self.fd_step_s = fd_step_s
+        # A path meant to touch (the contour demo's position-control comparison) says so to the contact
+        # guard, and goes to its start as a guarded move at ``move_speed_m_s`` (0: Ruckig's own speed).
+        self.contact = contact
+        self.move_speed_m_s = move_speed_m_s
         p0, _, _ = path.sample(0.0)
         self._start = JointReference.at_rest(tuple(robot.inverse_kinematics(p0).tolist()), tuple(p0.tolist()))
 
@@ -74,14 +86,45 @@ class PathTask:
         two_h, h2 = 2.0 * h, h * h
         qd = tuple((a - b) / two_h for a, b in zip(qp, qm, strict=True))
         qdd = tuple((a - 2.0 * x + b) / h2 for x, a, b in zip(q, qp, qm, strict=True))
-        return JointReference(tuple(q), qd, qdd, tuple(p.tolist()), True)
+        return JointReference(tuple(q), qd, qdd, tuple(p.tolist()), True, contact=self.contact)
 
     def phase_name(self, state: PathTaskState) -> str:
         return state.phase.name
 
     def step(self, state: PathTaskState, ctx: TaskContext) -> TaskStep:
+        if state.phase == PathPhase.MOVE_TO_START and self.move_speed_m_s > 0.0:
+            moved = self._bounded_move(state, ctx)
+            if moved is not None:
+                return moved
+            state = replace(state, p_cmd=None)
         state, ref, finished = self.reference(state, ctx.t_s, ctx.setpoint)
         return TaskStep(state, ref, finished)
+
+    def _bounded_move(self, state: PathTaskState, ctx: TaskContext) -> TaskStep | None:
+        """A straight line to the start at ``move_speed_m_s``, guarded; None once there (Ruckig settles it)."""
+        here = state.p_cmd or ctx.tcp_measured_m
+        if here is None:
+            return TaskStep(state, JointReference.at_rest(ctx.setpoint.position, self._start.tcp_m))
+        goal = self._start.tcp_m
+        d = (goal[0] - here[0], goal[1] - here[1], goal[2] - here[2])
+        left = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        dt = ctx.period_s
+        if left <= 1e-6:
+            return None
+        a = BOUNDED_MOVE_ACCELERATION_M_S2
+        speed = min(self.move_speed_m_s, state.speed_m_s + a * dt, math.sqrt(2.0 * a * left), left / dt)
+        p = (
+            here[0] + d[0] / left * speed * dt,
+            here[1] + d[1] / left * speed * dt,
+            here[2] + d[2] / left * speed * dt,
+        )
+        q = self.robot.inverse_kinematics(np.asarray(p)).tolist()
+        ahead = self.robot.inverse_kinematics(np.asarray(p) + np.asarray(d) / left * speed * dt).tolist()
+        qd = tuple((b - c) / dt for b, c in zip(ahead, q, strict=True))
+        ref = JointReference(
+            tuple(q), qd, (0.0,) * len(q), p, False, reactive=True, contact=ContactExpectation.GUARDED
+        )
+        return TaskStep(replace(state, p_cmd=p, speed_m_s=speed), ref)
 
     def reference(
         self, state: PathTaskState, t_cmd_s: float, setpoint: Setpoint

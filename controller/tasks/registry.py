@@ -47,6 +47,7 @@ class TaskSettings:
     settle_tolerance_m: float  # loop.settle_tolerance_m: "at rest" at the end of a motion
     max_contact_force_n: float  # safety.max_contact_force_n: the safety layer's limit
     tracker_enabled: bool  # [tracker]: a pose tracker measures the platform
+    witness_tolerance_n: float = 6.0  # safety.contact.tolerance_n: the drives' effort witness's own error
 
 
 @dataclass(frozen=True)

@@ -6,16 +6,17 @@ position control along the nominal circle, the circle the operator believes the 
 to be (``task.contour.expected_centre_m`` and ``expected_radius_m``), pressed in by
 ``comparison_press_m`` so that it would touch with about the force setpoint if the disk were
 where it is expected. The simulated disk is off by a few millimetres (``sim.workpiece.centre_m``),
-as a workpiece placed by hand is: the comparison shows what force control buys. So that it
-can show it for a whole lap, the comparison runs without the contact-force guard and a
-saturated sensor only warns: with the configured safety (and on real hardware) it would be
-stopped at once, as the displaced disk is pressed millimetres deep at the start.
+as a workpiece placed by hand is: the comparison shows what force control buys. It runs under the
+configured safety like any move near a workpiece: a path meant to touch (``task.path.contact =
+"pressing"``), reached by a guarded move at the contour's search speed; where position control
+presses the displaced disk past ``safety.max_contact_force_n`` the contact guard backs it off,
+and the comparison reports how far it got.
 """
 
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import msgspec
@@ -50,16 +51,15 @@ def comparison_config(cfg: Config) -> Config:
         laps=1.0,
         ramp_s=0.5,
         check_samples=cfg.task.model("path").check_samples,
+        # it is meant to touch: pressing along the circle, a guarded move to its start at the contour's search speed
+        contact="pressing",
+        move_speed_m_s=c.search_speed_m_s,
     )
-    safety = msgspec.structs.replace(
-        cfg.safety, on_sensor_saturated="warn", max_contact_force_n=1.0e4
-    )  # simulated hardware only: see above
     # the same workpiece under position control: announced as such, though the path task alone expects free space
     sim = msgspec.structs.replace(cfg.sim, environment="workpiece")
     return msgspec.structs.replace(
         cfg,
         task=msgspec.structs.replace(cfg.task, kind="path", models={**cfg.task.models, "path": path}),
-        safety=safety,
         sim=sim,
     )
 
@@ -72,12 +72,13 @@ def run_contour_experiment(
     stop_event: threading.Event | None = None,
     realtime: RealtimeOptions | None = None,
     observers: tuple[CycleObserver, ...] = (),
+    true_force: Callable[[], Sequence[float]] | None = None,
 ) -> dict[str, object]:
     c = cfg.task.model("contour")
     robot = cheope_robot(cfg)
     stiffness = cfg.robot.model("cheope").mass.actuator_stiffness_n_m
 
-    force_obs, laps = contour_lap_report(cfg)
+    force_obs, laps = contour_lap_report(cfg, true_force)
     summary = run_controller(
         cfg, spec, max_duration_s, stop_event, observers=(force_obs, *observers), realtime=realtime
     )
@@ -94,7 +95,7 @@ def run_contour_experiment(
         }
     elif stop_event is None or not stop_event.is_set():
         cmp_cfg = comparison_config(cfg)
-        pos_obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, 1)
+        pos_obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, 1, true_force)
         cmp = run_controller(
             cmp_cfg, spec, max_duration_s, stop_event, observers=(pos_obs, *observers), realtime=realtime
         )
@@ -110,10 +111,13 @@ def run_contour_experiment(
     return summary
 
 
-def contour_lap_report(cfg: Config) -> tuple[ContourObserver, Callable[[], dict[str, object]]]:
-    """The force error per lap, in the normal's direction, as the demo reports it (``summary["contour"]``)."""
+def contour_lap_report(
+    cfg: Config, true_force: Callable[[], Sequence[float]] | None = None
+) -> tuple[ContourObserver, Callable[[], dict[str, object]]]:
+    """The force error per lap, in the normal's direction, as the demo reports it (``summary["contour"]``),
+    measured and, where ``true_force`` tells it (the simulator), true."""
     c = cfg.task.model("contour")
-    obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s))
+    obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s), true_force)
     stiffness = cfg.robot.model("cheope").mass.actuator_stiffness_n_m
     return obs, lambda: contour_summary(obs, cheope_robot(cfg), stiffness, c.height_m, c.lap_speeds_m_s)
 
@@ -150,7 +154,12 @@ def run_simulated_time(
     clock = SimulatedTime()
     law = build_law(cfg)
     exchange = LoopbackExchange(cfg, clock.clock)
-    obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s))
+    obs = ContourObserver(
+        c.force_setpoint_n,
+        c.expected_centre_m,
+        len(c.lap_speeds_m_s),
+        lambda: exchange.plant.force_n.tolist(),
+    )
     final, stats = CycleLoop(
         law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(obs,)
     ).run(law.initial_state(), max_duration_s)

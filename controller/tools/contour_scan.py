@@ -36,9 +36,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import msgspec
+import numpy as np
 
 from controller.assembly import build_law
 from controller.config import Config, load_config
+from controller.core.contact_guard import PROTECTIVE_STOP
 from controller.core.controller_state import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
 from controller.core.ports import CycleTiming
@@ -62,17 +64,33 @@ class ContourScenario:
     # A disturbance the task must ride through (DONE); False: an integrity breach (someone else's
     # frames on the sensor's COB-ID), which ends in a retract and a named fault by design.
     ride_through: bool = True
+    overrides: tuple[tuple[str, object], ...] = ()  # configuration keys, dotted (the part's placement ...)
 
 
 @dataclass
 class _Watch:
-    """Observer: the true contact force, the task's losses and re-acquisitions, the last task state."""
+    """Observer: the true contact force, the task's losses and re-acquisitions, the last task state, and
+    how far the tool (the simulator's true TCP) strayed from the part while the task tracked it."""
 
     exchange: LoopbackExchange
     max_true_force_n: float = 0.0
     reacquired: int = 0
     task: ContourState | None = None
     causes: list[str] = field(default_factory=list)
+    max_off_part_m: float = 0.0  # while tracking
+    final_off_part_m: float = 0.0  # where the run ended
+    _outline: np.ndarray | None = None
+
+    def off_part_m(self) -> float:
+        """The true TCP's distance from the part's outline (the simulator's, unknown to the task)."""
+        if self._outline is None:
+            env = self.exchange.plant.environment
+            points = getattr(env, "contour_points", None)
+            self._outline = np.asarray(points(720))[:, :2] if callable(points) else np.zeros((0, 2))
+        if len(self._outline) == 0:
+            return 0.0
+        tcp = self.exchange.plant.tcp_m
+        return float(np.min(np.hypot(self._outline[:, 0] - tcp[0], self._outline[:, 1] - tcp[1])))
 
     def on_cycle(
         self,
@@ -90,6 +108,8 @@ class _Watch:
         )
         if isinstance(state.task_state, ContourState):
             self.task = state.task_state
+            if self.task.phase == ContourPhase.TRACKING and cycle % 8 == 0:
+                self.max_off_part_m = max(self.max_off_part_m, self.off_part_m())
         for e in events:
             if e.kind == "contact" and "re-acquired" in e.message:
                 self.reacquired += 1
@@ -116,7 +136,15 @@ def _with(cfg: Config, sc: ContourScenario, directory: Path | None) -> Config:
     recording = msgspec.structs.replace(
         cfg.recording, enabled=directory is not None, directory=str(directory or "")
     )
-    return msgspec.structs.replace(cfg, sim=sim, recording=recording)
+    cfg = msgspec.structs.replace(cfg, sim=sim, recording=recording)
+    if not sc.overrides:
+        return cfg
+    from controller.config import config_from_dict, config_to_dict, set_dotted
+
+    table = config_to_dict(cfg)
+    for key, value in sc.overrides:
+        set_dotted(table, key, value)
+    return config_from_dict(table)
 
 
 def run_contour_scenario(
@@ -157,6 +185,7 @@ def run_contour_scenario(
     finally:
         if recorder is not None:
             recorder.__exit__(None, None, None)
+    watch.final_off_part_m = watch.off_part_m()
     return _row(cfg, sc, final, watch, recorder.path if recorder is not None else None)
 
 
@@ -171,6 +200,8 @@ def _row(
         outcome = "DONE"
     elif final.mode == Mode.FAULT and retracted:
         outcome = "retracted"
+    elif final.mode == Mode.FAULT and final.fault_reason.startswith(PROTECTIVE_STOP):
+        outcome = "backed off"  # the safety layer's protective stop (controller/core/contact_guard.py)
     else:
         outcome = final.mode.name
     return {
@@ -184,6 +215,8 @@ def _row(
         "contact_losses": sum(task.contact_losses) if task is not None else 0,
         "reacquired": watch.reacquired,
         "max_true_contact_force_n": round(watch.max_true_force_n, 2),
+        "max_off_part_mm": round(watch.max_off_part_m * 1000.0, 1),
+        "final_off_part_mm": round(watch.final_off_part_m * 1000.0, 1),
         "over_limit": watch.max_true_force_n > cfg.safety.max_contact_force_n,
         "laps_done": laps_done,
         "final_mode": final.mode.name,

@@ -7,6 +7,7 @@ SIGKILL) whatever happens to the controller.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import random
 import selectors
@@ -27,6 +28,7 @@ from controller.shell.service import prepare, run_controller
 from controller.tools.experiment import experiment_for
 from drivers.bus import BusSpec
 from sim_backend.process import CONTACT_FORCE_REPORT, READY_LINE, STOPPED_LINE
+from sim_backend.true_force_tap import TrueForceReader
 
 
 class SimulatorStartError(DeviceError, RuntimeError):
@@ -152,13 +154,18 @@ def run_demo(
     observers: tuple[CycleObserver, ...] = (),
 ) -> dict[str, object]:
     prepare(cfg, spec)  # what the controller would refuse, refused before the simulator starts
-    sim_args = simulator_realtime_args(realtime)
     simulator: dict[str, object] = {}
-    with simulator_process(spec, config_path, overrides, extra_args=sim_args, report=simulator):
+    # the simulator's true contact force, live (a diagnostic: the per-lap tables show it beside the measured)
+    truth = TrueForceReader(f"cheope-true-force-{os.getpid()}-{spec.udp_port}")
+    sim_args = [*simulator_realtime_args(realtime), "--true-force-tap", truth.name]
+    with (
+        contextlib.closing(truth),
+        simulator_process(spec, config_path, overrides, extra_args=sim_args, report=simulator),
+    ):
         experiment = experiment_for(cfg.task.kind)
         if experiment is not None:  # the task's own experiment (the contour's: laps, comparison, plots)
             summary = experiment.over_bus(
-                cfg, spec, plot_dir, max_duration_s, stop_event, realtime, observers
+                cfg, spec, plot_dir, max_duration_s, stop_event, realtime, observers, true_force=truth.read
             )
         else:
             summary = run_controller(

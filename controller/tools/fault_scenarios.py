@@ -60,13 +60,14 @@ SCENARIOS: tuple[Scenario, ...] = (
         "sensor counter frozen",
         f"freeze@{FAULT_AT_S}",
         "fault",
-        "stale after safety.sensor_stale_cycles; quick stop",
+        "stale after safety.sensor_stale_cycles: the contact guard's protective stop (back off along the "
+        "drives' effort, or brake in place without a force), then fault",
     ),
     Scenario(
         "sensor saturated",
         f"saturate@{FAULT_AT_S}",
         "fault",
-        "safety.on_sensor_saturated = fault; quick stop",
+        "safety.on_sensor_saturated = fault: the contact guard's protective stop, then fault",
     ),
     Scenario(
         "drive fault + EMCY",
@@ -88,7 +89,10 @@ SCENARIOS: tuple[Scenario, ...] = (
         "send errors counted, drives silent: fault; drives quick-stop on their SYNC watchdog",
     ),
     Scenario(
-        "contact force above limit", f"force=100@{FAULT_AT_S}", "fault", "safety.max_contact_force_n: fault"
+        "contact force where none is expected",
+        f"force=100@{FAULT_AT_S}",
+        "fault",
+        "the contact guard (safety.contact.free_space_force_n): back off 5 mm along the force, then fault",
     ),
     Scenario(
         "loop overrunning",

@@ -27,8 +27,16 @@ SESSIONS = {
     # the circle: configuring, enabling, holding, a quarter lap, braking, shut-down
     "path_quarter_lap.mcap": ({"task.path.laps": 0.25, "task.path.ramp_s": 0.2}, 10.0),
     # the contour task up to 1 s of tracking: enabling, the move to the start point, the tare,
-    # the approach (from 3 mm out, 1 mm from the disk: a small file), contact, the force loop and the normal tracker
-    "contour_contact.mcap": ({"task.kind": "contour", "task.contour.approach_clearance_m": 0.003}, 2.0),
+    # the approach (from 3 mm out, 1 mm from the disk, no placement tolerance: a small file), contact, the
+    # force loop and the normal tracker, with the drives' effort witness beside the sensor
+    "contour_contact.mcap": (
+        {
+            "task.kind": "contour",
+            "task.contour.approach_clearance_m": 0.003,
+            "task.contour.placement_tolerance_m": 0.0,
+        },
+        3.5,
+    ),
 }
 
 

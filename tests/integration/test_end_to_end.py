@@ -91,15 +91,18 @@ def test_demo_runs_the_contour_experiment_over_the_bus_by_default():
     s = json.loads(r.stdout)
     assert s["final_mode"] == "DONE", s["fault_reason"]
     (lap,) = s["contour"]["laps"]
-    # 0.055 m/s in simulated time (tests/unit/test_contour_tracking.py checks that figure). Over a bus on
-    # a busy machine a late sample can push the force out of its band, and the next 25 mm go at creep
-    # speed (controller/tasks/contour_tracking.py): 0.041 m/s seen under the full suite. Bounds only.
-    assert 0.02 < lap["speed_achieved_m_s"] <= 0.066
+    # the one lap explores the unknown part at task.contour.explore_speed_m_s (0.02 m/s; 0.0198 in
+    # one run over the bus). Over a bus on a busy machine a late sample can push the force out of its
+    # band, and the next 25 mm go at creep speed (0.01 m/s). Bounds only.
+    assert 0.008 < lap["speed_achieved_m_s"] <= 0.021
     assert lap["contact_losses"] == 0 and lap["force_error_rms_n"] < 2.0  # 0.7 N in simulated time
     cmp = s["position_control_comparison"]
-    assert (
-        cmp["final_mode"] == "DONE" and cmp["laps"][0]["force_error_max_n"] > 100.0
-    )  # the disk is 2.2 mm off
+    # position control on a disk 2.2 mm off its nominal place presses into it; under the contact
+    # guard that ends in the protective back-off, or (a path that misses the disk) DONE
+    if cmp["final_mode"] == "DONE":
+        assert cmp["laps"][0]["force_error_max_n"] > 5.0, cmp
+    else:
+        assert cmp["final_mode"] == "FAULT" and cmp["fault_reason"].startswith("protective stop"), cmp
 
 
 def test_the_position_comparison_is_not_run_after_a_contour_that_did_not_end_done():

@@ -42,9 +42,16 @@ def test_every_fault_scenario_gets_its_reaction_and_a_complete_recording(tmp_pat
         if r["reaction_expected"].startswith("fault"):
             # quick stop within a quarter second of the detection; a heartbeat is overdue only after
             # the consumer time (loop.heartbeat_consumer_s) since the last one
-            detection_s = (
-                load_config().loop.heartbeat_consumer_s if r["fault"].startswith("heartbeat") else 0.0
-            )
+            cfg = load_config()
+            detection_s = cfg.loop.heartbeat_consumer_s if r["fault"].startswith("heartbeat") else 0.0
+            if "back off" in r["reaction_expected"]:
+                # the contact guard's protective stop: the back-off's way (5 mm at 20 mm/s, ramps at
+                # 0.5 m/s^2) before the fault, not a quick stop in place
+                c = cfg.safety.contact
+                detection_s += (
+                    c.back_off_distance_m / c.back_off_speed_m_s
+                    + c.back_off_speed_m_s / c.back_off_acceleration_m_s2
+                )
             assert 0.0 < r["time_to_safe_state_s"] < detection_s + 0.25, r
     malformed = next(r for r in rows if r["scenario"].startswith("malformed"))
     assert malformed["rejected_frames"] == 1 and malformed["final_mode"] == "DONE"

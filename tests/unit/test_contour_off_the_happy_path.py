@@ -36,10 +36,10 @@ def _task(**overrides):
     return build_task(cfg, build_robot(cfg), actuator_units(cfg)).task, cfg
 
 
-def _ctx(force, tcp=(0.07, 0.0, 0.5), fresh=True) -> TaskContext:
+def _ctx(force, tcp=(0.07, 0.0, 0.5), fresh=True, t_s=1.0) -> TaskContext:
     sensor = SensorFeedback(tuple(force), (0.0, 0.0, 0.0), 0, 1, fresh)
     drives = tuple(DriveFeedback(0x1637, 0.55, True) for _ in range(3))
-    return TaskContext(1.0, DT, Setpoint.at_rest((0.55,) * 3), CycleInputs(drives, sensor), tcp)
+    return TaskContext(t_s, DT, Setpoint.at_rest((0.55,) * 3), CycleInputs(drives, sensor), tcp)
 
 
 def _tracking(task, **fields) -> ContourState:
@@ -132,10 +132,10 @@ def test_a_contact_loss_re_approaches_backs_off_and_gives_up_with_a_named_cause(
     c = cfg.task.model("contour")
     s = _tracking(task)
     phases, kinds = [], []
-    for _ in range(200000):
+    for k in range(200000):
         out = task.step(
             replace(s, force_f=(0.0, 0.0, 0.0)) if s.phase == ContourPhase.TRACKING else s,
-            _ctx((0.0, 0.0, 0.0), tcp=s.p_cmd),
+            _ctx((0.0, 0.0, 0.0), tcp=s.p_cmd, t_s=1.0 + k * DT),
         )
         s = out.state
         kinds += [e.kind for e in out.events]
@@ -143,13 +143,31 @@ def test_a_contact_loss_re_approaches_backs_off_and_gives_up_with_a_named_cause(
             phases.append(s.phase)
         if out.finished:
             break
-    # the fading force already braked the tangential motion (force band), so CONTACT_LOST passes at once
-    assert phases[:3] == [ContourPhase.TRACKING, ContourPhase.REAPPROACH, ContourPhase.BACK_OFF]
+    # the fading force already braked the tangential motion (force band), so CONTACT_LOST passes at
+    # once; out into free space and a re-tare first (the loss may have been the sensor's offset)
+    assert phases[:4] == [
+        ContourPhase.TRACKING,
+        ContourPhase.RETARE,
+        ContourPhase.REAPPROACH,
+        ContourPhase.BACK_OFF,
+    ]
     assert phases[-2:] == [ContourPhase.RETRACT, ContourPhase.FINISHED]
     assert kinds.count("reapproach") == c.max_reacquire_attempts
     assert kinds.count("reapproach_failed") == c.max_reacquire_attempts
     assert "contact_not_reacquired" in kinds and "contact_lost" in kinds
     assert out.fault.startswith("contact lost in lap 1 and not re-acquired in 3")
+
+
+def _through_retare(task, s, force=(0.0, 0.0, 0.0)):
+    """Steps (the clock advancing) until the task leaves CONTACT_LOST and RETARE: (state, events)."""
+    events = []
+    for k in range(20000):
+        if s.phase not in (ContourPhase.CONTACT_LOST, ContourPhase.RETARE):
+            break
+        out = task.step(s, _ctx(force, tcp=s.p_cmd, t_s=1.0 + k * DT))
+        s = out.state
+        events += list(out.events)
+    return s, events
 
 
 def test_a_contact_lost_at_speed_is_braked_along_its_tangent_first():
@@ -161,20 +179,23 @@ def test_a_contact_lost_at_speed_is_braked_along_its_tangent_first():
         speeds.append(s.speed_m_s)
     decel = cfg.task.model("contour").stop_deceleration_m_s2
     assert speeds[0] == pytest.approx(0.06 - decel * DT)
-    assert s.phase == ContourPhase.REAPPROACH
+    assert s.phase == ContourPhase.RETARE  # then out into free space for a re-tare
     assert abs(len(speeds) - 0.06 / (decel * DT)) <= 1.0  # to rest at the stop deceleration (+- rounding)
 
 
 def test_a_re_approach_aims_behind_the_last_good_contact_point_and_resumes_tracking_there():
-    task, _ = _task()
+    task, cfg = _task()
     # braked 10 mm further along the tangent and 3 mm out: the line still meets the contour near the point
     s = replace(_tracking(task, speed_m_s=0.0, p_cmd=(0.073, 0.01, 0.5)), phase=ContourPhase.CONTACT_LOST)
-    out = task.step(s, _ctx((0.0, 0.0, 0.0), tcp=s.p_cmd))
-    s = out.state
+    s, _ = _through_retare(task, s)
     assert s.phase == ContourPhase.REAPPROACH
+    # re-tared retare_clearance_m further out along the normal, and from there:
+    out_m = cfg.task.model("contour").retare_clearance_m
+    start = (0.073 + out_m, 0.01)
+    assert s.p_cmd[0] == pytest.approx(start[0]) and s.p_cmd[1] == pytest.approx(start[1])
     aim = (0.07 - 0.008, 0.0)  # reapproach_distance_m behind the contact point, along -n
     d = s.reapproach_direction
-    to_aim = (aim[0] - 0.073, aim[1] - 0.01)
+    to_aim = (aim[0] - start[0], aim[1] - start[1])
     assert d[0] * to_aim[1] - d[1] * to_aim[0] == pytest.approx(0.0, abs=1e-9)  # along the line to the aim
     assert s.reapproach_m == pytest.approx(math.hypot(*to_aim))
     s = replace(s, lap=1, swept_rad=7.0)
@@ -254,10 +275,11 @@ def test_a_re_approach_from_free_space_re_tares_the_drifted_bias():
     task, _ = _task()
     bias = (2.5, -1.0, 0.0)
     s = replace(_tracking(task, speed_m_s=0.0, force_f=bias, raw_force=bias), phase=ContourPhase.CONTACT_LOST)
-    out = task.step(s, _ctx(bias, tcp=s.p_cmd))
-    assert out.state.phase == ContourPhase.REAPPROACH
-    assert out.state.offset[0] == pytest.approx(2.5) and out.state.offset[1] == pytest.approx(-1.0)
-    assert out.state.force_f == (0.0, 0.0, 0.0)
+    s, events = _through_retare(task, s, bias)
+    assert s.phase == ContourPhase.REAPPROACH
+    assert s.offset[0] == pytest.approx(2.5) and s.offset[1] == pytest.approx(-1.0)
+    assert s.force_f == (0.0, 0.0, 0.0)
+    assert any(e.message.startswith("sensor re-tared in free space") for e in events)
 
 
 def test_stale_samples_stop_the_motion_into_the_contact():

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -43,6 +44,9 @@ class ContourObserver:
     force_setpoint_n: float
     centre_m: tuple[float, float]
     laps: int
+    # the simulator's true contact force [N] (the in-process plant's, or the simulator process's through
+    # sim_backend/true_force_tap.py); None: a real robot, where only the measurement is known
+    true_force: Callable[[], Sequence[float]] | None = None
     t: list[float] = field(default_factory=list)
     lap: list[int] = field(default_factory=list)
     fn: list[float] = field(default_factory=list)
@@ -53,8 +57,11 @@ class ContourObserver:
     corner: list[bool] = field(
         default_factory=list
     )  # the measured normal turning on a radius under CORNER_RADIUS_M
+    true_fn: list[float] = field(default_factory=list)  # the true contact force along the normal [N]
+    max_true_force_n: float = 0.0  # the largest true contact force of the whole run [N]
     _swept: float = 0.0
     _last_angle: float | None = None
+    _truth: Sequence[float] | None = None
 
     def on_cycle(
         self,
@@ -68,6 +75,12 @@ class ContourObserver:
     ) -> None:
         ts = state.task_state
         tcp = state.tcp_measured_m
+        self._truth = self.true_force() if self.true_force is not None else None
+        if self._truth is not None:
+            f = self._truth
+            self.max_true_force_n = max(
+                self.max_true_force_n, math.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2])
+            )
         if tcp is None or state.mode != Mode.RUNNING:
             return
         if isinstance(ts, ContourState):
@@ -103,6 +116,8 @@ class ContourObserver:
         self.speed_cmd.append(speed)
         self.xy.append((tcp[0], tcp[1]))
         self.normal.append(normal)
+        if self._truth is not None:
+            self.true_fn.append(self._truth[0] * normal[0] + self._truth[1] * normal[1])
 
 
 def _normal_stiffness(
@@ -203,6 +218,8 @@ def contour_summary(
     lap = np.array(obs.lap)
     err = obs.force_setpoint_n - np.array(obs.fn)
     xy = np.array(obs.xy)
+    # the simulator's own: what the measurement's errors (a sensor offset, a spike) hide
+    true_err = obs.force_setpoint_n - np.array(obs.true_fn) if len(obs.true_fn) == t.size else None
     laps = []
     for k in range(obs.laps):
         m = lap == k
@@ -217,6 +234,14 @@ def contour_summary(
                 "speed_achieved_m_s": round(float(dist / dur), 5) if dur > 0 else None,
                 "force_error_rms_n": round(float(np.sqrt(np.mean(err[m] ** 2))), 4),
                 "force_error_max_n": round(float(np.abs(err[m]).max()), 4),
+                **(
+                    {
+                        "true_force_error_rms_n": round(float(np.sqrt(np.mean(true_err[m] ** 2))), 4),
+                        "true_force_error_max_n": round(float(np.abs(true_err[m]).max()), 4),
+                    }
+                    if true_err is not None
+                    else {}
+                ),
                 "contact_losses": int(obs.contact_losses[k])
                 if k < len(obs.contact_losses)
                 else int(np.count_nonzero(np.diff((np.array(obs.fn)[m] < 0.5).astype(int)) == 1)),
@@ -227,6 +252,9 @@ def contour_summary(
     corner = np.array(obs.corner, dtype=bool) if len(obs.corner) == t.size else np.zeros(t.size, dtype=bool)
     return {
         "samples": int(t.size),
+        **(
+            {"max_true_contact_force_n": round(obs.max_true_force_n, 2)} if obs.true_force is not None else {}
+        ),
         "laps": laps,
         "force_error_rms_n": round(float(np.sqrt(np.mean(err**2))), 4),
         "corners": {

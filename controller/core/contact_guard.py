@@ -1,0 +1,379 @@
+"""The contact guard: the safety layer's watch over contact, outside any task (DESIGN.md, "Off the happy path").
+
+Safety does not rest on the task or on one sensor. Every cycle of an enabled robot the law judges
+the contact force against what the task says about contact (``ContactExpectation``, carried by
+its reference), with two witnesses:
+
+- the force sensor's sample, less the guard's own **baseline** (the sensor's reading at rest in
+  free space: taken while HOLDING, renewed whenever the task holds still in free space and the
+  drives agree that nothing touches the tool);
+- the **effort witness**: the contact force the drives' efforts (CiA 402 0x6077) imply through
+  the robot's model, ``F = M a - J^T tau`` (``ForceWitnessModel``; Cheope's in
+  controller/robots/cheope.py). It does not come from the sensor; its error is the model's
+  (a linear motor's cogging, 2 N a carriage in the simulator: up to about 5.5 N at the tool,
+  measured in contact) plus the inertia term's while the robot accelerates.
+
+In a contact by design (``PRESSING``) the **limit acts on the larger of the two** (the witness
+less the robot's own inertial load). In free space (``NONE``) and in a guarded move (``GUARDED``)
+the sensor judges while it is trusted, and the witness, less its whole tolerance, only without it
+(its error there is the robot's own fast motion: ``judged_force_n``). Past the limit the motion ends with a
+**protective back-off** (``BackOff``): the tool moves a few millimetres along the force the guard
+trusts, at a bounded speed and acceleration, comes to rest, and the law faults naming the cause.
+A stop in place while pressing is never the reaction to a force: the CiA 402 quick stop stays the
+reaction to bus and drive faults.
+
+In contact by design the two are cross-checked every cycle both are fresh, each as the median of
+its last WITNESS_MEDIAN_CYCLES (over a bus a late SYNC jolts the drives' efforts for a few cycles;
+the sensor's median lags a rising force as much): when they disagree beyond the
+witness's tolerance (``tolerance_n`` + ``tolerance_fraction`` of the larger + a share of the
+inertia term) for ``disagreement_cycles`` in a row, the sensor is **suspect**: the task is told
+(``TaskContext.sensor_suspect``) and must resolve it (a contour re-tares in free space); past
+``sensor_suspect_s`` the law backs off along the witness and faults.
+
+Pure: no I/O, no clock; the state lives in ``ContactWatch`` and ``BackOff`` inside the
+controller's state, so a recorded session replays bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from controller.core.cycle_data import CycleInputs, SensorFeedback
+from controller.core.linalg3 import Vector3
+from controller.core.ports import ContactExpectation
+from controller.core.records import record, replace
+
+ZERO3: Vector3 = (0.0, 0.0, 0.0)
+PROTECTIVE_STOP = "protective stop"  # how the fault reason of a back-off begins
+WITNESS_MEDIAN_CYCLES = 19  # the witness is the median of this many cycles' (_median_of)
+
+
+@dataclass(frozen=True)
+class ContactGuardConfig:
+    """``[safety.contact]`` (controller/config.py), resolved once at assembly."""
+
+    free_space_force_n: float = 10.0  # NONE: a force above this is a collision
+    guarded_move_force_n: float = 25.0  # GUARDED: the task met contact and did not stop pushing
+    max_contact_force_n: float = 60.0  # PRESSING: safety.max_contact_force_n
+    max_contact_speed_m_s: float = 0.1  # a GUARDED or PRESSING reference faster than this: a fault
+    witness_required: bool = True  # a task that reads the sensor runs only with the effort witness
+    tolerance_n: float = 6.0  # the witness's own error (cogging, model)
+    tolerance_fraction: float = 0.25  # ... plus this share of the larger force
+    inertia_fraction: float = 1.0  # ... plus this share of the inertial load |M a|' (its recent peak, below)
+    inertia_time_constant_s: float = (
+        0.1  # the peak of |M a| fades with this: the structure rings after a move
+    )
+    disagreement_cycles: int = 10  # beyond the tolerance this many cycles in a row: the sensor is suspect
+    sensor_suspect_s: float = 2.0  # the task's time to resolve a suspect sensor; then the law backs off
+    back_off_distance_m: float = 0.005
+    back_off_speed_m_s: float = 0.02
+    back_off_acceleration_m_s2: float = 0.5
+    back_off_min_force_n: float = 2.0  # a trusted force weaker than this gives no direction: brake in place
+
+
+@record
+class Witness:
+    """The contact force the drives' efforts imply this cycle, and the model's own inertial load."""
+
+    force_n: Vector3
+    inertia_n: float  # |M a|: the share of the efforts that accelerates the robot itself
+
+
+@record
+class ContactWatch:
+    """The guard's state between two cycles (inside ``ControllerState``)."""
+
+    expectation: ContactExpectation = ContactExpectation.NONE  # the task's last reference's
+    baseline_n: Vector3 = ZERO3  # the sensor's reading at rest in free space
+    baseline_set: bool = False
+    sensor_n: Vector3 | None = None  # the last usable sample, baseline removed
+    witness: Witness | None = None  # the last witness
+    dynamic_n: float = (
+        0.0  # the recent peak of |M a|, fading: the structure rings after the robot accelerates
+    )
+    # the last setpoints' accelerations, newest last: a sample at this cycle's SYNC shows the drives'
+    # motion towards the setpoint of three cycles ago (the step's pipeline, control_law.PIPELINE_PERIODS)
+    accelerations: tuple[tuple[float, ...], ...] = ()
+    witness_window: tuple[Vector3, ...] = ()  # the last raw witnesses, for their median
+    sensor_window: tuple[Vector3, ...] = ()  # the last usable samples (baseline removed), for theirs
+    force_n: float = 0.0  # the contact force the guard judged this cycle (the larger of the two)
+    disagreeing: int = 0  # cycles in a row beyond the cross-check's tolerance
+    agreeing: int = 0  # cycles in a row within it (clears a suspicion)
+    suspect: str = ""  # why the sensor is suspect ("" : it is not)
+    suspect_cycle: int = 0  # since when
+    reference_m: Vector3 | None = None  # the task's last reference TCP (its speed, a back-off's origin)
+
+
+@record
+class BackOff:
+    """A protective back-off in progress: along ``direction`` from ``origin_m``, then at rest, then FAULT."""
+
+    cause: str
+    direction: Vector3 | None  # unit, the force the guard trusts; None: no force to move away from
+    origin_m: Vector3
+    entry_force_n: float
+    travelled_m: float = 0.0
+    speed_m_s: float = 0.0
+    braking: bool = False
+    cycles: int = 0  # since it began
+
+
+def norm3(v: Vector3) -> float:
+    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+
+
+def _sub3(a: Vector3, b: Vector3) -> Vector3:
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+def usable_sample(sensor: SensorFeedback | None, stale: bool) -> Vector3 | None:
+    """The sensor's force when this cycle brought a usable sample (fresh, its counter advanced)."""
+    if sensor is None or not sensor.fresh or stale:
+        return None
+    return sensor.force_n
+
+
+def tolerance_n(cfg: ContactGuardConfig, sensor_n: float, witness: Witness, dynamic_n: float) -> float:
+    """How far sensor and witness may disagree: the witness's error at this force and after this motion.
+
+    Measured in the simulator (contour scan, 3 laps): in contact at rest or sliding, up to 7.4 N (the
+    cogging); while the robot accelerates and for a while after it, the structure's ringing M x'' too,
+    which the motors carry and the sensor does not: covered by the fading peak of |M a| (0.84 of it
+    was the most any sample needed, with a 0.1-s fade).
+    """
+    return (
+        cfg.tolerance_n
+        + cfg.tolerance_fraction * max(sensor_n, norm3(witness.force_n))
+        + cfg.inertia_fraction * dynamic_n
+    )
+
+
+def judged_force_n(
+    cfg: ContactGuardConfig,
+    expectation: ContactExpectation,
+    sensor_n: Vector3 | None,
+    witness: Witness | None,
+    dynamic_n: float,
+    sensor_trusted: bool = True,
+) -> float:
+    """The force the limits act on: the larger of the two witnesses in contact.
+
+    In contact by design (``PRESSING``) the effort witness counts less the share of the robot's own
+    motion in it: the limit is a safety limit. Elsewhere the robot moves freely and fast, and the
+    witness's error is the drives' own accelerations: on a loaded machine a loopback path run read
+    100-138 N of "effort" in free space with nothing touching (a median of 19 cycles, the sensor at
+    0.1 N: 3 of 6 runs beside a CPU hog). There the sensor judges while it is trusted (usable, not
+    suspect); without it the witness, less its whole tolerance, past the contact limit itself.
+    """
+    f_sensor = norm3(sensor_n) if sensor_n is not None else 0.0
+    if witness is None:
+        return f_sensor
+    f_witness = norm3(witness.force_n)
+    if expectation == ContactExpectation.PRESSING:
+        return max(f_sensor, f_witness - cfg.inertia_fraction * dynamic_n)
+    if sensor_trusted:
+        return f_sensor
+    f_witness -= tolerance_n(cfg, 0.0, witness, dynamic_n)
+    return max(f_sensor, f_witness if f_witness > cfg.max_contact_force_n else 0.0)
+
+
+def limit_n(cfg: ContactGuardConfig, expectation: ContactExpectation) -> float:
+    if expectation == ContactExpectation.NONE:
+        return cfg.free_space_force_n
+    if expectation == ContactExpectation.GUARDED:
+        return cfg.guarded_move_force_n
+    return cfg.max_contact_force_n
+
+
+EXPECTATION_TEXT = {
+    ContactExpectation.NONE: "in free space (no contact expected)",
+    ContactExpectation.GUARDED: "in a guarded move",
+    ContactExpectation.PRESSING: "in contact",
+}
+
+
+def watch(
+    cfg: ContactGuardConfig,
+    w: ContactWatch,
+    inputs: CycleInputs,
+    stale: bool,
+    witness: Witness | None,
+    at_rest: bool,
+    cycle: int,
+    period_s: float,
+) -> tuple[ContactWatch, str]:
+    """One cycle of the guard: the updated watch and, past a limit, the cause of a protective back-off.
+
+    Locals first and one ``replace`` at the end: it runs every enabled cycle (budget: cycle_work.py)."""
+    raw = usable_sample(inputs.sensor, stale)
+    window = w.witness_window
+    if witness is not None:
+        window, median = _median_of(window, witness.force_n)
+        witness = Witness(median, witness.inertia_n)
+    baseline, baseline_set = w.baseline_n, w.baseline_set
+    if raw is not None and not baseline_set and norm3(raw) <= cfg.free_space_force_n:
+        # The first usable sample while holding: the baseline is what the sensor reads at rest, unless
+        # that already is a collision (the guard then trips on it below).
+        baseline, baseline_set = raw, True
+    sensor = _sub3(raw, baseline) if raw is not None else w.sensor_n
+    dynamic = w.dynamic_n * math.exp(-period_s / cfg.inertia_time_constant_s)
+    if witness is not None and witness.inertia_n > dynamic:
+        dynamic = witness.inertia_n
+    if (
+        raw is not None
+        and at_rest
+        and w.expectation == ContactExpectation.NONE
+        and witness is not None
+        and norm3(witness.force_n) <= tolerance_n(cfg, 0.0, witness, dynamic)
+    ):
+        # At rest in free space, and the drives feel nothing: what the sensor reads is its own offset
+        # (a task re-tares it here too). Below the witness's tolerance a real touch and an offset look
+        # alike to the guard; above it the witness says contact, and the baseline stays.
+        baseline, sensor = raw, ZERO3
+    sensor_window = w.sensor_window
+    if witness is None:
+        witness = w.witness
+        check = (w.disagreeing, w.agreeing, w.suspect, w.suspect_cycle)
+    elif raw is None or sensor is None:
+        check = (w.disagreeing, w.agreeing, w.suspect, w.suspect_cycle)
+    else:
+        # the sensor's median over the witness's window: a force that rises in a few cycles (a
+        # contact's first spike: 0 to 13 N in 30 ms on the kidney shape) is seen by both alike
+        sensor_window, sensor_median = _median_of(sensor_window, sensor)
+        check = _cross_check(cfg, w, sensor_median, witness, dynamic, cycle)
+    trusted = raw is not None and not check[2]
+    force = judged_force_n(cfg, w.expectation, sensor, witness, dynamic, trusted)
+    w = replace(
+        w,
+        baseline_n=baseline,
+        baseline_set=baseline_set,
+        sensor_n=sensor,
+        witness=witness,
+        witness_window=window,
+        sensor_window=sensor_window,
+        dynamic_n=dynamic,
+        disagreeing=check[0],
+        agreeing=check[1],
+        suspect=check[2],
+        suspect_cycle=check[3],
+        force_n=force,
+    )
+    limit = limit_n(cfg, w.expectation)
+    if force > limit:
+        return w, (
+            f"contact force {force:.1f} N {EXPECTATION_TEXT[w.expectation]}, above {limit:g} N "
+            f"({_witnesses(w)})"
+        )
+    if w.suspect and (cycle - w.suspect_cycle) * period_s > cfg.sensor_suspect_s:
+        return w, f"force sensor suspect for {cfg.sensor_suspect_s:g} s: {w.suspect}"
+    return w, ""
+
+
+def _median_of(window: tuple[Vector3, ...], sample: Vector3) -> tuple[tuple[Vector3, ...], Vector3]:
+    """``sample`` appended to the last WITNESS_MEDIAN_CYCLES, and each axis's median of them. Over a bus
+    the drives' efforts jump for a cycle or a few where a late SYNC jolts a carriage (measured over
+    udp_multicast: 25 such jumps in a 40-s contour run, the longest 9 cycles, the largest 155 N
+    beside 10 N of contact; in simulated time none): the motors carry the jolt, the sensor does not."""
+    window = (*window, sample)[-WITNESS_MEDIAN_CYCLES:]
+    k = len(window) // 2
+    x, y, z = (sorted(column)[k] for column in zip(*window, strict=True))
+    return window, (x, y, z)
+
+
+def _witnesses(w: ContactWatch) -> str:
+    s = f"sensor {norm3(w.sensor_n):.1f} N" if w.sensor_n is not None else "no sensor sample"
+    return s + (f", drives' effort {norm3(w.witness.force_n):.1f} N" if w.witness is not None else "")
+
+
+def _cross_check(
+    cfg: ContactGuardConfig,
+    w: ContactWatch,
+    sensor: Vector3,
+    witness: Witness,
+    dynamic_n: float,
+    cycle: int,
+) -> tuple[int, int, str, int]:
+    """Sensor against witness (both medians of the same cycles), in contact by design: there the
+    sensor's word steers the task. In free space and guarded moves the sensor reads about nothing and
+    the witness's error is all there is. The watch's (disagreeing, agreeing, suspect, suspect_cycle)
+    after this cycle."""
+    agreeing = w.agreeing + 1
+    if w.expectation != ContactExpectation.PRESSING:
+        suspect = "" if agreeing >= cfg.disagreement_cycles else w.suspect
+        return 0, agreeing, suspect, w.suspect_cycle
+    gap = norm3(_sub3(sensor, witness.force_n))
+    if gap > tolerance_n(cfg, norm3(sensor), witness, dynamic_n):
+        n = w.disagreeing + 1
+        if n >= cfg.disagreement_cycles and not w.suspect:
+            why = (
+                f"it reads {norm3(sensor):.1f} N where the drives' effort says {norm3(witness.force_n):.1f} N "
+                f"({gap:.1f} N apart for {n} cycles)"
+            )
+            return n, 0, why, cycle
+        return n, 0, w.suspect, w.suspect_cycle
+    suspect = "" if w.suspect and agreeing >= cfg.disagreement_cycles else w.suspect
+    return 0, agreeing, suspect, w.suspect_cycle
+
+
+def back_off_direction(
+    cfg: ContactGuardConfig, w: ContactWatch, sensor_trusted: bool = True
+) -> tuple[Vector3 | None, float]:
+    """The force to move away from (unit) and its size: the sensor's when it is trusted, else the witness's."""
+    f: Vector3 | None = w.sensor_n if sensor_trusted and not w.suspect else None
+    if f is None or norm3(f) < cfg.back_off_min_force_n:  # the witness where the sensor tells nothing
+        f = w.witness.force_n if w.witness is not None else f
+    if f is None:
+        return None, 0.0
+    size = norm3(f)
+    if size < cfg.back_off_min_force_n:
+        return None, size
+    return (f[0] / size, f[1] / size, f[2] / size), size
+
+
+def begin_back_off(
+    cfg: ContactGuardConfig, w: ContactWatch, cause: str, origin_m: Vector3, sensor_trusted: bool = True
+) -> BackOff:
+    direction, size = back_off_direction(cfg, w, sensor_trusted)
+    return BackOff(cause, direction, origin_m, max(size, w.force_n))
+
+
+def advance_back_off(
+    cfg: ContactGuardConfig, b: BackOff, period_s: float
+) -> tuple[BackOff, Vector3, Vector3]:
+    """One period of the back-off's TCP motion: (state, position, velocity). Trapezoidal in speed,
+    braking to stop at the distance; without a direction the TCP stays where it was."""
+    b = replace(b, cycles=b.cycles + 1)
+    if b.direction is None or b.braking:
+        return replace(b, speed_m_s=0.0, braking=True), _along(b, b.travelled_m), ZERO3
+    a, v_max = cfg.back_off_acceleration_m_s2, cfg.back_off_speed_m_s
+    left = cfg.back_off_distance_m - b.travelled_m
+    # up at a, never faster than v_max, nor than what still stops within the rest after this period's
+    # step (v T + v^2 / 2a <= left), down at a
+    stoppable = a * (math.sqrt(period_s * period_s + 2.0 * left / a) - period_s)
+    v = min(v_max, b.speed_m_s + a * period_s, max(b.speed_m_s - a * period_s, stoppable))
+    step = min(v * period_s, left)
+    travelled = b.travelled_m + step
+    done = cfg.back_off_distance_m - travelled <= 1e-9
+    b = replace(b, travelled_m=travelled, speed_m_s=0.0 if done else v, braking=done)
+    d = b.direction
+    assert d is not None
+    velocity = ZERO3 if done else (d[0] * v, d[1] * v, d[2] * v)
+    return b, _along(b, travelled), velocity
+
+
+def _along(b: BackOff, s: float) -> Vector3:
+    d, o = b.direction, b.origin_m
+    if d is None:
+        return o
+    return (o[0] + d[0] * s, o[1] + d[1] * s, o[2] + d[2] * s)
+
+
+def back_off_summary(b: BackOff) -> str:
+    if b.direction is None:
+        return f"{PROTECTIVE_STOP}: {b.cause}; no force to move away from, braked in place"
+    d = b.direction
+    return (
+        f"{PROTECTIVE_STOP}: {b.cause}; backed off {b.travelled_m * 1000:.1f} mm along "
+        f"({d[0]:.2f}, {d[1]:.2f}, {d[2]:.2f})"
+    )

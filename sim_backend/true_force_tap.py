@@ -1,0 +1,87 @@
+"""The simulator's true contact force, shared live with the process that runs the demo.
+
+The controller sees the force sensor's measurement; how well force control did is told by the
+force the simulator's environment really exerts. In simulated time the demo reads it from the
+in-process plant; over a bus the simulator is another process, and it writes the force of every
+SYNC into a small file mapped into both processes' memory (in /dev/shm where there is one) that
+the demo's observers read each cycle: a sequence number, then Fx, Fy, Fz [N]. A diagnostic, never an input
+of the law: nothing the controller decides depends on it.
+
+The writer bumps the sequence to an odd number before it writes and to the next even one after;
+a reader that finds it odd, or changed under it, takes the last value it read whole.
+
+A plain file and ``mmap``, not ``multiprocessing.shared_memory``: that one registers its blocks
+with multiprocessing's resource tracker, which removed the block under a demo that used a process
+pool (the 3-nSPU's) and left it failing at its end on a block already gone.
+"""
+
+from __future__ import annotations
+
+import mmap
+import os
+import struct
+import tempfile
+from pathlib import Path
+
+_LAYOUT = struct.Struct("<Q3d")  # sequence, Fx, Fy, Fz [N]
+_ZERO = (0.0, 0.0, 0.0)
+
+
+def tap_path(name: str) -> Path:
+    """Where the block named ``name`` lives: /dev/shm (memory) where there is one, else the temp dir."""
+    shm = Path("/dev/shm")
+    return (shm if shm.is_dir() else Path(tempfile.gettempdir())) / name
+
+
+class TrueForceTap:
+    """The writing side (the simulator process): ``write`` at every SYNC."""
+
+    def __init__(self, path: str) -> None:
+        """Map the block the reader made at ``path`` (``FileNotFoundError`` when there is none)."""
+        fd = os.open(path, os.O_RDWR)
+        try:
+            self._map = mmap.mmap(fd, _LAYOUT.size)
+        finally:
+            os.close(fd)
+        self._sequence = 0
+
+    def write(self, fx_n: float, fy_n: float, fz_n: float) -> None:
+        buf = self._map
+        self._sequence += 1
+        struct.pack_into("<Q", buf, 0, 2 * self._sequence - 1)
+        _LAYOUT.pack_into(buf, 0, 2 * self._sequence - 1, fx_n, fy_n, fz_n)
+        struct.pack_into("<Q", buf, 0, 2 * self._sequence)
+
+    def close(self) -> None:
+        self._map.close()
+
+
+class TrueForceReader:
+    """The reading side (the demo): makes the block, reads the latest force, removes the block."""
+
+    def __init__(self, name: str) -> None:
+        self.path = tap_path(name)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o600)
+        try:
+            os.ftruncate(fd, _LAYOUT.size)
+            self._map = mmap.mmap(fd, _LAYOUT.size)
+        finally:
+            os.close(fd)
+        _LAYOUT.pack_into(self._map, 0, 0, *_ZERO)
+        self._last = _ZERO
+
+    @property
+    def name(self) -> str:
+        """What the simulator is given (``cheope sim --true-force-tap``): the block's path."""
+        return str(self.path)
+
+    def read(self) -> tuple[float, float, float]:
+        """The force of the simulator's latest SYNC [N] (zero before its first)."""
+        sequence, fx, fy, fz = _LAYOUT.unpack_from(self._map, 0)
+        if sequence % 2 == 0 and _LAYOUT.unpack_from(self._map, 0)[0] == sequence:
+            self._last = (fx, fy, fz)
+        return self._last
+
+    def close(self) -> None:
+        self._map.close()
+        self.path.unlink(missing_ok=True)

@@ -1,0 +1,195 @@
+"""The contact guard (controller/core/contact_guard.py): outside any task, on two witnesses.
+
+Its pure parts against hand-made inputs, Cheope's effort witness against its Jacobian and mass
+model, and the law in closed loop with the simulated devices in simulated time (no bus, no clock):
+a force where no contact is expected ends the motion with a protective stop that backs off along
+the force with the drives enabled, never a quick stop in place.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from controller.assembly import build_law, build_robot
+from controller.config import ConfigError, load_config
+from controller.core.cia402 import PowerState, decode_statusword
+from controller.core.contact_guard import (
+    WITNESS_MEDIAN_CYCLES,
+    ContactGuardConfig,
+    ContactWatch,
+    Witness,
+    advance_back_off,
+    begin_back_off,
+    judged_force_n,
+    watch,
+)
+from controller.core.controller_state import Mode
+from controller.core.cycle_data import CycleInputs, DriveFeedback, SensorFeedback
+from controller.core.ports import ContactExpectation
+from controller.core.records import replace
+from controller.robots.performance import cartesian_mass_matrix
+from controller.shell.loop import CycleLoop, SimulatedTime
+from sim_backend.loopback import LoopbackExchange
+
+CFG = ContactGuardConfig()
+DT = 0.0025
+
+
+def _inputs(force) -> CycleInputs:
+    drives = tuple(DriveFeedback(0x1637, 0.55, True, 0.0) for _ in range(3))
+    return CycleInputs(drives, SensorFeedback(tuple(force), (0.0, 0.0, 0.0), 0, 1, True))
+
+
+def test_the_limits_act_on_the_larger_of_sensor_and_witness():
+    """A sensor reading low is no licence: the witness counts, less its own error where contact is
+    not expected (its cogging must not stop a free move), as it reads while pressing."""
+    sensor, witness = (2.0, 0.0, 0.0), Witness((30.0, 0.0, 0.0), 0.0)
+    free = judged_force_n(CFG, ContactExpectation.NONE, sensor, witness, 0.0)
+    pressing = judged_force_n(CFG, ContactExpectation.PRESSING, sensor, witness, 0.0)
+    assert pressing == pytest.approx(30.0)
+    assert free == pytest.approx(2.0)  # in free space the sensor judges the low limit ...
+    big = Witness((90.0, 0.0, 0.0), 0.0)
+    assert judged_force_n(CFG, ContactExpectation.NONE, sensor, big, 0.0) == pytest.approx(2.0)
+    # ... while it is trusted; without it (stale, suspect) the witness judges a collision past the
+    # contact limit, less its whole tolerance
+    collision = judged_force_n(CFG, ContactExpectation.NONE, sensor, big, 0.0, sensor_trusted=False)
+    assert collision == pytest.approx(90.0 - CFG.tolerance_n - CFG.tolerance_fraction * 90.0)
+    w = ContactWatch(sensor_n=(0.0, 45.0, 0.0), witness=Witness((0.0, 3.0, 0.0), 0.0))
+    assert judged_force_n(CFG, w.expectation, w.sensor_n, w.witness, 0.0) == pytest.approx(
+        45.0
+    )  # a sensor reading high counts as it reads
+
+
+def test_a_force_where_no_contact_is_expected_trips_the_guard_and_names_both_witnesses():
+    w = ContactWatch(expectation=ContactExpectation.NONE)
+    w, cause = watch(CFG, w, _inputs((0.1, 0.0, 0.0)), False, Witness((0.0, 0.0, 0.0), 0.0), False, 1, DT)
+    assert not cause and w.baseline_set  # the first sample at rest: the baseline
+    w, cause = watch(CFG, w, _inputs((12.0, 0.0, 0.0)), False, Witness((9.0, 0.0, 0.0), 0.0), False, 2, DT)
+    assert "in free space" in cause and "sensor 11.9 N" in cause and "drives' effort 9.0 N" in cause
+    w = replace(w, expectation=ContactExpectation.NONE)  # the drives' effort alone, within its error: no trip
+    w, cause = watch(CFG, w, _inputs((0.1, 0.0, 0.0)), False, Witness((40.0, 0.0, 0.0), 30.0), False, 3, DT)
+    assert not cause
+    # the same force while pressing is within the contact's limit
+    w = replace(w, expectation=ContactExpectation.PRESSING)
+    w, cause = watch(CFG, w, _inputs((12.0, 0.0, 0.0)), False, Witness((9.0, 0.0, 0.0), 0.0), False, 3, DT)
+    assert not cause
+
+
+def test_a_sensor_that_disagrees_with_the_witness_becomes_suspect_and_agreeing_clears_it():
+    w = ContactWatch(expectation=ContactExpectation.PRESSING, baseline_set=True)
+    lie = _inputs((40.0, 0.0, 0.0))  # the drives feel 10 N
+    for cycle in range(CFG.disagreement_cycles):
+        assert not w.suspect
+        w, _ = watch(CFG, w, lie, False, Witness((10.0, 0.0, 0.0), 0.0), False, cycle, DT)
+    assert w.suspect and "40.0 N where the drives' effort says 10.0 N" in w.suspect
+    # agreeing clears it once the median of the window agrees for disagreement_cycles in a row
+    for cycle in range(WITNESS_MEDIAN_CYCLES // 2 + CFG.disagreement_cycles):
+        assert w.suspect
+        w, _ = watch(
+            CFG, w, _inputs((11.0, 0.0, 0.0)), False, Witness((10.0, 0.0, 0.0), 0.0), False, 50 + cycle, DT
+        )
+    assert not w.suspect
+    # suspect for longer than sensor_suspect_s: the guard backs off
+    for cycle in range(
+        100, 100 + int(CFG.sensor_suspect_s / DT) + CFG.disagreement_cycles + WITNESS_MEDIAN_CYCLES
+    ):
+        w, cause = watch(CFG, w, lie, False, Witness((10.0, 0.0, 0.0), 0.0), False, cycle, DT)
+    assert cause.startswith("force sensor suspect")
+
+
+def test_the_back_off_moves_along_the_trusted_force_within_its_speed_and_acceleration_then_stops():
+    w = ContactWatch(sensor_n=(0.0, 30.0, 0.0), witness=Witness((0.0, 29.0, 0.0), 0.0), force_n=30.0)
+    b = begin_back_off(CFG, w, "test", (0.07, 0.0, 0.5))
+    assert b.direction == pytest.approx((0.0, 1.0, 0.0))
+    speeds, positions = [], []
+    for _ in range(1000):
+        b, p, v = advance_back_off(CFG, b, DT)
+        speeds.append(math.hypot(*v))
+        positions.append(p)
+        if b.braking:
+            break
+    assert b.braking and b.travelled_m == pytest.approx(CFG.back_off_distance_m)
+    assert positions[-1][1] == pytest.approx(CFG.back_off_distance_m) and positions[-1][0] == 0.07
+    assert max(speeds) <= CFG.back_off_speed_m_s + 1e-12
+    assert (
+        max(abs(b - a) for a, b in zip([0.0, *speeds], speeds, strict=False))
+        <= CFG.back_off_acceleration_m_s2 * DT + 1e-12
+    )
+    # a suspect sensor: the witness gives the direction; no force at all: brake in place
+    suspect = replace(w, suspect="test", witness=Witness((-20.0, 0.0, 0.0), 0.0))
+    assert begin_back_off(CFG, suspect, "test", (0.0, 0.0, 0.5)).direction == pytest.approx((-1.0, 0.0, 0.0))
+    none = ContactWatch(sensor_n=(0.5, 0.0, 0.0), witness=Witness((0.3, 0.0, 0.0), 0.0))
+    assert begin_back_off(CFG, none, "test", (0.0, 0.0, 0.5)).direction is None
+
+
+def test_cheopes_witness_is_the_force_its_efforts_balance_plus_its_own_inertia():
+    cfg = load_config()
+    robot = build_robot(cfg)
+    tcp = np.array([0.03, -0.02, 0.5])
+    q = robot.inverse_kinematics(tcp)
+    jac = robot.jacobian(tcp)
+    contact = np.array([7.0, -3.0, 1.0])
+    tau = -np.linalg.solve(jac.T, contact)  # static: J^T tau = -F
+    force, inertia = robot.contact_force_from_efforts(tuple(tcp), tuple(q), tuple(tau), (0.0, 0.0, 0.0))
+    assert force == pytest.approx(contact, abs=1e-9) and inertia == 0.0
+    qdd = np.array([0.3, -0.1, 0.2])
+    force, inertia = robot.contact_force_from_efforts(tuple(tcp), tuple(q), tuple(tau), tuple(qdd))
+    m_a = cartesian_mass_matrix(jac, robot.masses) @ np.linalg.solve(jac, qdd)
+    assert force == pytest.approx(contact + m_a, abs=1e-9) and inertia == pytest.approx(np.linalg.norm(m_a))
+
+
+def test_a_task_that_reads_the_sensor_is_refused_without_the_drives_effort():
+    with pytest.raises(ConfigError, match=r"0x6077.*witness_required"):
+        build_law(load_config(overrides={"task.kind": "contour", "actuators.tpdo_objects": []}))
+    build_law(  # on the sensor alone, when the operator says so
+        load_config(
+            overrides={
+                "task.kind": "contour",
+                "actuators.tpdo_objects": [],
+                "safety.contact.witness_required": False,
+            }
+        )
+    )
+
+
+class _Trace:
+    def __init__(self, exchange: LoopbackExchange) -> None:
+        self.exchange = exchange
+        self.rows: list[tuple[Mode, tuple[int, ...], tuple[float, ...], tuple[float, ...]]] = []
+        self.events: list[str] = []
+
+    def on_cycle(self, cycle, t, inputs, state, outputs, events, timing):
+        tcp = tuple(self.exchange.plant.tcp_m.tolist())
+        powers = tuple(int(decode_statusword(d.statusword)) for d in inputs.drives)
+        self.rows.append((state.mode, powers, tcp, outputs.controlwords))
+        self.events += [e.message for e in events]
+
+
+def _run_path(faults: tuple[str, ...]):
+    cfg = load_config(overrides={"sim.faults": list(faults), "task.path.laps": 0.5})
+    clock = SimulatedTime()
+    law = build_law(cfg)
+    exchange = LoopbackExchange(cfg, clock.clock)
+    trace = _Trace(exchange)
+    final, _ = CycleLoop(
+        law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(trace,)
+    ).run(law.initial_state(), 20.0)
+    return final, trace
+
+
+def test_a_force_in_free_space_ends_the_move_with_a_back_off_along_it_the_drives_enabled():
+    """The path task moves in free space; 20 N appear on the sensor along +X (something touches the
+    tool): the law backs off 5 mm along +X, its drives in OPERATION ENABLED all the way, then faults
+    naming it. Never a quick stop in place."""
+    final, trace = _run_path(("force=20@2.0",))
+    assert final.mode == Mode.FAULT and final.fault_reason.startswith("protective stop: contact force")
+    assert "backed off 5.0 mm along (1.00" in final.fault_reason
+    backing = [r for r in trace.rows if r[0] == Mode.BACKING_OFF]
+    assert len(backing) > 50  # 5 mm at 20 mm/s, with its ramps
+    assert all(p == int(PowerState.OPERATION_ENABLED) for r in backing for p in r[1])
+    start, end = backing[0][2], backing[-1][2]
+    assert end[0] - start[0] == pytest.approx(0.005, abs=0.0015)  # along +X, the force's direction
+    assert abs(end[1] - start[1]) < 0.001 and abs(end[2] - start[2]) < 0.001

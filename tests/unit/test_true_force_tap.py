@@ -1,0 +1,38 @@
+"""The simulator's true contact force shared with the demo (sim_backend/true_force_tap.py)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from sim_backend.true_force_tap import TrueForceReader, TrueForceTap
+
+
+def test_the_reader_sees_what_another_process_writes_and_removes_the_block():
+    reader = TrueForceReader(f"cheope-true-force-test-{os.getpid()}")
+    assert reader.read() == (0.0, 0.0, 0.0)  # before the first SYNC
+    code = (
+        "from sim_backend.true_force_tap import TrueForceTap\n"
+        f"t = TrueForceTap({reader.name!r}); t.write(1.5, -2.0, 0.25); t.write(3.0, 4.0, 0.0); t.close()"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+    assert reader.read() == (3.0, 4.0, 0.0)  # the latest write, whole
+    reader.close()
+    assert not os.path.exists(reader.name)
+    with pytest.raises(FileNotFoundError):  # the simulator given a block nobody made
+        TrueForceTap(reader.name)
+
+
+def test_a_process_pool_beside_it_does_not_take_the_block_away():
+    """multiprocessing's resource tracker removed a shared_memory block under the 3-nSPU demo, which
+    uses a process pool; a plain mapped file is the reader's alone."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    reader = TrueForceReader(f"cheope-true-force-test-pool-{os.getpid()}")
+    with ProcessPoolExecutor(1) as pool:
+        assert pool.submit(abs, -1).result() == 1
+    assert os.path.exists(reader.name)
+    reader.close()
