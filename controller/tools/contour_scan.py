@@ -288,7 +288,11 @@ def scenarios(places_s: list[float], period_s: float) -> Iterator[ContourScenari
     for n, t in zip(STALE_BURSTS, places_s[1::4], strict=True):
         yield ContourScenario(f"{n} stale sample(s)", (f"freeze@{t}+{n * period_s + period_s / 2:.6f}",))
     yield ContourScenario(
-        "spoofed sample, 30 N", (f"spoof_sensor=30@{places_s[2]}+{period_s / 2:.6f}",), ride_through=False
+        # one cycle's window: one spoofed frame (a window shorter than a cycle may hold no SYNC, and
+        # the configuration's check refuses it: the recording then lacked its 3D scene)
+        "spoofed sample, 30 N",
+        (f"spoof_sensor=30@{places_s[2]}+{period_s:.6f}",),
+        ride_through=False,
     )
     yield ContourScenario(
         "spoofed samples, -30 N, 4 cycles",

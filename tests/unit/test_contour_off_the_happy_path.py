@@ -360,3 +360,16 @@ def test_the_scans_verdict_counts_the_integrity_breaches_apart():
     assert summary([_row("DONE")] * 19 + [_row("retracted")], LIMIT_N)["targets_met"]
     assert not summary([_row("DONE")] * 18 + [_row("retracted")] * 2, LIMIT_N)["targets_met"]
     assert not summary([*ride, _row("DONE", force_n=61.0)], LIMIT_N)["targets_met"]  # over the limit
+
+
+def test_every_scan_injection_passes_the_configurations_check():
+    """An injection shorter than a cycle is refused by the configuration (it may hold no SYNC): the
+    scan's own must all pass, or their recordings lose the 3D scene."""
+    from controller.tools.contour_scan import scenarios
+    from sim_backend.fault_injection import check_fault
+
+    cfg = load_config(overrides={"task.kind": "contour"})
+    places = [14.0 + 0.6125 * k for k in range(12)]  # the 12 places; the check is about durations
+    for sc in scenarios(places, cfg.period_s):
+        for fault in sc.faults:
+            check_fault(fault, cfg.actuators.node_ids, cfg.sensor.node_id, cfg.period_s)
