@@ -227,11 +227,16 @@ def _row(
     }
 
 
-def lap_places(base: Config) -> tuple[list[float], dict[str, object]]:
-    """The times [s] at which an undisturbed run passes the 12 places, and that run's row."""
+def lap_places(
+    base: Config, per_lap: int = PLACES // 2
+) -> tuple[list[float], dict[str, float], dict[str, object]]:
+    """An undisturbed run: the times [s] at which it passes ``per_lap`` places in lap 2 and as many,
+    half a step on, in lap 3 (the scan's 12, the stress scan's 8), the times its TARE and APPROACH
+    began, and its row."""
     times: list[float] = []
-    targets = [2.0 * math.pi * (1.0 + k / 6.0) for k in range(6)] + [
-        2.0 * math.pi * (2.0 + (k + 0.5) / 6.0) for k in range(6)
+    phases: dict[str, float] = {}
+    targets = [2.0 * math.pi * (1.0 + k / per_lap) for k in range(per_lap)] + [
+        2.0 * math.pi * (2.0 + (k + 0.5) / per_lap) for k in range(per_lap)
     ]
 
     class Places:
@@ -246,19 +251,19 @@ def lap_places(base: Config) -> tuple[list[float], dict[str, object]]:
             timing: CycleTiming,
         ) -> None:
             ts = state.task_state
-            if (
-                isinstance(ts, ContourState)
-                and len(times) < len(targets)
-                and abs(ts.swept_rad) >= targets[len(times)]
-            ):
+            if not isinstance(ts, ContourState):
+                return
+            if ts.phase in (ContourPhase.TARE, ContourPhase.APPROACH):
+                phases.setdefault(ts.phase.name, round(t, 3))
+            if len(times) < len(targets) and abs(ts.swept_rad) >= targets[len(times)]:
                 times.append(round(t, 3))
 
     row = run_contour_scenario(base, ContourScenario("undisturbed"), None, observers=(Places(),))
-    if len(times) < PLACES:
+    if len(times) < len(targets):
         raise RuntimeError(
-            f"the undisturbed scan run ended {row['outcome']} ({row['cause']}) before its 12 places"
+            f"the undisturbed scan run ended {row['outcome']} ({row['cause']}) before its {len(targets)} places"
         )
-    return times, row
+    return times, phases, row
 
 
 def scenarios(places_s: list[float], period_s: float) -> Iterator[ContourScenario]:
@@ -315,7 +320,7 @@ def run_scan(
     base = scan_config(base or load_config())
     with tempfile.TemporaryDirectory(prefix="cheope-contour-scan-") as tmp:
         out = Path(directory or tmp)
-        places, undisturbed = lap_places(base)
+        places, _, undisturbed = lap_places(base)
         todo = [(base, sc, out) for sc in scenarios(places, base.period_s)]
         rows: list[dict[str, object]] = [undisturbed]
         if jobs > 1:

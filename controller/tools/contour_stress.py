@@ -38,11 +38,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from controller.config import Config, load_config
-from controller.core.controller_state import ControllerState
-from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
-from controller.core.ports import CycleTiming
-from controller.tasks.contour_tracking import ContourPhase, ContourState
-from controller.tools.contour_scan import ContourScenario, run_contour_scenario, scan_config
+from controller.tools.contour_scan import ContourScenario, lap_places, run_contour_scenario, scan_config
 
 NAMED_ENDS = ("retracted", "backed off")
 # The simulated robot's start 20 mm further out than the default's (TCP at (0.11, 0, 0.5) m instead of
@@ -53,35 +49,10 @@ RIDE_THROUGH_DONE_FRACTION = 0.9
 
 def _places(base: Config) -> tuple[dict[str, float], dict[str, object]]:
     """Times [s] of an undisturbed run: the tare, the approach, and 8 places in laps 2 and 3."""
-    times: dict[str, float] = {}
-    targets = [2.0 * math.pi * (1.0 + k / 4.0) for k in range(4)] + [
-        2.0 * math.pi * (2.0 + (k + 0.5) / 4.0) for k in range(4)
-    ]
-
-    class Places:
-        def on_cycle(
-            self,
-            cycle: int,
-            t: float,
-            inputs: CycleInputs,
-            state: ControllerState,
-            outputs: CycleOutputs,
-            events: tuple[Event, ...],
-            timing: CycleTiming,
-        ) -> None:
-            ts = state.task_state
-            if not isinstance(ts, ContourState):
-                return
-            if ts.phase in (ContourPhase.TARE, ContourPhase.APPROACH):
-                times.setdefault(ts.phase.name, round(t, 3))
-            k = sum(1 for key in times if key.startswith("place"))
-            if k < len(targets) and abs(ts.swept_rad) >= targets[k]:
-                times[f"place{k + 1}"] = round(t, 3)
-
-    row = run_contour_scenario(base, ContourScenario("undisturbed"), None, observers=(Places(),))
-    if len(times) < 2 + len(targets):
+    places, phases, row = lap_places(base, per_lap=4)
+    if len(phases) < 2:
         raise RuntimeError(f"the undisturbed run ended {row['outcome']} ({row['cause']}) before its places")
-    return times, row
+    return {**phases, **{f"place{k + 1}": t for k, t in enumerate(places)}}, row
 
 
 def scenarios(t: dict[str, float]) -> Iterator[ContourScenario]:
