@@ -335,11 +335,7 @@ class ControlLaw:
             state = self._guard_contact(state, inputs, t, events)
         if inputs.command == Command.QUICK_STOP and state.mode not in (Mode.FAULT, Mode.DONE):
             why = "quick stop requested"
-            state = replace(
-                self._enter(state, Mode.FAULT, t, events, Severity.FAULT, why),
-                fault_reason=why,
-                setpoint=self._hold(state),
-            )
+            state = self._faulted(state, why, t, events)
         elif inputs.stop_requested and state.mode == Mode.CONFIGURING:
             # nothing has been enabled yet: there is nothing to brake or to shut down
             state = self._enter(state, Mode.DONE, t, events, Severity.INFO, "stop requested before enabling")
@@ -383,8 +379,7 @@ class ControlLaw:
             reason = ""
         reason = reason or jump or self._fault_reason(state, inputs, powers, emcy_fault)
         if reason:
-            state = self._enter(state, Mode.FAULT, t, events, Severity.FAULT, reason)
-            state = replace(state, fault_reason=reason, setpoint=self._hold(state))
+            state = self._faulted(state, reason, t, events)
         elif inputs.emcy:
             state = self._emcy_notes(state, inputs, t, events)
         return state
@@ -411,6 +406,18 @@ class ControlLaw:
                 state.contact, expectation=ContactExpectation.NONE, suspect="", disagreeing=0, agreeing=0
             ),
             back_off=None,
+        )
+
+    def _faulted(
+        self, state: ControllerState, why: str, t: float, events: list[Event], **fields: Any
+    ) -> ControllerState:
+        """FAULT now, named ``why``, the setpoint held where it is (the quick stop's controlwords
+        follow in the FAULT handler); ``fields``: more of the state to set with it."""
+        return replace(
+            self._enter(state, Mode.FAULT, t, events, Severity.FAULT, why),
+            fault_reason=why,
+            setpoint=self._hold(state),
+            **fields,
         )
 
     def _quick_stops_by_sdo(
@@ -994,28 +1001,14 @@ class ControlLaw:
         events.extend(out.events)
         task_state, ref, finished = out.state, out.reference, out.finished
         if out.fault:
-            return replace(
-                self._enter(state, Mode.FAULT, t, events, Severity.FAULT, out.fault),
-                fault_reason=out.fault,
-                task_state=task_state,
-                setpoint=self._hold(state),
-            )
+            return self._faulted(state, out.fault, t, events, task_state=task_state)
         too_fast = self._contact_speed(state, ref.tcp_m, ref.contact)
         if too_fast:
-            return replace(
-                self._enter(state, Mode.FAULT, t, events, Severity.FAULT, too_fast),
-                fault_reason=too_fast,
-                task_state=task_state,
-                setpoint=self._hold(state),
-            )
+            return self._faulted(state, too_fast, t, events, task_state=task_state)
         pose = self.robot.check_pose(np.asarray(ref.tcp_m))
         if not pose.ok:
             why = f"task reference leaves the safe workspace: {pose.reason}"
-            return replace(
-                self._enter(state, Mode.FAULT, t, events, Severity.FAULT, why),
-                fault_reason=why,
-                setpoint=self._hold(state),
-            )
+            return self._faulted(state, why, t, events)
         if ref.reactive:
             result = self.smoother.track_velocity(
                 state.setpoint, ref.position, ref.velocity, REACTIVE_CORRECTION_PERIODS / period
@@ -1023,11 +1016,7 @@ class ControlLaw:
         else:
             result = self.smoother.step(state.setpoint, ref.position, ref.velocity, ref.acceleration)
         if not result.ok:
-            return replace(
-                self._enter(state, Mode.FAULT, t, events, Severity.FAULT, result.message),
-                fault_reason=result.message,
-                setpoint=self._hold(state),
-            )
+            return self._faulted(state, result.message, t, events)
         state = replace(
             state,
             task_state=task_state,
@@ -1195,11 +1184,7 @@ class ControlLaw:
                 and w.force_n > max(b.entry_force_n, cfg.max_contact_force_n) + BACK_OFF_WORSE_N
             ):
                 why = f"{back_off_summary(b)}, and met {w.force_n:.1f} N backing off: quick stop"
-                return replace(
-                    self._enter(state, Mode.FAULT, t, events, Severity.FAULT, why),
-                    fault_reason=why,
-                    setpoint=self._hold(state),
-                )
+                return self._faulted(state, why, t, events)
             return state
         if not cause:
             return state
@@ -1211,11 +1196,7 @@ class ControlLaw:
         """BACKING_OFF along the force the guard trusts (contact_guard.begin_back_off), naming ``cause``."""
         origin = state.tcp_measured_m or state.contact.reference_m
         if origin is None:  # no pose to move from: the quick stop is all there is
-            return replace(
-                self._enter(state, Mode.FAULT, t, events, Severity.FAULT, cause),
-                fault_reason=cause,
-                setpoint=self._hold(state),
-            )
+            return self._faulted(state, cause, t, events)
         back_off = begin_back_off(
             self.config.safety.contact, state.contact, cause, origin, cause != state.protective_cause
         )
