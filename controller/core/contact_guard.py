@@ -40,7 +40,7 @@ import math
 from dataclasses import dataclass
 
 from controller.core.cycle_data import CycleInputs, SensorFeedback
-from controller.core.linalg3 import Vector3
+from controller.core.linalg3 import Vector3, norm3, sub3
 from controller.core.ports import ContactExpectation
 from controller.core.records import record, replace
 
@@ -117,14 +117,6 @@ class BackOff:
     speed_m_s: float = 0.0
     braking: bool = False
     cycles: int = 0  # since it began
-
-
-def norm3(v: Vector3) -> float:
-    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-
-
-def _sub3(a: Vector3, b: Vector3) -> Vector3:
-    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
 
 
 def usable_sample(sensor: SensorFeedback | None, stale: bool) -> Vector3 | None:
@@ -216,7 +208,7 @@ def watch(
         # The first usable sample while holding: the baseline is what the sensor reads at rest, unless
         # that already is a collision (the guard then trips on it below).
         baseline, baseline_set = raw, True
-    sensor = _sub3(raw, baseline) if raw is not None else w.sensor_n
+    sensor = sub3(raw, baseline) if raw is not None else w.sensor_n
     dynamic = w.dynamic_n * math.exp(-period_s / cfg.inertia_time_constant_s)
     if witness is not None and witness.inertia_n > dynamic:
         dynamic = witness.inertia_n
@@ -302,7 +294,7 @@ def _cross_check(
     if w.expectation != ContactExpectation.PRESSING:
         suspect = "" if agreeing >= cfg.disagreement_cycles else w.suspect
         return 0, agreeing, suspect, w.suspect_cycle
-    gap = norm3(_sub3(sensor, witness.force_n))
+    gap = norm3(sub3(sensor, witness.force_n))
     if gap > tolerance_n(cfg, norm3(sensor), witness, dynamic_n):
         n = w.disagreeing + 1
         if n >= cfg.disagreement_cycles and not w.suspect:

@@ -54,7 +54,6 @@ from controller.core.contact_guard import (
     advance_back_off,
     back_off_summary,
     begin_back_off,
-    norm3,
 )
 from controller.core.contact_guard import (
     watch as watch_contact,
@@ -72,6 +71,7 @@ from controller.core.cycle_data import (
     Reaction,
     Severity,
 )
+from controller.core.linalg3 import norm3, sub3
 from controller.core.ports import ContactExpectation, ForceWitnessModel, PoseStatus, Robot, Task, TaskContext
 from controller.core.records import replace
 from controller.core.setpoint_smoothing import RuckigSmoother, Setpoint
@@ -1216,7 +1216,7 @@ class ControlLaw:
         last = state.contact.reference_m
         if contact == ContactExpectation.NONE or last is None:
             return ""
-        speed = norm3((tcp_m[0] - last[0], tcp_m[1] - last[1], tcp_m[2] - last[2])) / self.config.period_s
+        speed = norm3(sub3(tcp_m, last)) / self.config.period_s
         limit = self.config.safety.contact.max_contact_speed_m_s
         if speed <= limit:
             return ""

@@ -15,6 +15,14 @@ Vector3 = tuple[float, float, float]
 Matrix3 = tuple[Vector3, Vector3, Vector3]
 
 
+def norm3(v: Vector3) -> float:
+    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+
+
+def sub3(a: Vector3, b: Vector3) -> Vector3:
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
 def matvec(m: Matrix3, v: Vector3) -> Vector3:
     return (
         m[0][0] * v[0] + m[0][1] * v[1] + m[0][2] * v[2],

@@ -11,8 +11,10 @@ from controller.core.linalg3 import (
     inverse3,
     matmul3,
     matvec,
+    norm3,
     scaled3,
     solve3,
+    sub3,
     symmetric_eigenvalues3,
     transpose3,
 )
@@ -29,6 +31,8 @@ def test_products_match_numpy(a, b, v, k):
     assert np.allclose(matmul3(as_rows(a), as_rows(b)), a @ b, rtol=1e-12, atol=1e-12)
     assert np.array_equal(transpose3(as_rows(a)), a.T)
     assert np.allclose(scaled3(as_rows(a), k), k * a)
+    assert np.isclose(norm3(tuple(v)), np.linalg.norm(v), rtol=1e-12, atol=1e-12)
+    assert np.array_equal(sub3(tuple(v), tuple(a[0])), v - a[0])
 
 
 @settings(max_examples=300)
