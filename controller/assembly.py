@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from controller.config import Config, ConfigError, SafetySection
 from controller.core.contact_guard import ContactGuardConfig
 from controller.core.control_law import ControlLaw, LawConfig, SafetyConfig
-from controller.core.ports import ActuatorUnit, Robot
+from controller.core.ports import CAPABILITIES, ActuatorUnit, ForceWitnessModel, Robot, missing_capability
 from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother
 from controller.node_plan import emcy_reactions, fault_reset_config
 from controller.robots.registry import ActuatorUnits, actuator_units, robot_from_config
@@ -127,13 +127,26 @@ class Assembly:
     units: ActuatorUnits  # the actuators' unit and limits, resolved once for the whole run
 
 
+def check_capabilities(cfg: Config, robot: Robot) -> None:
+    """The robot has every optional capability its task calls (``TaskEntry.needs``): refused at start,
+    naming what it lacks, never an AttributeError in the middle of a run."""
+    for capability in task_entry(cfg.task.kind).needs:
+        lacks = missing_capability(robot, capability)
+        if lacks:
+            raise ConfigError(
+                f"task.kind = {cfg.task.kind!r} needs the robot's {capability.__name__} "
+                f"({CAPABILITIES[capability]}: controller/plugin_api.py), and robot.kind = "
+                f"{cfg.robot.kind!r} lacks {lacks}"
+            )
+
+
 def check_force_witness(cfg: Config, robot: Robot) -> None:
     """A task that reads the force sensor runs with the sensor's second witness, unless told not to:
     the drives must report their effort (0x6077 in their TPDO) and the robot must map it to a force."""
     if not (task_entry(cfg.task.kind).uses_force_sensor and cfg.safety.contact.witness_required):
         return
     fix = "or set safety.contact.witness_required = false to run on the force sensor alone"
-    if not callable(getattr(robot, "contact_force_from_efforts", None)):
+    if missing_capability(robot, ForceWitnessModel):
         raise ConfigError(
             f"task.kind = {cfg.task.kind!r} reads the force sensor, and robot.kind = {cfg.robot.kind!r} cannot "
             f"tell the contact force from its drives' efforts (the sensor's second witness); {fix}"
@@ -148,6 +161,7 @@ def check_force_witness(cfg: Config, robot: Robot) -> None:
 
 def assemble(cfg: Config, robot: Robot | None = None) -> Assembly:
     robot = robot or build_robot(cfg)
+    check_capabilities(cfg, robot)
     check_force_witness(cfg, robot)
     a = actuator_units(cfg)  # m or rad
     built = build_task(cfg, robot, a)

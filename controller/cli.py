@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any, NoReturn
 import can
 
 from controller.cli_output import progress_line, strict_json
+from controller.commands import Command, plugin_commands
 from controller.config import Config, ConfigError, load_config, parse_override
 from controller.errors import CheopeError, RefusedError
 from controller.monitoring.cli_commands import add_controller_options, monitoring_overrides
@@ -29,22 +30,20 @@ from drivers.bus import BusSpec, parse_bus_spec
 
 if TYPE_CHECKING:
     from controller.core.ports import CycleObserver
-    from controller.robots.nspu import Pose
     from controller.shell.realtime import RealtimeOptions
-
-
-NSPU_ONLY = ("nspu",)  # plan and plan-bench: the 3-nSPU's planner
 
 
 def _config_help(robots: tuple[str, ...]) -> str:
     """--config's help: which shipped file each --robot choice loads, and the one without --robot."""
-    files = {kind: f.name for kind in robots if (f := robot_entry(kind).config_file) is not None}
+    # a plug-in robot's file is its own (RobotEntry.config_file); one without: cheope.toml, its kind set
+    files = {kind: str(robot_entry(kind).config_file or "cheope.toml") for kind in robots}
+    files = {k: f.split("controller/configs/")[-1] for k, f in files.items()}
     if len(robots) == 1:
-        return f"TOML configuration (default: the shipped controller/configs/{files[robots[0]]})"
+        return f"TOML configuration (default: the robot's shipped {files[robots[0]]})"
     per_robot = ", ".join(f"{name} for --robot {kind}" for kind, name in files.items())
     return (
-        f"TOML configuration (default: the shipped file of --robot in controller/configs/: {per_robot}; "
-        f"without --robot: cheope.toml)"
+        f"TOML configuration (default: the shipped file of --robot: {per_robot}, in controller/configs/ "
+        f"for the built-in robots; without --robot: cheope.toml)"
     )
 
 
@@ -354,17 +353,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
     args = demo_defaults(args)  # also for the simulator's overrides: the disk is there for the contour
     cfg = _config(args)
     if args.simulated_time:
-        from controller.tools.experiment import experiment_for
+        from controller.experiments import experiment_for
+        from controller.tools.demo import run_simulated_time
 
+        # the task's experiment in simulated time where it has one (the contour's laps), else the task
         experiment = experiment_for(cfg.task.kind)
-        if experiment is None or experiment.simulated_time is None:
-            raise ConfigError(
-                f"--simulated-time runs a task's experiment in simulated time: task.kind = "
-                f"{cfg.task.kind!r} has none (the contour's has: --task contour)"
-            )
+        run = experiment.simulated_time if experiment and experiment.simulated_time else run_simulated_time
         with progress_line("cheope demo") as progress:
-            progress(f"{cfg.task.kind} in simulated time")
-            summary = experiment.simulated_time(cfg, args.duration, plot)
+            progress(f"{cfg.robot.kind}, task {cfg.task.kind}, in simulated time")
+            summary = run(cfg, args.duration, plot)
         print(strict_json(summary) if args.json else strict_json(summary, indent=1))
         return 0 if summary["final_mode"] == "DONE" else 1
     spec = _spec(args, cfg, default_port=random_udp_port())
@@ -539,74 +536,29 @@ def cmd_analyze(args: argparse.Namespace) -> int:
     return 0
 
 
-def _pose_arg(text: str, what: str) -> Pose:
-    import numpy as np
+def _plugin_command(name: str, command: Command) -> Callable[[argparse.Namespace], int]:
+    """A plug-in's command (controller/commands.py): its configuration loaded, its robots checked."""
 
-    from controller.robots.nspu import Pose, rpy
+    def run(args: argparse.Namespace) -> int:
+        if command.robots and not args.robot and not args.config:
+            args.robot = command.robots[0]
+        cfg = _config(args)
+        if command.robots and cfg.robot.kind not in command.robots:
+            raise ConfigError(
+                f"cheope {name} runs on robot.kind {' or '.join(map(repr, command.robots))}; "
+                f"robot.kind is {cfg.robot.kind!r}"
+            )
+        return command.run(args, cfg)
 
-    try:
-        vals = [float(x) for x in text.split(",")]
-    except ValueError as err:
-        raise ConfigError(f"--{what} {text!r}: expected 6 numbers X,Y,Z,ROLL,PITCH,YAW [m, rad]") from err
-    if len(vals) != 6 or not all(np.isfinite(vals)):
-        raise ConfigError(f"--{what} {text!r}: expected 6 finite numbers X,Y,Z,ROLL,PITCH,YAW [m, rad]")
-    return Pose(np.array(vals[:3]), rpy(*vals[3:]))
-
-
-def _nspu_config(args: argparse.Namespace, what: str) -> Config:
-    """The configuration of a 3-nSPU command (the 3-nSPU's by default); ``what`` says why only it."""
-    if not args.robot and not args.config:
-        args.robot = "nspu"
-    cfg = _config(args)
-    if cfg.robot.kind != "nspu":
-        raise ConfigError(f"{what}; robot.kind is {cfg.robot.kind!r}")
-    return cfg
+    return run
 
 
-def cmd_plan(args: argparse.Namespace) -> int:
-    from controller.planning.nonholonomic import paper_example_poses
-    from controller.robots.builtin import nspu_poses
-    from controller.tools.analysis.robot_analysis import plan_nspu
-
-    cfg = _nspu_config(args, "cheope plan plans the 3-nSPU's motion")
-    plot = _plot_dir(args)
-    start, goal = (
-        paper_example_poses(cfg.robot.model("nspu").length_unit_m)
-        if args.paper_example
-        else nspu_poses(cfg.robot.model("nspu"))
-    )
-    if args.start:
-        start = _pose_arg(args.start, "from")
-    if args.goal:
-        goal = _pose_arg(args.goal, "to")
-    if args.no_type2_check:
-        print(
-            "cheope plan: warning: the type-II singularity check is off; the plan may cross det M = 0",
-            file=sys.stderr,
-        )
-    with progress_line("cheope plan") as progress:
-        progress("planning")
-        report = plan_nspu(cfg, start, goal, not args.no_type2_check, plot)
-    print(strict_json(report) if args.json else "\n".join(f"{k}: {v}" for k, v in report.items()))
-    return 0 if report["ok"] else 1
-
-
-def cmd_plan_bench(args: argparse.Namespace) -> int:
-    from controller.tools.planner_benchmark import format_report, run_benchmark
-
-    cfg = _nspu_config(args, "cheope plan-bench benchmarks the 3-nSPU's planner")
-    if args.pairs < 1:
-        raise ConfigError(f"--pairs {args.pairs}: must be >= 1")
-    log = logging.getLogger("cheope.plan-bench")
-    with progress_line("cheope plan-bench") as progress:
-
-        def each_pair(line: str) -> None:
-            log.info("%s", line)
-            progress(f"{line}; pairs 0..{args.pairs - 1}")
-
-        report = run_benchmark(cfg, args.pairs, args.seed, each_pair)
-    print(strict_json(report) if args.json else format_report(report))
-    return 0
+def _add_plugin_commands(sub: Any) -> None:
+    for name, command in plugin_commands().items():
+        p = sub.add_parser(name, help=command.help)
+        _common(p, bus=False, robots=command.robots or None)
+        command.add_arguments(p)
+        p.set_defaults(func=_plugin_command(name, command))
 
 
 def cmd_faults(args: argparse.Namespace) -> int:
@@ -841,46 +793,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", dest="output_dir", help=argparse.SUPPRESS)  # the spelling before --output-dir
     p.add_argument("--json", action="store_true", help="print the report as one JSON object")
     p.set_defaults(func=cmd_analyze)
-    p = sub.add_parser("plan", help="3-nSPU: plan a non-holonomic motion (seed 004) and report it")
-    _common(p, bus=False, robots=NSPU_ONLY)
-    p.add_argument(
-        "--from",
-        dest="start",
-        metavar="X,Y,Z,ROLL,PITCH,YAW",
-        help="start pose [m, rad] (default: the config's robot.nspu.start_*)",
-    )
-    p.add_argument(
-        "--to",
-        dest="goal",
-        metavar="X,Y,Z,ROLL,PITCH,YAW",
-        help="goal pose [m, rad] (default: the config's robot.nspu.goal_*)",
-    )
-    p.add_argument(
-        "--paper-example",
-        action="store_true",
-        help="seed 004 section 4: (0,0,25) aul RPY(0,0,-pi/6) -> (-0.4,-0.2,35) aul RPY(0,0,-pi/2)",
-    )
-    p.add_argument(
-        "--no-type2-check",
-        action="store_true",
-        help="allow plans crossing the type-II singularity det M = 0 (the paper's assumptions; warns)",
-    )
-    p.add_argument(
-        "--json", action="store_true", help="print the report as one JSON object (strict: null for NaN)"
-    )
-    p.add_argument("--output-dir", metavar="DIR", help="write the plan's PNG plots here")
-    p.add_argument("--plot", dest="output_dir", help=argparse.SUPPRESS)  # the spelling before --output-dir
-    p.set_defaults(func=cmd_plan)
-    p = sub.add_parser(
-        "plan-bench", help="3-nSPU: the planner over random seeded pose pairs; success, time, error"
-    )
-    _common(p, bus=False, robots=NSPU_ONLY)
-    p.add_argument("--pairs", type=int, default=100, help="number of pose pairs (default 100)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the pairs (default 0)")
-    p.add_argument(
-        "--json", action="store_true", help="print the report as one JSON object (strict: null for NaN)"
-    )
-    p.set_defaults(func=cmd_plan_bench)
     p = sub.add_parser(
         "bench", help="timing benchmark with the simulator: 400 Hz and 1 kHz, table, JSON, PNG"
     )
@@ -897,6 +809,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_soak_arguments(p)
     p.add_argument("--no-realtime", action="store_true", help="both processes under the normal scheduler")
     p.set_defaults(func=cmd_soak)
+    _add_plugin_commands(sub)  # the robots' and tasks' own commands (cheope.commands)
     add_monitoring_subcommands(sub)
     from controller.ros2.cli import add_subcommand as add_ros2_subcommand  # imports no ROS
 

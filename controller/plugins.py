@@ -14,10 +14,12 @@ gantry = "my_gantry_plots:analyze"       # (cfg, out_dir) -> dict: its plots (ch
 [project.entry-points."cheope.scene_drawings"]
 gantry = "my_gantry:GantryDrawing"       # cfg -> a logs.robot_drawing.RobotDrawing: its 3D scene
 [project.entry-points."cheope.experiments"]
-square = "my_tasks_experiments:SQUARE"   # a controller.tools.experiment.Experiment, by task kind
+square = "my_tasks_experiments:SQUARE"   # a controller.experiments.Experiment, by task kind
+[project.entry-points."cheope.commands"]
+gantry-home = "my_gantry_cli:HOME"       # a controller.commands.Command: ``cheope gantry-home``
 ```
 
-The hooks of the last four groups are named by robot or task kind and live in the layer that runs them
+The hooks of the sim_kinematics, analyses, scene_drawings and experiments groups are named by robot or task kind and live in the layer that runs them
 (the simulator, the analysis tools, the recording's and the viewers' scene), not in the robot's entry: the controller never imports
 them, and only the one asked for is loaded (no plotting library for a run).
 
@@ -41,6 +43,7 @@ SIM_KINEMATICS_GROUP = "cheope.sim_kinematics"
 ANALYSES_GROUP = "cheope.analyses"
 EXPERIMENTS_GROUP = "cheope.experiments"
 SCENE_DRAWINGS_GROUP = "cheope.scene_drawings"
+COMMANDS_GROUP = "cheope.commands"
 
 E = TypeVar("E")
 
@@ -133,15 +136,23 @@ class Hooks:
     def unregister(self, kind: str) -> None:
         self._added.pop(kind, None)
 
+    def all(self) -> dict[str, Any]:
+        """Every hook of the group by kind (each entry point loaded and checked), those added winning."""
+        found = {ep.name: self._checked(ep) for ep in entry_points(group=self.group)}
+        return {**found, **self._added}
+
+    def _checked(self, ep: EntryPoint) -> Any:
+        hook = _load(ep)
+        if not (isinstance(hook, self.hook_type) if self.hook_type is not None else callable(hook)):
+            raise PluginError(f"{_origin(ep)} is a {type(hook).__name__}, not a {self.what}")
+        return hook
+
     def get(self, kind: str) -> Any:
         """The hook of ``kind``, or None when no distribution declares one."""
         if kind in self._added:
             return self._added[kind]
         for ep in entry_points(group=self.group, name=kind):
-            hook = _load(ep)
-            if not (isinstance(hook, self.hook_type) if self.hook_type is not None else callable(hook)):
-                raise PluginError(f"{_origin(ep)} is a {type(hook).__name__}, not a {self.what}")
-            return hook
+            return self._checked(ep)
         return None
 
 

@@ -21,14 +21,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.core.linalg3 import Matrix3, Vector3, as_rows, inverse3, matmul3, matvec, scaled3, transpose3
-from controller.robots.performance import MassModel
+from controller.core.ports import LumpedMasses
 
 
 @dataclass(frozen=True)
 class ComplianceParams:
     actuator_stiffness_n_m: float
     damping_ratio: float
-    masses: MassModel
+    masses: LumpedMasses
 
     @property
     def actuator_damping_n_s_m(self) -> float:

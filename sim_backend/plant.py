@@ -50,15 +50,14 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import Protocol
+from typing import cast
 
 import numpy as np
 
 from controller.config import Config
 from controller.core.linalg3 import Matrix3, as_rows, inverse3, matvec, transpose3
-from controller.core.ports import ActuatorUnit
+from controller.core.ports import ActuatorUnit, CompliantStructure, missing_capability
 from controller.errors import NoSolutionError
-from controller.robots.builtin import cheope_mass_model
 from controller.robots.registry import actuator_units, check_axes, robot_from_config
 from controller.tasks.registry import task_entry
 from sim_backend.contact_disk import DiskEnvironment, DiskParams
@@ -116,12 +115,6 @@ def drive_params_from_config(cfg: Config) -> DriveParams:
         negative_limit_switch=d.limit_switches_m[0],
         positive_limit_switch=d.limit_switches_m[1],
     )
-
-
-class CompliantRobot(Protocol):
-    """A robot whose structure the plant loads (Cheope: the contour's disk presses on it)."""
-
-    def jacobian(self, tcp_m: np.ndarray, /) -> np.ndarray: ...
 
 
 def environment_kind(cfg: Config) -> str:
@@ -229,12 +222,20 @@ class RobotPlant:
             )
         self.environment = environment or environment_from_config(cfg)
         self.loaded = not isinstance(self.environment, FreeSpace)
-        self._compliance = ComplianceParams(
-            cfg.robot.model("cheope").mass.actuator_stiffness_n_m,
-            cfg.sim.structure_damping_ratio,
-            cheope_mass_model(cfg.robot.model("cheope").mass),
+        # The robot's own structure (its model's masses and stiffness: CompliantStructure), or none:
+        # a rigid robot in free space, and a workpiece refused (set_environment).
+        self._kind = cfg.robot.kind
+        self._compliance = (
+            None
+            if missing_capability(self.robot, CompliantStructure)
+            else ComplianceParams(
+                cast(CompliantStructure, self.robot).actuator_stiffness_n_m,
+                cfg.sim.structure_damping_ratio,
+                cast(CompliantStructure, self.robot).masses,
+            )
         )
-        self.tool = CompliantTool(self._compliance)
+        self._check_structure()
+        self.tool = CompliantTool(self._compliance) if self._compliance is not None else None
         self.substep_s = cfg.sim.drive.substep_s
         d = cfg.sim.drive
         self._cogging_n = d.cogging_force_n if self.kinematics.cogging else 0.0
@@ -243,8 +244,8 @@ class RobotPlant:
         self._j: Matrix3 = ((0.0,) * 3,) * 3
         self._jt: Matrix3 = ((0.0,) * 3,) * 3
         self._jinv: Matrix3 = ((0.0,) * 3,) * 3
-        # The drives report their effort (0x6077) where the structure is modelled (Cheope's).
-        self._reports_effort = hasattr(self.robot, "jacobian")
+        # The drives report their effort (0x6077) where the structure is modelled.
+        self._reports_effort = self._compliance is not None
         self._sync_velocities: tuple[float, ...] | None = None  # the carriages' at the last SYNC
         self._inertial = cfg.sim.structure_inertial_load
         self.time_s: float | None = None
@@ -262,14 +263,27 @@ class RobotPlant:
         undeflected, and is loaded from now on only when something can touch the tool."""
         self.environment = environment
         self.loaded = not isinstance(environment, FreeSpace)
-        self.tool = CompliantTool(self._compliance)
+        self._check_structure()
+        self.tool = CompliantTool(self._compliance) if self._compliance is not None else None
         self.force_n = np.zeros(3)
         if self.loaded and self.time_s is not None:
             self._refresh_structure()
 
+    def _check_structure(self) -> None:
+        """A workpiece presses on the robot's structure: only a robot that models one can meet it."""
+        lacks = missing_capability(self.robot, CompliantStructure)
+        if self.loaded and lacks:
+            raise ValueError(
+                f"the simulated workpiece presses on the robot's structure, and robot.kind = {self._kind!r} "
+                f"lacks {lacks} (the CompliantStructure capability, controller/plugin_api.py); "
+                'run it in free space: sim.environment = "free"'
+            )
+
     @property
     def tcp_m(self) -> np.ndarray:
         """Where the tool really is: the kinematic TCP plus the structure's deflection."""
+        if self.tool is None:
+            return self.tcp_kinematic_m.copy()
         tcp: np.ndarray = self.tcp_kinematic_m + np.asarray(self.tool.deflection_m)
         return tcp
 
@@ -306,9 +320,9 @@ class RobotPlant:
         """The kinematic TCP and the pose-dependent matrices at the drives' current positions."""
         if not kinematics_done and self._update_kinematics() is None:
             return
-        robot: CompliantRobot = self.robot  # type: ignore[assignment]  # loaded: Cheope's structure only
+        robot = cast(CompliantStructure, self.robot)  # loaded: checked at start (_check_structure)
         jac = as_rows(robot.jacobian(self.tcp_kinematic_m))
-        self.tool.set_structure(jac)
+        cast(CompliantTool, self.tool).set_structure(jac)
         self._j = jac
         self._jt = transpose3(jac)
         self._jinv = inverse3(jac)
@@ -331,6 +345,7 @@ class RobotPlant:
         )
         h = span_s / n
         tool, env, sensor = self.tool, self.environment, self.sensor
+        assert tool is not None  # loaded: the robot has a structure (_check_structure)
         cogging, ck, phases = self._cogging_n, self._cogging_k, self._cogging_phase
         jt, jinv, inertial = self._jt, self._jinv, self._inertial
         sin = math.sin
@@ -374,9 +389,11 @@ class RobotPlant:
         the controller's witness adds back from its commanded acceleration
         (controller/core/contact_guard.py). Cogging enters through the deflection it causes.
         """
-        jx = matvec(self._j, self.tool.deflection_m)
-        jv = matvec(self._j, self.tool.velocity_m_s)
-        k, c = self._compliance.actuator_stiffness_n_m, self._compliance.actuator_damping_n_s_m
+        tool, compliance = self.tool, self._compliance
+        assert tool is not None and compliance is not None  # loaded: a structure (_check_structure)
+        jx = matvec(self._j, tool.deflection_m)
+        jv = matvec(self._j, tool.velocity_m_s)
+        k, c = compliance.actuator_stiffness_n_m, compliance.actuator_damping_n_s_m
         for d, x, v in zip(self.drives, jx, jv, strict=True):
             d.effort_n = -(k * x + c * v)
 
@@ -392,12 +409,13 @@ class RobotPlant:
         if previous is None or interval_s <= 0.0:
             return
         try:
-            jac = as_rows(self.robot.jacobian(self.tcp_kinematic_m))  # type: ignore[attr-defined]
+            jac = as_rows(cast(CompliantStructure, self.robot).jacobian(self.tcp_kinematic_m))
         except NoSolutionError:
             return
         qdd = tuple((v - v0) / interval_s for v, v0 in zip(self._sync_velocities, previous, strict=True))
         jinv = inverse3(jac)
         a = matvec(jinv, (qdd[0], qdd[1], qdd[2]))
+        assert self._compliance is not None  # efforts are reported only with a structure
         masses = self._compliance.masses
         m0, mq = masses.translating_kg, masses.per_actuator_kg
         # M a = m0 a + mq J^T J a, and J a = q'': tau = J^-T (m0 a) + mq q''

@@ -10,6 +10,9 @@ a robot or a task of your own depends on the core and the core on neither.
 - ``Task`` (with ``TaskContext``, ``TaskStep``, ``JointReference``): what a task is to the law, a
   pure function from a context to a joint reference. Registered with ``controller.tasks.registry``.
   ``ForceSetpointTask``: a task whose force setpoint a remote ``set_force`` may change, and below what.
+- ``JointMotion``, ``CompliantStructure``, ``ForceWitnessModel``: a robot's optional capabilities,
+  what a task (``TaskEntry.needs``) or the simulator asks beyond ``Robot``; a robot that lacks one
+  is refused at start naming the members it lacks (``missing_capability``).
 - ``CycleObserver`` and ``CycleTiming``: what the loop shell hands every observer each cycle.
 """
 
@@ -77,6 +80,47 @@ class Robot(Protocol):
         ...
 
 
+@runtime_checkable
+class JointMotion(Protocol):
+    """A robot that gives a reactive task its actuators' motion for a TCP motion, every cycle, in plain
+    floats (numpy's per-call cost is too high there): the contour task's need (``TaskEntry.needs``)."""
+
+    def joint_motion(
+        self, tcp_m: tuple[float, float, float], velocity_m_s: tuple[float, float, float], /
+    ) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """(q, q_dot = J v) at ``tcp_m`` for the TCP velocity ``velocity_m_s``."""
+        ...
+
+
+class LumpedMasses(Protocol):
+    """A translational robot's lumped masses: M = m0 I + mq J^T J (controller/robots/performance.py)."""
+
+    @property
+    def translating_kg(self) -> float: ...  # m0: what translates with the TCP
+
+    @property
+    def per_actuator_kg(self) -> float: ...  # mq: what moves with each carriage
+
+
+@runtime_checkable
+class CompliantStructure(Protocol):
+    """A robot whose structure the simulator models: three actuators of stiffness k along J, the
+    Cartesian stiffness k J^T J (seed 001 §6) and the masses above it. The simulated workpiece presses
+    on this structure, and its drives report the effort (0x6077) it takes; a robot without the
+    capability runs in free space only (sim_backend/plant.py refuses a workpiece at start)."""
+
+    @property
+    def masses(self) -> LumpedMasses: ...
+
+    @property
+    def actuator_stiffness_n_m(self) -> float: ...
+
+    def jacobian(self, tcp_m: np.ndarray, /) -> np.ndarray:
+        """J with q_dot = J v at ``tcp_m`` (3 x 3); raises NoSolutionError where there is none."""
+        ...
+
+
+@runtime_checkable
 class ForceWitnessModel(Protocol):
     """A robot that tells the contact force from its drives' efforts: the force sensor's second witness.
 
@@ -95,6 +139,20 @@ class ForceWitnessModel(Protocol):
         """(the contact force on the tool [N], |M a| [N]: the model's own inertial load), or None at a
         pose where the efforts tell nothing (a singularity)."""
         ...
+
+
+# The optional capabilities of a robot: each one's members, named in a refusal at start.
+CAPABILITIES: dict[type, str] = {
+    JointMotion: "joint_motion()",
+    CompliantStructure: "jacobian(), masses, actuator_stiffness_n_m",
+    ForceWitnessModel: "contact_force_from_efforts()",
+}
+
+
+def missing_capability(robot: object, capability: type) -> str:
+    """What ``robot`` lacks of ``capability`` (its missing members, named), or "" when it has it all."""
+    members = CAPABILITIES[capability].split(", ")
+    return ", ".join(m for m in members if getattr(robot, m.removesuffix("()"), None) is None)
 
 
 # -- tasks ------------------------------------------------------------------------------------

@@ -97,7 +97,12 @@ def build_cheope(c: CheopeSection) -> CheopeRobot:
         min_structural_measure=m.min_structural_measure,
         max_condition_number=m.max_condition_number,
     )
-    return CheopeRobot(geometry=geometry, limits=limits, masses=cheope_mass_model(c.mass))
+    return CheopeRobot(
+        geometry=geometry,
+        limits=limits,
+        masses=cheope_mass_model(c.mass),
+        actuator_stiffness_n_m=c.mass.actuator_stiffness_n_m,
+    )
 
 
 def _three(values: Iterable[float]) -> tuple[float, float, float]:

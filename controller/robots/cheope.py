@@ -310,6 +310,7 @@ class CheopeRobot:
     name: str = "cheope"
     n_actuators: int = _AXES
     masses: MassModel | None = None  # the lumped masses: the effort witness adds their inertia back
+    actuator_stiffness_n_m: float = 2.0e5  # the servo stiffness k the simulated structure has along J
 
     def inverse_kinematics(self, tcp_m: np.ndarray) -> np.ndarray:
         return inverse_kinematics(self.geometry, tcp_m)

@@ -8,9 +8,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import TYPE_CHECKING, Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal, cast
 
 from controller.config_schema import ConfigError, Section, rng
+from controller.core.ports import JointMotion
 from controller.tasks.registry import BuiltTask, TaskEntry, TaskSettings
 
 if TYPE_CHECKING:  # the tasks load on demand, when one is built: the configuration loads without them
@@ -184,7 +185,7 @@ def _contour_expected_outline(c: ContourSection, n: int = 96) -> tuple[tuple[flo
 def build_contour_task(c: ContourSection, robot: Robot, shared: TaskSettings) -> BuiltTask:
     import numpy as np
 
-    from controller.tasks.contour_tracking import ContourTrackingTask
+    from controller.tasks.contour_tracking import ContourRobot, ContourTrackingTask
 
     # The whole neighbourhood the task may visit: the expected contour, widened by the approach, out to
     # the staging point (the placement tolerance beyond the clearance).
@@ -199,7 +200,8 @@ def build_contour_task(c: ContourSection, robot: Robot, shared: TaskSettings) ->
     params = contour_params(
         c, shared.settle_tolerance_m, shared.max_contact_force_n, shared.witness_tolerance_n
     )
-    return BuiltTask(ContourTrackingTask(robot, params))  # type: ignore[arg-type]
+    # the robot has joint_motion: TaskEntry.needs, checked at start (controller/assembly.py)
+    return BuiltTask(ContourTrackingTask(cast(ContourRobot, robot), params))
 
 
 # -- the planned legs (seed 004): the 3-nSPU's settings are in [robot.nspu] ----------------------
@@ -229,6 +231,7 @@ CONTOUR = TaskEntry(
     build=build_contour_task,
     check=_check_contour,
     sim_environment="workpiece",
+    needs=(JointMotion,),
     uses_force_sensor=True,
     retracts_on_sensor_breach=True,
     laps=_contour_laps,

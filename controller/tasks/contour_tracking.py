@@ -87,19 +87,17 @@ from controller.core.cycle_data import Command, Event, Severity
 from controller.core.ports import (
     ContactExpectation,
     ForceSetpointLimit,
+    JointMotion,
     JointReference,
+    Robot,
     TaskContext,
     TaskStep,
 )
 from controller.core.records import record, replace
 
 
-class Kinematics(Protocol):
-    def inverse_kinematics(self, tcp_m: np.ndarray) -> np.ndarray: ...
-
-    def joint_motion(
-        self, tcp_m: tuple[float, float, float], velocity_m_s: tuple[float, float, float]
-    ) -> tuple[tuple[float, ...], tuple[float, ...]]: ...
+class ContourRobot(Robot, JointMotion, Protocol):
+    """What the task calls on its robot: the model, and the joint motion of a TCP motion every cycle."""
 
 
 SETTLED_CONTACT_S = 0.25  # a contact this long near the setpoint and trusted gives the re-approach's normal
@@ -383,7 +381,7 @@ def fresh_sample(ctx: TaskContext) -> bool:
 class ContourTrackingTask:
     name = "contour"
 
-    def __init__(self, robot: Kinematics, params: ContourParams) -> None:
+    def __init__(self, robot: ContourRobot, params: ContourParams) -> None:
         self.robot = robot
         self.p = params
         u = (math.cos(params.approach_direction_rad), math.sin(params.approach_direction_rad))

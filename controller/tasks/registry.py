@@ -79,6 +79,9 @@ class TaskEntry:
     # Robot kinds this task runs on besides the robots whose entry lists it (``RobotEntry.tasks``):
     # a task of a plug-in names the robots it was made for without changing their entries.
     robots: tuple[str, ...] = ()
+    # The robot's optional capabilities the task calls (controller/core/ports.py: ``JointMotion``, ...):
+    # a robot without one is refused at start, naming what it lacks (controller/assembly.py).
+    needs: tuple[type, ...] = ()
 
 
 TASKS: Registry[TaskEntry] = Registry(TASKS_GROUP, TaskEntry, "task")

@@ -48,9 +48,9 @@ import numpy as np
 
 from controller.cli_output import strict_json
 from controller.errors import InputError
+from controller.experiments import experiment_for
 from controller.shell.loop import period_error_us
 from controller.shell.realtime import RealtimeOptions
-from controller.tools.experiment import experiment_for
 from drivers import cob_ids
 from drivers.bus_load import measured_bus_load
 

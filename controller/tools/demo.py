@@ -23,9 +23,9 @@ from pathlib import Path
 from controller.config import Config
 from controller.core.ports import CycleObserver
 from controller.errors import DeviceError
+from controller.experiments import experiment_for
 from controller.shell.realtime import RealtimeOptions
 from controller.shell.service import prepare, run_controller
-from controller.tools.experiment import experiment_for
 from drivers.bus import BusSpec
 from sim_backend.process import CONTACT_FORCE_REPORT, READY_LINE, STOPPED_LINE
 from sim_backend.true_force_tap import TrueForceReader
@@ -178,3 +178,43 @@ def run_demo(
             )
     # what only the simulator knows: the true contact force (the controller sees the measurement)
     return {**summary, "simulator": simulator}
+
+
+def run_simulated_time(
+    cfg: Config, max_duration_s: float = 600.0, plot_dir: Path | None = None
+) -> dict[str, object]:
+    """Any task against the in-process devices in simulated time (``cheope demo --simulated-time``
+    for a task without an experiment of its own: the path, a plug-in robot's first run).
+
+    The law, the loopback devices and the loop a run over the bus has, on a simulated clock:
+    deterministic, independent of the machine's load. ``plot_dir`` is unused: only an experiment plots.
+    """
+    from controller.assembly import build_law
+    from controller.core.cycle_data import Severity
+    from controller.shell.loop import CycleLoop, SimulatedTime
+    from controller.shell.run_summary import RunRecorder
+    from sim_backend.loopback import LoopbackExchange
+
+    law = build_law(cfg)
+    clock = SimulatedTime()
+    exchange = LoopbackExchange(cfg, clock.clock)
+    recorder = RunRecorder()
+    loop = CycleLoop(
+        law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(recorder,)
+    )
+    final, stats = loop.run(law.initial_state(), max_duration_s)
+    te = recorder.tracking
+    return {
+        "final_mode": final.mode.name,
+        "fault_reason": final.fault_reason,
+        "cycles": stats.cycles,
+        "simulated_time": True,
+        "simulated_duration_s": round(stats.cycles * cfg.period_s, 6),
+        "tracking_error_m": {"rms": te.rms, "max": te.maximum, "samples": te.count},
+        "final_tcp_m": [round(float(x), 6) for x in exchange.plant.tcp_m],
+        "events": [
+            f"{t:.4f}s {e.severity.name}: {e.message}"
+            for t, e in recorder.events
+            if e.severity >= Severity.INFO
+        ],
+    }

@@ -12,12 +12,21 @@ from typing import Annotated
 
 import numpy as np
 
-from controller.config_schema import Section, rng
-from controller.core.ports import POSE_OK, ActuatorUnit, PoseStatus
-from controller.errors import WorkspaceError
-from controller.robots.registry import RobotEntry
-from logs.robot_drawing import DARK, ORANGE, MeasuredPose, Primitive, Shape
-from sim_backend.plant_kinematics import RigidKinematics
+from controller.plugin_api import (
+    DARK,
+    ORANGE,
+    POSE_OK,
+    ActuatorUnit,
+    MeasuredPose,
+    PoseStatus,
+    Primitive,
+    RigidKinematics,
+    RobotEntry,
+    Section,
+    Shape,
+    WorkspaceError,
+    rng,
+)
 
 
 class GantrySection(Section, frozen=True):

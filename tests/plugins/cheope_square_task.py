@@ -18,9 +18,7 @@ from typing import Annotated
 
 import numpy as np
 
-from controller.config_schema import Section, rng
-from controller.tasks.path_task import PathTask
-from controller.tasks.registry import BuiltTask, TaskEntry, TaskSettings
+from controller.plugin_api import BuiltTask, PathTask, Section, TaskEntry, TaskSettings, rng
 
 
 class SquareSection(Section, frozen=True):

@@ -18,7 +18,7 @@ import pytest
 from cheope_gantry_robot import GANTRY, GantryRobot, gantry_kinematics
 
 from controller.assembly import build_law
-from controller.config import ConfigError, config_from_dict, config_to_dict
+from controller.config import ConfigError, config_from_dict, config_to_dict, load_config
 from controller.core.controller_state import Mode
 from controller.errors import WorkspaceError
 from controller.plugins import SIM_KINEMATICS
@@ -97,8 +97,10 @@ def test_the_registry_refuses_what_the_new_robot_cannot_do(gantry):
 
 
 def test_an_unregistered_robot_is_named_with_the_known_ones():
-    with pytest.raises(ConfigError, match=r"robot.kind = 'gantry': must be one of cheope, nspu, uru"):
+    with pytest.raises(ConfigError, match=r"robot.kind = 'gantry': must be one of ") as refused:
         config_from_dict({"robot": {"kind": "gantry"}})
+    known = str(refused.value).split("must be one of ")[1].split(", ")
+    assert {"cheope", "nspu", "uru"} <= set(known) and "gantry" not in known  # and any plug-in installed
 
 
 class TwinColumnGantry(GantryRobot):
@@ -168,3 +170,38 @@ def test_a_per_actuator_list_of_the_wrong_length_is_named(twin):
         ConfigError, match=r"actuators.node_ids = \[1, 2, 3\]: 3 value\(s\) for the 4 actuators"
     ):
         build_law(twin_config())
+
+
+def test_a_robot_without_a_capability_its_task_needs_is_refused_at_start_naming_it(gantry):
+    """A robot that claims the contour but has no joint_motion: refused when the law is built, naming
+    the capability and the member, never an AttributeError in the middle of the run."""
+    from dataclasses import replace
+
+    register_robot(replace(GANTRY, tasks=("path", "contour")))
+    cfg = config_from_dict(
+        {
+            "robot": {"kind": "gantry"},
+            "task": {"kind": "contour", "contour": {"expected_centre_m": [0.1, 0.0], "height_m": 0.3}},
+            "safety": {"contact": {"witness_required": False}},
+            "recording": {"enabled": False},
+            "monitoring": {"enabled": False},
+        }
+    )
+    with pytest.raises(
+        ConfigError, match=r"needs the robot's JointMotion \(joint_motion\(\).*lacks joint_motion\(\)"
+    ):
+        build_law(cfg)
+
+
+def test_the_simulated_workpiece_needs_the_robots_own_structure(gantry):
+    """The simulator loads a robot's structure with that robot's masses and stiffness, never Cheope's:
+    a robot without them (CompliantStructure) runs in free space, and a workpiece is refused naming
+    what it lacks."""
+    from sim_backend.plant import RobotPlant
+
+    free = RobotPlant(gantry_config())
+    assert free.tool is None and not free.loaded
+    with pytest.raises(ValueError, match=r"lacks jacobian\(\), masses, actuator_stiffness_n_m"):
+        RobotPlant(config_from_dict({**config_to_dict(gantry_config()), "sim": {"environment": "workpiece"}}))
+    cheope = RobotPlant(load_config(overrides={"robot.mass.actuator_stiffness_n_m": 3.0e5}))
+    assert cheope._compliance is not None and cheope._compliance.actuator_stiffness_n_m == 3.0e5

@@ -44,7 +44,6 @@ LONG: dict[str, dict[str, int]] = {
     },
     "tutorial/real-drive.md": {"1. **Bring the interface up**": 223},
     "measurements/speed.md": {"`cheope bench` runs the": 209},
-    "tutorial/own-robot.md": {"Its entry holds: its": 194},
     "concepts/design-decisions.md": {"- **A late or": 183},
     "guides/service.md": {
         "**Bounded memory.** Nothing grows": 182,

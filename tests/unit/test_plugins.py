@@ -64,8 +64,8 @@ def _run(cfg, max_s: float = 40.0):
 
 
 def test_the_plugins_are_found_next_to_the_built_ins(installed):
-    assert set(robot_kinds()) == {"cheope", "uru", "nspu", "gantry"}
-    assert set(task_kinds()) == {"path", "contour", "planned", "square"}
+    assert {"cheope", "uru", "nspu", "gantry"} <= set(robot_kinds())  # and any other installed
+    assert {"path", "contour", "planned", "square"} <= set(task_kinds())
 
 
 def test_a_plugin_task_runs_on_a_built_in_robot(installed):
@@ -141,14 +141,16 @@ def test_a_robots_simulator_hook_is_found_by_its_kind_and_one_that_does_not_load
         SIM_KINEMATICS.get("broken")
 
 
-def test_a_tasks_experiment_is_what_demo_runs_for_it_and_a_task_without_one_is_told(capsys):
+def test_a_tasks_experiment_is_what_demo_runs_for_it_and_a_task_without_one_runs_plain(capsys):
     """``cheope demo --simulated-time`` runs the experiment declared for the task's kind
-    (cheope.experiments), not a branch on "contour"."""
+    (cheope.experiments), not a branch on "contour"; a task without one runs as it is."""
     from controller.cli import main
-    from controller.tools.experiment import EXPERIMENTS, Experiment
+    from controller.experiments import EXPERIMENTS, Experiment
 
-    assert main(["demo", "--task", "path", "--simulated-time"]) != 0
-    assert "task.kind = 'path' has none" in capsys.readouterr().err
+    assert main(["demo", "--task", "path", "--simulated-time", "--json"]) == 0
+    plain = json.loads(capsys.readouterr().out)
+    assert plain["final_mode"] == "DONE" and plain["simulated_time"] is True
+    assert plain["tracking_error_m"]["samples"] > 1000 and plain["tracking_error_m"]["max"] < 1e-4
     ran: list[str] = []
 
     def laps_in_simulated_time(cfg, max_duration_s, plot_dir):
@@ -193,3 +195,37 @@ def test_a_plugin_robot_brings_its_scene_and_a_robot_without_one_records_none(in
         assert drawing_for_config(cfg) is None and SceneSampler.for_config(cfg) is None
     finally:
         SCENE_DRAWINGS.unregister("gantry")
+
+
+def test_a_plugin_brings_a_command_that_reads_its_robots_configuration(installed, capsys):
+    """cheope.commands: ``cheope NAME`` with the configuration options, its robot by default, another
+    robot's configuration refused naming both; the 3-nSPU's plan commands are declared the same way."""
+    from controller.cli import build_parser, main
+    from controller.commands import COMMANDS, Command
+
+    def home(args, cfg):
+        print(f"{cfg.robot.kind} offset {list(cfg.robot.model().offset_m)} verbose={args.loud}")
+        return 0
+
+    COMMANDS.register(
+        "gantry-home",
+        Command(
+            "gantry: where home is",
+            lambda p: p.add_argument("--loud", action="store_true"),
+            home,
+            ("gantry",),
+        ),
+    )
+    try:
+        assert main(["gantry-home", "--loud", "--set", "robot.gantry.offset_m=[0.0,0.0,0.1]"]) == 0
+        assert capsys.readouterr().out.strip() == "gantry offset [0.0, 0.0, 0.1] verbose=True"
+        cheope_toml = Path(__file__).resolve().parents[2] / "controller" / "configs" / "cheope.toml"
+        assert main(["gantry-home", "--config", str(cheope_toml)]) != 0
+        assert (
+            "cheope gantry-home runs on robot.kind 'gantry'; robot.kind is 'cheope'"
+            in capsys.readouterr().err
+        )
+    finally:
+        COMMANDS.unregister("gantry-home")
+    commands = build_parser()._subparsers._group_actions[0].choices  # type: ignore[union-attr]
+    assert {"plan", "plan-bench"} <= set(commands) and "gantry-home" not in commands
