@@ -9,7 +9,8 @@ from dataclasses import dataclass
 
 from controller.config import Config, ConfigError, SafetySection
 from controller.core.contact_guard import ContactGuardConfig
-from controller.core.control_law import ControlLaw, LawConfig, SafetyConfig
+from controller.core.control_law import ControlLaw
+from controller.core.law_config import LawConfig, SafetyConfig
 from controller.core.ports import CAPABILITIES, ActuatorUnit, ForceWitnessModel, Robot, missing_capability
 from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother
 from controller.node_plan import emcy_reactions, fault_reset_config

@@ -12,7 +12,7 @@ from typing import TypeVar
 
 from controller.config import Config, NodeSection, emcy_code_ranges
 from controller.core.cia402 import FaultResetConfig
-from controller.core.control_law import EmcyReaction
+from controller.core.law_config import EmcyReaction
 from controller.robots.registry import ActuatorUnits, actuator_units
 from controller.tasks.registry import task_entry
 from drivers.homing import HomingPlan

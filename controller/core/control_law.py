@@ -34,8 +34,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import Any
 
 import numpy as np
 
@@ -43,13 +42,11 @@ from controller.core.cia402 import (
     CW_DISABLE_VOLTAGE,
     CW_FAULT_RESET,
     CW_QUICK_STOP,
-    FaultResetConfig,
     PowerState,
     controlword_towards,
     decode_statusword,
 )
 from controller.core.contact_guard import (
-    ContactGuardConfig,
     Witness,
     advance_back_off,
     back_off_summary,
@@ -60,20 +57,19 @@ from controller.core.contact_guard import (
 )
 from controller.core.controller_state import ControllerState, FaultResetProgress, Mode
 from controller.core.cycle_data import (
-    SENSOR_FORCE_SATURATED,
     Anomaly,
-    BusAnomaly,
     Command,
     CycleInputs,
     CycleOutputs,
     EmcyAction,
     Event,
-    Reaction,
     Severity,
 )
+from controller.core.law_config import LawConfig
 from controller.core.linalg3 import norm3, sub3
-from controller.core.ports import ContactExpectation, ForceWitnessModel, PoseStatus, Robot, Task, TaskContext
+from controller.core.ports import ContactExpectation, ForceWitnessModel, Robot, Task, TaskContext
 from controller.core.records import replace
+from controller.core.safety_monitor import GUARDED_MODES, SafetyMonitor
 from controller.core.setpoint_smoothing import RuckigSmoother, Setpoint
 from controller.errors import NoSolutionError
 
@@ -82,163 +78,15 @@ PIPELINE_PERIODS = 2
 REACTIVE_CORRECTION_PERIODS = 0.25
 
 
-@runtime_checkable
-class ChecksActuators(Protocol):
-    """A robot that knows its actuators' strokes (all three robots in controller/robots)."""
-
-    def check_actuators(self, q: tuple[float, ...]) -> PoseStatus: ...
-
-
-@dataclass(frozen=True)
-class SafetyConfig:
-    """Reactions to abnormal inputs ("fault", "warn" or "ignore"); see config.SafetySection."""
-
-    max_contact_force_n: float = 60.0
-    sensor_stale_cycles: int = 20
-    on_sensor_stale: Reaction = Reaction.FAULT
-    on_sensor_saturated: Reaction = Reaction.FAULT
-    on_heartbeat_lost: Reaction = Reaction.FAULT
-    on_error_frames: Reaction = Reaction.WARN
-    max_consecutive_late_cycles: int = 50
-    on_late_cycles: Reaction = Reaction.FAULT
-    # Position plausibility [actuator unit]: a measured step beyond what the speed limit allows plus
-    # this is a jump; a measured position this far from the commanded one is a following error.
-    max_position_jump: float = math.inf
-    following_window: float = math.inf
-    on_unknown_node: Reaction = Reaction.WARN
-    on_foreign_sync: Reaction = Reaction.FAULT
-    on_foreign_nmt: Reaction = Reaction.FAULT
-    on_foreign_command: Reaction = Reaction.FAULT
-    on_duplicate_frames: Reaction = Reaction.FAULT
-    on_rejected_frames: Reaction = Reaction.WARN
-    on_frame_flood: Reaction = Reaction.FAULT
-    sensor_breach_retract_s: float = 0.0  # see config.SafetySection; 0: fault at once
-    contact: ContactGuardConfig = ContactGuardConfig()  # the contact guard ([safety.contact])
-
-    def reaction_to(self, anomaly: Anomaly) -> Reaction:
-        return {
-            Anomaly.REJECTED_FRAME: self.on_rejected_frames,
-            # beyond the device's physics, among several candidates: the law's jump check always faults too
-            Anomaly.IMPLAUSIBLE_FRAME: Reaction.FAULT,
-            Anomaly.UNKNOWN_FRAME: self.on_unknown_node,
-            Anomaly.UNKNOWN_EMCY: self.on_unknown_node,
-            Anomaly.UNKNOWN_HEARTBEAT: self.on_unknown_node,
-            Anomaly.FOREIGN_SYNC: self.on_foreign_sync,
-            Anomaly.FOREIGN_NMT: self.on_foreign_nmt,
-            Anomaly.FOREIGN_COMMAND: self.on_foreign_command,
-            Anomaly.DUPLICATE_FRAME: self.on_duplicate_frames,
-            Anomaly.FRAME_FLOOD: self.on_frame_flood,
-        }[anomaly]
-
-
-ANOMALY_TEXT = {
-    Anomaly.UNKNOWN_FRAME: "frame(s) from a COB-ID no configured node uses",
-    Anomaly.UNKNOWN_EMCY: "EMCY from a node that is not configured",
-    Anomaly.UNKNOWN_HEARTBEAT: "heartbeat from a node that is not configured",
-    Anomaly.FOREIGN_SYNC: "SYNC the controller did not send (a second SYNC producer)",
-    Anomaly.FOREIGN_NMT: "NMT command the controller did not send",
-    Anomaly.FOREIGN_COMMAND: "frame on a COB-ID only the controller sends (a second master)",
-    Anomaly.DUPLICATE_FRAME: "TPDO(s) twice in one cycle (a second sender; neither is used)",
-    Anomaly.REJECTED_FRAME: "frame(s) of the wrong length (rejected)",
-    Anomaly.IMPLAUSIBLE_FRAME: "TPDO(s) the device cannot have sent (a position step or counter beyond it; not used)",
-    Anomaly.FRAME_FLOOD: "foreign frames in one cycle: a frame flood",
-}
-NMT_COMMAND_NAMES = {
-    0x01: "start",
-    0x02: "stop",
-    0x80: "enter PRE-OPERATIONAL",
-    0x81: "reset node",
-    0x82: "reset communication",
-}  # CiA 301 NMT command specifiers
-# The modes in which the contact guard watches (the drives enabled, the law commanding them).
-GUARDED_MODES = frozenset((Mode.HOLDING, Mode.RUNNING, Mode.PAUSED, Mode.STOPPING, Mode.BACKING_OFF))
 # The drives' efforts sampled at a SYNC show their motion towards the setpoint this many steps old
 # (the pipeline: computed, sent at the next deadline, latched, interpolated over the period after):
 # the witness adds back the inertia of that setpoint's acceleration (measured: lags 2-4 fit best).
 WITNESS_ACCELERATION_LAG = 3
-# The force sensor's troubles: with the drives enabled, their fault is a protective back-off.
-SENSOR_TROUBLE = frozenset(("sensor_stale", "sensor_saturated"))
 # A back-off that meets this much more force than it started from makes things worse: the quick stop.
 BACK_OFF_WORSE_N = 10.0
 # ... judged after this many cycles: the setpoints already on their way (PIPELINE_PERIODS) and the
 # structure's momentum carry the tool on for a few cycles whatever the back-off commands
 BACK_OFF_GRACE_CYCLES = 16
-# A burst of anomalies under "warn": one event when it starts, one with its count when it ends
-# (the first cycle without it), and one with the running count this often while it goes on.
-BURST_REPORT_S = 1.0
-
-
-def anomaly_text(a: BusAnomaly) -> str:
-    """One line for a cycle's anomaly: how many, what, from or to which node, on which COB-ID."""
-    if a.kind == Anomaly.FOREIGN_NMT:
-        command = NMT_COMMAND_NAMES.get(a.command, f"command 0x{a.command:02X}")
-        target = f"node {a.node_id}" if a.node_id else "all nodes"
-        times = f" ({a.count} times)" if a.count > 1 else ""
-        return f"NMT {command} to {target} from another master{times}"
-    return f"{a.count} {ANOMALY_TEXT[a.kind]}{_from_node(a.node_id)} (COB-ID 0x{a.cob_id:03X})"
-
-
-def _from_node(node_id: int) -> str:
-    return f" from node {node_id}" if node_id else ""
-
-
-def listed(names: list[str]) -> str:
-    """ "2", "1 and 2", "1, 2, 3 and the force sensor"."""
-    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
-
-
-NMT_STATE_NAMES = {0: "boot-up (it restarted)", 4: "STOPPED", 5: "OPERATIONAL", 127: "PRE-OPERATIONAL"}
-
-
-@dataclass(frozen=True)
-class EmcyReaction:
-    """EMCY error codes ``first``..``last`` of the drives get ``action`` (config ``actuators.emcy_reactions``)."""
-
-    first: int
-    last: int
-    action: EmcyAction
-
-
-def error_code_text(code: int) -> str:
-    """ ", error code 0x3220" (the drive's last EMCY: CiA 301, the code 0x603F holds too), or ""."""
-    return f", error code 0x{code:04X}" if code else ""
-
-
-@dataclass(frozen=True)
-class LawConfig:
-    period_s: float
-    enable_timeout_s: float
-    hold_before_task_s: float
-    max_missing_cycles: int
-    settle_tolerance: float  # [actuator unit] and [unit/s]: "at rest" for the stop
-    safety: SafetyConfig = SafetyConfig()
-    max_speed: float = math.inf  # [unit/s] the actuators' speed limit, for the plausibility check
-    position_unit: str = "m"  # for messages
-    rest_target: float = 0.0  # [unit] the target sent before a drive's first TPDO (mid-stroke)
-    drive_node_ids: tuple[int, ...] = ()  # CANopen node ids of the drives, in order (empty: 1..n)
-    # Does the task use the force sensor's samples? If it does, a sensor without a usable sample for
-    # safety.sensor_stale_cycles faults; if not, a stall of its frames is no hazard and the sensor is
-    # supervised by its heartbeat (loop.heartbeat_consumer_s), as any node the task does not read.
-    # Its samples, when they come, are still judged against the contact-force limit. From the
-    # task's entry (controller/tasks/registry.py ``uses_force_sensor``).
-    sensor_in_task: bool = True
-    sensor_node_id: int = 0  # the force sensor's CANopen node id (0: none), for a breach of its frames
-    # The task retracts without force data when the sensor's frames are no longer trusted
-    # (TaskEntry.retracts_on_sensor_breach); with safety.sensor_breach_retract_s > 0 the law lets it.
-    task_retracts_on_sensor_breach: bool = False
-    fault_resets: tuple[FaultResetConfig, ...] = ()  # per drive; empty: FaultResetConfig() for each
-    emcy_reactions: tuple[EmcyReaction, ...] = ()  # the drives' EMCY codes that do not fault (first match)
-
-    def fault_reset(self, j: int) -> FaultResetConfig:
-        return self.fault_resets[j] if j < len(self.fault_resets) else FaultResetConfig()
-
-    def emcy_action(self, node_id: int, code: int) -> EmcyAction:
-        """A drive's EMCY ``code`` by the configured reactions; any other node's, or a code not listed: fault."""
-        if node_id in self.drive_node_ids:
-            for r in self.emcy_reactions:
-                if r.first <= code <= r.last:
-                    return r.action
-        return EmcyAction.FAULT
 
 
 # One handler per mode: (state, inputs, power states, measured positions, t, events) -> state.
@@ -257,8 +105,7 @@ class ControlLaw:
         self.smoother = smoother
         self.config = config
         self.n = robot.n_actuators
-        # Robots that know their actuators' strokes check the measured positions every cycle.
-        self._check_actuators = robot.check_actuators if isinstance(robot, ChecksActuators) else None
+        self.monitor = SafetyMonitor(robot, config)  # the checks of each cycle's inputs
         # Robots that tell the contact force from their drives' efforts give the sensor its second witness.
         self._witness_model: ForceWitnessModel | None = (
             robot if callable(getattr(robot, "contact_force_from_efforts", None)) else None  # type: ignore[assignment]
@@ -298,7 +145,7 @@ class ControlLaw:
         events: list[Event] = []
         measured = tuple(d.position for d in inputs.drives)
         powers = tuple(decode_statusword(d.statusword) for d in inputs.drives)
-        jump, implausible = self._position_jump(state, inputs)
+        jump, implausible = self.monitor.position_jump(state, inputs)
         streak = tuple(
             0 if d.fresh else s + 1 for d, s in zip(inputs.drives, state.missing_streak, strict=True)
         )
@@ -315,11 +162,11 @@ class ControlLaw:
             unreachable=state.unreachable | self._unreachable(inputs),
         )
         if inputs.emcy:
-            state = self._note_error_codes(state, inputs)
-        emcy_fault = self._emcy_fault(inputs)
+            state = self.monitor.note_error_codes(state, inputs)
+        emcy_fault = self.monitor.emcy_fault(inputs)
 
         if state.mode == Mode.CONFIGURING:
-            reason = self._configuring_fault(state, inputs, emcy_fault)
+            reason = self.monitor.configuring_fault(state, inputs, emcy_fault)
             if reason:
                 state = self._enter(state, Mode.FAULT, t, events, Severity.FAULT, reason)
                 state = replace(state, fault_reason=reason)
@@ -368,7 +215,7 @@ class ControlLaw:
         events: list[Event],
     ) -> ControllerState:
         """Every mode but FAULT: the safety layer's limits, the drives' faults and EMCYs."""
-        state, reason = self._safety(state, inputs, events)
+        state, reason = self.monitor.check(state, inputs, events)
         if reason and reason == state.protective_cause and state.mode in GUARDED_MODES:
             # The force sensor gone stale or saturated with the drives enabled: the tool may be
             # pressing on something with a force nobody reads; back off along the drives' effort
@@ -377,7 +224,7 @@ class ControlLaw:
             if state.mode != Mode.BACKING_OFF:
                 state = self._begin_back_off(state, reason, t, events)
             reason = ""
-        reason = reason or jump or self._fault_reason(state, inputs, powers, emcy_fault)
+        reason = reason or jump or self.monitor.fault_reason(state, inputs, powers, emcy_fault)
         if reason:
             state = self._faulted(state, reason, t, events)
         elif inputs.emcy:
@@ -431,7 +278,7 @@ class ControlLaw:
         by_sdo = tuple(sorted(doubtful - state.sdo_stopped))
         if not by_sdo:
             return state, ()
-        nodes = ", ".join(str(self._node_id(j)) for j in by_sdo)
+        nodes = ", ".join(str(self.monitor.node_id(j)) for j in by_sdo)
         events.append(
             Event(
                 "sdo_quick_stop",
@@ -441,13 +288,9 @@ class ControlLaw:
         )
         return replace(state, sdo_stopped=state.sdo_stopped | set(by_sdo)), by_sdo
 
-    def _node_id(self, j: int) -> int:
-        ids = self.config.drive_node_ids
-        return ids[j] if j < len(ids) else j + 1
-
     def _unreachable(self, inputs: CycleInputs) -> frozenset[int]:
         """Drives this cycle says may not process RPDOs: not OPERATIONAL, told to leave it, or unheard."""
-        index = {self._node_id(j): j for j in range(self.n)}
+        index = {self.monitor.node_id(j): j for j in range(self.n)}
         found = {index[r.node_id] for r in inputs.nmt_reports if r.node_id in index}
         found |= {index[n] for n in inputs.lost_heartbeats if n in index}
         for a in inputs.anomalies:
@@ -471,357 +314,6 @@ class ControlLaw:
         except NoSolutionError:
             return None
 
-    def _react(
-        self, state: ControllerState, reaction: Reaction, key: str, why: str, events: list[Event]
-    ) -> tuple[ControllerState, str]:
-        """Apply a configured reaction to an abnormal condition ``key``."""
-        if reaction == Reaction.FAULT:
-            if key in SENSOR_TROUBLE:
-                state = replace(state, protective_cause=why)
-            return state, why
-        if reaction == Reaction.WARN and key not in state.warned:
-            events.append(Event(key, Severity.WARNING, why))
-            return replace(state, warned=state.warned | {key}), ""
-        return state, ""
-
-    def _safety(  # noqa: C901  (the safety checks in their order of precedence, one branch each)
-        self, state: ControllerState, inputs: CycleInputs, events: list[Event]
-    ) -> tuple[ControllerState, str]:
-        """Configurable checks of the inputs; returns the updated state and a fault reason or ""."""
-        sc = self.config.safety
-        sensor = inputs.sensor
-        stale = 0
-        if state.sensor_breach:
-            why = self._sensor_breach_fault(state)
-            if why:
-                return state, why
-        elif sensor is not None:  # a breached sensor's frames count for nothing, nor does their absence
-            if sensor.fresh:
-                stale = state.sensor_stale + 1 if sensor.counter == state.sensor_counter else 0
-                state = replace(state, sensor_counter=sensor.counter, sensor_stale=stale)
-            missing = 0 if sensor.fresh else state.sensor_missing + 1
-            if missing != state.sensor_missing:
-                state = replace(state, sensor_missing=missing)
-        if sensor is not None and sensor.fresh:
-            f = sensor.force_n
-            magnitude = math.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2])
-            if magnitude > sc.max_contact_force_n and state.mode not in GUARDED_MODES:
-                # Drives not yet enabled: nothing to back off with. Enabled, the contact guard judges.
-                return state, f"contact force {magnitude:.1f} N above the limit of {sc.max_contact_force_n} N"
-            if sensor.status & SENSOR_FORCE_SATURATED:
-                state, why = self._react(
-                    state,
-                    sc.on_sensor_saturated,
-                    "sensor_saturated",
-                    f"force sensor saturated (status 0x{sensor.status:02X})",
-                    events,
-                )
-                if why:
-                    return state, why
-        if sensor is not None and stale >= sc.sensor_stale_cycles:  # stale > 0 only with a sensor
-            state, why = self._react(
-                state,
-                sc.on_sensor_stale,
-                "sensor_stale",
-                f"force sensor stale: counter stuck at {sensor.counter} for {stale} cycles",
-                events,
-            )
-            if why:
-                return state, why
-        silence = self._silence(state)
-        if silence:
-            return state, silence
-        if (
-            self.config.sensor_in_task
-            and not state.sensor_breach
-            and state.sensor_missing >= sc.sensor_stale_cycles
-        ):
-            # No usable sample (missing, or two senders on its COB-ID): no new information, as a counter
-            # that does not advance, so the same tolerance (the contour task holds from the 4th cycle).
-            state, why = self._react(
-                state,
-                sc.on_sensor_stale,
-                "sensor_stale",
-                f"force sensor: no usable sample for {state.sensor_missing} cycles",
-                events,
-            )
-            if why:
-                return state, why
-        if inputs.lost_heartbeats:
-            state, why = self._react(
-                state,
-                sc.on_heartbeat_lost,
-                "heartbeat_lost",
-                f"heartbeat lost from node(s) {list(inputs.lost_heartbeats)}",
-                events,
-            )
-            if why:
-                return state, why
-        elif "heartbeat_lost" in state.warned:  # the episode under "warn" ends: said, and armed again
-            events.append(
-                Event("heartbeat_back", Severity.INFO, "every node's heartbeat (or guarding) is back")
-            )
-            state = replace(state, warned=state.warned - {"heartbeat_lost"})
-        if inputs.bus_off:
-            return state, "CAN bus-off reported by an error frame"
-        if inputs.error_frames:
-            state, why = self._react(
-                state,
-                sc.on_error_frames,
-                "error_frames",
-                f"{inputs.error_frames} CAN error frame(s) received",
-                events,
-            )
-            if why:
-                return state, why
-        state, why = self._anomalies(state, inputs, events)
-        if why:
-            return state, why
-        for r in inputs.nmt_reports:
-            return state, (
-                f"node {r.node_id} heartbeat reports {NMT_STATE_NAMES.get(r.state, f'state {r.state}')}"
-                f", not OPERATIONAL"
-            )
-        late = state.late_streak + 1 if inputs.late else 0
-        if late != state.late_streak:
-            state = replace(state, late_streak=late)
-        if late >= sc.max_consecutive_late_cycles:
-            state, why = self._react(
-                state, sc.on_late_cycles, "late_cycles", f"the loop woke late {late} cycles in a row", events
-            )
-            if why:
-                return state, why
-        if self._check_actuators is not None:
-            status = self._check_actuators(tuple(d.position for d in inputs.drives))
-            if not status.ok:
-                return state, status.reason
-        return state, ""
-
-    def _retract_on_breach(self, state: ControllerState, a: BusAnomaly) -> bool:
-        """A second sender on the force sensor's COB-ID while a task that can retract without force
-        data runs: the retract comes before the fault. Holding still in contact under a quick stop,
-        the force is whatever it was; the drives' own frames are still trusted, so moving away along
-        the last normal is the safer end (scan: the spoofed-sample scenarios)."""
-        c = self.config
-        return (
-            a.kind in (Anomaly.DUPLICATE_FRAME, Anomaly.IMPLAUSIBLE_FRAME)
-            and c.sensor_node_id != 0
-            and a.node_id == c.sensor_node_id
-            and c.task_retracts_on_sensor_breach
-            and c.safety.sensor_breach_retract_s > 0.0
-            and state.mode == Mode.RUNNING
-        )
-
-    def _sensor_breach_fault(self, state: ControllerState) -> str:
-        """The fault after a sensor breach: out of RUNNING (a stop, a pause), or past the retract's time."""
-        why = f"force sensor not trusted: {state.sensor_breach}"
-        if state.mode != Mode.RUNNING:
-            return why
-        limit_s = self.config.safety.sensor_breach_retract_s
-        if (state.cycle - state.sensor_breach_cycle) * self.config.period_s > limit_s:
-            return f"{why}; the task did not retract within {limit_s:g} s"
-        return ""
-
-    def _silence(self, state: ControllerState) -> str:
-        """Every drive (and the sensor) without a usable sample for max_missing_cycles, named in one fault."""
-        limit = self.config.max_missing_cycles
-        silent = [j for j, s in enumerate(state.missing_streak) if s >= limit]
-        if not silent:
-            return ""
-        sensor = state.sensor_missing >= limit
-        if len(silent) == 1 and not sensor:
-            return f"drive {silent[0] + 1}: no TPDO for {state.missing_streak[silent[0]]} cycles"
-        cycles = min(state.missing_streak[j] for j in silent)
-        names = [str(j + 1) for j in silent]
-        if sensor:
-            names.append("the force sensor")
-            cycles = min(cycles, state.sensor_missing)
-        return f"{'drives' if len(silent) > 1 else 'drive'} {listed(names)} silent for {cycles} cycles"
-
-    def _anomalies(
-        self, state: ControllerState, inputs: CycleInputs, events: list[Event]
-    ) -> tuple[ControllerState, str]:
-        """This cycle's bus anomalies by their configured reaction; "warn" is reported per burst."""
-        sc = self.config.safety
-        seen: dict[str, int] = {}
-        texts: dict[str, str] = {}
-        for a in inputs.anomalies:
-            reaction = sc.reaction_to(a.kind)
-            if reaction == Reaction.FAULT and self._retract_on_breach(state, a):
-                if not state.sensor_breach:
-                    state = replace(state, sensor_breach=anomaly_text(a), sensor_breach_cycle=state.cycle)
-                    events.append(
-                        Event(
-                            "sensor_breach",
-                            Severity.WARNING,
-                            f"{anomaly_text(a)}: the force sensor's data is no longer used; "
-                            f"the task retracts before the fault",
-                        )
-                    )
-                continue
-            if reaction == Reaction.FAULT:
-                return state, anomaly_text(a)
-            if reaction == Reaction.WARN:
-                key = f"{a.kind.value}:{a.node_id}:0x{a.cob_id:03X}"
-                seen[key] = seen.get(key, 0) + a.count
-                texts.setdefault(key, anomaly_text(a))
-        if not seen and not state.bursts:
-            return state, ""
-        every = max(1, round(BURST_REPORT_S / self.config.period_s))
-        bursts = []
-        for key, frames, cycles, reported in state.bursts:
-            kind = key.split(":")[0]
-            if key not in seen:
-                events.append(
-                    Event(
-                        kind,
-                        Severity.WARNING,
-                        f"burst ended: {frames} {self._burst_what(key)} in {cycles} cycle(s)",
-                    )
-                )
-                continue
-            frames, cycles = frames + seen.pop(key), cycles + 1
-            if state.cycle - reported >= every:
-                events.append(
-                    Event(
-                        kind,
-                        Severity.WARNING,
-                        f"burst goes on: {frames} {self._burst_what(key)} in {cycles} cycle(s) so far",
-                    )
-                )
-                reported = state.cycle
-            bursts.append((key, frames, cycles, reported))
-        for key, frames in seen.items():  # bursts that start in this cycle
-            events.append(Event(key.split(":")[0], Severity.WARNING, f"burst starts: {texts[key]}"))
-            bursts.append((key, frames, 1, state.cycle))
-        return replace(state, bursts=tuple(bursts)), ""
-
-    @staticmethod
-    def _burst_what(key: str) -> str:
-        kind, node, cob = key.split(":")
-        return f"{ANOMALY_TEXT[Anomaly(kind)]}{_from_node(int(node))} (COB-ID {cob})"
-
-    def _position_jump(self, state: ControllerState, inputs: CycleInputs) -> tuple[str, tuple[bool, ...]]:
-        """Fresh positions further from the last trusted ones than the actuator can move: a lying encoder
-        or frame. Returns the fault (none in CONFIGURING or FAULT) and which drives' positions are not
-        to be trusted (judged in FAULT too: hold targets come only from trusted positions)."""
-        cfg = self.config
-        tolerance = cfg.safety.max_position_jump
-        flags = [False] * self.n
-        if not math.isfinite(tolerance) or state.mode == Mode.CONFIGURING:
-            return "", tuple(flags)
-        reason = ""
-        for j, (d, last, gap) in enumerate(
-            zip(inputs.drives, state.last_measured, state.missing_streak, strict=True)
-        ):
-            if not (d.fresh and math.isfinite(last)):
-                continue
-            possible = cfg.max_speed * (gap + 1) * cfg.period_s + tolerance
-            step = abs(d.position - last)
-            if step > possible:  # also catches NaN below: NaN > x is False, the finite check is elsewhere
-                flags[j] = True
-                u = cfg.position_unit
-                reason = reason or (
-                    f"drive {j + 1} position jumped {step:.4f} {u} in {gap + 1} cycle(s) (from {last:.4f} to "
-                    f"{d.position:.4f} {u}); at most {possible:.4f} {u} is possible "
-                    f"({cfg.max_speed} {u}/s + safety.max_position_jump {tolerance} {u})"
-                )
-        return ("" if state.mode == Mode.FAULT else reason), tuple(flags)
-
-    def _following_error(self, state: ControllerState, inputs: CycleInputs) -> str:
-        """A fresh position further than the window from where the drive should be at its sample.
-
-        The position was sampled at this cycle's SYNC, where the drive reached the setpoint of two
-        steps ago; ``state.setpoint`` is the last step's, aimed one period later (the cycle in
-        docs/concepts/cycle.md): the expected position is that setpoint taken back one period along its own
-        motion, q - v T + a T^2 / 2. Against the last setpoint itself a drive at full speed would
-        lag by v T: 20 mm at 0.5 m/s and 25 Hz, twice the default window.
-        """
-        window = self.config.safety.following_window
-        if not math.isfinite(window):
-            return ""
-        t_s = self.config.period_s
-        sp = state.setpoint
-        for j, (d, q, v, a) in enumerate(
-            zip(inputs.drives, sp.position, sp.velocity, sp.acceleration, strict=True)
-        ):
-            expected = q - v * t_s + 0.5 * a * t_s * t_s
-            if d.fresh and abs(d.position - expected) > window:
-                u = self.config.position_unit
-                return (
-                    f"drive {j + 1} following error {abs(d.position - expected):.4f} {u} beyond the window of "
-                    f"{window} {u} (measured {d.position:.4f} {u}, expected {expected:.4f} {u} at this sample)"
-                )
-        return ""
-
-    def _configuring_fault(self, state: ControllerState, inputs: CycleInputs, emcy_fault: str) -> str:
-        """Before every drive has answered: what already makes starting pointless."""
-        if inputs.bus_off:
-            return "CAN bus-off reported by an error frame"
-        if emcy_fault:
-            return emcy_fault
-        # A drive that never answered is judged on the time devices may take to come up after their
-        # NMT start (a slow machine, an emulated one), not on max_missing_cycles of a running bus.
-        waited_s = state.cycle * self.config.period_s
-        if waited_s >= self.config.enable_timeout_s:
-            for j, x in enumerate(state.last_measured):
-                if math.isnan(x):
-                    return f"drive {j + 1}: no TPDO within {self.config.enable_timeout_s} s of the start"
-        return ""
-
-    def _fault_reason(
-        self, state: ControllerState, inputs: CycleInputs, powers: tuple[PowerState, ...], emcy_fault: str
-    ) -> str:
-        # ENABLING after the operator's reset resets the drives' faults and judges its attempts itself;
-        # a drive in FAULT at the start, or one that faults on its way to enabled, is a fault
-        resetting = state.mode == Mode.ENABLING and bool(state.fault_resets)
-        for j, (p, streak) in enumerate(zip(powers, state.missing_streak, strict=True)):
-            # Judged on this cycle's TPDO only: a statusword not refreshed (missing frame) is old news,
-            # e.g. the FAULT a reset has just cleared; silence has its own limit below.
-            faulted = p in (PowerState.FAULT, PowerState.FAULT_REACTION_ACTIVE)
-            if inputs.drives[j].fresh and faulted and not resetting:
-                return (
-                    f"drive {j + 1} reports {p.name} (statusword 0x{inputs.drives[j].statusword:04X})"
-                    + self._error_code(state, j)
-                )
-            if streak >= self.config.max_missing_cycles:  # _safety names them first, all at once
-                return f"drive {j + 1}: no TPDO for {streak} cycles"
-        if emcy_fault:
-            return emcy_fault
-        if state.mode in (Mode.HOLDING, Mode.RUNNING, Mode.PAUSED, Mode.BACKING_OFF) or (
-            state.mode == Mode.STOPPING and not self._shutting_down(state)
-        ):
-            for j, p in enumerate(powers):
-                if inputs.drives[j].fresh and p != PowerState.OPERATION_ENABLED:
-                    return f"drive {j + 1} left OPERATION ENABLED (now {p.name})"
-            following = self._following_error(state, inputs)
-            if following:
-                return following
-        for j, x in enumerate(inputs.drives):
-            if not math.isfinite(x.position):
-                return f"drive {j + 1} position is not a number"
-        return ""
-
-    def _error_code(self, state: ControllerState, j: int) -> str:
-        return error_code_text(state.error_codes[j]) if j < len(state.error_codes) else ""
-
-    def _note_error_codes(self, state: ControllerState, inputs: CycleInputs) -> ControllerState:
-        """Each drive's last error code as its EMCYs say (0 after an "error reset" EMCY)."""
-        codes = list(state.error_codes) or [0] * self.n
-        index = {self._node_id(j): j for j in range(self.n)}
-        for e in inputs.emcy:
-            j = index.get(e.node_id)
-            if j is not None and self.config.emcy_action(e.node_id, e.error_code) == EmcyAction.FAULT:
-                codes[j] = e.error_code  # a warning's code is no fault's
-        return replace(state, error_codes=tuple(codes))
-
-    def _emcy_fault(self, inputs: CycleInputs) -> str:
-        """The first EMCY of this cycle whose configured reaction is a fault ("" if none)."""
-        for e in inputs.emcy:
-            if e.error_code != 0 and self.config.emcy_action(e.node_id, e.error_code) == EmcyAction.FAULT:
-                return f"EMCY from node {e.node_id}: error code 0x{e.error_code:04X}, register 0x{e.error_register:02X}"
-        return ""
-
     def _emcy_notes(
         self, state: ControllerState, inputs: CycleInputs, t: float, events: list[Event]
     ) -> ControllerState:
@@ -842,12 +334,6 @@ class ControlLaw:
                 )
                 state = replace(state, warned=state.warned | {key})
         return state
-
-    def _shutting_down(self, state: ControllerState) -> bool:
-        return any(
-            cw != controlword_towards(PowerState.OPERATION_ENABLED, PowerState.OPERATION_ENABLED)
-            for cw in state.controlwords
-        )
 
     # -- mode handlers ----------------------------------------------------------------------
 
@@ -919,7 +405,7 @@ class ControlLaw:
             return self._enter(state, Mode.HOLDING, t, events, why="all drives in OPERATION ENABLED")
         if t - state.mode_entered_s > self.config.enable_timeout_s:
             states = ", ".join(
-                f"{j + 1}: {p.name}" + (self._error_code(state, j) if p == PowerState.FAULT else "")
+                f"{j + 1}: {p.name}" + (self.monitor.error_code(state, j) if p == PowerState.FAULT else "")
                 for j, p in enumerate(powers)
             )
             why = f"drives not enabled within {self.config.enable_timeout_s} s ({states})"
@@ -950,7 +436,7 @@ class ControlLaw:
             why = (
                 f"drive {j + 1} stays in FAULT after {progress.attempts} fault reset(s) "
                 f"(actuators.fault_reset_attempts = {cfg.attempts}, hold {cfg.hold_s:g} s, wait {cfg.wait_s:g} s)"
-                + self._error_code(state, j)
+                + self.monitor.error_code(state, j)
             )
             return CW_DISABLE_VOLTAGE, progress, why
         return CW_FAULT_RESET, FaultResetProgress(progress.attempts + 1, True, t), ""
@@ -1050,7 +536,7 @@ class ControlLaw:
         events: list[Event],
     ) -> ControllerState:
         state = replace(state, tcp_reference_m=None)
-        if not self._shutting_down(state):
+        if not self.monitor.shutting_down(state):
             state = self._smooth_to_rest(state, t, events)
             if state.mode != Mode.STOPPING:
                 return state
@@ -1110,9 +596,9 @@ class ControlLaw:
         checks = []
         restarted = {r.node_id for r in inputs.nmt_reports if r.state == 0}
         for j, (d, p) in enumerate(zip(inputs.drives, powers, strict=True)):
-            node = self._node_id(j)
+            node = self.monitor.node_id(j)
             if d.fresh:
-                checks.append(f"{j + 1} {p.name} (0x{d.statusword:04X}){self._error_code(state, j)}")
+                checks.append(f"{j + 1} {p.name} (0x{d.statusword:04X}){self.monitor.error_code(state, j)}")
             else:
                 checks.append(f"{j + 1} silent" + (" (it restarted)" if node in restarted else ""))
         events.append(
