@@ -14,19 +14,18 @@ import numpy as np
 import pytest
 
 from controller.shell import realtime
+from controller.shell.loop import period_error_us
 from controller.shell.realtime import RealtimeError, RealtimeOptions, parse_cpus
 from controller.tools.bench import (
     compare_pdo_paths,
     compare_sleepers,
     cpu_use_percent,
     late_per_10k,
-    measured_bus_load,
     naive_loop,
     percentiles_us,
-    period_error_us,
     schedule_stats,
 )
-from drivers.bus_load import classical_frame_bits, fd_frame_time_s
+from drivers.bus_load import classical_frame_bits, fd_frame_time_s, measured_bus_load
 
 
 def test_percentiles_of_known_values():
