@@ -8,13 +8,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from controller.config import Config, ConfigError, SafetySection
+from controller.configured_robot import actuator_units, robot_from_config
 from controller.core.contact_guard import ContactGuardConfig
 from controller.core.control_law import ControlLaw
 from controller.core.law_config import LawConfig, SafetyConfig
 from controller.core.ports import CAPABILITIES, ActuatorUnit, ForceWitnessModel, Robot, missing_capability
 from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother
 from controller.node_plan import emcy_reactions, fault_reset_config
-from controller.robots.registry import ActuatorUnits, actuator_units, robot_from_config
+from controller.robots.registry import ActuatorUnits
 from controller.tasks.registry import BuiltTask, RunReport, TaskSettings, task_entry
 from drivers.bus_load import BusLoad, compute_bus_load, cyclic_frames
 from drivers.pdo_codec import TORQUE_ACTUAL

@@ -30,7 +30,7 @@ from drivers.bus import BusSpec, parse_bus_spec
 
 if TYPE_CHECKING:
     from controller.core.ports import CycleObserver
-    from controller.shell.realtime import RealtimeOptions
+    from controller.realtime import RealtimeOptions
 
 
 def _config_help(robots: tuple[str, ...]) -> str:
@@ -128,7 +128,7 @@ def _live_overrides(args: argparse.Namespace) -> list[str]:
 
 
 def _realtime(args: argparse.Namespace, simulator: bool = False) -> RealtimeOptions:
-    from controller.shell.realtime import RealtimeError, RealtimeOptions, parse_cpus
+    from controller.realtime import RealtimeError, RealtimeOptions, parse_cpus
 
     explicit = args.rt_priority is not None or args.cpu or args.lock_memory
     if args.no_realtime:

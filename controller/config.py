@@ -7,7 +7,7 @@ documents every key.
 
 Whose sections are where: the controller's own below; each robot's ``[robot.<kind>]`` and
 each task's ``[task.<kind>]`` with its registry entry (controller/robots/builtin.py,
-controller/tasks/builtin.py); the simulator's ``[sim]`` in sim_backend/sim_config.py. One file
+controller/tasks/builtin.py); the simulator's ``[sim]`` in controller/sim_config/sections.py. One file
 configures both processes, so the whole document is validated before either starts.
 """
 
@@ -24,8 +24,8 @@ import msgspec
 from controller.config_schema import ConfigError, Section, convert_section, rng
 from controller.configs import CONFIG_DIR
 from controller.core.cycle_data import EmcyAction, Reaction
+from controller.sim_config.sections import SimSection, check_sim_section
 from controller.text_files import one_line, read_text_file
-from sim_backend.sim_config import SimSection, check_sim_section
 
 DEFAULT_CONFIG = CONFIG_DIR / "cheope.toml"
 
@@ -163,7 +163,7 @@ class LoopSection(Section, frozen=True):
     )
     spin_us: Annotated[float, rng(0.0, 5000.0)] = 300.0
     gil_switch_interval_us: Annotated[float, rng(1.0, 100000.0)] = 200.0
-    freeze_gc: bool = True  # gc.freeze() the start-up heap before the loop (controller/shell/realtime.py)
+    freeze_gc: bool = True  # gc.freeze() the start-up heap before the loop (controller/realtime.py)
     max_missing_cycles: Annotated[int, rng(1, 1000)] = 40
     heartbeat_period_s: Annotated[float, rng(0.01, 10.0)] = 0.1
     heartbeat_consumer_s: Annotated[float, rng(0.02, 60.0)] = 0.5

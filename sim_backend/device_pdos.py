@@ -17,6 +17,7 @@ from canopen import SdoAbortedError
 
 from controller.config import Config
 from controller.errors import CheopeError
+from controller.sim_config.quirk_specs import Quirk
 from drivers.node_setup import DRIVE_EDS, SENSOR_EDS, device_description_path, naming_the_file
 from drivers.pdo_codec import CONTROLWORD, RATED_TORQUE, TARGET_POSITION, DriveCodec, saturating_i16
 from drivers.pdo_mapping import (
@@ -30,7 +31,7 @@ from drivers.pdo_mapping import (
 from sim_backend.drive import SimulatedDrive
 from sim_backend.force_sensor import SimulatedForceSensor
 from sim_backend.pdo_parameters import DevicePdo, DevicePdos, value_packer
-from sim_backend.quirks import Quirk, quirks_of
+from sim_backend.quirks import quirks_of
 
 
 @dataclass

@@ -24,10 +24,11 @@ import numpy as np
 
 from controller.assembly import position_plausibility, safety_config
 from controller.config import Config
+from controller.configured_robot import actuator_units
 from controller.core.cia402 import MODE_CYCLIC_SYNC_POSITION
 from controller.core.cycle_data import BusFeedback, CycleOutputs
 from controller.node_plan import homing_plans, node_options
-from controller.robots.registry import actuator_units
+from controller.sim_config.quirk_specs import Quirk
 from drivers import cob_ids
 from drivers.cyclic_exchange import CyclicExchange, ExchangeCounters
 from drivers.fault_reset import reset_fault
@@ -62,7 +63,7 @@ from sim_backend.fault_injection import (
 )
 from sim_backend.pdo_parameters import ABORT_VALUE_RANGE
 from sim_backend.plant import RobotPlant
-from sim_backend.quirks import BusOffSchedule, Quirk, bus_has
+from sim_backend.quirks import BusOffSchedule, bus_has
 
 NMT_OPERATIONAL, NMT_STOPPED, NMT_PRE_OPERATIONAL, NMT_BOOT_UP = 5, 4, 127, 0
 

@@ -55,10 +55,12 @@ from typing import cast
 import numpy as np
 
 from controller.config import Config
+from controller.configured_robot import actuator_units, robot_from_config
 from controller.core.linalg3 import Matrix3, as_rows, inverse3, matvec, transpose3
 from controller.core.ports import ActuatorUnit, CompliantStructure, missing_capability
 from controller.errors import NoSolutionError
-from controller.robots.registry import actuator_units, check_axes, robot_from_config
+from controller.robots.registry import check_axes
+from controller.sim_config.sections import SimWorkpieceSection
 from controller.tasks.registry import task_entry
 from sim_backend.contact_disk import DiskEnvironment, DiskParams
 from sim_backend.drive import DriveParams, DriveQuirks, SimulatedDrive
@@ -68,7 +70,6 @@ from sim_backend.mechanics import NO_ACCELERATION, ComplianceParams, CompliantTo
 from sim_backend.plant_kinematics import plant_kinematics
 from sim_backend.pose_tracker import SimulatedPoseTracker, TrackerParams
 from sim_backend.quirks import QuirkValues, drive_quirks, quirks_of
-from sim_backend.sim_config import SimWorkpieceSection
 from sim_backend.workpiece import (
     BUMP_RAMP_M,
     NOTCH_WALL_SLOPE,

@@ -7,7 +7,7 @@ import threading
 from collections.abc import Callable
 
 from controller.config import Config
-from controller.shell.realtime import (
+from controller.realtime import (
     RealtimeOptions,
     apply_realtime,
     freeze_garbage_collector,

@@ -34,7 +34,8 @@ import canopen
 import numpy as np
 
 from controller.config import Config
-from controller.shell.realtime import reset_scheduler
+from controller.realtime import reset_scheduler
+from controller.sim_config.quirk_specs import Quirk
 from drivers import cob_ids
 from drivers.node_setup import ABORT_TRANSFER
 from drivers.node_setup import DRIVE_EDS as SHIPPED_DRIVE_EDS
@@ -61,7 +62,7 @@ from sim_backend.fault_injection import (
 from sim_backend.lss_slave import LSS_REQUEST, LSS_RESPONSE, LssSlave
 from sim_backend.pdo_parameters import ABORT_DEVICE_STATE, ABORT_VALUE_RANGE, DevicePdos
 from sim_backend.plant import RobotPlant, environment_named
-from sim_backend.quirks import BusOffSchedule, Quirk, bus_has, quirks_of
+from sim_backend.quirks import BusOffSchedule, bus_has, quirks_of
 from sim_backend.true_force_tap import TrueForceTap
 
 log = logging.getLogger(__name__)

@@ -38,15 +38,23 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import IntEnum
 
 from controller.core.cycle_data import CycleInputs, SensorFeedback
 from controller.core.linalg3 import Vector3, norm3, sub3
-from controller.core.ports import ContactExpectation
 from controller.core.records import record, replace
 
 ZERO3: Vector3 = (0.0, 0.0, 0.0)
 PROTECTIVE_STOP = "protective stop"  # how the fault reason of a back-off begins
 WITNESS_MEDIAN_CYCLES = 19  # the witness is the median of this many cycles' (_median_of)
+
+
+class ContactExpectation(IntEnum):
+    """What a task's reference says about contact; the law's contact guard judges forces by it."""
+
+    NONE = 0  # free space: a force above safety.contact.free_space_force_n is a collision
+    GUARDED = 1  # a guarded move seeking contact at a bounded speed (approach, re-approach)
+    PRESSING = 2  # in contact by design, up to safety.max_contact_force_n
 
 
 @dataclass(frozen=True)

@@ -19,9 +19,12 @@ a robot or a task of your own depends on the core and the core on neither.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import IntEnum, StrEnum
+from enum import StrEnum
 from typing import TYPE_CHECKING, Protocol, TypeVar, runtime_checkable
 
+from controller.core.contact_guard import (
+    ContactExpectation as ContactExpectation,  # re-exported: a task's word
+)
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
 from controller.core.records import record
 from controller.core.setpoint_smoothing import Setpoint
@@ -156,14 +159,6 @@ def missing_capability(robot: object, capability: type) -> str:
 
 
 # -- tasks ------------------------------------------------------------------------------------
-
-
-class ContactExpectation(IntEnum):
-    """What a task's reference says about contact; the law's contact guard judges forces by it."""
-
-    NONE = 0  # free space: a force above safety.contact.free_space_force_n is a collision
-    GUARDED = 1  # a guarded move seeking contact at a bounded speed (approach, re-approach)
-    PRESSING = 2  # in contact by design, up to safety.max_contact_force_n
 
 
 S = TypeVar("S")  # a task's state

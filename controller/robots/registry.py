@@ -21,7 +21,6 @@ from controller.core.ports import ActuatorUnit
 from controller.plugins import ROBOTS_GROUP, Registry
 
 if TYPE_CHECKING:
-    from controller.config import Config
     from controller.core.ports import Robot
 
 
@@ -61,21 +60,6 @@ def robot_entry(kind: str) -> RobotEntry:
     return ROBOTS.entry(kind)
 
 
-def robot_from_config(cfg: Config) -> Robot:
-    """The model of ``robot.kind``; ValueError (from the model) when the geometry is inconsistent,
-    ConfigError when a per-actuator list has not one value per actuator."""
-    robot = robot_entry(cfg.robot.kind).build(cfg.robot.model())
-    check_axes(
-        cfg.robot.kind,
-        robot.n_actuators,
-        {
-            "actuators.node_ids": cfg.actuators.node_ids,
-            "actuators.home_offsets_m": cfg.actuators.home_offsets_m,
-        },
-    )
-    return robot
-
-
 def check_axes(kind: str, n: int, lists: dict[str, tuple[Any, ...]]) -> None:
     """Every per-actuator list of the configuration holds one value per actuator of the robot: a
     robot of 4 or 6 axes is configured with lists of 4 or 6 (any length is a valid list)."""
@@ -99,23 +83,3 @@ class ActuatorUnits:
     max_jerk: float  # [unit/s^3]
     stroke_min: float  # [unit]
     stroke_max: float
-
-
-def actuator_units(cfg: Config) -> ActuatorUnits:
-    """Units and limits of the configured robot's actuators: the ``_rad`` keys for rotary ones."""
-    entry = robot_entry(cfg.robot.kind)
-    a = cfg.actuators
-    lo, hi = entry.stroke(cfg.robot.model())
-    if entry.unit == ActuatorUnit.RADIAN:
-        return ActuatorUnits(
-            entry.unit,
-            a.counts_per_rad,
-            a.max_velocity_rad_s,
-            a.max_acceleration_rad_s2,
-            a.max_jerk_rad_s3,
-            lo,
-            hi,
-        )
-    return ActuatorUnits(
-        entry.unit, a.counts_per_m, a.max_velocity_m_s, a.max_acceleration_m_s2, a.max_jerk_m_s3, lo, hi
-    )

@@ -31,8 +31,8 @@ or det A between samples (``uru.check_path``); its error names the locus.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Protocol, TypedDict
+from dataclasses import dataclass
+from typing import TypedDict
 
 import numpy as np
 
@@ -320,58 +320,3 @@ def _measures(geom: uru.UruGeometry, p: Vector3) -> _Measures:
         "det_s": det_s,
         "motor_rad": tuple(motor),
     }
-
-
-# ---------------------------------------------------------------------------------------------
-# A circle in any plane, with CirclePath's timing
-
-
-class PlanarPath(Protocol):
-    """A path in a plane parallel to XY around ``center_m`` (``CirclePath``)."""
-
-    @property
-    def center_m(self) -> tuple[float, float, float]: ...
-
-    @property
-    def duration_s(self) -> float: ...
-
-    def sample(self, tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
-
-
-@dataclass(frozen=True)
-class TiltedCirclePath:
-    """``CirclePath`` (a circle parallel to XY) rotated into the plane normal to ``normal``.
-
-    The in-plane axes are those of ``uru.default_path``: e_a = (n x z) / |n x z| (for
-    n = (1, 1, 1)/sqrt(3): e_a = (1, -1, 0)/sqrt(2)), e_b = n x e_a, so with
-    ``start_angle_rad = 0`` the samples coincide with ``uru.default_path``.
-    """
-
-    base: PlanarPath  # controller.tasks.circle_path.CirclePath
-    normal: tuple[float, float, float]
-    _rot: np.ndarray = field(init=False, repr=False, compare=False)  # in-plane axes and normal, columns
-
-    def __post_init__(self) -> None:
-        n = np.asarray(self.normal, float)
-        n = n / np.linalg.norm(n)
-        e_a = np.cross(n, [0.0, 0.0, 1.0])
-        if np.linalg.norm(e_a) < 1e-9:  # normal along z: the base circle itself
-            rot = np.eye(3)
-        else:
-            e_a = e_a / np.linalg.norm(e_a)  # (1, -1, 0)/sqrt(2) for n = (1, 1, 1)/sqrt(3)
-            rot = np.column_stack([e_a, np.cross(n, e_a), n])
-        rot.setflags(write=False)
-        object.__setattr__(self, "_rot", rot)
-
-    @property
-    def duration_s(self) -> float:
-        return self.base.duration_s
-
-    def sample(self, tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        pos, vel, acc = self.base.sample(tau)
-        c = np.asarray(self.base.center_m, float)
-        rot = self._rot
-        return c + rot @ (pos - c), rot @ vel, rot @ acc
-
-    def points(self, n: int) -> np.ndarray:
-        return np.array([self.sample(t)[0] for t in np.linspace(0.0, self.duration_s, n)])

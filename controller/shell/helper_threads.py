@@ -1,6 +1,6 @@
 """The loop's process's other threads, real-time below the loop, so that no normal task can hold it up.
 
-The loop thread runs at ``SCHED_FIFO`` (controller/shell/realtime.py), but it shares the process
+The loop thread runs at ``SCHED_FIFO`` (controller/realtime.py), but it shares the process
 with other threads: Zenoh's runtime (Rust: ``app``, ``net``, ``acc`` and what it starts later),
 the query servers (Python, controller/monitoring/query_server.py), and whatever a library starts.
 Each can hold something the loop needs in the middle of a cycle: the interpreter lock (every

@@ -28,11 +28,7 @@ from controller.monitoring.publisher import PublisherSettings, monitoring_contex
 from controller.monitoring.robot_identity import resolve_robot_id
 from controller.monitoring.zenoh_session import MonitorKeys, SessionSettings, split_endpoints
 from controller.node_plan import node_setup_plan
-from controller.robots.registry import ActuatorUnits
-from controller.shell.helper_threads import HelperThreadWatch
-from controller.shell.log_handoff import log_records_off_the_loop
-from controller.shell.loop import CycleLoop
-from controller.shell.realtime import (
+from controller.realtime import (
     RealtimeOptions,
     apply_realtime,
     check_realtime,
@@ -41,6 +37,10 @@ from controller.shell.realtime import (
     set_gil_switch_interval,
     unfreeze_garbage_collector,
 )
+from controller.robots.registry import ActuatorUnits
+from controller.shell.helper_threads import HelperThreadWatch
+from controller.shell.log_handoff import log_records_off_the_loop
+from controller.shell.loop import CycleLoop
 from controller.shell.run_summary import RunRecorder, summarize
 from controller.shell.systemd_notify import notify
 from controller.tasks.registry import RunReport
@@ -144,7 +144,7 @@ def run_controller(
     Every stop goes through STOPPING (brake, disable the drives, DONE): ``stop_event`` (signals,
     ``cheope stop``), the end of ``max_duration_s`` (None: no limit), and a lost recording under
     ``recording.on_failure = "stop"``. ``quick_stop_event`` quick-stops the drives instead.
-    ``realtime`` (controller/shell/realtime.py) is checked before anything opens, and applied to
+    ``realtime`` (controller/realtime.py) is checked before anything opens, and applied to
     this thread just before the loop starts, so helper threads started earlier keep SCHED_OTHER.
     """
     prepared = prepare(cfg, spec)  # before anything opens

@@ -62,7 +62,7 @@ def build_path_task(p: PathSection, robot: Robot, shared: TaskSettings) -> Built
         raise ConfigError(f"[task.path]: {err}") from err
     trajectory: CartesianTrajectory = path
     if tuple(p.normal[:2]) != (0.0, 0.0):  # a circle in a tilted plane
-        from controller.robots.uru_robot import TiltedCirclePath
+        from controller.tasks.circle_path import TiltedCirclePath
 
         trajectory = TiltedCirclePath(path, p.normal)
     robot.check_path(trajectory.points(p.check_samples))  # WorkspaceError names the sample

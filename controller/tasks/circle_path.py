@@ -9,8 +9,9 @@ same way. Each ramp covers V T / 2 of arc.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Protocol
 
 import numpy as np
 
@@ -73,4 +74,58 @@ class CirclePath:
 
     def points(self, n: int) -> np.ndarray:
         """``n`` positions evenly spread in time, for checks before the start."""
+        return np.array([self.sample(t)[0] for t in np.linspace(0.0, self.duration_s, n)])
+
+
+# -- a circle in any plane, with CirclePath's timing ----------------------------------------
+
+
+class PlanarPath(Protocol):
+    """A path in a plane parallel to XY around ``center_m`` (``CirclePath``)."""
+
+    @property
+    def center_m(self) -> tuple[float, float, float]: ...
+
+    @property
+    def duration_s(self) -> float: ...
+
+    def sample(self, tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+
+@dataclass(frozen=True)
+class TiltedCirclePath:
+    """``CirclePath`` (a circle parallel to XY) rotated into the plane normal to ``normal``.
+
+    The in-plane axes: e_a = (n x z) / |n x z| (for n = (1, 1, 1)/sqrt(3): e_a = (1, -1, 0)/sqrt(2)),
+    e_b = n x e_a; with ``start_angle_rad = 0`` the samples coincide with the 3-URU's
+    ``uru.default_path`` (seed 003), the first robot to run a tilted circle.
+    """
+
+    base: PlanarPath  # a CirclePath
+    normal: tuple[float, float, float]
+    _rot: np.ndarray = field(init=False, repr=False, compare=False)  # in-plane axes and normal, columns
+
+    def __post_init__(self) -> None:
+        n = np.asarray(self.normal, float)
+        n = n / np.linalg.norm(n)
+        e_a = np.cross(n, [0.0, 0.0, 1.0])
+        if np.linalg.norm(e_a) < 1e-9:  # normal along z: the base circle itself
+            rot = np.eye(3)
+        else:
+            e_a = e_a / np.linalg.norm(e_a)  # (1, -1, 0)/sqrt(2) for n = (1, 1, 1)/sqrt(3)
+            rot = np.column_stack([e_a, np.cross(n, e_a), n])
+        rot.setflags(write=False)
+        object.__setattr__(self, "_rot", rot)
+
+    @property
+    def duration_s(self) -> float:
+        return self.base.duration_s
+
+    def sample(self, tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        pos, vel, acc = self.base.sample(tau)
+        c = np.asarray(self.base.center_m, float)
+        rot = self._rot
+        return c + rot @ (pos - c), rot @ vel, rot @ acc
+
+    def points(self, n: int) -> np.ndarray:
         return np.array([self.sample(t)[0] for t in np.linspace(0.0, self.duration_s, n)])

@@ -25,9 +25,9 @@ from controller.assembly import build_robot
 from controller.config import Config
 from controller.core.ports import CycleObserver
 from controller.experiments import Experiment
+from controller.realtime import RealtimeOptions
 from controller.robots.builtin import cheope_mass_model
 from controller.robots.cheope import CheopeRobot
-from controller.shell.realtime import RealtimeOptions
 from controller.shell.service import run_controller
 from controller.tasks.builtin import PathSection
 from controller.tools.analysis.contour_report import ContourObserver, contour_summary, plot_contour

@@ -127,7 +127,7 @@ def scan_config(base: Config) -> Config:
 
 
 def _with(cfg: Config, sc: ContourScenario, directory: Path | None) -> Config:
-    from sim_backend.sim_config import SimFeatureSection
+    from controller.sim_config.sections import SimFeatureSection
 
     workpiece = msgspec.structs.replace(
         cfg.sim.workpiece, features=tuple(SimFeatureSection(**f) for f in sc.features)

@@ -24,7 +24,7 @@ from controller.config import Config
 from controller.core.ports import CycleObserver
 from controller.errors import DeviceError
 from controller.experiments import experiment_for
-from controller.shell.realtime import RealtimeOptions
+from controller.realtime import RealtimeOptions
 from controller.shell.service import prepare, run_controller
 from drivers.bus import BusSpec
 from sim_backend.process import CONTACT_FORCE_REPORT, READY_LINE, STOPPED_LINE

@@ -28,8 +28,8 @@ from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
 from controller.core.ports import CycleTiming
 from controller.errors import CheopeError
 from controller.monitoring.publisher import monitoring_publisher
+from controller.realtime import RealtimeOptions, apply_realtime, granted_realtime
 from controller.shell.loop import CycleLoop
-from controller.shell.realtime import RealtimeOptions, apply_realtime, granted_realtime
 from controller.shell.service import publisher_settings
 from drivers.pacing import DeadlineSleeper
 

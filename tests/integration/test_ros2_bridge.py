@@ -27,6 +27,7 @@ from busy_machine import TOLERANT
 from waiting import GENEROUS_S, ProcessLines, wait_for_exit
 
 from controller.config import load_config
+from controller.configured_robot import robot_from_config
 from controller.monitoring.commands import RobotSelector, query_status
 from controller.monitoring.monitor_view import MonitorClient, StateUpdate
 from controller.monitoring.zenoh_session import (
@@ -35,7 +36,6 @@ from controller.monitoring.zenoh_session import (
     free_loopback_port,
     monitor_settings,
 )
-from controller.robots.registry import robot_from_config
 from controller.ros2.bridge import CLOCK_TOPIC, GLOBAL_TOPICS, TOPICS, tf_message_class  # imports no ROS
 
 pytest.importorskip(

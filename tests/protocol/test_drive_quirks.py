@@ -18,6 +18,7 @@ from controller.core.cia402 import (
     SW_WARNING,
     PowerState,
 )
+from controller.sim_config.quirk_specs import SCOPE, Quirk
 from sim_backend.drive import (
     EMCY_DC_LINK_UNDERVOLTAGE,
     EMCY_NO_ERROR,
@@ -26,7 +27,7 @@ from sim_backend.drive import (
     error_register,
 )
 from sim_backend.plant import configured_drive_quirks, drive_params_from_config
-from sim_backend.quirks import BEHAVIOUR, SCOPE, TRACKERS, Quirk, quirks_of
+from sim_backend.quirks import BEHAVIOUR, TRACKERS, quirks_of
 
 PARAMS = drive_params_from_config(load_config())
 

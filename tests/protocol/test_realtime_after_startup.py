@@ -15,9 +15,10 @@ import time
 import can
 import pytest
 
+from controller import realtime
 from controller.config import load_config
-from controller.shell import realtime, service
-from controller.shell.realtime import RealtimeOptions
+from controller.realtime import RealtimeOptions
+from controller.shell import service
 from drivers.bus import parse_bus_spec
 from sim_backend import process
 from sim_backend.server import Simulator

@@ -13,9 +13,9 @@ import sys
 import numpy as np
 import pytest
 
-from controller.shell import realtime
+from controller import realtime
+from controller.realtime import RealtimeError, RealtimeOptions, parse_cpus
 from controller.shell.loop import period_error_us
-from controller.shell.realtime import RealtimeError, RealtimeOptions, parse_cpus
 from controller.tools.bench import (
     compare_pdo_paths,
     compare_sleepers,
@@ -270,7 +270,7 @@ def test_refused_default_realtime_warns_in_one_line_and_runs_on(monkeypatch, cap
     monkeypatch.setattr(realtime, "_libc", lambda: NoLock())
     monkeypatch.setattr(sys, "platform", "linux")
     before = os.sched_getaffinity(0)
-    with caplog.at_level("WARNING", logger="controller.shell.realtime"):
+    with caplog.at_level("WARNING", logger="controller.realtime"):
         restore = realtime.apply_realtime(RealtimeOptions(priority=80, lock_memory=True, required=False))
     restore()
     assert os.sched_getaffinity(0) == before
@@ -400,7 +400,7 @@ def _children_names() -> list[str]:
 def test_the_floor_is_measured_beside_the_run_not_after_it():
     """cyclictest runs while the block runs (the case's run), and its figures are there after it."""
 
-    from controller.shell.realtime import RealtimeOptions
+    from controller.realtime import RealtimeOptions
     from controller.tools.bench import machine_floor, machine_floor_beside
 
     with machine_floor_beside(400.0, 1.0, RealtimeOptions()) as floor:

@@ -14,10 +14,10 @@ import pytest
 
 from controller.assembly import build_robot, build_task
 from controller.config import load_config
+from controller.configured_robot import actuator_units
 from controller.core.cycle_data import CycleInputs, DriveFeedback, SensorFeedback
 from controller.core.ports import TaskContext
 from controller.core.setpoint_smoothing import Setpoint
-from controller.robots.registry import actuator_units
 from controller.tasks.contour_tracking import MOTION_GATE_DEG, ContourPhase, ContourState, track_normal
 from controller.tools.contour_scan import (
     ContourScenario,
@@ -365,8 +365,8 @@ def test_the_scans_verdict_counts_the_integrity_breaches_apart():
 def test_every_scan_injection_passes_the_configurations_check():
     """An injection shorter than a cycle is refused by the configuration (it may hold no SYNC): the
     scan's own must all pass, or their recordings lose the 3D scene."""
+    from controller.sim_config.fault_specs import check_fault
     from controller.tools.contour_scan import scenarios
-    from sim_backend.fault_injection import check_fault
 
     cfg = load_config(overrides={"task.kind": "contour"})
     places = [14.0 + 0.6125 * k for k in range(12)]  # the 12 places; the check is about durations

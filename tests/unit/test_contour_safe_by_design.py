@@ -144,7 +144,7 @@ def test_a_tool_standing_where_the_part_may_lie_may_leave_but_not_cross_it():
     inside that zone (a part expected larger than the home was chosen for: the shapes' ellipse) may
     move out to it; a way that comes nearer the centre than it starts is refused before moving."""
     from controller.assembly import build_robot, build_task
-    from controller.robots.registry import actuator_units
+    from controller.configured_robot import actuator_units
 
     cfg = load_config(overrides={"task.kind": "contour", "task.contour.expected_radius_m": 0.074})
     task = build_task(cfg, build_robot(cfg), actuator_units(cfg)).task

@@ -10,11 +10,11 @@ import pytest
 
 from controller.assembly import build_law, build_robot, build_task
 from controller.config import load_config
+from controller.configured_robot import actuator_units
 from controller.core.controller_state import Mode
 from controller.core.cycle_data import CycleInputs, DriveFeedback, SensorFeedback
 from controller.core.ports import TaskContext
 from controller.core.setpoint_smoothing import Setpoint
-from controller.robots.registry import actuator_units
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.tasks.contour_tracking import ContourPhase, ContourState, _wrap, track_normal
 from controller.tools.analysis.contour_report import ContourObserver, constant_speed_laps, contour_summary

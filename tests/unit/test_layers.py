@@ -138,3 +138,36 @@ def test_matplotlib_only_in_the_tools():
     for m in _modules():
         if "matplotlib" in {n.split(".")[0] for n in _imports(m, False)}:
             assert _in(m, "controller.tools"), f"{m} imports matplotlib"
+
+
+def _room(module: str) -> str:
+    """A module's room: its folder (controller/core, logs, ...), or the module itself when it stands at
+    the top of controller/ (config.py, errors.py, cli.py each a room of its own)."""
+    parts = module.split(".")
+    if (parts[0] == "controller" and len(parts) > 2) or (parts[0] != "controller" and len(parts) > 1):
+        return ".".join(parts[:2] if parts[0] == "controller" else parts[:1])
+    return module
+
+
+def test_no_loop_between_folders():
+    """Folders import each other one way: a loop (the shell reads the recorder, logs drew with the
+    simulator's plant, the simulator took the shell's scheduling) ties three folders into one."""
+    graph: dict[str, set[str]] = {}
+    for m in _modules():
+        graph.setdefault(_room(m), set()).update(
+            _room(n) for n in _ours(_imports(m, False)) if _room(n) != _room(m)
+        )
+    state: dict[str, int] = {}
+
+    def walk(room: str, path: list[str]) -> None:
+        state[room] = 1
+        for n in sorted(graph.get(room, ())):
+            if state.get(n) == 1:
+                raise AssertionError("folders in a loop: " + " -> ".join([*path[path.index(n) :], n]))
+            if n not in state:
+                walk(n, [*path, n])
+        state[room] = 2
+
+    for room in sorted(graph):
+        if room not in state:
+            walk(room, [room])

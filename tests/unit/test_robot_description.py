@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from controller.config import load_config
-from controller.robots.registry import robot_entry, robot_from_config
+from controller.configured_robot import robot_from_config
+from controller.robots.registry import robot_entry
 from controller.ros2.robot_description import RobotDescription, primitive_frame, rotate
 from logs.robot_drawing import MeasuredPose, drawing_for_config
 

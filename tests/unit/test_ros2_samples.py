@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from controller.config import load_config
+from controller.configured_robot import robot_from_config
 from controller.messages import cheope_pb2 as pb
-from controller.robots.registry import robot_from_config
 from controller.ros2.samples import (
     CycleSampler,
     EveryInterval,

@@ -12,10 +12,10 @@ from busy_machine import TOLERANT
 
 from controller.assembly import build_law
 from controller.config import CONFIG_DIR, ConfigError, load_config
+from controller.configured_robot import actuator_units
 from controller.core.controller_state import Mode
 from controller.robots import uru
 from controller.robots.builtin import build_uru
-from controller.robots.registry import actuator_units
 from controller.robots.uru_robot import UruWorkspaceError
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.shell.run_summary import RunRecorder

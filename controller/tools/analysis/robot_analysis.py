@@ -31,8 +31,7 @@ def analyze_uru(cfg: Config, out_dir: Path) -> dict[str, object]:
     robot = build_uru(cfg.robot.model("uru"))
     files = plot_workspace_and_singularities(robot.geometry, out_dir)
     p = cfg.task.model("path")
-    from controller.robots.uru_robot import TiltedCirclePath
-    from controller.tasks.circle_path import CirclePath
+    from controller.tasks.circle_path import CirclePath, TiltedCirclePath
 
     path = TiltedCirclePath(CirclePath(p.center_m, p.radius_m, p.speed_m_s, p.laps, p.ramp_s), p.normal)
     pts = path.points(p.check_samples)

@@ -10,8 +10,8 @@ from typing import TYPE_CHECKING, SupportsInt
 import numpy as np
 
 from controller.experiments import experiment_for
+from controller.realtime import RealtimeOptions
 from controller.shell.loop import period_error_us
-from controller.shell.realtime import RealtimeOptions
 from controller.tools.bench.probes import LoopProbe, cpu_use_percent
 from controller.tools.bench.statistics import Json, late_per_10k, percentiles_us
 from drivers import cob_ids

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 from controller.cli_output import strict_json
 from controller.errors import InputError
-from controller.shell.realtime import RealtimeOptions
+from controller.realtime import RealtimeOptions
 from controller.tools.bench.report import format_table
 from controller.tools.bench.runner import TOLERANT_SAFETY, run_bench
 
@@ -115,7 +115,7 @@ def checked_bench_arguments(
 
 
 def run_bench_command(args: argparse.Namespace, rt: RealtimeOptions) -> int:
-    from controller.shell.realtime import parse_cpus
+    from controller.realtime import parse_cpus
 
     if args.sim_rt_priority is None and not args.sim_cpu:
         sim_rt = rt.for_simulator()  # as the demo gives it: one step below the loop, on the other CPUs

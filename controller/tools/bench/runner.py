@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from controller.experiments import experiment_for
-from controller.shell.realtime import RealtimeOptions
+from controller.realtime import RealtimeOptions
 from controller.tools.bench.case import BenchCase, run_case
 from controller.tools.bench.pdo_paths import bus_frame_cost, compare_pdo_paths
 from controller.tools.bench.sleepers import compare_sleepers
@@ -52,7 +52,7 @@ def run_bench(
 ) -> dict[str, object]:
     from controller.assembly import planned_bus_load
     from controller.config import load_config, parse_override
-    from controller.shell.realtime import apply_realtime
+    from controller.realtime import apply_realtime
 
     out_dir.mkdir(parents=True, exist_ok=True)
     cfg = load_config(config_path, dict(parse_override(s) for s in overrides))

@@ -161,8 +161,8 @@ def check_sim_section(
             raise ConfigError(
                 f"sim.nspu.{key} = {list(vals)}: each must be within +-{limit} (a mismatch, not a new robot)"
             )
-    from sim_backend.fault_injection import FaultSpecError, check_fault  # pure parsing, no I/O
-    from sim_backend.quirks import QuirkSpecError, check_quirk
+    from controller.sim_config.fault_specs import FaultSpecError, check_fault
+    from controller.sim_config.quirk_specs import QuirkSpecError, check_quirk
 
     for i, text in enumerate(sim.faults):
         try:
