@@ -15,7 +15,7 @@ from controller.core.law_config import LawConfig, SafetyConfig
 from controller.core.ports import CAPABILITIES, ActuatorUnit, ForceWitnessModel, Robot, missing_capability
 from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother
 from controller.node_plan import emcy_reactions, fault_reset_config
-from controller.robots.registry import ActuatorUnits
+from controller.robot_registry import ActuatorUnits
 from controller.tasks.registry import BuiltTask, RunReport, TaskSettings, task_entry
 from drivers.bus_load import BusLoad, compute_bus_load, cyclic_frames
 from drivers.pdo_codec import TORQUE_ACTUAL

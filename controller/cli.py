@@ -23,7 +23,7 @@ from controller.errors import CheopeError, RefusedError
 from controller.monitoring.cli_commands import add_controller_options, monitoring_overrides
 from controller.monitoring.cli_commands import add_subcommands as add_monitoring_subcommands
 from controller.output_paths import check_output_dir
-from controller.robots.registry import robot_entry, robot_kinds
+from controller.robot_registry import robot_entry, robot_kinds
 from controller.shell.status_line import StatusDisplay, live_status, status_wanted
 from controller.tasks.registry import task_kinds
 from drivers.bus import BusSpec, parse_bus_spec

@@ -4,7 +4,7 @@ The entry point's name is the command's (``cheope NAME``); its object a ``Comman
 (controller/cli.py) adds one sub-command per entry point, with the configuration options every
 command has (``--config``, ``--set``, ``--robot``) when the command reads a configuration, and calls
 ``run`` with the parsed arguments and the loaded configuration. The 3-nSPU's planner commands are
-declared so (``cheope plan``, ``cheope plan-bench``: controller/tools/nspu_commands.py).
+declared so (``cheope plan``, ``cheope plan-bench``: controller/robots/nspu/commands.py).
 """
 
 from __future__ import annotations

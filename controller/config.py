@@ -6,7 +6,7 @@ reason (controller/config_schema.py). ``controller/configs/cheope.toml`` holds t
 documents every key.
 
 Whose sections are where: the controller's own below; each robot's ``[robot.<kind>]`` and
-each task's ``[task.<kind>]`` with its registry entry (controller/robots/builtin.py,
+each task's ``[task.<kind>]`` with its registry entry (controller/robots/<kind>/entry.py,
 controller/tasks/builtin.py); the simulator's ``[sim]`` in controller/sim_config/sections.py. One file
 configures both processes, so the whole document is validated before either starts.
 """
@@ -33,7 +33,7 @@ DEFAULT_CONFIG = CONFIG_DIR / "cheope.toml"
 def _registered_sections(group: str) -> dict[str, type | None]:
     """``kind -> section type`` of the registered robots or tasks (imported here: they import this module)."""
     if group == "robot":
-        from controller.robots.registry import robot_sections
+        from controller.robot_registry import robot_sections
 
         return dict(robot_sections())
     from controller.tasks.registry import task_sections
@@ -46,7 +46,7 @@ def _default_models(group: str) -> dict[str, Any]:
 
 
 class RobotSection(Section, frozen=True):
-    """``kind`` selects a registered robot (controller/robots/registry.py); ``[robot.<kind>]`` is its section.
+    """``kind`` selects a registered robot (controller/robot_registry.py); ``[robot.<kind>]`` is its section.
 
     Every registered robot's section is parsed and kept (``models``), so a recording's
     configuration names all of them, as the shipped files do; ``model()`` is the selected one's.
@@ -129,7 +129,7 @@ class SensorSection(Section, frozen=True):
 class TrackerSection(Section, frozen=True):
     """An optional pose tracker on the platform (drivers/pdo_codec.py: two TPDOs), read by the exchange.
 
-    The 3-nSPU's planned task corrects its execution from it (controller/tasks/planned_legs.py).
+    The 3-nSPU's planned task corrects its execution from it (controller/robots/nspu/planned_legs.py).
     """
 
     enabled: bool = False
@@ -527,7 +527,7 @@ def emcy_code_ranges(table: Mapping[str, EmcyAction]) -> tuple[tuple[int, int, E
 
 def _registered_cross_checks(cfg: Config) -> None:
     """Each registered robot's and task's own checks, and whether the robot can run the task."""
-    from controller.robots.registry import robot_entry
+    from controller.robot_registry import robot_entry
     from controller.tasks.registry import task_entry
 
     for kind, section in cfg.robot.models.items():
@@ -549,7 +549,7 @@ def _registered_cross_checks(cfg: Config) -> None:
 def runnable_tasks(robot_kind: str) -> tuple[str, ...]:
     """The tasks a robot runs: those its entry lists (the first is its demo's), then every task
     whose entry names the robot."""
-    from controller.robots.registry import robot_entry
+    from controller.robot_registry import robot_entry
     from controller.tasks.registry import task_entry, task_kinds
 
     own = robot_entry(robot_kind).tasks

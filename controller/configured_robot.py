@@ -1,6 +1,6 @@
 """The configured robot: its model and its actuators' units and limits, from a whole configuration.
 
-Beside the registry (controller/robots/registry.py), which knows the robots but not the
+Beside the registry (controller/robot_registry.py), which knows the robots but not the
 configuration that chooses one: the registry is what ``controller/config.py`` reads its sections
 from, and these read the configuration.
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from controller.core.ports import ActuatorUnit
-from controller.robots.registry import ActuatorUnits, check_axes, robot_entry
+from controller.robot_registry import ActuatorUnits, check_axes, robot_entry
 
 if TYPE_CHECKING:
     from controller.config import Config

@@ -14,7 +14,7 @@ from controller.config import Config, NodeSection, emcy_code_ranges
 from controller.configured_robot import actuator_units
 from controller.core.cia402 import FaultResetConfig
 from controller.core.law_config import EmcyReaction
-from controller.robots.registry import ActuatorUnits
+from controller.robot_registry import ActuatorUnits
 from controller.tasks.registry import task_entry
 from drivers.homing import HomingPlan
 from drivers.node_setup import DRIVE_EDS, SENSOR_EDS, NodeOptions, NodeSetupPlan, device_description_path

@@ -47,7 +47,7 @@ from controller.core.ports import (
 from controller.errors import NoSolutionError, WorkspaceError
 from controller.experiments import EXPERIMENTS, Experiment
 from controller.plugins import ANALYSES, SCENE_DRAWINGS, SIM_KINEMATICS, PluginError
-from controller.robots.registry import RobotEntry, register_robot, unregister_robot
+from controller.robot_registry import RobotEntry, register_robot, unregister_robot
 from controller.tasks.path_task import PathTask
 from controller.tasks.registry import BuiltTask, TaskEntry, TaskSettings, register_task, unregister_task
 from logs.robot_drawing import (

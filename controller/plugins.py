@@ -4,7 +4,7 @@ A distribution declares what it brings under an entry-point group of this projec
 
 ```toml
 [project.entry-points."cheope.robots"]
-gantry = "my_gantry:GANTRY"        # a controller.robots.registry.RobotEntry
+gantry = "my_gantry:GANTRY"        # a controller.robot_registry.RobotEntry
 [project.entry-points."cheope.tasks"]
 square = "my_tasks:SQUARE"         # a controller.tasks.registry.TaskEntry
 [project.entry-points."cheope.sim_kinematics"]

@@ -76,7 +76,7 @@ def encode_state(state: object) -> bytes:
 
 # Classes that moved since a recording may have named them: the old name reads as the new one.
 MOVED_CLASSES = {
-    "controller.tasks.planned_legs:StreamedPlan": "controller.tasks.streamed_plan:StreamedPlan",
+    "controller.robots.nspu.planned_legs:StreamedPlan": "controller.robots.nspu.streamed_plan:StreamedPlan",
     "drivers.cia402:PowerState": "controller.core.cia402:PowerState",
     "controller.core.control_law:ControllerState": "controller.core.controller_state:ControllerState",
     "controller.core.control_law:Mode": "controller.core.controller_state:Mode",

@@ -21,7 +21,6 @@ Units: metres, newtons; the force arrow is ``FORCE_ARROW_M_PER_N`` metres per ne
 
 from __future__ import annotations
 
-import contextlib
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -121,11 +120,11 @@ class JointedDrawing(RobotDrawing, Protocol):
     def actuated_joints(self) -> tuple[ActuatedJoint, ...]: ...
 
 
-def _v(a: Sequence[float] | np.ndarray) -> Vec3:
+def vec3(a: Sequence[float] | np.ndarray) -> Vec3:
     return (float(a[0]), float(a[1]), float(a[2]))
 
 
-def _margin_color(fraction_used: float) -> Rgba:
+def margin_color(fraction_used: float) -> Rgba:
     """Green at 0 (far from the limit), through yellow, red at 1 (at the limit) and beyond."""
     f = min(max(fraction_used, 0.0), 1.0)
     if f < 0.5:
@@ -133,7 +132,7 @@ def _margin_color(fraction_used: float) -> Rgba:
     return (1.0, 0.75 * (1.0 - f) * 2.0, 0.15, 1.0)
 
 
-def _force_arrow(pose: MeasuredPose) -> list[Primitive]:
+def force_arrow(pose: MeasuredPose) -> list[Primitive]:
     if pose.tcp_m is None or pose.force_n is None or not all(math.isfinite(x) for x in pose.force_n):
         return []
     f = np.asarray(pose.force_n)
@@ -144,7 +143,7 @@ def _force_arrow(pose: MeasuredPose) -> list[Primitive]:
             Shape.ARROW,
             RED,
             start=pose.tcp_m,
-            end=_v(tip),
+            end=vec3(tip),
             radius_m=0.002,
             label=f"{float(np.linalg.norm(f)):.1f} N",
         )
@@ -223,7 +222,7 @@ def _workpiece(cfg: Config) -> list[Primitive]:
     return out
 
 
-def _box_between(
+def box_between(
     entity: str,
     a: np.ndarray,
     axis: np.ndarray,
@@ -233,354 +232,24 @@ def _box_between(
     label: str = "",
 ) -> Primitive:
     return Primitive(
-        entity, Shape.BOX, color, start=_v(a), end=_v(axis), length_m=length_m, width_m=width_m, label=label
+        entity,
+        Shape.BOX,
+        color,
+        start=vec3(a),
+        end=vec3(axis),
+        length_m=length_m,
+        width_m=width_m,
+        label=label,
     )
 
 
 # -- Cheope (seed 001) ------------------------------------------------------------------------------
 
 
-@dataclass
-class CheopeDrawing:
-    """Three carriages on prismatic guides along the cone of axes n_j, rods to the platform joints."""
-
-    cfg: Config
-    robot_kind: str = "cheope"
-
-    def __post_init__(self) -> None:
-        from controller.robots.builtin import build_cheope
-
-        self.robot = build_cheope(self.cfg.robot.model("cheope"))
-        self.section = self.cfg.robot.model("cheope")
-        self.trail = ReferenceTrail()
-
-    def fixed(self) -> list[Primitive]:
-        g, c = self.robot.geometry, self.section
-        out = [
-            Primitive(
-                "base",
-                Shape.CYLINDER,
-                DARK,
-                start=(0.0, 0.0, -0.02),
-                end=(0.0, 0.0, 1.0),
-                radius_m=0.12,
-                length_m=0.04,
-                label="base {0}",
-            )
-        ]
-        for j, n in enumerate(g.axes):
-            out.append(
-                Primitive(
-                    "guides",
-                    Shape.CAPSULE,
-                    GREY,
-                    start=_v(c.stroke_min_m * n - 0.03 * n),
-                    end=_v(c.stroke_max_m * n + 0.03 * n),
-                    radius_m=0.012,
-                    label=f"guide {j + 1}",
-                )
-            )
-            out.append(
-                Primitive(
-                    "guides",
-                    Shape.CAPSULE,
-                    STEEL,
-                    start=_v(0.0 * n),
-                    end=_v(c.stroke_min_m * n),
-                    radius_m=0.008,
-                )
-            )
-        return out + _workpiece(self.cfg)
-
-    def actuated_joints(self) -> tuple[ActuatedJoint, ...]:
-        """The three linear motors: a carriage sliding along its prismatic axis n_j (seed 001 §3)."""
-        return tuple(
-            ActuatedJoint(
-                f"slider_{j + 1}",
-                "prismatic",
-                _v(n),
-                visuals=(_box_between("sliders", np.zeros(3), n, 0.06, 0.04, BLUE),),
-            )
-            for j, n in enumerate(self.robot.geometry.axes)
-        )
-
-    def moving(self, pose: MeasuredPose) -> list[Primitive]:
-        from controller.robots.cheope import joint_swing_rad
-
-        g = self.robot.geometry
-        self.trail.add(pose.reference_m)
-        out: list[Primitive] = []
-        q = np.asarray(pose.q, dtype=float)
-        if q.shape != (3,) or not np.isfinite(q).all():
-            return out + self.trail.primitive()
-        sliders = q[:, None] * g.axes
-        for j, s in enumerate(sliders):
-            out.append(_box_between("sliders", s, g.axes[j], 0.06, 0.04, BLUE, f"q{j + 1} = {q[j]:.4f} m"))
-        if pose.tcp_m is not None:
-            tcp = np.asarray(pose.tcp_m, dtype=float)
-            joints = tcp + g.platform_vectors
-            swing = joint_swing_rad(g, tcp, q)
-            limit = self.robot.limits.joint_swing_limit_rad
-            for j in range(3):
-                out.append(
-                    Primitive(
-                        "rods",
-                        Shape.CAPSULE,
-                        _margin_color(float(swing[j]) / limit),
-                        start=_v(sliders[j]),
-                        end=_v(joints[j]),
-                        radius_m=0.007,
-                        label=f"rod {j + 1}: joint swing {math.degrees(float(swing[j])):.1f} of "
-                        f"{math.degrees(limit):.0f} deg",
-                    )
-                )
-                out.append(Primitive("platform", Shape.SPHERE, STEEL, start=_v(joints[j]), radius_m=0.011))
-            out.append(
-                Primitive(
-                    "platform",
-                    Shape.CYLINDER,
-                    STEEL,
-                    start=_v((*tcp, 0.0, 0.0, 0.03)),
-                    end=(0.0, 0.0, 1.0),
-                    radius_m=g.platform_radius_m * 1.15,
-                    length_m=0.012,
-                )
-            )
-            out.append(
-                Primitive(
-                    "tool",
-                    Shape.CYLINDER,
-                    ORANGE,
-                    start=_v((*tcp, 0.0, 0.0, 0.012)),
-                    end=(0.0, 0.0, 1.0),
-                    radius_m=0.004,
-                    length_m=0.024,
-                    label="tool",
-                )
-            )
-            out.append(Primitive("tool", Shape.SPHERE, ORANGE, start=_v(tcp), radius_m=0.005))
-        return out + _force_arrow(pose) + self.trail.primitive()
-
-
 # -- 3-URU (seed 003) -------------------------------------------------------------------------------
 
 
-@dataclass
-class UruDrawing:
-    """Three motors at A_i = d_b e_i, proximal links A_i C_i, distal links C_i B_i, platform at P."""
-
-    cfg: Config
-    robot_kind: str = "uru"
-
-    def __post_init__(self) -> None:
-        from controller.robots.builtin import build_uru
-
-        self.robot = build_uru(self.cfg.robot.model("uru"))
-        self.min_sin_th3 = self.cfg.robot.model("uru").min_sin_th3
-        self.trail = ReferenceTrail()
-
-    def fixed(self) -> list[Primitive]:
-        g = self.robot.geometry
-        e = np.eye(3)
-        out = [Primitive("base", Shape.SPHERE, DARK, start=(0.0, 0.0, 0.0), radius_m=0.015, label="O")]
-        for i in range(3):
-            a = g.base_offset_m * e[i]
-            out.append(
-                Primitive("base", Shape.CAPSULE, GREY, start=(0.0, 0.0, 0.0), end=_v(a), radius_m=0.008)
-            )
-            out.append(
-                Primitive(
-                    "motors",
-                    Shape.CYLINDER,
-                    DARK,
-                    start=_v(a - 0.03 * e[i]),
-                    end=_v(e[i]),
-                    radius_m=0.025,
-                    length_m=0.05,
-                    label=f"motor {i + 1}",
-                )
-            )
-        return out + _workpiece(self.cfg)
-
-    def actuated_joints(self) -> tuple[ActuatedJoint, ...]:
-        """The three motors on the base: a shaft turning about e_i at A_i with a crank mark; the links
-        it drives through the bevel gears (seed 003 eq. (7)-(13)) are passive, computed from the pose."""
-        g = self.robot.geometry
-        e = np.eye(3)
-        out = []
-        for i in range(3):
-            across = e[(i + 1) % 3]
-            out.append(
-                ActuatedJoint(
-                    f"motor_{i + 1}",
-                    "revolute",
-                    _v(e[i]),
-                    origin=_v(g.base_offset_m * e[i]),
-                    visuals=(
-                        Primitive(
-                            "motors", Shape.CYLINDER, STEEL, end=_v(e[i]), radius_m=0.012, length_m=0.02
-                        ),
-                        _box_between("motors", 0.02 * across, across, 0.03, 0.008, ORANGE),
-                    ),
-                )
-            )
-        return tuple(out)
-
-    def moving(self, pose: MeasuredPose) -> list[Primitive]:
-        from controller.errors import NoSolutionError
-        from controller.robots import uru
-
-        self.trail.add(pose.reference_m)
-        out: list[Primitive] = []
-        if pose.tcp_m is None:
-            return out + self.trail.primitive()
-        g = self.robot.geometry
-        p = np.asarray(pose.tcp_m, dtype=float)
-        try:
-            conf = uru.configuration(g, p)
-        except (NoSolutionError, ValueError):
-            return out + self.trail.primitive()
-        e = np.eye(3)
-        for i in range(3):
-            a = g.base_offset_m * e[i]
-            c = a + g.f[i] * conf.u[i]  # seed 003 §2: c_i = a_i + f_i u_i
-            b = p + g.platform_offset_m * e[i]  # b_i = p + d_p e_i
-            serial = abs(math.sin(float(conf.th3_rad[i])))
-            used = (1.0 - serial) / max(1.0 - self.min_sin_th3, 1e-9)
-            out.append(
-                Primitive(
-                    "proximal_links",
-                    Shape.CAPSULE,
-                    BLUE,
-                    start=_v(a),
-                    end=_v(c),
-                    radius_m=0.008,
-                    label=f"link {i + 1}",
-                )
-            )
-            out.append(
-                Primitive(
-                    "distal_links",
-                    Shape.CAPSULE,
-                    _margin_color(used),
-                    start=_v(c),
-                    end=_v(b),
-                    radius_m=0.007,
-                    label=f"limb {i + 1}: sin th3 = {serial:.2f}",
-                )
-            )
-            out.append(Primitive("joints", Shape.SPHERE, STEEL, start=_v(c), radius_m=0.011))
-            out.append(Primitive("platform", Shape.CAPSULE, STEEL, start=_v(p), end=_v(b), radius_m=0.009))
-        out.append(Primitive("tool", Shape.SPHERE, ORANGE, start=_v(p), radius_m=0.014, label="P"))
-        return out + _force_arrow(pose) + self.trail.primitive()
-
-
 # -- 3-nSPU (seeds 000, 004) ------------------------------------------------------------------------
-
-
-@dataclass
-class NspuDrawing:
-    """Spheres at A_i with their nS planes, prismatic legs A_i B_i, the platform triangle B_1 B_2 B_3.
-
-    The pose is not a function of the leg lengths (non-holonomic joints): the drawing integrates
-    it from the configured start pose through the leg lengths it is given, one RKMK4 step per
-    call (``advance_pose_to_leg_lengths``, seed 000), as the controller's odometry does with
-    smaller steps; at ``DEFAULT_SCENE_RATE_HZ`` that is one 1.7 ms step per 50 ms.
-    """
-
-    cfg: Config
-    robot_kind: str = "nspu"
-
-    def __post_init__(self) -> None:
-        from controller.robots.builtin import build_nspu
-
-        self.robot = build_nspu(self.cfg.robot.model("nspu"))
-        self.pose = self.robot.start
-        self.last: tuple[float, np.ndarray] | None = None
-
-    def fixed(self) -> list[Primitive]:
-        g = self.robot.geometry
-        out: list[Primitive] = []
-        for i in range(3):
-            out.append(
-                Primitive("base", Shape.SPHERE, DARK, start=_v(g.a_m[i]), radius_m=0.012, label=f"A{i + 1}")
-            )
-            out.append(
-                Primitive(
-                    "base",
-                    Shape.CYLINDER,
-                    (0.5, 0.5, 0.55, 0.35),
-                    start=_v(g.a_m[i]),
-                    end=_v(g.r[i]),
-                    radius_m=0.05,
-                    length_m=0.002,
-                    label=f"nS plane {i + 1}",
-                )
-            )
-        return out
-
-    def actuated_joints(self) -> tuple[ActuatedJoint, ...]:
-        """The three legs: each a prismatic joint along the leg, from A_i (its direction set by the
-        passive nS joint, computed: the leg's drawn part ``legs_<i>``) to B_i, a rod of the shortest
-        leg length ending at B_i."""
-        rod_m = self.cfg.robot.model("nspu").leg_min_m
-        return tuple(
-            ActuatedJoint(
-                f"leg_{i + 1}",
-                "prismatic",
-                (0.0, 0.0, 1.0),
-                parent=f"legs_{i}",
-                visuals=(
-                    Primitive(
-                        "legs",
-                        Shape.CAPSULE,
-                        BLUE,
-                        start=(0.0, 0.0, -rod_m),
-                        end=(0.0, 0.0, 0.0),
-                        radius_m=0.006,
-                    ),
-                ),
-            )
-            for i in range(3)
-        )
-
-    def moving(self, pose: MeasuredPose) -> list[Primitive]:
-        from controller.errors import NoSolutionError
-        from controller.robots.nspu import NspuModelError, advance_pose_to_leg_lengths, limb_state
-
-        q = np.asarray(pose.q, dtype=float)
-        if q.shape != (3,) or not np.isfinite(q).all():
-            return []
-        if self.last is not None and pose.t_s > self.last[0]:
-            # keep the last pose when this one does not solve: a drawing never stops a recording
-            with contextlib.suppress(NspuModelError, NoSolutionError, ValueError):
-                self.pose = advance_pose_to_leg_lengths(
-                    self.robot.geometry, self.pose, q, pose.t_s - self.last[0]
-                )
-        self.last = (pose.t_s, q)
-        g = self.robot.geometry
-        limbs = limb_state(g, self.pose.p_m, self.pose.R)
-        out: list[Primitive] = []
-        for i in range(3):
-            b = limbs.b[i]
-            out.append(
-                Primitive(
-                    "legs",
-                    Shape.CAPSULE,
-                    BLUE,
-                    start=_v(g.a_m[i]),
-                    end=_v(b),
-                    radius_m=0.006,
-                    label=f"leg {i + 1}: {q[i]:.4f} m",
-                )
-            )
-            out.append(Primitive("platform", Shape.SPHERE, STEEL, start=_v(b), radius_m=0.008))
-        ring = (*(_v(limbs.b[i]) for i in range(3)), _v(limbs.b[0]))
-        out.append(Primitive("platform", Shape.LINE, STEEL, points=ring, radius_m=0.004))
-        out.append(
-            Primitive("tool", Shape.SPHERE, ORANGE, start=_v(self.pose.p_m), radius_m=0.006, label="P")
-        )
-        return out
 
 
 def drawing_for_config(cfg: Config) -> RobotDrawing | None:

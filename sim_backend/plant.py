@@ -59,7 +59,7 @@ from controller.configured_robot import actuator_units, robot_from_config
 from controller.core.linalg3 import Matrix3, as_rows, inverse3, matvec, transpose3
 from controller.core.ports import ActuatorUnit, CompliantStructure, missing_capability
 from controller.errors import NoSolutionError
-from controller.robots.registry import check_axes
+from controller.robot_registry import check_axes
 from controller.sim_config.sections import SimWorkpieceSection
 from controller.tasks.registry import task_entry
 from sim_backend.contact_disk import DiskEnvironment, DiskParams

@@ -9,7 +9,7 @@ its reference), with two witnesses:
   drives agree that nothing touches the tool);
 - the **effort witness**: the contact force the drives' efforts (CiA 402 0x6077) imply through
   the robot's model, ``F = M a - J^T tau`` (``ForceWitnessModel``; Cheope's in
-  controller/robots/cheope.py). It does not come from the sensor; its error is the model's
+  controller/robots/cheope/model.py). It does not come from the sensor; its error is the model's
   (a linear motor's cogging, 2 N a carriage in the simulator: up to about 5.5 N at the tool,
   measured in contact) plus the inertia term's while the robot accelerates.
 

@@ -6,7 +6,7 @@ protocols and frozen values, no behaviour. ``controller/core`` imports nothing a
 a robot or a task of your own depends on the core and the core on neither.
 
 - ``Robot`` (with ``PoseStatus``, ``POSE_OK`` and ``ActuatorUnit``): what a robot model is to the
-  law and the service. Registered with ``controller.robots.registry``.
+  law and the service. Registered with ``controller.robot_registry``.
 - ``Task`` (with ``TaskContext``, ``TaskStep``, ``JointReference``): what a task is to the law, a
   pure function from a context to a joint reference. Registered with ``controller.tasks.registry``.
   ``ForceSetpointTask``: a task whose force setpoint a remote ``set_force`` may change, and below what.
@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import TYPE_CHECKING, Protocol, TypeVar, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, Self, TypeVar, runtime_checkable
 
 from controller.core.contact_guard import (
     ContactExpectation as ContactExpectation,  # re-exported: a task's word
@@ -128,7 +128,7 @@ class ForceWitnessModel(Protocol):
     """A robot that tells the contact force from its drives' efforts: the force sensor's second witness.
 
     An optional capability (controller/core/contact_guard.py): the law cross-checks the sensor with
-    it every cycle and its limits act on the larger of the two. Cheope's (controller/robots/cheope.py)
+    it every cycle and its limits act on the larger of the two. Cheope's (controller/robots/cheope/model.py)
     maps the efforts through its Jacobian and adds back its own inertial load.
     """
 
@@ -247,6 +247,14 @@ class ForceSetpointTask(Protocol):
     def force_setpoint_limit(self) -> ForceSetpointLimit: ...
 
 
+@runtime_checkable
+class PlansOffLoop(Protocol):
+    """A task that hands work off the loop to a process of its own (the 3-nSPU's correcting plans):
+    the run starts its worker and passes the worker's progress to each step as ``CycleInputs.plans_ready``."""
+
+    def off_loop_worker(self) -> OffLoopWorker | None: ...
+
+
 # -- the loop's observers ---------------------------------------------------------------------
 
 
@@ -269,3 +277,15 @@ class CycleObserver(Protocol):
         events: tuple[Event, ...],
         timing: CycleTiming,
     ) -> None: ...
+
+
+class OffLoopWorker(CycleObserver, Protocol):
+    """A task's worker off the loop: watches each cycle's state for a request (an observer), runs it in
+    a process of its own; a context manager around the run; ``ready()`` is the number of the last
+    request done, a recorded input of the step (a replay computes the same in the step)."""
+
+    def __enter__(self) -> Self: ...
+
+    def __exit__(self, *exc: object) -> None: ...
+
+    def ready(self) -> int: ...

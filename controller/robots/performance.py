@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from controller.core.ports import LumpedMasses
+
 
 @dataclass(frozen=True)
 class Ellipsoid:
@@ -86,11 +88,11 @@ class MassModel:
         return self.slider_kg + self.rod_pair_kg / 2
 
 
-def cartesian_mass_matrix(jac: np.ndarray, masses: MassModel) -> np.ndarray:
+def cartesian_mass_matrix(jac: np.ndarray, masses: LumpedMasses) -> np.ndarray:
     return masses.translating_kg * np.eye(3) + masses.per_actuator_kg * (jac.T @ jac)
 
 
-def mass_ellipsoid(jac: np.ndarray, masses: MassModel) -> Ellipsoid:
+def mass_ellipsoid(jac: np.ndarray, masses: LumpedMasses) -> Ellipsoid:
     """Forces needed for a unit acceleration norm: shape M^2 (semi-axes = eigenvalues of M)."""
     m = cartesian_mass_matrix(jac, masses)
     return _ellipsoid_from_shape(m @ m)

@@ -125,7 +125,7 @@ def robot_view(cfg: Config | None) -> RobotView:
     if cfg is None:
         return RobotView(None, None)
     from controller.configured_robot import robot_from_config
-    from controller.robots.registry import robot_entry
+    from controller.robot_registry import robot_entry
     from logs.robot_drawing import drawing_for_config
 
     try:

@@ -23,7 +23,7 @@ import can
 from controller.assembly import assemble, planned_bus_load, position_plausibility
 from controller.config import Config, config_to_dict
 from controller.core.control_law import ControlLaw
-from controller.core.ports import CycleObserver
+from controller.core.ports import CycleObserver, OffLoopWorker, PlansOffLoop
 from controller.monitoring.publisher import PublisherSettings, monitoring_context
 from controller.monitoring.robot_identity import resolve_robot_id
 from controller.monitoring.zenoh_session import MonitorKeys, SessionSettings, split_endpoints
@@ -37,7 +37,7 @@ from controller.realtime import (
     set_gil_switch_interval,
     unfreeze_garbage_collector,
 )
-from controller.robots.registry import ActuatorUnits
+from controller.robot_registry import ActuatorUnits
 from controller.shell.helper_threads import HelperThreadWatch
 from controller.shell.log_handoff import log_records_off_the_loop
 from controller.shell.loop import CycleLoop
@@ -55,7 +55,6 @@ from drivers.pacing import DeadlineSleeper
 from drivers.pdo_codec import PositionScale
 
 if TYPE_CHECKING:
-    from controller.shell.plan_worker import PlanWorker
     from logs.recorder import SessionRecorder
 
 log = logging.getLogger(__name__)
@@ -158,7 +157,7 @@ def run_controller(
     if session is not None:
         observers = (*observers, session)
         frame_sink = session.on_frame if frame_sink is None else _both_sinks(frame_sink, session.on_frame)
-    worker = _plan_worker(prepared.law.task)  # the 3-nSPU's correcting plans, off the loop
+    worker = _off_loop_worker(prepared.law.task)  # a task's work off the loop (the 3-nSPU's plans)
     if worker is not None:
         observers = (*observers, worker)
     with (
@@ -270,15 +269,9 @@ def run_controller(
     )
 
 
-def _plan_worker(task: object) -> PlanWorker | None:
-    """A worker thread for a task that plans off the loop (the 3-nSPU's corrections, not in_step)."""
-    planner = getattr(task, "correction_planner", None)
-    correction = getattr(task, "correction", None)
-    if planner is None or correction is None or correction.in_step:
-        return None
-    from controller.shell.plan_worker import PlanWorker
-
-    return PlanWorker(planner)
+def _off_loop_worker(task: object) -> OffLoopWorker | None:
+    """The worker of a task that plans off the loop (``PlansOffLoop``: the 3-nSPU's corrections)."""
+    return task.off_loop_worker() if isinstance(task, PlansOffLoop) else None
 
 
 def _session_recorder(

@@ -207,19 +207,6 @@ def build_contour_task(c: ContourSection, robot: Robot, shared: TaskSettings) ->
 # -- the planned legs (seed 004): the 3-nSPU's settings are in [robot.nspu] ----------------------
 
 
-def build_planned_task(_: None, robot: Robot, shared: TaskSettings) -> BuiltTask:
-    from controller.tasks.planned_legs import build_planned_legs_task
-
-    task, report = build_planned_legs_task(
-        shared.robot_section,  # [robot.nspu]: the planner's settings are the robot's
-        shared.units,
-        shared.settle_tolerance_m,
-        robot,
-        tracker=shared.tracker_enabled,
-    )
-    return BuiltTask(task, (report,))
-
-
 # -- the entries --------------------------------------------------------------------------------
 
 PATH = TaskEntry(
@@ -237,4 +224,3 @@ CONTOUR = TaskEntry(
     laps=_contour_laps,
     expected_outline=_contour_expected_outline,
 )
-PLANNED = TaskEntry(kind="planned", section=None, build=build_planned_task)

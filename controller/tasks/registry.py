@@ -17,7 +17,7 @@ from controller.plugins import TASKS_GROUP, Registry
 
 if TYPE_CHECKING:
     from controller.core.ports import Robot, Task
-    from controller.robots.registry import ActuatorUnits
+    from controller.robot_registry import ActuatorUnits
 
 
 class RunReport(Protocol):

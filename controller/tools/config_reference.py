@@ -17,7 +17,7 @@ import msgspec
 import msgspec.inspect as mi
 
 from controller.config import Config, load_config
-from controller.robots.registry import robot_entry, robot_kinds
+from controller.robot_registry import robot_entry, robot_kinds
 
 HEADER = """# Configuration keys
 

@@ -18,28 +18,31 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import cast
 
 import msgspec
 
 from controller.assembly import build_robot
-from controller.config import Config
-from controller.core.ports import CycleObserver
+from controller.config import Config, ConfigError
+from controller.core.ports import CompliantStructure, CycleObserver, missing_capability
 from controller.experiments import Experiment
 from controller.realtime import RealtimeOptions
-from controller.robots.builtin import cheope_mass_model
-from controller.robots.cheope import CheopeRobot
 from controller.shell.service import run_controller
 from controller.tasks.builtin import PathSection
 from controller.tools.analysis.contour_report import ContourObserver, contour_summary, plot_contour
 from drivers.bus import BusSpec
 
 
-def cheope_robot(cfg: Config) -> CheopeRobot:
-    """The configured robot, which for the contour task is Cheope (its robot entry's tasks)."""
+def structure_robot(cfg: Config) -> CompliantStructure:
+    """The configured robot, whose structure (Jacobian, masses, stiffness) the experiment's report
+    reads: the stiffness along the contour's normal, the ellipsoids of its plots (Cheope's, seed 001)."""
     robot = build_robot(cfg)
-    if not isinstance(robot, CheopeRobot):
-        raise TypeError(f"the contour experiment needs the Cheope robot model, got {type(robot).__name__}")
-    return robot
+    lacks = missing_capability(robot, CompliantStructure)
+    if lacks:
+        raise ConfigError(
+            f"the contour experiment reads the robot's structure, and robot.kind = {cfg.robot.kind!r} lacks {lacks}"
+        )
+    return cast(CompliantStructure, robot)
 
 
 def comparison_config(cfg: Config) -> Config:
@@ -75,8 +78,8 @@ def run_contour_experiment(
     true_force: Callable[[], Sequence[float]] | None = None,
 ) -> dict[str, object]:
     c = cfg.task.model("contour")
-    robot = cheope_robot(cfg)
-    stiffness = cfg.robot.model("cheope").mass.actuator_stiffness_n_m
+    robot = structure_robot(cfg)
+    stiffness = robot.actuator_stiffness_n_m
 
     force_obs, laps = contour_lap_report(cfg, true_force)
     summary = run_controller(
@@ -118,8 +121,10 @@ def contour_lap_report(
     measured and, where ``true_force`` tells it (the simulator), true."""
     c = cfg.task.model("contour")
     obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s), true_force)
-    stiffness = cfg.robot.model("cheope").mass.actuator_stiffness_n_m
-    return obs, lambda: contour_summary(obs, cheope_robot(cfg), stiffness, c.height_m, c.lap_speeds_m_s)
+    robot = structure_robot(cfg)
+    return obs, lambda: contour_summary(
+        obs, robot, robot.actuator_stiffness_n_m, c.height_m, c.lap_speeds_m_s
+    )
 
 
 def _plot(
@@ -127,9 +132,9 @@ def _plot(
 ) -> list[str]:
     """Fig. 8-9 of the force-controlled run and, when there is one, of the comparison."""
     c = cfg.task.model("contour")
-    robot = cheope_robot(cfg)
-    stiffness = cfg.robot.model("cheope").mass.actuator_stiffness_n_m
-    masses = cheope_mass_model(cfg.robot.model("cheope").mass)
+    robot = structure_robot(cfg)
+    stiffness = robot.actuator_stiffness_n_m
+    masses = robot.masses
     plots = plot_contour(
         force_obs, robot, stiffness, masses, c.height_m, plot_dir, "force control", c.lap_speeds_m_s
     )
@@ -151,6 +156,7 @@ def run_simulated_time(
     from sim_backend.loopback import LoopbackExchange
 
     c = cfg.task.model("contour")
+    robot = structure_robot(cfg)  # refused at start, not after the run, when it lacks a structure
     clock = SimulatedTime()
     law = build_law(cfg)
     exchange = LoopbackExchange(cfg, clock.clock)
@@ -170,8 +176,8 @@ def run_simulated_time(
         "simulated_time": True,
         "contour": contour_summary(
             obs,
-            cheope_robot(cfg),
-            cfg.robot.model("cheope").mass.actuator_stiffness_n_m,
+            robot,
+            robot.actuator_stiffness_n_m,
             c.height_m,
             c.lap_speeds_m_s,
         ),

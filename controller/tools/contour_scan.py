@@ -447,18 +447,18 @@ def shape_config(base: Config, shape: str) -> Config:
 
 def run_shape(base: Config, shape: str, directory: Path | None = None) -> dict[str, object]:
     """One shape, 3 laps at 40 mm/s: the scan's row plus the force error overall and at corners."""
-    from controller.assembly import build_robot
     from controller.tools.analysis.contour_report import ContourObserver, contour_summary
+    from controller.tools.contour_experiment import structure_robot
 
     cfg = shape_config(base, shape)
     c = cfg.task.model("contour")
     obs = ContourObserver(c.force_setpoint_n, c.expected_centre_m, len(c.lap_speeds_m_s))
     row = run_contour_scenario(cfg, ContourScenario(shape), directory, observers=(obs,))
-    robot = build_robot(cfg)
+    robot = structure_robot(cfg)
     s = contour_summary(
         obs,
-        robot,  # type: ignore[arg-type]
-        cfg.robot.model("cheope").mass.actuator_stiffness_n_m,
+        robot,
+        robot.actuator_stiffness_n_m,
         c.height_m,
         c.lap_speeds_m_s,
     )

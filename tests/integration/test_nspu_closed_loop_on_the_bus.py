@@ -37,7 +37,7 @@ MISMATCH = [
 TOLERANCE_M, TOLERANCE_RAD = (
     2.0e-4,
     1.0e-3,
-)  # robot.nspu.correction_tolerance_* in controller/configs/nspu.toml
+)  # robot.nspu.correction_tolerance_* in controller/robots/nspu/nspu.toml
 
 
 def _demo(*args: str) -> dict[str, Any]:

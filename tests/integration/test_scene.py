@@ -17,7 +17,7 @@ from mcap.reader import make_reader
 
 from controller.assembly import build_law
 from controller.config import Config, load_config
-from controller.robots.registry import robot_entry
+from controller.robot_registry import robot_entry
 from controller.shell.loop import CycleLoop, SimulatedTime
 from logs import messages as m
 from logs.recorder import SessionRecorder, session_metadata

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controller.config import CONFIG_DIR, load_config
-from controller.robots.nspu import so3_log
+from controller.config import load_config
+from controller.core.rotations import so3_log
+from controller.robot_registry import robot_entry
 from controller.shell.loop import SimulatedTime
 from drivers.pdo_codec import (
     TRACKER_M_PER_COUNT,
@@ -18,7 +19,9 @@ from drivers.pdo_codec import (
 )
 from sim_backend.loopback import LoopbackExchange
 
-NSPU_TOML = CONFIG_DIR / "nspu.toml"
+ROBOT_FILES = {kind: robot_entry(kind).config_file for kind in ("uru", "nspu")}  # in each robot's home
+
+NSPU_TOML = ROBOT_FILES["nspu"]
 
 
 def test_tracker_frames_round_trip_to_a_count():

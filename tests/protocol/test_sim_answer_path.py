@@ -22,6 +22,7 @@ from controller.core.cia402 import (
     PowerState,
     decode_statusword,
 )
+from controller.robot_registry import robot_entry
 from drivers import cob_ids
 from drivers.pdo_codec import (
     FORCE_N_PER_COUNT,
@@ -31,6 +32,8 @@ from drivers.pdo_codec import (
     encode_drive_tpdo,
 )
 from sim_backend.server import Simulator, arrival_s
+
+ROBOT_FILES = {kind: robot_entry(kind).config_file for kind in ("uru", "nspu")}  # in each robot's home
 
 WAIT_S = 20.0  # generous: only a broken simulator takes this long
 COUNTS_PER_M = 1e7
@@ -255,12 +258,11 @@ def test_a_full_transmit_queue_leaves_the_sync_unanswered_in_the_simulator_proce
 
 
 def test_the_simulated_tracker_answers_a_sync_with_the_pose_in_two_frames():
-    from controller.config import CONFIG_DIR
-    from controller.robots.nspu import so3_log
+    from controller.core.rotations import so3_log
     from drivers.pdo_codec import TRACKER_M_PER_COUNT, TRACKER_RAD_PER_COUNT, decode_tracker_frame
 
     cfg = load_config(
-        CONFIG_DIR / "nspu.toml",
+        ROBOT_FILES["nspu"],
         {"tracker.enabled": True, "sim.tracker.position_noise_m": 0.0, "sim.tracker.angle_noise_rad": 0.0},
     )
     bus = ScriptedBus()

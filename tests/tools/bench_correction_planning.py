@@ -15,10 +15,13 @@ import statistics
 import time
 
 from controller.assembly import assemble
-from controller.config import CONFIG_DIR, load_config
+from controller.config import load_config
+from controller.robot_registry import robot_entry
+from controller.robots.nspu.plan_correction import correction_plan
 from controller.shell.loop import CycleLoop, SimulatedTime
-from controller.tasks.plan_correction import correction_plan
 from sim_backend.loopback import LoopbackExchange
+
+ROBOT_FILES = {kind: robot_entry(kind).config_file for kind in ("uru", "nspu")}  # in each robot's home
 
 SETTINGS = {
     "sim.nspu.leg_offset_m": [0.0005, -0.0005, 0.0005],
@@ -46,7 +49,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args()
-    cfg = load_config(CONFIG_DIR / "nspu.toml", SETTINGS)
+    cfg = load_config(ROBOT_FILES["nspu"], SETTINGS)
     clock = SimulatedTime()
     law = assemble(cfg).law
     seen = Requests()

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from controller.tools.analysis.cheope_plots import analyze_cheope
+from controller.robots.cheope.analysis import analyze_cheope
 
 
 def test_analyze_writes_the_plots_and_reports_the_indices(cfg, tmp_path):
@@ -20,8 +20,8 @@ def test_analyze_writes_the_plots_and_reports_the_indices(cfg, tmp_path):
 def test_analyze_reports_both_stiffness_ratios_and_says_which_is_which(cfg, tmp_path):
     import numpy as np
 
-    from controller.robots.builtin import build_cheope
-    from controller.robots.cheope import jacobian
+    from controller.robots.cheope.entry import build_cheope
+    from controller.robots.cheope.model import jacobian
 
     report = analyze_cheope(cfg, tmp_path)
     jac = jacobian(

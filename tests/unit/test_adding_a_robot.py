@@ -22,7 +22,7 @@ from controller.config import ConfigError, config_from_dict, config_to_dict, loa
 from controller.core.controller_state import Mode
 from controller.errors import WorkspaceError
 from controller.plugins import SIM_KINEMATICS
-from controller.robots.registry import register_robot, robot_entry, unregister_robot
+from controller.robot_registry import register_robot, robot_entry, unregister_robot
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.shell.run_summary import RunRecorder
 from sim_backend.loopback import LoopbackExchange

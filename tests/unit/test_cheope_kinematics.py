@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 
 from controller.config import load_config
 from controller.errors import NoSolutionError
-from controller.robots.builtin import build_cheope
-from controller.robots.cheope import (
+from controller.robots.cheope.entry import build_cheope
+from controller.robots.cheope.model import (
     CheopeGeometry,
     direct_kinematics,
     inverse_kinematics,

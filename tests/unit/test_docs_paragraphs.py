@@ -40,7 +40,7 @@ LONG: dict[str, dict[str, int]] = {
     "reference/cli.md": {"- `udp_multicast` (default): python-can's": 279},
     "concepts/robots.md": {
         "**Closed loop** (issue 20": 253,
-        "**The 3-nSPU planner** (`controller/planning/`,": 220,
+        "**The 3-nSPU planner** (`controller/robots/nspu/planning/`,": 220,
     },
     "tutorial/real-drive.md": {"1. **Bring the interface up**": 223},
     "measurements/speed.md": {"`cheope bench` runs the": 209},

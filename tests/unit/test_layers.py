@@ -7,7 +7,8 @@
 - the runtime never imports the tools (controller/tools: bench, experiments, plots), not even
   lazily; only the command line (controller/cli.py) reaches them;
 - logs/ does not import the loop shell or the command line; sim_backend/ not the loop or the service;
-- matplotlib only in the tools.
+- matplotlib only in the tools and the robots' analyses;
+- no loop between folders; nothing outside a robot's home (controller/robots/<kind>/) imports it.
 """
 
 from __future__ import annotations
@@ -134,10 +135,27 @@ def test_recordings_and_simulator_stay_off_the_loop_shell():
             assert not [n for n in names if _in(n, "controller.shell.loop", "controller.shell.service")], m
 
 
-def test_matplotlib_only_in_the_tools():
+def _robot_home(module: str) -> str | None:
+    """``controller.robots.<kind>`` for a module of a robot's home (controller/robots/<kind>/), else None."""
+    parts = module.split(".")
+    return ".".join(parts[:3]) if parts[:2] == ["controller", "robots"] and len(parts) > 3 else None
+
+
+def test_matplotlib_only_in_the_tools_and_the_robots_analyses():
+    """Plots are tools: the tools and each robot's analysis (``cheope analyze``, by entry point)."""
     for m in _modules():
         if "matplotlib" in {n.split(".")[0] for n in _imports(m, False)}:
-            assert _in(m, "controller.tools"), f"{m} imports matplotlib"
+            assert _in(m, "controller.tools") or (_robot_home(m) is not None and m.endswith(".analysis")), (
+                f"{m} imports matplotlib"
+            )
+
+
+def test_nothing_outside_a_robots_home_names_it():
+    """A robot lives in its home, controller/robots/<kind>/; the rest of the product reaches it through
+    the ports and the entry points (pyproject.toml), never by importing it."""
+    for m in _modules():
+        homes = {_robot_home(n) for n in _ours(_imports(m, False))} - {None, _robot_home(m)}
+        assert not homes, f"{m} imports the robot home(s) {sorted(h for h in homes if h)}"
 
 
 def _room(module: str) -> str:

@@ -11,19 +11,22 @@ import pytest
 from busy_machine import TOLERANT
 
 from controller.assembly import assemble, build_law
-from controller.config import CONFIG_DIR, load_config
+from controller.config import load_config
 from controller.core.controller_state import Mode
-from controller.planning.nonholonomic import PlanningError
-from controller.robots.nspu import leg_lengths_batch
-from controller.robots.nspu_robot import pose_errors
+from controller.robot_registry import robot_entry
+from controller.robots.nspu.kinematics import leg_lengths_batch
+from controller.robots.nspu.model import pose_errors
+from controller.robots.nspu.planning.nonholonomic import PlanningError
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.shell.run_summary import RunRecorder
 from sim_backend.loopback import LoopbackExchange
 
+ROBOT_FILES = {kind: robot_entry(kind).config_file for kind in ("uru", "nspu")}  # in each robot's home
+
 # a planned 2 s motion streamed in simulated time, and a demo over the bus: the slow tier (make test-all)
 pytestmark = pytest.mark.slow
 
-NSPU_TOML = CONFIG_DIR / "nspu.toml"
+NSPU_TOML = ROBOT_FILES["nspu"]
 
 
 @pytest.fixture(scope="module")
@@ -244,7 +247,7 @@ def test_plans_off_the_loop_enter_as_inputs_and_replay_bit_for_bit():
     """The shell's PlanWorker (a process) computes the correcting plans; the step waits for
     plans_ready. Replaying the recorded inputs through a fresh law (no worker: the step plans
     itself) gives the same outputs, bit for bit."""
-    from controller.shell.plan_worker import PlanWorker
+    from controller.robots.nspu.plan_worker import PlanWorker
 
     cfg = load_config(
         NSPU_TOML,

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controller.robots.nspu import (
+from controller.core.rotations import rpy, so3_exp, so3_log, vee
+from controller.robots.nspu.kinematics import (
     NspuGeometry,
     NspuModelError,
     Pose,
@@ -24,14 +25,10 @@ from controller.robots.nspu import (
     leg_rates_from_twist,
     limb_state,
     reduced_q_matrix,
-    rpy,
-    so3_exp,
-    so3_log,
     static_wrench,
     twist_from_leg_rates,
     vector_field_jacobians,
     vector_fields_xzx,
-    vee,
 )
 
 GEOM = NspuGeometry.paper_example()

@@ -7,7 +7,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controller.planning.nonholonomic import (
+from controller.core.rotations import so3_exp, so3_log
+from controller.robot_registry import robot_entry
+from controller.robots.nspu.kinematics import (
+    NspuGeometry,
+    Pose,
+    integrate_leg_trajectory,
+    io_blocks,
+    leg_lengths_batch,
+)
+from controller.robots.nspu.planning.nonholonomic import (
     PlannerConfig,
     PlanningError,
     PlanStatus,
@@ -23,15 +32,8 @@ from controller.planning.nonholonomic import (
     system7_field,
     type2_measure,
 )
-from controller.robots.nspu import (
-    NspuGeometry,
-    Pose,
-    integrate_leg_trajectory,
-    io_blocks,
-    leg_lengths_batch,
-    so3_exp,
-    so3_log,
-)
+
+ROBOT_FILES = {kind: robot_entry(kind).config_file for kind in ("uru", "nspu")}  # in each robot's home
 
 GEOM = NspuGeometry.paper_example()
 UNIT = GEOM.length_unit_m
@@ -100,7 +102,7 @@ def test_singularity_penalty_gradient_matches_finite_differences() -> None:
     """The penalty's gradient (measures' pose gradients by complex steps chained with the variational
     sensitivities) against central differences of the penalty; a wide margin makes it active along
     most of the motion."""
-    from controller.planning.nonholonomic import _evaluate, singularity_measures
+    from controller.robots.nspu.planning.nonholonomic import _evaluate, singularity_measures
 
     cfg = PlannerConfig(avoidance_margin=0.5)
     det_s0, tm0 = singularity_measures(GEOM, START.p_m, START.R)
@@ -196,13 +198,13 @@ def test_forward_simulation_of_planned_legs_reaches_goal(near_plans) -> None:
 
 
 def test_shipped_default_motion_converges_and_is_verified() -> None:
-    """The configured default motion (controller/configs/nspu.toml) plans in a few iterations; the
+    """The configured default motion (controller/robots/nspu/nspu.toml) plans in a few iterations; the
     end error is below the tolerance in the finer verification integration too."""
-    from controller.config import CONFIG_DIR, load_config
-    from controller.robots.builtin import nspu_geometry, nspu_poses
-    from controller.tasks.planned_legs import planner_config
+    from controller.config import load_config
+    from controller.robots.nspu.entry import nspu_geometry, nspu_poses
+    from controller.robots.nspu.planned_legs import planner_config
 
-    cfg = load_config(str(CONFIG_DIR / "nspu.toml"), {})
+    cfg = load_config(str(ROBOT_FILES["nspu"]), {})
     start, goal = nspu_poses(cfg.robot.model("nspu"))
     pcfg = planner_config(cfg.robot.model("nspu"))
     res = plan_motion(nspu_geometry(cfg.robot.model("nspu")), start, goal, pcfg)
@@ -292,7 +294,7 @@ def test_invalid_inputs_raise() -> None:
 
 
 def test_plots_written(tmp_path: Path, near_plans) -> None:
-    from controller.tools.analysis.nspu_plots import plot_plan, plot_singularity_loci
+    from controller.robots.nspu.analysis import plot_plan, plot_singularity_loci
 
     paths = plot_plan(near_plans["near_a"], tmp_path)
     paths += plot_singularity_loci(GEOM, tmp_path, n_xy=21, n_z=2)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controller.robots.cheope import CheopeGeometry, jacobian
+from controller.robots.cheope.model import CheopeGeometry, jacobian
 from controller.robots.performance import (
     MassModel,
     cartesian_mass_matrix,

@@ -19,7 +19,7 @@ from controller.assembly import build_law
 from controller.config import ConfigError, config_from_dict, load_config
 from controller.core.controller_state import Mode
 from controller.plugins import PluginError
-from controller.robots.registry import ROBOTS, register_robot, robot_kinds, unregister_robot
+from controller.robot_registry import ROBOTS, register_robot, robot_kinds, unregister_robot
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.tasks.registry import TASKS, task_kinds
 from sim_backend.loopback import LoopbackExchange

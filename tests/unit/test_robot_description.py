@@ -7,7 +7,7 @@ import pytest
 
 from controller.config import load_config
 from controller.configured_robot import robot_from_config
-from controller.robots.registry import robot_entry
+from controller.robot_registry import robot_entry
 from controller.ros2.robot_description import RobotDescription, primitive_frame, rotate
 from logs.robot_drawing import MeasuredPose, drawing_for_config
 

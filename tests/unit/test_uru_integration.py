@@ -11,17 +11,20 @@ import pytest
 from busy_machine import TOLERANT
 
 from controller.assembly import build_law
-from controller.config import CONFIG_DIR, ConfigError, load_config
+from controller.config import ConfigError, load_config
 from controller.configured_robot import actuator_units
 from controller.core.controller_state import Mode
-from controller.robots import uru
-from controller.robots.builtin import build_uru
-from controller.robots.uru_robot import UruWorkspaceError
+from controller.robot_registry import robot_entry
+from controller.robots.uru import kinematics as uru
+from controller.robots.uru.entry import build_uru
+from controller.robots.uru.model import UruWorkspaceError
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.shell.run_summary import RunRecorder
 from sim_backend.loopback import LoopbackExchange
 
-URU_TOML = CONFIG_DIR / "uru.toml"
+ROBOT_FILES = {kind: robot_entry(kind).config_file for kind in ("uru", "nspu")}  # in each robot's home
+
+URU_TOML = ROBOT_FILES["uru"]
 SHORT = {"task.path.laps": 0.25, "task.path.speed_m_s": 0.05, "task.path.ramp_s": 0.3}
 
 

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from controller.robots.uru import (
+from controller.robots.uru.kinematics import (
     UruGeometry,
     UruNoSolutionError,
     UruPathMargins,
@@ -445,7 +445,7 @@ def test_path_through_actuation_singularity_is_refused() -> None:
 
 @pytest.mark.slow
 def test_plots_are_written(tmp_path) -> None:
-    from controller.tools.analysis.uru_plots import plot_workspace_and_singularities
+    from controller.robots.uru.analysis import plot_workspace_and_singularities
 
     files = plot_workspace_and_singularities(GEOM, tmp_path / "png", grid_points=61)
     assert [f.name for f in files] == [

@@ -29,9 +29,8 @@ import numpy as np
 
 from controller.core.controller_state import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
-from controller.core.ports import CycleTiming
-from controller.robots.cheope import CheopeRobot
-from controller.robots.performance import MassModel, mass_ellipsoid, stiffness_ellipsoid
+from controller.core.ports import CompliantStructure, CycleTiming, LumpedMasses
+from controller.robots.performance import mass_ellipsoid, stiffness_ellipsoid
 from controller.tasks.contour_tracking import ContourPhase, ContourState
 
 CORNER_RADIUS_M = 0.02  # samples where the contour's measured radius of curvature is below this are "corners"
@@ -121,7 +120,7 @@ class ContourObserver:
 
 
 def _normal_stiffness(
-    robot: CheopeRobot, stiffness_n_m: float, xy: np.ndarray, height_m: float, normals: np.ndarray
+    robot: CompliantStructure, stiffness_n_m: float, xy: np.ndarray, height_m: float, normals: np.ndarray
 ) -> np.ndarray:
     out = np.empty(len(xy))
     for i, ((x, y), (nx, ny)) in enumerate(zip(xy, normals, strict=True)):
@@ -176,7 +175,7 @@ class DirectionStatistics:
 
 def direction_statistics(
     obs: ContourObserver,
-    robot: CheopeRobot,
+    robot: CompliantStructure,
     stiffness_n_m: float,
     height_m: float,
     lap_speeds_m_s: tuple[float, ...] | None,
@@ -201,7 +200,7 @@ def direction_statistics(
 
 def contour_summary(
     obs: ContourObserver,
-    robot: CheopeRobot,
+    robot: CompliantStructure,
     stiffness_n_m: float,
     height_m: float,
     lap_speeds_m_s: tuple[float, ...] | None,
@@ -279,9 +278,9 @@ def contour_summary(
 
 def plot_contour(
     obs: ContourObserver,
-    robot: CheopeRobot,
+    robot: CompliantStructure,
     stiffness_n_m: float,
-    masses: MassModel,
+    masses: LumpedMasses,
     height_m: float,
     out: Path,
     title: str = "force control",

@@ -4,14 +4,14 @@ The actuator positions are the three leg lengths [m]. The platform has six DOFs 
 actuators with non-holonomic spherical pairs: the pose is **not** a function of the leg
 lengths (it depends on how the legs moved), so ``direct_kinematics`` raises
 ``NoSolutionError`` and the control law reports no measured TCP. The pose is obtained by
-integrating the leg motion from a known start pose (``controller/robots/nspu.py``,
+integrating the leg motion from a known start pose (``controller/robots/nspu/kinematics.py``,
 ``advance_pose_to_leg_lengths``): the simulator does it from the drives' actual positions,
 and the controller does it from the encoder readings it receives (``pose_odometry``).
 
 ``check_actuators`` checks the leg stroke every cycle, ``check_pose`` only that the
 reference point is a finite position above the frame (the planned trajectory was checked
 against the type-II and det S singularities and the stroke when it was planned; see
-``controller/planning/nonholonomic.py``).
+``controller/robots/nspu/planning/nonholonomic.py``).
 """
 
 from __future__ import annotations
@@ -22,8 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.core.ports import POSE_OK, PoseStatus
+from controller.core.rotations import so3_log
 from controller.errors import NoSolutionError, WorkspaceError
-from controller.robots.nspu import NspuGeometry, Pose, advance_pose_to_leg_lengths, leg_lengths, so3_log
+from controller.robots.nspu.kinematics import NspuGeometry, Pose, advance_pose_to_leg_lengths, leg_lengths
 
 
 @dataclass(frozen=True, eq=False)
@@ -41,7 +42,7 @@ class NspuRobot:
     def inverse_kinematics(self, tcp_m: np.ndarray) -> np.ndarray:
         raise NoSolutionError(
             "the 3-nSPU has no inverse kinematics from a position alone: its pose has 6 DOFs "
-            "and 3 actuators; stream a planned motion (controller/tasks/planned_legs.py)"
+            "and 3 actuators; stream a planned motion (controller/robots/nspu/planned_legs.py)"
         )
 
     def direct_kinematics(self, q_m: np.ndarray) -> np.ndarray:

@@ -1,6 +1,6 @@
 """Plans computed off the loop: the 3-nSPU's correcting plans, in a worker process.
 
-The planned task (controller/tasks/planned_legs.py) asks for a plan by putting a request in its
+The planned task (controller/robots/nspu/planned_legs.py) asks for a plan by putting a request in its
 state (``request_id``, ``request``: the measured pose). This observer sees the state after each
 step and hands a new request to one worker process, which runs the same pure function the step
 would (``plan_correction.correction_plan``); the result goes into the task's memo, and
@@ -24,7 +24,12 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from functools import partial
 from typing import TYPE_CHECKING, Self
 
-from controller.tasks.plan_correction import CorrectionPlan, CorrectionPlanner, PoseRequest, correction_plan
+from controller.robots.nspu.plan_correction import (
+    CorrectionPlan,
+    CorrectionPlanner,
+    PoseRequest,
+    correction_plan,
+)
 
 if TYPE_CHECKING:
     from controller.core.controller_state import ControllerState

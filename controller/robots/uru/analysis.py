@@ -33,12 +33,18 @@ from matplotlib.collections import QuadMesh
 if TYPE_CHECKING:
     from matplotlib.lines import Line2D
 
-from controller.robots.uru import (
+from typing import TYPE_CHECKING
+
+from controller.config import Config
+from controller.robots.uru.kinematics import (
     UruGeometry,
     default_path,
     singularity_fields,
     workspace_margin_m,
 )
+
+if TYPE_CHECKING:
+    pass
 
 _DET_S_POLE_MASK = 20.0
 
@@ -259,3 +265,49 @@ def plot_workspace_and_singularities(
     _plot_z_sections(geometry, path, files[1], z_levels_m, grid_points)
     _plot_diagonal(geometry, path, files[2], grid_points)
     return files
+
+
+def analyze_uru(cfg: Config, out_dir: Path) -> dict[str, object]:
+    from controller.robots.uru import kinematics as uru
+    from controller.robots.uru.analysis import plot_workspace_and_singularities
+    from controller.robots.uru.entry import build_uru
+    from controller.robots.uru.model import UruWorkspaceError
+
+    robot = build_uru(cfg.robot.model("uru"))
+    files = plot_workspace_and_singularities(robot.geometry, out_dir)
+    p = cfg.task.model("path")
+    from controller.tasks.circle_path import CirclePath, TiltedCirclePath
+
+    path = TiltedCirclePath(CirclePath(p.center_m, p.radius_m, p.speed_m_s, p.laps, p.ramp_s), p.normal)
+    pts = path.points(p.check_samples)
+    try:
+        robot.check_path(pts)
+        verdict = "accepted"
+    except UruWorkspaceError as err:
+        verdict = f"refused: {err}"
+    fields = uru.singularity_fields(robot.geometry, pts)
+    motors = np.array([robot.inverse_kinematics(x) for x in pts]) if verdict == "accepted" else None
+    report: dict[str, object] = {
+        "robot": "uru",
+        "geometry": {
+            "f_m": robot.geometry.f.tolist(),
+            "r_m": robot.geometry.r.tolist(),
+            "k": robot.geometry.k.tolist(),
+            "d_b_m": robot.geometry.base_offset_m,
+            "d_p_m": robot.geometry.platform_offset_m,
+        },
+        "path_check": verdict,
+        "path_min_plane_distance_m": round(float(np.min(np.abs(pts))), 5),
+        "path_min_workspace_margin_m": round(float(np.nanmin(fields["workspace_margin_m"])), 5),
+        "path_min_abs_det_v": round(float(np.nanmin(np.abs(fields["translation_det_v"]))), 4),
+        "path_min_abs_det_s": round(float(np.nanmin(np.abs(fields["actuation_det_s"]))), 4),
+        "path_min_abs_det_a": round(float(np.nanmin(np.abs(fields["combined_det_a"]))), 4),
+        "path_min_sin_th3": round(float(np.nanmin(fields["serial_min_sin_th3"])), 4),
+        "plots": [str(f) for f in files],
+    }
+    if motors is not None:
+        report["path_motor_range_rad"] = [
+            [round(float(a), 4), round(float(b), 4)]
+            for a, b in zip(motors.min(axis=0), motors.max(axis=0), strict=True)
+        ]
+    return report

@@ -6,7 +6,7 @@ default task, its shipped configuration file, and, named by module path so that 
 does not import them, its simulator hook (``sim_backend``) and its analysis plots (tools).
 The registry finds its robots through the ``cheope.robots`` entry points (controller/plugins.py):
 the three robots of the papers are declared in this project's ``pyproject.toml`` (their entries
-in ``controller/robots/builtin.py``), a plug-in robot in its own distribution's; a robot of a
+in ``controller/robots/<kind>/entry.py``), a plug-in robot in its own distribution's; a robot of a
 test or a script can also be added with ``register_robot`` (docs/tutorial/own-robot.md).
 """
 

@@ -23,8 +23,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from controller.config import Config
-from controller.robots.builtin import build_cheope, cheope_mass_model
-from controller.robots.cheope import CheopeRobot, jacobian, joint_swing_rad, singularity_measures
+from controller.robots.cheope.entry import build_cheope, cheope_mass_model
+from controller.robots.cheope.model import CheopeRobot, jacobian, joint_swing_rad, singularity_measures
 from controller.robots.performance import (
     Ellipsoid,
     MassModel,

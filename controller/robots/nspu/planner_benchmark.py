@@ -41,10 +41,11 @@ def random_pairs(
     cfg: Config, count: int, seed: int, spread: PairSpread = PairSpread()
 ) -> list[tuple[object, object]]:
     """`count` (start, goal) Pose pairs that pass the planner's start/goal checks (module doc)."""
-    from controller.planning.nonholonomic import check_pose, singularity_measures
-    from controller.robots.builtin import nspu_geometry, nspu_poses
-    from controller.robots.nspu import Pose, rpy
-    from controller.tasks.planned_legs import planner_config
+    from controller.core.rotations import rpy
+    from controller.robots.nspu.entry import nspu_geometry, nspu_poses
+    from controller.robots.nspu.kinematics import Pose
+    from controller.robots.nspu.planned_legs import planner_config
+    from controller.robots.nspu.planning.nonholonomic import check_pose, singularity_measures
 
     geometry = nspu_geometry(cfg.robot.model("nspu"))
     pcfg = planner_config(cfg.robot.model("nspu"))
@@ -91,10 +92,11 @@ def run_benchmark(
     cfg: Config, count: int = 100, seed: int = 0, progress: Callable[[str], None] | None = None
 ) -> dict[str, object]:
     """Plan every pair with the configured planner; per-pair rows and the summary figures."""
-    from controller.planning.nonholonomic import plan_motion
-    from controller.robots.builtin import nspu_geometry
-    from controller.robots.nspu import Pose, so3_log
-    from controller.tasks.planned_legs import planner_config
+    from controller.core.rotations import so3_log
+    from controller.robots.nspu.entry import nspu_geometry
+    from controller.robots.nspu.kinematics import Pose
+    from controller.robots.nspu.planned_legs import planner_config
+    from controller.robots.nspu.planning.nonholonomic import plan_motion
 
     geometry = nspu_geometry(cfg.robot.model("nspu"))
     pcfg = planner_config(cfg.robot.model("nspu"))

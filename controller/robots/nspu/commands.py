@@ -16,13 +16,14 @@ from controller.output_paths import check_output_dir
 
 if TYPE_CHECKING:
     from controller.config import Config
-    from controller.robots.nspu import Pose
+    from controller.robots.nspu.kinematics import Pose
 
 
 def _pose_arg(text: str, what: str) -> Pose:
     import numpy as np
 
-    from controller.robots.nspu import Pose, rpy
+    from controller.core.rotations import rpy
+    from controller.robots.nspu.kinematics import Pose
 
     try:
         vals = [float(x) for x in text.split(",")]
@@ -64,9 +65,9 @@ def _plan_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_plan(args: argparse.Namespace, cfg: Config) -> int:
-    from controller.planning.nonholonomic import paper_example_poses
-    from controller.robots.builtin import nspu_poses
-    from controller.tools.analysis.robot_analysis import plan_nspu
+    from controller.robots.nspu.analysis import plan_nspu
+    from controller.robots.nspu.entry import nspu_poses
+    from controller.robots.nspu.planning.nonholonomic import paper_example_poses
 
     plot = check_output_dir(args.output_dir, "--output-dir") if args.output_dir else None
     start, goal = (
@@ -99,7 +100,7 @@ def _plan_bench_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_plan_bench(args: argparse.Namespace, cfg: Config) -> int:
-    from controller.tools.planner_benchmark import format_report, run_benchmark
+    from controller.robots.nspu.planner_benchmark import format_report, run_benchmark
 
     if args.pairs < 1:
         raise ConfigError(f"--pairs {args.pairs}: must be >= 1")

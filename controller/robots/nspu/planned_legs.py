@@ -1,6 +1,6 @@
 """Streaming a planned non-holonomic motion of the 3-nSPU: the time-scaled leg lengths.
 
-The planner (``controller/planning/nonholonomic.py``, seed 004) returns controls over a plan
+The planner (``controller/robots/nspu/planning/nonholonomic.py``, seed 004) returns controls over a plan
 time [0, T]; the legs follow l(t). This module plays l back on the actuators' clock:
 
 - **Time scaling.** System (7) of seed 004 is driftless, so any monotone reparametrisation
@@ -21,7 +21,7 @@ time [0, T]; the legs follow l(t). This module plays l back on the actuators' cl
   faults.
 - **Closed loop** (a pose tracker, ``[tracker]``): the task measures the platform before and after
   each motion and replans from the measured pose (``PlannedLegsTask``; the plans from
-  ``plan_correction.py``, off the loop in ``controller/shell/plan_worker.py``).
+  ``plan_correction.py``, off the loop in ``controller/robots/nspu/plan_worker.py``).
 """
 
 from __future__ import annotations
@@ -34,20 +34,20 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from controller.core.cycle_data import Event, Severity
-from controller.core.ports import JointReference, TaskContext, TaskStep
+from controller.core.ports import JointReference, OffLoopWorker, TaskContext, TaskStep
 from controller.core.records import record, replace
-from controller.tasks.streamed_plan import StreamedPlan, time_scale_plan
+from controller.robots.nspu.streamed_plan import StreamedPlan, time_scale_plan
 
 if TYPE_CHECKING:
     from controller.core.controller_state import ControllerState
     from controller.core.cycle_data import CycleInputs, CycleOutputs
     from controller.core.ports import CycleTiming, PoseStatus, Robot
-    from controller.planning.nonholonomic import PlannerConfig, PlanResult
-    from controller.robots.builtin import NspuSection
-    from controller.robots.nspu import Pose
-    from controller.robots.nspu_robot import NspuRobot
-    from controller.robots.registry import ActuatorUnits
-    from controller.tasks.plan_correction import CorrectionPlanner
+    from controller.robot_registry import ActuatorUnits
+    from controller.robots.nspu.entry import NspuSection
+    from controller.robots.nspu.kinematics import Pose
+    from controller.robots.nspu.model import NspuRobot
+    from controller.robots.nspu.plan_correction import CorrectionPlanner
+    from controller.robots.nspu.planning.nonholonomic import PlannerConfig, PlanResult
 
 
 class LegsPhase(IntEnum):
@@ -136,10 +136,19 @@ class PlannedLegsTask:
         if correction is not None and (planner is None or goal is None):
             raise ValueError("a corrected execution needs the correction planner and the goal")
         self.correction = correction
-        self.correction_planner = planner  # the shell's PlanWorker fills its memo off the loop
+        self.correction_planner = planner  # the PlanWorker (off_loop_worker) fills its memo off the loop
         self.goal = goal
         first = streamed.sample(0.0)
         self._start = JointReference.at_rest(first[0], first[3])
+
+    def off_loop_worker(self) -> OffLoopWorker | None:
+        """The worker process that computes the correcting plans off the loop (``PlansOffLoop``), or
+        None when the plans are computed in the step (``correction.in_step``) or not at all."""
+        if self.correction_planner is None or self.correction is None or self.correction.in_step:
+            return None
+        from controller.robots.nspu.plan_worker import PlanWorker
+
+        return PlanWorker(self.correction_planner)
 
     def start(self) -> LegsTaskState:
         return LegsTaskState()
@@ -225,13 +234,13 @@ class PlannedLegsTask:
         n = state.samples + 1
         if n < c.tracker_samples:
             return TaskStep(replace(state, samples=n, sum_pose=sums), hold)
-        from controller.robots.nspu_robot import pose_errors
-        from controller.tasks.plan_correction import pose_from_request
+        from controller.robots.nspu.model import pose_errors
+        from controller.robots.nspu.plan_correction import pose_from_request
 
         request = tuple(v / n for v in sums)
         measured = pose_from_request(request)  # type: ignore[arg-type]
         if not state.moved:  # before any motion: against the plan's start
-            from controller.robots.nspu_robot import NspuRobot
+            from controller.robots.nspu.model import NspuRobot
 
             start = self.robot.start if isinstance(self.robot, NspuRobot) else self.goal
             pe, ae = pose_errors(measured, start)
@@ -357,8 +366,8 @@ class PlanExecutionReport:
             self.leg_errors_m.append(max(abs(a - b) for a, b in zip(legs, ref, strict=True)))
 
     def summary(self) -> dict[str, object]:
-        from controller.robots.nspu import so3_log
-        from controller.robots.nspu_robot import pose_errors, pose_odometry
+        from controller.core.rotations import so3_log
+        from controller.robots.nspu.model import pose_errors, pose_odometry
 
         plan, goal = self.plan, self.robot.goal
         plan_end = (
@@ -439,8 +448,8 @@ def build_planned_legs_task(
     """
     import time
 
-    from controller.planning.nonholonomic import plan_motion
-    from controller.robots.nspu_robot import NspuRobot
+    from controller.robots.nspu.model import NspuRobot
+    from controller.robots.nspu.planning.nonholonomic import plan_motion
 
     if not isinstance(robot, NspuRobot):  # the registry pairs this task with the 3-nSPU only
         raise TypeError(f"the planned task needs the 3-nSPU robot model, got {type(robot).__name__}")
@@ -457,7 +466,7 @@ def build_planned_legs_task(
     )
     correction, planner = None, None
     if tracker:  # closed loop: measure with the tracker, replan from the measured pose (PlannedLegsTask)
-        from controller.tasks.plan_correction import CorrectionPlanner, CorrectionProblem
+        from controller.robots.nspu.plan_correction import CorrectionPlanner, CorrectionProblem
 
         correction = CorrectionSettings(
             section.correction_tolerance_m,
@@ -489,7 +498,7 @@ def build_planned_legs_task(
 
 
 def planner_config(n: NspuSection, check_type2: bool | None = None) -> PlannerConfig:
-    from controller.planning.nonholonomic import PlannerConfig
+    from controller.robots.nspu.planning.nonholonomic import PlannerConfig
 
     return PlannerConfig(
         horizon_s=n.horizon_s,

@@ -5,7 +5,7 @@ pose as six floats (P [m], rotation vector [rad]) and a request number. The plan
 function of the request (``plan_motion`` is deterministic: fixed initial controls, a seeded
 restart generator), so it may be computed anywhere and the step stays pure:
 
-- off the loop by the shell's ``PlanWorker`` (controller/shell/plan_worker.py), which fills
+- off the loop by the shell's ``PlanWorker`` (controller/robots/nspu/plan_worker.py), which fills
   this memo and tells the step through the recorded input ``CycleInputs.plans_ready``; the
   step then reads the memo;
 - inside the step (``in_step``: simulated time, and replay, where the memo is empty): the same
@@ -24,9 +24,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from controller.planning.nonholonomic import PlannerConfig
-    from controller.robots.nspu import NspuGeometry, Pose
-    from controller.tasks.streamed_plan import StreamedPlan
+    from controller.robots.nspu.kinematics import NspuGeometry, Pose
+    from controller.robots.nspu.planning.nonholonomic import PlannerConfig
+    from controller.robots.nspu.streamed_plan import StreamedPlan
 
 PoseRequest = tuple[float, float, float, float, float, float]  # P [m], rotation vector [rad]
 
@@ -41,7 +41,8 @@ class CorrectionPlan:
 
 
 def pose_from_request(request: PoseRequest) -> Pose:
-    from controller.robots.nspu import Pose, so3_exp
+    from controller.core.rotations import so3_exp
+    from controller.robots.nspu.kinematics import Pose
 
     return Pose(np.array(request[:3]), so3_exp(np.array(request[3:])))
 
@@ -60,9 +61,9 @@ class CorrectionProblem:
 
 def correction_plan(problem: CorrectionProblem, request: PoseRequest) -> CorrectionPlan:
     """The plan from the request's pose to the goal, time-scaled: a pure function of its arguments."""
-    from controller.planning.nonholonomic import plan_motion
-    from controller.robots.nspu import NspuModelError
-    from controller.tasks.streamed_plan import time_scale_plan
+    from controller.robots.nspu.kinematics import NspuModelError
+    from controller.robots.nspu.planning.nonholonomic import plan_motion
+    from controller.robots.nspu.streamed_plan import time_scale_plan
 
     try:
         start = pose_from_request(request)

@@ -12,12 +12,20 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
+import time
+from typing import TYPE_CHECKING
+
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
 
-from controller.planning.nonholonomic import PlanResult, type2_measure
-from controller.robots.nspu import NspuGeometry, controllability_det, euler_xzx, so3_log
+from controller.config import Config
+from controller.core.rotations import so3_log
+from controller.robots.nspu.kinematics import NspuGeometry, controllability_det, euler_xzx
+from controller.robots.nspu.planning.nonholonomic import PlanResult, type2_measure
+
+if TYPE_CHECKING:
+    from controller.robots.nspu.kinematics import Pose
 
 
 def plot_plan(result: PlanResult, out_dir: str | Path, prefix: str = "nspu_plan") -> list[Path]:
@@ -276,3 +284,72 @@ if __name__ == "__main__":
     import sys
 
     print(plot_execution(sys.argv[1], sys.argv[2] if len(sys.argv) > 2 else "."))
+
+
+def analyze_nspu(
+    cfg: Config, out_dir: Path, euler_xzx_rad: tuple[float, float, float] = (0.0, 1.0, 0.0)
+) -> dict[str, object]:
+    from controller.robots.nspu.analysis import plot_singularity_loci
+    from controller.robots.nspu.entry import build_nspu
+    from controller.robots.nspu.planning.nonholonomic import type2_measure
+
+    robot = build_nspu(cfg.robot.model("nspu"))
+    files = plot_singularity_loci(robot.geometry, out_dir, euler_xzx_rad=euler_xzx_rad)
+    return {
+        "robot": "nspu",
+        "geometry": robot.geometry.name,
+        "orientation_xzx_rad": list(euler_xzx_rad),
+        "type2_measure_start": float(type2_measure(robot.geometry, robot.start.p_m, robot.start.R)),
+        "type2_measure_goal": float(type2_measure(robot.geometry, robot.goal.p_m, robot.goal.R)),
+        "plots": [str(f) for f in files],
+    }
+
+
+def plan_nspu(
+    cfg: Config, start: Pose, goal: Pose, check_type2: bool, plot_dir: Path | None
+) -> dict[str, object]:
+    """Plan start -> goal (Pose) with the configured planner; the report says CONVERGED or why not."""
+    from controller.core.rotations import so3_log
+    from controller.robots.nspu.entry import nspu_geometry
+    from controller.robots.nspu.planned_legs import planner_config
+    from controller.robots.nspu.planning.nonholonomic import plan_motion
+
+    geometry = nspu_geometry(cfg.robot.model("nspu"))
+    pcfg = planner_config(cfg.robot.model("nspu"), check_type2=check_type2)
+    t0, c0 = time.perf_counter(), time.process_time()
+    res = plan_motion(geometry, start, goal, pcfg)
+    elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
+    out: dict[str, object] = {
+        "status": res.status.value,
+        "ok": res.ok,
+        "message": res.message,
+        "iterations": res.iterations,
+        "final_error": res.final_error,
+        "verified_error": res.verified_error,
+        "plan_steps": res.plan_steps,
+        "planning_time_s": round(elapsed, 3),
+        "planning_cpu_s": round(cpu, 3),
+        "error_history": [float(e) for e in res.error_history],
+        "type2_check": check_type2,
+    }
+    if not check_type2:
+        out["warning"] = (
+            "the type-II singularity check is off (the paper's assumptions): the plan may cross "
+            "det M = 0, where the platform is not controlled by the legs"
+        )
+    if res.ok:
+        tm = res.type2_measure
+        out.update(
+            {
+                "legs_range_m": [float(res.legs_m.min()), float(res.legs_m.max())],
+                "max_leg_rate_m_s_at_T": float(np.abs(res.leg_rates_m_s).max()),
+                "type2_sign_changes": int(np.sum(np.diff(np.sign(tm)) != 0)),
+                "end_position_error_m": float(np.linalg.norm(res.p_m[-1] - goal.p_m)),
+                "end_angle_error_rad": float(np.linalg.norm(so3_log(res.R[-1] @ goal.R.T))),
+            }
+        )
+    if plot_dir is not None and np.all(np.isfinite(res.p_m)):  # a failed plan's plots show why
+        from controller.robots.nspu.analysis import plot_plan
+
+        out["plots"] = [str(p) for p in plot_plan(res, plot_dir)]
+    return out

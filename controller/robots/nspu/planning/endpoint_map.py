@@ -34,7 +34,8 @@ from typing import cast
 import numpy as np
 from numpy.typing import NDArray
 
-from controller.robots.nspu import _NEXT, _PREV, NspuGeometry, Pose, _cross, _dexpinv, hat, io_blocks
+from controller.core.rotations import hat
+from controller.robots.nspu.kinematics import _NEXT, _PREV, NspuGeometry, Pose, _cross, _dexpinv, io_blocks
 
 Array = NDArray[np.float64]
 

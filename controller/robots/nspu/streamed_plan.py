@@ -2,7 +2,7 @@
 
 ``time_scale_plan`` turns a plan of seed 004 (controls over a unit horizon) into leg positions,
 velocities and accelerations on a uniform grid of task time, slowed to a fraction of the
-actuators' limits (see ``controller/tasks/planned_legs.py`` for how the task plays it); both the
+actuators' limits (see ``controller/robots/nspu/planned_legs.py`` for how the task plays it); both the
 planned-legs task and its correction planner use it, so it lives apart from both.
 """
 
@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.planning.nonholonomic import PlanResult, controls, feedback_leg_rates, rollout
-from controller.robots.nspu import leg_lengths_batch
+from controller.robots.nspu.kinematics import leg_lengths_batch
+from controller.robots.nspu.planning.nonholonomic import PlanResult, controls, feedback_leg_rates, rollout
 
 # A sample of the streamed plan: leg positions, velocities, accelerations, planned platform position.
 LegsSample = tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...], tuple[float, float, float]]

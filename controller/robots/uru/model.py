@@ -7,7 +7,7 @@ positions are the **motor-shaft angles** th_iM [rad] (seed 003, eq. (11)), the u
 simulated rotary drives.
 
 The per-cycle functions (inverse and direct kinematics, the pose check) are written on plain
-floats: the vectorised functions of ``controller/robots/uru.py`` cost 80 us (IK), 0.8-1.1 ms
+floats: the vectorised functions of ``controller/robots/uru/kinematics.py`` cost 80 us (IK), 0.8-1.1 ms
 (direct kinematics) and 0.36 ms (singularity measures) per call, too much for a 400 Hz cycle
 that also runs Ruckig. The fast versions compute the same equations (tests compare them with
 ``uru.py`` on random points of the first octant):
@@ -31,7 +31,7 @@ or det A between samples (``uru.check_path``); its error names the locus.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TypedDict
 
 import numpy as np
@@ -39,7 +39,7 @@ import numpy as np
 from controller.core.linalg3 import Vector3
 from controller.core.ports import POSE_OK, PoseStatus
 from controller.errors import NoSolutionError, WorkspaceError
-from controller.robots import uru
+from controller.robots.uru import kinematics as uru
 
 _FD_STEP_M = 1e-7
 _NEWTON_TOL_RAD = 1e-10
@@ -61,7 +61,7 @@ class UruWorkspaceError(WorkspaceError):
 class UruLimits:
     motor_min_rad: float
     motor_max_rad: float
-    margins: uru.UruPathMargins = uru.UruPathMargins()
+    margins: uru.UruPathMargins = field(default_factory=uru.UruPathMargins)
 
 
 @dataclass(frozen=True)
@@ -153,7 +153,7 @@ class UruRobot:
 
 
 # ---------------------------------------------------------------------------------------------
-# Plain-float kinematics (same equations as controller/robots/uru.py)
+# Plain-float kinematics (same equations as controller/robots/uru/kinematics.py)
 
 
 def _limb(geom: uru.UruGeometry, i: int, p: Vector3) -> tuple[float, float, float, Vector3, Vector3, float]:

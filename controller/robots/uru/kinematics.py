@@ -29,7 +29,7 @@ Conventions chosen here (the paper leaves them implicit):
   ``sin(th_i3) > 0``, which is the upper sign ('-') of eq. (A2); ``-1`` the other one.
   ``+1`` is the default because with it the whole first octant of the default geometry is
   free of translation and actuation singularities (see ``tests/test_uru_model.py`` and
-  the plots of ``controller/tools/analysis/uru_plots.py``).
+  the plots of ``controller/robots/uru/analysis.py``).
 - Angles are not wrapped: ``th_i2`` lies in (-pi, pi) for ``knee_sign = +1`` and in
   (0, 2 pi) for ``-1``; ``th_i1`` comes from ``atan2`` and is continuous in every octant.
 

@@ -14,7 +14,7 @@ Pipeline (seed 004 section 3-4):
 
 Implementation choices (documented deviations / interpretations):
 * The Jacobian of the end-point map d e / d Lambda comes from the variational equations of
-  seed 004 eq. (10)-(12), integrated with the motion in one pass (`controller.planning.endpoint_map`):
+  seed 004 eq. (10)-(12), integrated with the motion in one pass (`controller.robots.nspu.planning.endpoint_map`):
   d p_T / d Lambda and the spatial rotation sensitivity, then d e / d Lambda through
   (1/scale, J_l^-1(r_T)) with J_l^-1 the inverse left Jacobian of the rotation log.
 * Integration: fixed-step Runge-Kutta-Munthe-Kaas of order 4 on R^3 x SO(3) (R stays on SO(3)),
@@ -79,8 +79,17 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from controller.core.rotations import hat, so3_exp, so3_log
 from controller.errors import RefusedError
-from controller.planning.endpoint_map import (
+from controller.robots.nspu.kinematics import (
+    NspuGeometry,
+    Pose,
+    SingularityError,
+    io_blocks,
+    leg_lengths_batch,
+    rkmk4_step,
+)
+from controller.robots.nspu.planning.endpoint_map import (
     Motion,
     Sensitivity,
     integrate_motion,
@@ -88,17 +97,6 @@ from controller.planning.endpoint_map import (
     integrate_with_sensitivity,
     sensitivity,
     so3_log_left_jacobian_inverse,
-)
-from controller.robots.nspu import (
-    NspuGeometry,
-    Pose,
-    SingularityError,
-    hat,
-    io_blocks,
-    leg_lengths_batch,
-    rkmk4_step,
-    so3_exp,
-    so3_log,
 )
 
 Array = NDArray[np.float64]
@@ -1028,7 +1026,7 @@ def _build_result(
 
 def paper_example_poses(length_unit_m: float = 0.01) -> tuple[Pose, Pose]:
     """Start and goal of seed 004 section 4 (positions in aul converted with length_unit_m)."""
-    from controller.robots.nspu import rpy
+    from controller.core.rotations import rpy
 
     start = Pose(np.array([0.0, 0.0, 25.0]) * length_unit_m, rpy(0.0, 0.0, -np.pi / 6))
     goal = Pose(np.array([-0.4, -0.2, 35.0]) * length_unit_m, rpy(0.0, 0.0, -np.pi / 2))
