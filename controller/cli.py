@@ -35,16 +35,20 @@ if TYPE_CHECKING:
 
 def _config_help(robots: tuple[str, ...]) -> str:
     """--config's help: which shipped file each --robot choice loads, and the one without --robot."""
-    # a plug-in robot's file is its own (RobotEntry.config_file); one without: cheope.toml, its kind set
-    files = {kind: str(robot_entry(kind).config_file or "cheope.toml") for kind in robots}
-    files = {k: f.split("controller/configs/")[-1] for k, f in files.items()}
+    # each robot's own file (RobotEntry.config_file: the built-ins' in their homes); none: cheope.toml
+    files = {kind: _shown(robot_entry(kind).config_file) for kind in robots}
     if len(robots) == 1:
         return f"TOML configuration (default: the robot's shipped {files[robots[0]]})"
     per_robot = ", ".join(f"{name} for --robot {kind}" for kind, name in files.items())
-    return (
-        f"TOML configuration (default: the shipped file of --robot: {per_robot}, in controller/configs/ "
-        f"for the built-in robots; without --robot: cheope.toml)"
-    )
+    return f"TOML configuration (default: the shipped file of --robot: {per_robot}; without --robot: cheope.toml)"
+
+
+def _shown(path: Path | None) -> str:
+    """A shipped configuration file as a user finds it: from the project's root, or a plug-in's name."""
+    if path is None:
+        return "controller/configs/cheope.toml"
+    root = Path(__file__).resolve().parents[1]
+    return str(path.resolve().relative_to(root)) if path.resolve().is_relative_to(root) else path.name
 
 
 def _common(ap: argparse.ArgumentParser, bus: bool = True, robots: tuple[str, ...] | None = None) -> None:
@@ -562,8 +566,9 @@ def _add_plugin_commands(sub: Any) -> None:
 
 
 def cmd_faults(args: argparse.Namespace) -> int:
-    if args.contour_scan or args.contour_shapes or args.contour_stress:
-        return _contour_scan(args)
+    for flag in ("contour_scan", "contour_shapes", "contour_stress"):  # the spelling before: cheope contour-*
+        if getattr(args, flag):
+            return plugin_commands()[flag.replace("_", "-")].run(args, _config(args))
     from controller.tools.fault_scenarios import format_table, run_all
 
     cfg = _config(args)
@@ -572,68 +577,6 @@ def cmd_faults(args: argparse.Namespace) -> int:
         rows = run_all(cfg, keep, tuple(args.only or ()), progress)
     print(strict_json(rows) if args.json else format_table(rows))
     return 0 if all(r["as_expected"] and r["recording_complete"] for r in rows) else 1
-
-
-def _contour_scan(args: argparse.Namespace) -> int:
-    from controller.tools.contour_scan import (
-        format_shapes,
-        format_table,
-        run_scan,
-        run_shapes,
-        shapes_met,
-        summary,
-    )
-
-    cfg = _config(args)
-    keep = check_output_dir(args.output_dir, "--output-dir") if args.output_dir else None
-    if args.jobs < 1:
-        raise ConfigError(f"--jobs {args.jobs}: must be >= 1")
-    if args.contour_shapes:
-        shapes = run_shapes(cfg, keep)
-        print(json.dumps(shapes) if args.json else format_shapes(shapes))
-        return 0 if shapes_met(shapes) else 1
-    if args.contour_stress:
-        return _contour_stress(args, cfg, keep)
-
-    def progress(done: int, total: int, row: dict[str, object]) -> None:
-        if sys.stderr.isatty():
-            print(
-                f"\r{done}/{total} {str(row['scenario'])[:50]:<50} {row['outcome']}",
-                end="",
-                file=sys.stderr,
-                flush=True,
-            )
-
-    rows = run_scan(cfg, keep, args.jobs, progress)
-    if sys.stderr.isatty():
-        print(file=sys.stderr)
-    result = summary(rows, cfg.safety.max_contact_force_n)
-    print(
-        json.dumps({"rows": rows, "summary": result})
-        if args.json
-        else format_table(rows, cfg.safety.max_contact_force_n)
-    )
-    return 0 if result["targets_met"] else 1
-
-
-def _contour_stress(args: argparse.Namespace, cfg: Config, keep: Path | None) -> int:
-    from controller.tools import contour_stress
-
-    margin_m = cfg.task.model("contour").envelope_margin_m
-    with progress_line("cheope faults --contour-stress") as update:
-        rows = contour_stress.run_stress(
-            cfg,
-            keep,
-            args.jobs,
-            lambda done, total, row: update(f"{done}/{total} {row['scenario']}: {row['outcome']}"),
-        )
-    result = contour_stress.summary(rows, cfg.safety.max_contact_force_n, margin_m)
-    print(
-        json.dumps({"rows": rows, "summary": result})
-        if args.json
-        else contour_stress.format_table(rows, cfg.safety.max_contact_force_n, margin_m)
-    )
-    return 0 if result["targets_met"] else 1
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -732,35 +675,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--only", action="append", metavar="SCENARIO", help="run only this scenario (repeatable)")
     p.add_argument("--output-dir", metavar="DIR", help="keep the scenarios' recordings in DIR")
     p.add_argument("--keep", dest="output_dir", help=argparse.SUPPRESS)  # the spelling before --output-dir
-    p.add_argument(
-        "--contour-scan",
-        action="store_true",
-        help="instead: the contour task against force spikes, a notch, a bump, a drifting bias, stale and "
-        "spoofed samples, in simulated time (controller/tools/contour_scan.py); exit 1 unless no run "
-        "exceeds safety.max_contact_force_n, 95 %% of the disturbances to ride through end DONE and the "
-        "rest (the spoofed samples among them: an integrity breach) retract with a named cause",
-    )
-    p.add_argument(
-        "--contour-shapes",
-        action="store_true",
-        help="instead: 3 laps at 40 mm/s on each workpiece shape (disk, ellipse, rounded rectangle, rounded "
-        "star, kidney), in simulated time; exit 1 unless each ends DONE without contact loss, force "
-        "error RMS <= 1 N, under the limit",
-    )
-    p.add_argument(
-        "--contour-stress",
-        action="store_true",
-        help="instead: the contour task against what no scan was tuned to (misplaced parts, steep bumps, "
-        "offset steps and drifts to 60 N, long spikes, tares in contact), in simulated time "
-        "(controller/tools/contour_stress.py); exit 1 unless no run exceeds safety.max_contact_force_n or "
-        "ends off the part unnamed, 90 %% of those to ride through end DONE and the rest end named",
-    )
-    p.add_argument(
-        "--jobs",
-        type=int,
-        default=1,
-        help="with --contour-scan or --contour-stress: scenarios run in this many processes",
-    )
+    for flag in ("--contour-scan", "--contour-shapes", "--contour-stress"):  # now cheope contour-*
+        p.add_argument(flag, action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--jobs", type=int, default=1, help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_faults)
     p = sub.add_parser(
         "nodes",

@@ -1,4 +1,4 @@
-"""``cheope faults --contour-scan``: the contour task against the disturbances it must ride through.
+"""``cheope contour-scan``: the contour task against the disturbances it must ride through.
 
 Each scenario runs the contour task (Cheope, seed 001 §7) against the in-process simulated
 devices in simulated time (deterministic, free of the machine's timing), records the session

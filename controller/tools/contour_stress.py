@@ -1,4 +1,4 @@
-"""``cheope faults --contour-stress``: the contour task against what no scenario was tuned to.
+"""``cheope contour-stress``: the contour task against what no scenario was tuned to.
 
 The contour scan (``contour_scan.py``) holds the disturbances the task was designed around; this
 scan holds the ones an outside tester brings on day one, in simulated time (deterministic),

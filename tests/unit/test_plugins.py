@@ -229,3 +229,25 @@ def test_a_plugin_brings_a_command_that_reads_its_robots_configuration(installed
         COMMANDS.unregister("gantry-home")
     commands = build_parser()._subparsers._group_actions[0].choices  # type: ignore[union-attr]
     assert {"plan", "plan-bench"} <= set(commands) and "gantry-home" not in commands
+
+
+def test_the_contours_commands_are_its_own_and_the_old_spelling_reaches_them(capsys):
+    """cheope contour-scan/-shapes/-stress are the contour's plug-in commands (cheope.commands), not the
+    command line's; ``cheope faults --contour-shapes``, their spelling before, runs the same command."""
+    from controller.cli import build_parser, main
+    from controller.commands import COMMANDS, Command
+
+    commands = build_parser()._subparsers._group_actions[0].choices  # type: ignore[union-attr]
+    assert {"contour-scan", "contour-shapes", "contour-stress"} <= set(commands)
+    ran: list[tuple[str, bool]] = []
+
+    def shapes(args, cfg):
+        ran.append((cfg.task.kind, args.json))
+        return 0
+
+    COMMANDS.register("contour-shapes", Command("stand-in", lambda p: None, shapes))
+    try:
+        assert main(["faults", "--contour-shapes", "--json", "--set", 'task.kind="contour"']) == 0
+    finally:
+        COMMANDS.unregister("contour-shapes")
+    assert ran == [("contour", True)]
