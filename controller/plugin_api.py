@@ -9,7 +9,8 @@ names are promised to stay: the product's other modules may move.
   ``WorkspaceError``). Its optional capabilities, checked at start against what its tasks
   (``TaskEntry.needs``) and the simulator ask: ``JointMotion`` (the contour task),
   ``CompliantStructure`` (the simulated workpiece presses on it; ``LumpedMasses``),
-  ``ForceWitnessModel`` (the force sensor's second witness).
+  ``ForceWitnessModel`` (the force sensor's second witness; ``contact_force_from_efforts`` computes it
+  for any translational robot from its Jacobian and its ``MassModel``).
 - Its simulator hook (``cheope.sim_kinematics``): ``(cfg, robot) -> PlantKinematics``, e.g.
   ``RigidKinematics``; its 3D scene (``cheope.scene_drawings``): ``cfg -> RobotDrawing`` drawing
   ``Primitive`` shapes; its analysis plots (``cheope.analyses``): ``(cfg, out_dir) -> dict``.
@@ -48,6 +49,7 @@ from controller.errors import NoSolutionError, WorkspaceError
 from controller.experiments import EXPERIMENTS, Experiment
 from controller.plugins import ANALYSES, SCENE_DRAWINGS, SIM_KINEMATICS, PluginError
 from controller.robot_registry import RobotEntry, register_robot, unregister_robot
+from controller.robots.performance import MassModel, contact_force_from_efforts
 from controller.tasks.path_task import PathTask
 from controller.tasks.registry import BuiltTask, TaskEntry, TaskSettings, register_task, unregister_task
 from logs.robot_drawing import (
@@ -90,6 +92,7 @@ __all__ = [
     "JointMotion",
     "JointReference",
     "LumpedMasses",
+    "MassModel",
     "MeasuredPose",
     "NoSolutionError",
     "PathTask",
@@ -109,6 +112,7 @@ __all__ = [
     "TaskSettings",
     "TaskStep",
     "WorkspaceError",
+    "contact_force_from_efforts",
     "missing_capability",
     "register_robot",
     "register_task",

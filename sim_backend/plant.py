@@ -226,6 +226,7 @@ class RobotPlant:
         # The robot's own structure (its model's masses and stiffness: CompliantStructure), or none:
         # a rigid robot in free space, and a workpiece refused (set_environment).
         self._kind = cfg.robot.kind
+        self._max_contact_force_n = cfg.safety.max_contact_force_n
         self._compliance = (
             None
             if missing_capability(self.robot, CompliantStructure)
@@ -254,6 +255,7 @@ class RobotPlant:
         self.tcp_kinematic_m = np.zeros(3)
         self.force_n = np.zeros(3)
         self._update_kinematics()
+        self._check_start_outside_the_part()
 
     @property
     def environment_kind(self) -> str:
@@ -265,6 +267,7 @@ class RobotPlant:
         self.environment = environment
         self.loaded = not isinstance(environment, FreeSpace)
         self._check_structure()
+        self._check_start_outside_the_part()
         self.tool = CompliantTool(self._compliance) if self._compliance is not None else None
         self.force_n = np.zeros(3)
         if self.loaded and self.time_s is not None:
@@ -278,6 +281,22 @@ class RobotPlant:
                 f"the simulated workpiece presses on the robot's structure, and robot.kind = {self._kind!r} "
                 f"lacks {lacks} (the CompliantStructure capability, controller/plugin_api.py); "
                 'run it in free space: sim.environment = "free"'
+            )
+
+    def _check_start_outside_the_part(self) -> None:
+        """A robot that starts inside the simulated part is a misplaced part or start, not a run: the
+        first cycle would meet hundreds of newtons (424 N for a plug-in robot's start in the disk)."""
+        if not self.loaded or not hasattr(self, "tcp_kinematic_m"):
+            return
+        x, y, z = (float(v) for v in self.tcp_kinematic_m)
+        fx, fy, fz = self.environment.contact_force(x, y, z, 0.0, 0.0)
+        force_n = math.sqrt(fx * fx + fy * fy + fz * fz)
+        if force_n > self._max_contact_force_n:
+            raise ValueError(
+                f"the simulated robot starts inside the workpiece: at its start, TCP {[round(v, 4) for v in (x, y, z)]} m "
+                f"(its simulator hook's initial positions), the part pushes {force_n:.0f} N, over "
+                f"safety.max_contact_force_n = {self._max_contact_force_n:g} N; place the part elsewhere "
+                "([sim.workpiece] centre_m, height_m) or start the robot outside it"
             )
 
     @property

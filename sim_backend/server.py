@@ -446,7 +446,11 @@ class Simulator:
             raise canopen.SdoAbortedError(ABORT_DEVICE_STATE)
         with self.lock:
             if wanted != self.plant.environment_kind:
-                self.plant.set_environment(environment_named(self.cfg, wanted))
+                try:
+                    self.plant.set_environment(environment_named(self.cfg, wanted))
+                except ValueError as err:  # the robot cannot meet this part (no structure, starts in it)
+                    log.error("the controller's task needs %s: %s", wanted, err)
+                    raise canopen.SdoAbortedError(ABORT_DEVICE_STATE) from err
                 log.info("environment %s placed for the controller's task", wanted)
 
     def _wire_drive(self, node: canopen.LocalNode, drive: SimulatedDrive, pdos: DevicePdos) -> None:

@@ -16,10 +16,12 @@ so the force capacity along u is |J u| and the velocity capacity is 1 / sqrt(u^T
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from controller.core.linalg3 import Matrix3, Vector3, inverse3, matvec, transpose3
 from controller.core.ports import LumpedMasses
 
 
@@ -114,3 +116,26 @@ def jacobian_indices(jac: np.ndarray) -> JacobianIndices:
         sigma_max=float(sv[0]),
         det=float(np.linalg.det(jac)),
     )
+
+
+def contact_force_from_efforts(
+    jac: Matrix3, efforts_n: tuple[float, ...], qdd: tuple[float, ...], masses: LumpedMasses | None
+) -> tuple[Vector3, float]:
+    """The contact force on the tool the drives' efforts imply, F = M a - J^T tau, and |M a| [N].
+
+    For any translational robot with prismatic actuators and q_dot = J s_dot (``jac``, 3 x 3 rows):
+    virtual work balances efforts tau at the carriages with J^T tau at the TCP; the motors push
+    against a contact force (tau = -J^-T F when static) and accelerate the robot's own masses,
+    M = m_0 I + m_q J^T J, at a = J^-1 q_dot_dot. Plain floats: a ``ForceWitnessModel`` calls it
+    every cycle (Cheope's, controller/robots/cheope/model.py).
+    """
+    jt = transpose3(jac)
+    push = matvec(jt, (efforts_n[0], efforts_n[1], efforts_n[2]))  # J^T tau
+    inertia: Vector3 = (0.0, 0.0, 0.0)
+    if masses is not None and any(qdd):
+        a = matvec(inverse3(jac), (qdd[0], qdd[1], qdd[2]))
+        jtja = matvec(jt, (qdd[0], qdd[1], qdd[2]))  # J^T (J a)
+        m0, mq = masses.translating_kg, masses.per_actuator_kg
+        inertia = (m0 * a[0] + mq * jtja[0], m0 * a[1] + mq * jtja[1], m0 * a[2] + mq * jtja[2])
+    force = (inertia[0] - push[0], inertia[1] - push[1], inertia[2] - push[2])
+    return force, math.sqrt(inertia[0] ** 2 + inertia[1] ** 2 + inertia[2] ** 2)

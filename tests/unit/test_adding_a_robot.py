@@ -205,3 +205,23 @@ def test_the_simulated_workpiece_needs_the_robots_own_structure(gantry):
         RobotPlant(config_from_dict({**config_to_dict(gantry_config()), "sim": {"environment": "workpiece"}}))
     cheope = RobotPlant(load_config(overrides={"robot.mass.actuator_stiffness_n_m": 3.0e5}))
     assert cheope._compliance is not None and cheope._compliance.actuator_stiffness_n_m == 3.0e5
+
+
+def test_a_robot_that_starts_inside_the_simulated_part_is_refused_naming_it():
+    """A start inside the part (a plug-in robot's home in the disk faulted at 424 N mid-run) is refused
+    when the simulator places the part, naming the start and the keys that move either."""
+    from sim_backend.plant import RobotPlant
+
+    start = RobotPlant(load_config(overrides={"sim.environment": "free"})).tcp_m
+    inside = {
+        "sim.environment": "workpiece",
+        "sim.workpiece.centre_m": [float(start[0]) + 0.01, float(start[1])],  # 1 cm in, 6 cm from the rim
+        "sim.workpiece.height_m": float(start[2]),
+    }
+    with pytest.raises(
+        ValueError, match=r"starts inside the workpiece.*\[sim.workpiece\] centre_m, height_m"
+    ):
+        RobotPlant(load_config(overrides=inside))
+    RobotPlant(
+        load_config(overrides={**inside, "sim.workpiece.height_m": float(start[2]) + 0.05})
+    )  # above it

@@ -25,15 +25,13 @@ import numpy as np
 from controller.core.linalg3 import (
     Matrix3,
     Vector3,
-    inverse3,
     matmul3,
-    matvec,
     symmetric_eigenvalues3,
     transpose3,
 )
 from controller.core.ports import POSE_OK, PoseStatus
 from controller.errors import NoSolutionError, WorkspaceError
-from controller.robots.performance import MassModel
+from controller.robots.performance import MassModel, contact_force_from_efforts
 
 _AXES = 3
 
@@ -344,26 +342,14 @@ class CheopeRobot:
         a force J^T tau at the TCP. The motors push the structure: against a contact force F
         (tau = -J^-T F in a static contact) and to accelerate the robot's own masses,
         M = m_0 I + m_q J^T J (``performance.cartesian_mass_matrix``), with a = J^-1 q_dot_dot the
-        commanded TCP acceleration. Plain floats: it runs every cycle (``ForceWitnessModel``).
+        commanded TCP acceleration (``performance.contact_force_from_efforts``, any translational
+        robot's). Plain floats: it runs every cycle (``ForceWitnessModel``).
         """
         try:
             rows = _jacobian_rows(self.geometry, tcp_m, q)
         except NoSolutionError:
             return None
-        jac: Matrix3 = (rows[0], rows[1], rows[2])
-        jt = transpose3(jac)
-        tau = (efforts_n[0], efforts_n[1], efforts_n[2])
-        push = matvec(jt, tau)  # J^T tau
-        inertia: Vector3 = (0.0, 0.0, 0.0)
-        m = self.masses
-        if m is not None and any(qdd):
-            a = matvec(inverse3(jac), (qdd[0], qdd[1], qdd[2]))
-            ja = (qdd[0], qdd[1], qdd[2])  # J a
-            jtja = matvec(jt, ja)
-            m0, mq = m.translating_kg, m.per_actuator_kg
-            inertia = (m0 * a[0] + mq * jtja[0], m0 * a[1] + mq * jtja[1], m0 * a[2] + mq * jtja[2])
-        force = (inertia[0] - push[0], inertia[1] - push[1], inertia[2] - push[2])
-        return force, math.sqrt(inertia[0] ** 2 + inertia[1] ** 2 + inertia[2] ** 2)
+        return contact_force_from_efforts((rows[0], rows[1], rows[2]), efforts_n, qdd, self.masses)
 
     def check_pose(self, tcp_m: np.ndarray) -> PoseStatus:
         """Stroke, spherical-joint swing and singularity margins at ``tcp_m`` (no exception).
