@@ -350,7 +350,7 @@ def _quiet_progress(status: StatusDisplay | None) -> Iterator[Callable[[str], No
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from controller.tools.demo import random_udp_port, run_demo
+    from controller.shell.demo import random_udp_port, run_demo
 
     _check_duration(args)
     plot = _plot_dir(args)
@@ -358,7 +358,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     cfg = _config(args)
     if args.simulated_time:
         from controller.experiments import experiment_for
-        from controller.tools.demo import run_simulated_time
+        from controller.shell.demo import run_simulated_time
 
         # the task's experiment in simulated time where it has one (the contour's laps), else the task
         experiment = experiment_for(cfg.task.kind)
@@ -520,7 +520,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_soak(args: argparse.Namespace) -> int:
-    from controller.tools.soak import run_soak_command
+    from controller.tools.bench.soak import run_soak_command
 
     return run_soak_command(args, ["--no-realtime"] if args.no_realtime else [])
 
@@ -721,7 +721,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "soak", help="a long run of cheope sim + cheope run: controller RSS slope, late cycles per 10 000"
     )
-    from controller.tools.soak import add_soak_arguments
+    from controller.tools.bench.soak import add_soak_arguments
 
     add_soak_arguments(p)
     p.add_argument("--no-realtime", action="store_true", help="both processes under the normal scheduler")

@@ -255,7 +255,7 @@ def outputs_from_pb(msg: pb.CycleOutputs) -> CycleOutputs:
 
 # per task state class: each field's name and the names of its first 4 elements, made once (the
 # recorder encodes the task's state every cycle: the field walk and the f-strings were 2 100 of the
-# contour cycle's 18 000 bytecodes, python -m controller.tools.cycle_work)
+# contour cycle's 18 000 bytecodes, python -m controller.tools.bench.cycle_work)
 _TASK_FIELD_KEYS: dict[type, tuple[tuple[str, tuple[str, ...]], ...]] = {}
 
 

@@ -14,7 +14,7 @@ about twelve times a cycle. Equality, hashing (``unsafe_hash``: by the fields, a
 ``replace(record, **changes)`` is ``dataclasses.replace`` without its per-call walk of the class's
 fields (is it an init field, an InitVar?) and its keyword dict of every value: in the contour task
 11 645 of the step's 23 091 bytecodes a cycle were that walk, in the path task 1 953 of 9 688
-(``python -m controller.tools.cycle_work``, issue 37). Here the walk is done once per class: the
+(``python -m controller.tools.bench.cycle_work``, issue 37). Here the walk is done once per class: the
 init fields' current values come from one ``operator.attrgetter`` call, the changes overwrite
 theirs by index, and the class is called with them positionally. That is the same ``__init__``
 (with its ``__post_init__``) that ``dataclasses.replace`` calls with the same values: the same

@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 from network_namespace import HOST_V4, HOST_V6, NamespacePair, available, namespace_pair
 
-from controller.tools.demo import random_udp_port
+from controller.shell.demo import random_udp_port
 
 pytestmark = [pytest.mark.integration, pytest.mark.skipif(bool(available()), reason=available() or "-")]
 

@@ -19,7 +19,7 @@ import pytest
 from busy_machine import TOLERANT
 from can_traffic import DBC
 
-from controller.tools.demo import random_udp_port
+from controller.shell.demo import random_udp_port
 from logs.bus_traffic import recorded_frames
 from logs.can_export import export_frames
 

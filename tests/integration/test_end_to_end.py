@@ -15,7 +15,7 @@ import pytest
 from busy_machine import TOLERANT
 
 from controller import cli
-from controller.tools.demo import simulator_process
+from controller.shell.demo import simulator_process
 from drivers.bus import parse_bus_spec
 
 pytestmark = pytest.mark.integration

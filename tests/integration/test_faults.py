@@ -23,8 +23,8 @@ from controller.assembly import build_law
 from controller.config import load_config
 from controller.core.cia402 import PowerState, decode_statusword
 from controller.core.controller_state import Mode
+from controller.shell.demo import simulator_process, stop_process
 from controller.shell.loop import CycleLoop, SimulatedTime
-from controller.tools.demo import simulator_process, stop_process
 from controller.tools.fault_scenarios import SCENARIOS, run_all
 from drivers.bus import open_bus, parse_bus_spec
 from drivers.cyclic_exchange import CyclicExchange

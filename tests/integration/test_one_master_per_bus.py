@@ -18,7 +18,7 @@ from busy_machine import TOLERANT
 from waiting import GENEROUS_S, wait_until
 
 from controller.config import load_config
-from controller.tools.demo import random_udp_port, simulator_process, stop_process
+from controller.shell.demo import random_udp_port, simulator_process, stop_process
 from drivers.bus import open_bus, parse_bus_spec
 from drivers.bus_presence import (
     NodeIdsTakenError,

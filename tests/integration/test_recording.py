@@ -599,7 +599,7 @@ def test_a_killed_writer_ends_the_run_by_the_recording_policy(tmp_path, policy):
 
     from busy_machine import TOLERANT
 
-    from controller.tools.demo import simulator_process, stop_process
+    from controller.shell.demo import simulator_process, stop_process
     from drivers.bus import open_bus, parse_bus_spec
 
     spec = parse_bus_spec("udp_multicast", udp_port=random.SystemRandom().randint(48000, 49999))

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from controller.tools.demo import random_udp_port
+from controller.shell.demo import random_udp_port
 from drivers.bus import open_bus, parse_bus_spec
 
 pytestmark = pytest.mark.integration

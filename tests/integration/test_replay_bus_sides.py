@@ -20,7 +20,7 @@ import pytest
 from can_traffic import record_traffic
 from waiting import wait_until
 
-from controller.tools.demo import random_udp_port
+from controller.shell.demo import random_udp_port
 from drivers.bus import open_bus, parse_bus_spec
 
 pytestmark = pytest.mark.integration

@@ -32,9 +32,9 @@ from controller.core.cia402 import PowerState, decode_statusword
 from controller.core.controller_state import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
 from controller.core.ports import CycleTiming
+from controller.shell.demo import simulator_process, stop_process
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.tasks.contour_tracking import ContourPhase
-from controller.tools.demo import simulator_process, stop_process
 from drivers.bus import open_bus, parse_bus_spec
 from drivers.node_setup import DRIVE_EDS
 from sim_backend.drive import ABORT_NO_ACTION

@@ -17,7 +17,7 @@ import pytest
 from busy_machine import TOLERANT
 
 from controller.config import load_config
-from controller.tools.demo import random_udp_port, simulator_process
+from controller.shell.demo import random_udp_port, simulator_process
 from drivers.bus import parse_bus_spec
 
 pytestmark = pytest.mark.integration

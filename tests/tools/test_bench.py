@@ -218,7 +218,7 @@ def test_loop_probe_times_the_devices_answer_from_sync_to_the_last_tpdo():
 def test_demo_gives_the_simulator_the_other_cpus_one_priority_step_below():
     import os
 
-    from controller.tools.demo import simulator_realtime_args
+    from controller.shell.demo import simulator_realtime_args
 
     assert simulator_realtime_args(None) == []
     assert simulator_realtime_args(RealtimeOptions(priority=80, lock_memory=True)) == [
@@ -319,7 +319,7 @@ HISTOGRAM = """# /dev/cpu_dma_latency set to 0us
 
 
 def test_cyclictest_histogram_percentiles_and_rate_above_a_threshold():
-    from controller.tools.cyclictest import parse_histogram
+    from controller.tools.bench.cyclictest import parse_histogram
 
     h = parse_histogram(HISTOGRAM)
     assert h.samples == 100 and h.overflows == 2 and h.max_us == 950.0
@@ -333,7 +333,7 @@ def test_cyclictest_histogram_percentiles_and_rate_above_a_threshold():
 def test_cyclictest_command_per_scheduling_class():
     from pathlib import Path
 
-    from controller.tools.cyclictest import cyclictest_command
+    from controller.tools.bench.cyclictest import cyclictest_command
 
     rt = cyclictest_command("cyclictest", 2500, 400, 10000, Path("/tmp/h"), 80, 1, True)
     assert rt[:4] == ["cyclictest", "-t1", "-q", "-i2500"] and "-p80" in rt and "-a1" in rt and "-m" in rt
@@ -343,7 +343,7 @@ def test_cyclictest_command_per_scheduling_class():
 
 @pytest.mark.skipif(shutil.which("cyclictest") is None, reason="cyclictest (rt-tests) not installed")
 def test_cyclictest_runs_under_the_normal_scheduler():
-    from controller.tools.cyclictest import run_cyclictest
+    from controller.tools.bench.cyclictest import run_cyclictest
 
     r = run_cyclictest(1000.0, 0.2, None, None, False, (100.0,))
     assert r["samples"] == 200

@@ -19,7 +19,7 @@ from controller.core.cycle_data import CycleInputs, DriveFeedback, SensorFeedbac
 from controller.core.ports import TaskContext
 from controller.core.setpoint_smoothing import Setpoint
 from controller.tasks.contour_tracking import MOTION_GATE_DEG, ContourPhase, ContourState, track_normal
-from controller.tools.contour_scan import (
+from controller.tools.contour.scan import (
     ContourScenario,
     run_contour_scenario,
     run_shape,
@@ -350,7 +350,7 @@ def _row(outcome: str, ride_through: bool = True, force_n: float = 20.0) -> dict
 def test_the_scans_verdict_counts_the_integrity_breaches_apart():
     """A spoofed sensor must end in the retract (issue "No impostor data"), never DONE: the 95 %
     is of the disturbances to ride through, and a breach that does not retract fails the scan."""
-    from controller.tools.contour_scan import summary
+    from controller.tools.contour.scan import summary
 
     ride = [_row("DONE")] * 34
     assert summary([*ride, _row("retracted", False), _row("retracted", False)], LIMIT_N)["targets_met"]
@@ -366,7 +366,7 @@ def test_every_scan_injection_passes_the_configurations_check():
     """An injection shorter than a cycle is refused by the configuration (it may hold no SYNC): the
     scan's own must all pass, or their recordings lose the 3D scene."""
     from controller.sim_config.fault_specs import check_fault
-    from controller.tools.contour_scan import scenarios
+    from controller.tools.contour.scan import scenarios
 
     cfg = load_config(overrides={"task.kind": "contour"})
     places = [14.0 + 0.6125 * k for k in range(12)]  # the 12 places; the check is about durations

@@ -13,7 +13,7 @@ from __future__ import annotations
 import pytest
 
 from controller.config import load_config
-from controller.tools.contour_scan import ContourScenario, run_contour_scenario, scan_config
+from controller.tools.contour.scan import ContourScenario, run_contour_scenario, scan_config
 
 LIMIT_N = 60.0
 ENVELOPE_M = 0.012  # task.contour.envelope_margin_m

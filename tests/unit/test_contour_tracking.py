@@ -17,7 +17,7 @@ from controller.core.ports import TaskContext
 from controller.core.setpoint_smoothing import Setpoint
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.tasks.contour_tracking import ContourPhase, ContourState, _wrap, track_normal
-from controller.tools.analysis.contour_report import ContourObserver, constant_speed_laps, contour_summary
+from controller.tools.contour.report import ContourObserver, constant_speed_laps, contour_summary
 from sim_backend.loopback import LoopbackExchange
 
 FAST = {"task.kind": "contour", "task.contour.lap_speeds_m_s": [0.05, 0.08]}

@@ -1,4 +1,4 @@
-"""The cycle's work stays within its budget (controller/tools/cycle_work.py, docs/measurements/speed.md).
+"""The cycle's work stays within its budget (controller/tools/bench/cycle_work.py, docs/measurements/speed.md).
 
 Deterministic counts of the interpreter over a fixed window of a simulated-time run, not timing:
 the same code and configuration give the same figures on any machine, busy or not. A change that
@@ -14,7 +14,7 @@ from pathlib import Path
 import can
 import pytest
 
-from controller.tools.cycle_work import (
+from controller.tools.bench.cycle_work import (
     BUDGET_PER_CYCLE,
     DEFAULT_TASK_WINDOWS,
     count_work,

@@ -12,7 +12,7 @@ import pytest
 from can.interfaces.udp_multicast.bus import GeneralPurposeUdpMulticastBus
 
 import drivers.local_multicast as lm
-from controller.tools.demo import random_udp_port
+from controller.shell.demo import random_udp_port
 from drivers.bus import LOCAL_MULTICAST_GROUP, open_bus, parse_bus_spec
 
 

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import can
 
-from controller.tools.demo import simulator_process
+from controller.shell.demo import simulator_process
 from drivers.bus import parse_bus_spec
 
 ROOT = Path(__file__).resolve().parents[2]

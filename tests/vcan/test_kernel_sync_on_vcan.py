@@ -3,7 +3,7 @@
 What is asserted is behaviour, not timing: the SYNC keeps coming while the Python process that
 started it does not run a single bus call, the loop's RPDOs go out between SYNCs, and the
 controller completes a task with it. The jitter is measured, not tested:
-``python -m controller.tools.sync_jitter --can socketcan:vcan0 --producer kernel|loop``.
+``python -m controller.tools.bench.sync_jitter --can socketcan:vcan0 --producer kernel|loop``.
 """
 
 from __future__ import annotations

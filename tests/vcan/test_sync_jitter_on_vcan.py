@@ -11,7 +11,7 @@ import json
 
 import pytest
 
-from controller.tools.sync_jitter import measure
+from controller.tools.bench.sync_jitter import measure
 
 RATE_HZ = 100.0
 DURATION_S = 5.0

@@ -29,7 +29,9 @@ The package holds one concept per module: ``statistics`` (the figures), ``sleepe
 comparison), ``probes`` (the loop's timing and CPU accounting), ``case`` (one configuration against
 the simulator, the machine's floor beside it), ``step_cost`` (the step against Ruckig), ``pdo_paths``
 (the PDO path against canopen's), ``runner`` (the whole benchmark and its plots), ``report`` (the
-table) and ``command`` (its command line).
+table) and ``command`` (its command line). Beside it, the measurements the bench and the docs cite:
+``cyclictest`` (the machine's floor), ``cycle_work`` (the deterministic work per cycle),
+``sync_jitter``, ``node_setup_time``, ``query_flood`` and ``soak`` (a long run).
 """
 
 from __future__ import annotations

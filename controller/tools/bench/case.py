@@ -31,7 +31,7 @@ def simulator(
     ready_timeout_s: float = 120.0,
 ) -> AbstractContextManager[subprocess.Popen[str]]:
     """``cheope sim`` as a child process with its own real-time options."""
-    from controller.tools.demo import simulator_process
+    from controller.shell.demo import simulator_process
 
     return simulator_process(spec, config_path, overrides, ready_timeout_s, extra_args=rt.cli_args())
 
@@ -63,9 +63,9 @@ def run_case(
 ) -> dict[str, object]:
     from controller.assembly import planned_bus_load
     from controller.config import load_config, parse_override
+    from controller.shell.demo import random_udp_port
     from controller.shell.service import run_controller
     from controller.tasks.registry import task_entry
-    from controller.tools.demo import random_udp_port
     from drivers.bus import parse_bus_spec
 
     overrides = [*base_overrides, f"loop.rate_hz={case.rate_hz}", f"bus.fd={'true' if case.fd else 'false'}"]
@@ -200,7 +200,12 @@ def machine_floor_beside(
     (3 912 late wake-ups per 10 000 in one 8-s run at 400 Hz, other work on the machine), a floor that
     measures the loop, not the machine; above it, it takes microseconds a wake-up from the loop.
     Yields the floor's figures (filled when the block ends) or an error."""
-    from controller.tools.cyclictest import INSTALL_HINT, CyclictestError, cyclictest_beside, cyclictest_path
+    from controller.tools.bench.cyclictest import (
+        INSTALL_HINT,
+        CyclictestError,
+        cyclictest_beside,
+        cyclictest_path,
+    )
 
     floor: Json = {}
     if duration_s <= 0 or cyclictest_path() is None:

@@ -185,7 +185,7 @@ def bus_frame_cost(spec_text: str, fd: bool, frames: int = 2000) -> dict[str, ob
     """
     import can
 
-    from controller.tools.demo import random_udp_port
+    from controller.shell.demo import random_udp_port
     from drivers.bus import open_bus, parse_bus_spec
 
     spec = parse_bus_spec(spec_text, fd=fd, udp_port=random_udp_port())

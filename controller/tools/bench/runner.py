@@ -70,7 +70,7 @@ def run_bench(
             "cpu_percent": "% of one CPU over the run",
         },
     }
-    from controller.tools.cyclictest import INSTALL_HINT, cyclictest_path
+    from controller.tools.bench.cyclictest import INSTALL_HINT, cyclictest_path
 
     if cyclictest_s > 0 and cyclictest_path() is None:
         progress(INSTALL_HINT)
@@ -142,10 +142,10 @@ def run_bench(
 
 
 def work_per_cycle(task: str, instructions: bool, progress: Callable[[str], None]) -> Json | None:
-    """The deterministic figure beside the timed ones (controller/tools/cycle_work.py): the task's
+    """The deterministic figure beside the timed ones (controller/tools/bench/cycle_work.py): the task's
     work per cycle at the default configuration over its fixed window, against the budget;
     machine instructions too with ``instructions`` (valgrind, minutes). None for a task without a window."""
-    from controller.tools.cycle_work import (
+    from controller.tools.bench.cycle_work import (
         BUDGET_PER_CYCLE,
         DEFAULT_TASK_WINDOWS,
         count_instructions,

@@ -1,6 +1,6 @@
 """The SYNC period as a second node on the bus sees it: produced by the Python loop or by the kernel.
 
-``python -m controller.tools.sync_jitter --can socketcan:vcan0 --producer kernel --duration 10``
+``python -m controller.tools.bench.sync_jitter --can socketcan:vcan0 --producer kernel --duration 10``
 prints how far each SYNC interval is from the period (receive timestamps of the kernel, µs):
 p50 / p99 / max of |interval - period|, and the achieved mean period. ``--producer loop`` paces
 ``send`` with the loop shell's ``DeadlineSleeper`` (the loop's own SYNC, without a control step:
@@ -81,7 +81,7 @@ def measure(
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m controller.tools.sync_jitter", description=__doc__)
+    parser = argparse.ArgumentParser(prog="python -m controller.tools.bench.sync_jitter", description=__doc__)
     parser.add_argument("--can", default="socketcan:vcan0")
     parser.add_argument("--producer", choices=("loop", "kernel"), default="kernel")
     parser.add_argument("--rate", type=float, default=400.0, help="SYNC rate [Hz]")

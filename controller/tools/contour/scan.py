@@ -447,8 +447,8 @@ def shape_config(base: Config, shape: str) -> Config:
 
 def run_shape(base: Config, shape: str, directory: Path | None = None) -> dict[str, object]:
     """One shape, 3 laps at 40 mm/s: the scan's row plus the force error overall and at corners."""
-    from controller.tools.analysis.contour_report import ContourObserver, contour_summary
-    from controller.tools.contour_experiment import structure_robot
+    from controller.tools.contour.experiment import structure_robot
+    from controller.tools.contour.report import ContourObserver, contour_summary
 
     cfg = shape_config(base, shape)
     c = cfg.task.model("contour")

@@ -1,6 +1,6 @@
 """Work per cycle: a deterministic figure of what one control cycle costs the loop's thread.
 
-    .venv/bin/python -m controller.tools.cycle_work [--task path] [--skip 800] [--cycles 1000] [--instructions]
+    .venv/bin/python -m controller.tools.bench.cycle_work [--task path] [--skip 800] [--cycles 1000] [--instructions]
 
 Timing figures move with everything else on the machine; this one does not, so that a change that
 makes the cycle costlier shows as a number, run after run (``cheope bench`` prints it beside its
@@ -402,7 +402,7 @@ def count_instructions(
             "--trace-children=no",
             os.path.realpath(sys.executable),
             "-m",
-            "controller.tools.cycle_work",
+            "controller.tools.bench.cycle_work",
             "--child",
             str(script_path),
             "--task",

@@ -1,6 +1,6 @@
 """How long the controller's device set-up takes against the in-process simulator (virtual bus).
 
-``python -m controller.tools.node_setup_time [RUNS]`` prints each run's ``configure_nodes``
+``python -m controller.tools.bench.node_setup_time [RUNS]`` prints each run's ``configure_nodes``
 duration and the median, with the shipped configuration (three drives and the sensor).
 """
 

@@ -38,7 +38,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from controller.config import Config, load_config
-from controller.tools.contour_scan import ContourScenario, lap_places, run_contour_scenario, scan_config
+from controller.tools.contour.scan import ContourScenario, lap_places, run_contour_scenario, scan_config
 
 NAMED_ENDS = ("retracted", "backed off")
 # The simulated robot's start 20 mm further out than the default's (TCP at (0.11, 0, 0.5) m instead of

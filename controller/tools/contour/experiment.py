@@ -29,7 +29,7 @@ from controller.experiments import Experiment
 from controller.realtime import RealtimeOptions
 from controller.shell.service import run_controller
 from controller.tasks.builtin import PathSection
-from controller.tools.analysis.contour_report import ContourObserver, contour_summary, plot_contour
+from controller.tools.contour.report import ContourObserver, contour_summary, plot_contour
 from drivers.bus import BusSpec
 
 

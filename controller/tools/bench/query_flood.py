@@ -1,6 +1,6 @@
 """Benchmark: late cycles of a running controller with and without a flood of garbage Zenoh queries.
 
-    .venv/bin/python -m controller.tools.query_flood [--windows 3] [--window-s 5] [--rate 1000] [--realtime]
+    .venv/bin/python -m controller.tools.bench.query_flood [--windows 3] [--window-s 5] [--rate 1000] [--realtime]
 
 Starts a controller (controller.tools.sim_controller: the production loop, law and publisher on
 the in-process simulated devices; normal scheduler, what ``--no-realtime`` gives ``cheope run``,
@@ -72,7 +72,7 @@ def _late_in_window(client: MonitorClient, window_s: float) -> tuple[int, int]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m controller.tools.query_flood")
+    ap = argparse.ArgumentParser(prog="python -m controller.tools.bench.query_flood")
     ap.add_argument("--windows", type=int, default=3, help="windows of each kind (alternating)")
     ap.add_argument("--window-s", type=float, default=5.0)
     ap.add_argument("--rate", type=float, default=1000.0, help="flood: queries per second")

@@ -30,7 +30,7 @@ import numpy as np
 
 from controller.cli_output import progress_line, strict_json
 from controller.errors import InputError
-from controller.tools.demo import random_udp_port, simulator_process
+from controller.shell.demo import random_udp_port, simulator_process
 from drivers.bus import parse_bus_spec
 
 

@@ -1,6 +1,6 @@
 """The contour task's own commands, declared as plug-in commands (``cheope.commands``,
 controller/commands.py): ``cheope contour-scan``, ``contour-shapes`` and ``contour-stress`` run the
-contour task against disturbances in simulated time (controller/tools/contour_scan.py and
+contour task against disturbances in simulated time (controller/tools/contour/scan.py and
 contour_stress.py). ``cheope faults --contour-*``, their spelling before, still runs them."""
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ def _keep(args: argparse.Namespace) -> Path | None:
 
 
 def run_contour_scan(args: argparse.Namespace, cfg: Config) -> int:
-    from controller.tools.contour_scan import format_table, run_scan, summary
+    from controller.tools.contour.scan import format_table, run_scan, summary
 
     keep = _keep(args)
 
@@ -69,7 +69,7 @@ def run_contour_scan(args: argparse.Namespace, cfg: Config) -> int:
 
 
 def run_contour_shapes(args: argparse.Namespace, cfg: Config) -> int:
-    from controller.tools.contour_scan import format_shapes, run_shapes, shapes_met
+    from controller.tools.contour.scan import format_shapes, run_shapes, shapes_met
 
     shapes = run_shapes(cfg, _keep(args))
     print(json.dumps(shapes) if args.json else format_shapes(shapes))
@@ -77,7 +77,7 @@ def run_contour_shapes(args: argparse.Namespace, cfg: Config) -> int:
 
 
 def run_contour_stress(args: argparse.Namespace, cfg: Config) -> int:
-    from controller.tools import contour_stress
+    from controller.tools.contour import stress as contour_stress
 
     keep = _keep(args)
     margin_m = cfg.task.model("contour").envelope_margin_m
