@@ -19,14 +19,17 @@ demo: setup
 
 # make test: the static checks and the fast layers (tests/unit, tests/protocol without the slow
 # tier), about a minute. make test-all: the static checks and every layer but vcan (what CI runs).
-# Both in two worker processes (pytest-xdist), one per core of the 2-core machines: the suite is made
-# to pass on a busy machine, and a second worker halves its time (test-all: 8 min, 16 in one).
+# The in-process tests in two worker processes (pytest-xdist), one per core of the 2-core machines;
+# the tests that run controller processes over a bus (marker bus_processes, tests/conftest.py) after
+# them, one at a time, as they were made to run: beside a second worker they failed.
 PYTEST_WORKERS ?= 2
 test: lint
-	$(VENV)/bin/pytest -q -n $(PYTEST_WORKERS) tests/unit tests/protocol -m "not slow and not vcan and not bench"
+	$(VENV)/bin/pytest -q -n $(PYTEST_WORKERS) tests/unit tests/protocol -m "not slow and not vcan and not bench and not bus_processes"
+	$(VENV)/bin/pytest -q tests/unit tests/protocol -m "not slow and not vcan and not bench and bus_processes"
 
 test-all: lint
-	$(VENV)/bin/pytest -q -n $(PYTEST_WORKERS)
+	$(VENV)/bin/pytest -q -n $(PYTEST_WORKERS) -m "not vcan and not bench and not bus_processes"
+	$(VENV)/bin/pytest -q -m "bus_processes and not vcan and not bench"
 
 test-vcan: setup
 	tests/vcan/run

@@ -152,7 +152,7 @@ def test_human_summary_names_the_figures():
     r = _cheope(
         "demo", "--task", "path", "--set", "task.path.laps=0.25", "--udp-port", str(_port()), *TOLERANT
     )
-    assert r.returncode == 0, r.stderr
+    assert r.returncode == 0, r.stderr + r.stdout  # the human summary names the fault
     for label in ("loop rate", "period error", "late cycles", "missing frames", "tracking error"):
         assert label in r.stdout
     # stdout is a pipe here, not a terminal: no live status line (its phase names, its escape codes)
