@@ -170,7 +170,7 @@ class ReferenceTrail:
         return [Primitive(TRAIL_ENTITY, Shape.LINE, YELLOW, points=tuple(self.points), radius_m=0.0008)]
 
 
-def _workpiece(cfg: Config) -> list[Primitive]:
+def workpiece_primitives(cfg: Config) -> list[Primitive]:
     """The workpiece where the simulator has it, and the outline the task expects (its entry's)."""
     from controller.tasks.registry import task_entry
 

@@ -9,11 +9,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
+from controller.sim_config.fault_specs import Fault, parse_fault
+
 if TYPE_CHECKING:
     from sim_backend.drive import SimulatedDrive
     from sim_backend.force_sensor import SimulatedForceSensor
 
-from controller.sim_config.fault_specs import Fault, parse_fault
 
 FLOOD_COB_ID = 0x001
 FLOOD_FRAMES_PER_SYNC = 32  # more than a 1 Mbit/s bus carries in 2.5 ms besides the cycle's own frames

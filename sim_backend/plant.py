@@ -275,11 +275,11 @@ class RobotPlant:
 
     def _check_structure(self) -> None:
         """A workpiece presses on the robot's structure: only a robot that models one can meet it."""
-        lacks = missing_capability(self.robot, CompliantStructure)
-        if self.loaded and lacks:
+        if self.loaded and self._compliance is None:
             raise ValueError(
                 f"the simulated workpiece presses on the robot's structure, and robot.kind = {self._kind!r} "
-                f"lacks {lacks} (the CompliantStructure capability, controller/plugin_api.py); "
+                f"lacks {missing_capability(self.robot, CompliantStructure)} (the CompliantStructure "
+                "capability, controller/plugin_api.py); "
                 'run it in free space: sim.environment = "free"'
             )
 

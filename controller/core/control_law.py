@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -67,7 +67,14 @@ from controller.core.cycle_data import (
 )
 from controller.core.law_config import LawConfig
 from controller.core.linalg3 import norm3, sub3
-from controller.core.ports import ContactExpectation, ForceWitnessModel, Robot, Task, TaskContext
+from controller.core.ports import (
+    ContactExpectation,
+    ForceWitnessModel,
+    Robot,
+    Task,
+    TaskContext,
+    missing_capability,
+)
 from controller.core.records import replace
 from controller.core.safety_monitor import GUARDED_MODES, SafetyMonitor
 from controller.core.setpoint_smoothing import RuckigSmoother, Setpoint
@@ -107,8 +114,8 @@ class ControlLaw:
         self.n = robot.n_actuators
         self.monitor = SafetyMonitor(robot, config)  # the checks of each cycle's inputs
         # Robots that tell the contact force from their drives' efforts give the sensor its second witness.
-        self._witness_model: ForceWitnessModel | None = (
-            robot if callable(getattr(robot, "contact_force_from_efforts", None)) else None  # type: ignore[assignment]
+        self._witness_model = (
+            None if missing_capability(robot, ForceWitnessModel) else cast(ForceWitnessModel, robot)
         )
         self._handlers: dict[Mode, ModeHandler] = {
             Mode.CONFIGURING: self._configuring,

@@ -19,9 +19,7 @@ from drivers.pdo_codec import (
 )
 from sim_backend.loopback import LoopbackExchange
 
-ROBOT_FILES = {kind: robot_entry(kind).config_file for kind in ("uru", "nspu")}  # in each robot's home
-
-NSPU_TOML = ROBOT_FILES["nspu"]
+NSPU_TOML = robot_entry("nspu").config_file  # in the robot's home
 
 
 def test_tracker_frames_round_trip_to_a_count():

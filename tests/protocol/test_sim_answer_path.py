@@ -33,8 +33,6 @@ from drivers.pdo_codec import (
 )
 from sim_backend.server import Simulator, arrival_s
 
-ROBOT_FILES = {kind: robot_entry(kind).config_file for kind in ("uru", "nspu")}  # in each robot's home
-
 WAIT_S = 20.0  # generous: only a broken simulator takes this long
 COUNTS_PER_M = 1e7
 
@@ -262,7 +260,7 @@ def test_the_simulated_tracker_answers_a_sync_with_the_pose_in_two_frames():
     from drivers.pdo_codec import TRACKER_M_PER_COUNT, TRACKER_RAD_PER_COUNT, decode_tracker_frame
 
     cfg = load_config(
-        ROBOT_FILES["nspu"],
+        robot_entry("nspu").config_file,
         {"tracker.enabled": True, "sim.tracker.position_noise_m": 0.0, "sim.tracker.angle_noise_rad": 0.0},
     )
     bus = ScriptedBus()

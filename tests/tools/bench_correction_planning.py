@@ -21,8 +21,6 @@ from controller.robots.nspu.plan_correction import correction_plan
 from controller.shell.loop import CycleLoop, SimulatedTime
 from sim_backend.loopback import LoopbackExchange
 
-ROBOT_FILES = {kind: robot_entry(kind).config_file for kind in ("uru", "nspu")}  # in each robot's home
-
 SETTINGS = {
     "sim.nspu.leg_offset_m": [0.0005, -0.0005, 0.0005],
     "sim.nspu.w4_axis_error_rad": [0.001, -0.001, 0.001],
@@ -49,7 +47,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args()
-    cfg = load_config(ROBOT_FILES["nspu"], SETTINGS)
+    cfg = load_config(robot_entry("nspu").config_file, SETTINGS)
     clock = SimulatedTime()
     law = assemble(cfg).law
     seen = Requests()

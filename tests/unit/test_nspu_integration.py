@@ -21,12 +21,10 @@ from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.shell.run_summary import RunRecorder
 from sim_backend.loopback import LoopbackExchange
 
-ROBOT_FILES = {kind: robot_entry(kind).config_file for kind in ("uru", "nspu")}  # in each robot's home
-
 # a planned 2 s motion streamed in simulated time, and a demo over the bus: the slow tier (make test-all)
 pytestmark = pytest.mark.slow
 
-NSPU_TOML = ROBOT_FILES["nspu"]
+NSPU_TOML = robot_entry("nspu").config_file  # in the robot's home
 
 
 @pytest.fixture(scope="module")

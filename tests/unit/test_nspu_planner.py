@@ -33,8 +33,6 @@ from controller.robots.nspu.planning.nonholonomic import (
     type2_measure,
 )
 
-ROBOT_FILES = {kind: robot_entry(kind).config_file for kind in ("uru", "nspu")}  # in each robot's home
-
 GEOM = NspuGeometry.paper_example()
 UNIT = GEOM.length_unit_m
 START, GOAL = paper_example_poses()
@@ -204,7 +202,7 @@ def test_shipped_default_motion_converges_and_is_verified() -> None:
     from controller.robots.nspu.entry import nspu_geometry, nspu_poses
     from controller.robots.nspu.planned_legs import planner_config
 
-    cfg = load_config(str(ROBOT_FILES["nspu"]), {})
+    cfg = load_config(str(robot_entry("nspu").config_file), {})
     start, goal = nspu_poses(cfg.robot.model("nspu"))
     pcfg = planner_config(cfg.robot.model("nspu"))
     res = plan_motion(nspu_geometry(cfg.robot.model("nspu")), start, goal, pcfg)

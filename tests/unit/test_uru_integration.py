@@ -22,9 +22,7 @@ from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.shell.run_summary import RunRecorder
 from sim_backend.loopback import LoopbackExchange
 
-ROBOT_FILES = {kind: robot_entry(kind).config_file for kind in ("uru", "nspu")}  # in each robot's home
-
-URU_TOML = ROBOT_FILES["uru"]
+URU_TOML = robot_entry("uru").config_file  # in the robot's home
 SHORT = {"task.path.laps": 0.25, "task.path.speed_m_s": 0.05, "task.path.ramp_s": 0.3}
 
 

@@ -9,8 +9,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from controller.config import Config
 from logs.robot_drawing import (
     BLUE,
     DARK,
@@ -22,12 +20,15 @@ from logs.robot_drawing import (
     Primitive,
     ReferenceTrail,
     Shape,
-    _workpiece,
     box_between,
     force_arrow,
     margin_color,
     vec3,
+    workpiece_primitives,
 )
+
+if TYPE_CHECKING:
+    from controller.config import Config
 
 
 @dataclass
@@ -80,7 +81,7 @@ class CheopeDrawing:
                     radius_m=0.008,
                 )
             )
-        return out + _workpiece(self.cfg)
+        return out + workpiece_primitives(self.cfg)
 
     def actuated_joints(self) -> tuple[ActuatedJoint, ...]:
         """The three linear motors: a carriage sliding along its prismatic axis n_j (seed 001 §3)."""

@@ -5,9 +5,10 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from sim_backend.plant_kinematics import PlantKinematics, RigidKinematics
+
 if TYPE_CHECKING:
     from controller.config import Config
-from sim_backend.plant_kinematics import PlantKinematics, RigidKinematics
 
 
 def cheope_kinematics(cfg: Config, robot: Any) -> PlantKinematics:

@@ -8,9 +8,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from logs.robot_drawing import BLUE, DARK, ORANGE, STEEL, ActuatedJoint, MeasuredPose, Primitive, Shape, vec3
+
 if TYPE_CHECKING:
     from controller.config import Config
-from logs.robot_drawing import BLUE, DARK, ORANGE, STEEL, ActuatedJoint, MeasuredPose, Primitive, Shape, vec3
 
 
 @dataclass

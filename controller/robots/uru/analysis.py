@@ -30,11 +30,6 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.collections import QuadMesh
 
-if TYPE_CHECKING:
-    from matplotlib.lines import Line2D
-
-from typing import TYPE_CHECKING
-
 from controller.config import Config
 from controller.robots.uru.kinematics import (
     UruGeometry,
@@ -44,7 +39,8 @@ from controller.robots.uru.kinematics import (
 )
 
 if TYPE_CHECKING:
-    pass
+    from matplotlib.lines import Line2D
+
 
 _DET_S_POLE_MASK = 20.0
 

@@ -8,8 +8,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from controller.config import Config
 from logs.robot_drawing import (
     BLUE,
     DARK,
@@ -21,12 +19,15 @@ from logs.robot_drawing import (
     Primitive,
     ReferenceTrail,
     Shape,
-    _workpiece,
     box_between,
     force_arrow,
     margin_color,
     vec3,
+    workpiece_primitives,
 )
+
+if TYPE_CHECKING:
+    from controller.config import Config
 
 
 @dataclass
@@ -64,7 +65,7 @@ class UruDrawing:
                     label=f"motor {i + 1}",
                 )
             )
-        return out + _workpiece(self.cfg)
+        return out + workpiece_primitives(self.cfg)
 
     def actuated_joints(self) -> tuple[ActuatedJoint, ...]:
         """The three motors on the base: a shaft turning about e_i at A_i with a crank mark; the links

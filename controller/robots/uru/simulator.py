@@ -7,9 +7,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from sim_backend.plant_kinematics import PlantKinematics, RigidKinematics
+
 if TYPE_CHECKING:
     from controller.config import Config
-from sim_backend.plant_kinematics import PlantKinematics, RigidKinematics
 
 
 class UruKinematics(RigidKinematics):

@@ -6,16 +6,12 @@ import argparse
 import math
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from controller.cli_output import strict_json
 from controller.errors import InputError
 from controller.realtime import RealtimeOptions
 from controller.tools.bench.report import format_table
 from controller.tools.bench.runner import TOLERANT_SAFETY, run_bench
-
-if TYPE_CHECKING:
-    pass
 
 
 def _bench_tasks() -> tuple[str, ...]:

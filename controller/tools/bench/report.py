@@ -3,12 +3,8 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
 
 from controller.tools.bench.statistics import Json
-
-if TYPE_CHECKING:
-    pass
 
 
 def format_table(report: Json) -> str:

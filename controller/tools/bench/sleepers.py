@@ -4,15 +4,11 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from controller.shell.loop import period_error_us
 from controller.tools.bench.statistics import percentiles_us, schedule_stats
-
-if TYPE_CHECKING:
-    pass
 
 
 def busy_work(duration_s: float, clock: Callable[[], float] = time.perf_counter) -> None:

@@ -2,15 +2,11 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from controller.shell.loop import period_error_us
-
-if TYPE_CHECKING:
-    pass
-
 
 # The benchmark's results are JSON-shaped (bench.json): nested dicts of numbers, strings and lists,
 # their keys set where they are built. The code that reads them back (the cyclictest ratios, the
