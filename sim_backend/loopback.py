@@ -253,6 +253,12 @@ class LoopbackExchange:
 
     # -- the loop shell's side ----------------------------------------------------------------
 
+    def stall_s(self, deadline_s: float) -> float:
+        """How late the loop wakes for ``deadline_s`` under the ``stall`` fault (``SimulatedTime``'s
+        ``lateness``): 0 when none is active."""
+        stall = self.faults.active("stall", deadline_s)
+        return stall.value if stall is not None else 0.0
+
     def send(self, outputs: CycleOutputs | None) -> None:
         now = self.clock()
         self.plant.advance(now)

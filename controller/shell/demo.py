@@ -198,9 +198,17 @@ def run_simulated_time(
     law = build_law(cfg)
     clock = SimulatedTime()
     exchange = LoopbackExchange(cfg, clock.clock)
+    clock.lateness = exchange.stall_s  # the stall fault (--inject stall=S@T+D): the loop wakes late
     recorder = RunRecorder()
     loop = CycleLoop(
-        law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(recorder,)
+        law,
+        exchange,
+        cfg.period_s,
+        cfg.loop.collect_fraction,
+        clock,
+        clock.clock,
+        observers=(recorder,),
+        late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s,
     )
     final, stats = loop.run(law.initial_state(), max_duration_s)
     te = recorder.tracking

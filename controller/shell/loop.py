@@ -347,6 +347,7 @@ class CycleLoop:
         work_decay = 0.5 ** (period / WORK_PEAK_HALF_LIFE_S)
         collect_garbage = self.collect_garbage
         young_limit, middle_limit, old_limit = gc.get_threshold()
+        skipped_before = False  # deadlines were skipped before this cycle
         while True:
             deadline = first_deadline + k * period
             self.sleeper.sleep_until(deadline)
@@ -372,7 +373,8 @@ class CycleLoop:
                 stop,
                 command,
                 value,
-                late=woke - deadline > self.late_tolerance_s,
+                # late: woke late, or the first cycle after deadlines the loop skipped (it fell behind)
+                late=woke - deadline > self.late_tolerance_s or skipped_before,
                 plans_ready=self.plans_ready() if self.plans_ready is not None else 0,
             )
             t = k * period
@@ -407,7 +409,8 @@ class CycleLoop:
                 break
             k += 1
             behind = clock() - (first_deadline + k * period)
-            if behind > period:
+            skipped_before = behind > period
+            if skipped_before:
                 skipped = int(behind / period)
                 stats.overruns += skipped
                 k += skipped
@@ -423,13 +426,20 @@ class CycleLoop:
 
 
 class SimulatedTime:
-    """Clock and sleeper for runs in simulated time (tests, replay): sleeping jumps the clock."""
+    """Clock and sleeper for runs in simulated time (tests, replay): sleeping jumps the clock.
 
-    def __init__(self, start_s: float = 0.0) -> None:
+    ``lateness`` (deadline -> seconds) makes a wake-up come that much after its deadline: the
+    simulator's ``stall`` fault (``LoopbackExchange.stall_s``), a machine that holds the loop up,
+    reproduced deterministically (the loop then skips the deadlines it missed, as over a bus).
+    """
+
+    def __init__(self, start_s: float = 0.0, lateness: Callable[[float], float] | None = None) -> None:
         self.now_s = start_s
+        self.lateness = lateness
 
     def clock(self) -> float:
         return self.now_s
 
     def sleep_until(self, deadline_s: float) -> None:
-        self.now_s = max(self.now_s, deadline_s)
+        late_s = self.lateness(deadline_s) if self.lateness is not None else 0.0
+        self.now_s = max(self.now_s, deadline_s + late_s)

@@ -19,7 +19,8 @@ needs one. Kinds:
                    DURATION the bias stays where it drifted to
 - ``error_frames`` CAN error frames on the bus; ``bus_off`` an error frame reporting bus-off
 - ``tx_full``      the controller's frames do not reach the devices (a full transmit queue)
-- ``stall=S``      the controller's loop wakes S seconds late every cycle (in-process runs only)
+- ``stall=S``      the controller's loop wakes S seconds late at every deadline while active, and
+                   skips the deadlines it missed (in-process runs in simulated time only)
 
 Someone else on the bus (issue "a bus that cannot lie"):
 

@@ -27,7 +27,6 @@ from controller.core.controller_state import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severity
 from controller.core.ports import CycleTiming
 from controller.shell.loop import CycleLoop, SimulatedTime
-from sim_backend.fault_injection import FaultSchedule
 from sim_backend.loopback import LoopbackExchange
 
 FAULT_AT_S = 2.0  # the task is running then (it starts at about 0.2 s)
@@ -186,18 +185,6 @@ SCENARIOS: tuple[Scenario, ...] = (
 )
 
 
-class StallingSleeper:
-    """Simulated time whose wake-ups come ``stall=S`` late while that fault is active."""
-
-    def __init__(self, time: SimulatedTime, schedule: FaultSchedule) -> None:
-        self.time = time
-        self.schedule = schedule
-
-    def sleep_until(self, deadline_s: float) -> None:
-        stall = self.schedule.active("stall", deadline_s)
-        self.time.sleep_until(deadline_s + (stall.value if stall is not None else 0.0))
-
-
 @dataclass
 class _Watch:
     """Observer: when the reaction came and when the drives reached the safe state."""
@@ -242,7 +229,7 @@ def run_scenario(base: Config, sc: Scenario, directory: Path) -> dict[str, objec
     law = build_law(cfg)
     exchange = LoopbackExchange(cfg, clock.clock)
     watch = _Watch(exchange, FAULT_AT_S)
-    sleeper = StallingSleeper(clock, exchange.faults)
+    clock.lateness = exchange.stall_s  # the stall fault: the loop wakes late
     with SessionRecorder.for_config(
         cfg, clock=clock.clock, phase_name=law.task.phase_name, extra_metadata={"fault_scenario": sc.name}
     ) as recorder:
@@ -251,7 +238,7 @@ def run_scenario(base: Config, sc: Scenario, directory: Path) -> dict[str, objec
             exchange,
             cfg.period_s,
             cfg.loop.collect_fraction,
-            sleeper,
+            clock,
             clock.clock,
             observers=(watch, recorder),
             late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s,

@@ -160,6 +160,7 @@ def run_simulated_time(
     clock = SimulatedTime()
     law = build_law(cfg)
     exchange = LoopbackExchange(cfg, clock.clock)
+    clock.lateness = exchange.stall_s  # the stall fault (--inject stall=S@T+D): the loop wakes late
     obs = ContourObserver(
         c.force_setpoint_n,
         c.expected_centre_m,
@@ -167,7 +168,14 @@ def run_simulated_time(
         lambda: exchange.plant.force_n.tolist(),
     )
     final, stats = CycleLoop(
-        law, exchange, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(obs,)
+        law,
+        exchange,
+        cfg.period_s,
+        cfg.loop.collect_fraction,
+        clock,
+        clock.clock,
+        observers=(obs,),
+        late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s,
     ).run(law.initial_state(), max_duration_s)
     summary: dict[str, object] = {
         "final_mode": final.mode.name,

@@ -157,6 +157,7 @@ def run_contour_scenario(
     clock = SimulatedTime()
     law = build_law(cfg)
     exchange = LoopbackExchange(cfg, clock.clock)
+    clock.lateness = exchange.stall_s  # the stall fault: the loop wakes late
     watch = _Watch(exchange)
     recorder = (
         SessionRecorder.for_config(
@@ -180,6 +181,7 @@ def run_contour_scenario(
             clock,
             clock.clock,
             observers=loop_observers,
+            late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s,
         )
         final, _ = loop.run(law.initial_state(), MAX_DURATION_S)
     finally:

@@ -1,0 +1,99 @@
+"""A loop held up from beside it (issue "A loop that nothing beside it can stall"), in simulated time.
+
+Beside two CPU hogs this machine holds even cyclictest's real-time thread up to 10 ms at times
+(`cyclictest -p80 -a1 -i2500` beside two `while True: pass`: max 9.9 ms in 30 s); the demo's loop
+met such hold-ups every few seconds and the contour task took the force excursion after each for
+an irregular contour (creep at 10 mm/s for 25 mm: laps 4-5 at 34 mm/s of 60). The simulator's
+``stall`` fault reproduces the hold-up deterministically: the loop wakes that late and skips the
+deadlines it missed, as over a bus. No wall clock anywhere.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from controller.assembly import build_law
+from controller.config import load_config
+from controller.shell.loop import CycleLoop, SimulatedTime
+from controller.tools.contour.experiment import run_simulated_time
+from controller.tools.contour.scan import ContourScenario, run_contour_scenario
+from sim_backend.loopback import LoopbackExchange
+
+STALL_S = 0.0096  # the hold-ups the hog run met: 9.5-9.7 ms
+STALL_EVERY_S = 2.5
+
+
+def _stalls(start_s: float, end_s: float, period_s: float) -> list[str]:
+    """One hold-up of STALL_S every STALL_EVERY_S, each active for one deadline."""
+    out, t = [], start_s
+    while t < end_s:
+        out.append(f"stall={STALL_S}@{t:.4f}+{period_s}")
+        t += STALL_EVERY_S
+    return out
+
+
+class Inputs:
+    def __init__(self) -> None:
+        self.rows: list[tuple[int, bool]] = []
+
+    def on_cycle(self, cycle, t, inputs, state, outputs, events, timing) -> None:
+        self.rows.append((cycle, inputs.late))
+
+
+def test_a_held_up_wake_is_late_and_so_is_the_first_cycle_after_the_skipped_deadlines():
+    cfg = load_config(overrides={"task.kind": "path", "sim.faults": ["stall=0.0096@1.0+0.0025"]})
+    clock = SimulatedTime()
+    law = build_law(cfg)
+    exchange = LoopbackExchange(cfg, clock.clock)
+    clock.lateness = exchange.stall_s
+    seen = Inputs()
+    loop = CycleLoop(
+        law,
+        exchange,
+        cfg.period_s,
+        cfg.loop.collect_fraction,
+        clock,
+        clock.clock,
+        observers=(seen,),
+        late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s,
+    )
+    _, stats = loop.run(law.initial_state(), 2.0)
+    gaps = [(a, b) for (a, _), (b, _) in zip(seen.rows, seen.rows[1:], strict=False) if b - a > 1]
+    assert len(gaps) == 1 and stats.overruns == gaps[0][1] - gaps[0][0] - 1 >= 2  # 9.6 ms: >= 3 periods
+    late = [c for c, is_late in seen.rows if is_late]
+    assert late == list(gaps[0])  # the cycle that woke late, and the one after the skip
+
+
+@pytest.mark.slow
+def test_the_paper_laps_keep_their_speed_through_hold_ups_of_the_loop():
+    """Every 2.5 s the loop is held up 9.6 ms: laps 3-5 at 95 % of their speed or more (were 57-58
+    mm/s with the derating alone, 34 over the bus with the creep), and the task never creeps."""
+    base = load_config(overrides={"task.kind": "contour"})
+    cfg = load_config(overrides={"task.kind": "contour", "sim.faults": _stalls(5.1, 80.0, base.period_s)})
+    summary = run_simulated_time(cfg)
+    assert summary["final_mode"] == "DONE", summary["fault_reason"]
+    laps = summary["contour"]["laps"]
+    for lap in laps[2:]:
+        assert lap["speed_achieved_m_s"] >= 0.95 * lap["speed_commanded_m_s"], lap
+    assert summary["contour"]["max_true_contact_force_n"] < 0.5 * cfg.safety.max_contact_force_n
+
+
+@pytest.mark.slow
+def test_a_bump_is_still_ridden_under_the_limit_when_every_cycle_is_late():
+    """What a hold-up excuses cannot hide the contour: with every cycle 1.3 ms late (over the late
+    tolerance, under a period: the window never closes; the late-cycle fault set to warn) the 2-mm bump of the issue is still met
+    slowly and the true contact force stays under the limit."""
+    row = run_contour_scenario(
+        load_config(overrides={"task.kind": "contour"}),
+        ContourScenario(
+            "bump, every cycle late",
+            ("stall=0.0013@1.0",),
+            features=({"angle_deg": 45.0, "length_m": 0.005, "depth_m": -0.002},),
+            overrides=(("safety.on_late_cycles", "warn"),),  # else 50 late cycles in a row fault the run
+        ),
+        None,
+    )
+    assert row["outcome"] in ("DONE", "retracted", "backed off"), row["cause"]
+    # under the task's own force limit, not only the safety layer's: without the band's derating in
+    # the window (an excused excursion of any size) the bump pressed 49 N and the task retracted on it
+    assert row["max_true_contact_force_n"] < load_config().task.model("contour").max_force_n
