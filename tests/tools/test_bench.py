@@ -409,3 +409,27 @@ def test_the_floor_is_measured_beside_the_run_not_after_it():
     assert floor["samples"] >= 300
     case = {"late_per_10k": 0.0, "wake_latency_us": {"p99": 10.0}}
     assert machine_floor(floor, 250.0, case)["late_us"] == 250.0
+
+
+def test_cpu_hogs_run_while_the_block_runs_and_are_gone_after_it():
+    from controller.tools.bench.cpu_hogs import cpu_hogs
+
+    with cpu_hogs(2) as pids:
+        assert len(pids) == 2
+        for pid in pids:  # running, at the normal scheduler
+            assert os.path.exists(f"/proc/{pid}") and os.sched_getscheduler(pid) == os.SCHED_OTHER
+    for pid in pids:  # killed and reaped by the block: no such process any more
+        assert not os.path.exists(f"/proc/{pid}")
+    with pytest.raises(ValueError, match="cpu hogs: 17"), cpu_hogs(17):
+        pass
+
+
+def test_cli_refuses_too_many_hogs_naming_the_option():
+    proc = subprocess.run(
+        [sys.executable, "-m", "controller", "bench", "--hogs", "17", "--duration", "1"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode != 0
+    assert "--hogs 17: must be 0 .. 16" in proc.stderr

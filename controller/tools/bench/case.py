@@ -12,6 +12,7 @@ import numpy as np
 from controller.experiments import experiment_for
 from controller.realtime import RealtimeOptions
 from controller.shell.loop import period_error_us
+from controller.tools.bench.cpu_hogs import cpu_hogs
 from controller.tools.bench.probes import LoopProbe, cpu_use_percent
 from controller.tools.bench.statistics import Json, late_per_10k, percentiles_us
 from drivers import cob_ids
@@ -60,6 +61,7 @@ def run_case(
     sim_rt: RealtimeOptions,
     late_fraction: float,
     cyclictest_s: float = 0.0,
+    hogs: int = 0,
 ) -> dict[str, object]:
     from controller.assembly import planned_bus_load
     from controller.config import load_config, parse_override
@@ -93,7 +95,10 @@ def run_case(
             proc.pid,
             sample_every=max(1, round(cfg.loop.rate_hz)),
         )
-        with machine_floor_beside(case.rate_hz, min(cyclictest_s, duration_s), rt, late_fraction) as floor:
+        with (
+            cpu_hogs(hogs),  # busy neighbours at the normal priority (cpu_hogs.py)
+            machine_floor_beside(case.rate_hz, min(cyclictest_s, duration_s), rt, late_fraction) as floor,
+        ):
             summary = run_controller(
                 cfg,
                 spec,
@@ -127,6 +132,7 @@ def run_case(
         "bus": str(spec),
         "realtime": summary.get("realtime"),  # as granted to the loop thread
         "simulator_realtime": sim_rt.describe(),  # as asked of the simulator
+        "cpu_hogs": hogs,
         "final_mode": summary["final_mode"],
         "fault_reason": summary.get("fault_reason"),
         "cycles": _count(summary["cycles"]),
@@ -136,6 +142,8 @@ def run_case(
         "late_per_10k": round(late_per_10k(wake, period, late_fraction, overruns), 2),
         "late_fraction_of_period": late_fraction,
         "overruns": overruns,
+        # the cycle with the longest span from wake-up to the end of its work, and where it went
+        "longest_cycle_us": summary.get("longest_cycle_us"),
         "step_us": percentiles_us(probe.step_s[skip:n] * 1e6),
         "tpdo_to_ready_us": percentiles_us(_finite(probe.ready_after_tpdo_s[skip:n]) * 1e6),
         "sync_to_last_tpdo_us": percentiles_us(_finite(probe.answer_s[skip:n]) * 1e6),

@@ -10,6 +10,7 @@ from pathlib import Path
 from controller.cli_output import strict_json
 from controller.errors import InputError
 from controller.realtime import RealtimeOptions
+from controller.tools.bench.cpu_hogs import MAX_HOGS
 from controller.tools.bench.report import format_table
 from controller.tools.bench.runner import TOLERANT_SAFETY, run_bench
 
@@ -61,6 +62,13 @@ def add_bench_arguments(ap: argparse.ArgumentParser) -> None:
         help="seconds of cyclictest beside each case (0: none)",
     )
     ap.add_argument(
+        "--hogs",
+        type=int,
+        default=0,
+        metavar="N",
+        help="N busy processes at the normal priority beside each case (an ordinary busy machine)",
+    )
+    ap.add_argument(
         "--instructions",
         action="store_true",
         help="also machine instructions per cycle (valgrind's callgrind; a few minutes)",
@@ -92,6 +100,7 @@ def checked_bench_arguments(
         ("--compare", args.compare, args.compare >= 0, ">= 0"),
         ("--cyclictest", args.cyclictest, args.cyclictest >= 0, ">= 0"),
         ("--fd-from", args.fd_from, args.fd_from > 0, "> 0"),
+        ("--hogs", args.hogs, 0 <= args.hogs <= MAX_HOGS, f"0 .. {MAX_HOGS}"),
         ("--late-fraction", args.late_fraction, 0 < args.late_fraction < 1, "in (0, 1)"),
     ):
         if not (math.isfinite(value) and ok):
@@ -142,6 +151,7 @@ def run_bench_command(args: argparse.Namespace, rt: RealtimeOptions) -> int:
         cyclictest_s=args.cyclictest,
         task=args.task,
         instructions=args.instructions,
+        hogs=args.hogs,
     )
     print(strict_json(report, indent=2) if args.json else format_table(report))
     print(f"JSON: {Path(args.output_dir) / 'bench.json'}", file=sys.stderr)

@@ -78,6 +78,11 @@ def format_table(report: Json) -> str:
             f"{c['cyclictest'].get('wake_p99_ratio')}" if "latency_us" in c.get("cyclictest", {}) else "-"
         ),
     )
+    row(
+        "longest cycle us (its largest part)",
+        lambda c: _longest(c.get("longest_cycle_us")),
+    )
+    row("CPU hogs beside", lambda c: f"{c.get('cpu_hogs', 0)}")
     row("final mode", lambda c: c["final_mode"])
     for c in cases:
         if c.get("fault_reason"):
@@ -158,3 +163,12 @@ def python_can_floor_percent(case: Json, cost: Json) -> tuple[float, float]:
     controller = rate * (ours * send + seen * recv) * 1e-4
     simulator = rate * (max(0.0, seen - ours) * send + seen * recv) * 1e-4
     return round(controller, 1), round(simulator, 1)
+
+
+def _longest(cycle: object) -> str:
+    """The longest cycle's span and the part of it that took longest (controller/shell/loop.py)."""
+    if not isinstance(cycle, dict) or "span" not in cycle:
+        return "-"
+    parts = {k: v for k, v in cycle.items() if k not in ("span", "cycle")}
+    part = max(parts, key=lambda k: parts[k]) if parts else "-"
+    return f"{cycle['span']:.0f} ({part} {parts.get(part, 0.0):.0f})"

@@ -49,6 +49,7 @@ def run_bench(
     cyclictest_s: float = 30.0,
     task: str = "path",
     instructions: bool = False,
+    hogs: int = 0,
 ) -> dict[str, object]:
     from controller.assembly import planned_bus_load
     from controller.config import load_config, parse_override
@@ -125,6 +126,7 @@ def run_bench(
                     case_sim_rt,
                     late_fraction,
                     cyclictest_s,
+                    hogs,
                 )
             )
     classical_1k = load_config(
