@@ -186,31 +186,16 @@ def run_simulated_time(
     """Any task against the in-process devices in simulated time (``cheope demo --simulated-time``
     for a task without an experiment of its own: the path, a plug-in robot's first run).
 
-    The law, the loopback devices and the loop a run over the bus has, on a simulated clock:
-    deterministic, independent of the machine's load. ``plot_dir`` is unused: only an experiment plots.
+    The in-process rig (controller/shell/simulated_rig.py): deterministic, independent of the
+    machine's load. ``plot_dir`` is unused: only an experiment plots.
     """
-    from controller.assembly import build_law
     from controller.core.cycle_data import Severity
-    from controller.shell.loop import CycleLoop, SimulatedTime
     from controller.shell.run_summary import RunRecorder
-    from sim_backend.loopback import LoopbackExchange
+    from controller.shell.simulated_rig import SimulatedRig
 
-    law = build_law(cfg)
-    clock = SimulatedTime()
-    exchange = LoopbackExchange(cfg, clock.clock)
-    clock.lateness = exchange.stall_s  # the stall fault (--inject stall=S@T+D): the loop wakes late
+    rig = SimulatedRig(cfg)
     recorder = RunRecorder()
-    loop = CycleLoop(
-        law,
-        exchange,
-        cfg.period_s,
-        cfg.loop.collect_fraction,
-        clock,
-        clock.clock,
-        observers=(recorder,),
-        late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s,
-    )
-    final, stats = loop.run(law.initial_state(), max_duration_s)
+    final, stats = rig.run((recorder,), max_duration_s)
     te = recorder.tracking
     return {
         "final_mode": final.mode.name,
@@ -219,7 +204,7 @@ def run_simulated_time(
         "simulated_time": True,
         "simulated_duration_s": round(stats.cycles * cfg.period_s, 6),
         "tracking_error_m": {"rms": te.rms, "max": te.maximum, "samples": te.count},
-        "final_tcp_m": [round(float(x), 6) for x in exchange.plant.tcp_m],
+        "final_tcp_m": [round(float(x), 6) for x in rig.exchange.plant.tcp_m],
         "events": [
             f"{t:.4f}s {e.severity.name}: {e.message}"
             for t, e in recorder.events

@@ -20,13 +20,12 @@ from pathlib import Path
 
 import msgspec
 
-from controller.assembly import build_law
 from controller.config import Config, load_config
 from controller.core.cia402 import PowerState
 from controller.core.controller_state import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severity
 from controller.core.ports import CycleTiming
-from controller.shell.loop import CycleLoop, SimulatedTime
+from controller.shell.simulated_rig import SimulatedRig
 from sim_backend.loopback import LoopbackExchange
 
 FAULT_AT_S = 2.0  # the task is running then (it starts at about 0.2 s)
@@ -225,25 +224,16 @@ def run_scenario(base: Config, sc: Scenario, directory: Path) -> dict[str, objec
         sim=msgspec.structs.replace(base.sim, faults=(sc.fault,)),
         recording=msgspec.structs.replace(base.recording, enabled=True, directory=str(directory)),
     )
-    clock = SimulatedTime()
-    law = build_law(cfg)
-    exchange = LoopbackExchange(cfg, clock.clock)
+    rig = SimulatedRig(cfg)
+    exchange = rig.exchange
     watch = _Watch(exchange, FAULT_AT_S)
-    clock.lateness = exchange.stall_s  # the stall fault: the loop wakes late
     with SessionRecorder.for_config(
-        cfg, clock=clock.clock, phase_name=law.task.phase_name, extra_metadata={"fault_scenario": sc.name}
+        cfg,
+        clock=rig.clock.clock,
+        phase_name=rig.law.task.phase_name,
+        extra_metadata={"fault_scenario": sc.name},
     ) as recorder:
-        loop = CycleLoop(
-            law,
-            exchange,
-            cfg.period_s,
-            cfg.loop.collect_fraction,
-            clock,
-            clock.clock,
-            observers=(watch, recorder),
-            late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s,
-        )
-        final, stats = loop.run(law.initial_state(), 60.0)
+        final, stats = rig.run((watch, recorder), 60.0)
     report = read_info(recorder.path)
     if final.mode == Mode.FAULT:
         observed = "fault"

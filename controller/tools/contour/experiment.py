@@ -151,32 +151,19 @@ def run_simulated_time(
     Deterministic and free of the machine's timing: the reference to compare a run over a
     bus with (``cheope demo --task contour --simulated-time``).
     """
-    from controller.assembly import build_law
-    from controller.shell.loop import CycleLoop, SimulatedTime
-    from sim_backend.loopback import LoopbackExchange
+    from controller.shell.simulated_rig import SimulatedRig
 
     c = cfg.task.model("contour")
     robot = structure_robot(cfg)  # refused at start, not after the run, when it lacks a structure
-    clock = SimulatedTime()
-    law = build_law(cfg)
-    exchange = LoopbackExchange(cfg, clock.clock)
-    clock.lateness = exchange.stall_s  # the stall fault (--inject stall=S@T+D): the loop wakes late
+    rig = SimulatedRig(cfg)
+    exchange = rig.exchange
     obs = ContourObserver(
         c.force_setpoint_n,
         c.expected_centre_m,
         len(c.lap_speeds_m_s),
         lambda: exchange.plant.force_n.tolist(),
     )
-    final, stats = CycleLoop(
-        law,
-        exchange,
-        cfg.period_s,
-        cfg.loop.collect_fraction,
-        clock,
-        clock.clock,
-        observers=(obs,),
-        late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s,
-    ).run(law.initial_state(), max_duration_s)
+    final, stats = rig.run((obs,), max_duration_s)
     summary: dict[str, object] = {
         "final_mode": final.mode.name,
         "fault_reason": final.fault_reason,

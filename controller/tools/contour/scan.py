@@ -38,13 +38,12 @@ from pathlib import Path
 import msgspec
 import numpy as np
 
-from controller.assembly import build_law
 from controller.config import Config, load_config
 from controller.core.contact_guard import PROTECTIVE_STOP
 from controller.core.controller_state import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
 from controller.core.ports import CycleTiming
-from controller.shell.loop import CycleLoop, SimulatedTime
+from controller.shell.simulated_rig import SimulatedRig
 from controller.tasks.contour_tracking import ContourPhase, ContourState
 from sim_backend.loopback import LoopbackExchange
 
@@ -154,16 +153,13 @@ def run_contour_scenario(
     from logs.recorder import SessionRecorder
 
     cfg = _with(base, sc, directory)
-    clock = SimulatedTime()
-    law = build_law(cfg)
-    exchange = LoopbackExchange(cfg, clock.clock)
-    clock.lateness = exchange.stall_s  # the stall fault: the loop wakes late
-    watch = _Watch(exchange)
+    rig = SimulatedRig(cfg)
+    watch = _Watch(rig.exchange)
     recorder = (
         SessionRecorder.for_config(
             cfg,
-            clock=clock.clock,
-            phase_name=law.task.phase_name,
+            clock=rig.clock.clock,
+            phase_name=rig.law.task.phase_name,
             extra_metadata={"contour_scenario": sc.name},
         )
         if directory
@@ -173,17 +169,7 @@ def run_contour_scenario(
     if recorder is not None:
         recorder.__enter__()
     try:
-        loop = CycleLoop(
-            law,
-            exchange,
-            cfg.period_s,
-            cfg.loop.collect_fraction,
-            clock,
-            clock.clock,
-            observers=loop_observers,
-            late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s,
-        )
-        final, _ = loop.run(law.initial_state(), MAX_DURATION_S)
+        final, _ = rig.run(loop_observers, MAX_DURATION_S)
     finally:
         if recorder is not None:
             recorder.__exit__(None, None, None)

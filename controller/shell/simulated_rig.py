@@ -1,0 +1,52 @@
+"""The in-process rig: the law, the loopback devices and the loop a run over a bus has, on a simulated clock.
+
+What every run in simulated time is built from (``cheope demo --simulated-time``, the contour's
+experiment and scans, ``cheope faults``): deterministic, independent of the machine's load. The
+clock's wake-ups come late where the simulator's ``stall`` fault says so (``SimulatedTime``'s
+``lateness``), and the loop has the configured late tolerance, so a hold-up of the loop is
+reproduced as a run over a bus meets it: a late cycle, then the deadlines it missed skipped.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from controller.shell.loop import CycleLoop, LoopStats, SimulatedTime
+
+if TYPE_CHECKING:
+    from controller.config import Config
+    from controller.core.control_law import ControlLaw
+    from controller.core.controller_state import ControllerState
+    from controller.core.ports import CycleObserver
+    from sim_backend.loopback import LoopbackExchange
+
+
+class SimulatedRig:
+    def __init__(self, cfg: Config) -> None:
+        from controller.assembly import build_law
+        from sim_backend.loopback import LoopbackExchange
+
+        self.cfg = cfg
+        self.clock = SimulatedTime()
+        self.law: ControlLaw = build_law(cfg)
+        self.exchange: LoopbackExchange = LoopbackExchange(cfg, self.clock.clock)
+        self.clock.lateness = self.exchange.stall_s  # the stall fault: the loop wakes late
+
+    def loop(self, observers: tuple[CycleObserver, ...] = ()) -> CycleLoop:
+        cfg = self.cfg
+        return CycleLoop(
+            self.law,
+            self.exchange,
+            cfg.period_s,
+            cfg.loop.collect_fraction,
+            self.clock,
+            self.clock.clock,
+            observers=observers,
+            late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s,
+        )
+
+    def run(
+        self, observers: tuple[CycleObserver, ...] = (), max_duration_s: float | None = None
+    ) -> tuple[ControllerState, LoopStats]:
+        """From the law's initial state until it ends (or ``max_duration_s`` of simulated time)."""
+        return self.loop(observers).run(self.law.initial_state(), max_duration_s)
