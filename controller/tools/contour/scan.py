@@ -136,8 +136,8 @@ def _with(cfg: Config, sc: ContourScenario, directory: Path | None) -> Config:
         cfg.recording, enabled=directory is not None, directory=str(directory or "")
     )
     cfg = msgspec.structs.replace(cfg, sim=sim, recording=recording)
-    if not sc.overrides:
-        return cfg
+    # through the configuration's own checks, always: a scenario's fault that cannot fire (shorter
+    # than a cycle) or names no device is refused here, not run as an undisturbed scenario
     from controller.config import config_from_dict, config_to_dict, set_dotted
 
     table = config_to_dict(cfg)

@@ -14,7 +14,9 @@ TCP) strayed from the part while tracking and where it ended, and the outcome:
 - **sensor spikes** of +-30 to +-60 N lasting 0.5 and 2 s;
 - **tares in contact**: a phantom force on the sensor during the tare, a part touching the staging point;
 - **combinations** of our own: a misplaced part with an offset step, a bump where the approach lands,
-  a spike during the approach, a stale sensor during the approach, an ellipse misplaced.
+  a spike during the approach, a stale sensor during the approach, an ellipse misplaced;
+- **the loop held up** (the simulator's ``stall`` fault: it wakes that late and skips the deadlines
+  it missed): 9.6 ms every 2.5 s, 30 ms once, and 9.6 ms every 0.5 s on a bump in lap 1.
 
 Outcomes: ``DONE``; ``retracted`` (the task retracted and named the cause); ``backed off`` (the
 safety layer's protective stop, ``controller/core/contact_guard.py``, named the cause); anything
@@ -55,7 +57,7 @@ def _places(base: Config) -> tuple[dict[str, float], dict[str, object]]:
     return {**phases, **{f"place{k + 1}": t for k, t in enumerate(places)}}, row
 
 
-def scenarios(t: dict[str, float]) -> Iterator[ContourScenario]:
+def scenarios(t: dict[str, float], period_s: float) -> Iterator[ContourScenario]:
     place = [t[f"place{k}"] for k in range(1, 9)]
     # -- the part misplaced: by the clearance, twice it (the target), the tolerance, beyond
     for distance_mm, directions in ((5, 8), (10, 8), (15, 4)):
@@ -161,6 +163,17 @@ def scenarios(t: dict[str, float]) -> Iterator[ContourScenario]:
     yield ContourScenario(
         "offset step -7 N in lap 1 (a phantom wall)", (f"drift=-700@{round(t['APPROACH'] + 6.0, 3)}+0.01",)
     )
+    # -- the loop held up (the machine's hold-ups: 10 ms beside two CPU hogs, cyclictest's too)
+    # (a stall fault active for one period holds up the one deadline that falls in it)
+    every = 2.5  # s
+    held = tuple(f"stall=0.0096@{approach + every * k:.4f}+{period_s}" for k in range(int(90.0 / every)))
+    yield ContourScenario("loop held up 9.6 ms every 2.5 s from the approach on", held)
+    yield ContourScenario("loop held up 30 ms in lap 2", (f"stall=0.03@{place[1]:.4f}+{period_s}",))
+    yield ContourScenario(
+        "bump 2 mm x 5 mm, loop held up 9.6 ms every 0.5 s in lap 1",
+        tuple(f"stall=0.0096@{approach + 0.5 * k:.4f}+{period_s}" for k in range(40)),
+        features=({"angle_deg": 45.0, "length_m": 0.005, "depth_m": -0.002},),
+    )
 
 
 def _run_one(args: tuple[Config, ContourScenario, Path | None]) -> dict[str, object]:
@@ -178,7 +191,7 @@ def run_stress(
     with tempfile.TemporaryDirectory(prefix="cheope-contour-stress-") as tmp:
         out = Path(directory or tmp)
         times, undisturbed = _places(base)
-        todo = [(base, sc, out) for sc in scenarios(times)]
+        todo = [(base, sc, out) for sc in scenarios(times, base.period_s)]
         rows: list[dict[str, object]] = [undisturbed]
         if jobs > 1:
             with ProcessPoolExecutor(max_workers=jobs) as pool:
