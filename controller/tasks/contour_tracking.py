@@ -951,7 +951,13 @@ class ContourTrackingTask:
         return math.atan2(-dx * self.p.direction, dy * self.p.direction)
 
     def _tangential_speed(
-        self, s: ContourState, rate_rad_s: float, force_error_n: float, dt: float, tcp_xy: tuple[float, float]
+        self,
+        s: ContourState,
+        rate_rad_s: float,
+        force_error_n: float,
+        dt: float,
+        tcp_xy: tuple[float, float],
+        bands: tuple[float, float],
     ) -> float:
         """The lap's speed, derated where the normal turns fast or the force leaves its band, braked
         while the force is not trusted.
@@ -977,7 +983,7 @@ class ContourTrackingTask:
             else s.force_setpoint_n - (s.raw_force[0] * s.normal[0] + s.raw_force[1] * s.normal[1])
         )
         # the raw sample too: a contact surprise shows there about 15 ms before it does through the filter
-        band, stop = self._band_fractions(s)
+        band, stop = bands  # _band_fractions
         target *= min(self._in_band(s, force_error_n, band, stop), self._in_band(s, raw_error_n, band, stop))
         up, down = p.tangential_acceleration_m_s2 * dt, p.stop_deceleration_m_s2 * dt
         if (
@@ -1051,7 +1057,8 @@ class ContourTrackingTask:
             ev = Event("envelope", Severity.FAULT, outside + "; retracting")
             return self._begin_retract(replace(s, normal=normal), ctx, (*events, ev), outside)
         tcp = ctx.tcp_measured_m or s.p_cmd
-        speed = self._tangential_speed(s, rate, s.force_setpoint_n - fn, dt, (tcp[0], tcp[1]))
+        bands = self._band_fractions(s)  # the speed's derating and the creep below: one verdict a cycle
+        speed = self._tangential_speed(s, rate, s.force_setpoint_n - fn, dt, (tcp[0], tcp[1]), bands)
         at_speed, share = self._integral_at_speed(s, speed)
         vn, integral, err = self._normal_speed(at_speed, ctx, fn, pressing, share)
         # A real contact answers motion into it (stiffness >= 1e4 N/m here: 1 N in 0.1 mm). Millimetres
@@ -1090,11 +1097,7 @@ class ContourTrackingTask:
         # disturbance): the next creep_distance_m go at creep speed, so that what comes next (a
         # notch's far wall: a concave corner, whose impact no reaction can catch at full speed) is
         # met slowly.
-        out_of_band = (
-            trusted
-            and abs(err) > self._band_fractions(s)[0] * s.force_setpoint_n
-            and s.contact_point is not None
-        )
+        out_of_band = trusted and abs(err) > bands[0] * s.force_setpoint_n and s.contact_point is not None
         # an excursion that began while a hold-up of the loop explained it stays excused until it ends
         excused = abs(err) > FORCE_BAND_FRACTION * s.force_setpoint_n and (
             s.excused or s.timing_window_cycles > 0
