@@ -9,7 +9,7 @@ reproduced as a run over a bus meets it: a late cycle, then the deadlines it mis
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from controller.shell.loop import CycleLoop, LoopStats, SimulatedTime
 
@@ -32,7 +32,8 @@ class SimulatedRig:
         self.exchange: LoopbackExchange = LoopbackExchange(cfg, self.clock.clock)
         self.clock.lateness = self.exchange.stall_s  # the stall fault: the loop wakes late
 
-    def loop(self, observers: tuple[CycleObserver, ...] = ()) -> CycleLoop:
+    def loop(self, observers: tuple[CycleObserver, ...] = (), **options: Any) -> CycleLoop:
+        """The loop over the rig; ``options`` are CycleLoop's other keywords (stop events, commands)."""
         cfg = self.cfg
         return CycleLoop(
             self.law,
@@ -43,6 +44,7 @@ class SimulatedRig:
             self.clock.clock,
             observers=observers,
             late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s,
+            **options,
         )
 
     def run(

@@ -99,13 +99,10 @@ def test_a_force_creeping_up_without_the_tool_advancing_into_it_is_no_contact():
         def on_cycle(self, cycle, t, inputs, state, outputs, evs, timing):
             events.extend(e.kind for e in evs)
 
-    from controller.assembly import build_law
-    from controller.shell.loop import CycleLoop, SimulatedTime
-    from sim_backend.loopback import LoopbackExchange
+    from controller.shell.simulated_rig import SimulatedRig
 
-    clock = SimulatedTime()
-    law = build_law(cfg)
-    exchange = LoopbackExchange(cfg, clock.clock)
+    rig = SimulatedRig(cfg)
+    exchange = rig.exchange
     forces: list[float] = []
 
     class Truth:
@@ -113,15 +110,7 @@ def test_a_force_creeping_up_without_the_tool_advancing_into_it_is_no_contact():
             if "contact" in [e.kind for e in evs]:
                 forces.append(float(abs(exchange.plant.force_n[0])))
 
-    CycleLoop(
-        law,
-        exchange,
-        cfg.period_s,
-        cfg.loop.collect_fraction,
-        clock,
-        clock.clock,
-        observers=(Events(), Truth()),
-    ).run(law.initial_state(), 6.0)
+    rig.run((Events(), Truth()), 6.0)
     assert "contact_doubtful" in events
     assert events.index("contact_doubtful") < events.index("contact")
     assert forces and forces[0] > 0.5  # the contact taken is the part's, which the tool really touches

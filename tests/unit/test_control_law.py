@@ -18,6 +18,7 @@ from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother, Setpo
 from controller.errors import WorkspaceError
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.shell.run_summary import RunRecorder
+from controller.shell.simulated_rig import SimulatedRig
 from sim_backend.drive import EMCY_FORCED_FAULT
 from sim_backend.loopback import LoopbackExchange
 
@@ -42,22 +43,10 @@ class Trace:
 
 
 def run(cfg: Config, max_s: float = 30.0, hook=None, stop: threading.Event | None = None):
-    clock = SimulatedTime()
-    law = build_law(cfg)
-    exchange = LoopbackExchange(cfg, clock.clock)
+    rig = SimulatedRig(cfg)
     trace, recorder = Trace(hook=hook), RunRecorder()
-    loop = CycleLoop(
-        law,
-        exchange,
-        cfg.period_s,
-        cfg.loop.collect_fraction,
-        clock,
-        clock.clock,
-        observers=(trace, recorder),
-        stop_event=stop,
-    )
-    final, stats = loop.run(law.initial_state(), max_s)
-    return final, stats, trace, recorder, exchange
+    final, stats = rig.loop((trace, recorder), stop_event=stop).run(rig.law.initial_state(), max_s)
+    return final, stats, trace, recorder, rig.exchange
 
 
 SHORT = {"task.path.laps": 0.5}

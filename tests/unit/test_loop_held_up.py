@@ -12,12 +12,10 @@ from __future__ import annotations
 
 import pytest
 
-from controller.assembly import build_law
 from controller.config import load_config
-from controller.shell.loop import CycleLoop, SimulatedTime
+from controller.shell.simulated_rig import SimulatedRig
 from controller.tools.contour.experiment import run_simulated_time
 from controller.tools.contour.scan import ContourScenario, run_contour_scenario
-from sim_backend.loopback import LoopbackExchange
 
 STALL_S = 0.0096  # the hold-ups the hog run met: 9.5-9.7 ms
 STALL_EVERY_S = 2.5
@@ -42,22 +40,8 @@ class Inputs:
 
 def test_a_held_up_wake_is_late_and_so_is_the_first_cycle_after_the_skipped_deadlines():
     cfg = load_config(overrides={"task.kind": "path", "sim.faults": ["stall=0.0096@1.0+0.0025"]})
-    clock = SimulatedTime()
-    law = build_law(cfg)
-    exchange = LoopbackExchange(cfg, clock.clock)
-    clock.lateness = exchange.stall_s
     seen = Inputs()
-    loop = CycleLoop(
-        law,
-        exchange,
-        cfg.period_s,
-        cfg.loop.collect_fraction,
-        clock,
-        clock.clock,
-        observers=(seen,),
-        late_tolerance_s=cfg.safety.late_tolerance_fraction * cfg.period_s,
-    )
-    _, stats = loop.run(law.initial_state(), 2.0)
+    _, stats = SimulatedRig(cfg).run((seen,), 2.0)
     gaps = [(a, b) for (a, _), (b, _) in zip(seen.rows, seen.rows[1:], strict=False) if b - a > 1]
     assert len(gaps) == 1 and stats.overruns == gaps[0][1] - gaps[0][0] - 1 >= 2  # 9.6 ms: >= 3 periods
     late = [c for c, is_late in seen.rows if is_late]

@@ -17,13 +17,11 @@ from pathlib import Path
 import pytest
 from quirk_profiles import DEVICE_PROFILES, Profile
 
-from controller.assembly import build_law
 from controller.config import Config, load_config
 from controller.core.controller_state import Mode
 from controller.core.cycle_data import Command, Event
 from controller.errors import CheopeError
-from controller.shell.loop import CycleLoop, SimulatedTime
-from sim_backend.loopback import LoopbackExchange
+from controller.shell.simulated_rig import SimulatedRig
 
 SHORT = {"task.path.laps": 0.25, "loop.hold_before_task_s": 0.05}
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "reference" / "canopen.md"
@@ -56,22 +54,11 @@ class Operator:
 
 
 def run(cfg: Config, max_s: float = 60.0, operator: Operator | None = None):
-    clock = SimulatedTime()
-    law = build_law(cfg)
-    exchange = LoopbackExchange(cfg, clock.clock)  # set-up: fault reset, homing (raises naming the drive)
+    rig = SimulatedRig(cfg)  # the devices' set-up: fault reset, homing (raises naming the drive)
     operator = operator or Operator()
-    loop = CycleLoop(
-        law,
-        exchange,
-        cfg.period_s,
-        cfg.loop.collect_fraction,
-        clock,
-        clock.clock,
-        observers=(operator,),
-        commands=operator.command,
-    )
-    final, _ = loop.run(law.initial_state(), max_s, exit_on_fault=operator.resets == 0)
-    return final, operator, exchange
+    loop = rig.loop((operator,), commands=operator.command)
+    final, _ = loop.run(rig.law.initial_state(), max_s, exit_on_fault=operator.resets == 0)
+    return final, operator, rig.exchange
 
 
 def profile_config(p: Profile, handled: bool, extra: dict | None = None) -> Config:

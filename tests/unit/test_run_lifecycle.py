@@ -15,6 +15,7 @@ from controller.core.cia402 import PowerState, decode_statusword
 from controller.core.controller_state import ControllerState, Mode
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.shell.run_summary import RunRecorder
+from controller.shell.simulated_rig import SimulatedRig
 from controller.shell.stop_signals import StopSignals
 from sim_backend.loopback import LoopbackExchange
 
@@ -29,9 +30,7 @@ def _run(
     stop_timeout_s: float = 10.0,
     stop: threading.Event | None = None,
 ) -> tuple[ControllerState, LoopbackExchange, list[Mode], RunRecorder]:
-    clock = SimulatedTime()
-    law = build_law(cfg)
-    exchange = LoopbackExchange(cfg, clock.clock)
+    rig = SimulatedRig(cfg)
     stop = stop or threading.Event()
     quick = threading.Event()
     modes: list[Mode] = []
@@ -45,20 +44,9 @@ def _run(
                 quick.set()
 
     rec = RunRecorder()
-    loop = CycleLoop(
-        law,
-        exchange,
-        cfg.period_s,
-        cfg.loop.collect_fraction,
-        clock,
-        clock.clock,
-        observers=(Hook(), rec),
-        stop_event=stop,
-        quick_stop_event=quick,
-        stop_timeout_s=stop_timeout_s,
-    )
-    final, _ = loop.run(law.initial_state(), max_s)
-    return final, exchange, modes, rec
+    loop = rig.loop((Hook(), rec), stop_event=stop, quick_stop_event=quick, stop_timeout_s=stop_timeout_s)
+    final, _ = loop.run(rig.law.initial_state(), max_s)
+    return final, rig.exchange, modes, rec
 
 
 def _powers(exchange: LoopbackExchange) -> set[PowerState]:
