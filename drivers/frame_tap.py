@@ -7,9 +7,11 @@ reads through the tap), the cyclic PDOs, SYNC and heartbeats, EMCY, boot-up, for
 Own transmissions that the bus hands back are recognised exactly and dropped, so that a frame
 this process sent is seen once, as sent, and never a second time as received:
 
-- ``udp_multicast``: python-can's bus cannot leave out its own datagrams
+- ``udp_multicast`` as ``open_bus`` opens it (``drivers/local_multicast.py``) hands back none:
+  a kernel socket filter drops them. python-can's own bus cannot leave out its own datagrams
   (``receive_own_messages`` is not implemented) and IP multicast loopback delivers them to every
-  socket of the group, the sender's own included. The bus packs every field of a ``Message`` with
+  socket of the group, the sender's own included; for that bus (a plug-in may open one) the tap
+  keeps its second line: the bus packs every field of a ``Message`` with
   msgpack, ``channel`` included, and unpacks it unchanged on receipt
   (``can/interfaces/udp_multicast/utils.py``: ``pack_message``/``unpack_message``; only the
   timestamp is replaced). The tap writes a token unique to itself into ``channel`` of every frame

@@ -16,7 +16,18 @@ node 2 from the network faulted a running robot). Here the one socket
   on the way in);
 - keeps a datagram only when its source is one of this host's own addresses (a second line
   behind the binding; the set is read again, at most once a second, when an unknown source
-  appears, so a newly configured address does not silence the bus).
+  appears, so a newly configured address does not silence the bus);
+- never hands back its own datagrams, as SocketCAN does not (``CAN_RAW_RECV_OWN_MSGS`` off):
+  it sends from a second socket with a port of its own, and a socket filter (classic BPF,
+  ``SO_ATTACH_FILTER``) on the receiving socket drops, in the kernel, every datagram from that
+  port. IP multicast loopback delivers a datagram to every member socket of the host, the
+  sender's own included, and every bus binds the group's one port: without the second socket
+  the sender could not tell its datagrams from another process's. Each echo cost the process
+  a wake-up, a ``select``, a ``recvmsg``, a msgpack unpack and a ``Message`` (about 20 us on
+  the development VM; ``drivers/frame_tap.py`` then dropped it), four a cycle in the controller
+  (SYNC and three RPDOs), each on the cycle's critical path before the drives' answers. The
+  sending socket is bound to the group with a port of its own and joins nothing, and its own
+  filter drops everything: nothing reaches it.
 
 The interface (the group's scope) must be the same in every process on the bus: the loopback
 interface when it carries multicast, else the multicast-capable interface that is up with the
@@ -27,6 +38,7 @@ the one chosen); the datagrams never leave the host through another interface ei
 
 from __future__ import annotations
 
+import ctypes
 import ipaddress
 import logging
 import socket
@@ -49,6 +61,12 @@ _SYS_NET = Path("/sys/class/net")
 _IF_INET6 = Path("/proc/net/if_inet6")
 _REREAD_ADDRESSES_S = 1.0  # an unknown source reads this host's addresses again at most this often
 _LOG_FOREIGN_EVERY_S = 5.0
+SO_ATTACH_FILTER = 26  # asm-generic/socket.h
+# classic BPF (linux/filter.h): (code, jt, jf, k). On a UDP socket the filter runs on the datagram
+# from its UDP header on: the halfword at offset 0 is the source port.
+_BPF_LDH_ABS, _BPF_JEQ_K, _BPF_RET_K = 0x28, 0x15, 0x06
+_BPF_KEEP = 0x40000  # bytes of the datagram kept: all of it
+_DROP_ALL = ((_BPF_RET_K, 0, 0, 0),)
 
 
 class NoMulticastInterfaceError(can.CanInitializationError):
@@ -96,6 +114,25 @@ def host_addresses() -> frozenset[str]:
     return frozenset(out)
 
 
+def attach_socket_filter(sock: socket.socket, program: tuple[tuple[int, int, int, int], ...]) -> None:
+    """Attach a classic BPF ``program`` to ``sock`` (the kernel copies it)."""
+    code = b"".join(struct.pack("HBBI", *insn) for insn in program)
+    buffer = ctypes.create_string_buffer(code)
+    sock.setsockopt(
+        socket.SOL_SOCKET, SO_ATTACH_FILTER, struct.pack("HL", len(program), ctypes.addressof(buffer))
+    )
+
+
+def drop_from_port(port: int) -> tuple[tuple[int, int, int, int], ...]:
+    """A socket filter that drops every UDP datagram whose source port is ``port`` and keeps the rest."""
+    return (
+        (_BPF_LDH_ABS, 0, 0, 0),
+        (_BPF_JEQ_K, 0, 1, port),
+        (_BPF_RET_K, 0, 0, 0),
+        (_BPF_RET_K, 0, 0, _BPF_KEEP),
+    )
+
+
 class LocalGroupSocket(GeneralPurposeUdpMulticastBus):
     """python-can's send/receive handler, on a socket bound to the group on one interface."""
 
@@ -107,6 +144,13 @@ class LocalGroupSocket(GeneralPurposeUdpMulticastBus):
         self._foreign_logged_s = -_LOG_FOREIGN_EVERY_S
         super().__init__(group, port, hop_limit=0)
         self._send_destination = (group, port, 0, self.interface_index)  # type: ignore[assignment]
+        try:
+            self._send_socket = self._create_send_socket()
+            self.send_port: int = self._send_socket.getsockname()[1]
+            attach_socket_filter(self._socket, drop_from_port(self.send_port))
+        except BaseException:
+            self.shutdown()
+            raise
 
     def _create_socket(self, address_family: socket.AddressFamily) -> socket.socket:
         if address_family != socket.AF_INET6:
@@ -133,8 +177,46 @@ class LocalGroupSocket(GeneralPurposeUdpMulticastBus):
             ) from err
         return sock
 
+    def _create_send_socket(self) -> socket.socket:
+        """The socket this bus sends from: bound to the group, a port of its own, receiving nothing."""
+        sock = socket.socket(socket.AF_INET6, socket.SOCK_DGRAM)
+        try:
+            ipv6 = socket.IPPROTO_IPV6
+            sock.setsockopt(ipv6, socket.IPV6_V6ONLY, 1)
+            sock.setsockopt(ipv6, socket.IPV6_MULTICAST_HOPS, 0)
+            sock.setsockopt(ipv6, socket.IPV6_MULTICAST_LOOP, 1)
+            sock.setsockopt(ipv6, socket.IPV6_MULTICAST_IF, self.interface_index)
+            attach_socket_filter(sock, _DROP_ALL)
+            sock.bind((self.group, 0, 0, self.interface_index))
+        except OSError as err:
+            sock.close()
+            raise can.CanInitializationError(
+                f"cannot open the sending socket of {self.group} on {self.interface_name}: {err.strerror or err}"
+            ) from err
+        return sock
+
+    def send(self, data: bytes, timeout: float | None = None) -> None:
+        """python-can's ``send``, from the sending socket."""
+        if timeout != self._last_send_timeout:
+            self._last_send_timeout = timeout
+            self._send_socket.settimeout(timeout)
+        try:
+            if self._send_socket.sendto(data, self._send_destination) < len(data):
+                raise TimeoutError()
+        except TimeoutError:
+            raise can.CanTimeoutError() from None
+        except OSError as error:
+            raise can.CanOperationError("failed to send via socket") from error
+
+    def shutdown(self) -> None:
+        send = getattr(self, "_send_socket", None)
+        if send is not None:
+            send.close()
+        super().shutdown()
+
     def recv(self, timeout: float | None = None) -> Any:
-        """python-can's ``recv``, keeping only datagrams from this host's own addresses."""
+        """python-can's ``recv``, keeping only datagrams from this host's own addresses (this bus's
+        own were dropped in the kernel)."""
         result = super().recv(timeout)
         if result is None or result[1][0] in self._addresses:
             return result
@@ -158,7 +240,8 @@ class LocalUdpMulticastBus(UdpMulticastBus):
     """``UdpMulticastBus`` on ``LocalGroupSocket``: the interface-local group, this host only.
 
     Its ``__init__`` does what the parent's does (the msgpack check, BusABC's set-up, the FD
-    protocol) around the one socket the parent would have bound to every address.
+    protocol) around the socket the parent would have bound to every address. Unlike the
+    parent's, it does not receive its own frames (module text).
     """
 
     def __init__(self, channel: str, port: int, fd: bool = True, **kwargs: Any) -> None:

@@ -35,6 +35,28 @@ def test_frames_of_this_host_go_round_between_two_buses() -> None:
         assert b.foreign_datagrams == 0
 
 
+def test_a_bus_never_receives_its_own_frames_and_its_sending_socket_receives_nothing() -> None:
+    """As SocketCAN: the sender's echo is dropped in the kernel; every other bus gets the frame."""
+    spec = parse_bus_spec("udp_multicast", udp_port=random_udp_port())
+    with open_bus(spec) as a, open_bus(spec) as b, open_bus(spec) as c:
+        a.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))
+        b.send(can.Message(arbitration_id=0x181, data=b"\x01", is_extended_id=False))
+        for bus, expected in ((a, {0x181}), (b, {0x080}), (c, {0x080, 0x181})):
+            got = set()
+            while len(got) < len(expected) and (msg := bus.recv(10.0)) is not None:
+                got.add(msg.arbitration_id)
+            assert got == expected
+            assert bus.recv(0.05) is None  # and no echo after them
+        sender = a._multicast._send_socket
+        _, index = lm.multicast_interface()
+        assert sender.getsockname() == (LOCAL_MULTICAST_GROUP, a._multicast.send_port, 0, index)
+        assert sender.getsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_HOPS) == 0
+        c._multicast._socket.sendto(b"x", (LOCAL_MULTICAST_GROUP, a._multicast.send_port, 0, index))
+        sender.setblocking(False)
+        with pytest.raises(BlockingIOError):
+            sender.recv(64)
+
+
 def test_a_datagram_from_a_source_not_of_this_host_is_dropped_and_counted(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

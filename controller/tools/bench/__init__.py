@@ -21,7 +21,7 @@ Definitions (also in the JSON):
 - period error: |(wake_k - wake_{k-1}) - period|, wake-ups on the monotonic clock;
 - late cycle: woke more than ``late_fraction`` of a period after its deadline, or a deadline
   skipped because the loop fell a whole period behind (an overrun);
-- measured bus load: every frame seen on the bus (the udp_multicast bus echoes our own) times
+- measured bus load: every frame on the bus (the controller's sent and received ones) times
   its duration by ``drivers.bus_load`` with its own FD/BRS flags, worst-case stuffing, per
   second of the run; it counts classical frames where a device answers with classical frames.
 

@@ -115,7 +115,7 @@ def run_case(
     overruns = _count(summary.get("overruns", 0))
     samples = probe.samples
     seconds = samples[-1][0] - samples[0][0] if len(samples) > 1 else 0.0
-    # each frame once in either direction: the service's bus tap drops the bus's echoes of our own
+    # each frame once in either direction: the bus (or the service's tap) hands back none of our own
     frames = {
         cid: probe.frames.get(cid, 0) + probe.frames_out.get(cid, 0)
         for cid in probe.frames.keys() | probe.frames_out.keys()

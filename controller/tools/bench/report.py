@@ -153,15 +153,18 @@ def _process_without_spin(case: Json) -> str:
 def python_can_floor_percent(case: Json, cost: Json) -> tuple[float, float]:
     """python-can's own cost per process at the case's rate, from the per-frame costs [% of a core].
 
-    Every frame on the udp_multicast bus reaches every process, its own included: both the
-    controller and the simulator receive all of them; each sends its own.
+    The controller sends its frames (``out`` a cycle) and receives the simulator's (``in``); the
+    simulator the other way round. A bus that hands a sender its own frames back (python-can's
+    udp_multicast; ``bus_frame_cost`` counts them) adds a receive for each frame sent; the
+    project's bus does not (drivers/local_multicast.py).
     """
     per_cycle = case["frames_per_cycle"]
     send, recv = cost["send_us"]["p50"], cost["recv_us"]["p50"]
+    echo = cost["own_frames_received_back"] / max(1, cost["frames"])
     rate = case["rate_hz"]
-    seen, ours = per_cycle["in"], per_cycle["out"]
-    controller = rate * (ours * send + seen * recv) * 1e-4
-    simulator = rate * (max(0.0, seen - ours) * send + seen * recv) * 1e-4
+    received, sent = per_cycle["in"], per_cycle["out"]
+    controller = rate * (sent * send + (received + echo * sent) * recv) * 1e-4
+    simulator = rate * (received * send + (sent + echo * received) * recv) * 1e-4
     return round(controller, 1), round(simulator, 1)
 
 
