@@ -89,12 +89,19 @@ def _common(ap: argparse.ArgumentParser, bus: bool = True, robots: tuple[str, ..
 def _rt_options(ap: argparse.ArgumentParser) -> None:
     g = ap.add_argument_group(
         "real-time options (Linux). Without any of them the loop asks for SCHED_FIFO 80 on the last CPU "
-        "with locked memory (the simulator: SCHED_FIFO 70 on the others) and runs on with one line of "
-        "warning where refused; given explicitly they are required"
+        "with locked memory and a CPU wake-up latency of 0 (the simulator: SCHED_FIFO 70 on the others) "
+        "and runs on with one line of warning where refused; given explicitly they are required"
     )
     g.add_argument("--rt-priority", type=int, metavar="N", help="SCHED_FIFO priority 1..99 for the loop")
     g.add_argument("--cpu", metavar="CPUS", help="CPU affinity, e.g. 1 or 0,1")
     g.add_argument("--lock-memory", action="store_true", help="mlockall: no page faults on the hot path")
+    g.add_argument(
+        "--cpu-latency-us",
+        type=int,
+        metavar="US",
+        help="hold the CPUs' wake-up latency at most US microseconds while running (PM QoS, "
+        "/dev/cpu_dma_latency; 0: no idle state that takes time to leave)",
+    )
     g.add_argument("--no-realtime", action="store_true", help="ask for none of them: the normal scheduler")
     g.add_argument(
         "--rt-best-effort",
@@ -134,10 +141,12 @@ def _live_overrides(args: argparse.Namespace) -> list[str]:
 def _realtime(args: argparse.Namespace, simulator: bool = False) -> RealtimeOptions:
     from controller.realtime import RealtimeError, RealtimeOptions, parse_cpus
 
-    explicit = args.rt_priority is not None or args.cpu or args.lock_memory
+    explicit = args.rt_priority is not None or args.cpu or args.lock_memory or args.cpu_latency_us is not None
     if args.no_realtime:
         if explicit:
-            raise RealtimeError("--no-realtime cannot be combined with --rt-priority, --cpu or --lock-memory")
+            raise RealtimeError(
+                "--no-realtime cannot be combined with --rt-priority, --cpu, --lock-memory or --cpu-latency-us"
+            )
         return RealtimeOptions()
     if not explicit:
         default = RealtimeOptions.default()
@@ -146,6 +155,7 @@ def _realtime(args: argparse.Namespace, simulator: bool = False) -> RealtimeOpti
         priority=args.rt_priority,
         cpus=parse_cpus(args.cpu) if args.cpu else (),
         lock_memory=args.lock_memory,
+        cpu_latency_us=args.cpu_latency_us,
         required=not args.rt_best_effort,
     )
 

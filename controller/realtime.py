@@ -7,7 +7,7 @@ thread converts messages. Shortening the interval bounds that wait at a small co
 throughput of the background threads.
 
 Real-time options (Linux). By default (``RealtimeOptions.default``, as ros2_control's node
-does) the controller asks for all three and, where the system refuses, prints one line naming
+does) the controller asks for all four and, where the system refuses, prints one line naming
 what was refused and how to permit it, and runs on without it; ``--no-realtime`` asks for
 nothing. Options given explicitly on the command line are required: a refusal ends the start
 with that message.
@@ -20,8 +20,16 @@ with that message.
   put the simulator on the other CPU.
 - ``mlockall(MCL_CURRENT | MCL_FUTURE)``: no page faults from swapped-out or lazily mapped
   pages on the hot path. Process-wide.
+- A CPU wake-up latency limit (PM QoS, ``/dev/cpu_dma_latency``, held open while the process
+  runs): 0 keeps every CPU out of idle states that take time to leave (on a VM guest the
+  ``haltpoll`` driver's halt, which hands the vCPU back to the host). The loop sleeps most
+  of each cycle, before its deadline and while the drives answer; after such a sleep its
+  ``step`` ran slower (the path task's p50 179-245 us against 142-199 us with the limit,
+  5 alternating runs of a step after every 2-ms sleep: ``docs/concepts/realtime.md``).
+  cyclictest holds the same limit by default, so the floor it measures is taken with it.
+  Machine-wide while held; released when the file is closed.
 
-All three are taken after the start-up work, never before it (``check_realtime`` only probes):
+All are taken after the start-up work, never before it (``check_realtime`` only probes):
 several controllers and simulators share a host, and one's start-up at SCHED_FIFO took the
 CPU from another's running loop.
 """
@@ -34,6 +42,7 @@ import errno
 import gc
 import logging
 import os
+import struct
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -51,6 +60,11 @@ _PRIORITY_HINT = (
     "run as root, give the interpreter CAP_SYS_NICE (sudo setcap cap_sys_nice+ep <python>), "
     "or allow it in /etc/security/limits.conf (@group - rtprio 90); inside a container "
     "start it with --cap-add SYS_NICE"
+)
+PM_QOS_DEVICE = "/dev/cpu_dma_latency"  # linux/Documentation/power/pm_qos_interface.rst
+_LATENCY_HINT = (
+    "run as root, or let the service's group write the device (a udev rule: "
+    'KERNEL=="cpu_dma_latency", GROUP="realtime", MODE="0660")'
 )
 _LOCK_HINT = (
     "run as root, give the interpreter CAP_IPC_LOCK, or raise the limit (ulimit -l unlimited, "
@@ -78,6 +92,7 @@ class RealtimeOptions:
     priority: int | None = None  # SCHED_FIFO priority 1..99, None: stay SCHED_OTHER
     cpus: tuple[int, ...] = ()  # CPUs to run on, () : leave the affinity alone
     lock_memory: bool = False  # mlockall(MCL_CURRENT | MCL_FUTURE)
+    cpu_latency_us: int | None = None  # PM QoS: the CPUs' wake-up latency limit while running, None: none
     required: bool = True  # False: where refused, warn in one line and run on without it
 
     @classmethod
@@ -92,6 +107,7 @@ class RealtimeOptions:
             priority=priority,
             cpus=(allowed[-1],) if len(allowed) > 1 else (),
             lock_memory=True,
+            cpu_latency_us=0,
             required=False,
         )
 
@@ -100,7 +116,11 @@ class RealtimeOptions:
         others = tuple(sorted(os.sched_getaffinity(0) - set(self.cpus))) if self.cpus else ()
         priority = None if self.priority is None else max(1, self.priority - SIMULATOR_PRIORITY_STEP)
         return RealtimeOptions(
-            priority=priority, cpus=others, lock_memory=self.lock_memory, required=self.required
+            priority=priority,
+            cpus=others,
+            lock_memory=self.lock_memory,
+            cpu_latency_us=self.cpu_latency_us,
+            required=self.required,
         )
 
     def __post_init__(self) -> None:
@@ -109,10 +129,17 @@ class RealtimeOptions:
         for cpu in self.cpus:
             if cpu < 0:
                 raise RealtimeError(f"--cpu {cpu}: CPU numbers start at 0")
+        if self.cpu_latency_us is not None and not 0 <= self.cpu_latency_us <= 2_000_000_000:
+            raise RealtimeError(f"--cpu-latency-us {self.cpu_latency_us}: must be 0 or more microseconds")
 
     @property
     def any(self) -> bool:
-        return self.priority is not None or bool(self.cpus) or self.lock_memory
+        return (
+            self.priority is not None
+            or bool(self.cpus)
+            or self.lock_memory
+            or self.cpu_latency_us is not None
+        )
 
     def cli_args(self) -> list[str]:
         """The same request as options of ``cheope sim``/``run``: how a child process gets it."""
@@ -123,6 +150,8 @@ class RealtimeOptions:
             args += ["--cpu", ",".join(str(c) for c in self.cpus)]
         if self.lock_memory:
             args.append("--lock-memory")
+        if self.cpu_latency_us is not None:
+            args += ["--cpu-latency-us", str(self.cpu_latency_us)]
         if args and not self.required:
             args.append("--rt-best-effort")
         return args
@@ -135,6 +164,8 @@ class RealtimeOptions:
             parts.append("CPU " + ",".join(str(c) for c in self.cpus))
         if self.lock_memory:
             parts.append("memory locked")
+        if self.cpu_latency_us is not None:
+            parts.append(f"CPU wake-up latency <= {self.cpu_latency_us} us")
         return ", ".join(parts) or "none"
 
 
@@ -195,6 +226,28 @@ def lock_memory(libc: ctypes.CDLL | None = None) -> None:
         raise RealtimeError(f"--lock-memory: mlockall failed: {os.strerror(code)}")
 
 
+def hold_cpu_latency(latency_us: int, device: str | None = None) -> int:
+    """Ask the kernel to keep every CPU's wake-up latency at most ``latency_us`` (PM QoS) for as
+    long as the returned file descriptor stays open; closing it withdraws the request."""
+    path = device or PM_QOS_DEVICE
+    try:
+        fd = os.open(path, os.O_WRONLY)
+    except FileNotFoundError as err:
+        raise RealtimeError(
+            f"--cpu-latency-us {latency_us}: this kernel has no PM QoS device ({path})"
+        ) from err
+    except PermissionError as err:
+        raise RealtimeError(
+            f"--cpu-latency-us {latency_us}: {path} not writable ({err.strerror}); {_LATENCY_HINT}"
+        ) from err
+    try:
+        os.write(fd, struct.pack("i", latency_us))
+    except OSError as err:
+        os.close(fd)
+        raise RealtimeError(f"--cpu-latency-us {latency_us}: the kernel refused the request: {err}") from err
+    return fd
+
+
 def check_realtime(options: RealtimeOptions, libc: ctypes.CDLL | None = None) -> None:
     """Refuse early, before anything is opened, when the kernel will not grant required ``options``.
 
@@ -217,14 +270,18 @@ def check_realtime(options: RealtimeOptions, libc: ctypes.CDLL | None = None) ->
         libc = libc or _libc()
         lock_memory(libc)
         libc.munlockall()
+    if options.cpu_latency_us is not None:
+        os.close(hold_cpu_latency(options.cpu_latency_us))
 
 
 def apply_realtime(options: RealtimeOptions) -> Callable[[], None]:
-    """Apply ``options`` to the calling thread (priority, affinity) and the process (memory lock).
+    """Apply ``options`` to the calling thread (priority, affinity) and the process (memory lock,
+    the CPUs' wake-up latency limit).
 
     Required options raise ``RealtimeError`` when refused; the others are applied where the
     system permits, and what it refused is logged in one line (``refused_realtime``).
-    Returns a function that puts the thread's priority and affinity back (the lock stays).
+    Returns a function that puts the thread's priority and affinity back and withdraws the
+    latency limit (the lock stays).
     """
     before = os.sched_getaffinity(0) if options.cpus else None
     refused: list[str] = []
@@ -241,6 +298,10 @@ def apply_realtime(options: RealtimeOptions) -> Callable[[], None]:
 
     if options.lock_memory:
         attempt(lock_memory)
+    latency_fd: list[int] = []
+    if options.cpu_latency_us is not None:
+        latency_us = options.cpu_latency_us
+        attempt(lambda: latency_fd.append(hold_cpu_latency(latency_us)))
     if options.cpus:
         attempt(lambda: set_cpu_affinity(options.cpus))
     applied_priority = options.priority is not None and attempt(
@@ -254,6 +315,8 @@ def apply_realtime(options: RealtimeOptions) -> Callable[[], None]:
             reset_scheduler()
         if before is not None:
             os.sched_setaffinity(0, before)
+        while latency_fd:
+            os.close(latency_fd.pop())
 
     return restore
 
@@ -278,7 +341,27 @@ def granted_realtime() -> str:
         parts.append("memory locked" if locked_kb > 0 else "memory not locked")
     except OSError:
         pass
+    latency_us = cpu_latency_limit_us()
+    if latency_us is not None:
+        parts.append(f"CPU wake-up latency <= {latency_us} us (machine-wide)")
     return ", ".join(parts)
+
+
+PM_QOS_NO_LIMIT_US = 2_000_000_000  # the device's value when nobody asks for a limit (PM_QOS_DEFAULT_VALUE)
+
+
+def cpu_latency_limit_us(device: str | None = None) -> int | None:
+    """The machine's CPU wake-up latency limit now (the strictest request held), None when there
+    is none or it cannot be read (the device is root's)."""
+    try:
+        with open(device or PM_QOS_DEVICE, "rb") as f:
+            data = f.read(4)
+    except OSError:
+        return None
+    if len(data) != 4:
+        return None
+    (value,) = struct.unpack("i", data)
+    return None if value >= PM_QOS_NO_LIMIT_US else int(value)
 
 
 def refused_realtime(reasons: list[str]) -> str:

@@ -7,6 +7,7 @@ import errno
 import os
 import re
 import shutil
+import struct
 import subprocess
 import sys
 
@@ -255,6 +256,37 @@ def test_default_realtime_asks_for_fifo_the_last_cpu_and_locked_memory():
     sim = rt.for_simulator()
     assert sim.priority == 70 and not sim.required and set(sim.cpus).isdisjoint(rt.cpus)
     assert rt.cli_args()[-1] == "--rt-best-effort"  # the child warns and runs on as the parent does
+    assert rt.cpu_latency_us == 0 and sim.cpu_latency_us == 0
+    assert rt.cli_args()[-3:-1] == ["--cpu-latency-us", "0"]
+
+
+def test_the_cpu_latency_limit_is_held_while_running_and_withdrawn_after(monkeypatch, tmp_path, caplog):
+    """PM QoS: the request is written once and lasts while the file stays open (a stand-in file
+    here: the real device is machine-wide)."""
+    device = tmp_path / "cpu_dma_latency"
+    device.write_bytes(b"")
+    monkeypatch.setattr(realtime, "PM_QOS_DEVICE", str(device))
+
+    def open_files() -> set[str]:
+        return {os.path.realpath(f"/proc/self/fd/{fd}") for fd in os.listdir("/proc/self/fd")}
+
+    restore = realtime.apply_realtime(RealtimeOptions(cpu_latency_us=0))
+    assert device.read_bytes() == struct.pack("i", 0) and str(device) in open_files()
+    assert (
+        realtime.cpu_latency_limit_us() == 0 and "CPU wake-up latency <= 0 us" in realtime.granted_realtime()
+    )
+    restore()
+    assert str(device) not in open_files()
+    # refused: required, the start ends naming the option; by default, one line and run on
+    monkeypatch.setattr(realtime, "PM_QOS_DEVICE", str(tmp_path / "missing"))
+    with pytest.raises(RealtimeError, match="--cpu-latency-us 0: this kernel has no PM QoS device"):
+        realtime.apply_realtime(RealtimeOptions(cpu_latency_us=0))
+    with caplog.at_level("WARNING", logger="controller.realtime"):
+        realtime.apply_realtime(RealtimeOptions(cpu_latency_us=0, required=False))()
+    (record,) = caplog.records
+    assert "no PM QoS device" in record.getMessage()
+    with pytest.raises(RealtimeError, match="must be 0 or more"):
+        RealtimeOptions(cpu_latency_us=-1)
 
 
 def test_refused_default_realtime_warns_in_one_line_and_runs_on(monkeypatch, caplog):
@@ -297,6 +329,10 @@ def test_cli_realtime_defaults_and_opt_out():
     assert not _realtime(parse("--rt-priority", "50", "--rt-best-effort")).required
     with pytest.raises(RealtimeError, match="--no-realtime cannot be combined"):
         _realtime(parse("--no-realtime", "--cpu", "0"))
+    latency = _realtime(parse("--cpu-latency-us", "20"))
+    assert latency.cpu_latency_us == 20 and latency.required and latency.priority is None
+    with pytest.raises(RealtimeError, match="--no-realtime cannot be combined"):
+        _realtime(parse("--no-realtime", "--cpu-latency-us", "0"))
 
 
 # -- the machine's floor: cyclictest -----------------------------------------------------------

@@ -129,6 +129,7 @@ def run_bench_command(args: argparse.Namespace, rt: RealtimeOptions) -> int:
             priority=args.sim_rt_priority,
             cpus=parse_cpus(args.sim_cpu) if args.sim_cpu else (),
             lock_memory=rt.lock_memory,
+            cpu_latency_us=rt.cpu_latency_us,
             required=rt.required,
         )
     overrides = list(args.set) if args.strict else [*TOLERANT_SAFETY, *args.set]
