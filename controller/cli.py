@@ -89,8 +89,8 @@ def _common(ap: argparse.ArgumentParser, bus: bool = True, robots: tuple[str, ..
 def _rt_options(ap: argparse.ArgumentParser) -> None:
     g = ap.add_argument_group(
         "real-time options (Linux). Without any of them the loop asks for SCHED_FIFO 80 on the last CPU "
-        "with locked memory and a CPU wake-up latency of 0 (the simulator: SCHED_FIFO 70 on the others) "
-        "and runs on with one line of warning where refused; given explicitly they are required"
+        "with locked memory (the simulator: SCHED_FIFO 70 on the others) and runs on with one line of "
+        "warning where refused; given explicitly they are required"
     )
     g.add_argument("--rt-priority", type=int, metavar="N", help="SCHED_FIFO priority 1..99 for the loop")
     g.add_argument("--cpu", metavar="CPUS", help="CPU affinity, e.g. 1 or 0,1")

@@ -256,8 +256,15 @@ def test_default_realtime_asks_for_fifo_the_last_cpu_and_locked_memory():
     sim = rt.for_simulator()
     assert sim.priority == 70 and not sim.required and set(sim.cpus).isdisjoint(rt.cpus)
     assert rt.cli_args()[-1] == "--rt-best-effort"  # the child warns and runs on as the parent does
-    assert rt.cpu_latency_us == 0 and sim.cpu_latency_us == 0
-    assert rt.cli_args()[-3:-1] == ["--cpu-latency-us", "0"]
+    assert rt.cpu_latency_us is None  # asked for explicitly only (docs/concepts/realtime.md)
+    assert RealtimeOptions(cpu_latency_us=0).for_simulator().cpu_latency_us == 0
+    assert RealtimeOptions(priority=80, cpu_latency_us=0, required=False).cli_args() == [
+        "--rt-priority",
+        "80",
+        "--cpu-latency-us",
+        "0",
+        "--rt-best-effort",
+    ]
 
 
 def test_the_cpu_latency_limit_is_held_while_running_and_withdrawn_after(monkeypatch, tmp_path, caplog):

@@ -8,7 +8,7 @@ hands the vCPU back to the host), and the code that runs after it runs slower. H
 runs on the in-process simulated devices in simulated time, with a real sleep of ``--sleep-ms``
 after every cycle, and its ``step`` is timed on the wall clock over ``--cycles`` cycles of the
 task, in runs that alternate between no limit and a limit of 0 (``controller.realtime``'s
-``hold_cpu_latency``, what the service holds by default). Also a run without the sleep, the
+``hold_cpu_latency``, what ``--cpu-latency-us 0`` holds). Also a run without the sleep, the
 hot floor. Pinned to the last CPU; needs write access to /dev/cpu_dma_latency (root).
 """
 
