@@ -24,8 +24,8 @@ with that message.
   runs): 0 keeps every CPU out of idle states that take time to leave (on a VM guest the
   ``haltpoll`` driver's halt, which hands the vCPU back to the host). The loop sleeps most
   of each cycle, before its deadline and while the drives answer; after such a sleep its
-  ``step`` ran slower (the path task's p50 179-245 us against 142-199 us with the limit,
-  5 alternating runs of a step after every 2-ms sleep: ``docs/concepts/realtime.md``).
+  ``step`` ran slower (``python -m controller.tools.bench.step_after_sleep``: the path task's
+  median p50 174 us against 146 us with the limit, 5 alternating runs; docs/concepts/realtime.md).
   cyclictest holds the same limit by default, so the floor it measures is taken with it.
   Machine-wide while held; released when the file is closed. Asked for only explicitly
   (``--cpu-latency-us``): on this VM guest polling vCPUs lost more time to the host (steal)
@@ -227,10 +227,10 @@ def lock_memory(libc: ctypes.CDLL | None = None) -> None:
         raise RealtimeError(f"--lock-memory: mlockall failed: {os.strerror(code)}")
 
 
-def hold_cpu_latency(latency_us: int, device: str | None = None) -> int:
+def hold_cpu_latency(latency_us: int) -> int:
     """Ask the kernel to keep every CPU's wake-up latency at most ``latency_us`` (PM QoS) for as
     long as the returned file descriptor stays open; closing it withdraws the request."""
-    path = device or PM_QOS_DEVICE
+    path = PM_QOS_DEVICE
     try:
         fd = os.open(path, os.O_WRONLY)
     except FileNotFoundError as err:
@@ -351,11 +351,11 @@ def granted_realtime() -> str:
 PM_QOS_NO_LIMIT_US = 2_000_000_000  # the device's value when nobody asks for a limit (PM_QOS_DEFAULT_VALUE)
 
 
-def cpu_latency_limit_us(device: str | None = None) -> int | None:
+def cpu_latency_limit_us() -> int | None:
     """The machine's CPU wake-up latency limit now (the strictest request held), None when there
     is none or it cannot be read (the device is root's)."""
     try:
-        with open(device or PM_QOS_DEVICE, "rb") as f:
+        with open(PM_QOS_DEVICE, "rb") as f:
             data = f.read(4)
     except OSError:
         return None

@@ -23,8 +23,9 @@ node 2 from the network faulted a running robot). Here the one socket
   port. IP multicast loopback delivers a datagram to every member socket of the host, the
   sender's own included, and every bus binds the group's one port: without the second socket
   the sender could not tell its datagrams from another process's. Each echo cost the process
-  a wake-up, a ``select``, a ``recvmsg``, a msgpack unpack and a ``Message`` (about 20 us on
-  the development VM; ``drivers/frame_tap.py`` then dropped it), four a cycle in the controller
+  a wake-up, a ``select``, a ``recvmsg``, a msgpack unpack and a ``Message`` (python-can's
+  ``recv`` p50 21 us on the development VM, ``cheope bench``'s per-frame line;
+  ``drivers/frame_tap.py`` then dropped it), four a cycle in the controller
   (SYNC and three RPDOs), each on the cycle's critical path before the drives' answers. The
   sending socket is bound to the group with a port of its own and joins nothing, and its own
   filter drops everything: nothing reaches it.

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import operator
 import struct
 from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING, Protocol
@@ -55,6 +54,7 @@ from controller.core.cycle_data import (
     Severity,
     TrackerFeedback,
 )
+from controller.core.records import values_getter
 from controller.messages import cheope_pb2 as pb
 
 if TYPE_CHECKING:
@@ -269,12 +269,7 @@ def _task_fields(
     cls: type,
 ) -> tuple[Callable[[object], tuple[object, ...]], tuple[tuple[str, tuple[str, ...]], ...]]:
     names = tuple(f.name for f in dataclasses.fields(cls))
-    if len(names) == 1:
-        name = names[0]
-        getter: Callable[[object], tuple[object, ...]] = lambda obj: (getattr(obj, name),)  # noqa: E731
-    else:
-        getter = operator.attrgetter(*names) if names else (lambda obj: ())
-    return getter, tuple((n, tuple(f"{n}.{i}" for i in range(4))) for n in names)
+    return values_getter(names), tuple((n, tuple(f"{n}.{i}" for i in range(4))) for n in names)
 
 
 def task_values(task_state: object) -> dict[str, float]:

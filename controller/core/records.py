@@ -29,7 +29,7 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import operator
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, TypeVar, dataclass_transform
 
 T = TypeVar("T")
@@ -64,11 +64,18 @@ def _plan(cls: type) -> _Plan | None:
         return None
     if not all(f.init for f in fields):
         return None
+    return _Plan(values_getter(names), {n: i for i, n in enumerate(names)})
+
+
+def values_getter(names: Sequence[str]) -> Callable[[Any], tuple[Any, ...]]:
+    """One call that returns the attributes ``names`` of an object as a tuple (``attrgetter``'s
+    speed; it returns a bare value, not a tuple, for a single name)."""
     if len(names) == 1:
         name = names[0]
-        return _Plan(lambda record: (getattr(record, name),), {name: 0})
-    getter: Callable[[Any], tuple[Any, ...]] = operator.attrgetter(*names)
-    return _Plan(getter, {n: i for i, n in enumerate(names)})
+        return lambda obj: (getattr(obj, name),)
+    if not names:
+        return lambda obj: ()
+    return operator.attrgetter(*names)
 
 
 def replace(record: T, /, **changes: Any) -> T:

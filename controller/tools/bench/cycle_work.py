@@ -102,7 +102,8 @@ class ScriptedBus(can.BusABC):
         return self.recv(), False
 
 
-def _config(task: str, overrides: list[str]) -> Any:
+def task_config(task: str, overrides: Sequence[str] = ()) -> Any:
+    """The default configuration running ``task``, without recording and monitoring (the loop's own work)."""
     from controller.config import load_config, parse_override
 
     values: dict[str, object] = {"task.kind": task, "recording.enabled": False, "monitoring.enabled": False}
@@ -140,7 +141,7 @@ def reference_run(task: str, overrides: list[str], cycles: int) -> Script:
     from controller.shell.loop import CycleLoop, SimulatedTime
     from sim_backend.loopback import LoopbackExchange
 
-    cfg = _config(task, overrides)
+    cfg = task_config(task, overrides)
     clock = SimulatedTime()
     law = build_law(cfg)
     devices = LoopbackExchange(cfg, clock.clock)
@@ -296,7 +297,7 @@ def measured_run(
     from logs.recorder import SessionRecorder
     from sim_backend.loopback import LoopbackExchange
 
-    cfg = _config(task, overrides)
+    cfg = task_config(task, overrides)
     clock = SimulatedTime()
     law = build_law(cfg)
     bus = ScriptedBus(script)

@@ -21,17 +21,20 @@ import sys
 import time
 from typing import Any
 
+import numpy as np
+
 from controller.realtime import RealtimeError, hold_cpu_latency
+from controller.tools.bench.statistics import percentiles_us
 
 DEFAULT_WINDOWS = {"path": (800, 2000), "contour": (3200, 2000)}  # (skip, cycles): the lap, the tracking
 
 
 def step_times_us(task: str, sleep_s: float, skip: int, cycles: int) -> list[float]:
     """Wall time of each ``step`` of cycles ``[skip, skip + cycles)``, sleeping ``sleep_s`` after each cycle."""
-    from controller.config import load_config
     from controller.shell.simulated_rig import SimulatedRig
+    from controller.tools.bench.cycle_work import task_config
 
-    cfg = load_config(overrides={"task.kind": task, "recording.enabled": False, "monitoring.enabled": False})
+    cfg = task_config(task)
     rig = SimulatedRig(cfg)
     inner = rig.law.step
     times: list[float] = []
@@ -51,11 +54,6 @@ def step_times_us(task: str, sleep_s: float, skip: int, cycles: int) -> list[flo
     rig.law.step = timed  # type: ignore[method-assign]  # this law only: the timing tap
     rig.run((Sleep(),), max_duration_s=(skip + cycles) * cfg.period_s)
     return [x * 1e6 for x in times[skip : skip + cycles]]
-
-
-def _p(values: list[float], q: float) -> float:
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -81,8 +79,9 @@ def main(argv: list[str] | None = None) -> int:
             finally:
                 if fd is not None:
                     os.close(fd)
-            rows[kind].append((_p(t, 0.5), _p(t, 0.9)))
-    hot = step_times_us(args.task, 0.0, skip, cycles)
+            q = percentiles_us(np.asarray(t))
+            rows[kind].append((q["p50"], q["p99"]))
+    hot = percentiles_us(np.asarray(step_times_us(args.task, 0.0, skip, cycles)))
     print(
         f"{args.task} task, step after a {args.sleep_ms:g}-ms sleep, cycles {skip}-{skip + cycles - 1}, CPU {cpus[-1]}:"
     )
@@ -91,14 +90,14 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"  {kind:8s} p50 by run "
             + " / ".join(f"{r[0]:.0f}" for r in runs)
-            + f" us (median {statistics.median(p50s):.0f}), p90 "
+            + f" us (median {statistics.median(p50s):.0f}), p99 "
             + " / ".join(f"{r[1]:.0f}" for r in runs)
         )
     ratio = statistics.median(r[0] for r in rows["no limit"]) / statistics.median(
         r[0] for r in rows["limit 0"]
     )
     print(f"  ratio of the medians, no limit / limit 0: {ratio:.2f}")
-    print(f"  without the sleep (hot): p50 {_p(hot, 0.5):.0f} us, p90 {_p(hot, 0.9):.0f} us")
+    print(f"  without the sleep (hot): p50 {hot['p50']:.0f} us, p99 {hot['p99']:.0f} us")
     return 0
 
 
