@@ -476,3 +476,15 @@ def test_cli_refuses_too_many_hogs_naming_the_option():
     )
     assert proc.returncode != 0
     assert "--hogs 17: must be 0 .. 16" in proc.stderr
+
+
+def test_the_loops_floor_is_python_cans_frames_plus_the_step_in_process():
+    from controller.tools.bench.report import loop_floor_percent, python_can_floor_percent
+
+    cost = {"send_us": {"p50": 10.0}, "recv_us": {"p50": 20.0}, "own_frames_received_back": 0, "frames": 2000}
+    case = {"rate_hz": 400.0, "frames_per_cycle": {"in": 5, "out": 4}}
+    report = {"bus_frame_cost": cost, "step_breakdown": [{"rate_hz": 400.0, "step_us": {"p50": 100.0}}]}
+    # 400 a second x (4 sends of 10 us + 5 receives of 20 us) = 5.6 %; the step 400 x 100 us = 4 %
+    assert python_can_floor_percent(case, cost) == (5.6, 5.2)
+    assert loop_floor_percent(case, report) == 9.6
+    assert loop_floor_percent({**case, "rate_hz": 1000.0}, report) is None  # no step measured at 1 kHz

@@ -44,6 +44,7 @@ def format_table(report: Json) -> str:
     row("CPU MCAP writer [%]", lambda c: f"{c['cpu_percent_of_one_core'].get('writer_process')}")
     f = report["bus_frame_cost"]
     row("python-can floor ctrl / sim [%]", lambda c: "{} / {}".format(*python_can_floor_percent(c, f)))
+    row("floor ctrl + step in process [%]", lambda c: _or_dash(loop_floor_percent(c, report)))
     row(
         "missing frames drive/sensor",
         lambda c: "{}/{}".format(
@@ -166,6 +167,24 @@ def python_can_floor_percent(case: Json, cost: Json) -> tuple[float, float]:
     controller = rate * (sent * send + (received + echo * sent) * recv) * 1e-4
     simulator = rate * (received * send + (sent + echo * received) * recv) * 1e-4
     return round(controller, 1), round(simulator, 1)
+
+
+def loop_floor_percent(case: Json, report: Json) -> float | None:
+    """The loop's process can use no less than python-can's cost for its frames plus the step as it
+    runs in process (``step_breakdown``, back to back, caches warm) at the case's rate [% of a core]:
+    the floor of this design, against which the process's CPU without the spin compares. None when
+    the step was not measured at that rate."""
+    step = next(
+        (b["step_us"]["p50"] for b in report["step_breakdown"] if b["rate_hz"] == case["rate_hz"]), None
+    )
+    if step is None:
+        return None
+    can, _ = python_can_floor_percent(case, report["bus_frame_cost"])
+    return round(can + float(case["rate_hz"]) * float(step) * 1e-4, 1)
+
+
+def _or_dash(value: object) -> str:
+    return "-" if value is None else f"{value}"
 
 
 def _longest(cycle: object) -> str:
