@@ -298,18 +298,23 @@ def _run_one(args: tuple[Config, ContourScenario, Path | None]) -> dict[str, obj
     return run_contour_scenario(*args)
 
 
-def run_scan(
-    base: Config | None = None,
-    directory: Path | None = None,
-    jobs: int = 1,
-    progress: Callable[[int, int, dict[str, object]], None] | None = None,
+Progress = Callable[[int, int, dict[str, object]], None]
+
+
+def run_scenarios(
+    base: Config,
+    undisturbed: dict[str, object],
+    scenarios: Iterator[ContourScenario],
+    directory: Path | None,
+    jobs: int,
+    progress: Progress | None,
+    prefix: str,
 ) -> list[dict[str, object]]:
-    """Every scenario; rows in the order of ``scenarios``, the undisturbed run first."""
-    base = scan_config(base or load_config())
-    with tempfile.TemporaryDirectory(prefix="cheope-contour-scan-") as tmp:
+    """Each scenario's row (``jobs`` processes), in the order of ``scenarios``, after the undisturbed
+    run's; the recordings in ``directory``, else in a temporary one that goes with its rows' paths."""
+    with tempfile.TemporaryDirectory(prefix=prefix) as tmp:
         out = Path(directory or tmp)
-        places, _, undisturbed = lap_places(base)
-        todo = [(base, sc, out) for sc in scenarios(places, base.period_s)]
+        todo = [(base, sc, out) for sc in scenarios]
         rows: list[dict[str, object]] = [undisturbed]
         if jobs > 1:
             with ProcessPoolExecutor(max_workers=jobs) as pool:
@@ -326,6 +331,20 @@ def run_scan(
             for r in rows:
                 r["recording"] = None  # the temporary directory goes
         return rows
+
+
+def run_scan(
+    base: Config | None = None,
+    directory: Path | None = None,
+    jobs: int = 1,
+    progress: Progress | None = None,
+) -> list[dict[str, object]]:
+    """Every scenario; rows in the order of ``scenarios``, the undisturbed run first."""
+    base = scan_config(base or load_config())
+    places, _, undisturbed = lap_places(base)
+    return run_scenarios(
+        base, undisturbed, scenarios(places, base.period_s), directory, jobs, progress, "cheope-contour-scan-"
+    )
 
 
 def summary(rows: list[dict[str, object]], max_contact_force_n: float) -> dict[str, object]:

@@ -34,13 +34,17 @@ through end DONE; every other one retracts or backs off with a named cause.
 from __future__ import annotations
 
 import math
-import tempfile
-from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Iterator
 from pathlib import Path
 
 from controller.config import Config, load_config
-from controller.tools.contour.scan import ContourScenario, lap_places, run_contour_scenario, scan_config
+from controller.tools.contour.scan import (
+    ContourScenario,
+    Progress,
+    lap_places,
+    run_scenarios,
+    scan_config,
+)
 
 NAMED_ENDS = ("retracted", "backed off")
 # The simulated robot's start 20 mm further out than the default's (TCP at (0.11, 0, 0.5) m instead of
@@ -176,38 +180,24 @@ def scenarios(t: dict[str, float], period_s: float) -> Iterator[ContourScenario]
     )
 
 
-def _run_one(args: tuple[Config, ContourScenario, Path | None]) -> dict[str, object]:
-    return run_contour_scenario(*args)
-
-
 def run_stress(
     base: Config | None = None,
     directory: Path | None = None,
     jobs: int = 1,
-    progress: Callable[[int, int, dict[str, object]], None] | None = None,
+    progress: Progress | None = None,
 ) -> list[dict[str, object]]:
     """Every scenario; rows in the order of ``scenarios``, the undisturbed run first."""
     base = scan_config(base or load_config())
-    with tempfile.TemporaryDirectory(prefix="cheope-contour-stress-") as tmp:
-        out = Path(directory or tmp)
-        times, undisturbed = _places(base)
-        todo = [(base, sc, out) for sc in scenarios(times, base.period_s)]
-        rows: list[dict[str, object]] = [undisturbed]
-        if jobs > 1:
-            with ProcessPoolExecutor(max_workers=jobs) as pool:
-                for row in pool.map(_run_one, todo):
-                    rows.append(row)
-                    if progress:
-                        progress(len(rows), len(todo) + 1, row)
-        else:
-            for item in todo:
-                rows.append(_run_one(item))
-                if progress:
-                    progress(len(rows), len(todo) + 1, rows[-1])
-        if directory is None:
-            for r in rows:
-                r["recording"] = None  # the temporary directory goes
-        return rows
+    times, undisturbed = _places(base)
+    return run_scenarios(
+        base,
+        undisturbed,
+        scenarios(times, base.period_s),
+        directory,
+        jobs,
+        progress,
+        "cheope-contour-stress-",
+    )
 
 
 def summary(
