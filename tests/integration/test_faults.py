@@ -6,15 +6,19 @@ import json
 import os
 import random
 import signal
-import struct
 import subprocess
 import sys
 
 import can
-import canopen
 import numpy as np
 import pytest
 from busy_machine import TOLERANT
+from controller_on_the_bus import (
+    controller_beside_simulator,
+    drives_over_sdo,
+    run_sets,
+    wait_until_drive_1_moves,
+)
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from waiting import wait_until
@@ -23,12 +27,9 @@ from controller.assembly import build_law
 from controller.config import load_config
 from controller.core.cia402 import PowerState, decode_statusword
 from controller.core.controller_state import Mode
-from controller.shell.demo import simulator_process, stop_process
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.tools.fault_scenarios import SCENARIOS, run_all
-from drivers.bus import open_bus, parse_bus_spec
 from drivers.cyclic_exchange import CyclicExchange
-from drivers.node_setup import DRIVE_EDS
 from drivers.pdo_codec import PositionScale
 from sim_backend.loopback import LoopbackExchange
 
@@ -139,60 +140,28 @@ def test_decoders_never_raise_and_count_what_they_reject(cob_id, data, fd, error
 @pytest.mark.integration
 def test_a_killed_controller_leaves_the_simulated_robot_stopped(tmp_path):
     """SIGKILL the controller mid-task: the drives' SYNC watchdog quick-stops them."""
-    port = random.SystemRandom().randint(48000, 49999)
-    spec = parse_bus_spec("udp_multicast", udp_port=port)
-    cfg = load_config()
+    ids = tuple(load_config().actuators.node_ids)
     # tolerant of a busy machine: the point is what happens after the kill
-    sets = [
-        "--set",
-        "task.path.laps=3",
-        "--set",
-        f'recording.directory="{tmp_path}"',
-        "--set",
-        "monitoring.enabled=false",
-        *TOLERANT,
-    ]
-    ids = tuple(cfg.actuators.node_ids)
-    with (
-        simulator_process(spec, None, ["task.path.laps=3"]),
-        open_bus(spec) as bus,
-    ):
-        ctrl = subprocess.Popen(
-            [sys.executable, "-m", "controller", "run", "--udp-port", str(port), *sets],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        try:
-            _wait_until_drive_1_moves_under_the_controller(bus, ctrl)  # well into the task, not a guessed 4 s
-            ctrl.send_signal(signal.SIGKILL)
-            ctrl.wait()
-            network = canopen.Network(open_bus(spec))
-            network.connect()  # a socket of its own, without the backlog of ``bus`` (as in the test below)
-            try:
-                for node_id in ids:
-                    node = canopen.RemoteNode(node_id, str(DRIVE_EDS))
-                    node.sdo.RESPONSE_TIMEOUT = 2.0
-                    network.add_node(node)
-                previous: list[list[int]] = []
+    with controller_beside_simulator(run_sets(tmp_path)) as run:
+        wait_until_drive_1_moves(run.bus, run.process)  # well into the task, not a guessed 4 s
+        run.process.send_signal(signal.SIGKILL)
+        run.process.wait()
+        with drives_over_sdo(run.spec, ids) as network:
+            previous: list[list[int]] = []
 
-                def quick_stopped_and_still():
-                    # the watchdog's quick stop, then the same positions in two polls in a row
-                    states = [decode_statusword(network[n].sdo[0x6041].raw) for n in ids]
-                    positions = [network[n].sdo[0x6064].raw for n in ids]
-                    still = bool(previous) and positions == previous[-1]
-                    previous.append(positions)
-                    return states == [PowerState.QUICK_STOP_ACTIVE] * 3 and still
+            def quick_stopped_and_still():
+                # the watchdog's quick stop, then the same positions in two polls in a row
+                states = [decode_statusword(network[n].sdo[0x6041].raw) for n in ids]
+                positions = [network[n].sdo[0x6064].raw for n in ids]
+                still = bool(previous) and positions == previous[-1]
+                previous.append(positions)
+                return states == [PowerState.QUICK_STOP_ACTIVE] * 3 and still
 
-                wait_until(
-                    quick_stopped_and_still,
-                    "every drive quick-stopped by its SYNC watchdog and standing still",
-                    poll_s=0.05,
-                )
-            finally:
-                network.disconnect()
-        finally:
-            stop_process(ctrl)
+            wait_until(
+                quick_stopped_and_still,
+                "every drive quick-stopped by its SYNC watchdog and standing still",
+                poll_s=0.05,
+            )
 
 
 @pytest.mark.integration
@@ -215,93 +184,28 @@ def test_a_signal_mid_motion_stops_the_run_under_control(tmp_path, signals, args
     """SIGTERM while the carriages move (or the end of --duration): STOPPING brakes, the drives
     are disabled, DONE, exit 0 (read back over SDO from the drives); a second signal quick-stops
     them instead, exit 1. Three laps take far longer than any of these runs."""
-    port = random.SystemRandom().randint(48000, 49999)
-    spec = parse_bus_spec("udp_multicast", udp_port=port)
     ids = tuple(load_config().actuators.node_ids)
     # more tolerant of a busy machine than TOLERANT: a drive fault before the signal is not the point here
-    sets = [
-        "--set",
-        "task.path.laps=3",
-        "--set",
-        f'recording.directory="{tmp_path}"',
-        "--set",
-        "monitoring.enabled=false",
-        *TOLERANT,
-        "--set",
-        "loop.max_missing_cycles=100",
-        "--set",
-        "safety.sensor_stale_cycles=100",
-    ]
-    with (
-        simulator_process(spec, None, ["task.path.laps=3"]),
-        open_bus(spec) as bus,
-    ):
-        ctrl = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "controller",
-                "run",
-                "--json",
-                "--no-realtime",
-                "--udp-port",
-                str(port),
-                *args,
-                *sets,
-            ],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        try:
-            _wait_until_drive_1_moves_under_the_controller(bus, ctrl)
-            for sig in signals:
-                ctrl.send_signal(sig)
-            out, err = ctrl.communicate(timeout=60)
-            assert ctrl.returncode == exit_code, err[-2000:] + out[-3000:]
-            summary = json.loads(out)
-            assert summary["final_mode"] == mode, summary["fault_reason"]
-            if mode == "FAULT":
-                assert summary["fault_reason"] == "quick stop requested"
-            else:
-                assert any("stop requested" in e for e in summary["events"])
-            assert "Traceback" not in err
-            # A socket of its own: ``bus`` stopped reading when drive 1 moved, and its buffer, full of
-            # the run's frames, dropped the SDO answer once (CI) before canopen's notifier drained it.
-            network = canopen.Network(open_bus(spec))
-            network.connect()
-            try:
-                for node_id in ids:
-                    node = canopen.RemoteNode(node_id, str(DRIVE_EDS))
-                    node.sdo.RESPONSE_TIMEOUT = 2.0
-                    network.add_node(node)
-                states = {decode_statusword(network[n].sdo[0x6041].raw) for n in ids}
-                assert states <= powers, states
-            finally:
-                network.disconnect()
-        finally:
-            stop_process(ctrl)
-
-
-def _wait_until_drive_1_moves_under_the_controller(bus: can.BusABC, ctrl: subprocess.Popen) -> None:
-    """Drive 1's TPDOs: OPERATION ENABLED, 2 mm from where it was enabled, and still moving."""
-    start: int | None = None
-    last: int | None = None
-
-    def moving() -> bool:
-        nonlocal start, last
-        assert ctrl.poll() is None, ctrl.communicate()
-        msg = bus.recv(timeout=0.1)
-        if msg is None or msg.arbitration_id != 0x181 or len(msg.data) < 6:
-            return False
-        statusword, counts = struct.unpack_from("<Hi", msg.data)  # then its effort (cheope.toml's mapping)
-        if decode_statusword(statusword) != PowerState.OPERATION_ENABLED:
-            return False
-        start = counts if start is None else start
-        step, last = (abs(counts - last) if last is not None else 0), counts
-        return abs(counts - start) > 20_000 and step > 10  # 2 mm travelled (1e7 counts/m), > 1 um per cycle
-
-    wait_until(moving, "drive 1 moving under the controller", poll_s=0.0)
+    sets = run_sets(
+        tmp_path, "--set", "loop.max_missing_cycles=100", "--set", "safety.sensor_stale_cycles=100"
+    )
+    with controller_beside_simulator([*args, *sets]) as run:
+        ctrl = run.process
+        wait_until_drive_1_moves(run.bus, ctrl)
+        for sig in signals:
+            ctrl.send_signal(sig)
+        out, err = ctrl.communicate(timeout=60)
+        assert ctrl.returncode == exit_code, err[-2000:] + out[-3000:]
+        summary = json.loads(out)
+        assert summary["final_mode"] == mode, summary["fault_reason"]
+        if mode == "FAULT":
+            assert summary["fault_reason"] == "quick stop requested"
+        else:
+            assert any("stop requested" in e for e in summary["events"])
+        assert "Traceback" not in err
+        with drives_over_sdo(run.spec, ids) as network:
+            states = {decode_statusword(network[n].sdo[0x6041].raw) for n in ids}
+            assert states <= powers, states
 
 
 def test_bad_fault_spec_is_one_clear_line():

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import can
 import pytest
+from controller_on_the_bus import controller_beside_simulator, run_sets, wait_until_drive_1_moves
 from waiting import GENEROUS_S, ProcessLines, wait_for_exit, wait_until
 
 from controller.assembly import build_law
@@ -572,89 +573,35 @@ def _writer_of(controller_pid: int) -> int | None:
     return None
 
 
-def _drive_1_position_changes(bus: can.BusABC, proc: subprocess.Popen) -> bool:
-    """Drive 1's TPDO reports a new position: the controller is still driving the robot."""
-    first: int | None = None
-
-    def changed() -> bool:
-        nonlocal first
-        assert proc.poll() is None, "the controller ended"
-        msg = bus.recv(timeout=0.1)
-        if msg is None or msg.arbitration_id != 0x181 or len(msg.data) < 6:  # statusword, position, (effort)
-            return False
-        counts = int.from_bytes(msg.data[2:6], "little", signed=True)
-        first = counts if first is None else first
-        return abs(counts - first) > 100  # 10 um (1e7 counts/m)
-
-    return wait_until(changed, "drive 1 moving under the controller", poll_s=0.0)
-
-
 @pytest.mark.integration
 @pytest.mark.parametrize("policy", ["stop", "warn"])
 def test_a_killed_writer_ends_the_run_by_the_recording_policy(tmp_path, policy):
     """recording.on_failure: "stop" ends the run through STOPPING (DONE, exit 3: the recording was
     lost), "warn" drives on unrecorded until told to stop (then DONE, exit 3); the summary names
     what was lost."""
-    import random
-
-    from busy_machine import TOLERANT
-
-    from controller.shell.demo import simulator_process, stop_process
-    from drivers.bus import open_bus, parse_bus_spec
-
-    spec = parse_bus_spec("udp_multicast", udp_port=random.SystemRandom().randint(48000, 49999))
-    sets = [
-        "--set",
-        "task.path.laps=3",
-        "--set",
-        f'recording.directory="{tmp_path}"',
-        "--set",
-        "monitoring.enabled=false",
+    sets = run_sets(
+        tmp_path,
         "--set",
         f'recording.on_failure="{policy}"',
-        *TOLERANT,
         "--set",
         "loop.max_missing_cycles=100",
         "--set",
         "safety.sensor_stale_cycles=100",
-    ]
-    with (
-        simulator_process(spec, None, ["task.path.laps=3"]),
-        open_bus(spec) as bus,
-    ):
-        proc = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "controller",
-                "run",
-                "--json",
-                "--no-realtime",
-                "--udp-port",
-                str(spec.udp_port),
-                *sets,
-            ],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
+    )
+    with controller_beside_simulator(sets, stderr=subprocess.STDOUT) as run:
+        proc = run.process
         lines = ProcessLines(proc)
-        try:
-            writer = wait_until(lambda: _writer_of(proc.pid), "the recording's writer process")
-            _drive_1_position_changes(bus, proc)
-            os.kill(writer, signal.SIGKILL)
-            lines.next_matching(
-                lambda line: "recording lost" in line and policy in line, "the policy's warning"
-            )
-            if policy == "warn":
-                _drive_1_position_changes(bus, proc)  # still driving, unrecorded
-                proc.send_signal(signal.SIGTERM)
-            wait_for_exit(proc.pid, "the controller ending")
-            proc.wait()
-            with pytest.raises(AssertionError, match="ended its output"):
-                lines.next_matching(lambda line: False, "the rest of the output")
-        finally:
-            stop_process(proc)
+        writer = wait_until(lambda: _writer_of(proc.pid), "the recording's writer process")
+        wait_until_drive_1_moves(run.bus, proc)
+        os.kill(writer, signal.SIGKILL)
+        lines.next_matching(lambda line: "recording lost" in line and policy in line, "the policy's warning")
+        if policy == "warn":
+            wait_until_drive_1_moves(run.bus, proc)  # still driving, unrecorded
+            proc.send_signal(signal.SIGTERM)
+        wait_for_exit(proc.pid, "the controller ending")
+        proc.wait()
+        with pytest.raises(AssertionError, match="ended its output"):
+            lines.next_matching(lambda line: False, "the rest of the output")
     assert proc.returncode == 3, lines.lines[-20:]
     summary = json.loads(next(line for line in lines.lines if line.startswith("{")))
     assert summary["final_mode"] == "DONE", summary["fault_reason"]

@@ -23,7 +23,12 @@ import can
 import canopen
 import pytest
 from busy_machine import TOLERANT
-from test_faults import _wait_until_drive_1_moves_under_the_controller
+from controller_on_the_bus import (
+    controller_beside_simulator,
+    drives_over_sdo,
+    run_sets,
+    wait_until_drive_1_moves,
+)
 from waiting import wait_until
 
 from controller.assembly import build_law
@@ -32,11 +37,9 @@ from controller.core.cia402 import PowerState, decode_statusword
 from controller.core.controller_state import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
 from controller.core.ports import CycleTiming
-from controller.shell.demo import simulator_process, stop_process
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.tasks.contour_tracking import ContourPhase
 from drivers.bus import open_bus, parse_bus_spec
-from drivers.node_setup import DRIVE_EDS
 from sim_backend.drive import ABORT_NO_ACTION
 from sim_backend.loopback import LoopbackExchange
 
@@ -387,72 +390,30 @@ def test_another_master_s_nmt_pre_operational_leaves_no_drive_enabled_over_udp_m
     PRE-OPERATIONAL" to drive 2 mid-motion. Drive 2 no longer processes RPDOs (their quick stop), yet
     every drive, read back over SDO while the controller holds FAULT, is out of OPERATION ENABLED
     (its own 0x6007 reaction and the controller's SDO quick stop), and the fault names command and node."""
-    port = random.SystemRandom().randint(48000, 49999)
-    spec = parse_bus_spec("udp_multicast", udp_port=port)
     ids = tuple(load_config().actuators.node_ids)
-    sets = [
-        "--set",
-        "task.path.laps=3",
-        "--set",
-        f'recording.directory="{tmp_path}"',
-        "--set",
-        "monitoring.enabled=false",
-        "--set",
-        "loop.stay_in_fault=true",
-        *TOLERANT,
-    ]
-    with (
-        simulator_process(spec, None, ["task.path.laps=3"]),
-        open_bus(spec) as bus,
-    ):
-        ctrl = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "controller",
-                "run",
-                "--json",
-                "--no-realtime",
-                "--udp-port",
-                str(port),
-                *sets,
-            ],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        try:
-            _wait_until_drive_1_moves_under_the_controller(bus, ctrl)
-            bus.send(can.Message(arbitration_id=0x000, data=bytes((0x80, 2)), is_extended_id=False))
-            network = canopen.Network(open_bus(spec))
-            network.connect()  # a socket of its own, without the backlog of ``bus``
-            try:
-                for node_id in ids:
-                    node = canopen.RemoteNode(node_id, str(DRIVE_EDS))
-                    node.sdo.RESPONSE_TIMEOUT = 2.0
-                    network.add_node(node)
+    with controller_beside_simulator(run_sets(tmp_path, "--set", "loop.stay_in_fault=true")) as run:
+        ctrl = run.process
+        wait_until_drive_1_moves(run.bus, ctrl)
+        run.bus.send(can.Message(arbitration_id=0x000, data=bytes((0x80, 2)), is_extended_id=False))
+        with drives_over_sdo(run.spec, ids) as network:
 
-                def none_enabled() -> bool:
-                    assert ctrl.poll() is None, ctrl.communicate()  # the controller holds FAULT
-                    try:
-                        states = [decode_statusword(network[n].sdo[0x6041].raw) for n in ids]
-                    except canopen.sdo.exceptions.SdoCommunicationError:
-                        # this test is a second SDO client on the drives' one server channel: the
-                        # controller's own quick-stop download (0x6040) can answer our upload; ask again
-                        return False
-                    return PowerState.OPERATION_ENABLED not in states
+            def none_enabled() -> bool:
+                assert ctrl.poll() is None, ctrl.communicate()  # the controller holds FAULT
+                try:
+                    states = [decode_statusword(network[n].sdo[0x6041].raw) for n in ids]
+                except canopen.sdo.exceptions.SdoCommunicationError:
+                    # this test is a second SDO client on the drives' one server channel: the
+                    # controller's own quick-stop download (0x6040) can answer our upload; ask again
+                    return False
+                return PowerState.OPERATION_ENABLED not in states
 
-                wait_until(
-                    none_enabled,
-                    "every drive out of OPERATION ENABLED while the controller holds FAULT",
-                    poll_s=0.05,
-                )
-            finally:
-                network.disconnect()
-            ctrl.send_signal(signal.SIGINT)  # a stop ends a run that holds FAULT
-            out, err = ctrl.communicate(timeout=60)
-            summary = json.loads(out)
-            assert summary["final_mode"] == "FAULT", err[-2000:]
-            assert summary["fault_reason"] == "NMT enter PRE-OPERATIONAL to node 2 from another master"
-        finally:
-            stop_process(ctrl)
+            wait_until(
+                none_enabled,
+                "every drive out of OPERATION ENABLED while the controller holds FAULT",
+                poll_s=0.05,
+            )
+        ctrl.send_signal(signal.SIGINT)  # a stop ends a run that holds FAULT
+        out, err = ctrl.communicate(timeout=60)
+        summary = json.loads(out)
+        assert summary["final_mode"] == "FAULT", err[-2000:]
+        assert summary["fault_reason"] == "NMT enter PRE-OPERATIONAL to node 2 from another master"
