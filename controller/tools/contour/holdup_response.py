@@ -1,0 +1,105 @@
+"""How the contact force answers a hold-up of the loop, from a contour recording.
+
+A hold-up is a cycle the contour task itself treats as one (``ContourTracking._timing_window``):
+the loop woke late (``inputs.late``) or a drive's or the sensor's frame is missing. For the
+tracking cycles of the laps asked for (by default 3-5, the demo's laps at 60 mm/s) this prints the
+force error's RMS by how many cycles came since the last hold-up, so that a force that rings on
+after one shows for how long:
+
+    python -m controller.tools.contour.holdup_response RECORDING.mcap [--laps 3,4,5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+from logs.reader import iter_decoded
+
+BIN_EDGES = (0, 1, 5, 10, 20, 40, 80, 160, 320, 640)  # cycles since the last hold-up
+
+
+@dataclass(frozen=True)
+class TrackingCycle:
+    lap: int  # 1-based, as the run's summary counts them
+    tracking: bool  # the task tracked the contour this cycle
+    force_error_n: float
+    held_up: bool
+
+
+@dataclass(frozen=True)
+class SinceBin:
+    first: int  # cycles since the last hold-up, from ...
+    last: int | None  # ... to (None: and beyond)
+    cycles: int
+    rms_n: float
+
+
+def read_cycles(path: str) -> list[TrackingCycle]:
+    """The contour task's cycles of a recording (those with a lap), in order."""
+    out = []
+    for d in iter_decoded(path, ["/cycle"]):
+        c = d.message
+        values = c.state.task_values
+        if "lap" not in values:
+            continue
+        sensor_missing = c.inputs.HasField("sensor") and not c.inputs.sensor.fresh
+        held_up = c.inputs.late or not all(x.fresh for x in c.inputs.drives) or sensor_missing
+        out.append(
+            TrackingCycle(
+                int(values["lap"]) + 1, c.state.task_phase == "TRACKING", values["force_error_n"], held_up
+            )
+        )
+    return out
+
+
+def by_cycles_since_holdup(cycles: Sequence[TrackingCycle], laps: Iterable[int]) -> list[SinceBin]:
+    """The force error's RMS of the tracking cycles of ``laps`` in bins of cycles since the last
+    hold-up (counted over the whole run; before the first one a cycle is in the last bin)."""
+    wanted = set(laps)
+    sums = [0.0] * len(BIN_EDGES)
+    counts = [0] * len(BIN_EDGES)
+    since = BIN_EDGES[-1]
+    for c in cycles:
+        since = 0 if c.held_up else since + 1
+        if c.tracking and c.lap in wanted:
+            k = max(i for i, edge in enumerate(BIN_EDGES) if since >= edge)
+            sums[k] += c.force_error_n * c.force_error_n
+            counts[k] += 1
+    return [
+        SinceBin(
+            BIN_EDGES[k],
+            BIN_EDGES[k + 1] - 1 if k + 1 < len(BIN_EDGES) else None,
+            counts[k],
+            math.sqrt(sums[k] / counts[k]) if counts[k] else math.nan,
+        )
+        for k in range(len(BIN_EDGES))
+    ]
+
+
+def format_bins(bins: Sequence[SinceBin]) -> str:
+    lines = ["cycles since hold-up  cycles  force error RMS [N]"]
+    for b in bins:
+        span = f"{b.first}-{b.last}" if b.last is not None else f"{b.first}-"
+        lines.append(f"{span:>20}  {b.cycles:>6}  {b.rms_n:.3f}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="python -m controller.tools.contour.holdup_response", description=__doc__.split("\n\n")[0]
+    )
+    ap.add_argument("recording", help="an MCAP recording of a contour run")
+    ap.add_argument("--laps", default="3,4,5", help="laps (1-based, comma-separated)")
+    args = ap.parse_args(argv)
+    cycles = read_cycles(args.recording)
+    laps = [int(x) for x in args.laps.split(",")]
+    print(f"{sum(c.held_up for c in cycles if c.lap in laps and c.tracking)} hold-ups in laps {args.laps}")
+    print(format_bins(by_cycles_since_holdup(cycles, laps)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

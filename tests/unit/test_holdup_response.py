@@ -1,0 +1,35 @@
+"""The force error's RMS by cycles since the loop's last hold-up (controller/tools/contour/holdup_response.py)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from controller.tools.contour.holdup_response import TrackingCycle, by_cycles_since_holdup, read_cycles
+
+DATA = Path(__file__).resolve().parent.parent / "data"
+
+
+def test_each_cycle_lands_in_the_bin_of_cycles_since_the_last_holdup():
+    # lap 3: a hold-up, 1 N right after it; then 3 N from 5 to 9 cycles after; lap 2 is not asked for
+    cycles = [TrackingCycle(2, True, 9.0, True)]
+    cycles += [TrackingCycle(3, True, 0.0, True)]
+    cycles += [TrackingCycle(3, True, 1.0, False) for _ in range(4)]  # 1-4 cycles since
+    cycles += [TrackingCycle(3, True, 3.0, False) for _ in range(5)]  # 5-9
+    cycles += [TrackingCycle(3, False, 50.0, False)]  # not tracking: not counted, but counts as a cycle
+    cycles += [TrackingCycle(3, True, 2.0, False)]  # 11 cycles since
+    bins = {(b.first, b.last): b for b in by_cycles_since_holdup(cycles, [3])}
+    assert (bins[(0, 0)].cycles, bins[(0, 0)].rms_n) == (1, 0.0)
+    assert (bins[(1, 4)].cycles, bins[(1, 4)].rms_n) == (4, 1.0)
+    assert (bins[(5, 9)].cycles, bins[(5, 9)].rms_n) == (5, 3.0)
+    assert (bins[(10, 19)].cycles, bins[(10, 19)].rms_n) == (1, 2.0)
+    assert bins[(640, None)].cycles == 0 and math.isnan(bins[(640, None)].rms_n)
+
+
+def test_a_recorded_contour_run_without_holdups_is_all_in_the_last_bin():
+    cycles = read_cycles(str(DATA / "contour_contact.mcap"))
+    assert cycles and not any(c.held_up for c in cycles)  # a simulated-time run: the loop is never late
+    laps = {c.lap for c in cycles}
+    bins = by_cycles_since_holdup(cycles, laps)
+    tracking = sum(c.tracking for c in cycles)
+    assert tracking > 0 and bins[-1].cycles == tracking and sum(b.cycles for b in bins[:-1]) == 0
