@@ -5,25 +5,52 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from controller.tools.contour.holdup_response import TrackingCycle, by_cycles_since_holdup, read_cycles
+import pytest
+
+from controller.tools.contour.holdup_response import (
+    TrackingCycle,
+    by_cycles_since_holdup,
+    drives_held,
+    read_cycles,
+)
 
 DATA = Path(__file__).resolve().parent.parent / "data"
 
 
+def _cycles(*rows: tuple[int, bool, float, bool, float]) -> list[TrackingCycle]:
+    """(lap, tracking, force error, held up, wake error) a cycle, one 2.5-ms deadline after another."""
+    return [TrackingCycle(lap, tr, e, h, k * 0.0025, w) for k, (lap, tr, e, h, w) in enumerate(rows)]
+
+
 def test_each_cycle_lands_in_the_bin_of_cycles_since_the_last_holdup():
     # lap 3: a hold-up, 1 N right after it; then 3 N from 5 to 9 cycles after; lap 2 is not asked for
-    cycles = [TrackingCycle(2, True, 9.0, True)]
-    cycles += [TrackingCycle(3, True, 0.0, True)]
-    cycles += [TrackingCycle(3, True, 1.0, False) for _ in range(4)]  # 1-4 cycles since
-    cycles += [TrackingCycle(3, True, 3.0, False) for _ in range(5)]  # 5-9
-    cycles += [TrackingCycle(3, False, 50.0, False)]  # not tracking: not counted, but counts as a cycle
-    cycles += [TrackingCycle(3, True, 2.0, False)]  # 11 cycles since
+    cycles = _cycles(
+        (2, True, 9.0, True, 0.0),
+        (3, True, 0.0, True, 0.0),
+        *[(3, True, 1.0, False, 0.0)] * 4,  # 1-4 cycles since
+        *[(3, True, 3.0, False, 0.0)] * 5,  # 5-9
+        (3, False, 50.0, False, 0.0),  # not tracking: not counted, but counts as a cycle
+        (3, True, 2.0, False, 0.0),  # 11 cycles since
+    )
     bins = {(b.first, b.last): b for b in by_cycles_since_holdup(cycles, [3])}
     assert (bins[(0, 0)].cycles, bins[(0, 0)].rms_n) == (1, 0.0)
     assert (bins[(1, 4)].cycles, bins[(1, 4)].rms_n) == (4, 1.0)
     assert (bins[(5, 9)].cycles, bins[(5, 9)].rms_n) == (5, 3.0)
     assert (bins[(10, 19)].cycles, bins[(10, 19)].rms_n) == (1, 2.0)
     assert bins[(640, None)].cycles == 0 and math.isnan(bins[(640, None)].rms_n)
+
+
+def test_the_drives_held_their_reference_where_a_sync_came_more_than_two_periods_after_the_last():
+    # deadlines 2.5 ms apart, one skipped (5 ms), then one skipped again and the wake-up 0.5 ms late
+    cycles = [
+        TrackingCycle(3, True, 0.0, False, 0.0, 0.0),
+        TrackingCycle(3, True, 0.0, True, 0.005, 0.0),  # 5 ms: the drives' extrapolation just ended
+        TrackingCycle(3, True, 0.0, False, 0.0075, 0.0),
+        TrackingCycle(3, True, 0.0, True, 0.0125, 0.0005),  # 5.5 ms: held 0.5 ms
+        TrackingCycle(4, True, 0.0, False, 0.015, 0.0),
+    ]
+    assert drives_held(cycles, [3]) == pytest.approx([0.0055])
+    assert drives_held(cycles, [4]) == []
 
 
 def test_a_recorded_contour_run_without_holdups_is_all_in_the_last_bin():
@@ -33,3 +60,4 @@ def test_a_recorded_contour_run_without_holdups_is_all_in_the_last_bin():
     bins = by_cycles_since_holdup(cycles, laps)
     tracking = sum(c.tracking for c in cycles)
     assert tracking > 0 and bins[-1].cycles == tracking and sum(b.cycles for b in bins[:-1]) == 0
+    assert drives_held(cycles, laps) == []

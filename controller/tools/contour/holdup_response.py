@@ -4,7 +4,8 @@ A hold-up is a cycle the contour task itself treats as one (``ContourTracking._t
 the loop woke late (``inputs.late``) or a drive's or the sensor's frame is missing. For the
 tracking cycles of the laps asked for (by default 3-5, the demo's laps at 60 mm/s) this prints the
 force error's RMS by how many cycles came since the last hold-up, so that a force that rings on
-after one shows for how long:
+after one shows for how long; and how often the drives held their reference, a SYNC coming more
+than two periods after the last (the segment and one period of extrapolation, sim_backend/drive.py):
 
     python -m controller.tools.contour.holdup_response RECORDING.mcap [--laps 3,4,5]
 """
@@ -12,6 +13,7 @@ after one shows for how long:
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -27,6 +29,8 @@ class TrackingCycle:
     tracking: bool  # the task tracked the contour this cycle
     force_error_n: float
     held_up: bool
+    t_s: float  # the cycle's deadline
+    wake_error_s: float  # how late the loop woke for it: when its SYNC went out, after the deadline
 
 
 @dataclass(frozen=True)
@@ -47,11 +51,27 @@ def read_cycles(path: str) -> list[TrackingCycle]:
             continue
         sensor_missing = c.inputs.HasField("sensor") and not c.inputs.sensor.fresh
         held_up = c.inputs.late or not all(x.fresh for x in c.inputs.drives) or sensor_missing
+        lap, tracking = int(values["lap"]) + 1, c.state.task_phase == "TRACKING"
         out.append(
-            TrackingCycle(
-                int(values["lap"]) + 1, c.state.task_phase == "TRACKING", values["force_error_n"], held_up
-            )
+            TrackingCycle(lap, tracking, values["force_error_n"], held_up, c.t_s, c.timing.wake_error_s)
         )
+    return out
+
+
+def drives_held(cycles: Sequence[TrackingCycle], laps: Iterable[int]) -> list[float]:
+    """The SYNC intervals [s] longer than two periods before the tracking cycles of ``laps``: the
+    drives had run through their segment and one period of extrapolation, and held their reference
+    for the rest of the interval (sim_backend/drive.py). A SYNC goes out when the loop wakes."""
+    steps = [b.t_s - a.t_s for a, b in itertools.pairwise(cycles) if b.t_s > a.t_s]
+    if not steps:
+        return []
+    period_s = min(steps)  # the loop's cycle times are its deadlines
+    wanted = set(laps)
+    out = []
+    for a, b in itertools.pairwise(cycles):
+        interval_s = (b.t_s + b.wake_error_s) - (a.t_s + a.wake_error_s)
+        if b.tracking and b.lap in wanted and interval_s > 2.0 * period_s + 1e-6:
+            out.append(interval_s)
     return out
 
 
@@ -96,7 +116,12 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     cycles = read_cycles(args.recording)
     laps = [int(x) for x in args.laps.split(",")]
-    print(f"{sum(c.held_up for c in cycles if c.lap in laps and c.tracking)} hold-ups in laps {args.laps}")
+    held = drives_held(cycles, laps)
+    print(
+        f"{sum(c.held_up for c in cycles if c.lap in laps and c.tracking)} hold-ups in laps {args.laps}; "
+        f"{len(held)} SYNC intervals over two periods (the drives held their reference)"
+        + (f", the longest {max(held) * 1e3:.1f} ms" if held else "")
+    )
     print(format_bins(by_cycles_since_holdup(cycles, laps)))
     return 0
 
