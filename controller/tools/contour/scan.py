@@ -304,17 +304,17 @@ Progress = Callable[[int, int, dict[str, object]], None]
 def run_scenarios(
     base: Config,
     undisturbed: dict[str, object],
-    scenarios: Iterator[ContourScenario],
+    disturbed: Iterator[ContourScenario],
     directory: Path | None,
     jobs: int,
     progress: Progress | None,
     prefix: str,
 ) -> list[dict[str, object]]:
-    """Each scenario's row (``jobs`` processes), in the order of ``scenarios``, after the undisturbed
+    """Each scenario's row (``jobs`` processes), in the order of ``disturbed``, after the undisturbed
     run's; the recordings in ``directory``, else in a temporary one that goes with its rows' paths."""
     with tempfile.TemporaryDirectory(prefix=prefix) as tmp:
         out = Path(directory or tmp)
-        todo = [(base, sc, out) for sc in scenarios]
+        todo = [(base, sc, out) for sc in disturbed]
         rows: list[dict[str, object]] = [undisturbed]
         if jobs > 1:
             with ProcessPoolExecutor(max_workers=jobs) as pool:
