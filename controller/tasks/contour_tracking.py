@@ -83,7 +83,7 @@ from typing import Protocol
 
 import numpy as np
 
-from controller.core.cycle_data import Command, Event, Severity
+from controller.core.cycle_data import Command, CycleInputs, Event, Severity
 from controller.core.ports import (
     ContactExpectation,
     ForceSetpointLimit,
@@ -388,6 +388,16 @@ def track_normal(
     )
 
 
+def loop_held_up(inputs: CycleInputs) -> bool:
+    """The loop was held up this cycle: it woke late or after skipped deadlines (``inputs.late``),
+    or a drive's or the sensor's frame is missing (the hold-up window, ``_timing_window``)."""
+    return (
+        inputs.late
+        or not all(d.fresh for d in inputs.drives)
+        or (inputs.sensor is not None and not inputs.sensor.fresh)
+    )
+
+
 def fresh_sample(ctx: TaskContext) -> bool:
     """Whether this cycle brought a new force sample (else the task runs on the last good one)."""
     return ctx.inputs.sensor is not None and ctx.inputs.sensor.fresh
@@ -484,15 +494,9 @@ class ContourTrackingTask:
     def _timing_window(s: ContourState, ctx: TaskContext) -> ContourState:
         """Restart the window of TIMING_RECOVERY_S when the loop was held up this cycle: it woke late or
         after skipped deadlines (``inputs.late``), or a drive's or the sensor's frame is missing."""
-        inputs = ctx.inputs
-        held_up = (
-            inputs.late
-            or not all(d.fresh for d in inputs.drives)
-            or (inputs.sensor is not None and not inputs.sensor.fresh)
-        )
         n = (
             math.ceil(TIMING_RECOVERY_S / ctx.period_s - 1e-9)
-            if held_up
+            if loop_held_up(ctx.inputs)
             else max(0, s.timing_window_cycles - 1)
         )
         return s if n == s.timing_window_cycles else replace(s, timing_window_cycles=n)

@@ -1,6 +1,6 @@
 """How the contact force answers a hold-up of the loop, from a contour recording.
 
-A hold-up is a cycle the contour task itself treats as one (``ContourTracking._timing_window``):
+A hold-up is a cycle the contour task itself treats as one (``contour_tracking.loop_held_up``):
 the loop woke late (``inputs.late``) or a drive's or the sensor's frame is missing. For the
 tracking cycles of the laps asked for (by default 3-5, the demo's laps at 60 mm/s) this prints the
 force error's RMS by how many cycles came since the last hold-up, so that a force that rings on
@@ -18,6 +18,8 @@ import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
+from controller.tasks.contour_tracking import loop_held_up
+from logs.messages import inputs_from_pb
 from logs.reader import iter_decoded
 
 BIN_EDGES = (0, 1, 5, 10, 20, 40, 80, 160, 320, 640)  # cycles since the last hold-up
@@ -49,8 +51,7 @@ def read_cycles(path: str) -> list[TrackingCycle]:
         values = c.state.task_values
         if "lap" not in values:
             continue
-        sensor_missing = c.inputs.HasField("sensor") and not c.inputs.sensor.fresh
-        held_up = c.inputs.late or not all(x.fresh for x in c.inputs.drives) or sensor_missing
+        held_up = loop_held_up(inputs_from_pb(c.inputs))
         lap, tracking = int(values["lap"]) + 1, c.state.task_phase == "TRACKING"
         out.append(
             TrackingCycle(lap, tracking, values["force_error_n"], held_up, c.t_s, c.timing.wake_error_s)
