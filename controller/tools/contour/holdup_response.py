@@ -13,6 +13,7 @@ than two periods after the last (the segment and one period of extrapolation, si
 from __future__ import annotations
 
 import argparse
+import bisect
 import itertools
 import math
 from collections.abc import Iterable, Sequence
@@ -86,7 +87,7 @@ def by_cycles_since_holdup(cycles: Sequence[TrackingCycle], laps: Iterable[int])
     for c in cycles:
         since = 0 if c.held_up else since + 1
         if c.tracking and c.lap in wanted:
-            k = max(i for i, edge in enumerate(BIN_EDGES) if since >= edge)
+            k = bisect.bisect_right(BIN_EDGES, since) - 1
             sums[k] += c.force_error_n * c.force_error_n
             counts[k] += 1
     return [
