@@ -606,14 +606,13 @@ class SimulatedDrive:
                 # the reference at the start of the sub-step (``_reference``, inlined: this is
                 # the simulator's inner loop)
                 r = (t - t0) / period if period > 0 else 1.0
-                ref = x0 + (r if 0.0 <= r <= x_end else (0.0 if r < 0.0 else x_end)) * dx
-                # Known departure from a real drive: v_ff stays the segment's speed after the
-                # reference holds (r > x_end), so after a SYNC later than two periods the carriage
-                # settles 2 zeta v / wn past the held reference (0.48 mm at 0.1 m/s) until the next
-                # SYNC. A zero feed-forward there stops it dead instead, and the contour task's
-                # hold-up handling was tuned on this drive: changing one needs the other re-tuned
-                # and the contour scans run again (issue 37's notes give the measurements).
-                acc = wn2 * (ref - x) + c * (v_ff - v)
+                if 0.0 <= r <= x_end:
+                    ref, vr = x0 + r * dx, v_ff
+                else:  # before the segment or past its extrapolation: the reference holds, still
+                    ref, vr = x0 + (0.0 if r < 0.0 else x_end) * dx, 0.0
+                # A held reference stands still, as a real interpolator's: fed the segment's speed
+                # forward, the carriage settled 2 zeta v / wn past it (0.48 mm at 0.1 m/s).
+                acc = wn2 * (ref - x) + c * (vr - v)
                 acc = amax if acc > amax else (-amax if acc < -amax else acc)  # no call: inner loop
             elif stopping and moving:
                 if abs(v) <= p.quick_stop_deceleration * h:

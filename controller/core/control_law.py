@@ -160,9 +160,13 @@ class ControlLaw:
             d.position if d.fresh and not bad else x
             for d, x, bad in zip(inputs.drives, state.last_measured, implausible, strict=True)
         )
+        held = self._drives_held(state, t)
         state = replace(
             state,
             cycle=state.cycle + 1,
+            step_t_s=t,
+            drives_held=held,
+            setpoint=Setpoint.at_rest(state.setpoint.position) if held else state.setpoint,
             missing_streak=streak,
             last_measured=last,
             tcp_measured_m=self._measured_tcp(state, inputs, measured),
@@ -210,6 +214,19 @@ class ControlLaw:
             sdo_controlwords=tuple((j, CW_QUICK_STOP) for j in by_sdo),
         )
         return state, outputs, tuple(events)
+
+    def _drives_held(self, state: ControllerState, t: float) -> bool:
+        """The loop skipped so many deadlines before this step that the drives, out of setpoints, hold.
+
+        Two skipped (a SYNC interval of three periods or more) with the default; one skipped leaves
+        them at most a fraction of a period held, and they are still moving as the setpoint says.
+        """
+        period = self.config.period_s
+        # (the first step has no last one: -inf)
+        return (
+            math.isfinite(state.step_t_s)
+            and t - state.step_t_s > (self.config.drives_hold_after_periods + 0.5) * period
+        )
 
     def _supervise(
         self,
@@ -489,6 +506,7 @@ class ControlLaw:
             sensor_breach=state.sensor_breach,
             force_witness_n=witness.force_n if witness is not None else None,
             sensor_suspect=state.contact.suspect,
+            drives_held=state.drives_held,
         )
         out = self.task.step(state.task_state, ctx)
         events.extend(out.events)

@@ -49,6 +49,10 @@ class ControllerState:
     tcp_reference_m: tuple[float, float, float] | None  # path point for the next SYNC; None off the path
     tcp_measured_m: tuple[float, float, float] | None  # direct kinematics of the measured positions
     task_time_s: float = 0.0
+    step_t_s: float = -math.inf  # the last step's time (the loop's deadline k * period)
+    # The loop was held up long enough before this step that the drives ran out of setpoints and
+    # stand at the last one (``LawConfig.drives_hold_after_periods``): the setpoint restarts from rest.
+    drives_held: bool = False
     fault_reason: str = ""
     sensor_counter: int = -1  # last sensor counter seen, for staleness
     sensor_stale: int = 0  # cycles the counter has not advanced

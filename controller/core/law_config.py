@@ -89,6 +89,11 @@ class LawConfig:
     task_retracts_on_sensor_breach: bool = False
     fault_resets: tuple[FaultResetConfig, ...] = ()  # per drive; empty: FaultResetConfig() for each
     emcy_reactions: tuple[EmcyReaction, ...] = ()  # the drives' EMCY codes that do not fault (first match)
+    # A CSP drive interpolates from the target it holds to the one latched at a SYNC over one period
+    # and, without the next SYNC, goes on one period more (sim_backend/drive.py EXTRAPOLATION_PERIODS)
+    # and then holds, still. A step more than this many periods after the last one finds the drives
+    # standing: the setpoint's velocity and acceleration restart from zero where they stand.
+    drives_hold_after_periods: float = 2.0
 
     def fault_reset(self, j: int) -> FaultResetConfig:
         return self.fault_resets[j] if j < len(self.fault_resets) else FaultResetConfig()

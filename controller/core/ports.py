@@ -200,6 +200,10 @@ class TaskContext:
     # Non-empty: the sensor disagrees with that witness beyond its tolerance (why); the task must
     # resolve it (re-tare in free space) within safety.contact.sensor_suspect_s, or the law backs off.
     sensor_suspect: str = ""
+    # The loop was held up so long before this cycle that the drives stand at the last setpoint
+    # (``LawConfig.drives_hold_after_periods``): ``setpoint`` restarts from rest there, and a task
+    # that keeps a speed of its own restarts it from zero too.
+    drives_held: bool = False
 
 
 @record

@@ -129,6 +129,11 @@ FORCE_STOP_FRACTION = 0.6  # ... down to zero at this one (the disk's laps stay 
 # safety layer's) are not widened.
 TIMING_RECOVERY_S = 0.1
 TIMING_BAND_FRACTION = 1.0
+# A hold-up long enough that the drives ran out of setpoints stops the tool dead (ctx.drives_held): the
+# tangential speed restarts from zero and climbs back to what it was at this, not at the laps' gentle
+# tangential_acceleration_m_s2 (0 to 60 mm/s in 0.12 s and 3.6 mm): a step back to full speed would
+# jolt the structure, a slow climb would cost every lap with a hold-up its speed.
+HOLD_RESTART_ACCELERATION_M_S2 = 0.5
 UNSEEN_TURN_DECAY_S = 0.1  # without a direction measurement the normal's turn rate (and its change) fade with this time constant
 
 
@@ -286,6 +291,7 @@ class ContourState:
     # the force left its band in that window and has not come back yet
     timing_window_cycles: int = 0
     excused: bool = False
+    restart_speed_m_s: float = 0.0  # the speed the drives were stopped from by a hold-up, until regained
 
 
 def _unit2(x: float, y: float) -> tuple[float, float] | None:
@@ -488,7 +494,7 @@ class ContourTrackingTask:
         return TaskStep(s, ref, events=events)
 
     def _enter(self, s: ContourState, phase: ContourPhase, t_s: float, **fields: object) -> ContourState:
-        return replace(s, phase=phase, phase_start_s=t_s, travel_m=0.0, **fields)
+        return replace(s, phase=phase, phase_start_s=t_s, travel_m=0.0, restart_speed_m_s=0.0, **fields)
 
     @staticmethod
     def _timing_window(s: ContourState, ctx: TaskContext) -> ContourState:
@@ -496,7 +502,7 @@ class ContourTrackingTask:
         after skipped deadlines (``inputs.late``), or a drive's or the sensor's frame is missing."""
         n = (
             math.ceil(TIMING_RECOVERY_S / ctx.period_s - 1e-9)
-            if loop_held_up(ctx.inputs)
+            if loop_held_up(ctx.inputs) or s.restart_speed_m_s > 0.0  # or the tool regains its speed
             else max(0, s.timing_window_cycles - 1)
         )
         return s if n == s.timing_window_cycles else replace(s, timing_window_cycles=n)
@@ -696,6 +702,10 @@ class ContourTrackingTask:
 
     def step(self, state: ContourState, ctx: TaskContext) -> TaskStep:
         s, signal_events = self._filter_force(self._timing_window(state, ctx), ctx)
+        if ctx.drives_held and s.phase == ContourPhase.TRACKING and s.speed_m_s > 0.0:
+            restart = max(s.restart_speed_m_s, s.speed_m_s)
+            s, _ = self._integral_at_speed(s, 0.0)  # the tool stopped: so does what it made up for
+            s = replace(s, restart_speed_m_s=restart, speed_m_s=0.0)
         if ctx.sensor_breach and s.phase not in (ContourPhase.RETRACT, ContourPhase.FINISHED):
             return self._sensor_breach(s, ctx)
         if (
@@ -909,6 +919,12 @@ class ContourTrackingTask:
         p, dt = self.p, ctx.period_s
         normal, rate, accel = s.normal, s.normal_rate_rad_s, s.normal_accel_rad_s2
         angle = math.atan2(normal[1], normal[0])
+        if s.restart_speed_m_s > 0.0:
+            # Regaining the speed a hold-up stopped: the normal turns as far as the tool goes (the
+            # rate kept is the one at that speed), and the force's direction, tilted by the stop's
+            # jolt, is no measurement of the contour until then.
+            angle += rate * (s.speed_m_s / s.restart_speed_m_s) * dt
+            return (math.cos(angle), math.sin(angle)), rate, accel
         predicted = predict_normal(angle, rate, accel, dt)
         measured = predicted  # a repeated or suspect sample is no new direction: the tracker only predicts
         if not self._trusted(s):
@@ -990,6 +1006,8 @@ class ContourTrackingTask:
         band, stop = bands  # _band_fractions
         target *= min(self._in_band(s, force_error_n, band, stop), self._in_band(s, raw_error_n, band, stop))
         up, down = p.tangential_acceleration_m_s2 * dt, p.stop_deceleration_m_s2 * dt
+        if s.speed_m_s < s.restart_speed_m_s:  # back to the speed a hold-up stopped (HOLD_RESTART_...)
+            up = max(up, HOLD_RESTART_ACCELERATION_M_S2 * dt)
         if (
             abs(rate_rad_s) > p.max_normal_turn_rate_rad_s and s.speed_m_s > 0.0
         ):  # a corner: keep the turn rate
@@ -1110,6 +1128,7 @@ class ContourTrackingTask:
         s = replace(
             s,
             speed_m_s=speed,
+            restart_speed_m_s=s.restart_speed_m_s if speed < s.restart_speed_m_s else 0.0,
             creep_m=creep,
             excused=excused,
             normal=normal,

@@ -383,6 +383,17 @@ def test_a_late_sync_lets_the_reference_run_on_for_one_period_at_the_segment_spe
     assert d.position > x and d.velocity > 0.0
 
 
+def test_a_sync_later_than_the_extrapolation_finds_the_carriage_standing_at_the_held_reference():
+    # A real drive's interpolator gives a held reference zero velocity: the carriage stops there.
+    # Fed the segment's speed forward instead, it settled 2 zeta v / wn past it: 0.48 mm at 0.1 m/s.
+    d, t, target = moving_drive()
+    step = 0.1 * PERIOD
+    held = target + step  # the segment's end plus one period of extrapolation
+    d.advance(t + 10 * PERIOD, check_sync_timeout=False)  # 25 ms without a SYNC
+    assert d.position == pytest.approx(held, abs=5e-6)
+    assert abs(d.velocity) < 1e-3
+
+
 def test_the_interpolation_period_is_0x60c2_not_the_measured_sync_interval():
     d, t, target = moving_drive()
     # a SYNC 1 ms early: with 0x60C2 the drive still interpolates over 2.5 ms
