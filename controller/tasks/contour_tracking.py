@@ -1128,7 +1128,9 @@ class ContourTrackingTask:
         s = replace(
             s,
             speed_m_s=speed,
-            restart_speed_m_s=s.restart_speed_m_s if speed < s.restart_speed_m_s else 0.0,
+            # the restart lasts while the speed climbs back: it ends where it reaches the old speed,
+            # or stops climbing (a lower target: a corner, the band, the creep rule)
+            restart_speed_m_s=s.restart_speed_m_s if s.speed_m_s < speed < s.restart_speed_m_s else 0.0,
             creep_m=creep,
             excused=excused,
             normal=normal,

@@ -10,10 +10,13 @@ deadlines it missed, as over a bus. No wall clock anywhere.
 
 from __future__ import annotations
 
+import itertools
+
 import pytest
 
 from controller.config import load_config
 from controller.shell.simulated_rig import SimulatedRig
+from controller.tasks.contour_tracking import HOLD_RESTART_ACCELERATION_M_S2, ContourPhase, ContourState
 from controller.tools.contour.experiment import run_simulated_time
 from controller.tools.contour.scan import ContourScenario, run_contour_scenario
 
@@ -81,3 +84,36 @@ def test_a_bump_is_still_ridden_under_the_limit_when_every_cycle_is_late():
     # under the task's own force limit, not only the safety layer's: without the band's derating in
     # the window (an excused excursion of any size) the bump pressed 49 N and the task retracted on it
     assert row["max_true_contact_force_n"] < load_config().task.model("contour").max_force_n
+
+
+class TaskSpeeds:
+    def __init__(self) -> None:
+        self.rows: list[tuple[float, int, float, float]] = []  # t, phase, speed, restart speed
+
+    def on_cycle(self, cycle, t, inputs, state, outputs, events, timing) -> None:
+        ts = state.task_state
+        if isinstance(ts, ContourState):
+            self.rows.append((t, int(ts.phase), ts.speed_m_s, ts.restart_speed_m_s))
+
+
+@pytest.mark.slow
+def test_a_hold_up_that_stopped_the_drives_restarts_the_tangential_speed_from_zero():
+    """The drives stood through the hold-up (two skipped deadlines or more): the task's speed
+    restarts from zero and climbs back to the old one at HOLD_RESTART_ACCELERATION_M_S2, not at
+    the laps' gentle 0.05 m/s^2, and the restart ends there."""
+    base = load_config(overrides={"task.kind": "contour"})
+    cfg = load_config(
+        overrides={"task.kind": "contour", "sim.faults": [f"stall={STALL_S}@42.6+{base.period_s}"]}
+    )
+    speeds = TaskSpeeds()
+    SimulatedRig(cfg).run((speeds,), 45.0)
+    rows = speeds.rows
+    i = next(k for k, (a, b) in enumerate(itertools.pairwise(rows)) if b[0] - a[0] > 2.5 * base.period_s) + 1
+    t_held, phase, speed, restart = rows[i]
+    before = rows[i - 1][2]
+    assert phase == ContourPhase.TRACKING and before > 0.05  # lap 3, at speed
+    assert restart == pytest.approx(before) and speed <= HOLD_RESTART_ACCELERATION_M_S2 * base.period_s + 1e-9
+    climb_s = before / HOLD_RESTART_ACCELERATION_M_S2  # 0.12 s
+    back = next(r for r in rows[i:] if r[3] == 0.0)
+    assert back[0] - t_held <= climb_s + 0.02 and back[2] >= 0.95 * before
+    assert all(r[1] == ContourPhase.TRACKING for r in rows[i:])
