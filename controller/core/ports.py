@@ -201,8 +201,8 @@ class TaskContext:
     # resolve it (re-tare in free space) within safety.contact.sensor_suspect_s, or the law backs off.
     sensor_suspect: str = ""
     # The loop was held up so long before this cycle that the drives stand at the last setpoint
-    # (``LawConfig.drives_hold_after_periods``): ``setpoint`` restarts from rest there, and a task
-    # that keeps a speed of its own restarts it from zero too.
+    # (``LawConfig.drives_hold_after_periods``): a reactive reference's smoothing restarts from
+    # rest there, and a task that keeps a speed of its own restarts it from zero too.
     drives_held: bool = False
 
 
