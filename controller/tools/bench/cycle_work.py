@@ -60,7 +60,7 @@ DEFAULT_TASK_WINDOWS = {"path": (800, 1000), "contour": (3200, 500)}  # (skip, c
 # fails tests/unit/test_cycle_work.py and becomes a decision (raise the budget there and in the docs).
 BUDGET_PER_CYCLE = {
     "path": {"bytecodes": 15000, "c_calls": 335},
-    "contour": {"bytecodes": 23000, "c_calls": 605},  # 22 500 until the restart after a hold-up (+211)
+    "contour": {"bytecodes": 23000, "c_calls": 605},  # 22 500 until the restart after a hold-up (+210)
 }
 MAX_TRACKED_OBJECTS_LEFT_PER_CYCLE = 1.5  # a young collection (700) at most every ~470 cycles
 _MARKER = "getsid"  # the libc function callgrind dumps before: os.getsid(0) marks the window's ends
