@@ -113,6 +113,8 @@ class ControlLaw:
         self.config = config
         self.n = robot.n_actuators
         self.monitor = SafetyMonitor(robot, config)  # the checks of each cycle's inputs
+        # a step this long after the last finds the drives standing (``_drives_held``)
+        self._drives_held_after_s = (config.drives_hold_after_periods + 0.5) * config.period_s
         # Robots that tell the contact force from their drives' efforts give the sensor its second witness.
         self._witness_model = (
             None if missing_capability(robot, ForceWitnessModel) else cast(ForceWitnessModel, robot)
@@ -220,12 +222,8 @@ class ControlLaw:
         Two skipped (a SYNC interval of three periods or more) with the default; one skipped leaves
         them at most a fraction of a period held, and they are still moving as the setpoint says.
         """
-        period = self.config.period_s
         # (the first step has no last one: -inf)
-        return (
-            math.isfinite(state.step_t_s)
-            and t - state.step_t_s > (self.config.drives_hold_after_periods + 0.5) * period
-        )
+        return math.isfinite(state.step_t_s) and t - state.step_t_s > self._drives_held_after_s
 
     def _supervise(
         self,
