@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import math
@@ -102,6 +103,17 @@ def _rt_options(ap: argparse.ArgumentParser) -> None:
         help="hold the CPUs' wake-up latency at most US microseconds while running (PM QoS, "
         "/dev/cpu_dma_latency; 0: no idle state that takes time to leave)",
     )
+    g.add_argument(
+        "--cpu-shield",
+        action="store_true",
+        help="keep every normal task of the machine off the loop's --cpu while the loop runs (run, demo; "
+        "controller/shell/cpu_shield.py)",
+    )
+    g.add_argument(
+        "--no-cpu-shield",
+        action="store_true",
+        help="the default options without the CPU shield: other work may share the loop's CPU",
+    )
     g.add_argument("--no-realtime", action="store_true", help="ask for none of them: the normal scheduler")
     g.add_argument(
         "--rt-best-effort",
@@ -141,21 +153,33 @@ def _live_overrides(args: argparse.Namespace) -> list[str]:
 def _realtime(args: argparse.Namespace, simulator: bool = False) -> RealtimeOptions:
     from controller.realtime import RealtimeError, RealtimeOptions, parse_cpus
 
-    explicit = args.rt_priority is not None or args.cpu or args.lock_memory or args.cpu_latency_us is not None
+    explicit = (
+        args.rt_priority is not None
+        or args.cpu
+        or args.lock_memory
+        or args.cpu_latency_us is not None
+        or args.cpu_shield
+    )
     if args.no_realtime:
         if explicit:
             raise RealtimeError(
-                "--no-realtime cannot be combined with --rt-priority, --cpu, --lock-memory or --cpu-latency-us"
+                "--no-realtime cannot be combined with --rt-priority, --cpu, --lock-memory, --cpu-latency-us "
+                "or --cpu-shield"
             )
         return RealtimeOptions()
+    if args.cpu_shield and args.no_cpu_shield:
+        raise RealtimeError("--cpu-shield and --no-cpu-shield contradict each other")
     if not explicit:
         default = RealtimeOptions.default()
+        if args.no_cpu_shield:
+            default = dataclasses.replace(default, shield=False)
         return default.for_simulator() if simulator else default
     return RealtimeOptions(
         priority=args.rt_priority,
         cpus=parse_cpus(args.cpu) if args.cpu else (),
         lock_memory=args.lock_memory,
         cpu_latency_us=args.cpu_latency_us,
+        shield=args.cpu_shield and not simulator,
         required=not args.rt_best_effort,
     )
 

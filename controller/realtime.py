@@ -95,22 +95,22 @@ class RealtimeOptions:
     cpus: tuple[int, ...] = ()  # CPUs to run on, () : leave the affinity alone
     lock_memory: bool = False  # mlockall(MCL_CURRENT | MCL_FUTURE)
     cpu_latency_us: int | None = None  # PM QoS: the CPUs' wake-up latency limit while running, None: none
+    shield: bool = (
+        False  # keep normal tasks off ``cpus`` while the loop runs (controller/shell/cpu_shield.py)
+    )
     required: bool = True  # False: where refused, warn in one line and run on without it
 
     @classmethod
     def default(cls, priority: int = DEFAULT_LOOP_PRIORITY) -> RealtimeOptions:
-        """What the controller asks for unless told otherwise: SCHED_FIFO, the last CPU, locked memory.
+        """What the controller asks for unless told otherwise: SCHED_FIFO, the last CPU kept clear
+        of normal tasks, locked memory.
 
         On a machine with more than one CPU the loop takes the last one and leaves the others
         to the rest of the system (and to the simulator, ``for_simulator``).
         """
         allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
-        return cls(
-            priority=priority,
-            cpus=(allowed[-1],) if len(allowed) > 1 else (),
-            lock_memory=True,
-            required=False,
-        )
+        cpus = (allowed[-1],) if len(allowed) > 1 else ()
+        return cls(priority=priority, cpus=cpus, lock_memory=True, shield=bool(cpus), required=False)
 
     def for_simulator(self) -> RealtimeOptions:
         """The simulated hardware's options beside a loop with these: one step below, on the other CPUs."""
@@ -132,6 +132,8 @@ class RealtimeOptions:
                 raise RealtimeError(f"--cpu {cpu}: CPU numbers start at 0")
         if self.cpu_latency_us is not None and not 0 <= self.cpu_latency_us <= 2_000_000_000:
             raise RealtimeError(f"--cpu-latency-us {self.cpu_latency_us}: must be 0 or more microseconds")
+        if self.shield and not self.cpus:
+            raise RealtimeError("--cpu-shield needs --cpu: the CPUs to keep clear are the loop's")
 
     @property
     def any(self) -> bool:
@@ -153,6 +155,8 @@ class RealtimeOptions:
             args.append("--lock-memory")
         if self.cpu_latency_us is not None:
             args += ["--cpu-latency-us", str(self.cpu_latency_us)]
+        if self.shield:
+            args.append("--cpu-shield")
         if args and not self.required:
             args.append("--rt-best-effort")
         return args
@@ -163,6 +167,8 @@ class RealtimeOptions:
             parts.append(f"SCHED_FIFO {self.priority}")
         if self.cpus:
             parts.append("CPU " + ",".join(str(c) for c in self.cpus))
+        if self.shield:
+            parts.append("kept clear of normal tasks")
         if self.lock_memory:
             parts.append("memory locked")
         if self.cpu_latency_us is not None:

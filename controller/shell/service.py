@@ -38,6 +38,7 @@ from controller.realtime import (
     unfreeze_garbage_collector,
 )
 from controller.robot_registry import ActuatorUnits
+from controller.shell.cpu_shield import raise_shield
 from controller.shell.helper_threads import HelperThreadWatch
 from controller.shell.log_handoff import log_records_off_the_loop
 from controller.shell.loop import CycleLoop
@@ -224,27 +225,31 @@ def run_controller(
             return None
 
         helpers_at_start = 0
+        shield_summary: dict[str, object] = {}
 
-        try:
-            restore = apply_realtime(realtime)
-            granted = granted_realtime()
-            helpers_at_start = helpers.start()
-            faults_before = resource.getrusage(resource.RUSAGE_SELF).ru_majflt
-            notify("READY=1")  # systemd Type=notify: the devices are configured, the loop starts
-            final, stats = loop.run(
-                prepared.law.initial_state(), max_duration_s, exit_on_fault=not cfg.loop.stay_in_fault
-            )
-            notify("STOPPING=1")
-            # a page the kernel dropped (memory pressure, proactive reclaim) is read back from disk
-            # when touched: milliseconds each, inside a cycle (--lock-memory prevents it)
-            major_faults = resource.getrusage(resource.RUSAGE_SELF).ru_majflt - faults_before
-        finally:
-            if kernel_sync is not None:
-                kernel_sync.stop()
-            helpers.restore()
-            restore()
-            if cfg.loop.freeze_gc:
-                unfreeze_garbage_collector()
+        # the shield's guardian is started before the loop thread takes its priority and CPU,
+        # which a child process would inherit
+        with raise_shield(realtime, shield_summary):
+            try:
+                restore = apply_realtime(realtime)
+                granted = granted_realtime()
+                helpers_at_start = helpers.start()
+                faults_before = resource.getrusage(resource.RUSAGE_SELF).ru_majflt
+                notify("READY=1")  # systemd Type=notify: the devices are configured, the loop starts
+                final, stats = loop.run(
+                    prepared.law.initial_state(), max_duration_s, exit_on_fault=not cfg.loop.stay_in_fault
+                )
+                notify("STOPPING=1")
+                # a page the kernel dropped (memory pressure, proactive reclaim) is read back from disk
+                # when touched: milliseconds each, inside a cycle (--lock-memory prevents it)
+                major_faults = resource.getrusage(resource.RUSAGE_SELF).ru_majflt - faults_before
+            finally:
+                if kernel_sync is not None:
+                    kernel_sync.stop()
+                helpers.restore()
+                restore()
+                if cfg.loop.freeze_gc:
+                    unfreeze_garbage_collector()
     return summarize(
         stats,
         recorder,
@@ -260,6 +265,7 @@ def run_controller(
             "frames": {"sent": bus.sent, "received": bus.received, "own_echoes_dropped": bus.own_echoes},
             "recording": _recording_summary(session, cfg),
             "realtime": granted,
+            "cpu_shield": shield_summary,
             "helper_threads_raised": {"at_start": helpers_at_start, "during_run": helpers.raised},
             # the sleeper's spin before each deadline (loop.spin_us): CPU spent on the wake-up's precision
             "spin_s": round(sleeper.spun_s, 3),

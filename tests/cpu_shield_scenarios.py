@@ -1,0 +1,164 @@
+"""Scenarios of the CPU shield, run inside a PID namespace of their own (tests/unit/test_cpu_shield.py).
+
+    unshare --pid --fork --mount-proc python tests/cpu_shield_scenarios.py SCENARIO STATE_DIR
+
+In the namespace ``/proc`` lists only the scenario's processes: the shield's sweep meets them and
+nothing else of the machine. Each scenario prints one JSON object of what it saw; the test asserts.
+The process running the scenario stands for the controller (its own process is never swept).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from waiting import wait_for_exit
+
+from controller.realtime import RealtimeError, RealtimeOptions
+from controller.shell.cpu_shield import CpuShield, CpuShieldError, raise_shield
+
+SPAWNER = "import subprocess, sys\nfor _ in sys.stdin:\n    print(subprocess.Popen(['sleep', '600']).pid, flush=True)"
+
+
+def mask(pid: int) -> list[int]:
+    return sorted(os.sched_getaffinity(pid))
+
+
+class Tasks:
+    """A spawner (a normal task that starts children on request), a task pinned to the first CPU
+    only, and one at SCHED_FIFO: what a sweep must move, and what it must leave alone."""
+
+    def __init__(self) -> None:
+        cpus = sorted(os.sched_getaffinity(0))
+        self.loop_cpu = cpus[-1]
+        self.spawner = subprocess.Popen(
+            [sys.executable, "-c", SPAWNER], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+        )
+        self.pinned = subprocess.Popen(["sleep", "600"])
+        os.sched_setaffinity(self.pinned.pid, {cpus[0]})
+        self.fifo = subprocess.Popen(["sleep", "600"])
+        os.sched_setscheduler(self.fifo.pid, os.SCHED_FIFO, os.sched_param(1))
+        self.children: list[int] = []
+
+    def spawn(self) -> int:
+        """A child of the spawner, born now: it inherits the spawner's affinity."""
+        assert self.spawner.stdin is not None and self.spawner.stdout is not None
+        self.spawner.stdin.write("\n")
+        self.spawner.stdin.flush()
+        pid = int(self.spawner.stdout.readline())
+        self.children.append(pid)
+        return pid
+
+    def masks(self) -> dict[str, Any]:
+        return {
+            "spawner": mask(self.spawner.pid),
+            "pinned": mask(self.pinned.pid),
+            "fifo": mask(self.fifo.pid),
+            "children": [mask(pid) for pid in self.children],
+        }
+
+    def end(self) -> None:
+        for pid in (*self.children, self.spawner.pid, self.pinned.pid, self.fifo.pid):
+            os.kill(pid, signal.SIGKILL)
+
+
+def restore_after_close(state_dir: Path) -> dict[str, Any]:
+    tasks = Tasks()
+    out: dict[str, Any] = {"loop_cpu": tasks.loop_cpu, "all": mask(0), "before": tasks.masks()}
+    shield = CpuShield.start((tasks.loop_cpu,), state_dir)
+    tasks.spawn()  # born under the shield
+    out["during"] = tasks.masks()
+    out["state_file_during"] = (state_dir / "cpu-shield.json").exists()
+    out["summary"] = shield.close()
+    out["after"] = tasks.masks()
+    out["state_file_after"] = (state_dir / "cpu-shield.json").exists()
+    tasks.end()
+    return out
+
+
+CONTROLLER = """
+import sys, time
+from pathlib import Path
+from controller.shell.cpu_shield import CpuShield
+shield = CpuShield.start((int(sys.argv[1]),), Path(sys.argv[2]))
+print(shield.pid, flush=True)
+time.sleep(600)
+"""
+
+
+def controller_killed(state_dir: Path) -> dict[str, Any]:
+    tasks = Tasks()
+    everything = mask(0)  # before the controller's shield sweeps this process too
+    controller = subprocess.Popen(
+        [sys.executable, "-c", CONTROLLER, str(tasks.loop_cpu), str(state_dir)],
+        stdout=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])},
+    )
+    assert controller.stdout is not None
+    guardian = int(controller.stdout.readline())
+    out: dict[str, Any] = {"all": everything, "during": tasks.masks()}
+    controller.kill()  # SIGKILL: no clean-up of its own
+    controller.wait()
+    wait_for_exit(guardian, "the guardian after its controller was killed")
+    out["after"] = tasks.masks()
+    out["state_file_after"] = (state_dir / "cpu-shield.json").exists()
+    tasks.end()
+    return out
+
+
+def guardian_killed(state_dir: Path) -> dict[str, Any]:
+    tasks = Tasks()
+    first = CpuShield.start((tasks.loop_cpu,), state_dir)
+    os.kill(first.pid, signal.SIGKILL)
+    wait_for_exit(first.pid, "the killed guardian")
+    out: dict[str, Any] = {"all": mask(0), "after_kill": tasks.masks()}
+    out["state_file_after_kill"] = (state_dir / "cpu-shield.json").exists()
+    first.close(timeout_s=1.0)
+    second = CpuShield.start((tasks.loop_cpu,), state_dir)
+    out["recovered"] = second.raised["recovered"]
+    out["during_second"] = tasks.masks()
+    second.close()
+    out["after"] = tasks.masks()
+    tasks.end()
+    return out
+
+
+def one_a_machine(state_dir: Path) -> dict[str, Any]:
+    cpu = sorted(os.sched_getaffinity(0))[-1]
+    first = CpuShield.start((cpu,), state_dir)
+    out: dict[str, Any] = {}
+    try:
+        CpuShield.start((cpu,), state_dir)
+        out["second"] = "started"
+    except CpuShieldError as err:
+        out["second"] = str(err)
+    summary: dict[str, Any] = {}
+    best_effort = RealtimeOptions(cpus=(cpu,), shield=True, required=False)
+    with raise_shield(best_effort, summary, state_dir) as shield:
+        out["best_effort_shield"] = shield is not None
+    out["best_effort_summary"] = summary
+    try:
+        with raise_shield(RealtimeOptions(cpus=(cpu,), shield=True), {}, state_dir):
+            out["required"] = "started"
+    except RealtimeError as err:
+        out["required"] = str(err)
+    first.close()
+    return out
+
+
+SCENARIOS = {f.__name__: f for f in (restore_after_close, controller_killed, guardian_killed, one_a_machine)}
+
+if __name__ == "__main__":
+    name, state = sys.argv[1], Path(sys.argv[2])
+    if os.getpid() != 1:  # on the host the sweep would move every task of the machine
+        sys.exit("run it as the first process of a PID namespace: unshare --pid --fork --mount-proc ...")
+    print(json.dumps(SCENARIOS[name](state)))

@@ -1,0 +1,113 @@
+"""The CPU shield (controller/shell/cpu_shield.py): normal tasks kept off the loop's CPU while a
+run lasts, and given back after it, however it ends.
+
+Each scenario runs in a PID namespace the test creates (tests/cpu_shield_scenarios.py): the sweep
+there meets the scenario's own processes and nothing else of the machine. Needs root (a PID
+namespace) and two CPUs.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from controller.cli import _realtime, build_parser
+from controller.realtime import RealtimeError, RealtimeOptions
+
+SCENARIOS = Path(__file__).resolve().parents[1] / "cpu_shield_scenarios.py"
+
+
+def _unavailable() -> str:
+    if os.geteuid() != 0:
+        return "a PID namespace needs root"
+    if shutil.which("unshare") is None:
+        return "no unshare command (util-linux)"
+    if len(os.sched_getaffinity(0)) < 2:
+        return "a CPU shield needs two CPUs"
+    return ""
+
+
+needs_namespace = pytest.mark.skipif(bool(_unavailable()), reason=_unavailable() or "available")
+
+
+def run_scenario(name: str, tmp_path: Path) -> dict[str, Any]:
+    done = subprocess.run(
+        ["unshare", "--pid", "--fork", "--mount-proc", sys.executable, str(SCENARIOS), name, str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    result: dict[str, Any] = json.loads(done.stdout.splitlines()[-1])
+    return result
+
+
+@needs_namespace
+def test_normal_tasks_leave_the_loops_cpu_and_get_it_back(tmp_path: Path) -> None:
+    out = run_scenario("restore_after_close", tmp_path)
+    everything, loop = out["all"], out["loop_cpu"]
+    others = [c for c in everything if c != loop]
+    assert out["before"]["spawner"] == everything
+    assert out["during"]["spawner"] == others  # swept
+    assert out["during"]["children"] == [others]  # born under the shield: inherited it
+    assert out["during"]["pinned"] == [everything[0]]  # it never ran on the loop's CPU
+    assert out["during"]["fifo"] == everything  # real-time: its placement is deliberate
+    assert out["state_file_during"]
+    assert out["after"] == {
+        "spawner": everything,
+        "pinned": [everything[0]],
+        "fifo": everything,
+        "children": [everything],
+    }
+    assert not out["state_file_after"]
+    assert out["summary"]["tasks_moved"] >= 1 and out["summary"]["tasks_restored"] >= 2
+
+
+@needs_namespace
+def test_a_killed_controller_leaves_no_shield_behind(tmp_path: Path) -> None:
+    out = run_scenario("controller_killed", tmp_path)
+    assert out["during"]["spawner"] != out["all"]
+    assert out["after"]["spawner"] == out["all"]
+    assert not out["state_file_after"]
+
+
+@needs_namespace
+def test_the_next_guardian_gives_back_what_a_killed_one_took(tmp_path: Path) -> None:
+    out = run_scenario("guardian_killed", tmp_path)
+    assert out["after_kill"]["spawner"] != out["all"]  # nobody restored it
+    assert out["state_file_after_kill"]
+    assert out["recovered"] >= 1
+    assert out["during_second"]["spawner"] != out["all"]  # and the second shield holds
+    assert out["after"]["spawner"] == out["all"]
+
+
+@needs_namespace
+def test_one_shield_a_machine(tmp_path: Path) -> None:
+    out = run_scenario("one_a_machine", tmp_path)
+    assert "already held" in out["second"] and "pid " in out["second"]
+    assert out["best_effort_shield"] is False
+    assert "already held" in out["best_effort_summary"]["off"]
+    assert out["required"].startswith("--cpu-shield: ")
+
+
+def test_the_default_options_shield_the_loops_cpu(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
+    parse = build_parser().parse_args
+    default = _realtime(parse(["demo"]))
+    assert default.shield and default.cpus == (1,)
+    assert not _realtime(parse(["demo"]), simulator=True).shield  # the simulator never shields
+    assert not _realtime(parse(["demo", "--no-cpu-shield"])).shield
+    assert _realtime(parse(["demo", "--cpu", "1", "--cpu-shield"])) == RealtimeOptions(cpus=(1,), shield=True)
+    with pytest.raises(RealtimeError, match="--cpu-shield needs --cpu"):
+        _realtime(parse(["demo", "--cpu-shield"]))
+    with pytest.raises(RealtimeError, match="contradict"):
+        _realtime(parse(["demo", "--cpu-shield", "--no-cpu-shield", "--cpu", "1"]))
+    with pytest.raises(RealtimeError, match="--no-realtime cannot be combined"):
+        _realtime(parse(["demo", "--no-realtime", "--cpu-shield"]))
