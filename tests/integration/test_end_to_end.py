@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 from busy_machine import TOLERANT
+from waiting import wait_until
 
 from controller import cli
 from controller.shell.demo import simulator_process
@@ -261,3 +262,45 @@ def test_bus_load_command(repo_root: Path):
     assert d["load_percent"] == pytest.approx(43.32, abs=0.01) and d["ok"]  # with the effort in the TPDOs
     r = _cheope("bus-load", "--rate", "1000", "--set", "bus.fd=true")
     assert r.returncode == 0 and "CAN FD" in r.stdout and "OK" in r.stdout
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="a CPU shield needs two CPUs")
+def test_a_demo_keeps_normal_tasks_off_its_loops_cpu_while_it_runs():
+    """The CPU shield (controller/shell/cpu_shield.py) over the real service: a neighbour started
+    before the demo loses the loop's CPU while the loop runs and has it back after the run."""
+    neighbour = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(600)"])
+    everything = os.sched_getaffinity(neighbour.pid)
+    demo = subprocess.Popen(
+        [
+            *CHEOPE,
+            "demo",
+            "--task",
+            "path",
+            "--json",
+            "--set",
+            "task.path.laps=0.5",
+            "--udp-port",
+            str(_port()),
+            *TOLERANT,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        wait_until(
+            lambda: os.sched_getaffinity(neighbour.pid) != everything or demo.poll() is not None,
+            "the neighbour swept off the loop's CPU",
+        )
+        during = os.sched_getaffinity(neighbour.pid)
+        out, err = demo.communicate(timeout=120)
+        after = os.sched_getaffinity(neighbour.pid)
+    finally:
+        for proc in (demo, neighbour):
+            proc.kill()
+            proc.wait()
+    assert demo.returncode == 0, err + out
+    shield = json.loads(out)["cpu_shield"]
+    assert during == everything - set(shield["cpus"]), shield
+    assert after == everything
+    assert shield["tasks_moved"] >= 1 and shield["tasks_restored"] >= 1
