@@ -464,7 +464,7 @@ class SessionRecorder:
         }
         try:
             proc = subprocess.Popen(
-                [sys.executable, "-m", "logs.session_writer"],
+                [sys.executable, "-P", "-m", "logs.session_writer"],
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
                 env=env,

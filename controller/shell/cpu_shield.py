@@ -52,6 +52,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from controller.child_process import child_environment, python_module_command
 from controller.realtime import RealtimeError, RealtimeOptions
 
 log = logging.getLogger(__name__)
@@ -61,7 +62,6 @@ NORMAL_POLICIES = frozenset({0, 3, 5})  # SCHED_OTHER, SCHED_BATCH, SCHED_IDLE
 LOCK_NAME, STATE_NAME = "cpu-shield.lock", "cpu-shield.json"
 START_TIMEOUT_S = 10.0  # the sweep of a few thousand tasks takes well under a second
 STOP_TIMEOUT_S = 10.0
-_REPO = str(Path(__file__).resolve().parents[2])  # the guardian imports the same code as this process
 
 
 class CpuShieldError(RuntimeError):
@@ -341,20 +341,16 @@ class CpuShield:
     ) -> CpuShield:
         """Start the guardian, shielding ``cpus`` from every process but this one; raises
         ``CpuShieldError`` when it cannot (another shield holds the machine, no answer)."""
-        # -P: not the working directory first on the path, where another checkout's package may be
-        cmd = [sys.executable, "-P", "-m", "controller.shell.cpu_shield", "--cpus", ",".join(map(str, cpus))]
-        cmd += ["--exclude", str(os.getpid())]
+        cmd = python_module_command(
+            "controller.shell.cpu_shield", "--cpus", ",".join(map(str, cpus)), "--exclude", str(os.getpid())
+        )
         if state_dir is not None:
             cmd += ["--state-dir", str(state_dir)]
-        env = {
-            **os.environ,
-            "PYTHONPATH": os.pathsep.join(p for p in (_REPO, os.environ.get("PYTHONPATH")) if p),
-        }
         process = subprocess.Popen(
             cmd,
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
-            env=env,
+            env=child_environment(),
             start_new_session=True,
             close_fds=True,
         )

@@ -13,13 +13,13 @@ import random
 import selectors
 import signal
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from controller.child_process import child_environment, python_module_command
 from controller.config import Config
 from controller.core.ports import CycleObserver
 from controller.errors import DeviceError
@@ -59,9 +59,7 @@ def simulator_process(
     (``max_true_contact_force_n``: its largest true contact force in each controller session, in
     the order they ran, a session starting at each NMT start; absent if it said nothing).
     """
-    cmd = [
-        sys.executable,
-        "-m",
+    cmd = python_module_command(
         "controller",
         "sim",
         "--bus",
@@ -69,7 +67,7 @@ def simulator_process(
         "--udp-port",
         str(spec.udp_port),
         *extra_args,
-    ]
+    )
     if spec.fd:
         cmd.append("--fd")
     if config_path:
@@ -81,7 +79,7 @@ def simulator_process(
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        env=child_environment(PYTHONUNBUFFERED="1"),
     )
     try:
         _wait_ready(proc, ready_timeout_s)

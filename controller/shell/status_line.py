@@ -26,8 +26,9 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from enum import Enum
-from pathlib import Path
 from typing import IO, TYPE_CHECKING
+
+from controller.child_process import child_environment, python_module_command
 
 if TYPE_CHECKING:  # the drawing process imports this module: it must not load the law (numpy, Ruckig)
     from controller.core.controller_state import ControllerState
@@ -37,7 +38,6 @@ if TYPE_CHECKING:  # the drawing process imports this module: it must not load t
 DEFAULT_INTERVAL_S = 0.25
 LATE_FRACTION = 0.1  # a cycle woke more than this fraction of a period late: the run summary's definition
 _STOP_TIMEOUT_S = 5.0
-_REPO = str(Path(__file__).resolve().parents[2])
 
 
 @dataclass(frozen=True)
@@ -201,9 +201,8 @@ def live_status(enabled: bool) -> Iterator[StatusDisplay | None]:
     if not enabled:
         yield None
         return
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (_REPO, os.environ.get("PYTHONPATH")) if p)}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "controller.shell.status_line"], stdin=subprocess.PIPE, env=env
+        python_module_command("controller.shell.status_line"), stdin=subprocess.PIPE, env=child_environment()
     )
     display = StatusDisplay(proc)
     try:

@@ -304,3 +304,41 @@ def test_a_demo_keeps_normal_tasks_off_its_loops_cpu_while_it_runs():
     assert during == everything - set(shield["cpus"]), shield
     assert after == everything
     assert shield["tasks_moved"] >= 1 and shield["tasks_restored"] >= 1
+
+
+def test_a_demo_started_inside_another_checkout_runs_its_own_code(tmp_path: Path):
+    """``python -m`` puts the working directory first on a child's module path: the simulator, the
+    recording's writer, the status line and the CPU shield's guardian must still import the
+    parent's code, not the packages of the directory the user stands in (controller/child_process.py)."""
+    for package in ("controller", "logs", "sim_backend", "drivers"):
+        (tmp_path / package).mkdir()
+        (tmp_path / package / "__init__.py").write_text(
+            f'raise SystemExit("the decoy {package} was imported")\n'
+        )
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-P",
+            "-m",
+            "controller",
+            "demo",
+            "--task",
+            "path",
+            "--json",
+            "--set",
+            "task.path.laps=0.5",
+            "--udp-port",
+            str(_port()),
+            *TOLERANT,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])},
+    )
+    assert r.returncode == 0, r.stderr + r.stdout
+    assert "decoy" not in r.stderr
+    s = json.loads(r.stdout)
+    assert s["final_mode"] == "DONE"
+    assert s["recording"]["written"] > 0 and not s["recording"]["error"]
