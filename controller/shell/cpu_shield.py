@@ -2,11 +2,11 @@
 
 The loop runs at ``SCHED_FIFO`` on one CPU (controller/realtime.py), so no normal task preempts
 it inside the guest. On a virtual machine that is not enough: with two CPU hogs beside the demo
-free to run on every CPU, the host took the guest's CPUs away for 11-13 ticks of 10 ms a run
-(``/proc/stat``'s steal) and the loop met cycles of 8.6 and 32 ms; with the same hogs kept off
-the loop's CPU, 1 and 3 ticks, the longest cycle 3.2 and 6.5 ms, no missing drive frame
-(docs/concepts/realtime.md). A vCPU that is busy all the time is the one the host preempts;
-one that runs only the loop and halts between cycles is woken at once.
+free to run on every CPU, both vCPUs were busy all the time and the host took them away more
+(steal), cycles lasted up to 20 ms and drive frames went missing (42-162 a run); with the hogs
+kept off the loop's CPU, 0-112, and the host's steal fell (median 10.5 against 23 ticks of 10 ms
+a run; docs/measurements/index.md). Our reading: a vCPU that runs only the loop halts between
+cycles and is woken at once, one that is always busy is the one the host preempts.
 
 What real-time Linux set-ups do for it (``isolcpus``, ``cset shield``, systemd's ``AllowedCPUs=``,
 tuned's cpu-partitioning profile) is machine configuration. ``cheope run`` and ``cheope demo`` do
