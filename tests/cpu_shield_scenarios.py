@@ -23,7 +23,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from waiting import wait_for_exit
 
 from controller.realtime import RealtimeError, RealtimeOptions
-from controller.shell.cpu_shield import CpuShield, CpuShieldError, raise_shield
+from controller.shell.cpu_shield import (
+    STATE_NAME,
+    CpuShield,
+    CpuShieldError,
+    raise_shield,
+    read_task,
+    restore,
+    sweep,
+)
 
 SPAWNER = "import subprocess, sys\nfor _ in sys.stdin:\n    print(subprocess.Popen(['sleep', '600']).pid, flush=True)"
 
@@ -155,7 +163,79 @@ def one_a_machine(state_dir: Path) -> dict[str, Any]:
     return out
 
 
-SCENARIOS = {f.__name__: f for f in (restore_after_close, controller_killed, guardian_killed, one_a_machine)}
+def forked_during_sweep(state_dir: Path) -> dict[str, Any]:
+    """A child a swept task forks while the sweep is still reading /proc is listed by it with the
+    shield already inherited: the restore must give it the CPU back like any child born after."""
+    tasks = Tasks()
+    record = sweep((tasks.loop_cpu,), (os.getpid(),))
+    child = tasks.spawn()
+    task = read_task(Path("/proc"), child, child)
+    assert task is not None
+    record.seen.append((task.tid, task.start_ticks))  # as if the sweep had listed it
+    out: dict[str, Any] = {"all": mask(0), "during": tasks.masks()}
+    out["restored"] = restore(record)
+    out["after"] = tasks.masks()
+    tasks.end()
+    return out
+
+
+def ending_signals(state_dir: Path) -> dict[str, Any]:
+    """SIGTERM or SIGHUP to the guardian (systemd stopping a unit, a closed terminal): it restores first."""
+    out: dict[str, Any] = {}
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        tasks = Tasks()
+        shield = CpuShield.start((tasks.loop_cpu,), state_dir)
+        during = tasks.masks()["spawner"]
+        os.kill(shield.pid, sig)
+        wait_for_exit(shield.pid, f"the guardian after {sig.name}")
+        out[sig.name] = {"all": mask(0), "during": during, "after": tasks.masks()["spawner"]}
+        out[sig.name]["state_file_after"] = (state_dir / STATE_NAME).exists()
+        shield.close(timeout_s=1.0)
+        tasks.end()
+    return out
+
+
+def bad_state_files(state_dir: Path) -> dict[str, Any]:
+    """A damaged, hostile or stale state file costs the shield nothing; a state directory that is
+    not the user's alone is refused with its name."""
+    out: dict[str, Any] = {}
+    cpu = sorted(os.sched_getaffinity(0))[-1]
+    stale = {"cpus": [cpu], "boot_id": "another boot", "start_ticks": 0, "seen": [], "refused": 0}
+    stale["moved"] = [{"pid": 1, "tid": 1, "start_ticks": 0, "mask_before": [cpu], "mask_set": [cpu]}]
+    for name, text in (
+        ("garbage", "{not json"),
+        ("nested", "[" * 100_000 + "]" * 100_000),
+        ("huge cpu", json.dumps({**stale, "cpus": [10**30]})),
+        ("stale", json.dumps(stale)),
+    ):
+        state_dir.mkdir(mode=0o700, exist_ok=True)
+        (state_dir / STATE_NAME).write_text(text)
+        shield = CpuShield.start((cpu,), state_dir)
+        out[name] = {"recovered": shield.raised["recovered"], "summary": shield.close()}
+        out[name]["state_file_after"] = (state_dir / STATE_NAME).exists()
+    foreign = state_dir / "foreign"
+    foreign.mkdir()
+    os.chown(foreign, 65534, 65534)
+    try:
+        CpuShield.start((cpu,), foreign)
+        out["foreign"] = "started"
+    except CpuShieldError as err:
+        out["foreign"] = str(err)
+    return out
+
+
+SCENARIOS = {
+    f.__name__: f
+    for f in (
+        restore_after_close,
+        controller_killed,
+        guardian_killed,
+        one_a_machine,
+        forked_during_sweep,
+        ending_signals,
+        bad_state_files,
+    )
+}
 
 if __name__ == "__main__":
     name, state = sys.argv[1], Path(sys.argv[2])

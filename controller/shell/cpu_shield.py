@@ -19,17 +19,25 @@ the same for the time of a run, where they are permitted (CAP_SYS_NICE for other
   deliberate), and so are kernel threads. A task started later inherits its parent's affinity,
   so a hog started from a shell after the controller lands beside the others too.
 - **the restore**: a swept task whose affinity is still the one the sweep gave it gets its own
-  back; a task born under the shield whose affinity lacks the loop's CPU gets it back when its
-  parent did (the inheritance replayed, in order of birth), or when its parent is gone. A task
-  that set its own affinity in the meantime is left alone.
+  back; a task born under the shield (or forked by a swept task while the sweep ran) gets the
+  loop's CPU back when its affinity is the one it inherited from its parent under the shield
+  (the inheritance replayed in order of birth; a parent gone: when it is every CPU but the
+  loop's). A task that set its own affinity in the meantime is left alone; on a 2-CPU machine
+  one that asked for exactly the other CPU cannot be told from one that inherited it.
 - **the guardian**: the sweep and the restore run in a small process of their own
   (``python -m controller.shell.cpu_shield``) that the controller starts before the loop and
   holds by a pipe. When the pipe closes (the controller ends, crashes or is killed with
-  SIGKILL) it restores and exits; the machine never stays shielded after its controller.
-  It holds a lock (``cpu-shield.lock`` in the state directory): one shield a machine, a second
-  controller runs unshielded and says so. It writes what it moved to ``cpu-shield.json`` before
-  it answers; a guardian killed itself leaves that file, and the next one to take the lock
-  restores from it first.
+  SIGKILL) or SIGTERM, SIGHUP, SIGQUIT or SIGINT comes, it restores and exits; those signals
+  stay blocked while it sweeps or restores, so one that comes meanwhile waits for the end of
+  that work. It holds a lock (``cpu-shield.lock`` in its state directory, root's
+  ``/run/cheope`` or a user's ``$XDG_RUNTIME_DIR/cheope``, refused unless the user's alone):
+  one shield a machine, a second controller runs unshielded and says so. It writes what it
+  moved to ``cpu-shield.json`` before it answers; a guardian killed itself leaves that file, and
+  the next one to take the lock restores from it first (not from a file of an earlier boot; a
+  damaged file is removed and logged).
+- **not covered**: two shields under different locks (two users, or two state directories) on
+  a machine with more than two CPUs can each take a CPU from the same task; the second restore
+  then gives back only its own.
 """
 
 from __future__ import annotations
@@ -42,9 +50,9 @@ import logging
 import os
 import select
 import signal
+import stat
 import subprocess
 import sys
-import tempfile
 import time
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
@@ -60,7 +68,7 @@ log = logging.getLogger(__name__)
 PF_KTHREAD = 0x00200000  # include/linux/sched.h: a kernel thread
 NORMAL_POLICIES = frozenset({0, 3, 5})  # SCHED_OTHER, SCHED_BATCH, SCHED_IDLE
 LOCK_NAME, STATE_NAME = "cpu-shield.lock", "cpu-shield.json"
-START_TIMEOUT_S = 10.0  # the sweep of a few thousand tasks takes well under a second
+START_TIMEOUT_S = 30.0  # the sweep of a few thousand tasks takes well under a second
 STOP_TIMEOUT_S = 10.0
 
 
@@ -94,6 +102,8 @@ class ShieldRecord:
     """What a sweep did: enough for the restore, also in another process after a crash."""
 
     cpus: tuple[int, ...]
+    boot_id: str = ""  # a record of another boot of the machine names tasks that are gone
+    start_ticks: int = 0  # the clock tick the sweep began in (since boot)
     seen: list[tuple[int, int]] = field(default_factory=list)  # (tid, start ticks) of every task swept over
     moved: list[MovedTask] = field(default_factory=list)
     refused: int = 0  # tasks whose affinity could not be changed (permissions, gone meanwhile)
@@ -105,11 +115,43 @@ class ShieldRecord:
     def from_json(cls, text: str) -> ShieldRecord:
         raw = json.loads(text)
         moved = [
-            MovedTask(m["pid"], m["tid"], m["start_ticks"], tuple(m["mask_before"]), tuple(m["mask_set"]))
+            MovedTask(
+                int(m["pid"]),
+                int(m["tid"]),
+                int(m["start_ticks"]),
+                _cpu_set(m["mask_before"]),
+                _cpu_set(m["mask_set"]),
+            )
             for m in raw["moved"]
         ]
         seen = [(int(tid), int(start)) for tid, start in raw["seen"]]
-        return cls(tuple(raw["cpus"]), seen, moved, int(raw.get("refused", 0)))
+        return cls(
+            _cpu_set(raw["cpus"]),
+            str(raw["boot_id"]),
+            int(raw["start_ticks"]),
+            seen,
+            moved,
+            int(raw["refused"]),
+        )
+
+
+def _cpu_set(values: Iterable[object]) -> tuple[int, ...]:
+    cpus = tuple(sorted({int(v) for v in values}))  # type: ignore[call-overload]
+    if any(not 0 <= c < 65536 for c in cpus):
+        raise ValueError(f"not a CPU number in {cpus}")
+    return cpus
+
+
+def boot_id() -> str:
+    try:
+        return Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+    except OSError:
+        return ""
+
+
+def ticks_now() -> int:
+    """Clock ticks since boot, as a task's start time counts them (proc(5))."""
+    return int(time.clock_gettime(time.CLOCK_BOOTTIME) * os.sysconf("SC_CLK_TCK"))
 
 
 def read_task(proc: Path, pid: int, tid: int) -> Task | None:
@@ -156,7 +198,7 @@ def sweep(cpus: Iterable[int], exclude_pids: Iterable[int], proc: Path = Path("/
     """Take ``cpus`` out of the affinity of every normal task not of ``exclude_pids`` (module text)."""
     shield = frozenset(cpus)
     excluded = frozenset(exclude_pids)
-    record = ShieldRecord(tuple(sorted(shield)))
+    record = ShieldRecord(tuple(sorted(shield)), boot_id(), ticks_now())
     for task in all_tasks(proc):
         record.seen.append((task.tid, task.start_ticks))
         if task.pid in excluded or task.kernel or task.policy not in NORMAL_POLICIES:
@@ -182,34 +224,38 @@ def restore(record: ShieldRecord, proc: Path = Path("/proc")) -> int:
     """Give back what ``record``'s sweep took (module text); returns how many tasks got it back."""
     shield = frozenset(record.cpus)
     restored = 0
-    given_back: set[int] = set()  # tids that have the shield's CPUs again
+    shielded_mask: dict[int, frozenset[int]] = {}  # tid: its affinity under the shield, moved or born
     for moved in record.moved:
         task = read_task(proc, moved.pid, moved.tid)
         if task is None or task.start_ticks != moved.start_ticks:
             continue  # gone, or its tid reused
+        shielded_mask[moved.tid] = frozenset(moved.mask_set)
         if _affinity(moved.tid) == frozenset(moved.mask_set) and _set(moved.tid, moved.mask_before):
             restored += 1
-            given_back.add(moved.tid)
     alive = {t.tid: t for t in all_tasks(proc)}
+    everything = frozenset(os.sched_getaffinity(0)) | shield
     seen = set(record.seen)  # a clock tick is 10 ms: a task's start time alone does not say it came later
-    born = sorted(
-        (t for t in alive.values() if (t.tid, t.start_ticks) not in seen),
-        key=lambda t: (t.start_ticks, t.tid),
-    )
-    for task in born:
-        if task.kernel or task.policy not in NORMAL_POLICIES:
+    moved_tids = {m.tid for m in record.moved}
+    for task in sorted(alive.values(), key=lambda t: (t.start_ticks, t.tid)):  # parents before children
+        if (task.tid, task.start_ticks) in seen and not _forked_during_sweep(task, record, moved_tids):
+            continue  # there before the shield, and not moved: its affinity is its own
+        if task.tid in moved_tids or task.kernel or task.policy not in NORMAL_POLICIES:
             continue
         mask = _affinity(task.tid)
         if mask is None or mask & shield:
             continue
+        shielded_mask[task.tid] = mask
         parent = task.pid if task.tid != task.pid else task.ppid  # a thread's: its process's main thread
-        parent_has_it = (
-            parent not in alive or parent in given_back or bool((_affinity(parent) or frozenset()) & shield)
-        )
-        if parent_has_it and _set(task.tid, sorted(mask | shield)):
+        inherited = shielded_mask.get(parent) if parent in alive else everything - shield
+        if mask == inherited and _set(task.tid, sorted(mask | shield)):
             restored += 1
-            given_back.add(task.tid)
     return restored
+
+
+def _forked_during_sweep(task: Task, record: ShieldRecord, moved_tids: set[int]) -> bool:
+    """Listed by the sweep, but forked by a task it had already moved: it inherited the shield."""
+    parent = task.pid if task.tid != task.pid else task.ppid
+    return task.start_ticks >= record.start_ticks and parent in moved_tids
 
 
 def _set(tid: int, mask: Iterable[int]) -> bool:
@@ -220,12 +266,24 @@ def _set(tid: int, mask: Iterable[int]) -> bool:
     return True
 
 
-def default_state_dir() -> Path:
-    """One per machine for root (/run/cheope), else one per user: a user can shield only their own tasks."""
-    if os.geteuid() == 0 and os.access("/run", os.W_OK):
+def default_state_dir() -> Path | None:
+    """One per machine for root (/run/cheope), else one in the user's runtime directory (a user can
+    shield only their own tasks); None when the user has none (no shared /tmp: another user could
+    have made the directory first)."""
+    if os.geteuid() == 0:
         return Path("/run/cheope")
     runtime = os.environ.get("XDG_RUNTIME_DIR")
-    return Path(runtime) / "cheope" if runtime else Path(tempfile.gettempdir()) / f"cheope-{os.geteuid()}"
+    return Path(runtime) / "cheope" if runtime else None
+
+
+def private_directory(path: Path) -> Path:
+    """``path`` as a directory of this user's alone (made 0700 if missing); refuses one that is a
+    symbolic link, another user's, or writable by others."""
+    path.mkdir(mode=0o700, parents=True, exist_ok=True)
+    info = os.lstat(path)
+    if not stat.S_ISDIR(info.st_mode) or info.st_uid != os.geteuid() or info.st_mode & 0o022:
+        raise CpuShieldError(f"{path}: not a directory of this user's alone (owner uid {info.st_uid})")
+    return path
 
 
 # -- the guardian process ---------------------------------------------------------------------
@@ -236,50 +294,77 @@ def _answer(obj: dict[str, Any]) -> None:
     sys.stdout.flush()
 
 
+ENDING_SIGNALS = {signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT, signal.SIGINT}
+_WAIT_POLL_S = 0.5  # how often the wait looks for an ending signal (blocked, so it is pending)
+
+
 def guard(
     cpus: tuple[int, ...], exclude: tuple[int, ...], state_dir: Path, proc: Path = Path("/proc")
 ) -> int:
-    """The guardian's life: lock, recover a dead guardian's shield, sweep, wait for the pipe to close,
-    restore. Answers one JSON line on stdout when shielded (or why not), one when restored."""
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # the finally below restores
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the controller decides when its run ends
+    """The guardian's life: lock, recover a dead guardian's shield, sweep, wait for the pipe to close
+    or an ending signal, restore. Answers one JSON line on stdout when shielded (or why not), one
+    when restored. The ending signals stay blocked throughout: one that comes in the middle of the
+    sweep or the restore ends the guardian only after it (SIGKILL cannot wait; the state file,
+    written before the answer, is for that)."""
+    signal.pthread_sigmask(signal.SIG_BLOCK, ENDING_SIGNALS)
     own = frozenset(os.sched_getaffinity(0)) - frozenset(cpus)
     if own:
         os.sched_setaffinity(0, own)
-    state_dir.mkdir(parents=True, exist_ok=True)
-    lock = open(state_dir / LOCK_NAME, "a+")  # noqa: SIM115  (held for the guardian's whole life)
+    try:
+        lock = os.open(
+            private_directory(state_dir) / LOCK_NAME, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o600
+        )
+    except (OSError, CpuShieldError) as err:
+        _answer({"error": f"state directory {state_dir}: {err}"})
+        return 2
     try:
         fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
-        lock.seek(0)
-        _answer({"busy": lock.read().strip() or "another guardian"})
+        _answer({"busy": os.pread(lock, 200, 0).decode(errors="replace").strip() or "another guardian"})
         return 3
-    lock.seek(0)
-    lock.truncate()
-    lock.write(f"pid {os.getpid()}, CPUs {','.join(map(str, cpus))}\n")
-    lock.flush()
+    os.ftruncate(lock, 0)
+    os.pwrite(lock, f"pid {os.getpid()}, CPUs {','.join(map(str, cpus))}\n".encode(), 0)
     state = state_dir / STATE_NAME
-    recovered = 0
-    if state.exists():  # a guardian that died without restoring: give back what it took first
-        with contextlib.suppress(
-            OSError, ValueError, KeyError, TypeError
-        ):  # unreadable: nothing to give back
-            recovered = restore(ShieldRecord.from_json(state.read_text()), proc)
-        state.unlink(missing_ok=True)
+    recovered = _recover(state, proc)
     record = sweep(cpus, (*exclude, os.getpid()), proc)
     try:
         tmp = state.with_suffix(".tmp")
-        tmp.write_text(record.to_json())
+        tmp.unlink(missing_ok=True)
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
+        with os.fdopen(fd, "w") as f:
+            f.write(record.to_json())
         tmp.replace(state)
         _answer({"moved": len(record.moved), "refused": record.refused, "recovered": recovered})
-        while sys.stdin.buffer.read(4096):  # until the controller's end closes the pipe
-            pass
+        _wait_for_the_end()
     finally:
         restored = restore(record, proc)
         state.unlink(missing_ok=True)
         with contextlib.suppress(OSError):  # nobody reads any more
             _answer({"restored": restored})
     return 0
+
+
+def _recover(state: Path, proc: Path) -> int:
+    """What a guardian that died without restoring left in ``state``, given back (0: nothing)."""
+    if not state.exists():
+        return 0
+    recovered = 0
+    try:
+        record = ShieldRecord.from_json(state.read_text())
+        if record.boot_id == boot_id():  # of another boot: its tasks are gone, their tids others'
+            recovered = restore(record, proc)
+    except Exception as err:
+        log.warning("%s unreadable, removed: %s", state, err)
+    state.unlink(missing_ok=True)
+    return recovered
+
+
+def _wait_for_the_end() -> None:
+    """Until the controller's end closes the pipe, or an ending signal is pending."""
+    stdin = sys.stdin.buffer
+    while not ENDING_SIGNALS & signal.sigpending():
+        if select.select([stdin], [], [], _WAIT_POLL_S)[0] and not os.read(stdin.fileno(), 4096):
+            return
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -289,7 +374,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--state-dir", type=Path, default=None)
     args = ap.parse_args(argv)
     cpus = tuple(int(c) for c in args.cpus.split(","))
-    return guard(cpus, tuple(args.exclude), args.state_dir or default_state_dir())
+    state_dir = args.state_dir or default_state_dir()
+    if state_dir is None:
+        _answer({"error": "no state directory: root's /run/cheope, or $XDG_RUNTIME_DIR/cheope for a user"})
+        return 2
+    return guard(cpus, tuple(args.exclude), state_dir)
 
 
 # -- the controller's side -----------------------------------------------------------------------
@@ -316,7 +405,8 @@ def raise_shield(
         return
     if shield.raised["refused"]:
         log.warning(
-            "CPU shield: %d task(s) of other users kept the loop's CPU (CAP_SYS_NICE moves them)",
+            "CPU shield: %d task(s) kept the loop's CPU: not permitted (CAP_SYS_NICE moves other users'), "
+            "or held there by the kernel",
             shield.raised["refused"],
         )
     try:
@@ -359,6 +449,8 @@ class CpuShield:
             _end(process)
             if answer is not None and "busy" in answer:
                 raise CpuShieldError(f"CPU shield already held ({answer['busy']})")
+            if answer is not None and "error" in answer:
+                raise CpuShieldError(str(answer["error"]))
             raise CpuShieldError(f"the CPU shield's guardian did not answer ({answer})")
         return cls(process, cpus, answer)
 
@@ -400,14 +492,18 @@ def _read_answer(process: subprocess.Popen[bytes], timeout_s: float) -> dict[str
     return answer
 
 
-def _end(process: subprocess.Popen[bytes], timeout_s: float = 2.0) -> None:
+def _end(process: subprocess.Popen[bytes], timeout_s: float = STOP_TIMEOUT_S) -> None:
+    """The guardian's end: the pipe closed, then SIGTERM (it restores first, whatever it was doing),
+    SIGKILL only when that is not heeded either (the next guardian recovers from its state file)."""
     if process.stdin is not None and not process.stdin.closed:
         process.stdin.close()
-    try:
-        process.wait(timeout_s)
-    except subprocess.TimeoutExpired:
-        process.kill()
-        process.wait()
+    for end in (process.terminate, process.kill):
+        try:
+            process.wait(timeout_s)
+            break
+        except subprocess.TimeoutExpired:
+            end()
+    process.wait()
     if process.stdout is not None:
         process.stdout.close()
 

@@ -97,6 +97,33 @@ def test_one_shield_a_machine(tmp_path: Path) -> None:
     assert out["required"].startswith("--cpu-shield: ")
 
 
+@needs_namespace
+def test_a_child_forked_while_the_sweep_runs_gets_the_cpu_back(tmp_path: Path) -> None:
+    out = run_scenario("forked_during_sweep", tmp_path)
+    assert out["during"]["spawner"] != out["all"]  # swept
+    assert out["during"]["children"] == [out["during"]["spawner"]]  # inherited it
+    assert out["after"]["children"] == [out["all"]] and out["after"]["spawner"] == out["all"]
+
+
+@needs_namespace
+def test_the_guardian_restores_before_it_ends_on_a_signal(tmp_path: Path) -> None:
+    out = run_scenario("ending_signals", tmp_path)
+    for name in ("SIGTERM", "SIGHUP"):
+        assert out[name]["during"] != out[name]["all"], name
+        assert out[name]["after"] == out[name]["all"], name
+        assert not out[name]["state_file_after"], name
+
+
+@needs_namespace
+def test_bad_state_files_cost_the_shield_nothing(tmp_path: Path) -> None:
+    out = run_scenario("bad_state_files", tmp_path)
+    for name in ("garbage", "nested", "huge cpu", "stale"):
+        assert out[name]["recovered"] == 0, name  # the stale record names pid 1 of another boot: untouched
+        assert out[name]["summary"]["tasks_restored"] is not None, name
+        assert not out[name]["state_file_after"], name
+    assert "not a directory of this user's alone" in out["foreign"]
+
+
 def test_the_default_options_shield_the_loops_cpu(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
     parse = build_parser().parse_args
