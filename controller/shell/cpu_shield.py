@@ -3,9 +3,9 @@
 The loop runs at ``SCHED_FIFO`` on one CPU (controller/realtime.py), so no normal task preempts
 it inside the guest. On a virtual machine that is not enough: with two CPU hogs beside the demo
 free to run on every CPU, both vCPUs were busy all the time and the host took them away more
-(steal), cycles lasted up to 20 ms and drive frames went missing (42-162 a run); with the hogs
-kept off the loop's CPU, 0-112, and the host's steal fell (median 10.5 against 23 ticks of 10 ms
-a run; docs/measurements/index.md). Our reading: a vCPU that runs only the loop halts between
+(steal), cycles lasted up to 25 ms and drive frames went missing (81-294 a run); with the hogs
+kept off the loop's CPU, 6-51, and the host's steal fell (3-7 against 21-46 ticks of 10 ms a
+run; docs/measurements/index.md). Our reading: a vCPU that runs only the loop halts between
 cycles and is woken at once, one that is always busy is the one the host preempts.
 
 What real-time Linux set-ups do for it (``isolcpus``, ``cset shield``, systemd's ``AllowedCPUs=``,
