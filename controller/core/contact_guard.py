@@ -173,8 +173,9 @@ def judged_force_n(
     motion in it: the limit is a safety limit. Elsewhere the robot moves freely and fast, and the
     witness's error is the drives' own accelerations: on a loaded machine a loopback path run read
     99.5-138 N of "effort" in free space with nothing touching (a median of 19 cycles, the sensor at
-    0.1 N: 4 of 7 runs beside a CPU hog or the test suite). There the sensor judges while it is trusted (this cycle's
-    sample, or a recent one whose successors went missing: ``SENSOR_GAP_S``; not suspect); without it the witness, less its whole tolerance, past the contact limit itself.
+    0.1 N: 4 of 7 runs beside a CPU hog or the test suite). There the sensor judges while it is
+    trusted (this cycle's sample, or a recent one whose successors went missing: ``SENSOR_GAP_S``;
+    not suspect); without it the witness, less its whole tolerance, past the contact limit itself.
     """
     f_sensor = norm3(sensor_n) if sensor_n is not None else 0.0
     if witness is None:
