@@ -119,7 +119,6 @@ class ContactWatch:
     agreeing: int = 0  # cycles in a row within it (clears a suspicion)
     suspect: str = ""  # why the sensor is suspect ("" : it is not)
     suspect_cycle: int = 0  # since when
-    sensor_gap_cycles: int = 0  # cycles since the last usable sample (0: this cycle brought one)
     reference_m: Vector3 | None = None  # the task's last reference TCP (its speed, a back-off's origin)
 
 
@@ -213,12 +212,15 @@ def watch(
     at_rest: bool,
     cycle: int,
     period_s: float,
+    missing_cycles: int = 0,
 ) -> tuple[ContactWatch, str]:
     """One cycle of the guard: the updated watch and, past a limit, the cause of a protective back-off.
 
+    ``missing_cycles``: cycles in a row the sensor's frame did not come (the safety monitor's count,
+    ``ControllerState.sensor_missing``); within ``SENSOR_GAP_S`` the last sample still judges.
+
     Locals first and one ``replace`` at the end: it runs every enabled cycle (budget: cycle_work.py)."""
     raw = usable_sample(inputs.sensor, stale)
-    gap = 0 if raw is not None else w.sensor_gap_cycles + 1
     window = w.witness_window
     if witness is not None:
         window, median = _median_of(window, witness.force_n)
@@ -256,7 +258,7 @@ def watch(
         check = _cross_check(cfg, w, sensor_median, witness, dynamic, cycle)
     # trusted: this cycle's sample, or a recent one where the frame only went missing (SENSOR_GAP_S)
     trusted = not check[2] and (
-        raw is not None or (not stale and sensor is not None and gap * period_s <= SENSOR_GAP_S)
+        raw is not None or (not stale and sensor is not None and missing_cycles * period_s <= SENSOR_GAP_S)
     )
     force = judged_force_n(cfg, w.expectation, sensor, witness, dynamic, trusted)
     w = replace(
@@ -272,7 +274,6 @@ def watch(
         agreeing=check[1],
         suspect=check[2],
         suspect_cycle=check[3],
-        sensor_gap_cycles=gap,
         force_n=force,
     )
     limit = limit_n(cfg, w.expectation)

@@ -676,6 +676,7 @@ class ControlLaw:
             at_rest,
             state.cycle,
             self.config.period_s,
+            state.sensor_missing,  # counted by the safety monitor's check earlier in this step
         )
         state = replace(state, contact=w)
         if w.suspect and not was_suspect:

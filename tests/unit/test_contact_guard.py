@@ -89,13 +89,15 @@ def test_a_missing_sensor_frame_leaves_the_last_sample_in_charge_for_a_while_in_
         w, cause = watch(CFG, w, _inputs((0.1, 0.0, 0.0)), False, jolt, False, k, DT)
         assert not cause
     drives = _inputs((0.0, 0.0, 0.0)).drives
-    silent = CycleInputs(drives, None)
+    # the last sample repeated, not fresh: its frame did not come (the safety monitor counts them)
+    silent = CycleInputs(drives, SensorFeedback((0.1, 0.0, 0.0), (0.0, 0.0, 0.0), 0, 1, False))
     within = int(SENSOR_GAP_S / DT)
     after_sample = w
-    for k in range(within):  # frames missing, the last sample recent: still no collision
-        w, cause = watch(CFG, w, silent, False, jolt, False, 100 + k, DT)
+    for k in range(1, within + 1):  # frames missing, the last sample recent: still no collision
+        w, cause = watch(CFG, w, silent, False, jolt, False, 100 + k, DT, missing_cycles=k)
         assert not cause, k
-    w, cause = watch(CFG, w, silent, False, jolt, False, 200, DT)  # silent longer: the witness judges
+    # silent longer: the witness judges
+    w, cause = watch(CFG, w, silent, False, jolt, False, 200, DT, missing_cycles=within + 1)
     assert "in free space" in cause and "drives' effort 120.0 N" in cause
     # a sample that came but is stale (its counter stood still) is no alibi even for one cycle
     _, cause = watch(CFG, after_sample, _inputs((0.1, 0.0, 0.0)), True, jolt, False, 300, DT)
