@@ -185,6 +185,7 @@ def assemble(cfg: Config, robot: Robot | None = None) -> Assembly:
         task_retracts_on_sensor_breach=task_entry(cfg.task.kind).retracts_on_sensor_breach,
         fault_resets=tuple(fault_reset_config(cfg, node) for node in cfg.actuators.node_ids),
         emcy_reactions=emcy_reactions(cfg),
+        drive_extrapolation_periods=cfg.drive_extrapolation_periods,
     )
     return Assembly(
         ControlLaw(robot, built.task, RuckigSmoother(limits, cfg.period_s), law_cfg), built.reports, a

@@ -75,6 +75,9 @@ class ActuatorsSection(Section, frozen=True):
     following_error_window_m: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.005
     following_error_window_rad: Annotated[float, rng(0.0, 100.0, lo_open=True)] = 0.05
     following_error_time_s: Annotated[float, rng(0.0, 65.535)] = 0.01
+    # How long past its last target a drive runs on blind when no new one comes (a hold-up of the
+    # loop), then holds: whole periods of it go to the drives' object 0x2010 at start (node_setup.py).
+    extrapolation_s: Annotated[float, rng(0.0, 0.1)] = 0.01
     vendor_id: Annotated[int, rng(0, 2**32 - 1)] = 0x00000CE0
     product_code: Annotated[int, rng(0, 2**32 - 1)] = 0x00000402
     # The drives' device description (EDS); "" is drivers/eds/cheope_drive.eds. The PDO mapping
@@ -365,6 +368,11 @@ class Config(Section, frozen=True):
     def period_s(self) -> float:
         return 1.0 / self.loop.rate_hz
 
+    @property
+    def drive_extrapolation_periods(self) -> int:
+        """``actuators.extrapolation_s`` in whole periods: the drives' object 0x2010."""
+        return int(self.actuators.extrapolation_s * self.loop.rate_hz + 1e-9)
+
 
 def _build_config(table: dict[str, Any]) -> Config:
     """The whole document: the registered groups ([robot], [task]) by hand, the rest by msgspec."""
@@ -568,6 +576,13 @@ def recorded_config_from_dict(table: dict[str, Any]) -> Config:
         section, _, key = dotted.partition(".")
         if isinstance(table.get(section), dict):
             table[section].pop(key, None)
+    actuators, loop = table.setdefault("actuators", {}), table.get("loop")
+    if isinstance(actuators, dict) and "extrapolation_s" not in actuators:
+        # before the drives' 0x2010 was written they ran on one period past a missing target
+        rate_hz = loop.get("rate_hz") if isinstance(loop, dict) else None
+        actuators["extrapolation_s"] = 1.0 / (
+            rate_hz if isinstance(rate_hz, int | float) else LoopSection().rate_hz
+        )
     robot, task = table.get("robot"), table.get("task")
     if (
         isinstance(robot, dict)

@@ -127,6 +127,7 @@ def node_setup_plan(cfg: Config) -> NodeSetupPlan:
         heartbeat_period_s=cfg.loop.heartbeat_period_s,
         heartbeat_consumer_s=cfg.loop.heartbeat_consumer_s,
         cycle_period_s=cfg.period_s,
+        extrapolation_periods=cfg.drive_extrapolation_periods,
         drive_eds=device_description_path(cfg.actuators.eds_file, DRIVE_EDS),
         sensor_eds=device_description_path(cfg.sensor.eds_file, SENSOR_EDS),
         sensor_vendor_id=cfg.sensor.vendor_id,

@@ -106,6 +106,8 @@ class NodeSetupPlan:
     # each drive's CiA 402 homing (None: that drive does not home), before the PDOs start
     homing: tuple[HomingPlan | None, ...] | None = None
     following_error_window_counts: int = 0  # 0x6065 (0: not written; the EDS must have it)
+    # 0x2010: periods a drive runs on past its last target without a new one (None: not written)
+    extrapolation_periods: int | None = None
     following_error_time_ms: int = 0  # 0x6066
     # announced to a simulated sensor (drivers/sim_environment.py): "free", "workpiece"; None: not announced
     sim_environment: str | None = None
@@ -179,6 +181,10 @@ NMT_ENTER_PRE_OPERATIONAL = 0x80
 
 # What a refusal of these objects most likely means, and the configuration that handles it.
 _HINTS: dict[tuple[int, int], str] = {
+    (
+        0x2010,
+        ABORT_VALUE_RANGE_CODE,
+    ): "more periods of extrapolation than the drive allows: lower actuators.extrapolation_s",
     (0x1017, ABORT_OBJECT_DOES_NOT_EXIST): 'a drive without heartbeat: actuators.supervision = "guarding"',
     (0x1016, ABORT_OBJECT_DOES_NOT_EXIST): 'a drive without heartbeat: actuators.supervision = "guarding"',
     (
@@ -383,6 +389,33 @@ def _write_following_error(device: _Device, plan: NodeSetupPlan) -> None:
         return
     device.write_verified(0x6065, 0, plan.following_error_window_counts)
     device.write_verified(0x6066, 0, plan.following_error_time_ms)
+
+
+EXTRAPOLATION_PERIODS = 0x2010  # manufacturer-specific (drivers/eds/cheope_drive.eds)
+DRIVE_DEFAULT_EXTRAPOLATION_PERIODS = 1  # what a drive without the object is taken to do
+
+
+def check_extrapolation_object(node_id: int, periods: int, has_object: bool) -> None:
+    """A drive whose EDS has no 0x2010 is taken to run on one period, the common choice; configured
+    otherwise (``actuators.extrapolation_s``), set-up refuses it: the control law would count on
+    periods the drive does not run."""
+    if not has_object and periods != DRIVE_DEFAULT_EXTRAPOLATION_PERIODS:
+        raise NodeSetupError(
+            f"node {node_id}: its EDS has no extrapolation periods object 0x2010, so it cannot be told "
+            f"to run on {periods} periods without a new target; set actuators.extrapolation_s to one "
+            f"period, what such a drive is taken to do"
+        )
+
+
+def _write_extrapolation(device: _Device, periods: int | None) -> None:
+    """0x2010: how far the drive runs on blind when no new target comes (the control law counts on it
+    after a hold-up, ``LawConfig.drive_extrapolation_periods``)."""
+    if periods is None:
+        return
+    has_object = device.has(EXTRAPOLATION_PERIODS)
+    check_extrapolation_object(device.node_id, periods, has_object)
+    if has_object:
+        device.write_verified(EXTRAPOLATION_PERIODS, 0, periods)
 
 
 ABORT_CONNECTION_QUICK_STOP = 3  # 0x6007 (CiA 402): what a drive does by itself when it loses its master
@@ -621,6 +654,7 @@ def _configure_drive(device: _Device, j: int, plan: NodeSetupPlan) -> tuple[Node
         _write_sync_timing(device, plan.cycle_period_s)
         _write_interpolation_period(device, plan.cycle_period_s)
     _write_following_error(device, plan)
+    _write_extrapolation(device, plan.extrapolation_periods)
     codec = _configure_drive_pdos(device, plan)
     return ident, codec, device.read(0x6064, 0)
 

@@ -7,11 +7,13 @@ Behaviour, as a real CSP drive:
   the new target over the interpolation time period (object 0x60C2, written by the master at
   set-up; the measured SYNC interval while it is 0), the drive's interpolator;
 - a late or missing setpoint costs nothing visible (CiA 402 leaves this to the manufacturer;
-  this drive models the common choice of a bounded linear extrapolation): when the next SYNC
-  is late, the reference goes on past the new target at the last segment's speed for up to
-  one more interpolation period, then holds; when a SYNC comes without a new target since the
-  last one, the drive latches the last target plus the last step, for up to
-  ``max_extrapolated_targets`` SYNCs in a row, then holds the last target. A drive whose
+  this drive models the common choice of a bounded linear extrapolation, with the bound as a
+  parameter as real drives have it, e.g. Lenze 9400's accepted telegram failures): past the end
+  of its interpolation segment the reference goes on past the target at the commanded speed
+  (the last step between targets a period), whether no SYNC comes or SYNCs come without a new
+  target, for up to ``extrapolation_periods`` interpolation periods (object 0x2010, written by
+  the master at set-up; 1 at power-on), then holds, still. A new target starts a segment from
+  wherever the reference is. A drive whose
   master is really silent still stops on its SYNC watchdog;
 - a second-order position loop (natural frequency ``bandwidth_hz``, damping ratio) with
   velocity feed-forward from the interpolator (a fraction ``velocity_feedforward``, 1.0 as
@@ -126,16 +128,15 @@ class DriveParams:
     counts_per_unit: float
     sync_timeout_s: float
     substep_s: float
-    max_extrapolated_targets: int = 1  # SYNCs in a row without a new target that extrapolate it
+    extrapolation_periods: int = 1  # object 0x2010 at power-on: how far the reference runs on blind
     negative_limit_switch: float = -math.inf  # homing switches, true coordinates [unit]
     positive_limit_switch: float = math.inf
 
 
-# How far past the end of its interpolation segment the reference goes on at the segment's speed
-# when the next SYNC is late, in interpolation periods. One: a controller that skips one deadline
-# sends a target one step further on, which the reference has then just reached; more would make
-# the carriage run ahead and come back.
-EXTRAPOLATION_PERIODS = 1.0
+# Object 0x2010 (manufacturer-specific, UNSIGNED8): how many interpolation periods past the end of
+# its segment the reference runs on blind (drivers/eds/cheope_drive.eds).
+EXTRAPOLATION_PERIODS_INDEX = 0x2010
+MAX_EXTRAPOLATION_PERIODS = 10  # more is refused: 25 ms of blind motion at 400 Hz
 
 
 @dataclass
@@ -157,8 +158,11 @@ class SimulatedDrive:
     sync_period_s: float = 0.0025  # measured between SYNCs; the interpolation period while 0x60C2 is 0
     interpolation_period_s: float = 0.0  # object 0x60C2 (value x 10^index s); 0: not configured
     target_received: bool = False  # an RPDO came since the last SYNC
-    target_step: float = 0.0  # the last latched target minus the one before [unit]
-    extrapolated_targets: int = 0  # SYNCs in a row that latched an extrapolated target
+    target_step: float = (
+        0.0  # the commanded step a period [unit]: the last two targets' difference over their SYNCs
+    )
+    target_step_valid: bool = False  # the last target was latched enabled (interp_start_s is its SYNC)
+    extrapolation_periods: int = field(init=False)  # object 0x2010 (params.extrapolation_periods at boot)
     last_sync_s: float | None = None
     last_heartbeat_s: float | None = None
     time_s: float | None = None
@@ -193,6 +197,7 @@ class SimulatedDrive:
         self.received_target = self.position
         self.latched_target = self.position
         self.previous_target = self.position
+        self.extrapolation_periods = self.params.extrapolation_periods
         self._boot()
 
     def _boot(self) -> None:
@@ -256,6 +261,10 @@ class SimulatedDrive:
             self.guarding[0 if index == 0x100C else 1] = value
             guard_ms, factor = self.guarding
             self.heartbeat_consumer_s = guard_ms * factor / 1000.0
+        elif index == EXTRAPOLATION_PERIODS_INDEX:
+            if value > MAX_EXTRAPOLATION_PERIODS:
+                return False
+            self.extrapolation_periods = value
         elif index == 0x60C2 and subindex in (1, 2):
             # CiA 402 interpolation time period: value (sub 1) x 10^index (sub 2) s; 0: the drive
             # takes the measured SYNC interval
@@ -349,6 +358,7 @@ class SimulatedDrive:
             self.latched_target = self.previous_target = self.received_target = self.position
             self.velocity = 0.0
             self.target_step = 0.0
+            self.target_step_valid = False
             if self.quirks.warning_emcy_code:
                 self.warning = True
                 self.pending_emcy.append(self.quirks.warning_emcy_code)
@@ -392,20 +402,21 @@ class SimulatedDrive:
                 self.sync_period_s = dt
                 self._check_sync_period(dt)
         self.last_sync_s = now_s
-        self.previous_target = self._reference(now_s)
         if self.target_received or self.power != PowerState.OPERATION_ENABLED:
-            self.target_step = self.received_target - self.latched_target
+            # a new segment, from wherever the reference is (on a late SYNC, past the last target);
+            # past its end the reference goes on at the commanded speed, the step between targets
+            self.previous_target = self._reference(now_s)
+            # the commanded step a period: the targets' difference over the time between their SYNCs
+            # (after SYNCs without a target, or none for a while, it spans several periods)
+            since = self.interp_start_s if self.target_step_valid else now_s
+            periods = max(1.0, (now_s - since) / self.segment_period_s) if self.segment_period_s > 0 else 1.0
+            self.target_step = (self.received_target - self.latched_target) / periods
+            self.target_step_valid = self.power == PowerState.OPERATION_ENABLED
             self.latched_target = self.received_target
-            self.extrapolated_targets = 0
-        elif self.extrapolated_targets < self.params.max_extrapolated_targets:
-            # no setpoint for this SYNC: go on as the last one did (the next one is taken as it comes)
-            self.latched_target += self.target_step
-            self.received_target = self.latched_target
-            self.extrapolated_targets += 1
-        else:
-            self.target_step = 0.0  # silent longer: hold the last target
+            self.interp_start_s = now_s
+        # else no setpoint for this SYNC: the reference goes on past the last target, up to
+        # extrapolation_periods (``_reference``), as when no SYNC comes at all
         self.target_received = False
-        self.interp_start_s = now_s
 
     def _check_sync_period(self, interval_s: float) -> None:
         """EMCY 0x8700 once when the SYNC intervals' median is SYNC_PERIOD_MISMATCH_FACTOR times the
@@ -489,6 +500,8 @@ class SimulatedDrive:
         self.last_controlword = 0
         self.latched_target = self.previous_target = self.received_target = self.position
         self.target_step = 0.0
+        self.target_step_valid = False
+        self.extrapolation_periods = self.params.extrapolation_periods
         self.error_code = EMCY_NO_ERROR
         self.fault_cause_until_s = None
         self.homing = None
@@ -508,10 +521,14 @@ class SimulatedDrive:
         return self.interpolation_period_s or self.sync_period_s
 
     def _reference(self, now_s: float) -> float:
+        """The interpolator's position reference: from the previous target to the latched one over a
+        period, then on past it by the last step between targets a period, for at most
+        ``extrapolation_periods``; then it holds."""
         period = self.segment_period_s
         x = (now_s - self.interp_start_s) / period if period > 0 else 1.0
-        x = min(max(x, 0.0), 1.0 + EXTRAPOLATION_PERIODS)
-        return self.previous_target + x * (self.latched_target - self.previous_target)
+        if x <= 1.0:
+            return self.previous_target + max(x, 0.0) * (self.latched_target - self.previous_target)
+        return self.latched_target + (min(x, 1.0 + self.extrapolation_periods) - 1.0) * self.target_step
 
     def _watchdog(self, now_s: float, check_sync_timeout: bool) -> None:
         if self.power != PowerState.OPERATION_ENABLED:
@@ -597,19 +614,27 @@ class SimulatedDrive:
             wn2, c = wn * wn, 2.0 * p.damping_ratio * wn
             amax = p.max_acceleration
             period = self.segment_period_s
-            x0, dx = self.previous_target, self.latched_target - self.previous_target
+            x0, dx, x1, step = (
+                self.previous_target,
+                self.latched_target - self.previous_target,
+                self.latched_target,
+                self.target_step,
+            )
             v_ff = p.velocity_feedforward * dx / period if period > 0 else 0.0
-            t0, x_end = self.interp_start_s, 1.0 + EXTRAPOLATION_PERIODS
+            v_on = p.velocity_feedforward * step / period if period > 0 else 0.0
+            t0, x_end = self.interp_start_s, 1.0 + self.extrapolation_periods
         moving = not self.blocked  # a stuck carriage (fault injection) holds whatever the drive does
         for _ in range(n):
             if enabled and moving:
                 # the reference at the start of the sub-step (``_reference``, inlined: this is
                 # the simulator's inner loop)
                 r = (t - t0) / period if period > 0 else 1.0
-                if 0.0 <= r <= x_end:
+                if 0.0 <= r <= 1.0:
                     ref, vr = x0 + r * dx, v_ff
+                elif 1.0 < r <= x_end:  # extrapolated: on past the target at the commanded speed
+                    ref, vr = x1 + (r - 1.0) * step, v_on
                 else:  # before the segment or past its extrapolation: the reference holds, still
-                    ref, vr = x0 + (0.0 if r < 0.0 else x_end) * dx, 0.0
+                    ref, vr = (x0, 0.0) if r < 0.0 else (x1 + (x_end - 1.0) * step, 0.0)
                 # A held reference stands still, as a real interpolator's: fed the segment's speed
                 # forward, the carriage settled 2 zeta v / wn past it (0.48 mm at 0.1 m/s).
                 acc = wn2 * (ref - x) + c * (vr - v)

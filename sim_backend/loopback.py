@@ -36,14 +36,17 @@ from drivers.homing import home_drive
 from drivers.node_setup import (
     ABORT_CONNECTION_QUICK_STOP,
     DRIVE_EDS,
+    EXTRAPOLATION_PERIODS,
     SENSOR_EDS,
     NodeSetupError,
+    check_extrapolation_object,
     description_drive_codec,
     description_sensor_codecs,
     device_description_path,
     refusal_hint,
 )
 from drivers.pdo_codec import PositionScale
+from drivers.pdo_mapping import find_variable, load_device_description
 from sim_backend.device_pdos import PdoWriteRefusedError, SimulatedPdos
 from sim_backend.drive import SimulatedDrive, error_register
 from sim_backend.environment import Environment
@@ -138,6 +141,7 @@ class LoopbackExchange:
         rotary = units.unit.value == "rad"
         for d in self.drives:  # what node set-up does over SDO on the real path: CSP, 0x60C2, 0x6065/0x6066
             d.interpolation_period_s = cfg.period_s
+            d.extrapolation_periods = cfg.drive_extrapolation_periods  # 0x2010
             d.following_error_window = (
                 cfg.actuators.following_error_window_rad if rotary else cfg.actuators.following_error_window_m
             )
@@ -154,6 +158,11 @@ class LoopbackExchange:
         except PdoWriteRefusedError as err:
             raise NodeSetupError(f"{err}{refusal_hint(err.index, err.code)}") from err
         eds = device_description_path(cfg.actuators.eds_file, DRIVE_EDS)
+        has_extrapolation = (
+            find_variable(load_device_description(eds, 1), EXTRAPOLATION_PERIODS, 0) is not None
+        )
+        for n in self.drive_ids:  # set-up's check of 0x2010 (written above)
+            check_extrapolation_object(n, cfg.drive_extrapolation_periods, has_extrapolation)
         self.codecs = tuple(
             self.pdos.drive_codec(j)
             if n in read

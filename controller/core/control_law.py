@@ -70,6 +70,7 @@ from controller.core.linalg3 import norm3, sub3
 from controller.core.ports import (
     ContactExpectation,
     ForceWitnessModel,
+    JointReference,
     Robot,
     Task,
     TaskContext,
@@ -77,7 +78,7 @@ from controller.core.ports import (
 )
 from controller.core.records import replace
 from controller.core.safety_monitor import GUARDED_MODES, SafetyMonitor
-from controller.core.setpoint_smoothing import RuckigSmoother, Setpoint
+from controller.core.setpoint_smoothing import RuckigSmoother, Setpoint, SmoothingResult
 from controller.errors import NoSolutionError
 
 PIPELINE_PERIODS = 2
@@ -113,8 +114,6 @@ class ControlLaw:
         self.config = config
         self.n = robot.n_actuators
         self.monitor = SafetyMonitor(robot, config)  # the checks of each cycle's inputs
-        # a step this long after the last finds the drives standing (``_drives_held``)
-        self._drives_held_after_s = (config.drives_hold_after_periods + 0.5) * config.period_s
         # Robots that tell the contact force from their drives' efforts give the sensor its second witness.
         self._witness_model = (
             None if missing_capability(robot, ForceWitnessModel) else cast(ForceWitnessModel, robot)
@@ -154,7 +153,8 @@ class ControlLaw:
         events: list[Event] = []
         measured = tuple(d.position for d in inputs.drives)
         powers = tuple(decode_statusword(d.statusword) for d in inputs.drives)
-        jump, implausible = self.monitor.position_jump(state, inputs)
+        skipped = self._skipped_deadlines(state, t)
+        jump, implausible = self.monitor.position_jump(state, inputs, skipped)
         streak = tuple(
             0 if d.fresh else s + 1 for d, s in zip(inputs.drives, state.missing_streak, strict=True)
         )
@@ -162,17 +162,17 @@ class ControlLaw:
             d.position if d.fresh and not bad else x
             for d, x, bad in zip(inputs.drives, state.last_measured, implausible, strict=True)
         )
-        held = self._drives_held(state, t)
         state = replace(
             state,
             cycle=state.cycle + 1,
             step_t_s=t,
-            drives_held=held,
             missing_streak=streak,
             last_measured=last,
             tcp_measured_m=self._measured_tcp(state, inputs, measured),
             unreachable=state.unreachable | self._unreachable(inputs),
         )
+        if skipped or state.drives_held or state.drives_ran_on:
+            state = self._after_hold_up(state, skipped)
         if inputs.emcy:
             state = self.monitor.note_error_codes(state, inputs)
         emcy_fault = self.monitor.emcy_fault(inputs)
@@ -216,14 +216,38 @@ class ControlLaw:
         )
         return state, outputs, tuple(events)
 
-    def _drives_held(self, state: ControllerState, t: float) -> bool:
-        """The loop skipped so many deadlines before this step that the drives, out of setpoints, hold.
+    def _skipped_deadlines(self, state: ControllerState, t: float) -> int:
+        """The deadlines the loop skipped before this step (it fell behind: a hold-up)."""
+        if not math.isfinite(state.step_t_s):  # the first step has no last one
+            return 0
+        return max(0, round((t - state.step_t_s) / self.config.period_s) - 1)
 
-        Two skipped (a SYNC interval of three periods or more) with the default; one skipped leaves
-        them at most a fraction of a period held, and they are still moving as the setpoint says.
+    def _after_hold_up(self, state: ControllerState, skipped: int) -> ControllerState:
+        """Where the drives went while the loop was held up for ``skipped`` deadlines.
+
+        The loop shell does not send a cycle's RPDOs after skipped deadlines (they were meant for a
+        SYNC that is gone), so the drives ran on along their last segment for E periods at most
+        (``drive_extrapolation_periods``), then held. At the SYNC that brings the next target,
+        ``skipped + 2`` periods after that segment began, they are ``min(skipped + 2, 1 + E)`` steps
+        past the target before it: ``min(skipped, E - 1)`` steps past the last setpoint
+        (``drives_ran_on``). The task and the setpoint move on as far, so that the next target carries
+        on from where the drives are instead of pulling them back. With E or E + 1 skipped deadlines
+        they stood a period or two before that target; with more (``drives_held``) longer, and a
+        brake or a reactive reference restarts from rest where they are (earlier, a restart after a
+        stand of one or two periods cost the contour more than it saved). With E = 1, a drive's
+        usual single period, they are where the last setpoint is and nothing moves.
         """
-        # (the first step has no last one: -inf)
-        return math.isfinite(state.step_t_s) and t - state.step_t_s > self._drives_held_after_s
+        extrapolation = self.config.drive_extrapolation_periods
+        ran_on = min(skipped, extrapolation - 1) if skipped else 0
+        held = skipped > extrapolation + 1
+        # RUNNING, the task steps through the periods they ran on, and the setpoint with it (_running)
+        stepped_through = ran_on > 0 and state.mode == Mode.RUNNING
+        if ran_on and state.mode != Mode.FAULT and not stepped_through:
+            shift_s = ran_on * self.config.period_s
+            sp = state.setpoint
+            position = tuple(p + shift_s * v for p, v in zip(sp.position, sp.velocity, strict=True))
+            state = replace(state, setpoint=Setpoint(position, sp.velocity, sp.acceleration))
+        return replace(state, drives_held=held, drives_ran_on=ran_on)
 
     def _supervise(
         self,
@@ -487,29 +511,42 @@ class ControlLaw:
         events: list[Event],
     ) -> ControllerState:
         period = self.config.period_s
-        task_time = state.task_time_s + period
         if state.sensor_breach:  # someone else sends on its COB-ID: nothing of it reaches the task
             inputs = replace(inputs, sensor=None)
         elif inputs.sensor is not None and inputs.sensor.fresh and state.sensor_stale > 0:
             # A frame whose counter did not advance repeats the last sample: no new evidence for the task.
             inputs = replace(inputs, sensor=replace(inputs.sensor, fresh=False))
         witness = state.contact.witness
-        ctx = TaskContext(
-            t_s=task_time + PIPELINE_PERIODS * period,
-            period_s=period,
-            setpoint=state.setpoint,
-            inputs=inputs,
-            tcp_measured_m=state.tcp_measured_m,
-            sensor_breach=state.sensor_breach,
-            force_witness_n=witness.force_n if witness is not None else None,
-            sensor_suspect=state.contact.suspect,
-            drives_held=state.drives_held,
-        )
-        out = self.task.step(state.task_state, ctx)
-        events.extend(out.events)
-        task_state, ref, finished = out.state, out.reference, out.finished
-        if out.fault:
-            return self._faulted(state, out.fault, t, events, task_state=task_state)
+        # The periods the drives ran on blind in a hold-up (``_after_hold_up``) are the task's too: it
+        # steps through them without measurements, then through this cycle with this cycle's.
+        blind = self._blind(inputs) if state.drives_ran_on > 0 else inputs
+        task_state, task_time = state.task_state, state.task_time_s
+        for k in range(max(0, state.drives_ran_on), -1, -1):
+            task_time += period
+            ctx = TaskContext(
+                t_s=task_time + PIPELINE_PERIODS * period,
+                period_s=period,
+                setpoint=state.setpoint,
+                inputs=blind if k else inputs,
+                tcp_measured_m=state.tcp_measured_m,
+                sensor_breach=state.sensor_breach,
+                force_witness_n=witness.force_n if witness is not None else None,
+                sensor_suspect=state.contact.suspect,
+                drives_held=state.drives_held and not k,
+            )
+            out = self.task.step(task_state, ctx)
+            events.extend(out.events)
+            task_state, ref = out.state, out.reference
+            if out.fault:
+                return self._faulted(state, out.fault, t, events, task_state=task_state)
+            if not k or out.finished:
+                break
+            # A blind period: the setpoint goes with it as it would have, near where the drives ran on.
+            result = self._smoothed(state, ref)
+            if not result.ok:
+                return self._faulted(state, result.message, t, events)
+            state = replace(state, setpoint=result.setpoint)
+        finished = out.finished
         too_fast = self._contact_speed(state, ref.tcp_m, ref.contact)
         if too_fast:
             return self._faulted(state, too_fast, t, events, task_state=task_state)
@@ -517,12 +554,7 @@ class ControlLaw:
         if not pose.ok:
             why = f"task reference leaves the safe workspace: {pose.reason}"
             return self._faulted(state, why, t, events)
-        if ref.reactive:
-            result = self.smoother.track_velocity(
-                self._smoothing_start(state), ref.position, ref.velocity, REACTIVE_CORRECTION_PERIODS / period
-            )
-        else:
-            result = self.smoother.step(state.setpoint, ref.position, ref.velocity, ref.acceleration)
+        result = self._smoothed(state, ref)
         if not result.ok:
             return self._faulted(state, result.message, t, events)
         state = replace(
@@ -536,6 +568,30 @@ class ControlLaw:
         if finished:
             return self._enter(state, Mode.STOPPING, t, events, why=f"task {self.task.name} finished")
         return state
+
+    def _smoothed(self, state: ControllerState, ref: JointReference) -> SmoothingResult:
+        """The setpoint one period on towards the task's reference (Ruckig)."""
+        if ref.reactive:
+            return self.smoother.track_velocity(
+                self._smoothing_start(state),
+                ref.position,
+                ref.velocity,
+                REACTIVE_CORRECTION_PERIODS / self.config.period_s,
+            )
+        return self.smoother.step(state.setpoint, ref.position, ref.velocity, ref.acceleration)
+
+    @staticmethod
+    def _blind(inputs: CycleInputs) -> CycleInputs:
+        """A cycle the loop missed, as the task steps through it: late, nothing measured, no command."""
+        sensor = inputs.sensor
+        return replace(
+            inputs,
+            drives=tuple(replace(d, fresh=False) for d in inputs.drives),
+            sensor=replace(sensor, fresh=False) if sensor is not None else None,
+            command=Command.NONE,
+            command_value=0.0,
+            late=True,
+        )
 
     def _paused(
         self,
@@ -725,7 +781,8 @@ class ControlLaw:
         last = state.contact.reference_m
         if contact == ContactExpectation.NONE or last is None:
             return ""
-        speed = norm3(sub3(tcp_m, last)) / self.config.period_s
+        steps = 1 + max(0, state.drives_ran_on)  # the task's steps since ``last`` (``_running``)
+        speed = norm3(sub3(tcp_m, last)) / (steps * self.config.period_s)
         limit = self.config.safety.contact.max_contact_speed_m_s
         if speed <= limit:
             return ""

@@ -50,10 +50,13 @@ class ControllerState:
     tcp_measured_m: tuple[float, float, float] | None  # direct kinematics of the measured positions
     task_time_s: float = 0.0
     step_t_s: float = -math.inf  # the last step's time (the loop's deadline k * period)
-    # The loop was held up long enough before this step that the drives ran out of setpoints and
-    # stand at the last one (``LawConfig.drives_hold_after_periods``): a brake or a reactive
-    # reference restarts from rest there (control_law ``_smoothing_start``).
+    # The loop was held up long enough before this step that the drives ran out of extrapolation
+    # and stand (``LawConfig.drive_extrapolation_periods``): a brake or a reactive reference
+    # restarts from rest there (control_law ``_smoothing_start``).
     drives_held: bool = False
+    # Periods the drives ran on past the last setpoint during a hold-up before this step, blind
+    # (control_law ``_after_hold_up``): the task's time and the setpoint move on as far.
+    drives_ran_on: int = 0
     fault_reason: str = ""
     sensor_counter: int = -1  # last sensor counter seen, for staleness
     sensor_stale: int = 0  # cycles the counter has not advanced

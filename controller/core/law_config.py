@@ -90,10 +90,10 @@ class LawConfig:
     fault_resets: tuple[FaultResetConfig, ...] = ()  # per drive; empty: FaultResetConfig() for each
     emcy_reactions: tuple[EmcyReaction, ...] = ()  # the drives' EMCY codes that do not fault (first match)
     # A CSP drive interpolates from the target it holds to the one latched at a SYNC over one period
-    # and, without the next SYNC, goes on one period more (sim_backend/drive.py EXTRAPOLATION_PERIODS)
-    # and then holds, still. A step more than this many periods after the last one finds the drives
-    # standing: a brake or a reactive reference restarts from rest where they stand.
-    drives_hold_after_periods: float = 2.0
+    # and, without a new target, runs on along that segment for this many periods more, then holds,
+    # still (the drives' object 0x2010, written at set-up: sim_backend/drive.py). The step after a
+    # hold-up knows from it where the drives went meanwhile (control_law ``_after_hold_up``).
+    drive_extrapolation_periods: int = 1
 
     def fault_reset(self, j: int) -> FaultResetConfig:
         return self.fault_resets[j] if j < len(self.fault_resets) else FaultResetConfig()

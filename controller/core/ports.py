@@ -201,7 +201,7 @@ class TaskContext:
     # resolve it (re-tare in free space) within safety.contact.sensor_suspect_s, or the law backs off.
     sensor_suspect: str = ""
     # The loop was held up so long before this cycle that the drives stand at the last setpoint
-    # (``LawConfig.drives_hold_after_periods``): a reactive reference's smoothing restarts from
+    # (``LawConfig.drive_extrapolation_periods``): a reactive reference's smoothing restarts from
     # rest there, and a task that keeps a speed of its own restarts it from zero too.
     drives_held: bool = False
 
@@ -221,6 +221,10 @@ class Task(Protocol[S]):
     A task turns the robot's goal (follow a path, track a contour, play a plan) into the joint
     reference Ruckig smooths. It sees the cycle's inputs and the measured TCP, keeps its own
     frozen state, and may finish, raise events, or ask for a fault.
+
+    ``step`` is called once a period of the task's time: once a cycle, and after a hold-up of the
+    loop once more for each period the drives ran on meanwhile, first with inputs that measured
+    nothing (``fresh`` False, ``late`` True, no command; control_law ``_after_hold_up``).
     """
 
     name: str

@@ -346,10 +346,13 @@ class SafetyMonitor:
         kind, node, cob = key.split(":")
         return f"{ANOMALY_TEXT[Anomaly(kind)]}{_from_node(int(node))} (COB-ID {cob})"
 
-    def position_jump(self, state: ControllerState, inputs: CycleInputs) -> tuple[str, tuple[bool, ...]]:
+    def position_jump(
+        self, state: ControllerState, inputs: CycleInputs, skipped: int = 0
+    ) -> tuple[str, tuple[bool, ...]]:
         """Fresh positions further from the last trusted ones than the actuator can move: a lying encoder
         or frame. Returns the fault (none in CONFIGURING or FAULT) and which drives' positions are not
-        to be trusted (judged in FAULT too: hold targets come only from trusted positions)."""
+        to be trusted (judged in FAULT too: hold targets come only from trusted positions). ``skipped``:
+        deadlines the loop skipped before this step, periods the drives moved on through as well."""
         cfg = self.config
         tolerance = cfg.safety.max_position_jump
         flags = [False] * self.n
@@ -361,13 +364,14 @@ class SafetyMonitor:
         ):
             if not (d.fresh and math.isfinite(last)):
                 continue
-            possible = cfg.max_speed * (gap + 1) * cfg.period_s + tolerance
+            periods = gap + 1 + skipped
+            possible = cfg.max_speed * periods * cfg.period_s + tolerance
             step = abs(d.position - last)
             if step > possible:  # also catches NaN below: NaN > x is False, the finite check is elsewhere
                 flags[j] = True
                 u = cfg.position_unit
                 reason = reason or (
-                    f"drive {j + 1} position jumped {step:.4f} {u} in {gap + 1} cycle(s) (from {last:.4f} to "
+                    f"drive {j + 1} position jumped {step:.4f} {u} in {periods} period(s) (from {last:.4f} to "
                     f"{d.position:.4f} {u}); at most {possible:.4f} {u} is possible "
                     f"({cfg.max_speed} {u}/s + safety.max_position_jump {tolerance} {u})"
                 )
@@ -387,11 +391,16 @@ class SafetyMonitor:
             return ""
         t_s = self.config.period_s
         sp = state.setpoint
+        # After a hold-up the sample was taken somewhere along the drives' extrapolation, up to its E
+        # periods past the expected position (control_law ``_after_hold_up``).
+        run_on_s = (
+            self.config.drive_extrapolation_periods * t_s if state.drives_ran_on or state.drives_held else 0.0
+        )
         for j, (d, q, v, a) in enumerate(
             zip(inputs.drives, sp.position, sp.velocity, sp.acceleration, strict=True)
         ):
             expected = q - v * t_s + 0.5 * a * t_s * t_s
-            if d.fresh and abs(d.position - expected) > window:
+            if d.fresh and abs(d.position - expected) > window + abs(v) * run_on_s:
                 u = self.config.position_unit
                 return (
                     f"drive {j + 1} following error {abs(d.position - expected):.4f} {u} beyond the window of "

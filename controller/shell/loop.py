@@ -17,7 +17,11 @@ Per cycle k, with deadline d_k = d_0 + k * period on a monotonic clock:
   5. hand copies to the observers (recorder, publisher, statistics): they must not block;
   6. collect garbage, when there is any to collect, here and nowhere else (``collect_garbage``).
 If the loop falls more than one period behind, it skips the missed deadlines (counted as
-overruns) rather than running a burst of late cycles, as ros2_control's loop does.
+overruns) rather than running a burst of late cycles, as ros2_control's loop does: a wake-up
+more than a period late runs as the cycle of the latest deadline passed, and a cycle whose work
+overran goes on at the next deadline still ahead. The first cycle after skipped deadlines sends
+its SYNC without RPDOs: the last step's targets were meant for a SYNC that is gone, and the
+drives run on without them as the next step expects (control_law ``_after_hold_up``).
 
 Garbage collection. CPython's collector runs whenever the young generation has grown by its
 threshold (700 tracked objects), inside whatever allocation crosses it: in the middle of a
@@ -352,9 +356,16 @@ class CycleLoop:
             deadline = first_deadline + k * period
             self.sleeper.sleep_until(deadline)
             woke = clock()
+            if woke - deadline > period:  # held up past the next deadline too: this cycle is the latest
+                skipped = int((woke - deadline) / period)
+                stats.overruns += skipped
+                k += skipped
+                deadline += skipped * period
+                skipped_before = True
             if deadlines is not None:
                 deadlines.cycle_deadline(deadline)
-            self.exchange.send(outputs)
+            # after skipped deadlines: a SYNC without the stale RPDOs (module doc)
+            self.exchange.send(None if skipped_before else outputs)
             sent = clock()
             window_end = self._window_end(deadline, work_peak_s)
             feedback = self.exchange.collect(window_end)

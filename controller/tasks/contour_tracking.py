@@ -119,8 +119,8 @@ MIN_BIAS_SPEED_M_S = 0.015  # slower, the cogging does not average out of the se
 FORCE_BAND_FRACTION = 0.3  # of the force setpoint: a larger error derates the tangential speed ...
 FORCE_STOP_FRACTION = 0.6  # ... down to zero at this one (the disk's laps stay within 0.17 at 60 mm/s)
 # After the loop was held up (a late wake-up, skipped deadlines, a missing frame) the force leaves its
-# band for a while though the contour is regular: no setpoint came, the drives extrapolated one period
-# and held, and the contact's stiffness (0.4-1.1 N/um on the disk) makes newtons of microns. Every
+# band for a while though the contour is regular: no setpoint came, the drives (then running on one
+# period) held, and the contact's stiffness (0.4-1.1 N/um on the disk) makes newtons of microns. Every
 # sample out of the band of a demo beside two CPU hogs came within 35 cycles (88 ms) of such a
 # hold-up (54 samples), up to 7.4 N, and one lasted past 0.1 s. An excursion that begins within
 # this long after a hold-up is the loop's until the force is back in its band: meanwhile the band

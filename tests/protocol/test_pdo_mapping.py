@@ -38,6 +38,7 @@ VENDOR = {
     "actuators.vendor_id": 0x00000A5E,
     "actuators.product_code": 0x00C5D402,
     "actuators.tpdo_objects": [],  # its own default mapping: it has no torque actual value 0x6077
+    "actuators.extrapolation_s": 0.0025,  # no 0x2010: it is taken to run on one period, as it must be told
 }
 
 
@@ -327,6 +328,35 @@ def test_set_up_writes_the_drives_following_error_window_and_time_and_reads_them
             assert d.following_error_window == pytest.approx(
                 0.004
             ) and d.following_error_time_s == pytest.approx(0.02)
+
+
+def test_set_up_writes_the_drives_extrapolation_periods_and_reads_them_back(buses):
+    cfg = load_config()  # actuators.extrapolation_s = 0.01: 4 periods at 400 Hz
+    sim_bus, bus = buses
+    with Simulator(cfg, sim_bus) as sim:
+        assert all(d.extrapolation_periods == 1 for d in sim.drives)  # the drive's own at power-on
+        configure_nodes(bus, _setup_plan(cfg))
+        for node_id, d in zip(cfg.actuators.node_ids, sim.drives, strict=True):
+            assert sim.nodes[node_id].sdo[0x2010].raw == 4
+            assert d.extrapolation_periods == 4
+
+
+def test_extrapolation_a_drive_cannot_take_stops_the_start_naming_node_object_and_key(buses):
+    sim_bus, bus = buses
+    too_long = load_config(overrides={"actuators.extrapolation_s": 0.03})  # 12 periods: the drive allows 10
+    with Simulator(too_long, sim_bus), pytest.raises(NodeSetupError) as err:
+        configure_nodes(bus, _setup_plan(too_long))
+    assert "node 1: writing 0x2010sub0 = 0xC refused" in str(err.value)
+    assert "lower actuators.extrapolation_s" in str(err.value)
+
+
+def test_a_drive_without_0x2010_is_refused_unless_told_it_runs_on_one_period():
+    from sim_backend.loopback import LoopbackExchange
+
+    told = {k: v for k, v in VENDOR.items() if k != "actuators.extrapolation_s"}
+    with pytest.raises(NodeSetupError, match=r"node 1: its EDS has no extrapolation periods object 0x2010"):
+        LoopbackExchange(load_config(overrides=told), lambda: 0.0)
+    LoopbackExchange(load_config(overrides=VENDOR), lambda: 0.0)  # one period: what it is taken to do
 
 
 def test_a_drive_beyond_its_following_error_window_for_its_time_faults_with_emcy_8611():

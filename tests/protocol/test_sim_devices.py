@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 
@@ -343,12 +341,12 @@ def moving_drive(speed_m_s: float = 0.1, cycles: int = 200) -> tuple[SimulatedDr
 def test_a_sync_without_a_new_target_extrapolates_the_last_step_once_then_holds():
     d, t, target = moving_drive()
     step = 0.1 * PERIOD
-    d.on_sync(t)  # no RPDO since the last SYNC
-    assert d.latched_target == pytest.approx(target + step, abs=1e-12)
+    d.on_sync(t)  # no RPDO since the last SYNC: the reference runs on along the segment
+    assert d._reference(t + PERIOD) == pytest.approx(target + step, abs=1e-12)
     d.advance(t + PERIOD)
     assert d.velocity == pytest.approx(0.1, rel=0.02)  # the carriage did not stop
-    d.on_sync(t + PERIOD)  # silent again: hold (max_extrapolated_targets = 1)
-    assert d.latched_target == pytest.approx(target + step, abs=1e-12)
+    d.on_sync(t + PERIOD)  # silent again: hold (one period of extrapolation, 0x2010 at power-on)
+    assert d._reference(t + 2 * PERIOD) == pytest.approx(target + step, abs=1e-12)
     d.advance(t + 15 * PERIOD, check_sync_timeout=False)  # (37.5 ms: within the SYNC watchdog anyway)
     assert d.position == pytest.approx(target + step, abs=2e-6) and abs(d.velocity) < 1e-3
     # the next target is taken as it comes
@@ -357,14 +355,40 @@ def test_a_sync_without_a_new_target_extrapolates_the_last_step_once_then_holds(
     assert t2 > t
 
 
-def test_a_held_target_stops_the_carriage_without_extrapolation():
-    # the same drive configured not to extrapolate: a missing setpoint costs a stop and a restart
+@pytest.mark.parametrize("periods", [0, 1, 3])
+def test_object_0x2010_sets_how_many_periods_the_reference_runs_on_blind(periods):
+    """Written at set-up (drivers/node_setup.py): SYNCs without a new target, or none at all, leave
+    the reference on its segment for this many periods past the last target; then it holds."""
     d, t, target = moving_drive()
-    object.__setattr__(d, "params", replace(d.params, max_extrapolated_targets=0))
-    d.on_sync(t)
-    assert d.latched_target == pytest.approx(target, abs=1e-12)
-    d.advance(t + PERIOD)
-    assert d.velocity < 0.09  # braking towards the held target
+    step = 0.1 * PERIOD
+    assert d.write_object(0x2010, 0, periods)
+    for k in range(1, periods + 3):
+        if k % 2:
+            d.on_sync(t + k * PERIOD)  # a SYNC without a target (every other period: none at all)
+        assert d._reference(t + k * PERIOD) == pytest.approx(target + min(k, periods) * step, abs=1e-12)
+    d.advance(t + (periods + 12) * PERIOD, check_sync_timeout=False)
+    assert d.position == pytest.approx(target + periods * step, abs=2e-6) and abs(d.velocity) < 1e-3
+    # a new target starts its segment where the reference is: no jump back along the way
+    t2 = t + (periods + 12) * PERIOD
+    d.on_rpdo(CW_ENABLE_OPERATION, round((target + (periods + 1) * step) * COUNTS))
+    d.on_sync(t2)
+    assert d._reference(t2) == pytest.approx(target + periods * step, abs=1e-12)
+    assert not d.write_object(0x2010, 0, 11)  # more than the drive allows: refused (SDO abort)
+    assert d.extrapolation_periods == periods
+
+
+def test_past_a_missing_target_the_drive_runs_on_at_the_commanded_speed_not_the_jump_between_targets():
+    """A target after a SYNC without one lies two steps on: the commanded speed is the targets'
+    difference over the time between their SYNCs. Taken as one period's step, the reference ran on
+    at twice the speed: drives 2 steps ahead of the controller's model after every such gap."""
+    d, t, target = moving_drive()
+    step = 0.1 * PERIOD
+    assert d.write_object(0x2010, 0, 4)
+    d.on_sync(t)  # no target
+    d.on_rpdo(CW_ENABLE_OPERATION, round((target + 2 * step) * COUNTS))
+    d.on_sync(t + PERIOD)
+    assert d._reference(t + 2 * PERIOD) == pytest.approx(target + 2 * step, abs=1e-9)
+    assert d._reference(t + 3 * PERIOD) == pytest.approx(target + 3 * step, abs=1e-9)
 
 
 def test_a_late_sync_lets_the_reference_run_on_for_one_period_at_the_segment_speed():

@@ -85,6 +85,31 @@ def test_at_a_low_rate_the_drives_lag_of_one_period_is_no_following_error(rate_h
     )  # the case the check must not trip on
 
 
+@pytest.mark.parametrize("stall_s", [0.012, 0.02])
+def test_drives_that_ran_on_through_a_hold_up_at_speed_are_no_jump_and_no_following_error(stall_s):
+    """At 0.8 m/s on the actuators, drives running on 20 ms (8 periods) through a hold-up move 16 mm
+    between two samples: the position-jump check counts the skipped deadlines (it once judged 18 mm in
+    "1 period") and the following-error check the drives' extrapolation (16 mm off the setpoint taken
+    back one period, beyond the 10-mm window). Both faulted the run before."""
+    cfg = load_config(
+        overrides={
+            **SHORT,
+            "task.path.speed_m_s": 0.5,  # the actuators at 0.80 m/s at 0.82 s
+            "sim.faults": [f"stall={stall_s}@0.82+0.0025"],
+            "actuators.extrapolation_s": 0.02,
+        }
+    )
+    ran: list[tuple[int, float]] = []
+
+    def hook(cycle, t, state):
+        if state.drives_ran_on:
+            ran.append((state.drives_ran_on, max(abs(v) for v in state.setpoint.velocity)))
+
+    final, _, _, _, _ = run(cfg, hook=hook)
+    assert final.mode == Mode.DONE, final.fault_reason
+    assert len(ran) == 1 and ran[0][0] >= 3 and ran[0][1] > 0.75  # they ran on at speed
+
+
 def test_a_blocked_drive_is_a_following_error_at_a_low_rate_too():
     cfg = load_config(
         overrides={
@@ -264,18 +289,32 @@ def test_velocity_tracking_follows_a_steady_reference_without_lag_or_chatter():
     assert max(abs(a) for a in accelerations) < 1e-6
 
 
-@pytest.mark.parametrize(("stall_s", "held"), [(0.0096, True), (0.006, False)])
-def test_a_hold_up_past_the_drives_extrapolation_is_flagged_and_a_planned_path_goes_on(stall_s, held):
-    """A loop held up past the drives' extrapolation (two skipped deadlines: a SYNC interval over
-    ``drives_hold_after_periods``) flags that the drives stand (``drives_held``), once; one skipped
-    deadline leaves them moving and is not flagged. A planned path's setpoint goes on at its speed
+@pytest.mark.parametrize(
+    ("stall_s", "extrapolation_s", "held", "ran_on"),
+    [(0.0096, 0.01, False, 3), (0.006, 0.01, False, 2), (0.016, 0.01, True, 3), (0.0096, 0.0025, True, 0)],
+)
+def test_a_hold_up_past_the_drives_extrapolation_is_flagged_and_a_planned_path_goes_on(
+    stall_s, extrapolation_s, held, ran_on
+):
+    """A loop held up for as many skipped deadlines as the drives run on periods without a new target
+    (``actuators.extrapolation_s``: 4 periods by default, 1 in the last case) or more flags that the
+    drives stand (``drives_held``), once; fewer leave them moving, and the step counts the periods they
+    ran on past its last setpoint (``drives_ran_on``). A planned path's setpoint goes on at its speed
     either way: its reference runs on one period a cycle, and restarted from rest it would chase it
     (a reactive reference restarts: tests/unit/test_loop_held_up.py)."""
-    cfg = load_config(overrides={**SHORT, "sim.faults": [f"stall={stall_s}@2.0+0.0025"]})
+    cfg = load_config(
+        overrides={
+            **SHORT,
+            "sim.faults": [f"stall={stall_s}@2.0+0.0025"],
+            "actuators.extrapolation_s": extrapolation_s,
+        }
+    )
     rows: list[tuple[float, bool, float]] = []
+    ran: list[int] = []
 
     def hook(cycle, t, state):
         rows.append((t, state.drives_held, max(abs(v) for v in state.setpoint.velocity)))
+        ran.extend([state.drives_ran_on] if state.drives_ran_on else [])
 
     final, _, _, rec, _ = run(cfg, hook=hook)
     assert final.mode == Mode.DONE, final.fault_reason
@@ -284,6 +323,7 @@ def test_a_hold_up_past_the_drives_extrapolation_is_flagged_and_a_planned_path_g
     speed_before, flagged, speed_after = gaps[0]
     assert speed_before > 0.01  # the path was moving at the hold-up
     assert flagged is held and sum(r[1] for r in rows) == int(held)
+    assert ran == ([ran_on] if ran_on else [])
     assert speed_after == pytest.approx(speed_before, rel=0.05)
     # the drives catch the path up (one 9.6-ms hold-up: 21 um RMS over the half lap; the setpoint
     # restarted from rest chased the path: 0.71 mm RMS, 4.8 mm at most)

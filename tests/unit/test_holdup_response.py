@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from controller.config import recorded_config_from_dict
 from controller.tools.contour.holdup_response import (
     TrackingCycle,
     by_cycles_since_holdup,
@@ -40,17 +41,32 @@ def test_each_cycle_lands_in_the_bin_of_cycles_since_the_last_holdup():
     assert bins[(640, None)].cycles == 0 and math.isnan(bins[(640, None)].rms_n)
 
 
-def test_the_drives_held_their_reference_where_a_sync_came_more_than_two_periods_after_the_last():
-    # deadlines 2.5 ms apart, one skipped (5 ms), then one skipped again and the wake-up 0.5 ms late
+@pytest.mark.parametrize("extrapolation_periods", [1, 2, 4])
+def test_the_drives_stood_where_more_deadlines_were_skipped_than_their_extrapolation_and_one(
+    extrapolation_periods,
+):
+    # deadlines 2.5 ms apart: one skipped (5 ms), two skipped (the wake-up 0.5 ms late: 8 ms), three
     cycles = [
         TrackingCycle(3, True, 0.0, False, 0.0, 0.0),
-        TrackingCycle(3, True, 0.0, True, 0.005, 0.0),  # 5 ms: the drives' extrapolation just ended
+        TrackingCycle(3, True, 0.0, True, 0.005, 0.0),  # one skipped: they ran on, or stood a period
         TrackingCycle(3, True, 0.0, False, 0.0075, 0.0),
-        TrackingCycle(3, True, 0.0, True, 0.0125, 0.0005),  # 5.5 ms: held 0.5 ms
-        TrackingCycle(4, True, 0.0, False, 0.015, 0.0),
+        TrackingCycle(3, True, 0.0, True, 0.015, 0.0005),  # two skipped
+        TrackingCycle(3, True, 0.0, False, 0.0175, 0.0),
+        TrackingCycle(3, True, 0.0, True, 0.0275, 0.0005),  # three skipped
+        TrackingCycle(4, True, 0.0, False, 0.03, 0.0),
     ]
-    assert drives_held(cycles, [3]) == pytest.approx([0.0055])
-    assert drives_held(cycles, [4]) == []
+    want = {1: [0.0105], 2: [], 4: []}[extrapolation_periods]  # more than E + 1 skipped
+    assert drives_held(cycles, [3], extrapolation_periods) == pytest.approx(want)
+    assert drives_held(cycles, [4], extrapolation_periods) == []
+
+
+def test_a_recording_written_before_0x2010_is_read_with_one_period_of_extrapolation():
+    # its drives ran on one period past a missing target; its replay rebuilds the law that knew it
+    assert recorded_config_from_dict({}).drive_extrapolation_periods == 1
+    assert recorded_config_from_dict({"loop": {"rate_hz": 1000}}).drive_extrapolation_periods == 1
+    assert (
+        recorded_config_from_dict({"actuators": {"extrapolation_s": 0.01}}).drive_extrapolation_periods == 4
+    )
 
 
 def test_a_recorded_contour_run_without_holdups_is_all_in_the_last_bin():

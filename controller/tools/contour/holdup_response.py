@@ -4,8 +4,9 @@ A hold-up is a cycle the contour task itself treats as one (``contour_tracking.l
 the loop woke late (``inputs.late``) or a drive's or the sensor's frame is missing. For the
 tracking cycles of the laps asked for (by default 3-5, the demo's laps at 60 mm/s) this prints the
 force error's RMS by how many cycles came since the last hold-up, so that a force that rings on
-after one shows for how long; and how often the drives held their reference, a SYNC coming more
-than two periods after the last (the segment and one period of extrapolation, sim_backend/drive.py):
+after one shows for how long; and how often the drives stood, a hold-up longer than their
+segment and their periods of extrapolation (``actuators.extrapolation_s`` of the recording's
+configuration; sim_backend/drive.py):
 
     python -m controller.tools.contour.holdup_response RECORDING.mcap [--laps 3,4,5]
 """
@@ -15,13 +16,16 @@ from __future__ import annotations
 import argparse
 import bisect
 import itertools
+import json
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
+from controller.config import recorded_config_from_dict
 from controller.tasks.contour_tracking import loop_held_up
-from logs.messages import inputs_from_pb
-from logs.reader import iter_decoded
+from logs.messages import META_CONFIG, inputs_from_pb
+from logs.reader import ReadReport, iter_decoded
 
 BIN_EDGES = (0, 1, 5, 10, 20, 40, 80, 160, 320, 640)  # cycles since the last hold-up
 
@@ -44,10 +48,10 @@ class SinceBin:
     rms_n: float
 
 
-def read_cycles(path: str) -> list[TrackingCycle]:
+def read_cycles(path: str, report: ReadReport | None = None) -> list[TrackingCycle]:
     """The contour task's cycles of a recording (those with a lap), in order."""
     out = []
-    for d in iter_decoded(path, ["/cycle"]):
+    for d in iter_decoded(path, ["/cycle"], report):
         c = d.message
         values = c.state.task_values
         if "lap" not in values:
@@ -60,10 +64,21 @@ def read_cycles(path: str) -> list[TrackingCycle]:
     return out
 
 
-def drives_held(cycles: Sequence[TrackingCycle], laps: Iterable[int]) -> list[float]:
-    """The SYNC intervals [s] longer than two periods before the tracking cycles of ``laps``: the
-    drives had run through their segment and one period of extrapolation, and held their reference
-    for the rest of the interval (sim_backend/drive.py). A SYNC goes out when the loop wakes."""
+def recorded_extrapolation_periods(report: ReadReport) -> int:
+    """The drives' periods of extrapolation in the recording's configuration (one before 0x2010)."""
+    meta = report.metadata.get(META_CONFIG)
+    table = json.loads(meta["json"]) if meta is not None and "json" in meta else {}
+    return recorded_config_from_dict(table).drive_extrapolation_periods
+
+
+def drives_held(
+    cycles: Sequence[TrackingCycle], laps: Iterable[int], extrapolation_periods: int = 1
+) -> list[float]:
+    """The SYNC intervals [s] before the tracking cycles of ``laps`` after which the drives had stood
+    long enough for the law to restart from rest (``drives_held``): more than
+    ``extrapolation_periods`` + 1 deadlines skipped (control_law ``_after_hold_up``: they ran on that
+    many periods past their last target, then held their reference). A SYNC goes out when the loop
+    wakes."""
     steps = [b.t_s - a.t_s for a, b in itertools.pairwise(cycles) if b.t_s > a.t_s]
     if not steps:
         return []
@@ -71,8 +86,9 @@ def drives_held(cycles: Sequence[TrackingCycle], laps: Iterable[int]) -> list[fl
     wanted = set(laps)
     out = []
     for a, b in itertools.pairwise(cycles):
+        skipped = round((b.t_s - a.t_s) / period_s) - 1
         interval_s = (b.t_s + b.wake_error_s) - (a.t_s + a.wake_error_s)
-        if b.tracking and b.lap in wanted and interval_s > 2.0 * period_s + 1e-6:
+        if b.tracking and b.lap in wanted and skipped > extrapolation_periods + 1:
             out.append(interval_s)
     return out
 
@@ -116,12 +132,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("recording", help="an MCAP recording of a contour run")
     ap.add_argument("--laps", default="3,4,5", help="laps (1-based, comma-separated)")
     args = ap.parse_args(argv)
-    cycles = read_cycles(args.recording)
+    report = ReadReport(Path(args.recording))
+    cycles = read_cycles(args.recording, report)
     laps = [int(x) for x in args.laps.split(",")]
-    held = drives_held(cycles, laps)
+    extrapolation = recorded_extrapolation_periods(report)
+    held = drives_held(cycles, laps, extrapolation)
     print(
         f"{sum(c.held_up for c in cycles if c.lap in laps and c.tracking)} hold-ups in laps {args.laps}; "
-        f"{len(held)} SYNC intervals over two periods (the drives held their reference)"
+        f"{len(held)} of them skipped more deadlines than the drives' {extrapolation} periods of "
+        f"extrapolation and one (they stood; the law restarted from rest)"
         + (f", the longest {max(held) * 1e3:.1f} ms" if held else "")
     )
     print(format_bins(by_cycles_since_holdup(cycles, laps)))
