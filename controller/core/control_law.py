@@ -541,8 +541,9 @@ class ControlLaw:
                 return self._faulted(state, out.fault, t, events, task_state=task_state)
             if not k or out.finished:
                 break
-            # A blind period: the setpoint goes with it as it would have, near where the drives ran on.
-            result = self._smoothed(state, ref)
+            # A blind period: the setpoint goes with it as it would have, near where the drives ran on
+            # (from where it is: they were moving then, whatever they did after)
+            result = self._smoothed(state.setpoint, ref, restart=False)
             if not result.ok:
                 return self._faulted(state, result.message, t, events)
             state = replace(state, setpoint=result.setpoint)
@@ -554,7 +555,7 @@ class ControlLaw:
         if not pose.ok:
             why = f"task reference leaves the safe workspace: {pose.reason}"
             return self._faulted(state, why, t, events)
-        result = self._smoothed(state, ref)
+        result = self._smoothed(state.setpoint, ref, restart=state.drives_held)
         if not result.ok:
             return self._faulted(state, result.message, t, events)
         state = replace(
@@ -569,16 +570,15 @@ class ControlLaw:
             return self._enter(state, Mode.STOPPING, t, events, why=f"task {self.task.name} finished")
         return state
 
-    def _smoothed(self, state: ControllerState, ref: JointReference) -> SmoothingResult:
-        """The setpoint one period on towards the task's reference (Ruckig)."""
+    def _smoothed(self, setpoint: Setpoint, ref: JointReference, restart: bool) -> SmoothingResult:
+        """The setpoint one period on towards the task's reference (Ruckig); a reactive reference's
+        from rest where ``setpoint`` is when ``restart`` (the drives stood: ``_smoothing_start``)."""
         if ref.reactive:
+            start = Setpoint.at_rest(setpoint.position) if restart else setpoint
             return self.smoother.track_velocity(
-                self._smoothing_start(state),
-                ref.position,
-                ref.velocity,
-                REACTIVE_CORRECTION_PERIODS / self.config.period_s,
+                start, ref.position, ref.velocity, REACTIVE_CORRECTION_PERIODS / self.config.period_s
             )
-        return self.smoother.step(state.setpoint, ref.position, ref.velocity, ref.acceleration)
+        return self.smoother.step(setpoint, ref.position, ref.velocity, ref.acceleration)
 
     @staticmethod
     def _blind(inputs: CycleInputs) -> CycleInputs:
