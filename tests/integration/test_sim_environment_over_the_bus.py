@@ -60,7 +60,7 @@ def test_the_simulator_places_the_disk_for_the_controllers_contour_task():
     summary = json.loads(r.stdout)
     # Touching the disk is the claim; what happens after it on a busy shared machine (a stalled
     # sensor sample can fault a run: issue 30) is not this test's.
-    assert any("contact at" in e for e in summary["events"]), summary["events"]
+    assert any("contact at" in e for e in summary["events"]), (summary["fault_reason"], summary["events"])
     assert "no contact" not in summary["fault_reason"], summary["fault_reason"]
     # the simulator's own account when it stops: the true contact force of the one controller
     # session, the disk touched
