@@ -106,9 +106,9 @@ class NodeSetupPlan:
     # each drive's CiA 402 homing (None: that drive does not home), before the PDOs start
     homing: tuple[HomingPlan | None, ...] | None = None
     following_error_window_counts: int = 0  # 0x6065 (0: not written; the EDS must have it)
+    following_error_time_ms: int = 0  # 0x6066
     # 0x2010: periods a drive runs on past its last target without a new one (None: not written)
     extrapolation_periods: int | None = None
-    following_error_time_ms: int = 0  # 0x6066
     # announced to a simulated sensor (drivers/sim_environment.py): "free", "workpiece"; None: not announced
     sim_environment: str | None = None
     task_kind: str = ""  # named when the simulator refuses the environment

@@ -13,8 +13,8 @@ Behaviour, as a real CSP drive:
   (the last step between targets a period), whether no SYNC comes or SYNCs come without a new
   target, for up to ``extrapolation_periods`` interpolation periods (object 0x2010, written by
   the master at set-up; 1 at power-on), then holds, still. A new target starts a segment from
-  wherever the reference is. A drive whose
-  master is really silent still stops on its SYNC watchdog;
+  wherever the reference is. A drive whose master is really silent still stops on its SYNC
+  watchdog;
 - a second-order position loop (natural frequency ``bandwidth_hz``, damping ratio) with
   velocity feed-forward from the interpolator (a fraction ``velocity_feedforward``, 1.0 as
   CSP drives are usually tuned) and velocity and acceleration saturation, integrated in
@@ -158,9 +158,8 @@ class SimulatedDrive:
     sync_period_s: float = 0.0025  # measured between SYNCs; the interpolation period while 0x60C2 is 0
     interpolation_period_s: float = 0.0  # object 0x60C2 (value x 10^index s); 0: not configured
     target_received: bool = False  # an RPDO came since the last SYNC
-    target_step: float = (
-        0.0  # the commanded step a period [unit]: the last two targets' difference over their SYNCs
-    )
+    # the commanded step a period [unit]: the last two targets' difference over the time between their SYNCs
+    target_step: float = 0.0
     target_step_valid: bool = False  # the last target was latched enabled (interp_start_s is its SYNC)
     extrapolation_periods: int = field(init=False)  # object 0x2010 (params.extrapolation_periods at boot)
     last_sync_s: float | None = None

@@ -122,7 +122,7 @@ def _sdo_on(drive: SimulatedDrive, node_id: int) -> Callable[[int, int, int], No
         if not drive.write_object(index, subindex, value):
             raise NodeSetupError(
                 f"node {node_id}: writing 0x{index:04X}sub{subindex} = 0x{value:X} refused: "
-                f"Code 0x{ABORT_VALUE_RANGE:08X}"
+                f"Code 0x{ABORT_VALUE_RANGE:08X}{refusal_hint(index, ABORT_VALUE_RANGE)}"
             )
 
     return write
@@ -141,7 +141,6 @@ class LoopbackExchange:
         rotary = units.unit.value == "rad"
         for d in self.drives:  # what node set-up does over SDO on the real path: CSP, 0x60C2, 0x6065/0x6066
             d.interpolation_period_s = cfg.period_s
-            d.extrapolation_periods = cfg.drive_extrapolation_periods  # 0x2010
             d.following_error_window = (
                 cfg.actuators.following_error_window_rad if rotary else cfg.actuators.following_error_window_m
             )
@@ -161,8 +160,10 @@ class LoopbackExchange:
         has_extrapolation = (
             find_variable(load_device_description(eds, 1), EXTRAPOLATION_PERIODS, 0) is not None
         )
-        for n in self.drive_ids:  # set-up's check of 0x2010 (written above)
+        for n, d in zip(self.drive_ids, self.drives, strict=True):  # set-up's 0x2010, refused as over the bus
             check_extrapolation_object(n, cfg.drive_extrapolation_periods, has_extrapolation)
+            if has_extrapolation:
+                _sdo_on(d, n)(EXTRAPOLATION_PERIODS, 0, cfg.drive_extrapolation_periods)
         self.codecs = tuple(
             self.pdos.drive_codec(j)
             if n in read

@@ -357,6 +357,9 @@ def test_a_drive_without_0x2010_is_refused_unless_told_it_runs_on_one_period():
     with pytest.raises(NodeSetupError, match=r"node 1: its EDS has no extrapolation periods object 0x2010"):
         LoopbackExchange(load_config(overrides=told), lambda: 0.0)
     LoopbackExchange(load_config(overrides=VENDOR), lambda: 0.0)  # one period: what it is taken to do
+    # the in-process simulator refuses what the drive over the bus refuses, with the same hint
+    with pytest.raises(NodeSetupError, match=r"0x2010sub0 = 0xC refused.*lower actuators.extrapolation_s"):
+        LoopbackExchange(load_config(overrides={"actuators.extrapolation_s": 0.03}), lambda: 0.0)
 
 
 def test_a_drive_beyond_its_following_error_window_for_its_time_faults_with_emcy_8611():
