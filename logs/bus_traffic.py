@@ -11,7 +11,6 @@ fewer cycles, so the comparison is at the SYNC rate achieved: ``planned_at_sync_
 
 from __future__ import annotations
 
-import json
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -20,11 +19,10 @@ from typing import Any, Protocol
 
 import can
 
-from controller.config import Config, ConfigError, recorded_config_from_dict
 from drivers import cob_ids
 from drivers.bus_load import measured_bus_load
 from logs import messages as m
-from logs.reader import ReadReport, iter_decoded
+from logs.reader import ReadReport, iter_decoded, recorded_config
 
 
 class RecordedFrame(Protocol):
@@ -176,7 +174,7 @@ def recorded_traffic(path: str | Path, report: ReadReport | None = None) -> Reco
             last_in = t_ns
     if first_sync is None:  # the controller sent no SYNC: the broadcast manager did (drivers/kernel_sync.py)
         first_sync, last_sync = first_in, last_in
-    cfg = _recorded_config(report)
+    cfg = recorded_config(report)
     nominal = cfg.bus.bitrate_bit_s if cfg is not None else 1e6
     data_rate = cfg.bus.data_bitrate_bit_s if cfg is not None else nominal
     span = 0.0 if first_sync is None or last_sync is None else (last_sync - first_sync) * 1e-9
@@ -208,13 +206,3 @@ def recorded_traffic(path: str | Path, report: ReadReport | None = None) -> Reco
         planned_load_percent=planned,
         nominal_rate_hz=cfg.loop.rate_hz if cfg is not None else None,
     )
-
-
-def _recorded_config(report: ReadReport) -> Config | None:
-    meta = report.metadata.get(m.META_CONFIG)
-    if meta is None or "json" not in meta:
-        return None
-    try:
-        return recorded_config_from_dict(json.loads(meta["json"]))
-    except (ConfigError, ValueError):
-        return None

@@ -14,6 +14,7 @@ Only a file that is not MCAP at all (or cannot be opened) raises ``LogFileError`
 from __future__ import annotations
 
 import io
+import json
 import mmap
 import os
 import struct
@@ -41,10 +42,11 @@ from mcap.records import (
 )
 from mcap.stream_reader import breakup_chunk
 
+from controller.config import Config, ConfigError, recorded_config_from_dict
 from controller.errors import InputError
 from controller.messages import cheope_pb2 as pb
 from logs.can_frame_batch import unpack_frames
-from logs.messages import frame_from_legacy
+from logs.messages import META_CONFIG, frame_from_legacy
 
 MAGIC = b"\x89MCAP0\r\n"
 _HEAD = struct.Struct("<BQ")
@@ -558,3 +560,15 @@ def info_dict(r: ReadReport) -> dict[str, Any]:
         },
         "metadata": r.metadata,
     }
+
+
+def recorded_config(report: ReadReport) -> Config | None:
+    """The configuration a recording was made with (its ``cheope.config`` metadata, as this version
+    reads an earlier one's), once ``report`` has seen the metadata; None without a readable one."""
+    meta = report.metadata.get(META_CONFIG)
+    if meta is None or "json" not in meta:
+        return None
+    try:
+        return recorded_config_from_dict(json.loads(meta["json"]))
+    except (ConfigError, ValueError):
+        return None

@@ -16,16 +16,15 @@ from __future__ import annotations
 import argparse
 import bisect
 import itertools
-import json
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from controller.config import recorded_config_from_dict
 from controller.tasks.contour_tracking import loop_held_up
-from logs.messages import META_CONFIG, inputs_from_pb
-from logs.reader import ReadReport, iter_decoded
+from drivers.node_setup import DRIVE_DEFAULT_EXTRAPOLATION_PERIODS
+from logs.messages import inputs_from_pb
+from logs.reader import ReadReport, iter_decoded, recorded_config
 
 BIN_EDGES = (0, 1, 5, 10, 20, 40, 80, 160, 320, 640)  # cycles since the last hold-up
 
@@ -65,10 +64,10 @@ def read_cycles(path: str, report: ReadReport | None = None) -> list[TrackingCyc
 
 
 def recorded_extrapolation_periods(report: ReadReport) -> int:
-    """The drives' periods of extrapolation in the recording's configuration (one before 0x2010)."""
-    meta = report.metadata.get(META_CONFIG)
-    table = json.loads(meta["json"]) if meta is not None and "json" in meta else {}
-    return recorded_config_from_dict(table).drive_extrapolation_periods
+    """The drives' periods of extrapolation in the recording's configuration (one before 0x2010,
+    ``recorded_config_from_dict``, and without a readable configuration)."""
+    cfg = recorded_config(report)
+    return cfg.drive_extrapolation_periods if cfg is not None else DRIVE_DEFAULT_EXTRAPOLATION_PERIODS
 
 
 def drives_held(
