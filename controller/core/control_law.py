@@ -97,6 +97,15 @@ BACK_OFF_WORSE_N = 10.0
 BACK_OFF_GRACE_CYCLES = 16
 
 
+def hold_up_effect(skipped: int, extrapolation_periods: int) -> tuple[int, bool]:
+    """For ``skipped`` deadlines and drives that run on ``extrapolation_periods`` (E) without a new
+    target (``ControlLaw._after_hold_up`` derives it): the periods they ran on past the last
+    setpoint, ``min(skipped, E - 1)``, and whether they stood long enough for a restart from rest,
+    more than E + 1 skipped (``drives_held``)."""
+    ran_on = min(skipped, extrapolation_periods - 1) if skipped else 0
+    return ran_on, skipped > extrapolation_periods + 1
+
+
 # One handler per mode: (state, inputs, power states, measured positions, t, events) -> state.
 ModeHandler = Callable[
     [ControllerState, CycleInputs, tuple[PowerState, ...], tuple[float, ...], float, list[Event]],
@@ -237,9 +246,7 @@ class ControlLaw:
         stand of one or two periods cost the contour more than it saved). With E = 1, a drive's
         usual single period, they are where the last setpoint is and nothing moves.
         """
-        extrapolation = self.config.drive_extrapolation_periods
-        ran_on = min(skipped, extrapolation - 1) if skipped else 0
-        held = skipped > extrapolation + 1
+        ran_on, held = hold_up_effect(skipped, self.config.drive_extrapolation_periods)
         # RUNNING, the task steps through the periods they ran on, and the setpoint with it (_running)
         stepped_through = ran_on > 0 and state.mode == Mode.RUNNING
         if ran_on and state.mode != Mode.FAULT and not stepped_through:
@@ -543,7 +550,7 @@ class ControlLaw:
                 break
             # A blind period: the setpoint goes with it as it would have, near where the drives ran on
             # (from where it is: they were moving then, whatever they did after)
-            result = self._smoothed(state.setpoint, ref, restart=False)
+            result = self._smoothed(replace(state, drives_held=False) if state.drives_held else state, ref)
             if not result.ok:
                 return self._faulted(state, result.message, t, events)
             state = replace(state, setpoint=result.setpoint)
@@ -555,7 +562,7 @@ class ControlLaw:
         if not pose.ok:
             why = f"task reference leaves the safe workspace: {pose.reason}"
             return self._faulted(state, why, t, events)
-        result = self._smoothed(state.setpoint, ref, restart=state.drives_held)
+        result = self._smoothed(state, ref)
         if not result.ok:
             return self._faulted(state, result.message, t, events)
         state = replace(
@@ -570,15 +577,17 @@ class ControlLaw:
             return self._enter(state, Mode.STOPPING, t, events, why=f"task {self.task.name} finished")
         return state
 
-    def _smoothed(self, setpoint: Setpoint, ref: JointReference, restart: bool) -> SmoothingResult:
-        """The setpoint one period on towards the task's reference (Ruckig); a reactive reference's
-        from rest where ``setpoint`` is when ``restart`` (the drives stood: ``_smoothing_start``)."""
+    def _smoothed(self, state: ControllerState, ref: JointReference) -> SmoothingResult:
+        """The setpoint one period on towards the task's reference (Ruckig): a reactive reference's
+        from ``_smoothing_start``, a planned one's from the setpoint (its docstring says why)."""
         if ref.reactive:
-            start = Setpoint.at_rest(setpoint.position) if restart else setpoint
             return self.smoother.track_velocity(
-                start, ref.position, ref.velocity, REACTIVE_CORRECTION_PERIODS / self.config.period_s
+                self._smoothing_start(state),
+                ref.position,
+                ref.velocity,
+                REACTIVE_CORRECTION_PERIODS / self.config.period_s,
             )
-        return self.smoother.step(setpoint, ref.position, ref.velocity, ref.acceleration)
+        return self.smoother.step(state.setpoint, ref.position, ref.velocity, ref.acceleration)
 
     @staticmethod
     def _blind(inputs: CycleInputs) -> CycleInputs:

@@ -21,6 +21,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from controller.core.control_law import hold_up_effect
 from controller.tasks.contour_tracking import loop_held_up
 from drivers.node_setup import DRIVE_DEFAULT_EXTRAPOLATION_PERIODS
 from logs.messages import inputs_from_pb
@@ -87,7 +88,7 @@ def drives_held(
     for a, b in itertools.pairwise(cycles):
         skipped = round((b.t_s - a.t_s) / period_s) - 1
         interval_s = (b.t_s + b.wake_error_s) - (a.t_s + a.wake_error_s)
-        if b.tracking and b.lap in wanted and skipped > extrapolation_periods + 1:
+        if b.tracking and b.lap in wanted and hold_up_effect(skipped, extrapolation_periods)[1]:
             out.append(interval_s)
     return out
 
