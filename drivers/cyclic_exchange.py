@@ -348,8 +348,12 @@ class CyclicExchange:
         if self.frame_sink is not None:
             self.frame_sink(True, self.clock(), msg)
 
-    def send(self, outputs: CycleOutputs | None) -> None:
-        """RPDOs of ``outputs`` (none before the first step), then SYNC; every Nth cycle a heartbeat."""
+    def send(self, outputs: CycleOutputs | None, send_by_s: float = math.inf) -> bool:
+        """RPDOs of ``outputs`` (none before the first step), then SYNC; every Nth cycle a heartbeat.
+
+        False when the clock, read just before the RPDOs, is past ``send_by_s``: the process was held
+        up since the loop woke, and the SYNC goes without them, which were meant for an earlier one
+        (controller/shell/loop.py)."""
         ahead, self._sync_ahead = self._sync_ahead, None
         self._window_open = self._collecting = False
         if ahead is not None:  # the last collect ended at a later SYNC (kernel SYNC): its answers follow
@@ -367,7 +371,8 @@ class CyclicExchange:
                 self._abandon_window()
             self._open_window(slot)
         self.sent_s = self.clock()
-        if outputs is not None:
+        in_time = self.sent_s <= send_by_s
+        if outputs is not None and in_time:
             to_counts = self.scale.to_counts
             for msg, codec, cw, target in zip(
                 self._rpdos, self._codecs, outputs.controlwords, outputs.targets, strict=True
@@ -381,6 +386,7 @@ class CyclicExchange:
         if self.guarded:
             self._guard(self.sent_s)
         self.cycles += 1
+        return in_time
 
     def _guard(self, now: float) -> None:
         """The node guarding requests that are due."""

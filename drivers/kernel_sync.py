@@ -24,6 +24,7 @@ integral learns the mean latency, the proportional part removes the phase error)
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -134,7 +135,7 @@ class KernelSyncExchange:
         """The deadline of the cycle whose send comes next (the loop's ``CycleDeadlines``)."""
         self._deadline_s = deadline_s
 
-    def send(self, outputs: CycleOutputs | None) -> None:
+    def send(self, outputs: CycleOutputs | None, send_by_s: float = math.inf) -> bool:
         # the cycle's deadline, or (a caller that does not give it) now, within half a period after it
         deadline_s, self._deadline_s = (
             self._deadline_s if self._deadline_s is not None else self.clock(),
@@ -142,10 +143,10 @@ class KernelSyncExchange:
         )
         if self.task is not None:
             self.exchange.cycle_slot = self._cycle_slot(deadline_s)
-        self.exchange.send(outputs)
+        in_time = self.exchange.send(outputs, send_by_s)
         if self.task is None:
             self._start(deadline_s + self.lead_s)
-            return
+            return in_time
         stamps = self.exchange.kernel_sync_stamps
         if stamps:
             interval = self.interval_s
@@ -154,6 +155,7 @@ class KernelSyncExchange:
             stamps.clear()
             if interval != self.interval_s:
                 self._retime(interval)
+        return in_time
 
     def _start(self, at_s: float) -> None:
         # Once, at the start: spin to the first SYNC's time (a sleep could wake a tick late).

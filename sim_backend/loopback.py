@@ -269,7 +269,7 @@ class LoopbackExchange:
         stall = self.faults.active("stall", deadline_s)
         return stall.value if stall is not None else 0.0
 
-    def send(self, outputs: CycleOutputs | None) -> None:
+    def send(self, outputs: CycleOutputs | None, send_by_s: float = math.inf) -> bool:
         now = self.clock()
         self.plant.advance(now)
         self.faults.start(now)
@@ -284,7 +284,7 @@ class LoopbackExchange:
             self.bus.full = self.bus.full or self.bus_off.off(elapsed)
         self.bus.inbox.extend(self._delayed)  # last cycle's late TPDOs: read before this SYNC, as late
         self._delayed = []
-        self.exchange.send(outputs)
+        return self.exchange.send(outputs, send_by_s)
 
     def collect(self, deadline_s: float) -> BusFeedback:
         return self.exchange.collect(deadline_s)

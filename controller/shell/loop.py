@@ -23,6 +23,13 @@ overran goes on at the next deadline still ahead. The first cycle after skipped 
 its SYNC without RPDOs: the last step's targets were meant for a SYNC that is gone, and the
 drives run on without them as the next step expects (control_law ``_after_hold_up``).
 
+A hold-up can also strike after the wake-up's clock reading and before the frames go out: the
+loop cannot see it, and a SYNC sent then with the last step's targets pulled drives that had
+run on back to them (a force step of 10.5 N beside two CPU hogs). So the exchange decides, from
+its own clock reading just before the RPDOs go out: past ``send_by_s`` (the next deadline) it
+sends the SYNC without them and says so, and the loop runs the cycle as the latest deadline's,
+as after a late wake-up (``LoopStats.syncs_held_up``).
+
 Garbage collection. CPython's collector runs whenever the young generation has grown by its
 threshold (700 tracked objects), inside whatever allocation crosses it: in the middle of a
 step, where a full collection once took 31 ms (path task, simulated time). During ``run`` the
@@ -41,6 +48,7 @@ stalled by something beside the loop shows which part of it waited.
 from __future__ import annotations
 
 import gc
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -66,7 +74,10 @@ class Sleeper(Protocol):
 
 
 class Exchange(Protocol):
-    def send(self, outputs: CycleOutputs | None) -> None: ...
+    def send(self, outputs: CycleOutputs | None, send_by_s: float = math.inf) -> bool:
+        """RPDOs of ``outputs``, then SYNC. When its clock reads past ``send_by_s`` just before the
+        RPDOs would go out, the SYNC goes without them and it returns False (module text)."""
+        ...
 
     def collect(self, deadline_s: float) -> BusFeedback: ...
 
@@ -116,6 +127,7 @@ class LoopStats:
     period_error_hist_us: LogHistogram = field(init=False)  # |actual - nominal period| between wake-ups
     cycles: int = 0
     overruns: int = 0  # deadlines skipped because the loop fell behind
+    syncs_held_up: int = 0  # cycles held up between the wake-up and the SYNC past the next deadline
     gc_collections: int = 0  # garbage collections the loop ran between cycles (module text)
     gc_max_s: float = 0.0  # the longest of them
     # the cycle with the longest span from its wake-up to the end of its work, and its parts [s]
@@ -365,8 +377,17 @@ class CycleLoop:
             if deadlines is not None:
                 deadlines.cycle_deadline(deadline)
             # after skipped deadlines: a SYNC without the stale RPDOs (module doc)
-            self.exchange.send(None if skipped_before else outputs)
+            sent_in_time = self.exchange.send(None if skipped_before else outputs, deadline + period)
             sent = clock()
+            late_s = woke - deadline
+            if not sent_in_time:  # held up before the SYNC went: it went late, without the targets
+                skipped = max(1, int((sent - deadline) / period))
+                stats.overruns += skipped
+                stats.syncs_held_up += 1
+                k += skipped
+                deadline += skipped * period
+                skipped_before = True
+                late_s = sent - deadline  # the bus saw this cycle begin at its SYNC
             window_end = self._window_end(deadline, work_peak_s)
             feedback = self.exchange.collect(window_end)
             collected = clock()
@@ -385,13 +406,13 @@ class CycleLoop:
                 command,
                 value,
                 # late: woke late, or the first cycle after deadlines the loop skipped (it fell behind)
-                late=woke - deadline > self.late_tolerance_s or skipped_before,
+                late=late_s > self.late_tolerance_s or skipped_before,
                 plans_ready=self.plans_ready() if self.plans_ready is not None else 0,
             )
             t = k * period
             c0 = clock()
             state, outputs, events = self.law.step(state, inputs, t)
-            timing = CycleTiming(woke - deadline, clock() - c0)
+            timing = CycleTiming(late_s, clock() - c0)
             if outputs.sdo_controlwords:
                 self._write_controlwords_by_sdo(outputs)
             stats.record(timing.wake_error_s, timing.step_s, k)

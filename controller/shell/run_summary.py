@@ -110,6 +110,8 @@ def summarize(
         "longest_cycle_us": _longest_cycle_us(stats.longest_cycle),
         "late_cycles": stats.late_cycles(),
         "overruns": stats.overruns,
+        # of the cycles that skipped deadlines: held up between their wake-up and their SYNC
+        "syncs_held_up": stats.syncs_held_up,
         "missing_frames": {"drive": c.missing_drive_frames, "sensor": c.missing_sensor_frames},
         "longest_silence_cycles": {
             "drive": c.longest_drive_silence_cycles,

@@ -213,6 +213,17 @@ def test_one_cycle_out_is_rpdos_then_sync_then_the_heartbeat(bus, clock):
     assert bus.sent[4] == (0x764, b"\x05", False, False, False)  # NMT state 5, operational
 
 
+def test_a_send_held_up_past_its_send_by_time_goes_as_a_sync_without_the_rpdos(bus, clock):
+    """The loop's process held up after its wake-up: the targets were meant for an earlier SYNC and
+    would pull drives that ran on back to them, so the SYNC goes alone and the loop is told."""
+    ex = make_exchange(bus, clock)
+    outputs = CycleOutputs((0x0F,) * 3, (0.5, 0.5, 0.5))
+    assert ex.send(outputs, send_by_s=clock() - 1e-6) is False
+    assert bus.ids_sent() == [SYNC_ID, heartbeat_id(CONTROLLER)]
+    assert ex.send(outputs, send_by_s=clock()) is True  # on time: as before
+    assert bus.ids_sent()[2:] == [0x201, 0x202, 0x203, SYNC_ID]
+
+
 def test_before_the_first_step_only_sync_and_heartbeat_go_out(bus, clock):
     ex = make_exchange(bus, clock)
     one_cycle(ex, clock, None)

@@ -311,8 +311,8 @@ class LossyExchange:
     def __init__(self, inner: LoopbackExchange, lost: set[int]) -> None:
         self.inner, self.lost, self.k, self.last = inner, lost, 0, None
 
-    def send(self, outputs):
-        self.inner.send(outputs)
+    def send(self, outputs, send_by_s=float("inf")):
+        return self.inner.send(outputs, send_by_s)
 
     def collect(self, deadline_s):
         inputs = self.inner.collect(deadline_s)

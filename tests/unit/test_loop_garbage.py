@@ -39,9 +39,9 @@ class MarkingExchange:
     def __init__(self, inner: LoopbackExchange, phases: Phases) -> None:
         self.inner, self.phases = inner, phases
 
-    def send(self, outputs):
+    def send(self, outputs, send_by_s=float("inf")):
         self.phases.in_cycle = True
-        self.inner.send(outputs)
+        return self.inner.send(outputs, send_by_s)
 
     def collect(self, deadline_s):
         return self.inner.collect(deadline_s)

@@ -194,3 +194,56 @@ def test_a_hold_up_that_stopped_the_drives_restarts_the_tangential_speed_from_ze
     back = next(r for r in rows[i:] if r[3] == 0.0)
     assert back[0] - t_held <= climb_s + 0.02 and back[2] >= 0.95 * before
     assert all(r[1] == ContourPhase.TRACKING for r in rows[i:])
+
+
+class HeldUpInSend:
+    """The loopback devices with the loop's process held up once inside its send, after the
+    wake-up's clock reading and before the frames go out: what two CPU hogs did over the bus."""
+
+    def __init__(self, rig: SimulatedRig, at_s: float, held_s: float) -> None:
+        self.rig, self.at_s, self.held_s = rig, at_s, held_s
+
+    def send(self, outputs, send_by_s=float("inf")):
+        if self.held_s and self.rig.clock.now_s >= self.at_s:
+            self.rig.clock.now_s += self.held_s
+            self.held_s = 0.0
+        return self.rig.exchange.send(outputs, send_by_s)
+
+    def collect(self, deadline_s):
+        return self.rig.exchange.collect(deadline_s)
+
+
+class Outputs:
+    def __init__(self, start_s: float) -> None:
+        self.start_s, self.rows = start_s, []
+
+    def on_cycle(self, cycle, t, inputs, state, outputs, events, timing) -> None:
+        if t >= self.start_s:
+            self.rows.append((cycle, t, outputs.targets, inputs.late, timing.wake_error_s))
+
+
+def test_a_hold_up_between_the_wake_up_and_the_sync_costs_what_a_late_wake_up_costs():
+    """Held up 9.6 ms in its send (lap 3, at speed): the SYNC goes late without the last step's
+    targets, which would have pulled the drives that ran on back to them, and the cycle runs as the
+    latest deadline's, the same cycles and targets bit for bit as a wake-up 9.6 ms late."""
+    base = load_config(overrides={"task.kind": "contour"})
+    woke_late = SimulatedRig(
+        load_config(
+            overrides={"task.kind": "contour", "sim.faults": [f"stall={STALL_S}@42.6+{base.period_s}"]}
+        )
+    )
+    seen_late = Outputs(42.5)
+    _, late_stats = woke_late.run((seen_late,), 42.8)
+    ran_as = next(cycle for cycle, _, _, late, _ in seen_late.rows if late)
+    held_at_s = (ran_as - late_stats.overruns + 0.5) * base.period_s  # half a period before its deadline
+
+    rig = SimulatedRig(base)
+    seen_held = Outputs(42.5)
+    loop = rig.loop((seen_held,))
+    loop.exchange = HeldUpInSend(rig, held_at_s, STALL_S)
+    _, held_stats = loop.run(rig.law.initial_state(), 42.8)
+
+    assert held_stats.syncs_held_up == 1 and late_stats.syncs_held_up == 0
+    assert held_stats.overruns == late_stats.overruns == 3
+    assert any(late for *_, late, _ in seen_held.rows)
+    assert seen_held.rows == seen_late.rows

@@ -25,9 +25,9 @@ class RecordingExchange:
     def __init__(self, inner: LoopbackExchange, clock: SimulatedTime) -> None:
         self.inner, self.clock, self.ends_after_send_s = inner, clock, []
 
-    def send(self, outputs):
+    def send(self, outputs, send_by_s=float("inf")):
         self.sent_s = self.clock.now_s
-        self.inner.send(outputs)
+        return self.inner.send(outputs, send_by_s)
 
     def collect(self, deadline_s):
         self.ends_after_send_s.append(deadline_s - self.sent_s)
@@ -86,9 +86,9 @@ class DeadlineExchange(RecordingExchange):
     def cycle_deadline(self, deadline_s: float) -> None:
         self.deadlines.append(deadline_s)
 
-    def send(self, outputs):
+    def send(self, outputs, send_by_s=float("inf")):
         self.told_before_send.append(len(self.deadlines) == len(self.told_before_send) + 1)
-        super().send(outputs)
+        return super().send(outputs, send_by_s)
 
 
 def test_the_loop_tells_an_exchange_that_wants_it_each_cycle_s_deadline_before_its_send():

@@ -37,6 +37,7 @@ import argparse
 import gc
 import itertools
 import json
+import math
 import os
 import pickle
 import re
@@ -158,9 +159,9 @@ def reference_run(task: str, overrides: list[str], cycles: int) -> Script:
     exchange = devices.exchange
     exchange_send = exchange.send
 
-    def send(outputs: Any) -> None:  # the exchange's own send, after the devices' late frames went in
+    def send(outputs: Any, send_by_s: float = math.inf) -> bool:  # the exchange's own, after late frames
         script.before_send.append(list(inbox))
-        exchange_send(outputs)
+        return exchange_send(outputs, send_by_s)
 
     exchange.send = send  # type: ignore[method-assign]  # this object only: the reference run's tap
     outputs = _Outputs()
@@ -245,13 +246,14 @@ class _Exchange:
         self.inner, self.bus, self.script, self.parts = inner, bus, script, parts
         self.cycle = 0
 
-    def send(self, outputs: Any) -> None:
+    def send(self, outputs: Any, send_by_s: float = math.inf) -> bool:
         self.parts.set_part("send")
         if self.cycle < len(self.script.before_send):
             self.bus.inbox.extend(self.script.before_send[self.cycle])
         self.cycle += 1
-        self.inner.send(outputs)
+        in_time: bool = self.inner.send(outputs, send_by_s)
         self.parts.set_part("loop")
+        return in_time
 
     def collect(self, deadline_s: float) -> Any:
         self.parts.set_part("collect")
