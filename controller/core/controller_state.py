@@ -57,6 +57,9 @@ class ControllerState:
     # Periods the drives ran on past the last setpoint during a hold-up before this step, blind
     # (control_law ``_after_hold_up``): the task's time and the setpoint move on as far.
     drives_ran_on: int = 0
+    # Periods the drives will be past the end of their last target's segment when this step's
+    # target comes: 0 but after a hold-up (control_law ``hold_up_effect``).
+    drives_blind_periods: int = 0
     fault_reason: str = ""
     sensor_counter: int = -1  # last sensor counter seen, for staleness
     sensor_stale: int = 0  # cycles the counter has not advanced

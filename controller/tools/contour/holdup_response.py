@@ -85,10 +85,12 @@ def drives_held(
     period_s = min(steps)  # the loop's cycle times are its deadlines
     wanted = set(laps)
     out = []
+    blind = 0  # the law's drives_blind_periods: a hold-up right after one counts on from it
     for a, b in itertools.pairwise(cycles):
         skipped = round((b.t_s - a.t_s) / period_s) - 1
         interval_s = (b.t_s + b.wake_error_s) - (a.t_s + a.wake_error_s)
-        if b.tracking and b.lap in wanted and hold_up_effect(skipped, extrapolation_periods)[1]:
+        _, held, blind = hold_up_effect(skipped, extrapolation_periods, blind)
+        if b.tracking and b.lap in wanted and held:
             out.append(interval_s)
     return out
 
