@@ -369,10 +369,7 @@ class CycleLoop:
             self.sleeper.sleep_until(deadline)
             woke = clock()
             if woke - deadline > period:  # held up past the next deadline too: this cycle is the latest
-                skipped = int((woke - deadline) / period)
-                stats.overruns += skipped
-                k += skipped
-                deadline += skipped * period
+                k, deadline = self._latest_deadline(stats, k, deadline, woke)
                 skipped_before = True
             if deadlines is not None:
                 deadlines.cycle_deadline(deadline)
@@ -381,11 +378,8 @@ class CycleLoop:
             sent = clock()
             late_s = woke - deadline
             if not sent_in_time:  # held up before the SYNC went: it went late, without the targets
-                skipped = max(1, int((sent - deadline) / period))
-                stats.overruns += skipped
+                k, deadline = self._latest_deadline(stats, k, deadline, sent)
                 stats.syncs_held_up += 1
-                k += skipped
-                deadline += skipped * period
                 skipped_before = True
                 late_s = sent - deadline  # the bus saw this cycle begin at its SYNC
             window_end = self._window_end(deadline, work_peak_s)
@@ -447,6 +441,13 @@ class CycleLoop:
                 stats.overruns += skipped
                 k += skipped
         return state
+
+    def _latest_deadline(self, stats: LoopStats, k: int, deadline: float, now: float) -> tuple[int, float]:
+        """Cycle ``k`` (deadline ``deadline``) held up until ``now``, past its next deadline: the cycle
+        and deadline of the latest deadline passed; the ones before it are skipped (overruns)."""
+        skipped = max(1, int((now - deadline) / self.period_s))
+        stats.overruns += skipped
+        return k + skipped, deadline + skipped * self.period_s
 
     def _write_controlwords_by_sdo(self, outputs: CycleOutputs) -> None:
         """What the step asks for on top of the RPDOs (a quick stop to a drive that may not process

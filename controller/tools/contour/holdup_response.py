@@ -75,9 +75,9 @@ def drives_held(
     cycles: Sequence[TrackingCycle], laps: Iterable[int], extrapolation_periods: int = 1
 ) -> list[float]:
     """The SYNC intervals [s] before the tracking cycles of ``laps`` after which the drives had stood
-    long enough for the law to restart from rest (``drives_held``): more than
-    ``extrapolation_periods`` + 1 deadlines skipped (control_law ``_after_hold_up``: they ran on that
-    many periods past their last target, then held their reference). A SYNC goes out when the loop
+    long enough for the law to restart from rest (``drives_held``), by the law's own rule
+    (control_law ``hold_up_effect``: after one hold-up, more than ``extrapolation_periods`` + 1
+    deadlines skipped; a hold-up right after one counts on from it). A SYNC goes out when the loop
     wakes."""
     steps = [b.t_s - a.t_s for a, b in itertools.pairwise(cycles) if b.t_s > a.t_s]
     if not steps:
