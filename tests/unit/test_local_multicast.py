@@ -60,14 +60,40 @@ def test_a_bus_never_receives_its_own_frames_and_its_sending_socket_receives_not
 def test_a_datagram_from_a_source_not_of_this_host_is_dropped_and_counted(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """Behind the binding (which no such datagram passes on Linux), the source check."""
-    arrivals = [(b"x", ("2001:db8::66", 1, 0, 0), 1.0), (b"y", ("::1", 1, 0, 0), 2.0)]
-    monkeypatch.setattr(GeneralPurposeUdpMulticastBus, "recv", lambda self, timeout=None: arrivals.pop(0))
+    """Behind the binding (which no such datagram passes on Linux), the source check: on a datagram
+    read at once and on one waited for alike."""
+    waiting = [(b"x", ("2001:db8::66", 1, 0, 0), 1.0), None, (b"z", ("::1", 1, 0, 0), 3.0)]
+    waited = [(b"y", ("::1", 1, 0, 0), 2.0)]
+    monkeypatch.setattr(lm.LocalGroupSocket, "_recv_waiting", lambda self: waiting.pop(0))
+    monkeypatch.setattr(GeneralPurposeUdpMulticastBus, "recv", lambda self, timeout=None: waited.pop(0))
     with open_bus(parse_bus_spec("udp_multicast", udp_port=random_udp_port())) as bus:
         handler = bus._multicast
         assert handler.recv(0.0) is None  # the foreign one
         assert handler.foreign_datagrams == 1
-        assert handler.recv(0.0) == (b"y", ("::1", 1, 0, 0), 2.0)
+        assert handler.recv(1.0) == (b"y", ("::1", 1, 0, 0), 2.0)  # none waiting: waited for
+        assert handler.recv(0.0) == (b"z", ("::1", 1, 0, 0), 3.0)
+
+
+def test_datagrams_already_waiting_are_read_without_a_select_and_in_order(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A burst (a SYNC's answers) drains with one ``recvmsg`` a frame; only an empty socket is waited on."""
+    spec = parse_bus_spec("udp_multicast", udp_port=random_udp_port())
+    with open_bus(spec) as a, open_bus(spec) as b:
+        for cob in (0x181, 0x182, 0x183):
+            a.send(can.Message(arbitration_id=cob, data=b"\x01", is_extended_id=False))
+        first = b.recv(10.0)  # waits (select) until the burst is there
+        selects = []
+        monkeypatch.setattr(
+            "can.interfaces.udp_multicast.bus.select.select",
+            lambda *args: selects.append(args) or ([], [], []),
+        )
+        rest = [b.recv(0.0), b.recv(0.0)]
+        assert [m.arbitration_id for m in (first, *rest) if m is not None] == [0x181, 0x182, 0x183]
+        assert all(m is not None and m.timestamp > 0.0 for m in rest)  # the kernel's receive times
+        assert b.recv(0.0) is None
+        assert selects == []  # never asked: each read found its datagram, the last found none
+        assert b.recv(0.01) is None and selects  # an empty socket with a timeout: waited on
 
 
 def test_the_interface_is_the_loopback_when_it_carries_multicast_else_the_lowest_index_up(
