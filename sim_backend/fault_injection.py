@@ -44,6 +44,8 @@ class FaultSchedule:
         return -math.inf if self.t0_s is None else now_s - self.t0_s
 
     def active(self, kind: str, now_s: float, node: int = 0) -> Fault | None:
+        if not self.faults:  # the common case, asked some twenty times a SYNC
+            return None
         t = self.elapsed(now_s)
         for f in self.faults:
             if f.kind == kind and (node == 0 or f.node == node) and f.active(t):

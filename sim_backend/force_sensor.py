@@ -38,7 +38,7 @@ class SimulatedForceSensor:
     rng: np.random.Generator = field(init=False)
     _filtered_xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
     _torque: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    _sample: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    _sample: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the latest sample [N], bias and noise in
     _next_sample_s: float | None = None
     _alpha: float = 1.0
     _alpha_dt: float = -1.0
@@ -46,7 +46,8 @@ class SimulatedForceSensor:
 
     def __post_init__(self) -> None:
         self.rng = np.random.default_rng(self.params.seed)
-        self._sample = np.asarray(self.params.bias_n, dtype=float).copy()
+        bx, by, bz = self.params.bias_n
+        self._sample = (float(bx), float(by), float(bz))
 
     def observe(self, t_s: float, dt: float, fx_n: float, fy_n: float, fz_n: float) -> None:
         """Filter the true force over ``dt`` and take a sample when one is due (plain floats: every sub-step)."""
@@ -59,9 +60,10 @@ class SimulatedForceSensor:
         self._filtered_xyz = (f0, f1, f2)
         if self._next_sample_s is None or t_s >= self._next_sample_s:
             p = self.params
-            self._sample = (
-                np.array((f0, f1, f2)) + np.asarray(p.bias_n) + self.rng.normal(0.0, p.noise_std_n, 3)
-            )
+            b = p.bias_n
+            n = self.rng.normal(0.0, p.noise_std_n, 3).tolist()  # the same draws as ever: one call of 3
+            # plain floats, as numpy adds them element by element: the same sums, a third of the time
+            self._sample = (f0 + b[0] + n[0], f1 + b[1] + n[1], f2 + b[2] + n[2])
             self._next_sample_s = (self._next_sample_s or t_s) + 1.0 / p.sample_rate_hz
 
     def latch(self) -> dict[tuple[int, int], int]:
@@ -70,16 +72,17 @@ class SimulatedForceSensor:
         Objects 0x2000sub1..3 (force, FORCE_N_PER_COUNT), 0x2001sub1..3 (torque), 0x2002 (status),
         0x2003 (counter) of drivers/eds/force_sensor.eds; the TPDOs pack them as mapped.
         """
-        p = self.params
-        measured = self._sample + np.asarray(self.extra_force_n)
+        r = self.params.range_n
+        s, e = self._sample, self.extra_force_n
+        measured = [s[0] + e[0], s[1] + e[1], s[2] + e[2]]
         status = self.status_flags
-        if np.any(np.abs(measured) > p.range_n):
+        if abs(measured[0]) > r or abs(measured[1]) > r or abs(measured[2]) > r:
             status |= SENSOR_FORCE_SATURATED
-            measured = np.clip(measured, -p.range_n, p.range_n)
+            measured = [min(max(m, -r), r) for m in measured]
         if not self.freeze_counter:
             self.counter = (self.counter + 1) & 0xFF
         values = self.object_values
-        for k, (f, t) in enumerate(zip(measured.tolist(), self._torque.tolist(), strict=True), start=1):
+        for k, (f, t) in enumerate(zip(measured, self._torque.tolist(), strict=True), start=1):
             cf, sf = saturating_i16(f, FORCE_N_PER_COUNT)
             ct, st = saturating_i16(t, TORQUE_NM_PER_COUNT)
             status |= (SENSOR_FORCE_SATURATED if sf else 0) | (SENSOR_TORQUE_SATURATED if st else 0)

@@ -21,6 +21,7 @@ PDO valid again. Aborts:
 
 from __future__ import annotations
 
+import operator
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -240,7 +241,8 @@ def value_packer(
         return None
     packer: struct.Struct = pdo.layout.packer
     reads = tuple(getters.get((o.index, o.subindex), _zero) for o in pdo.layout.objects)
-    return lambda: packer.pack(*(read() for read in reads))
+    pack, call = packer.pack, operator.call
+    return lambda: pack(*map(call, reads))  # map in C: no generator frame per value (issue 37)
 
 
 def _zero() -> int:
