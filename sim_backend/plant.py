@@ -454,31 +454,6 @@ class RobotPlant:
         if not self.loaded and self.sensor is not None:
             self.sensor.observe(now_s, 1.0, 0.0, 0.0, 0.0)  # free space: nothing touches the tool
 
-    @property
-    def sync_interval_s(self) -> float:
-        """The SYNC interval to integrate ahead: the one the drives expect (0x1006 when the master
-        set it, else their interpolation period), or the last measured one when that was shorter.
-
-        Never past the next SYNC: a state integrated beyond it is from the future when it comes
-        (a master cycling faster than it configured left the drives 0.5 mm ahead of their
-        targets). A SYNC later than this costs only the rest of the integration when it comes.
-        """
-        drive = self.drives[0]
-        return min(drive.communication_cycle_period_s or drive.segment_period_s, drive.sync_period_s)
-
-    def integrate_next_interval(self, sync_s: float) -> None:
-        """Integrate the interval after the SYNC at ``sync_s`` now, with what that SYNC latched.
-
-        A real drive answers SYNC with the position it has at that instant; the simulator has to
-        compute it, and an interval of the loaded structure is the largest part of its SYNC
-        handling. Done after the answers instead of before them, the next SYNC finds its state
-        ready (``sync`` then only integrates what the SYNC came late by). The state is the same:
-        what moves the structure in the interval is what this SYNC latched, and a controlword acts
-        from the next SYNC on, as the in-process loopback integrates it (its ``send`` advances the
-        plant before the cycle's RPDOs).
-        """
-        self.advance(sync_s + self.sync_interval_s, check_sync_timeout=False)
-
     def tracker_frames(self, now_s: float) -> tuple[bytes, bytes] | None:
         """The pose tracker's two TPDOs at this SYNC if a sample is due (of the pose as the simulator has it)."""
         if self.tracker is None:

@@ -294,36 +294,6 @@ def test_drive_reports_the_acceleration_of_its_last_substep():
     assert abs(d.acceleration) < 1e-3
 
 
-def test_integrating_the_interval_after_a_sync_leaves_the_next_syncs_state_as_it_was():
-    """The simulator integrates the interval after it answers a SYNC (``integrate_next_interval``),
-    so that the next SYNC's answers wait for nothing. With SYNCs on time the drives' positions and
-    the contact force at every SYNC are those of integrating the interval when the SYNC comes."""
-    cfg = load_config(overrides={"task.kind": "contour"})
-    at_sync, ahead = RobotPlant(cfg), RobotPlant(cfg)
-    start = [d.position for d in at_sync.drives]
-    for plant in (at_sync, ahead):
-        for d in plant.drives:
-            d.mode_of_operation = 8
-            d.interpolation_period_s = PERIOD
-    seen: dict[str, list[tuple[float, ...]]] = {"at_sync": [], "ahead": []}
-    for k in range(400):
-        t = k * PERIOD
-        cw = (CW_SHUTDOWN, CW_SWITCH_ON)[k] if k < 2 else CW_ENABLE_OPERATION
-        speed_m_s = 0.02 if k >= 3 else 0.0  # each leg at its own speed, from rest
-        targets = [q + (j + 1) * speed_m_s * max(0, k - 3) * PERIOD for j, q in enumerate(start)]
-        for name, plant in (("at_sync", at_sync), ("ahead", ahead)):
-            for d, target in zip(plant.drives, targets, strict=True):
-                d.on_rpdo(cw, round(target * COUNTS))
-            plant.sync(t)
-            seen[name].append((*(d.position for d in plant.drives), *plant.force_n))
-            if plant is ahead:
-                ahead.integrate_next_interval(t)
-                assert ahead.time_s == pytest.approx(t + PERIOD)
-    assert ahead.drives[2].position - start[2] > 0.05  # the legs moved
-    assert all(d.power == PowerState.OPERATION_ENABLED for d in ahead.drives)
-    assert np.array(seen["ahead"]) == pytest.approx(np.array(seen["at_sync"]), abs=1e-12)
-
-
 # -- a late or missing setpoint (a CSP drive's interpolator, sim_backend/drive.py) ------------
 
 
