@@ -16,7 +16,8 @@ thread). The same thread ticks the drives' SYNC watchdog when no frame has come 
 ``WATCHDOG_PERIOD_S``.
 
 It does not integrate the interval after a SYNC ahead, before the next one comes, although its
-answers would then wait for nothing (0.17 ms sooner at p50, changelog): after a late SYNC the
+answers would then wait for nothing (0.17 ms sooner at p50 when that was measured, about 0.05 ms
+in the demos that ended it: docs/concepts/contour-tracking.md): after a late SYNC the
 loop's next one comes less than a period after it, and the drives had already run past it on the
 old segment. One SYNC 1.2 ms late put the carriages 57 um off their undisturbed path where a
 causal drive is 19 um off (tests/protocol/test_sim_answer_path.py), a kick through the contact
