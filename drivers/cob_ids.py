@@ -2,6 +2,9 @@
 
 NMT = 0x000
 SYNC = 0x080
+# RPDO1 (0x201) to RPDO4 (0x57F) of every node, and TPDO2 to TPDO4 between them: frames a CSP drive
+# acts on only at the SYNC after them, or never (another device's TPDO)
+RPDO1_TO_RPDO4 = range(0x200, 0x580)
 
 
 def emcy(node_id: int) -> int:

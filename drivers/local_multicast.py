@@ -30,6 +30,14 @@ node 2 from the network faulted a running robot). Here the one socket
   sending socket is bound to the group with a port of its own and joins nothing, and its own
   filter drops everything: nothing reaches it.
 
+A receiver may name frames that need no wake-up (``LocalGroupSocket.defer_wakeups``): the
+simulated drives' RPDOs, which act only at the SYNC that follows them. Those frames still reach
+its socket, in order, but only a second socket, the doorbell, is waited on, and its filter drops
+them: the sender's ``sendto`` then wakes no thread on another CPU for them. On this VM that wake-up
+is where the loop's sends stood still for milliseconds beside two CPU hogs (``perf``: the loop
+thread's time inside ``sock_def_readable``, waking the simulator; the docs' design decisions).
+The frame that ends the burst, the SYNC, wakes the receiver once, and it reads the RPDOs before it.
+
 The interface (the group's scope) must be the same in every process on the bus: the loopback
 interface when it carries multicast, else the multicast-capable interface that is up with the
 lowest index (``multicast_interface``), the one rule every process applies alike. The loopback
@@ -42,6 +50,7 @@ from __future__ import annotations
 import ctypes
 import ipaddress
 import logging
+import select
 import socket
 import struct
 import time
@@ -65,9 +74,17 @@ _LOG_FOREIGN_EVERY_S = 5.0
 SO_ATTACH_FILTER = 26  # asm-generic/socket.h
 # classic BPF (linux/filter.h): (code, jt, jf, k). On a UDP socket the filter runs on the datagram
 # from its UDP header on: the halfword at offset 0 is the source port.
-_BPF_LDH_ABS, _BPF_JEQ_K, _BPF_RET_K = 0x28, 0x15, 0x06
+_BPF_LDH_ABS, _BPF_LDB_ABS, _BPF_LD_LEN, _BPF_RET_K = 0x28, 0x30, 0x80, 0x06
+_BPF_JEQ_K, _BPF_JGE_K, _BPF_JGT_K = 0x15, 0x35, 0x25
 _BPF_KEEP = 0x40000  # bytes of the datagram kept: all of it
 _DROP_ALL = ((_BPF_RET_K, 0, 0, 0),)
+# python-can's packed frame (udp_multicast.utils.pack_message, msgpack): a map of 11 entries whose
+# first key is "timestamp" (a float64) and second "arbitration_id"; an identifier from 256 to 65535
+# is a uint16. Bytes from the UDP header on (8 bytes): (offset, value) of each type byte checked,
+# then the offset of the identifier (tests/unit/test_local_multicast.py packs frames to check).
+_UDP_HEADER = 8
+_PACKED_LAYOUT = ((0, 0x8B), (1, 0xA9), (11, 0xCB), (20, 0xAE), (35, 0xCD))  # map, str9, f64, str14, u16
+_PACKED_ID_OFFSET = 36
 
 
 class NoMulticastInterfaceError(can.CanInitializationError):
@@ -134,6 +151,37 @@ def drop_from_port(port: int) -> tuple[tuple[int, int, int, int], ...]:
     )
 
 
+def doorbell_filter(own_port: int, quiet_ids: range) -> tuple[tuple[int, int, int, int], ...]:
+    """A socket filter that keeps every datagram but those from ``own_port`` and the packed frames
+    whose identifier is in ``quiet_ids`` (from 256 on). A datagram not laid out as python-can packs
+    a frame is kept: a frame the filter cannot read wakes the receiver, as without it."""
+    if quiet_ids.step != 1 or not 256 <= quiet_ids.start < quiet_ids.stop <= 65536:
+        raise ValueError(f"quiet identifiers {quiet_ids}: one run of identifiers from 0x100 to 0xFFFF")
+    checks = [(_UDP_HEADER + offset, value) for offset, value in _PACKED_LAYOUT]
+    program: list[tuple[int, int, int, int]] = []
+    # jump offsets count instructions from the one after the jump; DROP and KEEP are the last two
+    n = 4 + 2 * len(checks) + 3
+    drop, keep = n, n + 1
+
+    def to(target: int) -> int:
+        return target - len(program) - 1
+
+    program.append((_BPF_LDH_ABS, 0, 0, 0))  # the source port
+    program.append((_BPF_JEQ_K, to(drop), 0, own_port))
+    # shorter than a packed frame's identifier: kept (a load past the end would drop it)
+    program.append((_BPF_LD_LEN, 0, 0, 0))
+    program.append((_BPF_JGE_K, 0, to(keep), _UDP_HEADER + _PACKED_ID_OFFSET + 2))
+    for offset, value in checks:
+        program.append((_BPF_LDB_ABS, 0, 0, offset))
+        program.append((_BPF_JEQ_K, 0, to(keep), value))
+    program.append((_BPF_LDH_ABS, 0, 0, _UDP_HEADER + _PACKED_ID_OFFSET))
+    program.append((_BPF_JGE_K, 0, to(keep), quiet_ids.start))
+    program.append((_BPF_JGT_K, to(keep), 0, quiet_ids.stop - 1))
+    program.append((_BPF_RET_K, 0, 0, 0))
+    program.append((_BPF_RET_K, 0, 0, _BPF_KEEP))
+    return tuple(program)
+
+
 class LocalGroupSocket(GeneralPurposeUdpMulticastBus):
     """python-can's send/receive handler, on a socket bound to the group on one interface."""
 
@@ -143,6 +191,7 @@ class LocalGroupSocket(GeneralPurposeUdpMulticastBus):
         self._addresses = host_addresses()
         self._addresses_read_s = time.monotonic()
         self._foreign_logged_s = -_LOG_FOREIGN_EVERY_S
+        self._doorbell: socket.socket | None = None  # defer_wakeups
         super().__init__(group, port, hop_limit=0)
         self._send_destination = (group, port, 0, self.interface_index)  # type: ignore[assignment]
         try:
@@ -210,10 +259,47 @@ class LocalGroupSocket(GeneralPurposeUdpMulticastBus):
             raise can.CanOperationError("failed to send via socket") from error
 
     def shutdown(self) -> None:
-        send = getattr(self, "_send_socket", None)
-        if send is not None:
-            send.close()
+        for name in ("_send_socket", "_doorbell"):
+            sock = getattr(self, name, None)
+            if sock is not None:
+                sock.close()
         super().shutdown()
+
+    def defer_wakeups(self, quiet_ids: range) -> None:
+        """From now on a waiting ``recv`` is woken by every frame but those with an identifier in
+        ``quiet_ids``; they are read, in order, with the next frame that wakes it or when its
+        timeout ends (module text)."""
+        bell = self._create_socket(socket.AF_INET6)
+        try:
+            attach_socket_filter(bell, doorbell_filter(self.send_port, quiet_ids))
+        except BaseException:
+            bell.close()
+            raise
+        bell.setblocking(False)
+        if self._doorbell is not None:
+            self._doorbell.close()
+        self._doorbell = bell
+
+    def _wait_for_doorbell(self, timeout: float | None) -> tuple[bytes, Any, float] | None:
+        """The next datagram, waiting on the doorbell up to ``timeout`` [s] (None: for ever)."""
+        bell = self._doorbell
+        assert bell is not None
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            remaining = None if deadline is None else max(0.0, deadline - time.monotonic())
+            try:
+                rung, _, _ = select.select([bell], [], [], remaining)
+            except OSError as exc:
+                raise can.CanOperationError(f"Failed to wait for IP/UDP socket: {exc}") from exc
+            if rung:
+                try:
+                    while bell.recv(self.max_buffer):  # the rings are copies: only the socket's order counts
+                        pass
+                except BlockingIOError:
+                    pass
+            result = self._recv_waiting()
+            if result is not None or not rung:  # a datagram, or the timeout ended
+                return result
 
     def _recv_waiting(self) -> tuple[bytes, Any, float] | None:
         """A datagram already waiting, read without python-can's ``select`` first; None if none.
@@ -242,7 +328,7 @@ class LocalGroupSocket(GeneralPurposeUdpMulticastBus):
         only an empty socket is waited on, by python-can's ``select``."""
         result = self._recv_waiting()
         if result is None and timeout != 0.0:
-            result = super().recv(timeout)
+            result = super().recv(timeout) if self._doorbell is None else self._wait_for_doorbell(timeout)
         if result is None or result[1][0] in self._addresses:
             return result
         now = time.monotonic()
@@ -278,6 +364,11 @@ class LocalUdpMulticastBus(UdpMulticastBus):
             self._is_shutdown = True  # nothing to shut down: no "not properly shut down" warning later
             raise
         self._can_protocol = CanProtocol.CAN_FD if fd else CanProtocol.CAN_20
+
+    def defer_wakeups(self, quiet_ids: range) -> None:
+        """``LocalGroupSocket.defer_wakeups``: frames with these identifiers wake no waiting ``recv``."""
+        sock: LocalGroupSocket = self._multicast  # type: ignore[assignment]
+        sock.defer_wakeups(quiet_ids)
 
     @property
     def foreign_datagrams(self) -> int:

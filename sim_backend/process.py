@@ -13,8 +13,10 @@ from controller.realtime import (
     freeze_garbage_collector,
     unfreeze_garbage_collector,
 )
+from drivers import cob_ids
 from drivers.bus import BusSpec, open_bus
 from drivers.bus_presence import check_node_ids_free
+from drivers.local_multicast import LocalUdpMulticastBus
 from sim_backend.server import Simulator
 from sim_backend.true_force_tap import TrueForceTap
 
@@ -57,6 +59,11 @@ def serve(
         check_node_ids_free(
             bus, spec.place, device_node_ids(cfg), sdo_node_ids(cfg), cfg.bus.presence_listen_s
         )
+        if isinstance(bus, LocalUdpMulticastBus):
+            # The drives act on their RPDOs at the SYNC after them: only the SYNC (and every frame
+            # outside the PDOs) wakes the cyclic thread, which then reads the RPDOs before it. The
+            # loop's sends of the RPDOs then wake no thread on another CPU (drivers/local_multicast.py).
+            bus.defer_wakeups(cob_ids.RPDO1_TO_RPDO4)
         tap = TrueForceTap(true_force_tap) if true_force_tap else None
         simulator = Simulator(cfg, bus, true_force_tap=tap)
         simulator.build_nodes()

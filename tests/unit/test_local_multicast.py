@@ -5,11 +5,15 @@ The network side (nothing from another machine arrives) is tests/integration/tes
 
 from __future__ import annotations
 
+import select
 import socket
+import struct
+import time
 
 import can
 import pytest
 from can.interfaces.udp_multicast.bus import GeneralPurposeUdpMulticastBus
+from can.interfaces.udp_multicast.utils import pack_message, unpack_message
 
 import drivers.local_multicast as lm
 from controller.shell.demo import random_udp_port
@@ -94,6 +98,77 @@ def test_datagrams_already_waiting_are_read_without_a_select_and_in_order(
         assert b.recv(0.0) is None
         assert selects == []  # never asked: each read found its datagram, the last found none
         assert b.recv(0.01) is None and selects  # an empty socket with a timeout: waited on
+
+
+def _rings(bus: can.BusABC) -> list[int]:
+    """The identifiers of the frames that rang ``bus``'s doorbell since it was last emptied."""
+    bell = bus._multicast._doorbell
+    out = []
+    while select.select([bell], [], [], 0.0)[0]:
+        out.append(unpack_message(bell.recv(4096)).arbitration_id)
+    return out
+
+
+@pytest.mark.parametrize("fd", [False, True])
+@pytest.mark.parametrize("cob", [0x100, 0x1FF, 0x200, 0x201, 0x57F, 0x580, 0x7FF, 0xFFFF])
+def test_the_doorbell_reads_the_identifier_where_python_can_packs_it(cob: int, fd: bool) -> None:
+    """The filter checks the type bytes of python-can's msgpack layout and reads the identifier at a
+    fixed offset: a python-can that packs otherwise fails here (and its frames would all ring)."""
+    packed = pack_message(
+        can.Message(timestamp=time.time(), arbitration_id=cob, data=bytes(8), is_extended_id=False, is_fd=fd)
+    )
+    for offset, value in lm._PACKED_LAYOUT:
+        assert packed[offset] == value
+    assert struct.unpack_from(">H", packed, lm._PACKED_ID_OFFSET)[0] == cob
+
+
+def test_deferred_frames_wake_no_receiver_and_come_in_order_before_the_frame_that_does() -> None:
+    """The simulator's RPDOs: the SYNC after them rings alone, and the receiver reads them first."""
+    spec = parse_bus_spec("udp_multicast", udp_port=random_udp_port())
+    with open_bus(spec) as a, open_bus(spec) as b:
+        b.defer_wakeups(range(0x200, 0x580))
+        for cob in (0x201, 0x302, 0x57F, 0x080):
+            a.send(can.Message(arbitration_id=cob, data=b"\x01", is_extended_id=False))
+        got = [b.recv(10.0) for _ in range(4)]
+        assert [m.arbitration_id for m in got if m is not None] == [0x201, 0x302, 0x57F, 0x080]
+        assert _rings(b) == [0x080]  # of the four, only the SYNC reached the doorbell
+        b.send(can.Message(arbitration_id=0x181, data=b"", is_extended_id=False))  # its own: no ring
+        a.send(can.Message(arbitration_id=0x580, data=b"", is_extended_id=False))  # outside the range
+        assert b.recv(10.0).arbitration_id == 0x580
+        assert _rings(b) == [0x580]
+
+
+def test_a_deferred_frame_alone_is_read_when_the_wait_ends() -> None:
+    spec = parse_bus_spec("udp_multicast", udp_port=random_udp_port())
+    with open_bus(spec) as a, open_bus(spec) as b:
+        b.defer_wakeups(range(0x200, 0x580))
+        a.send(can.Message(arbitration_id=0x203, data=b"\x02", is_extended_id=False))
+        got = None
+        while got is None:  # each wait of 0.05 s ends with what is waiting, rung or not
+            got = b.recv(0.05)
+        assert (got.arbitration_id, bytes(got.data)) == (0x203, b"\x02")
+        assert _rings(b) == []
+        assert b.recv(0.0) is None
+
+
+def test_a_datagram_the_doorbell_cannot_read_rings_it() -> None:
+    """Not laid out as a packed frame (another program, a fuzzer): kept, so it wakes the receiver,
+    which then drops it as before (python-can cannot unpack it)."""
+    spec = parse_bus_spec("udp_multicast", udp_port=random_udp_port())
+    with open_bus(spec) as a, open_bus(spec) as b:
+        b.defer_wakeups(range(0x200, 0x580))
+        _, index = lm.multicast_interface()
+        bell = b._multicast._doorbell
+        for datagram in (b"\x8b" + bytes(60), b"x"):
+            a._multicast._send_socket.sendto(datagram, (LOCAL_MULTICAST_GROUP, b._multicast.port, 0, index))
+            assert select.select([bell], [], [], 10.0)[0]
+            assert bell.recv(4096) == datagram
+
+
+def test_the_doorbell_takes_one_run_of_identifiers_a_uint16_holds() -> None:
+    for bad in (range(0x80, 0x200), range(0x200, 0x580, 2), range(0x300, 0x300), range(0x200, 0x10001)):
+        with pytest.raises(ValueError, match="quiet identifiers"):
+            lm.doorbell_filter(1234, bad)
 
 
 def test_the_interface_is_the_loopback_when_it_carries_multicast_else_the_lowest_index_up(
