@@ -7,7 +7,6 @@ import dataclasses
 import json
 import logging
 import math
-import signal
 import sys
 import threading
 from collections.abc import Callable, Iterator
@@ -223,11 +222,11 @@ def _spec(args: argparse.Namespace, cfg: Config, default_port: int | None = None
 
 
 def _stop_on_signals() -> threading.Event:
-    """SIGINT/SIGTERM set the returned event (tools without drives to stop: sim, replay)."""
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    return stop
+    """SIGINT/SIGTERM set the returned event (tools without drives to stop: sim, replay), from the
+    signal relay's thread (controller/shell/stop_signals.py: a handler takes no lock)."""
+    from controller.shell.stop_signals import stop_event_on_signals
+
+    return stop_event_on_signals()
 
 
 def _longest_cycle_line(summary: dict[str, Any]) -> str:

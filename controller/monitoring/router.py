@@ -12,11 +12,11 @@ off, as every session of the project (zenoh_session.py).
 
 from __future__ import annotations
 
-import signal
 import threading
 from collections.abc import Callable
 
 from controller.monitoring.zenoh_session import SessionSettings, open_session
+from controller.shell.stop_signals import stop_event_on_signals
 
 READY = "READY"
 
@@ -29,9 +29,7 @@ def run_router(
 ) -> int:
     """Run until SIGINT or SIGTERM (or ``stop``); prints ``READY <endpoints>`` once it listens."""
     if stop is None:
-        stop = threading.Event()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, lambda *_: stop.set())
+        stop = stop_event_on_signals()  # no lock in a handler (controller/shell/stop_signals.py)
     session, endpoints = open_session(SessionSettings(mode="router", listen=listen, config_file=config_file))
     try:
         say(f"{READY} {' '.join(endpoints)}")

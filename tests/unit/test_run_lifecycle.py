@@ -110,9 +110,9 @@ def test_a_max_duration_that_is_not_positive_is_refused(bad):
 
 def test_stop_signals_first_stops_then_quick_stops():
     s = StopSignals()
-    s.on_signal(signal.SIGTERM, None)
+    s.on_signal(signal.SIGTERM)
     assert s.stop.is_set() and not s.quick_stop.is_set()
-    s.on_signal(signal.SIGINT, None)
+    s.on_signal(signal.SIGINT)
     assert s.quick_stop.is_set()
 
 

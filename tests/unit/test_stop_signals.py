@@ -1,0 +1,50 @@
+"""Stop signals take no lock in their handler (controller/shell/stop_signals.py).
+
+A handler runs in the main thread wherever it was interrupted. Here the main thread holds the
+stop event's own lock (as inside ``Event.set`` or ``Event.wait``) when the signals come: a handler
+that set the event itself would wait for that lock for ever. Each case runs in a process of its
+own, ended by the test if it hangs.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+_HELD_LOCK = {
+    "install_stop_signals": """
+        from controller.shell.stop_signals import install_stop_signals
+        s = install_stop_signals()
+        event = s.stop
+        with event._cond:  # the lock Event.set takes: held by the interrupted code
+            signal.raise_signal(signal.SIGTERM)
+            signal.raise_signal(signal.SIGTERM)  # a second one at once, as `timeout` sends
+            print("handlers returned", flush=True)
+        assert s.stop.wait(30) and s.quick_stop.wait(30)
+        print("stop, then quick stop")
+    """,
+    "stop_event_on_signals": """
+        from controller.shell.stop_signals import stop_event_on_signals
+        event = stop_event_on_signals()
+        with event._cond:
+            signal.raise_signal(signal.SIGINT)
+            print("handlers returned", flush=True)
+        assert event.wait(30)
+        print("stop")
+    """,
+}
+
+
+@pytest.mark.parametrize("case", sorted(_HELD_LOCK))
+def test_a_signal_while_the_main_thread_holds_the_events_lock_stops_without_a_deadlock(case: str) -> None:
+    script = "import signal\n" + textwrap.dedent(_HELD_LOCK[case])
+    try:
+        r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    except subprocess.TimeoutExpired as hung:
+        pytest.fail(f"{case}: the process hung in its signal handler ({hung.stdout!r})")
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines()[0] == "handlers returned"
+    assert r.stdout.splitlines()[-1] in ("stop, then quick stop", "stop")
