@@ -223,8 +223,8 @@ def _spec(args: argparse.Namespace, cfg: Config, default_port: int | None = None
 
 def _stop_on_signals() -> threading.Event:
     """SIGINT/SIGTERM set the returned event (tools without drives to stop: sim, replay), from the
-    signal relay's thread (controller/shell/stop_signals.py: a handler takes no lock)."""
-    from controller.shell.stop_signals import stop_event_on_signals
+    signal relay's thread (controller/signal_relay.py: a handler takes no lock)."""
+    from controller.signal_relay import stop_event_on_signals
 
     return stop_event_on_signals()
 

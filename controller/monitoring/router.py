@@ -16,7 +16,7 @@ import threading
 from collections.abc import Callable
 
 from controller.monitoring.zenoh_session import SessionSettings, open_session
-from controller.shell.stop_signals import stop_event_on_signals
+from controller.signal_relay import stop_event_on_signals
 
 READY = "READY"
 
@@ -29,7 +29,7 @@ def run_router(
 ) -> int:
     """Run until SIGINT or SIGTERM (or ``stop``); prints ``READY <endpoints>`` once it listens."""
     if stop is None:
-        stop = stop_event_on_signals()  # no lock in a handler (controller/shell/stop_signals.py)
+        stop = stop_event_on_signals()  # no lock in a handler (controller/signal_relay.py)
     session, endpoints = open_session(SessionSettings(mode="router", listen=listen, config_file=config_file))
     try:
         say(f"{READY} {' '.join(endpoints)}")

@@ -3,74 +3,17 @@
 A service manager (systemd: ``KillSignal=SIGTERM``, then SIGKILL after ``TimeoutStopSec``)
 and a user at the terminal (Ctrl-C) both send one signal and expect an orderly end: the loop
 brakes within the limits, disables the drives and exits 0. A second signal means "now": the
-drives get a quick stop through the controlword (CiA 402) and the process ends in FAULT.
-
-The signal handlers take no lock (``route_signals``). Python runs a handler in the main thread
-between two bytecodes, wherever that thread is: a handler that sets a ``threading.Event`` waits
-for the Event's lock, and if the interrupted code holds it, it waits for ever. Two SIGTERMs in a
-row did that (``timeout`` sends one to the process and one to its process group): the second
-handler ran inside the first one's ``Event.set``; the demo hung in its loop with its CPU shield
-kept and its ports held. So a handler only writes the signal's number to a pipe, and a thread of
-its own (``cheope-signals``) reads it and calls what was routed there, taking what locks it
-needs like any other thread.
+drives get a quick stop through the controlword (CiA 402) and the process ends in FAULT. The
+events are set from the signal relay's thread, not in a handler (controller/signal_relay.py).
 """
 
 from __future__ import annotations
 
-import contextlib
-import os
 import signal
 import threading
-from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from types import FrameType
 
-SignalCallback = Callable[[int], None]  # the signal's number
-
-
-class _SignalRelay:
-    """The pipe from the handlers to the relay thread (one a process)."""
-
-    def __init__(self) -> None:
-        self._pid = os.getpid()
-        self._read, self._write = os.pipe()
-        os.set_blocking(self._write, False)  # a full pipe loses a repeated signal, never blocks a handler
-        self.callbacks: dict[int, SignalCallback] = {}
-        threading.Thread(target=self._relay, name="cheope-signals", daemon=True).start()
-
-    def handler(self, signum: int, frame: FrameType | None) -> None:
-        if os.getpid() != self._pid:  # a forked child before it set its own handlers: not ours
-            return
-        with contextlib.suppress(BlockingIOError):  # 64 KiB of signals not read yet: one more adds nothing
-            os.write(self._write, bytes((signum,)))
-
-    def _relay(self) -> None:
-        while True:
-            for signum in os.read(self._read, 256):
-                callback = self.callbacks.get(signum)
-                if callback is not None:
-                    callback(signum)
-
-
-_relay: _SignalRelay | None = None
-
-
-def route_signals(signals: Iterable[int], callback: SignalCallback) -> None:
-    """From now on each of ``signals`` calls ``callback(signum)`` on the relay thread, not in a
-    handler (module text). Call from the main thread, as ``signal.signal``."""
-    global _relay
-    if _relay is None:
-        _relay = _SignalRelay()
-    for sig in signals:
-        _relay.callbacks[int(sig)] = callback
-        signal.signal(sig, _relay.handler)
-
-
-def stop_event_on_signals(signals: Iterable[int] = (signal.SIGINT, signal.SIGTERM)) -> threading.Event:
-    """An event that ``signals`` set (tools without drives to stop: sim, replay, router)."""
-    stop = threading.Event()
-    route_signals(signals, lambda _: stop.set())
-    return stop
+from controller.signal_relay import route_signals
 
 
 @dataclass

@@ -30,7 +30,7 @@ from controller.monitoring.publisher import monitoring_publisher
 from controller.realtime import RealtimeOptions, apply_realtime, granted_realtime
 from controller.shell.loop import CycleLoop
 from controller.shell.service import publisher_settings
-from controller.shell.stop_signals import stop_event_on_signals
+from controller.signal_relay import stop_event_on_signals
 from drivers.pacing import DeadlineSleeper
 
 READY = "READY"
@@ -110,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = ap.parse_args(argv)
     cfg = load_config(overrides=dict(parse_override(s) for s in args.set))
-    stop = stop_event_on_signals()  # no lock in a handler (controller/shell/stop_signals.py)
+    stop = stop_event_on_signals()  # no lock in a handler (controller/signal_relay.py)
     try:
         result = run_simulated(
             cfg,

@@ -1,4 +1,4 @@
-"""Stop signals take no lock in their handler (controller/shell/stop_signals.py).
+"""Stop signals take no lock in their handler (controller/signal_relay.py).
 
 A handler runs in the main thread wherever it was interrupted. Here the main thread holds the
 stop event's own lock (as inside ``Event.set`` or ``Event.wait``) when the signals come: a handler
@@ -27,7 +27,7 @@ _HELD_LOCK = {
         print("stop, then quick stop")
     """,
     "stop_event_on_signals": """
-        from controller.shell.stop_signals import stop_event_on_signals
+        from controller.signal_relay import stop_event_on_signals
         event = stop_event_on_signals()
         with event._cond:
             signal.raise_signal(signal.SIGINT)
