@@ -8,7 +8,6 @@ import json
 import logging
 import math
 import sys
-import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -25,6 +24,7 @@ from controller.monitoring.cli_commands import add_subcommands as add_monitoring
 from controller.output_paths import check_output_dir
 from controller.robot_registry import robot_entry, robot_kinds
 from controller.shell.status_line import StatusDisplay, live_status, status_wanted
+from controller.signal_relay import stop_event_on_signals
 from controller.tasks.registry import task_kinds
 from drivers.bus import BusSpec, parse_bus_spec
 
@@ -221,14 +221,6 @@ def _spec(args: argparse.Namespace, cfg: Config, default_port: int | None = None
     )
 
 
-def _stop_on_signals() -> threading.Event:
-    """SIGINT/SIGTERM set the returned event (tools without drives to stop: sim, replay), from the
-    signal relay's thread (controller/signal_relay.py: a handler takes no lock)."""
-    from controller.signal_relay import stop_event_on_signals
-
-    return stop_event_on_signals()
-
-
 def _longest_cycle_line(summary: dict[str, Any]) -> str:
     """Where the longest cycle's time went (wake-up to the end of its work), and the loop's collections."""
     c, g = summary.get("longest_cycle_us") or {}, summary["garbage_collections"]
@@ -412,7 +404,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             _config_path(args),
             _overrides(args),
             args.duration,
-            _stop_on_signals(),
+            stop_event_on_signals(),
             plot,
             _realtime(args),
             _status_observers(status, cfg),
@@ -467,7 +459,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     serve(
         cfg,
         _spec(args, cfg),
-        _stop_on_signals(),
+        stop_event_on_signals(),
         (lambda line: print(json.dumps({"line": line}), flush=True))
         if args.json
         else (lambda line: print(line, flush=True)),
@@ -766,7 +758,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_ros2_subcommand(sub)
     from logs.cli import add_commands as add_log_commands  # cheope logs info|recover, cheope replay
 
-    add_log_commands(sub, _stop_on_signals)
+    add_log_commands(sub, stop_event_on_signals)
     _verbose_on_every_command(ap)
     return ap
 
