@@ -4,7 +4,7 @@ PYTHON ?= python3
 VENV := .venv
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: setup demo test test-all test-vcan lint docs bench clean
+.PHONY: setup compile demo test test-all test-vcan lint docs bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -12,7 +12,17 @@ $(STAMP): pyproject.toml
 	$(VENV)/bin/pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
-setup: $(STAMP)
+# The step's modules compiled by mypyc (controller/compiled_law.py), again whenever a source of the
+# law's folders changed: a compilation older than its source is not used (the law then runs from
+# its sources, and a run says so), so make keeps the two together. make compile: unconditionally.
+LAW := controller/compiled_law.json
+$(LAW): $(STAMP) $(wildcard controller/compiled_law.py controller/core/*.py controller/tasks/*.py controller/robots/*.py controller/robots/cheope/*.py)
+	$(VENV)/bin/python -m controller.tools.compile_law
+
+setup: $(STAMP) $(LAW)
+
+compile: $(STAMP)
+	$(VENV)/bin/python -m controller.tools.compile_law
 
 demo: setup
 	$(VENV)/bin/cheope demo
@@ -64,4 +74,5 @@ bench: setup
 	$(VENV)/bin/cheope bench $(BENCH_ARGS)
 
 clean:
+	-[ -x $(VENV)/bin/python ] && $(VENV)/bin/python -m controller.tools.compile_law --clean
 	rm -rf $(VENV) $(DOCS_VENV) *.egg-info .pytest_cache .hypothesis site

@@ -6,9 +6,15 @@ The law's algebra is 3x3 and gains nothing from threads, and a loop at SCHED_FIF
 for a pool thread a busy machine preempts is held up by it (docs/concepts/realtime.md). One
 thread: no pool. Child processes (the simulator, the recording's writer) inherit it. A program
 that imported numpy before this package keeps its pool; setting the variable explicitly wins.
+
+Then ``controller.compiled_law`` decides, once per process and before any of them is imported,
+whether the step's modules run compiled by mypyc or from their sources.
 """
 
 import os
 
 for _pool in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
     os.environ.setdefault(_pool, "1")
+
+# The law's compiled modules, or their sources where the compilation is not theirs (module text).
+from controller import compiled_law  # noqa: E402, F401  (after the pools' variables, before numpy)

@@ -84,6 +84,15 @@ class Robot(Protocol):
 
 
 @runtime_checkable
+class ChecksActuators(Protocol):
+    """A robot that knows its actuators' strokes (all three robots in controller/robots). Declared
+    here, not in the safety monitor that asks for it: a runtime-checkable protocol cannot live in a
+    module compiled by mypyc (controller/compiled_law.py)."""
+
+    def check_actuators(self, q: tuple[float, ...], /) -> PoseStatus: ...
+
+
+@runtime_checkable
 class JointMotion(Protocol):
     """A robot that gives a reactive task its actuators' motion for a TCP motion, every cycle, in plain
     floats (numpy's per-call cost is too high there): the contour task's need (``TaskEntry.needs``)."""

@@ -12,7 +12,7 @@ cycles, silent drives, the actuators' strokes; beside them the drives' position 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Protocol, runtime_checkable
+from typing import TYPE_CHECKING
 
 from controller.core.cia402 import PowerState, controlword_towards
 from controller.core.controller_state import ControllerState, Mode
@@ -26,18 +26,11 @@ from controller.core.cycle_data import (
     Reaction,
     Severity,
 )
-from controller.core.ports import PoseStatus, Robot
+from controller.core.ports import ChecksActuators, Robot
 from controller.core.records import replace
 
 if TYPE_CHECKING:
     from controller.core.law_config import LawConfig
-
-
-@runtime_checkable
-class ChecksActuators(Protocol):
-    """A robot that knows its actuators' strokes (all three robots in controller/robots)."""
-
-    def check_actuators(self, q: tuple[float, ...]) -> PoseStatus: ...
 
 
 ANOMALY_TEXT = {

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from controller.compiled_law import LAW_BUILD
 from controller.core.control_law import PIPELINE_PERIODS
 from controller.core.controller_state import ControllerState
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severity
@@ -130,6 +131,8 @@ def summarize(
             if e.severity >= Severity.INFO
         ],
         "events_not_kept": recorder.events_seen - len(recorder.events),
+        # the step's modules compiled by mypyc, or from their sources and why (controller/compiled_law.py)
+        "law": LAW_BUILD.describe(),
     }
     if extra:
         out.update(extra)

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 import can
 
 from controller.assembly import assemble, planned_bus_load, position_plausibility
+from controller.compiled_law import LAW_BUILD
 from controller.config import Config, config_to_dict
 from controller.core.control_law import ControlLaw
 from controller.core.ports import CycleObserver, OffLoopWorker, PlansOffLoop
@@ -82,6 +83,8 @@ def prepare(cfg: Config, spec: BusSpec, enforce_load_limit: bool = True) -> Prep
     the PDO mappings built from them, the monitoring settings, the robot and the whole task
     against the workspace and singularity margins.
     """
+    if LAW_BUILD.stale:  # an edited source runs interpreted, at its cost per cycle: say so once
+        log.warning("the law runs interpreted: %s", LAW_BUILD.why)
     load = planned_bus_load(cfg)
     if enforce_load_limit:
         check_bus_load(load, cfg.bus.max_load_percent)

@@ -54,6 +54,8 @@ from typing import Any
 
 import can
 
+from controller.compiled_law import ENVIRONMENT, LAW_BUILD
+
 PARTS = ("loop", "send", "collect", "step", "observers")
 DEFAULT_TASK_WINDOWS = {"path": (800, 1000), "contour": (3200, 500)}  # (skip, cycles): the lap, the tracking
 # The budget of a cycle at the default configuration, over the default window: about 1.3 times the
@@ -348,6 +350,7 @@ def measured_run(
         "task": task,
         "skip": skip,
         "cycles": cycles,
+        "law": LAW_BUILD.describe(),
         "tracked_objects_left_per_cycle": round((parts.gc_young[1] - parts.gc_young[0]) / cycles, 3),
     }
     if counter is not None:
@@ -363,12 +366,30 @@ def measured_run(
 
 def count_work(task: str, skip: int, cycles: int, overrides: Sequence[str] = ()) -> dict[str, Any]:
     """Interpreter counts per cycle (module text, 3.): the garbage from a run without the counting
-    hooks (they allocate), the counts from a second run of the same script with them."""
+    hooks (they allocate), the counts from a second run of the same script with them.
+
+    Of the law's sources: where this process runs the law compiled (controller/compiled_law.py),
+    whose bytecodes the interpreter does not see, in a child process that runs it interpreted."""
+    if LAW_BUILD.compiled:
+        return _count_interpreted(task, skip, cycles, overrides)
     script = reference_run(task, list(overrides), skip + cycles)
     plain = measured_run(task, list(overrides), script, skip, cycles, count=False, marker=False)
     counted = measured_run(task, list(overrides), script, skip, cycles, count=True, marker=False)
     counted["tracked_objects_left_per_cycle"] = plain["tracked_objects_left_per_cycle"]
     return counted
+
+
+def _count_interpreted(task: str, skip: int, cycles: int, overrides: Sequence[str]) -> dict[str, Any]:
+    cmd = [sys.executable, "-m", "controller.tools.bench.cycle_work", "--task", task, "--skip", str(skip)]
+    cmd += ["--cycles", str(cycles), *(a for o in overrides for a in ("--set", o))]
+    env = {**os.environ, ENVIRONMENT: "interpreted"}
+    run = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
+    if run.returncode != 0:
+        raise RuntimeError(f"the interpreted count failed ({run.returncode}): {run.stderr[-2000:]}")
+    result: dict[str, Any] = json.loads(run.stdout)
+    for added in ("budget_per_cycle", "over_budget"):  # main's, for the default window
+        result.pop(added, None)
+    return result
 
 
 def over_budget(result: dict[str, Any]) -> list[str]:

@@ -129,11 +129,28 @@ def format_table(report: Json) -> str:
     )
     for b in report["step_breakdown"]:
         lines.append(
-            f"step at {b['rate_hz']:g} Hz (in process): p50/p99 {q(b['step_us'], ('p50', 'p99'))} us; "
-            f"Ruckig reported {q(b['ruckig_reported_calculation_us'], ('p50', 'p99'))} us, "
-            f"Ruckig call in Python {q(b['ruckig_call_in_python_us'], ('p50', 'p99'))} us, "
-            f"{b['ruckig_calls_per_cycle']} calls/cycle: Ruckig {b['ruckig_share_of_step_percent']} % of step"
+            f"step at {b['rate_hz']:g} Hz (in process), law {b.get('law', '?')}: "
+            f"p50/p99 {q(b['step_us'], ('p50', 'p99'))} us"
         )
+        interpreted = b.get("interpreted")
+        if interpreted:
+            ratio = (
+                interpreted["step_us"]["p50"] / b["step_us"]["p50"]
+                if b["step_us"]["p50"] > 0
+                else float("nan")
+            )
+            lines.append(
+                f"  the same step interpreted: p50/p99 {q(interpreted['step_us'], ('p50', 'p99'))} us "
+                f"(p50 x{ratio:.2f} the compiled one's)"
+            )
+        r = b if "ruckig_calls_per_cycle" in b else interpreted or {}
+        if "ruckig_calls_per_cycle" in r:
+            lines.append(
+                f"  Ruckig reported {q(r['ruckig_reported_calculation_us'], ('p50', 'p99'))} us, "
+                f"Ruckig call in Python {q(r['ruckig_call_in_python_us'], ('p50', 'p99'))} us, "
+                f"{r['ruckig_calls_per_cycle']} calls/cycle: Ruckig {r['ruckig_share_of_step_percent']} % of "
+                f"the {r.get('law', 'interpreted')} step"
+            )
     lines.append(
         f"classical CAN 1 Mbit/s at 1 kHz: computed load {report['classical_can_1khz_computed_load_percent']} %"
         " (over the limit: refused)"

@@ -11,13 +11,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from controller.compiled_law import LAW_BUILD
 from controller.experiments import experiment_for
 from controller.realtime import RealtimeOptions
 from controller.tools.bench.case import BenchCase, run_case
 from controller.tools.bench.pdo_paths import bus_frame_cost, compare_pdo_paths
 from controller.tools.bench.sleepers import compare_sleepers
 from controller.tools.bench.statistics import Json
-from controller.tools.bench.step_cost import step_breakdown
+from controller.tools.bench.step_cost import interpreted_step_breakdown, step_breakdown
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -94,6 +95,11 @@ def run_bench(
             rate,
             cycles=int((duration_s if has_experiment else min(10.0, duration_s)) * rate),
         )
+        if LAW_BUILD.compiled:  # the old path beside the new, in the same run
+            progress(f"{rate:g} Hz: the same step interpreted, in a child process ...")
+            bd["interpreted"] = interpreted_step_breakdown(
+                config_path, [*overrides, "task.path.laps=10.0"], rate, int(bd["cycles"])
+            )
         breakdowns.append(bd)
         progress(f"{case.name}: loop shell vs naive sleep ...")
         restore = apply_realtime(rt)  # the same priority and CPU as the service's loop thread

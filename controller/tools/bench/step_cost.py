@@ -1,15 +1,26 @@
-"""The step's cost in Python against Ruckig's own calculation time, with a profile of its hottest functions."""
+"""The step's cost in process against Ruckig's own calculation time, with a profile of its hottest
+functions; for the law as this process runs it (compiled by mypyc or not: controller/compiled_law.py)
+and, beside a compiled one, for its sources interpreted in a child process (``interpreted_step_breakdown``).
+
+    .venv/bin/python -m controller.tools.bench.step_cost [--rate 400] [--cycles 4000] [--set KEY=VALUE]
+"""
 
 from __future__ import annotations
 
+import argparse
 import cProfile
 import io
+import json
+import os
 import pstats
+import subprocess
+import sys
 import time
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from controller.compiled_law import ENVIRONMENT, LAW_BUILD
 from controller.tools.bench.statistics import percentiles_us
 
 if TYPE_CHECKING:
@@ -54,8 +65,13 @@ def step_breakdown(
             pass
         return result
 
-    # an instance attribute wrapping the bound method: this law object only
-    smoother._calculate = timed_calculate  # type: ignore[method-assign]  # deliberate, see above
+    # an instance attribute wrapping the bound method: this law object only. A compiled smoother has
+    # no instance dictionary: its Ruckig figures come from the interpreted run.
+    try:
+        smoother._calculate = timed_calculate  # type: ignore[method-assign]  # deliberate, see above
+        wrapped_ruckig = True
+    except AttributeError:
+        wrapped_ruckig = False
     sim = SimulatedTime()
     exchange = LoopbackExchange(cfg, sim.clock)
     state = law.initial_state()
@@ -87,22 +103,61 @@ def step_breakdown(
     step_us = step_s * 1e6
     reported = np.asarray(reported_us)
     wrapped = np.asarray(wrapper_s) * 1e6
+    ruckig: dict[str, object] = (
+        {
+            "ruckig_calls_per_cycle": round(len(wrapper_s) / cycles, 2),
+            "ruckig_reported_calculation_us": percentiles_us(reported),
+            "ruckig_call_in_python_us": percentiles_us(wrapped),
+            "ruckig_share_of_step_percent": round(100.0 * float(np.sum(reported)) / float(np.sum(step_us)), 1)
+            if step_us.sum() > 0
+            else 0.0,
+        }
+        if wrapped_ruckig
+        else {}
+    )
     return {
         "rate_hz": rate_hz,
         "cycles": cycles,
+        "law": LAW_BUILD.describe(),
         "final_mode": state.mode.name,
         "step_us": percentiles_us(step_us),
-        "ruckig_calls_per_cycle": round(len(wrapper_s) / cycles, 2),
-        "ruckig_reported_calculation_us": percentiles_us(reported),
-        "ruckig_call_in_python_us": percentiles_us(wrapped),
-        "ruckig_share_of_step_percent": round(100.0 * float(np.sum(reported)) / float(np.sum(step_us)), 1)
-        if step_us.sum() > 0
-        else 0.0,
+        **ruckig,
         "profile_top_tottime": _profile_lines(buf.getvalue()),
     }
+
+
+def interpreted_step_breakdown(
+    config_path: str | None, overrides: list[str], rate_hz: float, cycles: int
+) -> dict[str, object]:
+    """``step_breakdown`` of the law's sources, in a child process that runs them interpreted."""
+    cmd = [sys.executable, "-m", "controller.tools.bench.step_cost", "--rate", repr(rate_hz)]
+    cmd += ["--cycles", str(cycles), *(["--config", config_path] if config_path else [])]
+    cmd += [a for o in overrides for a in ("--set", o)]
+    run = subprocess.run(
+        cmd, capture_output=True, text=True, env={**os.environ, ENVIRONMENT: "interpreted"}, check=False
+    )
+    if run.returncode != 0:
+        raise RuntimeError(f"the interpreted step run failed ({run.returncode}): {run.stderr[-2000:]}")
+    result: dict[str, object] = json.loads(run.stdout)
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="step_cost", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--config", help="TOML configuration (default: the shipped one)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="configuration override")
+    ap.add_argument("--rate", type=float, default=400.0, help="loop rate [Hz]")
+    ap.add_argument("--cycles", type=int, default=4000, help="cycles of simulated time")
+    args = ap.parse_args(argv)
+    print(json.dumps(step_breakdown(args.config, args.set, args.rate, args.cycles)))
+    return 0
 
 
 def _profile_lines(text: str) -> list[str]:
     lines = text.splitlines()
     start = next((i for i, line in enumerate(lines) if line.lstrip().startswith("ncalls")), None)
     return [] if start is None else [line.rstrip() for line in lines[start:] if line.strip()]
+
+
+if __name__ == "__main__":
+    sys.exit(main())

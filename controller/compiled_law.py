@@ -1,0 +1,141 @@
+"""The law's modules compiled to C by mypyc, used only while they are their source's compilation.
+
+The step is plain typed Python, and that is what a reader reads, changes and tests. For the loop
+it runs compiled: mypyc (the compiler mypy itself ships with) turns the modules of
+``COMPILED_MODULES`` into C extensions beside their sources (``python -m
+controller.tools.compile_law``, run by ``make setup``), with the same arithmetic on the same
+doubles: a session recorded by the interpreted law replays bit for bit on the compiled one and
+back (docs/concepts/realtime.md).
+
+A C extension next to its ``.py`` is what Python imports; edit the source and, without this
+module, the loop would keep running the old compilation. So on importing ``controller`` this
+module compares each source with the SHA-256 recorded for it when it was compiled
+(``compiled_law.json``). Any difference, a missing extension or manifest, or
+``CHEOPE_LAW=interpreted`` in the environment, and every module of the list is imported from its
+source instead (all or none: the compiled modules call each other directly, so a mix would run
+old code). ``LAW_BUILD`` says which, and why; the run summaries and ``cheope bench`` print it.
+
+Standard library only: it runs in every process of the controller before anything else.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.machinery
+import importlib.util
+import json
+import os
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType
+
+# The step's modules: the law, its supervision and smoothing, the tasks and Cheope's kinematics.
+# Not the records (controller/core/records.py, controller_state.py, cycle_data.py): mypyc compiles
+# their dataclass_transform decorator and annotations into something the dataclasses cannot read.
+COMPILED_MODULES = (
+    "controller.core.cia402",
+    "controller.core.contact_guard",
+    "controller.core.control_law",
+    "controller.core.linalg3",
+    "controller.core.rotations",
+    "controller.core.safety_monitor",
+    "controller.core.setpoint_smoothing",
+    "controller.robots.cheope.model",
+    "controller.robots.performance",
+    "controller.tasks.circle_path",
+    "controller.tasks.contour_tracking",
+    "controller.tasks.path_task",
+)
+GROUP = "controller.compiled_law"  # mypyc's shared library: controller/compiled_law__mypyc.*.so
+MANIFEST = "compiled_law.json"  # beside this file: module -> SHA-256 of the source compiled
+ENVIRONMENT = "CHEOPE_LAW"  # "interpreted": the sources, whatever is compiled
+_ROOT = Path(__file__).resolve().parents[1]  # the directory that holds the package
+
+
+@dataclass(frozen=True)
+class LawBuild:
+    compiled: bool
+    why: str  # why the law runs interpreted ("" when compiled)
+    stale: bool = False  # there is a compilation, but not of these sources: the run warns
+
+    def describe(self) -> str:
+        return "compiled (mypyc)" if self.compiled else f"interpreted: {self.why}"
+
+
+def source_path(module: str, root: Path = _ROOT) -> Path:
+    return root.joinpath(*module.split(".")).with_suffix(".py")
+
+
+def extension_path(module: str, root: Path = _ROOT) -> Path | None:
+    """The module's C extension for this interpreter, None when there is none."""
+    base = root.joinpath(*module.split("."))
+    for suffix in importlib.machinery.EXTENSION_SUFFIXES:
+        candidate = base.with_name(base.name + suffix)
+        if candidate.exists():
+            return candidate
+    return None
+
+
+def source_digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def write_manifest(modules: Sequence[str] = COMPILED_MODULES, root: Path = _ROOT) -> Path:
+    """Record the sources just compiled (the compile tool's last step)."""
+    path = root / "controller" / MANIFEST
+    digests = {m: source_digest(source_path(m, root)) for m in modules}
+    path.write_text(json.dumps(digests, indent=1, sort_keys=True) + "\n")
+    return path
+
+
+def law_build(
+    modules: Sequence[str] = COMPILED_MODULES, root: Path = _ROOT, environ: dict[str, str] | None = None
+) -> LawBuild:
+    """Whether the compiled modules can be used, and why not."""
+    env = os.environ if environ is None else environ
+    if env.get(ENVIRONMENT, "") == "interpreted":
+        return LawBuild(False, f"{ENVIRONMENT}=interpreted")
+    missing = [m for m in modules if extension_path(m, root) is None]
+    if len(missing) == len(modules):
+        return LawBuild(False, "not compiled (python -m controller.tools.compile_law)")
+    if missing:
+        return LawBuild(False, f"{missing[0]} has no compiled extension for this Python (make compile)", True)
+    try:
+        recorded = json.loads((root / "controller" / MANIFEST).read_text())
+    except (OSError, ValueError):
+        return LawBuild(False, f"controller/{MANIFEST} missing or unreadable (make compile)", True)
+    for m in modules:
+        source = source_path(m, root)
+        if recorded.get(m) != source_digest(source):
+            return LawBuild(
+                False, f"{source.relative_to(root)} changed since it was compiled (make compile)", True
+            )
+    return LawBuild(True, "")
+
+
+class InterpretedLaw:
+    """Meta path finder: the modules of the list from their sources, ahead of their extensions."""
+
+    def __init__(self, modules: Sequence[str] = COMPILED_MODULES, root: Path = _ROOT) -> None:
+        self.sources = {m: source_path(m, root) for m in modules}
+
+    def find_spec(
+        self, fullname: str, path: Sequence[str] | None = None, target: ModuleType | None = None
+    ) -> importlib.machinery.ModuleSpec | None:
+        source = self.sources.get(fullname)
+        if source is None:
+            return None
+        return importlib.util.spec_from_file_location(fullname, source)
+
+
+def install() -> LawBuild:
+    """Decide once per process, before any module of the list is imported (controller/__init__.py)."""
+    build = law_build()
+    if not build.compiled and not any(isinstance(f, InterpretedLaw) for f in sys.meta_path):
+        sys.meta_path.insert(0, InterpretedLaw())
+    return build
+
+
+LAW_BUILD = install()
