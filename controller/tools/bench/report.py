@@ -149,7 +149,7 @@ def format_table(report: Json) -> str:
                 f"  Ruckig reported {q(r['ruckig_reported_calculation_us'], ('p50', 'p99'))} us, "
                 f"Ruckig call in Python {q(r['ruckig_call_in_python_us'], ('p50', 'p99'))} us, "
                 f"{r['ruckig_calls_per_cycle']} calls/cycle: Ruckig {r['ruckig_share_of_step_percent']} % of "
-                f"the {r.get('law', 'interpreted')} step"
+                f"the step (interpreted)"
             )
     lines.append(
         f"classical CAN 1 Mbit/s at 1 kHz: computed load {report['classical_can_1khz_computed_load_percent']} %"
