@@ -30,6 +30,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 # The step's modules: the law, its supervision and smoothing, the tasks and Cheope's kinematics.
 # Not the records (controller/core/records.py, controller_state.py, cycle_data.py): mypyc compiles
@@ -51,7 +52,7 @@ COMPILED_MODULES = (
 GROUP = "controller.compiled_law"  # mypyc's shared library: controller/compiled_law__mypyc.*.so
 MANIFEST = "compiled_law.json"  # beside this file: module -> SHA-256 of the source compiled
 ENVIRONMENT = "CHEOPE_LAW"  # "interpreted": the sources, whatever is compiled
-_ROOT = Path(__file__).resolve().parents[1]  # the directory that holds the package
+ROOT = Path(__file__).resolve().parents[1]  # the directory that holds the package
 
 
 @dataclass(frozen=True)
@@ -64,11 +65,11 @@ class LawBuild:
         return "compiled (mypyc)" if self.compiled else f"interpreted: {self.why}"
 
 
-def source_path(module: str, root: Path = _ROOT) -> Path:
+def source_path(module: str, root: Path = ROOT) -> Path:
     return root.joinpath(*module.split(".")).with_suffix(".py")
 
 
-def extension_path(module: str, root: Path = _ROOT) -> Path | None:
+def extension_path(module: str, root: Path = ROOT) -> Path | None:
     """The module's C extension for this interpreter, None when there is none."""
     base = root.joinpath(*module.split("."))
     for suffix in importlib.machinery.EXTENSION_SUFFIXES:
@@ -78,20 +79,24 @@ def extension_path(module: str, root: Path = _ROOT) -> Path | None:
     return None
 
 
+def manifest_path(root: Path = ROOT) -> Path:
+    return root / "controller" / MANIFEST
+
+
 def source_digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def write_manifest(modules: Sequence[str] = COMPILED_MODULES, root: Path = _ROOT) -> Path:
+def write_manifest(modules: Sequence[str] = COMPILED_MODULES, root: Path = ROOT) -> Path:
     """Record the sources just compiled (the compile tool's last step)."""
-    path = root / "controller" / MANIFEST
+    path = manifest_path(root)
     digests = {m: source_digest(source_path(m, root)) for m in modules}
     path.write_text(json.dumps(digests, indent=1, sort_keys=True) + "\n")
     return path
 
 
 def law_build(
-    modules: Sequence[str] = COMPILED_MODULES, root: Path = _ROOT, environ: dict[str, str] | None = None
+    modules: Sequence[str] = COMPILED_MODULES, root: Path = ROOT, environ: dict[str, str] | None = None
 ) -> LawBuild:
     """Whether the compiled modules can be used, and why not."""
     env = os.environ if environ is None else environ
@@ -103,7 +108,7 @@ def law_build(
     if missing:
         return LawBuild(False, f"{missing[0]} has no compiled extension for this Python (make compile)", True)
     try:
-        recorded = json.loads((root / "controller" / MANIFEST).read_text())
+        recorded = json.loads(manifest_path(root).read_text())
     except (OSError, ValueError):
         return LawBuild(False, f"controller/{MANIFEST} missing or unreadable (make compile)", True)
     for m in modules:
@@ -118,7 +123,7 @@ def law_build(
 class InterpretedLaw:
     """Meta path finder: the modules of the list from their sources, ahead of their extensions."""
 
-    def __init__(self, modules: Sequence[str] = COMPILED_MODULES, root: Path = _ROOT) -> None:
+    def __init__(self, modules: Sequence[str] = COMPILED_MODULES, root: Path = ROOT) -> None:
         self.sources = {m: source_path(m, root) for m in modules}
 
     def find_spec(
@@ -128,6 +133,25 @@ class InterpretedLaw:
         if source is None:
             return None
         return importlib.util.spec_from_file_location(fullname, source)
+
+
+def run_interpreted(module: str, args: Sequence[str]) -> Any:
+    """``python -m module args`` with the law from its sources (``CHEOPE_LAW=interpreted``): what
+    its standard output prints as JSON. The bench's figures of the sources beside the compiled law."""
+    import subprocess  # only the bench's tools get here, not every process at start-up
+
+    run = subprocess.run(
+        [sys.executable, "-m", module, *args],
+        capture_output=True,
+        text=True,
+        env={**os.environ, ENVIRONMENT: "interpreted"},
+        check=False,
+    )
+    if run.returncode != 0:
+        raise RuntimeError(
+            f"{module} with the law interpreted failed ({run.returncode}): {run.stderr[-2000:]}"
+        )
+    return json.loads(run.stdout)
 
 
 def install() -> LawBuild:

@@ -20,13 +20,12 @@ from pathlib import Path
 from controller.compiled_law import (
     COMPILED_MODULES,
     GROUP,
-    MANIFEST,
+    ROOT,
     extension_path,
+    manifest_path,
     source_path,
     write_manifest,
 )
-
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def clean(root: Path = ROOT) -> list[Path]:
@@ -36,7 +35,7 @@ def clean(root: Path = ROOT) -> list[Path]:
         while (ext := extension_path(module, root)) is not None:
             ext.unlink()
             removed.append(ext)
-    manifest = root / "controller" / MANIFEST
+    manifest = manifest_path(root)
     if manifest.exists():
         manifest.unlink()
         removed.append(manifest)

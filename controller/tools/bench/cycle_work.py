@@ -54,7 +54,7 @@ from typing import Any
 
 import can
 
-from controller.compiled_law import ENVIRONMENT, LAW_BUILD
+from controller.compiled_law import LAW_BUILD, run_interpreted
 
 PARTS = ("loop", "send", "collect", "step", "observers")
 DEFAULT_TASK_WINDOWS = {"path": (800, 1000), "contour": (3200, 500)}  # (skip, cycles): the lap, the tracking
@@ -380,13 +380,10 @@ def count_work(task: str, skip: int, cycles: int, overrides: Sequence[str] = ())
 
 
 def _count_interpreted(task: str, skip: int, cycles: int, overrides: Sequence[str]) -> dict[str, Any]:
-    cmd = [sys.executable, "-m", "controller.tools.bench.cycle_work", "--task", task, "--skip", str(skip)]
-    cmd += ["--cycles", str(cycles), *(a for o in overrides for a in ("--set", o))]
-    env = {**os.environ, ENVIRONMENT: "interpreted"}
-    run = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
-    if run.returncode != 0:
-        raise RuntimeError(f"the interpreted count failed ({run.returncode}): {run.stderr[-2000:]}")
-    result: dict[str, Any] = json.loads(run.stdout)
+    args = ["--task", task, "--skip", str(skip), "--cycles", str(cycles)]
+    result: dict[str, Any] = run_interpreted(
+        "controller.tools.bench.cycle_work", [*args, *(a for o in overrides for a in ("--set", o))]
+    )
     for added in ("budget_per_cycle", "over_budget"):  # main's, for the default window
         result.pop(added, None)
     return result

@@ -89,17 +89,12 @@ def run_bench(
         case = BenchCase(rate, fd=rate >= fd_from_hz)
         progress(f"{rate:g} Hz: step cost and Ruckig in process ...")
         # a task's experiment in process as over the bus (the contour's tracking laps are what it costs)
-        bd: Json = step_breakdown(
-            config_path,
-            [*overrides, "task.path.laps=10.0"],
-            rate,
-            cycles=int((duration_s if has_experiment else min(10.0, duration_s)) * rate),
-        )
+        step_overrides = [*overrides, "task.path.laps=10.0"]
+        step_cycles = int((duration_s if has_experiment else min(10.0, duration_s)) * rate)
+        bd: Json = step_breakdown(config_path, step_overrides, rate, cycles=step_cycles)
         if LAW_BUILD.compiled:  # the old path beside the new, in the same run
             progress(f"{rate:g} Hz: the same step interpreted, in a child process ...")
-            bd["interpreted"] = interpreted_step_breakdown(
-                config_path, [*overrides, "task.path.laps=10.0"], rate, int(bd["cycles"])
-            )
+            bd["interpreted"] = interpreted_step_breakdown(config_path, step_overrides, rate, step_cycles)
         breakdowns.append(bd)
         progress(f"{case.name}: loop shell vs naive sleep ...")
         restore = apply_realtime(rt)  # the same priority and CPU as the service's loop thread

@@ -11,16 +11,14 @@ import argparse
 import cProfile
 import io
 import json
-import os
 import pstats
-import subprocess
 import sys
 import time
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from controller.compiled_law import ENVIRONMENT, LAW_BUILD
+from controller.compiled_law import LAW_BUILD, run_interpreted
 from controller.tools.bench.statistics import percentiles_us
 
 if TYPE_CHECKING:
@@ -130,15 +128,16 @@ def interpreted_step_breakdown(
     config_path: str | None, overrides: list[str], rate_hz: float, cycles: int
 ) -> dict[str, object]:
     """``step_breakdown`` of the law's sources, in a child process that runs them interpreted."""
-    cmd = [sys.executable, "-m", "controller.tools.bench.step_cost", "--rate", repr(rate_hz)]
-    cmd += ["--cycles", str(cycles), *(["--config", config_path] if config_path else [])]
-    cmd += [a for o in overrides for a in ("--set", o)]
-    run = subprocess.run(
-        cmd, capture_output=True, text=True, env={**os.environ, ENVIRONMENT: "interpreted"}, check=False
+    args = [
+        "--rate",
+        repr(rate_hz),
+        "--cycles",
+        str(cycles),
+        *(["--config", config_path] if config_path else []),
+    ]
+    result: dict[str, object] = run_interpreted(
+        "controller.tools.bench.step_cost", [*args, *(a for o in overrides for a in ("--set", o))]
     )
-    if run.returncode != 0:
-        raise RuntimeError(f"the interpreted step run failed ({run.returncode}): {run.stderr[-2000:]}")
-    result: dict[str, object] = json.loads(run.stdout)
     return result
 
 
