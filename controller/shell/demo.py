@@ -20,6 +20,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from controller.child_process import child_environment, python_module_command
+from controller.compiled_law import LAW_BUILD
 from controller.config import Config
 from controller.core.ports import CycleObserver
 from controller.errors import DeviceError
@@ -200,6 +201,7 @@ def run_simulated_time(
         "fault_reason": final.fault_reason,
         "cycles": stats.cycles,
         "simulated_time": True,
+        "law": LAW_BUILD.describe(),  # the time it took, not what it computed (controller/compiled_law.py)
         "simulated_duration_s": round(stats.cycles * cfg.period_s, 6),
         "tracking_error_m": {"rms": te.rms, "max": te.maximum, "samples": te.count},
         "final_tcp_m": [round(float(x), 6) for x in rig.exchange.plant.tcp_m],

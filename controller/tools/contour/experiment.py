@@ -23,6 +23,7 @@ from typing import cast
 import msgspec
 
 from controller.assembly import build_robot
+from controller.compiled_law import LAW_BUILD
 from controller.config import Config, ConfigError
 from controller.core.ports import CompliantStructure, CycleObserver, missing_capability
 from controller.experiments import Experiment
@@ -169,6 +170,7 @@ def run_simulated_time(
         "fault_reason": final.fault_reason,
         "cycles": stats.cycles,
         "simulated_time": True,
+        "law": LAW_BUILD.describe(),  # the time it took, not what it computed (controller/compiled_law.py)
         "contour": contour_summary(
             obs,
             robot,
