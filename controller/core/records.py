@@ -22,6 +22,13 @@ record, bit for bit. A class whose ``__init__`` is not one positional parameter 
 field order (keyword-only fields, ``init=False`` fields, InitVars, a hand-written ``__init__``),
 is left to ``dataclasses.replace``. A name that is no field raises ``TypeError`` naming it, as
 ``dataclasses.replace`` does.
+
+A ``@record`` class without ``__post_init__`` skips ``__init__`` too: its ``__init__`` only assigns
+each field, so a copy made by assigning each field from the old record, then the changes, is the
+same record. That copy is a function written for the class once (as ``dataclasses`` writes
+``__init__``): one load and one store per field, no argument tuple. For the contour task's
+57-field state it takes 0.9 us where the call of ``__init__`` with the fields' values took 2.4 us
+(``timeit``, this VM); the law replaces about 15 records a cycle (issue 37).
 """
 
 from __future__ import annotations
@@ -45,6 +52,7 @@ def record(cls: type[T]) -> type[T]:
 class _Plan:
     values: Callable[[Any], tuple[Any, ...]]  # the init fields' values, in __init__'s order
     index: dict[str, int]  # field name -> position
+    copy: Callable[[Any], Any] | None = None  # a @record class's field-by-field copy (module text)
 
 
 _PLANS: dict[type, _Plan | None] = {}  # None: the class is left to dataclasses.replace
@@ -64,7 +72,22 @@ def _plan(cls: type) -> _Plan | None:
         return None
     if not all(f.init for f in fields):
         return None
-    return _Plan(values_getter(names), {n: i for i, n in enumerate(names)})
+    return _Plan(values_getter(names), {n: i for i, n in enumerate(names)}, _copier(cls, names))
+
+
+def _copier(cls: type, names: Sequence[str]) -> Callable[[Any], Any] | None:
+    """A function that copies a record of ``cls`` field by field, for a ``@record`` class whose
+    ``__init__`` only assigns the fields; None for any other class."""
+    params = getattr(cls, "__dataclass_params__", None)
+    if params is None or params.frozen or "__slots__" not in cls.__dict__ or hasattr(cls, "__post_init__"):
+        return None
+    if not all(name.isidentifier() for name in names):
+        return None
+    body = "".join(f"    new.{name} = old.{name}\n" for name in names)
+    namespace: dict[str, Any] = {"new_record": object.__new__, "cls": cls}
+    exec(f"def copy(old):\n    new = new_record(cls)\n{body}    return new\n", namespace)  # noqa: S102
+    copy: Callable[[Any], Any] = namespace["copy"]
+    return copy
 
 
 def values_getter(names: Sequence[str]) -> Callable[[Any], tuple[Any, ...]]:
@@ -87,6 +110,16 @@ def replace(record: T, /, **changes: Any) -> T:
         plan = _PLANS[cls] = _plan(cls)
     if plan is None:
         return dataclasses.replace(record, **changes)  # type: ignore[type-var]  # a dataclass: checked in _plan
+    copy = plan.copy
+    if copy is not None:
+        index = plan.index
+        for name in changes:
+            if name not in index:
+                raise TypeError(f"{cls.__name__} has no field {name!r} to replace")
+        new = copy(record)
+        for name, value in changes.items():
+            setattr(new, name, value)
+        return new  # type: ignore[no-any-return]
     values = plan.values(record)
     if changes:
         values_list = list(values)

@@ -158,3 +158,28 @@ def test_the_law_s_records_are_records():
         params = cls.__dataclass_params__  # type: ignore[attr-defined]
         assert params.unsafe_hash and not params.frozen
         assert "__slots__" in cls.__dict__
+
+
+@record
+class CheckedPoint:
+    x: float
+
+    def __post_init__(self) -> None:
+        if not self.x >= 0.0:
+            raise ValueError(f"x = {self.x}: must be >= 0")
+
+
+@pytest.mark.parametrize("changes", [{}, {"x": -0.0}, {"tags": ("b", "c")}, {"x": float("nan"), "tags": ()}])
+def test_a_record_copied_field_by_field_is_dataclasses_replace_s(changes: dict[str, object]):
+    old = Point(1.5, ("a",))
+    ours = replace(old, **changes)
+    assert _same(ours, dataclasses.replace(old, **changes))  # type: ignore[arg-type]
+    assert ours is not old and old == Point(1.5, ("a",))  # the old record unchanged
+    with pytest.raises(TypeError, match="'y'"):
+        replace(old, x=2.0, y=1.0)
+
+
+def test_a_record_with_post_init_is_still_checked():
+    assert replace(CheckedPoint(1.0), x=2.0) == CheckedPoint(2.0)
+    with pytest.raises(ValueError, match=r"x = -1\.0"):
+        replace(CheckedPoint(1.0), x=-1.0)
