@@ -85,7 +85,8 @@ def _copier(cls: type, names: Sequence[str]) -> Callable[[Any], Any] | None:
         return None
     body = "".join(f"    new.{name} = old.{name}\n" for name in names)
     namespace: dict[str, Any] = {"new_record": object.__new__, "cls": cls}
-    exec(f"def copy(old):\n    new = new_record(cls)\n{body}    return new\n", namespace)  # noqa: S102
+    # written and compiled once per class, as dataclasses writes __init__
+    exec(f"def copy(old):\n    new = new_record(cls)\n{body}    return new\n", namespace)
     copy: Callable[[Any], Any] = namespace["copy"]
     return copy
 

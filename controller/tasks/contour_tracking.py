@@ -678,7 +678,7 @@ class ContourTrackingTask:
         band, stop = band * s.force_setpoint_n, stop * s.force_setpoint_n
         return min(1.0, max(0.0, (stop - abs(force_error_n)) / (stop - band)))
 
-    def _integral_at_speed(self, s: ContourState, speed_m_s: float) -> tuple[ContourState, float]:
+    def _integral_at_speed(self, s: ContourState, speed_m_s: float) -> tuple[float, float]:
         """The integral scaled with the tangential speed, and the share of it that acts at this speed.
 
         What the integral holds while sliding is a velocity into the contour proportional to the
@@ -693,7 +693,7 @@ class ContourTrackingTask:
         """
         floor = self.p.min_tangential_speed_m_s
         ratio = max(speed_m_s, floor) / max(s.speed_m_s, floor)
-        return replace(s, integral=s.integral * ratio), min(1.0, speed_m_s / floor)
+        return s.integral * ratio, min(1.0, speed_m_s / floor)
 
     def _braked(self, speed: float, dt: float) -> float:
         return max(0.0, speed - self.p.stop_deceleration_m_s2 * dt)
@@ -704,8 +704,8 @@ class ContourTrackingTask:
         s, signal_events = self._filter_force(self._timing_window(state, ctx), ctx)
         if ctx.drives_held and s.phase == ContourPhase.TRACKING and s.speed_m_s > 0.0:
             restart = max(s.restart_speed_m_s, s.speed_m_s)
-            s, _ = self._integral_at_speed(s, 0.0)  # the tool stopped: so does what it made up for
-            s = replace(s, restart_speed_m_s=restart, speed_m_s=0.0)
+            integral, _ = self._integral_at_speed(s, 0.0)  # the tool stopped: so does what it made up for
+            s = replace(s, integral=integral, restart_speed_m_s=restart, speed_m_s=0.0)
         if ctx.sensor_breach and s.phase not in (ContourPhase.RETRACT, ContourPhase.FINISHED):
             return self._sensor_breach(s, ctx)
         if (
@@ -1021,21 +1021,22 @@ class ContourTrackingTask:
         return min(max(target, s.speed_m_s - down), s.speed_m_s + up)
 
     def _normal_speed(
-        self, s: ContourState, ctx: TaskContext, fn: float, pressing_n: float, share: float
+        self, s: ContourState, ctx: TaskContext, fn: float, pressing_n: float, at_speed: tuple[float, float]
     ) -> tuple[float, float, float]:
         """(v_n into the contact [m/s], the new integral, the force error): PI admittance, saturated;
-        ``share`` of the integral acts (``_integral_at_speed``)."""
+        ``at_speed`` is the integral at this speed and the share of it that acts (``_integral_at_speed``)."""
         p = self.p
+        held, share = at_speed
         err = s.force_setpoint_n - fn
         if not self._trusted(s):  # no new evidence: do not move into the contact, keep the integral
-            vn = min(0.0, p.force_kp_m_s_per_n * err + p.force_ki_m_s2_per_n * share * s.integral)
-            integral = s.integral
+            vn = min(0.0, p.force_kp_m_s_per_n * err + p.force_ki_m_s2_per_n * share * held)
+            integral = held
         else:
             # A cycle without a new force sample uses the last filtered force but adds nothing to the
             # integral: the same error integrated twice would be a force spike made by the bus. Nor
             # does a tool too slow for its integral to act fully: it would wind up unseen.
             learning = fresh_sample(ctx) and share == 1.0
-            integral = s.integral + err * ctx.period_s if learning else s.integral
+            integral = held + err * ctx.period_s if learning else held
             vn = p.force_kp_m_s_per_n * err + p.force_ki_m_s2_per_n * share * integral
             # Out of the force band the contact is not where the tool is going: motion into it is a
             # guarded approach, down to the approach speed (a bias or a pull reads as a weak contact,
@@ -1046,7 +1047,7 @@ class ContourTrackingTask:
             )
             if vn > inward or vn < -p.max_normal_speed_m_s:  # clamp and stop integrating (anti-windup)
                 vn = min(max(vn, -p.max_normal_speed_m_s), inward)
-                integral = s.integral
+                integral = held
         retreat = self._saturated_retreat(pressing_n)
         if retreat is not None:  # admittance saturation: only away from the contact, integral emptied
             vn, integral = min(vn, -retreat), 0.0
@@ -1081,8 +1082,7 @@ class ContourTrackingTask:
         tcp = ctx.tcp_measured_m or s.p_cmd
         bands = self._band_fractions(s)  # the speed's derating and the creep below: one verdict a cycle
         speed = self._tangential_speed(s, rate, s.force_setpoint_n - fn, dt, (tcp[0], tcp[1]), bands)
-        at_speed, share = self._integral_at_speed(s, speed)
-        vn, integral, err = self._normal_speed(at_speed, ctx, fn, pressing, share)
+        vn, integral, err = self._normal_speed(s, ctx, fn, pressing, self._integral_at_speed(s, speed))
         # A real contact answers motion into it (stiffness >= 1e4 N/m here: 1 N in 0.1 mm). Millimetres
         # of it without the force rising mean the force is not a contact's (a drifting bias, a pull on
         # the tool): the contact is lost, whatever the force reads.
@@ -1100,7 +1100,6 @@ class ContourTrackingTask:
             return self._lose_contact(
                 replace(s, normal=normal, normal_rate_rad_s=rate, normal_accel_rad_s2=accel), ctx, events, why
             )
-        s = replace(s, pushed_m=pushed, push_ref_n=ref_n)
         t = (-normal[1] * p.direction, normal[0] * p.direction)
         v = (speed * t[0] - vn * normal[0], speed * t[1] - vn * normal[1], 0.0)  # z held at height_m
         # The line a re-approach would take: the normal of a contact that has been good for a while,
@@ -1139,6 +1138,8 @@ class ContourTrackingTask:
             integral=integral,
             normal_force_n=fn,
             force_error_n=err,
+            pushed_m=pushed,
+            push_ref_n=ref_n,
             low_force_cycles=low,
             settled_cycles=settled,
             contact_normal=normal if good else s.contact_normal,
