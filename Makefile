@@ -12,12 +12,12 @@ $(STAMP): pyproject.toml
 	$(VENV)/bin/pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
-# The step's modules compiled by mypyc (controller/compiled_law.py), again whenever a source of the
-# law's folders changed: a compilation older than its source is not used (the law then runs from
+# The cycle's modules compiled by mypyc (controller/compiled_law.py), again whenever a source of the
+# their folders changed: a compilation older than its source is not used (the law then runs from
 # its sources, and a run says so), so make keeps the two together. make compile: unconditionally.
 LAW := controller/compiled_law.json
 # Without a C compiler the set-up goes on and the law runs from its sources (slower; runs say so).
-$(LAW): $(STAMP) $(wildcard controller/compiled_law.py controller/core/*.py controller/tasks/*.py controller/robots/*.py controller/robots/cheope/*.py)
+$(LAW): $(STAMP) $(wildcard controller/compiled_law.py controller/core/*.py controller/tasks/*.py controller/robots/*.py controller/robots/cheope/*.py drivers/*.py sim_backend/*.py)
 	$(VENV)/bin/python -m controller.tools.compile_law || \
 		echo "make: the law's modules were not compiled (above: why); the law runs from its sources"
 

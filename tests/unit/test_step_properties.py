@@ -23,6 +23,7 @@ import random
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
+import can
 import pytest
 from hypothesis import HealthCheck, Phase, event, given, note, reject, settings
 from hypothesis import strategies as st
@@ -51,7 +52,7 @@ from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother, Setpo
 from controller.errors import WorkspaceError
 from controller.shell.loop import SimulatedTime
 from sim_backend.drive import EMCY_FORCED_FAULT
-from sim_backend.loopback import LoopbackExchange
+from sim_backend.loopback import NMT_OPERATIONAL, LoopbackExchange
 
 # No explain phase: it re-runs a failing example hundreds of times (minutes with these closed-loop
 # runs) to annotate lines; the shrunk example and its note() say enough.
@@ -136,17 +137,26 @@ class ClosedLoop:
         self.records: list[CycleRecord] = []
         # every RPDO as the drives receive it: (cycle, drive index, controlword, target counts, position counts)
         self.rpdos: list[tuple[int, int, int, int, int]] = []
-        for j, d in enumerate(self.ex.drives):
-            d.on_rpdo = self._recording_rpdo(j, d, d.on_rpdo)
+        # the loopback's hand-over of each frame to the devices (the drives themselves run compiled:
+        # their methods cannot be wrapped)
+        self.ex.bus.on_send = self._recording_rpdos(self.ex.bus.on_send)
 
-    def _recording_rpdo(
-        self, j: int, drive, original: Callable[[int, int], None]
-    ) -> Callable[[int, int], None]:
-        def on_rpdo(controlword: int, target_counts: int) -> None:
-            self.rpdos.append((self.k, j, controlword, target_counts, drive.position_counts()))
-            original(controlword, target_counts)
+    def _recording_rpdos(self, original: Callable[[can.Message], None]) -> Callable[[can.Message], None]:
+        ex = self.ex
 
-        return on_rpdo
+        def on_frame(msg: can.Message) -> None:
+            j = ex._rpdo_drive.get(msg.arbitration_id)
+            if j is None:
+                original(msg)
+                return
+            drive = ex.drives[j]
+            position = drive.position_counts()
+            original(msg)
+            if ex.nmt_state[ex.drive_ids[j]] == NMT_OPERATIONAL:  # a PDO is processed only then
+                target = round(drive.received_target * drive.params.counts_per_unit)
+                self.rpdos.append((self.k, j, drive.last_controlword, target, position))
+
+        return on_frame
 
     def cycle(
         self,
@@ -442,6 +452,7 @@ def test_no_jump_at_enable_the_target_is_where_the_drive_is(data, rate, start, p
     # The drives' view: every RPDO that leaves or keeps a drive enabled, until the task starts, carries
     # the position the drive is at when it arrives; and no drive has moved.
     first_running = modes.index(Mode.RUNNING)
+    assert loop.rpdos, "no RPDO reached the drives"
     for c, j, cw, target, position in loop.rpdos:
         if c - 1 >= first_running:
             break
