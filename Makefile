@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml
 	$(VENV)/bin/pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
-# The cycle's modules compiled by mypyc (controller/compiled_law.py), again whenever a source of the
+# The cycle's modules compiled by mypyc (controller/compiled_law.py), again whenever a source in
 # their folders changed: a compilation older than its source is not used (the law then runs from
 # its sources, and a run says so), so make keeps the two together. make compile: unconditionally.
 LAW := controller/compiled_law.json
