@@ -19,7 +19,7 @@ LAW := controller/compiled_law.json
 # Without a C compiler the set-up goes on and the law runs from its sources (slower; runs say so).
 $(LAW): $(STAMP) $(wildcard controller/compiled_law.py controller/core/*.py controller/tasks/*.py controller/robots/*.py controller/robots/cheope/*.py drivers/*.py sim_backend/*.py)
 	$(VENV)/bin/python -m controller.tools.compile_law || \
-		echo "make: the law's modules were not compiled (above: why); the law runs from its sources"
+		echo "make: the cycle's modules were not compiled (above: why); they run from their sources"
 
 setup: $(STAMP) $(LAW)
 

@@ -113,12 +113,10 @@ def replace(record: T, /, **changes: Any) -> T:
         return dataclasses.replace(record, **changes)  # type: ignore[type-var]  # a dataclass: checked in _plan
     copy = plan.copy
     if copy is not None:
-        index = plan.index
-        for name in changes:
-            if name not in index:
-                raise TypeError(f"{cls.__name__} has no field {name!r} to replace")
-        new = copy(record)
+        new = copy(record)  # a fresh record: a refused name below leaves nothing half changed
         for name, value in changes.items():
+            if name not in plan.index:
+                raise TypeError(f"{cls.__name__} has no field {name!r} to replace")
             setattr(new, name, value)
         return new  # type: ignore[no-any-return]
     values = plan.values(record)

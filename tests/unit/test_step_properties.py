@@ -153,7 +153,8 @@ class ClosedLoop:
             position = drive.position_counts()
             original(msg)
             if ex.nmt_state[ex.drive_ids[j]] == NMT_OPERATIONAL:  # a PDO is processed only then
-                target = round(drive.received_target * drive.params.counts_per_unit)
+                # the counts sent: SimulatedDrive.from_counts undone (its encoder offset included)
+                target = round((drive.received_target + drive.encoder_offset) * drive.params.counts_per_unit)
                 self.rpdos.append((self.k, j, drive.last_controlword, target, position))
 
         return on_frame
