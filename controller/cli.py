@@ -584,7 +584,8 @@ def _plugin_command(name: str, command: Command) -> Callable[[argparse.Namespace
 
 def _add_plugin_commands(sub: Any) -> None:
     for name, command in plugin_commands().items():
-        p = sub.add_parser(name, help=command.help)
+        # a command's help is plain text ("95 % of"); argparse reads help as a %-format string
+        p = sub.add_parser(name, help=command.help.replace("%", "%%"))
         _common(p, bus=False, robots=command.robots or None)
         command.add_arguments(p)
         p.set_defaults(func=_plugin_command(name, command))

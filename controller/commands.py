@@ -22,7 +22,7 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class Command:
-    help: str  # one line, shown by ``cheope --help``
+    help: str  # one line of plain text (a % is a percent sign), shown by ``cheope --help``
     # (the command's parser) -> None: its own arguments, besides the configuration's
     add_arguments: Callable[[argparse.ArgumentParser], None]
     # (args, the configuration) -> exit status; raise ConfigError (or any InputError) to refuse

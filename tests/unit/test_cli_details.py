@@ -67,6 +67,25 @@ def test_plan_commands_offer_only_the_robot_they_plan_for(command: str):
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "invalid choice: 'cheope'" in r.stderr
 
 
+def _parsers(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()):
+    """The parser and every subcommand's below it, with the words that reach each."""
+    yield path, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _parsers(sub, (*path, name))
+
+
+def test_every_help_page_prints():
+    """``cheope --help`` once died on a plug-in's "95 % of" (argparse reads help as a format)."""
+    pages = dict(_parsers(build_parser()))
+    assert ("contour-scan",) in pages and ("logs", "info") in pages
+    for path, parser in pages.items():
+        text = parser.format_help()
+        assert text.startswith("usage:"), path
+    assert "95 % of those" in " ".join(build_parser().format_help().split())
+
+
 def test_bench_duration_help_states_the_default():
     text = _option(_subparser("bench"), "--duration").help or ""
     assert "issue" not in text and "default 300" in text
