@@ -59,6 +59,25 @@ from drivers.pdo_codec import (
 
 FrameSink = Callable[[bool, float, can.Message], None]  # (outgoing, monotonic time [s], frame)
 
+# A SYNC that goes more than this many periods after the one before goes without the targets
+# (``targets_sync_gap_s``).
+TARGETS_SYNC_GAP_PERIODS = 1.5
+
+
+def targets_sync_gap_s(period_s: float, drive_extrapolation_periods: int) -> float:
+    """How long after the last SYNC a SYNC may still carry targets (``CyclicExchange.send``).
+
+    A drive that takes the commanded step a period from the targets' difference over the time
+    between their SYNCs reads a SYNC 2.4 ms late (of 2.5) as two periods: half the speed. Were
+    deadlines skipped just after it, it ran on at that half speed for its extrapolation periods
+    and the next target pulled it on in one period: 22.3 N where 15 was asked (the contour in
+    simulated time, docs/realtime.md). Without the late SYNC's targets the drive runs on along
+    its last step, at the speed it had, and the law counts the period as one it ran blind
+    (``CycleInputs.targets_withheld``). A drive that does not run on (no extrapolation period)
+    would stand instead: it gets its targets however late their SYNC."""
+    return TARGETS_SYNC_GAP_PERIODS * period_s if drive_extrapolation_periods > 0 else math.inf
+
+
 (
     _DRIVE,
     _SENSOR_FORCE,
@@ -151,6 +170,7 @@ class CyclicExchange:
         max_position_jump: float = math.inf,
         answer_window_s: float = math.inf,
         guarded: Mapping[int, tuple[float, int]] | None = None,
+        targets_sync_gap_s: float = math.inf,
     ) -> None:
         self.bus = bus
         self.fd = fd
@@ -332,7 +352,10 @@ class CyclicExchange:
         self._bus_off = False
         self.cycles = 0
         self.last_frame_in_s = 0.0  # arrival of the last frame that completed a cycle's inputs
-        self.sent_s = 0.0  # when this cycle's RPDOs went out
+        self.sent_s = 0.0  # when this cycle's RPDOs went out (or would have)
+        self._last_send_s: float | None = None  # the last send's reading (its SYNC's time)
+        # the loop's SYNC only: one later than this after the last goes without the targets
+        self.targets_sync_gap_s = targets_sync_gap_s if send_sync else math.inf
 
     # -- out --------------------------------------------------------------------------------
 
@@ -351,9 +374,10 @@ class CyclicExchange:
     def send(self, outputs: CycleOutputs | None, send_by_s: float = math.inf) -> bool:
         """RPDOs of ``outputs`` (none before the first step), then SYNC; every Nth cycle a heartbeat.
 
-        False when the clock, read just before the RPDOs, is past ``send_by_s``: the process was held
-        up since the loop woke, and the SYNC goes without them, which were meant for an earlier one
-        (controller/shell/loop.py)."""
+        False when the SYNC goes without them: the clock, read just before the RPDOs, is past
+        ``send_by_s`` (the process was held up since the loop woke, and they were meant for an
+        earlier SYNC; controller/shell/loop.py), or more than ``targets_sync_gap_s`` after the last
+        SYNC's reading (``targets_sync_gap_s``)."""
         ahead, self._sync_ahead = self._sync_ahead, None
         self._window_open = self._collecting = False
         if ahead is not None:  # the last collect ended at a later SYNC (kernel SYNC): its answers follow
@@ -370,8 +394,11 @@ class CyclicExchange:
             if self._window_open:  # answers to the SYNC of a cycle the loop skipped: nobody's sample
                 self._abandon_window()
             self._open_window(slot)
-        self.sent_s = self.clock()
-        in_time = self.sent_s <= send_by_s
+        last_s, self.sent_s = self._last_send_s, self.clock()
+        self._last_send_s = self.sent_s
+        in_time = self.sent_s <= send_by_s and (
+            last_s is None or self.sent_s - last_s <= self.targets_sync_gap_s
+        )
         if outputs is not None and in_time:
             to_counts = self.scale.to_counts
             for msg, codec, cw, target in zip(

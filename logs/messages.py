@@ -206,6 +206,7 @@ def inputs_to_pb(inputs: CycleInputs, out: pb.CycleInputs) -> None:
     for r in inputs.nmt_reports:
         out.nmt_reports.add(node_id=r.node_id, state=r.state)
     out.plans_ready = inputs.plans_ready
+    out.targets_withheld = inputs.targets_withheld
     k = inputs.tracker
     if k is not None:
         out.tracker.position_m.extend(k.position_m)
@@ -247,6 +248,7 @@ def inputs_from_pb(msg: pb.CycleInputs) -> CycleInputs:
         nmt_reports=tuple(NmtReport(r.node_id, r.state) for r in msg.nmt_reports),
         tracker=tracker,
         plans_ready=msg.plans_ready,
+        targets_withheld=msg.targets_withheld,
     )
 
 

@@ -30,7 +30,7 @@ from controller.core.cycle_data import BusFeedback, CycleOutputs
 from controller.node_plan import homing_plans, node_options
 from controller.sim_config.quirk_specs import Quirk
 from drivers import cob_ids
-from drivers.cyclic_exchange import CyclicExchange, ExchangeCounters
+from drivers.cyclic_exchange import CyclicExchange, ExchangeCounters, targets_sync_gap_s
 from drivers.fault_reset import reset_fault
 from drivers.homing import home_drive
 from drivers.node_setup import (
@@ -201,6 +201,7 @@ class LoopbackExchange:
             tracker_id=self.tracker_id,
             max_position_step=step_limit,
             max_position_jump=jump_margin,
+            targets_sync_gap_s=targets_sync_gap_s(cfg.period_s, cfg.drive_extrapolation_periods),
         )
         self._rpdo_drive = {c.rpdo_cob_id: j for j, c in enumerate(self.codecs)}
         self._sdo_drive = {cob_ids.sdo_request(n): j for j, n in enumerate(self.drive_ids)}

@@ -97,15 +97,19 @@ BACK_OFF_WORSE_N = 10.0
 BACK_OFF_GRACE_CYCLES = 16
 
 
-def hold_up_effect(skipped: int, extrapolation_periods: int, blind_before: int = 0) -> tuple[int, bool, int]:
+def hold_up_effect(
+    skipped: int, extrapolation_periods: int, blind_before: int = 0, withheld: bool = False
+) -> tuple[int, bool, int]:
     """For ``skipped`` deadlines and drives that run on ``extrapolation_periods`` (E) without a new
     target (``ControlLaw._after_hold_up`` derives it), when the last step was already
     ``blind_before`` periods past the drives' last target (a hold-up right after a hold-up): the
     periods they ran on past the last setpoint, whether they stood long enough for a restart from
     rest (more than two periods), and how far past their last target they will be when this
     step's target comes (``drives_blind_periods``). After one hold-up, ``min(skipped, E - 1)`` and
-    more than E + 1 skipped."""
-    if not skipped:
+    more than E + 1 skipped. A SYNC that went without the targets though no deadline was skipped
+    (``withheld``, ``CycleInputs.targets_withheld``) leaves the drives one period blind: as a
+    hold-up of no deadline."""
+    if not skipped and not withheld:
         return 0, False, 0
     blind = blind_before + skipped + 1
     e = extrapolation_periods
@@ -186,8 +190,8 @@ class ControlLaw:
             tcp_measured_m=self._measured_tcp(state, inputs, measured),
             unreachable=state.unreachable | self._unreachable(inputs),
         )
-        if skipped or state.drives_blind_periods:
-            state = self._after_hold_up(state, skipped)
+        if skipped or state.drives_blind_periods or inputs.targets_withheld:
+            state = self._after_hold_up(state, skipped, inputs.targets_withheld)
         if inputs.emcy:
             state = self.monitor.note_error_codes(state, inputs)
         emcy_fault = self.monitor.emcy_fault(inputs)
@@ -237,7 +241,7 @@ class ControlLaw:
             return 0
         return max(0, round((t - state.step_t_s) / self.config.period_s) - 1)
 
-    def _after_hold_up(self, state: ControllerState, skipped: int) -> ControllerState:
+    def _after_hold_up(self, state: ControllerState, skipped: int, withheld: bool) -> ControllerState:
         """Where the drives went while the loop was held up for ``skipped`` deadlines.
 
         The loop shell does not send a cycle's RPDOs after skipped deadlines (they were meant for a
@@ -259,7 +263,7 @@ class ControlLaw:
         on in one period (a force step of 10.6 N over the bus).
         """
         ran_on, held, blind = hold_up_effect(
-            skipped, self.config.drive_extrapolation_periods, state.drives_blind_periods
+            skipped, self.config.drive_extrapolation_periods, state.drives_blind_periods, withheld
         )
         # RUNNING, the task steps through the periods they ran on, and the setpoint with it (_running)
         stepped_through = ran_on > 0 and state.mode == Mode.RUNNING

@@ -153,6 +153,9 @@ class CycleInputs:
     nmt_reports: tuple[NmtReport, ...] = ()  # configured nodes whose heartbeat was not OPERATIONAL
     tracker: TrackerFeedback | None = None  # the platform's measured pose, where a tracker is configured
     plans_ready: int = 0  # the last plan request the shell's off-loop planner has finished (plan_worker.py)
+    # this cycle's SYNC went without the last step's targets: the loop skipped deadlines before it,
+    # or it went too long after the SYNC before (drivers/cyclic_exchange.py targets_sync_gap_s)
+    targets_withheld: bool = False
 
 
 @record
@@ -184,6 +187,7 @@ def cycle_inputs(
     command_value: float = 0.0,
     late: bool = False,
     plans_ready: int = 0,
+    targets_withheld: bool = False,
 ) -> CycleInputs:
     """The step's inputs: the bus's feedback plus what the loop knows (stop, remote command, lateness)."""
     return CycleInputs(
@@ -201,4 +205,5 @@ def cycle_inputs(
         nmt_reports=feedback.nmt_reports,
         tracker=feedback.tracker,
         plans_ready=plans_ready,
+        targets_withheld=targets_withheld,
     )

@@ -28,7 +28,13 @@ loop cannot see it, and a SYNC sent then with the last step's targets pulled dri
 run on back to them (a force step of 10.5 N beside two CPU hogs). So the exchange decides, from
 its own clock reading just before the RPDOs go out: past ``send_by_s`` (the next deadline) it
 sends the SYNC without them and says so, and the loop runs the cycle as the latest deadline's,
-as after a late wake-up (``LoopStats.syncs_held_up``).
+as after a late wake-up (``LoopStats.syncs_held_up``). The exchange also sends a SYNC without the
+targets when it goes more than 1.5 periods after the SYNC before (a wake-up 2.4 ms late of 2.5,
+after one on time): drives that take the commanded speed from the time between their targets
+would read half of it and, should deadlines be skipped next, run on at that speed
+(drivers/cyclic_exchange.py ``targets_sync_gap_s``). That cycle keeps its deadline; the step is
+told its SYNC went without them (``CycleInputs.targets_withheld``, ``LoopStats.targets_withheld``)
+and counts the period as one the drives ran on blind.
 
 Garbage collection. CPython's collector runs whenever the young generation has grown by its
 threshold (700 tracked objects), inside whatever allocation crosses it: in the middle of a
@@ -128,6 +134,7 @@ class LoopStats:
     cycles: int = 0
     overruns: int = 0  # deadlines skipped because the loop fell behind
     syncs_held_up: int = 0  # cycles held up between the wake-up and the SYNC past the next deadline
+    targets_withheld: int = 0  # SYNCs in time for their deadline sent without the targets (module text)
     gc_collections: int = 0  # garbage collections the loop ran between cycles (module text)
     gc_max_s: float = 0.0  # the longest of them
     # the cycle with the longest span from its wake-up to the end of its work, and its parts [s]
@@ -377,11 +384,17 @@ class CycleLoop:
             sent_in_time = self.exchange.send(None if skipped_before else outputs, deadline + period)
             sent = clock()
             late_s = woke - deadline
-            if not sent_in_time:  # held up before the SYNC went: it went late, without the targets
+            withheld = skipped_before
+            if not sent_in_time and sent > deadline + period:
+                # held up before the SYNC went: it went late, without the targets
                 k, deadline = self._latest_deadline(stats, k, deadline, sent)
                 stats.syncs_held_up += 1
-                skipped_before = True
+                skipped_before = withheld = True
                 late_s = sent - deadline  # the bus saw this cycle begin at its SYNC
+            elif not sent_in_time and not skipped_before:
+                # in time for its deadline, but too long after the SYNC before: without the targets
+                stats.targets_withheld += 1
+                withheld = True
             window_end = self._window_end(deadline, work_peak_s)
             feedback = self.exchange.collect(window_end)
             collected = clock()
@@ -402,6 +415,7 @@ class CycleLoop:
                 # late: woke late, or the first cycle after deadlines the loop skipped (it fell behind)
                 late=late_s > self.late_tolerance_s or skipped_before,
                 plans_ready=self.plans_ready() if self.plans_ready is not None else 0,
+                targets_withheld=withheld,
             )
             t = k * period
             c0 = clock()

@@ -113,6 +113,8 @@ def summarize(
         "overruns": stats.overruns,
         # of the cycles that skipped deadlines: held up between their wake-up and their SYNC
         "syncs_held_up": stats.syncs_held_up,
+        # SYNCs in time for their deadline that went without the targets: too long after the last
+        "targets_withheld": stats.targets_withheld,
         "missing_frames": {"drive": c.missing_drive_frames, "sensor": c.missing_sensor_frames},
         "longest_silence_cycles": {
             "drive": c.longest_drive_silence_cycles,

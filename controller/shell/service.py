@@ -49,7 +49,7 @@ from controller.tasks.registry import RunReport
 from drivers.bus import BusSpec, open_bus
 from drivers.bus_load import BusLoad, check_bus_load
 from drivers.bus_presence import check_no_other_master
-from drivers.cyclic_exchange import CyclicExchange, FrameSink
+from drivers.cyclic_exchange import CyclicExchange, FrameSink, targets_sync_gap_s
 from drivers.frame_tap import FrameTap
 from drivers.kernel_sync import KernelSyncExchange, check_kernel_sync
 from drivers.node_setup import NodeSetupPlan, check_device_descriptions, configure_nodes
@@ -196,6 +196,7 @@ def run_controller(
             max_position_step=step_limit,
             max_position_jump=jump_margin,
             guarded=prepared.setup_plan.guarded(),
+            targets_sync_gap_s=targets_sync_gap_s(cfg.period_s, cfg.drive_extrapolation_periods),
         )
         kernel_sync = (
             KernelSyncExchange(exchange, cfg.period_s, cfg.bus.sync_lead_fraction * cfg.period_s)

@@ -14,12 +14,13 @@ import math
 import struct
 from collections import deque
 from collections.abc import Callable
+from typing import Any
 
 import can
 import pytest
 
 from controller.core.cycle_data import Anomaly, BusAnomaly, CycleOutputs, EmcyReport, NmtReport
-from drivers.cyclic_exchange import CAN_ERR_BUSOFF, OWED_FORGOTTEN_AFTER, CyclicExchange
+from drivers.cyclic_exchange import CAN_ERR_BUSOFF, OWED_FORGOTTEN_AFTER, CyclicExchange, targets_sync_gap_s
 from drivers.pdo_codec import PositionScale
 
 DRIVES = (1, 2, 3)
@@ -130,7 +131,11 @@ MAX_STEP_M, MAX_JUMP_M = 0.0025, 0.005  # 1 m/s at 400 Hz, safety.max_position_j
 
 
 def make_exchange(
-    bus: ScriptedBus, clock: FakeClock, sensor: int | None = SENSOR, sink: Callable | None = None
+    bus: ScriptedBus,
+    clock: FakeClock,
+    sensor: int | None = SENSOR,
+    sink: Callable | None = None,
+    **options: Any,
 ) -> CyclicExchange:
     return CyclicExchange(
         bus,
@@ -144,6 +149,7 @@ def make_exchange(
         heartbeat_timeout_s=HEARTBEAT_TIMEOUT_S,
         max_position_step=MAX_STEP_M,
         max_position_jump=MAX_JUMP_M,
+        **options,
     )
 
 
@@ -222,6 +228,44 @@ def test_a_send_held_up_past_its_send_by_time_goes_as_a_sync_without_the_rpdos(b
     assert bus.ids_sent() == [SYNC_ID, heartbeat_id(CONTROLLER)]
     assert ex.send(outputs, send_by_s=clock()) is True  # on time: as before
     assert bus.ids_sent()[2:] == [0x201, 0x202, 0x203, SYNC_ID]
+
+
+def test_a_sync_too_long_after_the_last_goes_without_the_rpdos_and_the_next_carries_them(bus, clock):
+    """A SYNC 2.4 ms late after one on time (2.5-ms period): a drive that takes the commanded
+    speed from the time between its targets would read half of it, so the SYNC goes alone and the
+    loop is told; the SYNC a period after it carries the targets again (a late phase that stays
+    costs one SYNC's targets, not every one's)."""
+    period = 0.0025
+    ex = make_exchange(bus, clock, targets_sync_gap_s=targets_sync_gap_s(period, 4))
+    outputs = CycleOutputs((0x0F,) * 3, (0.5, 0.5, 0.5))
+    assert ex.send(outputs) is True  # the first: no SYNC before it
+    clock.now_s += period + 0.0024
+    assert ex.send(outputs) is False
+    clock.now_s += period
+    assert ex.send(outputs) is True
+    clock.now_s += 1.5 * period  # at the gap: still with them
+    assert ex.send(outputs) is True
+    rpdos = (0x201, 0x202, 0x203)
+    assert [i for i in bus.ids_sent() if i != heartbeat_id(CONTROLLER)] == [
+        *rpdos,
+        SYNC_ID,
+        SYNC_ID,
+        *rpdos,
+        SYNC_ID,
+        *rpdos,
+        SYNC_ID,
+    ]
+
+
+def test_no_targets_are_withheld_from_drives_that_would_stand_without_them_or_under_kernel_sync(bus, clock):
+    """Drives without a period of extrapolation stand when a SYNC brings no target: they get it
+    however late; and with the kernel's SYNC the loop's send has no SYNC whose time would count."""
+    assert targets_sync_gap_s(0.0025, 0) == math.inf
+    kernel = make_exchange(bus, clock, targets_sync_gap_s=targets_sync_gap_s(0.0025, 4), send_sync=False)
+    outputs = CycleOutputs((0x0F,) * 3, (0.5, 0.5, 0.5))
+    kernel.send(outputs)
+    clock.now_s += 0.01
+    assert kernel.send(outputs) is True
 
 
 def test_before_the_first_step_only_sync_and_heartbeat_go_out(bus, clock):

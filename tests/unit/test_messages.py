@@ -30,8 +30,9 @@ def test_cycle_round_trips_doubles_exactly():
     assert not back.inputs.HasField("sensor")
 
 
-def test_the_tracker_and_plans_ready_round_trip_into_the_steps_inputs():
-    """Replay feeds the step what it got: the tracker's sample and the off-loop planner's progress."""
+def test_the_tracker_plans_ready_and_withheld_targets_round_trip_into_the_steps_inputs():
+    """Replay feeds the step what it got: the tracker's sample, the off-loop planner's progress and
+    whether the cycle's SYNC went without the targets."""
     from controller.core.cycle_data import CycleInputs, DriveFeedback, TrackerFeedback
     from logs.messages import inputs_from_pb, inputs_to_pb
 
@@ -39,6 +40,7 @@ def test_the_tracker_and_plans_ready_round_trip_into_the_steps_inputs():
         drives=(DriveFeedback(0x1637, 0.1 + 0.2, True),),
         tracker=TrackerFeedback((1 / 3, -0.0251, 0.2713), (0.075, 0.31, -0.532), 0, 42, True),
         plans_ready=2,
+        targets_withheld=True,
     )
     msg = pb.CycleInputs()
     inputs_to_pb(inputs, msg)
