@@ -7,6 +7,7 @@ import dataclasses
 import json
 import logging
 import math
+import os
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -15,6 +16,7 @@ from typing import TYPE_CHECKING, Any, NoReturn
 
 import can
 
+from controller.cli_arguments import job_count
 from controller.cli_output import progress_line, strict_json
 from controller.commands import Command, plugin_commands
 from controller.config import Config, ConfigError, load_config, parse_override
@@ -703,7 +705,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--keep", dest="output_dir", help=argparse.SUPPRESS)  # the spelling before --output-dir
     for flag in ("--contour-scan", "--contour-shapes", "--contour-stress"):  # now cheope contour-*
         p.add_argument(flag, action="store_true", help=argparse.SUPPRESS)
-    p.add_argument("--jobs", type=int, default=1, help=argparse.SUPPRESS)
+    p.add_argument("--jobs", type=job_count, default=1, help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_faults)
     p = sub.add_parser(
         "nodes",
@@ -781,6 +783,13 @@ def main(argv: list[str] | None = None) -> int:
     except RefusedError as err:  # WorkspaceError, PlanningError, ...: a task we refuse to run
         print(f"cheope {args.command}: refused: {err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C in a command that has no stop of its own (a scan, a bench)
+        print(f"cheope {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:  # the reader went (cheope plan --json | head): nothing more to say
+        # Python would flush stdout again at exit and fail on the same pipe (its docs' recipe)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except (CheopeError, can.CanError, OSError) as err:  # InputError, DeviceError (controller/errors.py)
         print(f"cheope {args.command}: error: {err}", file=sys.stderr)
         return 2

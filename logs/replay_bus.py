@@ -37,6 +37,9 @@ from drivers.pacing import DeadlineSleeper
 from logs.bus_traffic import as_message, recorded_frames
 from logs.reader import ReadReport
 
+# a pause between frames waits on the stop up to this long before the frame, then on the clock
+STOP_WAIT_MARGIN_S = 2e-3
+
 
 @dataclass(frozen=True)
 class BusReplayResult:
@@ -80,7 +83,12 @@ def replay_to_bus(
                 continue
             if first_ns is None:
                 first_ns, t_start = f.unix_time_ns, time.monotonic()
-            sleeper.sleep_until(t_start + (f.unix_time_ns - first_ns) * 1e-9 / speed)
+            due_s = t_start + (f.unix_time_ns - first_ns) * 1e-9 / speed
+            # a stop ends a long pause between two frames at once (--speed 1e-9 waited for ages)
+            wait_s = due_s - time.monotonic() - STOP_WAIT_MARGIN_S
+            if stop.wait(wait_s) if wait_s > 0 else stop.is_set():
+                break
+            sleeper.sleep_until(due_s)
             if stop.is_set():
                 break
             try:

@@ -15,6 +15,7 @@ import sys
 from dataclasses import asdict
 from typing import TYPE_CHECKING, TypeVar
 
+from controller.cli_arguments import positive_count, positive_seconds
 from controller.config import ConfigError
 from controller.monitoring.command_gate import ALWAYS_ACCEPTED, GATED_COMMANDS
 from controller.monitoring.zenoh_session import (
@@ -89,7 +90,10 @@ def _client_options(
     if robot_id != "":
         p.add_argument("--robot-id", default=robot_id, help=robot_help)
     p.add_argument(
-        "--key-prefix", default="cheope", help="the controller's monitoring.key_prefix (default cheope)"
+        "--key-prefix",
+        default="cheope",
+        type=_key_prefix,
+        help="the controller's monitoring.key_prefix (default cheope)",
     )
     p.add_argument(
         "--zenoh-connect",
@@ -102,7 +106,21 @@ def _client_options(
         "--zenoh-config", metavar="FILE", help="Zenoh JSON5 configuration file (TLS, access control)"
     )
     if timeout:
-        p.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for the answer")
+        p.add_argument(
+            "--timeout", type=positive_seconds, default=2.0, help="seconds to wait for the answer (default 2)"
+        )
+
+
+def _key_prefix(text: str) -> str:
+    """``--key-prefix``: chunks as ``monitoring.key_prefix`` takes them (an empty one or a wildcard
+    reached Zenoh as an invalid key expression)."""
+    try:
+        MonitorKeys.for_robot(text, "robot")
+    except ConfigError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: chunks of letters, digits, '-', '_', '.' separated by '/' (no wildcard)"
+        ) from None
+    return text
 
 
 def _endpoints(args: argparse.Namespace) -> tuple[str, ...]:
@@ -286,8 +304,8 @@ def add_subcommands(sub: argparse._SubParsersAction[ParserT]) -> None:
         robot_help="the robot to watch (default *: every controller reachable)",
     )
     p.add_argument("--json", action="store_true", help="one JSON object per line (state, event, liveliness)")
-    p.add_argument("--duration", type=float, help="exit after this many seconds")
-    p.add_argument("--count", type=int, help="exit after this many state samples")
+    p.add_argument("--duration", type=positive_seconds, help="exit after this many seconds")
+    p.add_argument("--count", type=positive_count, help="exit after this many state samples")
     p.set_defaults(func=cmd_monitor)
     p = sub.add_parser("status", help="ask a running controller for its status once")
     _client_options(p)

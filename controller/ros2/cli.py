@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 from typing import TypeVar
 
+from controller.cli_arguments import seconds_or_zero
 from controller.errors import InputError
 from controller.monitoring.cli_commands import _client_options, _endpoints
 
@@ -94,7 +95,7 @@ def add_subcommand(sub: argparse._SubParsersAction[ParserT]) -> None:
     )
     p.add_argument(
         "--wait-subscriber",
-        type=float,
+        type=seconds_or_zero,
         default=0.0,
         metavar="SECONDS",
         help="--replay: wait up to this long for a ROS 2 subscriber before starting (default 0)",

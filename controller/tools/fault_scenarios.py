@@ -20,7 +20,7 @@ from pathlib import Path
 
 import msgspec
 
-from controller.config import Config, load_config
+from controller.config import Config, ConfigError, load_config
 from controller.core.cia402 import PowerState
 from controller.core.controller_state import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severity
@@ -275,6 +275,12 @@ def run_all(
     base = base or load_config()
     # The path task, one lap: long enough for every reaction, short enough for a table.
     base = msgspec.structs.replace(base, task=msgspec.structs.replace(base.task, kind="path"))
+    unknown = sorted(set(only) - {sc.name for sc in SCENARIOS})
+    if unknown:  # an empty table with exit 0 said nothing was wrong
+        raise ConfigError(
+            f"--only {', '.join(unknown)}: no such scenario; the scenarios: "
+            + ", ".join(sc.name for sc in SCENARIOS)
+        )
     chosen = [sc for sc in SCENARIOS if not only or sc.name in only]
     rows = []
     with tempfile.TemporaryDirectory(prefix="cheope-faults-") as tmp:

@@ -7,6 +7,7 @@ import random
 import subprocess
 import sys
 import textwrap
+import threading
 from pathlib import Path
 
 import can
@@ -166,6 +167,38 @@ def test_replay_sends_every_recorded_frame_once_whatever_its_direction(tmp_path)
         listener.shutdown()
     assert result.frames_sent == 11
     assert got == [0x80, 0x181] * 5 + [0x80]
+
+
+def test_a_stop_ends_a_replay_in_a_long_pause_between_frames(tmp_path):
+    """``--speed 1e-9`` turned the 1 ms between two frames into 11 days, and SIGTERM or Ctrl-C
+    (the stop event) was read only after that sleep: the replay waits on the stop now."""
+    path = tmp_path / "pause.mcap"
+    with SessionRecorder(path, session_metadata(load_config()), clock=lambda: 0.0) as rec:
+        sync = can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)
+        rec.on_frame(True, 0.0, sync)
+        rec.on_frame(True, 1e-3, sync)
+    stop = threading.Event()
+    bus = can.Bus(interface="virtual", channel="replay-pause", receive_own_messages=False)
+    listener = can.Bus(interface="virtual", channel="replay-pause")
+    results = []
+    replay = threading.Thread(
+        target=lambda: results.append(
+            replay_to_bus(path, parse_bus_spec("virtual:replay-pause"), speed=1e-9, stop_event=stop, bus=bus)
+        ),
+        daemon=True,  # a replay that ignored the stop must not keep the test process alive
+    )
+    try:
+        replay.start()
+        assert listener.recv(timeout=30.0) is not None  # the first frame went: the pause has begun
+        stop.set()
+        replay.join(timeout=30.0)
+        assert not replay.is_alive()
+    finally:
+        stop.set()
+        replay.join(timeout=30.0)
+        bus.shutdown()
+        listener.shutdown()
+    assert results[0].frames_sent == 1
 
 
 def test_replay_cli_errors_are_one_line(tmp_path, capsys):

@@ -86,6 +86,76 @@ def test_every_help_page_prints():
     assert "95 % of those" in " ".join(build_parser().format_help().split())
 
 
+@pytest.mark.parametrize(
+    ("argv", "option"),
+    [
+        (["list", "--timeout", "inf"], "--timeout"),  # reached Zenoh as int(inf * 1000): a traceback
+        (["status", "--timeout", "nan"], "--timeout"),
+        (["stop", "--timeout", "-1"], "--timeout"),
+        (["list", "--key-prefix", ""], "--key-prefix"),  # an invalid key expression inside Zenoh
+        (["status", "--key-prefix", "a/**"], "--key-prefix"),
+        (["monitor", "--duration", "nan"], "--duration"),  # ran forever
+        (["monitor", "--count", "0"], "--count"),
+        (["contour-scan", "--jobs", "1000"], "--jobs"),  # forked a thousand processes
+        (["contour-stress", "--jobs", "0"], "--jobs"),
+        (["soak", "--sample-s", "-1"], "--sample-s"),  # started both processes, then failed
+        (["soak", "--warmup-s", "-1"], "--warmup-s"),
+        (["ros2", "--wait-subscriber", "-5"], "--wait-subscriber"),
+    ],
+)
+def test_a_bad_value_is_refused_by_its_option_before_anything_starts(argv, option, capsys):
+    with pytest.raises(SystemExit) as stopped:
+        build_parser().parse_args(argv)
+    assert stopped.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument {option}:" in err and "Traceback" not in err
+
+
+def test_faults_refuses_a_scenario_it_does_not_have_and_names_those_it_has():
+    """``--only bogus`` printed an empty table and exited 0."""
+    with pytest.raises(
+        InputError, match=r"--only bogus: no such scenario; the scenarios: .*" + SCENARIOS[0].name
+    ):
+        run_all(only=("bogus",))
+
+
+def test_soak_refuses_a_warm_up_as_long_as_the_run_and_a_file_for_a_directory(tmp_path):
+    from controller.tools.bench.soak import run_soak_command
+
+    parser = _subparser("soak")
+    with pytest.raises(InputError, match="--warmup-s 60: must be shorter than --duration 60"):
+        run_soak_command(parser.parse_args(["--duration", "60", "--warmup-s", "60"]), [])
+    a_file = tmp_path / "good.mcap"
+    a_file.write_bytes(b"")
+    with pytest.raises(InputError, match="is not a directory"):
+        run_soak_command(parser.parse_args(["--output-dir", str(a_file)]), [])
+
+
+def test_ctrl_c_in_a_command_without_a_stop_of_its_own_is_one_line(monkeypatch, capsys):
+    import controller.cli as cli
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "cmd_bus_load", interrupted)
+    assert cli.main(["bus-load"]) == 130
+    assert capsys.readouterr().err == "cheope bus-load: interrupted\n"
+
+
+def test_output_into_a_closed_pipe_ends_quietly():
+    """``cheope plan --json | head -c 10`` printed "error: [Errno 32] Broken pipe" and exited 2."""
+    script = (
+        "import os, sys\n"
+        "r, w = os.pipe(); os.close(r); os.dup2(w, 1)\n"  # stdout: a pipe nobody reads any more
+        "from controller.cli import main\n"
+        "sys.exit(main(['bus-load', '--json']))\n"
+    )
+    r = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=120, check=False
+    )
+    assert r.returncode == 141 and r.stderr == ""
+
+
 def test_bench_duration_help_states_the_default():
     text = _option(_subparser("bench"), "--duration").help or ""
     assert "issue" not in text and "default 300" in text

@@ -28,8 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
+from controller.cli_arguments import positive_seconds, seconds_or_zero
 from controller.cli_output import progress_line, strict_json
 from controller.errors import InputError
+from controller.output_paths import check_output_dir
 from controller.shell.demo import random_udp_port, simulator_process
 from drivers.bus import parse_bus_spec
 
@@ -210,11 +212,15 @@ def _gb_per_hour(recording: dict[str, object] | None, duration_s: float) -> floa
 
 
 def add_soak_arguments(ap: argparse.ArgumentParser) -> None:
-    ap.add_argument("--duration", type=float, default=1800.0, help="seconds of running (default 1800)")
     ap.add_argument(
-        "--warmup-s", type=float, default=120.0, help="seconds left out of the slope (default 120)"
+        "--duration", type=positive_seconds, default=1800.0, help="seconds of running (default 1800)"
     )
-    ap.add_argument("--sample-s", type=float, default=5.0, help="seconds between RSS samples (default 5)")
+    ap.add_argument(
+        "--warmup-s", type=seconds_or_zero, default=120.0, help="seconds left out of the slope (default 120)"
+    )
+    ap.add_argument(
+        "--sample-s", type=positive_seconds, default=5.0, help="seconds between RSS samples (default 5)"
+    )
     ap.add_argument("--rate", type=float, default=400.0, help="loop rate [Hz] (default 400)")
     ap.add_argument(
         "--set",
@@ -231,6 +237,10 @@ def add_soak_arguments(ap: argparse.ArgumentParser) -> None:
 
 
 def run_soak_command(args: argparse.Namespace, realtime_args: list[str]) -> int:
+    if args.warmup_s >= args.duration:
+        raise InputError(f"--warmup-s {args.warmup_s:g}: must be shorter than --duration {args.duration:g}")
+    if args.output_dir:  # refused before the simulator and the controller start, not after
+        check_output_dir(args.output_dir, "--output-dir")
     with tempfile.TemporaryDirectory(prefix="cheope-soak-") as tmp, progress_line("cheope soak") as progress:
         result = run_soak(
             args.duration,

@@ -11,9 +11,9 @@ import sys
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
+from controller.cli_arguments import job_count
 from controller.cli_output import progress_line
 from controller.commands import Command
-from controller.config import ConfigError
 from controller.output_paths import check_output_dir
 
 if TYPE_CHECKING:
@@ -30,15 +30,16 @@ def _arguments(jobs: bool) -> Callable[[argparse.ArgumentParser], None]:
         p.add_argument("--output-dir", metavar="DIR", help="keep the scenarios' recordings in DIR")
         if jobs:
             p.add_argument(
-                "--jobs", type=int, default=1, help="scenarios run in this many processes (default 1)"
+                "--jobs",
+                type=job_count,
+                default=1,
+                help="scenarios run in this many processes (default 1; at most the machine's CPUs)",
             )
 
     return add
 
 
 def _keep(args: argparse.Namespace) -> Path | None:
-    if getattr(args, "jobs", 1) < 1:
-        raise ConfigError(f"--jobs {args.jobs}: must be >= 1")
     return check_output_dir(args.output_dir, "--output-dir") if args.output_dir else None
 
 

@@ -29,6 +29,7 @@ and are counted apart (``ContourScenario.ride_through``).
 from __future__ import annotations
 
 import math
+import signal
 import tempfile
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
@@ -301,6 +302,11 @@ def _run_one(args: tuple[Config, ContourScenario, Path | None]) -> dict[str, obj
 Progress = Callable[[int, int, dict[str, object]], None]
 
 
+def _die_on_interrupt() -> None:
+    """A worker ends at Ctrl-C without a traceback of its own: the command says it was interrupted."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def run_scenarios(
     base: Config,
     undisturbed: dict[str, object],
@@ -317,7 +323,7 @@ def run_scenarios(
         todo = [(base, sc, out) for sc in disturbed]
         rows: list[dict[str, object]] = [undisturbed]
         if jobs > 1:
-            with ProcessPoolExecutor(max_workers=jobs) as pool:
+            with ProcessPoolExecutor(max_workers=jobs, initializer=_die_on_interrupt) as pool:
                 for row in pool.map(_run_one, todo):
                     rows.append(row)
                     if progress:

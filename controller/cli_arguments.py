@@ -1,0 +1,57 @@
+"""Argument types for the command line: each refuses a bad value by the option's name, before the
+command starts (argparse prints ``argument --timeout: ...`` and exits 2).
+
+A float option parsed by ``float`` alone takes ``inf``, ``nan`` and negatives: ``--timeout inf``
+reached Zenoh as ``int(inf * 1000)`` and ended in a traceback, ``monitor --duration nan`` ran
+forever, ``contour-scan --jobs 1000`` forked a thousand processes on a 2-core machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+
+
+def positive_seconds(text: str) -> float:
+    """A finite number of seconds > 0."""
+    value = _number(text)
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a finite number of seconds > 0")
+    return value
+
+
+def seconds_or_zero(text: str) -> float:
+    """A finite number of seconds >= 0."""
+    value = _number(text)
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a finite number of seconds >= 0")
+    return value
+
+
+def positive_count(text: str) -> int:
+    """A whole number >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a whole number >= 1") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a whole number >= 1")
+    return value
+
+
+def job_count(text: str) -> int:
+    """Worker processes: 1 up to the machine's CPUs (each runs a CPU-bound simulation; more than
+    the CPUs only share them)."""
+    value = positive_count(text)
+    cpus = os.cpu_count() or 1
+    if value > cpus:
+        raise argparse.ArgumentTypeError(f"{text!r}: at most {cpus}, this machine's CPUs")
+    return value
+
+
+def _number(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: not a number") from None
