@@ -70,8 +70,8 @@ def targets_sync_gap_s(period_s: float, drive_extrapolation_periods: int) -> flo
     A drive that takes the commanded step a period from the targets' difference over the time
     between their SYNCs reads a SYNC 2.4 ms late (of 2.5) as two periods: half the speed. Were
     deadlines skipped just after it, it ran on at that half speed for its extrapolation periods
-    and the next target pulled it on in one period: 22.3 N where 15 was asked (the contour in
-    simulated time, docs/realtime.md). Without the late SYNC's targets the drive runs on along
+    and the next target pulled it on in one period: 22.3 N of contact force where 10 N was asked
+    (the contour in simulated time, docs/concepts/realtime.md). Without the late SYNC's targets the drive runs on along
     its last step, at the speed it had, and the law counts the period as one it ran blind
     (``CycleInputs.targets_withheld``). A drive that does not run on (no extrapolation period)
     would stand instead: it gets its targets however late their SYNC."""
