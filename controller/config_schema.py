@@ -132,7 +132,19 @@ def _value_at(table: Any, path: str) -> Any:
 def _fields_at(cls: type, path: str) -> tuple[str, ...]:
     for name in re.findall(r"\.(\w+)", path):
         field = next((f for f in msgspec.structs.fields(cls) if f.name == name), None)
-        if field is None or not isinstance(field.type, type):
+        inner = _struct_in(field.type) if field is not None else None
+        if inner is None:
             break
-        cls = field.type
+        cls = inner  # through a table of tables ([[node]]: tuple[NodeSection, ...]) too
     return tuple(f.name for f in msgspec.structs.fields(cls))
+
+
+def _struct_in(tp: Any) -> type | None:
+    """The section class a field's type holds (itself, or inside a tuple, an Optional, Annotated)."""
+    if isinstance(tp, type):
+        return tp if issubclass(tp, msgspec.Struct) else None
+    for arg in typing.get_args(tp):
+        found = _struct_in(arg)
+        if found is not None:
+            return found
+    return None

@@ -183,6 +183,10 @@ def _law_from(report: ReadReport, overrides: dict[str, Any]) -> Any:
     try:
         return build_law(recorded_config_from_dict(table))
     except ConfigError as err:
+        if overrides:  # the user's --set may be what is wrong, not the recording
+            raise ConfigError(
+                f"the configuration recorded in {report.path} with --set {', '.join(overrides)}: {err}"
+            ) from err
         raise LogFileError(
             f"the configuration recorded in {report.path} does not load any more: {err}"
         ) from err

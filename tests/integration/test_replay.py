@@ -201,6 +201,15 @@ def test_a_stop_ends_a_replay_in_a_long_pause_between_frames(tmp_path):
     assert results[0].frames_sent == 1
 
 
+def test_a_bad_set_in_a_verify_is_blamed_on_the_set_not_the_recording(tmp_path, capsys):
+    path = tmp_path / "s.mcap"
+    record_session(path, max_s=0.1)
+    assert main(["replay", str(path), "--verify", "--set", "bogus=1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "with --set bogus: unknown key(s) bogus" in err
+    assert "does not load any more" not in err
+
+
 def test_replay_cli_errors_are_one_line(tmp_path, capsys):
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(b"\x89MCAP0\r\n")

@@ -50,6 +50,17 @@ def test_a_node_list_not_one_per_actuator_is_named_when_the_robot_is_built():
         build_law(cfg)
 
 
+def test_an_unknown_key_of_a_node_table_lists_the_keys_a_node_takes(tmp_path):
+    """It listed the top level's (actuators, bus, loop, ...) for a key of ``[[node]]``."""
+    p = tmp_path / "node.toml"
+    p.write_text("[[node]]\nnode_id = 1\nfoo = 1\n")
+    with pytest.raises(
+        ConfigError, match=r"unknown key\(s\) foo in \[node\[0\]\]; known: boot_retries, .*node_id"
+    ) as err:
+        load_config(p)
+    assert "actuators" not in str(err.value)
+
+
 def test_missing_file_is_named(tmp_path):
     with pytest.raises(ConfigError, match="does not exist"):
         load_config(tmp_path / "nope.toml")
