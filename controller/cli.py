@@ -355,9 +355,10 @@ def _status_observers(status: StatusDisplay | None, cfg: Config) -> tuple[CycleO
 def _check_duration(args: argparse.Namespace) -> None:
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         raise ConfigError(
-            f"--duration {args.duration:g}: must be > 0 (leave it out to run until stopped)"
+            f"--duration {args.duration:g}: must be a finite number of seconds > 0 (leave it out to run "
+            "until stopped)"
             if args.command == "run"
-            else f"--duration {args.duration:g}: must be > 0"
+            else f"--duration {args.duration:g}: must be a finite number of seconds > 0"
         )
 
 
@@ -632,9 +633,19 @@ def _verbose_on_every_command(parser: argparse.ArgumentParser) -> None:
             _verbose_on_every_command(sub)
 
 
+def _installed_version() -> str:
+    from importlib import metadata
+
+    try:
+        return metadata.version("cheope-controller")
+    except metadata.PackageNotFoundError:  # run from a source tree that was not installed
+        return "(not installed)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = OneLineParser(prog="cheope", description="Controller service for parallel-kinematic robots")
     ap.add_argument("-v", "--verbose", action="store_true", help="log to stderr")
+    ap.add_argument("--version", action="version", version=f"cheope {_installed_version()}")
     sub = ap.add_subparsers(dest="command", required=True)
     p = sub.add_parser("demo", help="simulator process + controller + the configured task, then a summary")
     _common(p)

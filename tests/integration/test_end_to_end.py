@@ -245,7 +245,7 @@ def test_over_budget_bus_is_refused_before_the_simulator_starts():
         ),
         (["demo", "--inject", "stall=1e9@1"], "stall of 1e+09 s must be in (0, 1] s"),
         (["demo", "--inject", "delay:2=1e9@1"], "delay of 1e+09 s must be in (0, 1] s"),
-        (["run", "--duration", "0"], "--duration 0: must be > 0"),
+        (["run", "--duration", "0"], "--duration 0: must be a finite number of seconds > 0"),
     ],
 )
 def test_bad_input_gets_one_clear_line(args, needle):

@@ -89,8 +89,12 @@ def test_demo_outputs_and_arguments_are_checked_before_the_simulator_starts(tmp_
         _cheope("demo", "--output-dir", "/proc/1/nope", *QUIET),
         "--output-dir /proc/1/nope: cannot write there",
     )
-    _one_line(_cheope("demo", "--duration", "-1", *QUIET), "--duration -1: must be > 0")
-    _one_line(_cheope("demo", "--duration", "nan", *QUIET), "--duration nan: must be > 0")
+    _one_line(
+        _cheope("demo", "--duration", "-1", *QUIET), "--duration -1: must be a finite number of seconds > 0"
+    )
+    _one_line(
+        _cheope("demo", "--duration", "nan", *QUIET), "--duration nan: must be a finite number of seconds > 0"
+    )
     plot_file = tmp_path / "a-file"
     plot_file.write_text("")
     _one_line(

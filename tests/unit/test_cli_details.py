@@ -156,6 +156,16 @@ def test_output_into_a_closed_pipe_ends_quietly():
     assert r.returncode == 141 and r.stderr == ""
 
 
+def test_version_prints_the_installed_version(capsys):
+    """``cheope --version`` said "the following arguments are required: command"."""
+    from importlib import metadata
+
+    with pytest.raises(SystemExit) as stopped:
+        build_parser().parse_args(["--version"])
+    assert stopped.value.code == 0
+    assert capsys.readouterr().out == f"cheope {metadata.version('cheope-controller')}\n"
+
+
 def test_bench_duration_help_states_the_default():
     text = _option(_subparser("bench"), "--duration").help or ""
     assert "issue" not in text and "default 300" in text
