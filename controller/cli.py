@@ -156,7 +156,7 @@ def _realtime(args: argparse.Namespace, simulator: bool = False) -> RealtimeOpti
 
     explicit = (
         args.rt_priority is not None
-        or args.cpu
+        or args.cpu is not None
         or args.lock_memory
         or args.cpu_latency_us is not None
         or args.cpu_shield
@@ -177,7 +177,7 @@ def _realtime(args: argparse.Namespace, simulator: bool = False) -> RealtimeOpti
         return default.for_simulator() if simulator else default
     return RealtimeOptions(
         priority=args.rt_priority,
-        cpus=parse_cpus(args.cpu) if args.cpu else (),
+        cpus=parse_cpus(args.cpu) if args.cpu is not None else (),  # --cpu '': refused, not ignored
         lock_memory=args.lock_memory,
         cpu_latency_us=args.cpu_latency_us,
         shield=args.cpu_shield and not simulator,

@@ -378,7 +378,7 @@ def refused_realtime(reasons: list[str]) -> str:
     )
 
 
-def parse_cpus(text: str) -> tuple[int, ...]:
+def parse_cpus(text: str, option: str = "--cpu") -> tuple[int, ...]:
     """``"1"`` or ``"0,1"`` or ``"2-3"`` -> CPU numbers."""
     cpus: list[int] = []
     try:
@@ -386,9 +386,9 @@ def parse_cpus(text: str) -> tuple[int, ...]:
             lo, _, hi = part.strip().partition("-")
             cpus.extend(range(int(lo), int(hi or lo) + 1))
     except ValueError as err:
-        raise RealtimeError(f"--cpu {text!r}: expected CPU numbers like 1, 0,1 or 2-3") from err
+        raise RealtimeError(f"{option} {text!r}: expected CPU numbers like 1, 0,1 or 2-3") from err
     if not cpus:
-        raise RealtimeError(f"--cpu {text!r}: no CPU given")
+        raise RealtimeError(f"{option} {text!r}: no CPU given")
     return tuple(cpus)
 
 

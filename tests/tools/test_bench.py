@@ -133,6 +133,16 @@ def test_parse_cpus():
     assert parse_cpus("0,2-3") == (0, 2, 3)
     with pytest.raises(RealtimeError, match="expected CPU numbers"):
         parse_cpus("one")
+    with pytest.raises(RealtimeError, match=r"--sim-cpu '': expected CPU numbers"):
+        parse_cpus("", "--sim-cpu")
+
+
+def test_an_empty_cpu_list_is_refused_not_taken_for_the_default():
+    """``demo --cpu ''`` started a demo with the default affinity."""
+    from controller.cli import _realtime, build_parser
+
+    with pytest.raises(RealtimeError, match=r"--cpu '': expected CPU numbers"):
+        _realtime(build_parser().parse_args(["demo", "--cpu", ""]))
 
 
 def test_priority_not_permitted_says_how_to_get_it(monkeypatch):

@@ -122,12 +122,12 @@ def checked_bench_arguments(
 def run_bench_command(args: argparse.Namespace, rt: RealtimeOptions) -> int:
     from controller.realtime import parse_cpus
 
-    if args.sim_rt_priority is None and not args.sim_cpu:
+    if args.sim_rt_priority is None and args.sim_cpu is None:
         sim_rt = rt.for_simulator()  # as the demo gives it: one step below the loop, on the other CPUs
     else:
         sim_rt = RealtimeOptions(
             priority=args.sim_rt_priority,
-            cpus=parse_cpus(args.sim_cpu) if args.sim_cpu else (),
+            cpus=parse_cpus(args.sim_cpu, "--sim-cpu") if args.sim_cpu is not None else (),
             lock_memory=rt.lock_memory,
             cpu_latency_us=rt.cpu_latency_us,
             required=rt.required,
