@@ -40,6 +40,17 @@ def positive_count(text: str) -> int:
     return value
 
 
+def count_or_zero(text: str) -> int:
+    """A whole number >= 0 (a random generator's seed)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a whole number >= 0") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a whole number >= 0")
+    return value
+
+
 def job_count(text: str) -> int:
     """Worker processes: 1 up to the machine's CPUs (each runs a CPU-bound simulation; more than
     the CPUs only share them)."""

@@ -101,6 +101,8 @@ def test_every_help_page_prints():
         (["soak", "--sample-s", "-1"], "--sample-s"),  # started both processes, then failed
         (["soak", "--warmup-s", "-1"], "--warmup-s"),
         (["ros2", "--wait-subscriber", "-5"], "--wait-subscriber"),
+        (["plan-bench", "--seed", "-1"], "--seed"),  # numpy's "expected non-negative integer"
+        (["plan-bench", "--pairs", "0"], "--pairs"),
     ],
 )
 def test_a_bad_value_is_refused_by_its_option_before_anything_starts(argv, option, capsys):

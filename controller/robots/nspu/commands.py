@@ -9,6 +9,7 @@ import logging
 import sys
 from typing import TYPE_CHECKING
 
+from controller.cli_arguments import count_or_zero, positive_count
 from controller.cli_output import progress_line, strict_json
 from controller.commands import Command
 from controller.config import ConfigError
@@ -92,8 +93,8 @@ def run_plan(args: argparse.Namespace, cfg: Config) -> int:
 
 
 def _plan_bench_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--pairs", type=int, default=100, help="number of pose pairs (default 100)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the pairs (default 0)")
+    p.add_argument("--pairs", type=positive_count, default=100, help="number of pose pairs (default 100)")
+    p.add_argument("--seed", type=count_or_zero, default=0, help="seed of the pairs (default 0)")
     p.add_argument(
         "--json", action="store_true", help="print the report as one JSON object (strict: null for NaN)"
     )
