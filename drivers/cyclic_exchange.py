@@ -73,9 +73,11 @@ def targets_sync_gap_s(period_s: float, drive_extrapolation_periods: int) -> flo
     and the next target pulled it on in one period: 22.3 N of contact force where 10 N was asked
     (the contour in simulated time, docs/concepts/realtime.md). Without the late SYNC's targets the drive runs on along
     its last step, at the speed it had, and the law counts the period as one it ran blind
-    (``CycleInputs.targets_withheld``). A drive that does not run on (no extrapolation period)
-    would stand instead: it gets its targets however late their SYNC."""
-    return TARGETS_SYNC_GAP_PERIODS * period_s if drive_extrapolation_periods > 0 else math.inf
+    (``CycleInputs.targets_withheld``). A drive with fewer than two periods of extrapolation gets
+    its targets however late their SYNC: without them it would stand (none), or spend its one
+    period on the withheld SYNC and stand through a skipped deadline after it, behind the setpoint
+    the step counts from (``hold_up_effect`` cannot move it back)."""
+    return TARGETS_SYNC_GAP_PERIODS * period_s if drive_extrapolation_periods >= 2 else math.inf
 
 
 (

@@ -258,9 +258,11 @@ def test_a_sync_too_long_after_the_last_goes_without_the_rpdos_and_the_next_carr
 
 
 def test_no_targets_are_withheld_from_drives_that_would_stand_without_them_or_under_kernel_sync(bus, clock):
-    """Drives without a period of extrapolation stand when a SYNC brings no target: they get it
-    however late; and with the kernel's SYNC the loop's send has no SYNC whose time would count."""
-    assert targets_sync_gap_s(0.0025, 0) == math.inf
+    """Drives without a period of extrapolation stand when a SYNC brings no target, and with one
+    they would spend it on the withheld SYNC: they get it however late; and with the kernel's
+    SYNC the loop's send has no SYNC whose time would count."""
+    assert targets_sync_gap_s(0.0025, 0) == targets_sync_gap_s(0.0025, 1) == math.inf
+    assert targets_sync_gap_s(0.0025, 2) == pytest.approx(0.00375)
     kernel = make_exchange(bus, clock, targets_sync_gap_s=targets_sync_gap_s(0.0025, 4), send_sync=False)
     outputs = CycleOutputs((0x0F,) * 3, (0.5, 0.5, 0.5))
     kernel.send(outputs)

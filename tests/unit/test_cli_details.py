@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import os
 import re
 import subprocess
 import sys
@@ -142,6 +143,23 @@ def test_ctrl_c_in_a_command_without_a_stop_of_its_own_is_one_line(monkeypatch, 
     monkeypatch.setattr(cli, "cmd_bus_load", interrupted)
     assert cli.main(["bus-load"]) == 130
     assert capsys.readouterr().err == "cheope bus-load: interrupted\n"
+
+
+def _killed_by_the_system(item):  # a scenario's process that the system (or Ctrl-C) ends
+    os._exit(1)
+
+
+def test_a_scenario_process_that_dies_is_one_named_error_not_a_traceback(monkeypatch):
+    """Ctrl-C reaches the scan's workers too: one ended first and ``BrokenProcessPool`` came out
+    as a traceback."""
+    from controller.config import load_config
+    from controller.errors import CheopeError
+    from controller.tools.contour import scan
+
+    monkeypatch.setattr(scan, "_run_one", _killed_by_the_system)  # the workers fork with it
+    todo = iter([scan.ContourScenario("a", ()), scan.ContourScenario("b", ())])
+    with pytest.raises(CheopeError, match=r"a scenario's process ended before its row \(0 of 2 done\)"):
+        scan.run_scenarios(load_config(), {}, todo, None, 2, None, "cheope-test-")
 
 
 def test_output_into_a_closed_pipe_ends_quietly():

@@ -60,6 +60,21 @@ def test_the_drives_stood_where_more_deadlines_were_skipped_than_their_extrapola
     assert drives_held(cycles, [4], extrapolation_periods) == []
 
 
+def test_a_sync_without_targets_before_a_hold_up_counts_as_the_law_counts_it():
+    """E = 4: five skipped deadlines alone leave the drives running on (blind 6); after a SYNC that
+    went without the targets (``targets_withheld``) the same five leave them standing (blind 7)."""
+
+    def run(withheld: bool) -> list[TrackingCycle]:
+        return [
+            TrackingCycle(3, True, 0.0, False, 0.0, 0.0),
+            TrackingCycle(3, True, 0.0, withheld, 0.0025, 0.0024 if withheld else 0.0, withheld),
+            TrackingCycle(3, True, 0.0, True, 0.0175, 0.0),  # five deadlines skipped
+        ]
+
+    assert drives_held(run(False), [3], 4) == []
+    assert drives_held(run(True), [3], 4) == pytest.approx([0.0126])  # from the late SYNC
+
+
 def test_a_recording_written_before_0x2010_is_read_with_one_period_of_extrapolation():
     # its drives ran on one period past a missing target; its replay rebuilds the law that knew it
     assert recorded_config_from_dict({}).drive_extrapolation_periods == 1

@@ -38,6 +38,7 @@ class TrackingCycle:
     held_up: bool
     t_s: float  # the cycle's deadline
     wake_error_s: float  # how late the loop woke for it: when its SYNC went out, after the deadline
+    targets_withheld: bool = False  # its SYNC went without the last step's targets (CycleInputs)
 
 
 @dataclass(frozen=True)
@@ -56,10 +57,18 @@ def read_cycles(path: str, report: ReadReport | None = None) -> list[TrackingCyc
         values = c.state.task_values
         if "lap" not in values:
             continue
-        held_up = loop_held_up(inputs_from_pb(c.inputs))
+        inputs = inputs_from_pb(c.inputs)
         lap, tracking = int(values["lap"]) + 1, c.state.task_phase == "TRACKING"
         out.append(
-            TrackingCycle(lap, tracking, values["force_error_n"], held_up, c.t_s, c.timing.wake_error_s)
+            TrackingCycle(
+                lap,
+                tracking,
+                values["force_error_n"],
+                loop_held_up(inputs),
+                c.t_s,
+                c.timing.wake_error_s,
+                inputs.targets_withheld,
+            )
         )
     return out
 
@@ -89,7 +98,7 @@ def drives_held(
     for a, b in itertools.pairwise(cycles):
         skipped = round((b.t_s - a.t_s) / period_s) - 1
         interval_s = (b.t_s + b.wake_error_s) - (a.t_s + a.wake_error_s)
-        _, held, blind = hold_up_effect(skipped, extrapolation_periods, blind)
+        _, held, blind = hold_up_effect(skipped, extrapolation_periods, blind, b.targets_withheld)
         if b.tracking and b.lap in wanted and held:
             out.append(interval_s)
     return out

@@ -33,6 +33,7 @@ import signal
 import tempfile
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -44,6 +45,7 @@ from controller.core.contact_guard import PROTECTIVE_STOP
 from controller.core.controller_state import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
 from controller.core.ports import CycleTiming
+from controller.errors import CheopeError
 from controller.shell.simulated_rig import SimulatedRig
 from controller.tasks.contour_tracking import ContourPhase, ContourState
 from sim_backend.loopback import LoopbackExchange
@@ -323,11 +325,17 @@ def run_scenarios(
         todo = [(base, sc, out) for sc in disturbed]
         rows: list[dict[str, object]] = [undisturbed]
         if jobs > 1:
-            with ProcessPoolExecutor(max_workers=jobs, initializer=_die_on_interrupt) as pool:
-                for row in pool.map(_run_one, todo):
-                    rows.append(row)
-                    if progress:
-                        progress(len(rows), len(todo) + 1, row)
+            try:
+                with ProcessPoolExecutor(max_workers=jobs, initializer=_die_on_interrupt) as pool:
+                    for row in pool.map(_run_one, todo):
+                        rows.append(row)
+                        if progress:
+                            progress(len(rows), len(todo) + 1, row)
+            except BrokenProcessPool:  # a worker died: Ctrl-C, or the system killed it (memory)
+                raise CheopeError(
+                    f"a scenario's process ended before its row ({len(rows) - 1} of {len(todo)} done): "
+                    "interrupted, or killed by the system"
+                ) from None
         else:
             for item in todo:
                 rows.append(_run_one(item))
