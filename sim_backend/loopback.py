@@ -202,6 +202,7 @@ class LoopbackExchange:
             max_position_step=step_limit,
             max_position_jump=jump_margin,
             targets_sync_gap_s=targets_sync_gap_s(cfg.period_s, cfg.drive_extrapolation_periods),
+            target_lead_period_s=cfg.period_s,
         )
         self._rpdo_drive = {c.rpdo_cob_id: j for j, c in enumerate(self.codecs)}
         self._sdo_drive = {cob_ids.sdo_request(n): j for j, n in enumerate(self.drive_ids)}

@@ -197,6 +197,7 @@ def run_controller(
             max_position_jump=jump_margin,
             guarded=prepared.setup_plan.guarded(),
             targets_sync_gap_s=targets_sync_gap_s(cfg.period_s, cfg.drive_extrapolation_periods),
+            target_lead_period_s=cfg.period_s,
         )
         kernel_sync = (
             KernelSyncExchange(exchange, cfg.period_s, cfg.bus.sync_lead_fraction * cfg.period_s)

@@ -257,6 +257,32 @@ def test_a_sync_too_long_after_the_last_goes_without_the_rpdos_and_the_next_carr
     ]
 
 
+def test_a_late_syncs_targets_lead_by_its_lateness_along_their_last_step(bus, clock):
+    """Deadlines 2.5 ms apart: on time, the targets as computed; 1 ms late, moved on 0.4 of their
+    last step (the drive's segment, starting at this SYNC, ends where the path is when it ends);
+    after a SYNC without targets, or at the first, there is no last step to lead along."""
+    period = 0.0025
+    ex = make_exchange(bus, clock, target_lead_period_s=period)
+
+    def send(targets, late_s, deadline_s):
+        clock.now_s = deadline_s + late_s
+        start = len(bus.sent)
+        ex.send(CycleOutputs((0x0F,) * 3, targets), send_by_s=deadline_s + period)
+        return [
+            int.from_bytes(d[2:6], "little", signed=True)
+            for i, d, *_ in bus.sent[start:]
+            if i in (0x201, 0x202, 0x203)
+        ]
+
+    d0 = clock.now_s
+    assert send((0.5, 0.6, 0.7), 0.001, d0) == [5_000_000, 6_000_000, 7_000_000]  # the first: as computed
+    assert send((0.501, 0.599, 0.7), 0.0, d0 + period) == [5_010_000, 5_990_000, 7_000_000]  # on time
+    assert send((0.502, 0.598, 0.7), 0.001, d0 + 2 * period) == [5_024_000, 5_976_000, 7_000_000]
+    ex.send(None, send_by_s=d0 + 4 * period)  # after skipped deadlines: no targets, no last step
+    assert send((0.51, 0.59, 0.7), 0.001, d0 + 4 * period) == [5_100_000, 5_900_000, 7_000_000]
+    assert send((0.511, 0.589, 0.7), 0.005, d0 + 5 * period) == []  # past its send-by time: none
+
+
 def test_no_targets_are_withheld_from_drives_that_would_stand_without_them_or_under_kernel_sync(bus, clock):
     """Drives without a period of extrapolation stand when a SYNC brings no target, and with one
     they would spend it on the withheld SYNC: they get it however late; and with the kernel's
