@@ -15,40 +15,22 @@ import os
 
 def positive_seconds(text: str) -> float:
     """A finite number of seconds > 0."""
-    value = _number(text)
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"{text!r}: must be a finite number of seconds > 0")
-    return value
+    return _seconds(text, zero_allowed=False)
 
 
 def seconds_or_zero(text: str) -> float:
     """A finite number of seconds >= 0."""
-    value = _number(text)
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"{text!r}: must be a finite number of seconds >= 0")
-    return value
+    return _seconds(text, zero_allowed=True)
 
 
 def positive_count(text: str) -> int:
     """A whole number >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: must be a whole number >= 1") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: must be a whole number >= 1")
-    return value
+    return _whole_number(text, at_least=1)
 
 
 def count_or_zero(text: str) -> int:
     """A whole number >= 0 (a random generator's seed)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: must be a whole number >= 0") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: must be a whole number >= 0")
-    return value
+    return _whole_number(text, at_least=0)
 
 
 def job_count(text: str) -> int:
@@ -61,8 +43,24 @@ def job_count(text: str) -> int:
     return value
 
 
-def _number(text: str) -> float:
+def _seconds(text: str, zero_allowed: bool) -> float:
     try:
-        return float(text)
+        value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r}: not a number") from None
+    if not (math.isfinite(value) and (value >= 0 if zero_allowed else value > 0)):
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: must be a finite number of seconds {'>=' if zero_allowed else '>'} 0"
+        )
+    return value
+
+
+def _whole_number(text: str, at_least: int) -> int:
+    refused = argparse.ArgumentTypeError(f"{text!r}: must be a whole number >= {at_least}")
+    try:
+        value = int(text)
+    except ValueError:
+        raise refused from None
+    if value < at_least:
+        raise refused
+    return value

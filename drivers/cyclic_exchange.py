@@ -71,14 +71,14 @@ def targets_sync_gap_s(period_s: float, drive_extrapolation_periods: int) -> flo
     between their SYNCs reads a SYNC 2.4 ms late (of 2.5) as two periods: half the speed. Were
     deadlines skipped just after it, it ran on at that half speed for its extrapolation periods
     and the next target pulled it on in one period: 22.3 N of contact force where 10 N was asked
-    (the contour in simulated time, docs/concepts/realtime.md). Without the late SYNC's targets the drive runs on along
-    its last step, at the speed it had, and the law counts the period as one it ran blind
-    (``CycleInputs.targets_withheld``). Where the targets can lead by the SYNC's lateness
-    (``CyclicExchange._led``) they go: their step over the time between the SYNCs is the speed.
-    A drive with fewer than two periods of extrapolation gets
-    its targets however late their SYNC: without them it would stand (none), or spend its one
-    period on the withheld SYNC and stand through a skipped deadline after it, behind the setpoint
-    the step counts from (``hold_up_effect`` cannot move it back)."""
+    (the contour in simulated time, docs/concepts/realtime.md). Without the late SYNC's targets
+    the drive runs on along its last step, at the speed it had, and the law counts the period as
+    one it ran blind (``CycleInputs.targets_withheld``). Where the targets can lead by the SYNC's
+    lateness (``CyclicExchange._led``) they go: their step over the time between the SYNCs is the
+    speed. A drive with fewer than two periods of extrapolation gets its targets however late
+    their SYNC: without them it would stand (none), or spend its one period on the withheld SYNC
+    and stand through a skipped deadline after it, behind the setpoint the step counts from
+    (``hold_up_effect`` cannot move it back)."""
     return TARGETS_SYNC_GAP_PERIODS * period_s if drive_extrapolation_periods >= 2 else math.inf
 
 
