@@ -8,6 +8,7 @@ for any robot model with an ``inverse_kinematics`` and is accurate to O(h^2).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from enum import IntEnum
 from typing import Protocol
 
@@ -25,6 +26,21 @@ class CartesianTrajectory(Protocol):
     def sample(self, tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
 
     def points(self, n: int) -> np.ndarray: ...  # n samples along the whole path, for the workspace check
+
+
+def position_of(path: CartesianTrajectory) -> Callable[[float], tuple[float, float, float]]:
+    """The path's position at a time in floats, the path task's call every cycle: the path's own
+    ``position(tau)`` where it has one (``CirclePath``: numpy's per-call cost is most of a sample's),
+    else its ``sample``'s first array. Both give the same doubles."""
+    position = getattr(path, "position", None)
+    if callable(position):
+        return position  # type: ignore[no-any-return]  # a path's optional float twin of sample
+
+    def from_sample(tau: float) -> tuple[float, float, float]:
+        p = path.sample(tau)[0]
+        return (float(p[0]), float(p[1]), float(p[2]))
+
+    return from_sample
 
 
 class InverseKinematics(Protocol):
@@ -70,6 +86,7 @@ class PathTask:
         self.move_speed_m_s = move_speed_m_s
         p0, _, _ = path.sample(0.0)
         self._start = JointReference.at_rest(tuple(robot.inverse_kinematics(p0).tolist()), tuple(p0.tolist()))
+        self._position = position_of(path)
 
     def start(self) -> PathTaskState:
         return PathTaskState()
@@ -77,16 +94,17 @@ class PathTask:
     def _joint_reference(self, tau: float) -> JointReference:
         h = self.fd_step_s
         ik = self.robot.inverse_kinematics
-        p, _, _ = self.path.sample(tau)
-        q = ik(p).tolist()
-        qp = ik(self.path.sample(tau + h)[0]).tolist()
-        qm = ik(self.path.sample(tau - h)[0]).tolist()
+        position = self._position
+        p = position(tau)
+        q = ik(np.asarray(p)).tolist()
+        qp = ik(np.asarray(position(tau + h))).tolist()
+        qm = ik(np.asarray(position(tau - h))).tolist()
         # the central differences in floats, element by element in numpy's order of operations
         # (the same doubles): a numpy operation on a 3-vector costs more than its arithmetic
         two_h, h2 = 2.0 * h, h * h
         qd = tuple((a - b) / two_h for a, b in zip(qp, qm, strict=True))
         qdd = tuple((a - 2.0 * x + b) / h2 for x, a, b in zip(q, qp, qm, strict=True))
-        return JointReference(tuple(q), qd, qdd, tuple(p.tolist()), True, contact=self.contact)
+        return JointReference(tuple(q), qd, qdd, p, True, contact=self.contact)
 
     def phase_name(self, state: PathTaskState) -> str:
         return state.phase.name
