@@ -882,23 +882,16 @@ class ControlLaw:
 
     @staticmethod
     def _smoothing_start(state: ControllerState) -> Setpoint:
-        """Where a brake or a reactive reference's smoothing starts: the last setpoint, or at rest where
-        the drives were last measured (``_hold``) when a hold-up left them standing (``drives_held``):
-        sent on at a speed they no longer have, they would jump after it into whatever the tool touches.
-
-        Not at the setpoint: after a burst of hold-ups (skipped deadlines between SYNCs without
-        targets) the drives stand where their extrapolation ran out, and the setpoint, which counts
-        every period the task stepped through, lies steps past them. Restarted there, the first
-        target pulled the legs two and a half steps in one period (a contour lap at 60 mm/s: 34 N
-        of true contact force where 10 N was asked, the bus's bursts reproduced in simulated time;
-        docs/concepts/realtime.md).
+        """Where a brake or a reactive reference's smoothing starts: the last setpoint, or at rest there
+        when a hold-up left the drives standing (``drives_held``): sent on at a speed they no longer
+        have, they would jump after it into whatever the tool touches.
 
         Not for a planned reference (``smoother.step``): its path runs on one period a cycle, and a
         setpoint restarted from rest chases it (one 9.6-ms hold-up in the path's half lap, simulated
         time: tracking error 0.71 mm RMS, 4.8 mm at most; 0.95 mm RMS over the bus), where the drives
         going on catch the path up within a few milliseconds (21 um RMS, 0.38 mm at most).
         """
-        return ControlLaw._hold(state) if state.drives_held else state.setpoint
+        return Setpoint.at_rest(state.setpoint.position) if state.drives_held else state.setpoint
 
     def _smooth_to_rest(self, state: ControllerState, t: float, events: list[Event]) -> ControllerState:
         result = self.smoother.brake(self._smoothing_start(state))
