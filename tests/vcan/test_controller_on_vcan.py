@@ -52,6 +52,11 @@ def _slow(tmp_path: Path) -> list[str]:
         "task.path.laps=0.25",
         "--set",
         "task.path.speed_m_s=0.05",
+        # and to its start at the same speed, not Ruckig's own (legs up to 1 m/s): there one period
+        # of the emulated CPU's lag is 40 mm, four times the following window, and a slower CI host
+        # faulted every run 0.2 s into that move ("drive 3 following error 0.0105 m")
+        "--set",
+        "task.path.move_speed_m_s=0.05",
         "--set",
         f'recording.directory="{tmp_path}"',
         # the VM's /tmp has about 500 MB free: below the default guard (1024 MB) every recording
