@@ -108,12 +108,18 @@ def hold_up_effect(
     step's target comes (``drives_blind_periods``). After one hold-up, ``min(skipped, E - 1)`` and
     more than E + 1 skipped. A SYNC that went without the targets though no deadline was skipped
     (``withheld``, ``CycleInputs.targets_withheld``) leaves the drives one period blind: as a
-    hold-up of no deadline."""
+    hold-up of no deadline.
+
+    -1 periods run on when the drives were already at the end of their extrapolation
+    (``blind_before`` >= E): they stood through the whole period, and so do the task and the setpoint
+    (``ControlLaw._running``). Counted as 0, each such step put the setpoint one more period past
+    standing drives: in a burst of thirteen hold-ups within 65 ms, 2.4 steps, which the first target
+    after it pulled the legs in one period (34.0 N where 10 N is asked, simulated time)."""
     if not skipped and not withheld:
         return 0, False, 0
     blind = blind_before + skipped + 1
     e = extrapolation_periods
-    return max(0, min(blind, e) - min(blind_before, e) - 1), blind > e + 2, blind
+    return min(blind, e) - min(blind_before, e) - 1, blind > e + 2, blind
 
 
 # One handler per mode: (state, inputs, power states, measured positions, t, events) -> state.
@@ -260,14 +266,16 @@ class ControlLaw:
         already that far into their extrapolation, the last setpoint never sent: they ran on only
         what was left of it (``drives_blind_periods``). Counted from each hold-up alone, the step
         put the setpoint 3 periods ahead of drives that stood, and the target after pulled them
-        on in one period (a force step of 10.6 N over the bus).
+        on in one period (a force step of 10.6 N over the bus). Once they are past their
+        extrapolation, each further period without a target is one they stood through (-1 run on):
+        the task and the setpoint wait (``_running``).
         """
         ran_on, held, blind = hold_up_effect(
             skipped, self.config.drive_extrapolation_periods, state.drives_blind_periods, withheld
         )
         # RUNNING, the task steps through the periods they ran on, and the setpoint with it (_running)
         stepped_through = ran_on > 0 and state.mode == Mode.RUNNING
-        if ran_on and state.mode != Mode.FAULT and not stepped_through:
+        if ran_on > 0 and state.mode != Mode.FAULT and not stepped_through:
             shift_s = ran_on * self.config.period_s
             sp = state.setpoint
             position = tuple(p + shift_s * v for p, v in zip(sp.position, sp.velocity, strict=True))
@@ -541,6 +549,13 @@ class ControlLaw:
         elif inputs.sensor is not None and inputs.sensor.fresh and state.sensor_stale > 0:
             # A frame whose counter did not advance repeats the last sample: no new evidence for the task.
             inputs = replace(inputs, sensor=replace(inputs.sensor, fresh=False))
+        if state.drives_ran_on < 0:
+            # The drives stood through this period, out of extrapolation and without a target: the task
+            # and the setpoint wait with them, one step ahead, the step the next target carries them.
+            if not state.drives_held:
+                return state
+            # Stood long enough for a restart from rest: from where they stand, a step behind.
+            state = replace(state, setpoint=self._step_back(state.setpoint))
         witness = state.contact.witness
         # The periods the drives ran on blind in a hold-up (``_after_hold_up``) are the task's too: it
         # steps through them without measurements, then through this cycle with this cycle's.
@@ -879,6 +894,13 @@ class ControlLaw:
                 for x, q in zip(state.last_measured, state.setpoint.position, strict=True)
             )
         )
+
+    def _step_back(self, sp: Setpoint) -> Setpoint:
+        """The setpoint one period back along its own motion: where drives that stood a step short of
+        it are (a standing step, ``hold_up_effect``)."""
+        t_s = self.config.period_s
+        position = tuple(p - v * t_s for p, v in zip(sp.position, sp.velocity, strict=True))
+        return Setpoint(position, sp.velocity, sp.acceleration)
 
     @staticmethod
     def _smoothing_start(state: ControllerState) -> Setpoint:

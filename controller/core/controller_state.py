@@ -55,7 +55,8 @@ class ControllerState:
     # restarts from rest there (control_law ``_smoothing_start``).
     drives_held: bool = False
     # Periods the drives ran on past the last setpoint during a hold-up before this step, blind
-    # (control_law ``_after_hold_up``): the task's time and the setpoint move on as far.
+    # (control_law ``_after_hold_up``): the task's time and the setpoint move on as far; -1 when
+    # they stood through the whole period, out of extrapolation, and the task and setpoint wait.
     drives_ran_on: int = 0
     # Periods the drives will be past the end of their last target's segment when this step's
     # target comes: 0 but after a hold-up (control_law ``hold_up_effect``).
