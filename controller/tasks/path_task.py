@@ -114,7 +114,10 @@ class PathTask:
             moved = self._bounded_move(state, ctx)
             if moved is not None:
                 return moved
-            state = replace(state, p_cmd=None)
+            # Arrived: the move stays there while Ruckig settles the start. Restarted from the
+            # measured position, a few micrometres off, it moved again every other cycle and the
+            # setpoint never settled (at 25 Hz the path never started).
+            state = replace(state, p_cmd=self._start.tcp_m, speed_m_s=0.0)
         state, ref, finished = self.reference(state, ctx.t_s, ctx.setpoint)
         return TaskStep(state, ref, finished)
 

@@ -7,6 +7,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -65,3 +66,23 @@ def test_a_path_without_position_gives_the_task_the_same_reference():
     with_floats, from_arrays = PathTask(robot, circle, 1e-4), PathTask(robot, plain, 1e-4)
     for tau in (0.0, 0.3, 1.7, circle.duration_s - 0.01):
         assert with_floats._joint_reference(tau) == from_arrays._joint_reference(tau)
+
+
+@pytest.mark.parametrize("rate_hz", [25.0, 400.0])
+def test_a_bounded_move_to_the_start_arrives_and_the_path_runs(rate_hz: float):
+    """``task.path.move_speed_m_s`` > 0: a straight move to the start at that speed, then the path.
+    Once arrived the move stays there while the setpoint settles; restarted from the measured
+    position (micrometres off) it moved again every other cycle, and at 25 Hz the path never
+    started (the run went on until its time limit)."""
+    from controller.config import load_config
+    from controller.shell.simulated_rig import SimulatedRig
+
+    overrides = {
+        "task.kind": "path",
+        "loop.rate_hz": rate_hz,
+        "task.path.laps": 0.25,
+        "task.path.speed_m_s": 0.05,
+        "task.path.move_speed_m_s": 0.05,
+    }
+    state, _ = SimulatedRig(load_config(overrides=overrides)).run((), 10.0)
+    assert state.mode.name == "DONE" and state.task_state.phase.name == "FINISHED"
