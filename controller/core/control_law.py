@@ -276,10 +276,7 @@ class ControlLaw:
         # RUNNING, the task steps through the periods they ran on, and the setpoint with it (_running)
         stepped_through = ran_on > 0 and state.mode == Mode.RUNNING
         if ran_on > 0 and state.mode != Mode.FAULT and not stepped_through:
-            shift_s = ran_on * self.config.period_s
-            sp = state.setpoint
-            position = tuple(p + shift_s * v for p, v in zip(sp.position, sp.velocity, strict=True))
-            state = replace(state, setpoint=Setpoint(position, sp.velocity, sp.acceleration))
+            state = replace(state, setpoint=self._moved_on(state.setpoint, ran_on))
         return replace(state, drives_held=held, drives_ran_on=ran_on, drives_blind_periods=blind)
 
     def _supervise(
@@ -555,7 +552,7 @@ class ControlLaw:
             if not state.drives_held:
                 return state
             # Stood long enough for a restart from rest: from where they stand, a step behind.
-            state = replace(state, setpoint=self._step_back(state.setpoint))
+            state = replace(state, setpoint=self._moved_on(state.setpoint, -1))
         witness = state.contact.witness
         # The periods the drives ran on blind in a hold-up (``_after_hold_up``) are the task's too: it
         # steps through them without measurements, then through this cycle with this cycle's.
@@ -895,11 +892,11 @@ class ControlLaw:
             )
         )
 
-    def _step_back(self, sp: Setpoint) -> Setpoint:
-        """The setpoint one period back along its own motion: where drives that stood a step short of
-        it are (a standing step, ``hold_up_effect``)."""
-        t_s = self.config.period_s
-        position = tuple(p - v * t_s for p, v in zip(sp.position, sp.velocity, strict=True))
+    def _moved_on(self, sp: Setpoint, periods: int) -> Setpoint:
+        """The setpoint ``periods`` periods on along its own speed: where drives that ran on that far
+        are (``_after_hold_up``), or, -1, where drives that stood a step short of it are."""
+        shift_s = periods * self.config.period_s
+        position = tuple(p + shift_s * v for p, v in zip(sp.position, sp.velocity, strict=True))
         return Setpoint(position, sp.velocity, sp.acceleration)
 
     @staticmethod
