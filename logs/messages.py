@@ -25,6 +25,9 @@ logs/can_frame_batch.py) or one ``cheope.v1.CanFrame`` per frame: ``logs.reader.
 gives every format back as one ``CanFrames.Frame`` per frame, with the frame's time as its log
 time. A rotated file starts with ``/keyframe`` (``cheope.v1.Keyframe``: the controller's state,
 logs/keyframe.py).
+
+A cycle's ``/cycle`` record is built on the loop's thread, compiled with the law
+(logs/cycle_encoding.py); this module has the way back (``inputs_from_pb``) and what the writer builds.
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import struct
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from typing import TYPE_CHECKING, Protocol
 
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
@@ -54,13 +57,11 @@ from controller.core.cycle_data import (
     Severity,
     TrackerFeedback,
 )
-from controller.core.records import values_getter
 from controller.messages import cheope_pb2 as pb
 
 if TYPE_CHECKING:
     import can
 
-    from controller.core.controller_state import ControllerState
 
 TOPIC_CAN = "/can"
 TOPIC_CYCLE = "/cycle"
@@ -96,16 +97,6 @@ class _Timestamp(Protocol):
 
     seconds: int
     nanos: int
-
-
-class CycleTimingLike(Protocol):
-    """controller.shell.loop.CycleTiming, without importing the shell."""
-
-    @property
-    def wake_error_s(self) -> float: ...
-
-    @property
-    def step_s(self) -> float: ...
 
 
 def _set_time(stamp: _Timestamp, unix_ns: int) -> None:
@@ -180,40 +171,6 @@ def unix_time_ns_of(monotonic_s: float, offset_ns: int) -> int:
     return round(monotonic_s * 1e9) + offset_ns
 
 
-def inputs_to_pb(inputs: CycleInputs, out: pb.CycleInputs) -> None:
-    for d in inputs.drives:
-        drive = out.drives.add(statusword=d.statusword, position=d.position, fresh=d.fresh)
-        if not math.isnan(d.effort_n):  # absent: the TPDO does not map 0x6077 (older sessions neither)
-            drive.effort_n = d.effort_n
-    s = inputs.sensor
-    if s is not None:
-        out.sensor.force_n.extend(s.force_n)
-        out.sensor.torque_nm.extend(s.torque_nm)
-        out.sensor.status, out.sensor.counter, out.sensor.fresh = s.status, s.counter, s.fresh
-    for e in inputs.emcy:
-        out.emcy.add(node_id=e.node_id, error_code=e.error_code, error_register=e.error_register)
-    out.stop_requested = inputs.stop_requested
-    out.command = inputs.command
-    out.command_value = inputs.command_value
-    out.lost_heartbeats.extend(inputs.lost_heartbeats)
-    out.error_frames = inputs.error_frames
-    out.bus_off = inputs.bus_off
-    out.late = inputs.late
-    for a in inputs.anomalies:
-        out.anomalies.add(
-            kind=a.kind.value, cob_id=a.cob_id, count=a.count, node_id=a.node_id, command=a.command
-        )
-    for r in inputs.nmt_reports:
-        out.nmt_reports.add(node_id=r.node_id, state=r.state)
-    out.plans_ready = inputs.plans_ready
-    out.targets_withheld = inputs.targets_withheld
-    k = inputs.tracker
-    if k is not None:
-        out.tracker.position_m.extend(k.position_m)
-        out.tracker.rotation_vector_rad.extend(k.rotation_vector_rad)
-        out.tracker.status, out.tracker.counter, out.tracker.fresh = k.status, k.counter, k.fresh
-
-
 def inputs_from_pb(msg: pb.CycleInputs) -> CycleInputs:
     """The exact ``CycleInputs`` the step received (doubles round-trip bit for bit)."""
     sensor = None
@@ -254,93 +211,6 @@ def inputs_from_pb(msg: pb.CycleInputs) -> CycleInputs:
 
 def outputs_from_pb(msg: pb.CycleOutputs) -> CycleOutputs:
     return CycleOutputs(controlwords=tuple(msg.controlwords), targets=tuple(msg.targets))
-
-
-# per task state class: a getter of all its fields at once and each field's name with the names of
-# its first 4 elements, made once (the recorder encodes the task's state every cycle: the field walk
-# and the f-strings were 2 100 of the contour cycle's 18 000 bytecodes, python -m
-# controller.tools.bench.cycle_work; then the walk's getattr and isinstance per field 24 us of the
-# contour's cycle, 73 values)
-_TASK_FIELD_KEYS: dict[
-    type, tuple[Callable[[object], tuple[object, ...]], tuple[tuple[str, tuple[str, ...]], ...]]
-] = {}
-_NUMBER = (int, float)  # bool and IntEnum are ints: recorded as numbers
-
-
-def _task_fields(
-    cls: type,
-) -> tuple[Callable[[object], tuple[object, ...]], tuple[tuple[str, tuple[str, ...]], ...]]:
-    names = tuple(f.name for f in dataclasses.fields(cls))
-    return values_getter(names), tuple((n, tuple(f"{n}.{i}" for i in range(4))) for n in names)
-
-
-def task_values(task_state: object) -> dict[str, float]:
-    """The scalar fields of a task state dataclass (numbers, and numeric tuples of up to 4 as name.i)."""
-    if task_state is None:
-        return {}
-    cls = type(task_state)
-    plan = _TASK_FIELD_KEYS.get(cls)
-    if plan is None:
-        if not dataclasses.is_dataclass(task_state):
-            return {}
-        plan = _TASK_FIELD_KEYS[cls] = _task_fields(cls)
-    getter, keys = plan
-    out: dict[str, float] = {}
-    for (name, element_keys), v in zip(keys, getter(task_state), strict=True):
-        t = type(v)
-        if t is float or t is int or t is bool:  # most fields: no isinstance
-            out[name] = float(v)  # type: ignore[arg-type]  # type(v) is float, int or bool
-        elif v is None:
-            continue
-        elif isinstance(v, tuple):
-            if 0 < len(v) <= 4:
-                for x in v:
-                    tx = type(x)
-                    if not (tx is float or tx is int or tx is bool or isinstance(x, _NUMBER)):
-                        break
-                else:
-                    for key, x in zip(element_keys, v, strict=False):  # as many as v has
-                        out[key] = float(x)
-        elif isinstance(v, _NUMBER):
-            out[name] = float(v)
-    return out
-
-
-def cycle_to_pb(
-    cycle: int,
-    t: float,
-    inputs: CycleInputs,
-    state: ControllerState,
-    outputs: CycleOutputs,
-    timing: CycleTimingLike,
-    phase_name: Callable[[object], str] | None = None,
-) -> pb.Cycle:
-    msg = pb.Cycle(cycle=cycle, t_s=t)
-    inputs_to_pb(inputs, msg.inputs)
-    msg.outputs.controlwords.extend(outputs.controlwords)
-    msg.outputs.targets.extend(outputs.targets)
-    st = msg.state
-    st.mode = state.mode.name
-    st.setpoint_position.extend(state.setpoint.position)
-    st.setpoint_velocity.extend(state.setpoint.velocity)
-    st.setpoint_acceleration.extend(state.setpoint.acceleration)
-    if state.tcp_reference_m is not None:
-        st.tcp_reference_m.extend(state.tcp_reference_m)
-    if state.tcp_measured_m is not None:
-        st.tcp_measured_m.extend(state.tcp_measured_m)
-    st.fault_reason = state.fault_reason
-    if state.task_state is not None:
-        if phase_name is not None:
-            try:
-                st.task_phase = phase_name(state.task_state)
-            except Exception:  # a task's display helper must never stop the recording
-                st.task_phase = "?"
-        values = st.task_values  # the map's wrapper once, not once per value
-        for k, v in task_values(state.task_state).items():
-            values[k] = v
-    msg.timing.wake_error_s = timing.wake_error_s
-    msg.timing.step_s = timing.step_s
-    return msg
 
 
 def event_to_pb(cycle: int, t: float, event: Event) -> pb.Event:

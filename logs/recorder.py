@@ -49,6 +49,7 @@ from controller.config import Config, config_to_dict
 from controller.errors import DeviceError
 from drivers.pacing import wall_clock_offset_ns
 from logs import messages as m
+from logs.cycle_encoding import cycle_to_pb
 from logs.keyframe import ENCODING as STATE_ENCODING
 from logs.keyframe import KeyframeError, encode_state
 from logs.messages import FrameRecord, frame_record
@@ -271,7 +272,7 @@ class SessionRecorder:
         self._last_cycle = (cycle, t)
         frames = self._frames
         self._frames = []
-        body = m.cycle_to_pb(cycle, t, inputs, state, outputs, timing, self.phase_name).SerializeToString()
+        body = cycle_to_pb(cycle, t, inputs, state, outputs, timing, self.phase_name).SerializeToString()
         mono_s = self.clock()
         self._send(
             pack_record(

@@ -498,3 +498,11 @@ def test_the_loops_floor_is_python_cans_frames_plus_the_step_in_process():
     assert python_can_floor_percent(case, cost) == (5.6, 5.2)
     assert loop_floor_percent(case, report) == 9.6
     assert loop_floor_percent({**case, "rate_hz": 1000.0}, report) is None  # no step measured at 1 kHz
+
+
+def test_the_record_cost_bench_times_equal_records_compiled_and_interpreted():
+    from controller.tools.bench.record_cost import record_cost
+
+    out = record_cost("path", passes=1)  # refuses (SystemExit) when the two records differ
+    assert out["cycles"] == 20 and out["passes"] == 1
+    assert out["this_build_us"]["median"] > 0 and out["interpreted_us"]["median"] > 0  # type: ignore[index]

@@ -34,7 +34,8 @@ def test_the_tracker_plans_ready_and_withheld_targets_round_trip_into_the_steps_
     """Replay feeds the step what it got: the tracker's sample, the off-loop planner's progress and
     whether the cycle's SYNC went without the targets."""
     from controller.core.cycle_data import CycleInputs, DriveFeedback, TrackerFeedback
-    from logs.messages import inputs_from_pb, inputs_to_pb
+    from logs.cycle_encoding import inputs_to_pb
+    from logs.messages import inputs_from_pb
 
     inputs = CycleInputs(
         drives=(DriveFeedback(0x1637, 0.1 + 0.2, True),),

@@ -1,0 +1,106 @@
+"""The recorder's cost on the loop's thread: one cycle's ``/cycle`` record, compiled beside interpreted.
+
+    .venv/bin/python -m controller.tools.bench.record_cost [--task contour] [--passes 21]
+
+Runs the task in simulated time, keeps every 50th cycle of a window of it (the contour's tracking),
+then builds and serialises each kept cycle's record (``logs.cycle_encoding.cycle_to_pb``) with the
+module as this process imports it (compiled by mypyc where the build is fresh) and with its source
+loaded as a second module, interpreted, pass after pass in turn, so that both see the same host.
+The two messages must be equal, or the figure is refused. Prints JSON: the median, min and max
+over the passes of each encoder's mean time a cycle, and their ratio.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from controller.compiled_law import LAW_BUILD
+from controller.tools.bench.cycle_work import task_config
+
+WINDOWS = {"path": (800, 1800), "contour": (8000, 16000)}  # cycles: the path's lap, the contour's tracking
+EVERY = 50
+
+
+def _interpreted_encoding() -> Any:
+    """logs/cycle_encoding.py from its source, as a module of its own (the compiled one stays imported)."""
+    import logs.cycle_encoding as compiled
+
+    source = Path(compiled.__file__ or "").with_name("cycle_encoding.py")
+    spec = importlib.util.spec_from_file_location("cycle_encoding_interpreted", source)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses and typing look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+def record_cost(task: str, passes: int) -> dict[str, object]:
+    import logs.cycle_encoding as compiled
+    from controller.shell.simulated_rig import SimulatedRig
+
+    cfg = task_config(task, [])
+    rig = SimulatedRig(cfg)
+    first, last = WINDOWS[task]
+    kept: list[tuple[int, float, Any, Any, Any, Any]] = []
+
+    class Keep:
+        def on_cycle(
+            self, k: int, t: float, inputs: Any, state: Any, outputs: Any, events: Any, timing: Any
+        ) -> None:
+            if first <= k < last and k % EVERY == 0:
+                kept.append((k, t, inputs, state, outputs, timing))
+
+    rig.run((Keep(),), max_duration_s=(last + 1) * cfg.period_s)
+    phase = rig.law.task.phase_name
+    interpreted = _interpreted_encoding()
+    for c in kept:
+        if compiled.cycle_to_pb(*c, phase) != interpreted.cycle_to_pb(*c, phase):
+            raise SystemExit(f"cycle {c[0]}: the compiled and the interpreted records differ")
+
+    def mean_us(encode: Callable[..., Any]) -> float:
+        t0 = time.perf_counter()
+        for c in kept:
+            encode(*c, phase).SerializeToString()
+        return (time.perf_counter() - t0) / len(kept) * 1e6
+
+    runs: dict[str, list[float]] = {"this_build": [], "interpreted": []}
+    for _ in range(passes):
+        runs["this_build"].append(mean_us(compiled.cycle_to_pb))
+        runs["interpreted"].append(mean_us(interpreted.cycle_to_pb))
+    out: dict[str, object] = {
+        "task": task,
+        "law": LAW_BUILD.describe(),
+        "cycles": len(kept),
+        "passes": passes,
+    }
+    for name, values in runs.items():
+        values.sort()
+        out[f"{name}_us"] = {
+            "median": round(values[len(values) // 2], 1),
+            "min": round(values[0], 1),
+            "max": round(values[-1], 1),
+        }
+    out["ratio_of_medians"] = round(
+        sorted(runs["this_build"])[passes // 2] / sorted(runs["interpreted"])[passes // 2], 3
+    )
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="record_cost", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--task", choices=sorted(WINDOWS), default="contour")
+    ap.add_argument("--passes", type=int, default=21)
+    args = ap.parse_args(argv)
+    print(json.dumps(record_cost(args.task, args.passes), indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

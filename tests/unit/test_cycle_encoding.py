@@ -1,0 +1,75 @@
+"""The task values of a ``/cycle`` record: which fields of a task's state the recording holds per cycle."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from logs.cycle_encoding import task_values
+
+
+class _Phase(enum.IntEnum):
+    APPROACH = 1
+    TRACKING = 2
+
+
+class _Point(NamedTuple):
+    x: float
+    y: float
+
+
+@dataclass(frozen=True)
+class _Inner:
+    a: float = 1.0
+
+
+@dataclass(frozen=True)
+class _TaskState:
+    phase: _Phase = _Phase.TRACKING
+    speed_m_s: float = 0.06
+    lap: int = 3
+    excused: bool = True
+    held_force: tuple[float, float, float] | None = None
+    p_cmd: tuple[float, float, float] = (0.1, -0.2, 0.5)
+    tare_sum: tuple[float, int] = (2.5, 7)
+    point: _Point = _Point(0.25, 0.75)
+    gain: np.float64 = np.float64(0.125)
+    fault: str = ""
+    trace: tuple[tuple[float, float], ...] = ((0.0, 1.0), (2.0, 3.0))
+    five: tuple[float, ...] = (1.0, 2.0, 3.0, 4.0, 5.0)
+    empty: tuple[float, ...] = ()
+    mixed: tuple[object, ...] = (1.0, "x")
+    inner: _Inner = _Inner()
+    count: np.int64 = np.int64(4)  # not a Python int: not recorded
+
+
+def test_numbers_and_short_numeric_tuples_are_recorded_and_nothing_else():
+    assert task_values(_TaskState()) == {
+        "phase": 2.0,
+        "speed_m_s": 0.06,
+        "lap": 3.0,
+        "excused": 1.0,
+        "p_cmd.0": 0.1,
+        "p_cmd.1": -0.2,
+        "p_cmd.2": 0.5,
+        "tare_sum.0": 2.5,
+        "tare_sum.1": 7.0,
+        "point.0": 0.25,
+        "point.1": 0.75,
+        "gain": 0.125,
+    }
+
+
+def test_a_field_that_holds_numbers_later_is_recorded_then():
+    state = _TaskState(held_force=(1.0, 2.0, 3.0), trace=(), fault="lost")
+    values = task_values(state)
+    assert (values["held_force.0"], values["held_force.1"], values["held_force.2"]) == (1.0, 2.0, 3.0)
+    assert not any(k.startswith(("trace", "fault")) for k in values)
+
+
+def test_no_task_state_and_no_dataclass_give_no_values():
+    assert task_values(None) == {}
+    assert task_values((1.0, 2.0)) == {}
