@@ -1,23 +1,22 @@
-"""A cycle as its ``/cycle`` record (``cheope.v1.Cycle``), on the loop's thread.
+"""A cycle as plain values for the recorder's writer, on the loop's thread.
 
-The recorder (logs/recorder.py) turns every cycle into this message before it hands the cycle to
-its writer process, so this is the part of the recording the loop pays for: in service it was
-most of the observers' time (``observers_us`` p50 310 µs with the recording, 45-48 µs without,
-``cheope demo --json`` and ``--set recording.enabled=false``, contour, 400 Hz). It is compiled
-with the law (controller/compiled_law.py): the contour's record then takes 0.70-0.73 of the
-interpreted one's time (in process, interleaved, 3 runs; the messages are equal). The messages
-the writer builds, and the way back from Protobuf, are in logs/messages.py.
+The recorder (logs/recorder.py) hands every cycle to its writer process, and this is what the loop
+pays for it: the cycle's inputs, outputs, state sample and timing gathered into tuples of numbers
+and text (``cycle_values``), which the recorder pickles into its pipe. The writer builds the
+``/cycle`` Protobuf from them (logs/messages.py ``cycle_pb``, and ``cycle_values_of_pb`` the way
+back). Built on the loop's thread, that Protobuf was most of the observers' time in the service
+(``observers_us`` p50 286-310 µs with the recording, 45-48 µs without; the values: 169-174 µs;
+docs/measurements/speed.md). Compiled with the law (controller/compiled_law.py); the task state's
+walk (``task_values``) is written for the compiler, whose ``isinstance`` is a C type check.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from controller.core.records import values_getter
-from controller.messages import cheope_pb2 as pb
 
 if TYPE_CHECKING:
     from controller.core.controller_state import ControllerState
@@ -82,42 +81,47 @@ def task_values(task_state: object) -> dict[str, float]:
     return out
 
 
-def inputs_to_pb(inputs: CycleInputs, out: Any) -> None:
-    """``inputs`` into ``out``, a ``cheope.v1.CycleInputs`` (logs.messages.inputs_from_pb: the way back)."""
-    for d in inputs.drives:
-        drive = out.drives.add(statusword=d.statusword, position=d.position, fresh=d.fresh)
-        if not math.isnan(d.effort_n):  # absent: the TPDO does not map 0x6077 (older sessions neither)
-            drive.effort_n = d.effort_n
+# What the loop hands the writer for one cycle (``cycle_values``), in this order; logs.messages.cycle_pb
+# turns it into the ``cheope.v1.Cycle`` in the writer's process:
+#   cycle, t, inputs (``inputs_values``), controlwords, targets, mode, setpoint position,
+#   velocity, acceleration, tcp_reference_m or None, tcp_measured_m or None, fault_reason,
+#   task_phase ("" without a task state), task_values (``task_values``; None without a task
+#   state), wake_error_s, step_s.
+# Numbers, text, tuples and one dict: what pickle writes fastest, and no class the writer must import.
+CycleValues = tuple[object, ...]
+# The step's inputs (``inputs_values``), in this order; logs.messages.inputs_pb:
+#   drives ((statusword, position, fresh, effort_n), ...), sensor (force_n, torque_nm, status,
+#   counter, fresh) or None, emcy ((node_id, error_code, error_register), ...), stop_requested,
+#   command, command_value, lost_heartbeats, error_frames, bus_off, late, anomalies ((kind, cob_id,
+#   count, node_id, command), ...), nmt_reports ((node_id, state), ...), plans_ready,
+#   targets_withheld, tracker (position_m, rotation_vector_rad, status, counter, fresh) or None.
+InputsValues = tuple[object, ...]
+
+
+def inputs_values(inputs: CycleInputs) -> InputsValues:
+    """The step's inputs as plain values (``InputsValues``)."""
     s = inputs.sensor
-    if s is not None:
-        out.sensor.force_n.extend(s.force_n)
-        out.sensor.torque_nm.extend(s.torque_nm)
-        out.sensor.status, out.sensor.counter, out.sensor.fresh = s.status, s.counter, s.fresh
-    for e in inputs.emcy:
-        out.emcy.add(node_id=e.node_id, error_code=e.error_code, error_register=e.error_register)
-    out.stop_requested = inputs.stop_requested
-    out.command = inputs.command
-    out.command_value = inputs.command_value
-    out.lost_heartbeats.extend(inputs.lost_heartbeats)
-    out.error_frames = inputs.error_frames
-    out.bus_off = inputs.bus_off
-    out.late = inputs.late
-    for a in inputs.anomalies:
-        out.anomalies.add(
-            kind=a.kind.value, cob_id=a.cob_id, count=a.count, node_id=a.node_id, command=a.command
-        )
-    for r in inputs.nmt_reports:
-        out.nmt_reports.add(node_id=r.node_id, state=r.state)
-    out.plans_ready = inputs.plans_ready
-    out.targets_withheld = inputs.targets_withheld
     k = inputs.tracker
-    if k is not None:
-        out.tracker.position_m.extend(k.position_m)
-        out.tracker.rotation_vector_rad.extend(k.rotation_vector_rad)
-        out.tracker.status, out.tracker.counter, out.tracker.fresh = k.status, k.counter, k.fresh
+    return (
+        tuple((d.statusword, d.position, d.fresh, d.effort_n) for d in inputs.drives),
+        None if s is None else (s.force_n, s.torque_nm, s.status, s.counter, s.fresh),
+        tuple((e.node_id, e.error_code, e.error_register) for e in inputs.emcy),
+        inputs.stop_requested,
+        inputs.command.value,
+        inputs.command_value,
+        inputs.lost_heartbeats,
+        inputs.error_frames,
+        inputs.bus_off,
+        inputs.late,
+        tuple((a.kind.value, a.cob_id, a.count, a.node_id, a.command) for a in inputs.anomalies),
+        tuple((r.node_id, r.state) for r in inputs.nmt_reports),
+        inputs.plans_ready,
+        inputs.targets_withheld,
+        None if k is None else (k.position_m, k.rotation_vector_rad, k.status, k.counter, k.fresh),
+    )
 
 
-def cycle_to_pb(
+def cycle_values(
     cycle: int,
     t: float,
     inputs: CycleInputs,
@@ -125,31 +129,34 @@ def cycle_to_pb(
     outputs: CycleOutputs,
     timing: CycleTimingLike,
     phase_name: Callable[[object], str] | None = None,
-) -> Any:
-    """The ``cheope.v1.Cycle`` of one cycle: what the step got, gave and holds (its task's numbers)."""
-    msg = pb.Cycle(cycle=cycle, t_s=t)
-    inputs_to_pb(inputs, msg.inputs)
-    msg.outputs.controlwords.extend(outputs.controlwords)
-    msg.outputs.targets.extend(outputs.targets)
-    st = msg.state
-    st.mode = state.mode.name
-    st.setpoint_position.extend(state.setpoint.position)
-    st.setpoint_velocity.extend(state.setpoint.velocity)
-    st.setpoint_acceleration.extend(state.setpoint.acceleration)
-    if state.tcp_reference_m is not None:
-        st.tcp_reference_m.extend(state.tcp_reference_m)
-    if state.tcp_measured_m is not None:
-        st.tcp_measured_m.extend(state.tcp_measured_m)
-    st.fault_reason = state.fault_reason
-    if state.task_state is not None:
+) -> CycleValues:
+    """One cycle's record as plain values (``CycleValues``): what the step got, gave and holds."""
+    task_state = state.task_state
+    phase = ""
+    values: dict[str, float] | None = None
+    if task_state is not None:
         if phase_name is not None:
             try:
-                st.task_phase = phase_name(state.task_state)
+                phase = phase_name(task_state)
             except Exception:  # a task's display helper must never stop the recording
-                st.task_phase = "?"
-        values = st.task_values  # the map's wrapper once, not once per value
-        for key, value in task_values(state.task_state).items():
-            values[key] = value
-    msg.timing.wake_error_s = timing.wake_error_s
-    msg.timing.step_s = timing.step_s
-    return msg
+                phase = "?"
+        values = task_values(task_state)
+    setpoint = state.setpoint
+    return (
+        cycle,
+        t,
+        inputs_values(inputs),
+        outputs.controlwords,
+        outputs.targets,
+        state.mode.name,
+        setpoint.position,
+        setpoint.velocity,
+        setpoint.acceleration,
+        state.tcp_reference_m,
+        state.tcp_measured_m,
+        state.fault_reason,
+        phase,
+        values,
+        timing.wake_error_s,
+        timing.step_s,
+    )

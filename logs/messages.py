@@ -35,8 +35,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import struct
-from collections.abc import Iterable
-from typing import TYPE_CHECKING, Protocol
+from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING, Any, Protocol, cast
 
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.JointStates_pb2 import JointStates
@@ -58,9 +58,12 @@ from controller.core.cycle_data import (
     TrackerFeedback,
 )
 from controller.messages import cheope_pb2 as pb
+from logs.cycle_encoding import CycleTimingLike, CycleValues, InputsValues, cycle_values, inputs_values
 
 if TYPE_CHECKING:
     import can
+
+    from controller.core.controller_state import ControllerState
 
 
 TOPIC_CAN = "/can"
@@ -169,6 +172,139 @@ def unix_time_ns_of(monotonic_s: float, offset_ns: int) -> int:
     then, and a frame's ``unix_time_ns``. Rounded: ``time.monotonic()`` is integer nanoseconds / 1e9,
     which comes back whole (recordings before ``CanFrames`` truncated, at most 1 ns earlier)."""
     return round(monotonic_s * 1e9) + offset_ns
+
+
+def inputs_pb(values: InputsValues, out: pb.CycleInputs) -> None:
+    """The step's inputs as plain values (logs.cycle_encoding.inputs_values, which says their order)
+    into ``out``; ``inputs_from_pb`` is the way back."""
+    (
+        drives,
+        sensor,
+        emcy,
+        stop_requested,
+        command,
+        command_value,
+        lost_heartbeats,
+        error_frames,
+        bus_off,
+        late,
+        anomalies,
+        nmt_reports,
+        plans_ready,
+        targets_withheld,
+        tracker,
+    ) = cast(Any, values)  # the order above; numbers, text, tuples
+    for statusword, position, fresh, effort_n in drives:
+        drive = out.drives.add(statusword=statusword, position=position, fresh=fresh)
+        if not math.isnan(effort_n):  # absent: the TPDO does not map 0x6077 (older sessions neither)
+            drive.effort_n = effort_n
+    if sensor is not None:
+        force_n, torque_nm, status, counter, fresh = sensor
+        out.sensor.force_n.extend(force_n)
+        out.sensor.torque_nm.extend(torque_nm)
+        out.sensor.status, out.sensor.counter, out.sensor.fresh = status, counter, fresh
+    for node_id, error_code, error_register in emcy:
+        out.emcy.add(node_id=node_id, error_code=error_code, error_register=error_register)
+    out.stop_requested = stop_requested
+    out.command = command
+    out.command_value = command_value
+    out.lost_heartbeats.extend(lost_heartbeats)
+    out.error_frames = error_frames
+    out.bus_off = bus_off
+    out.late = late
+    for kind, cob_id, count, node_id, anomaly_command in anomalies:
+        out.anomalies.add(kind=kind, cob_id=cob_id, count=count, node_id=node_id, command=anomaly_command)
+    for node_id, nmt_state in nmt_reports:
+        out.nmt_reports.add(node_id=node_id, state=nmt_state)
+    out.plans_ready = plans_ready
+    out.targets_withheld = targets_withheld
+    if tracker is not None:
+        position_m, rotation_vector_rad, status, counter, fresh = tracker
+        out.tracker.position_m.extend(position_m)
+        out.tracker.rotation_vector_rad.extend(rotation_vector_rad)
+        out.tracker.status, out.tracker.counter, out.tracker.fresh = status, counter, fresh
+
+
+def cycle_pb(values: CycleValues) -> pb.Cycle:
+    """The ``cheope.v1.Cycle`` of one cycle's values (logs.cycle_encoding.cycle_values, which says their
+    order): built in the writer's process, not on the loop's thread."""
+    (
+        cycle,
+        t,
+        inputs,
+        controlwords,
+        targets,
+        mode,
+        setpoint_position,
+        setpoint_velocity,
+        setpoint_acceleration,
+        tcp_reference_m,
+        tcp_measured_m,
+        fault_reason,
+        task_phase,
+        task_values,
+        wake_error_s,
+        step_s,
+    ) = cast(Any, values)  # the order above; numbers, text, tuples
+    msg = pb.Cycle(cycle=cycle, t_s=t)
+    inputs_pb(inputs, msg.inputs)
+    msg.outputs.controlwords.extend(controlwords)
+    msg.outputs.targets.extend(targets)
+    st = msg.state
+    st.mode = mode
+    st.setpoint_position.extend(setpoint_position)
+    st.setpoint_velocity.extend(setpoint_velocity)
+    st.setpoint_acceleration.extend(setpoint_acceleration)
+    if tcp_reference_m is not None:
+        st.tcp_reference_m.extend(tcp_reference_m)
+    if tcp_measured_m is not None:
+        st.tcp_measured_m.extend(tcp_measured_m)
+    st.fault_reason = fault_reason
+    if task_values is not None:
+        st.task_phase = task_phase
+        st.task_values.update(task_values)
+    msg.timing.wake_error_s = wake_error_s
+    msg.timing.step_s = step_s
+    return msg
+
+
+def cycle_values_of_pb(msg: pb.Cycle) -> CycleValues:
+    """A recorded ``cheope.v1.Cycle`` as the values the recorder hands its writer (``cycle_pb`` of them is
+    ``msg`` again): to write a recorded session's cycles anew (tests/tools/bench_recording_size.py)."""
+    st = msg.state
+    task_values = dict(st.task_values)
+    return (
+        msg.cycle,
+        msg.t_s,
+        inputs_values(inputs_from_pb(msg.inputs)),
+        tuple(msg.outputs.controlwords),
+        tuple(msg.outputs.targets),
+        st.mode,
+        tuple(st.setpoint_position),
+        tuple(st.setpoint_velocity),
+        tuple(st.setpoint_acceleration),
+        tuple(st.tcp_reference_m) or None,
+        tuple(st.tcp_measured_m) or None,
+        st.fault_reason,
+        st.task_phase,
+        task_values if task_values or st.task_phase else None,
+        msg.timing.wake_error_s,
+        msg.timing.step_s,
+    )
+
+
+def cycle_to_pb(
+    cycle: int,
+    t: float,
+    inputs: CycleInputs,
+    state: ControllerState,
+    outputs: CycleOutputs,
+    timing: CycleTimingLike,
+    phase_name: Callable[[object], str] | None = None,
+) -> pb.Cycle:
+    """The ``cheope.v1.Cycle`` of one cycle, in one process (tools and tests; the recorder splits it
+    between the loop's thread, ``cycle_values``, and its writer, ``cycle_pb``)."""
+    return cycle_pb(cycle_values(cycle, t, inputs, state, outputs, timing, phase_name))
 
 
 def inputs_from_pb(msg: pb.CycleInputs) -> CycleInputs:

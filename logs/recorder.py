@@ -1,11 +1,12 @@
 """The session recorder: one MCAP file per session, written by its own process.
 
-The loop thread turns a cycle into bytes (the ``cheope.v1.Cycle`` Protobuf and a pickled tuple
-of the cycle's CAN frames, events and TCP points: 17-19 µs median with one frame,
-``pytest tests/test_recording.py -k large_buffer -s``) and writes them to a pipe with
-one non-blocking ``write``; it never waits. What the pipe cannot take waits in a bounded
+The loop thread turns a cycle into bytes (one pickled tuple: the cycle's values,
+logs/cycle_encoding.py, its CAN frames, events and TCP points; ``pytest
+tests/integration/test_recording.py -k large_buffer -s`` prints its cost) and writes them to a pipe
+with one non-blocking ``write``; it never waits. What the pipe cannot take waits in a bounded
 backlog; beyond ``buffer_bytes`` the item is dropped and counted. The writer process
-(logs/session_writer.py, ``python -m logs.session_writer``) builds the other messages, writes
+(logs/session_writer.py, ``python -m logs.session_writer``) builds the ``/cycle`` Protobuf from
+those values and the other messages, writes
 the MCAP file and every ``chunk_size_bytes`` of messages or ``flush_interval_s`` closes the
 chunk and flushes the file to the operating system. It reports every new drop as a
 ``recorder_drop`` event on ``/events`` and the totals in the ``cheope.recording`` metadata
@@ -49,7 +50,7 @@ from controller.config import Config, config_to_dict
 from controller.errors import DeviceError
 from drivers.pacing import wall_clock_offset_ns
 from logs import messages as m
-from logs.cycle_encoding import cycle_to_pb
+from logs.cycle_encoding import cycle_values
 from logs.keyframe import ENCODING as STATE_ENCODING
 from logs.keyframe import KeyframeError, encode_state
 from logs.messages import FrameRecord, frame_record
@@ -272,7 +273,7 @@ class SessionRecorder:
         self._last_cycle = (cycle, t)
         frames = self._frames
         self._frames = []
-        body = cycle_to_pb(cycle, t, inputs, state, outputs, timing, self.phase_name).SerializeToString()
+        values = cycle_values(cycle, t, inputs, state, outputs, timing, self.phase_name)
         mono_s = self.clock()
         self._send(
             pack_record(
@@ -284,7 +285,7 @@ class SessionRecorder:
                     t,
                     mono_s,
                     seq,
-                    body,
+                    values,
                     events,
                     state.tcp_measured_m,
                     state.tcp_reference_m,

@@ -10,14 +10,15 @@ The wire format, loop -> writer, on the writer's standard input: records of a 4-
 little-endian length and a pickle of a tuple whose first item is the kind:
 
     (SETUP, settings dict)                                     first, once
-    (CYCLE, dropped, frames, cycle, t, mono_s, seq, cycle_pb, events, tcp_measured, tcp_reference)
+    (CYCLE, dropped, frames, cycle, t, mono_s, seq, values, events, tcp_measured, tcp_reference)
     (FRAMES, dropped, frames)                                  frames without a cycle after them
     (KEYFRAME, dropped, cycle, t, mono_s, seq, encoding, state, problem)   asked for: see below
     (END, queued, dropped)                                     the recorder's close
 
 ``frames`` is a list of ``logs.messages.FrameRecord`` (outgoing, monotonic_s, arbitration_id, data, flags),
-``cycle_pb`` the serialised ``cheope.v1.Cycle`` and ``dropped`` the loop's running count of
-items it could not hand over. Writer -> loop, on standard output, JSON lines: ``{"ready": ...}``
+``values`` the cycle's values (logs/cycle_encoding.py ``cycle_values``: numbers, text, tuples),
+which the writer turns into the ``cheope.v1.Cycle`` (logs/messages.py ``cycle_pb``), and
+``dropped`` the loop's running count of items it could not hand over. Writer -> loop, on standard output, JSON lines: ``{"ready": ...}``
 or ``{"error": ...}`` after SETUP, and ``{"written": n, "chunks": n, "error": "", "files": [...],
 "deleted": [...]}`` at the end; in between ``{"keyframe": n}``, ``{"file": path}``, ``{"stopped": why}``
 and ``{"command": "stop"}`` (the live Foxglove server's stop service, logs/live_views.py).
@@ -61,6 +62,7 @@ if TYPE_CHECKING:
     from controller.config import Config
     from controller.core.cycle_data import Event
     from controller.core.linalg3 import Vector3
+    from logs.cycle_encoding import CycleValues
     from logs.messages import FrameRecord
     from logs.scene_sampler import SceneFrame, SceneSampler
 
@@ -447,7 +449,7 @@ class SessionWriter:
         t: float,
         mono_s: float,
         seq: int,
-        cycle_pb: bytes,
+        values: CycleValues,
         events: tuple[Event, ...],
         tcp_measured: Vector3 | None,
         tcp_reference: Vector3 | None,
@@ -456,6 +458,7 @@ class SessionWriter:
         ns = self.m.unix_time_ns_of(mono_s, self.offset_ns)
         self.last_cycle = (cycle, t)
         self.last_mono_s = mono_s
+        cycle_pb = m.cycle_pb(values).SerializeToString()  # here, not on the loop's thread
         n = self._add(m.TOPIC_CYCLE, cycle_pb, ns, seq)
         for e in events:
             event_pb = m.event_to_pb(cycle, t, e).SerializeToString()

@@ -16,7 +16,7 @@ from controller.cli import main
 from controller.config import ConfigError, load_config
 from controller.messages import cheope_pb2 as pb
 from logs import messages as m
-from logs.cycle_encoding import cycle_to_pb
+from logs.cycle_encoding import cycle_values
 from logs.keyframe import decode_state, encode_state
 from logs.reader import iter_decoded, iter_messages, read_head, read_info
 from logs.recorder import session_metadata
@@ -201,9 +201,7 @@ def test_the_writer_asks_for_a_keyframe_past_the_size_limit_and_rotates_on_it(tm
         },
         lambda **f: asked.append(f),
     )
-    body = cycle_to_pb(
-        0, 0.0, trace.rows[0][2], trace.rows[0][3], trace.rows[0][4], _Timing()
-    ).SerializeToString()
+    body = cycle_values(0, 0.0, trace.rows[0][2], trace.rows[0][3], trace.rows[0][4], _Timing())
     k = 0
     while not asked:
         w.write((CYCLE, 0, [], k, k * 0.0025, k * 0.0025, k, body, (), None, None))

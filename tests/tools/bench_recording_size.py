@@ -78,7 +78,7 @@ def records(
                 c.t_s,
                 (d.log_time_ns - offset_ns) * 1e-9,
                 d.sequence,
-                c.SerializeToString(),
+                m.cycle_values_of_pb(c),
                 tuple(events.get(c.cycle, ())),
                 tuple(st.tcp_measured_m) or None,
                 tuple(st.tcp_reference_m) or None,

@@ -26,6 +26,12 @@ class _Inner:
     a: float = 1.0
 
 
+_POINT = _Point(0.25, 0.75)
+_GAIN = np.float64(0.125)
+_COUNT = np.int64(4)  # not a Python int: not recorded
+_INNER = _Inner()
+
+
 @dataclass(frozen=True)
 class _TaskState:
     phase: _Phase = _Phase.TRACKING
@@ -35,15 +41,15 @@ class _TaskState:
     held_force: tuple[float, float, float] | None = None
     p_cmd: tuple[float, float, float] = (0.1, -0.2, 0.5)
     tare_sum: tuple[float, int] = (2.5, 7)
-    point: _Point = _Point(0.25, 0.75)
-    gain: np.float64 = np.float64(0.125)
+    point: _Point = _POINT
+    gain: np.float64 = _GAIN
     fault: str = ""
     trace: tuple[tuple[float, float], ...] = ((0.0, 1.0), (2.0, 3.0))
     five: tuple[float, ...] = (1.0, 2.0, 3.0, 4.0, 5.0)
     empty: tuple[float, ...] = ()
     mixed: tuple[object, ...] = (1.0, "x")
-    inner: _Inner = _Inner()
-    count: np.int64 = np.int64(4)  # not a Python int: not recorded
+    inner: _Inner = _INNER
+    count: np.int64 = _COUNT
 
 
 def test_numbers_and_short_numeric_tuples_are_recorded_and_nothing_else():

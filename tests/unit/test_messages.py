@@ -34,8 +34,8 @@ def test_the_tracker_plans_ready_and_withheld_targets_round_trip_into_the_steps_
     """Replay feeds the step what it got: the tracker's sample, the off-loop planner's progress and
     whether the cycle's SYNC went without the targets."""
     from controller.core.cycle_data import CycleInputs, DriveFeedback, TrackerFeedback
-    from logs.cycle_encoding import inputs_to_pb
-    from logs.messages import inputs_from_pb
+    from logs.cycle_encoding import inputs_values
+    from logs.messages import inputs_from_pb, inputs_pb
 
     inputs = CycleInputs(
         drives=(DriveFeedback(0x1637, 0.1 + 0.2, True),),
@@ -44,11 +44,11 @@ def test_the_tracker_plans_ready_and_withheld_targets_round_trip_into_the_steps_
         targets_withheld=True,
     )
     msg = pb.CycleInputs()
-    inputs_to_pb(inputs, msg)
+    inputs_pb(inputs_values(inputs), msg)
     assert inputs_from_pb(pb.CycleInputs.FromString(msg.SerializeToString())) == inputs
     without = CycleInputs(drives=inputs.drives)
     msg = pb.CycleInputs()
-    inputs_to_pb(without, msg)
+    inputs_pb(inputs_values(without), msg)
     assert inputs_from_pb(msg) == without and not msg.HasField("tracker")
 
 
@@ -151,3 +151,20 @@ def test_a_cycles_frames_come_back_frame_by_frame_with_every_flag(frames, offset
             "is_error_frame",
         ):
             assert getattr(again, name) == getattr(sent, name), name
+
+
+def test_recorded_cycles_are_the_values_the_recorder_hands_its_writer():
+    """cycle_pb of a recorded cycle's values is the recorded cycle: what the writer builds from the
+    loop's values is what the file holds (tests/tools/bench_recording_size.py writes sessions anew)."""
+    from pathlib import Path
+
+    from logs.messages import TOPIC_CYCLE, cycle_pb, cycle_values_of_pb
+    from logs.reader import iter_decoded
+
+    data = Path(__file__).resolve().parents[1] / "data"
+    n = 0
+    for name in ("contour_contact.mcap", "path_quarter_lap.mcap"):
+        for d in iter_decoded(data / name, [TOPIC_CYCLE]):
+            assert cycle_pb(cycle_values_of_pb(d.message)) == d.message
+            n += 1
+    assert n > 1000

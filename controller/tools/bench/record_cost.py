@@ -1,13 +1,19 @@
-"""The recorder's cost on the loop's thread: one cycle's ``/cycle`` record, compiled beside interpreted.
+"""The recorder's cost on the loop's thread: one cycle's record, compiled beside interpreted.
 
     .venv/bin/python -m controller.tools.bench.record_cost [--task contour] [--passes 21]
 
-Runs the task in simulated time, keeps every 50th cycle of a window of it (the contour's tracking),
-then builds and serialises each kept cycle's record (``logs.cycle_encoding.cycle_to_pb``) with the
-module as this process imports it (compiled by mypyc where the build is fresh) and with its source
-loaded as a second module, interpreted, pass after pass in turn, so that both see the same host.
-The two messages must be equal, or the figure is refused. Prints JSON: the median, min and max
-over the passes of each encoder's mean time a cycle, and their ratio.
+Runs the task in simulated time and keeps every 50th cycle of a window of it (the contour's
+tracking). Then, pass after pass in turn so that all see the same host, for each kept cycle:
+
+- ``loop``: what the recorder does on the loop's thread, the cycle's values
+  (``logs.cycle_encoding.cycle_values``) pickled, with the module as this process imports it
+  (compiled by mypyc where the build is fresh);
+- ``loop_interpreted``: the same with the module's source loaded as a second module, interpreted;
+- ``writer``: the ``/cycle`` Protobuf built from those values and serialised
+  (``logs.messages.cycle_pb``), which the writer's process does.
+
+The Protobuf of both modules' values must be equal, or the figure is refused. Prints JSON: the
+median, min and max over the passes of each one's mean time a cycle, and the loop's ratio.
 """
 
 from __future__ import annotations
@@ -15,14 +21,15 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import pickle
 import sys
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from controller.compiled_law import LAW_BUILD
 from controller.tools.bench.cycle_work import task_config
+from logs.messages import cycle_pb
 
 WINDOWS = {"path": (800, 1800), "contour": (8000, 16000)}  # cycles: the path's lap, the contour's tracking
 EVERY = 50
@@ -61,35 +68,43 @@ def record_cost(task: str, passes: int) -> dict[str, object]:
     phase = rig.law.task.phase_name
     interpreted = _interpreted_encoding()
     for c in kept:
-        if compiled.cycle_to_pb(*c, phase) != interpreted.cycle_to_pb(*c, phase):
+        if cycle_pb(compiled.cycle_values(*c, phase)) != cycle_pb(interpreted.cycle_values(*c, phase)):
             raise SystemExit(f"cycle {c[0]}: the compiled and the interpreted records differ")
+    values = [compiled.cycle_values(*c, phase) for c in kept]
 
-    def mean_us(encode: Callable[..., Any]) -> float:
+    def loop_us(module: Any) -> float:
         t0 = time.perf_counter()
         for c in kept:
-            encode(*c, phase).SerializeToString()
+            pickle.dumps(module.cycle_values(*c, phase), pickle.HIGHEST_PROTOCOL)
         return (time.perf_counter() - t0) / len(kept) * 1e6
 
-    runs: dict[str, list[float]] = {"this_build": [], "interpreted": []}
+    def writer_us() -> float:
+        t0 = time.perf_counter()
+        for v in values:
+            cycle_pb(v).SerializeToString()
+        return (time.perf_counter() - t0) / len(kept) * 1e6
+
+    runs: dict[str, list[float]] = {"loop": [], "loop_interpreted": [], "writer": []}
     for _ in range(passes):
-        runs["this_build"].append(mean_us(compiled.cycle_to_pb))
-        runs["interpreted"].append(mean_us(interpreted.cycle_to_pb))
+        runs["loop"].append(loop_us(compiled))
+        runs["loop_interpreted"].append(loop_us(interpreted))
+        runs["writer"].append(writer_us())
     out: dict[str, object] = {
         "task": task,
         "law": LAW_BUILD.describe(),
         "cycles": len(kept),
         "passes": passes,
     }
-    for name, values in runs.items():
-        values.sort()
+    medians = {}
+    for name, times in runs.items():
+        times.sort()
+        medians[name] = times[len(times) // 2]
         out[f"{name}_us"] = {
-            "median": round(values[len(values) // 2], 1),
-            "min": round(values[0], 1),
-            "max": round(values[-1], 1),
+            "median": round(medians[name], 1),
+            "min": round(times[0], 1),
+            "max": round(times[-1], 1),
         }
-    out["ratio_of_medians"] = round(
-        sorted(runs["this_build"])[passes // 2] / sorted(runs["interpreted"])[passes // 2], 3
-    )
+    out["loop_ratio_of_medians"] = round(medians["loop"] / medians["loop_interpreted"], 3)
     return out
 
 
