@@ -36,8 +36,9 @@ from typing import Any
 # Cheope's kinematics. The bus exchange's, in the loop's process beside the step: its frame codecs
 # and window (drivers/), and the recorder's encoding of each cycle (logs/cycle_encoding.py). The
 # simulator's, per SYNC: the drives, the plant, its mechanics, sensor and contact (sim_backend/);
-# in process they took 193 us of a contour cycle with the exchange, 91 us compiled (issue 37). Not a base class that plug-ins subclass (sim_backend/plant_kinematics.py):
-# an interpreted class cannot inherit from a compiled one. Not the records
+# in process they took 193 us of a contour cycle with the exchange, 91 us compiled (issue 37).
+# Not a base class that plug-ins subclass (sim_backend/plant_kinematics.py): an interpreted class
+# cannot inherit from a compiled one. Not the records
 # (controller/core/records.py, controller_state.py, cycle_data.py): mypyc compiles their
 # dataclass_transform decorator and annotations into something the dataclasses cannot read.
 COMPILED_MODULES = (

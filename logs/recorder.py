@@ -6,8 +6,7 @@ tests/integration/test_recording.py -k large_buffer -s`` prints its cost) and wr
 with one non-blocking ``write``; it never waits. What the pipe cannot take waits in a bounded
 backlog; beyond ``buffer_bytes`` the item is dropped and counted. The writer process
 (logs/session_writer.py, ``python -m logs.session_writer``) builds the ``/cycle`` Protobuf from
-those values and the other messages, writes
-the MCAP file and every ``chunk_size_bytes`` of messages or ``flush_interval_s`` closes the
+those values and the other messages, writes the MCAP file and every ``chunk_size_bytes`` of messages or ``flush_interval_s`` closes the
 chunk and flushes the file to the operating system. It reports every new drop as a
 ``recorder_drop`` event on ``/events`` and the totals in the ``cheope.recording`` metadata
 written at close. A controller killed with SIGKILL closes the pipe and the writer still

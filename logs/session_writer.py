@@ -18,8 +18,8 @@ little-endian length and a pickle of a tuple whose first item is the kind:
 ``frames`` is a list of ``logs.messages.FrameRecord`` (outgoing, monotonic_s, arbitration_id, data, flags),
 ``values`` the cycle's values (logs/cycle_encoding.py ``cycle_values``: numbers, text, tuples),
 which the writer turns into the ``cheope.v1.Cycle`` (logs/messages.py ``cycle_pb``), and
-``dropped`` the loop's running count of items it could not hand over. Writer -> loop, on standard output, JSON lines: ``{"ready": ...}``
-or ``{"error": ...}`` after SETUP, and ``{"written": n, "chunks": n, "error": "", "files": [...],
+``dropped`` the loop's running count of items it could not hand over. Writer -> loop, on
+standard output, JSON lines: ``{"ready": ...}`` or ``{"error": ...}`` after SETUP, and ``{"written": n, "chunks": n, "error": "", "files": [...],
 "deleted": [...]}`` at the end; in between ``{"keyframe": n}``, ``{"file": path}``, ``{"stopped": why}``
 and ``{"command": "stop"}`` (the live Foxglove server's stop service, logs/live_views.py).
 
@@ -33,6 +33,8 @@ recordings of the directory are deleted past ``recording.keep_total_size_gb`` (n
 one), and after each chunk the free space is checked: below ``recording.min_free_space_mb`` the
 writer names the reason on /events and to the controller (``{"stopped": why}``), closes the file
 cleanly and its input, so the controller's next write fails and ``recording.on_failure`` decides.
+So does a cycle whose values do not fit its message (a plug-in's setpoint of text): nothing of
+that cycle is written.
 
 The writer ends at END or at the end of its input. A controller killed with SIGKILL closes the
 pipe, so the writer still writes the index and footer: the file is complete up to the last
@@ -159,7 +161,9 @@ class SessionWriter:
         self.written = 0
         self.chunks = 0
         self.error = ""
-        self.stopped = ""  # why the free-space guard stopped the recording (the file itself is sound)
+        self.stopped = (
+            ""  # why the recording stopped with the file sound (free space, a cycle that does not fit)
+        )
         self.reported_drops = 0
         self.last_cycle: tuple[int, float] = (0, 0.0)
         self.last_mono_s = 0.0
@@ -262,7 +266,13 @@ class SessionWriter:
             return  # keep reading: the loop must never find the pipe full because the disk failed
         try:
             if record[0] == CYCLE:
-                self.pending += self._frames(record[2]) + self._cycle(*record[3:])
+                _, _, frames, cycle, t, mono_s, seq, values, events, tcp_measured, tcp_reference = record
+                cycle_pb = self._cycle_pb(cycle, values)
+                if cycle_pb is None:
+                    return
+                self.pending += self._frames(frames) + self._cycle(
+                    cycle, t, mono_s, seq, cycle_pb, events, tcp_measured, tcp_reference
+                )
                 self._ask_keyframe_when_due()
             elif record[0] == FRAMES:
                 self.pending += self._frames(record[2])
@@ -353,13 +363,29 @@ class SessionWriter:
         free = free_bytes(self.path)
         if free is None or free >= self.limits.min_free_bytes:
             return
-        self.stopped = (
+        self._stop(
             f"free space on the file system of {self.path} is {free / 1e6:.0f} MB, below "
             f"recording.min_free_space_mb = {self.limits.min_free_bytes / 1e6:.10g}: recording stopped"
         )
-        self._event("recording_stopped", self.stopped, warning=True)
-        print(f"recording stopped: {self.stopped}", file=sys.stderr, flush=True)
-        self.notify(stopped=self.stopped)
+
+    def _stop(self, why: str) -> None:
+        """Stop recording, the file sound: ``why`` on /events and to the controller, whose next write
+        then fails and whose ``recording.on_failure`` decides (``serve`` closes the input)."""
+        self.stopped = why
+        self._event("recording_stopped", why, warning=True)
+        print(f"recording stopped: {why}", file=sys.stderr, flush=True)
+        self.notify(stopped=why)
+
+    def _cycle_pb(self, cycle: int, values: CycleValues) -> bytes | None:
+        """The cycle's ``/cycle`` message, built here and not on the loop's thread; None, and the
+        recording stopped, when its values do not fit it (a plug-in's setpoint of text): nothing of
+        that cycle is written, and the file stays complete up to the cycle before."""
+        try:
+            data: bytes = self.m.cycle_pb(values).SerializeToString()
+            return data
+        except (TypeError, ValueError, OverflowError) as err:
+            self._stop(f"cycle {cycle} cannot be recorded ({type(err).__name__}: {err}): recording stopped")
+            return None
 
     def finish(self, queued: int | None, dropped: int) -> None:
         """The drop count, ``cheope.recording``, the index and the footer; closes the file."""
@@ -449,7 +475,7 @@ class SessionWriter:
         t: float,
         mono_s: float,
         seq: int,
-        values: CycleValues,
+        cycle_pb: bytes,
         events: tuple[Event, ...],
         tcp_measured: Vector3 | None,
         tcp_reference: Vector3 | None,
@@ -458,7 +484,6 @@ class SessionWriter:
         ns = self.m.unix_time_ns_of(mono_s, self.offset_ns)
         self.last_cycle = (cycle, t)
         self.last_mono_s = mono_s
-        cycle_pb = m.cycle_pb(values).SerializeToString()  # here, not on the loop's thread
         n = self._add(m.TOPIC_CYCLE, cycle_pb, ns, seq)
         for e in events:
             event_pb = m.event_to_pb(cycle, t, e).SerializeToString()

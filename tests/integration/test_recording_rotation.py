@@ -223,6 +223,38 @@ class _Timing:
     step_s = 0.0
 
 
+def test_a_cycle_whose_values_do_not_fit_its_message_stops_the_recording_with_the_file_whole(tmp_path):
+    """The writer builds each cycle's Protobuf from the loop's values: values that do not fit (a
+    plug-in's setpoint of text) stop the recording with the reason, told to the controller and on
+    /events, and the file is complete up to the cycle before."""
+    _, _, _, trace, _, _ = record_session(tmp_path / "ref.mcap", max_s=0.2, frames=False)
+    path = tmp_path / "cheope-20260101-000000.mcap"
+    told: list[dict] = []
+    w = SessionWriter(
+        {
+            "path": str(path),
+            "metadata": session_metadata(load_config()),
+            "clock_offset_ns": 0,
+            "chunk_size_bytes": 1024,
+            "flush_interval_s": 0.5,
+            "compression": "zstd",
+            "session_id": "s" * 32,
+        },
+        lambda **f: told.append(f),
+    )
+    good = cycle_values(0, 0.0, trace.rows[0][2], trace.rows[0][3], trace.rows[0][4], _Timing())
+    for k in range(3):
+        w.write((CYCLE, 0, [], k, k * 0.0025, k * 0.0025, k, good, (), None, None))
+    bad = (*good[:6], ("not", "numbers", "!"), *good[7:])  # the setpoint's position
+    w.write((CYCLE, 0, [], 3, 0.0075, 0.0075, 3, bad, (), None, None))
+    assert w.stopped.startswith("cycle 3 cannot be recorded (TypeError:") and not w.error
+    assert told == [{"stopped": w.stopped}]
+    w.finish(4, 0)
+    info = read_info(path)
+    assert info.complete and info.message_counts[m.TOPIC_CYCLE] == 3
+    assert [d.message.kind for d in iter_decoded(path, [m.TOPIC_EVENTS])] == ["recording_stopped"]
+
+
 def test_retention_deletes_the_oldest_recordings_first_never_an_open_or_a_foreign_file(tmp_path):
     now = time.time()
     names = [f"cheope-20260101-00000{k}.mcap" for k in range(5)]
