@@ -63,7 +63,9 @@ def task_values(task_state: object) -> dict[str, float]:
     for i in range(len(names)):
         v = values[i]
         if isinstance(v, float):
-            out[names[i]] = v
+            out[names[i]] = float(
+                v
+            )  # a subclass (numpy's float64) as a float: nothing for the writer to import
         elif isinstance(v, int):  # bool and IntEnum too
             out[names[i]] = float(v)
         elif isinstance(v, tuple):  # a NamedTuple too
@@ -137,9 +139,11 @@ def cycle_values(
     if task_state is not None:
         if phase_name is not None:
             try:
-                phase = phase_name(task_state)
+                name: object = phase_name(task_state)
             except Exception:  # a task's display helper must never stop the recording
-                phase = "?"
+                name = "?"
+            # text, not a subclass the writer would have to import (a StrEnum: its text); else "?"
+            phase = str.__str__(name) if isinstance(name, str) else "?"
         values = task_values(task_state)
     setpoint = state.setpoint
     return (

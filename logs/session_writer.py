@@ -88,6 +88,10 @@ def pack_record(record: Record) -> bytes:
 READ_BATCH_S = 0.02
 
 
+class UnreadableRecordError(ValueError):
+    """A record whose bytes do not unpickle here: the recording stops, the file sound (``serve``)."""
+
+
 class RecordReader:
     """Whole records from a file descriptor; ``next(timeout)`` returns None on timeout, raises EOFError at the end."""
 
@@ -105,7 +109,12 @@ class RecordReader:
             return None
         body = bytes(self._buf[4 : 4 + n])
         del self._buf[: 4 + n]
-        record: Record = pickle.loads(body)
+        try:
+            record: Record = pickle.loads(body)
+        except Exception as err:  # a value of a class this process cannot import, or no pickle at all
+            raise UnreadableRecordError(
+                f"a record of {n} bytes could not be read ({type(err).__name__}: {err})"
+            ) from err
         return record
 
     def next(self, timeout_s: float | None) -> Record | None:
@@ -363,12 +372,12 @@ class SessionWriter:
         free = free_bytes(self.path)
         if free is None or free >= self.limits.min_free_bytes:
             return
-        self._stop(
+        self.stop(
             f"free space on the file system of {self.path} is {free / 1e6:.0f} MB, below "
             f"recording.min_free_space_mb = {self.limits.min_free_bytes / 1e6:.10g}: recording stopped"
         )
 
-    def _stop(self, why: str) -> None:
+    def stop(self, why: str) -> None:
         """Stop recording, the file sound: ``why`` on /events and to the controller, whose next write
         then fails and whose ``recording.on_failure`` decides (``serve`` closes the input)."""
         self.stopped = why
@@ -384,7 +393,7 @@ class SessionWriter:
             data: bytes = self.m.cycle_pb(values).SerializeToString()
             return data
         except (TypeError, ValueError, OverflowError) as err:
-            self._stop(f"cycle {cycle} cannot be recorded ({type(err).__name__}: {err}): recording stopped")
+            self.stop(f"cycle {cycle} cannot be recorded ({type(err).__name__}: {err}): recording stopped")
             return None
 
     def finish(self, queued: int | None, dropped: int) -> None:
@@ -716,6 +725,9 @@ def serve(fd: int, out: TextIO) -> int:
         try:
             record = reader.next(writer.flush_interval_s / 2)
         except EOFError:  # the controller is gone; a record it was cut off in is lost
+            break
+        except UnreadableRecordError as err:
+            writer.stop(f"{err}: recording stopped")
             break
         if record is None:
             writer.maybe_flush()  # a quiet loop still gets its last messages on disk in time

@@ -333,6 +333,7 @@ def test_the_live_can_channel_carries_every_frame_at_its_rate(tmp_path):
     """The writer's /can live: the frames since its last message, at most recording.live_can_rate_hz
     (2 Hz here) of the session's time, none twice, none lost between messages."""
     from controller.messages import cheope_pb2 as pb
+    from logs.messages import cycle_values_of_pb
     from logs.session_writer import CYCLE, SessionWriter
 
     port = free_loopback_port()
@@ -368,7 +369,7 @@ def test_the_live_can_channel_carries_every_frame_at_its_rate(tmp_path):
                     t,
                     100.0 + t,
                     k,
-                    pb.Cycle(cycle=k, t_s=t).SerializeToString(),
+                    cycle_values_of_pb(pb.Cycle(cycle=k, t_s=t)),
                     (),
                     None,
                     None,

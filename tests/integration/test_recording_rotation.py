@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import random
@@ -443,3 +444,49 @@ def test_a_keyframe_request_already_answered_does_not_split_the_file_twice(tmp_p
     assert not rec._keyframe_wanted
     rec._note({"keyframe": 3})
     assert rec._keyframe_wanted
+
+
+def test_a_record_the_writer_cannot_read_stops_the_recording_with_the_file_whole(tmp_path):
+    """Bytes that do not unpickle in the writer's process (a value of a class it cannot import, or
+    no pickle at all) stop the recording with the reason, and the cycles before are on file."""
+    import io
+    import json
+    import signal
+    import struct
+
+    from logs.session_writer import SETUP, pack_record, serve
+
+    _, _, _, trace, _, _ = record_session(tmp_path / "ref.mcap", max_s=0.2, frames=False)
+    path = tmp_path / "cheope-20260101-000000.mcap"
+    settings = {
+        "path": str(path),
+        "metadata": session_metadata(load_config()),
+        "clock_offset_ns": 0,
+        "chunk_size_bytes": 1024,
+        "flush_interval_s": 0.5,
+        "compression": "zstd",
+        "session_id": "s" * 32,
+    }
+    values = cycle_values(0, 0.0, trace.rows[0][2], trace.rows[0][3], trace.rows[0][4], _Timing())
+    read_fd, write_fd = os.pipe()
+    records = [pack_record((SETUP, settings))]
+    records += [
+        pack_record((CYCLE, 0, [], k, k * 0.0025, k * 0.0025, k, values, (), None, None)) for k in range(2)
+    ]
+    records.append(struct.pack("<I", 5) + b"\x80\x05xyz")  # no pickle
+    os.write(write_fd, b"".join(records))
+    os.close(write_fd)
+    out = io.StringIO()
+    handlers = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    try:
+        serve(read_fd, out)  # sets the writer process's own handlers of SIGINT and SIGTERM
+    finally:
+        signal.signal(signal.SIGINT, handlers[0])
+        signal.signal(signal.SIGTERM, handlers[1])
+        with contextlib.suppress(OSError):
+            os.close(read_fd)
+    replies = [json.loads(line) for line in out.getvalue().splitlines()]
+    stopped = [r["stopped"] for r in replies if "stopped" in r]
+    assert len(stopped) == 1 and stopped[0].startswith("a record of 5 bytes could not be read (")
+    info = read_info(path)
+    assert info.complete and info.message_counts[m.TOPIC_CYCLE] == 2

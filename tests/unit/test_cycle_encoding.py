@@ -79,3 +79,43 @@ def test_a_field_that_holds_numbers_later_is_recorded_then():
 def test_no_task_state_and_no_dataclass_give_no_values():
     assert task_values(None) == {}
     assert task_values((1.0, 2.0)) == {}
+
+
+def test_float_subclasses_are_recorded_as_floats():
+    """Nothing in the values the loop hands the writer needs a class imported there (numpy's float64)."""
+    assert type(task_values(_TaskState())["gain"]) is float
+
+
+class _Look(enum.StrEnum):
+    TRACKING = "tracking"
+
+
+def _failing_phase_name(state: object) -> str:
+    raise RuntimeError("a plug-in's display helper failed")
+
+
+def test_the_task_phase_is_text_whatever_the_task_s_phase_name_returns():
+    """A StrEnum gives its text; anything else, or a failure, gives "?": the recording goes on."""
+    from controller.assembly import build_law
+    from controller.config import load_config
+    from controller.core.cycle_data import CycleInputs, CycleOutputs
+    from controller.core.records import replace
+    from logs.cycle_encoding import cycle_values
+    from logs.messages import cycle_pb
+
+    state = replace(build_law(load_config()).initial_state(), task_state=_TaskState())
+    inputs, outputs = CycleInputs(drives=()), CycleOutputs(controlwords=(), targets=())
+    for phase_name, expected in (
+        (lambda s: "TRACKING", "TRACKING"),
+        (lambda s: _Look.TRACKING, "tracking"),
+        (lambda s: 3, "?"),
+        (_failing_phase_name, "?"),
+    ):
+        values = cycle_values(7, 0.0175, inputs, state, outputs, _Timing(), phase_name)
+        assert type(values[12]) is str and values[12] == expected
+        assert cycle_pb(values).state.task_phase == expected
+
+
+class _Timing:
+    wake_error_s = 0.0
+    step_s = 0.0
