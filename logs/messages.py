@@ -35,7 +35,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import struct
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any, Protocol, cast
 
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
@@ -58,12 +58,10 @@ from controller.core.cycle_data import (
     TrackerFeedback,
 )
 from controller.messages import cheope_pb2 as pb
-from logs.cycle_encoding import CycleTimingLike, CycleValues, InputsValues, cycle_values, inputs_values
+from logs.cycle_encoding import CycleValues, InputsValues, inputs_values
 
 if TYPE_CHECKING:
     import can
-
-    from controller.core.controller_state import ControllerState
 
 
 TOPIC_CAN = "/can"
@@ -291,20 +289,6 @@ def cycle_values_of_pb(msg: pb.Cycle) -> CycleValues:
         msg.timing.wake_error_s,
         msg.timing.step_s,
     )
-
-
-def cycle_to_pb(
-    cycle: int,
-    t: float,
-    inputs: CycleInputs,
-    state: ControllerState,
-    outputs: CycleOutputs,
-    timing: CycleTimingLike,
-    phase_name: Callable[[object], str] | None = None,
-) -> pb.Cycle:
-    """The ``cheope.v1.Cycle`` of one cycle, in one process (tools and tests; the recorder splits it
-    between the loop's thread, ``cycle_values``, and its writer, ``cycle_pb``)."""
-    return cycle_pb(cycle_values(cycle, t, inputs, state, outputs, timing, phase_name))
 
 
 def inputs_from_pb(msg: pb.CycleInputs) -> CycleInputs:
