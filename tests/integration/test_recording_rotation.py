@@ -14,7 +14,7 @@ import pytest
 from test_recording import record_session
 
 from controller.cli import main
-from controller.config import ConfigError, load_config
+from controller.config import Config, ConfigError, load_config
 from controller.messages import cheope_pb2 as pb
 from logs import messages as m
 from logs.cycle_encoding import cycle_values
@@ -189,19 +189,7 @@ def test_the_writer_asks_for_a_keyframe_past_the_size_limit_and_rotates_on_it(tm
     cfg = load_config()
     asked: list[dict] = []
     first = tmp_path / "cheope-20260101-000000.mcap"
-    w = SessionWriter(
-        {
-            "path": str(first),
-            "metadata": session_metadata(cfg),
-            "clock_offset_ns": 0,
-            "chunk_size_bytes": 1024,
-            "flush_interval_s": 0.5,
-            "compression": "zstd",
-            "session_id": "s" * 32,
-            "max_file_bytes": 8000,
-        },
-        lambda **f: asked.append(f),
-    )
+    w = SessionWriter(_writer_settings(first, cfg, max_file_bytes=8000), lambda **f: asked.append(f))
     body = cycle_values(0, 0.0, trace.rows[0][2], trace.rows[0][3], trace.rows[0][4], _Timing())
     k = 0
     while not asked:
@@ -224,6 +212,20 @@ class _Timing:
     step_s = 0.0
 
 
+def _writer_settings(path: Path, cfg: Config, **extra: object) -> dict[str, object]:
+    """A SessionWriter's SETUP settings for ``path``: small chunks, one session."""
+    return {
+        "path": str(path),
+        "metadata": session_metadata(cfg),
+        "clock_offset_ns": 0,
+        "chunk_size_bytes": 1024,
+        "flush_interval_s": 0.5,
+        "compression": "zstd",
+        "session_id": "s" * 32,
+        **extra,
+    }
+
+
 def test_a_cycle_whose_values_do_not_fit_its_message_stops_the_recording_with_the_file_whole(tmp_path):
     """The writer builds each cycle's Protobuf from the loop's values: values that do not fit (a
     plug-in's setpoint of text) stop the recording with the reason, told to the controller and on
@@ -231,18 +233,7 @@ def test_a_cycle_whose_values_do_not_fit_its_message_stops_the_recording_with_th
     _, _, _, trace, _, _ = record_session(tmp_path / "ref.mcap", max_s=0.2, frames=False)
     path = tmp_path / "cheope-20260101-000000.mcap"
     told: list[dict] = []
-    w = SessionWriter(
-        {
-            "path": str(path),
-            "metadata": session_metadata(load_config()),
-            "clock_offset_ns": 0,
-            "chunk_size_bytes": 1024,
-            "flush_interval_s": 0.5,
-            "compression": "zstd",
-            "session_id": "s" * 32,
-        },
-        lambda **f: told.append(f),
-    )
+    w = SessionWriter(_writer_settings(path, load_config()), lambda **f: told.append(f))
     good = cycle_values(0, 0.0, trace.rows[0][2], trace.rows[0][3], trace.rows[0][4], _Timing())
     for k in range(3):
         w.write((CYCLE, 0, [], k, k * 0.0025, k * 0.0025, k, good, (), None, None))
@@ -458,15 +449,7 @@ def test_a_record_the_writer_cannot_read_stops_the_recording_with_the_file_whole
 
     _, _, _, trace, _, _ = record_session(tmp_path / "ref.mcap", max_s=0.2, frames=False)
     path = tmp_path / "cheope-20260101-000000.mcap"
-    settings = {
-        "path": str(path),
-        "metadata": session_metadata(load_config()),
-        "clock_offset_ns": 0,
-        "chunk_size_bytes": 1024,
-        "flush_interval_s": 0.5,
-        "compression": "zstd",
-        "session_id": "s" * 32,
-    }
+    settings = _writer_settings(path, load_config())
     values = cycle_values(0, 0.0, trace.rows[0][2], trace.rows[0][3], trace.rows[0][4], _Timing())
     read_fd, write_fd = os.pipe()
     records = [pack_record((SETUP, settings))]
