@@ -67,10 +67,10 @@ def record_cost(task: str, passes: int) -> dict[str, object]:
     rig.run((Keep(),), max_duration_s=(last + 1) * cfg.period_s)
     phase = rig.law.task.phase_name
     interpreted = _interpreted_encoding()
-    for c in kept:
-        if cycle_pb(compiled.cycle_values(*c, phase)) != cycle_pb(interpreted.cycle_values(*c, phase)):
-            raise SystemExit(f"cycle {c[0]}: the compiled and the interpreted records differ")
     values = [compiled.cycle_values(*c, phase) for c in kept]
+    for c, v in zip(kept, values, strict=True):
+        if cycle_pb(v) != cycle_pb(interpreted.cycle_values(*c, phase)):
+            raise SystemExit(f"cycle {c[0]}: the compiled and the interpreted records differ")
 
     def loop_us(module: Any) -> float:
         t0 = time.perf_counter()
