@@ -115,6 +115,17 @@ def _rt_options(ap: argparse.ArgumentParser) -> None:
         action="store_true",
         help="the default options without the CPU shield: other work may share the loop's CPU",
     )
+    g.add_argument(
+        "--idle-poll",
+        action="store_true",
+        help="keep every CPU of the machine from halting while the loop runs: a SCHED_IDLE poller on each "
+        "(a default on a virtual machine; controller/shell/idle_poll.py)",
+    )
+    g.add_argument(
+        "--no-idle-poll",
+        action="store_true",
+        help="the default options without idle polling: idle CPUs halt",
+    )
     g.add_argument("--no-realtime", action="store_true", help="ask for none of them: the normal scheduler")
     g.add_argument(
         "--rt-best-effort",
@@ -160,20 +171,25 @@ def _realtime(args: argparse.Namespace, simulator: bool = False) -> RealtimeOpti
         or args.lock_memory
         or args.cpu_latency_us is not None
         or args.cpu_shield
+        or args.idle_poll
     )
     if args.no_realtime:
         if explicit:
             raise RealtimeError(
-                "--no-realtime cannot be combined with --rt-priority, --cpu, --lock-memory, --cpu-latency-us "
-                "or --cpu-shield"
+                "--no-realtime cannot be combined with --rt-priority, --cpu, --lock-memory, --cpu-latency-us, "
+                "--cpu-shield or --idle-poll"
             )
         return RealtimeOptions()
     if args.cpu_shield and args.no_cpu_shield:
         raise RealtimeError("--cpu-shield and --no-cpu-shield contradict each other")
+    if args.idle_poll and args.no_idle_poll:
+        raise RealtimeError("--idle-poll and --no-idle-poll contradict each other")
     if not explicit:
         default = RealtimeOptions.default()
         if args.no_cpu_shield:
             default = dataclasses.replace(default, shield=False)
+        if args.no_idle_poll:
+            default = dataclasses.replace(default, idle_poll=False)
         return default.for_simulator() if simulator else default
     return RealtimeOptions(
         priority=args.rt_priority,
@@ -181,6 +197,7 @@ def _realtime(args: argparse.Namespace, simulator: bool = False) -> RealtimeOpti
         lock_memory=args.lock_memory,
         cpu_latency_us=args.cpu_latency_us,
         shield=args.cpu_shield and not simulator,
+        idle_poll=args.idle_poll and not simulator,
         required=not args.rt_best_effort,
     )
 

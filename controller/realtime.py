@@ -30,6 +30,11 @@ with that message.
   Machine-wide while held; released when the file is closed. Asked for only explicitly
   (``--cpu-latency-us``): on this VM guest polling vCPUs lost more time to the host (steal)
   and the 400-Hz contour demo over the bus got worse with it, though the 1-kHz bench got better.
+  A guest without a cpuidle driver (``/sys/devices/system/cpu/cpuidle/current_driver``: none)
+  always halts an idle CPU and the limit changes nothing there.
+- Idle polling (``controller/shell/idle_poll.py``): a ``SCHED_IDLE`` poller on every CPU keeps
+  the vCPUs of a VM guest from halting, which the guest's kernel cannot be told to do without a
+  boot option. A default on a VM guest (``on_virtual_machine``) only.
 
 All are taken after the start-up work, never before it (``check_realtime`` only probes):
 several controllers and simulators share a host, and one's start-up at SCHED_FIFO took the
@@ -98,19 +103,27 @@ class RealtimeOptions:
     shield: bool = (
         False  # keep normal tasks off ``cpus`` while the loop runs (controller/shell/cpu_shield.py)
     )
+    idle_poll: bool = False  # no CPU of the machine halts while the loop runs (controller/shell/idle_poll.py)
     required: bool = True  # False: where refused, warn in one line and run on without it
 
     @classmethod
     def default(cls, priority: int = DEFAULT_LOOP_PRIORITY) -> RealtimeOptions:
         """What the controller asks for unless told otherwise: SCHED_FIFO, the last CPU kept clear
-        of normal tasks, locked memory.
+        of normal tasks, locked memory, and on a virtual machine the CPUs kept from halting.
 
         On a machine with more than one CPU the loop takes the last one and leaves the others
         to the rest of the system (and to the simulator, ``for_simulator``).
         """
         allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
         cpus = (allowed[-1],) if len(allowed) > 1 else ()
-        return cls(priority=priority, cpus=cpus, lock_memory=True, shield=bool(cpus), required=False)
+        return cls(
+            priority=priority,
+            cpus=cpus,
+            lock_memory=True,
+            shield=bool(cpus),
+            idle_poll=on_virtual_machine(),
+            required=False,
+        )
 
     def for_simulator(self) -> RealtimeOptions:
         """The simulated hardware's options beside a loop with these: one step below, on the other CPUs."""
@@ -142,6 +155,7 @@ class RealtimeOptions:
             or bool(self.cpus)
             or self.lock_memory
             or self.cpu_latency_us is not None
+            or self.idle_poll
         )
 
     def cli_args(self) -> list[str]:
@@ -157,6 +171,8 @@ class RealtimeOptions:
             args += ["--cpu-latency-us", str(self.cpu_latency_us)]
         if self.shield:
             args.append("--cpu-shield")
+        if self.idle_poll:
+            args.append("--idle-poll")
         if args and not self.required:
             args.append("--rt-best-effort")
         return args
@@ -169,11 +185,23 @@ class RealtimeOptions:
             parts.append("CPU " + ",".join(str(c) for c in self.cpus))
         if self.shield:
             parts.append("kept clear of normal tasks")
+        if self.idle_poll:
+            parts.append("CPUs kept from halting")
         if self.lock_memory:
             parts.append("memory locked")
         if self.cpu_latency_us is not None:
             parts.append(f"CPU wake-up latency <= {self.cpu_latency_us} us")
         return ", ".join(parts) or "none"
+
+
+def on_virtual_machine(cpuinfo_path: str = "/proc/cpuinfo") -> bool:
+    """True when the CPUs say they run under a hypervisor (x86's ``hypervisor`` flag): there an
+    idle CPU halts and the host decides when it runs again (controller/shell/idle_poll.py)."""
+    try:
+        with open(cpuinfo_path) as f:
+            return any(line.startswith("flags") and " hypervisor" in line for line in f)
+    except OSError:
+        return False
 
 
 def set_fifo_priority(priority: int) -> None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import os
 import resource
 import threading
 import time
@@ -41,6 +42,7 @@ from controller.realtime import (
 from controller.robot_registry import ActuatorUnits
 from controller.shell.cpu_shield import raise_shield
 from controller.shell.helper_threads import HelperThreadWatch
+from controller.shell.idle_poll import idle_polling
 from controller.shell.log_handoff import log_records_off_the_loop
 from controller.shell.loop import CycleLoop
 from controller.shell.run_summary import RunRecorder, summarize
@@ -232,9 +234,13 @@ def run_controller(
         helpers_at_start = 0
         shield_summary: dict[str, object] = {}
 
+        idle_poll_summary: dict[str, object] = {}
+        # every CPU this process may use: the loop's, and in the demo the simulated drives'
+        polled_cpus = tuple(sorted(os.sched_getaffinity(0))) if realtime.idle_poll else ()
+
         # the shield's guardian is started before the loop thread takes its priority and CPU,
         # which a child process would inherit
-        with raise_shield(realtime, shield_summary):
+        with raise_shield(realtime, shield_summary), idle_polling(polled_cpus, idle_poll_summary):
             try:
                 restore = apply_realtime(realtime)
                 granted = granted_realtime()
@@ -271,6 +277,7 @@ def run_controller(
             "recording": _recording_summary(session, cfg),
             "realtime": granted,
             "cpu_shield": shield_summary,
+            **({"idle_poll": idle_poll_summary} if idle_poll_summary else {}),
             "helper_threads_raised": {"at_start": helpers_at_start, "during_run": helpers.raised},
             # the sleeper's spin before each deadline (loop.spin_us): CPU spent on the wake-up's precision
             "spin_s": round(sleeper.spun_s, 3),

@@ -16,7 +16,9 @@ from busy_machine import TOLERANT
 from waiting import wait_until
 
 from controller import cli
+from controller.realtime import on_virtual_machine
 from controller.shell.demo import simulator_process
+from controller.shell.idle_poll import POLLER_SOURCE
 from drivers.bus import parse_bus_spec
 
 pytestmark = pytest.mark.integration
@@ -74,6 +76,28 @@ def test_demo_runs_the_path_task_end_to_end():
     # SYNC period moves the drives' interpolators: allow 0.3 mm on a busy machine
     assert s["tracking_error_m"]["rms"] < 3e-4
     assert set(s["period_error_us"]) == {"p50", "p99", "max"}
+    # idle polling: a default on a VM guest only, one poller on each CPU the demo may use, all
+    # of them ended with the demo
+    if on_virtual_machine():
+        assert s["idle_poll"]["cpus"] == sorted(os.sched_getaffinity(0))
+        assert s["idle_poll"]["cpu_s"] > 0.0
+    else:
+        assert "idle_poll" not in s
+    assert not _idle_pollers()
+
+
+def _idle_pollers() -> list[int]:
+    """The process ids of the idle pollers running on this machine."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                command = (entry / "cmdline").read_bytes()
+            except OSError:
+                continue  # ended meanwhile
+            if POLLER_SOURCE.encode() in command:
+                found.append(int(entry.name))
+    return found
 
 
 def test_demo_runs_the_contour_experiment_over_the_bus_by_default():
