@@ -1,4 +1,5 @@
-"""The step after a sleep, with and without the CPUs' wake-up latency limit (PM QoS).
+"""The step after a sleep: without the CPUs' wake-up latency limit (PM QoS), with it, and with the
+CPU kept polling (``controller/shell/idle_poll.py``).
 
     .venv/bin/python -m controller.tools.bench.step_after_sleep [--task path] [--sleep-ms 2] [--runs 5]
 
@@ -7,9 +8,10 @@ idle may enter a state that takes time to leave (on a VM guest the ``haltpoll`` 
 hands the vCPU back to the host), and the code that runs after it runs slower. Here the law
 runs on the in-process simulated devices in simulated time, with a real sleep of ``--sleep-ms``
 after every cycle, and its ``step`` is timed on the wall clock over ``--cycles`` cycles of the
-task, in runs that alternate between no limit and a limit of 0 (``controller.realtime``'s
-``hold_cpu_latency``, what ``--cpu-latency-us 0`` holds). Also a run without the sleep, the
-hot floor. Pinned to the last CPU; needs write access to /dev/cpu_dma_latency (root).
+task, in runs that alternate between no limit, a limit of 0 (``controller.realtime``'s
+``hold_cpu_latency``, what ``--cpu-latency-us 0`` holds) and a ``SCHED_IDLE`` poller on the CPU
+(what ``--idle-poll`` starts); the sleep's own overshoot is printed too. Also a run without the
+sleep, the hot floor. Pinned to the last CPU; needs write access to /dev/cpu_dma_latency (root).
 """
 
 from __future__ import annotations
@@ -24,13 +26,17 @@ from typing import Any
 import numpy as np
 
 from controller.realtime import RealtimeError, hold_cpu_latency
+from controller.shell.idle_poll import IdlePollers
 from controller.tools.bench.statistics import percentiles_us
 
 DEFAULT_WINDOWS = {"path": (800, 2000), "contour": (3200, 2000)}  # (skip, cycles): the lap, the tracking
 
 
-def step_times_us(task: str, sleep_s: float, skip: int, cycles: int) -> list[float]:
-    """Wall time of each ``step`` of cycles ``[skip, skip + cycles)``, sleeping ``sleep_s`` after each cycle."""
+def step_times_us(
+    task: str, sleep_s: float, skip: int, cycles: int, overshoots: list[float] | None = None
+) -> list[float]:
+    """Wall time of each ``step`` of cycles ``[skip, skip + cycles)``, sleeping ``sleep_s`` after each
+    cycle; ``overshoots`` gets how much later than asked each of those cycles' sleep ended [us]."""
     from controller.shell.simulated_rig import SimulatedRig
     from controller.tools.bench.cycle_work import task_config
 
@@ -46,10 +52,14 @@ def step_times_us(task: str, sleep_s: float, skip: int, cycles: int) -> list[flo
         times.append(clock() - t0)
         return out
 
+    late: list[float] = []
+
     class Sleep:
         def on_cycle(self, *args: object) -> None:
             if sleep_s > 0.0:
+                t0 = clock()
                 time.sleep(sleep_s)
+                late.append(clock() - t0 - sleep_s)
 
     class TimedLaw:
         """The rig's law with its step timed. A wrapper, not an assignment to ``law.step``: a
@@ -65,6 +75,8 @@ def step_times_us(task: str, sleep_s: float, skip: int, cycles: int) -> list[flo
 
     rig.law = TimedLaw(rig.law)  # type: ignore[assignment]  # the same law, its step timed
     rig.run((Sleep(),), max_duration_s=(skip + cycles) * cfg.period_s)
+    if overshoots is not None:
+        overshoots.extend(x * 1e6 for x in late[skip : skip + cycles])
     return [x * 1e6 for x in times[skip : skip + cycles]]
 
 
@@ -82,17 +94,27 @@ def main(argv: list[str] | None = None) -> int:
     except RealtimeError as err:
         print(f"step_after_sleep: {err}", file=sys.stderr)
         return 2
-    rows: dict[str, list[tuple[float, float]]] = {"no limit": [], "limit 0": []}
+    kinds = ("no limit", "limit 0", "idle poll")
+    rows: dict[str, list[tuple[float, float]]] = {kind: [] for kind in kinds}
+    sleeps: dict[str, list[tuple[float, float]]] = {kind: [] for kind in kinds}
     for _ in range(args.runs):
-        for kind in rows:
+        for kind in kinds:
             fd = hold_cpu_latency(0) if kind == "limit 0" else None
+            pollers = IdlePollers((cpus[-1],)) if kind == "idle poll" else None
+            if pollers is not None:
+                pollers.start()
+            overshoots: list[float] = []
             try:
-                t = step_times_us(args.task, args.sleep_ms * 1e-3, skip, cycles)
+                t = step_times_us(args.task, args.sleep_ms * 1e-3, skip, cycles, overshoots)
             finally:
                 if fd is not None:
                     os.close(fd)
+                if pollers is not None:
+                    pollers.stop()
             q = percentiles_us(np.asarray(t))
             rows[kind].append((q["p50"], q["p99"]))
+            o = percentiles_us(np.asarray(overshoots))
+            sleeps[kind].append((o["p50"], o["p99"]))
     hot = percentiles_us(np.asarray(step_times_us(args.task, 0.0, skip, cycles)))
     print(
         f"{args.task} task, step after a {args.sleep_ms:g}-ms sleep, cycles {skip}-{skip + cycles - 1}, CPU {cpus[-1]}:"
@@ -100,15 +122,23 @@ def main(argv: list[str] | None = None) -> int:
     for kind, runs in rows.items():
         p50s = [r[0] for r in runs]
         print(
-            f"  {kind:8s} p50 by run "
+            f"  {kind:9s} p50 by run "
             + " / ".join(f"{r[0]:.0f}" for r in runs)
             + f" us (median {statistics.median(p50s):.0f}), p99 "
             + " / ".join(f"{r[1]:.0f}" for r in runs)
         )
-    ratio = statistics.median(r[0] for r in rows["no limit"]) / statistics.median(
-        r[0] for r in rows["limit 0"]
-    )
-    print(f"  ratio of the medians, no limit / limit 0: {ratio:.2f}")
+    print("  the sleep's end past its time:")
+    for kind, runs in sleeps.items():
+        print(
+            f"  {kind:9s} p50 by run "
+            + " / ".join(f"{r[0]:.0f}" for r in runs)
+            + " us, p99 "
+            + " / ".join(f"{r[1]:.0f}" for r in runs)
+        )
+    no_limit = statistics.median(r[0] for r in rows["no limit"])
+    for kind in kinds[1:]:
+        ratio = no_limit / statistics.median(r[0] for r in rows[kind])
+        print(f"  ratio of the step's medians, no limit / {kind}: {ratio:.2f}")
     print(f"  without the sleep (hot): p50 {hot['p50']:.0f} us, p99 {hot['p99']:.0f} us")
     return 0
 
