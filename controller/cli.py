@@ -118,8 +118,9 @@ def _rt_options(ap: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--idle-poll",
         action="store_true",
-        help="keep every CPU of the machine from halting while the loop runs: a SCHED_IDLE poller on each "
-        "(a default on a virtual machine; controller/shell/idle_poll.py)",
+        help="keep the controller's CPUs from halting while the loop runs: a SCHED_IDLE poller on each "
+        "(a default on a VM guest that halts idle CPUs at once; alone, with the other defaults; "
+        "controller/shell/idle_poll.py)",
     )
     g.add_argument(
         "--no-idle-poll",
@@ -171,10 +172,9 @@ def _realtime(args: argparse.Namespace, simulator: bool = False) -> RealtimeOpti
         or args.lock_memory
         or args.cpu_latency_us is not None
         or args.cpu_shield
-        or args.idle_poll
     )
     if args.no_realtime:
-        if explicit:
+        if explicit or args.idle_poll:
             raise RealtimeError(
                 "--no-realtime cannot be combined with --rt-priority, --cpu, --lock-memory, --cpu-latency-us, "
                 "--cpu-shield or --idle-poll"
@@ -184,12 +184,14 @@ def _realtime(args: argparse.Namespace, simulator: bool = False) -> RealtimeOpti
         raise RealtimeError("--cpu-shield and --no-cpu-shield contradict each other")
     if args.idle_poll and args.no_idle_poll:
         raise RealtimeError("--idle-poll and --no-idle-poll contradict each other")
-    if not explicit:
+    if simulator and args.idle_poll:
+        raise RealtimeError("--idle-poll is the controller's (run, demo): it polls the CPUs it may use")
+    if not explicit:  # the defaults, with --idle-poll / --no-idle-poll / --no-cpu-shield changing them
         default = RealtimeOptions.default()
         if args.no_cpu_shield:
             default = dataclasses.replace(default, shield=False)
-        if args.no_idle_poll:
-            default = dataclasses.replace(default, idle_poll=False)
+        if args.idle_poll or args.no_idle_poll:
+            default = dataclasses.replace(default, idle_poll=args.idle_poll)
         return default.for_simulator() if simulator else default
     return RealtimeOptions(
         priority=args.rt_priority,
@@ -197,7 +199,7 @@ def _realtime(args: argparse.Namespace, simulator: bool = False) -> RealtimeOpti
         lock_memory=args.lock_memory,
         cpu_latency_us=args.cpu_latency_us,
         shield=args.cpu_shield and not simulator,
-        idle_poll=args.idle_poll and not simulator,
+        idle_poll=args.idle_poll,
         required=not args.rt_best_effort,
     )
 

@@ -34,7 +34,7 @@ with that message.
   always halts an idle CPU and the limit changes nothing there.
 - Idle polling (``controller/shell/idle_poll.py``): a ``SCHED_IDLE`` poller on every CPU keeps
   the vCPUs of a VM guest from halting, which the guest's kernel cannot be told to do without a
-  boot option. A default on a VM guest (``on_virtual_machine``) only.
+  boot option. A default only on a VM guest that halts idle CPUs at once (``halts_when_idle``).
 
 All are taken after the start-up work, never before it (``check_realtime`` only probes):
 several controllers and simulators share a host, and one's start-up at SCHED_FIFO took the
@@ -103,13 +103,16 @@ class RealtimeOptions:
     shield: bool = (
         False  # keep normal tasks off ``cpus`` while the loop runs (controller/shell/cpu_shield.py)
     )
-    idle_poll: bool = False  # no CPU of the machine halts while the loop runs (controller/shell/idle_poll.py)
+    idle_poll: bool = (
+        False  # no CPU of the controller's halts while the loop runs (controller/shell/idle_poll.py)
+    )
     required: bool = True  # False: where refused, warn in one line and run on without it
 
     @classmethod
     def default(cls, priority: int = DEFAULT_LOOP_PRIORITY) -> RealtimeOptions:
         """What the controller asks for unless told otherwise: SCHED_FIFO, the last CPU kept clear
-        of normal tasks, locked memory, and on a virtual machine the CPUs kept from halting.
+        of normal tasks, locked memory, and on a VM guest that halts idle CPUs at once the CPUs
+        kept from halting.
 
         On a machine with more than one CPU the loop takes the last one and leaves the others
         to the rest of the system (and to the simulator, ``for_simulator``).
@@ -121,7 +124,7 @@ class RealtimeOptions:
             cpus=cpus,
             lock_memory=True,
             shield=bool(cpus),
-            idle_poll=on_virtual_machine(),
+            idle_poll=halts_when_idle(),
             required=False,
         )
 
@@ -194,14 +197,30 @@ class RealtimeOptions:
         return ", ".join(parts) or "none"
 
 
+CPUIDLE_DRIVER = "/sys/devices/system/cpu/cpuidle/current_driver"
+
+
 def on_virtual_machine(cpuinfo_path: str = "/proc/cpuinfo") -> bool:
-    """True when the CPUs say they run under a hypervisor (x86's ``hypervisor`` flag): there an
-    idle CPU halts and the host decides when it runs again (controller/shell/idle_poll.py)."""
+    """True when the CPUs say they run under a hypervisor (x86's ``hypervisor`` flag)."""
     try:
         with open(cpuinfo_path) as f:
             return any(line.startswith("flags") and " hypervisor" in line for line in f)
     except OSError:
         return False
+
+
+def halts_when_idle(cpuinfo_path: str = "/proc/cpuinfo", driver_path: str = CPUIDLE_DRIVER) -> bool:
+    """A VM guest whose idle CPUs halt at once: no cpuidle driver that polls first (``none`` or
+    no driver file). There the host decides when a halted vCPU runs again, and idle polling is a
+    default (controller/shell/idle_poll.py)."""
+    if not on_virtual_machine(cpuinfo_path):
+        return False
+    try:
+        with open(driver_path) as f:
+            driver = f.read().strip()
+    except OSError:
+        return True
+    return driver in ("", "none")
 
 
 def set_fifo_priority(priority: int) -> None:

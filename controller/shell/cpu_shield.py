@@ -5,8 +5,10 @@ it inside the guest. On a virtual machine that is not enough: with two CPU hogs 
 free to run on every CPU, both vCPUs were busy all the time and the host took them away more
 (steal), cycles lasted up to 25 ms and drive frames went missing (81-294 a run); with the hogs
 kept off the loop's CPU, 6-51, and the host's steal fell (3-7 against 21-46 ticks of 10 ms a
-run; docs/measurements/index.md). Our reading: a vCPU that runs only the loop halts between
-cycles and is woken at once, one that is always busy is the one the host preempts.
+run; docs/measurements/index.md). Our first reading, that a vCPU busy all the time is the one
+the host preempts, does not hold: vCPUs kept busy by idle pollers (controller/shell/idle_poll.py)
+lost less time to the host, not more. What the hogs on the loop's CPU cost is measured; why is
+open.
 
 What real-time Linux set-ups do for it (``isolcpus``, ``cset shield``, systemd's ``AllowedCPUs=``,
 tuned's cpu-partitioning profile) is machine configuration. ``cheope run`` and ``cheope demo`` do

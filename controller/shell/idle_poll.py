@@ -1,26 +1,28 @@
-"""Keep the machine's CPUs from halting while the loop runs: one poller per CPU at ``SCHED_IDLE``.
+"""Keep the controller's CPUs from halting while the loop runs: one poller per CPU at ``SCHED_IDLE``.
 
 Why. On a virtual machine an idle vCPU halts and hands its physical CPU back to the host; what
 wakes it (the loop's timer, the SYNC that wakes the simulated drives on the other CPU) waits
 until the host runs that vCPU again, which on a busy host takes milliseconds no priority inside
-the guest can shorten. The guest's own remedy (``idle=poll``, the ``haltpoll`` cpuidle driver
-with a PM QoS limit, ``--cpu-latency-us``) needs a kernel option or a cpuidle driver; this
-guest has neither (``/sys/devices/system/cpu/cpuidle/current_driver``: ``none``). A process
-that spins at ``SCHED_IDLE`` on each CPU does the same from user space: the CPU never halts,
-and any other task, real-time or normal, takes it from the poller at once (``SCHED_IDLE`` is
-below every nice level). What it changes beside the demo: the real-time page of the docs.
+the guest can shorten. The guest's own remedy (``idle=poll``, or a cpuidle driver such as
+``haltpoll`` that polls before it halts) needs a kernel option or a driver; a guest without a
+cpuidle driver (``/sys/devices/system/cpu/cpuidle/current_driver``: ``none``) halts at once, and
+a PM QoS limit (``--cpu-latency-us``) changes nothing there. A process that spins at
+``SCHED_IDLE`` on each CPU does the same from user space: the CPU never halts, and any other
+task of its cgroup, real-time or normal, takes the CPU from it at once (``SCHED_IDLE`` weighs 3
+where nice 0 weighs 1 024; with the cgroup v2 cpu controller that holds within its group only).
+What it changes beside the demo: the real-time page of the docs.
 
-The price: every CPU of the machine is busy for as long as the loop runs (the pollers' CPU time
-is in the run's summary, ``idle_poll.cpu_s``); on a machine of its own that is power and heat
-for nothing a PM QoS limit does not do better, so the default asks for it on a VM guest only
-(``controller.realtime.on_virtual_machine``).
+The price: every CPU the controller may use is busy for as long as the loop runs (the pollers'
+CPU time is in the run's summary, ``idle_poll.cpu_s``), and the host counts that time. The
+default asks for it only where the guest halts at once (``controller.realtime.halts_when_idle``).
 
 A poller is its own small interpreter, not a thread: a spinning thread of the loop's process
 would hold the interpreter lock the loop needs. It is born under the normal scheduler whatever
 its starter's policy (``posix_spawn``'s scheduler: it never runs at the loop's priority it would
-otherwise inherit), takes ``SCHED_IDLE`` and its CPU first, and ends by itself within
-milliseconds once the process that started it is gone (its parent changes), whatever ended that
-one; ``stop`` ends it by its process id.
+otherwise inherit), in a process group of its own with none of the controller's files, takes
+``SCHED_IDLE`` and its CPU, says so on a pipe, and ends by itself once the process that
+started it is gone (its parent changes: within milliseconds of its CPU time), whatever ended
+that one; ``stop`` ends it by its process id.
 """
 
 from __future__ import annotations
@@ -28,26 +30,36 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import signal
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
+from controller.realtime import RealtimeError, refused_realtime
+
 log = logging.getLogger(__name__)
 
 # The poller's whole program (argv: its CPU, the process id of the process that must outlive it).
-# 200 000 empty iterations take a few milliseconds: the parent is checked that often.
+# It says it is set up with one byte on fd 3; a poller that cannot set up exits without it. 200 000
+# empty iterations take a few milliseconds of CPU time: the parent is checked that often.
 POLLER_SOURCE = """\
 import os, sys
 cpu, parent = int(sys.argv[1]), int(sys.argv[2])
 try:
     os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
     os.sched_setaffinity(0, {cpu})
-except OSError as err:
-    sys.exit(f"idle poller: CPU {cpu}: {err}")
+except OSError:
+    sys.exit(1)
+os.write(3, b"1")
+os.closerange(3, os.sysconf("SC_OPEN_MAX"))  # and whatever else the controller had inherited
 while os.getppid() == parent:
     for _ in range(200_000):
         pass
 """
+
+
+class IdlePollingError(OSError):
+    """A poller that did not start, or did not take ``SCHED_IDLE`` and its CPU."""
 
 
 @dataclass
@@ -55,25 +67,56 @@ class IdlePollers:
     """One ``SCHED_IDLE`` poller per CPU of ``cpus`` (module text); ``start``, then ``stop``."""
 
     cpus: tuple[int, ...]
-    pids: dict[int, int] = field(default_factory=dict)  # CPU -> the poller's process id
+    pids: dict[int, int] = field(default_factory=dict)  # CPU -> the poller's process id, once set up
 
-    def start(self) -> None:
-        """Spawn the pollers. A CPU the kernel refuses is skipped with one line of warning."""
-        parent = str(os.getpid())
+    def start(self) -> list[str]:
+        """Spawn the pollers and wait until each is set up; returns why a CPU has none (empty: every
+        CPU has its poller)."""
+        refused = []
         for cpu in self.cpus:
+            try:
+                self.pids[cpu] = self._spawn(cpu)
+            except IdlePollingError as err:
+                refused.append(f"CPU {cpu}: {err}")
+        return refused
+
+    def _spawn(self, cpu: int) -> int:
+        """One poller on ``cpu``, set up (its byte read), or ``IdlePollingError``."""
+        ready_r, ready_w = os.pipe()
+        null = os.open(os.devnull, os.O_RDWR)
+        try:
             try:
                 pid = os.posix_spawn(
                     sys.executable,
-                    [sys.executable, "-I", "-S", "-c", POLLER_SOURCE, str(cpu), parent],
+                    [sys.executable, "-I", "-S", "-c", POLLER_SOURCE, str(cpu), str(os.getpid())],
                     os.environ,
+                    # nothing of the controller's: not its terminal's or pipe's ends (a reader of
+                    # the controller's output waits for their end), not its process group (a
+                    # terminal's Ctrl-C is the controller's to handle)
+                    file_actions=[
+                        (os.POSIX_SPAWN_DUP2, null, 0),
+                        (os.POSIX_SPAWN_DUP2, null, 1),
+                        (os.POSIX_SPAWN_DUP2, null, 2),
+                        (os.POSIX_SPAWN_DUP2, ready_w, 3),
+                    ],
+                    setpgroup=0,
                     # born under the normal scheduler whatever the caller's policy (glibc takes no
                     # SCHED_IDLE here): its first act is to take SCHED_IDLE
                     scheduler=(os.SCHED_OTHER, os.sched_param(0)),
                 )
             except OSError as err:
-                log.warning("idle polling: no poller on CPU %d: %s", cpu, err)
-                continue
-            self.pids[cpu] = pid
+                raise IdlePollingError(f"not started: {err}") from err
+            os.close(ready_w)
+            ready_w = -1
+            if os.read(ready_r, 1) != b"1":  # its end: it exited without setting up
+                os.waitpid(pid, 0)
+                raise IdlePollingError("the kernel refused SCHED_IDLE or the CPU")
+            return pid
+        finally:
+            os.close(ready_r)
+            os.close(null)
+            if ready_w >= 0:
+                os.close(ready_w)
 
     def cpu_s(self) -> float:
         """The CPU time the running pollers have taken so far [s] (``/proc/<pid>/stat``)."""
@@ -91,7 +134,7 @@ class IdlePollers:
         spent = self.cpu_s()
         for pid in self.pids.values():
             with contextlib.suppress(ProcessLookupError):
-                os.kill(pid, 9)
+                os.kill(pid, signal.SIGKILL)
         for pid in self.pids.values():
             with contextlib.suppress(ChildProcessError):
                 os.waitpid(pid, 0)
@@ -100,15 +143,21 @@ class IdlePollers:
 
 
 @contextlib.contextmanager
-def idle_polling(cpus: tuple[int, ...], summary: dict[str, object]) -> Iterator[None]:
+def idle_polling(cpus: tuple[int, ...], summary: dict[str, object], required: bool = False) -> Iterator[None]:
     """Pollers on ``cpus`` (none: nothing) for the time of the block; ``summary`` gets the CPUs
-    polled and the pollers' CPU time."""
+    polled and the pollers' CPU time. A CPU without its poller is a ``RealtimeError`` when
+    ``required``, else one line of warning."""
     if not cpus:
         yield
         return
     pollers = IdlePollers(cpus)
-    pollers.start()
     try:
+        refused = pollers.start()
+        if refused:
+            message = "--idle-poll: no poller on " + "; ".join(refused)
+            if required:
+                raise RealtimeError(message)
+            log.warning("%s", refused_realtime([message]))
         yield
     finally:
         summary["cpus"] = sorted(pollers.pids)

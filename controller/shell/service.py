@@ -237,10 +237,11 @@ def run_controller(
         idle_poll_summary: dict[str, object] = {}
         # every CPU this process may use: the loop's, and in the demo the simulated drives'
         polled_cpus = tuple(sorted(os.sched_getaffinity(0))) if realtime.idle_poll else ()
+        polling = idle_polling(polled_cpus, idle_poll_summary, required=realtime.required)
 
         # the shield's guardian is started before the loop thread takes its priority and CPU,
         # which a child process would inherit
-        with raise_shield(realtime, shield_summary), idle_polling(polled_cpus, idle_poll_summary):
+        with raise_shield(realtime, shield_summary), polling:
             try:
                 restore = apply_realtime(realtime)
                 granted = granted_realtime()

@@ -16,7 +16,7 @@ from busy_machine import TOLERANT
 from waiting import wait_until
 
 from controller import cli
-from controller.realtime import on_virtual_machine
+from controller.realtime import halts_when_idle
 from controller.shell.demo import simulator_process
 from controller.shell.idle_poll import POLLER_SOURCE
 from drivers.bus import parse_bus_spec
@@ -42,19 +42,32 @@ def _cheope(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[s
 
 
 def test_demo_runs_the_path_task_end_to_end():
-    r = _cheope(
-        "demo",
-        "--task",
-        "path",
-        "--json",
-        "--set",
-        "task.path.laps=0.5",
-        "--udp-port",
-        str(_port()),
-        *TOLERANT,
+    demo = subprocess.Popen(
+        [
+            *CHEOPE,
+            "demo",
+            "--task",
+            "path",
+            "--json",
+            "--set",
+            "task.path.laps=0.5",
+            "--udp-port",
+            str(_port()),
+            *TOLERANT,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
-    assert r.returncode == 0, r.stderr + r.stdout
-    s = json.loads(r.stdout)
+    try:
+        out, err = demo.communicate(timeout=120.0)
+    finally:
+        if demo.poll() is None:
+            demo.kill()
+            demo.wait()
+    assert demo.returncode == 0, err + out
+    s = json.loads(out)
     assert s["final_mode"] == "DONE"
     for key in (
         "achieved_rate_hz",
@@ -76,26 +89,26 @@ def test_demo_runs_the_path_task_end_to_end():
     # SYNC period moves the drives' interpolators: allow 0.3 mm on a busy machine
     assert s["tracking_error_m"]["rms"] < 3e-4
     assert set(s["period_error_us"]) == {"p50", "p99", "max"}
-    # idle polling: a default on a VM guest only, one poller on each CPU the demo may use, all
-    # of them ended with the demo
-    if on_virtual_machine():
+    # idle polling: a default on a VM guest that halts idle CPUs at once, one poller on each CPU
+    # the demo may use, all of them ended with the demo (by its own, not another run's)
+    if halts_when_idle():
         assert s["idle_poll"]["cpus"] == sorted(os.sched_getaffinity(0))
         assert s["idle_poll"]["cpu_s"] > 0.0
     else:
         assert "idle_poll" not in s
-    assert not _idle_pollers()
+    assert not _idle_pollers_of(demo.pid)
 
 
-def _idle_pollers() -> list[int]:
-    """The process ids of the idle pollers running on this machine."""
+def _idle_pollers_of(pid: int) -> list[int]:
+    """The process ids of the idle pollers that process ``pid`` started and that still run."""
     found = []
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():
             try:
-                command = (entry / "cmdline").read_bytes()
+                argv = (entry / "cmdline").read_bytes().split(b"\0")
             except OSError:
                 continue  # ended meanwhile
-            if POLLER_SOURCE.encode() in command:
+            if POLLER_SOURCE.encode() in argv and argv[-2:] == [str(pid).encode(), b""]:
                 found.append(int(entry.name))
     return found
 

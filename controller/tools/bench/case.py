@@ -132,6 +132,7 @@ def run_case(
         "bus": str(spec),
         "realtime": summary.get("realtime"),  # as granted to the loop thread
         "cpu_shield": summary.get("cpu_shield"),  # the loop's CPU kept clear (controller/shell/cpu_shield.py)
+        "idle_poll": summary.get("idle_poll"),  # the CPUs kept from halting (controller/shell/idle_poll.py)
         "simulator_realtime": sim_rt.describe(),  # as asked of the simulator
         "cpu_hogs": hogs,
         "final_mode": summary["final_mode"],
