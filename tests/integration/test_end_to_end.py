@@ -41,8 +41,9 @@ def _cheope(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[s
     )
 
 
-def test_demo_runs_the_path_task_end_to_end():
-    demo = subprocess.Popen(
+def _half_lap_path_demo() -> subprocess.Popen[str]:
+    """``cheope demo --json`` of half a lap of the path task, started; its output in pipes."""
+    return subprocess.Popen(
         [
             *CHEOPE,
             "demo",
@@ -60,6 +61,10 @@ def test_demo_runs_the_path_task_end_to_end():
         text=True,
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
+
+
+def test_demo_runs_the_path_task_end_to_end():
+    demo = _half_lap_path_demo()
     try:
         out, err = demo.communicate(timeout=120.0)
     finally:
@@ -307,23 +312,7 @@ def test_a_demo_keeps_normal_tasks_off_its_loops_cpu_while_it_runs():
     before the demo loses the loop's CPU while the loop runs and has it back after the run."""
     neighbour = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(600)"])
     everything = os.sched_getaffinity(neighbour.pid)
-    demo = subprocess.Popen(
-        [
-            *CHEOPE,
-            "demo",
-            "--task",
-            "path",
-            "--json",
-            "--set",
-            "task.path.laps=0.5",
-            "--udp-port",
-            str(_port()),
-            *TOLERANT,
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    demo = _half_lap_path_demo()
     try:
         wait_until(
             lambda: os.sched_getaffinity(neighbour.pid) != everything or demo.poll() is not None,
