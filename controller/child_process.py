@@ -1,5 +1,5 @@
 """How the controller starts a Python child process (the simulator, the CPU shield's guardian, the
-status line) so that the child runs the same code as its parent.
+status line) so that the child runs the same code as its parent, and what a child has cost.
 
 ``python -m`` puts the working directory first on the module path: started from inside another
 checkout of this project, the child would import that checkout's packages (a simulator of other
@@ -10,6 +10,7 @@ does the same in ``logs/recorder.py`` (``logs`` does not import the controller).
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 from pathlib import Path
@@ -26,3 +27,15 @@ def child_environment(**extra: str) -> dict[str, str]:
     """This process's environment with this code's root first on ``PYTHONPATH``, and ``extra``."""
     path = os.pathsep.join(p for p in (REPO, os.environ.get("PYTHONPATH")) if p)
     return {**os.environ, "PYTHONPATH": path, **extra}
+
+
+def process_cpu_s(pid: int | None) -> float:
+    """user + system CPU time of ``pid`` from /proc [s] (nan when unknown: no pid, or gone)."""
+    if pid is None:
+        return math.nan
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            fields = f.read().rsplit(b")", 1)[1].split()
+    except OSError:
+        return math.nan
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime

@@ -29,12 +29,14 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import os
 import signal
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
+from controller.child_process import process_cpu_s
 from controller.realtime import RealtimeError, refused_realtime
 
 log = logging.getLogger(__name__)
@@ -119,15 +121,8 @@ class IdlePollers:
                 os.close(ready_w)
 
     def cpu_s(self) -> float:
-        """The CPU time the running pollers have taken so far [s] (``/proc/<pid>/stat``)."""
-        ticks = os.sysconf("SC_CLK_TCK")
-        total = 0.0
-        for pid in self.pids.values():
-            with contextlib.suppress(OSError, IndexError, ValueError):
-                with open(f"/proc/{pid}/stat") as f:
-                    fields = f.read().rsplit(")", 1)[1].split()
-                total += (int(fields[11]) + int(fields[12])) / ticks  # utime, stime
-        return total
+        """The CPU time the running pollers have taken so far [s] (a poller gone counts nothing)."""
+        return sum((t for t in map(process_cpu_s, self.pids.values()) if not math.isnan(t)), 0.0)
 
     def stop(self) -> float:
         """End every poller by its process id; returns the CPU time they took [s]."""

@@ -36,10 +36,11 @@ table) and ``command`` (its command line). Beside it, the measurements the bench
 
 from __future__ import annotations
 
+from controller.child_process import process_cpu_s
 from controller.tools.bench.case import BenchCase, machine_floor, machine_floor_beside, run_case
 from controller.tools.bench.command import add_bench_arguments, checked_bench_arguments, run_bench_command
 from controller.tools.bench.pdo_paths import bus_frame_cost, compare_pdo_paths, stub_bus
-from controller.tools.bench.probes import LoopProbe, child_pid, cpu_use_percent, process_cpu_s
+from controller.tools.bench.probes import LoopProbe, child_pid, cpu_use_percent
 from controller.tools.bench.report import format_table, python_can_floor_percent
 from controller.tools.bench.runner import plot_distributions, run_bench, work_per_cycle
 from controller.tools.bench.sleepers import busy_work, compare_sleepers, deadline_loop, naive_loop

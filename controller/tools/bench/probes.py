@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from controller.child_process import process_cpu_s
 from drivers import cob_ids
 
 if TYPE_CHECKING:
@@ -115,18 +116,6 @@ class LoopProbe:
                     process_cpu_s(self.writer_pid),
                 )
             )
-
-
-def process_cpu_s(pid: int | None) -> float:
-    """user + system CPU time of ``pid`` from /proc [s] (nan when unknown)."""
-    if pid is None:
-        return math.nan
-    try:
-        with open(f"/proc/{pid}/stat", "rb") as f:
-            fields = f.read().rsplit(b")", 1)[1].split()
-    except OSError:
-        return math.nan
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime
 
 
 def child_pid(command_fragment: str) -> int | None:

@@ -17,6 +17,7 @@ sleep, the hot floor. Pinned to the last CPU; needs write access to /dev/cpu_dma
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import statistics
 import sys
@@ -26,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from controller.realtime import RealtimeError, hold_cpu_latency
-from controller.shell.idle_poll import IdlePollers
+from controller.shell.idle_poll import idle_polling
 from controller.tools.bench.statistics import percentiles_us
 
 DEFAULT_WINDOWS = {"path": (800, 2000), "contour": (3200, 2000)}  # (skip, cycles): the lap, the tracking
@@ -99,18 +100,13 @@ def main(argv: list[str] | None = None) -> int:
     sleeps: dict[str, list[tuple[float, float]]] = {kind: [] for kind in kinds}
     for _ in range(args.runs):
         for kind in kinds:
-            fd = hold_cpu_latency(0) if kind == "limit 0" else None
-            pollers = IdlePollers((cpus[-1],)) if kind == "idle poll" else None
-            if pollers is not None:
-                pollers.start()
             overshoots: list[float] = []
-            try:
+            with contextlib.ExitStack() as held:
+                if kind == "limit 0":
+                    held.callback(os.close, hold_cpu_latency(0))
+                if kind == "idle poll":  # a poller refused is an error, not a run without one
+                    held.enter_context(idle_polling((cpus[-1],), {}, required=True))
                 t = step_times_us(args.task, args.sleep_ms * 1e-3, skip, cycles, overshoots)
-            finally:
-                if fd is not None:
-                    os.close(fd)
-                if pollers is not None:
-                    pollers.stop()
             q = percentiles_us(np.asarray(t))
             rows[kind].append((q["p50"], q["p99"]))
             o = percentiles_us(np.asarray(overshoots))
