@@ -63,9 +63,8 @@ def task_values(task_state: object) -> dict[str, float]:
     for i in range(len(names)):
         v = values[i]
         if isinstance(v, float):
-            out[names[i]] = float(
-                v
-            )  # a subclass (numpy's float64) as a float: nothing for the writer to import
+            # a subclass (numpy's float64) as a float: nothing for the writer to import
+            out[names[i]] = float(v)
         elif isinstance(v, int):  # bool and IntEnum too
             out[names[i]] = float(v)
         elif isinstance(v, tuple):  # a NamedTuple too
