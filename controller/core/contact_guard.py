@@ -213,11 +213,14 @@ def watch(
     cycle: int,
     period_s: float,
     missing_cycles: int = 0,
+    accelerations: tuple[tuple[float, ...], ...] | None = None,
 ) -> tuple[ContactWatch, str]:
     """One cycle of the guard: the updated watch and, past a limit, the cause of a protective back-off.
 
     ``missing_cycles``: cycles in a row the sensor's frame did not come (the safety monitor's count,
     ``ControllerState.sensor_missing``); within ``SENSOR_GAP_S`` the last sample still judges.
+    ``accelerations``: the watch's new ``accelerations`` (the law's; ``witness`` was found with
+    them), set in the same ``replace`` as the rest; None keeps the watch's.
 
     Locals first and one ``replace`` at the end: it runs every enabled cycle (budget: cycle_work.py)."""
     raw = usable_sample(inputs.sensor, stale)
@@ -275,6 +278,7 @@ def watch(
         suspect=check[2],
         suspect_cycle=check[3],
         force_n=force,
+        accelerations=w.accelerations if accelerations is None else accelerations,
     )
     limit = limit_n(cfg, w.expectation)
     if force > limit:

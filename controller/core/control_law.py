@@ -764,7 +764,7 @@ class ControlLaw:
         at_rest = all(-tolerance <= v <= tolerance for v in state.setpoint.velocity)
         w, cause = watch_contact(
             cfg,
-            replace(state.contact, accelerations=history),
+            state.contact,
             inputs,
             state.sensor_stale > 0 or bool(state.sensor_breach),
             self._witness(state, inputs, history),
@@ -772,6 +772,7 @@ class ControlLaw:
             state.cycle,
             self.config.period_s,
             state.sensor_missing,  # counted by the safety monitor's check earlier in this step
+            accelerations=history,
         )
         state = replace(state, contact=w)
         if w.suspect and not was_suspect:
