@@ -1,6 +1,6 @@
 """Work per cycle: a deterministic figure of what one control cycle costs the loop's thread.
 
-    .venv/bin/python -m controller.tools.bench.cycle_work [--task path] [--skip 800] [--cycles 1000] [--instructions]
+    .venv/bin/python -m controller.tools.bench.cycle_work [--task path] [--skip 800] [--cycles 1000] [--instructions [--by-function N] [--callgrind-out FILE]]
 
 Timing figures move with everything else on the machine; this one does not, so that a change that
 makes the cycle costlier shows as a number, run after run (``cheope bench`` prints it beside its
@@ -25,7 +25,8 @@ docs/measurements/speed.md).
      collection at 700) more at the end of the window than at its start, per cycle, in a run
      without the counting hooks: a steady cycle leaves none, so the collector has nothing to do;
    - with ``--instructions``, in a second process under valgrind's callgrind (no counting hooks
-     there): machine instructions per cycle, between two markers (``os.getsid``, ``--dump-before``).
+     there): machine instructions per cycle, between two markers (``os.getsid``, ``--dump-before``);
+     with ``--by-function N`` also the N compiled functions of the law that cost the most of them.
 
 The counts depend only on the code and the configuration (``PYTHONHASHSEED=0`` under callgrind,
 whose count also moves by a fraction of a percent with the address layout).
@@ -414,9 +415,19 @@ def over_budget(result: dict[str, Any]) -> list[str]:
 
 
 def count_instructions(
-    task: str, skip: int, cycles: int, overrides: Sequence[str] = (), valgrind: str | None = None
+    task: str,
+    skip: int,
+    cycles: int,
+    overrides: Sequence[str] = (),
+    valgrind: str | None = None,
+    by_function: int = 0,
+    keep_dump: Path | None = None,
 ) -> dict[str, Any]:
-    """Machine instructions per cycle under callgrind; ``{"instructions_per_cycle": None, ...}`` without valgrind."""
+    """Machine instructions per cycle under callgrind; ``{"instructions_per_cycle": None, ...}`` without valgrind.
+
+    ``by_function``: also the compiled law's ``by_function`` costliest functions, inclusive, per cycle
+    (``compiled_functions_per_cycle``, from ``callgrind_annotate``): where a cycle's instructions go.
+    ``keep_dump``: the window's callgrind dump is copied there, for ``callgrind_annotate`` to read."""
     valgrind = valgrind or shutil.which("valgrind")
     if valgrind is None:
         return {"instructions_per_cycle": None, "why": "valgrind not found (apt-get install valgrind)"}
@@ -454,10 +465,49 @@ def count_instructions(
         match = re.search(r"^summary:\s*(\d+)", window.read_text(), re.M) if window.exists() else None
         if match is None:
             raise RuntimeError(f"no callgrind dump of the window ({window.name}): {run.stderr[-2000:]}")
+        functions = compiled_functions_per_cycle(window, cycles, by_function) if by_function else {}
+        if keep_dump is not None:
+            shutil.copyfile(window, keep_dump)
     return {
         "instructions_per_cycle": round(int(match.group(1)) / cycles),
         "tool": "valgrind --tool=callgrind",
+        **({"compiled_functions_per_cycle": functions} if by_function else {}),
     }
+
+
+# callgrind_annotate's inclusive line of a function mypyc compiled: "1,234 (5.6%)  file.c:CPyDef_mod___Cls___name [lib]"
+_COMPILED_FUNCTION = re.compile(r"^\s*([\d,]+) \([^)]*\)\s+\S*:CPyDef_(\w+)\s")
+
+
+def compiled_functions_per_cycle(dump: Path, cycles: int, top: int) -> dict[str, int]:
+    """The ``top`` compiled functions of a callgrind dump by inclusive instructions per cycle
+    (``functions_per_cycle``); {} without ``callgrind_annotate``."""
+    annotate = shutil.which("callgrind_annotate")
+    if annotate is None:
+        return {}
+    run = subprocess.run(
+        [annotate, "--inclusive=yes", "--threshold=100", str(dump)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    return functions_per_cycle(run.stdout, cycles, top)
+
+
+def functions_per_cycle(annotated: str, cycles: int, top: int) -> dict[str, int]:
+    """The ``top`` compiled functions of ``callgrind_annotate --inclusive=yes`` output, named
+    ``module.Class.method`` (mypyc's C name with its ``___`` separators undone), by instructions per
+    cycle. Inclusive: a function's count holds its callees', interpreted ones too."""
+    totals: dict[str, int] = {}
+    for line in annotated.splitlines():
+        match = _COMPILED_FUNCTION.match(line)
+        if match is not None:
+            name = ".".join(match.group(2).split("___"))
+            # a function is listed once per source file its lines came from (its inlined headers'
+            # too): the largest count is its own
+            totals[name] = max(totals.get(name, 0), int(match.group(1).replace(",", "")))
+    ranked = sorted(totals.items(), key=lambda item: item[1], reverse=True)[:top]
+    return {name: round(n / cycles) for name, n in ranked}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -467,6 +517,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cycles", type=int, help="cycles counted (default: 1000)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="configuration override")
     ap.add_argument("--instructions", action="store_true", help="also instructions per cycle (valgrind)")
+    ap.add_argument(
+        "--by-function",
+        type=int,
+        default=0,
+        metavar="N",
+        help="with --instructions: also the N compiled functions costliest per cycle (inclusive)",
+    )
+    ap.add_argument(
+        "--callgrind-out",
+        type=Path,
+        metavar="FILE",
+        help="with --instructions: keep the window's callgrind dump",
+    )
     ap.add_argument("--child", metavar="SCRIPT", help=argparse.SUPPRESS)  # the callgrind process
     args = ap.parse_args(argv)
     skip, cycles = DEFAULT_TASK_WINDOWS[args.task]
@@ -481,7 +544,11 @@ def main(argv: list[str] | None = None) -> int:
         result["budget_per_cycle"] = BUDGET_PER_CYCLE[args.task]
         result["over_budget"] = over_budget(result)
     if args.instructions:
-        result.update(count_instructions(args.task, skip, cycles, args.set))
+        result.update(
+            count_instructions(
+                args.task, skip, cycles, args.set, by_function=args.by_function, keep_dump=args.callgrind_out
+            )
+        )
     print(json.dumps(result, indent=1))
     return 0
 
