@@ -63,18 +63,24 @@ def test_the_docs_state_the_budget_the_test_holds():
 
 
 def test_the_compiled_functions_are_named_and_ranked_per_cycle():
-    # callgrind_annotate --inclusive=yes lines as valgrind 3.19 writes them, a function twice (its
-    # inlined header's lines), an interpreter function, and a line of another section
+    # callgrind_annotate --inclusive=yes lines as valgrind 3.19 writes them: a function's own entry
+    # (with its object) and its lines' shares by source file (without: not counted), an
+    # interpreter function, a line without percentages, and a line of another section
     annotated = """\
 129,010,552 (59.22%)  /w/build/mypyc/controller/__native_compiled_law.c:CPyDef_control_law___ControlLaw___step [/w/x.so]
  30,606,894 (14.05%)  /p/Objects/object.c:PyObject_GetAttr [/p/libpython3.11.so.1.0]
  13,389,600 ( 6.15%)  /w/build/mypyc/controller/__native_compiled_law.c:CPyDef_contact_guard____median_of [/w/x.so]
   2,474,880 ( 1.14%)  /p/include/python3.11/object.h:CPyDef_contact_guard____median_of
+ 14,000,000 ( 6.43%)  /w/build/mypyc/controller/__native_compiled_law.c:CPyDef_contact_guard____median_of
  54,256,503 (24.90%)  /w/build/mypyc/controller/__native_compiled_law.c:CPyDef_control_law___ControlLaw____running [/w/x.so]
+ 17,126,463  /w/build/mypyc/controller/__native_compiled_law.c:CPyDef_path_task___PathTask___step [/w/x.so]
  3,600      cpy_r_r15 = CPyDef_contact_guard____median_of(cpy_r_window, cpy_r_r12);
 """
     assert functions_per_cycle(annotated, 300, 2) == {
         "control_law.ControlLaw.step": 430035,
         "control_law.ControlLaw._running": 180855,
     }
-    assert functions_per_cycle(annotated, 300, 9)["contact_guard._median_of"] == 44632
+    by_function = functions_per_cycle(annotated, 300, 9)
+    assert by_function["contact_guard._median_of"] == 44632
+    assert by_function["path_task.PathTask.step"] == 57088
+    assert len(by_function) == 4

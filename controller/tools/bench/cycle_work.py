@@ -472,16 +472,24 @@ def count_instructions(
         "instructions_per_cycle": round(int(match.group(1)) / cycles),
         "tool": "valgrind --tool=callgrind",
         **({"compiled_functions_per_cycle": functions} if by_function else {}),
+        **(
+            {"compiled_functions_why": "callgrind_annotate not found"}
+            if by_function and not functions
+            else {}
+        ),
     }
 
 
 # callgrind_annotate's inclusive line of a function mypyc compiled: "1,234 (5.6%)  file.c:CPyDef_mod___Cls___name [lib]"
-_COMPILED_FUNCTION = re.compile(r"^\s*([\d,]+) \([^)]*\)\s+\S*:CPyDef_(\w+)\s")
+# (no percentage with --show-percs=no). Only the line with the object ([lib]) is the function's own
+# entry: the others of its name are its lines' shares by the source file they came from (headers
+# it inlined, the .c file by its absolute path), not counts of the function.
+_COMPILED_FUNCTION = re.compile(r"^\s*([\d,]+) (?:\([^)]*\)\s+)?\s*\S*:CPyDef_(\w+) \[[^\]]*\]\s*$")
 
 
 def compiled_functions_per_cycle(dump: Path, cycles: int, top: int) -> dict[str, int]:
     """The ``top`` compiled functions of a callgrind dump by inclusive instructions per cycle
-    (``functions_per_cycle``); {} without ``callgrind_annotate``."""
+    (``functions_per_cycle``); {} without ``callgrind_annotate`` (valgrind's package has it)."""
     annotate = shutil.which("callgrind_annotate")
     if annotate is None:
         return {}
@@ -491,6 +499,8 @@ def compiled_functions_per_cycle(dump: Path, cycles: int, top: int) -> dict[str,
         text=True,
         check=False,
     )
+    if run.returncode != 0:
+        raise RuntimeError(f"callgrind_annotate failed ({run.returncode}): {run.stderr[-2000:]}")
     return functions_per_cycle(run.stdout, cycles, top)
 
 
@@ -503,9 +513,7 @@ def functions_per_cycle(annotated: str, cycles: int, top: int) -> dict[str, int]
         match = _COMPILED_FUNCTION.match(line)
         if match is not None:
             name = ".".join(match.group(2).split("___"))
-            # a function is listed once per source file its lines came from (its inlined headers'
-            # too): the largest count is its own
-            totals[name] = max(totals.get(name, 0), int(match.group(1).replace(",", "")))
+            totals[name] = totals.get(name, 0) + int(match.group(1).replace(",", ""))  # once per object
     ranked = sorted(totals.items(), key=lambda item: item[1], reverse=True)[:top]
     return {name: round(n / cycles) for name, n in ranked}
 
@@ -532,6 +540,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--child", metavar="SCRIPT", help=argparse.SUPPRESS)  # the callgrind process
     args = ap.parse_args(argv)
+    if (args.by_function or args.callgrind_out) and not args.instructions:
+        ap.error("--by-function and --callgrind-out go with --instructions")
+    if args.by_function < 0:
+        ap.error(f"--by-function {args.by_function}: a count of functions, 0 or more")
     skip, cycles = DEFAULT_TASK_WINDOWS[args.task]
     skip = args.skip if args.skip is not None else skip
     cycles = args.cycles if args.cycles is not None else cycles
