@@ -118,7 +118,10 @@ def _popen(*args: str) -> subprocess.Popen[str]:
 def test_simulator_and_controller_as_separate_processes(vcan_channel: str, tmp_path: Path) -> None:
     spec = parse_bus_spec(f"socketcan:{vcan_channel}")
     overrides = [a for a in _slow(tmp_path) if "=" in a]
-    with simulator_process(spec, None, overrides, ready_timeout_s=120.0):
+    # 400 s, as for the drives' enabling (_wait_until_enabled): the suite's first process in the
+    # emulated VM imports everything from a cold disk cache, and this simulator, started first,
+    # was not ready within 120 s in a fresh-clone `.ci/run` (2026-11-30)
+    with simulator_process(spec, None, overrides, ready_timeout_s=400.0):
         r = _cheope("run", "--json", "--bus", f"socketcan:{vcan_channel}", *_slow(tmp_path))
     assert r.returncode == 0, r.stderr + r.stdout
     assert json.loads(r.stdout)["final_mode"] == "DONE"
