@@ -127,7 +127,12 @@ def test_closed_loop_in_simulated_time_tracks_the_octant_circle():
     assert np.linalg.norm(exchange.plant.tcp_m - end) < 1e-4
 
 
+# A demo over the bus with the default real-time options, so with the CPU shield, whose guardian
+# sweeps every normal task of the machine: run with the bus-process tests, one at a time, not in
+# the in-process stage beside the other worker's shield scenarios (tests/cpu_shield_scenarios.py),
+# whose processes it swept there (a fresh-clone CI run failed on it, 2026-11-30).
 @pytest.mark.slow
+@pytest.mark.bus_processes
 def test_demo_end_to_end(tmp_path):
     cmd = [
         sys.executable,
