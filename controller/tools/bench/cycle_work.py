@@ -473,7 +473,11 @@ def count_instructions(
         "tool": "valgrind --tool=callgrind",
         **({"compiled_functions_per_cycle": functions} if by_function else {}),
         **(
-            {"compiled_functions_why": "callgrind_annotate not found"}
+            {
+                "compiled_functions_why": "callgrind_annotate not found"
+                if shutil.which("callgrind_annotate") is None
+                else f"no compiled function in the dump (the law ran {LAW_BUILD.describe()})"
+            }
             if by_function and not functions
             else {}
         ),
