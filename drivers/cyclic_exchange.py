@@ -416,9 +416,7 @@ class CyclicExchange:
         if outputs is not None and in_time:
             to_counts = self.scale.to_counts
             targets = led if led is not None else outputs.targets
-            for msg, codec, cw, target in zip(
-                self._rpdos, self._codecs, outputs.controlwords, targets, strict=True
-            ):
+            for msg, codec, cw, target in zip(self._rpdos, self._codecs, outputs.controlwords, targets):
                 codec.pack_rpdo_into(msg.data, cw, to_counts(target))
                 self._send(msg)
             self._last_targets, self._last_send_by_s = outputs.targets, send_by_s
@@ -457,7 +455,7 @@ class CyclicExchange:
         if late_s <= 0.0:
             return targets
         lead = min(late_s, period) / period
-        return tuple(x + (x - x0) * lead for x, x0 in zip(targets, last, strict=True))
+        return tuple(x + (x - x0) * lead for x, x0 in zip(targets, last))
 
     def _guard(self, now: float) -> None:
         """The node guarding requests that are due."""
@@ -558,7 +556,7 @@ class CyclicExchange:
         self._count_silences()
         drives = tuple(
             DriveFeedback(sw, x, f, e)
-            for sw, x, f, e in zip(self._statusword, self._position, self._fresh, self._effort, strict=True)
+            for sw, x, f, e in zip(self._statusword, self._position, self._fresh, self._effort)
         )
         sensor = (
             SensorFeedback(
@@ -711,7 +709,7 @@ class CyclicExchange:
 
     def _lost_heartbeats(self, now: float) -> tuple[int, ...]:
         """The drives and the sensor whose heartbeat is overdue (counted from the start until the first)."""
-        nodes = list(zip(self.drive_ids, self.last_heartbeat_s, strict=True))
+        nodes = list(zip(self.drive_ids, self.last_heartbeat_s))
         if self.sensor_id is not None:
             nodes.append((self.sensor_id, self.sensor_heartbeat_s))
         return tuple(
@@ -728,9 +726,7 @@ class CyclicExchange:
     def _count_silences(self) -> None:
         """Each device's run of cycles without a usable sample, and the longest so far."""
         c = self.counters
-        self._drive_silence = [
-            0 if f else s + 1 for f, s in zip(self._fresh, self._drive_silence, strict=True)
-        ]
+        self._drive_silence = [0 if f else s + 1 for f, s in zip(self._fresh, self._drive_silence)]
         if self._drive_silence:
             c.longest_drive_silence_cycles = max(c.longest_drive_silence_cycles, max(self._drive_silence))
         if self.has_sensor:

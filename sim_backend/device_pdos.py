@@ -94,7 +94,7 @@ class SimulatedPdos:
         self._drive_tpdos: list[_Tpdo] = []
         self._sensor_tpdos: list[_Tpdo] = []
         self._rpdo_slots: list[tuple[int, int]] = []
-        for node_id, device in zip(self.drive_ids, self.drive_pdos, strict=True):
+        for node_id, device in zip(self.drive_ids, self.drive_pdos):
             if Quirk.FIXED_MAPPING in quirks_of(cfg.sim.drive.quirks, node_id, is_drive=True):
                 objects = objects_from_references(
                     cfg.sim.quirk.fixed_tpdo_objects,
@@ -125,7 +125,7 @@ class SimulatedPdos:
         except to the drives in ``read`` (actuators.pdo_mapping = "read": theirs is taken as it is).
 
         A write a drive refuses (a fixed mapping) raises ``PdoWriteRefusedError`` naming it."""
-        for node_id, device in zip(self.drive_ids, self.drive_pdos, strict=True):
+        for node_id, device in zip(self.drive_ids, self.drive_pdos):
             if node_id in read:
                 continue
             for direction, objects in (
@@ -148,7 +148,7 @@ class SimulatedPdos:
     def _rebuild(self) -> None:
         self._drive_tpdos = []
         self._rpdo_slots = []
-        for device, drive in zip(self.drive_pdos, self.drives, strict=True):
+        for device, drive in zip(self.drive_pdos, self.drives):
             tpdo = device.pdo(PdoDirection.TRANSMIT, 1)
             rated = device.od.get_variable(*RATED_TORQUE) if RATED_TORQUE[0] in device.od else None
             rated_n = int(rated.default or 0) / 1000.0 if rated is not None else 0.0  # [mN] to [N]

@@ -84,7 +84,7 @@ def apply_device_faults(
     from sim_backend.drive import EMCY_FORCED_FAULT
 
     schedule.start(now_s)
-    for node, drive in zip(drive_ids, plant.drives, strict=True):
+    for node, drive in zip(drive_ids, plant.drives):
         if schedule.first_time("drive_fault", now_s, node):
             drive.force_fault(EMCY_FORCED_FAULT)
         jump = schedule.active("jump", now_s, node)

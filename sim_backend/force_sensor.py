@@ -82,7 +82,7 @@ class SimulatedForceSensor:
         if not self.freeze_counter:
             self.counter = (self.counter + 1) & 0xFF
         values = self.object_values
-        for k, (f, t) in enumerate(zip(measured, self._torque.tolist(), strict=True), start=1):
+        for k, (f, t) in enumerate(zip(measured, self._torque.tolist()), start=1):
             cf, sf = saturating_i16(f, FORCE_N_PER_COUNT)
             ct, st = saturating_i16(t, TORQUE_NM_PER_COUNT)
             status |= (SENSOR_FORCE_SATURATED if sf else 0) | (SENSOR_TORQUE_SATURATED if st else 0)

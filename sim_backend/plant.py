@@ -199,7 +199,6 @@ class RobotPlant:
                 self.kinematics.initial_positions(),
                 cfg.sim.drive.encoder_offsets_m,
                 configured_drive_quirks(cfg),
-                strict=True,
             )
         ]
         s = cfg.sim.sensor
@@ -330,7 +329,7 @@ class RobotPlant:
             return
         n = max(1, math.ceil(span / self.substep_s - 1e-9))
         traces: list[list[float]] = [[] for _ in self.drives]
-        for d, trace in zip(self.drives, traces, strict=True):
+        for d, trace in zip(self.drives, traces):
             d.advance(now_s, check_sync_timeout, n, trace)
         self._structure(self.time_s, span, n, traces)
         self.time_s = now_s
@@ -384,7 +383,7 @@ class RobotPlant:
                     jt,
                     tuple(
                         cogging * sin(ck * tr[j] + ph)  # type: ignore[arg-type]
-                        for tr, ph in zip(traces, phases, strict=True)
+                        for tr, ph in zip(traces, phases)
                     ),
                 )
                 fx, fy, fz = fx + jf[0], fy + jf[1], fz + jf[2]
@@ -414,7 +413,7 @@ class RobotPlant:
         jx = matvec(self._j, tool.deflection_m)
         jv = matvec(self._j, tool.velocity_m_s)
         k, c = compliance.actuator_stiffness_n_m, compliance.actuator_damping_n_s_m
-        for d, x, v in zip(self.drives, jx, jv, strict=True):
+        for d, x, v in zip(self.drives, jx, jv):
             d.effort_n = -(k * x + c * v)
 
     def _free_efforts(self, interval_s: float) -> None:
@@ -432,7 +431,7 @@ class RobotPlant:
             jac = as_rows(cast(CompliantStructure, self.robot).jacobian(self.tcp_kinematic_m))
         except NoSolutionError:
             return
-        qdd = tuple((v - v0) / interval_s for v, v0 in zip(self._sync_velocities, previous, strict=True))
+        qdd = tuple((v - v0) / interval_s for v, v0 in zip(self._sync_velocities, previous))
         jinv = inverse3(jac)
         a = matvec(jinv, (qdd[0], qdd[1], qdd[2]))
         assert self._compliance is not None  # efforts are reported only with a structure
@@ -440,7 +439,7 @@ class RobotPlant:
         m0, mq = masses.translating_kg, masses.per_actuator_kg
         # M a = m0 a + mq J^T J a, and J a = q'': tau = J^-T (m0 a) + mq q''
         tau = matvec(transpose3(jinv), (m0 * a[0], m0 * a[1], m0 * a[2]))
-        for d, t, acc in zip(self.drives, tau, qdd, strict=True):
+        for d, t, acc in zip(self.drives, tau, qdd):
             d.effort_n = t + mq * acc
 
     def sync(self, now_s: float) -> None:

@@ -56,6 +56,9 @@ WITNESS_MEDIAN_CYCLES = 19  # the witness is the median of this many cycles' (_m
 # silent longer is judged without, by the witness, as before, and past loop.max_missing_cycles
 # (100 ms) the law faults.
 SENSOR_GAP_S = 0.02
+# The last samples of a force, an axis's each in a tuple of its own (oldest first): each median sorts
+# one as it is, with no transposition of samples into axes (_median_of runs twice every cycle).
+AxisWindows = tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]
 
 
 class ContactExpectation(IntEnum):
@@ -112,8 +115,8 @@ class ContactWatch:
     # the last setpoints' accelerations, newest last: a sample at this cycle's SYNC shows the drives'
     # motion towards the setpoint of three cycles ago (the step's pipeline, control_law.PIPELINE_PERIODS)
     accelerations: tuple[tuple[float, ...], ...] = ()
-    witness_window: tuple[Vector3, ...] = ()  # the last raw witnesses, for their median
-    sensor_window: tuple[Vector3, ...] = ()  # the last usable samples (baseline removed), for theirs
+    witness_window: AxisWindows = ((), (), ())  # the last raw witnesses, for their median
+    sensor_window: AxisWindows = ((), (), ())  # the last usable samples (baseline removed), for theirs
     force_n: float = 0.0  # the contact force the guard judged this cycle (the larger of the two)
     disagreeing: int = 0  # cycles in a row beyond the cross-check's tolerance
     agreeing: int = 0  # cycles in a row within it (clears a suspicion)
@@ -291,15 +294,16 @@ def watch(
     return w, ""
 
 
-def _median_of(window: tuple[Vector3, ...], sample: Vector3) -> tuple[tuple[Vector3, ...], Vector3]:
+def _median_of(window: AxisWindows, sample: Vector3) -> tuple[AxisWindows, Vector3]:
     """``sample`` appended to the last WITNESS_MEDIAN_CYCLES, and each axis's median of them. Over a bus
     the drives' efforts jump for a cycle or a few where a late SYNC jolts a carriage (measured over
     udp_multicast: 25 such jumps in a 40-s contour run, the longest 9 cycles, the largest 155 N
     beside 10 N of contact; in simulated time none): the motors carry the jolt, the sensor does not."""
-    window = (*window, sample)[-WITNESS_MEDIAN_CYCLES:]
-    k = len(window) // 2
-    x, y, z = (sorted(column)[k] for column in zip(*window, strict=True))
-    return window, (x, y, z)
+    x = (*window[0], sample[0])[-WITNESS_MEDIAN_CYCLES:]
+    y = (*window[1], sample[1])[-WITNESS_MEDIAN_CYCLES:]
+    z = (*window[2], sample[2])[-WITNESS_MEDIAN_CYCLES:]
+    k = len(x) // 2
+    return (x, y, z), (sorted(x)[k], sorted(y)[k], sorted(z)[k])
 
 
 def _witnesses(w: ContactWatch) -> str:

@@ -175,17 +175,16 @@ class ControlLaw:
     def step(
         self, state: ControllerState, inputs: CycleInputs, t: float
     ) -> tuple[ControllerState, CycleOutputs, tuple[Event, ...]]:
+        self._check_drive_count(inputs)
         events: list[Event] = []
         measured = tuple(d.position for d in inputs.drives)
         powers = tuple(decode_statusword(d.statusword) for d in inputs.drives)
         skipped = self._skipped_deadlines(state, t)
         jump, implausible = self.monitor.position_jump(state, inputs, skipped)
-        streak = tuple(
-            0 if d.fresh else s + 1 for d, s in zip(inputs.drives, state.missing_streak, strict=True)
-        )
+        streak = tuple(0 if d.fresh else s + 1 for d, s in zip(inputs.drives, state.missing_streak))
         last = tuple(
             d.position if d.fresh and not bad else x
-            for d, x, bad in zip(inputs.drives, state.last_measured, implausible, strict=True)
+            for d, x, bad in zip(inputs.drives, state.last_measured, implausible)
         )
         state = replace(
             state,
@@ -240,6 +239,15 @@ class ControlLaw:
             sdo_controlwords=tuple((j, CW_QUICK_STOP) for j in by_sdo),
         )
         return state, outputs, tuple(events)
+
+    def _check_drive_count(self, inputs: CycleInputs) -> None:
+        """Checked once at the step's entry: its loops over drives and axes zip without ``strict=True``
+        (mypyc makes only a zip of positional arguments a native loop), so a short tuple would be
+        cut short there, not refused."""
+        if len(inputs.drives) != self.n:
+            raise ValueError(
+                f"cycle inputs carry {len(inputs.drives)} drives' samples, the robot has {self.n} actuators"
+            )
 
     def _skipped_deadlines(self, state: ControllerState, t: float) -> int:
         """The deadlines the loop skipped before this step (it fell behind: a hold-up)."""
@@ -439,8 +447,7 @@ class ControlLaw:
             return self._enter(state, Mode.ENABLING, t, events, why="all drives answer")
         # Until every drive has answered, each is sent where it was last heard (else mid-stroke).
         heard = tuple(
-            x if math.isfinite(x) else q
-            for x, q in zip(state.last_measured, state.setpoint.position, strict=True)
+            x if math.isfinite(x) else q for x, q in zip(state.last_measured, state.setpoint.position)
         )
         return replace(state, setpoint=Setpoint.at_rest(heard))
 
@@ -458,7 +465,7 @@ class ControlLaw:
         resets = list(state.fault_resets)  # empty: not after a reset
         cws = list(state.controlwords)
         stuck = ""
-        for j, (p, d) in enumerate(zip(powers, inputs.drives, strict=True)):
+        for j, (p, d) in enumerate(zip(powers, inputs.drives)):
             if not d.fresh:
                 continue
             if p == PowerState.FAULT and resets:
@@ -576,6 +583,13 @@ class ControlLaw:
             task_state, ref = out.state, out.reference
             if out.fault:
                 return self._faulted(state, out.fault, t, events, task_state=task_state)
+            if not len(ref.position) == len(ref.velocity) == len(ref.acceleration) == self.n:
+                why = (
+                    f"task {self.task.name} gave a reference of {len(ref.position)} positions, "
+                    f"{len(ref.velocity)} velocities and {len(ref.acceleration)} accelerations "
+                    f"for {self.n} actuators"
+                )
+                return self._faulted(state, why, t, events, task_state=task_state)
             if not k or out.finished:
                 break
             # A blind period: the setpoint goes with it as it would have, near where the drives ran on
@@ -664,7 +678,7 @@ class ControlLaw:
                 return state
         cws = tuple(
             controlword_towards(p, PowerState.READY_TO_SWITCH_ON, cw)
-            for p, cw in zip(powers, state.controlwords, strict=True)
+            for p, cw in zip(powers, state.controlwords)
         )
         state = replace(state, controlwords=cws)
         if all(p in (PowerState.READY_TO_SWITCH_ON, PowerState.SWITCH_ON_DISABLED) for p in powers):
@@ -693,7 +707,7 @@ class ControlLaw:
     ) -> ControllerState:
         cws = tuple(
             controlword_towards(p, PowerState.QUICK_STOP_ACTIVE, cw)
-            for p, cw in zip(powers, state.controlwords, strict=True)
+            for p, cw in zip(powers, state.controlwords)
         )
         state = replace(state, controlwords=cws, setpoint=self._hold(state))
         if state.bus_off_cycle and state.cycle > state.bus_off_cycle and any(d.fresh for d in inputs.drives):
@@ -712,7 +726,7 @@ class ControlLaw:
         down_s = (state.cycle - state.bus_off_cycle) * self.config.period_s
         checks = []
         restarted = {r.node_id for r in inputs.nmt_reports if r.state == 0}
-        for j, (d, p) in enumerate(zip(inputs.drives, powers, strict=True)):
+        for j, (d, p) in enumerate(zip(inputs.drives, powers)):
             node = self.monitor.node_id(j)
             if d.fresh:
                 checks.append(f"{j + 1} {p.name} (0x{d.statusword:04X}){self.monitor.error_code(state, j)}")
@@ -856,7 +870,7 @@ class ControlLaw:
                 b = replace(b, braking=True)
                 state = replace(state, back_off=b)
             else:
-                qd = tuple((float(a) - float(c)) / period for a, c in zip(ahead, q, strict=True))
+                qd = tuple((float(a) - float(c)) / period for a, c in zip(ahead, q))
                 result = self.smoother.track_velocity(
                     self._smoothing_start(state),
                     tuple(float(x) for x in q),
@@ -887,17 +901,14 @@ class ControlLaw:
         ``last_measured``, so a rogue frame cannot choose where the robot stops.
         """
         return Setpoint.at_rest(
-            tuple(
-                x if math.isfinite(x) else q
-                for x, q in zip(state.last_measured, state.setpoint.position, strict=True)
-            )
+            tuple(x if math.isfinite(x) else q for x, q in zip(state.last_measured, state.setpoint.position))
         )
 
     def _moved_on(self, sp: Setpoint, periods: int) -> Setpoint:
         """The setpoint ``periods`` periods on along its own speed: where drives that ran on that far
         are (``_after_hold_up``), or, -1, where drives that stood a step short of it are."""
         shift_s = periods * self.config.period_s
-        position = tuple(p + shift_s * v for p, v in zip(sp.position, sp.velocity, strict=True))
+        position = tuple(p + shift_s * v for p, v in zip(sp.position, sp.velocity))
         return Setpoint(position, sp.velocity, sp.acceleration)
 
     @staticmethod

@@ -352,9 +352,7 @@ class SafetyMonitor:
         if not math.isfinite(tolerance) or state.mode == Mode.CONFIGURING:
             return "", tuple(flags)
         reason = ""
-        for j, (d, last, gap) in enumerate(
-            zip(inputs.drives, state.last_measured, state.missing_streak, strict=True)
-        ):
+        for j, (d, last, gap) in enumerate(zip(inputs.drives, state.last_measured, state.missing_streak)):
             if not (d.fresh and math.isfinite(last)):
                 continue
             periods = gap + 1 + skipped
@@ -389,9 +387,7 @@ class SafetyMonitor:
         run_on_s = (
             self.config.drive_extrapolation_periods * t_s if state.drives_ran_on or state.drives_held else 0.0
         )
-        for j, (d, q, v, a) in enumerate(
-            zip(inputs.drives, sp.position, sp.velocity, sp.acceleration, strict=True)
-        ):
+        for j, (d, q, v, a) in enumerate(zip(inputs.drives, sp.position, sp.velocity, sp.acceleration)):
             expected = q - v * t_s + 0.5 * a * t_s * t_s
             if d.fresh and abs(d.position - expected) > window + abs(v) * run_on_s:
                 u = self.config.position_unit
@@ -422,7 +418,7 @@ class SafetyMonitor:
         # ENABLING after the operator's reset resets the drives' faults and judges its attempts itself;
         # a drive in FAULT at the start, or one that faults on its way to enabled, is a fault
         resetting = state.mode == Mode.ENABLING and bool(state.fault_resets)
-        for j, (p, streak) in enumerate(zip(powers, state.missing_streak, strict=True)):
+        for j, (p, streak) in enumerate(zip(powers, state.missing_streak)):
             # Judged on this cycle's TPDO only: a statusword not refreshed (missing frame) is old news,
             # e.g. the FAULT a reset has just cleared; silence has its own limit below.
             faulted = p in (PowerState.FAULT, PowerState.FAULT_REACTION_ACTIVE)

@@ -116,9 +116,7 @@ class RuckigSmoother:
         """
         lim = self._limits
         target_v_max = self._target_v_max
-        target_velocity = tuple(
-            min(max(v, -m), m) for v, m in zip(target_velocity, target_v_max, strict=True)
-        )
+        target_velocity = tuple(min(max(v, -m), m) for v, m in zip(target_velocity, target_v_max))
         # A target state must be reachable from a state within the limits: with |a| the jerk-limited
         # velocity change a^2 / (2 j) still ahead (or just behind), |v| + a^2 / (2 j) <= v_max.
         # Ruckig refuses the whole input otherwise ("will inevitably ... exceed its maximum velocity").
@@ -132,7 +130,6 @@ class RuckigSmoother:
                 lim.max_acceleration,
                 target_v_max,
                 lim.max_jerk,
-                strict=True,
             )
         )
         inp = self._inp
@@ -177,7 +174,6 @@ class RuckigSmoother:
             lim.max_velocity,
             lim.max_acceleration,
             lim.max_jerk,
-            strict=True,
         ):
             # The reference is for the sample one period ahead: compare it with where the setpoint
             # would be then, or the setpoint settles a period's travel ahead of its reference.

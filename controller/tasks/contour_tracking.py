@@ -470,7 +470,7 @@ class ContourTrackingTask:
         contact: ContactExpectation | None = None,
     ) -> tuple[ContourState, JointReference]:
         q, qd = self.robot.joint_motion(s.p_cmd, v)
-        qdd = tuple((a - b) / dt for a, b in zip(qd, s.qd_ref, strict=True)) if s.qd_ref else (0.0,) * len(qd)
+        qdd = tuple((a - b) / dt for a, b in zip(qd, s.qd_ref)) if s.qd_ref else (0.0,) * len(qd)
         expected = PHASE_CONTACT[s.phase] if contact is None else contact
         ref = JointReference(q, qd, qdd, s.p_cmd, on_path, reactive=True, contact=expected)
         return replace(s, qd_ref=qd), ref
@@ -1399,7 +1399,7 @@ class ContourTrackingTask:
             return self._begin_retract(s, ctx, (*events, ev), fault)
         if offset is None:
             return TaskStep(s, ref, events=events)
-        moved = math.sqrt(sum((a - b) ** 2 for a, b in zip(offset, s.offset, strict=True)))
+        moved = math.sqrt(sum((a - b) ** 2 for a, b in zip(offset, s.offset)))
         ev = Event(
             "contour",
             Severity.INFO,

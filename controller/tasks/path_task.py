@@ -102,8 +102,8 @@ class PathTask:
         # the central differences in floats, element by element in numpy's order of operations
         # (the same doubles): a numpy operation on a 3-vector costs more than its arithmetic
         two_h, h2 = 2.0 * h, h * h
-        qd = tuple((a - b) / two_h for a, b in zip(qp, qm, strict=True))
-        qdd = tuple((a - 2.0 * x + b) / h2 for x, a, b in zip(q, qp, qm, strict=True))
+        qd = tuple((a - b) / two_h for a, b in zip(qp, qm))
+        qdd = tuple((a - 2.0 * x + b) / h2 for x, a, b in zip(q, qp, qm))
         return JointReference(tuple(q), qd, qdd, p, True, contact=self.contact)
 
     def phase_name(self, state: PathTaskState) -> str:
@@ -141,7 +141,7 @@ class PathTask:
         )
         q = self.robot.inverse_kinematics(np.asarray(p)).tolist()
         ahead = self.robot.inverse_kinematics(np.asarray(p) + np.asarray(d) / left * speed * dt).tolist()
-        qd = tuple((b - c) / dt for b, c in zip(ahead, q, strict=True))
+        qd = tuple((b - c) / dt for b, c in zip(ahead, q))
         ref = JointReference(
             tuple(q), qd, (0.0,) * len(q), p, False, reactive=True, contact=ContactExpectation.GUARDED
         )
@@ -154,8 +154,7 @@ class PathTask:
         if state.phase == PathPhase.MOVE_TO_START:
             start = self._start
             settled = all(
-                abs(a - b) <= self.settle_tolerance
-                for a, b in zip(setpoint.position, start.position, strict=True)
+                abs(a - b) <= self.settle_tolerance for a, b in zip(setpoint.position, start.position)
             ) and all(abs(v) <= self.settle_tolerance for v in setpoint.velocity)
             if not settled:
                 return state, start, False

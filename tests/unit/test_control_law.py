@@ -15,6 +15,7 @@ from controller.config import Config, load_config
 from controller.core.cia402 import CW_QUICK_STOP, PowerState, decode_statusword
 from controller.core.controller_state import Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, DriveFeedback
+from controller.core.records import replace
 from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother, Setpoint
 from controller.errors import WorkspaceError
 from controller.shell.loop import CycleLoop, SimulatedTime
@@ -269,6 +270,45 @@ def test_a_nan_position_faults_at_once():
     state, _, _ = law.step(state, bad, cfg.period_s)
     assert state.mode == Mode.FAULT
     assert "actuator 1 measured at nan m" in state.fault_reason
+
+
+def test_inputs_of_another_drive_count_are_refused_by_name():
+    # The step's loops zip drives and axes without strict=True (compiled native loops): the count is
+    # checked once at its entry, not cut short in the middle.
+    law = build_law(load_config(overrides=SHORT))
+    two = CycleInputs(tuple(DriveFeedback(0x1637, 0.55, True) for _ in range(2)))
+    with pytest.raises(ValueError, match="cycle inputs carry 2 drives' samples, the robot has 3 actuators"):
+        law.step(law.initial_state(), two, 0.0)
+
+
+class _ShortReferenceAfter:
+    """The path task, until its time ``after_s``: then its references lose their last axis."""
+
+    def __init__(self, task: object, after_s: float) -> None:
+        self._task, self._after_s = task, after_s
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._task, name)
+
+    def step(self, state, ctx):
+        out = self._task.step(state, ctx)
+        if ctx.t_s < self._after_s:
+            return out
+        ref = out.reference
+        return replace(out, reference=replace(ref, position=ref.position[:2]))
+
+
+def test_a_task_reference_of_another_axis_count_faults_naming_the_task():
+    cfg = load_config(overrides=SHORT)
+    rig = SimulatedRig(cfg)
+    rig.law.task = _ShortReferenceAfter(rig.law.task, after_s=1.0)
+    trace = Trace()
+    final, _ = rig.loop((trace,)).run(rig.law.initial_state(), 10.0)
+    assert Mode.RUNNING in trace.modes  # it ran before the reference went short
+    assert final.mode == Mode.FAULT
+    assert final.fault_reason == (
+        "task path gave a reference of 2 positions, 3 velocities and 3 accelerations for 3 actuators"
+    )
 
 
 def test_velocity_tracking_follows_a_steady_reference_without_lag_or_chatter():

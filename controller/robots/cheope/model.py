@@ -205,7 +205,7 @@ def direct_kinematics(geom: CheopeGeometry, q_m: np.ndarray) -> np.ndarray:
         # on the branch: w_j . n_j = (s - c_j) . n_j / l <= 0 for every leg (written out: it runs
         # every cycle, and the calls cost more than the arithmetic)
         on_branch = True
-        for cj, n in zip(c, axes, strict=True):
+        for cj, n in zip(c, axes):
             if not (s[0] - cj[0]) * n[0] + (s[1] - cj[1]) * n[1] + (s[2] - cj[2]) * n[2] <= tolerance:
                 on_branch = False
                 break
