@@ -260,6 +260,24 @@ def test_on_cycle_publishes_every_nth_cycle_on_the_loops_thread(cfg):
     assert {t.name for t in threading.enumerate()} == threads_before  # the query servers ended with it
 
 
+def test_the_published_loop_statistics_are_the_last_cycles_period_errors(cfg):
+    """Rate, period-error percentiles and maximum over the last 1 023 periods (the publisher's ring)."""
+    cfg = load_config(overrides={"monitoring.listen": _endpoint()})
+    from controller.assembly import build_law
+
+    state = build_law(cfg).initial_state()
+    with MonitorPublisher(publisher_settings(cfg), threading.Event()) as pub:
+        for k in range(2000):
+            cycle, t, inputs, outputs, _ = _cycle_args(k)
+            late_s = 1e-3 if k % 100 == 50 else 0.0  # each late wake-up: two periods 1 ms off
+            pub.on_cycle(cycle, t, inputs, state, outputs, (), CycleTiming(late_s, 1e-4))
+        rate, p50, p99, worst = pub._timing_statistics()
+    # the window: 1 023 periods, 20 of them 1 ms off (10 late wake-ups), the rest exact
+    assert rate == pytest.approx(400.0, rel=1e-3)
+    assert p50 == pytest.approx(0.0, abs=1e-6)
+    assert p99 == pytest.approx(1000.0, abs=1e-6) and worst == pytest.approx(1000.0, abs=1e-6)
+
+
 # -- across processes ------------------------------------------------------------------------
 
 
