@@ -3,6 +3,12 @@ functions; for the law as this process runs it (compiled by mypyc or not: contro
 and, beside a compiled one, for its sources interpreted in a child process (``interpreted_step_breakdown``).
 
     .venv/bin/python -m controller.tools.bench.step_cost [--rate 400] [--cycles 4000] [--set KEY=VALUE]
+        [--idle-us US]
+
+Back to back (the default) each step finds the caches as the last one left them. In the service
+the loop's thread waits for its next deadline between two steps: ``--idle-us`` sleeps that long
+before each timed step (wall-clock; the simulated time goes on as before), the same steps with the
+same inputs, so that the two figures side by side say what the wait alone costs the step.
 """
 
 from __future__ import annotations
@@ -28,7 +34,12 @@ if TYPE_CHECKING:
 
 
 def step_breakdown(
-    config_path: str | None, overrides: list[str], rate_hz: float, cycles: int, profile_top: int = 12
+    config_path: str | None,
+    overrides: list[str],
+    rate_hz: float,
+    cycles: int,
+    profile_top: int = 12,
+    idle_us: float = 0.0,
 ) -> dict[str, object]:
     """Run the law on the in-process loopback plant (simulated time): step time vs Ruckig's.
 
@@ -81,6 +92,8 @@ def step_breakdown(
         sim.sleep_until(k * period)
         exchange.send(outputs)
         inputs = cycle_inputs(exchange.collect(k * period + period))
+        if idle_us:
+            time.sleep(idle_us * 1e-6)
         t0 = time.perf_counter()
         state, outputs, _ = law.step(state, inputs, k * period)
         step_s[k] = time.perf_counter() - t0
@@ -118,6 +131,7 @@ def step_breakdown(
         "cycles": cycles,
         "law": LAW_BUILD.describe(),
         "final_mode": state.mode.name,
+        "idle_before_step_us": idle_us,
         "step_us": percentiles_us(step_us),
         **ruckig,
         "profile_top_tottime": _profile_lines(buf.getvalue()),
@@ -147,8 +161,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="configuration override")
     ap.add_argument("--rate", type=float, default=400.0, help="loop rate [Hz]")
     ap.add_argument("--cycles", type=int, default=4000, help="cycles of simulated time")
+    ap.add_argument(
+        "--idle-us", type=float, default=0.0, help="sleep this long before each timed step [us] (default 0)"
+    )
     args = ap.parse_args(argv)
-    print(json.dumps(step_breakdown(args.config, args.set, args.rate, args.cycles)))
+    if not args.idle_us >= 0.0:
+        ap.error(f"--idle-us {args.idle_us:g}: must be 0 or more")
+    print(json.dumps(step_breakdown(args.config, args.set, args.rate, args.cycles, idle_us=args.idle_us)))
     return 0
 
 
