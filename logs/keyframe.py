@@ -24,7 +24,10 @@ from typing import Any
 
 import numpy as np
 
-ENCODING = "cheope-state-json-1"
+ENCODING = "cheope-state-json-2"
+# Read too: the encoding of keyframes recorded before a58564c, whose contact guard kept its median
+# windows as tuples of samples (x, y, z) where it now keeps a tuple per axis (_UPGRADES).
+ENCODINGS = ("cheope-state-json-1", ENCODING)
 
 
 class KeyframeError(ValueError):
@@ -94,15 +97,33 @@ def _loaded_class(name: str) -> type:
     return obj
 
 
-def _decode(v: Any) -> Any:
+def _per_axis(samples: tuple[tuple[float, ...], ...]) -> tuple[tuple[float, ...], ...]:
+    """A window of samples (x, y, z), oldest first, as the tuple per axis it is kept as now."""
+    if not all(len(sample) == 3 for sample in samples):
+        raise KeyframeError(f"a contact guard window of samples that are not 3 forces each: {samples!r:.80}")
+    return tuple(tuple(sample[axis] for sample in samples) for axis in range(3))
+
+
+# What an older encoding's dataclass fields were, as now: encoding -> class -> field -> upgrade.
+_UPGRADES: dict[str, dict[str, dict[str, Any]]] = {
+    "cheope-state-json-1": {
+        "controller.core.contact_guard:ContactWatch": {
+            "witness_window": _per_axis,
+            "sensor_window": _per_axis,
+        },
+    },
+}
+
+
+def _decode(v: Any, upgrades: dict[str, dict[str, Any]]) -> Any:
     if not isinstance(v, dict):
         if isinstance(v, list):
             raise KeyframeError("a bare list in the keyframe (tuples are tagged)")
         return v
     if "t" in v:
-        return tuple(_decode(x) for x in v["t"])
+        return tuple(_decode(x, upgrades) for x in v["t"])
     if "s" in v:
-        return frozenset(_decode(x) for x in v["s"])
+        return frozenset(_decode(x, upgrades) for x in v["s"])
     if "f" in v and "d" not in v:
         return float(v["f"])
     if "e" in v:
@@ -116,14 +137,21 @@ def _decode(v: Any) -> Any:
         cls = _loaded_class(v["d"])
         if not dataclasses.is_dataclass(cls):
             raise KeyframeError(f"{v['d']!r} in the keyframe is not a dataclass")
-        return cls(**{k: _decode(x) for k, x in v["f"].items()})
+        fields = {k: _decode(x, upgrades) for k, x in v["f"].items()}
+        for name, upgrade in upgrades.get(v["d"], {}).items():
+            if name in fields:
+                fields[name] = upgrade(fields[name])
+        return cls(**fields)
     raise KeyframeError(f"unknown value in the keyframe: {json.dumps(v)[:80]}")
 
 
-def decode_state(data: bytes) -> Any:
-    """The state ``encode_state`` wrote; ``KeyframeError`` when it cannot be rebuilt."""
+def decode_state(data: bytes, encoding: str = ENCODING) -> Any:
+    """The state ``encode_state`` wrote in ``encoding`` (one of ``ENCODINGS``), as the law keeps it
+    now; ``KeyframeError`` when it cannot be rebuilt."""
+    if encoding not in ENCODINGS:
+        raise KeyframeError(f"keyframe encoding {encoding!r}: this version reads {', '.join(ENCODINGS)}")
     try:
-        return _decode(json.loads(data))
+        return _decode(json.loads(data), _UPGRADES.get(encoding, {}))
     except KeyframeError:
         raise
     except (ValueError, TypeError, KeyError, AttributeError) as err:

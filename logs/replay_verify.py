@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any
 from controller.config import ConfigError, recorded_config_from_dict, set_dotted
 from controller.messages import cheope_pb2 as pb
 from logs import messages as m
-from logs.keyframe import ENCODING as KEYFRAME_ENCODING
+from logs.keyframe import ENCODINGS as KEYFRAME_ENCODINGS
 from logs.keyframe import KeyframeError, decode_state, encode_state
 from logs.reader import LogFileError, ReadReport, iter_decoded, read_head, read_info
 
@@ -354,7 +354,7 @@ class _Run:
     def _keyframe(self, path: Path, report: ReadReport, kf: Any) -> bool:
         """A file's keyframe: where a file alone starts; in a session, the state replayed so far must equal it."""
         result = self.result
-        if kf.encoding != KEYFRAME_ENCODING or not kf.state:
+        if kf.encoding not in KEYFRAME_ENCODINGS or not kf.state:
             if self.state is None:
                 result.problems.append(
                     f"{path.name}'s keyframe holds no state it can start from"
@@ -364,7 +364,7 @@ class _Run:
             return True
         self._build_law(report, path)
         try:
-            state = decode_state(kf.state)
+            state = decode_state(kf.state, kf.encoding)
         except KeyframeError as err:
             if self.state is None:
                 result.problems.append(f"{path.name}: {err}")
@@ -379,7 +379,7 @@ class _Run:
             else:
                 result.started_from = where
             return True
-        if encode_state(self.state) != kf.state:
+        if encode_state(self.state) != encode_state(state):  # both as the law keeps its state now
             result.divergence = Divergence(
                 kf.cycle,
                 kf.t_s,

@@ -18,7 +18,7 @@ from controller.config import Config, ConfigError, load_config
 from controller.messages import cheope_pb2 as pb
 from logs import messages as m
 from logs.cycle_encoding import cycle_values
-from logs.keyframe import decode_state, encode_state
+from logs.keyframe import ENCODING, decode_state, encode_state
 from logs.reader import iter_decoded, iter_messages, read_head, read_info
 from logs.recorder import session_metadata
 from logs.recovery import recover
@@ -198,9 +198,7 @@ def test_the_writer_asks_for_a_keyframe_past_the_size_limit_and_rotates_on_it(tm
         assert k < 1000, "the writer never asked for a keyframe"
     assert asked == [{"keyframe": 2}] and w.files == [str(first)]
     w.write((CYCLE, 0, [], k, k * 0.0025, k * 0.0025, k, body, (), None, None))  # the file goes on meanwhile
-    w.write(
-        (KEYFRAME, 0, k, k * 0.0025, k * 0.0025, k, "cheope-state-json-1", encode_state(trace.rows[0][3]), "")
-    )
+    w.write((KEYFRAME, 0, k, k * 0.0025, k * 0.0025, k, ENCODING, encode_state(trace.rows[0][3]), ""))
     assert asked[-1] == {"file": str(tmp_path / "cheope-20260101-000000.002.mcap")} and len(w.files) == 2
     w.finish(k + 1, 0)
     assert read_info(first).complete and read_info(w.files[1]).complete

@@ -90,3 +90,44 @@ def test_a_keyframe_of_the_law_s_state_before_it_moved_to_controller_state_still
     back = decode_state(old)
     assert isinstance(back, ControllerState) and back.mode is Mode.CONFIGURING
     assert encode_state(back) == new  # the same state (its NaNs compare unequal as values)
+
+
+@pytest.mark.parametrize("samples", [0, 3, 5, 19])
+def test_a_keyframe_of_the_contact_guard_s_windows_as_samples_reads_as_windows_per_axis(samples):
+    """Before a58564c (encoding cheope-state-json-1) the guard kept its median windows as tuples of
+    samples (x, y, z); it keeps a tuple per axis now. Three samples of three forces look alike in
+    both shapes: the encoding, not the shape, says which one a keyframe holds."""
+    import json
+
+    from controller.assembly import build_law
+    from controller.config import load_config
+    from controller.core.contact_guard import ContactWatch
+    from controller.core.records import replace
+
+    witness = tuple((1.0 * k, 10.0 + k, -float(k)) for k in range(samples))
+    sensor = tuple((0.5 * k, 0.25, 100.0 - k) for k in range(samples))
+
+    def per_axis(window):
+        return tuple(tuple(sample[axis] for sample in window) for axis in range(3))
+
+    state = build_law(load_config()).initial_state()
+    state = replace(
+        state, contact=ContactWatch(witness_window=per_axis(witness), sensor_window=per_axis(sensor))
+    )
+    tree = json.loads(encode_state(state))
+    watch = tree["f"]["contact"]["f"]
+    for name, window in (("witness_window", witness), ("sensor_window", sensor)):
+        watch[name] = json.loads(encode_state(window))  # the old shape, as the old encoder wrote it
+    old = json.dumps(tree, separators=(",", ":")).encode()
+    assert encode_state(decode_state(old, "cheope-state-json-1")) == encode_state(state)
+
+
+def test_a_keyframe_of_an_unknown_encoding_is_refused_by_name():
+    with pytest.raises(KeyframeError, match="keyframe encoding 'cheope-state-json-9': this version reads"):
+        decode_state(b"{}", "cheope-state-json-9")
+
+
+def test_an_old_window_of_samples_that_are_not_three_forces_is_refused():
+    old = b'{"d":"controller.core.contact_guard:ContactWatch","f":{"witness_window":{"t":[{"t":[1.0,2.0]}]}}}'
+    with pytest.raises(KeyframeError, match="not 3 forces each"):
+        decode_state(old, "cheope-state-json-1")
