@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from controller.plugins import SIM_KINEMATICS
+from controller.plugins import SIM_KINEMATICS, PluginError
 from controller.robot_registry import check_axes
 
 if TYPE_CHECKING:
@@ -58,4 +58,11 @@ def plant_kinematics(cfg: Config, robot: Any) -> PlantKinematics:
         )
         return RigidKinematics(robot, cfg.sim.drive.initial_positions_m)
     kinematics: PlantKinematics = factory(cfg, robot)
+    start = kinematics.initial_positions()
+    if len(start) != robot.n_actuators:
+        # the plant pairs each drive with its start positionally (plant.py): checked here, once
+        raise PluginError(
+            f"the simulator hook of robot.kind = {cfg.robot.kind!r} starts {len(start)} drive(s) "
+            f"for its {robot.n_actuators} actuators: {list(start)}"
+        )
     return kinematics

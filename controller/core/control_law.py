@@ -870,15 +870,20 @@ class ControlLaw:
                 b = replace(b, braking=True)
                 state = replace(state, back_off=b)
             else:
-                qd = tuple((float(a) - float(c)) / period for a, c in zip(ahead, q))
-                result = self.smoother.track_velocity(
-                    self._smoothing_start(state),
-                    tuple(float(x) for x in q),
-                    qd,
-                    REACTIVE_CORRECTION_PERIODS / period,
-                )
-                if result.ok:
-                    return replace(state, setpoint=result.setpoint)
+                # the robot plug-in's answer, zipped below: one of another length brakes, as none does
+                if len(q) == len(ahead) == self.n:
+                    qd = tuple((float(a) - float(c)) / period for a, c in zip(ahead, q))
+                    result = self.smoother.track_velocity(
+                        self._smoothing_start(state),
+                        tuple(float(x) for x in q),
+                        qd,
+                        REACTIVE_CORRECTION_PERIODS / period,
+                    )
+                    if result.ok:
+                        return replace(state, setpoint=result.setpoint)
+                else:
+                    why = f"the robot's inverse kinematics gave {len(q)} positions for {self.n} actuators"
+                    events.append(Event("back_off", Severity.WARNING, f"back-off brakes: {why}"))
                 b = replace(b, braking=True)
                 state = replace(state, back_off=b)
         state = self._smooth_to_rest(state, t, events)

@@ -225,3 +225,17 @@ def test_a_robot_that_starts_inside_the_simulated_part_is_refused_naming_it():
     RobotPlant(
         load_config(overrides={**inside, "sim.workpiece.height_m": float(start[2]) + 0.05})
     )  # above it
+
+
+def test_a_simulator_hook_that_starts_another_number_of_drives_is_refused_by_name(gantry):
+    from controller.plugins import PluginError
+    from sim_backend.plant import RobotPlant
+    from sim_backend.plant_kinematics import RigidKinematics
+
+    def two_drives(cfg, robot):
+        return RigidKinematics(robot, (0.1, 0.2))
+
+    SIM_KINEMATICS.unregister("gantry")
+    SIM_KINEMATICS.register("gantry", two_drives)
+    with pytest.raises(PluginError, match=r"robot.kind = 'gantry' starts 2 drive\(s\) for its 3 actuators"):
+        RobotPlant(gantry_config())

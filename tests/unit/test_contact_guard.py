@@ -194,10 +194,25 @@ class _Trace:
         self.events += [e.message for e in events]
 
 
-def _run_path(faults: tuple[str, ...]):
+class _ShortInverse:
+    """A robot plug-in whose inverse kinematics answers one position short."""
+
+    def __init__(self, robot) -> None:
+        self._robot = robot
+
+    def __getattr__(self, name: str):
+        return getattr(self._robot, name)
+
+    def inverse_kinematics(self, tcp_m):
+        return self._robot.inverse_kinematics(tcp_m)[:-1]
+
+
+def _run_path(faults: tuple[str, ...], short_inverse: bool = False):
     cfg = load_config(overrides={"sim.faults": list(faults), "task.path.laps": 0.5})
     clock = SimulatedTime()
     law = build_law(cfg)
+    if short_inverse:
+        law.robot = _ShortInverse(law.robot)
     exchange = LoopbackExchange(cfg, clock.clock)
     trace = _Trace(exchange)
     final, _ = CycleLoop(
@@ -219,3 +234,14 @@ def test_a_force_in_free_space_ends_the_move_with_a_back_off_along_it_the_drives
     start, end = backing[0][2], backing[-1][2]
     assert end[0] - start[0] == pytest.approx(0.005, abs=0.0015)  # along +X, the force's direction
     assert abs(end[1] - start[1]) < 0.001 and abs(end[2] - start[2]) < 0.001
+
+
+def test_a_back_off_whose_robot_answers_the_wrong_axis_count_brakes_in_place_and_says_why():
+    """The back-off zips the robot's inverse kinematics with itself axis by axis: an answer of
+    another length brakes to rest where the robot is, the drives enabled, as an unreachable one does
+    (before a58564c, zip(strict=True) raised inside the step)."""
+    final, trace = _run_path(("force=20@2.0",), short_inverse=True)
+    assert final.mode == Mode.FAULT and final.fault_reason.startswith("protective stop: contact force")
+    assert "back-off brakes: the robot's inverse kinematics gave 2 positions for 3 actuators" in trace.events
+    backing = [r for r in trace.rows if r[0] == Mode.BACKING_OFF]
+    assert backing and all(p == int(PowerState.OPERATION_ENABLED) for r in backing for p in r[1])
