@@ -16,8 +16,9 @@ def test_the_idle_wait_before_each_step_is_reported_and_changes_nothing_the_law_
     assert idle["step_us"]["p50"] > 0.0
 
 
-def test_a_negative_idle_wait_is_refused_by_name(capsys):
+@pytest.mark.parametrize("idle", ["-1", "inf", "nan", "2e6"])
+def test_an_idle_wait_out_of_range_is_refused_by_name(capsys, idle):
     with pytest.raises(SystemExit) as exit_:
-        main(["--idle-us", "-1", "--cycles", "10"])
+        main(["--idle-us", idle, "--cycles", "10"])
     assert exit_.value.code == 2
-    assert "--idle-us -1: must be 0 or more" in capsys.readouterr().err
+    assert f"--idle-us {float(idle):g}: must be 0 to 1 000 000 (a second)" in capsys.readouterr().err

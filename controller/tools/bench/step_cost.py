@@ -165,8 +165,8 @@ def main(argv: list[str] | None = None) -> int:
         "--idle-us", type=float, default=0.0, help="sleep this long before each timed step [us] (default 0)"
     )
     args = ap.parse_args(argv)
-    if not args.idle_us >= 0.0:
-        ap.error(f"--idle-us {args.idle_us:g}: must be 0 or more")
+    if not 0.0 <= args.idle_us <= 1e6:
+        ap.error(f"--idle-us {args.idle_us:g}: must be 0 to 1 000 000 (a second)")
     print(json.dumps(step_breakdown(args.config, args.set, args.rate, args.cycles, idle_us=args.idle_us)))
     return 0
 
