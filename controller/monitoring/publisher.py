@@ -309,7 +309,9 @@ class MonitorPublisher:
 
     def _fill_loop_statistics(self, out: pb.LoopStatistics) -> None:
         """Rate and period-error percentiles over the last ``_RING`` cycles, recomputed every
-        ``_STATS_EVERY_S`` (the percentiles cost ~60 us of GIL time, the rest of the message ~6 us)."""
+        ``_STATS_EVERY_S``: numpy's percentiles took 306 us p50, 541 us at most, on the loop's thread in
+        a contour demo (2026-12-01, a scratch timer around this call), where they took ~60 us back to back; a
+        sliding histogram a cycle at a time cost more than it saved there (docs: the changelog)."""
         now = self.clock()
         if now - self._stats_at_s >= _STATS_EVERY_S:
             self._stats_at_s = now
