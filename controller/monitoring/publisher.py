@@ -310,7 +310,7 @@ class MonitorPublisher:
     def _fill_loop_statistics(self, out: pb.LoopStatistics) -> None:
         """Rate and period-error percentiles over the last ``_RING`` cycles, recomputed every
         ``_STATS_EVERY_S``: numpy's percentiles took 306 us p50, 541 us at most, on the loop's thread in
-        a contour demo (2026-12-01, a scratch timer around this call), where they took ~60 us back to back; a
+        a contour demo (2026-12-01, a scratch timer around this call), not the ~60 us given here before; a
         sliding histogram a cycle at a time cost more than it saved there (docs: the changelog)."""
         now = self.clock()
         if now - self._stats_at_s >= _STATS_EVERY_S:
