@@ -7,7 +7,7 @@ import pytest
 from controller.tools.bench.step_cost import main, step_breakdown
 
 
-def test_the_idle_wait_before_each_step_is_reported_and_changes_nothing_the_law_does():
+def test_the_idle_wait_before_each_step_is_reported_and_the_run_ends_as_back_to_back():
     back_to_back = step_breakdown(None, [], 400.0, 60)
     idle = step_breakdown(None, [], 400.0, 60, idle_us=300.0)
     assert back_to_back["idle_before_step_us"] == 0.0 and idle["idle_before_step_us"] == 300.0
