@@ -38,6 +38,14 @@ is where the loop's sends stood still for milliseconds beside two CPU hogs (``pe
 thread's time inside ``sock_def_readable``, waking the simulator; the docs' design decisions).
 The frame that ends the burst, the SYNC, wakes the receiver once, and it reads the RPDOs before it.
 
+A datagram that is not a packed frame (any process of this host may send one to the group's
+port: five bytes of text, a msgpack map with an 11-bit identifier of 0x1FFFFFFFF, a list) is
+dropped, counted (``unreadable_datagrams``) and named in a warning at most every 5 s, and the
+receiver waits on for the rest of its timeout: python-can's own bus raised ``CanOperationError``
+("could not unpack received message") out of ``recv``, and one such datagram ended the controller
+and the simulator alike. A CAN frame that decodes, whatever its identifier and bytes, is the
+receivers' to judge (the cyclic exchange names every frame it did not expect).
+
 The interface (the group's scope) must be the same in every process on the bus: the loopback
 interface when it carries multicast, else the multicast-capable interface that is up with the
 lowest index (``multicast_interface``), the one rule every process applies alike. The loopback
@@ -58,6 +66,7 @@ from pathlib import Path
 from typing import Any
 
 import can
+import msgpack
 from can import BusABC, CanProtocol
 from can.interfaces.udp_multicast import UdpMulticastBus
 from can.interfaces.udp_multicast.bus import GeneralPurposeUdpMulticastBus
@@ -347,6 +356,24 @@ class LocalGroupSocket(GeneralPurposeUdpMulticastBus):
         return None  # BusABC.recv waits on for the rest of its timeout
 
 
+def unpack_frame(data: bytes, timestamp_s: float) -> can.Message:
+    """A datagram as python-can's ``unpack_message`` reads it (msgpack map of ``Message``'s arguments,
+    checked), received at ``timestamp_s``; raises ``ValueError`` naming what is wrong."""
+    try:
+        fields = msgpack.unpackb(data, raw=False)
+    except (
+        Exception
+    ) as err:  # msgpack's errors have no common base but Exception (ExtraData, FormatError, ...)
+        raise ValueError(f"not msgpack ({type(err).__name__}: {err})") from err
+    if not isinstance(fields, dict):
+        raise ValueError(f"a msgpack {type(fields).__name__}, not the map of a frame")
+    fields["timestamp"] = timestamp_s
+    try:
+        return can.Message(check=True, **fields)
+    except (TypeError, ValueError) as err:  # an unknown field, a value out of range
+        raise ValueError(f"not a CAN frame ({err})") from err
+
+
 class LocalUdpMulticastBus(UdpMulticastBus):
     """``UdpMulticastBus`` on ``LocalGroupSocket``: the interface-local group, this host only.
 
@@ -364,6 +391,37 @@ class LocalUdpMulticastBus(UdpMulticastBus):
             self._is_shutdown = True  # nothing to shut down: no "not properly shut down" warning later
             raise
         self._can_protocol = CanProtocol.CAN_FD if fd else CanProtocol.CAN_20
+        self.unreadable_datagrams = 0  # datagrams that are no packed frame (module text), dropped
+        self._unreadable_logged_s = -_LOG_FOREIGN_EVERY_S
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        """python-can's, with a datagram that is not a frame dropped and named instead of raised:
+        ``BusABC.recv`` then waits on for the rest of its timeout."""
+        result = self._multicast.recv(timeout)
+        if result is None:
+            return None, False
+        data, sender, timestamp = result
+        try:
+            msg = unpack_frame(data, timestamp)
+        except ValueError as err:
+            self._unreadable(sender[0], len(data), err)
+            return None, False
+        if msg.is_fd and self._can_protocol is not CanProtocol.CAN_FD:
+            return None, False  # as python-can: an FD frame on a classic bus is not received
+        return msg, False
+
+    def _unreadable(self, source: str, size: int, why: ValueError) -> None:
+        self.unreadable_datagrams += 1
+        now = time.monotonic()
+        if now - self._unreadable_logged_s >= _LOG_FOREIGN_EVERY_S:
+            self._unreadable_logged_s = now
+            log.warning(
+                "udp_multicast bus: %d datagram(s) that are no CAN frame dropped (last %d bytes from %s: %s)",
+                self.unreadable_datagrams,
+                size,
+                source,
+                why,
+            )
 
     def defer_wakeups(self, quiet_ids: range) -> None:
         """``LocalGroupSocket.defer_wakeups``: frames with these identifiers wake no waiting ``recv``."""

@@ -54,6 +54,7 @@ from drivers.bus_presence import check_no_other_master
 from drivers.cyclic_exchange import CyclicExchange, FrameSink, targets_sync_gap_s
 from drivers.frame_tap import FrameTap
 from drivers.kernel_sync import KernelSyncExchange, check_kernel_sync
+from drivers.local_multicast import LocalUdpMulticastBus
 from drivers.node_setup import NodeSetupPlan, check_device_descriptions, configure_nodes
 from drivers.pacing import DeadlineSleeper
 from drivers.pdo_codec import PositionScale
@@ -274,7 +275,12 @@ def run_controller(
             "node_setup_s": round(setup.duration_s, 3),
             "node_setup_notes": list(setup.notes),
             "major_page_faults": major_faults,
-            "frames": {"sent": bus.sent, "received": bus.received, "own_echoes_dropped": bus.own_echoes},
+            "frames": {
+                "sent": bus.sent,
+                "received": bus.received,
+                "own_echoes_dropped": bus.own_echoes,
+                **_datagrams_dropped(bus.bus),
+            },
             "recording": _recording_summary(session, cfg),
             "realtime": granted,
             "cpu_shield": shield_summary,
@@ -320,6 +326,17 @@ def _on_recording_failure(policy: str, stop_event: threading.Event) -> Callable[
         log.warning('recording lost (%s): running on unrecorded (recording.on_failure = "warn")', why)
 
     return stop if policy == "stop" else warn
+
+
+def _datagrams_dropped(bus: can.BusABC) -> dict[str, int]:
+    """On udp_multicast, the datagrams its receiving socket dropped: from a source that is not this
+    host's, and those that are no CAN frame (drivers/local_multicast.py); nothing on other buses."""
+    if not isinstance(bus, LocalUdpMulticastBus):
+        return {}
+    return {
+        "foreign_datagrams_dropped": bus.foreign_datagrams,
+        "unreadable_datagrams_dropped": bus.unreadable_datagrams,
+    }
 
 
 def _both_sinks(a: FrameSink, b: FrameSink) -> FrameSink:

@@ -417,3 +417,24 @@ def test_another_master_s_nmt_pre_operational_leaves_no_drive_enabled_over_udp_m
         summary = json.loads(out)
         assert summary["final_mode"] == "FAULT", err[-2000:]
         assert summary["fault_reason"] == "NMT enter PRE-OPERATIONAL to node 2 from another master"
+
+
+@pytest.mark.integration
+def test_datagrams_that_are_no_frame_stop_neither_the_controller_nor_the_simulator(tmp_path):
+    """Any process of this host may send anything to the bus's port. Before, python-can raised out of
+    ``recv`` on the first datagram that was no packed frame, and the controller and the simulator
+    both ended ("could not unpack received message"). Now each is dropped and counted, the drives
+    keep moving under the controller, and a stop ends the run DONE."""
+    not_frames = (b"hello", b"\x93\x01\x02\x03", b"\x81\xa7mystery\x01")  # text, a list, an unknown field
+    with controller_beside_simulator(run_sets(tmp_path)) as run:
+        ctrl = run.process
+        wait_until_drive_1_moves(run.bus, ctrl)
+        for datagram in not_frames:
+            run.bus._multicast.send(datagram)
+        wait_until_drive_1_moves(run.bus, ctrl)  # 2 mm more, after them: both processes go on
+        ctrl.send_signal(signal.SIGINT)
+        out, err = ctrl.communicate(timeout=60)
+    summary = json.loads(out)
+    assert summary["final_mode"] == "DONE", err[-2000:]
+    assert summary["frames"]["unreadable_datagrams_dropped"] == len(not_frames)
+    assert "datagram(s) that are no CAN frame dropped" in err

@@ -187,3 +187,58 @@ def test_the_interface_is_the_loopback_when_it_carries_multicast_else_the_lowest
 
 def test_this_hosts_addresses_include_the_loopback() -> None:
     assert "::1" in lm.host_addresses()
+
+
+NOT_FRAMES = (
+    b"hello",  # not msgpack
+    pack_message(can.Message(arbitration_id=0x181, data=b"\x01", is_extended_id=False))
+    + b"!",  # trailing bytes
+    struct.pack(">BBB", 0x93, 1, 2) + b"\x03",  # a msgpack list [1, 2, 3]
+    b"\x83\xa9timestamp\xcb"
+    + bytes(8)
+    + b"\xaearbitration_id\xce\xff\xff\xff\xff\xaeis_extended_id\xc2",  # id out of range
+    b"\x81\xa7mystery\x01",  # a field a frame does not have
+)
+
+
+def test_a_datagram_that_is_no_frame_is_dropped_counted_and_named_and_the_frames_around_it_arrive(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """python-can's own bus raised CanOperationError out of ``recv`` for each of these: one datagram
+    from any process of this host ended the controller and the simulator. Here each is dropped, the
+    receiver waits on for the rest of its timeout, and the frames before and after come in order."""
+    spec = parse_bus_spec("udp_multicast", udp_port=random_udp_port())
+    with open_bus(spec) as a, open_bus(spec) as b:
+        a.send(can.Message(arbitration_id=0x101, data=b"\x01", is_extended_id=False))
+        for datagram in NOT_FRAMES:
+            a._multicast.send(datagram)
+        a.send(can.Message(arbitration_id=0x102, data=b"\x02", is_extended_id=False))
+        got = [b.recv(10.0), b.recv(10.0)]
+        assert [(m.arbitration_id, bytes(m.data)) for m in got if m is not None] == [
+            (0x101, b"\x01"),
+            (0x102, b"\x02"),
+        ]
+        assert b.unreadable_datagrams == len(NOT_FRAMES)
+        assert b.recv(0.05) is None
+        assert "datagram(s) that are no CAN frame dropped" in caplog.text
+
+
+def test_only_datagrams_that_are_no_frame_end_a_receive_at_its_timeout_not_in_an_error() -> None:
+    spec = parse_bus_spec("udp_multicast", udp_port=random_udp_port())
+    with open_bus(spec) as a, open_bus(spec) as b:
+        a._multicast.send(b"hello")
+        assert b.recv(0.2) is None
+        assert b.unreadable_datagrams == 1
+
+
+@pytest.mark.parametrize("datagram", NOT_FRAMES)
+def test_unpack_frame_names_what_is_wrong(datagram: bytes) -> None:
+    with pytest.raises(ValueError, match=r"^(not msgpack|a msgpack list|not a CAN frame)"):
+        lm.unpack_frame(datagram, 1.0)
+
+
+def test_unpack_frame_reads_what_python_can_packs() -> None:
+    sent = can.Message(arbitration_id=0x1ABCDEF, data=bytes(range(12)), is_extended_id=True, is_fd=True)
+    got = lm.unpack_frame(pack_message(sent), 5.0)
+    assert got.timestamp == 5.0
+    assert got.equals(unpack_message(pack_message(sent), replace={"timestamp": 5.0}))
