@@ -7,6 +7,7 @@ import threading
 from collections.abc import Callable
 
 from controller.config import Config
+from controller.errors import DeviceError
 from controller.realtime import (
     RealtimeOptions,
     apply_realtime,
@@ -67,6 +68,7 @@ def serve(
         tap = TrueForceTap(true_force_tap) if true_force_tap else None
         simulator = Simulator(cfg, bus, true_force_tap=tap)
         simulator.build_nodes()
+        simulator.on_failure = stop_event.set  # the devices' thread ended: the process ends, loudly
         if cfg.loop.freeze_gc:
             # as in the controller: a full collection of the simulator's start-up heap took
             # 21 ms, five missing TPDOs at 400 Hz (the contour demo faulted so in lap 5)
@@ -87,3 +89,8 @@ def serve(
         tap.close()
     if cfg.loop.freeze_gc:
         unfreeze_garbage_collector()
+    if simulator.failure is not None:
+        err = simulator.failure
+        raise DeviceError(
+            f"the simulated devices stopped answering: their thread ended on {type(err).__name__}: {err}"
+        )

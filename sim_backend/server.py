@@ -31,6 +31,7 @@ import logging
 import math
 import queue
 import random
+import struct
 import threading
 import time
 from collections.abc import Callable
@@ -79,6 +80,7 @@ NMT_OPERATIONAL = 5
 NMT_STOPPED = 4
 NMT_PRE_OPERATIONAL = 127
 WATCHDOG_PERIOD_S = 0.005
+_LOG_REJECTED_EVERY_S = 5.0  # a rejected frame is named in a warning at most this often
 # A watchdog tick this late means the simulator's process was not running: SYNC frames may be
 # waiting unread in its socket, so this tick does not judge them lost (see _watchdog_loop).
 STARVED_TICK_S = 4 * WATCHDOG_PERIOD_S
@@ -167,7 +169,7 @@ class Simulator:
         self.sync_count = 0
         self.rejected_frames = 0
         # the simulator's true contact force, largest at any SYNC, per controller session (a new one
-        # at each NMT start): what a disturbance of the measurement can hide from the controller,
+        # at each NMT start to all nodes or one of these): what a disturbance of the measurement can hide from the controller,
         # reported when the simulator stops (sim_backend/process.py)
         self.max_contact_force_n: list[float] = []
         self._stop = threading.Event()
@@ -195,6 +197,9 @@ class Simulator:
         )
         self._bus_off_elapsed_s = -math.inf
         self._bus_is_off = False
+        self._rejection_logged_s = -_LOG_REJECTED_EVERY_S
+        self.failure: Exception | None = None  # what ended the devices' thread (``_run``)
+        self.on_failure: Callable[[], None] | None = None  # called then, from that thread
 
     # -- life cycle -------------------------------------------------------------------------
 
@@ -365,27 +370,29 @@ class Simulator:
     # -- the cyclic thread ------------------------------------------------------------------
 
     def _run(self) -> None:
-        bus, fast, clock = self.bus, self._fast, self.clock
-        subscribers = self.network.subscribers
+        """The devices' thread. Should it end on an error nonetheless, the devices go silent
+        (heartbeats stopped: their master sees them lost) and ``on_failure`` ends the process
+        loudly: a simulator whose devices no longer answer must not look alive."""
+        try:
+            self._serve_frames()
+        except Exception as err:
+            self.failure = err
+            log.critical(
+                "simulator: the devices' thread ended on an error; the devices go silent", exc_info=True
+            )
+            for node in self.nodes.values():
+                node.nmt.stop_heartbeat()
+            if self.on_failure is not None:
+                self.on_failure()
+
+    def _serve_frames(self) -> None:
+        bus, clock = self.bus, self.clock
         timeout = self.cfg.sim.drive.sync_timeout_s
         previous_tick_s = clock()
         while not self._stop.is_set():
             msg = bus.recv(timeout=WATCHDOG_PERIOD_S)
             while msg is not None:  # drain what is waiting before judging anything by the clock
-                if self._bus_is_off or msg.is_error_frame:
-                    pass  # bus_off: nothing reaches the devices
-                elif msg.is_remote_frame:
-                    if 0x701 <= msg.arbitration_id <= 0x77F:  # node guarding
-                        self._on_guarding_request(msg.arbitration_id - 0x700, clock())
-                else:
-                    handler = fast.get(msg.arbitration_id)
-                    if handler is not None:
-                        handler(msg.data, arrival_s(msg.timestamp, clock(), time.time()))
-                    elif 0x601 <= msg.arbitration_id <= 0x67F and self._on_sdo_request(msg):
-                        pass
-                    elif msg.arbitration_id in subscribers:  # SDO requests, NMT: canopen's nodes
-                        with self.lock:
-                            self.network.notify(msg.arbitration_id, msg.data, msg.timestamp)
+                self._dispatch(msg)
                 msg = bus.recv(timeout=0.0)
             now = clock()
             if self.bus_off is not None:
@@ -404,6 +411,50 @@ class Simulator:
                 with self.lock:
                     self.plant.advance(now)
                     self._flush_emcy()
+
+    def _dispatch(self, msg: can.Message) -> None:
+        """One frame to the device it is for. A 29-bit frame is no CANopen frame (its identifier
+        only looks like a COB-ID) and reaches no device; a frame canopen's NMT or SDO server
+        cannot parse (a 1-byte NMT command, an empty SDO request: its ``struct.error`` ended this
+        thread) is rejected, counted and named, as a real device ignores it."""
+        if self._bus_is_off or msg.is_error_frame:
+            return  # bus_off: nothing reaches the devices
+        if msg.is_extended_id:
+            self.rejected_frames += 1
+            return
+        clock = self.clock
+        if msg.is_remote_frame:
+            if 0x701 <= msg.arbitration_id <= 0x77F:  # node guarding
+                self._on_guarding_request(msg.arbitration_id - 0x700, clock())
+            return
+        handler = self._fast.get(msg.arbitration_id)
+        if handler is not None:
+            handler(msg.data, arrival_s(msg.timestamp, clock(), time.time()))
+        elif msg.arbitration_id == cob_ids.NMT and len(msg.data) != 2:
+            self._reject(msg, "an NMT command is 2 bytes")
+        elif 0x601 <= msg.arbitration_id <= 0x67F and len(msg.data) != 8:
+            self._reject(msg, "an SDO request is 8 bytes")
+        elif 0x601 <= msg.arbitration_id <= 0x67F and self._on_sdo_request(msg):
+            pass
+        elif msg.arbitration_id in self.network.subscribers:  # SDO requests, NMT: canopen's nodes
+            try:
+                with self.lock:
+                    self.network.notify(msg.arbitration_id, msg.data, msg.timestamp)
+            except (struct.error, ValueError, IndexError, KeyError) as err:  # canopen parsing a frame
+                self._reject(msg, f"{type(err).__name__}: {err}")
+
+    def _reject(self, msg: can.Message, why: str) -> None:
+        self.rejected_frames += 1
+        now = time.monotonic()
+        if now - self._rejection_logged_s >= _LOG_REJECTED_EVERY_S:
+            self._rejection_logged_s = now
+            log.warning(
+                "simulator: %d frame(s) rejected so far (last COB-ID 0x%03X, %d bytes: %s)",
+                self.rejected_frames,
+                msg.arbitration_id,
+                len(msg.data),
+                why,
+            )
 
     def _follow_pose(self) -> None:
         """The free robot's pose from the drives' positions at each SYNC, behind the answers.
@@ -610,7 +661,7 @@ class Simulator:
         if len(data) != 2:
             self.rejected_frames += 1
             return
-        if data[0] == NMT_START_REMOTE_NODE:
+        if data[0] == NMT_START_REMOTE_NODE and data[1] in (0, *self.nodes):
             with self.lock:
                 self.max_contact_force_n.append(0.0)  # a controller's session starts
         if data[0] in (NMT_RESET_NODE, NMT_RESET_COMMUNICATION):
