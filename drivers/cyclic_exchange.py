@@ -675,6 +675,9 @@ class CyclicExchange:
             if msg.arbitration_id & CAN_ERR_BUSOFF:
                 self._bus_off = True
             return
+        if msg.is_extended_id:  # 0x701 on 29 bits is nobody's heartbeat: it is named, never used
+            self._report(Anomaly.EXTENDED_FRAME, msg.arbitration_id)
+            return
         route = self._dispatch.get(msg.arbitration_id)
         if route is None:
             self._report(_unknown_kind(msg.arbitration_id), msg.arbitration_id)

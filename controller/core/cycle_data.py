@@ -61,6 +61,7 @@ class Anomaly(StrEnum):
     """Something on the bus that no configured device or the controller itself should have sent."""
 
     UNKNOWN_FRAME = "unknown_frame"  # a COB-ID that no configured node and not the controller uses
+    EXTENDED_FRAME = "extended_frame"  # a 29-bit identifier: no CANopen device's, whatever its value
     UNKNOWN_EMCY = "unknown_emcy"  # an EMCY from a node that is not configured
     UNKNOWN_HEARTBEAT = "unknown_heartbeat"  # a heartbeat or boot-up from a node that is not configured
     FOREIGN_SYNC = "foreign_sync"  # a SYNC the controller did not send: a second SYNC producer

@@ -46,6 +46,7 @@ class SafetyConfig:
             # beyond the device's physics, among several candidates: the law's jump check always faults too
             Anomaly.IMPLAUSIBLE_FRAME: Reaction.FAULT,
             Anomaly.UNKNOWN_FRAME: self.on_unknown_node,
+            Anomaly.EXTENDED_FRAME: self.on_unknown_node,
             Anomaly.UNKNOWN_EMCY: self.on_unknown_node,
             Anomaly.UNKNOWN_HEARTBEAT: self.on_unknown_node,
             Anomaly.FOREIGN_SYNC: self.on_foreign_sync,

@@ -35,6 +35,7 @@ if TYPE_CHECKING:
 
 ANOMALY_TEXT = {
     Anomaly.UNKNOWN_FRAME: "frame(s) from a COB-ID no configured node uses",
+    Anomaly.EXTENDED_FRAME: "frame(s) with a 29-bit identifier (CANopen's COB-IDs are 11-bit)",
     Anomaly.UNKNOWN_EMCY: "EMCY from a node that is not configured",
     Anomaly.UNKNOWN_HEARTBEAT: "heartbeat from a node that is not configured",
     Anomaly.FOREIGN_SYNC: "SYNC the controller did not send (a second SYNC producer)",
@@ -72,6 +73,8 @@ def anomaly_text(a: BusAnomaly) -> str:
         target = f"node {a.node_id}" if a.node_id else "all nodes"
         times = f" ({a.count} times)" if a.count > 1 else ""
         return f"NMT {command} to {target} from another master{times}"
+    if a.kind == Anomaly.EXTENDED_FRAME:
+        return f"{a.count} {ANOMALY_TEXT[a.kind]} (identifier 0x{a.cob_id:08X})"
     return f"{a.count} {ANOMALY_TEXT[a.kind]}{_from_node(a.node_id)} (COB-ID 0x{a.cob_id:03X})"
 
 

@@ -667,6 +667,21 @@ def test_unknown_nodes_are_reported_by_what_they_send(bus, clock):
     assert all(d.fresh for d in fb.drives) and fb.sensor.fresh
 
 
+def test_a_29_bit_frame_is_named_and_never_taken_for_the_11_bit_cob_id_it_looks_like(bus, clock):
+    """An extended 0x701 [05] is not drive 1's heartbeat, an extended drive TPDO not its sample."""
+    ex = make_exchange(bus, clock)
+    ext = tpdo1(1)
+    bus.answers[0] = [
+        can.Message(arbitration_id=heartbeat_id(1), data=b"\x05", is_extended_id=True),
+        can.Message(arbitration_id=ext, data=drive_pdo(0x1637, 5_500_000), is_extended_id=True),
+        *(f for f in all_answers(0) if f.arbitration_id != tpdo1(1)),
+    ]
+    fb = one_cycle(ex, clock, None)
+    assert anomalies(fb) == {(Anomaly.EXTENDED_FRAME, heartbeat_id(1)): 1, (Anomaly.EXTENDED_FRAME, ext): 1}
+    assert not fb.drives[0].fresh  # drive 1 did not answer: the 29-bit frame is nobody's sample
+    assert math.isnan(ex.last_heartbeat_s[0])  # nor its sign of life
+
+
 def test_a_flood_is_diagnosed_with_its_busiest_cob_id(bus, clock):
     ex = CyclicExchange(
         bus,
