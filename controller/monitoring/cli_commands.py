@@ -195,7 +195,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
 def cmd_status(args: argparse.Namespace) -> int:
     from google.protobuf.json_format import MessageToDict
 
-    from controller.monitoring.commands import query_status
+    from controller.monitoring.commands import query_status, status_config
 
     status = query_status(
         client_settings(_endpoints(args), args.zenoh_config or "", args.timeout),
@@ -208,7 +208,8 @@ def cmd_status(args: argparse.Namespace) -> int:
         always_print_fields_with_no_presence=True,
         unquote_int64_if_possible=True,
     )
-    d["config"] = json.loads(d.pop("config_json") or "{}")
+    d.pop("config_json")
+    d["config"] = status_config(status, f"the status of {status.robot_id or 'the controller'}")
     if args.json:
         print(json.dumps(d))
         return 0

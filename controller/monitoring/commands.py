@@ -12,8 +12,10 @@ import json
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Any, TypeVar
 
 import zenoh
+from google.protobuf.message import DecodeError, Message
 
 from controller.messages import cheope_pb2 as pb
 from controller.monitoring.robot_identity import live_robot_ids
@@ -91,11 +93,50 @@ def _one_reply(
     )
 
 
+_Reply = TypeVar("_Reply", bound=Message)
+
+
+def decode_reply(message: type[_Reply], data: bytes, key: str) -> _Reply:
+    """A peer's answer on ``key`` as ``message``; ``MonitoringConnectionError`` naming the key when
+    it is none (before, protobuf's ``DecodeError`` ended ``cheope list``, ``status`` and ``stop``
+    with a traceback)."""
+    try:
+        reply: _Reply = message.FromString(data)
+    except DecodeError as err:
+        raise MonitoringConnectionError(
+            f"{key} answered with {len(data)} bytes that are no {message.DESCRIPTOR.full_name} ({err})"
+        ) from err
+    return reply
+
+
+def status_config(status: pb.Status, key: str) -> dict[str, Any]:
+    """The configuration a status carries (``config_json``), or ``MonitoringConnectionError`` naming
+    the key when it is not a JSON object."""
+    try:
+        config = json.loads(status.config_json or "{}")
+    except json.JSONDecodeError as err:
+        raise MonitoringConnectionError(f"{key}: the status's config_json is not JSON ({err})") from err
+    if not isinstance(config, dict):
+        raise MonitoringConnectionError(
+            f"{key}: the status's config_json is a JSON {type(config).__name__}, not an object"
+        )
+    return config
+
+
+def task_kind(config: dict[str, Any]) -> str:
+    """The task a status's configuration names ("" when it names none a tool can show)."""
+    task = config.get("task")
+    kind = task.get("kind", "") if isinstance(task, dict) else ""
+    return kind if isinstance(kind, str) else ""
+
+
 def query_status(settings: SessionSettings, target: Target, timeout_s: float = 2.0) -> pb.Status:
-    """Ask the controller's ``status`` queryable once."""
+    """Ask the controller's ``status`` queryable once; its configuration is checked to be a JSON object."""
     with tool_session(settings) as session:
         keys = resolve(session, settings, target)
-        return pb.Status.FromString(_one_reply(session, settings, keys.status, timeout_s))
+        status = decode_reply(pb.Status, _one_reply(session, settings, keys.status, timeout_s), keys.status)
+        status_config(status, keys.status)
+        return status
 
 
 def send_command(
@@ -108,7 +149,7 @@ def send_command(
         reply = _one_reply(
             session, settings, keys.command, timeout_s, cmd.SerializeToString(), encoding_for("Command")
         )
-        return keys.prefix.rsplit("/", 1)[1], pb.CommandReply.FromString(reply)
+        return keys.prefix.rsplit("/", 1)[1], decode_reply(pb.CommandReply, reply, keys.command)
 
 
 def stop_every_robot(
@@ -122,8 +163,10 @@ def stop_every_robot(
         for robot_id in live_robot_ids(session, key_prefix, timeout_s=timeout_s):
             keys = MonitorKeys.for_robot(key_prefix, robot_id)
             try:
-                reply = pb.CommandReply.FromString(
-                    _one_reply(session, settings, keys.command, timeout_s, cmd, encoding_for("Command"))
+                reply = decode_reply(
+                    pb.CommandReply,
+                    _one_reply(session, settings, keys.command, timeout_s, cmd, encoding_for("Command")),
+                    keys.command,
                 )
             except MonitoringConnectionError as err:
                 out.append((robot_id, False, str(err)))
@@ -153,11 +196,14 @@ def list_controllers(
         for robot_id in live_robot_ids(session, key_prefix, timeout_s=timeout_s):
             keys = MonitorKeys.for_robot(key_prefix, robot_id)
             try:
-                st = pb.Status.FromString(_one_reply(session, settings, keys.status, timeout_s))
-            except MonitoringConnectionError:  # alive but silent (busy, rate-limited): listed without details
+                st = decode_reply(
+                    pb.Status, _one_reply(session, settings, keys.status, timeout_s), keys.status
+                )
+                task = task_kind(status_config(st, keys.status))
+            except MonitoringConnectionError:
+                # alive but silent (busy, rate-limited) or answering what is no status: listed without details
                 out.append(ControllerListing(robot_id))
                 continue
-            task = json.loads(st.config_json or "{}").get("task", {}).get("kind", "")
             out.append(
                 ControllerListing(
                     robot_id, st.mode, task, st.uptime_s, tuple(st.listen_endpoints), st.software_version

@@ -216,7 +216,7 @@ class ViewModel:
             if self.alive is None:
                 self.alive = True
         elif isinstance(u, EventUpdate):
-            sev = pb.Severity.Name(u.msg.severity)
+            sev = severity_name(u.msg.severity)
             self.events.append(f"{u.msg.t_s:9.3f}s {sev:<7} {u.msg.message}")
         elif isinstance(u, AliveUpdate):
             if self.alive is not None and self.alive != u.alive:
@@ -230,6 +230,12 @@ class ViewModel:
     def sample_rate_hz(self, now_s: float, window_s: float = 1.0) -> float:
         recent = [a for a in self.arrivals if now_s - a <= window_s]
         return len(recent) / window_s
+
+
+def severity_name(value: int) -> str:
+    """A peer's event severity by name, or by number when this build knows no such severity (a
+    newer or a broken peer): ``pb.Severity.Name`` raised ``ValueError`` and ended the monitor."""
+    return pb.Severity.Name(value) if value in pb.Severity.values() else f"severity {value}"
 
 
 def robot_of(key: str) -> str:
@@ -272,28 +278,33 @@ def render_fleet(fleet: FleetView, now_s: float) -> RenderableType:
         table.add_column(col)
     if not fleet.robots:
         table.add_row("[yellow]waiting for a controller[/]", *([""] * 8))
+    from rich.markup import escape
+
+    # every text a peer sent is shown as it is, never read as rich markup ("[/bold]" in a mode or
+    # an event message raised MarkupError and ended the monitor)
     for rid, view in sorted(fleet.robots.items()):
         s = view.last_state
         alive = {None: "?", True: "[green]yes[/]", False: "[red]gone[/]"}[view.alive]
         if s is None:
-            table.add_row(rid, alive, *([""] * 7))
+            table.add_row(escape(rid), alive, *([""] * 7))
             continue
         table.add_row(
-            rid,
+            escape(rid),
             alive,
-            s.mode,
-            f"{s.task or '-'} / {s.task_phase or '-'}",
+            escape(s.mode),
+            escape(f"{s.task or '-'} / {s.task_phase or '-'}"),
             str(s.cycle),
             f"{s.loop.achieved_rate_hz:.1f}",
             str(s.loop.late_cycles),
             f"{view.sample_rate_hz(now_s):.1f}",
-            "; ".join(s.alarms) or "none",
+            escape("; ".join(s.alarms)) or "none",
         )
     return table
 
 
 def render(view: ViewModel, now_s: float) -> Group:
     from rich.console import Group
+    from rich.markup import escape
     from rich.panel import Panel
     from rich.table import Table
 
@@ -305,7 +316,7 @@ def render(view: ViewModel, now_s: float) -> Group:
     head = Table.grid(padding=(0, 2))
     head.add_column(style="bold")
     head.add_column()
-    head.add_row("controller", f"{view.prefix}  {status}")
+    head.add_row("controller", f"{escape(view.prefix)}  {status}")
     s = view.last_state
     head.add_row(
         "samples",
@@ -320,7 +331,7 @@ def render(view: ViewModel, now_s: float) -> Group:
             f"p99 {s.loop.period_error_p99_us:.0f} µs, late {s.loop.late_cycles} cycles, missing frames "
             f"{s.loop.missing_drive_frames} drive / {s.loop.missing_sensor_frames} sensor",
         )
-        head.add_row("mode", f"{s.mode}   task {s.task or '-'}   phase {s.task_phase or '-'}")
+        head.add_row("mode", escape(f"{s.mode}   task {s.task or '-'}   phase {s.task_phase or '-'}"))
         head.add_row("cycle", f"{s.cycle}   t {s.t_s:.3f} s")
         head.add_row("TCP", _vec(s.tcp_m, 1e3, "mm"))
         head.add_row("force", _vec(s.force_n, 1.0, "N"))
@@ -333,12 +344,12 @@ def render(view: ViewModel, now_s: float) -> Group:
         parts.append(axes)
         parts.append(
             Panel(
-                "\n".join(s.alarms) if s.alarms else "none",
+                escape("\n".join(s.alarms)) if s.alarms else "none",
                 title="alarms",
                 style="red" if s.alarms else "green",
             )
         )
-    parts.append(Panel("\n".join(view.events) or "-", title="events"))
+    parts.append(Panel(escape("\n".join(view.events)) or "-", title="events"))
     return Group(*parts)
 
 

@@ -21,10 +21,12 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import replace
 
 import pytest
+import zenoh
 from busy_machine import TOLERANT
 from waiting import GENEROUS_S, wait_for_exit
 
@@ -37,10 +39,12 @@ from controller.monitoring.commands import query_status, send_command, tool_sess
 from controller.monitoring.monitor_view import (
     AliveUpdate,
     EventUpdate,
+    FleetView,
     MonitorClient,
     StateUpdate,
     ViewModel,
     render,
+    render_fleet,
     update_to_json,
 )
 from controller.monitoring.publisher import MonitorPublisher
@@ -516,6 +520,26 @@ def test_view_renders_state_alarms_events_and_liveliness():
     assert line["type"] == "state" and line["cycle"] == 12 and line["force_n"] == [0.1, 0.2, 9.5]
 
 
+def test_a_peers_text_is_shown_as_it_is_and_an_unknown_severity_by_its_number():
+    """Rich markup in a peer's mode, alarm or event ("[/bold]") raised MarkupError and ended
+    ``cheope monitor``; an event severity this build does not know raised ValueError."""
+    from rich.console import Console
+
+    msg = pb.MonitorState(robot_id="r[/]", mode="[/bold]", task="[red]x", alarms=["[/] alarm"])
+    view = ViewModel("cheope/r[/]")
+    view.apply(StateUpdate("cheope/r/state", msg, 1.1))
+    view.apply(EventUpdate("cheope/r/events", pb.Event(t_s=0.02, severity=99, message="[/] closing"), 1.1))
+    fleet = FleetView("cheope")
+    fleet.apply(StateUpdate("cheope/a[b]/state", msg, 1.1))
+    fleet.apply(StateUpdate("cheope/b/state", msg, 1.1))
+    buf = io.StringIO()
+    Console(file=buf, width=160).print(render(view, 1.5))
+    Console(file=buf, width=160).print(render_fleet(fleet, 1.5))
+    text = buf.getvalue()
+    for expected in ("[/bold]", "[red]x", "[/] alarm", "severity 99", "[/] closing", "a[b]"):
+        assert expected in text, expected
+
+
 # -- many robots: ids, cheope list, a router -------------------------------------------------
 
 
@@ -676,6 +700,53 @@ def test_cheope_stop_all_stops_each_robot_by_its_own_id_and_robot_id_takes_no_wi
             "accepted by bot-b",
         ]
         assert all(e.is_set() for e in events)
+
+
+@contextmanager
+def _peer_answering(endpoint: str, status: bytes, command_reply: bytes) -> Iterator[None]:
+    """A Zenoh peer on ``endpoint`` that looks like controller "fake" and answers its status and
+    command queries with the given bytes, whatever they are."""
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+    try:
+        token = session.liveliness().declare_token("cheope/fake/alive")
+        q1 = session.declare_queryable("cheope/fake/status", lambda q: q.reply("cheope/fake/status", status))
+        q2 = session.declare_queryable(
+            "cheope/fake/command", lambda q: q.reply("cheope/fake/command", command_reply)
+        )
+        yield
+        for entity in (q1, q2, token):
+            entity.undeclare()
+    finally:
+        session.close()
+
+
+@pytest.mark.parametrize(
+    ("status", "reply", "said"),
+    [
+        (b"\xff\xff\xff", b"\xff\xff\xff", "3 bytes that are no cheope.v1."),
+        (pb.Status(robot_id="fake", config_json="[]").SerializeToString(), b"", "a JSON list, not an object"),
+        (pb.Status(robot_id="fake", config_json="nope").SerializeToString(), b"", "config_json is not JSON"),
+    ],
+    ids=["no-protobuf", "config-a-list", "config-not-json"],
+)
+def test_a_peer_answering_nonsense_gets_one_line_naming_it_not_a_traceback(status, reply, said):
+    """Before: protobuf's DecodeError or an AttributeError ended cheope list/status/stop with a traceback."""
+    ep = _endpoint()
+    with _peer_answering(ep, status, reply):
+        listed = _cheope("list", "--json", *_connect(ep))
+        shown = _cheope("status", "--robot-id", "fake", *_connect(ep))
+        stopped = _cheope("stop", "--robot-id", "fake", *_connect(ep))
+    assert listed.returncode == 0, listed.stderr
+    assert [r["robot_id"] for r in json.loads(listed.stdout)] == ["fake"]  # listed, without details
+    assert shown.returncode == 2 and "Traceback" not in shown.stderr and said in shown.stderr, shown.stderr
+    assert (shown.stderr.count("\n") == 1 and "cheope/fake/status" in shown.stderr) or "fake" in shown.stderr
+    if reply:
+        assert stopped.returncode == 2 and "Traceback" not in stopped.stderr, stopped.stderr
+        assert "cheope/fake/command" in stopped.stderr and "no cheope.v1.CommandReply" in stopped.stderr
 
 
 def test_tools_that_find_nothing_say_so_in_one_line():
