@@ -24,6 +24,7 @@ import can
 from controller.assembly import assemble, planned_bus_load, position_plausibility
 from controller.compiled_law import LAW_BUILD
 from controller.config import Config, config_to_dict
+from controller.configured_robot import robot_from_config
 from controller.core.control_law import ControlLaw
 from controller.core.ports import CycleObserver, OffLoopWorker, PlansOffLoop
 from controller.monitoring.publisher import PublisherSettings, monitoring_context
@@ -88,6 +89,7 @@ def prepare(cfg: Config, spec: BusSpec, enforce_load_limit: bool = True) -> Prep
     """
     if LAW_BUILD.stale:  # an edited source runs interpreted, at its cost per cycle: say so once
         log.warning("the law runs interpreted: %s", LAW_BUILD.why)
+    robot_from_config(cfg)  # one node id per actuator before anything counts frames by them
     load = planned_bus_load(cfg)
     if enforce_load_limit:
         check_bus_load(load, cfg.bus.max_load_percent)

@@ -58,6 +58,15 @@ def test_an_endless_file_as_config_is_refused_after_a_bounded_read(command: str,
     _one_line(r, f"configuration file {device} is larger than 4 MiB")
 
 
+@pytest.mark.parametrize("node_ids", ["[]", "[1, 2]"])
+@pytest.mark.parametrize("command", ["bus-load", "run", "demo", "sim"])
+def test_a_node_id_list_without_one_id_per_actuator_is_refused(command: str, node_ids: str) -> None:
+    """An empty list raised IndexError out of the bus-load count in ``bus-load`` and ``run``."""
+    bus = [] if command == "bus-load" else ["--udp-port", str(random_udp_port())]
+    r = _cheope(command, "--set", f"actuators.node_ids={node_ids}", *bus, *QUIET[:2])
+    _one_line(r, f"actuators.node_ids = {node_ids}: ", "value(s) for the 3 actuators")
+
+
 def test_an_endless_file_as_zenoh_config_is_refused() -> None:
     r = _cheope("run", "--zenoh-config", "/dev/zero", "--udp-port", str(random_udp_port()))
     _one_line(
