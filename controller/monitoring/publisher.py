@@ -30,6 +30,7 @@ from __future__ import annotations
 import array
 import json
 import logging
+import math
 import threading
 import time
 from collections import deque
@@ -109,6 +110,24 @@ def _versions() -> list[str]:
     return out
 
 
+def linear_percentiles(values: np.ndarray, qs: tuple[float, ...]) -> tuple[float, ...]:
+    """``np.percentile(values, qs)`` as numpy computes it by default (linear between the two
+    nearest ranks), from one ``np.partition`` of just those ranks: np.percentile's own machinery
+    around the same partition made it about 4 times the time on the publisher's 1 023 periods
+    (``tests/unit/test_monitor_statistics.py`` holds them equal)."""
+    last = len(values) - 1
+    ranks = [q / 100.0 * last for q in qs]
+    needed = sorted({math.floor(r) for r in ranks} | {math.ceil(r) for r in ranks})
+    part = np.partition(values, needed)
+    out = []
+    for r in ranks:
+        lo, hi = math.floor(r), math.ceil(r)
+        below, above, t = float(part[lo]), float(part[hi]), r - lo
+        # numpy's lerp: from the nearer end, so that the result stays within [below, above]
+        out.append(below + (above - below) * t if t < 0.5 else above - (above - below) * (1.0 - t))
+    return tuple(out)
+
+
 class MonitorPublisher:
     """Context manager and CycleObserver; ``commands`` is the loop's CommandSource."""
 
@@ -131,9 +150,9 @@ class MonitorPublisher:
         self.exchange_counters: ExchangeCounters | None = None  # the exchange's, read only
         self._next_cycle = 0
         self._ring = array.array("d", bytes(8 * _RING))
-        # numpy builds np.percentile's code path on its first call: 17 ms, inside a cycle a
-        # quarter of a second into the run (a 3-nSPU demo skipped 3 deadlines on it). Here instead.
-        np.percentile(np.arange(4.0), (50, 99))
+        # numpy builds a code path on its first call (np.percentile's took 17 ms, inside a cycle a
+        # quarter of a second into the run: a 3-nSPU demo skipped 3 deadlines on it). Here instead.
+        linear_percentiles(np.diff(np.arange(4.0)), (50.0, 99.0, 100.0))
         self._n = 0
         self._late_s = 0.1 * settings.period_s
         # counters (each written by one thread only)
@@ -309,9 +328,10 @@ class MonitorPublisher:
 
     def _fill_loop_statistics(self, out: pb.LoopStatistics) -> None:
         """Rate and period-error percentiles over the last ``_RING`` cycles, recomputed every
-        ``_STATS_EVERY_S``: numpy's percentiles took 306 us p50, 541 us at most, on the loop's thread in
-        a contour demo (2026-12-01, a scratch timer around this call), not the ~60 us given here before; a
-        sliding histogram a cycle at a time cost more than it saved there (docs: the changelog)."""
+        ``_STATS_EVERY_S`` on the loop's thread: 149-151 us p50 in a contour demo where np.percentile
+        took 410-414 us (2026-12-02, a scratch timer around this call, two demos each, alternating, on
+        a host that ran the step at 2.5 times its usual time; ``linear_percentiles``). A sliding
+        histogram a cycle at a time cost more than it saved (docs: the changelog)."""
         now = self.clock()
         if now - self._stats_at_s >= _STATS_EVERY_S:
             self._stats_at_s = now
@@ -334,15 +354,16 @@ class MonitorPublisher:
 
     def _timing_statistics(self) -> tuple[float, float, float, float]:
         n = self._n
-        ring = np.frombuffer(self._ring, dtype=np.float64).copy()
+        ring = np.frombuffer(self._ring, dtype=np.float64)  # a view: the loop's thread alone writes it
         m = min(n, _RING)
-        times = np.roll(ring, -(n & (_RING - 1)))[-m:] if n >= _RING else ring[:m]
         if m < 2:
             return 0.0, 0.0, 0.0, 0.0
+        oldest = n & (_RING - 1)
+        times = np.concatenate((ring[oldest:], ring[:oldest])) if n >= _RING else ring[:m]
         per_err_us = np.abs(np.diff(times) - self.settings.period_s) * 1e6
-        span = times[-1] - times[0]
-        p50, p99 = np.percentile(per_err_us, (50, 99))
-        return (m - 1) / span if span > 0 else 0.0, float(p50), float(p99), float(per_err_us.max())
+        span = float(times[-1] - times[0])
+        p50, p99, worst = linear_percentiles(per_err_us, (50.0, 99.0, 100.0))
+        return (m - 1) / span if span > 0 else 0.0, p50, p99, worst
 
     # -- queryables (the query servers' threads, rate-limited: query_server.py) -------------
 
