@@ -8,7 +8,9 @@ Own transmissions that the bus hands back are recognised exactly and dropped, so
 this process sent is seen once, as sent, and never a second time as received:
 
 - ``udp_multicast`` as ``open_bus`` opens it (``drivers/local_multicast.py``) hands back none:
-  a kernel socket filter drops them. python-can's own bus cannot leave out its own datagrams
+  a kernel socket filter drops them, and the tap sends its frames as they are (``channel`` None:
+  the token below was 40 bytes more in each datagram, packed by the sender and unpacked by every
+  receiver, for nothing). python-can's own bus cannot leave out its own datagrams
   (``receive_own_messages`` is not implemented) and IP multicast loopback delivers them to every
   socket of the group, the sender's own included; for that bus (a plug-in may open one) the tap
   keeps its second line: the bus packs every field of a ``Message`` with
@@ -41,6 +43,7 @@ from can.interfaces.udp_multicast import UdpMulticastBus
 from can.interfaces.virtual import VirtualBus
 
 from drivers.cyclic_exchange import FrameSink
+from drivers.local_multicast import LocalUdpMulticastBus
 
 _TAP_SERIAL = itertools.count(1)
 
@@ -67,15 +70,13 @@ class FrameTap(can.BusABC):
         self.received = 0  # frames received, own echoes not counted
         self.own_echoes = 0  # own frames the bus handed back, dropped
         self._lock = threading.Lock()
-        self._stamps_channel = isinstance(bus, UdpMulticastBus)
-        self._own: Callable[[can.Message], bool]
+        self._stamps_channel = isinstance(bus, UdpMulticastBus) and not isinstance(bus, LocalUdpMulticastBus)
+        self._own: Callable[[can.Message], bool] | None = None  # None: the bus hands back no own frame
         if self._stamps_channel:
             token = self.token
             self._own = lambda msg: msg.channel == token
         elif isinstance(bus, VirtualBus):
             self._own = lambda msg: not msg.is_rx
-        else:
-            self._own = lambda msg: False
         super().__init__(channel=bus.channel_info)
         self.channel_info = bus.channel_info
         self._can_protocol = bus.protocol
@@ -96,7 +97,7 @@ class FrameTap(can.BusABC):
             msg = self.bus.recv(timeout)
             if msg is None:
                 return None
-            if self._own(msg):
+            if self._own is not None and self._own(msg):
                 self.own_echoes += 1
                 if deadline is not None:
                     timeout = max(0.0, deadline - self.clock())

@@ -394,21 +394,57 @@ class LocalUdpMulticastBus(UdpMulticastBus):
         self.unreadable_datagrams = 0  # datagrams that are no packed frame (module text), dropped
         self._unreadable_logged_s = -_LOG_FOREIGN_EVERY_S
 
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        """``BusABC.recv``, in one call where no filter is set (every frame read is handed on).
+
+        A datagram dropped (foreign, or no frame) is followed by the next one waiting, then by
+        waiting for the rest of ``timeout``: through ``BusABC.recv`` a ``recv(0)`` ended at the
+        first one, and a receiver draining past its deadline (the cyclic exchange) left the
+        answers behind it for the next cycle. Without python-can's loop through
+        ``_recv_internal`` and its filters a waiting frame also takes 0.9 µs less (``recv(0)``,
+        median of 40 blocks of 100 frames: 10.6-11.6 µs against 11.5-12.6, 3 runs); over the
+        bus no change of the loop's or the simulator's CPU was measurable. python-can's debug
+        log of each received frame (level 9) is left out with it."""
+        if self._filters:
+            return super().recv(timeout)
+        sock: LocalGroupSocket = self._multicast  # type: ignore[assignment]
+        if timeout is not None and timeout <= 0.0:
+            while (result := sock.recv(0.0)) is not None:
+                msg = self._frame(result)
+                if msg is not None:
+                    return msg
+            return None
+        deadline = None if timeout is None else time.monotonic() + timeout
+        wait = timeout
+        while True:
+            result = sock.recv(wait)
+            if result is not None:
+                msg = self._frame(result)
+                if msg is not None:
+                    return msg
+            if deadline is not None:
+                wait = deadline - time.monotonic()
+                if wait <= 0.0:
+                    return None
+
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
-        """python-can's, with a datagram that is not a frame dropped and named instead of raised:
-        ``BusABC.recv`` then waits on for the rest of its timeout."""
+        """python-can's, with a datagram that is no frame dropped and named instead of raised:
+        ``BusABC.recv`` (with filters set) then waits on for the rest of its timeout."""
         result = self._multicast.recv(timeout)
-        if result is None:
-            return None, False
+        return (self._frame(result) if result is not None else None), False
+
+    def _frame(self, result: tuple[bytes, Any, float]) -> can.Message | None:
+        """A received datagram as the frame it carries; None when it is none (counted, named) or an
+        FD frame on a classic bus (not received, as python-can's)."""
         data, sender, timestamp = result
         try:
             msg = unpack_frame(data, timestamp)
         except ValueError as err:
             self._unreadable(sender[0], len(data), err)
-            return None, False
+            return None
         if msg.is_fd and self._can_protocol is not CanProtocol.CAN_FD:
-            return None, False  # as python-can: an FD frame on a classic bus is not received
-        return msg, False
+            return None
+        return msg
 
     def _unreadable(self, source: str, size: int, why: ValueError) -> None:
         self.unreadable_datagrams += 1

@@ -93,3 +93,14 @@ def test_canopen_set_up_through_the_tap_is_recorded_both_ways():
     responses = [x for x in seen if x == (False, 0x585)]
     assert len(requests) == len(responses) == 1
     assert not [x for x in seen if x[0] is False and x[1] in (0x000, 0x605)]  # no echo of ours as received
+
+
+def test_on_the_machine_local_bus_the_tap_sends_frames_as_they_are_without_its_token():
+    """The kernel drops the sender's own datagrams there: no token in ``channel`` (40 bytes more a
+    datagram for every receiver to unpack); another node gets the frame with ``channel`` None."""
+    spec = _spec("udp_multicast")
+    with FrameTap(open_bus(spec)) as tap, open_bus(spec) as other:
+        tap.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))
+        msg = other.recv(timeout=30.0)
+    assert msg is not None and msg.arbitration_id == 0x080
+    assert msg.channel is None

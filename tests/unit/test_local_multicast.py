@@ -242,3 +242,17 @@ def test_unpack_frame_reads_what_python_can_packs() -> None:
     got = lm.unpack_frame(pack_message(sent), 5.0)
     assert got.timestamp == 5.0
     assert got.equals(unpack_message(pack_message(sent), replace={"timestamp": 5.0}))
+
+
+def test_a_receive_that_does_not_wait_reads_past_a_datagram_that_is_no_frame(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The cyclic exchange drains with ``recv(0)`` past its deadline: a dropped datagram must not
+    end the drain while an answer waits behind it (through ``BusABC.recv`` it did)."""
+    frame = pack_message(can.Message(arbitration_id=0x181, data=b"\x01", is_extended_id=False))
+    waiting = [(b"hello", ("::1", 1, 0, 0), 1.0), (frame, ("::1", 1, 0, 0), 2.0), None]
+    monkeypatch.setattr(lm.LocalGroupSocket, "recv", lambda self, timeout=None: waiting.pop(0))
+    with open_bus(parse_bus_spec("udp_multicast", udp_port=random_udp_port())) as bus:
+        got = bus.recv(0.0)
+        assert got is not None and (got.arbitration_id, got.timestamp) == (0x181, 2.0)
+        assert bus.recv(0.0) is None and bus.unreadable_datagrams == 1
