@@ -236,7 +236,7 @@ class SafetySection(Section, frozen=True):
     following_window_m: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.01
     following_window_rad: Annotated[float, rng(0.0, 100.0, lo_open=True)] = 0.1
     # The whole bus (drivers/cyclic_exchange.py): frames nobody configured should send.
-    on_unknown_node: Reaction = Reaction("warn")  # frames, EMCY or heartbeats of unconfigured nodes, 29-bit frames
+    on_unknown_node: Reaction = Reaction("warn")  # unconfigured nodes' frames; 29-bit frames
     on_foreign_sync: Reaction = Reaction("fault")  # a second SYNC producer
     on_foreign_nmt: Reaction = Reaction("fault")  # someone else's NMT command to our nodes
     on_foreign_command: Reaction = Reaction("fault")  # someone else's RPDO or SDO to our drives
