@@ -169,8 +169,8 @@ class Simulator:
         self.sync_count = 0
         self.rejected_frames = 0
         # the simulator's true contact force, largest at any SYNC, per controller session (a new one
-        # at each NMT start to all nodes or one of these): what a disturbance of the measurement can hide from the controller,
-        # reported when the simulator stops (sim_backend/process.py)
+        # at each NMT start to all nodes or one of these): what a disturbance of the measurement can
+        # hide from the controller, reported when the simulator stops (sim_backend/process.py)
         self.max_contact_force_n: list[float] = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
