@@ -334,26 +334,53 @@ class LocalGroupSocket(GeneralPurposeUdpMulticastBus):
     def recv(self, timeout: float | None = None) -> Any:
         """python-can's ``recv``, keeping only datagrams from this host's own addresses (this bus's
         own were dropped in the kernel). A datagram already waiting is read at once (``_recv_waiting``);
-        only an empty socket is waited on, by python-can's ``select``."""
-        result = self._recv_waiting()
-        if result is None and timeout != 0.0:
-            result = super().recv(timeout) if self._doorbell is None else self._wait_for_doorbell(timeout)
-        if result is None or result[1][0] in self._addresses:
-            return result
+        only an empty socket is waited on, by python-can's ``select``. Without a wait (``timeout``
+        0) a foreign datagram is followed by the next one waiting."""
+        while True:
+            result = self._recv_waiting()
+            if result is None and timeout != 0.0:
+                result = super().recv(timeout) if self._doorbell is None else self._wait_for_doorbell(timeout)
+            if result is None or self._from_this_host(result[1][0]):
+                return result
+            if timeout != 0.0:
+                return None  # the bus's recv waits on for the rest of its timeout
+
+    def _from_this_host(self, source: str) -> bool:
+        """Whether ``source`` is one of this host's addresses; a foreign one is counted and named."""
+        if source in self._addresses:
+            return True
         now = time.monotonic()
         if now - self._addresses_read_s >= _REREAD_ADDRESSES_S:  # a new address of this host?
             self._addresses, self._addresses_read_s = host_addresses(), now
-            if result[1][0] in self._addresses:
-                return result
+            if source in self._addresses:
+                return True
         self.foreign_datagrams += 1
         if now - self._foreign_logged_s >= _LOG_FOREIGN_EVERY_S:
             self._foreign_logged_s = now
             log.warning(
                 "udp_multicast bus: %d datagram(s) from a source not of this host dropped (last from %s)",
                 self.foreign_datagrams,
-                result[1][0],
+                source,
             )
-        return None  # BusABC.recv waits on for the rest of its timeout
+        return False
+
+
+# The fields python-can packs (udp_multicast.utils.pack_message) and the types msgpack gives them
+# back as: anything else (a float identifier, an integer as data, 2**63 anywhere) is no frame. An
+# integer as data would have had python-can allocate that many bytes before its check.
+_FIELD_TYPES: dict[str, tuple[type, ...]] = {
+    "timestamp": (float, int),
+    "arbitration_id": (int,),
+    "is_extended_id": (bool,),
+    "is_remote_frame": (bool,),
+    "is_error_frame": (bool,),
+    "channel": (str, int, type(None)),
+    "dlc": (int, type(None)),
+    "data": (bytes, type(None)),
+    "is_fd": (bool,),
+    "bitrate_switch": (bool,),
+    "error_state_indicator": (bool,),
+}
 
 
 def unpack_frame(data: bytes, timestamp_s: float) -> can.Message:
@@ -367,10 +394,19 @@ def unpack_frame(data: bytes, timestamp_s: float) -> can.Message:
         raise ValueError(f"not msgpack ({type(err).__name__}: {err})") from err
     if not isinstance(fields, dict):
         raise ValueError(f"a msgpack {type(fields).__name__}, not the map of a frame")
+    for key, value in fields.items():
+        kinds = _FIELD_TYPES.get(key)
+        if kinds is None:
+            raise ValueError(f"not a CAN frame (a field {key!r})")
+        if type(value) not in kinds:  # exactly: a bool is no identifier, a float no length
+            raise ValueError(f"not a CAN frame ({key} is a {type(value).__name__})")
+    payload = fields.get("data")
+    if payload is not None and len(payload) > 64:
+        raise ValueError(f"not a CAN frame ({len(payload)} data bytes)")
     fields["timestamp"] = timestamp_s
     try:
         return can.Message(check=True, **fields)
-    except (TypeError, ValueError) as err:  # an unknown field, a value out of range
+    except (TypeError, ValueError, OverflowError) as err:  # a value out of range
         raise ValueError(f"not a CAN frame ({err})") from err
 
 

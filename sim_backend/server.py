@@ -31,7 +31,6 @@ import logging
 import math
 import queue
 import random
-import struct
 import threading
 import time
 from collections.abc import Callable
@@ -376,14 +375,19 @@ class Simulator:
         try:
             self._serve_frames()
         except Exception as err:
+            if self._stop.is_set():
+                return  # stopping: the bus may already be closed under a receive
             self.failure = err
             log.critical(
                 "simulator: the devices' thread ended on an error; the devices go silent", exc_info=True
             )
-            for node in self.nodes.values():
-                node.nmt.stop_heartbeat()
-            if self.on_failure is not None:
-                self.on_failure()
+            try:
+                for node in self.nodes.values():
+                    with contextlib.suppress(Exception):  # a heartbeat task on a bus that is down
+                        node.nmt.stop_heartbeat()
+            finally:
+                if self.on_failure is not None:
+                    self.on_failure()
 
     def _serve_frames(self) -> None:
         bus, clock = self.bus, self.clock
@@ -414,9 +418,10 @@ class Simulator:
 
     def _dispatch(self, msg: can.Message) -> None:
         """One frame to the device it is for. A 29-bit frame is no CANopen frame (its identifier
-        only looks like a COB-ID) and reaches no device; a frame canopen's NMT or SDO server
-        cannot parse (a 1-byte NMT command, an empty SDO request: its ``struct.error`` ended this
-        thread) is rejected, counted and named, as a real device ignores it."""
+        only looks like a COB-ID) and reaches no device; an NMT command of another length than 2
+        or an SDO request of another length than 8, which canopen's NMT or SDO server cannot
+        parse (the ``struct.error`` of a 1-byte NMT command or an empty SDO request ended this
+        thread), is rejected, counted and named, as a real device ignores it."""
         if self._bus_is_off or msg.is_error_frame:
             return  # bus_off: nothing reaches the devices
         if msg.is_extended_id:
@@ -437,11 +442,10 @@ class Simulator:
         elif 0x601 <= msg.arbitration_id <= 0x67F and self._on_sdo_request(msg):
             pass
         elif msg.arbitration_id in self.network.subscribers:  # SDO requests, NMT: canopen's nodes
-            try:
-                with self.lock:
-                    self.network.notify(msg.arbitration_id, msg.data, msg.timestamp)
-            except (struct.error, ValueError, IndexError, KeyError) as err:  # canopen parsing a frame
-                self._reject(msg, f"{type(err).__name__}: {err}")
+            # frames of the lengths checked above parse (canopen's SDO server answers an abort to
+            # what it cannot serve): an error here is the simulator's own, and ends the thread (_run)
+            with self.lock:
+                self.network.notify(msg.arbitration_id, msg.data, msg.timestamp)
 
     def _reject(self, msg: can.Message, why: str) -> None:
         self.rejected_frames += 1

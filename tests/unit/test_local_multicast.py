@@ -66,7 +66,8 @@ def test_a_datagram_from_a_source_not_of_this_host_is_dropped_and_counted(
 ) -> None:
     """Behind the binding (which no such datagram passes on Linux), the source check: on a datagram
     read at once and on one waited for alike."""
-    waiting = [(b"x", ("2001:db8::66", 1, 0, 0), 1.0), None, (b"z", ("::1", 1, 0, 0), 3.0)]
+    # recv(0): the foreign one, then nothing more waiting; recv(1): nothing waiting, one waited for
+    waiting = [(b"x", ("2001:db8::66", 1, 0, 0), 1.0), None, None, (b"z", ("::1", 1, 0, 0), 3.0)]
     waited = [(b"y", ("::1", 1, 0, 0), 2.0)]
     monkeypatch.setattr(lm.LocalGroupSocket, "_recv_waiting", lambda self: waiting.pop(0))
     monkeypatch.setattr(GeneralPurposeUdpMulticastBus, "recv", lambda self, timeout=None: waited.pop(0))
@@ -198,6 +199,9 @@ NOT_FRAMES = (
     + bytes(8)
     + b"\xaearbitration_id\xce\xff\xff\xff\xff\xaeis_extended_id\xc2",  # id out of range
     b"\x81\xa7mystery\x01",  # a field a frame does not have
+    b"\x82\xaearbitration_id\xcb" + struct.pack(">d", 384.5) + b"\xa4data\xc4\x00",  # a float identifier
+    b"\x82\xaearbitration_id\x01\xa4data\xce\xff\xff\xff\xff",  # an integer as data (4 GiB to python-can)
+    b"\x81\xaearbitration_id\xcf\x80" + bytes(7),  # 2**63
 )
 
 
@@ -242,6 +246,15 @@ def test_unpack_frame_reads_what_python_can_packs() -> None:
     got = lm.unpack_frame(pack_message(sent), 5.0)
     assert got.timestamp == 5.0
     assert got.equals(unpack_message(pack_message(sent), replace={"timestamp": 5.0}))
+
+
+def test_a_receive_that_does_not_wait_reads_past_a_foreign_datagram(monkeypatch: pytest.MonkeyPatch) -> None:
+    waiting = [(b"x", ("2001:db8::66", 1, 0, 0), 1.0), (b"y", ("::1", 1, 0, 0), 2.0), None]
+    monkeypatch.setattr(lm.LocalGroupSocket, "_recv_waiting", lambda self: waiting.pop(0))
+    with open_bus(parse_bus_spec("udp_multicast", udp_port=random_udp_port())) as bus:
+        handler = bus._multicast
+        assert handler.recv(0.0) == (b"y", ("::1", 1, 0, 0), 2.0)
+        assert handler.foreign_datagrams == 1
 
 
 def test_a_receive_that_does_not_wait_reads_past_a_datagram_that_is_no_frame(
