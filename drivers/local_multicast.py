@@ -388,9 +388,8 @@ def unpack_frame(data: bytes, timestamp_s: float) -> can.Message:
     checked), received at ``timestamp_s``; raises ``ValueError`` naming what is wrong."""
     try:
         fields = msgpack.unpackb(data, raw=False)
-    except (
-        Exception
-    ) as err:  # msgpack's errors have no common base but Exception (ExtraData, FormatError, ...)
+    # msgpack's errors have no common base but Exception (ExtraData, FormatError, ...)
+    except Exception as err:
         raise ValueError(f"not msgpack ({type(err).__name__}: {err})") from err
     if not isinstance(fields, dict):
         raise ValueError(f"a msgpack {type(fields).__name__}, not the map of a frame")
