@@ -72,6 +72,8 @@ from can.interfaces.udp_multicast import UdpMulticastBus
 from can.interfaces.udp_multicast.bus import GeneralPurposeUdpMulticastBus
 from can.interfaces.udp_multicast.utils import is_msgpack_installed
 
+from drivers.drop_counter import DropCounter
+
 log = logging.getLogger(__name__)
 
 SO_TIMESTAMPNS = 35  # linux/socket.h (python-can's udp_multicast reads the same kernel timestamps)
@@ -79,7 +81,6 @@ _IFF_UP, _IFF_LOOPBACK, _IFF_MULTICAST = 0x1, 0x8, 0x1000  # linux/if.h
 _SYS_NET = Path("/sys/class/net")
 _IF_INET6 = Path("/proc/net/if_inet6")
 _REREAD_ADDRESSES_S = 1.0  # an unknown source reads this host's addresses again at most this often
-_LOG_FOREIGN_EVERY_S = 5.0
 SO_ATTACH_FILTER = 26  # asm-generic/socket.h
 # classic BPF (linux/filter.h): (code, jt, jf, k). On a UDP socket the filter runs on the datagram
 # from its UDP header on: the halfword at offset 0 is the source port.
@@ -196,10 +197,12 @@ class LocalGroupSocket(GeneralPurposeUdpMulticastBus):
 
     def __init__(self, group: str, port: int, interface: tuple[str, int]) -> None:
         self.interface_name, self.interface_index = interface
-        self.foreign_datagrams = 0  # datagrams from a source that is not this host's (dropped)
+        # datagrams from a source that is not this host's (dropped)
+        self.foreign = DropCounter(
+            log, "udp_multicast bus: %d datagram(s) from a source not of this host dropped (last from %s)"
+        )
         self._addresses = host_addresses()
         self._addresses_read_s = time.monotonic()
-        self._foreign_logged_s = -_LOG_FOREIGN_EVERY_S
         self._doorbell: socket.socket | None = None  # defer_wakeups
         super().__init__(group, port, hop_limit=0)
         self._send_destination = (group, port, 0, self.interface_index)  # type: ignore[assignment]
@@ -354,15 +357,12 @@ class LocalGroupSocket(GeneralPurposeUdpMulticastBus):
             self._addresses, self._addresses_read_s = host_addresses(), now
             if source in self._addresses:
                 return True
-        self.foreign_datagrams += 1
-        if now - self._foreign_logged_s >= _LOG_FOREIGN_EVERY_S:
-            self._foreign_logged_s = now
-            log.warning(
-                "udp_multicast bus: %d datagram(s) from a source not of this host dropped (last from %s)",
-                self.foreign_datagrams,
-                source,
-            )
+        self.foreign.add(source)
         return False
+
+    @property
+    def foreign_datagrams(self) -> int:
+        return self.foreign.count
 
 
 # The fields python-can packs (udp_multicast.utils.pack_message) and the types msgpack gives them
@@ -426,8 +426,10 @@ class LocalUdpMulticastBus(UdpMulticastBus):
             self._is_shutdown = True  # nothing to shut down: no "not properly shut down" warning later
             raise
         self._can_protocol = CanProtocol.CAN_FD if fd else CanProtocol.CAN_20
-        self.unreadable_datagrams = 0  # datagrams that are no packed frame (module text), dropped
-        self._unreadable_logged_s = -_LOG_FOREIGN_EVERY_S
+        # datagrams that are no packed frame (module text), dropped
+        self.unreadable = DropCounter(
+            log, "udp_multicast bus: %d datagram(s) that are no CAN frame dropped (last %d bytes from %s: %s)"
+        )
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
         """``BusABC.recv``, in one call where no filter is set (every frame read is handed on).
@@ -475,24 +477,15 @@ class LocalUdpMulticastBus(UdpMulticastBus):
         try:
             msg = unpack_frame(data, timestamp)
         except ValueError as err:
-            self._unreadable(sender[0], len(data), err)
+            self.unreadable.add(len(data), sender[0], err)
             return None
         if msg.is_fd and self._can_protocol is not CanProtocol.CAN_FD:
             return None
         return msg
 
-    def _unreadable(self, source: str, size: int, why: ValueError) -> None:
-        self.unreadable_datagrams += 1
-        now = time.monotonic()
-        if now - self._unreadable_logged_s >= _LOG_FOREIGN_EVERY_S:
-            self._unreadable_logged_s = now
-            log.warning(
-                "udp_multicast bus: %d datagram(s) that are no CAN frame dropped (last %d bytes from %s: %s)",
-                self.unreadable_datagrams,
-                size,
-                source,
-                why,
-            )
+    @property
+    def unreadable_datagrams(self) -> int:
+        return self.unreadable.count
 
     def defer_wakeups(self, quiet_ids: range) -> None:
         """``LocalGroupSocket.defer_wakeups``: frames with these identifiers wake no waiting ``recv``."""

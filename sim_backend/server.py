@@ -44,6 +44,7 @@ from controller.config import Config
 from controller.realtime import reset_scheduler
 from controller.sim_config.quirk_specs import Quirk
 from drivers import cob_ids
+from drivers.drop_counter import DropCounter
 from drivers.node_setup import ABORT_TRANSFER
 from drivers.node_setup import DRIVE_EDS as SHIPPED_DRIVE_EDS
 from drivers.node_setup import SENSOR_EDS as SHIPPED_SENSOR_EDS
@@ -79,7 +80,6 @@ NMT_OPERATIONAL = 5
 NMT_STOPPED = 4
 NMT_PRE_OPERATIONAL = 127
 WATCHDOG_PERIOD_S = 0.005
-_LOG_REJECTED_EVERY_S = 5.0  # a rejected frame is named in a warning at most this often
 # A watchdog tick this late means the simulator's process was not running: SYNC frames may be
 # waiting unread in its socket, so this tick does not judge them lost (see _watchdog_loop).
 STARVED_TICK_S = 4 * WATCHDOG_PERIOD_S
@@ -166,7 +166,11 @@ class Simulator:
         self.network = canopen.Network(bus)
         self.nodes: dict[int, canopen.LocalNode] = {}
         self.sync_count = 0
-        self.rejected_frames = 0
+        # frames no device takes (a 29-bit frame, an NMT command or SDO request of the wrong
+        # length, an RPDO that does not decode): counted, named in a warning at most every 5 s
+        self.rejected = DropCounter(
+            log, "simulator: %d frame(s) rejected so far (last COB-ID 0x%03X, %d bytes: %s)"
+        )
         # the simulator's true contact force, largest at any SYNC, per controller session (a new one
         # at each NMT start to all nodes or one of these): what a disturbance of the measurement can
         # hide from the controller, reported when the simulator stops (sim_backend/process.py)
@@ -196,7 +200,6 @@ class Simulator:
         )
         self._bus_off_elapsed_s = -math.inf
         self._bus_is_off = False
-        self._rejection_logged_s = -_LOG_REJECTED_EVERY_S
         self.failure: Exception | None = None  # what ended the devices' thread (``_run``)
         self.on_failure: Callable[[], None] | None = None  # called then, from that thread
 
@@ -425,7 +428,7 @@ class Simulator:
         if self._bus_is_off or msg.is_error_frame:
             return  # bus_off: nothing reaches the devices
         if msg.is_extended_id:
-            self.rejected_frames += 1
+            self._reject(msg, "a 29-bit frame reaches no CANopen device")
             return
         clock = self.clock
         if msg.is_remote_frame:
@@ -448,17 +451,11 @@ class Simulator:
                 self.network.notify(msg.arbitration_id, msg.data, msg.timestamp)
 
     def _reject(self, msg: can.Message, why: str) -> None:
-        self.rejected_frames += 1
-        now = time.monotonic()
-        if now - self._rejection_logged_s >= _LOG_REJECTED_EVERY_S:
-            self._rejection_logged_s = now
-            log.warning(
-                "simulator: %d frame(s) rejected so far (last COB-ID 0x%03X, %d bytes: %s)",
-                self.rejected_frames,
-                msg.arbitration_id,
-                len(msg.data),
-                why,
-            )
+        self.rejected.add(msg.arbitration_id, len(msg.data), why)
+
+    @property
+    def rejected_frames(self) -> int:
+        return self.rejected.count
 
     def _follow_pose(self) -> None:
         """The free robot's pose from the drives' positions at each SYNC, behind the answers.
@@ -479,7 +476,7 @@ class Simulator:
             self._fast.pop(cob, None)
         self._rpdo_routes = self.pdos.rpdo_cob_ids()
         for j, cob in enumerate(self._rpdo_routes):
-            self._fast[cob] = self._rpdo_handler(j)
+            self._fast[cob] = self._rpdo_handler(j, cob)
 
     def _wire_sensor(self, node: canopen.LocalNode, pdos: DevicePdos) -> None:
         add_environment_object(node, self.plant.environment_kind)
@@ -551,7 +548,7 @@ class Simulator:
     def _operational(self, node_id: int) -> bool:
         return self.nodes[node_id].nmt._state == NMT_OPERATIONAL  # canopen keeps the code here
 
-    def _rpdo_handler(self, j: int) -> Callable[[bytearray, float], None]:
+    def _rpdo_handler(self, j: int, cob_id: int) -> Callable[[bytearray, float], None]:
         node_id = self.drive_ids[j]
 
         def on_rpdo(data: bytearray, now_s: float) -> None:
@@ -560,7 +557,7 @@ class Simulator:
                 return
             with self.lock:
                 if not self.pdos.receive_rpdo(j, data):
-                    self.rejected_frames += 1
+                    self.rejected.add(cob_id, len(data), "an RPDO that does not decode")
                     return
                 self._flush_emcy()
 
@@ -663,7 +660,7 @@ class Simulator:
     def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
         # canopen's NmtSlave has already set the state; a reset also reboots the device.
         if len(data) != 2:
-            self.rejected_frames += 1
+            self.rejected.add(can_id, len(data), "an NMT command is 2 bytes")
             return
         if data[0] == NMT_START_REMOTE_NODE and data[1] in (0, *self.nodes):
             with self.lock:
