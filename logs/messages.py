@@ -133,19 +133,27 @@ def can_frames(frames: list[FrameRecord], offset_ns: int) -> pb.CanFrames:
     out = pb.CanFrames()
     add = out.frames.add
     for outgoing, mono_s, arb, data, ext, rtr, rlen, fd, brs, esi, err in frames:
-        add(
-            unix_time_ns=unix_time_ns_of(mono_s, offset_ns),
-            arbitration_id=arb,
-            data=data,
-            outgoing=outgoing,
-            is_extended_id=ext,
-            is_remote_frame=rtr,
-            remote_length=rlen,
-            is_fd=fd,
-            bitrate_switch=brs,
-            error_state_indicator=esi,
-            is_error_frame=err,
-        )
+        if ext or rtr or rlen or fd or brs or esi or err:
+            add(
+                unix_time_ns=unix_time_ns_of(mono_s, offset_ns),
+                arbitration_id=arb,
+                data=data,
+                outgoing=outgoing,
+                is_extended_id=ext,
+                is_remote_frame=rtr,
+                remote_length=rlen,
+                is_fd=fd,
+                bitrate_switch=brs,
+                error_state_indicator=esi,
+                is_error_frame=err,
+            )
+        else:  # a classic data frame, nearly all of them: the flags at their defaults (7 of 11 µs for 9 frames)
+            add(
+                unix_time_ns=unix_time_ns_of(mono_s, offset_ns),
+                arbitration_id=arb,
+                data=data,
+                outgoing=outgoing,
+            )
     return out
 
 
