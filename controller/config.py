@@ -21,7 +21,7 @@ from typing import Annotated, Any, Literal
 
 import msgspec
 
-from controller.config_schema import ConfigError, Section, convert_section, rng
+from controller.config_schema import ConfigError, Section, check_finite, convert_section, rng
 from controller.configs import CONFIG_DIR
 from controller.core.cycle_data import EmcyAction, Reaction
 from controller.sim_config.sections import SimSection, check_sim_section
@@ -618,6 +618,7 @@ def _migrate(table: dict[str, Any]) -> dict[str, Any]:
 
 
 def config_from_dict(table: dict[str, Any]) -> Config:
+    check_finite(table)
     cfg = _build_config(_migrate(table))
     _cross_checks(cfg)
     return cfg

@@ -37,6 +37,23 @@ def rng(lo: float | None = None, hi: float | None = None, *, lo_open: bool = Fal
     return msgspec.Meta(gt=lo, le=hi) if lo_open else msgspec.Meta(ge=lo, le=hi)
 
 
+def check_finite(value: Any, key: str = "") -> None:
+    """Every number of a configuration table is finite, or a ``ConfigError`` names its key.
+
+    TOML reads ``nan`` and ``inf``. A key without a range (a geometry's point, a workpiece's
+    centre, a home offset) let them through, and a NaN turns every comparison made with it false:
+    a neutral point of ``[0, nan, 0.5]`` made the joint-swing check never trip (an outside tester's
+    finding). No key of the product means anything by a number that is not finite."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ConfigError(f"{key} = {value!r}: must be finite")
+    if isinstance(value, dict):
+        for name, item in value.items():
+            check_finite(item, f"{key}.{name}" if key else str(name))
+    elif isinstance(value, (list, tuple)):
+        for i, item in enumerate(value):
+            check_finite(item, f"{key}[{i}]")
+
+
 _WHERE = re.compile(r"^(?P<what>.*?)(?: - at `\$(?P<path>[^`]*)`)?$")
 
 
@@ -65,8 +82,6 @@ def _named(err: msgspec.ValidationError, table: dict[str, Any], cls: type, prefi
     value = _value_at(table, path)
     if isinstance(value, dict):
         return ConfigError(f"[{key}]: {_plain(what, ())}")
-    if isinstance(value, float) and not math.isfinite(value):
-        return ConfigError(f"{key} = {value!r}: must be finite")
     return ConfigError(f"{key} = {value!r}: {_plain(what, _choices_at(cls, path))}")
 
 

@@ -174,6 +174,11 @@ def check_sim_section(
             check_quirk(text, drive_nodes, sensor_node)
         except QuirkSpecError as err:
             raise ConfigError(f"sim.drive.quirks[{i}]: {err}") from err
+    low, high = sim.drive.limit_switches_m
+    if not low < high:
+        raise ConfigError(
+            f"sim.drive.limit_switches_m = {[low, high]}: the negative switch must lie below the positive one"
+        )
     q = sim.quirk
     if q.sdo_delay_max_s < q.sdo_delay_min_s:
         raise ConfigError(

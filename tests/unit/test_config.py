@@ -28,6 +28,18 @@ def test_shipped_defaults_load(cfg):
         ({"loop.max_missing_cycles": 2.5}, r"loop.max_missing_cycles = 2.5: expected an integer"),
         ({"robot.kind": "hexapod"}, r"robot.kind = 'hexapod': must be one of"),
         ({"loop.rate_hz": float("nan")}, r"loop.rate_hz = nan: must be finite"),
+        # keys without a range: a NaN there made every comparison with it false (the joint-swing
+        # check never tripped with a neutral point of [0, nan, 0.5])
+        (
+            {"robot.cheope.joint_neutral_tcp_m": [0.0, float("nan"), 0.5]},
+            r"robot.cheope.joint_neutral_tcp_m\[1\] = nan: must be finite",
+        ),
+        (
+            {"sim.workpiece.centre_m": [float("inf"), 0.0]},
+            r"sim.workpiece.centre_m\[0\] = inf: must be finite",
+        ),
+        ({"sim.sensor.bias_n": [0.0, 0.0, float("-inf")]}, r"sim.sensor.bias_n\[2\] = -inf: must be finite"),
+        ({"sim.drive.limit_switches_m": [0.88, 0.32]}, r"negative switch must lie below the positive one"),
         ({"sim.drive.cogging_period_m": 0.0}, r"sim.drive.cogging_period_m = 0.0: must be > 0.0"),
         ({"sim.drive.cogging_force_n": -1.0}, r"sim.drive.cogging_force_n = -1.0: must be >= 0.0"),
         ({"sim.structure_inertial_load": 1}, r"sim.structure_inertial_load = 1: expected true or false"),
