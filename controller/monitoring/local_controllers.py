@@ -104,3 +104,21 @@ def local_endpoints() -> tuple[str, ...]:
             continue
         out += [e for e in listen if e not in out]
     return tuple(out)
+
+
+def announced_elsewhere(robot_id: str) -> int | None:
+    """The pid of another live process of this user that announces ``robot_id`` on this machine;
+    None when none does (a stale file is removed). A controller that only listens is reached by no
+    liveliness query of another one (robot_identity.py): this file is how two of them on one
+    machine see each other."""
+    path = runtime_directory() / f"{robot_id}.json"
+    try:
+        pid = int(json.loads(path.read_text())["pid"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None  # none, being written, or not ours to judge
+    if pid == os.getpid():
+        return None
+    if not _alive(pid):
+        path.unlink(missing_ok=True)
+        return None
+    return pid

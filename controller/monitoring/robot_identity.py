@@ -12,9 +12,13 @@ user's demo and ``cheope stop`` would have stopped it. Decision:
   exit code 2): two controllers with one id would answer each other's ``cheope stop``. A
   drawn id draws again.
 
-Two controllers starting at the same instant can both pass the check (a window of a few
-milliseconds); a controller that is not connected to the other one cannot see it at all
-(two controllers that only listen, each on its own port): ``cheope list`` shows the same.
+Two controllers of one user on one machine also see each other's announcement
+(local_controllers.py): by default a controller only listens, so no liveliness query of the
+other one reaches it, and before that check a second ``cheope run --robot-id X`` took the id
+of a running ``X`` and answered its ``cheope stop`` (an outside tester's finding). Two
+controllers starting at the same instant can both pass the check (a window of a few
+milliseconds); controllers of other machines or users that are not connected to this one
+cannot be seen at all: ``cheope list`` shows the same.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ import socket
 import zenoh
 
 from controller.errors import RefusedError
+from controller.monitoring.local_controllers import announced_elsewhere
 
 ALIVE_TIMEOUT_S = 1.0  # how long a liveliness query waits for the sessions it reaches
 _NOT_IN_AN_ID = re.compile(r"[^A-Za-z0-9_.\-]+")
@@ -63,13 +68,20 @@ def live_robot_ids(
 def claim_robot_id(
     session: zenoh.Session, key_prefix: str, robot_id: str, drawn: bool, timeout_s: float = ALIVE_TIMEOUT_S
 ) -> str:
-    """``robot_id`` if no session reached holds it; a drawn id is redrawn, a configured one refused."""
+    """``robot_id`` if no session reached holds it and no other controller of this user on this
+    machine announces it; a drawn id is redrawn, a configured one refused."""
     for _ in range(_DRAWS):
-        if not live_robot_ids(session, key_prefix, robot_id, timeout_s):
+        pid = announced_elsewhere(robot_id)
+        if pid is None and not live_robot_ids(session, key_prefix, robot_id, timeout_s):
             return robot_id
         if not drawn:
+            holder = (
+                f"the controller of process {pid} on this machine announces it"
+                if pid is not None
+                else f"a live controller holds {key_prefix}/{robot_id}/alive"
+            )
             raise RobotIdTakenError(
-                f"monitoring.robot_id = {robot_id!r} is taken: a live controller holds {key_prefix}/{robot_id}/alive "
+                f"monitoring.robot_id = {robot_id!r} is taken: {holder} "
                 "(`cheope list` shows the controllers reachable); choose another id "
                 "(--set monitoring.robot_id=...) or leave it empty for a unique one"
             )

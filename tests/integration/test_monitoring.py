@@ -62,7 +62,12 @@ from controller.monitoring.zenoh_session import (
 from controller.shell.service import publisher_settings
 
 KEYS = MonitorKeys.for_robot("cheope", "test-bot")
-ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
+
+
+def _env() -> dict[str, str]:
+    """The environment of the processes a test starts, read when it starts them: the session's
+    temporary XDG directories (tests/conftest.py) are set after this module is imported."""
+    return {**os.environ, "PYTHONUNBUFFERED": "1"}
 
 
 def _endpoint() -> str:
@@ -124,7 +129,7 @@ def controller(endpoint: str, *sets: str, max_duration_s: float = 30.0):
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        env=ENV,
+        env=_env(),
     )
     try:
         line = _readline(proc, 30.0)
@@ -410,7 +415,7 @@ def test_cheope_stop_stops_cheope_demo_through_the_service():
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        env=ENV,
+        env=_env(),
     )
     try:
         cli = [sys.executable, "-m", "controller"]
@@ -421,7 +426,7 @@ def test_cheope_stop_stops_cheope_demo_through_the_service():
                 check=False,
                 capture_output=True,
                 text=True,
-                env=ENV,
+                env=_env(),
                 timeout=30,
             )
             if st.returncode == 0 and json.loads(st.stdout)["mode"] == "RUNNING":
@@ -437,7 +442,7 @@ def test_cheope_stop_stops_cheope_demo_through_the_service():
             check=False,
             capture_output=True,
             text=True,
-            env=ENV,
+            env=_env(),
             timeout=30,
         )
         lines = [json.loads(line) for line in mon.stdout.splitlines()]
@@ -449,7 +454,7 @@ def test_cheope_stop_stops_cheope_demo_through_the_service():
             check=False,
             capture_output=True,
             text=True,
-            env=ENV,
+            env=_env(),
             timeout=30,
         )
         assert stop.returncode == 0 and stop.stdout.startswith("accepted"), stop.stderr
@@ -470,7 +475,7 @@ def test_status_without_a_controller_ends_with_one_clear_line():
         check=False,
         capture_output=True,
         text=True,
-        env=ENV,
+        env=_env(),
         timeout=30,
     )
     assert r.returncode == 2
@@ -549,7 +554,7 @@ def _cheope(*args: str) -> subprocess.CompletedProcess[str]:
         check=False,
         capture_output=True,
         text=True,
-        env=ENV,
+        env=_env(),
         timeout=60,
     )
 
@@ -586,7 +591,7 @@ def test_a_robot_id_already_live_refuses_the_start():
             check=False,
             capture_output=True,
             text=True,
-            env=ENV,
+            env=_env(),
             timeout=60,
         )
         assert second.returncode == 2, second.stdout + second.stderr
@@ -594,6 +599,26 @@ def test_a_robot_id_already_live_refuses_the_start():
         assert not second.stdout.startswith("READY")
         listed = _json(_cheope("list", "--json", *_connect(ep_a)))
     assert [c["robot_id"] for c in listed] == ["dup"]  # the first one went on
+
+
+def test_a_robot_id_live_on_this_machine_refuses_the_start_without_connecting_to_it():
+    """Both only listen (the default): no liveliness query of the second reaches the first, and
+    before the announcements were asked it took the first one's id and answered its `cheope stop`."""
+    ep_a, ep_b = _endpoint(), _endpoint()
+    with controller(ep_a, 'monitoring.robot_id="twin"') as first:
+        second = subprocess.run(
+            _controller_cmd(ep_b, 'monitoring.robot_id="twin"', max_duration_s=10.0),
+            check=False,
+            capture_output=True,
+            text=True,
+            env=_env(),
+            timeout=60,
+        )
+        assert second.returncode == 2, second.stdout + second.stderr
+        assert f"the controller of process {first.pid} on this machine announces it" in second.stderr
+        assert second.stderr.count("\n") == 1 and not second.stdout.startswith("READY")
+        listed = _json(_cheope("list", "--json", *_connect(ep_a)))
+    assert [c["robot_id"] for c in listed] == ["twin"]  # the first one went on
 
 
 def test_a_drawn_robot_id_that_is_taken_is_drawn_again():
@@ -772,7 +797,7 @@ def test_three_controllers_monitored_from_one_place_through_a_router():
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        env=ENV,
+        env=_env(),
     )
     try:
         assert _readline(router, 30.0).startswith(f"READY {router_ep}")

@@ -34,7 +34,12 @@ from controller.shell.service import publisher_settings
 pytestmark = pytest.mark.integration
 
 SHIPPED = Path(__file__).resolve().parents[2] / "controller" / "configs" / "zenoh"
-ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
+
+
+def _env() -> dict[str, str]:
+    """The environment of the processes a test starts, read when it starts them: the session's
+    temporary XDG directories (tests/conftest.py) are set after this module is imported."""
+    return {**os.environ, "PYTHONUNBUFFERED": "1"}
 
 
 def _shipped(name: str, tls_dir: Path, port: int) -> Path:
@@ -80,7 +85,7 @@ def _cheope(endpoint: str, config: Path, *args: str) -> subprocess.CompletedProc
         check=False,
         capture_output=True,
         text=True,
-        env=ENV,
+        env=_env(),
         timeout=60,
     )
 
