@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -65,6 +66,10 @@ R = TypeVar("R")
 
 class NodeSetupError(DeviceError, RuntimeError):
     """A device did not answer, or answered with the wrong identity or configuration."""
+
+
+class SetupStoppedError(NodeSetupError):
+    """A stop was requested (a signal, ``cheope stop``) while the nodes were being set up."""
 
 
 @dataclass(frozen=True)
@@ -217,12 +222,34 @@ class _Device:
     """One node during the set-up: checked SDO reads and writes with the node's retries, named in
     every error, and the notes of what was handled."""
 
-    def __init__(self, node: canopen.RemoteNode, node_id: int, opts: NodeOptions, notes: list[str]) -> None:
+    def __init__(
+        self,
+        node: canopen.RemoteNode,
+        node_id: int,
+        opts: NodeOptions,
+        notes: list[str],
+        stop: threading.Event | None = None,
+    ) -> None:
         self.node = node
         self.node_id = node_id
         self.opts = opts
         self.notes = notes
         self.retried = 0
+        self.stop = stop  # set: the set-up ends at its next wait (boot, homing), SetupStoppedError
+
+    def check_stop(self, during: str) -> None:
+        if self.stop is not None and self.stop.is_set():
+            raise SetupStoppedError(
+                f"node {self.node_id}: stopped on request during {during}; no drive left enabled"
+            )
+
+    def sleep(self, seconds: float) -> None:
+        """A wait of the set-up that a stop request ends at once (homing's polls)."""
+        if self.stop is not None:
+            self.stop.wait(seconds)
+        else:
+            time.sleep(seconds)
+        self.check_stop("homing")
 
     def note(self, text: str) -> None:
         log.info("%s", text)
@@ -314,13 +341,14 @@ class _Device:
             )
 
 
-def _answers(node: canopen.RemoteNode, timeout_s: float) -> Exception | None:
+def _answers(device: _Device, timeout_s: float) -> Exception | None:
     """None once the node answers an SDO request within ``timeout_s``, else the last error."""
     deadline = time.monotonic() + timeout_s
     last: Exception | None = TimeoutError(f"no answer within {timeout_s} s")
     while time.monotonic() < deadline:
+        device.check_stop("its boot")  # a node that never answers is waited for boot_timeout_s x retries
         try:
-            node.sdo.upload(0x1000, 0)
+            device.node.sdo.upload(0x1000, 0)
             return None
         except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as err:
             last = err
@@ -339,7 +367,7 @@ def _wait_until_answering(device: _Device, network: canopen.Network) -> None:
                 f"node {node_id}: no SDO answer within {opts.boot_timeout_s} s: NMT reset node sent "
                 f"({attempt} of {opts.boot_retries}, loop.boot_retries)"
             )
-        last = _answers(device.node, opts.boot_timeout_s)
+        last = _answers(device, opts.boot_timeout_s)
         if last is None:
             waited = time.monotonic() - t0
             if attempt:
@@ -557,7 +585,12 @@ def _announce_environment(device: _Device, environment: str, task_kind: str) -> 
 
 
 def _device(
-    network: canopen.Network, node_id: int, eds: Path, plan: NodeSetupPlan, notes: list[str]
+    network: canopen.Network,
+    node_id: int,
+    eds: Path,
+    plan: NodeSetupPlan,
+    notes: list[str],
+    stop: threading.Event | None = None,
 ) -> _Device:
     try:
         node = canopen.RemoteNode(node_id, load_device_description(eds, node_id))
@@ -566,14 +599,15 @@ def _device(
     opts = plan.options(node_id)
     node.sdo.RESPONSE_TIMEOUT = opts.sdo_timeout_s
     network.add_node(node)
-    device = _Device(node, node_id, opts, notes)
+    device = _Device(node, node_id, opts, notes, stop)
+    device.check_stop("the set-up")
     _wait_until_answering(device, network)
     return device
 
 
 def _home(device: _Device, plan: HomingPlan) -> None:
     try:
-        homed = home_drive(device.node_id, plan, device.write, device.read)
+        homed = home_drive(device.node_id, plan, device.write, device.read, sleep=device.sleep)
     except HomingError as err:
         raise NodeSetupError(str(err)) from err
     if not homed:
@@ -659,12 +693,18 @@ def _configure_drive(device: _Device, j: int, plan: NodeSetupPlan) -> tuple[Node
     return ident, codec, device.read(0x6064, 0)
 
 
-def configure_nodes(bus: can.BusABC, plan: NodeSetupPlan) -> NodeSetupReport:
+def configure_nodes(
+    bus: can.BusABC, plan: NodeSetupPlan, stop: threading.Event | None = None
+) -> NodeSetupReport:
     """NMT pre-operational; per node: boot (timeout, NMT reset retries), identity, a fault at start
     reset, homing, mode, supervision (heartbeat or guarding), the drives' reaction to a lost master
     (0x6007), SYNC timing, PDOs (written, or read where fixed); NMT start.
 
     Every value written is read back; the PDO codecs are built from what the devices report.
+    ``stop`` set (a signal, ``cheope stop``) ends the set-up at its next wait with ``SetupStoppedError``:
+    the boot of a silent node (``boot_timeout_s`` times its retries) and homing (up to
+    ``homing_timeout_s``, the drive disabled) were waited out before, past a service manager's
+    stop timeout.
     """
     t0 = time.monotonic()
     network = canopen.Network(bus)
@@ -684,14 +724,14 @@ def configure_nodes(bus: can.BusABC, plan: NodeSetupPlan) -> NodeSetupReport:
         network.nmt.state = "PRE-OPERATIONAL"  # broadcast
         devices = []
         for j, node_id in enumerate(plan.drive_ids):
-            device = _device(network, node_id, plan.drive_eds, plan, notes)
+            device = _device(network, node_id, plan.drive_eds, plan, notes, stop)
             devices.append(device)
             ident, codec, position = _configure_drive(device, j, plan)
             identities.append(ident)
             drive_codecs.append(codec)
             positions.append(position)
         if plan.sensor_id is not None:
-            device = _device(network, plan.sensor_id, plan.sensor_eds, plan, notes)
+            device = _device(network, plan.sensor_id, plan.sensor_eds, plan, notes, stop)
             devices.append(device)
             vendor = plan.vendor_id if plan.sensor_vendor_id is None else plan.sensor_vendor_id
             identities.append(_identity(device, vendor, plan.sensor_product_code))

@@ -179,7 +179,7 @@ def run_controller(
         # every frame of the session through one tap: set-up included, own echoes dropped
         # one master per bus: nothing is sent while another is heard (drivers/bus_presence.py)
         check_no_other_master(bus, spec.place, cfg.loop.controller_node_id, cfg.bus.presence_listen_s)
-        setup = configure_nodes(bus, prepared.setup_plan)
+        setup = configure_nodes(bus, prepared.setup_plan, stop_event)  # a stop ends a long wait of it
         step_limit, jump_margin = position_plausibility(
             prepared.units, prepared.law.config.safety, cfg.period_s
         )

@@ -5,14 +5,17 @@ configuration alone; without it the set-up refuses with one line naming the node
 from __future__ import annotations
 
 import math
+import threading
 import time
+from collections.abc import Callable
 
 import pytest
 
 from controller.config import load_config
+from controller.core.cia402 import PowerState
 from controller.node_plan import node_setup_plan
 from drivers.cyclic_exchange import CyclicExchange
-from drivers.node_setup import NodeSetupError, configure_nodes
+from drivers.node_setup import NodeSetupError, SetupStoppedError, configure_nodes
 from drivers.pdo_codec import PositionScale
 from sim_backend.server import Simulator
 
@@ -44,6 +47,59 @@ def test_a_node_that_boots_late_is_waited_for_up_to_its_boot_timeout(buses):
 def test_a_node_that_boots_later_than_its_boot_timeout_is_named(buses):
     late = {"sim.drive.quirks": ["late_boot:2"], "sim.quirk.boot_delay_s": 0.8, "loop.boot_timeout_s": 0.3}
     refused(buses, config(**late), r"node 2 did not answer SDO requests within 0\.3 s .*loop\.boot_timeout_s")
+
+
+def test_a_stop_requested_while_a_node_boots_ends_the_set_up_at_once(buses):
+    """A signal or ``cheope stop`` during the wait for a silent node: before, the set-up waited out
+    loop.boot_timeout_s (times its retries), past a service manager's stop timeout."""
+    late = {"sim.drive.quirks": ["late_boot:1"], "sim.quirk.boot_delay_s": 60.0, "loop.boot_timeout_s": 600.0}
+    cfg = config(**late)
+    sim_bus, bus = buses
+    stop = _StopAtCheck(2)  # node 1's set-up has begun: the stop comes inside its boot wait
+    with Simulator(cfg, sim_bus) as sim:
+        with pytest.raises(SetupStoppedError, match=r"node 1: stopped on request during its boot"):
+            configure_nodes(bus, node_setup_plan(cfg), stop)
+        assert all(d.power != PowerState.OPERATION_ENABLED for d in sim.drives)
+
+
+class _StopAtCheck(threading.Event):
+    """A stop request that the set-up finds set from its ``n``-th look on."""
+
+    def __init__(self, n: int) -> None:
+        super().__init__()
+        self.looks, self.n = 0, n
+
+    def is_set(self) -> bool:
+        self.looks += 1
+        return self.looks >= self.n
+
+
+def test_a_stop_requested_during_homing_ends_it_with_the_drive_disabled(buses):
+    slow = {  # about 3 s to the switch at 0.1 m/s: the stop comes while the drive moves
+        "actuators.homing_method": 17,
+        "actuators.home_offsets_m": [0.32] * 3,
+        "actuators.homing_switch_speed_m_s": 0.1,
+        "actuators.homing_timeout_s": 600.0,
+    }
+    cfg = config(**slow)
+    sim_bus, bus = buses
+    stop = threading.Event()
+    with Simulator(cfg, sim_bus) as sim:
+        drive = sim.drives[0]
+        homing = lambda: drive.mode_of_operation == 6 and drive.power == PowerState.OPERATION_ENABLED  # noqa: E731
+        waiter = threading.Thread(target=_stop_when, args=(homing, stop))
+        waiter.start()
+        with pytest.raises(SetupStoppedError, match=r"node 1: stopped on request during homing"):
+            configure_nodes(bus, node_setup_plan(cfg), stop)
+        waiter.join()
+        assert drive.power != PowerState.OPERATION_ENABLED and drive.position > 0.33  # not at its switch
+
+
+def _stop_when(condition: Callable[[], bool], stop: threading.Event) -> None:
+    deadline = time.monotonic() + 120.0
+    while not condition() and time.monotonic() < deadline:
+        time.sleep(0.005)
+    stop.set()
 
 
 def test_a_node_that_needs_an_nmt_reset_to_boot_gets_one(buses):
