@@ -7,6 +7,9 @@ report (a plan that did not converge, an empty statistic) becomes ``null`` rathe
 A command that runs for more than a couple of seconds says where it is on one line of stderr,
 redrawn in place with the time elapsed, and erased at the end; only when stderr is a terminal,
 so pipes, files and ``--json`` consumers see nothing of it.
+
+Text from elsewhere (a peer's mode, event or answer over Zenoh) is printed through ``printable``:
+its control characters as escapes, so that a peer cannot clear or recolour the user's terminal.
 """
 
 from __future__ import annotations
@@ -33,6 +36,16 @@ def finite_or_none(value: Any) -> Any:
     if isinstance(value, (list, tuple)):
         return [finite_or_none(v) for v in value]
     return value
+
+
+def printable(text: str, limit: int = 400) -> str:
+    """``text`` from a peer, safe on a terminal: each character that is not printable (ESC, the
+    other controls, line breaks) as its Python escape, and at most ``limit`` characters of it."""
+    if len(text) > limit:
+        text = text[:limit] + f"... ({len(text)} characters)"
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
 def strict_json(value: Any, indent: int | None = None) -> str:

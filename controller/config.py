@@ -305,7 +305,9 @@ class MonitoringSection(Section, frozen=True):
     """Remote monitoring over Zenoh (controller/monitoring/): keys under ``<key_prefix>/<robot_id>/``."""
 
     enabled: bool = True
-    robot_id: str = ""  # "": <host>-<4 hex digits>, unique (controller/monitoring/robot_identity.py)
+    # "": <host>-<4 hex digits>, unique (controller/monitoring/robot_identity.py); at most 64
+    # characters (it names a file of the runtime directory, local_controllers.py)
+    robot_id: Annotated[str, msgspec.Meta(max_length=64)] = ""
     key_prefix: str = "cheope"
     publish_rate_hz: Annotated[float, rng(0.0, 4000.0, lo_open=True)] = 50.0  # >= loop rate: every cycle
     mode: Literal["peer", "client"] = "peer"

@@ -16,6 +16,7 @@ from dataclasses import asdict
 from typing import TYPE_CHECKING, TypeVar
 
 from controller.cli_arguments import positive_count, positive_seconds
+from controller.cli_output import printable
 from controller.config import ConfigError
 from controller.monitoring.command_gate import ALWAYS_ACCEPTED, GATED_COMMANDS
 from controller.monitoring.zenoh_session import (
@@ -168,8 +169,9 @@ def cmd_list(args: argparse.Namespace) -> int:
     print(f"{'robot id':<24} {'mode':<12} {'task':<10} {'up [s]':>9}  listening on")
     for c in found:
         up = f"{c.uptime_s:9.1f}" if c.uptime_s is not None else f"{'-':>9}"
+        endpoints = printable(", ".join(c.listen_endpoints)) or "-"  # the peer's text, made safe to print
         print(
-            f"{c.robot_id:<24} {c.mode or '?':<12} {c.task or '-':<10} {up}  {', '.join(c.listen_endpoints) or '-'}"
+            f"{c.robot_id:<24} {printable(c.mode) or '?':<12} {printable(c.task) or '-':<10} {up}  {endpoints}"
         )
     return 0
 
@@ -213,12 +215,14 @@ def cmd_status(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(d))
         return 0
-    print(f"robot               {status.robot_id} (cheope-controller {status.software_version})")
-    print(f"mode                {status.mode}, up {status.uptime_s:.1f} s")
-    print(f"listening on        {', '.join(status.listen_endpoints) or '-'}")
+    # every text of the answer is the peer's: made safe to print (cli_output.printable)
+    print(f"robot               {status.robot_id} (cheope-controller {printable(status.software_version)})")
+    print(f"mode                {printable(status.mode)}, up {status.uptime_s:.1f} s")
+    print(f"listening on        {printable(', '.join(status.listen_endpoints)) or '-'}")
     print(f"remote commands     {'enabled' if status.commands_enabled else 'stop only'}")
-    print("counters            " + ", ".join(f"{k} {v}" for k, v in sorted(status.counters.items())))
-    print("versions            " + ", ".join(status.versions))
+    counters = ", ".join(f"{k} {v}" for k, v in sorted(status.counters.items()))
+    print("counters            " + printable(counters, limit=2000))
+    print("versions            " + printable(", ".join(status.versions), limit=2000))
     print(f"configuration       {len(status.config_json)} bytes of JSON (--json prints it)")
     return 0
 
@@ -246,7 +250,7 @@ def _print_answer(args: argparse.Namespace, answers: list[tuple[str, bool, str]]
         return
     for robot_id, accepted, message in answers:
         print(
-            ("accepted by " if accepted else "refused by ") + f"{robot_id}: {message}",
+            ("accepted by " if accepted else "refused by ") + f"{robot_id}: {printable(message)}",
             file=sys.stdout if accepted else sys.stderr,
         )
 

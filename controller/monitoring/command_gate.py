@@ -41,7 +41,9 @@ def decide_command(
     if name == "stop":
         return CommandDecision(True, "stop accepted: the controller brings the robot to a controlled stop")
     if name not in GATED_COMMANDS:
-        return CommandDecision(False, f"unknown command {name!r}; known: stop, {', '.join(GATED_COMMANDS)}")
+        # at most 40 characters of it back: a 1-MB name was echoed whole (an outside tester's finding)
+        shown = repr(name) if len(name) <= 40 else f"{name[:40]!r}... ({len(name)} characters)"
+        return CommandDecision(False, f"unknown command {shown}; known: stop, {', '.join(GATED_COMMANDS)}")
     if not commands_enabled:
         return CommandDecision(
             False,

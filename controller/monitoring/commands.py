@@ -17,6 +17,7 @@ from typing import Any, TypeVar
 import zenoh
 from google.protobuf.message import DecodeError, Message
 
+from controller.cli_output import printable
 from controller.messages import cheope_pb2 as pb
 from controller.monitoring.robot_identity import live_robot_ids
 from controller.monitoring.zenoh_session import (
@@ -116,6 +117,8 @@ def status_config(status: pb.Status, key: str) -> dict[str, Any]:
         config = json.loads(status.config_json or "{}")
     except json.JSONDecodeError as err:
         raise MonitoringConnectionError(f"{key}: the status's config_json is not JSON ({err})") from err
+    except RecursionError:  # json nests recursively: '{"a":' * 5000 ended `cheope list` with a traceback
+        raise MonitoringConnectionError(f"{key}: the status's config_json nests too deeply") from None
     if not isinstance(config, dict):
         raise MonitoringConnectionError(
             f"{key}: the status's config_json is a JSON {type(config).__name__}, not an object"
@@ -135,8 +138,20 @@ def query_status(settings: SessionSettings, target: Target, timeout_s: float = 2
     with tool_session(settings) as session:
         keys = resolve(session, settings, target)
         status = decode_reply(pb.Status, _one_reply(session, settings, keys.status, timeout_s), keys.status)
+        own_status(status, keys)
         status_config(status, keys.status)
         return status
+
+
+def own_status(status: pb.Status, keys: MonitorKeys) -> None:
+    """``MonitoringConnectionError`` when the status on ``keys.status`` is another robot's: a peer
+    that serves the key shows its own (an outside tester's "PWNED") as the robot asked for."""
+    robot_id = keys.prefix.rsplit("/", 1)[1]
+    if status.robot_id != robot_id:
+        raise MonitoringConnectionError(
+            f"{keys.status} answered with the status of robot {printable(status.robot_id, 80)!r}, "
+            f"not {robot_id!r}: another process serves that key"
+        )
 
 
 def send_command(
@@ -199,6 +214,7 @@ def list_controllers(
                 st = decode_reply(
                     pb.Status, _one_reply(session, settings, keys.status, timeout_s), keys.status
                 )
+                own_status(st, keys)
                 task = task_kind(status_config(st, keys.status))
             except MonitoringConnectionError:
                 # alive but silent (busy, rate-limited) or answering what is no status: listed without details

@@ -25,6 +25,7 @@ import zenoh.ext
 from google.protobuf.json_format import MessageToDict
 from google.protobuf.message import DecodeError
 
+from controller.cli_output import printable
 from controller.messages import cheope_pb2 as pb
 from controller.monitoring.robot_identity import live_robot_ids
 from controller.monitoring.zenoh_session import (
@@ -40,6 +41,11 @@ from controller.monitoring.zenoh_session import (
 
 if TYPE_CHECKING:
     from rich.console import Group, RenderableType
+
+
+MAX_QUEUED = 4096  # samples waiting for the view; beyond, dropped and counted
+MAX_SAMPLE_BYTES = 1 << 16  # a state or event message is a few hundred bytes: larger ones are not kept
+MAX_ROBOTS = 256  # robots a fleet view shows
 
 
 @dataclass(frozen=True)
@@ -89,7 +95,11 @@ class MonitorClient:
         self.settings = settings
         self.keys = keys
         self.clock = clock
-        self._q: queue.SimpleQueue[tuple[int, str, object, float]] = queue.SimpleQueue()
+        # bounded: a peer that publishes faster than the view keeps up (or under thousands of
+        # ids) grew an unbounded queue to 1.7 GB in 10 s (an outside tester's finding)
+        self._q: queue.Queue[tuple[int, str, object, float]] = queue.Queue(MAX_QUEUED)
+        self.dropped = 0  # samples that found the queue full
+        self._dropped_told = 0
         self._session: zenoh.Session | None = None
         self._entities: list[ZenohEntity] = []
         self._event_keys: dict[str, str] = {}  # an events publisher's id -> its key (to place its misses)
@@ -117,20 +127,31 @@ class MonitorClient:
         self._session = None
 
     # Zenoh's threads: stamp and enqueue, nothing else.
+    def _put(self, item: tuple[int, str, object, float]) -> None:
+        try:
+            self._q.put_nowait(item)
+        except queue.Full:
+            self.dropped += 1
+
+    def _payload(self, s: zenoh.Sample) -> bytes | int:
+        """The sample's bytes, or its size when no state or event message is that large (not kept)."""
+        size = len(s.payload)
+        return s.payload.to_bytes() if size <= MAX_SAMPLE_BYTES else size
+
     def _on_state(self, s: zenoh.Sample) -> None:
-        self._q.put((0, str(s.key_expr), s.payload.to_bytes(), self.clock()))
+        self._put((0, str(s.key_expr), self._payload(s), self.clock()))
 
     def _on_event(self, s: zenoh.Sample) -> None:
-        if s.source_info is not None:
+        if s.source_info is not None and len(self._event_keys) < MAX_ROBOTS:
             self._event_keys[source_name(s.source_info.source_id)] = str(s.key_expr)
-        self._q.put((1, str(s.key_expr), s.payload.to_bytes(), self.clock()))
+        self._put((1, str(s.key_expr), self._payload(s), self.clock()))
 
     def _on_miss(self, miss: zenoh.ext.Miss) -> None:
         key = self._event_keys.get(source_name(miss.source), self.keys.events)
-        self._q.put((3, key, miss.nb, self.clock()))
+        self._put((3, key, miss.nb, self.clock()))
 
     def _on_alive(self, s: zenoh.Sample) -> None:
-        self._q.put((2, str(s.key_expr), s.kind == zenoh.SampleKind.PUT, self.clock()))
+        self._put((2, str(s.key_expr), s.kind == zenoh.SampleKind.PUT, self.clock()))
 
     def reachable(self) -> str:
         """Empty when a controller is there; else one line saying what was not found."""
@@ -148,10 +169,19 @@ class MonitorClient:
 
     def next_update(self, timeout_s: float) -> Update | None:
         """The next update, or None when nothing arrived within ``timeout_s``."""
+        if self.dropped != self._dropped_told:
+            lost, self._dropped_told = self.dropped - self._dropped_told, self.dropped
+            return UndecodableUpdate(
+                self.keys.prefix,
+                f"{lost} sample(s) dropped: more arrived than this monitor shows",
+                self.clock(),
+            )
         try:
             kind, key, data, at = self._q.get(timeout=max(0.0, timeout_s))
         except queue.Empty:
             return None
+        if isinstance(data, int) and kind in (0, 1):
+            return UndecodableUpdate(key, f"{data} bytes: larger than any cheope.v1 state or event", at)
         if kind == 2:
             return AliveUpdate(key, bool(data), at)
         if kind == 3:
@@ -238,6 +268,14 @@ def severity_name(value: int) -> str:
     return pb.Severity.Name(value) if value in pb.Severity.values() else f"severity {value}"
 
 
+def _safe(text: str) -> str:
+    """A peer's text in a rich table: its markup escaped ("[/bold]" ended the monitor) and its
+    control characters as escapes (an ESC from a peer cleared the user's terminal)."""
+    from rich.markup import escape
+
+    return escape(printable(text))
+
+
 def robot_of(key: str) -> str:
     """``<prefix>/<robot_id>/<leaf>`` -> ``robot_id``."""
     return key.rsplit("/", 2)[-2]
@@ -250,9 +288,14 @@ class FleetView:
     key_prefix: str
     robots: dict[str, ViewModel] = field(default_factory=dict)
 
+    unshown: int = 0  # updates of robots beyond MAX_ROBOTS, not shown
+
     def apply(self, u: Update) -> None:
         rid = robot_of(u.key)
         if rid not in self.robots:
+            if len(self.robots) >= MAX_ROBOTS:  # thousands of ids from one peer: a bounded table
+                self.unshown += 1
+                return
             self.robots[rid] = ViewModel(f"{self.key_prefix}/{rid}")
         self.robots[rid].apply(u)
 
@@ -263,7 +306,8 @@ def render_fleet(fleet: FleetView, now_s: float) -> RenderableType:
 
     if len(fleet.robots) == 1:
         return render(next(iter(fleet.robots.values())), now_s)
-    table = Table(title=f"controllers under {fleet.key_prefix}/ ({len(fleet.robots)})")
+    more = f", the first {MAX_ROBOTS} shown" if fleet.unshown else ""
+    table = Table(title=f"controllers under {fleet.key_prefix}/ ({len(fleet.robots)}{more})")
     for col in (
         "robot id",
         "alive",
@@ -278,7 +322,6 @@ def render_fleet(fleet: FleetView, now_s: float) -> RenderableType:
         table.add_column(col)
     if not fleet.robots:
         table.add_row("[yellow]waiting for a controller[/]", *([""] * 8))
-    from rich.markup import escape
 
     # every text a peer sent is shown as it is, never read as rich markup ("[/bold]" in a mode or
     # an event message raised MarkupError and ended the monitor)
@@ -286,18 +329,18 @@ def render_fleet(fleet: FleetView, now_s: float) -> RenderableType:
         s = view.last_state
         alive = {None: "?", True: "[green]yes[/]", False: "[red]gone[/]"}[view.alive]
         if s is None:
-            table.add_row(escape(rid), alive, *([""] * 7))
+            table.add_row(_safe(rid), alive, *([""] * 7))
             continue
         table.add_row(
-            escape(rid),
+            _safe(rid),
             alive,
-            escape(s.mode),
-            escape(f"{s.task or '-'} / {s.task_phase or '-'}"),
+            _safe(s.mode),
+            _safe(f"{s.task or '-'} / {s.task_phase or '-'}"),
             str(s.cycle),
             f"{s.loop.achieved_rate_hz:.1f}",
             str(s.loop.late_cycles),
             f"{view.sample_rate_hz(now_s):.1f}",
-            escape("; ".join(s.alarms)) or "none",
+            _safe("; ".join(s.alarms)) or "none",
         )
     return table
 
@@ -316,7 +359,7 @@ def render(view: ViewModel, now_s: float) -> Group:
     head = Table.grid(padding=(0, 2))
     head.add_column(style="bold")
     head.add_column()
-    head.add_row("controller", f"{escape(view.prefix)}  {status}")
+    head.add_row("controller", f"{_safe(view.prefix)}  {status}")
     s = view.last_state
     head.add_row(
         "samples",
@@ -331,7 +374,7 @@ def render(view: ViewModel, now_s: float) -> Group:
             f"p99 {s.loop.period_error_p99_us:.0f} µs, late {s.loop.late_cycles} cycles, missing frames "
             f"{s.loop.missing_drive_frames} drive / {s.loop.missing_sensor_frames} sensor",
         )
-        head.add_row("mode", escape(f"{s.mode}   task {s.task or '-'}   phase {s.task_phase or '-'}"))
+        head.add_row("mode", _safe(f"{s.mode}   task {s.task or '-'}   phase {s.task_phase or '-'}"))
         head.add_row("cycle", f"{s.cycle}   t {s.t_s:.3f} s")
         head.add_row("TCP", _vec(s.tcp_m, 1e3, "mm"))
         head.add_row("force", _vec(s.force_n, 1.0, "N"))
@@ -344,12 +387,12 @@ def render(view: ViewModel, now_s: float) -> Group:
         parts.append(axes)
         parts.append(
             Panel(
-                escape("\n".join(s.alarms)) if s.alarms else "none",
+                escape("\n".join(printable(a) for a in s.alarms)) if s.alarms else "none",
                 title="alarms",
                 style="red" if s.alarms else "green",
             )
         )
-    parts.append(Panel(escape("\n".join(view.events)) or "-", title="events"))
+    parts.append(Panel(escape("\n".join(printable(e) for e in view.events)) or "-", title="events"))
     return Group(*parts)
 
 

@@ -34,6 +34,7 @@ from controller.monitoring.local_controllers import announced_elsewhere
 
 ALIVE_TIMEOUT_S = 1.0  # how long a liveliness query waits for the sessions it reaches
 _NOT_IN_AN_ID = re.compile(r"[^A-Za-z0-9_.\-]+")
+_ROBOT_ID = re.compile(r"[A-Za-z0-9_.\-]+")  # what MonitorKeys.for_robot accepts
 _DRAWS = 4
 
 
@@ -61,7 +62,11 @@ def live_robot_ids(
     depth = key_prefix.count("/") + 1
     for reply in session.liveliness().get(f"{key_prefix}/{robot_id}/alive", timeout=timeout_s):
         if reply.ok is not None:
-            ids.add(str(reply.ok.key_expr).split("/")[depth])
+            chunks = str(reply.ok.key_expr).split("/")
+            # a token no controller declares (cheope/*/alive, cheope/**, "a b") names no robot a
+            # tool can address: before, its id ended `cheope list` and `stop --all` for every robot
+            if len(chunks) == depth + 2 and _ROBOT_ID.fullmatch(chunks[depth]):
+                ids.add(chunks[depth])
     return sorted(ids)
 
 

@@ -21,11 +21,13 @@ from controller.assembly import build_law
 from controller.config import load_config
 from controller.core.cycle_data import CycleInputs, CycleOutputs, DriveFeedback, Event, Severity
 from controller.core.ports import CycleTiming
+from controller.messages import cheope_pb2 as pb
 from controller.monitoring import local_controllers
 from controller.monitoring.monitor_view import (
     EventUpdate,
     MissedEventsUpdate,
     MonitorClient,
+    UndecodableUpdate,
     ViewModel,
     update_to_json,
 )
@@ -189,3 +191,48 @@ def test_the_event_publisher_still_serves_a_plain_zenoh_subscriber():
             sub.undeclare()
             session.close()
         assert got and str(got[0].encoding).endswith("cheope.v1.Event")
+
+
+def test_a_hostile_peer_neither_breaks_the_tools_nor_passes_for_another_robot():
+    """A peer beside a real controller: a liveliness token no controller declares, a robot whose
+    status names another robot and whose mode carries terminal escapes, and a state sample of
+    100 kB. Before (an outside tester's findings): `cheope list` and `stop --all` ended on the
+    token's id for every robot, `cheope status` showed the impostor's status, its ESC reached
+    the terminal, and the monitor's queue grew without a bound."""
+    with _publisher("real-bot") as pub:
+        peer_at = f"tcp/127.0.0.1:{free_loopback_port()}"  # peers do not route for each other: the monitor asks both
+        peer, _ = open_session(SessionSettings(mode="peer", listen=(peer_at,), connect=pub.listen_endpoints))
+        impostor = pb.Status(robot_id="real-bot", mode="PWNED\x1b[2J").SerializeToString()
+        try:
+            tokens = [peer.liveliness().declare_token(k) for k in ("cheope/*/alive", "cheope/fake/alive")]
+            served = peer.declare_queryable(
+                "cheope/fake/status", lambda q: q.reply(q.key_expr, impostor), complete=True
+            )
+            both = ("--zenoh-connect", pub.listen_endpoints[0])
+            listed = subprocess.run(
+                [sys.executable, "-m", "controller", "list", "--json", *both],
+                capture_output=True, text=True, timeout=60, check=False,
+            )  # fmt: skip
+            assert listed.returncode == 0, listed.stderr
+            rows = {c["robot_id"]: c for c in json.loads(listed.stdout)}
+            assert sorted(rows) == ["fake", "real-bot"]  # the wildcard token names no robot
+            assert rows["fake"]["mode"] == "" and rows["real-bot"]["mode"] != ""  # the impostor's not shown
+            status = subprocess.run(
+                [sys.executable, "-m", "controller", "status", "--robot-id", "fake", *both],
+                capture_output=True, text=True, timeout=60, check=False,
+            )  # fmt: skip
+            assert status.returncode != 0 and "the status of robot 'real-bot', not 'fake'" in status.stderr
+            assert "\x1b" not in status.stdout + status.stderr
+            keys = MonitorKeys.for_robot("cheope", "*", allow_wildcard=True)
+            with MonitorClient(monitor_settings((*pub.listen_endpoints, peer_at)), keys) as client:
+                deadline = time.monotonic() + 20.0
+                seen: list[object] = []
+                while time.monotonic() < deadline and not any(isinstance(u, UndecodableUpdate) for u in seen):
+                    peer.put("cheope/fake/state", bytes(100_000))
+                    seen += [u for u in iter(lambda: client.next_update(0.05), None)]
+            big = [u for u in seen if isinstance(u, UndecodableUpdate)]
+            assert big and big[0].reason == "100000 bytes: larger than any cheope.v1 state or event"
+        finally:
+            for entity in (*tokens, served):
+                entity.undeclare()
+            peer.close()
