@@ -692,4 +692,6 @@ def parse_override(text: str) -> tuple[str, Any]:
         value = tomllib.loads(f"v = {raw}")["v"]
     except tomllib.TOMLDecodeError:
         value = raw  # a bare word is taken as a string
+    except ValueError as err:  # an integer of over 4 300 digits: Python's own limit, in its words
+        raise ConfigError(f"--set {key.strip()}: {err}") from None
     return key.strip(), value

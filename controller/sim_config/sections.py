@@ -60,14 +60,14 @@ class SimQuirkSection(Section, frozen=True):
     bus_off_after_s: Annotated[float, rng(0.0, 3600.0)] = 2.0  # bus_off: error passive, after the first SYNC
     error_passive_s: Annotated[float, rng(0.0, 60.0)] = 0.2  # then bus-off this much later
     bus_off_restart_s: Annotated[float, rng(0.0, 60.0)] = 0.5  # and the bus restarted after this
-    seed: int = 3  # slow_sdo's delays
+    seed: Annotated[int, rng(0, 2**32 - 1)] = 3  # slow_sdo's delays (numpy's seeds are unsigned)
 
 
 class SimSensorSection(Section, frozen=True):
     noise_std_n: Annotated[float, rng(0.0, 100.0)] = 0.05
     bias_n: tuple[float, float, float] = (0.10, -0.05, 0.02)
     range_n: Annotated[float, rng(0.0, 327.0, lo_open=True)] = 300.0
-    seed: int = 1
+    seed: Annotated[int, rng(0, 2**32 - 1)] = 1
     sample_rate_hz: Annotated[float, rng(1.0, 100000.0)] = 1000.0
     bandwidth_hz: Annotated[float, rng(0.1, 100000.0)] = 200.0
 
@@ -129,7 +129,7 @@ class SimTrackerSection(Section, frozen=True):
     rate_hz: Annotated[float, rng(0.1, 10000.0)] = 100.0  # samples a second (at most one per SYNC)
     position_noise_m: Annotated[float, rng(0.0, 0.01)] = 5.0e-5  # standard deviation of each coordinate
     angle_noise_rad: Annotated[float, rng(0.0, 0.1)] = 2.0e-4  # of each rotation-vector component
-    seed: int = 2
+    seed: Annotated[int, rng(0, 2**32 - 1)] = 2
 
 
 class SimSection(Section, frozen=True):

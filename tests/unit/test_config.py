@@ -40,6 +40,7 @@ def test_shipped_defaults_load(cfg):
         ),
         ({"sim.sensor.bias_n": [0.0, 0.0, float("-inf")]}, r"sim.sensor.bias_n\[2\] = -inf: must be finite"),
         ({"sim.drive.limit_switches_m": [0.88, 0.32]}, r"negative switch must lie below the positive one"),
+        ({"sim.sensor.seed": -1}, r"sim.sensor.seed = -1: must be >= 0"),  # numpy's own error named no key
         ({"sim.drive.cogging_period_m": 0.0}, r"sim.drive.cogging_period_m = 0.0: must be > 0.0"),
         ({"sim.drive.cogging_force_n": -1.0}, r"sim.drive.cogging_force_n = -1.0: must be >= 0.0"),
         ({"sim.structure_inertial_load": 1}, r"sim.structure_inertial_load = 1: expected true or false"),
@@ -147,3 +148,10 @@ def test_an_older_file_s_robot_margins_and_mass_are_cheope_s():
     )
     with pytest.raises(ConfigError, match=r"unknown key\(s\) bogus"):
         config_from_dict({"robot": {"mass": {"bogus": 1.0}}})
+
+
+def test_an_override_of_an_integer_too_long_to_read_names_the_key():
+    from controller.config import parse_override
+
+    with pytest.raises(ConfigError, match=r"--set loop.rate_hz: Exceeds the limit"):
+        parse_override("loop.rate_hz=" + "9" * 5000)
