@@ -100,9 +100,9 @@ def test_the_controller_goes_real_time_after_the_set_up_and_the_garbage_collecti
     calls: list[str] = []
     configure = service.configure_nodes
 
-    def configure_nodes(bus, plan):
+    def configure_nodes(bus, plan, stop=None):
         calls.append("devices configured")
-        return configure(bus, plan)
+        return configure(bus, plan, stop)
 
     def apply(options):
         calls.append("real-time")
