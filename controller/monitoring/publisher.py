@@ -176,6 +176,7 @@ class MonitorPublisher:
         self._entities: list[ZenohEntity] = []
         self._servers: list[QueryServer] = []
         self._static_status = b""  # the Status fields fixed for the run, serialised once
+        self._command_encoding = str(encoding_for("Command"))  # what a command query may say it carries
         self._announcement: Path | None = None  # local_controllers.py: this user's tools find it
 
     # -- lifecycle --------------------------------------------------------------------------
@@ -438,6 +439,13 @@ class MonitorPublisher:
     def _on_command(self, query: zenoh.Query) -> bool:
         if not self._names_this_robot(query, self.settings.keys.command):
             return False
+        said = str(query.encoding) if query.encoding is not None else ""
+        if said.startswith("application/protobuf;") and said != self._command_encoding:
+            # another message that parses as a Command (a Status whose robot_id is "stop" read as
+            # a stop: an outside tester's finding); a payload without that encoding is read as before
+            return self._refuse_command(
+                query, f"payload is a {said.partition(';')[2][:60]}, not a cheope.v1.Command"
+            )
         try:
             cmd = pb.Command.FromString(query.payload.to_bytes() if query.payload is not None else b"")
             decision = (
@@ -462,11 +470,19 @@ class MonitorPublisher:
             )  # rate-limited: see the server
         else:
             self.commands_refused += 1
+        self._reply_command(query, decision)
+        return decision.accepted
+
+    def _refuse_command(self, query: zenoh.Query, why: str) -> bool:
+        self.commands_refused += 1
+        self._reply_command(query, CommandDecision(False, why))
+        return False
+
+    def _reply_command(self, query: zenoh.Query, decision: CommandDecision) -> None:
         reply = pb.CommandReply(accepted=decision.accepted, message=decision.message)
         query.reply(
             self.settings.keys.command, reply.SerializeToString(), encoding=encoding_for("CommandReply")
         )
-        return decision.accepted
 
 
 def _efforts(inputs: CycleInputs) -> list[float]:

@@ -38,6 +38,7 @@ from controller.monitoring.zenoh_session import (
     MonitorKeys,
     SessionSettings,
     client_settings,
+    encoding_for,
     free_loopback_port,
     monitor_settings,
     open_session,
@@ -236,3 +237,28 @@ def test_a_hostile_peer_neither_breaks_the_tools_nor_passes_for_another_robot():
             for entity in (*tokens, served):
                 entity.undeclare()
             peer.close()
+
+
+def test_a_command_query_that_says_it_carries_another_message_is_refused():
+    """A Status whose robot_id is "stop" parses as a Command named "stop" (field 1 both): sent as
+    a Status, it stopped the robot (an outside tester's finding). The encoding a query states is
+    checked; a payload without one is read as a Command, as before."""
+    with _publisher("typed-bot") as pub:
+        keys = pub.settings.keys
+        session, _ = open_session(SessionSettings(mode="client", connect=pub.listen_endpoints))
+        try:
+
+            def ask(payload: bytes, encoding: object = None) -> pb.CommandReply:
+                options = {"encoding": encoding} if encoding is not None else {}
+                replies = [r.ok for r in session.get(keys.command, payload=payload, timeout=10.0, **options)]
+                assert len(replies) == 1 and replies[0] is not None
+                return pb.CommandReply.FromString(replies[0].payload.to_bytes())
+
+            status = pb.Status(robot_id="stop").SerializeToString()
+            refused = ask(status, encoding_for("Status"))
+            assert not refused.accepted and "cheope.v1.Status, not a cheope.v1.Command" in refused.message
+            assert not pub.stop_event.is_set()
+            assert ask(pb.Command(name="stop").SerializeToString(), encoding_for("Command")).accepted
+            assert pub.stop_event.is_set()
+        finally:
+            session.close()
