@@ -39,7 +39,7 @@ import can
 from controller.errors import InputError
 from logs import messages as m
 from logs.bus_traffic import RecordedFrame, as_message, recorded_frames
-from logs.reader import ReadReport
+from logs.reader import ReadReport, same_file
 
 FORMATS = ("asc", "blf", "log", "trc", "csv", "mf4")
 PROGRESS_EVERY_FRAMES = 2000
@@ -133,7 +133,7 @@ def export_frames(
         raise ExportError(f"--format {fmt!r}: must be one of {', '.join(FORMATS)}")
     path = Path(path)
     target = Path(out) if out else default_output(path, fmt)
-    if target.resolve() == path.resolve():
+    if same_file(path, target):
         raise ExportError(f"-o {target}: is the recording itself")
     report = ReadReport(path)
     unwritable = _UNWRITABLE.get(fmt, ())

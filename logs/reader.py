@@ -70,6 +70,19 @@ class LogFileError(InputError):
     """The file cannot be read as an MCAP recording at all (missing, unreadable, not MCAP)."""
 
 
+def same_file(recording: Path, output: Path) -> bool:
+    """Whether ``output`` names the file ``recording`` is, by any path: the same path, a symbolic
+    link, and also a hard link or a bind mount (by device and inode), which a comparison of the
+    paths missed: an export written "beside" it overwrote the recording (an outside tester's
+    finding)."""
+    if recording.resolve() == output.resolve():
+        return True
+    try:
+        return os.path.samefile(recording, output)
+    except OSError:  # the output does not exist yet (the recording's own errors are its reader's)
+        return False
+
+
 @dataclass
 class ReadReport:
     """What a walk through a recording found; filled in while iterating."""

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from mcap.writer import CompressionType, Writer
 
-from logs.reader import LogFileError, ReadReport, iter_messages
+from logs.reader import LogFileError, ReadReport, iter_messages, same_file
 
 
 @dataclass(frozen=True)
@@ -32,7 +32,7 @@ def recover(src: str | Path, out: str | Path | None = None) -> RecoveryResult:
     """Write ``out`` (default ``FILE.recovered.mcap`` beside it) from what is readable in ``src``."""
     src = Path(src)
     dst = Path(out) if out is not None else default_output(src)
-    if dst.resolve() == src.resolve():
+    if same_file(src, dst):
         raise LogFileError(f"recover {src}: the output must be a new file, not the damaged one")
     report = ReadReport(src)
     try:

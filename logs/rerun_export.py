@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from logs import messages as m
-from logs.reader import LogFileError, ReadReport, iter_decoded, read_info
+from logs.reader import LogFileError, ReadReport, iter_decoded, read_info, same_file
 from logs.robot_drawing import FORCE_ARROW_M_PER_N
 from logs.scene_sampler import SceneFrame, SceneSampler
 
@@ -175,6 +175,8 @@ def export(
     import rerun as rr
 
     path = Path(path)
+    if out is not None and same_file(path, Path(out)):
+        raise LogFileError(f"--rerun {out}: is the recording itself")
     report = ReadReport(path)
     cfg = _config(leading_metadata(path))
     sampler = None if cfg is None else SceneSampler.for_config(cfg, SCENE_RATE_HZ)

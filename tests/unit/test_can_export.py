@@ -151,6 +151,26 @@ def test_an_output_that_cannot_be_written_is_one_line_and_exit_2(recording, tmp_
     )
 
 
+def test_an_output_that_is_the_recording_by_another_name_is_refused(recording, tmp_path: Path):
+    """A hard link to the recording (or a bind mount of its directory) is the same file by another
+    path: the export, the recovery and the Rerun file overwrote the recording (an outside tester's
+    finding; a comparison of the paths caught only the same path and symbolic links)."""
+    path, _ = recording
+    copy = tmp_path / "copy.mcap"
+    copy.write_bytes(path.read_bytes())
+    for name, args in (
+        ("other.csv", ("logs", "export", str(copy), "--format", "csv", "-o")),
+        ("other.mcap", ("logs", "recover", str(copy), "-o")),
+        ("other.rrd", ("replay", str(copy), "--rerun")),
+    ):
+        link = tmp_path / name
+        link.hardlink_to(copy)
+        r = _cheope(*args, str(link))
+        assert r.returncode == 2 and copy.read_bytes()[:5] == b"\x89MCAP", (name, r.stderr)
+        assert "is the recording itself" in r.stderr or "not the damaged one" in r.stderr, r.stderr
+        link.unlink()
+
+
 def _cheope(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [sys.executable, "-m", "controller", *args], capture_output=True, text=True, check=False, timeout=60
