@@ -20,6 +20,17 @@ from types import FrameType
 
 SignalCallback = Callable[[int], None]  # the signal's number
 
+# The signals that ask for an orderly stop: Ctrl-C, a service manager's stop, and a hang-up (the
+# terminal closed, an SSH session dropped), which ended `cheope run` mid-motion with no stop of its
+# own (the drives quick-stopped on their SYNC watchdog; an outside tester's finding). A hang-up
+# that was ignored when the process started (``nohup``) stays ignored (``stop_signals``).
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+def stop_signals() -> tuple[signal.Signals, ...]:
+    """``_STOP_SIGNALS`` less those ignored since the process started (SIGHUP under ``nohup``)."""
+    return tuple(s for s in _STOP_SIGNALS if s == signal.SIGINT or signal.getsignal(s) is not signal.SIG_IGN)
+
 
 class _SignalRelay:
     """The pipe from the handlers to the relay thread (one a process)."""
@@ -59,8 +70,8 @@ def route_signals(signals: Iterable[int], callback: SignalCallback) -> None:
         signal.signal(sig, _relay.handler)
 
 
-def stop_event_on_signals(signals: Iterable[int] = (signal.SIGINT, signal.SIGTERM)) -> threading.Event:
-    """An event that ``signals`` set (tools without drives to stop: sim, replay, router)."""
+def stop_event_on_signals(signals: Iterable[int] | None = None) -> threading.Event:
+    """An event that ``signals`` (default: ``stop_signals()``) set (sim, replay, router, demo)."""
     stop = threading.Event()
-    route_signals(signals, lambda _: stop.set())
+    route_signals(stop_signals() if signals is None else signals, lambda _: stop.set())
     return stop

@@ -1,4 +1,4 @@
-"""SIGTERM and SIGINT as stop requests: the first stops under control, the second quick-stops.
+"""SIGTERM, SIGINT and SIGHUP as stop requests: the first stops under control, the second quick-stops.
 
 A service manager (systemd: ``KillSignal=SIGTERM``, then SIGKILL after ``TimeoutStopSec``)
 and a user at the terminal (Ctrl-C) both send one signal and expect an orderly end: the loop
@@ -13,7 +13,7 @@ import signal
 import threading
 from dataclasses import dataclass, field
 
-from controller.signal_relay import route_signals
+from controller.signal_relay import route_signals, stop_signals
 
 
 @dataclass
@@ -27,10 +27,9 @@ class StopSignals:
         self.stop.set()
 
 
-def install_stop_signals(
-    signals: tuple[signal.Signals, ...] = (signal.SIGINT, signal.SIGTERM),
-) -> StopSignals:
-    """Route ``signals`` to a new ``StopSignals`` (call from the main thread)."""
+def install_stop_signals(signals: tuple[signal.Signals, ...] | None = None) -> StopSignals:
+    """Route ``signals`` (default: ``signal_relay.stop_signals()``, SIGHUP with them) to a new
+    ``StopSignals`` (call from the main thread)."""
     handler = StopSignals()
-    route_signals(signals, handler.on_signal)
+    route_signals(stop_signals() if signals is None else signals, handler.on_signal)
     return handler

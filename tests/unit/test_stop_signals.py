@@ -48,3 +48,29 @@ def test_a_signal_while_the_main_thread_holds_the_events_lock_stops_without_a_de
     assert r.returncode == 0, r.stderr
     assert r.stdout.splitlines()[0] == "handlers returned"
     assert r.stdout.splitlines()[-1] in ("stop, then quick stop", "stop")
+
+
+def test_a_hang_up_stops_as_sigterm_does_unless_it_was_ignored_at_start() -> None:
+    """A closed terminal or a dropped SSH session (SIGHUP) ended `cheope run` mid-motion with no
+    stop of its own (an outside tester's finding); under `nohup` it stays ignored."""
+    script = textwrap.dedent("""
+        import signal
+        from controller.shell.stop_signals import install_stop_signals
+        s = install_stop_signals()
+        signal.raise_signal(signal.SIGHUP)
+        print("stopped" if s.stop.wait(30) else "not stopped")
+    """)
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and r.stdout.strip() == "stopped", r.stderr
+    ignored = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import signal; signal.signal(signal.SIGHUP, signal.SIG_IGN); exec(open(0).read())",
+        ],
+        input=script.replace("s.stop.wait(30)", "s.stop.wait(1)"),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert ignored.returncode == 0 and ignored.stdout.strip() == "not stopped", ignored.stderr
