@@ -475,19 +475,28 @@ def run_exit_code(summary: dict[str, Any]) -> int:
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
+    from controller.child_process import end_with_parent, parent_is_gone
     from sim_backend.process import serve
 
+    stop = stop_event_on_signals()
+    end_with_parent()  # a demo's simulator: its demo's end, even by SIGKILL, stops it (a SIGTERM)
     cfg = _config(args)
-    serve(
-        cfg,
-        _spec(args, cfg),
-        stop_event_on_signals(),
-        (lambda line: print(json.dumps({"line": line}), flush=True))
-        if args.json
-        else (lambda line: print(line, flush=True)),
-        _realtime(args, simulator=True),
-        true_force_tap=args.true_force_tap,
-    )
+    try:
+        serve(
+            cfg,
+            _spec(args, cfg),
+            stop,
+            (lambda line: print(json.dumps({"line": line}), flush=True))
+            if args.json
+            else (lambda line: print(line, flush=True)),
+            _realtime(args, simulator=True),
+            true_force_tap=args.true_force_tap,
+        )
+    finally:
+        if args.true_force_tap and parent_is_gone():
+            # its reader, the demo, was killed: nobody else removes the block (and the last line
+            # to the demo's closed pipe may have raised on the way here)
+            Path(args.true_force_tap).unlink(missing_ok=True)
     return 0
 
 

@@ -19,7 +19,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from controller.child_process import child_environment, python_module_command
+from controller.child_process import child_environment, ending_with_parent, python_module_command
 from controller.compiled_law import LAW_BUILD
 from controller.config import Config
 from controller.core.ports import CycleObserver
@@ -80,7 +80,7 @@ def simulator_process(
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        env=child_environment(PYTHONUNBUFFERED="1"),
+        env=child_environment(PYTHONUNBUFFERED="1", **ending_with_parent()),
     )
     try:
         _wait_ready(proc, ready_timeout_s)

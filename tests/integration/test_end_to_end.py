@@ -368,3 +368,46 @@ def test_a_demo_started_inside_another_checkout_runs_its_own_code(tmp_path: Path
     s = json.loads(r.stdout)
     assert s["final_mode"] == "DONE"
     assert s["recording"]["written"] > 0 and not s["recording"]["error"]
+
+
+def _simulator_of(demo_pid: int) -> int | None:
+    """The pid of the `cheope sim` a demo started (its child), None before it has one."""
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            stat = Path(f"/proc/{entry}/stat").read_text().rsplit(")", 1)[1].split()
+            cmdline = Path(f"/proc/{entry}/cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if int(stat[1]) == demo_pid and b"sim" in cmdline and b"controller" in cmdline:
+            return int(entry)
+    return None
+
+
+def test_a_demo_killed_with_sigkill_takes_its_simulator_and_shared_block_with_it():
+    """Its simulator ran on under init for ever (390 MB) with its /dev/shm block: an outside
+    tester's finding. The simulator now gets a SIGTERM when its demo ends, and removes the block
+    the demo can no longer remove."""
+    from waiting import wait_for_exit
+
+    from sim_backend.true_force_tap import tap_path
+
+    demo = _half_lap_path_demo()
+    sim_pid = None
+    try:
+        sim_pid = wait_until(lambda: _simulator_of(demo.pid), "the demo's simulator started")
+        block = wait_until(
+            lambda: next(iter(tap_path("x").parent.glob(f"cheope-true-force-{demo.pid}-*")), None),
+            "the demo's true-force block",
+        )
+        demo.kill()
+        demo.communicate(timeout=60)
+        wait_for_exit(sim_pid, "the orphaned simulator")
+        assert not block.exists()
+    finally:
+        if demo.poll() is None:
+            demo.kill()
+            demo.communicate(timeout=60)
+        if sim_pid is not None and _simulator_of(1) == sim_pid:  # still there under init: do not leak it
+            os.kill(sim_pid, 9)
