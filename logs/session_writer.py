@@ -334,11 +334,14 @@ class SessionWriter:
         self._retain()
 
     def _retain(self) -> None:
-        """recording.keep_total_size_gb: the oldest recordings of the directory go first."""
+        """recording.keep_total_size_gb: the oldest recordings of the directory go first, this
+        session's earlier files too (each later file starts from a keyframe); never the open one.
+        Keeping every file of the session (before) let a service's session of hourly files grow
+        past the limit until min_free_space_mb stopped it (an outside tester's finding)."""
         if not self.limits.keep_total_bytes:
             return
         for path, size in enforce_retention(
-            os.path.dirname(self.path) or ".", self.limits.keep_total_bytes, set(self.files)
+            os.path.dirname(self.path) or ".", self.limits.keep_total_bytes, {self.path}
         ):
             self.deleted.append(path)
             self._event(

@@ -471,3 +471,28 @@ def test_a_record_the_writer_cannot_read_stops_the_recording_with_the_file_whole
     assert len(stopped) == 1 and stopped[0].startswith("a record of 5 bytes could not be read (")
     info = read_info(path)
     assert info.complete and info.message_counts[m.TOPIC_CYCLE] == 2
+
+
+def test_the_retention_deletes_a_sessions_own_older_files_never_the_open_one(tmp_path, monkeypatch):
+    """A long session (a service's, in hourly files) is held to recording.keep_total_size_gb too:
+    every file of the session was kept, and it grew until min_free_space_mb stopped it."""
+    import logs.session_writer as session_writer
+
+    files, _, _ = split_session(tmp_path / "session")
+    writer = session_writer.SessionWriter(
+        {
+            "path": str(tmp_path / "session" / "cheope-20260101-000100.mcap"),  # a new file beside them
+            "clock_offset_ns": 0,
+            "chunk_size_bytes": 8192,
+            "flush_interval_s": 1.0,
+            "compression": "none",
+            "metadata": {},
+        }
+    )
+    writer.files = [str(f) for f in files] + [writer.path]  # the session so far, the open file last
+    writer.limits = FileLimits(keep_total_bytes=1)
+    monkeypatch.setattr(session_writer, "OPEN_FILE_AGE_S", 0.0)  # in a real session they are minutes old
+    writer._retain()
+    assert sorted(writer.deleted) == sorted(str(f) for f in files) and not any(f.exists() for f in files)
+    assert Path(writer.path).exists()
+    writer.finish(None, 0)
