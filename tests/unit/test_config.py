@@ -41,6 +41,7 @@ def test_shipped_defaults_load(cfg):
         ({"sim.sensor.bias_n": [0.0, 0.0, float("-inf")]}, r"sim.sensor.bias_n\[2\] = -inf: must be finite"),
         ({"sim.drive.limit_switches_m": [0.88, 0.32]}, r"negative switch must lie below the positive one"),
         ({"sim.sensor.seed": -1}, r"sim.sensor.seed = -1: must be >= 0"),  # numpy's own error named no key
+        ({"recording.buffer_bytes": 4096}, r"recording.buffer_bytes = 4096: must be >= 65536"),
         ({"sim.drive.cogging_period_m": 0.0}, r"sim.drive.cogging_period_m = 0.0: must be > 0.0"),
         ({"sim.drive.cogging_force_n": -1.0}, r"sim.drive.cogging_force_n = -1.0: must be >= 0.0"),
         ({"sim.structure_inertial_load": 1}, r"sim.structure_inertial_load = 1: expected true or false"),
