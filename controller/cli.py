@@ -432,7 +432,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             _status_observers(status, cfg),
         )
     _print_summary(summary, args.json)
-    return 0 if summary["final_mode"] == "DONE" else 1
+    return run_exit_code(summary)  # as `cheope run`: a lost recording is 3 (it was 0 for a demo)
 
 
 def cmd_run(args: argparse.Namespace) -> int:

@@ -367,6 +367,21 @@ class SessionWriter:
             self.pending = 0
             self.last_flush = time.monotonic()
             self._guard_free_space()
+            self._guard_removed()
+
+    def _guard_removed(self) -> None:
+        """A file removed while it is written (its directory deleted) takes every later byte into
+        nothing: the recording stops, named, and ``recording.on_failure`` decides. Before, the
+        run ended DONE, exit 0, its summary naming a file that no longer existed (an outside
+        tester's finding). One ``fstat`` a chunk."""
+        if self.stopped:
+            return
+        try:
+            removed = os.fstat(self.stream.fileno()).st_nlink == 0
+        except (OSError, ValueError):
+            return
+        if removed:
+            self.stop(f"{self.path} was removed while it was written: recording stopped")
 
     def _guard_free_space(self) -> None:
         """Below recording.min_free_space_mb the recording stops, the file closed cleanly while it can be."""

@@ -411,3 +411,48 @@ def test_a_demo_killed_with_sigkill_takes_its_simulator_and_shared_block_with_it
             demo.communicate(timeout=60)
         if sim_pid is not None and _simulator_of(1) == sim_pid:  # still there under init: do not leak it
             os.kill(sim_pid, 9)
+
+
+def test_a_demo_whose_recording_is_lost_exits_3_as_a_run_does(tmp_path: Path):
+    """Its recording's directory removed mid-run (the next file cannot be created): `cheope run`
+    exited 3, `cheope demo` 0 (an outside tester's finding)."""
+    import shutil
+
+    sessions = tmp_path / "sessions"
+    demo = subprocess.Popen(
+        [
+            *CHEOPE,
+            "demo",
+            "--task",
+            "path",
+            "--json",
+            "--set",
+            "task.path.laps=1",
+            "--set",
+            f'recording.directory="{sessions}"',
+            "--set",
+            "recording.max_file_duration_s=0.5",
+            "--set",
+            "recording.flush_interval_s=0.2",
+            "--udp-port",
+            str(_port()),
+            *TOLERANT,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        wait_until(
+            lambda: demo.poll() is not None or len(list(sessions.glob("*.mcap"))) >= 2,
+            "the recording's second file",
+        )
+        assert demo.poll() is None, demo.communicate()
+        shutil.rmtree(sessions)
+        out, err = demo.communicate(timeout=120)
+    finally:
+        if demo.poll() is None:
+            demo.kill()
+            demo.communicate(timeout=60)
+    summary = json.loads(out)
+    assert summary["recording"]["error"] and demo.returncode == 3, err

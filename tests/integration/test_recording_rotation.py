@@ -496,3 +496,30 @@ def test_the_retention_deletes_a_sessions_own_older_files_never_the_open_one(tmp
     assert sorted(writer.deleted) == sorted(str(f) for f in files) and not any(f.exists() for f in files)
     assert Path(writer.path).exists()
     writer.finish(None, 0)
+
+
+def test_a_file_removed_while_it_is_written_stops_the_recording_and_says_so(tmp_path):
+    """Its directory deleted mid-run: the run ended DONE and exit 0, naming a file that was gone."""
+    import logs.session_writer as session_writer
+
+    said: list[dict[str, object]] = []
+    writer = session_writer.SessionWriter(
+        {
+            "path": str(tmp_path / "cheope-20260101-000000.mcap"),
+            "clock_offset_ns": 0,
+            "chunk_size_bytes": 1 << 20,
+            "flush_interval_s": 0.0,  # every maybe_flush flushes
+            "compression": "none",
+            "metadata": {},
+        },
+        lambda **fields: said.append(fields),
+    )
+    writer._event("note", "before")  # something to flush
+    writer.maybe_flush()
+    assert not writer.stopped
+    Path(writer.path).unlink()
+    writer._event("note", "after")
+    writer.maybe_flush()
+    assert "was removed while it was written" in writer.stopped
+    assert said and "was removed" in str(said[-1].get("stopped"))
+    writer.finish(None, 0)
