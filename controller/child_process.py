@@ -61,7 +61,8 @@ def end_with_parent() -> None:
         return
     try:
         libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+        if libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0) != 0:
+            return  # refused (errno): the child lives as before
     except (OSError, AttributeError):
         return
     if os.getppid() != int(parent):  # gone before the prctl: the signal would never come

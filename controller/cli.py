@@ -457,7 +457,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 EXIT_DONE, EXIT_FAULT, EXIT_REFUSED, EXIT_RECORDING_LOST = 0, 1, 2, 3
-RUN_EXIT_CODES = """exit status: 0 the run ended in DONE (task finished, or stopped by SIGTERM/SIGINT, cheope stop or
+RUN_EXIT_CODES = """exit status: 0 the run ended in DONE (task finished, or stopped by SIGTERM/SIGINT/SIGHUP, cheope stop or
 --duration: braked, drives disabled); 1 it ended in FAULT (a fault, a quick stop after a second
 signal, or a stop that did not reach DONE within loop.stop_timeout_s); 2 refused at start (usage,
 configuration, bus load, workspace, real-time permissions, the bus or the devices); 3 DONE, but the

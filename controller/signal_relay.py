@@ -28,8 +28,8 @@ _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 def stop_signals() -> tuple[signal.Signals, ...]:
-    """``_STOP_SIGNALS`` less those ignored since the process started (SIGHUP under ``nohup``)."""
-    return tuple(s for s in _STOP_SIGNALS if s == signal.SIGINT or signal.getsignal(s) is not signal.SIG_IGN)
+    """``_STOP_SIGNALS``, less SIGHUP when it was ignored since the process started (``nohup``)."""
+    return tuple(s for s in _STOP_SIGNALS if s != signal.SIGHUP or signal.getsignal(s) is not signal.SIG_IGN)
 
 
 class _SignalRelay:

@@ -118,11 +118,11 @@ def home_drive(
         )
     if plan.skip_if_homed and reports_homed(read):
         return False
-    _enable(node_id, plan, write, read, clock, sleep)
-    write(0x6040, 0, CW_ENABLE_OPERATION | CW_HOMING_START)
-    deadline = clock() + plan.timeout_s
     at_home = 0  # reads in a row that found the drive at rest at its home offset (done = "position")
-    try:
+    try:  # from the enabling on: however it ends (a stop requested while a brake releases), disabled
+        _enable(node_id, plan, write, read, clock, sleep)
+        write(0x6040, 0, CW_ENABLE_OPERATION | CW_HOMING_START)
+        deadline = clock() + plan.timeout_s
         while True:
             sw = read(0x6041, 0)
             if sw & SW_HOMING_ERROR:

@@ -38,7 +38,7 @@ that cycle is written.
 
 The writer ends at END or at the end of its input. A controller killed with SIGKILL closes the
 pipe, so the writer still writes the index and footer: the file is complete up to the last
-record the controller handed over. SIGINT is ignored (a Ctrl-C in the terminal reaches the
+record the controller handed over. SIGINT and SIGHUP are ignored (a Ctrl-C or a hang-up in the terminal reaches the
 whole process group; the controller stops the run and closes the pipe), SIGTERM finishes the
 file and exits. Only a killed writer leaves a truncated file (``cheope logs recover``).
 """
@@ -722,6 +722,9 @@ def serve(fd: int, out: TextIO) -> int:
     """Read SETUP, write the file until END or the end of input; returns the exit status."""
     terminated = []
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(
+        signal.SIGHUP, signal.SIG_IGN
+    )  # as SIGINT: the controller stops the run on it and closes the pipe
     signal.signal(signal.SIGTERM, lambda *_: terminated.append(True))
     reader = RecordReader(fd)
     try:

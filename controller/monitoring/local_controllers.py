@@ -13,6 +13,7 @@ default port only when there is none: scoped to this user's controllers unless a
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -111,7 +112,14 @@ def announced_elsewhere(robot_id: str) -> int | None:
     None when none does (a stale file is removed). A controller that only listens is reached by no
     liveliness query of another one (robot_identity.py): this file is how two of them on one
     machine see each other."""
-    path = runtime_directory() / f"{robot_id}.json"
+    d = runtime_directory()
+    try:
+        st = d.stat()
+    except OSError:
+        return None
+    if st.st_uid != os.getuid() or st.st_mode & 0o077:
+        return None  # another user's or shared (as announce refuses it): its files prove nothing
+    path = d / f"{robot_id}.json"
     try:
         pid = int(json.loads(path.read_text())["pid"])
     except (OSError, ValueError, KeyError, TypeError):
@@ -119,6 +127,7 @@ def announced_elsewhere(robot_id: str) -> int | None:
     if pid == os.getpid():
         return None
     if not _alive(pid):
-        path.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):
+            path.unlink(missing_ok=True)
         return None
     return pid

@@ -83,7 +83,16 @@ class UndecodableUpdate:
     received_monotonic_s: float
 
 
-Update = StateUpdate | EventUpdate | AliveUpdate | MissedEventsUpdate | UndecodableUpdate
+@dataclass(frozen=True)
+class DroppedSamplesUpdate:
+    key: str  # the subscription (``cheope/*``): the samples of any robot under it
+    count: int  # samples that found the monitor's queue full since the last such update
+    received_monotonic_s: float
+
+
+Update = (
+    StateUpdate | EventUpdate | AliveUpdate | MissedEventsUpdate | UndecodableUpdate | DroppedSamplesUpdate
+)
 
 
 class MonitorClient:
@@ -171,11 +180,7 @@ class MonitorClient:
         """The next update, or None when nothing arrived within ``timeout_s``."""
         if self.dropped != self._dropped_told:
             lost, self._dropped_told = self.dropped - self._dropped_told, self.dropped
-            return UndecodableUpdate(
-                self.keys.prefix,
-                f"{lost} sample(s) dropped: more arrived than this monitor shows",
-                self.clock(),
-            )
+            return DroppedSamplesUpdate(self.keys.prefix, lost, self.clock())
         try:
             kind, key, data, at = self._q.get(timeout=max(0.0, timeout_s))
         except queue.Empty:
@@ -204,6 +209,7 @@ def update_to_json(u: Update) -> str:
             AliveUpdate: "liveliness",
             MissedEventsUpdate: "missed_events",
             UndecodableUpdate: "undecodable",
+            DroppedSamplesUpdate: "dropped_samples",
         }[type(u)],
         "key": u.key,
         "received_monotonic_s": u.received_monotonic_s,
@@ -219,7 +225,7 @@ def update_to_json(u: Update) -> str:
         )
     elif isinstance(u, AliveUpdate):
         out["alive"] = u.alive
-    elif isinstance(u, MissedEventsUpdate):
+    elif isinstance(u, (MissedEventsUpdate, DroppedSamplesUpdate)):
         out["count"] = u.count
     else:
         out["reason"] = u.reason
@@ -289,8 +295,12 @@ class FleetView:
     robots: dict[str, ViewModel] = field(default_factory=dict)
 
     unshown: int = 0  # updates of robots beyond MAX_ROBOTS, not shown
+    dropped: int = 0  # samples the monitor's queue could not take (DroppedSamplesUpdate)
 
     def apply(self, u: Update) -> None:
+        if isinstance(u, DroppedSamplesUpdate):  # of no one robot: counted in the title
+            self.dropped += u.count
+            return
         rid = robot_of(u.key)
         if rid not in self.robots:
             if len(self.robots) >= MAX_ROBOTS:  # thousands of ids from one peer: a bounded table
@@ -307,6 +317,7 @@ def render_fleet(fleet: FleetView, now_s: float) -> RenderableType:
     if len(fleet.robots) == 1:
         return render(next(iter(fleet.robots.values())), now_s)
     more = f", the first {MAX_ROBOTS} shown" if fleet.unshown else ""
+    more += f", {fleet.dropped} sample(s) dropped" if fleet.dropped else ""
     table = Table(title=f"controllers under {fleet.key_prefix}/ ({len(fleet.robots)}{more})")
     for col in (
         "robot id",

@@ -22,7 +22,9 @@ class StopSignals:
     quick_stop: threading.Event = field(default_factory=threading.Event)
 
     def on_signal(self, signum: int) -> None:
-        if self.stop.is_set():
+        # a hang-up never escalates: a closed terminal often sends two (the shell's to its jobs,
+        # the kernel's when the session leader exits), which must not quick-stop the drives
+        if self.stop.is_set() and signum != signal.SIGHUP:
             self.quick_stop.set()
         self.stop.set()
 

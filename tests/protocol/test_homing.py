@@ -178,3 +178,26 @@ def test_the_path_task_runs_after_homing_drives_with_unknown_encoder_offsets(met
     for d in exchange.drives:  # the drives report their true positions after homing, to the
         # resolution of finding the switch's edge (zero search speed x the simulator's step: 25 um)
         assert d.position_counts() / COUNTS == pytest.approx(d.position, abs=30e-6)
+
+
+def test_a_stop_while_the_drive_is_being_enabled_for_homing_leaves_it_disabled():
+    """The stop request ends homing's waits (drivers/node_setup.py); one that came while the drive
+    was still being enabled (a slow brake release) left it enabled: the disabling `finally` began
+    after the enabling (a review's finding)."""
+    from drivers.homing import HomingPlan, home_drive
+
+    class StopRequestedError(Exception):
+        pass
+
+    writes: list[tuple[int, int, int]] = []
+
+    def read(index: int, subindex: int) -> int:
+        return {0x6061: MODE_HOMING, 0x6041: 0x0021}.get(index, 0)  # READY TO SWITCH ON, then stays
+
+    def sleep(_: float) -> None:
+        raise StopRequestedError  # the stop request, at the first wait
+
+    plan = HomingPlan(17, 0, 1000, 100, 10000, 30.0)
+    with pytest.raises(StopRequestedError):
+        home_drive(1, plan, lambda i, s, v: writes.append((i, s, v)), read, clock=lambda: 0.0, sleep=sleep)
+    assert (0x6040, 0, CW_SWITCH_ON) in writes and writes[-1] == (0x6040, 0, CW_DISABLE_VOLTAGE)

@@ -156,3 +156,20 @@ def test_an_override_of_an_integer_too_long_to_read_names_the_key():
 
     with pytest.raises(ConfigError, match=r"--set loop.rate_hz: Exceeds the limit"):
         parse_override("loop.rate_hz=" + "9" * 5000)
+
+
+def test_a_recording_written_under_an_older_limit_still_gives_its_law():
+    """recording.buffer_bytes of 4 KiB, a robot id of 65 characters, equal limit switches: allowed
+    when the file was written, refused now. Only the sections the law does not read fall back to
+    their defaults; the law's own keys are checked as written."""
+    from controller.config import config_to_dict, recorded_config_from_dict
+
+    table = config_to_dict(load_config(overrides={"loop.rate_hz": 500.0}))
+    table["recording"]["buffer_bytes"] = 4096
+    table["monitoring"]["robot_id"] = "a" * 65
+    table["sim"]["drive"]["limit_switches_m"] = [0.5, 0.5]
+    cfg = recorded_config_from_dict(table)
+    assert cfg.loop.rate_hz == 500.0 and cfg.recording.buffer_bytes == 4 << 20
+    table["robot"]["cheope"]["joint_neutral_tcp_m"] = [0.0, float("nan"), 0.5]
+    with pytest.raises(ConfigError, match=r"joint_neutral_tcp_m\[1\] = nan"):
+        recorded_config_from_dict(table)

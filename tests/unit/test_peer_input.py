@@ -10,7 +10,14 @@ from controller.cli_output import printable
 from controller.messages import cheope_pb2 as pb
 from controller.monitoring.command_gate import decide_command
 from controller.monitoring.commands import status_config
-from controller.monitoring.monitor_view import MAX_ROBOTS, AliveUpdate, FleetView, render_fleet
+from controller.monitoring.monitor_view import (
+    MAX_ROBOTS,
+    AliveUpdate,
+    DroppedSamplesUpdate,
+    FleetView,
+    render_fleet,
+    update_to_json,
+)
 from controller.monitoring.zenoh_session import MonitoringConnectionError
 
 
@@ -39,3 +46,14 @@ def test_a_fleet_view_shows_at_most_max_robots_and_counts_the_rest():
         fleet.apply(AliveUpdate(f"cheope/bot-{i}/alive", True, 0.0))
     assert len(fleet.robots) == MAX_ROBOTS and fleet.unshown == 50
     assert f"the first {MAX_ROBOTS} shown" in str(render_fleet(fleet, 0.0).title)
+
+
+def test_dropped_samples_are_counted_for_the_fleet_not_shown_as_a_robot():
+    """Keyed by the subscription (cheope/*), they made a phantom robot "cheope" (a review's finding)."""
+    fleet = FleetView("cheope")
+    for rid in ("a", "b"):
+        fleet.apply(AliveUpdate(f"cheope/{rid}/alive", True, 0.0))
+    fleet.apply(DroppedSamplesUpdate("cheope/*", 7, 1.0))
+    assert sorted(fleet.robots) == ["a", "b"] and fleet.dropped == 7
+    assert "7 sample(s) dropped" in str(render_fleet(fleet, 1.0).title)
+    assert '"type": "dropped_samples"' in update_to_json(DroppedSamplesUpdate("cheope/*", 7, 1.0))

@@ -74,3 +74,17 @@ def test_a_hang_up_stops_as_sigterm_does_unless_it_was_ignored_at_start() -> Non
         timeout=60,
     )
     assert ignored.returncode == 0 and ignored.stdout.strip() == "not stopped", ignored.stderr
+
+
+def test_a_second_hang_up_does_not_quick_stop_a_second_sigterm_does() -> None:
+    """A closed terminal often sends two SIGHUPs (the shell's, the kernel's): they ask one stop."""
+    import signal
+
+    from controller.shell.stop_signals import StopSignals
+
+    s = StopSignals()
+    s.on_signal(signal.SIGHUP)
+    s.on_signal(signal.SIGHUP)
+    assert s.stop.is_set() and not s.quick_stop.is_set()
+    s.on_signal(signal.SIGTERM)
+    assert s.quick_stop.is_set()
