@@ -40,12 +40,17 @@ def _own_directory() -> Path | None:
     except OSError as err:
         log.warning("monitoring: cannot use %s to announce this controller: %s", d, err.strerror or err)
         return None
-    if st.st_uid != os.getuid() or st.st_mode & 0o077:
+    if not _this_users_alone(st):
         log.warning(
             "monitoring: %s is not this user's alone (owner %d, mode %o): not used", d, st.st_uid, st.st_mode
         )
         return None
     return d
+
+
+def _this_users_alone(st: os.stat_result) -> bool:
+    """A directory of this user that no one else may write to: the only one whose files are trusted."""
+    return st.st_uid == os.getuid() and not st.st_mode & 0o077
 
 
 def announce(robot_id: str, endpoints: tuple[str, ...]) -> Path | None:
@@ -117,7 +122,7 @@ def announced_elsewhere(robot_id: str) -> int | None:
         st = d.stat()
     except OSError:
         return None
-    if st.st_uid != os.getuid() or st.st_mode & 0o077:
+    if not _this_users_alone(st):
         return None  # another user's or shared (as announce refuses it): its files prove nothing
     path = d / f"{robot_id}.json"
     try:

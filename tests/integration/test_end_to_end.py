@@ -41,8 +41,9 @@ def _cheope(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[s
     )
 
 
-def _half_lap_path_demo() -> subprocess.Popen[str]:
-    """``cheope demo --json`` of half a lap of the path task, started; its output in pipes."""
+def _path_demo(*sets: str, laps: float = 0.5) -> subprocess.Popen[str]:
+    """``cheope demo --json`` of ``laps`` of the path task with ``sets`` (``KEY=VALUE``), started;
+    its output in pipes."""
     return subprocess.Popen(
         [
             *CHEOPE,
@@ -51,7 +52,8 @@ def _half_lap_path_demo() -> subprocess.Popen[str]:
             "path",
             "--json",
             "--set",
-            "task.path.laps=0.5",
+            f"task.path.laps={laps:g}",
+            *(arg for kv in sets for arg in ("--set", kv)),
             "--udp-port",
             str(_port()),
             *TOLERANT,
@@ -64,7 +66,7 @@ def _half_lap_path_demo() -> subprocess.Popen[str]:
 
 
 def test_demo_runs_the_path_task_end_to_end():
-    demo = _half_lap_path_demo()
+    demo = _path_demo()
     try:
         out, err = demo.communicate(timeout=120.0)
     finally:
@@ -312,7 +314,7 @@ def test_a_demo_keeps_normal_tasks_off_its_loops_cpu_while_it_runs():
     before the demo loses the loop's CPU while the loop runs and has it back after the run."""
     neighbour = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(600)"])
     everything = os.sched_getaffinity(neighbour.pid)
-    demo = _half_lap_path_demo()
+    demo = _path_demo()
     try:
         wait_until(
             lambda: os.sched_getaffinity(neighbour.pid) != everything or demo.poll() is not None,
@@ -393,7 +395,7 @@ def test_a_demo_killed_with_sigkill_takes_its_simulator_and_shared_block_with_it
 
     from sim_backend.true_force_tap import tap_path
 
-    demo = _half_lap_path_demo()
+    demo = _path_demo()
     sim_pid = None
     try:
         sim_pid = wait_until(lambda: _simulator_of(demo.pid), "the demo's simulator started")
@@ -419,28 +421,11 @@ def test_a_demo_whose_recording_is_lost_exits_3_as_a_run_does(tmp_path: Path):
     import shutil
 
     sessions = tmp_path / "sessions"
-    demo = subprocess.Popen(
-        [
-            *CHEOPE,
-            "demo",
-            "--task",
-            "path",
-            "--json",
-            "--set",
-            "task.path.laps=1",
-            "--set",
-            f'recording.directory="{sessions}"',
-            "--set",
-            "recording.max_file_duration_s=0.5",
-            "--set",
-            "recording.flush_interval_s=0.2",
-            "--udp-port",
-            str(_port()),
-            *TOLERANT,
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
+    demo = _path_demo(
+        f'recording.directory="{sessions}"',
+        "recording.max_file_duration_s=0.5",
+        "recording.flush_interval_s=0.2",
+        laps=1,
     )
     try:
         wait_until(

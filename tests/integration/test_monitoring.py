@@ -581,19 +581,22 @@ def test_a_default_robot_id_is_the_host_and_a_suffix_and_differs_between_control
     assert not publisher_settings(load_config(overrides={"monitoring.robot_id": "r1"})).robot_id_is_default
 
 
+def _second_controller(endpoint: str, *sets: str) -> subprocess.CompletedProcess[str]:
+    """A controller started beside a running one, to its end (10 s at most, if it is not refused)."""
+    return subprocess.run(
+        _controller_cmd(endpoint, *sets, max_duration_s=10.0),
+        check=False,
+        capture_output=True,
+        text=True,
+        env=_env(),
+        timeout=60,
+    )
+
+
 def test_a_robot_id_already_live_refuses_the_start():
     ep_a, ep_b = _endpoint(), _endpoint()
     with controller(ep_a, 'monitoring.robot_id="dup"'):
-        second = subprocess.run(
-            _controller_cmd(
-                ep_b, 'monitoring.robot_id="dup"', f'monitoring.connect="{ep_a}"', max_duration_s=10.0
-            ),
-            check=False,
-            capture_output=True,
-            text=True,
-            env=_env(),
-            timeout=60,
-        )
+        second = _second_controller(ep_b, 'monitoring.robot_id="dup"', f'monitoring.connect="{ep_a}"')
         assert second.returncode == 2, second.stdout + second.stderr
         assert "monitoring.robot_id = 'dup' is taken" in second.stderr and second.stderr.count("\n") == 1
         assert not second.stdout.startswith("READY")
@@ -606,14 +609,7 @@ def test_a_robot_id_live_on_this_machine_refuses_the_start_without_connecting_to
     before the announcements were asked it took the first one's id and answered its `cheope stop`."""
     ep_a, ep_b = _endpoint(), _endpoint()
     with controller(ep_a, 'monitoring.robot_id="twin"') as first:
-        second = subprocess.run(
-            _controller_cmd(ep_b, 'monitoring.robot_id="twin"', max_duration_s=10.0),
-            check=False,
-            capture_output=True,
-            text=True,
-            env=_env(),
-            timeout=60,
-        )
+        second = _second_controller(ep_b, 'monitoring.robot_id="twin"')
         assert second.returncode == 2, second.stdout + second.stderr
         assert f"the controller of process {first.pid} on this machine announces it" in second.stderr
         assert second.stderr.count("\n") == 1 and not second.stdout.startswith("READY")
