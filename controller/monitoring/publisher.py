@@ -429,9 +429,7 @@ class MonitorPublisher:
             f"without wildcards ({key}; cheope list shows the ids)"
         )
         if key == self.settings.keys.command:
-            self.commands_refused += 1
-            reply = pb.CommandReply(accepted=False, message=why)
-            query.reply(key, reply.SerializeToString(), encoding=encoding_for("CommandReply"))
+            self._refuse_command(query, why)
         else:
             query.reply_err(why.encode(), encoding=zenoh.Encoding.TEXT_PLAIN)
         return False

@@ -31,10 +31,10 @@ import zenoh
 
 from controller.errors import RefusedError
 from controller.monitoring.local_controllers import announced_elsewhere
+from controller.monitoring.zenoh_session import is_key_chunk
 
 ALIVE_TIMEOUT_S = 1.0  # how long a liveliness query waits for the sessions it reaches
 _NOT_IN_AN_ID = re.compile(r"[^A-Za-z0-9_.\-]+")
-_ROBOT_ID = re.compile(r"[A-Za-z0-9_.\-]+")  # what MonitorKeys.for_robot accepts
 _DRAWS = 4
 
 
@@ -65,7 +65,7 @@ def live_robot_ids(
             chunks = str(reply.ok.key_expr).split("/")
             # a token no controller declares (cheope/*/alive, cheope/**, "a b") names no robot a
             # tool can address: before, its id ended `cheope list` and `stop --all` for every robot
-            if len(chunks) == depth + 2 and _ROBOT_ID.fullmatch(chunks[depth]):
+            if len(chunks) == depth + 2 and is_key_chunk(chunks[depth]):
                 ids.add(chunks[depth])
     return sorted(ids)
 

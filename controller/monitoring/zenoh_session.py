@@ -46,7 +46,14 @@ DEFAULT_LISTEN = "tcp/127.0.0.1:7448"
 DEFAULT_CONNECT = DEFAULT_LISTEN  # where monitors look for a controller on this machine
 DEFAULT_ROUTER_LISTEN = "tcp/127.0.0.1:7447"  # zenohd's port: `cheope router` or a zenohd on this machine
 PROTO_PACKAGE = "cheope.v1"
-_CHUNK = re.compile(r"^[A-Za-z0-9_.\-]+$")
+_CHUNK = re.compile(r"[A-Za-z0-9_.\-]+")
+
+
+def is_key_chunk(text: str) -> bool:
+    """Whether ``text`` is one chunk of a key this product declares (a prefix's part, a robot id)."""
+    return _CHUNK.fullmatch(text) is not None
+
+
 _ENDPOINT = re.compile(r"^(?P<proto>[a-z0-9\-]+)/(?P<addr>[^#?]+)(?P<rest>[#?].*)?$")
 _IP_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws")
 _LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "[::1]")
@@ -70,12 +77,12 @@ class MonitorKeys:
     @classmethod
     def for_robot(cls, key_prefix: str, robot_id: str, allow_wildcard: bool = False) -> MonitorKeys:
         chunks = key_prefix.split("/")
-        if not key_prefix or not all(_CHUNK.match(c) for c in chunks):
+        if not key_prefix or not all(is_key_chunk(c) for c in chunks):
             raise ConfigError(
                 f"monitoring.key_prefix = {key_prefix!r}: use chunks of letters, digits, "
                 "'-', '_', '.' separated by '/'"
             )
-        if not (_CHUNK.match(robot_id) or (allow_wildcard and robot_id == "*")):
+        if not (is_key_chunk(robot_id) or (allow_wildcard and robot_id == "*")):
             raise ConfigError(f"monitoring.robot_id = {robot_id!r}: use letters, digits, '-', '_', '.'")
         return cls(f"{key_prefix}/{robot_id}")
 
