@@ -344,6 +344,8 @@ class SessionWriter:
             os.path.dirname(self.path) or ".", self.limits.keep_total_bytes, {self.path}
         ):
             self.deleted.append(path)
+            # ``files`` (the run's summary) names what is still on disk
+            self.files = [f for f in self.files if os.path.normpath(f) != os.path.normpath(path)]
             self._event(
                 "recording_deleted",
                 f"{os.path.basename(path)} ({size / 1e6:.1f} MB) deleted: the "

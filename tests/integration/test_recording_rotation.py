@@ -495,6 +495,7 @@ def test_the_retention_deletes_a_sessions_own_older_files_never_the_open_one(tmp
     writer._retain()
     assert sorted(writer.deleted) == sorted(str(f) for f in files) and not any(f.exists() for f in files)
     assert Path(writer.path).exists()
+    assert writer.files == [writer.path]  # the run's summary lists the files still on disk
     writer.finish(None, 0)
 
 
