@@ -34,6 +34,8 @@ def _allowed(t: mi.Type) -> str:
         lo = f">= {t.ge:g}" if t.ge is not None else (f"> {t.gt:g}" if t.gt is not None else "")
         hi = f"<= {t.le:g}" if t.le is not None else (f"< {t.lt:g}" if t.lt is not None else "")
         return ", ".join(x for x in (lo, hi) if x)
+    if isinstance(t, mi.StrType):
+        return _lengths(t, "characters")
     if isinstance(t, mi.LiteralType):
         return " \\| ".join(f"`{v!r}`".replace("'", '"') for v in t.values)
     if isinstance(t, mi.EnumType):
@@ -44,8 +46,16 @@ def _allowed(t: mi.Type) -> str:
         return f"each value {_allowed(t.value_type)}"
     if isinstance(t, (mi.ListType, mi.TupleType, mi.VarTupleType)):
         items = getattr(t, "item_type", None)
-        return f"each {_allowed(items)}" if items is not None and _allowed(items) else ""
+        each = f"each {_allowed(items)}" if items is not None and _allowed(items) else ""
+        return ", ".join(x for x in (_lengths(t, "items"), each) if x)
     return ""
+
+
+def _lengths(t: mi.Type, unit: str) -> str:
+    """A text's or a list's length bounds (``msgspec.Meta(min_length=, max_length=)``)."""
+    lo, hi = getattr(t, "min_length", None), getattr(t, "max_length", None)
+    bounds = ([f">= {lo} {unit}"] if lo is not None else []) + ([f"<= {hi} {unit}"] if hi is not None else [])
+    return ", ".join(bounds)
 
 
 def _type_name(t: mi.Type) -> str:

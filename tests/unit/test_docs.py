@@ -31,6 +31,13 @@ def test_the_configuration_keys_page_names_every_section():
         assert f"| `{key}` |" in text
 
 
+def test_the_configuration_keys_page_gives_the_length_limits():
+    """A limit the schema enforces is on the page (robot_id's 64 characters was not: the generator
+    read only number ranges)."""
+    rows = {line.split("|")[1].strip(): line for line in page().splitlines() if line.startswith("| `")}
+    assert "<= 64 characters" in rows["`monitoring.robot_id`"]
+
+
 def test_the_readme_is_a_front_door_of_at_most_200_lines_with_the_two_commands():
     readme = (ROOT / "README.md").read_text(encoding="utf-8")
     assert len(readme.splitlines()) <= 200
