@@ -703,7 +703,9 @@ def parse_override(text: str) -> tuple[str, Any]:
         raise ConfigError(f"--set {text!r}: expected KEY=VALUE, e.g. loop.rate_hz=1000")
     try:
         value = tomllib.loads(f"v = {raw}")["v"]
-    except tomllib.TOMLDecodeError:
+    except tomllib.TOMLDecodeError as err:
+        if raw.strip()[:1] in ("[", "{", '"', "'"):  # meant as a list, a table or a quoted text
+            raise ConfigError(f"--set {key.strip()}={raw}: not a TOML value ({err})") from None
         value = raw  # a bare word is taken as a string
     except ValueError as err:  # an integer of over 4 300 digits: Python's own limit, in its words
         raise ConfigError(f"--set {key.strip()}: {err}") from None

@@ -96,6 +96,13 @@ def test_parse_override():
         parse_override("loop.rate_hz")
 
 
+@pytest.mark.parametrize("raw", ["[0, 0, 1", "{x = 1", '"socketcan:vcan0', "'a"])
+def test_a_list_table_or_quoted_text_that_does_not_parse_is_named_not_taken_for_a_word(raw):
+    """A missing bracket was read as the word "[0, 0, 1" and refused as "expected a list, got a string"."""
+    with pytest.raises(ConfigError, match=r"--set task.path.normal=.*: not a TOML value \("):
+        parse_override(f"task.path.normal={raw}")
+
+
 @pytest.mark.parametrize(
     ("overrides", "message"),
     [
