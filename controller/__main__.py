@@ -1,5 +1,5 @@
 """``python -m controller``: the ``cheope`` command."""
 
-from controller.cli import main
+from controller.cli_entry import main
 
 raise SystemExit(main())

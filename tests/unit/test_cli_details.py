@@ -373,3 +373,21 @@ def test_one_spelling_per_idea_and_the_old_ones_still_read():
     }
     assert not spellings & {"--can", "--plot", "--keep", "--out", "--max-duration"}
     assert {"--bus", "--output-dir", "--duration"} <= spellings
+
+
+def test_a_ctrl_c_while_the_command_is_imported_is_one_line_not_a_traceback():
+    """The command's imports take about a second: a Ctrl-C in them printed the traceback of
+    whichever import it hit. Here the import of controller.cli raises it, as a Ctrl-C there does."""
+    script = (
+        "import sys\n"
+        "class Interrupt:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name == 'controller.cli':\n"
+        "            raise KeyboardInterrupt\n"
+        "sys.meta_path.insert(0, Interrupt())\n"
+        "from controller.cli_entry import main\n"
+        "sys.exit(main())\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 130
+    assert done.stderr == "cheope: interrupted\n"
