@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import TypeVar
 
-from controller.config import Config, NodeSection, emcy_code_ranges
+from controller.config import Config, ConfigError, NodeSection, emcy_code_ranges
 from controller.configured_robot import actuator_units
 from controller.core.cia402 import FaultResetConfig
 from controller.core.law_config import EmcyReaction
@@ -83,10 +83,16 @@ def homing_plans(cfg: Config, units: ActuatorUnits) -> tuple[HomingPlan | None, 
         plans.append(
             HomingPlan(
                 method=method,
-                home_offset_counts=round(offset * per_unit),
-                switch_speed_counts_s=round(a.homing_switch_speed_m_s * per_unit),
-                zero_speed_counts_s=round(a.homing_zero_speed_m_s * per_unit),
-                acceleration_counts_s2=round(a.homing_acceleration_m_s2 * per_unit),
+                home_offset_counts=_counts("actuators.home_offsets_m", offset, per_unit, signed=True),
+                switch_speed_counts_s=_counts(
+                    "actuators.homing_switch_speed_m_s", a.homing_switch_speed_m_s, per_unit
+                ),
+                zero_speed_counts_s=_counts(
+                    "actuators.homing_zero_speed_m_s", a.homing_zero_speed_m_s, per_unit
+                ),
+                acceleration_counts_s2=_counts(
+                    "actuators.homing_acceleration_m_s2", a.homing_acceleration_m_s2, per_unit
+                ),
                 timeout_s=a.homing_timeout_s,
                 done=_pick(n.homing_done, a.homing_done),
                 position_window_counts=max(1, round(a.homing_position_window_m * per_unit)),
@@ -97,12 +103,29 @@ def homing_plans(cfg: Config, units: ActuatorUnits) -> tuple[HomingPlan | None, 
     return tuple(plans) if any(p is not None for p in plans) else None
 
 
+def _counts(key: str, value: float, counts_per_unit: float, signed: bool = False) -> int:
+    """``value`` in encoder counts for a drive's 32-bit object (0x607C INTEGER32, the speeds,
+    acceleration and window UNSIGNED32): a value that does not fit is the configuration's error,
+    named here, before the bus is opened (a home offset of 1e300 m failed at the SDO write as
+    "Value does not fit in specified type", naming nothing)."""
+    scaled = value * counts_per_unit  # 1e300 m at 1e9 counts/m: infinity, which round() refuses
+    lo, hi = (-(2**31), 2**31 - 1) if signed else (0, 2**32 - 1)
+    if not lo - 0.5 < scaled < hi + 0.5:
+        kind = "INTEGER32" if signed else "UNSIGNED32"
+        raise ConfigError(
+            f"{key} = {value:g}: {scaled:.3g} counts at {counts_per_unit:g} counts per unit "
+            f"do not fit the drive's {kind} object"
+        )
+    return round(scaled)
+
+
 def _following_error_objects(cfg: Config, units: ActuatorUnits) -> dict[str, int]:
     """0x6065 in encoder counts and 0x6066 in ms from ``[actuators]`` (the _rad keys for rotary drives)."""
     a = cfg.actuators
     window = a.following_error_window_rad if units.unit.value == "rad" else a.following_error_window_m
+    key = "actuators.following_error_window_" + ("rad" if units.unit.value == "rad" else "m")
     return {
-        "following_error_window_counts": round(window * units.counts_per_unit),
+        "following_error_window_counts": _counts(key, window, units.counts_per_unit),
         "following_error_time_ms": round(a.following_error_time_s * 1000),
     }
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from controller.config import load_config
+from controller.config import ConfigError, load_config
 from controller.core.cia402 import (
     CW_DISABLE_VOLTAGE,
     CW_ENABLE_OPERATION,
@@ -117,6 +117,25 @@ def test_set_up_homes_every_drive_before_the_first_cycle(buses):
             assert counts / COUNTS == pytest.approx(d.position, abs=0.001)
             assert d.position == pytest.approx(0.32, abs=0.001)  # at the negative switch's edge
             assert d.power == PowerState.SWITCH_ON_DISABLED and d.mode_of_operation == 8
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "kind"),
+    [
+        ("actuators.home_offsets_m", [1e300, 0.0, 0.0], "INTEGER32"),
+        ("actuators.home_offsets_m", [0.0, -300.0, 0.0], "INTEGER32"),  # 3e9 counts: beyond +-2**31
+        ("actuators.homing_switch_speed_m_s", 50.0, "UNSIGNED32"),  # at 1e9 counts/m below
+        ("actuators.following_error_window_m", 5.0, "UNSIGNED32"),
+    ],
+)
+def test_a_value_that_does_not_fit_its_drive_object_is_named_before_the_bus(key, value, kind):
+    """A home offset of 1e300 m passed the configuration and failed at its SDO write with
+    canopen's "Value does not fit in specified type", naming nothing."""
+    cfg = load_config(overrides={"actuators.homing_method": 17, "actuators.counts_per_m": 1e9, key: value})
+    with pytest.raises(
+        ConfigError, match=rf"^{key} = .*counts per unit do not fit the drive's {kind} object"
+    ):
+        node_setup_plan(cfg)
 
 
 def test_a_homing_error_stops_the_start_naming_node_and_statusword(buses):
