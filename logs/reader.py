@@ -343,6 +343,24 @@ def _walk(raw: bytes | mmap.mmap, report: ReadReport) -> Iterator[tuple[Channel,
         )
     if report.orphan_messages:
         report.problems.append(f"{report.orphan_messages} message(s) whose channel definition was lost")
+    if report.complete:
+        _check_the_writers_count(report)
+
+
+def _check_the_writers_count(report: ReadReport) -> None:
+    """A finished file against the count its writer put in ``cheope.recording`` (``file_written``):
+    messages removed by hand from a complete file (its index and summary rewritten to match) read as
+    complete, and only ``replay --verify`` found the gap. A recovered file's ``cheope.recovery``
+    says what it lost; an older file without the count is not checked."""
+    written = report.metadata.get("cheope.recording", {}).get("file_written", "")
+    if not written.isdigit() or "cheope.recovery" in report.metadata:
+        return
+    held = report.messages + report.orphan_messages
+    if held != int(written):
+        report.problems.append(
+            f"the file holds {held} message(s) where its writer wrote {int(written)} "
+            "(cheope.recording file_written): it was changed after it was written"
+        )
 
 
 def decoder_for(schema: Schema | None) -> Callable[[bytes], Any] | None:
@@ -513,6 +531,7 @@ def read_info_from_summary(path: str | Path) -> ReadReport | None:
             report.message_counts[ch.topic] += count
     if stats.message_count:
         report.first_log_time_ns, report.last_log_time_ns = stats.message_start_time, stats.message_end_time
+    _check_the_writers_count(report)
     return report
 
 

@@ -132,3 +132,47 @@ def test_info_check_covers_the_summarys_crc(tmp_path: Path, capsys) -> None:
     assert "does not match its CRC" in capsys.readouterr().out
     assert main(["logs", "info", str(bad)]) == 1
     assert main(["logs", "info", str(DATA / "path_quarter_lap.mcap")]) == 0
+
+
+def _without_some_cycles(src: Path, dst: Path, drop: int) -> None:
+    """``src`` written again by the mcap library without ``drop`` of its /cycle messages: a complete
+    file, its index and summary matching what it holds, its metadata as written."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with open(src, "rb") as f_in, open(dst, "wb") as f_out:
+        reader = make_reader(f_in)
+        w = Writer(f_out)
+        w.start(profile="", library="an editor")
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        left = drop
+        for schema, channel, message in reader.iter_messages(log_time_order=False):
+            if channel.topic == "/cycle" and left and message.sequence % 50 == 7:
+                left -= 1
+                continue
+            if schema.id not in schemas:
+                schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = w.register_channel(
+                    channel.topic, channel.message_encoding, schemas[schema.id], dict(channel.metadata)
+                )
+            w.add_message(
+                channels[channel.id], message.log_time, message.data, message.publish_time, message.sequence
+            )
+        for m in reader.iter_metadata():
+            w.add_metadata(m.name, dict(m.metadata))
+        w.finish()
+    assert left == 0
+
+
+def test_messages_removed_from_a_complete_file_are_a_problem_by_its_writers_count(tmp_path: Path):
+    """An outside tester removed 10 /cycle messages and rewrote the file: ``logs info --check`` said
+    complete, no problem (only ``replay --verify`` found the gap)."""
+    edited = tmp_path / "edited.mcap"
+    _without_some_cycles(DATA / "path_quarter_lap.mcap", edited, drop=3)
+    said = "the file holds 907 message(s) where its writer wrote 910 (cheope.recording file_written)"
+    for report in (read_info(edited), read_info_from_summary(edited)):
+        assert report is not None and report.complete
+        assert any(p.startswith(said) for p in report.problems), report.problems
+    assert read_info(DATA / "path_quarter_lap.mcap").problems == []
