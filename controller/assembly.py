@@ -14,6 +14,7 @@ from controller.core.control_law import ControlLaw
 from controller.core.law_config import LawConfig, SafetyConfig
 from controller.core.ports import CAPABILITIES, ActuatorUnit, ForceWitnessModel, Robot, missing_capability
 from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother
+from controller.errors import CheopeError, RefusedError
 from controller.node_plan import emcy_reactions, fault_reset_config
 from controller.robot_registry import ActuatorUnits
 from controller.tasks.registry import BuiltTask, RunReport, TaskSettings, task_entry
@@ -71,7 +72,15 @@ def build_task(cfg: Config, robot: Robot, units: ActuatorUnits) -> BuiltTask:
     """The configured task for ``robot``; WorkspaceError / PlanningError when it cannot be run."""
     entry = task_entry(cfg.task.kind)
     section = cfg.task.model() if entry.section is not None else None
-    return entry.build(section, robot, task_settings(cfg, units))
+    try:
+        built = entry.build(section, robot, task_settings(cfg, units))
+    except (CheopeError, ValueError):  # a refusal, or a model's argument check: named already
+        raise
+    except Exception as err:  # a plug-in's build gone wrong: one line naming the task, not a traceback
+        raise RefusedError(f"task {cfg.task.kind} could not be built: {type(err).__name__}: {err}") from err
+    if not isinstance(built, BuiltTask):
+        raise RefusedError(f"task {cfg.task.kind}'s build gave {type(built).__name__}, not a BuiltTask")
+    return built
 
 
 def safety_config(s: SafetySection, units: ActuatorUnits) -> SafetyConfig:

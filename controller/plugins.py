@@ -25,13 +25,14 @@ them, and only the one asked for is loaded (no plotting library for a run).
 
 The papers' robots and tasks are declared the same way, in this project's ``pyproject.toml``, so
 a plug-in and a built-in are found alike: ``pip install`` a distribution and ``cheope --robot
-gantry`` knows it. A plug-in that cannot be loaded, or whose object is not an entry of its
-group's kind, stops the lookup with an error naming the distribution and the entry point.
+gantry`` knows it. A plug-in that cannot be loaded, whose object is not an entry of its
+group's kind, or whose name another distribution declares in the same group, stops the lookup
+with an error naming the distribution and the entry point (both, for a name declared twice).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from importlib.metadata import EntryPoint, entry_points
 from typing import Any, Generic, Protocol, TypeVar
 
@@ -64,9 +65,23 @@ def _load(ep: EntryPoint) -> Any:
         raise PluginError(f"{_origin(ep)} does not load: {type(err).__name__}: {err}") from err
 
 
+def _unique(eps: Iterable[EntryPoint]) -> list[EntryPoint]:
+    """``eps``, refused when two distributions declare the same name: which one won depended on the
+    order of ``sys.path`` (an outside tester's plug-in named ``cheope`` took the built-in robot's
+    simulator kinematics, or its model, with no word), so neither is chosen."""
+    seen: dict[str, EntryPoint] = {}
+    for ep in eps:
+        first = seen.setdefault(ep.name, ep)
+        if first is not ep:
+            raise PluginError(
+                f"{_origin(first)} and {_origin(ep)} declare the same name: uninstall one of them"
+            )
+    return list(seen.values())
+
+
 def discover(group: str, kind: type[E]) -> Iterator[tuple[str, E]]:
     """``(name, object)`` of every entry point in ``group``, each checked to be a ``kind``."""
-    for ep in entry_points(group=group):
+    for ep in _unique(entry_points(group=group)):
         obj = _load(ep)
         if not isinstance(obj, kind):
             raise PluginError(f"{_origin(ep)} is a {type(obj).__name__}, not a {kind.__name__}")
@@ -138,7 +153,7 @@ class Hooks:
 
     def all(self) -> dict[str, Any]:
         """Every hook of the group by kind (each entry point loaded and checked), those added winning."""
-        found = {ep.name: self._checked(ep) for ep in entry_points(group=self.group)}
+        found = {ep.name: self._checked(ep) for ep in _unique(entry_points(group=self.group))}
         return {**found, **self._added}
 
     def _checked(self, ep: EntryPoint) -> Any:
@@ -151,7 +166,7 @@ class Hooks:
         """The hook of ``kind``, or None when no distribution declares one."""
         if kind in self._added:
             return self._added[kind]
-        for ep in entry_points(group=self.group, name=kind):
+        for ep in _unique(entry_points(group=self.group, name=kind)):
             return self._checked(ep)
         return None
 

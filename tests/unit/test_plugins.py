@@ -9,7 +9,10 @@ plug-in robot, in simulated time.
 from __future__ import annotations
 
 import json
+import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -124,6 +127,56 @@ def test_a_plugin_that_does_not_load_is_named(tmp_path, monkeypatch):
     finally:
         monkeypatch.undo()
         ROBOTS.rediscover()
+
+
+@pytest.mark.parametrize("group", ["cheope.robots", "cheope.tasks", "cheope.sim_kinematics"])
+def test_a_name_another_distribution_declares_too_is_refused_naming_both(tmp_path, monkeypatch, group):
+    """A plug-in named ``cheope`` took the built-in robot's simulator kinematics, or its model,
+    depending on the order of sys.path, with no word (an outside tester's)."""
+    from controller.plugins import SIM_KINEMATICS
+
+    name, target = {"cheope.robots": ("cheope", "x:R"), "cheope.tasks": ("path", "x:T")}.get(
+        group, ("cheope", "x:k")
+    )
+    _install(tmp_path, "clashing_plugin", f"[{group}]\n{name} = {target}\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    ROBOTS.rediscover()
+    TASKS.rediscover()
+    try:
+        lookup = {
+            "cheope.robots": robot_kinds,
+            "cheope.tasks": lambda: TASKS.entries(),
+            "cheope.sim_kinematics": lambda: SIM_KINEMATICS.get("cheope"),
+        }[group]
+        with pytest.raises(PluginError, match="declare the same name: uninstall one of them") as raised:
+            lookup()
+        said = str(raised.value)
+        assert f"entry point {name} = '{target}' of clashing_plugin (group {group})" in said
+        assert re.search(rf"entry point {name} = '[\w.:]+' of cheope-controller \(group {group}\)", said)
+    finally:
+        monkeypatch.undo()
+        ROBOTS.rediscover()
+        TASKS.rediscover()
+
+
+def test_a_plugin_that_does_not_load_stops_the_command_in_one_line(tmp_path):
+    """The parser lists every plug-in's robots and tasks: one that does not load ended ``cheope``
+    with a 41-line traceback, its one line naming the plug-in last."""
+    _install(tmp_path, "broken_plugin", "[cheope.tasks]\nbad = no_such_module:BAD\n")
+    env = {**os.environ, "PYTHONPATH": str(tmp_path)}
+    done = subprocess.run(
+        [sys.executable, "-m", "controller", "demo", "--simulated-time"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
+        check=False,
+    )
+    assert done.returncode == 2
+    assert done.stderr.splitlines() == [
+        "cheope: error: entry point bad = 'no_such_module:BAD' of broken_plugin (group cheope.tasks) "
+        "does not load: ModuleNotFoundError: No module named 'no_such_module'"
+    ]
 
 
 def test_a_robots_simulator_hook_is_found_by_its_kind_and_one_that_does_not_load_is_named(
@@ -251,3 +304,32 @@ def test_the_contours_commands_are_its_own_and_the_old_spelling_reaches_them(cap
     finally:
         COMMANDS.unregister("contour-shapes")
     assert ran == [("contour", True)]
+
+
+def _bad_build(section, robot, shared):
+    raise RuntimeError("bad task constructor exploded")
+
+
+@pytest.mark.parametrize(
+    ("build", "said"),
+    [
+        (_bad_build, "task bad could not be built: RuntimeError: bad task constructor exploded"),
+        (lambda section, robot, shared: None, "task bad's build gave NoneType, not a BuiltTask"),
+    ],
+    ids=["raises", "gives-none"],
+)
+def test_a_task_whose_build_goes_wrong_is_refused_naming_it(build, said):
+    """A plug-in task's build that raised, or gave None, ended the command with a traceback."""
+    from controller.assembly import build_task
+    from controller.configured_robot import actuator_units
+    from controller.errors import RefusedError
+    from controller.tasks.registry import TaskEntry
+
+    TASKS.register(TaskEntry(kind="bad", section=None, build=build, robots=("cheope",)))
+    try:
+        cfg = load_config(overrides={"task.kind": "bad"})
+        with pytest.raises(RefusedError) as raised:
+            build_task(cfg, build_law(load_config()).robot, actuator_units(cfg))
+        assert str(raised.value) == said
+    finally:
+        TASKS.unregister("bad")
