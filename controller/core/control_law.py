@@ -74,6 +74,7 @@ from controller.core.ports import (
     Robot,
     Task,
     TaskContext,
+    TaskStep,
     missing_capability,
 )
 from controller.core.records import replace
@@ -534,7 +535,11 @@ class ControlLaw:
     ) -> ControllerState:
         state = self._smooth_to_rest(state, t, events)
         if t - state.mode_entered_s >= self.config.hold_before_task_s and state.mode == Mode.HOLDING:
-            state = replace(state, task_state=self.task.start())
+            try:
+                task_state = self.task.start()
+            except Exception as err:  # a task's (a plug-in's) error ends in the quick stop, named
+                return self._faulted(state, task_error(self.task.name, "start", err), t, events)
+            state = replace(state, task_state=task_state)
             return self._enter(state, Mode.RUNNING, t, events, why=f"task {self.task.name} starts")
         return state
 
@@ -578,18 +583,17 @@ class ControlLaw:
                 sensor_suspect=state.contact.suspect,
                 drives_held=state.drives_held and not k,
             )
-            out = self.task.step(task_state, ctx)
+            try:
+                out = self.task.step(task_state, ctx)
+                why = malformed_step(self.task.name, out, self.n)
+            except Exception as err:  # a task's (a plug-in's) error ends in the quick stop, named
+                return self._faulted(state, task_error(self.task.name, "step", err), t, events)
+            if why:
+                return self._faulted(state, why, t, events)
             events.extend(out.events)
             task_state, ref = out.state, out.reference
             if out.fault:
                 return self._faulted(state, out.fault, t, events, task_state=task_state)
-            if not len(ref.position) == len(ref.velocity) == len(ref.acceleration) == self.n:
-                why = (
-                    f"task {self.task.name} gave a reference of {len(ref.position)} positions, "
-                    f"{len(ref.velocity)} velocities and {len(ref.acceleration)} accelerations "
-                    f"for {self.n} actuators"
-                )
-                return self._faulted(state, why, t, events, task_state=task_state)
             if not k or out.finished:
                 break
             # A blind period: the setpoint goes with it as it would have, near where the drives ran on
@@ -602,9 +606,8 @@ class ControlLaw:
         too_fast = self._contact_speed(state, ref.tcp_m, ref.contact)
         if too_fast:
             return self._faulted(state, too_fast, t, events, task_state=task_state)
-        pose = self.robot.check_pose(np.asarray(ref.tcp_m))
-        if not pose.ok:
-            why = f"task reference leaves the safe workspace: {pose.reason}"
+        why = self._reference_fault(ref)
+        if why:
             return self._faulted(state, why, t, events)
         result = self._smoothed(state, ref)
         if not result.ok:
@@ -620,6 +623,18 @@ class ControlLaw:
         if finished:
             return self._enter(state, Mode.STOPPING, t, events, why=f"task {self.task.name} finished")
         return state
+
+    def _reference_fault(self, ref: JointReference) -> str:
+        """Why the task's reference may not be followed, or "": its positions (what the drives are
+        sent) outside the actuators' range, or its pose (``tcp_m``) outside the safe workspace."""
+        why = self.monitor.commanded_fault(self.task.name, ref.position)
+        if why:  # the positions themselves: a plug-in's +5 m passed the check of the pose it claimed
+            return why
+        try:
+            pose = self.robot.check_pose(np.asarray(ref.tcp_m))
+        except Exception as err:  # a plug-in robot's check: its error ends in the quick stop, named
+            return task_error(self.task.name, "reference's pose check", err)
+        return "" if pose.ok else f"task reference leaves the safe workspace: {pose.reason}"
 
     def _smoothed(self, state: ControllerState, ref: JointReference) -> SmoothingResult:
         """The setpoint one period on towards the task's reference (Ruckig): a reactive reference's
@@ -937,3 +952,45 @@ class ControlLaw:
                 fault_reason=result.message,
             )
         return replace(state, setpoint=result.setpoint)
+
+
+def task_error(name: str, what: str, err: Exception) -> str:
+    """The fault reason of a task whose ``what`` raised ``err``: the law's quick stop follows, as for
+    any fault (it was an exception out of the loop: the drives left to their SYNC watchdog)."""
+    return f"task {name}: its {what} raised {type(err).__name__}: {str(err)[:200]}"
+
+
+def malformed_step(name: str, out: object, n: int) -> str:
+    """What is wrong with a task step's result for ``n`` actuators, or "": a ``TaskStep`` whose
+    reference has ``n`` numbers each of position, velocity and acceleration and a TCP of 3. A
+    plug-in's text or None reached Ruckig or the attribute reads and ended the loop with a traceback."""
+    if not isinstance(out, TaskStep):
+        return f"task {name} gave {type(out).__name__}, not a TaskStep"
+    ref = out.reference
+    if not isinstance(ref, JointReference):
+        return f"task {name} gave a reference of type {type(ref).__name__}, not a JointReference"
+    # read as Any: compiled, a typed read is itself a check (mypyc's TypeError names no task)
+    fields = cast(Any, ref)
+    checked: tuple[tuple[str, object, int], ...] = (
+        ("position", fields.position, n),
+        ("velocity", fields.velocity, n),
+        ("acceleration", fields.acceleration, n),
+        ("tcp_m", fields.tcp_m, 3),
+    )
+    for what, values, _ in checked:
+        if not isinstance(values, tuple):
+            return f"task {name} gave a reference {what} as {type(values).__name__}, not a tuple"
+    p, v, a = fields.position, fields.velocity, fields.acceleration
+    if not len(p) == len(v) == len(a) == n:
+        return (
+            f"task {name} gave a reference of {len(p)} positions, "
+            f"{len(v)} velocities and {len(a)} accelerations for {n} actuators"
+        )
+    for what, values, count in checked:
+        items = cast(tuple[object, ...], values)
+        if len(items) != count:
+            return f"task {name} gave a reference {what} of {len(items)} values, not {count}"
+        for x in items:
+            if not isinstance(x, (float, int)):
+                return f"task {name} gave a reference {what} holding {type(x).__name__} {str(x)[:40]!r}"
+    return ""

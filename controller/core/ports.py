@@ -85,9 +85,12 @@ class Robot(Protocol):
 
 @runtime_checkable
 class ChecksActuators(Protocol):
-    """A robot that knows its actuators' strokes (all three robots in controller/robots). Declared
-    here, not in the safety monitor that asks for it: a runtime-checkable protocol cannot live in a
-    module compiled by mypyc (controller/compiled_law.py)."""
+    """A robot that knows its actuators' strokes (all three robots in controller/robots): the safety
+    monitor checks the measured positions and each task reference's with it, every cycle, and
+    prefixes whose they are ("measured: ", "task path commands "), so its reason names only the
+    actuator, its position and its range. Declared here, not in the safety monitor that asks for
+    it: a runtime-checkable protocol cannot live in a module compiled by mypyc
+    (controller/compiled_law.py)."""
 
     def check_actuators(self, q: tuple[float, ...], /) -> PoseStatus: ...
 

@@ -235,8 +235,17 @@ class SafetyMonitor:
         if self._check_actuators is not None:
             status = self._check_actuators(tuple(d.position for d in inputs.drives))
             if not status.ok:
-                return state, status.reason
+                return state, f"measured: {status.reason}"
         return state, ""
+
+    def commanded_fault(self, task_name: str, q: tuple[float, ...]) -> str:
+        """The task's reference positions (what the drives will be sent) outside the actuators'
+        range, for a robot that knows it; "" else. The pose check of its ``tcp_m`` did not see a
+        plug-in whose positions said otherwise: +5 m on every actuator reached the drives."""
+        if self._check_actuators is None:
+            return ""
+        status = self._check_actuators(q)
+        return "" if status.ok else f"task {task_name} commands {status.reason}"
 
     def retract_on_breach(self, state: ControllerState, a: BusAnomaly) -> bool:
         """A second sender on the force sensor's COB-ID while a task that can retract without force

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import re
 import threading
 from dataclasses import dataclass, field
 
@@ -269,7 +270,7 @@ def test_a_nan_position_faults_at_once():
     bad = CycleInputs((DriveFeedback(5687, math.nan, True), *good.drives[1:]))
     state, _, _ = law.step(state, bad, cfg.period_s)
     assert state.mode == Mode.FAULT
-    assert "actuator 1 measured at nan m" in state.fault_reason
+    assert "measured: actuator 1 at nan m is outside its stroke" in state.fault_reason
 
 
 def test_inputs_of_another_drive_count_are_refused_by_name():
@@ -309,6 +310,86 @@ def test_a_task_reference_of_another_axis_count_faults_naming_the_task():
     assert final.fault_reason == (
         "task path gave a reference of 2 positions, 3 velocities and 3 accelerations for 3 actuators"
     )
+
+
+class _TaskGoneWrongAfter:
+    """The path task, until its time ``after_s``: then its step is ``wrong(out)``, as a plug-in's
+    task might give (an outside tester's: each ended the loop with a traceback and no quick stop,
+    or sent +5 m to the drives)."""
+
+    def __init__(self, task: object, after_s: float, wrong) -> None:
+        self._task, self._after_s, self._wrong = task, after_s, wrong
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._task, name)
+
+    def step(self, state, ctx):
+        out = self._task.step(state, ctx)
+        return out if ctx.t_s < self._after_s else self._wrong(out)
+
+
+def _raise(out):
+    raise RuntimeError("bad task exploded in step")
+
+
+def _positions(out, f):
+    return replace(out, reference=replace(out.reference, position=f(out.reference.position)))
+
+
+@pytest.mark.parametrize(
+    ("wrong", "reason"),
+    [
+        (_raise, "task path: its step raised RuntimeError: bad task exploded in step"),
+        (lambda out: "hello", "task path gave str, not a TaskStep"),
+        (
+            lambda out: replace(out, reference=None),
+            "task path gave a reference of type NoneType, not a JointReference",
+        ),
+        (
+            lambda out: _positions(out, lambda p: ("abc", *p[1:])),
+            "task path gave a reference position holding str 'abc'",
+        ),
+        (
+            lambda out: _positions(out, lambda p: tuple(x + 5.0 for x in p)),
+            r"task path commands actuator 1 at 5\.\d+ m is outside its stroke \[",
+        ),
+        (
+            lambda out: replace(out, reference=replace(out.reference, tcp_m=(0.0, 0.5))),
+            "task path gave a reference tcp_m of 2 values, not 3",
+        ),
+        (
+            lambda out: _positions(out, list),
+            "task path gave a reference position as list, not a tuple",
+        ),
+    ],
+    ids=["raises", "not-a-step", "no-reference", "text-position", "beyond-the-stroke", "short-tcp", "a-list"],
+)
+def test_a_task_gone_wrong_faults_naming_it_and_quick_stops_before_any_target_follows_it(wrong, reason):
+    cfg = load_config(overrides=SHORT)
+    rig = SimulatedRig(cfg)
+    rig.law.task = _TaskGoneWrongAfter(rig.law.task, 1.0, wrong)
+    trace = Trace()
+    final, _ = rig.loop((trace,)).run(rig.law.initial_state(), 10.0)
+    assert Mode.RUNNING in trace.modes  # it ran before the task went wrong
+    assert final.mode == Mode.FAULT
+    assert re.match(reason, final.fault_reason) if "\\" in reason else final.fault_reason == reason
+    for d in rig.exchange.drives:  # the quick stop reached them: nothing was left to their watchdog
+        assert decode_statusword(d.statusword()) == PowerState.QUICK_STOP_ACTIVE and d.velocity == 0.0
+    stroke_max = cfg.robot.model("cheope").stroke_max_m
+    assert max(max(o.targets) for o in trace.outputs) <= stroke_max  # nothing of the bad reference went out
+
+
+def test_a_task_whose_start_raises_faults_naming_it():
+    class _StartRaises(_TaskGoneWrongAfter):
+        def start(self):
+            raise ValueError("no start today")
+
+    cfg = load_config(overrides=SHORT)
+    rig = SimulatedRig(cfg)
+    rig.law.task = _StartRaises(rig.law.task, 0.0, lambda out: out)
+    final, _ = rig.loop((Trace(),)).run(rig.law.initial_state(), 10.0)
+    assert final.mode == Mode.FAULT
+    assert final.fault_reason == "task path: its start raised ValueError: no start today"
 
 
 def test_velocity_tracking_follows_a_steady_reference_without_lag_or_chatter():

@@ -24,7 +24,6 @@ LONG: dict[str, dict[str, int]] = {
         "Emergency codes of the": 187,
     },
     "concepts/supervision.md": {
-        "The step gets every": 330,
         "- *A measurement is": 237,
         "**A second sender on": 233,
     },

@@ -373,7 +373,7 @@ def test_a_target_before_the_first_tpdo_is_within_the_stroke():
 
 def test_a_stop_before_every_drive_answered_ends_done_not_faulted_on_the_silent_drive():
     # Found by the limits property: a stop in the first cycle, drive 3 silent for two cycles:
-    # DONE, then FAULT "actuator 3 measured at nan m" from the DONE state's supervision.
+    # DONE, then FAULT "measured: actuator 3 at nan m" from the DONE state's supervision.
     loop = ClosedLoop(load_config())
     p = Perturbation(missing=frozenset({(0, 2), (1, 2)}), stop_from=0)
     modes = [loop.cycle(p).state.mode for _ in range(20)]

@@ -416,13 +416,13 @@ class CheopeRobot:
         return POSE_OK
 
     def check_actuators(self, q_m: tuple[float, ...]) -> PoseStatus:
-        """Measured actuator positions inside their strokes (and numbers at all)."""
+        """Actuator positions (measured, or a task's reference) inside their strokes (and numbers at all)."""
         lim = self.limits
         for j, x in enumerate(q_m):
             if not lim.stroke_min_m <= x <= lim.stroke_max_m:  # also False for NaN
                 return PoseStatus(
                     False,
-                    f"actuator {j + 1} measured at {x:.4f} m, outside its stroke "
+                    f"actuator {j + 1} at {x:.4f} m is outside its stroke "
                     f"[{lim.stroke_min_m}, {lim.stroke_max_m}] m",
                 )
         return POSE_OK

@@ -104,7 +104,7 @@ class UruRobot:
             if not lim.motor_min_rad <= x <= lim.motor_max_rad:  # also False for NaN
                 return PoseStatus(
                     False,
-                    f"motor {j + 1} measured at {x:.4f} rad, outside its range "
+                    f"motor {j + 1} at {x:.4f} rad is outside its range "
                     f"[{lim.motor_min_rad}, {lim.motor_max_rad}] rad",
                 )
         return POSE_OK
