@@ -256,7 +256,7 @@ def test_singular_goal_pose_is_reported() -> None:
         else:
             hi = mid
     res = plan_motion(GEOM, START, interp(lo))
-    assert res.status is PlanStatus.SINGULAR_START
+    assert res.status is PlanStatus.BAD_GOAL  # the goal, not the start (it said singular_start)
     assert "type-II" in res.message
 
 
@@ -299,3 +299,16 @@ def test_plots_written(tmp_path: Path, near_plans) -> None:
     assert len(paths) == 6
     for p in paths:
         assert p.suffix == ".png" and p.stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("goal_m", [(0.0, 0.0, 5.0), (1e300, 0.0, 0.3)])
+def test_a_goal_out_of_reach_is_a_bad_goal_by_its_legs_without_numpys_warnings(goal_m):
+    """``cheope plan --to 0,0,5,...`` said singular_start for the goal, and 1e300 m printed numpy's
+    overflow warnings and "U joint degenerate" (an outside tester's)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        res = plan_motion(GEOM, START, Pose(np.array(goal_m), np.eye(3)))
+    assert res.status is PlanStatus.BAD_GOAL
+    assert res.message.startswith("goal pose p=") and "leg lengths" in res.message

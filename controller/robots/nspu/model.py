@@ -57,7 +57,7 @@ class NspuRobot:
             if not g.leg_min_m <= x <= g.leg_max_m:  # also False for NaN
                 return PoseStatus(
                     False,
-                    f"leg {j + 1} measured at {x:.4f} m, outside its stroke [{g.leg_min_m}, {g.leg_max_m}] m",
+                    f"leg {j + 1} at {x:.4f} m is outside its stroke [{g.leg_min_m}, {g.leg_max_m}] m",
                 )
         return POSE_OK
 

@@ -114,7 +114,8 @@ class PlanStatus(enum.Enum):
     STALLED = "stalled"  # no step (even damped) decreased the error
     SINGULARITY = "singularity"  # the planned trajectory meets det S ~ 0 or a type-II singularity
     LEG_STROKE = "leg_stroke"  # the planned leg lengths leave [leg_min_m, leg_max_m]
-    SINGULAR_START = "singular_start"  # the start or goal pose itself is singular or out of stroke
+    SINGULAR_START = "singular_start"  # the start pose itself is singular or out of stroke
+    BAD_GOAL = "bad_goal"  # the goal pose itself is singular or out of stroke (no plan could end there)
 
 
 @dataclass(frozen=True)
@@ -518,7 +519,14 @@ def _penalty(det_s: Array, tm: Array, sign_s: float, sign_m: float, config: Plan
 
 
 def check_pose(geometry: NspuGeometry, pose: Pose, config: PlannerConfig, label: str) -> str | None:
-    """Why `pose` cannot be a start or goal (singular, too close to det M = 0, legs out of stroke), or None."""
+    """Why `pose` cannot be a start or goal (legs out of stroke, singular, too close to det M = 0), or None.
+
+    The legs first: a pose far out of reach (a goal of 1e300 m) is out of stroke, which says why;
+    its singularity measures overflowed (numpy's warnings on stderr) into "U joint degenerate"."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        legs = leg_lengths_batch(geometry, pose.p_m, pose.R)
+    if not (np.all(legs >= geometry.leg_min_m) and np.all(legs <= geometry.leg_max_m)):  # NaN too
+        return f"{label} pose p={pose.p_m}: leg lengths {legs} m outside [{geometry.leg_min_m}, {geometry.leg_max_m}]"
     try:
         det_s, tm = singularity_measures(geometry, pose.p_m, pose.R)
     except SingularityError as err:
@@ -530,9 +538,6 @@ def check_pose(geometry: NspuGeometry, pose: Pose, config: PlannerConfig, label:
             f"{label} pose p={pose.p_m}: normalised det M = {tm:.3e}, |.| < {config.min_type2_measure} "
             "(type-II singularity, seed 000 eq. (26))"
         )
-    legs = leg_lengths_batch(geometry, pose.p_m, pose.R)
-    if np.any(legs < geometry.leg_min_m) or np.any(legs > geometry.leg_max_m):
-        return f"{label} pose p={pose.p_m}: leg lengths {legs} m outside [{geometry.leg_min_m}, {geometry.leg_max_m}]"
     return None
 
 
@@ -579,7 +584,7 @@ def plan_motion(
     for label, pose in (("start", start), ("goal", goal)):
         msg = check_pose(geometry, pose, config, label)
         if msg is not None:
-            return fail(PlanStatus.SINGULAR_START, msg)
+            return fail(PlanStatus.SINGULAR_START if label == "start" else PlanStatus.BAD_GOAL, msg)
     det_s0, tm0 = singularity_measures(geometry, start.p_m, start.R)
     det_s1, tm1 = singularity_measures(geometry, goal.p_m, goal.R)
     if np.sign(det_s0) != np.sign(det_s1):
@@ -967,8 +972,8 @@ def _build_result(
         t, ps, Rs = fine
         legs = leg_lengths_batch(geometry, ps, Rs)
         scale = geometry.length_unit_m if config.position_scale_m is None else config.position_scale_m
-        verified = float(np.linalg.norm(pose_error(ps[-1], Rs[-1], goal, scale)))
-        with np.errstate(all="ignore"):
+        with np.errstate(all="ignore"):  # a goal far out of reach (1e300 m): inf, not numpy's warning
+            verified = float(np.linalg.norm(pose_error(ps[-1], Rs[-1], goal, scale)))
             rates = feedback_leg_rates(geometry, ps, Rs, v)
             det_s, tm = singularity_measures(geometry, ps, Rs)
     else:
