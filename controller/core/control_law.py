@@ -33,7 +33,7 @@ cycle: a pause does not make a path jump ahead when it resumes.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, cast
 
 import numpy as np
@@ -537,7 +537,7 @@ class ControlLaw:
         if t - state.mode_entered_s >= self.config.hold_before_task_s and state.mode == Mode.HOLDING:
             try:
                 task_state = self.task.start()
-            except Exception as err:  # a task's (a plug-in's) error ends in the quick stop, named
+            except BaseException as err:  # a task's (a plug-in's) error ends in the quick stop, named
                 return self._faulted(state, task_error(self.task.name, "start", err), t, events)
             state = replace(state, task_state=task_state)
             return self._enter(state, Mode.RUNNING, t, events, why=f"task {self.task.name} starts")
@@ -553,11 +553,10 @@ class ControlLaw:
         events: list[Event],
     ) -> ControllerState:
         period = self.config.period_s
-        if state.sensor_breach:  # someone else sends on its COB-ID: nothing of it reaches the task
-            inputs = replace(inputs, sensor=None)
-        elif inputs.sensor is not None and inputs.sensor.fresh and state.sensor_stale > 0:
-            # A frame whose counter did not advance repeats the last sample: no new evidence for the task.
-            inputs = replace(inputs, sensor=replace(inputs.sensor, fresh=False))
+        inputs = self._task_inputs(state, inputs)
+        why = self._measured_pose_fault(state, inputs)
+        if why:
+            return self._faulted(state, why, t, events)
         if state.drives_ran_on < 0:
             # The drives stood through this period, out of extrapolation and without a target: the task
             # and the setpoint wait with them, one step ahead, the step the next target carries them.
@@ -584,12 +583,12 @@ class ControlLaw:
                 drives_held=state.drives_held and not k,
             )
             try:
-                out = self.task.step(task_state, ctx)
-                why = malformed_step(self.task.name, out, self.n)
-            except Exception as err:  # a task's (a plug-in's) error ends in the quick stop, named
+                checked = checked_step(self.task.name, self.task.step(task_state, ctx), self.n)
+            except BaseException as err:  # a task's (a plug-in's) error, sys.exit too, ends in the quick stop
                 return self._faulted(state, task_error(self.task.name, "step", err), t, events)
-            if why:
-                return self._faulted(state, why, t, events)
+            if isinstance(checked, str):
+                return self._faulted(state, checked, t, events)
+            out = checked  # the law's own copy from here on (checked_step)
             events.extend(out.events)
             task_state, ref = out.state, out.reference
             if out.fault:
@@ -624,6 +623,39 @@ class ControlLaw:
             return self._enter(state, Mode.STOPPING, t, events, why=f"task {self.task.name} finished")
         return state
 
+    @staticmethod
+    def _task_inputs(state: ControllerState, inputs: CycleInputs) -> CycleInputs:
+        """The cycle's inputs as the task may see them: the force sensor's sample only when trusted."""
+        if state.sensor_breach:  # someone else sends on its COB-ID: nothing of it reaches the task
+            return replace(inputs, sensor=None)
+        if inputs.sensor is not None and inputs.sensor.fresh and state.sensor_stale > 0:
+            # A frame whose counter did not advance repeats the last sample: no new evidence for the task.
+            return replace(inputs, sensor=replace(inputs.sensor, fresh=False))
+        return inputs
+
+    def _measured_pose_fault(self, state: ControllerState, inputs: CycleInputs) -> str:
+        """On the path, where the drives really are: a pose of the measured positions (direct
+        kinematics) inside the safe workspace. The reference's pose (``tcp_m``) is checked before it
+        is followed, but positions that are not that pose's, each inside its stroke, took Cheope
+        past its joints' swing limit, or to positions of no assembly, and the run said DONE (an
+        outside tester's plug-in). Off the path (moving to the start) the robot may be coming in
+        from outside the margins; a cycle without every drive's position has no new pose."""
+        if state.tcp_reference_m is None or not all(d.fresh for d in inputs.drives):
+            return ""
+        measured = state.tcp_measured_m
+        if measured is None:
+            positions = ", ".join(f"{d.position:.4f}" for d in inputs.drives)
+            return f"the measured actuator positions ({positions}) are no pose of the robot"
+        try:
+            pose = self.robot.check_pose(np.asarray(measured))
+            ok, reason = bool(pose.ok), str(pose.reason)
+        except Exception as err:  # a plug-in robot's check: its error ends in the quick stop, named
+            return f"the robot's pose check raised {type(err).__name__}: {str(err)[:200]}"
+        if ok:
+            return ""
+        tcp = ", ".join(f"{x:.4f}" for x in measured)
+        return f"the measured TCP ({tcp}) m leaves the safe workspace: {reason}"
+
     def _reference_fault(self, ref: JointReference) -> str:
         """Why the task's reference may not be followed, or "": its positions (what the drives are
         sent) outside the actuators' range, or its pose (``tcp_m``) outside the safe workspace."""
@@ -632,9 +664,10 @@ class ControlLaw:
             return why
         try:
             pose = self.robot.check_pose(np.asarray(ref.tcp_m))
+            ok, reason = bool(pose.ok), str(pose.reason)
         except Exception as err:  # a plug-in robot's check: its error ends in the quick stop, named
             return task_error(self.task.name, "reference's pose check", err)
-        return "" if pose.ok else f"task reference leaves the safe workspace: {pose.reason}"
+        return "" if ok else f"task reference leaves the safe workspace: {reason}"
 
     def _smoothed(self, state: ControllerState, ref: JointReference) -> SmoothingResult:
         """The setpoint one period on towards the task's reference (Ruckig): a reactive reference's
@@ -954,43 +987,96 @@ class ControlLaw:
         return replace(state, setpoint=result.setpoint)
 
 
-def task_error(name: str, what: str, err: Exception) -> str:
+def task_error(name: str, what: str, err: BaseException) -> str:
     """The fault reason of a task whose ``what`` raised ``err``: the law's quick stop follows, as for
     any fault (it was an exception out of the loop: the drives left to their SYNC watchdog)."""
     return f"task {name}: its {what} raised {type(err).__name__}: {str(err)[:200]}"
 
 
-def malformed_step(name: str, out: object, n: int) -> str:
-    """What is wrong with a task step's result for ``n`` actuators, or "": a ``TaskStep`` whose
-    reference has ``n`` numbers each of position, velocity and acceleration and a TCP of 3. A
-    plug-in's text or None reached Ruckig or the attribute reads and ended the loop with a traceback."""
+def checked_step(name: str, out: object, n: int) -> TaskStep | str:
+    """A task step's result for ``n`` actuators as the law's own copy, or why it cannot be used.
+
+    The copy is a ``TaskStep`` holding a ``JointReference`` of plain tuples of floats, made once:
+    the law checks it and follows it, so a plug-in's subclass whose fields answer differently on
+    each read (the range check first, Ruckig after) or an object changed after the return cannot
+    slip past the checks. Wrong types (text, None, a list, an event that is not an ``Event``, a
+    fault that is not text) are named instead of failing later inside the law or the recorder,
+    which ended the loop with a traceback and no quick stop (two outside testers')."""
     if not isinstance(out, TaskStep):
         return f"task {name} gave {type(out).__name__}, not a TaskStep"
-    ref = out.reference
+    # read as Any: compiled, a typed read of a wrong type is itself a TypeError naming no task
+    step = cast(Any, out)
+    ref = step.reference
     if not isinstance(ref, JointReference):
         return f"task {name} gave a reference of type {type(ref).__name__}, not a JointReference"
-    # read as Any: compiled, a typed read is itself a check (mypyc's TypeError names no task)
     fields = cast(Any, ref)
-    checked: tuple[tuple[str, object, int], ...] = (
-        ("position", fields.position, n),
-        ("velocity", fields.velocity, n),
-        ("acceleration", fields.acceleration, n),
-        ("tcp_m", fields.tcp_m, 3),
-    )
-    for what, values, _ in checked:
-        if not isinstance(values, tuple):
-            return f"task {name} gave a reference {what} as {type(values).__name__}, not a tuple"
-    p, v, a = fields.position, fields.velocity, fields.acceleration
+    numbers: list[tuple[float, ...]] = []
+    for what, values in (
+        ("position", fields.position),
+        ("velocity", fields.velocity),
+        ("acceleration", fields.acceleration),
+        ("tcp_m", fields.tcp_m),
+    ):
+        copied = _numbers(values)
+        if isinstance(copied, str):
+            return f"task {name} gave a reference {what} {copied}"
+        numbers.append(copied)
+    p, v, a, tcp = numbers
     if not len(p) == len(v) == len(a) == n:
         return (
             f"task {name} gave a reference of {len(p)} positions, "
             f"{len(v)} velocities and {len(a)} accelerations for {n} actuators"
         )
-    for what, values, count in checked:
-        items = cast(tuple[object, ...], values)
-        if len(items) != count:
-            return f"task {name} gave a reference {what} of {len(items)} values, not {count}"
-        for x in items:
-            if not isinstance(x, (float, int)):
-                return f"task {name} gave a reference {what} holding {type(x).__name__} {str(x)[:40]!r}"
-    return ""
+    if len(tcp) != 3:
+        return f"task {name} gave a reference tcp_m of {len(tcp)} values, not 3"
+    on_path, reactive, contact = fields.on_path, fields.reactive, fields.contact
+    finished, fault, events = step.finished, step.fault, step.events
+    if not (type(on_path) is bool and type(reactive) is bool and type(finished) is bool):
+        return f"task {name} gave on_path, reactive or finished that is not True or False"
+    if not isinstance(contact, ContactExpectation):
+        return f"task {name} gave a contact expectation of type {type(contact).__name__}"
+    if not isinstance(fault, str):
+        return f"task {name} gave a fault of type {type(fault).__name__}, not text"
+    if type(events) is not tuple:
+        return f"task {name} gave events as {type(events).__name__}, not a tuple of Event"
+    copied_events: tuple[Event, ...] = ()
+    if events:  # rare: most steps give none
+        for e in events:
+            if not _is_event(e):
+                return f"task {name} gave an event that is not an Event(kind, severity, message): {str(e)[:60]!r}"
+        copied_events = tuple(Event(str(e.kind), Severity(e.severity), str(e.message)) for e in events)
+    return TaskStep(
+        step.state,
+        JointReference(p, v, a, (tcp[0], tcp[1], tcp[2]), on_path, reactive, contact),
+        finished,
+        fault[:500],  # a 1-MB fault was printed whole, twice
+        copied_events,
+    )
+
+
+def _numbers(values: object) -> tuple[float, ...] | str:
+    """``values`` (a tuple or a list) as a tuple of floats, or what is wrong with them. A real number
+    of any type (numpy's float32 and int64 too) is one; text, a bool and anything else is not."""
+    if not isinstance(values, (tuple, list)):
+        return f"as {type(values).__name__}, not a tuple of numbers"
+    items = cast("Sequence[object]", values)  # compiled, a cast to tuple is a check: a list failed it
+    out: list[float] = []
+    for x in items:
+        if type(x) is float:  # nearly always: no conversion
+            out.append(x)
+            continue
+        if isinstance(x, (str, bytes, bool)) or not hasattr(x, "__float__"):
+            return f"holding {type(x).__name__} {str(x)[:40]!r}"
+        out.append(float(cast(Any, x)))
+    return tuple(out)
+
+
+def _is_event(e: object) -> bool:
+    if not isinstance(e, Event):
+        return False
+    fields = cast(Any, e)
+    return (
+        isinstance(fields.kind, str)
+        and isinstance(fields.severity, Severity)
+        and isinstance(fields.message, str)
+    )

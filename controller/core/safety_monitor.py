@@ -12,7 +12,8 @@ cycles, silent drives, the actuators' strokes; beside them the drives' position 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from collections.abc import Callable
+from typing import TYPE_CHECKING, cast
 
 from controller.core.cia402 import PowerState, controlword_towards
 from controller.core.controller_state import ControllerState, Mode
@@ -26,7 +27,7 @@ from controller.core.cycle_data import (
     Reaction,
     Severity,
 )
-from controller.core.ports import ChecksActuators, Robot
+from controller.core.ports import ChecksActuators, PoseStatus, Robot
 from controller.core.records import replace
 
 if TYPE_CHECKING:
@@ -233,19 +234,34 @@ class SafetyMonitor:
             if why:
                 return state, why
         if self._check_actuators is not None:
-            status = self._check_actuators(tuple(d.position for d in inputs.drives))
-            if not status.ok:
-                return state, f"measured: {status.reason}"
+            why = self._actuators_fault(tuple(d.position for d in inputs.drives))
+            if why:
+                return state, f"measured: {why}"
         return state, ""
 
     def commanded_fault(self, task_name: str, q: tuple[float, ...]) -> str:
         """The task's reference positions (what the drives will be sent) outside the actuators'
         range, for a robot that knows it; "" else. The pose check of its ``tcp_m`` did not see a
         plug-in whose positions said otherwise: +5 m on every actuator reached the drives."""
+        why = self._actuators_fault(q)
+        return f"task {task_name} commands {why}" if why else ""
+
+    def _actuators_fault(self, q: tuple[float, ...]) -> str:
+        """The robot's ``check_actuators`` of ``q``: its reason, or "" (none, or no such check). A
+        plug-in robot's check that raises or gives no ``PoseStatus`` is a reason too: it ended the
+        loop with a traceback, the drives left enabled."""
         if self._check_actuators is None:
             return ""
-        status = self._check_actuators(q)
-        return "" if status.ok else f"task {task_name} commands {status.reason}"
+        check = cast(
+            Callable[[tuple[float, ...]], object], self._check_actuators
+        )  # compiled: no typed return
+        try:
+            status = check(q)
+        except Exception as err:
+            return f"(the robot's check_actuators raised {type(err).__name__}: {str(err)[:200]})"
+        if not isinstance(status, PoseStatus):
+            return f"(the robot's check_actuators gave {type(status).__name__}, not a PoseStatus)"
+        return "" if status.ok else status.reason
 
     def retract_on_breach(self, state: ControllerState, a: BusAnomaly) -> bool:
         """A second sender on the force sensor's COB-ID while a task that can retract without force

@@ -16,6 +16,7 @@ from controller.config import Config, load_config
 from controller.core.cia402 import CW_QUICK_STOP, PowerState, decode_statusword
 from controller.core.controller_state import Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, DriveFeedback
+from controller.core.ports import JointReference
 from controller.core.records import replace
 from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother, Setpoint
 from controller.errors import WorkspaceError
@@ -332,6 +333,33 @@ def _raise(out):
     raise RuntimeError("bad task exploded in step")
 
 
+def _exits(out):
+    raise SystemExit(3)
+
+
+class _LyingReference(JointReference):
+    """Its true positions for the reads of a check, then +5 m (a hostile plug-in: the law read the
+    field again after its range check, and Ruckig got the +5 m)."""
+
+    __slots__ = ("_reads", "_true")
+
+    @classmethod
+    def of(cls, ref):
+        lying = cls(
+            ref.position, ref.velocity, ref.acceleration, ref.tcp_m, ref.on_path, ref.reactive, ref.contact
+        )
+        lying._true, lying._reads = ref.position, 0
+        return lying
+
+    def __getattribute__(self, name):
+        if name != "position":
+            return object.__getattribute__(self, name)
+        reads = object.__getattribute__(self, "_reads") + 1
+        object.__setattr__(self, "_reads", reads)
+        true = object.__getattribute__(self, "_true")
+        return true if reads % 2 == 1 else tuple(x + 5.0 for x in true)
+
+
 def _positions(out, f):
     return replace(out, reference=replace(out.reference, position=f(out.reference.position)))
 
@@ -358,11 +386,40 @@ def _positions(out, f):
             "task path gave a reference tcp_m of 2 values, not 3",
         ),
         (
-            lambda out: _positions(out, list),
-            "task path gave a reference position as list, not a tuple",
+            lambda out: _positions(out, lambda p: (True, *p[1:])),
+            "task path gave a reference position holding bool 'True'",
+        ),
+        (_exits, "task path: its step raised SystemExit: 3"),
+        (
+            lambda out: replace(out, events=("hello",)),
+            "task path gave an event that is not an Event(kind, severity, message): 'hello'",
+        ),
+        (lambda out: replace(out, events=[]), "task path gave events as list, not a tuple of Event"),
+        (lambda out: replace(out, fault=7), "task path gave a fault of type int, not text"),
+        (
+            lambda out: replace(out, reference=replace(out.reference, contact="touch")),
+            "task path gave a contact expectation of type str",
+        ),
+        (
+            lambda out: replace(out, reference=replace(out.reference, reactive="yes")),
+            "task path gave on_path, reactive or finished that is not True or False",
         ),
     ],
-    ids=["raises", "not-a-step", "no-reference", "text-position", "beyond-the-stroke", "short-tcp", "a-list"],
+    ids=[
+        "raises",
+        "not-a-step",
+        "no-reference",
+        "text-position",
+        "beyond-the-stroke",
+        "short-tcp",
+        "a-bool",
+        "sys-exit",
+        "an-event-of-text",
+        "events-in-a-list",
+        "a-fault-of-int",
+        "contact-of-text",
+        "reactive-of-text",
+    ],
 )
 def test_a_task_gone_wrong_faults_naming_it_and_quick_stops_before_any_target_follows_it(wrong, reason):
     cfg = load_config(overrides=SHORT)
@@ -377,6 +434,80 @@ def test_a_task_gone_wrong_faults_naming_it_and_quick_stops_before_any_target_fo
         assert decode_statusword(d.statusword()) == PowerState.QUICK_STOP_ACTIVE and d.velocity == 0.0
     stroke_max = cfg.robot.model("cheope").stroke_max_m
     assert max(max(o.targets) for o in trace.outputs) <= stroke_max  # nothing of the bad reference went out
+
+
+@pytest.mark.parametrize(
+    "positions",
+    [lambda p: tuple(x + 0.1 for x in p), lambda p: (0.32, 0.88, 0.88)],
+    ids=["every-actuator-0.1-m-on", "a-pose-of-no-assembly"],
+)
+def test_positions_inside_the_stroke_that_leave_the_safe_workspace_fault_on_the_measured_pose(positions):
+    """Each inside its stroke, not the pose the reference claims: Cheope went past its joints' swing
+    limit and the run said DONE (an outside tester's plug-in). The measured pose, on the path, is
+    now checked as the reference's is."""
+    cfg = load_config(overrides=SHORT)
+    rig = SimulatedRig(cfg)
+    rig.law.task = _TaskGoneWrongAfter(rig.law.task, 1.0, lambda out: _positions(out, positions))
+    final, _ = rig.loop(()).run(rig.law.initial_state(), 20.0)
+    assert final.mode == Mode.FAULT
+    assert re.match(
+        r"the measured TCP \(.*\) m leaves the safe workspace: spherical joints of leg \d swing 2\d\.\d deg, "
+        r"limit 22\.0 deg|the measured actuator positions \(.*\) are no pose of the robot",
+        final.fault_reason,
+    ), final.fault_reason
+
+
+def test_a_robot_whose_actuator_check_raises_faults_naming_it():
+    cfg = load_config(overrides=SHORT)
+    rig = SimulatedRig(cfg)
+    robot = rig.law.monitor._check_actuators.__self__
+    calls = []
+
+    def check(q):
+        calls.append(q)
+        if len(calls) > 400:
+            raise RuntimeError("check_actuators exploded")
+        return robot.check_actuators(q)
+
+    rig.law.monitor._check_actuators = check
+    final, _ = rig.loop(()).run(rig.law.initial_state(), 20.0)
+    assert final.mode == Mode.FAULT
+    assert final.fault_reason.endswith(
+        "(the robot's check_actuators raised RuntimeError: check_actuators exploded)"
+    )
+
+
+def test_a_reference_whose_positions_change_after_their_check_is_not_followed():
+    """A hostile plug-in's reference gave its true positions to the law's checks and +5 m to the
+    read after them (Ruckig's): the drives got 0.903 m, beyond the stroke. The law now reads each
+    field once, into its own copy, and follows the copy."""
+    cfg = load_config(overrides=SHORT)
+    rig = SimulatedRig(cfg)
+    rig.law.task = _TaskGoneWrongAfter(
+        rig.law.task, 1.0, lambda out: replace(out, reference=_LyingReference.of(out.reference))
+    )
+    trace = Trace()
+    final, _ = rig.loop((trace,)).run(rig.law.initial_state(), 20.0)
+    assert final.mode == Mode.DONE
+    assert max(max(o.targets) for o in trace.outputs) <= cfg.robot.model("cheope").stroke_max_m
+
+
+def test_a_task_giving_numpy_numbers_or_lists_runs_as_with_floats():
+    """numpy's float32 and int64 are numbers (they were refused as "not a number"), a list is a
+    sequence of them: the law's copy holds them as floats, and the run is the one with floats."""
+    cfg = load_config(overrides=SHORT)
+    finals = []
+    for wrong in (
+        lambda out: out,
+        lambda out: _positions(
+            out, lambda p: [np.float32(x) if j else np.float64(x) for j, x in enumerate(p)]
+        ),
+    ):
+        rig = SimulatedRig(cfg)
+        rig.law.task = _TaskGoneWrongAfter(rig.law.task, 1.0, wrong)
+        finals.append(rig.loop(()).run(rig.law.initial_state(), 20.0)[0])
+    assert [f.mode for f in finals] == [Mode.DONE, Mode.DONE]
+    assert finals[1].setpoint.position == pytest.approx(finals[0].setpoint.position, abs=1e-6)
 
 
 def test_a_task_whose_start_raises_faults_naming_it():
