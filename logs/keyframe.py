@@ -73,8 +73,20 @@ def _encode(v: Any) -> Any:
 
 
 def encode_state(state: object) -> bytes:
-    """The state as compact JSON bytes (see the module doc)."""
-    return json.dumps(_encode(state), separators=(",", ":"), allow_nan=False).encode()
+    """The state as compact JSON bytes (see the module doc); KeyframeError when it has none.
+
+    A state nested deeper than the interpreter's recursion limit, or one that holds itself (a task's
+    linked list of frozen nodes), raised RecursionError out of the recorder and ended the loop at
+    the recording's first split (an outside tester's): it is a state without a keyframe, as one
+    of a class the keyframe cannot write."""
+    try:
+        return json.dumps(_encode(state), separators=(",", ":"), allow_nan=False).encode()
+    except KeyframeError:
+        raise
+    except RecursionError:
+        raise KeyframeError("the state nests too deep to be written (or holds itself)") from None
+    except (ValueError, TypeError) as err:  # a non-finite number (allow_nan), a key json cannot write
+        raise KeyframeError(f"the state cannot be written as JSON: {err}") from None
 
 
 # Classes that moved since a recording may have named them: the old name reads as the new one.

@@ -315,6 +315,8 @@ class SessionRecorder:
             data, problem = encode_state(state), ""
         except KeyframeError as err:
             data, problem = b"", str(err)
+        except Exception as err:  # a task state's own code (a property) must never end the loop
+            data, problem = b"", f"the state could not be read: {type(err).__name__}: {str(err)[:200]}"
         dropped = self.dropped
         self._send(
             pack_record((KEYFRAME, self.dropped, cycle, t, mono_s, seq, STATE_ENCODING, data, problem)), 1

@@ -131,3 +131,21 @@ def test_an_old_window_of_samples_that_are_not_three_forces_is_refused():
     old = b'{"d":"controller.core.contact_guard:ContactWatch","f":{"witness_window":{"t":[{"t":[1.0,2.0]}]}}}'
     with pytest.raises(KeyframeError, match="not 3 forces each"):
         decode_state(old, "cheope-state-json-1")
+
+
+@dataclass
+class _Node:
+    next: object = None
+
+
+def test_a_state_nested_too_deep_or_holding_itself_is_a_keyframe_error_not_a_recursion_error():
+    """A task's state of 5 000 nested tuples, or a list that holds itself, ended the loop with a
+    RecursionError at the recording's first split (the recorder catches KeyframeError)."""
+    deep: object = 0.0
+    for _ in range(5000):
+        deep = (deep,)
+    itself = _Node()
+    itself.next = itself
+    for state in (deep, itself):
+        with pytest.raises(KeyframeError, match="nests too deep"):
+            encode_state(state)
