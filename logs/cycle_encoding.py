@@ -122,6 +122,20 @@ def inputs_values(inputs: CycleInputs) -> InputsValues:
     )
 
 
+def phase_text(phase_name: Callable[[object], str] | None, task_state: object) -> str:
+    """The task's phase for the recording and the monitors: its ``phase_name`` as plain text ("" without
+    one), "?" when it raises or gives no text: a task's display helper must never stop the loop (the
+    monitor's publisher called it unguarded, and a plug-in's raise ended the run)."""
+    if phase_name is None:
+        return ""
+    try:
+        name: object = phase_name(task_state)
+    except Exception:
+        return "?"
+    # text, not a subclass the writer would have to import (a StrEnum: its text); else "?"
+    return str.__str__(name) if isinstance(name, str) else "?"
+
+
 def cycle_values(
     cycle: int,
     t: float,
@@ -136,13 +150,7 @@ def cycle_values(
     phase = ""
     values: dict[str, float] | None = None
     if task_state is not None:
-        if phase_name is not None:
-            try:
-                name: object = phase_name(task_state)
-            except Exception:  # a task's display helper must never stop the recording
-                name = "?"
-            # text, not a subclass the writer would have to import (a StrEnum: its text); else "?"
-            phase = str.__str__(name) if isinstance(name, str) else "?"
+        phase = phase_text(phase_name, task_state)
         values = task_values(task_state)
     setpoint = state.setpoint
     return (

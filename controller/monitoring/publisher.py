@@ -66,6 +66,7 @@ from controller.monitoring.zenoh_session import (
 )
 from drivers.cyclic_exchange import ExchangeCounters
 from drivers.pacing import wall_clock_offset_ns
+from logs.cycle_encoding import phase_text
 
 log = logging.getLogger(__name__)
 
@@ -313,9 +314,9 @@ class MonitorPublisher:
             self.published_events += 1
 
     def _phase(self, state: ControllerState) -> str:
-        if self.task_phase is None or state.task_state is None:
+        if state.task_state is None:
             return ""
-        return self.task_phase(state.task_state)
+        return phase_text(self.task_phase, state.task_state)
 
     def _current_alarms(self, t: float, inputs: CycleInputs, state: ControllerState) -> list[str]:
         alarms = [f"FAULT: {state.fault_reason}"] if state.fault_reason else []

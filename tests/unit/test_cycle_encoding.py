@@ -116,6 +116,26 @@ def test_the_task_phase_is_text_whatever_the_task_s_phase_name_returns():
         assert cycle_pb(values).state.task_phase == expected
 
 
+def test_the_monitor_publishes_the_same_phase_text_and_survives_a_failing_phase_name():
+    """The monitor's publisher called a task's phase_name unguarded: a plug-in's raise, or a
+    number, ended the run over the bus (the recorder's text was guarded)."""
+    from types import SimpleNamespace
+
+    from controller.assembly import build_law
+    from controller.config import load_config
+    from controller.core.records import replace
+    from controller.monitoring.publisher import MonitorPublisher
+
+    state = replace(build_law(load_config()).initial_state(), task_state=_TaskState())
+    for phase_name, expected in (
+        (_failing_phase_name, "?"),
+        (lambda s: 3, "?"),
+        (lambda s: _Look.TRACKING, "tracking"),
+    ):
+        publisher = SimpleNamespace(task_phase=phase_name)  # what _phase reads of it
+        assert MonitorPublisher._phase(publisher, state) == expected
+
+
 class _Timing:
     wake_error_s = 0.0
     step_s = 0.0
