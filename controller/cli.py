@@ -24,6 +24,7 @@ from controller.errors import CheopeError, RefusedError
 from controller.monitoring.cli_commands import add_controller_options, monitoring_overrides
 from controller.monitoring.cli_commands import add_subcommands as add_monitoring_subcommands
 from controller.output_paths import check_output_dir
+from controller.plugins import listing_what_loads
 from controller.robot_registry import robot_entry, robot_kinds
 from controller.shell.status_line import StatusDisplay, live_status, status_wanted
 from controller.signal_relay import stop_event_on_signals
@@ -806,7 +807,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    with listing_what_loads() as skipped:  # a broken plug-in must not take `cheope stop` with it
+        parser = build_parser()
+    for trouble in skipped:  # before --help too: why a robot, a task or a command is missing
+        print(f"cheope: warning: {trouble}; the commands that use robots and tasks refuse", file=sys.stderr)
+    args = parser.parse_args(argv)
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",

@@ -33,6 +33,7 @@ with an error naming the distribution and the entry point (both, for a name decl
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from importlib.metadata import EntryPoint, entry_points
 from typing import Any, Generic, Protocol, TypeVar
 
@@ -79,13 +80,47 @@ def _unique(eps: Iterable[EntryPoint]) -> list[EntryPoint]:
     return list(seen.values())
 
 
+# While the command line lists the robots, tasks and commands for its parser: what did not load
+# (``listing_what_loads``), instead of an error. The parser is built for every command, and one
+# broken plug-in ended all of them, ``cheope stop`` and ``--help`` too; the commands that use the
+# robots and tasks look them up again, strictly, and meet the error in its one line.
+_skipped: list[str] | None = None
+
+
+@contextmanager
+def listing_what_loads() -> Iterator[list[str]]:
+    """Lookups inside leave out an entry point that does not load (its error in the list given);
+    nothing found so is kept for the lookups after."""
+    global _skipped
+    before, _skipped = _skipped, []
+    try:
+        yield _skipped
+    finally:
+        _skipped = before
+
+
+def _loaded(ep: EntryPoint, kind: type | None, what: str) -> Any:
+    """The entry point's object, checked to be a ``kind`` (callable when None); None when it is
+    not and a listing leaves it out (``listing_what_loads``)."""
+    try:
+        obj = _load(ep)
+        if not (isinstance(obj, kind) if kind is not None else callable(obj)):
+            raise PluginError(f"{_origin(ep)} is a {type(obj).__name__}, not a {what}")
+    except PluginError as err:
+        if _skipped is None:
+            raise
+        if str(err) not in _skipped:  # each lookup of the group meets it again
+            _skipped.append(str(err))
+        return None
+    return obj
+
+
 def discover(group: str, kind: type[E]) -> Iterator[tuple[str, E]]:
     """``(name, object)`` of every entry point in ``group``, each checked to be a ``kind``."""
     for ep in _unique(entry_points(group=group)):
-        obj = _load(ep)
-        if not isinstance(obj, kind):
-            raise PluginError(f"{_origin(ep)} is a {type(obj).__name__}, not a {kind.__name__}")
-        yield ep.name, obj
+        obj = _loaded(ep, kind, kind.__name__)
+        if obj is not None:
+            yield ep.name, obj
 
 
 class _Entry(Protocol):
@@ -117,16 +152,18 @@ class Registry(Generic[K]):
         self._found = None
 
     def entries(self) -> dict[str, K]:
-        if self._found is None:
-            found: dict[str, K] = {}
+        found = self._found
+        if found is None:
+            found = {}
             for name, entry in discover(self.group, self.entry_type):
                 if name != entry.kind:
                     raise PluginError(
                         f"entry point {name} of group {self.group} gives the {self.what} {entry.kind!r}"
                     )
                 found[name] = entry
-            self._found = found
-        return {**self._found, **self._added}
+            if _skipped is None:  # a listing's, without what did not load, is not kept
+                self._found = found
+        return {**found, **self._added}
 
     def entry(self, kind: str) -> K:
         entries = self.entries()
@@ -153,21 +190,17 @@ class Hooks:
 
     def all(self) -> dict[str, Any]:
         """Every hook of the group by kind (each entry point loaded and checked), those added winning."""
-        found = {ep.name: self._checked(ep) for ep in _unique(entry_points(group=self.group))}
-        return {**found, **self._added}
-
-    def _checked(self, ep: EntryPoint) -> Any:
-        hook = _load(ep)
-        if not (isinstance(hook, self.hook_type) if self.hook_type is not None else callable(hook)):
-            raise PluginError(f"{_origin(ep)} is a {type(hook).__name__}, not a {self.what}")
-        return hook
+        found = {
+            ep.name: _loaded(ep, self.hook_type, self.what) for ep in _unique(entry_points(group=self.group))
+        }
+        return {**{k: v for k, v in found.items() if v is not None}, **self._added}
 
     def get(self, kind: str) -> Any:
         """The hook of ``kind``, or None when no distribution declares one."""
         if kind in self._added:
             return self._added[kind]
         for ep in _unique(entry_points(group=self.group, name=kind)):
-            return self._checked(ep)
+            return _loaded(ep, self.hook_type, self.what)
         return None
 
 

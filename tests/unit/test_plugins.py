@@ -28,6 +28,7 @@ from controller.tasks.registry import TASKS, task_kinds
 from sim_backend.loopback import LoopbackExchange
 
 PLUGINS = Path(__file__).resolve().parents[1] / "plugins"
+DATA = Path(__file__).resolve().parents[1] / "data"
 
 
 def _install(site: Path, name: str, entry_points: str) -> None:
@@ -159,23 +160,37 @@ def test_a_name_another_distribution_declares_too_is_refused_naming_both(tmp_pat
         TASKS.rediscover()
 
 
-def test_a_plugin_that_does_not_load_stops_the_command_in_one_line(tmp_path):
-    """The parser lists every plug-in's robots and tasks: one that does not load ended ``cheope``
-    with a 41-line traceback, its one line naming the plug-in last."""
+def test_a_plugin_that_does_not_load_is_named_and_stops_only_what_needs_it(tmp_path):
+    """The parser lists every plug-in's robots and tasks: one that does not load ended every command
+    with a 41-line traceback (``cheope stop`` and ``--help`` too), its one line naming it last. Now
+    each command warns in one line; those that use robots and tasks refuse with it, exit 2."""
     _install(tmp_path, "broken_plugin", "[cheope.tasks]\nbad = no_such_module:BAD\n")
     env = {**os.environ, "PYTHONPATH": str(tmp_path)}
-    done = subprocess.run(
-        [sys.executable, "-m", "controller", "demo", "--simulated-time"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env=env,
-        check=False,
-    )
-    assert done.returncode == 2
-    assert done.stderr.splitlines() == [
-        "cheope: error: entry point bad = 'no_such_module:BAD' of broken_plugin (group cheope.tasks) "
+    said = (
+        "entry point bad = 'no_such_module:BAD' of broken_plugin (group cheope.tasks) "
         "does not load: ModuleNotFoundError: No module named 'no_such_module'"
+    )
+
+    def cheope(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "-m", "controller", *args],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            env=env,
+            check=False,
+        )
+
+    demo = cheope("demo", "--simulated-time")
+    assert demo.returncode == 2
+    assert demo.stderr.splitlines() == [
+        f"cheope: warning: {said}; the commands that use robots and tasks refuse",
+        f"cheope demo: error: {said}",
+    ]
+    info = cheope("logs", "info", str(DATA / "path_quarter_lap.mcap"))
+    assert info.returncode == 0 and "status     complete" in info.stdout
+    assert info.stderr.splitlines() == [
+        f"cheope: warning: {said}; the commands that use robots and tasks refuse"
     ]
 
 
