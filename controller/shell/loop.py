@@ -303,6 +303,7 @@ class CycleLoop:
         self.late_tolerance_s = late_tolerance_s
         self.stop_timeout_s = stop_timeout_s
         self.collect_garbage = collect_garbage  # the loop, not the allocator, decides when (module text)
+        self.cycles_done = 0  # completed cycles: what controller/shell/stuck_loop.py watches
 
     def _window_end(self, deadline: float, work_peak_s: float) -> float:
         """When this cycle's answer window closes (step 3 of the module's text)."""
@@ -445,6 +446,7 @@ class CycleLoop:
                 end_cycle = k  # keep cycling a little so the last commands reach the drives
             elif end_cycle is not None and not ending:
                 end_cycle = None  # recovered (a reset) before the end
+            self.cycles_done += 1
             if end_cycle is not None and k - end_cycle >= linger:
                 break
             k += 1

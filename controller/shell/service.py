@@ -47,6 +47,7 @@ from controller.shell.idle_poll import idle_polling
 from controller.shell.log_handoff import log_records_off_the_loop
 from controller.shell.loop import CycleLoop
 from controller.shell.run_summary import RunRecorder, summarize
+from controller.shell.stuck_loop import StuckLoopGuard
 from controller.shell.systemd_notify import notify
 from controller.tasks.registry import RunReport
 from drivers.bus import BusSpec, open_bus
@@ -251,9 +252,12 @@ def run_controller(
                 helpers_at_start = helpers.start()
                 faults_before = resource.getrusage(resource.RUSAGE_SELF).ru_majflt
                 notify("READY=1")  # systemd Type=notify: the devices are configured, the loop starts
-                final, stats = loop.run(
-                    prepared.law.initial_state(), max_duration_s, exit_on_fault=not cfg.loop.stay_in_fault
-                )
+                with StuckLoopGuard(
+                    lambda: loop.cycles_done, loop.stop_event, loop.quick_stop_event, cfg.loop.stop_timeout_s
+                ):
+                    final, stats = loop.run(
+                        prepared.law.initial_state(), max_duration_s, exit_on_fault=not cfg.loop.stay_in_fault
+                    )
                 notify("STOPPING=1")
                 # a page the kernel dropped (memory pressure, proactive reclaim) is read back from disk
                 # when touched: milliseconds each, inside a cycle (--lock-memory prevents it)
