@@ -639,13 +639,12 @@ class ControlLaw:
         is followed, but positions that are not that pose's, each inside its stroke, took Cheope
         past its joints' swing limit, or to positions of no assembly, and the run said DONE (an
         outside tester's plug-in). Off the path (moving to the start) the robot may be coming in
-        from outside the margins; a cycle without every drive's position has no new pose."""
-        if state.tcp_reference_m is None or not all(d.fresh for d in inputs.drives):
-            return ""
+        from outside the margins; a cycle without every drive's position has no new pose. A pose
+        the positions do not have (no assembly) is not judged: the 3-nSPU has none at all, and
+        Cheope's way there passes the joints' swing limit first."""
         measured = state.tcp_measured_m
-        if measured is None:
-            positions = ", ".join(f"{d.position:.4f}" for d in inputs.drives)
-            return f"the measured actuator positions ({positions}) are no pose of the robot"
+        if measured is None or state.tcp_reference_m is None or not all(d.fresh for d in inputs.drives):
+            return ""  # None: a robot without direct kinematics (the 3-nSPU's pose is integrated)
         try:
             pose = self.robot.check_pose(np.asarray(measured))
             ok, reason = bool(pose.ok), str(pose.reason)
