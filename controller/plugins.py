@@ -71,13 +71,21 @@ def _unique(eps: Iterable[EntryPoint]) -> list[EntryPoint]:
     order of ``sys.path`` (an outside tester's plug-in named ``cheope`` took the built-in robot's
     simulator kinematics, or its model, with no word), so neither is chosen."""
     seen: dict[str, EntryPoint] = {}
+    clashes: set[str] = set()
     for ep in eps:
         first = seen.setdefault(ep.name, ep)
         if first is not ep:
-            raise PluginError(
-                f"{_origin(first)} and {_origin(ep)} declare the same name: uninstall one of them"
-            )
-    return list(seen.values())
+            _refuse(f"{_origin(first)} and {_origin(ep)} declare the same name: uninstall one of them")
+            clashes.add(ep.name)  # a listing (``listing_what_loads``) takes neither
+    return [ep for name, ep in seen.items() if name not in clashes]
+
+
+def _refuse(message: str) -> None:
+    """A plug-in's error: raised, or kept while the command line lists what loads."""
+    if _skipped is None:
+        raise PluginError(message)
+    if message not in _skipped:  # each lookup of the group meets it again
+        _skipped.append(message)
 
 
 # While the command line lists the robots, tasks and commands for its parser: what did not load
@@ -107,10 +115,7 @@ def _loaded(ep: EntryPoint, kind: type | None, what: str) -> Any:
         if not (isinstance(obj, kind) if kind is not None else callable(obj)):
             raise PluginError(f"{_origin(ep)} is a {type(obj).__name__}, not a {what}")
     except PluginError as err:
-        if _skipped is None:
-            raise
-        if str(err) not in _skipped:  # each lookup of the group meets it again
-            _skipped.append(str(err))
+        _refuse(str(err))
         return None
     return obj
 
@@ -157,9 +162,8 @@ class Registry(Generic[K]):
             found = {}
             for name, entry in discover(self.group, self.entry_type):
                 if name != entry.kind:
-                    raise PluginError(
-                        f"entry point {name} of group {self.group} gives the {self.what} {entry.kind!r}"
-                    )
+                    _refuse(f"entry point {name} of group {self.group} gives the {self.what} {entry.kind!r}")
+                    continue
                 found[name] = entry
             if _skipped is None:  # a listing's, without what did not load, is not kept
                 self._found = found

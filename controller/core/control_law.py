@@ -78,7 +78,7 @@ from controller.core.ports import (
     missing_capability,
 )
 from controller.core.records import replace
-from controller.core.safety_monitor import GUARDED_MODES, SafetyMonitor
+from controller.core.safety_monitor import GUARDED_MODES, SafetyMonitor, error_text
 from controller.core.setpoint_smoothing import RuckigSmoother, Setpoint, SmoothingResult
 from controller.errors import NoSolutionError
 
@@ -324,6 +324,7 @@ class ControlLaw:
             fault_reason="",
             setpoint=self._hold(state),
             task_time_s=0.0,
+            tcp_reference_m=None,  # the last run's path: the measured pose is judged on this run's
             sensor_stale=0,
             sensor_missing=0,
             late_streak=0,
@@ -537,9 +538,10 @@ class ControlLaw:
         if t - state.mode_entered_s >= self.config.hold_before_task_s and state.mode == Mode.HOLDING:
             try:
                 task_state = self.task.start()
-            except BaseException as err:  # a task's (a plug-in's) error ends in the quick stop, named
+            # a task's (a plug-in's) error, sys.exit too, ends in the quick stop, named
+            except (Exception, SystemExit) as err:
                 return self._faulted(state, task_error(self.task.name, "start", err), t, events)
-            state = replace(state, task_state=task_state)
+            state = replace(state, task_state=task_state, tcp_reference_m=None)
             return self._enter(state, Mode.RUNNING, t, events, why=f"task {self.task.name} starts")
         return state
 
@@ -584,7 +586,8 @@ class ControlLaw:
             )
             try:
                 checked = checked_step(self.task.name, self.task.step(task_state, ctx), self.n)
-            except BaseException as err:  # a task's (a plug-in's) error, sys.exit too, ends in the quick stop
+            # a task's (a plug-in's) error, sys.exit too, ends in the quick stop, named
+            except (Exception, SystemExit) as err:
                 return self._faulted(state, task_error(self.task.name, "step", err), t, events)
             if isinstance(checked, str):
                 return self._faulted(state, checked, t, events)
@@ -646,10 +649,10 @@ class ControlLaw:
         if measured is None or state.tcp_reference_m is None or not all(d.fresh for d in inputs.drives):
             return ""  # None: a robot without direct kinematics (the 3-nSPU's pose is integrated)
         try:
-            pose = self.robot.check_pose(np.asarray(measured))
-            ok, reason = bool(pose.ok), str(pose.reason)
+            pose = cast(Any, self.robot.check_pose(np.asarray(measured)))  # compiled: no typed reads
+            ok, reason = bool(pose.ok), str(pose.reason) or "(no reason given)"
         except Exception as err:  # a plug-in robot's check: its error ends in the quick stop, named
-            return f"the robot's pose check raised {type(err).__name__}: {str(err)[:200]}"
+            return f"the robot's pose check raised {type(err).__name__}: {error_text(err)}"
         if ok:
             return ""
         tcp = ", ".join(f"{x:.4f}" for x in measured)
@@ -662,8 +665,8 @@ class ControlLaw:
         if why:  # the positions themselves: a plug-in's +5 m passed the check of the pose it claimed
             return why
         try:
-            pose = self.robot.check_pose(np.asarray(ref.tcp_m))
-            ok, reason = bool(pose.ok), str(pose.reason)
+            pose = cast(Any, self.robot.check_pose(np.asarray(ref.tcp_m)))  # compiled: no typed reads
+            ok, reason = bool(pose.ok), str(pose.reason) or "(no reason given)"
         except Exception as err:  # a plug-in robot's check: its error ends in the quick stop, named
             return task_error(self.task.name, "reference's pose check", err)
         return "" if ok else f"task reference leaves the safe workspace: {reason}"
@@ -989,7 +992,7 @@ class ControlLaw:
 def task_error(name: str, what: str, err: BaseException) -> str:
     """The fault reason of a task whose ``what`` raised ``err``: the law's quick stop follows, as for
     any fault (it was an exception out of the loop: the drives left to their SYNC watchdog)."""
-    return f"task {name}: its {what} raised {type(err).__name__}: {str(err)[:200]}"
+    return f"task {name}: its {what} raised {type(err).__name__}: {error_text(err)}"
 
 
 def checked_step(name: str, out: object, n: int) -> TaskStep | str:
@@ -1048,7 +1051,7 @@ def checked_step(name: str, out: object, n: int) -> TaskStep | str:
         step.state,
         JointReference(p, v, a, (tcp[0], tcp[1], tcp[2]), on_path, reactive, contact),
         finished,
-        fault[:500],  # a 1-MB fault was printed whole, twice
+        str.__str__(fault)[:500],  # text, not a subclass's slice; a 1-MB fault was printed whole, twice
         copied_events,
     )
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING, Any, cast
 
 from controller.core.cia402 import PowerState, controlword_towards
 from controller.core.controller_state import ControllerState, Mode
@@ -94,6 +94,15 @@ NMT_STATE_NAMES = {0: "boot-up (it restarted)", 4: "STOPPED", 5: "OPERATIONAL", 
 def error_code_text(code: int) -> str:
     """ ", error code 0x3220" (the drive's last EMCY: CiA 301, the code 0x603F holds too), or ""."""
     return f", error code 0x{code:04X}" if code else ""
+
+
+def error_text(err: BaseException) -> str:
+    """An exception's text, at most 200 characters, whatever its ``__str__`` does (a plug-in's own
+    exception may raise there): for the fault reasons of a plug-in's error (here and control_law)."""
+    try:
+        return str.__str__(str(err))[:200]
+    except Exception:
+        return "(its text could not be read)"
 
 
 # The modes in which the contact guard watches (the drives enabled, the law commanding them).
@@ -252,16 +261,18 @@ class SafetyMonitor:
         loop with a traceback, the drives left enabled."""
         if self._check_actuators is None:
             return ""
-        check = cast(
-            Callable[[tuple[float, ...]], object], self._check_actuators
-        )  # compiled: no typed return
+        check = cast(Callable[[tuple[float, ...]], Any], self._check_actuators)  # compiled: no typed reads
         try:
             status = check(q)
+            if not isinstance(status, PoseStatus):
+                return f"(the robot's check_actuators gave {type(status).__name__}, not a PoseStatus)"
+            fields = cast(
+                Any, status
+            )  # compiled, a narrowed PoseStatus's reads are typed: numpy's bool_ failed
+            ok, reason = bool(fields.ok), str(fields.reason)
         except Exception as err:
-            return f"(the robot's check_actuators raised {type(err).__name__}: {str(err)[:200]})"
-        if not isinstance(status, PoseStatus):
-            return f"(the robot's check_actuators gave {type(status).__name__}, not a PoseStatus)"
-        return "" if status.ok else status.reason
+            return f"(the robot's check_actuators raised {type(err).__name__}: {error_text(err)})"
+        return "" if ok else reason or "(the robot's check_actuators gave no reason)"
 
     def retract_on_breach(self, state: ControllerState, a: BusAnomaly) -> bool:
         """A second sender on the force sensor's COB-ID while a task that can retract without force

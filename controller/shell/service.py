@@ -253,7 +253,11 @@ def run_controller(
                 faults_before = resource.getrusage(resource.RUSAGE_SELF).ru_majflt
                 notify("READY=1")  # systemd Type=notify: the devices are configured, the loop starts
                 with StuckLoopGuard(
-                    lambda: loop.cycles_done, loop.stop_event, loop.quick_stop_event, cfg.loop.stop_timeout_s
+                    lambda: loop.cycles_done,
+                    loop.stop_event,
+                    loop.quick_stop_event,
+                    cfg.loop.stop_timeout_s,
+                    cfg.period_s,
                 ):
                     final, stats = loop.run(
                         prepared.law.initial_state(), max_duration_s, exit_on_fault=not cfg.loop.stay_in_fault

@@ -1,6 +1,6 @@
 """The end of a process whose loop no longer cycles: a stop must end it in bounded time.
 
-A stop (a signal, ``cheope stop``, the end of ``--duration``) is acted on by the loop, and so is
+A stop (a signal, ``cheope stop``, a lost recording) is acted on by the loop, and so is
 the quick stop of a second signal or of ``loop.stop_timeout_s``: a loop that no longer completes
 cycles acts on neither. An outside tester's plug-in task blocked inside its step: ``cheope stop``
 answered "accepted", SIGTERM, SIGINT and a second SIGTERM were ignored for 23 s, only SIGKILL
@@ -35,11 +35,14 @@ class StuckLoopGuard:
         stop: threading.Event,
         quick_stop: threading.Event,
         stop_timeout_s: float,
+        period_s: float,
         end_process: Callable[[int], object] = os._exit,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.cycles_done, self.stop, self.quick_stop = cycles_done, stop, quick_stop
         self.stop_timeout_s = stop_timeout_s
+        # a healthy loop completes a cycle every period: at 1 Hz a second without one is no hold-up
+        self.least_s = 3.0 * period_s + POLL_S
         self.end_process, self.clock = end_process, clock
         self._finished = threading.Event()
         self._thread = threading.Thread(target=self._watch, name="cheope-stuck-loop-guard", daemon=True)
@@ -62,7 +65,9 @@ class StuckLoopGuard:
             if cycles != seen:
                 seen, since = cycles, now
                 continue
-            allowed = QUICK_STOP_GRACE_S if self.quick_stop.is_set() else self.stop_timeout_s
+            allowed = max(
+                QUICK_STOP_GRACE_S if self.quick_stop.is_set() else self.stop_timeout_s, self.least_s
+            )
             if now - since >= allowed:
                 print(
                     f"cheope: the loop has completed no cycle for {now - since:.1f} s after a stop was asked "

@@ -477,6 +477,28 @@ def test_a_robot_whose_actuator_check_raises_faults_naming_it():
     )
 
 
+def test_a_robots_actuator_check_answering_in_numpy_or_without_a_reason_is_read_as_meant():
+    """numpy's bool_ for ``ok`` ended the compiled step with a TypeError; ``PoseStatus(False)`` without
+    a reason was taken for no fault (the reviewer's findings)."""
+    from controller.core.ports import PoseStatus
+
+    cfg = load_config(overrides=SHORT)
+    finals = []
+    for answer in (lambda q, n: PoseStatus(np.bool_(True)), lambda q, n: PoseStatus(n < 400)):
+        rig = SimulatedRig(cfg)
+        calls = [0]
+
+        def check(q, answer=answer, calls=calls):
+            calls[0] += 1
+            return answer(q, calls[0])
+
+        rig.law.monitor._check_actuators = check
+        finals.append(rig.loop(()).run(rig.law.initial_state(), 20.0)[0])
+    assert finals[0].mode == Mode.DONE
+    assert finals[1].mode == Mode.FAULT
+    assert finals[1].fault_reason.endswith("(the robot's check_actuators gave no reason)")
+
+
 def test_a_reference_whose_positions_change_after_their_check_is_not_followed():
     """A hostile plug-in's reference gave its true positions to the law's checks and +5 m to the
     read after them (Ruckig's): the drives got 0.903 m, beyond the stroke. The law now reads each

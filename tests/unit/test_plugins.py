@@ -152,6 +152,11 @@ def test_a_name_another_distribution_declares_too_is_refused_naming_both(tmp_pat
         with pytest.raises(PluginError, match="declare the same name: uninstall one of them") as raised:
             lookup()
         said = str(raised.value)
+        from controller.plugins import listing_what_loads
+
+        with listing_what_loads() as skipped:  # the command line's listing: a warning, not an end
+            lookup()
+        assert skipped == [said]
         assert f"entry point {name} = '{target}' of clashing_plugin (group {group})" in said
         assert re.search(rf"entry point {name} = '[\w.:]+' of cheope-controller \(group {group}\)", said)
     finally:

@@ -30,7 +30,7 @@ def test_a_stop_with_a_loop_that_completes_no_cycle_ends_the_process_with_1():
         ended.append(code)
         done.set()
 
-    with StuckLoopGuard(lambda: 7, stop, quick, 10.0, end_process=end_process, clock=_Clock()):
+    with StuckLoopGuard(lambda: 7, stop, quick, 10.0, 0.0025, end_process=end_process, clock=_Clock()):
         stop.set()
         assert done.wait(30.0)
     assert ended == [1]
@@ -44,7 +44,7 @@ def test_a_second_signal_ends_a_stuck_loop_sooner_than_the_stop_timeout():
         ended.append(clock.t)
         done.set()
 
-    with StuckLoopGuard(lambda: 7, stop, quick, 1e9, end_process=end_process, clock=clock):
+    with StuckLoopGuard(lambda: 7, stop, quick, 1e9, 0.0025, end_process=end_process, clock=clock):
         stop.set()
         quick.set()
         assert done.wait(30.0)
@@ -61,7 +61,28 @@ def test_a_loop_that_cycles_after_the_stop_or_returns_is_left_alone():
             polled.set()
         return cycles[0]
 
-    with StuckLoopGuard(counting, stop, quick, 10.0, end_process=ended.append, clock=_Clock()):
+    with StuckLoopGuard(counting, stop, quick, 10.0, 0.0025, end_process=ended.append, clock=_Clock()):
         stop.set()
         assert polled.wait(60.0)
     assert ended == []  # and the loop's return (the with's end) stopped the guard
+
+
+def test_a_slow_loop_is_not_taken_for_a_stuck_one_after_a_second_signal():
+    """At 1 Hz a cycle comes every second: the 1-s grace after a second signal alone ended a loop
+    that was braking as it should (the reviewer's finding); three periods are allowed at least."""
+    stop, quick, ended, looks = threading.Event(), threading.Event(), [], [0]
+    polled = threading.Event()
+
+    def one_cycle_every_1_5_s() -> int:  # the clock moves 0.5 s a look: a cycle every third look
+        looks[0] += 1
+        if looks[0] > 30:
+            polled.set()
+        return looks[0] // 3
+
+    with StuckLoopGuard(
+        one_cycle_every_1_5_s, stop, quick, 10.0, 1.0, end_process=ended.append, clock=_Clock()
+    ):
+        stop.set()
+        quick.set()
+        assert polled.wait(60.0)
+    assert ended == []

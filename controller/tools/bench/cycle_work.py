@@ -64,7 +64,7 @@ DEFAULT_TASK_WINDOWS = {"path": (800, 1000), "contour": (3200, 500)}  # (skip, c
 # fails tests/unit/test_cycle_work.py and becomes a decision (raise the budget there and in the docs).
 BUDGET_PER_CYCLE = {
     # 15 500 / 335 and 23 500 / 605 until the law checked each task reference and the measured pose
-    # on the path (a decision: +2 300 bytecodes; docs: speed.md); 15 000 and 23 000 until
+    # on the path (a decision: +2 749 bytecodes on each task; docs: speed.md); 15 000 and 23 000 until
     # records.replace copied a record field by field
     "path": {"bytecodes": 18500, "c_calls": 410},
     "contour": {"bytecodes": 26500, "c_calls": 690},  # 22 500 until the restart after a hold-up (+210)
