@@ -83,9 +83,15 @@ def pack_record(record: Record) -> bytes:
 
 # The pipe is read at most this often: the records of several cycles arrive in one read. Read
 # as they came, 400 Hz of cycle records cost a wake-up, a select and a read each, and the
-# writer took 13 % of a core. At 1 MiB of pipe (the controller asks for more) and about
-# 1 kB a cycle, 20 ms are 8 cycles: far from full.
-READ_BATCH_S = 0.02
+# writer took 13 % of a core. Every 20 ms it took 4.3 and 4.6 % (the contour at 400 Hz, `cheope
+# bench`), every 100 ms 3.8 and 3.8 (the same runs alternating): the same records cost the writer
+# 70 us each back to back and about 1.5 times that paced at 400 Hz, and a longer batch keeps
+# more of them on the caches the batch before warmed. The live views (logs/live_views.py) get
+# their frames when their records are read, so with a live view the pipe is read every 20 ms:
+# 100 ms would hand a viewer its 20-Hz scene two frames at a time. At 2.5 kB a contour cycle, 100 ms at 1 kHz are
+# 250 kB, inside the controller's pipe (``recording.buffer_bytes``, 4 MiB, or the system's most).
+READ_BATCH_S = 0.1
+LIVE_READ_BATCH_S = 0.02
 
 
 class UnreadableRecordError(ValueError):
@@ -741,6 +747,8 @@ def serve(fd: int, out: TextIO) -> int:
     except OSError as err:
         _reply(out, error=f"cannot create the recording {setup[1].get('path')}: {err.strerror or err}")
         return 1
+    if writer.live is not None:
+        reader.batch_s = LIVE_READ_BATCH_S
     _reply(out, ready=str(writer.path))
     queued: int | None = None
     dropped = 0
