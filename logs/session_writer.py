@@ -88,8 +88,9 @@ def pack_record(record: Record) -> bytes:
 # 70 us each back to back and about 1.5 times that paced at 400 Hz, and a longer batch keeps
 # more of them on the caches the batch before warmed. The live views (logs/live_views.py) get
 # their frames when their records are read, so with a live view the pipe is read every 20 ms:
-# 100 ms would hand a viewer its 20-Hz scene two frames at a time. At 2.5 kB a contour cycle, 100 ms at 1 kHz are
-# 250 kB, inside the controller's pipe (``recording.buffer_bytes``, 4 MiB, or the system's most).
+# 100 ms would hand a viewer its 20-Hz scene two frames at a time. At 2.5 kB a contour cycle,
+# 100 ms at 1 kHz are 250 kB, inside the controller's pipe (``recording.buffer_bytes``, 4 MiB,
+# or the system's most).
 READ_BATCH_S = 0.1
 LIVE_READ_BATCH_S = 0.02
 
