@@ -116,7 +116,7 @@ def safety_config(s: SafetySection, units: ActuatorUnits) -> SafetyConfig:
             tolerance_fraction=c.tolerance_fraction,
             inertia_fraction=c.inertia_fraction,
             inertia_time_constant_s=c.inertia_time_constant_s,
-            disagreement_cycles=c.disagreement_cycles,
+            disagreement_s=c.disagreement_s,
             sensor_suspect_s=c.sensor_suspect_s,
             back_off_distance_m=c.back_off_distance_m,
             back_off_speed_m_s=c.back_off_speed_m_s,

@@ -203,7 +203,7 @@ class ContactGuardSection(Section, frozen=True):
     inertia_time_constant_s: Annotated[float, rng(0.001, 10.0)] = (
         0.1  # ... fading with this (the structure rings)
     )
-    disagreement_cycles: Annotated[int, rng(1, 100000)] = 10  # beyond it this long: the sensor is suspect
+    disagreement_s: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.025  # apart this long: suspect
     sensor_suspect_s: Annotated[float, rng(0.0, 600.0)] = 2.0  # the task's time to resolve it; then back off
     back_off_distance_m: Annotated[float, rng(0.0, 1.0)] = 0.005  # the protective back-off along the force
     back_off_speed_m_s: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.02
@@ -612,7 +612,10 @@ _NOT_THE_LAWS = ("recording", "monitoring", "sim")  # sections a recorded law do
 def _migrate(table: dict[str, Any]) -> dict[str, Any]:
     """Older files and recordings: ``[sim.disk]`` is ``[sim.workpiece]`` (shape "disk") since issue 26;
     ``[robot.margins]`` and ``[robot.mass]`` are Cheope's, ``[robot.cheope.margins]`` and
-    ``[robot.cheope.mass]``, since issue 29 (an old key given with --set lands there too)."""
+    ``[robot.cheope.mass]``, since issue 29 (an old key given with --set lands there too);
+    ``safety.contact.disagreement_cycles`` is ``disagreement_s``, the same time at the file's rate,
+    since issue 37."""
+    table = _disagreement_in_seconds(table)
     robot = table.get("robot")
     if isinstance(robot, dict) and ("margins" in robot or "mass" in robot):
         robot = dict(robot)
@@ -630,6 +633,28 @@ def _migrate(table: dict[str, Any]) -> dict[str, Any]:
             sim["environment"] = "workpiece"
         table = {**table, "sim": sim}
     return table
+
+
+def _disagreement_in_seconds(table: dict[str, Any]) -> dict[str, Any]:
+    safety = table.get("safety")
+    if not isinstance(safety, dict):
+        return table
+    contact = safety.get("contact")
+    if not isinstance(contact, dict) or "disagreement_cycles" not in contact:
+        return table
+    contact = dict(contact)
+    cycles = contact.pop("disagreement_cycles")
+    loop = table.get("loop")
+    rate_hz = loop.get("rate_hz") if isinstance(loop, dict) else None
+    if not isinstance(rate_hz, int | float) or isinstance(rate_hz, bool) or rate_hz <= 0:
+        rate_hz = LoopSection().rate_hz  # a wrong rate is the loop section's to refuse, by its own name
+    if not isinstance(cycles, int) or isinstance(cycles, bool) or cycles < 1:
+        raise ConfigError(
+            f"safety.contact.disagreement_cycles = {cycles!r}: a whole number of cycles >= 1 was "
+            "expected (the key is safety.contact.disagreement_s now, in seconds)"
+        )
+    contact["disagreement_s"] = cycles / rate_hz  # given, the old key says it (a --set of it too)
+    return {**table, "safety": {**safety, "contact": contact}}
 
 
 def config_from_dict(table: dict[str, Any]) -> Config:

@@ -23,10 +23,10 @@ A stop in place while pressing is never the reaction to a force: the CiA 402 qui
 reaction to bus and drive faults.
 
 In contact by design the two are cross-checked every cycle both are fresh, each as the median of
-its last WITNESS_MEDIAN_CYCLES (over a bus a late SYNC jolts the drives' efforts for a few cycles;
-the sensor's median lags a rising force as much): when they disagree beyond the
+its samples of the last WITNESS_MEDIAN_S (over a bus a late SYNC jolts the drives' efforts for a
+few cycles; the sensor's median lags a rising force as much): when they disagree beyond the
 witness's tolerance (``tolerance_n`` + ``tolerance_fraction`` of the larger + a share of the
-inertia term) for ``disagreement_cycles`` in a row, the sensor is **suspect**: the task is told
+inertia term) for ``disagreement_s`` in a row, the sensor is **suspect**: the task is told
 (``TaskContext.sensor_suspect``) and must resolve it (a contour re-tares in free space); past
 ``sensor_suspect_s`` the law backs off along the witness and faults.
 
@@ -46,7 +46,12 @@ from controller.core.records import record, replace
 
 ZERO3: Vector3 = (0.0, 0.0, 0.0)
 PROTECTIVE_STOP = "protective stop"  # how the fault reason of a back-off begins
-WITNESS_MEDIAN_CYCLES = 19  # the witness is the median of this many cycles' (_median_of)
+# The cross-check's windows are times, counted in cycles of the loop's period (``window_cycles``), so
+# that the guard judges a jolt of the drives' efforts alike at every rate. They were tuned at 400 Hz
+# as 19 and 10 cycles; counted in cycles, at 1 kHz a jolt as long as the longest measured at 400 Hz
+# (9 cycles, 22.5 ms) filled more than half of a 19-ms median, and 10 ms of disagreement made the
+# sensor suspect: the 1-kHz contour demo over CAN FD lost 1.4 s of a lap to a brake and re-approach.
+WITNESS_MEDIAN_S = 0.0475  # the witness is the median of its samples of this long (_median_of)
 # A sensor sample that did not arrive leaves the last one in charge this long (a stale or saturated
 # one does not: that sensor says itself that something is wrong). Over a bus a hold-up of the loop
 # loses the frames of a few cycles while the drives' efforts jolt; judged by the witness alone for
@@ -84,7 +89,7 @@ class ContactGuardConfig:
     inertia_time_constant_s: float = (
         0.1  # the peak of |M a| fades with this: the structure rings after a move
     )
-    disagreement_cycles: int = 10  # beyond the tolerance this many cycles in a row: the sensor is suspect
+    disagreement_s: float = 0.025  # beyond the tolerance this long in a row: the sensor is suspect
     sensor_suspect_s: float = 2.0  # the task's time to resolve a suspect sensor; then the law backs off
     back_off_distance_m: float = 0.005
     back_off_speed_m_s: float = 0.02
@@ -119,7 +124,7 @@ class ContactWatch:
     sensor_window: AxisWindows = ((), (), ())  # the last usable samples (baseline removed), for theirs
     force_n: float = 0.0  # the contact force the guard judged this cycle (the larger of the two)
     disagreeing: int = 0  # cycles in a row beyond the cross-check's tolerance
-    agreeing: int = 0  # cycles in a row within it (clears a suspicion)
+    agreeing: int = 0  # cycles in a row within it (``disagreement_s`` of them clear a suspicion)
     suspect: str = ""  # why the sensor is suspect ("" : it is not)
     suspect_cycle: int = 0  # since when
     reference_m: Vector3 | None = None  # the task's last reference TCP (its speed, a back-off's origin)
@@ -137,6 +142,18 @@ class BackOff:
     speed_m_s: float = 0.0
     braking: bool = False
     cycles: int = 0  # since it began
+
+
+def window_cycles(seconds: float, period_s: float) -> int:
+    """The cycles of ``period_s`` in ``seconds``, at least one: rounded, as 0.025 / 0.0025 is
+    10.000000000000002."""
+    return max(1, round(seconds / period_s))
+
+
+def median_cycles(period_s: float) -> int:
+    """The witness's median window in cycles: WITNESS_MEDIAN_S, an odd count so that the median is
+    one sample (19 at 400 Hz, 49 at 1 kHz)."""
+    return window_cycles(WITNESS_MEDIAN_S, period_s) | 1
 
 
 def usable_sample(sensor: SensorFeedback | None, stale: bool) -> Vector3 | None:
@@ -227,9 +244,9 @@ def watch(
 
     Locals first and one ``replace`` at the end: it runs every enabled cycle (budget: cycle_work.py)."""
     raw = usable_sample(inputs.sensor, stale)
-    window = w.witness_window
+    window, n_median = w.witness_window, median_cycles(period_s)
     if witness is not None:
-        window, median = _median_of(window, witness.force_n)
+        window, median = _median_of(window, witness.force_n, n_median)
         witness = Witness(median, witness.inertia_n)
     baseline, baseline_set = w.baseline_n, w.baseline_set
     if raw is not None and not baseline_set and norm3(raw) <= cfg.free_space_force_n:
@@ -260,8 +277,8 @@ def watch(
     else:
         # the sensor's median over the witness's window: a force that rises in a few cycles (a
         # contact's first spike: 0 to 13 N in 30 ms on the kidney shape) is seen by both alike
-        sensor_window, sensor_median = _median_of(sensor_window, sensor)
-        check = _cross_check(cfg, w, sensor_median, witness, dynamic, cycle)
+        sensor_window, sensor_median = _median_of(sensor_window, sensor, n_median)
+        check = _cross_check(cfg, w, sensor_median, witness, dynamic, cycle, period_s)
     # trusted: this cycle's sample, or a recent one where the frame only went missing (SENSOR_GAP_S)
     trusted = not check[2] and (
         raw is not None or (not stale and sensor is not None and missing_cycles * period_s <= SENSOR_GAP_S)
@@ -294,14 +311,14 @@ def watch(
     return w, ""
 
 
-def _median_of(window: AxisWindows, sample: Vector3) -> tuple[AxisWindows, Vector3]:
-    """``sample`` appended to the last WITNESS_MEDIAN_CYCLES, and each axis's median of them. Over a bus
+def _median_of(window: AxisWindows, sample: Vector3, n: int) -> tuple[AxisWindows, Vector3]:
+    """``sample`` appended to the last ``n`` (``median_cycles``), and each axis's median of them. Over a bus
     the drives' efforts jump for a cycle or a few where a late SYNC jolts a carriage (measured over
     udp_multicast: 25 such jumps in a 40-s contour run, the longest 9 cycles, the largest 155 N
     beside 10 N of contact; in simulated time none): the motors carry the jolt, the sensor does not."""
-    x = (*window[0], sample[0])[-WITNESS_MEDIAN_CYCLES:]
-    y = (*window[1], sample[1])[-WITNESS_MEDIAN_CYCLES:]
-    z = (*window[2], sample[2])[-WITNESS_MEDIAN_CYCLES:]
+    x = (*window[0], sample[0])[-n:]
+    y = (*window[1], sample[1])[-n:]
+    z = (*window[2], sample[2])[-n:]
     k = len(x) // 2
     return (x, y, z), (sorted(x)[k], sorted(y)[k], sorted(z)[k])
 
@@ -318,26 +335,27 @@ def _cross_check(
     witness: Witness,
     dynamic_n: float,
     cycle: int,
+    period_s: float,
 ) -> tuple[int, int, str, int]:
     """Sensor against witness (both medians of the same cycles), in contact by design: there the
     sensor's word steers the task. In free space and guarded moves the sensor reads about nothing and
     the witness's error is all there is. The watch's (disagreeing, agreeing, suspect, suspect_cycle)
     after this cycle."""
-    agreeing = w.agreeing + 1
+    agreeing, needed = w.agreeing + 1, window_cycles(cfg.disagreement_s, period_s)
     if w.expectation != ContactExpectation.PRESSING:
-        suspect = "" if agreeing >= cfg.disagreement_cycles else w.suspect
+        suspect = "" if agreeing >= needed else w.suspect
         return 0, agreeing, suspect, w.suspect_cycle
     gap = norm3(sub3(sensor, witness.force_n))
     if gap > tolerance_n(cfg, norm3(sensor), witness, dynamic_n):
         n = w.disagreeing + 1
-        if n >= cfg.disagreement_cycles and not w.suspect:
+        if n >= needed and not w.suspect:
             why = (
                 f"it reads {norm3(sensor):.1f} N where the drives' effort says {norm3(witness.force_n):.1f} N "
-                f"({gap:.1f} N apart for {n} cycles)"
+                f"({gap:.1f} N apart for {n} cycles, {n * period_s * 1000.0:.0f} ms)"
             )
             return n, 0, why, cycle
         return n, 0, w.suspect, w.suspect_cycle
-    suspect = "" if w.suspect and agreeing >= cfg.disagreement_cycles else w.suspect
+    suspect = "" if w.suspect and agreeing >= needed else w.suspect
     return 0, agreeing, suspect, w.suspect_cycle
 
 

@@ -158,6 +158,27 @@ def test_an_older_file_s_robot_margins_and_mass_are_cheope_s():
         config_from_dict({"robot": {"mass": {"bogus": 1.0}}})
 
 
+def test_an_older_file_s_disagreement_in_cycles_is_the_same_time_at_its_rate():
+    """``safety.contact.disagreement_cycles`` until issue 37, ``disagreement_s`` since: a file, a
+    recording or a --set with the old key keeps its time at the file's own rate (a recording at
+    400 Hz replays bit for bit); a value that was never a count is named with the key that replaced it."""
+    from controller.config import config_from_dict
+
+    old = {"loop": {"rate_hz": 1000.0}, "safety": {"contact": {"disagreement_cycles": 10}}}
+    assert config_from_dict(old).safety.contact.disagreement_s == pytest.approx(0.010)
+    assert config_from_dict(
+        {"safety": {"contact": {"disagreement_cycles": 10}}}
+    ).safety.contact.disagreement_s == (10 / 400.0)
+    assert load_config(
+        overrides={"safety.contact.disagreement_cycles": 20}
+    ).safety.contact.disagreement_s == (pytest.approx(0.05))
+    for wrong in (0, 2.5, "ten", True):
+        with pytest.raises(ConfigError, match=r"disagreement_cycles = .*safety.contact.disagreement_s now"):
+            config_from_dict({"safety": {"contact": {"disagreement_cycles": wrong}}})
+    with pytest.raises(ConfigError, match=r"loop.rate_hz = -5"):  # the rate's own error, by its own name
+        config_from_dict({"loop": {"rate_hz": -5}, "safety": {"contact": {"disagreement_cycles": 10}}})
+
+
 def test_an_override_of_an_integer_too_long_to_read_names_the_key():
     from controller.config import parse_override
 

@@ -18,14 +18,15 @@ from controller.config import ConfigError, load_config
 from controller.core.cia402 import PowerState, decode_statusword
 from controller.core.contact_guard import (
     SENSOR_GAP_S,
-    WITNESS_MEDIAN_CYCLES,
     ContactGuardConfig,
     ContactWatch,
     Witness,
     advance_back_off,
     begin_back_off,
     judged_force_n,
+    median_cycles,
     watch,
+    window_cycles,
 )
 from controller.core.controller_state import Mode
 from controller.core.cycle_data import CycleInputs, DriveFeedback, SensorFeedback
@@ -37,6 +38,8 @@ from sim_backend.loopback import LoopbackExchange
 
 CFG = ContactGuardConfig()
 DT = 0.0025
+MEDIAN = median_cycles(DT)  # the witness's median window at DT, in cycles
+NEEDED = window_cycles(CFG.disagreement_s, DT)  # cycles of disagreement that make the sensor suspect
 
 
 def _inputs(force) -> CycleInputs:
@@ -85,7 +88,7 @@ def test_a_missing_sensor_frame_leaves_the_last_sample_in_charge_for_a_while_in_
     than SENSOR_GAP_S, or one whose sample is stale, leaves the witness to judge, as before."""
     jolt = Witness((120.0, 0.0, 0.0), 0.0)  # past the contact limit less the witness's tolerance
     w = ContactWatch(expectation=ContactExpectation.NONE)
-    for k in range(WITNESS_MEDIAN_CYCLES):  # the sensor fresh and near nothing: it judges
+    for k in range(MEDIAN):  # the sensor fresh and near nothing: it judges
         w, cause = watch(CFG, w, _inputs((0.1, 0.0, 0.0)), False, jolt, False, k, DT)
         assert not cause
     drives = _inputs((0.0, 0.0, 0.0)).drives
@@ -107,23 +110,56 @@ def test_a_missing_sensor_frame_leaves_the_last_sample_in_charge_for_a_while_in_
 def test_a_sensor_that_disagrees_with_the_witness_becomes_suspect_and_agreeing_clears_it():
     w = ContactWatch(expectation=ContactExpectation.PRESSING, baseline_set=True)
     lie = _inputs((40.0, 0.0, 0.0))  # the drives feel 10 N
-    for cycle in range(CFG.disagreement_cycles):
+    for cycle in range(NEEDED):
         assert not w.suspect
         w, _ = watch(CFG, w, lie, False, Witness((10.0, 0.0, 0.0), 0.0), False, cycle, DT)
     assert w.suspect and "40.0 N where the drives' effort says 10.0 N" in w.suspect
-    # agreeing clears it once the median of the window agrees for disagreement_cycles in a row
-    for cycle in range(WITNESS_MEDIAN_CYCLES // 2 + CFG.disagreement_cycles):
+    # agreeing clears it once the median of the window agrees for disagreement_s in a row
+    for cycle in range(MEDIAN // 2 + NEEDED):
         assert w.suspect
         w, _ = watch(
             CFG, w, _inputs((11.0, 0.0, 0.0)), False, Witness((10.0, 0.0, 0.0), 0.0), False, 50 + cycle, DT
         )
     assert not w.suspect
     # suspect for longer than sensor_suspect_s: the guard backs off
-    for cycle in range(
-        100, 100 + int(CFG.sensor_suspect_s / DT) + CFG.disagreement_cycles + WITNESS_MEDIAN_CYCLES
-    ):
+    for cycle in range(100, 100 + int(CFG.sensor_suspect_s / DT) + NEEDED + MEDIAN):
         w, cause = watch(CFG, w, lie, False, Witness((10.0, 0.0, 0.0), 0.0), False, cycle, DT)
     assert cause.startswith("force sensor suspect")
+
+
+@pytest.mark.parametrize("rate_hz", [400.0, 1000.0, 250.0])
+def test_the_cross_checks_windows_are_times_alike_at_every_loop_rate(rate_hz):
+    """A jolt of the drives' effort as long as the longest measured over a bus at 400 Hz (9 cycles,
+    22.5 ms) passes the witness's median at every rate, and 25 ms of true disagreement make the
+    sensor suspect at every rate. Counted in cycles (19 and 10), at 1 kHz the same jolt filled more
+    than half the median's 19 ms and made the sensor suspect after 10 ms."""
+    dt = 1.0 / rate_hz
+    pressing = _inputs((10.0, 0.0, 0.0))
+    w = ContactWatch(expectation=ContactExpectation.PRESSING, baseline_set=True)
+    cycle = 0
+    for _ in range(round(0.1 / dt)):  # 100 ms pressing, sensor and drives agreeing
+        w, cause = watch(CFG, w, pressing, False, Witness((10.5, 0.0, 0.0), 0.0), False, cycle, dt)
+        cycle += 1
+        assert not cause and not w.suspect
+    for _ in range(math.ceil(0.0225 / dt)):  # the jolt: the motors carry it, the sensor does not
+        w, cause = watch(CFG, w, pressing, False, Witness((60.0, 0.0, 0.0), 0.0), False, cycle, dt)
+        cycle += 1
+        assert not cause and not w.suspect and w.disagreeing == 0, cycle
+    for _ in range(round(0.1 / dt)):
+        w, cause = watch(CFG, w, pressing, False, Witness((10.5, 0.0, 0.0), 0.0), False, cycle, dt)
+        cycle += 1
+        assert not cause and not w.suspect
+    # a sensor that truly reads 30 N where the drives feel 10: suspect once the median has turned
+    # (half the median's window) and the disagreement lasted 25 ms, at every rate
+    lie = _inputs((30.0, 0.0, 0.0))
+    start = cycle
+    while not w.suspect:
+        w, _ = watch(CFG, w, lie, False, Witness((10.0, 0.0, 0.0), 0.0), False, cycle, dt)
+        cycle += 1
+        assert cycle - start < 1000
+    took_s = (cycle - start) * dt
+    assert took_s == pytest.approx(0.0475 / 2 + 0.025, abs=2.0 * dt)
+    assert "ms)" in w.suspect
 
 
 def test_the_back_off_moves_along_the_trusted_force_within_its_speed_and_acceleration_then_stops():
