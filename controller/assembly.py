@@ -12,6 +12,7 @@ from controller.configured_robot import actuator_units, robot_from_config
 from controller.core.contact_guard import ContactGuardConfig
 from controller.core.control_law import ControlLaw
 from controller.core.law_config import LawConfig, SafetyConfig
+from controller.core.periods import cycles_in
 from controller.core.ports import CAPABILITIES, ActuatorUnit, ForceWitnessModel, Robot, missing_capability
 from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother
 from controller.errors import CheopeError, RefusedError
@@ -83,18 +84,19 @@ def build_task(cfg: Config, robot: Robot, units: ActuatorUnits) -> BuiltTask:
     return built
 
 
-def safety_config(s: SafetySection, units: ActuatorUnits) -> SafetyConfig:
-    """``[safety]`` for the law, its position limits in the actuators' unit (the _rad keys for rotary ones)."""
+def safety_config(s: SafetySection, units: ActuatorUnits, period_s: float) -> SafetyConfig:
+    """``[safety]`` for the law, its position limits in the actuators' unit (the _rad keys for rotary
+    ones), its windows in cycles of ``period_s`` (controller/core/periods.py)."""
     rotary = units.unit == ActuatorUnit.RADIAN
     c = s.contact
     return SafetyConfig(
         max_contact_force_n=s.max_contact_force_n,
-        sensor_stale_cycles=s.sensor_stale_cycles,
+        sensor_stale_cycles=cycles_in(s.sensor_stale_s, period_s),
         on_sensor_stale=s.on_sensor_stale,
         on_sensor_saturated=s.on_sensor_saturated,
         on_heartbeat_lost=s.on_heartbeat_lost,
         on_error_frames=s.on_error_frames,
-        max_consecutive_late_cycles=s.max_consecutive_late_cycles,
+        max_consecutive_late_cycles=cycles_in(s.max_consecutive_late_s, period_s),
         on_late_cycles=s.on_late_cycles,
         max_position_jump=s.max_position_jump_rad if rotary else s.max_position_jump_m,
         following_window=s.following_window_rad if rotary else s.following_window_m,
@@ -182,9 +184,9 @@ def assemble(cfg: Config, robot: Robot | None = None) -> Assembly:
         period_s=cfg.period_s,
         enable_timeout_s=cfg.loop.enable_timeout_s,
         hold_before_task_s=cfg.loop.hold_before_task_s,
-        max_missing_cycles=cfg.loop.max_missing_cycles,
+        max_missing_cycles=cycles_in(cfg.loop.max_missing_s, cfg.period_s),
         settle_tolerance=cfg.loop.settle_tolerance_m,
-        safety=safety_config(cfg.safety, a),
+        safety=safety_config(cfg.safety, a, cfg.period_s),
         max_speed=a.max_velocity,
         position_unit=a.unit.value,
         rest_target=0.5 * (a.stroke_min + a.stroke_max),

@@ -46,6 +46,7 @@ COMPILED_MODULES = (
     "controller.core.contact_guard",
     "controller.core.control_law",
     "controller.core.linalg3",
+    "controller.core.periods",
     "controller.core.rotations",
     "controller.core.safety_monitor",
     "controller.core.setpoint_smoothing",

@@ -167,7 +167,7 @@ class LoopSection(Section, frozen=True):
     spin_us: Annotated[float, rng(0.0, 5000.0)] = 300.0
     gil_switch_interval_us: Annotated[float, rng(1.0, 100000.0)] = 200.0
     freeze_gc: bool = True  # gc.freeze() the start-up heap before the loop (controller/realtime.py)
-    max_missing_cycles: Annotated[int, rng(1, 1000)] = 40
+    max_missing_s: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.1  # a drive silent this long: fault
     heartbeat_period_s: Annotated[float, rng(0.01, 10.0)] = 0.1
     heartbeat_consumer_s: Annotated[float, rng(0.02, 60.0)] = 0.5
     controller_node_id: Annotated[int, rng(1, 127)] = 100
@@ -215,17 +215,17 @@ class SafetySection(Section, frozen=True):
 
     "fault": quick stop through the controlword and stay in FAULT until a reset;
     "warn": record a warning event once per episode and go on; "ignore": nothing.
-    Drive faults, EMCY, missing TPDOs (loop.max_missing_cycles), a bus-off, an actuator
+    Drive faults, EMCY, missing TPDOs (loop.max_missing_s), a bus-off, an actuator
     outside its stroke and a task reference outside the safe workspace always fault.
     """
 
     max_contact_force_n: Annotated[float, rng(0.0, 10000.0, lo_open=True)] = 60.0
-    sensor_stale_cycles: Annotated[int, rng(1, 100000)] = 40
+    sensor_stale_s: Annotated[float, rng(0.0, 100.0, lo_open=True)] = 0.1
     on_sensor_stale: Reaction = Reaction("fault")
     on_sensor_saturated: Reaction = Reaction("fault")
     on_heartbeat_lost: Reaction = Reaction("fault")
     on_error_frames: Reaction = Reaction("warn")
-    max_consecutive_late_cycles: Annotated[int, rng(1, 1000000)] = 50
+    max_consecutive_late_s: Annotated[float, rng(0.0, 1000.0, lo_open=True)] = 0.125
     on_late_cycles: Reaction = Reaction("fault")
     late_tolerance_fraction: Annotated[float, rng(0.01, 10.0)] = 0.5
     # Position plausibility (always a fault): a measured position further from the drive's last one
@@ -613,9 +613,8 @@ def _migrate(table: dict[str, Any]) -> dict[str, Any]:
     """Older files and recordings: ``[sim.disk]`` is ``[sim.workpiece]`` (shape "disk") since issue 26;
     ``[robot.margins]`` and ``[robot.mass]`` are Cheope's, ``[robot.cheope.margins]`` and
     ``[robot.cheope.mass]``, since issue 29 (an old key given with --set lands there too);
-    ``safety.contact.disagreement_cycles`` is ``disagreement_s``, the same time at the file's rate,
-    since issue 37."""
-    table = _disagreement_in_seconds(table)
+    the windows counted in cycles are times since issue 37 (``CYCLE_KEYS_NOW_SECONDS``)."""
+    table = _cycles_as_seconds(table)
     robot = table.get("robot")
     if isinstance(robot, dict) and ("margins" in robot or "mass" in robot):
         robot = dict(robot)
@@ -635,26 +634,48 @@ def _migrate(table: dict[str, Any]) -> dict[str, Any]:
     return table
 
 
-def _disagreement_in_seconds(table: dict[str, Any]) -> dict[str, Any]:
-    safety = table.get("safety")
-    if not isinstance(safety, dict):
-        return table
-    contact = safety.get("contact")
-    if not isinstance(contact, dict) or "disagreement_cycles" not in contact:
-        return table
-    contact = dict(contact)
-    cycles = contact.pop("disagreement_cycles")
+# Windows given in cycles until issue 37, in seconds since (controller/core/periods.py): (section, old
+# key, new key). An older file's or recording's count, or a --set of the old key, is the same time at
+# the file's own rate, so that a recording replays bit for bit.
+CYCLE_KEYS_NOW_SECONDS = (
+    ("loop", "max_missing_cycles", "max_missing_s"),
+    ("safety", "sensor_stale_cycles", "sensor_stale_s"),
+    ("safety", "max_consecutive_late_cycles", "max_consecutive_late_s"),
+    ("safety.contact", "disagreement_cycles", "disagreement_s"),
+    ("task.contour", "contact_lost_cycles", "contact_lost_s"),
+    ("task.contour", "stale_hold_cycles", "stale_hold_s"),
+    ("task.contour", "witness_verdict_cycles", "witness_verdict_s"),
+)
+
+
+def _cycles_as_seconds(table: dict[str, Any]) -> dict[str, Any]:
     loop = table.get("loop")
     rate_hz = loop.get("rate_hz") if isinstance(loop, dict) else None
-    if not isinstance(rate_hz, int | float) or isinstance(rate_hz, bool) or rate_hz <= 0:
+    if not isinstance(rate_hz, int | float) or isinstance(rate_hz, bool) or not rate_hz > 0:
         rate_hz = LoopSection().rate_hz  # a wrong rate is the loop section's to refuse, by its own name
-    if not isinstance(cycles, int) or isinstance(cycles, bool) or cycles < 1:
-        raise ConfigError(
-            f"safety.contact.disagreement_cycles = {cycles!r}: a whole number of cycles >= 1 was "
-            "expected (the key is safety.contact.disagreement_s now, in seconds)"
-        )
-    contact["disagreement_s"] = cycles / rate_hz  # given, the old key says it (a --set of it too)
-    return {**table, "safety": {**safety, "contact": contact}}
+    for dotted, old, new in CYCLE_KEYS_NOW_SECONDS:
+        path = dotted.split(".")
+        parents = [table]
+        for name in path:
+            child = parents[-1].get(name)
+            if not isinstance(child, dict):
+                break
+            parents.append(child)
+        else:
+            if old not in parents[-1]:
+                continue
+            section = dict(parents[-1])
+            cycles = section.pop(old)
+            if not isinstance(cycles, int) or isinstance(cycles, bool) or cycles < 1:
+                raise ConfigError(
+                    f"{dotted}.{old} = {cycles!r}: a whole number of cycles >= 1 was expected (the key "
+                    f"is {dotted}.{new} now, in seconds)"
+                )
+            section[new] = cycles / rate_hz  # given, the old key says it (a --set of it too)
+            for name, parent in zip(reversed(path), reversed(parents[:-1]), strict=True):
+                section = {**parent, name: section}
+            table = section
+    return table
 
 
 def config_from_dict(table: dict[str, Any]) -> Config:

@@ -123,7 +123,7 @@ class ExchangeCounters:
     missing_drive_frames: int = 0
     missing_sensor_frames: int = 0
     # The longest run of cycles without a usable sample, over the drives and of the sensor: the
-    # stalls this machine shows, from which loop.max_missing_cycles and safety.sensor_stale_cycles
+    # stalls this machine shows, from which loop.max_missing_s and safety.sensor_stale_s
     # are chosen (docs: "Silence tolerated").
     longest_drive_silence_cycles: int = 0
     longest_sensor_silence_cycles: int = 0
@@ -136,8 +136,8 @@ class ExchangeCounters:
 # the device really missed). A device can also lag one answer behind for a while (each window holds
 # its answer to the SYNC before) and then catch up with two: forgotten after 3 windows, that catch-up
 # was taken for a second sender (a contour demo on a loaded machine faulted on it, three windows one
-# behind). 20 windows is the silence the law tolerates from a drive (loop.max_missing_cycles at its
-# default). Meanwhile a second sender's frame may pass unreported once, never as data: a window
+# behind). 20 windows is half the silence the law tolerates from a drive at 400 Hz (loop.max_missing_s,
+# 40 cycles there). Meanwhile a second sender's frame may pass unreported once, never as data: a window
 # with two candidates has no sample.
 OWED_FORGOTTEN_AFTER = 20
 

@@ -185,7 +185,9 @@ class LoopbackExchange:
         nodes = (*self.drive_ids, *(() if self.sensor_id is None else (self.sensor_id,)))
         self.nmt_state = {n: NMT_OPERATIONAL for n in nodes}  # node set-up has started them all
         self.bus = DeviceBus(self._on_controller_frame)
-        step_limit, jump_margin = position_plausibility(units, safety_config(cfg.safety, units), cfg.period_s)
+        step_limit, jump_margin = position_plausibility(
+            units, safety_config(cfg.safety, units, cfg.period_s), cfg.period_s
+        )
         self.exchange = CyclicExchange(
             self.bus,
             self.drive_ids,

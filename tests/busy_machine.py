@@ -6,7 +6,7 @@ so a few late cycles or a TPDO a few cycles late is expected; these tests check 
 """
 
 # Late cycles warn instead of faulting. A drive's silence keeps the shipped tolerance
-# (loop.max_missing_cycles = 40, the drives' own 100-ms SYNC watchdog): 10, set here when the shipped
-# value was lower, made these runs less tolerant than a user's, and a slow host's CI silenced the
+# (loop.max_missing_s = 0.1, the drives' own 100-ms SYNC watchdog): 10 cycles, set here when the
+# shipped value was lower, made these runs less tolerant than a user's, and a slow host's CI silenced the
 # 3-nSPU's drives for 10 cycles (tests/integration/test_nspu_closed_loop_on_the_bus.py).
 TOLERANT = ["--set", 'safety.on_late_cycles="warn"']

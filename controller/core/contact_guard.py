@@ -42,11 +42,12 @@ from enum import IntEnum
 
 from controller.core.cycle_data import CycleInputs, SensorFeedback
 from controller.core.linalg3 import Vector3, norm3, sub3
+from controller.core.periods import cycles_in
 from controller.core.records import record, replace
 
 ZERO3: Vector3 = (0.0, 0.0, 0.0)
 PROTECTIVE_STOP = "protective stop"  # how the fault reason of a back-off begins
-# The cross-check's windows are times, counted in cycles of the loop's period (``window_cycles``), so
+# The cross-check's windows are times, counted in cycles of the loop's period (core/periods.py), so
 # that the guard judges a jolt of the drives' efforts alike at every rate. They were tuned at 400 Hz
 # as 19 and 10 cycles; counted in cycles, at 1 kHz a jolt as long as the longest measured at 400 Hz
 # (9 cycles, 22.5 ms) filled more than half of a 19-ms median, and 10 ms of disagreement made the
@@ -58,7 +59,7 @@ WITNESS_MEDIAN_S = 0.0475  # the witness is the median of its samples of this lo
 # such a cycle, a path run at 1 kHz on CAN FD met "contact force 62.5 N in free space (sensor
 # 0.1 N, drives' effort 93.6 N)" with nothing touching (2 of 3 bench runs, aa8ee07). The sensor's
 # longest silence in 24 contour demos over the bus was 1-6 cycles at 400 Hz (up to 15 ms); a sensor
-# silent longer is judged without, by the witness, as before, and past loop.max_missing_cycles
+# silent longer is judged without, by the witness, as before, and past loop.max_missing_s
 # (100 ms) the law faults.
 SENSOR_GAP_S = 0.02
 # The last samples of a force, an axis's each in a tuple of its own (oldest first): each median sorts
@@ -144,16 +145,10 @@ class BackOff:
     cycles: int = 0  # since it began
 
 
-def window_cycles(seconds: float, period_s: float) -> int:
-    """The cycles of ``period_s`` in ``seconds``, at least one: rounded, as 0.025 / 0.0025 is
-    10.000000000000002."""
-    return max(1, round(seconds / period_s))
-
-
 def median_cycles(period_s: float) -> int:
     """The witness's median window in cycles: WITNESS_MEDIAN_S, an odd count so that the median is
     one sample (19 at 400 Hz, 49 at 1 kHz)."""
-    return window_cycles(WITNESS_MEDIAN_S, period_s) | 1
+    return cycles_in(WITNESS_MEDIAN_S, period_s) | 1
 
 
 def usable_sample(sensor: SensorFeedback | None, stale: bool) -> Vector3 | None:
@@ -341,7 +336,7 @@ def _cross_check(
     sensor's word steers the task. In free space and guarded moves the sensor reads about nothing and
     the witness's error is all there is. The watch's (disagreeing, agreeing, suspect, suspect_cycle)
     after this cycle."""
-    agreeing, needed = w.agreeing + 1, window_cycles(cfg.disagreement_s, period_s)
+    agreeing, needed = w.agreeing + 1, cycles_in(cfg.disagreement_s, period_s)
     if w.expectation != ContactExpectation.PRESSING:
         suspect = "" if agreeing >= needed else w.suspect
         return 0, agreeing, suspect, w.suspect_cycle

@@ -79,7 +79,7 @@ class LawConfig:
     rest_target: float = 0.0  # [unit] the target sent before a drive's first TPDO (mid-stroke)
     drive_node_ids: tuple[int, ...] = ()  # CANopen node ids of the drives, in order (empty: 1..n)
     # Does the task use the force sensor's samples? If it does, a sensor without a usable sample for
-    # safety.sensor_stale_cycles faults; if not, a stall of its frames is no hazard and the sensor is
+    # safety.sensor_stale_s faults; if not, a stall of its frames is no hazard and the sensor is
     # supervised by its heartbeat (loop.heartbeat_consumer_s), as any node the task does not read.
     # Its samples, when they come, are still judged against the contact-force limit. From the
     # task's entry (controller/tasks/registry.py ``uses_force_sensor``).

@@ -102,7 +102,7 @@ class ContourSection(Section, frozen=True):
     normal_min_force_n: Annotated[float, rng(0.0, 1000.0)] = 2.0
     max_force_n: Annotated[float, rng(0.0, 1000.0, lo_open=True)] = 40.0
     contact_lost_force_n: Annotated[float, rng(0.0, 1000.0)] = 1.0
-    contact_lost_cycles: Annotated[int, rng(1, 100000)] = 40
+    contact_lost_s: Annotated[float, rng(0.0, 100.0, lo_open=True)] = 0.1
     on_contact_loss: Literal["reapproach", "stop"] = "reapproach"
     retract_distance_m: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.01
     retract_speed_m_s: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.02
@@ -116,7 +116,7 @@ class ContourSection(Section, frozen=True):
     normal_gate_deg: Annotated[float, rng(1.0, 180.0)] = 60.0
     max_force_step_n: Annotated[float, rng(0.1, 1000.0)] = 10.0
     implausible_hold_s: Annotated[float, rng(0.0, 10.0)] = 0.5
-    stale_hold_cycles: Annotated[int, rng(1, 1000)] = 4
+    stale_hold_s: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.01
     stop_deceleration_m_s2: Annotated[float, rng(0.001, 100.0)] = 2.0
     reapproach_distance_m: Annotated[float, rng(0.0, 0.1, lo_open=True)] = 0.008
     max_reacquire_attempts: Annotated[int, rng(1, 100)] = 3
@@ -144,7 +144,7 @@ class ContourSection(Section, frozen=True):
         4.0  # tared sensor - effort witness
     )
     sensor_bias_time_constant_s: Annotated[float, rng(0.01, 60.0)] = 2.0
-    witness_verdict_cycles: Annotated[int, rng(1, 10000)] = 8  # the witness judges a held step this long
+    witness_verdict_s: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.02  # the witness judges a held step
 
 
 def _check_contour(c: ContourSection) -> None:

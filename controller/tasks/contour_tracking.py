@@ -54,9 +54,9 @@ Off the happy path (DESIGN.md, "Off the happy path"), by design rather than by e
   the contact and the tangential motion brakes. The signal is trusted again when it steps back
   (a spike), or after ``implausible_hold_s`` at its new level (a real change: the filter
   restarts from it). Cycles without a fresh sample (late, lost or stale frames) are
-  treated the same way after ``stale_hold_cycles``.
-- **Contact loss** (normal force under ``contact_lost_force_n`` for ``contact_lost_cycles``
-  fresh samples): CONTACT_LOST brakes the tangential motion; REAPPROACH moves along the last
+  treated the same way after ``stale_hold_s``.
+- **Contact loss** (normal force under ``contact_lost_force_n`` in the fresh samples of
+  ``contact_lost_s``, counted in cycles): CONTACT_LOST brakes the tangential motion; REAPPROACH moves along the last
   normal measured in good contact, at the approach speed, guarded by the contact force, at
   most ``reapproach_distance_m``; BACK_OFF returns to where that attempt started. After
   ``max_reacquire_attempts`` failed attempts the tool retracts and the task ends with a fault
@@ -84,6 +84,7 @@ from typing import Protocol
 import numpy as np
 
 from controller.core.cycle_data import Command, CycleInputs, Event, Severity
+from controller.core.periods import cycles_in
 from controller.core.ports import (
     ContactExpectation,
     ForceSetpointLimit,
@@ -185,7 +186,7 @@ class ContourParams:
     normal_min_force_n: float
     max_force_n: float
     contact_lost_force_n: float
-    contact_lost_cycles: int
+    contact_lost_s: float
     reapproach_on_contact_loss: bool
     retract_distance_m: float
     retract_speed_m_s: float
@@ -198,7 +199,7 @@ class ContourParams:
     normal_gate_deg: float = 60.0  # a force direction further from the prediction is no normal [deg]
     max_force_step_n: float = 10.0  # a larger step between two samples is implausible [N]
     implausible_hold_s: float = 0.5  # the longest a suspect signal is held off before its level is taken [s]
-    stale_hold_cycles: int = 4  # cycles without a fresh sample before the law holds as for a suspect one
+    stale_hold_s: float = 0.01  # without a fresh sample this long, the law holds as for a suspect one
     stop_deceleration_m_s2: float = (
         2.0  # tangential braking (contact loss, suspect signal, corners, force band)
     )
@@ -224,8 +225,8 @@ class ContourParams:
     max_retares_per_lap: int = 3
     sensor_bias_limit_n: float = 4.0  # the tared sensor minus the effort witness, filtered: a drifted offset
     sensor_bias_time_constant_s: float = 2.0
-    witness_verdict_cycles: int = (
-        8  # after an implausible step, the witness decides: real or the sensor's offset
+    witness_verdict_s: float = (
+        0.02  # after an implausible step, the witness decides: real or the sensor's offset
     )
     witness_tolerance_n: float = 6.0  # safety.contact.tolerance_n: the effort witness's own error
 
@@ -596,7 +597,7 @@ class ContourTrackingTask:
         """What the drives' effort witness says of a step held as implausible: "real" when it agrees with
         the new level and not with the old one, "offset" (the sensor's own) the other way round, within
         its tolerance (``witness_tolerance_n`` and a quarter of the force); "" while it cannot tell. A
-        verdict counts once it has stood ``witness_verdict_cycles`` in a row: a braking tool makes the
+        verdict counts once it has stood ``witness_verdict_s`` in a row: a braking tool makes the
         structure ring, and the motors feel the ringing for a few cycles where the sensor does not."""
         w = ctx.force_witness_n
         if w is None:
@@ -611,7 +612,7 @@ class ContourTrackingTask:
         )
         n = s.verdict_cycles + 1 if verdict and verdict == s.verdict else (1 if verdict else 0)
         s = replace(s, verdict=verdict, verdict_cycles=n)
-        return s, verdict if n >= self.p.witness_verdict_cycles else ""
+        return s, verdict if n >= cycles_in(self.p.witness_verdict_s, ctx.period_s) else ""
 
     def _filtered(self, s: ContourState, raw: tuple[float, float, float], ctx: TaskContext) -> ContourState:
         a = 1.0 - math.exp(-2.0 * math.pi * self.p.force_filter_hz * ctx.period_s)
@@ -620,9 +621,10 @@ class ContourTrackingTask:
             s, force_f=(f[0] + a * (raw[0] - f[0]), f[1] + a * (raw[1] - f[1]), f[2] + a * (raw[2] - f[2]))
         )
 
-    def _trusted(self, s: ContourState) -> bool:
-        """Whether this cycle's force may steer the law: no implausible step held, no run of stale cycles."""
-        return s.held_force is None and s.stale_cycles < self.p.stale_hold_cycles
+    def _trusted(self, s: ContourState, period_s: float) -> bool:
+        """Whether this cycle's force may steer the law: no implausible step held, no run of stale cycles
+        as long as ``stale_hold_s``."""
+        return s.held_force is None and s.stale_cycles < cycles_in(self.p.stale_hold_s, period_s)
 
     def _pressing_n(self, s: ContourState, normal: tuple[float, float], ctx: TaskContext) -> float:
         """The contact force along the normal that saturation and the task's limit judge: the largest of
@@ -847,7 +849,7 @@ class ContourTrackingTask:
         force that creeps up slower is the sensor drifting, not a contour: the move goes on from the new
         level. The latest raw sample counts: the filter would add its lag to the guarded move's stop."""
         p = self.p
-        if not self._trusted(s) or s.raw_force is None:
+        if not self._trusted(s, dt) or s.raw_force is None:
             return s, None, ()
         raw = s.raw_force
         against = -(raw[0] * moving[0] + raw[1] * moving[1])  # the force opposing the motion
@@ -907,7 +909,7 @@ class ContourTrackingTask:
             why = f"no contact within {limit * 1000:.0f} mm of approach (force {f_xy:.2f} N < {p.contact_force_n} N)"
             s, ref = self._reference(s, (0.0, 0.0, 0.0), False, ctx.period_s)
             return TaskStep(s, ref, fault=why)
-        speed = speed if self._trusted(s) else 0.0
+        speed = speed if self._trusted(s, ctx.period_s) else 0.0
         v = (moving[0] * speed, moving[1] * speed, 0.0)
         return self._moving(s, v, ctx.period_s, events=guard_events, travel_m=speed * ctx.period_s)
 
@@ -927,7 +929,7 @@ class ContourTrackingTask:
             return (math.cos(angle), math.sin(angle)), rate, accel
         predicted = predict_normal(angle, rate, accel, dt)
         measured = predicted  # a repeated or suspect sample is no new direction: the tracker only predicts
-        if not self._trusted(s):
+        if not self._trusted(s, ctx.period_s):
             # The normal turns because the tool moves along a curved contour (rate = curvature x speed,
             # its change curvature' x speed^2): while the tool brakes on an untrusted force, it turns only
             # as far as the tool goes.
@@ -989,7 +991,7 @@ class ContourTrackingTask:
         notch's far wall or the bump's face at full speed.
         """
         p = self.p
-        if not self._trusted(s):
+        if not self._trusted(s, dt):
             return self._braked(s.speed_m_s, dt)
         target = p.lap_speeds_m_s[min(s.lap, len(p.lap_speeds_m_s) - 1)]
         if s.lap == 0:  # the contour is unknown: what it holds is met at the exploring speed at most
@@ -1028,7 +1030,9 @@ class ContourTrackingTask:
         p = self.p
         held, share = at_speed
         err = s.force_setpoint_n - fn
-        if not self._trusted(s):  # no new evidence: do not move into the contact, keep the integral
+        if not self._trusted(
+            s, ctx.period_s
+        ):  # no new evidence: do not move into the contact, keep the integral
             vn = min(0.0, p.force_kp_m_s_per_n * err + p.force_ki_m_s2_per_n * share * held)
             integral = held
         else:
@@ -1067,12 +1071,12 @@ class ContourTrackingTask:
             ev = Event("over_force", Severity.FAULT, why + "; retracting")
             s = replace(s, normal=normal, normal_force_n=fn)
             return self._begin_retract(s, ctx, (*events, ev), why)
-        trusted = self._trusted(s)
+        trusted = self._trusted(s, ctx.period_s)
         counting = fresh_sample(ctx) and trusted
         low = s.low_force_cycles + (1 if counting else 0) if fn < p.contact_lost_force_n else 0
         s = self._bias(s, ctx)
         doubt = self._sensor_doubt(s, ctx)
-        if low >= p.contact_lost_cycles or doubt:
+        if low >= cycles_in(p.contact_lost_s, ctx.period_s) or doubt:
             s = replace(s, normal=normal, normal_rate_rad_s=rate, normal_accel_rad_s2=accel, retare_why=doubt)
             return self._lose_contact(s, ctx, events, doubt)
         s, outside = self._envelope(s, ctx)
@@ -1157,7 +1161,7 @@ class ContourTrackingTask:
         there. The witness's own error is mostly the cogging, periodic along each carriage's stroke: it
         averages out of the filter while the tool slides, not while it stands."""
         w, raw = ctx.force_witness_n, s.raw_force
-        if w is None or raw is None or not fresh_sample(ctx) or not self._trusted(s):
+        if w is None or raw is None or not fresh_sample(ctx) or not self._trusted(s, ctx.period_s):
             return s
         if s.speed_m_s < MIN_BIAS_SPEED_M_S:
             return s
@@ -1503,7 +1507,7 @@ class ContourTrackingTask:
             )
             s = self._enter(s, ContourPhase.BACK_OFF, ctx.t_s, attempts=s.attempts + 1)
             return self._back_off(s, ctx, (*guard_events, ev))
-        speed = p.approach_speed_m_s if self._trusted(s) else 0.0
+        speed = p.approach_speed_m_s if self._trusted(s, ctx.period_s) else 0.0
         return self._moving(
             s, (d[0] * speed, d[1] * speed, 0.0), dt, events=guard_events, travel_m=speed * dt
         )
@@ -1548,7 +1552,11 @@ class ContourTrackingTask:
         p = self.p
         direction = s.normal
         raw, witness = s.raw_force, ctx.force_witness_n
-        if raw is not None and self._trusted(s) and math.hypot(raw[0], raw[1]) >= p.normal_min_force_n:
+        if (
+            raw is not None
+            and self._trusted(s, ctx.period_s)
+            and math.hypot(raw[0], raw[1]) >= p.normal_min_force_n
+        ):
             direction = _unit2(raw[0], raw[1]) or direction
         elif witness is not None and math.hypot(witness[0], witness[1]) > p.witness_tolerance_n:
             direction = _unit2(witness[0], witness[1]) or direction

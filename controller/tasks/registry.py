@@ -62,7 +62,7 @@ class TaskEntry:
         "free"  # what the simulator places with sim.environment = "auto": "free", "workpiece"
     )
     # Whether the task reads the force sensor's samples: then every cycle without one counts towards
-    # safety.sensor_stale_cycles; if not, the sensor is supervised by its heartbeat (LawConfig).
+    # safety.sensor_stale_s; if not, the sensor is supervised by its heartbeat (LawConfig).
     uses_force_sensor: bool = False
     # Whether the task, told that the force sensor is no longer trusted (``TaskContext.sensor_breach``),
     # retracts without force data and ends with a fault: then a second sender on the sensor's COB-ID

@@ -44,7 +44,7 @@ SCENARIOS: tuple[Scenario, ...] = (
         "drive TPDO missing",
         f"drop:2@{FAULT_AT_S}",
         "fault",
-        "fault after loop.max_missing_cycles; quick stop",
+        "fault after loop.max_missing_s; quick stop",
     ),
     Scenario("drive TPDO late", f"delay:2=0.01@{FAULT_AT_S}", "fault", "late = missing: fault, quick stop"),
     Scenario(
@@ -58,7 +58,7 @@ SCENARIOS: tuple[Scenario, ...] = (
         "sensor counter frozen",
         f"freeze@{FAULT_AT_S}",
         "fault",
-        "stale after safety.sensor_stale_cycles: the contact guard's protective stop (back off along the "
+        "stale after safety.sensor_stale_s: the contact guard's protective stop (back off along the "
         "drives' effort, or brake in place without a force), then fault",
     ),
     Scenario(
@@ -96,7 +96,7 @@ SCENARIOS: tuple[Scenario, ...] = (
         "loop overrunning",
         f"stall=0.0015@{FAULT_AT_S}",
         "fault",
-        "fault after safety.max_consecutive_late_cycles late cycles",
+        "fault after safety.max_consecutive_late_s of late cycles",
     ),
     # Someone or something on the bus that lies (drivers/cyclic_exchange.py watches the whole bus).
     Scenario(

@@ -186,9 +186,7 @@ def test_a_signal_mid_motion_stops_the_run_under_control(tmp_path, signals, args
     them instead, exit 1. Three laps take far longer than any of these runs."""
     ids = tuple(load_config().actuators.node_ids)
     # more tolerant of a busy machine than TOLERANT: a drive fault before the signal is not the point here
-    sets = run_sets(
-        tmp_path, "--set", "loop.max_missing_cycles=100", "--set", "safety.sensor_stale_cycles=100"
-    )
+    sets = run_sets(tmp_path, "--set", "loop.max_missing_s=0.25", "--set", "safety.sensor_stale_s=0.25")
     with controller_beside_simulator([*args, *sets]) as run:
         ctrl = run.process
         wait_until_drive_1_moves(run.bus, ctrl)

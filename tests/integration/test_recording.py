@@ -584,9 +584,9 @@ def test_a_killed_writer_ends_the_run_by_the_recording_policy(tmp_path, policy):
         "--set",
         f'recording.on_failure="{policy}"',
         "--set",
-        "loop.max_missing_cycles=100",
+        "loop.max_missing_s=0.25",
         "--set",
-        "safety.sensor_stale_cycles=100",
+        "safety.sensor_stale_s=0.25",
     )
     with controller_beside_simulator(sets, stderr=subprocess.STDOUT) as run:
         proc = run.process

@@ -36,6 +36,7 @@ from controller.config import load_config
 from controller.core.cia402 import PowerState, decode_statusword
 from controller.core.controller_state import ControllerState, Mode
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
+from controller.core.periods import cycles_in
 from controller.core.ports import CycleTiming
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.tasks.contour_tracking import ContourPhase
@@ -141,7 +142,7 @@ def test_a_rogue_drive_tpdo_before_the_real_one_is_never_used(offset_m, what):
 
 def test_a_lone_rogue_drive_tpdo_with_the_duplicates_warned_is_still_never_used():
     """With safety.on_duplicate_frames = warn, the rogue goes on for cycles: every one of them
-    unusable, so the drive is as silent and loop.max_missing_cycles faults, naming it."""
+    unusable, so the drive is as silent and loop.max_missing_s faults, naming it."""
     cfg_faults = [f"rogue_tpdo:2=0.0025@{ROGUE_AT_S}"]
     cfg = load_config(
         overrides={"sim.faults": cfg_faults, "task.path.laps": 0.5, "safety.on_duplicate_frames": "warn"}
@@ -153,7 +154,9 @@ def test_a_lone_rogue_drive_tpdo_with_the_duplicates_warned_is_still_never_used(
     final, _ = CycleLoop(
         law, ex, cfg.period_s, cfg.loop.collect_fraction, clock, clock.clock, observers=(trace,)
     ).run(law.initial_state(), 3.0)
-    assert final.fault_reason == f"drive 2: no TPDO for {cfg.loop.max_missing_cycles} cycles"
+    assert (
+        final.fault_reason == f"drive 2: no TPDO for {cycles_in(cfg.loop.max_missing_s, cfg.period_s)} cycles"
+    )
     starts = [e for e in trace.events if e.message.startswith("burst starts") and "from node 2" in e.message]
     assert len(starts) == 1  # one event when the burst starts, not one per frame
     assert_drive_2_never_measured_off(trace)
@@ -293,7 +296,8 @@ def test_a_drive_put_in_pre_operational_that_does_not_stop_itself_is_quick_stopp
 def test_every_silent_node_is_named_in_one_fault():
     """The simulator gone (its frames lost): one fault names all of them."""
     final, _ = run([f"tx_full@{ROGUE_AT_S}"])
-    limit = load_config().loop.max_missing_cycles
+    cfg = load_config()
+    limit = cycles_in(cfg.loop.max_missing_s, cfg.period_s)
     assert final.fault_reason == f"drives 1, 2, 3 and the force sensor silent for {limit} cycles"
 
 

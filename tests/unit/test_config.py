@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from controller.config import ConfigError, load_config, parse_override
+from controller.config import CYCLE_KEYS_NOW_SECONDS, ConfigError, load_config, parse_override
 
 
 def test_shipped_defaults_load(cfg):
@@ -25,7 +25,12 @@ def test_shipped_defaults_load(cfg):
             {"robot.cheope.stroke_min_m": 0.9, "robot.cheope.stroke_max_m": 0.3},
             r"stroke_min_m = 0.9 must be <",
         ),
-        ({"loop.max_missing_cycles": 2.5}, r"loop.max_missing_cycles = 2.5: expected an integer"),
+        (
+            {"loop.max_missing_cycles": 2.5},
+            r"loop.max_missing_cycles = 2.5: a whole number of cycles >= 1 was expected \(the key is "
+            r"loop.max_missing_s now, in seconds\)",
+        ),
+        ({"loop.max_missing_s": 0}, r"loop.max_missing_s = 0: must be > 0"),
         ({"robot.kind": "hexapod"}, r"robot.kind = 'hexapod': must be one of"),
         ({"loop.rate_hz": float("nan")}, r"loop.rate_hz = nan: must be finite"),
         # keys without a range: a NaN there made every comparison with it false (the joint-swing
@@ -158,25 +163,38 @@ def test_an_older_file_s_robot_margins_and_mass_are_cheope_s():
         config_from_dict({"robot": {"mass": {"bogus": 1.0}}})
 
 
-def test_an_older_file_s_disagreement_in_cycles_is_the_same_time_at_its_rate():
-    """``safety.contact.disagreement_cycles`` until issue 37, ``disagreement_s`` since: a file, a
-    recording or a --set with the old key keeps its time at the file's own rate (a recording at
-    400 Hz replays bit for bit); a value that was never a count is named with the key that replaced it."""
-    from controller.config import config_from_dict
+@pytest.mark.parametrize("dotted,old,new", CYCLE_KEYS_NOW_SECONDS)
+def test_an_older_file_s_window_in_cycles_is_the_same_time_at_its_rate(dotted, old, new):
+    """Each window counted in cycles until issue 37 is a time since: a file, a recording or a --set
+    with the old key keeps its time at the file's own rate (a recording at 400 Hz replays bit for
+    bit); a value that was never a count is named with the key that replaced it."""
+    from controller.config import config_from_dict, config_to_dict
 
-    old = {"loop": {"rate_hz": 1000.0}, "safety": {"contact": {"disagreement_cycles": 10}}}
-    assert config_from_dict(old).safety.contact.disagreement_s == pytest.approx(0.010)
-    assert config_from_dict(
-        {"safety": {"contact": {"disagreement_cycles": 10}}}
-    ).safety.contact.disagreement_s == (10 / 400.0)
-    assert load_config(
-        overrides={"safety.contact.disagreement_cycles": 20}
-    ).safety.contact.disagreement_s == (pytest.approx(0.05))
+    def nested(rate_hz: float, value: object) -> dict:
+        table = config_to_dict(load_config(overrides={"loop.rate_hz": rate_hz}))
+        section = table
+        for name in dotted.split("."):
+            section = section[name]
+        del section[new]
+        section[old] = value
+        return table
+
+    def seconds(cfg) -> float:
+        section = cfg
+        for name in dotted.split("."):
+            section = section.model(name) if name == "contour" else getattr(section, name)
+        return getattr(section, new)
+
+    assert seconds(config_from_dict(nested(1000.0, 10))) == pytest.approx(0.010)
+    assert seconds(config_from_dict(nested(400.0, 10))) == 10 / 400.0
+    assert seconds(load_config(overrides={f"{dotted}.{old}": 20})) == pytest.approx(0.05)
     for wrong in (0, 2.5, "ten", True):
-        with pytest.raises(ConfigError, match=r"disagreement_cycles = .*safety.contact.disagreement_s now"):
-            config_from_dict({"safety": {"contact": {"disagreement_cycles": wrong}}})
+        with pytest.raises(ConfigError, match=rf"{dotted}.{old} = .*the key is {dotted}.{new} now"):
+            config_from_dict(nested(400.0, wrong))
+    bad_rate = nested(400.0, 10)
+    bad_rate["loop"]["rate_hz"] = -5
     with pytest.raises(ConfigError, match=r"loop.rate_hz = -5"):  # the rate's own error, by its own name
-        config_from_dict({"loop": {"rate_hz": -5}, "safety": {"contact": {"disagreement_cycles": 10}}})
+        config_from_dict(bad_rate)
 
 
 def test_an_override_of_an_integer_too_long_to_read_names_the_key():

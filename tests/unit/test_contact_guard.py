@@ -26,10 +26,10 @@ from controller.core.contact_guard import (
     judged_force_n,
     median_cycles,
     watch,
-    window_cycles,
 )
 from controller.core.controller_state import Mode
 from controller.core.cycle_data import CycleInputs, DriveFeedback, SensorFeedback
+from controller.core.periods import cycles_in
 from controller.core.ports import ContactExpectation
 from controller.core.records import replace
 from controller.robots.performance import cartesian_mass_matrix
@@ -39,7 +39,7 @@ from sim_backend.loopback import LoopbackExchange
 CFG = ContactGuardConfig()
 DT = 0.0025
 MEDIAN = median_cycles(DT)  # the witness's median window at DT, in cycles
-NEEDED = window_cycles(CFG.disagreement_s, DT)  # cycles of disagreement that make the sensor suspect
+NEEDED = cycles_in(CFG.disagreement_s, DT)  # cycles of disagreement that make the sensor suspect
 
 
 def _inputs(force) -> CycleInputs:

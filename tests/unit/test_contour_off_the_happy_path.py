@@ -16,6 +16,7 @@ from controller.assembly import build_robot, build_task
 from controller.config import load_config
 from controller.configured_robot import actuator_units
 from controller.core.cycle_data import CycleInputs, DriveFeedback, SensorFeedback
+from controller.core.periods import cycles_in
 from controller.core.ports import TaskContext
 from controller.core.setpoint_smoothing import Setpoint
 from controller.tasks.contour_tracking import MOTION_GATE_DEG, ContourPhase, ContourState, track_normal
@@ -286,8 +287,8 @@ def test_stale_samples_stop_the_motion_into_the_contact():
     task, _ = _task()
     s = _tracking(task, force_f=(4.0, 0.0, 0.0), raw_force=(4.0, 0.0, 0.0), integral=3.0)
     # the first stale cycles run on the last sample (a few late frames cost nothing); from the
-    # stale_hold_cycles-th on, the law holds
-    for _ in range(task.p.stale_hold_cycles - 1):
+    # stale_hold_s-th on, the law holds
+    for _ in range(cycles_in(task.p.stale_hold_s, DT) - 1):
         s = task.step(s, _ctx((4.0, 0.0, 0.0), fresh=False)).state
     for _ in range(3):
         out = task.step(s, _ctx((4.0, 0.0, 0.0), fresh=False))

@@ -13,6 +13,7 @@ from controller.config import load_config
 from controller.configured_robot import actuator_units
 from controller.core.controller_state import Mode
 from controller.core.cycle_data import CycleInputs, DriveFeedback, SensorFeedback
+from controller.core.periods import cycles_in
 from controller.core.ports import TaskContext
 from controller.core.setpoint_smoothing import Setpoint
 from controller.shell.loop import CycleLoop, SimulatedTime
@@ -161,7 +162,7 @@ def test_over_force_retracts_and_then_faults():
 def test_contact_loss_is_counted_and_handled_as_configured(policy, phase):
     task, cfg = _task(**{"task.contour.on_contact_loss": policy})
     s = _tracking(task, normal=(1.0, 0.0))
-    for _ in range(cfg.task.model("contour").contact_lost_cycles):
+    for _ in range(cycles_in(cfg.task.model("contour").contact_lost_s, cfg.period_s)):
         out = task.step(replace(s, force_f=(0.0, 0.0, 0.0)), _ctx((0.0, 0.0, 0.0)))
         s = out.state
     assert s.phase == phase

@@ -161,8 +161,8 @@ def test_replaying_the_same_inputs_gives_the_same_outputs_bit_for_bit():
     assert a.outputs == b.outputs
 
 
-def test_a_silent_drive_faults_after_max_missing_cycles_and_quick_stops_the_others():
-    cfg = load_config(overrides={**SHORT, "loop.max_missing_cycles": 4, "sim.faults": ["drop:2@1.0"]})
+def test_a_silent_drive_faults_after_max_missing_s_and_quick_stops_the_others():
+    cfg = load_config(overrides={**SHORT, "loop.max_missing_s": 0.01, "sim.faults": ["drop:2@1.0"]})
     clock = SimulatedTime()
     law = build_law(cfg)
     ex = LoopbackExchange(cfg, clock.clock)

@@ -20,8 +20,8 @@ def test_the_configuration_keys_page_is_what_the_schema_says():
 def test_the_configuration_keys_page_names_every_section():
     text = page()
     for key in (
-        "loop.max_missing_cycles",
-        "safety.sensor_stale_cycles",
+        "loop.max_missing_s",
+        "safety.sensor_stale_s",
         "robot.cheope.rod_length_m",
         "robot.uru.knee_sign",
         "task.contour.force_setpoint_n",

@@ -1,8 +1,8 @@
 """How long a device may fall silent before the fault, per device and per task (docs: "Silence
 tolerated"), in simulated time on the in-process devices: deterministic, no wall clock.
 
-- a drive: ``loop.max_missing_cycles`` (40 cycles, 100 ms at 400 Hz: the drives' own SYNC watchdog);
-- the force sensor, while the task reads it (contour): ``safety.sensor_stale_cycles`` (40, as a drive);
+- a drive: ``loop.max_missing_s`` (100 ms, 40 cycles at 400 Hz: the drives' own SYNC watchdog);
+- the force sensor, while the task reads it (contour): ``safety.sensor_stale_s`` (100 ms, as a drive);
 - the force sensor, while the task does not read it (path): its heartbeat only.
 """
 
@@ -14,6 +14,7 @@ import pytest
 from controller.assembly import build_law
 from controller.config import load_config
 from controller.core.controller_state import Mode
+from controller.core.periods import cycles_in
 from controller.shell.loop import CycleLoop, SimulatedTime
 from sim_backend.loopback import LoopbackExchange
 
@@ -43,24 +44,30 @@ def _run(overrides: dict[str, object], max_s: float = 30.0):
 
 def test_the_shipped_tolerances():
     cfg = load_config()
-    assert cfg.loop.max_missing_cycles == 40 and cfg.safety.sensor_stale_cycles == 40
+    assert cfg.loop.max_missing_s == 0.1 and cfg.safety.sensor_stale_s == 0.1
     # a stall of the loop (69 ms) is the drives' to judge, one of the simulator (over 50 ms: every
     # device silent) the law's: both ride through 100 ms, the drives' SYNC watchdog
-    assert cfg.sim.drive.sync_timeout_s == 0.1
-    assert cfg.loop.max_missing_cycles * cfg.period_s == pytest.approx(cfg.sim.drive.sync_timeout_s)
+    assert cfg.sim.drive.sync_timeout_s == 0.1 == cfg.loop.max_missing_s
+    # at every rate: 40 cycles at 400 Hz, 100 at 1 kHz (counted in cycles, 40 were 40 ms at 1 kHz)
+    for rate_hz, cycles in ((400.0, 40), (1000.0, 100), (250.0, 25)):
+        law = build_law(load_config(overrides={"loop.rate_hz": rate_hz}))
+        assert law.config.max_missing_cycles == cycles == law.config.safety.sensor_stale_cycles
+        assert law.config.safety.max_consecutive_late_cycles == round(0.125 * rate_hz)
 
 
 def test_a_drive_silent_for_less_than_its_tolerance_costs_nothing():
     # 16 cycles (40 ms) of silence from drive 2 mid-path: the drives extrapolate, then hold
     cfg, final, counters = _run({**PATH, "sim.faults": ["drop:2@1.0+0.04"]})
     assert final.mode == Mode.DONE, final.fault_reason
-    assert 15 <= counters.longest_drive_silence_cycles < cfg.loop.max_missing_cycles
+    assert 15 <= counters.longest_drive_silence_cycles < cycles_in(cfg.loop.max_missing_s, cfg.period_s)
 
 
 def test_a_drive_silent_for_its_tolerance_faults_naming_it():
     cfg, final, _ = _run({**PATH, "sim.faults": ["drop:2@1.0"]})
     assert final.mode == Mode.FAULT
-    assert final.fault_reason == f"drive 2: no TPDO for {cfg.loop.max_missing_cycles} cycles"
+    assert (
+        final.fault_reason == f"drive 2: no TPDO for {cycles_in(cfg.loop.max_missing_s, cfg.period_s)} cycles"
+    )
 
 
 def test_the_path_task_rides_through_a_silent_sensor_it_does_not_read():
@@ -80,7 +87,7 @@ def test_a_sensor_the_task_does_not_read_is_supervised_by_its_heartbeat():
     ("silent_s", "nodes", "faults"),
     [(0.03, (SENSOR,), False), (0.08, (1, 2, 3, SENSOR), False), (0.12, (SENSOR,), True)],
 )
-def test_the_contour_task_tolerates_sensor_silence_up_to_sensor_stale_cycles(silent_s, nodes, faults):
+def test_the_contour_task_tolerates_sensor_silence_up_to_sensor_stale_s(silent_s, nodes, faults):
     # In lap 2 of a two-lap contour: 12 cycles ride through (the task holds from the 4th), and 32 of
     # the whole simulator (the contour demo over the bus saw 23-31 with every device silent at
     # once, and faulted on the 20 of that day), without pressing on; 48 fault.
@@ -103,7 +110,8 @@ def test_the_contour_task_tolerates_sensor_silence_up_to_sensor_stale_cycles(sil
         # the contact guard's protective stop: backed off along the drives' effort, then FAULT
         assert final.mode == Mode.FAULT
         assert final.fault_reason.startswith(
-            f"protective stop: force sensor: no usable sample for {cfg.safety.sensor_stale_cycles} cycles; "
+            f"protective stop: force sensor: no usable sample for {cycles_in(cfg.safety.sensor_stale_s, cfg.period_s)} "
+            "cycles; "
             "backed off 5.0 mm along"
         )
         assert peak.max_n < cfg.task.model("contour").max_force_n

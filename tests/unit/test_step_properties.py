@@ -48,6 +48,7 @@ from controller.core.cycle_data import (
     EmcyReport,
     cycle_inputs,
 )
+from controller.core.periods import cycles_in
 from controller.core.setpoint_smoothing import AxisLimits, RuckigSmoother, Setpoint
 from controller.errors import WorkspaceError
 from controller.shell.loop import SimulatedTime
@@ -293,7 +294,9 @@ def test_targets_never_exceed_the_actuator_limits_or_leave_the_stroke(task, data
     cfg, law = build_or_reject(task)
     cycles = min(600, int(0.75 * cfg.loop.rate_hz))
     p = data.draw(
-        perturbations(cycles, law.n, cfg.loop.max_missing_cycles, cfg.safety.max_consecutive_late_cycles)
+        perturbations(
+            cycles, law.n, law.config.max_missing_cycles, law.config.safety.max_consecutive_late_cycles
+        )
     )
     loop = ClosedLoop(cfg, law)
     for _ in range(cycles):
@@ -516,7 +519,7 @@ class FaultInjection:
 
     def bound(self, cfg: Config) -> int:
         """Cycles after the injection by which the law must be in FAULT."""
-        return cfg.loop.max_missing_cycles - 1 if self.cause == "silent" else 0
+        return cycles_in(cfg.loop.max_missing_s, cfg.period_s) - 1 if self.cause == "silent" else 0
 
 
 def is_stop_command(cw: int) -> bool:

@@ -35,7 +35,7 @@ def _slow(tmp_path: Path) -> list[str]:
         "--rate",
         "25",
         "--set",
-        "loop.max_missing_cycles=20",
+        "loop.max_missing_s=0.8",
         "--set",
         "loop.sdo_timeout_s=5.0",
         "--set",

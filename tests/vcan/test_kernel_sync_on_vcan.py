@@ -89,7 +89,7 @@ def test_controller_completes_the_path_with_kernel_sync(vcan_channel: str) -> No
             "task.path.laps": 0.25,
             "task.path.speed_m_s": 0.05,
             "loop.rate_hz": 25.0,
-            "loop.max_missing_cycles": 20,
+            "loop.max_missing_s": 0.8,
             "loop.sdo_timeout_s": 5.0,
             "sim.drive.sync_timeout_s": 0.5,
             "loop.enable_timeout_s": 10.0,

@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
             "--set",
             "task.path.laps=1000",
             "--set",
-            "loop.max_missing_cycles=10",
+            "loop.max_missing_s=0.025",
             "--set",
             'safety.on_late_cycles="warn"',
             "--set",

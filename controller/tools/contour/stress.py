@@ -148,7 +148,7 @@ def scenarios(t: dict[str, float], period_s: float) -> Iterator[ContourScenario]
     yield ContourScenario(
         "sensor stale for 0.08 s during the approach", (f"freeze@{approach + 0.5:.3f}+0.08",)
     )
-    yield ContourScenario(  # past safety.sensor_stale_cycles: the protective stop, by design
+    yield ContourScenario(  # past safety.sensor_stale_s: the protective stop, by design
         "sensor stale for 0.2 s during the approach",
         (f"freeze@{approach + 0.5:.3f}+0.2",),
         ride_through=False,
