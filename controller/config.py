@@ -13,6 +13,7 @@ configures both processes, so the whole document is validated before either star
 
 from __future__ import annotations
 
+import copy
 import re
 import tomllib
 from collections.abc import Mapping
@@ -649,33 +650,34 @@ CYCLE_KEYS_NOW_SECONDS = (
 
 
 def _cycles_as_seconds(table: dict[str, Any]) -> dict[str, Any]:
+    given = [
+        (dotted, old, new) for dotted, old, new in CYCLE_KEYS_NOW_SECONDS if old in _section_at(table, dotted)
+    ]
+    if not given:
+        return table
+    table = copy.deepcopy(table)  # the caller's table (a recording's, a file's) stays as it was
     loop = table.get("loop")
     rate_hz = loop.get("rate_hz") if isinstance(loop, dict) else None
     if not isinstance(rate_hz, int | float) or isinstance(rate_hz, bool) or not rate_hz > 0:
         rate_hz = LoopSection().rate_hz  # a wrong rate is the loop section's to refuse, by its own name
-    for dotted, old, new in CYCLE_KEYS_NOW_SECONDS:
-        path = dotted.split(".")
-        parents = [table]
-        for name in path:
-            child = parents[-1].get(name)
-            if not isinstance(child, dict):
-                break
-            parents.append(child)
-        else:
-            if old not in parents[-1]:
-                continue
-            section = dict(parents[-1])
-            cycles = section.pop(old)
-            if not isinstance(cycles, int) or isinstance(cycles, bool) or cycles < 1:
-                raise ConfigError(
-                    f"{dotted}.{old} = {cycles!r}: a whole number of cycles >= 1 was expected (the key "
-                    f"is {dotted}.{new} now, in seconds)"
-                )
-            section[new] = cycles / rate_hz  # given, the old key says it (a --set of it too)
-            for name, parent in zip(reversed(path), reversed(parents[:-1]), strict=True):
-                section = {**parent, name: section}
-            table = section
+    for dotted, old, new in given:
+        section = _section_at(table, dotted)
+        cycles = section.pop(old)
+        if not isinstance(cycles, int) or isinstance(cycles, bool) or cycles < 1:
+            raise ConfigError(
+                f"{dotted}.{old} = {cycles!r}: a whole number of cycles >= 1 was expected (the key "
+                f"is {dotted}.{new} now, in seconds)"
+            )
+        section[new] = cycles / rate_hz  # given, the old key says it (a --set of it too)
     return table
+
+
+def _section_at(table: dict[str, Any], dotted: str) -> dict[str, Any]:
+    """The table at ``dotted`` ("safety.contact"), or an empty one where there is none."""
+    node: Any = table
+    for name in dotted.split("."):
+        node = node.get(name) if isinstance(node, dict) else None
+    return node if isinstance(node, dict) else {}
 
 
 def config_from_dict(table: dict[str, Any]) -> Config:
