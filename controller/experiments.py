@@ -23,8 +23,8 @@ if TYPE_CHECKING:
 @dataclass(frozen=True)
 class Experiment:
     # (cfg, spec, plot_dir, max_duration_s, stop_event, realtime, observers, *, true_force) -> summary,
-    # with the simulator already started on ``spec`` (controller/shell/demo.py); ``true_force()`` is
-    # the simulator's true contact force [N] of its latest SYNC (sim_backend/true_force_tap.py)
+    # with the simulator already started on ``spec`` (controller/shell/demo.py); ``true_force(t)`` is
+    # the simulator's true contact force [N] of its latest SYNC by ``t`` (sim_backend/true_force_tap.py)
     over_bus: Callable[..., dict[str, object]]
     # (cfg, max_duration_s, plot_dir) -> summary, against the in-process devices in simulated
     # time (``cheope demo --simulated-time``); None: the experiment has no such run

@@ -592,7 +592,7 @@ class Simulator:
             f = self.plant.force_n
             force_n = math.sqrt(float(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]))
             if self.true_force_tap is not None:
-                self.true_force_tap.write(float(f[0]), float(f[1]), float(f[2]))
+                self.true_force_tap.write(now, float(f[0]), float(f[1]), float(f[2]))
             if not self.max_contact_force_n:
                 self.max_contact_force_n.append(0.0)
             if force_n > self.max_contact_force_n[-1]:

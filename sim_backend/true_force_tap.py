@@ -4,8 +4,15 @@ The controller sees the force sensor's measurement; how well force control did i
 force the simulator's environment really exerts. In simulated time the demo reads it from the
 in-process plant; over a bus the simulator is another process, and it writes the force of every
 SYNC into a small file mapped into both processes' memory (in /dev/shm where there is one) that
-the demo's observers read each cycle: a sequence number, then Fx, Fy, Fz [N]. A diagnostic, never an input
-of the law: nothing the controller decides depends on it.
+the demo's observers read each cycle. A diagnostic, never an input of the law: nothing the
+controller decides depends on it.
+
+The block holds the forces of the last two SYNCs, each with the time the SYNC reached the
+machine (CLOCK_MONOTONIC, one clock for every process): a sequence number, then twice t [s],
+Fx, Fy, Fz [N]. Over a bus the loop hands cycle k to its observers after it sent cycle k+1's
+SYNC (controller/shell/loop.py, step 5), and the simulator may have answered that one already:
+the reader asks for the force as it was when cycle k's step ended (``CycleTiming.stepped_s``),
+the newer of the two SYNCs before then, not simply the latest.
 
 The writer bumps the sequence to an odd number before it writes and to the next even one after;
 a reader that finds it odd, or changed under it, takes the last value it read whole.
@@ -17,13 +24,15 @@ pool (the 3-nSPU's) and left it failing at its end on a block already gone.
 
 from __future__ import annotations
 
+import math
 import mmap
 import os
 import struct
 import tempfile
 from pathlib import Path
 
-_LAYOUT = struct.Struct("<Q3d")  # sequence, Fx, Fy, Fz [N]
+_LAYOUT = struct.Struct("<Q4d4d")  # sequence, then two slots of t [s], Fx, Fy, Fz [N]
+_SLOT = struct.Struct("<4d")
 _ZERO = (0.0, 0.0, 0.0)
 
 
@@ -45,11 +54,12 @@ class TrueForceTap:
             os.close(fd)
         self._sequence = 0
 
-    def write(self, fx_n: float, fy_n: float, fz_n: float) -> None:
+    def write(self, sync_s: float, fx_n: float, fy_n: float, fz_n: float) -> None:
+        """The force of the SYNC that reached the machine at ``sync_s`` (CLOCK_MONOTONIC) [N]."""
         buf = self._map
         self._sequence += 1
         struct.pack_into("<Q", buf, 0, 2 * self._sequence - 1)
-        _LAYOUT.pack_into(buf, 0, 2 * self._sequence - 1, fx_n, fy_n, fz_n)
+        _SLOT.pack_into(buf, 8 + _SLOT.size * (self._sequence % 2), sync_s, fx_n, fy_n, fz_n)
         struct.pack_into("<Q", buf, 0, 2 * self._sequence)
 
     def close(self) -> None:
@@ -67,7 +77,7 @@ class TrueForceReader:
             self._map = mmap.mmap(fd, _LAYOUT.size)
         finally:
             os.close(fd)
-        _LAYOUT.pack_into(self._map, 0, 0, *_ZERO)
+        _LAYOUT.pack_into(self._map, 0, 0, -math.inf, *_ZERO, -math.inf, *_ZERO)
         self._last = _ZERO
 
     @property
@@ -75,11 +85,16 @@ class TrueForceReader:
         """What the simulator is given (``cheope sim --true-force-tap``): the block's path."""
         return str(self.path)
 
-    def read(self) -> tuple[float, float, float]:
-        """The force of the simulator's latest SYNC [N] (zero before its first)."""
-        sequence, fx, fy, fz = _LAYOUT.unpack_from(self._map, 0)
+    def read(self, as_of_s: float = math.inf) -> tuple[float, float, float]:
+        """The force [N] of the simulator's latest SYNC that reached the machine by ``as_of_s``
+        (CLOCK_MONOTONIC; by default the latest of all). Zero before the first; the older of the
+        two kept when both came later (a reader two SYNCs behind); NaN reads as the latest."""
+        sequence, t0, *f0, t1, f1x, f1y, f1z = _LAYOUT.unpack_from(self._map, 0)
         if sequence % 2 == 0 and _LAYOUT.unpack_from(self._map, 0)[0] == sequence:
-            self._last = (fx, fy, fz)
+            (older_s, older), (newer_s, newer) = sorted(((t0, tuple(f0)), (t1, (f1x, f1y, f1z))))
+            if newer_s > -math.inf:
+                in_time = newer_s <= as_of_s or math.isnan(as_of_s) or older_s == -math.inf
+                self._last = newer if in_time else older
         return self._last
 
     def close(self) -> None:

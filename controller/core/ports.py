@@ -18,6 +18,7 @@ a robot or a task of your own depends on the core and the core on neither.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import TYPE_CHECKING, Protocol, Self, TypeVar, runtime_checkable
@@ -282,6 +283,9 @@ class PlansOffLoop(Protocol):
 class CycleTiming:
     wake_error_s: float  # actual wake-up minus the deadline
     step_s: float  # compute time of law.step
+    # the loop's clock when the step returned; the observers may see the cycle later (in the next
+    # cycle's answer window: controller/shell/loop.py)
+    stepped_s: float = math.nan
 
 
 class CycleObserver(Protocol):

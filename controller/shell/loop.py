@@ -14,7 +14,13 @@ Per cycle k, with deadline d_k = d_0 + k * period on a monotonic clock:
      step and observers (0.44 + 0.19 ms at their medians on this machine) after a 2-ms window
      overran the 2.5-ms period: the next wake-up was late in 35-77 % of a demo's cycles;
   4. ``law.step(state, inputs, k * period)``;
-  5. hand copies to the observers (recorder, publisher, statistics): they must not block;
+  5. hand copies to the observers (recorder, publisher, statistics): they must not block. Over a
+     bus (``observers_in_window``) cycle k's observers run in cycle k+1, between its send and its
+     collect: inside the answer window, where the loop only waits for frames that the socket
+     buffers anyway. Their 0.06-0.16 ms after the step made the 1-kHz cycle's work longer than
+     the time left after the window; in the window they cost the cycle nothing until they take
+     longer than it. In simulated time nothing waits in the window, and the observers run right
+     after the step (an observer that reads the in-process simulator sees it at this cycle's SYNC);
   6. collect garbage, when there is any to collect, here and nowhere else (``collect_garbage``).
 If the loop falls more than one period behind, it skips the missed deadlines (counted as
 overruns) rather than running a burst of late cycles, as ros2_control's loop does: a wake-up
@@ -47,7 +53,8 @@ counted and timed (``LoopStats.gc_collections``, ``gc_max_s``).
 
 Where the time of a long cycle went: each cycle's send, its collect past the window's end, its
 step and its observers are kept in the ring beside its wake-up error, and the longest cycle of
-the run (wake-up to the end of its work) with its parts (``LoopStats.longest_cycle``): a cycle
+the run (wake-up to the end of its work) with its parts (``LoopStats.longest_cycle``; its
+``observers_s`` are those that ran inside it: the cycle before's, in the answer window): a cycle
 stalled by something beside the loop shows which part of it waited.
 """
 
@@ -65,7 +72,7 @@ import numpy as np
 
 from controller.core.control_law import ControlLaw
 from controller.core.controller_state import ControllerState, Mode
-from controller.core.cycle_data import BusFeedback, Command, CycleOutputs, cycle_inputs
+from controller.core.cycle_data import BusFeedback, Command, CycleInputs, CycleOutputs, Event, cycle_inputs
 from controller.core.ports import CycleObserver, CycleTiming
 from controller.shell.streaming_stats import LogHistogram
 
@@ -190,9 +197,10 @@ class LoopStats:
             self.send_s[i] = send_s
             self.collect_over_s[i] = collect_over_s
 
-    def record_span(self, span_s: float, gc_s: float) -> None:
+    def record_span(self, span_s: float, gc_s: float, observers_s: float) -> None:
         """The span of the cycle recorded last (wake-up to the end of its work, a collection
-        included): kept with its parts when it is the longest of the run so far."""
+        included): kept with its parts when it is the longest of the run so far. ``observers_s``:
+        the observers that ran inside it (the cycle before's, when they run in the answer window)."""
         if span_s <= self.longest_cycle.get("span_s", 0.0) or self.cycles <= self._folded:
             return
         i = (self.cycles - 1) % self.ring_cycles
@@ -203,7 +211,7 @@ class LoopStats:
             "send_s": float(self.send_s[i]),
             "collect_over_s": float(self.collect_over_s[i]),
             "step_s": float(self.step_s[i]),
-            "observers_s": float(self.observers_s[i]),
+            "observers_s": observers_s,
             "gc_s": gc_s,
         }
 
@@ -262,6 +270,8 @@ def period_error_us(wake_s: np.ndarray, period_s: float) -> np.ndarray:
     return np.abs(np.diff(w) - period_s) * 1e6
 
 
+# what one cycle hands its observers: cycle, t, inputs, state, outputs, events, timing
+Observation = tuple[int, float, CycleInputs, ControllerState, CycleOutputs, tuple[Event, ...], CycleTiming]
 CommandSource = Callable[[], "tuple[str, float] | None"]  # one pending remote command, or None
 
 
@@ -294,6 +304,7 @@ class CycleLoop:
         stop_timeout_s: float = DEFAULT_STOP_TIMEOUT_S,
         plans_ready: Callable[[], int] | None = None,
         collect_garbage: bool = True,
+        observers_in_window: bool = False,
     ) -> None:
         if not stop_timeout_s > 0:
             raise ValueError(f"stop_timeout_s = {stop_timeout_s}: must be > 0")
@@ -313,6 +324,7 @@ class CycleLoop:
         self.late_tolerance_s = late_tolerance_s
         self.stop_timeout_s = stop_timeout_s
         self.collect_garbage = collect_garbage  # the loop, not the allocator, decides when (module text)
+        self.observers_in_window = observers_in_window  # step 5 of the module text
         self.cycles_done = 0  # completed cycles: what controller/shell/stuck_loop.py watches
 
     def _window_end(self, deadline: float, work_peak_s: float) -> float:
@@ -380,93 +392,122 @@ class CycleLoop:
         work_peak_s = 0.0  # recent peak of the step and the observers [s]
         work_decay = 0.5 ** (period / WORK_PEAK_HALF_LIFE_S)
         collect_garbage = self.collect_garbage
-        young_limit, middle_limit, old_limit = gc.get_threshold()
+        young_limit = gc.get_threshold()[0]
         skipped_before = False  # deadlines were skipped before this cycle
-        while True:
-            deadline = first_deadline + k * period
-            self.sleeper.sleep_until(deadline)
-            woke = clock()
-            if woke - deadline > period:  # held up past the next deadline too: this cycle is the latest
-                k, deadline = self._latest_deadline(stats, k, deadline, woke)
-                skipped_before = True
-            if deadlines is not None:
-                deadlines.cycle_deadline(deadline)
-            # after skipped deadlines: a SYNC without the stale RPDOs (module doc)
-            sent_in_time = self.exchange.send(None if skipped_before else outputs, deadline + period)
-            sent = clock()
-            late_s = woke - deadline
-            withheld = skipped_before
-            if not sent_in_time and sent > deadline + period:
-                # held up before the SYNC went: it went late, without the targets
-                k, deadline = self._latest_deadline(stats, k, deadline, sent)
-                stats.syncs_held_up += 1
-                skipped_before = withheld = True
-                late_s = sent - deadline  # the bus saw this cycle begin at its SYNC
-            elif not sent_in_time and not skipped_before:
-                # in time for its deadline, but too long after the SYNC before: without the targets
-                stats.targets_withheld += 1
-                withheld = True
-            window_end = self._window_end(deadline, work_peak_s)
-            feedback = self.exchange.collect(window_end)
-            collected = clock()
-            pending = self.commands() if self.commands is not None else None
-            command, value = (Command(pending[0]), pending[1]) if pending is not None else (Command.NONE, 0.0)
-            stop = self.stop_event.is_set() or (time_up_cycle is not None and k >= time_up_cycle)
-            if stop and stop_cycle is None:
-                stop_cycle = k
-            if self.quick_stop_event.is_set() or (
-                stop_cycle is not None and k - stop_cycle > stop_timeout_cycles
-            ):
-                command, value = Command.QUICK_STOP, 0.0
-            inputs = cycle_inputs(
-                feedback,
-                stop,
-                command,
-                value,
-                # late: woke late, or the first cycle after deadlines the loop skipped (it fell behind)
-                late=late_s > self.late_tolerance_s or skipped_before,
-                plans_ready=self.plans_ready() if self.plans_ready is not None else 0,
-                targets_withheld=withheld,
-            )
-            t = k * period
-            c0 = clock()
-            state, outputs, events = self.law.step(state, inputs, t)
-            timing = CycleTiming(late_s, clock() - c0)
-            if outputs.sdo_controlwords:
-                self._write_controlwords_by_sdo(outputs)
-            stats.record(timing.wake_error_s, timing.step_s, k)
-            stats.record_exchange(sent - woke, max(0.0, collected - window_end))
-            o0 = clock()
-            for obs in self.observers:
-                obs.on_cycle(k, t, inputs, state, outputs, events, timing)
-            worked = clock()
-            stats.record_observers(worked - o0)
-            work_peak_s = max(worked - c0, work_peak_s * work_decay)
-            gc_s = 0.0
-            if collect_garbage and gc.get_count()[0] >= young_limit:
-                # the generation CPython would collect, after the cycle's work instead of inside it
-                counts = gc.get_count()
-                generation = 2 if counts[2] >= old_limit else 1 if counts[1] >= middle_limit else 0
-                gc.collect(generation)
-                gc_s = clock() - worked
-                stats.record_gc(gc_s)
-            stats.record_span(worked + gc_s - woke, gc_s)
-            ending = state.mode == Mode.DONE or (state.mode == Mode.FAULT and (exit_on_fault or stop))
-            if end_cycle is None and ending:
-                end_cycle = k  # keep cycling a little so the last commands reach the drives
-            elif end_cycle is not None and not ending:
-                end_cycle = None  # recovered (a reset) before the end
-            self.cycles_done += 1
-            if end_cycle is not None and k - end_cycle >= linger:
-                break
-            k += 1
-            behind = clock() - (first_deadline + k * period)
-            skipped_before = behind > period
-            if skipped_before:
-                skipped = int(behind / period)
-                stats.overruns += skipped
-                k += skipped
+        in_window = self.observers_in_window
+        unobserved: Observation | None = None  # the cycle before's, for this cycle's answer window
+        try:
+            while True:
+                deadline = first_deadline + k * period
+                self.sleeper.sleep_until(deadline)
+                woke = clock()
+                if woke - deadline > period:  # held up past the next deadline too: this cycle is the latest
+                    k, deadline = self._latest_deadline(stats, k, deadline, woke)
+                    skipped_before = True
+                if deadlines is not None:
+                    deadlines.cycle_deadline(deadline)
+                # after skipped deadlines: a SYNC without the stale RPDOs (module doc)
+                sent_in_time = self.exchange.send(None if skipped_before else outputs, deadline + period)
+                sent = clock()
+                late_s = woke - deadline
+                withheld = skipped_before
+                if not sent_in_time and sent > deadline + period:
+                    # held up before the SYNC went: it went late, without the targets
+                    k, deadline = self._latest_deadline(stats, k, deadline, sent)
+                    stats.syncs_held_up += 1
+                    skipped_before = withheld = True
+                    late_s = sent - deadline  # the bus saw this cycle begin at its SYNC
+                elif not sent_in_time and not skipped_before:
+                    # in time for its deadline, but too long after the SYNC before: without the targets
+                    stats.targets_withheld += 1
+                    withheld = True
+                window_end = self._window_end(deadline, work_peak_s)
+                observed_s = 0.0  # the observers' turn inside this cycle
+                if unobserved is not None:  # the cycle before's, in this one's answer window (step 5)
+                    observed_s = self._observe(stats, unobserved)
+                    unobserved = None
+                feedback = self.exchange.collect(window_end)
+                collected = clock()
+                stop = self.stop_event.is_set() or (time_up_cycle is not None and k >= time_up_cycle)
+                if stop and stop_cycle is None:
+                    stop_cycle = k
+                command, value = self._command(k, stop_cycle, stop_timeout_cycles)
+                inputs = cycle_inputs(
+                    feedback,
+                    stop,
+                    command,
+                    value,
+                    # late: woke late, or the first cycle after deadlines the loop skipped (it fell behind)
+                    late=late_s > self.late_tolerance_s or skipped_before,
+                    plans_ready=self.plans_ready() if self.plans_ready is not None else 0,
+                    targets_withheld=withheld,
+                )
+                t = k * period
+                c0 = clock()
+                state, outputs, events = self.law.step(state, inputs, t)
+                stepped = clock()
+                timing = CycleTiming(late_s, stepped - c0, stepped)
+                if outputs.sdo_controlwords:
+                    self._write_controlwords_by_sdo(outputs)
+                stats.record(timing.wake_error_s, timing.step_s, k)
+                stats.record_exchange(sent - woke, max(0.0, collected - window_end))
+                observation = (k, t, inputs, state, outputs, events, timing)
+                if in_window:
+                    unobserved = observation
+                else:
+                    observed_s = self._observe(stats, observation)
+                worked = clock()
+                work_peak_s = max(worked - c0, work_peak_s * work_decay)
+                gc_s = 0.0
+                if collect_garbage and gc.get_count()[0] >= young_limit:
+                    gc_s = self._collect_garbage(stats, worked)
+                stats.record_span(worked + gc_s - woke, gc_s, observed_s)
+                ending = state.mode == Mode.DONE or (state.mode == Mode.FAULT and (exit_on_fault or stop))
+                # from the first cycle that ends the run, a little more so the last commands reach the
+                # drives; a recovery (a reset) before the end forgets it
+                end_cycle = (k if end_cycle is None else end_cycle) if ending else None
+                self.cycles_done += 1
+                if end_cycle is not None and k - end_cycle >= linger:
+                    break
+                k += 1
+                behind = clock() - (first_deadline + k * period)
+                skipped_before = behind > period
+                if skipped_before:
+                    skipped = int(behind / period)
+                    stats.overruns += skipped
+                    k += skipped
+        finally:  # the last cycle has no answer window after it; nor has one the loop left by an error
+            if unobserved is not None:
+                self._observe(stats, unobserved)
         return state
+
+    def _command(self, k: int, stop_cycle: int | None, stop_timeout_cycles: int) -> tuple[Command, float]:
+        """Cycle ``k``'s command: a quick stop (a second signal, or a stop asked for at ``stop_cycle``
+        that has not ended the run in time), else one pending remote command, else none."""
+        pending = self.commands() if self.commands is not None else None  # taken, even when overruled
+        if self.quick_stop_event.is_set() or (
+            stop_cycle is not None and k - stop_cycle > stop_timeout_cycles
+        ):
+            return Command.QUICK_STOP, 0.0
+        return (Command(pending[0]), pending[1]) if pending is not None else (Command.NONE, 0.0)
+
+    def _collect_garbage(self, stats: LoopStats, worked_s: float) -> float:
+        """The generation CPython would collect, after the cycle's work instead of inside it; how long it took."""
+        _, middle_limit, old_limit = gc.get_threshold()
+        counts = gc.get_count()
+        gc.collect(2 if counts[2] >= old_limit else 1 if counts[1] >= middle_limit else 0)
+        gc_s = self.clock() - worked_s
+        stats.record_gc(gc_s)
+        return gc_s
+
+    def _observe(self, stats: LoopStats, observation: Observation) -> float:
+        """One cycle handed to every observer; the time it took, recorded for the cycle recorded last."""
+        o0 = self.clock()
+        for obs in self.observers:
+            obs.on_cycle(*observation)
+        observers_s = self.clock() - o0
+        stats.record_observers(observers_s)
+        return observers_s
 
     def _latest_deadline(self, stats: LoopStats, k: int, deadline: float, now: float) -> tuple[int, float]:
         """Cycle ``k`` (deadline ``deadline``) held up until ``now``, past its next deadline: the cycle

@@ -228,6 +228,7 @@ def run_controller(
             quick_stop_event=quick_stop_event,
             stop_timeout_s=cfg.loop.stop_timeout_s,
             plans_ready=worker.ready if worker is not None else None,
+            observers_in_window=True,  # over a bus: in the next cycle's answer window (loop.py, step 5)
         )
         if cfg.loop.freeze_gc:  # start-up work: before the loop takes its real-time priority
             freeze_garbage_collector()

@@ -74,6 +74,7 @@ def run_simulated(
             observers=(_Events(), pub),
             stop_event=stop_event,
             commands=pub.commands,
+            observers_in_window=True,  # over a bus (controller/shell/loop.py, step 5)
         )
         # on this thread only: the publisher's (Zenoh's) threads are already running under the normal scheduler
         restore = apply_realtime(realtime) if realtime is not None else None

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ctypes
 import errno
+import math
 import os
 import re
 import shutil
@@ -224,6 +225,39 @@ def test_loop_probe_times_the_devices_answer_from_sync_to_the_last_tpdo():
         probe.sink(False, t0 + last, can.Message(arbitration_id=0x182, data=bytes(6), is_extended_id=False))
         probe.on_cycle(k, t0, None, None, None, (), CycleTiming(0.0, 1e-4))
     assert probe.answer_s[:2] == pytest.approx([4e-4, 6e-4])
+
+
+def test_loop_probe_pairs_a_cycle_observed_after_the_next_sync_with_its_own_frames():
+    """Over a bus the loop hands cycle k to its observers after cycle k+1's RPDOs and SYNC went
+    out (controller/shell/loop.py, step 5): the answer, the step and the next RPDO are still cycle k's."""
+    import can
+
+    from controller.core.ports import CycleTiming
+    from controller.tools.bench import LoopProbe
+    from drivers import cob_ids
+
+    def frame(cob_id: int) -> can.Message:
+        return can.Message(arbitration_id=cob_id, data=bytes(6), is_extended_id=False)
+
+    probe = LoopProbe(4, frozenset({0x181, 0x182}), 0x201, None, sample_every=1000)
+    period = 1e-3
+    last_tpdo = (4e-4, 6e-4, 5e-4)
+    for k, last in enumerate(last_tpdo):
+        t0 = k * period
+        if k > 0:  # cycle k-1's targets, sent before this cycle's SYNC
+            probe.sink(True, t0 - 1e-6, frame(0x201))
+        probe.sink(True, t0, frame(cob_ids.SYNC))
+        if k > 0:  # the cycle before, observed in this one's answer window
+            stepped = (k - 1) * period + last_tpdo[k - 1] + 2e-4
+            probe.on_cycle(k - 1, (k - 1) * period, None, None, None, (), CycleTiming(0.0, 1e-4, stepped))
+        probe.sink(False, t0 + 1e-4, frame(0x181))
+        probe.sink(False, t0 + last, frame(0x182))
+    probe.on_cycle(2, 2 * period, None, None, None, (), CycleTiming(0.0, 1e-4, 2 * period + 7e-4))
+    assert probe.answer_s[:3] == pytest.approx(last_tpdo)
+    assert probe.ready_after_tpdo_s[:3] == pytest.approx([2e-4, 2e-4, 2e-4])
+    # cycle k's last TPDO to cycle k+1's first RPDO; none yet after the last cycle
+    assert probe.rpdo_after_tpdo_s[:2] == pytest.approx([period - 1e-6 - 4e-4, period - 1e-6 - 6e-4])
+    assert math.isnan(probe.rpdo_after_tpdo_s[2])
 
 
 def test_demo_gives_the_simulator_the_other_cpus_one_priority_step_below():

@@ -16,10 +16,15 @@ def test_the_reader_sees_what_another_process_writes_and_removes_the_block():
     assert reader.read() == (0.0, 0.0, 0.0)  # before the first SYNC
     code = (
         "from sim_backend.true_force_tap import TrueForceTap\n"
-        f"t = TrueForceTap({reader.name!r}); t.write(1.5, -2.0, 0.25); t.write(3.0, 4.0, 0.0); t.close()"
+        f"t = TrueForceTap({reader.name!r}); t.write(10.0, 1.5, -2.0, 0.25); t.write(10.001, 3.0, 4.0, 0.0)\n"
+        "t.write(10.002, 5.0, 6.0, 0.5); t.close()"
     )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
-    assert reader.read() == (3.0, 4.0, 0.0)  # the latest write, whole
+    assert reader.read() == (5.0, 6.0, 0.5)  # the latest write, whole
+    # a cycle observed after the next SYNC reached the simulator: the force of its own SYNC
+    assert reader.read(10.0015) == (3.0, 4.0, 0.0)
+    assert reader.read(10.0005) == (3.0, 4.0, 0.0)  # two SYNCs behind: the older of the two kept
+    assert reader.read(float("nan")) == (5.0, 6.0, 0.5)
     reader.close()
     assert not os.path.exists(reader.name)
     with pytest.raises(FileNotFoundError):  # the simulator given a block nobody made

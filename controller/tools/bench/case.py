@@ -149,7 +149,7 @@ def run_case(
         "step_us": percentiles_us(probe.step_s[skip:n] * 1e6),
         "tpdo_to_ready_us": percentiles_us(_finite(probe.ready_after_tpdo_s[skip:n]) * 1e6),
         "sync_to_last_tpdo_us": percentiles_us(_finite(probe.answer_s[skip:n]) * 1e6),
-        "tpdo_to_rpdo_us": percentiles_us(_finite(probe.rpdo_after_tpdo_s[skip + 1 : n]) * 1e6),
+        "tpdo_to_rpdo_us": percentiles_us(_finite(probe.rpdo_after_tpdo_s[skip:n]) * 1e6),
         "cpu_percent_of_one_core": cpu_use_percent(samples),
         # the loop's spin before each deadline over the run, in % of one core (the service's spin_s)
         "spin_percent_of_one_core": _spin_percent(summary),

@@ -23,12 +23,14 @@ if TYPE_CHECKING:
 class LoopProbe:
     """Observer and frame sink of one ``run_controller`` run; preallocated, a few hundred ns a call.
 
-    Per cycle k it keeps: the wake error and step time (from the loop's ``CycleTiming``), the
-    arrival of the last TPDO of the cycle, and when the outputs were ready (end of the
-    observers' turn); from the frame sink, when the first RPDO of cycle k + 1 went out, and
-    how long after this cycle's SYNC went out its last TPDO arrived (the devices' answer). It
-    also counts every frame on the bus by COB-ID for the measured bus load, and samples CPU
-    times once a second (the loop thread's own, the process's, the simulator's).
+    Per cycle k it keeps: the wake error and step time (from the loop's ``CycleTiming``), how
+    long after this cycle's SYNC went out its last TPDO arrived (the devices' answer), how long
+    after that the step was done (``CycleTiming.stepped_s``), and how long after it the first RPDO
+    of cycle k + 1 went out. Over a bus the loop hands cycle k to its observers after cycle k+1's
+    SYNC (in its answer window: controller/shell/loop.py, step 5), so the frames are paired by
+    time: a SYNC sent after cycle k's step closes cycle k's answer. It also counts every frame on
+    the bus by COB-ID for the measured bus load, and samples CPU times once a second (the loop
+    thread's own, the process's, the simulator's).
     """
 
     def __init__(
@@ -43,16 +45,18 @@ class LoopProbe:
         self.wake_error_s = np.zeros(capacity)
         self.step_s = np.zeros(capacity)
         self.deadline_index = np.zeros(capacity, dtype=np.int64)
-        self.ready_after_tpdo_s = np.full(capacity, np.nan)
-        self.rpdo_after_tpdo_s = np.full(capacity, np.nan)
+        self.ready_after_tpdo_s = np.full(capacity, np.nan)  # last TPDO in -> step done
+        self.rpdo_after_tpdo_s = np.full(capacity, np.nan)  # last TPDO in -> first RPDO of the next cycle out
         self.answer_s = np.full(capacity, np.nan)  # SYNC out -> last TPDO in
-        self._sync_s = math.nan
         self.n = 0
         self._tpdo_ids = tpdo_ids
         self._first_rpdo_id = first_rpdo_id
-        self._last_tpdo_s = math.nan
-        self._prev_last_tpdo_s = math.nan
-        self._rpdo_index = 0
+        self._sync_s = math.nan  # the latest SYNC out
+        self._sync_before_s = math.nan  # the one before it
+        self._last_tpdo_s = math.nan  # the latest TPDO in
+        self._tpdo_at_sync_s = math.nan  # the latest TPDO in when the latest SYNC went out
+        self._rpdo_s = math.nan  # the latest send's first RPDO out
+        self._rpdo_pending: tuple[int, float] | None = None  # (cycle index, its last TPDO): no RPDO yet
         self.frames: dict[int, int] = {}  # COB-ID -> frames received once the loop runs
         self.frames_out: dict[int, int] = {}  # COB-ID -> frames sent once the loop runs
         self.frame_shape: dict[int, tuple[int, bool, bool]] = {}  # COB-ID -> (bytes, is_fd, brs)
@@ -72,12 +76,14 @@ class LoopProbe:
             counts[cid] = k + 1
         if outgoing:
             if cid == cob_ids.SYNC:
-                self._sync_s = t
+                self._sync_before_s, self._sync_s = self._sync_s, t
+                self._tpdo_at_sync_s = self._last_tpdo_s
             elif cid == self._first_rpdo_id:
-                i = self._rpdo_index
-                if i < self.capacity:
-                    self.rpdo_after_tpdo_s[i] = t - self._prev_last_tpdo_s
-                self._rpdo_index = i + 1
+                self._rpdo_s = t
+                if self._rpdo_pending is not None:  # observed before its next send (simulated time)
+                    i, last_tpdo_s = self._rpdo_pending
+                    self.rpdo_after_tpdo_s[i] = t - last_tpdo_s
+                    self._rpdo_pending = None
             return
         if cid in self._tpdo_ids:
             self._last_tpdo_s = t
@@ -93,17 +99,22 @@ class LoopProbe:
         timing: CycleTiming,
     ) -> None:
         now = time.monotonic()
+        stepped = timing.stepped_s if math.isfinite(timing.stepped_s) else now
         i = self.n
         if i < self.capacity:
             self.wake_error_s[i] = timing.wake_error_s
             self.step_s[i] = timing.step_s
             self.deadline_index[i] = cycle
-            self.ready_after_tpdo_s[i] = now - self._last_tpdo_s
-            self.answer_s[i] = self._last_tpdo_s - self._sync_s
+            if self._sync_s > stepped:  # the next cycle's SYNC is out: it closed this cycle's answer
+                sync, last_tpdo = self._sync_before_s, self._tpdo_at_sync_s
+                self.rpdo_after_tpdo_s[i] = self._rpdo_s - last_tpdo if self._rpdo_s > stepped else math.nan
+                self._rpdo_pending = None
+            else:
+                sync, last_tpdo = self._sync_s, self._last_tpdo_s
+                self._rpdo_pending = (i, last_tpdo)
+            self.ready_after_tpdo_s[i] = stepped - last_tpdo
+            self.answer_s[i] = last_tpdo - sync
         self.n = i + 1
-        # the first RPDO of the next cycle pairs with this cycle's last TPDO
-        self._prev_last_tpdo_s = self._last_tpdo_s
-        self._rpdo_index = i + 1
         if i % self.sample_every == 0:
             if self.writer_pid is None:
                 self.writer_pid = child_pid("logs.session_writer")

@@ -76,7 +76,7 @@ def run_contour_experiment(
     stop_event: threading.Event | None = None,
     realtime: RealtimeOptions | None = None,
     observers: tuple[CycleObserver, ...] = (),
-    true_force: Callable[[], Sequence[float]] | None = None,
+    true_force: Callable[[float], Sequence[float]] | None = None,
 ) -> dict[str, object]:
     c = cfg.task.model("contour")
     robot = structure_robot(cfg)
@@ -116,7 +116,7 @@ def run_contour_experiment(
 
 
 def contour_lap_report(
-    cfg: Config, true_force: Callable[[], Sequence[float]] | None = None
+    cfg: Config, true_force: Callable[[float], Sequence[float]] | None = None
 ) -> tuple[ContourObserver, Callable[[], dict[str, object]]]:
     """The force error per lap, in the normal's direction, as the demo reports it (``summary["contour"]``),
     measured and, where ``true_force`` tells it (the simulator), true."""
@@ -162,7 +162,8 @@ def run_simulated_time(
         c.force_setpoint_n,
         c.expected_centre_m,
         len(c.lap_speeds_m_s),
-        lambda: exchange.plant.force_n.tolist(),
+        # in simulated time the loop observes a cycle right after its step: the plant is at its SYNC
+        lambda _stepped_s: exchange.plant.force_n.tolist(),
     )
     final, stats = rig.run((obs,), max_duration_s)
     summary: dict[str, object] = {

@@ -43,9 +43,10 @@ class ContourObserver:
     force_setpoint_n: float
     centre_m: tuple[float, float]
     laps: int
-    # the simulator's true contact force [N] (the in-process plant's, or the simulator process's through
+    # the simulator's true contact force [N] as it was at a time on the loop's clock, given the time
+    # the cycle's step ended (the in-process plant's, or the simulator process's through
     # sim_backend/true_force_tap.py); None: a real robot, where only the measurement is known
-    true_force: Callable[[], Sequence[float]] | None = None
+    true_force: Callable[[float], Sequence[float]] | None = None
     t: list[float] = field(default_factory=list)
     lap: list[int] = field(default_factory=list)
     fn: list[float] = field(default_factory=list)
@@ -74,7 +75,7 @@ class ContourObserver:
     ) -> None:
         ts = state.task_state
         tcp = state.tcp_measured_m
-        self._truth = self.true_force() if self.true_force is not None else None
+        self._truth = self.true_force(timing.stepped_s) if self.true_force is not None else None
         if self._truth is not None:
             f = self._truth
             self.max_true_force_n = max(
