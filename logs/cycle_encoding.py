@@ -45,20 +45,27 @@ def _task_field_plan(cls: type) -> TaskFieldPlan:
     return values_getter(names), names, tuple(tuple(f"{n}.{i}" for i in range(4)) for n in names)
 
 
-def task_values(task_state: object) -> dict[str, float]:
-    """The scalar fields of a task state dataclass: numbers, and numeric tuples of 1 to 4 as name.i
-    (bool and IntEnum are ints: recorded as numbers). Anything else (None, text, longer tuples,
-    records) is not recorded per cycle; a keyframe holds the whole state (logs/keyframe.py)."""
+TaskFields = tuple[tuple[str, ...], tuple[float, ...]]
+
+
+def task_fields(task_state: object) -> TaskFields:
+    """The scalar fields of a task state dataclass as names and values: numbers, and numeric tuples
+    of 1 to 4 as name.i (bool and IntEnum are ints: recorded as numbers). Anything else (None,
+    text, longer tuples, records) is not recorded per cycle; a keyframe holds the whole state
+    (logs/keyframe.py). The names are the plan's own strings, the same objects every cycle, so the
+    recorder tells unchanged names by a cheap comparison and sends them only when they change."""
     if task_state is None:
-        return {}
+        return (), ()
     cls = type(task_state)
     plan = _TASK_FIELD_PLANS.get(cls)
     if plan is None:
         if not dataclasses.is_dataclass(task_state):
-            return {}
+            return (), ()
         plan = _TASK_FIELD_PLANS[cls] = _task_field_plan(cls)
     getter, names, element_keys = plan
     values = getter(task_state)
+    # gathered in a dict, which keeps the plan's own key strings: a store per value, where two
+    # list appends were two calls each (the budget of python -m controller.tools.bench.cycle_work)
     out: dict[str, float] = {}
     for i in range(len(names)):
         v = values[i]
@@ -79,17 +86,25 @@ def task_values(task_state: object) -> dict[str, float]:
                     keys = element_keys[i]
                     for j in range(n):
                         out[keys[j]] = float(v[j])
-    return out
+    return tuple(out), tuple(out.values())
+
+
+def task_values(task_state: object) -> dict[str, float]:
+    """``task_fields`` as a mapping of name to value (what ``/cycle`` records)."""
+    keys, values = task_fields(task_state)
+    return dict(zip(keys, values, strict=True))
 
 
 # What the loop hands the writer for one cycle (``cycle_values``), in this order; logs.messages.cycle_pb
 # turns it into the ``cheope.v1.Cycle`` in the writer's process:
 #   cycle, t, inputs (``inputs_values``), controlwords, targets, mode, setpoint position,
 #   velocity, acceleration, tcp_reference_m or None, tcp_measured_m or None, fault_reason,
-#   task_phase ("" without a task state), task_values (``task_values``; None without a task
-#   state), wake_error_s, step_s.
-# Numbers, text, tuples and one dict: what pickle writes fastest, and no class the writer must import.
+#   task_phase ("" without a task state), task fields (``task_fields``: names, values; None
+#   without a task state; the recorder sends None for the names while they are those it sent
+#   last, logs/recorder.py), wake_error_s, step_s.
+# Numbers, text and tuples: what pickle writes fastest, and no class the writer must import.
 CycleValues = tuple[object, ...]
+TASK_FIELDS_AT = 13  # the task fields' place in ``CycleValues``
 # The step's inputs (``inputs_values``), in this order; logs.messages.inputs_pb:
 #   drives ((statusword, position, fresh, effort_n), ...), sensor (force_n, torque_nm, status,
 #   counter, fresh) or None, emcy ((node_id, error_code, error_register), ...), stop_requested,
@@ -148,10 +163,10 @@ def cycle_values(
     """One cycle's record as plain values (``CycleValues``): what the step got, gave and holds."""
     task_state = state.task_state
     phase = ""
-    values: dict[str, float] | None = None
+    fields: TaskFields | None = None
     if task_state is not None:
         phase = phase_text(phase_name, task_state)
-        values = task_values(task_state)
+        fields = task_fields(task_state)
     setpoint = state.setpoint
     return (
         cycle,
@@ -167,7 +182,7 @@ def cycle_values(
         state.tcp_measured_m,
         state.fault_reason,
         phase,
-        values,
+        fields,
         timing.wake_error_s,
         timing.step_s,
     )

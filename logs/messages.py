@@ -248,7 +248,7 @@ def cycle_pb(values: CycleValues) -> pb.Cycle:
         tcp_measured_m,
         fault_reason,
         task_phase,
-        task_values,
+        task_fields,
         wake_error_s,
         step_s,
     ) = cast(Any, values)  # the order above; numbers, text, tuples
@@ -266,9 +266,11 @@ def cycle_pb(values: CycleValues) -> pb.Cycle:
     if tcp_measured_m is not None:
         st.tcp_measured_m.extend(tcp_measured_m)
     st.fault_reason = fault_reason
-    if task_values is not None:
+    if task_fields is not None:
         st.task_phase = task_phase
-        st.task_values.update(task_values)
+        task_values = st.task_values
+        for name, value in zip(*task_fields, strict=True):  # names and values (cycle_encoding.task_fields)
+            task_values[name] = value
     msg.timing.wake_error_s = wake_error_s
     msg.timing.step_s = step_s
     return msg
@@ -278,7 +280,7 @@ def cycle_values_of_pb(msg: pb.Cycle) -> CycleValues:
     """A recorded ``cheope.v1.Cycle`` as the values the recorder hands its writer (``cycle_pb`` of them is
     ``msg`` again): to write a recorded session's cycles anew (tests/tools/bench_recording_size.py)."""
     st = msg.state
-    task_values = dict(st.task_values)
+    task_items = tuple(st.task_values.items())
     return (
         msg.cycle,
         msg.t_s,
@@ -293,7 +295,9 @@ def cycle_values_of_pb(msg: pb.Cycle) -> CycleValues:
         tuple(st.tcp_measured_m) or None,
         st.fault_reason,
         st.task_phase,
-        task_values if task_values or st.task_phase else None,
+        (tuple(k for k, _ in task_items), tuple(v for _, v in task_items))
+        if task_items or st.task_phase
+        else None,
         msg.timing.wake_error_s,
         msg.timing.step_s,
     )

@@ -17,7 +17,9 @@ little-endian length and a pickle of a tuple whose first item is the kind:
 
 ``frames`` is a list of ``logs.messages.FrameRecord`` (outgoing, monotonic_s, arbitration_id, data, flags),
 ``values`` the cycle's values (logs/cycle_encoding.py ``cycle_values``: numbers, text, tuples),
-which the writer turns into the ``cheope.v1.Cycle`` (logs/messages.py ``cycle_pb``), and
+which the writer turns into the ``cheope.v1.Cycle`` (logs/messages.py ``cycle_pb``); their task
+fields carry their names only when these changed (None: the names of the last record that had
+them; a record of None before any names stops the recording, nothing of that cycle written), and
 ``dropped`` the loop's running count of items it could not hand over. Writer -> loop, on
 standard output, JSON lines: ``{"ready": ...}`` or ``{"error": ...}`` after SETUP, and ``{"written": n, "chunks": n, "error": "", "files": [...],
 "deleted": [...]}`` at the end; in between ``{"keyframe": n}``, ``{"file": path}``, ``{"stopped": why}``
@@ -59,6 +61,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, BinaryIO, TextIO
+
+from logs.cycle_encoding import TASK_FIELDS_AT
 
 if TYPE_CHECKING:
     from controller.config import Config
@@ -181,6 +185,7 @@ class SessionWriter:
             ""  # why the recording stopped with the file sound (free space, a cycle that does not fit)
         )
         self.reported_drops = 0
+        self.task_names: tuple[str, ...] | None = None  # the last task fields' names received
         self.last_cycle: tuple[int, float] = (0, 0.0)
         self.last_mono_s = 0.0
         self.pending = 0  # bytes in the open chunk
@@ -417,11 +422,25 @@ class SessionWriter:
         recording stopped, when its values do not fit it (a plug-in's setpoint of text): nothing of
         that cycle is written, and the file stays complete up to the cycle before."""
         try:
-            data: bytes = self.m.cycle_pb(values).SerializeToString()
+            data: bytes = self.m.cycle_pb(self._named(values)).SerializeToString()
             return data
         except (TypeError, ValueError, OverflowError) as err:
             self.stop(f"cycle {cycle} cannot be recorded ({type(err).__name__}: {err}): recording stopped")
             return None
+
+    def _named(self, values: CycleValues) -> CycleValues:
+        """``values`` with its task fields' names, the last ones sent when it has None."""
+        fields = values[TASK_FIELDS_AT]
+        if fields is None:
+            return values
+        names: tuple[str, ...] | None = fields[0]  # type: ignore[index]
+        numbers: tuple[float, ...] = fields[1]  # type: ignore[index]
+        if names is not None:
+            self.task_names = names
+            return values
+        if self.task_names is None:
+            raise ValueError("task values without their names, and no names received before")
+        return (*values[:TASK_FIELDS_AT], (self.task_names, numbers), *values[TASK_FIELDS_AT + 1 :])
 
     def finish(self, queued: int | None, dropped: int) -> None:
         """The drop count, ``cheope.recording``, the index and the footer; closes the file."""

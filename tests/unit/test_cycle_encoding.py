@@ -139,3 +139,14 @@ def test_the_monitor_publishes_the_same_phase_text_and_survives_a_failing_phase_
 class _Timing:
     wake_error_s = 0.0
     step_s = 0.0
+
+
+def test_the_names_are_the_same_strings_every_cycle():
+    """The recorder compares each cycle's names with those it sent last (logs/recorder.py): the same
+    string objects make that an identity check per name, not a comparison of their text."""
+    from logs.cycle_encoding import task_fields
+
+    first, _ = task_fields(_TaskState())
+    again, values = task_fields(_TaskState(lap=4, p_cmd=(0.0, 0.0, 0.0)))
+    assert first == again and all(a is b for a, b in zip(first, again, strict=True))
+    assert dict(zip(again, values, strict=True)) == task_values(_TaskState(lap=4, p_cmd=(0.0, 0.0, 0.0)))
