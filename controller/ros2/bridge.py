@@ -36,6 +36,7 @@ is set to ``LOCALHOST`` when neither it nor ``ROS_LOCALHOST_ONLY`` is set.
 from __future__ import annotations
 
 import contextlib
+import faulthandler
 import json
 import math
 import os
@@ -88,6 +89,9 @@ FORCE_PARAMETER = "force_setpoint_n"
 DIAGNOSTICS_INTERVAL_NS = 1_000_000_000  # diagnostic_msgs' convention: about 1 Hz
 # the QoS ROS 2's own rosout publisher uses (rcl/logging_rosout.c): reliable, transient local, 1000 deep
 ROSOUT_DEPTH = 1000
+# rclpy's teardown (executor, node, context) has known deadlocks between a spinning thread and the
+# one that destroys (ros2/rclpy issues 255, 944, 1646): a bridge asked to stop ends within this anyway
+CLOSE_DEADLINE_S = 5.0
 CommandSender = Callable[[str, float], tuple[bool, str]]
 
 
@@ -344,10 +348,24 @@ class RosPublisher:
     def close(self) -> None:
         import rclpy
 
-        self.executor.shutdown(timeout_sec=1.0)
-        self.node.destroy_node()
-        rclpy.shutdown(context=self.context)
-        self.spinner.join(2.0)
+        with ends_within(CLOSE_DEADLINE_S):
+            self.executor.shutdown(timeout_sec=1.0)
+            self.node.destroy_node()
+            rclpy.shutdown(context=self.context)
+            self.spinner.join(2.0)
+
+
+@contextmanager
+def ends_within(seconds: float) -> Iterator[None]:
+    """End the process if the block has not returned after ``seconds``: every thread's stack on
+    stderr (``Timeout (0:00:05)!`` first), then exit status 1. faulthandler's watchdog is a C thread
+    that needs no interpreter lock, so it ends the process even when the block holds the lock in a
+    library's C code."""
+    faulthandler.dump_traceback_later(seconds, exit=True)
+    try:
+        yield
+    finally:
+        faulthandler.cancel_dump_traceback_later()
 
 
 def message_class(type_name: str) -> Any:

@@ -14,6 +14,7 @@ import itertools
 import json
 import os
 import random
+import signal
 import subprocess
 import sys
 import time
@@ -57,6 +58,7 @@ def ros_env() -> dict[str, str]:
         ROS_DOMAIN_ID=str(random.randint(1, 200)),
         ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
         PYTHONUNBUFFERED="1",
+        PYTHONFAULTHANDLER="1",  # a process that hangs prints its threads on SIGABRT (_process)
     )
     return env
 
@@ -69,7 +71,21 @@ def _process(cmd: list[str], env: dict[str, str], what: str) -> Iterator[subproc
     finally:
         if proc.poll() is None:
             proc.terminate()
-        wait_for_exit(proc.pid, what)
+        try:
+            wait_for_exit(proc.pid, what)
+        except AssertionError:
+            # still running after SIGTERM: its threads' stacks (PYTHONFAULTHANDLER, in ros_env)
+            # say where it hangs; the process is ended either way, nothing left behind
+            proc.send_signal(signal.SIGABRT)
+            try:
+                _, err = proc.communicate(timeout=GENEROUS_S)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                _, err = proc.communicate()
+            raise AssertionError(
+                f"{what} did not end within {GENEROUS_S} s of SIGTERM; its stderr:\n"
+                + err.decode(errors="replace")[-6000:]
+            ) from None
         proc.communicate()
 
 
