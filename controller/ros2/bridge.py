@@ -59,6 +59,7 @@ from controller.ros2.samples import (
     EveryInterval,
     sample_from_state,
 )
+from controller.signal_relay import route_signals, stop_signals
 from logs.messages import JointVelocities  # the same velocities as the recordings' /joint_states
 
 if TYPE_CHECKING:
@@ -377,15 +378,19 @@ def message_class(type_name: str) -> Any:
 
 @contextmanager
 def _terminated_by_sigterm() -> Iterator[threading.Event]:
-    """An event set by SIGTERM or Ctrl-C: the bridge ends its loop and closes."""
+    """An event set by SIGTERM, Ctrl-C or a hang-up (``stop_signals``): the bridge ends its loop and
+    closes. Set on the relay thread of controller/signal_relay.py, not in a handler: a handler that
+    set it itself ran, in a CI run, inside the replay's ``done.wait`` while that held the event's
+    lock, and the bridge waited for ever on SIGTERM (tests/unit/test_ros2_stopping.py)."""
+    signals = stop_signals()
+    old = {sig: signal.getsignal(sig) for sig in signals}
     done = threading.Event()
-    old = signal.signal(signal.SIGTERM, lambda *_: done.set())
+    route_signals(signals, lambda _: done.set())
     try:
         yield done
-    except KeyboardInterrupt:
-        done.set()
     finally:
-        signal.signal(signal.SIGTERM, old)
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
 
 
 # -- live: a controller's Zenoh state -----------------------------------------------------------------
