@@ -7,7 +7,10 @@ tracking). Then, pass after pass in turn so that all see the same host, for each
 
 - ``loop``: what the recorder does on the loop's thread, the cycle's values
   (``logs.cycle_encoding.cycle_values``) pickled, with the module as this process imports it
-  (compiled by mypyc where the build is fresh);
+  (compiled by mypyc where the build is fresh). With the task fields' names in every cycle: the
+  recorder sends them only when they change (``logs.recorder``), so this is the cost of a cycle
+  whose names changed, the most a record costs (``tests/tools/bench_record_pickle.py`` gives
+  both);
 - ``loop_interpreted``: the same with the module's source loaded as a second module, interpreted;
 - ``writer``: the ``/cycle`` Protobuf built from those values and serialised
   (``logs.messages.cycle_pb``), which the writer's process does.
