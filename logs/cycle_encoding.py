@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Protocol, cast
 
 from controller.core.records import values_getter
 
@@ -105,6 +105,16 @@ def task_values(task_state: object) -> dict[str, float]:
 # Numbers, text and tuples: what pickle writes fastest, and no class the writer must import.
 CycleValues = tuple[object, ...]
 TASK_FIELDS_AT = 13  # the task fields' place in ``CycleValues``
+
+
+def with_task_names(values: CycleValues, names: tuple[str, ...] | None) -> CycleValues:
+    """``values`` (with task fields) with their task fields' names set to ``names``: None on the
+    loop's side for names the writer has already (logs/recorder.py), those names again on the
+    writer's (logs/session_writer.py)."""
+    fields = cast(tuple[object, ...], values[TASK_FIELDS_AT])  # names (or None), values
+    return (*values[:TASK_FIELDS_AT], (names, fields[1]), *values[TASK_FIELDS_AT + 1 :])
+
+
 # The step's inputs (``inputs_values``), in this order; logs.messages.inputs_pb:
 #   drives ((statusword, position, fresh, effort_n), ...), sensor (force_n, torque_nm, status,
 #   counter, fresh) or None, emcy ((node_id, error_code, error_register), ...), stop_requested,

@@ -280,7 +280,7 @@ def cycle_values_of_pb(msg: pb.Cycle) -> CycleValues:
     """A recorded ``cheope.v1.Cycle`` as the values the recorder hands its writer (``cycle_pb`` of them is
     ``msg`` again): to write a recorded session's cycles anew (tests/tools/bench_recording_size.py)."""
     st = msg.state
-    task_items = tuple(st.task_values.items())
+    task_values = st.task_values
     return (
         msg.cycle,
         msg.t_s,
@@ -295,9 +295,7 @@ def cycle_values_of_pb(msg: pb.Cycle) -> CycleValues:
         tuple(st.tcp_measured_m) or None,
         st.fault_reason,
         st.task_phase,
-        (tuple(k for k, _ in task_items), tuple(v for _, v in task_items))
-        if task_items or st.task_phase
-        else None,
+        (tuple(task_values), tuple(task_values.values())) if task_values or st.task_phase else None,
         msg.timing.wake_error_s,
         msg.timing.step_s,
     )

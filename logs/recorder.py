@@ -49,7 +49,7 @@ from controller.config import Config, config_to_dict
 from controller.errors import DeviceError
 from drivers.pacing import wall_clock_offset_ns
 from logs import messages as m
-from logs.cycle_encoding import TASK_FIELDS_AT, cycle_values
+from logs.cycle_encoding import TASK_FIELDS_AT, cycle_values, with_task_names
 from logs.keyframe import ENCODING as STATE_ENCODING
 from logs.keyframe import KeyframeError, encode_state
 from logs.messages import FrameRecord, frame_record
@@ -280,7 +280,7 @@ class SessionRecorder:
             names = fields[0]  # type: ignore[index]
             if names == self._task_names_sent:  # the same strings each cycle: compared by identity
                 # 74 names were 1 060 of a contour record's 2 542 bytes (tests/tools/bench_record_pickle.py)
-                values = (*values[:TASK_FIELDS_AT], (None, fields[1]), *values[TASK_FIELDS_AT + 1 :])  # type: ignore[index]
+                values = with_task_names(values, None)
                 names = None
         mono_s = self.clock()
         dropped = self.dropped

@@ -62,7 +62,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, BinaryIO, TextIO
 
-from logs.cycle_encoding import TASK_FIELDS_AT
+from logs.cycle_encoding import TASK_FIELDS_AT, with_task_names
 
 if TYPE_CHECKING:
     from controller.config import Config
@@ -434,13 +434,12 @@ class SessionWriter:
         if fields is None:
             return values
         names: tuple[str, ...] | None = fields[0]  # type: ignore[index]
-        numbers: tuple[float, ...] = fields[1]  # type: ignore[index]
         if names is not None:
             self.task_names = names
             return values
         if self.task_names is None:
             raise ValueError("task values without their names, and no names received before")
-        return (*values[:TASK_FIELDS_AT], (self.task_names, numbers), *values[TASK_FIELDS_AT + 1 :])
+        return with_task_names(values, self.task_names)
 
     def finish(self, queued: int | None, dropped: int) -> None:
         """The drop count, ``cheope.recording``, the index and the footer; closes the file."""

@@ -14,7 +14,7 @@ from test_recording import record_session
 from controller.config import load_config
 from controller.core.records import replace
 from logs import messages as m
-from logs.cycle_encoding import TASK_FIELDS_AT, cycle_values, task_values
+from logs.cycle_encoding import TASK_FIELDS_AT, cycle_values, task_values, with_task_names
 from logs.reader import iter_decoded, read_info
 from logs.recorder import SessionRecorder, session_metadata
 from logs.session_writer import CYCLE, SessionWriter
@@ -124,7 +124,7 @@ def test_a_record_without_names_before_any_stops_the_recording_with_the_file_who
     plain = cycle_values(0, 0.0, inputs, replace(state, task_state=None), outputs, _Timing())
     w.write((CYCLE, 0, [], 0, 0.0, 0.0, 0, plain, (), None, None))
     named = cycle_values(1, 0.0025, inputs, replace(state, task_state=_task_state(1)), outputs, _Timing())
-    nameless = (*named[:TASK_FIELDS_AT], (None, named[TASK_FIELDS_AT][1]), *named[TASK_FIELDS_AT + 1 :])
+    nameless = with_task_names(named, None)
     w.write((CYCLE, 0, [], 1, 0.0025, 0.0025, 1, nameless, (), None, None))
     assert w.stopped.startswith("cycle 1 cannot be recorded (ValueError: task values without their names")
     w.finish(2, 0)
