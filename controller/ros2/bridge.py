@@ -377,7 +377,7 @@ def message_class(type_name: str) -> Any:
 
 
 @contextmanager
-def _terminated_by_sigterm() -> Iterator[threading.Event]:
+def _ended_by_stop_signals() -> Iterator[threading.Event]:
     """An event set by SIGTERM, Ctrl-C or a hang-up (``stop_signals``): the bridge ends its loop and
     closes. Set on the relay thread of controller/signal_relay.py, not in a handler: a handler that
     set it itself ran, in a CI run, inside the replay's ``done.wait`` while that held the event's
@@ -409,7 +409,7 @@ def _wait_for_status(ask: Callable[[], Any], notice: Callable[[str], None], retr
     """The controller's status, asked again every ``retry_s`` until it answers (a bridge may start first, or
     a loaded controller answer late); None when SIGTERM or Ctrl-C came first. Each new reason is noticed once."""
     last = ""
-    with _terminated_by_sigterm() as done:
+    with _ended_by_stop_signals() as done:
         while not done.is_set():
             try:
                 return ask()
@@ -456,7 +456,7 @@ def run_live(
 
     published = 0
     loop_start_ns: int | None = None  # ROS time at the controller's t_s = 0, from its state samples
-    with _terminated_by_sigterm() as done, MonitorClient(watch, keys) as client:
+    with _ended_by_stop_signals() as done, MonitorClient(watch, keys) as client:
         ros = RosPublisher(namespace, send, view, status.robot_id, notice)
         try:
             notice(
@@ -506,7 +506,7 @@ def run_replay(
     robot_id = cfg.monitoring.robot_id or path.stem
     sampler = CycleSampler(robot_id, cfg.task.kind, view.robot, cfg.monitoring.publish_rate_hz)
     published = 0
-    with _terminated_by_sigterm() as done:
+    with _ended_by_stop_signals() as done:
         ros = RosPublisher(namespace, None, view, robot_id, notice, clock_topic=True)
         try:
             deadline = time.monotonic() + wait_subscriber_s

@@ -17,7 +17,7 @@ import sys
 
 from waiting import GENEROUS_S
 
-_PRELUDE = "from controller.ros2.bridge import _terminated_by_sigterm, ends_within\n"
+_PRELUDE = "from controller.ros2.bridge import _ended_by_stop_signals, ends_within\n"
 
 
 def _run(body: str) -> subprocess.CompletedProcess[str]:
@@ -79,7 +79,7 @@ def test_sigterm_inside_a_wait_on_the_stop_event_ends_the_bridge():
     # event's own lock (threading.Event._cond); the handler runs at the loop's next bytecodes
     r = _run(
         "import os, signal\n"
-        "with _terminated_by_sigterm() as done:\n"
+        "with _ended_by_stop_signals() as done:\n"
         "    with done._cond:\n"
         "        os.kill(os.getpid(), signal.SIGTERM)\n"
         "        for _ in range(100_000):\n"
@@ -97,7 +97,7 @@ def test_every_stop_signal_ends_the_bridge_and_its_handlers_are_given_back():
         "signal.signal(signal.SIGHUP, signal.SIG_DFL)\n"  # a suite started under nohup ignores it
         "before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}\n"
         "for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):\n"
-        "    with _terminated_by_sigterm() as done:\n"
+        "    with _ended_by_stop_signals() as done:\n"
         "        os.kill(os.getpid(), sig)\n"
         "        done.wait()\n"
         "    print(sig.name, 'ended')\n"
