@@ -67,6 +67,43 @@ def test_the_limits_act_on_the_larger_of_sensor_and_witness():
     )  # a sensor reading high counts as it reads
 
 
+def test_in_a_guarded_move_the_drives_outvote_a_trusted_sensor_that_reads_nothing():
+    """A sensor stuck at a plausible value is fresh and trusted; a guarded move pushes until it
+    reports contact. The witness past the guarded limit and its own tolerance stops it; below that
+    (the witness's error) and in free space (the robot's fast motion) the sensor judges alone."""
+    sensor = (0.5, 0.0, 0.0)
+    pushing = Witness((60.0, 0.0, 0.0), 0.0)
+    guarded = judged_force_n(CFG, ContactExpectation.GUARDED, sensor, pushing, 0.0)
+    assert guarded == pytest.approx(60.0 - CFG.tolerance_n - CFG.tolerance_fraction * 60.0)
+    assert guarded > CFG.guarded_move_force_n
+    weak = Witness((35.0, 0.0, 0.0), 0.0)  # 35 - 6 - 8.75 = 20.25 N: within the witness's error
+    assert judged_force_n(CFG, ContactExpectation.GUARDED, sensor, weak, 0.0) == pytest.approx(0.5)
+    assert judged_force_n(CFG, ContactExpectation.NONE, sensor, pushing, 0.0) == pytest.approx(0.5)
+    # the robot's own recent acceleration widens the tolerance
+    assert judged_force_n(CFG, ContactExpectation.GUARDED, sensor, pushing, 30.0) == pytest.approx(0.5)
+
+
+def test_a_back_off_never_follows_a_sensor_force_the_drives_feel_reversed_where_contact_is_expected():
+    sensor, witness = (30.0, 0.0, 0.0), Witness((-8.0, 1.0, 0.0), 0.0)
+    for expectation in (ContactExpectation.PRESSING, ContactExpectation.GUARDED):
+        w = ContactWatch(expectation=expectation, sensor_n=sensor, witness=witness, force_n=30.0)
+        d = begin_back_off(CFG, w, "test", (0.0, 0.0, 0.5)).direction
+        assert d is not None and d[0] < -0.99  # along the drives' effort
+    # the same directions in free space: the witness there is the robot's motion, the sensor's stands
+    free = ContactWatch(expectation=ContactExpectation.NONE, sensor_n=sensor, witness=witness, force_n=30.0)
+    assert begin_back_off(CFG, free, "test", (0.0, 0.0, 0.5)).direction == pytest.approx((1.0, 0.0, 0.0))
+    # a witness that feels nothing (below back_off_min_force_n) contradicts nothing
+    quiet = ContactWatch(
+        expectation=ContactExpectation.PRESSING, sensor_n=sensor, witness=Witness((-1.0, 0.0, 0.0), 0.0)
+    )
+    assert begin_back_off(CFG, quiet, "test", (0.0, 0.0, 0.5)).direction == pytest.approx((1.0, 0.0, 0.0))
+    # agreeing (within 90 degrees): the sensor's direction, the finer of the two
+    agree = ContactWatch(
+        expectation=ContactExpectation.PRESSING, sensor_n=sensor, witness=Witness((5.0, 8.0, 0.0), 0.0)
+    )
+    assert begin_back_off(CFG, agree, "test", (0.0, 0.0, 0.5)).direction == pytest.approx((1.0, 0.0, 0.0))
+
+
 def test_a_force_where_no_contact_is_expected_trips_the_guard_and_names_both_witnesses():
     w = ContactWatch(expectation=ContactExpectation.NONE)
     w, cause = watch(CFG, w, _inputs((0.1, 0.0, 0.0)), False, Witness((0.0, 0.0, 0.0), 0.0), False, 1, DT)
