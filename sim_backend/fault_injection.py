@@ -93,6 +93,7 @@ def apply_device_faults(
     sensor = plant.sensor
     if sensor is not None:
         sensor.freeze_counter = schedule.active("freeze", now_s) is not None
+        sensor.hold_sample = schedule.active("stuck", now_s) is not None
         sat = schedule.active("saturate", now_s) is not None
         sensor.status_flags = (
             (sensor.status_flags | SENSOR_FORCE_SATURATED)

@@ -34,6 +34,7 @@ class SimulatedForceSensor:
     counter: int = 0
     status_flags: int = 0  # extra status bits forced by fault injection
     freeze_counter: bool = False  # fault injection: the counter stops advancing
+    hold_sample: bool = False  # fault injection: the sample stops changing, its counter advancing
     extra_force_n: tuple[float, float, float] = (0.0, 0.0, 0.0)  # fault injection: an unexpected force
     rng: np.random.Generator = field(init=False)
     _filtered_xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -62,8 +63,9 @@ class SimulatedForceSensor:
             p = self.params
             b = p.bias_n
             n = self.rng.normal(0.0, p.noise_std_n, 3).tolist()  # the same draws as ever: one call of 3
-            # plain floats, as numpy adds them element by element: the same sums, a third of the time
-            self._sample = (f0 + b[0] + n[0], f1 + b[1] + n[1], f2 + b[2] + n[2])
+            if not self.hold_sample:  # held: a dead bridge or a hung converter; the draws go on
+                # plain floats, as numpy adds them element by element: the same sums, a third of the time
+                self._sample = (f0 + b[0] + n[0], f1 + b[1] + n[1], f2 + b[2] + n[2])
             self._next_sample_s = (self._next_sample_s or t_s) + 1.0 / p.sample_rate_hz
 
     def latch(self) -> dict[tuple[int, int], int]:

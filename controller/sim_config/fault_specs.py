@@ -13,6 +13,8 @@ needs one. Kinds:
 - ``drive_fault:N``  drive N goes to FAULT and sends EMCY 0x5000
 - ``heartbeat:N``  node N stops its heartbeat
 - ``freeze``       the force sensor's counter stops advancing (stale data)
+- ``stuck``        the force sensor's sample stops changing while its counter advances (a dead
+                   bridge or a hung converter: plausible, fresh and wrong)
 - ``saturate``     the force sensor reports saturation
 - ``force=F``      the force sensor sees an extra F newtons along X (an unexpected contact)
 - ``drift=R``      the force sensor's bias drifts by R newtons a second along X (temperature); after
@@ -75,6 +77,7 @@ KINDS_WITH_NODE = (
 KINDS = (
     *KINDS_WITH_NODE,
     "freeze",
+    "stuck",
     "saturate",
     "force",
     "drift",

@@ -862,9 +862,12 @@ class ContourTrackingTask:
             return s, None, ()
         f_xy = math.hypot(raw[0], raw[1])
         steep = (s.travel_m - rise_at) * p.min_contact_stiffness_n_m <= 0.5 * p.contact_force_n + 1e-12
-        # a strong force is a contact whatever its direction (a wall met at an angle); a weak one counts
-        # only against the motion
-        facing = against >= 0.5 * f_xy or f_xy >= 3.0 * p.contact_force_n
+        # a strong force is a contact met at any angle to the motion (a wall met obliquely); a weak one
+        # counts only against it. Never one along the motion: a part pushes back, it cannot pull the
+        # tool on. Such a force is the sensor's (a -5 N offset step as the tool touched: the contact
+        # taken from it, its normal reversed, and the re-approaches went the wrong way; an outside
+        # tester's scenario, 7dcefb5)
+        facing = against >= 0.5 * f_xy or (against > 0.0 and f_xy >= 3.0 * p.contact_force_n)
         if steep and facing:
             return s, f_xy, ()
         why = (

@@ -144,3 +144,42 @@ def test_a_tool_standing_where_the_part_may_lie_may_leave_but_not_cross_it():
     across = task._start_path_blocked((-0.12, 0.01, 0.5))  # from the far side, through the part
     assert "passes" in across and "approach_direction_deg" in across
     assert "passes" in task._start_path_blocked((0.09, 0.06, 0.5))  # from inside, nearer on the way
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "fault",
+    [
+        "drift=-500@3.32+0.01",  # a -5 N offset step as the tool touches the part (about 3.34 s)
+        "drift=-2@0.4+3",  # -2 N/s through the approach: -6 N when the tool meets the part
+    ],
+)
+def test_a_sensor_error_pointing_along_the_motion_is_no_contact_and_the_laps_go_on(fault):
+    """A part pushes back, it cannot pull the tool on. Taken for the contact, such a reading reversed
+    the task's normal: the re-approaches went away from the part and the retract into it (106.8 and
+    109.2 N true, FAULT, on 7dcefb5; an outside tester's scenarios)."""
+    row = _run(ContourScenario(fault, (fault,)))
+    assert row["outcome"] == "DONE", row["cause"]
+    assert row["max_true_contact_force_n"] < 0.6 * LIMIT_N
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("start_s", [2.0, 27.0])  # during the approach; in lap 2
+def test_a_sensor_stuck_at_a_plausible_value_is_outvoted_by_the_drives_in_a_guarded_move(start_s):
+    """Its counter advances, so it is fresh; it reads what it read when it stuck, so the guarded
+    approach (and, in lap 2, the re-approach after the contact seems lost) pushes on. The drives'
+    effort judges a guarded move beside the trusted sensor: 4 072 N (approach) and 1 200 N (lap 2)
+    true on 7dcefb5."""
+    row = _run(ContourScenario("stuck", (f"stuck@{start_s}",)))
+    assert row["outcome"] == "backed off", row["cause"]
+    assert "in a guarded move" in row["cause"] and "drives' effort" in row["cause"]
+    assert row["max_true_contact_force_n"] < LIMIT_N
+
+
+def test_a_spike_into_the_part_is_not_backed_off_along():
+    """-75 N along the contact normal for 0.5 s: the sensor's force points out of the part, the
+    drives' effort into it. The protective back-off follows the effort (177 N true along the
+    sensor's on 7dcefb5)."""
+    row = _run(ContourScenario("spike", ("force=-75@4.0+0.5",)))
+    assert row["outcome"] in NAMED and "protective stop" in row["cause"], row["cause"]
+    assert row["max_true_contact_force_n"] < 0.5 * LIMIT_N
