@@ -374,3 +374,20 @@ def test_every_scan_injection_passes_the_configurations_check():
     for sc in scenarios(places, cfg.period_s):
         for fault in sc.faults:
             check_fault(fault, cfg.actuators.node_ids, cfg.sensor.node_id, cfg.period_s)
+
+
+def test_every_stress_injection_passes_the_configurations_check():
+    """The stress scan's scenarios are placed by an undisturbed run's times (its tare, approach,
+    first contact, 8 places): each injection they give must be one the configuration accepts."""
+    from controller.sim_config.fault_specs import check_fault
+    from controller.tools.contour.stress import scenarios
+
+    cfg = load_config(overrides={"task.kind": "contour"})
+    times = {"TARE": 0.228, "APPROACH": 0.328, "TRACKING": 3.337}
+    times.update({f"place{k}": 25.0 + 1.8 * k for k in range(1, 9)})
+    kinds = set()
+    for sc in scenarios(times, cfg.period_s):
+        for fault in sc.faults:
+            check_fault(fault, cfg.actuators.node_ids, cfg.sensor.node_id, cfg.period_s)
+            kinds.add(fault.split("@")[0].split("=")[0])
+    assert "stuck" in kinds  # the sensor stuck at a plausible value is among them

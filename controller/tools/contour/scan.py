@@ -222,8 +222,8 @@ def lap_places(
     base: Config, per_lap: int = PLACES // 2
 ) -> tuple[list[float], dict[str, float], dict[str, object]]:
     """An undisturbed run: the times [s] at which it passes ``per_lap`` places in lap 2 and as many,
-    half a step on, in lap 3 (the scan's 12, the stress scan's 8), the times its TARE and APPROACH
-    began, and its row."""
+    half a step on, in lap 3 (the scan's 12, the stress scan's 8), the times its TARE, APPROACH and
+    first TRACKING (the contact) began, and its row."""
     times: list[float] = []
     phases: dict[str, float] = {}
     targets = [2.0 * math.pi * (1.0 + k / per_lap) for k in range(per_lap)] + [
@@ -244,7 +244,7 @@ def lap_places(
             ts = state.task_state
             if not isinstance(ts, ContourState):
                 return
-            if ts.phase in (ContourPhase.TARE, ContourPhase.APPROACH):
+            if ts.phase in (ContourPhase.TARE, ContourPhase.APPROACH, ContourPhase.TRACKING):
                 phases.setdefault(ts.phase.name, round(t, 3))
             if len(times) < len(targets) and abs(ts.swept_rad) >= targets[len(times)]:
                 times.append(round(t, 3))

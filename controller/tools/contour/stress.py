@@ -167,6 +167,21 @@ def scenarios(t: dict[str, float], period_s: float) -> Iterator[ContourScenario]
     yield ContourScenario(
         "offset step -7 N in lap 1 (a phantom wall)", (f"drift=-700@{round(t['APPROACH'] + 6.0, 3)}+0.01",)
     )
+    # -- an outside tester's (7dcefb5): a sensor that lies along the contact normal, or stops changing
+    touch = t["TRACKING"]  # the first contact
+    yield ContourScenario("offset step -5 N as the tool touches", (f"drift=-500@{touch - 0.02:.3f}+0.01",))
+    yield ContourScenario("offset drift -2 N/s through the approach", (f"drift=-2@{approach:.3f}+3",))
+    yield ContourScenario(  # reads past the limit: the guard's, backing off along the drives' effort
+        "spike -75 N along the normal for 0.5 s in lap 1",
+        (f"force=-75@{touch + 0.65:.3f}+0.5",),
+        ride_through=False,
+    )
+    yield ContourScenario(  # fresh and wrong: the drives' effort ends the guarded move
+        "sensor stuck at its reading during the approach",
+        (f"stuck@{approach + 0.5:.3f}",),
+        ride_through=False,
+    )
+    yield ContourScenario("sensor stuck at its reading in lap 2", (f"stuck@{place[2]}",), ride_through=False)
     # -- the loop held up (the machine's hold-ups: 10 ms beside two CPU hogs, cyclictest's too)
     # (a stall fault active for one period holds up the one deadline that falls in it)
     every = 2.5  # s
