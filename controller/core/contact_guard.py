@@ -368,16 +368,24 @@ def back_off_direction(
 ) -> tuple[Vector3 | None, float]:
     """The force to move away from (unit) and its size: the sensor's when it is trusted, else the witness's.
 
-    Where contact is expected (pressing, a guarded move) the witness also overrules a sensor whose
-    force points against its own: a spike or an offset step along the contact normal reads as a
-    force out of the part, and backing off along it pushed the tool in (-75 N for 0.5 s in lap 1:
-    tripped at 64.8 N, 177 N true, 7dcefb5). In free space the robot's fast motion is the witness's
-    error, and the sensor's direction stands."""
+    Where contact is expected (pressing, a guarded move) a witness beyond its own error also
+    overrules a sensor whose force points against its own: a spike or an offset step along the
+    contact normal reads as a force out of the part, and backing off along it pushed the tool in
+    (-75 N for 0.5 s in lap 1: tripped at 64.8 N, 177 N true, 7dcefb5); and it gives the direction
+    when it judged the force (a stuck sensor). In free space the robot's fast motion is the
+    witness's error, and the sensor's direction stands."""
     f: Vector3 | None = w.sensor_n if sensor_trusted and not w.suspect else None
     witness = w.witness.force_n if w.witness is not None else None
     if f is None or norm3(f) < cfg.back_off_min_force_n:  # the witness where the sensor tells nothing
         f = witness if witness is not None else f
-    elif witness is not None and w.expectation != ContactExpectation.NONE and _opposed(f, witness, cfg):
+    elif (
+        witness is not None
+        and w.expectation != ContactExpectation.NONE
+        and _felt(cfg, w)
+        # against the sensor, or the one that judged this force (a sensor stuck at a plausible
+        # reading may point anywhere within 90 degrees of the truth)
+        and (_opposed(f, witness) or w.force_n > norm3(f))
+    ):
         f = witness
     if f is None:
         return None, 0.0
@@ -387,10 +395,17 @@ def back_off_direction(
     return (f[0] / size, f[1] / size, f[2] / size), size
 
 
-def _opposed(sensor_n: Vector3, witness_n: Vector3, cfg: ContactGuardConfig) -> bool:
-    """The witness feels a force (at least ``back_off_min_force_n``) that points against the sensor's."""
-    if norm3(witness_n) < cfg.back_off_min_force_n:
+def _felt(cfg: ContactGuardConfig, w: ContactWatch) -> bool:
+    """The witness reads more than its own error (``tolerance_n``): a direction of its own. Below it
+    (a few newtons of cogging before a sudden collision, which its median has not yet seen) it must
+    not steer a back-off away from the sensor's true force."""
+    if w.witness is None:
         return False
+    return norm3(w.witness.force_n) > tolerance_n(cfg, 0.0, w.witness, w.dynamic_n)
+
+
+def _opposed(sensor_n: Vector3, witness_n: Vector3) -> bool:
+    """The two forces point more than 90 degrees apart."""
     return sensor_n[0] * witness_n[0] + sensor_n[1] * witness_n[1] + sensor_n[2] * witness_n[2] < 0.0
 
 

@@ -84,7 +84,7 @@ def test_in_a_guarded_move_the_drives_outvote_a_trusted_sensor_that_reads_nothin
 
 
 def test_a_back_off_never_follows_a_sensor_force_the_drives_feel_reversed_where_contact_is_expected():
-    sensor, witness = (30.0, 0.0, 0.0), Witness((-8.0, 1.0, 0.0), 0.0)
+    sensor, witness = (30.0, 0.0, 0.0), Witness((-12.0, 1.0, 0.0), 0.0)
     for expectation in (ContactExpectation.PRESSING, ContactExpectation.GUARDED):
         w = ContactWatch(expectation=expectation, sensor_n=sensor, witness=witness, force_n=30.0)
         d = begin_back_off(CFG, w, "test", (0.0, 0.0, 0.5)).direction
@@ -92,11 +92,24 @@ def test_a_back_off_never_follows_a_sensor_force_the_drives_feel_reversed_where_
     # the same directions in free space: the witness there is the robot's motion, the sensor's stands
     free = ContactWatch(expectation=ContactExpectation.NONE, sensor_n=sensor, witness=witness, force_n=30.0)
     assert begin_back_off(CFG, free, "test", (0.0, 0.0, 0.5)).direction == pytest.approx((1.0, 0.0, 0.0))
-    # a witness that feels nothing (below back_off_min_force_n) contradicts nothing
-    quiet = ContactWatch(
-        expectation=ContactExpectation.PRESSING, sensor_n=sensor, witness=Witness((-1.0, 0.0, 0.0), 0.0)
+    # a witness within its own error (cogging: 3.5 N in an approach) contradicts nothing: a sudden
+    # collision the sensor reads at once, before the witness's median moves, is backed off from
+    for expectation in (ContactExpectation.PRESSING, ContactExpectation.GUARDED):
+        quiet = ContactWatch(
+            expectation=expectation, sensor_n=sensor, witness=Witness((-3.0, 1.0, 1.3), 0.0), force_n=30.0
+        )
+        assert begin_back_off(CFG, quiet, "test", (0.0, 0.0, 0.5)).direction == pytest.approx((1.0, 0.0, 0.0))
+    # the witness judged the force (a sensor stuck at a few newtons within 90 degrees of the truth):
+    # the witness's direction
+    stuck = ContactWatch(
+        expectation=ContactExpectation.GUARDED,
+        sensor_n=(3.0, 0.0, 0.0),
+        witness=Witness((30.0, 40.0, 0.0), 0.0),
+        force_n=judged_force_n(
+            CFG, ContactExpectation.GUARDED, (3.0, 0.0, 0.0), Witness((30.0, 40.0, 0.0), 0.0), 0.0
+        ),
     )
-    assert begin_back_off(CFG, quiet, "test", (0.0, 0.0, 0.5)).direction == pytest.approx((1.0, 0.0, 0.0))
+    assert begin_back_off(CFG, stuck, "test", (0.0, 0.0, 0.5)).direction == pytest.approx((0.6, 0.8, 0.0))
     # agreeing (within 90 degrees): the sensor's direction, the finer of the two
     agree = ContactWatch(
         expectation=ContactExpectation.PRESSING, sensor_n=sensor, witness=Witness((5.0, 8.0, 0.0), 0.0)
