@@ -43,7 +43,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 from controller.core.cycle_data import CycleInputs, SensorFeedback
-from controller.core.linalg3 import Vector3, norm3, sub3
+from controller.core.linalg3 import Vector3, dot3, norm3, sub3
 from controller.core.periods import cycles_in
 from controller.core.records import record, replace
 
@@ -375,18 +375,18 @@ def back_off_direction(
     when it judged the force (a stuck sensor). In free space the robot's fast motion is the
     witness's error, and the sensor's direction stands."""
     f: Vector3 | None = w.sensor_n if sensor_trusted and not w.suspect else None
-    witness = w.witness.force_n if w.witness is not None else None
+    witness = w.witness
     if f is None or norm3(f) < cfg.back_off_min_force_n:  # the witness where the sensor tells nothing
-        f = witness if witness is not None else f
+        f = witness.force_n if witness is not None else f
     elif (
         witness is not None
         and w.expectation != ContactExpectation.NONE
-        and _felt(cfg, w)
-        # against the sensor, or the one that judged this force (a sensor stuck at a plausible
-        # reading may point anywhere within 90 degrees of the truth)
-        and (_opposed(f, witness) or w.force_n > norm3(f))
+        and _felt(cfg, witness, w.dynamic_n)
+        # more than 90 degrees against the sensor, or the one that judged this force (a sensor
+        # stuck at a plausible reading may point anywhere within 90 degrees of the truth)
+        and (dot3(f, witness.force_n) < 0.0 or w.force_n > norm3(f))
     ):
-        f = witness
+        f = witness.force_n
     if f is None:
         return None, 0.0
     size = norm3(f)
@@ -395,18 +395,11 @@ def back_off_direction(
     return (f[0] / size, f[1] / size, f[2] / size), size
 
 
-def _felt(cfg: ContactGuardConfig, w: ContactWatch) -> bool:
+def _felt(cfg: ContactGuardConfig, witness: Witness, dynamic_n: float) -> bool:
     """The witness reads more than its own error (``tolerance_n``): a direction of its own. Below it
     (a few newtons of cogging before a sudden collision, which its median has not yet seen) it must
     not steer a back-off away from the sensor's true force."""
-    if w.witness is None:
-        return False
-    return norm3(w.witness.force_n) > tolerance_n(cfg, 0.0, w.witness, w.dynamic_n)
-
-
-def _opposed(sensor_n: Vector3, witness_n: Vector3) -> bool:
-    """The two forces point more than 90 degrees apart."""
-    return sensor_n[0] * witness_n[0] + sensor_n[1] * witness_n[1] + sensor_n[2] * witness_n[2] < 0.0
+    return norm3(witness.force_n) > tolerance_n(cfg, 0.0, witness, dynamic_n)
 
 
 def begin_back_off(

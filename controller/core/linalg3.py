@@ -40,16 +40,16 @@ def transpose3(m: Matrix3) -> Matrix3:
     return ((m[0][0], m[1][0], m[2][0]), (m[0][1], m[1][1], m[2][1]), (m[0][2], m[1][2], m[2][2]))
 
 
-def _dot3(r: Vector3, c: Vector3) -> float:
+def dot3(r: Vector3, c: Vector3) -> float:
     return r[0] * c[0] + r[1] * c[1] + r[2] * c[2]
 
 
 def matmul3(a: Matrix3, b: Matrix3) -> Matrix3:
     c0, c1, c2 = transpose3(b)
     return (
-        (_dot3(a[0], c0), _dot3(a[0], c1), _dot3(a[0], c2)),
-        (_dot3(a[1], c0), _dot3(a[1], c1), _dot3(a[1], c2)),
-        (_dot3(a[2], c0), _dot3(a[2], c1), _dot3(a[2], c2)),
+        (dot3(a[0], c0), dot3(a[0], c1), dot3(a[0], c2)),
+        (dot3(a[1], c0), dot3(a[1], c1), dot3(a[1], c2)),
+        (dot3(a[2], c0), dot3(a[2], c1), dot3(a[2], c2)),
     )
 
 

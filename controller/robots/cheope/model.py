@@ -25,6 +25,7 @@ import numpy as np
 from controller.core.linalg3 import (
     Matrix3,
     Vector3,
+    dot3,
     matmul3,
     symmetric_eigenvalues3,
     transpose3,
@@ -145,10 +146,6 @@ def _sub(a: Vector3, b: Vector3) -> Vector3:
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
 
 
-def _dot(a: Vector3, b: Vector3) -> float:
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
 def _over(v: Vector3, k: float) -> Vector3:
     return (v[0] / k, v[1] / k, v[2] / k)
 
@@ -170,14 +167,14 @@ def direct_kinematics(geom: CheopeGeometry, q_m: np.ndarray) -> np.ndarray:
         for j in range(_AXES)
     ]
     d12 = _sub(c[1], c[0])
-    x_c2 = math.sqrt(_dot(d12, d12))
+    x_c2 = math.sqrt(dot3(d12, d12))
     if x_c2 < 1e-12:
         raise NoSolutionError(f"sphere centres 1 and 2 coincide for q={q} m")
     ex = (d12[0] / x_c2, d12[1] / x_c2, d12[2] / x_c2)
     v3 = _sub(c[2], c[0])
-    x_c3 = _dot(ex, v3)
+    x_c3 = dot3(ex, v3)
     ey = (v3[0] - x_c3 * ex[0], v3[1] - x_c3 * ex[1], v3[2] - x_c3 * ex[2])
-    y_c3 = math.sqrt(_dot(ey, ey))
+    y_c3 = math.sqrt(dot3(ey, ey))
     if y_c3 < 1e-12:
         raise NoSolutionError(f"sphere centres are collinear for q={q} m")
     ey = (ey[0] / y_c3, ey[1] / y_c3, ey[2] / y_c3)
@@ -240,7 +237,7 @@ def _jacobian_rows(geom: CheopeGeometry, tcp_m: Point3, q_m: Point3 | None = Non
             s[1] + plat[j][1] - q[j] * axes[j][1],
             s[2] + plat[j][2] - q[j] * axes[j][2],
         )
-        k = _dot(w, axes[j])
+        k = dot3(w, axes[j])
         if abs(k) < 1e-12 * geom.rod_length_m:
             raise NoSolutionError(f"inverse singularity at TCP {list(s)} m: w_{j + 1} . n_{j + 1} = 0")
         rows.append((w[0] / k, w[1] / k, w[2] / k))
