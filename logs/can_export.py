@@ -36,6 +36,7 @@ from pathlib import Path
 
 import can
 
+from controller import mf4_support
 from controller.errors import InputError
 from logs import messages as m
 from logs.bus_traffic import RecordedFrame, as_message, recorded_frames
@@ -116,7 +117,7 @@ def _writer(fmt: str, out: Path, first_unix_s: float, report: ReadReport) -> can
         return can.TRCWriter(out)
     if fmt == "mf4":
         try:
-            import asammdf  # noqa: F401  (python-can's MF4 writer needs it)
+            mf4_support.load()  # python-can's MF4 writer with asammdf (kept out of other runs)
         except ImportError:
             raise ExportError(
                 "--format mf4 needs asammdf: pip install 'cheope-controller[mf4]' (python-can's mf4 extra)"
