@@ -363,7 +363,7 @@ def test_frames_in_any_order_and_foreign_frames_are_fine(bus, clock):
 
 def test_emcy_frames_become_reports_with_node_code_and_register(bus, clock):
     ex = make_exchange(bus, clock)
-    # before the cycle's last TPDO: the collect returns as soon as every TPDO is in (see the xfail below)
+    # before the cycle's last TPDO, so they are this cycle's (after it: the next test)
     bus.answers[0] = [
         frame(emcy_id(2), emcy_frame(0x5000, 0x01, b"\x11\x22\x33\x44\x55")),
         frame(emcy_id(SENSOR), emcy_frame(0x8130, 0x11)),

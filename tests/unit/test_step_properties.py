@@ -421,7 +421,7 @@ def test_no_jump_at_enable_the_target_is_where_the_drive_is(data, rate, start, p
     for d, power in zip(loop.ex.drives, powers, strict=True):
         d.power = power  # a drive left in any state by whatever ran before
     cycles = int(0.15 * rate) + 40
-    # TPDOs missing now and then from the second cycle on (cycle 0: see the CONFIGURING xfail above)
+    # TPDOs missing now and then from the second cycle on (cycle 0: test_a_target_before_the_first_tpdo_...)
     missing = frozenset(
         data.draw(st.lists(st.tuples(st.integers(1, cycles - 1), st.integers(0, 2)), max_size=12))
     )
@@ -432,7 +432,7 @@ def test_no_jump_at_enable_the_target_is_where_the_drive_is(data, rate, start, p
         rec = loop.cycle(p)
         if rec.state.mode == Mode.FAULT and (rec.mode_before != Mode.FAULT) and len(faults) < 3:
             # a drive that started in FAULT: the operator resets it (again if a missing TPDO right
-            # after the reset made the law fault on the stale statusword: see the xfail below)
+            # after the reset made the law fault: test_a_missing_tpdo_right_after_a_reset_...)
             faults.append(rec.state.fault_reason)
             p.commands[rec.k + reset_after] = Command.RESET
         if rec.state.mode == Mode.RUNNING:

@@ -115,16 +115,53 @@ def _popen(*args: str) -> subprocess.Popen[str]:
     )
 
 
-def test_simulator_and_controller_as_separate_processes(vcan_channel: str, tmp_path: Path) -> None:
+def _inject_error_frames(channel: str, count: int) -> None:
+    with can.Bus(interface="socketcan", channel=channel) as bus:
+        for _ in range(count):
+            bus.send(
+                can.Message(arbitration_id=0x004, is_error_frame=True, data=bytes(8), is_extended_id=False)
+            )  # CAN_ERR_CRTL class: not bus-off
+            time.sleep(0.05)
+
+
+def test_simulator_and_controller_as_separate_processes_count_error_frames(
+    vcan_channel: str, tmp_path: Path
+) -> None:
+    """``cheope run`` against ``cheope sim`` started apart, to DONE, with five error frames on the
+    bus during its task: counted, and the run goes on. (One run for both: each run takes minutes
+    in the emulated VM; the demo command itself runs in the CAN FD test below.)"""
     spec = parse_bus_spec(f"socketcan:{vcan_channel}")
     overrides = [a for a in _slow(tmp_path) if "=" in a]
     # 400 s, as for the drives' enabling (_wait_until_enabled): the suite's first process in the
     # emulated VM imports everything from a cold disk cache, and this simulator, started first,
     # was not ready within 120 s in a fresh-clone `.ci/run` (2026-11-30)
     with simulator_process(spec, None, overrides, ready_timeout_s=400.0):
-        r = _cheope("run", "--json", "--bus", f"socketcan:{vcan_channel}", *_slow(tmp_path))
-    assert r.returncode == 0, r.stderr + r.stdout
-    assert json.loads(r.stdout)["final_mode"] == "DONE"
+        proc = _popen(
+            "run",
+            "--json",
+            "--bus",
+            f"socketcan:{vcan_channel}",
+            *_slow(tmp_path),
+            "--set",
+            "task.path.laps=1.0",
+        )
+        try:
+            _wait_until_enabled(vcan_channel)
+            time.sleep(1.0)  # inject while the task runs
+            _inject_error_frames(vcan_channel, 5)
+            out, err = proc.communicate(timeout=600)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+    assert proc.returncode == 0, err + out
+    s = json.loads(out)
+    assert "Traceback" not in err
+    assert s["bus"].startswith(f"socketcan:{vcan_channel}")
+    assert s["tracking_error_m"]["samples"] > 50
+    assert s["error_frames"] == 5  # counted; safety.on_error_frames = "warn": the task goes on
+    assert s["final_mode"] == "DONE"
+    assert any("CAN error frame" in e for e in s["events"])
 
 
 def test_can_fd_run_sends_fd_frames(vcan_fd_channel: str, tmp_path: Path) -> None:
@@ -157,46 +194,6 @@ def test_can_fd_run_sends_fd_frames(vcan_fd_channel: str, tmp_path: Path) -> Non
     assert r.returncode == 0, r.stderr + r.stdout
     assert json.loads(r.stdout)["final_mode"] == "DONE"
     assert seen and all(m.is_fd and m.bitrate_switch for m in seen)
-
-
-def test_the_demo_runs_end_to_end_and_counts_error_frames(vcan_channel: str, tmp_path: Path) -> None:
-    """The demo over SocketCAN to DONE, with five error frames on the bus during its task: counted,
-    and the run goes on. (One run for both: each takes about 4 minutes in the emulated VM.)"""
-    proc = _popen(
-        "demo",
-        "--task",
-        "path",
-        "--json",
-        "--bus",
-        f"socketcan:{vcan_channel}",
-        *_slow(tmp_path),
-        "--set",
-        "task.path.laps=1.0",
-    )
-    try:
-        _wait_until_enabled(vcan_channel)
-        time.sleep(1.0)  # inject while the task runs
-        with can.Bus(interface="socketcan", channel=vcan_channel) as bus:
-            for _ in range(5):
-                bus.send(
-                    can.Message(
-                        arbitration_id=0x004, is_error_frame=True, data=bytes(8), is_extended_id=False
-                    )
-                )  # CAN_ERR_CRTL class: not bus-off
-                time.sleep(0.05)
-        out, err = proc.communicate(timeout=600)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-    assert proc.returncode == 0, err + out
-    s = json.loads(out)
-    assert "Traceback" not in err
-    assert s["bus"].startswith(f"socketcan:{vcan_channel}")
-    assert s["tracking_error_m"]["samples"] > 50
-    assert s["error_frames"] == 5  # counted; safety.on_error_frames = "warn": the task goes on
-    assert s["final_mode"] == "DONE"
-    assert any("CAN error frame" in e for e in s["events"])
 
 
 def test_full_transmit_queue_is_counted_and_ends_in_a_safe_stop(vcan_channel: str, tmp_path: Path) -> None:
