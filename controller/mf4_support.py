@@ -5,7 +5,9 @@ whenever that is installed (the ``mf4`` extra, part of ``dev``): asammdf brings 
 pyarrow, and with them, in every process that imports python-can, the loop's included, 0.69 s of
 start-up, about 100 MB of resident memory (locked there: the loop's process locks all it maps)
 and pyarrow's allocator thread (``jemalloc_bg_thd``) at normal priority (measured on this
-project's 2-CPU host: 128.7 MB and 5 threads against 27.2 MB and 1, ``python -c "import can"``).
+project's 2-CPU host, ``python -c "import can"``: 128.7 MB resident against 27.2 MB; with
+the BLAS and OpenMP pools at one thread, as importing ``controller`` sets them, 2 threads
+against 1).
 None of it is used by the controller, the simulator or the recording's writer.
 
 So importing ``controller`` (the first package every process of this project imports) marks
