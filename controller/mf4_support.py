@@ -7,8 +7,7 @@ start-up, about 100 MB of resident memory (locked there: the loop's process lock
 and pyarrow's allocator thread (``jemalloc_bg_thd``) at normal priority (measured on this
 project's 2-CPU host, ``python -c "import can"``: 128.7 MB resident against 27.2 MB; with
 the BLAS and OpenMP pools at one thread, as importing ``controller`` sets them, 2 threads
-against 1).
-None of it is used by the controller, the simulator or the recording's writer.
+against 1). None of it is used by the controller, the simulator or the recording's writer.
 
 So importing ``controller`` (the first package every process of this project imports) marks
 asammdf as not importable, the import system's own way (``None`` in ``sys.modules``), and python-can

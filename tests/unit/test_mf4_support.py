@@ -7,7 +7,6 @@ loop's, the simulator's and the writer's processes, with a normal-priority alloc
 
 from __future__ import annotations
 
-import importlib.metadata
 import json
 import subprocess
 import sys
@@ -45,15 +44,7 @@ def test_the_runs_processes_import_python_can_without_pandas_or_pyarrow(first: s
     assert "jemalloc_bg_thd" not in seen["threads"]
 
 
-def _installed(distribution: str) -> bool:
-    try:
-        importlib.metadata.version(distribution)  # not find_spec: importing controller hid it
-    except importlib.metadata.PackageNotFoundError:
-        return False
-    return True
-
-
-@pytest.mark.skipif(not _installed("asammdf"), reason="the mf4 extra is not installed")
+# asammdf comes with the dev set-up (the mf4 extra), as for tests/unit/test_can_export.py's mf4 case
 def test_a_file_written_after_load_reads_back_in_the_same_process(tmp_path: Path) -> None:
     out = tmp_path / "x.mf4"
     code = f"""
