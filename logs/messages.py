@@ -278,7 +278,7 @@ def cycle_pb(values: CycleValues) -> pb.Cycle:
 
 def cycle_values_of_pb(msg: pb.Cycle) -> CycleValues:
     """A recorded ``cheope.v1.Cycle`` as the values the recorder hands its writer (``cycle_pb`` of them is
-    ``msg`` again): to write a recorded session's cycles anew (tests/tools/bench_recording_size.py)."""
+    ``msg`` again): to write a recorded session's cycles anew (controller/tools/bench/writer_work.py, tests/tools/bench_recording_size.py)."""
     st = msg.state
     task_values = st.task_values
     return (

@@ -157,7 +157,12 @@ class SessionWriter:
     ``notify`` sends a JSON line to the controller (a keyframe request, a new file, a stop).
     """
 
-    def __init__(self, settings: dict[str, Any], notify: Callable[..., None] | None = None) -> None:
+    def __init__(
+        self,
+        settings: dict[str, Any],
+        notify: Callable[..., None] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         from mcap.writer import CompressionType
 
         from controller.messages import cheope_pb2 as pb
@@ -167,6 +172,9 @@ class SessionWriter:
         self.pb = pb
         self.settings = settings
         self.notify = notify or (lambda **_: None)
+        self.clock = (
+            clock  # when chunks close (flush_interval_s); a rewrite at full speed passes the session's
+        )
         self.first_path = self.path = str(settings["path"])
         self.offset_ns: int = settings["clock_offset_ns"]
         self.chunk_size_bytes: int = settings["chunk_size_bytes"]
@@ -189,7 +197,7 @@ class SessionWriter:
         self.last_cycle: tuple[int, float] = (0, 0.0)
         self.last_mono_s = 0.0
         self.pending = 0  # bytes in the open chunk
-        self.last_flush = time.monotonic()
+        self.last_flush = clock()
         self.files: list[str] = []
         self.deleted: list[str] = []  # by the retention (recording.keep_total_size_gb)
         self.keyframe_asked_s: float | None = None  # monotonic time of the open request, None when none
@@ -313,7 +321,7 @@ class SessionWriter:
         call and 12 % of the writer's samples in a profile (issue 37)."""
         if not self.limits.max_file_bytes or self.file_bytes < self.limits.max_file_bytes:
             return
-        now = time.monotonic()
+        now = self.clock()
         if self.keyframe_asked_s is None or now - self.keyframe_asked_s >= KEYFRAME_RETRY_S:
             self.keyframe_asked_s = now
             self.notify(keyframe=len(self.files) + 1)
@@ -367,10 +375,7 @@ class SessionWriter:
     def maybe_flush(self) -> None:
         if self.error or not self.pending:
             return
-        if (
-            self.pending >= self.chunk_size_bytes
-            or time.monotonic() - self.last_flush >= self.flush_interval_s
-        ):
+        if self.pending >= self.chunk_size_bytes or self.clock() - self.last_flush >= self.flush_interval_s:
             try:
                 self.writer.flush()
             except (OSError, ValueError) as err:
@@ -379,7 +384,7 @@ class SessionWriter:
             self.file_bytes = self.stream.tell()
             self.chunks += 1
             self.pending = 0
-            self.last_flush = time.monotonic()
+            self.last_flush = self.clock()
             self._guard_free_space()
             self._guard_removed()
 

@@ -3,7 +3,7 @@
     .venv/bin/python tests/tools/bench_record_pickle.py SESSION.mcap
 
 The session's cycles are rebuilt as the CYCLE records the recorder pickles into its writer's pipe
-(``tests/tools/bench_recording_size.py`` ``records``), and each is pickled (the loop's side) and
+(``controller.tools.bench.writer_work.session_records``), and each is pickled (the loop's side) and
 unpickled (the writer's side) with its task fields' names, as a record whose names changed
 carries them, and without (``logs.cycle_encoding.with_task_names`` of None: what the recorder
 sends while they are unchanged). Prints bytes and µs per record (the median of 5 passes over at
@@ -19,8 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from bench_recording_size import records
-
+from controller.tools.bench.writer_work import session_records
 from logs.cycle_encoding import TASK_FIELDS_AT, with_task_names
 from logs.session_writer import CYCLE
 
@@ -45,7 +44,7 @@ def per_record_us(work: list[object], fn: object) -> float:
 
 
 def main(src: Path) -> dict[str, dict[str, float]]:
-    cycles = [r for r in records(src)[0] if r[0] == CYCLE][-2000:]
+    cycles = [r for r in session_records(src)[0] if r[0] == CYCLE][-2000:]
     out = {}
     for name, recs in (
         ("with the names", cycles),
