@@ -82,6 +82,11 @@ from sim_backend.workpiece import (
 
 log = logging.getLogger(__name__)
 
+# How far behind a SYNC the simulated platform's pose may be integrated for a tracker sample there:
+# the 3-nSPU's pose goes in 10-ms steps (ODOMETRY_INTERVAL_S), on a thread behind the answers, so
+# up to 10 ms and a period or two of the loop behind when that thread keeps up (tracker_frames).
+TRACKER_POSE_LAG_S = 0.03
+
 
 def configured_drive_quirks(cfg: Config) -> list[DriveQuirks]:
     """Each drive's device-side quirks (sim.drive.quirks, sim_backend/quirks.py), in node order."""
@@ -211,7 +216,7 @@ class RobotPlant:
         )
         self.tracker: SimulatedPoseTracker | None = None
         if cfg.tracker.enabled:  # the platform's pose: only a hook that integrates one has it (the 3-nSPU's)
-            if not hasattr(self.kinematics, "pose"):
+            if not hasattr(self.kinematics, "pose") or not hasattr(self.kinematics, "pose_time_s"):
                 raise ValueError(
                     f"tracker.enabled: the simulated {cfg.robot.kind} has no platform pose to track "
                     "(only the 3-nSPU's simulator integrates one)"
@@ -454,10 +459,22 @@ class RobotPlant:
             self.sensor.observe(now_s, 1.0, 0.0, 0.0, 0.0)  # free space: nothing touches the tool
 
     def tracker_frames(self, now_s: float) -> tuple[bytes, bytes] | None:
-        """The pose tracker's two TPDOs at this SYNC if a sample is due (of the pose as the simulator has it)."""
+        """The pose tracker's two TPDOs at this SYNC if a sample is due (of the pose as the simulator has it).
+
+        None, and the sample waits for a later SYNC, while the pose is integrated only up to more than
+        ``TRACKER_POSE_LAG_S`` before ``now_s``: the simulator process integrates it on a thread of its
+        own, behind the answers (``kinematics_sample``), and a starved thread fell seconds behind on a
+        slow host. A sample of that old pose, sent as this SYNC's, showed the 3-nSPU's platform where
+        it had been during the motion, and the correcting plans that started there drove it 6-542 mm
+        off its goal (2 of 3 runs of the tracker's closed loop over the bus, 2026-12-03). A real
+        tracker that cannot measure sends nothing.
+        """
         if self.tracker is None:
             return None
-        pose = self.kinematics.pose  # type: ignore[attr-defined]  # checked at construction
+        pose_time_s = self.kinematics.pose_time_s  # type: ignore[attr-defined]  # checked at construction
+        if pose_time_s is not None and pose_time_s < now_s - TRACKER_POSE_LAG_S:
+            return None
+        pose = self.kinematics.pose  # type: ignore[attr-defined]
         return self.tracker.frames(now_s, pose.p_m, pose.R)
 
     def kinematics_sample(self) -> tuple[float, np.ndarray] | None:

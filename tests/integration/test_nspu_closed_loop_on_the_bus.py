@@ -7,11 +7,14 @@ none, the tracker measures the open-loop miss. The same runs in simulated time a
 tests/unit/test_nspu_integration.py; here the worker process plans and the frames cross the bus.
 
 The outcome is mostly the planner's and the mismatch's (1.2 mm open-loop miss against a 0.2 mm
-tolerance); late cycles are warned, not faulted. Not every margin holds on a busy machine: the
-simulator's pose and the summary's odometry integrate a straight line between two leg samples, so
-a hold-up of m 10-ms intervals moves the integrated pose off the true one by up to 0.03 mm (m = 4),
-0.25 mm (8), 2.8 mm (20) (the default plan in simulated time, 2026-12-03); two runs beside a
-CPU-bound job of mine failed on it that day.
+tolerance); late cycles are warned, not faulted. On a busy machine the simulator's TPDOs go
+missing in runs (up to 22-34 cycles beside two CPU hogs, 2026-12-03): the summary's odometry
+bridges them with the drives' setpoints (``odometry_setpoint_samples``), where one step over each
+gap put it 0.03 mm (a gap of 4 of its 10-ms steps), 0.25 mm (8) or 2.8 mm (20) off the true pose.
+The simulator integrates the platform's pose on a thread behind its answers; on a slow host that
+thread fell seconds behind, and tracker samples of the old pose sent the correcting plans 6-542 mm
+off the goal (2 of 3 runs, quiet): the simulated tracker now waits until the pose is integrated up
+to its SYNC (sim_backend/plant.py ``tracker_frames``).
 """
 
 from __future__ import annotations

@@ -88,3 +88,24 @@ def test_the_simulated_tracker_noise_has_the_configured_spread():
     assert p.shape[0] > 350
     assert np.std(p - truth, axis=0) == pytest.approx([1e-3] * 3, rel=0.2)
     assert np.abs(np.mean(p - truth, axis=0)).max() < 3e-4
+
+
+def test_no_tracker_sample_of_a_pose_integrated_only_up_to_long_before_the_sync():
+    """The simulator process integrates the 3-nSPU's pose on a thread behind its answers
+    (``RobotPlant.kinematics_sample``); a sample of a pose that thread has not brought up to the
+    SYNC would show the platform where it was (sim_backend/plant.py ``tracker_frames``)."""
+    from sim_backend.plant import TRACKER_POSE_LAG_S, RobotPlant
+
+    cfg = load_config(
+        NSPU_TOML,
+        {"recording.enabled": False, "monitoring.enabled": False, "tracker.enabled": True},
+    )
+    plant = RobotPlant(cfg)
+    assert plant.tracker_frames(0.0) is not None  # before any sample: the start pose, known
+    q = np.array([d.position for d in plant.drives])
+    assert plant.update_kinematics(1.0, q)  # the pose thread at t = 1 s
+    assert plant.kinematics.pose_time_s == 1.0
+    behind = 1.0 + TRACKER_POSE_LAG_S + 0.5  # a SYNC half a second later: the thread is behind
+    assert plant.tracker_frames(behind) is None
+    assert plant.update_kinematics(behind - 0.005, q)  # caught up to within a few milliseconds
+    assert plant.tracker_frames(behind) is not None

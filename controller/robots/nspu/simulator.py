@@ -63,6 +63,11 @@ class NspuOdometry:
         self.pose = Pose(p, robot.start.R)
         self._pose_time_s: float | None = None
 
+    @property
+    def pose_time_s(self) -> float | None:
+        """The time of the drives' sample the pose is integrated to; None before the first."""
+        return self._pose_time_s
+
     def initial_positions(self) -> tuple[float, ...]:
         if self._initial is not None:
             return self._initial
