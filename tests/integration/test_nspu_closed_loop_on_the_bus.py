@@ -13,7 +13,7 @@ bridges them with the drives' setpoints (``odometry_setpoint_samples``), where o
 gap put it 0.03 mm (a gap of 4 of its 10-ms steps), 0.25 mm (8) or 2.8 mm (20) off the true pose.
 The simulator integrates the platform's pose on a thread behind its answers; on a slow host that
 thread fell seconds behind, and tracker samples of the old pose sent the correcting plans 6-542 mm
-off the goal (2 of 3 runs, quiet): the simulated tracker now waits until the pose is integrated up
+off the goal (2 of 3 runs beside one CPU hog): the simulated tracker now waits until the pose is integrated up
 to its SYNC (sim_backend/plant.py ``tracker_frames``).
 """
 
