@@ -30,7 +30,8 @@ demo: setup
 	$(VENV)/bin/cheope demo
 
 # make test: the static checks and the fast layers (tests/unit, tests/protocol without the slow
-# tier), about a minute. make test-all: the static checks and every layer but vcan (what CI runs).
+# tier): 178 and 237 s on the 2-core development VM once set up (2026-12-03). make test-all: the
+# static checks and every layer but vcan (what CI runs).
 # The in-process tests in two worker processes (pytest-xdist), one per core of the 2-core machines;
 # the tests that run controller processes over a bus (marker bus_processes, tests/conftest.py) after
 # them, one at a time, as they were made to run: beside a second worker they failed.
