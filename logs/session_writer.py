@@ -172,9 +172,8 @@ class SessionWriter:
         self.pb = pb
         self.settings = settings
         self.notify = notify or (lambda **_: None)
-        self.clock = (
-            clock  # when chunks close (flush_interval_s); a rewrite at full speed passes the session's
-        )
+        # when chunks close (flush_interval_s); a rewrite at full speed passes the session's clock
+        self.clock = clock
         self.first_path = self.path = str(settings["path"])
         self.offset_ns: int = settings["clock_offset_ns"]
         self.chunk_size_bytes: int = settings["chunk_size_bytes"]

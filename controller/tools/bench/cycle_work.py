@@ -437,41 +437,27 @@ def count_instructions(
     with tempfile.TemporaryDirectory(prefix="cheope-work-") as tmp:
         script_path = Path(tmp) / "script.pickle"
         script_path.write_bytes(pickle.dumps(script))
-        out = Path(tmp) / "callgrind.out"
-        cmd = [
+        instructions, window = callgrind_window(
+            [
+                "controller.tools.bench.cycle_work",
+                "--child",
+                str(script_path),
+                "--task",
+                task,
+                "--skip",
+                str(skip),
+                "--cycles",
+                str(cycles),
+                *(a for o in overrides for a in ("--set", o)),
+            ],
+            Path(tmp) / "callgrind.out",
             valgrind,
-            "--tool=callgrind",
-            f"--dump-before={_MARKER}",
-            f"--callgrind-out-file={out}",
-            "--trace-children=no",
-            os.path.realpath(sys.executable),
-            "-m",
-            "controller.tools.bench.cycle_work",
-            "--child",
-            str(script_path),
-            "--task",
-            task,
-            "--skip",
-            str(skip),
-            "--cycles",
-            str(cycles),
-            *(a for o in overrides for a in ("--set", o)),
-        ]
-        # the interpreter itself, not the venv's link to it (valgrind does not follow the link): the
-        # venv's packages and this checkout by path
-        env = {**os.environ, "PYTHONHASHSEED": "0", "PYTHONPATH": os.pathsep.join([_REPO, *sys.path])}
-        run = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
-        if run.returncode != 0:
-            raise RuntimeError(f"callgrind run failed ({run.returncode}): {run.stderr[-2000:]}")
-        window = Path(f"{out}.2")  # part 1: start to the first marker; part 2: the window
-        match = re.search(r"^summary:\s*(\d+)", window.read_text(), re.M) if window.exists() else None
-        if match is None:
-            raise RuntimeError(f"no callgrind dump of the window ({window.name}): {run.stderr[-2000:]}")
+        )
         functions = compiled_functions_per_cycle(window, cycles, by_function) if by_function else {}
         if keep_dump is not None:
             shutil.copyfile(window, keep_dump)
     return {
-        "instructions_per_cycle": round(int(match.group(1)) / cycles),
+        "instructions_per_cycle": round(instructions / cycles),
         "tool": "valgrind --tool=callgrind",
         **({"compiled_functions_per_cycle": functions} if by_function else {}),
         **(
@@ -484,6 +470,33 @@ def count_instructions(
             else {}
         ),
     }
+
+
+def callgrind_window(module_args: Sequence[str], out: Path, valgrind: str) -> tuple[int, Path]:
+    """``python -m *module_args`` under callgrind, its counts dumped at each ``os.getsid`` marker into
+    ``out``.N: the instructions between the first two markers (the window) and that dump's path.
+    The child imports this checkout and the venv's packages as this process does."""
+    cmd = [
+        valgrind,
+        "--tool=callgrind",
+        f"--dump-before={_MARKER}",
+        f"--callgrind-out-file={out}",
+        "--trace-children=no",
+        # the interpreter itself, not the venv's link to it (valgrind does not follow the link): the
+        # venv's packages and this checkout by path
+        os.path.realpath(sys.executable),
+        "-m",
+        *module_args,
+    ]
+    env = {**os.environ, "PYTHONHASHSEED": "0", "PYTHONPATH": os.pathsep.join([_REPO, *sys.path])}
+    run = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
+    if run.returncode != 0:
+        raise RuntimeError(f"callgrind run failed ({run.returncode}): {run.stderr[-2000:]}")
+    window = Path(f"{out}.2")  # part 1: start to the first marker; part 2: the window
+    match = re.search(r"^summary:\s*(\d+)", window.read_text(), re.M) if window.exists() else None
+    if match is None:
+        raise RuntimeError(f"no callgrind dump of the window ({window.name}): {run.stderr[-2000:]}")
+    return int(match.group(1)), window
 
 
 # callgrind_annotate's inclusive line of a function mypyc compiled: "1,234 (5.6%)  file.c:CPyDef_mod___Cls___name [lib]"

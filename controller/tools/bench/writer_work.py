@@ -6,7 +6,7 @@
 The session's frames, cycles and events become the records the recorder hands its writer process
 (``session_records``: one CYCLE record per cycle, with the frames before it), and a window of them
 is written by ``logs.session_writer.SessionWriter`` in a second process under valgrind's callgrind,
-between two markers (``os.getsid``, as ``cycle_work --instructions``): a figure that the host's
+between two markers (``cycle_work.callgrind_window``, as ``cycle_work --instructions``): a figure that the host's
 load does not move (two runs of one file agree to a few instructions in a million), unlike the
 writer's share of a core in ``cheope bench``. ``--first`` cycles of the file are skipped (the
 contour's tracking starts near cycle 8 000 of the default demo) and 400 more are written before the
@@ -28,17 +28,15 @@ import gc
 import json
 import os
 import pickle
-import re
 import shutil
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 from typing import Any
 
+from controller.tools.bench.cycle_work import callgrind_window
+
 WARMUP_CYCLES = 400
-_MARKER = "getsid"  # the libc function callgrind dumps before (cycle_work's marker)
-_REPO = str(Path(__file__).resolve().parents[3])
 
 Record = tuple[object, ...]
 
@@ -182,35 +180,6 @@ def write_window(records: list[Record], settings: dict[str, Any], marker: bool) 
     return Path(settings["path"]).stat().st_size
 
 
-def count_instructions(job: Path, cycles: int, valgrind: str) -> int:
-    """Instructions of the window in a callgrind run of ``--child job``."""
-    with tempfile.TemporaryDirectory(prefix="cheope-writer-work-") as tmp:
-        out = Path(tmp) / "callgrind.out"
-        cmd = [
-            valgrind,
-            "--tool=callgrind",
-            f"--dump-before={_MARKER}",
-            f"--callgrind-out-file={out}",
-            "--trace-children=no",
-            os.path.realpath(
-                sys.executable
-            ),  # the interpreter, not the venv's link (valgrind does not follow it)
-            "-m",
-            "controller.tools.bench.writer_work",
-            "--child",
-            str(job),
-        ]
-        env = {**os.environ, "PYTHONHASHSEED": "0", "PYTHONPATH": os.pathsep.join([_REPO, *sys.path])}
-        run = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
-        if run.returncode != 0:
-            raise RuntimeError(f"callgrind run failed ({run.returncode}): {run.stderr[-2000:]}")
-        dump = Path(f"{out}.2")  # part 1: start to the first marker; part 2: the window
-        match = re.search(r"^summary:\s*(\d+)", dump.read_text(), re.M) if dump.exists() else None
-        if match is None:
-            raise RuntimeError(f"no callgrind dump of the window: {run.stderr[-2000:]}")
-        return int(match.group(1))
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("session", nargs="?", type=Path, help="a recorded session (.mcap)")
@@ -243,7 +212,9 @@ def main(argv: list[str] | None = None) -> int:
         settings = writer_settings(out, metadata, args.compression, args.scene_rate)
         job = Path(tmp) / "job.pickle"
         job.write_bytes(pickle.dumps((records, settings)))
-        instructions = count_instructions(job, args.cycles, valgrind)
+        instructions, _ = callgrind_window(
+            ["controller.tools.bench.writer_work", "--child", str(job)], Path(tmp) / "callgrind.out", valgrind
+        )
         size = out.stat().st_size
     print(
         json.dumps(
