@@ -77,3 +77,15 @@ def test_a_window_beyond_the_session_is_refused_with_its_length():
     with pytest.raises(ValueError, match="the session has 1449 cycles"):
         window(records, 1400, CYCLES)
     assert sum(1 for r in records if r[0] == CYCLE) == 1449
+
+
+def test_a_file_that_is_not_a_session_is_refused_in_one_line(tmp_path, capsys):
+    from controller.tools.bench.writer_work import main
+
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"not an mcap at all")
+    with pytest.raises(SystemExit) as exit_:
+        main([str(junk)])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert "junk.mcap is not an MCAP file" in err and "Traceback" not in err

@@ -197,14 +197,16 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.session is None:
         ap.error("a recorded session is needed")
+    from controller.errors import InputError
+
+    try:  # a file that is not a session, or too short a one: one line naming it (argparse's exit 2)
+        records, metadata, _ = session_records(args.session, with_can=not args.without_can)
+        records = window(records, args.first, args.cycles)
+    except (InputError, ValueError) as err:
+        ap.error(str(err))
     valgrind = shutil.which("valgrind")
     if valgrind is None:
         ap.error("valgrind not found (apt-get install valgrind)")
-    records, metadata, _ = session_records(args.session, with_can=not args.without_can)
-    try:
-        records = window(records, args.first, args.cycles)
-    except ValueError as err:
-        ap.error(str(err))
     if args.without_task_values:
         records = [without_task_values(r) for r in records]
     with tempfile.TemporaryDirectory(prefix="cheope-writer-work-") as tmp:
