@@ -315,7 +315,7 @@ class CyclicExchange:
         self._tracker_p: tuple[float, float, float] = (math.nan,) * 3
         self._tracker_r: tuple[float, float, float] = (math.nan,) * 3
         self._tracker_counters = [-1, -1]  # of the last position and rotation frames
-        self._tracker_status = 0
+        self._tracker_statuses = [0, 0]  # of the last position and rotation frames
         self._tracker_fresh = False  # a complete new sample since the last collect
         self._emcy: list[EmcyReport] = []
         self._collecting = False
@@ -573,7 +573,7 @@ class CyclicExchange:
             TrackerFeedback(
                 self._tracker_p,
                 self._tracker_r,
-                self._tracker_status,
+                self._tracker_statuses[0] | self._tracker_statuses[1],
                 max(self._tracker_counters[0], 0),
                 self._tracker_fresh,
             )
@@ -847,7 +847,8 @@ class CyclicExchange:
         else:
             self._tracker_r = (x, y, z)
         self._tracker_counters[i] = counter
-        self._tracker_status = status
+        # both frames' bits: a position saturated is not cleared by a good rotation frame after it
+        self._tracker_statuses[i] = status
         if self._tracker_counters[0] == self._tracker_counters[1]:
             self._tracker_fresh = True
 

@@ -26,7 +26,7 @@ import math
 import struct
 from dataclasses import dataclass
 
-from controller.core.cycle_data import SENSOR_FORCE_SATURATED, SENSOR_TORQUE_SATURATED
+from controller.core.cycle_data import SENSOR_FORCE_SATURATED, SENSOR_TORQUE_SATURATED, TRACKER_SATURATED
 from controller.errors import InputError
 from drivers.pdo_mapping import PdoLayout, PdoMappingError
 
@@ -46,7 +46,6 @@ INT32_MAX = 2**31 - 1
 
 TRACKER_M_PER_COUNT = 2.0e-5
 TRACKER_RAD_PER_COUNT = 1.0e-4
-TRACKER_SATURATED = 0x01  # a coordinate beyond the i16 range (the frame carries the clipped value)
 
 # Sensor status bits.
 

@@ -28,6 +28,9 @@ class DriveFeedback:
 SENSOR_FORCE_SATURATED = 0x01
 SENSOR_TORQUE_SATURATED = 0x02
 SENSOR_ERROR = 0x04
+# The pose tracker's status bits, as TrackerFeedback.status carries them (drivers/pdo_codec.py: both
+# frames' bits of one sample). Any bit set: the task does not average the sample (planned_legs.py).
+TRACKER_SATURATED = 0x01  # a coordinate beyond the i16 range (the frame carries the clipped value)
 
 
 @record
@@ -45,7 +48,7 @@ class TrackerFeedback:
 
     position_m: tuple[float, float, float]
     rotation_vector_rad: tuple[float, float, float]  # R = exp([rotation_vector]x)
-    status: int
+    status: int  # TRACKER_* bits of both frames of the sample (0: a good measurement)
     counter: int
     fresh: bool  # a new sample (both frames, one counter) arrived since the last cycle
 

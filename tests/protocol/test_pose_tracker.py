@@ -6,18 +6,19 @@ import numpy as np
 import pytest
 
 from controller.config import load_config
+from controller.core.cycle_data import TRACKER_SATURATED
 from controller.core.rotations import so3_log
 from controller.robot_registry import robot_entry
 from controller.shell.loop import SimulatedTime
 from drivers.pdo_codec import (
     TRACKER_M_PER_COUNT,
     TRACKER_RAD_PER_COUNT,
-    TRACKER_SATURATED,
     FrameError,
     decode_tracker_frame,
     encode_tracker_frames,
 )
 from sim_backend.loopback import LoopbackExchange
+from sim_backend.pose_tracker import SimulatedPoseTracker
 
 NSPU_TOML = robot_entry("nspu").config_file  # in the robot's home
 
@@ -109,3 +110,27 @@ def test_no_tracker_sample_of_a_pose_integrated_only_up_to_long_before_the_sync(
     assert plant.tracker_frames(behind) is None
     assert plant.update_kinematics(behind - 0.005, q)  # caught up to within a few milliseconds
     assert plant.tracker_frames(behind) is not None
+
+
+def test_a_sample_carries_the_status_bits_of_both_its_frames():
+    """A tracker that flags only the frame that saturated: the rotation frame after it, status 0,
+    must not clear the position frame's bit (the exchange kept the last frame's status only)."""
+    cfg = load_config(
+        NSPU_TOML,
+        {"recording.enabled": False, "monitoring.enabled": False, "tracker.enabled": True},
+    )
+    clock = SimulatedTime()
+    ex = LoopbackExchange(cfg, clock.clock)
+    fp, _ = encode_tracker_frames((0.9, 0.0, 0.25), (0.0, 0.0, 0.1), 0, 7)  # x beyond +-0.655 m
+    _, fr = encode_tracker_frames((0.0, 0.0, 0.25), (0.0, 0.0, 0.1), 0, 7)
+    assert decode_tracker_frame(fp, TRACKER_M_PER_COUNT)[3] == TRACKER_SATURATED
+    assert decode_tracker_frame(fr, TRACKER_RAD_PER_COUNT)[3] == 0
+
+    class OneFrameFlagged(SimulatedPoseTracker):
+        def frames(self, now_s, position_m, rotation):
+            return fp, fr  # position first, as the simulator sends them
+
+    ex.plant.tracker = OneFrameFlagged(ex.plant.tracker.params)
+    ex.send(None)
+    sample = ex.collect(clock.clock() + cfg.period_s).tracker
+    assert sample.fresh and sample.status == TRACKER_SATURATED

@@ -13,6 +13,7 @@ from busy_machine import TOLERANT
 from controller.assembly import assemble, build_law
 from controller.config import load_config
 from controller.core.controller_state import Mode
+from controller.core.cycle_data import TRACKER_SATURATED
 from controller.core.records import replace
 from controller.robot_registry import robot_entry
 from controller.robots.nspu.kinematics import leg_lengths_batch
@@ -34,13 +35,15 @@ def cfg():
     return load_config(NSPU_TOML, {"recording.enabled": False, "monitoring.enabled": False})
 
 
-def _simulated_run(cfg, max_s, observers=(), plans_ready=None):
+def _simulated_run(cfg, max_s, observers=(), plans_ready=None, prepare=None):
     """The assembled law on the in-process simulated devices in simulated time: (law, exchange, final
-    state, the task's report)."""
+    state, the task's report). ``prepare(exchange)`` before the first cycle (a fault to inject)."""
     clock = SimulatedTime()
     assembly = assemble(cfg)
     law, (report,) = assembly.law, assembly.reports
     exchange = LoopbackExchange(cfg, clock.clock)
+    if prepare is not None:
+        prepare(exchange)
     loop = CycleLoop(
         law,
         exchange,
@@ -231,12 +234,12 @@ class TaskEvents:
         self.request_ids.append(getattr(state.task_state, "request_id", 0))
 
 
-def _closed_loop_run(overrides, plans_ready=None, observers=()):
+def _closed_loop_run(overrides, plans_ready=None, observers=(), prepare=None):
     cfg = load_config(
         NSPU_TOML, {"recording.enabled": False, "monitoring.enabled": False, **MISMATCH, **overrides}
     )
     seen = TaskEvents()
-    law, exchange, final, _ = _simulated_run(cfg, 40.0, (seen, *observers), plans_ready)
+    law, exchange, final, _ = _simulated_run(cfg, 40.0, (seen, *observers), plans_ready, prepare)
     return cfg, law, exchange, final, seen
 
 
@@ -275,6 +278,77 @@ def test_without_the_tracker_the_off_start_is_refused_and_the_mismatch_misses():
     pe, ae = pose_errors(exchange.plant.kinematics.pose, law.robot.goal)
     assert final.mode == Mode.DONE and pe > 1e-3 and ae > 1e-3
     assert "after 0 corrections" in seen.messages[-1]
+
+
+class _TrackerAfterFirstMeasurement:
+    """The simulated tracker as it is until the first plan streams, then ``after(now_s, frames)``:
+    a tracker that dies (None) or goes blind (its frames flagged) during the motion."""
+
+    def __init__(self, after) -> None:
+        self.after = after
+        self.streaming_since_s: float | None = None  # the task time the first plan began
+        self.measuring: list[float] = []  # times of the cycles spent measuring after it, until a fault
+
+    def prepare(self, exchange) -> None:
+        from sim_backend.pose_tracker import SimulatedPoseTracker
+
+        honest, report = exchange.plant.tracker, self
+
+        class Failing(SimulatedPoseTracker):  # the plant takes a SimulatedPoseTracker (compiled)
+            def frames(self, now_s, position_m, rotation):
+                sample = honest.frames(now_s, position_m, rotation)
+                return sample if report.streaming_since_s is None else report.after(now_s, sample)
+
+        exchange.plant.tracker = Failing(honest.params)
+
+    def on_cycle(self, cycle, t, inputs, state, outputs, events, timing):
+        if self.streaming_since_s is None and any("streaming the plan" in e.message for e in events):
+            self.streaming_since_s = t
+        phase = getattr(state.task_state, "phase", None)
+        measuring = phase is not None and phase.name == "MEASURING" and state.mode != Mode.FAULT
+        if self.streaming_since_s is not None and measuring:
+            self.measuring.append(t)
+
+
+def _flag_position_frame(now_s, sample):
+    """A tracker that cannot see the platform: its position frame flagged saturated, the rotation
+    frame of the same sample not (the exchange must keep both frames' bits)."""
+    from drivers.pdo_codec import SENSOR_TPDO
+
+    if sample is None:
+        return None
+    x, y, z, status, counter = SENSOR_TPDO.unpack(sample[0])
+    return SENSOR_TPDO.pack(x, y, z, status | TRACKER_SATURATED, counter), sample[1]
+
+
+@pytest.mark.parametrize(
+    ("after", "named"),
+    [
+        (lambda now_s, sample: None, "the pose tracker sent no sample for"),
+        (_flag_position_frame, "only samples flagged bad, status 0x01 (a coordinate saturated)"),
+    ],
+    ids=["silent", "flagged"],
+)
+def test_a_tracker_that_stops_measuring_faults_the_task_naming_it(after, named):
+    """A tracker that dies, or cannot see the platform, during the motion: the measurement after
+    it gets no usable sample, and the task faults ``tracker_timeout_s`` after the settling, naming
+    it; before, it held the legs silently until the run's duration ended. The flagged samples are
+    never averaged: the task's measured error stays unset."""
+    tracker = _TrackerAfterFirstMeasurement(after)
+    cfg, _, _, final, seen = _closed_loop_run(
+        {**TRACKED, "robot.nspu.correction_planning": "in_step", "robot.nspu.tracker_timeout_s": 2.0},
+        observers=(tracker,),
+        prepare=tracker.prepare,
+    )
+    assert tracker.streaming_since_s is not None, seen.messages
+    assert final.mode == Mode.FAULT
+    assert named in final.fault_reason and "robot.nspu.tracker_timeout_s = 2" in final.fault_reason
+    assert "0 of 10 samples averaged" in final.fault_reason
+    assert np.isnan(final.task_state.measured_position_error_m)
+    # measuring from the stream's end: the settling, then the timeout, then the fault
+    settle_s = cfg.robot.model("nspu").settle_s
+    held_s = tracker.measuring[-1] - tracker.measuring[0]
+    assert held_s == pytest.approx(settle_s + 2.0, abs=2 * cfg.period_s)
 
 
 def test_plans_off_the_loop_enter_as_inputs_and_replay_bit_for_bit():

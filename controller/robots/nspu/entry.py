@@ -48,6 +48,8 @@ class NspuSection(Section, frozen=True):
     max_corrections: Annotated[int, rng(0, 100)] = 3  # correcting plans after the first
     tracker_samples: Annotated[int, rng(1, 10000)] = 10  # tracker samples averaged into one measurement
     settle_s: Annotated[float, rng(0.0, 10.0)] = 0.1  # after a motion, before measuring
+    # no usable tracker sample this long while measuring (after settle_s): the task faults, naming it
+    tracker_timeout_s: Annotated[float, rng(0.0, 600.0, lo_open=True)] = 5.0
     correction_planning: Literal["worker", "in_step"] = "worker"  # off the loop (a bus), or inside the step
 
 

@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from controller.core.cycle_data import Event, Severity
+from controller.core.cycle_data import TRACKER_SATURATED, Event, Severity
 from controller.core.ports import JointReference, OffLoopWorker, TaskContext, TaskStep
 from controller.core.records import record, replace
 from controller.robots.nspu.streamed_plan import StreamedPlan, time_scale_plan
@@ -67,6 +67,7 @@ class CorrectionSettings:
     max_corrections: int  # correcting plans after the first one; 0: measure and report only
     tracker_samples: int  # fresh tracker samples averaged into one measurement
     settle_s: float  # wait after a stream ends before measuring (the drives' lag)
+    tracker_timeout_s: float  # no usable sample this long while measuring: the task faults, naming it
     in_step: bool  # plan inside the step (simulated time); else wait for the off-loop worker's plans_ready
 
 
@@ -80,6 +81,10 @@ class LegsTaskState:
     corrections: int = 0  # correcting plans streamed so far
     moved: bool = False  # a plan has been streamed
     samples: int = 0  # tracker samples in the running sums
+    last_sample_s: float = -math.inf  # task time of the last usable tracker sample
+    last_status: int = (
+        -1
+    )  # the status of the last fresh sample, usable or not (-1: none since measuring began)
     sum_pose: tuple[float, ...] = (0.0,) * 6  # P [m] and rotation vector [rad], summed
     request_id: int = 0  # the last correcting plan asked for (PlanWorker: CycleInputs.plans_ready)
     request: tuple[float, ...] = ()  # its start: the measured pose (P, rotation vector)
@@ -102,7 +107,10 @@ class PlannedLegsTask:
 
     With a tracker the execution is corrected by *replanning from the measured pose*, between
     motions, not during them:
-      1. hold the legs, average ``tracker_samples`` fresh samples (the start pose);
+      1. hold the legs, average ``tracker_samples`` fresh samples (the start pose); a sample whose
+         status is not 0 (the tracker's own flag of a bad measurement: a coordinate saturated) is
+         not averaged, and no usable sample for ``tracker_timeout_s`` faults, naming it: a dead
+         or blind tracker otherwise held the legs, silently, until the run's duration ended;
       2. if it is within the tolerance of the plan's start, stream the first plan, else plan
          from the measured pose to the goal and stream that;
       3. at the end of a stream, wait ``settle_s``, measure again; within the tolerance of the
@@ -195,7 +203,12 @@ class PlannedLegsTask:
                 state = replace(state, phase=LegsPhase.FINISHED)
             else:  # settle, then measure against the goal
                 state = replace(
-                    state, phase=LegsPhase.MEASURING, start_s=ctx.t_s, samples=0, sum_pose=(0.0,) * 6
+                    state,
+                    phase=LegsPhase.MEASURING,
+                    start_s=ctx.t_s,
+                    samples=0,
+                    sum_pose=(0.0,) * 6,
+                    last_status=-1,
                 )
                 return TaskStep(state, JointReference.at_rest(pos, plat))
         finished = state.phase == LegsPhase.FINISHED
@@ -226,14 +239,20 @@ class PlannedLegsTask:
         assert c is not None and self.goal is not None
         hold = self._hold(ctx, state.streamed or self.streamed)
         k = ctx.inputs.tracker
-        if ctx.t_s - state.start_s < c.settle_s or k is None or not k.fresh:
+        if ctx.t_s - state.start_s < c.settle_s:
             return TaskStep(state, hold)
+        if k is None or not k.fresh or k.status != 0:
+            if k is not None and k.fresh:
+                state = replace(state, last_status=k.status)
+            return self._await_sample(state, ctx, hold)
         sums = tuple(
             a + b for a, b in zip(state.sum_pose, (*k.position_m, *k.rotation_vector_rad), strict=True)
         )
         n = state.samples + 1
         if n < c.tracker_samples:
-            return TaskStep(replace(state, samples=n, sum_pose=sums), hold)
+            return TaskStep(
+                replace(state, samples=n, sum_pose=sums, last_sample_s=ctx.t_s, last_status=0), hold
+            )
         from controller.robots.nspu.model import pose_errors
         from controller.robots.nspu.plan_correction import pose_from_request
 
@@ -291,6 +310,27 @@ class PlannedLegsTask:
         )
         step = self._await_plan(state, ctx)
         return replace(step, events=(ev, *step.events))
+
+    def _await_sample(self, state: LegsTaskState, ctx: TaskContext, hold: JointReference) -> TaskStep:
+        """Hold on while the tracker's silence is shorter than ``tracker_timeout_s`` (from the end of
+        the settling or the last usable sample); past it, fault with what was (not) received."""
+        c = self.correction
+        assert c is not None
+        since_s = max(state.start_s + c.settle_s, state.last_sample_s)
+        if ctx.t_s - since_s <= c.tracker_timeout_s:
+            return TaskStep(state, hold)
+        if state.last_status < 0:
+            what = "no sample"
+        else:
+            saturated = " (a coordinate saturated)" if state.last_status & TRACKER_SATURATED else ""
+            what = f"only samples flagged bad, status 0x{state.last_status:02X}{saturated},"
+        why = (
+            f"the pose tracker sent {what} for {ctx.t_s - since_s:.2f} s while the platform was measured "
+            f"({state.samples} of {c.tracker_samples} samples averaged; robot.nspu.tracker_timeout_s = "
+            f"{c.tracker_timeout_s:g}): the closed loop cannot measure the platform; check the tracker "
+            "([tracker] node_id) and its view of the platform"
+        )
+        return TaskStep(state, hold, fault=why)
 
     def _await_plan(self, state: LegsTaskState, ctx: TaskContext) -> TaskStep:
         c, planner = self.correction, self.correction_planner
@@ -490,6 +530,7 @@ def build_planned_legs_task(
             section.max_corrections,
             section.tracker_samples,
             section.settle_s,
+            section.tracker_timeout_s,
             in_step=section.correction_planning == "in_step",
         )
         planner = CorrectionPlanner(
