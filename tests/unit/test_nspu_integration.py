@@ -351,6 +351,92 @@ def test_a_tracker_that_stops_measuring_faults_the_task_naming_it(after, named):
     assert held_s == pytest.approx(settle_s + 2.0, abs=2 * cfg.period_s)
 
 
+def test_a_plan_that_never_comes_faults_the_task_naming_the_worker():
+    """The worker gives no plan (it died for good, its plan raised): the task holds the legs and
+    faults ``correction_plan_timeout_s`` after its request, naming it. Before, a failed request
+    was marked ready and the step planned it itself: 0.54 s inside one cycle over the bus, and
+    the drives' SYNC watchdog quick-stopped them (EMCY 0x8240)."""
+    _, _, _, final, seen = _closed_loop_run(
+        {**TRACKED, **OFF_START, "robot.nspu.correction_plan_timeout_s": 1.0}, plans_ready=lambda: 0
+    )
+    assert final.mode == Mode.FAULT
+    assert "correction 1: no plan from the planning worker" in final.fault_reason
+    assert "robot.nspu.correction_plan_timeout_s = 1" in final.fault_reason
+    requested_s = seen.cycles[seen.request_ids.index(1)][0]
+    period_s = seen.cycles[1][0] - seen.cycles[0][0]
+    assert final.mode_entered_s - requested_s == pytest.approx(1.0, abs=2 * period_s)
+
+
+def _new_worker_pids(before: set[int]) -> list[int]:
+    """The pids of this process's multiprocessing children not in ``before`` (only pids are kept: a
+    Process object holds the pool's queues, whose semaphores must go with the pool)."""
+    import multiprocessing
+
+    return [p.pid for p in multiprocessing.active_children() if p.pid not in before]
+
+
+def _kill(pid: int) -> None:
+    import os
+    import signal
+
+    os.kill(pid, signal.SIGKILL)
+    _wait(lambda: pid not in _new_worker_pids(set()), f"worker {pid} reaped")
+
+
+def _wait(predicate, what: str, timeout_s: float = 180.0):
+    """Poll ``predicate`` until it returns something true (spawning a worker takes seconds on a busy machine)."""
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    while not (value := predicate()):
+        assert time.monotonic() < deadline, f"{what}: not within {timeout_s} s"
+        time.sleep(0.02)
+    return value
+
+
+def _correction_request(law):
+    """A measured pose 2 mm off the plan's start, as the task asks for its plan."""
+    from types import SimpleNamespace
+
+    from controller.core.rotations import so3_log
+
+    start = law.robot.start
+    request = (
+        *(float(x) for x in start.p_m + np.array([0.002, 0.0, 0.0])),
+        *(float(x) for x in so3_log(start.R)),
+    )
+    return request, SimpleNamespace(task_state=SimpleNamespace(request_id=1, request=request))
+
+
+def test_a_planning_worker_that_dies_is_replaced_and_its_request_planned(monkeypatch, caplog):
+    """SIGKILL to the worker process: a new one takes the request and its plan is marked ready;
+    past ``MAX_RESTARTS`` the request is left to the task's timeout (never ready, no new worker)."""
+    from controller.robots.nspu import plan_worker
+    from controller.robots.nspu.plan_worker import PlanWorker
+
+    cfg = load_config(NSPU_TOML, {"recording.enabled": False, "monitoring.enabled": False, **TRACKED})
+    law = build_law(cfg)
+    request, state = _correction_request(law)
+    before = set(_new_worker_pids(set()))
+    with PlanWorker(law.task.correction_planner) as worker:
+        (first,) = _new_worker_pids(before)
+        _kill(first)
+        worker.on_cycle(1, 0.0, None, state, None, (), None)
+        _wait(lambda: worker.ready() == 1, "the request planned by a new worker")
+        assert worker.restarts == 1
+        assert law.task.correction_planner._memo[request].streamed is not None
+    monkeypatch.setattr(plan_worker, "MAX_RESTARTS", 0)  # the bound, reached at the first death
+    law = build_law(cfg)
+    before = set(_new_worker_pids(set()))
+    with PlanWorker(law.task.correction_planner) as worker:
+        (first,) = _new_worker_pids(before)
+        _kill(first)
+        worker.on_cycle(1, 0.0, None, state, None, (), None)
+        _wait(lambda: "left to the task's timeout" in caplog.text, "the replacer giving up")
+        assert worker.restarts == 0 and not _new_worker_pids(before | {first})
+        assert worker.ready() == 0 and request not in law.task.correction_planner._memo
+
+
 def test_plans_off_the_loop_enter_as_inputs_and_replay_bit_for_bit():
     """The shell's PlanWorker (a process) computes the correcting plans; the step waits for
     plans_ready. Replaying the recorded inputs through a fresh law (no worker: the step plans

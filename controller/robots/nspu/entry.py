@@ -51,6 +51,8 @@ class NspuSection(Section, frozen=True):
     # no usable tracker sample this long while measuring (after settle_s): the task faults, naming it
     tracker_timeout_s: Annotated[float, rng(0.0, 600.0, lo_open=True)] = 5.0
     correction_planning: Literal["worker", "in_step"] = "worker"  # off the loop (a bus), or inside the step
+    # "worker": no plan this long after its request faults the task (a plan takes 0.5-1 s)
+    correction_plan_timeout_s: Annotated[float, rng(0.0, 3600.0, lo_open=True)] = 30.0
 
 
 def _check_nspu(n: NspuSection) -> None:

@@ -68,6 +68,7 @@ class CorrectionSettings:
     tracker_samples: int  # fresh tracker samples averaged into one measurement
     settle_s: float  # wait after a stream ends before measuring (the drives' lag)
     tracker_timeout_s: float  # no usable sample this long while measuring: the task faults, naming it
+    plan_timeout_s: float  # no plan from the off-loop worker this long after the request: the task faults
     in_step: bool  # plan inside the step (simulated time); else wait for the off-loop worker's plans_ready
 
 
@@ -298,6 +299,7 @@ class PlannedLegsTask:
         state = replace(
             state,
             phase=LegsPhase.PLANNING,
+            start_s=ctx.t_s,
             samples=0,
             sum_pose=(0.0,) * 6,
             request_id=state.request_id + 1,
@@ -337,7 +339,18 @@ class PlannedLegsTask:
         assert c is not None and planner is not None
         hold = self._hold(ctx, state.streamed or self.streamed)
         if not c.in_step and ctx.inputs.plans_ready < state.request_id:
-            return TaskStep(state, hold)  # the off-loop worker has not finished it yet
+            # the off-loop worker has not finished it yet; one that never does (died for good, its
+            # plan raised) is named here: planning inside the step instead stalled the loop 0.5 s
+            # and the drives' SYNC watchdog quick-stopped them (EMCY 0x8240), naming no worker
+            waited_s = ctx.t_s - state.start_s
+            if waited_s <= c.plan_timeout_s:
+                return TaskStep(state, hold)
+            why = (
+                f"correction {state.request_id}: no plan from the planning worker {waited_s:.2f} s after the "
+                f"request (robot.nspu.correction_plan_timeout_s = {c.plan_timeout_s:g}): the worker process "
+                "failed or is starved; the service's log says why"
+            )
+            return TaskStep(state, hold, fault=why)
         result = planner.plan(state.request)  # type: ignore[arg-type]  # memo hit, or computed here (replay)
         if result.streamed is None:
             return TaskStep(state, hold, fault=f"correction {state.request_id}: {result.failure}")
@@ -531,6 +544,7 @@ def build_planned_legs_task(
             section.tracker_samples,
             section.settle_s,
             section.tracker_timeout_s,
+            section.correction_plan_timeout_s,
             in_step=section.correction_planning == "in_step",
         )
         planner = CorrectionPlanner(
