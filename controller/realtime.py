@@ -240,6 +240,12 @@ def set_fifo_priority(priority: int) -> None:
         raise RealtimeError(f"--rt-priority {priority}: SCHED_FIFO refused by the kernel: {err}") from err
 
 
+def scheduling_policy(thread_id: int = 0) -> int:
+    """The scheduling policy of ``thread_id`` (0: the calling thread), without the
+    ``SCHED_RESET_ON_FORK`` flag that ``os.sched_getscheduler`` ORs into it where it is set."""
+    return int(os.sched_getscheduler(thread_id)) & ~getattr(os, "SCHED_RESET_ON_FORK", 0)
+
+
 def reset_scheduler() -> None:
     """Back to SCHED_OTHER for the calling thread (used after a permission probe)."""
     if hasattr(os, "sched_setscheduler"):
@@ -379,7 +385,7 @@ def granted_realtime() -> str:
     """What the calling thread runs with now, as ``describe`` words: the options as granted."""
     parts = []
     if hasattr(os, "sched_getscheduler"):
-        policy = os.sched_getscheduler(0)
+        policy = scheduling_policy()
         if policy == os.SCHED_FIFO:
             parts.append(f"SCHED_FIFO {os.sched_getparam(0).sched_priority}")
         elif policy == getattr(os, "SCHED_RR", -1):

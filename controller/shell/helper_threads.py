@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from controller.core.controller_state import ControllerState
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
 from controller.core.ports import CycleTiming
+from controller.realtime import scheduling_policy
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +48,7 @@ def loop_fifo_priority(thread_id: int | None = None) -> int | None:
     if not hasattr(os, "sched_getscheduler"):
         return None
     tid = 0 if thread_id is None else thread_id
-    if os.sched_getscheduler(tid) != os.SCHED_FIFO:
+    if scheduling_policy(tid) != os.SCHED_FIFO:
         return None
     return int(os.sched_getparam(tid).sched_priority)
 
@@ -66,7 +67,7 @@ def process_thread_ids() -> set[int]:
 
 def _needs_raising(tid: int, loop_priority: int) -> bool:
     """A thread under the normal scheduler, or real-time at the loop's priority or above it."""
-    policy = os.sched_getscheduler(tid)
+    policy = scheduling_policy(tid)  # a helper that set SCHED_RESET_ON_FORK (plan_worker.py) is one
     if policy not in (os.SCHED_FIFO, os.SCHED_RR):
         return True
     return int(os.sched_getparam(tid).sched_priority) >= loop_priority

@@ -35,7 +35,7 @@ from functools import partial
 from typing import TYPE_CHECKING, Self
 
 from controller.errors import DeviceError
-from controller.realtime import reset_scheduler
+from controller.realtime import reset_scheduler, scheduling_policy
 from controller.robots.nspu.plan_correction import (
     CorrectionPlan,
     CorrectionPlanner,
@@ -61,11 +61,12 @@ def _lower_priority() -> None:
 
 def _children_start_normal() -> None:
     """Processes this thread starts begin under the normal scheduler (SCHED_RESET_ON_FORK): the
-    loop's helper threads run at SCHED_FIFO (controller/shell/helper_threads.py), and a worker
-    spawned from one inherited it and imported its modules at real-time priority."""
+    loop's helper threads run at SCHED_FIFO (controller/shell/helper_threads.py, which leaves the
+    flag alone), and a worker spawned from one inherited it and imported its modules at
+    real-time priority."""
     if not hasattr(os, "SCHED_RESET_ON_FORK"):
         return
-    policy = os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK
+    policy = scheduling_policy()
     if policy in (os.SCHED_FIFO, os.SCHED_RR):
         os.sched_setscheduler(0, policy | os.SCHED_RESET_ON_FORK, os.sched_getparam(0))
 
