@@ -83,9 +83,7 @@ class LegsTaskState:
     moved: bool = False  # a plan has been streamed
     samples: int = 0  # tracker samples in the running sums
     last_sample_s: float = -math.inf  # task time of the last usable tracker sample
-    last_status: int = (
-        -1
-    )  # the status of the last fresh sample, usable or not (-1: none since measuring began)
+    last_status: int = 0  # the status of the last flagged sample since the last usable one (0: none)
     sum_pose: tuple[float, ...] = (0.0,) * 6  # P [m] and rotation vector [rad], summed
     request_id: int = 0  # the last correcting plan asked for (PlanWorker: CycleInputs.plans_ready)
     request: tuple[float, ...] = ()  # its start: the measured pose (P, rotation vector)
@@ -209,7 +207,7 @@ class PlannedLegsTask:
                     start_s=ctx.t_s,
                     samples=0,
                     sum_pose=(0.0,) * 6,
-                    last_status=-1,
+                    last_status=0,
                 )
                 return TaskStep(state, JointReference.at_rest(pos, plat))
         finished = state.phase == LegsPhase.FINISHED
@@ -321,7 +319,7 @@ class PlannedLegsTask:
         since_s = max(state.start_s + c.settle_s, state.last_sample_s)
         if ctx.t_s - since_s <= c.tracker_timeout_s:
             return TaskStep(state, hold)
-        if state.last_status < 0:
+        if state.last_status == 0:  # a tracker that fell silent, even after usable samples
             what = "no sample"
         else:
             saturated = " (a coordinate saturated)" if state.last_status & TRACKER_SATURATED else ""
