@@ -445,7 +445,15 @@ def test_plans_off_the_loop_enter_as_inputs_and_replay_bit_for_bit():
 
     cfg = load_config(
         NSPU_TOML,
-        {"recording.enabled": False, "monitoring.enabled": False, **MISMATCH, **TRACKED, **OFF_START},
+        {
+            "recording.enabled": False,
+            "monitoring.enabled": False,
+            **MISMATCH,
+            **TRACKED,
+            **OFF_START,
+            # simulated time outruns the worker's wall-clock planning: 30 s of it passed (-n 2)
+            "robot.nspu.correction_plan_timeout_s": 3600.0,
+        },
     )
     assert cfg.robot.model("nspu").correction_planning == "worker"
     law = build_law(cfg)
