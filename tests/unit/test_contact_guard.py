@@ -212,6 +212,33 @@ def test_the_cross_checks_windows_are_times_alike_at_every_loop_rate(rate_hz):
     assert "ms)" in w.suspect
 
 
+@pytest.mark.parametrize("rate_hz", [25.0, 40.0, 50.0, 400.0])
+def test_one_cycles_jolt_never_judges_alone_at_any_rate(rate_hz):
+    """Without a sensor, in free space, the witness judges past the contact limit. Below 42 Hz its
+    47.5-ms median was one sample: one late SYNC's jolt (121.4 N of effort, nothing touching)
+    stopped the 25-Hz path of the vcan test with kernel SYNC. One cycle of it now passes at every
+    rate, and a collision that lasts trips within the median's half (two cycles at 25 Hz)."""
+    dt = 1.0 / rate_hz
+    no_sensor = CycleInputs(_inputs((0.0, 0.0, 0.0)).drives, None)
+    quiet, jolt = Witness((1.0, 0.0, 0.0), 0.0), Witness((121.4, 0.0, 0.0), 0.0)
+    w = ContactWatch(expectation=ContactExpectation.NONE)
+    cycle = 0
+    for witness in [quiet] * 10 + [jolt] + [quiet] * 10:
+        w, cause = watch(CFG, w, no_sensor, False, witness, False, cycle, dt)
+        cycle += 1
+        assert not cause, (cycle, w.force_n)
+    tripped_after = None
+    for k in range(1, 200):  # a collision: the effort stays up
+        w, cause = watch(CFG, w, no_sensor, False, jolt, False, cycle, dt)
+        cycle += 1
+        if cause:
+            tripped_after = k
+            break
+    assert tripped_after == median_cycles(dt) // 2 + 1
+    assert "in free space" in cause and "drives' effort 121.4 N" in cause
+    assert median_cycles(dt) >= 3
+
+
 def test_the_back_off_moves_along_the_trusted_force_within_its_speed_and_acceleration_then_stops():
     w = ContactWatch(sensor_n=(0.0, 30.0, 0.0), witness=Witness((0.0, 29.0, 0.0), 0.0), force_n=30.0)
     b = begin_back_off(CFG, w, "test", (0.07, 0.0, 0.5))
