@@ -245,6 +245,8 @@ class SessionWriter:
         from mcap.writer import Writer
         from mcap_protobuf.schema import register_schema
 
+        from logs.mcap_append import MessageAppender
+
         m, pb = self.m, self.pb
         previous = self.files[-1] if self.files else ""
         self.stream: BinaryIO = open(path, "wb")  # noqa: SIM115  (open for the file's life, closed at rotation)
@@ -279,6 +281,7 @@ class SessionWriter:
             },
         )
         self.writer = w
+        self.append = MessageAppender(w).add  # w.add_message, one pack a message (logs/mcap_append.py)
         self.file_written = 0
         self.pending = 0  # the last file's open chunk was closed with it
         if keyframe is not None:
@@ -497,7 +500,7 @@ class SessionWriter:
         print(f"recording stopped: {message}", file=sys.stderr, flush=True)
 
     def _add(self, topic: str, data: bytes, unix_ns: int, sequence: int = 0) -> int:
-        self.writer.add_message(self.channels[topic], unix_ns, data, unix_ns, sequence)
+        self.append(self.channels[topic], unix_ns, data, unix_ns, sequence)
         self.written += 1
         self.file_written += 1
         return len(data) + 31  # record overhead in the chunk
