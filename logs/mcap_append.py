@@ -4,7 +4,8 @@ Why: mcap's ``Writer.add_message`` builds a ``Message`` dataclass and writes it 
 ``BytesIO.write`` calls, five ``struct.pack`` calls and a seek back for the record's length), about
 a fifth of the recorder's writer process at 2.2 messages a cycle (docs/measurements/speed.md, "The
 writer's reads"). ``MessageAppender.add`` appends the same bytes, the same message-index entry and
-the same statistics with one ``struct.pack`` and two writes.
+the same statistics with one ``struct.pack`` and two writes, and its chunk's message indexes are
+written with one pack each at the chunk's end (``PackedMessageIndex``).
 
 It reaches into the Writer's private state (mcap 1.x's name-mangled attributes, which the package
 has kept since 1.0): when that state is not what it expects (another mcap version, a writer without
@@ -16,6 +17,7 @@ byte, so a change in mcap's layout fails there, not in a recording.
 from __future__ import annotations
 
 import struct
+from itertools import chain
 from typing import Any
 
 from mcap.data_stream import RecordBuilder
@@ -26,6 +28,19 @@ from mcap.writer import Writer
 # opcode, record length, then the Message record's fields (MCAP spec, "Message (op=0x05)")
 _HEADER = struct.Struct("<BQHIQQ")
 _FIELDS_BYTES = 2 + 4 + 8 + 8  # channel id, sequence, log time, publish time
+_INDEX_HEAD = struct.Struct("<HI")  # a MessageIndex's channel id and its entries' byte length
+
+
+class PackedMessageIndex(MessageIndex):
+    """mcap's ``MessageIndex``, written with one ``struct.pack`` for all its entries where mcap writes
+    two a message (at every chunk's end, 2.2 messages a cycle in the recorder's writer)."""
+
+    def write(self, stream: RecordBuilder) -> None:
+        records = self.records
+        stream.start_record(Opcode.MESSAGE_INDEX)
+        stream.write(_INDEX_HEAD.pack(self.channel_id, len(records) * 16))
+        stream.write(struct.pack(f"<{2 * len(records)}Q", *chain.from_iterable(records)))
+        stream.finish_record()
 
 
 class MessageAppender:
@@ -68,7 +83,7 @@ class MessageAppender:
             b.message_end_time = log_time
         index = b.message_indices.get(channel_id)
         if index is None:
-            index = b.message_indices[channel_id] = MessageIndex(channel_id=channel_id, records=[])
+            index = b.message_indices[channel_id] = PackedMessageIndex(channel_id=channel_id, records=[])
         buf = b.record_writer._buffer  # replaced at every chunk's end: read it each time
         index.records.append((log_time, buf.tell()))
         b.num_messages += 1
