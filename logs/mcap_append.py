@@ -1,9 +1,9 @@
 """Messages into the open chunk of an ``mcap.writer.Writer``, each record packed in one call.
 
-Why: mcap's ``Writer.add_message`` builds a ``Message`` dataclass and writes it field by field (six
-``BytesIO.write`` calls, five ``struct.pack`` calls and a seek back for the record's length), about
-a fifth of the recorder's writer process at 2.2 messages a cycle (docs/measurements/speed.md, "The
-writer's reads"). ``MessageAppender.add`` appends the same bytes, the same message-index entry and
+Why: mcap's ``Writer.add_message`` builds a ``Message`` dataclass and writes it field by field (seven
+``BytesIO.write`` calls, six ``struct.pack`` calls and a seek back for the record's length), at 2.2
+messages a cycle a tenth of the recorder's writer process's instructions (docs/measurements/speed.md,
+"The writer's reads"). ``MessageAppender.add`` appends the same bytes, the same message-index entry and
 the same statistics with one ``struct.pack`` and two writes, and its chunk's message indexes are
 written with one pack each at the chunk's end (``PackedMessageIndex``).
 
@@ -28,6 +28,7 @@ from mcap.writer import Writer
 # opcode, record length, then the Message record's fields (MCAP spec, "Message (op=0x05)")
 _HEADER = struct.Struct("<BQHIQQ")
 _FIELDS_BYTES = 2 + 4 + 8 + 8  # channel id, sequence, log time, publish time
+_MESSAGE = int(Opcode.MESSAGE)  # read once, not an enum lookup a message
 _INDEX_HEAD = struct.Struct("<HI")  # a MessageIndex's channel id and its entries' byte length
 
 
@@ -65,10 +66,11 @@ class MessageAppender:
         self._chunk_size = chunk_size if isinstance(chunk_size, int) else 0
         self._maybe_finalize_chunk = finalize
 
-    def add(self, channel_id: int, log_time: int, data: bytes, publish_time: int, sequence: int = 0) -> None:
+    def add(self, channel_id: int, log_time: int, data: bytes, publish_time: int, sequence: int = 0) -> int:
+        """The message into the file; returns the bytes its record takes (data and header)."""
         if not self.fast:
             self.writer.add_message(channel_id, log_time, data, publish_time, sequence)
-            return
+            return _HEADER.size + len(data)
         st = self._stats  # as Writer.add_message
         if st.message_count == 0 or log_time < st.message_start_time:
             st.message_start_time = log_time
@@ -88,9 +90,10 @@ class MessageAppender:
         index.records.append((log_time, buf.tell()))
         b.num_messages += 1
         header = _HEADER.pack(
-            Opcode.MESSAGE, _FIELDS_BYTES + len(data), channel_id, sequence, log_time, publish_time
+            _MESSAGE, _FIELDS_BYTES + len(data), channel_id, sequence, log_time, publish_time
         )
         buf.write(header)
         buf.write(data)
         if buf.tell() > self._chunk_size:
             self._maybe_finalize_chunk()
+        return len(header) + len(data)

@@ -500,10 +500,10 @@ class SessionWriter:
         print(f"recording stopped: {message}", file=sys.stderr, flush=True)
 
     def _add(self, topic: str, data: bytes, unix_ns: int, sequence: int = 0) -> int:
-        self.append(self.channels[topic], unix_ns, data, unix_ns, sequence)
+        added = self.append(self.channels[topic], unix_ns, data, unix_ns, sequence)
         self.written += 1
         self.file_written += 1
-        return len(data) + 31  # record overhead in the chunk
+        return added
 
     def _frames(self, frames: list[FrameRecord]) -> int:
         """The frames as one ``CanFrames`` (one MCAP message, one index entry, for all of them)."""

@@ -35,7 +35,10 @@ def _written(batch: list[Message], fast: bool, chunk_size: int, flush_every: int
     appender = MessageAppender(w)
     for i, (c, log_ns, data, pub_ns, seq) in enumerate(batch):
         if fast:
-            appender.add(channels[c], log_ns, data, pub_ns, seq)
+            before = w._Writer__chunk_builder.count if chunk_size > 1 << 20 else None  # type: ignore[attr-defined]
+            added = appender.add(channels[c], log_ns, data, pub_ns, seq)
+            if before is not None:  # no chunk closed in between: the record's bytes, as returned
+                assert w._Writer__chunk_builder.count - before == added  # type: ignore[attr-defined]
         else:
             w.add_message(channels[c], log_ns, data, pub_ns, seq)
         if flush_every and i % flush_every == flush_every - 1:
@@ -64,13 +67,13 @@ def test_the_appender_is_fast_on_this_mcap_and_falls_back_where_the_writer_has_n
     """Its private reads hold on the installed mcap (else the recorder would silently lose the
     speed); a writer without chunks, whose state it does not know, gets mcap's own path."""
     assert MessageAppender(Writer(io.BytesIO())).fast
-    unchunked = Writer(io.BytesIO(), use_chunking=False)
-    assert not MessageAppender(unchunked).fast
     out = io.BytesIO()
     w = Writer(out, use_chunking=False)
+    appender = MessageAppender(w)
+    assert not appender.fast
     w.start()
     ch = w.register_channel("/t", "json", w.register_schema("s", "jsonschema", b"{}"))
-    MessageAppender(w).add(ch, 5, b"{}", 5, 1)
+    assert appender.add(ch, 5, b"{}", 5, 1) == 31 + 2  # header and data, as on the fast path
     w.finish()
     [(_, _, m)] = list(make_reader(io.BytesIO(out.getvalue())).iter_messages())
     assert (m.log_time, m.data, m.sequence) == (5, b"{}", 1)
