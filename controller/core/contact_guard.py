@@ -136,6 +136,10 @@ class ContactWatch:
     suspect: str = ""  # why the sensor is suspect ("" : it is not)
     suspect_cycle: int = 0  # since when
     reference_m: Vector3 | None = None  # the task's last reference TCP (its speed, a back-off's origin)
+    # The direction (unit) of the last contact force sensor and witness agreed on while pressing: where
+    # the part is. A back-off's direction when the sensor turns against it and the witness cannot
+    # tell (back_off_direction); forgotten in free space.
+    contact_normal: Vector3 | None = None
 
 
 @record
@@ -277,7 +281,9 @@ def watch(
         # (a task re-tares it here too). Below the witness's tolerance a real touch and an offset look
         # alike to the guard; above it the witness says contact, and the baseline stays.
         baseline, sensor = raw, ZERO3
-    sensor_window = w.sensor_window
+    sensor_window, normal = w.sensor_window, w.contact_normal
+    if w.expectation == ContactExpectation.NONE:
+        normal = None
     if witness is None:
         witness = w.witness
         check = (w.disagreeing, w.agreeing, w.suspect, w.suspect_cycle)
@@ -288,6 +294,13 @@ def watch(
         # contact's first spike: 0 to 13 N in 30 ms on the kidney shape) is seen by both alike
         sensor_window, sensor_median = _median_of(sensor_window, sensor, n_median)
         check = _cross_check(cfg, w, sensor_median, witness, dynamic, cycle, period_s)
+        size = norm3(sensor_median)
+        if (
+            w.expectation == ContactExpectation.PRESSING
+            and check[0] == 0
+            and size >= cfg.back_off_min_force_n
+        ):
+            normal = (sensor_median[0] / size, sensor_median[1] / size, sensor_median[2] / size)
     # trusted: this cycle's sample, or a recent one where the frame only went missing (SENSOR_GAP_S)
     trusted = not check[2] and (
         raw is not None or (not stale and sensor is not None and missing_cycles * period_s <= SENSOR_GAP_S)
@@ -308,6 +321,7 @@ def watch(
         suspect_cycle=check[3],
         force_n=force,
         accelerations=w.accelerations if accelerations is None else accelerations,
+        contact_normal=normal,
     )
     limit = limit_n(cfg, w.expectation)
     if force > limit:
@@ -373,30 +387,35 @@ def back_off_direction(
 ) -> tuple[Vector3 | None, float]:
     """The force to move away from (unit) and its size: the sensor's when it is trusted, else the witness's.
 
-    Where contact is expected (pressing, a guarded move) a witness beyond its own error also
-    overrules a sensor whose force points against its own: a spike or an offset step along the
+    Only a witness beyond its own error (``_felt``) gives a direction: below it, its direction is
+    cogging and the robot's own ringing (3.4 N pointing up and sideways backed a tool 1.7 mm into
+    the part: 118 N true, 44dbcbc). Where contact is expected (pressing, a guarded move) that witness
+    also overrules a sensor whose force points against its own: a spike or an offset step along the
     contact normal reads as a force out of the part, and backing off along it pushed the tool in
     (-75 N for 0.5 s in lap 1: tripped at 64.8 N, 177 N true, 7dcefb5); and it gives the direction
-    when it judged the force (a stuck sensor). In free space the robot's fast motion is the
-    witness's error, and the sensor's direction stands."""
-    f: Vector3 | None = w.sensor_n if sensor_trusted and not w.suspect else None
-    witness = w.witness
-    if f is None or norm3(f) < cfg.back_off_min_force_n:  # the witness where the sensor tells nothing
-        f = witness.force_n if witness is not None else f
-    elif (
-        witness is not None
-        and w.expectation != ContactExpectation.NONE
-        and _felt(cfg, witness, w.dynamic_n)
+    when it judged the force (a stuck sensor). Where the witness cannot tell (the robot just braked,
+    and its ringing is its error), a sensor that turned against the force both agreed on while
+    pressing (``ContactWatch.contact_normal``) is not followed either: the part is where that force
+    said (a +60 N step of the sensor's offset, backed off along, met 156 N true, 44dbcbc). In free
+    space the robot's fast motion is the witness's error, and the sensor's direction stands."""
+    sensor = w.sensor_n if sensor_trusted and not w.suspect else None
+    if sensor is not None and norm3(sensor) < cfg.back_off_min_force_n:
+        sensor = None  # the witness where the sensor tells nothing
+    witness = w.witness.force_n if w.witness is not None and _felt(cfg, w.witness, w.dynamic_n) else None
+    f = sensor
+    if w.expectation == ContactExpectation.NONE:
+        f = sensor if sensor is not None else witness
+    elif witness is not None and (
         # more than 90 degrees against the sensor, or the one that judged this force (a sensor
         # stuck at a plausible reading may point anywhere within 90 degrees of the truth)
-        and (dot3(f, witness.force_n) < 0.0 or w.force_n > norm3(f))
+        sensor is None or dot3(sensor, witness) < 0.0 or w.force_n > norm3(sensor)
     ):
-        f = witness.force_n
+        f = witness
+    elif w.contact_normal is not None and (sensor is None or dot3(sensor, w.contact_normal) < 0.0):
+        return w.contact_normal, max(w.force_n, norm3(sensor) if sensor is not None else 0.0)
     if f is None:
         return None, 0.0
     size = norm3(f)
-    if size < cfg.back_off_min_force_n:
-        return None, size
     return (f[0] / size, f[1] / size, f[2] / size), size
 
 

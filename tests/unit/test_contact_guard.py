@@ -117,6 +117,67 @@ def test_a_back_off_never_follows_a_sensor_force_the_drives_feel_reversed_where_
     assert begin_back_off(CFG, agree, "test", (0.0, 0.0, 0.5)).direction == pytest.approx((1.0, 0.0, 0.0))
 
 
+def test_a_sensor_turned_against_the_force_both_agreed_on_is_not_backed_off_along_while_the_witness_cannot_tell():
+    """An outside tester's +60 N step of the sensor's offset in lap 2 (44dbcbc): the task braked on
+    the implausible step, the robot's ringing (27.8 N of |M a|) hid the drives' 14.8 N of contact in
+    their own error, and the back-off followed the sensor into the part: 156 N true. The direction
+    both witnesses agreed on while pressing says where the part is."""
+    w = ContactWatch(expectation=ContactExpectation.PRESSING, baseline_set=True)
+    truth = (-9.5, 4.0, 0.0)  # the part pushes the tool towards -x
+    for cycle in range(MEDIAN + NEEDED):
+        w, _ = watch(CFG, w, _inputs(truth), False, Witness((-12.9, 6.5, 1.0), 0.0), False, cycle, DT)
+    assert w.contact_normal is not None and w.contact_normal[0] < -0.9
+    ringing = Witness((-12.9, 7.2, 0.2), 27.8)  # within its own error (6 + 0.25 x 14.8 + 27.8 N)
+    stepped = _inputs((60.1, 0.2, -0.1))
+    cause = ""
+    for cycle in range(100, 100 + MEDIAN):
+        w, cause = watch(CFG, w, stepped, False, ringing, False, cycle, DT)
+        if cause:
+            break
+    assert "above 60 N" in cause
+    d = begin_back_off(CFG, w, cause, (0.0, 0.0, 0.5)).direction
+    assert d is not None and d[0] < -0.9  # away from the part, not along the sensor's +x
+    # the same step with no agreed contact yet (a collision the sensor reads before the witness's
+    # median moves): the sensor's direction, as before
+    fresh = replace(w, contact_normal=None)
+    assert begin_back_off(CFG, fresh, cause, (0.0, 0.0, 0.5)).direction == pytest.approx(
+        (1.0, 0.0, 0.0), abs=0.01
+    )
+    # free space forgets the contact
+    w, _ = watch(
+        CFG,
+        replace(w, expectation=ContactExpectation.NONE),
+        _inputs((0.0, 0.0, 0.0)),
+        False,
+        ringing,
+        False,
+        200,
+        DT,
+    )
+    assert w.contact_normal is None
+
+
+def test_a_witness_within_its_own_error_gives_no_direction_to_back_off_along():
+    """The sensor untrusted (an implausible step) and the witness at 3.4 N, pointing up and sideways
+    (cogging, ringing): a back-off along it went 1.7 mm into the part, 118 N true (44dbcbc). Without
+    a contact both agreed on, the tool brakes in place; with one, it backs off along that."""
+    noise = Witness((-0.8, 2.9, 1.5), 20.3)
+    w = ContactWatch(
+        expectation=ContactExpectation.PRESSING, sensor_n=(-60.0, 0.1, -0.1), witness=noise, force_n=60.0
+    )
+    assert begin_back_off(CFG, w, "test", (0.0, 0.0, 0.5), sensor_trusted=False).direction is None
+    known = replace(w, contact_normal=(0.94, -0.34, 0.0))
+    assert begin_back_off(CFG, known, "test", (0.0, 0.0, 0.5), sensor_trusted=False).direction == (
+        0.94,
+        -0.34,
+        0.0,
+    )
+    # trusted, the sensor's -x against the agreed +x: the agreed direction too
+    assert begin_back_off(CFG, known, "test", (0.0, 0.0, 0.5)).direction == (0.94, -0.34, 0.0)
+    free = replace(w, expectation=ContactExpectation.NONE)
+    assert begin_back_off(CFG, free, "test", (0.0, 0.0, 0.5), sensor_trusted=False).direction is None
+
+
 def test_a_force_where_no_contact_is_expected_trips_the_guard_and_names_both_witnesses():
     w = ContactWatch(expectation=ContactExpectation.NONE)
     w, cause = watch(CFG, w, _inputs((0.1, 0.0, 0.0)), False, Witness((0.0, 0.0, 0.0), 0.0), False, 1, DT)

@@ -183,3 +183,17 @@ def test_a_spike_into_the_part_is_not_backed_off_along():
     row = _run(ContourScenario("spike", ("force=-75@4.0+0.5",)))
     assert row["outcome"] in NAMED and "protective stop" in row["cause"], row["cause"]
     assert row["max_true_contact_force_n"] < 0.5 * LIMIT_N
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fault", ["force=60@40", "force=-60@43.7"])
+def test_a_60_n_step_of_the_sensor_in_lap_2_is_backed_off_from_away_from_the_part(fault):
+    """An outside tester's steps along x at the limit, where the contact normal is -x (40 s) or +x
+    (43.7 s): the task brakes on the implausible step, the robot's ringing hides the drives' effort
+    in its own error, and the back-off followed the sensor (or the witness's 3.4 N of noise) into the
+    part: 156 N and 118 N true, left pressed at 147 N (44dbcbc). Now along the force both witnesses
+    last agreed on."""
+    row = _run(ContourScenario("step at the limit", (fault,)))
+    assert row["outcome"] in NAMED and "protective stop" in row["cause"], row["cause"]
+    assert "backed off 5.0 mm" in row["cause"] and "quick stop" not in row["cause"]
+    assert row["max_true_contact_force_n"] < 0.5 * LIMIT_N
