@@ -89,7 +89,7 @@ def targets_sync_gap_s(period_s: float, drive_extrapolation_periods: int) -> flo
     _EMCY,
     _HEARTBEAT,
     _OWN,
-    _IGNORED,
+    _SDO_ANSWER,
     _TRACKER_P,
     _TRACKER_R,
     _KERNEL_SYNC,
@@ -241,8 +241,8 @@ class CyclicExchange:
             *(() if tracker_id is None else (tracker_id,)),
         )
         self._configured_nodes = frozenset(configured)
-        for node in configured:  # SDO answers of the set-up that come late; not cyclic traffic
-            self._dispatch[cob_ids.sdo_response(node)] = (_IGNORED, node)
+        for node in configured:  # answers to the controller's SDO requests (_on_sdo_answer)
+            self._dispatch[cob_ids.sdo_response(node)] = (_SDO_ANSWER, node)
         # COB-IDs only the controller sends: whatever arrives there is someone else's.
         for cob in (
             cob_ids.SYNC,
@@ -334,6 +334,7 @@ class CyclicExchange:
         self.sensor_id = sensor_id
         self.tracker_id = tracker_id
         self._sdo = can.Message(arbitration_id=0, data=bytearray(8), is_extended_id=False)
+        self._sdo_owed: dict[int, int] = {}  # node -> answers owed to the controller's SDO requests
         self.heartbeat_timeout_s = heartbeat_timeout_s
         # Node guarding (CiA 301) instead of heartbeat for these nodes: node -> (guard time [s], life
         # time factor). A remote frame on 0x700 + node every guard time; the answer (its NMT state
@@ -468,9 +469,10 @@ class CyclicExchange:
         """An expedited SDO download of 0x6040 to one drive, not waiting for the answer.
 
         For a drive that does not process RPDOs (PRE-OPERATIONAL, or not heard): SDO works in
-        PRE-OPERATIONAL too (CiA 301). Its answer on 0x580 + node is ignored like set-up's late ones.
+        PRE-OPERATIONAL too (CiA 301). Its answer on 0x580 + node is owed (``_on_sdo_answer``).
         """
         node = self.drive_ids[drive_index]
+        self._sdo_owed[node] = self._sdo_owed.get(node, 0) + 1
         msg = self._sdo
         msg.arbitration_id = cob_ids.sdo_request(node)
         msg.data[:] = bytes(
@@ -707,6 +709,8 @@ class CyclicExchange:
                 self._on_own_cob_id(msg)
             elif kind == _KERNEL_SYNC:
                 self._on_kernel_sync(msg)
+            elif kind == _SDO_ANSWER:
+                self._on_sdo_answer(index, msg)
         except FrameError:
             self._reject(msg.arbitration_id, self._node_of(kind, index, msg.arbitration_id))
 
@@ -911,6 +915,18 @@ class CyclicExchange:
         if self._window_open:  # a whole period missed: the window before was never collected
             self._abandon_window()
         self._open_window(slot)
+
+    def _on_sdo_answer(self, node: int, msg: can.Message) -> None:
+        """A configured node's SDO answer: to the controller's own request, or evidence of another
+        SDO client talking to it. On the UDP bus a request from another process is named where it
+        is sent (``_on_own_cob_id``); the answer is what a second client cannot hide (an outside
+        tester wrote 0x6007, 0x1016:1 and 0x6065 of a running drive by SDO, and the run ended DONE
+        with no foreign frame counted, 44dbcbc)."""
+        owed = self._sdo_owed.get(node, 0)
+        if owed > 0:
+            self._sdo_owed[node] = owed - 1
+        else:
+            self._report(Anomaly.FOREIGN_SDO, msg.arbitration_id, node)
 
     def _on_own_cob_id(self, msg: can.Message) -> None:
         """A frame on a COB-ID only the controller sends, from someone else (the bus drops our echoes)."""

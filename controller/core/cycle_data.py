@@ -70,6 +70,7 @@ class Anomaly(StrEnum):
     FOREIGN_SYNC = "foreign_sync"  # a SYNC the controller did not send: a second SYNC producer
     FOREIGN_NMT = "foreign_nmt"  # an NMT command the controller did not send, to all or to a configured node
     FOREIGN_COMMAND = "foreign_command"  # a frame on a COB-ID only the controller sends (RPDO, its heartbeat)
+    FOREIGN_SDO = "foreign_sdo"  # a configured node's SDO answer to a request the controller did not send
     DUPLICATE_FRAME = "duplicate_frame"  # a node's TPDO twice in one cycle: its sample is unusable this cycle
     REJECTED_FRAME = "rejected_frame"  # a configured node's frame that does not decode (wrong length)
     IMPLAUSIBLE_FRAME = "implausible_frame"  # a candidate beyond the device's physics or counter

@@ -52,6 +52,7 @@ class SafetyConfig:
             Anomaly.FOREIGN_SYNC: self.on_foreign_sync,
             Anomaly.FOREIGN_NMT: self.on_foreign_nmt,
             Anomaly.FOREIGN_COMMAND: self.on_foreign_command,
+            Anomaly.FOREIGN_SDO: self.on_foreign_command,
             Anomaly.DUPLICATE_FRAME: self.on_duplicate_frames,
             Anomaly.FRAME_FLOOD: self.on_frame_flood,
         }[anomaly]

@@ -42,6 +42,7 @@ ANOMALY_TEXT = {
     Anomaly.FOREIGN_SYNC: "SYNC the controller did not send (a second SYNC producer)",
     Anomaly.FOREIGN_NMT: "NMT command the controller did not send",
     Anomaly.FOREIGN_COMMAND: "frame on a COB-ID only the controller sends (a second master)",
+    Anomaly.FOREIGN_SDO: "SDO answer to a request the controller did not send (a second SDO client)",
     Anomaly.DUPLICATE_FRAME: "TPDO(s) twice in one cycle (a second sender; neither is used)",
     Anomaly.REJECTED_FRAME: "frame(s) of the wrong length (rejected)",
     Anomaly.IMPLAUSIBLE_FRAME: "TPDO(s) the device cannot have sent (a position step or counter beyond it; not used)",

@@ -648,6 +648,22 @@ def test_frames_on_cob_ids_only_the_controller_sends_are_foreign(bus, clock):
     }
 
 
+def test_an_sdo_answer_the_controller_did_not_ask_for_is_a_second_sdo_client(bus, clock):
+    """An answer owed to the controller's own SDO request (a quick stop by SDO) is none of that; one
+    more, or one nobody asked for, tells of another client talking to the drive (44dbcbc)."""
+    ex = make_exchange(bus, clock)
+    bus.answers[0] = all_answers(0)
+    assert one_cycle(ex, clock, None).anomalies == ()
+    ex.send_controlword_by_sdo(1, 0x0002)  # drive 2
+    answer = frame(0x582, bytes((0x60, 0x40, 0x60, 0, 0, 0, 0, 0)))
+    bus.answers[1] = [answer, *all_answers(1)]
+    assert one_cycle(ex, clock, None).anomalies == ()
+    bus.answers[2] = [answer, *all_answers(2)]
+    fb = one_cycle(ex, clock, None)
+    assert anomalies(fb) == {(Anomaly.FOREIGN_SDO, 0x582): 1}
+    assert [a.node_id for a in fb.anomalies] == [2]
+
+
 def test_unknown_nodes_are_reported_by_what_they_send(bus, clock):
     ex = make_exchange(bus, clock)
     bus.answers[0] = [
