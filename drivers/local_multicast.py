@@ -18,17 +18,24 @@ node 2 from the network faulted a running robot). Here the one socket
   behind the binding; the set is read again, at most once a second, when an unknown source
   appears, so a newly configured address does not silence the bus);
 - never hands back its own datagrams, as SocketCAN does not (``CAN_RAW_RECV_OWN_MSGS`` off):
-  it sends from a second socket with a port of its own, and a socket filter (classic BPF,
+  it sends from a second socket with a source of its own, and a socket filter (classic BPF,
   ``SO_ATTACH_FILTER``) on the receiving socket drops, in the kernel, every datagram from that
-  port. IP multicast loopback delivers a datagram to every member socket of the host, the
-  sender's own included, and every bus binds the group's one port: without the second socket
-  the sender could not tell its datagrams from another process's. Each echo cost the process
+  source, address and port. IP multicast loopback delivers a datagram to every member socket of
+  the host, the sender's own included, and every bus binds the group's one port: without the
+  second socket the sender could not tell its datagrams from another process's. The sending
+  socket is bound to the address its datagrams leave from (the one the kernel picks for the
+  group on the interface), without ``SO_REUSEADDR``: no other socket can bind that address and
+  port, so no other process can send what the filter drops. Bound to the group instead, with
+  the filter on the port alone, it left the port to anyone: a process bound to another address
+  of the host with the controller's port sent SDO writes to a running drive that the drive
+  obeyed and the controller never saw (an outside tester, 44dbcbc). A process with
+  ``CAP_NET_RAW`` forges any source; that is beyond what a bus of this host can keep out.
+  Each echo cost the process
   a wake-up, a ``select``, a ``recvmsg``, a msgpack unpack and a ``Message`` (python-can's
   ``recv`` p50 21 us on the development VM, ``cheope bench``'s per-frame line;
   ``drivers/frame_tap.py`` then dropped it), four a cycle in the controller
   (SYNC and three RPDOs), each on the cycle's critical path before the drives' answers. The
-  sending socket is bound to the group with a port of its own and joins nothing, and its own
-  filter drops everything: nothing reaches it.
+  sending socket joins nothing, and its own filter drops everything: nothing reaches it.
 
 A receiver may name frames that need no wake-up (``LocalGroupSocket.defer_wakeups``): the
 simulated drives' RPDOs, which act only at the SYNC that follows them. Those frames still reach
@@ -83,8 +90,11 @@ _IF_INET6 = Path("/proc/net/if_inet6")
 _REREAD_ADDRESSES_S = 1.0  # an unknown source reads this host's addresses again at most this often
 SO_ATTACH_FILTER = 26  # asm-generic/socket.h
 # classic BPF (linux/filter.h): (code, jt, jf, k). On a UDP socket the filter runs on the datagram
-# from its UDP header on: the halfword at offset 0 is the source port.
-_BPF_LDH_ABS, _BPF_LDB_ABS, _BPF_LD_LEN, _BPF_RET_K = 0x28, 0x30, 0x80, 0x06
+# from its UDP header on: the halfword at offset 0 is the source port; the IPv6 header is reached
+# at SKF_NET_OFF, its source address 8 bytes in (RFC 8200).
+_BPF_LDW_ABS, _BPF_LDH_ABS, _BPF_LDB_ABS, _BPF_LD_LEN, _BPF_RET_K = 0x20, 0x28, 0x30, 0x80, 0x06
+_SKF_NET_OFF = -0x100000
+_IPV6_SOURCE_OFFSET = 8
 _BPF_JEQ_K, _BPF_JGE_K, _BPF_JGT_K = 0x15, 0x35, 0x25
 _BPF_KEEP = 0x40000  # bytes of the datagram kept: all of it
 _DROP_ALL = ((_BPF_RET_K, 0, 0, 0),)
@@ -151,18 +161,36 @@ def attach_socket_filter(sock: socket.socket, program: tuple[tuple[int, int, int
     )
 
 
-def drop_from_port(port: int) -> tuple[tuple[int, int, int, int], ...]:
-    """A socket filter that drops every UDP datagram whose source port is ``port`` and keeps the rest."""
-    return (
-        (_BPF_LDH_ABS, 0, 0, 0),
-        (_BPF_JEQ_K, 0, 1, port),
-        (_BPF_RET_K, 0, 0, 0),
-        (_BPF_RET_K, 0, 0, _BPF_KEEP),
-    )
+Source = tuple[str, int]  # a datagram's source: IPv6 address (no scope) and UDP port
 
 
-def doorbell_filter(own_port: int, quiet_ids: range) -> tuple[tuple[int, int, int, int], ...]:
-    """A socket filter that keeps every datagram but those from ``own_port`` and the packed frames
+def _own_source(own: Source, drop: int, keep: int, at: int) -> list[tuple[int, int, int, int]]:
+    """Filter instructions from index ``at`` that jump to ``drop`` when a datagram's source is
+    ``own`` (address and port), else to ``keep`` (absolute indexes; BPF's jumps count from the
+    instruction after the jump)."""
+    address, port = own
+    words = struct.unpack(">4I", socket.inet_pton(socket.AF_INET6, address.partition("%")[0]))
+    program: list[tuple[int, int, int, int]] = []
+
+    def to(target: int) -> int:
+        return target - (at + len(program)) - 1
+
+    program.append((_BPF_LDH_ABS, 0, 0, 0))
+    program.append((_BPF_JEQ_K, 0, to(keep), port))
+    for i, word in enumerate(words):
+        program.append((_BPF_LDW_ABS, 0, 0, (_SKF_NET_OFF + _IPV6_SOURCE_OFFSET + 4 * i) & 0xFFFFFFFF))
+        program.append((_BPF_JEQ_K, to(drop) if i == 3 else 0, to(keep), word))
+    return program
+
+
+def drop_from(own: Source) -> tuple[tuple[int, int, int, int], ...]:
+    """A socket filter that drops every UDP datagram whose source is ``own`` and keeps the rest."""
+    program = _own_source(own, 10, 11, 0)
+    return (*program, (_BPF_RET_K, 0, 0, 0), (_BPF_RET_K, 0, 0, _BPF_KEEP))
+
+
+def doorbell_filter(own: Source, quiet_ids: range) -> tuple[tuple[int, int, int, int], ...]:
+    """A socket filter that keeps every datagram but those from ``own`` and the packed frames
     whose identifier is in ``quiet_ids`` (from 256 on). A datagram not laid out as python-can packs
     a frame is kept: a frame the filter cannot read wakes the receiver, as without it."""
     if quiet_ids.step != 1 or not 256 <= quiet_ids.start < quiet_ids.stop <= 65536:
@@ -170,14 +198,13 @@ def doorbell_filter(own_port: int, quiet_ids: range) -> tuple[tuple[int, int, in
     checks = [(_UDP_HEADER + offset, value) for offset, value in _PACKED_LAYOUT]
     program: list[tuple[int, int, int, int]] = []
     # jump offsets count instructions from the one after the jump; DROP and KEEP are the last two
-    n = 4 + 2 * len(checks) + 3
+    n = 10 + 2 + 2 * len(checks) + 3
     drop, keep = n, n + 1
 
     def to(target: int) -> int:
         return target - len(program) - 1
 
-    program.append((_BPF_LDH_ABS, 0, 0, 0))  # the source port
-    program.append((_BPF_JEQ_K, to(drop), 0, own_port))
+    program.extend(_own_source(own, drop, 10, 0))  # not ours: on to the length at 10
     # shorter than a packed frame's identifier: kept (a load past the end would drop it)
     program.append((_BPF_LD_LEN, 0, 0, 0))
     program.append((_BPF_JGE_K, 0, to(keep), _UDP_HEADER + _PACKED_ID_OFFSET + 2))
@@ -208,8 +235,9 @@ class LocalGroupSocket(GeneralPurposeUdpMulticastBus):
         self._send_destination = (group, port, 0, self.interface_index)  # type: ignore[assignment]
         try:
             self._send_socket = self._create_send_socket()
-            self.send_port: int = self._send_socket.getsockname()[1]
-            attach_socket_filter(self._socket, drop_from_port(self.send_port))
+            address, self.send_port = self._send_socket.getsockname()[:2]
+            self.send_source: Source = (address, self.send_port)
+            attach_socket_filter(self._socket, drop_from(self.send_source))
         except BaseException:
             self.shutdown()
             raise
@@ -240,7 +268,8 @@ class LocalGroupSocket(GeneralPurposeUdpMulticastBus):
         return sock
 
     def _create_send_socket(self) -> socket.socket:
-        """The socket this bus sends from: bound to the group, a port of its own, receiving nothing."""
+        """The socket this bus sends from: bound, exclusively, to the address its datagrams leave
+        from and a port of its own (module text); receiving nothing."""
         sock = socket.socket(socket.AF_INET6, socket.SOCK_DGRAM)
         try:
             ipv6 = socket.IPPROTO_IPV6
@@ -249,13 +278,24 @@ class LocalGroupSocket(GeneralPurposeUdpMulticastBus):
             sock.setsockopt(ipv6, socket.IPV6_MULTICAST_LOOP, 1)
             sock.setsockopt(ipv6, socket.IPV6_MULTICAST_IF, self.interface_index)
             attach_socket_filter(sock, _DROP_ALL)
-            sock.bind((self.group, 0, 0, self.interface_index))
+            source, scope = self._route_source()
+            sock.bind((source, 0, 0, scope))
         except OSError as err:
             sock.close()
             raise can.CanInitializationError(
                 f"cannot open the sending socket of {self.group} on {self.interface_name}: {err.strerror or err}"
             ) from err
         return sock
+
+    def _route_source(self) -> tuple[str, int]:
+        """The address (and its scope) the kernel's route to the group on the interface leaves from:
+        a connected probe socket's own (connecting a UDP socket sends nothing)."""
+        with socket.socket(socket.AF_INET6, socket.SOCK_DGRAM) as probe:
+            probe.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+            probe.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_IF, self.interface_index)
+            probe.connect((self.group, self.port, 0, self.interface_index))
+            address, _, _, scope = probe.getsockname()
+        return address, scope
 
     def send(self, data: bytes, timeout: float | None = None) -> None:
         """python-can's ``send``, from the sending socket."""
@@ -283,7 +323,7 @@ class LocalGroupSocket(GeneralPurposeUdpMulticastBus):
         timeout ends (module text)."""
         bell = self._create_socket(socket.AF_INET6)
         try:
-            attach_socket_filter(bell, doorbell_filter(self.send_port, quiet_ids))
+            attach_socket_filter(bell, doorbell_filter(self.send_source, quiet_ids))
         except BaseException:
             bell.close()
             raise

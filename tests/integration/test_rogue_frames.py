@@ -8,21 +8,27 @@ udp_multicast with a separate rogue sender is at the end.
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import itertools
 import json
 import math
+import os
 import random
 import signal
+import socket
 import struct
 import subprocess
 import sys
 import threading
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import can
 import canopen
 import pytest
 from busy_machine import TOLERANT
+from can.interfaces.udp_multicast.utils import pack_message
 from controller_on_the_bus import (
     controller_beside_simulator,
     drives_over_sdo,
@@ -40,7 +46,8 @@ from controller.core.periods import cycles_in
 from controller.core.ports import CycleTiming
 from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.tasks.contour_tracking import ContourPhase
-from drivers.bus import open_bus, parse_bus_spec
+from drivers.bus import LOCAL_MULTICAST_GROUP, open_bus, parse_bus_spec
+from drivers.local_multicast import host_addresses, multicast_interface
 from sim_backend.drive import ABORT_NO_ACTION
 from sim_backend.loopback import LoopbackExchange
 
@@ -421,6 +428,67 @@ def test_another_master_s_nmt_pre_operational_leaves_no_drive_enabled_over_udp_m
         summary = json.loads(out)
         assert summary["final_mode"] == "FAULT", err[-2000:]
         assert summary["fault_reason"] == "NMT enter PRE-OPERATIONAL to node 2 from another master"
+
+
+def _sending_sources(pid: int) -> list[tuple[str, int]]:
+    """The (address, port) of every IPv6 UDP socket of process ``pid`` not bound to a multicast group:
+    its buses' sending sockets (/proc/net/udp6 writes an address as four host-order words)."""
+    inodes = set()
+    for fd in (Path(f"/proc/{pid}/fd")).iterdir():
+        with contextlib.suppress(OSError):
+            target = os.readlink(fd)
+            if target.startswith("socket:["):
+                inodes.add(target[8:-1])
+    out = []
+    for line in Path(f"/proc/{pid}/net/udp6").read_text().splitlines()[1:]:
+        fields = line.split()
+        address_hex, port_hex = fields[1].split(":")
+        packed = b"".join(bytes.fromhex(address_hex[i : i + 8])[::-1] for i in range(0, 32, 8))
+        if fields[9] in inodes and packed[0] != 0xFF:
+            out.append((socket.inet_ntop(socket.AF_INET6, packed), int(port_hex, 16)))
+    return out
+
+
+@pytest.mark.integration
+def test_a_second_sdo_client_sending_from_the_controllers_own_port_is_seen_and_faults_the_run(tmp_path):
+    """An outside tester bound another address of this host to the controller's sending port: the
+    bus dropped its frames as the controller's own echoes, and its SDO writes to a running drive were
+    obeyed and never seen (44dbcbc). The controller's source (address and port) is its alone; from
+    any other, the request and the drive's answer are someone else's, and the run faults naming them."""
+    with controller_beside_simulator(run_sets(tmp_path)) as run:
+        ctrl = run.process
+        wait_until_drive_1_moves(run.bus, ctrl)
+        sources = _sending_sources(ctrl.pid)
+        assert sources, "the controller has no sending socket"
+        address, port = sources[0]
+        _, index = multicast_interface()
+        with socket.socket(socket.AF_INET6, socket.SOCK_DGRAM) as same, pytest.raises(OSError) as refused:
+            same.bind((address, port, 0, index if address.startswith("fe80") else 0))
+        assert refused.value.errno == errno.EADDRINUSE
+        rogue = None
+        for other in sorted(host_addresses() - {address, "::1"}):
+            candidate = socket.socket(socket.AF_INET6, socket.SOCK_DGRAM)
+            candidate.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_HOPS, 0)
+            candidate.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_IF, index)
+            try:
+                candidate.bind((other, port, 0, index if other.startswith("fe80") else 0))
+                rogue = candidate
+                break
+            except OSError:
+                candidate.close()
+        if rogue is None:
+            pytest.skip("this host has no second address to send from")
+        with rogue:
+            upload_statusword = can.Message(
+                arbitration_id=0x602, data=bytes((0x40, 0x41, 0x60, 0, 0, 0, 0, 0)), is_extended_id=False
+            )
+            rogue.sendto(
+                pack_message(upload_statusword), (LOCAL_MULTICAST_GROUP, run.spec.udp_port, 0, index)
+            )
+        out, err = ctrl.communicate(timeout=120)
+    summary = json.loads(out)
+    assert summary["final_mode"] == "FAULT", err[-2000:]
+    assert "a second master) (COB-ID 0x602)" in summary["fault_reason"], summary["fault_reason"]
 
 
 @pytest.mark.integration

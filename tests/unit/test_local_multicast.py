@@ -52,13 +52,49 @@ def test_a_bus_never_receives_its_own_frames_and_its_sending_socket_receives_not
             assert got == expected
             assert bus.recv(0.05) is None  # and no echo after them
         sender = a._multicast._send_socket
-        _, index = lm.multicast_interface()
-        assert sender.getsockname() == (LOCAL_MULTICAST_GROUP, a._multicast.send_port, 0, index)
+        address, port = a._multicast.send_source
+        assert sender.getsockname()[:2] == (address, port) == (address, a._multicast.send_port)
         assert sender.getsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_HOPS) == 0
-        c._multicast._socket.sendto(b"x", (LOCAL_MULTICAST_GROUP, a._multicast.send_port, 0, index))
+        c._multicast._send_socket.sendto(b"x", sender.getsockname())
         sender.setblocking(False)
         with pytest.raises(BlockingIOError):
             sender.recv(64)
+
+
+def test_only_the_bus_itself_can_send_from_its_source_and_the_same_port_elsewhere_is_received() -> None:
+    """The echo filter drops one source, address and port; no other socket can bind that source
+    (with or without SO_REUSEADDR/SO_REUSEPORT, nor the wildcard address), and a frame from the
+    same port on another address of this host is someone else's: received (an outside tester's
+    SDO writes from the controller's port went unseen, 44dbcbc)."""
+    spec = parse_bus_spec("udp_multicast", udp_port=random_udp_port())
+    _, index = lm.multicast_interface()
+    with open_bus(spec) as a:
+        address, port = a._multicast.send_source
+        scope = a._multicast._send_socket.getsockname()[3]
+        for where, reuse in ((address, False), (address, True), ("::", True)):
+            with socket.socket(socket.AF_INET6, socket.SOCK_DGRAM) as s:
+                if reuse:
+                    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+                with pytest.raises(OSError, match="in use"):
+                    s.bind((where, port, 0, scope if where == address else 0))
+        sent = False
+        for other in sorted(lm.host_addresses() - {address, "::1"}):
+            with socket.socket(socket.AF_INET6, socket.SOCK_DGRAM) as s:
+                s.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_HOPS, 0)
+                s.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_IF, index)
+                try:
+                    s.bind((other, port, 0, index if other.startswith("fe80") else 0))
+                    frame = can.Message(arbitration_id=0x602, data=bytes(8), is_extended_id=False)
+                    s.sendto(pack_message(frame), (LOCAL_MULTICAST_GROUP, spec.udp_port, 0, index))
+                except OSError:
+                    continue
+                sent = True
+                break
+        if not sent:
+            pytest.skip("this host has no second address to send from")
+        got = a.recv(10.0)
+        assert got is not None and got.arbitration_id == 0x602
 
 
 def test_a_datagram_from_a_source_not_of_this_host_is_dropped_and_counted(
@@ -169,7 +205,7 @@ def test_a_datagram_the_doorbell_cannot_read_rings_it() -> None:
 def test_the_doorbell_takes_one_run_of_identifiers_a_uint16_holds() -> None:
     for bad in (range(0x80, 0x200), range(0x200, 0x580, 2), range(0x300, 0x300), range(0x200, 0x10001)):
         with pytest.raises(ValueError, match="quiet identifiers"):
-            lm.doorbell_filter(1234, bad)
+            lm.doorbell_filter(("::1", 1234), bad)
 
 
 def test_the_interface_is_the_loopback_when_it_carries_multicast_else_the_lowest_index_up(
