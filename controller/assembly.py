@@ -66,6 +66,8 @@ def task_settings(cfg: Config, units: ActuatorUnits) -> TaskSettings:
         max_contact_force_n=cfg.safety.max_contact_force_n,
         tracker_enabled=cfg.tracker.enabled,
         witness_tolerance_n=cfg.safety.contact.tolerance_n,
+        guarded_move_force_n=cfg.safety.contact.guarded_move_force_n,
+        max_contact_speed_m_s=cfg.safety.contact.max_contact_speed_m_s,
     )
 
 

@@ -486,6 +486,7 @@ def _cross_checks(cfg: Config) -> None:
             f"loop.heartbeat_period_s = {cfg.loop.heartbeat_period_s}"
         )
     _check_nodes(cfg)
+    _check_contact_limits(cfg)
     emcy_code_ranges(cfg.actuators.emcy_reactions)
     _registered_cross_checks(cfg)
     check_sim_section(
@@ -498,6 +499,20 @@ def _cross_checks(cfg: Config) -> None:
         raise ConfigError(
             f"bus.data_bitrate_bit_s = {cfg.bus.data_bitrate_bit_s} must be >= bus.bitrate_bit_s = "
             f"{cfg.bus.bitrate_bit_s}"
+        )
+
+
+def _check_contact_limits(cfg: Config) -> None:
+    """The contact guard's limits rise with what the task expects: free space, a guarded move, a
+    contact by design. Out of order, one of them never acts (an outside tester's
+    safety.contact.guarded_move_force_n = 1000 above the 60-N contact limit was accepted, 44dbcbc)."""
+    c, limit = cfg.safety.contact, cfg.safety.max_contact_force_n
+    if not c.free_space_force_n <= c.guarded_move_force_n <= limit:
+        raise ConfigError(
+            f"safety.contact.free_space_force_n = {c.free_space_force_n:g} N <= "
+            f"safety.contact.guarded_move_force_n = {c.guarded_move_force_n:g} N <= "
+            f"safety.max_contact_force_n = {limit:g} N must hold: a guarded move expects more force than "
+            "free space and less than a contact by design"
         )
 
 

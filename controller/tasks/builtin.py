@@ -148,8 +148,53 @@ class ContourSection(Section, frozen=True):
 
 
 def _check_contour(c: ContourSection) -> None:
+    """The section's forces in their order: contact is lost below the setpoint, the task's own limit
+    lies above it. Out of order, an outside tester's force_setpoint_n = 80 over max_force_n = 40 was
+    accepted, and force_setpoint_n = 1 (= contact_lost_force_n) ended in a misleading sensor fault
+    (44dbcbc)."""
     if not c.lap_speeds_m_s:
         raise ConfigError("task.contour.lap_speeds_m_s = []: needs at least one lap")
+    if not (
+        c.contact_lost_force_n < c.force_setpoint_n < c.max_force_n and c.contact_force_n < c.max_force_n
+    ):
+        raise ConfigError(
+            f"task.contour: contact_lost_force_n = {c.contact_lost_force_n:g} N < force_setpoint_n = "
+            f"{c.force_setpoint_n:g} N < max_force_n = {c.max_force_n:g} N, and contact_force_n = "
+            f"{c.contact_force_n:g} N < max_force_n, must hold"
+        )
+
+
+def _check_contour_against_the_guard(c: ContourSection, shared: TaskSettings) -> None:
+    """What the contact guard would stop at once: a task limit above the safety limit, a contact
+    threshold the guarded approach cannot reach, laps faster than a move expecting contact may be
+    (an outside tester's lap speeds of 0.12 m/s ended in a quick stop in contact, 44dbcbc)."""
+    if c.max_force_n > shared.max_contact_force_n:
+        raise ConfigError(
+            f"task.contour.max_force_n = {c.max_force_n:g} N is above safety.max_contact_force_n = "
+            f"{shared.max_contact_force_n:g} N: the safety layer would stop the task first"
+        )
+    if c.contact_force_n >= shared.guarded_move_force_n:
+        raise ConfigError(
+            f"task.contour.contact_force_n = {c.contact_force_n:g} N: the approach, a guarded move, is "
+            f"stopped at safety.contact.guarded_move_force_n = {shared.guarded_move_force_n:g} N first"
+        )
+    limit = shared.max_contact_speed_m_s
+    for name, speeds in (
+        ("lap_speeds_m_s", c.lap_speeds_m_s),
+        ("explore_speed_m_s", (c.explore_speed_m_s,)),
+        ("approach_speed_m_s", (c.approach_speed_m_s,)),
+        ("search_speed_m_s", (c.search_speed_m_s,)),
+    ):
+        # a lap moves along the contour and, correcting the force, along its normal at once
+        normal = c.max_normal_speed_m_s if name in ("lap_speeds_m_s", "explore_speed_m_s") else 0.0
+        fastest = max(speeds)
+        if math.hypot(fastest, normal) > limit:
+            raise ConfigError(
+                f"task.contour.{name}: {fastest:g} m/s"
+                + (f" with max_normal_speed_m_s = {normal:g} m/s" if normal else "")
+                + f" is faster than safety.contact.max_contact_speed_m_s = {limit:g} m/s, the most a "
+                "move expecting contact may be"
+            )
 
 
 def contour_params(
@@ -197,6 +242,7 @@ def build_contour_task(c: ContourSection, robot: Robot, shared: TaskSettings) ->
                 (c.expected_centre_m[0] + r * np.cos(th), c.expected_centre_m[1] + r * np.sin(th), c.height_m)
             )
     robot.check_path(np.array(ring))
+    _check_contour_against_the_guard(c, shared)
     params = contour_params(
         c, shared.settle_tolerance_m, shared.max_contact_force_n, shared.witness_tolerance_n
     )

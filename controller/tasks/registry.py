@@ -48,6 +48,8 @@ class TaskSettings:
     max_contact_force_n: float  # safety.max_contact_force_n: the safety layer's limit
     tracker_enabled: bool  # [tracker]: a pose tracker measures the platform
     witness_tolerance_n: float = 6.0  # safety.contact.tolerance_n: the drives' effort witness's own error
+    guarded_move_force_n: float = 25.0  # safety.contact.guarded_move_force_n: a guarded move stops above
+    max_contact_speed_m_s: float = 0.1  # safety.contact.max_contact_speed_m_s: moves expecting contact
 
 
 @dataclass(frozen=True)

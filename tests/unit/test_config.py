@@ -69,6 +69,55 @@ def test_a_node_list_not_one_per_actuator_is_named_when_the_robot_is_built():
         build_law(cfg)
 
 
+@pytest.mark.parametrize(
+    "overrides,message",
+    [
+        # an outside tester's, accepted on 44dbcbc
+        ({"task.contour.force_setpoint_n": 80.0}, r"force_setpoint_n = 80 N < max_force_n = 40 N"),
+        ({"task.contour.force_setpoint_n": 1.0}, r"contact_lost_force_n = 1 N < force_setpoint_n = 1 N"),
+        ({"task.contour.contact_force_n": 500.0}, r"contact_force_n = 500 N < max_force_n, must hold"),
+        ({"safety.contact.guarded_move_force_n": 1000.0}, r"guarded_move_force_n = 1000 N <= "),
+        ({"safety.max_contact_force_n": 5.0}, r"safety.max_contact_force_n = 5 N must hold"),
+    ],
+)
+def test_force_limits_out_of_order_are_refused_when_loaded(overrides, message):
+    with pytest.raises(ConfigError, match=message):
+        load_config(overrides={"task.kind": "contour", **overrides})
+
+
+@pytest.mark.parametrize(
+    "overrides,message",
+    [
+        (
+            {"task.contour.max_force_n": 80.0},
+            r"max_force_n = 80 N is above safety.max_contact_force_n = 60 N",
+        ),
+        (
+            {"task.contour.lap_speeds_m_s": [0.02, 0.12]},
+            r"lap_speeds_m_s: 0.12 m/s with max_normal_speed_m_s = 0.02 m/s is faster than "
+            r"safety.contact.max_contact_speed_m_s = 0.1 m/s",
+        ),
+        (
+            {"task.contour.approach_speed_m_s": 0.1, "safety.contact.max_contact_speed_m_s": 0.08},
+            r"approach_speed_m_s: 0.1 m/s is faster than safety.contact.max_contact_speed_m_s = 0.08",
+        ),
+        (
+            {"task.contour.contact_force_n": 30.0},
+            r"contact_force_n = 30 N: the approach, a guarded move, is stopped at "
+            r"safety.contact.guarded_move_force_n = 25 N first",
+        ),
+    ],
+)
+def test_a_contour_the_contact_guard_would_stop_at_once_is_refused_before_it_starts(overrides, message):
+    """Checked against the safety section when the task is built, before the bus is opened: a lap
+    faster than a move expecting contact may be was a quick stop in contact (29 N left pressed)."""
+    from controller.assembly import build_law
+
+    cfg = load_config(overrides={"task.kind": "contour", **overrides})
+    with pytest.raises(ConfigError, match=message):
+        build_law(cfg)
+
+
 def test_an_unknown_key_of_a_node_table_lists_the_keys_a_node_takes(tmp_path):
     """It listed the top level's (actuators, bus, loop, ...) for a key of ``[[node]]``."""
     p = tmp_path / "node.toml"
