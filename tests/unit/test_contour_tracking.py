@@ -361,3 +361,26 @@ def test_lost_frames_in_the_force_loop_cost_nothing_visible():
         assert b["contact_losses"] == 0
         assert b["force_error_rms_n"] < 1.3 * a["force_error_rms_n"] + 0.05
         assert b["force_error_max_n"] < a["force_error_max_n"] + 1.0
+
+
+def test_a_run_that_faults_before_tracking_still_reports_the_true_force_the_part_felt():
+    """A sensor stuck in the approach: the guarded move stops on the drives' effort before any lap,
+    and the summary dropped the 53.2 N the part had felt (an outside tester, 44dbcbc)."""
+    cfg = load_config(overrides={**FAST, "sim.faults": ["stuck@3.3"]})
+    c = cfg.task.model("contour")
+    clock = SimulatedTime()
+    law = build_law(cfg)
+    ex = LoopbackExchange(cfg, clock.clock)
+    obs = ContourObserver(
+        c.force_setpoint_n,
+        c.expected_centre_m,
+        len(c.lap_speeds_m_s),
+        true_force=lambda _t: tuple(float(v) for v in ex.plant.force_n),
+    )
+    final, _ = CycleLoop(law, ex, cfg.period_s, 0.8, clock, clock.clock, observers=(obs,)).run(
+        law.initial_state(), 20.0
+    )
+    assert final.mode == Mode.FAULT and not obs.t  # nothing tracked
+    summary = contour_summary(obs, build_robot(cfg), 2e5, c.height_m, c.lap_speeds_m_s)
+    assert summary["max_true_contact_force_n"] == pytest.approx(obs.max_true_force_n, abs=0.01)
+    assert obs.max_true_force_n > c.contact_force_n

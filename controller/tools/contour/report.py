@@ -206,9 +206,14 @@ def contour_summary(
     height_m: float,
     lap_speeds_m_s: tuple[float, ...] | None,
 ) -> dict[str, object]:
-    if not obs.t:
+    if not obs.t:  # faulted before tracking: what the part felt still counts (44dbcbc left it out)
         return {
             "samples": 0,
+            **(
+                {"max_true_contact_force_n": round(obs.max_true_force_n, 2)}
+                if obs.true_force is not None
+                else {}
+            ),
             "laps": [],
             "force_error_vs_normal_stiffness_correlation": None,
             "force_error_rms_soft_over_stiff": None,
