@@ -72,6 +72,7 @@ log = logging.getLogger(__name__)
 
 _STATUS_LIMITS = QueryLimits(capacity=8, rate_hz=20.0, burst=5)
 _COMMAND_LIMITS = QueryLimits(capacity=8, rate_hz=20.0, burst=5)
+MAX_COMMAND_BYTES = 1024  # a cheope.v1.Command (a name and a number) is tens of bytes
 _RING = 1024  # cycles of wake-up times kept for the loop statistics (power of two)
 _STATS_EVERY_S = 0.25  # recompute the loop's timing statistics at most this often [s]
 _ALARM_HOLD_S = 2.0  # a WARNING or FAULT event stays in the alarms this long [s, loop time]
@@ -444,6 +445,11 @@ class MonitorPublisher:
             # a stop: an outside tester's finding); a payload without that encoding is read as before
             return self._refuse_command(
                 query, f"payload is a {said.partition(';')[2][:60]}, not a cheope.v1.Command"
+            )
+        size = len(query.payload) if query.payload is not None else 0
+        if size > MAX_COMMAND_BYTES:  # before any copy or parse under the interpreter lock
+            return self._refuse_command(
+                query, f"payload of {size} bytes; a cheope.v1.Command is at most {MAX_COMMAND_BYTES}"
             )
         try:
             cmd = pb.Command.FromString(query.payload.to_bytes() if query.payload is not None else b"")
