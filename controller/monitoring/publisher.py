@@ -72,7 +72,13 @@ log = logging.getLogger(__name__)
 
 _STATUS_LIMITS = QueryLimits(capacity=8, rate_hz=20.0, burst=5)
 _COMMAND_LIMITS = QueryLimits(capacity=8, rate_hz=20.0, burst=5)
-MAX_COMMAND_BYTES = 1024  # a cheope.v1.Command (a name and a number) is tens of bytes
+# A cheope.v1.Command (a name and a number) is tens of bytes. A longer payload is refused by its
+# length, which Zenoh knows without a copy: 16-MB queries to the command key, 20 a second, each
+# copied and parsed under the interpreter lock, stalled the loop 57.6 ms at real-time priority and
+# faulted it without (an outside tester, 44dbcbc). Zenoh's own transport/link/rx/max_message_size
+# dropped some oversized queries and let others through (eclipse-zenoh 1.x, loopback TCP): not
+# relied on.
+MAX_COMMAND_BYTES = 1024
 _RING = 1024  # cycles of wake-up times kept for the loop statistics (power of two)
 _STATS_EVERY_S = 0.25  # recompute the loop's timing statistics at most this often [s]
 _ALARM_HOLD_S = 2.0  # a WARNING or FAULT event stays in the alarms this long [s, loop time]

@@ -224,16 +224,6 @@ class SessionSettings:
     on_listen_busy: str = "fail"  # "free_port": replace busy loopback TCP listen ports by free ones
     connect_retry_ms: tuple[int, int] = (200, 1000)  # first and longest retry period of connect endpoints
     connect_timeout_ms: int = -1  # per-attempt timeout at open; -1: do not wait (peers keep retrying)
-    # transport/link/rx/max_message_size where the file leaves it: a larger message is dropped by
-    # Zenoh (Rust) before any Python sees it; None: Zenoh's own (1 GiB)
-    max_received_message_bytes: int | None = None
-
-
-# The controller's session takes in queries and commands of tens of bytes. 16-MB queries to its
-# command key, 20 a second, stalled its loop for 57.6 ms at real-time priority and faulted it
-# without (EMCY 0x8240, a 164-ms cycle: an outside tester, 44dbcbc): the query server's thread
-# copied and parsed each under the interpreter lock, and Zenoh's threads reassembled them.
-CONTROLLER_MAX_RECEIVED_BYTES = 65536
 
 
 def build_zenoh_config(settings: SessionSettings) -> zenoh.Config:
@@ -271,11 +261,6 @@ def build_zenoh_config(settings: SessionSettings) -> zenoh.Config:
             "connect/retry",
             json.dumps({"period_init_ms": lo, "period_max_ms": hi, "period_increase_factor": 2}),
         )
-    limit_key = "transport/link/rx/max_message_size"
-    if settings.max_received_message_bytes is not None and _get(conf, limit_key) == _get(
-        zenoh.Config(), limit_key
-    ):
-        conf.insert_json5(limit_key, json.dumps(settings.max_received_message_bytes))
     if settings.mode == "peer" and _get(conf, "connect/timeout_ms") is None:
         conf.insert_json5("connect/timeout_ms", json.dumps(settings.connect_timeout_ms))
     if settings.mode == "peer" and _get(conf, "connect/exit_on_failure") is None:

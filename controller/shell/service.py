@@ -29,12 +29,7 @@ from controller.core.control_law import ControlLaw
 from controller.core.ports import CycleObserver, OffLoopWorker, PlansOffLoop
 from controller.monitoring.publisher import PublisherSettings, monitoring_context
 from controller.monitoring.robot_identity import resolve_robot_id
-from controller.monitoring.zenoh_session import (
-    CONTROLLER_MAX_RECEIVED_BYTES,
-    MonitorKeys,
-    SessionSettings,
-    split_endpoints,
-)
+from controller.monitoring.zenoh_session import MonitorKeys, SessionSettings, split_endpoints
 from controller.node_plan import node_setup_plan
 from controller.realtime import (
     RealtimeOptions,
@@ -126,7 +121,6 @@ def publisher_settings(cfg: Config) -> PublisherSettings:
         connect=split_endpoints(m.connect, "monitoring.connect"),
         config_file=m.config_file,
         on_listen_busy=m.on_listen_busy,
-        max_received_message_bytes=CONTROLLER_MAX_RECEIVED_BYTES,
     )
     config = config_to_dict(cfg)
     config["monitoring"]["robot_id"] = robot_id  # the id in use, also when drawn
