@@ -74,6 +74,13 @@ TOPIC_SCENE = "/scene"
 TOPIC_KEYFRAME = "/keyframe"
 TOPIC_JOINT_STATES = "/joint_states"
 
+# The events the recorder writes itself on /events (logs/session_writer.py), not the law's: a replay
+# compares the law's only. "recording_stopped" compared as the law's made `replay --verify` report a
+# divergence where the recording had stopped for free space (an outside tester, 44dbcbc).
+RECORDER_EVENT_KINDS = frozenset(
+    {"recorder_drop", "recording_stopped", "recording_deleted", "keyframe_missing"}
+)
+
 BASE_FRAME = "base"
 TCP_FRAME = "tcp"
 

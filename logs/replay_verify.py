@@ -300,7 +300,7 @@ class _Run:
                 if (
                     pending is not None
                     and d.message.cycle == pending[0].cycle
-                    and d.message.kind != "recorder_drop"
+                    and d.message.kind not in m.RECORDER_EVENT_KINDS
                 ):
                     rec_events.append(d.message)
                 continue

@@ -412,7 +412,7 @@ class SessionWriter:
         if free is None or free >= self.limits.min_free_bytes:
             return
         self.stop(
-            f"free space on the file system of {self.path} is {free / 1e6:.0f} MB, below "
+            f"free space on the file system of {self.path} is {free / 1e6:.1f} MB, below "
             f"recording.min_free_space_mb = {self.limits.min_free_bytes / 1e6:.10g}: recording stopped"
         )
 
@@ -486,6 +486,7 @@ class SessionWriter:
         """The recorder's own event on /events and /log, at the last cycle."""
         from controller.core.cycle_data import Event, Severity
 
+        assert kind in self.m.RECORDER_EVENT_KINDS, kind  # a replay tells them from the law's by kind
         cycle, t = self.last_cycle
         e = Event(kind, Severity.WARNING if warning else Severity.INFO, message)
         ns = self.m.unix_time_ns_of(self.last_mono_s, self.offset_ns)

@@ -280,6 +280,10 @@ def test_below_the_free_space_limit_the_recording_stops_cleanly_and_says_why(tmp
     assert "below recording.min_free_space_mb" in info.metadata[m.META_RECORDING]["stopped"]
     events = [d.message for d in iter_decoded(path, [m.TOPIC_EVENTS])]
     assert events[-1].kind == "recording_stopped" and "free space" in events[-1].message
+    # the recorder's own event, not the law's: what was recorded replays bit-exactly (44dbcbc
+    # reported a divergence at the stop's cycle)
+    result = verify(path)
+    assert result.divergence is None and result.cycles_checked > 0, result.divergence
 
 
 def test_a_recovered_files_gap_is_named_as_lost_with_the_damaged_original(tmp_path):
