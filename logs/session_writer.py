@@ -483,10 +483,10 @@ class SessionWriter:
                 self.error = self.error or f"cannot close {self.path}: {err}"
 
     def _event(self, kind: str, message: str, warning: bool = False) -> None:
-        """The recorder's own event on /events and /log, at the last cycle."""
+        """The recorder's own event on /events and /log, at the last cycle; its kind one of
+        ``messages.RECORDER_EVENT_KINDS``, which a replay does not compare as the law's."""
         from controller.core.cycle_data import Event, Severity
 
-        assert kind in self.m.RECORDER_EVENT_KINDS, kind  # a replay tells them from the law's by kind
         cycle, t = self.last_cycle
         e = Event(kind, Severity.WARNING if warning else Severity.INFO, message)
         ns = self.m.unix_time_ns_of(self.last_mono_s, self.offset_ns)
