@@ -61,6 +61,14 @@ Off the happy path (DESIGN.md, "Off the happy path"), by design rather than by e
   most ``reapproach_distance_m``; BACK_OFF returns to where that attempt started. After
   ``max_reacquire_attempts`` failed attempts the tool retracts and the task ends with a fault
   naming the cause. A re-acquired contact resumes tracking and lap counting where they stopped.
+- **Stall.** Each of the task's own slow-downs is by design (the force out of its band, a
+  creep after an irregular stretch, a held step), but together they can hold the tool to a
+  crawl for ever: a force sensor mounted 30-45 degrees about the tool's axis, or a part with
+  friction 1.0 where the task estimates 0.1, tilt the measured normal, and the tool crept at
+  0-4 mm/s for 120 s without a lap or an event, ending DONE (an outside tester, 44dbcbc).
+  Tracking that covers less than ``stall_speed_fraction`` of the lap's speed over
+  ``stall_window_s`` (measured travel, task time) retracts and faults naming both speeds;
+  ``stall_speed_fraction = 0`` lets it crawl.
 
 Laps are counted without knowing the shape: by the angle the tool sweeps about a point inside
 the contour (the winding number of a closed curve about any inside point is one), the expected
@@ -229,6 +237,8 @@ class ContourParams:
         0.02  # after an implausible step, the witness decides: real or the sensor's offset
     )
     witness_tolerance_n: float = 6.0  # safety.contact.tolerance_n: the effort witness's own error
+    stall_window_s: float = 10.0  # tracking progress is judged over this much task time
+    stall_speed_fraction: float = 0.25  # ... and must cover this share of the lap's speed (0: never)
 
 
 @record
@@ -293,6 +303,8 @@ class ContourState:
     timing_window_cycles: int = 0
     excused: bool = False
     restart_speed_m_s: float = 0.0  # the speed the drives were stopped from by a hold-up, until regained
+    # (task time, arc_m) where the stall window began; None outside TRACKING (every phase change)
+    progress_from: tuple[float, float] | None = None
 
 
 def _unit2(x: float, y: float) -> tuple[float, float] | None:
@@ -495,7 +507,15 @@ class ContourTrackingTask:
         return TaskStep(s, ref, events=events)
 
     def _enter(self, s: ContourState, phase: ContourPhase, t_s: float, **fields: object) -> ContourState:
-        return replace(s, phase=phase, phase_start_s=t_s, travel_m=0.0, restart_speed_m_s=0.0, **fields)
+        return replace(
+            s,
+            phase=phase,
+            phase_start_s=t_s,
+            travel_m=0.0,
+            restart_speed_m_s=0.0,
+            progress_from=None,
+            **fields,
+        )
 
     @staticmethod
     def _timing_window(s: ContourState, ctx: TaskContext) -> ContourState:
@@ -996,9 +1016,7 @@ class ContourTrackingTask:
         p = self.p
         if not self._trusted(s, dt):
             return self._braked(s.speed_m_s, dt)
-        target = p.lap_speeds_m_s[min(s.lap, len(p.lap_speeds_m_s) - 1)]
-        if s.lap == 0:  # the contour is unknown: what it holds is met at the exploring speed at most
-            target = min(target, p.explore_speed_m_s)
+        target = self._lap_speed(s)
         if s.creep_m > 0.0:
             target = min(target, p.creep_speed_m_s)
         target = min(target, self._look_ahead_speed(s, tcp_xy))
@@ -1154,10 +1172,44 @@ class ContourTrackingTask:
         )
         s, lap_events = self._count_laps(s, ctx)
         events = events + lap_events
+        s, stalled = self._stalled(s, ctx)
+        if stalled:
+            ev = Event("stall", Severity.FAULT, stalled + "; retracting")
+            return self._begin_retract(s, ctx, (*events, ev), stalled)
         if s.lap >= self.laps:
             ev = Event("contour", Severity.INFO, "all laps done; retracting")
             return self._begin_retract(s, ctx, (*events, ev))
         return self._moving(s, v, dt, on_path=True, events=events)
+
+    def _lap_speed(self, s: ContourState) -> float:
+        """The lap's tangential speed before the task's own slow-downs."""
+        p = self.p
+        target = p.lap_speeds_m_s[min(s.lap, len(p.lap_speeds_m_s) - 1)]
+        if s.lap == 0:  # the contour is unknown: what it holds is met at the exploring speed at most
+            target = min(target, p.explore_speed_m_s)
+        return target
+
+    def _stalled(self, s: ContourState, ctx: TaskContext) -> tuple[ContourState, str]:
+        """The stall rule (module text): every ``stall_window_s`` of tracking, the measured travel
+        against the lap's speed; the reason to retract, or ""."""
+        p = self.p
+        if p.stall_speed_fraction <= 0.0:
+            return s, ""
+        if s.progress_from is None:
+            return replace(s, progress_from=(ctx.t_s, s.arc_m)), ""
+        t0, arc0 = s.progress_from
+        elapsed = ctx.t_s - t0
+        if elapsed < p.stall_window_s:
+            return s, ""
+        s = replace(s, progress_from=(ctx.t_s, s.arc_m))
+        achieved, wanted = (s.arc_m - arc0) / elapsed, self._lap_speed(s)
+        if achieved >= p.stall_speed_fraction * wanted:
+            return s, ""
+        return s, (
+            f"stalled: {achieved * 1000:.1f} mm/s along the contour over the last {elapsed:.0f} s, where lap "
+            f"{s.lap + 1} asks {wanted * 1000:.0f} mm/s (the force's direction off the contour's normal: the "
+            "sensor's mounting, or friction beyond task.contour.friction_estimate?)"
+        )
 
     def _bias(self, s: ContourState, ctx: TaskContext) -> ContourState:
         """The tared sensor minus the effort witness, filtered (XY), while sliding: a drifted offset shows

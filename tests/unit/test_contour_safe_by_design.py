@@ -197,3 +197,14 @@ def test_a_60_n_step_of_the_sensor_in_lap_2_is_backed_off_from_away_from_the_par
     assert row["outcome"] in NAMED and "protective stop" in row["cause"], row["cause"]
     assert "backed off 5.0 mm" in row["cause"] and "quick stop" not in row["cause"]
     assert row["max_true_contact_force_n"] < 0.5 * LIMIT_N
+
+
+@pytest.mark.slow
+def test_a_part_with_ten_times_the_estimated_friction_is_named_a_stall_not_crawled_along_for_ever():
+    """Friction 1.0 where the task estimates 0.1 tilts the measured normal 45 degrees: the task's own
+    slow-downs held the tool at 0-4 mm/s for 120 s, no lap, no event, DONE (an outside tester,
+    44dbcbc). Now it retracts within a stall window or two and names both speeds."""
+    row = _run(ContourScenario("friction 1.0", overrides=(("sim.workpiece.friction_coefficient", 1.0),)))
+    assert row["outcome"] == "retracted" and "stalled:" in row["cause"], row["cause"]
+    assert "where lap 1 asks 20 mm/s" in row["cause"]
+    assert row["max_true_contact_force_n"] < 0.5 * LIMIT_N
