@@ -399,7 +399,16 @@ def _build_group(cls: type[RobotSection | TaskSection], table: Any, prefix: str)
     sections = _registered_sections(prefix)
     kind = table.get("kind", cls.__struct_defaults__[0])
     if not isinstance(kind, str) or kind not in sections:
-        raise ConfigError(f"{prefix}.kind = {kind!r}: must be one of {', '.join(sections)}")
+        from controller.plugins import ROBOTS_GROUP, TASKS_GROUP, why_not_loaded
+
+        why = (
+            why_not_loaded(ROBOTS_GROUP if prefix == "robot" else TASKS_GROUP, kind)
+            if isinstance(kind, str)
+            else ""
+        )
+        raise ConfigError(
+            f"{prefix}.kind = {kind!r}: must be one of {', '.join(sections)}" + (f" ({why})" if why else "")
+        )
     models: dict[str, Any] = {}
     for name, section in sections.items():
         sub = table.get(name, {})

@@ -199,6 +199,25 @@ def test_a_plugin_that_does_not_load_is_named_and_stops_only_what_needs_it(tmp_p
     ]
 
 
+def test_a_plugin_reusing_the_built_in_robots_name_is_named_where_the_robot_is_asked_for(tmp_path):
+    """The clash was swallowed by the command line's listing, and the demo said only "robot.kind =
+    'cheope': must be one of nspu, uru" (an outside tester, 44dbcbc)."""
+    _install(tmp_path, "clashing_plugin", "[cheope.robots]\ncheope = x:R\n")
+    demo = subprocess.run(
+        [sys.executable, "-m", "controller", "demo", "--simulated-time"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "PYTHONPATH": str(tmp_path)},
+        check=False,
+    )
+    assert demo.returncode == 2
+    last = demo.stderr.splitlines()[-1]
+    assert "error: robot.kind = 'cheope': must be one of" in last, demo.stderr
+    assert "entry point cheope = 'x:R' of clashing_plugin (group cheope.robots)" in last, last
+    assert "declare the same name: uninstall one of them" in last
+
+
 def test_a_robots_simulator_hook_is_found_by_its_kind_and_one_that_does_not_load_is_named(
     installed, tmp_path, monkeypatch
 ):
