@@ -146,7 +146,7 @@ class ContourSection(Section, frozen=True):
     sensor_bias_time_constant_s: Annotated[float, rng(0.01, 60.0)] = 2.0
     witness_verdict_s: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.02  # the witness judges a held step
     stall_window_s: Annotated[float, rng(0.5, 600.0)] = 10.0  # tracking progress judged over this long
-    stall_speed_fraction: Annotated[float, rng(0.0, 1.0)] = 0.25  # of the lap's speed at least; 0: never
+    stall_speed_fraction: Annotated[float, rng(0.0, 1.0)] = 0.25  # of the slowest lap's speed; 0: never
 
 
 def _check_contour(c: ContourSection) -> None:
