@@ -36,6 +36,27 @@ _SLOT = struct.Struct("<4d")
 _ZERO = (0.0, 0.0, 0.0)
 
 
+PREFIX = "cheope-true-force-"  # + the demo's process id, "-", its bus port (controller/shell/demo.py)
+
+
+def remove_stale_blocks(directory: Path) -> list[Path]:
+    """Remove the blocks of demos that are gone: a demo killed (SIGKILL) cannot remove its own, and
+    each one left a file in /dev/shm (an outside tester's finding). Returns what it removed."""
+    removed = []
+    for path in directory.glob(f"{PREFIX}*-*"):
+        pid = path.name[len(PREFIX) :].partition("-")[0]
+        if not pid.isdigit():
+            continue
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:  # gone; PermissionError: alive, another user's
+            path.unlink(missing_ok=True)
+            removed.append(path)
+        except PermissionError:
+            pass
+    return removed
+
+
 def tap_path(name: str) -> Path:
     """Where the block named ``name`` lives: /dev/shm (memory) where there is one, else the temp dir."""
     shm = Path("/dev/shm")
@@ -71,6 +92,7 @@ class TrueForceReader:
 
     def __init__(self, name: str) -> None:
         self.path = tap_path(name)
+        remove_stale_blocks(self.path.parent)
         fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o600)
         try:
             os.ftruncate(fd, _LAYOUT.size)

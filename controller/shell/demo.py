@@ -29,6 +29,7 @@ from controller.realtime import RealtimeOptions
 from controller.shell.service import prepare, run_controller
 from drivers.bus import BusSpec
 from sim_backend.process import CONTACT_FORCE_REPORT, READY_LINE, STOPPED_LINE
+from sim_backend.true_force_tap import PREFIX as TRUE_FORCE_PREFIX
 from sim_backend.true_force_tap import TrueForceReader
 
 
@@ -155,7 +156,7 @@ def run_demo(
     prepare(cfg, spec)  # what the controller would refuse, refused before the simulator starts
     simulator: dict[str, object] = {}
     # the simulator's true contact force, live (a diagnostic: the per-lap tables show it beside the measured)
-    truth = TrueForceReader(f"cheope-true-force-{os.getpid()}-{spec.udp_port}")
+    truth = TrueForceReader(f"{TRUE_FORCE_PREFIX}{os.getpid()}-{spec.udp_port}")
     sim_args = [*simulator_realtime_args(realtime), "--true-force-tap", truth.name]
     with (
         contextlib.closing(truth),
