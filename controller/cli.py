@@ -415,6 +415,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             progress(f"{cfg.robot.kind}, task {cfg.task.kind}, in simulated time")
             summary = run(cfg, args.duration, plot)
         print(strict_json(summary) if args.json else strict_json(summary, indent=1))
+        say_if_unfinished(summary, "cheope demo")
         return 0 if summary["final_mode"] == "DONE" else 1
     spec = _spec(args, cfg, default_port=random_udp_port())
     with live_status(status_wanted(args.json, sys.stdout)) as status, _quiet_progress(status) as progress:
@@ -433,6 +434,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             _status_observers(status, cfg),
         )
     _print_summary(summary, args.json)
+    say_if_unfinished(summary, "cheope demo")
     return run_exit_code(summary)  # as `cheope run`: a lost recording is 3 (it was 0 for a demo)
 
 
@@ -454,6 +456,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             observers=_status_observers(status, cfg),
         )
     _print_summary(summary, args.json)
+    say_if_unfinished(summary, "cheope run")
     return run_exit_code(summary)
 
 
@@ -463,6 +466,17 @@ RUN_EXIT_CODES = """exit status: 0 the run ended in DONE (task finished, or stop
 signal, or a stop that did not reach DONE within loop.stop_timeout_s); 2 refused at start (usage,
 configuration, bus load, workspace, real-time permissions, the bus or the devices); 3 DONE, but the
 recording was lost (see recording.on_failure)"""
+
+
+def say_if_unfinished(summary: dict[str, Any], command: str) -> None:
+    """DONE is also a run stopped before its task's end (exit 0, RUN_EXIT_CODES): said on stderr, so
+    that "DONE" after --duration 15 is not read as the experiment done (an outside tester's)."""
+    if summary.get("final_mode") == "DONE" and summary.get("task_finished") is False:
+        print(
+            f"{command}: note: the task did not finish: the run was stopped first "
+            "(--duration, a signal or cheope stop)",
+            file=sys.stderr,
+        )
 
 
 def run_exit_code(summary: dict[str, Any]) -> int:

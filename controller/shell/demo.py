@@ -200,6 +200,7 @@ def run_simulated_time(
     return {
         "final_mode": final.mode.name,
         "fault_reason": final.fault_reason,
+        "task_finished": recorder.task_finished,
         "cycles": stats.cycles,
         "simulated_time": True,
         "law": LAW_BUILD.describe(),  # the time it took, not what it computed (controller/compiled_law.py)

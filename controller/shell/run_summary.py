@@ -27,6 +27,12 @@ TRACKING_RING = 65536  # the last tracking errors kept as measured (tests, plots
 EVENT_RING = 1000  # the last events kept for the summary; older ones are counted, not kept
 
 
+def task_finished_event(e: Event) -> bool:
+    """The law's mode event of a task that finished ("RUNNING -> STOPPING: task <name> finished",
+    controller/core/control_law.py); a run that ends DONE without it was stopped first."""
+    return e.kind == "mode" and "-> STOPPING: task " in e.message and e.message.endswith(" finished")
+
+
 @dataclass
 class RunRecorder:
     """Collects the per-cycle figures a summary needs (the loop's observer), in bounded memory:
@@ -36,6 +42,7 @@ class RunRecorder:
     tracking_ring: FloatRing = field(default_factory=lambda: FloatRing(TRACKING_RING))
     events: deque[tuple[float, Event]] = field(default_factory=lambda: deque(maxlen=EVENT_RING))
     events_seen: int = 0
+    task_finished: bool = False  # the task's own end was seen (task_finished_event)
     _references: deque[tuple[float, float, float] | None] = field(
         default_factory=lambda: deque([None] * PIPELINE_PERIODS, maxlen=PIPELINE_PERIODS)
     )
@@ -58,6 +65,8 @@ class RunRecorder:
         self._references.append(state.tcp_reference_m)
         for e in events:
             self.events.append((t, e))
+            if task_finished_event(e):
+                self.task_finished = True
         self.events_seen += len(events)
 
     @property
@@ -96,6 +105,7 @@ def summarize(
     out: dict[str, object] = {
         "final_mode": final.mode.name,
         "fault_reason": final.fault_reason,
+        "task_finished": recorder.task_finished,  # DONE without it: stopped first (--duration, a signal)
         "cycles": stats.cycles,
         "nominal_rate_hz": 1.0 / stats.period_s,
         "achieved_rate_hz": round(stats.achieved_rate_hz, 3),

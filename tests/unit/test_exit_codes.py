@@ -11,3 +11,18 @@ def test_done_fault_and_a_lost_recording_have_their_own_status():
     assert cli.run_exit_code({"final_mode": "FAULT", "recording": {"error": "gone"}}) == cli.EXIT_FAULT
     lost = {"final_mode": "DONE", "recording": {"error": "the writer process stopped reading"}}
     assert cli.run_exit_code(lost) == cli.EXIT_RECORDING_LOST == 3
+
+
+def test_done_before_the_task_finished_is_said_and_in_the_summary(capsys):
+    """A run stopped by --duration ends DONE, exit 0, as documented; an outside tester read "DONE"
+    after --duration 15 as the experiment done (44dbcbc). The summary says whether the task
+    finished, and stderr says so when it did not."""
+    import json
+
+    assert cli.main(["demo", "--task", "path", "--simulated-time", "--json", "--duration", "1"]) == 0
+    out, err = capsys.readouterr()
+    assert json.loads(out)["task_finished"] is False
+    assert "cheope demo: note: the task did not finish: the run was stopped first" in err
+    assert cli.main(["demo", "--task", "path", "--simulated-time", "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert json.loads(out)["task_finished"] is True and "did not finish" not in err

@@ -152,6 +152,7 @@ def run_simulated_time(
     Deterministic and free of the machine's timing: the reference to compare a run over a
     bus with (``cheope demo --task contour --simulated-time``).
     """
+    from controller.shell.run_summary import RunRecorder
     from controller.shell.simulated_rig import SimulatedRig
 
     c = cfg.task.model("contour")
@@ -165,10 +166,12 @@ def run_simulated_time(
         # in simulated time the loop observes a cycle right after its step: the plant is at its SYNC
         lambda _stepped_s: exchange.plant.force_n.tolist(),
     )
-    final, stats = rig.run((obs,), max_duration_s)
+    ended = RunRecorder()
+    final, stats = rig.run((obs, ended), max_duration_s)
     summary: dict[str, object] = {
         "final_mode": final.mode.name,
         "fault_reason": final.fault_reason,
+        "task_finished": ended.task_finished,
         "cycles": stats.cycles,
         "simulated_time": True,
         "law": LAW_BUILD.describe(),  # the time it took, not what it computed (controller/compiled_law.py)
