@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim_backend.environment import NO_FORCE, Vector3
+from sim_backend.environment import NO_FORCE, Vector3, series_stiffness_n_m
 
 
 @dataclass(frozen=True)
@@ -35,7 +35,7 @@ class DiskParams:
 
     @property
     def series_stiffness_n_m(self) -> float:
-        return 1.0 / (1.0 / self.contact_stiffness_n_m + 1.0 / self.sensor_stiffness_n_m)
+        return series_stiffness_n_m(self.contact_stiffness_n_m, self.sensor_stiffness_n_m)
 
 
 class DiskEnvironment:

@@ -64,7 +64,7 @@ from controller.sim_config.sections import SimWorkpieceSection
 from controller.tasks.registry import task_entry
 from sim_backend.contact_disk import DiskEnvironment, DiskParams
 from sim_backend.drive import DriveParams, DriveQuirks, SimulatedDrive
-from sim_backend.environment import Environment, FreeSpace
+from sim_backend.environment import Environment, FreeSpace, series_stiffness_n_m
 from sim_backend.force_sensor import SensorParams, SimulatedForceSensor
 from sim_backend.mechanics import NO_ACCELERATION, ComplianceParams, CompliantTool
 from sim_backend.plant_kinematics import plant_kinematics
@@ -244,7 +244,7 @@ class RobotPlant:
         self.tool = CompliantTool(self._compliance) if self._compliance is not None else None
         self.substep_s = cfg.sim.drive.substep_s
         w = cfg.sim.workpiece
-        self._contact_k = 1.0 / (1.0 / w.contact_stiffness_n_m + 1.0 / w.sensor_stiffness_n_m)
+        self._contact_k = series_stiffness_n_m(w.contact_stiffness_n_m, w.sensor_stiffness_n_m)
         self._contact_c = w.contact_damping_n_s_m
         self._check_contact_integrable()
         d = cfg.sim.drive

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sim_backend.environment import NO_FORCE, Vector3
+from sim_backend.environment import NO_FORCE, Vector3, series_stiffness_n_m
 
 SAMPLES = 4096  # vertices of the polyline: 0.1-0.2 mm apart on the shipped shapes
 NOTCH_WALL_SLOPE = (
@@ -166,7 +166,7 @@ class PolylineEnvironment:
         self.points = np.asarray(points_m, dtype=float)
         self.normals = _vertex_normals(self.points)
         self.contact = contact
-        self._k_series = 1.0 / (1.0 / contact.contact_stiffness_n_m + 1.0 / contact.sensor_stiffness_n_m)
+        self._k_series = series_stiffness_n_m(contact.contact_stiffness_n_m, contact.sensor_stiffness_n_m)
         self._xy = [(float(x), float(y)) for x, y in self.points]
         self._nxy = [(float(x), float(y)) for x, y in self.normals]
         self._n = len(self._xy)
