@@ -240,9 +240,8 @@ class SafetySection(Section, frozen=True):
     on_unknown_node: Reaction = Reaction("warn")  # unconfigured nodes' frames; 29-bit frames
     on_foreign_sync: Reaction = Reaction("fault")  # a second SYNC producer
     on_foreign_nmt: Reaction = Reaction("fault")  # someone else's NMT command to our nodes
-    on_foreign_command: Reaction = Reaction(
-        "fault"
-    )  # someone else's RPDO or SDO to our drives, or their SDO answer to it
+    # someone else's RPDO or SDO request to our drives, or a drive's SDO answer to one
+    on_foreign_command: Reaction = Reaction("fault")
     # A device's TPDO twice in one answer window: the sample is never used (as if missing); this is
     # what to do about a second sender on the bus (docs/concepts/supervision.md: why "fault").
     on_duplicate_frames: Reaction = Reaction("fault")

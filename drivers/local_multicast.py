@@ -162,31 +162,33 @@ def attach_socket_filter(sock: socket.socket, program: tuple[tuple[int, int, int
 
 
 Source = tuple[str, int]  # a datagram's source: IPv6 address (no scope) and UDP port
+_OWN_SOURCE_LENGTH = 10  # instructions of _own_source: the port, then the address's four words
 
 
-def _own_source(own: Source, drop: int, keep: int, at: int) -> list[tuple[int, int, int, int]]:
-    """Filter instructions from index ``at`` that jump to ``drop`` when a datagram's source is
-    ``own`` (address and port), else to ``keep`` (absolute indexes; BPF's jumps count from the
-    instruction after the jump)."""
+def _own_source(own: Source, drop: int, keep: int) -> list[tuple[int, int, int, int]]:
+    """A filter's first instructions: jump to ``drop`` when a datagram's source is ``own`` (address
+    and port), else to ``keep`` (absolute indexes; BPF's jumps count from the instruction after
+    the jump)."""
     address, port = own
     words = struct.unpack(">4I", socket.inet_pton(socket.AF_INET6, address.partition("%")[0]))
     program: list[tuple[int, int, int, int]] = []
 
     def to(target: int) -> int:
-        return target - (at + len(program)) - 1
+        return target - len(program) - 1
 
     program.append((_BPF_LDH_ABS, 0, 0, 0))
     program.append((_BPF_JEQ_K, 0, to(keep), port))
     for i, word in enumerate(words):
         program.append((_BPF_LDW_ABS, 0, 0, (_SKF_NET_OFF + _IPV6_SOURCE_OFFSET + 4 * i) & 0xFFFFFFFF))
         program.append((_BPF_JEQ_K, to(drop) if i == 3 else 0, to(keep), word))
+    assert len(program) == _OWN_SOURCE_LENGTH
     return program
 
 
 def drop_from(own: Source) -> tuple[tuple[int, int, int, int], ...]:
     """A socket filter that drops every UDP datagram whose source is ``own`` and keeps the rest."""
-    program = _own_source(own, 10, 11, 0)
-    return (*program, (_BPF_RET_K, 0, 0, 0), (_BPF_RET_K, 0, 0, _BPF_KEEP))
+    drop, keep = _OWN_SOURCE_LENGTH, _OWN_SOURCE_LENGTH + 1
+    return (*_own_source(own, drop, keep), (_BPF_RET_K, 0, 0, 0), (_BPF_RET_K, 0, 0, _BPF_KEEP))
 
 
 def doorbell_filter(own: Source, quiet_ids: range) -> tuple[tuple[int, int, int, int], ...]:
@@ -198,13 +200,13 @@ def doorbell_filter(own: Source, quiet_ids: range) -> tuple[tuple[int, int, int,
     checks = [(_UDP_HEADER + offset, value) for offset, value in _PACKED_LAYOUT]
     program: list[tuple[int, int, int, int]] = []
     # jump offsets count instructions from the one after the jump; DROP and KEEP are the last two
-    n = 10 + 2 + 2 * len(checks) + 3
+    n = _OWN_SOURCE_LENGTH + 2 + 2 * len(checks) + 3
     drop, keep = n, n + 1
 
     def to(target: int) -> int:
         return target - len(program) - 1
 
-    program.extend(_own_source(own, drop, 10, 0))  # not ours: on to the length at 10
+    program.extend(_own_source(own, drop, _OWN_SOURCE_LENGTH))  # not ours: on to the length check
     # shorter than a packed frame's identifier: kept (a load past the end would drop it)
     program.append((_BPF_LD_LEN, 0, 0, 0))
     program.append((_BPF_JGE_K, 0, to(keep), _UDP_HEADER + _PACKED_ID_OFFSET + 2))

@@ -181,14 +181,13 @@ def _check_contour_against_the_guard(c: ContourSection, shared: TaskSettings) ->
             f"stopped at safety.contact.guarded_move_force_n = {shared.guarded_move_force_n:g} N first"
         )
     limit = shared.max_contact_speed_m_s
-    for name, speeds in (
-        ("lap_speeds_m_s", c.lap_speeds_m_s),
-        ("explore_speed_m_s", (c.explore_speed_m_s,)),
-        ("approach_speed_m_s", (c.approach_speed_m_s,)),
-        ("search_speed_m_s", (c.search_speed_m_s,)),
+    # a lap moves along the contour and, correcting the force, along its normal at once
+    for name, speeds, normal in (
+        ("lap_speeds_m_s", c.lap_speeds_m_s, c.max_normal_speed_m_s),
+        ("explore_speed_m_s", (c.explore_speed_m_s,), c.max_normal_speed_m_s),
+        ("approach_speed_m_s", (c.approach_speed_m_s,), 0.0),
+        ("search_speed_m_s", (c.search_speed_m_s,), 0.0),
     ):
-        # a lap moves along the contour and, correcting the force, along its normal at once
-        normal = c.max_normal_speed_m_s if name in ("lap_speeds_m_s", "explore_speed_m_s") else 0.0
         fastest = max(speeds)
         if math.hypot(fastest, normal) > limit:
             raise ConfigError(

@@ -1193,7 +1193,7 @@ class ContourTrackingTask:
 
     def _stalled(self, s: ContourState, ctx: TaskContext) -> tuple[ContourState, str]:
         """The stall rule (module text): every ``stall_window_s`` of tracking, the measured travel
-        against the lap's speed; the reason to retract, or ""."""
+        against the slowest lap's speed; the reason to retract, or ""."""
         p = self.p
         if p.stall_speed_fraction <= 0.0:
             return s, ""
