@@ -58,7 +58,8 @@ from controller.core.cycle_data import (
     TrackerFeedback,
 )
 from controller.messages import cheope_pb2 as pb
-from logs.cycle_encoding import CycleValues, InputsValues, inputs_values
+from logs.cycle_encoding import TASK_FIELDS_AT, CycleValues, InputsValues, inputs_values
+from logs.task_values_wire import TaskValuesWire, length_delimited
 
 if TYPE_CHECKING:
     import can
@@ -240,13 +241,63 @@ def inputs_pb(values: InputsValues, out: pb.CycleInputs) -> None:
 
 def cycle_pb(values: CycleValues) -> pb.Cycle:
     """The ``cheope.v1.Cycle`` of one cycle's values (logs.cycle_encoding.cycle_values, which says their
-    order): built in the writer's process, not on the loop's thread."""
+    order): built in the writer's process, not on the loop's thread. The writer writes
+    ``cycle_bytes`` of them, the same message."""
+    msg = _cycle_head(values)
+    _state_pb(values, msg.state)
+    task_fields = values[TASK_FIELDS_AT]
+    if task_fields is not None:
+        task_values = msg.state.task_values
+        for name, value in zip(
+            *cast(Any, task_fields), strict=True
+        ):  # names and values (cycle_encoding.task_fields)
+            task_values[name] = value
+    _timing_pb(values, msg.timing)
+    return msg
+
+
+def cycle_bytes(values: CycleValues, wire: TaskValuesWire | None = None) -> bytes:
+    """``cycle_pb(values).SerializeToString()`` with the task values written by ``wire`` (made for their
+    names when it is not) instead of through upb's map (logs/task_values_wire.py says why): the same
+    message, its fields in their order (``state`` and ``timing`` are the last two, the map the last
+    field of ``state``)."""
+    task_fields = cast(Any, values[TASK_FIELDS_AT])
+    if task_fields is None:
+        return cast(bytes, cycle_pb(values).SerializeToString())
+    names, task_values = task_fields
+    if wire is None or (
+        wire.names is not names and wire.names != tuple(names)
+    ):  # the writer's: the same tuple
+        wire = TaskValuesWire(names)
+    state = pb.StateSample()
+    _state_pb(values, state)
+    timing = pb.CycleTiming()
+    _timing_pb(values, timing)
+    return b"".join(
+        (
+            _cycle_head(values).SerializeToString(),
+            length_delimited(CYCLE_STATE_FIELD, state.SerializeToString() + wire.entries(task_values)),
+            length_delimited(CYCLE_TIMING_FIELD, timing.SerializeToString()),
+        )
+    )
+
+
+CYCLE_STATE_FIELD, CYCLE_TIMING_FIELD = 5, 6  # Cycle.state, Cycle.timing: its last two fields
+
+
+def _cycle_head(values: CycleValues) -> pb.Cycle:
+    """A ``Cycle`` of ``values``' cycle, time, inputs and outputs (``cycle_pb``'s fields 1-4)."""
+    cycle, t, inputs, controlwords, targets = cast(Any, values[:5])  # cycle_encoding.cycle_values's order
+    msg = pb.Cycle(cycle=cycle, t_s=t)
+    inputs_pb(inputs, msg.inputs)
+    msg.outputs.controlwords.extend(controlwords)
+    msg.outputs.targets.extend(targets)
+    return msg
+
+
+def _state_pb(values: CycleValues, st: pb.StateSample) -> None:
+    """``values``' state sample into ``st``, all but the task values (their phase when there are any)."""
     (
-        cycle,
-        t,
-        inputs,
-        controlwords,
-        targets,
         mode,
         setpoint_position,
         setpoint_velocity,
@@ -256,14 +307,7 @@ def cycle_pb(values: CycleValues) -> pb.Cycle:
         fault_reason,
         task_phase,
         task_fields,
-        wake_error_s,
-        step_s,
-    ) = cast(Any, values)  # the order above; numbers, text, tuples
-    msg = pb.Cycle(cycle=cycle, t_s=t)
-    inputs_pb(inputs, msg.inputs)
-    msg.outputs.controlwords.extend(controlwords)
-    msg.outputs.targets.extend(targets)
-    st = msg.state
+    ) = cast(Any, values[5:14])  # cycle_encoding.cycle_values's order
     st.mode = mode
     st.setpoint_position.extend(setpoint_position)
     st.setpoint_velocity.extend(setpoint_velocity)
@@ -275,12 +319,10 @@ def cycle_pb(values: CycleValues) -> pb.Cycle:
     st.fault_reason = fault_reason
     if task_fields is not None:
         st.task_phase = task_phase
-        task_values = st.task_values
-        for name, value in zip(*task_fields, strict=True):  # names and values (cycle_encoding.task_fields)
-            task_values[name] = value
-    msg.timing.wake_error_s = wake_error_s
-    msg.timing.step_s = step_s
-    return msg
+
+
+def _timing_pb(values: CycleValues, timing: pb.CycleTiming) -> None:
+    timing.wake_error_s, timing.step_s = cast(Any, values[14:16])
 
 
 def cycle_values_of_pb(msg: pb.Cycle) -> CycleValues:

@@ -63,6 +63,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, BinaryIO, TextIO
 
 from logs.cycle_encoding import TASK_FIELDS_AT, with_task_names
+from logs.task_values_wire import TaskValuesWire
 
 if TYPE_CHECKING:
     from controller.config import Config
@@ -193,6 +194,7 @@ class SessionWriter:
         )
         self.reported_drops = 0
         self.task_names: tuple[str, ...] | None = None  # the last task fields' names received
+        self.task_wire: TaskValuesWire | None = None  # their map entries' bytes (logs/task_values_wire.py)
         self.last_cycle: tuple[int, float] = (0, 0.0)
         self.last_mono_s = 0.0
         self.pending = 0  # bytes in the open chunk
@@ -429,8 +431,12 @@ class SessionWriter:
         recording stopped, when its values do not fit it (a plug-in's setpoint of text): nothing of
         that cycle is written, and the file stays complete up to the cycle before."""
         try:
-            data: bytes = self.m.cycle_pb(self._named(values)).SerializeToString()
-            return data
+            named = self._named(values)
+            if self.task_names is not None and (
+                self.task_wire is None or self.task_wire.names != self.task_names
+            ):
+                self.task_wire = TaskValuesWire(self.task_names)
+            return self.m.cycle_bytes(named, self.task_wire)
         except (TypeError, ValueError, OverflowError) as err:
             self.stop(f"cycle {cycle} cannot be recorded ({type(err).__name__}: {err}): recording stopped")
             return None

@@ -1,7 +1,7 @@
 """The recording writer's work per cycle: machine instructions under callgrind, on a recorded session.
 
     .venv/bin/python -m controller.tools.bench.writer_work SESSION.mcap [--first 8000] [--cycles 2000]
-        [--without-can] [--without-task-values] [--scene-rate HZ] [--compression zstd|lz4|none]
+        [--without-can] [--without-task-values] [--scene-rate HZ] [--compression zstd|lz4|none] [--callgrind-out FILE]
 
 The session's frames, cycles and events become the records the recorder hands its writer process
 (``session_records``: one CYCLE record per cycle, with the frames before it), and a window of them
@@ -189,6 +189,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--without-task-values", action="store_true", help="the task's fields left out")
     ap.add_argument("--scene-rate", type=float, default=None, help="the 3D scene's rate [Hz] (recorded: 20)")
     ap.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
+    ap.add_argument(
+        "--callgrind-out",
+        type=Path,
+        default=None,
+        help="keep the window's callgrind dump here (callgrind_annotate)",
+    )
     ap.add_argument("--child", type=Path, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child is not None:
@@ -214,9 +220,11 @@ def main(argv: list[str] | None = None) -> int:
         settings = writer_settings(out, metadata, args.compression, args.scene_rate)
         job = Path(tmp) / "job.pickle"
         job.write_bytes(pickle.dumps((records, settings)))
-        instructions, _ = callgrind_window(
+        instructions, dump = callgrind_window(
             ["controller.tools.bench.writer_work", "--child", str(job)], Path(tmp) / "callgrind.out", valgrind
         )
+        if args.callgrind_out is not None:
+            shutil.copyfile(dump, args.callgrind_out)
         size = out.stat().st_size
     print(
         json.dumps(
