@@ -25,12 +25,15 @@ BASE_FRAME = "base"
 
 def quaternion_from_to(a: Vec3, b: Vec3) -> tuple[float, float, float, float]:
     """(x, y, z, w) of the shortest rotation taking direction ``a`` to direction ``b``."""
-    na = math.sqrt(sum(x * x for x in a))
-    nb = math.sqrt(sum(x * x for x in b))
+    ax, ay, az = a
+    bx, by, bz = b
+    # the sums as ``sum`` adds them (from 0, left to right), without a generator a call
+    na = math.sqrt(ax * ax + ay * ay + az * az)
+    nb = math.sqrt(bx * bx + by * by + bz * bz)
     if na == 0.0 or nb == 0.0:
         return (0.0, 0.0, 0.0, 1.0)
-    ax, ay, az = (x / na for x in a)
-    bx, by, bz = (x / nb for x in b)
+    ax, ay, az = ax / na, ay / na, az / na
+    bx, by, bz = bx / nb, by / nb, bz / nb
     d = ax * bx + ay * by + az * bz
     if d < -1.0 + 1e-12:  # opposite: half a turn about any axis perpendicular to a
         px, py, pz = (1.0, 0.0, 0.0) if abs(ax) < 0.9 else (0.0, 1.0, 0.0)
@@ -61,7 +64,7 @@ def _add(entity: object, p: Primitive) -> None:
     if p.shape in (Shape.CAPSULE, Shape.CYLINDER):
         if p.shape == Shape.CAPSULE:
             d = (p.end[0] - p.start[0], p.end[1] - p.start[1], p.end[2] - p.start[2])
-            length = math.sqrt(sum(x * x for x in d))
+            length = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
             centre = ((p.start[0] + p.end[0]) / 2, (p.start[1] + p.end[1]) / 2, (p.start[2] + p.end[2]) / 2)
             for end in (p.start, p.end):
                 s = e.spheres.add()  # type: ignore[attr-defined]
@@ -97,7 +100,7 @@ def _add(entity: object, p: Primitive) -> None:
         _set_color(ln.color, p.color)
     elif p.shape == Shape.ARROW:
         d = (p.end[0] - p.start[0], p.end[1] - p.start[1], p.end[2] - p.start[2])
-        length = math.sqrt(sum(x * x for x in d))
+        length = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
         if length == 0.0:
             return
         a = e.arrows.add()  # type: ignore[attr-defined]
