@@ -472,11 +472,13 @@ def say_if_unfinished(summary: dict[str, Any], command: str) -> None:
     """DONE is also a run stopped before its task's end (exit 0, RUN_EXIT_CODES): said on stderr, so
     that "DONE" after --duration 15 is not read as the experiment done (an outside tester's)."""
     if summary.get("final_mode") == "DONE" and summary.get("task_finished") is False:
-        print(
-            f"{command}: note: the task did not finish: the run was stopped first "
-            "(--duration, a signal or cheope stop)",
-            file=sys.stderr,
+        recording = summary.get("recording") or {}
+        why = (
+            f'the recording failed and recording.on_failure = "stop": {recording["error"]}'
+            if recording.get("error") and recording.get("on_failure") == "stop"
+            else "--duration, a signal or cheope stop"
         )
+        print(f"{command}: note: the task did not finish: the run was stopped first ({why})", file=sys.stderr)
 
 
 def run_exit_code(summary: dict[str, Any]) -> int:

@@ -505,6 +505,9 @@ class SessionWriter:
     def _fail(self, message: str) -> None:
         self.error = message
         print(f"recording stopped: {message}", file=sys.stderr, flush=True)
+        # before ``serve`` stops reading: the controller's write then fails (EPIPE), and its summary
+        # names this (a full disk), not the broken pipe it met
+        self.notify(stopped=message)
 
     def _add(self, topic: str, data: bytes, unix_ns: int, sequence: int = 0) -> int:
         added = self.append(self.channels[topic], unix_ns, data, unix_ns, sequence)

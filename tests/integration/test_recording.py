@@ -533,6 +533,25 @@ def test_the_writer_process_ends_with_its_recorder(tmp_path):
     assert read_info(tmp_path / "s.mcap").complete
 
 
+def test_a_full_disk_is_named_as_such_not_as_the_pipe_it_broke(tmp_path):
+    """The writer that cannot write (here its file size limit, as a full disk: ENOSPC or EFBIG) says
+    why before it stops reading: the recorder's error, which the run summary shows, names the
+    write that failed, not "stopped reading: Broken pipe"."""
+    import resource
+
+    _, _, _, trace, _, _ = record_session(tmp_path / "ref.mcap", max_s=0.5, frames=False)
+    rec = SessionRecorder(tmp_path / "s.mcap", session_metadata(load_config()), buffer_bytes=4096)
+    rec.start()
+    resource.prlimit(rec._proc.pid, resource.RLIMIT_FSIZE, (32_768, 32_768))  # Python ignores SIGXFSZ
+    wait_until(
+        lambda: [rec.on_cycle(*row, timing=m.pb.CycleTiming()) for row in trace.rows] and rec.error,
+        "the recorder's error",
+    )
+    rec.close()
+    assert "File too large" in rec.error and "Broken pipe" not in rec.error, rec.error
+    assert read_info(tmp_path / "s.mcap").messages > 0  # what was written before stays readable
+
+
 def test_a_writer_that_stops_reading_blocks_neither_the_loop_nor_the_exit(tmp_path, monkeypatch):
     from logs import recorder
 

@@ -26,3 +26,20 @@ def test_done_before_the_task_finished_is_said_and_in_the_summary(capsys):
     assert cli.main(["demo", "--task", "path", "--simulated-time", "--json"]) == 0
     out, err = capsys.readouterr()
     assert json.loads(out)["task_finished"] is True and "did not finish" not in err
+
+
+def test_a_run_stopped_by_its_lost_recording_says_so_not_a_signal(capsys):
+    """recording.on_failure = "stop" ends the run DONE before its task's end: the note names the
+    recording's failure (a full disk), not --duration or a signal."""
+    error = "writing /media/x.mcap failed: [Errno 28] No space left on device"
+    cli.say_if_unfinished(
+        {"final_mode": "DONE", "task_finished": False, "recording": {"error": error, "on_failure": "stop"}},
+        "cheope run",
+    )
+    err = capsys.readouterr().err
+    assert 'the recording failed and recording.on_failure = "stop"' in err and "No space left" in err
+    assert "a signal" not in err
+    cli.say_if_unfinished(
+        {"final_mode": "DONE", "task_finished": False, "recording": {"error": ""}}, "cheope run"
+    )
+    assert "--duration, a signal or cheope stop" in capsys.readouterr().err
