@@ -3,7 +3,10 @@
 Every message ``logs.reader.iter_messages`` can reach (all intact chunks, in file order) is
 copied with its schema, channel, times and sequence into a new file written by the ``mcap``
 library, which adds the chunk and message indexes, the statistics and the footer; the
-metadata found is copied too, plus a ``cheope.recovery`` record saying what was lost.
+metadata found is copied too, plus a ``cheope.recovery`` record saying what was lost. The metadata of
+the source's head (the session, ``cheope.file``) comes first in the new file too, before its first
+chunk, where ``cheope logs list`` reads it (logs/session_list.py): a recovered file lists under its
+session, not as a session of its own.
 """
 
 from __future__ import annotations
@@ -13,7 +16,7 @@ from pathlib import Path
 
 from mcap.writer import CompressionType, Writer
 
-from logs.reader import LogFileError, ReadReport, iter_messages, same_file
+from logs.reader import LogFileError, ReadReport, iter_messages, read_head, same_file
 
 
 @dataclass(frozen=True)
@@ -47,6 +50,9 @@ def recover(src: str | Path, out: str | Path | None = None) -> RecoveryResult:
         with fh:
             w = Writer(fh, compression=CompressionType.ZSTD)
             w.start(profile="", library="cheope logs.recovery")
+            head = _head_metadata(src)
+            for name, data in head.items():
+                w.add_metadata(name, data)
             schema_ids: dict[int, int] = {}
             channel_ids: dict[int, int] = {}
             for ch, msg in iter_messages(src, report):
@@ -64,7 +70,8 @@ def recover(src: str | Path, out: str | Path | None = None) -> RecoveryResult:
                 w.add_message(cid, msg.log_time, msg.data, msg.publish_time, msg.sequence)
                 saved += 1
             for name, data in report.metadata.items():
-                w.add_metadata(name, data)
+                if head.get(name) != data:  # written above already
+                    w.add_metadata(name, data)
             w.add_metadata(
                 "cheope.recovery",
                 {
@@ -83,3 +90,12 @@ def recover(src: str | Path, out: str | Path | None = None) -> RecoveryResult:
         dst.unlink(missing_ok=True)
         raise LogFileError(f"recover {src}: writing {dst} failed: {err.strerror or err}") from err
     return RecoveryResult(src, dst, saved, report)
+
+
+def _head_metadata(src: Path) -> dict[str, dict[str, str]]:
+    """The metadata before the source's first chunk; none when its head cannot be read (``iter_messages``
+    then says what is wrong with the file)."""
+    try:
+        return read_head(src).metadata
+    except LogFileError:
+        return {}

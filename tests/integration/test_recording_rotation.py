@@ -303,6 +303,20 @@ def test_a_recovered_files_gap_is_named_as_lost_with_the_damaged_original(tmp_pa
     assert "lost with the damaged part of" in gap and "dropped by the recorder" not in gap
 
 
+def test_a_recovered_file_lists_under_its_session(tmp_path):
+    """``logs list`` reads each file's head: a recovered file carries its session's metadata there
+    too, so it lists beside the cut original, not as a session of its own ("file:...", started ?)."""
+    recorded = Path(__file__).resolve().parents[1] / "data" / "contour_contact.mcap"
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(recorded.read_bytes()[: recorded.stat().st_size * 3 // 4])
+    out = recover(cut).output
+    assert read_info(out).chunks > 1  # the metadata found at the end is written after the first chunk
+    (session,) = list_sessions(tmp_path).sessions
+    assert sorted(f.path for f in session.files) == sorted([cut, out])
+    assert not session.session_id.startswith("file:") and session.started_utc and session.task
+    assert read_info(out).metadata[m.META_SESSION] == read_head(cut).metadata[m.META_SESSION]
+
+
 def test_rotation_settings_are_validated_with_the_key_and_the_value():
     with pytest.raises(
         ConfigError, match=r"recording.max_file_size_mb = 0.1: must be 0 \(no limit\) or at least"
