@@ -357,9 +357,14 @@ def _check_the_writers_count(report: ReadReport) -> None:
         return
     held = report.messages + report.orphan_messages
     if held != int(written):
+        why = (  # a damaged part (a flipped bit fails its chunk's CRC) is read past, not changed by hand
+            "the rest were in the damaged part(s) named before"
+            if report.problems and held < int(written)
+            else "it was changed after it was written"
+        )
         report.problems.append(
             f"the file holds {held} message(s) where its writer wrote {int(written)} "
-            "(cheope.recording file_written): it was changed after it was written"
+            f"(cheope.recording file_written): {why}"
         )
 
 

@@ -84,6 +84,9 @@ def test_recover_info_export_and_rerun_read_the_intact_chunks(damage, tmp_path: 
     assert 0 < report.messages < whole.messages and report.chunks == whole.chunks - 1
     assert main(["logs", "info", "--check", str(broken)]) == 1  # damaged, and says what it read
     assert "taken from the summary" in capsys.readouterr().out
+    # the messages the damage took are put down to it, not to a change by hand (an outside tester's)
+    gap = next(p for p in report.problems if "where its writer wrote" in p)
+    assert gap.endswith("the rest were in the damaged part(s) named before"), gap
     assert main(["logs", "recover", str(broken), "-o", str(tmp_path / "r.mcap")]) == 0
     recovered = read_info(tmp_path / "r.mcap")
     assert recovered.messages == report.messages and not recovered.damaged
