@@ -79,10 +79,57 @@ def device_frame(cob_id: int, node_ids: frozenset[int]) -> str | None:
     return None
 
 
-def _described(heard: Counter[tuple[str, int]], listen_s: float) -> str:
+def described(heard: Counter[tuple[str, int]], listen_s: float) -> str:
+    """What ``masters_heard`` or ``devices_heard`` found, for a refusal."""
     parts = [f"{name} (0x{cob:03X}) x {n}" for (name, cob), n in heard.most_common(6)]
     more = len(heard) - 6
     return f"in {listen_s:g} s: " + ", ".join(parts) + (f" and {more} more kinds" if more > 0 else "")
+
+
+def masters_heard(
+    bus: can.BusABC, controller_node_id: int, listen_s: float, clock: Callable[[], float] = time.monotonic
+) -> Counter[tuple[str, int]]:
+    """The frames only a master sends heard on ``bus`` within ``listen_s``, by (name, COB-ID)."""
+    heard: Counter[tuple[str, int]] = Counter()
+    for msg in _hear(bus, listen_s, clock):
+        name = master_frame(msg.arbitration_id, controller_node_id)
+        if name is not None:
+            heard[(name, msg.arbitration_id)] += 1
+    return heard
+
+
+def devices_heard(
+    bus: can.BusABC,
+    node_ids: Iterable[int],
+    sdo_node_ids: Iterable[int],
+    listen_s: float,
+    clock: Callable[[], float] = time.monotonic,
+) -> Counter[tuple[str, int]]:
+    """The frames of devices with ``node_ids`` heard on ``bus`` within ``listen_s``; with none heard and
+    no master active, the answers of ``sdo_node_ids`` to a read of their device type (module text)."""
+    ids = frozenset(node_ids)
+    heard: Counter[tuple[str, int]] = Counter()
+    master_active = False
+    for msg in _hear(bus, listen_s, clock):
+        name = device_frame(msg.arbitration_id, ids)
+        if name is not None:
+            heard[(name, msg.arbitration_id)] += 1
+        master_active = master_active or msg.arbitration_id == cob_ids.SYNC
+    sdo_ids = sorted(set(sdo_node_ids))
+    if not heard and not master_active and sdo_ids:
+        for node in sdo_ids:
+            bus.send(
+                can.Message(
+                    arbitration_id=cob_ids.sdo_request(node),
+                    data=_SDO_UPLOAD_DEVICE_TYPE,
+                    is_extended_id=False,
+                )
+            )
+        answers = {cob_ids.sdo_response(n) for n in sdo_ids}
+        for msg in _hear(bus, listen_s, clock):
+            if msg.arbitration_id in answers:
+                heard[(f"SDO answer of node {msg.arbitration_id & 0x7F}", msg.arbitration_id)] += 1
+    return heard
 
 
 def check_no_other_master(
@@ -93,14 +140,10 @@ def check_no_other_master(
     clock: Callable[[], float] = time.monotonic,
 ) -> None:
     """Refuse (``OtherMasterError``) when a master's frame is heard on ``bus`` within ``listen_s``."""
-    heard: Counter[tuple[str, int]] = Counter()
-    for msg in _hear(bus, listen_s, clock):
-        name = master_frame(msg.arbitration_id, controller_node_id)
-        if name is not None:
-            heard[(name, msg.arbitration_id)] += 1
+    heard = masters_heard(bus, controller_node_id, listen_s, clock)
     if heard:
         raise OtherMasterError(
-            f"another master is active on {where}, heard {_described(heard, listen_s)}: stop it, or take "
+            f"another master is active on {where}, heard {described(heard, listen_s)}: stop it, or take "
             "another bus (--udp-port, --bus); nothing was sent"
         )
 
@@ -115,30 +158,10 @@ def check_node_ids_free(
 ) -> None:
     """Refuse (``NodeIdsTakenError``) when devices with ``node_ids`` are heard on ``bus``, or, with no
     master active, answer an SDO request to one of ``sdo_node_ids`` (devices with an object dictionary)."""
-    ids = frozenset(node_ids)
-    heard: Counter[tuple[str, int]] = Counter()
-    master_active = False
-    for msg in _hear(bus, listen_s, clock):
-        name = device_frame(msg.arbitration_id, ids)
-        if name is not None:
-            heard[(name, msg.arbitration_id)] += 1
-        master_active = master_active or msg.arbitration_id == cob_ids.SYNC
-    if not heard and not master_active:
-        for node in sorted(set(sdo_node_ids)):
-            bus.send(
-                can.Message(
-                    arbitration_id=cob_ids.sdo_request(node),
-                    data=_SDO_UPLOAD_DEVICE_TYPE,
-                    is_extended_id=False,
-                )
-            )
-        answers = {cob_ids.sdo_response(n) for n in sdo_node_ids}
-        for msg in _hear(bus, listen_s, clock):
-            if msg.arbitration_id in answers:
-                heard[(f"SDO answer of node {msg.arbitration_id & 0x7F}", msg.arbitration_id)] += 1
+    heard = devices_heard(bus, node_ids, sdo_node_ids, listen_s, clock)
     if heard:
         taken = sorted({cob & 0x7F for _, cob in heard})
         raise NodeIdsTakenError(
-            f"node id(s) {', '.join(map(str, taken))} already answer on {where}, heard {_described(heard, listen_s)}: "
+            f"node id(s) {', '.join(map(str, taken))} already answer on {where}, heard {described(heard, listen_s)}: "
             "another simulator or device has them; stop it, or take another bus (--udp-port, --bus)"
         )

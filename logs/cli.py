@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import TypeVar
 
 from controller.cli_output import progress_line, strict_json
-from controller.errors import InputError
+from controller.errors import InputError, RefusedError
 
 # The caller's parser class (cheope's own ArgumentParser subclass): _SubParsersAction is invariant in it.
 ParserT = TypeVar("ParserT", bound=argparse.ArgumentParser)
@@ -116,6 +116,12 @@ def add_commands(
     )
     p.add_argument("--udp-port", type=int, help="--bus: UDP port of the udp_multicast bus")
     p.add_argument("--fd", action="store_true", help="--bus: open the bus for CAN FD")
+    p.add_argument(
+        "--live-devices",
+        action="store_true",
+        help="--bus: send the controller's frames even where the recording's devices or a master answer: "
+        "the devices then move as recorded, open loop, with no controller watching (refused without it)",
+    )
     p.add_argument(
         "--set",
         action="append",
@@ -383,7 +389,12 @@ def _bus(args: argparse.Namespace) -> int:
     stop: threading.Event = args.stop_on_signals()
     path = Path(args.file)
     with _progress(path, "replaying") as progress:
-        r = replay_to_bus(path, spec, args.speed, stop, progress, only=args.only)
+        try:
+            r = replay_to_bus(
+                path, spec, args.speed, stop, progress, only=args.only, live_devices=args.live_devices
+            )
+        except RefusedError as err:  # the recording's devices or a master on that bus (logs/replay_bus.py)
+            return _fail(args, err)
     problems = "; ".join(r.report.problems)
     if args.json:
         print(

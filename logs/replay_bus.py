@@ -15,6 +15,15 @@ frames alone (to drive devices as it did), ``only="received"`` the devices' alon
 them to a controller under test). For the frames with their recorded direction use
 ``cheope logs export`` (logs/can_export.py).
 
+The controller's frames drive devices: played onto a bus where the recorded drives answer, they
+enable them and stream the recorded targets, open loop, with no controller watching (an outside
+tester re-ran a contour on a live simulator so, 62.3 N of true contact force at ``--speed 4``
+where the limit is 60). So before sending the controller's frames (``only`` None or "sent") the
+replay listens ``listen_s`` for another master (``bus_presence.check_no_other_master``) and for
+devices with the node ids the recording's devices had (``check_node_ids_free``: their frames, or
+an answer to a read of their device type), and refuses either (``LiveDevicesError``, exit 2)
+unless ``live_devices``: ``--live-devices`` says the devices are meant to move.
+
 Every frame is handed to the bus (``send_errors`` counts the refusals). ``udp_multicast`` has
 no flow control: a listener held off the CPU for longer than its socket's receive buffer lasts
 (the default 208 KiB holds about 270 frames, 75 ms of a 400 Hz session) loses frames there, and
@@ -32,7 +41,9 @@ from pathlib import Path
 
 import can
 
+from controller.errors import RefusedError
 from drivers.bus import BusSpec, open_bus
+from drivers.bus_presence import described, devices_heard, masters_heard
 from drivers.pacing import DeadlineSleeper
 from logs.bus_traffic import as_message, recorded_frames
 from logs.reader import ReadReport
@@ -50,6 +61,41 @@ class BusReplayResult:
 
 
 REPLAY_SIDES = ("sent", "received")  # --only: the controller's frames, or its devices'
+DEVICE_IDS_FROM_FRAMES = 20_000  # the recording's devices: from its first frames (set-up, heartbeats)
+
+
+class LiveDevicesError(RefusedError):
+    """The controller's recorded frames would drive devices that answer on the bus (module text)."""
+
+
+def recorded_device_ids(path: Path, frames: int = DEVICE_IDS_FROM_FRAMES) -> frozenset[int]:
+    """The node ids of the devices in the first ``frames`` frames of ``path``: those that sent a TPDO,
+    an EMCY, an SDO answer or a heartbeat."""
+    ids: set[int] = set()
+    for k, frame in enumerate(recorded_frames(path, ReadReport(path))):
+        if k >= frames:
+            break
+        cob_id = frame.arbitration_id
+        node, code = cob_id & 0x7F, cob_id >> 7
+        if node and not frame.outgoing and not frame.is_extended_id and code in (1, 3, 5, 7, 9, 11, 14):
+            ids.add(node)
+    return frozenset(ids)
+
+
+def refuse_live_devices(bus: can.BusABC, where: str, device_ids: frozenset[int], listen_s: float) -> None:
+    """``LiveDevicesError`` when a master, or a device with one of ``device_ids``, is on ``bus``."""
+    heard = masters_heard(bus, controller_node_id=0, listen_s=listen_s)  # node 0 has no heartbeat
+    who = "another master is active"
+    if not heard and device_ids:
+        heard = devices_heard(bus, device_ids, device_ids, listen_s)
+        answering = sorted({cob_id & 0x7F for _, cob_id in heard})
+        who = f"the recording's devices answer (node ids {', '.join(map(str, answering))})"
+    if heard:
+        raise LiveDevicesError(
+            f"{who} on {where}, heard {described(heard, listen_s)}: the controller's recorded frames "
+            "would drive them open loop, with no controller watching; no recorded frame was sent. Replay onto a bus "
+            "without them, only the devices' side (--only received), or pass --live-devices to drive them"
+        )
 
 
 def replay_to_bus(
@@ -60,9 +106,13 @@ def replay_to_bus(
     progress: Callable[[int], None] | None = None,
     bus: can.BusABC | None = None,
     only: str | None = None,
+    live_devices: bool = False,
+    listen_s: float = 0.3,
 ) -> BusReplayResult:
     """Send the recorded frames of ``path`` onto ``spec`` (or an open ``bus``) with their timing;
-    ``only``: "sent" or "received" (by the controller) plays that side alone, its timing kept."""
+    ``only``: "sent" or "received" (by the controller) plays that side alone, its timing kept.
+    The controller's frames go onto a bus with a master or the recording's devices on it only with
+    ``live_devices`` (module text); ``listen_s``: how long to listen for them."""
     if not speed > 0:
         raise ValueError(f"--speed {speed}: must be > 0")
     if only is not None and only not in REPLAY_SIDES:
@@ -77,6 +127,8 @@ def replay_to_bus(
     bus = bus if bus is not None else open_bus(spec)
     t_start = time.monotonic()
     try:
+        if wanted_outgoing is not False and not live_devices:
+            refuse_live_devices(bus, spec.place, recorded_device_ids(path), listen_s)
         first_ns: int | None = None
         for f in recorded_frames(path, report):
             if wanted_outgoing is not None and f.outgoing != wanted_outgoing:

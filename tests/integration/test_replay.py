@@ -129,7 +129,10 @@ def test_replay_onto_a_bus_is_received_by_another_process_with_the_timing(tmp_pa
     )
     try:
         assert proc.stdout.readline().strip() == "ready"
-        result = replay_to_bus(path, parse_bus_spec("udp_multicast", udp_port=port), speed=2.0)
+        # no device here: the check for live ones would put its probe before the recorded frames
+        result = replay_to_bus(
+            path, parse_bus_spec("udp_multicast", udp_port=port), speed=2.0, live_devices=True
+        )
         out, _ = proc.communicate(timeout=30)
     finally:
         if proc.poll() is None:
@@ -158,7 +161,9 @@ def test_replay_sends_every_recorded_frame_once_whatever_its_direction(tmp_path)
     bus = can.Bus(interface="virtual", channel="replay-once", receive_own_messages=False)
     listener = can.Bus(interface="virtual", channel="replay-once")
     try:
-        result = replay_to_bus(path, parse_bus_spec("virtual:replay-once"), speed=10.0, bus=bus)
+        result = replay_to_bus(
+            path, parse_bus_spec("virtual:replay-once"), speed=10.0, bus=bus, live_devices=True
+        )
         got = []
         while (msg := listener.recv(timeout=0.2)) is not None:
             got.append(msg.arbitration_id)
@@ -183,7 +188,14 @@ def test_a_stop_ends_a_replay_in_a_long_pause_between_frames(tmp_path):
     results = []
     replay = threading.Thread(
         target=lambda: results.append(
-            replay_to_bus(path, parse_bus_spec("virtual:replay-pause"), speed=1e-9, stop_event=stop, bus=bus)
+            replay_to_bus(
+                path,
+                parse_bus_spec("virtual:replay-pause"),
+                speed=1e-9,
+                stop_event=stop,
+                bus=bus,
+                live_devices=True,
+            )
         ),
         daemon=True,  # a replay that ignored the stop must not keep the test process alive
     )

@@ -86,7 +86,9 @@ def test_every_frame_of_the_side_replayed_arrives_once_in_order(tmp_path: Path, 
     port = random_udp_port()
     listener = Listener(port)
     try:
-        r = _replay(path, port, *(("--only", only) if only else ()))
+        # no device on this port; without --live-devices the replay's own read of the recorded devices'
+        # type (test_the_controllers_frames_are_not_replayed_onto_live_devices) would reach the listener too
+        r = _replay(path, port, "--live-devices", *(("--only", only) if only else ()))
         assert (
             r.returncode == 0
             and r.stdout.startswith(f"sent {len(want)} frames")
@@ -97,3 +99,82 @@ def test_every_frame_of_the_side_replayed_arrives_once_in_order(tmp_path: Path, 
         listener.close()
     assert [(m.arbitration_id, bytes(m.data)) for m in listener.frames] == want
     assert all(m.is_rx for m in listener.frames)  # a bus carries no direction: logs export keeps it
+
+
+class AnsweringDevice:
+    """An idle CANopen device on the group: answers a read of its device type (0x1000) as node 1."""
+
+    def __init__(self, port: int) -> None:
+        self.bus = open_bus(parse_bus_spec("udp_multicast", udp_port=port))
+        self.heard: list[can.Message] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="answering device")
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            msg = self.bus.recv(timeout=0.1)
+            if msg is None:
+                continue
+            self.heard.append(msg)
+            if msg.arbitration_id == 0x601 and bytes(msg.data[:4]) == bytes((0x40, 0x00, 0x10, 0x00)):
+                answer = bytes((0x43, 0x00, 0x10, 0x00, 0x92, 0x01, 0x02, 0x00))  # CiA 402 drive
+                self.bus.send(can.Message(arbitration_id=0x581, data=answer, is_extended_id=False))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join()
+        self.bus.shutdown()
+
+
+def test_the_controllers_frames_are_not_replayed_onto_live_devices(tmp_path: Path):
+    """An outside tester replayed a contour session onto a live simulator: it enabled the drives and
+    ran the contour again, open loop, 62.3 N true at --speed 4 (the limit 60). The replay of the
+    controller's side is refused where the recording's devices answer; the devices' side, or
+    --live-devices, is replayed."""
+    path = tmp_path / "traffic.mcap"
+    recorded = record_traffic(path)  # node 1 answers an SDO in it: the recording's device
+    port = random_udp_port()
+    device = AnsweringDevice(port)
+    try:
+        for only in ((), ("--only", "sent")):
+            r = _replay(path, port, *only)
+            assert r.returncode == 2 and r.stdout == "", r.stdout + r.stderr
+            assert "the recording's devices answer (node ids 1)" in r.stderr, r.stderr
+            assert "SDO answer of node 1 (0x581)" in r.stderr and "--live-devices" in r.stderr
+        # the refused runs put nothing recorded on the bus: only their reads of the devices' type
+        probes = list(device.heard)
+        assert probes and all(
+            m.arbitration_id & ~0x7F == 0x600 and bytes(m.data[:4]) == bytes((0x40, 0, 0x10, 0))
+            for m in probes
+        ), probes
+        r = _replay(path, port, "--only", "received")
+        assert r.returncode == 0 and r.stdout.startswith("sent "), r.stdout + r.stderr
+        r = _replay(path, port, "--live-devices", "--only", "sent")
+        sent = sum(1 for _, outgoing, _ in recorded if outgoing)
+        assert r.returncode == 0 and r.stdout.startswith(f"sent {sent} frames"), r.stdout + r.stderr
+    finally:
+        device.close()
+
+
+def test_a_replay_onto_a_bus_with_a_running_master_is_refused(tmp_path: Path):
+    path = tmp_path / "traffic.mcap"
+    record_traffic(path)
+    port = random_udp_port()
+    stop = threading.Event()
+    with open_bus(parse_bus_spec("udp_multicast", udp_port=port)) as master:
+
+        def syncing() -> None:
+            while not stop.wait(0.01):
+                master.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))
+
+        thread = threading.Thread(target=syncing, name="another master")
+        thread.start()
+        try:
+            r = _replay(path, port)
+        finally:
+            stop.set()
+            thread.join()
+    assert r.returncode == 2 and "another master is active" in r.stderr and "SYNC (0x080)" in r.stderr, (
+        r.stderr
+    )
