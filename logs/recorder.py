@@ -63,7 +63,13 @@ DEFAULT_FLUSH_INTERVAL_S = 2.0
 # The wait ends on the writer's reply; the bound is for an emulated CPU (the vcan VM), where the
 # writer's imports (the scene drawing, the schemas) took longer than 20 s.
 WRITER_START_TIMEOUT_S = 120.0
-WRITER_FINISH_TIMEOUT_S = 120.0
+WRITER_FINISH_TIMEOUT_S = 120.0  # at close: the writer took no data, or gave no answer, this long
+# A writer that takes nothing while the backlog overflows (a hung disk, a stopped process) for this
+# long is gone: the service's recording.on_failure decides. Items had been dropped for seconds by
+# then (the backlog holds about 4 s at 1 kHz); an outside tester's writer stopped for 30 s lost 40 %
+# of a run with no error, exit 0.
+WRITER_STALL_S = 5.0
+STALLED_WRITER_ANSWER_S = 2.0  # at close, a stalled writer's final answer is waited for this long
 NO_FILE_LIMITS = FileLimits()  # one file, however long; no retention, no free-space guard
 REPLY_POLL_CYCLES = 16  # the writer's notices are looked at every this many cycles (a select, no wait)
 _MAX_FRAMES_PER_RECORD = 256  # frames with no cycle after them (node set-up, shutdown) go out in batches
@@ -211,6 +217,9 @@ class SessionRecorder:
         self._task_names_sent: tuple[str, ...] | None = None  # the task fields' names the writer has
         self._frames: list[FrameRecord] = []
         self._backlog = bytearray()
+        self._backlog_items = 0  # items with a record (or its tail) in the backlog
+        self._progress_s = 0.0  # when the pipe last took data (or the first drop of a stretch began)
+        self._writer_stalled = False  # gone by a stall: it will not answer either (close waits briefly)
         self._proc: subprocess.Popen[bytes] | None = None
         self._fd = -1
         self._reply_fd = -1  # the writer's standard output: JSON lines
@@ -388,9 +397,18 @@ class SessionRecorder:
                 record = b""
             else:
                 backlog += record
+                self._backlog_items += items
             self._write_backlog()
             if record:
                 self.queued += items
+            elif self._fd >= 0 and time.monotonic() - self._progress_s > WRITER_STALL_S:
+                self._writer_stalled = True
+                self._writer_gone(
+                    TimeoutError(
+                        f"the writer process of {self.path} took no data for {WRITER_STALL_S:g} s "
+                        "while the backlog was full"
+                    )
+                )
             return
         try:
             n = os.write(self._fd, record)
@@ -402,6 +420,8 @@ class SessionRecorder:
             return
         if n < len(record):  # only a record larger than the pipe's atomic size is cut
             backlog += record[n:]
+            self._backlog_items += items
+            self._progress_s = time.monotonic()  # the backlog starts: so does the stall's clock
         self.queued += items
 
     def _write_backlog(self) -> None:
@@ -412,18 +432,28 @@ class SessionRecorder:
         except OSError as err:
             self._writer_gone(err)
             return
+        if n > 0:
+            self._progress_s = time.monotonic()
         del self._backlog[:n]
+        if not self._backlog:
+            self._backlog_items = 0
 
     def _write_all(self, data: bytes | bytearray, timeout_s: float | None = None) -> None:
-        """All of ``data``, waiting for the writer; with ``timeout_s`` on a non-blocking pipe, at most that long."""
+        """All of ``data``, waiting for the writer; with ``timeout_s`` on a non-blocking pipe, until it
+        takes no data for that long (a slow disk still finishes)."""
         view = memoryview(data)
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         while view:
             try:
                 view = view[os.write(self._fd, view) :]
+                if timeout_s is not None:
+                    deadline = time.monotonic() + timeout_s
             except BlockingIOError:
                 if deadline is not None and time.monotonic() > deadline:
-                    self._writer_gone(TimeoutError(f"the writer took no data for {timeout_s:g} s"))
+                    self._writer_stalled = True
+                    self._writer_gone(
+                        TimeoutError(f"the writer process of {self.path} took no data for {timeout_s:g} s")
+                    )
                     return
                 select.select([], [self._fd], [], 1.0)
             except OSError as err:
@@ -442,8 +472,16 @@ class SessionRecorder:
         self.error = (
             self.error
             or self._writer_said
-            or (f"the writer process of {self.path} stopped reading: {err.strerror or err}")
+            or (
+                str(err)
+                if isinstance(err, TimeoutError)
+                else f"the writer process of {self.path} stopped reading: {err.strerror or err}"
+            )
         )
+        if self._backlog_items:  # handed to the backlog, never to the writer
+            self.queued -= self._backlog_items
+            self._lost(self._backlog_items)
+            self._backlog_items = 0
         self._backlog.clear()
         self._fd = -1
         if first and self.on_failure is not None:
@@ -538,14 +576,16 @@ class SessionRecorder:
             os.set_blocking(self._fd, False)
             if self._backlog:
                 backlog = bytes(self._backlog)
-                self._backlog.clear()
                 self._write_all(backlog, WRITER_FINISH_TIMEOUT_S)
+                if self._fd >= 0:
+                    self._backlog.clear()
+                    self._backlog_items = 0
             if self._fd >= 0:
                 self._write_all(pack_record((END, self.queued, self.dropped)), WRITER_FINISH_TIMEOUT_S)
         if proc.stdin is not None:
             proc.stdin.close()  # end of input: the writer finishes even if END did not get through
         self._fd = -1
-        reply = self._read_reply(WRITER_FINISH_TIMEOUT_S)
+        reply = self._read_reply(STALLED_WRITER_ANSWER_S if self._writer_stalled else WRITER_FINISH_TIMEOUT_S)
         self.written = int(reply.get("written", 0))
         self.chunks = int(reply.get("chunks", 0))
         self.error = self.error or str(reply.get("error") or "")

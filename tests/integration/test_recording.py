@@ -552,6 +552,42 @@ def test_a_full_disk_is_named_as_such_not_as_the_pipe_it_broke(tmp_path):
     assert read_info(tmp_path / "s.mcap").messages > 0  # what was written before stays readable
 
 
+def test_a_writer_that_takes_nothing_while_items_drop_is_gone_by_the_policy(tmp_path, monkeypatch):
+    """An outside tester stopped the writer 30 s (a hung disk): 40 % of the run was dropped, no
+    error, exit 0, and a writer stopped at the end held the exit 259 s. Now a writer that takes
+    no data while the backlog overflows for ``WRITER_STALL_S`` is gone: the policy is called once,
+    the items in the backlog count as lost, and the close does not wait its full timeout."""
+    from logs import recorder
+
+    monkeypatch.setattr(recorder, "WRITER_STALL_S", 0.3)
+    _, _, _, trace, _, _ = record_session(tmp_path / "ref.mcap", max_s=0.5, frames=False)
+    failures: list[str] = []
+    rec = SessionRecorder(
+        tmp_path / "s.mcap", session_metadata(load_config()), buffer_bytes=4096, on_failure=failures.append
+    )
+    rec.start()
+    pid = rec._proc.pid
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        rows = itertools.cycle(trace.rows)
+        wait_until(
+            lambda: rec.on_cycle(*next(rows), timing=m.pb.CycleTiming()) or failures, "the policy's call"
+        )
+        assert failures == [rec.error] and "took no data for 0.3 s while the backlog was full" in rec.error
+        assert rec.dropped > 0 and rec.first_lost_cycle is not None
+        for _ in range(50):  # the rest is lost at once, the policy not called again
+            rec.on_cycle(*next(rows), timing=m.pb.CycleTiming())
+        assert len(failures) == 1
+        closing = threading.Thread(target=rec.close, name="close-with-a-stalled-writer", daemon=True)
+        closing.start()
+        closing.join(GENEROUS_S)  # its answer is waited for STALLED_WRITER_ANSWER_S, not 120 s
+        assert not closing.is_alive(), f"close() still waiting for a stalled writer after {GENEROUS_S} s"
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGCONT)
+    assert rec.queued + rec.dropped == rec._cycle_calls  # every item handed over or counted as lost
+
+
 def test_a_writer_that_stops_reading_blocks_neither_the_loop_nor_the_exit(tmp_path, monkeypatch):
     from logs import recorder
 
