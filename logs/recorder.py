@@ -63,7 +63,10 @@ DEFAULT_FLUSH_INTERVAL_S = 2.0
 # The wait ends on the writer's reply; the bound is for an emulated CPU (the vcan VM), where the
 # writer's imports (the scene drawing, the schemas) took longer than 20 s.
 WRITER_START_TIMEOUT_S = 120.0
-WRITER_FINISH_TIMEOUT_S = 120.0  # at close: the writer took no data, or gave no answer, this long
+# At close: the writer took no data, or gave no answer, this long. Writing a chunk or the summary
+# takes it seconds at most, even on the emulated CPU of the vcan VM; it was 120 s, and a writer
+# stopped at the end of a demo held its exit 259 s (two waits in series, an outside tester's).
+WRITER_FINISH_TIMEOUT_S = 30.0
 # A writer that takes nothing while the backlog overflows (a hung disk, a stopped process) for this
 # long is gone: the service's recording.on_failure decides. Items had been dropped for seconds by
 # then (the backlog holds about 4 s at 1 kHz); an outside tester's writer stopped for 30 s lost 40 %
