@@ -416,6 +416,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             summary = run(cfg, args.duration, plot)
         print(strict_json(summary) if args.json else strict_json(summary, indent=1))
         say_if_unfinished(summary, "cheope demo")
+        say_if_plots_failed(summary, "cheope demo")
         return 0 if summary["final_mode"] == "DONE" else 1
     spec = _spec(args, cfg, default_port=random_udp_port())
     with live_status(status_wanted(args.json, sys.stdout)) as status, _quiet_progress(status) as progress:
@@ -435,6 +436,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         )
     _print_summary(summary, args.json)
     say_if_unfinished(summary, "cheope demo")
+    say_if_plots_failed(summary, "cheope demo")
     return run_exit_code(summary)  # as `cheope run`: a lost recording is 3 (it was 0 for a demo)
 
 
@@ -479,6 +481,12 @@ def say_if_unfinished(summary: dict[str, Any], command: str) -> None:
             else "--duration, a signal or cheope stop"
         )
         print(f"{command}: note: the task did not finish: the run was stopped first ({why})", file=sys.stderr)
+
+
+def say_if_plots_failed(summary: dict[str, Any], command: str) -> None:
+    """A plot that could not be written (a full disk) is said on stderr; the summary, printed, has it too."""
+    if summary.get("plots_error"):
+        print(f"{command}: warning: {summary['plots_error']}", file=sys.stderr)
 
 
 def run_exit_code(summary: dict[str, Any]) -> int:

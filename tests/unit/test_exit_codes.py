@@ -43,3 +43,34 @@ def test_a_run_stopped_by_its_lost_recording_says_so_not_a_signal(capsys):
         {"final_mode": "DONE", "task_finished": False, "recording": {"error": ""}}, "cheope run"
     )
     assert "--duration, a signal or cheope stop" in capsys.readouterr().err
+
+
+def test_plots_that_cannot_be_written_do_not_cost_the_runs_summary(tmp_path, monkeypatch, capsys):
+    """An outside tester's --output-dir on a full disk: after the whole run, "error: [Errno 28] No
+    space left on device", exit 2, no summary. The summary is printed, the plots' failure named."""
+    import errno
+    import json
+
+    from controller.tools.contour import experiment
+
+    def full_disk(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(experiment, "plot_contour", full_disk)
+    argv = [
+        "demo",
+        "--task",
+        "contour",
+        "--simulated-time",
+        "--json",
+        "--duration",
+        "2",
+        "--output-dir",
+        str(tmp_path),
+    ]
+    assert cli.main(argv) == 0
+    out, err = capsys.readouterr()
+    summary = json.loads(out)
+    assert summary["final_mode"] == "DONE" and summary["plots"] == []
+    assert summary["plots_error"] == f"cannot write the plots in {tmp_path}: No space left on device"
+    assert "cheope demo: warning: cannot write the plots in" in err

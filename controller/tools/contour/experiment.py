@@ -111,7 +111,7 @@ def run_contour_experiment(
             **contour_summary(pos_obs, robot, stiffness, c.height_m, None),
         }
     if plot_dir is not None:
-        summary["plots"] = _plot(cfg, plot_dir, force_obs, pos_obs)
+        _plot(summary, cfg, plot_dir, force_obs, pos_obs)
     return summary
 
 
@@ -129,19 +129,30 @@ def contour_lap_report(
 
 
 def _plot(
-    cfg: Config, plot_dir: Path, force_obs: ContourObserver, pos_obs: ContourObserver | None = None
-) -> list[str]:
-    """Fig. 8-9 of the force-controlled run and, when there is one, of the comparison."""
+    summary: dict[str, object],
+    cfg: Config,
+    plot_dir: Path,
+    force_obs: ContourObserver,
+    pos_obs: ContourObserver | None = None,
+) -> None:
+    """Fig. 8-9 of the force-controlled run and, when there is one, of the comparison, into
+    ``summary["plots"]``. A plot that cannot be written (a full disk: the start's check of
+    ``--output-dir`` cannot foresee it) is named in ``summary["plots_error"]``: the run's summary
+    is printed all the same (an outside tester lost a whole run's table to ENOSPC, exit 2)."""
     c = cfg.task.model("contour")
     robot = structure_robot(cfg)
     stiffness = robot.actuator_stiffness_n_m
     masses = robot.masses
-    plots = plot_contour(
-        force_obs, robot, stiffness, masses, c.height_m, plot_dir, "force control", c.lap_speeds_m_s
-    )
-    if pos_obs is not None and pos_obs.t:
-        plots += plot_contour(pos_obs, robot, stiffness, masses, c.height_m, plot_dir, "position control")
-    return [str(p) for p in plots]
+    plots: list[Path] = []
+    try:
+        plots += plot_contour(
+            force_obs, robot, stiffness, masses, c.height_m, plot_dir, "force control", c.lap_speeds_m_s
+        )
+        if pos_obs is not None and pos_obs.t:
+            plots += plot_contour(pos_obs, robot, stiffness, masses, c.height_m, plot_dir, "position control")
+    except OSError as err:
+        summary["plots_error"] = f"cannot write the plots in {plot_dir}: {err.strerror or err}"
+    summary["plots"] = [str(p) for p in plots]
 
 
 def run_simulated_time(
@@ -184,7 +195,7 @@ def run_simulated_time(
         ),
     }
     if plot_dir is not None:
-        summary["plots"] = _plot(cfg, plot_dir, obs)
+        _plot(summary, cfg, plot_dir, obs)
     return summary
 
 
