@@ -82,6 +82,11 @@ def simulator_process(
         stderr=subprocess.PIPE,
         text=True,
         env=child_environment(PYTHONUNBUFFERED="1", **ending_with_parent()),
+        # Out of the terminal's process group: its Ctrl-C (SIGINT) and hang-up (SIGHUP) go to the
+        # whole group, and the simulated drives quit before the demo had shut them down (its stop
+        # ended in FAULT, "drives silent for 40 cycles"). The demo stops them after the drives
+        # (stop_process), and they end with it however it ends (ending_with_parent).
+        start_new_session=True,
     )
     try:
         _wait_ready(proc, ready_timeout_s)

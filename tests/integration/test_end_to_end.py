@@ -441,3 +441,52 @@ def test_a_demo_whose_recording_is_lost_exits_3_as_a_run_does(tmp_path: Path):
             demo.communicate(timeout=60)
     summary = json.loads(out)
     assert summary["recording"]["error"] and demo.returncode == 3, err
+
+
+def test_ctrl_c_on_a_terminal_stops_the_demo_in_order():
+    """A terminal's Ctrl-C goes to the whole foreground process group: the demo's simulator quit on
+    it before the demo had shut the drives down, and the stop ended in FAULT ("drives 1, 2, 3 and
+    the force sensor silent for 40 cycles"), exit 1 (an outside tester's). The simulator runs in
+    a session of its own: the demo stops it after the drives."""
+    import signal
+
+    import can
+
+    from drivers.bus import open_bus
+
+    port = _port()
+    demo = subprocess.Popen(
+        [
+            *CHEOPE,
+            "demo",  # the contour: its stop retracts for longer than the drives' 40 cycles of silence
+            "--json",
+            "--udp-port",
+            str(port),
+            *TOLERANT,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        start_new_session=True,  # a terminal's group of its own, as a shell gives a command
+    )
+    try:
+        with open_bus(parse_bus_spec("udp_multicast", udp_port=port)) as bus:
+            targets = [0]
+
+            def tracking() -> bool:  # 3 000 targets to drive 1: 7.5 s in, the tool on the part
+                assert demo.poll() is None, demo.communicate()
+                msg: can.Message | None = bus.recv(0.1)
+                targets[0] += msg is not None and msg.arbitration_id == 0x201
+                return targets[0] >= 3000
+
+            wait_until(tracking, "the demo's targets on the bus", poll_s=0.0)
+        os.killpg(demo.pid, signal.SIGINT)  # what the terminal does on Ctrl-C
+        out, err = demo.communicate(timeout=120.0)
+    finally:
+        if demo.poll() is None:
+            demo.kill()
+            demo.wait()
+    assert demo.returncode == 0, err[-3000:]
+    summary = json.loads(out)
+    assert summary["final_mode"] == "DONE" and summary["fault_reason"] == "", summary["fault_reason"]
