@@ -13,6 +13,7 @@ Only a file that is not MCAP at all (or cannot be opened) raises ``LogFileError`
 
 from __future__ import annotations
 
+import errno
 import io
 import json
 import mmap
@@ -248,6 +249,7 @@ def _walk(raw: bytes | mmap.mmap, report: ReadReport) -> Iterator[tuple[Channel,
     report.end_offset = pos
     n = len(raw)
     summary_schemas, summary_channels = summary_definitions(raw, report)
+    summary_at: int | None = None  # where the summary section starts (after DataEnd)
 
     def from_summary(channel_id: int) -> Channel | None:
         ch = summary_channels.get(channel_id)
@@ -330,10 +332,18 @@ def _walk(raw: bytes | mmap.mmap, report: ReadReport) -> Iterator[tuple[Channel,
             report.metadata[record.name] = dict(record.metadata)
         elif isinstance(record, (Message, Channel, Schema)):
             yield from emit([record])
+        elif isinstance(record, DataEnd):
+            summary_at = pos  # the summary, if any, follows the data section's end
         elif isinstance(record, Footer):
             report.complete = True
             if raw[pos : pos + 8] != MAGIC:
                 report.problems.append("the footer is not followed by the closing magic bytes")
+            expected = summary_at if summary_at is not None and summary_at < start else 0
+            if record.summary_start not in (0, expected):
+                # a reader that seeks by it (logs info without --check, other MCAP tools) fails
+                report.problems.append(
+                    f"the footer's summary_start {record.summary_start} is not where the summary starts ({expected})"
+                )
             break
     if not report.complete and not any(p.startswith("truncated") for p in report.problems):
         report.problems.append(f"truncated: the file ends at byte {n} without its summary and footer")
@@ -518,6 +528,8 @@ def read_info_from_summary(path: str | Path) -> ReadReport | None:
                 return None
             report.metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
     except OSError as err:
+        if err.errno == errno.EINVAL:  # a seek the damaged footer asked for (summary_start 2**60)
+            return None
         raise LogFileError(f"cannot read {p}: {err.strerror or err}") from err
     except (McapError, ValueError, struct.error, StopIteration):  # EndOfFile is an McapError
         return None  # a damaged summary: walk the file instead

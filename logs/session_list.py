@@ -101,7 +101,11 @@ def list_sessions(directory: str | Path = "") -> SessionListing:
         sid = file_meta.get("session_id") or session_meta.get("session_id") or f"file:{path.name}"
         seq = int(file_meta.get("sequence", "1")) if file_meta.get("sequence", "1").isdigit() else 1
         finished = _ends_with_magic(path, head.size_bytes)
-        summary = read_info_from_summary(path) if finished else None
+        try:
+            summary = read_info_from_summary(path) if finished else None
+        except LogFileError as err:  # a damaged footer or summary: this file, not the whole listing
+            unreadable.append(f"{path.name}: {err}")
+            continue
         session = sessions.setdefault(
             sid, Session(sid, session_meta.get("started_utc", ""), session_meta.get("task", ""))
         )

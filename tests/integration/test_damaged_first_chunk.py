@@ -179,3 +179,30 @@ def test_messages_removed_from_a_complete_file_are_a_problem_by_its_writers_coun
         assert report is not None and report.complete
         assert any(p.startswith(said) for p in report.problems), report.problems
     assert read_info(DATA / "path_quarter_lap.mcap").problems == []
+
+
+def _footer_pointing_outside(src: Path, dst: Path) -> Path:
+    """``src`` with its footer's summary_start at 2**60 (the footer: opcode, length, three fields, magic)."""
+    raw = bytearray(src.read_bytes())
+    footer = len(raw) - 8 - 29
+    assert raw[footer] == 0x02  # Opcode.FOOTER
+    struct.pack_into("<Q", raw, footer + 9, 2**60)
+    dst.write_bytes(raw)
+    return dst
+
+
+def test_a_footer_pointing_outside_the_file_is_named_and_spares_the_others(tmp_path: Path, capsys) -> None:
+    """An outside tester's: one such file ended ``logs list`` of the whole directory ("cannot read ...:
+    Invalid argument", exit 2), ``logs info`` said only that, and ``info --check`` said complete."""
+    good = tmp_path / "good.mcap"
+    good.write_bytes((DATA / "path_quarter_lap.mcap").read_bytes())
+    bad = _footer_pointing_outside(DATA / "path_quarter_lap.mcap", tmp_path / "bad.mcap")
+    assert read_info_from_summary(bad) is None  # no usable summary: the walk is the answer
+    report = read_info(bad)
+    assert report.messages == read_info(good).messages
+    assert report.problems == [f"the footer's summary_start {2**60} is not where the summary starts (164284)"]
+    assert main(["logs", "info", "--check", str(bad)]) == 1
+    capsys.readouterr()
+    assert main(["logs", "list", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "bad.mcap" in out and "good.mcap" in out
