@@ -206,6 +206,7 @@ class RobotPlant:
                 configured_drive_quirks(cfg),
             )
         ]
+        self._check_positions_fit_the_encoder(params)
         s = cfg.sim.sensor
         self.sensor = (
             SimulatedForceSensor(
@@ -281,6 +282,19 @@ class RobotPlant:
         self.force_n = np.zeros(3)
         if self.loaded and self.time_s is not None:
             self._refresh_structure()
+
+    def _check_positions_fit_the_encoder(self, params: DriveParams) -> None:
+        """Each drive's start, as its encoder reports it (0x6064, INTEGER32 counts), must fit: 500 m at
+        1e7 counts/m failed in the TPDO's pack with a traceback naming no key (an outside tester's)."""
+        for j, drive in enumerate(self.drives, start=1):
+            counts = (drive.position + drive.encoder_offset) * params.counts_per_unit
+            if not -(2**31) <= counts <= 2**31 - 1:
+                raise ValueError(
+                    f"drive {j} starts at {drive.position:g} (sim.drive.initial_positions_m, or the robot's "
+                    f"simulator hook) with encoder offset {drive.encoder_offset:g} "
+                    f"(sim.drive.encoder_offsets_m): {counts:.3g} counts at {params.counts_per_unit:g} counts "
+                    "per unit do not fit the encoder's INTEGER32 position (0x6064)"
+                )
 
     def _check_structure(self) -> None:
         """A workpiece presses on the robot's structure: only a robot that models one can meet it."""

@@ -35,3 +35,13 @@ def test_a_part_announced_after_the_start_is_checked_alike():
     plant = RobotPlant(cfg, FreeSpace())  # free space: nothing to integrate
     with pytest.raises(ValueError, match="too stiff"):
         plant.set_environment(environment_named(cfg, "workpiece"))
+
+
+@pytest.mark.parametrize("start_m", [500.0, 1e300, -215.0])
+def test_a_start_the_encoder_cannot_report_is_refused_naming_the_keys(start_m):
+    """An outside tester's sim.drive.initial_positions_m = [500, 0.5, 0.5]: a struct.error traceback
+    from the first TPDO's pack, naming no key. 2**31 counts at 1e7 counts/m is 214.7 m."""
+    cfg = load_config(overrides={"sim.drive.initial_positions_m": [0.6, start_m, 0.5]})
+    with pytest.raises(ValueError, match=r"drive 2 starts at .*sim.drive.initial_positions_m.*INTEGER32"):
+        RobotPlant(cfg, FreeSpace())
+    RobotPlant(load_config(overrides={"sim.drive.initial_positions_m": [0.6, 214.0, 0.5]}), FreeSpace())
