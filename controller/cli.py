@@ -563,6 +563,7 @@ def cmd_bus_load(args: argparse.Namespace) -> int:
 
 def cmd_nodes(args: argparse.Namespace) -> int:
     from drivers.bus import open_bus
+    from drivers.bus_presence import check_no_other_master
     from drivers.node_scan import log_quietly, lss_fast_scan, nodes_as_json, nodes_table, scan_nodes
     from drivers.node_setup import DRIVE_EDS, SENSOR_EDS, device_description_path
 
@@ -576,7 +577,11 @@ def cmd_nodes(args: argparse.Namespace) -> int:
     for node_id in args.lss_assign:
         if not 1 <= node_id <= 127:
             raise ConfigError(f"--lss-assign {node_id}: a node id is 1..127")
-    with open_bus(_spec(args, cfg)) as bus:
+    spec = _spec(args, cfg)
+    with open_bus(spec) as bus:
+        # a scan is a master's SDO requests: beside a running controller they faulted it mid-contour
+        # ("a second master") and read back its answers as a wrong table, exit 0 (an outside tester's)
+        check_no_other_master(bus, spec.place, cfg.loop.controller_node_id, cfg.bus.presence_listen_s)
         lss = lss_fast_scan(bus, tuple(args.lss_assign)) if args.lss_scan or args.lss_assign else []
         nodes = scan_nodes(bus, eds, sdo_timeout_s=cfg.loop.sdo_timeout_s)
     if args.json:

@@ -124,3 +124,30 @@ def test_a_second_simulator_with_the_same_node_ids_is_refused_one_with_others_st
         with simulator_process(spec, None, others) as proc:
             assert proc.poll() is None  # READY: devices of other ids may share the bus
             stop_process(proc)
+
+
+def test_cheope_nodes_refuses_a_bus_with_a_running_master_and_sends_nothing() -> None:
+    """An outside tester's ``cheope nodes`` beside a running demo faulted its controller mid-contour
+    ("a second master", the scan's SDO requests) and printed a wrong table, exit 0."""
+    spec = parse_bus_spec("udp_multicast", udp_port=random_udp_port())
+    stop = threading.Event()
+    sent_by_nodes: list[int] = []
+    with open_bus(spec) as master, open_bus(spec) as listener:
+
+        def other_master() -> None:
+            while not stop.wait(0.01):
+                master.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))
+
+        thread = threading.Thread(target=other_master)
+        thread.start()
+        try:
+            r = _cheope("nodes", "--udp-port", str(spec.udp_port))
+        finally:
+            stop.set()
+            thread.join()
+        while (msg := listener.recv(0.0)) is not None:
+            if msg.arbitration_id != 0x080:
+                sent_by_nodes.append(msg.arbitration_id)
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert "refused: another master is active on udp_multicast:" in r.stderr and "SYNC (0x080)" in r.stderr
+    assert r.stdout == "" and sent_by_nodes == []
