@@ -14,6 +14,7 @@ configures both processes, so the whole document is validated before either star
 from __future__ import annotations
 
 import copy
+import math
 import re
 import tomllib
 from collections.abc import Mapping
@@ -611,9 +612,9 @@ def recorded_config_from_dict(table: dict[str, Any]) -> Config:
     if isinstance(actuators, dict) and "extrapolation_s" not in actuators:
         # before the drives' 0x2010 was written they ran on one period past a missing target
         rate_hz = loop.get("rate_hz") if isinstance(loop, dict) else None
-        actuators["extrapolation_s"] = 1.0 / (
-            rate_hz if isinstance(rate_hz, int | float) else LoopSection().rate_hz
-        )
+        usable = isinstance(rate_hz, int | float) and math.isfinite(rate_hz) and rate_hz > 0
+        # an unusable rate (a --set of nan) is named as itself below, not through this derived key
+        actuators["extrapolation_s"] = 1.0 / (rate_hz if usable else LoopSection().rate_hz)
     robot, task = table.get("robot"), table.get("task")
     if (
         isinstance(robot, dict)

@@ -222,6 +222,16 @@ def test_a_bad_set_in_a_verify_is_blamed_on_the_set_not_the_recording(tmp_path, 
     assert "does not load any more" not in err
 
 
+def test_a_bad_rate_in_a_verify_of_an_older_recording_is_named_as_itself(capsys):
+    """The committed recordings predate actuators.extrapolation_s, which their loading derives from
+    the rate: --set loop.rate_hz=nan was blamed on "actuators.extrapolation_s = nan" (an outside
+    tester's)."""
+    recorded = Path(__file__).resolve().parents[1] / "data" / "path_quarter_lap.mcap"
+    assert main(["replay", str(recorded), "--verify", "--set", "loop.rate_hz=nan"]) == 2
+    err = capsys.readouterr().err
+    assert "loop.rate_hz = nan: must be finite" in err and "extrapolation_s" not in err
+
+
 def test_replay_cli_errors_are_one_line(tmp_path, capsys):
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(b"\x89MCAP0\r\n")
