@@ -612,9 +612,10 @@ def recorded_config_from_dict(table: dict[str, Any]) -> Config:
     if isinstance(actuators, dict) and "extrapolation_s" not in actuators:
         # before the drives' 0x2010 was written they ran on one period past a missing target
         rate_hz = loop.get("rate_hz") if isinstance(loop, dict) else None
-        usable = isinstance(rate_hz, int | float) and math.isfinite(rate_hz) and rate_hz > 0
-        # an unusable rate (a --set of nan) is named as itself below, not through this derived key
-        actuators["extrapolation_s"] = 1.0 / (rate_hz if usable else LoopSection().rate_hz)
+        if not (isinstance(rate_hz, int | float) and math.isfinite(rate_hz) and rate_hz > 0):
+            # an unusable rate (a --set of nan) is named as itself below, not through this derived key
+            rate_hz = LoopSection().rate_hz
+        actuators["extrapolation_s"] = 1.0 / rate_hz
     robot, task = table.get("robot"), table.get("task")
     if (
         isinstance(robot, dict)
