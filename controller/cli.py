@@ -436,6 +436,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         )
     _print_summary(summary, args.json)
     say_if_unfinished(summary, "cheope demo")
+    say_if_held_up_before_the_fault(summary, "cheope demo")
     say_if_plots_failed(summary, "cheope demo")
     return run_exit_code(summary)  # as `cheope run`: a lost recording is 3 (it was 0 for a demo)
 
@@ -459,6 +460,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         )
     _print_summary(summary, args.json)
     say_if_unfinished(summary, "cheope run")
+    say_if_held_up_before_the_fault(summary, "cheope run")
     return run_exit_code(summary)
 
 
@@ -481,6 +483,12 @@ def say_if_unfinished(summary: dict[str, Any], command: str) -> None:
             else "--duration, a signal or cheope stop"
         )
         print(f"{command}: note: the task did not finish: the run was stopped first ({why})", file=sys.stderr)
+
+
+def say_if_held_up_before_the_fault(summary: dict[str, Any], command: str) -> None:
+    """A fault that followed the loop's own hold-up (controller/shell/run_summary.py) is said on stderr."""
+    if summary.get("final_mode") == "FAULT" and summary.get("fault_after_holdup"):
+        print(f"{command}: note: {summary['fault_after_holdup']}", file=sys.stderr)
 
 
 def say_if_plots_failed(summary: dict[str, Any], command: str) -> None:

@@ -33,6 +33,20 @@ def task_finished_event(e: Event) -> bool:
     return e.kind == "mode" and "-> STOPPING: task " in e.message and e.message.endswith(" finished")
 
 
+# A gap in the cycles' times this long is the loop itself held up (a stopped process, a suspended
+# VM), not a late cycle; a fault within HOLDUP_BLAME_S after it is said to follow it: the drives'
+# heartbeats, SYNC watchdog and frames go missing while the controller is not listening, and the
+# fault then names the drives (an outside tester's SIGSTOP of 5 s read "heartbeat lost from node(s)
+# [1, 2, 16]").
+HOLDUP_NOTE_S = 0.25
+HOLDUP_BLAME_S = 1.0
+
+
+def fault_event(e: Event) -> bool:
+    """The law's mode event of a fault ("RUNNING -> FAULT: ...", controller/core/control_law.py)."""
+    return e.kind == "mode" and "-> FAULT" in e.message
+
+
 @dataclass
 class RunRecorder:
     """Collects the per-cycle figures a summary needs (the loop's observer), in bounded memory:
@@ -43,6 +57,10 @@ class RunRecorder:
     events: deque[tuple[float, Event]] = field(default_factory=lambda: deque(maxlen=EVENT_RING))
     events_seen: int = 0
     task_finished: bool = False  # the task's own end was seen (task_finished_event)
+    # the loop's own hold-up that a fault followed (HOLDUP_BLAME_S), said in the summary; "" if none
+    fault_after_holdup: str = ""
+    _last_t: float | None = None
+    _holdup: tuple[float, float] | None = None  # the last gap of HOLDUP_NOTE_S or more: (length [s], end t)
     _references: deque[tuple[float, float, float] | None] = field(
         default_factory=lambda: deque([None] * PIPELINE_PERIODS, maxlen=PIPELINE_PERIODS)
     )
@@ -63,10 +81,24 @@ class RunRecorder:
             self.tracking.add(error_m)
             self.tracking_ring.append(error_m)
         self._references.append(state.tcp_reference_m)
+        if self._last_t is not None and t - self._last_t >= HOLDUP_NOTE_S:
+            self._holdup = (t - self._last_t, t)  # the deadlines the loop skipped: t jumps
+        self._last_t = t
         for e in events:
             self.events.append((t, e))
             if task_finished_event(e):
                 self.task_finished = True
+            if (
+                fault_event(e)
+                and not self.fault_after_holdup
+                and self._holdup is not None
+                and t - self._holdup[1] <= HOLDUP_BLAME_S
+            ):
+                self.fault_after_holdup = (
+                    f"the loop itself was held up {self._holdup[0]:.2f} s (to t = {self._holdup[1]:.2f} s) "
+                    f"{t - self._holdup[1]:.2f} s before this fault: a stopped or starved controller process "
+                    "or a suspended machine, not the devices, may be its cause"
+                )
         self.events_seen += len(events)
 
     @property
@@ -106,6 +138,7 @@ def summarize(
         "final_mode": final.mode.name,
         "fault_reason": final.fault_reason,
         "task_finished": recorder.task_finished,  # DONE without it: stopped first (--duration, a signal)
+        **({"fault_after_holdup": recorder.fault_after_holdup} if recorder.fault_after_holdup else {}),
         "cycles": stats.cycles,
         "nominal_rate_hz": 1.0 / stats.period_s,
         "achieved_rate_hz": round(stats.achieved_rate_hz, 3),

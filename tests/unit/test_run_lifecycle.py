@@ -123,3 +123,33 @@ def test_the_run_recorder_keeps_bounded_figures():
     assert rec.tracking.count == err.size > 300
     assert rec.tracking.rms == pytest.approx(float(np.sqrt(np.mean(err**2))))
     assert rec.tracking.maximum == err.max()
+
+
+def test_a_fault_after_the_loops_own_hold_up_is_said_to_follow_it():
+    """An outside tester stopped the controller 5 s (SIGSTOP): the fault named the drives ("heartbeat
+    lost from node(s) [1, 2, 16]"). The summary says the loop was held up just before; a fault
+    with no hold-up before it, or long after one, is not blamed on it."""
+    from types import SimpleNamespace
+
+    from controller.core.cycle_data import Event, Severity
+    from controller.shell.run_summary import HOLDUP_BLAME_S
+
+    state = SimpleNamespace(tcp_measured_m=None, tcp_reference_m=None)
+    inputs = SimpleNamespace(drives=())
+    fault = Event(
+        "mode", Severity.FAULT, f"{Mode.RUNNING.name} -> {Mode.FAULT.name}: heartbeat lost from node(s) [1]"
+    )
+
+    def run(times: list[float]) -> RunRecorder:
+        rec = RunRecorder()
+        for k, t in enumerate(times):
+            rec.on_cycle(k, t, inputs, state, None, (fault,) if k == len(times) - 1 else (), None)
+        return rec
+
+    period = 0.0025
+    held = run([0.0, period, 2 * period, 5.0 + 2 * period, 5.0 + 3 * period])
+    assert held.fault_after_holdup.startswith("the loop itself was held up 5.00 s")
+    assert run([k * period for k in range(400)]).fault_after_holdup == ""  # no hold-up
+    steps = int(HOLDUP_BLAME_S / period) + 2
+    late = run([0.0, *(5.0 + k * period for k in range(steps))])  # the fault long after it
+    assert late.fault_after_holdup == ""
