@@ -59,8 +59,9 @@ class RunRecorder:
     task_finished: bool = False  # the task's own end was seen (task_finished_event)
     # the loop's own hold-up that a fault followed (HOLDUP_BLAME_S), said in the summary; "" if none
     fault_after_holdup: str = ""
-    _last_t: float | None = None
-    _holdup: tuple[float, float] | None = None  # the last gap of HOLDUP_NOTE_S or more: (length [s], end t)
+    _last_stepped_s: float | None = None
+    # the last gap of HOLDUP_NOTE_S or more: (length [s], its cycle's t, the loop's clock at its step's end)
+    _holdup: tuple[float, float, float] | None = None
     _references: deque[tuple[float, float, float] | None] = field(
         default_factory=lambda: deque([None] * PIPELINE_PERIODS, maxlen=PIPELINE_PERIODS)
     )
@@ -81,9 +82,13 @@ class RunRecorder:
             self.tracking.add(error_m)
             self.tracking_ring.append(error_m)
         self._references.append(state.tcp_reference_m)
-        if self._last_t is not None and t - self._last_t >= HOLDUP_NOTE_S:
-            self._holdup = (t - self._last_t, t)  # the deadlines the loop skipped: t jumps
-        self._last_t = t
+        # between two steps, by the loop's clock: a hold-up in the sleep (the deadlines skipped) or
+        # inside the cycle (a process stopped in its collect), both
+        stepped_s = timing.stepped_s if timing is not None else math.nan
+        if self._last_stepped_s is not None and stepped_s - self._last_stepped_s >= HOLDUP_NOTE_S:
+            self._holdup = (stepped_s - self._last_stepped_s, t, stepped_s)
+        if not math.isnan(stepped_s):
+            self._last_stepped_s = stepped_s
         for e in events:
             self.events.append((t, e))
             if task_finished_event(e):
@@ -92,12 +97,13 @@ class RunRecorder:
                 fault_event(e)
                 and not self.fault_after_holdup
                 and self._holdup is not None
-                and t - self._holdup[1] <= HOLDUP_BLAME_S
+                and stepped_s - self._holdup[2]
+                <= HOLDUP_BLAME_S  # the loop's clock: t jumps over skipped deadlines
             ):
                 self.fault_after_holdup = (
-                    f"the loop itself was held up {self._holdup[0]:.2f} s (to t = {self._holdup[1]:.2f} s) "
-                    f"{t - self._holdup[1]:.2f} s before this fault: a stopped or starved controller process "
-                    "or a suspended machine, not the devices, may be its cause"
+                    f"the loop itself was held up {self._holdup[0]:.2f} s (its cycle at t = {self._holdup[1]:.4f} s, "
+                    f"the fault's {t:.4f} s): a stopped or starved controller process or a suspended machine, "
+                    "not the devices, may be its cause"
                 )
         self.events_seen += len(events)
 

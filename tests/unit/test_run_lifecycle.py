@@ -132,6 +132,7 @@ def test_a_fault_after_the_loops_own_hold_up_is_said_to_follow_it():
     from types import SimpleNamespace
 
     from controller.core.cycle_data import Event, Severity
+    from controller.core.ports import CycleTiming
     from controller.shell.run_summary import HOLDUP_BLAME_S
 
     state = SimpleNamespace(tcp_measured_m=None, tcp_reference_m=None)
@@ -140,16 +141,30 @@ def test_a_fault_after_the_loops_own_hold_up_is_said_to_follow_it():
         "mode", Severity.FAULT, f"{Mode.RUNNING.name} -> {Mode.FAULT.name}: heartbeat lost from node(s) [1]"
     )
 
-    def run(times: list[float]) -> RunRecorder:
+    period = 0.0025
+
+    def run(stepped: list[float]) -> RunRecorder:
+        """Cycles whose steps ended at ``stepped`` [s] (the loop's clock), the last one faulting."""
         rec = RunRecorder()
-        for k, t in enumerate(times):
-            rec.on_cycle(k, t, inputs, state, None, (fault,) if k == len(times) - 1 else (), None)
+        for k, s in enumerate(stepped):
+            last = k == len(stepped) - 1
+            rec.on_cycle(
+                k, k * period, inputs, state, None, (fault,) if last else (), CycleTiming(0.0, 1e-4, s)
+            )
         return rec
 
-    period = 0.0025
-    held = run([0.0, period, 2 * period, 5.0 + 2 * period, 5.0 + 3 * period])
-    assert held.fault_after_holdup.startswith("the loop itself was held up 5.00 s")
+    # stopped inside its cycle (the tester's: 5 s in the collect, the fault in that same cycle)
+    held = run([0.0, period, 2 * period, 5.0 + 3 * period])
+    assert held.fault_after_holdup.startswith("the loop itself was held up 5.00 s (its cycle at t = 0.0075 s")
     assert run([k * period for k in range(400)]).fault_after_holdup == ""  # no hold-up
+    # stopped inside its step: the deadlines skipped, the next cycle's t jumps 5 s; it faults then
+    skipped = RunRecorder()
+    for k, s in ((0, 0.0), (1, period), (2, 5.0 + period)):
+        skipped.on_cycle(k, k * period, inputs, state, None, (), CycleTiming(0.0, 1e-4, s))
+    skipped.on_cycle(
+        2003, 2003 * period, inputs, state, None, (fault,), CycleTiming(0.0, 1e-4, 5.0 + 2 * period)
+    )
+    assert skipped.fault_after_holdup.startswith("the loop itself was held up 5.00 s")
     steps = int(HOLDUP_BLAME_S / period) + 2
     late = run([0.0, *(5.0 + k * period for k in range(steps))])  # the fault long after it
     assert late.fault_after_holdup == ""
