@@ -437,6 +437,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     _print_summary(summary, args.json)
     say_if_unfinished(summary, "cheope demo")
     say_if_held_up_before_the_fault(summary, "cheope demo")
+    say_if_the_simulator_died(summary, "cheope demo")
     say_if_plots_failed(summary, "cheope demo")
     return run_exit_code(summary)  # as `cheope run`: a lost recording is 3 (it was 0 for a demo)
 
@@ -489,6 +490,18 @@ def say_if_held_up_before_the_fault(summary: dict[str, Any], command: str) -> No
     """A fault that followed the loop's own hold-up (controller/shell/run_summary.py) is said on stderr."""
     if summary.get("final_mode") == "FAULT" and summary.get("fault_after_holdup"):
         print(f"{command}: note: {summary['fault_after_holdup']}", file=sys.stderr)
+
+
+def say_if_the_simulator_died(summary: dict[str, Any], command: str) -> None:
+    """A demo's simulator that ended before the demo stopped it is said on stderr: the fault that
+    follows names the drives' silence, which was the simulator's (an outside tester's kill -9)."""
+    simulator = summary.get("simulator")
+    if isinstance(simulator, dict) and simulator.get("ended_early"):
+        print(
+            f"{command}: note: the simulator ended during the run ({simulator['ended_early']}): "
+            "the simulated drives and sensor went silent with it",
+            file=sys.stderr,
+        )
 
 
 def say_if_plots_failed(summary: dict[str, Any], command: str) -> None:

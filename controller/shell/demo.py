@@ -92,9 +92,22 @@ def simulator_process(
         _wait_ready(proc, ready_timeout_s)
         yield proc
     finally:
+        ended = proc.poll()  # before the demo stops it: the simulated drives died under the run
         said = stop_process(proc)
         if report is not None:
             report.update(simulator_report(said))
+            if ended is not None:
+                report["ended_early"] = exit_text(ended)
+
+
+def exit_text(returncode: int) -> str:
+    """A child's exit status as words: "exited with status 1", "killed by SIGKILL"."""
+    if returncode >= 0:
+        return f"exited with status {returncode}"
+    try:
+        return f"killed by {signal.Signals(-returncode).name}"
+    except ValueError:
+        return f"killed by signal {-returncode}"
 
 
 def _wait_ready(proc: subprocess.Popen[str], timeout_s: float) -> None:

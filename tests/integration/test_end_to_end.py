@@ -490,3 +490,54 @@ def test_ctrl_c_on_a_terminal_stops_the_demo_in_order():
     assert demo.returncode == 0, err[-3000:]
     summary = json.loads(out)
     assert summary["final_mode"] == "DONE" and summary["fault_reason"] == "", summary["fault_reason"]
+
+
+def test_a_simulator_killed_under_the_demo_is_named():
+    """An outside tester's kill -9 of the demo's simulator: the fault said the drives went silent,
+    and nothing said the simulator had died. The summary and stderr name how it ended."""
+    import signal
+
+    import can
+
+    from drivers.bus import open_bus
+
+    port = _port()
+    demo = subprocess.Popen(
+        [
+            *CHEOPE,
+            "demo",
+            "--task",
+            "path",
+            "--json",
+            "--set",
+            "task.path.laps=20",
+            "--udp-port",
+            str(port),
+            *TOLERANT,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    try:
+        with open_bus(parse_bus_spec("udp_multicast", udp_port=port)) as bus:
+
+            def targets_streaming() -> bool:
+                assert demo.poll() is None, demo.communicate()
+                msg: can.Message | None = bus.recv(0.1)
+                return msg is not None and msg.arbitration_id == 0x201
+
+            wait_until(targets_streaming, "the demo's targets on the bus", poll_s=0.0)
+        simulator = _simulator_of(demo.pid)
+        assert simulator is not None
+        os.kill(simulator, signal.SIGKILL)
+        out, err = demo.communicate(timeout=120.0)
+    finally:
+        if demo.poll() is None:
+            demo.kill()
+            demo.wait()
+    summary = json.loads(out)
+    assert summary["final_mode"] == "FAULT" and demo.returncode == 1
+    assert summary["simulator"]["ended_early"] == "killed by SIGKILL"
+    assert "note: the simulator ended during the run (killed by SIGKILL)" in err
