@@ -8,7 +8,8 @@ import random
 import struct
 import subprocess
 import sys
-from collections.abc import Iterator
+import threading
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -88,6 +89,30 @@ def wait_until_drive_1_moves(bus: can.BusABC, ctrl: subprocess.Popen[str]) -> No
         return abs(counts - start) > 20_000 and step > 10  # 2 mm travelled (1e7 counts/m), > 1 um per cycle
 
     wait_until(moving, "drive 1 moving under the controller", poll_s=0.0)
+
+
+@contextmanager
+def another_master(spec: BusSpec, frames: Sequence[can.Message]) -> Iterator[None]:
+    """A master on ``spec`` while the block runs: ``frames`` (its SYNC, its heartbeat) every 10 ms,
+    from a thread of this test, stopped and joined at the block's end."""
+    stop = threading.Event()
+    with open_bus(spec) as master:
+
+        def send() -> None:
+            while not stop.wait(0.01):
+                for frame in frames:
+                    master.send(frame)
+
+        thread = threading.Thread(target=send, name="another master")
+        thread.start()
+        try:
+            yield
+        finally:
+            stop.set()
+            thread.join()
+
+
+SYNC = can.Message(arbitration_id=0x080, data=b"", is_extended_id=False)
 
 
 @contextmanager

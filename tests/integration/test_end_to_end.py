@@ -41,9 +41,9 @@ def _cheope(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[s
     )
 
 
-def _path_demo(*sets: str, laps: float = 0.5) -> subprocess.Popen[str]:
-    """``cheope demo --json`` of ``laps`` of the path task with ``sets`` (``KEY=VALUE``), started;
-    its output in pipes."""
+def _path_demo(*sets: str, laps: float = 0.5, port: int | None = None) -> subprocess.Popen[str]:
+    """``cheope demo --json`` of ``laps`` of the path task with ``sets`` (``KEY=VALUE``), started
+    on ``port`` (a random one when None); its output in pipes."""
     return subprocess.Popen(
         [
             *CHEOPE,
@@ -55,7 +55,7 @@ def _path_demo(*sets: str, laps: float = 0.5) -> subprocess.Popen[str]:
             f"task.path.laps={laps:g}",
             *(arg for kv in sets for arg in ("--set", kv)),
             "--udp-port",
-            str(_port()),
+            str(_port() if port is None else port),
             *TOLERANT,
         ],
         stdout=subprocess.PIPE,
@@ -443,16 +443,30 @@ def test_a_demo_whose_recording_is_lost_exits_3_as_a_run_does(tmp_path: Path):
     assert summary["recording"]["error"] and demo.returncode == 3, err
 
 
+def _wait_for_targets(demo: subprocess.Popen[str], port: int, count: int) -> None:
+    """Until ``count`` targets to drive 1 (its RPDO1) were on the demo's bus; fails if the demo ends first."""
+    import can
+
+    from drivers.bus import open_bus
+
+    seen = [0]
+    with open_bus(parse_bus_spec("udp_multicast", udp_port=port)) as bus:
+
+        def enough() -> bool:
+            assert demo.poll() is None, demo.communicate()
+            msg: can.Message | None = bus.recv(0.1)
+            seen[0] += msg is not None and msg.arbitration_id == 0x201
+            return seen[0] >= count
+
+        wait_until(enough, f"{count} of the demo's targets on the bus", poll_s=0.0)
+
+
 def test_ctrl_c_on_a_terminal_stops_the_demo_in_order():
     """A terminal's Ctrl-C goes to the whole foreground process group: the demo's simulator quit on
     it before the demo had shut the drives down, and the stop ended in FAULT ("drives 1, 2, 3 and
     the force sensor silent for 40 cycles"), exit 1 (an outside tester's). The simulator runs in
     a session of its own: the demo stops it after the drives."""
     import signal
-
-    import can
-
-    from drivers.bus import open_bus
 
     port = _port()
     demo = subprocess.Popen(
@@ -471,16 +485,7 @@ def test_ctrl_c_on_a_terminal_stops_the_demo_in_order():
         start_new_session=True,  # a terminal's group of its own, as a shell gives a command
     )
     try:
-        with open_bus(parse_bus_spec("udp_multicast", udp_port=port)) as bus:
-            targets = [0]
-
-            def tracking() -> bool:  # 3 000 targets to drive 1: 7.5 s in, the tool on the part
-                assert demo.poll() is None, demo.communicate()
-                msg: can.Message | None = bus.recv(0.1)
-                targets[0] += msg is not None and msg.arbitration_id == 0x201
-                return targets[0] >= 3000
-
-            wait_until(tracking, "the demo's targets on the bus", poll_s=0.0)
+        _wait_for_targets(demo, port, 3000)  # 7.5 s in: the tool on the part
         os.killpg(demo.pid, signal.SIGINT)  # what the terminal does on Ctrl-C
         out, err = demo.communicate(timeout=120.0)
     finally:
@@ -497,38 +502,15 @@ def test_a_simulator_killed_under_the_demo_is_named():
     and nothing said the simulator had died. The summary and stderr name how it ended."""
     import signal
 
-    import can
+    from controller_on_the_bus import wait_until_drive_1_moves
 
     from drivers.bus import open_bus
 
     port = _port()
-    demo = subprocess.Popen(
-        [
-            *CHEOPE,
-            "demo",
-            "--task",
-            "path",
-            "--json",
-            "--set",
-            "task.path.laps=20",
-            "--udp-port",
-            str(port),
-            *TOLERANT,
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )
+    demo = _path_demo(laps=20, port=port)
     try:
         with open_bus(parse_bus_spec("udp_multicast", udp_port=port)) as bus:
-
-            def targets_streaming() -> bool:
-                assert demo.poll() is None, demo.communicate()
-                msg: can.Message | None = bus.recv(0.1)
-                return msg is not None and msg.arbitration_id == 0x201
-
-            wait_until(targets_streaming, "the demo's targets on the bus", poll_s=0.0)
+            wait_until_drive_1_moves(bus, demo)
         simulator = _simulator_of(demo.pid)
         assert simulator is not None
         os.kill(simulator, signal.SIGKILL)

@@ -10,11 +10,11 @@ import json
 import signal
 import subprocess
 import sys
-import threading
 
 import can
 import pytest
 from busy_machine import TOLERANT
+from controller_on_the_bus import SYNC, another_master
 from waiting import GENEROUS_S, wait_until
 
 from controller.config import load_config
@@ -88,22 +88,11 @@ def test_a_running_controller_is_heard_and_its_devices_too_and_it_runs_on() -> N
 def test_cheope_run_refuses_a_bus_with_another_master_and_sends_nothing() -> None:
     """A master heard by its SYNC and its heartbeat on node 100 (a live controller of the same node id)."""
     spec = parse_bus_spec("udp_multicast", udp_port=random_udp_port())
-    stop = threading.Event()
     sent_by_run: list[int] = []
-    with open_bus(spec) as master, open_bus(spec) as listener:
-
-        def other_master() -> None:
-            while not stop.wait(0.01):
-                master.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))
-                master.send(can.Message(arbitration_id=0x764, data=b"\x05", is_extended_id=False))
-
-        thread = threading.Thread(target=other_master)
-        thread.start()
-        try:
+    heartbeat_100 = can.Message(arbitration_id=0x764, data=b"\x05", is_extended_id=False)
+    with open_bus(spec) as listener:
+        with another_master(spec, (SYNC, heartbeat_100)):
             r = _cheope("run", "--no-realtime", "--udp-port", str(spec.udp_port), *QUIET)
-        finally:
-            stop.set()
-            thread.join()
         while (msg := listener.recv(0.0)) is not None:
             if msg.arbitration_id not in (0x080, 0x764):
                 sent_by_run.append(msg.arbitration_id)
@@ -130,21 +119,10 @@ def test_cheope_nodes_refuses_a_bus_with_a_running_master_and_sends_nothing() ->
     """An outside tester's ``cheope nodes`` beside a running demo faulted its controller mid-contour
     ("a second master", the scan's SDO requests) and printed a wrong table, exit 0."""
     spec = parse_bus_spec("udp_multicast", udp_port=random_udp_port())
-    stop = threading.Event()
     sent_by_nodes: list[int] = []
-    with open_bus(spec) as master, open_bus(spec) as listener:
-
-        def other_master() -> None:
-            while not stop.wait(0.01):
-                master.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))
-
-        thread = threading.Thread(target=other_master)
-        thread.start()
-        try:
+    with open_bus(spec) as listener:
+        with another_master(spec, (SYNC,)):
             r = _cheope("nodes", "--udp-port", str(spec.udp_port))
-        finally:
-            stop.set()
-            thread.join()
         while (msg := listener.recv(0.0)) is not None:
             if msg.arbitration_id != 0x080:
                 sent_by_nodes.append(msg.arbitration_id)

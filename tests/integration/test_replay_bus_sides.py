@@ -18,6 +18,7 @@ from pathlib import Path
 import can
 import pytest
 from can_traffic import record_traffic
+from controller_on_the_bus import SYNC, another_master
 from waiting import wait_until
 
 from controller.shell.demo import random_udp_port
@@ -44,6 +45,10 @@ class Listener:
             msg = self.bus.recv(timeout=0.1)
             if msg is not None:
                 self.frames.append(msg)
+                self.on_frame(msg)
+
+    def on_frame(self, msg: can.Message) -> None:
+        """What a listener that answers does with each frame (nothing here)."""
 
     def close(self) -> None:
         self._stop.set()
@@ -101,30 +106,13 @@ def test_every_frame_of_the_side_replayed_arrives_once_in_order(tmp_path: Path, 
     assert all(m.is_rx for m in listener.frames)  # a bus carries no direction: logs export keeps it
 
 
-class AnsweringDevice:
+class AnsweringDevice(Listener):
     """An idle CANopen device on the group: answers a read of its device type (0x1000) as node 1."""
 
-    def __init__(self, port: int) -> None:
-        self.bus = open_bus(parse_bus_spec("udp_multicast", udp_port=port))
-        self.heard: list[can.Message] = []
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="answering device")
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            msg = self.bus.recv(timeout=0.1)
-            if msg is None:
-                continue
-            self.heard.append(msg)
-            if msg.arbitration_id == 0x601 and bytes(msg.data[:4]) == bytes((0x40, 0x00, 0x10, 0x00)):
-                answer = bytes((0x43, 0x00, 0x10, 0x00, 0x92, 0x01, 0x02, 0x00))  # CiA 402 drive
-                self.bus.send(can.Message(arbitration_id=0x581, data=answer, is_extended_id=False))
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join()
-        self.bus.shutdown()
+    def on_frame(self, msg: can.Message) -> None:
+        if msg.arbitration_id == 0x601 and bytes(msg.data[:4]) == bytes((0x40, 0x00, 0x10, 0x00)):
+            answer = bytes((0x43, 0x00, 0x10, 0x00, 0x92, 0x01, 0x02, 0x00))  # CiA 402 drive
+            self.bus.send(can.Message(arbitration_id=0x581, data=answer, is_extended_id=False))
 
 
 def test_the_controllers_frames_are_not_replayed_onto_live_devices(tmp_path: Path):
@@ -143,7 +131,7 @@ def test_the_controllers_frames_are_not_replayed_onto_live_devices(tmp_path: Pat
             assert "the recording's devices answer (node ids 1)" in r.stderr, r.stderr
             assert "SDO answer of node 1 (0x581)" in r.stderr and "--live-devices" in r.stderr
         # the refused runs put nothing recorded on the bus: only their reads of the devices' type
-        probes = list(device.heard)
+        probes = list(device.frames)
         assert probes and all(
             m.arbitration_id & ~0x7F == 0x600 and bytes(m.data[:4]) == bytes((0x40, 0, 0x10, 0))
             for m in probes
@@ -161,20 +149,8 @@ def test_a_replay_onto_a_bus_with_a_running_master_is_refused(tmp_path: Path):
     path = tmp_path / "traffic.mcap"
     record_traffic(path)
     port = random_udp_port()
-    stop = threading.Event()
-    with open_bus(parse_bus_spec("udp_multicast", udp_port=port)) as master:
-
-        def syncing() -> None:
-            while not stop.wait(0.01):
-                master.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))
-
-        thread = threading.Thread(target=syncing, name="another master")
-        thread.start()
-        try:
-            r = _replay(path, port)
-        finally:
-            stop.set()
-            thread.join()
+    with another_master(parse_bus_spec("udp_multicast", udp_port=port), (SYNC,)):
+        r = _replay(path, port)
     assert r.returncode == 2 and "another master is active" in r.stderr and "SYNC (0x080)" in r.stderr, (
         r.stderr
     )
