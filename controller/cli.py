@@ -415,8 +415,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             progress(f"{cfg.robot.kind}, task {cfg.task.kind}, in simulated time")
             summary = run(cfg, args.duration, plot)
         print(strict_json(summary) if args.json else strict_json(summary, indent=1))
-        say_if_unfinished(summary, "cheope demo")
-        say_if_plots_failed(summary, "cheope demo")
+        say_run_notes(summary, "cheope demo")
         return 0 if summary["final_mode"] == "DONE" else 1
     spec = _spec(args, cfg, default_port=random_udp_port())
     with live_status(status_wanted(args.json, sys.stdout)) as status, _quiet_progress(status) as progress:
@@ -435,10 +434,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             _status_observers(status, cfg),
         )
     _print_summary(summary, args.json)
-    say_if_unfinished(summary, "cheope demo")
-    say_if_held_up_before_the_fault(summary, "cheope demo")
-    say_if_the_simulator_died(summary, "cheope demo")
-    say_if_plots_failed(summary, "cheope demo")
+    say_run_notes(summary, "cheope demo")
     return run_exit_code(summary)  # as `cheope run`: a lost recording is 3 (it was 0 for a demo)
 
 
@@ -460,8 +456,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             observers=_status_observers(status, cfg),
         )
     _print_summary(summary, args.json)
-    say_if_unfinished(summary, "cheope run")
-    say_if_held_up_before_the_fault(summary, "cheope run")
+    say_run_notes(summary, "cheope run")
     return run_exit_code(summary)
 
 
@@ -471,6 +466,15 @@ RUN_EXIT_CODES = """exit status: 0 the run ended in DONE (task finished, or stop
 signal, or a stop that did not reach DONE within loop.stop_timeout_s); 2 refused at start (usage,
 configuration, bus load, workspace, real-time permissions, the bus or the devices); 3 DONE, but the
 recording was lost (see recording.on_failure)"""
+
+
+def say_run_notes(summary: dict[str, Any], command: str) -> None:
+    """What a finished run's summary says that its final mode does not, on stderr (each below says
+    nothing where its part of the summary is absent)."""
+    say_if_unfinished(summary, command)
+    say_if_held_up_before_the_fault(summary, command)
+    say_if_the_simulator_died(summary, command)
+    say_if_plots_failed(summary, command)
 
 
 def say_if_unfinished(summary: dict[str, Any], command: str) -> None:

@@ -19,9 +19,9 @@ The controller's frames drive devices: played onto a bus where the recorded driv
 enable them and stream the recorded targets, open loop, with no controller watching (an outside
 tester re-ran a contour on a live simulator so, 62.3 N of true contact force at ``--speed 4``
 where the limit is 60). So before sending the controller's frames (``only`` None or "sent") the
-replay listens ``listen_s`` for another master (``bus_presence.check_no_other_master``) and for
-devices with the node ids the recording's devices had (``check_node_ids_free``: their frames, or
-an answer to a read of their device type), and refuses either (``LiveDevicesError``, exit 2)
+replay listens ``listen_s`` for another master (``bus_presence.masters_heard``) and for devices
+with the node ids the recording's devices had (``devices_heard``: their frames, or an answer to a
+read of their device type), and refuses either (``LiveDevicesError``, exit 2)
 unless ``live_devices``: ``--live-devices`` says the devices are meant to move.
 
 Every frame is handed to the bus (``send_errors`` counts the refusals). ``udp_multicast`` has
@@ -43,7 +43,7 @@ import can
 
 from controller.errors import RefusedError
 from drivers.bus import BusSpec, open_bus
-from drivers.bus_presence import described, devices_heard, masters_heard
+from drivers.bus_presence import described, device_frame, devices_heard, masters_heard
 from drivers.pacing import DeadlineSleeper
 from logs.bus_traffic import as_message, recorded_frames
 from logs.reader import ReadReport
@@ -62,6 +62,7 @@ class BusReplayResult:
 
 REPLAY_SIDES = ("sent", "received")  # --only: the controller's frames, or its devices'
 DEVICE_IDS_FROM_FRAMES = 20_000  # the recording's devices: from its first frames (set-up, heartbeats)
+ANY_NODE = frozenset(range(1, 128))  # CANopen's node ids
 
 
 class LiveDevicesError(RefusedError):
@@ -75,10 +76,8 @@ def recorded_device_ids(path: Path, frames: int = DEVICE_IDS_FROM_FRAMES) -> fro
     for k, frame in enumerate(recorded_frames(path, ReadReport(path))):
         if k >= frames:
             break
-        cob_id = frame.arbitration_id
-        node, code = cob_id & 0x7F, cob_id >> 7
-        if node and not frame.outgoing and not frame.is_extended_id and code in (1, 3, 5, 7, 9, 11, 14):
-            ids.add(node)
+        if not frame.outgoing and not frame.is_extended_id and device_frame(frame.arbitration_id, ANY_NODE):
+            ids.add(frame.arbitration_id & 0x7F)
     return frozenset(ids)
 
 

@@ -431,12 +431,7 @@ class SessionWriter:
         recording stopped, when its values do not fit it (a plug-in's setpoint of text): nothing of
         that cycle is written, and the file stays complete up to the cycle before."""
         try:
-            named = self._named(values)
-            if self.task_names is not None and (
-                self.task_wire is None or self.task_wire.names != self.task_names
-            ):
-                self.task_wire = TaskValuesWire(self.task_names)
-            return self.m.cycle_bytes(named, self.task_wire)
+            return self.m.cycle_bytes(self._named(values), self.task_wire)
         except (TypeError, ValueError, OverflowError) as err:
             self.stop(f"cycle {cycle} cannot be recorded ({type(err).__name__}: {err}): recording stopped")
             return None
@@ -449,6 +444,8 @@ class SessionWriter:
         names: tuple[str, ...] | None = fields[0]  # type: ignore[index]
         if names is not None:
             self.task_names = names
+            if self.task_wire is None or self.task_wire.names != names:  # laid out once per names
+                self.task_wire = TaskValuesWire(names)
             return values
         if self.task_names is None:
             raise ValueError("task values without their names, and no names received before")

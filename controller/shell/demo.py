@@ -20,7 +20,6 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from controller.child_process import child_environment, ending_with_parent, python_module_command
-from controller.compiled_law import LAW_BUILD
 from controller.config import Config
 from controller.core.ports import CycleObserver
 from controller.errors import DeviceError
@@ -208,7 +207,7 @@ def run_simulated_time(
     machine's load. ``plot_dir`` is unused: only an experiment plots.
     """
     from controller.core.cycle_data import Severity
-    from controller.shell.run_summary import RunRecorder
+    from controller.shell.run_summary import RunRecorder, simulated_time_summary
     from controller.shell.simulated_rig import SimulatedRig
 
     rig = SimulatedRig(cfg)
@@ -216,12 +215,7 @@ def run_simulated_time(
     final, stats = rig.run((recorder,), max_duration_s)
     te = recorder.tracking
     return {
-        "final_mode": final.mode.name,
-        "fault_reason": final.fault_reason,
-        "task_finished": recorder.task_finished,
-        "cycles": stats.cycles,
-        "simulated_time": True,
-        "law": LAW_BUILD.describe(),  # the time it took, not what it computed (controller/compiled_law.py)
+        **simulated_time_summary(final, recorder, stats.cycles),
         "simulated_duration_s": round(stats.cycles * cfg.period_s, 6),
         "tracking_error_m": {"rms": te.rms, "max": te.maximum, "samples": te.count},
         "final_tcp_m": [round(float(x), 6) for x in rig.exchange.plant.tcp_m],

@@ -33,8 +33,9 @@ def task_finished_event(e: Event) -> bool:
     return e.kind == "mode" and "-> STOPPING: task " in e.message and e.message.endswith(" finished")
 
 
-# A gap in the cycles' times this long is the loop itself held up (a stopped process, a suspended
-# VM), not a late cycle; a fault within HOLDUP_BLAME_S after it is said to follow it: the drives'
+# A gap this long between two steps, on the loop's clock, is the loop itself held up (a stopped
+# process, a suspended VM), not a late cycle; a fault within HOLDUP_BLAME_S after it, on the same
+# clock (a cycle's t jumps over the deadlines skipped), is said to follow it: the drives'
 # heartbeats, SYNC watchdog and frames go missing while the controller is not listening, and the
 # fault then names the drives (an outside tester's SIGSTOP of 5 s read "heartbeat lost from node(s)
 # [1, 2, 16]").
@@ -97,8 +98,7 @@ class RunRecorder:
                 fault_event(e)
                 and not self.fault_after_holdup
                 and self._holdup is not None
-                and stepped_s - self._holdup[2]
-                <= HOLDUP_BLAME_S  # the loop's clock: t jumps over skipped deadlines
+                and stepped_s - self._holdup[2] <= HOLDUP_BLAME_S
             ):
                 self.fault_after_holdup = (
                     f"the loop itself was held up {self._holdup[0]:.2f} s (its cycle at t = {self._holdup[1]:.4f} s, "
@@ -111,6 +111,19 @@ class RunRecorder:
     def tracking_error_m(self) -> np.ndarray:
         """The last ``TRACKING_RING`` tracking errors [m], oldest first (the whole run when shorter)."""
         return self.tracking_ring.values()
+
+
+def simulated_time_summary(final: ControllerState, recorder: RunRecorder, cycles: int) -> dict[str, object]:
+    """The head of a run's summary in simulated time (``cheope demo --simulated-time``, a task's own
+    or an experiment's): how it ended, whether its task finished, and which law ran."""
+    return {
+        "final_mode": final.mode.name,
+        "fault_reason": final.fault_reason,
+        "task_finished": recorder.task_finished,
+        "cycles": cycles,
+        "simulated_time": True,
+        "law": LAW_BUILD.describe(),  # the time it took, not what it computed (controller/compiled_law.py)
+    }
 
 
 def _hist_us(h: LogHistogram, *qs: float, with_max: bool = True) -> dict[str, float]:

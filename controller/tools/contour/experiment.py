@@ -23,7 +23,6 @@ from typing import cast
 import msgspec
 
 from controller.assembly import build_robot
-from controller.compiled_law import LAW_BUILD
 from controller.config import Config, ConfigError
 from controller.core.ports import CompliantStructure, CycleObserver, missing_capability
 from controller.experiments import Experiment
@@ -163,7 +162,7 @@ def run_simulated_time(
     Deterministic and free of the machine's timing: the reference to compare a run over a
     bus with (``cheope demo --task contour --simulated-time``).
     """
-    from controller.shell.run_summary import RunRecorder
+    from controller.shell.run_summary import RunRecorder, simulated_time_summary
     from controller.shell.simulated_rig import SimulatedRig
 
     c = cfg.task.model("contour")
@@ -180,12 +179,7 @@ def run_simulated_time(
     ended = RunRecorder()
     final, stats = rig.run((obs, ended), max_duration_s)
     summary: dict[str, object] = {
-        "final_mode": final.mode.name,
-        "fault_reason": final.fault_reason,
-        "task_finished": ended.task_finished,
-        "cycles": stats.cycles,
-        "simulated_time": True,
-        "law": LAW_BUILD.describe(),  # the time it took, not what it computed (controller/compiled_law.py)
+        **simulated_time_summary(final, ended, stats.cycles),
         "contour": contour_summary(
             obs,
             robot,
