@@ -115,6 +115,21 @@ def with_task_names(values: CycleValues, names: tuple[str, ...] | None) -> Cycle
     return (*values[:TASK_FIELDS_AT], (names, fields[1]), *values[TASK_FIELDS_AT + 1 :])
 
 
+def without_sent_names(
+    values: CycleValues, sent: tuple[str, ...] | None
+) -> tuple[CycleValues, tuple[str, ...] | None]:
+    """``values`` as the recorder sends them when the writer has the names ``sent``: their task
+    fields' names None while they equal ``sent``; and the names this record carries (None when left
+    out, or without task fields)."""
+    fields = values[TASK_FIELDS_AT]
+    if fields is None:
+        return values, None
+    names = cast(tuple[object, ...], fields)[0]
+    if names == sent:  # on the loop's side the same strings each cycle: compared by identity
+        return with_task_names(values, None), None
+    return values, cast("tuple[str, ...] | None", names)
+
+
 # The step's inputs (``inputs_values``), in this order; logs.messages.inputs_pb:
 #   drives ((statusword, position, fresh, effort_n), ...), sensor (force_n, torque_nm, status,
 #   counter, fresh) or None, emcy ((node_id, error_code, error_register), ...), stop_requested,

@@ -49,7 +49,7 @@ from controller.config import Config, config_to_dict
 from controller.errors import DeviceError
 from drivers.pacing import wall_clock_offset_ns
 from logs import messages as m
-from logs.cycle_encoding import TASK_FIELDS_AT, cycle_values, with_task_names
+from logs.cycle_encoding import cycle_values, without_sent_names
 from logs.keyframe import ENCODING as STATE_ENCODING
 from logs.keyframe import KeyframeError, encode_state
 from logs.messages import FrameRecord, frame_record
@@ -286,14 +286,8 @@ class SessionRecorder:
         frames = self._frames
         self._frames = []
         values = cycle_values(cycle, t, inputs, state, outputs, timing, self.phase_name)
-        fields = values[TASK_FIELDS_AT]
-        names = None
-        if fields is not None:
-            names = fields[0]  # type: ignore[index]
-            if names == self._task_names_sent:  # the same strings each cycle: compared by identity
-                # 74 names were 1 060 of a contour record's 2 542 bytes (tests/tools/bench_record_pickle.py)
-                values = with_task_names(values, None)
-                names = None
+        # 74 names were 1 060 of a contour record's 2 542 bytes (tests/tools/bench_record_pickle.py)
+        values, names = without_sent_names(values, self._task_names_sent)
         mono_s = self.clock()
         dropped = self.dropped
         self._send(

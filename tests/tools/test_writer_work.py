@@ -7,6 +7,7 @@ for bit, and each option taking away the part it names (valgrind itself is not n
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import pytest
@@ -89,3 +90,14 @@ def test_a_file_that_is_not_a_session_is_refused_in_one_line(tmp_path, capsys):
     assert exit_.value.code == 2
     err = capsys.readouterr().err
     assert "junk.mcap is not an MCAP file" in err and "Traceback" not in err
+
+
+def test_the_window_carries_the_task_names_once_as_the_recorder_sends_them(session):
+    """The writer's path of every cycle (names None), not that of a change of names each cycle."""
+    from logs.cycle_encoding import TASK_FIELDS_AT
+
+    records, _ = session
+    names = [r[7][TASK_FIELDS_AT][0] for r in records if r[0] == CYCLE and r[7][TASK_FIELDS_AT]]
+    carried = [n for n in names if n is not None]
+    assert names[0] and 1 <= len(carried) <= 5  # in this window the task's fields change 3 times
+    assert all(a != b for a, b in itertools.pairwise(carried))  # carried when changed

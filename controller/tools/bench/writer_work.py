@@ -153,7 +153,25 @@ def window(records: list[Record], first: int, cycles: int) -> list[Record]:
     last = first + WARMUP_CYCLES + cycles
     if last > len(at):
         raise ValueError(f"the session has {len(at)} cycles: {first} + {WARMUP_CYCLES} + {cycles} do not fit")
-    return records[at[first] : at[last]]
+    return as_sent(records[at[first] : at[last]])
+
+
+def as_sent(records: list[Record]) -> list[Record]:
+    """``records`` as the recorder sends them: a cycle's task fields' names only when they differ
+    from the last ones sent (``logs.cycle_encoding.without_sent_names``), so that the writer takes
+    its path of every cycle, not that of a change of names."""
+    from logs.cycle_encoding import without_sent_names
+    from logs.session_writer import CYCLE
+
+    out: list[Record] = []
+    sent: tuple[str, ...] | None = None
+    for r in records:
+        if r[0] == CYCLE:
+            values, names = without_sent_names(r[7], sent)  # type: ignore[arg-type]
+            sent = names or sent
+            r = (*r[:7], values, *r[8:])
+        out.append(r)
+    return out
 
 
 def write_window(records: list[Record], settings: dict[str, Any], marker: bool) -> int:
