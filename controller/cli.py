@@ -475,6 +475,7 @@ def say_run_notes(summary: dict[str, Any], command: str) -> None:
     say_if_held_up_before_the_fault(summary, command)
     say_if_the_simulator_died(summary, command)
     say_if_plots_failed(summary, command)
+    say_if_faults_not_reached(summary, command)
 
 
 def say_if_unfinished(summary: dict[str, Any], command: str) -> None:
@@ -512,6 +513,18 @@ def say_if_plots_failed(summary: dict[str, Any], command: str) -> None:
     """A plot that could not be written (a full disk) is said on stderr; the summary, printed, has it too."""
     if summary.get("plots_error"):
         print(f"{command}: warning: {summary['plots_error']}", file=sys.stderr)
+
+
+def say_if_faults_not_reached(summary: dict[str, Any], command: str) -> None:
+    """Injected faults whose start came after the run's end are said on stderr: a run that ended
+    DONE had not met them (``--inject force=100@200`` in a 70-s demo passed silently before)."""
+    late = summary.get("faults_not_reached")
+    if late:
+        print(
+            f"{command}: note: the run ended before {len(late)} injected fault(s) began, and they "
+            f"injected nothing: {', '.join(late)}",
+            file=sys.stderr,
+        )
 
 
 def run_exit_code(summary: dict[str, Any]) -> int:

@@ -30,6 +30,7 @@ class FaultSchedule:
     def __init__(self, faults: tuple[Fault, ...]) -> None:
         self.faults = faults
         self.t0_s: float | None = None
+        self.last_s: float | None = None  # the last SYNC's time (``start``)
         self._fired: set[int] = set()
 
     @classmethod
@@ -37,8 +38,16 @@ class FaultSchedule:
         return cls(tuple(parse_fault(t) for t in texts))
 
     def start(self, now_s: float) -> None:
+        """At every SYNC: the first is t = 0, the last how far the schedule got (``not_reached``)."""
         if self.t0_s is None:
             self.t0_s = now_s
+        self.last_s = now_s
+
+    def not_reached(self) -> tuple[Fault, ...]:
+        """The faults whose start came after the last SYNC: they injected nothing (a fault at 100 s
+        in a run of 70 passed silently before; the run's summary names them)."""
+        last = -math.inf if self.last_s is None else self.elapsed(self.last_s)
+        return tuple(f for f in self.faults if f.start_s > last)
 
     def elapsed(self, now_s: float) -> float:
         return -math.inf if self.t0_s is None else now_s - self.t0_s

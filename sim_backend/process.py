@@ -14,6 +14,7 @@ from controller.realtime import (
     freeze_garbage_collector,
     unfreeze_garbage_collector,
 )
+from controller.sim_config.fault_specs import fault_text, refuse_in_process_only
 from drivers import cob_ids
 from drivers.bus import BusSpec, open_bus
 from drivers.bus_presence import check_node_ids_free
@@ -24,6 +25,7 @@ from sim_backend.true_force_tap import TrueForceTap
 READY_LINE = "cheope-sim ready"
 STOPPED_LINE = "cheope-sim stopped"  # then what it saw:
 CONTACT_FORCE_REPORT = "max true contact force per controller session"  # the numbers, then "N"
+FAULTS_NOT_REACHED_REPORT = "faults not reached"  # then their specs (``fault_text``), when any
 
 
 def sdo_node_ids(cfg: Config) -> tuple[int, ...]:
@@ -53,6 +55,7 @@ def serve(
     faulted the first's controller with missing TPDOs). The device threads start after it, and
     inherit its priority and affinity (the simulated hardware is real time as a whole).
     """
+    refuse_in_process_only(cfg.sim.faults, "cheope sim")  # before the bus opens
     # the SYNC handler competes with heartbeat and watchdog threads for the GIL
     sys.setswitchinterval(cfg.loop.gil_switch_interval_us * 1e-6)
     with open_bus(spec) as bus:
@@ -85,6 +88,9 @@ def serve(
             drop_realtime()
         maxima = simulator.max_contact_force_n or [0.0]
         announce(f"{STOPPED_LINE}: {CONTACT_FORCE_REPORT} " + " ".join(f"{m:.3f}" for m in maxima) + " N")
+        late = simulator.faults.not_reached()
+        if late:  # the demo's summary names them (controller/shell/demo.py simulator_report)
+            announce(f"{STOPPED_LINE}: {FAULTS_NOT_REACHED_REPORT} " + " ".join(map(fault_text, late)))
     if tap is not None:
         tap.close()
     if cfg.loop.freeze_gc:

@@ -26,8 +26,9 @@ from controller.errors import DeviceError
 from controller.experiments import experiment_for
 from controller.realtime import RealtimeOptions
 from controller.shell.service import prepare, run_controller
+from controller.sim_config.fault_specs import refuse_in_process_only
 from drivers.bus import BusSpec
-from sim_backend.process import CONTACT_FORCE_REPORT, READY_LINE, STOPPED_LINE
+from sim_backend.process import CONTACT_FORCE_REPORT, FAULTS_NOT_REACHED_REPORT, READY_LINE, STOPPED_LINE
 from sim_backend.true_force_tap import PREFIX as TRUE_FORCE_PREFIX
 from sim_backend.true_force_tap import TrueForceReader
 
@@ -142,12 +143,18 @@ def stop_process(proc: subprocess.Popen[str], timeout_s: float = 5.0) -> str:
 
 
 def simulator_report(stdout: str) -> dict[str, object]:
-    """The simulator's last words (``sim_backend/process.py``, STOPPED_LINE) as numbers."""
+    """The simulator's last words (``sim_backend/process.py``, STOPPED_LINE): its largest true
+    contact forces, and the injected faults the run ended before (``faults_not_reached``)."""
+    report: dict[str, object] = {}
     for line in stdout.splitlines():
-        if line.startswith(STOPPED_LINE) and CONTACT_FORCE_REPORT in line:
+        if not line.startswith(STOPPED_LINE):
+            continue
+        if CONTACT_FORCE_REPORT in line:
             values = line.split(CONTACT_FORCE_REPORT, 1)[1].split()[:-1]  # the numbers, then "N"
-            return {"max_true_contact_force_n": [float(v) for v in values]}
-    return {}
+            report["max_true_contact_force_n"] = [float(v) for v in values]
+        elif FAULTS_NOT_REACHED_REPORT in line:
+            report["faults_not_reached"] = line.split(FAULTS_NOT_REACHED_REPORT, 1)[1].split()
+    return report
 
 
 def simulator_realtime_args(realtime: RealtimeOptions | None) -> list[str]:
@@ -171,6 +178,7 @@ def run_demo(
     observers: tuple[CycleObserver, ...] = (),
 ) -> dict[str, object]:
     prepare(cfg, spec)  # what the controller would refuse, refused before the simulator starts
+    refuse_in_process_only(cfg.sim.faults, "cheope demo without --simulated-time")
     simulator: dict[str, object] = {}
     # the simulator's true contact force, live (a diagnostic: the per-lap tables show it beside the measured)
     truth = TrueForceReader(f"{TRUE_FORCE_PREFIX}{os.getpid()}-{spec.udp_port}")
@@ -193,8 +201,10 @@ def run_demo(
                 realtime=realtime,
                 observers=observers,
             )
-    # what only the simulator knows: the true contact force (the controller sees the measurement)
-    return {**summary, "simulator": simulator}
+    # what only the simulator knows: the true contact force (the controller sees the measurement),
+    # and the faults it never reached (at the top, as in simulated time: say_run_notes says them)
+    late = simulator.pop("faults_not_reached", None)
+    return {**summary, "simulator": simulator, **({"faults_not_reached": late} if late else {})}
 
 
 def run_simulated_time(
@@ -215,7 +225,7 @@ def run_simulated_time(
     final, stats = rig.run((recorder,), max_duration_s)
     te = recorder.tracking
     return {
-        **simulated_time_summary(final, recorder, stats.cycles),
+        **simulated_time_summary(final, recorder, stats.cycles, rig.exchange.faults),
         "simulated_duration_s": round(stats.cycles * cfg.period_s, 6),
         "tracking_error_m": {"rms": te.rms, "max": te.maximum, "samples": te.count},
         "final_tcp_m": [round(float(x), 6) for x in rig.exchange.plant.tcp_m],

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,7 +22,11 @@ from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severit
 from controller.core.ports import CycleTiming
 from controller.shell.loop import LoopStats
 from controller.shell.streaming_stats import FloatRing, LogHistogram, RunningMoments
+from controller.sim_config.fault_specs import fault_text
 from drivers.cyclic_exchange import ExchangeCounters
+
+if TYPE_CHECKING:
+    from sim_backend.fault_injection import FaultSchedule
 
 TRACKING_RING = 65536  # the last tracking errors kept as measured (tests, plots), about 160 s at 400 Hz
 EVENT_RING = 1000  # the last events kept for the summary; older ones are counted, not kept
@@ -113,9 +118,12 @@ class RunRecorder:
         return self.tracking_ring.values()
 
 
-def simulated_time_summary(final: ControllerState, recorder: RunRecorder, cycles: int) -> dict[str, object]:
+def simulated_time_summary(
+    final: ControllerState, recorder: RunRecorder, cycles: int, faults: FaultSchedule
+) -> dict[str, object]:
     """The head of a run's summary in simulated time (``cheope demo --simulated-time``, a task's own
-    or an experiment's): how it ended, whether its task finished, and which law ran."""
+    or an experiment's): how it ended, whether its task finished, and which law ran; the injected
+    ``faults`` the run ended before, when there are any (``faults_not_reached``)."""
     return {
         "final_mode": final.mode.name,
         "fault_reason": final.fault_reason,
@@ -123,7 +131,15 @@ def simulated_time_summary(final: ControllerState, recorder: RunRecorder, cycles
         "cycles": cycles,
         "simulated_time": True,
         "law": LAW_BUILD.describe(),  # the time it took, not what it computed (controller/compiled_law.py)
+        **faults_not_reached(faults),
     }
+
+
+def faults_not_reached(faults: FaultSchedule) -> dict[str, object]:
+    """``{"faults_not_reached": [spec, ...]}`` for the injected faults that started after the run's
+    last SYNC (none: nothing); said on stderr by ``controller.cli.say_run_notes``."""
+    late = [fault_text(f) for f in faults.not_reached()]
+    return {"faults_not_reached": late} if late else {}
 
 
 def _hist_us(h: LogHistogram, *qs: float, with_max: bool = True) -> dict[str, float]:

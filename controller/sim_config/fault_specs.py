@@ -139,6 +139,31 @@ def parse_fault(text: str) -> Fault:
     )
 
 
+def fault_text(f: Fault) -> str:
+    """``f`` written as a spec (``parse_fault`` reads it back as ``f``): how a summary names it."""
+    node = f":{f.node}" if f.kind in KINDS_WITH_NODE else ""
+    value = f"={f.value:g}" if f.value else ""
+    duration = f"+{f.duration_s:g}" if math.isfinite(f.duration_s) else ""
+    return f"{f.kind}{node}{value}@{f.start_s:g}{duration}"
+
+
+# What only the in-process loop in simulated time can do: the simulator process cannot hold a
+# controller's loop that runs on its own clock (over the bus a ``stall`` injected nothing, silently).
+IN_PROCESS_ONLY_KINDS = ("stall",)
+
+
+def refuse_in_process_only(texts: Sequence[str], command: str) -> None:
+    """A FaultSpecError naming the first fault of ``texts`` that ``command`` (over a bus) cannot inject."""
+    for text in texts:
+        f = parse_fault(text)
+        if f.kind in IN_PROCESS_ONLY_KINDS:
+            raise FaultSpecError(
+                f"fault {text!r}: {f.kind} holds the in-process loop and is injected in simulated time "
+                f"only (cheope demo --simulated-time); {command} runs over a bus, where the loop's "
+                "lateness is the machine's own"
+            )
+
+
 # A late frame or a late wake-up longer than this is no longer "late": it is a silent node
 # (``drop:N``) or a dead controller, and a value like 1e9 s is a typo, not a scenario.
 MAX_LATENESS_S = 1.0
