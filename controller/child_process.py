@@ -27,6 +27,16 @@ def python_module_command(module: str, *args: str) -> list[str]:
     return [sys.executable, "-P", "-m", module, *args]
 
 
+def exit_text(returncode: int) -> str:
+    """A child's exit status as words: "exited with status 1", "killed by SIGKILL"."""
+    if returncode >= 0:
+        return f"exited with status {returncode}"
+    try:
+        return f"killed by {signal.Signals(-returncode).name}"
+    except ValueError:
+        return f"killed by signal {-returncode}"
+
+
 def child_environment(**extra: str) -> dict[str, str]:
     """This process's environment with this code's root first on ``PYTHONPATH``, and ``extra``."""
     path = os.pathsep.join(p for p in (REPO, os.environ.get("PYTHONPATH")) if p)

@@ -476,6 +476,7 @@ def say_run_notes(summary: dict[str, Any], command: str) -> None:
     say_if_the_simulator_died(summary, command)
     say_if_plots_failed(summary, command)
     say_if_faults_not_reached(summary, command)
+    say_if_the_shield_guardian_died(summary, command)
 
 
 def say_if_unfinished(summary: dict[str, Any], command: str) -> None:
@@ -523,6 +524,19 @@ def say_if_faults_not_reached(summary: dict[str, Any], command: str) -> None:
         print(
             f"{command}: note: the run ended before {len(late)} injected fault(s) began, and they "
             f"injected nothing: {', '.join(late)}",
+            file=sys.stderr,
+        )
+
+
+def say_if_the_shield_guardian_died(summary: dict[str, Any], command: str) -> None:
+    """A CPU shield whose guardian ended under the run is said on stderr: the loop's CPU was open to
+    other work from then on, and its tasks were given back at the end (controller/shell/cpu_shield.py)."""
+    shield = summary.get("cpu_shield")
+    if isinstance(shield, dict) and shield.get("guardian_ended_early"):
+        print(
+            f"{command}: note: the CPU shield's guardian ended during the run "
+            f"({shield['guardian_ended_early']}): the loop's CPU was open to other work from then on; "
+            f"tasks given back at the end: {shield.get('tasks_restored')}",
             file=sys.stderr,
         )
 

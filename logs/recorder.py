@@ -163,7 +163,7 @@ def file_limits(cfg: Config) -> FileLimits:
 class RecorderCounters:
     queued: int  # items handed over by the loop thread
     dropped: int  # items lost because the queue was full
-    written: int  # MCAP messages written
+    written: int | None  # MCAP messages written; None: the writer did not say (it never answered)
     chunks: int  # flushes that closed a chunk
 
 
@@ -206,7 +206,7 @@ class SessionRecorder:
         self.deleted: list[Path] = []  # recordings the retention deleted (known at close)
         self.queued = 0
         self.dropped = 0
-        self.written = 0  # known when the writer has finished (close)
+        self.written: int | None = 0  # known when the writer has finished (close); None: it did not say
         self.chunks = 0
         self.error: str = ""
         # called once, on the loop's thread, when the writer is gone (the service's recording.on_failure)
@@ -583,7 +583,8 @@ class SessionRecorder:
             proc.stdin.close()  # end of input: the writer finishes even if END did not get through
         self._fd = -1
         reply = self._read_reply(STALLED_WRITER_ANSWER_S if self._writer_stalled else WRITER_FINISH_TIMEOUT_S)
-        self.written = int(reply.get("written", 0))
+        # a writer that never answered wrote an unknown number, not 0 (the file may hold most of the run)
+        self.written = int(reply["written"]) if "written" in reply else None
         self.chunks = int(reply.get("chunks", 0))
         self.error = self.error or str(reply.get("error") or "")
         if "files" in reply:

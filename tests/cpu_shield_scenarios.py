@@ -130,11 +130,18 @@ def guardian_killed(state_dir: Path) -> dict[str, Any]:
     wait_for_exit(first.pid, "the killed guardian")
     out: dict[str, Any] = {"all": mask(0), "after_kill": tasks.masks()}
     out["state_file_after_kill"] = (state_dir / "cpu-shield.json").exists()
-    first.close(timeout_s=1.0)
+    out["close_summary"] = first.close(timeout_s=1.0)  # the controller's end gives them back
+    out["after_close"] = tasks.masks()
+    out["state_file_after_close"] = (state_dir / "cpu-shield.json").exists()
+    # the controller gone with it (no close): the next guardian gives them back when it starts
     second = CpuShield.start((tasks.loop_cpu,), state_dir)
-    out["recovered"] = second.raised["recovered"]
-    out["during_second"] = tasks.masks()
-    second.close()
+    os.kill(second.pid, signal.SIGKILL)
+    wait_for_exit(second.pid, "the second killed guardian")
+    out["after_second_kill"] = tasks.masks()
+    third = CpuShield.start((tasks.loop_cpu,), state_dir)
+    out["recovered"] = third.raised["recovered"]
+    out["during_third"] = tasks.masks()
+    third.close()
     out["after"] = tasks.masks()
     tasks.end()
     return out

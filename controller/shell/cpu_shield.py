@@ -34,9 +34,10 @@ the same for the time of a run, where they are permitted (CAP_SYS_NICE for other
   that work. It holds a lock (``cpu-shield.lock`` in its state directory, root's
   ``/run/cheope`` or a user's ``$XDG_RUNTIME_DIR/cheope``, refused unless the user's alone):
   one shield a machine, a second controller runs unshielded and says so. It writes what it
-  moved to ``cpu-shield.json`` before it answers; a guardian killed itself leaves that file, and
-  the next one to take the lock restores from it first (not from a file of an earlier boot; a
-  damaged file is removed and logged).
+  moved to ``cpu-shield.json`` before it answers; a guardian killed itself leaves that file: the
+  controller's end restores from it (``CpuShield.close``, the summary's ``guardian_ended_early``),
+  or, when the controller died too, the next guardian to take the lock, first (not from a file of
+  an earlier boot; a damaged file is removed and logged).
 - **not covered**: two shields under different locks (two users, or two state directories) on
   a machine with more than two CPUs can each take a CPU from the same task; the second restore
   then gives back only its own.
@@ -62,7 +63,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from controller.child_process import child_environment, python_module_command
+from controller.child_process import child_environment, exit_text, python_module_command
 from controller.realtime import RealtimeError, RealtimeOptions
 
 log = logging.getLogger(__name__)
@@ -361,6 +362,24 @@ def _recover(state: Path, proc: Path) -> int:
     return recovered
 
 
+def recover_now(state_dir: Path | None, proc: Path = Path("/proc")) -> int | str:
+    """A dead guardian's shield given back by this process (``CpuShield.close``): the tasks
+    restored, or why not (another guardian holds the lock: it recovered them when it took it)."""
+    if state_dir is None:
+        return "no state directory"
+    try:
+        lock = os.open(private_directory(state_dir) / LOCK_NAME, os.O_RDWR | os.O_NOFOLLOW)
+    except (OSError, CpuShieldError) as err:
+        return f"state directory {state_dir}: {err}"
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return _recover(state_dir / STATE_NAME, proc)
+    except BlockingIOError:
+        return "another guardian holds the shield (it gave them back when it started)"
+    finally:
+        os.close(lock)  # and the lock with it
+
+
 def _wait_for_the_end() -> None:
     """Until the controller's end closes the pipe, or an ending signal is pending."""
     stdin = sys.stdin.buffer
@@ -421,11 +440,16 @@ class CpuShield:
     """A running guardian: ``start`` it before the loop, ``close`` it after (or just exit)."""
 
     def __init__(
-        self, process: subprocess.Popen[bytes], cpus: tuple[int, ...], raised: dict[str, Any]
+        self,
+        process: subprocess.Popen[bytes],
+        cpus: tuple[int, ...],
+        raised: dict[str, Any],
+        state_dir: Path | None = None,
     ) -> None:
         self._process = process
         self.cpus = cpus
         self.raised = raised
+        self.state_dir = state_dir
 
     @classmethod
     def start(
@@ -454,21 +478,31 @@ class CpuShield:
             if answer is not None and "error" in answer:
                 raise CpuShieldError(str(answer["error"]))
             raise CpuShieldError(f"the CPU shield's guardian did not answer ({answer})")
-        return cls(process, cpus, answer)
+        return cls(process, cpus, answer, state_dir)
 
     def close(self, timeout_s: float = STOP_TIMEOUT_S) -> dict[str, Any]:
-        """Close the pipe: the guardian restores and exits. The run summary's ``cpu_shield``."""
+        """Close the pipe: the guardian restores and exits. The run summary's ``cpu_shield``.
+
+        A guardian that ended under the run (killed) restored nothing: what it swept is given back
+        here from its state file (``guardian_ended_early``), not left off the loop's CPU until the
+        next shielded run."""
+        ended = self._process.poll()
         if self._process.stdin is not None and not self._process.stdin.closed:
-            self._process.stdin.close()
+            with contextlib.suppress(BrokenPipeError):
+                self._process.stdin.close()
         answer = _read_answer(self._process, timeout_s)
         _end(self._process, timeout_s)
-        return {
+        summary = {
             "cpus": list(self.cpus),
             "tasks_moved": self.raised["moved"],
             "tasks_refused": self.raised["refused"],
             "recovered_from_a_dead_guardian": self.raised["recovered"],
             "tasks_restored": (answer or {}).get("restored"),
         }
+        if ended is not None:
+            summary["guardian_ended_early"] = exit_text(ended)
+            summary["tasks_restored"] = recover_now(self.state_dir or default_state_dir())
+        return summary
 
     @property
     def pid(self) -> int:

@@ -19,7 +19,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from controller.child_process import child_environment, ending_with_parent, python_module_command
+from controller.child_process import child_environment, ending_with_parent, exit_text, python_module_command
 from controller.config import Config
 from controller.core.ports import CycleObserver
 from controller.errors import DeviceError
@@ -98,16 +98,6 @@ def simulator_process(
             report.update(simulator_report(said))
             if ended is not None:
                 report["ended_early"] = exit_text(ended)
-
-
-def exit_text(returncode: int) -> str:
-    """A child's exit status as words: "exited with status 1", "killed by SIGKILL"."""
-    if returncode >= 0:
-        return f"exited with status {returncode}"
-    try:
-        return f"killed by {signal.Signals(-returncode).name}"
-    except ValueError:
-        return f"killed by signal {-returncode}"
 
 
 def _wait_ready(proc: subprocess.Popen[str], timeout_s: float) -> None:

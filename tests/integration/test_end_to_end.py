@@ -6,6 +6,7 @@ import json
 import os
 import random
 import select
+import signal
 import subprocess
 import sys
 import time
@@ -332,6 +333,45 @@ def test_a_demo_keeps_normal_tasks_off_its_loops_cpu_while_it_runs():
     assert during == everything - set(shield["cpus"]), shield
     assert after == everything
     assert shield["tasks_moved"] >= 1 and shield["tasks_restored"] >= 1
+
+
+def _guardian_of(demo: subprocess.Popen[str]) -> int | None:
+    """The pid of ``demo``'s CPU shield guardian (its child ``python -m controller.shell.cpu_shield``)."""
+    for child in Path(f"/proc/{demo.pid}/task/{demo.pid}/children").read_text().split():
+        try:
+            if b"controller.shell.cpu_shield" in Path(f"/proc/{child}/cmdline").read_bytes():
+                return int(child)
+        except OSError:
+            continue
+    return None
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="a CPU shield needs two CPUs")
+def test_a_guardian_killed_under_the_run_is_named_and_its_tasks_given_back():
+    """A guardian killed under the run restored nothing: the neighbour stayed off the loop's CPU
+    until the next shielded run, and the summary said nothing."""
+    neighbour = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(600)"])
+    everything = os.sched_getaffinity(neighbour.pid)
+    demo = _path_demo(laps=1.0)
+    try:
+        wait_until(
+            lambda: os.sched_getaffinity(neighbour.pid) != everything or demo.poll() is not None,
+            "the neighbour swept off the loop's CPU",
+        )
+        guardian = _guardian_of(demo)
+        assert guardian is not None
+        os.kill(guardian, signal.SIGKILL)
+        out, err = demo.communicate(timeout=120)
+        after = os.sched_getaffinity(neighbour.pid)
+    finally:
+        for proc in (demo, neighbour):
+            proc.kill()
+            proc.wait()
+    assert demo.returncode == 0, err + out
+    shield = json.loads(out)["cpu_shield"]
+    assert shield["guardian_ended_early"] == "killed by SIGKILL", shield
+    assert shield["tasks_restored"] >= 1 and after == everything
+    assert "note: the CPU shield's guardian ended during the run (killed by SIGKILL)" in err
 
 
 def test_a_demo_started_inside_another_checkout_runs_its_own_code(tmp_path: Path):

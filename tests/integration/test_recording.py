@@ -611,6 +611,7 @@ def test_a_writer_that_stops_reading_blocks_neither_the_loop_nor_the_exit(tmp_pa
             os.kill(pid, signal.SIGCONT)
     assert "took no data" in rec.error or "timed out" in rec.error
     assert rec._proc is None
+    assert rec.written is None  # it never answered: unknown, not 0 (the file holds what it wrote)
 
 
 def _writer_of(controller_pid: int) -> int | None:

@@ -79,12 +79,19 @@ def test_a_killed_controller_leaves_no_shield_behind(tmp_path: Path) -> None:
 
 
 @needs_namespace
-def test_the_next_guardian_gives_back_what_a_killed_one_took(tmp_path: Path) -> None:
+def test_a_killed_guardians_tasks_are_given_back_at_the_end_or_by_the_next(tmp_path: Path) -> None:
     out = run_scenario("guardian_killed", tmp_path)
     assert out["after_kill"]["spawner"] != out["all"]  # nobody restored it
     assert out["state_file_after_kill"]
+    # the controller's close names the guardian's end and gives back what it took
+    summary = out["close_summary"]
+    assert summary["guardian_ended_early"] == "killed by SIGKILL"
+    assert summary["tasks_restored"] >= 1
+    assert out["after_close"]["spawner"] == out["all"] and not out["state_file_after_close"]
+    # a guardian killed with its controller: the next one gives them back when it starts
+    assert out["after_second_kill"]["spawner"] != out["all"]
     assert out["recovered"] >= 1
-    assert out["during_second"]["spawner"] != out["all"]  # and the second shield holds
+    assert out["during_third"]["spawner"] != out["all"]  # and the third shield holds
     assert out["after"]["spawner"] == out["all"]
 
 
