@@ -476,7 +476,7 @@ def say_run_notes(summary: dict[str, Any], command: str) -> None:
     say_if_the_simulator_died(summary, command)
     say_if_plots_failed(summary, command)
     say_if_faults_not_reached(summary, command)
-    say_if_the_shield_guardian_died(summary, command)
+    say_if_the_shield_guardian_failed(summary, command)
 
 
 def say_if_unfinished(summary: dict[str, Any], command: str) -> None:
@@ -528,15 +528,15 @@ def say_if_faults_not_reached(summary: dict[str, Any], command: str) -> None:
         )
 
 
-def say_if_the_shield_guardian_died(summary: dict[str, Any], command: str) -> None:
-    """A CPU shield whose guardian ended under the run is said on stderr: the loop's CPU was open to
-    other work from then on, and its tasks were given back at the end (controller/shell/cpu_shield.py)."""
+def say_if_the_shield_guardian_failed(summary: dict[str, Any], command: str) -> None:
+    """A CPU shield whose guardian did not restore (killed under the run, or stopped) is said on
+    stderr; its tasks were given back at the end from its state file (controller/shell/cpu_shield.py)."""
     shield = summary.get("cpu_shield")
-    if isinstance(shield, dict) and shield.get("guardian_ended_early"):
+    if isinstance(shield, dict) and shield.get("guardian_failed"):
         print(
-            f"{command}: note: the CPU shield's guardian ended during the run "
-            f"({shield['guardian_ended_early']}): the loop's CPU was open to other work from then on; "
-            f"tasks given back at the end: {shield.get('tasks_restored')}",
+            f"{command}: note: the CPU shield's guardian did not restore the machine "
+            f"({shield['guardian_failed']}); tasks given back from its state file at the end: "
+            f"{shield.get('tasks_restored')}",
             file=sys.stderr,
         )
 

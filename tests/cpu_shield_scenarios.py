@@ -147,6 +147,18 @@ def guardian_killed(state_dir: Path) -> dict[str, Any]:
     return out
 
 
+def guardian_stopped(state_dir: Path) -> dict[str, Any]:
+    tasks = Tasks()
+    shield = CpuShield.start((tasks.loop_cpu,), state_dir)
+    os.kill(shield.pid, signal.SIGSTOP)  # alive, but never answers: ended by SIGKILL at the close
+    out: dict[str, Any] = {"all": mask(0), "during": tasks.masks()}
+    out["close_summary"] = shield.close(timeout_s=1.0)
+    out["after"] = tasks.masks()
+    out["state_file_after"] = (state_dir / "cpu-shield.json").exists()
+    tasks.end()
+    return out
+
+
 def one_a_machine(state_dir: Path) -> dict[str, Any]:
     cpu = sorted(os.sched_getaffinity(0))[-1]
     first = CpuShield.start((cpu,), state_dir)
@@ -237,6 +249,7 @@ SCENARIOS = {
         restore_after_close,
         controller_killed,
         guardian_killed,
+        guardian_stopped,
         one_a_machine,
         forked_during_sweep,
         ending_signals,

@@ -35,7 +35,7 @@ the same for the time of a run, where they are permitted (CAP_SYS_NICE for other
   ``/run/cheope`` or a user's ``$XDG_RUNTIME_DIR/cheope``, refused unless the user's alone):
   one shield a machine, a second controller runs unshielded and says so. It writes what it
   moved to ``cpu-shield.json`` before it answers; a guardian killed itself leaves that file: the
-  controller's end restores from it (``CpuShield.close``, the summary's ``guardian_ended_early``),
+  controller's end restores from it (``CpuShield.close``, the summary's ``guardian_failed``),
   or, when the controller died too, the next guardian to take the lock, first (not from a file of
   an earlier boot; a damaged file is removed and logged).
 - **not covered**: two shields under different locks (two users, or two state directories) on
@@ -483,9 +483,10 @@ class CpuShield:
     def close(self, timeout_s: float = STOP_TIMEOUT_S) -> dict[str, Any]:
         """Close the pipe: the guardian restores and exits. The run summary's ``cpu_shield``.
 
-        A guardian that ended under the run (killed) restored nothing: what it swept is given back
-        here from its state file (``guardian_ended_early``), not left off the loop's CPU until the
-        next shielded run."""
+        A guardian that restored nothing (killed under the run, or stopped and so ended here)
+        leaves its sweep in its state file: it is given back here (``guardian_failed``), not left
+        off the loop's CPU until the next shielded run (an outside tester's SIGSTOP left every task
+        of the machine on one CPU)."""
         ended = self._process.poll()
         if self._process.stdin is not None and not self._process.stdin.closed:
             with contextlib.suppress(BrokenPipeError):
@@ -499,8 +500,12 @@ class CpuShield:
             "recovered_from_a_dead_guardian": self.raised["recovered"],
             "tasks_restored": (answer or {}).get("restored"),
         }
-        if ended is not None:
-            summary["guardian_ended_early"] = exit_text(ended)
+        if answer is None or "restored" not in answer:
+            summary["guardian_failed"] = (
+                f"{exit_text(ended)} under the run"
+                if ended is not None
+                else f"no answer within {timeout_s:g} s (stopped?), then {exit_text(self._process.returncode)}"
+            )
             summary["tasks_restored"] = recover_now(self.state_dir or default_state_dir())
         return summary
 

@@ -85,7 +85,7 @@ def test_a_killed_guardians_tasks_are_given_back_at_the_end_or_by_the_next(tmp_p
     assert out["state_file_after_kill"]
     # the controller's close names the guardian's end and gives back what it took
     summary = out["close_summary"]
-    assert summary["guardian_ended_early"] == "killed by SIGKILL"
+    assert summary["guardian_failed"] == "killed by SIGKILL under the run"
     assert summary["tasks_restored"] >= 1
     assert out["after_close"]["spawner"] == out["all"] and not out["state_file_after_close"]
     # a guardian killed with its controller: the next one gives them back when it starts
@@ -93,6 +93,17 @@ def test_a_killed_guardians_tasks_are_given_back_at_the_end_or_by_the_next(tmp_p
     assert out["recovered"] >= 1
     assert out["during_third"]["spawner"] != out["all"]  # and the third shield holds
     assert out["after"]["spawner"] == out["all"]
+
+
+@needs_namespace
+def test_a_stopped_guardians_tasks_are_given_back_at_the_end(tmp_path: Path) -> None:
+    """An outside tester's SIGSTOP to the guardian left every task of the machine on one CPU."""
+    out = run_scenario("guardian_stopped", tmp_path)
+    assert out["during"]["spawner"] != out["all"]
+    summary = out["close_summary"]
+    assert summary["guardian_failed"] == "no answer within 1 s (stopped?), then killed by SIGKILL"
+    assert summary["tasks_restored"] >= 1
+    assert out["after"]["spawner"] == out["all"] and not out["state_file_after"]
 
 
 @needs_namespace
