@@ -413,6 +413,10 @@ def raise_shield(
     Refused: ``RealtimeError`` when required, else one line of warning and none. ``summary`` gets
     what it did (the run summary's ``cpu_shield``)."""
     if not options.shield or not options.cpus:
+        confined = confined_affinity()
+        if confined:  # the loop has no CPU of its own to shield, and the summary says why
+            log.warning("no CPU kept clear for the loop: %s", confined)
+            summary["off"] = confined
         yield None
         return
     try:
@@ -434,6 +438,20 @@ def raise_shield(
         yield shield
     finally:
         summary.update(shield.close())
+
+
+def confined_affinity() -> str:
+    """Why this process may not use every CPU of the machine ("": it may): a shell under
+    ``taskset``, or under a CPU shield that was not given back, starts a controller whose loop and
+    simulator then share what is left (an outside tester's run on one CPU said nothing of it)."""
+    allowed = sorted(os.sched_getaffinity(0))
+    total = os.cpu_count() or len(allowed)
+    if len(allowed) >= total:
+        return ""
+    return (
+        f"this process may run on CPU {','.join(map(str, allowed))} only, of the machine's {total} "
+        "(its affinity, inherited: taskset, or a CPU shield not given back)"
+    )
 
 
 class CpuShield:
