@@ -47,6 +47,12 @@ DEFAULT_FOXGLOVE_PORT = 8765
 PLOT_BATCH_FRAMES = 5  # Rerun's plots go out in batches of this many frames: 0.25 s behind at 20 Hz
 
 
+# A Rerun viewer that accepts the connection and never reads held the writer's end until the
+# recorder gave up on it (30 s): the run ended "DONE with its recording lost", exit 3, of a
+# complete file (an outside tester's). Its last data get this long.
+LIVE_FLUSH_TIMEOUT_S = 5.0
+
+
 class LiveViewError(ValueError):
     """A live-view setting that cannot be used (named in the message)."""
 
@@ -161,8 +167,11 @@ class RerunLive:
         self.rec.log("/events", self.rr.TextLog(text, level={0: "INFO", 1: "WARN"}.get(severity, "ERROR")))
 
     def close(self) -> None:
+        """The last plots sent; raises when the viewer does not take them within
+        ``LIVE_FLUSH_TIMEOUT_S`` (then the connection is left: rerun's disconnect and its exit
+        handler would wait for that viewer as long as it hangs)."""
         self._send_plots()
-        self.rec.flush()
+        self.rec.flush(timeout_sec=LIVE_FLUSH_TIMEOUT_S)
         self.rec.disconnect()
 
 
@@ -350,13 +359,18 @@ class LiveViews:
         if self.foxglove is not None:
             self.foxglove.log("/joint_states", joints_pb, unix_ns)
 
-    def close(self) -> None:
+    def close(self) -> bool:
+        """Each view closed; False when one failed (a viewer that takes no data: the process had
+        better end without the views' exit handlers, logs/session_writer.py)."""
+        clean = True
         for view in (self.rerun, self.foxglove):
             if view is not None:
                 try:
                     view.close()
                 except Exception as err:  # closing a viewer never fails the recording
                     _warn("closing", err)
+                    clean = False
+        return clean
 
 
 def _is_loopback_host(host: str) -> bool:

@@ -814,8 +814,8 @@ def serve(fd: int, out: TextIO) -> int:
     if writer.stopped:
         os.close(fd)
     writer.finish(queued, dropped)
-    if writer.live is not None:
-        writer.live.close()
+    global _VIEWS_LEFT_OPEN
+    _VIEWS_LEFT_OPEN = writer.live is not None and not writer.live.close()
     _reply(
         out,
         written=writer.written,
@@ -827,5 +827,16 @@ def serve(fd: int, out: TextIO) -> int:
     return 0 if not writer.error else 2
 
 
+# A live view that did not close (a viewer that takes no data) keeps the process from exiting:
+# rerun's exit handler waits for that viewer without end. The file is finished and the answer
+# sent by then, so the process ends without the exit handlers.
+_VIEWS_LEFT_OPEN = False
+
+
 if __name__ == "__main__":
-    sys.exit(serve(sys.stdin.buffer.fileno(), sys.stdout))
+    code = serve(sys.stdin.buffer.fileno(), sys.stdout)
+    if _VIEWS_LEFT_OPEN:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)

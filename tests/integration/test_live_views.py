@@ -9,6 +9,7 @@ speaking the Foxglove protocol (``websockets``).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import socket
 import struct
@@ -69,6 +70,7 @@ def _running_controller(cfg: Config, path: Path) -> Iterator[threading.Thread]:
 
         thread = threading.Thread(target=run, name="test-loop")
         thread.ended = ended  # type: ignore[attr-defined]
+        thread.recorder = rec  # type: ignore[attr-defined]
         thread.start()
         try:
             yield thread
@@ -132,6 +134,50 @@ def test_a_rerun_grpc_server_receives_the_robot_and_the_plots_during_the_run(tmp
         server.terminate()
         wait_for_exit(server.pid, "the Rerun server")
         server.wait()
+
+
+@contextmanager
+def _silent_server() -> Iterator[int]:
+    """A TCP server on loopback that accepts and never reads (a hung viewer); its port."""
+    listener = socket.socket()
+    listener.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(8)
+    listener.settimeout(0.1)  # the thread looks for the end this often (a closed socket wakes no accept)
+    held: list[socket.socket] = []
+    done = threading.Event()
+
+    def accept() -> None:
+        while not done.is_set():
+            with contextlib.suppress(TimeoutError):
+                held.append(listener.accept()[0])
+
+    thread = threading.Thread(target=accept, name="silent-server", daemon=True)
+    thread.start()
+    try:
+        yield listener.getsockname()[1]
+    finally:
+        done.set()
+        thread.join(GENEROUS_S)
+        listener.close()
+        for conn in held:
+            conn.close()
+
+
+def test_a_rerun_viewer_that_takes_no_data_costs_the_recording_nothing(tmp_path):
+    """A viewer that accepted the connection and never read held the writer's end until the
+    recorder gave up on it: the run ended "DONE with its recording lost" (exit 3) of a complete
+    file (an outside tester's). Now its last data get ``LIVE_FLUSH_TIMEOUT_S``, the writer answers,
+    and the recording is whole."""
+    from logs.reader import read_info
+
+    with _silent_server() as port:
+        cfg = _config(tmp_path, live_rerun=f"rerun+http://127.0.0.1:{port}/proxy")
+        with _running_controller(cfg, tmp_path / "s.mcap") as loop_thread:
+            rec = loop_thread.recorder  # type: ignore[attr-defined]
+            wait_until(lambda: rec.queued > 800, "two seconds of cycles handed to the writer")
+    assert rec.error == "", rec.error
+    assert rec.written == read_info(tmp_path / "s.mcap").messages > 800
 
 
 def _foxglove_messages(
