@@ -9,7 +9,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
-from controller.sim_config.fault_specs import Fault, parse_fault
+from controller.sim_config.fault_specs import Fault, fault_text, parse_fault
 
 if TYPE_CHECKING:
     from sim_backend.drive import SimulatedDrive
@@ -43,11 +43,12 @@ class FaultSchedule:
             self.t0_s = now_s
         self.last_s = now_s
 
-    def not_reached(self) -> tuple[Fault, ...]:
-        """The faults whose start came after the last SYNC: they injected nothing (a fault at 100 s
-        in a run of 70 passed silently before; the run's summary names them)."""
+    def not_reached(self) -> tuple[str, ...]:
+        """The specs (``fault_text``) of the faults whose start came after the last SYNC: they
+        injected nothing (a fault at 100 s in a run of 70 passed silently before; the run's summary
+        names them)."""
         last = -math.inf if self.last_s is None else self.elapsed(self.last_s)
-        return tuple(f for f in self.faults if f.start_s > last)
+        return tuple(fault_text(f) for f in self.faults if f.start_s > last)
 
     def elapsed(self, now_s: float) -> float:
         return -math.inf if self.t0_s is None else now_s - self.t0_s

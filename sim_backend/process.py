@@ -14,7 +14,7 @@ from controller.realtime import (
     freeze_garbage_collector,
     unfreeze_garbage_collector,
 )
-from controller.sim_config.fault_specs import fault_text, refuse_in_process_only
+from controller.sim_config.fault_specs import refuse_in_process_only
 from drivers import cob_ids
 from drivers.bus import BusSpec, open_bus
 from drivers.bus_presence import check_node_ids_free
@@ -25,7 +25,7 @@ from sim_backend.true_force_tap import TrueForceTap
 READY_LINE = "cheope-sim ready"
 STOPPED_LINE = "cheope-sim stopped"  # then what it saw:
 CONTACT_FORCE_REPORT = "max true contact force per controller session"  # the numbers, then "N"
-FAULTS_NOT_REACHED_REPORT = "faults not reached"  # then their specs (``fault_text``), when any
+FAULTS_NOT_REACHED_REPORT = "faults not reached"  # then their specs (``FaultSchedule.not_reached``)
 
 
 def sdo_node_ids(cfg: Config) -> tuple[int, ...]:
@@ -90,7 +90,7 @@ def serve(
         announce(f"{STOPPED_LINE}: {CONTACT_FORCE_REPORT} " + " ".join(f"{m:.3f}" for m in maxima) + " N")
         late = simulator.faults.not_reached()
         if late:  # the demo's summary names them (controller/shell/demo.py simulator_report)
-            announce(f"{STOPPED_LINE}: {FAULTS_NOT_REACHED_REPORT} " + " ".join(map(fault_text, late)))
+            announce(f"{STOPPED_LINE}: {FAULTS_NOT_REACHED_REPORT} " + " ".join(late))
     if tap is not None:
         tap.close()
     if cfg.loop.freeze_gc:

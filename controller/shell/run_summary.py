@@ -22,7 +22,6 @@ from controller.core.cycle_data import CycleInputs, CycleOutputs, Event, Severit
 from controller.core.ports import CycleTiming
 from controller.shell.loop import LoopStats
 from controller.shell.streaming_stats import FloatRing, LogHistogram, RunningMoments
-from controller.sim_config.fault_specs import fault_text
 from drivers.cyclic_exchange import ExchangeCounters
 
 if TYPE_CHECKING:
@@ -138,8 +137,8 @@ def simulated_time_summary(
 def faults_not_reached(faults: FaultSchedule) -> dict[str, object]:
     """``{"faults_not_reached": [spec, ...]}`` for the injected faults that started after the run's
     last SYNC (none: nothing); said on stderr by ``controller.cli.say_run_notes``."""
-    late = [fault_text(f) for f in faults.not_reached()]
-    return {"faults_not_reached": late} if late else {}
+    late = faults.not_reached()
+    return {"faults_not_reached": list(late)} if late else {}
 
 
 def _hist_us(h: LogHistogram, *qs: float, with_max: bool = True) -> dict[str, float]:

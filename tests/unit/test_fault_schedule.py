@@ -39,14 +39,13 @@ def test_the_faults_not_reached_are_those_that_start_after_the_last_sync() -> No
     schedule = FaultSchedule.from_strings(
         ("drop:1@0.5+1", "force=100@60", "freeze@10+0.5", "stall=0.001@9.9")
     )
-    assert [fault_text(f) for f in schedule.not_reached()] == [  # no SYNC yet: none reached
+    assert schedule.not_reached() == (  # no SYNC yet: none reached
         "drop:1@0.5+1",
         "force=100@60",
         "freeze@10+0.5",
         "stall=0.001@9.9",
-    ]
+    )
     for k in range(4001):  # SYNCs at 400 Hz from t = 100 s (the schedule's 0) to its 10 s
         schedule.start(100.0 + k * 0.0025)
-    assert [fault_text(f) for f in schedule.not_reached()] == ["force=100@60"]
-    assert schedule.not_reached()[0].start_s == 60.0
+    assert schedule.not_reached() == ("force=100@60",)
     assert FaultSchedule(()).not_reached() == ()
