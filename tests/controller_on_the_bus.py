@@ -27,6 +27,22 @@ from drivers.node_setup import DRIVE_EDS
 LAPS = 3  # far longer than any of these tests watches the robot
 
 
+def child_running(parent_pid: int, module: str) -> int | None:
+    """The pid of ``parent_pid``'s child process running ``python -m module`` (the recording's
+    writer, the CPU shield's guardian), None while there is none."""
+    try:
+        children = Path(f"/proc/{parent_pid}/task/{parent_pid}/children").read_text().split()
+    except OSError:
+        return None
+    for pid in children:
+        try:
+            if module.encode() in Path(f"/proc/{pid}/cmdline").read_bytes():
+                return int(pid)
+        except OSError:
+            continue
+    return None
+
+
 def run_sets(tmp_path: Path, *more: str) -> list[str]:
     """``--set`` options of a path run of LAPS laps recorded into ``tmp_path``, without monitoring,
     tolerant of a busy machine (TOLERANT), then ``more``."""

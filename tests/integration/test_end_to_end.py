@@ -10,10 +10,13 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
 from busy_machine import TOLERANT
+from controller_on_the_bus import child_running
 from waiting import wait_until
 
 from controller import cli
@@ -309,25 +312,34 @@ def test_bus_load_command(repo_root: Path):
     assert r.returncode == 0 and "CAN FD" in r.stdout and "OK" in r.stdout
 
 
-@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="a CPU shield needs two CPUs")
-def test_a_demo_keeps_normal_tasks_off_its_loops_cpu_while_it_runs():
-    """The CPU shield (controller/shell/cpu_shield.py) over the real service: a neighbour started
-    before the demo loses the loop's CPU while the loop runs and has it back after the run."""
+@contextmanager
+def _shielded_demo_beside_a_neighbour(laps: float) -> Iterator[tuple[subprocess.Popen[str], int, set[int]]]:
+    """A path demo of ``laps`` with a sleeping neighbour started before it, once the demo's CPU
+    shield has swept the neighbour off the loop's CPU (or the demo ended): the demo, the
+    neighbour's pid and its CPUs before. Both are killed by pid at the end."""
     neighbour = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(600)"])
     everything = os.sched_getaffinity(neighbour.pid)
-    demo = _path_demo()
+    demo = _path_demo(laps=laps)
     try:
         wait_until(
             lambda: os.sched_getaffinity(neighbour.pid) != everything or demo.poll() is not None,
             "the neighbour swept off the loop's CPU",
         )
-        during = os.sched_getaffinity(neighbour.pid)
-        out, err = demo.communicate(timeout=120)
-        after = os.sched_getaffinity(neighbour.pid)
+        yield demo, neighbour.pid, everything
     finally:
         for proc in (demo, neighbour):
             proc.kill()
             proc.wait()
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="a CPU shield needs two CPUs")
+def test_a_demo_keeps_normal_tasks_off_its_loops_cpu_while_it_runs():
+    """The CPU shield (controller/shell/cpu_shield.py) over the real service: a neighbour started
+    before the demo loses the loop's CPU while the loop runs and has it back after the run."""
+    with _shielded_demo_beside_a_neighbour(laps=0.5) as (demo, neighbour, everything):
+        during = os.sched_getaffinity(neighbour)
+        out, err = demo.communicate(timeout=120)
+        after = os.sched_getaffinity(neighbour)
     assert demo.returncode == 0, err + out
     shield = json.loads(out)["cpu_shield"]
     assert during == everything - set(shield["cpus"]), shield
@@ -335,38 +347,16 @@ def test_a_demo_keeps_normal_tasks_off_its_loops_cpu_while_it_runs():
     assert shield["tasks_moved"] >= 1 and shield["tasks_restored"] >= 1
 
 
-def _guardian_of(demo: subprocess.Popen[str]) -> int | None:
-    """The pid of ``demo``'s CPU shield guardian (its child ``python -m controller.shell.cpu_shield``)."""
-    for child in Path(f"/proc/{demo.pid}/task/{demo.pid}/children").read_text().split():
-        try:
-            if b"controller.shell.cpu_shield" in Path(f"/proc/{child}/cmdline").read_bytes():
-                return int(child)
-        except OSError:
-            continue
-    return None
-
-
 @pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="a CPU shield needs two CPUs")
 def test_a_guardian_killed_under_the_run_is_named_and_its_tasks_given_back():
     """A guardian killed under the run restored nothing: the neighbour stayed off the loop's CPU
     until the next shielded run, and the summary said nothing."""
-    neighbour = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(600)"])
-    everything = os.sched_getaffinity(neighbour.pid)
-    demo = _path_demo(laps=1.0)
-    try:
-        wait_until(
-            lambda: os.sched_getaffinity(neighbour.pid) != everything or demo.poll() is not None,
-            "the neighbour swept off the loop's CPU",
-        )
-        guardian = _guardian_of(demo)
+    with _shielded_demo_beside_a_neighbour(laps=1.0) as (demo, neighbour, everything):
+        guardian = child_running(demo.pid, "controller.shell.cpu_shield")
         assert guardian is not None
         os.kill(guardian, signal.SIGKILL)
         out, err = demo.communicate(timeout=120)
-        after = os.sched_getaffinity(neighbour.pid)
-    finally:
-        for proc in (demo, neighbour):
-            proc.kill()
-            proc.wait()
+        after = os.sched_getaffinity(neighbour)
     assert demo.returncode == 0, err + out
     shield = json.loads(out)["cpu_shield"]
     assert shield["guardian_failed"] == "killed by SIGKILL under the run", shield

@@ -17,7 +17,12 @@ from pathlib import Path
 
 import can
 import pytest
-from controller_on_the_bus import controller_beside_simulator, run_sets, wait_until_drive_1_moves
+from controller_on_the_bus import (
+    child_running,
+    controller_beside_simulator,
+    run_sets,
+    wait_until_drive_1_moves,
+)
 from waiting import GENEROUS_S, ProcessLines, wait_for_exit, wait_until
 
 from controller.assembly import build_law
@@ -614,21 +619,6 @@ def test_a_writer_that_stops_reading_blocks_neither_the_loop_nor_the_exit(tmp_pa
     assert rec.written is None  # it never answered: unknown, not 0 (the file holds what it wrote)
 
 
-def _writer_of(controller_pid: int) -> int | None:
-    """The controller's ``logs.session_writer`` child process, once it runs."""
-    try:
-        children = Path(f"/proc/{controller_pid}/task/{controller_pid}/children").read_text().split()
-    except OSError:
-        return None
-    for pid in children:
-        try:
-            if b"logs.session_writer" in Path(f"/proc/{pid}/cmdline").read_bytes():
-                return int(pid)
-        except OSError:
-            continue
-    return None
-
-
 @pytest.mark.integration
 @pytest.mark.parametrize("policy", ["stop", "warn"])
 def test_a_killed_writer_ends_the_run_by_the_recording_policy(tmp_path, policy):
@@ -647,7 +637,9 @@ def test_a_killed_writer_ends_the_run_by_the_recording_policy(tmp_path, policy):
     with controller_beside_simulator(sets, stderr=subprocess.STDOUT) as run:
         proc = run.process
         lines = ProcessLines(proc)
-        writer = wait_until(lambda: _writer_of(proc.pid), "the recording's writer process")
+        writer = wait_until(
+            lambda: child_running(proc.pid, "logs.session_writer"), "the recording's writer process"
+        )
         wait_until_drive_1_moves(run.bus, proc)
         os.kill(writer, signal.SIGKILL)
         lines.next_matching(lambda line: "recording lost" in line and policy in line, "the policy's warning")
