@@ -34,7 +34,8 @@ with that message.
   always halts an idle CPU and the limit changes nothing there.
 - Idle polling (``controller/shell/idle_poll.py``): a ``SCHED_IDLE`` poller on every CPU keeps
   the vCPUs of a VM guest from halting, which the guest's kernel cannot be told to do without a
-  boot option. A default only on a VM guest that halts idle CPUs at once (``halts_when_idle``).
+  boot option. A default only on a VM guest that halts idle CPUs at once (``halts_when_idle``):
+  no cpuidle driver, or ``haltpoll`` told not to poll (``guest_halt_poll_ns`` 0).
 
 All are taken after the start-up work, never before it (``check_realtime`` only probes):
 several controllers and simulators share a host, and one's start-up at SCHED_FIFO took the
@@ -198,6 +199,8 @@ class RealtimeOptions:
 
 
 CPUIDLE_DRIVER = "/sys/devices/system/cpu/cpuidle/current_driver"
+# the haltpoll governor's poll window: how long an idle vCPU polls before it halts (0: never polls)
+HALTPOLL_WINDOW = "/sys/module/haltpoll/parameters/guest_halt_poll_ns"
 
 
 def on_virtual_machine(cpuinfo_path: str = "/proc/cpuinfo") -> bool:
@@ -209,10 +212,14 @@ def on_virtual_machine(cpuinfo_path: str = "/proc/cpuinfo") -> bool:
         return False
 
 
-def halts_when_idle(cpuinfo_path: str = "/proc/cpuinfo", driver_path: str = CPUIDLE_DRIVER) -> bool:
-    """A VM guest whose idle CPUs halt at once: no cpuidle driver that polls first (``none`` or
-    no driver file). There the host decides when a halted vCPU runs again, and idle polling is a
-    default (controller/shell/idle_poll.py)."""
+def halts_when_idle(
+    cpuinfo_path: str = "/proc/cpuinfo", driver_path: str = CPUIDLE_DRIVER, window_path: str = HALTPOLL_WINDOW
+) -> bool:
+    """A VM guest whose idle CPUs halt at once: no cpuidle driver (``none`` or no driver file), or
+    the ``haltpoll`` driver with a poll window of 0 (booted with ``haltpoll.guest_halt_poll_ns=0``,
+    as the development VM's image of 2026-12-04 is). There the host decides when a halted vCPU runs again, and
+    idle polling is a default (controller/shell/idle_poll.py). A ``haltpoll`` guest that polls
+    first, or one whose window cannot be read, is left alone."""
     if not on_virtual_machine(cpuinfo_path):
         return False
     try:
@@ -220,7 +227,15 @@ def halts_when_idle(cpuinfo_path: str = "/proc/cpuinfo", driver_path: str = CPUI
             driver = f.read().strip()
     except OSError:
         return True
-    return driver in ("", "none")
+    if driver in ("", "none"):
+        return True
+    if driver != "haltpoll":
+        return False
+    try:
+        with open(window_path) as f:
+            return int(f.read().strip()) == 0
+    except (OSError, ValueError):
+        return False
 
 
 def set_fifo_priority(priority: int) -> None:

@@ -138,7 +138,12 @@ def test_a_guest_that_halts_at_once_is_known_by_its_cpus_and_its_cpuidle_driver(
     haltpoll.write_text("haltpoll\n")
     assert halts_when_idle(str(guest), str(none))
     assert halts_when_idle(str(guest), str(tmp_path / "no cpuidle"))
-    assert not halts_when_idle(str(guest), str(haltpoll))  # it polls before it halts
+    polls, never = tmp_path / "200 us", tmp_path / "0"
+    polls.write_text("200000\n")
+    never.write_text("0\n")
+    assert not halts_when_idle(str(guest), str(haltpoll), str(polls))  # it polls before it halts
+    assert halts_when_idle(str(guest), str(haltpoll), str(never))  # told not to poll: halts at once
+    assert not halts_when_idle(str(guest), str(haltpoll), str(tmp_path / "no window"))  # unknown: left alone
     assert not halts_when_idle(str(metal), str(none))  # a machine of its own: --cpu-latency-us
 
 
