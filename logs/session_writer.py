@@ -761,12 +761,14 @@ def _write_line(out: TextIO, fields: dict[str, object]) -> None:
 
 def serve(fd: int, out: TextIO) -> int:
     """Read SETUP, write the file until END or the end of input; returns the exit status."""
-    terminated = []
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(
-        signal.SIGHUP, signal.SIG_IGN
-    )  # as SIGINT: the controller stops the run on it and closes the pipe
-    signal.signal(signal.SIGTERM, lambda *_: terminated.append(True))
+    # The controller stops the run on each of these and closes the pipe, and the writer then
+    # finishes the file with the stop's last cycles. Sent to the controller's whole process group
+    # (a terminal's Ctrl-C, `kill -TERM -- -PGID`, GNU timeout, systemd's default KillMode), a
+    # SIGTERM that ended the writer at once had the controller's next write meet a closed pipe:
+    # "DONE, but the recording was lost" (exit 3) of a complete file. The writer ends with its
+    # input (the controller gone, however it ended), or by SIGKILL.
+    for signum in (signal.SIGINT, signal.SIGHUP, signal.SIGTERM):
+        signal.signal(signum, signal.SIG_IGN)
     reader = RecordReader(fd)
     try:
         setup = reader.next(None)
@@ -785,7 +787,7 @@ def serve(fd: int, out: TextIO) -> int:
     _reply(out, ready=str(writer.path))
     queued: int | None = None
     dropped = 0
-    while not terminated:
+    while True:
         try:
             record = reader.next(writer.flush_interval_s / 2)
         except EOFError:  # the controller is gone; a record it was cut off in is lost

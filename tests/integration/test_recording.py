@@ -659,6 +659,35 @@ def test_a_killed_writer_ends_the_run_by_the_recording_policy(tmp_path, policy):
     assert not any("Traceback" in line for line in lines.lines)
 
 
+@pytest.mark.integration
+def test_a_sigterm_to_the_writer_loses_nothing(tmp_path):
+    """A SIGTERM that reaches the writer too (sent to the controller's process group: GNU timeout,
+    `kill -TERM -- -PGID`, systemd's default KillMode) leaves it writing until the controller,
+    stopped by the same signal, closes the pipe: DONE, exit 0, the recording whole. It ended the
+    writer at once, and the run ended "DONE, but the recording was lost" (exit 3)."""
+    with controller_beside_simulator(run_sets(tmp_path), stderr=subprocess.STDOUT) as run:
+        proc = run.process
+        lines = ProcessLines(proc)
+        writer = wait_until(
+            lambda: child_running(proc.pid, "logs.session_writer"), "the recording's writer process"
+        )
+        wait_until_drive_1_moves(run.bus, proc)
+        os.kill(writer, signal.SIGTERM)
+        wait_until_drive_1_moves(run.bus, proc)  # still driving, recorded
+        assert child_running(proc.pid, "logs.session_writer") == writer
+        proc.send_signal(signal.SIGTERM)
+        wait_for_exit(proc.pid, "the controller ending")
+        proc.wait()
+        with pytest.raises(AssertionError, match="ended its output"):
+            lines.next_matching(lambda line: False, "the rest of the output")
+    assert proc.returncode == 0, lines.lines[-20:]
+    summary = json.loads(next(line for line in lines.lines if line.startswith("{")))
+    assert summary["final_mode"] == "DONE", summary["fault_reason"]
+    rec = summary["recording"]
+    assert not rec.get("error") and not rec.get("lost") and rec["dropped"] == 0, rec
+    assert rec["written"] > 0 and read_info(Path(rec["path"])).messages >= rec["written"]
+
+
 def test_logs_recover_says_what_it_saved_as_json(tmp_path, capsys):
     path = tmp_path / "r.mcap"
     record_session(path, max_s=0.3)
