@@ -452,6 +452,14 @@ def test_the_summary_says_what_was_granted_not_what_was_asked():
         assert granted.startswith("normal scheduler")
 
 
+def test_memory_is_locked_when_most_of_it_is_not_when_a_library_locked_a_few_pages():
+    status = "Name:\tpython3\nVmSize:\t  808132 kB\nVmLck:\t      {lck} kB\nVmRSS:\t   75452 kB\n"
+    assert not realtime.memory_locked(status.format(lck=12))  # a library's pages, no mlockall
+    assert not realtime.memory_locked(status.format(lck=0))
+    assert realtime.memory_locked(status.format(lck=75452))  # mlockall: all of it
+    assert not realtime.memory_locked("Name:\tkthread\n")  # no memory of its own
+
+
 def test_a_bench_run_asks_the_task_for_enough_of_itself():
     """The path task lasts as long as the run (its entry's ``lasting``); the contour its laps."""
     import math
