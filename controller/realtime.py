@@ -249,10 +249,51 @@ def set_fifo_priority(priority: int) -> None:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
     except PermissionError as err:
         raise RealtimeError(
-            f"--rt-priority {priority}: SCHED_FIFO not permitted ({err.strerror}); {_PRIORITY_HINT}"
+            f"--rt-priority {priority}: SCHED_FIFO not permitted ({err.strerror}); {priority_hint()}"
         ) from err
     except OSError as err:
         raise RealtimeError(f"--rt-priority {priority}: SCHED_FIFO refused by the kernel: {err}") from err
+
+
+def priority_hint(proc_cgroup: str = "/proc/self/cgroup", cgroup_root: str = "/sys/fs/cgroup") -> str:
+    """How to be granted SCHED_FIFO where it was refused. To root, the usual advice (be root)
+    says nothing: what refuses root is a cgroup without real-time runtime (cgroup v1 with the
+    kernel's real-time group scheduling: a new group's ``cpu.rt_runtime_us`` is 0) or a
+    container without CAP_SYS_NICE."""
+    if not hasattr(os, "geteuid") or os.geteuid() != 0:
+        return _PRIORITY_HINT
+    runtime = _group_rt_runtime(proc_cgroup, cgroup_root)
+    if runtime is not None and runtime[1] == 0:
+        return (
+            f"root is refused too: this process's cpu cgroup has no real-time runtime ({runtime[0]} is 0); "
+            f"give it some, within its parent's (echo 900000 > {runtime[0]}), or run the controller outside it"
+        )
+    return (
+        "root is refused too: inside a container start it with CAP_SYS_NICE (--cap-add SYS_NICE); with the kernel's "
+        "real-time group scheduling, this process's cpu cgroup needs cpu.rt_runtime_us above 0"
+    )
+
+
+def _group_rt_runtime(proc_cgroup: str, cgroup_root: str) -> tuple[str, int] | None:
+    """``(path, value)`` of the calling process's cgroup-v1 ``cpu.rt_runtime_us``; None without one."""
+    try:
+        with open(proc_cgroup) as f:
+            lines = f.read().splitlines()
+    except OSError:
+        return None
+    for line in lines:
+        parts = line.split(":", 2)  # hierarchy id, controllers, path
+        if len(parts) != 3 or "cpu" not in parts[1].split(","):
+            continue
+        controllers, group = parts[1], parts[2]
+        for mount in (controllers, "cpu", "cpu,cpuacct"):
+            path = os.path.join(cgroup_root, mount, group.lstrip("/"), "cpu.rt_runtime_us")
+            try:
+                with open(path) as f:
+                    return path, int(f.read().strip())
+            except (OSError, ValueError):
+                continue
+    return None
 
 
 def scheduling_policy(thread_id: int = 0) -> int:

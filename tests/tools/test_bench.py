@@ -151,10 +151,29 @@ def test_priority_not_permitted_says_how_to_get_it(monkeypatch):
         raise PermissionError(errno.EPERM, "Operation not permitted")
 
     monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    monkeypatch.setattr(os, "geteuid", lambda: 1000)  # root's refusal has its own hint (below)
     with pytest.raises(
         RealtimeError, match=r"--rt-priority 50: SCHED_FIFO not permitted .*CAP_SYS_NICE.*rtprio"
     ):
         realtime.set_fifo_priority(50)
+
+
+def test_priority_refused_to_root_names_the_cgroup_without_real_time_runtime(monkeypatch, tmp_path):
+    """Root refused SCHED_FIFO in a cgroup-v1 group whose cpu.rt_runtime_us is 0 (a new group's
+    under the kernel's real-time group scheduling) was told to run as root."""
+    group = tmp_path / "cpu" / "cheope"
+    group.mkdir(parents=True)
+    (group / "cpu.rt_runtime_us").write_text("0\n")
+    cgroups = tmp_path / "cgroup"
+    cgroups.write_text("4:memory:/\n1:cpu:/cheope\n0::/\n")
+    monkeypatch.setattr(os, "geteuid", lambda: 0)
+    hint = realtime.priority_hint(str(cgroups), str(tmp_path))
+    assert "no real-time runtime" in hint and str(group / "cpu.rt_runtime_us") in hint
+    assert "run as root" not in hint
+    (group / "cpu.rt_runtime_us").write_text("900000\n")  # runtime there: the container's capability
+    assert "SYS_NICE" in realtime.priority_hint(str(cgroups), str(tmp_path))
+    monkeypatch.setattr(os, "geteuid", lambda: 1000)
+    assert realtime.priority_hint(str(cgroups), str(tmp_path)).startswith("run as root")
 
 
 def test_cpu_outside_the_allowed_set_is_named(monkeypatch):
