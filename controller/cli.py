@@ -185,8 +185,9 @@ def _realtime(args: argparse.Namespace, simulator: bool = False) -> RealtimeOpti
         raise RealtimeError("--cpu-shield and --no-cpu-shield contradict each other")
     if args.idle_poll and args.no_idle_poll:
         raise RealtimeError("--idle-poll and --no-idle-poll contradict each other")
-    if simulator and args.idle_poll:
-        raise RealtimeError("--idle-poll is the controller's (run, demo): it polls the CPUs it may use")
+    if simulator and (args.idle_poll or args.no_idle_poll):
+        flag = "--idle-poll" if args.idle_poll else "--no-idle-poll"
+        raise RealtimeError(f"{flag} is the controller's (run, demo): it polls the CPUs it may use")
     if not explicit:  # the defaults, with --idle-poll / --no-idle-poll / --no-cpu-shield changing them
         default = RealtimeOptions.default()
         if args.no_cpu_shield:
@@ -397,6 +398,30 @@ def _quiet_progress(status: StatusDisplay | None) -> Iterator[Callable[[str], No
         yield progress
 
 
+# The real-time options and the flags that name them, as given on the command line (argparse's names).
+_REALTIME_FLAGS = (
+    ("rt_priority", "--rt-priority"),
+    ("cpu", "--cpu"),
+    ("lock_memory", "--lock-memory"),
+    ("cpu_latency_us", "--cpu-latency-us"),
+    ("cpu_shield", "--cpu-shield"),
+    ("idle_poll", "--idle-poll"),
+)
+
+
+def _refuse_realtime_in_simulated_time(args: argparse.Namespace) -> None:
+    """Given explicitly, a real-time option is required (the help says so); in simulated time there
+    is no loop on the wall clock for it to act on, and it was ignored without a word."""
+    from controller.realtime import RealtimeError
+
+    given = [flag for name, flag in _REALTIME_FLAGS if getattr(args, name, None) not in (None, False)]
+    if given:
+        raise RealtimeError(
+            f"{', '.join(given)}: --simulated-time runs the loop on a simulated clock, with nothing "
+            "to schedule, pin or lock; drop them, or run the demo over the bus (without --simulated-time)"
+        )
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     from controller.shell.demo import random_udp_port, run_demo
 
@@ -407,6 +432,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if args.simulated_time:
         from controller.experiments import experiment_for
         from controller.shell.demo import run_simulated_time
+
+        _refuse_realtime_in_simulated_time(args)
 
         # the task's experiment in simulated time where it has one (the contour's laps), else the task
         experiment = experiment_for(cfg.task.kind)

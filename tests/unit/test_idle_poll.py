@@ -172,3 +172,20 @@ def test_the_defaults_poll_where_the_guest_halts_and_the_options_say_otherwise(
         _realtime(parse(["demo", "--no-realtime", "--idle-poll"]))
     with pytest.raises(RealtimeError, match="--idle-poll is the controller's"):
         _realtime(parse(["sim", "--idle-poll"]), simulator=True)
+    with pytest.raises(RealtimeError, match="--no-idle-poll is the controller's"):  # accepted, unsaid
+        _realtime(parse(["sim", "--no-idle-poll"]), simulator=True)
+
+
+def test_real_time_options_are_refused_in_simulated_time_not_ignored(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Given explicitly, a real-time option is required; `demo --simulated-time` ignored them all."""
+    from controller.cli import main
+
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path))
+    code = main(["demo", "--simulated-time", "--idle-poll", "--cpu-shield", "--rt-priority", "50"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert (
+        "--rt-priority, --cpu-shield, --idle-poll: --simulated-time runs the loop on a simulated clock" in err
+    )
