@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -110,6 +111,42 @@ def test_a_poller_whose_starter_died_without_stopping_it_ends_by_itself() -> Non
         cwd=ROOT,
     )
     assert json.loads(result.stdout) == {"ended_by_itself": True}
+
+
+# A parent that starts a poller, prints its process id and waits to be stopped and killed.
+STARTER = (
+    "import os, time; from controller.shell.idle_poll import IdlePollers; p = IdlePollers((%d,)); "
+    "p.start(); print(p.pids[%d], flush=True); time.sleep(120)"
+)
+
+
+def _state(pid: int) -> str:
+    with open(f"/proc/{pid}/stat", "rb") as f:
+        return f.read().rpartition(b")")[2].split()[0].decode()
+
+
+@linux_only
+def test_a_poller_sleeps_while_its_starter_is_stopped() -> None:
+    """Ctrl-Z or SIGSTOP on the controller left its pollers spinning every CPU for as long as the
+    stop lasted; now each sleeps (state S) until its starter runs again, then spins (R)."""
+    from waiting import wait_until
+
+    cpu = max(os.sched_getaffinity(0))
+    starter = subprocess.Popen(
+        [sys.executable, "-c", STARTER % (cpu, cpu)], stdout=subprocess.PIPE, text=True, cwd=ROOT
+    )
+    try:
+        assert starter.stdout is not None
+        poller = int(starter.stdout.readline())
+        wait_until(lambda: _state(poller) == "R", "the poller spinning")
+        os.kill(starter.pid, signal.SIGSTOP)
+        wait_until(lambda: _state(poller) == "S", "the poller asleep while its starter is stopped")
+        os.kill(starter.pid, signal.SIGCONT)
+        wait_until(lambda: _state(poller) == "R", "the poller spinning again")
+    finally:
+        starter.kill()
+        starter.wait()
+    wait_until(lambda: not os.path.exists(f"/proc/{poller}") or _state(poller) == "Z", "the poller ending")
 
 
 @linux_only
