@@ -152,6 +152,8 @@ def test_demo_runs_the_contour_experiment_over_the_bus_by_default():
         assert cmp["laps"][0]["force_error_max_n"] > 5.0, cmp
     else:
         assert cmp["final_mode"] == "FAULT" and cmp["fault_reason"].startswith("protective stop"), cmp
+    # each run's idle pollers are its own, and the summary counts both (the comparison's were missing)
+    assert ("idle_poll" in cmp) == ("idle_poll" in s) == halts_when_idle()
 
 
 def test_the_position_comparison_is_not_run_after_a_contour_that_did_not_end_done():

@@ -105,6 +105,8 @@ def run_contour_experiment(
         summary["position_control_comparison"] = {
             "final_mode": cmp["final_mode"],
             "fault_reason": cmp["fault_reason"],
+            # the comparison's own run starts its own pollers: their CPU time is not the contour's
+            **({"idle_poll": cmp["idle_poll"]} if "idle_poll" in cmp else {}),
             "radius_m": cmp_cfg.task.model("path").radius_m,
             "speed_m_s": cmp_cfg.task.model("path").speed_m_s,
             **contour_summary(pos_obs, robot, stiffness, c.height_m, None),
