@@ -164,16 +164,26 @@ def _live_overrides(args: argparse.Namespace) -> list[str]:
     return sets
 
 
+# The real-time options that, given, replace the defaults, and their flags (argparse's names).
+_EXPLICIT_REALTIME_FLAGS = (
+    ("rt_priority", "--rt-priority"),
+    ("cpu", "--cpu"),
+    ("lock_memory", "--lock-memory"),
+    ("cpu_latency_us", "--cpu-latency-us"),
+    ("cpu_shield", "--cpu-shield"),
+)
+
+
+def _given(args: argparse.Namespace, flags: tuple[tuple[str, str], ...]) -> list[str]:
+    """The flags of ``flags`` given on the command line: a value (0 and '' too) or a switch set."""
+    values = ((getattr(args, name, None), flag) for name, flag in flags)
+    return [flag for value, flag in values if value is not None and value is not False]
+
+
 def _realtime(args: argparse.Namespace, simulator: bool = False) -> RealtimeOptions:
     from controller.realtime import RealtimeError, RealtimeOptions, parse_cpus
 
-    explicit = (
-        args.rt_priority is not None
-        or args.cpu is not None
-        or args.lock_memory
-        or args.cpu_latency_us is not None
-        or args.cpu_shield
-    )
+    explicit = bool(_given(args, _EXPLICIT_REALTIME_FLAGS))
     if args.no_realtime:
         if explicit or args.idle_poll:
             raise RealtimeError(
@@ -398,23 +408,12 @@ def _quiet_progress(status: StatusDisplay | None) -> Iterator[Callable[[str], No
         yield progress
 
 
-# The real-time options and the flags that name them, as given on the command line (argparse's names).
-_REALTIME_FLAGS = (
-    ("rt_priority", "--rt-priority"),
-    ("cpu", "--cpu"),
-    ("lock_memory", "--lock-memory"),
-    ("cpu_latency_us", "--cpu-latency-us"),
-    ("cpu_shield", "--cpu-shield"),
-    ("idle_poll", "--idle-poll"),
-)
-
-
 def _refuse_realtime_in_simulated_time(args: argparse.Namespace) -> None:
     """Given explicitly, a real-time option is required (the help says so); in simulated time there
     is no loop on the wall clock for it to act on, and it was ignored without a word."""
     from controller.realtime import RealtimeError
 
-    given = [flag for name, flag in _REALTIME_FLAGS if getattr(args, name, None) not in (None, False)]
+    given = _given(args, (*_EXPLICIT_REALTIME_FLAGS, ("idle_poll", "--idle-poll")))
     if given:
         raise RealtimeError(
             f"{', '.join(given)}: --simulated-time runs the loop on a simulated clock, with nothing "

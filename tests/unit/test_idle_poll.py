@@ -226,3 +226,5 @@ def test_real_time_options_are_refused_in_simulated_time_not_ignored(
     assert (
         "--rt-priority, --cpu-shield, --idle-poll: --simulated-time runs the loop on a simulated clock" in err
     )
+    assert main(["demo", "--simulated-time", "--cpu-latency-us", "0"]) == 2  # 0 is given, not absent
+    assert "--cpu-latency-us: --simulated-time" in capsys.readouterr().err
