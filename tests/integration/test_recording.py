@@ -18,6 +18,7 @@ from pathlib import Path
 import can
 import pytest
 from controller_on_the_bus import (
+    ControllerOnTheBus,
     child_running,
     controller_beside_simulator,
     run_sets,
@@ -619,6 +620,27 @@ def test_a_writer_that_stops_reading_blocks_neither_the_loop_nor_the_exit(tmp_pa
     assert rec.written is None  # it never answered: unknown, not 0 (the file holds what it wrote)
 
 
+def _writer_once_driving(run: ControllerOnTheBus) -> int:
+    """The pid of the recording's writer of the controller ``run``, once its drive 1 moves."""
+    writer: int = wait_until(
+        lambda: child_running(run.process.pid, "logs.session_writer"), "the recording's writer process"
+    )
+    wait_until_drive_1_moves(run.bus, run.process)
+    return writer
+
+
+def _summary_at_its_end(proc: subprocess.Popen[str], lines: ProcessLines, returncode: int) -> dict:
+    """The JSON summary of the controller ``proc``, once it ended with ``returncode`` and its output
+    with it."""
+    wait_for_exit(proc.pid, "the controller ending")
+    proc.wait()
+    with pytest.raises(AssertionError, match="ended its output"):
+        lines.next_matching(lambda line: False, "the rest of the output")
+    assert proc.returncode == returncode, lines.lines[-20:]
+    summary: dict = json.loads(next(line for line in lines.lines if line.startswith("{")))
+    return summary
+
+
 @pytest.mark.integration
 @pytest.mark.parametrize("policy", ["stop", "warn"])
 def test_a_killed_writer_ends_the_run_by_the_recording_policy(tmp_path, policy):
@@ -637,21 +659,13 @@ def test_a_killed_writer_ends_the_run_by_the_recording_policy(tmp_path, policy):
     with controller_beside_simulator(sets, stderr=subprocess.STDOUT) as run:
         proc = run.process
         lines = ProcessLines(proc)
-        writer = wait_until(
-            lambda: child_running(proc.pid, "logs.session_writer"), "the recording's writer process"
-        )
-        wait_until_drive_1_moves(run.bus, proc)
+        writer = _writer_once_driving(run)
         os.kill(writer, signal.SIGKILL)
         lines.next_matching(lambda line: "recording lost" in line and policy in line, "the policy's warning")
         if policy == "warn":
             wait_until_drive_1_moves(run.bus, proc)  # still driving, unrecorded
             proc.send_signal(signal.SIGTERM)
-        wait_for_exit(proc.pid, "the controller ending")
-        proc.wait()
-        with pytest.raises(AssertionError, match="ended its output"):
-            lines.next_matching(lambda line: False, "the rest of the output")
-    assert proc.returncode == 3, lines.lines[-20:]
-    summary = json.loads(next(line for line in lines.lines if line.startswith("{")))
+        summary = _summary_at_its_end(proc, lines, returncode=3)
     assert summary["final_mode"] == "DONE", summary["fault_reason"]
     rec = summary["recording"]
     assert rec["on_failure"] == policy and "stopped reading" in rec["error"]
@@ -668,20 +682,12 @@ def test_a_sigterm_to_the_writer_loses_nothing(tmp_path):
     with controller_beside_simulator(run_sets(tmp_path), stderr=subprocess.STDOUT) as run:
         proc = run.process
         lines = ProcessLines(proc)
-        writer = wait_until(
-            lambda: child_running(proc.pid, "logs.session_writer"), "the recording's writer process"
-        )
-        wait_until_drive_1_moves(run.bus, proc)
+        writer = _writer_once_driving(run)
         os.kill(writer, signal.SIGTERM)
         wait_until_drive_1_moves(run.bus, proc)  # still driving, recorded
         assert child_running(proc.pid, "logs.session_writer") == writer
         proc.send_signal(signal.SIGTERM)
-        wait_for_exit(proc.pid, "the controller ending")
-        proc.wait()
-        with pytest.raises(AssertionError, match="ended its output"):
-            lines.next_matching(lambda line: False, "the rest of the output")
-    assert proc.returncode == 0, lines.lines[-20:]
-    summary = json.loads(next(line for line in lines.lines if line.startswith("{")))
+        summary = _summary_at_its_end(proc, lines, returncode=0)
     assert summary["final_mode"] == "DONE", summary["fault_reason"]
     rec = summary["recording"]
     assert not rec.get("error") and not rec.get("lost") and rec["dropped"] == 0, rec
