@@ -36,7 +36,7 @@ import sys
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
-from controller.child_process import process_cpu_s
+from controller.child_process import exit_text, process_cpu_s
 from controller.realtime import RealtimeError, refused_realtime
 
 log = logging.getLogger(__name__)
@@ -132,31 +132,52 @@ class IdlePollers:
                 os.close(ready_w)
 
     def cpu_s(self) -> float:
-        """The CPU time the running pollers have taken so far [s] (a poller gone counts nothing)."""
+        """The CPU time the pollers have taken so far [s] (one that ended counts until ``stop`` reaps
+        it: a zombie's ``/proc`` entry keeps its times)."""
         return sum((t for t in map(process_cpu_s, self.pids.values()) if not math.isnan(t)), 0.0)
 
-    def stop(self) -> float:
-        """End every poller by its process id; returns the CPU time they took [s]."""
+    def stop(self) -> PollersStopped:
+        """End every poller by its process id; returns the CPU time they took and the CPUs whose
+        poller had already ended (killed under the run: its CPU was not polled until the end)."""
         spent = self.cpu_s()
-        for pid in self.pids.values():
+        ended_early: dict[int, str] = {}
+        for cpu, pid in self.pids.items():
+            with contextlib.suppress(ChildProcessError):
+                reaped, status = os.waitpid(pid, os.WNOHANG)
+                if reaped:
+                    ended_early[cpu] = exit_text(os.waitstatus_to_exitcode(status))
+        running = [pid for cpu, pid in self.pids.items() if cpu not in ended_early]
+        for pid in running:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGKILL)
-        for pid in self.pids.values():
+        for pid in running:
             with contextlib.suppress(ChildProcessError):
                 os.waitpid(pid, 0)
         self.pids.clear()
-        return spent
+        return PollersStopped(spent, ended_early)
+
+
+@dataclass(frozen=True)
+class PollersStopped:
+    """What ``IdlePollers.stop`` found: the pollers' CPU time [s], and the CPUs whose poller had
+    ended before it (CPU -> how: ``exit_text``'s "killed by SIGKILL")."""
+
+    cpu_s: float
+    ended_early: dict[int, str]
 
 
 @contextlib.contextmanager
-def idle_polling(cpus: tuple[int, ...], summary: dict[str, object], required: bool = False) -> Iterator[None]:
-    """Pollers on ``cpus`` (none: nothing) for the time of the block; ``summary`` gets the CPUs
-    polled and the pollers' CPU time. A CPU without its poller is a ``RealtimeError`` when
-    ``required``, else one line of warning."""
-    if not cpus:
-        yield
-        return
+def idle_polling(
+    cpus: tuple[int, ...], summary: dict[str, object], required: bool = False
+) -> Iterator[IdlePollers]:
+    """Pollers on ``cpus`` (none: nothing) for the time of the block, which is given them;
+    ``summary`` gets the CPUs polled, the pollers' CPU time and the CPUs whose poller ended before
+    the block did. A CPU without its poller is a ``RealtimeError`` when ``required``, else one line
+    of warning."""
     pollers = IdlePollers(cpus)
+    if not cpus:
+        yield pollers
+        return
     try:
         refused = pollers.start()
         if refused:
@@ -164,7 +185,15 @@ def idle_polling(cpus: tuple[int, ...], summary: dict[str, object], required: bo
             if required:
                 raise RealtimeError(message)
             log.warning("%s", refused_realtime([message]))
-        yield
+        yield pollers
     finally:
         summary["cpus"] = sorted(pollers.pids)
-        summary["cpu_s"] = round(pollers.stop(), 2)
+        stopped = pollers.stop()
+        summary["cpu_s"] = round(stopped.cpu_s, 2)
+        if stopped.ended_early:
+            # polled at the start, not at the end: the run's timing had no poller there from then on
+            summary["ended_early"] = sorted(stopped.ended_early)
+            log.warning(
+                "--idle-poll: the poller of %s ended before the run did; that CPU halted when idle from then on",
+                "; ".join(f"CPU {cpu} ({how})" for cpu, how in sorted(stopped.ended_early.items())),
+            )

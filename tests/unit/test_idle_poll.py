@@ -5,15 +5,15 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import os
 import signal
 import subprocess
 import sys
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from waiting import wait_until
 
 from controller.cli import _realtime, build_parser
 from controller.realtime import RealtimeError, RealtimeOptions, halts_when_idle, on_virtual_machine
@@ -21,15 +21,6 @@ from controller.shell.idle_poll import IdlePollers, idle_polling
 
 ROOT = Path(__file__).resolve().parents[2]
 linux_only = pytest.mark.skipif(not hasattr(os, "SCHED_IDLE"), reason="SCHED_IDLE is Linux's")
-
-
-def _wait_for(condition: Callable[[], bool], what: str, limit_s: float = 60.0) -> None:
-    """Until ``condition()`` holds; the limit only ends a test that would hang, it times nothing."""
-    end = time.monotonic() + limit_s
-    while not condition():
-        if time.monotonic() > end:
-            raise AssertionError(f"not within {limit_s} s: {what}")
-        time.sleep(0.01)
 
 
 @linux_only
@@ -46,7 +37,7 @@ def test_a_poller_spins_at_sched_idle_on_its_cpu_and_stop_ends_it_by_pid() -> No
         # none of this process's files: its standard streams are /dev/null
         assert {os.readlink(f"/proc/{pid}/fd/{n}") for n in (0, 1, 2)} == {os.devnull}
         # and it closes the rest, what this process had inherited too, once it has said it is set up
-        _wait_for(lambda: sorted(os.listdir(f"/proc/{pid}/fd")) == ["0", "1", "2"], "only its 3 streams")
+        wait_until(lambda: sorted(os.listdir(f"/proc/{pid}/fd")) == ["0", "1", "2"], "only its 3 streams")
     finally:
         pollers.stop()
     assert not pollers.pids
@@ -129,7 +120,6 @@ def _state(pid: int) -> str:
 def test_a_poller_sleeps_while_its_starter_is_stopped() -> None:
     """Ctrl-Z or SIGSTOP on the controller left its pollers spinning every CPU for as long as the
     stop lasted; now each sleeps (state S) until its starter runs again, then spins (R)."""
-    from waiting import wait_until
 
     cpu = max(os.sched_getaffinity(0))
     starter = subprocess.Popen(
@@ -160,6 +150,34 @@ def test_the_block_polls_the_cpus_it_is_given_and_none_when_given_none() -> None
     with idle_polling((), nothing):
         pass
     assert nothing == {}
+
+
+@linux_only
+def test_a_poller_killed_under_the_run_is_named_in_the_summary_and_a_warning(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # an outside tester killed a poller during a demo: the summary went on naming its CPU as
+    # polled, with no word that it was not polled from then on
+    cpu = max(os.sched_getaffinity(0))
+    summary: dict[str, object] = {}
+    with caplog.at_level(logging.WARNING), idle_polling((cpu,), summary) as pollers:
+        poller = pollers.pids[cpu]
+        os.kill(poller, signal.SIGKILL)
+        wait_until(lambda: _state(poller) == "Z", "the killed poller ended")
+    assert summary["cpus"] == [cpu] and summary["ended_early"] == [cpu]
+    assert f"the poller of CPU {cpu} (killed by SIGKILL) ended before the run did" in caplog.text
+    with pytest.raises(ProcessLookupError):
+        os.kill(poller, 0)  # reaped: no zombie left behind
+
+
+@linux_only
+def test_pollers_that_lived_to_the_end_are_not_named_as_ended(caplog: pytest.LogCaptureFixture) -> None:
+    cpu = max(os.sched_getaffinity(0))
+    summary: dict[str, object] = {}
+    with caplog.at_level(logging.WARNING), idle_polling((cpu,), summary):
+        pass
+    assert "ended_early" not in summary and "ended before" not in caplog.text
+    assert isinstance(summary["cpu_s"], float) and summary["cpu_s"] >= 0.0
 
 
 def test_a_guest_that_halts_at_once_is_known_by_its_cpus_and_its_cpuidle_driver(tmp_path: Path) -> None:
