@@ -108,6 +108,7 @@ class RealtimeOptions:
         False  # no CPU of the controller's halts while the loop runs (controller/shell/idle_poll.py)
     )
     required: bool = True  # False: where refused, warn in one line and run on without it
+    default_cpus: bool = False  # ``cpus`` are the defaults' choice, not --cpu's (messages say which)
 
     @classmethod
     def default(cls, priority: int = DEFAULT_LOOP_PRIORITY) -> RealtimeOptions:
@@ -127,6 +128,7 @@ class RealtimeOptions:
             shield=bool(cpus),
             idle_poll=halts_when_idle(),
             required=False,
+            default_cpus=bool(cpus),
         )
 
     def for_simulator(self) -> RealtimeOptions:
@@ -139,6 +141,7 @@ class RealtimeOptions:
             lock_memory=self.lock_memory,
             cpu_latency_us=self.cpu_latency_us,
             required=self.required,
+            default_cpus=self.default_cpus and bool(others),
         )
 
     def __post_init__(self) -> None:
@@ -308,22 +311,30 @@ def reset_scheduler() -> None:
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
 
 
-def set_cpu_affinity(cpus: tuple[int, ...]) -> None:
-    """Run the calling thread on ``cpus`` only (threads created later inherit it)."""
+def set_cpu_affinity(cpus: tuple[int, ...], default: bool = False) -> None:
+    """Run the calling thread on ``cpus`` only (threads created later inherit it). ``default``:
+    the CPUs are the defaults' choice, which the messages name instead of an option not given."""
     label = ",".join(str(c) for c in cpus)
+    asked = f"the default CPU {label}" if default else f"--cpu {label}"
     if not hasattr(os, "sched_setaffinity"):
-        raise RealtimeError(f"--cpu {label}: CPU affinity is not available on {sys.platform}")
+        raise RealtimeError(f"{asked}: CPU affinity is not available on {sys.platform}")
     allowed = os.sched_getaffinity(0)
     outside = sorted(set(cpus) - allowed)
     if outside:
+        # the defaults chose among the CPUs allowed at the start: something took this one since
+        why = (
+            " any more (taken since the start: another controller's CPU shield, or taskset)"
+            if default
+            else ""
+        )
         raise RealtimeError(
-            f"--cpu {label}: CPU {outside[0]} is not one this process may use "
+            f"{asked}: CPU {outside[0]} is not one this process may use{why} "
             f"(allowed: {','.join(str(c) for c in sorted(allowed))})"
         )
     try:
         os.sched_setaffinity(0, set(cpus))
     except OSError as err:
-        raise RealtimeError(f"--cpu {label}: the kernel refused the affinity: {err}") from err
+        raise RealtimeError(f"{asked}: the kernel refused the affinity: {err}") from err
 
 
 def _libc() -> ctypes.CDLL:
@@ -380,7 +391,7 @@ def check_realtime(options: RealtimeOptions, libc: ctypes.CDLL | None = None) ->
         reset_scheduler()
     if options.cpus:
         before = os.sched_getaffinity(0)
-        set_cpu_affinity(options.cpus)
+        set_cpu_affinity(options.cpus, options.default_cpus)
         os.sched_setaffinity(0, before)
     if options.lock_memory:
         libc = libc or _libc()
@@ -419,7 +430,7 @@ def apply_realtime(options: RealtimeOptions) -> Callable[[], None]:
         latency_us = options.cpu_latency_us
         attempt(lambda: latency_fd.append(hold_cpu_latency(latency_us)))
     if options.cpus:
-        attempt(lambda: set_cpu_affinity(options.cpus))
+        attempt(lambda: set_cpu_affinity(options.cpus, options.default_cpus))
     applied_priority = options.priority is not None and attempt(
         lambda: set_fifo_priority(options.priority or 0)
     )

@@ -184,6 +184,21 @@ def test_cpu_outside_the_allowed_set_is_named(monkeypatch):
         realtime.set_cpu_affinity((7,))
 
 
+def test_a_default_cpu_taken_since_the_start_is_not_named_as_an_option(monkeypatch):
+    # an outside tester: a demo whose default CPU another demo's shield took between the defaults'
+    # choice and the affinity was told "--cpu 1", an option never typed
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
+    options = realtime.RealtimeOptions.default()
+    assert options.cpus == (1,) and options.default_cpus
+    assert options.for_simulator().default_cpus
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0})  # swept off CPU 1 since
+    with pytest.raises(
+        RealtimeError, match=r"^the default CPU 1: CPU 1 is not one this process may use any more"
+    ):
+        realtime.set_cpu_affinity(options.cpus, options.default_cpus)
+    assert not realtime.RealtimeOptions(cpus=(1,)).default_cpus
+
+
 def test_mlockall_not_permitted_says_how_to_get_it(monkeypatch):
     class FakeLibc:
         def mlockall(self, flags):
