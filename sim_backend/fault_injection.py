@@ -9,7 +9,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
+from controller.core.cycle_data import SENSOR_FORCE_SATURATED
 from controller.sim_config.fault_specs import Fault, fault_text, parse_fault
+from drivers.pdo_codec import FORCE_N_PER_COUNT, decode_sensor_frame, encode_sensor_frame
+from sim_backend.drive import EMCY_FORCED_FAULT
 
 if TYPE_CHECKING:
     from sim_backend.drive import SimulatedDrive
@@ -90,9 +93,6 @@ def apply_device_faults(
     schedule: FaultSchedule, plant: FaultableDevices, drive_ids: tuple[int, ...], now_s: float
 ) -> None:
     """The faults that change the devices themselves, applied at a SYNC (simulator and loopback)."""
-    from controller.core.cycle_data import SENSOR_FORCE_SATURATED
-    from sim_backend.drive import EMCY_FORCED_FAULT
-
     schedule.start(now_s)
     for node, drive in zip(drive_ids, plant.drives):
         if schedule.first_time("drive_fault", now_s, node):
@@ -213,8 +213,6 @@ def spoofed_sensor_frame(force_payload: bytes, force_x_n: float) -> bytes:
 
     Written in the default layout (drivers/pdo_codec.py), which is what the spoofer knows.
     """
-    from drivers.pdo_codec import FORCE_N_PER_COUNT, decode_sensor_frame, encode_sensor_frame
-
     _, y, z, status, counter = decode_sensor_frame(force_payload, FORCE_N_PER_COUNT)
     return encode_sensor_frame(
         (force_x_n, y, z), FORCE_N_PER_COUNT, status, (counter + SPOOF_COUNTER_OFFSET) % 256

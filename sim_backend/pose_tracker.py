@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from controller.core.rotations import so3_exp, so3_log
 from drivers.pdo_codec import encode_tracker_frames
 
 
@@ -46,8 +47,6 @@ class SimulatedPoseTracker:
         self, now_s: float, position_m: np.ndarray, rotation: np.ndarray
     ) -> tuple[bytes, bytes] | None:
         """The two TPDOs of a sample of the pose (P [m], R) if one is due at ``now_s``, else None."""
-        from controller.core.rotations import so3_exp, so3_log
-
         period = 1.0 / self.params.rate_hz
         if self._next_s is not None and now_s < self._next_s - 1e-9:
             return None
