@@ -130,6 +130,9 @@ def parse_fault(text: str) -> Fault:
         raise FaultSpecError(f"fault {text!r}: unknown kind {kind!r}; known: {', '.join(KINDS)}")
     if kind in KINDS_WITH_NODE and m["node"] is None:
         raise FaultSpecError(f"fault {text!r}: {kind} needs a node id, e.g. {kind}:2@1.0")
+    if kind not in KINDS_WITH_NODE and m["node"] is not None:
+        # it acts on the one force sensor or on the bus: a node here was ignored without a word
+        raise FaultSpecError(f"fault {text!r}: {kind} takes no node id, e.g. {kind}@1.0")
     return Fault(
         kind=kind,
         start_s=float(m["start"]),

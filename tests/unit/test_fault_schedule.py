@@ -5,10 +5,18 @@ from __future__ import annotations
 
 import math
 
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from controller.sim_config.fault_specs import KINDS, KINDS_WITH_NODE, Fault, fault_text, parse_fault
+from controller.sim_config.fault_specs import (
+    KINDS,
+    KINDS_WITH_NODE,
+    Fault,
+    FaultSpecError,
+    fault_text,
+    parse_fault,
+)
 from sim_backend.fault_injection import FaultSchedule
 
 # what the grammar writes: non-negative numbers, a value's sign, durations > 0 or none
@@ -49,3 +57,17 @@ def test_the_faults_not_reached_are_those_that_start_after_the_last_sync() -> No
         schedule.start(100.0 + k * 0.0025)
     assert schedule.not_reached() == ("force=100@60",)
     assert FaultSchedule(()).not_reached() == ()
+
+
+@pytest.mark.parametrize("kind", [k for k in KINDS if k not in KINDS_WITH_NODE])
+def test_a_node_given_to_a_kind_that_takes_none_is_refused_not_ignored(kind: str) -> None:
+    # an outside tester's --inject saturate:16@2 ran as saturate@2, the node dropped without a word
+    with pytest.raises(FaultSpecError, match=rf"{kind}:16@2.*{kind} takes no node id"):
+        parse_fault(f"{kind}:16@2")
+    assert parse_fault(f"{kind}@2").node == 0
+
+
+@pytest.mark.parametrize("kind", KINDS_WITH_NODE)
+def test_a_kind_that_needs_a_node_is_refused_without_one(kind: str) -> None:
+    with pytest.raises(FaultSpecError, match=rf"{kind} needs a node id"):
+        parse_fault(f"{kind}@2")

@@ -27,6 +27,7 @@ time [0, T]; the legs follow l(t). This module plays l back on the actuators' cl
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import IntEnum
 from typing import TYPE_CHECKING, Protocol
@@ -175,8 +176,8 @@ class PlannedLegsTask:
             off = max(abs(a - b) for a, b in zip(ctx.setpoint.position, self._start.position, strict=True))
             if off > self.start_tolerance_m:
                 why = (
-                    f"the legs {list(np.round(ctx.setpoint.position, 6))} m are not at the plan's start "
-                    f"{list(np.round(self._start.position, 6))} m (off by {off:.2e} m > {self.start_tolerance_m} m): "
+                    f"the legs {_lengths_text(ctx.setpoint.position)} m are not at the plan's start "
+                    f"{_lengths_text(self._start.position)} m (off by {off:.2e} m > {self.start_tolerance_m} m): "
                     "a non-holonomic platform cannot be brought back to its start pose by moving the legs; "
                     "restart the simulator (or re-home the robot) at the planned start pose"
                 )
@@ -579,3 +580,9 @@ def planner_config(n: NspuSection, check_type2: bool | None = None) -> PlannerCo
         check_type2=n.check_type2 if check_type2 is None else check_type2,
         restarts=n.restarts,
     )
+
+
+def _lengths_text(lengths_m: Sequence[float]) -> str:
+    """Leg lengths for a message, to the micrometre: [0.388734, 0.390042, 0.395033] (a list of numpy
+    floats prints as [np.float64(0.388734), ...] with numpy 2)."""
+    return "[" + ", ".join(f"{float(x):.6f}" for x in lengths_m) + "]"
