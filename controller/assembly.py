@@ -68,6 +68,8 @@ def task_settings(cfg: Config, units: ActuatorUnits) -> TaskSettings:
         witness_tolerance_n=cfg.safety.contact.tolerance_n,
         guarded_move_force_n=cfg.safety.contact.guarded_move_force_n,
         max_contact_speed_m_s=cfg.safety.contact.max_contact_speed_m_s,
+        cell_stiffness_n_m=cfg.safety.contact.cell_stiffness_n_m,
+        period_s=cfg.period_s,
     )
 
 

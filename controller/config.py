@@ -196,6 +196,10 @@ class ContactGuardSection(Section, frozen=True):
     max_contact_speed_m_s: Annotated[float, rng(0.0, 10.0, lo_open=True)] = (
         0.1  # a task's move expecting contact
     )
+    # The stiffest contact the cell presents to the tool: the sensor, its mount and the part, in series
+    # (a spring). A guarded move's speed must stop within the force limit against it
+    # (controller/core/contact_budget.py); the shipped simulated cell: 1e6 and 3e5 in series, 2.3e5.
+    cell_stiffness_n_m: Annotated[float, rng(1.0, 1e12)] = 2.4e5
     # A task that reads the force sensor runs only where the drives report their effort (0x6077 mapped in
     # actuators.tpdo_objects) and the robot maps it to a force: the sensor's second witness.
     witness_required: bool = True

@@ -247,7 +247,9 @@ class RobotPlant:
         w = cfg.sim.workpiece
         self._contact_k = series_stiffness_n_m(w.contact_stiffness_n_m, w.sensor_stiffness_n_m)
         self._contact_c = w.contact_damping_n_s_m
+        self._declared_k = cfg.safety.contact.cell_stiffness_n_m
         self._check_contact_integrable()
+        self._check_cell_as_declared()
         d = cfg.sim.drive
         self._cogging_n = d.cogging_force_n if self.kinematics.cogging else 0.0
         self._cogging_k = 2.0 * math.pi / d.cogging_period_m
@@ -277,6 +279,7 @@ class RobotPlant:
         self.loaded = not isinstance(environment, FreeSpace)
         self._check_structure()
         self._check_contact_integrable()
+        self._check_cell_as_declared()
         self._check_start_outside_the_part()
         self.tool = CompliantTool(self._compliance) if self._compliance is not None else None
         self.force_n = np.zeros(3)
@@ -325,6 +328,21 @@ class RobotPlant:
             f"contact_stiffness_n_m and sensor_stiffness_n_m in series {k:.3g} N/m, contact_damping_n_s_m "
             f"= {c:g} N s/m on the tool's {m:g} kg need sim.drive.substep_s <= {most_s:.2g} s (it is "
             f"{h:g} s); shorten the substep or soften the part"
+        )
+
+    def _check_cell_as_declared(self) -> None:
+        """The simulated cell no stiffer than the controller is told (safety.contact.cell_stiffness_n_m):
+        the guarded moves' speeds are checked against that figure (controller/core/contact_budget.py),
+        and a stiffer part than declared met them at up to 125 N in an outside tester's demo with the
+        default speeds. A real cell stiffer than its declaration is the user's error, which no
+        controller can see before the touch; the simulator does not stage it unasked."""
+        if not self.loaded or self._contact_k <= self._declared_k * (1.0 + 1e-9):
+            return
+        raise ValueError(
+            f"the simulated part is stiffer than the controller is told: sim.workpiece contact_stiffness_n_m "
+            f"and sensor_stiffness_n_m in series {self._contact_k:.3g} N/m, above "
+            f"safety.contact.cell_stiffness_n_m = {self._declared_k:.3g} N/m; declare the cell as it is "
+            "(its guarded moves' speeds are then checked against it) or soften the part"
         )
 
     def _check_start_outside_the_part(self) -> None:

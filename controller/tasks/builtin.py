@@ -11,6 +11,7 @@ import math
 from typing import TYPE_CHECKING, Annotated, Literal, cast
 
 from controller.config_schema import ConfigError, Section, rng
+from controller.core.contact_budget import StoppingModel
 from controller.core.ports import JointMotion
 from controller.tasks.registry import BuiltTask, TaskEntry, TaskSettings
 
@@ -195,6 +196,29 @@ def _check_contour_against_the_guard(c: ContourSection, shared: TaskSettings) ->
                 + (f" with max_normal_speed_m_s = {normal:g} m/s" if normal else "")
                 + f" is faster than safety.contact.max_contact_speed_m_s = {limit:g} m/s, the most a "
                 "move expecting contact may be"
+            )
+    _check_guarded_speeds(c, shared)
+
+
+def _check_guarded_speeds(c: ContourSection, shared: TaskSettings) -> None:
+    """The guarded moves (the search, the approach and every re-approach) advance into a part not met
+    yet: at their speed, the stop after the touch must stay within the task's force limit against
+    the stiffest contact of the cell (controller/core/contact_budget.py). Accepted up to
+    max_contact_speed_m_s before, an approach at 0.08 m/s met the part at 354 N (an outside tester)."""
+    stop = StoppingModel(shared.period_s, shared.units.max_acceleration, shared.units.max_jerk)
+    k = shared.cell_stiffness_n_m
+    fastest = stop.fastest_m_s(c.max_force_n - c.contact_force_n, k)
+    for name, speed in (
+        ("search_speed_m_s", c.search_speed_m_s),
+        ("approach_speed_m_s", c.approach_speed_m_s),
+    ):
+        if speed > fastest:
+            peak = stop.peak_force_n(speed, c.contact_force_n, k)
+            raise ConfigError(
+                f"task.contour.{name} = {speed:g} m/s: a guarded move this fast would meet the part at up "
+                f"to {peak:.0f} N, past task.contour.max_force_n = {c.max_force_n:g} N, against "
+                f"safety.contact.cell_stiffness_n_m = {k:.3g} N/m (it goes on {stop.distance_m(speed) * 1000:.2f} mm "
+                f"after the touch); at most {fastest:.4g} m/s here (controller/core/contact_budget.py)"
             )
 
 

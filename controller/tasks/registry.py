@@ -50,6 +50,8 @@ class TaskSettings:
     witness_tolerance_n: float = 6.0  # safety.contact.tolerance_n: the drives' effort witness's own error
     guarded_move_force_n: float = 25.0  # safety.contact.guarded_move_force_n: a guarded move stops above
     max_contact_speed_m_s: float = 0.1  # safety.contact.max_contact_speed_m_s: moves expecting contact
+    cell_stiffness_n_m: float = 2.4e5  # safety.contact.cell_stiffness_n_m: the stiffest contact of the cell
+    period_s: float = 0.0025  # 1 / loop.rate_hz
 
 
 @dataclass(frozen=True)

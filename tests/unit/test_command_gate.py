@@ -60,7 +60,9 @@ def test_a_task_without_a_force_setpoint_refuses_set_force() -> None:
 
 
 def test_the_publisher_takes_the_running_tasks_limit() -> None:
-    for overrides, below in (({}, 30.0), ({"task.contour.max_force_n": 20.0}, 20.0)):
+    # a lower limit of the task's asks for a slower search (controller/core/contact_budget.py)
+    lower = {"task.contour.max_force_n": 20.0, "task.contour.search_speed_m_s": 0.005}
+    for overrides, below in (({}, 30.0), (lower, 20.0)):
         cfg = load_config(overrides={**CONTOUR, **overrides})
         pub = monitoring_publisher(publisher_settings(cfg), threading.Event(), build_law(cfg).task)
         assert pub.force_limit is not None and pub.force_limit.below_n == below

@@ -225,3 +225,20 @@ def test_a_stall_of_devices_that_do_not_keep_up_names_the_hold_ups_not_the_senso
     assert "of its 4000 cycles held up (a drive's or the sensor's frame missing" in row["cause"]
     assert "sensor's mounting" not in row["cause"]
     assert row["max_true_contact_force_n"] < 0.5 * LIMIT_N
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sensor_stiffness_n_m", [3.0e5, 1.0e7])
+def test_a_part_met_by_the_search_at_the_fastest_speed_the_cell_allows_stays_within_the_limit(
+    sensor_stiffness_n_m: float,
+) -> None:
+    """An approach at 0.08 m/s, which max_contact_speed_m_s allowed, met the part at 354 N (an outside
+    tester): the guarded speeds are now bounded by the cell's declared stiffness. At that bound, on
+    the shipped cell and on a rigid sensor mount declared as such, the part misplaced 15 mm towards
+    the approach (met by the search) is pressed less than the task's limit
+    (``python -m controller.tools.contour.guarded_speeds`` prints the docs' table of these)."""
+    from controller.tools.contour.guarded_speeds import run_case
+
+    row = run_case(400.0, sensor_stiffness_n_m)
+    assert row["outcome"] == "DONE", row
+    assert float(row["true_max_n"]) < float(row["limit_n"]), row

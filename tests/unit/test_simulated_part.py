@@ -12,6 +12,7 @@ STIFF = {
     "task.kind": "contour",
     "sim.workpiece.contact_stiffness_n_m": 1e10,
     "sim.workpiece.sensor_stiffness_n_m": 1e10,
+    "safety.contact.cell_stiffness_n_m": 5e9,  # declared as it is: a stiffer part than told is refused too
 }
 
 
