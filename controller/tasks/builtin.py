@@ -271,8 +271,21 @@ def build_contour_task(c: ContourSection, robot: Robot, shared: TaskSettings) ->
     params = contour_params(
         c, shared.settle_tolerance_m, shared.max_contact_force_n, shared.witness_tolerance_n
     )
+    _check_force_setpoint(params)
     # the robot has joint_motion: TaskEntry.needs, checked at start (controller/assembly.py)
     return BuiltTask(ContourTrackingTask(cast(ContourRobot, robot), params))
+
+
+def _check_force_setpoint(params: ContourParams) -> None:
+    """The configured setpoint within what a remote set_force may set (``force_setpoint_limit``)."""
+    from controller.tasks.contour_tracking import force_setpoint_limit
+
+    limit = force_setpoint_limit(params.saturation_force_n, params.max_force_n)
+    if not params.force_setpoint_n < limit.below_n:
+        raise ConfigError(
+            f"task.contour.force_setpoint_n = {params.force_setpoint_n:g} N: must be below "
+            f"{limit.below_n:.3g} N, {limit.why}"
+        )
 
 
 # -- the planned legs (seed 004): the 3-nSPU's settings are in [robot.nspu] ----------------------

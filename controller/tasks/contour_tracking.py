@@ -431,6 +431,28 @@ def fresh_sample(ctx: TaskContext) -> bool:
     return ctx.inputs.sensor is not None and ctx.inputs.sensor.fresh
 
 
+def force_setpoint_limit(saturation_force_n: float, max_force_n: float) -> ForceSetpointLimit:
+    """What a force setpoint must stay below: its band (FORCE_BAND_FRACTION above it, where the law
+    tracks at full speed) below the admittance saturation (above it the law only moves away from the
+    contact) and below the task's own limit (``max_force_n``: it faults there). A setpoint of 29 N
+    under a saturation of 30 N was accepted, crawled at 5 mm/s and ended in a stall blamed on the
+    sensor's mounting or friction, with 22 N of force error (an outside tester)."""
+    headroom = 1.0 + FORCE_BAND_FRACTION
+    if saturation_force_n < max_force_n:
+        return ForceSetpointLimit(
+            saturation_force_n / headroom,
+            f"the task's admittance saturation ({saturation_force_n:g} N = "
+            "task.contour.admittance_saturation_fraction x safety.max_contact_force_n; its limit "
+            f"task.contour.max_force_n = {max_force_n:g} N), less the force's band of "
+            f"{FORCE_BAND_FRACTION:.0%} above the setpoint",
+        )
+    return ForceSetpointLimit(
+        max_force_n / headroom,
+        f"the task's limit task.contour.max_force_n = {max_force_n:g} N, less the force's band of "
+        f"{FORCE_BAND_FRACTION:.0%} above the setpoint",
+    )
+
+
 class ContourTrackingTask:
     name = "contour"
 
@@ -464,19 +486,9 @@ class ContourTrackingTask:
         )
 
     def force_setpoint_limit(self) -> ForceSetpointLimit:
-        """Below the admittance saturation (above it the law only moves away from the contact: the
-        force cannot be held there) and below the task's own limit (``max_force_n``: it faults there)."""
-        p = self.p
-        if p.saturation_force_n < p.max_force_n:
-            return ForceSetpointLimit(
-                p.saturation_force_n,
-                f"the task's admittance saturation ({p.saturation_force_n:g} N = "
-                "task.contour.admittance_saturation_fraction x safety.max_contact_force_n; its limit "
-                f"task.contour.max_force_n = {p.max_force_n:g} N)",
-            )
-        return ForceSetpointLimit(
-            p.max_force_n, f"the task's limit task.contour.max_force_n = {p.max_force_n:g} N"
-        )
+        """``force_setpoint_limit`` of the task's parameters (a remote ``set_force`` and the configured
+        setpoint alike)."""
+        return force_setpoint_limit(self.p.saturation_force_n, self.p.max_force_n)
 
     def phase_name(self, state: ContourState) -> str:
         return state.phase.name
@@ -939,6 +951,12 @@ class ContourTrackingTask:
         if s.travel_m > limit:
             f_xy = math.hypot(s.force_f[0], s.force_f[1])
             why = f"no contact within {limit * 1000:.0f} mm of approach (force {f_xy:.2f} N < {p.contact_force_n} N)"
+            if f_xy >= p.contact_force_n:  # a force, but none that rose as a contact's (_guarded_contact)
+                why = (
+                    f"no contact within {limit * 1000:.0f} mm of approach: the force ({f_xy:.2f} N) did not rise "
+                    f"as a contact's does as the tool advanced (task.contour.min_contact_stiffness_n_m = "
+                    f"{p.min_contact_stiffness_n_m:g} N/m at least): a softer part, or the sensor drifting"
+                )
             s, ref = self._reference(s, (0.0, 0.0, 0.0), False, ctx.period_s)
             return TaskStep(s, ref, fault=why)
         speed = speed if self._trusted(s, ctx.period_s) else 0.0

@@ -7,6 +7,7 @@ Before, a set_force was checked against safety.max_contact_force_n (60 N): durin
 from __future__ import annotations
 
 import math
+import re
 import threading
 from dataclasses import replace
 
@@ -14,6 +15,7 @@ import pytest
 
 from controller.assembly import build_law
 from controller.config import load_config
+from controller.config_schema import ConfigError
 from controller.core.cycle_data import Command, CycleInputs, DriveFeedback, SensorFeedback
 from controller.core.ports import ForceSetpointLimit, ForceSetpointTask, TaskContext
 from controller.core.setpoint_smoothing import Setpoint
@@ -32,24 +34,25 @@ def _limit(**overrides: object) -> ForceSetpointLimit:
 
 def test_the_contours_limit_is_its_admittance_saturation_when_below_its_force_limit() -> None:
     limit = _limit()  # 0.5 x 60 N = 30 N of saturation, 40 N of task.contour.max_force_n
-    assert limit.below_n == 30.0
+    assert limit.below_n == pytest.approx(30.0 / 1.3)  # the setpoint's band of 30 % below the saturation
     assert "admittance_saturation_fraction" in limit.why and "task.contour.max_force_n = 40 N" in limit.why
 
 
 def test_the_contours_limit_is_its_force_limit_when_the_saturation_is_above_it() -> None:
     limit = _limit(**{"task.contour.admittance_saturation_fraction": 1.0})  # 60 N of saturation
-    assert limit.below_n == 40.0 and "task.contour.max_force_n = 40 N" in limit.why
+    assert limit.below_n == pytest.approx(40.0 / 1.3) and "task.contour.max_force_n = 40 N" in limit.why
 
 
-@pytest.mark.parametrize("value", [45.0, 40.0, 30.0, 1e9, math.inf, math.nan, 0.0, -1.0])
+@pytest.mark.parametrize("value", [45.0, 40.0, 30.0, 29.0, 23.1, 1e9, math.inf, math.nan, 0.0, -1.0])
 def test_set_force_at_or_above_the_tasks_limit_is_refused_naming_it(value: float) -> None:
     """45 N: the issue's case, accepted before against the 60 N of safety.max_contact_force_n."""
     decision = decide_command("set_force", value, True, _limit(), "contour")
     assert not decision.accepted and not decision.forward
-    assert "below 30 N" in decision.message and "task.contour.max_force_n = 40 N" in decision.message
+    assert "below 23.0769 N" in decision.message and "task.contour.max_force_n = 40 N" in decision.message
+    assert "less the force's band of 30% above the setpoint" in decision.message
 
 
-@pytest.mark.parametrize("value", [1e-3, 10.0, 29.9])
+@pytest.mark.parametrize("value", [1e-3, 10.0, 23.0])
 def test_set_force_below_the_tasks_limit_is_forwarded_to_the_law(value: float) -> None:
     assert decide_command("set_force", value, True, _limit(), "contour").forward
 
@@ -62,10 +65,10 @@ def test_a_task_without_a_force_setpoint_refuses_set_force() -> None:
 def test_the_publisher_takes_the_running_tasks_limit() -> None:
     # a lower limit of the task's asks for a slower search (controller/core/contact_budget.py)
     lower = {"task.contour.max_force_n": 20.0, "task.contour.search_speed_m_s": 0.005}
-    for overrides, below in (({}, 30.0), (lower, 20.0)):
+    for overrides, below in (({}, 30.0 / 1.3), (lower, 20.0 / 1.3)):
         cfg = load_config(overrides={**CONTOUR, **overrides})
         pub = monitoring_publisher(publisher_settings(cfg), threading.Event(), build_law(cfg).task)
-        assert pub.force_limit is not None and pub.force_limit.below_n == below
+        assert pub.force_limit is not None and pub.force_limit.below_n == pytest.approx(below)
     path = load_config(overrides={"task.kind": "path"})
     assert (
         monitoring_publisher(publisher_settings(path), threading.Event(), build_law(path).task).force_limit
@@ -89,9 +92,35 @@ def test_the_step_takes_no_setpoint_at_or_above_the_limit() -> None:
         return float(task.step(tracking, ctx).state.force_setpoint_n)
 
     assert setpoint_after(45.0) == tracking.force_setpoint_n
-    assert setpoint_after(25.0) == 25.0
+    assert setpoint_after(25.0) == tracking.force_setpoint_n  # its band would reach over the saturation
+    assert setpoint_after(20.0) == 20.0
 
 
 def test_the_other_gated_commands_ignore_the_value() -> None:
     for name in ("pause", "resume", "reset"):
         assert decide_command(name, 1e9, True, None).forward
+
+
+@pytest.mark.parametrize(
+    ("overrides", "refused"),
+    [
+        # an outside tester's: 29 N under a saturation of 30 N crawled at 5 mm/s and stalled, 22 N off
+        ({"task.contour.force_setpoint_n": 29.0}, "force_setpoint_n = 29 N: must be below 23.1 N"),
+        # the limits lowered, the setpoint kept: 10 N at a saturation of 0.5 x 20 N
+        (
+            {
+                "safety.max_contact_force_n": 20.0,
+                "safety.contact.guarded_move_force_n": 15.0,
+                "task.contour.max_force_n": 15.0,
+                "task.contour.search_speed_m_s": 0.003,
+            },
+            "force_setpoint_n = 10 N: must be below 7.69 N",
+        ),
+    ],
+)
+def test_a_configured_setpoint_whose_band_reaches_the_saturation_is_refused(
+    overrides: dict[str, object], refused: str
+) -> None:
+    with pytest.raises(ConfigError, match=re.escape(refused)):
+        build_law(load_config(overrides={**CONTOUR, **overrides}))
+    build_law(load_config(overrides={**CONTOUR, "task.contour.force_setpoint_n": 23.0}))

@@ -242,3 +242,13 @@ def test_a_part_met_by_the_search_at_the_fastest_speed_the_cell_allows_stays_wit
     row = run_case(400.0, sensor_stiffness_n_m)
     assert row["outcome"] == "DONE", row
     assert float(row["true_max_n"]) < float(row["limit_n"]), row
+
+
+@pytest.mark.slow
+def test_a_part_too_soft_to_count_as_a_contact_is_named_so_not_as_no_force():
+    """A 1e3 N/m part (below min_contact_stiffness_n_m) pressed 22 N true, and the fault said
+    "force 22.27 N < 1.0 N" (an outside tester): it now says the force did not rise as a contact's."""
+    row = _run(ContourScenario("soft part"), **{"sim.workpiece.contact_stiffness_n_m": 1.0e3})
+    assert row["outcome"] != "DONE"
+    assert "did not rise as a contact's does" in str(row["cause"]), row["cause"]
+    assert "min_contact_stiffness_n_m = 2000 N/m" in str(row["cause"])
