@@ -74,3 +74,21 @@ def test_plots_that_cannot_be_written_do_not_cost_the_runs_summary(tmp_path, mon
     assert summary["final_mode"] == "DONE" and summary["plots"] == []
     assert summary["plots_error"] == f"cannot write the plots in {tmp_path}: No space left on device"
     assert "cheope demo: warning: cannot write the plots in" in err
+
+
+def test_laps_well_below_their_commanded_speed_are_said(capsys):
+    """An outside tester's part with five times the estimated friction: every lap at 10 mm/s, DONE,
+    exit 0, nothing said. A lap below 75 % of its commanded speed is named on stderr."""
+    laps = [
+        {"lap": 1, "speed_commanded_m_s": 0.02, "speed_achieved_m_s": 0.0198},
+        {"lap": 2, "speed_commanded_m_s": 0.04, "speed_achieved_m_s": 0.0101},
+        {"lap": 3, "speed_commanded_m_s": 0.06, "speed_achieved_m_s": 0.0101},
+    ]
+    cli.say_if_laps_ran_slow({"final_mode": "DONE", "contour": {"laps": laps}}, "cheope demo")
+    err = capsys.readouterr().err
+    assert "cheope demo: note: lap(s) 2 at 10.1 of 40, 3 at 10.1 of 60 mm/s ran below 75% of" in err
+    shipped = [{"lap": 3, "speed_commanded_m_s": 0.06, "speed_achieved_m_s": 0.0596}]
+    cli.say_if_laps_ran_slow({"contour": {"laps": shipped}}, "cheope demo")
+    cli.say_if_laps_ran_slow({"final_mode": "DONE"}, "cheope run")  # no contour: nothing to say
+    cli.say_if_laps_ran_slow({"contour": {"laps": [{"lap": 1, "speed_commanded_m_s": None}]}}, "cheope demo")
+    assert capsys.readouterr().err == ""
