@@ -604,6 +604,9 @@ def runnable_tasks(robot_kind: str) -> tuple[str, ...]:
 # They configured the recorder's and publisher's hand-off threads, which are gone; reading an
 # old recording drops them instead of refusing the file.
 RETIRED_KEYS = ("recording.queue_size", "monitoring.queue_size")
+# A recording's cell, written before safety.contact.cell_stiffness_n_m existed: the key's least value
+# (recorded_config_from_dict)
+UNDECLARED_CELL_STIFFNESS_N_M = 1.0
 
 
 def recorded_config_from_dict(table: dict[str, Any]) -> Config:
@@ -620,6 +623,13 @@ def recorded_config_from_dict(table: dict[str, Any]) -> Config:
             # an unusable rate (a --set of nan) is named as itself below, not through this derived key
             rate_hz = LoopSection().rate_hz
         actuators["extrapolation_s"] = 1.0 / rate_hz
+    safety = table.get("safety")
+    contact = safety.get("contact") if isinstance(safety, dict) else None
+    if isinstance(contact, dict) and "cell_stiffness_n_m" not in contact:
+        # written before the cell's stiffness was declared, when no guarded speed was checked against
+        # it (controller/core/contact_budget.py): the least stiffness, so that the law the session ran
+        # is rebuilt as it ran (a 250-Hz session with the shipped speeds would be refused now)
+        contact["cell_stiffness_n_m"] = UNDECLARED_CELL_STIFFNESS_N_M
     robot, task = table.get("robot"), table.get("task")
     if (
         isinstance(robot, dict)

@@ -268,3 +268,18 @@ def test_a_recording_written_under_an_older_limit_still_gives_its_law():
     table["robot"]["cheope"]["joint_neutral_tcp_m"] = [0.0, float("nan"), 0.5]
     with pytest.raises(ConfigError, match=r"joint_neutral_tcp_m\[1\] = nan"):
         recorded_config_from_dict(table)
+
+
+def test_a_recording_from_before_the_cells_stiffness_replays_its_guarded_speeds():
+    """A 250-Hz contour session with the shipped speeds, recorded before the guarded speeds were
+    checked against safety.contact.cell_stiffness_n_m: its law is rebuilt as it ran, not refused.
+    One that names the key is checked as written."""
+    from controller.assembly import build_law
+    from controller.config import config_to_dict, recorded_config_from_dict
+
+    table = config_to_dict(load_config(overrides={"task.kind": "contour", "loop.rate_hz": 500.0}))
+    table["loop"]["rate_hz"] = 250.0  # the shipped search speed is refused at 250 Hz now
+    with pytest.raises(ConfigError, match=r"search_speed_m_s = 0.01 m/s"):
+        build_law(recorded_config_from_dict(table))
+    del table["safety"]["contact"]["cell_stiffness_n_m"]
+    build_law(recorded_config_from_dict(table))
