@@ -579,8 +579,8 @@ def say_if_laps_ran_slow(summary: dict[str, Any], command: str) -> None:
         )
         print(
             f"{command}: note: lap(s) {laps} mm/s ran below {SLOW_LAP_FRACTION:.0%} of their commanded "
-            "speed: the law slowed them to keep the force in its band (their force errors are in the "
-            "laps' table); the experiment did not run as commanded",
+            "speed: the law slowed them to keep the force in its band (the summary's laps give their force "
+            "errors); the experiment did not run as commanded",
             file=sys.stderr,
         )
 

@@ -146,12 +146,9 @@ class IdlePollers:
                 reaped, status = os.waitpid(pid, os.WNOHANG)
                 if reaped:
                     ended_early[cpu] = exit_text(os.waitstatus_to_exitcode(status))
-        running = [pid for cpu, pid in self.pids.items() if cpu not in ended_early]
-        for pid in running:
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(pid, signal.SIGKILL)
-        for pid in running:
-            with contextlib.suppress(ChildProcessError):
+                    continue
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
                 os.waitpid(pid, 0)
         self.pids.clear()
         return PollersStopped(spent, ended_early)
