@@ -176,8 +176,12 @@ class CyclicExchange:
         guarded: Mapping[int, tuple[float, int]] | None = None,
         targets_sync_gap_s: float = math.inf,
         target_lead_period_s: float = 0.0,
+        window_sleep: Callable[[float], None] | None = None,
     ) -> None:
         self.bus = bus
+        # Sleeps until a time of ``clock``: with it the collect sleeps through its answer window and
+        # then reads what came, rather than waking for each answer (``collect``).
+        self.window_sleep = window_sleep
         self.fd = fd
         self.send_sync = (
             send_sync  # False: the kernel's broadcast manager sends SYNC (drivers/kernel_sync.py)
@@ -357,7 +361,7 @@ class CyclicExchange:
         self._error_frames = 0
         self._bus_off = False
         self.cycles = 0
-        self.last_frame_in_s = 0.0  # arrival of the last frame that completed a cycle's inputs
+        self.last_frame_in_s = 0.0  # when the last frame that completed a cycle's inputs was read
         self.sent_s = 0.0  # when this cycle's RPDOs went out (or would have)
         self._last_send_s: float | None = None  # the last send's reading (its SYNC's time)
         # the loop's SYNC only: one later than this after the last goes without the targets
@@ -533,10 +537,41 @@ class CyclicExchange:
 
         The whole window, even when every device has answered: a second candidate for a device
         (someone else on its COB-ID) must be seen whether it comes before or after the real one.
+
+        With ``window_sleep`` it sleeps to the window's end and then reads every frame that came:
+        the frames wait in the socket, each with its receive timestamp, and nothing is decided
+        before the window ends either way. Waiting on the bus instead woke the loop's thread for
+        the first answers, then again for the rest and at the window's end (2.4 waits a cycle with
+        the sleep to the deadline, ``perf``); each of those wake-ups was a wake-up of another
+        CPU's thread for the simulator's ``sendto`` too.
         """
         self._collecting = True
-        clock = self.clock
         window_end_s = min(deadline_s, self.sent_s + self.answer_window_s)
+        if self.window_sleep is not None:
+            self._sleep_then_read(window_end_s, deadline_s)
+        else:
+            self._wait_and_read(window_end_s, deadline_s)
+        return self._cycle_feedback()
+
+    def _sleep_then_read(self, window_end_s: float, deadline_s: float) -> None:
+        """``collect`` with ``window_sleep``: to the window's end, then read what came; when that
+        left a device unheard, to ``deadline_s`` (when it ends later) and read again."""
+        sleep = self.window_sleep
+        assert sleep is not None
+        ends = (window_end_s,) if window_end_s >= deadline_s else (window_end_s, deadline_s)
+        for end_s in ends:
+            if self.clock() < end_s:
+                sleep(end_s)
+            while (msg := self.bus.recv(timeout=0.0)) is not None:
+                self._notify(msg)
+                if self._sync_ahead is not None:
+                    return  # the next cycle's SYNC (kernel SYNC): what follows answers it
+            if self._complete():
+                return
+
+    def _wait_and_read(self, window_end_s: float, deadline_s: float) -> None:
+        """``collect`` without ``window_sleep``: each frame read as it comes."""
+        clock = self.clock
         while True:
             remaining = (window_end_s if self._complete() else deadline_s) - clock()
             if remaining <= 0.0 and self._complete():
@@ -549,6 +584,10 @@ class CyclicExchange:
             self._notify(msg)
             if self._sync_ahead is not None:
                 break  # the next cycle's SYNC (kernel SYNC): what follows answers it
+
+    def _cycle_feedback(self) -> BusFeedback:
+        """The window's verdict, the cycle's feedback, and the cycle's reports started again."""
+        clock = self.clock
         self._close_window()
         c = self.counters
         missing = self.n - sum(self._fresh)

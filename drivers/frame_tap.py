@@ -25,6 +25,10 @@ this process sent is seen once, as sent, and never a second time as received:
   never receives its own frames. ``is_rx`` is not used there: python-can derives it from
   ``MSG_DONTROUTE``, which marks every frame sent on this host, the simulator's on a vcan too.
 
+A received frame goes to the sink with the time it came, from its receive timestamp
+(``drivers/pacing.py`` ``arrival_s``), not the time it was read: the cyclic exchange sleeps through
+its answer window and reads the answers at its end.
+
 The sink is called under a lock: canopen's notifier thread receives while the caller's thread
 sends. On the cyclic path the tap costs one more Python call per frame; the sink call it makes
 replaces the one the cyclic exchange used to make.
@@ -44,6 +48,7 @@ from can.interfaces.virtual import VirtualBus
 
 from drivers.cyclic_exchange import FrameSink
 from drivers.local_multicast import LocalUdpMulticastBus
+from drivers.pacing import arrival_s
 
 _TAP_SERIAL = itertools.count(1)
 
@@ -104,8 +109,10 @@ class FrameTap(can.BusABC):
                 continue
             self.received += 1
             if self.sink is not None:
+                # when it came, not when it was read: a reader may sleep through its window first
+                arrived_s = arrival_s(msg.timestamp, self.clock(), time.time())
                 with self._lock:
-                    self.sink(False, self.clock(), msg)
+                    self.sink(False, arrived_s, msg)
             return msg
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:

@@ -48,6 +48,7 @@ from drivers.drop_counter import DropCounter
 from drivers.node_setup import ABORT_TRANSFER
 from drivers.node_setup import DRIVE_EDS as SHIPPED_DRIVE_EDS
 from drivers.node_setup import SENSOR_EDS as SHIPPED_SENSOR_EDS
+from drivers.pacing import arrival_s
 from drivers.sim_environment import (
     ABORT_OBJECT_DOES_NOT_EXIST,
     ENVIRONMENT_CODES,
@@ -83,22 +84,6 @@ WATCHDOG_PERIOD_S = 0.005
 # A watchdog tick this late means the simulator's process was not running: SYNC frames may be
 # waiting unread in its socket, so this tick does not judge them lost (see _watchdog_loop).
 STARVED_TICK_S = 4 * WATCHDOG_PERIOD_S
-MAX_FRAME_AGE_S = 1.0  # a receive timestamp older than this is on another clock: not believed
-
-
-def arrival_s(timestamp_s: float, now_s: float, wall_now_s: float) -> float:
-    """When a frame reached this machine, on the simulator's clock (``now_s`` is that clock now).
-
-    A real drive latches its position when SYNC arrives, whatever its firmware does next; the
-    simulator's process may run a while after (kernel to handler 0.16 ms at p50 and 1.4-6.6 ms at
-    the worst in three contour demos, measured with the instrumentation of issue 26's note).
-    Integrating the drives to the time it handles the SYNC turned that delay into a longer SYNC
-    interval followed by a shorter one: a kick the structure does not get from real drives. So the time is the frame's receive timestamp (python-can's ``msg.timestamp``, on the
-    wall clock: the kernel's on SocketCAN and udp_multicast) moved to the simulator's clock by its
-    age; ``now_s`` where the age is not plausible (no timestamp, another clock).
-    """
-    age_s = wall_now_s - timestamp_s
-    return now_s - age_s if 0.0 <= age_s <= MAX_FRAME_AGE_S else now_s
 
 
 def watchdog_due(
@@ -437,6 +422,11 @@ class Simulator:
             return
         handler = self._fast.get(msg.arbitration_id)
         if handler is not None:
+            # A real drive latches its position when SYNC arrives, whatever its firmware does next;
+            # this process may run a while after (kernel to handler 0.16 ms at p50 and 1.4-6.6 ms at
+            # the worst in three contour demos, issue 26's note). Integrating the drives to the time
+            # the SYNC is handled turned that delay into a longer SYNC interval followed by a shorter
+            # one: a kick the structure does not get from real drives. So: its arrival.
             handler(msg.data, arrival_s(msg.timestamp, clock(), time.time()))
         elif msg.arbitration_id == cob_ids.NMT and len(msg.data) != 2:
             self._reject(msg, "an NMT command is 2 bytes")

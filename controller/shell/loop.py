@@ -9,8 +9,10 @@ Per cycle k, with deadline d_k = d_0 + k * period on a monotonic clock:
      late wake-up into the next cycle (2 ms of 2.5 left 0.3 ms to catch up per cycle, and a soak
      at the defaults faulted on 50 late cycles in a row within 30 s). A late wake-up still gives
      the devices half the window after its SYNC. And the window leaves the cycle's own work its
-     time: it ends at the latest ``work_peak`` (the recent peak of step + observers, halving every
-     second) plus ``WINDOW_MARGIN_S`` before the next deadline. Without it the contour task's
+     time: it ends at the latest ``work_peak`` (the recent peak of the time from the window's end
+     to the end of the cycle's work, halving every second: the reading of the answers, which an
+     exchange that sleeps through the window does after it, the step, and the observers when they
+     run after it) plus ``WINDOW_MARGIN_S`` before the next deadline. Without it the contour task's
      step and observers (0.44 + 0.19 ms at their medians on this machine) after a 2-ms window
      overran the 2.5-ms period: the next wake-up was late in 35-77 % of a demo's cycles;
   4. ``law.step(state, inputs, k * period)``;
@@ -389,7 +391,7 @@ class CycleLoop:
         k = 0
         end_cycle: int | None = None
         stop_cycle: int | None = None  # the cycle a stop was first asked for
-        work_peak_s = 0.0  # recent peak of the step and the observers [s]
+        work_peak_s = 0.0  # recent peak of the cycle's work from its window's end [s] (step 3)
         work_decay = 0.5 ** (period / WORK_PEAK_HALF_LIFE_S)
         collect_garbage = self.collect_garbage
         young_limit = gc.get_threshold()[0]
@@ -457,7 +459,7 @@ class CycleLoop:
                 else:
                     observed_s = self._observe(stats, observation)
                 worked = clock()
-                work_peak_s = max(worked - c0, work_peak_s * work_decay)
+                work_peak_s = max(worked - min(collected, window_end), work_peak_s * work_decay)
                 gc_s = 0.0
                 if collect_garbage and gc.get_count()[0] >= young_limit:
                     gc_s = self._collect_garbage(stats, worked)

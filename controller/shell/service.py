@@ -204,6 +204,7 @@ def run_controller(
             guarded=prepared.setup_plan.guarded(),
             targets_sync_gap_s=targets_sync_gap_s(cfg.period_s, cfg.drive_extrapolation_periods),
             target_lead_period_s=cfg.period_s,
+            window_sleep=DeadlineSleeper(0.0).sleep_until,  # no spin: the step starts after the drain
         )
         kernel_sync = (
             KernelSyncExchange(exchange, cfg.period_s, cfg.bus.sync_lead_fraction * cfg.period_s)

@@ -913,6 +913,79 @@ def test_the_sensor_s_burst_after_a_stall_is_not_a_counter_jump(bus, clock):
     assert fb.anomalies == () and fb.sensor.fresh and fb.sensor.counter == 15
 
 
+# -- sleeping through the answer window (window_sleep, as the service runs it) ----------------
+
+
+class WindowSleeper:
+    """The exchange's ``window_sleep`` on the fake clock: it moves the clock to the time asked for,
+    and the frames scheduled to come before then reach the bus's inbox (they came while the
+    exchange slept). ``ScriptedBus`` asserts that nothing waits on the bus itself."""
+
+    def __init__(self, bus: ScriptedBus, clock: FakeClock) -> None:
+        self.bus, self.clock = bus, clock
+        self.slept_to: list[float] = []
+        self.coming: list[tuple[float, can.Message]] = []  # (when it comes, frame)
+
+    def __call__(self, until_s: float) -> None:
+        self.slept_to.append(until_s)
+        self.clock.now_s = max(self.clock.now_s, until_s)
+        self.bus.inbox.extend(f for t, f in self.coming if t <= until_s)
+        self.coming = [(t, f) for t, f in self.coming if t > until_s]
+
+
+def test_a_sleeping_collect_wakes_once_at_the_windows_end_and_judges_every_frame_that_came_in_it(bus, clock):
+    """One sleep to the window's end, then every frame read: the answers, and a second sender on
+    drive 2's COB-ID after the true one, which makes its sample ambiguous as when read as it came."""
+    sleeper = WindowSleeper(bus, clock)
+    ex = make_exchange(bus, clock, window_sleep=sleeper)
+    ex.send(None)
+    deadline = clock() + 0.002
+    sleeper.coming = [(clock() + 0.0003, f) for f in all_answers(0)]
+    sleeper.coming.append((clock() + 0.0009, frame(tpdo1(2), drive_pdo(0x1637, 77))))
+    fb = ex.collect(deadline)
+    assert sleeper.slept_to == [deadline] and clock() == deadline
+    assert [d.fresh for d in fb.drives] == [True, False, True] and fb.sensor is not None and fb.sensor.fresh
+    assert (Anomaly.DUPLICATE_FRAME, tpdo1(2)) in {(a.kind, a.cob_id) for a in fb.anomalies}
+    assert ex.counters.missing_drive_frames == 1
+
+
+def test_a_sleeping_collect_with_a_shorter_window_sleeps_on_to_the_deadline_only_for_a_device_unheard(
+    bus, clock
+):
+    """With an answer window shorter than the loop's deadline (``answer_window_s``): complete at
+    the window's end, it ends there; one device unheard, it sleeps on to the deadline and takes
+    that device's answer, which came after the window's end."""
+    sleeper = WindowSleeper(bus, clock)
+    ex = make_exchange(bus, clock, window_sleep=sleeper, answer_window_s=0.001)
+    ex.send(None)
+    window_end, deadline = clock() + 0.001, clock() + 0.002
+    sleeper.coming = [(clock() + 0.0003, f) for f in all_answers(0)]
+    fb = ex.collect(deadline)
+    assert sleeper.slept_to == [window_end] and all(d.fresh for d in fb.drives)
+
+    clock.now_s = deadline + 0.0005
+    ex.send(None)
+    window_end, deadline = clock() + 0.001, clock() + 0.002
+    answers = all_answers(1)
+    sleeper.coming = [(clock() + 0.0003, f) for f in answers if f.arbitration_id != tpdo1(3)]
+    sleeper.coming.append((clock() + 0.0015, next(f for f in answers if f.arbitration_id == tpdo1(3))))
+    fb = ex.collect(deadline)
+    assert sleeper.slept_to[1:] == [window_end, deadline]
+    assert all(d.fresh for d in fb.drives) and ex.counters.missing_drive_frames == 0
+
+
+def test_a_sleeping_collect_woken_past_its_window_reads_without_sleeping(bus, clock):
+    """A loop held up past the window's end: nothing to sleep for, the answers waiting are read."""
+    sleeper = WindowSleeper(bus, clock)
+    ex = make_exchange(bus, clock, window_sleep=sleeper)
+    bus.answers[0] = all_answers(0)
+    ex.send(None)
+    deadline = clock() + 0.002
+    clock.now_s = deadline + 0.004
+    fb = ex.collect(deadline)
+    assert sleeper.slept_to == [] and all(d.fresh for d in fb.drives)
+
+
 # -- SYNC from the kernel (bus.sync_producer = "kernel"): the windows follow the SYNCs -------------
 
 KERNEL_PERIOD_S = 0.04

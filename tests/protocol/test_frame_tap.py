@@ -7,6 +7,7 @@ to one of ours (a foreign SYNC, the same heartbeat) is still received and record
 from __future__ import annotations
 
 import random
+import time
 
 import can
 import canopen
@@ -104,3 +105,33 @@ def test_on_the_machine_local_bus_the_tap_sends_frames_as_they_are_without_its_t
         msg = other.recv(timeout=30.0)
     assert msg is not None and msg.arbitration_id == 0x080
     assert msg.channel is None
+
+
+class _Waiting(can.BusABC):
+    """A bus with one frame waiting, received by the kernel at ``timestamp`` (wall clock)."""
+
+    def __init__(self, timestamp: float) -> None:
+        super().__init__(channel="waiting")
+        self.frame: can.Message | None = can.Message(
+            arbitration_id=0x181, data=b"\x01", is_extended_id=False, timestamp=timestamp
+        )
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        raise AssertionError("nothing is sent here")
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        msg, self.frame = self.frame, None
+        return msg, False
+
+
+@pytest.mark.parametrize(("age_s", "stamp_age_s"), [(0.2, 0.2), (5.0, 0.0), (-1.0, 0.0)])
+def test_a_received_frame_goes_to_the_sink_with_the_time_it_came_not_the_time_it_was_read(age_s, stamp_age_s):
+    """A frame read 0.2 s after it came (a reader that slept through its answer window) is
+    recorded 0.2 s before the read; a timestamp not believable as a receive time on this machine
+    (5 s old, from the future) leaves the read's time."""
+    seen: list[float] = []
+    with FrameTap(
+        _Waiting(time.time() - age_s), lambda out, t, msg: seen.append(t), clock=lambda: 100.0
+    ) as tap:
+        assert tap.recv(timeout=0.0) is not None
+    assert seen == [pytest.approx(100.0 - stamp_age_s, abs=0.05)]

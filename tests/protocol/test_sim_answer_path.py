@@ -24,6 +24,7 @@ from controller.core.cia402 import (
 )
 from controller.robot_registry import robot_entry
 from drivers import cob_ids
+from drivers.pacing import arrival_s
 from drivers.pdo_codec import (
     FORCE_N_PER_COUNT,
     decode_drive_tpdo,
@@ -31,7 +32,7 @@ from drivers.pdo_codec import (
     encode_drive_rpdo,
     encode_drive_tpdo,
 )
-from sim_backend.server import Simulator, arrival_s
+from sim_backend.server import Simulator
 
 WAIT_S = 20.0  # generous: only a broken simulator takes this long
 COUNTS_PER_M = 1e7
