@@ -542,8 +542,10 @@ class CyclicExchange:
         the frames wait in the socket, each with its receive timestamp, and nothing is decided
         before the window ends either way. Waiting on the bus instead woke the loop's thread for
         the first answers, then again for the rest and at the window's end (2.4 waits a cycle with
-        the sleep to the deadline, ``perf``); each of those wake-ups was a wake-up of another
-        CPU's thread for the simulator's ``sendto`` too.
+        the sleep to the deadline, ``perf``); each wake-up by a frame was a wake-up of another
+        CPU's thread for the simulator's ``sendto`` too. The price: the answers are decoded after
+        the window, not while it waits for the last of them, and the step starts that much later
+        (the service sleeps through only where the period leaves room: controller/shell/service.py).
         """
         self._collecting = True
         window_end_s = min(deadline_s, self.sent_s + self.answer_window_s)

@@ -934,16 +934,22 @@ class WindowSleeper:
 
 
 def test_a_sleeping_collect_wakes_once_at_the_windows_end_and_judges_every_frame_that_came_in_it(bus, clock):
-    """One sleep to the window's end, then every frame read: the answers, and a second sender on
-    drive 2's COB-ID after the true one, which makes its sample ambiguous as when read as it came."""
+    """One sleep to the window's end, then every frame that came read: the answers, and a second
+    sender on drive 2's COB-ID after the true one, which makes its sample ambiguous as when read
+    as it came. Nothing waits on the bus (``ScriptedBus`` would fail a wait)."""
     sleeper = WindowSleeper(bus, clock)
-    ex = make_exchange(bus, clock, window_sleep=sleeper)
+    read: list[tuple[float, int]] = []
+    ex = make_exchange(
+        bus, clock, sink=lambda out, t, msg: read.append((t, msg.arbitration_id)), window_sleep=sleeper
+    )
     ex.send(None)
-    deadline = clock() + 0.002
-    sleeper.coming = [(clock() + 0.0003, f) for f in all_answers(0)]
-    sleeper.coming.append((clock() + 0.0009, frame(tpdo1(2), drive_pdo(0x1637, 77))))
+    sent, deadline = clock(), clock() + 0.002
+    sleeper.coming = [(sent + 0.0003, f) for f in all_answers(0)]
+    sleeper.coming.append((sent + 0.0015, frame(tpdo1(2), drive_pdo(0x1637, 77))))
+    read.clear()  # the frames sent
     fb = ex.collect(deadline)
     assert sleeper.slept_to == [deadline] and clock() == deadline
+    assert read == [(deadline, f.arbitration_id) for f in all_answers(0)] + [(deadline, tpdo1(2))]
     assert [d.fresh for d in fb.drives] == [True, False, True] and fb.sensor is not None and fb.sensor.fresh
     assert (Anomaly.DUPLICATE_FRAME, tpdo1(2)) in {(a.kind, a.cob_id) for a in fb.anomalies}
     assert ex.counters.missing_drive_frames == 1

@@ -75,6 +75,52 @@ def test_a_costly_step_shortens_the_next_windows_so_that_the_cycle_still_ends_in
     assert max(ends[60:]) <= PERIOD_S - cost_s - WINDOW_MARGIN_S + 1e-12
 
 
+class DrainingExchange(RecordingExchange):
+    """An exchange that reads its answers after the window's end, taking ``drain_s`` of the clock
+    from cycle ``from_cycle`` on (one that sleeps through its window: drivers/cyclic_exchange.py)."""
+
+    def __init__(
+        self, inner: LoopbackExchange, clock: SimulatedTime, drain_s: float, from_cycle: int
+    ) -> None:
+        super().__init__(inner, clock)
+        self.drain_s, self.from_cycle = drain_s, from_cycle
+
+    def collect(self, deadline_s):
+        feedback = super().collect(deadline_s)
+        self.clock.now_s = max(self.clock.now_s, deadline_s)
+        if len(self.ends_after_send_s) >= self.from_cycle:
+            self.clock.now_s += self.drain_s
+        return feedback
+
+
+def test_reading_the_answers_after_the_window_shortens_the_next_windows_as_a_costly_step_does():
+    """0.7 ms of reading after a 2-ms window would end every cycle 0.2 ms into the next: the work
+    the loop leaves room for counts from the window's end, the reading included."""
+    cfg = load_config(overrides={"recording.enabled": False, "monitoring.enabled": False})
+    clock = SimulatedTime()
+    law = build_law(cfg)
+    drain_s = 0.0007
+    exchange = DrainingExchange(LoopbackExchange(cfg, clock.clock), clock, drain_s, 50)
+    loop = CycleLoop(law, exchange, PERIOD_S, COLLECT_FRACTION, clock, clock.clock)
+    _, stats = loop.run(law.initial_state(), 400 * PERIOD_S)
+    ends = exchange.ends_after_send_s
+    assert ends[20] == pytest.approx(COLLECT_FRACTION * PERIOD_S)
+    assert ends[100] == pytest.approx(PERIOD_S - drain_s - WINDOW_MARGIN_S)
+    assert stats.overruns <= 1  # the first drained cycle, before the loop knew of the reading
+
+
+def test_the_service_sleeps_through_the_window_at_400_hz_and_slower_and_reads_as_frames_come_above():
+    from controller.shell.service import sleeps_through_window
+
+    assert [sleeps_through_window(1 / rate) for rate in (100, 250, 400, 500, 1000)] == [
+        True,
+        True,
+        True,
+        False,
+        False,
+    ]
+
+
 class DeadlineExchange(RecordingExchange):
     """An exchange that wants each cycle's deadline (``CycleDeadlines``: the kernel SYNC's)."""
 
