@@ -1008,7 +1008,8 @@ def drive_answers(slot: int) -> list[can.Message]:
     return [frame(tpdo1(n), drive_pdo(0x1637, 5_000_000 + 1000 * n + slot)) for n in DRIVES]
 
 
-def kernel_exchange(bus: ScriptedBus, clock: FakeClock) -> CyclicExchange:
+def kernel_exchange(bus: ScriptedBus, clock: FakeClock, sleeps: bool = False) -> CyclicExchange:
+    """``sleeps``: the exchange sleeps through its windows (``window_sleep``, the service at 400 Hz)."""
     ex = CyclicExchange(
         bus,
         DRIVES,
@@ -1019,6 +1020,7 @@ def kernel_exchange(bus: ScriptedBus, clock: FakeClock) -> CyclicExchange:
         clock=clock,
         send_sync=False,
         sync_period_s=KERNEL_PERIOD_S,
+        window_sleep=WindowSleeper(bus, clock) if sleeps else None,
     )
     ex.sync_slot_of = lambda stamp: round(stamp / KERNEL_PERIOD_S)  # what KernelSyncExchange installs
     return ex
@@ -1040,8 +1042,11 @@ def positions(fb) -> list[int]:
     return [round(d.position * COUNTS_PER_M) if d.fresh else -1 for d in fb.drives]
 
 
-def test_kernel_sync_a_loop_that_wakes_after_its_sync_takes_the_answers_that_followed_it(bus, clock):
-    ex = kernel_exchange(bus, clock)
+@pytest.mark.parametrize(
+    "sleeps", [False, True], ids=["reading-as-frames-come", "sleeping-through-the-window"]
+)
+def test_kernel_sync_a_loop_that_wakes_after_its_sync_takes_the_answers_that_followed_it(bus, clock, sleeps):
+    ex = kernel_exchange(bus, clock, sleeps)
     assert positions(kernel_cycle(ex, bus, clock, 0, after_send=[kernel_sync(0), *drive_answers(0)])) == [
         5_001_000,
         5_002_000,
@@ -1077,8 +1082,13 @@ def test_kernel_sync_a_sync_later_than_its_window_leaves_its_answers_late_and_th
     assert fb.anomalies == () and positions(fb) == [5_001_003, 5_002_003, 5_003_003]
 
 
-def test_kernel_sync_a_collect_stops_at_the_next_sync_and_its_answers_are_the_next_cycle_s(bus, clock):
-    ex = kernel_exchange(bus, clock)
+@pytest.mark.parametrize(
+    "sleeps", [False, True], ids=["reading-as-frames-come", "sleeping-through-the-window"]
+)
+def test_kernel_sync_a_collect_stops_at_the_next_sync_and_its_answers_are_the_next_cycle_s(
+    bus, clock, sleeps
+):
+    ex = kernel_exchange(bus, clock, sleeps)
     kernel_cycle(ex, bus, clock, 0, after_send=[kernel_sync(0), *drive_answers(0)])
     fb = kernel_cycle(
         ex, bus, clock, 1, after_send=[kernel_sync(1), *drive_answers(1), kernel_sync(2), *drive_answers(2)]
