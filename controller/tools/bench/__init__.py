@@ -21,6 +21,9 @@ Definitions (also in the JSON):
 - period error: |(wake_k - wake_{k-1}) - period|, wake-ups on the monotonic clock;
 - late cycle: woke more than ``late_fraction`` of a period after its deadline, or a deadline
   skipped because the loop fell a whole period behind (an overrun);
+- a received frame's time (SYNC out -> last TPDO in, last TPDO in -> ...): when it came, from its
+  receive timestamp (``drivers/frame_tap.py``), not when the exchange read it, which at 400 Hz is
+  the window's end (``controller/shell/service.py`` ``sleeps_through_window``);
 - measured bus load: every frame on the bus (the controller's sent and received ones) times
   its duration by ``drivers.bus_load`` with its own FD/BRS flags, worst-case stuffing, per
   second of the run; it counts classical frames where a device answers with classical frames.
