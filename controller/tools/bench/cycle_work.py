@@ -311,6 +311,7 @@ def measured_run(
     from controller.assembly import build_law
     from controller.shell.loop import CycleLoop, SimulatedTime
     from controller.shell.run_summary import RunRecorder
+    from controller.shell.service import sleeps_through_window
     from logs.recorder import SessionRecorder
     from sim_backend.loopback import LoopbackExchange
 
@@ -322,6 +323,8 @@ def measured_run(
         cfg, clock.clock
     ).exchange  # the production exchange as the devices' run built it
     exchange.bus = bus
+    if sleeps_through_window(cfg.period_s):  # as the service reads its answers at this rate
+        exchange.window_sleep = clock.sleep_until
     recording = SessionRecorder(os.devnull, clock=clock.clock, phase_name=law.task.phase_name)
     sink = os.open(os.devnull, os.O_WRONLY)
     recording._fd = sink  # the loop's side of recording, into /dev/null: no writer process to wait for
