@@ -20,7 +20,7 @@ from controller_on_the_bus import child_running
 from waiting import wait_until
 
 from controller import cli
-from controller.realtime import halts_when_idle
+from controller.realtime import halts_when_idle, scheduling_policy
 from controller.shell.demo import simulator_process
 from controller.shell.idle_poll import POLLER_SOURCE
 from drivers.bus import parse_bus_spec
@@ -354,6 +354,12 @@ def test_a_guardian_killed_under_the_run_is_named_and_its_tasks_given_back():
     """A guardian killed under the run restored nothing: the neighbour stayed off the loop's CPU
     until the next shielded run, and the summary said nothing."""
     with _shielded_demo_beside_a_neighbour(laps=1.0) as (demo, neighbour, everything):
+        # not in the middle of its sweep (the neighbour moves before the guardian answers): once the
+        # controller has its answer, its loop thread takes its real-time priority
+        wait_until(
+            lambda: demo.poll() is not None or scheduling_policy(demo.pid) == os.SCHED_FIFO,
+            "the demo's loop at its real-time priority, the shield raised",
+        )
         guardian = child_running(demo.pid, "controller.shell.cpu_shield")
         assert guardian is not None
         os.kill(guardian, signal.SIGKILL)
