@@ -550,16 +550,16 @@ class CyclicExchange:
         self._collecting = True
         window_end_s = min(deadline_s, self.sent_s + self.answer_window_s)
         if self.window_sleep is not None:
-            self._sleep_then_read(window_end_s, deadline_s)
+            self._sleep_then_read(self.window_sleep, window_end_s, deadline_s)
         else:
             self._wait_and_read(window_end_s, deadline_s)
         return self._cycle_feedback()
 
-    def _sleep_then_read(self, window_end_s: float, deadline_s: float) -> None:
-        """``collect`` with ``window_sleep``: to the window's end, then read what came; when that
-        left a device unheard, to ``deadline_s`` (when it ends later) and read again."""
-        sleep = self.window_sleep
-        assert sleep is not None
+    def _sleep_then_read(
+        self, sleep: Callable[[float], None], window_end_s: float, deadline_s: float
+    ) -> None:
+        """``collect`` with ``window_sleep`` (``sleep``): to the window's end, then read what came;
+        when that left a device unheard, to ``deadline_s`` (when it ends later) and read again."""
         ends = (window_end_s,) if window_end_s >= deadline_s else (window_end_s, deadline_s)
         for end_s in ends:
             if self.clock() < end_s:

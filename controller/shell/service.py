@@ -149,7 +149,7 @@ SLEEP_THROUGH_WINDOW_MIN_PERIOD_S = 2.5e-3
 
 def sleeps_through_window(period_s: float) -> bool:
     """Whether the cyclic exchange sleeps through its answer window at this loop period."""
-    return period_s >= SLEEP_THROUGH_WINDOW_MIN_PERIOD_S - 1e-12
+    return period_s >= SLEEP_THROUGH_WINDOW_MIN_PERIOD_S
 
 
 def run_controller(
