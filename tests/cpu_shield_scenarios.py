@@ -23,6 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from waiting import wait_for_exit
 
 from controller.realtime import RealtimeError, RealtimeOptions
+from controller.shell import cpu_shield
 from controller.shell.cpu_shield import (
     STATE_NAME,
     CpuShield,
@@ -147,6 +148,64 @@ def guardian_killed(state_dir: Path) -> dict[str, Any]:
     return out
 
 
+# The guardian, killed (SIGKILL, no clean-up) in the middle of its sweep: after its first move,
+# at its second
+DYING_GUARDIAN = """
+import os, signal, sys
+import controller.shell.cpu_shield as shield
+made, real_set = [], shield._set
+def set_then_die(tid, mask):
+    if made:
+        os.kill(os.getpid(), signal.SIGKILL)
+    made.append(tid)
+    return real_set(tid, mask)
+shield._set = set_then_die
+sys.exit(shield.main(sys.argv[1:]))
+"""
+
+
+def _dying_guardian(module: str, *args: str) -> list[str]:
+    return [sys.executable, "-c", DYING_GUARDIAN, *args]
+
+
+def guardian_killed_mid_sweep(state_dir: Path) -> dict[str, Any]:
+    """Killed between two moves of its sweep, before it answered: the moves made are in its state
+    file, given back by the controller that started it (at once) or by the next run."""
+    tasks = Tasks()
+    tasks.spawn()
+    tasks.spawn()  # three tasks to move: the spawner and its two children
+    out: dict[str, Any] = {"all": mask(0)}
+    cpu_shield.python_module_command = _dying_guardian  # what CpuShield.start runs
+    try:
+        CpuShield.start((tasks.loop_cpu,), state_dir)
+        out["start"] = "answered"
+    except CpuShieldError as err:
+        out["start"] = str(err)
+    out["after_start"] = tasks.masks()
+    out["state_file_after_start"] = (state_dir / STATE_NAME).exists()
+    # its controller gone with it: the next guardian gives them back when it starts
+    dying = subprocess.Popen(
+        _dying_guardian(
+            "", "--cpus", str(tasks.loop_cpu), "--exclude", str(os.getpid()), "--state-dir", str(state_dir)
+        ),
+        stdout=subprocess.PIPE,
+        stdin=subprocess.PIPE,
+        env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])},
+    )
+    out["dying_answer"] = dying.communicate()[0].decode()
+    out["dying_exit"] = dying.returncode
+    out["after_kill"] = tasks.masks()
+    out["state_file_after_kill"] = (state_dir / STATE_NAME).exists()
+    # the next run gives them back, even one that raises no shield of its own
+    summary: dict[str, Any] = {}
+    with raise_shield(RealtimeOptions(cpus=(tasks.loop_cpu,), shield=False), summary, state_dir):
+        out["after"] = tasks.masks()
+    out["summary"] = summary
+    out["state_file_after"] = (state_dir / STATE_NAME).exists()
+    tasks.end()
+    return out
+
+
 def guardian_stopped(state_dir: Path) -> dict[str, Any]:
     tasks = Tasks()
     shield = CpuShield.start((tasks.loop_cpu,), state_dir)
@@ -249,6 +308,7 @@ SCENARIOS = {
         restore_after_close,
         controller_killed,
         guardian_killed,
+        guardian_killed_mid_sweep,
         guardian_stopped,
         one_a_machine,
         forked_during_sweep,

@@ -33,11 +33,13 @@ the same for the time of a run, where they are permitted (CAP_SYS_NICE for other
   stay blocked while it sweeps or restores, so one that comes meanwhile waits for the end of
   that work. It holds a lock (``cpu-shield.lock`` in its state directory, root's
   ``/run/cheope`` or a user's ``$XDG_RUNTIME_DIR/cheope``, refused unless the user's alone):
-  one shield a machine, a second controller runs unshielded and says so. It writes what it
-  moved to ``cpu-shield.json`` before it answers; a guardian killed itself leaves that file: the
-  controller's end restores from it (``CpuShield.close``, the summary's ``guardian_failed``),
-  or, when the controller died too, the next guardian to take the lock, first (not from a file of
-  an earlier boot; a damaged file is removed and logged).
+  one shield a machine, a second controller runs unshielded and says so. It writes the moves it
+  is about to make to ``cpu-shield.json`` before the first, and what it made before it answers;
+  a guardian killed itself (even in the middle of its sweep) leaves that file: the controller
+  restores from it, at its end (``CpuShield.close``, the summary's ``guardian_failed``) or at once
+  when the guardian never answered (``CpuShield.start``), or, when the controller died too, the
+  next guardian to take the lock, first (not from a file of an earlier boot; a damaged file is
+  removed and logged).
 - **not covered**: two shields under different locks (two users, or two state directories) on
   a machine with more than two CPUs can each take a CPU from the same task; the second restore
   then gives back only its own.
@@ -197,8 +199,9 @@ def _affinity(tid: int) -> frozenset[int] | None:
         return None
 
 
-def sweep(cpus: Iterable[int], exclude_pids: Iterable[int], proc: Path = Path("/proc")) -> ShieldRecord:
-    """Take ``cpus`` out of the affinity of every normal task not of ``exclude_pids`` (module text)."""
+def plan_sweep(cpus: Iterable[int], exclude_pids: Iterable[int], proc: Path = Path("/proc")) -> ShieldRecord:
+    """The moves a sweep of ``cpus`` would make (module text), made by none yet: ``moved`` lists
+    every task to move, ``seen`` every task looked at."""
     shield = frozenset(cpus)
     excluded = frozenset(exclude_pids)
     record = ShieldRecord(tuple(sorted(shield)), boot_id(), ticks_now())
@@ -212,15 +215,30 @@ def sweep(cpus: Iterable[int], exclude_pids: Iterable[int], proc: Path = Path("/
         after = before - shield
         if not after:
             continue  # it may run on the loop's CPU only: its placement is deliberate
-        try:
-            os.sched_setaffinity(task.tid, after)
-        except OSError:
-            record.refused += 1
-            continue
         record.moved.append(
             MovedTask(task.pid, task.tid, task.start_ticks, tuple(sorted(before)), tuple(sorted(after)))
         )
     return record
+
+
+def apply_sweep(plan: ShieldRecord) -> ShieldRecord:
+    """Make ``plan``'s moves; the record of those made. A task whose affinity changed since the
+    plan set its own and is left alone; one that cannot be moved (permissions, gone) is counted
+    in ``refused``."""
+    made = ShieldRecord(plan.cpus, plan.boot_id, plan.start_ticks, plan.seen, [], plan.refused)
+    for move in plan.moved:
+        if _affinity(move.tid) != frozenset(move.mask_before):
+            continue
+        if _set(move.tid, move.mask_set):
+            made.moved.append(move)
+        else:
+            made.refused += 1
+    return made
+
+
+def sweep(cpus: Iterable[int], exclude_pids: Iterable[int], proc: Path = Path("/proc")) -> ShieldRecord:
+    """Take ``cpus`` out of the affinity of every normal task not of ``exclude_pids`` (module text)."""
+    return apply_sweep(plan_sweep(cpus, exclude_pids, proc))
 
 
 def restore(record: ShieldRecord, proc: Path = Path("/proc")) -> int:
@@ -329,14 +347,14 @@ def guard(
     os.pwrite(lock, f"pid {os.getpid()}, CPUs {','.join(map(str, cpus))}\n".encode(), 0)
     state = state_dir / STATE_NAME
     recovered = _recover(state, proc)
-    record = sweep(cpus, (*exclude, os.getpid()), proc)
+    record = plan_sweep(cpus, (*exclude, os.getpid()), proc)
     try:
-        tmp = state.with_suffix(".tmp")
-        tmp.unlink(missing_ok=True)
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
-        with os.fdopen(fd, "w") as f:
-            f.write(record.to_json())
-        tmp.replace(state)
+        # written before the first move: a guardian killed in the middle of its sweep (SIGKILL
+        # cannot wait) leaves every task it moved in the file, for its controller or the next
+        # guardian to give back; a planned move not made is skipped there (its affinity differs)
+        _write_state(state, record)
+        record = apply_sweep(record)
+        _write_state(state, record)
         _answer({"moved": len(record.moved), "refused": record.refused, "recovered": recovered})
         _wait_for_the_end()
     finally:
@@ -345,6 +363,16 @@ def guard(
         with contextlib.suppress(OSError):  # nobody reads any more
             _answer({"restored": restored})
     return 0
+
+
+def _write_state(state: Path, record: ShieldRecord) -> None:
+    """``record`` in ``state``, whole or not at all (a new file renamed over the old)."""
+    tmp = state.with_suffix(".tmp")
+    tmp.unlink(missing_ok=True)
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
+    with os.fdopen(fd, "w") as f:
+        f.write(record.to_json())
+    tmp.replace(state)
 
 
 def _recover(state: Path, proc: Path) -> int:
@@ -380,6 +408,16 @@ def recover_now(state_dir: Path | None, proc: Path = Path("/proc")) -> int | str
         os.close(lock)  # and the lock with it
 
 
+def give_back_abandoned(state_dir: Path | None, proc: Path = Path("/proc")) -> int:
+    """A dead guardian's shield, killed with its controller, given back by a run over a bus that
+    raises none (``--no-cpu-shield``): until then only the next shield would. 0 when
+    there is none, or when a live guardian holds the lock (it recovered the file when it began)."""
+    if state_dir is None or not (state_dir / STATE_NAME).exists():
+        return 0
+    given_back = recover_now(state_dir, proc)
+    return given_back if isinstance(given_back, int) else 0
+
+
 def _wait_for_the_end() -> None:
     """Until the controller's end closes the pipe, or an ending signal is pending."""
     stdin = sys.stdin.buffer
@@ -413,6 +451,10 @@ def raise_shield(
     Refused: ``RealtimeError`` when required, else one line of warning and none. ``summary`` gets
     what it did (the run summary's ``cpu_shield``)."""
     if not options.shield or not options.cpus:
+        given_back = give_back_abandoned(state_dir or default_state_dir())
+        if given_back:
+            log.warning("CPU shield: %d task(s) a dead guardian had moved given back", given_back)
+            summary["recovered_from_a_dead_guardian"] = given_back
         confined = confined_affinity()
         if confined:  # the loop has no CPU of its own to shield, and the summary says why
             log.warning("no CPU kept clear for the loop: %s", confined)
@@ -495,7 +537,12 @@ class CpuShield:
                 raise CpuShieldError(f"CPU shield already held ({answer['busy']})")
             if answer is not None and "error" in answer:
                 raise CpuShieldError(str(answer["error"]))
-            raise CpuShieldError(f"the CPU shield's guardian did not answer ({answer})")
+            # it may have died in the middle of its sweep: what it moved is in its state file
+            given_back = recover_now(state_dir or default_state_dir())
+            raise CpuShieldError(
+                f"the CPU shield's guardian did not answer ({answer}, {exit_text(process.returncode)}); "
+                f"tasks it had moved given back: {given_back}"
+            )
         return cls(process, cpus, answer, state_dir)
 
     def close(self, timeout_s: float = STOP_TIMEOUT_S) -> dict[str, Any]:

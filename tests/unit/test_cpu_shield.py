@@ -96,6 +96,30 @@ def test_a_killed_guardians_tasks_are_given_back_at_the_end_or_by_the_next(tmp_p
 
 
 @needs_namespace
+def test_a_guardian_killed_in_the_middle_of_its_sweep_leaves_no_task_behind(tmp_path: Path) -> None:
+    """Its state file used to be written after the sweep: killed in between, the tasks it had moved
+    stayed off the loop's CPU with nothing to say so (a machine found with its first process on
+    one CPU of two after an outside tester's runs)."""
+    out = run_scenario("guardian_killed_mid_sweep", tmp_path)
+    everything, moved = out["all"], [c for c in out["all"] if c != max(out["all"])]
+    # the controller that started it is told, and gives back the one task it had moved at once
+    assert "did not answer" in out["start"] and "killed by SIGKILL" in out["start"], out["start"]
+    assert out["start"].endswith("tasks it had moved given back: 1"), out["start"]
+    assert out["after_start"]["spawner"] == everything
+    assert out["after_start"]["children"] == [everything, everything]
+    assert not out["state_file_after_start"]
+    # killed with its controller: one task moved, the others not, and the file says which
+    assert out["dying_exit"] == -9 and out["dying_answer"] == ""
+    masks = [out["after_kill"]["spawner"], *out["after_kill"]["children"]]
+    assert sorted(masks) == sorted([moved, everything, everything]), masks
+    assert out["state_file_after_kill"]
+    # the next run, one without a shield of its own too, gives it back
+    assert out["summary"]["recovered_from_a_dead_guardian"] == 1, out["summary"]
+    assert out["after"]["spawner"] == everything and out["after"]["children"] == [everything, everything]
+    assert not out["state_file_after"]
+
+
+@needs_namespace
 def test_a_stopped_guardians_tasks_are_given_back_at_the_end(tmp_path: Path) -> None:
     """An outside tester's SIGSTOP to the guardian left every task of the machine on one CPU."""
     out = run_scenario("guardian_stopped", tmp_path)
