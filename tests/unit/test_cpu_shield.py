@@ -182,7 +182,7 @@ def test_the_default_options_shield_the_loops_cpu(monkeypatch: pytest.MonkeyPatc
         _realtime(parse(["demo", "--no-realtime", "--cpu-shield"]))
 
 
-def test_a_confined_process_says_why_it_has_no_shield(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_confined_process_says_why_it_has_no_shield(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     """Started from a shell left on one CPU (a stopped guardian's), a demo ran its loop and its
     simulator on that CPU with ``cpu_shield`` empty."""
     from controller.shell import cpu_shield
@@ -190,11 +190,11 @@ def test_a_confined_process_says_why_it_has_no_shield(monkeypatch: pytest.Monkey
     monkeypatch.setattr(cpu_shield.os, "sched_getaffinity", lambda _pid: {0})
     monkeypatch.setattr(cpu_shield.os, "cpu_count", lambda: 2)
     summary: dict[str, Any] = {}
-    with cpu_shield.raise_shield(RealtimeOptions(cpus=(), shield=False), summary) as shield:
+    with cpu_shield.raise_shield(RealtimeOptions(cpus=(), shield=False), summary, tmp_path) as shield:
         assert shield is None
     assert summary["off"].startswith("this process may run on CPU 0 only, of the machine's 2")
     monkeypatch.setattr(cpu_shield.os, "sched_getaffinity", lambda _pid: {0, 1})
     summary = {}
-    with cpu_shield.raise_shield(RealtimeOptions(cpus=(), shield=False), summary):
+    with cpu_shield.raise_shield(RealtimeOptions(cpus=(), shield=False), summary, tmp_path):
         pass
     assert summary == {}  # --no-cpu-shield on a free process: nothing to say
