@@ -182,7 +182,9 @@ def test_the_default_options_shield_the_loops_cpu(monkeypatch: pytest.MonkeyPatc
         _realtime(parse(["demo", "--no-realtime", "--cpu-shield"]))
 
 
-def test_a_confined_process_says_why_it_has_no_shield(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+def test_a_confined_process_says_why_it_has_no_shield(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
     """Started from a shell left on one CPU (a stopped guardian's), a demo ran its loop and its
     simulator on that CPU with ``cpu_shield`` empty."""
     from controller.shell import cpu_shield
