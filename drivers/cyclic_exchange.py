@@ -361,7 +361,6 @@ class CyclicExchange:
         self._error_frames = 0
         self._bus_off = False
         self.cycles = 0
-        self.last_frame_in_s = 0.0  # when the last frame that completed a cycle's inputs was read
         self.sent_s = 0.0  # when this cycle's RPDOs went out (or would have)
         self._last_send_s: float | None = None  # the last send's reading (its SYNC's time)
         # the loop's SYNC only: one later than this after the last goes without the targets
@@ -727,11 +726,11 @@ class CyclicExchange:
             return
         kind, index = route
         if kind == _DRIVE:
-            self._on_drive_tpdo(index, msg, now)
+            self._on_drive_tpdo(index, msg)
             return
         try:
             if kind in (_SENSOR_FORCE, _SENSOR_TORQUE):
-                self._on_sensor(kind, msg, now)
+                self._on_sensor(kind, msg)
             elif kind in (_TRACKER_P, _TRACKER_R):
                 self._on_tracker(kind, msg)
             elif kind == _EMCY:
@@ -801,7 +800,7 @@ class CyclicExchange:
         c.rejected_by_node[node_id] = c.rejected_by_node.get(node_id, 0) + 1
         self._report(Anomaly.REJECTED_FRAME, cob_id, node_id)
 
-    def _on_drive_tpdo(self, j: int, msg: can.Message, now: float) -> None:
+    def _on_drive_tpdo(self, j: int, msg: can.Message) -> None:
         """A candidate for drive ``j``'s sample: judged, kept until the window closes."""
         node = self.drive_ids[j]
         if not self._collecting:
@@ -815,7 +814,6 @@ class CyclicExchange:
                 self._report(Anomaly.DUPLICATE_FRAME, msg.arbitration_id, node)
             return
         self._candidates[j] += 1
-        self.last_frame_in_s = now
         if self._candidates[j] - 1 > self._owed[j]:
             self._report(Anomaly.DUPLICATE_FRAME, msg.arbitration_id, node)
         elif self._candidates[j] > 1:
@@ -847,7 +845,7 @@ class CyclicExchange:
         step = (counter - self._sensor_trusted_counter) % COUNTER_MODULO
         return step <= self._sensor_cycles_since_trusted + 1 + self._sensor_slack
 
-    def _on_sensor(self, kind: int, msg: can.Message, now: float) -> None:
+    def _on_sensor(self, kind: int, msg: can.Message) -> None:
         codec = self._force_codec if kind == _SENSOR_FORCE else self._torque_codec
         k = 0 if kind == _SENSOR_FORCE else 1
         sensor_node = self.sensor_id or 0
@@ -879,7 +877,6 @@ class CyclicExchange:
         self._candidate_status = status
         if self._force_counter == self._torque_counter:
             self._sensor_fresh = True
-            self.last_frame_in_s = now
 
     def _on_tracker(self, kind: int, msg: can.Message) -> None:
         """A tracker frame, whenever it comes (drained or collected): the pair with one counter is a sample."""
