@@ -183,7 +183,7 @@ def guardian_killed_mid_sweep(state_dir: Path) -> dict[str, Any]:
         out["start"] = str(err)
     out["after_start"] = tasks.masks()
     out["state_file_after_start"] = (state_dir / STATE_NAME).exists()
-    # its controller gone with it: the next guardian gives them back when it starts
+    # its controller gone with it: what it moved waits in its state file for the next run
     dying = subprocess.Popen(
         _dying_guardian(
             "", "--cpus", str(tasks.loop_cpu), "--exclude", str(os.getpid()), "--state-dir", str(state_dir)

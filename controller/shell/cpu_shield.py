@@ -38,8 +38,9 @@ the same for the time of a run, where they are permitted (CAP_SYS_NICE for other
   a guardian killed itself (even in the middle of its sweep) leaves that file: the controller
   restores from it, at its end (``CpuShield.close``, the summary's ``guardian_failed``) or at once
   when the guardian never answered (``CpuShield.start``), or, when the controller died too, the
-  next guardian to take the lock, first (not from a file of an earlier boot; a damaged file is
-  removed and logged).
+  next run: its guardian when it takes the lock, first, or a run without a shield
+  (``give_back_abandoned``) (not from a file of an earlier boot; a damaged file is removed and
+  logged).
 - **not covered**: two shields under different locks (two users, or two state directories) on
   a machine with more than two CPUs can each take a CPU from the same task; the second restore
   then gives back only its own.
@@ -61,7 +62,7 @@ import sys
 import time
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -225,7 +226,7 @@ def apply_sweep(plan: ShieldRecord) -> ShieldRecord:
     """Make ``plan``'s moves; the record of those made. A task whose affinity changed since the
     plan set its own and is left alone; one that cannot be moved (permissions, gone) is counted
     in ``refused``."""
-    made = ShieldRecord(plan.cpus, plan.boot_id, plan.start_ticks, plan.seen, [], plan.refused)
+    made = replace(plan, moved=[])
     for move in plan.moved:
         if _affinity(move.tid) != frozenset(move.mask_before):
             continue
@@ -350,8 +351,8 @@ def guard(
     record = plan_sweep(cpus, (*exclude, os.getpid()), proc)
     try:
         # written before the first move: a guardian killed in the middle of its sweep (SIGKILL
-        # cannot wait) leaves every task it moved in the file, for its controller or the next
-        # guardian to give back; a planned move not made is skipped there (its affinity differs)
+        # cannot wait) leaves every task it moved in the file, for its controller or the next run
+        # to give back; a planned move not made is skipped there (its affinity differs)
         _write_state(state, record)
         record = apply_sweep(record)
         _write_state(state, record)
@@ -600,7 +601,7 @@ def _read_answer(process: subprocess.Popen[bytes], timeout_s: float) -> dict[str
 
 def _end(process: subprocess.Popen[bytes], timeout_s: float = STOP_TIMEOUT_S) -> None:
     """The guardian's end: the pipe closed, then SIGTERM (it restores first, whatever it was doing),
-    SIGKILL only when that is not heeded either (the next guardian recovers from its state file)."""
+    SIGKILL only when that is not heeded either (the caller gives back from its state file)."""
     if process.stdin is not None and not process.stdin.closed:
         process.stdin.close()
     for end in (process.terminate, process.kill):
