@@ -130,9 +130,16 @@ def _sdo_on(drive: SimulatedDrive, node_id: int) -> Callable[[int, int, int], No
 
 class LoopbackExchange:
     def __init__(
-        self, cfg: Config, clock: Callable[[], float], environment: Environment | None = None
+        self,
+        cfg: Config,
+        clock: Callable[[], float],
+        environment: Environment | None = None,
+        hold_up: Callable[[float], None] | None = None,
     ) -> None:
         self.clock = clock
+        # moves ``clock`` on from inside a send: the ``send_stall`` fault (SimulatedTime.hold_up)
+        self.hold_up = hold_up
+        self._held_up_s = -math.inf  # the last SYNC's time at which send_stall held the send up
         units = actuator_units(cfg)
         self.scale = PositionScale(units.counts_per_unit)  # m or rad
         self.plant = RobotPlant(cfg, environment)
@@ -178,6 +185,11 @@ class LoopbackExchange:
             else None
         )
         self.faults = FaultSchedule.from_strings(tuple(cfg.sim.faults))
+        if hold_up is None and any(f.kind == "send_stall" for f in self.faults.faults):
+            raise ValueError(
+                "send_stall holds the loop's clock inside a send: give the loopback exchange the "
+                "clock's hold_up (controller/shell/simulated_rig.py does)"
+            )
         self.heartbeat_period_s = cfg.loop.heartbeat_period_s
         self._last_heartbeat_s: dict[int, float] = {}
         self.tracker_id = cfg.tracker.node_id if self.plant.tracker is not None else None
@@ -205,6 +217,7 @@ class LoopbackExchange:
             max_position_jump=jump_margin,
             targets_sync_gap_s=targets_sync_gap_s(cfg.period_s, cfg.drive_extrapolation_periods),
             target_lead_period_s=cfg.period_s,
+            drive_extrapolation_periods=cfg.drive_extrapolation_periods,
         )
         self._rpdo_drive = {c.rpdo_cob_id: j for j, c in enumerate(self.codecs)}
         self._sdo_drive = {cob_ids.sdo_request(n): j for j, n in enumerate(self.drive_ids)}
@@ -305,6 +318,8 @@ class LoopbackExchange:
             if self.nmt_state[self.drive_ids[j]] != NMT_OPERATIONAL:
                 return  # a PDO is only processed in OPERATIONAL (CiA 301)
             self.pdos.receive_rpdo(j, msg.data)  # as the drive's mapping says; a wrong one is dropped
+            if j == len(self.drives) - 1:
+                self._send_stall()
         elif cob == cob_ids.SYNC:
             self._on_sync(self.clock())
         elif cob == self._controller_heartbeat:
@@ -312,6 +327,17 @@ class LoopbackExchange:
                 d.on_controller_heartbeat(self.clock())
         elif cob in self._sdo_drive:
             self._on_sdo_request(self._sdo_drive[cob], bytes(msg.data))
+
+    def _send_stall(self) -> None:
+        """The ``send_stall`` fault: the send held up after the last drive's RPDO, before the SYNC,
+        once a cycle (the RPDOs the exchange may send again after it pass)."""
+        now = self.clock()
+        last_sync = self.faults.last_s
+        stall = self.faults.active("send_stall", now)
+        if stall is None or self.hold_up is None or last_sync == self._held_up_s:
+            return
+        self._held_up_s = last_sync if last_sync is not None else now
+        self.hold_up(stall.value)
 
     def _on_sdo_request(self, j: int, data: bytes) -> None:
         """The one SDO the loop sends (drivers/cyclic_exchange.py): an expedited write of the controlword.

@@ -533,6 +533,7 @@ class SimulatedTime:
     ``lateness`` (deadline -> seconds) makes a wake-up come that much after its deadline: the
     simulator's ``stall`` fault (``LoopbackExchange.stall_s``), a machine that holds the loop up,
     reproduced deterministically (the loop then skips the deadlines it missed, as over a bus).
+    ``hold_up`` moves the clock on from inside a cycle (``send_stall``).
     """
 
     def __init__(self, start_s: float = 0.0, lateness: Callable[[float], float] | None = None) -> None:
@@ -545,3 +546,8 @@ class SimulatedTime:
     def sleep_until(self, deadline_s: float) -> None:
         late_s = self.lateness(deadline_s) if self.lateness is not None else 0.0
         self.now_s = max(self.now_s, deadline_s + late_s)
+
+    def hold_up(self, seconds: float) -> None:
+        """The process held up ``seconds`` where it stands (the simulator's ``send_stall`` fault:
+        inside the exchange's send, between the RPDOs and their SYNC)."""
+        self.now_s += seconds

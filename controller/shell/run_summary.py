@@ -192,6 +192,8 @@ def summarize(
         "syncs_held_up": stats.syncs_held_up,
         # SYNCs in time for their deadline that went without the targets: too long after the last
         "targets_withheld": stats.targets_withheld,
+        # cycles whose RPDOs went again before their SYNC: held up after they went (cyclic_exchange)
+        "rpdos_resent": c.rpdos_resent,
         "missing_frames": {"drive": c.missing_drive_frames, "sensor": c.missing_sensor_frames},
         "longest_silence_cycles": {
             "drive": c.longest_drive_silence_cycles,

@@ -219,6 +219,7 @@ def run_controller(
             guarded=prepared.setup_plan.guarded(),
             targets_sync_gap_s=targets_sync_gap_s(cfg.period_s, cfg.drive_extrapolation_periods),
             target_lead_period_s=cfg.period_s,
+            drive_extrapolation_periods=cfg.drive_extrapolation_periods,
             window_sleep=DeadlineSleeper(0.0).sleep_until if sleeps_through_window(cfg.period_s) else None,
         )
         kernel_sync = (

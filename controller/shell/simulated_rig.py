@@ -3,7 +3,8 @@
 What every run in simulated time is built from (``cheope demo --simulated-time``, the contour's
 experiment and scans, ``cheope faults``): deterministic, independent of the machine's load. The
 clock's wake-ups come late where the simulator's ``stall`` fault says so (``SimulatedTime``'s
-``lateness``), and the loop has the configured late tolerance, so a hold-up of the loop is
+``lateness``), its sends are held up where ``send_stall`` says so (``SimulatedTime.hold_up``), and
+the loop has the configured late tolerance, so a hold-up of the loop is
 reproduced as a run over a bus meets it: a late cycle, then the deadlines it missed skipped.
 """
 
@@ -29,7 +30,7 @@ class SimulatedRig:
         self.cfg = cfg
         self.clock = SimulatedTime()
         self.law: ControlLaw = build_law(cfg)
-        self.exchange: LoopbackExchange = LoopbackExchange(cfg, self.clock.clock)
+        self.exchange: LoopbackExchange = LoopbackExchange(cfg, self.clock.clock, hold_up=self.clock.hold_up)
         self.clock.lateness = self.exchange.stall_s  # the stall fault: the loop wakes late
 
     def loop(self, observers: tuple[CycleObserver, ...] = (), **options: Any) -> CycleLoop:

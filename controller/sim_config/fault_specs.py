@@ -23,6 +23,9 @@ needs one. Kinds:
 - ``tx_full``      the controller's frames do not reach the devices (a full transmit queue)
 - ``stall=S``      the controller's loop wakes S seconds late at every deadline while active, and
                    skips the deadlines it missed (in-process runs in simulated time only)
+- ``send_stall=S`` the controller's loop is held up S seconds inside its send at every SYNC while
+                   active: after its RPDOs went and before their SYNC (in-process runs in simulated
+                   time only; over a bus the machine does it: a 7.25-ms hold-up inside a send)
 
 Someone else on the bus (issue "a bus that cannot lie"):
 
@@ -85,6 +88,7 @@ KINDS = (
     "bus_off",
     "tx_full",
     "stall",
+    "send_stall",
     "foreign_sync",
     "flood",
     "spoof_sensor",
@@ -152,7 +156,7 @@ def fault_text(f: Fault) -> str:
 
 # What only the in-process loop in simulated time can do: the simulator process cannot hold a
 # controller's loop that runs on its own clock (over the bus a ``stall`` injected nothing, silently).
-IN_PROCESS_ONLY_KINDS = ("stall",)
+IN_PROCESS_ONLY_KINDS = ("stall", "send_stall")
 
 
 def refuse_in_process_only(texts: Sequence[str], command: str) -> None:
@@ -208,7 +212,7 @@ def check_fault(
             )
             what = "a drive" if f.node in devices else "on the bus"
             raise FaultSpecError(f"fault {text!r}: node {f.node} is not {what}; {f.kind} takes {known}")
-    if f.kind in ("delay", "stall") and not 0.0 < f.value <= MAX_LATENESS_S:
+    if f.kind in ("delay", "stall", "send_stall") and not 0.0 < f.value <= MAX_LATENESS_S:
         raise FaultSpecError(
             f"fault {text!r}: {f.kind} of {f.value:g} s must be in (0, {MAX_LATENESS_S:g}] s; "
             f"a longer silence is drop:N (a node) or a dead controller"

@@ -283,6 +283,79 @@ def test_a_late_syncs_targets_lead_by_its_lateness_along_their_last_step(bus, cl
     assert send((0.511, 0.589, 0.7), 0.005, d0 + 5 * period) == []  # past its send-by time: none
 
 
+class HeldUpAfterRpdos(ScriptedBus):
+    """A bus whose send of the last drive's RPDO holds the process up ``hold_s`` (once, then off):
+    the moment between the RPDOs and their SYNC."""
+
+    def __init__(self, clock: FakeClock) -> None:
+        super().__init__()
+        self.clock = clock
+        self.hold_s = 0.0
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        super().send(msg, timeout)
+        if msg.arbitration_id == rpdo1(DRIVES[-1]) and self.hold_s:
+            self.clock.now_s += self.hold_s
+            self.hold_s = 0.0
+
+
+def test_a_hold_up_between_the_rpdos_and_their_sync_sends_them_again_chosen_by_the_syncs_time(clock):
+    """Held up after the RPDOs went: a drive latches the last RPDO before the SYNC, so they go again,
+    led by the lateness the SYNC now has; past the send-by time, with the targets the drives would
+    run on to without any (their last latched target, along its step a period, for the periods
+    since, at most E = 4), and the loop is told the SYNC went without the step's targets."""
+    period = 0.0025
+    bus = HeldUpAfterRpdos(clock)
+    ex = make_exchange(
+        bus,
+        clock,
+        targets_sync_gap_s=targets_sync_gap_s(period, 4),
+        target_lead_period_s=period,
+        drive_extrapolation_periods=4,
+    )
+
+    def send(targets, deadline_s, hold_s):
+        clock.now_s, bus.hold_s = deadline_s, hold_s
+        start = len(bus.sent)
+        in_time = ex.send(CycleOutputs((0x0F,) * 3, targets), send_by_s=deadline_s + period)
+        sent = [(i, int.from_bytes(d[2:6], "little", signed=True)) for i, d, *_ in bus.sent[start:]]
+        ids = [i for i, _ in sent]
+        assert ids.count(SYNC_ID) == 1 and all(
+            i not in (0x201, 0x202, 0x203) for i in ids[ids.index(SYNC_ID) :]
+        )
+        latched = [c for i, c in sent if i in (0x201, 0x202, 0x203)][-3:]  # the last before the SYNC
+        return in_time, len([i for i, _ in sent if i == 0x201]), latched
+
+    d0 = clock.now_s
+    assert send((0.5, 0.6, 0.7), d0, 0.0) == (True, 1, [5_000_000, 6_000_000, 7_000_000])
+    # held up less than a tenth of a period: the RPDOs stand
+    assert send((0.501, 0.599, 0.7), d0 + period, 0.2e-3) == (True, 1, [5_010_000, 5_990_000, 7_000_000])
+    assert ex.counters.rpdos_resent == 0
+    # 0.75 ms (0.3 of a period): again, led 0.3 of their step
+    assert send((0.502, 0.598, 0.7), d0 + 2 * period, 0.75e-3) == (True, 2, [5_023_000, 5_977_000, 7_000_000])
+    # 7.25 ms, past the next deadline: the latched 0.5023 at d0 + 2P + 0.75 ms, its step 1.3 mm over
+    # 1.3 periods; at the SYNC 3.6 periods later, 3.6 steps on
+    in_time, rpdo_sets, latched = send((0.503, 0.597, 0.7), d0 + 3 * period, 7.25e-3)
+    assert (in_time, rpdo_sets) == (False, 2)
+    assert latched == [5_059_000, 5_941_000, 7_000_000]
+    assert ex.counters.rpdos_resent == 2
+
+
+def test_drives_that_stand_without_targets_get_their_last_targets_again_after_a_hold_up(clock):
+    """E = 0: a drive without a new target holds its last one, so that is what goes again."""
+    period = 0.0025
+    bus = HeldUpAfterRpdos(clock)
+    ex = make_exchange(bus, clock, target_lead_period_s=period, drive_extrapolation_periods=0)
+    d0 = clock.now_s
+    for k, x in enumerate((0.5, 0.501)):
+        clock.now_s = d0 + k * period
+        assert ex.send(CycleOutputs((0x0F,) * 3, (x, 0.6, 0.7)), send_by_s=clock.now_s + period) is True
+    clock.now_s, bus.hold_s = d0 + 2 * period, 0.004
+    assert ex.send(CycleOutputs((0x0F,) * 3, (0.502, 0.6, 0.7)), send_by_s=d0 + 3 * period) is False
+    rpdo1_counts = [int.from_bytes(d[2:6], "little", signed=True) for i, d, *_ in bus.sent if i == 0x201]
+    assert rpdo1_counts == [5_000_000, 5_010_000, 5_020_000, 5_010_000]
+
+
 def test_no_targets_are_withheld_from_drives_that_would_stand_without_them_or_under_kernel_sync(bus, clock):
     """Drives without a period of extrapolation stand when a SYNC brings no target, and with one
     they would spend it on the withheld SYNC: they get it however late; and with the kernel's
