@@ -490,8 +490,9 @@ class CyclicExchange:
             targets = led if led is not None else outputs.targets
         else:
             targets = self._stand_in_targets(now, outputs.targets)
-        self._send_rpdos(outputs.controlwords, targets)
-        self.counters.rpdos_resent += 1
+        if targets != sent:  # the same again (nothing to lead along, and in time) changes nothing
+            self._send_rpdos(outputs.controlwords, targets)
+            self.counters.rpdos_resent += 1
         return targets, in_time
 
     def _stand_in_targets(self, sync_s: float, unlatched: tuple[float, ...]) -> tuple[float, ...]:
