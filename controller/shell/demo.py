@@ -215,7 +215,7 @@ def run_simulated_time(
     final, stats = rig.run((recorder,), max_duration_s)
     te = recorder.tracking
     return {
-        **simulated_time_summary(final, recorder, stats.cycles, rig.exchange.faults),
+        **simulated_time_summary(final, recorder, stats, rig.exchange.counters, rig.exchange.faults),
         "simulated_duration_s": round(stats.cycles * cfg.period_s, 6),
         "tracking_error_m": {"rms": te.rms, "max": te.maximum, "samples": te.count},
         "final_tcp_m": [round(float(x), 6) for x in rig.exchange.plant.tcp_m],

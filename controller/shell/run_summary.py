@@ -118,17 +118,26 @@ class RunRecorder:
 
 
 def simulated_time_summary(
-    final: ControllerState, recorder: RunRecorder, cycles: int, faults: FaultSchedule
+    final: ControllerState,
+    recorder: RunRecorder,
+    stats: LoopStats,
+    counters: ExchangeCounters,
+    faults: FaultSchedule,
 ) -> dict[str, object]:
     """The head of a run's summary in simulated time (``cheope demo --simulated-time``, a task's own
-    or an experiment's): how it ended, whether its task finished, and which law ran; the injected
-    ``faults`` the run ended before, when there are any (``faults_not_reached``)."""
+    or an experiment's): how it ended, whether its task finished, the hold-ups the ``stall`` and
+    ``send_stall`` faults made (as ``run_summary`` names them over a bus), and which law ran; the
+    injected ``faults`` the run ended before, when there are any (``faults_not_reached``)."""
     return {
         "final_mode": final.mode.name,
         "fault_reason": final.fault_reason,
         "task_finished": recorder.task_finished,
-        "cycles": cycles,
+        "cycles": stats.cycles,
         "simulated_time": True,
+        "overruns": stats.overruns,
+        "syncs_held_up": stats.syncs_held_up,
+        "targets_withheld": stats.targets_withheld,
+        "rpdos_resent": counters.rpdos_resent,
         "law": LAW_BUILD.describe(),  # the time it took, not what it computed (controller/compiled_law.py)
         **faults_not_reached(faults),
     }

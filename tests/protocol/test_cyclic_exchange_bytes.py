@@ -339,6 +339,29 @@ def test_a_hold_up_between_the_rpdos_and_their_sync_sends_them_again_chosen_by_t
     assert (in_time, rpdo_sets) == (False, 2)
     assert latched == [5_059_000, 5_941_000, 7_000_000]
     assert ex.counters.rpdos_resent == 2
+    # held up again (the loop skipped 3 deadlines): counted from the last of the step's targets the
+    # drives latched (0.5023), not from the stand-in, and at most E = 4 steps past it: they stand
+    in_time, rpdo_sets, latched = send((0.51, 0.59, 0.7), d0 + 7 * period, 3e-3)
+    assert (in_time, rpdo_sets) == (False, 2)
+    assert latched == [5_063_000, 5_937_000, 7_000_000]
+    # a SYNC without the step's targets after a stand-in: a stand-in again (without it they would run
+    # on from the stand-in), with the last controlwords
+    clock.now_s = d0 + 8 * period
+    start = len(bus.sent)
+    assert ex.send(None, send_by_s=d0 + 9 * period) is True
+    again = [(i, d) for i, d, *_ in bus.sent[start:] if i in (0x201, 0x202, 0x203)]
+    assert [int.from_bytes(d[2:6], "little", signed=True) for _, d in again] == [
+        5_063_000,
+        5_937_000,
+        7_000_000,
+    ]
+    assert all(int.from_bytes(d[0:2], "little") == 0x0F for _, d in again)
+    # the step's targets in time: the anchor again; a SYNC without them then goes alone
+    assert send((0.5065, 0.5935, 0.7), d0 + 9 * period, 0.0) == (True, 1, [5_065_000, 5_935_000, 7_000_000])
+    clock.now_s = d0 + 10 * period
+    start = len(bus.sent)
+    ex.send(None, send_by_s=d0 + 11 * period)
+    assert [i for i, *_ in bus.sent[start:] if i in (0x201, 0x202, 0x203)] == []
 
 
 def test_drives_that_stand_without_targets_get_their_last_targets_again_after_a_hold_up(clock):

@@ -181,7 +181,7 @@ def run_simulated_time(
     ended = RunRecorder()
     final, stats = rig.run((obs, ended), max_duration_s)
     summary: dict[str, object] = {
-        **simulated_time_summary(final, ended, stats.cycles, exchange.faults),
+        **simulated_time_summary(final, ended, stats, exchange.counters, exchange.faults),
         "contour": contour_summary(
             obs,
             robot,
