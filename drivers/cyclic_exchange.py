@@ -436,10 +436,7 @@ class CyclicExchange:
             self._open_window(slot)
         last_s, self.sent_s = self._last_send_s, self.clock()
         self._last_send_s = self.sent_s
-        in_time = self.sent_s <= send_by_s
-        led = self._led(outputs.targets, send_by_s) if outputs is not None and in_time else None
-        if led is None and last_s is not None and self.sent_s - last_s > self.targets_sync_gap_s:
-            in_time = False  # late, and no step to lead its targets along: without them
+        led, in_time = self._choose_targets(outputs, send_by_s, last_s)
         sent: tuple[float, ...] | None = None  # what the drives latch at this SYNC
         if outputs is not None and in_time:
             sent = led if led is not None else outputs.targets
@@ -469,6 +466,18 @@ class CyclicExchange:
         self.cycles += 1
         return in_time
 
+    def _choose_targets(
+        self, outputs: CycleOutputs | None, send_by_s: float, last_s: float | None
+    ) -> tuple[tuple[float, ...] | None, bool]:
+        """By the reading ``sent_s``: the step's targets led by the SYNC's lateness (None: not led),
+        and whether the SYNC carries them (``send``'s answer): not past ``send_by_s``, and, where
+        they cannot lead, not more than ``targets_sync_gap_s`` after the last SYNC at ``last_s``."""
+        in_time = self.sent_s <= send_by_s
+        led = self._led(outputs.targets, send_by_s) if outputs is not None and in_time else None
+        if led is None and last_s is not None and self.sent_s - last_s > self.targets_sync_gap_s:
+            in_time = False  # late, and no step to lead its targets along: without them
+        return led, in_time
+
     def _send_rpdos(self, controlwords: tuple[int, ...], targets: tuple[float, ...]) -> None:
         to_counts = self.scale.to_counts
         for msg, codec, cw, target in zip(self._rpdos, self._codecs, controlwords, targets):
@@ -496,10 +505,7 @@ class CyclicExchange:
         if period <= 0.0 or now - self.sent_s < self.recheck_after_s:
             return sent, True
         self.sent_s = self._last_send_s = now  # the SYNC's time
-        in_time = now <= send_by_s
-        led = self._led(outputs.targets, send_by_s) if in_time else None
-        if led is None and last_s is not None and now - last_s > self.targets_sync_gap_s:
-            in_time = False
+        led, in_time = self._choose_targets(outputs, send_by_s, last_s)
         targets = (led if led is not None else outputs.targets) if in_time else self._stand_in_targets(now)
         if targets is None:  # no target of the step's latched yet, nothing to run on from
             targets = outputs.targets
