@@ -501,7 +501,7 @@ def say_run_notes(summary: dict[str, Any], command: str) -> None:
     say_if_held_up_before_the_fault(summary, command)
     say_if_the_simulator_died(summary, command)
     say_if_plots_failed(summary, command)
-    say_if_faults_not_reached(summary, command)
+    say_if_faults_injected_nothing(summary, command)
     say_if_the_shield_guardian_failed(summary, command)
     say_if_laps_ran_slow(summary, command)
 
@@ -543,14 +543,23 @@ def say_if_plots_failed(summary: dict[str, Any], command: str) -> None:
         print(f"{command}: warning: {summary['plots_error']}", file=sys.stderr)
 
 
-def say_if_faults_not_reached(summary: dict[str, Any], command: str) -> None:
-    """Injected faults whose start came after the run's end are said on stderr: a run that ended
-    DONE had not met them (``--inject force=100@200`` in a 70-s demo passed silently before)."""
+def say_if_faults_injected_nothing(summary: dict[str, Any], command: str) -> None:
+    """Injected faults that injected nothing are said on stderr: those whose start came after the
+    run's end (``--inject force=100@200`` in a 70-s demo passed silently before), and those active
+    at no SYNC (``FaultSchedule.missed``)."""
     late = summary.get("faults_not_reached")
     if late:
         print(
             f"{command}: note: the run ended before {len(late)} injected fault(s) began, and they "
             f"injected nothing: {', '.join(late)}",
+            file=sys.stderr,
+        )
+    missed = summary.get("faults_missed")
+    if missed:
+        print(
+            f"{command}: note: {len(missed)} injected fault(s) were active at no SYNC (no SYNC fell in "
+            "their window, or no device asked for them then), and they injected nothing: "
+            f"{', '.join(missed)}",
             file=sys.stderr,
         )
 

@@ -27,6 +27,16 @@ ROGUE_TPDO_BYTES = 3  # shorter than any drive TPDO mapping with a statusword an
 SPOOF_COUNTER_OFFSET = 128  # the spoofed sample's counter: as far from the true one as a u8 goes
 
 
+# A SYNC's time as the schedule reads it is moved on by this much: half a nanosecond, far below any
+# clock's tick, and above the rounding of differences of deadlines (0.0075 - 0.0025 is
+# 0.004999999999999999). Without it, a fault at a multiple of the period lasting one period was
+# active at no SYNC of the loop in simulated time, whose SYNCs fall on that grid: `stall=0.02@0.005
+# +0.0025` injected nothing, while the same at 0.0025 and at 0.1 held the loop 8 deadlines (an
+# outside tester). Moved on, a time equal to a fault's start within rounding counts as reached, and
+# one equal to its end as past it: a window of one period holds one SYNC of the grid.
+SYNC_TIME_ROUNDING_S = 5e-10
+
+
 class FaultSchedule:
     """Which faults are active at a time measured from the first SYNC."""
 
@@ -34,7 +44,8 @@ class FaultSchedule:
         self.faults = faults
         self.t0_s: float | None = None
         self.last_s: float | None = None  # the last SYNC's time (``start``)
-        self._fired: set[int] = set()
+        self._fired: set[int] = set()  # the one-shot faults that fired (``first_time``)
+        self._acted: set[int] = set()  # the faults active at some SYNC (``missed``)
 
     @classmethod
     def from_strings(cls, texts: tuple[str, ...]) -> FaultSchedule:
@@ -50,18 +61,34 @@ class FaultSchedule:
         """The specs (``fault_text``) of the faults whose start came after the last SYNC: they
         injected nothing (a fault at 100 s in a run of 70 passed silently before; the run's summary
         names them)."""
+        return tuple(fault_text(self.faults[i]) for i in self._not_reached())
+
+    def missed(self) -> tuple[str, ...]:
+        """The specs of the faults the run reached (``not_reached`` names the others) that were
+        active at no SYNC where a device or the bus asked for them: they injected nothing either.
+        A window that no SYNC fell in (one period long, over a bus whose SYNCs came late around it;
+        a ``drop`` while the loop was held up and sent none), or a device that never asked (a
+        ``drop`` of a drive that sent no TPDO then)."""
+        late = set(self._not_reached())
+        return tuple(
+            fault_text(f) for i, f in enumerate(self.faults) if i not in self._acted and i not in late
+        )
+
+    def _not_reached(self) -> list[int]:
         last = -math.inf if self.last_s is None else self.elapsed(self.last_s)
-        return tuple(fault_text(f) for f in self.faults if f.start_s > last)
+        return [i for i, f in enumerate(self.faults) if f.start_s > last]
 
     def elapsed(self, now_s: float) -> float:
-        return -math.inf if self.t0_s is None else now_s - self.t0_s
+        """The schedule's time of ``now_s`` (``SYNC_TIME_ROUNDING_S``); -inf before the first SYNC."""
+        return -math.inf if self.t0_s is None else now_s - self.t0_s + SYNC_TIME_ROUNDING_S
 
     def active(self, kind: str, now_s: float, node: int = 0) -> Fault | None:
         if not self.faults:  # the common case, asked some twenty times a SYNC
             return None
         t = self.elapsed(now_s)
-        for f in self.faults:
+        for i, f in enumerate(self.faults):
             if f.kind == kind and (node == 0 or f.node == node) and f.active(t):
+                self._acted.add(i)
                 return f
         return None
 
@@ -75,8 +102,19 @@ class FaultSchedule:
                 and i not in self._fired
             ):
                 self._fired.add(i)
+                self._acted.add(i)
                 return True
         return False
+
+    def with_drift_n(self, now_s: float, force_n: float) -> float:
+        """``force_n`` plus what the ``drift`` faults add at ``now_s`` [N]: each its rate times the
+        time since its start, up to its duration; after its end, the bias it reached."""
+        t = self.elapsed(now_s)
+        for i, f in enumerate(self.faults):
+            if f.kind == "drift" and t >= f.start_s:
+                force_n += f.value * min(t - f.start_s, f.duration_s)
+                self._acted.add(i)
+        return force_n
 
 
 class FaultableDevices(Protocol):
@@ -111,11 +149,7 @@ def apply_device_faults(
             else (sensor.status_flags & ~SENSOR_FORCE_SATURATED)
         )
         force = schedule.active("force", now_s)
-        extra_x = force.value if force is not None else 0.0
-        t = schedule.elapsed(now_s)
-        for f in schedule.faults:  # a drift keeps the bias it reached when it ends
-            if f.kind == "drift" and t >= f.start_s:
-                extra_x += f.value * min(t - f.start_s, f.duration_s)
+        extra_x = schedule.with_drift_n(now_s, force.value if force is not None else 0.0)
         sensor.extra_force_n = (extra_x, 0.0, 0.0)
 
 

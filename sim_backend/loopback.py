@@ -282,7 +282,10 @@ class LoopbackExchange:
 
     def stall_s(self, deadline_s: float) -> float:
         """How late the loop wakes for ``deadline_s`` under the ``stall`` fault (``SimulatedTime``'s
-        ``lateness``): 0 when none is active."""
+        ``lateness``): 0 when none is active. The first deadline is the schedule's t = 0: the
+        first SYNC goes at it, and before it started the schedule a ``stall`` at 0 s held nothing."""
+        if self.faults.t0_s is None:
+            self.faults.start(deadline_s)
         stall = self.faults.active("stall", deadline_s)
         return stall.value if stall is not None else 0.0
 

@@ -26,6 +26,7 @@ READY_LINE = "cheope-sim ready"
 STOPPED_LINE = "cheope-sim stopped"  # then what it saw:
 CONTACT_FORCE_REPORT = "max true contact force per controller session"  # the numbers, then "N"
 FAULTS_NOT_REACHED_REPORT = "faults not reached"  # then their specs (``FaultSchedule.not_reached``)
+FAULTS_MISSED_REPORT = "faults missed"  # then their specs (``FaultSchedule.missed``)
 
 
 def sdo_node_ids(cfg: Config) -> tuple[int, ...]:
@@ -88,9 +89,13 @@ def serve(
             drop_realtime()
         maxima = simulator.max_contact_force_n or [0.0]
         announce(f"{STOPPED_LINE}: {CONTACT_FORCE_REPORT} " + " ".join(f"{m:.3f}" for m in maxima) + " N")
-        late = simulator.faults.not_reached()
-        if late:  # the demo's summary names them (controller/shell/demo.py simulator_report)
-            announce(f"{STOPPED_LINE}: {FAULTS_NOT_REACHED_REPORT} " + " ".join(late))
+        # the demo's summary names them (controller/shell/demo.py simulator_report)
+        for report, specs in (
+            (FAULTS_NOT_REACHED_REPORT, simulator.faults.not_reached()),
+            (FAULTS_MISSED_REPORT, simulator.faults.missed()),
+        ):
+            if specs:
+                announce(f"{STOPPED_LINE}: {report} " + " ".join(specs))
     if tap is not None:
         tap.close()
     if cfg.loop.freeze_gc:

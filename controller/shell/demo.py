@@ -28,7 +28,13 @@ from controller.realtime import RealtimeOptions
 from controller.shell.service import prepare, run_controller
 from controller.sim_config.fault_specs import refuse_in_process_only
 from drivers.bus import BusSpec
-from sim_backend.process import CONTACT_FORCE_REPORT, FAULTS_NOT_REACHED_REPORT, READY_LINE, STOPPED_LINE
+from sim_backend.process import (
+    CONTACT_FORCE_REPORT,
+    FAULTS_MISSED_REPORT,
+    FAULTS_NOT_REACHED_REPORT,
+    READY_LINE,
+    STOPPED_LINE,
+)
 from sim_backend.true_force_tap import PREFIX as TRUE_FORCE_PREFIX
 from sim_backend.true_force_tap import TrueForceReader
 
@@ -132,9 +138,13 @@ def stop_process(proc: subprocess.Popen[str], timeout_s: float = 5.0) -> str:
     return out or ""
 
 
+FAULTS_INJECTING_NOTHING = ("faults_not_reached", "faults_missed")  # the summary's keys of them
+
+
 def simulator_report(stdout: str) -> dict[str, object]:
     """The simulator's last words (``sim_backend/process.py``, STOPPED_LINE): its largest true
-    contact forces, and the injected faults the run ended before (``faults_not_reached``)."""
+    contact forces, the injected faults the run ended before (``faults_not_reached``) and those it
+    reached that were active at no SYNC (``faults_missed``)."""
     report: dict[str, object] = {}
     for line in stdout.splitlines():
         if not line.startswith(STOPPED_LINE):
@@ -144,6 +154,8 @@ def simulator_report(stdout: str) -> dict[str, object]:
             report["max_true_contact_force_n"] = [float(v) for v in values]
         elif FAULTS_NOT_REACHED_REPORT in line:
             report["faults_not_reached"] = line.split(FAULTS_NOT_REACHED_REPORT, 1)[1].split()
+        elif FAULTS_MISSED_REPORT in line:
+            report["faults_missed"] = line.split(FAULTS_MISSED_REPORT, 1)[1].split()
     return report
 
 
@@ -192,9 +204,9 @@ def run_demo(
                 observers=observers,
             )
     # what only the simulator knows: the true contact force (the controller sees the measurement),
-    # and the faults it never reached (at the top, as in simulated time: say_run_notes says them)
-    late = simulator.pop("faults_not_reached", None)
-    return {**summary, "simulator": simulator, **({"faults_not_reached": late} if late else {})}
+    # and the faults that injected nothing (at the top, as in simulated time: say_run_notes says them)
+    idle = {key: specs for key in FAULTS_INJECTING_NOTHING if (specs := simulator.pop(key, None))}
+    return {**summary, "simulator": simulator, **idle}
 
 
 def run_simulated_time(

@@ -127,7 +127,7 @@ def simulated_time_summary(
     """The head of a run's summary in simulated time (``cheope demo --simulated-time``, a task's own
     or an experiment's): how it ended, whether its task finished, the hold-ups the ``stall`` and
     ``send_stall`` faults made (as ``run_summary`` names them over a bus), and which law ran; the
-    injected ``faults`` the run ended before, when there are any (``faults_not_reached``)."""
+    injected ``faults`` that injected nothing, when there are any (``faults_that_injected_nothing``)."""
     return {
         "final_mode": final.mode.name,
         "fault_reason": final.fault_reason,
@@ -139,15 +139,19 @@ def simulated_time_summary(
         "targets_withheld": stats.targets_withheld,
         "rpdos_resent": counters.rpdos_resent,
         "law": LAW_BUILD.describe(),  # the time it took, not what it computed (controller/compiled_law.py)
-        **faults_not_reached(faults),
+        **faults_that_injected_nothing(faults),
     }
 
 
-def faults_not_reached(faults: FaultSchedule) -> dict[str, object]:
+def faults_that_injected_nothing(faults: FaultSchedule) -> dict[str, object]:
     """``{"faults_not_reached": [spec, ...]}`` for the injected faults that started after the run's
-    last SYNC (none: nothing); said on stderr by ``controller.cli.say_run_notes``."""
-    late = faults.not_reached()
-    return {"faults_not_reached": list(late)} if late else {}
+    last SYNC, and ``{"faults_missed": [...]}`` for those it reached that were active at no SYNC
+    (none: nothing); said on stderr by ``controller.cli.say_run_notes``."""
+    late, missed = faults.not_reached(), faults.missed()
+    return {
+        **({"faults_not_reached": list(late)} if late else {}),
+        **({"faults_missed": list(missed)} if missed else {}),
+    }
 
 
 def _hist_us(h: LogHistogram, *qs: float, with_max: bool = True) -> dict[str, float]:

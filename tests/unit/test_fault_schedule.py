@@ -71,3 +71,43 @@ def test_a_node_given_to_a_kind_that_takes_none_is_refused_not_ignored(kind: str
 def test_a_kind_that_needs_a_node_is_refused_without_one(kind: str) -> None:
     with pytest.raises(FaultSpecError, match=rf"{kind} needs a node id"):
         parse_fault(f"{kind}@2")
+
+
+def _syncs(schedule: FaultSchedule, first_s: float, count: int, period_s: float = 0.0025) -> list[str]:
+    """Each SYNC of a 400-Hz grid from ``first_s``: the kinds active at it, as the devices ask."""
+    seen = []
+    for k in range(count):
+        now = first_s + k * period_s
+        schedule.start(now)
+        seen.append(" ".join(f.kind for f in schedule.faults if schedule.active(f.kind, now, f.node)))
+    return seen
+
+
+@pytest.mark.parametrize("first_s", [0.0025, 0.0, 7.3, 1234.5678])
+@pytest.mark.parametrize("k", [1, 2, 3, 7, 400, 1481])
+def test_a_fault_of_one_period_on_the_sync_grid_is_active_at_exactly_one_sync(first_s: float, k: int) -> None:
+    # `stall=0.02@0.005+0.0025` injected nothing in simulated time: its SYNC read 0.004999999999999999
+    # (0.0075 - 0.0025), before the window, and the next one read its end
+    start = round(k * 0.0025, 9)
+    schedule = FaultSchedule.from_strings((f"freeze@{start:g}+0.0025",))
+    seen = _syncs(schedule, first_s, k + 3)
+    assert seen.count("freeze") == 1 and seen.index("freeze") == k
+    assert schedule.missed() == () and schedule.not_reached() == ()
+
+
+def test_faults_active_at_no_sync_are_missed_and_the_others_not() -> None:
+    schedule = FaultSchedule.from_strings(
+        ("drop:1@0.0051+0.001", "drop:2@0.01+0.0025", "freeze@0.0051+0.001", "force=3@9", "drift=0.5@0.001")
+    )
+    # the SYNCs of a loop held up from 0.0025 s to 0.0175 s: none between
+    for now in (0.0, 0.0025, 0.0175, 0.02):
+        schedule.start(now)
+        schedule.active("drop", now, 1)  # node 1 sends a TPDO at each SYNC; node 2 never does
+        schedule.active("freeze", now)
+        schedule.with_drift_n(now, 0.0)
+    assert schedule.not_reached() == ("force=3@9",)
+    # node 2's drop: its drive sent nothing to drop; the others' windows fell between two SYNCs
+    assert schedule.missed() == ("drop:1@0.0051+0.001", "drop:2@0.01+0.0025", "freeze@0.0051+0.001")
+    one_shot = FaultSchedule.from_strings(("drive_fault:1@0",))
+    one_shot.start(0.0)
+    assert one_shot.first_time("drive_fault", 0.0, 1) and one_shot.missed() == ()
