@@ -137,6 +137,7 @@ def simulated_time_summary(
         "overruns": stats.overruns,
         "syncs_held_up": stats.syncs_held_up,
         "targets_withheld": stats.targets_withheld,
+        "late_sends": stats.late_sends,
         "rpdos_resent": counters.rpdos_resent,
         "law": LAW_BUILD.describe(),  # the time it took, not what it computed (controller/compiled_law.py)
         **faults_that_injected_nothing(faults),
@@ -205,6 +206,8 @@ def summarize(
         "syncs_held_up": stats.syncs_held_up,
         # SYNCs in time for their deadline that went without the targets: too long after the last
         "targets_withheld": stats.targets_withheld,
+        # cycles that woke in time whose send ended past the late tolerance (LoopStats.late_sends)
+        "late_sends": stats.late_sends,
         # cycles whose RPDOs went again before their SYNC: held up after they went (cyclic_exchange)
         "rpdos_resent": c.rpdos_resent,
         "missing_frames": {"drive": c.missing_drive_frames, "sensor": c.missing_sensor_frames},

@@ -55,6 +55,27 @@ def test_a_wake_up_held_up_past_deadlines_skips_them_and_is_late():
     assert late == [gaps[0][1]]  # the wake-up 9.6 ms late runs as the cycle of the latest deadline
 
 
+class Instants:
+    def __init__(self, rig: SimulatedRig) -> None:
+        self.rig, self.rows = rig, []
+
+    def on_cycle(self, cycle, t, inputs, state, outputs, events, timing) -> None:
+        self.rows.append((cycle, self.rig.clock.clock()))
+
+
+@pytest.mark.parametrize("start_s", [0.0075, 0.5, 1.0])
+def test_a_wake_up_held_up_a_whole_number_of_periods_skips_them_all(start_s: float):
+    # 20 ms at 400 Hz read as 7.999999999999999 periods: 7 deadlines skipped, and the cycle of the
+    # 8th ran at the same instant as the held-up one, two SYNCs at once
+    cfg = load_config(overrides={"task.kind": "path", "sim.faults": [f"stall=0.02@{start_s}+0.0025"]})
+    rig = SimulatedRig(cfg)
+    seen = Instants(rig)
+    _, stats = rig.run((seen,), start_s + 0.1)
+    assert stats.overruns == 8
+    instants = [now for _, now in seen.rows]
+    assert len(set(instants)) == len(instants)  # one cycle, one SYNC, per instant
+
+
 @pytest.mark.slow
 def test_the_paper_laps_keep_their_speed_through_hold_ups_of_the_loop():
     """Every 2.5 s the loop is held up 9.6 ms: laps 3-5 at 95 % of their speed or more (were 57-58
