@@ -76,6 +76,18 @@ def test_a_wake_up_held_up_a_whole_number_of_periods_skips_them_all(start_s: flo
     assert len(set(instants)) == len(instants)  # one cycle, one SYNC, per instant
 
 
+def test_sends_held_up_under_a_period_are_counted_not_told_to_the_law():
+    # every send from 1 s on held 2 ms between its RPDOs and its SYNC, for 0.5 s: 200 SYNCs late,
+    # their targets led; the step ran on time each cycle, and nothing in the summary said so
+    cfg = load_config(overrides={"task.kind": "path", "sim.faults": ["send_stall=0.002@1.0+0.5"]})
+    seen = Inputs()
+    final, stats = SimulatedRig(cfg).run((seen,), 2.0)
+    assert stats.late_sends == 200 and stats.overruns == stats.syncs_held_up == 0
+    assert not any(late for _, late in seen.rows) and final.mode != Mode.FAULT
+    _, quiet = SimulatedRig(load_config(overrides={"task.kind": "path"})).run((), 2.0)
+    assert quiet.late_sends == 0
+
+
 @pytest.mark.slow
 def test_the_paper_laps_keep_their_speed_through_hold_ups_of_the_loop():
     """Every 2.5 s the loop is held up 9.6 ms: laps 3-5 at 95 % of their speed or more (were 57-58
