@@ -45,6 +45,7 @@ from controller.core.cycle_data import (
     SensorFeedback,
     TrackerFeedback,
 )
+from controller.core.periods import DEADLINE_ROUNDING_S
 from drivers import cob_ids
 from drivers.node_setup import description_drive_codec, description_sensor_codecs
 from drivers.pdo_codec import (
@@ -471,8 +472,10 @@ class CyclicExchange:
     ) -> tuple[tuple[float, ...] | None, bool]:
         """By the reading ``sent_s``: the step's targets led by the SYNC's lateness (None: not led),
         and whether the SYNC carries them (``send``'s answer): not past ``send_by_s``, and, where
-        they cannot lead, not more than ``targets_sync_gap_s`` after the last SYNC at ``last_s``."""
-        in_time = self.sent_s <= send_by_s
+        they cannot lead, not more than ``targets_sync_gap_s`` after the last SYNC at ``last_s``.
+        At ``send_by_s`` is past it (``DEADLINE_ROUNDING_S``): that is the next cycle's deadline, and
+        a SYNC with the targets there went at the same instant as the next cycle's."""
+        in_time = self.sent_s < send_by_s - DEADLINE_ROUNDING_S
         led = self._led(outputs.targets, send_by_s) if outputs is not None and in_time else None
         if led is None and last_s is not None and self.sent_s - last_s > self.targets_sync_gap_s:
             in_time = False  # late, and no step to lead its targets along: without them

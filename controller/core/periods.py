@@ -12,6 +12,14 @@ on 50 ms of late wake-ups (controller/config.py reads an older file's counts as 
 
 from __future__ import annotations
 
+# A deadline is the first one plus k periods, and a time "at" one, in simulated time, is that sum
+# again: equal in value, unequal in the last bit (0.0075 - 0.0025 is 0.004999999999999999). Held up
+# exactly a period (simulated time's `stall=0.0025`), the loop read itself not past its next
+# deadline, ran that cycle late, then the next at the same instant: two SYNCs at once (an outside
+# tester). Times this close to a deadline count as at it: a nanosecond, far below any clock's tick
+# and far above the rounding of the sums (about 1e-11 s after 10^5 s).
+DEADLINE_ROUNDING_S = 1e-9
+
 
 def cycles_in(seconds: float, period_s: float) -> int:
     """The whole cycles of ``period_s`` in ``seconds``, at least one: rounded, as 0.025 / 0.0025 is

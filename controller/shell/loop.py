@@ -75,6 +75,7 @@ import numpy as np
 from controller.core.control_law import ControlLaw
 from controller.core.controller_state import ControllerState, Mode
 from controller.core.cycle_data import BusFeedback, Command, CycleInputs, CycleOutputs, Event, cycle_inputs
+from controller.core.periods import DEADLINE_ROUNDING_S
 from controller.core.ports import CycleObserver, CycleTiming
 from controller.shell.streaming_stats import LogHistogram
 
@@ -410,7 +411,8 @@ class CycleLoop:
                 deadline = first_deadline + k * period
                 self.sleeper.sleep_until(deadline)
                 woke = clock()
-                if woke - deadline > period:  # held up past the next deadline too: this cycle is the latest
+                # held up to the next deadline or past it (DEADLINE_ROUNDING_S): this cycle is the latest
+                if woke - deadline > period - DEADLINE_ROUNDING_S:
                     k, deadline = self._latest_deadline(stats, k, deadline, woke)
                     skipped_before = True
                 if deadlines is not None:
@@ -420,7 +422,7 @@ class CycleLoop:
                 sent = clock()
                 late_s = woke - deadline
                 withheld = skipped_before
-                if not sent_in_time and sent > deadline + period:
+                if not sent_in_time and sent > deadline + period - DEADLINE_ROUNDING_S:
                     # held up before the SYNC went: it went late, without the targets
                     k, deadline = self._latest_deadline(stats, k, deadline, sent)
                     stats.syncs_held_up += 1
@@ -523,10 +525,10 @@ class CycleLoop:
     def _latest_deadline(self, stats: LoopStats, k: int, deadline: float, now: float) -> tuple[int, float]:
         """Cycle ``k`` (deadline ``deadline``) held up until ``now``, past its next deadline: the cycle
         and deadline of the latest deadline passed; the ones before it are skipped (overruns)."""
-        # a millionth of a period's rounding in: held up for 8.000 periods (simulated time's
+        # the rounding in (DEADLINE_ROUNDING_S): held up for 8.000 periods (simulated time's
         # `stall=0.02` at 400 Hz) read 7.999999999999999 of them, and the cycle after the 7 skipped
         # went at the same instant as this one: two SYNCs at once
-        skipped = max(1, int((now - deadline) / self.period_s + 1e-6))
+        skipped = max(1, int((now - deadline + DEADLINE_ROUNDING_S) / self.period_s))
         stats.overruns += skipped
         return k + skipped, deadline + skipped * self.period_s
 

@@ -8,7 +8,7 @@ SYNC, for DURATION seconds (default: to the end). NODE is a CANopen node id wher
 needs one. Kinds:
 
 - ``drop:N``       node N sends no TPDO (a dead or unplugged drive)
-- ``delay:N=S``    node N's TPDOs leave S seconds late (in-process: they miss their cycle)
+- ``delay:N=S``    drive N's TPDOs leave S seconds late (in-process: they miss their cycle)
 - ``malformed:N``  node N's TPDO has the wrong length (counted and rejected by the controller)
 - ``drive_fault:N``  drive N goes to FAULT and sends EMCY 0x5000
 - ``heartbeat:N``  node N stops its heartbeat
@@ -95,7 +95,10 @@ KINDS = (
 )
 
 
-DRIVE_ONLY_KINDS = ("drive_fault", "block", "jump", "reboot", "rogue_tpdo", "rogue_short")
+# The kinds that act on a drive alone. ``delay`` among them: the simulated devices delay a drive's
+# TPDO only (sim_backend/server.py, loopback.py); delay:16 on the sensor was taken and injected
+# nothing (an outside tester).
+DRIVE_ONLY_KINDS = ("drive_fault", "block", "jump", "reboot", "rogue_tpdo", "rogue_short", "delay")
 
 
 _NUMBER = r"[0-9]+(?:\.[0-9]*)?(?:[eE][-+]?[0-9]+)?"
@@ -190,6 +193,10 @@ def check_fault(
     # The simulator applies faults at the SYNCs, one a period, timed from the first (t = 0): a
     # window shorter than a period after that may lie between two SYNCs and never fire
     # (rogue_emcy:2@2+0.002 injected nothing at 400 Hz). One that opens at 0 holds the first SYNC.
+    if f.duration_s <= 0.0:  # drop:2@0+0 was taken, and injected nothing (an outside tester)
+        raise FaultSpecError(
+            f"fault {text!r}: lasts {f.duration_s:g} s: give +DURATION > 0, or none for ever"
+        )
     if period_s is not None and f.start_s > 0.0 and f.duration_s < period_s:
         raise FaultSpecError(
             f"fault {text!r}: lasts {f.duration_s:g} s, less than one cycle ({period_s:g} s at "

@@ -135,6 +135,16 @@ def test_an_injection_shorter_than_a_cycle_is_refused_with_the_reason() -> None:
     assert _cheope("bus-load", "--set", 'sim.faults=["rogue_emcy:2@2+0.0025"]').returncode == 0
 
 
+def test_an_injection_that_would_inject_nothing_is_refused_with_the_reason() -> None:
+    """Both were taken, and did nothing (an outside tester): a window of no length, and a delay of
+    the sensor's frames, which the simulated devices never delay (only a drive's TPDO)."""
+    _one_line(_cheope("demo", "--inject", "drop:2@0+0", *QUIET), "lasts 0 s: give +DURATION > 0")
+    _one_line(
+        _cheope("demo", "--inject", "delay:16=0.001@1+0.5", *QUIET),
+        "node 16 is not a drive; delay takes drives 1, 2, 3",
+    )
+
+
 def test_run_against_an_empty_bus_says_one_line_without_library_errors() -> None:
     r = _cheope("run", "--udp-port", str(random_udp_port()), "--set", "recording.enabled=false", *QUIET)
     _one_line(r, "cheope run: error: node 1 did not answer SDO requests")

@@ -226,8 +226,11 @@ def test_a_send_held_up_past_its_send_by_time_goes_as_a_sync_without_the_rpdos(b
     outputs = CycleOutputs((0x0F,) * 3, (0.5, 0.5, 0.5))
     assert ex.send(outputs, send_by_s=clock() - 1e-6) is False
     assert bus.ids_sent() == [SYNC_ID, heartbeat_id(CONTROLLER)]
-    assert ex.send(outputs, send_by_s=clock()) is True  # on time: as before
+    assert ex.send(outputs, send_by_s=clock() + 1e-6) is True  # on time: as before
     assert bus.ids_sent()[2:] == [0x201, 0x202, 0x203, SYNC_ID]
+    # at it is past it: send_by_s is the next cycle's deadline, whose SYNC would go at the same
+    # instant (controller/core/periods.py DEADLINE_ROUNDING_S)
+    assert ex.send(outputs, send_by_s=clock()) is False
 
 
 def test_a_sync_too_long_after_the_last_goes_without_the_rpdos_and_the_next_carries_them(bus, clock):

@@ -64,14 +64,19 @@ class Instants:
 
 
 @pytest.mark.parametrize("start_s", [0.0075, 0.5, 1.0])
-def test_a_wake_up_held_up_a_whole_number_of_periods_skips_them_all(start_s: float):
+@pytest.mark.parametrize(
+    ("fault", "periods"), [("stall", 8), ("stall", 1), ("send_stall", 1), ("send_stall", 3)]
+)
+def test_a_hold_up_of_a_whole_number_of_periods_skips_them_all(fault: str, periods: int, start_s: float):
     # 20 ms at 400 Hz read as 7.999999999999999 periods: 7 deadlines skipped, and the cycle of the
-    # 8th ran at the same instant as the held-up one, two SYNCs at once
-    cfg = load_config(overrides={"task.kind": "path", "sim.faults": [f"stall=0.02@{start_s}+0.0025"]})
+    # 8th ran at the same instant as the held-up one, two SYNCs at once; held up exactly a period,
+    # at the wake-up or in the send, the loop skipped none and did the same (an outside tester)
+    hold_s = periods * 0.0025
+    cfg = load_config(overrides={"task.kind": "path", "sim.faults": [f"{fault}={hold_s}@{start_s}+0.0025"]})
     rig = SimulatedRig(cfg)
     seen = Instants(rig)
     _, stats = rig.run((seen,), start_s + 0.1)
-    assert stats.overruns == 8
+    assert stats.overruns == periods and stats.syncs_held_up == (fault == "send_stall")
     instants = [now for _, now in seen.rows]
     assert len(set(instants)) == len(instants)  # one cycle, one SYNC, per instant
 
