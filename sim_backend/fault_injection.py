@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
 from controller.core.cycle_data import SENSOR_FORCE_SATURATED
+from controller.core.periods import DEADLINE_ROUNDING_S
 from controller.sim_config.fault_specs import Fault, fault_text, parse_fault
 from drivers.pdo_codec import FORCE_N_PER_COUNT, decode_sensor_frame, encode_sensor_frame
 from sim_backend.drive import EMCY_FORCED_FAULT
@@ -25,16 +26,6 @@ NMT_STOP, NMT_ENTER_PRE_OPERATIONAL, NMT_RESET_NODE = 0x02, 0x80, 0x81  # CiA 30
 ROGUE_EMCY_BYTES = 3  # an EMCY is 8 bytes (CiA 301)
 ROGUE_TPDO_BYTES = 3  # shorter than any drive TPDO mapping with a statusword and a position
 SPOOF_COUNTER_OFFSET = 128  # the spoofed sample's counter: as far from the true one as a u8 goes
-
-
-# A SYNC's time as the schedule reads it is moved on by this much: half a nanosecond, far below any
-# clock's tick, and above the rounding of differences of deadlines (0.0075 - 0.0025 is
-# 0.004999999999999999). Without it, a fault at a multiple of the period lasting one period was
-# active at no SYNC of the loop in simulated time, whose SYNCs fall on that grid: `stall=0.02@0.005
-# +0.0025` injected nothing, while the same at 0.0025 and at 0.1 held the loop 8 deadlines (an
-# outside tester). Moved on, a time equal to a fault's start within rounding counts as reached, and
-# one equal to its end as past it: a window of one period holds one SYNC of the grid.
-SYNC_TIME_ROUNDING_S = 5e-10
 
 
 class FaultSchedule:
@@ -79,8 +70,14 @@ class FaultSchedule:
         return [i for i, f in enumerate(self.faults) if f.start_s > last]
 
     def elapsed(self, now_s: float) -> float:
-        """The schedule's time of ``now_s`` (``SYNC_TIME_ROUNDING_S``); -inf before the first SYNC."""
-        return -math.inf if self.t0_s is None else now_s - self.t0_s + SYNC_TIME_ROUNDING_S
+        """The schedule's time of ``now_s``, moved on by ``DEADLINE_ROUNDING_S`` (a nanosecond); -inf
+        before the first SYNC. A SYNC's time within rounding of a fault's start counts as reached,
+        and one within rounding of its end as past it: a window of one period on the cycle grid
+        holds one SYNC of it. Read as it was, `stall=0.02@0.005+0.0025` was active at no SYNC in
+        simulated time (0.0075 - 0.0025 is 0.004999999999999999, before the window; the next SYNC
+        read its end), while the same at 0.0025 and at 0.1 held the loop 8 deadlines (an outside
+        tester)."""
+        return -math.inf if self.t0_s is None else now_s - self.t0_s + DEADLINE_ROUNDING_S
 
     def active(self, kind: str, now_s: float, node: int = 0) -> Fault | None:
         if not self.faults:  # the common case, asked some twenty times a SYNC

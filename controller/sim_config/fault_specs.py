@@ -190,13 +190,13 @@ def check_fault(
     f = parse_fault(text)
     if not math.isfinite(f.start_s):
         raise FaultSpecError(f"fault {text!r}: START must be a finite number of seconds")
-    # The simulator applies faults at the SYNCs, one a period, timed from the first (t = 0): a
-    # window shorter than a period after that may lie between two SYNCs and never fire
-    # (rogue_emcy:2@2+0.002 injected nothing at 400 Hz). One that opens at 0 holds the first SYNC.
     if f.duration_s <= 0.0:  # drop:2@0+0 was taken, and injected nothing (an outside tester)
         raise FaultSpecError(
             f"fault {text!r}: lasts {f.duration_s:g} s: give +DURATION > 0, or none for ever"
         )
+    # The simulator applies faults at the SYNCs, one a period, timed from the first (t = 0): a
+    # window shorter than a period after that may lie between two SYNCs and never fire
+    # (rogue_emcy:2@2+0.002 injected nothing at 400 Hz). One that opens at 0 holds the first SYNC.
     if period_s is not None and f.start_s > 0.0 and f.duration_s < period_s:
         raise FaultSpecError(
             f"fault {text!r}: lasts {f.duration_s:g} s, less than one cycle ({period_s:g} s at "
