@@ -168,8 +168,10 @@ class SessionWriter:
 
         from controller.messages import cheope_pb2 as pb
         from logs import messages as m
+        from logs.can_frames_wire import can_frames_bytes
 
         self.m = m
+        self.can_frames_bytes = can_frames_bytes  # /can without upb (logs/can_frames_wire.py)
         self.pb = pb
         self.settings = settings
         self.notify = notify or (lambda **_: None)
@@ -516,7 +518,7 @@ class SessionWriter:
         """The frames as one ``CanFrames`` (one MCAP message, one index entry, for all of them)."""
         if not frames:
             return 0
-        batch = self.m.can_frames(frames, self.offset_ns).SerializeToString()
+        batch = self.can_frames_bytes(frames, self.offset_ns)
         self.last_mono_s = frames[-1][1]
         ns = self.m.unix_time_ns_of(frames[0][1], self.offset_ns)
         if self.live is not None and self.live_can_interval_ns:
@@ -531,7 +533,7 @@ class SessionWriter:
         if ns >= self.live_can_next_ns:
             assert self.live is not None
             self.live.can(
-                self.m.can_frames(self.live_frames, self.offset_ns).SerializeToString(),
+                self.can_frames_bytes(self.live_frames, self.offset_ns),
                 self.live_can_first_ns,
             )
             self.live_frames = []
