@@ -73,13 +73,13 @@ from pathlib import Path
 from typing import Any
 
 import can
-import msgpack
 from can import BusABC, CanProtocol
 from can.interfaces.udp_multicast import UdpMulticastBus
 from can.interfaces.udp_multicast.bus import GeneralPurposeUdpMulticastBus
 from can.interfaces.udp_multicast.utils import is_msgpack_installed
 
 from drivers.drop_counter import DropCounter
+from drivers.multicast_frames import pack_frame, unpack_frame
 
 log = logging.getLogger(__name__)
 
@@ -407,50 +407,6 @@ class LocalGroupSocket(GeneralPurposeUdpMulticastBus):
         return self.foreign.count
 
 
-# The fields python-can packs (udp_multicast.utils.pack_message) and the types msgpack gives them
-# back as: anything else (a float identifier, an integer as data, 2**63 anywhere) is no frame. An
-# integer as data would have had python-can allocate that many bytes before its check.
-_FIELD_TYPES: dict[str, tuple[type, ...]] = {
-    "timestamp": (float, int),
-    "arbitration_id": (int,),
-    "is_extended_id": (bool,),
-    "is_remote_frame": (bool,),
-    "is_error_frame": (bool,),
-    "channel": (str, int, type(None)),
-    "dlc": (int, type(None)),
-    "data": (bytes, type(None)),
-    "is_fd": (bool,),
-    "bitrate_switch": (bool,),
-    "error_state_indicator": (bool,),
-}
-
-
-def unpack_frame(data: bytes, timestamp_s: float) -> can.Message:
-    """A datagram as python-can's ``unpack_message`` reads it (msgpack map of ``Message``'s arguments,
-    checked), received at ``timestamp_s``; raises ``ValueError`` naming what is wrong."""
-    try:
-        fields = msgpack.unpackb(data, raw=False)
-    # msgpack's errors have no common base but Exception (ExtraData, FormatError, ...)
-    except Exception as err:
-        raise ValueError(f"not msgpack ({type(err).__name__}: {err})") from err
-    if not isinstance(fields, dict):
-        raise ValueError(f"a msgpack {type(fields).__name__}, not the map of a frame")
-    for key, value in fields.items():
-        kinds = _FIELD_TYPES.get(key)
-        if kinds is None:
-            raise ValueError(f"not a CAN frame (a field {key!r})")
-        if type(value) not in kinds:  # exactly: a bool is no identifier, a float no length
-            raise ValueError(f"not a CAN frame ({key} is a {type(value).__name__})")
-    payload = fields.get("data")
-    if payload is not None and len(payload) > 64:
-        raise ValueError(f"not a CAN frame ({len(payload)} data bytes)")
-    fields["timestamp"] = timestamp_s
-    try:
-        return can.Message(check=True, **fields)
-    except (TypeError, ValueError, OverflowError) as err:  # a value out of range
-        raise ValueError(f"not a CAN frame ({err})") from err
-
-
 class LocalUdpMulticastBus(UdpMulticastBus):
     """``UdpMulticastBus`` on ``LocalGroupSocket``: the interface-local group, this host only.
 
@@ -472,6 +428,13 @@ class LocalUdpMulticastBus(UdpMulticastBus):
         self.unreadable = DropCounter(
             log, "udp_multicast bus: %d datagram(s) that are no CAN frame dropped (last %d bytes from %s: %s)"
         )
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        """python-can's ``send``, the frame packed by ``pack_frame`` (drivers/multicast_frames.py):
+        the same datagram."""
+        if self._can_protocol is not CanProtocol.CAN_FD and msg.is_fd:
+            raise can.CanOperationError("cannot send FD message over bus with CAN FD disabled")
+        self._multicast.send(pack_frame(msg), timeout)
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
         """``BusABC.recv``, in one call where no filter is set (every frame read is handed on).
