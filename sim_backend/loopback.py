@@ -27,6 +27,7 @@ from controller.config import Config
 from controller.configured_robot import actuator_units
 from controller.core.cia402 import MODE_CYCLIC_SYNC_POSITION
 from controller.core.cycle_data import BusFeedback, CycleOutputs
+from controller.core.periods import DEADLINE_ROUNDING_S
 from controller.node_plan import homing_plans, node_options
 from controller.sim_config.quirk_specs import Quirk
 from drivers import cob_ids
@@ -191,7 +192,7 @@ class LoopbackExchange:
                 "clock's hold_up (controller/shell/simulated_rig.py does)"
             )
         self.heartbeat_period_s = cfg.loop.heartbeat_period_s
-        self._last_heartbeat_s: dict[int, float] = {}
+        self._heartbeat_due_s: dict[int, float] = {}  # each node's next heartbeat (_heartbeats)
         self.tracker_id = cfg.tracker.node_id if self.plant.tracker is not None else None
         # the tracker has no NMT slave or heartbeat, as in the simulator process: it sends by itself
         nodes = (*self.drive_ids, *(() if self.sensor_id is None else (self.sensor_id,)))
@@ -412,10 +413,19 @@ class LoopbackExchange:
         self._heartbeats(now, faults)
 
     def _heartbeats(self, now: float, faults: BusFaults) -> None:
-        """Each node's heartbeat producer (0x1017), checked at the SYNCs: its NMT state, every period."""
+        """Each node's heartbeat producer (0x1017), checked at the SYNCs: its NMT state at the first
+        SYNC at or after each due time. The next is due a period after the last due time, not after
+        the SYNC that sent it (a grid that does not divide the period would stretch it), and a SYNC
+        within ``DEADLINE_ROUNDING_S`` of a due time is at it: ``now - last >= period`` missed 40
+        periods of 2.5 ms by rounding, and every heartbeat came 102.5 ms after the last. After a
+        silence (``heartbeat:N``) the node starts again from the SYNC that sends."""
+        period = self.heartbeat_period_s
+        due_s = self._heartbeat_due_s
         for node, state in self.nmt_state.items():
             if node in faults.silent_heartbeats:
                 continue
-            if now - self._last_heartbeat_s.get(node, -1e9) >= self.heartbeat_period_s:
-                self._last_heartbeat_s[node] = now
-                self.bus.inbox.append(_frame(cob_ids.heartbeat(node), bytes((state,))))
+            due = due_s.get(node)
+            if due is not None and now < due - DEADLINE_ROUNDING_S:
+                continue
+            due_s[node] = due + period if due is not None and due + period > now else now + period
+            self.bus.inbox.append(_frame(cob_ids.heartbeat(node), bytes((state,))))

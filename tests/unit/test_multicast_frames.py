@@ -120,7 +120,9 @@ def test_data_frames_take_the_quick_ways_there_and_back(msg):
     assert datagram == pack_message(msg)
     assert _DATA_FRAME.fullmatch(datagram) is not None
     got = unpack_frame(datagram, 7.25)
-    assert [getattr(got, f) for f in _FIELDS] == [getattr(_unpack_checked(datagram, 7.25), f) for f in _FIELDS]
+    assert [getattr(got, f) for f in _FIELDS] == [
+        getattr(_unpack_checked(datagram, 7.25), f) for f in _FIELDS
+    ]
     assert got.timestamp == 7.25 and bytes(got.data) == bytes(msg.data)
 
 
