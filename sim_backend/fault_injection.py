@@ -80,14 +80,34 @@ class FaultSchedule:
         return -math.inf if self.t0_s is None else now_s - self.t0_s + DEADLINE_ROUNDING_S
 
     def active(self, kind: str, now_s: float, node: int = 0) -> Fault | None:
+        """The first fault given of ``kind`` (on ``node``; 0: on any) active at ``now_s``, or None.
+        Every one active then counts as acting (``missed``): an on-off fault (``drop``, ``block``,
+        ``freeze`` ...) is in force while any of its kind is, and where a value is taken from one
+        (``delay``, ``spoof_sensor``, ``rogue_tpdo``), the first given sets it."""
         if not self.faults:  # the common case, asked some twenty times a SYNC
             return None
+        first: Fault | None = None
         t = self.elapsed(now_s)
         for i, f in enumerate(self.faults):
             if f.kind == kind and (node == 0 or f.node == node) and f.active(t):
                 self._acted.add(i)
-                return f
-        return None
+                if first is None:
+                    first = f
+        return first
+
+    def all_active(self, kind: str, now_s: float, node: int = 0) -> list[Fault]:
+        """Every fault of ``kind`` (on ``node``; 0: on any) active at ``now_s``, in the order given:
+        the kinds whose faults add up (``force``, ``jump``) or each send a frame of their own
+        (``nmt_stop``, ``rogue_emcy``, ``unknown_node`` ...)."""
+        if not self.faults:
+            return []
+        t = self.elapsed(now_s)
+        out: list[Fault] = []
+        for i, f in enumerate(self.faults):
+            if f.kind == kind and (node == 0 or f.node == node) and f.active(t):
+                self._acted.add(i)
+                out.append(f)
+        return out
 
     def first_time(self, kind: str, now_s: float, node: int = 0) -> bool:
         """True once, the first time ``kind`` is active (for one-shot faults such as drive_fault)."""
@@ -132,8 +152,7 @@ def apply_device_faults(
     for node, drive in zip(drive_ids, plant.drives):
         if schedule.first_time("drive_fault", now_s, node):
             drive.force_fault(EMCY_FORCED_FAULT)
-        jump = schedule.active("jump", now_s, node)
-        drive.reported_position_error = jump.value if jump is not None else 0.0
+        drive.reported_position_error = _sum_of(schedule.all_active("jump", now_s, node))
         drive.blocked = schedule.active("block", now_s, node) is not None
     sensor = plant.sensor
     if sensor is not None:
@@ -145,9 +164,16 @@ def apply_device_faults(
             if sat
             else (sensor.status_flags & ~SENSOR_FORCE_SATURATED)
         )
-        force = schedule.active("force", now_s)
-        extra_x = schedule.with_drift_n(now_s, force.value if force is not None else 0.0)
+        extra_x = schedule.with_drift_n(now_s, _sum_of(schedule.all_active("force", now_s)))
         sensor.extra_force_n = (extra_x, 0.0, 0.0)
+
+
+def _sum_of(faults: list[Fault]) -> float:
+    """The values of ``faults`` added up: two offsets at once are their sum."""
+    total = 0.0
+    for f in faults:
+        total += f.value
+    return total
 
 
 def tpdo_payload(schedule: FaultSchedule, node: int, payload: bytes, now_s: float) -> bytes | None:
@@ -225,14 +251,11 @@ def _foreign_frames(schedule: FaultSchedule, now_s: float) -> tuple[tuple[int, b
         ("nmt_preop", NMT_ENTER_PRE_OPERATIONAL),
         ("nmt_reset", NMT_RESET_NODE),
     ):
-        nmt = schedule.active(kind, now_s)
-        if nmt is not None:
+        for nmt in schedule.all_active(kind, now_s):  # each its own command
             frames.append((0x000, bytes((command, nmt.node))))
-    emcy = schedule.active("rogue_emcy", now_s)
-    if emcy is not None:
+    for emcy in schedule.all_active("rogue_emcy", now_s):
         frames.append((0x080 + emcy.node, bytes(ROGUE_EMCY_BYTES)))
-    stranger = schedule.active("unknown_node", now_s)
-    if stranger is not None:
+    for stranger in schedule.all_active("unknown_node", now_s):
         frames += [(0x700 + stranger.node, b"\x05"), (0x180 + stranger.node, bytes(6))]
     if schedule.active("flood", now_s) is not None:
         frames += [(FLOOD_COB_ID, b"")] * FLOOD_FRAMES_PER_SYNC

@@ -111,3 +111,55 @@ def test_faults_active_at_no_sync_are_missed_and_the_others_not() -> None:
     one_shot = FaultSchedule.from_strings(("drive_fault:1@0",))
     one_shot.start(0.0)
     assert one_shot.first_time("drive_fault", 0.0, 1) and one_shot.missed() == ()
+
+
+def _devices_after(specs: tuple[str, ...], now_s: float):  # type: ignore[no-untyped-def]
+    """The loopback's simulated devices after ``specs`` are applied at the SYNCs 0 s and ``now_s``."""
+    from controller.config import load_config
+    from controller.shell.loop import SimulatedTime
+    from sim_backend.fault_injection import apply_device_faults
+    from sim_backend.loopback import LoopbackExchange
+
+    cfg = load_config()
+    loopback = LoopbackExchange(cfg, SimulatedTime().clock)
+    schedule = FaultSchedule.from_strings(specs)
+    for t in (0.0, now_s):
+        apply_device_faults(schedule, loopback.plant, loopback.drive_ids, t)
+    return loopback.plant, schedule
+
+
+def test_offsets_of_one_kind_at_once_add_up_and_both_act() -> None:
+    """``force=3@1+1`` with ``force=4@1.5+0.5`` offset the sensor by 7 N where both are active (an
+    outside tester: it was 3 N, and the second was listed as missed); two jumps of one drive add."""
+    plant, schedule = _devices_after(
+        ("force=3@1+1", "force=4@1.5+0.5", "jump:1=0.001@1", "jump:1=0.002@1.2"), 1.6
+    )
+    assert plant.sensor is not None and plant.sensor.extra_force_n == (7.0, 0.0, 0.0)
+    assert plant.drives[0].reported_position_error == pytest.approx(0.003)
+    assert plant.drives[1].reported_position_error == 0.0
+    assert schedule.missed() == ()
+    plant, _ = _devices_after(("force=3@1+1", "force=4@1.5+0.5"), 1.2)
+    assert plant.sensor is not None and plant.sensor.extra_force_n == (3.0, 0.0, 0.0)
+
+
+def test_an_on_off_fault_inside_another_of_its_kind_acts_with_it() -> None:
+    schedule = FaultSchedule.from_strings(("drop:1@1+1", "drop:1@1.2+0.2", "freeze@1+1", "freeze@1.5+0.1"))
+    for now in (0.0, 1.3, 1.55, 2.5):
+        schedule.start(now)
+        schedule.active("drop", now, 1)
+        schedule.active("freeze", now)
+    assert schedule.missed() == ()
+
+
+def test_commands_of_one_kind_at_once_each_go_on_the_bus() -> None:
+    """``nmt_stop:2`` with ``nmt_stop:3`` at one time: two NMT commands, not the first alone."""
+    from sim_backend.fault_injection import bus_faults, nmt_commands
+
+    schedule = FaultSchedule.from_strings(
+        ("nmt_stop:2@1+0.0025", "nmt_stop:3@1+0.0025", "rogue_emcy:1@1+0.0025", "rogue_emcy:2@1+0.0025")
+    )
+    schedule.start(0.0)
+    frames = bus_faults(schedule, 1.0, (1, 2, 3, 16)).foreign_frames
+    assert nmt_commands(frames) == [(0x02, 2), (0x02, 3)]
+    assert [cob for cob, _ in frames if 0x081 <= cob <= 0x0FF] == [0x081, 0x082]
+    assert schedule.missed() == ()
