@@ -110,18 +110,18 @@ class FaultSchedule:
         return out
 
     def first_time(self, kind: str, now_s: float, node: int = 0) -> bool:
-        """True once, the first time ``kind`` is active (for one-shot faults such as drive_fault)."""
+        """True when a fault of ``kind`` (on ``node``; 0: on any) is active at ``now_s`` for the first
+        time (the one-shot faults: ``drive_fault``, ``reboot``). Every one due then fires with it: two
+        given for one time are one event, where the second fired a SYNC later, or, over a window of
+        one period, never and was listed as missed (an outside tester)."""
+        fired = False
+        t = self.elapsed(now_s)
         for i, f in enumerate(self.faults):
-            if (
-                f.kind == kind
-                and (node == 0 or f.node == node)
-                and f.active(self.elapsed(now_s))
-                and i not in self._fired
-            ):
+            if f.kind == kind and (node == 0 or f.node == node) and f.active(t) and i not in self._fired:
                 self._fired.add(i)
                 self._acted.add(i)
-                return True
-        return False
+                fired = True
+        return fired
 
     def with_drift_n(self, now_s: float, force_n: float) -> float:
         """``force_n`` plus what the ``drift`` faults add at ``now_s`` [N]: each its rate times the
@@ -178,9 +178,11 @@ def _sum_of(faults: list[Fault]) -> float:
 
 def tpdo_payload(schedule: FaultSchedule, node: int, payload: bytes, now_s: float) -> bytes | None:
     """The payload a drive sends this SYNC: None when dropped, cut short when malformed."""
-    if schedule.active("drop", now_s, node) is not None:
+    dropped = schedule.active("drop", now_s, node) is not None
+    malformed = schedule.active("malformed", now_s, node) is not None  # in force inside a drop too
+    if dropped:
         return None
-    if schedule.active("malformed", now_s, node) is not None:
+    if malformed:
         return payload[:3]
     return payload
 
@@ -220,7 +222,9 @@ def bus_faults(schedule: FaultSchedule, now_s: float, node_ids: tuple[int, ...])
     if not schedule.faults:
         return NO_BUS_FAULTS
     bus_off = schedule.active("bus_off", now_s) is not None
-    errors = bus_off or schedule.active("error_frames", now_s) is not None
+    # asked under bus_off too: in force with it, as an on-off fault inside another (not missed)
+    error_frames = schedule.active("error_frames", now_s) is not None
+    errors = bus_off or error_frames
     delays = []
     for n in node_ids:
         d = schedule.active("delay", now_s, n)

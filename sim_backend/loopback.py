@@ -423,6 +423,7 @@ class LoopbackExchange:
         due_s = self._heartbeat_due_s
         for node, state in self.nmt_state.items():
             if node in faults.silent_heartbeats:
+                due_s.pop(node, None)  # after the silence: from the SYNC that sends again
                 continue
             due = due_s.get(node)
             if due is not None and now < due - DEADLINE_ROUNDING_S:

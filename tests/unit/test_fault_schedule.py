@@ -163,3 +163,31 @@ def test_commands_of_one_kind_at_once_each_go_on_the_bus() -> None:
     assert nmt_commands(frames) == [(0x02, 2), (0x02, 3)]
     assert [cob for cob, _ in frames if 0x081 <= cob <= 0x0FF] == [0x081, 0x082]
     assert schedule.missed() == ()
+
+
+def test_one_shot_faults_due_at_one_time_are_one_event() -> None:
+    """Two ``drive_fault:2@2+0.0025``: the second was listed as missed (an outside tester); two
+    endless ``reboot:1@1`` rebooted the node twice, a SYNC apart."""
+    schedule = FaultSchedule.from_strings(
+        ("drive_fault:2@2+0.0025", "drive_fault:2@2+0.0025", "reboot:1@1", "reboot:1@1")
+    )
+    schedule.start(0.0)
+    assert schedule.first_time("drive_fault", 2.0, 2) and schedule.first_time("reboot", 2.0, 1)
+    assert not schedule.first_time("drive_fault", 2.0025, 2) and not schedule.first_time("reboot", 2.0025, 1)
+    assert schedule.missed() == ()
+
+
+def test_a_fault_that_acts_with_a_stronger_one_is_not_missed() -> None:
+    """``error_frames`` inside ``bus_off``, ``malformed`` inside a ``drop`` of the same drive."""
+    from sim_backend.fault_injection import bus_faults, tpdo_payload
+
+    schedule = FaultSchedule.from_strings(
+        ("bus_off@1+1", "error_frames@1.2+0.1", "drop:1@1+1", "malformed:1@1.2+0.1")
+    )
+    schedule.start(0.0)
+    for now in (1.25, 2.5):  # in their windows, then past them all
+        schedule.start(now)
+        bus_faults(schedule, now, (1, 2, 3, 16))
+        tpdo_payload(schedule, 1, bytes(8), now)
+    assert tpdo_payload(schedule, 1, bytes(8), 1.25) is None
+    assert schedule.missed() == ()

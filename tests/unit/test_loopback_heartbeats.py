@@ -14,8 +14,10 @@ from drivers import cob_ids
 from sim_backend.loopback import LoopbackExchange
 
 
-def _heartbeat_times(rate_hz: float, duration_s: float, node: int) -> np.ndarray:
-    cfg = load_config(overrides={"loop.rate_hz": rate_hz, "task.kind": "path"})
+def _heartbeat_times(
+    rate_hz: float, duration_s: float, node: int, faults: tuple[str, ...] = ()
+) -> np.ndarray:
+    cfg = load_config(overrides={"loop.rate_hz": rate_hz, "task.kind": "path", "sim.faults": list(faults)})
     law = build_law(cfg)
     clock = SimulatedTime()
     loopback = LoopbackExchange(cfg, clock.clock)
@@ -50,3 +52,12 @@ def test_on_a_grid_that_does_not_divide_it_they_keep_the_period_on_average():
     assert len(intervals) >= 30
     assert abs(intervals.mean() - 0.1) < period_s / len(intervals) + 1e-9
     assert intervals.min() > 0.1 - period_s and intervals.max() < 0.1 + period_s
+
+
+def test_after_a_silence_the_heartbeats_start_again_from_the_sync_that_sends() -> None:
+    """``heartbeat:2@1+0.05`` at 400 Hz: the first after the silence at 1.05 s, the next a period
+    after it (it came 50 ms after, on the grid from before the silence)."""
+    times = _heartbeat_times(400.0, 1.5, node=2, faults=("heartbeat:2@1+0.05",))
+    start = times[0]  # the grid's origin: the first SYNC's time
+    after = times[times - start > 1.0]
+    np.testing.assert_allclose(after[:3] - start, [1.05, 1.15, 1.25], atol=1e-9)
