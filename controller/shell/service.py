@@ -42,6 +42,7 @@ from controller.realtime import (
 )
 from controller.robot_registry import ActuatorUnits
 from controller.shell.cpu_shield import raise_shield
+from controller.shell.cpu_steal import steal_s_since, steal_ticks
 from controller.shell.helper_threads import HelperThreadWatch
 from controller.shell.idle_poll import idle_polling
 from controller.shell.log_handoff import log_records_off_the_loop
@@ -269,6 +270,7 @@ def run_controller(
                 granted = granted_realtime()
                 helpers_at_start = helpers.start()
                 faults_before = resource.getrusage(resource.RUSAGE_SELF).ru_majflt
+                steal_before = steal_ticks()
                 notify("READY=1")  # systemd Type=notify: the devices are configured, the loop starts
                 with StuckLoopGuard(
                     lambda: loop.cycles_done,
@@ -284,6 +286,8 @@ def run_controller(
                 # a page the kernel dropped (memory pressure, proactive reclaim) is read back from disk
                 # when touched: milliseconds each, inside a cycle (--lock-memory prevents it)
                 major_faults = resource.getrusage(resource.RUSAGE_SELF).ru_majflt - faults_before
+                # the host's hold on each vCPU over the run (controller/shell/cpu_steal.py)
+                steal_s = steal_s_since(steal_before)
             finally:
                 if kernel_sync is not None:
                     kernel_sync.stop()
@@ -303,6 +307,7 @@ def run_controller(
             "node_setup_s": round(setup.duration_s, 3),
             "node_setup_notes": list(setup.notes),
             "major_page_faults": major_faults,
+            "steal_s": steal_s,
             "frames": {
                 "sent": bus.sent,
                 "received": bus.received,

@@ -89,6 +89,7 @@ def test_demo_runs_the_path_task_end_to_end():
         "tracking_error_m",
         "observers_us",
         "major_page_faults",
+        "steal_s",
     ):
         assert key in s
     assert 380.0 < s["achieved_rate_hz"] < 420.0
