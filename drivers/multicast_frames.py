@@ -24,6 +24,7 @@ bytes. So:
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 import struct
@@ -35,9 +36,8 @@ from can.interfaces.udp_multicast.utils import pack_message
 
 _TRUE, _FALSE = b"\xc3", b"\xc2"
 _HEAD = b"\x8b\xa9timestamp\xcb"  # a map of 11; "timestamp"; a float64 follows
-_LAYOUTS_MAX = 4096  # pack_frame's layouts: a bus of many identifiers keeps the cache bounded
+_LAYOUTS_MAX = 4096  # pack_frame's layouts kept: a bus of many identifiers keeps the cache bounded
 _Layout = tuple[struct.Struct, bytes, bytes]
-_LAYOUTS: dict[tuple[int, bool, bool, bool, bool, int], _Layout] = {}
 
 
 def _bool(value: bool) -> bytes:
@@ -55,6 +55,7 @@ def _uint(n: int) -> bytes:
     return b"\xce" + n.to_bytes(4, "big")
 
 
+@functools.lru_cache(maxsize=_LAYOUTS_MAX)
 def _layout(arb: int, ext: bool, fd: bool, brs: bool, esi: bool, n: int) -> _Layout:
     """A data frame's map around its timestamp and its ``n`` data bytes."""
     middle = b"".join(
@@ -96,13 +97,7 @@ def pack_frame(msg: can.Message) -> bytes:
         or type(esi) is not bool
     ):
         return pack_message(msg)  # anything else: python-can's way
-    key = (arb, ext, fd, brs, esi, len(data))
-    layout = _LAYOUTS.get(key)
-    if layout is None:
-        if len(_LAYOUTS) >= _LAYOUTS_MAX:
-            _LAYOUTS.clear()
-        layout = _LAYOUTS[key] = _layout(*key)
-    packer, middle, tail = layout
+    packer, middle, tail = _layout(arb, ext, fd, brs, esi, len(data))
     return packer.pack(_HEAD, msg.timestamp, middle, data, tail)
 
 

@@ -27,6 +27,7 @@ does there.
 
 from __future__ import annotations
 
+import functools
 import struct
 
 from logs.messages import FrameRecord, unix_time_ns_of
@@ -49,10 +50,10 @@ _ESI = b"\x50\x01"
 _ERROR = b"\x58\x01"
 
 
-def _frame(out: bytearray, frame: FrameRecord, offset_ns: int) -> None:
-    """One ``Frame`` of ``frames``, as a length-delimited entry of field 1, appended to ``out``."""
-    outgoing, mono_s, arb, data, ext, rtr, rlen, fd, brs, esi, err = frame
-    unix_ns = unix_time_ns_of(mono_s, offset_ns)
+def _frame(frame: FrameRecord, unix_ns: int) -> bytes:
+    """One ``Frame`` at ``unix_ns`` (``unix_time_ns_of`` its time), field by field, as a
+    length-delimited entry of field 1."""
+    outgoing, _, arb, data, ext, rtr, rlen, fd, brs, esi, err = frame
     if not 0 <= unix_ns <= _MAX_UINT64:
         raise ValueError(f"a CAN frame's time {unix_ns} ns is out of range of fixed64")
     if not 0 <= arb <= _MAX_UINT32 or not 0 <= rlen <= _MAX_UINT32:
@@ -85,11 +86,10 @@ def _frame(out: bytearray, frame: FrameRecord, offset_ns: int) -> None:
         body += _ESI
     if err:
         body += _ERROR
-    out.append(_FRAME_TAG)
-    out += varint(len(body))
-    out += body
+    return bytes((_FRAME_TAG,)) + varint(len(body)) + body
 
 
+@functools.lru_cache(maxsize=4096)  # a bus of many identifiers keeps the cache bounded
 def _layout(arb: int, n: int, outgoing: bool) -> tuple[struct.Struct, bytes, bytes]:
     """A classic data frame's wire bytes as one ``struct`` format around its time and its ``n`` data
     bytes: everything else depends on the identifier, the length and the direction alone."""
@@ -107,7 +107,6 @@ def can_frames_bytes(frames: list[FrameRecord], offset_ns: int) -> bytes:
     A classic data frame (nearly all of them) is one ``pack`` of a layout kept per identifier,
     length and direction (``_layout``); any other frame is written field by field (``_frame``)."""
     out: list[bytes] = []
-    layouts = _LAYOUTS
     for frame in frames:
         outgoing, mono_s, arb, data, ext, rtr, rlen, fd, brs, esi, err = frame
         unix_ns = unix_time_ns_of(mono_s, offset_ns)
@@ -123,17 +122,9 @@ def can_frames_bytes(frames: list[FrameRecord], offset_ns: int) -> bytes:
             or not 0 < arb <= _MAX_CLASSIC_ID
             or not 0 < unix_ns <= _MAX_UINT64
         ):
-            piece = bytearray()
-            _frame(piece, frame, offset_ns)
-            out.append(bytes(piece))
+            out.append(_frame(frame, unix_ns))
             continue
-        key = (arb, len(data), outgoing)
-        layout = layouts.get(key)
-        if layout is None:
-            if len(layouts) >= _MAX_LAYOUTS:
-                layouts.clear()  # a bus of many identifiers: the cache stays bounded
-            layout = layouts[key] = _layout(arb, len(data), outgoing)
-        packer, head, middle = layout
+        packer, head, middle = _layout(arb, len(data), outgoing)
         if outgoing:
             out.append(packer.pack(head, unix_ns, middle, data, _OUTGOING))
         else:
@@ -142,5 +133,3 @@ def can_frames_bytes(frames: list[FrameRecord], offset_ns: int) -> bytes:
 
 
 _MAX_CLASSIC_ID = 0x7FF
-_MAX_LAYOUTS = 4096
-_LAYOUTS: dict[tuple[int, int, bool], tuple[struct.Struct, bytes, bytes]] = {}

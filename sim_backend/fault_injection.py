@@ -86,14 +86,8 @@ class FaultSchedule:
         (``delay``, ``spoof_sensor``, ``rogue_tpdo``), the first given sets it."""
         if not self.faults:  # the common case, asked some twenty times a SYNC
             return None
-        first: Fault | None = None
-        t = self.elapsed(now_s)
-        for i, f in enumerate(self.faults):
-            if f.kind == kind and (node == 0 or f.node == node) and f.active(t):
-                self._acted.add(i)
-                if first is None:
-                    first = f
-        return first
+        found = self.all_active(kind, now_s, node)
+        return found[0] if found else None
 
     def all_active(self, kind: str, now_s: float, node: int = 0) -> list[Fault]:
         """Every fault of ``kind`` (on ``node``; 0: on any) active at ``now_s``, in the order given:

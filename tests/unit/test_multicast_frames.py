@@ -126,17 +126,11 @@ def test_data_frames_take_the_quick_ways_there_and_back(msg):
     assert got.timestamp == 7.25 and bytes(got.data) == bytes(msg.data)
 
 
-def _read(datagram: bytes, timestamp_s: float) -> tuple[str, object]:
+def _outcome(read, datagram: bytes, timestamp_s: float) -> tuple[str, object]:  # type: ignore[no-untyped-def]
+    """What ``read`` (``unpack_frame`` or ``_unpack_checked``) makes of ``datagram``: the frame's
+    fields, or the refusal's words."""
     try:
-        msg = unpack_frame(datagram, timestamp_s)
-    except ValueError as err:
-        return "refused", str(err)
-    return "frame", [getattr(msg, f) for f in _FIELDS]
-
-
-def _read_checked(datagram: bytes, timestamp_s: float) -> tuple[str, object]:
-    try:
-        msg = _unpack_checked(datagram, timestamp_s)
+        msg = read(datagram, timestamp_s)
     except ValueError as err:
         return "refused", str(err)
     return "frame", [getattr(msg, f) for f in _FIELDS]
@@ -157,7 +151,7 @@ def test_the_quick_reading_agrees_with_the_checked_one(msg, at, byte, timestamp_
     except (TypeError, ValueError, OverflowError):
         assume(False)  # msgpack cannot pack it (a NaN is fine, an int past 64 bits not)
     for d in (datagram, datagram[:at] + bytes((byte,)) + datagram[at + 1 :]):
-        assert _read(d, timestamp_s) == _read_checked(d, timestamp_s)
+        assert _outcome(unpack_frame, d, timestamp_s) == _outcome(_unpack_checked, d, timestamp_s)
 
 
 @pytest.mark.parametrize(
