@@ -451,6 +451,31 @@ def test_cyclictest_histogram_percentiles_and_rate_above_a_threshold():
     assert h.per_10k_above(3.0) == pytest.approx(1e4 * (3 + 2) / 100)
 
 
+def test_the_floor_counts_the_deadlines_a_late_wake_up_passed_as_the_loop_counts_its_own():
+    """cyclictest samples wake-ups and moves past the deadlines a late one passed; the loop counts
+    those as late cycles (its overruns): the floor counts them too (controller/tools/bench/cyclictest.py)."""
+    from controller.tools.bench.cyclictest import Histogram
+
+    counts = np.zeros(20_000, dtype=np.int64)
+    counts[10] = 9_990  # on time
+    counts[300] = 4  # late, passed no deadline after its own (period 2 500 us)
+    counts[2_500] = 1  # late by exactly a period: the next deadline is now, not passed
+    counts[2_501] = 2  # ... 1 us more: it passed the next
+    counts[10_000] = 3  # passed 3
+    h = Histogram(counts, overflows=0, max_us=10_000.0)
+    assert h.per_10k_above(250.0) == pytest.approx(1e4 * 10 / 10_000)  # wake-ups only
+    late = 4 + 1 + 2 * 2 + 3 * 4  # each late one and the deadlines it passed
+    assert h.late_deadlines_per_10k(250.0, 2_500.0) == pytest.approx(1e4 * late / (10_000 + 2 + 9))
+    # beyond the histogram: each overflow at its end (20 000 us: 7 passed), the largest at its maximum
+    over = Histogram(counts, overflows=2, max_us=50_000.0)
+    late_over = late + 2 + 7 + 19
+    assert over.late_deadlines_per_10k(250.0, 2_500.0) == pytest.approx(
+        1e4 * late_over / (10_002 + 2 + 9 + 7 + 19)
+    )
+    # a threshold above every latency: none late, whatever passed
+    assert h.late_deadlines_per_10k(20_000.0, 2_500.0) == 0.0
+
+
 def test_cyclictest_command_per_scheduling_class():
     from pathlib import Path
 

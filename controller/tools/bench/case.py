@@ -245,11 +245,16 @@ def machine_floor(floor: Json, late_us: float, case: Json) -> Json:
     if "error" in floor or "per_10k_above_us" not in floor:
         return floor if floor else {"error": "cyclictest did not run"}
     above = floor["per_10k_above_us"].get(f"{late_us:g}")
-    if above is None:  # the case's threshold differs from the one cyclictest was asked for
+    deadlines = floor.get("late_deadlines_per_10k_above_us", {}).get(f"{late_us:g}")
+    # None: the case's threshold differs from the one cyclictest was asked for
+    if above is None or deadlines is None:
         return {**floor, "error": f"no cyclictest rate above {late_us:g} us"}
     wake = case["wake_latency_us"]
     floor["late_us"] = late_us
-    floor["late_ratio"] = round(case["late_per_10k"] / above, 2) if above > 0 else None
+    # like with like: the loop's late cycles count the deadlines a late cycle passed, and so does
+    # this floor (controller/tools/bench/cyclictest.py); over cyclictest's late wake-ups alone, too
+    floor["late_ratio"] = round(case["late_per_10k"] / deadlines, 2) if deadlines > 0 else None
+    floor["late_ratio_to_samples"] = round(case["late_per_10k"] / above, 2) if above > 0 else None
     floor["wake_p99_ratio"] = (
         round(wake["p99"] / floor["latency_us"]["p99"], 2) if floor["latency_us"]["p99"] > 0 else None
     )

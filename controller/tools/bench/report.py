@@ -62,16 +62,23 @@ def format_table(report: Json) -> str:
         lambda c: q(c["cyclictest"]["latency_us"]) if "latency_us" in c.get("cyclictest", {}) else "-",
     )
     row(
-        "cyclictest late per 10 000",
+        "cyclictest late per 10 000 deadlines (wake-ups)",
         lambda c: (
-            "{}".format(c["cyclictest"]["per_10k_above_us"][f"{c['cyclictest']['late_us']:g}"])
-            if "latency_us" in c.get("cyclictest", {})
+            "{} ({})".format(
+                c["cyclictest"]["late_deadlines_per_10k_above_us"][f"{c['cyclictest']['late_us']:g}"],
+                c["cyclictest"]["per_10k_above_us"][f"{c['cyclictest']['late_us']:g}"],
+            )
+            if "late_ratio" in c.get("cyclictest", {})
             else "-"
         ),
     )
     row(
-        "late ratio loop / cyclictest",
-        lambda c: f"{c['cyclictest'].get('late_ratio')}" if "latency_us" in c.get("cyclictest", {}) else "-",
+        "late ratio loop / cyclictest (to its wake-ups)",
+        lambda c: (
+            f"{c['cyclictest']['late_ratio']} ({c['cyclictest']['late_ratio_to_samples']})"
+            if "late_ratio" in c.get("cyclictest", {})
+            else "-"
+        ),
     )
     row(
         "wake p99 ratio loop / cyclictest",
