@@ -738,6 +738,25 @@ class ContourTrackingTask:
         ratio = max(speed_m_s, floor) / max(s.speed_m_s, floor)
         return s.integral * ratio, min(1.0, speed_m_s / floor)
 
+    @staticmethod
+    def _restart_speed(s: ContourState, speed: float, trusted: bool) -> float:
+        """The speed a hold-up stopped, while the tool climbs back to it (HOLD_RESTART_ACCELERATION_M_S2).
+
+        The restart lasts while the speed climbs back: it ends where it reaches the old speed, or
+        stops climbing (a lower target: a corner, the band, the creep rule). A brake on a force not
+        trusted while a hold-up's window is open (``_timing_window``: samples that stopped coming,
+        or a step the hold-up's jolt made, held off as implausible) is no lower target: the speed it
+        brakes from is kept, and after it the tool climbs back as after the drives stood. Over the
+        bus, in two default demos (2026-12-05), that brake ended the restart, and the tool went on
+        at the laps' gentle 0.05 m/s2: the blind periods of a 23-ms hold-up braked it to rest before
+        the drives stood (lap 3 at 43.5 mm/s of 60), and a second hold-up 0.1 s after a first braked
+        the climb back (54.6 mm/s). Outside a hold-up's window (a step with no hold-up to explain
+        it: an impact, a lying sensor) the brake ends the restart as before.
+        """
+        if not trusted and s.timing_window_cycles > 0:
+            return max(s.restart_speed_m_s, s.speed_m_s)
+        return s.restart_speed_m_s if s.speed_m_s < speed < s.restart_speed_m_s else 0.0
+
     def _braked(self, speed: float, dt: float) -> float:
         return max(0.0, speed - self.p.stop_deceleration_m_s2 * dt)
 
@@ -1179,9 +1198,7 @@ class ContourTrackingTask:
         s = replace(
             s,
             speed_m_s=speed,
-            # the restart lasts while the speed climbs back: it ends where it reaches the old speed,
-            # or stops climbing (a lower target: a corner, the band, the creep rule)
-            restart_speed_m_s=s.restart_speed_m_s if s.speed_m_s < speed < s.restart_speed_m_s else 0.0,
+            restart_speed_m_s=self._restart_speed(s, speed, trusted),
             creep_m=creep,
             excused=excused,
             normal=normal,

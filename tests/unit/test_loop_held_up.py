@@ -192,6 +192,36 @@ class Setpoints:
 
 
 @pytest.mark.slow
+def test_a_brake_on_missing_samples_keeps_the_speed_to_climb_back_to():
+    """Over the bus a second hold-up 0.1 s after a first (frames missing for 5 cycles) braked the
+    climb back to the old speed; the restart ended there and the tool went on at the laps' gentle
+    0.05 m/s^2: lap 3 at 54.6 and 43.5 mm/s of 60 (two default demos, 2026-12-05). Here the same in
+    simulated time: a 25-ms stall in lap 3, then every device's frames dropped for 5 cycles while the
+    speed climbs back. The brake on the missing samples keeps the speed it braked from, and the
+    climb after it is the hold-up's (HOLD_RESTART_ACCELERATION_M_S2), not the laps'."""
+    base = load_config(overrides={"task.kind": "contour"})
+    period = base.period_s
+    drops = [f"drop:{node}@39.58+{5 * period}" for node in (1, 2, 3, base.sensor.node_id)]
+    cfg = load_config(
+        overrides={"task.kind": "contour", "sim.faults": [f"stall=0.025@39.5+{period}", *drops]}
+    )
+    speeds = TaskSpeeds()
+    SimulatedRig(cfg).run((speeds,), 40.2)
+    rows = [r for r in speeds.rows if r[0] >= 39.4]
+    before = rows[0][2]
+    assert rows[0][1] == ContourPhase.TRACKING and before > 0.05  # lap 3, at speed
+    braked = [k for k, (a, b) in enumerate(itertools.pairwise(rows)) if b[0] > 39.58 and b[2] < a[2]]
+    assert braked, "the drops braked the tool"
+    k = braked[0] + 1
+    assert all(r[3] == pytest.approx(before) for r in rows[k : braked[-1] + 2])  # kept through the brake
+    low = min(range(k, len(rows)), key=lambda j: rows[j][2])
+    back = next(r for r in rows[low:] if r[2] >= 0.95 * before)
+    # from its lowest to 95 % of the old speed at the hold-up's climb, with room for the band's derating
+    assert back[0] - rows[low][0] <= 2.0 * before / HOLD_RESTART_ACCELERATION_M_S2
+    assert all(r[1] == ContourPhase.TRACKING for r in rows)
+
+
+@pytest.mark.slow
 def test_after_a_hold_up_past_the_extrapolation_the_setpoint_first_goes_where_the_drives_ran_on():
     """16 ms in lap 3: the drives ran on 3 periods past the last setpoint, then stood. The step moves
     the setpoint through those 3 periods at its speed, then restarts from rest there (a restart at
