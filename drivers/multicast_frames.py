@@ -116,7 +116,8 @@ _DATA_FRAME = re.compile(
 def unpack_frame(data: bytes, timestamp_s: float) -> can.Message:
     """A datagram as python-can's ``unpack_message`` reads it (msgpack map of ``Message``'s arguments,
     checked), received at ``timestamp_s``; raises ``ValueError`` naming what is wrong."""
-    match = _DATA_FRAME.fullmatch(data)
+    # anything but bytes goes the checked way, which names it (the pattern raised TypeError on a str)
+    match = _DATA_FRAME.fullmatch(data) if isinstance(data, (bytes, bytearray, memoryview)) else None
     if match is not None and 0.0 <= timestamp_s < math.inf:
         fixint, uint8, uint16, uint32, ext_byte, dlc_byte, length, payload, fd_byte, brs_byte, esi_byte = (
             match.groups()

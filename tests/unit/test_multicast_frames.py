@@ -155,6 +155,26 @@ def test_the_quick_reading_agrees_with_the_checked_one(msg, at, byte, timestamp_
 
 
 @pytest.mark.parametrize(
+    "datagram",
+    ["a str", None, 5, 2.5, [0x80]],  # what no socket gives, but a caller might hand it
+)
+def test_what_is_not_bytes_is_refused_with_the_checked_readings_words(datagram):
+    """The quick reading's pattern raised TypeError on these (an outside tester); the checked
+    reading names them in a ValueError, as it names every datagram that is no frame."""
+    outcome = _outcome(unpack_frame, datagram, 1.0)
+    assert outcome == _outcome(_unpack_checked, datagram, 1.0)
+    assert outcome[0] == "refused" and "not msgpack" in str(outcome[1])
+
+
+def test_a_frame_in_a_bytearray_or_memoryview_is_read_as_in_bytes():
+    datagram = pack_frame(can.Message(arbitration_id=0x181, data=b"\x01\x02", is_extended_id=False))
+    as_bytes = _outcome(unpack_frame, datagram, 1.0)
+    assert as_bytes[0] == "frame"
+    for view in (bytearray(datagram), memoryview(datagram)):
+        assert _outcome(unpack_frame, view, 1.0) == as_bytes
+
+
+@pytest.mark.parametrize(
     "arbitration_id, ext, fd, data",
     [
         (0x800, False, False, b""),  # a standard identifier past 11 bits
