@@ -76,15 +76,15 @@ class Histogram:
         if self.samples == 0:
             return float("nan")
         latency = np.arange(self.counts.size, dtype=np.float64)
-        passed = np.maximum(np.ceil(latency / interval_us) - 1.0, 0.0)  # m >= 1 with m x interval < L
+        passed = _passed(latency, interval_us)
         late = latency > threshold_us
         skipped = float((self.counts * passed).sum())
-        late_deadlines = float(self.counts[late].sum()) + float((self.counts[late] * passed[late]).sum())
+        late_deadlines = float((self.counts[late] * (1.0 + passed[late])).sum())
         if self.overflows:
             # beyond the histogram: its last bin's latency for each, the maximum for one of them
             beyond = float(self.counts.size)
             largest = self.max_us if math.isfinite(self.max_us) else beyond
-            over = (self.overflows - 1) * _passed(beyond, interval_us) + _passed(largest, interval_us)
+            over = float((self.overflows - 1) * _passed(beyond, interval_us) + _passed(largest, interval_us))
             skipped += over
             late_deadlines += self.overflows + over
         return 1e4 * late_deadlines / (self.samples + skipped)
@@ -99,9 +99,10 @@ class Histogram:
         return 1e4 * above / n
 
 
-def _passed(latency_us: float, interval_us: float) -> float:
-    """Deadlines a wake-up late by ``latency_us`` passed after its own (cyclictest's skip)."""
-    return max(math.ceil(latency_us / interval_us) - 1.0, 0.0)
+def _passed(latency_us: np.ndarray | float, interval_us: float) -> np.ndarray:
+    """Deadlines a wake-up late by ``latency_us`` (a number or an array) passed after its own
+    (cyclictest's skip): the m >= 1 with m x interval < latency."""
+    return np.maximum(np.ceil(np.asarray(latency_us) / interval_us) - 1.0, 0.0)
 
 
 def parse_histogram(text: str) -> Histogram:
