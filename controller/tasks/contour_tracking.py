@@ -756,8 +756,11 @@ class ContourTrackingTask:
         Every device silent 15 cycles in 60 finished the laps with the speed kept, at 23.9 N of true
         force where 13.1 N and a named stall were the cautious end.
         """
-        frequent = s.window_held_up >= STALL_HELD_UP_FRACTION * cycles_in(self.p.stall_window_s, period_s)
-        if not trusted and s.timing_window_cycles > 0 and not frequent:
+        if (
+            not trusted
+            and s.timing_window_cycles > 0
+            and s.window_held_up < STALL_HELD_UP_FRACTION * cycles_in(self.p.stall_window_s, period_s)
+        ):
             return max(s.restart_speed_m_s, s.speed_m_s)
         return s.restart_speed_m_s if s.speed_m_s < speed < s.restart_speed_m_s else 0.0
 
