@@ -120,13 +120,14 @@ def _rt_options(ap: argparse.ArgumentParser) -> None:
         "--idle-poll",
         action="store_true",
         help="keep the controller's CPUs from halting while the loop runs: a SCHED_IDLE poller on each "
-        "(a default on a VM guest that halts idle CPUs at once; alone, with the other defaults; "
+        "(a default on a VM guest that halts idle CPUs at once and has no polling idle state, where "
+        "the default is --cpu-latency-us 0 otherwise; alone, with the other defaults in place of that; "
         "controller/shell/idle_poll.py)",
     )
     g.add_argument(
         "--no-idle-poll",
         action="store_true",
-        help="the default options without idle polling: idle CPUs halt",
+        help="the default options without keeping idle CPUs from halting (no poller, no latency limit)",
     )
     g.add_argument("--no-realtime", action="store_true", help="ask for none of them: the normal scheduler")
     g.add_argument(
@@ -202,8 +203,8 @@ def _realtime(args: argparse.Namespace, simulator: bool = False) -> RealtimeOpti
         default = RealtimeOptions.default()
         if args.no_cpu_shield:
             default = dataclasses.replace(default, shield=False)
-        if args.idle_poll or args.no_idle_poll:
-            default = dataclasses.replace(default, idle_poll=args.idle_poll)
+        if args.idle_poll or args.no_idle_poll:  # the pollers, or nothing, in place of the default remedy
+            default = dataclasses.replace(default, idle_poll=args.idle_poll, cpu_latency_us=None)
         return default.for_simulator() if simulator else default
     return RealtimeOptions(
         priority=args.rt_priority,

@@ -22,20 +22,28 @@ with that message.
   pages on the hot path. Process-wide.
 - A CPU wake-up latency limit (PM QoS, ``/dev/cpu_dma_latency``, held open while the process
   runs): 0 keeps every CPU out of idle states that take time to leave (on a VM guest the
-  ``haltpoll`` driver's halt, which hands the vCPU back to the host). The loop sleeps most
-  of each cycle, before its deadline and while the drives answer; after such a sleep its
-  ``step`` ran slower (``python -m controller.tools.bench.step_after_sleep``: the path task's
-  median p50 174 us against 146 us with the limit, 5 alternating runs; docs/concepts/realtime.md).
-  cyclictest holds the same limit by default, so the floor it measures is taken with it.
-  Machine-wide while held; released when the file is closed. Asked for only explicitly
-  (``--cpu-latency-us``): on this VM guest polling vCPUs lost more time to the host (steal)
-  and the 400-Hz contour demo over the bus got worse with it, though the 1-kHz bench got better.
-  A guest without a cpuidle driver (``/sys/devices/system/cpu/cpuidle/current_driver``: none)
-  always halts an idle CPU and the limit changes nothing there.
-- Idle polling (``controller/shell/idle_poll.py``): a ``SCHED_IDLE`` poller on every CPU keeps
-  the vCPUs of a VM guest from halting, which the guest's kernel cannot be told to do without a
-  boot option. A default only on a VM guest that halts idle CPUs at once (``halts_when_idle``):
-  no cpuidle driver, or ``haltpoll`` told not to poll (``guest_halt_poll_ns`` 0).
+  ``haltpoll`` driver's halt, which hands the vCPU back to the host): the cpuidle governor
+  (``haltpoll``, ``menu``, ``teo``) then keeps an idle CPU in its ``POLL`` state, a loop in the
+  kernel's idle task. Machine-wide while held; released when the file is closed. cyclictest
+  would hold the same limit by default; the bench runs it with ``--laptop``, so that the floor it
+  measures is the machine as the service leaves it. A guest without a cpuidle driver
+  (``/sys/devices/system/cpu/cpuidle/current_driver``: none) always halts an idle CPU and the
+  limit changes nothing there.
+- Idle polling (``controller/shell/idle_poll.py``): a ``SCHED_IDLE`` poller process on every CPU
+  keeps the vCPUs of a VM guest from halting where the kernel has no polling state to keep them
+  in (no cpuidle driver), which it cannot be told to do without a boot option.
+
+Where a VM guest halts idle CPUs at once (``halts_when_idle``: no cpuidle driver, or ``haltpoll``
+told not to poll, ``guest_halt_poll_ns`` 0), the defaults keep them from halting
+(``idle_remedy``): with the latency limit of 0 where the kernel has a polling state and the
+device may be written, else with the pollers. The limit is the cheaper of the two where both
+work: the idle task polls in the kernel, where a poller is a process of its own that the CPU
+switches to and back from around every sleep of the loop. ``cheope bench --rates 400 --duration
+30 --compare 0 --cyclictest 30 --schedulers realtime --task contour``, 2 runs each, alternating,
+nothing else running (2026-12-05, the image of 2026-12-04): the loop's process, spin excluded,
+14.3 and 14.7 % of a core with the limit against 16.8 and 16.5 % with the pollers, the step in
+the service 118.6 and 117.7 µs against 134.1 and 136.9 µs at its median, the simulator 6.3 and
+6.5 % against 7.8 and 8.1 % (docs/measurements/speed.md).
 
 All are taken after the start-up work, never before it (``check_realtime`` only probes):
 several controllers and simulators share a host, and one's start-up at SCHED_FIFO took the
@@ -54,6 +62,7 @@ import struct
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
+from enum import Enum
 
 from controller.errors import InputError
 
@@ -114,19 +123,21 @@ class RealtimeOptions:
     def default(cls, priority: int = DEFAULT_LOOP_PRIORITY) -> RealtimeOptions:
         """What the controller asks for unless told otherwise: SCHED_FIFO, the last CPU kept clear
         of normal tasks, locked memory, and on a VM guest that halts idle CPUs at once the CPUs
-        kept from halting.
+        kept from halting (``idle_remedy``: a latency limit of 0, or pollers).
 
         On a machine with more than one CPU the loop takes the last one and leaves the others
         to the rest of the system (and to the simulator, ``for_simulator``).
         """
         allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
         cpus = (allowed[-1],) if len(allowed) > 1 else ()
+        remedy = idle_remedy()
         return cls(
             priority=priority,
             cpus=cpus,
             lock_memory=True,
+            cpu_latency_us=0 if remedy is IdleRemedy.LATENCY_LIMIT else None,
             shield=bool(cpus),
-            idle_poll=halts_when_idle(),
+            idle_poll=remedy is IdleRemedy.POLLERS,
             required=False,
             default_cpus=bool(cpus),
         )
@@ -221,7 +232,7 @@ def halts_when_idle(
     """A VM guest whose idle CPUs halt at once: no cpuidle driver (``none`` or no driver file), or
     the ``haltpoll`` driver with a poll window of 0 (booted with ``haltpoll.guest_halt_poll_ns=0``,
     as the development VM's image of 2026-12-04 is). There the host decides when a halted vCPU runs again, and
-    idle polling is a default (controller/shell/idle_poll.py). A ``haltpoll`` guest that polls
+    the defaults keep the CPUs from halting (``idle_remedy``). A ``haltpoll`` guest that polls
     first, or one whose window cannot be read, is left alone."""
     if not on_virtual_machine(cpuinfo_path):
         return False
@@ -239,6 +250,39 @@ def halts_when_idle(
             return int(f.read().strip()) == 0
     except (OSError, ValueError):
         return False
+
+
+class IdleRemedy(Enum):
+    """How the defaults keep a VM guest's idle CPUs from halting while the loop runs (module text)."""
+
+    NONE = "none"  # left as they are: not a guest, or a guest that polls before it halts
+    LATENCY_LIMIT = "latency limit"  # PM QoS 0: the kernel's idle task polls (its POLL state)
+    POLLERS = "pollers"  # a SCHED_IDLE poller process on each CPU (controller/shell/idle_poll.py)
+
+
+# the first idle state of a CPU: "POLL" where the cpuidle driver has the kernel's polling state
+FIRST_IDLE_STATE = "/sys/devices/system/cpu/cpu0/cpuidle/state0/name"
+
+
+def idle_remedy(
+    cpuinfo_path: str = "/proc/cpuinfo",
+    driver_path: str = CPUIDLE_DRIVER,
+    window_path: str = HALTPOLL_WINDOW,
+    first_state_path: str = FIRST_IDLE_STATE,
+    qos_path: str = PM_QOS_DEVICE,
+) -> IdleRemedy:
+    """What keeps this machine's idle CPUs from halting (module text): nothing where they do not
+    halt at once (``halts_when_idle``); the latency limit where the cpuidle driver has a polling
+    state and the PM QoS device may be written (a service without root gets the pollers, not a
+    warning at every start); the pollers otherwise."""
+    if not halts_when_idle(cpuinfo_path, driver_path, window_path):
+        return IdleRemedy.NONE
+    try:
+        with open(first_state_path) as f:
+            polls = f.read().strip() == "POLL"
+    except OSError:
+        polls = False
+    return IdleRemedy.LATENCY_LIMIT if polls and os.access(qos_path, os.W_OK) else IdleRemedy.POLLERS
 
 
 def set_fifo_priority(priority: int) -> None:

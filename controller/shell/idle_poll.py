@@ -14,7 +14,8 @@ What it changes beside the demo: the real-time page of the docs.
 
 The price: every CPU the controller may use is busy for as long as the loop runs (the pollers'
 CPU time is in the run's summary, ``idle_poll.cpu_s``), and the host counts that time. The
-default asks for it only where the guest halts at once (``controller.realtime.halts_when_idle``).
+default asks for it only where the guest halts at once and its kernel has no polling idle state
+to keep it in by a latency limit of 0, which costs the loop less (``controller.realtime.idle_remedy``).
 
 A poller is its own small interpreter, not a thread: a spinning thread of the loop's process
 would hold the interpreter lock the loop needs. It is born under the normal scheduler whatever

@@ -16,7 +16,14 @@ import pytest
 from waiting import wait_until
 
 from controller.cli import _realtime, build_parser
-from controller.realtime import RealtimeError, RealtimeOptions, halts_when_idle, on_virtual_machine
+from controller.realtime import (
+    IdleRemedy,
+    RealtimeError,
+    RealtimeOptions,
+    halts_when_idle,
+    idle_remedy,
+    on_virtual_machine,
+)
 from controller.shell.idle_poll import IdlePollers, idle_polling
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -202,22 +209,71 @@ def test_a_guest_that_halts_at_once_is_known_by_its_cpus_and_its_cpuidle_driver(
     assert not halts_when_idle(str(metal), str(none))  # a machine of its own: --cpu-latency-us
 
 
-def test_the_defaults_poll_where_the_guest_halts_and_the_options_say_otherwise(
+def test_a_guest_that_halts_is_kept_polling_by_the_latency_limit_where_its_kernel_has_a_polling_state(
+    tmp_path: Path,
+) -> None:
+    guest = tmp_path / "guest"
+    guest.write_text("processor\t: 0\nflags\t\t: fpu vme de pse hypervisor lahf_lm\n")
+    metal = tmp_path / "metal"
+    metal.write_text("processor\t: 0\nflags\t\t: fpu vme de pse lahf_lm\n")
+    haltpoll, none, never, polls = (tmp_path / n for n in ("haltpoll", "none", "0", "200 us"))
+    haltpoll.write_text("haltpoll\n")
+    none.write_text("none\n")
+    never.write_text("0\n")
+    polls.write_text("200000\n")
+    poll_state, halt_state = tmp_path / "POLL", tmp_path / "haltpoll idle"
+    poll_state.write_text("POLL\n")
+    halt_state.write_text("haltpoll idle\n")
+    writable = tmp_path / "cpu_dma_latency"
+    writable.write_bytes(b"")
+    read_only = tmp_path / "read-only"
+    read_only.write_bytes(b"")
+
+    def remedy(cpus: Path, driver: Path, window: Path, first_state: Path, qos: Path) -> IdleRemedy:
+        return idle_remedy(str(cpus), str(driver), str(window), str(first_state), str(qos))
+
+    # the development VM's image of 2026-12-04: haltpoll told not to poll, its POLL state first
+    assert remedy(guest, haltpoll, never, poll_state, writable) is IdleRemedy.LATENCY_LIMIT
+    # the device not writable (a service without root): the pollers, not a refusal at every start
+    read_only.chmod(0o444)
+    if not os.access(read_only, os.W_OK):  # root may write anything: the case is not made there
+        assert remedy(guest, haltpoll, never, poll_state, read_only) is IdleRemedy.POLLERS
+    assert remedy(guest, haltpoll, never, tmp_path / "no such state", writable) is IdleRemedy.POLLERS
+    assert remedy(guest, haltpoll, never, halt_state, writable) is IdleRemedy.POLLERS  # no POLL state first
+    assert remedy(guest, haltpoll, never, poll_state, tmp_path / "no PM QoS") is IdleRemedy.POLLERS
+    # no cpuidle driver: the limit changes nothing, the pollers
+    assert remedy(guest, none, never, tmp_path / "no such state", writable) is IdleRemedy.POLLERS
+    # a guest that polls before it halts, and a machine of its own: left alone
+    assert remedy(guest, haltpoll, polls, poll_state, writable) is IdleRemedy.NONE
+    assert remedy(metal, haltpoll, never, poll_state, writable) is IdleRemedy.NONE
+
+
+def test_the_defaults_keep_a_halting_guest_polling_and_the_options_say_otherwise(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     import controller.realtime as realtime
 
     parse = build_parser().parse_args
-    monkeypatch.setattr(realtime, "halts_when_idle", lambda: True)
+    monkeypatch.setattr(realtime, "idle_remedy", lambda: IdleRemedy.POLLERS)
     default = _realtime(parse(["demo"]))
-    assert default.idle_poll and default.priority is not None
+    assert default.idle_poll and default.cpu_latency_us is None and default.priority is not None
     assert not _realtime(parse(["demo"]), simulator=True).idle_poll  # the controller polls for both
     assert _realtime(parse(["demo", "--no-idle-poll"])) == dataclasses.replace(default, idle_poll=False)
     assert "--idle-poll" in RealtimeOptions(idle_poll=True).cli_args()
-    monkeypatch.setattr(realtime, "halts_when_idle", lambda: False)
-    assert not _realtime(parse(["demo"])).idle_poll
+    monkeypatch.setattr(realtime, "idle_remedy", lambda: IdleRemedy.LATENCY_LIMIT)
+    limited = _realtime(parse(["demo"]))
+    assert limited.cpu_latency_us == 0 and not limited.idle_poll
+    assert _realtime(parse(["demo"]), simulator=True).cpu_latency_us == 0  # the simulator holds it too
+    # --no-idle-poll: the CPUs left to halt, either way; --idle-poll: the pollers in place of the limit
+    assert _realtime(parse(["demo", "--no-idle-poll"])) == dataclasses.replace(limited, cpu_latency_us=None)
+    assert _realtime(parse(["demo", "--idle-poll"])) == dataclasses.replace(
+        limited, cpu_latency_us=None, idle_poll=True
+    )
+    monkeypatch.setattr(realtime, "idle_remedy", lambda: IdleRemedy.NONE)
+    nothing = _realtime(parse(["demo"]))
+    assert not nothing.idle_poll and nothing.cpu_latency_us is None
     # alone, --idle-poll changes the defaults; beside explicit options it is one of them
-    assert _realtime(parse(["demo", "--idle-poll"])) == dataclasses.replace(default, idle_poll=True)
+    assert _realtime(parse(["demo", "--idle-poll"])) == dataclasses.replace(nothing, idle_poll=True)
     assert _realtime(parse(["run", "--rt-priority", "80", "--idle-poll"])) == RealtimeOptions(
         priority=80, idle_poll=True
     )
