@@ -43,7 +43,7 @@ switches to and back from around every sleep of the loop. ``cheope bench --rates
 nothing else running (2026-12-05, the image of 2026-12-04): the loop's process, spin excluded,
 14.3 and 14.7 % of a core with the limit against 16.8 and 16.5 % with the pollers, the step in
 the service 118.6 and 117.7 µs against 134.1 and 136.9 µs at its median, the simulator 6.3 and
-6.5 % against 7.8 and 8.1 % (docs/measurements/speed.md).
+6.5 % against 7.8 and 8.1 % (docs/concepts/realtime.md).
 
 All are taken after the start-up work, never before it (``check_realtime`` only probes):
 several controllers and simulators share a host, and one's start-up at SCHED_FIFO took the

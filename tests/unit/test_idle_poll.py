@@ -10,6 +10,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -21,6 +22,7 @@ from controller.realtime import (
     RealtimeError,
     RealtimeOptions,
     halts_when_idle,
+    hold_cpu_latency,
     idle_remedy,
     on_virtual_machine,
 )
@@ -302,3 +304,30 @@ def test_real_time_options_are_refused_in_simulated_time_not_ignored(
     )
     assert main(["demo", "--simulated-time", "--cpu-latency-us", "0"]) == 2  # 0 is given, not absent
     assert "--cpu-latency-us: --simulated-time" in capsys.readouterr().err
+
+
+def _halts_entered() -> int:
+    """How often the machine's CPUs entered an idle state other than the kernel's polling one."""
+    total = 0
+    for state in Path("/sys/devices/system/cpu").glob("cpu[0-9]*/cpuidle/state[0-9]*"):
+        if (state / "name").read_text().strip() != "POLL":
+            total += int((state / "usage").read_text())
+    return total
+
+
+@pytest.mark.skipif(
+    idle_remedy() is not IdleRemedy.LATENCY_LIMIT,
+    reason="the default's latency limit is this guest's remedy only",
+)
+def test_under_the_default_latency_limit_no_cpu_halts() -> None:
+    """The premise of the default (controller.realtime.idle_remedy): with the limit of 0 held, the
+    governor keeps every idle CPU in its POLL state (without it, this guest's CPUs halted 31-70
+    times in 2 s). A CPU deciding to halt as the limit came may enter once."""
+    fd = hold_cpu_latency(0)
+    try:
+        before = _halts_entered()
+        time.sleep(0.5)  # the window the halts are counted over, not a wait for something
+        entered = _halts_entered() - before
+    finally:
+        os.close(fd)
+    assert entered <= os.cpu_count(), f"{entered} halts under a latency limit of 0"
