@@ -335,8 +335,9 @@ def test_default_realtime_asks_for_fifo_the_last_cpu_and_locked_memory():
     assert sim.priority == 70 and not sim.required and set(sim.cpus).isdisjoint(rt.cpus)
     assert rt.cli_args()[-1] == "--rt-best-effort"  # the child warns and runs on as the parent does
     # a limit of 0 only where it keeps a halting guest's CPUs polling (docs/concepts/realtime.md)
-    assert rt.cpu_latency_us == (0 if idle_remedy() is IdleRemedy.LATENCY_LIMIT else None)
-    assert rt.idle_poll == (idle_remedy() is IdleRemedy.POLLERS)
+    remedy = idle_remedy()
+    assert rt.cpu_latency_us == (0 if remedy is IdleRemedy.LATENCY_LIMIT else None)
+    assert rt.idle_poll == (remedy is IdleRemedy.POLLERS)
     assert RealtimeOptions(cpu_latency_us=0).for_simulator().cpu_latency_us == 0
     assert RealtimeOptions(priority=80, cpu_latency_us=0, required=False).cli_args() == [
         "--rt-priority",

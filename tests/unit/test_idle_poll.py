@@ -189,40 +189,50 @@ def test_pollers_that_lived_to_the_end_are_not_named_as_ended(caplog: pytest.Log
     assert isinstance(summary["cpu_s"], float) and summary["cpu_s"] >= 0.0
 
 
+@dataclasses.dataclass(frozen=True)
+class MachineFiles:
+    """Stand-ins for /proc/cpuinfo and the cpuidle files, as the guests and machines below have them."""
+
+    guest: Path  # cpuinfo with the hypervisor flag
+    metal: Path  # cpuinfo without it
+    none: Path  # current_driver: no cpuidle driver
+    haltpoll: Path  # current_driver: haltpoll
+    polls: Path  # haltpoll's poll window: 200 us
+    never: Path  # haltpoll's poll window: 0, never polls
+
+
+def _machine_files(tmp_path: Path) -> MachineFiles:
+    contents = {
+        "guest": "processor\t: 0\nflags\t\t: fpu vme de pse hypervisor lahf_lm\n",
+        "metal": "processor\t: 0\nflags\t\t: fpu vme de pse lahf_lm\n",
+        "none": "none\n",
+        "haltpoll": "haltpoll\n",
+        "polls": "200000\n",
+        "never": "0\n",
+    }
+    for name, text in contents.items():
+        (tmp_path / name).write_text(text)
+    return MachineFiles(**{name: tmp_path / name for name in contents})
+
+
 def test_a_guest_that_halts_at_once_is_known_by_its_cpus_and_its_cpuidle_driver(tmp_path: Path) -> None:
-    guest = tmp_path / "guest"
-    guest.write_text("processor\t: 0\nflags\t\t: fpu vme de pse hypervisor lahf_lm\n")
-    metal = tmp_path / "metal"
-    metal.write_text("processor\t: 0\nflags\t\t: fpu vme de pse lahf_lm\n")
-    assert on_virtual_machine(str(guest))
-    assert not on_virtual_machine(str(metal))
+    m = _machine_files(tmp_path)
+    assert on_virtual_machine(str(m.guest))
+    assert not on_virtual_machine(str(m.metal))
     assert not on_virtual_machine(str(tmp_path / "missing"))
-    none, haltpoll = tmp_path / "none", tmp_path / "haltpoll"
-    none.write_text("none\n")
-    haltpoll.write_text("haltpoll\n")
-    assert halts_when_idle(str(guest), str(none))
-    assert halts_when_idle(str(guest), str(tmp_path / "no cpuidle"))
-    polls, never = tmp_path / "200 us", tmp_path / "0"
-    polls.write_text("200000\n")
-    never.write_text("0\n")
-    assert not halts_when_idle(str(guest), str(haltpoll), str(polls))  # it polls before it halts
-    assert halts_when_idle(str(guest), str(haltpoll), str(never))  # told not to poll: halts at once
-    assert not halts_when_idle(str(guest), str(haltpoll), str(tmp_path / "no window"))  # unknown: left alone
-    assert not halts_when_idle(str(metal), str(none))  # a machine of its own: --cpu-latency-us
+    assert halts_when_idle(str(m.guest), str(m.none))
+    assert halts_when_idle(str(m.guest), str(tmp_path / "no cpuidle"))
+    assert not halts_when_idle(str(m.guest), str(m.haltpoll), str(m.polls))  # it polls before it halts
+    assert halts_when_idle(str(m.guest), str(m.haltpoll), str(m.never))  # told not to poll: halts at once
+    # a window that cannot be read: unknown, left alone
+    assert not halts_when_idle(str(m.guest), str(m.haltpoll), str(tmp_path / "no window"))
+    assert not halts_when_idle(str(m.metal), str(m.none))  # a machine of its own: --cpu-latency-us
 
 
 def test_a_guest_that_halts_is_kept_polling_by_the_latency_limit_where_its_kernel_has_a_polling_state(
     tmp_path: Path,
 ) -> None:
-    guest = tmp_path / "guest"
-    guest.write_text("processor\t: 0\nflags\t\t: fpu vme de pse hypervisor lahf_lm\n")
-    metal = tmp_path / "metal"
-    metal.write_text("processor\t: 0\nflags\t\t: fpu vme de pse lahf_lm\n")
-    haltpoll, none, never, polls = (tmp_path / n for n in ("haltpoll", "none", "0", "200 us"))
-    haltpoll.write_text("haltpoll\n")
-    none.write_text("none\n")
-    never.write_text("0\n")
-    polls.write_text("200000\n")
+    m = _machine_files(tmp_path)
     poll_state, halt_state = tmp_path / "POLL", tmp_path / "haltpoll idle"
     poll_state.write_text("POLL\n")
     halt_state.write_text("haltpoll idle\n")
@@ -235,19 +245,20 @@ def test_a_guest_that_halts_is_kept_polling_by_the_latency_limit_where_its_kerne
         return idle_remedy(str(cpus), str(driver), str(window), str(first_state), str(qos))
 
     # the development VM's image of 2026-12-04: haltpoll told not to poll, its POLL state first
-    assert remedy(guest, haltpoll, never, poll_state, writable) is IdleRemedy.LATENCY_LIMIT
+    assert remedy(m.guest, m.haltpoll, m.never, poll_state, writable) is IdleRemedy.LATENCY_LIMIT
     # the device not writable (a service without root): the pollers, not a refusal at every start
     read_only.chmod(0o444)
     if not os.access(read_only, os.W_OK):  # root may write anything: the case is not made there
-        assert remedy(guest, haltpoll, never, poll_state, read_only) is IdleRemedy.POLLERS
-    assert remedy(guest, haltpoll, never, tmp_path / "no such state", writable) is IdleRemedy.POLLERS
-    assert remedy(guest, haltpoll, never, halt_state, writable) is IdleRemedy.POLLERS  # no POLL state first
-    assert remedy(guest, haltpoll, never, poll_state, tmp_path / "no PM QoS") is IdleRemedy.POLLERS
+        assert remedy(m.guest, m.haltpoll, m.never, poll_state, read_only) is IdleRemedy.POLLERS
+    assert remedy(m.guest, m.haltpoll, m.never, tmp_path / "no such state", writable) is IdleRemedy.POLLERS
+    # no POLL state first
+    assert remedy(m.guest, m.haltpoll, m.never, halt_state, writable) is IdleRemedy.POLLERS
+    assert remedy(m.guest, m.haltpoll, m.never, poll_state, tmp_path / "no PM QoS") is IdleRemedy.POLLERS
     # no cpuidle driver: the limit changes nothing, the pollers
-    assert remedy(guest, none, never, tmp_path / "no such state", writable) is IdleRemedy.POLLERS
+    assert remedy(m.guest, m.none, m.never, tmp_path / "no such state", writable) is IdleRemedy.POLLERS
     # a guest that polls before it halts, and a machine of its own: left alone
-    assert remedy(guest, haltpoll, polls, poll_state, writable) is IdleRemedy.NONE
-    assert remedy(metal, haltpoll, never, poll_state, writable) is IdleRemedy.NONE
+    assert remedy(m.guest, m.haltpoll, m.polls, poll_state, writable) is IdleRemedy.NONE
+    assert remedy(m.metal, m.haltpoll, m.never, poll_state, writable) is IdleRemedy.NONE
 
 
 def test_the_defaults_keep_a_halting_guest_polling_and_the_options_say_otherwise(
