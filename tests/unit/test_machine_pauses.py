@@ -1,0 +1,110 @@
+"""Gaps in each CPU's kernel events beside a run's hold-ups (controller/tools/bench/machine_pauses.py)."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+from controller.config import load_config
+from controller.shell.simulated_rig import SimulatedRig
+from controller.tools.bench import machine_pauses as mp
+from logs.recorder import SessionRecorder, session_metadata
+
+# three events of CPU 1 as tracefs prints them (trace_clock mono), and a line that is no event
+TRACE = """\
+# tracer: nop
+          <idle>-0       [001] d.h2. 20695.364001: hrtimer_expire_entry: hrtimer=0000 function=tick_nohz_handler now=1
+   python3-1234    [001] d.s1. 20695.364500: softirq_entry: vec=3 [action=NET_RX]
+     cheope-77     [001] d..2. 20695.388800: sched_switch: prev_comm=cheope prev_pid=77 prev_prio=19 ...
+"""
+
+
+def test_the_events_of_a_trace_are_read_in_the_kernels_clock_and_sorted():
+    lines = TRACE.splitlines()
+    assert mp.event_times(reversed(lines)) == [20695.364001, 20695.3645, 20695.3888]
+
+
+def test_a_gap_is_a_span_without_events_longer_than_the_least_and_within_the_run():
+    times = [0.0, 0.004, 0.012, 0.014, 0.05, 0.051, 1.0]
+    gaps = mp.gaps_of(1, times, 0.006, (0.001, 0.9))
+    # 8 ms and 36 ms; the 949 ms that outlast the run (an idle CPU takes no tick) are left out
+    assert [(g.start_s, round(g.length_s, 6)) for g in gaps] == [(0.004, 0.008), (0.014, 0.036)]
+    assert mp.gaps_of(1, times, 0.04, (0.0, 2.0)) == [mp.Gap(1, 0.051, 0.949)]
+
+
+def test_the_machine_stood_where_every_cpu_was_in_a_gap_at_once():
+    gaps = {
+        0: [mp.Gap(0, 1.000, 0.032), mp.Gap(0, 2.0, 0.01)],
+        1: [mp.Gap(1, 1.008, 0.024), mp.Gap(1, 3.0, 0.01)],  # CPU 1's second gap alone: no pause of both
+    }
+    both = mp.all_at_once(gaps)
+    assert [(g.cpu, g.start_s, round(g.length_s, 6)) for g in both] == [(-1, 1.008, 0.024)]
+    assert mp.all_at_once({}) == []
+    alone = mp.all_at_once({1: gaps[1]})  # one CPU: its own gaps
+    assert [(g.start_s, round(g.length_s, 6)) for g in alone] == [(1.008, 0.024), (3.0, 0.01)]
+
+
+def test_a_hold_up_meets_the_gaps_that_overlap_it_only():
+    hold = mp.HoldUp(cycle=10, t_s=0.025, skipped=4, wake_error_s=0.0, start_s=1.0, end_s=1.015)
+    gaps = [mp.Gap(0, 0.9, 0.05), mp.Gap(1, 1.002, 0.011), mp.Gap(0, 1.014, 0.01), mp.Gap(1, 1.015, 0.01)]
+    assert mp.overlapping(hold, gaps) == [gaps[1], gaps[2]]
+
+
+def _record_stalled_run(path: Path, stall: str) -> None:
+    """The path task's start in simulated time, the loop held up where ``stall`` says."""
+    rig = SimulatedRig(load_config(overrides={"sim.faults": [stall]}))
+    with SessionRecorder(
+        path, session_metadata(rig.cfg), clock=rig.clock.clock, phase_name=rig.law.task.phase_name
+    ) as rec:
+        rig.run((rec,), 1.0)
+
+
+def test_a_recordings_hold_ups_come_on_the_loops_own_clock(tmp_path):
+    """The loop held up 12 ms at 0.5 s (4 deadlines skipped at 400 Hz): one hold-up (the cycle of 0.51 s, the latest deadline passed), and the span it
+    covers on the recording's monotonic clock holds the 12 ms, so a trace's gap there meets it."""
+    path = tmp_path / "stalled.mcap"
+    _record_stalled_run(path, "stall=0.012@0.5+0.0025")
+    holds = mp.recording_hold_ups(str(path))
+    assert [(h.skipped, round(h.t_s, 4)) for h in holds] == [(4, 0.51)]
+    h = holds[0]
+    assert h.end_s - h.start_s >= 0.012
+    stall_gap = mp.Gap(1, h.end_s - 0.013, 0.012)  # what a trace shows of the host taking 12 ms
+    assert mp.overlapping(h, [stall_gap, mp.Gap(1, h.end_s + 1.0, 0.012)]) == [stall_gap]
+
+
+def test_no_command_or_no_trace_is_a_clear_error(capsys, monkeypatch, tmp_path):
+    with pytest.raises(SystemExit):
+        mp.main(["--json"])
+    assert "no command" in capsys.readouterr().err
+    # a tracefs that cannot be written (not root, or not mounted): said, and the command not run
+    monkeypatch.setattr(mp, "TRACEFS", tmp_path / "absent")
+    marker = tmp_path / "ran"
+    assert mp.main(["--", sys.executable, "-c", f"open({str(marker)!r}, 'w')"]) == 2
+    assert "cannot set up the kernel's trace" in capsys.readouterr().err
+    assert not marker.exists()
+
+
+@pytest.mark.skipif(
+    os.geteuid() != 0 or not Path("/sys/kernel/tracing").is_dir(), reason="needs root and tracefs"
+)
+def test_a_command_runs_under_the_trace_and_the_trace_is_left_off(tmp_path):
+    # a CPU busy for 0.3 s takes its scheduler tick (every 4 ms at 250 Hz) throughout
+    report, out = mp.run(
+        [
+            sys.executable,
+            "-c",
+            "import time; t = time.time()\nwhile time.time() < t + 0.3: pass\nprint('ok')",
+        ],
+        0,
+        0.05,
+        0.002,
+    )
+    assert out.strip() == "ok" and report.returncode == 0
+    assert report.cpus and all(c.events > 0 for c in report.cpus)
+    assert sum(c.events for c in report.cpus) > 75  # 0.3 s of ticks on the busy CPU at 250 Hz
+    root = Path("/sys/kernel/tracing")
+    assert (root / "tracing_on").read_text().strip() == "0"
+    assert (root / "set_event").read_text().strip() == ""
