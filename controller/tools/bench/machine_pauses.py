@@ -131,9 +131,16 @@ def overlapping(hold: HoldUp, gaps: Iterable[Gap]) -> list[Gap]:
     return [g for g in gaps if g.start_s < hold.end_s and hold.start_s < g.end_s]
 
 
-def recording_hold_ups(path: str, late_s: float = LATE_S) -> list[HoldUp]:
-    """The recording's hold-ups on the monotonic clock (its ``clock_offset_ns`` undone): cycles after
-    skipped deadlines, and cycles that woke more than ``late_s`` late."""
+@dataclass(frozen=True)
+class RecordedRun:
+    start_s: float  # CLOCK_MONOTONIC of its first and last cycle (when the recorder took them)
+    end_s: float
+    hold_ups: list[HoldUp]
+
+
+def recorded_run(path: str, late_s: float = LATE_S) -> RecordedRun:
+    """The recording's cycles on the monotonic clock (its ``clock_offset_ns`` undone), and its
+    hold-ups: cycles after skipped deadlines, and cycles that woke more than ``late_s`` late."""
     from logs import messages as m
     from logs.bus_traffic import clock_offset_s
     from logs.reader import ReadReport, iter_decoded
@@ -146,6 +153,8 @@ def recording_hold_ups(path: str, late_s: float = LATE_S) -> list[HoldUp]:
             f"{path}: no clock offset in its session metadata: its times cannot meet the trace's"
         )
     period_s = float(report.metadata[m.META_SESSION].get("period_s", "0"))
+    if not rows:
+        raise ValueError(f"{path}: no cycle recorded")
     if period_s <= 0.0 and len(rows) > 1:  # a recording without it: its first two cycles
         period_s = rows[1][0].t_s - rows[0][0].t_s
     out = []
@@ -155,7 +164,7 @@ def recording_hold_ups(path: str, late_s: float = LATE_S) -> list[HoldUp]:
             end_s = log_ns * 1e-9 - offset_s
             start_s = end_s - (c.t_s - before.t_s) - period_s  # the recorder takes a cycle in the next one
             out.append(HoldUp(c.cycle, c.t_s, skipped, c.timing.wake_error_s, start_s, end_s))
-    return out
+    return RecordedRun(rows[0][1] * 1e-9 - offset_s, rows[-1][1] * 1e-9 - offset_s, out)
 
 
 @dataclass
@@ -165,9 +174,11 @@ class Trace:
 
 
 @contextmanager
-def kernel_trace(root: Path = TRACEFS) -> Iterator[Trace]:
+def kernel_trace(root: Path = TRACEFS, keep: Path | None = None) -> Iterator[Trace]:
     """Trace ``EVENTS`` on every CPU while the block runs; the ``Trace`` it yields is filled at its
-    end. The trace is switched off and its events cleared however it ends."""
+    end, and each CPU's trace text is copied to ``keep``/cpuN.txt where given (what ran on a CPU
+    around a hold-up, read by hand). The trace is switched off and its events cleared however it
+    ends."""
     if root == TRACEFS and not (root / "tracing_on").exists():  # not mounted yet (a fresh machine)
         subprocess.run(["mount", "-t", "tracefs", "nodev", str(root)], check=False, capture_output=True)
     try:
@@ -188,8 +199,11 @@ def kernel_trace(root: Path = TRACEFS) -> Iterator[Trace]:
         for cpu_dir in sorted((root / "per_cpu").glob("cpu*"), key=lambda p: int(p.name[3:])):
             cpu = int(cpu_dir.name[3:])
             trace.lost[cpu] = _stat(cpu_dir / "stats", "overrun")
-            with open(cpu_dir / "trace") as f:
-                trace.times[cpu] = event_times(f)
+            text = (cpu_dir / "trace").read_text()
+            trace.times[cpu] = event_times(text.splitlines())
+            if keep is not None:
+                keep.mkdir(parents=True, exist_ok=True)
+                (keep / f"{cpu_dir.name}.txt").write_text(text)
     finally:
         (root / "tracing_on").write_text("0")
         (root / "set_event").write_text("")
@@ -209,6 +223,8 @@ class Report:
     command: list[str]
     returncode: int
     run_s: tuple[float, float]  # CLOCK_MONOTONIC at the command's start and end
+    span_s: tuple[float, float]  # where gaps were looked for: the recording's cycles, else run_s
+    span_of: str  # which of the two, or why not the recording
     cpus: list[CpuGaps]
     machine_gaps: list[Gap]  # every CPU at once
     steal_s: dict[str, float]  # /proc/stat's steal over the same run, for comparison
@@ -216,26 +232,38 @@ class Report:
 
 
 def run(
-    command: Sequence[str], hogs: int, min_gap_s: float, late_s: float, root: Path = TRACEFS
+    command: Sequence[str],
+    hogs: int,
+    min_gap_s: float,
+    late_s: float,
+    root: Path = TRACEFS,
+    keep: Path | None = None,
 ) -> tuple[Report, str]:
     """Run ``command`` under the trace (with ``hogs`` busy processes beside it); the report and the
     command's standard output."""
     steal0 = steal_ticks()
-    with kernel_trace(root) as trace, cpu_hogs(hogs):
+    with kernel_trace(root, keep) as trace, cpu_hogs(hogs):
         t0 = time.monotonic()
         done = subprocess.run(list(command), stdout=subprocess.PIPE, text=True, check=False)
         t1 = time.monotonic()
-    times = trace.times
-    gaps = {cpu: gaps_of(cpu, ts, min_gap_s, (t0, t1)) for cpu, ts in times.items()}
-    holds = []
+    recorded, span_of = None, "the command's run (no recording in its output)"
     recording = _recording_of(done.stdout)
     if recording:
-        everything = sorted((g for gs in gaps.values() for g in gs), key=lambda g: g.start_s)
-        holds = [(h, overlapping(h, everything)) for h in recording_hold_ups(recording, late_s)]
+        try:
+            recorded, span_of = recorded_run(recording, late_s), f"the cycles of {recording}"
+        except ValueError as e:  # the command's own output is still printed and kept
+            span_of = f"the command's run ({e})"
+    span = (recorded.start_s, recorded.end_s) if recorded else (t0, t1)
+    times = trace.times
+    gaps = {cpu: gaps_of(cpu, ts, min_gap_s, span) for cpu, ts in times.items()}
+    everything = sorted((g for gs in gaps.values() for g in gs), key=lambda g: g.start_s)
+    holds = [(h, overlapping(h, everything)) for h in recorded.hold_ups] if recorded else []
     report = Report(
         list(command),
         done.returncode,
         (t0, t1),
+        span,
+        span_of,
         [summary_of(cpu, len(times[cpu]), gaps[cpu], trace.lost.get(cpu, 0)) for cpu in sorted(times)],
         all_at_once(gaps),
         steal_s_since(steal0),
@@ -256,8 +284,11 @@ def _recording_of(stdout: str) -> str:
 
 
 def format_report(r: Report) -> str:
-    t0 = r.run_s[0]
-    lines = [f"{' '.join(r.command)}: exit {r.returncode}, {r.run_s[1] - t0:.1f} s"]
+    t0 = r.span_s[0]
+    lines = [
+        f"{' '.join(r.command)}: exit {r.returncode}, {r.run_s[1] - r.run_s[0]:.1f} s",
+        f"  gaps of more than the least, in {r.span_of}: {r.span_s[1] - t0:.1f} s",
+    ]
     for c in r.cpus:
         lines.append(
             f"  cpu{c.cpu}: {c.events} events; gaps: {c.gaps}, {c.total_s * 1e3:.1f} ms in all, "
@@ -267,9 +298,7 @@ def format_report(r: Report) -> str:
     lines.append(
         f"  every CPU at once: {len(r.machine_gaps)} gaps, {sum(g.length_s for g in r.machine_gaps) * 1e3:.1f} ms"
     )
-    lines += [
-        f"    {g.length_s * 1e3:6.1f} ms, {g.start_s - t0:7.3f} s into the command" for g in r.machine_gaps
-    ]
+    lines += [f"    {g.length_s * 1e3:6.1f} ms, {g.start_s - t0:7.3f} s in" for g in r.machine_gaps]
     if r.hold_ups:
         inside = sum(1 for _, gs in r.hold_ups if gs)
         lines.append(f"  the recording's hold-ups: {len(r.hold_ups)}, {inside} overlapping a gap")
@@ -286,9 +315,11 @@ def report_json(r: Report) -> dict[str, object]:
         "command": r.command,
         "returncode": r.returncode,
         "duration_s": round(r.run_s[1] - r.run_s[0], 3),
+        "span_of": r.span_of,
+        "span_s": round(r.span_s[1] - r.span_s[0], 3),
         "cpus": [asdict(c) for c in r.cpus],
         "machine_gaps": [
-            {"at_s": round(g.start_s - r.run_s[0], 4), "length_s": round(g.length_s, 4)}
+            {"at_s": round(g.start_s - r.span_s[0], 4), "length_s": round(g.length_s, 4)}
             for g in r.machine_gaps
         ],
         "steal_s": r.steal_s,
@@ -314,6 +345,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--late-ms", type=float, default=LATE_S * 1e3, help="a wake-up this late is a hold-up [ms]"
     )
     ap.add_argument("--output", type=Path, help="write the command's standard output here")
+    ap.add_argument("--keep-trace", type=Path, metavar="DIR", help="keep each CPU's trace text in DIR")
     ap.add_argument("--json", action="store_true", help="print the report as one JSON object")
     ap.add_argument("command", nargs=argparse.REMAINDER, help="-- COMMAND ...")
     args = ap.parse_args(argv)
@@ -323,7 +355,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.min_gap_ms <= 0 or args.late_ms <= 0:
         ap.error("--min-gap-ms and --late-ms must be > 0")
     try:
-        report, stdout = run(command, args.hogs, args.min_gap_ms * 1e-3, args.late_ms * 1e-3, TRACEFS)
+        report, stdout = run(
+            command, args.hogs, args.min_gap_ms * 1e-3, args.late_ms * 1e-3, TRACEFS, args.keep_trace
+        )
     except (TraceError, ValueError) as e:
         print(e, file=sys.stderr)
         return 2
