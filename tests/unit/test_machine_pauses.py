@@ -19,13 +19,32 @@ TRACE = """\
 # tracer: nop
           <idle>-0       [001] d.h2. 20695.364001: hrtimer_expire_entry: hrtimer=0000 function=tick_nohz_handler now=1
    python3-1234    [001] d.s1. 20695.364500: softirq_entry: vec=3 [action=NET_RX]
-     cheope-77     [001] d..2. 20695.388800: sched_switch: prev_comm=cheope prev_pid=77 prev_prio=19 ...
+     cheope-77     [001] d..2. 20695.388800: sched_switch: prev_comm=cheope prev_pid=77 prev_prio=19 prev_state=S ==> next_comm=swapper/1 next_pid=0 next_prio=120
 """
 
 
 def test_the_events_of_a_trace_are_read_in_the_kernels_clock_and_sorted():
-    lines = TRACE.splitlines()
-    assert mp.event_times(reversed(lines)) == [20695.364001, 20695.3645, 20695.3888]
+    cpu = mp.read_cpu_trace(reversed(TRACE.splitlines()))
+    assert cpu.times == [20695.364001, 20695.3645, 20695.3888]
+    assert cpu.switches == [mp.Switch(20695.3888, "swapper/1-0", 0)]
+
+
+def test_what_ran_on_a_cpu_in_a_span_is_each_tasks_time_there_the_idle_task_aside():
+    switches = [
+        mp.Switch(1.000, "cheope-77", 77),
+        mp.Switch(1.002, "swapper/1-0", 0),
+        mp.Switch(1.004, "ksoftirqd/1-24", 24),
+        mp.Switch(1.0041, "cheope-77", 77),
+        mp.Switch(1.010, "swapper/1-0", 0),
+    ]
+    ran = mp.ran_during(switches, 1.001, 1.012)
+    assert ran.keys() == {"cheope-77", "ksoftirqd/1-24"}
+    assert ran["cheope-77"] == pytest.approx(0.001 + 0.0059)
+    assert ran["ksoftirqd/1-24"] == pytest.approx(0.0001)
+    # a span inside one task's run, and one after the last switch, where the task runs on
+    assert mp.ran_during(switches, 1.005, 1.006) == {"cheope-77": pytest.approx(0.001)}
+    assert mp.ran_during(switches[:2], 1.0, 1.001) == {"cheope-77": pytest.approx(0.001)}
+    assert mp.ran_during(switches, 1.011, 1.02) == {}
 
 
 def test_a_gap_is_a_span_without_events_longer_than_the_least_and_within_the_run():
@@ -114,12 +133,13 @@ def test_a_command_runs_under_the_trace_and_the_trace_is_left_off(tmp_path):
         keep=tmp_path / "trace",
     )
     assert out.strip() == "ok" and report.returncode == 0
+    assert any(task.startswith("python") for task in report.busiest.values())  # the busy command
     assert sum(c.events for c in report.cpus) >= 30
     kept = {p.name for p in (tmp_path / "trace").iterdir()}
     assert kept == {f"cpu{c.cpu}.txt" for c in report.cpus}
-    assert sum(len(mp.event_times((tmp_path / "trace" / k).read_text().splitlines())) for k in kept) == sum(
-        c.events for c in report.cpus
-    )
+    assert sum(
+        len(mp.read_cpu_trace((tmp_path / "trace" / k).read_text().splitlines()).times) for k in kept
+    ) == sum(c.events for c in report.cpus)
     root = Path("/sys/kernel/tracing")
     assert (root / "tracing_on").read_text().strip() == "0"
     assert (root / "set_event").read_text().strip() == ""

@@ -14,8 +14,10 @@ CPU at once, while the loop's timer was due, are.
 
 When the command prints a run summary with a recording (``cheope demo --json``), each hold-up of
 the recording (a cycle after skipped deadlines, or one that woke more than ``--late-ms`` after its
-deadline) is listed with the gaps that overlap it on each CPU: a hold-up inside a gap of its own
-CPU is the machine's, not the loop's::
+deadline) is listed with the gaps that overlap it on each CPU, and with what ran on each CPU then
+besides that CPU's busiest task of the run (on the CPU the shield keeps for the loop, the loop)
+and the idle task: a hold-up inside a gap of its own CPU, with nothing else run there, is the
+machine's, not the loop's::
 
     python -m controller.tools.bench.machine_pauses [--hogs 2] [--json] -- cheope demo --json
 
@@ -49,6 +51,9 @@ MIN_GAP_S = 0.006  # above the 4-ms tick of a 250-Hz kernel, with its jitter
 LATE_S = 0.002  # a wake-up this late is a hold-up worth naming
 # "<comm>-<pid> [001] d.h1. 12345.678901: hrtimer_expire_entry: ..."
 _EVENT = re.compile(r"\[(\d{3})\]\s+\S+\s+(\d+\.\d+):")
+# "... sched_switch: prev_comm=swapper/1 prev_pid=0 prev_prio=120 prev_state=R ==> next_comm=cheope next_pid=77 ..."
+_SWITCH = re.compile(r"sched_switch: .*==> next_comm=(.*) next_pid=(\d+)")
+IDLE_PID = 0
 
 
 class TraceError(DeviceError, RuntimeError):
@@ -86,14 +91,48 @@ class CpuGaps:
     lost_events: int = 0  # overwritten in a full buffer: its gaps may be false
 
 
-def event_times(lines: Iterable[str]) -> list[float]:
-    """The timestamps of a per-CPU trace's events (``trace_clock`` mono: CLOCK_MONOTONIC), sorted."""
-    out = []
+@dataclass(frozen=True)
+class Switch:
+    t_s: float
+    task: str  # "comm-pid" of the task the CPU switched to
+    pid: int
+
+
+@dataclass
+class CpuTrace:
+    times: list[float] = field(default_factory=list)  # every event, sorted
+    switches: list[Switch] = field(default_factory=list)  # the context switches among them, sorted
+
+
+def read_cpu_trace(lines: Iterable[str]) -> CpuTrace:
+    """One CPU's trace (``trace_clock`` mono: CLOCK_MONOTONIC): its events' times and its switches."""
+    out = CpuTrace()
     for line in lines:
         m = _EVENT.search(line)
-        if m:
-            out.append(float(m.group(2)))
-    out.sort()
+        if not m:
+            continue
+        t = float(m.group(2))
+        out.times.append(t)
+        sw = _SWITCH.search(line, m.end())
+        if sw:
+            out.switches.append(Switch(t, f"{sw.group(1)}-{sw.group(2)}", int(sw.group(2))))
+    out.times.sort()
+    out.switches.sort(key=lambda x: x.t_s)
+    return out
+
+
+def ran_during(switches: Sequence[Switch], start_s: float, end_s: float) -> dict[str, float]:
+    """How long each task (not the idle task) ran on one CPU between ``start_s`` and ``end_s``."""
+    out: dict[str, float] = {}
+    current: Switch | None = None
+    for sw in switches:
+        if sw.t_s >= end_s:
+            break
+        if current is not None and current.pid != IDLE_PID and sw.t_s > start_s:
+            out[current.task] = out.get(current.task, 0.0) + sw.t_s - max(current.t_s, start_s)
+        current = sw
+    if current is not None and current.pid != IDLE_PID and end_s > max(current.t_s, start_s):
+        out[current.task] = out.get(current.task, 0.0) + end_s - max(current.t_s, start_s)
     return out
 
 
@@ -169,7 +208,7 @@ def recorded_run(path: str, late_s: float = LATE_S) -> RecordedRun:
 
 @dataclass
 class Trace:
-    times: dict[int, list[float]] = field(default_factory=dict)  # each CPU's event times
+    cpus: dict[int, CpuTrace] = field(default_factory=dict)
     lost: dict[int, int] = field(default_factory=dict)  # events a full buffer overwrote: false gaps
 
 
@@ -200,7 +239,7 @@ def kernel_trace(root: Path = TRACEFS, keep: Path | None = None) -> Iterator[Tra
             cpu = int(cpu_dir.name[3:])
             trace.lost[cpu] = _stat(cpu_dir / "stats", "overrun")
             text = (cpu_dir / "trace").read_text()
-            trace.times[cpu] = event_times(text.splitlines())
+            trace.cpus[cpu] = read_cpu_trace(text.splitlines())
             if keep is not None:
                 keep.mkdir(parents=True, exist_ok=True)
                 (keep / f"{cpu_dir.name}.txt").write_text(text)
@@ -219,6 +258,15 @@ def _stat(path: Path, key: str) -> int:
 
 
 @dataclass(frozen=True)
+class HoldUpSeen:
+    hold: HoldUp
+    gaps: list[Gap]  # of any CPU, overlapping it
+    # per CPU, the tasks that ran during it besides the idle task and the CPU's busiest task of the
+    # run (the loop, on the CPU the shield keeps for it): what else held that CPU then
+    others_s: dict[int, dict[str, float]]
+
+
+@dataclass(frozen=True)
 class Report:
     command: list[str]
     returncode: int
@@ -228,7 +276,8 @@ class Report:
     cpus: list[CpuGaps]
     machine_gaps: list[Gap]  # every CPU at once
     steal_s: dict[str, float]  # /proc/stat's steal over the same run, for comparison
-    hold_ups: list[tuple[HoldUp, list[Gap]]]
+    busiest: dict[int, str]  # each CPU's task that ran longest over the span
+    hold_ups: list[HoldUpSeen]
 
 
 def run(
@@ -254,22 +303,41 @@ def run(
         except ValueError as e:  # the command's own output is still printed and kept
             span_of = f"the command's run ({e})"
     span = (recorded.start_s, recorded.end_s) if recorded else (t0, t1)
-    times = trace.times
-    gaps = {cpu: gaps_of(cpu, ts, min_gap_s, span) for cpu, ts in times.items()}
+    cpus = trace.cpus
+    gaps = {cpu: gaps_of(cpu, c.times, min_gap_s, span) for cpu, c in cpus.items()}
     everything = sorted((g for gs in gaps.values() for g in gs), key=lambda g: g.start_s)
-    holds = [(h, overlapping(h, everything)) for h in recorded.hold_ups] if recorded else []
+    busiest = {cpu: _busiest(ran_during(c.switches, *span)) for cpu, c in cpus.items()}
+    holds = (
+        [HoldUpSeen(h, overlapping(h, everything), _others(cpus, busiest, h)) for h in recorded.hold_ups]
+        if recorded
+        else []
+    )
     report = Report(
         list(command),
         done.returncode,
         (t0, t1),
         span,
         span_of,
-        [summary_of(cpu, len(times[cpu]), gaps[cpu], trace.lost.get(cpu, 0)) for cpu in sorted(times)],
+        [summary_of(cpu, len(cpus[cpu].times), gaps[cpu], trace.lost.get(cpu, 0)) for cpu in sorted(cpus)],
         all_at_once(gaps),
         steal_s_since(steal0),
+        busiest,
         holds,
     )
     return report, done.stdout
+
+
+def _busiest(ran: dict[str, float]) -> str:
+    return max(ran, key=lambda task: ran[task]) if ran else ""
+
+
+def _others(cpus: dict[int, CpuTrace], busiest: dict[int, str], h: HoldUp) -> dict[int, dict[str, float]]:
+    out = {}
+    for cpu, c in cpus.items():
+        ran = {k: v for k, v in ran_during(c.switches, h.start_s, h.end_s).items() if k != busiest[cpu]}
+        if ran:
+            out[cpu] = ran
+    return out
 
 
 def _recording_of(stdout: str) -> str:
@@ -300,12 +368,23 @@ def format_report(r: Report) -> str:
     )
     lines += [f"    {g.length_s * 1e3:6.1f} ms, {g.start_s - t0:7.3f} s in" for g in r.machine_gaps]
     if r.hold_ups:
-        inside = sum(1 for _, gs in r.hold_ups if gs)
+        inside = sum(1 for seen in r.hold_ups if seen.gaps)
         lines.append(f"  the recording's hold-ups: {len(r.hold_ups)}, {inside} overlapping a gap")
-        for h, gs in r.hold_ups:
-            where = "; ".join(f"cpu{g.cpu} {g.length_s * 1e3:.1f} ms" for g in gs) or "no gap"
+        lines.append(
+            "    others: what ran on a CPU then besides its busiest task of the run: "
+            + ", ".join(f"cpu{cpu} {task}" for cpu, task in sorted(r.busiest.items()))
+        )
+        for seen in r.hold_ups:
+            h = seen.hold
+            where = "; ".join(f"cpu{g.cpu} {g.length_s * 1e3:.1f} ms" for g in seen.gaps) or "no gap"
+            others = "; ".join(
+                f"cpu{cpu} {task} {t * 1e6:.0f} us"
+                for cpu, ran in sorted(seen.others_s.items())
+                for task, t in ran.items()
+            )
             lines.append(
-                f"    cycle {h.cycle} (t {h.t_s:.3f} s): {h.skipped} skipped, woke {h.wake_error_s * 1e3:.1f} ms late | {where}"
+                f"    cycle {h.cycle} (t {h.t_s:.3f} s): {h.skipped} skipped, woke {h.wake_error_s * 1e3:.1f} ms late"
+                f" | {where} | others: {others or 'none'}"
             )
     return "\n".join(lines)
 
@@ -323,12 +402,17 @@ def report_json(r: Report) -> dict[str, object]:
             for g in r.machine_gaps
         ],
         "steal_s": r.steal_s,
+        "busiest": r.busiest,
         "hold_ups": [
             {
-                **{k: v for k, v in asdict(h).items() if k not in ("start_s", "end_s")},
-                "gaps": [{"cpu": g.cpu, "length_s": round(g.length_s, 4)} for g in gs],
+                **{k: v for k, v in asdict(seen.hold).items() if k not in ("start_s", "end_s")},
+                "gaps": [{"cpu": g.cpu, "length_s": round(g.length_s, 4)} for g in seen.gaps],
+                "others_s": {
+                    str(cpu): {task: round(t, 6) for task, t in ran.items()}
+                    for cpu, ran in seen.others_s.items()
+                },
             }
-            for h, gs in r.hold_ups
+            for seen in r.hold_ups
         ],
     }
 
