@@ -101,6 +101,9 @@ def test_no_command_or_no_trace_is_a_clear_error(capsys, monkeypatch, tmp_path):
     with pytest.raises(SystemExit):
         mp.main(["--json"])
     assert "no command" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        mp.main(["--hogs", "99", "--", "true"])
+    assert "--hogs 99: must be 0 .. 16" in capsys.readouterr().err
     # a tracefs that cannot be written (not root, or not mounted): said, and the command not run
     monkeypatch.setattr(mp, "TRACEFS", tmp_path / "absent")
     marker = tmp_path / "ran"

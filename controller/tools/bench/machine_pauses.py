@@ -297,6 +297,8 @@ def run(
         t1 = time.monotonic()
     recorded, span_of = None, "the command's run (no recording in its output)"
     recording = _recording_of(done.stdout)
+    if recording and not Path(recording).is_file():
+        span_of, recording = f"the command's run (its recording {recording} is not a file)", ""
     if recording:
         try:
             recorded, span_of = recorded_run(recording, late_s), f"the cycles of {recording}"
@@ -348,7 +350,7 @@ def _recording_of(stdout: str) -> str:
         return ""
     rec = summary.get("recording") if isinstance(summary, dict) else None
     path = rec.get("path", "") if isinstance(rec, dict) else ""
-    return path if isinstance(path, str) and Path(path).is_file() else ""
+    return path if isinstance(path, str) else ""
 
 
 def format_report(r: Report) -> str:
@@ -438,6 +440,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         ap.error("no command: give it after --, e.g. -- cheope demo --json")
     if args.min_gap_ms <= 0 or args.late_ms <= 0:
         ap.error("--min-gap-ms and --late-ms must be > 0")
+    if not 0 <= args.hogs <= MAX_HOGS:
+        ap.error(f"--hogs {args.hogs}: must be 0 .. {MAX_HOGS}")
     try:
         report, stdout = run(
             command, args.hogs, args.min_gap_ms * 1e-3, args.late_ms * 1e-3, TRACEFS, args.keep_trace
