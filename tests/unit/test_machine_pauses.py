@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from waiting import GENEROUS_S, wait_for_exit, wait_until
 
 from controller.config import load_config
 from controller.shell.simulated_rig import SimulatedRig
@@ -146,3 +148,23 @@ def test_a_command_runs_under_the_trace_and_the_trace_is_left_off(tmp_path):
     root = Path("/sys/kernel/tracing")
     assert (root / "tracing_on").read_text().strip() == "0"
     assert (root / "set_event").read_text().strip() == ""
+
+
+@pytest.mark.skipif(not _tracefs_here(), reason="needs root and a kernel with tracefs")
+def test_a_sigterm_leaves_the_trace_off_and_the_command_ended(tmp_path):
+    pid_file = tmp_path / "command.pid"
+    command = f"import os, time; open({str(pid_file)!r}, 'w').write(str(os.getpid())); time.sleep(60)"
+    tool = subprocess.Popen(
+        [sys.executable, "-m", "controller.tools.bench.machine_pauses", "--", sys.executable, "-c", command]
+    )
+    try:
+        wait_until(lambda: pid_file.exists() and pid_file.read_text(), "the command started under the trace")
+        assert (mp.TRACEFS / "tracing_on").read_text().strip() == "1"
+        tool.terminate()
+        assert tool.wait(timeout=GENEROUS_S) == 128 + signal.SIGTERM
+    finally:
+        tool.kill()
+        tool.wait()
+    assert (mp.TRACEFS / "tracing_on").read_text().strip() == "0"
+    assert (mp.TRACEFS / "set_event").read_text().strip() == ""
+    wait_for_exit(int(pid_file.read_text()), "the command, ended with the tool")

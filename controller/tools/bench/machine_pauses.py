@@ -30,6 +30,7 @@ import argparse
 import itertools
 import json
 import re
+import signal
 import subprocess
 import sys
 import time
@@ -419,6 +420,10 @@ def report_json(r: Report) -> dict[str, object]:
     }
 
 
+def _terminated(signum: int, _frame: object) -> None:
+    raise SystemExit(128 + signum)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         prog="python -m controller.tools.bench.machine_pauses", description=__doc__.split("\n")[0]
@@ -435,6 +440,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--json", action="store_true", help="print the report as one JSON object")
     ap.add_argument("command", nargs=argparse.REMAINDER, help="-- COMMAND ...")
     args = ap.parse_args(argv)
+    # a SIGTERM (a timeout, a kill) ends it as an exception, so that the trace is switched off and its
+    # events cleared, the hogs killed and the command too: by default it ended the process with the
+    # whole machine still traced
+    signal.signal(signal.SIGTERM, _terminated)
     command = args.command[1:] if args.command[:1] == ["--"] else args.command
     if not command:
         ap.error("no command: give it after --, e.g. -- cheope demo --json")
