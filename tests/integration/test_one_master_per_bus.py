@@ -13,7 +13,7 @@ import sys
 
 import can
 import pytest
-from busy_machine import TOLERANT
+from busy_machine import TOLERANT, how_the_run_ended
 from controller_on_the_bus import SYNC, another_master
 from waiting import GENEROUS_S, wait_until
 
@@ -80,7 +80,9 @@ def test_a_running_controller_is_heard_and_its_devices_too_and_it_runs_on() -> N
             assert "TPDO1 of node 1 (0x181)" in str(taken.value)
             ctrl.send_signal(signal.SIGTERM)
             out, err = ctrl.communicate(timeout=GENEROUS_S)
-            assert ctrl.returncode == 0 and json.loads(out)["final_mode"] == "DONE", err[-2000:]
+            assert ctrl.returncode == 0 and json.loads(out)["final_mode"] == "DONE", how_the_run_ended(
+                out, err
+            )
         finally:
             stop_process(ctrl)
 
