@@ -22,7 +22,7 @@ def how_the_run_ended(stdout: str, stderr: str) -> str:
     try:
         s = json.loads(stdout)
     except ValueError:
-        return f"no summary; stderr: {stderr[-2000:]}"
+        s = None
     if not isinstance(s, dict):
         return f"no summary; stderr: {stderr[-2000:]}"
     return f"{s.get('final_mode')}: {s.get('fault_reason')!r}; last events: {s.get('events', [])[-8:]}"

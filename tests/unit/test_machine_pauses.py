@@ -116,11 +116,7 @@ def test_no_command_or_no_trace_is_a_clear_error(capsys, monkeypatch, tmp_path):
 
 def _tracefs_here() -> bool:
     """Root, and tracefs mounted or mountable (the tool mounts it itself when it is not)."""
-    if os.geteuid() != 0:
-        return False
-    if not (mp.TRACEFS / "tracing_on").exists():
-        subprocess.run(["mount", "-t", "tracefs", "nodev", str(mp.TRACEFS)], check=False, capture_output=True)
-    return (mp.TRACEFS / "tracing_on").exists()
+    return os.geteuid() == 0 and mp.tracefs_ready()
 
 
 @pytest.mark.skipif(not _tracefs_here(), reason="needs root and a kernel with tracefs")

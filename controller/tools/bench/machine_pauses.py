@@ -213,14 +213,21 @@ class Trace:
     lost: dict[int, int] = field(default_factory=dict)  # events a full buffer overwrote: false gaps
 
 
+def tracefs_ready(root: Path = TRACEFS) -> bool:
+    """Whether the kernel's trace is at ``root``, mounting it first where it is the system's and not
+    mounted yet (a fresh machine)."""
+    if root == TRACEFS and not (root / "tracing_on").exists():
+        subprocess.run(["mount", "-t", "tracefs", "nodev", str(root)], check=False, capture_output=True)
+    return (root / "tracing_on").exists()
+
+
 @contextmanager
 def kernel_trace(root: Path = TRACEFS, keep: Path | None = None) -> Iterator[Trace]:
     """Trace ``EVENTS`` on every CPU while the block runs; the ``Trace`` it yields is filled at its
     end, and each CPU's trace text is copied to ``keep``/cpuN.txt where given (what ran on a CPU
     around a hold-up, read by hand). The trace is switched off and its events cleared however it
     ends."""
-    if root == TRACEFS and not (root / "tracing_on").exists():  # not mounted yet (a fresh machine)
-        subprocess.run(["mount", "-t", "tracefs", "nodev", str(root)], check=False, capture_output=True)
+    tracefs_ready(root)
     try:
         (root / "tracing_on").write_text("0")
         (root / "trace").write_text("")
@@ -298,12 +305,10 @@ def run(
         t1 = time.monotonic()
     recorded, span_of = None, "the command's run (no recording in its output)"
     recording = _recording_of(done.stdout)
-    if recording and not Path(recording).is_file():
-        span_of, recording = f"the command's run (its recording {recording} is not a file)", ""
     if recording:
         try:
             recorded, span_of = recorded_run(recording, late_s), f"the cycles of {recording}"
-        except ValueError as e:  # the command's own output is still printed and kept
+        except (OSError, ValueError) as e:  # missing, unreadable, damaged: the command's output is still kept
             span_of = f"the command's run ({e})"
     span = (recorded.start_s, recorded.end_s) if recorded else (t0, t1)
     cpus = trace.cpus
