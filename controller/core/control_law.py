@@ -67,6 +67,7 @@ from controller.core.cycle_data import (
 )
 from controller.core.law_config import LawConfig
 from controller.core.linalg3 import norm3, sub3
+from controller.core.periods import deadlines_skipped
 from controller.core.ports import (
     ContactExpectation,
     ForceWitnessModel,
@@ -254,7 +255,7 @@ class ControlLaw:
         """The deadlines the loop skipped before this step (it fell behind: a hold-up)."""
         if not math.isfinite(state.step_t_s):  # the first step has no last one
             return 0
-        return max(0, round((t - state.step_t_s) / self.config.period_s) - 1)
+        return deadlines_skipped(t - state.step_t_s, self.config.period_s)
 
     def _after_hold_up(self, state: ControllerState, skipped: int, withheld: bool) -> ControllerState:
         """Where the drives went while the loop was held up for ``skipped`` deadlines.

@@ -25,3 +25,12 @@ def cycles_in(seconds: float, period_s: float) -> int:
     """The whole cycles of ``period_s`` in ``seconds``, at least one: rounded, as 0.025 / 0.0025 is
     10.000000000000002 (at 400 Hz every shipped window is a whole number of cycles)."""
     return max(1, round(seconds / period_s))
+
+
+def deadlines_skipped(interval_s: float, period_s: float) -> int:
+    """The deadlines a loop skipped between two cycles ``interval_s`` apart (a hold-up): the whole
+    periods between them, rounded as the deadlines are a period apart, less the one it ran at; 0
+    for cycles a period apart or less, or without a period."""
+    if period_s <= 0.0:
+        return 0
+    return max(0, round(interval_s / period_s) - 1)

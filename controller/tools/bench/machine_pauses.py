@@ -39,6 +39,7 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from controller.core.periods import deadlines_skipped
 from controller.errors import DeviceError
 from controller.shell.cpu_steal import steal_s_since, steal_ticks
 from controller.tools.bench.cpu_hogs import MAX_HOGS, cpu_hogs
@@ -199,7 +200,7 @@ def recorded_run(path: str, late_s: float = LATE_S) -> RecordedRun:
         period_s = rows[1][0].t_s - rows[0][0].t_s
     out = []
     for (before, _), (c, log_ns) in itertools.pairwise(rows):
-        skipped = max(0, round((c.t_s - before.t_s) / period_s) - 1) if period_s > 0 else 0
+        skipped = deadlines_skipped(c.t_s - before.t_s, period_s)
         if skipped or c.timing.wake_error_s > late_s:
             end_s = log_ns * 1e-9 - offset_s
             start_s = end_s - (c.t_s - before.t_s) - period_s  # the recorder takes a cycle in the next one

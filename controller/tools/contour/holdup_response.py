@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from controller.core.control_law import hold_up_effect
+from controller.core.periods import deadlines_skipped
 from controller.tasks.contour_tracking import loop_held_up
 from drivers.node_setup import DRIVE_DEFAULT_EXTRAPOLATION_PERIODS
 from logs.messages import inputs_from_pb
@@ -96,7 +97,7 @@ def drives_held(
     out = []
     blind = 0  # the law's drives_blind_periods: a hold-up right after one counts on from it
     for a, b in itertools.pairwise(cycles):
-        skipped = round((b.t_s - a.t_s) / period_s) - 1
+        skipped = deadlines_skipped(b.t_s - a.t_s, period_s)
         interval_s = (b.t_s + b.wake_error_s) - (a.t_s + a.wake_error_s)
         _, held, blind = hold_up_effect(skipped, extrapolation_periods, blind, b.targets_withheld)
         if b.tracking and b.lap in wanted and held:
