@@ -69,6 +69,14 @@ MIN_MEDIAN_SAMPLES = 3
 # silent longer is judged without, by the witness, as before, and past loop.max_missing_s
 # (100 ms) the law faults.
 SENSOR_GAP_S = 0.02
+# The path the tool came in on: the measured TCP, a point each time it has moved this far from the
+# last one, the last TRAIL_POINTS of them (12 mm, more than a back-off's 5 mm). A back-off along the
+# force that meets more force (wedged in a groove, backed into its other wall: 74 N; a jammed
+# carriage let go mid-back-off: 178 N, the tool left pressed at 112 N by the quick stop; an outside
+# tester, 2026-12-06) retraces it instead: the one motion known to be free is the one just made,
+# which is also what industrial collision reactions do (they reverse along the path).
+TRAIL_SPACING_M = 0.0005
+TRAIL_POINTS = 24
 # The last samples of a force, an axis's each in a tuple of its own (oldest first): each median sorts
 # one as it is, with no transposition of samples into axes (_median_of runs twice every cycle).
 AxisWindows = tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]
@@ -140,11 +148,13 @@ class ContactWatch:
     # the part is. A back-off's direction when the sensor turns against it and the witness cannot
     # tell (back_off_direction); forgotten in free space.
     contact_normal: Vector3 | None = None
+    trail_m: tuple[Vector3, ...] = ()  # the measured TCP's path, newest last (extend_trail)
 
 
 @record
 class BackOff:
-    """A protective back-off in progress: along ``direction`` from ``origin_m``, then at rest, then FAULT."""
+    """A protective back-off in progress: along ``direction`` from ``origin_m`` (or, retracing, through
+    ``path_m``), then at rest, then FAULT."""
 
     cause: str
     direction: Vector3 | None  # unit, the force the guard trusts; None: no force to move away from
@@ -154,6 +164,10 @@ class BackOff:
     speed_m_s: float = 0.0
     braking: bool = False
     cycles: int = 0  # since it began
+    # Retracing (begin_retrace): the points of the path the tool came in on, from ``origin_m`` back,
+    # and how far along them; empty: a straight back-off of ``back_off_distance_m`` along ``direction``.
+    path_m: tuple[Vector3, ...] = ()
+    distance_m: float = 0.0
 
 
 def median_cycles(period_s: float) -> int:
@@ -247,13 +261,15 @@ def watch(
     period_s: float,
     missing_cycles: int = 0,
     accelerations: tuple[tuple[float, ...], ...] | None = None,
+    tcp_m: Vector3 | None = None,
 ) -> tuple[ContactWatch, str]:
     """One cycle of the guard: the updated watch and, past a limit, the cause of a protective back-off.
 
     ``missing_cycles``: cycles in a row the sensor's frame did not come (the safety monitor's count,
     ``ControllerState.sensor_missing``); within ``SENSOR_GAP_S`` the last sample still judges.
     ``accelerations``: the watch's new ``accelerations`` (the law's; ``witness`` was found with
-    them), set in the same ``replace`` as the rest; None keeps the watch's.
+    them), set in the same ``replace`` as the rest; None keeps the watch's. ``tcp_m``: the measured
+    TCP, added to the trail a retrace follows (``extend_trail``).
 
     Locals first and one ``replace`` at the end: it runs every enabled cycle (budget: cycle_work.py)."""
     raw = usable_sample(inputs.sensor, stale)
@@ -322,6 +338,7 @@ def watch(
         force_n=force,
         accelerations=w.accelerations if accelerations is None else accelerations,
         contact_normal=normal,
+        trail_m=extend_trail(w.trail_m, tcp_m),
     )
     limit = limit_n(cfg, w.expectation)
     if force > limit:
@@ -433,6 +450,54 @@ def begin_back_off(
     return BackOff(cause, direction, origin_m, max(size, w.force_n))
 
 
+def extend_trail(trail: tuple[Vector3, ...], tcp_m: Vector3 | None) -> tuple[Vector3, ...]:
+    """``trail`` with the measured TCP ``tcp_m`` added where it has moved ``TRAIL_SPACING_M`` from the
+    trail's last point, the oldest dropped past ``TRAIL_POINTS``; as it was otherwise (every cycle:
+    no new tuple while the tool stands or creeps)."""
+    if tcp_m is None:
+        return trail
+    if trail:
+        last = trail[-1]
+        dx, dy, dz = tcp_m[0] - last[0], tcp_m[1] - last[1], tcp_m[2] - last[2]
+        if dx * dx + dy * dy + dz * dz < TRAIL_SPACING_M * TRAIL_SPACING_M:
+            return trail
+    return (*trail[1 - TRAIL_POINTS :], tcp_m) if len(trail) >= TRAIL_POINTS else (*trail, tcp_m)
+
+
+def begin_retrace(
+    cfg: ContactGuardConfig, b: BackOff, trail: tuple[Vector3, ...], origin_m: Vector3, met_n: float
+) -> BackOff | None:
+    """The back-off ``b`` met ``met_n``, more force than it started from: back from ``origin_m`` (the
+    measured TCP) along the path the tool came in on (``trail``, newest last), as far as ``b`` went
+    and ``back_off_distance_m`` more, or all of the trail there is. None where the trail holds less
+    than two of its spacings: nothing to retrace (the quick stop, as before)."""
+    points: list[Vector3] = []
+    length, last = 0.0, origin_m
+    want = b.travelled_m + cfg.back_off_distance_m
+    for p in reversed(trail):
+        d = norm3(sub3(p, last))
+        if d < TRAIL_SPACING_M:  # the points about where the tool stands now
+            continue
+        points.append(p)
+        length += d
+        last = p
+        if length >= want:
+            break
+    if length < 2 * TRAIL_SPACING_M:
+        return None
+    first = sub3(points[0], origin_m)
+    n = norm3(first)
+    cause = f"{back_off_summary(b).removeprefix(PROTECTIVE_STOP + ': ')}, and met {met_n:.1f} N backing off"
+    return BackOff(
+        cause,
+        (first[0] / n, first[1] / n, first[2] / n),
+        origin_m,
+        met_n,
+        path_m=tuple(points),
+        distance_m=min(length, want),
+    )
+
+
 def advance_back_off(
     cfg: ContactGuardConfig, b: BackOff, period_s: float
 ) -> tuple[BackOff, Vector3, Vector3]:
@@ -440,33 +505,48 @@ def advance_back_off(
     braking to stop at the distance; without a direction the TCP stays where it was."""
     b = replace(b, cycles=b.cycles + 1)
     if b.direction is None or b.braking:
-        return replace(b, speed_m_s=0.0, braking=True), _along(b, b.travelled_m), ZERO3
+        return replace(b, speed_m_s=0.0, braking=True), _along(b, b.travelled_m)[0], ZERO3
     a, v_max = cfg.back_off_acceleration_m_s2, cfg.back_off_speed_m_s
-    left = cfg.back_off_distance_m - b.travelled_m
+    distance = b.distance_m if b.path_m else cfg.back_off_distance_m
+    left = distance - b.travelled_m
     # up at a, never faster than v_max, nor than what still stops within the rest after this period's
     # step (v T + v^2 / 2a <= left), down at a
     stoppable = a * (math.sqrt(period_s * period_s + 2.0 * left / a) - period_s)
     v = min(v_max, b.speed_m_s + a * period_s, max(b.speed_m_s - a * period_s, stoppable))
     step = min(v * period_s, left)
     travelled = b.travelled_m + step
-    done = cfg.back_off_distance_m - travelled <= 1e-9
+    done = distance - travelled <= 1e-9
     b = replace(b, travelled_m=travelled, speed_m_s=0.0 if done else v, braking=done)
-    d = b.direction
-    assert d is not None
+    p, d = _along(b, travelled)
     velocity = ZERO3 if done else (d[0] * v, d[1] * v, d[2] * v)
-    return b, _along(b, travelled), velocity
+    return b, p, velocity
 
 
-def _along(b: BackOff, s: float) -> Vector3:
+def _along(b: BackOff, s: float) -> tuple[Vector3, Vector3]:
+    """The point ``s`` along the back-off and its heading (unit): along ``direction`` from the origin,
+    or, retracing, through ``path_m``'s points (past the last, its last)."""
     d, o = b.direction, b.origin_m
     if d is None:
-        return o
-    return (o[0] + d[0] * s, o[1] + d[1] * s, o[2] + d[2] * s)
+        return o, ZERO3
+    for p in b.path_m:
+        seg = sub3(p, o)
+        n = norm3(seg)
+        heading = (seg[0] / n, seg[1] / n, seg[2] / n)
+        if s <= n:
+            return (o[0] + heading[0] * s, o[1] + heading[1] * s, o[2] + heading[2] * s), heading
+        s, o, d = s - n, p, heading
+    if b.path_m:
+        return o, d
+    return (o[0] + d[0] * s, o[1] + d[1] * s, o[2] + d[2] * s), d
 
 
 def back_off_summary(b: BackOff) -> str:
     if b.direction is None:
         return f"{PROTECTIVE_STOP}: {b.cause}; no force to move away from, braked in place"
+    if b.path_m:
+        return (
+            f"{PROTECTIVE_STOP}: {b.cause}; retraced {b.travelled_m * 1000:.1f} mm of the path it came in on"
+        )
     d = b.direction
     return (
         f"{PROTECTIVE_STOP}: {b.cause}; backed off {b.travelled_m * 1000:.1f} mm along "

@@ -47,10 +47,12 @@ from controller.core.cia402 import (
     decode_statusword,
 )
 from controller.core.contact_guard import (
+    BackOff,
     Witness,
     advance_back_off,
     back_off_summary,
     begin_back_off,
+    begin_retrace,
 )
 from controller.core.contact_guard import (
     watch as watch_contact,
@@ -838,6 +840,7 @@ class ControlLaw:
             self.config.period_s,
             state.sensor_missing,  # counted by the safety monitor's check earlier in this step
             accelerations=history,
+            tcp_m=state.tcp_measured_m,
         )
         state = replace(state, contact=w)
         if w.suspect and not was_suspect:
@@ -853,12 +856,30 @@ class ControlLaw:
                 and b.cycles > BACK_OFF_GRACE_CYCLES
                 and w.force_n > max(b.entry_force_n, cfg.max_contact_force_n) + BACK_OFF_WORSE_N
             ):
-                why = f"{back_off_summary(b)}, and met {w.force_n:.1f} N backing off: quick stop"
-                return self._faulted(state, why, t, events)
+                return self._met_more_force(state, b, w.force_n, t, events)
             return state
         if not cause:
             return state
         return self._begin_back_off(state, cause, t, events)
+
+    def _met_more_force(
+        self, state: ControllerState, b: BackOff, force_n: float, t: float, events: list[Event]
+    ) -> ControllerState:
+        """The back-off met more force than it started from: a straight one retraces the path the tool
+        came in on (contact_guard.begin_retrace); a retrace that meets more, or one with no path to
+        follow, ends in the quick stop."""
+        origin = state.tcp_measured_m
+        retrace = (
+            begin_retrace(self.config.safety.contact, b, state.contact.trail_m, origin, force_n)
+            if origin is not None and not b.path_m
+            else None
+        )
+        if retrace is None:
+            why = f"{back_off_summary(b)}, and met {force_n:.1f} N backing off: quick stop"
+            return self._faulted(state, why, t, events)
+        why = f"{back_off_summary(b)}, and met {force_n:.1f} N: retracing the path it came in on"
+        events.append(Event("back_off", Severity.WARNING, why))
+        return replace(state, back_off=retrace)
 
     def _begin_back_off(
         self, state: ControllerState, cause: str, t: float, events: list[Event]

@@ -363,6 +363,28 @@ def test_the_scans_verdict_counts_the_integrity_breaches_apart():
     assert not summary([*ride, _row("DONE", force_n=61.0)], LIMIT_N)["targets_met"]  # over the limit
 
 
+def test_the_stress_verdict_fails_a_run_that_left_the_tool_pressed_past_the_limit():
+    """A quick stop that leaves the tool pressed into the part (112 N after a jammed carriage, an
+    outside tester, 2026-12-06) is a breach even where the run ended named and its peak was counted."""
+    from controller.tools.contour.stress import summary
+
+    def row(end_n: float) -> dict[str, object]:
+        return {
+            "scenario": f"ends at {end_n:g} N",
+            "outcome": "backed off",
+            "ride_through": False,
+            "over_limit": False,
+            "max_true_contact_force_n": 59.0,
+            "final_true_contact_force_n": end_n,
+            "max_off_part_mm": 0.0,
+            "final_off_part_mm": 0.0,
+        }
+
+    assert summary([row(10.0)], LIMIT_N, 0.012)["targets_met"]
+    pressed = summary([row(10.0), row(LIMIT_N + 1.0)], LIMIT_N, 0.012)
+    assert not pressed["targets_met"] and pressed["left_pressed"] == [f"ends at {LIMIT_N + 1.0:g} N"]
+
+
 def test_every_scan_injection_passes_the_configurations_check():
     """An injection shorter than a cycle is refused by the configuration (it may hold no SYNC): the
     scan's own must all pass, or their recordings lose the 3D scene."""

@@ -35,6 +35,23 @@ def test_a_part_misplaced_8_mm_towards_the_approach_is_found_by_a_guarded_move_a
 
 
 @pytest.mark.slow
+def test_a_back_off_wedged_into_a_grooves_other_wall_retraces_the_way_in_not_left_pressed():
+    """A 0.5-mm tool ball drops into a 3 mm x 2 mm groove and meets its far wall: the back-off along
+    the force met 72 N at the near wall and the quick stop left the tool pressed there at 72 N (an
+    outside tester, 2026-12-06); retracing the path it came in on, it ends at the task's own force."""
+    row = _run(
+        ContourScenario(
+            "wedged",
+            features=({"angle_deg": 90.0, "length_m": 0.003, "depth_m": 0.002},),
+            overrides=(("sim.workpiece.tool_radius_m", 0.0005),),
+        )
+    )
+    assert row["outcome"] == "backed off", row["cause"]
+    assert "retraced" in str(row["cause"]) and "quick stop" not in str(row["cause"])
+    assert row["final_true_contact_force_n"] < 0.5 * LIMIT_N
+
+
+@pytest.mark.slow
 def test_a_short_steep_bump_is_ridden_over_under_the_limit():
     """Issue item 2 (64.7 N before): met at the exploring speed in lap 1, slowly from then on."""
     row = _run(ContourScenario("bump", features=({"angle_deg": 45.0, "length_m": 0.005, "depth_m": -0.002},)))

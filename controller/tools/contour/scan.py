@@ -76,6 +76,7 @@ class _Watch:
 
     exchange: LoopbackExchange
     max_true_force_n: float = 0.0
+    final_true_force_n: float = 0.0  # where the run ended: a tool left pressed into the part
     reacquired: int = 0
     task: ContourState | None = None
     causes: list[str] = field(default_factory=list)
@@ -105,9 +106,8 @@ class _Watch:
         timing: CycleTiming,
     ) -> None:
         f = self.exchange.plant.force_n
-        self.max_true_force_n = max(
-            self.max_true_force_n, math.sqrt(float(f[0] ** 2 + f[1] ** 2 + f[2] ** 2))
-        )
+        self.final_true_force_n = math.sqrt(float(f[0] ** 2 + f[1] ** 2 + f[2] ** 2))
+        self.max_true_force_n = max(self.max_true_force_n, self.final_true_force_n)
         if isinstance(state.task_state, ContourState):
             self.task = state.task_state
             if self.task.phase == ContourPhase.TRACKING and cycle % 8 == 0:
@@ -206,6 +206,7 @@ def _row(
         "contact_losses": sum(task.contact_losses) if task is not None else 0,
         "reacquired": watch.reacquired,
         "max_true_contact_force_n": round(watch.max_true_force_n, 2),
+        "final_true_contact_force_n": round(watch.final_true_force_n, 2),
         "max_off_part_mm": round(watch.max_off_part_m * 1000.0, 1),
         "final_off_part_mm": round(watch.final_off_part_m * 1000.0, 1),
         "over_limit": watch.max_true_force_n > cfg.safety.max_contact_force_n,

@@ -99,6 +99,15 @@ def scenarios(t: dict[str, float], period_s: float) -> Iterator[ContourScenario]
                 ),
             )
             k += 1
+    # A tool ball (0.5 mm) small enough to drop into a groove and meet its far wall head-on at the
+    # lap's speed: the back-off along the force went into the near wall (72 N) and the quick stop
+    # left the tool pressed there at 72 N (an outside tester, 2026-12-06); it retraces the way in.
+    yield ContourScenario(
+        "0.5-mm tool ball into a 3 mm x 2 mm groove",
+        features=({"angle_deg": 90.0, "length_m": 0.003, "depth_m": 0.002},),
+        ride_through=False,
+        overrides=(("sim.workpiece.tool_radius_m", 0.0005),),
+    )
     # -- the sensor's offset: steps (a drift over 10 ms) and drifts over 10 s
     for i, step in enumerate((5.0, -5.0, 10.0, -10.0, 20.0, -20.0, 40.0, -40.0, 60.0, -60.0)):
         yield ContourScenario(
@@ -229,6 +238,8 @@ def summary(
         if float(r["final_off_part_mm"]) > envelope_margin_m * 1000.0 and r["outcome"] not in NAMED_ENDS  # type: ignore[arg-type]
     ]
     over = [r["scenario"] for r in rows if r["over_limit"]]
+    # a run that ended with the tool pressed into the part past the limit (a quick stop in place)
+    pressed = [r["scenario"] for r in rows if float(r["final_true_contact_force_n"]) > max_contact_force_n]  # type: ignore[arg-type]
     return {
         "scenarios": n,
         "done": sum(r["outcome"] == "DONE" for r in rows),
@@ -238,10 +249,12 @@ def summary(
         "ride_through_done_percent": round(100.0 * ride_done / len(ride), 1) if ride else 100.0,
         "failed": failed,
         "over_limit": over,
+        "left_pressed": pressed,
         "strayed": strayed,
         "max_true_contact_force_n": max(float(r["max_true_contact_force_n"]) for r in rows),  # type: ignore[arg-type]
         "max_off_part_mm": max(float(r["max_off_part_mm"]) for r in rows),  # type: ignore[arg-type]
         "targets_met": not over
+        and not pressed
         and not strayed
         and not failed
         and ride_done >= RIDE_THROUGH_DONE_FRACTION * len(ride),
@@ -250,14 +263,14 @@ def summary(
 
 def format_table(rows: list[dict[str, object]], max_contact_force_n: float, envelope_margin_m: float) -> str:
     lines = [
-        "| scenario | ride through | outcome | max true force [N] | off the part: max / end [mm] | losses | cause |",
+        "| scenario | ride through | outcome | true force: max / end [N] | off the part: max / end [mm] | losses | cause |",
         "| --- | --- | --- | --- | --- | --- | --- |",
     ]
     for r in rows:
         lines.append(
             f"| {r['scenario']} | {'yes' if r['ride_through'] else 'no'} | {r['outcome']} | "
-            f"{r['max_true_contact_force_n']:.1f}{' **over**' if r['over_limit'] else ''} | "
-            f"{r['max_off_part_mm']:.1f} / {r['final_off_part_mm']:.1f} | {r['contact_losses']} | {r['cause'] or '-'} |"
+            f"{r['max_true_contact_force_n']:.1f}{' **over**' if r['over_limit'] else ''} / "
+            f"{r['final_true_contact_force_n']:.1f} | {r['max_off_part_mm']:.1f} / {r['final_off_part_mm']:.1f} | {r['contact_losses']} | {r['cause'] or '-'} |"
         )
     s = summary(rows, max_contact_force_n, envelope_margin_m)
     lines.append("")
@@ -266,7 +279,8 @@ def format_table(rows: list[dict[str, object]], max_contact_force_n: float, enve
         f"named cause; {s['ride_through_done']} of the {s['ride_through']} to ride through DONE "
         f"({s['ride_through_done_percent']} %); failed: {', '.join(s['failed']) or 'none'}; over the "  # type: ignore[arg-type]
         f"{max_contact_force_n:g} N limit: {', '.join(s['over_limit']) or 'none'} (largest true contact force "  # type: ignore[arg-type]
-        f"{s['max_true_contact_force_n']:.1f} N); ended off the part unnamed: {', '.join(s['strayed']) or 'none'} "  # type: ignore[arg-type]
+        f"{s['max_true_contact_force_n']:.1f} N); left pressed past it: {', '.join(s['left_pressed']) or 'none'}; "  # type: ignore[arg-type]
+        f"ended off the part unnamed: {', '.join(s['strayed']) or 'none'} "  # type: ignore[arg-type]
         f"(furthest while tracking {s['max_off_part_mm']:.1f} mm); targets {'met' if s['targets_met'] else 'NOT met'}"
     )
     return "\n".join(lines)
