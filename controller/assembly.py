@@ -124,6 +124,7 @@ def safety_config(s: SafetySection, units: ActuatorUnits, period_s: float) -> Sa
             inertia_time_constant_s=c.inertia_time_constant_s,
             disagreement_s=c.disagreement_s,
             sensor_suspect_s=c.sensor_suspect_s,
+            sensor_frozen_s=c.sensor_frozen_s,
             back_off_distance_m=c.back_off_distance_m,
             back_off_speed_m_s=c.back_off_speed_m_s,
             back_off_acceleration_m_s2=c.back_off_acceleration_m_s2,

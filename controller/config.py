@@ -211,6 +211,8 @@ class ContactGuardSection(Section, frozen=True):
     )
     disagreement_s: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.025  # apart this long: suspect
     sensor_suspect_s: Annotated[float, rng(0.0, 600.0)] = 2.0  # the task's time to resolve it; then back off
+    # pressing, fresh samples the same to the last bit this long: the sensor is frozen (0: not judged)
+    sensor_frozen_s: Annotated[float, rng(0.0, 10.0)] = 0.025
     back_off_distance_m: Annotated[float, rng(0.0, 1.0)] = 0.005  # the protective back-off along the force
     back_off_speed_m_s: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.02
     back_off_acceleration_m_s2: Annotated[float, rng(0.0, 100.0, lo_open=True)] = 0.5
@@ -526,6 +528,15 @@ def _check_contact_limits(cfg: Config) -> None:
             f"safety.contact.guarded_move_force_n = {c.guarded_move_force_n:g} N <= "
             f"safety.max_contact_force_n = {limit:g} N must hold: a guarded move expects more force than "
             "free space and less than a contact by design"
+        )
+    if c.sensor_frozen_s > 0.0 and cfg.sim.sensor.noise_std_n == 0.0:
+        # A real sensor's noise changes its counts every sample; a noiseless simulated one holding
+        # still in contact (a pause) repeats its sample to the last bit, which the guard calls frozen.
+        raise ConfigError(
+            "sim.sensor.noise_std_n = 0 with safety.contact.sensor_frozen_s = "
+            f"{c.sensor_frozen_s:g} s: a noiseless sensor at rest in contact sends the same sample to the "
+            "last bit, which the contact guard takes for a frozen sensor; give the simulated sensor noise "
+            "or set safety.contact.sensor_frozen_s = 0"
         )
 
 

@@ -32,6 +32,14 @@ inertia term) for ``disagreement_s`` in a row, the sensor is **suspect**: the ta
 (``TaskContext.sensor_suspect``) and must resolve it (a contour re-tares in free space); past
 ``sensor_suspect_s`` the law backs off along the witness and faults.
 
+A sensor that goes on sending fresh samples, each the same to the last bit, is **frozen** (a stuck
+ADC or firmware that repeats its last value with its counter still rolling): no real contact holds a
+force that still, a sensor's own noise alone changes its counts every sample (0.05 N of noise at
+0.01 N a count here). Pressing, ``sensor_frozen_s`` of such samples end the contact at once with a
+back-off along what the witness and the contact's last normal say. It was only the cross-check that
+caught it, once the true force had risen past the witness's tolerance: a sensor stuck at 10 N met a
+notch's far wall at 100 N true, the witness's median then at 54 N (an outside tester, 2026-12-06).
+
 Pure: no I/O, no clock; the state lives in ``ContactWatch`` and ``BackOff`` inside the
 controller's state, so a recorded session replays bit for bit.
 """
@@ -107,6 +115,7 @@ class ContactGuardConfig:
     )
     disagreement_s: float = 0.025  # beyond the tolerance this long in a row: the sensor is suspect
     sensor_suspect_s: float = 2.0  # the task's time to resolve a suspect sensor; then the law backs off
+    sensor_frozen_s: float = 0.025  # pressing, the same sample to the last bit this long: frozen (0: off)
     back_off_distance_m: float = 0.005
     back_off_speed_m_s: float = 0.02
     back_off_acceleration_m_s2: float = 0.5
@@ -149,6 +158,8 @@ class ContactWatch:
     # tell (back_off_direction); forgotten in free space.
     contact_normal: Vector3 | None = None
     trail_m: tuple[Vector3, ...] = ()  # the measured TCP's path, newest last (extend_trail)
+    last_raw_n: Vector3 | None = None  # the last usable sample as it came (baseline in)
+    same_samples: int = 0  # fresh samples in a row, pressing, equal to the one before to the last bit
 
 
 @record
@@ -317,6 +328,17 @@ def watch(
             and size >= cfg.back_off_min_force_n
         ):
             normal = (sensor_median[0] / size, sensor_median[1] / size, sensor_median[2] / size)
+    same, last_raw = w.same_samples, w.last_raw_n
+    if raw is not None:
+        same = same + 1 if raw == last_raw and w.expectation == ContactExpectation.PRESSING else 0
+        last_raw = raw
+    frozen = cfg.sensor_frozen_s > 0.0 and same >= cycles_in(cfg.sensor_frozen_s, period_s)
+    if frozen and raw is not None:
+        why = (
+            f"it sent the same sample ({raw[0]:.2f}, {raw[1]:.2f}, {raw[2]:.2f}) N, to the last bit, "
+            f"{same + 1} times in a row while pressing"
+        )
+        check = (check[0], 0, why, cycle)
     # trusted: this cycle's sample, or a recent one where the frame only went missing (SENSOR_GAP_S)
     trusted = not check[2] and (
         raw is not None or (not stale and sensor is not None and missing_cycles * period_s <= SENSOR_GAP_S)
@@ -339,6 +361,8 @@ def watch(
         accelerations=w.accelerations if accelerations is None else accelerations,
         contact_normal=normal,
         trail_m=extend_trail(w.trail_m, tcp_m),
+        last_raw_n=last_raw,
+        same_samples=same,
     )
     limit = limit_n(cfg, w.expectation)
     if force > limit:
@@ -346,6 +370,8 @@ def watch(
             f"contact force {force:.1f} N {EXPECTATION_TEXT[w.expectation]}, above {limit:g} N "
             f"({_witnesses(w)})"
         )
+    if frozen:
+        return w, f"force sensor frozen: {w.suspect}"
     if w.suspect and (cycle - w.suspect_cycle) * period_s > cfg.sensor_suspect_s:
         return w, f"force sensor suspect for {cfg.sensor_suspect_s:g} s: {w.suspect}"
     return w, ""

@@ -42,7 +42,9 @@ from controller.robots.performance import cartesian_mass_matrix
 from controller.shell.loop import CycleLoop, SimulatedTime
 from sim_backend.loopback import LoopbackExchange
 
-CFG = ContactGuardConfig()
+# The cross-check's tests feed one sample again and again; a real sensor's noise changes it every
+# sample, and the same sample to the last bit while pressing is a frozen sensor (its own test).
+CFG = ContactGuardConfig(sensor_frozen_s=0.0)
 DT = 0.0025
 MEDIAN = median_cycles(DT)  # the witness's median window at DT, in cycles
 NEEDED = cycles_in(CFG.disagreement_s, DT)  # cycles of disagreement that make the sensor suspect
@@ -222,6 +224,44 @@ def test_a_missing_sensor_frame_leaves_the_last_sample_in_charge_for_a_while_in_
     # a sample that came but is stale (its counter stood still) is no alibi even for one cycle
     _, cause = watch(CFG, after_sample, _inputs((0.1, 0.0, 0.0)), True, jolt, False, 300, DT)
     assert "in free space" in cause
+
+
+@pytest.mark.parametrize("rate_hz", [400.0, 1000.0])
+def test_a_sensor_that_repeats_its_sample_to_the_last_bit_while_pressing_is_frozen(rate_hz):
+    """Stuck at 10 N (its counter still rolling) it met a notch's far wall at 100 N true before the
+    cross-check said anything (an outside tester, 2026-12-06). A sensor's own noise changes its counts
+    every sample; the same sample sensor_frozen_s long while pressing ends the contact."""
+    cfg = ContactGuardConfig()
+    dt = 1.0 / rate_hz
+    agree = Witness((10.2, 0.0, 0.0), 0.0)
+    rng = np.random.default_rng(1)
+    w = ContactWatch(expectation=ContactExpectation.PRESSING, baseline_set=True)
+    for cycle in range(round(1.0 / dt)):  # a second of noisy samples (0.05 N, in 0.01 N counts): never
+        x, y, z = (round(float(v), 2) for v in np.array((10.0, 0.0, 0.0)) + rng.normal(0.0, 0.05, 3))
+        w, cause = watch(cfg, w, _inputs((x, y, z)), False, agree, False, cycle, dt)
+        assert not cause and not w.suspect
+    stuck = _inputs((10.01, 0.02, -0.01))
+    cycles = 0
+    cause = ""
+    while not cause:
+        w, cause = watch(cfg, w, stuck, False, agree, False, 10_000 + cycles, dt)
+        cycles += 1
+    assert cause.startswith("force sensor frozen") and "(10.01, 0.02, -0.01) N" in cause
+    assert (cycles - 1) * dt == pytest.approx(cfg.sensor_frozen_s, abs=dt)  # a time, alike at every rate
+    # its direction is not the frozen sensor's: the suspect sensor gives none
+    assert w.suspect
+    # in free space (at rest, a noiseless sensor may repeat itself) the same samples are no verdict
+    w = ContactWatch(expectation=ContactExpectation.NONE, baseline_set=True)
+    for cycle in range(200):
+        w, cause = watch(cfg, w, _inputs((0.0, 0.0, 0.0)), False, None, True, cycle, dt)
+        assert not cause
+
+
+def test_a_noiseless_simulated_sensor_is_refused_beside_the_frozen_check_and_taken_without_it():
+    with pytest.raises(ConfigError, match="sim.sensor.noise_std_n = 0 with safety.contact.sensor_frozen_s"):
+        load_config(overrides={"sim.sensor.noise_std_n": 0.0})
+    cfg = load_config(overrides={"sim.sensor.noise_std_n": 0.0, "safety.contact.sensor_frozen_s": 0.0})
+    assert cfg.safety.contact.sensor_frozen_s == 0.0
 
 
 def test_a_sensor_that_disagrees_with_the_witness_becomes_suspect_and_agreeing_clears_it():
