@@ -25,6 +25,17 @@ def test_shipped_defaults_load(cfg):
             {"robot.cheope.stroke_min_m": 0.9, "robot.cheope.stroke_max_m": 0.3},
             r"stroke_min_m = 0.9 must be <",
         ),
+        # all masses at 0 ended a simulated demo in a ZeroDivisionError; a stiffness of 1e-300 N/m
+        # made `cheope analyze` fail on a NaN after writing its plots (an outside tester's findings)
+        (
+            {"robot.cheope.mass.platform_kg": 0.0, "robot.cheope.mass.rod_pair_kg": 0.0},
+            r"robot.cheope.mass.platform_kg = 0.0 and robot.cheope.mass.rod_pair_kg = 0.0: the tool's "
+            r"moving mass \(the platform and half of each rod pair\) must be more than 0 kg",
+        ),
+        (
+            {"robot.cheope.mass.actuator_stiffness_n_m": 1e-300},
+            r"robot.cheope.mass.actuator_stiffness_n_m = 1e-300: must be >= 1.0",
+        ),
         (
             {"loop.max_missing_cycles": 2.5},
             r"loop.max_missing_cycles = 2.5: a whole number of cycles >= 1 was expected \(the key is "
