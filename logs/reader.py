@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import errno
 import io
-import json
 import mmap
 import os
 import struct
@@ -43,7 +42,7 @@ from mcap.records import (
 )
 from mcap.stream_reader import breakup_chunk
 
-from controller.config import Config, ConfigError, recorded_config_from_dict
+from controller.config import Config, ConfigError, config_table_from_json, recorded_config_from_dict
 from controller.errors import InputError
 from controller.messages import cheope_pb2 as pb
 from logs.can_frame_batch import unpack_frames
@@ -614,10 +613,23 @@ def info_dict(r: ReadReport) -> dict[str, Any]:
 def recorded_config(report: ReadReport) -> Config | None:
     """The configuration a recording was made with (its ``cheope.config`` metadata, as this version
     reads an earlier one's), once ``report`` has seen the metadata; None without a readable one."""
-    meta = report.metadata.get(META_CONFIG)
-    if meta is None or "json" not in meta:
-        return None
     try:
-        return recorded_config_from_dict(json.loads(meta["json"]))
-    except (ConfigError, ValueError):
+        table = recorded_config_table(report)
+        return None if table is None else recorded_config_from_dict(table)
+    except (ConfigError, LogFileError):
         return None
+
+
+def recorded_config_table(report: ReadReport) -> dict[str, Any] | None:
+    """The table of the recording's ``cheope.config`` metadata record, None without one; a
+    ``LogFileError`` naming the file and the record when it holds no configuration table."""
+    meta = report.metadata.get(META_CONFIG)
+    if meta is None:
+        return None
+    where = f"{report.path}: metadata record {META_CONFIG}"
+    if "json" not in meta:
+        raise LogFileError(f"{where}: has no 'json' entry (it has {', '.join(map(repr, meta)) or 'none'})")
+    try:
+        return config_table_from_json(meta["json"])
+    except ConfigError as err:
+        raise LogFileError(f"{where}: {err}") from None
