@@ -832,6 +832,10 @@ def parse_override(text: str) -> tuple[str, Any]:
     key, sep, raw = text.partition("=")
     if not sep or not key.strip():
         raise ConfigError(f"--set {text!r}: expected KEY=VALUE, e.g. loop.rate_hz=1000")
+    if any(c in text for c in "\n\r"):
+        # TOML read the value's first line and took the rest for keys of its own, which no one
+        # looked at: `loop.rate_hz=400<newline>loop.spin_us=-5` set the rate and dropped the rest
+        raise ConfigError(f"--set {text!r}: a line break in KEY=VALUE; give each key its own --set")
     try:
         value = tomllib.loads(f"v = {raw}")["v"]
     except tomllib.TOMLDecodeError as err:

@@ -161,6 +161,26 @@ def test_parse_override():
         parse_override("loop.rate_hz")
 
 
+@pytest.mark.parametrize(
+    "text", ["loop.rate_hz=400\nloop.spin_us=-5", "bus.can=vcan0\r\nloop.rate_hz=5", "a\nb=1"]
+)
+def test_a_line_break_in_a_set_is_refused(text):
+    """TOML read the first line and took the rest for keys of its own: ``loop.rate_hz=400<newline>
+    loop.spin_us=-5`` set the rate, dropped the rest and exited 0 (an outside tester's finding)."""
+    with pytest.raises(ConfigError, match=r"a line break in KEY=VALUE; give each key its own --set"):
+        parse_override(text)
+
+
+def test_a_set_with_a_line_break_ends_the_command_with_one_line(capsys, tmp_path):
+    from controller.cli import main
+
+    args = ["analyze", "--set", "loop.rate_hz=400\nloop.spin_us=-5", "--output-dir", str(tmp_path)]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "a line break in KEY=VALUE" in err
+    assert list(tmp_path.iterdir()) == []  # refused before any work
+
+
 @pytest.mark.parametrize("raw", ["[0, 0, 1", "{x = 1", '"socketcan:vcan0', "'a"])
 def test_a_list_table_or_quoted_text_that_does_not_parse_is_named_not_taken_for_a_word(raw):
     """A missing bracket was read as the word "[0, 0, 1" and refused as "expected a list, got a string"."""
