@@ -337,6 +337,12 @@ def _walk(raw: bytes | mmap.mmap, report: ReadReport) -> Iterator[tuple[Channel,
             report.complete = True
             if raw[pos : pos + 8] != MAGIC:
                 report.problems.append("the footer is not followed by the closing magic bytes")
+            elif n > pos + 8:
+                # bytes appended to a finished file: no writer puts them there (the file was changed)
+                report.problems.append(
+                    f"{n - pos - 8} byte(s) after the closing magic bytes at offset {pos + 8}: the file "
+                    "was changed after it was finished"
+                )
             expected = summary_at if summary_at is not None and summary_at < start else 0
             if record.summary_start not in (0, expected):
                 # a reader that seeks by it (logs info without --check, other MCAP tools) fails
