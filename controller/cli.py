@@ -27,7 +27,7 @@ from controller.output_paths import check_output_dir
 from controller.plugins import listing_what_loads
 from controller.robot_registry import robot_entry, robot_kinds
 from controller.shell.status_line import StatusDisplay, live_status, status_wanted
-from controller.signal_relay import stop_event_on_signals
+from controller.signal_relay import stop_event_on_signals, stop_event_while
 from controller.tasks.registry import task_kinds
 from drivers.bus import BusSpec, parse_bus_spec
 
@@ -432,13 +432,17 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if args.simulated_time:
         from controller.experiments import experiment_for
         from controller.shell.demo import run_simulated_time
+        from controller.shell.simulated_rig import stopped_by
 
         _refuse_realtime_in_simulated_time(args)
 
         # the task's experiment in simulated time where it has one (the contour's laps), else the task
         experiment = experiment_for(cfg.task.kind)
         run = experiment.simulated_time if experiment and experiment.simulated_time else run_simulated_time
-        with progress_line("cheope demo") as progress:
+        # SIGTERM, SIGINT and SIGHUP stop the run as over a bus (below), and its summary is printed;
+        # they ended the process without one (SIGINT: "interrupted"). Routed before the progress
+        # line's first word, which tells a watcher (tests/integration/test_demo_stop_signals.py) they are.
+        with stop_event_while() as stop, stopped_by(stop), progress_line("cheope demo") as progress:
             progress(f"{cfg.robot.kind}, task {cfg.task.kind}, in simulated time")
             summary = run(cfg, args.duration, plot)
         print(strict_json(summary) if args.json else strict_json(summary, indent=1))

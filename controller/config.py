@@ -14,6 +14,7 @@ configures both processes, so the whole document is validated before either star
 from __future__ import annotations
 
 import copy
+import json
 import math
 import re
 import tomllib
@@ -620,6 +621,47 @@ RETIRED_KEYS = ("recording.queue_size", "monitoring.queue_size")
 UNDECLARED_CELL_STIFFNESS_N_M = 1.0
 
 
+# Tables and lists within each other, at most: the deepest key of the product is 4 levels down
+# (robot.cheope.mass.platform_kg), a workpiece's points 2 more.
+MAX_CONFIG_DEPTH = 32
+
+
+def config_table_from_json(text: str) -> dict[str, Any]:
+    """A configuration written as JSON (a recording's ``cheope.config``, the controller's status)
+    as a table, or a ``ConfigError`` saying what it is instead: JSON that is a list (an
+    AttributeError deep in the loader), nested 100 000 deep (a RecursionError), no JSON at all."""
+    try:
+        table = json.loads(text)
+    except RecursionError:
+        raise ConfigError(f"the configuration is nested more than {MAX_CONFIG_DEPTH} levels deep") from None
+    except ValueError as err:
+        raise ConfigError(f"the configuration is not JSON: {err}") from None
+    if not isinstance(table, dict):
+        raise ConfigError(f"the configuration is a JSON {_json_kind(table)}, not an object of sections")
+    if _depth(table) > MAX_CONFIG_DEPTH:
+        raise ConfigError(f"the configuration is nested more than {MAX_CONFIG_DEPTH} levels deep")
+    return table
+
+
+def _json_kind(value: object) -> str:
+    kinds = ((list, "array"), (str, "string"), (bool, "boolean"), (int | float, "number"))
+    return next((name for t, name in kinds if isinstance(value, t)), "null")
+
+
+def _depth(value: object) -> int:
+    """How many tables and lists ``value`` holds within each other (without recursion: a file's
+    nesting must not decide the stack's)."""
+    deepest, todo = 0, [(value, 1)]
+    while todo:
+        item, level = todo.pop()
+        children = item.values() if isinstance(item, dict) else item if isinstance(item, list) else ()
+        if isinstance(item, dict | list):
+            deepest = max(deepest, level)
+            if level <= MAX_CONFIG_DEPTH:  # deeper is refused anyway
+                todo.extend((child, level + 1) for child in children)
+    return deepest
+
+
 def recorded_config_from_dict(table: dict[str, Any]) -> Config:
     """The Config of a recording, written by this or an earlier version (``RETIRED_KEYS`` dropped)."""
     for dotted in RETIRED_KEYS:
@@ -801,6 +843,10 @@ def parse_override(text: str) -> tuple[str, Any]:
     key, sep, raw = text.partition("=")
     if not sep or not key.strip():
         raise ConfigError(f"--set {text!r}: expected KEY=VALUE, e.g. loop.rate_hz=1000")
+    if any(c in text for c in "\n\r"):
+        # TOML read the value's first line and took the rest for keys of its own, which no one
+        # looked at: `loop.rate_hz=400<newline>loop.spin_us=-5` set the rate and dropped the rest
+        raise ConfigError(f"--set {text!r}: a line break in KEY=VALUE; give each key its own --set")
     try:
         value = tomllib.loads(f"v = {raw}")["v"]
     except tomllib.TOMLDecodeError as err:

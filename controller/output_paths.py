@@ -10,6 +10,7 @@ an output file's directory is checked the same way, the file itself left alone.
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -54,3 +55,35 @@ def check_output_file(path: str | Path, option: str) -> Path:
     if why:
         raise OutputPathError(f"{option} {p}: cannot write in {p.parent}: {why}")
     return p
+
+
+def existing_output_error(command: str, path: Path) -> OutputPathError:
+    """The one refusal of an output file that is there already: a command that writes a new file
+    (``logs recover``, ``logs export``) never overwrites one, which may be another recording."""
+    return OutputPathError(f"{command}: {path} already exists; pass another output file")
+
+
+def refuse_existing_output(command: str, path: Path) -> None:
+    """Refuse ``path`` before any work when it exists (a dangling symbolic link included)."""
+    if path.exists() or path.is_symlink():
+        raise existing_output_error(command, path)
+
+
+def publish_new_file(command: str, written: Path, path: Path) -> None:
+    """Give the finished file ``written`` (in ``path``'s directory) the name ``path``, unless a file
+    took that name meanwhile: a hard link fails then where a rename would replace it. ``written``
+    is gone afterwards either way."""
+    try:
+        try:
+            os.link(written, path)
+        except FileExistsError:
+            raise
+        except OSError:  # no hard links there (vfat, some network file systems): a copy, created new
+            with open(written, "rb") as src, open(path, "xb") as dst:
+                shutil.copyfileobj(src, dst)
+    except FileExistsError as err:
+        raise existing_output_error(command, path) from err
+    except OSError as err:
+        raise OutputPathError(f"{command}: cannot create {path}: {err.strerror or err}") from err
+    finally:
+        written.unlink(missing_ok=True)

@@ -15,7 +15,7 @@ import contextlib
 import os
 import signal
 import threading
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from types import FrameType
 
 SignalCallback = Callable[[int], None]  # the signal's number
@@ -75,3 +75,26 @@ def stop_event_on_signals(signals: Iterable[int] | None = None) -> threading.Eve
     stop = threading.Event()
     route_signals(stop_signals() if signals is None else signals, lambda _: stop.set())
     return stop
+
+
+@contextlib.contextmanager
+def stop_event_while(signals: Iterable[int] | None = None) -> Iterator[threading.Event]:
+    """``stop_event_on_signals`` for the block: after it, each signal is handled as before it. A
+    command run in the process of its caller (the tests' ``main([...])``) leaves that process's
+    Ctrl-C as it found it, not routed to an event no one reads any more."""
+    chosen = tuple(int(sig) for sig in (stop_signals() if signals is None else signals))
+    handlers = {sig: signal.getsignal(sig) for sig in chosen}
+    callbacks = {sig: _relay.callbacks.get(sig) if _relay is not None else None for sig in chosen}
+    stop = stop_event_on_signals(chosen)
+    try:
+        yield stop
+    finally:
+        assert _relay is not None  # started by stop_event_on_signals
+        for sig in chosen:
+            if handlers[sig] is not None:  # None: a handler set outside Python, which getsignal cannot give
+                signal.signal(sig, handlers[sig])
+            callback = callbacks[sig]
+            if callback is None:
+                _relay.callbacks.pop(sig, None)
+            else:
+                _relay.callbacks[sig] = callback

@@ -29,6 +29,8 @@ dropped; the command says so and exits 1.
 from __future__ import annotations
 
 import datetime as _dt
+import os
+import tempfile
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -38,6 +40,7 @@ import can
 
 from controller import mf4_support
 from controller.errors import InputError
+from controller.output_paths import publish_new_file, refuse_existing_output
 from logs import messages as m
 from logs.bus_traffic import RecordedFrame, as_message, recorded_frames
 from logs.reader import ReadReport, same_file
@@ -63,6 +66,7 @@ class ExportError(InputError):
 @dataclass(frozen=True)
 class ExportResult:
     output: Path
+    file_written: bool  # False when no frame could be written: no file is left then
     format: str
     frames_written: int
     frames_out: int  # of those, sent by the controller (Tx)
@@ -136,39 +140,59 @@ def export_frames(
     target = Path(out) if out else default_output(path, fmt)
     if same_file(path, target):
         raise ExportError(f"-o {target}: is the recording itself")
+    command = f"logs export {path}"
+    refuse_existing_output(command, target)  # before the work: never another file overwritten
     report = ReadReport(path)
     unwritable = _UNWRITABLE.get(fmt, ())
     skipped: Counter[str] = Counter()
     written = sent = 0
     writer: can.io.generic.MessageWriter | None = None
+    # written under a name of its own and named `target` once there is something in it: a run that
+    # exported nothing (or failed) leaves no file behind
+    partial = _partial_file(target)
     try:
-        for f in recorded_frames(path, report):
-            if writer is None:  # the session's metadata comes before the first chunk of frames
-                writer = _open(fmt, target, f.unix_time_ns * 1e-9, report)
-            reason = next((why for why, cannot in unwritable if cannot(f)), None)
-            if reason is not None:
-                skipped[reason] += 1
-                continue
-            writer.on_message_received(as_message(f))
-            written += 1
-            sent += f.outgoing
-            if progress is not None and written % PROGRESS_EVERY_FRAMES == 0:
-                progress(report.end_offset)
-        if writer is None:  # no frame at all: an empty file of the format, so a script finds one
-            writer = _open(fmt, target, 0.0, report)
+        try:
+            for f in recorded_frames(path, report):
+                if writer is None:  # the session's metadata comes before the first chunk of frames
+                    writer = _open(fmt, partial, target, f.unix_time_ns * 1e-9, report)
+                reason = next((why for why, cannot in unwritable if cannot(f)), None)
+                if reason is not None:
+                    skipped[reason] += 1
+                    continue
+                writer.on_message_received(as_message(f))
+                written += 1
+                sent += f.outgoing
+                if progress is not None and written % PROGRESS_EVERY_FRAMES == 0:
+                    progress(report.end_offset)
+        finally:
+            if writer is not None:
+                writer.stop()
+        if written:
+            publish_new_file(command, partial, target)
     finally:
-        if writer is not None:
-            writer.stop()
+        partial.unlink(missing_ok=True)
     note = (
         "python-can's CSV has no direction column: use asc, blf, log, trc or mf4 to keep Rx/Tx"
         if fmt in NO_DIRECTION
         else ""
     )
-    return ExportResult(target, fmt, written, sent, dict(skipped), note, report)
+    return ExportResult(target, written > 0, fmt, written, sent, dict(skipped), note, report)
 
 
-def _open(fmt: str, target: Path, first_unix_s: float, report: ReadReport) -> can.io.generic.MessageWriter:
+def _partial_file(target: Path) -> Path:
+    """A new file beside ``target``, with its suffix (asammdf names an MF4 file by it)."""
     try:
-        return _writer(fmt, target, first_unix_s, report)
+        fd, name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=target.suffix, dir=target.parent)
+    except OSError as err:
+        raise ExportError(f"cannot write {target}: {err.strerror or err}") from err
+    os.close(fd)
+    return Path(name)
+
+
+def _open(
+    fmt: str, partial: Path, target: Path, first_unix_s: float, report: ReadReport
+) -> can.io.generic.MessageWriter:
+    try:
+        return _writer(fmt, partial, first_unix_s, report)
     except OSError as err:
         raise ExportError(f"cannot write {target}: {err.strerror or err}") from err

@@ -209,14 +209,13 @@ def cmd_logs_info(args: argparse.Namespace) -> int:
 
 
 def cmd_logs_recover(args: argparse.Namespace) -> int:
-    from logs.reader import LogFileError
     from logs.recovery import recover
 
     try:
         with _working(Path(args.file), "cheope logs recover") as progress:
             progress("copying what is readable")
             r = recover(args.file, args.output)
-    except LogFileError as err:
+    except InputError as err:  # the recording, or the output (one there already: output_paths.py)
         return _fail(args, err)
     lost = "; ".join(r.report.problems) or "nothing was damaged"
     if args.json:
@@ -282,14 +281,13 @@ def rerun_input_and_output(file: str | None, rerun: str | None) -> tuple[str, st
 def cmd_logs_export(args: argparse.Namespace) -> int:
     """Exit 0 when every recorded frame was written, 1 when the format could not hold some (it says
     which), 2 when the input is no recording or the output cannot be written."""
-    from logs.can_export import ExportError, export_frames
-    from logs.reader import LogFileError
+    from logs.can_export import export_frames
 
     path = Path(args.file)
     try:
         with _progress(path, "exporting") as progress:
             r = export_frames(path, args.format, args.output, progress)
-    except (LogFileError, ExportError) as err:
+    except InputError as err:  # the recording, the format, the output (output_paths.py)
         return _fail(args, err)
     not_written = "; ".join(f"{k} {why} not written" for why, k in r.frames_not_written.items())
     if args.json:
@@ -297,6 +295,7 @@ def cmd_logs_export(args: argparse.Namespace) -> int:
             strict_json(
                 {
                     "output": str(r.output),
+                    "file_written": r.file_written,
                     "format": r.format,
                     "frames_written": r.frames_written,
                     "frames_out": r.frames_out,
@@ -308,10 +307,12 @@ def cmd_logs_export(args: argparse.Namespace) -> int:
             )
         )
     else:
-        print(
+        wrote = (
             f"wrote {r.frames_written} frames to {r.output} ({r.frames_out} Tx, {r.frames_written - r.frames_out} Rx)"
-            + "".join(f"; {t}" for t in (not_written, r.note, "; ".join(r.report.problems)) if t)
+            if r.file_written
+            else f"wrote no frame: {r.output} not created"
         )
+        print(wrote + "".join(f"; {t}" for t in (not_written, r.note, "; ".join(r.report.problems)) if t))
     if r.frames_written == 0:
         print(f"cheope logs export: no CAN frame read from {path}", file=sys.stderr)
     return 1 if r.frames_not_written or r.frames_written == 0 else 0

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import errno
 import io
-import json
 import mmap
 import os
 import struct
@@ -43,7 +42,7 @@ from mcap.records import (
 )
 from mcap.stream_reader import breakup_chunk
 
-from controller.config import Config, ConfigError, recorded_config_from_dict
+from controller.config import Config, ConfigError, config_table_from_json, recorded_config_from_dict
 from controller.errors import InputError
 from controller.messages import cheope_pb2 as pb
 from logs.can_frame_batch import unpack_frames
@@ -338,6 +337,12 @@ def _walk(raw: bytes | mmap.mmap, report: ReadReport) -> Iterator[tuple[Channel,
             report.complete = True
             if raw[pos : pos + 8] != MAGIC:
                 report.problems.append("the footer is not followed by the closing magic bytes")
+            elif n > pos + 8:
+                # bytes appended to a finished file: no writer puts them there (the file was changed)
+                report.problems.append(
+                    f"{n - pos - 8} byte(s) after the closing magic bytes at offset {pos + 8}: the file "
+                    "was changed after it was finished"
+                )
             expected = summary_at if summary_at is not None and summary_at < start else 0
             if record.summary_start not in (0, expected):
                 # a reader that seeks by it (logs info without --check, other MCAP tools) fails
@@ -614,10 +619,23 @@ def info_dict(r: ReadReport) -> dict[str, Any]:
 def recorded_config(report: ReadReport) -> Config | None:
     """The configuration a recording was made with (its ``cheope.config`` metadata, as this version
     reads an earlier one's), once ``report`` has seen the metadata; None without a readable one."""
-    meta = report.metadata.get(META_CONFIG)
-    if meta is None or "json" not in meta:
-        return None
     try:
-        return recorded_config_from_dict(json.loads(meta["json"]))
-    except (ConfigError, ValueError):
+        table = recorded_config_table(report)
+        return None if table is None else recorded_config_from_dict(table)
+    except (ConfigError, LogFileError):
         return None
+
+
+def recorded_config_table(report: ReadReport) -> dict[str, Any] | None:
+    """The table of the recording's ``cheope.config`` metadata record, None without one; a
+    ``LogFileError`` naming the file and the record when it holds no configuration table."""
+    meta = report.metadata.get(META_CONFIG)
+    if meta is None:
+        return None
+    where = f"{report.path}: metadata record {META_CONFIG}"
+    if "json" not in meta:
+        raise LogFileError(f"{where}: has no 'json' entry (it has {', '.join(map(repr, meta)) or 'none'})")
+    try:
+        return config_table_from_json(meta["json"])
+    except ConfigError as err:
+        raise LogFileError(f"{where}: {err}") from None

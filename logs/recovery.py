@@ -16,6 +16,7 @@ from pathlib import Path
 
 from mcap.writer import CompressionType, Writer
 
+from controller.output_paths import existing_output_error
 from logs.reader import LogFileError, ReadReport, iter_messages, read_head, same_file
 
 
@@ -42,7 +43,7 @@ def recover(src: str | Path, out: str | Path | None = None) -> RecoveryResult:
         # opened apart from the `with fh` below: its errors are told from the writer's
         fh = open(dst, "xb")  # noqa: SIM115  (closed by the `with fh` below)
     except FileExistsError as err:
-        raise LogFileError(f"recover {src}: {dst} already exists; pass another output file") from err
+        raise existing_output_error(f"recover {src}", dst) from err
     except OSError as err:
         raise LogFileError(f"recover {src}: cannot create {dst}: {err.strerror or err}") from err
     saved = 0

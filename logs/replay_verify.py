@@ -25,7 +25,6 @@ nothing limited the check; ``summary()`` says how much was verified otherwise.
 from __future__ import annotations
 
 import itertools
-import json
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,7 +35,7 @@ from controller.messages import cheope_pb2 as pb
 from logs import messages as m
 from logs.keyframe import ENCODINGS as KEYFRAME_ENCODINGS
 from logs.keyframe import KeyframeError, decode_state, encode_state
-from logs.reader import LogFileError, ReadReport, iter_decoded, read_head, read_info
+from logs.reader import LogFileError, ReadReport, iter_decoded, read_head, read_info, recorded_config_table
 
 if TYPE_CHECKING:
     from controller.core.cycle_data import Event
@@ -174,10 +173,9 @@ def _compare_events(c: _Compare, rec: list[pb.Event], new: tuple[Event, ...]) ->
 def _law_from(report: ReadReport, overrides: dict[str, Any]) -> Any:
     from controller.assembly import build_law
 
-    meta = report.metadata.get(m.META_CONFIG)
-    if meta is None or "json" not in meta:
+    table = recorded_config_table(report)
+    if table is None:
         raise LogFileError(f"{report.path} has no {m.META_CONFIG} metadata: the law cannot be rebuilt")
-    table = json.loads(meta["json"])
     for key, value in overrides.items():
         set_dotted(table, key, value)
     try:

@@ -28,7 +28,6 @@ channels.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import sys
@@ -40,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from logs import messages as m
-from logs.reader import LogFileError, ReadReport, iter_decoded, read_info, same_file
+from logs.reader import LogFileError, ReadReport, iter_decoded, read_info, recorded_config_table, same_file
 from logs.robot_drawing import FORCE_ARROW_M_PER_N
 from logs.scene_sampler import SceneFrame, SceneSampler
 
@@ -229,12 +228,10 @@ def leading_metadata(path: Path) -> ReadReport:
 def _config(report: ReadReport) -> Any:
     from controller.config import ConfigError, recorded_config_from_dict
 
-    meta = report.metadata.get(m.META_CONFIG)
-    if meta is None:
-        return None
     try:
-        return recorded_config_from_dict(json.loads(meta["json"]))
-    except (ConfigError, ValueError, KeyError):
+        table = recorded_config_table(report)
+        return None if table is None else recorded_config_from_dict(table)
+    except (ConfigError, LogFileError):
         return None  # an older configuration: the plots still work, the 3D geometry is left out
 
 

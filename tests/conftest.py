@@ -47,6 +47,16 @@ def recordings_in_a_temporary_directory(tmp_path_factory):
             os.environ[name] = value
 
 
+@pytest.fixture(autouse=True, scope="session")
+def signal_relay_started():
+    """controller/signal_relay.py's thread is one a process, started by the first stop signal routed
+    and kept (a daemon): started before the tests, so that the first one to run a command that
+    routes them in this process (``main(["demo", "--simulated-time", ...])``) is not taken for its leak."""
+    from controller.signal_relay import route_signals
+
+    route_signals((), lambda _signum: None)
+
+
 @pytest.fixture(autouse=True)
 def no_leaks():
     """Fail a test that leaves a child process or a thread running (STYLE.md principle 8)."""

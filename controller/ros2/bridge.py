@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import contextlib
 import faulthandler
-import json
 import math
 import os
 import signal
@@ -397,11 +396,11 @@ def _ended_by_stop_signals() -> Iterator[threading.Event]:
 
 
 def _controller_config(status_json: str) -> Config | None:
-    from controller.config import ConfigError, recorded_config_from_dict
+    from controller.config import ConfigError, config_table_from_json, recorded_config_from_dict
 
     try:
-        return recorded_config_from_dict(json.loads(status_json or "{}"))
-    except (ConfigError, ValueError, KeyError):
+        return recorded_config_from_dict(config_table_from_json(status_json or "{}"))
+    except (ConfigError, KeyError):
         return None
 
 

@@ -10,6 +10,10 @@ reproduced as a run over a bus meets it: a late cycle, then the deadlines it mis
 
 from __future__ import annotations
 
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from typing import TYPE_CHECKING, Any
 
 from controller.shell.loop import CycleLoop, LoopStats, SimulatedTime
@@ -20,6 +24,23 @@ if TYPE_CHECKING:
     from controller.core.controller_state import ControllerState
     from controller.core.ports import CycleObserver
     from sim_backend.loopback import LoopbackExchange
+
+
+# The stop request of the runs of this context (``stopped_by``): a command's signals, which reach
+# the rigs an experiment builds inside its own simulated_time() (an entry point's fixed signature).
+_STOP_REQUEST: ContextVar[threading.Event | None] = ContextVar("cheope_simulated_stop", default=None)
+
+
+@contextmanager
+def stopped_by(stop: threading.Event) -> Iterator[None]:
+    """Every ``SimulatedRig.run`` within stops as a run over a bus does when ``stop`` is set: the
+    law brakes, disables the drives and ends DONE (``cheope demo --simulated-time`` and its
+    SIGTERM, SIGINT and SIGHUP, as the demo over a bus)."""
+    token = _STOP_REQUEST.set(stop)
+    try:
+        yield
+    finally:
+        _STOP_REQUEST.reset(token)
 
 
 class SimulatedRig:
@@ -51,5 +72,8 @@ class SimulatedRig:
     def run(
         self, observers: tuple[CycleObserver, ...] = (), max_duration_s: float | None = None
     ) -> tuple[ControllerState, LoopStats]:
-        """From the law's initial state until it ends (or ``max_duration_s`` of simulated time)."""
-        return self.loop(observers).run(self.law.initial_state(), max_duration_s)
+        """From the law's initial state until it ends (or ``max_duration_s`` of simulated time, or
+        a stop requested through ``stopped_by``)."""
+        return self.loop(observers, stop_event=_STOP_REQUEST.get()).run(
+            self.law.initial_state(), max_duration_s
+        )

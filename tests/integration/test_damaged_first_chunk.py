@@ -137,6 +137,19 @@ def test_info_check_covers_the_summarys_crc(tmp_path: Path, capsys) -> None:
     assert main(["logs", "info", str(DATA / "path_quarter_lap.mcap")]) == 0
 
 
+def test_info_check_finds_bytes_appended_after_the_end(tmp_path: Path, capsys) -> None:
+    """700 bytes after the closing magic were "complete", exit 0 (an outside tester's finding)."""
+    raw = (DATA / "contour_contact.mcap").read_bytes()
+    changed = tmp_path / "appended.mcap"
+    changed.write_bytes(raw + bytes(range(256)) * 2 + bytes(188))
+    for args in (["logs", "info", "--check", str(changed)], ["logs", "info", str(changed)]):
+        assert main(args) == 1
+        out = capsys.readouterr().out
+        assert f"700 byte(s) after the closing magic bytes at offset {len(raw)}" in out
+        assert "status     complete" not in out
+    assert main(["logs", "info", "--check", str(DATA / "contour_contact.mcap")]) == 0
+
+
 def _without_some_cycles(src: Path, dst: Path, drop: int) -> None:
     """``src`` written again by the mcap library without ``drop`` of its /cycle messages: a complete
     file, its index and summary matching what it holds, its metadata as written."""

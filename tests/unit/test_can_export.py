@@ -175,3 +175,28 @@ def _cheope(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [sys.executable, "-m", "controller", *args], capture_output=True, text=True, check=False, timeout=60
     )
+
+
+def test_an_existing_output_is_refused_and_left_as_it_was(recording, tmp_path: Path):
+    """``-o`` naming a file that is there (another recording) overwrote it, even when nothing was
+    exported (an outside tester's finding): refused as ``logs recover`` refuses it, before any work."""
+    path, _ = recording
+    other = tmp_path / "other.mcap"
+    other.write_bytes(b"\x89MCAP0\r\nanother recording")
+    before = other.read_bytes()
+    for args in (("logs", "export", str(path), "--format", "csv"), ("logs", "recover", str(path))):
+        r = _cheope(*args, "-o", str(other))
+        assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+        assert f"{other} already exists; pass another output file" in r.stderr
+        assert other.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["other.mcap"]  # no partial file left
+
+
+def test_an_export_of_no_frame_creates_no_file(tmp_path: Path):
+    nothing = tmp_path / "nothing.mcap"
+    nothing.write_bytes(b"\x89MCAP0\r\n" + bytes(4096))
+    out = tmp_path / "n.csv"
+    r = _cheope("logs", "export", str(nothing), "--format", "csv", "-o", str(out))
+    assert r.returncode == 1 and "no CAN frame read from" in r.stderr
+    assert f"{out} not created" in r.stdout
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["nothing.mcap"]

@@ -25,6 +25,17 @@ def test_shipped_defaults_load(cfg):
             {"robot.cheope.stroke_min_m": 0.9, "robot.cheope.stroke_max_m": 0.3},
             r"stroke_min_m = 0.9 must be <",
         ),
+        # all masses at 0 ended a simulated demo in a ZeroDivisionError; a stiffness of 1e-300 N/m
+        # made `cheope analyze` fail on a NaN after writing its plots (an outside tester's findings)
+        (
+            {"robot.cheope.mass.platform_kg": 0.0, "robot.cheope.mass.rod_pair_kg": 0.0},
+            r"robot.cheope.mass.platform_kg = 0.0 and robot.cheope.mass.rod_pair_kg = 0.0: the tool's "
+            r"moving mass \(the platform and half of each rod pair\) must be more than 0 kg",
+        ),
+        (
+            {"robot.cheope.mass.actuator_stiffness_n_m": 1e-300},
+            r"robot.cheope.mass.actuator_stiffness_n_m = 1e-300: must be >= 1.0",
+        ),
         (
             {"loop.max_missing_cycles": 2.5},
             r"loop.max_missing_cycles = 2.5: a whole number of cycles >= 1 was expected \(the key is "
@@ -148,6 +159,26 @@ def test_parse_override():
     assert parse_override("task.path.center_m=[0, 0, 0.45]") == ("task.path.center_m", [0, 0, 0.45])
     with pytest.raises(ConfigError, match="expected KEY=VALUE"):
         parse_override("loop.rate_hz")
+
+
+@pytest.mark.parametrize(
+    "text", ["loop.rate_hz=400\nloop.spin_us=-5", "bus.can=vcan0\r\nloop.rate_hz=5", "a\nb=1"]
+)
+def test_a_line_break_in_a_set_is_refused(text):
+    """TOML read the first line and took the rest for keys of its own: ``loop.rate_hz=400<newline>
+    loop.spin_us=-5`` set the rate, dropped the rest and exited 0 (an outside tester's finding)."""
+    with pytest.raises(ConfigError, match=r"a line break in KEY=VALUE; give each key its own --set"):
+        parse_override(text)
+
+
+def test_a_set_with_a_line_break_ends_the_command_with_one_line(capsys, tmp_path):
+    from controller.cli import main
+
+    args = ["analyze", "--set", "loop.rate_hz=400\nloop.spin_us=-5", "--output-dir", str(tmp_path)]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "a line break in KEY=VALUE" in err
+    assert list(tmp_path.iterdir()) == []  # refused before any work
 
 
 @pytest.mark.parametrize("raw", ["[0, 0, 1", "{x = 1", '"socketcan:vcan0', "'a"])

@@ -8,11 +8,14 @@ own, ended by the test if it hangs.
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 import textwrap
 
 import pytest
+
+from controller.signal_relay import stop_event_while
 
 _HELD_LOCK = {
     "install_stop_signals": """
@@ -92,3 +95,14 @@ def test_a_second_hang_up_does_not_quick_stop_a_second_sigterm_does() -> None:
     assert s.stop.is_set() and not s.quick_stop.is_set()
     s.on_signal(signal.SIGTERM)
     assert s.quick_stop.is_set()
+
+
+def test_stop_event_while_hands_each_signal_back_as_it_found_it() -> None:
+    """``cheope demo --simulated-time`` routes the stop signals for its run only: a caller of ``main``
+    in its own process (the tests) keeps its Ctrl-C, not one routed to an event no one reads."""
+    before = signal.getsignal(signal.SIGINT)
+    with stop_event_while((signal.SIGINT,)) as stop:
+        assert signal.getsignal(signal.SIGINT) != before
+        signal.raise_signal(signal.SIGINT)
+        assert stop.wait(30)
+    assert signal.getsignal(signal.SIGINT) == before

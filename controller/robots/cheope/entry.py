@@ -37,7 +37,10 @@ class MassSection(Section, frozen=True):
     platform_kg: Annotated[float, rng(0.0, 1000.0)] = 8.0
     slider_kg: Annotated[float, rng(0.0, 1000.0)] = 1.0
     rod_pair_kg: Annotated[float, rng(0.0, 1000.0)] = 0.4
-    actuator_stiffness_n_m: Annotated[float, rng(0.0, 1e12, lo_open=True)] = 2.0e5
+    # 1 N/m and up, as safety.contact.cell_stiffness_n_m: softer, the robot's own weight (84 N at
+    # the defaults) would sag it 84 m, no servo; and at 1e-300 N/m the stiffness ellipse's k^2
+    # underflowed to 0, and `cheope analyze` failed on a NaN after writing its plots
+    actuator_stiffness_n_m: Annotated[float, rng(1.0, 1e12)] = 2.0e5
 
 
 class CheopeSection(Section, frozen=True):
@@ -59,6 +62,19 @@ def _check_cheope(c: CheopeSection) -> None:
         raise ConfigError(
             f"robot.cheope.stroke_min_m = {c.stroke_min_m} must be < robot.cheope.stroke_max_m = {c.stroke_max_m}"
         )
+    _check_moving_mass(c.mass)
+
+
+def _check_moving_mass(m: MassSection) -> None:
+    """What moves with the tool (the platform and half of each rod pair, ``MassModel.translating_kg``)
+    must weigh something: the simulated structure divides by it, and all masses at 0 ended a
+    simulated demo with a ZeroDivisionError (an outside tester's finding)."""
+    if m.platform_kg + 3 * m.rod_pair_kg / 2 > 0.0:
+        return
+    raise ConfigError(
+        f"robot.cheope.mass.platform_kg = {m.platform_kg} and robot.cheope.mass.rod_pair_kg = {m.rod_pair_kg}: "
+        "the tool's moving mass (the platform and half of each rod pair) must be more than 0 kg"
+    )
 
 
 def cheope_mass_model(m: MassSection) -> MassModel:
