@@ -258,7 +258,9 @@ def test_a_sensor_that_repeats_its_sample_to_the_last_bit_while_pressing_is_froz
 
 
 def test_a_noiseless_simulated_sensor_is_refused_beside_the_frozen_check_and_taken_without_it():
-    with pytest.raises(ConfigError, match="sim.sensor.noise_std_n = 0 with safety.contact.sensor_frozen_s"):
+    with pytest.raises(
+        ConfigError, match=r"sim\.sensor\.noise_std_n = 0 with safety\.contact\.sensor_frozen_s"
+    ):
         load_config(overrides={"sim.sensor.noise_std_n": 0.0})
     cfg = load_config(overrides={"sim.sensor.noise_std_n": 0.0, "safety.contact.sensor_frozen_s": 0.0})
     assert cfg.safety.contact.sensor_frozen_s == 0.0
