@@ -175,6 +175,20 @@ _EXPLICIT_REALTIME_FLAGS = (
 )
 
 
+# demo's options that act on what only a run over the bus has (_refuse_realtime_in_simulated_time)
+_OVER_THE_BUS_FLAGS = (
+    ("bus", "--bus"),
+    ("udp_port", "--udp-port"),
+    ("fd", "--fd"),
+    ("rerun", "--rerun"),
+    ("foxglove", "--foxglove"),
+    ("zenoh_connect", "--zenoh-connect"),
+    ("zenoh_config", "--zenoh-config"),
+    ("allow_remote_commands", "--allow-remote-commands"),
+    ("robot_id", "--robot-id"),
+)
+
+
 def _given(args: argparse.Namespace, flags: tuple[tuple[str, str], ...]) -> list[str]:
     """The flags of ``flags`` given on the command line: a value (0 and '' too) or a switch set."""
     values = ((getattr(args, name, None), flag) for name, flag in flags)
@@ -419,6 +433,17 @@ def _refuse_realtime_in_simulated_time(args: argparse.Namespace) -> None:
         raise RealtimeError(
             f"{', '.join(given)}: --simulated-time runs the loop on a simulated clock, with nothing "
             "to schedule, pin or lock; drop them, or run the demo over the bus (without --simulated-time)"
+        )
+    # The same for what only a run over the bus has: its bus, its recording's writer (the live views),
+    # its Zenoh session. They were taken and ignored without a word (an outside tester, 2026-12-06).
+    elsewhere = [
+        flag for name, flag in _OVER_THE_BUS_FLAGS if getattr(args, name, None) not in (None, False, [])
+    ]
+    if elsewhere:
+        raise ConfigError(
+            f"{', '.join(elsewhere)}: --simulated-time runs the devices in this process, with no bus, "
+            "no recording and no remote monitoring for them to act on; drop them, or run the demo over "
+            "the bus (without --simulated-time)"
         )
 
 

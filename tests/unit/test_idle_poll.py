@@ -342,3 +342,20 @@ def test_under_the_default_latency_limit_no_cpu_halts() -> None:
     finally:
         os.close(fd)
     assert entered <= os.cpu_count(), f"{entered} halts under a latency limit of 0"
+
+
+def test_options_only_a_run_over_the_bus_has_are_refused_in_simulated_time_not_ignored(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Its bus, its recording's live views, its Zenoh session: `demo --simulated-time` took each and
+    ignored it without a word (an outside tester, 2026-12-06)."""
+    from controller.cli import main
+
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path))
+    code = main(["demo", "--simulated-time", "--bus", "virtual:x", "--foxglove", "--udp-port", "-1"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "--bus, --udp-port, --foxglove: --simulated-time runs the devices in this process" in err
+    for option in (["--zenoh-connect", "tcp/127.0.0.1:7447"], ["--robot-id", "r1"], ["--rerun"], ["--fd"]):
+        assert main(["demo", "--simulated-time", *option]) == 2, option
+        assert f"{option[0]}: --simulated-time runs the devices" in capsys.readouterr().err
