@@ -280,12 +280,9 @@ def _check_force_setpoint(params: ContourParams) -> None:
     """The configured setpoint within what a remote set_force may set (``force_setpoint_limit``)."""
     from controller.tasks.contour_tracking import force_setpoint_limit
 
-    limit = force_setpoint_limit(params.saturation_force_n, params.max_force_n)
-    if not params.force_setpoint_n < limit.below_n:
-        raise ConfigError(
-            f"task.contour.force_setpoint_n = {params.force_setpoint_n:g} N: must be below "
-            f"{limit.below_n:.3g} N, {limit.why}"
-        )
+    limit = force_setpoint_limit(params.saturation_force_n, params.max_force_n, params.contact_lost_force_n)
+    if not limit.accepts(params.force_setpoint_n):
+        raise ConfigError(f"task.contour.force_setpoint_n = {limit.refusal(params.force_setpoint_n)}")
 
 
 # -- the planned legs (seed 004): the 3-nSPU's settings are in [robot.nspu] ----------------------
