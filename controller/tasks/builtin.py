@@ -165,6 +165,25 @@ def _check_contour(c: ContourSection) -> None:
             f"{c.force_setpoint_n:g} N < max_force_n = {c.max_force_n:g} N, and contact_force_n = "
             f"{c.contact_force_n:g} N < max_force_n, must hold"
         )
+    _check_stop_deceleration(c)
+
+
+def _check_stop_deceleration(c: ContourSection) -> None:
+    """After a contact loss the tangential motion brakes at stop_deceleration_m_s2 from the lap's
+    speed: v^2 / (2 a) along the old tangent. The tool lost contact on the contour, so it ends no
+    further from it than it travelled; within envelope_margin_m it stays in the envelope the task
+    guards. At 0.001 m/s^2 (accepted before) an outside tester's tool coasted 88 mm off the part,
+    to an actuator's stroke limit."""
+    fastest = max(c.explore_speed_m_s, *c.lap_speeds_m_s)
+    coast_m = fastest**2 / (2.0 * c.stop_deceleration_m_s2)
+    if coast_m > c.envelope_margin_m:
+        least = fastest**2 / (2.0 * c.envelope_margin_m)
+        raise ConfigError(
+            f"task.contour.stop_deceleration_m_s2 = {c.stop_deceleration_m_s2:g} m/s^2: braking from the "
+            f"fastest contour speed ({fastest:g} m/s, lap_speeds_m_s and explore_speed_m_s) the tool coasts "
+            f"{coast_m * 1000:.1f} mm after a contact loss, past task.contour.envelope_margin_m = "
+            f"{c.envelope_margin_m * 1000:g} mm; at least {least:.3g} m/s^2 here"
+        )
 
 
 def _check_contour_against_the_guard(c: ContourSection, shared: TaskSettings) -> None:

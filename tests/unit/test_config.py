@@ -78,11 +78,31 @@ def test_a_node_list_not_one_per_actuator_is_named_when_the_robot_is_built():
         ({"task.contour.contact_force_n": 500.0}, r"contact_force_n = 500 N < max_force_n, must hold"),
         ({"safety.contact.guarded_move_force_n": 1000.0}, r"guarded_move_force_n = 1000 N <= "),
         ({"safety.max_contact_force_n": 5.0}, r"safety.max_contact_force_n = 5 N must hold"),
+        # an outside tester's: after a contact loss the tool coasted 88 mm off the part
+        (
+            {"task.contour.stop_deceleration_m_s2": 0.001},
+            r"stop_deceleration_m_s2 = 0.001 m/s\^2: braking from the fastest contour speed \(0.06 m/s, "
+            r".* coasts 1800.0 mm .*envelope_margin_m = 12 mm; at least 0.15 m/s\^2",
+        ),
+        # the exploring lap counts too
+        (
+            {
+                "task.contour.lap_speeds_m_s": [0.02],
+                "task.contour.explore_speed_m_s": 0.05,
+                "task.contour.stop_deceleration_m_s2": 0.1,
+            },
+            r"fastest contour speed \(0.05 m/s.* coasts 12.5 mm",
+        ),
     ],
 )
 def test_force_limits_out_of_order_are_refused_when_loaded(overrides, message):
     with pytest.raises(ConfigError, match=message):
         load_config(overrides={"task.kind": "contour", **overrides})
+
+
+def test_a_stop_deceleration_that_keeps_the_coast_within_the_envelope_is_accepted():
+    """0.06^2 / (2 x 0.15) = 12 mm: the envelope margin, just."""
+    load_config(overrides={"task.kind": "contour", "task.contour.stop_deceleration_m_s2": 0.15})
 
 
 @pytest.mark.parametrize(
