@@ -130,11 +130,12 @@ def test_the_other_gated_commands_ignore_the_value() -> None:
         (
             {
                 "safety.max_contact_force_n": 20.0,
-                "safety.contact.guarded_move_force_n": 15.0,
-                "task.contour.max_force_n": 15.0,
-                "task.contour.search_speed_m_s": 0.003,
+                "safety.contact.guarded_move_force_n": 10.0,
+                "task.contour.max_force_n": 10.0,
+                "task.contour.force_setpoint_n": 9.0,
+                "task.contour.search_speed_m_s": 0.002,
             },
-            "force_setpoint_n = 10 N refused: must be above 1 N, task.contour.contact_lost_force_n = 1 N "
+            "force_setpoint_n = 9 N refused: must be above 1 N, task.contour.contact_lost_force_n = 1 N "
             "(the task takes a force below it for contact lost), and below 7.69231 N",
         ),
     ],

@@ -110,7 +110,16 @@ def test_a_stop_deceleration_that_keeps_the_coast_within_the_envelope_is_accepte
     [
         (
             {"task.contour.max_force_n": 80.0},
-            r"max_force_n = 80 N is above safety.max_contact_force_n = 60 N",
+            r"max_force_n = 80 N: must be at most 50 N, safety.max_contact_force_n = 60 N less the 10 N",
+        ),
+        # an outside tester's: equal to the safety layer's, accepted (only above was refused)
+        (
+            {"task.contour.max_force_n": 60.0, "task.contour.search_speed_m_s": 0.005},
+            r"max_force_n = 60 N: must be at most 50 N, .* before its retract takes hold",
+        ),
+        (
+            {"task.contour.max_force_n": 50.5, "task.contour.search_speed_m_s": 0.005},
+            r"max_force_n = 50.5 N: must be at most 50 N",
         ),
         (
             {"task.contour.lap_speeds_m_s": [0.02, 0.12]},
@@ -136,6 +145,12 @@ def test_a_contour_the_contact_guard_would_stop_at_once_is_refused_before_it_sta
     cfg = load_config(overrides={"task.kind": "contour", **overrides})
     with pytest.raises(ConfigError, match=message):
         build_law(cfg)
+
+
+def test_a_task_limit_the_tasks_overshoot_keeps_below_the_safety_limit_is_accepted():
+    from controller.assembly import build_law
+
+    build_law(load_config(overrides={"task.kind": "contour", "task.contour.max_force_n": 50.0}))
 
 
 def test_an_unknown_key_of_a_node_table_lists_the_keys_a_node_takes(tmp_path):
