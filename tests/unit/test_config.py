@@ -100,6 +100,34 @@ def test_force_limits_out_of_order_are_refused_when_loaded(overrides, message):
         load_config(overrides={"task.kind": "contour", **overrides})
 
 
+@pytest.mark.parametrize(
+    "key,value,bound",
+    [
+        # an outside tester's: 68.9, 96 and 91.8 N on the 1 mm x 30 mm bump, within the old ranges
+        ("force_kp_m_s_per_n", 0.005, "0.001"),
+        ("force_kp_m_s_per_n", 0.01, "0.001"),
+        ("force_ki_m_s2_per_n", 10.0, "0.01"),
+        # the first steps past the bounds: 1.5e-3 lost contact 4 times in lap 1; 3e-2 stalled
+        ("force_kp_m_s_per_n", 0.0015, "0.001"),
+        ("force_ki_m_s2_per_n", 0.03, "0.01"),
+    ],
+)
+def test_force_gains_past_what_tracks_the_bump_are_refused_naming_the_key_and_bound(key, value, bound):
+    with pytest.raises(ConfigError, match=rf"task.contour.{key} = {value}: must be <= {bound}"):
+        load_config(overrides={"task.kind": "contour", f"task.contour.{key}": value})
+
+
+def test_force_gains_at_their_bounds_are_accepted():
+    """Both at once tracked the bump to DONE at 21.9 N true (the limit 40 N)."""
+    load_config(
+        overrides={
+            "task.kind": "contour",
+            "task.contour.force_kp_m_s_per_n": 1e-3,
+            "task.contour.force_ki_m_s2_per_n": 1e-2,
+        }
+    )
+
+
 def test_a_stop_deceleration_that_keeps_the_coast_within_the_envelope_is_accepted():
     """0.06^2 / (2 x 0.15) = 12 mm: the envelope margin, just."""
     load_config(overrides={"task.kind": "contour", "task.contour.stop_deceleration_m_s2": 0.15})
