@@ -9,10 +9,11 @@ series stiffness of contact and sensor, and smoothed Coulomb friction along the 
 The penetration is the ball's true overlap with the part: its radius less the signed distance
 of its centre from the nearest point of the whole boundary (negative inside), so a ball wider
 than a narrow notch rests on its edges and a deep notch's far wall is met where it is. That
-nearest point is found exactly every sub-step through a k-d tree of the vertices (about as
-fast as the walk from the last segment it replaced, which stopped at a local minimum: on a
+nearest point is found exactly every sub-step: a walk from the last nearest segment bounds
+the distance, and a k-d tree of the vertices gives every segment that could be nearer (9.5 us
+a call against the walk alone's 8.0 us). The walk alone stopped at a local minimum: on a
 notch's far wall the tool sank 7-9 mm into steel at 0-10 N, then met 1529 N at once when the
-walk restarted). Inside the boundary the normal at the nearest point is interpolated between
+walk restarted. Inside the boundary the normal at the nearest point is interpolated between
 the two vertex normals (as a smooth surface's would be), so a dense polyline has no facets the
 tool could feel; outside, it points from the nearest point to the ball's centre.
 
