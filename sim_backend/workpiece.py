@@ -3,13 +3,19 @@
 The disk of seed 001 §7 has an exact model (``contact_disk.py``); every other shape lives here
 as a closed counter-clockwise polyline sampled evenly by arc length, with a normal at every
 vertex taken from the shape itself. The contact is the one of the disk: with penetration d of
-the tool's centre behind the boundary and outward normal n, F_n = max(0, k d - c d_dot) with the
+the tool's ball into the part and outward normal n, F_n = max(0, k d - c d_dot) with the
 series stiffness of contact and sensor, and smoothed Coulomb friction along the tangent.
 
-The normal at the nearest point is interpolated between the two vertex normals (as a smooth
-surface's would be), so a dense polyline has no facets the tool could feel. The nearest
-segment is found by walking from the last one (the tool moves a fraction of a segment per
-sub-step); a full search only on the first call or after a jump.
+The penetration is the ball's true overlap with the part: its radius less the signed distance
+of its centre from the nearest point of the whole boundary (negative inside), so a ball wider
+than a narrow notch rests on its edges and a deep notch's far wall is met where it is. That
+nearest point is found exactly every sub-step: a walk from the last nearest segment bounds
+the distance, and a k-d tree of the vertices gives every segment that could be nearer (9.5 us
+a call against the walk alone's 8.0 us). The walk alone stopped at a local minimum: on a
+notch's far wall the tool sank 7-9 mm into steel at 0-10 N, then met 1529 N at once when the
+walk restarted. Inside the boundary the normal at the nearest point is interpolated between
+the two vertex normals (as a smooth surface's would be), so a dense polyline has no facets the
+tool could feel; outside, it points from the nearest point to the ball's centre.
 
 Shapes (``[sim.workpiece] shape``), in the workpiece's own frame before ``rotation_deg`` and
 ``centre_m``: ``disk`` (radius), ``ellipse`` (semi-axes ``size_m``), ``rounded_rectangle``
@@ -26,6 +32,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from sim_backend.environment import NO_FORCE, Vector3, series_stiffness_n_m
 
@@ -159,6 +166,12 @@ class ContactParams:
     friction_velocity_m_s: float = 1e-3
 
 
+def _unit_right(dx: float, dy: float) -> tuple[float, float]:
+    """The unit vector of (dx, dy) turned by -90 deg: a counter-clockwise boundary's outward normal."""
+    length = math.hypot(dx, dy) or 1.0
+    return dy / length, -dx / length
+
+
 class PolylineEnvironment:
     """Contact of the tool's ball with a closed planar polyline workpiece (see the module's text)."""
 
@@ -170,7 +183,11 @@ class PolylineEnvironment:
         self._xy = [(float(x), float(y)) for x, y in self.points]
         self._nxy = [(float(x), float(y)) for x, y in self.normals]
         self._n = len(self._xy)
+        self._tree = cKDTree(self.points)
         self._hint: int | None = None
+        edges = np.roll(self.points, -1, axis=0) - self.points
+        # a segment nearer than the nearest vertex has an end within sqrt(d^2 + (L/2)^2) of the tool
+        self._half_edge2 = 0.25 * float(np.max(edges[:, 0] ** 2 + edges[:, 1] ** 2))
         centre = self.points.mean(axis=0)
         self._centre = (float(centre[0]), float(centre[1]))
         self._max_radius = float(np.max(np.hypot(*(self.points - centre).T)))
@@ -191,25 +208,69 @@ class PolylineEnvironment:
         px, py = ax + t * dx, ay + t * dy
         return (x - px) ** 2 + (y - py) ** 2, t, px, py
 
-    def _nearest(self, x: float, y: float) -> int:
-        hint = self._hint
-        if hint is not None:
-            hx, hy = self._xy[hint]
-            if (x - hx) ** 2 + (y - hy) ** 2 > 25e-6:  # moved more than 5 mm since: search again
-                hint = None
-        if hint is None:
+    def _walk(self, x: float, y: float) -> float:
+        """A distance to the boundary no shorter than the true one, cheaply: walk downhill from the
+        last nearest segment (the tool moves a fraction of a segment per sub-step) to a local minimum."""
+        if self._hint is None:
             d2 = (self.points[:, 0] - x) ** 2 + (self.points[:, 1] - y) ** 2
-            hint = int(np.argmin(d2))
+            self._hint = int(np.argmin(d2))
+        hint = self._hint
         best = self._segment(hint, x, y)[0]
-        for step in (1, -1):  # walk downhill both ways
+        for step in (1, -1):
             while True:
                 j = (hint + step) % self._n
                 d = self._segment(j, x, y)[0]
                 if d >= best:
                     break
                 hint, best = j, d
-        self._hint = hint
-        return hint
+        return math.sqrt(best)
+
+    def _nearest(self, x: float, y: float) -> tuple[int, float, float, float, float]:
+        """The segment nearest the point (x, y) over the whole boundary: its index, squared distance,
+        parameter and nearest point. Exact: a walk's local minimum bounds the distance by d, and only
+        the segments with an end within sqrt(d^2 + (L/2)^2) can be nearer (Pythagoras at the foot of
+        the perpendicular; L the longest segment), found in a k-d tree. The walk alone stopped on a
+        notch's far wall, a local minimum (an outside tester's 1529 N in a 1-mm notch)."""
+        reach = math.sqrt(self._walk(x, y) ** 2 + self._half_edge2) * (1.0 + 1e-9) + 1e-12
+        best: tuple[int, float, float, float, float] | None = None
+        for j in self._tree.query_ball_point((x, y), reach):
+            for i in (j - 1) % self._n, j:
+                d2, t, px, py = self._segment(i, x, y)
+                if best is None or d2 < best[1]:
+                    best = (i, d2, t, px, py)
+        assert best is not None  # the walk's segment has an end within reach
+        self._hint = best[0]
+        return best
+
+    def _inside(self, i: int, t: float, x: float, y: float, px: float, py: float) -> bool:
+        """Whether (x, y) is inside the part, from its nearest point on segment i: left of the segment
+        when that point is within it (counter-clockwise boundary); at a vertex, behind the sum of its
+        two segments' outward normals (exact for a polygon: Baerentzen and Aanaes' pseudo-normal)."""
+        if 0.0 < t < 1.0:
+            ax, ay = self._xy[i]
+            bx, by = self._xy[(i + 1) % self._n]
+            return (bx - ax) * (y - ay) - (by - ay) * (x - ax) > 0.0
+        v = (i + 1) % self._n if t >= 1.0 else i
+        (ax, ay), (vx, vy), (bx, by) = self._xy[v - 1], self._xy[v], self._xy[(v + 1) % self._n]
+        nx, ny = _unit_right(vx - ax, vy - ay)
+        mx, my = _unit_right(bx - vx, by - vy)
+        return (x - px) * (nx + mx) + (y - py) * (ny + my) < 0.0
+
+    def penetration(self, x_m: float, y_m: float) -> tuple[float, float, float]:
+        """How deep the tool's ball reaches into the part [m] (<= 0: apart), and the outward unit
+        normal it is pushed along. The depth is the tool radius less the signed distance of its centre
+        from the boundary (negative inside): the true overlap of a ball and the profile, continuous as
+        the tool moves. Outside, the normal points from the nearest boundary point to the centre (a
+        ball on a corner is pushed away from the corner); inside, it is the boundary's normal there,
+        interpolated between the vertices' as a smooth surface's would be (no facets to feel)."""
+        i, d2, t, px, py = self._nearest(x_m, y_m)
+        distance = math.sqrt(d2)
+        if not self._inside(i, t, x_m, y_m, px, py) and distance > 1e-9:
+            return self.contact.tool_radius_m - distance, (x_m - px) / distance, (y_m - py) / distance
+        (n0x, n0y), (n1x, n1y) = self._nxy[i], self._nxy[(i + 1) % self._n]
+        nx, ny = n0x + t * (n1x - n0x), n0y + t * (n1y - n0y)
+        norm = math.hypot(nx, ny) or 1.0
+        return self.contact.tool_radius_m + distance, nx / norm, ny / norm
 
     def contact_force(self, x_m: float, y_m: float, z_m: float, vx_m_s: float, vy_m_s: float) -> Vector3:
         c = self.contact
@@ -220,14 +281,7 @@ class PolylineEnvironment:
             > self._max_radius + c.tool_radius_m + 1e-3
         ):
             return NO_FORCE  # far outside: no search
-        i = self._nearest(x_m, y_m)
-        d2, t, px, py = self._segment(i, x_m, y_m)
-        (n0x, n0y), (n1x, n1y) = self._nxy[i], self._nxy[(i + 1) % self._n]
-        nx, ny = n0x + t * (n1x - n0x), n0y + t * (n1y - n0y)
-        norm = math.hypot(nx, ny)
-        nx, ny = nx / norm, ny / norm
-        behind = -((x_m - px) * nx + (y_m - py) * ny)  # > 0: the tool's centre is inside the boundary
-        penetration = behind + c.tool_radius_m if behind > 0.0 else c.tool_radius_m - math.sqrt(d2)
+        penetration, nx, ny = self.penetration(x_m, y_m)
         if penetration <= 0.0:
             return NO_FORCE
         fn = self._k_series * penetration - c.contact_damping_n_s_m * (vx_m_s * nx + vy_m_s * ny)

@@ -251,10 +251,28 @@ class Task(Protocol[S]):
 
 @dataclass(frozen=True)
 class ForceSetpointLimit:
-    """What a force setpoint must stay below, and where that bound comes from (for a refusal)."""
+    """What a force setpoint must stay between, and where the bounds come from (for a refusal).
 
-    below_n: float  # a setpoint must be > 0 and below this [N]
+    ``accepts`` is the one rule for a setpoint: the configured one (controller/tasks/builtin.py),
+    a remote ``set_force`` at the gate (controller/monitoring/command_gate.py) and in the task's step.
+    """
+
+    below_n: float  # a setpoint must be below this [N]
     why: str  # the configuration keys that set it, in words
+    # and above this [N]: a setpoint the task would read as contact lost (its force below it for
+    # contact_lost_s) is one it cannot hold; 0: any positive force
+    above_n: float = 0.0
+    above_why: str = "a force that presses"
+
+    def accepts(self, value_n: float) -> bool:
+        return math.isfinite(value_n) and max(self.above_n, 0.0) < value_n < self.below_n
+
+    def refusal(self, value_n: float) -> str:
+        """Why ``value_n`` is refused, naming both bounds and their keys."""
+        return (
+            f"{value_n:g} N refused: must be above {self.above_n:g} N, {self.above_why}, and below "
+            f"{self.below_n:g} N, {self.why}"
+        )
 
 
 @runtime_checkable

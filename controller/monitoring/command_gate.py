@@ -1,7 +1,7 @@
 """Which remote commands a controller accepts: the one list the publisher and the CLI share.
 
 A remote ``stop`` is always accepted (a controlled stop, as Ctrl-C); ``pause``, ``resume``,
-``set_force`` (to a task that takes a force setpoint, below that task's own limit) and ``reset`` (leave FAULT,
+``set_force`` (to a task that takes a force setpoint, within that task's own limits) and ``reset`` (leave FAULT,
 controller/core/control_law.py) only when the controller was started with ``--allow-remote-commands`` (DESIGN.md: monitoring is read-only,
 any other remote command is off unless explicitly enabled). Imports nothing heavy: the
 command line's parser uses it.
@@ -9,7 +9,6 @@ command line's parser uses it.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 from controller.core.ports import ForceSetpointLimit
@@ -35,8 +34,9 @@ def decide_command(
     """The gate: stop always; the gated commands only when enabled; anything else refused.
 
     A ``set_force`` needs a task that takes a force setpoint (``force_limit`` not None, the
-    running task's ``force_setpoint_limit``), and a value above 0 and below that task's limit:
-    the force it can hold and does not fault at (not ``safety.max_contact_force_n``, above it).
+    running task's ``force_setpoint_limit``), and a value that limit accepts: above the force the
+    task takes for contact lost and below the force it can hold and does not fault at (not
+    ``safety.max_contact_force_n``, above it).
     """
     if name == "stop":
         return CommandDecision(True, "stop accepted: the controller brings the robot to a controlled stop")
@@ -54,14 +54,6 @@ def decide_command(
         return CommandDecision(
             False, f"set_force refused: the task {task_name or '(none)'} takes no force setpoint"
         )
-    if (
-        name == "set_force"
-        and force_limit is not None
-        and not (math.isfinite(value) and 0.0 < value < force_limit.below_n)
-    ):
-        return CommandDecision(
-            False,
-            f"set_force value {value:g} N refused: must be > 0 and below {force_limit.below_n:g} N, "
-            f"{force_limit.why}",
-        )
+    if name == "set_force" and force_limit is not None and not force_limit.accepts(value):
+        return CommandDecision(False, f"set_force value {force_limit.refusal(value)}")
     return CommandDecision(True, f"{name} accepted: applied at the next cycle", forward=True)

@@ -431,13 +431,22 @@ def fresh_sample(ctx: TaskContext) -> bool:
     return ctx.inputs.sensor is not None and ctx.inputs.sensor.fresh
 
 
-def force_setpoint_limit(saturation_force_n: float, max_force_n: float) -> ForceSetpointLimit:
+def force_setpoint_limit(
+    saturation_force_n: float, max_force_n: float, contact_lost_force_n: float
+) -> ForceSetpointLimit:
     """What a force setpoint must stay below: its band (FORCE_BAND_FRACTION above it, where the law
     tracks at full speed) below the admittance saturation (above it the law only moves away from the
     contact) and below the task's own limit (``max_force_n``: it faults there). A setpoint of 29 N
     under a saturation of 30 N was accepted, crawled at 5 mm/s and ended in a stall blamed on the
-    sensor's mounting or friction, with 22 N of force error (an outside tester)."""
+    sensor's mounting or friction, with 22 N of force error (an outside tester). And above
+    ``contact_lost_force_n``: a setpoint under it reads as contact lost once held (a remote
+    set_force of 0.3 N passed the gate under the 1 N the configured setpoint must exceed)."""
     headroom = 1.0 + FORCE_BAND_FRACTION
+    floor = (
+        contact_lost_force_n,
+        f"task.contour.contact_lost_force_n = {contact_lost_force_n:g} N (the task takes a force below "
+        "it for contact lost)",
+    )
     if saturation_force_n < max_force_n:
         return ForceSetpointLimit(
             saturation_force_n / headroom,
@@ -445,11 +454,13 @@ def force_setpoint_limit(saturation_force_n: float, max_force_n: float) -> Force
             "task.contour.admittance_saturation_fraction x safety.max_contact_force_n; its limit "
             f"task.contour.max_force_n = {max_force_n:g} N), less the force's band of "
             f"{FORCE_BAND_FRACTION:.0%} above the setpoint",
+            *floor,
         )
     return ForceSetpointLimit(
         max_force_n / headroom,
         f"the task's limit task.contour.max_force_n = {max_force_n:g} N, less the force's band of "
         f"{FORCE_BAND_FRACTION:.0%} above the setpoint",
+        *floor,
     )
 
 
@@ -488,7 +499,9 @@ class ContourTrackingTask:
     def force_setpoint_limit(self) -> ForceSetpointLimit:
         """``force_setpoint_limit`` of the task's parameters (a remote ``set_force`` and the configured
         setpoint alike)."""
-        return force_setpoint_limit(self.p.saturation_force_n, self.p.max_force_n)
+        return force_setpoint_limit(
+            self.p.saturation_force_n, self.p.max_force_n, self.p.contact_lost_force_n
+        )
 
     def phase_name(self, state: ContourState) -> str:
         return state.phase.name
@@ -777,9 +790,8 @@ class ContourTrackingTask:
             s = replace(s, integral=integral, restart_speed_m_s=restart, speed_m_s=0.0)
         if ctx.sensor_breach and s.phase not in (ContourPhase.RETRACT, ContourPhase.FINISHED):
             return self._sensor_breach(s, ctx)
-        if (
-            ctx.inputs.command == Command.SET_FORCE
-            and 0.0 < ctx.inputs.command_value < self.force_setpoint_limit().below_n
+        if ctx.inputs.command == Command.SET_FORCE and self.force_setpoint_limit().accepts(
+            ctx.inputs.command_value
         ):  # the command gate refuses the others already; the step takes no setpoint it cannot track
             s = replace(s, force_setpoint_n=ctx.inputs.command_value)
         if s.phase in (ContourPhase.APPROACH, ContourPhase.REAPPROACH):

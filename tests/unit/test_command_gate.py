@@ -52,9 +52,28 @@ def test_set_force_at_or_above_the_tasks_limit_is_refused_naming_it(value: float
     assert "less the force's band of 30% above the setpoint" in decision.message
 
 
-@pytest.mark.parametrize("value", [1e-3, 10.0, 23.0])
-def test_set_force_below_the_tasks_limit_is_forwarded_to_the_law(value: float) -> None:
+@pytest.mark.parametrize("value", [1.001, 10.0, 23.0])
+def test_set_force_within_the_tasks_limits_is_forwarded_to_the_law(value: float) -> None:
     assert decide_command("set_force", value, True, _limit(), "contour").forward
+
+
+@pytest.mark.parametrize("value", [0.3, 1.0, 1e-3])
+def test_set_force_at_or_below_the_contact_lost_force_is_refused_naming_it(value: float) -> None:
+    """0.3 N: an outside tester's, accepted though the configured setpoint must exceed
+    task.contour.contact_lost_force_n (1 N): the task would take the force it asked for as contact lost."""
+    decision = decide_command("set_force", value, True, _limit(), "contour")
+    assert not decision.accepted and not decision.forward
+    assert "must be above 1 N" in decision.message
+    assert "task.contour.contact_lost_force_n = 1 N" in decision.message
+
+
+def test_the_configured_setpoint_and_a_remote_one_have_the_same_floor() -> None:
+    """One rule (ForceSetpointLimit.accepts): the configured floor moved, the gate's moves with it."""
+    raised = {"task.contour.contact_lost_force_n": 3.0}
+    assert not decide_command("set_force", 2.5, True, _limit(**raised), "contour").accepted
+    assert decide_command("set_force", 3.5, True, _limit(**raised), "contour").forward
+    with pytest.raises(ConfigError, match="contact_lost_force_n"):
+        build_law(load_config(overrides={**CONTOUR, **raised, "task.contour.force_setpoint_n": 2.5}))
 
 
 def test_a_task_without_a_force_setpoint_refuses_set_force() -> None:
@@ -93,6 +112,7 @@ def test_the_step_takes_no_setpoint_at_or_above_the_limit() -> None:
 
     assert setpoint_after(45.0) == tracking.force_setpoint_n
     assert setpoint_after(25.0) == tracking.force_setpoint_n  # its band would reach over the saturation
+    assert setpoint_after(0.3) == tracking.force_setpoint_n  # it would read as contact lost
     assert setpoint_after(20.0) == 20.0
 
 
@@ -105,16 +125,18 @@ def test_the_other_gated_commands_ignore_the_value() -> None:
     ("overrides", "refused"),
     [
         # an outside tester's: 29 N under a saturation of 30 N crawled at 5 mm/s and stalled, 22 N off
-        ({"task.contour.force_setpoint_n": 29.0}, "force_setpoint_n = 29 N: must be below 23.1 N"),
+        ({"task.contour.force_setpoint_n": 29.0}, "force_setpoint_n = 29 N refused: must be above 1 N"),
         # the limits lowered, the setpoint kept: 10 N at a saturation of 0.5 x 20 N
         (
             {
                 "safety.max_contact_force_n": 20.0,
-                "safety.contact.guarded_move_force_n": 15.0,
-                "task.contour.max_force_n": 15.0,
-                "task.contour.search_speed_m_s": 0.003,
+                "safety.contact.guarded_move_force_n": 10.0,
+                "task.contour.max_force_n": 10.0,
+                "task.contour.force_setpoint_n": 9.0,
+                "task.contour.search_speed_m_s": 0.002,
             },
-            "force_setpoint_n = 10 N: must be below 7.69 N",
+            "force_setpoint_n = 9 N refused: must be above 1 N, task.contour.contact_lost_force_n = 1 N "
+            "(the task takes a force below it for contact lost), and below 7.69231 N",
         ),
     ],
 )

@@ -89,6 +89,21 @@ def test_a_node_list_not_one_per_actuator_is_named_when_the_robot_is_built():
         ({"task.contour.contact_force_n": 500.0}, r"contact_force_n = 500 N < max_force_n, must hold"),
         ({"safety.contact.guarded_move_force_n": 1000.0}, r"guarded_move_force_n = 1000 N <= "),
         ({"safety.max_contact_force_n": 5.0}, r"safety.max_contact_force_n = 5 N must hold"),
+        # an outside tester's: after a contact loss the tool coasted 88 mm off the part
+        (
+            {"task.contour.stop_deceleration_m_s2": 0.001},
+            r"stop_deceleration_m_s2 = 0.001 m/s\^2: braking from the fastest contour speed \(0.06 m/s, "
+            r".* coasts 1800.0 mm .*envelope_margin_m = 12 mm; at least 0.15 m/s\^2",
+        ),
+        # the exploring lap counts too
+        (
+            {
+                "task.contour.lap_speeds_m_s": [0.02],
+                "task.contour.explore_speed_m_s": 0.05,
+                "task.contour.stop_deceleration_m_s2": 0.1,
+            },
+            r"fastest contour speed \(0.05 m/s.* coasts 12.5 mm",
+        ),
     ],
 )
 def test_force_limits_out_of_order_are_refused_when_loaded(overrides, message):
@@ -97,11 +112,53 @@ def test_force_limits_out_of_order_are_refused_when_loaded(overrides, message):
 
 
 @pytest.mark.parametrize(
+    "key,value,bound",
+    [
+        # an outside tester's: 68.9, 96 and 91.8 N on the 1 mm x 30 mm bump, within the old ranges
+        ("force_kp_m_s_per_n", 0.005, "0.001"),
+        ("force_kp_m_s_per_n", 0.01, "0.001"),
+        ("force_ki_m_s2_per_n", 10.0, "0.01"),
+        # the first steps past the bounds: 1.5e-3 lost contact 4 times in lap 1; 3e-2 stalled
+        ("force_kp_m_s_per_n", 0.0015, "0.001"),
+        ("force_ki_m_s2_per_n", 0.03, "0.01"),
+    ],
+)
+def test_force_gains_past_what_tracks_the_bump_are_refused_naming_the_key_and_bound(key, value, bound):
+    with pytest.raises(ConfigError, match=rf"task.contour.{key} = {value}: must be <= {bound}"):
+        load_config(overrides={"task.kind": "contour", f"task.contour.{key}": value})
+
+
+def test_force_gains_at_their_bounds_are_accepted():
+    """Both at once tracked the bump to DONE at 21.9 N true (the limit 40 N)."""
+    load_config(
+        overrides={
+            "task.kind": "contour",
+            "task.contour.force_kp_m_s_per_n": 1e-3,
+            "task.contour.force_ki_m_s2_per_n": 1e-2,
+        }
+    )
+
+
+def test_a_stop_deceleration_that_keeps_the_coast_within_the_envelope_is_accepted():
+    """0.06^2 / (2 x 0.15) = 12 mm: the envelope margin, just."""
+    load_config(overrides={"task.kind": "contour", "task.contour.stop_deceleration_m_s2": 0.15})
+
+
+@pytest.mark.parametrize(
     "overrides,message",
     [
         (
             {"task.contour.max_force_n": 80.0},
-            r"max_force_n = 80 N is above safety.max_contact_force_n = 60 N",
+            r"max_force_n = 80 N: must be at most 50 N, safety.max_contact_force_n = 60 N less the 10 N",
+        ),
+        # an outside tester's: equal to the safety layer's, accepted (only above was refused)
+        (
+            {"task.contour.max_force_n": 60.0, "task.contour.search_speed_m_s": 0.005},
+            r"max_force_n = 60 N: must be at most 50 N, .* before its retract takes hold",
+        ),
+        (
+            {"task.contour.max_force_n": 50.5, "task.contour.search_speed_m_s": 0.005},
+            r"max_force_n = 50.5 N: must be at most 50 N",
         ),
         (
             {"task.contour.lap_speeds_m_s": [0.02, 0.12]},
@@ -127,6 +184,12 @@ def test_a_contour_the_contact_guard_would_stop_at_once_is_refused_before_it_sta
     cfg = load_config(overrides={"task.kind": "contour", **overrides})
     with pytest.raises(ConfigError, match=message):
         build_law(cfg)
+
+
+def test_a_task_limit_the_tasks_overshoot_keeps_below_the_safety_limit_is_accepted():
+    from controller.assembly import build_law
+
+    build_law(load_config(overrides={"task.kind": "contour", "task.contour.max_force_n": 50.0}))
 
 
 def test_an_unknown_key_of_a_node_table_lists_the_keys_a_node_takes(tmp_path):
