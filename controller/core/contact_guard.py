@@ -85,6 +85,11 @@ SENSOR_GAP_S = 0.02
 # which is also what industrial collision reactions do (they reverse along the path).
 TRAIL_SPACING_M = 0.0005
 TRAIL_POINTS = 24
+# A retrace heads for the last point of the trail where the force was at most this share of the
+# contact limit (30 N of 60), passing over those where it was higher (begin_retrace).
+RETRACE_FORCE_FRACTION = 0.5
+# The trail's points: x, y, z [m] of the measured TCP and the contact force judged there [N].
+Trail = tuple[tuple[float, float, float, float], ...]
 # The last samples of a force, an axis's each in a tuple of its own (oldest first): each median sorts
 # one as it is, with no transposition of samples into axes (_median_of runs twice every cycle).
 AxisWindows = tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]
@@ -157,7 +162,7 @@ class ContactWatch:
     # the part is. A back-off's direction when the sensor turns against it and the witness cannot
     # tell (back_off_direction); forgotten in free space.
     contact_normal: Vector3 | None = None
-    trail_m: tuple[Vector3, ...] = ()  # the measured TCP's path, newest last (extend_trail)
+    trail_m: Trail = ()  # the measured TCP's path and the force there, newest last (extend_trail)
     last_raw_n: Vector3 | None = None  # the last usable sample as it came (baseline in)
     same_samples: int = 0  # fresh samples in a row, pressing, equal to the one before to the last bit
 
@@ -179,6 +184,9 @@ class BackOff:
     # and how far along them; empty: a straight back-off of ``back_off_distance_m`` along ``direction``.
     path_m: tuple[Vector3, ...] = ()
     distance_m: float = 0.0
+    # The trail as the back-off began (ContactWatch.trail_m): the way in, without the back-off's own
+    # way, which a retrace must not follow back (in a slot it led into the wall backed off from first).
+    trail_m: Trail = ()
 
 
 def median_cycles(period_s: float) -> int:
@@ -360,7 +368,7 @@ def watch(
         force_n=force,
         accelerations=w.accelerations if accelerations is None else accelerations,
         contact_normal=normal,
-        trail_m=extend_trail(w.trail_m, tcp_m),
+        trail_m=extend_trail(w.trail_m, tcp_m, force),
         last_raw_n=last_raw,
         same_samples=same,
     )
@@ -473,13 +481,13 @@ def begin_back_off(
     cfg: ContactGuardConfig, w: ContactWatch, cause: str, origin_m: Vector3, sensor_trusted: bool = True
 ) -> BackOff:
     direction, size = back_off_direction(cfg, w, sensor_trusted)
-    return BackOff(cause, direction, origin_m, max(size, w.force_n))
+    return BackOff(cause, direction, origin_m, max(size, w.force_n), trail_m=w.trail_m)
 
 
-def extend_trail(trail: tuple[Vector3, ...], tcp_m: Vector3 | None) -> tuple[Vector3, ...]:
-    """``trail`` with the measured TCP ``tcp_m`` added where it has moved ``TRAIL_SPACING_M`` from the
-    trail's last point, the oldest dropped past ``TRAIL_POINTS``; as it was otherwise (every cycle:
-    no new tuple while the tool stands or creeps)."""
+def extend_trail(trail: Trail, tcp_m: Vector3 | None, force_n: float) -> Trail:
+    """``trail`` with the measured TCP ``tcp_m`` and the force judged there added where it has moved
+    ``TRAIL_SPACING_M`` from the trail's last point, the oldest dropped past ``TRAIL_POINTS``; as it
+    was otherwise (every cycle: no new tuple while the tool stands or creeps)."""
     if tcp_m is None:
         return trail
     if trail:
@@ -487,40 +495,51 @@ def extend_trail(trail: tuple[Vector3, ...], tcp_m: Vector3 | None) -> tuple[Vec
         dx, dy, dz = tcp_m[0] - last[0], tcp_m[1] - last[1], tcp_m[2] - last[2]
         if dx * dx + dy * dy + dz * dz < TRAIL_SPACING_M * TRAIL_SPACING_M:
             return trail
-    return (*trail[1 - TRAIL_POINTS :], tcp_m) if len(trail) >= TRAIL_POINTS else (*trail, tcp_m)
+    point = (tcp_m[0], tcp_m[1], tcp_m[2], force_n)
+    return (*trail[1 - TRAIL_POINTS :], point) if len(trail) >= TRAIL_POINTS else (*trail, point)
 
 
-def begin_retrace(
-    cfg: ContactGuardConfig, b: BackOff, trail: tuple[Vector3, ...], origin_m: Vector3, met_n: float
-) -> BackOff | None:
-    """The back-off ``b`` met ``met_n``, more force than it started from: back from ``origin_m`` (the
-    measured TCP) along the path the tool came in on (``trail``, newest last), as far as ``b`` went
-    and ``back_off_distance_m`` more, or all of the trail there is. None where the trail holds less
-    than two of its spacings: nothing to retrace (the quick stop, as before)."""
-    points: list[Vector3] = []
-    length, last = 0.0, origin_m
-    want = b.travelled_m + cfg.back_off_distance_m
-    for p in reversed(trail):
-        d = norm3(sub3(p, last))
-        if d < TRAIL_SPACING_M:  # the points about where the tool stands now
-            continue
-        points.append(p)
-        length += d
-        last = p
-        if length >= want:
-            break
-    if length < 2 * TRAIL_SPACING_M:
+def begin_retrace(cfg: ContactGuardConfig, b: BackOff, origin_m: Vector3, met_n: float) -> BackOff | None:
+    """The back-off ``b`` met ``met_n``, more force than it started from: from ``origin_m`` (the
+    measured TCP) straight to the last point of the path the tool came in on before the back-off
+    (``b.trail_m``, newest last) where the force was at most RETRACE_FORCE_FRACTION of the contact
+    limit, then on back along that path ``back_off_distance_m``, or all of it there is. The points of
+    the collision that began the back-off are passed over, and the back-off's own way is not in it: a
+    point probe in a 2-mm slot, backed off from one wall into the other, went back through its own way
+    to the first (88 N, quick stop, left pressed at 84 N). None where no such point is left: nothing
+    to retrace (the quick stop, as before)."""
+    calm = RETRACE_FORCE_FRACTION * cfg.max_contact_force_n
+    older = list(reversed(b.trail_m))
+    start = next((k for k, p in enumerate(older) if p[3] <= calm), None)
+    if start is None:
         return None
-    first = sub3(points[0], origin_m)
-    n = norm3(first)
+    first = (older[start][0], older[start][1], older[start][2])
+    points, last = [first], first
+    to_first = norm3(sub3(first, origin_m))
+    length = 0.0
+    for p in older[start + 1 :]:
+        if length >= cfg.back_off_distance_m:
+            break
+        q = (p[0], p[1], p[2])
+        length += norm3(sub3(q, last))
+        points.append(q)
+        last = q
+    if to_first < TRAIL_SPACING_M:  # the calm point is where the tool stands: on from the next
+        points.pop(0)
+        to_first = norm3(sub3(points[0], origin_m)) if points else 0.0
+        length -= norm3(sub3(points[0], first)) if points else 0.0
+    if not points or to_first + length < 2 * TRAIL_SPACING_M:
+        return None
+    d = sub3(points[0], origin_m)
     cause = f"{back_off_summary(b).removeprefix(PROTECTIVE_STOP + ': ')}, and met {met_n:.1f} N backing off"
     return BackOff(
         cause,
-        (first[0] / n, first[1] / n, first[2] / n),
+        (d[0] / to_first, d[1] / to_first, d[2] / to_first),
         origin_m,
         met_n,
         path_m=tuple(points),
-        distance_m=min(length, want),
+        distance_m=to_first + min(length, cfg.back_off_distance_m),
+        trail_m=b.trail_m,
     )
 
 
@@ -557,6 +576,8 @@ def _along(b: BackOff, s: float) -> tuple[Vector3, Vector3]:
     for p in b.path_m:
         seg = sub3(p, o)
         n = norm3(seg)
+        if n < 1e-12:  # a point where the last one was: no heading of its own
+            continue
         heading = (seg[0] / n, seg[1] / n, seg[2] / n)
         if s <= n:
             return (o[0] + heading[0] * s, o[1] + heading[1] * s, o[2] + heading[2] * s), heading

@@ -870,7 +870,7 @@ class ControlLaw:
         follow, ends in the quick stop."""
         origin = state.tcp_measured_m
         retrace = (
-            begin_retrace(self.config.safety.contact, b, state.contact.trail_m, origin, force_n)
+            begin_retrace(self.config.safety.contact, b, origin, force_n)
             if origin is not None and not b.path_m
             else None
         )

@@ -374,35 +374,34 @@ def test_the_back_off_moves_along_the_trusted_force_within_its_speed_and_acceler
 
 
 def test_the_trail_keeps_a_point_each_spacing_the_tool_moved_and_only_the_last_ones():
-    trail: tuple[tuple[float, float, float], ...] = ()
+    trail: tuple[tuple[float, float, float, float], ...] = ()
     for k in range(400):  # 0.1 mm a cycle along x: a point every 5 cycles
-        trail = extend_trail(trail, (0.0001 * k, 0.0, 0.5))
+        trail = extend_trail(trail, (0.0001 * k, 0.0, 0.5), 10.0)
     assert len(trail) == TRAIL_POINTS
     gaps = [b[0] - a[0] for a, b in itertools.pairwise(trail)]
     # at least the spacing, at most a cycle's step more (0.0005 is not 5 * 0.0001 to the last bit)
     assert all(TRAIL_SPACING_M - 1e-12 <= g <= TRAIL_SPACING_M + 0.0001 + 1e-12 for g in gaps)
     assert trail[-1][0] >= 0.0399 - TRAIL_SPACING_M - 0.0001
     # standing still, or no measured pose: the same tuple, no new one
-    assert extend_trail(trail, trail[-1]) is trail
-    assert extend_trail(trail, None) is trail
-
-
-def _straight_back_off_that_went(travelled_m: float) -> object:
-    w = ContactWatch(sensor_n=(0.0, 30.0, 0.0), witness=Witness((0.0, 29.0, 0.0), 0.0), force_n=30.0)
-    return replace(begin_back_off(CFG, w, "test", (0.0, 0.0, 0.5)), travelled_m=travelled_m)
+    assert extend_trail(trail, trail[-1][:3], 10.0) is trail
+    assert extend_trail(trail, None, 10.0) is trail
+    assert trail[-1][3] == 10.0  # the force judged where the point was taken
 
 
 def test_a_back_off_that_met_more_force_retraces_the_path_it_came_in_on_then_stops():
-    """Along +x, then the back-off 1 mm along +y into more force (the other wall of a groove): the
-    retrace goes back down y to where the back-off began, then back along -x, as far as the back-off
-    went and back_off_distance_m more, at the back-off's speed and acceleration."""
-    along_x = tuple((0.02 - 0.0005 * k, 0.0, 0.5) for k in range(TRAIL_POINTS - 3, -1, -1))
-    trail = (*along_x, (0.02, 0.0005, 0.5), (0.02, 0.001, 0.5))  # then 1 mm along y: the back-off
-    b = begin_retrace(CFG, _straight_back_off_that_went(0.001), trail, (0.02, 0.001, 0.5), 72.0)
+    """Along +x at 10 N into a wall at x = 20 mm (40 and 65 N in its last millimetre), then the
+    back-off 1 mm along -y into more force (the other wall of a slot, 72 N): the retrace heads
+    straight for the last point of the way in at 30 N or less (x = 19 mm), passing over the wall's,
+    then back along -x back_off_distance_m, at the back-off's speed."""
+    along_x = tuple((0.019 - 0.0005 * k, 0.0, 0.5, 10.0) for k in range(TRAIL_POINTS - 3, -1, -1))
+    wall = ((0.0195, 0.0, 0.5, 40.0), (0.02, 0.0, 0.5, 65.0))
+    trail = (*along_x, *wall)  # as the back-off began: the back-off's own way is not in it
+    assert len(trail) == TRAIL_POINTS
+    b = begin_retrace(CFG, _straight_back_off_that_went(0.001, trail), (0.02, -0.001, 0.5), 72.0)
     assert b is not None and b.entry_force_n == 72.0
-    assert b.direction == pytest.approx((0.0, -1.0, 0.0))
-    want = 0.001 + CFG.back_off_distance_m
-    assert b.distance_m == pytest.approx(want)
+    to_calm = math.hypot(0.001, 0.001)
+    assert b.direction == pytest.approx((-1.0 / math.sqrt(2.0), 1.0 / math.sqrt(2.0), 0.0))
+    assert b.distance_m == pytest.approx(to_calm + CFG.back_off_distance_m)
     speeds, positions = [], []
     for _ in range(2000):
         b, p, v = advance_back_off(CFG, b, DT)
@@ -410,19 +409,31 @@ def test_a_back_off_that_met_more_force_retraces_the_path_it_came_in_on_then_sto
         positions.append(p)
         if b.braking:
             break
-    assert b.braking and b.travelled_m == pytest.approx(want)
-    # back where the back-off began, then 5 mm back along the way in
-    assert positions[-1] == pytest.approx((0.02 - CFG.back_off_distance_m, 0.0, 0.5), abs=1e-9)
-    assert min(p[1] for p in positions) >= -1e-12  # never past the corner
+    assert b.braking and b.travelled_m == pytest.approx(to_calm + CFG.back_off_distance_m)
+    # at the last calm point, then 5 mm back along the way in
+    assert positions[-1] == pytest.approx((0.019 - CFG.back_off_distance_m, 0.0, 0.5), abs=1e-9)
+    assert max(p[0] for p in positions) <= 0.02 + 1e-12  # never further into the wall
     assert max(speeds) <= CFG.back_off_speed_m_s + 1e-12
-    assert "met 72.0 N backing off; retraced 6.0 mm of the path it came in on" in back_off_summary(b)
+    assert "met 72.0 N backing off; retraced 6.4 mm of the path it came in on" in back_off_summary(b)
 
 
-def test_a_retrace_without_a_path_behind_it_is_none_the_quick_stop():
-    assert begin_retrace(CFG, _straight_back_off_that_went(0.0), (), (0.0, 0.0, 0.5), 80.0) is None
+def _straight_back_off_that_went(travelled_m: float, trail: object = ()) -> object:
+    w = ContactWatch(
+        sensor_n=(0.0, 30.0, 0.0), witness=Witness((0.0, 29.0, 0.0), 0.0), force_n=30.0, trail_m=trail
+    )
+    b = begin_back_off(CFG, w, "test", (0.0, 0.0, 0.5))
+    assert b.trail_m is trail  # the way in, as the back-off began
+    return replace(b, travelled_m=travelled_m)
+
+
+def test_a_retrace_without_a_calm_path_behind_it_is_none_the_quick_stop():
+    assert begin_retrace(CFG, _straight_back_off_that_went(0.0), (0.0, 0.0, 0.5), 80.0) is None
     # a trail of one spacing, all about where the tool stands: nothing to follow
-    short = ((0.0, 0.0, 0.5), (0.0005, 0.0, 0.5))
-    assert begin_retrace(CFG, _straight_back_off_that_went(0.0), short, (0.0005, 0.0, 0.5), 80.0) is None
+    short = ((0.0, 0.0, 0.5, 10.0), (0.0005, 0.0, 0.5, 10.0))
+    assert begin_retrace(CFG, _straight_back_off_that_went(0.0, short), (0.0005, 0.0, 0.5), 80.0) is None
+    # every point of the trail pressed past half the limit: no way back known to be free
+    pressed = tuple((0.0005 * k, 0.0, 0.5, 45.0) for k in range(10))
+    assert begin_retrace(CFG, _straight_back_off_that_went(0.0, pressed), (0.005, 0.0, 0.5), 80.0) is None
 
 
 def test_cheopes_witness_is_the_force_its_efforts_balance_plus_its_own_inertia():

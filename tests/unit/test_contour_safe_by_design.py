@@ -35,19 +35,27 @@ def test_a_part_misplaced_8_mm_towards_the_approach_is_found_by_a_guarded_move_a
 
 
 @pytest.mark.slow
-def test_a_back_off_wedged_into_a_grooves_other_wall_retraces_the_way_in_not_left_pressed():
-    """A 0.5-mm tool ball drops into a 3 mm x 2 mm groove and meets its far wall: the back-off along
-    the force met 72 N at the near wall and the quick stop left the tool pressed there at 72 N (an
-    outside tester, 2026-12-06); retracing the path it came in on, it ends at the task's own force."""
-    row = _run(
-        ContourScenario(
-            "wedged",
-            features=({"angle_deg": 90.0, "length_m": 0.003, "depth_m": 0.002},),
-            overrides=(("sim.workpiece.tool_radius_m", 0.0005),),
-        )
-    )
+def test_a_back_off_into_a_slots_other_wall_retraces_the_way_in_not_left_pressed():
+    """The point probe drops into a 2 mm x 10 mm slot and meets its wall: the back-off along the
+    force met the other wall (77 N), and the quick stop left the tool pressed there at 84 N (an
+    outside tester's, 2026-12-06); retracing the way it came in, it ends near the task's own force."""
+    row = _run(ContourScenario("slot", features=({"angle_deg": 90.0, "length_m": 0.002, "depth_m": 0.01},)))
     assert row["outcome"] == "backed off", row["cause"]
     assert "retraced" in str(row["cause"]) and "quick stop" not in str(row["cause"])
+    assert row["final_true_contact_force_n"] < 0.5 * LIMIT_N
+
+
+@pytest.mark.slow
+def test_a_carriage_jammed_and_let_go_mid_back_off_is_not_left_pressed():
+    """Jammed 50 ms at the lap speed of 97 mm/s, let go while the back-off ran: 178 N, and the quick
+    stop left the tool at 112 N (an outside tester's). The retrace heads for where the force was
+    last calm, before the jam."""
+    row = _run(
+        ContourScenario("jam", ("block:1@30+0.05",)),
+        **{"task.contour.lap_speeds_m_s": [0.02, 0.097, 0.097]},
+    )
+    assert row["outcome"] == "backed off", row["cause"]
+    assert "retraced" in str(row["cause"])
     assert row["final_true_contact_force_n"] < 0.5 * LIMIT_N
 
 

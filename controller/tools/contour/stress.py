@@ -99,14 +99,17 @@ def scenarios(t: dict[str, float], period_s: float) -> Iterator[ContourScenario]
                 ),
             )
             k += 1
-    # A tool ball (0.5 mm) small enough to drop into a groove and meet its far wall head-on at the
-    # lap's speed: the back-off along the force went into the near wall (72 N) and the quick stop
-    # left the tool pressed there at 72 N (an outside tester, 2026-12-06); it retraces the way in.
+    # A slot as wide as the point probe's wobble: met head-on, the back-off along the force went into
+    # the slot's other wall (77 N) and the quick stop left the tool pressed there at 84 N; a carriage
+    # jammed for 50 ms let go mid-back-off (178 N, left at 112 N at the lap speed 97 mm/s). Both now
+    # retrace the way in (an outside tester, 2026-12-06).
     yield ContourScenario(
-        "0.5-mm tool ball into a 3 mm x 2 mm groove",
-        features=({"angle_deg": 90.0, "length_m": 0.003, "depth_m": 0.002},),
+        "point probe into a 2 mm x 10 mm slot",
+        features=({"angle_deg": 90.0, "length_m": 0.002, "depth_m": 0.01},),
         ride_through=False,
-        overrides=(("sim.workpiece.tool_radius_m", 0.0005),),
+    )
+    yield ContourScenario(
+        "carriage 1 jammed for 50 ms in lap 2", (f"block:1@{place[2]}+0.05",), ride_through=False
     )
     # -- the sensor's offset: steps (a drift over 10 ms) and drifts over 10 s
     for i, step in enumerate((5.0, -5.0, 10.0, -10.0, 20.0, -20.0, 40.0, -40.0, 60.0, -60.0)):
