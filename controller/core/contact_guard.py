@@ -184,6 +184,10 @@ class BackOff:
     # and how far along them; empty: a straight back-off of ``back_off_distance_m`` along ``direction``.
     path_m: tuple[Vector3, ...] = ()
     distance_m: float = 0.0
+    # The back-off goes against the sensor's force (the witness overruled it): the sensor no longer
+    # judges whether the back-off meets more force (control_law, BACK_OFF_WORSE_N).
+    sensor_overruled: bool = False
+    least_force_n: float = math.inf  # the least force met since it began (control_law: a rise from it)
     # The trail as the back-off began (ContactWatch.trail_m): the way in, without the back-off's own
     # way, which a retrace must not follow back (in a slot it led into the wall backed off from first).
     trail_m: Trail = ()
@@ -481,7 +485,10 @@ def begin_back_off(
     cfg: ContactGuardConfig, w: ContactWatch, cause: str, origin_m: Vector3, sensor_trusted: bool = True
 ) -> BackOff:
     direction, size = back_off_direction(cfg, w, sensor_trusted)
-    return BackOff(cause, direction, origin_m, max(size, w.force_n), trail_m=w.trail_m)
+    overruled = direction is not None and w.sensor_n is not None and dot3(direction, w.sensor_n) < 0.0
+    return BackOff(
+        cause, direction, origin_m, max(size, w.force_n), trail_m=w.trail_m, sensor_overruled=overruled
+    )
 
 
 def extend_trail(trail: Trail, tcp_m: Vector3 | None, force_n: float) -> Trail:

@@ -47,6 +47,7 @@ from controller.core.cia402 import (
     decode_statusword,
 )
 from controller.core.contact_guard import (
+    RETRACE_FORCE_FRACTION,
     BackOff,
     Witness,
     advance_back_off,
@@ -851,12 +852,31 @@ class ControlLaw:
             )
         if state.mode == Mode.BACKING_OFF:
             b = state.back_off
-            if (
-                b is not None
-                and b.cycles > BACK_OFF_GRACE_CYCLES
-                and w.force_n > max(b.entry_force_n, cfg.max_contact_force_n) + BACK_OFF_WORSE_N
+            # A sensor the back-off was steered against (contact_guard.back_off_direction) does not
+            # say the back-off met more: only the drives' effort does (a -75 N phantom along the
+            # normal read as 74.9 N met, and the retrace went back into the part, 33 N true, where
+            # the back-off was leaving it).
+            met_n = w.force_n
+            if b is not None and b.sensor_overruled:
+                met_n = norm3(w.witness.force_n) if w.witness is not None else 0.0
+            if b is None:
+                return state
+            least = min(b.least_force_n, met_n)
+            if least < b.least_force_n:
+                state = replace(state, back_off=replace(b, least_force_n=least))
+            if b.cycles > BACK_OFF_GRACE_CYCLES and (
+                met_n > max(b.entry_force_n, cfg.max_contact_force_n) + BACK_OFF_WORSE_N
+                # ... or rising again from where it had fallen to, past half the limit: another wall
+                # met (a 2-mm slot's other one: caught at 76.9 N above its start, the tool carried on to
+                # 123.6 N true); a straight back-off's only: a retrace heads for where the force was
+                # calm, not gone
+                or (
+                    not b.path_m
+                    and met_n > least + BACK_OFF_WORSE_N
+                    and met_n > RETRACE_FORCE_FRACTION * cfg.max_contact_force_n
+                )
             ):
-                return self._met_more_force(state, b, w.force_n, t, events)
+                return self._met_more_force(state, b, met_n, t, events)
             return state
         if not cause:
             return state
