@@ -516,25 +516,22 @@ def begin_retrace(cfg: ContactGuardConfig, b: BackOff, origin_m: Vector3, met_n:
     to the first (88 N, quick stop, left pressed at 84 N). None where no such point is left: nothing
     to retrace (the quick stop, as before)."""
     calm = RETRACE_FORCE_FRACTION * cfg.max_contact_force_n
-    older = list(reversed(b.trail_m))
-    start = next((k for k, p in enumerate(older) if p[3] <= calm), None)
+    older = [(p[0], p[1], p[2]) for p in reversed(b.trail_m)]
+    forces = [p[3] for p in reversed(b.trail_m)]
+    start = next((k for k, f in enumerate(forces) if f <= calm), None)
     if start is None:
         return None
-    first = (older[start][0], older[start][1], older[start][2])
-    points, last = [first], first
-    to_first = norm3(sub3(first, origin_m))
-    length = 0.0
-    for p in older[start + 1 :]:
+    # the calm point, then back along the way in until back_off_distance_m of it is covered
+    points, length = [older[start]], 0.0
+    for q in older[start + 1 :]:
         if length >= cfg.back_off_distance_m:
             break
-        q = (p[0], p[1], p[2])
-        length += norm3(sub3(q, last))
+        length += norm3(sub3(q, points[-1]))
         points.append(q)
-        last = q
-    if to_first < TRAIL_SPACING_M:  # the calm point is where the tool stands: on from the next
+    if norm3(sub3(points[0], origin_m)) < TRAIL_SPACING_M:  # it is where the tool stands: on from the next
+        length -= norm3(sub3(points[1], points[0])) if len(points) > 1 else 0.0
         points.pop(0)
-        to_first = norm3(sub3(points[0], origin_m)) if points else 0.0
-        length -= norm3(sub3(points[0], first)) if points else 0.0
+    to_first = norm3(sub3(points[0], origin_m)) if points else 0.0
     if not points or to_first + length < 2 * TRAIL_SPACING_M:
         return None
     d = sub3(points[0], origin_m)

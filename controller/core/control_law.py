@@ -852,15 +852,15 @@ class ControlLaw:
             )
         if state.mode == Mode.BACKING_OFF:
             b = state.back_off
+            if b is None:
+                return state
             # A sensor the back-off was steered against (contact_guard.back_off_direction) does not
             # say the back-off met more: only the drives' effort does (a -75 N phantom along the
             # normal read as 74.9 N met, and the retrace went back into the part, 33 N true, where
             # the back-off was leaving it).
             met_n = w.force_n
-            if b is not None and b.sensor_overruled:
+            if b.sensor_overruled:
                 met_n = norm3(w.witness.force_n) if w.witness is not None else 0.0
-            if b is None:
-                return state
             least = min(b.least_force_n, met_n)
             if least < b.least_force_n:
                 state = replace(state, back_off=replace(b, least_force_n=least))
@@ -885,9 +885,10 @@ class ControlLaw:
     def _met_more_force(
         self, state: ControllerState, b: BackOff, force_n: float, t: float, events: list[Event]
     ) -> ControllerState:
-        """The back-off met more force than it started from: a straight one retraces the path the tool
-        came in on (contact_guard.begin_retrace); a retrace that meets more, or one with no path to
-        follow, ends in the quick stop."""
+        """The back-off met more force (past its start, or, straight, risen again from the least it
+        had fallen to: _guard_contact): a straight one retraces the path the tool came in on
+        (contact_guard.begin_retrace); a retrace that meets more, or one with no path to follow,
+        ends in the quick stop."""
         origin = state.tcp_measured_m
         retrace = (
             begin_retrace(self.config.safety.contact, b, origin, force_n)

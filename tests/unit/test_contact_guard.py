@@ -348,17 +348,23 @@ def test_one_cycles_jolt_never_judges_alone_at_any_rate(rate_hz):
     assert median_cycles(dt) >= 3
 
 
-def test_the_back_off_moves_along_the_trusted_force_within_its_speed_and_acceleration_then_stops():
-    w = ContactWatch(sensor_n=(0.0, 30.0, 0.0), witness=Witness((0.0, 29.0, 0.0), 0.0), force_n=30.0)
-    b = begin_back_off(CFG, w, "test", (0.07, 0.0, 0.5))
-    assert b.direction == pytest.approx((0.0, 1.0, 0.0))
+def _run_back_off(b, cycles: int = 2000):
+    """``advance_back_off`` until it brakes: the last state, each period's speed and position."""
     speeds, positions = [], []
-    for _ in range(1000):
+    for _ in range(cycles):
         b, p, v = advance_back_off(CFG, b, DT)
         speeds.append(math.hypot(*v))
         positions.append(p)
         if b.braking:
             break
+    return b, speeds, positions
+
+
+def test_the_back_off_moves_along_the_trusted_force_within_its_speed_and_acceleration_then_stops():
+    w = ContactWatch(sensor_n=(0.0, 30.0, 0.0), witness=Witness((0.0, 29.0, 0.0), 0.0), force_n=30.0)
+    b = begin_back_off(CFG, w, "test", (0.07, 0.0, 0.5))
+    assert b.direction == pytest.approx((0.0, 1.0, 0.0))
+    b, speeds, positions = _run_back_off(b)
     assert b.braking and b.travelled_m == pytest.approx(CFG.back_off_distance_m)
     assert positions[-1][1] == pytest.approx(CFG.back_off_distance_m) and positions[-1][0] == 0.07
     assert max(speeds) <= CFG.back_off_speed_m_s + 1e-12
@@ -402,13 +408,7 @@ def test_a_back_off_that_met_more_force_retraces_the_path_it_came_in_on_then_sto
     to_calm = math.hypot(0.001, 0.001)
     assert b.direction == pytest.approx((-1.0 / math.sqrt(2.0), 1.0 / math.sqrt(2.0), 0.0))
     assert b.distance_m == pytest.approx(to_calm + CFG.back_off_distance_m)
-    speeds, positions = [], []
-    for _ in range(2000):
-        b, p, v = advance_back_off(CFG, b, DT)
-        speeds.append(math.hypot(*v))
-        positions.append(p)
-        if b.braking:
-            break
+    b, speeds, positions = _run_back_off(b)
     assert b.braking and b.travelled_m == pytest.approx(to_calm + CFG.back_off_distance_m)
     # at the last calm point, then 5 mm back along the way in
     assert positions[-1] == pytest.approx((0.019 - CFG.back_off_distance_m, 0.0, 0.5), abs=1e-9)
