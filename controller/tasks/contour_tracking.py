@@ -301,6 +301,7 @@ class ContourState:
     trace_index: int = 0  # the trace's segment nearest the tool at the last cycle
     retract_direction: tuple[float, float] = (1.0, 0.0)  # unit: along the measured force when it began
     retare_direction: tuple[float, float] = (1.0, 0.0)  # unit: a re-tare's way out (_way_out)
+    retare_met_m: float = -1.0  # the way out met another surface: back to this far out, tare there (-1: none)
     # cycles left in which a hold-up of the loop explains the force (TIMING_RECOVERY_S), and whether
     # the force left its band in that window and has not come back yet
     timing_window_cycles: int = 0
@@ -314,6 +315,13 @@ class ContourState:
 def _unit2(x: float, y: float) -> tuple[float, float] | None:
     n = math.hypot(x, y)
     return (x / n, y / n) if n > 1e-12 else None
+
+
+def _against(force: tuple[float, float, float], moving: tuple[float, float], leaving: bool) -> float:
+    """The force opposing a move along ``moving`` (unit) [N]. Leaving a contact, a force along the move
+    counts as none: the contact left behind pushes the tool on, and its fading is no rise."""
+    f = -(force[0] * moving[0] + force[1] * moving[1])
+    return max(f, 0.0) if leaving else f
 
 
 def _wrap(a: float) -> float:
@@ -918,7 +926,7 @@ class ContourTrackingTask:
         return replace(s, tare_sum=(0.0, 0.0, 0.0, 0)), (fx / n, fy / n, fz / n), ""
 
     def _guarded_contact(
-        self, s: ContourState, moving: tuple[float, float], speed_m_s: float, dt: float
+        self, s: ContourState, moving: tuple[float, float], speed_m_s: float, dt: float, leaving: bool = False
     ) -> tuple[ContourState, float | None, tuple[Event, ...]]:
         """A guarded move along ``moving`` (unit): (state, the contact force [N] once met, events).
 
@@ -926,12 +934,15 @@ class ContourTrackingTask:
         least ``min_contact_stiffness_n_m`` steep (from half the contact force above the lowest it read
         during this move to the whole of it), and points against the motion (within 60 degrees). A
         force that creeps up slower is the sensor drifting, not a contour: the move goes on from the new
-        level. The latest raw sample counts: the filter would add its lag to the guarded move's stop."""
+        level. The latest raw sample counts: the filter would add its lag to the guarded move's stop.
+
+        ``leaving``: the move leaves a contact, whose force pushes the tool along the motion and fades as
+        it goes; only a force that rises against the motion after that is another surface's."""
         p = self.p
         if not self._trusted(s, dt) or s.raw_force is None:
             return s, None, ()
         raw = s.raw_force
-        against = -(raw[0] * moving[0] + raw[1] * moving[1])  # the force opposing the motion
+        against = _against(raw, moving, leaving)  # the force opposing the motion
         base = min(s.guard_base_n, against)
         if s.guard_rise_m is None and against < base + 0.5 * p.contact_force_n:
             return replace(s, guard_base_n=base), None, ()
@@ -1492,6 +1503,7 @@ class ContourTrackingTask:
         counted = tuple(r + (1 if k == lap else 0) for k, r in enumerate(retares))
         # Before the first contact, the approach goes on afterwards from where it was (less the way out).
         approached = s.travel_m if s.phase == ContourPhase.APPROACH else -1.0
+        way_out = self._way_out(s)
         s = self._enter(
             s,
             ContourPhase.RETARE,
@@ -1500,7 +1512,11 @@ class ContourTrackingTask:
             tare_sum=(0.0, 0.0, 0.0, 0),
             speed_m_s=0.0,
             approached_m=approached,
-            retare_direction=self._way_out(s),
+            retare_direction=way_out,
+            retare_met_m=-1.0,
+            # the way out is a guarded move (_retare) from the force read as it begins
+            guard_base_n=_against(s.raw_force, way_out, True) if s.raw_force is not None else 0.0,
+            guard_rise_m=None,
         )
         return self._retare(s, ctx, events)
 
@@ -1513,10 +1529,38 @@ class ContourTrackingTask:
             return s.normal
         return trace_normal(s, self.p.direction) or s.contact_normal
 
+    def _met_on_way_out(self, s: ContourState, met_n: float) -> tuple[ContourState, Event]:
+        """The way out of a contact met another surface (a slot's other wall, across from the one it
+        pressed): the tare is taken halfway between the two, where the force began to rise being the
+        other's. Going on pressed it at 84 N, with the guard's limit for leaving a contact, 60 N (an
+        outside tester's 2 mm x 10 mm slot, 2026-12-06)."""
+        rise_m = s.guard_rise_m if s.guard_rise_m is not None else s.travel_m
+        back_to_m = 0.5 * rise_m
+        ev = Event(
+            "contour",
+            Severity.WARNING,
+            f"the way out of the contact met another surface at {met_n:.2f} N after {s.travel_m * 1000:.1f} mm; "
+            f"back to {back_to_m * 1000:.1f} mm out, halfway, to re-tare there",
+        )
+        return replace(s, retare_met_m=back_to_m), ev
+
     def _retare(self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...] = ()) -> TaskStep:
         p, dt = self.p, ctx.period_s
         n = s.retare_direction  # _way_out, chosen as the re-tare began
-        if s.travel_m < p.retare_clearance_m:
+        if s.retare_met_m < 0.0 and s.travel_m < p.retare_clearance_m:
+            s, met_n, guard_events = self._guarded_contact(s, n, p.search_speed_m_s, dt, leaving=True)
+            events = (*events, *guard_events)
+            if met_n is not None:
+                s, met = self._met_on_way_out(s, met_n)
+                events = (*events, met)
+        if s.retare_met_m >= 0.0 and s.travel_m > s.retare_met_m:  # back from the other surface
+            step = min(p.search_speed_m_s * dt, s.travel_m - s.retare_met_m)
+            if s.travel_m - step <= s.retare_met_m:  # there after this step: the tare's time starts now
+                s = replace(s, phase_start_s=ctx.t_s, travel_m=s.retare_met_m + step)
+            return self._moving(
+                s, (-n[0] * step / dt, -n[1] * step / dt, 0.0), dt, events=events, travel_m=-step
+            )
+        if s.retare_met_m < 0.0 and s.travel_m < p.retare_clearance_m:
             step = min(p.search_speed_m_s * dt, p.retare_clearance_m - s.travel_m)
             if s.travel_m + step >= p.retare_clearance_m:  # out after this step: the tare's time starts now
                 s = replace(s, phase_start_s=ctx.t_s, travel_m=p.retare_clearance_m - step)
@@ -1553,9 +1597,10 @@ class ContourTrackingTask:
             retare_why="",
             offset_doubt="",
         )
-        if s.approached_m >= 0.0:  # back to the approach, with what it had travelled
+        if s.approached_m >= 0.0:  # back to the approach, with what it had travelled less the way out
+            out_m = s.travel_m
             s = self._enter(s, ContourPhase.APPROACH, ctx.t_s, guard_base_n=0.0, guard_rise_m=None)
-            s = replace(s, travel_m=max(0.0, s.approached_m - p.retare_clearance_m), approached_m=-1.0)
+            s = replace(s, travel_m=max(0.0, s.approached_m - out_m), approached_m=-1.0)
             return self._moving(s, (0.0, 0.0, 0.0), dt, events=(*events, ev))
         s = self._start_reapproach(s, ctx)
         return self._moving(s, (0.0, 0.0, 0.0), dt, events=(*events, ev, self._attempt_event(s)))

@@ -171,6 +171,33 @@ def _through_retare(task, s, force=(0.0, 0.0, 0.0)):
     return s, events
 
 
+def test_a_re_tares_way_out_stops_at_another_surface_and_tares_halfway_back():
+    """The way out of a contact is a guarded move: a wall 1 mm out along it (a slot's other side) is
+    felt at its first newtons, and the tare is taken halfway between, where nothing touches."""
+    task, cfg = _task()
+    c = cfg.task.model("contour")
+    s = replace(_tracking(task, speed_m_s=0.0, p_cmd=(0.073, 0.0, 0.5)), phase=ContourPhase.CONTACT_LOST)
+    wall_x, stiffness_n_m = 0.074, 2.0e5  # 1 mm out, along the way out (the contact normal, +x)
+    offset = (0.3, -0.2, 0.0)  # the sensor's own, that the tare must find
+    events, pressed_n = [], 0.0
+    for k in range(20000):
+        if s.phase not in (ContourPhase.CONTACT_LOST, ContourPhase.RETARE):
+            break
+        wall_n = stiffness_n_m * max(0.0, s.p_cmd[0] - wall_x)  # the commanded TCP as the true one
+        pressed_n = max(pressed_n, wall_n)
+        force = (offset[0] - wall_n, offset[1], offset[2])
+        out = task.step(s, _ctx(force, tcp=s.p_cmd, t_s=1.0 + k * DT))
+        s = out.state
+        events += list(out.events)
+    assert s.phase == ContourPhase.REAPPROACH
+    met = [e.message for e in events if "met another surface" in e.message]
+    assert len(met) == 1, [e.message for e in events]
+    # stopped within two cycles' advance into the wall (5 N each at this stiffness), not 1 mm into it
+    assert pressed_n <= stiffness_n_m * 2.0 * c.search_speed_m_s * DT + 1e-9
+    assert 0.0732 < s.p_cmd[0] < wall_x - 0.0002  # re-tared between the two, clear of the wall
+    assert all(abs(a - b) < 0.01 for a, b in zip(s.offset, offset, strict=True))
+
+
 def test_a_contact_lost_at_speed_is_braked_along_its_tangent_first():
     task, cfg = _task()
     s = replace(_tracking(task, speed_m_s=0.06, normal=(1.0, 0.0)), phase=ContourPhase.CONTACT_LOST)
