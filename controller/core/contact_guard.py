@@ -461,9 +461,9 @@ def back_off_direction(
     if w.expectation == ContactExpectation.NONE:
         f = sensor if sensor is not None else witness
     elif witness is not None and (
-        # more than 90 degrees against the sensor, or the one that judged this force (a sensor
-        # stuck at a plausible reading may point anywhere within 90 degrees of the truth)
-        sensor is None or dot3(sensor, witness) < 0.0 or w.force_n > norm3(sensor)
+        # further from the sensor than the witness can be from the truth, or the one that judged this
+        # force (a sensor stuck at a plausible reading may point anywhere within 90 degrees of it)
+        sensor is None or _contradicts(cfg, w, sensor, witness) or w.force_n > norm3(sensor)
     ):
         f = witness
     elif w.contact_normal is not None and (sensor is None or dot3(sensor, w.contact_normal) < 0.0):
@@ -472,6 +472,22 @@ def back_off_direction(
         return None, 0.0
     size = norm3(f)
     return (f[0] / size, f[1] / size, f[2] / size), size
+
+
+def _contradicts(cfg: ContactGuardConfig, w: ContactWatch, sensor: Vector3, witness: Vector3) -> bool:
+    """The witness (felt: beyond its own error) says the sensor's force points the wrong way.
+
+    Within its error ``e`` of the truth, the witness points at most asin(e / |witness|) from it; a
+    sensor twice that far from the witness is itself that far from the truth at least. More than
+    90 degrees apart is always wrong. A sensor with its X and Y swapped (wired or mounted so) read a
+    contact along the normal as one along the tangent, 90 degrees from its effort: the back-off went
+    along the sensor's force and slid the tool along the part at 25 N (an outside tester's)."""
+    between = dot3(sensor, witness)
+    if between < 0.0:
+        return True
+    sine = min(1.0, tolerance_n(cfg, 0.0, w.witness, w.dynamic_n) / norm3(witness)) if w.witness else 1.0
+    # cos(2 asin(sine)) = 1 - 2 sine^2
+    return between < (1.0 - 2.0 * sine * sine) * norm3(sensor) * norm3(witness)
 
 
 def _felt(cfg: ContactGuardConfig, witness: Witness, dynamic_n: float) -> bool:

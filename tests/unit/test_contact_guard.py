@@ -125,6 +125,34 @@ def test_a_back_off_never_follows_a_sensor_force_the_drives_feel_reversed_where_
     assert begin_back_off(CFG, agree, "test", (0.0, 0.0, 0.5)).direction == pytest.approx((1.0, 0.0, 0.0))
 
 
+def test_a_sensor_further_from_the_witness_than_the_witness_can_be_from_the_truth_is_not_followed():
+    """A sensor with its X and Y swapped reads a contact along the normal (+x here) as one along the
+    tangent: 90 degrees from the drives' effort, which is within 36 degrees of the truth at 17 N (its
+    error 6 N + a quarter). The back-off slid along the part at 25 N (an outside tester's); it goes
+    along the effort. A sensor within the witness's own error of it keeps its finer direction."""
+    witness = Witness((17.4, 0.6, 0.0), 0.0)
+    for expectation in (ContactExpectation.PRESSING, ContactExpectation.GUARDED):
+        swapped = ContactWatch(
+            expectation=expectation, sensor_n=(0.6, 25.4, 0.0), witness=witness, force_n=25.4
+        )
+        d = begin_back_off(CFG, swapped, "test", (0.0, 0.0, 0.5)).direction
+        assert d is not None and d[0] > 0.99
+        tilted = replace(swapped, sensor_n=(23.9, 8.7, 0.0))  # 20 degrees off the witness
+        assert begin_back_off(CFG, tilted, "test", (0.0, 0.0, 0.5)).direction == pytest.approx(
+            (0.9397, 0.3420, 0.0), abs=1e-3
+        )
+    # a weak witness (its error nearly its size) contradicts only a sensor more than 90 degrees off
+    weak = ContactWatch(
+        expectation=ContactExpectation.PRESSING,
+        sensor_n=(0.6, 25.4, 0.0),
+        witness=Witness((9.0, 0.0, 0.0), 0.0),
+        force_n=25.4,
+    )
+    assert begin_back_off(CFG, weak, "test", (0.0, 0.0, 0.5)).direction == pytest.approx(
+        (0.0236, 0.9997, 0.0), abs=1e-3
+    )
+
+
 def test_a_sensor_turned_against_the_force_both_agreed_on_is_not_backed_off_along_while_the_witness_cannot_tell():
     """An outside tester's +60 N step of the sensor's offset in lap 2 (44dbcbc): the task braked on
     the implausible step, the robot's ringing (27.8 N of |M a|) hid the drives' 14.8 N of contact in
