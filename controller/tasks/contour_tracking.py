@@ -94,6 +94,7 @@ from typing import Protocol
 
 import numpy as np
 
+from controller.core.contact_guard import WITNESS_MEDIAN_S
 from controller.core.cycle_data import Command, CycleInputs, Event, Severity
 from controller.core.periods import cycles_in
 from controller.core.ports import (
@@ -302,6 +303,7 @@ class ContourState:
     retract_direction: tuple[float, float] = (1.0, 0.0)  # unit: along the measured force when it began
     retare_direction: tuple[float, float] = (1.0, 0.0)  # unit: a re-tare's way out (_way_out)
     retare_met_m: float = -1.0  # the way out met another surface: back to this far out, tare there (-1: none)
+    retare_held_cycles: int = 0  # ... held still this long for the drives' effort to confirm it (_judge_met)
     # cycles left in which a hold-up of the loop explains the force (TIMING_RECOVERY_S), and whether
     # the force left its band in that window and has not come back yet
     timing_window_cycles: int = 0
@@ -1514,6 +1516,7 @@ class ContourTrackingTask:
             approached_m=approached,
             retare_direction=way_out,
             retare_met_m=-1.0,
+            retare_held_cycles=0,
             # the way out is a guarded move (_retare) from the force read as it begins
             guard_base_n=_against(s.raw_force, way_out, True) if s.raw_force is not None else 0.0,
             guard_rise_m=None,
@@ -1529,7 +1532,33 @@ class ContourTrackingTask:
             return s.normal
         return trace_normal(s, self.p.direction) or s.contact_normal
 
-    def _met_on_way_out(self, s: ContourState, met_n: float) -> tuple[ContourState, Event]:
+    def _judge_met(
+        self, s: ContourState, ctx: TaskContext, met_n: float
+    ) -> tuple[ContourState, tuple[Event, ...]]:
+        """A re-tare doubts its sensor: a surface it reads on the way out counts once the drives' effort
+        agrees with it (``_verdict``'s tolerance). The tool holds still for the effort's median window
+        (the contact left behind still fills it) and then judges. An offset step pointing against the
+        way out read, as the contact left behind faded, as another surface's rise (+10 N: the way out
+        stopped 0.2 mm out, the tare was refused in contact, and the retract after it met 126 N).
+        Without the witness, the sensor's word stands."""
+        w, raw = ctx.force_witness_n, s.raw_force
+        if w is None or raw is None:
+            return self._met_on_way_out(replace(s, retare_held_cycles=0), met_n)
+        if s.retare_held_cycles < cycles_in(WITNESS_MEDIAN_S, ctx.period_s):
+            return replace(s, retare_held_cycles=s.retare_held_cycles + 1), ()
+        s = replace(s, retare_held_cycles=0)
+        tol = self.p.witness_tolerance_n + 0.25 * max(math.hypot(raw[0], raw[1]), math.hypot(w[0], w[1]))
+        if math.hypot(raw[0] - w[0], raw[1] - w[1]) <= tol:
+            return self._met_on_way_out(s, met_n)
+        ev = Event(
+            "contact_doubtful",
+            Severity.WARNING,
+            f"{met_n:.2f} N met on the way out of the contact, where the drives' effort says "
+            f"{math.hypot(w[0], w[1]):.2f} N: the sensor's own; moving on",
+        )
+        return replace(s, guard_base_n=_against(raw, s.retare_direction, True), guard_rise_m=None), (ev,)
+
+    def _met_on_way_out(self, s: ContourState, met_n: float) -> tuple[ContourState, tuple[Event, ...]]:
         """The way out of a contact met another surface (a slot's other wall, across from the one it
         pressed): the tare is taken halfway between the two, where the force began to rise being the
         other's. Going on pressed it at 84 N, with the guard's limit for leaving a contact, 60 N (an
@@ -1542,7 +1571,7 @@ class ContourTrackingTask:
             f"the way out of the contact met another surface at {met_n:.2f} N after {s.travel_m * 1000:.1f} mm; "
             f"back to {back_to_m * 1000:.1f} mm out, halfway, to re-tare there",
         )
-        return replace(s, retare_met_m=back_to_m), ev
+        return replace(s, retare_met_m=back_to_m), (ev,)
 
     def _retare(self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...] = ()) -> TaskStep:
         p, dt = self.p, ctx.period_s
@@ -1551,8 +1580,10 @@ class ContourTrackingTask:
             s, met_n, guard_events = self._guarded_contact(s, n, p.search_speed_m_s, dt, leaving=True)
             events = (*events, *guard_events)
             if met_n is not None:
-                s, met = self._met_on_way_out(s, met_n)
-                events = (*events, met)
+                s, judged = self._judge_met(s, ctx, met_n)
+                events = (*events, *judged)
+                if s.retare_held_cycles > 0:  # still for the drives' effort to tell
+                    return self._moving(s, (0.0, 0.0, 0.0), dt, events=events)
         if s.retare_met_m >= 0.0 and s.travel_m > s.retare_met_m:  # back from the other surface
             step = min(p.search_speed_m_s * dt, s.travel_m - s.retare_met_m)
             if s.travel_m - step <= s.retare_met_m:  # there after this step: the tare's time starts now

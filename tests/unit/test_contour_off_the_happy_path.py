@@ -171,31 +171,56 @@ def _through_retare(task, s, force=(0.0, 0.0, 0.0)):
     return s, events
 
 
-def test_a_re_tares_way_out_stops_at_another_surface_and_tares_halfway_back():
-    """The way out of a contact is a guarded move: a wall 1 mm out along it (a slot's other side) is
-    felt at its first newtons, and the tare is taken halfway between, where nothing touches."""
-    task, cfg = _task()
-    c = cfg.task.model("contour")
+def _way_out(task, offset, wall_x, stiffness_n_m, offset_step=(0.0, 0.0, 0.0)):
+    """A re-tare from (0.073, 0) m along +x, a wall at ``wall_x`` beyond; the sensor reads the wall's
+    force plus ``offset`` (and ``offset_step`` from the way out's first millimetre on), the drives'
+    effort the wall's alone. (state at the re-approach, events, the most the wall was pressed [N])."""
     s = replace(_tracking(task, speed_m_s=0.0, p_cmd=(0.073, 0.0, 0.5)), phase=ContourPhase.CONTACT_LOST)
-    wall_x, stiffness_n_m = 0.074, 2.0e5  # 1 mm out, along the way out (the contact normal, +x)
-    offset = (0.3, -0.2, 0.0)  # the sensor's own, that the tare must find
     events, pressed_n = [], 0.0
     for k in range(20000):
         if s.phase not in (ContourPhase.CONTACT_LOST, ContourPhase.RETARE):
             break
         wall_n = stiffness_n_m * max(0.0, s.p_cmd[0] - wall_x)  # the commanded TCP as the true one
         pressed_n = max(pressed_n, wall_n)
-        force = (offset[0] - wall_n, offset[1], offset[2])
-        out = task.step(s, _ctx(force, tcp=s.p_cmd, t_s=1.0 + k * DT))
+        step = offset_step if s.p_cmd[0] > 0.0731 else (0.0, 0.0, 0.0)
+        force = (offset[0] + step[0] - wall_n, offset[1] + step[1], offset[2] + step[2])
+        ctx = replace(_ctx(force, tcp=s.p_cmd, t_s=1.0 + k * DT), force_witness_n=(-wall_n, 0.0, 0.0))
+        out = task.step(s, ctx)
         s = out.state
-        events += list(out.events)
+        events += [e.message for e in out.events]
+    return s, events, pressed_n
+
+
+def test_a_re_tares_way_out_stops_at_another_surface_and_tares_halfway_back():
+    """The way out of a contact is a guarded move: a wall 1 mm out along it (a slot's other side) is
+    felt at its first newtons, and once the drives' effort agrees, the tare is taken halfway between,
+    where nothing touches (before: 2 mm out, 1 mm into the wall, the tare took -199.7 N as offset)."""
+    task, cfg = _task()
+    c = cfg.task.model("contour")
+    offset = (0.3, -0.2, 0.0)  # the sensor's own, that the tare must find
+    s, events, pressed_n = _way_out(task, offset, wall_x=0.074, stiffness_n_m=2.0e5)
     assert s.phase == ContourPhase.REAPPROACH
-    met = [e.message for e in events if "met another surface" in e.message]
-    assert len(met) == 1, [e.message for e in events]
+    assert sum("met another surface" in e for e in events) == 1, events
     # stopped within two cycles' advance into the wall (5 N each at this stiffness), not 1 mm into it
-    assert pressed_n <= stiffness_n_m * 2.0 * c.search_speed_m_s * DT + 1e-9
-    assert 0.0732 < s.p_cmd[0] < wall_x - 0.0002  # re-tared between the two, clear of the wall
+    assert pressed_n <= 2.0e5 * 2.0 * c.search_speed_m_s * DT + 1e-9
+    assert 0.0732 < s.p_cmd[0] < 0.074 - 0.0002  # re-tared between the two, clear of the wall
     assert all(abs(a - b) < 0.01 for a, b in zip(s.offset, offset, strict=True))
+
+
+def test_a_sensor_step_against_the_way_out_that_the_effort_does_not_feel_is_no_surface():
+    """A re-tare doubts its sensor: its offset stepping by 10 N against the way out (an outside
+    scan's step, read as another surface 0.2 mm out: the tare was refused in contact, the retract
+    met 126 N) is judged against the drives' effort, which feels nothing, and the way out goes on."""
+    task, cfg = _task()
+    out_m = cfg.task.model("contour").retare_clearance_m
+    s, events, _ = _way_out(
+        task, (0.0, 0.0, 0.0), wall_x=1.0, stiffness_n_m=2.0e5, offset_step=(-10.0, 0.0, 0.0)
+    )
+    assert s.phase == ContourPhase.REAPPROACH
+    assert not any("met another surface" in e for e in events), events
+    assert any("the sensor's own" in e for e in events), events
+    assert s.p_cmd[0] == pytest.approx(0.073 + out_m)  # the whole way out, the tare there
+    assert s.offset[0] == pytest.approx(-10.0, abs=0.01)
 
 
 def test_a_contact_lost_at_speed_is_braked_along_its_tangent_first():
