@@ -46,6 +46,7 @@ from controller.config import Config, ConfigError, config_table_from_json, recor
 from controller.errors import InputError
 from controller.messages import cheope_pb2 as pb
 from logs.can_frame_batch import unpack_frames
+from logs.file_ending import FileEnding, file_ending
 from logs.messages import META_CONFIG, frame_from_legacy
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -120,6 +121,11 @@ class ReadReport:
     @property
     def damaged(self) -> bool:
         return bool(self.problems)
+
+    def ending(self) -> FileEnding:
+        """How the file ended (``logs list`` says the same word): a complete file is not always a
+        closed session."""
+        return file_ending(self.metadata, self.complete)
 
     def status(self) -> str:
         if not self.problems:
@@ -574,6 +580,7 @@ def format_info(r: ReadReport) -> str:
     lines = [
         f"file       {r.path} ({r.size_bytes} bytes)",
         f"status     {r.status()}",
+        f"ended      {r.ending()}",
         f"duration   {r.duration_s:.3f} s, {r.messages} messages, {r.chunks} chunks"
         + (f", {r.damaged_chunks} damaged" if r.damaged_chunks else ""),
         "channels",
@@ -597,6 +604,7 @@ def info_dict(r: ReadReport) -> dict[str, Any]:
         "path": str(r.path),
         "size_bytes": r.size_bytes,
         "complete": r.complete,
+        "ended": r.ending().word,
         "problems": list(r.problems),
         "chunks_checked": r.chunks_checked,
         "duration_s": r.duration_s,

@@ -4,7 +4,8 @@ A long session is split into files (``recording.max_file_size_mb``, ``max_file_d
 each file names its session and its place in it in the ``cheope.file`` metadata at its start
 (logs/session_writer.py). This reads only each file's head (the metadata before the first
 chunk) and, for a finished file, its summary: milliseconds per file, whatever its size. A file
-without ``cheope.file`` (recorded before files were split) is a session of its own.
+without ``cheope.file`` (recorded before files were split) is a session of its own. How each file
+ended is ``logs.file_ending``'s word, the one ``logs info`` says too.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from logs import messages as m
+from logs.file_ending import FileEnding, file_ending
 from logs.reader import MAGIC, LogFileError, read_head, read_info_from_summary
 
 
@@ -25,6 +27,7 @@ class SessionFile:
     size_bytes: int
     finished: bool  # the file ends with its footer (closed by the writer, or rotated)
     duration_s: float | None  # from the summary of a finished file
+    ending: FileEnding  # how it ended: a footer is also there when the controller was killed
 
 
 @dataclass
@@ -56,6 +59,7 @@ class Session:
                     "sequence": f.sequence,
                     "size_bytes": f.size_bytes,
                     "finished": f.finished,
+                    "ended": f.ending.word,
                     "duration_s": f.duration_s,
                 }
                 for f in self.files
@@ -110,7 +114,15 @@ def list_sessions(directory: str | Path = "") -> SessionListing:
             sid, Session(sid, session_meta.get("started_utc", ""), session_meta.get("task", ""))
         )
         session.files.append(
-            SessionFile(path, seq, head.size_bytes, finished, None if summary is None else summary.duration_s)
+            SessionFile(
+                path,
+                seq,
+                head.size_bytes,
+                finished,
+                None if summary is None else summary.duration_s,
+                # cheope.recording is written at close: the summary's metadata has it, the head not
+                file_ending(head.metadata if summary is None else summary.metadata, finished),
+            )
         )
     for s in sessions.values():
         s.files.sort(key=lambda f: f.sequence)
@@ -138,7 +150,7 @@ def format_sessions(listing: SessionListing) -> str:
             duration = "" if f.duration_s is None else f"{f.duration_s:9.1f} s"
             lines.append(
                 f"  {f.sequence:>3}  {f.path.name:<40} {f.size_bytes / 1e6:9.2f} MB {duration:>11}  "
-                f"{'finished' if f.finished else 'open or cut short'}"
+                f"{f.ending.word}"
             )
     lines += [f"not a recording: {u}" for u in listing.unreadable]
     return "\n".join(lines)
