@@ -122,6 +122,12 @@ class ReadReport:
     def damaged(self) -> bool:
         return bool(self.problems)
 
+    @property
+    def data_lost(self) -> bool:
+        """Part of the data section was passed over (a damaged chunk, or bytes skipped after a damaged
+        record header): what it held is lost, as the problems name."""
+        return self.damaged_chunks > 0 or self.skipped_bytes > 0
+
     def ending(self) -> FileEnding:
         """How the file ended (``logs list`` says the same word): a complete file is not always a
         closed session."""

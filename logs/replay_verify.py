@@ -309,11 +309,9 @@ class _Run:
             rec: pb.Cycle = d.message
             if self.next_seq is None:
                 if d.sequence != 0:
-                    result.problems.append(
-                        f"{path.name} starts at cycle {rec.cycle} (sequence {d.sequence}) without a keyframe: "
-                        "verify it with the session's earlier files"
-                    )
+                    result.problems.append(_no_start(path, report, rec.cycle, d.sequence))
                     self._count_rest(decoded)
+                    self._file_problems(path, report)  # the damage by the walk's words (logs info --check's)
                     return False
                 self._build_law(report, path)
                 self.state = self.law.initial_state()
@@ -346,8 +344,13 @@ class _Run:
                 f"{gap[0]} cycle(s) {_why_missing(report, saw_drop)} before cycle {gap[1]} in "
                 f"{path.name}: verified up to there"
             )
-        result.problems.extend(f"{path.name}: {p}" if len(result.files) > 1 else p for p in report.problems)
+        self._file_problems(path, report)
         return gap is None and not report.problems
+
+    def _file_problems(self, path: Path, report: ReadReport) -> None:
+        """What the walk through ``path`` found (damage, truncation), as ``logs info --check`` names it."""
+        many = len(self.result.files) > 1
+        self.result.problems.extend(f"{path.name}: {p}" if many else p for p in report.problems)
 
     def _keyframe(self, path: Path, report: ReadReport, kf: Any) -> bool:
         """A file's keyframe: where a file alone starts; in a session, the state replayed so far must equal it."""
@@ -401,10 +404,25 @@ class _Run:
             self.result.problems.append(f"{path.name} not checked: the check ended before it")
 
 
+def _no_start(path: Path, report: ReadReport, cycle: int, sequence: int) -> str:
+    """Why a file's first readable cycle is no start for the check (not the session's first, no
+    keyframe before it): its start was in a damaged part (the first chunk: the walk has named it by
+    now), or the file is a later one of a session whose keyframe is missing."""
+    if report.data_lost:
+        return (
+            f"the start of {path.name} (its keyframe or first cycles, before cycle {cycle}, sequence "
+            f"{sequence}) is in a damaged part of the file: the check has nowhere to start"
+        )
+    return (
+        f"{path.name} starts at cycle {cycle} (sequence {sequence}) without a keyframe: "
+        "verify it with the session's earlier files"
+    )
+
+
 def _why_missing(report: ReadReport, saw_drop: bool) -> str:
     """Why cycles are missing, from what the file says (walked to its end by now)."""
-    if report.damaged_chunks:
-        return "lost in a damaged chunk"
+    if report.data_lost:
+        return "lost in a damaged part of the file"
     recovery = report.metadata.get("cheope.recovery")
     if recovery is not None:
         return (
