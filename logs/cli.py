@@ -429,6 +429,8 @@ def _rerun(args: argparse.Namespace) -> int:
     path = Path(file)
     with _progress(path, "converting") as progress:
         r = export(path, out, spawn=out is None, progress=progress)
+    if r.scene_left_out:  # the rest is converted: said, not refused (logs/rerun_export.py)
+        print(f"cheope {args.command}: {r.scene_left_out}", file=sys.stderr)
     problems = "; ".join(r.report.problems)
     if r.spawned:
         text = f"sent {r.cycles} cycles to a new Rerun viewer"
@@ -445,6 +447,7 @@ def _rerun(args: argparse.Namespace) -> int:
                     "cycles": r.cycles,
                     "entities": list(r.entities),
                     "note": r.note,
+                    "scene_left_out": r.scene_left_out or None,
                     "problems": r.report.problems,
                 }
             )

@@ -72,6 +72,7 @@ class ExportResult:
     entities: tuple[str, ...]
     report: ReadReport
     note: str = ""  # why no viewer was spawned, when one was asked for
+    scene_left_out: str = ""  # why the robot's 3D scene is not drawn, when its record is unusable
 
 
 _NAN3 = (math.nan, math.nan, math.nan)
@@ -177,7 +178,7 @@ def export(
     if out is not None and same_file(path, Path(out)):
         raise LogFileError(f"--rerun {out}: is the recording itself")
     report = ReadReport(path)
-    cfg = _config(leading_metadata(path))
+    cfg, scene_left_out = _config(leading_metadata(path))
     sampler = None if cfg is None else SceneSampler.for_config(cfg, SCENE_RATE_HZ)
     s = _gather(path, report, progress, sampler)
     if m.META_CONFIG not in report.metadata:
@@ -195,7 +196,7 @@ def export(
         rec.stdout(default_blueprint=bp)
         entities = _send(rec, s, sampler, force, force_err, has_force, has_force_error)
         rec.flush()
-        return ExportResult(None, False, len(s.t), tuple(entities), report)
+        return ExportResult(None, False, len(s.t), tuple(entities), report, scene_left_out=scene_left_out)
     rec = rr.RecordingStream(APP_ID, recording_id=f"{path.stem}")
     spawned, note, output = False, "", None
     if spawn:
@@ -212,7 +213,7 @@ def export(
     entities = _send(rec, s, sampler, force, force_err, has_force, has_force_error)
     rec.flush()
     rec.disconnect()
-    return ExportResult(output, spawned, len(s.t), tuple(entities), report, note)
+    return ExportResult(output, spawned, len(s.t), tuple(entities), report, note, scene_left_out)
 
 
 def leading_metadata(path: Path) -> ReadReport:
@@ -225,14 +226,25 @@ def leading_metadata(path: Path) -> ReadReport:
     return report
 
 
-def _config(report: ReadReport) -> Any:
+# A cheope.config record that holds no configuration table, or one this version does not load (an
+# older file's), leaves the robot's 3D scene out, and the conversion says so in one line naming the
+# file and the record (the callers put it on stderr). It does not refuse: the plots, the TCP trail
+# and the events come from the /cycle and /events messages alone, and a recording whose record is
+# damaged is one to look at. Before, the scene was left out without a word (an outside tester's
+# finding). A file without the record says nothing: it has no robot to draw.
+def _config(report: ReadReport) -> tuple[Any, str]:
+    """The recorded configuration, or None and why the scene is left out ("" without a record)."""
     from controller.config import ConfigError, recorded_config_from_dict
 
     try:
-        table = recorded_config_table(report)
-        return None if table is None else recorded_config_from_dict(table)
-    except (ConfigError, LogFileError):
-        return None  # an older configuration: the plots still work, the 3D geometry is left out
+        table = recorded_config_table(report)  # a LogFileError names the file and the record
+        return (None, "") if table is None else (recorded_config_from_dict(table), "")
+    except LogFileError as err:
+        return None, f"{err}: written without the robot's 3D scene"
+    except ConfigError as err:
+        return None, (
+            f"{report.path}: metadata record {m.META_CONFIG}: {err}: written without the robot's 3D scene"
+        )
 
 
 def _send(

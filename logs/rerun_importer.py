@@ -59,10 +59,12 @@ def main(argv: list[str] | None = None) -> int:
     from logs.rerun_export import APP_ID, StdoutStream, export
 
     try:
-        export(args.filepath, stdout=StdoutStream(args.application_id or APP_ID, args.recording_id))
+        r = export(args.filepath, stdout=StdoutStream(args.application_id or APP_ID, args.recording_id))
     except LogFileError as err:  # no readable cycle: the viewer's MCAP importer still shows what there is
         print(f"rerun-importer-cheope: {err}", file=sys.stderr)
         return INCOMPATIBLE
+    if r.scene_left_out:  # standard output is the viewer's data: the word goes to stderr
+        print(f"rerun-importer-cheope: {r.scene_left_out}", file=sys.stderr)
     return 0
 
 
