@@ -53,6 +53,8 @@ def planned_bus_load(cfg: Config) -> BusLoad:
 def build_robot(cfg: Config) -> Robot:
     try:
         return robot_from_config(cfg)
+    except ConfigError:  # a ValueError too, already naming its keys: not the model's geometry
+        raise
     except ValueError as err:
         raise ConfigError(f"[robot.{cfg.robot.kind}] geometry is inconsistent: {err}") from err
 

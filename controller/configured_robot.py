@@ -9,7 +9,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from controller.core.ports import ActuatorUnit
+from controller.core.ports import ActuatorUnit, CompliantStructure
+from controller.robot_masses import check_masses
 from controller.robot_registry import ActuatorUnits, check_axes, robot_entry
 
 if TYPE_CHECKING:
@@ -19,8 +20,12 @@ if TYPE_CHECKING:
 
 def robot_from_config(cfg: Config) -> Robot:
     """The model of ``robot.kind``; ValueError (from the model) when the geometry is inconsistent,
-    ConfigError when a per-actuator list has not one value per actuator."""
-    robot = robot_entry(cfg.robot.kind).build(cfg.robot.model())
+    ConfigError when a per-actuator list has not one value per actuator or its structure's masses
+    cannot move (every robot's, a plug-in's too: its masses come from keys only its model reads)."""
+    section = cfg.robot.model()
+    robot = robot_entry(cfg.robot.kind).build(section)
+    if isinstance(robot, CompliantStructure):  # the capability that declares masses
+        check_masses(cfg.robot.kind, section, robot.masses)
     check_axes(
         cfg.robot.kind,
         robot.n_actuators,

@@ -29,8 +29,9 @@ def test_shipped_defaults_load(cfg):
         # made `cheope analyze` fail on a NaN after writing its plots (an outside tester's findings)
         (
             {"robot.cheope.mass.platform_kg": 0.0, "robot.cheope.mass.rod_pair_kg": 0.0},
-            r"robot.cheope.mass.platform_kg = 0.0 and robot.cheope.mass.rod_pair_kg = 0.0: the tool's "
-            r"moving mass \(the platform and half of each rod pair\) must be more than 0 kg",
+            r"robot.cheope.mass.platform_kg = 0.0, robot.cheope.mass.slider_kg = 1.0, "
+            r"robot.cheope.mass.rod_pair_kg = 0.0: the mass that moves with the tool \(translating_kg\) "
+            r"is 0 kg: it must be more than 0 kg",
         ),
         (
             {"robot.cheope.mass.actuator_stiffness_n_m": 1e-300},

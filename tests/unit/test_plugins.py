@@ -401,3 +401,39 @@ def test_the_parser_scans_each_group_of_entry_points_once(monkeypatch):
         monkeypatch.undo()
         ROBOTS.rediscover()
         TASKS.rediscover()
+
+
+@pytest.mark.parametrize(
+    "masses,said",
+    [
+        (
+            {"tool_kg": 0.0, "cable_kg": 0.0},
+            "robot.weighed.tool_kg = 0.0, robot.weighed.carriage_kg = 0.5, robot.weighed.cable_kg = 0.0: "
+            "the mass that moves with the tool (translating_kg) is 0 kg: it must be more than 0 kg "
+            "(the simulated structure divides by it)",
+        ),
+        (
+            {"carriage_kg": -1.0},
+            "robot.weighed.tool_kg = 2.0, robot.weighed.carriage_kg = -1.0, robot.weighed.cable_kg = 0.2: "
+            "the mass that moves with each actuator (per_actuator_kg) is -0.9 kg: it must be at least 0 kg",
+        ),
+    ],
+    ids=["no-mass-with-the-tool", "negative"],
+)
+def test_a_plugin_robots_masses_are_checked_as_the_built_in_robots_are(tmp_path, monkeypatch, masses, said):
+    """A plug-in robot's masses come from keys only its model reads: they were not checked, where
+    Cheope's all at 0 are refused (a ZeroDivisionError in the simulated structure). The one check
+    of every robot's masses (controller/robot_masses.py) refuses them when its model is built."""
+    _install(tmp_path, "cheope_weighed_plugin", "[cheope.robots]\nweighed = cheope_weighed_gantry:WEIGHED\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    ROBOTS.rediscover()
+    try:
+        cfg = config_from_dict(
+            {"robot": {"kind": "weighed", "weighed": masses}, "sensor": {"enabled": False}}
+        )
+        with pytest.raises(ConfigError) as refused:
+            build_law(cfg)
+        assert str(refused.value) == said
+    finally:
+        monkeypatch.undo()
+        ROBOTS.rediscover()

@@ -12,6 +12,7 @@ import msgspec
 from controller.config_schema import ConfigError, Section, rng
 from controller.configs import CONFIG_DIR
 from controller.core.ports import ActuatorUnit
+from controller.robot_masses import check_masses
 from controller.robot_registry import RobotEntry
 
 if TYPE_CHECKING:  # the models load on demand, when a robot is built: the configuration loads without them
@@ -62,19 +63,9 @@ def _check_cheope(c: CheopeSection) -> None:
         raise ConfigError(
             f"robot.cheope.stroke_min_m = {c.stroke_min_m} must be < robot.cheope.stroke_max_m = {c.stroke_max_m}"
         )
-    _check_moving_mass(c.mass)
-
-
-def _check_moving_mass(m: MassSection) -> None:
-    """What moves with the tool (the platform and half of each rod pair, ``MassModel.translating_kg``)
-    must weigh something: the simulated structure divides by it, and all masses at 0 ended a
-    simulated demo with a ZeroDivisionError (an outside tester's finding)."""
-    if m.platform_kg + 3 * m.rod_pair_kg / 2 > 0.0:
-        return
-    raise ConfigError(
-        f"robot.cheope.mass.platform_kg = {m.platform_kg} and robot.cheope.mass.rod_pair_kg = {m.rod_pair_kg}: "
-        "the tool's moving mass (the platform and half of each rod pair) must be more than 0 kg"
-    )
+    # every robot's check when its model is built (controller/configured_robot.py); Cheope's masses
+    # are known from its section alone, so the configuration check names them before any start
+    check_masses("cheope", c, cheope_mass_model(c.mass))
 
 
 def cheope_mass_model(m: MassSection) -> MassModel:
