@@ -11,11 +11,33 @@ of its centre from the nearest point of the whole boundary (negative inside), so
 than a narrow notch rests on its edges and a deep notch's far wall is met where it is. That
 nearest point is found exactly every sub-step: a walk from the last nearest segment bounds
 the distance, and a k-d tree of the vertices gives every segment that could be nearer (9.5 us
-a call against the walk alone's 8.0 us). The walk alone stopped at a local minimum: on a
+a call against the walk alone's 8.0 us, before the multi-contact). The walk alone stopped at a local minimum: on a
 notch's far wall the tool sank 7-9 mm into steel at 0-10 N, then met 1529 N at once when the
 walk restarted. Inside the boundary the normal at the nearest point is interpolated between
 the two vertex normals (as a smooth surface's would be), so a dense polyline has no facets the
 tool could feel; outside, it points from the nearest point to the ball's centre.
+
+A ball may touch the boundary in several places at once: wedged in a notch narrower than itself it
+presses on both walls. The force is the sum of every distinct contact's (normal force and friction
+each along its own normal); the nearest point alone gave only the nearer wall's, which turned by
+~170 deg in one sample as the centre crossed the notch's midline. The contacts are the local minima
+of the centre's distance to the boundary, taken along the boundary, within the tool's radius; the
+nearest point of the whole boundary is the deepest. One stretch the ball presses into must count
+once, though a polyline's facets (a concave arc's chords, a shallow corner) give it several local
+minima: a minimum is the same contact as a deeper one when both lie in one contact patch (a run of
+boundary within the ball, unbroken) and their normals are within ``MERGE_ANGLE_DEG`` (45 deg) of each
+other; it is dropped, the deepest kept. So a ball in a concave arc larger than itself, or in a corner
+flatter than 135 deg, touches once (as the single-contact model had it, to the bit); the two walls of a
+notch (normals 90-180 deg apart) are two contacts even where the ball reaches the notch's bottom and
+its patches join; a ball resting on a groove's two edges (normals a few degrees apart, a gap of air
+between) is two contacts. Closeness along the boundary alone would not do: a short notch's walls are
+close along it. A minimum other than the nearest counts only from outside the part (the ball reaching
+it through the part, say past a thin sliver's far side, would add a force from within the material).
+The cost: the k-d tree is asked for the ball's disk (r) when the tool is in contact, else the walk's;
+its answer, for a disk 0.3 mm wider, is kept while the tool stays within (the tool moves a fraction of
+a millimetre a sub-step), and patches and merging are worked out only when two minima lie within the
+ball. ``last_max_normal_force_n`` is the largest single contact's normal force of the last call: in a
+wedge the sensor reads the vector sum, which may be small while each wall is pressed harder.
 
 Shapes (``[sim.workpiece] shape``), in the workpiece's own frame before ``rotation_deg`` and
 ``centre_m``: ``disk`` (radius), ``ellipse`` (semi-axes ``size_m``), ``rounded_rectangle``
@@ -40,6 +62,9 @@ SAMPLES = 4096  # vertices of the polyline: 0.1-0.2 mm apart on the shipped shap
 NOTCH_WALL_SLOPE = (
     1.0  # a notch's walls: 45 deg chamfers (wall length = depth), as a recess cut with a chamfer
 )
+MERGE_ANGLE_DEG = 45.0  # two touches of one contact patch closer in direction than this are one contact
+MERGE_COS = math.cos(math.radians(MERGE_ANGLE_DEG))
+QUERY_MARGIN_M = 0.3e-3  # the k-d tree asked this much wider, its answer kept while the tool stays within
 BUMP_RAMP_M = 10.0e-3  # a bump's flanks: 10 mm long, as a weld seam's or a taped shim's
 
 
@@ -185,6 +210,12 @@ class PolylineEnvironment:
         self._n = len(self._xy)
         self._tree = cKDTree(self.points)
         self._hint: int | None = None
+        self._near: tuple[float, float, float, list[tuple[int, float, float]]] = (math.inf, math.inf, 0.0, [])
+        self._seg: list[tuple[float, float, float]] = []  # each segment i -> i+1: dx, dy, squared length
+        for (ax, ay), (bx, by) in zip(self._xy, self._xy[1:] + self._xy[:1], strict=True):
+            dx, dy = bx - ax, by - ay
+            self._seg.append((dx, dy, dx * dx + dy * dy))
+        self.last_max_normal_force_n = 0.0  # the largest single contact's normal force of the last call
         edges = np.roll(self.points, -1, axis=0) - self.points
         # a segment nearer than the nearest vertex has an end within sqrt(d^2 + (L/2)^2) of the tool
         self._half_edge2 = 0.25 * float(np.max(edges[:, 0] ** 2 + edges[:, 1] ** 2))
@@ -225,22 +256,78 @@ class PolylineEnvironment:
                 hint, best = j, d
         return math.sqrt(best)
 
-    def _nearest(self, x: float, y: float) -> tuple[int, float, float, float, float]:
-        """The segment nearest the point (x, y) over the whole boundary: its index, squared distance,
-        parameter and nearest point. Exact: a walk's local minimum bounds the distance by d, and only
-        the segments with an end within sqrt(d^2 + (L/2)^2) can be nearer (Pythagoras at the foot of
-        the perpendicular; L the longest segment), found in a k-d tree. The walk alone stopped on a
-        notch's far wall, a local minimum (an outside tester's 1529 N in a 1-mm notch)."""
-        reach = math.sqrt(self._walk(x, y) ** 2 + self._half_edge2) * (1.0 + 1e-9) + 1e-12
-        best: tuple[int, float, float, float, float] | None = None
-        for j in self._tree.query_ball_point((x, y), reach):
-            for i in (j - 1) % self._n, j:
-                d2, t, px, py = self._segment(i, x, y)
-                if best is None or d2 < best[1]:
-                    best = (i, d2, t, px, py)
-        assert best is not None  # the walk's segment has an end within reach
-        self._hint = best[0]
-        return best
+    def _candidates(
+        self, x: float, y: float
+    ) -> tuple[list[tuple[int, float, float, float, float]], int, int]:
+        """Every segment that could be the nearest to the point (x, y) or lie within the tool's ball of
+        radius r, in order along the boundary, each once: its index, squared distance, parameter and
+        nearest point; the position of the nearest among them; and how many local minima of the
+        distance along the boundary lie within the ball (an overcount where the list wraps past vertex
+        0). Exact: only the segments with an end within sqrt(D^2 + (L/2)^2) of the point can be nearer
+        than D (Pythagoras at the foot of the perpendicular; L the longest segment), found in a k-d tree.
+        D is r when a segment lies within the ball (the tool in contact: then the nearest is within r
+        too); else the distance of a walk's local minimum, which bounds the nearest's. The walk alone
+        stopped on a notch's far wall, a local minimum (an outside tester's 1529 N in a 1-mm notch)."""
+        r = self.contact.tool_radius_m
+        if r > 0.0:
+            found, best, minima = self._gather(x, y, r)
+            if found and found[best][1] < r * r:
+                return found, best, minima
+        return self._gather(x, y, self._walk(x, y))
+
+    def _near_vertices(self, x: float, y: float, reach: float) -> list[int]:
+        """The vertices within ``reach`` of (x, y), in order: from the k-d tree, asked for a wider disk
+        once and that answer kept while the disk asked for lies within it (the tool moves a fraction of
+        a millimetre between the tree's queries; the answer is the same set either way)."""
+        cx, cy, cached_reach, cached = self._near
+        reach2 = reach * reach
+        if math.hypot(x - cx, y - cy) + reach > cached_reach:
+            wide = reach + QUERY_MARGIN_M
+            xy = self._xy
+            cached = [(j, *xy[j]) for j in self._tree.query_ball_point((x, y), wide, return_sorted=True)]
+            self._near = (x, y, wide, cached)
+        return [j for j, vx, vy in cached if (vx - x) ** 2 + (vy - y) ** 2 <= reach2]
+
+    def _gather(
+        self, x: float, y: float, bound: float
+    ) -> tuple[list[tuple[int, float, float, float, float]], int, int]:
+        """The segments that could be within ``bound`` of (x, y), the nearest's position among them and
+        the local minima within the ball (see ``_candidates``)."""
+        reach = math.sqrt(bound * bound + self._half_edge2) * (1.0 + 1e-9) + 1e-12
+        n, xy, seg, r2 = self._n, self._xy, self._seg, self.contact.tool_radius_m**2
+        found: list[tuple[int, float, float, float, float]] = []
+        best, best_d2, last = 0, math.inf, -2
+        minima, falling, last_d2 = 0, False, math.inf
+        for j in self._near_vertices(x, y, reach):
+            for i in (j - 1, j):  # the segments on either side of the vertex, each once (-1: the last)
+                if i <= last:
+                    continue
+                k = i % n
+                ax, ay = xy[k]
+                dx, dy, length2 = seg[k]
+                t = min(max(((x - ax) * dx + (y - ay) * dy) / length2, 0.0), 1.0) if length2 > 0.0 else 0.0
+                px, py = ax + t * dx, ay + t * dy
+                d2 = (x - px) ** 2 + (y - py) ** 2
+                if d2 < best_d2:
+                    best, best_d2 = len(found), d2
+                found.append((k, d2, t, px, py))
+                # the last segment a local minimum within the ball? (lower than both neighbours)
+                if i == last + 1:
+                    if falling and d2 >= last_d2 and last_d2 < r2:
+                        minima += 1
+                    falling = d2 < last_d2
+                else:
+                    if falling and last_d2 < r2:
+                        minima += 1
+                    falling = True
+                last, last_d2 = i, d2
+        if falling and last_d2 < r2:
+            minima += 1
+        if len(found) > 1 and found[0][0] == n - 1 and found[-1][0] == n - 1:
+            found.pop()  # the last segment, met from both of its ends (vertex 0 and vertex n - 1)
+        if found:
+            self._hint = found[best][0]
+        return found, best, minima
 
     def _inside(self, i: int, t: float, x: float, y: float, px: float, py: float) -> bool:
         """Whether (x, y) is inside the part, from its nearest point on segment i: left of the segment
@@ -256,24 +343,80 @@ class PolylineEnvironment:
         mx, my = _unit_right(bx - vx, by - vy)
         return (x - px) * (nx + mx) + (y - py) * (ny + my) < 0.0
 
-    def penetration(self, x_m: float, y_m: float) -> tuple[float, float, float]:
-        """How deep the tool's ball reaches into the part [m] (<= 0: apart), and the outward unit
-        normal it is pushed along. The depth is the tool radius less the signed distance of its centre
-        from the boundary (negative inside): the true overlap of a ball and the profile, continuous as
-        the tool moves. Outside, the normal points from the nearest boundary point to the centre (a
-        ball on a corner is pushed away from the corner); inside, it is the boundary's normal there,
-        interpolated between the vertices' as a smooth surface's would be (no facets to feel)."""
-        i, d2, t, px, py = self._nearest(x_m, y_m)
+    def _depth(
+        self, i: int, d2: float, t: float, px: float, py: float, x: float, y: float
+    ) -> tuple[float, float, float]:
+        """How deep the ball reaches past the boundary at its nearest point (px, py) on segment i, and the
+        outward unit normal there (see ``penetration``)."""
         distance = math.sqrt(d2)
-        if not self._inside(i, t, x_m, y_m, px, py) and distance > 1e-9:
-            return self.contact.tool_radius_m - distance, (x_m - px) / distance, (y_m - py) / distance
+        if not self._inside(i, t, x, y, px, py) and distance > 1e-9:
+            return self.contact.tool_radius_m - distance, (x - px) / distance, (y - py) / distance
         (n0x, n0y), (n1x, n1y) = self._nxy[i], self._nxy[(i + 1) % self._n]
         nx, ny = n0x + t * (n1x - n0x), n0y + t * (n1y - n0y)
         norm = math.hypot(nx, ny) or 1.0
         return self.contact.tool_radius_m + distance, nx / norm, ny / norm
 
+    def contacts(self, x_m: float, y_m: float) -> list[tuple[float, float, float]]:
+        """Every distinct contact of the tool's ball with the part (see the module's text): its depth [m]
+        and outward unit normal, the deepest first. The first is the nearest point of the whole boundary
+        (``penetration``), given even when the ball is apart from the part (depth <= 0); the others are
+        further local minima of the distance along the boundary, within the ball, reached from outside
+        the part, and each in another contact patch than every deeper one or turned from it by more
+        than ``MERGE_ANGLE_DEG``."""
+        found, best, minima = self._candidates(x_m, y_m)
+        nearest = self._depth(*found[best], x_m, y_m)
+        if minima < 2:
+            return [nearest]  # one local minimum within the ball at most: the nearest point's
+        r2 = self.contact.tool_radius_m**2
+        n, m = self._n, len(found)
+        close = [k for k, f in enumerate(found) if f[1] < r2]
+        # the contact patches: runs of adjacent segments within the ball (the first may go on from the last)
+        patch, label = [0] * m, 0
+        for k in range(m):
+            g, h = found[k - 1], found[k]
+            if not (h[1] < r2 and g[1] < r2 and (h[0] - g[0]) % n == 1):
+                label += 1
+            patch[k] = label
+        if label and patch[0] == 0:  # no break between the last and the first: one patch
+            patch = [0 if p == label else p for p in patch]
+        others = []
+        for k in close:
+            g, h, q = found[k - 1], found[k], found[(k + 1) % m]
+            before = g[1] if (h[0] - g[0]) % n == 1 else math.inf
+            after = q[1] if (q[0] - h[0]) % n == 1 else math.inf
+            if k != best and h[1] < before and h[1] <= after:
+                others.append(k)
+        if not others:
+            return [nearest]
+        others.sort(key=lambda k: found[k][1])
+        kept = [(nearest, patch[best] if found[best][1] < r2 else -1)]
+        for k in others:
+            i, d2, t, px, py = found[k]
+            if self._inside(i, t, x_m, y_m, px, py):
+                continue  # reached only through the part: the nearest point already says how deep it is
+            distance = math.sqrt(d2)
+            if distance <= 1e-9:
+                continue
+            nx, ny = (x_m - px) / distance, (y_m - py) / distance
+            if any(p == patch[k] and nx * c[1] + ny * c[2] > MERGE_COS for c, p in kept):
+                continue  # the same contact as a deeper one: a concave stretch, a polyline's facets
+            kept.append(((self.contact.tool_radius_m - distance, nx, ny), patch[k]))
+        return [c for c, _ in kept]
+
+    def penetration(self, x_m: float, y_m: float) -> tuple[float, float, float]:
+        """How deep the tool's ball reaches into the part [m] (<= 0: apart), and the outward unit
+        normal it is pushed along, at the nearest point of the whole boundary (the deepest contact).
+        The depth is the tool radius less the signed distance of its centre from the boundary (negative
+        inside): the true overlap of a ball and the profile, continuous as the tool moves. Outside, the
+        normal points from the nearest boundary point to the centre (a ball on a corner is pushed away
+        from the corner); inside, it is the boundary's normal there, interpolated between the vertices'
+        as a smooth surface's would be (no facets to feel)."""
+        found, best, _ = self._candidates(x_m, y_m)
+        return self._depth(*found[best], x_m, y_m)
+
     def contact_force(self, x_m: float, y_m: float, z_m: float, vx_m_s: float, vy_m_s: float) -> Vector3:
         c = self.contact
+        self.last_max_normal_force_n = 0.0
         if abs(z_m - c.height_m) > c.thickness_m / 2 + c.tool_radius_m:
             return NO_FORCE
         if (
@@ -281,14 +424,21 @@ class PolylineEnvironment:
             > self._max_radius + c.tool_radius_m + 1e-3
         ):
             return NO_FORCE  # far outside: no search
-        penetration, nx, ny = self.penetration(x_m, y_m)
-        if penetration <= 0.0:
+        fx = fy = most = 0.0
+        for penetration, nx, ny in self.contacts(x_m, y_m):
+            if penetration <= 0.0:
+                continue
+            fn = self._k_series * penetration - c.contact_damping_n_s_m * (vx_m_s * nx + vy_m_s * ny)
+            if fn <= 0.0:
+                continue
+            tx, ty = -ny, nx
+            friction = (
+                -c.friction_coefficient
+                * fn
+                * math.tanh((vx_m_s * tx + vy_m_s * ty) / c.friction_velocity_m_s)
+            )
+            fx, fy, most = fx + fn * nx + friction * tx, fy + fn * ny + friction * ty, max(most, fn)
+        self.last_max_normal_force_n = most
+        if most == 0.0:
             return NO_FORCE
-        fn = self._k_series * penetration - c.contact_damping_n_s_m * (vx_m_s * nx + vy_m_s * ny)
-        if fn <= 0.0:
-            return NO_FORCE
-        tx, ty = -ny, nx
-        friction = (
-            -c.friction_coefficient * fn * math.tanh((vx_m_s * tx + vy_m_s * ty) / c.friction_velocity_m_s)
-        )
-        return (fn * nx + friction * tx, fn * ny + friction * ty, 0.0)
+        return (fx, fy, 0.0)
