@@ -8,12 +8,15 @@ out by counting the boundary's crossings of a ray (no nearest-point reasoning sh
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from controller.config import load_config, parse_override
+from sim_backend.plant import workpiece_environment
 from sim_backend.workpiece import (
     BUMP_RAMP_M,
     NOTCH_WALL_SLOPE,
@@ -82,6 +85,9 @@ def test_the_penetration_is_the_balls_true_overlap_with_the_profile(shape, notch
         x, y = px + across * nx - along * ny, py + across * ny + along * nx
         depth, _, _ = env.penetration(x, y)
         assert abs(depth - reference_penetration(env.points, tool_radius_m, x, y)) <= tolerance, (x, y)
+        contacts = env.contacts(x, y)  # the deepest of them the nearest point's; the others within the ball
+        assert contacts[0] == env.penetration(x, y)
+        assert all(0.0 < d <= contacts[0][0] for d, _, _ in contacts[1:]), contacts
 
 
 def test_the_testers_deep_narrow_notch_is_met_where_its_walls_are():
@@ -121,3 +127,95 @@ def test_a_ball_wider_than_a_groove_rests_on_its_edges():
     assert r - math.sqrt(r * r - 0.0005**2) < sink < 45e-6
     depth, nx, ny = env.penetration(x, high - 20e-6)
     assert depth > 0.0 and abs(nx) < 0.2 and ny > 0.98  # pushed back out of the groove
+
+
+def slot_environment(width_m: float, tool_radius_m: float) -> PolylineEnvironment:
+    """A part with a straight slot of ``width_m`` cut into its top edge (+Y), 10 mm deep, its walls at
+    x = -w/2 and x = +w/2: a polygon resampled densely, counter-clockwise."""
+    w, h = width_m / 2.0, 0.01
+    corners = [
+        (-0.05, -0.05),
+        (0.05, -0.05),
+        (0.05, 0.0),
+        (w, 0.0),
+        (w, -h),
+        (-w, -h),
+        (-w, 0.0),
+        (-0.05, 0.0),
+    ]
+    closed = np.array([*corners, corners[0]])
+    pieces = [
+        np.linspace(a, b, max(2, int(math.dist(a, b) / 1e-4)), endpoint=False)
+        for a, b in itertools.pairwise(closed)
+    ]
+    contact = ContactParams(0.5, 0.01, tool_radius_m, 1.0e6, 3.0e5, 200.0, 0.15)
+    return PolylineEnvironment(np.vstack(pieces), contact)
+
+
+def test_a_ball_between_two_walls_narrower_than_it_is_pushed_by_both():
+    """A ball of 0.5 mm radius in a slot 0.9 mm wide, 5 mm down: centred, each wall presses it by
+    50 um and the two forces cancel; off-centre by 20 um, the nearer wall presses 70 um and the other
+    30 um, the sum 40 um's worth towards the slot's middle, on either side alike (no flip)."""
+    r = 0.0005
+    env = slot_environment(0.0009, r)
+    k = env._k_series
+    contacts = env.contacts(0.0, -0.005)
+    assert len(contacts) == 2
+    assert sorted(round(nx) for _, nx, _ in contacts) == [-1, 1]
+    for depth, _, _ in contacts:
+        assert abs(depth - 50e-6) < 1e-9
+    fx, fy, _ = env.contact_force(0.0, -0.005, 0.5, 0.0, 0.0)
+    assert abs(fx) < 1e-6 and abs(fy) < 1e-6
+    assert abs(env.last_max_normal_force_n - k * 50e-6) < 1e-6  # each wall pressed, the sum nothing
+    for x in (-2e-5, -1e-5, -1e-6, 1e-6, 1e-5, 2e-5):  # across the middle: the force goes through zero
+        fx, fy, _ = env.contact_force(x, -0.005, 0.5, 0.0, 0.0)
+        assert abs(fx - (-k * 2 * x)) < 1e-6 * k, (x, fx)
+        assert abs(fy) < 1e-6
+        assert abs(env.last_max_normal_force_n - k * (50e-6 + abs(x))) < 1e-6
+    # moving along the slot: each wall's friction opposes the motion, twice the one wall's
+    fx, fy, _ = env.contact_force(2e-5, -0.005, 0.5, 0.0, 0.01)
+    assert fy < 0.0 and abs(fy + 0.15 * k * (70e-6 + 30e-6) * math.tanh(10.0)) < 1e-6
+
+
+def test_a_ball_in_a_concave_arc_larger_than_itself_touches_once():
+    """A kidney's dent is concave (curvature radius ~10 mm here); a ball of 2 mm pressed into its
+    middle touches it in one place, with the single-contact model's force to the bit."""
+    r = 0.002
+    env = environment("kidney", (), r)
+    i = int(np.argmin(env.points[:, 0]))  # the dent's middle, on -X
+    (px, py), (nx, ny) = env.points[i], env.normals[i]
+    for depth in (1e-5, 1e-4, 3e-4):
+        for along in (-1e-3, 0.0, 1e-3):
+            x, y = px + (r - depth) * nx - along * ny, py + (r - depth) * ny + along * nx
+            contacts = env.contacts(x, y)
+            assert len(contacts) == 1, (depth, along, contacts)
+            assert contacts[0] == env.penetration(x, y)
+            fn = env._k_series * contacts[0][0]
+            assert abs(math.hypot(*env.contact_force(x, y, 0.5, 0.0, 0.0)[:2]) - fn) < 1e-9
+            assert env.last_max_normal_force_n == fn
+
+
+def test_the_notch_of_the_report_pushes_the_ball_by_both_walls_without_a_flip():
+    """The reproducer: a 45-degree notch 8 mm deep and 3 mm long at 200 deg on the shipped disk, a ball
+    of 0.5 mm between its walls (~0.44 mm from each). Across its midline the summed force turns
+    gradually; the nearest wall's alone turned by ~170 deg in one sample."""
+    overrides = [
+        "task.kind=contour",
+        "sim.workpiece.tool_radius_m=0.0005",
+        "sim.workpiece.features=[{angle_deg=200.0,length_m=0.003,depth_m=0.008}]",
+    ]
+    env = workpiece_environment(load_config(None, dict(parse_override(o) for o in overrides)).sim.workpiece)
+    assert isinstance(env, PolylineEnvironment)
+    x0, y0 = -0.05791, -0.02285
+    contacts = env.contacts(x0, y0)
+    assert len(contacts) == 2 and all(d > 0.0 for d, _, _ in contacts)
+    (_, ax, ay), (_, bx, by) = contacts
+    across = (ax - bx, ay - by)  # from one wall's normal towards the other's: across the notch
+    norm = math.hypot(*across)
+    previous = None
+    for s in np.linspace(-3e-5, 3e-5, 61):
+        x, y = x0 + s * across[0] / norm, y0 + s * across[1] / norm
+        fx, fy, _ = env.contact_force(x, y, env.contact.height_m, 0.0, 0.0)
+        if previous is not None:
+            assert math.hypot(fx - previous[0], fy - previous[1]) < 0.05 * env.last_max_normal_force_n + 1.0
+        previous = (fx, fy)
