@@ -303,6 +303,7 @@ class ContourState:
     retract_direction: tuple[float, float] = (1.0, 0.0)  # unit: along the measured force when it began
     retare_direction: tuple[float, float] = (1.0, 0.0)  # unit: a re-tare's way out (_way_out)
     retare_met_m: float = -1.0  # the way out met another surface: back to this far out, tare there (-1: none)
+    retare_free_m: float = -1.0  # ... the way out's travel where the contact left behind stopped pushing
     retare_held_cycles: int = 0  # ... held still this long for the drives' effort to confirm it (_judge_met)
     # cycles left in which a hold-up of the loop explains the force (TIMING_RECOVERY_S), and whether
     # the force left its band in that window and has not come back yet
@@ -1517,6 +1518,7 @@ class ContourTrackingTask:
             retare_direction=way_out,
             retare_met_m=-1.0,
             retare_held_cycles=0,
+            retare_free_m=-1.0,
             # the way out is a guarded move (_retare) from the force read as it begins
             guard_base_n=_against(s.raw_force, way_out, True) if s.raw_force is not None else 0.0,
             guard_rise_m=None,
@@ -1562,14 +1564,19 @@ class ContourTrackingTask:
         """The way out of a contact met another surface (a slot's other wall, across from the one it
         pressed): the tare is taken halfway between the two, where the force began to rise being the
         other's. Going on pressed it at 84 N, with the guard's limit for leaving a contact, 60 N (an
-        outside tester's 2 mm x 10 mm slot, 2026-12-06)."""
+        outside tester's 2 mm x 10 mm slot, 2026-12-06). Halfway from where the contact left behind
+        stopped pushing (``retare_free_m``), not from where the way out began: the tool pressed that
+        one there, and halfway from it took a tool whose other "surface" was a -5 N offset step back
+        into the first contact at 21.6 N."""
         rise_m = s.guard_rise_m if s.guard_rise_m is not None else s.travel_m
-        back_to_m = 0.5 * rise_m
+        free_m = min(max(s.retare_free_m, 0.0), rise_m)
+        back_to_m = 0.5 * (free_m + rise_m)
         ev = Event(
             "contour",
             Severity.WARNING,
             f"the way out of the contact met another surface at {met_n:.2f} N after {s.travel_m * 1000:.1f} mm; "
-            f"back to {back_to_m * 1000:.1f} mm out, halfway, to re-tare there",
+            f"back to {back_to_m * 1000:.1f} mm out, halfway from where the contact left behind let go, "
+            "to re-tare there",
         )
         return replace(s, retare_met_m=back_to_m), (ev,)
 
@@ -1577,6 +1584,12 @@ class ContourTrackingTask:
         p, dt = self.p, ctx.period_s
         n = s.retare_direction  # _way_out, chosen as the re-tare began
         if s.retare_met_m < 0.0 and s.travel_m < p.retare_clearance_m:
+            if (
+                s.retare_free_m < 0.0
+                and s.raw_force is not None
+                and -_against(s.raw_force, n, False) < p.contact_force_n
+            ):
+                s = replace(s, retare_free_m=s.travel_m)  # the contact left behind no longer pushes
             s, met_n, guard_events = self._guarded_contact(s, n, p.search_speed_m_s, dt, leaving=True)
             events = (*events, *guard_events)
             if met_n is not None:
