@@ -265,6 +265,9 @@ class RobotPlant:
         self.last_sync_s: float | None = None
         self.tcp_kinematic_m = np.zeros(3)
         self.force_n = np.zeros(3)
+        # the most one contact presses the part [N]: a ball wedged between two walls presses each
+        # harder than the sum the sensor feels (workpiece.py); the sum's size where one touches
+        self.contact_load_n = 0.0
         self._update_kinematics()
         self._check_start_outside_the_part()
 
@@ -283,6 +286,7 @@ class RobotPlant:
         self._check_start_outside_the_part()
         self.tool = CompliantTool(self._compliance) if self._compliance is not None else None
         self.force_n = np.zeros(3)
+        self.contact_load_n = 0.0
         if self.loaded and self.time_s is not None:
             self._refresh_structure()
 
@@ -460,6 +464,8 @@ class RobotPlant:
             if sensor is not None:
                 sensor.observe(t0_s + tau, h, force[0], force[1], force[2])
         self.force_n = np.array(force)
+        one_wall_n = float(getattr(env, "last_max_normal_force_n", 0.0))
+        self.contact_load_n = max(math.sqrt(force[0] ** 2 + force[1] ** 2 + force[2] ** 2), one_wall_n)
         self._loaded_efforts()
 
     def _loaded_efforts(self) -> None:

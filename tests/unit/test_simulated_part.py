@@ -46,3 +46,27 @@ def test_a_start_the_encoder_cannot_report_is_refused_naming_the_keys(start_m):
     with pytest.raises(ValueError, match=r"drive 2 starts at .*sim.drive.initial_positions_m.*INTEGER32"):
         RobotPlant(cfg, FreeSpace())
     RobotPlant(load_config(overrides={"sim.drive.initial_positions_m": [0.6, 214.0, 0.5]}), FreeSpace())
+
+
+class _Wedge:
+    """A part that holds the tool between two walls: 40 N each, 5 N of sum (what the sensor feels)."""
+
+    last_max_normal_force_n = 40.0
+
+    def contact_force(self, x_m: float, y_m: float, z_m: float, vx_m_s: float, vy_m_s: float):
+        return (3.0, 4.0, 0.0)
+
+
+class _OneWall(_Wedge):
+    last_max_normal_force_n = 0.0
+
+
+@pytest.mark.parametrize(("part", "load_n"), [(_Wedge(), 40.0), (_OneWall(), 5.0)])
+def test_the_load_on_the_part_is_the_most_one_contact_presses_not_the_sum_the_sensor_feels(part, load_n):
+    """The scans judge the true force by ``contact_load_n``: a ball wedged in a notch narrower than it
+    presses each wall harder than the sum of both (workpiece.py)."""
+    plant = RobotPlant(load_config(overrides={"task.kind": "contour"}), part)
+    plant.advance(1.0)
+    plant.advance(1.0025)
+    assert plant.force_n.tolist() == [3.0, 4.0, 0.0]
+    assert plant.contact_load_n == pytest.approx(load_n)

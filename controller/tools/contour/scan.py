@@ -4,7 +4,8 @@ Each scenario runs the contour task (Cheope, seed 001 §7) against the in-proces
 devices in simulated time (deterministic, free of the machine's timing), records the session
 to MCAP, and reports what the task did: contact losses, re-acquisitions, the largest *true*
 contact force (the simulator's, not the measurement: a disturbance of the measurement is exactly
-what can hide it), the final mode and, where the task did not finish, the cause it named.
+what can hide it; the most one contact presses the part, which for a ball wedged between two walls
+is more than the sum the sensor feels), the final mode and, where the task did not finish, the cause it named.
 
 The scan's task is three laps at 40, 60 and 60 mm/s; the disturbances sit in laps 2 and 3, at
 full speed, at 12 places found from an undisturbed run (every 60 degrees of each lap, lap 3 offset
@@ -105,8 +106,8 @@ class _Watch:
         events: tuple[Event, ...],
         timing: CycleTiming,
     ) -> None:
-        f = self.exchange.plant.force_n
-        self.final_true_force_n = math.sqrt(float(f[0] ** 2 + f[1] ** 2 + f[2] ** 2))
+        # the most one contact presses the part: in a wedge, more than the sum the sensor feels
+        self.final_true_force_n = self.exchange.plant.contact_load_n
         self.max_true_force_n = max(self.max_true_force_n, self.final_true_force_n)
         if isinstance(state.task_state, ContourState):
             self.task = state.task_state
