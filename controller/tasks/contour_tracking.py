@@ -1605,6 +1605,10 @@ class ContourTrackingTask:
                 s, (-n[0] * step / dt, -n[1] * step / dt, 0.0), dt, events=events, travel_m=-step
             )
         if s.retare_met_m < 0.0 and s.travel_m < p.retare_clearance_m:
+            if not self._trusted(s, dt):
+                # blind, the way out would go on into whatever it meets: a sensor 90 ms stale took a
+                # slot's way out into its far wall at 108 N (an outside tester's); still until it sees
+                return self._moving(s, (0.0, 0.0, 0.0), dt, events=events)
             step = min(p.search_speed_m_s * dt, p.retare_clearance_m - s.travel_m)
             if s.travel_m + step >= p.retare_clearance_m:  # out after this step: the tare's time starts now
                 s = replace(s, phase_start_s=ctx.t_s, travel_m=p.retare_clearance_m - step)

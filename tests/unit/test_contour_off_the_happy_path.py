@@ -223,6 +223,27 @@ def test_a_sensor_step_against_the_way_out_that_the_effort_does_not_feel_is_no_s
     assert s.offset[0] == pytest.approx(-10.0, abs=0.01)
 
 
+def test_a_re_tares_way_out_holds_still_while_its_sensor_is_blind():
+    """A sensor 90 ms stale in a slot's way out let it go on into the far wall at 108 N (an outside
+    tester's): without a fresh sample for ``stale_hold_s`` the way out stands still, then goes on."""
+    task, cfg = _task()
+    c = cfg.task.model("contour")
+    s = replace(_tracking(task, speed_m_s=0.0, p_cmd=(0.073, 0.0, 0.5)), phase=ContourPhase.CONTACT_LOST)
+    blind = range(20, 60)  # cycles without a fresh sample, once the way out is under way (80 cycles)
+    moved_blind_m, x_last = 0.0, s.p_cmd[0]
+    for k in range(20000):
+        if s.phase not in (ContourPhase.CONTACT_LOST, ContourPhase.RETARE):
+            break
+        out = task.step(s, _ctx((0.0, 0.0, 0.0), tcp=s.p_cmd, fresh=k not in blind, t_s=1.0 + k * DT))
+        s = out.state
+        if k in blind:
+            moved_blind_m += abs(s.p_cmd[0] - x_last)
+        x_last = s.p_cmd[0]
+    assert s.phase == ContourPhase.REAPPROACH
+    # on only until the last sample is stale_hold_s old: the cycles before it, one step each
+    assert moved_blind_m <= cycles_in(c.stale_hold_s, DT) * c.search_speed_m_s * DT + 1e-12
+
+
 def test_a_contact_lost_at_speed_is_braked_along_its_tangent_first():
     task, cfg = _task()
     s = replace(_tracking(task, speed_m_s=0.06, normal=(1.0, 0.0)), phase=ContourPhase.CONTACT_LOST)
