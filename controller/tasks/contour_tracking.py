@@ -686,10 +686,14 @@ class ContourTrackingTask:
             s, force_f=(f[0] + a * (raw[0] - f[0]), f[1] + a * (raw[1] - f[1]), f[2] + a * (raw[2] - f[2]))
         )
 
+    def _blind(self, s: ContourState, period_s: float) -> bool:
+        """No fresh sample for ``stale_hold_s``: nothing to see with."""
+        return s.stale_cycles >= cycles_in(self.p.stale_hold_s, period_s)
+
     def _trusted(self, s: ContourState, period_s: float) -> bool:
         """Whether this cycle's force may steer the law: no implausible step held, no run of stale cycles
         as long as ``stale_hold_s``."""
-        return s.held_force is None and s.stale_cycles < cycles_in(self.p.stale_hold_s, period_s)
+        return s.held_force is None and not self._blind(s, period_s)
 
     def _pressing_n(self, s: ContourState, normal: tuple[float, float], ctx: TaskContext) -> float:
         """The contact force along the normal that saturation and the task's limit judge: the largest of
@@ -942,7 +946,10 @@ class ContourTrackingTask:
         ``leaving``: the move leaves a contact, whose force pushes the tool along the motion and fades as
         it goes; only a force that rises against the motion after that is another surface's."""
         p = self.p
-        if not self._trusted(s, dt) or s.raw_force is None:
+        # leaving, a step held as implausible still counts: the way out judges a rise against the
+        # drives' effort (_judge_met), and an offset step it re-tares for stays held until the tare
+        seeing = not self._blind(s, dt) if leaving else self._trusted(s, dt)
+        if not seeing or s.raw_force is None:
             return s, None, ()
         raw = s.raw_force
         against = _against(raw, moving, leaving)  # the force opposing the motion
@@ -1605,7 +1612,7 @@ class ContourTrackingTask:
                 s, (-n[0] * step / dt, -n[1] * step / dt, 0.0), dt, events=events, travel_m=-step
             )
         if s.retare_met_m < 0.0 and s.travel_m < p.retare_clearance_m:
-            if not self._trusted(s, dt):
+            if self._blind(s, dt):
                 # blind, the way out would go on into whatever it meets: a sensor 90 ms stale took a
                 # slot's way out into its far wall at 108 N (an outside tester's); still until it sees
                 return self._moving(s, (0.0, 0.0, 0.0), dt, events=events)
