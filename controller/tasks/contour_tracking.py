@@ -1587,7 +1587,12 @@ class ContourTrackingTask:
         )
         return replace(s, retare_met_m=back_to_m), (ev,)
 
-    def _retare(self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...] = ()) -> TaskStep:
+    def _leaving(
+        self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...]
+    ) -> tuple[ContourState, tuple[Event, ...], TaskStep | None]:
+        """A re-tare's motion: out along ``retare_direction`` for ``retare_clearance_m``, a guarded move
+        (``_guarded_contact``, ``_judge_met``), or back to where another surface met on the way sends it
+        (``_met_on_way_out``). (state, events, this cycle's step; None once there, for the tare)."""
         p, dt = self.p, ctx.period_s
         n = s.retare_direction  # _way_out, chosen as the re-tare began
         if s.retare_met_m < 0.0 and s.travel_m < p.retare_clearance_m:
@@ -1603,25 +1608,38 @@ class ContourTrackingTask:
                 s, judged = self._judge_met(s, ctx, met_n)
                 events = (*events, *judged)
                 if s.retare_held_cycles > 0:  # still for the drives' effort to tell
-                    return self._moving(s, (0.0, 0.0, 0.0), dt, events=events)
+                    return s, events, self._moving(s, (0.0, 0.0, 0.0), dt, events=events)
         if s.retare_met_m >= 0.0 and s.travel_m > s.retare_met_m:  # back from the other surface
             step = min(p.search_speed_m_s * dt, s.travel_m - s.retare_met_m)
             if s.travel_m - step <= s.retare_met_m:  # there after this step: the tare's time starts now
                 s = replace(s, phase_start_s=ctx.t_s, travel_m=s.retare_met_m + step)
-            return self._moving(
-                s, (-n[0] * step / dt, -n[1] * step / dt, 0.0), dt, events=events, travel_m=-step
+            return (
+                s,
+                events,
+                self._moving(
+                    s, (-n[0] * step / dt, -n[1] * step / dt, 0.0), dt, events=events, travel_m=-step
+                ),
             )
         if s.retare_met_m < 0.0 and s.travel_m < p.retare_clearance_m:
             if self._blind(s, dt):
                 # blind, the way out would go on into whatever it meets: a sensor 90 ms stale took a
                 # slot's way out into its far wall at 108 N (an outside tester's); still until it sees
-                return self._moving(s, (0.0, 0.0, 0.0), dt, events=events)
+                return s, events, self._moving(s, (0.0, 0.0, 0.0), dt, events=events)
             step = min(p.search_speed_m_s * dt, p.retare_clearance_m - s.travel_m)
             if s.travel_m + step >= p.retare_clearance_m:  # out after this step: the tare's time starts now
                 s = replace(s, phase_start_s=ctx.t_s, travel_m=p.retare_clearance_m - step)
-            return self._moving(
-                s, (n[0] * step / dt, n[1] * step / dt, 0.0), dt, events=events, travel_m=step
+            return (
+                s,
+                events,
+                self._moving(s, (n[0] * step / dt, n[1] * step / dt, 0.0), dt, events=events, travel_m=step),
             )
+        return s, events, None
+
+    def _retare(self, s: ContourState, ctx: TaskContext, events: tuple[Event, ...] = ()) -> TaskStep:
+        p, dt = self.p, ctx.period_s
+        s, events, moving = self._leaving(s, ctx, events)
+        if moving is not None:
+            return moving
         # Out of contact and at rest: free space, where the safety layer takes its own baseline too.
         settled = all(abs(v) <= p.settle_tolerance_m for v in ctx.setpoint.velocity)
         contact = ContactExpectation.NONE if settled else ContactExpectation.PRESSING
