@@ -667,9 +667,7 @@ class ContourTrackingTask:
         w = ctx.force_witness_n
         if w is None:
             return replace(s, verdict="", verdict_cycles=0), ""
-        tol = self.p.witness_tolerance_n + 0.25 * max(
-            math.hypot(raw[0], raw[1]), math.hypot(held[0], held[1])
-        )
+        tol = self._witness_tolerance_n(math.hypot(raw[0], raw[1]), math.hypot(held[0], held[1]))
         agrees_new = math.hypot(raw[0] - w[0], raw[1] - w[1]) <= tol
         agrees_old = math.hypot(held[0] - w[0], held[1] - w[1]) <= tol
         verdict = (
@@ -678,6 +676,12 @@ class ContourTrackingTask:
         n = s.verdict_cycles + 1 if verdict and verdict == s.verdict else (1 if verdict else 0)
         s = replace(s, verdict=verdict, verdict_cycles=n)
         return s, verdict if n >= cycles_in(self.p.witness_verdict_s, ctx.period_s) else ""
+
+    def _witness_tolerance_n(self, a_n: float, b_n: float) -> float:
+        """How far the sensor and the drives' effort may disagree where the larger force of ``a_n`` and
+        ``b_n`` acts: the effort's own error and a quarter of that force (the safety layer's
+        ``tolerance_n`` without its inertia term)."""
+        return self.p.witness_tolerance_n + 0.25 * max(a_n, b_n)
 
     def _filtered(self, s: ContourState, raw: tuple[float, float, float], ctx: TaskContext) -> ContourState:
         a = 1.0 - math.exp(-2.0 * math.pi * self.p.force_filter_hz * ctx.period_s)
@@ -1545,7 +1549,7 @@ class ContourTrackingTask:
         self, s: ContourState, ctx: TaskContext, met_n: float
     ) -> tuple[ContourState, tuple[Event, ...]]:
         """A re-tare doubts its sensor: a surface it reads on the way out counts once the drives' effort
-        agrees with it (``_verdict``'s tolerance). The tool holds still for the effort's median window
+        agrees with it (``_witness_tolerance_n``, as ``_verdict`` judges). The tool holds still for the effort's median window
         (the contact left behind still fills it) and then judges. An offset step pointing against the
         way out read, as the contact left behind faded, as another surface's rise (+10 N: the way out
         stopped 0.2 mm out, the tare was refused in contact, and the retract after it met 126 N).
@@ -1556,7 +1560,7 @@ class ContourTrackingTask:
         if s.retare_held_cycles < cycles_in(WITNESS_MEDIAN_S, ctx.period_s):
             return replace(s, retare_held_cycles=s.retare_held_cycles + 1), ()
         s = replace(s, retare_held_cycles=0)
-        tol = self.p.witness_tolerance_n + 0.25 * max(math.hypot(raw[0], raw[1]), math.hypot(w[0], w[1]))
+        tol = self._witness_tolerance_n(math.hypot(raw[0], raw[1]), math.hypot(w[0], w[1]))
         if math.hypot(raw[0] - w[0], raw[1] - w[1]) <= tol:
             return self._met_on_way_out(s, met_n)
         ev = Event(
