@@ -127,6 +127,7 @@ def safety_config(s: SafetySection, units: ActuatorUnits, period_s: float) -> Sa
             disagreement_s=c.disagreement_s,
             sensor_suspect_s=c.sensor_suspect_s,
             sensor_frozen_s=c.sensor_frozen_s,
+            reaction_s=c.reaction_s,
             back_off_distance_m=c.back_off_distance_m,
             back_off_speed_m_s=c.back_off_speed_m_s,
             back_off_acceleration_m_s2=c.back_off_acceleration_m_s2,
@@ -186,7 +187,10 @@ def assemble(cfg: Config, robot: Robot | None = None) -> Assembly:
     a = actuator_units(cfg)  # m or rad
     built = build_task(cfg, robot, a)
     n = robot.n_actuators
-    limits = AxisLimits((a.max_velocity,) * n, (a.max_acceleration,) * n, (a.max_jerk,) * n)
+    reaction_jerk = max(a.max_jerk, a.max_acceleration / cfg.safety.contact.reaction_ramp_s)
+    limits = AxisLimits(
+        (a.max_velocity,) * n, (a.max_acceleration,) * n, (a.max_jerk,) * n, (reaction_jerk,) * n
+    )
     law_cfg = LawConfig(
         period_s=cfg.period_s,
         enable_timeout_s=cfg.loop.enable_timeout_s,

@@ -214,9 +214,15 @@ class ContactGuardSection(Section, frozen=True):
     sensor_suspect_s: Annotated[float, rng(0.0, 600.0)] = 2.0  # the task's time to resolve it; then back off
     # pressing, fresh samples the same to the last bit this long: the sensor is frozen (0: not judged)
     sensor_frozen_s: Annotated[float, rng(0.0, 10.0)] = 0.025
+    # where contact is sought or made, a force rising sample after sample trips the guard when it would
+    # pass the limit within this (a reaction's time to stop it; 0: the limit alone)
+    reaction_s: Annotated[float, rng(0.0, 1.0)] = 0.0075
     back_off_distance_m: Annotated[float, rng(0.0, 1.0)] = 0.005  # the protective back-off along the force
     back_off_speed_m_s: Annotated[float, rng(0.0, 1.0, lo_open=True)] = 0.02
     back_off_acceleration_m_s2: Annotated[float, rng(0.0, 100.0, lo_open=True)] = 0.5
+    # A back-off's braking reaches the actuators' max acceleration within this (its jerk: that over
+    # this), where a planned move's jerk takes max_acceleration / max_jerk (20 ms on Cheope).
+    reaction_ramp_s: Annotated[float, rng(0.0001, 1.0)] = 0.002
 
 
 class SafetySection(Section, frozen=True):

@@ -88,6 +88,24 @@ TRAIL_POINTS = 24
 # A retrace heads for the last point of the trail where the force was at most this share of the
 # contact limit (30 N of 60), passing over those where it was higher (begin_retrace).
 RETRACE_FORCE_FRACTION = 0.5
+# A force rising fast goes on rising while the reaction takes effect: the back-off's first setpoint
+# reaches the carriages through the step's pipeline and the drives' interpolation, and they must
+# still brake what they were doing. A carriage jammed at lap speed (contour scan's laps, block:1 at
+# 35.0 s) drove the part's force from 10 to 63 N in 7 cycles; the guard tripped at 62.9 N and the
+# force went on for 5 cycles to 78.4 N. So where contact is sought or made the guard trips on the
+# force as it will be when a reaction can stop it: the sample's size and its rise over
+# ContactGuardConfig.reaction_s. That time is the reaction's, measured: tripped on the rise, with
+# the back-off braking within its ramp (ContactGuardConfig.reaction_ramp_s), the jams at 35.0 and
+# 35.2 s rose 27.2 N from 34.5 N at 4.4 N/ms and 31.7 N from 37.5 N at 5.1 N/ms, as a constant rise
+# for 6.2 ms: 7.5 ms (3 periods at 400 Hz) holds them. The rise is the slower of the last two steps
+# between trusted samples, so a single step (a sensor's offset jump, a spike, the samples of a
+# hold-up's end) does not count: only a force rising sample after sample. And the drives must feel it
+# rise too (their effort, each of its last two steps at least RISE_FELT_SHARE of the sensor's slower
+# step): a sensor's offset ramping 40 N in 10 ms read as a force rising 3.0 N/ms while the drives'
+# effort stood within 1 N of 12.5 N (the contour-stress row "offset step +40 N"); in the jam the
+# effort rose 3.5 and 8.1 N beside the sensor's 11 and 12.8.
+RISE_SAMPLES = 3
+RISE_FELT_SHARE = 0.25
 # The trail's points: x, y, z [m] of the measured TCP and the contact force judged there [N].
 Trail = tuple[tuple[float, float, float, float], ...]
 # The last samples of a force, an axis's each in a tuple of its own (oldest first): each median sorts
@@ -125,6 +143,8 @@ class ContactGuardConfig:
     back_off_speed_m_s: float = 0.02
     back_off_acceleration_m_s2: float = 0.5
     back_off_min_force_n: float = 2.0  # a trusted force weaker than this gives no direction: brake in place
+    # How long a reaction takes to stop a force's rise (RISE_SAMPLES): 0, the limit alone.
+    reaction_s: float = 0.0075
 
 
 @record
@@ -165,6 +185,9 @@ class ContactWatch:
     trail_m: Trail = ()  # the measured TCP's path and the force there, newest last (extend_trail)
     last_raw_n: Vector3 | None = None  # the last usable sample as it came (baseline in)
     same_samples: int = 0  # fresh samples in a row, pressing, equal to the one before to the last bit
+    # the last RISE_SAMPLES trusted samples' sizes where contact is sought or made, with their cycles,
+    # oldest first (rising_n_per_s); emptied in free space
+    rise: tuple[tuple[int, float], ...] = ()
 
 
 @record
@@ -256,6 +279,54 @@ def judged_force_n(
     f_witness -= tolerance_n(cfg, 0.0, witness, dynamic_n)
     bar = cfg.guarded_move_force_n if expectation == ContactExpectation.GUARDED else cfg.max_contact_force_n
     return max(f_sensor, f_witness if f_witness > bar else 0.0)
+
+
+def rising_n_per_s(rise: tuple[tuple[int, float], ...], period_s: float) -> float:
+    """How fast the force rises: the slower of the last two steps between samples (RISE_SAMPLES, their
+    cycles apart), 0 unless both rise."""
+    if len(rise) < RISE_SAMPLES:
+        return 0.0
+    (c0, f0), (c1, f1), (c2, f2) = rise[-3:]
+    return max(0.0, min((f1 - f0) / ((c1 - c0) * period_s), (f2 - f1) / ((c2 - c1) * period_s)))
+
+
+def _next_rise(
+    w: ContactWatch, fresh_n: Vector3 | None, trusted: bool, cycle: int
+) -> tuple[tuple[int, float], ...]:
+    """The watch's ``rise`` with this cycle's trusted fresh sample (``fresh_n``, baseline removed): emptied in
+    free space and while the sensor is not trusted, so that a rise counts only samples the guard believes."""
+    if w.expectation == ContactExpectation.NONE or not trusted:
+        return ()
+    if fresh_n is None:
+        return w.rise
+    return (*w.rise, (cycle, norm3(fresh_n)))[-RISE_SAMPLES:]
+
+
+def _rising_past(cfg: ContactGuardConfig, w: ContactWatch, cycle: int, period_s: float, limit: float) -> str:
+    """Why the force, rising sample after sample, will pass ``limit`` before a reaction begun now can
+    stop it (``ContactGuardConfig.reaction_s``); "" where it will not."""
+    rise = w.rise
+    if len(rise) < RISE_SAMPLES or rise[-1][0] != cycle:
+        return ""
+    rate = rising_n_per_s(rise, period_s)
+    ahead = rise[-1][1] + rate * cfg.reaction_s
+    if rate <= 0.0 or ahead <= limit or not _felt_rising(w.witness_window, RISE_FELT_SHARE * rate * period_s):
+        return ""
+    return (
+        f"contact force {rise[-1][1]:.1f} N {EXPECTATION_TEXT[w.expectation]} rising {rate / 1000.0:.1f} "
+        f"N/ms: {ahead:.1f} N before a reaction can stop it ({cfg.reaction_s * 1000.0:g} ms), above "
+        f"{limit:g} N ({_witnesses(w)})"
+    )
+
+
+def _felt_rising(window: AxisWindows, step_n: float) -> bool:
+    """Whether the drives' effort (its last raw witnesses, ``ContactWatch.witness_window``) rose at
+    least ``step_n`` at each of its last two steps."""
+    x, y, z = window
+    if len(x) < RISE_SAMPLES:
+        return False
+    a, b, c = (math.sqrt(x[i] * x[i] + y[i] * y[i] + z[i] * z[i]) for i in (-3, -2, -1))
+    return b - a >= step_n and c - b >= step_n
 
 
 def limit_n(cfg: ContactGuardConfig, expectation: ContactExpectation) -> float:
@@ -356,6 +427,7 @@ def watch(
         raw is not None or (not stale and sensor is not None and missing_cycles * period_s <= SENSOR_GAP_S)
     )
     force = judged_force_n(cfg, w.expectation, sensor, witness, dynamic, trusted)
+    rise = _next_rise(w, sensor if trusted and raw is not None else None, trusted, cycle)
     w = replace(
         w,
         baseline_n=baseline,
@@ -375,6 +447,7 @@ def watch(
         trail_m=extend_trail(w.trail_m, tcp_m, force),
         last_raw_n=last_raw,
         same_samples=same,
+        rise=rise,
     )
     limit = limit_n(cfg, w.expectation)
     if force > limit:
@@ -382,6 +455,9 @@ def watch(
             f"contact force {force:.1f} N {EXPECTATION_TEXT[w.expectation]}, above {limit:g} N "
             f"({_witnesses(w)})"
         )
+    rising = _rising_past(cfg, w, cycle, period_s, limit)
+    if rising:
+        return w, rising
     if frozen:
         return w, f"force sensor frozen: {w.suspect}"
     if w.suspect and (cycle - w.suspect_cycle) * period_s > cfg.sensor_suspect_s:

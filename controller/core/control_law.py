@@ -971,6 +971,7 @@ class ControlLaw:
                         tuple(float(x) for x in q),
                         qd,
                         REACTIVE_CORRECTION_PERIODS / period,
+                        reaction=True,
                     )
                     if result.ok:
                         return replace(state, setpoint=result.setpoint)
@@ -979,7 +980,7 @@ class ControlLaw:
                     events.append(Event("back_off", Severity.WARNING, f"back-off brakes: {why}"))
                 b = replace(b, braking=True)
                 state = replace(state, back_off=b)
-        state = self._smooth_to_rest(state, t, events)
+        state = self._smooth_to_rest(state, t, events, reaction=True)
         if state.mode != Mode.BACKING_OFF or any(
             abs(x) > self.config.settle_tolerance for x in state.setpoint.velocity
         ):
@@ -1022,8 +1023,10 @@ class ControlLaw:
         """
         return Setpoint.at_rest(state.setpoint.position) if state.drives_held else state.setpoint
 
-    def _smooth_to_rest(self, state: ControllerState, t: float, events: list[Event]) -> ControllerState:
-        result = self.smoother.brake(self._smoothing_start(state))
+    def _smooth_to_rest(
+        self, state: ControllerState, t: float, events: list[Event], reaction: bool = False
+    ) -> ControllerState:
+        result = self.smoother.brake(self._smoothing_start(state), reaction)
         if not result.ok:
             return replace(
                 self._enter(state, Mode.FAULT, t, events, Severity.FAULT, result.message),

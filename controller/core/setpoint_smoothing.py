@@ -37,6 +37,10 @@ class AxisLimits:
     max_velocity: tuple[float, ...]  # [unit/s]
     max_acceleration: tuple[float, ...]  # [unit/s^2]
     max_jerk: tuple[float, ...]  # [unit/s^3]
+    # A protective reaction's (a back-off's: ``reaction=True``), larger: a planned move's jerk takes
+    # max_acceleration / max_jerk (20 ms on Cheope) to reach full braking, all the while going on
+    # into whatever the reaction is for. Empty: max_jerk.
+    reaction_jerk: tuple[float, ...] = ()
 
 
 @record
@@ -95,6 +99,12 @@ class RuckigSmoother:
         self._brake.max_velocity = list(limits.max_velocity)
         self._brake.max_acceleration = list(limits.max_acceleration)
         self._brake.max_jerk = list(limits.max_jerk)
+        self._react = InputParameter(dofs)
+        self._react.control_interface = ControlInterface.Velocity
+        self._react.max_velocity = list(limits.max_velocity)
+        self._react.max_acceleration = list(limits.max_acceleration)
+        self._reaction_jerk = tuple(limits.reaction_jerk or limits.max_jerk)
+        self._react.max_jerk = list(self._reaction_jerk)
         self._zeros = [0.0] * dofs
         self._limits = limits
         # Targets keep a relative margin below v_max: a target exactly at the limit with a rounding
@@ -147,6 +157,7 @@ class RuckigSmoother:
         target_position: tuple[float, ...],
         target_velocity: tuple[float, ...],
         correction_per_s: float,
+        reaction: bool = False,
     ) -> SmoothingResult:
         """The setpoint one period later when following a reactive reference by its velocity.
 
@@ -156,10 +167,11 @@ class RuckigSmoother:
         then catch up) and the setpoints stall. Here Ruckig's velocity interface goes to
         v* = v_ref + correction_per_s (q_ref - q) within the limits: the position error
         decays with time constant 1 / correction_per_s (q is the setpoint extrapolated to the
-        reference's sample), and every setpoint keeps the velocity, acceleration and jerk limits.
+        reference's sample), and every setpoint keeps the velocity, acceleration and jerk limits
+        (``reaction``: a protective reaction's jerk, ``AxisLimits.reaction_jerk``).
         """
         lim = self._limits
-        inp = self._brake
+        inp = self._react if reaction else self._brake
         inp.current_position = current.position
         inp.current_velocity = current.velocity
         inp.current_acceleration = current.acceleration
@@ -173,7 +185,7 @@ class RuckigSmoother:
             current.acceleration,
             lim.max_velocity,
             lim.max_acceleration,
-            lim.max_jerk,
+            self._reaction_jerk if reaction else lim.max_jerk,
         ):
             # The reference is for the sample one period ahead: compare it with where the setpoint
             # would be then, or the setpoint settles a period's travel ahead of its reference.
@@ -190,9 +202,10 @@ class RuckigSmoother:
         inp.target_acceleration = self._zeros
         return self._calculate(inp, current)
 
-    def brake(self, current: Setpoint) -> SmoothingResult:
-        """The setpoint one period later on the fastest jerk-limited way to zero velocity."""
-        inp = self._brake
+    def brake(self, current: Setpoint, reaction: bool = False) -> SmoothingResult:
+        """The setpoint one period later on the fastest jerk-limited way to zero velocity (``reaction``:
+        with a protective reaction's jerk)."""
+        inp = self._react if reaction else self._brake
         inp.current_position = current.position
         inp.current_velocity = current.velocity
         inp.current_acceleration = current.acceleration

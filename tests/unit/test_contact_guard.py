@@ -229,6 +229,69 @@ def test_a_force_where_no_contact_is_expected_trips_the_guard_and_names_both_wit
     assert not cause
 
 
+def _fed(cfg: ContactGuardConfig, expectation: ContactExpectation, samples) -> list[str]:
+    """The guard's causes for the samples (cycle, force along x), the drives' effort agreeing."""
+    w = ContactWatch(expectation=expectation, baseline_set=True)
+    causes = []
+    for cycle, fx in samples:
+        w, cause = watch(
+            cfg, w, _inputs((fx, 0.0, 0.0)), False, Witness((fx, 0.0, 0.0), 0.0), False, cycle, DT
+        )
+        causes.append(cause)
+    return causes
+
+
+def test_a_force_rising_sample_after_sample_trips_the_guard_before_it_reaches_the_limit():
+    """A carriage jammed at lap speed drove the part's force from 10 to 63 N in 7 cycles; tripped at
+    the limit, the force went on to 78.4 N. Rising 10 N a cycle (4 N/ms), 38 N is 68 N when a
+    reaction (reaction_s, 7.5 ms) can stop it; 28 N is 58 N: the guard trips on the 38-N sample."""
+    ramp = [(0, 8.0), (1, 8.05), (2, 7.98), (3, 18.0), (4, 28.0), (5, 38.0), (6, 48.0)]
+    causes = _fed(CFG, ContactExpectation.PRESSING, ramp)
+    assert causes[:5] == [""] * 5
+    assert "contact force 38.0 N in contact rising 4.0 N/ms: 68.0 N" in causes[5], causes[5]
+    assert "(7.5 ms), above 60 N" in causes[5]
+    # the same in a guarded move, against its own limit (25 N): 18 N is not judged (the step before
+    # it did not rise), 28 N is past it already, and a slower rise trips below it
+    guarded = _fed(CFG, ContactExpectation.GUARDED, ramp)
+    assert not guarded[3] and "28.0 N in a guarded move, above 25 N" in guarded[4]
+    slow = [(0, 5.0), (1, 10.0), (2, 15.0), (3, 20.0)]  # 2 N/ms: 15 N is 30 N
+    assert (
+        "15.0 N in a guarded move rising 2.0 N/ms: 30.0 N" in _fed(CFG, ContactExpectation.GUARDED, slow)[2]
+    )
+    # without the reaction's time, the limit alone
+    assert not any(_fed(replace(CFG, reaction_s=0.0), ContactExpectation.PRESSING, ramp))
+
+
+def test_a_single_step_of_the_sensor_is_no_rise_only_samples_rising_one_after_another():
+    """A sensor's offset jumping 35 N (or a spike, or the first sample after a hold-up) is one step: the
+    slower of the last two steps is the rise. A frame that went missing spreads the step over its
+    cycles."""
+    step = [(0, 10.0), (1, 10.02), (2, 45.0), (3, 45.03), (4, 44.98), (5, 45.01)]
+    assert not any(_fed(CFG, ContactExpectation.PRESSING, step))
+    # 20, 30, then 50 two cycles later (a frame missing): 4 N/ms, not 8
+    gap = [(0, 20.0), (1, 30.0), (3, 50.0)]
+    assert "rising 4.0 N/ms" in _fed(CFG, ContactExpectation.PRESSING, gap)[2]
+
+
+def test_a_rise_the_drives_do_not_feel_is_the_sensors_own():
+    """A sensor's offset ramping 40 N in 10 ms rose 10 N a sample while the drives' effort stood at
+    12.5 N (the contour-stress row "offset step +40 N"): no trip before the limit itself."""
+    w = ContactWatch(expectation=ContactExpectation.PRESSING, baseline_set=True)
+    causes = []
+    for cycle, fx in enumerate((12.0, 12.02, 11.98, 22.0, 32.0, 42.0, 52.0, 52.01)):
+        effort = Witness((12.5 + 0.3 * (cycle % 2), 0.0, 0.0), 0.0)  # the cogging's ripple, no more
+        w, cause = watch(CFG, w, _inputs((fx, 0.0, 0.0)), False, effort, False, cycle, DT)
+        causes.append(cause)
+    assert not any(causes), causes
+
+
+def test_a_force_rising_in_free_space_is_judged_by_the_free_space_limit_alone():
+    """In free space the robot moves fast and the sensor feels the tool's own acceleration: the rise is
+    not judged there (and a collision's force is past the free-space limit at once)."""
+    rising = [(k, 2.0 * k) for k in range(5)]  # up to 8 N, rising 0.8 N/ms
+    assert not any(_fed(CFG, ContactExpectation.NONE, rising))
+
+
 def test_a_missing_sensor_frame_leaves_the_last_sample_in_charge_for_a_while_in_free_space():
     """Over a bus a hold-up loses a few frames while the drives' efforts jolt (a path run at 1 kHz read
     93.6 N of effort with nothing touching): a missing frame is no collision. A sensor silent longer

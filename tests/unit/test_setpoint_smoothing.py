@@ -65,3 +65,45 @@ def test_stoppable_speed_inverts_the_braking_distance(speed: float) -> None:
         distance = speed * speed / (2 * a) + speed * a / (2 * j)  # with a plateau at a
     assert stoppable_speed(distance, a, j) == pytest.approx(speed, rel=1e-9)
     assert stoppable_speed(0.0, a, j) == 0.0
+
+
+REACTION = AxisLimits((1.0,), (10.0,), (500.0,), (5000.0,))  # the shipped reaction_ramp_s, 2 ms
+
+
+def _brake_cycles(reaction: bool, speed_m_s: float) -> tuple[int, float, list[Setpoint]]:
+    smoother = RuckigSmoother(REACTION, PERIOD_S)
+    trace = [Setpoint((0.0,), (speed_m_s,), (0.0,))]
+    while abs(trace[-1].velocity[0]) > 1e-9 or abs(trace[-1].acceleration[0]) > 1e-9:
+        result = smoother.brake(trace[-1], reaction)
+        assert result.ok, result.message
+        trace.append(result.setpoint)
+        assert len(trace) < 100
+    return len(trace) - 1, trace[-1].position[0], trace
+
+
+def test_a_reaction_brakes_at_full_acceleration_within_its_ramp_where_a_planned_stop_takes_its_jerk():
+    """A carriage going on at 96 mm/s while another was jammed pressed the part 16 ms after the guard
+    tripped, braking at the planned moves' jerk (20 ms to full deceleration). A reaction ramps to the
+    same acceleration limit in 2 ms: its stop takes v / a + a / j, not 2 sqrt(v / j)."""
+    planned, planned_m, _ = _brake_cycles(False, 0.096)
+    reacting, reacting_m, trace = _brake_cycles(True, 0.096)
+    assert planned * PERIOD_S >= 2.0 * math.sqrt(0.096 / 500.0) - PERIOD_S  # 27.7 ms
+    assert reacting * PERIOD_S <= 0.096 / 10.0 + 10.0 / 5000.0 + PERIOD_S  # 11.6 ms
+    assert reacting_m < 0.6 * planned_m
+    for a, b in itertools.pairwise(trace):  # within the acceleration limit and the reaction's jerk
+        assert abs(b.acceleration[0]) <= 10.0 + 1e-9
+        assert abs(b.acceleration[0] - a.acceleration[0]) <= 5000.0 * PERIOD_S + 1e-9
+
+
+@pytest.mark.parametrize("velocity_m_s", [0.02, 0.096, 0.5, -0.3])
+def test_a_reactions_tracking_settles_on_its_reference_without_a_growing_oscillation(
+    velocity_m_s: float,
+) -> None:
+    smoother = RuckigSmoother(REACTION, PERIOD_S)
+    trace = [Setpoint((0.002,), (velocity_m_s,), (0.0,))]
+    for _ in range(1200):
+        result = smoother.track_velocity(trace[-1], (0.0,), (0.0,), CORRECTION_PER_S, reaction=True)
+        assert result.ok, result.message
+        trace.append(result.setpoint)
+    assert max(abs(s.position[0]) for s in trace[600:]) < 1e-6
+    assert abs(trace[-1].velocity[0]) < 1e-6
