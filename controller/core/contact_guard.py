@@ -88,6 +88,12 @@ TRAIL_POINTS = 24
 # A retrace heads for the last point of the trail where the force was at most this share of the
 # contact limit (30 N of 60), passing over those where it was higher (begin_retrace).
 RETRACE_FORCE_FRACTION = 0.5
+# A straight back-off whose force, having fallen, rises again 10 N past the least it fell to and past
+# this share of the contact limit (15 N of 60) has met another wall, and retraces
+# (control_law._guard_contact). At half the limit, a 1-mm ball wedged in a 2-mm slot turned at 46 N
+# and went on to 81.8 N, a back-off steered by a frozen sensor at 38.8 N and 66.4 N; at a quarter
+# 67.3 and 52.7 N (outside testers' scenarios, simulated time).
+ANOTHER_WALL_FRACTION = 0.25
 # A force rising fast goes on rising while the reaction takes effect: the back-off's first setpoint
 # reaches the carriages through the step's pipeline and the drives' interpolation, and they must
 # still brake what they were doing. A carriage jammed at lap speed (contour scan's laps, block:1 at
@@ -317,6 +323,31 @@ def _rising_past(cfg: ContactGuardConfig, w: ContactWatch, cycle: int, period_s:
         f"N/ms: {ahead:.1f} N before a reaction can stop it ({cfg.reaction_s * 1000.0:g} ms), above "
         f"{limit:g} N ({_witnesses(w)})"
     )
+
+
+def effort_floor_n(window: AxisWindows) -> float:
+    """The least of the drives' effort's last RISE_SAMPLES raw sizes (``ContactWatch.witness_window``):
+    a force it has held that long, as fast as the samples come. A late SYNC's jolt of the efforts
+    lasts one cycle or a few over a bus; the witness's median, which rides those out, lags a force
+    that rises by half its window."""
+    x, y, z = window
+    if len(x) < RISE_SAMPLES:
+        return 0.0
+    return min(math.sqrt(x[i] * x[i] + y[i] * y[i] + z[i] * z[i]) for i in range(-RISE_SAMPLES, 0))
+
+
+def back_off_met_n(w: ContactWatch, effort_only: bool) -> float:
+    """The force a back-off meets, judged as fast as the samples come: the sensor's last sample
+    (baseline removed) and the drives' effort's floor (``effort_floor_n``), the larger; the effort's
+    alone where the sensor is suspect or the back-off was steered against it. Not the judged force
+    of ``watch``: the effort's median in it lags by half its window both ways, and a back-off met the
+    other wall of a slot at 14 N a 5 ms, the median at 3.3 N where the efforts read 63.7 (a frozen
+    sensor's, 139.6 N true); or it had not yet seen the first contact let go when the ball, wedged
+    in a slot, met the other wall (the median at 44.8 N, the sensor at 6.4: 90.0 N true)."""
+    floor = effort_floor_n(w.witness_window)
+    if effort_only or w.sensor_n is None:
+        return floor
+    return max(norm3(w.sensor_n), floor)
 
 
 def _felt_rising(window: AxisWindows, step_n: float) -> bool:

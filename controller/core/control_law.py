@@ -47,10 +47,11 @@ from controller.core.cia402 import (
     decode_statusword,
 )
 from controller.core.contact_guard import (
-    RETRACE_FORCE_FRACTION,
+    ANOTHER_WALL_FRACTION,
     BackOff,
     Witness,
     advance_back_off,
+    back_off_met_n,
     back_off_summary,
     begin_back_off,
     begin_retrace,
@@ -858,22 +859,29 @@ class ControlLaw:
             # say the back-off met more: only the drives' effort does (a -75 N phantom along the
             # normal read as 74.9 N met, and the retrace went back into the part, 33 N true, where
             # the back-off was leaving it).
-            met_n = w.force_n
-            if b.sensor_overruled:
-                met_n = norm3(w.witness.force_n) if w.witness is not None else 0.0
+            effort_only = b.sensor_overruled or bool(w.suspect)
+            met_n = back_off_met_n(w, effort_only)
             least = min(b.least_force_n, met_n)
             if least < b.least_force_n:
                 state = replace(state, back_off=replace(b, least_force_n=least))
-            if b.cycles > BACK_OFF_GRACE_CYCLES and (
+            # The grace covers the momentum the back-off inherits, while the force has not yet fallen;
+            # once it fell it was the back-off's doing, and a rise from there is another wall (a 1-mm
+            # ball wedged in a 2-mm slot fell from 59.8 to 8.8 N within 30 ms, then rose into the other
+            # wall, judged only at the grace's end at 60 N: 98.3 N true). Not where the effort judges
+            # alone: the start it fell from was the overruled sensor's (a -75 N spike), and the
+            # structure rings for the grace after the back-off's brake (its efforts at 30-75 N with
+            # nothing touching).
+            left = not effort_only and least < b.entry_force_n - BACK_OFF_WORSE_N
+            if (b.cycles > BACK_OFF_GRACE_CYCLES or left) and (
                 met_n > max(b.entry_force_n, cfg.max_contact_force_n) + BACK_OFF_WORSE_N
-                # ... or rising again from where it had fallen to, past half the limit: another wall
+                # ... or rising again from where it had fallen to, past a quarter of the limit: another wall
                 # met (a 2-mm slot's other one: caught at 76.9 N above its start, the tool carried on to
                 # 123.6 N true); a straight back-off's only: a retrace heads for where the force was
                 # calm, not gone
                 or (
                     not b.path_m
                     and met_n > least + BACK_OFF_WORSE_N
-                    and met_n > RETRACE_FORCE_FRACTION * cfg.max_contact_force_n
+                    and met_n > ANOTHER_WALL_FRACTION * cfg.max_contact_force_n
                 )
             ):
                 return self._met_more_force(state, b, met_n, t, events)

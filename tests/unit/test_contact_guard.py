@@ -25,9 +25,11 @@ from controller.core.contact_guard import (
     ContactWatch,
     Witness,
     advance_back_off,
+    back_off_met_n,
     back_off_summary,
     begin_back_off,
     begin_retrace,
+    effort_floor_n,
     extend_trail,
     judged_force_n,
     median_cycles,
@@ -283,6 +285,28 @@ def test_a_rise_the_drives_do_not_feel_is_the_sensors_own():
         w, cause = watch(CFG, w, _inputs((fx, 0.0, 0.0)), False, effort, False, cycle, DT)
         causes.append(cause)
     assert not any(causes), causes
+
+
+def test_the_efforts_floor_is_a_force_held_three_samples_not_one_jolt():
+    """A back-off judged by the drives alone reads the least of their last three samples: a late
+    SYNC's jolt of one sample is not there, a wall met is, two samples after it is felt."""
+    jolt: tuple[tuple[float, ...], ...] = ((5.0, 155.0, 5.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    assert effort_floor_n(jolt) == pytest.approx(5.0)
+    wall = ((9.0, 30.0, 40.0, 55.0), (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))
+    assert effort_floor_n(wall) == pytest.approx(30.0)
+    assert effort_floor_n(((1.0, 2.0), (0.0, 0.0), (0.0, 0.0))) == 0.0  # not yet three samples
+
+
+def test_a_back_off_meets_the_sensors_sample_or_the_efforts_floor_never_their_lagging_medians():
+    """What a back-off meets: the larger of the sensor's last sample and the efforts' floor; the
+    floor alone when the sensor is suspect or was overruled. Not the medians, which still held the
+    first wall's 44.8 N when the sensor read 6.4 N on the way to the other one."""
+    window = ((40.0, 45.0, 50.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    w = ContactWatch(sensor_n=(0.0, 6.4, 0.0), witness=Witness((44.8, 0.0, 0.0), 0.0), witness_window=window)
+    assert back_off_met_n(w, effort_only=False) == pytest.approx(40.0)
+    quiet = replace(w, witness_window=((1.0, 2.0, 3.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)))
+    assert back_off_met_n(quiet, effort_only=False) == pytest.approx(6.4)
+    assert back_off_met_n(quiet, effort_only=True) == pytest.approx(1.0)
 
 
 def test_a_force_rising_in_free_space_is_judged_by_the_free_space_limit_alone():

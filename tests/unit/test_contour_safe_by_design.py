@@ -75,6 +75,49 @@ def test_a_carriage_jammed_at_lap_speed_is_backed_off_from_as_the_force_rises_no
 
 
 @pytest.mark.slow
+def test_a_back_off_judged_by_the_drives_alone_turns_at_another_wall_before_their_median_would():
+    """The point probe in a 2 mm x 10 mm slot at 180 degrees, the sensor stuck as the re-tare's way
+    out meets the far wall (an outside tester's): the frozen sensor is backed off from along the
+    contact's last normal, across the slot into the other wall. Judged by the efforts' median
+    (47.5 ms) the back-off went on to 139.6 N true; judged by the least of their last three samples
+    it retraces the way in (52.7 N true at most), and the tool ends free of the walls."""
+    row = _run(
+        ContourScenario(
+            "slot180 stuck",
+            ("stuck@18.80",),
+            features=({"angle_deg": 180.0, "length_m": 0.002, "depth_m": 0.01},),
+        ),
+        scan=True,
+    )
+    assert row["outcome"] == "backed off", row["cause"]
+    assert "frozen" in str(row["cause"]) and "retraced" in str(row["cause"])
+    assert row["max_true_contact_force_n"] < 1.25 * LIMIT_N
+    assert row["final_true_contact_force_n"] < 0.5 * LIMIT_N
+
+
+@pytest.mark.slow
+def test_a_ball_wedged_in_a_slot_as_wide_as_itself_turns_back_at_the_other_wall():
+    """A 1-mm ball in a 2-mm slot, no fault at all (an outside tester's): the ball wedges, the force
+    creeps to the limit, and the back-off along the net force crosses to the other wall. Judged
+    after a fixed grace by a force that still held the first wall's median, it went on to 98.3 N
+    (112.9 N tripped at the limit itself); judged as it comes, once the force fell, it retraces at
+    the other wall's first newtons (67.3 N true at most) and ends free."""
+    row = _run(
+        ContourScenario(
+            "ball in a slot",
+            overrides=(
+                ("sim.workpiece.tool_radius_m", 0.001),
+                ("sim.workpiece.features", [{"angle_deg": 90.0, "length_m": 0.002, "depth_m": 0.01}]),
+            ),
+        )
+    )
+    assert row["outcome"] == "backed off", row["cause"]
+    assert "retraced" in str(row["cause"])
+    assert row["max_true_contact_force_n"] < 1.25 * LIMIT_N
+    assert row["final_true_contact_force_n"] < 0.5 * LIMIT_N
+
+
+@pytest.mark.slow
 def test_a_short_steep_bump_is_ridden_over_under_the_limit():
     """Issue item 2 (64.7 N before): met at the exploring speed in lap 1, slowly from then on."""
     row = _run(ContourScenario("bump", features=({"angle_deg": 45.0, "length_m": 0.005, "depth_m": -0.002},)))
