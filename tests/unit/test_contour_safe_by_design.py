@@ -50,9 +50,9 @@ def test_a_slots_other_wall_met_on_the_way_out_of_a_contact_is_felt_and_the_tare
 def test_a_carriage_jammed_and_let_go_mid_back_off_is_not_left_pressed():
     """Jammed 50 ms at the lap speed of 97 mm/s, let go while the back-off ran: 178 N, and the quick
     stop left the tool at 112 N (an outside tester's). The retrace headed for where the force was
-    last calm, before the jam (224 N at most, left at 10.8 N); since the back-off brakes at the
-    reaction's jerk (safety.contact.reaction_ramp_s) it no longer meets more force on its way (197 N
-    at most: the force rises 55 N a cycle, past the limit in two samples), and ends free."""
+    last calm, before the jam: 224 N at most, left at 10.8 N; 197 N since the back-off brakes at the
+    reaction's jerk (safety.contact.reaction_ramp_s): the force rises 55 N a cycle, past the limit
+    in two samples."""
     row = _run(
         ContourScenario("jam", ("block:1@30+0.05",)),
         **{"task.contour.lap_speeds_m_s": [0.02, 0.097, 0.097]},
