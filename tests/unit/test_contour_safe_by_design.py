@@ -118,6 +118,21 @@ def test_a_ball_wedged_in_a_slot_as_wide_as_itself_turns_back_at_the_other_wall(
 
 
 @pytest.mark.slow
+def test_a_carriage_jammed_off_the_part_is_a_following_error_before_it_is_let_go_into_it():
+    """At 80 mm/s a 50-ms jam of carriage 3 takes the tool off the part while the carriage's
+    reference runs 4.8 mm ahead; let go, the carriage raced after it and drove the tool back into the
+    part at 221.4 N, under the 10-mm following window of before (an outside tester's). The 3-mm
+    window makes the jam a following error: the quick stop comes before the let-go."""
+    row = _run(
+        ContourScenario("jam off the part", ("block:3@30+0.05",)),
+        **{"task.contour.lap_speeds_m_s": [0.02, 0.08, 0.08]},
+    )
+    assert row["outcome"] not in ("DONE", "backed off"), row["cause"]
+    assert "drive 3 following error" in str(row["cause"])
+    assert row["max_true_contact_force_n"] < 0.5 * LIMIT_N
+
+
+@pytest.mark.slow
 def test_a_short_steep_bump_is_ridden_over_under_the_limit():
     """Issue item 2 (64.7 N before): met at the exploring speed in lap 1, slowly from then on."""
     row = _run(ContourScenario("bump", features=({"angle_deg": 45.0, "length_m": 0.005, "depth_m": -0.002},)))
