@@ -325,15 +325,21 @@ def _rising_past(cfg: ContactGuardConfig, w: ContactWatch, cycle: int, period_s:
     )
 
 
+def _last_sizes(window: AxisWindows) -> tuple[float, ...]:
+    """The sizes of the last RISE_SAMPLES samples of ``window`` (oldest first); () with fewer."""
+    x, y, z = window
+    if len(x) < RISE_SAMPLES:
+        return ()
+    return tuple(math.sqrt(x[i] * x[i] + y[i] * y[i] + z[i] * z[i]) for i in range(-RISE_SAMPLES, 0))
+
+
 def effort_floor_n(window: AxisWindows) -> float:
     """The least of the drives' effort's last RISE_SAMPLES raw sizes (``ContactWatch.witness_window``):
     a force it has held that long, as fast as the samples come. A late SYNC's jolt of the efforts
     lasts one cycle or a few over a bus; the witness's median, which rides those out, lags a force
     that rises by half its window."""
-    x, y, z = window
-    if len(x) < RISE_SAMPLES:
-        return 0.0
-    return min(math.sqrt(x[i] * x[i] + y[i] * y[i] + z[i] * z[i]) for i in range(-RISE_SAMPLES, 0))
+    sizes = _last_sizes(window)
+    return min(sizes) if sizes else 0.0
 
 
 def back_off_met_n(w: ContactWatch, effort_only: bool) -> float:
@@ -353,11 +359,8 @@ def back_off_met_n(w: ContactWatch, effort_only: bool) -> float:
 def _felt_rising(window: AxisWindows, step_n: float) -> bool:
     """Whether the drives' effort (its last raw witnesses, ``ContactWatch.witness_window``) rose at
     least ``step_n`` at each of its last two steps."""
-    x, y, z = window
-    if len(x) < RISE_SAMPLES:
-        return False
-    a, b, c = (math.sqrt(x[i] * x[i] + y[i] * y[i] + z[i] * z[i]) for i in (-3, -2, -1))
-    return b - a >= step_n and c - b >= step_n
+    sizes = _last_sizes(window)
+    return bool(sizes) and sizes[1] - sizes[0] >= step_n and sizes[2] - sizes[1] >= step_n
 
 
 def limit_n(cfg: ContactGuardConfig, expectation: ContactExpectation) -> float:
