@@ -250,7 +250,7 @@ class SafetySection(Section, frozen=True):
     max_position_jump_rad: Annotated[float, rng(0.0, 100.0, lo_open=True)] = 0.05
     # 3 mm: the contour demos over the bus measured at most 0.71 mm off the expected position (3 runs,
     # 2026-12-06); a carriage jammed 50 ms at 80 mm/s built 4.8 mm, under 10 mm, and once let go it
-    # drove the tool back into the part at 221.4 N (an outside tester's jam, caught at 3 mm: 13.1 N).
+    # drove the tool back into the part at 221.4 N (block:3@30+0.05 at 80-mm/s laps; at 3 mm: 13.1 N).
     following_window_m: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.003
     following_window_rad: Annotated[float, rng(0.0, 100.0, lo_open=True)] = 0.1
     # The whole bus (drivers/cyclic_exchange.py): frames nobody configured should send.

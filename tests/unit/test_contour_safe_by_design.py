@@ -121,7 +121,7 @@ def test_a_ball_wedged_in_a_slot_as_wide_as_itself_turns_back_at_the_other_wall(
 def test_a_carriage_jammed_off_the_part_is_a_following_error_before_it_is_let_go_into_it():
     """At 80 mm/s a 50-ms jam of carriage 3 takes the tool off the part while the carriage's
     reference runs 4.8 mm ahead; let go, the carriage raced after it and drove the tool back into the
-    part at 221.4 N, under the 10-mm following window of before (an outside tester's). The 3-mm
+    part at 221.4 N, under the 10-mm following window of before. The 3-mm
     window makes the jam a following error: the quick stop comes before the let-go."""
     row = _run(
         ContourScenario("jam off the part", ("block:3@30+0.05",)),
