@@ -330,7 +330,7 @@ def _last_sizes(window: AxisWindows) -> tuple[float, ...]:
     x, y, z = window
     if len(x) < RISE_SAMPLES:
         return ()
-    return tuple(math.sqrt(x[i] * x[i] + y[i] * y[i] + z[i] * z[i]) for i in range(-RISE_SAMPLES, 0))
+    return tuple(norm3((x[i], y[i], z[i])) for i in range(-RISE_SAMPLES, 0))
 
 
 def effort_floor_n(window: AxisWindows) -> float:
@@ -461,7 +461,7 @@ def watch(
         raw is not None or (not stale and sensor is not None and missing_cycles * period_s <= SENSOR_GAP_S)
     )
     force = judged_force_n(cfg, w.expectation, sensor, witness, dynamic, trusted)
-    rise = _next_rise(w, sensor if trusted and raw is not None else None, trusted, cycle)
+    rise = _next_rise(w, sensor if raw is not None else None, trusted, cycle)
     w = replace(
         w,
         baseline_n=baseline,

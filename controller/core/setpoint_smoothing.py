@@ -83,28 +83,30 @@ def stoppable_speed(distance: float, max_acceleration: float, max_jerk: float) -
     return -a * a / (2.0 * j) + math.sqrt(a**4 / (4.0 * j * j) + 2.0 * a * distance)
 
 
+def _input(limits: AxisLimits, max_jerk: tuple[float, ...], velocity: bool) -> InputParameter:
+    """Ruckig's scratch input within ``limits`` and ``max_jerk``, in the velocity interface or the
+    position one."""
+    inp = InputParameter(len(limits.max_velocity))
+    if velocity:
+        inp.control_interface = ControlInterface.Velocity
+    inp.max_velocity = list(limits.max_velocity)
+    inp.max_acceleration = list(limits.max_acceleration)
+    inp.max_jerk = list(max_jerk)
+    return inp
+
+
 class RuckigSmoother:
     def __init__(self, limits: AxisLimits, period_s: float) -> None:
         dofs = len(limits.max_velocity)
         self._period_s = period_s
         self._otg = Ruckig(dofs)
-        self._inp = InputParameter(dofs)
         self._traj = Trajectory(dofs)
-        self._inp.max_velocity = list(limits.max_velocity)
-        self._inp.max_acceleration = list(limits.max_acceleration)
-        self._inp.max_jerk = list(limits.max_jerk)
-        # The velocity interface: braking (come to rest wherever that happens) and reactive tracking.
-        self._brake = InputParameter(dofs)
-        self._brake.control_interface = ControlInterface.Velocity
-        self._brake.max_velocity = list(limits.max_velocity)
-        self._brake.max_acceleration = list(limits.max_acceleration)
-        self._brake.max_jerk = list(limits.max_jerk)
-        self._react = InputParameter(dofs)
-        self._react.control_interface = ControlInterface.Velocity
-        self._react.max_velocity = list(limits.max_velocity)
-        self._react.max_acceleration = list(limits.max_acceleration)
+        self._inp = _input(limits, limits.max_jerk, velocity=False)
+        # The velocity interface: braking (come to rest wherever that happens) and reactive tracking,
+        # at the planned moves' jerk and at a protective reaction's.
+        self._brake = _input(limits, limits.max_jerk, velocity=True)
         self._reaction_jerk = tuple(limits.reaction_jerk or limits.max_jerk)
-        self._react.max_jerk = list(self._reaction_jerk)
+        self._react = _input(limits, self._reaction_jerk, velocity=True)
         self._zeros = [0.0] * dofs
         self._limits = limits
         # Targets keep a relative margin below v_max: a target exactly at the limit with a rounding
