@@ -136,7 +136,9 @@ class DriveParams:
 # Object 0x2010 (manufacturer-specific, UNSIGNED8): how many interpolation periods past the end of
 # its segment the reference runs on blind (drivers/eds/cheope_drive.eds).
 EXTRAPOLATION_PERIODS_INDEX = 0x2010
-MAX_EXTRAPOLATION_PERIODS = 10  # more is refused: 25 ms of blind motion at 400 Hz
+# More is refused: 62.5 ms of blind motion at 400 Hz, 25 ms at 1 kHz. Real drives bound it likewise, in
+# periods (Lenze 9400's accepted telegram failures) or in time (Stober's maximum extrapolation time).
+MAX_EXTRAPOLATION_PERIODS = 25
 
 
 @dataclass

@@ -331,22 +331,22 @@ def test_set_up_writes_the_drives_following_error_window_and_time_and_reads_them
 
 
 def test_set_up_writes_the_drives_extrapolation_periods_and_reads_them_back(buses):
-    cfg = load_config()  # actuators.extrapolation_s = 0.01: 4 periods at 400 Hz
+    cfg = load_config()  # actuators.extrapolation_s = 0.02: 8 periods at 400 Hz
     sim_bus, bus = buses
     with Simulator(cfg, sim_bus) as sim:
         assert all(d.extrapolation_periods == 1 for d in sim.drives)  # the drive's own at power-on
         configure_nodes(bus, _setup_plan(cfg))
         for node_id, d in zip(cfg.actuators.node_ids, sim.drives, strict=True):
-            assert sim.nodes[node_id].sdo[0x2010].raw == 4
-            assert d.extrapolation_periods == 4
+            assert sim.nodes[node_id].sdo[0x2010].raw == 8
+            assert d.extrapolation_periods == 8
 
 
 def test_extrapolation_a_drive_cannot_take_stops_the_start_naming_node_object_and_key(buses):
     sim_bus, bus = buses
-    too_long = load_config(overrides={"actuators.extrapolation_s": 0.03})  # 12 periods: the drive allows 10
+    too_long = load_config(overrides={"actuators.extrapolation_s": 0.07})  # 28 periods: the drive allows 25
     with Simulator(too_long, sim_bus), pytest.raises(NodeSetupError) as err:
         configure_nodes(bus, _setup_plan(too_long))
-    assert "node 1: writing 0x2010sub0 = 0xC refused" in str(err.value)
+    assert "node 1: writing 0x2010sub0 = 0x1C refused" in str(err.value)
     assert "lower actuators.extrapolation_s" in str(err.value)
 
 
@@ -358,8 +358,8 @@ def test_a_drive_without_0x2010_is_refused_unless_told_it_runs_on_one_period():
         LoopbackExchange(load_config(overrides=told), lambda: 0.0)
     LoopbackExchange(load_config(overrides=VENDOR), lambda: 0.0)  # one period: what it is taken to do
     # the in-process simulator refuses what the drive over the bus refuses, with the same hint
-    with pytest.raises(NodeSetupError, match=r"0x2010sub0 = 0xC refused.*lower actuators.extrapolation_s"):
-        LoopbackExchange(load_config(overrides={"actuators.extrapolation_s": 0.03}), lambda: 0.0)
+    with pytest.raises(NodeSetupError, match=r"0x2010sub0 = 0x1C refused.*lower actuators.extrapolation_s"):
+        LoopbackExchange(load_config(overrides={"actuators.extrapolation_s": 0.07}), lambda: 0.0)
 
 
 def test_a_drive_beyond_its_following_error_window_for_its_time_faults_with_emcy_8611():

@@ -27,6 +27,7 @@ from sim_backend.drive import (
     EMCY_POSITION_RANGE,
     EMCY_SYNC_LOST,
     EMCY_SYNC_PERIOD,
+    MAX_EXTRAPOLATION_PERIODS,
     SimulatedDrive,
 )
 from sim_backend.force_sensor import SensorParams, SimulatedForceSensor
@@ -343,7 +344,7 @@ def test_object_0x2010_sets_how_many_periods_the_reference_runs_on_blind(periods
     d.on_rpdo(CW_ENABLE_OPERATION, round((target + (periods + 1) * step) * COUNTS))
     d.on_sync(t2)
     assert d._reference(t2) == pytest.approx(target + periods * step, abs=1e-12)
-    assert not d.write_object(0x2010, 0, 11)  # more than the drive allows: refused (SDO abort)
+    assert not d.write_object(0x2010, 0, MAX_EXTRAPOLATION_PERIODS + 1)  # more than the drive allows: refused
     assert d.extrapolation_periods == periods
 
 

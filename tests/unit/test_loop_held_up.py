@@ -37,6 +37,12 @@ def _stalls(start_s: float, end_s: float, period_s: float) -> list[str]:
     return out
 
 
+# Drives that run on 10 ms (4 periods at 400 Hz; the default was that until 2026-12-06, now 20 ms):
+# the tests of what happens past the extrapolation need hold-ups longer than it, of the lengths
+# measured over the bus.
+E4 = {"actuators.extrapolation_s": 0.01}
+
+
 class Inputs:
     def __init__(self) -> None:
         self.rows: list[tuple[int, bool]] = []
@@ -227,7 +233,9 @@ def test_after_a_hold_up_past_the_extrapolation_the_setpoint_first_goes_where_th
     the setpoint through those 3 periods at its speed, then restarts from rest there (a restart at
     every blind period left it where the hold-up began: 0.64 N in lap 3 against 0.53)."""
     base = load_config(overrides={"task.kind": "contour"})
-    cfg = load_config(overrides={"task.kind": "contour", "sim.faults": [f"stall=0.016@42.6+{base.period_s}"]})
+    cfg = load_config(
+        overrides={"task.kind": "contour", "sim.faults": [f"stall=0.016@42.6+{base.period_s}"], **E4}
+    )
     seen = Setpoints()
     SimulatedRig(cfg).run((seen,), 42.7)
     i = next(k for k, r in enumerate(seen.rows) if r[3])
@@ -388,7 +396,7 @@ def test_hold_ups_in_the_send_back_to_back_stand_in_from_the_last_targets_of_the
     runs = {}
     for kind in ("send_stall", "stall"):
         rig = SimulatedRig(
-            load_config(overrides={"task.kind": "contour", "sim.faults": [f"{kind}=0.003@37.11+0.03"]})
+            load_config(overrides={"task.kind": "contour", "sim.faults": [f"{kind}=0.003@37.11+0.03"], **E4})
         )
         force = TrueForceRange(rig, 37.1, 37.5)
         final, stats = rig.run((force,), 37.5)
@@ -530,7 +538,8 @@ def test_a_hold_up_right_after_a_hold_up_costs_what_one_as_long_costs():
         "one": ["stall=0.0134@42.6+0.0025"],
     }.items():
         seen = ForceError(42.6, 42.8)
-        SimulatedRig(load_config(overrides={"task.kind": "contour", "sim.faults": faults})).run((seen,), 42.8)
+        cfg = load_config(overrides={"task.kind": "contour", "sim.faults": faults, **E4})
+        SimulatedRig(cfg).run((seen,), 42.8)
         costs[name] = seen
     assert costs["pair"].flags == [(False, 1), (False, 1)]  # was [(False, 1), (False, 3)]
     assert costs["one"].flags == [(False, 3)]
@@ -587,7 +596,7 @@ def test_in_a_burst_of_hold_ups_the_setpoint_waits_while_the_drives_stand():
     step before the burst; counted as periods run on (before), 1.64 (path task, leg 1)."""
     start_s = 3.0
     faults = [f"stall={late}@{start_s + at:.4f}+0.0025" for at, late in BURST]
-    rig = SimulatedRig(load_config(overrides={"task.kind": "path", "sim.faults": faults}))
+    rig = SimulatedRig(load_config(overrides={"task.kind": "path", "sim.faults": faults, **E4}))
     seen = Standing(rig)
     rig.run((seen,), start_s + 0.1)
     rows = seen.rows
@@ -605,3 +614,4 @@ def test_in_a_burst_of_hold_ups_the_setpoint_waits_while_the_drives_stand():
         if rows[i + 1][0] == rows[i][0] + 1 and not rows[i + 1][1]
     )
     assert abs(rows[first][2] - rows[first + 1][4]) < 1.0 * step
+
