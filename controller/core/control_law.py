@@ -588,6 +588,7 @@ class ControlLaw:
                 force_witness_n=witness.force_n if witness is not None else None,
                 sensor_suspect=state.contact.suspect,
                 drives_held=state.drives_held and not k,
+                drives_ran_on=bool(k),
             )
             try:
                 checked = checked_step(self.task.name, self.task.step(task_state, ctx), self.n)

@@ -217,6 +217,11 @@ class TaskContext:
     # (``LawConfig.drive_extrapolation_periods``): a reactive reference's smoothing restarts from
     # rest there, and a task that keeps a speed of its own restarts it from zero too.
     drives_held: bool = False
+    # This period is one the drives ran on blind through a hold-up of the loop: it is past, and they
+    # went on at their last step. A task that keeps a speed of its own goes on with them and decides
+    # nothing here (the cycle after, with its measurements, does): a brake on the missing samples
+    # would be a brake the drives never made, and the next target would pull them back.
+    drives_ran_on: bool = False
 
 
 @record

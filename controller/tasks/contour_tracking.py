@@ -583,7 +583,13 @@ class ContourTrackingTask:
         """
         sensor = ctx.inputs.sensor
         if sensor is None or not sensor.fresh:
-            return replace(s, stale_cycles=s.stale_cycles + 1), ()
+            # A period the drives ran on through a hold-up of the loop (``TaskContext.drives_ran_on``)
+            # is past: no sample was missed in it, the loop was. Counted as stale, a hold-up longer
+            # than ``stale_hold_s`` braked the tangent and dropped the integral's push (the tilt the
+            # friction gives the normal estimate) in periods the drives had run on at full speed: the
+            # next target pulled them back (a single 15-ms hold-up with 20 ms of extrapolation: 10 ->
+            # 0 -> 19 N).
+            return replace(s, stale_cycles=s.stale_cycles + (0 if ctx.drives_ran_on else 1)), ()
         raw = (
             sensor.force_n[0] - s.offset[0],
             sensor.force_n[1] - s.offset[1],

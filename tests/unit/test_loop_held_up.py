@@ -615,3 +615,21 @@ def test_in_a_burst_of_hold_ups_the_setpoint_waits_while_the_drives_stand():
     )
     assert abs(rows[first][2] - rows[first + 1][4]) < 1.0 * step
 
+
+@pytest.mark.slow
+def test_the_periods_the_drives_ran_on_are_not_stale_samples():
+    """A 15-ms hold-up in lap 4 (6 skipped deadlines, inside the drives' 8 periods of extrapolation).
+    The task steps through the periods they ran on without measurements; counted as stale samples
+    (``stale_hold_s``, 4 periods), they braked the tangent and dropped the integral's push, in periods
+    the drives had run on at full speed: the next target pulled them back (true force 10 -> 0 -> 19
+    N). The filtered force's error squared and summed over 0.2 s: 257 N^2 then, 14.5 now (5.3
+    undisturbed)."""
+    runs = {}
+    for name, faults in {"undisturbed": [], "held up": ["stall=0.015@48.24+0.0025"]}.items():
+        seen = ForceError(48.24, 48.44)
+        SimulatedRig(load_config(overrides={"task.kind": "contour", "sim.faults": faults})).run(
+            (seen,), 48.44
+        )
+        runs[name] = seen
+    assert runs["held up"].flags == [(False, 6)]  # ran on six periods, did not stand
+    assert runs["held up"].sum_sq_n2 < runs["undisturbed"].sum_sq_n2 + 50.0
