@@ -80,7 +80,7 @@ class ActuatorsSection(Section, frozen=True):
     following_error_time_s: Annotated[float, rng(0.0, 65.535)] = 0.01
     # How long past its last target a drive runs on blind when no new one comes (a hold-up of the
     # loop), then holds: whole periods of it go to the drives' object 0x2010 at start (node_setup.py).
-    extrapolation_s: Annotated[float, rng(0.0, 0.1)] = 0.02
+    extrapolation_s: Annotated[float, rng(0.0, 0.1)] = 0.025
     vendor_id: Annotated[int, rng(0, 2**32 - 1)] = 0x00000CE0
     product_code: Annotated[int, rng(0, 2**32 - 1)] = 0x00000402
     # The drives' device description (EDS); "" is drivers/eds/cheope_drive.eds. The PDO mapping

@@ -331,14 +331,14 @@ def test_set_up_writes_the_drives_following_error_window_and_time_and_reads_them
 
 
 def test_set_up_writes_the_drives_extrapolation_periods_and_reads_them_back(buses):
-    cfg = load_config()  # actuators.extrapolation_s = 0.02: 8 periods at 400 Hz
+    cfg = load_config()  # actuators.extrapolation_s = 0.025: 10 periods at 400 Hz
     sim_bus, bus = buses
     with Simulator(cfg, sim_bus) as sim:
         assert all(d.extrapolation_periods == 1 for d in sim.drives)  # the drive's own at power-on
         configure_nodes(bus, _setup_plan(cfg))
         for node_id, d in zip(cfg.actuators.node_ids, sim.drives, strict=True):
-            assert sim.nodes[node_id].sdo[0x2010].raw == 8
-            assert d.extrapolation_periods == 8
+            assert sim.nodes[node_id].sdo[0x2010].raw == 10
+            assert d.extrapolation_periods == 10
 
 
 def test_extrapolation_a_drive_cannot_take_stops_the_start_naming_node_object_and_key(buses):

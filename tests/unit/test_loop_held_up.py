@@ -37,7 +37,7 @@ def _stalls(start_s: float, end_s: float, period_s: float) -> list[str]:
     return out
 
 
-# Drives that run on 10 ms (4 periods at 400 Hz; the default was that until 2026-12-06, now 20 ms):
+# Drives that run on 10 ms (4 periods at 400 Hz; the default was that until 2026-12-06, now 25 ms):
 # the tests of what happens past the extrapolation need hold-ups longer than it, of the lengths
 # measured over the bus.
 E4 = {"actuators.extrapolation_s": 0.01}
@@ -618,7 +618,7 @@ def test_in_a_burst_of_hold_ups_the_setpoint_waits_while_the_drives_stand():
 
 @pytest.mark.slow
 def test_the_periods_the_drives_ran_on_are_not_stale_samples():
-    """A 15-ms hold-up in lap 4 (6 skipped deadlines, inside the drives' 8 periods of extrapolation).
+    """A 15-ms hold-up in lap 4 (6 skipped deadlines, inside the drives' 10 periods of extrapolation).
     The task steps through the periods they ran on without measurements; counted as stale samples
     (``stale_hold_s``, 4 periods), they braked the tangent and dropped the integral's push, in periods
     the drives had run on at full speed: the next target pulled them back (true force 10 -> 0 -> 19

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from controller.config import load_config, parse_override
 from controller.tools.contour.experiment import run_simulated_time
 
-LENGTHS_S = (0.005, 0.01, 0.015, 0.0175, 0.02, 0.025)
+LENGTHS_S = (0.005, 0.0075, 0.01, 0.0125, 0.015, 0.0175, 0.02, 0.0225, 0.025, 0.03)
 # ten places in laps 3-5 of the default demo (lap 3 begins at 36.6 s, lap 5 ends at 61.3 s)
 PLACES_S = (38.3, 40.1, 42.7, 44.3, 46.1, 48.24, 50.2, 52.7, 55.1, 57.3)
 SPEED_SHARE = 0.95  # issue 37: laps 3-5 reach 95 % of their commanded speed ...
