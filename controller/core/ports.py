@@ -218,9 +218,9 @@ class TaskContext:
     # rest there, and a task that keeps a speed of its own restarts it from zero too.
     drives_held: bool = False
     # This period is one the drives ran on blind through a hold-up of the loop: it is past, and they
-    # went on at their last step. A task that keeps a speed of its own goes on with them and decides
-    # nothing here (the cycle after, with its measurements, does): a brake on the missing samples
-    # would be a brake the drives never made, and the next target would pull them back.
+    # went on at their last step. It is no period of missing samples: a task that brakes on those (the
+    # contour's ``stale_hold_s``) would brake where the drives did not, and the next target would
+    # pull them back. The cycle after, with its measurements, decides.
     drives_ran_on: bool = False
 
 

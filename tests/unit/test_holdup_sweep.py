@@ -31,6 +31,16 @@ def test_the_bound_is_the_issues_speed_share_and_rms_margin_on_laps_3_to_5():
     assert not within_bound(_with_lap(3, UNDISTURBED.laps[3], mode="FAULT"), UNDISTURBED)
 
 
+def test_a_run_that_faulted_before_its_last_lap_is_out_and_named_as_such():
+    partial = Run(0.2, 40.1, "FAULT", UNDISTURBED.laps[:2], 13.1)
+    assert not within_bound(partial, UNDISTURBED) and worst_lap(partial, UNDISTURBED) is None
+    assert "OUT" in row_text(partial, UNDISTURBED) and "no lap from lap 3 on finished" in row_text(
+        partial, UNDISTURBED
+    )
+    three = Run(0.2, 40.1, "FAULT", UNDISTURBED.laps[:4], 13.1)  # lap 5 unfinished: out, lap 4 judged
+    assert not within_bound(three, UNDISTURBED) and worst_lap(three, UNDISTURBED) in (2, 3)
+
+
 def test_the_worst_lap_is_the_one_whose_rms_rose_most():
     run = _with_lap(3, Lap(0.06, 0.0601, 0.649))
     assert worst_lap(run, UNDISTURBED) == 3
