@@ -45,13 +45,12 @@ class Run:
     max_true_contact_force_n: float
 
 
-Job = tuple[dict[str, object], float, float]  # overrides, hold-up [s], task time [s]
+Job = tuple[dict[str, object], float, float, float]  # overrides, the loop's period, hold-up, task time [s]
 
 
 def run_one(job: Job) -> Run:
-    overrides, length_s, at_s = job
-    cfg = load_config(overrides=overrides)
-    faults = [f"stall={length_s}@{at_s}+{cfg.period_s}"] if length_s > 0 else []
+    overrides, period_s, length_s, at_s = job
+    faults = [f"stall={length_s}@{at_s}+{period_s}"] if length_s > 0 else []
     summary = run_simulated_time(load_config(overrides={**overrides, "sim.faults": faults}), MAX_DURATION_S)
     contour = summary["contour"]
     assert isinstance(contour, dict)
@@ -111,10 +110,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a configuration key")
     a = ap.parse_args(argv)
     overrides = dict(parse_override(s) for s in ["task.kind=contour", *a.set])
-    undisturbed = run_one((overrides, 0.0, 0.0))
+    period_s = load_config(overrides=overrides).period_s
+    undisturbed = run_one((overrides, period_s, 0.0, 0.0))
     laps = ", ".join(f"{lap.achieved_m_s * 1000:.1f} mm/s {lap.rms_n:.3f} N" for lap in undisturbed.laps)
     print(f"undisturbed: {undisturbed.final_mode}; laps {laps}", flush=True)
-    jobs = [(overrides, float(n), float(t)) for n in a.lengths.split(",") for t in a.at.split(",")]
+    jobs = [(overrides, period_s, float(n), float(t)) for n in a.lengths.split(",") for t in a.at.split(",")]
     out = 0
     with ProcessPoolExecutor(max_workers=a.jobs) if a.jobs > 1 else nullcontext() as pool:
         for run in pool.map(run_one, jobs) if pool is not None else map(run_one, jobs):
