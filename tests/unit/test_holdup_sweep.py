@@ -48,6 +48,15 @@ def test_the_worst_lap_is_the_one_whose_rms_rose_most():
     assert "worst lap 4" in text and "+0.254" in text and "OUT" in text
 
 
+@pytest.mark.parametrize("args", [["--lengths", "0.01,abc"], ["--at", "-3"], ["--jobs", "0"]])
+def test_a_malformed_argument_is_refused_naming_it(args, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(args)
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert args[0] in err and repr(args[1].split(",")[-1]) in err
+
+
 @pytest.mark.slow
 def test_a_sweep_of_one_short_hold_up_prints_its_row(capsys):
     """End to end in simulated time: a 5-ms hold-up in lap 4 is one the drives run on through."""

@@ -17,6 +17,7 @@ from concurrent.futures import ProcessPoolExecutor
 from contextlib import nullcontext
 from dataclasses import dataclass
 
+from controller.cli_arguments import job_count, positive_seconds
 from controller.config import load_config, parse_override
 from controller.tools.contour.experiment import run_simulated_time
 
@@ -100,13 +101,18 @@ def row_text(run: Run, undisturbed: Run) -> str:
     )
 
 
+def _seconds_list(text: str) -> tuple[float, ...]:
+    """Comma-separated seconds, each > 0 (argparse names the one refused)."""
+    return tuple(positive_seconds(item) for item in text.split(","))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         prog="python -m controller.tools.contour.holdup_sweep", description=__doc__.split("\n\n")[0]
     )
-    ap.add_argument("--lengths", default=",".join(map(str, LENGTHS_S)), help="hold-ups [s], comma-separated")
-    ap.add_argument("--at", default=",".join(map(str, PLACES_S)), help="task times [s], comma-separated")
-    ap.add_argument("--jobs", type=int, default=2, help="processes")
+    ap.add_argument("--lengths", type=_seconds_list, default=LENGTHS_S, help="hold-ups [s], comma-separated")
+    ap.add_argument("--at", type=_seconds_list, default=PLACES_S, help="task times [s], comma-separated")
+    ap.add_argument("--jobs", type=job_count, default=2, help="processes")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a configuration key")
     a = ap.parse_args(argv)
     overrides = dict(parse_override(s) for s in ["task.kind=contour", *a.set])
@@ -114,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     undisturbed = run_one((overrides, period_s, 0.0, 0.0))
     laps = ", ".join(f"{lap.achieved_m_s * 1000:.1f} mm/s {lap.rms_n:.3f} N" for lap in undisturbed.laps)
     print(f"undisturbed: {undisturbed.final_mode}; laps {laps}", flush=True)
-    jobs = [(overrides, period_s, float(n), float(t)) for n in a.lengths.split(",") for t in a.at.split(",")]
+    jobs = [(overrides, period_s, n, t) for n in a.lengths for t in a.at]
     out = 0
     with ProcessPoolExecutor(max_workers=a.jobs) if a.jobs > 1 else nullcontext() as pool:
         for run in pool.map(run_one, jobs) if pool is not None else map(run_one, jobs):
