@@ -466,7 +466,12 @@ class SessionWriter:
                 "dropped": str(dropped),
                 "complete": "true",
                 **({"stopped": self.stopped} if self.stopped else {}),
-                **({} if queued is not None else {"ended": "the controller closed the pipe without END"}),
+                # no END after a stop is the writer's doing (it stopped reading), not the controller's
+                **(
+                    {}
+                    if queued is not None or self.stopped
+                    else {"ended": "the controller closed the pipe without END"}
+                ),
             }
         )
 

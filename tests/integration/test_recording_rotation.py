@@ -278,6 +278,8 @@ def test_below_the_free_space_limit_the_recording_stops_cleanly_and_says_why(tmp
     info = read_info(path)
     assert info.complete and not info.problems  # closed cleanly while it could be
     assert "below recording.min_free_space_mb" in info.metadata[m.META_RECORDING]["stopped"]
+    # the writer stopped reading, so no END came: that is not a controller that died without one
+    assert "ended" not in info.metadata[m.META_RECORDING]
     events = [d.message for d in iter_decoded(path, [m.TOPIC_EVENTS])]
     assert events[-1].kind == "recording_stopped" and "free space" in events[-1].message
     # the recorder's own event, not the law's: what was recorded replays bit-exactly (44dbcbc
