@@ -81,6 +81,11 @@ class ActuatorsSection(Section, frozen=True):
     # How long past its last target a drive runs on blind when no new one comes (a hold-up of the
     # loop), then holds: whole periods of it go to the drives' object 0x2010 at start (node_setup.py).
     extrapolation_s: Annotated[float, rng(0.0, 0.1)] = 0.025
+    # How long the drives wait for the next SYNC before they quick-stop on their own (EMCY 0x8240), set
+    # at start in whole ms (their object 0x2011). Past extrapolation_s they already hold still; this
+    # is how long a loop held up by its machine (a host that takes its CPU away) may stay away and
+    # then carry on from where they stand. Below loop.heartbeat_consumer_s, the watch on a dead master.
+    sync_watchdog_s: Annotated[float, rng(0.001, 65.535)] = 0.25
     vendor_id: Annotated[int, rng(0, 2**32 - 1)] = 0x00000CE0
     product_code: Annotated[int, rng(0, 2**32 - 1)] = 0x00000402
     # The drives' device description (EDS); "" is drivers/eds/cheope_drive.eds. The PDO mapping
@@ -397,6 +402,11 @@ class Config(Section, frozen=True):
         """``actuators.extrapolation_s`` in whole periods: the drives' object 0x2010."""
         return int(self.actuators.extrapolation_s * self.loop.rate_hz + 1e-9)
 
+    @property
+    def drive_sync_watchdog_ms(self) -> int:
+        """``actuators.sync_watchdog_s`` in whole ms: the drives' object 0x2011."""
+        return max(1, round(self.actuators.sync_watchdog_s * 1000.0))
+
 
 def _build_config(table: dict[str, Any]) -> Config:
     """The whole document: the registered groups ([robot], [task]) by hand, the rest by msgspec."""
@@ -504,6 +514,12 @@ def _cross_checks(cfg: Config) -> None:
             f"node ids must be distinct: actuators.node_ids = {list(cfg.actuators.node_ids)}, "
             f"sensor.node_id = {cfg.sensor.node_id}, loop.controller_node_id = {cfg.loop.controller_node_id}"
             + (f", tracker.node_id = {cfg.tracker.node_id}" if cfg.tracker.enabled else "")
+        )
+    if cfg.actuators.sync_watchdog_s <= cfg.actuators.extrapolation_s + 2.0 / cfg.loop.rate_hz:
+        raise ConfigError(
+            f"actuators.sync_watchdog_s = {cfg.actuators.sync_watchdog_s} must exceed "
+            f"actuators.extrapolation_s = {cfg.actuators.extrapolation_s} by more than two periods "
+            f"(loop.rate_hz = {cfg.loop.rate_hz}): the drives would quick-stop while they run on"
         )
     if cfg.loop.heartbeat_consumer_s <= cfg.loop.heartbeat_period_s:
         raise ConfigError(
@@ -685,6 +701,12 @@ def recorded_config_from_dict(table: dict[str, Any]) -> Config:
             # an unusable rate (a --set of nan) is named as itself below, not through this derived key
             rate_hz = LoopSection().rate_hz
         actuators["extrapolation_s"] = 1.0 / rate_hz
+    if isinstance(actuators, dict) and "sync_watchdog_s" not in actuators:
+        # before 0x2011 was written the drives kept their power-on watchdog: the simulated drive's
+        sim = table.get("sim")
+        drive = sim.get("drive") if isinstance(sim, dict) else None
+        power_on = drive.get("sync_timeout_s") if isinstance(drive, dict) else None
+        actuators["sync_watchdog_s"] = power_on if isinstance(power_on, int | float) else 0.1
     safety = table.get("safety")
     contact = safety.get("contact") if isinstance(safety, dict) else None
     if isinstance(contact, dict) and "cell_stiffness_n_m" not in contact:

@@ -151,6 +151,7 @@ def node_setup_plan(cfg: Config) -> NodeSetupPlan:
         heartbeat_consumer_s=cfg.loop.heartbeat_consumer_s,
         cycle_period_s=cfg.period_s,
         extrapolation_periods=cfg.drive_extrapolation_periods,
+        sync_watchdog_ms=cfg.drive_sync_watchdog_ms,
         drive_eds=device_description_path(cfg.actuators.eds_file, DRIVE_EDS),
         sensor_eds=device_description_path(cfg.sensor.eds_file, SENSOR_EDS),
         sensor_vendor_id=cfg.sensor.vendor_id,

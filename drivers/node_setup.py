@@ -114,6 +114,8 @@ class NodeSetupPlan:
     following_error_time_ms: int = 0  # 0x6066
     # 0x2010: periods a drive runs on past its last target without a new one (None: not written)
     extrapolation_periods: int | None = None
+    # 0x2011: the drives' SYNC watchdog in ms (None: not written, each keeps its own)
+    sync_watchdog_ms: int | None = None
     # announced to a simulated sensor (drivers/sim_environment.py): "free", "workpiece"; None: not announced
     sim_environment: str | None = None
     task_kind: str = ""  # named when the simulator refuses the environment
@@ -190,6 +192,10 @@ _HINTS: dict[tuple[int, int], str] = {
         0x2010,
         ABORT_VALUE_RANGE_CODE,
     ): "more periods of extrapolation than the drive allows: lower actuators.extrapolation_s",
+    (
+        0x2011,
+        ABORT_VALUE_RANGE_CODE,
+    ): "a SYNC watchdog time the drive does not take: change actuators.sync_watchdog_s",
     (0x1017, ABORT_OBJECT_DOES_NOT_EXIST): 'a drive without heartbeat: actuators.supervision = "guarding"',
     (0x1016, ABORT_OBJECT_DOES_NOT_EXIST): 'a drive without heartbeat: actuators.supervision = "guarding"',
     (
@@ -446,6 +452,24 @@ def _write_extrapolation(device: _Device, periods: int | None) -> None:
         device.write_verified(EXTRAPOLATION_PERIODS, 0, periods)
 
 
+SYNC_WATCHDOG = 0x2011  # manufacturer-specific (drivers/eds/cheope_drive.eds): ms
+
+
+def _write_sync_watchdog(device: _Device, ms: int | None) -> None:
+    """0x2011: how long the drive waits for the next SYNC before it quick-stops (EMCY 0x8240). A drive
+    without the object keeps its own time, named in a warning: the controller cannot know it."""
+    if ms is None:
+        return
+    if not device.has(SYNC_WATCHDOG):
+        log.warning(
+            "node %d: its EDS has no SYNC watchdog object 0x2011; it stops on a silent SYNC after "
+            "its own time, not actuators.sync_watchdog_s",
+            device.node_id,
+        )
+        return
+    device.write_verified(SYNC_WATCHDOG, 0, ms)
+
+
 ABORT_CONNECTION_QUICK_STOP = 3  # 0x6007 (CiA 402): what a drive does by itself when it loses its master
 
 
@@ -689,6 +713,7 @@ def _configure_drive(device: _Device, j: int, plan: NodeSetupPlan) -> tuple[Node
         _write_interpolation_period(device, plan.cycle_period_s)
     _write_following_error(device, plan)
     _write_extrapolation(device, plan.extrapolation_periods)
+    _write_sync_watchdog(device, plan.sync_watchdog_ms)
     codec = _configure_drive_pdos(device, plan)
     return ident, codec, device.read(0x6064, 0)
 

@@ -25,7 +25,8 @@ Behaviour, as a real CSP drive:
 - a following-error monitor (0x6065 window, 0x6066 time, written by the master): the position
   reference and the carriage further apart than the window for longer than the time -> FAULT
   and EMCY 0x8611;
-- a watchdog: no SYNC for ``sync_timeout_s`` while enabled -> quick stop and EMCY 0x8240;
+- a watchdog: no SYNC for ``sync_timeout_s`` while enabled -> quick stop and EMCY 0x8240; the time
+  is the power-on value of ``params.sync_timeout_s`` until the master writes object 0x2011 (ms);
 - the abort connection option code 0x6007 (CiA 402), the drive's own reaction to losing its
   master while enabled: the controller's heartbeat not heard for the consumer time (0x1016,
   EMCY 0x8130) or NMT leaving OPERATIONAL (PRE-OPERATIONAL or STOPPED, where RPDOs are no
@@ -139,6 +140,10 @@ EXTRAPOLATION_PERIODS_INDEX = 0x2010
 # More is refused: 62.5 ms of blind motion at 400 Hz, 25 ms at 1 kHz. Real drives bound it likewise, in
 # periods (Lenze 9400's accepted telegram failures) or in time (Stober's maximum extrapolation time).
 MAX_EXTRAPOLATION_PERIODS = 25
+# Object 0x2011 (manufacturer-specific, UNSIGNED16): the SYNC watchdog's time in ms, 1-65 535 (0 is
+# refused: a drive that never notices its master gone). Drives take this time from their integrator
+# (Siemens MICROMASTER's CANopen module: a SYNC consumer time, then a SYNC loss trip).
+SYNC_WATCHDOG_INDEX = 0x2011
 
 
 @dataclass
@@ -164,6 +169,7 @@ class SimulatedDrive:
     target_step: float = 0.0
     target_step_valid: bool = False  # the last target was latched enabled (interp_start_s is its SYNC)
     extrapolation_periods: int = field(init=False)  # object 0x2010 (params.extrapolation_periods at boot)
+    sync_timeout_s: float = field(init=False)  # object 0x2011 (params.sync_timeout_s at boot)
     last_sync_s: float | None = None
     last_heartbeat_s: float | None = None
     time_s: float | None = None
@@ -199,6 +205,7 @@ class SimulatedDrive:
         self.latched_target = self.position
         self.previous_target = self.position
         self.extrapolation_periods = self.params.extrapolation_periods
+        self.sync_timeout_s = self.params.sync_timeout_s
         self._boot()
 
     def _boot(self) -> None:
@@ -266,6 +273,10 @@ class SimulatedDrive:
             if value > MAX_EXTRAPOLATION_PERIODS:
                 return False
             self.extrapolation_periods = value
+        elif index == SYNC_WATCHDOG_INDEX:
+            if not 0 < value <= 0xFFFF:
+                return False
+            self.sync_timeout_s = value / 1000.0
         elif index == 0x60C2 and subindex in (1, 2):
             # CiA 402 interpolation time period: value (sub 1) x 10^index (sub 2) s; 0: the drive
             # takes the measured SYNC interval
@@ -503,6 +514,7 @@ class SimulatedDrive:
         self.target_step = 0.0
         self.target_step_valid = False
         self.extrapolation_periods = self.params.extrapolation_periods
+        self.sync_timeout_s = self.params.sync_timeout_s
         self.error_code = EMCY_NO_ERROR
         self.fault_cause_until_s = None
         self.homing = None
@@ -534,7 +546,6 @@ class SimulatedDrive:
     def _watchdog(self, now_s: float, check_sync_timeout: bool) -> None:
         if self.power != PowerState.OPERATION_ENABLED:
             return
-        p = self.params
         # The simulator's frame handlers turn the check off: a long gap seen while handling a
         # frame means the frames waited in the simulator's socket while its process was not
         # scheduled, and a real drive would have had its SYNC on time. A SYNC that really
@@ -542,7 +553,7 @@ class SimulatedDrive:
         if (
             check_sync_timeout
             and self.last_sync_s is not None
-            and now_s - self.last_sync_s > p.sync_timeout_s
+            and now_s - self.last_sync_s > self.sync_timeout_s
         ):
             self._quick_stop(EMCY_SYNC_LOST)
         elif (

@@ -39,6 +39,7 @@ from drivers.node_setup import (
     DRIVE_EDS,
     EXTRAPOLATION_PERIODS,
     SENSOR_EDS,
+    SYNC_WATCHDOG,
     NodeSetupError,
     check_extrapolation_object,
     description_drive_codec,
@@ -165,13 +166,15 @@ class LoopbackExchange:
         except PdoWriteRefusedError as err:
             raise NodeSetupError(f"{err}{refusal_hint(err.index, err.code)}") from err
         eds = device_description_path(cfg.actuators.eds_file, DRIVE_EDS)
-        has_extrapolation = (
-            find_variable(load_device_description(eds, 1), EXTRAPOLATION_PERIODS, 0) is not None
-        )
+        description = load_device_description(eds, 1)
+        has_extrapolation = find_variable(description, EXTRAPOLATION_PERIODS, 0) is not None
+        has_watchdog = find_variable(description, SYNC_WATCHDOG, 0) is not None
         for n, d in zip(self.drive_ids, self.drives, strict=True):  # set-up's 0x2010, refused as over the bus
             check_extrapolation_object(n, cfg.drive_extrapolation_periods, has_extrapolation)
             if has_extrapolation:
                 _sdo_on(d, n)(EXTRAPOLATION_PERIODS, 0, cfg.drive_extrapolation_periods)
+            if has_watchdog:  # and 0x2011, the SYNC watchdog
+                _sdo_on(d, n)(SYNC_WATCHDOG, 0, cfg.drive_sync_watchdog_ms)
         self.codecs = tuple(
             self.pdos.drive_codec(j)
             if n in read

@@ -379,7 +379,6 @@ class Simulator:
 
     def _serve_frames(self) -> None:
         bus, clock = self.bus, self.clock
-        timeout = self.cfg.sim.drive.sync_timeout_s
         previous_tick_s = clock()
         while not self._stop.is_set():
             msg = bus.recv(timeout=WATCHDOG_PERIOD_S)
@@ -395,6 +394,10 @@ class Simulator:
                         self._boot_late(node_id)
             if now - previous_tick_s < WATCHDOG_PERIOD_S:
                 continue
+            # the drives' watchdog time as set-up wrote it (0x2011), the shortest
+            timeout = min(
+                (d.sync_timeout_s for d in self.plant.drives), default=self.cfg.sim.drive.sync_timeout_s
+            )
             due = watchdog_due(now, previous_tick_s, self.plant.last_sync_s, timeout)
             previous_tick_s = now
             if due:

@@ -88,7 +88,7 @@ def _config(tmp_path: Path, **recording: str) -> Config:
         "task.path.laps": 20.0,
         "safety.on_late_cycles": "warn",
         "loop.max_missing_s": 0.025,
-        "sim.drive.sync_timeout_s": 5.0,
+        "actuators.sync_watchdog_s": 5.0,
     }
     overrides.update({f"recording.{k}": v for k, v in recording.items()})
     return load_config(overrides=overrides)

@@ -92,7 +92,7 @@ def _controller_cmd(endpoint: str, *sets: str, max_duration_s: float = 30.0) -> 
         # these tests check monitoring, not timing: a loaded machine must not fault the run (SYNC watchdog, late cycles)
         *TOLERANT,
         "--set",
-        "sim.drive.sync_timeout_s=0.5",
+        "actuators.sync_watchdog_s=0.5",
     ]
     for s in sets:
         cmd += ["--set", s]
@@ -427,7 +427,7 @@ def test_cheope_stop_stops_cheope_demo_through_the_service():
             # drives' SYNC watchdog gets 0.5 s too (a CI run once faulted on a 50 ms gap at start)
             *TOLERANT,
             "--set",
-            "sim.drive.sync_timeout_s=0.5",
+            "actuators.sync_watchdog_s=0.5",
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,

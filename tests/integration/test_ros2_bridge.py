@@ -191,7 +191,7 @@ def test_a_ros2_subscriber_gets_the_zenoh_state_in_ros_time_and_the_commands_go_
         "task.path.laps=50",
         *TOLERANT,
         "--set",
-        "sim.drive.sync_timeout_s=0.5",
+        "actuators.sync_watchdog_s=0.5",
     ]
     robot = robot_from_config(load_config())
     with _process(controller, ros_env, "the controller") as ctl:

@@ -341,6 +341,26 @@ def test_set_up_writes_the_drives_extrapolation_periods_and_reads_them_back(buse
             assert d.extrapolation_periods == 10
 
 
+def test_set_up_writes_the_drives_sync_watchdog_and_reads_it_back(buses):
+    cfg = load_config()  # actuators.sync_watchdog_s = 0.25
+    sim_bus, bus = buses
+    with Simulator(cfg, sim_bus) as sim:
+        assert all(d.sync_timeout_s == cfg.sim.drive.sync_timeout_s for d in sim.drives)  # power-on
+        configure_nodes(bus, _setup_plan(cfg))
+        for node_id, d in zip(cfg.actuators.node_ids, sim.drives, strict=True):
+            assert sim.nodes[node_id].sdo[0x2011].raw == 250
+            assert d.sync_timeout_s == 0.25
+
+
+def test_a_drive_without_0x2011_keeps_its_own_sync_watchdog():
+    from sim_backend.loopback import LoopbackExchange
+
+    vendor = LoopbackExchange(load_config(overrides=VENDOR), lambda: 0.0)
+    assert {d.sync_timeout_s for d in vendor.plant.drives} == {load_config().sim.drive.sync_timeout_s}
+    ours = LoopbackExchange(load_config(), lambda: 0.0)
+    assert {d.sync_timeout_s for d in ours.plant.drives} == {0.25}
+
+
 def test_extrapolation_a_drive_cannot_take_stops_the_start_naming_node_object_and_key(buses):
     sim_bus, bus = buses
     too_long = load_config(overrides={"actuators.extrapolation_s": 0.07})  # 28 periods: the drive allows 25

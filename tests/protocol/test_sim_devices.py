@@ -88,6 +88,23 @@ def test_quick_stops_when_sync_stops():
     assert d.velocity == 0.0
 
 
+def test_object_0x2011_sets_the_sync_watchdog_time_in_ms():
+    d, t = enabled_drive()
+    for k in range(10):
+        t = cycle(d, t, 0.55 + 0.2 * k * PERIOD)
+    assert d.sync_timeout_s == d.params.sync_timeout_s  # its own at power-on
+    assert d.write_object(0x2011, 0, 300)
+    d.advance(t + 0.28)  # past the power-on time, within the written one: still enabled
+    assert d.power == PowerState.OPERATION_ENABLED
+    d.advance(t + 0.32)
+    assert d.power == PowerState.QUICK_STOP_ACTIVE and EMCY_SYNC_LOST in d.pending_emcy
+    assert not d.write_object(0x2011, 0, 0)  # a watchdog that never fires is refused
+    assert not d.write_object(0x2011, 0, 0x10000)
+    assert d.sync_timeout_s == 0.3
+    d.reboot()
+    assert d.sync_timeout_s == d.params.sync_timeout_s  # a power cycle forgets it, as 0x2010
+
+
 def test_a_sync_handled_late_is_not_a_lost_sync():
     # The simulator's process was not scheduled for 60 ms; the SYNC waited in its socket.
     d, t = enabled_drive()

@@ -62,6 +62,12 @@ def test_shipped_defaults_load(cfg):
         ({"sim.drive.cogging_period_m": 0.0}, r"sim.drive.cogging_period_m = 0.0: must be > 0.0"),
         ({"sim.drive.cogging_force_n": -1.0}, r"sim.drive.cogging_force_n = -1.0: must be >= 0.0"),
         ({"sim.structure_inertial_load": 1}, r"sim.structure_inertial_load = 1: expected true or false"),
+        (
+            {"actuators.sync_watchdog_s": 0.03},  # 25 ms of extrapolation + 2 periods at 400 Hz is 30 ms
+            r"actuators.sync_watchdog_s = 0.03 must exceed actuators.extrapolation_s = 0.025 by more than "
+            r"two periods \(loop.rate_hz = 400.0\): the drives would quick-stop while they run on",
+        ),
+        ({"actuators.sync_watchdog_s": 70.0}, r"actuators.sync_watchdog_s = 70.0: must be <= 65.535"),
     ],
 )
 def test_invalid_values_are_named(overrides, message):

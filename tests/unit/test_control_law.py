@@ -78,7 +78,7 @@ def test_at_a_low_rate_the_drives_lag_of_one_period_is_no_following_error(rate_h
     # Found in the vcan VM at 25 Hz: the measured position was judged against the setpoint aimed
     # one period later, and the move to the path's start (0.3 m/s, 12 mm a period) faulted.
     cfg = load_config(
-        overrides={**SHORT, "loop.rate_hz": rate_hz, "task.path.laps": 0.25, "sim.drive.sync_timeout_s": 0.5}
+        overrides={**SHORT, "loop.rate_hz": rate_hz, "task.path.laps": 0.25, "actuators.sync_watchdog_s": 0.5}
     )
     final, _, trace, _, _ = run(cfg, max_s=60.0)
     assert final.mode == Mode.DONE, final.fault_reason
@@ -118,7 +118,7 @@ def test_a_blocked_drive_is_a_following_error_at_a_low_rate_too():
         overrides={
             **SHORT,
             "loop.rate_hz": 25.0,
-            "sim.drive.sync_timeout_s": 0.5,
+            "actuators.sync_watchdog_s": 0.5,
             "sim.faults": ["block:2@1.0"],
             "actuators.following_error_window_m": 1.0,
         }

@@ -84,6 +84,16 @@ def test_a_recording_written_before_0x2010_is_read_with_one_period_of_extrapolat
     )
 
 
+def test_a_recording_written_before_0x2011_is_read_with_the_drives_power_on_watchdog():
+    # its drives kept the watchdog they booted with: the simulated drive's, 100 ms unless set
+    assert recorded_config_from_dict({}).actuators.sync_watchdog_s == 0.1
+    assert (
+        recorded_config_from_dict({"sim": {"drive": {"sync_timeout_s": 0.5}}}).actuators.sync_watchdog_s
+        == 0.5
+    )
+    assert recorded_config_from_dict({"actuators": {"sync_watchdog_s": 0.3}}).actuators.sync_watchdog_s == 0.3
+
+
 def test_a_recorded_contour_run_without_holdups_is_all_in_the_last_bin():
     cycles = read_cycles(str(DATA / "contour_contact.mcap"))
     assert cycles and not any(c.held_up for c in cycles)  # a simulated-time run: the loop is never late

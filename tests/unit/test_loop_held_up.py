@@ -633,3 +633,25 @@ def test_the_periods_the_drives_ran_on_are_not_stale_samples():
         runs[name] = seen
     assert runs["held up"].flags == [(False, 6)]  # ran on six periods, did not stand
     assert runs["held up"].sum_sq_n2 < runs["undisturbed"].sum_sq_n2 + 50.0
+
+
+@pytest.mark.parametrize(("watchdog_s", "mode"), [(None, Mode.DONE), (0.1, Mode.FAULT)])
+def test_a_loop_held_up_for_less_than_the_drives_sync_watchdog_carries_on(watchdog_s, mode):
+    """A host that takes the loop's CPU away for 103-157 ms (steal, over the bus beside two CPU hogs)
+    stopped the drives on their SYNC watchdog while it was 100 ms. Set-up now writes
+    ``actuators.sync_watchdog_s`` (250 ms) to the drives (0x2011): they ran on, stood still, and the
+    loop carries on from where they stand. With the old 100 ms: EMCY 0x8240, FAULT."""
+    over: dict[str, object] = {
+        "task.kind": "path",
+        "task.path.laps": 0.5,
+        "sim.faults": ["stall=0.15@1.0+0.0025"],
+    }
+    if watchdog_s is not None:
+        over["actuators.sync_watchdog_s"] = watchdog_s
+    rig = SimulatedRig(load_config(overrides=over))
+    assert {d.sync_timeout_s for d in rig.exchange.plant.drives} == {watchdog_s or 0.25}  # 0x2011 written
+    final, stats = rig.run((), 30.0)
+    assert final.mode == mode, final.fault_reason
+    assert stats.overruns >= 59  # the hold-up happened: 150 ms skipped 59-60 deadlines
+    if mode == Mode.FAULT:
+        assert "error code 0x8240" in final.fault_reason  # the drives' SYNC watchdog

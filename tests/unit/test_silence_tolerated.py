@@ -1,7 +1,7 @@
 """How long a device may fall silent before the fault, per device and per task (docs: "Silence
 tolerated"), in simulated time on the in-process devices: deterministic, no wall clock.
 
-- a drive: ``loop.max_missing_s`` (100 ms, 40 cycles at 400 Hz: the drives' own SYNC watchdog);
+- a drive: ``loop.max_missing_s`` (100 ms, 40 cycles at 400 Hz);
 - the force sensor, while the task reads it (contour): ``safety.sensor_stale_s`` (100 ms, as a drive);
 - the force sensor, while the task does not read it (path): its heartbeat only.
 """
@@ -45,9 +45,9 @@ def _run(overrides: dict[str, object], max_s: float = 30.0):
 def test_the_shipped_tolerances():
     cfg = load_config()
     assert cfg.loop.max_missing_s == 0.1 and cfg.safety.sensor_stale_s == 0.1
-    # a stall of the loop (69 ms) is the drives' to judge, one of the simulator (over 50 ms: every
-    # device silent) the law's: both ride through 100 ms, the drives' SYNC watchdog
-    assert cfg.sim.drive.sync_timeout_s == 0.1 == cfg.loop.max_missing_s
+    # a stall of the loop is the drives' to judge (their SYNC watchdog, written at set-up: 250 ms, a
+    # host's 103-157-ms pauses ridden through), one of the simulator (every device silent) the law's
+    assert cfg.actuators.sync_watchdog_s == 0.25 and cfg.loop.max_missing_s == 0.1
     # at every rate: 40 cycles at 400 Hz, 100 at 1 kHz (counted in cycles, 40 were 40 ms at 1 kHz)
     for rate_hz, cycles in ((400.0, 40), (1000.0, 100), (250.0, 25)):
         law = build_law(load_config(overrides={"loop.rate_hz": rate_hz}))

@@ -39,7 +39,7 @@ def _slow(tmp_path: Path) -> list[str]:
         "--set",
         "loop.sdo_timeout_s=5.0",
         "--set",
-        "sim.drive.sync_timeout_s=0.5",
+        "actuators.sync_watchdog_s=0.5",
         "--set",
         'task.kind="path"',
         # the emulated VM's simulator takes seconds to answer its first SYNC, and its sensor frames

@@ -91,7 +91,7 @@ def test_controller_completes_the_path_with_kernel_sync(vcan_channel: str) -> No
             "loop.rate_hz": 25.0,
             "loop.max_missing_s": 0.8,
             "loop.sdo_timeout_s": 5.0,
-            "sim.drive.sync_timeout_s": 0.5,
+            "actuators.sync_watchdog_s": 0.5,
             "loop.enable_timeout_s": 10.0,
             "loop.heartbeat_consumer_s": 2.0,
             "safety.on_late_cycles": "warn",

@@ -108,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
             "--set",
             'safety.on_late_cycles="warn"',
             "--set",
-            "sim.drive.sync_timeout_s=0.5",
+            "actuators.sync_watchdog_s=0.5",
             *(["--realtime"] if args.realtime else []),
         ],
         stdout=subprocess.PIPE,
