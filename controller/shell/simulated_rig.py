@@ -70,10 +70,13 @@ class SimulatedRig:
         )
 
     def run(
-        self, observers: tuple[CycleObserver, ...] = (), max_duration_s: float | None = None
+        self,
+        observers: tuple[CycleObserver, ...] = (),
+        max_duration_s: float | None = None,
+        linger_after_end_s: float = 0.1,
     ) -> tuple[ControllerState, LoopStats]:
         """From the law's initial state until it ends (or ``max_duration_s`` of simulated time, or
-        a stop requested through ``stopped_by``)."""
+        a stop requested through ``stopped_by``), and ``linger_after_end_s`` after (``CycleLoop.run``)."""
         return self.loop(observers, stop_event=_STOP_REQUEST.get()).run(
-            self.law.initial_state(), max_duration_s
+            self.law.initial_state(), max_duration_s, linger_after_end_s
         )

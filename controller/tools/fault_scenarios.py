@@ -233,7 +233,11 @@ def run_scenario(base: Config, sc: Scenario, directory: Path) -> dict[str, objec
         phase_name=rig.law.task.phase_name,
         extra_metadata={"fault_scenario": sc.name},
     ) as recorder:
-        final, stats = rig.run((watch, recorder), 60.0)
+        # after the law's FAULT, long enough for drives the controller cannot reach (a transmit queue
+        # full) to stop on their own SYNC watchdog: the safe state is theirs to reach
+        final, stats = rig.run(
+            (watch, recorder), 60.0, linger_after_end_s=cfg.actuators.sync_watchdog_s + 0.05
+        )
     report = read_info(recorder.path)
     if final.mode == Mode.FAULT:
         observed = "fault"

@@ -45,6 +45,8 @@ def test_every_fault_scenario_gets_its_reaction_and_a_complete_recording(tmp_pat
             # the consumer time (loop.heartbeat_consumer_s) since the last one
             cfg = load_config()
             detection_s = cfg.loop.heartbeat_consumer_s if r["fault"].startswith("heartbeat") else 0.0
+            if "SYNC watchdog" in r["reaction_expected"]:  # the controller cannot reach them: their own
+                detection_s = cfg.actuators.sync_watchdog_s
             if "back off" in r["reaction_expected"]:
                 # the contact guard's protective stop: the back-off's way (5 mm at 20 mm/s, ramps at
                 # 0.5 m/s^2) before the fault, not a quick stop in place
