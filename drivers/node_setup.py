@@ -461,11 +461,12 @@ def _write_sync_watchdog(device: _Device, ms: int | None) -> None:
     if ms is None:
         return
     if not device.has(SYNC_WATCHDOG):
-        log.warning(
-            "node %d: its EDS has no SYNC watchdog object 0x2011; it stops on a silent SYNC after "
-            "its own time, not actuators.sync_watchdog_s",
-            device.node_id,
+        text = (
+            f"node {device.node_id}: its EDS has no SYNC watchdog object 0x2011; it stops on a silent "
+            "SYNC after its own time, not actuators.sync_watchdog_s"
         )
+        log.warning("%s", text)
+        device.notes.append(text)  # and in the run's summary (node_setup_notes)
         return
     device.write_verified(SYNC_WATCHDOG, 0, ms)
 

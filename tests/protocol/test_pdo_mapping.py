@@ -250,6 +250,13 @@ def test_vendor_drive_runs_the_cyclic_exchange_against_the_in_process_simulator(
     with Simulator(cfg, sim_bus) as sim:
         report = configure_nodes(bus, _setup_plan(cfg))
         assert [i.vendor_id for i in report.identities] == [0x00000A5E] * 3
+        # no 0x2011 in its EDS: it keeps its own SYNC watchdog, and the run's summary says so
+        assert [n for n in report.notes if "0x2011" in n] == [
+            f"node {i}: its EDS has no SYNC watchdog object 0x2011; it stops on a silent SYNC after its own "
+            "time, not actuators.sync_watchdog_s"
+            for i in cfg.actuators.node_ids
+        ]
+        assert {d.sync_timeout_s for d in sim.drives} == {cfg.sim.drive.sync_timeout_s}
         codec = report.drive_codecs[0]
         assert [o.index for o in codec.rpdo.objects] == [0x607A, 0x6040]
         assert [o.index for o in codec.tpdo.objects] == [0x6064, 0x6041, 0x6061]
