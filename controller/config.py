@@ -405,7 +405,7 @@ class Config(Section, frozen=True):
     @property
     def drive_sync_watchdog_ms(self) -> int:
         """``actuators.sync_watchdog_s`` in whole ms: the drives' object 0x2011."""
-        return max(1, round(self.actuators.sync_watchdog_s * 1000.0))
+        return round(self.actuators.sync_watchdog_s * 1000.0)  # the key's range starts at 1 ms
 
 
 def _build_config(table: dict[str, Any]) -> Config:

@@ -257,8 +257,8 @@ class _Device:
             time.sleep(seconds)
         self.check_stop("homing")
 
-    def note(self, text: str) -> None:
-        log.info("%s", text)
+    def note(self, text: str, level: int = logging.INFO) -> None:
+        log.log(level, "%s", text)
         self.notes.append(text)
 
     def _sdo(self, call: Callable[[], R], what: str) -> R:
@@ -461,12 +461,11 @@ def _write_sync_watchdog(device: _Device, ms: int | None) -> None:
     if ms is None:
         return
     if not device.has(SYNC_WATCHDOG):
-        text = (
+        device.note(  # a warning, and in the run's summary (node_setup_notes)
             f"node {device.node_id}: its EDS has no SYNC watchdog object 0x2011; it stops on a silent "
-            "SYNC after its own time, not actuators.sync_watchdog_s"
+            "SYNC after its own time, not actuators.sync_watchdog_s",
+            logging.WARNING,
         )
-        log.warning("%s", text)
-        device.notes.append(text)  # and in the run's summary (node_setup_notes)
         return
     device.write_verified(SYNC_WATCHDOG, 0, ms)
 
