@@ -196,6 +196,7 @@ def assemble(cfg: Config, robot: Robot | None = None) -> Assembly:
         enable_timeout_s=cfg.loop.enable_timeout_s,
         hold_before_task_s=cfg.loop.hold_before_task_s,
         max_missing_cycles=cycles_in(cfg.loop.max_missing_s, cfg.period_s),
+        max_bus_silence_cycles=cycles_in(cfg.loop.max_bus_silence_s, cfg.period_s),
         settle_tolerance=cfg.loop.settle_tolerance_m,
         safety=safety_config(cfg.safety, a, cfg.period_s),
         max_speed=a.max_velocity,

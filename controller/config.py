@@ -176,6 +176,10 @@ class LoopSection(Section, frozen=True):
     gil_switch_interval_us: Annotated[float, rng(1.0, 100000.0)] = 200.0
     freeze_gc: bool = True  # gc.freeze() the start-up heap before the loop (controller/realtime.py)
     max_missing_s: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.1  # a drive silent this long: fault
+    # ... unless every device was silent with it: the simulator, the bus or their host paused, not
+    # one device (docs/concepts/cycle.md, "Silence tolerated"). As long as the drives wait for SYNC;
+    # never less than max_missing_s, whatever is set (SafetyMonitor.silent_too_long)
+    max_bus_silence_s: Annotated[float, rng(0.0, 10.0, lo_open=True)] = 0.25
     heartbeat_period_s: Annotated[float, rng(0.01, 10.0)] = 0.1
     heartbeat_consumer_s: Annotated[float, rng(0.02, 60.0)] = 0.5
     controller_node_id: Annotated[int, rng(1, 127)] = 100
@@ -693,7 +697,11 @@ def recorded_config_from_dict(table: dict[str, Any]) -> Config:
         section, _, key = dotted.partition(".")
         if isinstance(table.get(section), dict):
             table[section].pop(key, None)
+    table = _cycles_as_seconds(table)  # a recording's max_missing_cycles, read as the time below
     actuators, loop = table.setdefault("actuators", {}), table.get("loop")
+    if isinstance(loop, dict) and "max_bus_silence_s" not in loop and "max_missing_s" in loop:
+        # before every device's shared silence had its own tolerance it faulted as one drive's did
+        loop["max_bus_silence_s"] = loop["max_missing_s"]
     if isinstance(actuators, dict) and "extrapolation_s" not in actuators:
         # before the drives' 0x2010 was written they ran on one period past a missing target
         rate_hz = loop.get("rate_hz") if isinstance(loop, dict) else None

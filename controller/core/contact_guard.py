@@ -74,8 +74,8 @@ MIN_MEDIAN_SAMPLES = 3
 # such a cycle, a path run at 1 kHz on CAN FD met "contact force 62.5 N in free space (sensor
 # 0.1 N, drives' effort 93.6 N)" with nothing touching (2 of 3 bench runs, aa8ee07). The sensor's
 # longest silence in 24 contour demos over the bus was 1-6 cycles at 400 Hz (up to 15 ms); a sensor
-# silent longer is judged without, by the witness, as before, and past loop.max_missing_s
-# (100 ms) the law faults.
+# silent longer is judged without, by the witness, as before, and past safety.sensor_stale_s
+# (100 ms of its own silence, loop.max_bus_silence_s of one every device shares) the law faults.
 SENSOR_GAP_S = 0.02
 # The path the tool came in on: the measured TCP, a point each time it has moved this far from the
 # last one, the last TRAIL_POINTS of them (12 mm, more than a back-off's 5 mm). A back-off along the

@@ -83,7 +83,7 @@ from controller.core.ports import (
     missing_capability,
 )
 from controller.core.records import replace
-from controller.core.safety_monitor import GUARDED_MODES, SafetyMonitor, error_text
+from controller.core.safety_monitor import GUARDED_MODES, SafetyMonitor, error_text, missing_alone
 from controller.core.setpoint_smoothing import RuckigSmoother, Setpoint, SmoothingResult
 from controller.errors import NoSolutionError
 
@@ -170,6 +170,7 @@ class ControlLaw:
             setpoint=Setpoint.at_rest(rest),
             controlwords=(0,) * self.n,
             missing_streak=(0,) * self.n,
+            missing_alone=(0,) * self.n,
             task_state=None,
             tcp_reference_m=None,
             tcp_measured_m=None,
@@ -188,6 +189,8 @@ class ControlLaw:
         skipped = self._skipped_deadlines(state, t)
         jump, implausible = self.monitor.position_jump(state, inputs, skipped)
         streak = tuple(0 if d.fresh else s + 1 for d, s in zip(inputs.drives, state.missing_streak))
+        # a drive's own silence, apart from what every device shared (zeros, as the streak, when all answer)
+        alone = missing_alone(inputs, state.missing_alone) if any(streak) else streak
         last = tuple(
             d.position if d.fresh and not bad else x
             for d, x, bad in zip(inputs.drives, state.last_measured, implausible)
@@ -197,6 +200,7 @@ class ControlLaw:
             cycle=state.cycle + 1,
             step_t_s=t,
             missing_streak=streak,
+            missing_alone=alone,
             last_measured=last,
             tcp_measured_m=self._measured_tcp(state, inputs, measured),
             unreachable=state.unreachable | self._unreachable(inputs),
@@ -332,6 +336,7 @@ class ControlLaw:
             tcp_reference_m=None,  # the last run's path: the measured pose is judged on this run's
             sensor_stale=0,
             sensor_missing=0,
+            sensor_missing_alone=0,
             late_streak=0,
             warned=frozenset(),
             unreachable=frozenset(),

@@ -65,6 +65,11 @@ class ControllerState:
     sensor_counter: int = -1  # last sensor counter seen, for staleness
     sensor_stale: int = 0  # cycles the counter has not advanced
     sensor_missing: int = 0  # cycles in a row without a usable sample (missing or ambiguous)
+    # Of each drive's (and the sensor's) silence in a row, the cycles in which some other device was
+    # heard: its own. The rest every device shared (the bus or the simulator paused), which is judged
+    # on loop.max_bus_silence_s instead of loop.max_missing_s (SafetyMonitor.silent_too_long).
+    missing_alone: tuple[int, ...] = ()
+    sensor_missing_alone: int = 0
     late_streak: int = 0  # consecutive late cycles
     warned: frozenset[str] = frozenset()  # warnings already raised in the current episode
     # Each drive's last trusted position: fresh and within its physics. The plausibility check's

@@ -74,6 +74,9 @@ class LawConfig:
     hold_before_task_s: float
     max_missing_cycles: int
     settle_tolerance: float  # [actuator unit] and [unit/s]: "at rest" for the stop
+    # cycles of a device's silence that every device shared (loop.max_bus_silence_s); never fewer
+    # than max_missing_cycles (SafetyMonitor.silent_too_long)
+    max_bus_silence_cycles: int = 0
     safety: SafetyConfig = SafetyConfig()
     max_speed: float = math.inf  # [unit/s] the actuators' speed limit, for the plausibility check
     position_unit: str = "m"  # for messages

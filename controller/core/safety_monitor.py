@@ -107,6 +107,21 @@ def error_text(err: BaseException) -> str:
 
 
 # The modes in which the contact guard watches (the drives enabled, the law commanding them).
+def every_device_silent(inputs: CycleInputs) -> bool:
+    """No drive and no force sensor gave a usable sample this cycle: the bus, the simulator or the
+    host they share paused, not one device (a sensor that is not configured does not count)."""
+    sensor = inputs.sensor
+    return all(not d.fresh for d in inputs.drives) and (sensor is None or not sensor.fresh)
+
+
+def missing_alone(inputs: CycleInputs, alone: tuple[int, ...]) -> tuple[int, ...]:
+    """Each drive's cycles of silence in a row in which another device was heard (its own): 0 when
+    it is heard, unchanged in a cycle every device shares."""
+    if every_device_silent(inputs):
+        return alone
+    return tuple(0 if d.fresh else a + 1 for d, a in zip(inputs.drives, alone))
+
+
 GUARDED_MODES = frozenset((Mode.HOLDING, Mode.RUNNING, Mode.PAUSED, Mode.STOPPING, Mode.BACKING_OFF))
 
 
@@ -151,9 +166,12 @@ class SafetyMonitor:
             if sensor.fresh:
                 stale = state.sensor_stale + 1 if sensor.counter == state.sensor_counter else 0
                 state = replace(state, sensor_counter=sensor.counter, sensor_stale=stale)
-            missing = 0 if sensor.fresh else state.sensor_missing + 1
-            if missing != state.sensor_missing:
-                state = replace(state, sensor_missing=missing)
+                if state.sensor_missing:
+                    state = replace(state, sensor_missing=0, sensor_missing_alone=0)
+            else:
+                shared = every_device_silent(inputs)  # not its own: counted apart (silent_too_long)
+                alone = state.sensor_missing_alone + (0 if shared else 1)
+                state = replace(state, sensor_missing=state.sensor_missing + 1, sensor_missing_alone=alone)
         if sensor is not None and sensor.fresh:
             f = sensor.force_n
             magnitude = math.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2])
@@ -186,7 +204,8 @@ class SafetyMonitor:
         if (
             self.config.sensor_in_task
             and not state.sensor_breach
-            and state.sensor_missing >= sc.sensor_stale_cycles
+            and state.sensor_missing >= sc.sensor_stale_cycles  # (silent_too_long's least, first: cheap)
+            and self.silent_too_long(state.sensor_missing, state.sensor_missing_alone, sc.sensor_stale_cycles)
         ):
             # No usable sample (missing, or two senders on its COB-ID): no new information, as a counter
             # that does not advance, so the same tolerance (the contour task holds from the 4th cycle).
@@ -300,13 +319,27 @@ class SafetyMonitor:
             return f"{why}; the task did not retract within {limit_s:g} s"
         return ""
 
+    def silent_too_long(self, streak: int, alone: int, limit: int) -> bool:
+        """A device ``streak`` cycles without a usable sample, ``alone`` of them while another device
+        was heard: past its own ``limit`` (loop.max_missing_s, safety.sensor_stale_s) on those, or
+        past loop.max_bus_silence_s in all. A pause every device shares is the bus's, the
+        simulator's or their host's (a host took the simulator's CPU away for 105 ms, in CI), and
+        the task holds meanwhile, as the drives do through the loop's own pauses."""
+        return alone >= limit or streak >= max(limit, self.config.max_bus_silence_cycles)
+
+    def drive_silent_too_long(self, state: ControllerState, j: int) -> bool:
+        alone = state.missing_alone[j] if j < len(state.missing_alone) else state.missing_streak[j]
+        return self.silent_too_long(state.missing_streak[j], alone, self.config.max_missing_cycles)
+
     def silence(self, state: ControllerState) -> str:
-        """Every drive (and the sensor) without a usable sample for max_missing_cycles, named in one fault."""
+        """Every drive (and the sensor) silent too long (``silent_too_long``), named in one fault."""
         limit = self.config.max_missing_cycles
-        silent = [j for j, s in enumerate(state.missing_streak) if s >= limit]
+        if max(state.missing_streak) < limit:  # silent_too_long's least, first: this runs every cycle
+            return ""
+        silent = [j for j in range(len(state.missing_streak)) if self.drive_silent_too_long(state, j)]
         if not silent:
             return ""
-        sensor = state.sensor_missing >= limit
+        sensor = self.silent_too_long(state.sensor_missing, state.sensor_missing_alone, limit)
         if len(silent) == 1 and not sensor:
             return f"drive {silent[0] + 1}: no TPDO for {state.missing_streak[silent[0]]} cycles"
         cycles = min(state.missing_streak[j] for j in silent)
@@ -472,7 +505,8 @@ class SafetyMonitor:
                     f"drive {j + 1} reports {p.name} (statusword 0x{inputs.drives[j].statusword:04X})"
                     + self.error_code(state, j)
                 )
-            if streak >= self.config.max_missing_cycles:  # _safety names them first, all at once
+            if streak >= self.config.max_missing_cycles and self.drive_silent_too_long(state, j):
+                # (silence() names them first, all at once)
                 return f"drive {j + 1}: no TPDO for {streak} cycles"
         if emcy_fault:
             return emcy_fault

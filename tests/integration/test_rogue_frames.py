@@ -301,10 +301,11 @@ def test_a_drive_put_in_pre_operational_that_does_not_stop_itself_is_quick_stopp
 
 
 def test_every_silent_node_is_named_in_one_fault():
-    """The simulator gone (its frames lost): one fault names all of them."""
+    """The simulator gone (its frames lost): one fault names all of them, after the silence every
+    device shares (loop.max_bus_silence_s)."""
     final, _ = run([f"tx_full@{ROGUE_AT_S}"])
     cfg = load_config()
-    limit = cycles_in(cfg.loop.max_missing_s, cfg.period_s)
+    limit = cycles_in(cfg.loop.max_bus_silence_s, cfg.period_s)
     assert final.fault_reason == f"drives 1, 2, 3 and the force sensor silent for {limit} cycles"
 
 

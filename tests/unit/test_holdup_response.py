@@ -94,6 +94,15 @@ def test_a_recording_written_before_0x2011_is_read_with_the_drives_power_on_watc
     assert recorded_config_from_dict({"actuators": {"sync_watchdog_s": 0.3}}).actuators.sync_watchdog_s == 0.3
 
 
+def test_a_recording_written_before_the_shared_silence_had_its_tolerance_faults_as_it_did():
+    # every device silent faulted on loop.max_missing_s (given in seconds or, older, in cycles)
+    assert recorded_config_from_dict({"loop": {"max_missing_s": 0.05}}).loop.max_bus_silence_s == 0.05
+    old = recorded_config_from_dict({"loop": {"rate_hz": 1000.0, "max_missing_cycles": 40}})
+    assert old.loop.max_missing_s == old.loop.max_bus_silence_s == 0.04
+    kept = recorded_config_from_dict({"loop": {"max_missing_s": 0.1, "max_bus_silence_s": 0.3}})
+    assert kept.loop.max_bus_silence_s == 0.3
+
+
 def test_a_recorded_contour_run_without_holdups_is_all_in_the_last_bin():
     cycles = read_cycles(str(DATA / "contour_contact.mcap"))
     assert cycles and not any(c.held_up for c in cycles)  # a simulated-time run: the loop is never late

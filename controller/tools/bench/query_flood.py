@@ -106,6 +106,8 @@ def main(argv: list[str] | None = None) -> int:
             "--set",
             "loop.max_missing_s=0.025",
             "--set",
+            "loop.max_bus_silence_s=0.025",
+            "--set",
             'safety.on_late_cycles="warn"',
             "--set",
             "actuators.sync_watchdog_s=0.5",
