@@ -106,7 +106,6 @@ def error_text(err: BaseException) -> str:
         return "(its text could not be read)"
 
 
-# The modes in which the contact guard watches (the drives enabled, the law commanding them).
 def every_device_silent(inputs: CycleInputs) -> bool:
     """No drive and no force sensor gave a usable sample this cycle: the bus, the simulator or the
     host they share paused, not one device (a sensor that is not configured does not count)."""
@@ -122,6 +121,7 @@ def missing_alone(inputs: CycleInputs, alone: tuple[int, ...]) -> tuple[int, ...
     return tuple(0 if d.fresh else a + 1 for d, a in zip(inputs.drives, alone))
 
 
+# The modes in which the contact guard watches (the drives enabled, the law commanding them).
 GUARDED_MODES = frozenset((Mode.HOLDING, Mode.RUNNING, Mode.PAUSED, Mode.STOPPING, Mode.BACKING_OFF))
 
 

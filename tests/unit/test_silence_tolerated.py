@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import assume, event, given, settings
+from hypothesis import strategies as st
 
 from controller.assembly import build_law
 from controller.config import load_config
@@ -172,3 +174,62 @@ def test_the_contour_task_tolerates_sensor_silence_up_to_sensor_stale_s(silent_s
         # the task held: the true contact force stayed under the task's own retract limit (30.1 N
         # after the sensor's 12 cycles, 21.5 N after the whole simulator's 32)
         assert peak.max_n < cfg.task.model("contour").max_force_n
+
+
+def _predicted_fault_cycle(
+    windows: list[tuple[frozenset[int], int, int]], limit: int, shared: int
+) -> tuple[int, int]:
+    """From the drop windows (devices, first cycle, cycles), the first cycle a drive is silent too
+    long by the rule on the whole history (its own cycles: another device heard; all of them), -1
+    for none, and how close a drive's silence came to a limit, in cycles, at its longest. Path
+    task: the sensor is not read, but its silence is part of every device's."""
+    end = max(first + n for _, first, n in windows) + 2
+    streak, alone = dict.fromkeys(ALL, 0), dict.fromkeys(ALL, 0)
+    fault_at, closest = -1, 1 << 30
+    for k in range(end):
+        silent = {d for d in ALL if any(d in devs and first <= k < first + n for devs, first, n in windows)}
+        for d in (1, 2, 3):
+            if d not in silent and streak[d]:  # a silence ended: its longest
+                closest = min(closest, abs(alone[d] - limit), abs(streak[d] - max(limit, shared)))
+        for d in ALL:
+            streak[d] = streak[d] + 1 if d in silent else 0
+            alone[d] = 0 if d not in silent else alone[d] + (0 if silent == set(ALL) else 1)
+        if fault_at < 0 and any(alone[d] >= limit or streak[d] >= max(limit, shared) for d in (1, 2, 3)):
+            fault_at = k
+    return fault_at, closest
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.one_of(st.just(frozenset(ALL)), st.frozensets(st.sampled_from(ALL), min_size=1)),
+            st.integers(min_value=320, max_value=600),  # the first cycle (0.8-1.5 s, running)
+            st.integers(min_value=2, max_value=120),  # cycles (5-300 ms)
+        ),
+        min_size=1,
+        max_size=3,
+    )
+)
+def test_the_silence_fault_comes_when_the_rule_on_the_whole_history_says(windows):
+    """Random windows of silence over random sets of devices: FAULT exactly when a drive's own
+    silence reaches loop.max_missing_s or any silence loop.max_bus_silence_s, counted afresh from
+    the whole history here (the law counts it cycle by cycle); runs within 2 cycles of a limit
+    are left out (where a window's edge falls on the cycle grid is the simulator's)."""
+    cfg = load_config(overrides=PATH)
+    limit = cycles_in(cfg.loop.max_missing_s, cfg.period_s)
+    shared = cycles_in(cfg.loop.max_bus_silence_s, cfg.period_s)
+    fault_at, closest = _predicted_fault_cycle(windows, limit, shared)
+    assume(closest > 2)
+    event("predicted FAULT" if fault_at >= 0 else "predicted DONE")
+    drops = [
+        f"drop:{d}@{first * cfg.period_s}+{n * cfg.period_s}" for devs, first, n in windows for d in devs
+    ]
+    _, final, _ = _run({**PATH, "sim.faults": drops})
+    if fault_at < 0:
+        assert final.mode == Mode.DONE, final.fault_reason
+    else:
+        assert final.mode == Mode.FAULT
+        assert " silent for " in final.fault_reason or ": no TPDO for " in final.fault_reason, (
+            final.fault_reason
+        )
