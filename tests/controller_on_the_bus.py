@@ -63,6 +63,7 @@ class ControllerOnTheBus:
     spec: BusSpec
     bus: can.BusABC  # a socket of the test's on the same bus
     process: subprocess.Popen[str]
+    simulator: subprocess.Popen[str]  # its process (a test stops it with SIGSTOP: the host's pause)
 
 
 @contextmanager
@@ -73,7 +74,7 @@ def controller_beside_simulator(
     ``options`` on a bus of their own; the controller is stopped (by process id) when the block ends."""
     spec = parse_bus_spec("udp_multicast", udp_port=random.SystemRandom().randint(48000, 49999))
     command = [sys.executable, "-m", "controller", "run", "--json", "--no-realtime"]
-    with simulator_process(spec, None, [f"task.path.laps={LAPS}"]), open_bus(spec) as bus:
+    with simulator_process(spec, None, [f"task.path.laps={LAPS}"]) as simulator, open_bus(spec) as bus:
         process = subprocess.Popen(
             [*command, "--udp-port", str(spec.udp_port), *options],
             stdout=subprocess.PIPE,
@@ -81,7 +82,7 @@ def controller_beside_simulator(
             text=True,
         )
         try:
-            yield ControllerOnTheBus(spec, bus, process)
+            yield ControllerOnTheBus(spec, bus, process, simulator)
         finally:
             stop_process(process)
 

@@ -9,49 +9,29 @@ from __future__ import annotations
 
 import json
 import os
-import random
 import signal
-import subprocess
-import sys
 import time
 
 import pytest
-from busy_machine import TOLERANT, how_the_run_ended
-from controller_on_the_bus import wait_until_drive_1_moves
-
-from controller.shell.demo import simulator_process, stop_process
-from drivers.bus import open_bus, parse_bus_spec
+from busy_machine import how_the_run_ended
+from controller_on_the_bus import controller_beside_simulator, run_sets, wait_until_drive_1_moves
 
 pytestmark = pytest.mark.integration
 
 PAUSE_S = 0.12  # more than one device's 100 ms (48 cycles at 400 Hz), 130 ms short of the shared 250
-LAPS = 2
-COMMAND = [sys.executable, "-m", "controller", "run", "--json", "--no-realtime"]
 
 
 @pytest.mark.parametrize(("bus_silence_s", "mode"), [(None, "DONE"), (0.1, "FAULT")])
-def test_the_controller_rides_through_its_simulator_stopped_for_120_ms(bus_silence_s, mode):
-    spec = parse_bus_spec("udp_multicast", udp_port=random.SystemRandom().randint(48000, 49999))
-    options = ["--set", f"task.path.laps={LAPS}", "--set", "monitoring.enabled=false", *TOLERANT]
-    if bus_silence_s is not None:
-        options += ["--set", f"loop.max_bus_silence_s={bus_silence_s}"]
-    with simulator_process(spec, None, [f"task.path.laps={LAPS}"]) as sim, open_bus(spec) as bus:
-        ctrl = subprocess.Popen(
-            [*COMMAND, "--udp-port", str(spec.udp_port), *options],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
+def test_the_controller_rides_through_its_simulator_stopped_for_120_ms(tmp_path, bus_silence_s, mode):
+    more = [] if bus_silence_s is None else ["--set", f"loop.max_bus_silence_s={bus_silence_s}"]
+    with controller_beside_simulator(run_sets(tmp_path, *more)) as run:
+        wait_until_drive_1_moves(run.bus, run.process)
+        os.kill(run.simulator.pid, signal.SIGSTOP)
         try:
-            wait_until_drive_1_moves(bus, ctrl)
-            os.kill(sim.pid, signal.SIGSTOP)
-            try:
-                time.sleep(PAUSE_S)  # the disturbance itself, not a wait for something to happen
-            finally:
-                os.kill(sim.pid, signal.SIGCONT)
-            out, err = ctrl.communicate(timeout=120)
+            time.sleep(PAUSE_S)  # the disturbance itself, not a wait for something to happen
         finally:
-            stop_process(ctrl)
+            os.kill(run.simulator.pid, signal.SIGCONT)
+        out, err = run.process.communicate(timeout=120)
     s = json.loads(out)
     assert s["final_mode"] == mode, how_the_run_ended(out, err)
     cycles = s["longest_silence_cycles"]
