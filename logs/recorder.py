@@ -224,6 +224,7 @@ class SessionRecorder:
         self._progress_s = 0.0  # when the pipe last took data (or the first drop of a stretch began)
         self._writer_stalled = False  # gone by a stall: it will not answer either (close waits briefly)
         self._proc: subprocess.Popen[bytes] | None = None
+        self.writer_scheduling = "normal scheduler"  # raise_writer's outcome, for the run's summary
         self._fd = -1
         self._reply_fd = -1  # the writer's standard output: JSON lines
         self._replies = bytearray()
@@ -496,6 +497,27 @@ class SessionRecorder:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    def raise_writer(self, priority: int) -> str:
+        """The writer process's main thread at ``SCHED_FIFO`` ``priority``, so that no normal task can
+        starve it (why, and why its main thread only: controller/shell/helper_threads.py); how it
+        runs now (``writer_scheduling``). A refusal is logged and the writer runs on as it was."""
+        proc = self._proc
+        if proc is None or proc.poll() is not None:
+            return self.writer_scheduling
+        try:
+            # reset on fork: what it starts later (a live view's thread or viewer process) starts under
+            # the normal scheduler, as those it started before stay
+            policy = os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0)
+            os.sched_setscheduler(proc.pid, policy, os.sched_param(priority))
+        except OSError as err:
+            log.warning("the recording's writer process left under the normal scheduler: %s", err)
+            self.writer_scheduling = (
+                f"normal scheduler (SCHED_FIFO {priority} refused: {err.strerror or err})"
+            )
+            return self.writer_scheduling
+        self.writer_scheduling = f"SCHED_FIFO {priority}"
+        return self.writer_scheduling
 
     def start(self) -> None:
         """Start the writer process and wait until it has written the header and the metadata."""

@@ -22,6 +22,17 @@ as an equal: it is put down to the helpers' priority the same way.
 
 Only where the loop itself runs at ``SCHED_FIFO``: raising helpers above a loop under the normal
 scheduler would make the inversion worse, not better.
+
+The recording's writer process (logs/session_writer.py) is no helper: the loop never waits for it
+(it hands each cycle over a non-blocking pipe). But a writer starved for ``WRITER_STALL_S`` (5 s)
+while its backlog is full stops the run under ``recording.on_failure = "stop"``, and under the
+normal scheduler any busy enough work starves it: two CPU hogs at ``nice -n -20`` beside the demo
+stopped it after lap 2, 2 of 2 runs, while the loop kept its beat (an outside tester, 2ec478d). So
+its main thread runs at ``SCHED_FIFO`` too, ``WRITER_PRIORITY_STEP`` below the loop: above every
+normal task, below the helpers and the simulated hardware (``writer_priority``; the recorder's
+``raise_writer`` does it once the loop has its priority). Its main thread only: the live views'
+servers in that process (Foxglove's, Rerun's) do work that grows with their clients, and at
+real-time priority it would take the CPU's real-time budget that the simulated drives share.
 """
 
 from __future__ import annotations
@@ -40,6 +51,7 @@ from controller.realtime import scheduling_policy
 log = logging.getLogger(__name__)
 
 HELPER_PRIORITY_STEP = 20  # the helpers run this far below the loop (the simulator: 10 below)
+WRITER_PRIORITY_STEP = 30  # the recording's writer runs this far below the loop (module text)
 WATCH_EVERY_S = 1.0  # how often the watch looks for new threads
 
 
@@ -55,6 +67,10 @@ def loop_fifo_priority(thread_id: int | None = None) -> int | None:
 
 def helper_priority(loop_priority: int) -> int:
     return max(1, loop_priority - HELPER_PRIORITY_STEP)
+
+
+def writer_priority(loop_priority: int) -> int:
+    return max(1, loop_priority - WRITER_PRIORITY_STEP)
 
 
 def process_thread_ids() -> set[int]:

@@ -43,7 +43,7 @@ from controller.realtime import (
 from controller.robot_registry import ActuatorUnits
 from controller.shell.cpu_shield import raise_shield
 from controller.shell.cpu_steal import steal_s_since, steal_ticks
-from controller.shell.helper_threads import HelperThreadWatch
+from controller.shell.helper_threads import HelperThreadWatch, loop_fifo_priority, writer_priority
 from controller.shell.idle_poll import idle_polling
 from controller.shell.log_handoff import log_records_off_the_loop
 from controller.shell.loop import CycleLoop
@@ -269,6 +269,9 @@ def run_controller(
                 restore = apply_realtime(realtime)
                 granted = granted_realtime()
                 helpers_at_start = helpers.start()
+                loop_priority = loop_fifo_priority()
+                if session is not None and loop_priority is not None:  # why: helper_threads.py
+                    session.raise_writer(writer_priority(loop_priority))
                 faults_before = resource.getrusage(resource.RUSAGE_SELF).ru_majflt
                 steal_before = steal_ticks()
                 notify("READY=1")  # systemd Type=notify: the devices are configured, the loop starts
@@ -399,6 +402,7 @@ def _recording_summary(session: SessionRecorder | None, cfg: Config) -> dict[str
         "error": session.error,
         "lost": lost,
         "on_failure": cfg.recording.on_failure,
+        "writer_scheduling": session.writer_scheduling,
         "session_id": session.session_id,
         "files": [str(p) for p in session.files],
         "deleted": [str(p) for p in session.deleted],
