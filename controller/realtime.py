@@ -515,7 +515,31 @@ def granted_realtime() -> str:
     latency_us = cpu_latency_limit_us()
     if latency_us is not None:
         parts.append(f"CPU wake-up latency <= {latency_us} us (machine-wide)")
+    if parts and parts[0].startswith("SCHED_"):
+        throttling = rt_throttling()
+        if throttling is not None:
+            parts.append(throttling)
     return ", ".join(parts)
+
+
+def rt_throttling(proc_sys: str = "/proc/sys/kernel") -> str | None:
+    """The kernel's real-time throttling, in ``granted_realtime``'s words; None where unreadable.
+
+    Every real-time task of a CPU shares its budget: ``sched_rt_runtime_us`` of every
+    ``sched_rt_period_us`` (950 000 of 1 000 000 by default). A busy real-time task on the loop's
+    CPU, even at priority 1, spends it, and the loop then stands still with it for the rest of
+    each period: 50 ms a second (an outside tester, docs/concepts/realtime.md). -1: no throttling.
+    """
+    try:
+        with open(os.path.join(proc_sys, "sched_rt_runtime_us")) as f:
+            runtime_us = int(f.read())
+        with open(os.path.join(proc_sys, "sched_rt_period_us")) as f:
+            period_us = int(f.read())
+    except (OSError, ValueError):
+        return None
+    if runtime_us < 0:
+        return "real-time throttling off (machine-wide)"
+    return f"real-time tasks throttled to {runtime_us} of every {period_us} us per CPU (machine-wide)"
 
 
 def memory_locked(status: str) -> bool:

@@ -514,6 +514,29 @@ def test_the_summary_says_what_was_granted_not_what_was_asked():
         assert granted.startswith("normal scheduler")
 
 
+def test_the_kernel_s_real_time_throttling_is_named(tmp_path):
+    (tmp_path / "sched_rt_period_us").write_text("1000000\n")
+    (tmp_path / "sched_rt_runtime_us").write_text("950000\n")
+    assert realtime.rt_throttling(str(tmp_path)) == (
+        "real-time tasks throttled to 950000 of every 1000000 us per CPU (machine-wide)"
+    )
+    (tmp_path / "sched_rt_runtime_us").write_text("-1\n")
+    assert realtime.rt_throttling(str(tmp_path)) == "real-time throttling off (machine-wide)"
+    (tmp_path / "sched_rt_runtime_us").write_text("lots\n")
+    assert realtime.rt_throttling(str(tmp_path)) is None
+    assert realtime.rt_throttling(str(tmp_path / "nowhere")) is None
+
+
+def test_a_real_time_summary_names_the_throttling_a_normal_one_does_not(monkeypatch):
+    monkeypatch.setattr(realtime, "rt_throttling", lambda: "real-time throttling off (machine-wide)")
+    monkeypatch.setattr(realtime, "scheduling_policy", lambda tid=0: os.SCHED_FIFO)
+    monkeypatch.setattr(os, "sched_getparam", lambda tid: os.sched_param(80))
+    assert realtime.granted_realtime().startswith("SCHED_FIFO 80")
+    assert realtime.granted_realtime().endswith(", real-time throttling off (machine-wide)")
+    monkeypatch.setattr(realtime, "scheduling_policy", lambda tid=0: os.SCHED_OTHER)
+    assert "throttling" not in realtime.granted_realtime()
+
+
 def test_memory_is_locked_when_most_of_it_is_not_when_a_library_locked_a_few_pages():
     status = "Name:\tpython3\nVmSize:\t  808132 kB\nVmLck:\t      {lck} kB\nVmRSS:\t   75452 kB\n"
     assert not realtime.memory_locked(status.format(lck=12))  # a library's pages, no mlockall
