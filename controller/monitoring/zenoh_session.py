@@ -261,7 +261,12 @@ def build_zenoh_config(settings: SessionSettings) -> zenoh.Config:
             "connect/retry",
             json.dumps({"period_init_ms": lo, "period_max_ms": hi, "period_increase_factor": 2}),
         )
-    if settings.mode == "peer" and _get(conf, "connect/timeout_ms") is None:
+    # a client with a timeout too: by Zenoh's default a client tries once and fails, so a one-shot
+    # tool (``cheope status``) started while the controller's listener was busy failed at once, not
+    # within its timeout (1 of 30 concurrent calls beside 12 monitors, an outside tester). Not -1: a
+    # client would then wait at open for ever
+    timed_client = settings.mode == "client" and settings.connect_timeout_ms >= 0
+    if (settings.mode == "peer" or timed_client) and _get(conf, "connect/timeout_ms") is None:
         conf.insert_json5("connect/timeout_ms", json.dumps(settings.connect_timeout_ms))
     if settings.mode == "peer" and _get(conf, "connect/exit_on_failure") is None:
         conf.insert_json5("connect/exit_on_failure", "false")

@@ -55,8 +55,10 @@ from controller.monitoring.zenoh_session import (
     SessionSettings,
     build_zenoh_config,
     client_settings,
+    connected,
     free_loopback_port,
     monitor_settings,
+    open_tool_session,
     split_endpoints,
 )
 from controller.shell.service import publisher_settings
@@ -499,6 +501,41 @@ def test_status_without_a_controller_ends_with_one_clear_line():
     assert r.stderr.count("\n") == 1 and ep in r.stderr and r.stderr.startswith("cheope status: error:")
     with pytest.raises(MonitoringConnectionError, match=re.escape("127.0.0.1")):
         query_status(client_settings((ep,)), KEYS, timeout_s=1.0)
+
+
+def test_a_tool_started_before_the_controller_listens_connects_within_its_timeout():
+    """A Zenoh client tries once by default: ``cheope status`` beside a busy listener failed at once
+    (1 of 30 concurrent calls beside 12 monitors, an outside tester). It retries until its timeout."""
+    ep = _endpoint()
+    listening = threading.Event()
+
+    def listen_late() -> None:
+        time.sleep(0.3)  # the tool is opening meanwhile: its first attempt finds nobody
+        conf = build_zenoh_config(SessionSettings(mode="peer", listen=(ep,), connect=()))
+        with zenoh.open(conf):
+            listening.set()
+            done.wait(GENEROUS_S)
+
+    done = threading.Event()
+    listener = threading.Thread(target=listen_late, daemon=True)
+    listener.start()
+    try:
+        session = open_tool_session(client_settings((ep,), timeout_s=GENEROUS_S))
+        try:
+            assert listening.is_set() and connected(session) == 1
+        finally:
+            session.close()
+    finally:
+        done.set()
+        listener.join(GENEROUS_S)
+
+
+def test_only_a_client_with_a_timeout_is_given_one():
+    tool = build_zenoh_config(client_settings((_endpoint(),), timeout_s=2.0))
+    assert json.loads(tool.get_json("connect/timeout_ms")) == 2000
+    forever = build_zenoh_config(SessionSettings(mode="client", listen=(), connect=(_endpoint(),)))
+    # not set: Zenoh's own for a client (try once), never -1 (wait at open for ever)
+    assert json.loads(forever.get_json("connect/timeout_ms")) is None
 
 
 # -- the view --------------------------------------------------------------------------------
