@@ -495,8 +495,10 @@ def apply_realtime(options: RealtimeOptions) -> Callable[[], None]:
 def granted_realtime() -> str:
     """What the calling thread runs with now, as ``describe`` words: the options as granted."""
     parts = []
+    real_time = False  # the throttling below concerns real-time threads only
     if hasattr(os, "sched_getscheduler"):
         policy = scheduling_policy()
+        real_time = policy in (os.SCHED_FIFO, getattr(os, "SCHED_RR", -1))
         if policy == os.SCHED_FIFO:
             parts.append(f"SCHED_FIFO {os.sched_getparam(0).sched_priority}")
         elif policy == getattr(os, "SCHED_RR", -1):
@@ -515,7 +517,7 @@ def granted_realtime() -> str:
     latency_us = cpu_latency_limit_us()
     if latency_us is not None:
         parts.append(f"CPU wake-up latency <= {latency_us} us (machine-wide)")
-    if parts and parts[0].startswith("SCHED_"):
+    if real_time:
         throttling = rt_throttling()
         if throttling is not None:
             parts.append(throttling)
