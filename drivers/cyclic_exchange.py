@@ -125,7 +125,8 @@ class ExchangeCounters:
     frames_out: int = 0
     rejected_frames: int = 0  # frames that did not decode
     rejected_by_node: dict[int, int] = field(default_factory=dict)  # the same, per configured node
-    late_frames: int = 0  # TPDOs of an earlier cycle, found before this cycle's SYNC
+    # TPDOs of an earlier cycle: found before this cycle's SYNC, or a burst's in its window (``of_known_age``)
+    late_frames: int = 0
     missing_drive_frames: int = 0
     missing_sensor_frames: int = 0
     # The longest run of cycles without a usable sample, over the drives and of the sensor: the
@@ -149,6 +150,22 @@ class ExchangeCounters:
 # 40 cycles there). Meanwhile a second sender's frame may pass unreported once, never as data: a window
 # with two candidates has no sample.
 OWED_FORGOTTEN_AFTER = 20
+
+# A lone answer from a device that owed this many answers or more when its window opened may be the
+# oldest of a burst (a simulator stopped by its host for 120 ms answered 48 queued SYNCs in 6 ms, the
+# first inside a window and the rest after it): a position 46 periods old, taken as this cycle's,
+# faulted a run on a following error of 11.5 mm against drives standing still. It is a sample again
+# once the device has answered in step (one candidate a window, nothing late between) for
+# IN_STEP_BEFORE_TRUSTED windows: its burst is over. One answer owed is a sample at most one SYNC old,
+# which the law's checks allow for (a device that lags one answer behind stays usable).
+OWED_OF_UNKNOWN_AGE = 2
+IN_STEP_BEFORE_TRUSTED = 2
+
+
+def of_known_age(owed_at_open: int, in_step_at_open: int) -> bool:
+    """Whether a device's lone answer in a window is its answer to this window's SYNC, as far as the
+    exchange can tell: it owed at most one answer, or it has answered in step since its burst."""
+    return owed_at_open < OWED_OF_UNKNOWN_AGE or in_step_at_open >= IN_STEP_BEFORE_TRUSTED
 
 
 def _owed_after(owed: int, in_step: int, candidates: int) -> tuple[int, int]:
@@ -768,9 +785,12 @@ class CyclicExchange:
         one: the sample is then up to that many SYNCs old, and the device's next answer may be as
         many steps further on than the SYNCs since (``_slack``). Without that allowance the
         sensor's next counter seemed to jump, a frame "the device cannot have sent", and a soak at
-        the defaults faulted on it."""
+        the defaults faulted on it. Two or more owed, the answer is of unknown age until the device
+        is in step again (``of_known_age``): no sample, counted late."""
         owed_at_open = list(self._owed)
+        in_step_at_open = list(self._in_step)
         sensor_owed_at_open = max(self._sensor_owed)
+        sensor_known_age = of_known_age(sensor_owed_at_open, min(self._sensor_in_step))
         for j, count in enumerate(self._candidates):
             self._owed[j], self._in_step[j] = _owed_after(self._owed[j], self._in_step[j], count)
         for k, count in enumerate(self._sensor_candidates):
@@ -779,7 +799,9 @@ class CyclicExchange:
             )
         for j in range(self.n):
             count = self._candidates[j]
-            if count == 1 and self._candidate_ok[j]:
+            if count == 1 and not of_known_age(owed_at_open[j], in_step_at_open[j]):
+                self.counters.late_frames += 1  # most likely the oldest answer of its burst
+            elif count == 1 and self._candidate_ok[j]:
                 self._statusword[j] = self._candidate_sw[j]
                 self._position[j] = self._candidate_x[j]
                 self._effort[j] = self._candidate_effort[j]
@@ -793,6 +815,9 @@ class CyclicExchange:
                 self._report(Anomaly.IMPLAUSIBLE_FRAME, self._codecs[j].tpdo_cob_id, self.drive_ids[j])
             self._cycles_since_trusted[j] += 1
         if self.has_sensor:
+            if self._sensor_fresh and not self._sensor_ambiguous and not sensor_known_age:
+                self.counters.late_frames += 2  # its force and torque frames
+                self._sensor_fresh = False
             if self._sensor_fresh and not self._sensor_ambiguous:
                 self._force, self._torque = self._candidate_force, self._candidate_torque
                 self._sensor_status = self._candidate_status

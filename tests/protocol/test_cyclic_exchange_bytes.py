@@ -20,7 +20,14 @@ import can
 import pytest
 
 from controller.core.cycle_data import Anomaly, BusAnomaly, CycleOutputs, EmcyReport, NmtReport
-from drivers.cyclic_exchange import CAN_ERR_BUSOFF, OWED_FORGOTTEN_AFTER, CyclicExchange, targets_sync_gap_s
+from drivers.cyclic_exchange import (
+    CAN_ERR_BUSOFF,
+    IN_STEP_BEFORE_TRUSTED,
+    OWED_FORGOTTEN_AFTER,
+    CyclicExchange,
+    of_known_age,
+    targets_sync_gap_s,
+)
 from drivers.pdo_codec import PositionScale
 
 DRIVES = (1, 2, 3)
@@ -929,7 +936,9 @@ def test_a_burst_of_owed_answers_that_straddles_the_window_is_not_a_second_sende
     """Drive 2 stalls for three SYNCs, then answers all four at once: one lands in the window, three
     after it, before the next SYNC (seen in a soak at the defaults: a 9 ms stall of the simulator
     faulted it with "3 TPDO(s) twice in one cycle"). Its debt is paid answer by answer: nothing is
-    reported, and the next window's answer is its sample."""
+    reported, and the next window's answer is its sample. The lone answer in the window is the
+    burst's oldest, three SYNCs old: no sample (a simulator stopped for 120 ms faulted a run on a
+    following error when a 46-period-old position was taken for the cycle's)."""
     ex = make_exchange(bus, clock)
     bus.answers[0] = all_answers(0)
     one_cycle(ex, clock, None)
@@ -938,8 +947,10 @@ def test_a_burst_of_owed_answers_that_straddles_the_window_is_not_a_second_sende
         bus.answers[k] = [f for f in all_answers(k) if f.arbitration_id != tpdo1(2)]
         assert not one_cycle(ex, clock, None).drives[1].fresh
     bus.answers[4] = [*(f for f in all_answers(4) if f.arbitration_id != tpdo1(2)), mine[0]]
+    before = ex.counters.late_frames
     fb = one_cycle(ex, clock, None)
-    assert fb.anomalies == ()
+    assert fb.anomalies == () and not fb.drives[1].fresh and fb.drives[0].fresh
+    assert ex.counters.late_frames == before + 1
     bus.inbox.extend(mine[1:])  # after the window, before the next SYNC
     bus.answers[5] = all_answers(5)
     fb = one_cycle(ex, clock, None)
@@ -962,6 +973,33 @@ def test_an_answer_a_device_never_sends_is_forgotten_once_it_is_in_step_again(bu
     bus.answers[last] = [rogue, *all_answers(last)]
     fb = one_cycle(ex, clock, None)
     assert not fb.drives[1].fresh and (Anomaly.DUPLICATE_FRAME, tpdo1(2)) in anomalies(fb)
+
+
+def test_answers_a_device_never_sends_leave_its_next_answers_unused_until_it_is_in_step(bus, clock):
+    """Drive 2 really missed two SYNCs (their answers never come): its next lone answers may be the
+    oldest of a burst still coming, so they are no sample until it has answered in step for
+    IN_STEP_BEFORE_TRUSTED windows; then they are, though the debt is not forgotten yet."""
+    ex = make_exchange(bus, clock)
+    bus.answers[0] = all_answers(0)
+    one_cycle(ex, clock, None)
+    for k in (1, 2):
+        bus.answers[k] = [f for f in all_answers(k) if f.arbitration_id != tpdo1(2)]
+        one_cycle(ex, clock, None)
+    fresh = []
+    for k in range(3, 3 + IN_STEP_BEFORE_TRUSTED + 2):
+        bus.answers[k] = all_answers(k)
+        fb = one_cycle(ex, clock, None)
+        assert fb.anomalies == () and fb.drives[0].fresh, k
+        fresh.append(fb.drives[1].fresh)
+    assert fresh == [False] * IN_STEP_BEFORE_TRUSTED + [True, True]
+
+
+def test_one_answer_owed_leaves_a_lone_answer_a_sample():
+    """At most one answer owed, a lone answer is at most one SYNC old: a sample (a device lagging one
+    behind stays usable); two or more owed, only once the device is in step again."""
+    assert of_known_age(0, 0) and of_known_age(1, 0)
+    assert not of_known_age(2, 0) and not of_known_age(48, IN_STEP_BEFORE_TRUSTED - 1)
+    assert of_known_age(48, IN_STEP_BEFORE_TRUSTED)
 
 
 def test_a_device_that_lags_one_answer_behind_for_a_while_is_no_second_sender_when_it_catches_up(bus, clock):
@@ -1005,7 +1043,7 @@ def test_the_sensor_s_burst_after_a_stall_is_not_a_counter_jump(bus, clock):
     ]
     bus.answers[4] = [*(f for f in all_answers(4) if f.arbitration_id not in sensor_ids), *burst[:2]]
     fb = one_cycle(ex, clock, None)
-    assert fb.anomalies == ()
+    assert fb.anomalies == () and not fb.sensor.fresh  # the burst's oldest pair, three SYNCs old
     bus.inbox.extend(burst[2:])
     bus.answers[5] = all_answers(5, counter=15)
     fb = one_cycle(ex, clock, None)
