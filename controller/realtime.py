@@ -349,6 +349,14 @@ def scheduling_policy(thread_id: int = 0) -> int:
     return int(os.sched_getscheduler(thread_id)) & ~getattr(os, "SCHED_RESET_ON_FORK", 0)
 
 
+def below_own_priority() -> None:
+    """The calling thread one ``SCHED_FIFO`` priority below the one it runs at (at least 1); a
+    thread under any other policy is left as it is."""
+    if hasattr(os, "sched_setscheduler") and scheduling_policy() == os.SCHED_FIFO:
+        priority = max(1, int(os.sched_getparam(0).sched_priority) - 1)
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+
+
 def reset_scheduler() -> None:
     """Back to SCHED_OTHER for the calling thread (used after a permission probe)."""
     if hasattr(os, "sched_setscheduler"):

@@ -41,7 +41,7 @@ import canopen
 import numpy as np
 
 from controller.config import Config
-from controller.realtime import reset_scheduler
+from controller.realtime import below_own_priority
 from controller.sim_config.quirk_specs import Quirk
 from drivers import cob_ids
 from drivers.drop_counter import DropCounter
@@ -453,11 +453,15 @@ class Simulator:
     def _follow_pose(self) -> None:
         """The free robot's pose from the drives' positions at each SYNC, behind the answers.
 
-        Under the normal scheduler: the cyclic thread, real-time where permitted, preempts it and
-        takes the interpreter back within the switch interval when a frame arrives.
+        One priority below the cyclic thread when that one is real-time (``below_own_priority``):
+        the cyclic thread preempts it and takes the interpreter back within the switch interval
+        when a frame arrives. It ran under the normal scheduler until the recording's writer went
+        real-time (``SCHED_FIFO`` 50, controller/shell/helper_threads.py) on the same CPU: a
+        writer's burst then kept it off the CPU while it held this process's interpreter lock,
+        and the cyclic thread, at 70, waited for the lock with it.
         """
         with contextlib.suppress(OSError):
-            reset_scheduler()
+            below_own_priority()
         while (sample := self._kinematics.get()) is not None:
             self.plant.update_kinematics(*sample)
 
