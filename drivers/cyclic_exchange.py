@@ -140,6 +140,8 @@ class ExchangeCounters:
     # cycles whose RPDOs went a second time, just before their SYNC: the process was held up between
     # the clock reading they were chosen by and the SYNC (``CyclicExchange._before_sync``)
     rpdos_resent: int = 0
+    # lone answers not used: their device owed two or more when the window opened (``of_known_age``)
+    answers_of_unknown_age: int = 0
 
 
 # Windows in step (one answer each) after which answers still owed are taken as never coming (a SYNC
@@ -801,6 +803,7 @@ class CyclicExchange:
             count = self._candidates[j]
             if count == 1 and not of_known_age(owed_at_open[j], in_step_at_open[j]):
                 self.counters.late_frames += 1  # most likely the oldest answer of its burst
+                self.counters.answers_of_unknown_age += 1
             elif count == 1 and self._candidate_ok[j]:
                 self._statusword[j] = self._candidate_sw[j]
                 self._position[j] = self._candidate_x[j]
@@ -817,6 +820,7 @@ class CyclicExchange:
         if self.has_sensor:
             if self._sensor_fresh and not self._sensor_ambiguous and not sensor_known_age:
                 self.counters.late_frames += 2  # its force and torque frames
+                self.counters.answers_of_unknown_age += 1
                 self._sensor_fresh = False
             if self._sensor_fresh and not self._sensor_ambiguous:
                 self._force, self._torque = self._candidate_force, self._candidate_torque

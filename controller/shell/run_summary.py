@@ -211,6 +211,8 @@ def summarize(
         # cycles whose RPDOs went again before their SYNC: held up after they went (cyclic_exchange)
         "rpdos_resent": c.rpdos_resent,
         "missing_frames": {"drive": c.missing_drive_frames, "sensor": c.missing_sensor_frames},
+        # of them, lone answers of a device still owing two or more: maybe a burst's oldest (cyclic_exchange)
+        "answers_of_unknown_age": c.answers_of_unknown_age,
         "longest_silence_cycles": {
             "drive": c.longest_drive_silence_cycles,
             "sensor": c.longest_sensor_silence_cycles,

@@ -992,6 +992,7 @@ def test_answers_a_device_never_sends_leave_its_next_answers_unused_until_it_is_
         assert fb.anomalies == () and fb.drives[0].fresh, k
         fresh.append(fb.drives[1].fresh)
     assert fresh == [False] * IN_STEP_BEFORE_TRUSTED + [True, True]
+    assert ex.counters.answers_of_unknown_age == IN_STEP_BEFORE_TRUSTED
 
 
 def test_one_answer_owed_leaves_a_lone_answer_a_sample():
@@ -1044,6 +1045,7 @@ def test_the_sensor_s_burst_after_a_stall_is_not_a_counter_jump(bus, clock):
     bus.answers[4] = [*(f for f in all_answers(4) if f.arbitration_id not in sensor_ids), *burst[:2]]
     fb = one_cycle(ex, clock, None)
     assert fb.anomalies == () and not fb.sensor.fresh  # the burst's oldest pair, three SYNCs old
+    assert ex.counters.answers_of_unknown_age == 1
     bus.inbox.extend(burst[2:])
     bus.answers[5] = all_answers(5, counter=15)
     fb = one_cycle(ex, clock, None)
