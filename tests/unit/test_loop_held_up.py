@@ -23,6 +23,7 @@ from controller.shell.simulated_rig import SimulatedRig
 from controller.tasks.contour_tracking import HOLD_RESTART_ACCELERATION_M_S2, ContourPhase, ContourState
 from controller.tools.contour.experiment import run_simulated_time
 from controller.tools.contour.scan import ContourScenario, run_contour_scenario
+from drivers.cyclic_exchange import IN_STEP_BEFORE_TRUSTED
 
 STALL_S = 0.0096  # the hold-ups the hog run met: 9.5-9.7 ms
 STALL_EVERY_S = 2.5
@@ -202,12 +203,15 @@ def test_a_brake_on_missing_samples_keeps_the_speed_to_climb_back_to():
     """Over the bus a second hold-up 0.1 s after a first (frames missing for 5 cycles) braked the
     climb back to the old speed; the restart ended there and the tool went on at the laps' gentle
     0.05 m/s^2: lap 3 at 54.6 and 43.5 mm/s of 60 (two default demos, 2026-12-05). Here the same in
-    simulated time: a 25-ms stall in lap 3, then every device's frames dropped for 5 cycles while the
-    speed climbs back. The brake on the missing samples keeps the speed it braked from, and the
-    climb after it is the hold-up's (HOLD_RESTART_ACCELERATION_M_S2), not the laps'."""
+    simulated time: a 25-ms stall in lap 3, then every device's frames missing for 5 cycles while the
+    speed climbs back: 3 dropped, then each device's first IN_STEP_BEFORE_TRUSTED answers, of
+    unknown age after 3 owed (drivers/cyclic_exchange.py). The brake on the missing samples keeps
+    the speed it braked from, and the climb after it is the hold-up's
+    (HOLD_RESTART_ACCELERATION_M_S2), not the laps'."""
     base = load_config(overrides={"task.kind": "contour"})
     period = base.period_s
-    drops = [f"drop:{node}@39.58+{5 * period}" for node in (1, 2, 3, base.sensor.node_id)]
+    dropped = 5 - IN_STEP_BEFORE_TRUSTED
+    drops = [f"drop:{node}@39.58+{dropped * period}" for node in (1, 2, 3, base.sensor.node_id)]
     cfg = load_config(
         overrides={"task.kind": "contour", "sim.faults": [f"stall=0.025@39.5+{period}", *drops]}
     )
