@@ -349,12 +349,19 @@ def scheduling_policy(thread_id: int = 0) -> int:
     return int(os.sched_getscheduler(thread_id)) & ~getattr(os, "SCHED_RESET_ON_FORK", 0)
 
 
+def fifo_priority(thread_id: int = 0) -> int | None:
+    """The SCHED_FIFO priority of ``thread_id`` (0: the calling thread), None when it has none."""
+    if not hasattr(os, "sched_getscheduler") or scheduling_policy(thread_id) != os.SCHED_FIFO:
+        return None
+    return int(os.sched_getparam(thread_id).sched_priority)
+
+
 def below_own_priority() -> None:
     """The calling thread one ``SCHED_FIFO`` priority below the one it runs at (at least 1); a
     thread under any other policy is left as it is."""
-    if hasattr(os, "sched_setscheduler") and scheduling_policy() == os.SCHED_FIFO:
-        priority = max(1, int(os.sched_getparam(0).sched_priority) - 1)
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    priority = fifo_priority()
+    if priority is not None:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(max(1, priority - 1)))
 
 
 def reset_scheduler() -> None:

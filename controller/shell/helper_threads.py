@@ -46,23 +46,13 @@ from dataclasses import dataclass, field
 from controller.core.controller_state import ControllerState
 from controller.core.cycle_data import CycleInputs, CycleOutputs, Event
 from controller.core.ports import CycleTiming
-from controller.realtime import scheduling_policy
+from controller.realtime import fifo_priority, scheduling_policy
 
 log = logging.getLogger(__name__)
 
 HELPER_PRIORITY_STEP = 20  # the helpers run this far below the loop (the simulator: 10 below)
 WRITER_PRIORITY_STEP = 30  # the recording's writer runs this far below the loop (module text)
 WATCH_EVERY_S = 1.0  # how often the watch looks for new threads
-
-
-def loop_fifo_priority(thread_id: int | None = None) -> int | None:
-    """The SCHED_FIFO priority of ``thread_id`` (the calling thread: None), None when it has none."""
-    if not hasattr(os, "sched_getscheduler"):
-        return None
-    tid = 0 if thread_id is None else thread_id
-    if scheduling_policy(tid) != os.SCHED_FIFO:
-        return None
-    return int(os.sched_getparam(tid).sched_priority)
 
 
 def helper_priority(loop_priority: int) -> int:
@@ -122,7 +112,7 @@ def raise_helper_threads(loop_thread_id: int | None = None) -> dict[int, tuple[i
     """Every thread of this process but the loop's (the calling thread: None) at the helpers'
     priority, when the loop runs at SCHED_FIFO; what changed (nothing when it does not)."""
     loop_tid = threading.get_native_id() if loop_thread_id is None else loop_thread_id
-    priority = loop_fifo_priority(loop_tid)
+    priority = fifo_priority(loop_tid)
     if priority is None:
         return {}
     return raise_threads(process_thread_ids() - {loop_tid}, priority)
@@ -178,7 +168,7 @@ class HelperThreadWatch:
         self.known = now
         if not new:
             return
-        priority = loop_fifo_priority(self.loop_thread_id)
+        priority = fifo_priority(self.loop_thread_id)
         if priority is not None:
             changed = raise_threads(new - {self.loop_thread_id}, priority)
             self.changed.update(changed)

@@ -35,6 +35,7 @@ from controller.realtime import (
     RealtimeOptions,
     apply_realtime,
     check_realtime,
+    fifo_priority,
     freeze_garbage_collector,
     granted_realtime,
     set_gil_switch_interval,
@@ -43,7 +44,7 @@ from controller.realtime import (
 from controller.robot_registry import ActuatorUnits
 from controller.shell.cpu_shield import raise_shield
 from controller.shell.cpu_steal import steal_s_since, steal_ticks
-from controller.shell.helper_threads import HelperThreadWatch, loop_fifo_priority, writer_priority
+from controller.shell.helper_threads import HelperThreadWatch, writer_priority
 from controller.shell.idle_poll import idle_polling
 from controller.shell.log_handoff import log_records_off_the_loop
 from controller.shell.loop import CycleLoop
@@ -269,7 +270,7 @@ def run_controller(
                 restore = apply_realtime(realtime)
                 granted = granted_realtime()
                 helpers_at_start = helpers.start()
-                loop_priority = loop_fifo_priority()
+                loop_priority = fifo_priority()
                 if session is not None and loop_priority is not None:  # why: helper_threads.py
                     session.raise_writer(writer_priority(loop_priority))
                 faults_before = resource.getrusage(resource.RUSAGE_SELF).ru_majflt

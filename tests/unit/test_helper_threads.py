@@ -118,11 +118,10 @@ def test_a_loop_thread_with_reset_on_fork_is_still_seen_real_time(fifo_loop_thre
     """``os.sched_getscheduler`` ORs SCHED_RESET_ON_FORK into the policy of a thread that set it
     (the 3-nSPU's plan worker replacer does, plan_worker.py): such a thread is SCHED_FIFO all the
     same, for the helpers' raise and for the run summary's ``realtime``."""
-    from controller.realtime import granted_realtime, scheduling_policy
-    from controller.shell.helper_threads import loop_fifo_priority
+    from controller.realtime import fifo_priority, granted_realtime, scheduling_policy
 
     os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(LOOP_PRIORITY))
     assert os.sched_getscheduler(0) != os.SCHED_FIFO  # the flag in the policy read
     assert scheduling_policy() == os.SCHED_FIFO
-    assert loop_fifo_priority() == LOOP_PRIORITY
+    assert fifo_priority() == LOOP_PRIORITY
     assert granted_realtime().startswith(f"SCHED_FIFO {LOOP_PRIORITY}")
