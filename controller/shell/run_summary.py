@@ -139,8 +139,22 @@ def simulated_time_summary(
         "targets_withheld": stats.targets_withheld,
         "late_sends": stats.late_sends,
         "rpdos_resent": counters.rpdos_resent,
+        **_answers_missed(counters),  # a `drop:` fault's, and the answers of unknown age after it
         "law": LAW_BUILD.describe(),  # the time it took, not what it computed (controller/compiled_law.py)
         **faults_that_injected_nothing(faults),
+    }
+
+
+def _answers_missed(c: ExchangeCounters) -> dict[str, object]:
+    """The devices' answers no cycle used, over a bus or in simulated time (``cyclic_exchange``)."""
+    return {
+        "missing_frames": {"drive": c.missing_drive_frames, "sensor": c.missing_sensor_frames},
+        # of them, lone answers of a device still owing two or more: maybe a burst's oldest
+        "answers_of_unknown_age": c.answers_of_unknown_age,
+        "longest_silence_cycles": {
+            "drive": c.longest_drive_silence_cycles,
+            "sensor": c.longest_sensor_silence_cycles,
+        },
     }
 
 
@@ -210,13 +224,7 @@ def summarize(
         "late_sends": stats.late_sends,
         # cycles whose RPDOs went again before their SYNC: held up after they went (cyclic_exchange)
         "rpdos_resent": c.rpdos_resent,
-        "missing_frames": {"drive": c.missing_drive_frames, "sensor": c.missing_sensor_frames},
-        # of them, lone answers of a device still owing two or more: maybe a burst's oldest (cyclic_exchange)
-        "answers_of_unknown_age": c.answers_of_unknown_age,
-        "longest_silence_cycles": {
-            "drive": c.longest_drive_silence_cycles,
-            "sensor": c.longest_sensor_silence_cycles,
-        },
+        **_answers_missed(c),
         "rejected_frames": c.rejected_frames,
         "rejected_frames_by_node": {str(node): n for node, n in sorted(c.rejected_by_node.items())},
         "foreign_frames": c.foreign_frames,

@@ -236,3 +236,19 @@ def test_the_silence_fault_comes_when_the_rule_on_the_whole_history_says(windows
         assert " silent for " in final.fault_reason or ": no TPDO for " in final.fault_reason, (
             final.fault_reason
         )
+
+
+def test_the_simulated_time_summary_counts_the_answers_a_drop_cost_as_over_a_bus():
+    # every device silent 10 cycles: the answers dropped, then each device's first
+    # IN_STEP_BEFORE_TRUSTED of unknown age, are in the summary as in one over a bus (run_summary)
+    from controller.shell.demo import run_simulated_time
+
+    drops = [f"drop:{n}@1.0+0.025" for n in ALL]
+    summary = run_simulated_time(
+        load_config(overrides={**PATH, "task.kind": "path", "sim.faults": drops}), 30.0
+    )
+    assert summary["final_mode"] == "DONE", summary["fault_reason"]
+    assert summary["answers_of_unknown_age"] == len(ALL) * IN_STEP_BEFORE_TRUSTED
+    silent = 10 + IN_STEP_BEFORE_TRUSTED  # cycles without a sample, of each device
+    assert summary["longest_silence_cycles"] == {"drive": silent, "sensor": silent}
+    assert summary["missing_frames"] == {"drive": 3 * silent, "sensor": silent}
