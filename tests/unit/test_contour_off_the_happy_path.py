@@ -356,8 +356,13 @@ def test_a_re_approach_from_free_space_re_tares_the_drifted_bias():
     assert any(e.message.startswith("sensor re-tared in free space") for e in events)
 
 
-def test_stale_samples_stop_the_motion_into_the_contact():
+def test_stale_samples_stop_the_motion_into_the_contact_for_the_force_but_not_the_course():
+    """Blind (no fresh sample for ``stale_hold_s``), the tool brakes and the force's error (6 N under
+    the setpoint here) moves it no deeper; the integral's push at the braking speed goes on, the
+    motion the friction's tilt takes off the contour, and fades with the speed: none at rest
+    (tests/unit/test_loop_held_up.py has the contact it keeps)."""
     task, _ = _task()
+    ki = task.p.force_ki_m_s2_per_n
     s = _tracking(task, force_f=(4.0, 0.0, 0.0), raw_force=(4.0, 0.0, 0.0), integral=3.0)
     # the first stale cycles run on the last sample (a few late frames cost nothing); from the
     # stale_hold_s-th on, the law holds
@@ -365,9 +370,14 @@ def test_stale_samples_stop_the_motion_into_the_contact():
         s = task.step(s, _ctx((4.0, 0.0, 0.0), fresh=False)).state
     for _ in range(3):
         out = task.step(s, _ctx((4.0, 0.0, 0.0), fresh=False))
-        assert out.state.p_cmd[0] >= s.p_cmd[0] - 1e-12  # never along -n
+        into_m = s.p_cmd[0] - out.state.p_cmd[0]  # n = +x: into the contact is -x
+        share = min(1.0, out.state.speed_m_s / task.p.min_tangential_speed_m_s)
+        assert out.state.speed_m_s < s.speed_m_s  # braking
+        assert into_m == pytest.approx(ki * share * out.state.integral * DT, rel=1e-9)
         s = out.state
-    assert s.speed_m_s < 0.04  # braking
+    assert s.speed_m_s < 0.04
+    rest = task.step(replace(s, speed_m_s=0.0), _ctx((4.0, 0.0, 0.0), fresh=False)).state
+    assert rest.p_cmd[0] >= s.p_cmd[0] - 1e-12  # at rest: nothing into the contact
 
 
 def test_the_integrals_velocity_into_the_contour_follows_the_tangential_speed():

@@ -231,6 +231,42 @@ def test_a_brake_on_missing_samples_keeps_the_speed_to_climb_back_to():
     assert all(r[1] == ContourPhase.TRACKING for r in rows)
 
 
+class TrueContact:
+    """The phase and the simulator's true contact force [N] each cycle from ``from_s``."""
+
+    def __init__(self, rig: SimulatedRig, from_s: float) -> None:
+        self.rig, self.from_s = rig, from_s
+        self.rows: list[tuple[float, ContourPhase, float]] = []
+
+    def on_cycle(self, cycle, t, inputs, state, outputs, events, timing) -> None:
+        if t >= self.from_s and isinstance(state.task_state, ContourState):
+            force = self.rig.exchange.plant.force_n
+            self.rows.append((t, state.task_state.phase, math.hypot(force[0], force[1])))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("dropped", [4, 8, 20])
+def test_blind_after_a_hold_up_the_tool_holds_its_course_on_the_contour(dropped):
+    """The brake test's stall, then every device silent for ``dropped`` cycles and the
+    IN_STEP_BEFORE_TRUSTED after: blind past ``stale_hold_s``, the tool brakes and no force error
+    moves it into the contact, but the integral's push at its speed (the friction's tilt made up
+    for) goes on. Without it the tool left the contour at 3.9 mm/s: from 6 silent cycles the true
+    force fell from 10 to 0 N and lap 3 lost the contact and re-approached."""
+    base = load_config(overrides={"task.kind": "contour"})
+    period = base.period_s
+    drops = [f"drop:{node}@39.58+{dropped * period}" for node in (1, 2, 3, base.sensor.node_id)]
+    cfg = load_config(
+        overrides={"task.kind": "contour", "sim.faults": [f"stall=0.025@39.5+{period}", *drops]}
+    )
+    rig = SimulatedRig(cfg)
+    contact = TrueContact(rig, 39.58)
+    rig.run((contact,), 40.0)
+    assert {phase for _, phase, _ in contact.rows} == {ContourPhase.TRACKING}
+    forces = [f for _, _, f in contact.rows]
+    assert min(forces) > 1.0  # in contact throughout (10 N set)
+    assert max(forces) < 0.5 * cfg.safety.max_contact_force_n
+
+
 @pytest.mark.slow
 def test_after_a_hold_up_past_the_extrapolation_the_setpoint_first_goes_where_the_drives_ran_on():
     """16 ms in lap 3: the drives ran on 3 periods past the last setpoint, then stood. The step moves
