@@ -54,7 +54,8 @@ Off the happy path (DESIGN.md, "Off the happy path"), by design rather than by e
   the contact and the tangential motion brakes. The signal is trusted again when it steps back
   (a spike), or after ``implausible_hold_s`` at its new level (a real change: the filter
   restarts from it). Cycles without a fresh sample (late, lost or stale frames) are
-  treated the same way after ``stale_hold_s``.
+  treated the same way after ``stale_hold_s``, but for the integral's push at the braking
+  speed: blind, the tool holds its course (``_normal_speed``).
 - **Contact loss** (normal force under ``contact_lost_force_n`` in the fresh samples of
   ``contact_lost_s``, counted in cycles): CONTACT_LOST brakes the tangential motion; REAPPROACH moves along the last
   normal measured in good contact, at the approach speed, guarded by the contact force, at
