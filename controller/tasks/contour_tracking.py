@@ -1153,7 +1153,7 @@ class ContourTrackingTask:
             # still holds its course: the integral's push at this speed is the motion the friction's
             # tilt takes off the contour, not a push into it, and it fades as the tool brakes.
             # Dropped, the tool left the contour at 3.9 mm/s: 6 cycles without samples after a
-            # hold-up, 2 of them blind, took the true force from 10 to 0 N and lost the contact.
+            # hold-up, 3 of them blind, took the true force from 10 to 0 N and lost the contact.
             course = p.force_ki_m_s2_per_n * share * held if s.held_force is None else 0.0
             vn = min(course, p.force_kp_m_s_per_n * err + p.force_ki_m_s2_per_n * share * held)
             integral = held
