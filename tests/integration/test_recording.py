@@ -546,7 +546,13 @@ def test_a_full_disk_is_named_as_such_not_as_the_pipe_it_broke(tmp_path):
     import resource
 
     _, _, _, trace, _, _ = record_session(tmp_path / "ref.mcap", max_s=0.5, frames=False)
-    rec = SessionRecorder(tmp_path / "s.mcap", session_metadata(load_config()), buffer_bytes=4096)
+    # chunks of 4 kB: several are whole inside the 32 kB, however fast the messages come. The
+    # default closes a chunk every 2 s, and a first chunk larger than the 32 kB leaves nothing
+    # readable: a CI rehearsal met 0 messages in its 32 kB (not met again in 10 runs, alone or
+    # beside two CPU hogs)
+    rec = SessionRecorder(
+        tmp_path / "s.mcap", session_metadata(load_config()), buffer_bytes=4096, chunk_size_bytes=4096
+    )
     rec.start()
     resource.prlimit(rec._proc.pid, resource.RLIMIT_FSIZE, (32_768, 32_768))  # Python ignores SIGXFSZ
     wait_until(
