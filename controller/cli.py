@@ -533,6 +533,7 @@ def say_run_notes(summary: dict[str, Any], command: str) -> None:
     say_if_plots_failed(summary, command)
     say_if_faults_injected_nothing(summary, command)
     say_if_the_shield_guardian_failed(summary, command)
+    say_if_realtime_tasks_shared_the_loops_cpu(summary, command)
     say_if_laps_ran_slow(summary, command)
 
 
@@ -635,6 +636,25 @@ def say_if_the_shield_guardian_failed(summary: dict[str, Any], command: str) -> 
             f"{shield.get('tasks_restored')}",
             file=sys.stderr,
         )
+
+
+def say_if_realtime_tasks_shared_the_loops_cpu(summary: dict[str, Any], command: str) -> None:
+    """Real-time tasks that used CPU time on the loop's CPU during the run are said on stderr: the
+    kernel throttles them with the loop (controller/shell/realtime_neighbours.py)."""
+    shield = summary.get("cpu_shield")
+    neighbours = shield.get("realtime_neighbours") if isinstance(shield, dict) else None
+    if not neighbours:
+        return
+    named = "; ".join(
+        f"{n['name']} (pid {n['pid']}, {n['policy']} {n['priority']}) used {n['cpu_s']:g} s of CPU "
+        f"between {n['seen_s'][0]:g} and {n['seen_s'][1]:g} s"
+        for n in neighbours
+    )
+    print(
+        f"{command}: note: real-time task(s) shared the loop's CPU: {named}. The kernel throttles a CPU's "
+        "real-time tasks together, the loop with them (summary.realtime says the setting)",
+        file=sys.stderr,
+    )
 
 
 def run_exit_code(summary: dict[str, Any]) -> int:

@@ -29,10 +29,10 @@ from controller.shell.cpu_shield import (
     CpuShield,
     CpuShieldError,
     raise_shield,
-    read_task,
     restore,
     sweep,
 )
+from controller.shell.machine_tasks import read_task
 
 SPAWNER = "import subprocess, sys\nfor _ in sys.stdin:\n    print(subprocess.Popen(['sleep', '600']).pid, flush=True)"
 
@@ -302,6 +302,80 @@ def bad_state_files(state_dir: Path) -> dict[str, Any]:
     return out
 
 
+BURN = """
+import sys, time
+sys.stdin.readline()  # started: it burns when asked, under the shield
+start = time.process_time()
+while time.process_time() - start < float(sys.argv[1]):
+    pass
+print("burnt", flush=True)
+time.sleep(600)
+"""
+
+
+def _burner(cpu: int, seconds: float, fifo: bool) -> subprocess.Popen[str]:
+    """A process that burns ``seconds`` of CPU on ``cpu`` when a line comes, at SCHED_FIFO 1 or not."""
+    burner = subprocess.Popen(
+        [sys.executable, "-c", BURN, str(seconds)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
+    os.sched_setaffinity(burner.pid, {cpu})
+    if fifo:
+        os.sched_setscheduler(burner.pid, os.SCHED_FIFO, os.sched_param(1))
+    return burner
+
+
+def _burn(burner: subprocess.Popen[str]) -> None:
+    assert burner.stdin is not None and burner.stdout is not None
+    burner.stdin.write("\n")
+    burner.stdin.flush()
+    assert burner.stdout.readline().strip() == "burnt"
+
+
+NEIGHBOURS_CONTROLLER = """
+import json, sys
+from pathlib import Path
+sys.path.insert(0, sys.argv[3])
+from cpu_shield_scenarios import _burn, _burner
+from controller.shell.cpu_shield import CpuShield
+cpu = int(sys.argv[1])
+shield = CpuShield.start((cpu,), Path(sys.argv[2]))
+own = _burner(cpu, 0.3, fifo=True)  # the controller's own real-time child (the simulated drives)
+_burn(own)
+print(own.pid, flush=True)
+sys.stdin.readline()
+summary = shield.close()
+own.kill()
+print(json.dumps(summary), flush=True)
+"""
+
+
+def realtime_neighbours(state_dir: Path) -> dict[str, Any]:
+    """Real-time tasks that used CPU time on the loop's CPU during the run are named in the
+    shield's summary; not one that only slept there, not a normal one, not the controller's own."""
+    cpu = sorted(os.sched_getaffinity(0))[-1]
+    controller = subprocess.Popen(
+        [sys.executable, "-c", NEIGHBOURS_CONTROLLER, str(cpu), str(state_dir), str(Path(__file__).parent)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    assert controller.stdin is not None and controller.stdout is not None
+    own = int(controller.stdout.readline())
+    busy, normal = _burner(cpu, 0.5, fifo=True), _burner(cpu, 0.3, fifo=False)
+    sleeper = subprocess.Popen(["sleep", "600"])
+    os.sched_setaffinity(sleeper.pid, {cpu})
+    os.sched_setscheduler(sleeper.pid, os.SCHED_FIFO, os.sched_param(1))
+    _burn(busy)
+    _burn(normal)
+    controller.stdin.write("\n")
+    controller.stdin.flush()
+    summary = json.loads(controller.stdout.readline())
+    for process in (busy, normal, sleeper, controller):
+        process.kill()
+    pids = {"own": own, "busy": busy.pid, "normal": normal.pid, "sleeper": sleeper.pid}
+    return {"summary": summary, "pids": pids}
+
+
 SCENARIOS = {
     f.__name__: f
     for f in (
@@ -314,6 +388,7 @@ SCENARIOS = {
         forked_during_sweep,
         ending_signals,
         bad_state_files,
+        realtime_neighbours,
     )
 }
 

@@ -41,6 +41,10 @@ the same for the time of a run, where they are permitted (CAP_SYS_NICE for other
   next run: its guardian when it takes the lock, first, or a run without a shield
   (``give_back_abandoned``) (not from a file of an earlier boot; a damaged file is removed and
   logged).
+- **the real-time neighbours**: real-time tasks that may run on the loop's CPU are not moved,
+  but the guardian names those that used CPU time there while the run lasted (the summary's
+  ``realtime_neighbours``): a busy one spends the CPU's real-time budget for the loop too
+  (controller/shell/realtime_neighbours.py).
 - **not covered**: two shields under different locks (two users, or two state directories) on
   a machine with more than two CPUs can each take a CPU from the same task; the second restore
   then gives back only its own.
@@ -53,6 +57,7 @@ import contextlib
 import fcntl
 import json
 import logging
+import math
 import os
 import select
 import signal
@@ -68,10 +73,11 @@ from typing import Any
 
 from controller.child_process import child_environment, exit_text, python_module_command
 from controller.realtime import RealtimeError, RealtimeOptions
+from controller.shell.machine_tasks import Task, all_tasks, read_task, ticks_now
+from controller.shell.realtime_neighbours import SCAN_S, NeighbourWatch
 
 log = logging.getLogger(__name__)
 
-PF_KTHREAD = 0x00200000  # include/linux/sched.h: a kernel thread
 NORMAL_POLICIES = frozenset({0, 3, 5})  # SCHED_OTHER, SCHED_BATCH, SCHED_IDLE
 LOCK_NAME, STATE_NAME = "cpu-shield.lock", "cpu-shield.json"
 START_TIMEOUT_S = 30.0  # the sweep of a few thousand tasks takes well under a second
@@ -80,18 +86,6 @@ STOP_TIMEOUT_S = 10.0
 
 class CpuShieldError(RuntimeError):
     """The shield could not be raised; the message says why."""
-
-
-@dataclass(frozen=True)
-class Task:
-    """One thread of the machine, as ``/proc/PID/task/TID/stat`` shows it."""
-
-    pid: int  # its process (thread group)
-    tid: int
-    ppid: int
-    start_ticks: int  # since boot, in clock ticks: with the tid, who it is (tids are reused)
-    kernel: bool
-    policy: int
 
 
 @dataclass(frozen=True)
@@ -153,44 +147,6 @@ def boot_id() -> str:
         return Path("/proc/sys/kernel/random/boot_id").read_text().strip()
     except OSError:
         return ""
-
-
-def ticks_now() -> int:
-    """Clock ticks since boot, as a task's start time counts them (proc(5))."""
-    return int(time.clock_gettime(time.CLOCK_BOOTTIME) * os.sysconf("SC_CLK_TCK"))
-
-
-def read_task(proc: Path, pid: int, tid: int) -> Task | None:
-    """The task's stat line (proc(5)); None when it is gone."""
-    try:
-        text = (proc / str(pid) / "task" / str(tid) / "stat").read_text()
-    except OSError:
-        return None
-    fields = text[text.rindex(")") + 2 :].split()  # the name in parentheses may hold anything
-    # fields[0] is stat's field 3 (state): ppid 4, flags 9, starttime 22, policy 41
-    return Task(
-        pid=pid,
-        tid=tid,
-        ppid=int(fields[1]),
-        start_ticks=int(fields[19]),
-        kernel=bool(int(fields[6]) & PF_KTHREAD),
-        policy=int(fields[38]),
-    )
-
-
-def all_tasks(proc: Path) -> Iterator[Task]:
-    for entry in os.scandir(proc):
-        if not entry.name.isdigit():
-            continue
-        pid = int(entry.name)
-        try:
-            tids = sorted(int(t) for t in os.listdir(proc / entry.name / "task"))
-        except OSError:
-            continue  # gone
-        for tid in tids:
-            task = read_task(proc, pid, tid)
-            if task is not None:
-                yield task
 
 
 def _affinity(tid: int) -> frozenset[int] | None:
@@ -349,6 +305,7 @@ def guard(
     state = state_dir / STATE_NAME
     recovered = _recover(state, proc)
     record = plan_sweep(cpus, (*exclude, os.getpid()), proc)
+    neighbours = NeighbourWatch(cpus, (*exclude, os.getpid()), proc)
     try:
         # written before the first move: a guardian killed in the middle of its sweep (SIGKILL
         # cannot wait) leaves every task it moved in the file, for its controller or the next run
@@ -357,12 +314,12 @@ def guard(
         record = apply_sweep(record)
         _write_state(state, record)
         _answer({"moved": len(record.moved), "refused": record.refused, "recovered": recovered})
-        _wait_for_the_end()
+        _wait_for_the_end(neighbours)
     finally:
         restored = restore(record, proc)
         state.unlink(missing_ok=True)
         with contextlib.suppress(OSError):  # nobody reads any more
-            _answer({"restored": restored})
+            _answer({"restored": restored, "realtime_neighbours": _last_look(neighbours)})
     return 0
 
 
@@ -419,10 +376,29 @@ def give_back_abandoned(state_dir: Path | None, proc: Path = Path("/proc")) -> i
     return given_back if isinstance(given_back, int) else 0
 
 
-def _wait_for_the_end() -> None:
-    """Until the controller's end closes the pipe, or an ending signal is pending."""
+def _last_look(neighbours: NeighbourWatch) -> list[dict[str, Any]]:
+    """The real-time neighbours' report after a last scan (their time since the one before)."""
+    try:
+        neighbours.scan()
+        return neighbours.report()
+    except Exception:  # a courtesy: the restore's answer must go out whatever happens here
+        log.exception("real-time neighbours not reported")
+        return []
+
+
+def _wait_for_the_end(neighbours: NeighbourWatch) -> None:
+    """Until the controller's end closes the pipe, or an ending signal is pending; meanwhile the
+    real-time tasks beside the loop are looked for every ``SCAN_S`` (realtime_neighbours)."""
     stdin = sys.stdin.buffer
+    next_scan_s = time.monotonic()
     while not ENDING_SIGNALS & signal.sigpending():
+        if time.monotonic() >= next_scan_s:
+            next_scan_s += SCAN_S
+            try:
+                neighbours.scan()
+            except Exception:  # naming them is a courtesy: the shield's restore must not depend on it
+                log.exception("real-time neighbours not looked for any more")
+                next_scan_s = math.inf
         if select.select([stdin], [], [], _WAIT_POLL_S)[0] and not os.read(stdin.fileno(), 4096):
             return
 
@@ -566,6 +542,9 @@ class CpuShield:
             "recovered_from_a_dead_guardian": self.raised["recovered"],
             "tasks_restored": (answer or {}).get("restored"),
         }
+        neighbours = (answer or {}).get("realtime_neighbours")
+        if neighbours:  # real-time tasks that shared the loop's CPU, busy (realtime_neighbours)
+            summary["realtime_neighbours"] = neighbours
         if answer is None or "restored" not in answer:
             summary["guardian_failed"] = (
                 f"{exit_text(ended)} under the run"

@@ -354,6 +354,43 @@ def test_a_demo_keeps_normal_tasks_off_its_loops_cpu_while_it_runs():
     assert shield["tasks_moved"] >= 1 and shield["tasks_restored"] >= 1
 
 
+BURN_ON_CPU = """
+import os, sys, time
+os.sched_setaffinity(0, {int(sys.argv[1])})
+os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+start = time.process_time()
+while time.process_time() - start < 0.3:
+    pass
+print("burnt", flush=True)
+time.sleep(600)
+"""
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="a CPU shield needs two CPUs")
+@pytest.mark.skipif(os.geteuid() != 0, reason="SCHED_FIFO needs root (or CAP_SYS_NICE)")
+def test_a_busy_real_time_task_on_the_loops_cpu_is_named():
+    """A real-time task on the loop's CPU, which the shield may not move, throttles the loop with it
+    (docs: the kernel's real-time throttling): the summary and a note name it
+    (controller/shell/realtime_neighbours.py). It burns 0.3 s below the loop's priority, under the
+    kernel's budget: the loop is not stopped by it here."""
+    with _shielded_demo_beside_a_neighbour(laps=0.5) as (demo, neighbour, everything):
+        (loop_cpu,) = everything - os.sched_getaffinity(neighbour)
+        burner = subprocess.Popen(
+            [sys.executable, "-c", BURN_ON_CPU, str(loop_cpu)], stdout=subprocess.PIPE, text=True
+        )
+        try:
+            assert burner.stdout is not None and burner.stdout.readline().strip() == "burnt"
+            out, err = demo.communicate(timeout=120)
+        finally:
+            burner.kill()
+            burner.wait()
+    assert demo.returncode == 0, err + out
+    named = {n["pid"]: n for n in json.loads(out)["cpu_shield"].get("realtime_neighbours", [])}
+    assert burner.pid in named, named
+    assert named[burner.pid]["policy"] == "SCHED_FIFO" and named[burner.pid]["cpu_s"] >= 0.25
+    assert "note: real-time task(s) shared the loop's CPU: python" in err
+
+
 @pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="a CPU shield needs two CPUs")
 def test_a_guardian_killed_under_the_run_is_named_and_its_tasks_given_back():
     """A guardian killed under the run restored nothing: the neighbour stayed off the loop's CPU

@@ -140,6 +140,18 @@ def test_one_shield_a_machine(tmp_path: Path) -> None:
 
 
 @needs_namespace
+def test_a_busy_real_time_task_on_the_loops_cpu_is_named(tmp_path: Path) -> None:
+    """A real-time task the shield may not move, busy on the loop's CPU, spends the CPU's real-time
+    budget for the loop too (controller/shell/realtime_neighbours.py): the summary names it."""
+    out = run_scenario("realtime_neighbours", tmp_path)
+    named = out["summary"]["realtime_neighbours"]
+    assert [n["pid"] for n in named] == [out["pids"]["busy"]]  # not the sleeper, the normal, the own
+    (busy,) = named
+    assert busy["policy"] == "SCHED_FIFO" and busy["priority"] == 1 and busy["name"].startswith("python")
+    assert busy["cpu_s"] >= 0.45  # 0.5 s burnt, in clock ticks
+
+
+@needs_namespace
 def test_a_child_forked_while_the_sweep_runs_gets_the_cpu_back(tmp_path: Path) -> None:
     out = run_scenario("forked_during_sweep", tmp_path)
     assert out["during"]["spawner"] != out["all"]  # swept
