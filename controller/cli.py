@@ -647,7 +647,7 @@ def say_if_realtime_tasks_shared_the_loops_cpu(summary: dict[str, Any], command:
         return
     named = "; ".join(
         f"{n['name']} (pid {n['pid']}, {n['policy']} {n['priority']}) used {n['cpu_s']:g} s of CPU "
-        f"between {n['seen_s'][0]:g} and {n['seen_s'][1]:g} s"
+        f"between {n['seen_s'][0]:g} and {n['seen_s'][1]:g} s after the shield rose"
         for n in neighbours
     )
     print(

@@ -53,7 +53,7 @@ class Neighbour:
             "policy": REALTIME_POLICIES.get(t.policy, str(t.policy)),
             "priority": t.rt_priority,
             "cpu_s": round((self.cpu_ticks_last - self.cpu_ticks_first) / CLOCK_TICKS_HZ, 2),
-            "seen_s": [round(self.first_seen_s, 1), round(self.last_seen_s, 1)],
+            "seen_s": [round(self.first_seen_s, 1), round(self.last_seen_s, 1)],  # after the shield rose
         }
 
 
