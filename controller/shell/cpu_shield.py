@@ -73,7 +73,7 @@ from typing import Any
 
 from controller.child_process import child_environment, exit_text, python_module_command
 from controller.realtime import RealtimeError, RealtimeOptions
-from controller.shell.machine_tasks import Task, all_tasks, read_task, ticks_now
+from controller.shell.machine_tasks import Task, affinity, all_tasks, read_task, ticks_now
 from controller.shell.realtime_neighbours import SCAN_S, NeighbourWatch
 
 log = logging.getLogger(__name__)
@@ -149,13 +149,6 @@ def boot_id() -> str:
         return ""
 
 
-def _affinity(tid: int) -> frozenset[int] | None:
-    try:
-        return frozenset(os.sched_getaffinity(tid))
-    except OSError:
-        return None
-
-
 def plan_sweep(cpus: Iterable[int], exclude_pids: Iterable[int], proc: Path = Path("/proc")) -> ShieldRecord:
     """The moves a sweep of ``cpus`` would make (module text), made by none yet: ``moved`` lists
     every task to move, ``seen`` every task looked at."""
@@ -166,7 +159,7 @@ def plan_sweep(cpus: Iterable[int], exclude_pids: Iterable[int], proc: Path = Pa
         record.seen.append((task.tid, task.start_ticks))
         if task.pid in excluded or task.kernel or task.policy not in NORMAL_POLICIES:
             continue
-        before = _affinity(task.tid)
+        before = affinity(task.tid)
         if before is None or not before & shield:
             continue
         after = before - shield
@@ -184,7 +177,7 @@ def apply_sweep(plan: ShieldRecord) -> ShieldRecord:
     in ``refused``."""
     made = replace(plan, moved=[])
     for move in plan.moved:
-        if _affinity(move.tid) != frozenset(move.mask_before):
+        if affinity(move.tid) != frozenset(move.mask_before):
             continue
         if _set(move.tid, move.mask_set):
             made.moved.append(move)
@@ -208,7 +201,7 @@ def restore(record: ShieldRecord, proc: Path = Path("/proc")) -> int:
         if task is None or task.start_ticks != moved.start_ticks:
             continue  # gone, or its tid reused
         shielded_mask[moved.tid] = frozenset(moved.mask_set)
-        if _affinity(moved.tid) == frozenset(moved.mask_set) and _set(moved.tid, moved.mask_before):
+        if affinity(moved.tid) == frozenset(moved.mask_set) and _set(moved.tid, moved.mask_before):
             restored += 1
     alive = {t.tid: t for t in all_tasks(proc)}
     everything = frozenset(os.sched_getaffinity(0)) | shield
@@ -219,7 +212,7 @@ def restore(record: ShieldRecord, proc: Path = Path("/proc")) -> int:
             continue  # there before the shield, and not moved: its affinity is its own
         if task.tid in moved_tids or task.kernel or task.policy not in NORMAL_POLICIES:
             continue
-        mask = _affinity(task.tid)
+        mask = affinity(task.tid)
         if mask is None or mask & shield:
             continue
         shielded_mask[task.tid] = mask
@@ -304,8 +297,9 @@ def guard(
     os.pwrite(lock, f"pid {os.getpid()}, CPUs {','.join(map(str, cpus))}\n".encode(), 0)
     state = state_dir / STATE_NAME
     recovered = _recover(state, proc)
-    record = plan_sweep(cpus, (*exclude, os.getpid()), proc)
-    neighbours = NeighbourWatch(cpus, (*exclude, os.getpid()), proc)
+    ours = (*exclude, os.getpid())
+    record = plan_sweep(cpus, ours, proc)
+    neighbours = NeighbourWatch(cpus, ours, proc)
     try:
         # written before the first move: a guardian killed in the middle of its sweep (SIGKILL
         # cannot wait) leaves every task it moved in the file, for its controller or the next run

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 PF_KTHREAD = 0x00200000  # include/linux/sched.h: a kernel thread
+CLOCK_TICKS_HZ = os.sysconf("SC_CLK_TCK")  # the unit of stat's times (utime, stime, starttime)
 
 
 @dataclass(frozen=True)
@@ -30,7 +31,15 @@ class Task:
 
 def ticks_now() -> int:
     """Clock ticks since boot, as a task's start time counts them (proc(5))."""
-    return int(time.clock_gettime(time.CLOCK_BOOTTIME) * os.sysconf("SC_CLK_TCK"))
+    return int(time.clock_gettime(time.CLOCK_BOOTTIME) * CLOCK_TICKS_HZ)
+
+
+def affinity(tid: int) -> frozenset[int] | None:
+    """The CPUs task ``tid`` may run on; None when it is gone."""
+    try:
+        return frozenset(os.sched_getaffinity(tid))
+    except OSError:
+        return None
 
 
 def read_task(proc: Path, pid: int, tid: int) -> Task | None:

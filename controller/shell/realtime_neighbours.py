@@ -19,19 +19,17 @@ Of a task born before the watch began, the time before the guardian first saw it
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from controller.shell.machine_tasks import Task, all_tasks, ticks_now
+from controller.shell.machine_tasks import CLOCK_TICKS_HZ, Task, affinity, all_tasks, ticks_now
 
 SCAN_S = 1.0  # how often the guardian looks
 MIN_CPU_S = 0.1  # a neighbour that used less is no throttling's cause worth a line
 REALTIME_POLICIES = {1: "SCHED_FIFO", 2: "SCHED_RR", 6: "SCHED_DEADLINE"}
-CLOCK_TICKS_HZ = os.sysconf("SC_CLK_TCK")  # the unit of /proc's utime and stime
 
 
 @dataclass
@@ -80,12 +78,9 @@ class NeighbourWatch:
         for t in tasks:
             if t.kernel or t.policy not in REALTIME_POLICIES or self._ours(t.pid, parent):
                 continue
-            try:
-                allowed = os.sched_getaffinity(t.tid)
-            except OSError:
-                continue  # gone
-            if not self.cpus & allowed:
-                continue
+            allowed = affinity(t.tid)
+            if allowed is None or not self.cpus & allowed:
+                continue  # gone, or kept off the loop's CPU
             known = self.seen.get((t.tid, t.start_ticks))
             if known is None:
                 before = 0 if t.start_ticks >= self.start_ticks else t.cpu_ticks
