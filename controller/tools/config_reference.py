@@ -8,6 +8,7 @@ type, allowed range or choices, default. Written to ``docs/reference/configurati
 
 from __future__ import annotations
 
+import argparse
 import enum
 import math
 from collections.abc import Iterator, Mapping
@@ -138,7 +139,12 @@ def page() -> str:
     return "\n".join(out) + "\n"
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    argparse.ArgumentParser(
+        prog="config_reference",
+        description="The configuration keys as a Markdown table on stdout "
+        "(python -m controller.tools.config_reference > docs/reference/configuration-keys.md).",
+    ).parse_args(argv)
     print(page(), end="")
 
 

@@ -49,3 +49,35 @@ def test_every_page_the_readme_links_exists():
     targets = re.findall(r"\]\((docs/[^)#]+)", readme)
     assert targets
     assert [t for t in targets if not (ROOT / t).is_file()] == []
+
+
+def _documented_modules() -> list[str]:
+    """Every ``python -m controller...`` module the docs and the README tell a reader to run."""
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+    found = {
+        m for p in pages for m in re.findall(r"python -m (controller\.tools\.[\w.]+)", p.read_text("utf-8"))
+    }
+    return sorted(found)
+
+
+def test_every_documented_tool_answers_help_without_a_warning():
+    """``--help`` of each documented tool prints its usage and ends 0, with no warning on stderr.
+    Two used to read their arguments by hand (one started its minute-long table whatever was asked,
+    one died on ``int('--help')``), and ``step_cost`` made runpy warn on every run: its package had
+    imported it before ``-m`` ran it."""
+    import subprocess
+    import sys
+
+    modules = _documented_modules()
+    assert "controller.tools.bench.step_cost" in modules and len(modules) >= 10
+    for module in modules:
+        done = subprocess.run(
+            [sys.executable, "-W", "error::RuntimeWarning", "-m", module, "--help"],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            cwd=ROOT,
+        )
+        assert done.returncode == 0, f"{module} --help: rc {done.returncode}\n{done.stderr}"
+        assert "usage:" in done.stdout, f"{module} --help printed no usage"
+        assert "Warning" not in done.stderr, f"{module} --help warned:\n{done.stderr}"

@@ -48,7 +48,6 @@ from controller.tools.bench.report import format_table, python_can_floor_percent
 from controller.tools.bench.runner import plot_distributions, run_bench, work_per_cycle
 from controller.tools.bench.sleepers import busy_work, compare_sleepers, deadline_loop, naive_loop
 from controller.tools.bench.statistics import late_per_10k, percentiles_us, schedule_stats
-from controller.tools.bench.step_cost import step_breakdown
 
 __all__ = [
     "BenchCase",
@@ -75,7 +74,6 @@ __all__ = [
     "run_bench_command",
     "run_case",
     "schedule_stats",
-    "step_breakdown",
     "stub_bus",
     "work_per_cycle",
 ]

@@ -6,8 +6,8 @@ duration and the median, with the shipped configuration (three drives and the se
 
 from __future__ import annotations
 
+import argparse
 import statistics
-import sys
 import time
 
 import can
@@ -19,8 +19,11 @@ from sim_backend.server import Simulator
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = sys.argv[1:] if argv is None else argv
-    runs = int(args[0]) if args else 7
+    parser = argparse.ArgumentParser(prog="node_setup_time", description=__doc__.splitlines()[0])
+    parser.add_argument("runs", nargs="?", type=int, default=7, help="set-ups to time (default 7)")
+    runs = parser.parse_args(argv).runs
+    if runs < 1:
+        parser.error(f"runs {runs}: must be 1 or more")
     cfg = load_config()
     durations_ms = []
     for _ in range(runs):

@@ -18,7 +18,6 @@ from controller.tools.bench.case import BenchCase, run_case
 from controller.tools.bench.pdo_paths import bus_frame_cost, compare_pdo_paths
 from controller.tools.bench.sleepers import compare_sleepers
 from controller.tools.bench.statistics import Json
-from controller.tools.bench.step_cost import interpreted_step_breakdown, step_breakdown
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -82,6 +81,10 @@ def run_bench(
     progress("python-can send/recv per frame on the configured bus ...")
     report["bus_frame_cost"] = bus_frame_cost(cfg.bus.can, fd=any(r >= fd_from_hz for r in rates_hz))
     cases: list[dict[str, object]] = []
+    # imported here, not at the top: `python -m controller.tools.bench.step_cost` runs that module as
+    # a script, and the package's import of it beforehand made runpy warn on every such run
+    from controller.tools.bench.step_cost import interpreted_step_breakdown, step_breakdown
+
     breakdowns: list[dict[str, object]] = []
     sleepers: list[dict[str, object]] = []
     has_experiment = experiment_for(cfg.task.kind) is not None

@@ -12,6 +12,8 @@ simulated time: deterministic). The docs' table (docs/concepts/contour-tracking.
 
 from __future__ import annotations
 
+import argparse
+
 from controller.config import load_config
 from controller.core.contact_budget import StoppingModel
 from controller.tools.contour.scan import ContourScenario, run_contour_scenario
@@ -56,7 +58,10 @@ def run_case(rate_hz: float, sensor_stiffness_n_m: float) -> dict[str, float | s
     }
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    # no options: the parser gives --help and refuses a stray argument by name, where the table
+    # used to start its minute-long runs whatever was asked
+    argparse.ArgumentParser(prog="guarded_speeds", description=__doc__.splitlines()[0]).parse_args(argv)
     print("| loop | sensor mount [N/m] | cell [N/m] | fastest [mm/s] | true force at it [N] | outcome |")
     print("| --- | --- | --- | --- | --- | --- |")
     for rate_hz, mount in CASES:
