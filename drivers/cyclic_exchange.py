@@ -792,7 +792,8 @@ class CyclicExchange:
         owed_at_open = list(self._owed)
         in_step_at_open = list(self._in_step)
         sensor_owed_at_open = max(self._sensor_owed)
-        sensor_known_age = of_known_age(sensor_owed_at_open, min(self._sensor_in_step))
+        sensor_dated = self._counter_dates_now()
+        sensor_known_age = sensor_dated or of_known_age(sensor_owed_at_open, min(self._sensor_in_step))
         for j, count in enumerate(self._candidates):
             self._owed[j], self._in_step[j] = _owed_after(self._owed[j], self._in_step[j], count)
         for k, count in enumerate(self._sensor_candidates):
@@ -827,7 +828,7 @@ class CyclicExchange:
                 self._sensor_status = self._candidate_status
                 self._sensor_trusted_counter = self._force_counter
                 self._sensor_cycles_since_trusted = 0
-                self._sensor_slack = sensor_owed_at_open
+                self._sensor_slack = 0 if sensor_dated else sensor_owed_at_open
             else:
                 self._sensor_cycles_since_trusted += 1
 
@@ -988,6 +989,25 @@ class CyclicExchange:
             return True
         step = (counter - self._sensor_trusted_counter) % COUNTER_MODULO
         return step <= self._sensor_cycles_since_trusted + 1 + self._sensor_slack
+
+    def _counter_dates_now(self) -> bool:
+        """Whether the sensor's candidate is, by its counter, its answer to this window's SYNC: as
+        many steps on from the last sample used as SYNCs since, that sample itself of its SYNC (no
+        slack), and fewer SYNCs since than the counter's range (a wrap could date an old one anew).
+
+        The sensor counts a sample a SYNC whether its frames reach the bus or not, so after frames
+        lost (not late: a lost frame is never answered in a burst) its next pair dates itself. A
+        burst's oldest pair does not: its counter is one step on, not as many as the SYNCs since.
+        Without this, two lost pairs kept the sensor untrusted for two windows more
+        (``IN_STEP_BEFORE_TRUSTED``): four cycles without a sample, which the contour task takes
+        for blindness and brakes for."""
+        since = self._sensor_cycles_since_trusted + 1
+        return (
+            self._sensor_trusted_counter >= 0
+            and self._sensor_slack == 0
+            and since < COUNTER_MODULO
+            and (self._force_counter - self._sensor_trusted_counter) % COUNTER_MODULO == since
+        )
 
     def _on_sensor(self, kind: int, msg: can.Message) -> None:
         codec = self._force_codec if kind == _SENSOR_FORCE else self._torque_codec

@@ -1052,6 +1052,45 @@ def test_the_sensor_s_burst_after_a_stall_is_not_a_counter_jump(bus, clock):
     assert fb.anomalies == () and fb.sensor.fresh and fb.sensor.counter == 15
 
 
+@pytest.mark.parametrize("first", [10, 254])
+def test_the_sensor_s_pair_after_lost_frames_dates_itself_by_its_counter_and_is_used_at_once(
+    bus, clock, first
+):
+    """The sensor's frames lost for three SYNCs (never sent late: lost). Its next pair's counter is
+    four on after four SYNCs (across the u8's wrap too), so it is its answer to this SYNC: used at
+    once, not held back two windows as a burst's oldest answer of unknown age would be (which kept
+    the sensor silent four cycles in all, and the contour task braked for it)."""
+    ex = make_exchange(bus, clock)
+    bus.answers[0] = all_answers(0, counter=first)
+    assert one_cycle(ex, clock, None).sensor.fresh
+    sensor_ids = (tpdo1(SENSOR), tpdo2(SENSOR))
+    for k in (1, 2, 3):
+        bus.answers[k] = [f for f in all_answers(k) if f.arbitration_id not in sensor_ids]
+        assert not one_cycle(ex, clock, None).sensor.fresh
+    bus.answers[4] = all_answers(4, counter=(first + 4) % 256)
+    fb = one_cycle(ex, clock, None)
+    assert fb.anomalies == () and fb.sensor.fresh and fb.sensor.counter == (first + 4) % 256
+    assert ex.counters.answers_of_unknown_age == 0
+    bus.answers[5] = all_answers(5, counter=(first + 5) % 256)
+    fb = one_cycle(ex, clock, None)
+    assert fb.anomalies == () and fb.sensor.fresh
+
+
+def test_a_sensor_pair_one_step_on_after_lost_frames_is_still_of_unknown_age(bus, clock):
+    """Three SYNCs without the sensor, then a lone pair only one step on: the oldest of a burst,
+    whatever its counter says otherwise; not used (its age is not this SYNC's)."""
+    ex = make_exchange(bus, clock)
+    bus.answers[0] = all_answers(0, counter=10)
+    assert one_cycle(ex, clock, None).sensor.fresh
+    sensor_ids = (tpdo1(SENSOR), tpdo2(SENSOR))
+    for k in (1, 2, 3):
+        bus.answers[k] = [f for f in all_answers(k) if f.arbitration_id not in sensor_ids]
+        one_cycle(ex, clock, None)
+    bus.answers[4] = all_answers(4, counter=11)
+    fb = one_cycle(ex, clock, None)
+    assert not fb.sensor.fresh and ex.counters.answers_of_unknown_age == 1
+
+
 # -- sleeping through the answer window (window_sleep, as the service runs it) ----------------
 
 

@@ -204,14 +204,17 @@ def test_a_brake_on_missing_samples_keeps_the_speed_to_climb_back_to():
     climb back to the old speed; the restart ended there and the tool went on at the laps' gentle
     0.05 m/s^2: lap 3 at 54.6 and 43.5 mm/s of 60 (two default demos, 2026-12-05). Here the same in
     simulated time: a 25-ms stall in lap 3, then every device's frames missing for 5 cycles while the
-    speed climbs back: 3 dropped, then each device's first IN_STEP_BEFORE_TRUSTED answers, of
-    unknown age after 3 owed (drivers/cyclic_exchange.py). The brake on the missing samples keeps
+    speed climbs back: the drives' 3 dropped, then their first IN_STEP_BEFORE_TRUSTED answers, of
+    unknown age after 3 owed (drivers/cyclic_exchange.py); the sensor's 5 dropped (after a loss its
+    first pair dates itself by its counter, so 3 dropped would be 3 missing). The brake on the
+    missing samples keeps
     the speed it braked from, and the climb after it is the hold-up's
     (HOLD_RESTART_ACCELERATION_M_S2), not the laps'."""
     base = load_config(overrides={"task.kind": "contour"})
     period = base.period_s
     dropped = 5 - IN_STEP_BEFORE_TRUSTED
-    drops = [f"drop:{node}@39.58+{dropped * period}" for node in (1, 2, 3, base.sensor.node_id)]
+    drops = [f"drop:{node}@39.58+{dropped * period}" for node in (1, 2, 3)]
+    drops.append(f"drop:{base.sensor.node_id}@39.58+{5 * period}")
     cfg = load_config(
         overrides={"task.kind": "contour", "sim.faults": [f"stall=0.025@39.5+{period}", *drops]}
     )
@@ -247,8 +250,9 @@ class TrueContact:
 @pytest.mark.slow
 @pytest.mark.parametrize("dropped", [4, 8, 20])
 def test_blind_after_a_hold_up_the_tool_holds_its_course_on_the_contour(dropped):
-    """The brake test's stall, then every device silent for ``dropped`` cycles and the
-    IN_STEP_BEFORE_TRUSTED after: blind past ``stale_hold_s``, the tool brakes and no force error
+    """The brake test's stall, then every device silent for ``dropped`` cycles (the drives
+    IN_STEP_BEFORE_TRUSTED more; the sensor's first pair dates itself by its counter): blind from
+    ``stale_hold_s`` (4 cycles), the tool brakes and no force error
     moves it into the contact, but the integral's push at its speed (the friction's tilt made up
     for) goes on. Without it the tool left the contour at 3.9 mm/s: from 6 silent cycles the true
     force fell from 10 to 0 N and lap 3 lost the contact and re-approached."""

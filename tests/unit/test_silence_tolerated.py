@@ -103,10 +103,11 @@ def test_a_drive_is_judged_on_its_own_silence_around_one_every_device_shared(own
     cfg, final, counters = _run({**PATH, "sim.faults": drops})
     if faults:
         assert final.mode == Mode.FAULT
-        # 40 of its own (1.0-1.05 s and from 1.17 s) and the 42 shared between: the 40 dropped, then
-        # the others' first IN_STEP_BEFORE_TRUSTED answers, of unknown age (drivers/cyclic_exchange.py)
+        # 40 of its own (1.0-1.05 s and from 1.15 s) and the 40 shared between: the 40 dropped; the
+        # sensor's first pair after them dates itself by its counter and ends the bus's silence, while
+        # the other drives' first IN_STEP_BEFORE_TRUSTED answers are of unknown age (drivers/cyclic_exchange.py)
         own = cycles_in(cfg.loop.max_missing_s, cfg.period_s)
-        shared = 40 + IN_STEP_BEFORE_TRUSTED
+        shared = 40
         assert final.fault_reason == f"drive 2: no TPDO for {own + shared} cycles"
     else:
         assert final.mode == Mode.DONE, final.fault_reason
@@ -239,8 +240,9 @@ def test_the_silence_fault_comes_when_the_rule_on_the_whole_history_says(windows
 
 
 def test_the_simulated_time_summary_counts_the_answers_a_drop_cost_as_over_a_bus():
-    # every device silent 10 cycles: the answers dropped, then each device's first
-    # IN_STEP_BEFORE_TRUSTED of unknown age, are in the summary as in one over a bus (run_summary)
+    # every device silent 10 cycles: the answers dropped, then each drive's first
+    # IN_STEP_BEFORE_TRUSTED of unknown age (the sensor's first pair dates itself by its counter),
+    # are in the summary as in one over a bus (run_summary)
     from controller.shell.demo import run_simulated_time
 
     drops = [f"drop:{n}@1.0+0.025" for n in ALL]
@@ -248,7 +250,7 @@ def test_the_simulated_time_summary_counts_the_answers_a_drop_cost_as_over_a_bus
         load_config(overrides={**PATH, "task.kind": "path", "sim.faults": drops}), 30.0
     )
     assert summary["final_mode"] == "DONE", summary["fault_reason"]
-    assert summary["answers_of_unknown_age"] == len(ALL) * IN_STEP_BEFORE_TRUSTED
-    silent = 10 + IN_STEP_BEFORE_TRUSTED  # cycles without a sample, of each device
-    assert summary["longest_silence_cycles"] == {"drive": silent, "sensor": silent}
-    assert summary["missing_frames"] == {"drive": 3 * silent, "sensor": silent}
+    assert summary["answers_of_unknown_age"] == 3 * IN_STEP_BEFORE_TRUSTED
+    silent = 10 + IN_STEP_BEFORE_TRUSTED  # cycles without a sample, of each drive
+    assert summary["longest_silence_cycles"] == {"drive": silent, "sensor": 10}
+    assert summary["missing_frames"] == {"drive": 3 * silent, "sensor": 10}
