@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from controller.tools.bench.memory_squeeze import available_mb, main
 
 TAKE_MB = 400  # well above the squeeze's band (3 blocks of 16 MiB), small for any machine that runs the suite
@@ -54,10 +56,7 @@ def test_the_command_runs_with_the_memory_taken_and_the_squeeze_ends_with_it():
 
 
 def test_a_floor_beyond_the_machines_memory_is_refused_by_name(capsys):
-    try:
+    with pytest.raises(SystemExit) as exit_:
         main(["--floor-mb", "99999999", "--", "true"])
-    except SystemExit as exit_:
-        assert exit_.code == 2
-    else:
-        raise AssertionError("no error")
+    assert exit_.value.code == 2
     assert "--floor-mb 99999999: must be 0 to" in capsys.readouterr().err
