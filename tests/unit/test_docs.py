@@ -62,9 +62,9 @@ def _documented_modules() -> list[str]:
 
 def test_every_documented_tool_answers_help_without_a_warning():
     """``--help`` of each documented tool prints its usage and ends 0, with no warning on stderr.
-    Two used to read their arguments by hand (one started its minute-long table whatever was asked,
-    one died on ``int('--help')``), and ``step_cost`` made runpy warn on every run: its package had
-    imported it before ``-m`` ran it."""
+    Three used to ignore or misread their arguments (one started its minute-long table whatever was
+    asked, one died on ``int('--help')``, one printed its page), and ``step_cost`` made runpy warn on
+    every run: its package had imported it before ``-m`` ran it."""
     import subprocess
     import sys
 
