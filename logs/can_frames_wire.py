@@ -14,10 +14,11 @@ upb writes them (controller/messages/cheope.proto):
 
 A classic data frame, nearly every frame, differs from the last one with its identifier, length
 and direction only in its time and its data bytes: it is one ``struct`` pack of a layout kept per
-(identifier, length, direction). Any other frame is written field by field. On a default contour
-demo's recording the writer's work fell from 422 100 to 409 127 instructions a cycle, 0.97 times
-(``python -m controller.tools.bench.writer_work SESSION.mcap --first 8400``); compiled with mypyc it
-took 409 860, no fewer, so it stays interpreted.
+(identifier, length, direction); so is the SYNC, a classic frame without data. Any other frame is
+written field by field. On a default contour demo's recording the writer's work fell from 422 100
+to 409 127 instructions a cycle, 0.97 times (``python -m controller.tools.bench.writer_work
+SESSION.mcap --first 8400``), and with the SYNC's layout from 407 113 to 396 451 (another
+recording); compiled with mypyc it took 409 860, no fewer, so it stays interpreted.
 
 The same bytes as ``can_frames(...).SerializeToString()`` (logs/messages.py), byte for byte:
 tests/unit/test_can_frames_wire.py compares the two over frames of every kind. A value the message
@@ -92,10 +93,12 @@ def _frame(frame: FrameRecord, unix_ns: int) -> bytes:
 @functools.lru_cache(maxsize=4096)  # a bus of many identifiers keeps the cache bounded
 def _layout(arb: int, n: int, outgoing: bool) -> tuple[struct.Struct, bytes, bytes]:
     """A classic data frame's wire bytes as one ``struct`` format around its time and its ``n`` data
-    bytes: everything else depends on the identifier, the length and the direction alone."""
-    body_length = 1 + 8 + 1 + len(varint(arb)) + 1 + len(varint(n)) + n + (2 if outgoing else 0)
+    bytes: everything else depends on the identifier, the length and the direction alone. With no
+    data bytes (the SYNC) the data field is left out, as proto3 leaves out empty bytes."""
+    data_head = bytes([_DATA_TAG]) + varint(n) if n else b""
+    body_length = 1 + 8 + 1 + len(varint(arb)) + len(data_head) + n + (2 if outgoing else 0)
     head = bytes([_FRAME_TAG]) + varint(body_length) + bytes([_TIME_TAG])
-    middle = bytes([_ID_TAG]) + varint(arb) + bytes([_DATA_TAG]) + varint(n)
+    middle = bytes([_ID_TAG]) + varint(arb) + data_head
     if outgoing:
         return struct.Struct(f"<{len(head)}sQ{len(middle)}s{n}s2s"), head, middle
     return struct.Struct(f"<{len(head)}sQ{len(middle)}s{n}s"), head, middle
@@ -104,8 +107,9 @@ def _layout(arb: int, n: int, outgoing: bool) -> tuple[struct.Struct, bytes, byt
 def can_frames_bytes(frames: list[FrameRecord], offset_ns: int) -> bytes:
     """``can_frames(frames, offset_ns).SerializeToString()`` (logs/messages.py), written directly.
 
-    A classic data frame (nearly all of them) is one ``pack`` of a layout kept per identifier,
-    length and direction (``_layout``); any other frame is written field by field (``_frame``)."""
+    A classic data frame (nearly all of them, the SYNC without data too) is one ``pack`` of a layout
+    kept per identifier, length and direction (``_layout``); any other frame is written field by
+    field (``_frame``)."""
     out: list[bytes] = []
     for frame in frames:
         outgoing, mono_s, arb, data, ext, rtr, rlen, fd, brs, esi, err = frame
@@ -118,7 +122,6 @@ def can_frames_bytes(frames: list[FrameRecord], offset_ns: int) -> bytes:
             or brs
             or esi
             or err
-            or not data
             or not 0 < arb <= _MAX_CLASSIC_ID
             or not 0 < unix_ns <= _MAX_UINT64
         ):
