@@ -534,6 +534,7 @@ def say_run_notes(summary: dict[str, Any], command: str) -> None:
     say_if_faults_injected_nothing(summary, command)
     say_if_the_shield_guardian_failed(summary, command)
     say_if_realtime_tasks_shared_the_loops_cpu(summary, command)
+    say_if_the_controller_was_traced(summary, command)
     say_if_laps_ran_slow(summary, command)
 
 
@@ -653,6 +654,25 @@ def say_if_realtime_tasks_shared_the_loops_cpu(summary: dict[str, Any], command:
     print(
         f"{command}: note: real-time task(s) shared the loop's CPU: {named}. The kernel throttles a CPU's "
         "real-time tasks together, the loop with them (summary.realtime says the setting)",
+        file=sys.stderr,
+    )
+
+
+def say_if_the_controller_was_traced(summary: dict[str, Any], command: str) -> None:
+    """Processes that traced the controller during the run are said on stderr: the loop waits for
+    them (controller/shell/tracer_watch.py)."""
+    shield = summary.get("cpu_shield")
+    tracers = shield.get("tracers") if isinstance(shield, dict) else None
+    if not tracers:
+        return
+    named = "; ".join(
+        f"{t['name']} (pid {t['pid']}) attached in {t['looks']} look(s) a second apart between "
+        f"{t['seen_s'][0]:g} and {t['seen_s'][1]:g} s after the shield rose"
+        for t in tracers
+    )
+    print(
+        f"{command}: note: the controller was traced: {named}. A traced loop waits for its tracer at "
+        "every system call or sample (py-spy: --nonblocking does not stop the process)",
         file=sys.stderr,
     )
 

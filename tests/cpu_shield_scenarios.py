@@ -376,6 +376,59 @@ def realtime_neighbours(state_dir: Path) -> dict[str, Any]:
     return {"summary": summary, "pids": pids}
 
 
+TRACED_CONTROLLER = """
+import json, sys
+from pathlib import Path
+from controller.shell.cpu_shield import CpuShield
+shield = CpuShield.start((int(sys.argv[1]),), Path(sys.argv[2]))
+print("shielded", flush=True)
+sys.stdin.readline()
+print(json.dumps(shield.close()), flush=True)
+"""
+# A tracer as strace -p attaches (PTRACE_SEIZE, 0x4206: the tracee runs on), which passes each
+# signal the tracee stops for back to it (PTRACE_CONT, 7), as strace does: a tracee that stops for
+# a signal waits for its tracer.
+TRACER = (
+    "import ctypes, os, sys\n"
+    "libc = ctypes.CDLL(None, use_errno=True)\n"
+    "libc.ptrace.argtypes = (ctypes.c_long, ctypes.c_long, ctypes.c_void_p, ctypes.c_void_p)\n"
+    "pid = int(sys.argv[1])\n"
+    "print(libc.ptrace(0x4206, pid, None, None), ctypes.get_errno(), flush=True)\n"
+    "while True:\n"
+    "    _, status = os.waitpid(pid, 0x40000000)\n"  # __WALL
+    "    if not os.WIFSTOPPED(status):\n"
+    "        break\n"
+    "    sig = os.WSTOPSIG(status)\n"
+    "    libc.ptrace(7, pid, None, ctypes.c_void_p(0 if sig == 5 else sig))\n"
+)
+
+
+def traced(state_dir: Path) -> dict[str, Any]:
+    """A process tracing the controller is named in the shield's summary (tracer_watch): the
+    guardian's last look at the end, while the tracer is still attached, sees it."""
+    cpu = sorted(os.sched_getaffinity(0))[-1]
+    controller = subprocess.Popen(
+        [sys.executable, "-c", TRACED_CONTROLLER, str(cpu), str(state_dir)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    assert controller.stdin is not None and controller.stdout is not None
+    assert controller.stdout.readline().strip() == "shielded"
+    tracer = subprocess.Popen(
+        [sys.executable, "-c", TRACER, str(controller.pid)], stdout=subprocess.PIPE, text=True
+    )
+    assert tracer.stdout is not None
+    seized = tracer.stdout.readline().split()  # ptrace's return and errno
+    controller.stdin.write("\n")
+    controller.stdin.flush()
+    summary = json.loads(controller.stdout.readline())
+    for process in (tracer, controller):
+        process.kill()
+        process.wait()
+    return {"summary": summary, "tracer": tracer.pid, "seized": seized}
+
+
 SCENARIOS = {
     f.__name__: f
     for f in (
@@ -389,6 +442,7 @@ SCENARIOS = {
         ending_signals,
         bad_state_files,
         realtime_neighbours,
+        traced,
     )
 }
 

@@ -45,6 +45,9 @@ the same for the time of a run, where they are permitted (CAP_SYS_NICE for other
   but the guardian names those that used CPU time there while the run lasted (the summary's
   ``realtime_neighbours``): a busy one spends the CPU's real-time budget for the loop too
   (controller/shell/realtime_neighbours.py).
+- **the tracers**: a tracer attached to the controller's process (``strace -p``, a debugger,
+  ``py-spy`` sampling in its default mode) holds the loop up at every system call or sample; the
+  guardian names each one it saw (the summary's ``tracers``, controller/shell/tracer_watch.py).
 - **not covered**: two shields under different locks (two users, or two state directories) on
   a machine with more than two CPUs can each take a CPU from the same task; the second restore
   then gives back only its own.
@@ -75,6 +78,7 @@ from controller.child_process import child_environment, exit_text, python_module
 from controller.realtime import RealtimeError, RealtimeOptions
 from controller.shell.machine_tasks import Task, affinity, all_tasks, read_task, ticks_now
 from controller.shell.realtime_neighbours import SCAN_S, NeighbourWatch
+from controller.shell.tracer_watch import TracerWatch
 
 log = logging.getLogger(__name__)
 
@@ -300,6 +304,7 @@ def guard(
     ours = (*exclude, os.getpid())
     record = plan_sweep(cpus, ours, proc)
     neighbours = NeighbourWatch(cpus, ours, proc)
+    tracers = TracerWatch(exclude, proc)  # the controller's processes, not the guardian
     try:
         # written before the first move: a guardian killed in the middle of its sweep (SIGKILL
         # cannot wait) leaves every task it moved in the file, for its controller or the next run
@@ -308,12 +313,18 @@ def guard(
         record = apply_sweep(record)
         _write_state(state, record)
         _answer({"moved": len(record.moved), "refused": record.refused, "recovered": recovered})
-        _wait_for_the_end(neighbours)
+        _wait_for_the_end(neighbours, tracers)
     finally:
         restored = restore(record, proc)
         state.unlink(missing_ok=True)
         with contextlib.suppress(OSError):  # nobody reads any more
-            _answer({"restored": restored, "realtime_neighbours": _last_look(neighbours)})
+            _answer(
+                {
+                    "restored": restored,
+                    "realtime_neighbours": _last_look(neighbours),
+                    "tracers": _last_look(tracers),
+                }
+            )
     return 0
 
 
@@ -370,19 +381,20 @@ def give_back_abandoned(state_dir: Path | None, proc: Path = Path("/proc")) -> i
     return given_back if isinstance(given_back, int) else 0
 
 
-def _last_look(neighbours: NeighbourWatch) -> list[dict[str, Any]]:
-    """The real-time neighbours' report after a last scan (their time since the one before)."""
+def _last_look(watch: NeighbourWatch | TracerWatch) -> list[dict[str, Any]]:
+    """A watch's report after a last scan (the real-time neighbours' time since the one before)."""
     try:
-        neighbours.scan()
-        return neighbours.report()
+        watch.scan()
+        return watch.report()
     except Exception:  # a courtesy: the restore's answer must go out whatever happens here
-        log.exception("real-time neighbours not reported")
+        log.exception("%s not reported", type(watch).__name__)
         return []
 
 
-def _wait_for_the_end(neighbours: NeighbourWatch) -> None:
+def _wait_for_the_end(neighbours: NeighbourWatch, tracers: TracerWatch) -> None:
     """Until the controller's end closes the pipe, or an ending signal is pending; meanwhile the
-    real-time tasks beside the loop are looked for every ``SCAN_S`` (realtime_neighbours)."""
+    real-time tasks beside the loop (realtime_neighbours) and the tracers of the controller
+    (tracer_watch) are looked for every ``SCAN_S``."""
     stdin = sys.stdin.buffer
     next_scan_s = time.monotonic()
     while not ENDING_SIGNALS & signal.sigpending():
@@ -390,8 +402,9 @@ def _wait_for_the_end(neighbours: NeighbourWatch) -> None:
             next_scan_s += SCAN_S
             try:
                 neighbours.scan()
+                tracers.scan()
             except Exception:  # naming them is a courtesy: the shield's restore must not depend on it
-                log.exception("real-time neighbours not looked for any more")
+                log.exception("real-time neighbours and tracers not looked for any more")
                 next_scan_s = math.inf
         if select.select([stdin], [], [], _WAIT_POLL_S)[0] and not os.read(stdin.fileno(), 4096):
             return
@@ -539,6 +552,9 @@ class CpuShield:
         neighbours = (answer or {}).get("realtime_neighbours")
         if neighbours:  # real-time tasks that shared the loop's CPU, busy (realtime_neighbours)
             summary["realtime_neighbours"] = neighbours
+        tracers = (answer or {}).get("tracers")
+        if tracers:  # processes that traced the controller (tracer_watch)
+            summary["tracers"] = tracers
         if answer is None or "restored" not in answer:
             summary["guardian_failed"] = (
                 f"{exit_text(ended)} under the run"

@@ -152,6 +152,16 @@ def test_a_busy_real_time_task_on_the_loops_cpu_is_named(tmp_path: Path) -> None
 
 
 @needs_namespace
+def test_a_process_tracing_the_controller_is_named(tmp_path: Path) -> None:
+    """A tracer holds the loop up at every system call (controller/shell/tracer_watch.py): the summary
+    names it."""
+    out = run_scenario("traced", tmp_path)
+    assert out["seized"] == ["0", "0"]  # ptrace attached
+    (tracer,) = out["summary"]["tracers"]
+    assert tracer["pid"] == out["tracer"] and tracer["name"].startswith("python") and tracer["looks"] >= 1
+
+
+@needs_namespace
 def test_a_child_forked_while_the_sweep_runs_gets_the_cpu_back(tmp_path: Path) -> None:
     out = run_scenario("forked_during_sweep", tmp_path)
     assert out["during"]["spawner"] != out["all"]  # swept

@@ -92,3 +92,15 @@ def test_laps_well_below_their_commanded_speed_are_said(capsys):
     cli.say_if_laps_ran_slow({"final_mode": "DONE"}, "cheope run")  # no contour: nothing to say
     cli.say_if_laps_ran_slow({"contour": {"laps": [{"lap": 1, "speed_commanded_m_s": None}]}}, "cheope demo")
     assert capsys.readouterr().err == ""
+
+
+def test_a_tracer_of_the_controller_is_said_on_stderr(capsys):
+    """A traced loop waits for its tracer (controller/shell/tracer_watch.py): the run says who traced it."""
+    tracers = [{"pid": 4242, "name": "strace", "seen_s": [29.0, 39.0], "looks": 11}]
+    cli.say_if_the_controller_was_traced({"cpu_shield": {"tracers": tracers}}, "cheope demo")
+    err = capsys.readouterr().err
+    assert "cheope demo: note: the controller was traced: strace (pid 4242)" in err
+    assert "in 11 look(s)" in err and "between 29 and 39 s" in err
+    cli.say_if_the_controller_was_traced({"cpu_shield": {"cpus": [1]}}, "cheope demo")
+    cli.say_if_the_controller_was_traced({}, "cheope demo")  # no shield: nothing to say
+    assert capsys.readouterr().err == ""
