@@ -639,11 +639,18 @@ def say_if_the_shield_guardian_failed(summary: dict[str, Any], command: str) -> 
         )
 
 
+def _shield_watch(summary: dict[str, Any], key: str) -> list[dict[str, Any]]:
+    """What the CPU shield's guardian saw of ``key`` (``realtime_neighbours``, ``tracers``): none
+    without a shield, or when it saw nothing."""
+    shield = summary.get("cpu_shield")
+    seen = shield.get(key) if isinstance(shield, dict) else None
+    return seen if isinstance(seen, list) else []
+
+
 def say_if_realtime_tasks_shared_the_loops_cpu(summary: dict[str, Any], command: str) -> None:
     """Real-time tasks that used CPU time on the loop's CPU during the run are said on stderr: the
     kernel throttles them with the loop (controller/shell/realtime_neighbours.py)."""
-    shield = summary.get("cpu_shield")
-    neighbours = shield.get("realtime_neighbours") if isinstance(shield, dict) else None
+    neighbours = _shield_watch(summary, "realtime_neighbours")
     if not neighbours:
         return
     named = "; ".join(
@@ -661,8 +668,7 @@ def say_if_realtime_tasks_shared_the_loops_cpu(summary: dict[str, Any], command:
 def say_if_the_controller_was_traced(summary: dict[str, Any], command: str) -> None:
     """Processes that traced the controller during the run are said on stderr: the loop waits for
     them (controller/shell/tracer_watch.py)."""
-    shield = summary.get("cpu_shield")
-    tracers = shield.get("tracers") if isinstance(shield, dict) else None
+    tracers = _shield_watch(summary, "tracers")
     if not tracers:
         return
     named = "; ".join(
