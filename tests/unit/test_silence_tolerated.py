@@ -20,7 +20,7 @@ from controller.config import load_config
 from controller.core.controller_state import Mode
 from controller.core.periods import cycles_in
 from controller.shell.loop import CycleLoop, SimulatedTime
-from drivers.cyclic_exchange import IN_STEP_BEFORE_TRUSTED, OWED_FORGOTTEN_AFTER, OWED_OF_UNKNOWN_AGE
+from drivers.cyclic_exchange import IN_STEP_BEFORE_TRUSTED, _owed_after, of_known_age
 from sim_backend.loopback import LoopbackExchange
 
 PATH = {"task.path.laps": 0.5}
@@ -182,22 +182,17 @@ def test_the_contour_task_tolerates_sensor_silence_up_to_sensor_stale_s(silent_s
 
 def _without_sample(windows: list[tuple[frozenset[int], int, int]], device: int, end: int) -> set[int]:
     """The cycles before ``end`` in which ``device`` gives the law no sample: its dropped answers, and
-    for a drive the lone answers of unknown age after them (the exchange's rule, drivers/cyclic_exchange.py
-    ``of_known_age``: a drive that owes OWED_OF_UNKNOWN_AGE answers or more is trusted again after
-    IN_STEP_BEFORE_TRUSTED windows in step; a dropped answer stays owed until OWED_FORGOTTEN_AFTER
-    windows in step). The sensor's answer after a drop dates itself by its counter: no more than the
-    drop (``_counter_dates_now``)."""
+    for a drive the lone answers of unknown age after them, by the exchange's own rule
+    (drivers/cyclic_exchange.py: ``of_known_age`` on what ``_owed_after`` keeps, each window with
+    the drive's one answer or none). The sensor's answer after a drop dates itself by its counter:
+    no more than the drop (``_counter_dates_now``)."""
     missing: set[int] = set()
     owed = in_step = 0
     for k in range(end):
-        if any(device in devs and first <= k < first + n for devs, first, n in windows):
+        dropped = any(device in devs and first <= k < first + n for devs, first, n in windows)
+        if dropped or (device != SENSOR and not of_known_age(owed, in_step)):
             missing.add(k)
-            owed, in_step = owed + 1, 0
-            continue
-        if device != SENSOR and owed >= OWED_OF_UNKNOWN_AGE and in_step < IN_STEP_BEFORE_TRUSTED:
-            missing.add(k)
-        in_step += 1
-        owed = 0 if in_step >= OWED_FORGOTTEN_AFTER else owed
+        owed, in_step = _owed_after(owed, in_step, 0 if dropped else 1)
     return missing
 
 
