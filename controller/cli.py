@@ -277,8 +277,11 @@ def _longest_cycle_line(summary: dict[str, Any]) -> str:
         for name, key in (
             ("woke late", "wake_error"),
             ("send", "send"),
+            ("window", "window"),
             ("collect past window", "collect_over"),
+            ("inputs", "inputs"),
             ("step", "step"),
+            ("after step", "after_step"),
             ("observers", "observers"),
             ("gc", "gc"),
         )

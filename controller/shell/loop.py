@@ -56,8 +56,10 @@ counted and timed (``LoopStats.gc_collections``, ``gc_max_s``).
 Where the time of a long cycle went: each cycle's send, its collect past the window's end, its
 step and its observers are kept in the ring beside its wake-up error, and the longest cycle of
 the run (wake-up to the end of its work) with its parts (``LoopStats.longest_cycle``; its
-``observers_s`` are those that ran inside it: the cycle before's, in the answer window): a cycle
-stalled by something beside the loop shows which part of it waited.
+``observers_s`` are those that ran inside it: the cycle before's, in the answer window), and the
+time between them (``CycleMarks``: the window's wait, the step's inputs, the bookkeeping after
+the step), so that the parts add up to the span: a cycle stalled by something beside the loop
+shows which part of it waited.
 """
 
 from __future__ import annotations
@@ -68,7 +70,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -119,6 +121,31 @@ DEFAULT_RING_CYCLES = 4096  # about 10 s at 400 Hz of per-cycle timing kept as i
 # cycles came within 4 cycles after one of those folds (the contour, `cheope bench`, 60 s); 256
 # cycles take 70 us back to back.
 DEFAULT_FOLD_CYCLES = 256
+
+
+class CycleMarks(NamedTuple):
+    """A cycle's clock readings between its named parts [s]: what the longest cycle's time between
+    them is taken from (``LoopStats.record_span``), so that its parts add up to its span. A cycle of
+    9.0 ms whose send, collect past the window, step and observers came to 0.4 ms (a `make demo`)
+    had ~6.6 ms that nothing in its summary named."""
+
+    sent: float  # the send's end
+    collect_from: float  # the window's end, or the observers' when they ran past it
+    collected: float  # the collect's return
+    stepping: float  # the step's call, after its inputs were gathered
+    stepped: float  # the step's return
+    worked: float  # the cycle's end, before a collection
+    observers_in_window: bool  # the observers ran in the window (else after the step)
+
+    def gaps(self, observers_s: float) -> dict[str, float]:
+        """The time between the named parts: the window's wait (less the observers in it), the
+        step's inputs (the command, the plans), and the bookkeeping after the step (SDOs, the ring)."""
+        in_window = observers_s if self.observers_in_window else 0.0
+        return {
+            "window_s": min(self.collected, self.collect_from) - self.sent - in_window,
+            "inputs_s": self.stepping - self.collected,
+            "after_step_s": self.worked - self.stepped - (observers_s - in_window),
+        }
 
 
 @dataclass
@@ -208,10 +235,14 @@ class LoopStats:
             self.send_s[i] = send_s
             self.collect_over_s[i] = collect_over_s
 
-    def record_span(self, span_s: float, gc_s: float, observers_s: float) -> None:
+    def record_span(
+        self, span_s: float, gc_s: float, observers_s: float, marks: tuple[float, ...] | CycleMarks
+    ) -> None:
         """The span of the cycle recorded last (wake-up to the end of its work, a collection
         included): kept with its parts when it is the longest of the run so far. ``observers_s``:
-        the observers that ran inside it (the cycle before's, when they run in the answer window)."""
+        the observers that ran inside it (the cycle before's, when they run in the answer window);
+        ``marks``: its clock readings, for the time between the named parts (``CycleMarks``'
+        fields; made one only for a longest cycle: the loop's path pays for a tuple, not a class)."""
         if span_s <= self.longest_cycle.get("span_s", 0.0) or self.cycles <= self._folded:
             return
         i = (self.cycles - 1) % self.ring_cycles
@@ -224,6 +255,7 @@ class LoopStats:
             "step_s": float(self.step_s[i]),
             "observers_s": observers_s,
             "gc_s": gc_s,
+            **CycleMarks(*marks).gaps(observers_s),
         }
 
     def record_gc(self, duration_s: float) -> None:
@@ -480,7 +512,8 @@ class CycleLoop:
                 gc_s = 0.0
                 if collect_garbage and gc.get_count()[0] >= young_limit:
                     gc_s = self._collect_garbage(stats, worked)
-                stats.record_span(worked + gc_s - woke, gc_s, observed_s)
+                marks = (sent, collect_from, collected, c0, stepped, worked, in_window)  # CycleMarks
+                stats.record_span(worked + gc_s - woke, gc_s, observed_s, marks)
                 ending = state.mode == Mode.DONE or (state.mode == Mode.FAULT and (exit_on_fault or stop))
                 # from the first cycle that ends the run, a little more so the last commands reach the
                 # drives; a recovery (a reset) before the end forgets it

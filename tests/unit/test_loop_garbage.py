@@ -124,8 +124,11 @@ def test_the_longest_cycle_is_kept_with_its_parts():
         "span_s",
         "wake_error_s",
         "send_s",
+        "window_s",
         "collect_over_s",
+        "inputs_s",
         "step_s",
+        "after_step_s",
         "observers_s",
         "gc_s",
     }
