@@ -66,6 +66,7 @@ from __future__ import annotations
 
 import gc
 import math
+import resource
 import threading
 import time
 from collections.abc import Callable
@@ -80,6 +81,7 @@ from controller.core.cycle_data import BusFeedback, Command, CycleInputs, CycleO
 from controller.core.periods import DEADLINE_ROUNDING_S
 from controller.core.ports import CycleObserver, CycleTiming
 from controller.shell.streaming_stats import LogHistogram
+from controller.shell.thread_usage import ThreadUsageReader, UsageBetween, no_usage
 
 # The answer window closes at least this long, plus the cycle's own recent work, before the next
 # deadline: room for the sleeper to start its coarse sleep and spin before it.
@@ -136,16 +138,29 @@ class CycleMarks(NamedTuple):
     stepped: float  # the step's return
     worked: float  # the cycle's end, before a collection
     observers_in_window: bool  # the observers ran in the window (else after the step)
+    work_from: resource.struct_rusage | None  # the loop thread's usage at ``collected`` ...
+    work_to: resource.struct_rusage | None  # ... and at ``worked`` (thread_usage.py)
 
     def gaps(self, observers_s: float) -> dict[str, float]:
         """The time between the named parts: the window's wait (less the observers in it), the
-        step's inputs (the command, the plans), and the bookkeeping after the step (SDOs, the ring)."""
+        step's inputs (the command, the plans), and the bookkeeping after the step (SDOs, the ring);
+        and, where the thread's usage was read, how much of the work from the collect's return was
+        on the CPU, and how often the thread waited or was preempted in it."""
         in_window = observers_s if self.observers_in_window else 0.0
-        return {
+        gaps = {
             "window_s": min(self.collected, self.collect_from) - self.sent - in_window,
             "inputs_s": self.stepping - self.collected,
             "after_step_s": self.worked - self.stepped - (observers_s - in_window),
         }
+        if self.work_from is not None and self.work_to is not None:
+            # the work from the collect's return to the cycle's end: on the CPU, or waiting
+            work = UsageBetween.of(self.work_from, self.work_to)
+            gaps |= {
+                "work_on_cpu_s": work.on_cpu_s,
+                "work_waits": work.waits,
+                "work_preemptions": work.preemptions,
+            }
+        return gaps
 
 
 @dataclass
@@ -236,7 +251,7 @@ class LoopStats:
             self.collect_over_s[i] = collect_over_s
 
     def record_span(
-        self, span_s: float, gc_s: float, observers_s: float, marks: tuple[float, ...] | CycleMarks
+        self, span_s: float, gc_s: float, observers_s: float, marks: tuple[object, ...] | CycleMarks
     ) -> None:
         """The span of the cycle recorded last (wake-up to the end of its work, a collection
         included): kept with its parts when it is the longest of the run so far. ``observers_s``:
@@ -348,6 +363,7 @@ class CycleLoop:
         plans_ready: Callable[[], int] | None = None,
         collect_garbage: bool = True,
         observers_in_window: bool = False,
+        thread_usage: ThreadUsageReader = no_usage,
     ) -> None:
         if not stop_timeout_s > 0:
             raise ValueError(f"stop_timeout_s = {stop_timeout_s}: must be > 0")
@@ -368,6 +384,7 @@ class CycleLoop:
         self.stop_timeout_s = stop_timeout_s
         self.collect_garbage = collect_garbage  # the loop, not the allocator, decides when (module text)
         self.observers_in_window = observers_in_window  # step 5 of the module text
+        self.thread_usage = thread_usage  # read twice a cycle by the loop thread (thread_usage.py)
         self.cycles_done = 0  # completed cycles: what controller/shell/stuck_loop.py watches
 
     def _window_end(self, deadline: float, work_peak_s: float) -> float:
@@ -438,6 +455,7 @@ class CycleLoop:
         young_limit = gc.get_threshold()[0]
         skipped_before = False  # deadlines were skipped before this cycle
         in_window = self.observers_in_window
+        usage = self.thread_usage
         unobserved: Observation | None = None  # the cycle before's, for this cycle's answer window
         try:
             while True:
@@ -477,6 +495,7 @@ class CycleLoop:
                     collect_from = max(window_end, clock())
                 feedback = self.exchange.collect(window_end)
                 collected = clock()
+                work_from = usage()  # the loop thread's: was a long work waiting? (thread_usage.py)
                 stop = self.stop_event.is_set() or (time_up_cycle is not None and k >= time_up_cycle)
                 if stop and stop_cycle is None:
                     stop_cycle = k
@@ -508,11 +527,12 @@ class CycleLoop:
                 else:
                     observed_s = self._observe(stats, observation)
                 worked = clock()
+                work_to = usage()
                 work_peak_s = max(worked - min(collected, window_end), work_peak_s * work_decay)
                 gc_s = 0.0
                 if collect_garbage and gc.get_count()[0] >= young_limit:
                     gc_s = self._collect_garbage(stats, worked)
-                marks = (sent, collect_from, collected, c0, stepped, worked, in_window)  # CycleMarks
+                marks = (sent, collect_from, collected, c0, stepped, worked, in_window, work_from, work_to)
                 stats.record_span(worked + gc_s - woke, gc_s, observed_s, marks)
                 ending = state.mode == Mode.DONE or (state.mode == Mode.FAULT and (exit_on_fault or stop))
                 # from the first cycle that ends the run, a little more so the last commands reach the

@@ -177,7 +177,10 @@ def _hist_us(h: LogHistogram, *qs: float, with_max: bool = True) -> dict[str, fl
 
 
 def _longest_cycle_us(longest: dict[str, float]) -> dict[str, float]:
-    return {k.removesuffix("_s"): (int(v) if k == "cycle" else round(v * 1e6, 1)) for k, v in longest.items()}
+    """Its times in microseconds; its cycle and counts (the work's waits, preemptions) as they are."""
+    return {
+        k.removesuffix("_s"): (round(v * 1e6, 1) if k.endswith("_s") else int(v)) for k, v in longest.items()
+    }
 
 
 def summarize(

@@ -312,6 +312,7 @@ def measured_run(
     from controller.shell.loop import CycleLoop, SimulatedTime
     from controller.shell.run_summary import RunRecorder
     from controller.shell.service import sleeps_through_window
+    from controller.shell.thread_usage import thread_usage_reader
     from logs.recorder import SessionRecorder
     from sim_backend.loopback import LoopbackExchange
 
@@ -341,6 +342,7 @@ def measured_run(
         clock,
         clock.clock,
         observers=observers,
+        thread_usage=thread_usage_reader(),  # the service's two readings a cycle (thread_usage.py)
     )
     gc.collect()
     gc.freeze()

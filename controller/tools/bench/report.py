@@ -215,6 +215,7 @@ def _longest(cycle: object) -> str:
     """The longest cycle's span and the part of it that took longest (controller/shell/loop.py)."""
     if not isinstance(cycle, dict) or "span" not in cycle:
         return "-"
-    parts = {k: v for k, v in cycle.items() if k not in ("span", "cycle")}
+    # the parts of its time, not the thread's usage over its work (work_on_cpu, work_waits, ...)
+    parts = {k: v for k, v in cycle.items() if k not in ("span", "cycle") and not k.startswith("work_")}
     part = max(parts, key=lambda k: parts[k]) if parts else "-"
     return f"{cycle['span']:.0f} ({part} {parts.get(part, 0.0):.0f})"
