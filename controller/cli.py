@@ -286,15 +286,15 @@ def _longest_cycle_line(summary: dict[str, Any]) -> str:
             ("gc", "gc"),
         )
     )
-    work = (
-        # over a bus the observers ran in the window: the work from the collect's return is these three
-        f"; of its inputs, step and after step {c['inputs'] + c['step'] + c['after_step']:.0f} us,"
-        f" {c['work_on_cpu']:.0f} on its CPU, {c['work_waits']} wait(s), {c['work_preemptions']} preemption(s)"
-        if "work_on_cpu" in c  # read over a bus, not in simulated time (controller/shell/thread_usage.py)
+    usage = (
+        f"; awake {c['span'] - c['window']:.0f} us (all but the window's wait), {c['on_cpu']:.0f} on its"
+        f" CPU, {c['waits']} wait(s) (the window's sleep among them), {c['preemptions']} preemption(s),"
+        f" {c['page_faults']} page fault(s)"
+        if "on_cpu" in c  # read over a bus, not in simulated time (controller/shell/thread_usage.py)
         else ""
     )
     head = (
-        f"longest cycle       {c['span']:.0f} us (cycle {c['cycle']}: {parts} us{work}); "
+        f"longest cycle       {c['span']:.0f} us (cycle {c['cycle']}: {parts} us{usage}); "
         if c
         else "longest cycle       -; "
     )

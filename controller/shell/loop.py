@@ -81,7 +81,7 @@ from controller.core.cycle_data import BusFeedback, Command, CycleInputs, CycleO
 from controller.core.periods import DEADLINE_ROUNDING_S
 from controller.core.ports import CycleObserver, CycleTiming
 from controller.shell.streaming_stats import LogHistogram
-from controller.shell.thread_usage import ThreadUsageReader, UsageBetween, no_usage
+from controller.shell.thread_usage import ThreadUsageReaders, UsageBetween
 
 # The answer window closes at least this long, plus the cycle's own recent work, before the next
 # deadline: room for the sleeper to start its coarse sleep and spin before it.
@@ -125,6 +125,11 @@ DEFAULT_RING_CYCLES = 4096  # about 10 s at 400 Hz of per-cycle timing kept as i
 DEFAULT_FOLD_CYCLES = 256
 
 
+def _nothing() -> None:
+    """What the loop reads of its thread's usage in simulated time: nothing."""
+    return None
+
+
 class CycleMarks(NamedTuple):
     """A cycle's clock readings between its named parts [s]: what the longest cycle's time between
     them is taken from (``LoopStats.record_span``), so that its parts add up to its span. A cycle of
@@ -138,27 +143,30 @@ class CycleMarks(NamedTuple):
     stepped: float  # the step's return
     worked: float  # the cycle's end, before a collection
     observers_in_window: bool  # the observers ran in the window (else after the step)
-    work_from: resource.struct_rusage | None  # the loop thread's usage at ``collected`` ...
-    work_to: resource.struct_rusage | None  # ... and at ``worked`` (thread_usage.py)
+    usage_cpu_s: float | None  # the loop thread's CPU time at the wake-up ...
+    usage_switches: resource.struct_rusage | None  # ... and its context switches (thread_usage.py)
+    readers: ThreadUsageReaders | None  # what read them, to read their end (None: simulated time)
 
     def gaps(self, observers_s: float) -> dict[str, float]:
         """The time between the named parts: the window's wait (less the observers in it), the
         step's inputs (the command, the plans), and the bookkeeping after the step (SDOs, the ring);
-        and, where the thread's usage was read, how much of the work from the collect's return was
-        on the CPU, and how often the thread waited or was preempted in it."""
+        and, where the thread's usage was read, over the cycle (from its wake-up): the thread's CPU
+        time, and how often it waited (the window's sleep is one) or was preempted."""
         in_window = observers_s if self.observers_in_window else 0.0
         gaps = {
             "window_s": min(self.collected, self.collect_from) - self.sent - in_window,
             "inputs_s": self.stepping - self.collected,
             "after_step_s": self.worked - self.stepped - (observers_s - in_window),
         }
-        if self.work_from is not None and self.work_to is not None:
-            # the work from the collect's return to the cycle's end: on the CPU, or waiting
-            work = UsageBetween.of(self.work_from, self.work_to)
+        if self.readers is not None and self.usage_cpu_s is not None and self.usage_switches is not None:
+            # from the wake-up to now (the cycle's end): asleep in the window (a wait), else on the
+            # CPU, or waiting, or off it without knowing
+            usage = UsageBetween.since(self.usage_cpu_s, self.usage_switches, self.readers)
             gaps |= {
-                "work_on_cpu_s": work.on_cpu_s,
-                "work_waits": work.waits,
-                "work_preemptions": work.preemptions,
+                "on_cpu_s": usage.on_cpu_s,
+                "waits": usage.waits,
+                "preemptions": usage.preemptions,
+                "page_faults": usage.page_faults,
             }
         return gaps
 
@@ -363,7 +371,7 @@ class CycleLoop:
         plans_ready: Callable[[], int] | None = None,
         collect_garbage: bool = True,
         observers_in_window: bool = False,
-        thread_usage: ThreadUsageReader = no_usage,
+        thread_usage: ThreadUsageReaders | None = None,
     ) -> None:
         if not stop_timeout_s > 0:
             raise ValueError(f"stop_timeout_s = {stop_timeout_s}: must be > 0")
@@ -384,7 +392,7 @@ class CycleLoop:
         self.stop_timeout_s = stop_timeout_s
         self.collect_garbage = collect_garbage  # the loop, not the allocator, decides when (module text)
         self.observers_in_window = observers_in_window  # step 5 of the module text
-        self.thread_usage = thread_usage  # read twice a cycle by the loop thread (thread_usage.py)
+        self.thread_usage = thread_usage  # read by the loop thread each cycle (thread_usage.py)
         self.cycles_done = 0  # completed cycles: what controller/shell/stuck_loop.py watches
 
     def _window_end(self, deadline: float, work_peak_s: float) -> float:
@@ -456,12 +464,15 @@ class CycleLoop:
         skipped_before = False  # deadlines were skipped before this cycle
         in_window = self.observers_in_window
         usage = self.thread_usage
+        cpu_s, switches = (usage.cpu_s, usage.switches) if usage is not None else (_nothing, _nothing)
         unobserved: Observation | None = None  # the cycle before's, for this cycle's answer window
         try:
             while True:
                 deadline = first_deadline + k * period
                 self.sleeper.sleep_until(deadline)
                 woke = clock()
+                # the loop thread's own usage from here: was a long cycle waiting? (thread_usage.py)
+                usage_cpu_s, usage_switches = cpu_s(), switches()
                 # held up to the next deadline or past it (DEADLINE_ROUNDING_S): this cycle is the latest
                 if woke - deadline > period - DEADLINE_ROUNDING_S:
                     k, deadline = self._latest_deadline(stats, k, deadline, woke)
@@ -495,7 +506,6 @@ class CycleLoop:
                     collect_from = max(window_end, clock())
                 feedback = self.exchange.collect(window_end)
                 collected = clock()
-                work_from = usage()  # the loop thread's: was a long work waiting? (thread_usage.py)
                 stop = self.stop_event.is_set() or (time_up_cycle is not None and k >= time_up_cycle)
                 if stop and stop_cycle is None:
                     stop_cycle = k
@@ -527,12 +537,22 @@ class CycleLoop:
                 else:
                     observed_s = self._observe(stats, observation)
                 worked = clock()
-                work_to = usage()
                 work_peak_s = max(worked - min(collected, window_end), work_peak_s * work_decay)
                 gc_s = 0.0
                 if collect_garbage and gc.get_count()[0] >= young_limit:
                     gc_s = self._collect_garbage(stats, worked)
-                marks = (sent, collect_from, collected, c0, stepped, worked, in_window, work_from, work_to)
+                marks = (
+                    sent,
+                    collect_from,
+                    collected,
+                    c0,
+                    stepped,
+                    worked,
+                    in_window,
+                    usage_cpu_s,
+                    usage_switches,
+                    usage,
+                )
                 stats.record_span(worked + gc_s - woke, gc_s, observed_s, marks)
                 ending = state.mode == Mode.DONE or (state.mode == Mode.FAULT and (exit_on_fault or stop))
                 # from the first cycle that ends the run, a little more so the last commands reach the

@@ -51,7 +51,7 @@ from controller.shell.loop import CycleLoop
 from controller.shell.run_summary import RunRecorder, summarize
 from controller.shell.stuck_loop import StuckLoopGuard
 from controller.shell.systemd_notify import notify
-from controller.shell.thread_usage import thread_usage_reader
+from controller.shell.thread_usage import thread_usage_readers
 from controller.tasks.registry import RunReport
 from drivers.bus import BusSpec, open_bus
 from drivers.bus_load import BusLoad, check_bus_load
@@ -249,7 +249,7 @@ def run_controller(
             stop_timeout_s=cfg.loop.stop_timeout_s,
             plans_ready=worker.ready if worker is not None else None,
             observers_in_window=True,  # over a bus: in the next cycle's answer window (loop.py, step 5)
-            thread_usage=thread_usage_reader(),
+            thread_usage=thread_usage_readers(),
         )
         if cfg.loop.freeze_gc:  # start-up work: before the loop takes its real-time priority
             freeze_garbage_collector()

@@ -1,62 +1,75 @@
-"""Whether a long stretch of the loop thread's work was work, or waiting beside it.
+"""Whether a long cycle of the loop thread was work, or waiting beside it.
 
-A cycle's work from the collect's return to its end (the step's inputs, the step, the
-bookkeeping after it) blocks on nothing by design: no I/O, memory locked. When it takes
-milliseconds all the same, the clock cannot say why. The thread's own usage can
-(``getrusage(RUSAGE_THREAD)``): its CPU time over the stretch, and its context switches, each
-kind a different culprit:
+A cycle blocks on nothing by design but its answer window's sleep: the send, the observers (in
+the window), the frames' reading, the step's inputs, the step, the bookkeeping after it and a
+collection are work, memory locked. When a cycle takes milliseconds more all the same, the
+clock cannot say why; the thread's own usage over the cycle, from its wake-up to its end, can:
+its CPU time, and its context switches, each kind a different culprit:
 
-- voluntary: the thread blocked. In this work that is a lock: the interpreter lock, handed
-  to another thread of the process (CPython asks the holder to drop it every
-  ``sys.getswitchinterval()``) that then did not give it back in time, or a library's lock;
+- voluntary, besides the window's sleep (one at 400 Hz): the thread blocked on a lock: the
+  interpreter lock (taken back after the window's sleep, or handed to another thread of the
+  process, which CPython asks the holder to do every ``sys.getswitchinterval()``) that the
+  other thread did not give back in time, or a library's lock (a Zenoh ``put``'s);
 - involuntary: a task of higher priority took the CPU from the loop (at ``SCHED_FIFO`` 80 only
-  the kernel's own threads at 99, or interrupts' time counted to it);
-- neither, and CPU time close to the span: the work itself was that long;
-- neither, and CPU time far below the span: the kernel did not count the time to the thread
+  the kernel's own threads above it: ``migration``, ``watchdog``);
+- neither, and CPU time close to the time awake (the span less the window's wait): the work
+  itself was that long;
+- neither, and CPU time far below it: the kernel did not count the time to the thread
   although it did not switch away from it. On a VM guest whose kernel accounts steal time
   (``CONFIG_PARAVIRT_TIME_ACCOUNTING``, as this one's does) that is the host running something
   else on the vCPU; interrupts' time counts to the thread unless the kernel accounts it apart
   (``CONFIG_IRQ_TIME_ACCOUNTING``, not set on this guest).
 
-Two readings a cycle (0.64 µs each on this machine, a system call; ``ru_utime`` and
-``ru_stime`` come from the scheduler's nanosecond count, rounded to the microsecond); what
-they say is kept for the run's longest cycle only (``LoopStats.longest_cycle``). In simulated
-time there is nothing to read (``no_usage``): the clock is not the thread's.
+The CPU time is ``CLOCK_THREAD_CPUTIME_ID`` (``time.thread_time``), which brings the scheduler's
+count up to the instant it is read. Not ``getrusage``'s ``ru_utime + ru_stime``: for a thread
+that is running they stand where the scheduler last updated them (a tick, a switch), and a
+first version of this, which read them, showed 0 µs of CPU for 200-600 µs of work in four of
+seven demos. The switches are ``getrusage(RUSAGE_THREAD)``'s counters.
+
+The start is read at every wake-up (two system calls, 0.69 and 0.64 µs on this machine), the
+end only for a cycle longer than the longest so far (``LoopStats.record_span``).
+In simulated time there is nothing to read (``CycleLoop``'s ``thread_usage`` is None): the
+clock is not the thread's.
 """
 
 from __future__ import annotations
 
 import functools
 import resource
+import time
 from collections.abc import Callable
 from typing import NamedTuple
 
-ThreadUsageReader = Callable[[], "resource.struct_rusage | None"]
+
+class ThreadUsageReaders(NamedTuple):
+    """What the loop thread calls to read its own usage: plain C callables, no Python frame."""
+
+    cpu_s: Callable[[], float]  # the calling thread's CPU time [s], up to now
+    switches: Callable[[], resource.struct_rusage]  # its usage, for the context switch counters
 
 
-def no_usage() -> None:
-    """Nothing read: simulated time, or a system without per-thread usage."""
-    return None
-
-
-def thread_usage_reader() -> ThreadUsageReader:
-    """The calling thread's usage, read by whichever thread calls it (the loop's): Linux's
-    ``RUSAGE_THREAD``; elsewhere nothing."""
+def thread_usage_readers() -> ThreadUsageReaders | None:
+    """The calling thread's readers on Linux (``RUSAGE_THREAD``); elsewhere none."""
     who = getattr(resource, "RUSAGE_THREAD", None)
-    return functools.partial(resource.getrusage, who) if who is not None else no_usage
+    return ThreadUsageReaders(time.thread_time, functools.partial(resource.getrusage, who)) if who else None
 
 
 class UsageBetween(NamedTuple):
-    """The loop thread's usage between two readings."""
+    """The loop thread's usage between a start read earlier and now."""
 
     on_cpu_s: float  # its CPU time
     waits: int  # voluntary context switches: it blocked (a lock)
     preemptions: int  # involuntary ones: the CPU was taken from it
+    page_faults: int  # minor and major: memory it touched that the kernel had to map (again)
 
     @classmethod
-    def of(cls, before: resource.struct_rusage, after: resource.struct_rusage) -> UsageBetween:
+    def since(
+        cls, cpu_s: float, switches: resource.struct_rusage, readers: ThreadUsageReaders
+    ) -> UsageBetween:
+        now = readers.switches()
         return cls(
-            on_cpu_s=(after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime),
-            waits=after.ru_nvcsw - before.ru_nvcsw,
-            preemptions=after.ru_nivcsw - before.ru_nivcsw,
+            on_cpu_s=readers.cpu_s() - cpu_s,
+            waits=now.ru_nvcsw - switches.ru_nvcsw,
+            preemptions=now.ru_nivcsw - switches.ru_nivcsw,
+            page_faults=(now.ru_minflt + now.ru_majflt) - (switches.ru_minflt + switches.ru_majflt),
         )

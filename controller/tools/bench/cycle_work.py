@@ -312,7 +312,7 @@ def measured_run(
     from controller.shell.loop import CycleLoop, SimulatedTime
     from controller.shell.run_summary import RunRecorder
     from controller.shell.service import sleeps_through_window
-    from controller.shell.thread_usage import thread_usage_reader
+    from controller.shell.thread_usage import thread_usage_readers
     from logs.recorder import SessionRecorder
     from sim_backend.loopback import LoopbackExchange
 
@@ -342,7 +342,7 @@ def measured_run(
         clock,
         clock.clock,
         observers=observers,
-        thread_usage=thread_usage_reader(),  # the service's two readings a cycle (thread_usage.py)
+        thread_usage=thread_usage_readers(),  # as the service reads it (thread_usage.py)
     )
     gc.collect()
     gc.freeze()

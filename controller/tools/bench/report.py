@@ -215,7 +215,11 @@ def _longest(cycle: object) -> str:
     """The longest cycle's span and the part of it that took longest (controller/shell/loop.py)."""
     if not isinstance(cycle, dict) or "span" not in cycle:
         return "-"
-    # the parts of its time, not the thread's usage over its work (work_on_cpu, work_waits, ...)
-    parts = {k: v for k, v in cycle.items() if k not in ("span", "cycle") and not k.startswith("work_")}
+    # the parts of its time, not the thread's usage over it (controller/shell/thread_usage.py)
+    parts = {
+        k: v
+        for k, v in cycle.items()
+        if k not in ("span", "cycle", "on_cpu", "waits", "preemptions", "page_faults")
+    }
     part = max(parts, key=lambda k: parts[k]) if parts else "-"
     return f"{cycle['span']:.0f} ({part} {parts.get(part, 0.0):.0f})"
