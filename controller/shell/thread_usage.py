@@ -13,7 +13,9 @@ its CPU time, and its context switches, each kind a different culprit:
 - involuntary: a task of higher priority took the CPU from the loop (at ``SCHED_FIFO`` 80 only
   the kernel's own threads above it: ``migration``, ``watchdog``);
 - neither, and CPU time close to the time awake (the span less the window's wait): the work
-  itself was that long;
+  itself was that long, or the host paused the vCPU without reporting it as steal (on this VM it
+  reports few of its pauses: ``python -m controller.tools.bench.machine_pauses`` tells the two
+  apart, from the kernel's events; docs/concepts/realtime.md);
 - neither, and CPU time far below it: the kernel did not count the time to the thread
   although it did not switch away from it. On a VM guest whose kernel accounts steal time
   (``CONFIG_PARAVIRT_TIME_ACCOUNTING``, as this one's does) that is the host running something
