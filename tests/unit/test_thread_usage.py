@@ -13,43 +13,30 @@ import time
 
 import pytest
 
-from controller.assembly import build_law
 from controller.cli import _longest_cycle_line
 from controller.config import load_config
-from controller.shell.loop import CycleLoop, SimulatedTime
 from controller.shell.run_summary import _longest_cycle_us
+from controller.shell.simulated_rig import SimulatedRig
 from controller.shell.thread_usage import thread_usage_readers
 from controller.tools.bench.report import _longest
-from sim_backend.loopback import LoopbackExchange
 
 SLOW_CALL = 50  # the call of plans_ready (one a cycle) that is held up
 CYCLES = 120
 
 
 def _run(hold_up, read_usage=True):
-    """Cycles whose step's inputs (the planner's progress) are held up by ``hold_up(clock)`` once."""
-    cfg = load_config(overrides={"recording.enabled": False, "monitoring.enabled": False})
-    clock = SimulatedTime()
-    law = build_law(cfg)
+    """Cycles whose step's inputs (the planner's progress) are held up by ``hold_up()`` once."""
+    rig = SimulatedRig(load_config(overrides={"recording.enabled": False, "monitoring.enabled": False}))
     calls = iter(range(10**6))
 
     def plans_ready() -> int:
         if next(calls) == SLOW_CALL:
-            clock.hold_up(1e-3)  # the longest cycle of the run, on the loop's clock
+            rig.clock.hold_up(1e-3)  # the longest cycle of the run, on the loop's clock
             hold_up()
         return 0
 
-    loop = CycleLoop(
-        law,
-        LoopbackExchange(cfg, clock.clock),
-        cfg.period_s,
-        cfg.loop.collect_fraction,
-        clock,
-        clock.clock,
-        plans_ready=plans_ready,
-        thread_usage=thread_usage_readers() if read_usage else None,
-    )
-    _, stats = loop.run(law.initial_state(), CYCLES * cfg.period_s)
+    loop = rig.loop(plans_ready=plans_ready, thread_usage=thread_usage_readers() if read_usage else None)
+    _, stats = loop.run(rig.law.initial_state(), CYCLES * rig.cfg.period_s)
     return stats.longest_cycle
 
 
