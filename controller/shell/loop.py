@@ -59,7 +59,9 @@ the run (wake-up to the end of its work) with its parts (``LoopStats.longest_cyc
 ``observers_s`` are those that ran inside it: the cycle before's, in the answer window), and the
 time between them (``CycleMarks``: the window's wait, the step's inputs, the bookkeeping after
 the step), so that the parts add up to the span: a cycle stalled by something beside the loop
-shows which part of it waited.
+shows which part of it waited. Over a bus the loop thread's own usage over that cycle says
+whether it waited, was preempted, or was off its CPU without either: the host
+(``controller/shell/thread_usage.py``).
 """
 
 from __future__ import annotations
