@@ -163,13 +163,7 @@ class CycleMarks(NamedTuple):
         if self.readers is not None and self.usage_cpu_s is not None and self.usage_switches is not None:
             # from the wake-up to now (the cycle's end): asleep in the window (a wait), else on the
             # CPU, or waiting, or off it without knowing
-            usage = UsageBetween.since(self.usage_cpu_s, self.usage_switches, self.readers)
-            gaps |= {
-                "on_cpu_s": usage.on_cpu_s,
-                "waits": usage.waits,
-                "preemptions": usage.preemptions,
-                "page_faults": usage.page_faults,
-            }
+            gaps |= UsageBetween.since(self.usage_cpu_s, self.usage_switches, self.readers)._asdict()
         return gaps
 
 

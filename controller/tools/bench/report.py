@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from controller.shell.thread_usage import UsageBetween
 from controller.tools.bench.statistics import Json
 
 
@@ -216,10 +217,7 @@ def _longest(cycle: object) -> str:
     if not isinstance(cycle, dict) or "span" not in cycle:
         return "-"
     # the parts of its time, not the thread's usage over it (controller/shell/thread_usage.py)
-    parts = {
-        k: v
-        for k, v in cycle.items()
-        if k not in ("span", "cycle", "on_cpu", "waits", "preemptions", "page_faults")
-    }
+    usage = {name.removesuffix("_s") for name in UsageBetween._fields}
+    parts = {k: v for k, v in cycle.items() if k not in ("span", "cycle") and k not in usage}
     part = max(parts, key=lambda k: parts[k]) if parts else "-"
     return f"{cycle['span']:.0f} ({part} {parts.get(part, 0.0):.0f})"
