@@ -22,6 +22,7 @@ import os
 import statistics
 import sys
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -29,6 +30,7 @@ import numpy as np
 from controller.realtime import RealtimeError, hold_cpu_latency
 from controller.shell.idle_poll import idle_polling
 from controller.tools.bench.statistics import percentiles_us
+from controller.tools.bench.step_hook import StepHookedLaw
 
 DEFAULT_WINDOWS = {"path": (800, 2000), "contour": (3200, 2000)}  # (skip, cycles): the lap, the tracking
 
@@ -43,13 +45,12 @@ def step_times_us(
 
     cfg = task_config(task)
     rig = SimulatedRig(cfg)
-    inner = rig.law.step
     times: list[float] = []
     clock = time.perf_counter
 
-    def timed(state: Any, inputs: Any, t: float) -> Any:
+    def timed(step: Callable[[Any, Any, float], Any], state: Any, inputs: Any, t: float) -> Any:
         t0 = clock()
-        out = inner(state, inputs, t)
+        out = step(state, inputs, t)
         times.append(clock() - t0)
         return out
 
@@ -62,19 +63,7 @@ def step_times_us(
                 time.sleep(sleep_s)
                 late.append(clock() - t0 - sleep_s)
 
-    class TimedLaw:
-        """The rig's law with its step timed. A wrapper, not an assignment to ``law.step``: a
-        compiled law's methods are read-only."""
-
-        def __init__(self, law: Any) -> None:
-            self._law = law
-
-        step = staticmethod(timed)
-
-        def __getattr__(self, name: str) -> Any:
-            return getattr(self._law, name)
-
-    rig.law = TimedLaw(rig.law)  # type: ignore[assignment]  # the same law, its step timed
+    rig.law = StepHookedLaw(rig.law, timed)  # type: ignore[assignment]  # the same law, its step timed
     rig.run((Sleep(),), max_duration_s=(skip + cycles) * cfg.period_s)
     if overshoots is not None:
         overshoots.extend(x * 1e6 for x in late[skip : skip + cycles])

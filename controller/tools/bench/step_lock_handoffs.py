@@ -26,21 +26,10 @@ from collections.abc import Callable
 from types import FrameType
 from typing import Any
 
-
-class _SpiedLaw:
-    """The rig's law with a hook around its step. A wrapper: a compiled law's methods are read-only."""
-
-    def __init__(self, law: Any, around: Callable[[Callable[[], Any]], Any]) -> None:
-        self._law, self._around = law, around
-
-    def step(self, state: Any, inputs: Any, t: float) -> Any:
-        return self._around(lambda: self._law.step(state, inputs, t))
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._law, name)
+from controller.tools.bench.step_hook import StepAround, StepHookedLaw
 
 
-def _run(task: str, cycles: int, around: Callable[[Callable[[], Any]], Any]) -> int:
+def _run(task: str, cycles: int, around: StepAround) -> int:
     """``cycles`` cycles of ``task`` with ``around`` wrapping each step; the steps it saw."""
     from controller.shell.simulated_rig import SimulatedRig
     from controller.tools.bench.cycle_work import task_config
@@ -49,11 +38,11 @@ def _run(task: str, cycles: int, around: Callable[[Callable[[], Any]], Any]) -> 
     rig = SimulatedRig(cfg)
     seen = [0]
 
-    def counted(step: Callable[[], Any]) -> Any:
+    def counted(step: Callable[[Any, Any, float], Any], state: Any, inputs: Any, t: float) -> Any:
         seen[0] += 1
-        return around(step)
+        return around(step, state, inputs, t)
 
-    rig.law = _SpiedLaw(rig.law, counted)  # type: ignore[assignment]  # the same law, its step wrapped
+    rig.law = StepHookedLaw(rig.law, counted)  # type: ignore[assignment]  # the same law, its step wrapped
     rig.run((), max_duration_s=cycles * cfg.period_s)
     return seen[0]
 
@@ -64,13 +53,13 @@ def interpreted_calls(task: str, cycles: int) -> dict[str, float]:
 
     def profile(frame: FrameType, event: str, arg: object) -> None:
         code = frame.f_code
-        if event == "call" and code.co_filename != __file__:  # not this tool's own wrapper
+        if event == "call":
             calls[f"{code.co_filename.rsplit('/', 1)[-1]}:{code.co_name}"] += 1
 
-    def around(step: Callable[[], Any]) -> Any:
+    def around(step: Callable[[Any, Any, float], Any], state: Any, inputs: Any, t: float) -> Any:
         sys.setprofile(profile)
         try:
-            return step()
+            return step(state, inputs, t)
         finally:
             sys.setprofile(None)
 
@@ -89,9 +78,9 @@ def handoffs(task: str, cycles: int, switch_interval_s: float) -> tuple[int, int
 
     handed = [0]
 
-    def around(step: Callable[[], Any]) -> Any:
+    def around(step: Callable[[Any, Any, float], Any], state: Any, inputs: Any, t: float) -> Any:
         before = spins[0]
-        out = step()
+        out = step(state, inputs, t)
         handed[0] += spins[0] != before
         return out
 
