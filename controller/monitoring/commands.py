@@ -3,7 +3,13 @@
 
 A tool addresses a robot by id, or, given none, the only controller it reaches: with none
 or several it says so in one line instead of guessing (issue 18: ``cheope stop`` must not
-stop whichever controller happens to answer first).
+stop whichever controller happens to answer first). "The only one" is judged only on the whole
+view: a tool that did not connect to every endpoint it was given refuses too. The open goes on
+with the endpoints that answered within its wait; a controller whose process is stopped, or that a
+busy machine kept from answering that long, was then missing from the view, and a tool given two
+controllers' endpoints sent its command to the other one, the only one it saw (a stopped peer
+is not connected, measured with eclipse-zenoh 1.10; once connected, its liveliness tokens are in
+the tool's session and a query lists them at once).
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ from controller.monitoring.zenoh_session import (
     MonitoringConnectionError,
     MonitorKeys,
     SessionSettings,
+    connected,
     encoding_for,
     open_tool_session,
 )
@@ -53,12 +60,22 @@ def tool_session(settings: SessionSettings) -> Iterator[zenoh.Session]:
         session.close()
 
 
-def resolve(session: zenoh.Session, settings: SessionSettings, target: Target) -> MonitorKeys:
+def resolve(
+    session: zenoh.Session, settings: SessionSettings, target: Target, timeout_s: float
+) -> MonitorKeys:
+    """The keys of the robot ``target`` names; without an id, of the only one reachable, judged on
+    the whole view (module text): every endpoint given connected."""
     if isinstance(target, MonitorKeys):
         return target
     if target.robot_id is not None:
         return MonitorKeys.for_robot(target.key_prefix, target.robot_id)
-    ids = live_robot_ids(session, target.key_prefix)
+    reached, given = connected(session), len(set(settings.connect))
+    if reached < given:
+        raise MonitoringConnectionError(
+            f"reached {reached} of the {given} endpoints given ({_where(settings)}): a controller "
+            "behind one not reached could be the one meant; choose one with --robot-id"
+        )
+    ids = live_robot_ids(session, target.key_prefix, timeout_s=timeout_s)
     if not ids:
         raise MonitoringConnectionError(
             f"no controller found under {target.key_prefix}/*/ (connected to {_where(settings)})"
@@ -136,7 +153,7 @@ def task_kind(config: dict[str, Any]) -> str:
 def query_status(settings: SessionSettings, target: Target, timeout_s: float = 2.0) -> pb.Status:
     """Ask the controller's ``status`` queryable once; its configuration is checked to be a JSON object."""
     with tool_session(settings) as session:
-        keys = resolve(session, settings, target)
+        keys = resolve(session, settings, target, timeout_s)
         status = decode_reply(pb.Status, _one_reply(session, settings, keys.status, timeout_s), keys.status)
         own_status(status, keys)
         status_config(status, keys.status)
@@ -160,7 +177,7 @@ def send_command(
     """Send one command (``stop``, ``pause``, ``resume``, ``reset``, ``set_force``); the robot id and its answer."""
     cmd = pb.Command(name=name, value=value)
     with tool_session(settings) as session:
-        keys = resolve(session, settings, target)
+        keys = resolve(session, settings, target, timeout_s)
         reply = _one_reply(
             session, settings, keys.command, timeout_s, cmd.SerializeToString(), encoding_for("Command")
         )

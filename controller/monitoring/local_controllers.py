@@ -92,7 +92,10 @@ def _alive(pid: int) -> bool:
 
 
 def local_endpoints() -> tuple[str, ...]:
-    """The listen endpoints of this user's live controllers on this machine (stale files removed)."""
+    """One listen endpoint (its first) of each of this user's live controllers on this machine (stale
+    files removed). One, not all: Zenoh keeps one session per peer, so a second endpoint of the same
+    controller reaches nobody more, and a tool judges "the only controller" by having reached every
+    endpoint it connects to (commands.py)."""
     d = runtime_directory()
     out: list[str] = []
     try:
@@ -108,7 +111,8 @@ def local_endpoints() -> tuple[str, ...]:
         if not _alive(pid):
             f.unlink(missing_ok=True)
             continue
-        out += [e for e in listen if e not in out]
+        if listen and listen[0] not in out:
+            out.append(listen[0])
     return tuple(out)
 
 

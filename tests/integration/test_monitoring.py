@@ -35,7 +35,7 @@ from controller.core.cycle_data import CycleInputs, CycleOutputs, DriveFeedback
 from controller.core.ports import CycleTiming, ForceSetpointLimit
 from controller.messages import cheope_pb2 as pb
 from controller.monitoring.command_gate import decide_command
-from controller.monitoring.commands import query_status, send_command, tool_session
+from controller.monitoring.commands import RobotSelector, query_status, send_command, tool_session
 from controller.monitoring.monitor_view import (
     AliveUpdate,
     EventUpdate,
@@ -717,7 +717,12 @@ def test_cheope_list_shows_two_controllers_and_the_tools_address_them_by_id():
         wait_for_exit(proc_b.pid, "bot-b's controller after cheope stop")
         only_a = _json(_cheope("list", "--json", *_connect(ep_a, ep_b)))
         assert [c["robot_id"] for c in only_a] == ["bot-a"]  # bot-a was not stopped
-        one = _json(_cheope("status", "--json", *_connect(ep_a, ep_b)))  # the only one: no id needed
+        # bot-b's endpoint answers no more: without an id the tool cannot tell an ended controller
+        # from a stopped or slow one (commands.py), so it names none; given bot-a's endpoint alone,
+        # bot-a is the only one
+        partial = _cheope("status", *_connect(ep_a, ep_b))
+        assert partial.returncode == 2 and "reached 1 of the 2 endpoints given" in partial.stderr
+        one = _json(_cheope("status", "--json", *_connect(ep_a)))
         assert one["robot_id"] == "bot-a"
 
 
@@ -737,6 +742,34 @@ def _two_publishers(allow_remote_commands: bool = True):
             events.append(threading.Event())
             pubs.append(stack.enter_context(MonitorPublisher(publisher_settings(cfg), events[-1])))
         yield pubs, events
+
+
+def test_without_an_id_a_tool_that_did_not_reach_every_endpoint_given_addresses_no_robot():
+    """A tool given two controllers' endpoints that reached only one (the other's process stopped, or
+    slower to answer than the open's wait on a busy machine) took it for the only one and sent it the
+    command meant for "the only controller". Now it refuses and names what it did not reach; by id it
+    goes through."""
+    with _two_publishers() as (pubs, events):
+        (ep_a,) = pubs[0].listen_endpoints
+        nobody = _endpoint()  # a free loopback port: nothing answers there, as a stopped process
+        partial = client_settings((ep_a, nobody), timeout_s=1.0)
+        for ask in (
+            lambda: query_status(partial, RobotSelector(), timeout_s=1.0),
+            lambda: send_command(partial, RobotSelector(), "pause", timeout_s=1.0),
+        ):
+            with pytest.raises(MonitoringConnectionError) as refused:
+                ask()
+            text = str(refused.value)
+            assert "reached 1 of the 2 endpoints given" in text and nobody in text and "--robot-id" in text
+        assert all(p.commands() is None for p in pubs) and not any(e.is_set() for e in events)
+        robot, reply = send_command(partial, RobotSelector(robot_id="bot-a"), "pause", timeout_s=5.0)
+        assert robot == "bot-a" and reply.accepted, reply.message
+        assert pubs[0].commands() == ("pause", 0.0) and pubs[1].commands() is None
+        whole = client_settings(tuple(e for p in pubs for e in p.listen_endpoints), timeout_s=5.0)
+        with pytest.raises(
+            MonitoringConnectionError, match=re.escape("2 controllers reachable (bot-a, bot-b)")
+        ):
+            query_status(whole, RobotSelector(), timeout_s=5.0)
 
 
 def test_a_wildcard_key_is_refused_by_every_robot_and_moves_none():

@@ -140,6 +140,26 @@ def test_a_plain_zenoh_client_fetches_the_schema_and_decodes_the_state_with_it()
             session.close()
 
 
+def test_a_controller_on_two_endpoints_is_reached_through_one_and_is_the_only_one():
+    """Zenoh keeps one session per peer: a tool that connected to both endpoints of one controller
+    counted the second as not reached and, without an id, refused (commands.py). The tools connect
+    to one endpoint of each controller."""
+    first, second = (f"tcp/127.0.0.1:{free_loopback_port()}" for _ in range(2))
+    cfg = load_config(overrides={"monitoring.listen": f"{first},{second}", "monitoring.robot_id": "two-ends"})
+    with MonitorPublisher(publisher_settings(cfg), threading.Event()) as pub:
+        assert set(pub.listen_endpoints) == {first, second}
+        assert local_controllers.local_endpoints() == (pub.listen_endpoints[0],)
+        r = subprocess.run(
+            [sys.executable, "-m", "controller", "status", "--json"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=False,
+        )
+        assert r.returncode == 0, r.stderr
+        assert json.loads(r.stdout)["robot_id"] == "two-ends"
+
+
 def test_tools_without_an_endpoint_find_this_users_controllers_not_the_default_port():
     """Two controllers on free ports, neither on the default 7448: `cheope list` with no --zenoh-connect
     finds both from their announcements, and nothing is left announced after they close."""
