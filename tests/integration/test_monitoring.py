@@ -694,28 +694,32 @@ def test_cheope_list_shows_two_controllers_and_the_tools_address_them_by_id():
         controller(ep_a, 'monitoring.robot_id="bot-a"', max_duration_s=120.0),
         controller(ep_b, 'monitoring.robot_id="bot-b"', max_duration_s=120.0) as proc_b,
     ):
-        listed = _cheope("list", "--json", *_connect(ep_a, ep_b))
+        # the tools go on once connected to both; on a busy machine that took longer than their
+        # default 2 s, and a tool that reached one of two names no robot (commands.py). 20 s: within
+        # _cheope's 60 s, and no longer than needed when both answer
+        both = [*_connect(ep_a, ep_b), "--timeout", "20"]
+        listed = _cheope("list", "--json", *both)
         assert listed.returncode == 0, listed.stderr
         rows = {c["robot_id"]: c for c in json.loads(listed.stdout)}
         assert sorted(rows) == ["bot-a", "bot-b"]
         assert rows["bot-a"]["listen_endpoints"] == [ep_a] and rows["bot-b"]["listen_endpoints"] == [ep_b]
         assert all(r["task"] == "path" and r["mode"] and r["uptime_s"] > 0 for r in rows.values())
-        table = _cheope("list", *_connect(ep_a, ep_b)).stdout.splitlines()
+        table = _cheope("list", *both).stdout.splitlines()
         assert table[0].startswith("robot id") and [line.split()[0] for line in table[1:]] == [
             "bot-a",
             "bot-b",
         ]
-        ambiguous = _cheope("status", *_connect(ep_a, ep_b))
+        ambiguous = _cheope("status", *both)
         assert ambiguous.returncode == 2 and ambiguous.stderr.count("\n") == 1
         assert (
             "2 controllers reachable (bot-a, bot-b)" in ambiguous.stderr and "--robot-id" in ambiguous.stderr
         )
-        st = _json(_cheope("status", "--json", "--robot-id", "bot-b", *_connect(ep_a, ep_b)))
+        st = _json(_cheope("status", "--json", "--robot-id", "bot-b", *both))
         assert st["robot_id"] == "bot-b"
-        stop = _cheope("stop", "--robot-id", "bot-b", *_connect(ep_a, ep_b))
+        stop = _cheope("stop", "--robot-id", "bot-b", *both)
         assert stop.returncode == 0 and stop.stdout.startswith("accepted by bot-b:"), stop.stderr
         wait_for_exit(proc_b.pid, "bot-b's controller after cheope stop")
-        only_a = _json(_cheope("list", "--json", *_connect(ep_a, ep_b)))
+        only_a = _json(_cheope("list", "--json", *_connect(ep_a, ep_b)))  # bot-b's endpoint: no wait
         assert [c["robot_id"] for c in only_a] == ["bot-a"]  # bot-a was not stopped
         # bot-b's endpoint answers no more: without an id the tool cannot tell an ended controller
         # from a stopped or slow one (commands.py), so it names none; given bot-a's endpoint alone,
