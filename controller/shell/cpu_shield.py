@@ -439,7 +439,7 @@ def raise_shield(
         if given_back:
             log.warning("CPU shield: %d task(s) a dead guardian had moved given back", given_back)
             summary["recovered_from_a_dead_guardian"] = given_back
-        confined = confined_affinity()
+        confined = confined_affinity(state_dir or default_state_dir())
         if confined:  # the loop has no CPU of its own to shield, and the summary says why
             log.warning("no CPU kept clear for the loop: %s", confined)
             summary["off"] = confined
@@ -466,18 +466,39 @@ def raise_shield(
         summary.update(shield.close())
 
 
-def confined_affinity() -> str:
+def confined_affinity(state_dir: Path | None = None) -> str:
     """Why this process may not use every CPU of the machine ("": it may): a shell under
     ``taskset``, or under a CPU shield that was not given back, starts a controller whose loop and
-    simulator then share what is left (an outside tester's run on one CPU said nothing of it)."""
+    simulator then share what is left (an outside tester's run on one CPU said nothing of it). So
+    does a shell under another controller's shield, still up: that one is named (a second
+    controller started beside a running one was told "taskset, or a CPU shield not given back")."""
     allowed = sorted(os.sched_getaffinity(0))
     total = os.cpu_count() or len(allowed)
     if len(allowed) >= total:
         return ""
-    return (
-        f"this process may run on CPU {','.join(map(str, allowed))} only, of the machine's {total} "
-        "(its affinity, inherited: taskset, or a CPU shield not given back)"
+    holder = shield_holder(state_dir)
+    why = (
+        f"another controller's CPU shield keeps CPU {holder[1]} clear for its loop (its guardian: pid {holder[0]})"
+        if holder
+        else "its affinity, inherited: taskset, or a CPU shield not given back"
     )
+    return f"this process may run on CPU {','.join(map(str, allowed))} only, of the machine's {total} ({why})"
+
+
+def shield_holder(state_dir: Path | None, proc: Path = Path("/proc")) -> tuple[int, str] | None:
+    """The guardian holding the shield of ``state_dir`` now and its CPUs, from what it wrote in the
+    lock file; None when there is none (no file, or its writer is gone: the file outlives it).
+    Read without taking the lock: a guardian starting at that instant would find it taken."""
+    if state_dir is None:
+        return None
+    try:
+        text = (state_dir / LOCK_NAME).read_text(errors="replace")
+        pid_text, cpus_text = text.strip().removeprefix("pid ").split(", CPUs ")
+        pid = int(pid_text)
+        cmdline = (proc / str(pid) / "cmdline").read_bytes()
+    except (OSError, ValueError):
+        return None
+    return (pid, cpus_text) if b"controller.shell.cpu_shield" in cmdline else None
 
 
 class CpuShield:

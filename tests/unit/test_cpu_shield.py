@@ -222,3 +222,34 @@ def test_a_confined_process_says_why_it_has_no_shield(
     with cpu_shield.raise_shield(RealtimeOptions(cpus=(), shield=False), summary, tmp_path):
         pass
     assert summary == {}  # --no-cpu-shield on a free process: nothing to say
+
+
+def test_a_process_confined_by_another_controllers_shield_names_it(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """A second controller started beside a running one finds its shell kept off the first's loop
+    CPU: it named "taskset, or a CPU shield not given back". It now names the shield that holds the
+    CPU, from the lock file its guardian wrote, while that guardian lives; not after."""
+    from controller.shell import cpu_shield
+
+    monkeypatch.setattr(cpu_shield.os, "sched_getaffinity", lambda _pid: {0})
+    monkeypatch.setattr(cpu_shield.os, "cpu_count", lambda: 2)
+    # a stand-in guardian: a live process whose command line is the guardian's module
+    guardian = subprocess.Popen(
+        [sys.executable, "-c", "import time; time.sleep(60)", "controller.shell.cpu_shield"]
+    )
+    try:
+        (tmp_path / cpu_shield.LOCK_NAME).write_text(f"pid {guardian.pid}, CPUs 1\n")
+        off = cpu_shield.confined_affinity(tmp_path)
+        assert off == (
+            "this process may run on CPU 0 only, of the machine's 2 (another controller's CPU shield "
+            f"keeps CPU 1 clear for its loop (its guardian: pid {guardian.pid}))"
+        )
+    finally:
+        guardian.kill()
+        guardian.wait()
+    for stale in (f"pid {guardian.pid}, CPUs 1\n", "pid ?, CPUs 1", "", f"pid {os.getpid()}, CPUs 1"):
+        (tmp_path / cpu_shield.LOCK_NAME).write_text(stale)  # gone, unreadable, or not a guardian
+        assert cpu_shield.confined_affinity(tmp_path).endswith(
+            "(its affinity, inherited: taskset, or a CPU shield not given back)"
+        )
