@@ -13,6 +13,7 @@ import subprocess
 import sys
 import threading
 import time
+from typing import Any
 
 import zenoh
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
@@ -140,6 +141,19 @@ def test_a_plain_zenoh_client_fetches_the_schema_and_decodes_the_state_with_it()
             session.close()
 
 
+def _tool_json(command: str) -> Any:
+    """``cheope COMMAND --json`` without ``--zenoh-connect`` (this user's controllers), its answer."""
+    r = subprocess.run(
+        [sys.executable, "-m", "controller", command, "--json"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert r.returncode == 0, r.stderr
+    return json.loads(r.stdout)
+
+
 def test_a_controller_on_two_endpoints_is_reached_through_one_and_is_the_only_one():
     """Zenoh keeps one session per peer: a tool that connected to both endpoints of one controller
     counted the second as not reached and, without an id, refused (commands.py). The tools connect
@@ -149,15 +163,7 @@ def test_a_controller_on_two_endpoints_is_reached_through_one_and_is_the_only_on
     with MonitorPublisher(publisher_settings(cfg), threading.Event()) as pub:
         assert set(pub.listen_endpoints) == {first, second}
         assert local_controllers.local_endpoints() == (pub.listen_endpoints[0],)
-        r = subprocess.run(
-            [sys.executable, "-m", "controller", "status", "--json"],
-            capture_output=True,
-            text=True,
-            timeout=60,
-            check=False,
-        )
-        assert r.returncode == 0, r.stderr
-        assert json.loads(r.stdout)["robot_id"] == "two-ends"
+        assert _tool_json("status")["robot_id"] == "two-ends"
 
 
 def test_tools_without_an_endpoint_find_this_users_controllers_not_the_default_port():
@@ -166,15 +172,7 @@ def test_tools_without_an_endpoint_find_this_users_controllers_not_the_default_p
     with _publisher("mine-a") as a, _publisher("mine-b") as b:
         assert set(local_controllers.local_endpoints()) == {*a.listen_endpoints, *b.listen_endpoints}
         assert client_settings().connect == local_controllers.local_endpoints()
-        r = subprocess.run(
-            [sys.executable, "-m", "controller", "list", "--json"],
-            capture_output=True,
-            text=True,
-            timeout=60,
-            check=False,
-        )
-        assert r.returncode == 0, r.stderr
-        assert sorted(c["robot_id"] for c in json.loads(r.stdout)) == ["mine-a", "mine-b"]
+        assert sorted(c["robot_id"] for c in _tool_json("list")) == ["mine-a", "mine-b"]
     assert local_controllers.local_endpoints() == ()
     assert not list(local_controllers.runtime_directory().glob("*.json"))
 
