@@ -234,11 +234,19 @@ def test_a_process_confined_by_another_controllers_shield_names_it(
 
     monkeypatch.setattr(cpu_shield.os, "sched_getaffinity", lambda _pid: {0})
     monkeypatch.setattr(cpu_shield.os, "cpu_count", lambda: 2)
-    # a stand-in guardian: a live process whose command line is the guardian's module
+    # a stand-in guardian: a live process whose command line is the guardian's module, read once it
+    # runs (between its fork and its exec, its command line was still pytest's: a CI run failed so)
     guardian = subprocess.Popen(
-        [sys.executable, "-c", "import time; time.sleep(60)", "controller.shell.cpu_shield"]
+        [
+            sys.executable,
+            "-c",
+            "import time; print(flush=True); time.sleep(60)",
+            "controller.shell.cpu_shield",
+        ],
+        stdout=subprocess.PIPE,
     )
     try:
+        assert guardian.stdout is not None and guardian.stdout.readline() == b"\n"
         (tmp_path / cpu_shield.LOCK_NAME).write_text(f"pid {guardian.pid}, CPUs 1\n")
         off = cpu_shield.confined_affinity(tmp_path)
         assert off == (
@@ -247,7 +255,7 @@ def test_a_process_confined_by_another_controllers_shield_names_it(
         )
     finally:
         guardian.kill()
-        guardian.wait()
+        guardian.communicate()
     for stale in (f"pid {guardian.pid}, CPUs 1\n", "pid ?, CPUs 1", "", f"pid {os.getpid()}, CPUs 1"):
         (tmp_path / cpu_shield.LOCK_NAME).write_text(stale)  # gone, unreadable, or not a guardian
         assert cpu_shield.confined_affinity(tmp_path).endswith(
