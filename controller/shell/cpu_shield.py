@@ -498,6 +498,10 @@ def shield_holder(state_dir: Path | None, proc: Path = Path("/proc")) -> tuple[i
         cmdline = (proc / str(pid) / "cmdline").read_bytes()
     except (OSError, ValueError):
         return None
+    if not cpus_text.replace(
+        ",", ""
+    ).isdigit():  # what the guardian writes: CPU numbers, nothing to print else
+        return None
     return (pid, cpus_text) if b"controller.shell.cpu_shield" in cmdline else None
 
 

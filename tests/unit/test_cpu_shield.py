@@ -253,6 +253,9 @@ def test_a_process_confined_by_another_controllers_shield_names_it(
             "this process may run on CPU 0 only, of the machine's 2 (another controller's CPU shield "
             f"keeps CPU 1 clear for its loop (its guardian: pid {guardian.pid}))"
         )
+        # a live guardian's pid beside what no guardian writes: nothing of it printed
+        (tmp_path / cpu_shield.LOCK_NAME).write_text(f"pid {guardian.pid}, CPUs 1\x1b[2J")
+        assert "another controller" not in cpu_shield.confined_affinity(tmp_path)
     finally:
         guardian.kill()
         guardian.communicate()
