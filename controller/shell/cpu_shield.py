@@ -298,6 +298,7 @@ def guard(
         _answer({"busy": os.pread(lock, 200, 0).decode(errors="replace").strip() or "another guardian"})
         return 3
     os.ftruncate(lock, 0)
+    # read back by a controller it confines (shield_holder) and by a second guardian ("busy")
     os.pwrite(lock, f"pid {os.getpid()}, CPUs {','.join(map(str, cpus))}\n".encode(), 0)
     state = state_dir / STATE_NAME
     recovered = _recover(state, proc)
@@ -498,9 +499,8 @@ def shield_holder(state_dir: Path | None, proc: Path = Path("/proc")) -> tuple[i
         cmdline = (proc / str(pid) / "cmdline").read_bytes()
     except (OSError, ValueError):
         return None
-    if not cpus_text.replace(
-        ",", ""
-    ).isdigit():  # what the guardian writes: CPU numbers, nothing to print else
+    # what the guardian writes is CPU numbers: nothing else of the file is printed
+    if not cpus_text.replace(",", "").isdigit():
         return None
     return (pid, cpus_text) if b"controller.shell.cpu_shield" in cmdline else None
 
