@@ -81,22 +81,11 @@ def _slow(tmp_path: Path) -> list[str]:
     ]
 
 
-def _cheope(*args: str, timeout: float = 600.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "controller", *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        check=False,
-        cwd=ROOT,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )
-
-
 def _wait_until_enabled(channel: str, timeout_s: float = 400.0) -> None:
-    """Block until the controller sends 'enable operation' to drive 1 (the task is about to run)."""
+    """Block until the controller sends 'enable operation' to drive 1 (the task is about to run).
+    Listens with CAN FD on (an FD run's RPDOs are FD frames, which a classical socket never gets)."""
     deadline = time.monotonic() + timeout_s
-    with can.Bus(interface="socketcan", channel=channel) as bus:
+    with can.Bus(interface="socketcan", channel=channel, fd=True) as bus:
         while time.monotonic() < deadline:
             msg = bus.recv(0.5)
             if msg is not None and msg.arbitration_id == 0x201 and msg.data[0] == 0x0F:
@@ -124,31 +113,62 @@ def _inject_error_frames(channel: str, count: int) -> None:
             time.sleep(0.05)
 
 
-def test_simulator_and_controller_as_separate_processes_count_error_frames(
-    vcan_channel: str, tmp_path: Path
+class _Sniffer:
+    """The RPDOs (0x201-0x203) on ``channel`` while in its ``with`` block, FD frames included."""
+
+    def __init__(self, channel: str) -> None:
+        self.channel = channel
+        self.seen: list[can.Message] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._sniff)
+
+    def _sniff(self) -> None:
+        with can.Bus(interface="socketcan", channel=self.channel, fd=True) as bus:
+            while not self._stop.is_set():
+                msg = bus.recv(0.1)
+                if msg is not None and 0x201 <= msg.arbitration_id <= 0x203:
+                    self.seen.append(msg)
+
+    def __enter__(self) -> _Sniffer:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+def test_simulator_and_controller_as_separate_processes_over_can_fd_count_error_frames(
+    vcan_fd_channel: str, tmp_path: Path
 ) -> None:
-    """``cheope run`` against ``cheope sim`` started apart, to DONE, with five error frames on the
-    bus during its task: counted, and the run goes on. (One run for both: each run takes minutes
-    in the emulated VM; the demo command itself runs in the CAN FD test below.)"""
-    spec = parse_bus_spec(f"socketcan:{vcan_channel}")
+    """``cheope run --fd`` against ``cheope sim --fd`` started apart, to DONE: its RPDOs are FD
+    frames with the bit rate switch, and five error frames on the bus during its task are counted
+    while the run goes on. (One run for the three: each run takes about two minutes in the
+    emulated VM, most of it its processes importing; ``cheope demo`` itself runs over SocketCAN in
+    the transmit-queue test below.)"""
+    spec = parse_bus_spec(f"socketcan:{vcan_fd_channel}", fd=True)
     overrides = [a for a in _slow(tmp_path) if "=" in a]
     # 400 s, as for the drives' enabling (_wait_until_enabled): the suite's first process in the
     # emulated VM imports everything from a cold disk cache, and this simulator, started first,
     # was not ready within 120 s in a fresh-clone `.ci/run` (2026-11-30)
-    with simulator_process(spec, None, overrides, ready_timeout_s=400.0):
+    with (
+        _Sniffer(vcan_fd_channel) as sniffer,
+        simulator_process(spec, None, overrides, ready_timeout_s=400.0),
+    ):
         proc = _popen(
             "run",
             "--json",
+            "--fd",
             "--bus",
-            f"socketcan:{vcan_channel}",
+            f"socketcan:{vcan_fd_channel}",
             *_slow(tmp_path),
             "--set",
             "task.path.laps=1.0",
         )
         try:
-            _wait_until_enabled(vcan_channel)
+            _wait_until_enabled(vcan_fd_channel)
             time.sleep(1.0)  # inject while the task runs
-            _inject_error_frames(vcan_channel, 5)
+            _inject_error_frames(vcan_fd_channel, 5)
             out, err = proc.communicate(timeout=600)
         finally:
             if proc.poll() is None:
@@ -157,43 +177,12 @@ def test_simulator_and_controller_as_separate_processes_count_error_frames(
     assert proc.returncode == 0, err + out
     s = json.loads(out)
     assert "Traceback" not in err
-    assert s["bus"].startswith(f"socketcan:{vcan_channel}")
+    assert s["bus"].startswith(f"socketcan:{vcan_fd_channel}")
     assert s["tracking_error_m"]["samples"] > 50
     assert s["error_frames"] == 5  # counted; safety.on_error_frames = "warn": the task goes on
     assert s["final_mode"] == "DONE"
     assert any("CAN error frame" in e for e in s["events"])
-
-
-def test_can_fd_run_sends_fd_frames(vcan_fd_channel: str, tmp_path: Path) -> None:
-    seen: list[can.Message] = []
-    stop = threading.Event()
-
-    def sniff() -> None:
-        with can.Bus(interface="socketcan", channel=vcan_fd_channel, fd=True) as bus:
-            while not stop.is_set():
-                msg = bus.recv(0.1)
-                if msg is not None and 0x201 <= msg.arbitration_id <= 0x203:
-                    seen.append(msg)
-
-    t = threading.Thread(target=sniff)
-    t.start()
-    try:
-        r = _cheope(
-            "demo",
-            "--task",
-            "path",
-            "--json",
-            "--fd",
-            "--bus",
-            f"socketcan:{vcan_fd_channel}",
-            *_slow(tmp_path),
-        )
-    finally:
-        stop.set()
-        t.join()
-    assert r.returncode == 0, r.stderr + r.stdout
-    assert json.loads(r.stdout)["final_mode"] == "DONE"
-    assert seen and all(m.is_fd and m.bitrate_switch for m in seen)
+    assert sniffer.seen and all(m.is_fd and m.bitrate_switch for m in sniffer.seen)
 
 
 def test_full_transmit_queue_is_counted_and_ends_in_a_safe_stop(vcan_channel: str, tmp_path: Path) -> None:
