@@ -14,6 +14,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+import can
 import pytest
 from busy_machine import TOLERANT
 from controller_on_the_bus import child_running
@@ -23,7 +24,7 @@ from controller import cli
 from controller.realtime import IdleRemedy, idle_remedy, scheduling_policy
 from controller.shell.demo import simulator_process
 from controller.shell.idle_poll import POLLER_SOURCE
-from drivers.bus import parse_bus_spec
+from drivers.bus import open_bus, parse_bus_spec
 
 pytestmark = pytest.mark.integration
 CHEOPE = [sys.executable, "-m", "controller"]
@@ -45,9 +46,11 @@ def _cheope(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[s
     )
 
 
-def _path_demo(*sets: str, laps: float = 0.5, port: int | None = None) -> subprocess.Popen[str]:
-    """``cheope demo --json`` of ``laps`` of the path task with ``sets`` (``KEY=VALUE``), started
-    on ``port`` (a random one when None); its output in pipes."""
+def _path_demo(
+    *sets: str, laps: float = 0.5, port: int | None = None, options: tuple[str, ...] = ()
+) -> subprocess.Popen[str]:
+    """``cheope demo --json`` of ``laps`` of the path task with ``sets`` (``KEY=VALUE``) and
+    ``options``, started on ``port`` (a random one when None); its output in pipes."""
     return subprocess.Popen(
         [
             *CHEOPE,
@@ -55,6 +58,7 @@ def _path_demo(*sets: str, laps: float = 0.5, port: int | None = None) -> subpro
             "--task",
             "path",
             "--json",
+            *options,
             "--set",
             f"task.path.laps={laps:g}",
             *(arg for kv in sets for arg in ("--set", kv)),
@@ -67,6 +71,30 @@ def _path_demo(*sets: str, laps: float = 0.5, port: int | None = None) -> subpro
         text=True,
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
+
+
+def test_demo_with_fd_runs_on_can_fd_frames_to_done():
+    """``cheope demo --fd``: the simulator the demo starts speaks CAN FD too, the controller's RPDOs
+    are FD frames with the bit rate switch, and the run ends DONE. (Over SocketCAN the vcan tests run
+    ``cheope run --fd`` against ``cheope sim --fd``; this is the demo's own way there.)"""
+    port = _port()
+    rpdos: list[can.Message] = []
+    with open_bus(parse_bus_spec("udp_multicast", fd=True, udp_port=port)) as bus:
+        demo = _path_demo(port=port, options=("--fd",))
+        try:
+            deadline = time.monotonic() + 120.0
+            while demo.poll() is None and time.monotonic() < deadline:
+                msg = bus.recv(0.1)
+                if msg is not None and 0x201 <= msg.arbitration_id <= 0x203:
+                    rpdos.append(msg)
+            out, err = demo.communicate(timeout=120.0)
+        finally:
+            if demo.poll() is None:
+                demo.kill()
+                demo.wait()
+    assert demo.returncode == 0, err + out
+    assert json.loads(out)["final_mode"] == "DONE", out
+    assert len(rpdos) > 100 and all(m.is_fd and m.bitrate_switch for m in rpdos), len(rpdos)
 
 
 def test_demo_runs_the_path_task_end_to_end():
@@ -527,9 +555,6 @@ def test_a_demo_whose_recording_is_lost_exits_3_as_a_run_does(tmp_path: Path):
 
 def _wait_for_targets(demo: subprocess.Popen[str], port: int, count: int) -> None:
     """Until ``count`` targets to drive 1 (its RPDO1) were on the demo's bus; fails if the demo ends first."""
-    import can
-
-    from drivers.bus import open_bus
 
     seen = [0]
     with open_bus(parse_bus_spec("udp_multicast", udp_port=port)) as bus:
@@ -585,8 +610,6 @@ def test_a_simulator_killed_under_the_demo_is_named():
     import signal
 
     from controller_on_the_bus import wait_until_drive_1_moves
-
-    from drivers.bus import open_bus
 
     port = _port()
     demo = _path_demo(laps=20, port=port)
