@@ -73,38 +73,42 @@ def _path_demo(
     )
 
 
+@contextmanager
+def _killed_if_running(proc: subprocess.Popen[str]) -> Iterator[subprocess.Popen[str]]:
+    """``proc`` while the block runs; killed and reaped at its end if it is still running (a wait
+    that failed, a test that stopped half-way)."""
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=60)
+
+
 def test_demo_with_fd_runs_on_can_fd_frames_to_done():
     """``cheope demo --fd``: the simulator the demo starts speaks CAN FD too, the controller's RPDOs
     are FD frames with the bit rate switch, and the run ends DONE. (Over SocketCAN the vcan tests run
     ``cheope run --fd`` against ``cheope sim --fd``; this is the demo's own way there.)"""
     port = _port()
     rpdos: list[can.Message] = []
-    with open_bus(parse_bus_spec("udp_multicast", fd=True, udp_port=port)) as bus:
-        demo = _path_demo(port=port, options=("--fd",))
-        try:
-            deadline = time.monotonic() + 120.0
-            while demo.poll() is None and time.monotonic() < deadline:
-                msg = bus.recv(0.1)
-                if msg is not None and 0x201 <= msg.arbitration_id <= 0x203:
-                    rpdos.append(msg)
-            out, err = demo.communicate(timeout=120.0)
-        finally:
-            if demo.poll() is None:
-                demo.kill()
-                demo.wait()
+    with (
+        open_bus(parse_bus_spec("udp_multicast", fd=True, udp_port=port)) as bus,
+        _killed_if_running(_path_demo(port=port, options=("--fd",))) as demo,
+    ):
+        deadline = time.monotonic() + 120.0
+        while demo.poll() is None and time.monotonic() < deadline:
+            msg = bus.recv(0.1)
+            if msg is not None and 0x201 <= msg.arbitration_id <= 0x203:
+                rpdos.append(msg)
+        out, err = demo.communicate(timeout=120.0)
     assert demo.returncode == 0, err + out
     assert json.loads(out)["final_mode"] == "DONE", out
     assert len(rpdos) > 100 and all(m.is_fd and m.bitrate_switch for m in rpdos), len(rpdos)
 
 
 def test_demo_runs_the_path_task_end_to_end():
-    demo = _path_demo()
-    try:
+    with _killed_if_running(_path_demo()) as demo:
         out, err = demo.communicate(timeout=120.0)
-    finally:
-        if demo.poll() is None:
-            demo.kill()
-            demo.wait()
     assert demo.returncode == 0, err + out
     s = json.loads(out)
     assert s["final_mode"] == "DONE"
@@ -537,7 +541,7 @@ def test_a_demo_whose_recording_is_lost_exits_3_as_a_run_does(tmp_path: Path):
         "recording.flush_interval_s=0.2",
         laps=1,
     )
-    try:
+    with _killed_if_running(demo):
         wait_until(
             lambda: demo.poll() is not None or len(list(sessions.glob("*.mcap"))) >= 2,
             "the recording's second file",
@@ -545,17 +549,12 @@ def test_a_demo_whose_recording_is_lost_exits_3_as_a_run_does(tmp_path: Path):
         assert demo.poll() is None, demo.communicate()
         shutil.rmtree(sessions)
         out, err = demo.communicate(timeout=120)
-    finally:
-        if demo.poll() is None:
-            demo.kill()
-            demo.communicate(timeout=60)
     summary = json.loads(out)
     assert summary["recording"]["error"] and demo.returncode == 3, err
 
 
 def _wait_for_targets(demo: subprocess.Popen[str], port: int, count: int) -> None:
     """Until ``count`` targets to drive 1 (its RPDO1) were on the demo's bus; fails if the demo ends first."""
-
     seen = [0]
     with open_bus(parse_bus_spec("udp_multicast", udp_port=port)) as bus:
 
@@ -591,14 +590,10 @@ def test_ctrl_c_on_a_terminal_stops_the_demo_in_order():
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
         start_new_session=True,  # a terminal's group of its own, as a shell gives a command
     )
-    try:
+    with _killed_if_running(demo):
         _wait_for_targets(demo, port, 3000)  # 7.5 s in: the tool on the part
         os.killpg(demo.pid, signal.SIGINT)  # what the terminal does on Ctrl-C
         out, err = demo.communicate(timeout=120.0)
-    finally:
-        if demo.poll() is None:
-            demo.kill()
-            demo.wait()
     assert demo.returncode == 0, err[-3000:]
     summary = json.loads(out)
     assert summary["final_mode"] == "DONE" and summary["fault_reason"] == "", summary["fault_reason"]
@@ -612,18 +607,13 @@ def test_a_simulator_killed_under_the_demo_is_named():
     from controller_on_the_bus import wait_until_drive_1_moves
 
     port = _port()
-    demo = _path_demo(laps=20, port=port)
-    try:
+    with _killed_if_running(_path_demo(laps=20, port=port)) as demo:
         with open_bus(parse_bus_spec("udp_multicast", udp_port=port)) as bus:
             wait_until_drive_1_moves(bus, demo)
         simulator = _simulator_of(demo.pid)
         assert simulator is not None
         os.kill(simulator, signal.SIGKILL)
         out, err = demo.communicate(timeout=120.0)
-    finally:
-        if demo.poll() is None:
-            demo.kill()
-            demo.wait()
     summary = json.loads(out)
     assert summary["final_mode"] == "FAULT" and demo.returncode == 1
     assert summary["simulator"]["ended_early"] == "killed by SIGKILL"
