@@ -164,6 +164,7 @@ def run_controller(
     frame_sink: FrameSink | None = None,
     realtime: RealtimeOptions | None = None,
     quick_stop_event: threading.Event | None = None,
+    on_loop_built: Callable[[CycleLoop], None] | None = None,
 ) -> dict[str, object]:
     """Run the configured task on the bus until it ends or is stopped; returns the summary (see
     controller/shell/run_summary.py).
@@ -173,6 +174,8 @@ def run_controller(
     ``recording.on_failure = "stop"``. ``quick_stop_event`` quick-stops the drives instead.
     ``realtime`` (controller/realtime.py) is checked before anything opens, and applied to
     this thread just before the loop starts, so helper threads started earlier keep SCHED_OTHER.
+    ``on_loop_built`` is called with the loop once it is built, before it runs: a bench's
+    instruments (controller/tools/bench/loop_cpu_parts.py); the service passes none.
     """
     prepared = prepare(cfg, spec)  # before anything opens
     realtime = realtime or RealtimeOptions()
@@ -251,6 +254,8 @@ def run_controller(
             observers_in_window=True,  # over a bus: in the next cycle's answer window (loop.py, step 5)
             thread_usage=thread_usage_readers(),
         )
+        if on_loop_built is not None:
+            on_loop_built(loop)
         if cfg.loop.freeze_gc:  # start-up work: before the loop takes its real-time priority
             freeze_garbage_collector()
 

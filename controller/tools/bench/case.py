@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, SupportsInt
@@ -21,6 +21,7 @@ from drivers.bus_load import measured_bus_load
 if TYPE_CHECKING:
     import subprocess
 
+    from controller.shell.loop import CycleLoop
     from drivers.bus import BusSpec
 
 
@@ -62,6 +63,7 @@ def run_case(
     late_fraction: float,
     cyclictest_s: float = 0.0,
     hogs: int = 0,
+    on_loop_built: Callable[[CycleLoop], None] | None = None,
 ) -> dict[str, object]:
     from controller.assembly import planned_bus_load
     from controller.config import load_config, parse_override
@@ -106,6 +108,7 @@ def run_case(
                 observers=(probe,) if lap_report is None else (probe, lap_report[0]),
                 frame_sink=probe.sink,
                 realtime=rt,
+                on_loop_built=on_loop_built,
             )
     if lap_report is not None:
         summary["task_report"] = lap_report[1]()
