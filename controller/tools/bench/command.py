@@ -12,7 +12,7 @@ from controller.errors import InputError
 from controller.realtime import RealtimeOptions
 from controller.tools.bench.cpu_hogs import MAX_HOGS
 from controller.tools.bench.report import format_table
-from controller.tools.bench.runner import TOLERANT_SAFETY, run_bench
+from controller.tools.bench.runner import FD_FROM_HZ, TOLERANT_SAFETY, run_bench
 
 
 def _bench_tasks() -> tuple[str, ...]:
@@ -34,7 +34,9 @@ def add_bench_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument(
         "--compare", type=float, default=20.0, help="seconds per rate of loop shell vs naive sleep"
     )
-    ap.add_argument("--fd-from", type=float, default=500.0, help="rates from this one up run on CAN FD [Hz]")
+    ap.add_argument(
+        "--fd-from", type=float, default=FD_FROM_HZ, help="rates from this one up run on CAN FD [Hz]"
+    )
     ap.add_argument("--late-fraction", type=float, default=0.1, help="late: woke this part of a period after")
     ap.add_argument("--sim-rt-priority", type=int, metavar="N", help="SCHED_FIFO priority of the simulator")
     ap.add_argument("--sim-cpu", metavar="CPUS", help="CPU affinity of the simulator")

@@ -56,6 +56,7 @@ from typing import Any
 import can
 
 from controller.compiled_law import LAW_BUILD, run_interpreted
+from controller.tools.bench.exchange_hook import WrappedExchange
 
 PARTS = ("loop", "send", "collect", "step", "observers")
 DEFAULT_TASK_WINDOWS = {"path": (800, 1000), "contour": (3200, 500)}  # (skip, cycles): the lap, the tracking
@@ -172,20 +173,17 @@ def reference_run(task: str, overrides: list[str], cycles: int) -> Script:
     return script
 
 
-class _SendTap:
+class _SendTap(WrappedExchange):
     """The loopback's exchange, its ``send`` noting the frames waiting before it (after last cycle's
-    late ones); the rest passes through. A wrapper: the exchange runs compiled, its methods cannot
-    be replaced on the object."""
+    late ones); the rest is the exchange's (exchange_hook.py)."""
 
     def __init__(self, exchange: Any, script: Script, inbox: Any) -> None:
-        self._exchange, self._script, self._inbox = exchange, script, inbox
+        super().__init__(exchange)
+        self._script, self._inbox = script, inbox
 
     def send(self, outputs: Any, send_by_s: float = math.inf) -> bool:
         self._script.before_send.append(list(self._inbox))
-        return bool(self._exchange.send(outputs, send_by_s))
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._exchange, name)
+        return bool(self.inner.send(outputs, send_by_s))
 
 
 class _Counter:

@@ -14,6 +14,8 @@ readings of the loop thread's own CPU clock (``time.thread_time``, ``CLOCK_THREA
 - ``collect``: the answer window's sleep, reading and decoding the answers;
 - ``step``: the law's;
 - each observer (the run summary's, the recording's hand-off, the monitoring publisher, ...);
+- the exchange's optional methods, where it has them, under their own names (``cycle_deadline``
+  with the kernel's SYNC, ``send_controlword_by_sdo`` for a quick stop's SDOs: exchange_hook.py);
 - ``shell``: the rest of the loop thread's CPU over ``CycleLoop.run``: the step's inputs, the
   statistics, a garbage collection between cycles.
 
@@ -35,6 +37,7 @@ from collections import defaultdict
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+from controller.tools.bench.exchange_hook import WrappedExchange
 from controller.tools.bench.step_hook import StepHookedLaw
 
 if TYPE_CHECKING:
@@ -67,31 +70,32 @@ class PartClocks:
         return timed_call
 
 
-class TimedExchange:
-    """The loop's exchange with its send and collect timed; anything else is the exchange's own
-    (``__getattr__``), so the loop's checks of what it can do (``CycleDeadlines``,
-    ``SdoControlwords``) answer as for the exchange itself."""
+class TimedExchange(WrappedExchange):
+    """The loop's exchange with its send and collect timed, and the optional methods the loop
+    checks for, where the exchange has them, under their own names (exchange_hook.py)."""
 
     def __init__(self, exchange: Exchange, clocks: PartClocks) -> None:
-        self._exchange = exchange
+        self.clocks = clocks
+        super().__init__(exchange)
         self._send = clocks.timed("send", exchange.send)
         self._collect = clocks.timed("collect", exchange.collect)
 
+    def optional_method(self, name: str, method: Callable[..., Any]) -> Callable[..., Any]:
+        return self.clocks.timed(name, method)
+
     def send(self, outputs: CycleOutputs | None, send_by_s: float = math.inf) -> bool:
-        sent: bool = self._send(outputs, send_by_s)
-        return sent
+        return bool(self._send(outputs, send_by_s))
 
     def collect(self, deadline_s: float) -> BusFeedback:
         feedback: BusFeedback = self._collect(deadline_s)
         return feedback
 
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._exchange, name)
-
 
 class TimedSleeper:
+    """The loop's sleeper, each sleep to a deadline timed (its final spin included)."""
+
     def __init__(self, sleeper: Sleeper, clocks: PartClocks) -> None:
-        self.sleeper = sleeper
+        self.inner = sleeper
         self._sleep_until = clocks.timed("sleep", sleeper.sleep_until)
 
     def sleep_until(self, deadline_s: float) -> None:
@@ -99,9 +103,22 @@ class TimedSleeper:
 
 
 class TimedObserver:
-    def __init__(self, observer: Any, clocks: PartClocks) -> None:
-        self.observer = observer
-        self.on_cycle = clocks.timed(f"observer {type(observer).__name__}", observer.on_cycle)
+    """An observer, each of its cycles timed under ``part``."""
+
+    def __init__(self, observer: Any, part: str, clocks: PartClocks) -> None:
+        self.inner = observer
+        self.on_cycle = clocks.timed(part, observer.on_cycle)
+
+
+def observer_parts(observers: tuple[Any, ...]) -> list[str]:
+    """Each observer's part: ``observer`` and its class's name, numbered where a class repeats."""
+    names = [type(o).__name__ for o in observers]
+    seen: dict[str, int] = {}
+    parts = []
+    for name in names:
+        seen[name] = seen.get(name, 0) + 1
+        parts.append(f"observer {name}" + (f" {seen[name]}" if names.count(name) > 1 else ""))
+    return parts
 
 
 class LoopCpuParts:
@@ -119,7 +136,10 @@ class LoopCpuParts:
         loop.law = StepHookedLaw(  # type: ignore[assignment]  # the same law, its step timed
             loop.law, clocks.timed("step", lambda step, *args: step(*args))
         )
-        loop.observers = tuple(TimedObserver(o, clocks) for o in loop.observers)
+        loop.observers = tuple(
+            TimedObserver(o, part, clocks)
+            for o, part in zip(loop.observers, observer_parts(loop.observers), strict=True)
+        )
         loop.run = clocks.timed("run", loop.run)  # type: ignore[method-assign]  # the whole run: the total
 
     def report(self, rate_hz: float) -> dict[str, object]:
@@ -131,9 +151,9 @@ class LoopCpuParts:
         cycles = loop.cycles_done
         cpu = dict(self.clocks.cpu_s)
         total = cpu.pop("run", 0.0)
-        parts = {name: cpu_s for name, cpu_s in cpu.items()}
+        parts = dict(cpu)
         parts["shell"] = total - sum(parts.values())
-        sleeper = loop.sleeper.sleeper if isinstance(loop.sleeper, TimedSleeper) else loop.sleeper
+        sleeper = loop.sleeper.inner if isinstance(loop.sleeper, TimedSleeper) else loop.sleeper
         spun_s = getattr(sleeper, "spun_s", None)
         per_cycle = {name: 1e6 * s / cycles for name, s in parts.items()}
         out: dict[str, object] = {
@@ -156,7 +176,7 @@ def measure(
     """One bench case with the loop's parts timed: the case's figures and the parts'."""
     from controller.realtime import RealtimeOptions
     from controller.tools.bench.case import BenchCase, run_case
-    from controller.tools.bench.runner import TOLERANT_SAFETY
+    from controller.tools.bench.runner import FD_FROM_HZ, TOLERANT_SAFETY
 
     rt = RealtimeOptions.default() if realtime else RealtimeOptions()
     sim_rt = rt.for_simulator() if realtime else RealtimeOptions()
@@ -165,7 +185,7 @@ def measure(
         sets.insert(0, f'task.kind="{task}"')
     parts = LoopCpuParts()
     case = run_case(
-        BenchCase(rate_hz, fd=rate_hz >= 500.0, realtime=realtime),
+        BenchCase(rate_hz, fd=rate_hz >= FD_FROM_HZ, realtime=realtime),
         duration_s,
         sets,
         None,
@@ -221,7 +241,7 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    ap.add_argument("--rate", type=float, default=400.0, help="loop rate [Hz] (CAN FD from 500)")
+    ap.add_argument("--rate", type=float, default=400.0, help="loop rate [Hz] (on CAN FD as cheope bench's)")
     ap.add_argument("--duration", type=float, default=20.0, help="seconds of each run")
     ap.add_argument("--task", default="path", help="the task over the bus (as cheope bench --task)")
     ap.add_argument("--runs", type=int, default=1, help="runs, one after the other")
