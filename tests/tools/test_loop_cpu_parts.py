@@ -12,6 +12,7 @@ from controller.tools.bench.loop_cpu_parts import (
     LoopCpuParts,
     PartClocks,
     TimedExchange,
+    main,
     measure,
     observer_parts,
 )
@@ -111,6 +112,20 @@ def test_the_parts_of_an_instrumented_run_and_the_run_unchanged():
 
 def test_nothing_measured_without_a_loop_or_a_cycle():
     assert LoopCpuParts().report(400.0) == {"cycles": 0}
+
+
+@pytest.mark.parametrize(
+    ("argv", "named"),
+    [
+        (["--task", "bogus"], "task.kind = 'bogus': must be one of"),
+        (["--set", "loop.spin_us"], "--set 'loop.spin_us': expected KEY=VALUE"),
+        (["--rate", "0"], "--rate 0"),
+    ],
+)
+def test_bad_input_is_named_before_anything_starts(argv, named, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2 and named in capsys.readouterr().err
 
 
 @pytest.mark.bus_processes

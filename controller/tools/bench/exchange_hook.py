@@ -19,19 +19,21 @@ from typing import Any
 OPTIONAL_METHODS = ("cycle_deadline", "send_controlword_by_sdo")
 
 
-class WrappedExchange:
-    """``inner`` with the methods a subclass overrides; the rest is ``inner``'s (module text)."""
+# what a wrapper calls in place of the exchange's optional method: given its name and the method
+OptionalWrap = Callable[[str, Callable[..., Any]], Callable[..., Any]]
 
-    def __init__(self, inner: Any) -> None:
+
+class WrappedExchange:
+    """``inner`` with the methods a subclass overrides; the rest is ``inner``'s (module text).
+    ``wrap`` gives what the wrapper calls in place of each optional method ``inner`` has (None:
+    the method itself)."""
+
+    def __init__(self, inner: Any, wrap: OptionalWrap | None = None) -> None:
         self.inner = inner
         for name in OPTIONAL_METHODS:
             method = getattr(inner, name, None)
             if method is not None:
-                setattr(self, name, self.optional_method(name, method))
-
-    def optional_method(self, name: str, method: Callable[..., Any]) -> Callable[..., Any]:
-        """What the wrapper calls in place of the exchange's optional method ``name``: itself."""
-        return method
+                setattr(self, name, method if wrap is None else wrap(name, method))
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.inner, name)

@@ -37,14 +37,13 @@ from collections import defaultdict
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+from controller.errors import InputError
 from controller.tools.bench.exchange_hook import WrappedExchange
 from controller.tools.bench.step_hook import StepHookedLaw
 
 if TYPE_CHECKING:
     from controller.core.cycle_data import BusFeedback, CycleOutputs
     from controller.shell.loop import CycleLoop, Exchange, Sleeper
-
-SPIN = "spin"  # the sleeper's final spin: wall time, read from the sleeper (``spun_s``)
 
 
 class PartClocks:
@@ -75,13 +74,9 @@ class TimedExchange(WrappedExchange):
     checks for, where the exchange has them, under their own names (exchange_hook.py)."""
 
     def __init__(self, exchange: Exchange, clocks: PartClocks) -> None:
-        self.clocks = clocks
-        super().__init__(exchange)
+        super().__init__(exchange, clocks.timed)
         self._send = clocks.timed("send", exchange.send)
         self._collect = clocks.timed("collect", exchange.collect)
-
-    def optional_method(self, name: str, method: Callable[..., Any]) -> Callable[..., Any]:
-        return self.clocks.timed(name, method)
 
     def send(self, outputs: CycleOutputs | None, send_by_s: float = math.inf) -> bool:
         return bool(self._send(outputs, send_by_s))
@@ -149,9 +144,8 @@ class LoopCpuParts:
         if loop is None or loop.cycles_done == 0:
             return {"cycles": 0}
         cycles = loop.cycles_done
-        cpu = dict(self.clocks.cpu_s)
-        total = cpu.pop("run", 0.0)
-        parts = dict(cpu)
+        parts = dict(self.clocks.cpu_s)
+        total = parts.pop("run", 0.0)
         parts["shell"] = total - sum(parts.values())
         sleeper = loop.sleeper.inner if isinstance(loop.sleeper, TimedSleeper) else loop.sleeper
         spun_s = getattr(sleeper, "spun_s", None)
@@ -165,9 +159,25 @@ class LoopCpuParts:
                 name: round(us * rate_hz * 1e-4, 2) for name, us in per_cycle.items()
             },
         }
-        if isinstance(spun_s, float):
-            out[f"{SPIN}_us_per_cycle"] = round(1e6 * spun_s / cycles, 1)
+        if isinstance(spun_s, float):  # the sleeper's final spin: its wall time
+            out["spin_us_per_cycle"] = round(1e6 * spun_s / cycles, 1)
         return out
+
+
+def case_overrides(task: str, overrides: list[str]) -> list[str]:
+    """The configuration overrides of a case of ``task``: the bench's tolerant safety, then ``overrides``."""
+    from controller.tools.bench.runner import TOLERANT_SAFETY
+
+    return [*([f'task.kind="{task}"'] if task != "path" else []), *TOLERANT_SAFETY, *overrides]
+
+
+def checked_case(rate_hz: float, task: str, overrides: list[str]) -> None:
+    """The case's configuration at ``rate_hz`` loaded, before anything starts: ``InputError`` names
+    what is wrong (an unknown task, an override that is no KEY=VALUE or out of range)."""
+    from controller.config import load_config, parse_override
+
+    sets = dict(parse_override(s) for s in case_overrides(task, overrides))
+    load_config(None, {**sets, "loop.rate_hz": rate_hz})
 
 
 def measure(
@@ -176,13 +186,11 @@ def measure(
     """One bench case with the loop's parts timed: the case's figures and the parts'."""
     from controller.realtime import RealtimeOptions
     from controller.tools.bench.case import BenchCase, run_case
-    from controller.tools.bench.runner import FD_FROM_HZ, TOLERANT_SAFETY
+    from controller.tools.bench.runner import FD_FROM_HZ
 
     rt = RealtimeOptions.default() if realtime else RealtimeOptions()
     sim_rt = rt.for_simulator() if realtime else RealtimeOptions()
-    sets = [*TOLERANT_SAFETY, *overrides]
-    if task != "path":
-        sets.insert(0, f'task.kind="{task}"')
+    sets = case_overrides(task, overrides)
     parts = LoopCpuParts()
     case = run_case(
         BenchCase(rate_hz, fd=rate_hz >= FD_FROM_HZ, realtime=realtime),
@@ -251,6 +259,10 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if not (args.rate > 0 and args.duration > 0 and args.runs >= 1):
         ap.error(f"--rate {args.rate:g}, --duration {args.duration:g}, --runs {args.runs}: each must be > 0")
+    try:
+        checked_case(args.rate, args.task, args.set)
+    except InputError as err:
+        ap.error(str(err))
     runs = [
         measure(args.rate, args.duration, args.task, args.set, realtime=not args.no_realtime)
         for _ in range(args.runs)
