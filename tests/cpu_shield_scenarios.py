@@ -93,6 +93,20 @@ def restore_after_close(state_dir: Path) -> dict[str, Any]:
     return out
 
 
+def guardian_priority(state_dir: Path) -> dict[str, Any]:
+    """The guardian's scheduling while it holds the shield: its policy, priority and CPUs."""
+    loop_cpu = sorted(os.sched_getaffinity(0))[-1]
+    shield = CpuShield.start((loop_cpu,), state_dir)
+    out: dict[str, Any] = {
+        "loop_cpu": loop_cpu,
+        "policy": os.sched_getscheduler(shield.pid),
+        "priority": os.sched_getparam(shield.pid).sched_priority,
+        "cpus": mask(shield.pid),
+    }
+    out["summary"] = shield.close()
+    return out
+
+
 CONTROLLER = """
 import sys, time
 from pathlib import Path
@@ -433,6 +447,7 @@ SCENARIOS = {
     f.__name__: f
     for f in (
         restore_after_close,
+        guardian_priority,
         controller_killed,
         guardian_killed,
         guardian_killed_mid_sweep,

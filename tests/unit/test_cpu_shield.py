@@ -20,6 +20,7 @@ import pytest
 
 from controller.cli import _realtime, build_parser
 from controller.realtime import RealtimeError, RealtimeOptions
+from controller.shell.cpu_shield import GUARDIAN_PRIORITY
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "cpu_shield_scenarios.py"
 
@@ -68,6 +69,17 @@ def test_normal_tasks_leave_the_loops_cpu_and_get_it_back(tmp_path: Path) -> Non
     }
     assert not out["state_file_after"]
     assert out["summary"]["tasks_moved"] >= 1 and out["summary"]["tasks_restored"] >= 2
+
+
+@needs_namespace
+def test_the_guardian_runs_above_every_normal_task_and_off_the_loops_cpu(tmp_path: Path) -> None:
+    # under the normal scheduler, a machine busy with normal work starved it past its start timeout
+    # (64 threads sleeping 50 µs each: the loop ran unshielded, the killed guardian took minutes to end)
+    out = run_scenario("guardian_priority", tmp_path)
+    assert out["policy"] == os.SCHED_FIFO
+    assert out["priority"] == GUARDIAN_PRIORITY
+    assert out["loop_cpu"] not in out["cpus"]
+    assert out["summary"]["tasks_restored"] is not None  # it answered its restore
 
 
 @needs_namespace
