@@ -107,6 +107,16 @@ def guardian_priority(state_dir: Path) -> dict[str, Any]:
     return out
 
 
+def guardian_priority_refused(state_dir: Path) -> dict[str, Any]:
+    """The same where the kernel refuses ``SCHED_FIFO`` for the guardian: the shield still rises."""
+
+    def refuse(pid: int, policy: int, param: os.sched_param) -> None:
+        raise PermissionError(1, "Operation not permitted")
+
+    os.sched_setscheduler = refuse  # this process's os module only: the scenario's controller
+    return guardian_priority(state_dir)
+
+
 CONTROLLER = """
 import sys, time
 from pathlib import Path
@@ -448,6 +458,7 @@ SCENARIOS = {
     for f in (
         restore_after_close,
         guardian_priority,
+        guardian_priority_refused,
         controller_killed,
         guardian_killed,
         guardian_killed_mid_sweep,

@@ -41,13 +41,16 @@ the same for the time of a run, where they are permitted (CAP_SYS_NICE for other
   next run: its guardian when it takes the lock, first, or a run without a shield
   (``give_back_abandoned``) (not from a file of an earlier boot; a damaged file is removed and
   logged).
-- **its priority**: the controller puts the guardian at ``SCHED_FIFO`` ``GUARDIAN_PRIORITY`` (1)
-  as soon as it is started, where it may, and the guardian keeps off the loop's CPU. Under the
-  normal scheduler a machine busy with normal work starved it: beside 64 threads that each sleep
-  50 µs in a loop (an outside tester's neighbour) it did not answer within ``START_TIMEOUT_S``,
-  the loop ran unshielded, and its killed process took minutes more to end (docs: the real-time
-  page). At priority 1 it waits for no normal task and delays none of the controller's real-time
-  ones; its work is bounded: the sweep, the restore, and a look every ``SCAN_S``.
+- **its priority**: when the loop asks for ``SCHED_FIFO``, the controller moves the guardian off
+  the loop's CPU and puts it at ``SCHED_FIFO`` ``GUARDIAN_PRIORITY`` (1) right after its exec,
+  where it may (the summary's ``guardian_scheduling`` says what it got). Under the normal
+  scheduler a machine busy with normal work starved it: beside 64 threads that each sleep 50 µs
+  in a loop (an outside tester's neighbour) it did not answer within ``START_TIMEOUT_S``, the
+  loop ran unshielded, and its killed process took minutes to exit before the loop started (docs:
+  the real-time page). At priority 1 it waits for no normal task; it is strictly below the
+  controller's other real-time tasks when the loop's priority is 32 or more (the writer runs 30
+  below it; the default is 80). Its work: the sweep, the restore, and a look every ``SCAN_S``
+  (about 45 µs per task of the machine).
 - **the real-time neighbours**: real-time tasks that may run on the loop's CPU are not moved,
   but the guardian names those that used CPU time there while the run lasted (the summary's
   ``realtime_neighbours``): a busy one spends the CPU's real-time budget for the loop too
@@ -411,7 +414,8 @@ def _wait_for_the_end(neighbours: NeighbourWatch, tracers: TracerWatch) -> None:
     next_scan_s = time.monotonic()
     while not ENDING_SIGNALS & signal.sigpending():
         if time.monotonic() >= next_scan_s:
-            next_scan_s += SCAN_S
+            # from now, not from the look due: a guardian held up does not look twice as often after
+            next_scan_s = time.monotonic() + SCAN_S
             try:
                 neighbours.scan()
                 tracers.scan()
@@ -458,7 +462,7 @@ def raise_shield(
         yield None
         return
     try:
-        shield = CpuShield.start(options.cpus, state_dir)
+        shield = CpuShield.start(options.cpus, state_dir, realtime=options.priority is not None)
     except (CpuShieldError, OSError) as err:
         if options.required:
             raise RealtimeError(f"--cpu-shield: {err}") from err
@@ -533,10 +537,16 @@ class CpuShield:
 
     @classmethod
     def start(
-        cls, cpus: tuple[int, ...], state_dir: Path | None = None, timeout_s: float = START_TIMEOUT_S
+        cls,
+        cpus: tuple[int, ...],
+        state_dir: Path | None = None,
+        timeout_s: float = START_TIMEOUT_S,
+        realtime: bool = True,
     ) -> CpuShield:
         """Start the guardian, shielding ``cpus`` from every process but this one; raises
-        ``CpuShieldError`` when it cannot (another shield holds the machine, no answer)."""
+        ``CpuShieldError`` when it cannot (another shield holds the machine, no answer).
+        ``realtime``: the loop asks for ``SCHED_FIFO``, and the guardian is raised above normal
+        work (module text, "its priority")."""
         cmd = python_module_command(
             "controller.shell.cpu_shield", "--cpus", ",".join(map(str, cpus)), "--exclude", str(os.getpid())
         )
@@ -550,7 +560,7 @@ class CpuShield:
             start_new_session=True,
             close_fds=True,
         )
-        _raise_guardian(process.pid)
+        scheduling = _raise_guardian(process.pid, cpus) if realtime else "normal scheduler (the loop's too)"
         answer = _read_answer(process, timeout_s)
         if answer is None or "moved" not in answer:
             _end(process)
@@ -561,10 +571,10 @@ class CpuShield:
             # it may have died in the middle of its sweep: what it moved is in its state file
             given_back = recover_now(state_dir or default_state_dir())
             raise CpuShieldError(
-                f"the CPU shield's guardian did not answer ({answer}, {exit_text(process.returncode)}); "
-                f"tasks it had moved given back: {given_back}"
+                f"the CPU shield's guardian did not answer ({answer}, {exit_text(process.returncode)}; "
+                f"{scheduling}); tasks it had moved given back: {given_back}"
             )
-        return cls(process, cpus, answer, state_dir)
+        return cls(process, cpus, {**answer, "guardian_scheduling": scheduling}, state_dir)
 
     def close(self, timeout_s: float = STOP_TIMEOUT_S) -> dict[str, Any]:
         """Close the pipe: the guardian restores and exits. The run summary's ``cpu_shield``.
@@ -585,6 +595,7 @@ class CpuShield:
             "tasks_refused": self.raised["refused"],
             "recovered_from_a_dead_guardian": self.raised["recovered"],
             "tasks_restored": (answer or {}).get("restored"),
+            "guardian_scheduling": self.raised.get("guardian_scheduling"),
         }
         neighbours = (answer or {}).get("realtime_neighbours")
         if neighbours:  # real-time tasks that shared the loop's CPU, busy (realtime_neighbours)
@@ -606,14 +617,24 @@ class CpuShield:
         return self._process.pid
 
 
-def _raise_guardian(pid: int) -> None:
-    """The guardian at ``SCHED_FIFO`` ``GUARDIAN_PRIORITY`` (module text, "its priority"), from its
-    start, before it imports anything; refused (no CAP_SYS_NICE, no ``RLIMIT_RTPRIO``), it stays
-    under the normal scheduler, as it was before."""
+def _raise_guardian(pid: int, loop_cpus: tuple[int, ...]) -> str:
+    """The guardian off ``loop_cpus`` and at ``SCHED_FIFO`` ``GUARDIAN_PRIORITY`` (module text, "its
+    priority"), right after its exec, normally before its interpreter reaches this module's code;
+    what it got, for the summary. Its affinity first: at real-time priority it must not share the
+    loop's CPU even while it starts (cyclictest runs there in a bench). Refused (no CAP_SYS_NICE
+    and no ``RLIMIT_RTPRIO`` for it, a cgroup without real-time runtime, a user namespace's root),
+    it stays under the normal scheduler, as it was before."""
+    if not hasattr(os, "sched_setscheduler"):
+        return "normal scheduler (no SCHED_FIFO on this system)"
     try:
+        own = os.sched_getaffinity(pid) - set(loop_cpus)
+        if own:
+            os.sched_setaffinity(pid, own)
         os.sched_setscheduler(pid, os.SCHED_FIFO, os.sched_param(GUARDIAN_PRIORITY))
-    except (OSError, AttributeError) as err:  # AttributeError: no sched_setscheduler (not Linux)
+    except OSError as err:
         log.debug("the CPU shield's guardian left under the normal scheduler: %s", err)
+        return f"normal scheduler (SCHED_FIFO {GUARDIAN_PRIORITY} refused: {err.strerror or err})"
+    return f"SCHED_FIFO {GUARDIAN_PRIORITY}"
 
 
 def _read_answer(process: subprocess.Popen[bytes], timeout_s: float) -> dict[str, Any] | None:

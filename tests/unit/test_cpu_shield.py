@@ -79,7 +79,17 @@ def test_the_guardian_runs_above_every_normal_task_and_off_the_loops_cpu(tmp_pat
     assert out["policy"] == os.SCHED_FIFO
     assert out["priority"] == GUARDIAN_PRIORITY
     assert out["loop_cpu"] not in out["cpus"]
+    assert out["summary"]["guardian_scheduling"] == f"SCHED_FIFO {GUARDIAN_PRIORITY}"
     assert out["summary"]["tasks_restored"] is not None  # it answered its restore
+
+
+@needs_namespace
+def test_a_guardian_refused_its_priority_still_shields_and_says_so(tmp_path: Path) -> None:
+    out = run_scenario("guardian_priority_refused", tmp_path)
+    assert out["policy"] == os.SCHED_OTHER
+    assert out["loop_cpu"] not in out["cpus"]  # it moves itself off the loop's CPU as before
+    assert out["summary"]["guardian_scheduling"].startswith("normal scheduler (SCHED_FIFO 1 refused")
+    assert out["summary"]["tasks_restored"] is not None
 
 
 @needs_namespace
