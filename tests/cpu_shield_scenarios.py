@@ -117,6 +117,39 @@ def guardian_priority_refused(state_dir: Path) -> dict[str, Any]:
     return guardian_priority(state_dir)
 
 
+BUSY = """
+import sys, time
+print("burning", flush=True)
+start = time.process_time()
+while time.process_time() - start < float(sys.argv[1]):
+    pass
+print("burnt", flush=True)
+"""
+
+
+def guardian_beside_a_busy_realtime_task(state_dir: Path) -> dict[str, Any]:
+    """A busy SCHED_FIFO task on the guardian's CPU, started before it: the guardian at priority 1
+    does not run there and gives no answer; the start must still end, with the busy task still
+    burning (it burns 20 s of CPU at most: a guardian that waited for it would end after it)."""
+    cpus = sorted(os.sched_getaffinity(0))
+    loop_cpu = cpus[-1]
+    busy = subprocess.Popen([sys.executable, "-c", BUSY, "20"], stdout=subprocess.PIPE, text=True)
+    try:
+        os.sched_setaffinity(busy.pid, {cpus[0]})
+        os.sched_setscheduler(busy.pid, os.SCHED_FIFO, os.sched_param(1))
+        assert busy.stdout is not None
+        assert busy.stdout.readline().strip() == "burning"
+        try:
+            CpuShield.start((loop_cpu,), state_dir, timeout_s=1.0)
+            started = "started"
+        except CpuShieldError as err:
+            started = str(err)
+        return {"start": started, "busy_still_burning": busy.poll() is None}
+    finally:
+        busy.kill()
+        busy.wait()
+
+
 CONTROLLER = """
 import sys, time
 from pathlib import Path
@@ -459,6 +492,7 @@ SCENARIOS = {
         restore_after_close,
         guardian_priority,
         guardian_priority_refused,
+        guardian_beside_a_busy_realtime_task,
         controller_killed,
         guardian_killed,
         guardian_killed_mid_sweep,

@@ -50,7 +50,10 @@ the same for the time of a run, where they are permitted (CAP_SYS_NICE for other
   the real-time page). At priority 1 it waits for no normal task; it is strictly below the
   controller's other real-time tasks when the loop's priority is 32 or more (the writer runs 30
   below it; the default is 80). Its work: the sweep, the restore, and a look every ``SCAN_S``
-  (about 45 µs per task of the machine).
+  (about 45 µs per task of the machine). Once the loop has ended (``close``) it may use every
+  CPU, and a guardian the controller has to end goes back to the normal scheduler first
+  (``_end``): at priority 1 beside a busy real-time task of a higher priority on its CPU it would
+  not run at all, not even to exit.
 - **the real-time neighbours**: real-time tasks that may run on the loop's CPU are not moved,
   but the guardian names those that used CPU time there while the run lasted (the summary's
   ``realtime_neighbours``): a busy one spends the CPU's real-time budget for the loop too
@@ -584,6 +587,7 @@ class CpuShield:
         off the loop's CPU until the next shielded run (an outside tester's SIGSTOP left every task
         of the machine on one CPU)."""
         ended = self._process.poll()
+        _unpin(self._process.pid)  # the loop has ended: its CPU may serve the restore
         if self._process.stdin is not None and not self._process.stdin.closed:
             with contextlib.suppress(BrokenPipeError):
                 self._process.stdin.close()
@@ -637,6 +641,14 @@ def _raise_guardian(pid: int, loop_cpus: tuple[int, ...]) -> str:
     return f"SCHED_FIFO {GUARDIAN_PRIORITY}"
 
 
+def _unpin(pid: int) -> None:
+    """The guardian free to run on every CPU, once no loop runs on its own (module text, "its
+    priority"): kept off the loop's CPU beside a busy real-time task of a higher priority, a
+    guardian at priority 1 does not run."""
+    with contextlib.suppress(OSError):  # ended already, or not ours to change
+        os.sched_setaffinity(pid, range(os.cpu_count() or 1))
+
+
 def _read_answer(process: subprocess.Popen[bytes], timeout_s: float) -> dict[str, Any] | None:
     assert process.stdout is not None
     deadline = time.monotonic() + timeout_s
@@ -658,7 +670,13 @@ def _read_answer(process: subprocess.Popen[bytes], timeout_s: float) -> dict[str
 
 def _end(process: subprocess.Popen[bytes], timeout_s: float = STOP_TIMEOUT_S) -> None:
     """The guardian's end: the pipe closed, then SIGTERM (it restores first, whatever it was doing),
-    SIGKILL only when that is not heeded either (the caller gives back from its state file)."""
+    SIGKILL only when that is not heeded either (the caller gives back from its state file).
+    First it goes back to the normal scheduler on every CPU: at priority 1 beside a busy real-time
+    task of a higher priority on its CPU it would not run at all, not even to exit, where under
+    the normal scheduler the kernel's fair server gives it 50 ms a second."""
+    _unpin(process.pid)
+    with contextlib.suppress(OSError, AttributeError):
+        os.sched_setscheduler(process.pid, os.SCHED_OTHER, os.sched_param(0))
     if process.stdin is not None and not process.stdin.closed:
         process.stdin.close()
     for end in (process.terminate, process.kill):

@@ -93,6 +93,17 @@ def test_a_guardian_refused_its_priority_still_shields_and_says_so(tmp_path: Pat
 
 
 @needs_namespace
+def test_a_guardian_starved_by_a_real_time_task_is_ended_without_waiting_for_that_task(
+    tmp_path: Path,
+) -> None:
+    # at priority 1, pinned beside a busy SCHED_FIFO task, it never runs: ended under the normal
+    # scheduler on every CPU, it exits while the busy task still burns
+    out = run_scenario("guardian_beside_a_busy_realtime_task", tmp_path)
+    assert "did not answer" in out["start"] and "SCHED_FIFO 1" in out["start"]
+    assert out["busy_still_burning"]
+
+
+@needs_namespace
 def test_a_killed_controller_leaves_no_shield_behind(tmp_path: Path) -> None:
     out = run_scenario("controller_killed", tmp_path)
     assert out["during"]["spawner"] != out["all"]
