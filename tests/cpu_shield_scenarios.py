@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -117,34 +118,22 @@ def guardian_priority_refused(state_dir: Path) -> dict[str, Any]:
     return guardian_priority(state_dir)
 
 
-BUSY = """
-import sys, time
-print("burning", flush=True)
-start = time.process_time()
-while time.process_time() - start < float(sys.argv[1]):
-    pass
-print("burnt", flush=True)
-"""
-
-
 def guardian_beside_a_busy_realtime_task(state_dir: Path) -> dict[str, Any]:
     """A busy SCHED_FIFO task on the guardian's CPU, started before it: the guardian at priority 1
     does not run there and gives no answer; the start must still end, with the busy task still
     burning (it burns 20 s of CPU at most: a guardian that waited for it would end after it)."""
     cpus = sorted(os.sched_getaffinity(0))
     loop_cpu = cpus[-1]
-    busy = subprocess.Popen([sys.executable, "-c", BUSY, "20"], stdout=subprocess.PIPE, text=True)
+    busy = _burner(cpus[0], 20.0, fifo=True)
     try:
-        os.sched_setaffinity(busy.pid, {cpus[0]})
-        os.sched_setscheduler(busy.pid, os.SCHED_FIFO, os.sched_param(1))
-        assert busy.stdout is not None
-        assert busy.stdout.readline().strip() == "burning"
+        _start_burning(busy)
         try:
             CpuShield.start((loop_cpu,), state_dir, timeout_s=0.3)  # short: the busy task holds CPU 0
             started = "started"
         except CpuShieldError as err:
             started = str(err)
-        return {"start": started, "busy_still_burning": busy.poll() is None}
+        assert busy.stdout is not None  # "burnt" not yet said: it burns (then it sleeps, alive)
+        return {"start": started, "busy_still_burning": not select.select([busy.stdout], [], [], 0)[0]}
     finally:
         busy.kill()
         busy.wait()
@@ -362,6 +351,7 @@ def bad_state_files(state_dir: Path) -> dict[str, Any]:
 BURN = """
 import sys, time
 sys.stdin.readline()  # started: it burns when asked, under the shield
+print("burning", flush=True)
 start = time.process_time()
 while time.process_time() - start < float(sys.argv[1]):
     pass
@@ -381,10 +371,18 @@ def _burner(cpu: int, seconds: float, fifo: bool) -> subprocess.Popen[str]:
     return burner
 
 
-def _burn(burner: subprocess.Popen[str]) -> None:
+def _start_burning(burner: subprocess.Popen[str]) -> None:
+    """Asks ``burner`` to burn; returns once it does."""
     assert burner.stdin is not None and burner.stdout is not None
     burner.stdin.write("\n")
     burner.stdin.flush()
+    assert burner.stdout.readline().strip() == "burning"
+
+
+def _burn(burner: subprocess.Popen[str]) -> None:
+    """Asks ``burner`` to burn; returns once it has burnt its seconds."""
+    _start_burning(burner)
+    assert burner.stdout is not None
     assert burner.stdout.readline().strip() == "burnt"
 
 
