@@ -675,8 +675,9 @@ def _end(process: subprocess.Popen[bytes], timeout_s: float = STOP_TIMEOUT_S) ->
     task of a higher priority on its CPU it would not run at all, not even to exit, where under
     the normal scheduler the kernel's fair server gives it 50 ms a second."""
     _unpin(process.pid)
-    with contextlib.suppress(OSError, AttributeError):
-        os.sched_setscheduler(process.pid, os.SCHED_OTHER, os.sched_param(0))
+    if hasattr(os, "sched_setscheduler"):  # as _raise_guardian: no SCHED_FIFO here, nothing to undo
+        with contextlib.suppress(OSError):  # ended already
+            os.sched_setscheduler(process.pid, os.SCHED_OTHER, os.sched_param(0))
     if process.stdin is not None and not process.stdin.closed:
         process.stdin.close()
     for end in (process.terminate, process.kill):
