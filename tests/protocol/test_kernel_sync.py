@@ -14,6 +14,7 @@ from collections.abc import Callable
 import can
 import pytest
 from kernel_sync_exchange import quiet_exchange
+from stepping_clock import SteppingClock
 
 from controller.config import ConfigError, load_config
 from controller.core.cycle_data import Anomaly
@@ -156,20 +157,9 @@ def test_a_frame_tap_hands_periodic_sending_to_its_bus():
     ]  # the bus's own periodic sending (the kernel's on SocketCAN), not a thread's
 
 
-class _TickingClock:
-    """A monotonic clock that moves 1 us a call (the start spins on it)."""
-
-    def __init__(self) -> None:
-        self.now_s = 1000.0
-
-    def __call__(self) -> float:
-        self.now_s += 1e-6
-        return self.now_s
-
-
 def test_the_kernel_exchange_pairs_each_cycle_with_the_sync_lead_s_after_its_deadline():
     period, lead = 0.01, 0.002
-    clock = _TickingClock()
+    clock = SteppingClock(1e-6, start_s=1000.0)  # 1 us a reading: the start spins on it
     with can.Bus(interface="virtual", channel="kernel-sync-slots") as bus:
         ex = quiet_exchange(bus, sync_period_s=period)
         sync = KernelSyncExchange(ex, period, lead, clock=clock)

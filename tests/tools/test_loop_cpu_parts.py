@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+from stepping_clock import SteppingClock
 
 from controller.shell.loop import CycleDeadlines, SdoControlwords
 from controller.shell.simulated_rig import SimulatedRig
@@ -18,19 +19,8 @@ from controller.tools.bench.loop_cpu_parts import (
 )
 
 
-class _Ticks:
-    """A clock that moves on by one second at each reading."""
-
-    def __init__(self) -> None:
-        self.now = 0.0
-
-    def __call__(self) -> float:
-        self.now += 1.0
-        return self.now
-
-
 def test_a_part_sums_the_clock_over_its_calls_even_when_a_call_raises():
-    clocks = PartClocks(_Ticks())
+    clocks = PartClocks(SteppingClock(1.0))
     double = clocks.timed("double", lambda x: 2 * x)
     assert double(3) == 6 and double(4) == 8
 
@@ -67,16 +57,16 @@ def test_the_timed_exchange_answers_the_loops_checks_as_its_exchange():
 
 
 def test_an_optional_method_of_the_exchange_is_timed_under_its_name():
-    clocks = PartClocks(_Ticks())
+    clocks = PartClocks(SteppingClock(1.0))
     timed = TimedExchange(_ExchangeWithDeadlines(), clocks)  # type: ignore[arg-type]
     timed.cycle_deadline(0.0025)  # type: ignore[attr-defined]  # set where the exchange has it
     assert clocks.cpu_s == {"cycle_deadline": 1.0}
 
 
 def test_observers_of_one_class_get_a_part_each():
-    assert observer_parts((_Counter(), _Ticks(), _Counter())) == [
+    assert observer_parts((_Counter(), SteppingClock(1.0), _Counter())) == [
         "observer _Counter 1",
-        "observer _Ticks",
+        "observer SteppingClock",
         "observer _Counter 2",
     ]
 

@@ -9,18 +9,14 @@ from __future__ import annotations
 
 import threading
 
+from stepping_clock import SteppingClock
+
 from controller.shell.stuck_loop import StuckLoopGuard
 
 
-class _Clock:
+def _guard_clock() -> SteppingClock:
     """Each reading 0.5 s after the last: the guard's notion of time, moved by its own polls."""
-
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        self.t += 0.5
-        return self.t
+    return SteppingClock(0.5)
 
 
 def test_a_stop_with_a_loop_that_completes_no_cycle_ends_the_process_with_1():
@@ -30,7 +26,7 @@ def test_a_stop_with_a_loop_that_completes_no_cycle_ends_the_process_with_1():
         ended.append(code)
         done.set()
 
-    with StuckLoopGuard(lambda: 7, stop, quick, 10.0, 0.0025, end_process=end_process, clock=_Clock()):
+    with StuckLoopGuard(lambda: 7, stop, quick, 10.0, 0.0025, end_process=end_process, clock=_guard_clock()):
         stop.set()
         assert done.wait(30.0)
     assert ended == [1]
@@ -38,10 +34,10 @@ def test_a_stop_with_a_loop_that_completes_no_cycle_ends_the_process_with_1():
 
 def test_a_second_signal_ends_a_stuck_loop_sooner_than_the_stop_timeout():
     stop, quick, ended, done = threading.Event(), threading.Event(), [], threading.Event()
-    clock = _Clock()
+    clock = _guard_clock()
 
     def end_process(code: int) -> None:
-        ended.append(clock.t)
+        ended.append(clock.now_s)
         done.set()
 
     with StuckLoopGuard(lambda: 7, stop, quick, 1e9, 0.0025, end_process=end_process, clock=clock):
@@ -61,7 +57,7 @@ def test_a_loop_that_cycles_after_the_stop_or_returns_is_left_alone():
             polled.set()
         return cycles[0]
 
-    with StuckLoopGuard(counting, stop, quick, 10.0, 0.0025, end_process=ended.append, clock=_Clock()):
+    with StuckLoopGuard(counting, stop, quick, 10.0, 0.0025, end_process=ended.append, clock=_guard_clock()):
         stop.set()
         assert polled.wait(60.0)
     assert ended == []  # and the loop's return (the with's end) stopped the guard
@@ -80,7 +76,7 @@ def test_a_slow_loop_is_not_taken_for_a_stuck_one_after_a_second_signal():
         return looks[0] // 3
 
     with StuckLoopGuard(
-        one_cycle_every_1_5_s, stop, quick, 10.0, 1.0, end_process=ended.append, clock=_Clock()
+        one_cycle_every_1_5_s, stop, quick, 10.0, 1.0, end_process=ended.append, clock=_guard_clock()
     ):
         stop.set()
         quick.set()
