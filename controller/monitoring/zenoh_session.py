@@ -226,6 +226,16 @@ class SessionSettings:
     connect_timeout_ms: int = -1  # per-attempt timeout at open; -1: do not wait (peers keep retrying)
 
 
+# The sessions a listening session (the controller's) takes at once; Zenoh's default is 1 000. The
+# loop's thread puts each sample to every one of them, and a session that stops draining what it
+# is sent grows its queue by a 64-kB batch in that put: 200 live subscriber sessions that stopped
+# reading held the loop 26-27 ms in one cycle, 2 300 page faults (2 of 2 runs; with 100 no cycle
+# above 10.5 ms, an outside tester's). More monitors than this connect through a router (docs/
+# guides/monitoring.md); a --zenoh-config file that sets the key keeps its own number.
+MAX_SESSIONS_KEY = "transport/unicast/max_sessions"
+MAX_PEER_SESSIONS = 64
+
+
 def build_zenoh_config(settings: SessionSettings) -> zenoh.Config:
     """The Zenoh configuration: the file (if any), then the loopback defaults for what it leaves unset."""
     if settings.config_file:
@@ -270,6 +280,8 @@ def build_zenoh_config(settings: SessionSettings) -> zenoh.Config:
         conf.insert_json5("connect/timeout_ms", json.dumps(settings.connect_timeout_ms))
     if settings.mode == "peer" and _get(conf, "connect/exit_on_failure") is None:
         conf.insert_json5("connect/exit_on_failure", "false")
+    if settings.listen and _get(conf, MAX_SESSIONS_KEY) == _get(zenoh.Config(), MAX_SESSIONS_KEY):
+        conf.insert_json5(MAX_SESSIONS_KEY, json.dumps(MAX_PEER_SESSIONS))
     return conf
 
 

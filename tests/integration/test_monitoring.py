@@ -34,6 +34,7 @@ from controller.config import ConfigError, load_config
 from controller.core.cycle_data import CycleInputs, CycleOutputs, DriveFeedback
 from controller.core.ports import CycleTiming, ForceSetpointLimit
 from controller.messages import cheope_pb2 as pb
+from controller.monitoring import zenoh_session
 from controller.monitoring.command_gate import decide_command
 from controller.monitoring.commands import RobotSelector, query_status, send_command, tool_session
 from controller.monitoring.monitor_view import (
@@ -50,6 +51,8 @@ from controller.monitoring.monitor_view import (
 from controller.monitoring.publisher import MAX_COMMAND_BYTES, MonitorPublisher
 from controller.monitoring.query_server import QueryLimits, TokenBucket
 from controller.monitoring.zenoh_session import (
+    MAX_PEER_SESSIONS,
+    MAX_SESSIONS_KEY,
     MonitoringConnectionError,
     MonitorKeys,
     SessionSettings,
@@ -210,6 +213,35 @@ def test_a_zenoh_file_keeps_its_settings_and_gets_the_defaults_for_the_rest(tmp_
     assert json.loads(conf.get_json("scouting/gossip/enabled")) is True  # the file's explicit choice
     with pytest.raises(ConfigError, match="config_file"):
         build_zenoh_config(SessionSettings(config_file=str(tmp_path / "missing.json5")))
+
+
+def test_a_listening_session_takes_at_most_max_peer_sessions_and_a_file_may_say_otherwise(tmp_path):
+    listening = SessionSettings(listen=("tcp/127.0.0.1:9000",))
+    assert json.loads(build_zenoh_config(listening).get_json(MAX_SESSIONS_KEY)) == MAX_PEER_SESSIONS
+    default = json.loads(zenoh.Config().get_json(MAX_SESSIONS_KEY))
+    for tool in (monitor_settings(), client_settings()):  # they take no sessions: Zenoh's default
+        assert json.loads(build_zenoh_config(tool).get_json(MAX_SESSIONS_KEY)) == default
+    f = tmp_path / "z.json5"
+    f.write_text("{ transport: { unicast: { max_sessions: 500 } } }")
+    own = build_zenoh_config(replace(listening, config_file=str(f)))
+    assert json.loads(own.get_json(MAX_SESSIONS_KEY)) == 500
+
+
+def test_a_session_past_the_listening_sessions_limit_is_refused_and_the_others_stay(monkeypatch):
+    monkeypatch.setattr(zenoh_session, "MAX_PEER_SESSIONS", 3)
+    endpoint = _endpoint()
+    server, _ = zenoh_session.open_session(SessionSettings(listen=(endpoint,)))
+    clients: list[zenoh.Session] = []
+    try:
+        for _ in range(3):
+            clients.append(open_tool_session(client_settings((endpoint,))))
+        with pytest.raises(MonitoringConnectionError):
+            clients.append(open_tool_session(client_settings((endpoint,), timeout_s=0.5)))
+        assert [connected(c) for c in clients] == [1, 1, 1]  # the three within the limit stay
+    finally:
+        for c in clients:
+            c.close()
+        server.close()
 
 
 @pytest.mark.parametrize(
