@@ -24,6 +24,14 @@ with the node ids the recording's devices had (``devices_heard``: their frames, 
 read of their device type), and refuses either (``LiveDevicesError``, exit 2)
 unless ``live_devices``: ``--live-devices`` says the devices are meant to move.
 
+The devices' frames (``only`` "received") impersonate the recording's devices: played beside
+those devices live, two nodes answer with one id, and a master there takes the recorded SDO
+answers and TPDOs for its devices' (an outside tester's replay of the devices' side onto a
+running demo's bus faulted it: "SDO answer to a request the controller did not send", a quick
+stop at 17.2 N of true contact force). So that side is refused where the recording's devices
+are heard (``refuse_impersonation``: their frames, or with no master active their answer to a
+read of their device type) unless ``live_devices``; a master alone is what it is meant for.
+
 Every frame is handed to the bus (``send_errors`` counts the refusals). ``udp_multicast`` has
 no flow control: a listener held off the CPU for longer than its socket's receive buffer lasts
 (the default 208 KiB holds about 270 frames, 75 ms of a 400 Hz session) loses frames there, and
@@ -93,7 +101,23 @@ def refuse_live_devices(bus: can.BusABC, where: str, device_ids: frozenset[int],
         raise LiveDevicesError(
             f"{who} on {where}, heard {described(heard, listen_s)}: the controller's recorded frames "
             "would drive them open loop, with no controller watching; no recorded frame was sent. Replay onto a bus "
-            "without them, only the devices' side (--only received), or pass --live-devices to drive them"
+            "without them, only the devices' side (--only received) where the recording's devices do not "
+            "answer, or pass --live-devices to drive them"
+        )
+
+
+def refuse_impersonation(bus: can.BusABC, where: str, device_ids: frozenset[int], listen_s: float) -> None:
+    """``LiveDevicesError`` when a device with one of ``device_ids`` is on ``bus``: the devices' recorded
+    frames would answer in its name beside it (module text)."""
+    heard = devices_heard(bus, device_ids, device_ids, listen_s) if device_ids else None
+    if heard:
+        answering = sorted({cob_id & 0x7F for _, cob_id in heard})
+        raise LiveDevicesError(
+            f"the recording's devices answer (node ids {', '.join(map(str, answering))}) on {where}, heard "
+            f"{described(heard, listen_s)}: their recorded frames would answer in their name beside them, two "
+            "nodes of one id, and a master there would take the recorded ones for its devices'; no recorded "
+            "frame was sent. Replay the devices' side onto a bus where they do not answer, or pass "
+            "--live-devices to send it beside them"
         )
 
 
@@ -126,8 +150,9 @@ def replay_to_bus(
     bus = bus if bus is not None else open_bus(spec)
     t_start = time.monotonic()
     try:
-        if wanted_outgoing is not False and not live_devices:
-            refuse_live_devices(bus, spec.place, recorded_device_ids(path), listen_s)
+        if not live_devices:
+            refuse = refuse_impersonation if wanted_outgoing is False else refuse_live_devices
+            refuse(bus, spec.place, recorded_device_ids(path), listen_s)
         first_ns: int | None = None
         for f in recorded_frames(path, report):
             if wanted_outgoing is not None and f.outgoing != wanted_outgoing:

@@ -118,8 +118,8 @@ class AnsweringDevice(Listener):
 def test_the_controllers_frames_are_not_replayed_onto_live_devices(tmp_path: Path):
     """An outside tester replayed a contour session onto a live simulator: it enabled the drives and
     ran the contour again, open loop, 62.3 N true at --speed 4 (the limit 60). The replay of the
-    controller's side is refused where the recording's devices answer; the devices' side, or
-    --live-devices, is replayed."""
+    controller's side is refused where the recording's devices answer, and so is the devices' side,
+    which would answer in their name beside them; with --live-devices both are replayed."""
     path = tmp_path / "traffic.mcap"
     recorded = record_traffic(path)  # node 1 answers an SDO in it: the recording's device
     port = random_udp_port()
@@ -136,7 +136,11 @@ def test_the_controllers_frames_are_not_replayed_onto_live_devices(tmp_path: Pat
             m.arbitration_id & ~0x7F == 0x600 and bytes(m.data[:4]) == bytes((0x40, 0, 0x10, 0))
             for m in probes
         ), probes
+        # the devices' side would answer in node 1's name beside it (an outside tester's fault of a demo)
         r = _replay(path, port, "--only", "received")
+        assert r.returncode == 2 and r.stdout == "", r.stdout + r.stderr
+        assert "would answer in their name beside them" in r.stderr and "(node ids 1)" in r.stderr, r.stderr
+        r = _replay(path, port, "--live-devices", "--only", "received")
         assert r.returncode == 0 and r.stdout.startswith("sent "), r.stdout + r.stderr
         r = _replay(path, port, "--live-devices", "--only", "sent")
         sent = sum(1 for _, outgoing, _ in recorded if outgoing)
@@ -154,3 +158,26 @@ def test_a_replay_onto_a_bus_with_a_running_master_is_refused(tmp_path: Path):
     assert r.returncode == 2 and "another master is active" in r.stderr and "SYNC (0x080)" in r.stderr, (
         r.stderr
     )
+
+
+def test_the_devices_side_is_not_replayed_beside_live_devices_and_their_master(tmp_path: Path):
+    """An outside tester replayed the devices' side (--only received) onto a running demo's bus: the
+    controller took the recorded SDO answers for its drives' and faulted (a second SDO client), a
+    quick stop at 17.2 N of true contact force. With a master active the replay only listens (no
+    read of its own to reach the master): node 1's heartbeat is enough to refuse it."""
+    path = tmp_path / "traffic.mcap"
+    record_traffic(path)  # node 1 answers an SDO in it: the recording's device
+    port = random_udp_port()
+    heartbeat = can.Message(arbitration_id=0x701, data=b"\x05", is_extended_id=False)  # node 1, operational
+    listener = Listener(port)
+    try:
+        with another_master(parse_bus_spec("udp_multicast", udp_port=port), (SYNC, heartbeat)):
+            r = _replay(path, port, "--only", "received")
+    finally:
+        listener.close()
+    assert r.returncode == 2 and r.stdout == "", r.stdout + r.stderr
+    assert "the recording's devices answer (node ids 1)" in r.stderr and "heartbeat" in r.stderr.lower(), (
+        r.stderr
+    )
+    # nothing of the replay's reached the bus: the listener heard only the master's and node 1's frames
+    assert {m.arbitration_id for m in listener.frames} <= {0x080, 0x701}, listener.frames
