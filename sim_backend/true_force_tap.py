@@ -17,13 +17,21 @@ the newer of the two SYNCs before then, not simply the latest.
 The writer bumps the sequence to an odd number before it writes and to the next even one after;
 a reader that finds it odd, or changed under it, takes the last value it read whole.
 
-A plain file and ``mmap``, not ``multiprocessing.shared_memory``: that one registers its blocks
+A memory file and ``mmap``, not ``multiprocessing.shared_memory``: that one registers its blocks
 with multiprocessing's resource tracker, which removed the block under a demo that used a process
 pool (the 3-nSPU's) and left it failing at its end on a block already gone.
+
+The file is the reader's ``memfd``, sealed against shrinking and growing, which the simulator
+opens through ``/proc/<reader's pid>/fd/<fd>``: a mapped file that shrinks under its readers ends
+them with SIGBUS, and an outside tester's ``truncate -s 0 /dev/shm/cheope-true-force-*`` killed
+a demo so (exit code 135, no summary). Sealed, a truncation fails (EPERM) for everyone. The
+block has no name in /dev/shm either, so a demo killed with SIGKILL leaves nothing behind;
+``remove_stale_blocks`` still removes the named blocks of versions before it.
 """
 
 from __future__ import annotations
 
+import fcntl
 import math
 import mmap
 import os
@@ -58,9 +66,12 @@ def remove_stale_blocks(directory: Path) -> list[Path]:
 
 
 def tap_path(name: str) -> Path:
-    """Where the block named ``name`` lives: /dev/shm (memory) where there is one, else the temp dir."""
+    """Where named blocks lived (``remove_stale_blocks``): /dev/shm where there is one, else the temp dir."""
     shm = Path("/dev/shm")
     return (shm if shm.is_dir() else Path(tempfile.gettempdir())) / name
+
+
+_SEALS = fcntl.F_SEAL_SHRINK | fcntl.F_SEAL_GROW | fcntl.F_SEAL_SEAL  # the block's size, for good
 
 
 class TrueForceTap:
@@ -91,20 +102,25 @@ class TrueForceReader:
     """The reading side (the demo): makes the block, reads the latest force, removes the block."""
 
     def __init__(self, name: str) -> None:
-        self.path = tap_path(name)
-        remove_stale_blocks(self.path.parent)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o600)
+        """A block of its own, ``name`` its memory file's name (module text)."""
+        remove_stale_blocks(tap_path(name).parent)
+        fd = os.memfd_create(name, os.MFD_CLOEXEC | os.MFD_ALLOW_SEALING)
         try:
             os.ftruncate(fd, _LAYOUT.size)
+            fcntl.fcntl(fd, fcntl.F_ADD_SEALS, _SEALS)
             self._map = mmap.mmap(fd, _LAYOUT.size)
-        finally:
+        except BaseException:
             os.close(fd)
+            raise
+        self._fd = fd  # kept open: the simulator opens the block through it
+        self.path = Path(f"/proc/{os.getpid()}/fd/{fd}")
         _LAYOUT.pack_into(self._map, 0, 0, -math.inf, *_ZERO, -math.inf, *_ZERO)
         self._last = _ZERO
 
     @property
     def name(self) -> str:
-        """What the simulator is given (``cheope sim --true-force-tap``): the block's path."""
+        """What the simulator is given (``cheope sim --true-force-tap``): the block's path, while
+        this reader is open."""
         return str(self.path)
 
     def read(self, as_of_s: float = math.inf) -> tuple[float, float, float]:
@@ -121,4 +137,6 @@ class TrueForceReader:
 
     def close(self) -> None:
         self._map.close()
-        self.path.unlink(missing_ok=True)
+        if self._fd >= 0:
+            os.close(self._fd)
+            self._fd = -1

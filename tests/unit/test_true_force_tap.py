@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from sim_backend.true_force_tap import PREFIX, TrueForceReader, TrueForceTap
+from sim_backend.true_force_tap import PREFIX, TrueForceReader, TrueForceTap, tap_path
 
 
 def test_the_reader_sees_what_another_process_writes_and_removes_the_block():
@@ -43,19 +43,40 @@ def test_a_process_pool_beside_it_does_not_take_the_block_away():
     reader.close()
 
 
-def test_a_block_left_by_a_killed_demo_is_removed_by_the_next_one_and_a_live_ones_is_kept():
-    """A demo killed with SIGKILL cannot remove its block: each left a file in /dev/shm (an outside
-    tester's finding, 44dbcbc). The next demo removes the blocks of processes that are gone."""
+def test_a_block_left_by_a_killed_demo_of_an_earlier_version_is_removed_and_a_live_ones_is_kept():
+    """Before the blocks were memory files a demo killed with SIGKILL left its named block in
+    /dev/shm (an outside tester's finding, 44dbcbc). A new reader removes the named blocks of
+    processes that are gone."""
     gone = subprocess.Popen([sys.executable, "-c", "pass"])
     gone.wait()  # its pid is free now (reused within this test only by a very busy machine)
-    live = TrueForceReader(f"{PREFIX}{os.getpid()}-2")
-    stale = TrueForceReader(f"{PREFIX}{gone.pid}-1")
-    stale._map.close()  # killed: the block stays behind
+    live, stale = tap_path(f"{PREFIX}{os.getpid()}-2"), tap_path(f"{PREFIX}{gone.pid}-1")
     try:
-        assert stale.path.exists() and live.path.exists()
+        for block in (live, stale):
+            block.write_bytes(bytes(72))
         new = TrueForceReader(f"{PREFIX}{os.getpid()}-3")
-        assert not stale.path.exists() and live.path.exists() and new.path.exists()
+        assert not stale.exists() and live.exists()
+        assert not tap_path(f"{PREFIX}{os.getpid()}-3").exists()  # the new block has no name there
         new.close()
     finally:
-        live.close()
-        stale.path.unlink(missing_ok=True)
+        live.unlink(missing_ok=True)
+        stale.unlink(missing_ok=True)
+
+
+def test_the_block_cannot_be_shrunk_under_its_readers():
+    """An outside tester's ``truncate -s 0`` of the block in /dev/shm killed the demo with SIGBUS at
+    its next read (exit code 135, no summary): the block is sealed against it now."""
+    reader = TrueForceReader(f"cheope-true-force-test-seal-{os.getpid()}")
+    try:
+        writer = TrueForceTap(reader.name)
+        writer.write(1.0, 2.0, 3.0, 4.0)
+        for shrink in (lambda: os.truncate(reader.name, 0), lambda: os.truncate(reader.name, 8)):
+            with pytest.raises(PermissionError):
+                shrink()
+        with pytest.raises(PermissionError):  # nor grown, which would leave the two mappings apart
+            os.truncate(reader.name, 4096)
+        assert os.stat(reader.name).st_size == 72
+        writer.write(1.1, 5.0, 6.0, 7.0)
+        assert reader.read() == (5.0, 6.0, 7.0)  # both still mapped, both whole
+        writer.close()
+    finally:
+        reader.close()
