@@ -119,8 +119,9 @@ def add_commands(
     p.add_argument(
         "--live-devices",
         action="store_true",
-        help="--bus: send the controller's frames even where the recording's devices or a master answer: "
-        "the devices then move as recorded, open loop, with no controller watching (refused without it)",
+        help="--bus: send the controller's frames even where the recording's devices or a master answer "
+        "(the devices then move as recorded, open loop, with no controller watching), or the devices' "
+        "frames (--only received) beside the recording's devices live; refused without it",
     )
     p.add_argument(
         "--set",
