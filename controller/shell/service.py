@@ -294,6 +294,15 @@ def run_controller(
                         prepared.law.initial_state(), max_duration_s, exit_on_fault=not cfg.loop.stay_in_fault
                     )
                 notify("STOPPING=1")
+                # changed under the run (an outside tester's chrt -o, a CPU taken offline and back):
+                # the summary says so beside what was granted, not only what the start got
+                at_end = granted_realtime()
+                if at_end != granted:
+                    log.warning(
+                        "the loop's scheduling changed during the run: %s at the start, %s at the end",
+                        granted,
+                        at_end,
+                    )
                 # a page the kernel dropped (memory pressure, proactive reclaim) is read back from disk
                 # when touched: milliseconds each, inside a cycle (--lock-memory prevents it)
                 major_faults = resource.getrusage(resource.RUSAGE_SELF).ru_majflt - faults_before
@@ -327,6 +336,7 @@ def run_controller(
             },
             "recording": _recording_summary(session, cfg),
             "realtime": granted,
+            **({"realtime_at_end": at_end} if at_end != granted else {}),
             "cpu_shield": shield_summary,
             **({"idle_poll": idle_poll_summary} if idle_poll_summary else {}),
             "helper_threads_raised": {"at_start": helpers_at_start, "during_run": helpers.raised},

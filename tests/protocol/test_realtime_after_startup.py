@@ -9,6 +9,8 @@ by recorders), so they need no timing and no permission.
 from __future__ import annotations
 
 import ctypes
+import logging
+import os
 import threading
 import time
 
@@ -161,3 +163,43 @@ def test_a_refused_memory_lock_is_still_refused_at_the_check(monkeypatch):
     monkeypatch.setattr("sys.platform", "linux")
     with pytest.raises(realtime.RealtimeError, match="mlockall not permitted"):
         realtime.check_realtime(RealtimeOptions(lock_memory=True), Refusing())  # type: ignore[arg-type]
+
+
+class _MovesTheLoopThread:
+    """An observer that moves the loop's thread to ``cpus`` at its first cycle, as an administrator's
+    ``taskset`` or a CPU taken offline and back would (an outside tester's; no permission needed)."""
+
+    def __init__(self, cpus: set[int]) -> None:
+        self.cpus = cpus
+
+    def on_cycle(self, cycle: int, *rest: object) -> None:
+        if cycle == 0:
+            os.sched_setaffinity(0, self.cpus)  # the calling thread: the loop's
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="needs two CPUs to move the loop between")
+def test_scheduling_changed_under_the_run_is_in_the_summary_beside_what_the_start_got(monkeypatch, caplog):
+    """An outside tester's ``chrt -o`` of the loop's thread mid-run left the summary saying
+    "SCHED_FIFO 80, CPU 1", and so did a CPU taken offline and back (the loop then on CPUs 0-1)."""
+    cfg = load_config(
+        overrides={"recording.enabled": False, "monitoring.enabled": False, "sensor.enabled": False}
+    )
+    channel = f"rt-at-end-{time.monotonic_ns()}"
+    before = os.sched_getaffinity(0)
+    monkeypatch.setattr(service, "apply_realtime", lambda options: lambda: None)  # the thread as it is
+    sim_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=True)
+    try:
+        with Simulator(cfg, sim_bus), caplog.at_level(logging.WARNING, logger="controller.shell.service"):
+            summary = service.run_controller(
+                cfg,
+                parse_bus_spec(f"virtual:{channel}"),
+                max_duration_s=0.05,
+                realtime=RT,
+                observers=(_MovesTheLoopThread({min(before)}),),
+            )
+    finally:
+        os.sched_setaffinity(0, before)
+        sim_bus.shutdown()
+    start, end = str(summary["realtime"]), str(summary["realtime_at_end"])
+    assert f"CPUs {','.join(map(str, sorted(before)))}" in start and f"CPU {min(before)}," in end
+    assert f"changed during the run: {start} at the start, {end} at the end" in caplog.text
