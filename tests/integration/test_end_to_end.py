@@ -503,24 +503,24 @@ def _simulator_of(demo_pid: int) -> int | None:
 
 def test_a_demo_killed_with_sigkill_takes_its_simulator_and_shared_block_with_it():
     """Its simulator ran on under init for ever (390 MB) with its /dev/shm block: an outside
-    tester's finding. The simulator now gets a SIGTERM when its demo ends, and removes the block
-    the demo can no longer remove."""
+    tester's finding. The simulator now gets a SIGTERM when its demo ends; the block is the demo's
+    memory file, which the simulator opens through the demo's /proc (sim_backend/true_force_tap.py),
+    with no name in /dev/shm to leave behind: it goes with the last of the two."""
     from waiting import wait_for_exit
 
-    from sim_backend.true_force_tap import tap_path
+    from sim_backend.true_force_tap import PREFIX, tap_path
 
     demo = _path_demo()
     sim_pid = None
     try:
         sim_pid = wait_until(lambda: _simulator_of(demo.pid), "the demo's simulator started")
-        block = wait_until(
-            lambda: next(iter(tap_path("x").parent.glob(f"cheope-true-force-{demo.pid}-*")), None),
-            "the demo's true-force block",
-        )
+        args = Path(f"/proc/{sim_pid}/cmdline").read_bytes().split(b"\0")
+        block = args[args.index(b"--true-force-tap") + 1].decode()
+        assert block.startswith(f"/proc/{demo.pid}/fd/"), block
         demo.kill()
         demo.communicate(timeout=60)
         wait_for_exit(sim_pid, "the orphaned simulator")
-        assert not block.exists()
+        assert not list(tap_path("x").parent.glob(f"{PREFIX}{demo.pid}-*"))
     finally:
         if demo.poll() is None:
             demo.kill()
