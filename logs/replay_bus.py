@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -93,10 +94,8 @@ def refuse_live_devices(bus: can.BusABC, where: str, device_ids: frozenset[int],
     """``LiveDevicesError`` when a master, or a device with one of ``device_ids``, is on ``bus``."""
     heard = masters_heard(bus, controller_node_id=0, listen_s=listen_s)  # node 0 has no heartbeat
     who = "another master is active"
-    if not heard and device_ids:
-        heard = devices_heard(bus, device_ids, device_ids, listen_s)
-        answering = sorted({cob_id & 0x7F for _, cob_id in heard})
-        who = f"the recording's devices answer (node ids {', '.join(map(str, answering))})"
+    if not heard:
+        heard, who = _recording_devices_heard(bus, device_ids, listen_s)
     if heard:
         raise LiveDevicesError(
             f"{who} on {where}, heard {described(heard, listen_s)}: the controller's recorded frames "
@@ -109,16 +108,24 @@ def refuse_live_devices(bus: can.BusABC, where: str, device_ids: frozenset[int],
 def refuse_impersonation(bus: can.BusABC, where: str, device_ids: frozenset[int], listen_s: float) -> None:
     """``LiveDevicesError`` when a device with one of ``device_ids`` is on ``bus``: the devices' recorded
     frames would answer in its name beside it (module text)."""
-    heard = devices_heard(bus, device_ids, device_ids, listen_s) if device_ids else None
+    heard, who = _recording_devices_heard(bus, device_ids, listen_s)
     if heard:
-        answering = sorted({cob_id & 0x7F for _, cob_id in heard})
         raise LiveDevicesError(
-            f"the recording's devices answer (node ids {', '.join(map(str, answering))}) on {where}, heard "
-            f"{described(heard, listen_s)}: their recorded frames would answer in their name beside them, two "
-            "nodes of one id, and a master there would take the recorded ones for its devices'; no recorded "
-            "frame was sent. Replay the devices' side onto a bus where they do not answer, or pass "
-            "--live-devices to send it beside them"
+            f"{who} on {where}, heard {described(heard, listen_s)}: their recorded frames would answer in "
+            "their name beside them, two nodes of one id, and a master there would take the recorded ones for "
+            "its devices'; no recorded frame was sent. Replay the devices' side onto a bus where they do not "
+            "answer, or pass --live-devices to send it beside them"
         )
+
+
+def _recording_devices_heard(
+    bus: can.BusABC, device_ids: frozenset[int], listen_s: float
+) -> tuple[Counter[tuple[str, int]], str]:
+    """The frames of the recording's devices heard on ``bus`` (``devices_heard``), and who answered
+    in the refusals' words."""
+    heard = devices_heard(bus, device_ids, device_ids, listen_s) if device_ids else Counter()
+    answering = sorted({cob_id & 0x7F for _, cob_id in heard})
+    return heard, f"the recording's devices answer (node ids {', '.join(map(str, answering))})"
 
 
 def replay_to_bus(
