@@ -99,7 +99,8 @@ class TrueForceTap:
 
 
 class TrueForceReader:
-    """The reading side (the demo): makes the block, reads the latest force, removes the block."""
+    """The reading side (the demo): makes the block, reads the latest force, closes the block (it goes
+    with the last process that holds it)."""
 
     def __init__(self, name: str) -> None:
         """A block of its own, ``name`` its memory file's name (module text)."""
